@@ -1,0 +1,259 @@
+"""Build pymb's cffi extension, ``pymb._pymb_cffi`` (out-of-line API mode).
+
+The extension is compiled C: the compiler checks every declaration below
+against libmodbus's and pymb's headers, and fills in every constant written as
+``...`` (function codes, libmodbus's errno values, the OS's errno values), so
+nothing here is copied by hand. libmodbus is found through pkg-config; pymb's
+own C core (``csrc/*.c``) is compiled into the same extension.
+
+Run by setuptools through ``setup.py``; ``python build_ffi.py`` builds in place.
+"""
+
+from __future__ import annotations
+
+import os
+
+from cffi import FFI
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CSRC = "csrc"
+SOURCES = [
+    f"{CSRC}/pymb_crc.c",
+    f"{CSRC}/pymb_frame.c",
+    f"{CSRC}/pymb_decode.c",
+    f"{CSRC}/pymb_modbus.c",
+]
+
+CDEF = """
+/* ---- libmodbus (modbus.h, modbus-rtu.h, modbus-tcp.h) ---- */
+typedef struct _modbus modbus_t;
+
+#define MODBUS_FC_READ_COILS ...
+#define MODBUS_FC_READ_DISCRETE_INPUTS ...
+#define MODBUS_FC_READ_HOLDING_REGISTERS ...
+#define MODBUS_FC_READ_INPUT_REGISTERS ...
+#define MODBUS_FC_WRITE_SINGLE_COIL ...
+#define MODBUS_FC_WRITE_SINGLE_REGISTER ...
+#define MODBUS_FC_READ_EXCEPTION_STATUS ...
+#define MODBUS_FC_WRITE_MULTIPLE_COILS ...
+#define MODBUS_FC_WRITE_MULTIPLE_REGISTERS ...
+#define MODBUS_FC_REPORT_SLAVE_ID ...
+#define MODBUS_FC_MASK_WRITE_REGISTER ...
+#define MODBUS_FC_WRITE_AND_READ_REGISTERS ...
+#define MODBUS_MAX_READ_BITS ...
+#define MODBUS_MAX_WRITE_BITS ...
+#define MODBUS_MAX_READ_REGISTERS ...
+#define MODBUS_MAX_WRITE_REGISTERS ...
+#define MODBUS_MAX_WR_WRITE_REGISTERS ...
+#define MODBUS_MAX_WR_READ_REGISTERS ...
+#define MODBUS_MAX_PDU_LENGTH ...
+#define MODBUS_MAX_ADU_LENGTH ...
+#define MODBUS_RTU_MAX_ADU_LENGTH ...
+#define MODBUS_TCP_MAX_ADU_LENGTH ...
+#define MODBUS_ENOBASE ...
+#define MODBUS_RTU_RS232 ...
+#define MODBUS_RTU_RS485 ...
+#define MODBUS_RTU_RTS_NONE ...
+#define MODBUS_RTU_RTS_UP ...
+#define MODBUS_RTU_RTS_DOWN ...
+
+#define EMBXILFUN ...
+#define EMBXILADD ...
+#define EMBXILVAL ...
+#define EMBXSFAIL ...
+#define EMBXACK ...
+#define EMBXSBUSY ...
+#define EMBXNACK ...
+#define EMBXMEMPAR ...
+#define EMBXGPATH ...
+#define EMBXGTAR ...
+#define EMBBADCRC ...
+#define EMBBADDATA ...
+#define EMBBADEXC ...
+#define EMBUNKEXC ...
+#define EMBMDATA ...
+#define EMBBADSLAVE ...
+
+extern const unsigned int libmodbus_version_major;
+extern const unsigned int libmodbus_version_minor;
+extern const unsigned int libmodbus_version_micro;
+
+modbus_t *modbus_new_rtu(const char *device, int baud, char parity, int data_bit,
+                         int stop_bit);
+modbus_t *modbus_new_tcp(const char *ip_address, int port);
+modbus_t *modbus_new_tcp_pi(const char *node, const char *service);
+int modbus_connect(modbus_t *ctx);
+void modbus_close(modbus_t *ctx);
+void modbus_free(modbus_t *ctx);
+int modbus_flush(modbus_t *ctx);
+int modbus_set_debug(modbus_t *ctx, int flag);
+int modbus_get_socket(modbus_t *ctx);
+int modbus_get_header_length(modbus_t *ctx);
+int modbus_set_response_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
+int modbus_get_response_timeout(modbus_t *ctx, uint32_t *to_sec, uint32_t *to_usec);
+int modbus_set_byte_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
+int modbus_get_byte_timeout(modbus_t *ctx, uint32_t *to_sec, uint32_t *to_usec);
+const char *modbus_strerror(int errnum);
+int modbus_rtu_set_serial_mode(modbus_t *ctx, int mode);
+int modbus_rtu_get_serial_mode(modbus_t *ctx);
+int modbus_rtu_set_rts(modbus_t *ctx, int mode);
+int modbus_rtu_get_rts(modbus_t *ctx);
+int modbus_rtu_set_rts_delay(modbus_t *ctx, int us);
+int modbus_rtu_get_rts_delay(modbus_t *ctx);
+
+/* ---- OS errno values the error mapping needs ---- */
+#define EINVAL ...
+#define ETIMEDOUT ...
+#define EIO ...
+#define ENOENT ...
+#define ENXIO ...
+#define ENODEV ...
+#define EACCES ...
+#define EPERM ...
+#define EBUSY ...
+#define EBADF ...
+#define EPIPE ...
+#define ECONNRESET ...
+#define ECONNREFUSED ...
+#define EHOSTUNREACH ...
+#define ENETUNREACH ...
+#define ENOTTY ...
+
+/* ---- pymb.h ---- */
+#define PYMB_RTU_MAX_ADU ...
+#define PYMB_MAX_READ_REGISTERS ...
+#define PYMB_HUB_FIRST_REGISTER ...
+#define PYMB_HUB_CHANNELS ...
+#define PYMB_HUB_BLOCKS ...
+#define PYMB_HUB_REGISTERS ...
+#define PYMB_HUB_ALL_BLOCKS ...
+#define PYMB_HUB_OFFLINE ...
+#define PYMB_HUB_NO_HUMIDITY_1PCT ...
+#define PYMB_HUB_NO_HUMIDITY_TENTHS ...
+#define PYMB_COOLPRO_TELEMETRY_ADDRESS ...
+#define PYMB_COOLPRO_TELEMETRY_COUNT ...
+#define PYMB_COOLPRO_IDENTITY_ADDRESS ...
+#define PYMB_COOLPRO_IDENTITY_COUNT ...
+
+typedef enum {
+    PYMB_FRAME_OK = 0,
+    PYMB_FRAME_EXCEPTION = 1,
+    PYMB_FRAME_INCOMPLETE = -1,
+    PYMB_FRAME_BAD_CRC = -2,
+    PYMB_FRAME_BAD_SLAVE = -3,
+    PYMB_FRAME_BAD_FUNCTION = -4,
+    PYMB_FRAME_BAD_LENGTH = -5,
+    PYMB_FRAME_BAD_ECHO = -6,
+    PYMB_FRAME_TOO_LONG = -7,
+    PYMB_FRAME_INVALID = -8
+} pymb_frame_status;
+
+typedef enum {
+    PYMB_VALUE = 0,
+    PYMB_OFFLINE = 1,
+    PYMB_NO_SENSOR = 2,
+    PYMB_UNSUPPORTED = 3
+} pymb_state;
+
+typedef enum {
+    PYMB_HUB_TEMPERATURE = 0,
+    PYMB_HUB_HUMIDITY = 1,
+    PYMB_HUB_PRESSURE_TEMPERATURE = 2,
+    PYMB_HUB_PRESSURE = 3,
+    PYMB_HUB_VOLTAGE = 4,
+    PYMB_HUB_RSSI = 5,
+    PYMB_HUB_TEMPERATURE2 = 6
+} pymb_hub_block;
+
+typedef struct {
+    double input_voltage_v;
+    double input_current_a;
+    double output_voltage_v;
+    double output_current_a;
+    double temperature_c;
+    uint32_t uptime_s;
+    uint16_t status;
+} pymb_coolpro_telemetry;
+
+typedef struct {
+    uint32_t serial_number;
+    uint16_t hardware_revision;
+    uint16_t firmware_major;
+    uint16_t firmware_minor;
+    uint16_t firmware_patch;
+    uint32_t manufactured;
+} pymb_coolpro_identity;
+
+uint16_t pymb_crc16(const uint8_t *data, size_t len);
+uint16_t pymb_crc16_update(uint16_t crc, const uint8_t *data, size_t len);
+int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
+size_t pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
+const char *pymb_frame_strerror(int status);
+int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
+int pymb_rtu_request_length(const uint8_t *req, size_t have);
+int pymb_check_response_pdu(const uint8_t *req, size_t req_len, const uint8_t *rsp,
+                            size_t rsp_len, int *exception_code);
+int pymb_rtu_check_response(const uint8_t *req, size_t req_len, const uint8_t *rsp,
+                            size_t rsp_len, int *exception_code);
+double pymb_sm_tenths(uint16_t raw);
+double pymb_milli(uint16_t raw);
+uint32_t pymb_u32_lo_hi(const uint16_t *regs);
+int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
+int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
+                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    uint8_t *states, size_t out_len);
+int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
+                                  pymb_coolpro_telemetry *out);
+int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
+                                 pymb_coolpro_identity *out);
+
+/* ---- pymb_modbus.h ---- */
+typedef struct {
+    int function;
+    int address;
+    int count;
+    int frame;
+    int rsp_len;
+    uint8_t rsp[...];
+} pymb_failure;
+
+int pymb_flush(modbus_t *ctx);
+int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us);
+void pymb_recover(modbus_t *ctx);
+int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
+                  int rsp_cap, pymb_failure *fail);
+int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
+                        uint16_t *dest, pymb_failure *fail);
+int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb,
+                   uint8_t *dest, pymb_failure *fail);
+
+/* ---- a few OS calls the port lock and the link checks need ---- */
+#define LOCK_EX ...
+#define LOCK_NB ...
+#define LOCK_UN ...
+int flock(int fd, int operation);
+"""
+
+SOURCE = """
+#include <errno.h>
+#include <sys/file.h>
+#include <modbus.h>
+#include "pymb.h"
+#include "pymb_modbus.h"
+"""
+
+ffibuilder = FFI()
+ffibuilder.cdef(CDEF)
+ffibuilder.set_source_pkgconfig(
+    "pymb._pymb_cffi",
+    ["libmodbus"],
+    SOURCE,
+    sources=SOURCES,
+    include_dirs=[CSRC],
+    libraries=["m"],
+    extra_compile_args=["-std=c99", "-O2", "-Wall", "-Wextra", "-Wno-unused-parameter"],
+)
+
+if __name__ == "__main__":
+    os.chdir(HERE)
+    ffibuilder.compile(tmpdir=".", verbose=True)

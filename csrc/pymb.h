@@ -1,0 +1,229 @@
+/*
+ * pymb.h - pymb's C core: Modbus RTU CRC-16, frame checks and the sensor-block
+ * decoders of the two devices pymb speaks to.
+ *
+ * This header and the files pymb_crc.c, pymb_frame.c and pymb_decode.c depend
+ * on nothing but the C99 standard library: no Python, no libmodbus, no I/O.
+ * The transport half (the register sweep over libmodbus) is in pymb_modbus.h.
+ *
+ * Conventions, after libmodbus: one `pymb_` prefix, the caller owns every
+ * buffer and passes its length, nothing here keeps state between calls.
+ *
+ * Documents cited:
+ *   [MB-AP]  Modbus Application Protocol Specification V1.1b3
+ *   [MB-SL]  Modbus over Serial Line Specification V1.02
+ *   [CP]     CoolPro Modbus RTU Communications Protocol, CP-MODBUS-RTU rev 1
+ *   [HUB]    RS485 Modbus Communication Protocol V1.5 (100-channel sensor hub)
+ *   [NOTES]  shared/specs/NOTES.md, the project's reading of [CP] and [HUB]
+ */
+#ifndef PYMB_H
+#define PYMB_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define PYMB_VERSION_MAJOR 0
+#define PYMB_VERSION_MINOR 1
+#define PYMB_VERSION_PATCH 0
+#define PYMB_VERSION_STRING "0.1.0"
+
+/* [MB-SL] 2.5.1.1: an RTU frame is at most 256 bytes (address, PDU, CRC). */
+#define PYMB_RTU_MAX_ADU 256
+/* [MB-AP] 4.1: the PDU is at most 253 bytes. */
+#define PYMB_MAX_PDU 253
+/* [MB-AP] 6.3 / 6.4: 1 to 125 registers per read (0x7D). */
+#define PYMB_MAX_READ_REGISTERS 125
+/* [MB-AP] 6.1 / 6.2: 1 to 2000 bits per read (0x7D0). */
+#define PYMB_MAX_READ_BITS 2000
+/* [HUB] 2.1: no frame longer than 255 bytes; 5 + 2 * 125 = 255, so the
+ * 125-register limit of [MB-AP] is also the hub's. */
+#define PYMB_HUB_MAX_FRAME 255
+
+/* ------------------------------------------------------------------------ */
+/* CRC-16/MODBUS: polynomial 0xA001 (reflected 0x8005), initial 0xFFFF,
+ * transmitted low byte first ([MB-SL] 6.2.2, [CP] ch. 04). Table-driven,
+ * one 16-bit table lookup per byte.                                         */
+
+/* CRC of `len` bytes. pymb_crc16("123456789", 9) == 0x4B37. */
+uint16_t pymb_crc16(const uint8_t *data, size_t len);
+
+/* Continue a CRC over more bytes; start with crc = 0xFFFF. */
+uint16_t pymb_crc16_update(uint16_t crc, const uint8_t *data, size_t len);
+
+/* 1 when the last two bytes of `frame` are the CRC of the bytes before them
+ * (low byte first), 0 otherwise (also when len < 3 or frame is NULL). */
+int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
+
+/* Append the CRC to frame[0..len). Returns the new length, or 0 when
+ * len + 2 > cap or frame is NULL. */
+size_t pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
+
+/* ------------------------------------------------------------------------ */
+/* Frame checks, on PDUs (function code first) so that RTU and TCP share them. */
+
+/* Results of the checks below; every error is negative. */
+typedef enum {
+    PYMB_FRAME_OK = 0,
+    PYMB_FRAME_EXCEPTION = 1,     /* a well-formed exception response */
+    PYMB_FRAME_INCOMPLETE = -1,   /* more bytes are needed */
+    PYMB_FRAME_BAD_CRC = -2,
+    PYMB_FRAME_BAD_SLAVE = -3,    /* answered by another address */
+    PYMB_FRAME_BAD_FUNCTION = -4, /* function code not the one asked */
+    PYMB_FRAME_BAD_LENGTH = -5,   /* byte count or length not as asked */
+    PYMB_FRAME_BAD_ECHO = -6,     /* a write's echo differs from the request */
+    PYMB_FRAME_TOO_LONG = -7,     /* longer than the frame limit */
+    PYMB_FRAME_INVALID = -8       /* a NULL pointer or an impossible request */
+} pymb_frame_status;
+
+/* Short English description of a pymb_frame_status ("bad CRC", ...). */
+const char *pymb_frame_strerror(int status);
+
+/* Total length of the RTU response frame whose first `have` bytes are in
+ * `rsp` (address, function, ...; CRC included), as the function code and byte
+ * count tell it. Returns PYMB_FRAME_INCOMPLETE when `have` is too short to
+ * tell, PYMB_FRAME_TOO_LONG when the frame would exceed PYMB_RTU_MAX_ADU.
+ * Function codes this file does not know are taken as exception-sized
+ * (address, function, one byte, CRC). */
+int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
+
+/* Total length of the RTU request frame whose first `have` bytes are in
+ * `req`, for a server reading requests. PYMB_FRAME_INCOMPLETE when more bytes
+ * are needed to tell, PYMB_FRAME_BAD_FUNCTION for a function code whose
+ * length only the line's silence can tell, PYMB_FRAME_TOO_LONG past 256. */
+int pymb_rtu_request_length(const uint8_t *req, size_t have);
+
+/* Check a response PDU against the request PDU that asked for it: the
+ * function code, the byte count for reads ([MB-AP] 6.1-6.4, 6.17), the echo
+ * for single writes and mask write ([MB-AP] 6.5, 6.6, 6.16), address and
+ * quantity for multiple writes ([MB-AP] 6.11, 6.12). Returns PYMB_FRAME_OK,
+ * PYMB_FRAME_EXCEPTION (and the code in *exception_code when not NULL) or a
+ * negative pymb_frame_status. */
+int pymb_check_response_pdu(const uint8_t *req, size_t req_len, const uint8_t *rsp,
+                            size_t rsp_len, int *exception_code);
+
+/* The same for a whole RTU response frame (address + PDU + CRC) against a
+ * request frame (address + PDU, with or without its CRC: `req_len` counts
+ * what is passed and only its first 6 PDU bytes matter). The CRC is checked
+ * first, then the address, then the PDU. */
+int pymb_rtu_check_response(const uint8_t *req, size_t req_len, const uint8_t *rsp,
+                            size_t rsp_len, int *exception_code);
+
+/* ------------------------------------------------------------------------ */
+/* Decoding primitives.                                                      */
+
+/* What a decoded value is. Kept apart as [NOTES] asks: a value, the
+ * channel's "offline" marker, the "no sensor of this kind" marker, or a block
+ * the device's firmware does not have. */
+typedef enum {
+    PYMB_VALUE = 0,
+    PYMB_OFFLINE = 1,
+    PYMB_NO_SENSOR = 2,
+    PYMB_UNSUPPORTED = 3
+} pymb_state;
+
+/* Sign-magnitude tenths ([HUB] 3, temperatures): bit 15 is the sign, bits
+ * 14..0 the magnitude in tenths. 0x8000 decodes as -0.0, not as a marker.
+ * The caller checks 0xFFFF (offline) first. */
+double pymb_sm_tenths(uint16_t raw);
+
+/* Milliunits ([CP] ch. 04): raw / 1000. */
+double pymb_milli(uint16_t raw);
+
+/* A 32-bit value stored low word first, each word big-endian ([CP] ch. 04).
+ * Reads regs[0] (low) and regs[1] (high). */
+uint32_t pymb_u32_lo_hi(const uint16_t *regs);
+
+/* ------------------------------------------------------------------------ */
+/* Sensor hub ([HUB] 3, [NOTES]): 7 blocks of 100 registers from 31 to 730.  */
+
+#define PYMB_HUB_FIRST_REGISTER 31  /* [NOTES]: on-wire PDU address */
+#define PYMB_HUB_CHANNELS 100
+#define PYMB_HUB_BLOCKS 7
+#define PYMB_HUB_REGISTERS (PYMB_HUB_CHANNELS * PYMB_HUB_BLOCKS) /* 700 */
+#define PYMB_HUB_ALL_BLOCKS 0x7Fu
+
+/* Blocks in address order; block b holds channel c (0-based) at register
+ * PYMB_HUB_FIRST_REGISTER + 100 * b + c. */
+typedef enum {
+    PYMB_HUB_TEMPERATURE = 0,          /* 31..130, sign-magnitude 0.1 degC */
+    PYMB_HUB_HUMIDITY = 1,             /* 131..230, 1 % or 0.1 % per channel */
+    PYMB_HUB_PRESSURE_TEMPERATURE = 2, /* 231..330, sign-magnitude 0.1 degC */
+    PYMB_HUB_PRESSURE = 3,             /* 331..430, kPa unsigned */
+    PYMB_HUB_VOLTAGE = 4,              /* 431..530, mV unsigned, fw >= V2.19 */
+    PYMB_HUB_RSSI = 5,                 /* 531..630, dBm int16, fw >= V2.19 */
+    PYMB_HUB_TEMPERATURE2 = 6          /* 631..730, sign-magnitude, fw >= V2.23 */
+} pymb_hub_block;
+
+/* Markers ([HUB] 3). */
+#define PYMB_HUB_OFFLINE 0xFFFFu
+#define PYMB_HUB_NO_HUMIDITY_1PCT 0x00FFu   /* humidity in 1 % units */
+#define PYMB_HUB_NO_HUMIDITY_TENTHS 0x8000u /* humidity in 0.1 % units */
+
+/* Decode one raw hub register of `block` into *value and return its
+ * pymb_state. `humidity_tenths` (humidity block only): nonzero when the
+ * channel's sensor reports in 0.1 %, zero for 1 %. *value is NaN for every
+ * state but PYMB_VALUE. Returns -1 for an unknown block. */
+int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
+
+/* Decode a block of hub registers.
+ *
+ * regs:      raw registers 31..730 in address order (regs[100 * b + c]);
+ *            nregs must be PYMB_HUB_REGISTERS.
+ * channels:  1..100: channels 1..channels are decoded.
+ * humidity_tenths: `channels` bytes, nonzero where that channel's humidity is
+ *            in 0.1 %; NULL means 0.1 % on every channel.
+ * block_mask: bit b set when block b was read; the others decode as
+ *            PYMB_UNSUPPORTED.
+ * values, states: 7 * channels entries each, block-major:
+ *            values[b * channels + c]. NaN wherever the state is not a value.
+ *
+ * Returns 0, or -1 when an argument is out of range (nothing written then).
+ */
+int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
+                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    uint8_t *states, size_t out_len);
+
+/* ------------------------------------------------------------------------ */
+/* CoolPro ([CP] ch. 03).                                                    */
+
+/* Input registers 0..7 ([CP] "live telemetry"). */
+#define PYMB_COOLPRO_TELEMETRY_ADDRESS 0
+#define PYMB_COOLPRO_TELEMETRY_COUNT 8
+/* Input registers 100..107 ([CP] "device information"). */
+#define PYMB_COOLPRO_IDENTITY_ADDRESS 100
+#define PYMB_COOLPRO_IDENTITY_COUNT 8
+
+typedef struct {
+    double input_voltage_v;
+    double input_current_a;
+    double output_voltage_v;
+    double output_current_a;
+    double temperature_c;
+    uint32_t uptime_s;
+    uint16_t status; /* bits 0..6 as [CP] lists them, 7..15 reserved, kept */
+} pymb_coolpro_telemetry;
+
+typedef struct {
+    uint32_t serial_number;
+    uint16_t hardware_revision;
+    uint16_t firmware_major;
+    uint16_t firmware_minor;
+    uint16_t firmware_patch;
+    uint32_t manufactured; /* Unix time, UTC */
+} pymb_coolpro_identity;
+
+/* Decode input registers 0..7 / 100..107. nregs must be 8. Return 0 or -1. */
+int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
+                                  pymb_coolpro_telemetry *out);
+int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
+                                 pymb_coolpro_identity *out);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* PYMB_H */

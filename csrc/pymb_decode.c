@@ -1,0 +1,204 @@
+/*
+ * pymb_decode.c - raw registers to engineering values, no allocation, no I/O.
+ *
+ * Divisions are by 10.0 and 1000.0 (not multiplications by 0.1 and 0.001) so
+ * that every result is the correctly rounded double of the document's value:
+ * 251 -> 25.1 exactly as Python's 251 / 10 gives it.
+ */
+#include <math.h>
+
+#include "pymb.h"
+
+double pymb_sm_tenths(uint16_t raw)
+{
+    double magnitude = (double)(raw & 0x7FFFu) / 10.0;
+    return (raw & 0x8000u) ? -magnitude : magnitude;
+}
+
+double pymb_milli(uint16_t raw)
+{
+    return (double)raw / 1000.0;
+}
+
+uint32_t pymb_u32_lo_hi(const uint16_t *regs)
+{
+    return ((uint32_t)regs[1] << 16) | regs[0];
+}
+
+int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value)
+{
+    int state = PYMB_VALUE;
+    double v = NAN;
+
+    if (block < 0 || block >= PYMB_HUB_BLOCKS) {
+        return -1;
+    }
+    if (raw == PYMB_HUB_OFFLINE) {
+        state = PYMB_OFFLINE;
+    } else {
+        switch (block) {
+        case PYMB_HUB_TEMPERATURE:
+        case PYMB_HUB_PRESSURE_TEMPERATURE:
+        case PYMB_HUB_TEMPERATURE2:
+            v = pymb_sm_tenths(raw);
+            break;
+        case PYMB_HUB_HUMIDITY:
+            if (humidity_tenths) {
+                if (raw == PYMB_HUB_NO_HUMIDITY_TENTHS) {
+                    state = PYMB_NO_SENSOR;
+                } else {
+                    v = (double)raw / 10.0;
+                }
+            } else if (raw == PYMB_HUB_NO_HUMIDITY_1PCT) {
+                state = PYMB_NO_SENSOR;
+            } else {
+                v = (double)raw;
+            }
+            break;
+        case PYMB_HUB_RSSI:
+            v = (double)(int16_t)raw;
+            break;
+        default: /* pressure (kPa) and voltage (mV): unsigned as they are */
+            v = (double)raw;
+            break;
+        }
+    }
+    if (value != NULL) {
+        *value = v;
+    }
+    return state;
+}
+
+/* One block of one kind; the kind is fixed for the whole loop so that the
+ * compiler can keep each loop free of the switch above. */
+static void decode_tenths(const uint16_t *raw, unsigned n, double *v, uint8_t *st)
+{
+    unsigned c;
+    for (c = 0; c < n; c++) {
+        if (raw[c] == PYMB_HUB_OFFLINE) {
+            v[c] = NAN;
+            st[c] = PYMB_OFFLINE;
+        } else {
+            v[c] = pymb_sm_tenths(raw[c]);
+            st[c] = PYMB_VALUE;
+        }
+    }
+}
+
+static void decode_unsigned(const uint16_t *raw, unsigned n, double *v, uint8_t *st)
+{
+    unsigned c;
+    for (c = 0; c < n; c++) {
+        if (raw[c] == PYMB_HUB_OFFLINE) {
+            v[c] = NAN;
+            st[c] = PYMB_OFFLINE;
+        } else {
+            v[c] = (double)raw[c];
+            st[c] = PYMB_VALUE;
+        }
+    }
+}
+
+static void decode_signed(const uint16_t *raw, unsigned n, double *v, uint8_t *st)
+{
+    unsigned c;
+    for (c = 0; c < n; c++) {
+        if (raw[c] == PYMB_HUB_OFFLINE) {
+            v[c] = NAN;
+            st[c] = PYMB_OFFLINE;
+        } else {
+            v[c] = (double)(int16_t)raw[c];
+            st[c] = PYMB_VALUE;
+        }
+    }
+}
+
+static void decode_humidity(const uint16_t *raw, unsigned n, const uint8_t *tenths,
+                            double *v, uint8_t *st)
+{
+    unsigned c;
+    for (c = 0; c < n; c++) {
+        st[c] = (uint8_t)pymb_hub_decode_one(PYMB_HUB_HUMIDITY, raw[c],
+                                             tenths == NULL || tenths[c], &v[c]);
+    }
+}
+
+static void mark_unsupported(unsigned n, double *v, uint8_t *st)
+{
+    unsigned c;
+    for (c = 0; c < n; c++) {
+        v[c] = NAN;
+        st[c] = PYMB_UNSUPPORTED;
+    }
+}
+
+int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
+                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    uint8_t *states, size_t out_len)
+{
+    unsigned b;
+
+    if (regs == NULL || values == NULL || states == NULL ||
+        nregs != PYMB_HUB_REGISTERS || channels < 1 || channels > PYMB_HUB_CHANNELS ||
+        out_len < (size_t)PYMB_HUB_BLOCKS * channels) {
+        return -1;
+    }
+    for (b = 0; b < PYMB_HUB_BLOCKS; b++) {
+        const uint16_t *raw = regs + (size_t)b * PYMB_HUB_CHANNELS;
+        double *v = values + (size_t)b * channels;
+        uint8_t *st = states + (size_t)b * channels;
+
+        if (!(block_mask & (1u << b))) {
+            mark_unsupported(channels, v, st);
+            continue;
+        }
+        switch (b) {
+        case PYMB_HUB_TEMPERATURE:
+        case PYMB_HUB_PRESSURE_TEMPERATURE:
+        case PYMB_HUB_TEMPERATURE2:
+            decode_tenths(raw, channels, v, st);
+            break;
+        case PYMB_HUB_HUMIDITY:
+            decode_humidity(raw, channels, humidity_tenths, v, st);
+            break;
+        case PYMB_HUB_RSSI:
+            decode_signed(raw, channels, v, st);
+            break;
+        default:
+            decode_unsigned(raw, channels, v, st);
+            break;
+        }
+    }
+    return 0;
+}
+
+int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
+                                  pymb_coolpro_telemetry *out)
+{
+    if (regs == NULL || out == NULL || nregs != PYMB_COOLPRO_TELEMETRY_COUNT) {
+        return -1;
+    }
+    out->input_voltage_v = pymb_milli(regs[0]);
+    out->input_current_a = pymb_milli(regs[1]);
+    out->output_voltage_v = pymb_milli(regs[2]);
+    out->output_current_a = pymb_milli(regs[3]);
+    out->temperature_c = pymb_milli(regs[4]);
+    out->uptime_s = pymb_u32_lo_hi(regs + 5);
+    out->status = regs[7];
+    return 0;
+}
+
+int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
+                                 pymb_coolpro_identity *out)
+{
+    if (regs == NULL || out == NULL || nregs != PYMB_COOLPRO_IDENTITY_COUNT) {
+        return -1;
+    }
+    out->serial_number = pymb_u32_lo_hi(regs + 0);
+    out->hardware_revision = regs[2];
+    out->firmware_major = regs[3];
+    out->firmware_minor = regs[4];
+    out->firmware_patch = regs[5];
+    out->manufactured = pymb_u32_lo_hi(regs + 6);
+    return 0;
+}

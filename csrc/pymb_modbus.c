@@ -1,0 +1,289 @@
+/*
+ * pymb_modbus.c - pymb's request path over libmodbus (see pymb_modbus.h).
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <string.h>
+#include <sys/select.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "pymb_modbus.h"
+
+static uint64_t now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
+}
+
+int pymb_flush(modbus_t *ctx)
+{
+    if (ctx == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    return modbus_flush(ctx) < 0 ? -1 : 0;
+}
+
+int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
+{
+    uint8_t junk[MODBUS_MAX_ADU_LENGTH];
+    uint64_t start, last, now;
+    int fd, dropped = 0;
+
+    if (ctx == NULL || (fd = modbus_get_socket(ctx)) < 0 || fd >= FD_SETSIZE) {
+        errno = EINVAL;
+        return -1;
+    }
+    start = last = now_us();
+    for (;;) {
+        fd_set rset;
+        struct timeval tv;
+        uint64_t wait, quiet_end = last + quiet_us, hard_end = start + max_us;
+        ssize_t n;
+        int rc;
+
+        now = now_us();
+        if (now >= quiet_end || now >= hard_end) {
+            break;
+        }
+        wait = (quiet_end < hard_end ? quiet_end : hard_end) - now;
+        tv.tv_sec = (time_t)(wait / 1000000u);
+        tv.tv_usec = (suseconds_t)(wait % 1000000u);
+        FD_ZERO(&rset);
+        FD_SET(fd, &rset);
+        rc = select(fd + 1, &rset, NULL, NULL, &tv);
+        if (rc < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            return -1;
+        }
+        if (rc == 0) {
+            break; /* silent for the whole quiet window */
+        }
+        n = read(fd, junk, sizeof junk);
+        if (n > 0) {
+            dropped += (int)n;
+            last = now_us();
+        } else if (n == 0) {
+            break; /* TCP peer closed: nothing more can arrive */
+        } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+            return -1;
+        }
+    }
+    pymb_flush(ctx);
+    return dropped;
+}
+
+void pymb_recover(modbus_t *ctx)
+{
+    int saved = errno;
+    uint32_t sec = 0, usec = 0;
+    uint64_t quiet;
+
+    if (ctx != NULL && modbus_get_response_timeout(ctx, &sec, &usec) == 0) {
+        quiet = (uint64_t)sec * 1000000u + usec;
+        if (quiet > 60000000u) {
+            quiet = 60000000u;
+        }
+        pymb_drain(ctx, (uint32_t)quiet, (uint32_t)(4 * quiet));
+    }
+    errno = saved;
+}
+
+static void note_request(pymb_failure *fail, const uint8_t *req, int req_len)
+{
+    if (fail == NULL) {
+        return;
+    }
+    fail->function = req_len > 1 ? req[1] : -1;
+    fail->address = req_len > 3 ? (req[2] << 8 | req[3]) : -1;
+    fail->count = req_len > 5 ? (req[4] << 8 | req[5]) : -1;
+    fail->frame = 0;
+    fail->rsp_len = 0;
+}
+
+static void note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame)
+{
+    if (fail == NULL) {
+        return;
+    }
+    if (len < 0) {
+        len = 0;
+    }
+    if (len > (int)sizeof fail->rsp) {
+        len = (int)sizeof fail->rsp;
+    }
+    memcpy(fail->rsp, rsp, (size_t)len);
+    fail->rsp_len = len;
+    fail->frame = frame;
+}
+
+static int frame_errno(int status)
+{
+    switch (status) {
+    case PYMB_FRAME_BAD_CRC:
+        return EMBBADCRC;
+    case PYMB_FRAME_BAD_SLAVE:
+        return EMBBADSLAVE;
+    default:
+        return EMBBADDATA;
+    }
+}
+
+int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
+                  int rsp_cap, pymb_failure *fail)
+{
+    int hl, n, len, status, pdu_len, exc = 0;
+
+    if (ctx == NULL || req == NULL || rsp == NULL || req_len < 2 ||
+        req_len > MODBUS_MAX_PDU_LENGTH + 1 || rsp_cap < MODBUS_MAX_ADU_LENGTH) {
+        errno = EINVAL;
+        return -1;
+    }
+    hl = modbus_get_header_length(ctx);
+    if (hl < 1) {
+        errno = EINVAL;
+        return -1;
+    }
+    note_request(fail, req, req_len);
+    if (pymb_flush(ctx) < 0 || modbus_send_raw_request(ctx, req, req_len) < 0) {
+        pymb_recover(ctx);
+        return -1;
+    }
+    if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
+        return 0; /* [MB-SL] 2.1: no reply to a broadcast */
+    }
+    /* libmodbus reads exactly the frame that the function code and byte
+     * count announce (the same rule as pymb_rtu_response_length). With no
+     * slave set on the context it returns 0 for RTU instead of checking: the
+     * checks are all ours. */
+    n = modbus_receive_confirmation(ctx, rsp);
+    if (n < 0) {
+        pymb_recover(ctx);
+        return -1;
+    }
+    if (hl == 1) {
+        len = n > 0 ? n : pymb_rtu_response_length(rsp, (size_t)rsp_cap);
+        if (len < 0 || len > rsp_cap) {
+            note_reply(fail, rsp, 2, PYMB_FRAME_TOO_LONG);
+            errno = EMBBADDATA;
+            pymb_recover(ctx);
+            return -1;
+        }
+        status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)len, &exc);
+        pdu_len = len - 3;
+    } else {
+        len = n;
+        if (len < hl + 1 || len > rsp_cap) {
+            status = PYMB_FRAME_BAD_LENGTH;
+        } else if (rsp[hl - 1] != req[0]) {
+            status = PYMB_FRAME_BAD_SLAVE;
+        } else {
+            status = pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + hl,
+                                             (size_t)(len - hl), &exc);
+        }
+        pdu_len = len - hl;
+    }
+    if (status == PYMB_FRAME_OK) {
+        return pdu_len;
+    }
+    note_reply(fail, rsp, len, status);
+    if (status == PYMB_FRAME_EXCEPTION) {
+        /* A well-formed answer: the line is in step, nothing to recover. */
+        errno = (exc >= 1 && exc < MODBUS_EXCEPTION_MAX) ? MODBUS_ENOBASE + exc : EMBBADEXC;
+        return -1;
+    }
+    errno = frame_errno(status);
+    pymb_recover(ctx);
+    return -1;
+}
+
+static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const void *dest)
+{
+    if (ctx == NULL || dest == NULL || slave < 1 || slave > 255 || addr < 0 || nb < 1 ||
+        addr + nb > 65536) {
+        errno = EINVAL;
+        return -1;
+    }
+    return 0;
+}
+
+int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
+                        uint16_t *dest, pymb_failure *fail)
+{
+    uint8_t req[6];
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    int done = 0, hl;
+
+    if ((function != MODBUS_FC_READ_HOLDING_REGISTERS &&
+         function != MODBUS_FC_READ_INPUT_REGISTERS) ||
+        check_read_args(ctx, slave, addr, nb, dest) < 0) {
+        errno = EINVAL;
+        return -1;
+    }
+    hl = modbus_get_header_length(ctx);
+    while (done < nb) {
+        int a = addr + done;
+        int n = nb - done > MODBUS_MAX_READ_REGISTERS ? MODBUS_MAX_READ_REGISTERS : nb - done;
+        const uint8_t *data;
+        int i;
+
+        req[0] = (uint8_t)slave;
+        req[1] = (uint8_t)function;
+        req[2] = (uint8_t)(a >> 8);
+        req[3] = (uint8_t)a;
+        req[4] = (uint8_t)(n >> 8);
+        req[5] = (uint8_t)n;
+        if (pymb_transact(ctx, req, 6, rsp, (int)sizeof rsp, fail) < 0) {
+            return -1;
+        }
+        /* pymb_transact checked the byte count: 2 * n bytes follow. */
+        data = rsp + hl + 2;
+        for (i = 0; i < n; i++) {
+            dest[done + i] = (uint16_t)(data[2 * i] << 8 | data[2 * i + 1]);
+        }
+        done += n;
+    }
+    return nb;
+}
+
+int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb, uint8_t *dest,
+                   pymb_failure *fail)
+{
+    uint8_t req[6];
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    int done = 0, hl;
+
+    if ((function != MODBUS_FC_READ_COILS && function != MODBUS_FC_READ_DISCRETE_INPUTS) ||
+        check_read_args(ctx, slave, addr, nb, dest) < 0) {
+        errno = EINVAL;
+        return -1;
+    }
+    hl = modbus_get_header_length(ctx);
+    while (done < nb) {
+        int a = addr + done;
+        int n = nb - done > MODBUS_MAX_READ_BITS ? MODBUS_MAX_READ_BITS : nb - done;
+        const uint8_t *data;
+        int i;
+
+        req[0] = (uint8_t)slave;
+        req[1] = (uint8_t)function;
+        req[2] = (uint8_t)(a >> 8);
+        req[3] = (uint8_t)a;
+        req[4] = (uint8_t)(n >> 8);
+        req[5] = (uint8_t)n;
+        if (pymb_transact(ctx, req, 6, rsp, (int)sizeof rsp, fail) < 0) {
+            return -1;
+        }
+        data = rsp + hl + 2; /* ceil(n / 8) bytes, least significant bit first */
+        for (i = 0; i < n; i++) {
+            dest[done + i] = (uint8_t)((data[i / 8] >> (i % 8)) & 1u);
+        }
+        done += n;
+    }
+    return nb;
+}

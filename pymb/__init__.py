@@ -1,0 +1,61 @@
+"""pymb: Modbus RTU for real devices, fast.
+
+A cffi binding over libmodbus with pymb's own C core (CRC-16, frame checks,
+sensor-block decoders). The low-level API::
+
+    import pymb
+    with pymb.RtuClient("/dev/ttyUSB0", 9600, slave=40) as client:
+        regs = client.read_input_registers(0, 8)      # array('H')
+
+Errors are rooted at :class:`pymb.ModbusError`.
+"""
+
+from __future__ import annotations
+
+from pymb._native import LIBMODBUS_VERSION, crc16
+from pymb.client import Client, RtuClient, TcpClient
+from pymb.errors import (
+    Acknowledge,
+    DeviceBusy,
+    DeviceException,
+    DeviceFailure,
+    GatewayPathUnavailable,
+    GatewayTargetFailed,
+    IllegalDataAddress,
+    IllegalDataValue,
+    IllegalFunction,
+    InvalidArgument,
+    MemoryParityError,
+    ModbusConnectionError,
+    ModbusError,
+    ModbusTimeout,
+    NegativeAcknowledge,
+    ProtocolError,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "LIBMODBUS_VERSION",
+    "Acknowledge",
+    "Client",
+    "DeviceBusy",
+    "DeviceException",
+    "DeviceFailure",
+    "GatewayPathUnavailable",
+    "GatewayTargetFailed",
+    "IllegalDataAddress",
+    "IllegalDataValue",
+    "IllegalFunction",
+    "InvalidArgument",
+    "MemoryParityError",
+    "ModbusConnectionError",
+    "ModbusError",
+    "ModbusTimeout",
+    "NegativeAcknowledge",
+    "ProtocolError",
+    "RtuClient",
+    "TcpClient",
+    "__version__",
+    "crc16",
+]

@@ -1,0 +1,351 @@
+"""The only module that touches cffi's ``ffi`` and ``lib``.
+
+Allocate, call, check, return: everything above this module sees Python
+objects, arrays and pymb's exceptions. Calls into the extension release the
+GIL (cffi's API mode does so for every call), so other threads and other
+buses keep working while one waits on its line.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from pymb._pymb_cffi import ffi, lib
+from pymb.errors import (
+    InvalidArgument,
+    ModbusConnectionError,
+    ModbusError,
+    ModbusTimeout,
+    ProtocolError,
+    exception_class,
+)
+
+__all__ = [
+    "BAUD_RATES",
+    "LIBMODBUS_VERSION",
+    "Link",
+    "crc16",
+    "ffi_buffer_u16",
+    "lib_constants",
+]
+
+LIBMODBUS_VERSION = (
+    f"{lib.libmodbus_version_major}.{lib.libmodbus_version_minor}."
+    f"{lib.libmodbus_version_micro}"
+)
+
+#: Baud rates libmodbus 3.1.6 maps to termios speeds; any other it silently
+#: replaces with 9600, so pymb refuses it instead.
+BAUD_RATES = frozenset(
+    (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800,
+     500000, 576000, 921600, 1000000, 1152000, 1500000, 2500000, 3000000, 3500000, 4000000)
+)
+
+# OS errors after which the link is gone until it is opened again.
+_LINK_LOST = frozenset(
+    (lib.EIO, lib.ENXIO, lib.ENODEV, lib.EBADF, lib.EPIPE, lib.ECONNRESET, lib.ECONNREFUSED,
+     lib.ENOENT)
+)
+
+_FUNCTION_NAMES = {
+    0x01: "read_coils",
+    0x02: "read_discrete_inputs",
+    0x03: "read_holding_registers",
+    0x04: "read_input_registers",
+    0x05: "write_coil",
+    0x06: "write_register",
+    0x07: "read_exception_status",
+    0x0F: "write_coils",
+    0x10: "write_registers",
+    0x11: "report_slave_id",
+    0x16: "mask_write_register",
+    0x17: "write_read_registers",
+}
+
+
+def lib_constants() -> Any:
+    """The compiled extension's ``lib`` (constants only are meant for use)."""
+    return lib
+
+
+def crc16(data: bytes | bytearray | memoryview) -> int:
+    """CRC-16/MODBUS of ``data`` (as it goes on the wire: low byte first)."""
+    return int(lib.pymb_crc16(ffi.from_buffer(data), len(data)))
+
+
+def ffi_buffer_u16(array: Any) -> Any:
+    """A ``uint16_t *`` over a writable buffer (an ``array('H')``)."""
+    return ffi.from_buffer("uint16_t[]", array, require_writable=True)
+
+
+def _hex(data: bytes) -> str:
+    return " ".join(f"{b:02X}" for b in data)
+
+
+def _os_hint(err: int) -> str:
+    if err in (lib.EACCES, lib.EPERM):
+        return (
+            "permission denied; add yourself to the group that owns the port "
+            "(usually `dialout`: sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if err in (lib.ENOENT, lib.ENODEV, lib.ENXIO):
+        return "no such port (is the adapter plugged in? see `ls /dev/serial/by-id/`)"
+    if err == lib.EIO:
+        return "I/O error on the port (was the adapter unplugged?)"
+    if err == lib.EBUSY:
+        return "the port is in use by another process"
+    if err == lib.ECONNREFUSED:
+        return "connection refused (nothing is listening there)"
+    if err == lib.ECONNRESET:
+        return "connection closed by the peer"
+    return os.strerror(err)
+
+
+class Link:
+    """One libmodbus context: a serial line or a TCP connection.
+
+    Not thread-safe by itself; the clients in :mod:`pymb.client` hold a lock
+    around every call.
+    """
+
+    def __init__(self, name: str, factory: Any, *, serial: bool) -> None:
+        self.name = name
+        self.serial = serial
+        self._factory = factory
+        self._ctx: Any = ffi.NULL
+        self._fail = ffi.new("pymb_failure *")
+        self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
+        self._header = 1 if serial else 7
+        self._timeout = (1.0, 0.0)
+        self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
+
+    # -- life cycle ------------------------------------------------------------
+
+    @property
+    def is_open(self) -> bool:
+        """True while a connected context exists."""
+        return self._ctx != ffi.NULL
+
+    def open(self) -> None:
+        """Create the context, connect, lock the port, apply the settings."""
+        if self.is_open:
+            return
+        ctx = self._factory()
+        if ctx == ffi.NULL:
+            err = ffi.errno
+            raise ModbusConnectionError(
+                f"cannot create a Modbus context for {self.name}: {os.strerror(err)}",
+                errno=err,
+                port=self.name,
+            )
+        if lib.modbus_connect(ctx) == -1:
+            err = ffi.errno
+            lib.modbus_free(ctx)
+            raise ModbusConnectionError(
+                f"cannot open {self.name}: {_os_hint(err)}", errno=err, port=self.name
+            )
+        if self.serial and lib.flock(lib.modbus_get_socket(ctx), lib.LOCK_EX | lib.LOCK_NB):
+            lib.modbus_close(ctx)
+            lib.modbus_free(ctx)
+            raise ModbusConnectionError(
+                f"cannot open {self.name}: the port is in use by another process "
+                "(another pymb holds its lock)",
+                errno=lib.EBUSY,
+                port=self.name,
+            )
+        self._ctx = ctx
+        try:
+            self._apply_timeouts()
+            self._apply_rs485()
+        except ModbusError:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Close and free the context; safe to call twice."""
+        ctx, self._ctx = self._ctx, ffi.NULL
+        if ctx != ffi.NULL:
+            lib.modbus_close(ctx)
+            lib.modbus_free(ctx)
+
+    def fileno(self) -> int:
+        """The file descriptor of the open line, -1 when closed."""
+        return int(lib.modbus_get_socket(self._ctx)) if self.is_open else -1
+
+    # -- settings --------------------------------------------------------------
+
+    def set_timeouts(self, response: float, byte: float) -> None:
+        """Response timeout and inter-byte timeout (0 disables it: the whole
+        reply must then arrive within the response timeout)."""
+        self._timeout = (response, byte)
+        if self.is_open:
+            self._apply_timeouts()
+
+    def _apply_timeouts(self) -> None:
+        response, byte = self._timeout
+        rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)
+        bs, bus = divmod(max(0, round(byte * 1e6)), 1_000_000)
+        if (
+            lib.modbus_set_response_timeout(self._ctx, rs, rus) == -1
+            or lib.modbus_set_byte_timeout(self._ctx, bs, bus) == -1
+        ):
+            raise InvalidArgument(f"timeout out of range: {response!r}, {byte!r}")
+
+    def set_rs485(self, mode: int | None, rts: int | None, rts_delay_us: int | None) -> None:
+        """Serial mode (MODBUS_RTU_RS232/RS485), RTS mode and RTS delay."""
+        self._rs485 = (mode, rts, rts_delay_us)
+        if self.is_open:
+            self._apply_rs485()
+
+    def _apply_rs485(self) -> None:
+        mode, rts, delay = self._rs485
+        calls = (
+            (mode, lib.modbus_rtu_set_serial_mode, "serial mode"),
+            (rts, lib.modbus_rtu_set_rts, "RTS mode"),
+            (delay, lib.modbus_rtu_set_rts_delay, "RTS delay"),
+        )
+        for value, fn, what in calls:
+            if value is not None and fn(self._ctx, value) == -1:
+                err = ffi.errno
+                raise ModbusConnectionError(
+                    f"cannot set {what} {value} on {self.name}: {os.strerror(err)} "
+                    "(RS485 settings need a port whose driver supports them)",
+                    errno=err,
+                    port=self.name,
+                )
+
+    # -- requests --------------------------------------------------------------
+
+    def read_registers(
+        self, function: int, slave: int, address: int, count: int, dest: Any
+    ) -> None:
+        """Read ``count`` registers into ``dest`` (a writable uint16 buffer)."""
+        if self._ctx == ffi.NULL:
+            raise self._closed(function, slave, address, count)
+        rc = lib.pymb_read_registers(
+            self._ctx, function, slave, address, count,
+            ffi.from_buffer("uint16_t[]", dest, require_writable=True), self._fail,
+        )
+        if rc < 0:
+            raise self._error(function, slave, address, count)
+
+    def read_bits(self, function: int, slave: int, address: int, count: int, dest: Any) -> None:
+        """Read ``count`` bits into ``dest`` (a writable byte buffer, 0/1 each)."""
+        if self._ctx == ffi.NULL:
+            raise self._closed(function, slave, address, count)
+        rc = lib.pymb_read_bits(
+            self._ctx, function, slave, address, count,
+            ffi.from_buffer("uint8_t[]", dest, require_writable=True), self._fail,
+        )
+        if rc < 0:
+            raise self._error(function, slave, address, count)
+
+    def transact(self, request: bytes, *, address: int | None = None,
+                 count: int | None = None) -> bytes:
+        """Send ``request`` (slave address + PDU) and return the checked reply
+        PDU (function code first). Broadcast (slave 0 on a serial line)
+        returns ``b""``."""
+        slave, function = request[0], request[1]
+        if self._ctx == ffi.NULL:
+            raise self._closed(function, slave, address, count)
+        n = lib.pymb_transact(
+            self._ctx, request, len(request), self._rsp, lib.MODBUS_MAX_ADU_LENGTH, self._fail
+        )
+        if n < 0:
+            raise self._error(function, slave, address, count)
+        return bytes(ffi.buffer(self._rsp + self._header, n))
+
+    def drain(self, quiet: float, limit: float) -> int:
+        """Drop input until the line is quiet for ``quiet`` seconds."""
+        if self._ctx == ffi.NULL:
+            return 0
+        return int(lib.pymb_drain(self._ctx, round(quiet * 1e6), round(limit * 1e6)))
+
+    # -- errors ----------------------------------------------------------------
+
+    def _closed(self, function: int, slave: int, address: int | None,
+                count: int | None) -> ModbusConnectionError:
+        op = _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
+        return ModbusConnectionError(
+            f"{op}(slave={slave}) on {self.name}: the port is not open",
+            errno=lib.EBADF, slave=slave, function=function, address=address, count=count,
+            port=self.name,
+        )
+
+    def _error(self, function: int, slave: int, address: int | None,
+               count: int | None) -> ModbusError:
+        """Turn errno (read right after the failing call) and the failure
+        record into the exception to raise; close the link if the OS lost it."""
+        err = ffi.errno
+        fail = self._fail
+        op = _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
+        args = [f"slave={slave}"]
+        if address is not None:
+            args.append(f"address={address}")
+        if count is not None:
+            args.append(f"count={count}")
+        asked = f"{op}({', '.join(args)}) on {self.name}"
+        if (
+            count is not None
+            and fail.count >= 0
+            and (fail.address, fail.count) != (address, count)
+        ):
+            asked += f" [request for {fail.count} at {fail.address}]"
+        got = bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None
+        received = f" (received {_hex(got)})" if got else ""
+        kw: dict[str, Any] = dict(
+            slave=slave, function=function, address=address, count=count, port=self.name,
+            response=got,
+        )
+        base = lib.MODBUS_ENOBASE
+        if err == lib.ETIMEDOUT:
+            timeout = self._timeout[0]
+            return ModbusTimeout(
+                f"{asked}: no complete reply within {timeout:g} s", **kw
+            )
+        if base < err < base + 0x100 and err not in (
+            lib.EMBBADCRC, lib.EMBBADDATA, lib.EMBBADEXC, lib.EMBUNKEXC, lib.EMBMDATA,
+            lib.EMBBADSLAVE,
+        ):
+            code = err - base
+            cls = exception_class(code)
+            return cls(f"{asked}: device answered exception {code:02X} ({cls.description})"
+                       f"{received}", code=code, **kw)
+        if err == lib.EMBBADCRC:
+            return ProtocolError(f"{asked}: reply failed its CRC check{received}",
+                                 reason="bad CRC", **kw)
+        if err == lib.EMBBADSLAVE:
+            who = f" {got[0]}" if got else ""
+            return ProtocolError(f"{asked}: reply came from another address{who}{received}",
+                                 reason="wrong slave", **kw)
+        if err == lib.EMBBADEXC:
+            return ProtocolError(f"{asked}: reply is an invalid exception response{received}",
+                                 reason="invalid exception", **kw)
+        if err in (lib.EMBBADDATA, lib.EMBMDATA, lib.EMBUNKEXC):
+            why = ffi.string(lib.pymb_frame_strerror(fail.frame)).decode() if fail.frame else (
+                "malformed reply")
+            return ProtocolError(f"{asked}: {why}{received}", reason=why, **kw)
+        if err == lib.EINVAL:
+            return InvalidArgument(f"{asked}: invalid argument", **kw)
+        if err in _LINK_LOST:
+            self.close()
+        return ModbusConnectionError(f"{asked}: {_os_hint(err)}", errno=err, **kw)
+
+
+def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
+    """A serial-line Link (not yet open)."""
+    dev = port.encode()
+    par = parity.encode()
+    return Link(
+        port,
+        lambda: lib.modbus_new_rtu(dev, baudrate, par, data_bits, stop_bits),
+        serial=True,
+    )
+
+
+def new_tcp(host: str, port: int) -> Link:
+    """A Modbus TCP Link (not yet open); ``host`` is a name or an address."""
+    node = host.encode()
+    service = str(port).encode()
+    return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False)

@@ -1,0 +1,478 @@
+"""Modbus clients: :class:`RtuClient` (serial line) and :class:`TcpClient`.
+
+Every argument is checked before anything is sent. Reads longer than one
+request allows (125 registers, 2000 bits) are split into maximal requests
+that fill one preallocated array, in C. One client may be shared by threads:
+each holds a lock per request, and the blocking I/O runs with the GIL
+released, so other buses keep working.
+
+Replies are checked by pymb itself (CRC, address, function code, byte count,
+write echo). Before each request pending input is discarded; after a timeout
+or a bad frame pymb listens until the line has been silent for the response
+timeout, so a late or stray reply is never taken as a later answer.
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+import threading
+from array import array
+from collections.abc import Iterable, Sequence
+from types import TracebackType
+from typing import Any
+
+from pymb import _native
+from pymb.errors import InvalidArgument, ModbusConnectionError
+
+__all__ = ["Client", "RtuClient", "TcpClient"]
+
+MAX_READ_REGISTERS = 125
+MAX_WRITE_REGISTERS = 123
+MAX_WR_WRITE_REGISTERS = 121
+MAX_READ_BITS = 2000
+MAX_WRITE_BITS = 1968
+
+_FC_READ_COILS = 0x01
+_FC_READ_DISCRETE_INPUTS = 0x02
+_FC_READ_HOLDING = 0x03
+_FC_READ_INPUT = 0x04
+_FC_WRITE_COIL = 0x05
+_FC_WRITE_REGISTER = 0x06
+_FC_READ_EXCEPTION_STATUS = 0x07
+_FC_WRITE_COILS = 0x0F
+_FC_WRITE_REGISTERS = 0x10
+_FC_REPORT_SLAVE_ID = 0x11
+_FC_MASK_WRITE = 0x16
+_FC_WRITE_READ = 0x17
+
+_PARITIES = {"N": "N", "E": "E", "O": "O", "NONE": "N", "EVEN": "E", "ODD": "O"}
+_SERIAL_MODES = {"rs232": 0, "rs485": 1}
+_RTS_MODES = {"none": 0, "up": 1, "down": 2}
+
+
+def _int(name: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
+    if not low <= value <= high:
+        raise InvalidArgument(f"{name} must be from {low} to {high}, got {value}")
+    return value
+
+
+def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidArgument(f"{name} must be a number of seconds, got {value!r}")
+    v = float(value)
+    if not (v >= 0.0 if allow_zero else v > 0.0) or v > 3600.0:
+        raise InvalidArgument(
+            f"{name} must be {'0' if allow_zero else 'more than 0'} to 3600 seconds, got {value!r}"
+        )
+    return v
+
+
+class Client:
+    """What both clients share: the request methods and the life cycle.
+
+    Use as a context manager (connect on enter, close on exit) or call
+    :meth:`connect` and :meth:`close`. After the OS loses the link (an
+    unplugged adapter, a reset TCP connection) the request that saw it raises
+    :class:`~pymb.ModbusConnectionError`; the next request reconnects once
+    by itself, and :attr:`connections` counts every successful connect.
+    """
+
+    _max_slave = 255
+    _min_read_slave = 1
+
+    def __init__(self, link: _native.Link, *, slave: int | None, timeout: float,
+                 byte_timeout: float) -> None:
+        self._link = link
+        self._lock = threading.Lock()
+        self._slave: int | None = None
+        self._timeout = 1.0
+        self._byte_timeout = 0.0
+        self._wanted = False  # connect() called and close() not since
+        self.connections = 0
+        if slave is not None:
+            self.slave = slave
+        self.set_timeout(timeout, byte_timeout)
+
+    # -- life cycle ---------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        """The serial device or ``host:port`` this client talks to."""
+        return self._link.name
+
+    @property
+    def connected(self) -> bool:
+        """True while the line is open."""
+        return self._link.is_open
+
+    def connect(self) -> None:
+        """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
+        with self._lock:
+            self._wanted = True
+            self._open()
+
+    def _open(self) -> None:
+        if not self._link.is_open:
+            self._link.open()
+            self.connections += 1
+
+    def close(self) -> None:
+        """Close the line; safe to call more than once."""
+        with self._lock:
+            self._wanted = False
+            self._link.close()
+
+    def __enter__(self) -> Client:
+        self.connect()
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "open" if self.connected else "closed"
+        return f"<{type(self).__name__} {self.port} slave={self._slave} {state}>"
+
+    def fileno(self) -> int:
+        """The line's file descriptor (-1 when closed)."""
+        return self._link.fileno()
+
+    # -- settings -----------------------------------------------------------------
+
+    @property
+    def slave(self) -> int | None:
+        """Default slave address for requests that do not name one."""
+        return self._slave
+
+    @slave.setter
+    def slave(self, value: int | None) -> None:
+        self._slave = None if value is None else _int("slave", value, 0, self._max_slave)
+
+    @property
+    def timeout(self) -> float:
+        """Seconds to wait for a complete reply."""
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        self.set_timeout(value, self._byte_timeout)
+
+    def set_timeout(self, timeout: float, byte_timeout: float = 0.0) -> None:
+        """Set the reply timeout and the inter-byte timeout, in seconds.
+
+        ``byte_timeout`` 0 (the default) means the whole reply must arrive
+        within ``timeout``; a positive value also fails a reply whose bytes
+        stop for that long.
+        """
+        t = _seconds("timeout", timeout)
+        b = _seconds("byte_timeout", byte_timeout, allow_zero=True)
+        with self._lock:
+            self._link.set_timeouts(t, b)
+            self._timeout, self._byte_timeout = t, b
+
+    # -- checks -------------------------------------------------------------------
+
+    def _slave_for(self, slave: int | None, *, write: bool = False) -> int:
+        if slave is None:
+            slave = self._slave
+            if slave is None:
+                raise InvalidArgument(
+                    "no slave address: pass slave=N or set the client's slave"
+                )
+        low = 0 if write else self._min_read_slave
+        return _int("slave", slave, low, self._max_slave)
+
+    @staticmethod
+    def _range(address: int, count: int, limit: int | None) -> tuple[int, int]:
+        _int("address", address, 0, 0xFFFF)
+        _int("count", count, 1, 0x10000 if limit is None else limit)
+        if address + count > 0x10000:
+            raise InvalidArgument(
+                f"address {address} + count {count} runs past the last address 65535"
+            )
+        return address, count
+
+    def _call(self, fn: Any, *args: Any) -> Any:
+        with self._lock:
+            if not self._link.is_open:
+                if not self._wanted:
+                    raise ModbusConnectionError(
+                        f"{self.port} is not connected: use `with client:` or client.connect()",
+                        port=self.port,
+                    )
+                self._open()
+            return fn(*args)
+
+    # -- registers ----------------------------------------------------------------
+
+    def read_holding_registers(self, address: int, count: int, *,
+                               slave: int | None = None) -> array[int]:
+        """Read ``count`` holding registers (function 0x03) from ``address``.
+
+        Any count up to the end of the address space: requests of at most 125
+        registers are made as needed. Returns an ``array('H')``."""
+        out = array("H", bytes(2 * self._range(address, count, None)[1]))
+        self.read_holding_registers_into(address, out, slave=slave)
+        return out
+
+    def read_input_registers(self, address: int, count: int, *,
+                             slave: int | None = None) -> array[int]:
+        """Read ``count`` input registers (function 0x04); see
+        :meth:`read_holding_registers`."""
+        out = array("H", bytes(2 * self._range(address, count, None)[1]))
+        self.read_input_registers_into(address, out, slave=slave)
+        return out
+
+    def read_holding_registers_into(self, address: int, dest: Any, *,
+                                    slave: int | None = None) -> None:
+        """Read ``len(dest)`` holding registers into a writable uint16 buffer
+        (``array('H')``, a numpy uint16 array): no allocation at all."""
+        self._read_regs(_FC_READ_HOLDING, address, dest, slave)
+
+    def read_input_registers_into(self, address: int, dest: Any, *,
+                                  slave: int | None = None) -> None:
+        """Read ``len(dest)`` input registers into a writable uint16 buffer."""
+        self._read_regs(_FC_READ_INPUT, address, dest, slave)
+
+    def _read_regs(self, fc: int, address: int, dest: Any, slave: int | None) -> None:
+        s = self._slave_for(slave)
+        view = memoryview(dest)
+        if view.itemsize != 2 or view.readonly:
+            raise InvalidArgument("dest must be a writable buffer of 16-bit items (array('H'))")
+        self._range(address, len(view), None)
+        self._call(self._link.read_registers, fc, s, address, len(view), dest)
+
+    def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
+        """Write one holding register (function 0x06). The device's echo must
+        match the request exactly, or :class:`~pymb.ProtocolError` is raised."""
+        s = self._slave_for(slave, write=True)
+        _int("address", address, 0, 0xFFFF)
+        _int("value", value, 0, 0xFFFF)
+        self._transact(s, _FC_WRITE_REGISTER, struct.pack(">HH", address, value), address, 1)
+
+    def write_registers(self, address: int, values: Sequence[int] | array[int], *,
+                        slave: int | None = None) -> None:
+        """Write 1 to 123 holding registers (function 0x10)."""
+        s = self._slave_for(slave, write=True)
+        data = self._u16_payload(values)
+        n = len(data) // 2
+        self._range(address, n, MAX_WRITE_REGISTERS)
+        self._transact(s, _FC_WRITE_REGISTERS,
+                       struct.pack(">HHB", address, n, 2 * n) + data, address, n)
+
+    def mask_write_register(self, address: int, and_mask: int, or_mask: int, *,
+                            slave: int | None = None) -> None:
+        """Mask write (function 0x16): register = (reg & and_mask) | (or_mask & ~and_mask)."""
+        s = self._slave_for(slave, write=True)
+        _int("address", address, 0, 0xFFFF)
+        _int("and_mask", and_mask, 0, 0xFFFF)
+        _int("or_mask", or_mask, 0, 0xFFFF)
+        self._transact(s, _FC_MASK_WRITE, struct.pack(">HHH", address, and_mask, or_mask),
+                       address, 1)
+
+    def write_read_registers(self, write_address: int, values: Sequence[int] | array[int],
+                             read_address: int, read_count: int, *,
+                             slave: int | None = None) -> array[int]:
+        """Write 1..121 registers, then read 1..125 (function 0x17), in one request."""
+        s = self._slave_for(slave)
+        data = self._u16_payload(values)
+        n = len(data) // 2
+        self._range(write_address, n, MAX_WR_WRITE_REGISTERS)
+        self._range(read_address, read_count, MAX_READ_REGISTERS)
+        pdu = self._transact(
+            s, _FC_WRITE_READ,
+            struct.pack(">HHHHB", read_address, read_count, write_address, n, 2 * n) + data,
+            read_address, read_count,
+        )
+        out = array("H", pdu[2:])
+        if sys.byteorder == "little":
+            out.byteswap()
+        return out
+
+    @staticmethod
+    def _u16_payload(values: Sequence[int] | array[int]) -> bytes:
+        try:
+            a = values if isinstance(values, array) and values.typecode == "H" else array(
+                "H", values)
+        except (OverflowError, TypeError) as e:
+            raise InvalidArgument(f"register values must be integers 0..65535: {e}") from None
+        if len(a) == 0:
+            raise InvalidArgument("no values to write")
+        if sys.byteorder == "little":
+            a = array("H", a)
+            a.byteswap()
+        return a.tobytes()
+
+    # -- bits ---------------------------------------------------------------------
+
+    def read_coils(self, address: int, count: int, *, slave: int | None = None) -> array[int]:
+        """Read ``count`` coils (function 0x01); an ``array('B')`` of 0/1.
+        Counts above 2000 are split into several requests."""
+        return self._read_bits(_FC_READ_COILS, address, count, slave)
+
+    def read_discrete_inputs(self, address: int, count: int, *,
+                             slave: int | None = None) -> array[int]:
+        """Read ``count`` discrete inputs (function 0x02); an ``array('B')`` of 0/1."""
+        return self._read_bits(_FC_READ_DISCRETE_INPUTS, address, count, slave)
+
+    def _read_bits(self, fc: int, address: int, count: int, slave: int | None) -> array[int]:
+        s = self._slave_for(slave)
+        self._range(address, count, None)
+        out = array("B", bytes(count))
+        self._call(self._link.read_bits, fc, s, address, count, out)
+        return out
+
+    def write_coil(self, address: int, value: bool, *, slave: int | None = None) -> None:
+        """Write one coil (function 0x05)."""
+        s = self._slave_for(slave, write=True)
+        _int("address", address, 0, 0xFFFF)
+        self._transact(s, _FC_WRITE_COIL,
+                       struct.pack(">HH", address, 0xFF00 if value else 0), address, 1)
+
+    def write_coils(self, address: int, values: Iterable[bool | int], *,
+                    slave: int | None = None) -> None:
+        """Write 1 to 1968 coils (function 0x0F)."""
+        s = self._slave_for(slave, write=True)
+        bits = [1 if v else 0 for v in values]
+        self._range(address, len(bits) if bits else 0, MAX_WRITE_BITS)
+        packed = bytearray((len(bits) + 7) // 8)
+        for i, b in enumerate(bits):
+            if b:
+                packed[i // 8] |= 1 << (i % 8)
+        self._transact(s, _FC_WRITE_COILS,
+                       struct.pack(">HHB", address, len(bits), len(packed)) + bytes(packed),
+                       address, len(bits))
+
+    # -- the rest -----------------------------------------------------------------
+
+    def report_slave_id(self, *, slave: int | None = None) -> bytes:
+        """Report server ID (function 0x11): the device's bytes after the byte count."""
+        s = self._slave_for(slave)
+        return self._transact(s, _FC_REPORT_SLAVE_ID, b"", None, None)[2:]
+
+    def read_exception_status(self, *, slave: int | None = None) -> int:
+        """Read exception status (function 0x07, serial line): one byte."""
+        s = self._slave_for(slave)
+        return self._transact(s, _FC_READ_EXCEPTION_STATUS, b"", None, None)[1]
+
+    def raw_request(self, function: int, data: bytes = b"", *,
+                    slave: int | None = None) -> bytes:
+        """Send any function code with ``data`` and return the reply's data
+        (the PDU after the function code), checked as far as the function is
+        known. An exception reply raises the matching DeviceException."""
+        s = self._slave_for(slave, write=True)
+        _int("function", function, 1, 0x7F)
+        if len(data) > 252:
+            raise InvalidArgument(f"data is {len(data)} bytes; a PDU holds at most 252")
+        return self._transact(s, function, bytes(data), None, None)[1:]
+
+    def _transact(self, slave: int, function: int, data: bytes, address: int | None,
+                  count: int | None) -> bytes:
+        request = bytes((slave, function)) + data
+        pdu: bytes = self._call(self._link.transact, request, address=address, count=count)
+        return pdu
+
+    def drain(self, quiet: float = 0.05, limit: float = 1.0) -> int:
+        """Read and drop input until the line has been quiet for ``quiet``
+        seconds (at most ``limit``); returns the bytes dropped."""
+        with self._lock:
+            return self._link.drain(quiet, limit)
+
+
+class RtuClient(Client):
+    """A Modbus RTU master on a serial port (or a pseudo-terminal).
+
+    ``port``: the device, e.g. ``/dev/ttyUSB0`` or ``/dev/serial/by-id/...``.
+    ``baudrate``: one of the standard rates (9600, 19200, ... 115200, ...).
+    ``parity``: ``"N"``, ``"E"`` or ``"O"``. ``slave``: default address,
+    1..255 (248..255 are reached through pymb's own framing, as libmodbus
+    refuses them). ``timeout``: seconds for a complete reply.
+
+    RS485 adapters: ``serial_mode="rs485"`` turns on the kernel's RS485 mode
+    (drivers that support TIOCSRS485), ``rts="up"``/``"down"`` drives RTS
+    from user space around each request and ``rts_delay`` (seconds) waits
+    that long around it.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 9600,
+        parity: str = "N",
+        data_bits: int = 8,
+        stop_bits: int = 1,
+        *,
+        slave: int | None = None,
+        timeout: float = 1.0,
+        byte_timeout: float = 0.0,
+        serial_mode: str | None = None,
+        rts: str | None = None,
+        rts_delay: float | None = None,
+    ) -> None:
+        if not isinstance(port, str) or not port:
+            raise InvalidArgument(f"port must be a device path, got {port!r}")
+        if isinstance(baudrate, bool) or baudrate not in _native.BAUD_RATES:
+            raise InvalidArgument(
+                f"baudrate {baudrate!r} is not a rate the serial driver supports; "
+                f"use one of {sorted(_native.BAUD_RATES)}"
+            )
+        p = _PARITIES.get(str(parity).upper())
+        if p is None:
+            raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
+        _int("data_bits", data_bits, 5, 8)
+        _int("stop_bits", stop_bits, 1, 2)
+        self.baudrate = baudrate
+        self.parity = p
+        self.data_bits = data_bits
+        self.stop_bits = stop_bits
+        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
+        super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
+        self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
+
+    def set_rs485(self, *, serial_mode: str | None = None, rts: str | None = None,
+                  rts_delay: float | None = None) -> None:
+        """RS485 settings, applied now if open and on every connect."""
+        mode = None
+        if serial_mode is not None:
+            if serial_mode not in _SERIAL_MODES:
+                raise InvalidArgument(
+                    f"serial_mode must be 'rs232' or 'rs485', got {serial_mode!r}")
+            mode = _SERIAL_MODES[serial_mode]
+        r = None
+        if rts is not None:
+            if rts not in _RTS_MODES:
+                raise InvalidArgument(f"rts must be 'none', 'up' or 'down', got {rts!r}")
+            r = _RTS_MODES[rts]
+        delay = None
+        if rts_delay is not None:
+            delay = round(_seconds("rts_delay", rts_delay, allow_zero=True) * 1e6)
+        with self._lock:
+            self._link.set_rs485(mode, r, delay)
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds ``nbytes`` take on this line (start, data, parity, stop bits)."""
+        bits = 1 + self.data_bits + (0 if self.parity == "N" else 1) + self.stop_bits
+        return nbytes * bits / self.baudrate
+
+
+class TcpClient(Client):
+    """A Modbus TCP client (also for RTU-over-TCP gateways that speak Modbus
+    TCP). ``host`` is a name or an address; ``slave`` is the unit identifier,
+    0..255 (many gateways route it to the RTU address)."""
+
+    _min_read_slave = 0
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        _int("port", port, 1, 65535)
+        self.host = host
+        self.tcp_port = port
+        super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
+                         byte_timeout=byte_timeout)

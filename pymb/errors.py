@@ -1,0 +1,217 @@
+"""pymb's exceptions: one small hierarchy rooted at :class:`ModbusError`.
+
+``ModbusError`` is never raised itself. What the *device* reported is a
+:class:`DeviceException` (one subclass per Modbus exception code); what the
+*master* saw is a :class:`ModbusTimeout`, a :class:`ProtocolError` or a
+:class:`ModbusConnectionError`; a bad argument, caught before any I/O, is an
+:class:`InvalidArgument`. Every message says what was asked (slave, function,
+address, count, port) and what came back.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+__all__ = [
+    "Acknowledge",
+    "DeviceBusy",
+    "DeviceException",
+    "DeviceFailure",
+    "GatewayPathUnavailable",
+    "GatewayTargetFailed",
+    "IllegalDataAddress",
+    "IllegalDataValue",
+    "IllegalFunction",
+    "InvalidArgument",
+    "MemoryParityError",
+    "ModbusConnectionError",
+    "ModbusError",
+    "ModbusTimeout",
+    "NegativeAcknowledge",
+    "ProtocolError",
+    "exception_class",
+]
+
+
+class ModbusError(Exception):
+    """Root of every error pymb raises; catch this to catch them all.
+
+    Attributes (``None`` where they do not apply): ``slave``, ``function``,
+    ``address``, ``count`` of the request, ``port`` it went to, and
+    ``response``, the bytes that came back.
+    """
+
+    slave: int | None
+    function: int | None
+    address: int | None
+    count: int | None
+    port: str | None
+    response: bytes | None
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        slave: int | None = None,
+        function: int | None = None,
+        address: int | None = None,
+        count: int | None = None,
+        port: str | None = None,
+        response: bytes | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.slave = slave
+        self.function = function
+        self.address = address
+        self.count = count
+        self.port = port
+        self.response = response
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class ModbusTimeout(ModbusError, TimeoutError):
+    """No complete reply arrived within the client's timeout."""
+
+
+class ProtocolError(ModbusError):
+    """A reply arrived but is not a valid answer to the request: bad CRC,
+    another slave's address, another function code, a byte count or length
+    that does not match, a write echo that differs, a malformed frame.
+
+    ``reason`` names which, in a few words.
+    """
+
+    reason: str
+
+    def __init__(self, message: str, *, reason: str = "invalid reply", **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.reason = reason
+
+
+class ModbusConnectionError(ModbusError, ConnectionError):
+    """The operating system failed the link: the port does not exist or was
+    unplugged (``EIO``), permission was denied, the port is in use, the TCP
+    peer refused or reset the connection. ``errno`` is the OS's error number
+    and ``port`` names the device or address."""
+
+    def __init__(self, message: str, *, errno: int | None = None, **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.errno = errno
+
+
+class InvalidArgument(ModbusError, ValueError):
+    """An argument is out of range; raised before anything is sent."""
+
+
+class DeviceException(ModbusError):
+    """The device answered with a Modbus exception response.
+
+    ``code`` is the exception code (1..255). Subclasses name the standard codes
+    (Modbus Application Protocol V1.1b3, section 7); an unknown code raises
+    this class itself.
+    """
+
+    default_code: ClassVar[int] = 0
+    description: ClassVar[str] = "exception"
+    code: int
+
+    def __init__(self, message: str, *, code: int | None = None, **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.code = self.default_code if code is None else code
+
+
+class IllegalFunction(DeviceException):
+    """Exception 01: the device does not support the function code."""
+
+    default_code = 0x01
+    description = "illegal function"
+
+
+class IllegalDataAddress(DeviceException):
+    """Exception 02: the address, or address plus count, is not valid for the
+    device (the sensor hub also answers 02 for a block its firmware lacks)."""
+
+    default_code = 0x02
+    description = "illegal data address"
+
+
+class IllegalDataValue(DeviceException):
+    """Exception 03: a value in the request is out of range."""
+
+    default_code = 0x03
+    description = "illegal data value"
+
+
+class DeviceFailure(DeviceException):
+    """Exception 04: the device failed while processing the request
+    (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
+
+    default_code = 0x04
+    description = "server device failure"
+
+
+class Acknowledge(DeviceException):
+    """Exception 05: accepted, but it will take long; poll again later."""
+
+    default_code = 0x05
+    description = "acknowledge"
+
+
+class DeviceBusy(DeviceException):
+    """The device is busy (standard code 06; the sensor hub's code 04).
+    Worth a retry after a short wait."""
+
+    default_code = 0x06
+    description = "server device busy"
+
+
+class NegativeAcknowledge(DeviceException):
+    """Exception 07: the device cannot perform the program function."""
+
+    default_code = 0x07
+    description = "negative acknowledge"
+
+
+class MemoryParityError(DeviceException):
+    """Exception 08: the device found a parity error in its memory."""
+
+    default_code = 0x08
+    description = "memory parity error"
+
+
+class GatewayPathUnavailable(DeviceException):
+    """Exception 0A: the gateway has no path to the target."""
+
+    default_code = 0x0A
+    description = "gateway path unavailable"
+
+
+class GatewayTargetFailed(DeviceException):
+    """Exception 0B: the gateway's target did not respond."""
+
+    default_code = 0x0B
+    description = "gateway target device failed to respond"
+
+
+_BY_CODE: dict[int, type[DeviceException]] = {
+    cls.default_code: cls
+    for cls in (
+        IllegalFunction,
+        IllegalDataAddress,
+        IllegalDataValue,
+        DeviceFailure,
+        Acknowledge,
+        DeviceBusy,
+        NegativeAcknowledge,
+        MemoryParityError,
+        GatewayPathUnavailable,
+        GatewayTargetFailed,
+    )
+}
+
+
+def exception_class(code: int) -> type[DeviceException]:
+    """The DeviceException subclass for a Modbus exception code."""
+    return _BY_CODE.get(code, DeviceException)
