@@ -196,7 +196,7 @@ class Client:
             )
         return address, count
 
-    def _call(self, fn: Any, *args: Any) -> Any:
+    def _call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
         with self._lock:
             if not self._link.is_open:
                 if not self._wanted:
@@ -205,7 +205,7 @@ class Client:
                         port=self.port,
                     )
                 self._open()
-            return fn(*args)
+            return fn(*args, **kwargs)
 
     # -- registers ----------------------------------------------------------------
 

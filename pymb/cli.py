@@ -1,0 +1,68 @@
+"""The ``pymb`` command (also ``python -m pymb``).
+
+Each subcommand lives in its own module, which provides ``add_arguments(parser)``
+and ``run(args) -> int``; this file only wires them together and turns
+pymb's errors into messages and exit codes (no traceback for a user mistake).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from pymb import __version__
+from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
+
+__all__ = ["EXIT_CONNECTION", "EXIT_DEVICE", "EXIT_USAGE", "main"]
+
+EXIT_USAGE = 2  #: bad arguments or configuration
+EXIT_DEVICE = 3  #: the device answered wrongly, or not at all
+EXIT_CONNECTION = 4  #: the port or connection failed
+
+#: subcommand -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("pymb.sim.cli", "simulate CoolPro and sensor-hub devices on a pty or TCP"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered."""
+    parser = argparse.ArgumentParser(
+        prog="pymb", description="Modbus RTU for real devices, fast."
+    )
+    parser.add_argument("--version", action="version", version=f"pymb {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        mod = importlib.import_module(module)
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return int(args._module.run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except InvalidArgument as e:
+        print(f"pymb {args.command}: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except ModbusConnectionError as e:
+        print(f"pymb {args.command}: {e}", file=sys.stderr)
+        return EXIT_CONNECTION
+    except ModbusError as e:
+        print(f"pymb {args.command}: {e}", file=sys.stderr)
+        return EXIT_DEVICE
+
+
+if __name__ == "__main__":
+    sys.exit(main())
