@@ -28,6 +28,10 @@ __all__ = [
     "crc16",
     "ffi_buffer_u16",
     "lib_constants",
+    "rtu_crc_ok",
+    "rtu_request_length",
+    "rtu_response_length",
+    "with_crc",
 ]
 
 LIBMODBUS_VERSION = (
@@ -72,6 +76,29 @@ def lib_constants() -> Any:
 def crc16(data: bytes | bytearray | memoryview) -> int:
     """CRC-16/MODBUS of ``data`` (as it goes on the wire: low byte first)."""
     return int(lib.pymb_crc16(ffi.from_buffer(data), len(data)))
+
+
+def with_crc(frame: bytes) -> bytes:
+    """``frame`` with its CRC appended, low byte first (an RTU frame)."""
+    crc = lib.pymb_crc16(frame, len(frame))
+    return frame + bytes((crc & 0xFF, crc >> 8))
+
+
+def rtu_crc_ok(frame: bytes) -> bool:
+    """True when the last two bytes of ``frame`` are the CRC of the rest."""
+    return bool(lib.pymb_rtu_crc_ok(frame, len(frame)))
+
+
+def rtu_request_length(buf: bytes) -> int:
+    """Length of the RTU request starting ``buf`` as its header tells it:
+    -1 needs more bytes, -4 unknown function (only silence ends it), -7 too
+    long (see pymb_rtu_request_length in csrc/pymb.h)."""
+    return int(lib.pymb_rtu_request_length(buf, len(buf)))
+
+
+def rtu_response_length(buf: bytes) -> int:
+    """Length of the RTU response starting ``buf`` (-1: need more bytes)."""
+    return int(lib.pymb_rtu_response_length(buf, len(buf)))
 
 
 def ffi_buffer_u16(array: Any) -> Any:
