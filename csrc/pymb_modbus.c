@@ -204,7 +204,10 @@ int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
 
 static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const void *dest)
 {
-    if (ctx == NULL || dest == NULL || slave < 1 || slave > 255 || addr < 0 || nb < 1 ||
+    /* A read needs a reply: no RTU broadcast. TCP unit identifiers are 0..255. */
+    int lowest = (ctx != NULL && modbus_get_header_length(ctx) == 1) ? 1 : 0;
+
+    if (ctx == NULL || dest == NULL || slave < lowest || slave > 255 || addr < 0 || nb < 1 ||
         addr + nb > 65536) {
         errno = EINVAL;
         return -1;

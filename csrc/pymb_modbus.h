@@ -69,7 +69,8 @@ void pymb_recover(modbus_t *ctx);
 int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
                   int rsp_cap, pymb_failure *fail);
 
-/* Read nb registers with function 0x03 or 0x04 from slave (1..255) into
+/* Read nb registers with function 0x03 or 0x04 from slave (RTU 1..255, TCP
+ * 0..255) into
  * dest[0..nb), in as many requests of at most 125 registers as it takes.
  * addr + nb <= 65536. Returns nb, or -1 and errno (dest may then hold the
  * chunks read before the failure). */

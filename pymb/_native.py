@@ -314,11 +314,12 @@ class Link:
             args.append(f"count={count}")
         asked = f"{op}({', '.join(args)}) on {self.name}"
         if (
-            count is not None
+            function in (1, 2, 3, 4)
+            and count is not None
             and fail.count >= 0
             and (fail.address, fail.count) != (address, count)
         ):
-            asked += f" [request for {fail.count} at {fail.address}]"
+            asked += f" [in the request for {fail.count} at {fail.address}]"
         got = bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None
         received = f" (received {_hex(got)})" if got else ""
         kw: dict[str, Any] = dict(

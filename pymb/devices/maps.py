@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 __all__ = [
     "COOLPRO",
@@ -34,7 +34,7 @@ __all__ = [
 ]
 
 
-class Type(str, Enum):
+class Type(StrEnum):
     """How a point's raw registers become a value."""
 
     U16 = "u16"  #: unsigned 16-bit
@@ -44,7 +44,7 @@ class Type(str, Enum):
     BITS = "bits"  #: a bit field
 
 
-class Access(str, Enum):
+class Access(StrEnum):
     """Whether a point is read, written, or both."""
 
     R = "r"

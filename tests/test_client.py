@@ -1,0 +1,452 @@
+"""The low-level client against real libmodbus over real pseudo-terminals and
+TCP on 127.0.0.1, with a scripted peer (tests/peers.py) to provoke each
+error path."""
+
+from __future__ import annotations
+
+import errno
+import struct
+import threading
+import time
+from array import array
+
+import pytest
+from peers import PtyPeer, pty_peer, tcp_peer
+
+import pymb
+from pymb import _native
+
+T = 0.25  # client timeout for the error paths: short, so the suite stays fast
+
+
+@pytest.fixture
+def peer() -> PtyPeer:
+    with pty_peer() as p:
+        yield p
+
+
+@pytest.fixture
+def client(peer: PtyPeer) -> pymb.RtuClient:
+    with pymb.RtuClient(peer.port, 19200, slave=40, timeout=T) as c:
+        yield c
+
+
+def reg_request(slave: int, fc: int, addr: int, n: int) -> tuple[int, bytes]:
+    return slave, bytes((fc,)) + struct.pack(">HH", addr, n)
+
+
+# -- CRC ----------------------------------------------------------------------
+
+
+def test_crc16_known_values() -> None:
+    # CRC-16/MODBUS catalogue check value.
+    assert pymb.crc16(b"123456789") == 0x4B37
+    # CoolPro document, ch. 04: worked CRCs (sent low byte first).
+    assert pymb.crc16(bytes.fromhex("280400000001")) == 0x3336
+    assert pymb.crc16(bytes.fromhex("2804025FB4")) == 0x71DD
+    assert _native.with_crc(bytes.fromhex("280400000001")).hex() == "2804000000013633"
+    assert pymb.crc16(b"") == 0xFFFF
+    assert pymb.crc16(bytearray(b"123456789")) == pymb.crc16(memoryview(b"123456789"))
+
+
+def test_crc16_matches_bitwise_reference() -> None:
+    def ref(data: bytes) -> int:
+        crc = 0xFFFF
+        for b in data:
+            crc ^= b
+            for _ in range(8):
+                crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+        return crc
+
+    for n in (1, 2, 7, 64, 255, 256):
+        data = bytes((i * 37 + n) & 0xFF for i in range(n))
+        assert pymb.crc16(data) == ref(data)
+
+
+# -- reads --------------------------------------------------------------------
+
+
+def test_read_input_and_holding(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    r = client.read_input_registers(0, 8)
+    assert isinstance(r, array) and r.typecode == "H"
+    assert list(r) == list(range(8))
+    h = client.read_holding_registers(10, 3)
+    assert list(h) == [70, 77, 84]
+    assert peer.requests == [reg_request(40, 4, 0, 8), reg_request(40, 3, 10, 3)]
+
+
+def test_long_read_is_split_into_maximal_requests(client: pymb.RtuClient,
+                                                  peer: PtyPeer) -> None:
+    r = client.read_holding_registers(31, 700)
+    assert list(r) == [(i * 7) & 0xFFFF for i in range(31, 731)]
+    counts = [struct.unpack(">HH", pdu[1:5]) for _, pdu in peer.requests]
+    assert counts == [(31, 125), (156, 125), (281, 125), (406, 125), (531, 125), (656, 75)]
+
+
+def test_read_into_preallocated_buffer(client: pymb.RtuClient) -> None:
+    buf = array("H", bytes(2 * 300))
+    client.read_input_registers_into(1000, buf)
+    assert list(buf) == list(range(1000, 1300))
+    with pytest.raises(pymb.InvalidArgument):
+        client.read_input_registers_into(0, bytearray(10))
+
+
+def test_high_slave_addresses_use_pymb_framing(peer: PtyPeer) -> None:
+    with pymb.RtuClient(peer.port, 9600, timeout=T) as c:
+        for slave in (248, 250, 255):
+            r = c.read_holding_registers(31, 130, slave=slave)
+            assert list(r) == [(i * 7) & 0xFFFF for i in range(31, 161)]
+        assert {s for s, _ in peer.requests} == {248, 250, 255}
+
+
+def test_slave_250_reply_with_bad_crc_is_refused(peer: PtyPeer) -> None:
+    # libmodbus would skip the CRC check here (the reply's address is not the
+    # context's slave); pymb must not.
+    def corrupt(slave: int, pdu: bytes, normal: bytes | None):
+        frame = bytearray(peer.frame(slave, normal or b""))
+        frame[4] ^= 0x01
+        return [(0, bytes(frame))]
+
+    peer.hook = corrupt
+    with pymb.RtuClient(peer.port, timeout=T, slave=250) as c:
+        with pytest.raises(pymb.ProtocolError) as ei:
+            c.read_holding_registers(31, 4)
+        assert ei.value.reason == "bad CRC"
+        peer.hook = None
+        assert list(c.read_holding_registers(31, 2)) == [217, 224]
+
+
+def test_coils_and_discrete_inputs(client: pymb.RtuClient) -> None:
+    assert list(client.read_coils(0, 10)) == [1, 0, 0, 1, 0, 0, 1, 0, 0, 1]
+    assert list(client.read_discrete_inputs(3, 5)) == [1, 0, 1, 0, 1]
+    long = client.read_discrete_inputs(0, 4500)  # split at 2000 bits
+    assert list(long) == [i % 2 for i in range(4500)]
+    client.write_coil(1, True)
+    client.write_coils(20, [1, 1, 0, 1, 0, 0, 0, 0, 1])
+    assert list(client.read_coils(0, 2)) == [1, 1]
+    assert list(client.read_coils(20, 9)) == [1, 1, 0, 1, 0, 0, 0, 0, 1]
+
+
+def test_writes_and_the_rest_of_the_surface(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    client.write_register(5, 0xBEEF)
+    client.write_registers(100, [1, 2, 3, 0xFFFF])
+    assert list(client.read_holding_registers(100, 4)) == [1, 2, 3, 0xFFFF]
+    assert client.read_holding_registers(5, 1)[0] == 0xBEEF
+    client.mask_write_register(5, 0x00FF, 0x1200)
+    assert client.read_holding_registers(5, 1)[0] == 0x12EF
+    r = client.write_read_registers(200, [9, 8], 199, 4)
+    assert list(r) == [(199 * 7) & 0xFFFF, 9, 8, (202 * 7) & 0xFFFF]
+    assert client.report_slave_id() == b"\x2a\xffpymb-peer"
+    assert client.read_exception_status() == 0x5A
+    assert client.raw_request(0x04, struct.pack(">HH", 7, 2)) == b"\x04\x00\x07\x00\x08"
+    assert peer.memory.holding[200:202] == [9, 8]
+
+
+def test_write_echo_must_match(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    def wrong_echo(slave: int, pdu: bytes, normal: bytes | None):
+        if pdu[0] == 6:
+            return [(0, peer.frame(slave, pdu[:3] + b"\x00\x2b"))]
+        return None
+
+    peer.hook = wrong_echo
+    with pytest.raises(pymb.ProtocolError) as ei:
+        client.write_register(0, 42)
+    assert "echo" in str(ei.value)
+
+
+# -- errors -------------------------------------------------------------------
+
+
+def test_timeout(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    peer.hook = lambda *a: []
+    t0 = time.monotonic()
+    with pytest.raises(pymb.ModbusTimeout) as ei:
+        client.read_input_registers(0, 8)
+    assert time.monotonic() - t0 < 5 * T
+    e = ei.value
+    assert isinstance(e, TimeoutError) and isinstance(e, pymb.ModbusError)
+    msg = str(e)
+    for part in ("read_input_registers", "slave=40", "address=0", "count=8", peer.port, "0.25"):
+        assert part in msg
+    assert (e.slave, e.function, e.address, e.count) == (40, 4, 0, 8)
+
+
+def test_bad_crc(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    def bad(slave: int, pdu: bytes, normal: bytes | None):
+        frame = bytearray(peer.frame(slave, normal or b""))
+        frame[-1] ^= 0xFF
+        return [(0, bytes(frame))]
+
+    peer.hook = bad
+    with pytest.raises(pymb.ProtocolError) as ei:
+        client.read_input_registers(0, 2)
+    assert ei.value.reason == "bad CRC"
+    assert "CRC" in str(ei.value) and "received 28 04 04" in str(ei.value)
+    assert ei.value.response is not None and ei.value.response[:3] == b"\x28\x04\x04"
+
+
+def test_wrong_slave(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    peer.hook = lambda slave, pdu, normal: [(0, peer.frame(41, normal or b""))]
+    with pytest.raises(pymb.ProtocolError) as ei:
+        client.read_input_registers(0, 2)
+    assert ei.value.reason == "wrong slave"
+    assert "another address 41" in str(ei.value)
+
+
+@pytest.mark.parametrize(
+    ("code", "cls"),
+    [
+        (1, pymb.IllegalFunction),
+        (2, pymb.IllegalDataAddress),
+        (3, pymb.IllegalDataValue),
+        (4, pymb.DeviceFailure),
+        (6, pymb.DeviceBusy),
+        (0x0B, pymb.GatewayTargetFailed),
+    ],
+)
+def test_exception_codes(client: pymb.RtuClient, peer: PtyPeer, code: int,
+                         cls: type[pymb.DeviceException]) -> None:
+    peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, bytes((pdu[0] | 0x80, code))))]
+    with pytest.raises(cls) as ei:
+        client.read_holding_registers(0, 1)
+    assert ei.value.code == code
+    assert isinstance(ei.value, pymb.DeviceException)
+    assert f"exception {code:02X}" in str(ei.value)
+
+
+def test_exception_from_a_real_range_error(client: pymb.RtuClient) -> None:
+    with pytest.raises(pymb.IllegalDataAddress):
+        client.read_holding_registers(60000, 4)
+    # The line is still in step.
+    assert list(client.read_input_registers(0, 2)) == [0, 1]
+
+
+def test_mismatched_reply_length(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    # A well-formed reply to a different quantity.
+    peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, b"\x04\x02\x00\x01"))]
+    with pytest.raises(pymb.ProtocolError):
+        client.read_input_registers(0, 2)
+
+
+def test_late_reply_is_never_taken_as_a_later_answer(client: pymb.RtuClient,
+                                                      peer: PtyPeer) -> None:
+    # The first request is answered after the client gave up; the reply has
+    # exactly the shape of the next request's reply, with other data.
+    peer.memory.inputs[0:2] = [0xDEAD, 0xBEEF]
+    calls = {"n": 0}
+
+    def late_first(slave: int, pdu: bytes, normal: bytes | None):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            return [(1.4 * T, peer.frame(slave, normal or b""))]
+        return None
+
+    peer.hook = late_first
+    with pytest.raises(pymb.ModbusTimeout):
+        client.read_input_registers(0, 2)
+    peer.memory.inputs[0:2] = [1, 2]
+    assert list(client.read_input_registers(0, 2)) == [1, 2]
+
+
+def test_stray_bytes_after_a_reply_do_not_poison_the_next(client: pymb.RtuClient,
+                                                           peer: PtyPeer) -> None:
+    stale = peer.frame(40, b"\x04\x04\xde\xad\xbe\xef")
+
+    def stray(slave: int, pdu: bytes, normal: bytes | None):
+        return [(0, peer.frame(slave, normal or b"")), (0.01, stale)]
+
+    peer.hook = stray
+    assert list(client.read_input_registers(0, 2)) == [0, 1]
+    time.sleep(0.05)
+    peer.hook = None
+    assert list(client.read_input_registers(0, 2)) == [0, 1]
+
+
+def test_truncated_reply(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, normal or b"")[:5])]
+    with pytest.raises(pymb.ModbusTimeout):
+        client.read_input_registers(0, 8)
+    peer.hook = None
+    assert list(client.read_input_registers(0, 3)) == [0, 1, 2]
+
+
+def test_bad_arguments_never_reach_the_wire(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    bad_calls = [
+        lambda: client.read_holding_registers(-1, 1),
+        lambda: client.read_holding_registers(0, 0),
+        lambda: client.read_holding_registers(65535, 2),
+        lambda: client.read_holding_registers(0, 1, slave=0),
+        lambda: client.read_holding_registers(0, 1, slave=256),
+        lambda: client.read_holding_registers(0, 1, slave=True),
+        lambda: client.read_holding_registers("0", 1),  # type: ignore[arg-type]
+        lambda: client.write_register(0, 70000),
+        lambda: client.write_register(0, -1),
+        lambda: client.write_registers(0, []),
+        lambda: client.write_registers(0, [0] * 124),
+        lambda: client.write_registers(0, [1, -5]),
+        lambda: client.write_coils(0, [1] * 1969),
+        lambda: client.raw_request(0x80),
+        lambda: client.raw_request(3, b"x" * 253),
+    ]
+    for call in bad_calls:
+        with pytest.raises(pymb.InvalidArgument) as ei:
+            call()
+        assert isinstance(ei.value, ValueError)
+    assert peer.requests == []
+
+
+def test_no_slave_set_is_a_clear_error_not_an_abort(peer: PtyPeer) -> None:
+    # libmodbus 3.1.6 asserts (aborting the process) when no slave is set.
+    with (pymb.RtuClient(peer.port, timeout=T) as c,
+          pytest.raises(pymb.InvalidArgument, match="no slave address")):
+        c.read_holding_registers(0, 1)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"baudrate": 12345}, {"baudrate": 0}, {"parity": "X"}, {"data_bits": 9},
+    {"stop_bits": 3}, {"timeout": 0}, {"timeout": -1}, {"timeout": "1"},
+    {"slave": 300}, {"serial_mode": "rs422"}, {"rts": "sideways"},
+])
+def test_constructor_validation(kwargs: dict[str, object]) -> None:
+    # libmodbus would silently turn 12345 baud into 9600.
+    with pytest.raises(pymb.InvalidArgument):
+        pymb.RtuClient("/dev/null", **kwargs)  # type: ignore[arg-type]
+
+
+# -- connection ---------------------------------------------------------------
+
+
+def test_missing_port_names_the_port() -> None:
+    c = pymb.RtuClient("/dev/ttyUSB-does-not-exist", timeout=T, slave=1)
+    with pytest.raises(pymb.ModbusConnectionError) as ei:
+        c.connect()
+    assert ei.value.errno == errno.ENOENT
+    assert "/dev/ttyUSB-does-not-exist" in str(ei.value)
+    assert isinstance(ei.value, ConnectionError)
+
+
+def test_not_connected(peer: PtyPeer) -> None:
+    c = pymb.RtuClient(peer.port, slave=1, timeout=T)
+    with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
+        c.read_input_registers(0, 1)
+
+
+def test_port_in_use_by_another_pymb(peer: PtyPeer) -> None:
+    with pymb.RtuClient(peer.port, slave=1, timeout=T):
+        other = pymb.RtuClient(peer.port, slave=1, timeout=T)
+        with pytest.raises(pymb.ModbusConnectionError, match="in use") as ei:
+            other.connect()
+        assert ei.value.errno == errno.EBUSY
+
+
+def test_close_is_idempotent_and_context_manager_reopens(peer: PtyPeer) -> None:
+    c = pymb.RtuClient(peer.port, slave=40, timeout=T)
+    c.close()
+    with c:
+        assert c.connected
+        assert c.read_input_registers(0, 1)[0] == 0
+    assert not c.connected
+    c.close()
+    c.close()
+    with c:
+        assert c.read_input_registers(1, 1)[0] == 1
+    assert c.connections == 2
+
+
+def test_unplugged_port_raises_connection_error_then_reconnects() -> None:
+    peer = PtyPeer()
+    c = pymb.RtuClient(peer.port, slave=40, timeout=T)
+    c.connect()
+    try:
+        assert c.read_input_registers(0, 1)[0] == 0
+        port = peer.port
+        peer.stop()  # the master side disappears, as a pulled USB adapter
+        with pytest.raises(pymb.ModbusConnectionError) as ei:
+            c.read_input_registers(0, 1)
+        assert ei.value.errno == errno.EIO
+        assert port in str(ei.value)
+        assert not c.connected
+        # The pty is gone for good: the automatic reconnect fails clearly too.
+        with pytest.raises(pymb.ModbusConnectionError):
+            c.read_input_registers(0, 1)
+    finally:
+        c.close()
+
+
+def test_threads_share_one_client(client: pymb.RtuClient) -> None:
+    errors: list[BaseException] = []
+
+    def worker(offset: int) -> None:
+        try:
+            for _ in range(30):
+                r = client.read_input_registers(offset, 10)
+                assert list(r) == list(range(offset, offset + 10))
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=worker, args=(i * 100,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert errors == []
+
+
+def test_gil_is_released_while_waiting(client: pymb.RtuClient, peer: PtyPeer) -> None:
+    # While one thread waits on a slow reply, another keeps running Python.
+    peer.hook = lambda slave, pdu, normal: [(0.15, peer.frame(slave, normal or b""))]
+    ticks = 0
+    done = threading.Event()
+
+    def spin() -> None:
+        nonlocal ticks
+        while not done.is_set():
+            ticks += 1
+            time.sleep(0.001)
+
+    t = threading.Thread(target=spin)
+    t.start()
+    try:
+        client.read_input_registers(0, 2)
+    finally:
+        done.set()
+        t.join()
+    assert ticks > 20
+
+
+# -- TCP ----------------------------------------------------------------------
+
+
+def test_tcp_reads_writes_and_high_unit_ids() -> None:
+    with tcp_peer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
+        assert list(c.read_input_registers(0, 4)) == [0, 1, 2, 3]
+        assert len(c.read_holding_registers(0, 700)) == 700
+        c.write_register(3, 99)
+        assert c.read_holding_registers(3, 1)[0] == 99
+        assert list(c.read_input_registers(10, 2, slave=250)) == [10, 11]
+        assert list(c.read_input_registers(10, 2, slave=0)) == [10, 11]
+
+
+def test_tcp_errors() -> None:
+    with tcp_peer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
+        peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, bytes((pdu[0] | 0x80, 2))))]
+        with pytest.raises(pymb.IllegalDataAddress):
+            c.read_input_registers(0, 4)
+        peer.hook = lambda *a: []
+        with pytest.raises(pymb.ModbusTimeout):
+            c.read_input_registers(0, 4)
+        peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave + 1, normal or b""))]
+        with pytest.raises(pymb.ProtocolError):
+            c.read_input_registers(0, 4)
+        peer.hook = None
+        assert list(c.read_input_registers(0, 2)) == [0, 1]
+
+
+def test_tcp_connection_refused() -> None:
+    with tcp_peer() as peer:
+        host, port = peer.address
+    c = pymb.TcpClient(host, port, slave=1, timeout=T)
+    with pytest.raises(pymb.ModbusConnectionError) as ei:
+        c.connect()
+    assert ei.value.errno == errno.ECONNREFUSED
+    assert f"{host}:{port}" in str(ei.value)
