@@ -22,6 +22,7 @@ SOURCES = [
     f"{CSRC}/pymb_frame.c",
     f"{CSRC}/pymb_decode.c",
     f"{CSRC}/pymb_modbus.c",
+    f"{CSRC}/pymb_hub.c",
 ]
 
 CDEF = """
@@ -130,6 +131,7 @@ int modbus_rtu_get_rts_delay(modbus_t *ctx);
 #define PYMB_HUB_OFFLINE ...
 #define PYMB_HUB_NO_HUMIDITY_1PCT ...
 #define PYMB_HUB_NO_HUMIDITY_TENTHS ...
+#define PYMB_HUB_BITMAP_BYTES ...
 #define PYMB_COOLPRO_TELEMETRY_ADDRESS ...
 #define PYMB_COOLPRO_TELEMETRY_COUNT ...
 #define PYMB_COOLPRO_IDENTITY_ADDRESS ...
@@ -152,7 +154,8 @@ typedef enum {
     PYMB_VALUE = 0,
     PYMB_OFFLINE = 1,
     PYMB_NO_SENSOR = 2,
-    PYMB_UNSUPPORTED = 3
+    PYMB_UNSUPPORTED = 3,
+    PYMB_NOT_READ = 4
 } pymb_state;
 
 typedef enum {
@@ -200,7 +203,8 @@ double pymb_milli(uint16_t raw);
 uint32_t pymb_u32_lo_hi(const uint16_t *regs);
 int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
 int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    const uint8_t *humidity_tenths, const uint8_t *wanted,
+                    unsigned read_mask, unsigned unsupported_mask, double *values,
                     uint8_t *states, size_t out_len);
 int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
                                   pymb_coolpro_telemetry *out);
@@ -226,6 +230,35 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
                         uint16_t *dest, pymb_failure *fail);
 int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
+
+typedef struct {
+    uint16_t address;
+    uint16_t count;
+} pymb_span;
+
+typedef struct {
+    int busy_retries;
+    uint32_t busy_backoff_us;
+} pymb_hub_options;
+
+typedef struct {
+    int slave;
+    unsigned channels;
+    const uint8_t *humidity_tenths;
+    const uint8_t *wanted;
+    const pymb_span *spans;
+    int nspans;
+    pymb_hub_options options;
+    unsigned unsupported;
+    unsigned read_mask;
+    uint16_t *regs;
+    double *values;
+    uint8_t *states;
+    size_t out_len;
+} pymb_hub_request;
+
+int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
+int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail);
 
 /* ---- a few OS calls the port lock and the link checks need ---- */
 #define LOCK_EX ...

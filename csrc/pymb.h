@@ -116,13 +116,14 @@ int pymb_rtu_check_response(const uint8_t *req, size_t req_len, const uint8_t *r
 /* Decoding primitives.                                                      */
 
 /* What a decoded value is. Kept apart as [NOTES] asks: a value, the
- * channel's "offline" marker, the "no sensor of this kind" marker, or a block
- * the device's firmware does not have. */
+ * channel's "offline" marker, the "no sensor of this kind" marker, a block
+ * the device's firmware does not have; or not read this time. */
 typedef enum {
     PYMB_VALUE = 0,
     PYMB_OFFLINE = 1,
     PYMB_NO_SENSOR = 2,
-    PYMB_UNSUPPORTED = 3
+    PYMB_UNSUPPORTED = 3,
+    PYMB_NOT_READ = 4 /* not asked for in this read */
 } pymb_state;
 
 /* Sign-magnitude tenths ([HUB] 3, temperatures): bit 15 is the sign, bits
@@ -169,6 +170,10 @@ typedef enum {
  * state but PYMB_VALUE. Returns -1 for an unknown block. */
 int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
 
+/* Bitmaps over the 700 sweep registers: bit i (byte i / 8, bit i % 8) is
+ * register PYMB_HUB_FIRST_REGISTER + i. */
+#define PYMB_HUB_BITMAP_BYTES ((PYMB_HUB_REGISTERS + 7) / 8)
+
 /* Decode a block of hub registers.
  *
  * regs:      raw registers 31..730 in address order (regs[100 * b + c]);
@@ -176,15 +181,19 @@ int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *va
  * channels:  1..100: channels 1..channels are decoded.
  * humidity_tenths: `channels` bytes, nonzero where that channel's humidity is
  *            in 0.1 %; NULL means 0.1 % on every channel.
- * block_mask: bit b set when block b was read; the others decode as
- *            PYMB_UNSUPPORTED.
- * values, states: 7 * channels entries each, block-major:
+ * wanted:    PYMB_HUB_BITMAP_BYTES bytes, the registers that were asked for;
+ *            NULL means all. Registers not wanted decode as PYMB_NOT_READ.
+ * read_mask: bit b set when block b was read. A block not read decodes as
+ *            PYMB_UNSUPPORTED when its bit is set in unsupported_mask, as
+ *            PYMB_NOT_READ otherwise.
+ * values, states: out_len >= 7 * channels entries each, block-major:
  *            values[b * channels + c]. NaN wherever the state is not a value.
  *
  * Returns 0, or -1 when an argument is out of range (nothing written then).
  */
 int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    const uint8_t *humidity_tenths, const uint8_t *wanted,
+                    unsigned read_mask, unsigned unsupported_mask, double *values,
                     uint8_t *states, size_t out_len);
 
 /* ------------------------------------------------------------------------ */

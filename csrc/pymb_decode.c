@@ -123,20 +123,21 @@ static void decode_humidity(const uint16_t *raw, unsigned n, const uint8_t *tent
     }
 }
 
-static void mark_unsupported(unsigned n, double *v, uint8_t *st)
+static void mark(unsigned n, uint8_t state, double *v, uint8_t *st)
 {
     unsigned c;
     for (c = 0; c < n; c++) {
         v[c] = NAN;
-        st[c] = PYMB_UNSUPPORTED;
+        st[c] = state;
     }
 }
 
 int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, unsigned block_mask, double *values,
+                    const uint8_t *humidity_tenths, const uint8_t *wanted,
+                    unsigned read_mask, unsigned unsupported_mask, double *values,
                     uint8_t *states, size_t out_len)
 {
-    unsigned b;
+    unsigned b, c;
 
     if (regs == NULL || values == NULL || states == NULL ||
         nregs != PYMB_HUB_REGISTERS || channels < 1 || channels > PYMB_HUB_CHANNELS ||
@@ -148,8 +149,9 @@ int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
         double *v = values + (size_t)b * channels;
         uint8_t *st = states + (size_t)b * channels;
 
-        if (!(block_mask & (1u << b))) {
-            mark_unsupported(channels, v, st);
+        if (!(read_mask & (1u << b))) {
+            mark(channels, (unsupported_mask & (1u << b)) ? PYMB_UNSUPPORTED : PYMB_NOT_READ,
+                 v, st);
             continue;
         }
         switch (b) {
@@ -167,6 +169,15 @@ int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
         default:
             decode_unsigned(raw, channels, v, st);
             break;
+        }
+        if (wanted != NULL) {
+            for (c = 0; c < channels; c++) {
+                unsigned i = b * PYMB_HUB_CHANNELS + c;
+                if (!(wanted[i / 8] & (1u << (i % 8)))) {
+                    v[c] = NAN;
+                    st[c] = PYMB_NOT_READ;
+                }
+            }
         }
     }
     return 0;

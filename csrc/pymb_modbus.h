@@ -82,6 +82,60 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
 int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
 
+/* ------------------------------------------------------------------------ */
+/* The sensor hub's sweep ([HUB] 3, [NOTES]).                               */
+
+/* One read request: `count` registers from `address`. */
+typedef struct {
+    uint16_t address;
+    uint16_t count;
+} pymb_span;
+
+typedef struct {
+    int busy_retries;         /* re-sends after the hub's busy answer (exception
+                               * 04, [HUB] 2.3.2.3) before giving up */
+    uint32_t busy_backoff_us; /* wait before the first re-send; doubles each time */
+} pymb_hub_options;
+
+/* The fewest requests (at most 125 registers each) that read channels
+ * 1..channels of every block not in skip_mask. Returns the number of spans
+ * written to spans[0..cap), or -1 (EINVAL) when cap is too small. With all 7
+ * blocks and 100 channels: 6 requests. */
+int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
+
+/* A hub read, sweep and decode in one call (so that Python makes one call,
+ * with the GIL released for the whole of it). */
+typedef struct {
+    /* in */
+    int slave;                       /* 1..255 */
+    unsigned channels;               /* 1..100 */
+    const uint8_t *humidity_tenths;  /* `channels` bytes or NULL (all 0.1 %) */
+    const uint8_t *wanted;           /* PYMB_HUB_BITMAP_BYTES or NULL (spans) */
+    const pymb_span *spans;          /* the plan, inside 31..730 */
+    int nspans;
+    pymb_hub_options options;
+    /* in and out: blocks known to be missing from the firmware; blocks found
+     * missing (exception 02 on a read of that block alone) are added */
+    unsigned unsupported;
+    /* out */
+    unsigned read_mask;              /* blocks whose requested registers were all read */
+    uint16_t *regs;                  /* PYMB_HUB_REGISTERS raw registers */
+    double *values;                  /* out_len >= 7 * channels, or NULL: no decode */
+    uint8_t *states;
+    size_t out_len;
+} pymb_hub_request;
+
+/* Execute rq->spans with function 0x03. A span answered with exception 02
+ * is read again block by block (only the wanted registers of each block); a
+ * block still answered 02 is marked unsupported and the sweep goes on, so
+ * every block the firmware has is returned. The hub's busy answer (04) is
+ * retried per rq->options. Then, unless rq->values is NULL, the registers are
+ * decoded as pymb_hub_decode does.
+ *
+ * Returns 0, or -1 and errno: EMBXSFAIL when the hub stayed busy, or any
+ * error of pymb_read_registers (timeout, bad frame, OS error). */
+int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail);
+
 #ifdef __cplusplus
 }
 #endif

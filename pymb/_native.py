@@ -23,10 +23,19 @@ from pymb.errors import (
 
 __all__ = [
     "BAUD_RATES",
+    "HUB_BITMAP_BYTES",
+    "HUB_BLOCKS",
+    "HUB_CHANNELS",
+    "HUB_REGISTERS",
     "LIBMODBUS_VERSION",
+    "HubSweep",
     "Link",
+    "coolpro_identity",
+    "coolpro_telemetry",
     "crc16",
     "ffi_buffer_u16",
+    "hub_decode",
+    "hub_plan_all",
     "lib_constants",
     "rtu_crc_ok",
     "rtu_request_length",
@@ -283,6 +292,15 @@ class Link:
             raise self._error(function, slave, address, count)
         return bytes(ffi.buffer(self._rsp + self._header, n))
 
+    def hub_read(self, sweep: HubSweep) -> int:
+        """Run a prepared hub sweep (one C call); returns the read block mask."""
+        rq = sweep.request
+        if self._ctx == ffi.NULL:
+            raise self._closed(0x03, rq.slave, None, None)
+        if lib.pymb_hub_read(self._ctx, rq, self._fail) < 0:
+            raise self._error(0x03, rq.slave, None, None, context="hub sweep")
+        return int(rq.read_mask)
+
     def drain(self, quiet: float, limit: float) -> int:
         """Drop input until the line is quiet for ``quiet`` seconds."""
         if self._ctx == ffi.NULL:
@@ -301,7 +319,7 @@ class Link:
         )
 
     def _error(self, function: int, slave: int, address: int | None,
-               count: int | None) -> ModbusError:
+               count: int | None, context: str | None = None) -> ModbusError:
         """Turn errno (read right after the failing call) and the failure
         record into the exception to raise; close the link if the OS lost it."""
         err = ffi.errno
@@ -312,16 +330,17 @@ class Link:
             args.append(f"address={address}")
         if count is not None:
             args.append(f"count={count}")
-        asked = f"{op}({', '.join(args)}) on {self.name}"
+        asked = f"{context or op}({', '.join(args)}) on {self.name}"
         if (
             function in (1, 2, 3, 4)
-            and count is not None
             and fail.count >= 0
             and (fail.address, fail.count) != (address, count)
         ):
             asked += f" [in the request for {fail.count} at {fail.address}]"
         got = bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None
         received = f" (received {_hex(got)})" if got else ""
+        if address is None and function in (1, 2, 3, 4) and fail.count >= 0:
+            address, count = fail.address, fail.count
         kw: dict[str, Any] = dict(
             slave=slave, function=function, address=address, count=count, port=self.name,
             response=got,
@@ -377,3 +396,113 @@ def new_tcp(host: str, port: int) -> Link:
     node = host.encode()
     service = str(port).encode()
     return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False)
+
+
+# -- decoders and the hub sweep --------------------------------------------------
+
+_from_buffer = ffi.from_buffer
+_NULL = ffi.NULL
+HUB_REGISTERS = int(lib.PYMB_HUB_REGISTERS)
+HUB_BLOCKS = int(lib.PYMB_HUB_BLOCKS)
+HUB_CHANNELS = int(lib.PYMB_HUB_CHANNELS)
+HUB_BITMAP_BYTES = int(lib.PYMB_HUB_BITMAP_BYTES)
+
+
+def hub_decode(regs: Any, channels: int, tenths: bytes | None, wanted: bytes | None,
+               read_mask: int, unsupported: int, values: Any, states: Any) -> None:
+    """Decode 700 raw hub registers into ``values`` (float64) and ``states``
+    (uint8), 7 x ``channels`` each, block-major (see pymb_hub_decode)."""
+    rc = lib.pymb_hub_decode(
+        _from_buffer("uint16_t[]", regs), len(regs), channels,
+        _NULL if tenths is None else tenths,
+        _NULL if wanted is None else wanted,
+        read_mask, unsupported,
+        _from_buffer("double[]", values, True), _from_buffer("uint8_t[]", states, True),
+        len(values),
+    )
+    if rc < 0:
+        raise InvalidArgument(
+            f"cannot decode {len(regs)} registers for {channels} channels: the hub block is "
+            f"{HUB_REGISTERS} registers (31..730) and 1..{HUB_CHANNELS} channels"
+        )
+
+
+def hub_plan_all(skip_mask: int, channels: int) -> list[tuple[int, int]]:
+    """The C core's plan for a full sweep: (address, count) requests."""
+    spans = ffi.new("pymb_span[]", 16)
+    n = lib.pymb_hub_plan_all(skip_mask, channels, spans, 16)
+    if n < 0:
+        raise InvalidArgument(f"cannot plan a sweep of {channels} channels")
+    return [(spans[i].address, spans[i].count) for i in range(n)]
+
+
+class HubSweep:
+    """A prepared ``pymb_hub_request``: slave, channels, humidity units, the
+    plan and the firmware knowledge, kept across sweeps of one device."""
+
+    def __init__(self, slave: int, channels: int, tenths: bytes, busy_retries: int,
+                 busy_backoff: float) -> None:
+        self.request = rq = ffi.new("pymb_hub_request *")
+        self._tenths = ffi.new("uint8_t[]", tenths)
+        self._spans = ffi.new("pymb_span[]", HUB_REGISTERS)
+        self._wanted: Any = ffi.NULL
+        rq.slave = slave
+        rq.channels = channels
+        rq.humidity_tenths = self._tenths
+        rq.options.busy_retries = busy_retries
+        rq.options.busy_backoff_us = round(busy_backoff * 1e6)
+        rq.spans = self._spans
+
+    def set_plan(self, spans: list[tuple[int, int]], wanted: bytes | None) -> None:
+        """The requests to make and the registers wanted (None: all asked)."""
+        for i, (address, count) in enumerate(spans):
+            self._spans[i].address = address
+            self._spans[i].count = count
+        self.request.nspans = len(spans)
+        self._wanted = ffi.NULL if wanted is None else ffi.new("uint8_t[]", wanted)
+        self.request.wanted = self._wanted
+
+    @property
+    def wanted(self) -> bytes | None:
+        """The wanted-register bitmap of the current plan."""
+        return None if self._wanted == ffi.NULL else bytes(ffi.buffer(self._wanted))
+
+    @property
+    def unsupported(self) -> int:
+        """Bit mask of the blocks the firmware lacks (as far as known)."""
+        return int(self.request.unsupported)
+
+    @unsupported.setter
+    def unsupported(self, mask: int) -> None:
+        self.request.unsupported = mask
+
+    def bind(self, regs: Any, values: Any, states: Any) -> tuple[Any, ...]:
+        """Point the request at this reading's buffers; keep the result alive
+        until the sweep returns."""
+        rq = self.request
+        keep = (
+            ffi.from_buffer("uint16_t[]", regs, require_writable=True),
+            ffi.from_buffer("double[]", values, require_writable=True),
+            ffi.from_buffer("uint8_t[]", states, require_writable=True),
+        )
+        rq.regs, rq.values, rq.states = keep
+        rq.out_len = len(values)
+        return keep
+
+
+def coolpro_telemetry(regs: Any) -> tuple[float, float, float, float, float, int, int]:
+    """Decode input registers 0..7: (Vin, Iin, Vout, Iout, temperature, uptime, status)."""
+    t = ffi.new("pymb_coolpro_telemetry *")
+    if lib.pymb_coolpro_decode_telemetry(ffi.from_buffer("uint16_t[]", regs), len(regs), t):
+        raise InvalidArgument(f"telemetry is 8 registers, got {len(regs)}")
+    return (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
+            t.temperature_c, int(t.uptime_s), int(t.status))
+
+
+def coolpro_identity(regs: Any) -> tuple[int, int, int, int, int, int]:
+    """Decode input registers 100..107: (serial, hw rev, major, minor, patch, manufactured)."""
+    d = ffi.new("pymb_coolpro_identity *")
+    if lib.pymb_coolpro_decode_identity(ffi.from_buffer("uint16_t[]", regs), len(regs), d):
+        raise InvalidArgument(f"identity is 8 registers, got {len(regs)}")
+    return (int(d.serial_number), int(d.hardware_revision), int(d.firmware_major),
+            int(d.firmware_minor), int(d.firmware_patch), int(d.manufactured))

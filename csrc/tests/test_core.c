@@ -221,8 +221,9 @@ static void test_hub_block(void)
     regs[500 + 9] = 0xFF9C;     /* channel 10 RSSI -100 dBm */
     regs[600 + 99] = 0x8001;    /* channel 100 temperature 2: -0.1 */
 
-    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, tenths, PYMB_HUB_ALL_BLOCKS & ~0x40u,
-                          values, states, sizeof values / sizeof values[0]) == 0);
+    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, tenths, NULL,
+                          PYMB_HUB_ALL_BLOCKS & ~0x40u, 0x40u, values, states,
+                          sizeof values / sizeof values[0]) == 0);
     CHECK(states[0] == PYMB_OFFLINE && isnan(values[0]));
     CHECK(states[1] == PYMB_VALUE && same(values[1], 0.1));
     CHECK(states[ch + 2] == PYMB_NO_SENSOR);
@@ -235,17 +236,29 @@ static void test_hub_block(void)
 
     /* Fewer channels: block-major with the smaller stride. */
     ch = 50;
-    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, NULL, PYMB_HUB_ALL_BLOCKS, values,
-                          states, 7 * 50) == 0);
+    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, NULL, NULL, PYMB_HUB_ALL_BLOCKS, 0,
+                          values, states, 7 * 50) == 0);
     CHECK(same(values[6 * ch + 49], 604.9));
     CHECK(same(values[ch + 5], 100.5)); /* NULL tenths: all 0.1 % */
 
+    /* Blocks not read: unsupported or simply not asked for; registers not
+     * wanted inside a read block. */
+    {
+        uint8_t wanted[PYMB_HUB_BITMAP_BYTES] = {0};
+        wanted[0] = 0x05; /* channels 1 and 3 of the temperature block */
+        CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, 10, NULL, wanted, 0x01u, 0x40u, values,
+                              states, 70) == 0);
+        CHECK(states[0] == PYMB_OFFLINE && states[1] == PYMB_NOT_READ && isnan(values[1]));
+        CHECK(states[2] == PYMB_VALUE && same(values[2], 0.2));
+        CHECK(states[10] == PYMB_NOT_READ && states[60] == PYMB_UNSUPPORTED);
+    }
+
     /* Bad arguments write nothing. */
-    CHECK(pymb_hub_decode(regs, 699, 100, NULL, 0x7F, values, states, 700) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 0, NULL, 0x7F, values, states, 700) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 101, NULL, 0x7F, values, states, 707) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 100, NULL, 0x7F, values, states, 699) == -1);
-    CHECK(pymb_hub_decode(NULL, 700, 100, NULL, 0x7F, values, states, 700) == -1);
+    CHECK(pymb_hub_decode(regs, 699, 100, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
+    CHECK(pymb_hub_decode(regs, 700, 0, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
+    CHECK(pymb_hub_decode(regs, 700, 101, NULL, NULL, 0x7F, 0, values, states, 707) == -1);
+    CHECK(pymb_hub_decode(regs, 700, 100, NULL, NULL, 0x7F, 0, values, states, 699) == -1);
+    CHECK(pymb_hub_decode(NULL, 700, 100, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
 }
 
 static void test_coolpro(void)

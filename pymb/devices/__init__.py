@@ -1,7 +1,37 @@
-"""Device facades and their register maps (see :mod:`pymb.devices.maps`)."""
+"""Device facades, generated from one declarative register map each.
+
+    from pymb.devices import CoolPro, SensorHub, CoolProStatus, decode_hub
+
+See :mod:`pymb.devices.maps` for the maps (the only place register numbers
+appear), :mod:`pymb.devices.planner` for the read planner.
+"""
 
 from __future__ import annotations
 
+from pymb.devices.coolpro import (
+    CoolPro,
+    CoolProConfig,
+    CoolProIdentity,
+    CoolProStatus,
+    CoolProTelemetry,
+)
+from pymb.devices.hub import HubChannel, HubReading, SensorHub, State, decode_hub
 from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
+from pymb.devices.planner import ReadPlan
 
-__all__ = ["COOLPRO", "HUB", "HUB_FIRMWARE_PROFILES"]
+__all__ = [
+    "COOLPRO",
+    "HUB",
+    "HUB_FIRMWARE_PROFILES",
+    "CoolPro",
+    "CoolProConfig",
+    "CoolProIdentity",
+    "CoolProStatus",
+    "CoolProTelemetry",
+    "HubChannel",
+    "HubReading",
+    "ReadPlan",
+    "SensorHub",
+    "State",
+    "decode_hub",
+]

@@ -1,0 +1,154 @@
+"""The CoolPro power-supply monitor ([CP] CP-MODBUS-RTU rev 1).
+
+Telemetry (input registers 0..7) and identity (100..107) are each one
+request, decoded by pymb's C core: milliunits to volts, amps and °C, 32-bit
+values low word first.
+"""
+
+from __future__ import annotations
+
+from array import array
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from enum import KEEP, IntFlag
+
+from pymb import _native
+from pymb.client import Client
+from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES, COOLPRO_RESET_VALUE
+from pymb.errors import InvalidArgument
+
+__all__ = ["CoolPro", "CoolProConfig", "CoolProIdentity", "CoolProStatus", "CoolProTelemetry"]
+
+
+class CoolProStatus(IntFlag, boundary=KEEP):
+    """Status flags, input register 7 ([CP] "Status Flags bit field").
+
+    Bits 7..15 are reserved: they are kept as raw bits, never dropped
+    (``CoolProStatus(0x8001)`` keeps 0x8000).
+    """
+
+    SYSTEM_STARTUP = 0x0001  #: device is initialising
+    DAILY_RESET = 0x0002  #: daily reset has occurred (uptime counter reset)
+    INPUT_MEASUREMENT_FAULT = 0x0004  #: input measurement sensor fault
+    OUTPUT_MEASUREMENT_FAULT = 0x0008  #: output measurement sensor fault
+    CALIBRATION_INVALID = 0x0010  #: stored calibration data failed validation
+    CALIBRATION_MISSING = 0x0020  #: no calibration data stored
+    TEMPERATURE_SENSOR_FAULT = 0x0040  #: temperature sensor fault
+
+    @property
+    def reserved(self) -> int:
+        """The reserved bits (7..15) as they came."""
+        return int(self) & 0xFF80
+
+
+@dataclass(frozen=True)
+class CoolProTelemetry:
+    """Live telemetry, one request (input registers 0..7)."""
+
+    input_voltage_v: float
+    input_current_a: float
+    output_voltage_v: float
+    output_current_a: float
+    temperature_c: float
+    uptime_s: int
+    status: CoolProStatus
+    registers: array[int] = field(repr=False, compare=False)  #: raw registers 0..7
+
+
+@dataclass(frozen=True)
+class CoolProIdentity:
+    """Device information, one request (input registers 100..107)."""
+
+    serial_number: int
+    hardware_revision: int
+    firmware_version: str  #: "major.minor.patch"
+    manufactured: datetime  #: UTC
+    registers: array[int] = field(repr=False, compare=False)
+
+
+@dataclass(frozen=True)
+class CoolProConfig:
+    """Configuration (holding registers 0..1). Written values are stored at
+    once but take effect only after :meth:`CoolPro.reset`."""
+
+    address: int
+    baud_rate: int  #: bit/s
+    baud_rate_index: int
+
+
+class CoolPro:
+    """The CoolPro at ``address`` (1..247, default 40) on ``client``.
+
+    After :meth:`set_address` and :meth:`reset`, this object talks to the
+    new address. A new baud rate takes effect at the reset too: reopen the
+    client at that rate (it may serve other devices on the bus, so pymb does
+    not change it by itself).
+    """
+
+    def __init__(self, client: Client, address: int = COOLPRO.default_address) -> None:
+        self.client = client
+        self.address = self._valid_address(address)
+        self._pending_address: int | None = None
+        self._telemetry = COOLPRO.span("telemetry")
+        self._identity = COOLPRO.span("identity")
+        self._config = COOLPRO.span("config")
+
+    @staticmethod
+    def _valid_address(address: int) -> int:
+        low, high = COOLPRO["address"].valid or (1, 247)
+        if isinstance(address, bool) or not isinstance(address, int) or not (
+            low <= address <= high
+        ):
+            raise InvalidArgument(f"CoolPro address must be {low}..{high}, got {address!r}")
+        return address
+
+    def _read(self, span: tuple[int, int, int]) -> array[int]:
+        function, address, count = span
+        if function == 0x04:
+            return self.client.read_input_registers(address, count, slave=self.address)
+        return self.client.read_holding_registers(address, count, slave=self.address)
+
+    def read_telemetry(self) -> CoolProTelemetry:
+        """Voltages, currents, temperature, uptime and status flags."""
+        regs = self._read(self._telemetry)
+        vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+        return CoolProTelemetry(vin, iin, vout, iout, temp, uptime, CoolProStatus(status), regs)
+
+    def read_identity(self) -> CoolProIdentity:
+        """Serial number, hardware revision, firmware version, manufacture date."""
+        regs = self._read(self._identity)
+        serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
+        return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
+                               datetime.fromtimestamp(made, UTC), regs)
+
+    def read_config(self) -> CoolProConfig:
+        """Device address and baud rate as stored (effective after a reset)."""
+        regs = self._read(self._config)
+        address, index = regs[0], regs[1]
+        baud = COOLPRO_BAUD_RATES[index] if index < len(COOLPRO_BAUD_RATES) else 0
+        return CoolProConfig(address, baud, index)
+
+    def set_address(self, address: int) -> None:
+        """Store a new device address (1..247); it takes effect at :meth:`reset`."""
+        new = self._valid_address(address)
+        self.client.write_register(COOLPRO["address"].address, new, slave=self.address)
+        self._pending_address = new
+
+    def set_baud_rate(self, baud_rate: int) -> None:
+        """Store a new baud rate (9600, 19200, 38400, 57600 or 115200 bit/s);
+        it takes effect at :meth:`reset`."""
+        if baud_rate not in COOLPRO_BAUD_RATES:
+            raise InvalidArgument(
+                f"CoolPro baud rate must be one of {list(COOLPRO_BAUD_RATES)}, got {baud_rate!r}"
+            )
+        self.client.write_register(COOLPRO["baud_rate_index"].address,
+                                   COOLPRO_BAUD_RATES.index(baud_rate), slave=self.address)
+
+    def reset(self) -> None:
+        """Reset the device (write 0xAA55 to the reset register). The device
+        echoes, then restarts: its uptime restarts and the startup flag is
+        set for a moment; a stored address or baud rate takes effect now."""
+        self.client.write_register(COOLPRO["reset"].address, COOLPRO_RESET_VALUE,
+                                   slave=self.address)
+        if self._pending_address is not None:
+            self.address, self._pending_address = self._pending_address, None

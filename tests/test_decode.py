@@ -1,0 +1,211 @@
+"""The C decoders against the pure-Python reference (tests/reference.py):
+every 16-bit value of each encoding, random blocks, and the documents'
+worked values; the C layout against the register maps."""
+
+from __future__ import annotations
+
+import math
+from array import array
+from datetime import UTC, datetime
+
+import pytest
+import reference as ref
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pymb import _native
+from pymb.devices import COOLPRO, HUB, CoolProStatus, State, decode_hub
+from pymb.devices.coolpro import CoolProTelemetry
+
+STATE = {ref.VALUE: State.VALUE, ref.OFFLINE: State.OFFLINE, ref.NO_SENSOR: State.NO_SENSOR}
+
+
+def same(a: float, b: float) -> bool:
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return a == b and math.copysign(1, a) == math.copysign(1, b)
+
+
+def check_reading(regs: list[int], units: list[float], channels: int) -> None:
+    r = decode_hub(array("H", regs), units, channels=channels)
+    for block in HUB.blocks:
+        values = getattr(r, block.name)
+        states = r.states(block.name)
+        assert len(values) == channels
+        for c in range(channels):
+            raw = regs[block.index * HUB.channels + c]
+            want_state, want = ref.hub_value(block.index, raw, units[c])
+            assert same(values[c], want), (block.name, c, hex(raw), values[c], want)
+            assert states[c] == STATE[want_state]
+
+
+ENCODINGS = [  # (block that uses the encoding, humidity unit)
+    ("temperature_c", 0.1),  # sign-magnitude tenths (also blocks 2 and 6)
+    ("humidity_pct", 1),
+    ("humidity_pct", 0.1),
+    ("pressure_kpa", 0.1),  # unsigned (also voltage)
+    ("rssi_dbm", 0.1),  # two's complement
+]
+
+
+@pytest.mark.parametrize(("name", "unit"), ENCODINGS)
+def test_every_16_bit_value_of_each_encoding(name: str, unit: float) -> None:
+    block = HUB.block(name)
+    regs = array("H", bytes(2 * HUB.count))
+    base = block.index * HUB.channels
+    for start in range(0, 0x10000, HUB.channels):
+        raws = range(start, min(start + HUB.channels, 0x10000))
+        regs[base:base + len(raws)] = array("H", raws)
+        r = decode_hub(regs, unit)
+        values, states = getattr(r, name), r.states(name)
+        for c, raw in enumerate(raws):
+            want_state, want = ref.hub_value(block.index, raw, unit)
+            got = values[c]
+            ok = got == want and (got != 0 or math.copysign(1, got) == math.copysign(1, want))
+            if not ok and not (got != got and want != want):
+                pytest.fail(f"{name} raw {raw:#06x} unit {unit}: {got!r} != {want!r}")
+            assert states[c] == STATE[want_state]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    data=st.binary(min_size=2 * 700, max_size=2 * 700),
+    markers=st.lists(
+        st.tuples(st.integers(0, 699), st.sampled_from([0xFFFF, 0x8000, 0x00FF, 0x7FFF, 0])),
+        max_size=60,
+    ),
+    units=st.lists(st.sampled_from([1, 0.1]), min_size=100, max_size=100),
+    channels=st.integers(1, 100),
+)
+def test_random_blocks_match_reference(data: bytes, markers: list[tuple[int, int]],
+                                       units: list[float], channels: int) -> None:
+    regs = list(array("H", data))
+    for i, m in markers:
+        regs[i] = m
+    check_reading(regs, units[:channels], channels)
+
+
+def test_documented_markers() -> None:
+    regs = [0] * 700
+    regs[0] = 0xFFFF  # channel 1 temperature offline
+    regs[1] = 0x8000  # channel 2 temperature -0.0, not a marker
+    regs[2] = 0x8000 | 125  # channel 3: -12.5 degC
+    regs[100] = 0x00FF  # channel 1 humidity, 1 % unit: no humidity
+    regs[101] = 0x8000  # channel 2 humidity, 0.1 % unit: no humidity
+    regs[102] = 0x00FF  # channel 3 humidity, 0.1 % unit: 25.5 %
+    regs[500] = 0xFFB5  # channel 1 RSSI: -75 dBm
+    regs[501] = 0xFFFF  # channel 2 RSSI offline
+    units = [1, 0.1, 0.1] + [0.1] * 97
+    r = decode_hub(regs, units)
+    assert r.state("temperature_c", 1) is State.OFFLINE and math.isnan(r.temperature_c[0])
+    assert same(r.temperature_c[1], -0.0) and r.state("temperature_c", 2) is State.VALUE
+    assert r.temperature_c[2] == -12.5
+    assert r.state("humidity_pct", 1) is State.NO_SENSOR
+    assert r.state("humidity_pct", 2) is State.NO_SENSOR
+    assert r.humidity_pct[2] == 25.5
+    assert r.rssi_dbm[0] == -75.0 and r.state("rssi_dbm", 2) is State.OFFLINE
+    ch = r.channel(3)
+    assert ch.channel == 3 and ch.temperature_c == -12.5 and ch.humidity_pct == 25.5
+    assert ch.states["temperature_c"] is State.VALUE
+
+
+def test_unsupported_blocks_and_channel_views() -> None:
+    r = decode_hub(range(700), 1, channels=50, unsupported=["voltage_mv", "temperature2_c"])
+    assert len(r.voltage_mv) == 50 and all(math.isnan(v) for v in r.voltage_mv)
+    assert set(r.states("voltage_mv")) == {State.UNSUPPORTED}
+    assert r.unsupported == {"voltage_mv", "temperature2_c"}
+    assert r.pressure_kpa[49] == 349.0
+    with pytest.raises(ValueError):
+        r.channel(51)
+    with pytest.raises(ValueError):
+        r.channel(0)
+    d = r.as_dict()
+    assert d["voltage_mv"][0] is None and d["pressure_kpa"][0] == 300.0
+
+
+def test_bad_decode_arguments() -> None:
+    with pytest.raises(ValueError, match="700 registers"):
+        decode_hub([0] * 699)
+    with pytest.raises(ValueError, match="channels"):
+        decode_hub([0] * 700, channels=101)
+    with pytest.raises(ValueError, match="humidity unit"):
+        decode_hub([0] * 700, 0.5)
+    with pytest.raises(ValueError, match="humidity units"):
+        decode_hub([0] * 700, [1, 0.1])
+
+
+def test_views_convert_to_numpy_without_copy() -> None:
+    np = pytest.importorskip("numpy")
+    r = decode_hub(range(700))
+    a = np.asarray(r.temperature_c)
+    assert a.dtype == np.float64 and a.shape == (100,)
+    r.values[0] = 42.0
+    assert a[0] == 42.0  # a view, not a copy
+
+
+# -- CoolPro ------------------------------------------------------------------
+
+
+def test_coolpro_worked_values() -> None:
+    # [CP] ch. 02 / 04 / 06: 24.5 V, 3.25 A, 24.0 V, 3.20 A, 25.8 degC, uptime 70000 s.
+    regs = array("H", [0x5FB4, 0x0CB2, 0x5DC0, 0x0C80, 0x64C8, 4464, 1, 0x8041])
+    vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+    assert (vin, iin, vout, iout, temp) == (24.5, 3.25, 24.0, 3.2, 25.8)
+    assert uptime == 70000 == ref.u32_low_word_first(4464, 1)
+    flags = CoolProStatus(status)
+    assert CoolProStatus.SYSTEM_STARTUP in flags and CoolProStatus.TEMPERATURE_SENSOR_FAULT in flags
+    assert flags.reserved == 0x8000 and int(flags) == 0x8041  # reserved bit kept
+    serial, hw, major, minor, patch, made = _native.coolpro_identity(
+        array("H", [0x3039, 0, 2, 1, 0, 0, 0x5E00, 0x6A50]))
+    assert serial == 12345 and (hw, major, minor, patch) == (2, 1, 0, 0)
+    assert datetime.fromtimestamp(made, UTC).year == 2026
+
+
+@given(st.lists(st.integers(0, 0xFFFF), min_size=8, max_size=8))
+def test_coolpro_telemetry_matches_reference(raw: list[int]) -> None:
+    got = _native.coolpro_telemetry(array("H", raw))
+    assert got[:5] == tuple(ref.milli(r) for r in raw[:5])
+    assert got[5] == ref.u32_low_word_first(raw[5], raw[6])
+    assert got[6] == raw[7]
+
+
+# -- the maps and the C core agree ----------------------------------------------
+
+
+def test_c_hub_layout_agrees_with_the_map() -> None:
+    lib = _native.lib_constants()
+    assert lib.PYMB_HUB_FIRST_REGISTER == HUB.first == 31
+    assert lib.PYMB_HUB_CHANNELS == HUB.channels == 100
+    assert lib.PYMB_HUB_BLOCKS == len(HUB.blocks) == 7
+    assert lib.PYMB_HUB_REGISTERS == HUB.count == 700
+    c_blocks = {
+        "temperature_c": lib.PYMB_HUB_TEMPERATURE,
+        "humidity_pct": lib.PYMB_HUB_HUMIDITY,
+        "pressure_temperature_c": lib.PYMB_HUB_PRESSURE_TEMPERATURE,
+        "pressure_kpa": lib.PYMB_HUB_PRESSURE,
+        "voltage_mv": lib.PYMB_HUB_VOLTAGE,
+        "rssi_dbm": lib.PYMB_HUB_RSSI,
+        "temperature2_c": lib.PYMB_HUB_TEMPERATURE2,
+    }
+    for block in HUB.blocks:
+        assert c_blocks[block.name] == block.index
+        assert block.first == lib.PYMB_HUB_FIRST_REGISTER + block.index * lib.PYMB_HUB_CHANNELS
+        assert (0xFFFF, "offline") in block.markers
+    markers = dict(HUB.block("humidity_pct").markers)
+    assert lib.PYMB_HUB_NO_HUMIDITY_1PCT in markers and lib.PYMB_HUB_NO_HUMIDITY_TENTHS in markers
+
+
+def test_c_coolpro_layout_agrees_with_the_map() -> None:
+    lib = _native.lib_constants()
+    assert COOLPRO.span("telemetry") == (
+        0x04, lib.PYMB_COOLPRO_TELEMETRY_ADDRESS, lib.PYMB_COOLPRO_TELEMETRY_COUNT)
+    assert COOLPRO.span("identity") == (
+        0x04, lib.PYMB_COOLPRO_IDENTITY_ADDRESS, lib.PYMB_COOLPRO_IDENTITY_COUNT)
+    # The telemetry record's fields, in order, are the map's telemetry points.
+    fields = [f for f in CoolProTelemetry.__dataclass_fields__ if f != "registers"]
+    assert fields == [r.name for r in COOLPRO.group("telemetry")]
+    # CoolProStatus names the map's status bits.
+    from pymb.devices.maps import COOLPRO_STATUS_BITS
+    assert {m.name: m.value for m in CoolProStatus} == {
+        name: 1 << bit for bit, (name, _) in COOLPRO_STATUS_BITS.items()
+    }

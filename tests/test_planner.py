@@ -1,0 +1,77 @@
+"""The read planner: limits, exact coverage, never worse than naive."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pymb import _native
+from pymb.devices import HUB
+from pymb.devices.planner import naive_spans, plan_reads, request_time
+
+
+def covered(spans: tuple[tuple[int, int], ...]) -> set[int]:
+    return {a for start, n in spans for a in range(start, start + n)}
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    wanted=st.sets(st.integers(31, 730), min_size=1, max_size=300),
+    holes=st.sets(st.integers(31, 730), max_size=100),
+    baud=st.sampled_from([1200, 9600, 19200, 115200]),
+    turnaround=st.sampled_from([0.0, 0.002, 0.02]),
+)
+def test_plan_limits_coverage_and_cost(wanted: set[int], holes: set[int], baud: int,
+                                       turnaround: float) -> None:
+    holes -= wanted
+    plan = plan_reads(wanted, baud, readable=lambda a: a not in holes, turnaround=turnaround)
+    assert all(1 <= n <= 125 for _, n in plan.spans)
+    on_wire = covered(plan.spans)
+    assert wanted <= on_wire  # covers everything asked
+    assert not (on_wire & holes)  # never reads what the device may not have
+    starts = [a for a, _ in plan.spans]
+    assert starts == sorted(starts)
+    assert sum(n for _, n in plan.spans) == len(on_wire)  # no overlap
+    assert plan.predicted_s <= plan.naive_s + 1e-12
+    assert abs(plan.predicted_s - sum(request_time(n, baud, turnaround)
+                                      for _, n in plan.spans)) < 1e-9
+
+
+def test_full_sweep_is_six_requests_like_the_c_plan() -> None:
+    everything = range(HUB.first, HUB.first + HUB.count)
+    plan = plan_reads(everything, 9600)
+    assert len(plan.spans) == 6 and plan.registers == 700
+    c_plan = _native.hub_plan_all(0, 100)
+    assert len(c_plan) == 6 and sum(n for _, n in c_plan) == 700
+    assert plan.spans == tuple(c_plan)
+    assert plan.predicted_s == pytest.approx(plan.naive_s)
+
+
+def test_c_plan_skips_missing_blocks_and_short_hubs() -> None:
+    # Firmware V2.18: no voltage, RSSI or second temperature (blocks 4..6).
+    assert _native.hub_plan_all(0b1110000, 100) == [(31, 125), (156, 125), (281, 125),
+                                                    (406, 25)]
+    # V1.07: 50 channels of temperature and humidity only.
+    assert _native.hub_plan_all(0b1111100, 50) == [(31, 50), (131, 50)]
+
+
+def test_twelve_channels_merge_gaps_when_cheaper() -> None:
+    # 12 channels in use, temperature and humidity: at 9600 bit/s reading the
+    # 88 registers between the two runs costs more than a second request.
+    wanted = [HUB.block(b).address(c) for b in ("temperature_c", "humidity_pct")
+              for c in range(1, 13)]
+    slow = plan_reads(wanted, 9600, turnaround=0.0)
+    assert slow.spans == ((31, 12), (131, 12))
+    # At 115200 bit/s with a device that takes 20 ms to answer, one request
+    # (88 extra registers: 15 ms of wire) is cheaper than two.
+    slow_device = plan_reads(wanted, 115200, turnaround=0.02)
+    assert slow_device.spans == ((31, 112),)
+    assert slow_device.predicted_s < slow_device.naive_s
+    assert "registers 31..142" in slow_device.explain()
+
+
+def test_naive_spans_split_at_limit() -> None:
+    assert naive_spans(range(0, 300)) == [(0, 125), (125, 125), (250, 50)]
+    assert naive_spans([5, 6, 9]) == [(5, 2), (9, 1)]
+    assert plan_reads([], 9600).spans == ()
