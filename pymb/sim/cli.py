@@ -1,0 +1,151 @@
+"""``pymb simulate``: simulated devices on a pseudo-terminal, a port or TCP.
+
+The first line on stdout is where a master connects (a path, or
+``HOST:PORT``), flushed at once; everything else goes to stderr. Runs until
+SIGINT or SIGTERM, then exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import signal
+import sys
+import threading
+from types import FrameType
+
+from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.sim.devices import CoolProDevice, Device, HubDevice
+from pymb.sim.faults import KINDS
+from pymb.sim.simulator import Simulator
+
+__all__ = ["add_arguments", "run"]
+
+_EPILOG = f"""\
+devices: KIND[:ADDRESS][,key=value...]
+  coolpro (address 40)  keys: gap (s, default 0.008), serial, firmware (x.y.z),
+                        hardware, uptime (s), baud, dynamic (0/1)
+  hub (address 1)       keys: firmware (e.g. 1.07, 2.18, 2.22, 2.23), delay (s or
+                        LOW-HIGH), humidity (0.1 or 1: unit on every channel), baud,
+                        dynamic (0/1)
+faults: KIND[:PROBABILITY][,key=value...]  (probability 1 when omitted)
+  kinds: {', '.join(KINDS)}
+  keys: delay, code, keep, extra (hex), to, seconds, bits, channels (3+4), address
+examples:
+  pymb simulate coolpro hub
+  pymb simulate coolpro:41 hub:250,firmware=1.07 --baud 19200
+  pymb simulate hub --tcp 127.0.0.1:5020 --fault busy:0.1 --fault late:0.05,delay=1
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Register ``simulate``'s arguments."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = _EPILOG
+    parser.add_argument("devices", nargs="*", metavar="DEVICE",
+                        help="devices on the bus (default: coolpro hub)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true",
+                       help="serve on a new pseudo-terminal and print its path (default)")
+    where.add_argument("--port", metavar="PATH", help="serve on a real serial port")
+    where.add_argument("--tcp", metavar="[HOST:]PORT",
+                       help="serve Modbus TCP (host 127.0.0.1 unless named; port 0: any)")
+    parser.add_argument("--baud", type=int, metavar="N",
+                        help="line speed: every device is set to it and each frame takes "
+                             "its real wire time (default 9600, no emulation)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the values and of the faults (default 0)")
+    parser.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                        help="inject a fault by probability (repeatable)")
+    parser.add_argument("--link", metavar="PATH",
+                        help="keep a symbolic link at PATH pointing at the pseudo-terminal "
+                             "and print it instead")
+    parser.add_argument("--any-speed", action="store_true",
+                        help="answer whatever speed the master sets on the pty")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log every frame and fault to stderr")
+
+
+def _tcp_address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "", text
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        raise InvalidArgument(f"--tcp wants [HOST:]PORT, got {text!r}") from None
+    if not 0 <= number <= 65535:
+        raise InvalidArgument(f"--tcp port must be 0..65535, got {number}")
+    return host, number
+
+
+def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
+    if tcp is not None:
+        line = f"mbpoll -m tcp -p {tcp[1]} -a {dev.address}"
+        target = tcp[0]
+    else:
+        line = f"mbpoll -m rtu -b {dev.baud} -P none -a {dev.address}"
+        target = where
+    if isinstance(dev, CoolProDevice):
+        return f"{line} -t 3 -0 -r 0 -c 8 -1 {target}"
+    if isinstance(dev, HubDevice):
+        return f"{line} -t 4 -0 -r 31 -c 10 -1 {target}"
+    return line
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the simulator until SIGINT or SIGTERM; 0 on a clean stop."""
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="pymb simulate: %(message)s", stream=sys.stderr)
+    tcp = _tcp_address(args.tcp) if args.tcp else None
+    transport = "tcp" if tcp else "serial" if args.port else "pty"
+    if args.link and transport != "pty":
+        raise InvalidArgument("--link is for --pty only")
+    sim = Simulator(
+        args.devices or ["coolpro", "hub"],
+        transport=transport,
+        port=args.port,
+        host=tcp[0] if tcp else "127.0.0.1",
+        tcp_port=tcp[1] if tcp else 0,
+        baud=args.baud,
+        seed=args.seed,
+        faults=args.fault,
+        link=args.link or False,
+        check_line=not args.any_speed,
+        trace=args.verbose,
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            sim.start()
+        except OSError as e:
+            where = args.port or args.tcp or "a pseudo-terminal"
+            raise ModbusConnectionError(f"cannot serve on {where}: {e.strerror or e}",
+                                        errno=e.errno, port=where) from None
+        endpoint = sim.endpoint
+        with contextlib.suppress(BrokenPipeError):
+            print(endpoint, flush=True)
+        for dev in sim.devices:
+            print(f"  {dev.describe()}", file=sys.stderr)
+            print(f"    try: {_hint(dev, endpoint, tcp)}", file=sys.stderr)
+        if args.fault:
+            print(f"  faults: {', '.join(args.fault)} (seed {args.seed})", file=sys.stderr)
+        print("  Ctrl-C or SIGTERM stops it", file=sys.stderr, flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        sim.stop()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    counts = {k: v for k, v in sim.faults.counts.items() if v}
+    stats = sim.stats
+    print(f"pymb simulate: {stats.requests} requests, {stats.replies} replies"
+          + (f", faults {counts}" if counts else ""), file=sys.stderr)
+    return 0

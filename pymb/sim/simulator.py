@@ -1,0 +1,402 @@
+"""The simulator a user starts: devices, a bus, a transport, faults.
+
+:class:`Simulator` runs the bus in a background thread of the calling
+process, so the caller can steer the devices, the faults and the clock
+while a master talks to it. :class:`SimulatorProcess` runs ``python -m pymb
+simulate`` as a child process instead (for benchmarks: the simulator then
+never competes with the master for the GIL).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterable, Sequence
+from types import TracebackType
+from typing import Any
+
+from pymb.devices.maps import COOLPRO_BAUD_RATES
+from pymb.errors import InvalidArgument
+from pymb.sim.bus import Bus, BusStats
+from pymb.sim.clock import SimClock
+from pymb.sim.devices import CoolProDevice, Device, HubDevice
+from pymb.sim.faults import Faults
+from pymb.sim.rtu import RtuServer
+from pymb.sim.server import Server
+from pymb.sim.tcp import TcpServer
+
+__all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
+
+TRANSPORTS = ("pty", "serial", "tcp")
+_KINDS = {"coolpro": CoolProDevice, "hub": HubDevice}
+
+
+def _flag(value: str) -> bool:
+    if value.lower() in ("1", "true", "yes", "on"):
+        return True
+    if value.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(value)
+
+
+def _delay(value: str) -> float | tuple[float, float]:
+    lo, sep, hi = value.partition("-")
+    return (float(lo), float(hi)) if sep else float(value)
+
+
+#: device-spec keys -> (constructor argument, parser), per kind
+_OPTIONS: dict[str, dict[str, tuple[str, Any]]] = {
+    "coolpro": {
+        "gap": ("gap", float),
+        "serial": ("serial_number", lambda v: int(v, 0)),
+        "firmware": ("firmware", str),
+        "hardware": ("hardware_revision", int),
+        "uptime": ("uptime", float),
+        "baud": ("baud", int),
+        "dynamic": ("dynamic", _flag),
+    },
+    "hub": {
+        "firmware": ("firmware", str),
+        "delay": ("response_delay", _delay),
+        "humidity": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v]),
+        "baud": ("baud", int),
+        "dynamic": ("dynamic", _flag),
+    },
+}
+
+
+def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
+                baud: int | None = None) -> Device:
+    """A device from ``KIND[:ADDRESS][,key=value...]``.
+
+    Kinds: ``coolpro`` (keys ``gap`` seconds, ``serial``, ``firmware``
+    x.y.z, ``hardware``, ``uptime`` seconds, ``baud``, ``dynamic`` 0/1) and
+    ``hub`` (``firmware`` e.g. 1.07, ``delay`` seconds or LOW-HIGH,
+    ``humidity`` 0.1 or 1, ``baud``, ``dynamic``). ``baud`` (the bus's
+    speed) applies unless the spec names one. Example: ``hub:250,firmware=2.18``.
+    """
+    head, *opts = spec.strip().split(",")
+    kind, _, addr = head.partition(":")
+    kind = kind.strip().lower()
+    cls = _KINDS.get(kind)
+    if cls is None:
+        raise InvalidArgument(f"unknown device {kind!r} in {spec!r}; use coolpro or hub")
+    kwargs: dict[str, Any] = {"seed": seed, "clock": clock}
+    if baud is not None:
+        kwargs["baud"] = baud
+    if addr:
+        try:
+            kwargs["address"] = int(addr, 0)
+        except ValueError:
+            raise InvalidArgument(f"{spec!r}: address {addr!r} is not a number") from None
+    for opt in opts:
+        key, eq, value = opt.partition("=")
+        key = key.strip()
+        if key not in _OPTIONS[kind] or not eq:
+            raise InvalidArgument(
+                f"{spec!r}: {kind} takes {', '.join(k + '=...' for k in _OPTIONS[kind])}")
+        name, parse = _OPTIONS[kind][key]
+        try:
+            kwargs[name] = parse(value.strip())
+        except (ValueError, KeyError):
+            raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r}") from None
+    return cls(**kwargs)  # type: ignore[no-any-return]
+
+
+class Simulator:
+    """Simulated devices on one bus, served on a pseudo-terminal, a serial
+    port or Modbus TCP, from a background thread.
+
+    ``devices``: specs (see :func:`make_device`) or :class:`Device` objects
+    (give those ``clock=sim.clock`` yourself if the simulator should steer
+    their time); default one CoolPro. ``transport``: ``"pty"`` (default),
+    ``"serial"`` (``port`` names it) or ``"tcp"`` (``host``, ``tcp_port``; 0
+    picks a free port). ``baud``: the line's speed; every device is set to
+    it and each frame takes its real wire time (None: 9600, no emulation).
+    ``seed``: values and probabilistic faults; ``faults``: a :class:`Faults`
+    or command-line specs (``"late:0.1,delay=1.5"``). ``link``: for a pty, a
+    symbolic link that always points at the current pseudo-terminal (True:
+    one in a private temporary directory, the default; a path; False: none):
+    :attr:`port` is that link, so a client survives :meth:`unplug`.
+
+    Use as a context manager::
+
+        with Simulator(["coolpro", "hub:250"]) as sim:
+            with pymb.RtuClient(sim.port, 9600, slave=40) as c: ...
+            sim.device(250).set_offline(3)
+            sim.faults.inject("bad_crc", address=40)
+    """
+
+    def __init__(
+        self,
+        devices: Iterable[str | Device] = ("coolpro",),
+        *,
+        transport: str = "pty",
+        port: str | None = None,
+        host: str = "127.0.0.1",
+        tcp_port: int = 0,
+        baud: int | None = None,
+        seed: int = 0,
+        faults: Faults | Sequence[str] | None = None,
+        clock: SimClock | None = None,
+        link: bool | str = True,
+        check_line: bool = True,
+        trace: bool = False,
+    ) -> None:
+        if transport not in TRANSPORTS:
+            raise InvalidArgument(f"transport must be one of {', '.join(TRANSPORTS)}, "
+                                  f"got {transport!r}")
+        if transport == "serial" and not port:
+            raise InvalidArgument("transport 'serial' needs port=PATH")
+        if isinstance(devices, str):
+            devices = [devices]
+        self.clock = clock if clock is not None else SimClock()
+        self.seed = seed
+        built = [d if isinstance(d, Device) else
+                 make_device(d, seed=seed * 1009 + i, clock=self.clock, baud=baud)
+                 for i, d in enumerate(devices)]
+        if not built:
+            raise InvalidArgument("a simulator needs at least one device")
+        seen: dict[int, Device] = {}
+        for d in built:
+            if d.address in seen:
+                raise InvalidArgument(f"two devices at address {d.address}: "
+                                      f"{seen[d.address].kind} and {d.kind}")
+            seen[d.address] = d
+        if baud is not None and any(isinstance(d, CoolProDevice) for d in built) and \
+                baud not in COOLPRO_BAUD_RATES:
+            raise InvalidArgument(f"a coolpro runs at {', '.join(map(str, COOLPRO_BAUD_RATES))} "
+                                  f"baud, not {baud}")
+        if isinstance(faults, Faults):
+            self.faults = faults
+        else:
+            self.faults = Faults(seed)
+            for spec in faults or ():
+                self.faults.add(spec)
+        self.bus = Bus(built, self.faults, check_line=check_line, trace=trace)
+        self.transport = transport
+        self.baud = baud
+        self._link_opt = link
+        self._tmpdir: str | None = None
+        self._serial = port
+        self._host = host
+        self._tcp_port = tcp_port
+        self._server: Server | None = None
+
+    # -- life cycle ---------------------------------------------------------------------
+
+    def start(self) -> Simulator:
+        """Open the port and start serving; returns self."""
+        if self._server is not None:
+            return self
+        line = self.baud or self.bus.devices[0].baud
+        server: Server
+        if self.transport == "tcp":
+            server = TcpServer(self.bus, self._host, self._tcp_port, emulate_baud=self.baud)
+        else:
+            link = None
+            if self.transport == "pty" and self._link_opt:
+                if isinstance(self._link_opt, str):
+                    link = self._link_opt
+                else:
+                    self._tmpdir = tempfile.mkdtemp(prefix="pymb-sim-")
+                    link = os.path.join(self._tmpdir, "ttySIM0")
+            server = RtuServer(self.bus, baud=line, serial_port=self._serial,
+                               emulate=self.baud is not None and self.transport == "pty",
+                               link=link)
+        try:
+            server.start()
+        except BaseException:
+            self._cleanup_tmp()
+            raise
+        self._server = server
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and remove the port and link; safe to call twice."""
+        server, self._server = self._server, None
+        if server is not None:
+            server.stop()
+        self._cleanup_tmp()
+
+    def _cleanup_tmp(self) -> None:
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
+
+    def __enter__(self) -> Simulator:
+        return self.start()
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    def __repr__(self) -> str:
+        state = self.endpoint if self._server is not None else "stopped"
+        kinds = ", ".join(f"{d.kind}:{d.address}" for d in self.bus.devices)
+        return f"<Simulator [{kinds}] {self.transport} {state}>"
+
+    # -- where to connect -----------------------------------------------------------------
+
+    def _running(self) -> Server:
+        if self._server is None:
+            raise RuntimeError("the simulator is not running: use `with Simulator(...)` "
+                               "or call start()")
+        return self._server
+
+    @property
+    def port(self) -> str:
+        """The path a master opens: the stable link (pty), the pseudo-terminal
+        itself when there is no link, or the serial port."""
+        server = self._running()
+        if not isinstance(server, RtuServer):
+            raise RuntimeError("a TCP simulator has no serial port: use host and tcp_port")
+        if server.link:
+            return server.link
+        return server.path or ""
+
+    @property
+    def pty_path(self) -> str | None:
+        """The current pseudo-terminal (``/dev/pts/N``), None while unplugged."""
+        server = self._running()
+        return server.path if isinstance(server, RtuServer) else None
+
+    @property
+    def host(self) -> str:
+        """The TCP server's address."""
+        return self._host
+
+    @property
+    def tcp_port(self) -> int:
+        """The TCP server's port (the one picked when 0 was asked)."""
+        server = self._running()
+        if not isinstance(server, TcpServer):
+            raise RuntimeError("not a TCP simulator: use port")
+        return server.port
+
+    @property
+    def endpoint(self) -> str:
+        """What the command line prints: the port path, or ``HOST:PORT``."""
+        server = self._running()
+        if isinstance(server, TcpServer):
+            host = f"[{self._host}]" if ":" in self._host else self._host
+            return f"{host}:{server.port}"
+        return self.port
+
+    # -- control --------------------------------------------------------------------------
+
+    @property
+    def devices(self) -> tuple[Device, ...]:
+        """The devices on the bus."""
+        return self.bus.devices
+
+    def device(self, address: int) -> Device:
+        """The device answering at ``address`` now (a CoolPro moves at reset)."""
+        d = self.bus.device(address)
+        if d is None:
+            raise KeyError(f"no device at address {address}; have "
+                           f"{', '.join(str(x.address) for x in self.bus.devices)}")
+        return d
+
+    @property
+    def stats(self) -> BusStats:
+        """The bus's counters (requests, replies, service time)."""
+        return self.bus.stats
+
+    def unplug(self, seconds: float | None = None) -> None:
+        """Make the port disappear, as a pulled USB adapter: a master's
+        reads and writes fail (EIO), the link is removed. Back after
+        ``seconds``, or at :meth:`replug`."""
+        self._running().unplug(seconds)
+
+    def replug(self) -> None:
+        """Bring the port back: a new pseudo-terminal, the link re-pointed."""
+        self._running().replug()
+
+    @property
+    def plugged(self) -> bool:
+        """False while unplugged."""
+        return self._running().plugged
+
+
+class SimulatorProcess:
+    """``python -m pymb simulate ARGS`` as a child process.
+
+    ``args``: the command line after ``simulate`` (e.g. ``["coolpro", "hub",
+    "--tcp", "127.0.0.1:0"]``). The endpoint is the child's first stdout
+    line. Stopped with SIGTERM (then SIGKILL) on exit.
+    """
+
+    def __init__(self, args: Sequence[str], *, timeout: float = 10.0) -> None:
+        self.args = list(args)
+        self.timeout = timeout
+        self.endpoint = ""
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> SimulatorProcess:
+        """Start the child and wait for its endpoint line."""
+        env = dict(os.environ)
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        proc = subprocess.Popen([sys.executable, "-m", "pymb", "simulate", *self.args],
+                                stdout=subprocess.PIPE, env=env)
+        self._proc = proc
+        assert proc.stdout is not None
+        line = b""
+        deadline = time.monotonic() + self.timeout
+        fd = proc.stdout.fileno()
+        while not line.endswith(b"\n"):
+            left = deadline - time.monotonic()
+            r, _, _ = select.select([fd], [], [], max(0.0, left))
+            chunk = os.read(fd, 256) if r else b""
+            if not chunk:
+                self.stop()
+                raise RuntimeError(f"pymb simulate {' '.join(self.args)} gave no endpoint "
+                                   f"within {self.timeout:g} s")
+            line += chunk
+        self.endpoint = line.decode().strip()
+        return self
+
+    @property
+    def port(self) -> str:
+        """The endpoint as a port path."""
+        return self.endpoint
+
+    @property
+    def host(self) -> str:
+        """The TCP endpoint's host."""
+        return self.endpoint.rpartition(":")[0].strip("[]")
+
+    @property
+    def tcp_port(self) -> int:
+        """The TCP endpoint's port."""
+        return int(self.endpoint.rpartition(":")[2])
+
+    def stop(self) -> int | None:
+        """Stop the child; returns its exit code."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+        return proc.returncode
+
+    def __enter__(self) -> SimulatorProcess:
+        return self.start()
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
