@@ -23,6 +23,13 @@ EXIT_CONNECTION = 4  #: the port or connection failed
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("pymb.commands.demo", "log simulated devices for a few seconds (no hardware)"),
+    "read": ("pymb.commands.read", "one reading of a CoolPro or a sensor hub"),
+    "watch": ("pymb.commands.watch", "readings refreshed live, with the achieved rate"),
+    "log": ("pymb.commands.log", "log devices on one or more buses to SQLite, CSV or JSONL"),
+    "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
+    "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
+    "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "simulate": ("pymb.sim.cli", "simulate CoolPro and sensor-hub devices on a pty or TCP"),
 }
 

@@ -1,0 +1,1 @@
+"""The ``pymb`` subcommands, one module each (see :mod:`pymb.cli`)."""

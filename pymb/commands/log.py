@@ -1,0 +1,71 @@
+"""``pymb log``: log devices to SQLite (default), CSV or JSON Lines."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from pymb.errors import InvalidArgument
+from pymb.logger import LogConfig, Logger, default_path, load_config, single_bus_config
+from pymb.store import FORMATS
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``pymb log``."""
+    p.add_argument("--config", metavar="FILE.toml",
+                   help="buses, devices and output from a TOML file (see the README)")
+    p.add_argument("--port", metavar="PATH", help="serial port of a single bus")
+    p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
+    p.add_argument("--device", action="append", default=[], metavar="TYPE[:ADDR]",
+                   help="coolpro[:ADDR] or hub[:ADDR]; repeat for several (single bus)")
+    p.add_argument("--baud", type=int, default=9600)
+    p.add_argument("--parity", default="N", choices=["N", "E", "O"])
+    p.add_argument("--timeout", type=float, default=1.0, help="reply timeout, seconds")
+    p.add_argument("--interval", type=float, default=0.0,
+                   help="seconds between polls (default 0: as fast as the wire allows)")
+    p.add_argument("--format", choices=FORMATS, help="output format (default sqlite)")
+    p.add_argument("--out", metavar="PATH",
+                   help="output file; '-' for stdout (csv, jsonl); default "
+                        "pymb-YYYYmmdd-HHMMSS.sqlite")
+    p.add_argument("--max-mb", type=float, help="SQLite: delete the oldest data past this size")
+    p.add_argument("--max-age-days", type=float, help="SQLite: delete data older than this")
+    p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no status line (for services)")
+
+
+def config_from(args: argparse.Namespace) -> LogConfig:
+    """The LogConfig the arguments describe."""
+    if args.config:
+        if args.port or args.tcp or args.device:
+            raise InvalidArgument("give either --config or --port/--tcp with --device, not both")
+        cfg = load_config(args.config)
+    else:
+        if not (args.port or args.tcp) or not args.device:
+            raise InvalidArgument("name a bus: --port PATH (or --tcp HOST:PORT) and at least "
+                                  "one --device coolpro[:ADDR] / hub[:ADDR]; or --config FILE")
+        cfg = single_bus_config(args.port, args.tcp, args.device, baud=args.baud,
+                                parity=args.parity, timeout=args.timeout,
+                                interval=args.interval)
+        cfg.path = ""
+    if args.format:
+        cfg.format = args.format
+    if args.out:
+        cfg.path = args.out
+    elif not cfg.path or (not args.config and cfg.format == "sqlite"):
+        cfg.path = default_path() if cfg.format == "sqlite" else "-"
+    if args.max_mb is not None:
+        cfg.max_bytes = int(args.max_mb * 1e6)
+    if args.max_age_days is not None:
+        cfg.max_age = args.max_age_days * 86400
+    return cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    """Log until Ctrl-C / SIGTERM (or --seconds), then print the summary."""
+    cfg = config_from(args)
+    logger = Logger(cfg, status=None if args.quiet else sys.stderr)
+    s = logger.run(args.seconds)
+    if not args.quiet:
+        print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
+              f"({s.faults} faults) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
+    return 0

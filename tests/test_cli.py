@@ -1,0 +1,283 @@
+"""The ``pymb`` command end to end, against the simulators on real ptys:
+read, log (rows and events in the database), export, scan, config with reset,
+the logger surviving faults and an unplugged port, SIGKILL mid-run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from pymb.cli import main
+from pymb.sim import Simulator
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def pymb_cmd(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
+    """``python -m pymb ARGS`` as a user runs it."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "pymb", *args], capture_output=True,
+                          text=True, timeout=120, env=env, **kw)  # type: ignore[call-overload]
+
+
+@pytest.fixture
+def sim() -> Iterator[Simulator]:
+    with Simulator(["coolpro", "hub:250"], seed=3) as s:
+        yield s
+
+
+def test_read_coolpro_table_and_json(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["read", "coolpro", "--port", sim.port, "--identity"]) == 0
+    out = capsys.readouterr().out
+    assert "Input Voltage" in out and " V" in out and "Firmware" in out
+    assert main(["read", "coolpro", "--port", sim.port, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert 20 < doc["input_voltage_v"] < 30
+    assert isinstance(doc["uptime_s"], int) and isinstance(doc["status"], int)
+
+
+def test_read_hub_shows_states(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    hub = sim.device(250)
+    hub.set_offline(3)  # type: ignore[attr-defined]
+    assert main(["read", "hub", "--port", sim.port, "--address", "250"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].split()[0] == "ch" and len(lines) >= 101
+    assert "offline" in lines[3]  # channel 3
+    assert main(["read", "hub", "--port", sim.port, "--address", "250", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["states"]["temperature_c"][2] == "offline"
+    assert doc["values"]["temperature_c"][2] is None
+    assert len(doc["values"]["humidity_pct"]) == 100
+
+
+def test_user_mistakes_are_messages_with_exit_codes(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["read", "coolpro", "--port", "/dev/ttyUSB-missing"]) == 4
+    err = capsys.readouterr().err
+    assert "/dev/ttyUSB-missing" in err and "no such port" in err and "Traceback" not in err
+    assert main(["read", "coolpro", "--port", "/dev/null", "--address", "300"]) == 2
+    assert "address" in capsys.readouterr().err
+    r = pymb_cmd("read", "coolpro", "--port", "/dev/ttyUSB-missing")
+    assert r.returncode == 4 and "Traceback" not in r.stderr and "no such port" in r.stderr
+
+
+def test_permission_denied_says_how_to_fix(tmp_path: Path) -> None:
+    if os.geteuid() == 0:
+        # root ignores file modes: run the check as an unprivileged user.
+        nobody = subprocess.run(["id", "-u", "nobody"], capture_output=True, text=True)
+        if nobody.returncode != 0:
+            pytest.skip("no unprivileged user to run as")
+        tty = tmp_path / "ttyS-locked"
+        tty.write_text("")
+        tty.chmod(0o600)
+        tmp_path.chmod(0o755)
+        code = (f"import sys; sys.path.insert(0, {str(ROOT)!r}); from pymb.cli import main; "
+                f"sys.exit(main(['read', 'coolpro', '--port', {str(tty)!r}]))")
+        r = subprocess.run(["setpriv", f"--reuid={nobody.stdout.strip()}", "--regid=65534",
+                            "--clear-groups", sys.executable, "-c", code],
+                           capture_output=True, text=True, timeout=60)
+        if "setpriv" in r.stderr and r.returncode != 4:
+            pytest.skip(f"cannot drop privileges here: {r.stderr.strip()}")
+        assert r.returncode == 4, r.stderr
+        assert "dialout" in r.stderr and "permission denied" in r.stderr
+
+
+def test_log_then_export(sim: Simulator, tmp_path: Path) -> None:
+    db = tmp_path / "run.sqlite"
+    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro:40", "--device", "hub:250",
+                 "--seconds", "2", "--out", str(db), "--timeout", "0.5")
+    assert r.returncode == 0, r.stderr
+    assert "logged" in r.stderr
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    n_cp = con.execute("SELECT COUNT(*) FROM coolpro_readings").fetchone()[0]
+    n_hub = con.execute("SELECT COUNT(DISTINCT sample_id) FROM hub_readings").fetchone()[0]
+    assert n_cp > 10 and n_hub > 2
+    # Raw registers are kept losslessly beside the decoded values.
+    blob, v = con.execute(
+        "SELECT s.registers, c.input_voltage_v FROM samples s JOIN coolpro c "
+        "ON c.sample_id = s.id LIMIT 1").fetchone()
+    assert len(blob) == 16 and int.from_bytes(blob[:2], "big") / 1000 == v
+    rows = con.execute("SELECT COUNT(*) FROM hub WHERE sample_id = "
+                       "(SELECT MIN(sample_id) FROM hub)").fetchone()[0]
+    assert rows == 100
+    assert con.execute("SELECT COUNT(*) FROM events WHERE kind = 'connect'").fetchone()[0] == 1
+    con.close()
+
+    out = tmp_path / "out.csv"
+    assert main(["export", str(db), "--csv", str(out), "--device", "coolpro-40"]) == 0
+    with out.open() as f:
+        got = list(csv.DictReader(f))
+    assert len(got) == n_cp * 7
+    assert {r["quantity"] for r in got} >= {"input_voltage_v", "status", "uptime_s"}
+
+
+def test_log_to_jsonl_on_stdout(sim: Simulator) -> None:
+    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--format", "jsonl",
+                 "--out", "-", "--seconds", "1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(line) for line in r.stdout.splitlines()]
+    samples = [x for x in lines if "values" in x]
+    assert len(samples) > 5 and samples[0]["device"] == "coolpro-40"
+    assert r.stderr == ""
+
+
+def test_log_records_faults_and_keeps_going(tmp_path: Path) -> None:
+    db = tmp_path / "faults.sqlite"
+    with Simulator(["coolpro", "hub"], seed=5) as sim:
+        sim.faults.inject("no_reply", count=2, address=40)
+        sim.faults.inject("bad_crc", count=1, address=40)
+        sim.faults.inject("exception", count=1, address=1, code=2)
+        r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--device", "hub",
+                     "--seconds", "3", "--out", str(db), "--timeout", "0.2")
+    assert r.returncode == 0, r.stderr
+    con = sqlite3.connect(db)
+    kinds = dict(con.execute("SELECT kind, COUNT(*) FROM events GROUP BY kind").fetchall())
+    assert kinds.get("timeout", 0) >= 2 and kinds.get("protocol", 0) >= 1
+    msgs = [m for (m,) in con.execute("SELECT message FROM events WHERE kind = 'protocol'")]
+    assert any("CRC" in m for m in msgs)
+    assert con.execute("SELECT COUNT(*) FROM coolpro").fetchone()[0] > 5
+    con.close()
+
+
+def test_unplugged_bus_reconnects_while_the_other_keeps_logging(tmp_path: Path) -> None:
+    cfg = tmp_path / "two.toml"
+    db = tmp_path / "two.sqlite"
+    with Simulator(["coolpro"], seed=1) as a, Simulator(["hub"], seed=2) as b:
+        cfg.write_text(f"""
+[output]
+path = "{db}"
+
+[[bus]]
+name = "a"
+port = "{a.port}"
+timeout = 0.3
+[[bus.device]]
+type = "coolpro"
+address = 40
+
+[[bus]]
+name = "b"
+port = "{b.port}"
+timeout = 0.5
+[[bus.device]]
+type = "hub"
+address = 1
+""")
+        proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg),
+                                 "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            time.sleep(1.5)
+            a.unplug()
+            time.sleep(2.0)
+            a.replug()
+            time.sleep(2.5)
+        finally:
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    con = sqlite3.connect(db)
+    ev = con.execute("SELECT kind, bus, message FROM events ORDER BY id").fetchall()
+    assert any(k == "connection" and bus == "a" for k, bus, _ in ev), ev
+    assert any(k == "reconnect" and bus == "a" for k, bus, _ in ev), ev
+    # Bus b kept logging while bus a was unplugged.
+    t_unplug = con.execute("SELECT MIN(time_utc) FROM events WHERE kind = 'connection' "
+                           "AND bus = 'a'").fetchone()[0]
+    t_back = con.execute("SELECT MIN(time_utc) FROM events WHERE kind = 'reconnect' "
+                         "AND bus = 'a'").fetchone()[0]
+    during = con.execute("SELECT COUNT(*) FROM samples s JOIN devices d ON d.id = s.device_id "
+                         "WHERE d.bus = 'b' AND s.time_utc BETWEEN ? AND ?",
+                         (t_unplug, t_back)).fetchone()[0]
+    assert during > 3
+    after = con.execute("SELECT COUNT(*) FROM samples s JOIN devices d ON d.id = s.device_id "
+                        "WHERE d.bus = 'a' AND s.time_utc > ?", (t_back,)).fetchone()[0]
+    assert after > 3  # logging resumed on the replugged bus
+    con.close()
+
+
+def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:
+    db = tmp_path / "kill.sqlite"
+    with Simulator(["coolpro", "hub"], seed=9) as sim:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device", "coolpro",
+             "--device", "hub", "--out", str(db), "--quiet"],
+            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        try:
+            deadline = time.monotonic() + 20
+            committed = 0
+            while time.monotonic() < deadline and committed < 20:
+                time.sleep(0.3)
+                if db.exists():
+                    with sqlite3.connect(db, timeout=5) as con:
+                        try:
+                            committed = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+                        except sqlite3.OperationalError:
+                            committed = 0
+            assert committed >= 20
+        finally:
+            proc.kill()
+            proc.wait(10)
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    assert con.execute("SELECT COUNT(*) FROM samples").fetchone()[0] >= committed
+    con.close()
+
+
+def test_scan_finds_both_devices(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["scan", "--port", sim.port, "--range", "1-3,40,249-250", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    found = {f["address"]: f["device"] for f in doc["found"]}
+    assert found == {40: "coolpro", 250: "hub"}
+
+
+def test_config_changes_address_with_reset_and_verifies(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    with Simulator(["coolpro"], seed=4) as sim:
+        assert main(["config", "coolpro", "--port", sim.port, "--set-address", "42",
+                     "--yes"]) == 0
+        out = capsys.readouterr().out
+        assert "take effect after a reset" in out
+        assert sim.device(40).address == 40  # not yet
+        assert main(["config", "coolpro", "--port", sim.port, "--reset", "--yes"]) == 0
+        out = capsys.readouterr().out
+        assert "verified" in out and "address 42" in out
+        assert main(["read", "coolpro", "--port", sim.port, "--address", "42", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["uptime_s"] < 10
+
+
+def test_config_refuses_without_confirmation(sim: Simulator,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    r = pymb_cmd("config", "coolpro", "--port", sim.port, "--set-address", "41",
+                 stdin=subprocess.DEVNULL)
+    assert r.returncode == 2 and "--yes" in r.stderr
+    assert main(["config", "coolpro", "--port", sim.port, "--set-address", "300",
+                 "--yes"]) == 2
+    assert "1..247" in capsys.readouterr().err
+
+
+def test_demo_runs(tmp_path: Path) -> None:
+    db = tmp_path / "demo.sqlite"
+    r = pymb_cmd("demo", "--seconds", "3", "--out", str(db))
+    assert r.returncode == 0, r.stderr
+    assert "the wire allows" in r.stdout and str(db) in r.stdout
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT COUNT(*) FROM coolpro").fetchone()[0] > 50
+    assert con.execute("SELECT COUNT(DISTINCT sample_id) FROM hub").fetchone()[0] >= 5
+    con.close()
+
+
+def test_help_lists_every_command() -> None:
+    r = pymb_cmd("--help")
+    for cmd in ("demo", "read", "watch", "log", "export", "scan", "config", "simulate"):
+        assert cmd in r.stdout
