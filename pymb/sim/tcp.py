@@ -2,7 +2,9 @@
 
 The unit identifier is the slave address on the bus: unit 0 is a broadcast
 (never answered), a unit no device has gets no answer (the request times
-out, as behind a gateway that relays to a silent bus). All connections are
+out, as behind a gateway that relays to a silent bus). Unit 0xFF ("not
+used", what a TCP device answers to itself; mbpoll sends it) reaches the
+only device of a one-device bus, unless a hub sits at address 255. All connections are
 served by one thread, one request at a time, as a gateway serialises its
 RTU line. The device's turnaround applies; with ``emulate_baud`` the RTU
 wire time of request and reply is added. ``bad_crc`` has no meaning here (a
@@ -29,6 +31,8 @@ log = logging.getLogger("pymb.sim")
 _MBAP = struct.Struct(">HHHB")  # transaction, protocol (0), length, unit
 _MAX_PDU = 253  # [MB-AP] 4.1
 _SEND_WAIT_S = 1.0
+#: [MB-TCP] 4.4.1: unit 0xFF addresses a TCP device itself (mbpoll sends it)
+_UNIT_NOT_USED = 0xFF
 
 
 def frame_tcp(tid: int, unit: int, pdu: bytes, fault: Fault | None) -> bytes:
@@ -140,7 +144,11 @@ class TcpServer(Server):
     def _dispatch(self, conn: socket.socket, tid: int, unit: int, pdu: bytes,
                   end: float) -> None:
         t0 = time.perf_counter_ns()
-        out = self.bus.serve(unit, pdu, tcp=True)
+        address = unit
+        if unit == _UNIT_NOT_USED and len(self.bus.devices) == 1 and \
+                self.bus.device(unit) is None:
+            address = self.bus.devices[0].address
+        out = self.bus.serve(address, pdu, tcp=True)
         if out is None:
             return
         if out.pdu is None:
