@@ -126,7 +126,8 @@ class Bus:
         if address == 0:
             self.stats.broadcasts += 1
             for d in self.devices:
-                d.handle_broadcast(pdu)
+                with d.lock:
+                    d.handle_broadcast(pdu)
             return None
         dev = self.device(address)
         if dev is None:
@@ -151,7 +152,8 @@ class Bus:
                 return Outcome(dev, exception_pdu(pdu[0], code), dev.turnaround(), fault)
             elif kind in ("no_reply", "unplug"):
                 return Outcome(dev, None, 0.0, fault)
-        reply = dev.handle(pdu)
+        with dev.lock:
+            reply = dev.handle(pdu)
         delay = dev.turnaround()
         if fault is not None and fault.kind == "late":
             delay += fault.delay

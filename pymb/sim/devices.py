@@ -18,14 +18,16 @@ from __future__ import annotations
 
 import bisect
 import calendar
+import functools
 import math
 import random
 import sys
+import threading
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
 from enum import IntEnum
-from typing import ClassVar
+from typing import Any, ClassVar, TypeVar
 
 from pymb.devices.maps import (
     COOLPRO,
@@ -121,6 +123,21 @@ def parse_firmware(version: str | Sequence[int]) -> tuple[int, ...]:
     return tuple(int(p) for p in version)
 
 
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _locked(method: _F) -> _F:
+    """Run ``method`` holding the device's lock (the bus thread and a test
+    thread may both touch a device)."""
+
+    @functools.wraps(method)
+    def wrapper(self: Device, *args: Any, **kwargs: Any) -> Any:
+        with self.lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
+
+
 def _swapped(regs: array[int]) -> bytes:
     if _SWAP:
         regs.byteswap()
@@ -144,6 +161,8 @@ class Device:
         self._address = address
         self._baud = baud
         self.rng = random.Random(_mix(self.seed ^ 0x5EED))  # turnaround jitter, faults
+        #: held by the bus around :meth:`handle` and by every public setter
+        self.lock = threading.RLock()
 
     @property
     def address(self) -> int:
@@ -325,6 +344,7 @@ class CoolProDevice(Device):
         else:
             img[i] = value & 0xFFFF
 
+    @_locked
     def register(self, name: str) -> int:
         """The raw value of a point of :data:`~pymb.devices.maps.COOLPRO` by
         name, as a read now would return it (32-bit points combined)."""
@@ -356,6 +376,7 @@ class CoolProDevice(Device):
 
     # -- test hooks ---------------------------------------------------------------
 
+    @_locked
     def pin(self, name: str, raw: int) -> None:
         """Make telemetry point ``name`` read ``raw`` until :meth:`unpin`."""
         reg = COOLPRO[name]
@@ -365,6 +386,7 @@ class CoolProDevice(Device):
                                   f"{', '.join(r.name for r in COOLPRO.group('telemetry'))}")
         self._pins[name] = int(raw)
 
+    @_locked
     def unpin(self, name: str | None = None) -> None:
         """Let ``name`` (or every pinned point) follow the value model again."""
         if name is None:
@@ -372,6 +394,7 @@ class CoolProDevice(Device):
         else:
             self._pins.pop(name, None)
 
+    @_locked
     def set_identity(self, **values: int) -> None:
         """Set identity points by name (``serial_number=...``, ``firmware_major=...``)."""
         for name, value in values.items():
@@ -379,6 +402,7 @@ class CoolProDevice(Device):
                 raise InvalidArgument(f"{name} is not an identity point")
             self._put(name, value)
 
+    @_locked
     def set_status(self, mask: int, seconds: float | None = None) -> None:
         """Raise the status bits in ``mask`` (reserved bits 7..15 too), for
         ``seconds`` of simulated time or until :meth:`clear_status`."""
@@ -389,12 +413,14 @@ class CoolProDevice(Device):
             if mask & (1 << bit):
                 self._forced[1 << bit] = until
 
+    @_locked
     def clear_status(self, mask: int = 0xFFFF) -> None:
         """Drop bits raised by :meth:`set_status` (the model's own stay)."""
         for m in list(self._forced):
             if m & mask:
                 del self._forced[m]
 
+    @_locked
     def reset(self) -> None:
         """Reset the device: the stored address and baud take effect, uptime
         restarts at 0 and SYSTEM_STARTUP is raised for ``startup_seconds``."""
@@ -403,6 +429,7 @@ class CoolProDevice(Device):
         self._boot = self.clock.now()
         self.resets += 1
 
+    @_locked
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:
         """Raise one measurement-fault bit (or ``bits``) for ``seconds``."""
@@ -412,6 +439,7 @@ class CoolProDevice(Device):
 
     # -- the value model -------------------------------------------------------------
 
+    @_locked
     def status(self, t: float | None = None) -> int:
         """The status flags at simulated time ``t`` (default now)."""
         if t is None:
@@ -639,6 +667,10 @@ class HubDevice(Device):
         if not _HUB_ADDRESSES[0] <= address <= _HUB_ADDRESSES[1]:
             raise InvalidArgument(f"hub address must be {_HUB_ADDRESSES[0]}.."
                                   f"{_HUB_ADDRESSES[1]}, got {address}")
+        lo, hi = response_delay if isinstance(response_delay, tuple) else (response_delay,) * 2
+        if not 0 <= lo <= hi:
+            raise InvalidArgument(f"response_delay must be seconds >= 0 (or a low, high "
+                                  f"range), got {response_delay!r}")
         super().__init__(address, baud=baud, seed=seed, clock=clock)
         self.response_delay = response_delay
         self.dynamic = dynamic
@@ -674,6 +706,7 @@ class HubDevice(Device):
         return self._firmware
 
     @firmware.setter
+    @_locked
     def firmware(self, version: str) -> None:
         want = parse_firmware(version)
         profiles = _profiles()
@@ -706,6 +739,7 @@ class HubDevice(Device):
         c = self._channels[self._ci(channel)]
         return Channel(**{f.name: getattr(c, f.name) for f in fields(Channel)})
 
+    @_locked
     def configure(self, channel: int | Iterable[int] | None = None, **flags: bool) -> None:
         """Change what is plugged into ``channel`` (1-based, several, or
         None for all): ``present``, ``temperature``, ``humidity``,
@@ -733,6 +767,7 @@ class HubDevice(Device):
 
     # -- test hooks -------------------------------------------------------------------------
 
+    @_locked
     def pin(self, block: str, channel: int, raw: int) -> None:
         """Make ``block``'s register of ``channel`` read ``raw`` until :meth:`unpin`."""
         b = self._block(block)
@@ -740,6 +775,7 @@ class HubDevice(Device):
         self._pins[(b.index, ci)] = raw & 0xFFFF
         self._update(ci, self.clock.now())
 
+    @_locked
     def unpin(self, block: str | None = None, channel: int | None = None) -> None:
         """Drop pins (all, one block's, or one register's)."""
         for key in list(self._pins):
@@ -748,6 +784,7 @@ class HubDevice(Device):
                 del self._pins[key]
                 self._update(key[1], self.clock.now())
 
+    @_locked
     def set_offline(self, channel: int | Iterable[int], offline: bool | None = True,
                     seconds: float | None = None) -> None:
         """Force ``channel`` offline (True), online (False, no episodes) or
@@ -765,17 +802,20 @@ class HubDevice(Device):
                 self._offline_until.pop(ci, None)
             self._update(ci, now)
 
+    @_locked
     def registers(self, address: int = HUB.first, count: int = HUB.count) -> array[int]:
         """The register image now (whatever the firmware lacks included)."""
         self._refresh()
         i = address - self._first
         return self._image[i:i + count]
 
+    @_locked
     def raw(self, block: str, channel: int) -> int:
         """The raw register of ``block`` for ``channel`` now."""
         self._refresh()
         return self._image[self._offsets[self._block(block).index] + self._ci(channel)]
 
+    @_locked
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:
         """Take ``channels`` (default: one present channel) offline for ``seconds``."""
@@ -786,6 +826,7 @@ class HubDevice(Device):
         self.set_offline(channels, True, seconds)
         return f"channels {', '.join(map(str, channels))} offline for {seconds:g} s"
 
+    @_locked
     def idle(self) -> None:
         """Refresh the channels that reported since the last request."""
         self._refresh()
