@@ -1,0 +1,158 @@
+/*
+ * fuzz_transact.c - libFuzzer target: pymb's request path (pymb_transact,
+ * the raw path for slaves 248..255, pymb_read_registers and the hub sweep)
+ * over libmodbus and a real pseudo-terminal. The input is what the "device"
+ * sends back: it is written to the pty's master side, then pymb makes one
+ * request and must return either checked data or an error, never read
+ * outside its buffers and never accept a frame that fails its checks.
+ *
+ * The first input byte picks the request (and, with bit 7, also puts the
+ * reply on the line *before* the request, as stale data that pymb must
+ * discard); the rest is the reply, sent after each request.
+ */
+#define _XOPEN_SOURCE 700
+#define _DEFAULT_SOURCE
+
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include "../pymb_modbus.h"
+
+int LLVMFuzzerInitialize(int *argc, char ***argv);
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+static int master_fd = -1;
+static modbus_t *ctx;
+
+int LLVMFuzzerInitialize(int *argc, char ***argv)
+{
+    struct termios tio;
+    (void)argc;
+    (void)argv;
+    master_fd = posix_openpt(O_RDWR | O_NOCTTY);
+    if (master_fd < 0 || grantpt(master_fd) || unlockpt(master_fd)) {
+        perror("pty");
+        exit(1);
+    }
+    tcgetattr(master_fd, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(master_fd, TCSANOW, &tio);
+    fcntl(master_fd, F_SETFL, fcntl(master_fd, F_GETFL) | O_NONBLOCK);
+    ctx = modbus_new_rtu(ptsname(master_fd), 115200, 'N', 8, 1);
+    if (ctx == NULL || modbus_connect(ctx) == -1) {
+        perror("modbus");
+        exit(1);
+    }
+    modbus_set_response_timeout(ctx, 0, 3000);
+    modbus_set_byte_timeout(ctx, 0, 0);
+    return 0;
+}
+
+static void drain_master(void)
+{
+    uint8_t junk[512];
+    while (read(master_fd, junk, sizeof junk) > 0) {
+    }
+}
+
+/* The device: answers every request it sees with the fuzz input. */
+struct responder {
+    const uint8_t *reply;
+    size_t len;
+    volatile int stop;
+};
+
+static void *respond(void *arg)
+{
+    struct responder *r = arg;
+    uint8_t req[512];
+    struct pollfd pfd = {.fd = master_fd, .events = POLLIN};
+
+    while (!r->stop) {
+        if (poll(&pfd, 1, 1) > 0 && read(master_fd, req, sizeof req) > 0 && r->len) {
+            if (write(master_fd, r->reply, r->len) < 0 && errno != EAGAIN) {
+                abort();
+            }
+        }
+    }
+    return NULL;
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH + 8];
+    uint16_t regs[PYMB_HUB_REGISTERS];
+    pymb_failure fail;
+    size_t reply = size > 1 ? size - 1 : 0;
+    int which = size ? data[0] % 4 : 0, n;
+    struct responder resp;
+    pthread_t thread;
+
+    if (reply > 600) {
+        reply = 600;
+    }
+    drain_master();
+    pymb_flush(ctx);
+    if ((size && (data[0] & 0x80)) && reply && write(master_fd, data + 1, reply) < 0 &&
+        errno != EAGAIN) {
+        abort();
+    }
+    resp.reply = data + 1;
+    resp.len = reply;
+    resp.stop = 0;
+    if (pthread_create(&thread, NULL, respond, &resp) != 0) {
+        abort();
+    }
+    memset(&fail, 0, sizeof fail);
+    switch (which) {
+    case 0: { /* raw read of 3 registers from slave 250 */
+        const uint8_t req[] = {250, 0x03, 0x00, 0x1F, 0x00, 0x03};
+        n = pymb_transact(ctx, req, sizeof req, rsp, (int)sizeof rsp - 8, &fail);
+        if (n >= 0 && (n != 8 || rsp[0] != 250 || !pymb_rtu_crc_ok(rsp, (size_t)n + 3))) {
+            abort();
+        }
+        break;
+    }
+    case 1: { /* write single register, echo checked */
+        const uint8_t req[] = {40, 0x06, 0x00, 0x00, 0x00, 0x2A};
+        n = pymb_transact(ctx, req, sizeof req, rsp, (int)sizeof rsp - 8, &fail);
+        if (n >= 0 && (n != 5 || memcmp(rsp, req, 6) != 0)) {
+            abort();
+        }
+        break;
+    }
+    case 2: /* split read, slave 251 */
+        n = pymb_read_registers(ctx, 3, 251, 31, 130, regs, &fail);
+        if (n != -1 && n != 130) {
+            abort();
+        }
+        break;
+    default: { /* one hub sweep, slave 249 */
+        pymb_span spans[8];
+        pymb_hub_request rq;
+        int ns = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
+        memset(&rq, 0, sizeof rq);
+        rq.slave = 249;
+        rq.channels = PYMB_HUB_CHANNELS;
+        rq.spans = spans;
+        rq.nspans = ns;
+        rq.regs = regs;
+        pymb_hub_read(ctx, &rq, &fail);
+        break;
+    }
+    }
+    resp.stop = 1;
+    pthread_join(thread, NULL);
+    if (fail.rsp_len < 0 || fail.rsp_len > (int)sizeof fail.rsp) {
+        abort();
+    }
+    drain_master();
+    return 0;
+}
