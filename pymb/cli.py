@@ -14,12 +14,14 @@ from collections.abc import Sequence
 
 from pymb import __version__
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
+from pymb.store import OutputError
 
-__all__ = ["EXIT_CONNECTION", "EXIT_DEVICE", "EXIT_USAGE", "main"]
+__all__ = ["EXIT_CONNECTION", "EXIT_DEVICE", "EXIT_OUTPUT", "EXIT_USAGE", "main"]
 
 EXIT_USAGE = 2  #: bad arguments or configuration
 EXIT_DEVICE = 3  #: the device answered wrongly, or not at all
 EXIT_CONNECTION = 4  #: the port or connection failed
+EXIT_OUTPUT = 5  #: logged data could not be written (disk full, read-only)
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -69,6 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ModbusError as e:
         print(f"pymb {args.command}: {e}", file=sys.stderr)
         return EXIT_DEVICE
+    except OutputError as e:
+        print(f"pymb {args.command}: {e}", file=sys.stderr)
+        return EXIT_OUTPUT
 
 
 if __name__ == "__main__":

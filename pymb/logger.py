@@ -63,7 +63,7 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
-from pymb.store import DeviceInfo, Event, Sample, Sink, open_sink
+from pymb.store import DeviceInfo, Event, OutputError, Sample, Sink, open_sink
 
 __all__ = [
     "BusConfig",
@@ -407,6 +407,7 @@ class Logger:
         deadline = None if seconds is None else t0 + seconds
         last_commit = last_status = t0
         pending = 0
+        failure: OutputError | None = None
         with self._signals():
             for p in self.pollers:
                 p.start()
@@ -432,17 +433,23 @@ class Logger:
                     if item is None and (self._stop.is_set()
                                          or not any(p.is_alive() for p in self.pollers)):
                         break
+            except OutputError as e:
+                failure = e
             finally:
                 self._stop.set()
                 for p in self.pollers:
                     p.join(10)
-                while True:
-                    try:
-                        self._write(self._queue.get_nowait())
-                    except queue.Empty:
-                        break
-                self.sink.commit()
-                self.sink.close()
+                try:
+                    while failure is None:
+                        try:
+                            self._write(self._queue.get_nowait())
+                        except queue.Empty:
+                            break
+                    self.sink.close()
+                except OutputError as e:
+                    failure = failure or e
+        if failure is not None:
+            raise failure
         elapsed = time.monotonic() - t0
         if self.status_out is not None:
             self._print_status(elapsed, final=True)

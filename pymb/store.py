@@ -38,6 +38,7 @@ __all__ = [
     "DeviceInfo",
     "Event",
     "JsonlSink",
+    "OutputError",
     "Sample",
     "Sink",
     "SqliteSink",
@@ -47,6 +48,12 @@ __all__ = [
 SCHEMA_VERSION = 1
 _COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 _HUB_FIELDS = [b.name for b in HUB.blocks]
+
+
+class OutputError(Exception):
+    """Logged data could not be written (disk full, read-only database or
+    file, I/O error). What was committed before is intact; the batch being
+    written when it happened is lost."""
 
 
 @dataclass(frozen=True)
@@ -208,8 +215,22 @@ class SqliteSink:
             self._devices[d] = did
         return did
 
+    def _failed(self, e: Exception) -> OutputError:
+        if self._in_tx:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.execute("ROLLBACK")
+            self._in_tx = False
+        return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
+                           "is intact, the batch being written was lost")
+
     def write(self, sample: Sample) -> None:
         """Add one sample to the current batch."""
+        try:
+            self._write(sample)
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _write(self, sample: Sample) -> None:
         did = self._device_id(sample.device)
         self._begin()
         data = sample.data
@@ -235,6 +256,12 @@ class SqliteSink:
 
     def event(self, event: Event) -> None:
         """Add one event to the current batch."""
+        try:
+            self._event(event)
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _event(self, event: Event) -> None:
         did = None if event.device is None else self._device_id(event.device)
         self._begin()
         self.db.execute(
@@ -245,6 +272,12 @@ class SqliteSink:
 
     def commit(self) -> None:
         """Commit the batch (and enforce the size and age limits now and then)."""
+        try:
+            self._commit()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _commit(self) -> None:
         if self._in_tx:
             self.db.execute("COMMIT")
             self._in_tx = False
@@ -306,9 +339,10 @@ class SqliteSink:
 
     def close(self) -> None:
         """Commit what is pending and close the database."""
-        with contextlib.suppress(sqlite3.Error):
+        try:
             self.commit()
-        self.db.close()
+        finally:
+            self.db.close()
 
 
 # -- text formats ---------------------------------------------------------------------
@@ -367,22 +401,30 @@ def event_dict(e: Event) -> dict[str, Any]:
 
 
 class _TextSink:
+    f: IO[str]
+
     def __init__(self, path: str) -> None:
         self.path = path
         self._own = path != "-"
         try:
-            self.f: IO[str] = (open(path, "a", encoding="utf-8", newline="")  # noqa: SIM115
-                               if self._own else sys.stdout)
+            self.f = (open(path, "a", encoding="utf-8", newline="")  # noqa: SIM115
+                      if self._own else sys.stdout)
         except OSError as e:
             raise InvalidArgument(f"cannot open {path}: {e.strerror}") from None
 
     def commit(self) -> None:
-        self.f.flush()
+        try:
+            self.f.flush()
+        except OSError as e:
+            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
 
     def close(self) -> None:
-        self.f.flush()
-        if self._own:
-            self.f.close()
+        try:
+            self.commit()
+        finally:
+            if self._own:
+                with contextlib.suppress(OSError):
+                    self.f.close()
 
 
 class CsvSink(_TextSink):
@@ -395,7 +437,10 @@ class CsvSink(_TextSink):
             self.w.writerow(CSV_COLUMNS)
 
     def write(self, sample: Sample) -> None:
-        self.w.writerows(sample_rows(sample))
+        try:
+            self.w.writerows(sample_rows(sample))
+        except OSError as e:
+            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
 
     def event(self, e: Event) -> None:
         d = e.device
@@ -409,7 +454,10 @@ class JsonlSink(_TextSink):
     """JSON Lines: one object per sample or event."""
 
     def write(self, sample: Sample) -> None:
-        self.f.write(json.dumps(sample_dict(sample), allow_nan=False) + "\n")
+        try:
+            self.f.write(json.dumps(sample_dict(sample), allow_nan=False) + "\n")
+        except OSError as e:
+            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
 
     def event(self, e: Event) -> None:
         self.f.write(json.dumps(event_dict(e)) + "\n")
