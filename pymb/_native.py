@@ -87,27 +87,34 @@ def crc16(data: bytes | bytearray | memoryview) -> int:
     return int(lib.pymb_crc16(ffi.from_buffer(data), len(data)))
 
 
-def with_crc(frame: bytes) -> bytes:
+def _bytes_arg(data: bytes | bytearray | memoryview) -> Any:
+    # bytes go to C as they are (the fast path); other buffers through from_buffer.
+    return data if type(data) is bytes else ffi.from_buffer(data)
+
+
+def with_crc(frame: bytes | bytearray | memoryview) -> bytes:
     """``frame`` with its CRC appended, low byte first (an RTU frame)."""
-    crc = lib.pymb_crc16(frame, len(frame))
-    return frame + bytes((crc & 0xFF, crc >> 8))
+    crc = lib.pymb_crc16(_bytes_arg(frame), len(frame))
+    return bytes(frame) + bytes((crc & 0xFF, crc >> 8))
 
 
-def rtu_crc_ok(frame: bytes) -> bool:
+def rtu_crc_ok(frame: bytes | bytearray | memoryview) -> bool:
     """True when the last two bytes of ``frame`` are the CRC of the rest."""
-    return bool(lib.pymb_rtu_crc_ok(frame, len(frame)))
+    return bool(lib.pymb_rtu_crc_ok(_bytes_arg(frame), len(frame)))
 
 
-def rtu_request_length(buf: bytes) -> int:
+def rtu_request_length(buf: bytes | bytearray | memoryview) -> int:
     """Length of the RTU request starting ``buf`` as its header tells it:
     -1 needs more bytes, -4 unknown function (only silence ends it), -7 too
     long (see pymb_rtu_request_length in csrc/pymb.h)."""
-    return int(lib.pymb_rtu_request_length(buf, len(buf)))
+    return int(lib.pymb_rtu_request_length(_bytes_arg(buf), len(buf)))
 
 
-def rtu_response_length(buf: bytes) -> int:
-    """Length of the RTU response starting ``buf`` (-1: need more bytes)."""
-    return int(lib.pymb_rtu_response_length(buf, len(buf)))
+def rtu_response_length(buf: bytes | bytearray | memoryview) -> int:
+    """Length of the RTU response starting ``buf`` (-1: need more bytes; a
+    function code it does not know is taken as exception-sized, the rule
+    libmodbus 3.1.6 reads replies by)."""
+    return int(lib.pymb_rtu_response_length(_bytes_arg(buf), len(buf)))
 
 
 def ffi_buffer_u16(array: Any) -> Any:

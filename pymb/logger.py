@@ -92,11 +92,12 @@ class DeviceConfig:
     def __post_init__(self) -> None:
         if self.type not in DEVICE_TYPES:
             raise InvalidArgument(f"unknown device type {self.type!r}; use coolpro or hub")
-        high = 247 if self.type == "coolpro" else 255
+        low, high = (COOLPRO if self.type == "coolpro" else HUB).addresses
         if isinstance(self.address, bool) or not isinstance(self.address, int) or not (
-            1 <= self.address <= high
+            low <= self.address <= high
         ):
-            raise InvalidArgument(f"{self.type} address must be 1..{high}, got {self.address!r}")
+            raise InvalidArgument(
+                f"{self.type} address must be {low}..{high}, got {self.address!r}")
         if not self.name:
             self.name = f"{self.type}-{self.address}"
 

@@ -250,8 +250,11 @@ class SensorHub:
                  channels: int = HUB.channels, humidity_unit: float | Sequence[float] = 0.1,
                  *, busy_retries: int = 3, busy_backoff: float = 0.02,
                  turnaround: float = 0.005) -> None:
-        if isinstance(address, bool) or not isinstance(address, int) or not 1 <= address <= 255:
-            raise InvalidArgument(f"hub address must be 1..255, got {address!r}")
+        low, high = HUB.addresses
+        if isinstance(address, bool) or not isinstance(address, int) or not (
+            low <= address <= high
+        ):
+            raise InvalidArgument(f"hub address must be {low}..{high}, got {address!r}")
         if not isinstance(busy_retries, int) or not 0 <= busy_retries <= 100:
             raise InvalidArgument(f"busy_retries must be 0..100, got {busy_retries!r}")
         if not 0 <= busy_backoff <= 10:

@@ -31,6 +31,7 @@ __all__ = [
     "HubMap",
     "Register",
     "Type",
+    "markdown_tables",
 ]
 
 
@@ -84,6 +85,8 @@ class DeviceMap:
     registers: tuple[Register, ...]
     function_codes: tuple[int, ...]
     exception_codes: dict[int, str] = field(default_factory=dict)
+    addresses: tuple[int, int] = (1, 247)  #: device addresses it can be set to
+    max_read: int = 125  #: registers per read, [MB-AP] 6.3, 6.4
 
     def __getitem__(self, name: str) -> Register:
         for r in self.registers:
@@ -205,6 +208,7 @@ class Block:
     min_firmware: tuple[int, int] = (0, 0)  #: first firmware that has it
     markers: tuple[tuple[int, str], ...] = ((0xFFFF, "offline"),)
     ref: str = "[HUB] 3"
+    per_channel_scales: tuple[float, ...] = ()  #: scales a channel's configuration picks
 
     def address(self, channel: int) -> int:
         """On-wire address of ``channel`` (1-based)."""
@@ -225,6 +229,7 @@ class HubMap:
     max_frame: int  #: bytes; [HUB] 2.1
     max_read: int  #: registers per request that fit the frame
     response_time: float  #: seconds the hub may take to answer, [HUB] 2.1
+    addresses: tuple[int, int] = (1, 255)  #: [HUB] 2.3.1, [NOTES]: 0 is broadcast
 
     @property
     def first(self) -> int:
@@ -272,7 +277,8 @@ HUB = HubMap(
               "Channel humidity, 1 % or 0.1 % by sensor type (configuration, per channel); "
               "0xFFFF offline; 0x00FF no humidity (1 % unit); 0x8000 no humidity (0.1 % unit)",
               markers=((0xFFFF, "offline"), (0x00FF, "no sensor (1 % unit)"),
-                       (0x8000, "no sensor (0.1 % unit)"))),
+                       (0x8000, "no sensor (0.1 % unit)")),
+              per_channel_scales=(1, 0.1)),
         Block(2, "pressure_temperature_c", 231, Type.SIGN_MAGNITUDE, 0.1, "°C",
               f"Pressure sensor temperature: {_TEMP_DOC}"),
         Block(3, "pressure_kpa", 331, Type.U16, 1, "kPa",
@@ -299,3 +305,40 @@ HUB_FIRMWARE_PROFILES: dict[str, tuple[int, tuple[str, ...]]] = {
                    "pressure_kpa", "voltage_mv", "rssi_dbm")),
     "2.23": (100, tuple(b.name for b in HUB.blocks)),
 }
+
+
+def markdown_tables() -> str:
+    """The README's register tables, rendered from the maps above."""
+    lines = [
+        "#### CoolPro (default address 40, 9600 8N1)",
+        "",
+        "| name | FC | address | type | scale | unit | access | description |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in COOLPRO.registers:
+        addr = str(r.address) if r.count == 1 else f"{r.address}-{r.address + 1}"
+        valid = f" (valid {r.valid[0]}..{r.valid[1]})" if r.valid and r.valid[0] != r.valid[1] \
+            else ""
+        lines.append(f"| `{r.name}` | 0x{r.function:02X} | {addr} | {r.type.value} | "
+                     f"{r.scale:g} | {r.unit} | {r.access.value} | {r.description}{valid} |")
+    lines += [
+        "",
+        "Status bits (input register 7): " + ", ".join(
+            f"{bit} `{name}`" for bit, (name, _) in COOLPRO_STATUS_BITS.items())
+        + "; bits 7..15 reserved, kept as raw bits.",
+        "",
+        f"#### Sensor hub (default address {HUB.default_address}, addresses 1..255, FC 0x03 only,"
+        f" {HUB.channels} channels)",
+        "",
+        "| quantity | registers | type | scale | unit | markers | firmware |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for b in HUB.blocks:
+        markers = ", ".join(f"0x{m:04X} {what}" for m, what in b.markers)
+        fw = "all" if b.min_firmware == (0, 0) else f"≥ V{b.min_firmware[0]}.{b.min_firmware[1]}"
+        scale = (" or ".join(f"{x:g}" for x in b.per_channel_scales) + " (per channel)"
+                 if b.per_channel_scales else f"{b.scale:g}")
+        lines.append(f"| `{b.name}` | {b.first}..{b.first + HUB.channels - 1} | {b.type.value} | "
+                     f"{scale} | {b.unit} | {markers} | {fw} |")
+    lines += ["", "Firmware ≤ V1.07: 50 channels of temperature and humidity only."]
+    return "\n".join(lines)

@@ -57,7 +57,7 @@ __all__ = [
 ]
 
 _SWAP = sys.byteorder == "little"  # registers go on the wire big-endian
-_MAX_READ = 125  # [MB-AP] 6.3, 6.4: 1..125 registers per read
+_MAX_READ = COOLPRO.max_read  # [MB-AP] 6.3, 6.4: 1..125 registers per read
 _M64 = 0xFFFF_FFFF_FFFF_FFFF
 _TWO_PI = 2.0 * math.pi
 
@@ -604,7 +604,7 @@ _OFFLINE = HUB.blocks[0].markers[0][0]  # 0xFFFF on every block
 _ALL_OFFLINE = [_OFFLINE] * len(HUB.blocks)
 _NO_HUMIDITY = {False: HUB.block("humidity_pct").markers[1][0],  # 1 % unit
                 True: HUB.block("humidity_pct").markers[2][0]}  # 0.1 % unit
-_HUB_ADDRESSES = (1, 255)  # [HUB] 2.3.1, [NOTES]
+_HUB_ADDRESSES = HUB.addresses  # [HUB] 2.3.1, [NOTES]
 
 
 def _profiles() -> list[tuple[tuple[int, ...], int, frozenset[str]]]:
