@@ -1,0 +1,313 @@
+"""A contender's own process: ``python -m pymb.bench.worker NAME PORT BAUD K_OFF K_VAL``.
+
+It opens the port with one stack, as that stack's user would, and answers
+the parent on stdin/stdout, one line each (the C program speaks the same):
+
+``sweep N``  N hub sweeps (700 registers in 6 requests, decoded), then
+             ``ok CPU_NS WALL_NS...``: this process's CPU for the batch
+             (``time.process_time_ns``) and each sweep's wall time.
+``tele N``   N CoolPro telemetry reads, decoded; the same answer.
+``verify``   one sweep: ``ok`` + the 700 raw registers, then ``ok`` + the
+             700 decoded values (the parent checks both).
+``tverify``  the same for one telemetry read (8 registers, 7 values).
+``quit``     close the port and exit.
+
+Every sweep checks two canary registers the parent chose from the simulated
+hub's layout (``K_OFF`` always reads 0xFFFF, ``K_VAL`` never does) and the
+decoded values there, so a contender that reads the wrong registers or
+skips the decoding cannot post a time.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from pymb.bench import pure
+from pymb.devices.maps import COOLPRO, HUB
+
+__all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
+
+HUB_SLAVE = HUB.default_address
+CP_SLAVE = COOLPRO.default_address
+CP_FUNCTION, CP_ADDRESS, CP_COUNT = COOLPRO.span("telemetry")
+MAX_READ = HUB.max_read
+
+
+def hub_spans() -> list[tuple[int, int]]:
+    """The sweep's requests: registers 31..730 in reads of at most 125."""
+    out = []
+    for done in range(0, HUB.count, MAX_READ):
+        out.append((HUB.first + done, min(MAX_READ, HUB.count - done)))
+    return out
+
+
+SPANS = hub_spans()
+
+
+class Canary:
+    """The per-sweep check: one register that reads 0xFFFF, one that does not."""
+
+    def __init__(self, k_off: int, k_val: int) -> None:
+        self.k_off = k_off
+        self.k_val = k_val
+
+    def check(self, raw: Sequence[int], values: Sequence[float]) -> None:
+        """Raise when the sweep is not the simulated hub's."""
+        if len(raw) != HUB.count or len(values) != HUB.count:
+            raise RuntimeError(f"sweep returned {len(raw)} registers, {len(values)} values")
+        k, v = self.k_off, self.k_val
+        if raw[k] != 0xFFFF or not math.isnan(values[k]) or raw[v] == 0xFFFF or \
+                math.isnan(values[v]):
+            raise RuntimeError("canary registers do not hold what the simulator serves")
+
+
+# -- the contenders ---------------------------------------------------------------------
+
+
+class PymbClient:
+    """pymb: ``SensorHub.read_all()`` (6 requests, decoded in C, GIL released)
+    and ``CoolPro.read_telemetry()``."""
+
+    def __init__(self, port: str, baud: int, timeout: float) -> None:
+        from pymb import RtuClient
+        from pymb.devices import CoolPro, SensorHub
+
+        self.client = RtuClient(port, baud, timeout=timeout)
+        self.client.connect()
+        self.hub = SensorHub(self.client, HUB_SLAVE)
+        self.coolpro = CoolPro(self.client, CP_SLAVE)
+
+    def sweep(self) -> tuple[Sequence[int], Sequence[float]]:
+        r = self.hub.read_all()
+        return r.registers, r.values
+
+    def telemetry(self) -> tuple[Sequence[int], Sequence[float]]:
+        t = self.coolpro.read_telemetry()
+        return t.registers, (t.input_voltage_v, t.input_current_a, t.output_voltage_v,
+                             t.output_current_a, t.temperature_c, float(t.uptime_s),
+                             float(t.status))
+
+    def close(self) -> None:
+        self.client.close()
+
+
+class PurePythonClient:
+    """Base of the stacks that return raw registers: six reads, then the
+    pure-Python decode of :mod:`pymb.bench.pure`."""
+
+    def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
+        raise NotImplementedError
+
+    def sweep(self) -> tuple[Sequence[int], Sequence[float]]:
+        raw: list[int] = []
+        for address, count in SPANS:
+            raw += self.read(HUB_SLAVE, 0x03, address, count)
+        return raw, pure.decode_hub(raw)
+
+    def telemetry(self) -> tuple[Sequence[int], Sequence[float]]:
+        raw = self.read(CP_SLAVE, CP_FUNCTION, CP_ADDRESS, CP_COUNT)
+        return raw, pure.decode_telemetry(raw)
+
+    def close(self) -> None:
+        pass
+
+
+class PymodbusClient(PurePythonClient):
+    """pymodbus: the sync ``ModbusSerialClient`` (RTU framer), its defaults
+    but for a generous timeout. It polls for the reply in sleeps of at least
+    1 ms (``_recv_interval``), as its users get it."""
+
+    def __init__(self, port: str, baud: int, timeout: float) -> None:
+        from pymodbus.client import ModbusSerialClient
+        from pymodbus.framer import FramerType
+
+        self.client = ModbusSerialClient(port, framer=FramerType.RTU, baudrate=baud,
+                                         timeout=timeout)
+        if not self.client.connect():
+            raise RuntimeError(f"pymodbus cannot open {port}")
+
+    def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
+        if function == 0x04:
+            rr = self.client.read_input_registers(address, count=count, device_id=slave)
+        else:
+            rr = self.client.read_holding_registers(address, count=count, device_id=slave)
+        if rr.isError():
+            raise RuntimeError(f"pymodbus: {rr}")
+        regs: list[int] = rr.registers
+        return regs
+
+    def close(self) -> None:
+        self.client.close()
+
+
+class MinimalmodbusClient(PurePythonClient):
+    """minimalmodbus: one ``Instrument`` per device (they share the port),
+    ``read_registers(address, count, functioncode)``. Its 3.5-character
+    silent period (at least 1.75 ms) before each request is kept, as its
+    users get it; the timeout is raised from 0.05 s."""
+
+    def __init__(self, port: str, baud: int, timeout: float) -> None:
+        import minimalmodbus
+
+        self.instruments: dict[int, Any] = {}
+        for slave in (HUB_SLAVE, CP_SLAVE):
+            inst = minimalmodbus.Instrument(port, slave)
+            inst.serial.baudrate = baud
+            inst.serial.timeout = timeout
+            self.instruments[slave] = inst
+
+    def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
+        regs: list[int] = self.instruments[slave].read_registers(address, count,
+                                                                 functioncode=function)
+        return regs
+
+    def close(self) -> None:
+        for inst in self.instruments.values():
+            inst.serial.close()
+
+
+class PylibmodbusClient(PurePythonClient):
+    """pylibmodbus: libmodbus through an ABI-mode cffi wrapper. Paths and
+    parity go in as bytes (its ``char *`` arguments take nothing else);
+    ``read_registers`` returns a new ``uint16_t[]`` each call."""
+
+    def __init__(self, port: str, baud: int, timeout: float) -> None:
+        from pylibmodbus import ModbusRtu
+
+        self.ctx = ModbusRtu(device=port.encode(), baud=baud, parity=b"N", data_bit=8,
+                             stop_bit=1)
+        self.ctx.connect()
+        self.ctx.set_response_timeout(timeout)
+        self.slave = -1
+
+    def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
+        if slave != self.slave:
+            self.ctx.set_slave(slave)
+            self.slave = slave
+        if function == 0x04:
+            regs = self.ctx.read_input_registers(address, count)
+        else:
+            regs = self.ctx.read_registers(address, count)
+        return list(regs)
+
+    def close(self) -> None:
+        self.ctx.close()
+
+
+class PyserialClient(PurePythonClient):
+    """A hand-written RTU master on pyserial: build the frame, CRC in pure
+    Python (table-driven), write, read exactly the expected reply length,
+    check address, function, byte count and CRC."""
+
+    def __init__(self, port: str, baud: int, timeout: float) -> None:
+        import serial
+
+        self.serial = serial.Serial(port, baud, timeout=timeout)
+        self._formats = {n: struct.Struct(f">{n}H") for _, n in SPANS}
+        self._formats[CP_COUNT] = struct.Struct(f">{CP_COUNT}H")
+
+    def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
+        self.serial.write(pure.read_request(slave, function, address, count))
+        want = pure.response_length(count)
+        rsp = self.serial.read(want)
+        if len(rsp) != want:
+            raise RuntimeError(f"short reply: {len(rsp)} of {want} bytes")
+        crc = pure.crc16(rsp[:-2])
+        if rsp[-2] != crc & 0xFF or rsp[-1] != crc >> 8:
+            raise RuntimeError("reply failed its CRC check")
+        if rsp[0] != slave or rsp[1] != function or rsp[2] != 2 * count:
+            raise RuntimeError(f"unexpected reply header {rsp[:3].hex(' ')}")
+        regs: tuple[int, ...] = self._formats[count].unpack_from(rsp, 3)
+        return regs
+
+    def close(self) -> None:
+        self.serial.close()
+
+
+#: contender name -> client class
+CLIENTS: dict[str, Callable[[str, int, float], Any]] = {
+    "pymb": PymbClient,
+    "pymodbus": PymodbusClient,
+    "minimalmodbus": MinimalmodbusClient,
+    "pylibmodbus": PylibmodbusClient,
+    "pyserial": PyserialClient,
+}
+
+
+# -- the loop -----------------------------------------------------------------------------
+
+
+def _batch(op: Callable[[], tuple[Sequence[int], Sequence[float]]], n: int,
+           check: Callable[[Sequence[int], Sequence[float]], None] | None) -> str:
+    walls = []
+    clock = time.perf_counter_ns
+    c0 = time.process_time_ns()
+    for _ in range(n):
+        t = clock()
+        raw, values = op()
+        if check is not None:
+            check(raw, values)
+        walls.append(clock() - t)
+    cpu = time.process_time_ns() - c0
+    return f"ok {cpu} " + " ".join(map(str, walls))
+
+
+def _telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
+    if len(raw) != CP_COUNT or not values[0] > 0:
+        raise RuntimeError("telemetry reads no input voltage")
+
+
+def serve(client: Any, canary: Canary, lines: Any, out: Any) -> None:
+    """Answer commands from ``lines`` on ``out`` until ``quit`` or EOF."""
+    for line in lines:
+        cmd, _, arg = line.strip().partition(" ")
+        try:
+            if cmd == "sweep":
+                answer = _batch(client.sweep, int(arg), canary.check)
+            elif cmd == "tele":
+                answer = _batch(client.telemetry, int(arg), _telemetry_check)
+            elif cmd in ("verify", "tverify"):
+                raw, values = client.sweep() if cmd == "verify" else client.telemetry()
+                if cmd == "verify":
+                    canary.check(raw, values)
+                answer = "ok " + " ".join(map(str, raw)) + "\nok " + " ".join(
+                    repr(float(v)) for v in values)
+            elif cmd == "quit":
+                return
+            else:
+                answer = f"err unknown command {cmd!r}"
+        except Exception as e:  # reported to the parent, which skips the contender
+            answer = f"err {type(e).__name__}: {e}".replace("\n", " ")
+        out.write(answer + "\n")
+        out.flush()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the worker process."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 6 or args[0] not in CLIENTS:
+        print(f"usage: python -m pymb.bench.worker {{{','.join(CLIENTS)}}} PORT BAUD "
+              "K_OFF K_VAL TIMEOUT", file=sys.stderr)
+        return 2
+    name, port, baud, k_off, k_val, timeout = args
+    try:
+        client = CLIENTS[name](port, int(baud), float(timeout))
+    except Exception as e:
+        print(f"err cannot open {port} with {name}: {type(e).__name__}: {e}".replace("\n", " "),
+              flush=True)
+        return 4
+    print(f"ready {name}", flush=True)
+    try:
+        serve(client, Canary(int(k_off), int(k_val)), sys.stdin, sys.stdout)
+    finally:
+        client.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
