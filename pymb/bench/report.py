@@ -1,0 +1,271 @@
+"""The bench's result as a terminal table, Markdown, JSON or a bar chart.
+
+The tables are built once from the result (:func:`tables`) and rendered in
+either format, so the README's Markdown says what the terminal said.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["Table", "plot", "tables", "to_json", "to_markdown", "to_text"]
+
+X = "\N{MULTIPLICATION SIGN}"
+
+
+@dataclass
+class Table:
+    """A titled table; ``right`` marks the right-aligned (numeric) columns."""
+
+    title: str
+    note: str
+    headers: Sequence[str]
+    rows: list[list[str]]
+    right: Sequence[bool]
+    footer: list[str]
+
+
+def fmt_time(us: float | None) -> str:
+    """Microseconds, in the unit that reads best."""
+    if us is None or math.isnan(us):
+        return "-"
+    if us >= 1e6:
+        return f"{us / 1e6:.3g} s"
+    if us >= 1e3:
+        return f"{us / 1e3:.3g} ms"
+    if us >= 10:
+        return f"{us:.0f} µs"
+    return f"{us:.2g} µs"
+
+
+def fmt_x(x: float | None) -> str:
+    """A ratio."""
+    if x is None or math.isnan(x):
+        return "-"
+    if math.isinf(x):
+        return "inf"
+    return f"{x:.2f}{X}" if x < 10 else f"{x:.1f}{X}" if x < 100 else f"{x:.0f}{X}"
+
+
+def _workload_table(title: str, note: str, section: dict[str, Any]) -> Table:
+    base = section["baseline"]
+    rows, footer = [], []
+    for r in section["rows"]:
+        if "wall_us" not in r:
+            footer.append(f"{r['label']}: {r['status']}: {r['reason']}")
+            continue
+        rows.append([r["label"], fmt_time(r["wall_us"]), fmt_x(r.get("wall_x")),
+                     fmt_time(r["cpu_us"]), fmt_x(r.get("cpu_x"))])
+    if base is None:
+        footer.append("no ratios: the C program did not run (it is the baseline)")
+    return Table(title, note, ["contender", "wall", f"{X} C", "CPU", f"{X} C"], rows,
+                 [False, True, True, True, True], footer)
+
+
+def tables(result: dict[str, Any]) -> list[Table]:
+    """Every table of the result, in the order shown."""
+    out: list[Table] = []
+    m = result["meta"]
+    plan = m["plan"]
+    out.append(Table(
+        "Contenders", "", ["contender", "version", "how"],
+        [[c["label"], c["version"] or "-", c["how"]] for c in result["contenders"]
+         if c["status"] == "ok"],
+        [False, False, False],
+        [f"{c['label']}: {c['status']}: {c['reason']}" for c in result["contenders"]
+         if c["status"] != "ok"]))
+    sweep = result.get("sweep")
+    if sweep:
+        common = (f"simulator in its own process over a pty at {sweep['baud']} 8N1 without "
+                  f"wire emulation; medians of {plan['rounds']} interleaved rounds")
+        out.append(_workload_table(
+            "Hub sweep: 700 registers in 6 requests, decoded to engineering values",
+            f"{common} x {plan['sweeps']} sweeps; wall and CPU (the contender's own "
+            f"process) per sweep; {X} C = median of the per-round ratios to the C program",
+            sweep["hub"]))
+        out.append(_workload_table(
+            "CoolPro telemetry: 8 input registers in 1 request, decoded",
+            f"{common} x {plan['reads']} reads; the CoolPro's ~8 ms gap set to 0 "
+            "(pure software cost; with the gap, see the wire-bound table)",
+            sweep["telemetry"]))
+    micro = result.get("micro")
+    if micro:
+        out.append(Table(
+            "Micro: in-process, per call",
+            f"timeit, median of {micro['repeat']} repeats",
+            ["operation", "pymb (C)", "pure Python", "speed-up", "target"],
+            [[r["what"], fmt_time(r["pymb_us"]), fmt_time(r["python_us"]),
+              fmt_x(r["speedup"]), f"≤ {r['target_us']:g} µs"] for r in micro["rows"]],
+            [False, True, True, True, True],
+            [f"pymb: {r['pymb_call']}; pure Python: {r['python_call']}"
+             for r in micro["rows"]]))
+    wire = result.get("wire")
+    if wire:
+        rows, footer = [], []
+        for r in wire["rows"]:
+            if "wall_us" not in r:
+                footer.append(f"{r['baud']} baud, {r['label']}: {r['status']}: {r['reason']}")
+                continue
+            rows.append([str(r["baud"]), r["workload"], r["label"], fmt_time(r["wall_us"]),
+                         fmt_time(r["theory_us"]), fmt_x(r.get("theory_x")),
+                         fmt_x(r.get("wall_x"))])
+        out.append(Table(
+            "Wire-bound: the simulator emulating the line speed",
+            "median time per sweep (per read) against the theoretical wire time of the "
+            "frames: 10 bits a byte plus two 3.5-character gaps per request "
+            "(pymb.devices.planner.request_time), plus the device's gap",
+            ["baud", "workload", "contender", "time", "theoretical", f"{X} theory", f"{X} C"],
+            rows,
+            [True, False, False, True, True, True, True], footer))
+    scaling = result.get("scaling")
+    if scaling:
+        out.append(Table(
+            f"Scaling: buses swept in parallel threads of one pymb process, emulated "
+            f"{scaling['baud']}",
+            f"{scaling['seconds']:g} s per run, median of {scaling['repeats']}; one "
+            f"RtuClient + SensorHub per bus; one bus's wire limit is "
+            f"{scaling['theory_sweeps_per_s']:.2f} sweeps/s",
+            ["buses", "sweeps/s", "speed-up", "CPU (% of a core)", "CPU per sweep"],
+            [[str(r["buses"]), f"{r['sweeps_per_s']:.2f}", fmt_x(r["speedup"]),
+              f"{r['cpu_pct']:.1f} %", fmt_time(r["cpu_per_sweep_us"])]
+             for r in scaling["rows"]],
+            [True, True, True, True, True], []))
+    tg = result.get("targets") or []
+    if tg:
+        out.append(Table(
+            "Targets", "",
+            ["target", "goal", "measured", "met"],
+            [[t["what"], t["target"],
+              "-" if t["measured"] is None else
+              (fmt_x(t["measured"]) if t["unit"] == "x" else fmt_time(t["measured"])),
+              {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
+            [False, True, True, False], []))
+    return out
+
+
+def _header(result: dict[str, Any]) -> list[tuple[str, str]]:
+    m = result["meta"]
+    return [
+        ("date", m["date"]),
+        ("machine", f"{m['cpu']}, {m['cores']} cores, {m['platform']}"),
+        ("software", f"{m['python']}, libmodbus {m['libmodbus']}, pymb {m['pymb']}"),
+        ("command", m["command"]),
+    ]
+
+
+def to_text(result: dict[str, Any]) -> str:
+    """The terminal report."""
+    lines = ["pymb bench: pymb against the field, side by side in one run", ""]
+    lines += [f"  {k:<9} {v}" for k, v in _header(result)]
+    for t in tables(result):
+        lines += ["", t.title]
+        if t.note:
+            lines.append(f"  ({t.note})")
+        if t.rows:
+            widths = [max(len(h), *(len(r[i]) for r in t.rows)) for i, h in enumerate(t.headers)]
+
+            def cells(row: Sequence[str], widths: list[int] = widths, t: Table = t) -> str:
+                return "  ".join(c.rjust(w) if right else c.ljust(w)
+                                 for c, w, right in zip(row, widths, t.right, strict=True))
+            lines.append("  " + cells(t.headers).rstrip())
+            lines.append("  " + "  ".join("-" * w for w in widths))
+            lines += ["  " + cells(r).rstrip() for r in t.rows]
+        lines += [f"  - {f}" for f in t.footer]
+    return "\n".join(lines) + "\n"
+
+
+def _md(cell: str) -> str:
+    return cell.replace("|", "\\|")
+
+
+def to_markdown(result: dict[str, Any]) -> str:
+    """The report as Markdown (for the README)."""
+    lines = [f"- **{k}**: {f'`{v}`' if k == 'command' else _md(v)}"
+             for k, v in _header(result)]
+    for t in tables(result):
+        lines += ["", f"**{_md(t.title)}**" + (f" ({_md(t.note)})" if t.note else ""), ""]
+        if t.rows:
+            lines.append("| " + " | ".join(_md(h) for h in t.headers) + " |")
+            lines.append("|" + "|".join("---:" if r else "---" for r in t.right) + "|")
+            lines += ["| " + " | ".join(_md(c) for c in row) + " |" for row in t.rows]
+        if t.footer:
+            lines.append("")
+            lines += [f"- {_md(f)}" for f in t.footer]
+    return "\n".join(lines) + "\n"
+
+
+def to_json(result: dict[str, Any]) -> str:
+    """The whole result as JSON (NaN and infinities as null)."""
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        return v
+    return json.dumps(clean(result), indent=2, ensure_ascii=False) + "\n"
+
+
+def plot(result: dict[str, Any], path: str) -> None:
+    """Bars side by side (wall and CPU per contender, log scale) to ``path``.
+
+    Needs matplotlib (``pip install 'pymb[bench]'``); raises ImportError without it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = []
+    sweep = result.get("sweep") or {}
+    for key, title in (("hub", "Hub sweep (700 registers, 6 requests, decoded)"),
+                       ("telemetry", "CoolPro telemetry (1 request, decoded)")):
+        rows = [r for r in (sweep.get(key) or {}).get("rows", []) if "wall_us" in r]
+        if rows:
+            panels.append((title, rows))
+    micro = (result.get("micro") or {}).get("rows", [])
+    n = len(panels) + (1 if micro else 0)
+    if n == 0:
+        raise ValueError("nothing to plot: run the sweep or micro section")
+    fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 4.8), squeeze=False)
+    width = 0.38
+    for ax, (title, rows) in zip(axes[0], panels, strict=False):
+        xs = range(len(rows))
+        wall = [r["wall_us"] for r in rows]
+        cpu = [r["cpu_us"] for r in rows]
+        bw = ax.bar([x - width / 2 for x in xs], wall, width, label="wall")
+        bc = ax.bar([x + width / 2 for x in xs], cpu, width, label="CPU (own process)")
+        for bars, key in ((bw, "wall_x"), (bc, "cpu_x")):
+            for bar, r in zip(bars, rows, strict=True):
+                if r.get(key) is not None:
+                    ax.annotate(fmt_x(r[key]), (bar.get_x() + bar.get_width() / 2,
+                                                bar.get_height()),
+                                ha="center", va="bottom", fontsize=7)
+        ax.set_xticks(list(xs), [r["label"].replace(" (", "\n(") for r in rows], fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("µs per operation (log)")
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=8)
+    if micro:
+        ax = axes[0][n - 1]
+        xs = range(len(micro))
+        ax.bar([x - width / 2 for x in xs], [r["pymb_us"] for r in micro], width,
+               label="pymb (C)")
+        ax.bar([x + width / 2 for x in xs], [r["python_us"] for r in micro], width,
+               label="pure Python")
+        ax.set_xticks(list(xs), [r["what"] for r in micro], fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel("µs per call (log)")
+        ax.set_title("Micro: CRC-16 and decode", fontsize=10)
+        ax.legend(fontsize=8)
+    m = result["meta"]
+    fig.suptitle(f"pymb bench, {m['date']}: {m['cpu']}, {m['cores']} cores, {m['python']}, "
+                 f"libmodbus {m['libmodbus']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,603 @@
+"""What ``pymb bench`` measures, and how.
+
+Sections (each can be chosen with ``--sections``):
+
+``micro``    in-process: CRC-16 of a 255-byte frame and the decode of 700
+             hub registers, pymb (C) against pure Python (timeit, median).
+``sweep``    the workload: one sweep of the hub's 700 registers (6 requests,
+             decoded) and one CoolPro telemetry read, per contender, each in
+             its own process against its own simulator process over a pty,
+             with no wire emulation (the line is set to 115200 8N1, the
+             CoolPro's gap to 0): pure software cost. Rounds are interleaved
+             (round-robin, the order rotating), results are medians, ratios
+             are to the C program, paired per round.
+``wire``     the simulator emulating 9600 and 115200 baud: pymb's sweep (and
+             the C program's, the floor of that emulation) against the
+             theoretical wire time of the frames from
+             :func:`pymb.devices.planner.request_time`; and the CoolPro's
+             telemetry with its real ~8 ms gap.
+``scaling``  1, 2, 4 and 8 buses swept in parallel threads at emulated
+             115200: aggregate sweeps per second and the process's CPU.
+
+Every simulator and worker is a child process stopped at the end, on error
+and on Ctrl-C (and, through ``PR_SET_PDEATHSIG``, if the bench is killed).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import random
+import statistics
+import sys
+import tempfile
+import timeit
+from array import array
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import pymb
+from pymb import _native
+from pymb.bench import cprogram, pure
+from pymb.bench.contenders import CONTENDERS, NAMES, Contender, probe
+from pymb.bench.procs import Child, ChildError, Children
+from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
+from pymb.devices.hub import decode_hub
+from pymb.devices.maps import HUB, Type
+from pymb.devices.planner import request_time
+from pymb.sim import Simulator, make_device
+
+__all__ = ["SECTIONS", "Options", "Plan", "run"]
+
+SECTIONS = ("micro", "sweep", "wire", "scaling")
+SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
+SEED = 0
+BUSES = (1, 2, 4, 8)
+_TIMEOUT = 2.0  #: every stack's reply timeout, seconds (the hub may take 0.5 s)
+_KINDS = {Type.SIGN_MAGNITUDE: "S", Type.I16: "I", Type.U16: "U"}
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How much of everything to do."""
+
+    rounds: int  #: interleaved rounds of the sweep comparison
+    sweeps: int  #: hub sweeps per contender per round
+    reads: int  #: telemetry reads per contender per round
+    warm_sweeps: int
+    warm_reads: int
+    micro_repeat: int
+    micro_seconds: float  #: at least this long per timeit repeat
+    wire_rounds: int  #: interleaved rounds at emulated 115200
+    rounds_9600: int  #: a sweep at 9600 baud takes 1.6 s: one sweep per round, few rounds
+    sweeps_115200: int
+    scale_seconds: float
+    scale_repeats: int
+
+    @classmethod
+    def make(cls, quick: bool, rounds: int | None) -> Plan:
+        """The full plan (about two minutes on 2 cores) or the quick one."""
+        if quick:
+            r = rounds or 3
+            return cls(r, 5, 10, 2, 4, 5, 0.02, min(r, 2), 1, 2, 0.6, 1)
+        r = rounds or 20
+        return cls(r, 40, 100, 5, 20, 15, 0.2, min(r, 6), min(r, 3), 4, 4.0, 2)
+
+
+@dataclass
+class Options:
+    """What the user asked for."""
+
+    quick: bool = False
+    only: tuple[str, ...] = NAMES
+    rounds: int | None = None
+    sections: tuple[str, ...] = SECTIONS
+    command: str = "pymb bench"
+    progress: Progress | None = None
+    plan: Plan = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.plan = Plan.make(self.quick, self.rounds)
+
+    def say(self, text: str) -> None:
+        """A progress line (stderr), if wanted."""
+        if self.progress is not None:
+            self.progress(text)
+
+
+# -- the reference the contenders are checked against -------------------------------------
+
+
+class Reference:
+    """The simulated hub's layout (from the seed, values off): which register
+    reads 0xFFFF or "no humidity" and which holds a value. Every contender's
+    sweep must match it register by register, and its decoded values must
+    equal pymb's decoder's on its own raw registers."""
+
+    def __init__(self) -> None:
+        sim = Simulator(_software_devices(), seed=SEED)
+        regs = sim.device(HUB_SLAVE).registers()
+        humidity = HUB.block("humidity_pct")
+        self._h0 = humidity.index * HUB.channels
+        self._no_humidity = humidity.markers[2][0]  # the 0.1 % unit's: the hub's default
+        self.kinds = [self._kind(i, r) for i, r in enumerate(regs)]
+        self.k_off = self.kinds.index("off")
+        self.k_val = self.kinds.index("val")
+
+    def _kind(self, i: int, r: int) -> str:
+        if r == 0xFFFF:
+            return "off"
+        if self._h0 <= i < self._h0 + HUB.channels and r == self._no_humidity:
+            return "none"
+        return "val"
+
+    def check_sweep(self, raw: Sequence[int], values: Sequence[float]) -> None:
+        """Raise ValueError unless ``raw``/``values`` are a correct sweep."""
+        if len(raw) != HUB.count or len(values) != HUB.count:
+            raise ValueError(f"{len(raw)} registers and {len(values)} values, "
+                             f"not {HUB.count}")
+        for i, r in enumerate(raw):
+            if self._kind(i, r) != self.kinds[i]:
+                raise ValueError(f"register {HUB.first + i} reads {r:#06x}: the simulated "
+                                 f"hub's layout says {self.kinds[i]}")
+        expected = decode_hub(array("H", raw)).values
+        _same_values("decoded sweep", values, expected)
+
+    @staticmethod
+    def check_telemetry(raw: Sequence[int], values: Sequence[float]) -> None:
+        """Raise ValueError unless ``values`` decode ``raw`` as pymb does."""
+        if len(raw) != CP_COUNT:
+            raise ValueError(f"telemetry is {CP_COUNT} registers, got {len(raw)}")
+        _same_values("decoded telemetry", values,
+                     [float(v) for v in _native.coolpro_telemetry(array("H", raw))])
+
+
+def _same_values(what: str, got: Sequence[float], want: Sequence[float]) -> None:
+    if len(got) != len(want):
+        raise ValueError(f"{what}: {len(got)} values, not {len(want)}")
+    for i, (g, w) in enumerate(zip(got, want, strict=True)):
+        if math.isnan(w) != math.isnan(g) or (
+                not math.isnan(w) and not math.isclose(g, w, rel_tol=1e-9, abs_tol=1e-9)):
+            raise ValueError(f"{what}: value {i} is {g!r}, pymb's decoder says {w!r}")
+
+
+def _software_devices(baud: int = SOFTWARE_BAUD) -> list[str]:
+    return [f"hub:{HUB_SLAVE},dynamic=0,baud={baud}", f"coolpro:{CP_SLAVE},gap=0,baud={baud}"]
+
+
+# -- contenders as processes ---------------------------------------------------------------
+
+
+@dataclass
+class Entry:
+    """One contender in one section: its state and its measurements."""
+
+    contender: Contender
+    version: str = ""
+    status: str = "ok"  #: ok, skipped, failed
+    reason: str = ""
+    child: Child | None = None
+    rounds: dict[str, list[tuple[int, list[int]]]] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        """The contender's name."""
+        return self.contender.name
+
+    def fail(self, reason: str, children: Children | None = None) -> None:
+        """Mark it failed and stop its process."""
+        self.status, self.reason = "failed", reason
+        if self.child is not None and children is not None:
+            children.stop(self.child)
+        self.child = None
+
+
+class Lineup:
+    """Builds the C program once and starts contender processes."""
+
+    def __init__(self, opts: Options, children: Children, tmp: str) -> None:
+        self.opts = opts
+        self.children = children
+        self.tmp = tmp
+        self.c_exe: str | None = None
+        self.c_reason = ""
+        self.c_version = ""
+        self.c_warnings = ""
+        self.ref = Reference()
+        self.versions: dict[str, str] = {}
+        self.reasons: dict[str, str] = {}
+        for c in CONTENDERS:
+            if c.name not in opts.only:
+                continue
+            if c.name == "c":
+                self._build_c()
+            else:
+                reason, version = probe(c)
+                self.versions[c.name] = version
+                if reason:
+                    self.reasons[c.name] = reason
+
+    def _build_c(self) -> None:
+        try:
+            self.c_exe, self.c_warnings = cprogram.build(self.tmp)
+        except cprogram.CBuildError as e:
+            self.reasons["c"] = f"cannot build the C program: {e}"
+            return
+        except (OSError, ValueError) as e:
+            self.reasons["c"] = f"cannot build the C program: {e}"
+            return
+        cc = cprogram.compiler_version()
+        self.versions["c"] = f"{cc}, libmodbus {_native.LIBMODBUS_VERSION}" if cc else \
+            f"libmodbus {_native.LIBMODBUS_VERSION}"
+
+    def entries(self, names: Sequence[str] | None = None) -> list[Entry]:
+        """Entries for the chosen contenders (in the table's order)."""
+        out = []
+        for c in CONTENDERS:
+            if c.name not in self.opts.only or (names is not None and c.name not in names):
+                continue
+            e = Entry(c, version=self.versions.get(c.name, ""))
+            if c.name in self.reasons:
+                e.status, e.reason = "skipped", self.reasons[c.name]
+            out.append(e)
+        return out
+
+    def start(self, e: Entry, port: str, baud: int) -> None:
+        """Start ``e``'s worker on ``port``; marks it failed if it cannot."""
+        if e.name == "c":
+            assert self.c_exe is not None
+            argv = [self.c_exe, port, str(baud), str(HUB_SLAVE), str(HUB.first),
+                    str(HUB.count), str(HUB.channels),
+                    "".join("H" if b.name == "humidity_pct" else _KINDS[b.type]
+                            for b in HUB.blocks),
+                    str(CP_SLAVE), str(CP_ADDRESS), str(CP_COUNT),
+                    str(self.ref.k_off), str(self.ref.k_val)]
+        else:
+            argv = [sys.executable, "-m", "pymb.bench.worker", e.name, port, str(baud),
+                    str(self.ref.k_off), str(self.ref.k_val), str(_TIMEOUT)]
+        e.child = self.children.add(Child(e.contender.label, argv))
+        try:
+            line = e.child.readline(60.0)
+            if not line.startswith("ready"):
+                raise ChildError(line.partition(" ")[2] or line)
+        except ChildError as err:
+            e.fail(f"cannot start: {err}", self.children)
+
+
+def _ask(e: Entry, command: str, n: int, children: Children) -> tuple[int, list[int]] | None:
+    """One batch: (CPU ns, wall ns per operation); None (and failed) on error."""
+    assert e.child is not None
+    try:
+        fields = e.child.ask(f"{command} {n}", 30.0 + 5.0 * n).split()
+        cpu, walls = int(fields[0]), [int(x) for x in fields[1:]]
+        if len(walls) != n:
+            raise ChildError(f"answered {len(walls)} timings for {n}")
+        return cpu, walls
+    except (ChildError, ValueError, IndexError) as err:
+        e.fail(f"{command}: {err}", children)
+        return None
+
+
+def _verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> None:
+    assert e.child is not None
+    try:
+        raw = [int(x) for x in e.child.ask("verify", 60.0).split()]
+        values = [float(x) for x in e.child.expect_ok(10.0).split()]
+        ref.check_sweep(raw, values)
+        if telemetry:
+            raw = [int(x) for x in e.child.ask("tverify", 30.0).split()]
+            values = [float(x) for x in e.child.expect_ok(10.0).split()]
+            ref.check_telemetry(raw, values)
+    except (ChildError, ValueError) as err:
+        e.fail(f"verification failed: {err}", children)
+
+
+def _race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: int,
+          warm: int, children: Children, opts: Options, label: str) -> None:
+    """Interleaved rounds of ``command n`` across the running entries."""
+    live = [e for e in entries if e.status == "ok"]
+    if warm:
+        for e in live:
+            _ask(e, command, warm, children)
+    for r in range(rounds):
+        live = [e for e in entries if e.status == "ok"]
+        if not live:
+            return
+        opts.say(f"{label}: round {r + 1}/{rounds}")
+        k = r % len(live)
+        for e in live[k:] + live[:k]:  # the order rotates: none always runs first
+            got = _ask(e, command, n, children)
+            if got is not None:
+                e.rounds.setdefault(workload, []).append(got)
+
+
+def _summary(entries: Sequence[Entry], workload: str, per: int) -> dict[str, Any]:
+    """Medians and the paired ratios to the C program for one workload."""
+    base = next((e for e in entries if e.name == "c" and e.status == "ok"), None)
+    rows = []
+    for e in entries:
+        row: dict[str, Any] = {"name": e.name, "label": e.contender.label,
+                               "version": e.version, "status": e.status, "reason": e.reason,
+                               "how": e.contender.how}
+        data = e.rounds.get(workload, [])
+        if e.status == "ok" and data:
+            walls = [w / 1e3 for _, ws in data for w in ws]
+            cpus = [cpu / 1e3 / len(ws) for cpu, ws in data]
+            row.update(
+                wall_us=statistics.median(walls),
+                cpu_us=statistics.median(cpus),
+                rounds=len(data),
+                per_round=per,
+                round_wall_us=[statistics.median(ws) / 1e3 for _, ws in data],
+                round_cpu_us=cpus,
+            )
+            bdata = base.rounds.get(workload, []) if base is not None else []
+            if base is not None and len(bdata) == len(data):
+                row["wall_x"] = statistics.median(
+                    statistics.median(ws) / statistics.median(bws)
+                    for (_, ws), (_, bws) in zip(data, bdata, strict=True))
+                row["cpu_x"] = statistics.median(
+                    (c / len(ws)) / (bc / len(bws)) if bc else math.inf
+                    for (c, ws), (bc, bws) in zip(data, bdata, strict=True))
+        elif e.status == "ok":
+            row.update(status="failed", reason="no measurement")
+        rows.append(row)
+    return {"baseline": "c" if base is not None else None, "rows": rows}
+
+
+# -- sections -------------------------------------------------------------------------------
+
+
+def run_micro(opts: Options) -> dict[str, Any]:
+    """CRC-16 of 255 bytes and the decode of 700 registers: pymb vs pure Python."""
+    opts.say("micro: CRC-16 and decode")
+    rng = random.Random(SEED)
+    frame = bytes(rng.randrange(256) for _ in range(255))
+    regs = Simulator(_software_devices(), seed=SEED).device(HUB_SLAVE).registers()
+    regs_list = list(regs)
+    if pymb.crc16(frame) != pure.crc16(frame):
+        raise RuntimeError("pymb.crc16 and the pure-Python CRC disagree")
+    _same_values("micro decode", pure.decode_hub(regs_list), decode_hub(regs).values)
+    repeat = opts.plan.micro_repeat
+
+    def per_call(stmt: Callable[[], object]) -> float:
+        t = timeit.Timer(stmt)
+        once = max(t.timeit(10) / 10, 1e-8)
+        number = max(10, int(opts.plan.micro_seconds / once))
+        return statistics.median(t.repeat(repeat=repeat, number=number)) / number * 1e6
+
+    crc = pymb.crc16
+    rows = [
+        {"name": "crc16", "what": "CRC-16 of a 255-byte frame",
+         "pymb_us": per_call(lambda: crc(frame)),
+         "python_us": per_call(lambda: pure.crc16(frame)),
+         "pymb_call": "pymb.crc16(frame)", "python_call": "table-driven loop",
+         "target_us": 1.0},
+        {"name": "decode", "what": f"decode {HUB.count} hub registers",
+         "pymb_us": per_call(lambda: decode_hub(regs)),
+         "python_us": per_call(lambda: pure.decode_hub(regs_list)),
+         "pymb_call": "decode_hub(array('H'))", "python_call": "list comprehensions",
+         "target_us": 3.0},
+    ]
+    for r in rows:
+        r["speedup"] = r["python_us"] / r["pymb_us"]
+    return {"repeat": repeat, "rows": rows}
+
+
+def run_sweep(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any]:
+    """The workload, every contender side by side (pure software cost)."""
+    plan = opts.plan
+    entries = lineup.entries()
+    runnable = [e for e in entries if e.status == "ok"]
+    opts.say(f"sweep: starting {len(runnable)} simulators and contenders")
+    sims = children.sims([[*_software_devices(), "--seed", str(SEED)] for _ in runnable])
+    for e, sim in zip(runnable, sims, strict=True):
+        lineup.start(e, sim.port, SOFTWARE_BAUD)
+    for e in runnable:
+        if e.status == "ok":
+            _verify(e, lineup.ref, children, telemetry=True)
+    _race(entries, "hub", "sweep", plan.rounds, plan.sweeps, plan.warm_sweeps, children, opts,
+          "sweep: hub")
+    _race(entries, "telemetry", "tele", plan.rounds, plan.reads, plan.warm_reads, children,
+          opts, "sweep: CoolPro telemetry")
+    for e in entries:
+        if e.child is not None:
+            children.stop(e.child)
+            e.child = None
+    for s in sims:
+        children.stop(s)
+    return {
+        "baud": SOFTWARE_BAUD,
+        "hub": _summary(entries, "hub", plan.sweeps),
+        "telemetry": _summary(entries, "telemetry", plan.reads),
+    }
+
+
+def _theory_sweep(baud: int) -> float:
+    return sum(request_time(count, baud) for _, count in SPANS)
+
+
+def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any]:
+    """Sweeps against the theoretical wire time, the simulator emulating the line."""
+    plan = opts.plan
+    gap = make_device("coolpro").gap
+    rows: list[dict[str, Any]] = []
+    setups = [(9600, plan.rounds_9600, 1, False),
+              (115200, plan.wire_rounds, plan.sweeps_115200, True)]
+    for baud, rounds, n, telemetry in setups:
+        entries = lineup.entries(("pymb", "c"))
+        runnable = [e for e in entries if e.status == "ok"]
+        devices = [f"hub:{HUB_SLAVE},dynamic=0"] + ([f"coolpro:{CP_SLAVE}"] if telemetry else [])
+        opts.say(f"wire: {baud} baud, {len(runnable)} contenders")
+        sims = children.sims([[*devices, "--baud", str(baud), "--seed", str(SEED)]
+                              for _ in runnable])
+        for e, sim in zip(runnable, sims, strict=True):
+            lineup.start(e, sim.port, baud)
+        # No verification sweep: at 9600 one costs 1.6 s, the canaries are checked on
+        # every sweep, and the sweep section verified both contenders' decoding.
+        _race(entries, "hub", "sweep", rounds, n, 0 if baud < 19200 else 1, children, opts,
+              f"wire: {baud} baud")
+        theory = _theory_sweep(baud)
+        for row in _summary(entries, "hub", n)["rows"]:
+            row.update(baud=baud, workload="hub sweep", theory_us=theory * 1e6)
+            if "wall_us" in row:
+                row["theory_x"] = row["wall_us"] / (theory * 1e6)
+            rows.append(row)
+        if telemetry:
+            _race(entries, "telemetry", "tele", rounds, 2 * n + 2, 2, children, opts,
+                  f"wire: CoolPro with its {gap * 1e3:g} ms gap")
+            t_theory = request_time(CP_COUNT, baud, turnaround=gap)
+            for row in _summary(entries, "telemetry", 2 * n + 2)["rows"]:
+                row.update(baud=baud, workload=f"CoolPro telemetry, {gap * 1e3:g} ms gap",
+                           theory_us=t_theory * 1e6)
+                if "wall_us" in row:
+                    row["theory_x"] = row["wall_us"] / (t_theory * 1e6)
+                rows.append(row)
+        for e in entries:
+            if e.child is not None:
+                children.stop(e.child)
+                e.child = None
+        for s in sims:
+            children.stop(s)
+    return {"gap_ms": gap * 1e3, "rows": rows}
+
+
+def run_scaling(opts: Options, children: Children) -> dict[str, Any]:
+    """1, 2, 4, 8 buses in parallel threads of one pymb process, at emulated 115200."""
+    baud = 115200
+    plan = opts.plan
+    opts.say(f"scaling: starting {max(BUSES)} simulators")
+    sims = children.sims([[f"hub:{HUB_SLAVE},dynamic=0", "--baud", str(baud), "--seed",
+                           str(SEED)] for _ in range(max(BUSES))])
+    worker = children.add(Child("scaling worker", [sys.executable, "-m", "pymb.bench.scale",
+                                                   str(baud), *(s.port for s in sims)]))
+    line = worker.readline(60.0)
+    if not line.startswith("ready"):
+        raise ChildError(f"scaling worker: {line}")
+    runs: dict[int, list[dict[str, Any]]] = {k: [] for k in BUSES}
+    for rep in range(plan.scale_repeats):
+        for k in BUSES:
+            opts.say(f"scaling: {k} bus(es), {plan.scale_seconds:g} s "
+                     f"({rep + 1}/{plan.scale_repeats})")
+            runs[k].append(json.loads(worker.ask(f"run {k} {plan.scale_seconds}",
+                                                 60.0 + plan.scale_seconds)))
+    children.stop(worker)
+    for s in sims:
+        children.stop(s)
+    rows = []
+    for k in BUSES:
+        rates = [sum(n / s for n, s in zip(r["sweeps"], r["spans"], strict=True) if s > 0)
+                 for r in runs[k]]
+        cpu = [r["cpu"] / r["wall"] for r in runs[k]]
+        per = [r["cpu"] / max(1, sum(r["sweeps"])) for r in runs[k]]
+        rows.append({"buses": k, "sweeps_per_s": statistics.median(rates),
+                     "cpu_pct": 100 * statistics.median(cpu),
+                     "cpu_per_sweep_us": 1e6 * statistics.median(per),
+                     "runs": runs[k]})
+    one = rows[0]["sweeps_per_s"]
+    for r in rows:
+        r["speedup"] = r["sweeps_per_s"] / one if one else math.nan
+    theory = _theory_sweep(baud)
+    return {"baud": baud, "seconds": plan.scale_seconds, "repeats": plan.scale_repeats,
+            "theory_sweeps_per_s": 1 / theory, "rows": rows}
+
+
+# -- the whole run ---------------------------------------------------------------------------
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def meta(opts: Options) -> dict[str, Any]:
+    """Date, machine, versions, the command."""
+    now = _dt.datetime.now(_dt.UTC)
+    return {
+        "date": now.strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count() or 0,
+        "platform": f"{platform.system()} {platform.release()} {platform.machine()}",
+        "python": f"{platform.python_implementation()} {platform.python_version()}",
+        "pymb": pymb.__version__,
+        "libmodbus": _native.LIBMODBUS_VERSION,
+        "command": opts.command,
+        "quick": opts.quick,
+        "sections": list(opts.sections),
+        "plan": opts.plan.__dict__,
+    }
+
+
+def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The issue's targets against what this run measured (None: not measured)."""
+    out: list[dict[str, Any]] = []
+
+    def add(what: str, target: str, value: float | None, unit: str, ok: bool | None) -> None:
+        out.append({"what": what, "target": target, "measured": value, "unit": unit,
+                    "met": ok})
+
+    def row(rows: list[dict[str, Any]], name: str, **match: Any) -> dict[str, Any]:
+        for r in rows:
+            if r.get("name") == name and all(r.get(k) == v for k, v in match.items()):
+                return r
+        return {}
+
+    sweep = result.get("sweep")
+    if sweep:
+        p = row(sweep["hub"]["rows"], "pymb")
+        w, c = p.get("wall_x"), p.get("cpu_x")
+        add("hub sweep wall time, pymb / C", "<= 1.10", w, "x", None if w is None else w <= 1.10)
+        add("hub sweep CPU time, pymb / C", "<= 1.15", c, "x", None if c is None else c <= 1.15)
+    micro = result.get("micro")
+    if micro:
+        for r in micro["rows"]:
+            add(f"{r['what']} from Python", f"<= {r['target_us']:g} us", r["pymb_us"], "us",
+                r["pymb_us"] <= r["target_us"])
+    wire = result.get("wire")
+    if wire:
+        for baud in (9600, 115200):
+            r = row(wire["rows"], "pymb", baud=baud, workload="hub sweep")
+            x = r.get("theory_x")
+            add(f"hub sweep at emulated {baud}, / theoretical wire time", "<= 1.02", x, "x",
+                None if x is None else x <= 1.02)
+    scaling = result.get("scaling")
+    if scaling:
+        r = scaling["rows"][-1]
+        add(f"{r['buses']} buses in parallel, sweeps/s / 1 bus", ">= 7.5", r["speedup"], "x",
+            r["speedup"] >= 7.5)
+    return out
+
+
+def run(opts: Options) -> dict[str, Any]:
+    """Run the chosen sections; returns the result (JSON-able)."""
+    result: dict[str, Any] = {"meta": meta(opts)}
+    pymb_in = "pymb" in opts.only
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-") as tmp, Children() as children:
+        lineup = Lineup(opts, children, tmp)
+        result["contenders"] = [
+            {"name": e.name, "label": e.contender.label, "version": e.version,
+             "status": e.status, "reason": e.reason, "how": e.contender.how}
+            for e in lineup.entries()]
+        result["c_warnings"] = lineup.c_warnings
+        if "micro" in opts.sections and pymb_in:
+            result["micro"] = run_micro(opts)
+        if "sweep" in opts.sections:
+            result["sweep"] = run_sweep(opts, lineup, children)
+        if "wire" in opts.sections and ("pymb" in opts.only or "c" in opts.only):
+            result["wire"] = run_wire(opts, lineup, children)
+        if "scaling" in opts.sections and pymb_in:
+            result["scaling"] = run_scaling(opts, children)
+    result["targets"] = targets(result)
+    return result
