@@ -1,0 +1,304 @@
+"""``pymb bench``: the structure of its output, skipped contenders saying why,
+ratios taken against the C program, nothing left running. No timing
+assertions: speed targets live in the benchmark's output, never in tests."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+from array import array
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import pymb
+from pymb.bench import cprogram, pure, report, runner
+from pymb.bench.contenders import CONTENDERS, NAMES
+from pymb.bench.runner import Entry, Options, _summary
+from pymb.bench.worker import SPANS, Canary
+from pymb.cli import main
+from pymb.devices.hub import decode_hub
+from pymb.devices.maps import HUB
+from pymb.sim import Simulator
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _have_c() -> bool:
+    return shutil.which("cc") is not None and subprocess.run(
+        ["pkg-config", "--exists", "libmodbus"], check=False).returncode == 0
+
+
+needs_c = pytest.mark.skipif(not _have_c(), reason="no cc or libmodbus development files")
+
+
+def _children() -> list[str]:
+    """Command lines of this process's live children (zombies excluded)."""
+    me = os.getpid()
+    out = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()
+        if int(fields[1]) == me and fields[0] != "Z":
+            out.append(cmd)
+    return out
+
+
+def _bench(capsys: pytest.CaptureFixture[str], *args: str) -> dict[str, Any]:
+    assert main(["bench", "--quick", "-q", "--json", *args]) == 0
+    result: dict[str, Any] = json.loads(capsys.readouterr().out)
+    return result
+
+
+# -- the pure-Python pieces the Python contenders use ----------------------------------------
+
+
+def test_pure_crc_matches_the_documents_and_pymb() -> None:
+    # [NOTES] worked values: 28 04 00 00 00 01 -> 0x3336; 28 04 02 5F B4 -> 0x71DD.
+    assert pure.crc16(bytes.fromhex("280400000001")) == 0x3336
+    assert pure.crc16(bytes.fromhex("2804025FB4")) == 0x71DD
+    data = bytes(range(255))
+    assert pure.crc16(data) == pymb.crc16(data)
+    req = pure.read_request(0x28, 0x04, 0, 1)
+    assert req == bytes.fromhex("280400000001") + bytes((0x36, 0x33))
+
+
+def test_pure_decoders_match_pymb() -> None:
+    regs = Simulator([f"hub:{HUB.default_address},dynamic=0"], seed=3).device(
+        HUB.default_address).registers()
+    got = pure.decode_hub(list(regs))
+    want = decode_hub(regs).values
+    assert len(got) == HUB.count
+    for g, w in zip(got, want, strict=True):
+        assert (math.isnan(g) and math.isnan(w)) or g == pytest.approx(w, rel=1e-12)
+    # [NOTES]: 5F B4 0C B2 5D C0 0C 80 = 24.5 V, 3.25 A, 24.0 V, 3.20 A; uptime 4464, 1 = 70000 s.
+    t = pure.decode_telemetry([0x5FB4, 0x0CB2, 0x5DC0, 0x0C80, 25000, 4464, 1, 0x0041])
+    assert t == pytest.approx([24.5, 3.25, 24.0, 3.2, 25.0, 70000.0, 65.0])
+
+
+def test_sweep_is_six_requests_of_at_most_125() -> None:
+    assert len(SPANS) == 6
+    assert all(n <= HUB.max_read for _, n in SPANS)
+    assert SPANS[0][0] == HUB.first and sum(n for _, n in SPANS) == HUB.count
+
+
+def test_canary_catches_a_wrong_sweep() -> None:
+    canary = Canary(0, 1)
+    raw = [0xFFFF, 215] + [0] * (HUB.count - 2)
+    values = [math.nan, 21.5] + [0.0] * (HUB.count - 2)
+    canary.check(raw, values)
+    with pytest.raises(RuntimeError):
+        canary.check([*raw[1:], 0], values)  # shifted by one register
+    with pytest.raises(RuntimeError):
+        canary.check(raw, [0.0, 21.5, *values[2:]])  # not decoded
+    with pytest.raises(RuntimeError):
+        canary.check(raw[:-1], values[:-1])
+
+
+def test_reference_rejects_shifted_registers() -> None:
+    ref = runner.Reference()
+    regs = Simulator(runner._software_devices(), seed=runner.SEED).device(
+        HUB.default_address).registers()
+    ref.check_sweep(list(regs), list(decode_hub(regs).values))
+    shifted = [*regs[1:], 0]
+    with pytest.raises(ValueError, match="layout"):
+        ref.check_sweep(shifted, list(decode_hub(array("H", shifted)).values))
+    wrong = list(decode_hub(regs).values)
+    wrong[ref.k_val] += 1.0
+    with pytest.raises(ValueError, match="decoder"):
+        ref.check_sweep(list(regs), wrong)
+
+
+# -- ratios ------------------------------------------------------------------------------------
+
+
+def _entry(name: str, rounds: list[tuple[int, list[int]]]) -> Entry:
+    c = next(c for c in CONTENDERS if c.name == name)
+    e = Entry(c, version="1")
+    e.rounds["hub"] = rounds
+    return e
+
+
+def test_ratios_are_paired_per_round_against_c() -> None:
+    c = _entry("c", [(1000, [100, 110, 90]), (2000, [200, 200, 200]), (900, [100, 100, 100])])
+    p = _entry("pymb", [(1500, [150, 160, 140]), (2000, [220, 230, 210]),
+                        (900, [100, 100, 100])])
+    rows = {r["name"]: r for r in _summary([c, p], "hub", 3)["rows"]}
+    assert rows["c"]["wall_x"] == 1.0 and rows["c"]["cpu_x"] == 1.0
+    assert rows["pymb"]["wall_x"] == pytest.approx(statistics.median([1.5, 1.1, 1.0]))
+    assert rows["pymb"]["cpu_x"] == pytest.approx(statistics.median([1.5, 1.0, 1.0]))
+    assert rows["pymb"]["wall_us"] == pytest.approx(
+        statistics.median([150, 160, 140, 220, 230, 210, 100, 100, 100]) / 1e3)
+
+
+def test_no_c_program_means_no_ratios() -> None:
+    p = _entry("pymb", [(1500, [150, 160, 140])])
+    c = _entry("c", [])
+    c.status, c.reason = "skipped", "no C compiler"
+    section = _summary([c, p], "hub", 3)
+    assert section["baseline"] is None
+    row = next(r for r in section["rows"] if r["name"] == "pymb")
+    assert "wall_x" not in row and "cpu_x" not in row
+    table = report._workload_table("t", "n", section)
+    assert any("no ratios" in f for f in table.footer)
+    assert any("no C compiler" in f for f in table.footer)
+
+
+# -- end to end --------------------------------------------------------------------------------
+
+
+@needs_c
+def test_c_program_builds_warning_free(tmp_path: Path) -> None:
+    exe, warnings = cprogram.build(str(tmp_path))
+    assert os.access(exe, os.X_OK)
+    assert warnings == ""  # -Wall -Wextra clean
+
+
+@needs_c
+def test_quick_run_structure_and_ratios(capsys: pytest.CaptureFixture[str]) -> None:
+    result = _bench(capsys, "--only", "pymb,c", "--sections", "micro,sweep")
+    meta = result["meta"]
+    for key in ("date", "cpu", "cores", "python", "libmodbus", "pymb", "command"):
+        assert meta[key], key
+    assert meta["command"].startswith("pymb bench")
+    assert [c["name"] for c in result["contenders"]] == ["c", "pymb"]
+    assert all(c["status"] == "ok" and c["version"] for c in result["contenders"])
+
+    for workload in ("hub", "telemetry"):
+        section = result["sweep"][workload]
+        assert section["baseline"] == "c"
+        rows = {r["name"]: r for r in section["rows"]}
+        c, p = rows["c"], rows["pymb"]
+        assert c["wall_x"] == 1.0 and c["cpu_x"] == 1.0
+        for r in (c, p):
+            assert r["wall_us"] > 0 and r["cpu_us"] > 0
+            assert r["rounds"] == result["meta"]["plan"]["rounds"]
+        # the ratio is the median of per-round ratios to the C program's round
+        assert p["wall_x"] == pytest.approx(statistics.median(
+            a / b for a, b in zip(p["round_wall_us"], c["round_wall_us"], strict=True)))
+        assert p["cpu_x"] == pytest.approx(statistics.median(
+            a / b for a, b in zip(p["round_cpu_us"], c["round_cpu_us"], strict=True)))
+
+    micro = {r["name"]: r for r in result["micro"]["rows"]}
+    assert set(micro) == {"crc16", "decode"}
+    for r in micro.values():
+        assert r["speedup"] == pytest.approx(r["python_us"] / r["pymb_us"])
+
+    targets = {t["what"]: t for t in result["targets"]}
+    assert targets["hub sweep wall time, pymb / C"]["measured"] == pytest.approx(
+        result["sweep"]["hub"]["rows"][1]["wall_x"])
+    assert all(t["met"] in (True, False) for t in targets.values())
+    assert _children() == []
+
+
+def test_skipped_contenders_say_why(monkeypatch: pytest.MonkeyPatch,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    real = importlib.util.find_spec
+
+    def find_spec(name: str, *a: Any) -> Any:
+        return None if name == "minimalmodbus" else real(name, *a)
+
+    monkeypatch.setattr("pymb.bench.contenders.importlib.util.find_spec", find_spec)
+    monkeypatch.setenv("CC", "no-such-compiler-for-pymb")
+    assert main(["bench", "--quick", "-q", "--only", "c,minimalmodbus",
+                 "--sections", "sweep"]) == 0
+    text = capsys.readouterr().out
+    assert "minimalmodbus: skipped: not installed" in text
+    assert "pip install 'pymb[bench]'" in text
+    assert "C (libmodbus): skipped: cannot build the C program: no C compiler" in text
+    assert "no ratios" in text
+
+    result = _bench(capsys, "--only", "c,minimalmodbus", "--sections", "sweep")
+    for c in result["contenders"]:
+        assert c["status"] == "skipped" and c["reason"]
+    assert _children() == []
+
+
+def test_unknown_names_are_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--only", "pymb,modbus-tk"]) == 2
+    assert "--only takes names from" in capsys.readouterr().err
+    assert main(["bench", "--sections", "fast"]) == 2
+    assert main(["bench", "--rounds", "0"]) == 2
+
+
+@needs_c
+def test_interrupt_stops_every_child(monkeypatch: pytest.MonkeyPatch) -> None:
+    def interrupted(*args: Any, **kw: Any) -> None:
+        assert len(_children()) >= 4  # two simulators and two contenders are running
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "_race", interrupted)
+    assert main(["bench", "--quick", "-q", "--only", "pymb,c", "--sections", "sweep"]) == 130
+    assert _children() == []
+
+
+def test_reports_from_one_result(tmp_path: Path) -> None:
+    result = _synthetic()
+    text = report.to_text(result)
+    md = report.to_markdown(result)
+    for out in (text, md):
+        assert "Hub sweep" in out and "CoolPro telemetry" in out and "Targets" in out
+        assert "pymb bench --quick" in out
+    assert "| contender | wall |" in md and "|---|---:|" in md
+    assert "`pymb bench --quick`" in md
+    json.loads(report.to_json(result))
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "bars.png"
+    report.plot(result, str(png))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _synthetic() -> dict[str, Any]:
+    def rows(base: float) -> dict[str, Any]:
+        out = []
+        for i, c in enumerate(CONTENDERS[:3]):
+            out.append({"name": c.name, "label": c.label, "version": "1", "status": "ok",
+                        "reason": "", "how": c.how, "wall_us": base * (1 + i),
+                        "cpu_us": base / 4 * (1 + i), "wall_x": 1.0 + i, "cpu_x": 1.0 + i})
+        return {"baseline": "c", "rows": out}
+
+    opts = Options(quick=True, command="pymb bench --quick")
+    result = {"meta": runner.meta(opts),
+              "contenders": [{"name": c.name, "label": c.label, "version": "1",
+                              "status": "ok", "reason": "", "how": c.how}
+                             for c in CONTENDERS],
+              "sweep": {"baud": 115200, "hub": rows(400.0), "telemetry": rows(40.0)},
+              "micro": {"repeat": 5, "rows": [
+                  {"name": "crc16", "what": "CRC", "pymb_us": 0.5, "python_us": 12.0,
+                   "speedup": 24.0, "target_us": 1.0, "pymb_call": "a", "python_call": "b"}]}}
+    result["targets"] = runner.targets(result)
+    return result
+
+
+@pytest.mark.slow
+@needs_c
+def test_whole_quick_bench_as_a_user_runs_it(tmp_path: Path) -> None:
+    """``python -m pymb bench --quick --json --plot``: every section, every contender."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    png = tmp_path / "bench.png"
+    done = subprocess.run([sys.executable, "-m", "pymb", "bench", "--quick", "--json",
+                           "--plot", str(png)], capture_output=True, text=True, timeout=600,
+                          env=env)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert {"micro", "sweep", "wire", "scaling", "targets"} <= set(result)
+    assert [c["name"] for c in result["contenders"]] == list(NAMES)
+    for c in result["contenders"]:
+        assert c["status"] == "ok" or c["reason"]
+    assert [r["buses"] for r in result["scaling"]["rows"]] == [1, 2, 4, 8]
+    assert {r["baud"] for r in result["wire"]["rows"]} == {9600, 115200}
+    assert png.exists()
+    assert "pymb bench: scaling" in done.stderr  # progress on stderr, JSON alone on stdout
