@@ -40,8 +40,10 @@ def run(args: argparse.Namespace) -> int:
     baud = str(args.baud)
     sims = [
         SimulatorProcess(["coolpro", "--baud", baud, "--seed", "1",
-                          "--fault", "bad_crc:0.002", "--fault", "no_reply:0.001"]),
-        SimulatorProcess(["hub", "--baud", baud, "--seed", "2", "--fault", "busy:0.02"]),
+                          "--fault", "bad_crc:0.002", "--fault", "no_reply:0.001"],
+                         quiet=True),
+        SimulatorProcess(["hub", "--baud", baud, "--seed", "2", "--fault", "busy:0.02"],
+                         quiet=True),
     ]
     say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     try:

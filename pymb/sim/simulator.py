@@ -330,12 +330,15 @@ class SimulatorProcess:
 
     ``args``: the command line after ``simulate`` (e.g. ``["coolpro", "hub",
     "--tcp", "127.0.0.1:0"]``). The endpoint is the child's first stdout
-    line. Stopped with SIGTERM (then SIGKILL) on exit.
+    line. Stopped with SIGTERM (then SIGKILL) on exit. ``quiet`` drops the
+    child's stderr.
     """
 
-    def __init__(self, args: Sequence[str], *, timeout: float = 10.0) -> None:
+    def __init__(self, args: Sequence[str], *, timeout: float = 10.0,
+                 quiet: bool = False) -> None:
         self.args = list(args)
         self.timeout = timeout
+        self.quiet = quiet  #: drop the child's stderr (its banner and summary)
         self.endpoint = ""
         self._proc: subprocess.Popen[bytes] | None = None
 
@@ -345,7 +348,8 @@ class SimulatorProcess:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
         proc = subprocess.Popen([sys.executable, "-m", "pymb", "simulate", *self.args],
-                                stdout=subprocess.PIPE, env=env)
+                                stdout=subprocess.PIPE, env=env,
+                                stderr=subprocess.DEVNULL if self.quiet else None)
         self._proc = proc
         assert proc.stdout is not None
         line = b""
