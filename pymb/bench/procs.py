@@ -21,7 +21,7 @@ import time
 from collections.abc import Sequence
 from types import TracebackType
 
-__all__ = ["Child", "ChildError", "Children", "SimChild", "python_env"]
+__all__ = ["ROOT", "Child", "ChildError", "Children", "SimChild", "python_env"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -34,12 +34,15 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
         pass
 
 
+#: the directory holding the pymb package this bench runs from
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
 def python_env() -> dict[str, str]:
     """The environment for ``python -m pymb...`` children: this pymb first
     on the path (a source checkout works without installing)."""
     env = dict(os.environ)
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (ROOT, env.get("PYTHONPATH")) if p)
     return env
 
 
@@ -59,6 +62,9 @@ class Child:
         self.proc = subprocess.Popen(
             self.argv, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             stdout=subprocess.PIPE, stderr=self._log, env=env or python_env(),
+            # `python -m` puts the working directory first on sys.path: start
+            # where this pymb lives, so no other checkout's pymb is picked up.
+            cwd=ROOT,
             # Own session: the terminal's Ctrl-C reaches the bench only, which
             # then stops its children in order.
             preexec_fn=_die_with_parent, start_new_session=True,
