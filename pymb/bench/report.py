@@ -113,6 +113,13 @@ def tables(result: dict[str, Any]) -> list[Table]:
             rows.append([str(r["baud"]), r["workload"], r["label"], fmt_time(r["wall_us"]),
                          fmt_time(r["theory_us"]), fmt_x(r.get("theory_x")),
                          fmt_x(r.get("wall_x"))])
+        for r in wire["rows"]:
+            if r["name"] == "c" and r.get("theory_x", 0) > 1.02 and r["workload"] == "hub sweep":
+                footer.append(
+                    f"at {r['baud']} baud the C program itself takes {fmt_x(r['theory_x'])} the "
+                    "theoretical time: above 19200 baud the simulator waits the Modbus serial "
+                    "line spec's fixed t3.5 of 1.75 ms before each reply, where the model "
+                    "counts 3.5 characters; x C is the distance from that emulated floor")
         out.append(Table(
             "Wire-bound: the simulator emulating the line speed",
             "median time per sweep (per read) against the theoretical wire time of the "
