@@ -26,7 +26,6 @@ from pymb.bench.worker import SPANS, Canary
 from pymb.cli import main
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB
-from pymb.sim import Simulator
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,8 +76,7 @@ def test_pure_crc_matches_the_documents_and_pymb() -> None:
 
 
 def test_pure_decoders_match_pymb() -> None:
-    regs = Simulator([f"hub:{HUB.default_address},dynamic=0"], seed=3).device(
-        HUB.default_address).registers()
+    regs = runner.hub_registers(seed=3)
     got = pure.decode_hub(list(regs))
     want = decode_hub(regs).values
     assert len(got) == HUB.count
@@ -110,8 +108,7 @@ def test_canary_catches_a_wrong_sweep() -> None:
 
 def test_reference_rejects_shifted_registers() -> None:
     ref = runner.Reference()
-    regs = Simulator(runner._software_devices(), seed=runner.SEED).device(
-        HUB.default_address).registers()
+    regs = runner.hub_registers()
     ref.check_sweep(list(regs), list(decode_hub(regs).values))
     shifted = [*regs[1:], 0]
     with pytest.raises(ValueError, match="layout"):

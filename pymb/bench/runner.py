@@ -49,9 +49,9 @@ from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB, Type
 from pymb.devices.planner import request_time
-from pymb.sim import Simulator, make_device
+from pymb.sim import CoolProDevice, HubDevice, Simulator, make_device
 
-__all__ = ["SECTIONS", "Options", "Plan", "run"]
+__all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
 SECTIONS = ("micro", "sweep", "wire", "scaling")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
@@ -121,8 +121,7 @@ class Reference:
     equal pymb's decoder's on its own raw registers."""
 
     def __init__(self) -> None:
-        sim = Simulator(_software_devices(), seed=SEED)
-        regs = sim.device(HUB_SLAVE).registers()
+        regs = hub_registers()
         humidity = HUB.block("humidity_pct")
         self._h0 = humidity.index * HUB.channels
         self._no_humidity = humidity.markers[2][0]  # the 0.1 % unit's: the hub's default
@@ -165,6 +164,14 @@ def _same_values(what: str, got: Sequence[float], want: Sequence[float]) -> None
         if math.isnan(w) != math.isnan(g) or (
                 not math.isnan(w) and not math.isclose(g, w, rel_tol=1e-9, abs_tol=1e-9)):
             raise ValueError(f"{what}: value {i} is {g!r}, pymb's decoder says {w!r}")
+
+
+def hub_registers(seed: int = SEED) -> array[int]:
+    """Registers 31..730 of the software comparison's simulated hub, as the
+    simulator builds it from ``seed`` (not started: the layout, values at t=0)."""
+    dev = Simulator(_software_devices(), seed=seed).device(HUB_SLAVE)
+    assert isinstance(dev, HubDevice)
+    return dev.registers()
 
 
 def _software_devices(baud: int = SOFTWARE_BAUD) -> list[str]:
@@ -359,7 +366,7 @@ def run_micro(opts: Options) -> dict[str, Any]:
     opts.say("micro: CRC-16 and decode")
     rng = random.Random(SEED)
     frame = bytes(rng.randrange(256) for _ in range(255))
-    regs = Simulator(_software_devices(), seed=SEED).device(HUB_SLAVE).registers()
+    regs = hub_registers()
     regs_list = list(regs)
     if pymb.crc16(frame) != pure.crc16(frame):
         raise RuntimeError("pymb.crc16 and the pure-Python CRC disagree")
@@ -373,7 +380,7 @@ def run_micro(opts: Options) -> dict[str, Any]:
         return statistics.median(t.repeat(repeat=repeat, number=number)) / number * 1e6
 
     crc = pymb.crc16
-    rows = [
+    rows: list[dict[str, Any]] = [
         {"name": "crc16", "what": "CRC-16 of a 255-byte frame",
          "pymb_us": per_call(lambda: crc(frame)),
          "python_us": per_call(lambda: pure.crc16(frame)),
@@ -426,7 +433,9 @@ def _theory_sweep(baud: int) -> float:
 def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any]:
     """Sweeps against the theoretical wire time, the simulator emulating the line."""
     plan = opts.plan
-    gap = make_device("coolpro").gap
+    coolpro = make_device("coolpro")
+    assert isinstance(coolpro, CoolProDevice)
+    gap = coolpro.gap
     rows: list[dict[str, Any]] = []
     setups = [(9600, plan.rounds_9600, 1, False),
               (115200, plan.wire_rounds, plan.sweeps_115200, True)]

@@ -138,7 +138,7 @@ class PymodbusClient(PurePythonClient):
             rr = self.client.read_holding_registers(address, count=count, device_id=slave)
         if rr.isError():
             raise RuntimeError(f"pymodbus: {rr}")
-        regs: list[int] = rr.registers
+        regs: Sequence[int] = rr.registers
         return regs
 
     def close(self) -> None:
@@ -152,7 +152,7 @@ class MinimalmodbusClient(PurePythonClient):
     users get it; the timeout is raised from 0.05 s."""
 
     def __init__(self, port: str, baud: int, timeout: float) -> None:
-        import minimalmodbus
+        import minimalmodbus  # type: ignore[import-untyped]
 
         self.instruments: dict[int, Any] = {}
         for slave in (HUB_SLAVE, CP_SLAVE):
@@ -177,7 +177,7 @@ class PylibmodbusClient(PurePythonClient):
     ``read_registers`` returns a new ``uint16_t[]`` each call."""
 
     def __init__(self, port: str, baud: int, timeout: float) -> None:
-        from pylibmodbus import ModbusRtu
+        from pylibmodbus import ModbusRtu  # type: ignore[import-untyped]
 
         self.ctx = ModbusRtu(device=port.encode(), baud=baud, parity=b"N", data_bit=8,
                              stop_bit=1)
@@ -205,7 +205,7 @@ class PyserialClient(PurePythonClient):
     check address, function, byte count and CRC."""
 
     def __init__(self, port: str, baud: int, timeout: float) -> None:
-        import serial
+        import serial  # type: ignore[import-untyped]
 
         self.serial = serial.Serial(port, baud, timeout=timeout)
         self._formats = {n: struct.Struct(f">{n}H") for _, n in SPANS}
