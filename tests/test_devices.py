@@ -286,3 +286,23 @@ def test_decode_hub_of_a_device_image(bus: Simulator) -> None:
     dev = bus.device(1)
     r = decode_hub(dev.registers(), [0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
     assert_matches_device(r, dev, dev.humidity_tenths)  # type: ignore[attr-defined]
+
+
+def test_one_hub_shared_by_threads(bus: Simulator, client: pymb.RtuClient) -> None:
+    dev = bus.device(1)
+    hub = SensorHub(client, 1, humidity_unit=[0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
+    errors: list[BaseException] = []
+
+    def worker() -> None:
+        try:
+            for _ in range(10):
+                assert_matches_device(hub.read_all(), dev, dev.humidity_tenths)  # type: ignore[attr-defined]
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=worker) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert errors == []

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 import time
 from array import array
 from collections.abc import Iterable, Sequence
@@ -266,6 +267,7 @@ class SensorHub:
         self._sweep = _native.HubSweep(address, self.channels, _tenths(humidity_unit, channels),
                                        busy_retries, busy_backoff)
         self._connections = -1
+        self._lock = threading.Lock()  # one sweep of this hub at a time (shared C request)
         self._plans: dict[tuple[Any, ...], tuple[ReadPlan, bytes | None]] = {}
         self._current: tuple[Any, ...] | None = None
 
@@ -348,6 +350,11 @@ class SensorHub:
              *, into: HubReading | None = None) -> HubReading:
         """Some blocks (by name, e.g. ``["temperature_c"]``) and/or channels
         (1-based), in the planned requests; the rest is :attr:`State.NOT_READ`."""
+        with self._lock:
+            return self._read(blocks, channels, into)
+
+    def _read(self, blocks: Iterable[str] | None, channels: Iterable[int] | None,
+              into: HubReading | None) -> HubReading:
         client = self.client
         if client.connections != self._connections:
             # A new connection may be a new device (or new firmware): probe again.
