@@ -4,6 +4,7 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
+#include <poll.h>
 #include <string.h>
 #include <sys/select.h>
 #include <time.h>
@@ -20,11 +21,103 @@ static uint64_t now_us(void)
 
 int pymb_flush(modbus_t *ctx)
 {
+    struct pollfd p;
+
     if (ctx == NULL) {
         errno = EINVAL;
         return -1;
     }
+    /* A zero-timeout poll first: flushing an empty line is a system call
+     * (tcflush) per request for nothing. */
+    p.fd = modbus_get_socket(ctx);
+    p.events = POLLIN;
+    p.revents = 0;
+    if (p.fd >= 0 && poll(&p, 1, 0) == 0) {
+        return 0;
+    }
     return modbus_flush(ctx) < 0 ? -1 : 0;
+}
+
+static uint32_t timeout_us(modbus_t *ctx, int byte)
+{
+    uint32_t sec = 0, usec = 0;
+    if (byte) {
+        modbus_get_byte_timeout(ctx, &sec, &usec);
+    } else {
+        modbus_get_response_timeout(ctx, &sec, &usec);
+    }
+    return sec * 1000000u + usec;
+}
+
+/* Receive one RTU reply: whatever is there is read at once (usually one poll
+ * and one read, where libmodbus makes three of each), and the frame ends
+ * where its function code and byte count say (pymb_rtu_response_length, the
+ * rule libmodbus reads by too). Bytes after the frame that arrived in the
+ * same read are stray: they are dropped. The whole reply must arrive within
+ * the response timeout; with a byte timeout set, a gap longer than it after
+ * the first byte also fails. Returns the frame's length or -1 and errno. */
+static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
+{
+    int fd = modbus_get_socket(ctx), got = 0, want = -1;
+    uint64_t deadline = now_us() + timeout_us(ctx, 0);
+    uint32_t byte_us = timeout_us(ctx, 1);
+
+    while (want < 0 || got < want) {
+        struct pollfd p;
+        uint64_t now = now_us(), wait;
+        ssize_t k;
+        int rc;
+
+        if (now >= deadline) {
+            errno = ETIMEDOUT;
+            return -1;
+        }
+        wait = deadline - now;
+        if (got > 0 && byte_us > 0 && byte_us < wait) {
+            wait = byte_us;
+        }
+        p.fd = fd;
+        p.events = POLLIN;
+        p.revents = 0;
+        rc = poll(&p, 1, (int)((wait + 999u) / 1000u));
+        if (rc < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            return -1;
+        }
+        if (rc == 0) {
+            if (got > 0 && byte_us > 0 && now_us() < deadline) {
+                errno = ETIMEDOUT; /* the reply stopped mid-frame */
+                return -1;
+            }
+            continue; /* the deadline check above decides */
+        }
+        k = read(fd, rsp + got, (size_t)(cap - got));
+        if (k < 0) {
+            if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
+                continue;
+            }
+            return -1;
+        }
+        if (k == 0) {
+            errno = ECONNRESET; /* no more bytes will ever come (pty hung up) */
+            return -1;
+        }
+        got += (int)k;
+        if (want < 0) {
+            want = pymb_rtu_response_length(rsp, (size_t)got);
+            if (want == PYMB_FRAME_TOO_LONG || want > cap) {
+                errno = EMBBADDATA;
+                return -1;
+            }
+        }
+        if (got >= cap && (want < 0 || got < want)) {
+            errno = EMBBADDATA;
+            return -1;
+        }
+    }
+    return want;
 }
 
 int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
@@ -157,23 +250,19 @@ int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
     if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
         return 0; /* [MB-SL] 2.1: no reply to a broadcast */
     }
-    /* libmodbus reads exactly the frame that the function code and byte
-     * count announce (the same rule as pymb_rtu_response_length). With no
-     * slave set on the context it returns 0 for RTU instead of checking: the
-     * checks are all ours. */
-    n = modbus_receive_confirmation(ctx, rsp);
+    /* RTU: pymb's own receive (one read where libmodbus makes three); TCP:
+     * libmodbus's, which parses the MBAP header. Either way the checks below
+     * are all pymb's. */
+    n = hl == 1 ? rtu_receive(ctx, rsp, rsp_cap) : modbus_receive_confirmation(ctx, rsp);
     if (n < 0) {
+        if (errno == EMBBADDATA) {
+            note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
+        }
         pymb_recover(ctx);
         return -1;
     }
     if (hl == 1) {
-        len = n > 0 ? n : pymb_rtu_response_length(rsp, (size_t)rsp_cap);
-        if (len < 0 || len > rsp_cap) {
-            note_reply(fail, rsp, 2, PYMB_FRAME_TOO_LONG);
-            errno = EMBBADDATA;
-            pymb_recover(ctx);
-            return -1;
-        }
+        len = n;
         status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)len, &exc);
         pdu_len = len - 3;
     } else {

@@ -1,10 +1,11 @@
 /*
  * pymb_modbus.h - pymb's request path over libmodbus.
  *
- * libmodbus opens and configures the line (serial settings, RS485, RTS, TCP)
- * and moves frames (modbus_send_raw_request / modbus_receive_confirmation).
- * pymb builds every request and checks every reply itself, because
- * libmodbus 3.1.6
+ * libmodbus opens and configures the line (serial settings, RS485, RTS, TCP),
+ * sends frames (modbus_send_raw_request) and receives TCP replies. pymb
+ * builds every request, receives RTU replies itself (in one read where the
+ * bytes are there, where libmodbus makes three select + read steps), and
+ * checks every reply itself, because libmodbus 3.1.6
  *   - refuses RTU addresses above 247 (the sensor hub uses 248..255),
  *   - skips the CRC check of any reply whose address it does not expect,
  *   - never checks that a write's echo matches what was written,
@@ -12,7 +13,8 @@
  *     request is taken as the answer to the next one.
  *
  * Every function here:
- *   - discards pending input before it sends (pymb_flush);
+ *   - discards pending input before it sends (pymb_flush; a zero-timeout
+ *     poll first, so an empty line costs no flush);
  *   - after a timeout or a bad frame, reads and drops whatever arrives until
  *     the line has been silent for the response timeout (pymb_recover), so a
  *     late or stray reply can never be taken as the answer to a later request;

@@ -496,6 +496,11 @@ class HubSweep:
         rq.out_len = len(values)
         return keep
 
+    def unbind(self) -> None:
+        """Forget the reading's buffers (they may be freed after the sweep)."""
+        rq = self.request
+        rq.regs = rq.values = rq.states = _NULL
+
 
 def coolpro_telemetry(regs: Any) -> tuple[float, float, float, float, float, int, int]:
     """Decode input registers 0..7: (Vin, Iin, Vout, Iout, temperature, uptime, status)."""

@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "simulate": ("pymb.sim.cli", "simulate CoolPro and sensor-hub devices on a pty or TCP"),
+    "bench": ("pymb.bench.cli", "benchmark pymb against other Modbus stacks, side by side"),
 }
 
 

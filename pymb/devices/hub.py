@@ -269,7 +269,7 @@ class SensorHub:
         self._connections = -1
         self._lock = threading.Lock()  # one sweep of this hub at a time (shared C request)
         self._plans: dict[tuple[Any, ...], tuple[ReadPlan, bytes | None]] = {}
-        self._current: tuple[Any, ...] | None = None
+        self._current: tuple[Any, ...] | None = None  # (blocks, channels, unsupported) planned
 
     # -- firmware knowledge -------------------------------------------------------
 
@@ -360,10 +360,13 @@ class SensorHub:
             # A new connection may be a new device (or new firmware): probe again.
             self._connections = client.connections
             self._sweep.unsupported = 0
-        plan, wanted = self._plan(blocks, channels)
-        if self._current != (plan.spans, wanted):
+        # Steady state (the same read as last time, no firmware news): the
+        # sweep struct already holds the plan.
+        key = (blocks, channels, self._sweep.unsupported)
+        if key != self._current:
+            plan, wanted = self._plan(blocks, channels)
             self._sweep.set_plan(list(plan.spans), wanted)
-            self._current = (plan.spans, wanted)
+            self._current = key
         r = into if into is not None and into.channels == self.channels else HubReading(
             self.channels)
         keep = self._sweep.bind(r.registers, r.values, r.raw_states)
@@ -378,6 +381,7 @@ class SensorHub:
                 count=e.count, port=e.port, response=e.response,
             ) from None
         finally:
+            self._sweep.unbind()
             del keep
         # Blocks found missing in this sweep are skipped by the next plan.
         r.unsupported_mask = self._sweep.unsupported

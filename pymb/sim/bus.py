@@ -39,6 +39,14 @@ def silence(baud: int | None, bits: int = 10) -> float:
     return 3.5 * bits / baud
 
 
+def reply_gap(baud: int, bits: int = 10) -> float:
+    """The line model's gap between a request's last byte and the reply's
+    first: exactly 3.5 characters at any speed (the theoretical wire time
+    pymb's planner and benchmark count). The 1.75 ms of :func:`silence` is a
+    receiver's frame-end timer above 19200 bit/s, not a delay a device owes."""
+    return 3.5 * bits / baud
+
+
 def sleep_until(deadline: float, stop: threading.Event | None = None) -> bool:
     """Sleep until ``time.perf_counter()`` reaches ``deadline``: the OS
     sleeps most of it, the last 0.2 ms is spun for precision. Returns False

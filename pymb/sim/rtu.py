@@ -10,7 +10,8 @@ Timing: the reply starts the device's turnaround after the request ends
 (the CoolPro's ~8 ms gap, the hub's ``response_delay``). With ``emulate``
 each frame also takes its wire time at the line's speed: the reply's last
 byte reaches the master at request wire time + max(3.5 characters,
-turnaround) + reply wire time, its bytes paced as a real line would.
+turnaround) + reply wire time, its bytes paced as a real line would (the
+1.75 ms floor above 19200 bit/s is only the frame-end timer, not a delay).
 
 The line's speed is the one the master set on the pseudo-terminal (its
 termios), read at each frame; a device at another speed stays silent.
@@ -28,7 +29,7 @@ import time
 import tty
 
 from pymb import _native
-from pymb.sim.bus import IDLE_S, Bus, char_time, silence, sleep_until
+from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, silence, sleep_until
 from pymb.sim.faults import Fault
 from pymb.sim.server import Server
 
@@ -267,7 +268,7 @@ class RtuServer(Server):
         self.bus.stats.served(time.perf_counter_ns() - t0)
         if self.emulate and line is not None:
             char = char_time(line)
-            start = end + len(frame) * char + max(silence(line), out.delay)
+            start = end + len(frame) * char + max(reply_gap(line), out.delay)
         else:
             char = 0.0
             start = end + out.delay

@@ -20,7 +20,7 @@ import socket
 import struct
 import time
 
-from pymb.sim.bus import IDLE_S, Bus, char_time, silence, sleep_until
+from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault
 from pymb.sim.server import Server
 
@@ -161,7 +161,7 @@ class TcpServer(Server):
         baud = self.emulate_baud
         if baud:
             char = char_time(baud)
-            delay = (len(pdu) + 3) * char + max(silence(baud), delay) + (
+            delay = (len(pdu) + 3) * char + max(reply_gap(baud), delay) + (
                 len(out.pdu) + 3) * char
         if not sleep_until(end + delay, self._stop):
             return
