@@ -9,6 +9,7 @@ buses keep working while one waits on its line.
 from __future__ import annotations
 
 import os
+import threading
 from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
@@ -502,13 +503,18 @@ class HubSweep:
         rq.regs = rq.values = rq.states = _NULL
 
 
+_telemetry_local = threading.local()
+
+
 def coolpro_telemetry(regs: Any) -> tuple[float, float, float, float, float, int, int]:
     """Decode input registers 0..7: (Vin, Iin, Vout, Iout, temperature, uptime, status)."""
-    t = ffi.new("pymb_coolpro_telemetry *")
-    if lib.pymb_coolpro_decode_telemetry(ffi.from_buffer("uint16_t[]", regs), len(regs), t):
+    t = getattr(_telemetry_local, "t", None)
+    if t is None:  # one output struct per thread, not one allocation per read
+        t = _telemetry_local.t = ffi.new("pymb_coolpro_telemetry *")
+    if lib.pymb_coolpro_decode_telemetry(_from_buffer("uint16_t[]", regs), len(regs), t):
         raise InvalidArgument(f"telemetry is 8 registers, got {len(regs)}")
     return (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
-            t.temperature_c, int(t.uptime_s), int(t.status))
+            t.temperature_c, t.uptime_s, t.status)
 
 
 def coolpro_identity(regs: Any) -> tuple[int, int, int, int, int, int]:

@@ -246,6 +246,12 @@ class Client:
         self._range(address, len(view), None)
         self._call(self._link.read_registers, fc, s, address, len(view), dest)
 
+    def _read_registers_prechecked(self, function: int, slave: int, address: int,
+                                   dest: Any) -> None:
+        """For the facades, whose arguments were checked once at construction:
+        the read without the per-call argument checks."""
+        self._call(self._link.read_registers, function, slave, address, len(dest), dest)
+
     def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
         """Write one holding register (function 0x06). The device's echo must
         match the request exactly, or :class:`~pymb.ProtocolError` is raised."""

@@ -84,12 +84,14 @@ def tables(result: dict[str, Any]) -> list[Table]:
                   f"wire emulation; medians of {plan['rounds']} interleaved rounds")
         out.append(_workload_table(
             "Hub sweep: 700 registers in 6 requests, decoded to engineering values",
-            f"{common} x {plan['sweeps']} sweeps; wall and CPU (the contender's own "
+            f"{common} x {plan['sweeps']} sweeps, each batch after as many untimed ones "
+            f"(steady state); wall and CPU (the contender's own "
             f"process) per sweep; {X} C = median of the per-round ratios to the C program",
             sweep["hub"]))
         out.append(_workload_table(
             "CoolPro telemetry: 8 input registers in 1 request, decoded",
-            f"{common} x {plan['reads']} reads; the CoolPro's ~8 ms gap set to 0 "
+            f"{common} x {plan['reads']} reads after as many untimed; the CoolPro's ~8 ms "
+            f"gap set to 0 "
             "(pure software cost; with the gap, see the wire-bound table)",
             sweep["telemetry"]))
     micro = result.get("micro")

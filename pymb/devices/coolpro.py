@@ -7,6 +7,7 @@ values low word first.
 
 from __future__ import annotations
 
+import functools
 from array import array
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -39,6 +40,15 @@ class CoolProStatus(IntFlag, boundary=KEEP):
     def reserved(self) -> int:
         """The reserved bits (7..15) as they came."""
         return int(self) & 0xFF80
+
+
+_ZEROS = array("H", bytes(2 * 125))
+
+
+@functools.lru_cache(maxsize=1024)
+def _status(raw: int) -> CoolProStatus:
+    """CoolProStatus(raw), cached: flag values repeat from read to read."""
+    return CoolProStatus(raw)
 
 
 @dataclass(frozen=True)
@@ -103,16 +113,17 @@ class CoolPro:
         return address
 
     def _read(self, span: tuple[int, int, int]) -> array[int]:
+        # The span comes from the map and the address was checked: no per-call checks.
         function, address, count = span
-        if function == 0x04:
-            return self.client.read_input_registers(address, count, slave=self.address)
-        return self.client.read_holding_registers(address, count, slave=self.address)
+        regs = array("H", _ZEROS[:count])
+        self.client._read_registers_prechecked(function, self.address, address, regs)
+        return regs
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
         regs = self._read(self._telemetry)
         vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
-        return CoolProTelemetry(vin, iin, vout, iout, temp, uptime, CoolProStatus(status), regs)
+        return CoolProTelemetry(vin, iin, vout, iout, temp, uptime, _status(status), regs)
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""

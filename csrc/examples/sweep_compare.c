@@ -1,0 +1,129 @@
+/*
+ * sweep_compare.c - pymb's hub sweep (pymb_hub_read) against the same sweep
+ * written with plain libmodbus (6 x modbus_read_registers + the same C
+ * decode), interleaved in one process on one line: medians of wall and CPU
+ * time per sweep. For C users weighing pymb's request path, and to tell
+ * pymb's C cost apart from the Python interpreter's in `pymb bench`.
+ *
+ *   pymb simulate hub,dynamic=0 --any-speed        # prints e.g. /dev/pts/7
+ *   ./csrc/build/sweep_compare /dev/pts/7 [ROUNDS]
+ */
+#define _POSIX_C_SOURCE 200809L
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/resource.h>
+#include <time.h>
+
+#include "pymb_modbus.h"
+
+#define PER_ROUND 40
+#define MAX_ROUNDS 200
+
+static double wall_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + (double)t.tv_nsec / 1e9;
+}
+
+static double cpu_now(void)
+{
+    struct rusage u;
+    getrusage(RUSAGE_SELF, &u);
+    return (double)(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+           (double)(u.ru_utime.tv_usec + u.ru_stime.tv_usec) / 1e6;
+}
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, by_value);
+    return v[n / 2];
+}
+
+int main(int argc, char **argv)
+{
+    static double wall[2][MAX_ROUNDS], cpu[2][MAX_ROUNDS];
+    uint16_t regs[PYMB_HUB_REGISTERS];
+    double values[PYMB_HUB_REGISTERS];
+    uint8_t states[PYMB_HUB_REGISTERS];
+    pymb_span spans[8];
+    pymb_hub_request rq = {0};
+    pymb_failure fail;
+    modbus_t *ctx;
+    int rounds = argc > 2 ? atoi(argv[2]) : 30, r, k, i;
+
+    if (argc < 2 || rounds < 1 || rounds > MAX_ROUNDS) {
+        fprintf(stderr, "usage: %s PORT [ROUNDS (1..%d)]\n", argv[0], MAX_ROUNDS);
+        return 2;
+    }
+    ctx = modbus_new_rtu(argv[1], 115200, 'N', 8, 1);
+    if (ctx == NULL || modbus_connect(ctx) == -1) {
+        fprintf(stderr, "cannot open %s: %s\n", argv[1], modbus_strerror(errno));
+        return 4;
+    }
+    modbus_set_response_timeout(ctx, 2, 0);
+    modbus_set_byte_timeout(ctx, 0, 0);
+    rq.slave = 1;
+    rq.channels = PYMB_HUB_CHANNELS;
+    rq.spans = spans;
+    rq.nspans = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
+    rq.regs = regs;
+    rq.values = values;
+    rq.states = states;
+    rq.out_len = PYMB_HUB_REGISTERS;
+
+    for (r = 0; r < rounds; r++) {
+        for (k = 0; k < 2; k++) {
+            int use_pymb = (r + k) % 2; /* the order alternates */
+            double t0 = 0, c0 = 0;
+            for (i = 0; i < 2 * PER_ROUND; i++) { /* the first half warms up */
+                if (i == PER_ROUND) {
+                    t0 = wall_now();
+                    c0 = cpu_now();
+                }
+                if (use_pymb) {
+                    if (pymb_hub_read(ctx, &rq, &fail) == -1) {
+                        fprintf(stderr, "pymb_hub_read: %s\n", modbus_strerror(errno));
+                        return 3;
+                    }
+                } else {
+                    int done, n;
+                    modbus_set_slave(ctx, 1);
+                    for (done = 0; done < PYMB_HUB_REGISTERS; done += n) {
+                        n = PYMB_HUB_REGISTERS - done > 125 ? 125 : PYMB_HUB_REGISTERS - done;
+                        if (modbus_read_registers(ctx, PYMB_HUB_FIRST_REGISTER + done, n,
+                                                  regs + done) != n) {
+                            fprintf(stderr, "modbus_read_registers: %s\n",
+                                    modbus_strerror(errno));
+                            return 3;
+                        }
+                    }
+                    pymb_hub_decode(regs, PYMB_HUB_REGISTERS, PYMB_HUB_CHANNELS, NULL, NULL,
+                                    PYMB_HUB_ALL_BLOCKS, 0, values, states, PYMB_HUB_REGISTERS);
+                }
+            }
+            wall[use_pymb][r] = (wall_now() - t0) / PER_ROUND * 1e6;
+            cpu[use_pymb][r] = (cpu_now() - c0) / PER_ROUND * 1e6;
+        }
+    }
+    {
+        double wl = median(wall[0], rounds), wp = median(wall[1], rounds);
+        double cl = median(cpu[0], rounds), cp = median(cpu[1], rounds);
+        printf("hub sweep, medians of %d interleaved rounds x %d sweeps on %s\n", rounds,
+               PER_ROUND, argv[1]);
+        printf("  plain libmodbus   wall %6.0f us  CPU %5.0f us\n", wl, cl);
+        printf("  pymb_hub_read     wall %6.0f us  CPU %5.0f us  (%.2fx, %.2fx)\n", wp, cp,
+               wp / wl, cp / cl);
+    }
+    modbus_close(ctx);
+    modbus_free(ctx);
+    return 0;
+}
