@@ -304,12 +304,31 @@ static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const voi
     return 0;
 }
 
+/* One read request (function, slave, address, count): the checked reply's
+ * data, after the byte count, or NULL and errno. */
+static const uint8_t *read_request(modbus_t *ctx, int function, int slave, int a, int n,
+                                   uint8_t *rsp, pymb_failure *fail)
+{
+    uint8_t req[6];
+
+    req[0] = (uint8_t)slave;
+    req[1] = (uint8_t)function;
+    req[2] = (uint8_t)(a >> 8);
+    req[3] = (uint8_t)a;
+    req[4] = (uint8_t)(n >> 8);
+    req[5] = (uint8_t)n;
+    if (pymb_transact(ctx, req, 6, rsp, MODBUS_MAX_ADU_LENGTH, fail) < 0) {
+        return NULL;
+    }
+    /* pymb_transact checked the function code and the byte count. */
+    return rsp + modbus_get_header_length(ctx) + 2;
+}
+
 int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
                         uint16_t *dest, pymb_failure *fail)
 {
-    uint8_t req[6];
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
-    int done = 0, hl;
+    int done = 0;
 
     if ((function != MODBUS_FC_READ_HOLDING_REGISTERS &&
          function != MODBUS_FC_READ_INPUT_REGISTERS) ||
@@ -317,24 +336,14 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
         errno = EINVAL;
         return -1;
     }
-    hl = modbus_get_header_length(ctx);
     while (done < nb) {
-        int a = addr + done;
         int n = nb - done > MODBUS_MAX_READ_REGISTERS ? MODBUS_MAX_READ_REGISTERS : nb - done;
-        const uint8_t *data;
+        const uint8_t *data = read_request(ctx, function, slave, addr + done, n, rsp, fail);
         int i;
 
-        req[0] = (uint8_t)slave;
-        req[1] = (uint8_t)function;
-        req[2] = (uint8_t)(a >> 8);
-        req[3] = (uint8_t)a;
-        req[4] = (uint8_t)(n >> 8);
-        req[5] = (uint8_t)n;
-        if (pymb_transact(ctx, req, 6, rsp, (int)sizeof rsp, fail) < 0) {
+        if (data == NULL) {
             return -1;
         }
-        /* pymb_transact checked the byte count: 2 * n bytes follow. */
-        data = rsp + hl + 2;
         for (i = 0; i < n; i++) {
             dest[done + i] = (uint16_t)(data[2 * i] << 8 | data[2 * i + 1]);
         }
@@ -346,33 +355,23 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
 int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb, uint8_t *dest,
                    pymb_failure *fail)
 {
-    uint8_t req[6];
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
-    int done = 0, hl;
+    int done = 0;
 
     if ((function != MODBUS_FC_READ_COILS && function != MODBUS_FC_READ_DISCRETE_INPUTS) ||
         check_read_args(ctx, slave, addr, nb, dest) < 0) {
         errno = EINVAL;
         return -1;
     }
-    hl = modbus_get_header_length(ctx);
     while (done < nb) {
-        int a = addr + done;
         int n = nb - done > MODBUS_MAX_READ_BITS ? MODBUS_MAX_READ_BITS : nb - done;
-        const uint8_t *data;
+        const uint8_t *data = read_request(ctx, function, slave, addr + done, n, rsp, fail);
         int i;
 
-        req[0] = (uint8_t)slave;
-        req[1] = (uint8_t)function;
-        req[2] = (uint8_t)(a >> 8);
-        req[3] = (uint8_t)a;
-        req[4] = (uint8_t)(n >> 8);
-        req[5] = (uint8_t)n;
-        if (pymb_transact(ctx, req, 6, rsp, (int)sizeof rsp, fail) < 0) {
+        if (data == NULL) {
             return -1;
         }
-        data = rsp + hl + 2; /* ceil(n / 8) bytes, least significant bit first */
-        for (i = 0; i < n; i++) {
+        for (i = 0; i < n; i++) { /* ceil(n / 8) bytes, least significant bit first */
             dest[done + i] = (uint8_t)((data[i / 8] >> (i % 8)) & 1u);
         }
         done += n;

@@ -23,6 +23,14 @@ EXIT_DEVICE = 3  #: the device answered wrongly, or not at all
 EXIT_CONNECTION = 4  #: the port or connection failed
 EXIT_OUTPUT = 5  #: logged data could not be written (disk full, read-only)
 
+#: exception -> exit code, most specific first
+_EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
+    (InvalidArgument, EXIT_USAGE),
+    (ModbusConnectionError, EXIT_CONNECTION),
+    (OutputError, EXIT_OUTPUT),
+    (ModbusError, EXIT_DEVICE),
+)
+
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("pymb.commands.demo", "log simulated devices for a few seconds (no hardware)"),
@@ -63,19 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args._module.run(args) or 0)
     except KeyboardInterrupt:
         return 130
-    except InvalidArgument as e:
+    except (ModbusError, OutputError) as e:
         print(f"pymb {args.command}: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    except ModbusConnectionError as e:
-        print(f"pymb {args.command}: {e}", file=sys.stderr)
-        return EXIT_CONNECTION
-    except ModbusError as e:
-        print(f"pymb {args.command}: {e}", file=sys.stderr)
-        return EXIT_DEVICE
-    except OutputError as e:
-        print(f"pymb {args.command}: {e}", file=sys.stderr)
-        return EXIT_OUTPUT
-
+        return next(code for cls, code in _EXIT_CODES if isinstance(e, cls))
 
 if __name__ == "__main__":
     sys.exit(main())
