@@ -529,7 +529,8 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
 
 def _filters(device: str | None, since: float | None,
              table: str = "s") -> tuple[str, Sequence[Any]]:
-    parts, args = [], []
+    parts: list[str] = []
+    args: list[Any] = []
     if device is not None:
         parts.append("d.name = ?")
         args.append(device)

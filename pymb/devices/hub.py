@@ -184,9 +184,10 @@ class HubReading:
         """Channel ``n`` (1-based): its seven values and their states."""
         self._check(n)
         c, i = self.channels, n - 1
-        vals = [self.values[b * c + i] for b in range(len(HUB.blocks))]
+        v = self.values
         states = {b.name: State(self.raw_states[b.index * c + i]) for b in HUB.blocks}
-        return HubChannel(n, *vals, states=states)
+        return HubChannel(n, v[i], v[c + i], v[2 * c + i], v[3 * c + i], v[4 * c + i],
+                          v[5 * c + i], v[6 * c + i], states)
 
     def as_dict(self) -> dict[str, list[float | None]]:
         """Plain lists per quantity, None where there is no value (for JSON)."""
@@ -208,16 +209,16 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     """
     if channels != HUB.channels:
         channels = _channels(channels)
+    regs: array[int]
     if type(registers) is array and registers.typecode == "H":
         regs = registers
     else:
         try:
             mv = memoryview(registers)
-            regs = array("H", mv.cast("B").tobytes()) if mv.itemsize == 2 else None
+            as_u16 = mv.itemsize == 2
         except TypeError:
-            regs = None
-        if regs is None:
-            regs = array("H", registers)
+            as_u16 = False
+        regs = array("H", mv.cast("B").tobytes()) if as_u16 else array("H", registers)
     if len(regs) != _N:
         raise InvalidArgument(f"decode_hub needs the {_N} registers 31..730, got {len(regs)}")
     mask = 0

@@ -19,6 +19,7 @@ import select
 import socket
 import struct
 import time
+from typing import Any
 
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault
@@ -93,7 +94,8 @@ class TcpServer(Server):
     def _serve_once(self, wake_fd: int) -> None:
         listener = self._listener
         assert listener is not None
-        r, _, _ = select.select([listener, wake_fd, *self._clients], [], [], IDLE_S)
+        watched: list[Any] = [listener, wake_fd, *self._clients]
+        r, _, _ = select.select(watched, [], [], IDLE_S)
         if not r:
             self.bus.idle()
             return
