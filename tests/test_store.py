@@ -1,0 +1,69 @@
+"""The SQLite store on its own: size and age limits, reopening, schema."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from array import array
+from pathlib import Path
+
+from pymb.devices import decode_hub
+from pymb.store import DeviceInfo, Event, Sample, SqliteSink
+
+HUB = DeviceInfo("b", "/dev/null", "hub", 1, "hub-1")
+
+
+def fill(sink: SqliteSink, n: int, t0: float) -> None:
+    regs = array("H", range(700))
+    for i in range(n):
+        sink.write(Sample(HUB, t0 + i, float(i), decode_hub(regs)))
+        if i % 50 == 49:
+            sink.commit()
+    sink.commit()
+
+
+def test_size_limit_deletes_the_oldest(tmp_path: Path) -> None:
+    db = tmp_path / "small.sqlite"
+    sink = SqliteSink(db, max_bytes=1_000_000)
+    fill(sink, 600, time.time() - 600)
+    deleted = sink.trim()
+    assert deleted > 0
+    assert sink._size() <= 1_000_000
+    first, last, n = sink.db.execute(
+        "SELECT MIN(id), MAX(id), COUNT(*) FROM samples").fetchone()
+    assert last == 600 and n == last - first + 1  # the newest are kept, in one run
+    assert sink.db.execute("SELECT COUNT(*) FROM hub").fetchone()[0] == 100 * n
+    sink.close()
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    con.close()
+
+
+def test_age_limit_deletes_old_samples_and_events(tmp_path: Path) -> None:
+    db = tmp_path / "aged.sqlite"
+    sink = SqliteSink(db, max_age=100.0)
+    now = time.time()
+    fill(sink, 20, now - 200)  # 200..181 s old
+    fill(sink, 10, now - 50)  # 50..41 s old
+    sink.event(Event(now - 150, 0.0, "b", HUB, "timeout", None, "old"))
+    sink.event(Event(now - 10, 0.0, "b", HUB, "timeout", None, "new"))
+    sink.commit()
+    assert sink.trim() == 20
+    assert sink.db.execute("SELECT COUNT(*) FROM samples").fetchone()[0] == 10
+    assert [m for (m,) in sink.db.execute("SELECT message FROM events")] == ["new"]
+    sink.close()
+
+
+def test_reopen_appends_and_keeps_devices(tmp_path: Path) -> None:
+    db = tmp_path / "again.sqlite"
+    for _ in range(2):
+        sink = SqliteSink(db)
+        fill(sink, 3, time.time())
+        sink.close()
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT COUNT(*) FROM samples").fetchone()[0] == 6
+    assert con.execute("SELECT COUNT(*) FROM devices").fetchone()[0] == 1
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    names = dict(con.execute("SELECT code, name FROM states").fetchall())
+    assert names == {0: "value", 1: "offline", 2: "no_sensor", 3: "unsupported", 4: "not_read"}
+    con.close()
