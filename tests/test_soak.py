@@ -34,11 +34,15 @@ def nfds(pid: int) -> int:
 @pytest.mark.slow
 def test_soak(tmp_path: Path) -> None:
     seconds = float(os.environ.get("PYMB_SOAK_SECONDS", "1800"))
+    # Stable paths (--link), as /dev/serial/by-id/ names are for real adapters:
+    # an unplugged pty comes back under another /dev/pts number.
     sims = [
-        SimulatorProcess(["coolpro", "--seed", "1", "--fault", "bad_crc:0.005",
+        SimulatorProcess(["coolpro", "--link", str(tmp_path / "psu.tty"), "--seed", "1",
+                          "--fault", "bad_crc:0.005",
                           "--fault", "no_reply:0.002", "--fault", "late:0.001,delay=0.3",
                           "--fault", "stray:0.002", "--fault", "unplug:0.0003,seconds=2"]),
-        SimulatorProcess(["hub", "--seed", "2", "--fault", "busy:0.02",
+        SimulatorProcess(["hub", "--link", str(tmp_path / "hub.tty"), "--seed", "2",
+                          "--fault", "busy:0.02",
                           "--fault", "truncate:0.002", "--fault", "wrong_address:0.002",
                           "--fault", "sensor:0.01"]),
     ]
@@ -68,8 +72,9 @@ timeout = 0.5
 type = "hub"
 address = 1
 """)
-        proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg),
-                                 "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg)],
+                                env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                stderr=subprocess.PIPE, text=True)
         warmup = min(60.0, seconds / 5)
         points: list[tuple[float, int, int]] = []
         t0 = time.monotonic()
@@ -80,7 +85,8 @@ address = 1
                 points.append((elapsed, rss_kb(proc.pid), nfds(proc.pid)))
         finally:
             proc.send_signal(signal.SIGTERM)
-            assert proc.wait(60) == 0
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode == 0, err
     finally:
         for s in sims:
             s.stop()
@@ -88,13 +94,15 @@ address = 1
     rss = [p[1] for p in settled]
     fds = [p[2] for p in settled]
     con = sqlite3.connect(db)
-    samples = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+    kept = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
     events = dict(con.execute("SELECT kind, COUNT(*) FROM events GROUP BY kind").fetchall())
     assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     con.close()
-    print(f"\nsoak: {seconds:.0f} s, {samples} samples ({samples / seconds:.1f}/s), "
-          f"events {events}; RSS after warm-up {min(rss)}..{max(rss)} kB, "
-          f"fds {min(fds)}..{max(fds)}")
+    summary = next(line for line in err.splitlines() if line.startswith("logged "))
+    print(f"\nsoak: {seconds:.0f} s; {summary}; {kept} samples kept under max_mb = 200, "
+          f"db {db.stat().st_size / 1e6:.0f} MB; events kept {events}; RSS after warm-up "
+          f"{min(rss)}..{max(rss)} kB, fds {min(fds)}..{max(fds)}")
+    assert db.stat().st_size < 230e6  # the size limit holds
     assert max(fds) - min(fds) <= 2
     assert max(rss) - rss[0] < 8 * 1024  # flat: no growth beyond allocator noise
     assert events.get("reconnect", 0) >= 1 or seconds < 600
