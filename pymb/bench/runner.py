@@ -330,6 +330,16 @@ def _race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n:
                 e.rounds.setdefault(workload, []).append(got)
 
 
+def _stop_all(entries: Sequence[Entry], sims: Sequence[Any], children: Children) -> None:
+    """Stop every contender's worker and every simulator of a section."""
+    for e in entries:
+        if e.child is not None:
+            children.stop(e.child)
+            e.child = None
+    for s in sims:
+        children.stop(s)
+
+
 def _summary(entries: Sequence[Entry], workload: str, per: int) -> dict[str, Any]:
     """Medians and the paired ratios to the C program for one workload."""
     base = next((e for e in entries if e.name == "c" and e.status == "ok"), None)
@@ -419,12 +429,7 @@ def run_sweep(opts: Options, lineup: Lineup, children: Children) -> dict[str, An
           "sweep: hub")
     _race(entries, "telemetry", "tele", plan.rounds, plan.reads, plan.warm_reads, children,
           opts, "sweep: CoolPro telemetry")
-    for e in entries:
-        if e.child is not None:
-            children.stop(e.child)
-            e.child = None
-    for s in sims:
-        children.stop(s)
+    _stop_all(entries, sims, children)
     return {
         "baud": SOFTWARE_BAUD,
         "hub": _summary(entries, "hub", plan.sweeps),
@@ -474,12 +479,7 @@ def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any
                 if "wall_us" in row:
                     row["theory_x"] = row["wall_us"] / (t_theory * 1e6)
                 rows.append(row)
-        for e in entries:
-            if e.child is not None:
-                children.stop(e.child)
-                e.child = None
-        for s in sims:
-            children.stop(s)
+        _stop_all(entries, sims, children)
     return {"gap_ms": gap * 1e3, "rows": rows}
 
 
