@@ -5,6 +5,7 @@ the logger surviving faults and an unplugged port, SIGKILL mid-run."""
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import os
 import signal
@@ -281,3 +282,31 @@ def test_help_lists_every_command() -> None:
     r = pymb_cmd("--help")
     for cmd in ("demo", "read", "watch", "log", "export", "scan", "config", "simulate"):
         assert cmd in r.stdout
+
+
+def test_watch_shows_the_rate(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["watch", "coolpro", "--port", sim.port, "--count", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "3 reads" in out and "/s" in out and "Input Voltage" in out
+
+
+def test_read_through_a_tcp_gateway(capsys: pytest.CaptureFixture[str]) -> None:
+    with Simulator(["coolpro", "hub:250"], transport="tcp", seed=2) as sim:
+        assert main(["read", "hub", "--tcp", f"{sim.host}:{sim.tcp_port}", "--address", "250",
+                     "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["values"]["temperature_c"]) == 100
+
+
+def test_log_csv_and_interval_schedule(sim: Simulator, tmp_path: Path) -> None:
+    out = tmp_path / "x.csv"
+    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--format", "csv", "--out",
+                 str(out), "--interval", "0.25", "--seconds", "2.1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    times = sorted({float(x["time_utc"]) for x in rows if x["quantity"] == "input_voltage_v"})
+    # Slots at 0, 0.25, ... 2.0 s: 8 or 9 polls, none crammed together.
+    assert 7 <= len(times) <= 9, times
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert min(gaps) > 0.15

@@ -306,3 +306,19 @@ def test_one_hub_shared_by_threads(bus: Simulator, client: pymb.RtuClient) -> No
     for t in threads:
         t.join(60)
     assert errors == []
+
+
+def test_read_all_into_reuses_the_buffers(bus: Simulator, client: pymb.RtuClient) -> None:
+    hub = SensorHub(client, 1)
+    r = hub.read_all()
+    values_before = r.values
+    bus.device(1).pin("temperature_c", 1, 123)  # type: ignore[attr-defined]
+    r2 = hub.read_all(into=r)
+    assert r2 is r and r.values is values_before and r.temperature_c[0] == 12.3
+
+
+def test_rs485_mode_on_a_port_without_it_is_a_clear_error(bus: Simulator) -> None:
+    c = pymb.RtuClient(bus.port, serial_mode="rs485", timeout=T)
+    with pytest.raises(pymb.ModbusConnectionError, match="RS485"):
+        c.connect()
+    assert not c.connected
