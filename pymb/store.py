@@ -146,16 +146,24 @@ CREATE TABLE IF NOT EXISTS events(
     device_id INTEGER REFERENCES devices(id), kind TEXT NOT NULL, code INTEGER,
     message TEXT NOT NULL);
 CREATE INDEX IF NOT EXISTS events_time ON events(time_utc);
-CREATE VIEW IF NOT EXISTS coolpro_readings AS
-    SELECT datetime(s.time_utc, 'unixepoch', 'subsec') AS time, s.time_utc, d.name AS device,
+-- Views are recreated on every open, so a file written by an older pymb gets
+-- the current ones (UTC times with milliseconds; no 'subsec', which needs
+-- SQLite 3.42 while Debian 12 has 3.40).
+DROP VIEW IF EXISTS coolpro_readings;
+DROP VIEW IF EXISTS hub_readings;
+DROP VIEW IF EXISTS event_log;
+CREATE VIEW coolpro_readings AS
+    SELECT strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch') AS time, s.time_utc,
+           d.name AS device,
            d.address, c.*
       FROM coolpro c JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id;
-CREATE VIEW IF NOT EXISTS hub_readings AS
-    SELECT datetime(s.time_utc, 'unixepoch', 'subsec') AS time, s.time_utc, d.name AS device,
+CREATE VIEW hub_readings AS
+    SELECT strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch') AS time, s.time_utc,
+           d.name AS device,
            d.address, h.*
       FROM hub h JOIN samples s ON s.id = h.sample_id JOIN devices d ON d.id = s.device_id;
-CREATE VIEW IF NOT EXISTS event_log AS
-    SELECT datetime(e.time_utc, 'unixepoch', 'subsec') AS time, e.bus, d.name AS device,
+CREATE VIEW event_log AS
+    SELECT strftime('%Y-%m-%d %H:%M:%f', e.time_utc, 'unixepoch') AS time, e.bus, d.name AS device,
            e.kind, e.code, e.message
       FROM events e LEFT JOIN devices d ON d.id = e.device_id;
 """

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sqlite3
 import time
 from array import array
+from datetime import UTC, datetime
 from pathlib import Path
 
 from pymb.devices import decode_hub
@@ -66,4 +67,20 @@ def test_reopen_appends_and_keeps_devices(tmp_path: Path) -> None:
     assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     names = dict(con.execute("SELECT code, name FROM states").fetchall())
     assert names == {0: "value", 1: "offline", 2: "no_sensor", 3: "unsupported", 4: "not_read"}
+    con.close()
+
+
+def test_views_give_readable_utc_times(tmp_path: Path) -> None:
+    db = tmp_path / "views.sqlite"
+    sink = SqliteSink(db)
+    fill(sink, 2, 1795413913.25)
+    sink.event(Event(1795413913.5, 0.0, "b", HUB, "timeout", None, "late"))
+    sink.close()
+    con = sqlite3.connect(db)
+    def utc(t: float) -> str:
+        return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+    times = {t for (t,) in con.execute("SELECT time FROM hub_readings")}
+    assert times == {utc(1795413913.25), utc(1795413914.25)}
+    assert con.execute("SELECT time FROM event_log").fetchone()[0] == utc(1795413913.5)
     con.close()
