@@ -28,3 +28,16 @@ def test_quick_start_commands_match_ci() -> None:
     run = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
     assert "pytest" in run and ".ci/setup" in run
     assert "    .ci/run " in README
+
+
+def test_the_toml_example_is_a_valid_configuration(tmp_path: Path) -> None:
+    from pymb.logger import load_config
+
+    start = README.index("```toml\n") + len("```toml\n")
+    example = README[start:README.index("```", start)]
+    path = tmp_path / "buses.toml"
+    path.write_text(example)
+    cfg = load_config(path)
+    assert [b.name for b in cfg.buses] == ["line1", "gateway"]
+    assert [d.name for d in cfg.buses[0].devices] == ["psu-a", "hub-250"]
+    assert cfg.buses[1].tcp == "192.168.1.50:502" and cfg.max_bytes == 500_000_000
