@@ -6,7 +6,7 @@
 #include <errno.h>
 #include <poll.h>
 #include <string.h>
-#include <sys/select.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -38,7 +38,7 @@ int pymb_flush(modbus_t *ctx)
     return modbus_flush(ctx) < 0 ? -1 : 0;
 }
 
-static uint32_t timeout_us(modbus_t *ctx, int byte)
+static uint64_t timeout_us(modbus_t *ctx, int byte)
 {
     uint32_t sec = 0, usec = 0;
     if (byte) {
@@ -46,7 +46,7 @@ static uint32_t timeout_us(modbus_t *ctx, int byte)
     } else {
         modbus_get_response_timeout(ctx, &sec, &usec);
     }
-    return sec * 1000000u + usec;
+    return (uint64_t)sec * 1000000u + usec;
 }
 
 /* Receive one RTU reply: whatever is there is read at once (usually one poll
@@ -60,7 +60,7 @@ static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
 {
     int fd = modbus_get_socket(ctx), got = 0, want = -1;
     uint64_t deadline = now_us() + timeout_us(ctx, 0);
-    uint32_t byte_us = timeout_us(ctx, 1);
+    uint64_t byte_us = timeout_us(ctx, 1);
 
     while (want < 0 || got < want) {
         struct pollfd p;
@@ -126,14 +126,13 @@ int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
     uint64_t start, last, now;
     int fd, dropped = 0;
 
-    if (ctx == NULL || (fd = modbus_get_socket(ctx)) < 0 || fd >= FD_SETSIZE) {
+    if (ctx == NULL || (fd = modbus_get_socket(ctx)) < 0) {
         errno = EINVAL;
         return -1;
     }
     start = last = now_us();
     for (;;) {
-        fd_set rset;
-        struct timeval tv;
+        struct pollfd p;
         uint64_t wait, quiet_end = last + quiet_us, hard_end = start + max_us;
         ssize_t n;
         int rc;
@@ -143,11 +142,11 @@ int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
             break;
         }
         wait = (quiet_end < hard_end ? quiet_end : hard_end) - now;
-        tv.tv_sec = (time_t)(wait / 1000000u);
-        tv.tv_usec = (suseconds_t)(wait % 1000000u);
-        FD_ZERO(&rset);
-        FD_SET(fd, &rset);
-        rc = select(fd + 1, &rset, NULL, NULL, &tv);
+        /* poll, not select: any fd number works (select stops at FD_SETSIZE). */
+        p.fd = fd;
+        p.events = POLLIN;
+        p.revents = 0;
+        rc = poll(&p, 1, (int)((wait + 999u) / 1000u));
         if (rc < 0) {
             if (errno == EINTR) {
                 continue;
@@ -155,14 +154,14 @@ int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
             return -1;
         }
         if (rc == 0) {
-            break; /* silent for the whole quiet window */
+            continue; /* the quiet window (checked above) may have ended */
         }
         n = read(fd, junk, sizeof junk);
         if (n > 0) {
             dropped += (int)n;
             last = now_us();
         } else if (n == 0) {
-            break; /* TCP peer closed: nothing more can arrive */
+            break; /* TCP peer closed or pty hung up: nothing more can arrive */
         } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
             return -1;
         }
@@ -248,7 +247,16 @@ int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
         return -1;
     }
     if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
-        return 0; /* [MB-SL] 2.1: no reply to a broadcast */
+        /* [MB-SL] 2.1: no reply to a broadcast, but the devices need the
+         * frame to end (a silence) and time to act before the next request
+         * ("turnaround delay", 100 to 200 ms there): wait until it is sent,
+         * then PYMB_BROADCAST_TURNAROUND_US. */
+        struct timespec ts = {PYMB_BROADCAST_TURNAROUND_US / 1000000,
+                              (PYMB_BROADCAST_TURNAROUND_US % 1000000) * 1000L};
+        tcdrain(modbus_get_socket(ctx));
+        while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+        }
+        return 0;
     }
     /* RTU: pymb's own receive (one read where libmodbus makes three); TCP:
      * libmodbus's, which parses the MBAP header. Either way the checks below
@@ -296,8 +304,8 @@ static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const voi
     /* A read needs a reply: no RTU broadcast. TCP unit identifiers are 0..255. */
     int lowest = (ctx != NULL && modbus_get_header_length(ctx) == 1) ? 1 : 0;
 
-    if (ctx == NULL || dest == NULL || slave < lowest || slave > 255 || addr < 0 || nb < 1 ||
-        addr + nb > 65536) {
+    if (ctx == NULL || dest == NULL || slave < lowest || slave > 255 || addr < 0 ||
+        addr > 65535 || nb < 1 || nb > 65536 - addr) {
         errno = EINVAL;
         return -1;
     }

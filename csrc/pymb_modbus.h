@@ -38,6 +38,10 @@
 extern "C" {
 #endif
 
+/* [MB-SL] 2.1: after a broadcast the master waits this long (the "turnaround
+ * delay", 100 to 200 ms there) before its next request. */
+#define PYMB_BROADCAST_TURNAROUND_US 100000
+
 /* What a failed request asked and what came back, for error messages. */
 typedef struct {
     int function;  /* function code of the request that failed */
@@ -63,7 +67,8 @@ void pymb_recover(modbus_t *ctx);
  *
  * req: address + PDU (function code, data), no CRC or MBAP: 2..254 bytes.
  *      Address 1..255 (RTU) or 0..255 (TCP unit id). Address 0 in RTU is a
- *      broadcast: sent, not answered, returns 0.
+ *      broadcast: sent, not answered; returns 0 once the frame has left and
+ *      PYMB_BROADCAST_TURNAROUND_US has passed.
  * rsp: receives the whole reply as received (MBAP or address first);
  *      rsp_cap >= MODBUS_MAX_ADU_LENGTH.
  * Returns the length of the reply's PDU, which starts at

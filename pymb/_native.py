@@ -62,6 +62,8 @@ _LINK_LOST = frozenset(
      lib.ENOENT)
 )
 
+_FD_SETSIZE = 1024  # glibc's select() limit, which libmodbus's TCP code is bound by
+
 _FUNCTION_NAMES = {
     0x01: "read_coils",
     0x02: "read_discrete_inputs",
@@ -175,6 +177,18 @@ class Link:
         """Create the context, connect, lock the port, apply the settings."""
         if self.is_open:
             return
+        if not self.serial:
+            # libmodbus's TCP code waits with select(), which aborts the whole
+            # process (glibc's fd_set check) on a descriptor >= FD_SETSIZE. The
+            # socket will take the lowest free descriptor: look at it first.
+            probe = os.open("/dev/null", os.O_RDONLY)
+            os.close(probe)
+            if probe >= _FD_SETSIZE:
+                raise ModbusConnectionError(
+                    f"cannot connect to {self.name}: this process has {probe} descriptors "
+                    f"open, and libmodbus's TCP code only works below {_FD_SETSIZE}",
+                    errno=24, port=self.name,
+                )
         ctx = self._factory()
         if ctx == ffi.NULL:
             err = ffi.errno

@@ -228,6 +228,7 @@ class SqliteSink:
             with contextlib.suppress(sqlite3.Error):
                 self.db.execute("ROLLBACK")
             self._in_tx = False
+        self._devices.clear()  # ids inserted by the rolled-back batch are gone
         return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
                            "is intact, the batch being written was lost")
 
@@ -313,16 +314,27 @@ class SqliteSink:
                 if self._size() <= self.max_bytes:
                     break
                 lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM samples").fetchone()
-                if lo is None or lo >= hi:
-                    break
-                # Drop the oldest tenth at a time.
-                n = self._delete_before("SELECT ?", (lo + max(1, (hi - lo) // 10),), None)
-                deleted += n
-                if not n:
-                    break
+                if lo is not None and lo < hi:
+                    # Drop the oldest tenth of the samples at a time.
+                    deleted += self._delete_before("SELECT ?", (lo + max(1, (hi - lo) // 10),),
+                                                   None)
+                elif not self._delete_oldest_events():
+                    break  # nothing left that may go
         if deleted:
             self.db.execute("PRAGMA incremental_vacuum")
         return deleted
+
+    def _delete_oldest_events(self) -> int:
+        """A long outage logs events and no samples: they must go too."""
+        lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM events").fetchone()
+        if lo is None or lo >= hi:
+            return 0
+        self.db.execute("BEGIN")
+        n = self.db.execute("DELETE FROM events WHERE id < ?",
+                            (lo + max(1, (hi - lo) // 10),)).rowcount
+        self.db.execute("COMMIT")
+        self.db.execute("PRAGMA incremental_vacuum")
+        return int(n)
 
     def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
@@ -451,6 +463,12 @@ class CsvSink(_TextSink):
             raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
 
     def event(self, e: Event) -> None:
+        try:
+            self._event(e)
+        except OSError as err:
+            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
+
+    def _event(self, e: Event) -> None:
         d = e.device
         self.w.writerow([f"{e.time_utc:.6f}", _iso(e.time_utc), e.bus,
                          "" if d is None else d.name, "" if d is None else d.type,
@@ -468,7 +486,10 @@ class JsonlSink(_TextSink):
             raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
 
     def event(self, e: Event) -> None:
-        self.f.write(json.dumps(event_dict(e)) + "\n")
+        try:
+            self.f.write(json.dumps(event_dict(e)) + "\n")
+        except OSError as err:
+            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
 
 
 FORMATS = ("sqlite", "csv", "jsonl")

@@ -152,9 +152,10 @@ class PtyPeer(Peer):
 
     def _run(self) -> None:
         buf = b""
+        poller = select.poll()  # poll, not select: any descriptor number
+        poller.register(self.master, select.POLLIN)
         while not self._stop.is_set():
-            r, _, _ = select.select([self.master], [], [], 0.05)
-            if not r:
+            if not poller.poll(50):
                 buf = b""  # silence ends any partial frame
                 continue
             try:

@@ -7,9 +7,13 @@ from __future__ import annotations
 import errno
 import os
 import struct
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 from array import array
+from pathlib import Path
 
 import pytest
 from peers import PtyPeer, pty_peer, tcp_peer
@@ -453,3 +457,69 @@ def test_tcp_connection_refused() -> None:
         c.connect()
     assert ei.value.errno == errno.ECONNREFUSED
     assert f"{host}:{port}" in str(ei.value)
+
+
+def _high_fd_script(body: str) -> str:
+    return textwrap.dedent(f"""
+        import os, resource, sys
+        sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        if hard != resource.RLIM_INFINITY and hard < 1300:
+            print("skip: RLIMIT_NOFILE hard limit", hard); sys.exit(0)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, 1300), hard))
+        held = [os.open("/dev/null", os.O_RDONLY) for _ in range(1100)]
+        import pymb
+        from peers import pty_peer, tcp_peer
+    """) + textwrap.dedent(body)
+
+
+def _run_script(code: str) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60, env=env)
+
+
+def test_late_reply_is_dropped_on_a_descriptor_above_1024() -> None:
+    # The drain after a timeout must work on any descriptor number (it used
+    # select(), which stops at FD_SETSIZE: the late reply then got through).
+    r = _run_script(_high_fd_script("""
+        with pty_peer() as peer:
+            peer.memory.inputs[0:2] = [0xDEAD, 0xBEEF]
+            calls = [0]
+            def late_first(slave, pdu, normal):
+                calls[0] += 1
+                return [(0.4, peer.frame(slave, normal))] if calls[0] == 1 else None
+            peer.hook = late_first
+            with pymb.RtuClient(peer.port, timeout=0.25, slave=40) as c:
+                assert c.fileno() >= 1024, c.fileno()
+                try:
+                    c.read_input_registers(0, 2)
+                except pymb.ModbusTimeout:
+                    pass
+                peer.memory.inputs[0:2] = [1, 2]
+                print(list(c.read_input_registers(0, 2)))
+    """))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() in ("[1, 2]",) or r.stdout.startswith("skip"), r.stdout
+
+
+def test_tcp_on_a_descriptor_above_1024_is_an_error_not_an_abort() -> None:
+    r = _run_script(_high_fd_script("""
+        with tcp_peer() as peer:
+            c = pymb.TcpClient(*peer.address, slave=1, timeout=0.25)
+            try:
+                c.connect()
+            except pymb.ModbusConnectionError as e:
+                print("refused:", e)
+    """))
+    assert r.returncode == 0, r.stderr  # SIGABRT would be -6
+    assert "refused:" in r.stdout or r.stdout.startswith("skip"), r.stdout
+
+
+def test_broadcast_write_waits_the_turnaround(peer: PtyPeer) -> None:
+    with pymb.RtuClient(peer.port, timeout=T) as c:
+        t0 = time.monotonic()
+        c.write_register(7, 1234, slave=0)  # broadcast: no reply expected
+        assert time.monotonic() - t0 >= 0.1
+        time.sleep(0.05)
+        assert peer.requests[-1] == (0, b"\x06\x00\x07\x04\xd2")

@@ -322,3 +322,13 @@ def test_rs485_mode_on_a_port_without_it_is_a_clear_error(bus: Simulator) -> Non
     with pytest.raises(pymb.ModbusConnectionError, match="RS485"):
         c.connect()
     assert not c.connected
+
+
+def test_changed_channel_lists_are_planned_again(bus: Simulator, client: pymb.RtuClient) -> None:
+    hub = SensorHub(client, 1)
+    chans = [1, 2]
+    hub.read(blocks=["temperature_c"], channels=chans)
+    chans.append(3)  # the same list object, changed
+    r = hub.read(blocks=["temperature_c"], channels=chans)
+    assert r.state("temperature_c", 3) is not State.NOT_READ
+    assert r.state("temperature_c", 4) is State.NOT_READ

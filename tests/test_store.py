@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sqlite3
 import time
 from array import array
@@ -84,3 +85,32 @@ def test_views_give_readable_utc_times(tmp_path: Path) -> None:
     assert times == {utc(1795413913.25), utc(1795413914.25)}
     assert con.execute("SELECT time FROM event_log").fetchone()[0] == utc(1795413913.5)
     con.close()
+
+
+def test_text_outputs_turn_write_errors_into_output_errors() -> None:
+    import pytest
+
+    from pymb.store import CsvSink, JsonlSink, OutputError
+
+    for cls in (CsvSink, JsonlSink):
+        sink = cls("/dev/full")  # every write: ENOSPC
+        with pytest.raises(OutputError, match="No space"):
+            for _ in range(2000):  # past the buffer, whichever call flushes
+                sink.event(Event(time.time(), 0.0, "b", HUB, "timeout", None, "x" * 100))
+                sink.commit()
+        with contextlib.suppress(OutputError):
+            sink.close()
+
+
+def test_size_limit_also_bounds_events_when_no_samples_come(tmp_path: Path) -> None:
+    sink = SqliteSink(tmp_path / "outage.sqlite", max_bytes=200_000)
+    for i in range(20_000):  # a long outage: one event per poll, no samples
+        sink.event(Event(time.time(), float(i), "b", HUB, "timeout", None, "no reply " * 4))
+        if i % 1000 == 999:
+            sink.commit()
+    sink.commit()
+    sink.trim()
+    assert sink._size() <= 200_000
+    newest = sink.db.execute("SELECT MAX(monotonic) FROM events").fetchone()[0]
+    assert newest == 19_999.0  # the newest are kept
+    sink.close()

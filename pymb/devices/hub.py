@@ -282,8 +282,9 @@ class SensorHub:
 
     def forget_firmware(self) -> None:
         """Forget which blocks are missing: the next read probes them all."""
-        self._sweep.unsupported = 0
-        self._current = None
+        with self._lock:  # not while a sweep (GIL released) may update it
+            self._sweep.unsupported = 0
+            self._current = None
 
     # -- planning -----------------------------------------------------------------
 
@@ -351,8 +352,11 @@ class SensorHub:
              *, into: HubReading | None = None) -> HubReading:
         """Some blocks (by name, e.g. ``["temperature_c"]``) and/or channels
         (1-based), in the planned requests; the rest is :attr:`State.NOT_READ`."""
+        # Plans are cached by these: copies, so the caller's lists may change.
+        b = None if blocks is None else tuple(blocks)
+        c = None if channels is None else tuple(channels)
         with self._lock:
-            return self._read(blocks, channels, into)
+            return self._read(b, c, into)
 
     def _read(self, blocks: Iterable[str] | None, channels: Iterable[int] | None,
               into: HubReading | None) -> HubReading:
