@@ -38,6 +38,24 @@ int pymb_flush(modbus_t *ctx)
     return modbus_flush(ctx) < 0 ? -1 : 0;
 }
 
+/* Wait up to wait_us for fd to be readable: 1 readable, 0 not yet (timeout
+ * or EINTR: the caller's own deadline decides), -1 and errno on error.
+ * poll, not select: any descriptor number works (select stops at FD_SETSIZE). */
+static int wait_readable(int fd, uint64_t wait_us)
+{
+    struct pollfd p;
+    int rc;
+
+    p.fd = fd;
+    p.events = POLLIN;
+    p.revents = 0;
+    rc = poll(&p, 1, (int)((wait_us + 999u) / 1000u));
+    if (rc < 0 && errno == EINTR) {
+        return 0;
+    }
+    return rc < 0 ? -1 : (rc > 0);
+}
+
 static uint64_t timeout_us(modbus_t *ctx, int byte)
 {
     uint32_t sec = 0, usec = 0;
@@ -63,7 +81,6 @@ static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
     uint64_t byte_us = timeout_us(ctx, 1);
 
     while (want < 0 || got < want) {
-        struct pollfd p;
         uint64_t now = now_us(), wait;
         ssize_t k;
         int rc;
@@ -76,14 +93,8 @@ static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
         if (got > 0 && byte_us > 0 && byte_us < wait) {
             wait = byte_us;
         }
-        p.fd = fd;
-        p.events = POLLIN;
-        p.revents = 0;
-        rc = poll(&p, 1, (int)((wait + 999u) / 1000u));
+        rc = wait_readable(fd, wait);
         if (rc < 0) {
-            if (errno == EINTR) {
-                continue;
-            }
             return -1;
         }
         if (rc == 0) {
@@ -132,7 +143,6 @@ int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
     }
     start = last = now_us();
     for (;;) {
-        struct pollfd p;
         uint64_t wait, quiet_end = last + quiet_us, hard_end = start + max_us;
         ssize_t n;
         int rc;
@@ -142,15 +152,8 @@ int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
             break;
         }
         wait = (quiet_end < hard_end ? quiet_end : hard_end) - now;
-        /* poll, not select: any fd number works (select stops at FD_SETSIZE). */
-        p.fd = fd;
-        p.events = POLLIN;
-        p.revents = 0;
-        rc = poll(&p, 1, (int)((wait + 999u) / 1000u));
+        rc = wait_readable(fd, wait);
         if (rc < 0) {
-            if (errno == EINTR) {
-                continue;
-            }
             return -1;
         }
         if (rc == 0) {
