@@ -104,6 +104,7 @@ int modbus_rtu_get_rts_delay(modbus_t *ctx);
 
 /* ---- OS errno values the error mapping needs ---- */
 #define EINVAL ...
+#define EINTR ...
 #define ETIMEDOUT ...
 #define EIO ...
 #define ENOENT ...
@@ -147,7 +148,8 @@ typedef enum {
     PYMB_FRAME_BAD_LENGTH = -5,
     PYMB_FRAME_BAD_ECHO = -6,
     PYMB_FRAME_TOO_LONG = -7,
-    PYMB_FRAME_INVALID = -8
+    PYMB_FRAME_INVALID = -8,
+    PYMB_FRAME_BAD_HEADER = -9
 } pymb_frame_status;
 
 typedef enum {
@@ -212,24 +214,49 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
                                  pymb_coolpro_identity *out);
 
 /* ---- pymb_modbus.h ---- */
+#define PYMB_FRAMING_RTU ...
+#define PYMB_FRAMING_TCP ...
+#define PYMB_FRAMING_RTU_OVER_TCP ...
+#define PYMB_T35_FLOOR_US ...
+#define PYMB_INTERRUPT_SLICE_US ...
+#define PYMB_EXCEPTION_ENOBASE ...
+
+typedef struct {
+    modbus_t *ctx;
+    int framing;
+    uint32_t silence_us;
+    int (*interrupted)(void *arg);
+    void *interrupt_arg;
+    uint16_t tid;
+    int owed;
+    uint64_t owed_since_us;
+} pymb_line;
+
 typedef struct {
     int function;
     int address;
     int count;
     int frame;
     int rsp_len;
+    int header;
     uint8_t rsp[...];
 } pymb_failure;
 
-int pymb_flush(modbus_t *ctx);
-int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us);
-void pymb_recover(modbus_t *ctx);
-int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
-                  int rsp_cap, pymb_failure *fail);
-int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
+int pymb_exception_errno(int code);
+int pymb_errno_exception(int errnum);
+int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
+uint32_t pymb_rtu_silence_us(int baud);
+int pymb_flush(pymb_line *line);
+int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
+int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                  uint8_t *rsp, int rsp_cap, pymb_failure *fail);
+int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
                         uint16_t *dest, pymb_failure *fail);
-int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb,
+int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
+
+/* The interrupt hook: pymb._native calls Python's pending signal handlers. */
+extern "Python" int pymb_py_interrupted(void *arg);
 
 typedef struct {
     uint16_t address;
@@ -258,7 +285,7 @@ typedef struct {
 } pymb_hub_request;
 
 int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
-int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail);
+int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);
 
 /* ---- a few OS calls the port lock and the link checks need ---- */
 #define LOCK_EX ...

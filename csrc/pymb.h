@@ -76,7 +76,9 @@ typedef enum {
     PYMB_FRAME_BAD_LENGTH = -5,   /* byte count or length not as asked */
     PYMB_FRAME_BAD_ECHO = -6,     /* a write's echo differs from the request */
     PYMB_FRAME_TOO_LONG = -7,     /* longer than the frame limit */
-    PYMB_FRAME_INVALID = -8       /* a NULL pointer or an impossible request */
+    PYMB_FRAME_INVALID = -8,      /* a NULL pointer or an impossible request */
+    PYMB_FRAME_BAD_HEADER = -9    /* [MB-TCP] MBAP protocol id not 0, or a length
+                                   * that cannot be (not 2..254) */
 } pymb_frame_status;
 
 /* Short English description of a pymb_frame_status ("bad CRC", ...). */
@@ -85,9 +87,10 @@ const char *pymb_frame_strerror(int status);
 /* Total length of the RTU response frame whose first `have` bytes are in
  * `rsp` (address, function, ...; CRC included), as the function code and byte
  * count tell it. Returns PYMB_FRAME_INCOMPLETE when `have` is too short to
- * tell, PYMB_FRAME_TOO_LONG when the frame would exceed PYMB_RTU_MAX_ADU.
- * Function codes this file does not know are taken as exception-sized
- * (address, function, one byte, CRC). */
+ * tell, PYMB_FRAME_TOO_LONG when the frame would exceed PYMB_RTU_MAX_ADU,
+ * PYMB_FRAME_BAD_FUNCTION for a function code whose reply length this file
+ * does not know (0x08, 0x2B, user-defined codes): only the line's silence
+ * (or the caller's knowledge) ends such a frame. */
 int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
 
 /* Total length of the RTU request frame whose first `have` bytes are in
@@ -105,10 +108,10 @@ int pymb_rtu_request_length(const uint8_t *req, size_t have);
 int pymb_check_response_pdu(const uint8_t *req, size_t req_len, const uint8_t *rsp,
                             size_t rsp_len, int *exception_code);
 
-/* The same for a whole RTU response frame (address + PDU + CRC) against a
- * request frame (address + PDU, with or without its CRC: `req_len` counts
- * what is passed and only its first 6 PDU bytes matter). The CRC is checked
- * first, then the address, then the PDU. */
+/* The same for a whole RTU response frame (address + PDU + CRC) against the
+ * request (address + PDU, *without* its CRC: the whole request matters, as
+ * a write's echo is compared with it). The CRC is checked first, then the
+ * address, then the PDU. */
 int pymb_rtu_check_response(const uint8_t *req, size_t req_len, const uint8_t *rsp,
                             size_t rsp_len, int *exception_code);
 

@@ -32,6 +32,8 @@ const char *pymb_frame_strerror(int status)
         return "frame longer than 256 bytes";
     case PYMB_FRAME_INVALID:
         return "invalid argument";
+    case PYMB_FRAME_BAD_HEADER:
+        return "MBAP header with a protocol id other than 0 or an impossible length";
     default:
         return "unknown frame status";
     }
@@ -69,9 +71,10 @@ int pymb_rtu_response_length(const uint8_t *rsp, size_t have)
         len = 10;
         break;
     case 0x07: /* read exception status: one byte */
-    default:
         len = 5;
         break;
+    default:
+        return PYMB_FRAME_BAD_FUNCTION; /* unknown: only silence ends it */
     }
     return len > PYMB_RTU_MAX_ADU ? PYMB_FRAME_TOO_LONG : len;
 }

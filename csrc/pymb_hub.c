@@ -78,14 +78,14 @@ static void pause_us(uint32_t us)
 }
 
 /* One span, with the hub's busy answer retried. */
-static int read_span(modbus_t *ctx, const pymb_hub_request *rq, unsigned address,
+static int read_span(pymb_line *line, const pymb_hub_request *rq, unsigned address,
                      unsigned count, pymb_failure *fail)
 {
     uint32_t wait = rq->options.busy_backoff_us;
     int tries = 0;
 
     for (;;) {
-        if (pymb_read_registers(ctx, MODBUS_FC_READ_HOLDING_REGISTERS, rq->slave, (int)address,
+        if (pymb_read_registers(line, MODBUS_FC_READ_HOLDING_REGISTERS, rq->slave, (int)address,
                                 (int)count, rq->regs + (address - FIRST), fail) == (int)count) {
             return 0;
         }
@@ -102,7 +102,7 @@ static int read_span(modbus_t *ctx, const pymb_hub_request *rq, unsigned address
 
 /* After exception 02 on a span: read it again block by block, each block's
  * wanted registers in runs; a block answered 02 on its own is missing. */
-static int read_by_block(modbus_t *ctx, pymb_hub_request *rq, const pymb_span *sp,
+static int read_by_block(pymb_line *line, pymb_hub_request *rq, const pymb_span *sp,
                          uint8_t *covered, pymb_failure *fail)
 {
     unsigned from = sp->address, to = sp->address + sp->count; /* [from, to) */
@@ -136,7 +136,7 @@ static int read_by_block(modbus_t *ctx, pymb_hub_request *rq, const pymb_span *s
             while (end < hi && (rq->wanted == NULL || bit(rq->wanted, end - FIRST))) {
                 end++;
             }
-            if (read_span(ctx, rq, a, end - a, fail) == 0) {
+            if (read_span(line, rq, a, end - a, fail) == 0) {
                 set_bits(covered, a - FIRST, end - a);
             } else if (errno == EMBXILADD) {
                 rq->unsupported |= 1u << b;
@@ -150,14 +150,14 @@ static int read_by_block(modbus_t *ctx, pymb_hub_request *rq, const pymb_span *s
     return 0;
 }
 
-int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail)
+int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail)
 {
     uint8_t covered[PYMB_HUB_BITMAP_BYTES];
     uint8_t asked[PYMB_HUB_BITMAP_BYTES];
     unsigned b, i;
     int k;
 
-    if (ctx == NULL || rq == NULL || rq->regs == NULL || rq->spans == NULL ||
+    if (line == NULL || rq == NULL || rq->regs == NULL || rq->spans == NULL ||
         rq->nspans < 0 || rq->channels < 1 || rq->channels > PYMB_HUB_CHANNELS ||
         rq->slave < 1 || rq->slave > 255 || rq->options.busy_retries < 0 ||
         (rq->values != NULL &&
@@ -181,9 +181,9 @@ int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail)
         const pymb_span *sp = &rq->spans[k];
 
         set_bits(asked, sp->address - FIRST, sp->count);
-        if (read_span(ctx, rq, sp->address, sp->count, fail) == 0) {
+        if (read_span(line, rq, sp->address, sp->count, fail) == 0) {
             set_bits(covered, sp->address - FIRST, sp->count);
-        } else if (errno != EMBXILADD || read_by_block(ctx, rq, sp, covered, fail) < 0) {
+        } else if (errno != EMBXILADD || read_by_block(line, rq, sp, covered, fail) < 0) {
             return -1;
         }
     }

@@ -6,11 +6,14 @@
 #include <errno.h>
 #include <poll.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "pymb_modbus.h"
+
+#define MBAP_LENGTH 7
 
 static uint64_t now_us(void)
 {
@@ -19,41 +22,95 @@ static uint64_t now_us(void)
     return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
 }
 
-int pymb_flush(modbus_t *ctx)
+int pymb_exception_errno(int code)
 {
-    struct pollfd p;
+    if (code < 1 || code > 255) {
+        return EMBBADEXC;
+    }
+    return code <= 0x0B ? MODBUS_ENOBASE + code : PYMB_EXCEPTION_ENOBASE + code;
+}
 
-    if (ctx == NULL) {
+int pymb_errno_exception(int errnum)
+{
+    if (errnum >= EMBXILFUN && errnum <= EMBXGTAR) {
+        return errnum - MODBUS_ENOBASE;
+    }
+    if (errnum >= PYMB_EXCEPTION_ENOBASE + 0x0C && errnum <= PYMB_EXCEPTION_ENOBASE + 0xFF) {
+        return errnum - PYMB_EXCEPTION_ENOBASE;
+    }
+    return 0;
+}
+
+uint32_t pymb_rtu_silence_us(int baud)
+{
+    if (baud < 1) {
+        errno = EINVAL;
+        return 0;
+    }
+    if (baud > 19200) {
+        return PYMB_T35_FLOOR_US;
+    }
+    /* 3.5 characters of 11 bits: 38.5 bit times, rounded up. */
+    return (uint32_t)((38500000u + (uint32_t)baud * 1u - 1u) / (uint32_t)baud);
+}
+
+int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us)
+{
+    int hl;
+
+    if (line == NULL || ctx == NULL) {
         errno = EINVAL;
         return -1;
     }
-    /* A zero-timeout poll first: flushing an empty line is a system call
-     * (tcflush) per request for nothing. */
-    p.fd = modbus_get_socket(ctx);
-    p.events = POLLIN;
-    p.revents = 0;
-    if (p.fd >= 0 && poll(&p, 1, 0) == 0) {
-        return 0;
+    hl = modbus_get_header_length(ctx);
+    if (!((framing == PYMB_FRAMING_RTU && hl == 1) ||
+          ((framing == PYMB_FRAMING_TCP || framing == PYMB_FRAMING_RTU_OVER_TCP) &&
+           hl == MBAP_LENGTH))) {
+        errno = EINVAL;
+        return -1;
     }
-    return modbus_flush(ctx) < 0 ? -1 : 0;
+    memset(line, 0, sizeof *line);
+    line->ctx = ctx;
+    line->framing = framing;
+    line->silence_us = silence_us ? silence_us : PYMB_T35_FLOOR_US;
+    return 0;
 }
 
-/* Wait up to wait_us for fd to be readable: 1 readable, 0 not yet (timeout
- * or EINTR: the caller's own deadline decides), -1 and errno on error.
- * poll, not select: any descriptor number works (select stops at FD_SETSIZE). */
-static int wait_readable(int fd, uint64_t wait_us)
+static int line_ok(const pymb_line *line)
+{
+    return line != NULL && line->ctx != NULL && modbus_get_socket(line->ctx) >= 0;
+}
+
+/* Wait up to wait_us for fd to be readable: 1 readable, 0 not yet (the wait
+ * ended or a signal came and the hook let it pass: the caller's own clock
+ * decides), -1 and errno on error or when the hook asks to stop (EINTR).
+ * poll, not select: any descriptor number works (select stops at FD_SETSIZE).
+ * With a hook, no single poll lasts longer than PYMB_INTERRUPT_SLICE_US. */
+static int wait_readable(pymb_line *line, int fd, uint64_t wait_us)
 {
     struct pollfd p;
+    uint64_t slice = wait_us;
     int rc;
 
+    if (line->interrupted != NULL && slice > PYMB_INTERRUPT_SLICE_US) {
+        slice = PYMB_INTERRUPT_SLICE_US;
+    }
     p.fd = fd;
     p.events = POLLIN;
     p.revents = 0;
-    rc = poll(&p, 1, (int)((wait_us + 999u) / 1000u));
-    if (rc < 0 && errno == EINTR) {
-        return 0;
+    rc = poll(&p, 1, (int)((slice + 999u) / 1000u));
+    if (rc > 0) {
+        return 1;
     }
-    return rc < 0 ? -1 : (rc > 0);
+    if (rc < 0 && errno != EINTR) {
+        return -1;
+    }
+    if (line->interrupted != NULL && (rc < 0 || slice < wait_us) &&
+        line->interrupted(line->interrupt_arg)) {
+        errno = EINTR;
+        return -1;
+    }
+    return 0;
 }
 
 static uint64_t timeout_us(modbus_t *ctx, int byte)
@@ -67,44 +124,156 @@ static uint64_t timeout_us(modbus_t *ctx, int byte)
     return (uint64_t)sec * 1000000u + usec;
 }
 
-/* Receive one RTU reply: whatever is there is read at once (usually one poll
- * and one read, where libmodbus makes three of each), and the frame ends
- * where its function code and byte count say (pymb_rtu_response_length, the
- * rule libmodbus reads by too). Bytes after the frame that arrived in the
- * same read are stray: they are dropped. The whole reply must arrive within
- * the response timeout; with a byte timeout set, a gap longer than it after
- * the first byte also fails. Returns the frame's length or -1 and errno. */
-static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
+/* Read and drop input until the line has been silent for quiet_us since
+ * `last` (or since the last byte seen), or until max_us from now. */
+static int drain_since(pymb_line *line, uint64_t last, uint64_t quiet_us, uint64_t max_us)
 {
-    int fd = modbus_get_socket(ctx), got = 0, want = -1;
-    uint64_t deadline = now_us() + timeout_us(ctx, 0);
-    uint64_t byte_us = timeout_us(ctx, 1);
+    uint8_t junk[MODBUS_MAX_ADU_LENGTH];
+    uint64_t start = now_us();
+    int fd = modbus_get_socket(line->ctx), dropped = 0;
 
-    while (want < 0 || got < want) {
-        uint64_t now = now_us(), wait;
-        ssize_t k;
+    for (;;) {
+        uint64_t now = now_us(), quiet_end = last + quiet_us, hard_end = start + max_us;
+        ssize_t n;
         int rc;
 
-        if (now >= deadline) {
-            errno = ETIMEDOUT;
-            return -1;
-        }
-        wait = deadline - now;
-        if (got > 0 && byte_us > 0 && byte_us < wait) {
-            wait = byte_us;
-        }
-        rc = wait_readable(fd, wait);
+        /* Pending input is read first whatever the clock says: its bytes may
+         * have arrived at any time since `last`, so they restart the window. */
+        rc = (now >= quiet_end || now >= hard_end)
+                 ? wait_readable(line, fd, 0)
+                 : wait_readable(line, fd, (quiet_end < hard_end ? quiet_end : hard_end) - now);
         if (rc < 0) {
             return -1;
         }
         if (rc == 0) {
-            if (got > 0 && byte_us > 0 && now_us() < deadline) {
+            if (now_us() >= quiet_end || now_us() >= hard_end) {
+                break;
+            }
+            continue;
+        }
+        n = read(fd, junk, sizeof junk);
+        if (n > 0) {
+            dropped += (int)n;
+            last = now_us();
+            if (last >= hard_end) {
+                break;
+            }
+        } else if (n == 0) {
+            break; /* TCP peer closed or pty hung up: nothing more can arrive */
+        } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+            return -1;
+        }
+    }
+    pymb_flush(line);
+    return dropped;
+}
+
+int pymb_flush(pymb_line *line)
+{
+    struct pollfd p;
+
+    if (!line_ok(line)) {
+        errno = EINVAL;
+        return -1;
+    }
+    /* A zero-timeout poll first: flushing an empty line is a system call
+     * (tcflush) per request for nothing. */
+    p.fd = modbus_get_socket(line->ctx);
+    p.events = POLLIN;
+    p.revents = 0;
+    if (poll(&p, 1, 0) == 0) {
+        return 0;
+    }
+    return modbus_flush(line->ctx) < 0 ? -1 : 0;
+}
+
+int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us)
+{
+    if (!line_ok(line)) {
+        errno = EINVAL;
+        return -1;
+    }
+    return drain_since(line, now_us(), quiet_us, max_us);
+}
+
+/* The quiet window owed after a failure: silence for the response timeout
+ * (at most 60 s), counted from the failure, at most four windows long. */
+static int settle(pymb_line *line)
+{
+    uint64_t quiet = timeout_us(line->ctx, 0);
+
+    if (quiet > 60000000u) {
+        quiet = 60000000u;
+    }
+    if (drain_since(line, line->owed_since_us, quiet, 4 * quiet) < 0) {
+        return -1;
+    }
+    line->owed = 0;
+    return 0;
+}
+
+static void owe(pymb_line *line)
+{
+    line->owed = 1;
+    line->owed_since_us = now_us();
+}
+
+/* Receive one RTU reply (serial line or RTU over TCP): whatever is there is
+ * read at once (usually one poll and one read, where libmodbus makes three
+ * of each). The frame ends where its function code and byte count say
+ * (pymb_rtu_response_length), or at `expect_total` bytes when the caller
+ * knows the length, or else at line->silence_us of silence. Bytes after the
+ * frame that arrived in the same read are stray: they are dropped. A frame
+ * of known length must arrive within the response timeout; one that ends by
+ * silence must start within it, and ends by the silence (bounded by the
+ * frame limit). With a byte timeout set, a gap longer than it after the
+ * first byte fails. Returns the frame's length or -1 and errno; *got is
+ * the number of bytes in rsp. */
+static int rtu_receive(pymb_line *line, int expect_total, uint8_t *rsp, int cap, int *got)
+{
+    int fd = modbus_get_socket(line->ctx), want = -1, by_silence = 0;
+    uint64_t deadline = now_us() + timeout_us(line->ctx, 0);
+    uint64_t byte_us = timeout_us(line->ctx, 1), last = 0;
+    uint64_t silence = line->silence_us;
+
+    *got = 0;
+    if (cap > PYMB_RTU_MAX_ADU) {
+        cap = PYMB_RTU_MAX_ADU;
+    }
+    while (want < 0 || (*got) < want) {
+        uint64_t now = now_us(), wait;
+        ssize_t k;
+        int rc;
+
+        if (by_silence && (*got) > 0) {
+            if (now - last >= silence) {
+                return (*got); /* the frame ended by the line's silence */
+            }
+            wait = last + silence - now;
+        } else {
+            if (now >= deadline) {
+                errno = ETIMEDOUT;
+                return -1;
+            }
+            wait = deadline - now;
+        }
+        if ((*got) > 0 && byte_us > 0) {
+            if (now - last >= byte_us) {
                 errno = ETIMEDOUT; /* the reply stopped mid-frame */
                 return -1;
             }
-            continue; /* the deadline check above decides */
+            if (last + byte_us - now < wait) {
+                wait = last + byte_us - now;
+            }
         }
-        k = read(fd, rsp + got, (size_t)(cap - got));
+        rc = wait_readable(line, fd, wait);
+        if (rc < 0) {
+            return -1;
+        }
+        if (rc == 0) {
+            continue; /* the clocks above decide (a signal is not a timeout) */
+        }
+        k = read(fd, rsp + (*got), (size_t)(cap - (*got)));
         if (k < 0) {
             if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
                 continue;
@@ -112,84 +281,161 @@ static int rtu_receive(modbus_t *ctx, uint8_t *rsp, int cap)
             return -1;
         }
         if (k == 0) {
-            errno = ECONNRESET; /* no more bytes will ever come (pty hung up) */
+            errno = ECONNRESET; /* no more bytes will ever come (hang-up, closed) */
             return -1;
         }
-        got += (int)k;
-        if (want < 0) {
-            want = pymb_rtu_response_length(rsp, (size_t)got);
-            if (want == PYMB_FRAME_TOO_LONG || want > cap) {
-                errno = EMBBADDATA;
-                return -1;
+        (*got) += (int)k;
+        last = now_us();
+        if (want < 0 && !by_silence && (*got) >= 2) {
+            if (rsp[1] & 0x80u) {
+                want = 5; /* address, function | 0x80, code, CRC */
+            } else if (expect_total > 0) {
+                want = expect_total;
+            } else {
+                want = pymb_rtu_response_length(rsp, (size_t)(*got));
+                if (want == PYMB_FRAME_BAD_FUNCTION) {
+                    want = -1;
+                    by_silence = 1;
+                } else if (want == PYMB_FRAME_TOO_LONG) {
+                    errno = EMBBADDATA;
+                    return -1;
+                }
             }
         }
-        if (got >= cap && (want < 0 || got < want)) {
-            errno = EMBBADDATA;
+        if ((*got) >= cap && (want < 0 || (*got) < want)) {
+            errno = EMBBADDATA; /* longer than any RTU frame */
             return -1;
         }
     }
     return want;
 }
 
-int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us)
+/* Read exactly n bytes into buf before `deadline`. Returns n, or -1 and
+ * errno; *got says how many arrived (a partial frame desynchronises). */
+static int read_exact(pymb_line *line, int fd, uint8_t *buf, int n, uint64_t deadline, int *got)
 {
-    uint8_t junk[MODBUS_MAX_ADU_LENGTH];
-    uint64_t start, last, now;
-    int fd, dropped = 0;
-
-    if (ctx == NULL || (fd = modbus_get_socket(ctx)) < 0) {
-        errno = EINVAL;
-        return -1;
-    }
-    start = last = now_us();
-    for (;;) {
-        uint64_t wait, quiet_end = last + quiet_us, hard_end = start + max_us;
-        ssize_t n;
+    *got = 0;
+    while (*got < n) {
+        uint64_t now = now_us();
+        ssize_t k;
         int rc;
 
-        now = now_us();
-        if (now >= quiet_end || now >= hard_end) {
-            break;
+        if (now >= deadline) {
+            errno = ETIMEDOUT;
+            return -1;
         }
-        wait = (quiet_end < hard_end ? quiet_end : hard_end) - now;
-        rc = wait_readable(fd, wait);
+        rc = wait_readable(line, fd, deadline - now);
         if (rc < 0) {
             return -1;
         }
         if (rc == 0) {
-            continue; /* the quiet window (checked above) may have ended */
+            continue;
         }
-        n = read(fd, junk, sizeof junk);
-        if (n > 0) {
-            dropped += (int)n;
-            last = now_us();
-        } else if (n == 0) {
-            break; /* TCP peer closed or pty hung up: nothing more can arrive */
-        } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+        k = read(fd, buf + *got, (size_t)(n - *got));
+        if (k < 0) {
+            if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
+                continue;
+            }
             return -1;
         }
-    }
-    pymb_flush(ctx);
-    return dropped;
-}
-
-void pymb_recover(modbus_t *ctx)
-{
-    int saved = errno;
-    uint32_t sec = 0, usec = 0;
-    uint64_t quiet;
-
-    if (ctx != NULL && modbus_get_response_timeout(ctx, &sec, &usec) == 0) {
-        quiet = (uint64_t)sec * 1000000u + usec;
-        if (quiet > 60000000u) {
-            quiet = 60000000u;
+        if (k == 0) {
+            errno = ECONNRESET;
+            return -1;
         }
-        pymb_drain(ctx, (uint32_t)quiet, (uint32_t)(4 * quiet));
+        *got += (int)k;
     }
-    errno = saved;
+    return n;
 }
 
-static void note_request(pymb_failure *fail, const uint8_t *req, int req_len)
+/* Receive the Modbus TCP reply to transaction line->tid: frames for other
+ * transactions are read and dropped, and the wait goes on until the
+ * deadline. Returns the ADU length (MBAP + PDU), or -1 and errno; *status
+ * is PYMB_FRAME_BAD_HEADER for a protocol id or length that cannot be, and
+ * *desync 1 when the stream may be out of step (a partial frame read). */
+static int tcp_receive(pymb_line *line, uint8_t *rsp, int *status, int *desync)
+{
+    int fd = modbus_get_socket(line->ctx), got = 0;
+    uint64_t deadline = now_us() + timeout_us(line->ctx, 0);
+
+    for (;;) {
+        unsigned tid, proto, length;
+
+        if (read_exact(line, fd, rsp, MBAP_LENGTH, deadline, &got) < 0) {
+            *desync = got > 0;
+            return -1;
+        }
+        tid = (unsigned)rsp[0] << 8 | rsp[1];
+        proto = (unsigned)rsp[2] << 8 | rsp[3];
+        length = (unsigned)rsp[4] << 8 | rsp[5];
+        /* [MB-TCP] 3.1.3: length counts the unit id and the PDU (1..253). */
+        if (proto != 0 || length < 2 || length > 1 + PYMB_MAX_PDU) {
+            *status = PYMB_FRAME_BAD_HEADER;
+            *desync = 1;
+            errno = EMBBADDATA;
+            return -1;
+        }
+        if (read_exact(line, fd, rsp + MBAP_LENGTH, (int)length - 1, deadline, &got) < 0) {
+            *desync = 1;
+            return -1;
+        }
+        if (tid == line->tid) {
+            return 6 + (int)length;
+        }
+        /* A reply to an earlier (timed-out) transaction: drop it, wait on. */
+    }
+}
+
+static int send_all(pymb_line *line, int fd, const uint8_t *b, size_t n)
+{
+    while (n > 0) {
+        ssize_t k = send(fd, b, n, MSG_NOSIGNAL);
+        if (k < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            if (errno == EAGAIN || errno == EWOULDBLOCK) {
+                struct pollfd p = {fd, POLLOUT, 0};
+                if (poll(&p, 1, (int)(timeout_us(line->ctx, 0) / 1000u) + 1) == 0) {
+                    errno = ETIMEDOUT;
+                    return -1;
+                }
+                continue;
+            }
+            return -1;
+        }
+        b += k;
+        n -= (size_t)k;
+    }
+    return 0;
+}
+
+/* Frame and send the request as the line's framing wants it. */
+static int send_request(pymb_line *line, const uint8_t *req, int req_len)
+{
+    uint8_t adu[MBAP_LENGTH + PYMB_MAX_PDU + 2];
+    int fd = modbus_get_socket(line->ctx);
+
+    switch (line->framing) {
+    case PYMB_FRAMING_TCP:
+        line->tid = (uint16_t)(line->tid + 1u);
+        adu[0] = (uint8_t)(line->tid >> 8);
+        adu[1] = (uint8_t)line->tid;
+        adu[2] = 0;
+        adu[3] = 0;
+        adu[4] = (uint8_t)(req_len >> 8);
+        adu[5] = (uint8_t)req_len;
+        memcpy(adu + 6, req, (size_t)req_len);
+        return send_all(line, fd, adu, (size_t)req_len + 6);
+    case PYMB_FRAMING_RTU_OVER_TCP:
+        memcpy(adu, req, (size_t)req_len);
+        pymb_rtu_append_crc(adu, (size_t)req_len, sizeof adu);
+        return send_all(line, fd, adu, (size_t)req_len + 2);
+    default: /* RTU: libmodbus appends the CRC and drives RTS */
+        return modbus_send_raw_request(line->ctx, req, req_len) < 0 ? -1 : 0;
+    }
+}
+
+static void note_request(pymb_failure *fail, const uint8_t *req, int req_len, int header)
 {
     if (fail == NULL) {
         return;
@@ -199,6 +445,7 @@ static void note_request(pymb_failure *fail, const uint8_t *req, int req_len)
     fail->count = req_len > 5 ? (req[4] << 8 | req[5]) : -1;
     fail->frame = 0;
     fail->rsp_len = 0;
+    fail->header = header;
 }
 
 static void note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame)
@@ -229,24 +476,30 @@ static int frame_errno(int status)
     }
 }
 
-int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
-                  int rsp_cap, pymb_failure *fail)
+int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                  uint8_t *rsp, int rsp_cap, pymb_failure *fail)
 {
-    int hl, n, len, status, pdu_len, exc = 0;
+    int hl, n, status = PYMB_FRAME_OK, pdu_len, exc = 0, desync = 0;
 
-    if (ctx == NULL || req == NULL || rsp == NULL || req_len < 2 ||
-        req_len > MODBUS_MAX_PDU_LENGTH + 1 || rsp_cap < MODBUS_MAX_ADU_LENGTH) {
+    if (!line_ok(line) || req == NULL || rsp == NULL || req_len < 2 ||
+        req_len > PYMB_MAX_PDU + 1 || rsp_cap < MODBUS_MAX_ADU_LENGTH || expect < 0 ||
+        expect > PYMB_MAX_PDU) {
         errno = EINVAL;
         return -1;
     }
-    hl = modbus_get_header_length(ctx);
-    if (hl < 1) {
-        errno = EINVAL;
+    hl = line->framing == PYMB_FRAMING_TCP ? MBAP_LENGTH : 1;
+    note_request(fail, req, req_len, hl);
+    if (line->owed) {
+        if (settle(line) < 0) {
+            return -1;
+        }
+    } else if (line->framing != PYMB_FRAMING_TCP && pymb_flush(line) < 0) {
+        /* TCP keeps what is pending: complete replies to earlier
+         * transactions are dropped by their id as they are read. */
         return -1;
     }
-    note_request(fail, req, req_len);
-    if (pymb_flush(ctx) < 0 || modbus_send_raw_request(ctx, req, req_len) < 0) {
-        pymb_recover(ctx);
+    if (send_request(line, req, req_len) < 0) {
+        owe(line);
         return -1;
     }
     if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
@@ -256,58 +509,71 @@ int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
          * then PYMB_BROADCAST_TURNAROUND_US. */
         struct timespec ts = {PYMB_BROADCAST_TURNAROUND_US / 1000000,
                               (PYMB_BROADCAST_TURNAROUND_US % 1000000) * 1000L};
-        tcdrain(modbus_get_socket(ctx));
+        if (line->framing == PYMB_FRAMING_RTU) {
+            tcdrain(modbus_get_socket(line->ctx));
+        }
         while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
         }
         return 0;
     }
-    /* RTU: pymb's own receive (one read where libmodbus makes three); TCP:
-     * libmodbus's, which parses the MBAP header. Either way the checks below
-     * are all pymb's. */
-    n = hl == 1 ? rtu_receive(ctx, rsp, rsp_cap) : modbus_receive_confirmation(ctx, rsp);
-    if (n < 0) {
-        if (errno == EMBBADDATA) {
-            note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
-        }
-        pymb_recover(ctx);
-        return -1;
-    }
     if (hl == 1) {
-        len = n;
-        status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)len, &exc);
-        pdu_len = len - 3;
+        int got = 0;
+        n = rtu_receive(line, expect > 0 ? expect + 3 : 0, rsp, rsp_cap, &got);
+        if (n < 0) {
+            if (errno == EMBBADDATA) {
+                note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
+            } else if (errno == ETIMEDOUT && got > 0) {
+                int saved = errno;
+                note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
+                errno = saved;
+            }
+            owe(line);
+            return -1;
+        }
+        status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)n, &exc);
+        pdu_len = n - 3;
     } else {
-        len = n;
-        if (len < hl + 1 || len > rsp_cap) {
-            status = PYMB_FRAME_BAD_LENGTH;
-        } else if (rsp[hl - 1] != req[0]) {
+        n = tcp_receive(line, rsp, &status, &desync);
+        if (n < 0) {
+            if (status != PYMB_FRAME_OK) {
+                note_reply(fail, rsp, MBAP_LENGTH, status);
+            }
+            if (desync) {
+                owe(line);
+            }
+            return -1;
+        }
+        if (rsp[MBAP_LENGTH - 1] != req[0]) {
             status = PYMB_FRAME_BAD_SLAVE;
         } else {
-            status = pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + hl,
-                                             (size_t)(len - hl), &exc);
+            status = pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + MBAP_LENGTH,
+                                             (size_t)(n - MBAP_LENGTH), &exc);
         }
-        pdu_len = len - hl;
+        pdu_len = n - MBAP_LENGTH;
+    }
+    if (status == PYMB_FRAME_OK && expect > 0 && pdu_len != expect) {
+        status = PYMB_FRAME_BAD_LENGTH;
     }
     if (status == PYMB_FRAME_OK) {
         return pdu_len;
     }
-    note_reply(fail, rsp, len, status);
+    note_reply(fail, rsp, n, status);
     if (status == PYMB_FRAME_EXCEPTION) {
         /* A well-formed answer: the line is in step, nothing to recover. */
-        errno = (exc >= 1 && exc < MODBUS_EXCEPTION_MAX) ? MODBUS_ENOBASE + exc : EMBBADEXC;
+        errno = pymb_exception_errno(exc);
         return -1;
     }
     errno = frame_errno(status);
-    pymb_recover(ctx);
+    owe(line);
     return -1;
 }
 
-static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const void *dest)
+static int check_read_args(pymb_line *line, int slave, int addr, int nb, const void *dest)
 {
     /* A read needs a reply: no RTU broadcast. TCP unit identifiers are 0..255. */
-    int lowest = (ctx != NULL && modbus_get_header_length(ctx) == 1) ? 1 : 0;
+    int lowest = (line != NULL && line->framing != PYMB_FRAMING_TCP) ? 1 : 0;
 
-    if (ctx == NULL || dest == NULL || slave < lowest || slave > 255 || addr < 0 ||
+    if (line == NULL || dest == NULL || slave < lowest || slave > 255 || addr < 0 ||
         addr > 65535 || nb < 1 || nb > 65536 - addr) {
         errno = EINVAL;
         return -1;
@@ -317,7 +583,7 @@ static int check_read_args(modbus_t *ctx, int slave, int addr, int nb, const voi
 
 /* One read request (function, slave, address, count): the checked reply's
  * data, after the byte count, or NULL and errno. */
-static const uint8_t *read_request(modbus_t *ctx, int function, int slave, int a, int n,
+static const uint8_t *read_request(pymb_line *line, int function, int slave, int a, int n,
                                    uint8_t *rsp, pymb_failure *fail)
 {
     uint8_t req[6];
@@ -328,14 +594,14 @@ static const uint8_t *read_request(modbus_t *ctx, int function, int slave, int a
     req[3] = (uint8_t)a;
     req[4] = (uint8_t)(n >> 8);
     req[5] = (uint8_t)n;
-    if (pymb_transact(ctx, req, 6, rsp, MODBUS_MAX_ADU_LENGTH, fail) < 0) {
+    if (pymb_transact(line, req, 6, 0, rsp, MODBUS_MAX_ADU_LENGTH, fail) < 0) {
         return NULL;
     }
     /* pymb_transact checked the function code and the byte count. */
-    return rsp + modbus_get_header_length(ctx) + 2;
+    return rsp + (line->framing == PYMB_FRAMING_TCP ? MBAP_LENGTH : 1) + 2;
 }
 
-int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
+int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
                         uint16_t *dest, pymb_failure *fail)
 {
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
@@ -343,13 +609,13 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
 
     if ((function != MODBUS_FC_READ_HOLDING_REGISTERS &&
          function != MODBUS_FC_READ_INPUT_REGISTERS) ||
-        check_read_args(ctx, slave, addr, nb, dest) < 0) {
+        check_read_args(line, slave, addr, nb, dest) < 0) {
         errno = EINVAL;
         return -1;
     }
     while (done < nb) {
         int n = nb - done > MODBUS_MAX_READ_REGISTERS ? MODBUS_MAX_READ_REGISTERS : nb - done;
-        const uint8_t *data = read_request(ctx, function, slave, addr + done, n, rsp, fail);
+        const uint8_t *data = read_request(line, function, slave, addr + done, n, rsp, fail);
         int i;
 
         if (data == NULL) {
@@ -363,20 +629,20 @@ int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb
     return nb;
 }
 
-int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb, uint8_t *dest,
+int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb, uint8_t *dest,
                    pymb_failure *fail)
 {
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
     int done = 0;
 
     if ((function != MODBUS_FC_READ_COILS && function != MODBUS_FC_READ_DISCRETE_INPUTS) ||
-        check_read_args(ctx, slave, addr, nb, dest) < 0) {
+        check_read_args(line, slave, addr, nb, dest) < 0) {
         errno = EINVAL;
         return -1;
     }
     while (done < nb) {
         int n = nb - done > MODBUS_MAX_READ_BITS ? MODBUS_MAX_READ_BITS : nb - done;
-        const uint8_t *data = read_request(ctx, function, slave, addr + done, n, rsp, fail);
+        const uint8_t *data = read_request(line, function, slave, addr + done, n, rsp, fail);
         int i;
 
         if (data == NULL) {

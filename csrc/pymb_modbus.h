@@ -1,31 +1,41 @@
 /*
  * pymb_modbus.h - pymb's request path over libmodbus.
  *
- * libmodbus opens and configures the line (serial settings, RS485, RTS, TCP),
- * sends frames (modbus_send_raw_request) and receives TCP replies. pymb
- * builds every request, receives RTU replies itself (in one read where the
- * bytes are there, where libmodbus makes three select + read steps), and
- * checks every reply itself, because libmodbus 3.1.6
+ * libmodbus opens and configures the line (serial settings, RS485, RTS, TCP
+ * connect) and sends RTU frames (modbus_send_raw_request, which drives RTS).
+ * pymb frames every TCP request itself (its own MBAP header with a
+ * per-line transaction id: libmodbus 3.1.6 sends id 0 on raw requests),
+ * receives every reply itself and checks every reply itself, because
+ * libmodbus 3.1.6
  *   - refuses RTU addresses above 247 (the sensor hub uses 248..255),
  *   - skips the CRC check of any reply whose address it does not expect,
  *   - never checks that a write's echo matches what was written,
- *   - never discards input before a request, so a late reply to an earlier
- *     request is taken as the answer to the next one.
+ *   - never checks a TCP reply's transaction id, protocol id or length,
+ *   - cannot read a reply to a function code it does not know,
+ *   - has no RTU-over-TCP transport (its issue #192).
  *
- * Every function here:
- *   - discards pending input before it sends (pymb_flush; a zero-timeout
- *     poll first, so an empty line costs no flush);
- *   - after a timeout or a bad frame, reads and drops whatever arrives until
- *     the line has been silent for the response timeout (pymb_recover), so a
- *     late or stray reply can never be taken as the answer to a later request;
+ * The state a line needs between requests (framing, the next MBAP
+ * transaction id, a quiet window owed after a failure, the frame silence,
+ * an interrupt hook) lives in a pymb_line the caller owns, beside its
+ * modbus_t: nothing here keeps state of its own.
+ *
+ * Every request function:
+ *   - RTU (and RTU over TCP): after a timeout, a bad frame or an interrupt,
+ *     the line owes a quiet window: the *next* request first reads and drops
+ *     input until the line has been silent for the response timeout counted
+ *     from the failure, so the failed call itself returns within its timeout
+ *     and a late reply is still never taken as a later answer;
+ *   - TCP: a reply is accepted only when its transaction id, protocol id (0),
+ *     length and unit id match the request; replies to older transactions
+ *     are read and dropped while the wait goes on to the deadline;
  *   - returns -1 with errno set on failure, as libmodbus does: ETIMEDOUT,
- *     EMBBADCRC, EMBBADSLAVE, EMBBADDATA, EMBXILFUN + (code - 1) for an
- *     exception response (MODBUS_ENOBASE + code), EMBBADEXC for an exception
- *     code above 0x0B, EINVAL for a bad argument, or the OS's errno (EIO for
- *     an unplugged USB adapter, ECONNRESET for a closed TCP peer);
+ *     EMBBADCRC, EMBBADSLAVE, EMBBADDATA (a malformed or mismatched reply),
+ *     EINTR (the interrupt hook asked to stop), EINVAL for a bad argument,
+ *     an exception errno (see pymb_exception_errno), or the OS's errno (EIO
+ *     for an unplugged USB adapter, ECONNRESET for a closed TCP peer);
  *   - fills the optional pymb_failure with what was asked and what came back.
  *
- * Not thread-safe per context (like libmodbus): one thread per modbus_t.
+ * Not thread-safe per line (like libmodbus): one thread per pymb_line.
  */
 #ifndef PYMB_MODBUS_H
 #define PYMB_MODBUS_H
@@ -42,6 +52,60 @@ extern "C" {
  * delay", 100 to 200 ms there) before its next request. */
 #define PYMB_BROADCAST_TURNAROUND_US 100000
 
+/* Framings of a pymb_line. */
+#define PYMB_FRAMING_RTU 1          /* address + PDU + CRC on a serial line */
+#define PYMB_FRAMING_TCP 2          /* [MB-TCP] MBAP header + PDU */
+#define PYMB_FRAMING_RTU_OVER_TCP 3 /* RTU frames on a TCP socket (raw gateways) */
+
+/* [MB-SL] 2.5.1.1: above 19200 baud t3.5 is fixed at 1750 us. */
+#define PYMB_T35_FLOOR_US 1750
+
+/* Longest wait in one poll while an interrupt hook is set: how soon a
+ * signal that arrived in another thread is seen. */
+#define PYMB_INTERRUPT_SLICE_US 50000
+
+/* Exception codes 1..0x0B fail with errno MODBUS_ENOBASE + code, libmodbus's
+ * EMBXILFUN..EMBXGTAR; codes 0x0C..0xFF, whose MODBUS_ENOBASE + code
+ * libmodbus uses for its own errors, with PYMB_EXCEPTION_ENOBASE + code. */
+#define PYMB_EXCEPTION_ENOBASE (MODBUS_ENOBASE + 0x100)
+
+/* The errno a request fails with when the device answers exception `code`
+ * (1..255), as above. */
+int pymb_exception_errno(int code);
+
+/* The exception code (1..255) of an errno from pymb_exception_errno, or 0
+ * when errnum is not one. */
+int pymb_errno_exception(int errnum);
+
+/* One line: a libmodbus context (opened by the caller, which also sets its
+ * response and byte timeouts) and pymb's state for it. Set up with
+ * pymb_line_init; the fields marked "in" may be changed between requests. */
+typedef struct {
+    modbus_t *ctx;         /* in: the context */
+    int framing;           /* in: PYMB_FRAMING_* */
+    uint32_t silence_us;   /* in: RTU: silence that ends a reply of unknown
+                            * length (t3.5, pymb_rtu_silence_us) */
+    /* in: called (with arg) when a wait is interrupted by a signal and at
+     * least every PYMB_INTERRUPT_SLICE_US of waiting; nonzero stops the
+     * request with EINTR (the line then owes a quiet window). NULL: a
+     * signal never stops a request. */
+    int (*interrupted)(void *arg);
+    void *interrupt_arg;
+    uint16_t tid;          /* the last MBAP transaction id sent */
+    int owed;              /* a quiet window is owed before the next request */
+    uint64_t owed_since_us;/* CLOCK_MONOTONIC, microseconds */
+} pymb_line;
+
+/* Set up `line` for `ctx` with `framing` (PYMB_FRAMING_*) and the frame
+ * silence `silence_us` (0: PYMB_T35_FLOOR_US). Returns 0, or -1 and EINVAL
+ * when line or ctx is NULL or framing is unknown. */
+int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
+
+/* t3.5 of [MB-SL] 2.5.1.1 at `baud` for 11-bit characters, in microseconds:
+ * 3.5 x 11 bits / baud up to 19200 baud, PYMB_T35_FLOOR_US above. Returns 0
+ * (EINVAL) for baud < 1. */
+uint32_t pymb_rtu_silence_us(int baud);
+
 /* What a failed request asked and what came back, for error messages. */
 typedef struct {
     int function;  /* function code of the request that failed */
@@ -49,19 +113,18 @@ typedef struct {
     int count;     /* its quantity (-1 when it has none) */
     int frame;     /* pymb_frame_status of the reply, 0 when not checked */
     int rsp_len;   /* bytes of the reply kept in rsp, 0 when none */
+    int header;    /* bytes before the unit id's successor in rsp: 1 (RTU)
+                    * or 7 (MBAP); rsp[header - 1] is the unit that answered */
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
 } pymb_failure;
 
-/* Discard pending input (and unsent output). Returns 0 or -1. */
-int pymb_flush(modbus_t *ctx);
+/* Discard pending input now (no waiting). Returns 0, or -1 and errno. */
+int pymb_flush(pymb_line *line);
 
 /* Read and drop input until the line has been silent for quiet_us, or until
- * max_us have passed in all; then flush. Returns the bytes dropped, or -1. */
-int pymb_drain(modbus_t *ctx, uint32_t quiet_us, uint32_t max_us);
-
-/* pymb_drain with quiet = the context's response timeout and max = four
- * times that. errno is preserved, so it can follow a failed call. */
-void pymb_recover(modbus_t *ctx);
+ * max_us have passed in all; then flush. Returns the bytes dropped, or -1
+ * and errno (EINVAL for a NULL or closed line, EINTR from the hook). */
+int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
 
 /* One request and its checked reply.
  *
@@ -69,24 +132,29 @@ void pymb_recover(modbus_t *ctx);
  *      Address 1..255 (RTU) or 0..255 (TCP unit id). Address 0 in RTU is a
  *      broadcast: sent, not answered; returns 0 once the frame has left and
  *      PYMB_BROADCAST_TURNAROUND_US has passed.
+ * expect: the reply PDU's length (function code included) when the caller
+ *      knows it, 0 when not. RTU needs it only for function codes whose reply
+ *      length pymb_rtu_response_length cannot tell; without it such a reply
+ *      ends at line->silence_us of silence. Then the CRC is checked over the
+ *      whole frame. An exception reply is always accepted (2 bytes).
  * rsp: receives the whole reply as received (MBAP or address first);
  *      rsp_cap >= MODBUS_MAX_ADU_LENGTH.
- * Returns the length of the reply's PDU, which starts at
- * rsp + modbus_get_header_length(ctx); -1 and errno on failure. */
-int pymb_transact(modbus_t *ctx, const uint8_t *req, int req_len, uint8_t *rsp,
-                  int rsp_cap, pymb_failure *fail);
+ * Returns the length of the reply's PDU, which starts at rsp + 7 (TCP) or
+ * rsp + 1 (RTU, RTU over TCP); -1 and errno on failure. */
+int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                  uint8_t *rsp, int rsp_cap, pymb_failure *fail);
 
 /* Read nb registers with function 0x03 or 0x04 from slave (RTU 1..255, TCP
  * 0..255) into
  * dest[0..nb), in as many requests of at most 125 registers as it takes.
  * addr + nb <= 65536. Returns nb, or -1 and errno (dest may then hold the
  * chunks read before the failure). */
-int pymb_read_registers(modbus_t *ctx, int function, int slave, int addr, int nb,
+int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
                         uint16_t *dest, pymb_failure *fail);
 
 /* Read nb bits with function 0x01 or 0x02 into dest[0..nb), one byte (0/1)
  * per bit, in requests of at most 2000 bits. Returns nb, or -1 and errno. */
-int pymb_read_bits(modbus_t *ctx, int function, int slave, int addr, int nb,
+int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
 
 /* ------------------------------------------------------------------------ */
@@ -141,7 +209,7 @@ typedef struct {
  *
  * Returns 0, or -1 and errno: EMBXSFAIL when the hub stayed busy, or any
  * error of pymb_read_registers (timeout, bad frame, OS error). */
-int pymb_hub_read(modbus_t *ctx, pymb_hub_request *rq, pymb_failure *fail);
+int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);
 
 #ifdef __cplusplus
 }

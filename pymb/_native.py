@@ -41,6 +41,7 @@ __all__ = [
     "rtu_crc_ok",
     "rtu_request_length",
     "rtu_response_length",
+    "rtu_silence",
     "with_crc",
 ]
 
@@ -85,39 +86,87 @@ def lib_constants() -> Any:
     return lib
 
 
+def _bytes_arg(data: Any) -> tuple[Any, int]:
+    """A buffer as C sees it: its bytes and its length in *bytes* (an array of
+    16-bit items is twice its len()). bytes go to C as they are (the fast
+    path); other contiguous buffers through from_buffer; a non-contiguous
+    view is copied in its logical order."""
+    if type(data) is bytes:
+        return data, len(data)
+    try:
+        view = memoryview(data)
+    except TypeError:
+        raise TypeError(
+            f"expected bytes or a buffer, got {type(data).__name__}") from None
+    if not view.c_contiguous:
+        b = view.tobytes()
+        return b, len(b)
+    return ffi.from_buffer("uint8_t[]", view), view.nbytes
+
+
 def crc16(data: bytes | bytearray | memoryview) -> int:
-    """CRC-16/MODBUS of ``data`` (as it goes on the wire: low byte first)."""
-    return int(lib.pymb_crc16(ffi.from_buffer(data), len(data)))
-
-
-def _bytes_arg(data: bytes | bytearray | memoryview) -> Any:
-    # bytes go to C as they are (the fast path); other buffers through from_buffer.
-    return data if type(data) is bytes else ffi.from_buffer(data)
+    """CRC-16/MODBUS of the bytes of ``data`` (as it goes on the wire: low
+    byte first). Any buffer: its whole byte length counts."""
+    buf, n = _bytes_arg(data)
+    return int(lib.pymb_crc16(buf, n))
 
 
 def with_crc(frame: bytes | bytearray | memoryview) -> bytes:
     """``frame`` with its CRC appended, low byte first (an RTU frame)."""
-    crc = lib.pymb_crc16(_bytes_arg(frame), len(frame))
-    return bytes(frame) + bytes((crc & 0xFF, crc >> 8))
+    buf, n = _bytes_arg(frame)
+    crc = lib.pymb_crc16(buf, n)
+    head = buf if type(buf) is bytes else bytes(ffi.buffer(buf, n))
+    return head + bytes((crc & 0xFF, crc >> 8))
 
 
 def rtu_crc_ok(frame: bytes | bytearray | memoryview) -> bool:
     """True when the last two bytes of ``frame`` are the CRC of the rest."""
-    return bool(lib.pymb_rtu_crc_ok(_bytes_arg(frame), len(frame)))
+    return bool(lib.pymb_rtu_crc_ok(*_bytes_arg(frame)))
 
 
 def rtu_request_length(buf: bytes | bytearray | memoryview) -> int:
     """Length of the RTU request starting ``buf`` as its header tells it:
     -1 needs more bytes, -4 unknown function (only silence ends it), -7 too
     long (see pymb_rtu_request_length in csrc/pymb.h)."""
-    return int(lib.pymb_rtu_request_length(_bytes_arg(buf), len(buf)))
+    return int(lib.pymb_rtu_request_length(*_bytes_arg(buf)))
 
 
 def rtu_response_length(buf: bytes | bytearray | memoryview) -> int:
-    """Length of the RTU response starting ``buf`` (-1: need more bytes; a
-    function code it does not know is taken as exception-sized, the rule
-    libmodbus 3.1.6 reads replies by)."""
-    return int(lib.pymb_rtu_response_length(_bytes_arg(buf), len(buf)))
+    """Length of the RTU response starting ``buf`` (-1: need more bytes, -4:
+    a function code whose reply length only the line's silence tells)."""
+    return int(lib.pymb_rtu_response_length(*_bytes_arg(buf)))
+
+
+def rtu_silence(baudrate: int) -> float:
+    """t3.5 at ``baudrate`` in seconds ([MB-SL] 2.5.1.1; 1.75 ms above 19200)."""
+    return int(lib.pymb_rtu_silence_us(baudrate)) / 1e6
+
+
+# -- signals -------------------------------------------------------------------
+# While a request waits, C calls pymb_py_interrupted when poll() is interrupted
+# by a signal and at least every PYMB_INTERRUPT_SLICE_US. Running this Python
+# function lets the interpreter run the pending signal handlers (it does so on
+# entering a function); a handler that raises (SIGINT's KeyboardInterrupt)
+# lands in _interrupt_raised, which keeps the exception and tells C to stop.
+# A handler that returns normally changes nothing: the wait goes on.
+
+_pending = threading.local()
+
+
+def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
+    _pending.exc = exc if exc is not None else exc_type()
+    return 1
+
+
+@ffi.def_extern(onerror=_interrupt_raised)
+def pymb_py_interrupted(arg: Any) -> int:  # noqa: ARG001 - C passes its hook argument
+    return 0
+
+
+def _take_interrupt() -> BaseException | None:
+    exc: BaseException | None = getattr(_pending, "exc", None)
+    _pending.exc = None
+    return exc
 
 
 def ffi_buffer_u16(array: Any) -> Any:
@@ -155,14 +204,19 @@ class Link:
     around every call.
     """
 
-    def __init__(self, name: str, factory: Any, *, serial: bool) -> None:
+    def __init__(self, name: str, factory: Any, *, serial: bool,
+                 framing: int | None = None, silence: float = 0.0) -> None:
         self.name = name
         self.serial = serial
         self._factory = factory
+        self._framing = framing if framing is not None else (
+            lib.PYMB_FRAMING_RTU if serial else lib.PYMB_FRAMING_TCP)
+        self._silence_us = max(0, round(silence * 1e6))
         self._ctx: Any = ffi.NULL
+        self._line = ffi.new("pymb_line *")
         self._fail = ffi.new("pymb_failure *")
         self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
-        self._header = 1 if serial else 7
+        self._header = 7 if self._framing == lib.PYMB_FRAMING_TCP else 1
         self._timeout = (1.0, 0.0)
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
 
@@ -214,18 +268,29 @@ class Link:
             )
         self._ctx = ctx
         try:
+            if lib.pymb_line_init(self._line, ctx, self._framing, self._silence_us) == -1:
+                raise ModbusConnectionError(
+                    f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
+                    errno=ffi.errno, port=self.name)
+            self._line.interrupted = lib.pymb_py_interrupted
             self._apply_timeouts()
             self._apply_rs485()
-        except ModbusError:
-            self.close()
+        except BaseException:
+            self.close()  # a failed open leaves nothing open, nothing locked
             raise
 
     def close(self) -> None:
         """Close and free the context; safe to call twice."""
         ctx, self._ctx = self._ctx, ffi.NULL
         if ctx != ffi.NULL:
+            self._line.ctx = ffi.NULL
             lib.modbus_close(ctx)
             lib.modbus_free(ctx)
+
+    def __del__(self) -> None:
+        # The descriptor and, on a serial line, its lock go with the Link.
+        if getattr(self, "_ctx", ffi.NULL) != ffi.NULL:
+            self.close()
 
     def fileno(self) -> int:
         """The file descriptor of the open line, -1 when closed."""
@@ -282,7 +347,7 @@ class Link:
         if self._ctx == ffi.NULL:
             raise self._closed(function, slave, address, count)
         rc = lib.pymb_read_registers(
-            self._ctx, function, slave, address, count,
+            self._line, function, slave, address, count,
             ffi.from_buffer("uint16_t[]", dest, require_writable=True), self._fail,
         )
         if rc < 0:
@@ -293,22 +358,24 @@ class Link:
         if self._ctx == ffi.NULL:
             raise self._closed(function, slave, address, count)
         rc = lib.pymb_read_bits(
-            self._ctx, function, slave, address, count,
+            self._line, function, slave, address, count,
             ffi.from_buffer("uint8_t[]", dest, require_writable=True), self._fail,
         )
         if rc < 0:
             raise self._error(function, slave, address, count)
 
     def transact(self, request: bytes, *, address: int | None = None,
-                 count: int | None = None) -> bytes:
+                 count: int | None = None, expect: int = 0) -> bytes:
         """Send ``request`` (slave address + PDU) and return the checked reply
         PDU (function code first). Broadcast (slave 0 on a serial line)
-        returns ``b""``."""
+        returns ``b""``. ``expect``: the reply PDU's length when known (0:
+        from the function code, the MBAP length, or the line's silence)."""
         slave, function = request[0], request[1]
         if self._ctx == ffi.NULL:
             raise self._closed(function, slave, address, count)
         n = lib.pymb_transact(
-            self._ctx, request, len(request), self._rsp, lib.MODBUS_MAX_ADU_LENGTH, self._fail
+            self._line, request, len(request), expect, self._rsp, lib.MODBUS_MAX_ADU_LENGTH,
+            self._fail,
         )
         if n < 0:
             raise self._error(function, slave, address, count)
@@ -319,7 +386,7 @@ class Link:
         rq = sweep.request
         if self._ctx == ffi.NULL:
             raise self._closed(0x03, rq.slave, None, None)
-        if lib.pymb_hub_read(self._ctx, rq, self._fail) < 0:
+        if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
             raise self._error(0x03, rq.slave, None, None, context="hub sweep")
         return int(rq.read_mask)
 
@@ -327,7 +394,17 @@ class Link:
         """Drop input until the line is quiet for ``quiet`` seconds."""
         if self._ctx == ffi.NULL:
             return 0
-        return int(lib.pymb_drain(self._ctx, round(quiet * 1e6), round(limit * 1e6)))
+        n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
+        if n < 0:
+            err = ffi.errno
+            exc = _take_interrupt() if err == lib.EINTR else None
+            if exc is not None:
+                raise exc
+            if err in _LINK_LOST:
+                self.close()
+            raise ModbusConnectionError(f"drain on {self.name}: {_os_hint(err)}", errno=err,
+                                        port=self.name)
+        return n
 
     # -- errors ----------------------------------------------------------------
 
@@ -345,6 +422,10 @@ class Link:
         """Turn errno (read right after the failing call) and the failure
         record into the exception to raise; close the link if the OS lost it."""
         err = ffi.errno
+        if err == lib.EINTR:
+            exc = _take_interrupt()
+            if exc is not None:  # a signal handler raised: that is the error
+                return exc  # type: ignore[return-value]
         fail = self._fail
         op = _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
         args = [f"slave={slave}"]
@@ -367,17 +448,18 @@ class Link:
             slave=slave, function=function, address=address, count=count, port=self.name,
             response=got,
         )
-        base = lib.MODBUS_ENOBASE
         if err == lib.ETIMEDOUT:
             timeout = self._timeout[0]
+            if got:
+                return ModbusTimeout(
+                    f"{asked}: the reply stopped after {len(got)} bytes, incomplete "
+                    f"within the {timeout:g} s timeout{received}", **kw)
             return ModbusTimeout(
-                f"{asked}: no complete reply within {timeout:g} s", **kw
+                f"{asked}: no reply within the {timeout:g} s timeout (the device is silent, "
+                "or the address, baud rate or wiring is wrong)", **kw
             )
-        if base < err < base + 0x100 and err not in (
-            lib.EMBBADCRC, lib.EMBBADDATA, lib.EMBBADEXC, lib.EMBUNKEXC, lib.EMBMDATA,
-            lib.EMBBADSLAVE,
-        ):
-            code = err - base
+        code = int(lib.pymb_errno_exception(err))
+        if code:
             cls = exception_class(code)
             return cls(f"{asked}: device answered exception {code:02X} ({cls.description})"
                        f"{received}", code=code, **kw)
@@ -385,7 +467,8 @@ class Link:
             return ProtocolError(f"{asked}: reply failed its CRC check{received}",
                                  reason="bad CRC", **kw)
         if err == lib.EMBBADSLAVE:
-            who = f" {got[0]}" if got else ""
+            h = fail.header if 1 <= fail.header <= len(got or b"") else 0
+            who = f" {got[h - 1]}" if got and h else ""
             return ProtocolError(f"{asked}: reply came from another address{who}{received}",
                                  reason="wrong slave", **kw)
         if err == lib.EMBBADEXC:
@@ -397,6 +480,8 @@ class Link:
             return ProtocolError(f"{asked}: {why}{received}", reason=why, **kw)
         if err == lib.EINVAL:
             return InvalidArgument(f"{asked}: invalid argument", **kw)
+        if err == lib.EINTR:
+            return ModbusConnectionError(f"{asked}: interrupted", errno=err, **kw)
         if err in _LINK_LOST:
             self.close()
         return ModbusConnectionError(f"{asked}: {_os_hint(err)}", errno=err, **kw)
@@ -410,14 +495,21 @@ def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: in
         port,
         lambda: lib.modbus_new_rtu(dev, baudrate, par, data_bits, stop_bits),
         serial=True,
+        silence=rtu_silence(baudrate),
     )
 
 
-def new_tcp(host: str, port: int) -> Link:
-    """A Modbus TCP Link (not yet open); ``host`` is a name or an address."""
+def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
+            silence: float = 0.0) -> Link:
+    """A Modbus TCP Link (not yet open); ``host`` is a name or an address.
+    ``rtu_framing``: RTU frames (address, PDU, CRC) on the socket instead of
+    MBAP, as transparent serial servers in "raw" mode carry them; a reply of
+    unknown length then ends at ``silence`` seconds of silence."""
     node = host.encode()
     service = str(port).encode()
-    return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False)
+    return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
+                framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
+                silence=silence)
 
 
 # -- decoders and the hub sweep --------------------------------------------------

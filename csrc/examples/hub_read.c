@@ -33,6 +33,7 @@ int main(int argc, char **argv)
     pymb_hub_request rq;
     pymb_failure fail;
     modbus_t *ctx;
+    pymb_line line;
     int baud, slave, n, rc;
     unsigned b, c;
 
@@ -51,6 +52,7 @@ int main(int argc, char **argv)
     /* [NOTES]: the hub may take 500 ms plus the reply's own wire time. */
     modbus_set_response_timeout(ctx, 1, 0);
     modbus_set_byte_timeout(ctx, 0, 0);
+    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(baud));
 
     n = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 16);
     rq = (pymb_hub_request){
@@ -64,7 +66,7 @@ int main(int argc, char **argv)
         .states = states,
         .out_len = PYMB_HUB_REGISTERS,
     };
-    rc = pymb_hub_read(ctx, &rq, &fail);
+    rc = pymb_hub_read(&line, &rq, &fail);
     if (rc == -1) {
         fprintf(stderr, "hub %d on %s: %s (request for %d registers at %d)\n", slave, argv[1],
                 modbus_strerror(errno), fail.count, fail.address);

@@ -58,6 +58,7 @@ int main(int argc, char **argv)
     pymb_hub_request rq = {0};
     pymb_failure fail;
     modbus_t *ctx;
+    pymb_line line;
     int rounds = argc > 2 ? atoi(argv[2]) : 30, r, k, i;
 
     if (argc < 2 || rounds < 1 || rounds > MAX_ROUNDS) {
@@ -71,6 +72,7 @@ int main(int argc, char **argv)
     }
     modbus_set_response_timeout(ctx, 2, 0);
     modbus_set_byte_timeout(ctx, 0, 0);
+    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
     rq.slave = 1;
     rq.channels = PYMB_HUB_CHANNELS;
     rq.spans = spans;
@@ -90,7 +92,7 @@ int main(int argc, char **argv)
                     c0 = cpu_now();
                 }
                 if (use_pymb) {
-                    if (pymb_hub_read(ctx, &rq, &fail) == -1) {
+                    if (pymb_hub_read(&line, &rq, &fail) == -1) {
                         fprintf(stderr, "pymb_hub_read: %s\n", modbus_strerror(errno));
                         return 3;
                     }

@@ -30,6 +30,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 static int master_fd = -1;
 static modbus_t *ctx;
+static pymb_line line;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
@@ -52,6 +53,7 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     }
     modbus_set_response_timeout(ctx, 0, 3000);
     modbus_set_byte_timeout(ctx, 0, 0);
+    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
     return 0;
 }
 
@@ -99,7 +101,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         reply = 600;
     }
     drain_master();
-    pymb_flush(ctx);
+    line.owed = 0;
+    pymb_flush(&line);
     if ((size && (data[0] & 0x80)) && reply && write(master_fd, data + 1, reply) < 0 &&
         errno != EAGAIN) {
         abort();
@@ -114,7 +117,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     switch (which) {
     case 0: { /* raw read of 3 registers from slave 250 */
         const uint8_t req[] = {250, 0x03, 0x00, 0x1F, 0x00, 0x03};
-        n = pymb_transact(ctx, req, sizeof req, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(&line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (n != 8 || rsp[0] != 250 || !pymb_rtu_crc_ok(rsp, (size_t)n + 3))) {
             abort();
         }
@@ -122,14 +125,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     case 1: { /* write single register, echo checked */
         const uint8_t req[] = {40, 0x06, 0x00, 0x00, 0x00, 0x2A};
-        n = pymb_transact(ctx, req, sizeof req, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(&line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (n != 5 || memcmp(rsp, req, 6) != 0)) {
             abort();
         }
         break;
     }
     case 2: /* split read, slave 251 */
-        n = pymb_read_registers(ctx, 3, 251, 31, 130, regs, &fail);
+        n = pymb_read_registers(&line, 3, 251, 31, 130, regs, &fail);
         if (n != -1 && n != 130) {
             abort();
         }
@@ -144,7 +147,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         rq.spans = spans;
         rq.nspans = ns;
         rq.regs = regs;
-        pymb_hub_read(ctx, &rq, &fail);
+        pymb_hub_read(&line, &rq, &fail);
         break;
     }
     }

@@ -102,6 +102,16 @@ static void test_frame_lengths(void)
     CHECK(pymb_rtu_response_length(r, 2) == 10);
     CHECK(pymb_rtu_response_length(big, 3) == PYMB_FRAME_TOO_LONG);
     CHECK(pymb_rtu_response_length(NULL, 9) == PYMB_FRAME_INCOMPLETE);
+    r[1] = 0x07;
+    CHECK(pymb_rtu_response_length(r, 2) == 5);
+    /* Diagnostics (0x08), device identification (0x2B), user codes: only the
+     * line's silence tells where the reply ends. */
+    r[1] = 0x08;
+    CHECK(pymb_rtu_response_length(r, 2) == PYMB_FRAME_BAD_FUNCTION);
+    r[1] = 0x2B;
+    CHECK(pymb_rtu_response_length(r, 8) == PYMB_FRAME_BAD_FUNCTION);
+    r[1] = 0x41;
+    CHECK(pymb_rtu_response_length(r, 2) == PYMB_FRAME_BAD_FUNCTION);
 
     r[1] = 0x03;
     CHECK(pymb_rtu_request_length(r, 2) == 8);
@@ -149,11 +159,19 @@ static void test_check_response(void)
     wrsp[5] = 0x2B;
     n = with_crc(wrsp, 6);
     CHECK(pymb_rtu_check_response(wreq, 6, wrsp, n, NULL) == PYMB_FRAME_BAD_ECHO);
+    /* The request is passed without its CRC (the header says so): with it,
+     * an echo cannot match. */
+    wrsp[5] = 0x2A;
+    n = with_crc(wrsp, 6);
+    CHECK(with_crc(wreq, 6) == 8);
+    CHECK(pymb_rtu_check_response(wreq, 6, wrsp, n, NULL) == PYMB_FRAME_OK);
+    CHECK(pymb_rtu_check_response(wreq, 8, wrsp, n, NULL) == PYMB_FRAME_BAD_LENGTH);
 
     CHECK(pymb_rtu_check_response(req, 6, rsp, 3, NULL) == PYMB_FRAME_BAD_LENGTH);
     CHECK(pymb_rtu_check_response(req, 6, rsp, 300, NULL) == PYMB_FRAME_TOO_LONG);
     CHECK(pymb_rtu_check_response(NULL, 6, rsp, 13, NULL) == PYMB_FRAME_INVALID);
     CHECK(strcmp(pymb_frame_strerror(PYMB_FRAME_BAD_CRC), "bad CRC") == 0);
+    CHECK(strncmp(pymb_frame_strerror(PYMB_FRAME_BAD_HEADER), "MBAP", 4) == 0);
 }
 
 static int same(double a, double b)
