@@ -229,6 +229,7 @@ typedef struct {
     void *interrupt_arg;
     uint16_t tid;
     int owed;
+    int owed_slave;
     uint64_t owed_since_us;
 } pymb_line;
 

@@ -196,14 +196,32 @@ int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us)
     return drain_since(line, now_us(), quiet_us, max_us);
 }
 
-/* The quiet window owed after a failure: silence for the response timeout
- * (at most 60 s), counted from the failure, at most four windows long. */
-static int settle(pymb_line *line)
+static uint64_t quiet_window_us(pymb_line *line)
 {
     uint64_t quiet = timeout_us(line->ctx, 0);
+    return quiet > 60000000u ? 60000000u : quiet;
+}
 
-    if (quiet > 60000000u) {
-        quiet = 60000000u;
+/* Before a request to `slave`: pay what remains of a quiet window owed after
+ * a failure (silence for the response timeout, at most 60 s, counted from
+ * the failure; at most four windows long), or, on a line without one,
+ * discard pending input (RTU) or keep it (TCP: complete replies to earlier
+ * transactions are dropped by their id as they are read). */
+static int before_request(pymb_line *line, int slave)
+{
+    uint64_t quiet;
+
+    if (!line->owed) {
+        return line->framing == PYMB_FRAMING_TCP ? 0 : pymb_flush(line);
+    }
+    quiet = quiet_window_us(line);
+    if (line->framing != PYMB_FRAMING_TCP && slave != line->owed_slave) {
+        /* Another address: no wait (see the header); rtu_receive drops the
+         * failed address's frames while the window runs. */
+        if (now_us() >= line->owed_since_us + quiet) {
+            line->owed = 0;
+        }
+        return pymb_flush(line);
     }
     if (drain_since(line, line->owed_since_us, quiet, 4 * quiet) < 0) {
         return -1;
@@ -212,10 +230,19 @@ static int settle(pymb_line *line)
     return 0;
 }
 
-static void owe(pymb_line *line)
+static void owe(pymb_line *line, int slave)
 {
     line->owed = 1;
+    line->owed_slave = slave;
     line->owed_since_us = now_us();
+}
+
+/* A whole, CRC-correct frame from the address whose request failed while
+ * its quiet window runs: its late reply, to be dropped. */
+static int late_frame(pymb_line *line, int slave, const uint8_t *f, int len)
+{
+    return line->owed && f[0] == line->owed_slave && f[0] != slave &&
+           pymb_rtu_crc_ok(f, (size_t)len);
 }
 
 /* Receive one RTU reply (serial line or RTU over TCP): whatever is there is
@@ -229,7 +256,8 @@ static void owe(pymb_line *line)
  * frame limit). With a byte timeout set, a gap longer than it after the
  * first byte fails. Returns the frame's length or -1 and errno; *got is
  * the number of bytes in rsp. */
-static int rtu_receive(pymb_line *line, int expect_total, uint8_t *rsp, int cap, int *got)
+static int rtu_receive(pymb_line *line, int slave, int expect_total, uint8_t *rsp, int cap,
+                       int *got)
 {
     int fd = modbus_get_socket(line->ctx), want = -1, by_silence = 0;
     uint64_t deadline = now_us() + timeout_us(line->ctx, 0);
@@ -247,7 +275,12 @@ static int rtu_receive(pymb_line *line, int expect_total, uint8_t *rsp, int cap,
 
         if (by_silence && (*got) > 0) {
             if (now - last >= silence) {
-                return (*got); /* the frame ended by the line's silence */
+                if (!late_frame(line, slave, rsp, *got)) {
+                    return (*got); /* the frame ended by the line's silence */
+                }
+                *got = 0;
+                by_silence = 0;
+                continue;
             }
             wait = last + silence - now;
         } else {
@@ -305,6 +338,11 @@ static int rtu_receive(pymb_line *line, int expect_total, uint8_t *rsp, int cap,
         if ((*got) >= cap && (want < 0 || (*got) < want)) {
             errno = EMBBADDATA; /* longer than any RTU frame */
             return -1;
+        }
+        if (want > 0 && *got >= want && late_frame(line, slave, rsp, want)) {
+            memmove(rsp, rsp + want, (size_t)(*got - want));
+            *got -= want;
+            want = -1;
         }
     }
     return want;
@@ -489,17 +527,11 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
     }
     hl = line->framing == PYMB_FRAMING_TCP ? MBAP_LENGTH : 1;
     note_request(fail, req, req_len, hl);
-    if (line->owed) {
-        if (settle(line) < 0) {
-            return -1;
-        }
-    } else if (line->framing != PYMB_FRAMING_TCP && pymb_flush(line) < 0) {
-        /* TCP keeps what is pending: complete replies to earlier
-         * transactions are dropped by their id as they are read. */
+    if (before_request(line, req[0]) < 0) {
         return -1;
     }
     if (send_request(line, req, req_len) < 0) {
-        owe(line);
+        owe(line, req[0]);
         return -1;
     }
     if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
@@ -518,7 +550,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
     }
     if (hl == 1) {
         int got = 0;
-        n = rtu_receive(line, expect > 0 ? expect + 3 : 0, rsp, rsp_cap, &got);
+        n = rtu_receive(line, req[0], expect > 0 ? expect + 3 : 0, rsp, rsp_cap, &got);
         if (n < 0) {
             if (errno == EMBBADDATA) {
                 note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
@@ -527,7 +559,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                 note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
                 errno = saved;
             }
-            owe(line);
+            owe(line, req[0]);
             return -1;
         }
         status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)n, &exc);
@@ -539,7 +571,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                 note_reply(fail, rsp, MBAP_LENGTH, status);
             }
             if (desync) {
-                owe(line);
+                owe(line, req[0]);
             }
             return -1;
         }
@@ -564,7 +596,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
         return -1;
     }
     errno = frame_errno(status);
-    owe(line);
+    owe(line, req[0]);
     return -1;
 }
 

@@ -21,10 +21,15 @@
  *
  * Every request function:
  *   - RTU (and RTU over TCP): after a timeout, a bad frame or an interrupt,
- *     the line owes a quiet window: the *next* request first reads and drops
- *     input until the line has been silent for the response timeout counted
- *     from the failure, so the failed call itself returns within its timeout
- *     and a late reply is still never taken as a later answer;
+ *     the line owes a quiet window: the *next* request to the same address
+ *     first reads and drops input until the line has been silent for the
+ *     response timeout counted from the failure, so the failed call itself
+ *     returns within its timeout and a late reply is still never taken as a
+ *     later answer. A request to another address does not wait (a late
+ *     reply carries the failed request's address, which cannot pass as its
+ *     answer): frames from the failed address are dropped from its receive
+ *     until the window has passed, so a scan of silent addresses costs one
+ *     timeout each;
  *   - TCP: a reply is accepted only when its transaction id, protocol id (0),
  *     length and unit id match the request; replies to older transactions
  *     are read and dropped while the wait goes on to the deadline;
@@ -92,8 +97,9 @@ typedef struct {
     int (*interrupted)(void *arg);
     void *interrupt_arg;
     uint16_t tid;          /* the last MBAP transaction id sent */
-    int owed;              /* a quiet window is owed before the next request */
-    uint64_t owed_since_us;/* CLOCK_MONOTONIC, microseconds */
+    int owed;              /* a quiet window is owed (after a failure) */
+    int owed_slave;        /* the address the failed request went to */
+    uint64_t owed_since_us;/* when it failed: CLOCK_MONOTONIC, microseconds */
 } pymb_line;
 
 /* Set up `line` for `ctx` with `framing` (PYMB_FRAMING_*) and the frame

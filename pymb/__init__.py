@@ -13,7 +13,7 @@ Errors are rooted at :class:`pymb.ModbusError`.
 from __future__ import annotations
 
 from pymb._native import LIBMODBUS_VERSION, crc16
-from pymb.client import Client, RtuClient, TcpClient
+from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
 from pymb.errors import (
     Acknowledge,
     DeviceBusy,
@@ -55,6 +55,7 @@ __all__ = [
     "NegativeAcknowledge",
     "ProtocolError",
     "RtuClient",
+    "RtuOverTcpClient",
     "TcpClient",
     "__version__",
     "crc16",

@@ -159,7 +159,7 @@ def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
 
 
 @ffi.def_extern(onerror=_interrupt_raised)
-def pymb_py_interrupted(arg: Any) -> int:  # noqa: ARG001 - C passes its hook argument
+def pymb_py_interrupted(arg: Any) -> int:
     return 0
 
 

@@ -14,9 +14,11 @@ timeout, so a late or stray reply is never taken as a later answer.
 
 from __future__ import annotations
 
+import operator
 import struct
 import sys
 import threading
+import warnings
 from array import array
 from collections.abc import Iterable, Sequence
 from types import TracebackType
@@ -25,7 +27,7 @@ from typing import Any
 from pymb import _native
 from pymb.errors import InvalidArgument, ModbusConnectionError
 
-__all__ = ["Client", "RtuClient", "TcpClient"]
+__all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient"]
 
 MAX_READ_REGISTERS = 125
 MAX_WRITE_REGISTERS = 123
@@ -70,6 +72,51 @@ def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
     return v
 
 
+def _coil(value: Any) -> int:
+    """A coil value: a bool, or the integers 0 and 1, and nothing else."""
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, (str, bytes, bytearray, memoryview, float)) or not hasattr(
+            type(value), "__index__"):
+        raise TypeError(
+            f"a coil value is a bool or 0 or 1, got {type(value).__name__} {value!r}")
+    v = operator.index(value)
+    if v not in (0, 1):
+        raise InvalidArgument(f"a coil value is a bool or 0 or 1, got {value!r}")
+    return v
+
+
+def _register_values(values: Any) -> bytes:
+    """Register values (ints 0..65535, not bools, not bytes) as big-endian bytes."""
+    if isinstance(values, array) and values.typecode == "H":
+        a = values
+    else:
+        if isinstance(values, (str, bytes, bytearray, memoryview)):
+            raise TypeError(
+                "register values are a sequence of integers 0..65535 (an array('H') or a "
+                f"list), not {type(values).__name__}: bytes would depend on byte order")
+        try:
+            items = list(values)
+        except TypeError:
+            raise TypeError(
+                f"register values must be a sequence of integers, got {type(values).__name__}"
+            ) from None
+        for v in items:
+            if isinstance(v, bool) or not hasattr(type(v), "__index__") or isinstance(
+                    v, float):
+                raise TypeError(
+                    f"a register value is an integer 0..65535, got {type(v).__name__} {v!r}")
+            if not 0 <= operator.index(v) <= 0xFFFF:
+                raise InvalidArgument(f"a register value is 0..65535, got {v!r}")
+        a = array("H", [operator.index(v) for v in items])
+    if len(a) == 0:
+        raise InvalidArgument("no values to write")
+    if sys.byteorder == "little":
+        a = array("H", a)
+        a.byteswap()
+    return a.tobytes()
+
+
 class Client:
     """What both clients share: the request methods and the life cycle.
 
@@ -111,8 +158,8 @@ class Client:
     def connect(self) -> None:
         """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
         with self._lock:
+            self._open()  # a failure leaves nothing open and the client closed
             self._wanted = True
-            self._open()
 
     def _open(self) -> None:
         if not self._link.is_open:
@@ -124,6 +171,17 @@ class Client:
         with self._lock:
             self._wanted = False
             self._link.close()
+
+    def __del__(self) -> None:
+        # Like a file: a client dropped while open is closed (its descriptor
+        # and, on a serial line, the port's lock released), with a warning.
+        link = getattr(self, "_link", None)
+        if link is not None and link.is_open:
+            try:
+                warnings.warn(f"unclosed {self!r}: call close() or use `with`",
+                              ResourceWarning, stacklevel=2, source=self)
+            finally:
+                link.close()
 
     def __enter__(self) -> Client:
         self.connect()
@@ -240,11 +298,19 @@ class Client:
 
     def _read_regs(self, fc: int, address: int, dest: Any, slave: int | None) -> None:
         s = self._slave_for(slave)
-        view = memoryview(dest)
-        if view.itemsize != 2 or view.readonly:
-            raise InvalidArgument("dest must be a writable buffer of 16-bit items (array('H'))")
-        self._range(address, len(view), None)
-        self._call(self._link.read_registers, fc, s, address, len(view), dest)
+        try:
+            view = memoryview(dest)
+        except TypeError:
+            raise TypeError(
+                f"dest must be a writable uint16 buffer (array('H')), got {type(dest).__name__}"
+            ) from None
+        if (view.itemsize != 2 or view.readonly or not view.c_contiguous
+                or view.format.lstrip("@=") not in ("H", "h")):
+            raise InvalidArgument(
+                "dest must be a writable, contiguous buffer of 16-bit integers (array('H'))")
+        n = view.nbytes // 2
+        self._range(address, n, None)
+        self._call(self._link.read_registers, fc, s, address, n, view.cast("B"))
 
     def _read_registers_prechecked(self, function: int, slave: int, address: int,
                                    dest: Any) -> None:
@@ -257,6 +323,8 @@ class Client:
         match the request exactly, or :class:`~pymb.ProtocolError` is raised."""
         s = self._slave_for(slave, write=True)
         _int("address", address, 0, 0xFFFF)
+        if isinstance(value, bool):
+            raise TypeError("a register value is an integer 0..65535, not a bool")
         _int("value", value, 0, 0xFFFF)
         self._transact(s, _FC_WRITE_REGISTER, struct.pack(">HH", address, value), address, 1)
 
@@ -301,17 +369,7 @@ class Client:
 
     @staticmethod
     def _u16_payload(values: Sequence[int] | array[int]) -> bytes:
-        try:
-            a = values if isinstance(values, array) and values.typecode == "H" else array(
-                "H", values)
-        except (OverflowError, TypeError) as e:
-            raise InvalidArgument(f"register values must be integers 0..65535: {e}") from None
-        if len(a) == 0:
-            raise InvalidArgument("no values to write")
-        if sys.byteorder == "little":
-            a = array("H", a)
-            a.byteswap()
-        return a.tobytes()
+        return _register_values(values)
 
     # -- bits ---------------------------------------------------------------------
 
@@ -336,14 +394,24 @@ class Client:
         """Write one coil (function 0x05)."""
         s = self._slave_for(slave, write=True)
         _int("address", address, 0, 0xFFFF)
+        on = _coil(value)
         self._transact(s, _FC_WRITE_COIL,
-                       struct.pack(">HH", address, 0xFF00 if value else 0), address, 1)
+                       struct.pack(">HH", address, 0xFF00 if on else 0), address, 1)
 
     def write_coils(self, address: int, values: Iterable[bool | int], *,
                     slave: int | None = None) -> None:
         """Write 1 to 1968 coils (function 0x0F)."""
         s = self._slave_for(slave, write=True)
-        bits = [1 if v else 0 for v in values]
+        if isinstance(values, (str, bytes, bytearray, memoryview)):
+            raise TypeError(f"coil values are a sequence of bools or 0/1, not "
+                            f"{type(values).__name__}")
+        try:
+            bits = [_coil(v) for v in values]
+        except TypeError as e:
+            if "coil value" in str(e):
+                raise
+            raise TypeError(f"coil values must be a sequence, got {type(values).__name__}"
+                            ) from None
         self._range(address, len(bits) if bits else 0, MAX_WRITE_BITS)
         packed = bytearray((len(bits) + 7) // 8)
         for i, b in enumerate(bits):
@@ -366,27 +434,51 @@ class Client:
         return self._transact(s, _FC_READ_EXCEPTION_STATUS, b"", None, None)[1]
 
     def raw_request(self, function: int, data: bytes = b"", *,
-                    slave: int | None = None) -> bytes:
-        """Send any function code with ``data`` and return the reply's data
-        (the PDU after the function code), checked as far as the function is
-        known. An exception reply raises the matching DeviceException."""
+                    slave: int | None = None, response_length: int | None = None) -> bytes:
+        """Send any function code (1..127) with ``data`` and return the
+        reply's data (the PDU after the function code), checked as far as
+        the function is known. An exception reply raises the matching
+        DeviceException.
+
+        Over TCP the reply's length is the MBAP header's. Over RTU it is
+        known from the function code for the standard functions; for any
+        other (0x08, 0x2B, user-defined codes) the reply ends when the line
+        falls silent for t3.5, unless ``response_length`` (the bytes of
+        the reply's data, what this method returns) says how long it is.
+        The CRC is checked over the whole frame either way."""
         s = self._slave_for(slave, write=True)
         _int("function", function, 1, 0x7F)
-        if len(data) > 252:
-            raise InvalidArgument(f"data is {len(data)} bytes; a PDU holds at most 252")
-        return self._transact(s, function, bytes(data), None, None)[1:]
+        if isinstance(data, str):
+            raise TypeError("data must be bytes (or a sequence of integers 0..255), not str")
+        try:
+            payload = bytes(data)
+        except ValueError:
+            raise InvalidArgument("data bytes must be integers 0..255") from None
+        except TypeError:
+            raise TypeError(
+                f"data must be bytes or a sequence of integers 0..255, got "
+                f"{type(data).__name__}") from None
+        if len(payload) > 252:
+            raise InvalidArgument(f"data is {len(payload)} bytes; a PDU holds at most 252")
+        expect = 0
+        if response_length is not None:
+            expect = _int("response_length", response_length, 0, 252) + 1
+        return self._transact(s, function, payload, None, None, expect)[1:]
 
     def _transact(self, slave: int, function: int, data: bytes, address: int | None,
-                  count: int | None) -> bytes:
+                  count: int | None, expect: int = 0) -> bytes:
         request = bytes((slave, function)) + data
-        pdu: bytes = self._call(self._link.transact, request, address=address, count=count)
+        pdu: bytes = self._call(self._link.transact, request, address=address, count=count,
+                                expect=expect)
         return pdu
 
     def drain(self, quiet: float = 0.05, limit: float = 1.0) -> int:
         """Read and drop input until the line has been quiet for ``quiet``
-        seconds (at most ``limit``); returns the bytes dropped."""
+        seconds (at most ``limit``, both 0..3600); returns the bytes dropped."""
+        q = _seconds("quiet", quiet, allow_zero=True)
+        lim = _seconds("limit", limit, allow_zero=True)
         with self._lock:
-            return self._link.drain(quiet, limit)
+            return self._link.drain(q, lim)
 
 
 class RtuClient(Client):
@@ -455,7 +547,10 @@ class RtuClient(Client):
             r = _RTS_MODES[rts]
         delay = None
         if rts_delay is not None:
-            delay = round(_seconds("rts_delay", rts_delay, allow_zero=True) * 1e6)
+            d = _seconds("rts_delay", rts_delay, allow_zero=True)
+            if d > 1.0:  # libmodbus takes microseconds in an int
+                raise InvalidArgument(f"rts_delay must be 0 to 1 second, got {rts_delay!r}")
+            delay = round(d * 1e6)
         with self._lock:
             self._link.set_rs485(mode, r, delay)
 
@@ -466,8 +561,9 @@ class RtuClient(Client):
 
 
 class TcpClient(Client):
-    """A Modbus TCP client (also for RTU-over-TCP gateways that speak Modbus
-    TCP). ``host`` is a name or an address; ``slave`` is the unit identifier,
+    """A Modbus TCP client (also for gateways that translate Modbus TCP to
+    RTU; for gateways that pass RTU frames through, see
+    :class:`RtuOverTcpClient`). ``host`` is a name or an address; ``slave`` is the unit identifier,
     0..255 (many gateways route it to the RTU address)."""
 
     _min_read_slave = 0
@@ -482,3 +578,28 @@ class TcpClient(Client):
         self.tcp_port = port
         super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
                          byte_timeout=byte_timeout)
+
+
+class RtuOverTcpClient(Client):
+    """Modbus RTU frames (address, PDU, CRC) over a TCP socket: what
+    transparent serial servers and Ethernet gateways in "raw" mode carry
+    (libmodbus has no such transport). Every check of :class:`RtuClient`
+    applies (CRC, address, function, length, echo); replies of function codes
+    whose length only the line tells end after ``frame_silence`` seconds of
+    silence (default 20 ms: a gateway's TCP segments are not a serial line's
+    character timing). ``slave`` is the RTU address, 1..255 (0: broadcast,
+    writes only)."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        _int("port", port, 1, 65535)
+        silence = _seconds("frame_silence", frame_silence)
+        if silence > 1.0:
+            raise InvalidArgument(f"frame_silence must be up to 1 second, got {frame_silence!r}")
+        self.host = host
+        self.tcp_port = port
+        super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
+                         slave=slave, timeout=timeout, byte_timeout=byte_timeout)

@@ -1,0 +1,506 @@
+"""Wire-level correctness (issue 10) against peers that are not pymb's:
+scripted responders written from the Modbus specifications
+(tests/wire_peers.py) and Debian's libmodbus as a server."""
+
+from __future__ import annotations
+
+import gc
+import math
+import os
+import signal
+import struct
+import threading
+import time
+import warnings
+from array import array
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import pymb
+from pymb import _native
+from tests.wire_peers import (
+    build_libmodbus_server,
+    libmodbus_server,
+    mbap,
+    raw_pty,
+    raw_tcp,
+    registers,
+    rtu,
+)
+
+
+def _tcp_req(adu: bytes) -> tuple[int, int, bytes]:
+    tid, _, _, unit = struct.unpack(">HHHB", adu[:7])
+    return tid, unit, adu[7:]
+
+
+def _answer_read(adu: bytes, values: list[int]) -> bytes:
+    tid, unit, pdu = _tcp_req(adu)
+    return mbap(tid, unit, bytes((pdu[0],)) + registers(values))
+
+
+# -- Modbus TCP: pymb owns the MBAP header --------------------------------------------
+
+
+def test_tcp_transaction_ids_increment_per_client() -> None:
+    with raw_tcp(lambda i, adu: [(0, _answer_read(adu, [i]))]) as peer, \
+            pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=2) as c:
+        for i in range(5):
+            assert list(c.read_holding_registers(0, 1)) == [i]
+        tids = [_tcp_req(a)[0] for a in peer.requests]
+        assert tids == [tids[0] + k for k in range(5)]
+        assert all(struct.unpack(">H", a[2:4])[0] == 0 for a in peer.requests)
+
+
+def test_tcp_late_reply_never_becomes_a_later_answer() -> None:
+    # Request 0 is answered (value 111) long after its timeout; every later
+    # request at once with its own index. Back-to-back polling must get each
+    # request's own value, never 111 and never one behind.
+    def script(i: int, adu: bytes) -> list[tuple[float, bytes]]:
+        if i == 0:
+            return [(0.6, _answer_read(adu, [111]))]
+        return [(0, _answer_read(adu, [i]))]
+
+    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=0.25) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ModbusTimeout):
+            c.read_holding_registers(0, 1)
+        assert time.monotonic() - t0 < 0.25 + 0.2
+        c.timeout = 2
+        got = [c.read_holding_registers(0, 1)[0] for _ in range(4)]
+        assert got == [1, 2, 3, 4]
+
+
+@pytest.mark.parametrize("lie", ["foreign_tid", "protocol_1", "length_long", "length_short",
+                                 "other_unit"])
+def test_tcp_reply_must_match_tid_protocol_length_and_unit(lie: str) -> None:
+    def script(i: int, adu: bytes) -> list[tuple[float, bytes]]:
+        tid, unit, _pdu = _tcp_req(adu)
+        body = bytes((3,)) + registers([7])
+        if i > 0:  # afterwards an honest peer: the line must still work
+            return [(0, mbap(tid, unit, body))]
+        if lie == "foreign_tid":
+            return [(0, mbap(tid ^ 0x5A5A, unit, body))]
+        if lie == "protocol_1":
+            return [(0, mbap(tid, unit, body, proto=1))]
+        if lie == "length_long":
+            return [(0, mbap(tid, unit, body + b"\x00", length=len(body) + 2))]
+        if lie == "length_short":
+            return [(0, mbap(tid, unit, body, length=len(body)))]
+        return [(0, mbap(tid, 9, body))]
+
+    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=0.3) as c:
+        expected = pymb.ModbusTimeout if lie == "foreign_tid" else pymb.ProtocolError
+        with pytest.raises(expected) as ei:
+            c.read_holding_registers(0, 1)
+        if lie == "other_unit":
+            assert "another address 9" in str(ei.value)
+        c.timeout = 2
+        assert list(c.read_holding_registers(0, 1)) == [7]
+
+
+def test_tcp_any_function_code_uses_the_mbap_length() -> None:
+    ident = bytes(range(40))
+
+    def script(i: int, adu: bytes) -> list[tuple[float, bytes]]:
+        tid, unit, pdu = _tcp_req(adu)
+        return [(0, mbap(tid, unit, bytes((pdu[0],)) + ident))]
+
+    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c:
+        assert c.raw_request(0x2B, b"\x0e\x01\x00") == ident
+        assert c.raw_request(0x41, b"\x01\x02") == ident
+
+
+@pytest.mark.parametrize("code", [0x0C, 0x11, 0x80, 0xFF])
+def test_exception_codes_above_0x0b_are_device_exceptions(code: int) -> None:
+    def tcp_script(i: int, adu: bytes) -> list[tuple[float, bytes]]:
+        tid, unit, pdu = _tcp_req(adu)
+        return [(0, mbap(tid, unit, bytes((pdu[0] | 0x80, code))))]
+
+    with raw_tcp(tcp_script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c:
+        with pytest.raises(pymb.DeviceException) as ei:
+            c.read_holding_registers(0, 1)
+        assert ei.value.code == code
+        assert not isinstance(ei.value, pymb.ProtocolError)
+
+    def rtu_script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return [(0, rtu(bytes((frame[0], frame[1] | 0x80, code))))]
+
+    with raw_pty(rtu_script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
+        with pytest.raises(pymb.DeviceException) as ei:
+            c.raw_request(0x41, b"")
+        assert ei.value.code == code
+
+
+# -- RTU: any function code, any length -------------------------------------------------
+
+
+def test_rtu_unknown_function_reply_ends_by_silence_crc_over_all() -> None:
+    data = bytes(range(30))
+
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        fc = frame[1]
+        if fc == 0x08:  # diagnostics, return query data: the request echoed
+            return [(0, frame)]
+        if i == 2:  # a corrupted last byte: the CRC over the whole frame fails
+            f = rtu(bytes((frame[0], fc)) + data)
+            return [(0, f[:-3] + bytes((f[-3] ^ 1,)) + f[-2:])]
+        return [(0, rtu(bytes((frame[0], fc)) + data))]
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
+        assert c.raw_request(0x08, b"\x00\x00\x12\x34") == b"\x00\x00\x12\x34"
+        assert c.raw_request(0x41) == data
+        with pytest.raises(pymb.ProtocolError):
+            c.raw_request(0x41)
+        assert c.raw_request(0x41, response_length=30) == data
+        with pytest.raises(pymb.ProtocolError):  # shorter than the reply: CRC fails
+            c.raw_request(0x41, response_length=10)
+
+
+# -- a failed call returns within its timeout -------------------------------------------
+
+
+def test_failed_call_returns_within_its_timeout_and_late_reply_is_dropped() -> None:
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        value = 111 if i == 0 else 222
+        reply = rtu(bytes((frame[0], 3)) + registers([value]))
+        return [(0.45 if i == 0 else 0, reply)]
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1,
+                                               timeout=0.3) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ModbusTimeout) as ei:
+            c.read_holding_registers(0, 1)
+        elapsed = time.monotonic() - t0
+        assert elapsed < 0.3 + 0.12, elapsed  # not twice the timeout
+        assert "no reply within the 0.3 s timeout" in str(ei.value)
+        # The late 111 arrives while the next request settles: never returned.
+        assert list(c.read_holding_registers(0, 1)) == [222]
+
+
+def test_scan_of_silent_addresses_costs_one_timeout_each() -> None:
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if frame[0] == 9:
+            return [(0, rtu(bytes((9, 3)) + registers([9])))]
+        return []
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.2) as c:
+        t0 = time.monotonic()
+        for slave in range(1, 6):
+            with pytest.raises(pymb.ModbusTimeout):
+                c.read_holding_registers(0, 1, slave=slave)
+        elapsed = time.monotonic() - t0
+        assert elapsed < 5 * 0.2 + 0.4, elapsed  # not 5 x 2 x 0.2
+        assert list(c.read_holding_registers(0, 1, slave=9)) == [9]
+
+
+def test_late_reply_from_a_scanned_address_is_not_the_next_answer() -> None:
+    # Slave 1 answers 0.3 s late; slave 2 at once. The late frame from 1
+    # arrives during the request to 2: it is dropped, 2's own reply is taken.
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if frame[0] == 1:
+            return [(0.3, rtu(bytes((1, 3)) + registers([1])))]
+        return [(0.1, rtu(bytes((2, 3)) + registers([2])))]
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.25) as c:
+        with pytest.raises(pymb.ModbusTimeout):
+            c.read_holding_registers(0, 1, slave=1)
+        c.timeout = 1.0
+        assert list(c.read_holding_registers(0, 1, slave=2)) == [2]
+
+
+# -- signals ------------------------------------------------------------------------------
+
+
+class _Interrupt(Exception):
+    pass
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+def test_signal_handler_that_raises_interrupts_a_blocked_call(transport: str) -> None:
+    def silent(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return []
+
+    def handler(signum: int, frame: object) -> None:
+        raise _Interrupt
+
+    old = signal.signal(signal.SIGALRM, handler)
+    try:
+        peer_cm = raw_pty(silent) if transport == "rtu" else raw_tcp(silent)
+        with peer_cm as peer:
+            c: pymb.Client = (pymb.RtuClient(peer.port, 115200, slave=1, timeout=5)
+                              if transport == "rtu" else
+                              pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=5))
+            with c:
+                signal.setitimer(signal.ITIMER_REAL, 0.2)
+                t0 = time.monotonic()
+                with pytest.raises(_Interrupt):
+                    c.read_holding_registers(0, 1)
+                late = time.monotonic() - t0 - 0.2
+                assert late < 0.5, late  # seen at once, not after the 5 s timeout
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.timing
+def test_signal_interrupts_within_100_ms() -> None:
+    def handler(signum: int, frame: object) -> None:
+        raise _Interrupt
+
+    old = signal.signal(signal.SIGALRM, handler)
+    try:
+        with raw_pty(lambda i, f: []) as pty, \
+                pymb.RtuClient(pty.port, 115200, slave=1, timeout=5) as c:
+            signal.setitimer(signal.ITIMER_REAL, 0.2)
+            t0 = time.monotonic()
+            with pytest.raises(_Interrupt):
+                c.read_holding_registers(0, 1)
+            assert time.monotonic() - t0 - 0.2 < 0.1
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_signal_handler_that_returns_does_not_fail_a_good_read() -> None:
+    # The reply comes in two fragments 150 ms apart, with byte_timeout 0.5 s;
+    # SIGUSR1 arrives between them (and more during the wait), its handler
+    # returns normally: the read succeeds.
+    seen: list[int] = []
+
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        reply = rtu(bytes((1, 3)) + registers([4242, 4343]))
+        return [(0, reply[:4]), (0.15, reply[4:])]
+
+    def handler(signum: int, frame: object) -> None:
+        seen.append(signum)
+
+    old = signal.signal(signal.SIGUSR1, handler)
+    pid = os.getpid()
+    try:
+        with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=2,
+                                                   byte_timeout=0.5) as c:
+            stop = threading.Event()
+
+            def pester() -> None:
+                while not stop.wait(0.02):
+                    os.kill(pid, signal.SIGUSR1)
+
+            t = threading.Thread(target=pester)
+            t.start()
+            try:
+                for _ in range(3):
+                    assert list(c.read_holding_registers(0, 2)) == [4242, 4343]
+            finally:
+                stop.set()
+                t.join()
+        assert seen
+    finally:
+        signal.signal(signal.SIGUSR1, old)
+
+
+# -- values and arguments -----------------------------------------------------------------
+
+
+@pytest.fixture()
+def echo_pty() -> Iterator[tuple[pymb.RtuClient, list[bytes]]]:
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if frame[1] in (5, 6):
+            return [(0, frame)]
+        if frame[1] in (15, 16):
+            return [(0, rtu(frame[:6]))]
+        if frame[1] == 3:
+            n = frame[5]
+            return [(0, rtu(bytes((frame[0], 3)) + registers(list(range(n)))))]
+        return []
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
+        yield c, pty.requests
+
+
+@pytest.mark.parametrize("value", ["False", b"\x00", 2, -1, 0.5, math.nan, None, [1]])
+def test_write_coil_accepts_only_bools_and_0_1(
+        echo_pty: tuple[pymb.RtuClient, list[bytes]], value: object) -> None:
+    c, requests = echo_pty
+    with pytest.raises((TypeError, pymb.InvalidArgument)):
+        c.write_coil(0, value)  # type: ignore[arg-type]
+    with pytest.raises((TypeError, pymb.InvalidArgument)):
+        c.write_coils(0, [True, value])  # type: ignore[list-item]
+    assert requests == []
+
+
+def test_coil_and_register_values_that_mean_one_thing(
+        echo_pty: tuple[pymb.RtuClient, list[bytes]]) -> None:
+    c, requests = echo_pty
+    c.write_coil(0, True)
+    c.write_coil(1, 0)
+    c.write_coils(0, [1, 0, True, False])
+    c.write_registers(0, [1, 65535])
+    c.write_registers(0, array("H", [7]))
+    assert requests[0][:6] == bytes((1, 5, 0, 0, 0xFF, 0))
+    assert requests[1][:6] == bytes((1, 5, 0, 1, 0, 0))
+    assert requests[2][:8] == bytes((1, 15, 0, 0, 0, 4, 1, 0b0101))
+    n = len(requests)
+    for bad in ([2, -1, "0"], "1010", b"\x01\x00"):
+        with pytest.raises((TypeError, pymb.InvalidArgument)):
+            c.write_coils(0, bad)  # type: ignore[arg-type]
+    for bad_regs in (b"\x01\x02", bytearray(b"\x01\x02"), [True], [1.0], [65536], [-1],
+                     ["1"]):
+        with pytest.raises((TypeError, pymb.InvalidArgument)):
+            c.write_registers(0, bad_regs)  # type: ignore[arg-type]
+    with pytest.raises((TypeError, pymb.InvalidArgument)):
+        c.write_register(0, True)
+    assert len(requests) == n
+
+
+def test_bad_arguments_never_escape_as_low_level_errors(
+        echo_pty: tuple[pymb.RtuClient, list[bytes]]) -> None:
+    c, requests = echo_pty
+    a = array("H", bytes(20))
+    strided = memoryview(a)[::2]
+    cases = [
+        lambda: c.read_holding_registers_into(0, strided),
+        lambda: c.read_holding_registers_into(0, b"\x00\x00"),
+        lambda: c.read_holding_registers_into(0, array("B", bytes(4))),
+        lambda: c.raw_request(0x41, [256]),  # type: ignore[arg-type]
+        lambda: c.raw_request(0x41, "text"),  # type: ignore[arg-type]
+        lambda: c.raw_request(0x41, bytes(253)),
+        lambda: c.raw_request(0x41, response_length=-1),
+        lambda: c.drain(-1),
+        lambda: c.drain(math.nan),
+        lambda: c.drain(math.inf),
+        lambda: c.set_timeout(math.nan),
+        lambda: c.set_timeout(math.inf),
+        lambda: c.read_holding_registers(math.nan, 1),  # type: ignore[arg-type]
+        lambda: c.write_register(0, 2**70),
+    ]
+    for case in cases:
+        try:
+            case()
+        except (TypeError, pymb.InvalidArgument):
+            pass
+        else:
+            pytest.fail("accepted a bad argument")
+    assert requests == []
+    # A contiguous 2-D-free buffer of the right kind works, and fills it all.
+    c.read_holding_registers_into(0, a)
+    assert list(a) == list(range(10))
+
+
+def test_rts_delay_out_of_range_and_failed_connect_leave_nothing_open() -> None:
+    with raw_pty(lambda i, f: []) as pty:
+        with pytest.raises(pymb.InvalidArgument):
+            pymb.RtuClient(pty.port, rts_delay=3600)
+        c = pymb.RtuClient(pty.port, serial_mode="rs485")  # a pty has no RS485 mode
+        with pytest.raises(pymb.ModbusConnectionError):
+            c.connect()
+        assert not c.connected and c.fileno() == -1
+        with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
+            c.read_holding_registers(0, 1, slave=1)
+        with pymb.RtuClient(pty.port, slave=1) as again:  # the port's lock was released
+            assert again.connected
+
+
+# -- lifetimes ----------------------------------------------------------------------------
+
+
+def test_dropped_client_warns_and_releases_descriptor_and_lock() -> None:
+    with raw_pty(lambda i, f: []) as pty:
+        c = pymb.RtuClient(pty.port, slave=1)
+        c.connect()
+        fd = c.fileno()
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            del c
+            gc.collect()
+        assert any(issubclass(x.category, ResourceWarning) for x in w)
+        try:
+            still = os.readlink(f"/proc/self/fd/{fd}") == pty.port
+        except OSError:
+            still = False
+        assert not still
+        with pymb.RtuClient(pty.port, slave=1) as again:
+            assert again.connected
+
+
+# -- RTU over TCP -------------------------------------------------------------------------
+
+
+def test_rtu_over_tcp_client_against_a_raw_gateway() -> None:
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if i == 1:  # a bad CRC once
+            f = rtu(bytes((frame[0], 3)) + registers([5]))
+            return [(0, f[:-1] + bytes((f[-1] ^ 0xFF,)))]
+        if frame[1] == 0x41:
+            return [(0, rtu(bytes((frame[0], 0x41)) + b"abc"))]
+        return [(0, rtu(bytes((frame[0], 3)) + registers([5])))]
+
+    with raw_tcp(script, rtu_frames=True) as peer, \
+            pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=7, timeout=1) as c:
+        assert list(c.read_holding_registers(0, 1)) == [5]
+        with pytest.raises(pymb.ProtocolError, match="CRC"):
+            c.read_holding_registers(0, 1)
+        assert list(c.read_holding_registers(0, 1)) == [5]
+        assert c.raw_request(0x41) == b"abc"
+        assert peer.requests[0] == rtu(bytes((7, 3, 0, 0, 0, 1)))
+
+
+# -- against libmodbus as the server ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def libmodbus_exe(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return build_libmodbus_server(tmp_path_factory.mktemp("libmodbus"))
+
+
+@pytest.mark.parametrize("mode", ["tcp", "rtu", "rtu-over-tcp"])
+def test_against_a_libmodbus_server(libmodbus_exe: Path, mode: str) -> None:
+    with libmodbus_server(libmodbus_exe, mode) as where:
+        c: pymb.Client
+        if mode == "tcp":
+            c = pymb.TcpClient("127.0.0.1", int(where), slave=17, timeout=2)
+        elif mode == "rtu":
+            c = pymb.RtuClient(where, 115200, slave=17, timeout=2)
+        else:
+            c = pymb.RtuOverTcpClient("127.0.0.1", int(where), slave=17, timeout=2)
+        with c:
+            assert list(c.read_holding_registers(0, 5)) == [0, 3, 6, 9, 12]
+            assert list(c.read_input_registers(10, 2)) == [40010, 40011]
+            regs = c.read_holding_registers(0, 300)  # split into 125-register requests
+            assert list(regs) == [3 * i for i in range(300)]
+            c.write_register(5, 4242)
+            c.write_registers(6, [1, 2, 3])
+            assert list(c.read_holding_registers(5, 4)) == [4242, 1, 2, 3]
+            c.write_coil(1, True)
+            c.write_coils(2, [1, 0, 1])
+            assert list(c.read_coils(0, 5)) == [1, 1, 1, 0, 1]
+            with pytest.raises(pymb.IllegalFunction):  # libmodbus: unknown code -> 01
+                # (no data: libmodbus's RTU server frames requests by function code)
+                c.raw_request(0x41, b"" if mode != "tcp" else b"\x01")
+            with pytest.raises(pymb.IllegalDataAddress):
+                c.read_holding_registers(990, 20)
+            assert list(c.read_holding_registers(0, 1)) == [0]
+
+
+# -- smaller points -----------------------------------------------------------------------
+
+
+def test_crc16_counts_the_bytes_of_any_buffer() -> None:
+    a = array("H", [0x3132, 0x3334, 0x3536])
+    raw = a.tobytes()
+    assert pymb.crc16(memoryview(a)) == pymb.crc16(raw)
+    assert pymb.crc16(a) == pymb.crc16(raw)
+    assert _native.with_crc(a)[:-2] == raw
+    b = bytearray(b"0123456789")
+    assert pymb.crc16(memoryview(b)[::2]) == pymb.crc16(bytes(b[::2]))
+
+
+def test_rtu_silence_has_the_spec_floor() -> None:
+    assert _native.rtu_silence(9600) == pytest.approx(38.5 / 9600, abs=2e-6)
+    assert _native.rtu_silence(19200) == pytest.approx(38.5 / 19200, abs=2e-6)
+    for baud in (38400, 115200, 921600):
+        assert _native.rtu_silence(baud) == pytest.approx(0.00175)
