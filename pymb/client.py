@@ -27,7 +27,7 @@ from typing import Any
 from pymb import _native
 from pymb.errors import InvalidArgument, ModbusConnectionError
 
-__all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient"]
+__all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient", "client_for_address"]
 
 MAX_READ_REGISTERS = 125
 MAX_WRITE_REGISTERS = 123
@@ -603,3 +603,16 @@ class RtuOverTcpClient(Client):
         self.tcp_port = port
         super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
                          slave=slave, timeout=timeout, byte_timeout=byte_timeout)
+
+
+def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = 1.0,
+                       what: str = "--tcp") -> TcpClient | RtuOverTcpClient:
+    """A (not yet open) :class:`TcpClient`, or with ``rtu_framing`` an
+    :class:`RtuOverTcpClient`, for ``HOST:PORT`` as a user typed it (``what``
+    names the option or key in the error)."""
+    host, _, port = str(address).rpartition(":")
+    if not port.isdigit():
+        raise InvalidArgument(f"{what} needs HOST:PORT, got {address!r}")
+    host = host.strip("[]") or "127.0.0.1"
+    cls = RtuOverTcpClient if rtu_framing else TcpClient
+    return cls(host, int(port), timeout=timeout)

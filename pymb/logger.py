@@ -17,7 +17,8 @@ Configuration, as flags (one bus) or a TOML file (any number)::
 
     [[bus]]
     name = "line1"
-    port = "/dev/ttyUSB0"      # or tcp = "192.168.1.50:502"
+    port = "/dev/ttyUSB0"      # or tcp = "192.168.1.50:502", or
+                               # rtu_over_tcp = "192.168.1.60:4001" (a raw serial server)
     baud = 9600
     parity = "N"
     timeout = 1.0
@@ -50,7 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from pymb.client import Client, RtuClient, TcpClient
+from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolPro, SensorHub
 from pymb.devices.maps import COOLPRO
 from pymb.devices.planner import request_time
@@ -128,10 +129,12 @@ class BusConfig:
     timeout: float = 1.0
     interval: float = 0.0
     devices: list[DeviceConfig] = field(default_factory=list)
+    rtu_over_tcp: str | None = None
 
     def __post_init__(self) -> None:
-        if (self.port is None) == (self.tcp is None):
-            raise InvalidArgument(f"bus {self.name!r}: give exactly one of port or tcp")
+        if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp)) != 1:
+            raise InvalidArgument(
+                f"bus {self.name!r}: give exactly one of port, tcp or rtu_over_tcp")
         if not self.devices:
             raise InvalidArgument(f"bus {self.name!r} has no devices")
         if self.interval < 0:
@@ -145,16 +148,17 @@ class BusConfig:
     @property
     def endpoint(self) -> str:
         """The port path or ``host:port``."""
-        return self.port if self.port is not None else str(self.tcp)
+        return self.port if self.port is not None else str(self.tcp or self.rtu_over_tcp)
 
     def client(self) -> Client:
         """A new (unopened) client for this bus."""
         if self.tcp is not None:
-            host, _, port = self.tcp.rpartition(":")
-            try:
-                return TcpClient(host or "127.0.0.1", int(port), timeout=self.timeout)
-            except ValueError:
-                raise InvalidArgument(f"bad TCP address {self.tcp!r}; use HOST:PORT") from None
+            return client_for_address(self.tcp, timeout=self.timeout,
+                                      what=f"bus {self.name!r}: tcp")
+        if self.rtu_over_tcp is not None:
+            return client_for_address(self.rtu_over_tcp, rtu_framing=True,
+                                      timeout=self.timeout,
+                                      what=f"bus {self.name!r}: rtu_over_tcp")
         return RtuClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
 
     def wire_time(self, device: DeviceConfig) -> float:
@@ -217,6 +221,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
             _get(b, "tcp", str, where), _get(b, "baud", int, where, 9600),
             _get(b, "parity", str, where, "N"), float(_get(b, "timeout", (int, float), where, 1.0)),
             float(_get(b, "interval", (int, float), where, 0.0)), devices,
+            rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
         ))
     if not buses:
         raise InvalidArgument(f"{path}: no [[bus]] configured")
@@ -486,10 +491,10 @@ def single_bus_config(port: str | None, tcp: str | None, devices: Sequence[str],
                       baud: int = 9600, parity: str = "N", timeout: float = 1.0,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
                       max_mb: float | None = None, max_age_days: float | None = None,
-                      name: str = "bus1") -> LogConfig:
+                      name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
     """A LogConfig for one bus from command-line style arguments."""
     bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
-                    [parse_device(d) for d in devices])
+                    [parse_device(d) for d in devices], rtu_over_tcp)
     return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
                      None if max_age_days is None else max_age_days * 86400)
 

@@ -504,3 +504,63 @@ def test_rtu_silence_has_the_spec_floor() -> None:
     assert _native.rtu_silence(19200) == pytest.approx(38.5 / 19200, abs=2e-6)
     for baud in (38400, 115200, 921600):
         assert _native.rtu_silence(baud) == pytest.approx(0.00175)
+
+
+# -- RTU over TCP in the commands, the TOML bus config and the simulators -------------------
+
+
+def test_simulator_serves_rtu_over_tcp_to_pymodbus() -> None:
+    pm_client = pytest.importorskip("pymodbus.client")
+    framer = pytest.importorskip("pymodbus").FramerType.RTU
+    from pymb.sim import Simulator
+
+    with Simulator(["coolpro", "hub:250"], transport="rtu-over-tcp", seed=3) as sim:
+        c = pm_client.ModbusTcpClient(sim.host, port=sim.tcp_port, framer=framer, timeout=2,
+                                      retries=0)
+        assert c.connect()
+        try:
+            rr = c.read_input_registers(0, count=8, device_id=40)
+            assert not rr.isError() and len(rr.registers) == 8
+            rr = c.read_holding_registers(31, count=100, device_id=250)
+            assert not rr.isError() and list(rr.registers) == list(
+                sim.device(250).registers(31, 100))  # type: ignore[attr-defined]
+        finally:
+            c.close()
+        with pymb.RtuOverTcpClient(sim.host, sim.tcp_port, slave=250) as mine:
+            assert len(mine.read_holding_registers(31, 700)) == 700
+        sim.faults.inject("bad_crc")
+        with pymb.RtuOverTcpClient(sim.host, sim.tcp_port, slave=40) as mine, \
+                pytest.raises(pymb.ProtocolError, match="CRC"):
+            mine.read_input_registers(0, 8)
+
+
+def test_rtu_over_tcp_flag_in_commands_and_toml(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from pymb.cli import main
+    from pymb.logger import load_config
+    from pymb.sim import Simulator
+
+    with Simulator(["coolpro", "hub:250"], transport="rtu-over-tcp", seed=2) as sim:
+        where = f"{sim.host}:{sim.tcp_port}"
+        assert main(["read", "hub", "--rtu-over-tcp", where, "--address", "250",
+                     "--json"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        assert len(doc["values"]["temperature_c"]) == 100
+        assert main(["scan", "--rtu-over-tcp", where, "--range", "39-41", "--json"]) == 0
+        assert "40" in capsys.readouterr().out
+        out = tmp_path / "x.jsonl"
+        assert main(["log", "--rtu-over-tcp", where, "--device", "coolpro", "--format", "jsonl",
+                     "--out", str(out), "--seconds", "0.5", "--quiet"]) == 0
+        assert out.read_text().count("\n") > 0
+        toml = tmp_path / "bus.toml"
+        toml.write_text(f'[[bus]]\nname = "gw"\nrtu_over_tcp = "{where}"\n'
+                        '[[bus.device]]\ntype = "coolpro"\naddress = 40\n')
+        cfg = load_config(toml)
+        client = cfg.buses[0].client()
+        assert isinstance(client, pymb.RtuOverTcpClient)
+        with client:
+            assert len(client.read_input_registers(0, 8, slave=40)) == 8
+    assert main(["read", "coolpro", "--rtu-over-tcp", "nowhere"]) == 2
+    assert "HOST:PORT" in capsys.readouterr().err

@@ -9,20 +9,21 @@ import math
 import sys
 from typing import Any
 
-from pymb.client import Client, RtuClient, TcpClient
+from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
-from pymb.errors import InvalidArgument
 
 __all__ = ["add_connection_args", "make_client", "render", "to_json"]
 
 
 def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> None:
-    """--port / --tcp, --baud, --parity, --timeout."""
+    """--port / --tcp / --rtu-over-tcp, --baud, --parity, --timeout."""
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", metavar="PATH",
                        help="serial port, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")
     where.add_argument("--tcp", metavar="HOST:PORT", help="a Modbus TCP gateway")
+    where.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
+                       help="RTU frames over TCP: a transparent serial server (\"raw\" mode)")
     p.add_argument("--baud", type=int, default=9600, help="baud rate (default 9600)")
     p.add_argument("--parity", default="N", choices=["N", "E", "O"], help="parity (default N)")
     p.add_argument("--timeout", type=float, default=timeout,
@@ -32,10 +33,10 @@ def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> 
 def make_client(args: argparse.Namespace) -> Client:
     """The client the connection arguments describe (not yet open)."""
     if args.tcp:
-        host, _, port = args.tcp.rpartition(":")
-        if not port.isdigit():
-            raise InvalidArgument(f"--tcp needs HOST:PORT, got {args.tcp!r}")
-        return TcpClient(host or "127.0.0.1", int(port), timeout=args.timeout)
+        return client_for_address(args.tcp, timeout=args.timeout)
+    if getattr(args, "rtu_over_tcp", None):
+        return client_for_address(args.rtu_over_tcp, rtu_framing=True, timeout=args.timeout,
+                                  what="--rtu-over-tcp")
     return RtuClient(args.port, args.baud, args.parity, timeout=args.timeout)
 
 

@@ -16,6 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="buses, devices and output from a TOML file (see the README)")
     p.add_argument("--port", metavar="PATH", help="serial port of a single bus")
     p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
+    p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
+                   help="RTU-over-TCP (raw serial server) of a single bus")
     p.add_argument("--device", action="append", default=[], metavar="TYPE[:ADDR]",
                    help="coolpro[:ADDR] or hub[:ADDR]; repeat for several (single bus)")
     p.add_argument("--baud", type=int, default=9600)
@@ -36,16 +38,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def config_from(args: argparse.Namespace) -> LogConfig:
     """The LogConfig the arguments describe."""
     if args.config:
-        if args.port or args.tcp or args.device:
+        if args.port or args.tcp or args.rtu_over_tcp or args.device:
             raise InvalidArgument("give either --config or --port/--tcp with --device, not both")
         cfg = load_config(args.config)
     else:
-        if not (args.port or args.tcp) or not args.device:
+        if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp)) > 1:
+            raise InvalidArgument("give one of --port, --tcp or --rtu-over-tcp")
+        if not (args.port or args.tcp or args.rtu_over_tcp) or not args.device:
             raise InvalidArgument("name a bus: --port PATH (or --tcp HOST:PORT) and at least "
                                   "one --device coolpro[:ADDR] / hub[:ADDR]; or --config FILE")
         cfg = single_bus_config(args.port, args.tcp, args.device, baud=args.baud,
                                 parity=args.parity, timeout=args.timeout,
-                                interval=args.interval)
+                                interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
         cfg.path = ""
     if args.format:
         cfg.format = args.format

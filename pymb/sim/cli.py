@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", metavar="PATH", help="serve on a real serial port")
     where.add_argument("--tcp", metavar="[HOST:]PORT",
                        help="serve Modbus TCP (host 127.0.0.1 unless named; port 0: any)")
+    where.add_argument("--rtu-over-tcp", metavar="[HOST:]PORT",
+                       help="serve RTU frames over TCP, as a transparent serial server "
+                            "(\"raw\" gateway) does (host 127.0.0.1 unless named; port 0: any)")
     parser.add_argument("--baud", type=int, metavar="N",
                         help="line speed: every device is set to it and each frame takes "
                              "its real wire time (default 9600, no emulation)")
@@ -67,7 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="log every frame and fault to stderr")
 
 
-def _tcp_address(text: str) -> tuple[str, int]:
+def _tcp_address(text: str, flag: str = "--tcp") -> tuple[str, int]:
     host, sep, port = text.rpartition(":")
     if not sep:
         host, port = "", text
@@ -75,9 +78,9 @@ def _tcp_address(text: str) -> tuple[str, int]:
     try:
         number = int(port)
     except ValueError:
-        raise InvalidArgument(f"--tcp wants [HOST:]PORT, got {text!r}") from None
+        raise InvalidArgument(f"{flag} wants [HOST:]PORT, got {text!r}") from None
     if not 0 <= number <= 65535:
-        raise InvalidArgument(f"--tcp port must be 0..65535, got {number}")
+        raise InvalidArgument(f"{flag} port must be 0..65535, got {number}")
     return host, number
 
 
@@ -99,8 +102,11 @@ def run(args: argparse.Namespace) -> int:
     """Run the simulator until SIGINT or SIGTERM; 0 on a clean stop."""
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="pymb simulate: %(message)s", stream=sys.stderr)
-    tcp = _tcp_address(args.tcp) if args.tcp else None
-    transport = "tcp" if tcp else "serial" if args.port else "pty"
+    rot = getattr(args, "rtu_over_tcp", None)
+    tcp = (_tcp_address(args.tcp) if args.tcp else
+           _tcp_address(rot, "--rtu-over-tcp") if rot else None)
+    transport = ("tcp" if args.tcp else "rtu-over-tcp" if rot else
+                 "serial" if args.port else "pty")
     if args.link and transport != "pty":
         raise InvalidArgument("--link is for --pty only")
     sim = Simulator(
@@ -126,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             sim.start()
         except OSError as e:
-            where = args.port or args.tcp or "a pseudo-terminal"
+            where = args.port or args.tcp or rot or "a pseudo-terminal"
             raise ModbusConnectionError(f"cannot serve on {where}: {e.strerror or e}",
                                         errno=e.errno, port=where) from None
         endpoint = sim.endpoint
@@ -134,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
             print(endpoint, flush=True)
         for dev in sim.devices:
             print(f"  {dev.describe()}", file=sys.stderr)
-            print(f"    try: {_hint(dev, endpoint, tcp)}", file=sys.stderr)
+            if transport != "rtu-over-tcp":  # mbpoll has no RTU-over-TCP mode
+                print(f"    try: {_hint(dev, endpoint, tcp)}", file=sys.stderr)
         if args.fault:
             print(f"  faults: {', '.join(args.fault)} (seed {args.seed})", file=sys.stderr)
         print("  Ctrl-C or SIGTERM stops it", file=sys.stderr, flush=True)

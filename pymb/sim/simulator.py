@@ -33,7 +33,7 @@ from pymb.sim.tcp import TcpServer
 
 __all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
 
-TRANSPORTS = ("pty", "serial", "tcp")
+TRANSPORTS = ("pty", "serial", "tcp", "rtu-over-tcp")
 _KINDS = {"coolpro": CoolProDevice, "hub": HubDevice}
 
 
@@ -116,7 +116,8 @@ class Simulator:
     ``devices``: specs (see :func:`make_device`) or :class:`Device` objects
     (give those ``clock=sim.clock`` yourself if the simulator should steer
     their time); default one CoolPro. ``transport``: ``"pty"`` (default),
-    ``"serial"`` (``port`` names it) or ``"tcp"`` (``host``, ``tcp_port``; 0
+    ``"serial"`` (``port`` names it), ``"tcp"`` or ``"rtu-over-tcp"`` (RTU
+    frames on a TCP socket, as a raw serial server passes them) (``host``, ``tcp_port``; 0
     picks a free port). ``baud``: the line's speed; every device is set to
     it and each frame takes its real wire time (None: 9600, no emulation).
     ``seed``: values and probabilistic faults; ``faults``: a :class:`Faults`
@@ -197,8 +198,9 @@ class Simulator:
             return self
         line = self.baud or self.bus.devices[0].baud
         server: Server
-        if self.transport == "tcp":
-            server = TcpServer(self.bus, self._host, self._tcp_port, emulate_baud=self.baud)
+        if self.transport in ("tcp", "rtu-over-tcp"):
+            server = TcpServer(self.bus, self._host, self._tcp_port, emulate_baud=self.baud,
+                               rtu_framing=self.transport == "rtu-over-tcp")
         else:
             link = None
             if self.transport == "pty" and self._link_opt:

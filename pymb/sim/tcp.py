@@ -1,4 +1,8 @@
-"""Modbus TCP (MBAP) in front of the simulated bus, like an RTU gateway.
+"""Modbus TCP (MBAP) in front of the simulated bus, like an RTU gateway;
+or, with ``rtu_framing``, RTU frames (address, PDU, CRC) on the TCP socket,
+as a transparent serial server in "raw" mode passes them through (then the
+RTU framing faults, ``bad_crc`` included, apply, and unit 0xFF is an
+ordinary address).
 
 The unit identifier is the slave address on the bus: unit 0 is a broadcast
 (never answered), a unit no device has gets no answer (the request times
@@ -21,8 +25,10 @@ import struct
 import time
 from typing import Any
 
+from pymb import _native
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault
+from pymb.sim.rtu import frame_rtu
 from pymb.sim.server import Server
 
 __all__ = ["TcpServer", "frame_tcp"]
@@ -52,16 +58,20 @@ def frame_tcp(tid: int, unit: int, pdu: bytes, fault: Fault | None) -> bytes:
 
 
 class TcpServer(Server):
-    """Serves a bus as a Modbus TCP server on ``host``:``port`` (0: any free port)."""
+    """Serves a bus as a Modbus TCP server on ``host``:``port`` (0: any free
+    port); ``rtu_framing``: RTU frames over TCP instead of MBAP."""
 
     name = "tcp"
 
     def __init__(self, bus: Bus, host: str = "127.0.0.1", port: int = 0, *,
-                 emulate_baud: int | None = None) -> None:
+                 emulate_baud: int | None = None, rtu_framing: bool = False) -> None:
         super().__init__(bus)
         self.host = host
         self.port = port
         self.emulate_baud = emulate_baud
+        self.rtu_framing = rtu_framing
+        if rtu_framing:
+            self.name = "rtu-over-tcp"
         self._listener: socket.socket | None = None
         self._clients: dict[socket.socket, bytearray] = {}
 
@@ -129,6 +139,9 @@ class TcpServer(Server):
         end = time.perf_counter()
         buf = self._clients[conn]
         buf += data
+        if self.rtu_framing:
+            self._receive_rtu(conn, buf, end)
+            return
         while len(buf) >= _MBAP.size:
             tid, proto, length, unit = _MBAP.unpack_from(buf)
             if proto != 0 or not 2 <= length <= _MAX_PDU + 1:
@@ -143,21 +156,43 @@ class TcpServer(Server):
             if conn not in self._clients:
                 return
 
+    def _receive_rtu(self, conn: socket.socket, buf: bytearray, end: float) -> None:
+        """RTU requests from the stream: each as long as its function code
+        says; one whose length only silence tells is the rest of the segment."""
+        while len(buf) >= 2:
+            n = _native.rtu_request_length(buf)
+            if n == -1:  # more bytes needed
+                return
+            if n < 0:
+                n = len(buf)
+            if len(buf) < n:
+                return
+            frame = bytes(buf[:n])
+            del buf[:n]
+            if len(frame) < 4 or not _native.rtu_crc_ok(frame):
+                self.bus.stats.bad_frames += 1
+                buf.clear()  # out of step: what follows cannot be trusted
+                return
+            self._dispatch(conn, 0, frame[0], frame[1:-2], end)
+            if conn not in self._clients:
+                return
+
     def _dispatch(self, conn: socket.socket, tid: int, unit: int, pdu: bytes,
                   end: float) -> None:
         t0 = time.perf_counter_ns()
         address = unit
-        if unit == _UNIT_NOT_USED and len(self.bus.devices) == 1 and \
-                self.bus.device(unit) is None:
+        if not self.rtu_framing and unit == _UNIT_NOT_USED and len(self.bus.devices) == 1 \
+                and self.bus.device(unit) is None:
             address = self.bus.devices[0].address
-        out = self.bus.serve(address, pdu, tcp=True)
+        out = self.bus.serve(address, pdu, tcp=not self.rtu_framing)
         if out is None:
             return
         if out.pdu is None:
             if out.fault is not None and out.fault.kind == "unplug":
                 self._apply("unplug", out.fault.seconds)
             return
-        reply = frame_tcp(tid, unit, out.pdu, out.fault)
+        reply = (frame_rtu(unit, out.pdu, out.fault) if self.rtu_framing
+                 else frame_tcp(tid, unit, out.pdu, out.fault))
         self.bus.stats.served(time.perf_counter_ns() - t0)
         delay = out.delay
         baud = self.emulate_baud
