@@ -227,6 +227,7 @@ typedef struct {
     uint32_t silence_us;
     int (*interrupted)(void *arg);
     void *interrupt_arg;
+    uint32_t char_ns;
     uint16_t tid;
     int owed;
     int owed_slave;
@@ -247,6 +248,7 @@ int pymb_exception_errno(int code);
 int pymb_errno_exception(int errnum);
 int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
 uint32_t pymb_rtu_silence_us(int baud);
+uint32_t pymb_rtu_char_ns(int baud, int bits);
 int pymb_flush(pymb_line *line);
 int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
 int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,

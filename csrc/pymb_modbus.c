@@ -54,6 +54,15 @@ uint32_t pymb_rtu_silence_us(int baud)
     return (uint32_t)((38500000u + (uint32_t)baud * 1u - 1u) / (uint32_t)baud);
 }
 
+uint32_t pymb_rtu_char_ns(int baud, int bits)
+{
+    if (baud < 1 || bits < 7 || bits > 12) {
+        errno = EINVAL;
+        return 0;
+    }
+    return (uint32_t)(((uint64_t)bits * 1000000000u + (uint64_t)baud - 1u) / (uint64_t)baud);
+}
+
 int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us)
 {
     int hl;
@@ -237,6 +246,21 @@ static void owe(pymb_line *line, int slave)
     line->owed_since_us = now_us();
 }
 
+/* When the first byte of a reply to `req_len` bytes sent at `sent_us` can
+ * arrive at the earliest: the request's own wire time (with its CRC) plus
+ * t3.5, both at line->char_ns per character, less 5 % for clock tolerance;
+ * 0 when line->char_ns is 0 (no such check). */
+static uint64_t earliest_reply(const pymb_line *line, uint64_t sent_us, int req_len)
+{
+    uint64_t ns;
+
+    if (line->char_ns == 0) {
+        return 0;
+    }
+    ns = ((uint64_t)(req_len + 2) * 10u + 35u) * line->char_ns / 10u; /* + 3.5 chars */
+    return sent_us + ns * 95u / 100u / 1000u;
+}
+
 /* A whole, CRC-correct frame from the address whose request failed while
  * its quiet window runs: its late reply, to be dropped. */
 static int late_frame(pymb_line *line, int slave, const uint8_t *f, int len)
@@ -256,12 +280,12 @@ static int late_frame(pymb_line *line, int slave, const uint8_t *f, int len)
  * frame limit). With a byte timeout set, a gap longer than it after the
  * first byte fails. Returns the frame's length or -1 and errno; *got is
  * the number of bytes in rsp. */
-static int rtu_receive(pymb_line *line, int slave, int expect_total, uint8_t *rsp, int cap,
-                       int *got)
+static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t earliest,
+                       uint8_t *rsp, int cap, int *got)
 {
     int fd = modbus_get_socket(line->ctx), want = -1, by_silence = 0;
     uint64_t deadline = now_us() + timeout_us(line->ctx, 0);
-    uint64_t byte_us = timeout_us(line->ctx, 1), last = 0;
+    uint64_t byte_us = timeout_us(line->ctx, 1), last = 0, stale_last = 0;
     uint64_t silence = line->silence_us;
 
     *got = 0;
@@ -317,8 +341,16 @@ static int rtu_receive(pymb_line *line, int slave, int expect_total, uint8_t *rs
             errno = ECONNRESET; /* no more bytes will ever come (hang-up, closed) */
             return -1;
         }
-        (*got) += (int)k;
         last = now_us();
+        if (*got == 0 && earliest != 0 &&
+            (last < earliest || (stale_last != 0 && last - stale_last < silence))) {
+            /* Bytes the device cannot have sent in answer yet (the request
+             * was still on the wire, or its t3.5 not over), or the rest of
+             * such a frame: a duplicated or late reply. Dropped. */
+            stale_last = last;
+            continue;
+        }
+        (*got) += (int)k;
         if (want < 0 && !by_silence && (*got) >= 2) {
             if (rsp[1] & 0x80u) {
                 want = 5; /* address, function | 0x80, code, CRC */
@@ -518,6 +550,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                   uint8_t *rsp, int rsp_cap, pymb_failure *fail)
 {
     int hl, n, status = PYMB_FRAME_OK, pdu_len, exc = 0, desync = 0;
+    uint64_t sent_us;
 
     if (!line_ok(line) || req == NULL || rsp == NULL || req_len < 2 ||
         req_len > PYMB_MAX_PDU + 1 || rsp_cap < MODBUS_MAX_ADU_LENGTH || expect < 0 ||
@@ -530,6 +563,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
     if (before_request(line, req[0]) < 0) {
         return -1;
     }
+    sent_us = now_us();
     if (send_request(line, req, req_len) < 0) {
         owe(line, req[0]);
         return -1;
@@ -550,7 +584,8 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
     }
     if (hl == 1) {
         int got = 0;
-        n = rtu_receive(line, req[0], expect > 0 ? expect + 3 : 0, rsp, rsp_cap, &got);
+        n = rtu_receive(line, req[0], expect > 0 ? expect + 3 : 0,
+                        earliest_reply(line, sent_us, req_len), rsp, rsp_cap, &got);
         if (n < 0) {
             if (errno == EMBBADDATA) {
                 note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);

@@ -96,6 +96,15 @@ typedef struct {
      * signal never stops a request. */
     int (*interrupted)(void *arg);
     void *interrupt_arg;
+    /* in: RTU on a real line: one character's wire time in nanoseconds
+     * (pymb_rtu_char_ns). Nonzero: bytes that arrive before the request can
+     * have been answered (its own wire time plus 3.5 characters, less 5 %)
+     * start no reply; they and the rest of their frame (until line->silence_us
+     * of silence) are dropped: a duplicated reply that follows its original
+     * at once is never taken as the next answer. 0 (pymb_line_init's
+     * default; right for a pseudo-terminal, which has no wire time, and for
+     * RTU over TCP): no such check. */
+    uint32_t char_ns;
     uint16_t tid;          /* the last MBAP transaction id sent */
     int owed;              /* a quiet window is owed (after a failure) */
     int owed_slave;        /* the address the failed request went to */
@@ -111,6 +120,11 @@ int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence
  * 3.5 x 11 bits / baud up to 19200 baud, PYMB_T35_FLOOR_US above. Returns 0
  * (EINVAL) for baud < 1. */
 uint32_t pymb_rtu_silence_us(int baud);
+
+/* One character's wire time at `baud` with `bits` bits per character
+ * (start + data + parity + stop: 10 for 8N1, 11 for 8E1), in nanoseconds;
+ * 0 (EINVAL) when baud < 1 or bits is not 7..12. */
+uint32_t pymb_rtu_char_ns(int baud, int bits);
 
 /* What a failed request asked and what came back, for error messages. */
 typedef struct {

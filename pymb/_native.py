@@ -205,13 +205,16 @@ class Link:
     """
 
     def __init__(self, name: str, factory: Any, *, serial: bool,
-                 framing: int | None = None, silence: float = 0.0) -> None:
+                 framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
+                 reject_early: bool | None = None) -> None:
         self.name = name
         self.serial = serial
         self._factory = factory
         self._framing = framing if framing is not None else (
             lib.PYMB_FRAMING_RTU if serial else lib.PYMB_FRAMING_TCP)
         self._silence_us = max(0, round(silence * 1e6))
+        self._char_ns = char_ns
+        self.reject_early = reject_early  # None: on a real serial line, off on a pty
         self._ctx: Any = ffi.NULL
         self._line = ffi.new("pymb_line *")
         self._fail = ffi.new("pymb_failure *")
@@ -273,11 +276,26 @@ class Link:
                     f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
                     errno=ffi.errno, port=self.name)
             self._line.interrupted = lib.pymb_py_interrupted
+            self._line.char_ns = self._char_ns if self._rejects_early(ctx) else 0
             self._apply_timeouts()
             self._apply_rs485()
         except BaseException:
             self.close()  # a failed open leaves nothing open, nothing locked
             raise
+
+    def _rejects_early(self, ctx: Any) -> bool:
+        """Whether replies arriving before the request can have been answered
+        are dropped: asked for, or by default on a real serial line (a
+        pseudo-terminal, Linux majors 136..143, has no wire time)."""
+        if not self.serial or self._char_ns == 0:
+            return False
+        if self.reject_early is not None:
+            return self.reject_early
+        try:
+            rdev = os.fstat(lib.modbus_get_socket(ctx)).st_rdev
+        except OSError:
+            return False
+        return not 136 <= os.major(rdev) <= 143
 
     def close(self) -> None:
         """Close and free the context; safe to call twice."""
@@ -487,8 +505,10 @@ class Link:
         return ModbusConnectionError(f"{asked}: {_os_hint(err)}", errno=err, **kw)
 
 
-def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
+def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int,
+            reject_early: bool | None = None) -> Link:
     """A serial-line Link (not yet open)."""
+    bits = 1 + data_bits + (0 if parity == "N" else 1) + stop_bits
     dev = port.encode()
     par = parity.encode()
     return Link(
@@ -496,6 +516,8 @@ def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: in
         lambda: lib.modbus_new_rtu(dev, baudrate, par, data_bits, stop_bits),
         serial=True,
         silence=rtu_silence(baudrate),
+        char_ns=int(lib.pymb_rtu_char_ns(baudrate, bits)),
+        reject_early=reject_early,
     )
 
 

@@ -492,8 +492,14 @@ class RtuClient(Client):
 
     RS485 adapters: ``serial_mode="rs485"`` turns on the kernel's RS485 mode
     (drivers that support TIOCSRS485), ``rts="up"``/``"down"`` drives RTS
-    from user space around each request and ``rts_delay`` (seconds) waits
-    that long around it.
+    from user space around each request and ``rts_delay`` (0 to 1 second)
+    waits that long around it.
+
+    ``reject_early``: drop bytes that arrive before the request can have been
+    answered (its own wire time plus t3.5 at ``baudrate``), with the rest of
+    their frame: a repeater's duplicate that follows its original at once is
+    then never taken as the next answer. ``None`` (default): on for a real
+    serial port, off on a pseudo-terminal, which has no wire time.
     """
 
     def __init__(
@@ -510,6 +516,7 @@ class RtuClient(Client):
         serial_mode: str | None = None,
         rts: str | None = None,
         rts_delay: float | None = None,
+        reject_early: bool | None = None,
     ) -> None:
         if not isinstance(port, str) or not port:
             raise InvalidArgument(f"port must be a device path, got {port!r}")
@@ -527,7 +534,9 @@ class RtuClient(Client):
         self.parity = p
         self.data_bits = data_bits
         self.stop_bits = stop_bits
-        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
+        if reject_early is not None and not isinstance(reject_early, bool):
+            raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
+        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits, reject_early)
         super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
         self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
 

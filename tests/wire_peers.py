@@ -198,3 +198,81 @@ def libmodbus_server(exe: Path, mode: str) -> Iterator[str]:
     finally:
         proc.kill()
         proc.wait(10)
+
+
+class EmulatedLine:
+    """An RTU device behind a pseudo-terminal that keeps a real line's timing
+    at ``baud`` (8N1): a request is complete after its 8 bytes (function
+    0x03 only), its wire time and t3.5 pass before the reply's first byte can
+    arrive, and each reply's one register is the address asked for (so a
+stale reply cannot pass for the right one).
+    ``repeat_after``: like a repeater that sends every reply twice, the copy
+    follows that many seconds after the original, in 1 ms pieces (bytes on a
+    wire arrive one by one, not at once)."""
+
+    def __init__(self, baud: int, repeat_after: float | None = None) -> None:
+        self.char = 10 / baud
+        self.t35 = 3.5 * 11 / baud if baud <= 19200 else 0.00175
+        self.repeat_after = repeat_after
+        self.master, self._slave = os.openpty()
+        tty.setraw(self.master)
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        self.count = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _sleep_until(self, t: float) -> None:
+        while (left := t - time.perf_counter()) > 0:
+            time.sleep(min(left, 0.0005) if left < 0.002 else left - 0.001)
+
+    def _run(self) -> None:
+        poller = select.poll()
+        poller.register(self.master, select.POLLIN)
+        buf = b""
+        while not self._stop.is_set():
+            if not poller.poll(50):
+                buf = b""
+                continue
+            try:
+                buf += os.read(self.master, 512)
+            except OSError:
+                return
+            arrived = time.perf_counter()
+            while len(buf) >= 8:
+                frame, buf = buf[:8], buf[8:]
+                if crc(frame[:6]) != frame[6:]:
+                    continue
+                asked = frame[2] << 8 | frame[3]
+                reply = rtu(bytes((frame[0], 3)) + registers([asked]))
+                self.count += 1
+                # the request's own wire time, t3.5, then the first character
+                self._sleep_until(arrived + (8 + 1) * self.char + self.t35)
+                with suppress(OSError):
+                    os.write(self.master, reply)
+                end = time.perf_counter()
+                if self.repeat_after is None:
+                    continue
+                start = end + self.repeat_after
+                step = max(1, round(0.001 / self.char))
+                for k in range(0, len(reply), step):
+                    self._sleep_until(start + k * self.char)
+                    with suppress(OSError):
+                        os.write(self.master, reply[k:k + step])
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        for fd in (self.master, self._slave):
+            with suppress(OSError):
+                os.close(fd)
+
+
+@contextmanager
+def emulated_line(baud: int, repeat_after: float | None = None) -> Iterator[EmulatedLine]:
+    line = EmulatedLine(baud, repeat_after)
+    try:
+        yield line
+    finally:
+        line.stop()
