@@ -8,7 +8,9 @@
  *
  * The first input byte picks the request (and, with bit 7, also puts the
  * reply on the line *before* the request, as stale data that pymb must
- * discard); the rest is the reply, sent after each request.
+ * discard); the rest is the reply, sent after each request. Requests 4 and
+ * 5 go over a socket pair instead: Modbus TCP (pymb's MBAP parsing, the
+ * transaction id check) and RTU over TCP.
  */
 #define _XOPEN_SOURCE 700
 #define _DEFAULT_SOURCE
@@ -17,6 +19,7 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <pthread.h>
+#include <sys/socket.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,6 +34,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 static int master_fd = -1;
 static modbus_t *ctx;
 static pymb_line line;
+static int sock_fd = -1; /* the "device" end of the socket pair */
+static modbus_t *tcp_ctx;
+static pymb_line tcp_line, rot_line;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
@@ -54,6 +60,25 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     modbus_set_response_timeout(ctx, 0, 3000);
     modbus_set_byte_timeout(ctx, 0, 0);
     pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
+    {
+        int sp[2];
+        if (socketpair(AF_UNIX, SOCK_STREAM, 0, sp) != 0) {
+            perror("socketpair");
+            exit(1);
+        }
+        fcntl(sp[0], F_SETFL, fcntl(sp[0], F_GETFL) | O_NONBLOCK);
+        fcntl(sp[1], F_SETFL, fcntl(sp[1], F_GETFL) | O_NONBLOCK);
+        sock_fd = sp[1];
+        tcp_ctx = modbus_new_tcp("127.0.0.1", 502);
+        if (tcp_ctx == NULL || modbus_set_socket(tcp_ctx, sp[0]) == -1) {
+            perror("modbus tcp");
+            exit(1);
+        }
+        modbus_set_response_timeout(tcp_ctx, 0, 3000);
+        modbus_set_byte_timeout(tcp_ctx, 0, 0);
+        pymb_line_init(&tcp_line, tcp_ctx, PYMB_FRAMING_TCP, 0);
+        pymb_line_init(&rot_line, tcp_ctx, PYMB_FRAMING_RTU_OVER_TCP, 2000);
+    }
     return 0;
 }
 
@@ -62,10 +87,15 @@ static void drain_master(void)
     uint8_t junk[512];
     while (read(master_fd, junk, sizeof junk) > 0) {
     }
+    while (read(sock_fd, junk, sizeof junk) > 0) {
+    }
+    while (read(modbus_get_socket(tcp_ctx), junk, sizeof junk) > 0) {
+    }
 }
 
 /* The device: answers every request it sees with the fuzz input. */
 struct responder {
+    int fd;
     const uint8_t *reply;
     size_t len;
     volatile int stop;
@@ -75,11 +105,11 @@ static void *respond(void *arg)
 {
     struct responder *r = arg;
     uint8_t req[512];
-    struct pollfd pfd = {.fd = master_fd, .events = POLLIN};
+    struct pollfd pfd = {.fd = r->fd, .events = POLLIN};
 
     while (!r->stop) {
-        if (poll(&pfd, 1, 1) > 0 && read(master_fd, req, sizeof req) > 0 && r->len) {
-            if (write(master_fd, r->reply, r->len) < 0 && errno != EAGAIN) {
+        if (poll(&pfd, 1, 1) > 0 && read(r->fd, req, sizeof req) > 0 && r->len) {
+            if (write(r->fd, r->reply, r->len) < 0 && errno != EAGAIN) {
                 abort();
             }
         }
@@ -93,7 +123,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     uint16_t regs[PYMB_HUB_REGISTERS];
     pymb_failure fail;
     size_t reply = size > 1 ? size - 1 : 0;
-    int which = size ? data[0] % 4 : 0, n;
+    int which = size ? data[0] % 6 : 0, n;
+    int dev_fd = which >= 4 ? sock_fd : master_fd;
     struct responder resp;
     pthread_t thread;
 
@@ -102,11 +133,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     drain_master();
     line.owed = 0;
+    tcp_line.owed = 0;
+    rot_line.owed = 0;
     pymb_flush(&line);
-    if ((size && (data[0] & 0x80)) && reply && write(master_fd, data + 1, reply) < 0 &&
+    if ((size && (data[0] & 0x80)) && reply && write(dev_fd, data + 1, reply) < 0 &&
         errno != EAGAIN) {
         abort();
     }
+    resp.fd = dev_fd;
     resp.reply = data + 1;
     resp.len = reply;
     resp.stop = 0;
@@ -137,6 +171,23 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             abort();
         }
         break;
+    case 4: { /* Modbus TCP: a read of 3 registers from unit 250 */
+        const uint8_t req[] = {250, 0x03, 0x00, 0x1F, 0x00, 0x03};
+        n = pymb_transact(&tcp_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
+        if (n >= 0 && (n != 8 || rsp[6] != 250 || rsp[2] != 0 || rsp[3] != 0 ||
+                       ((rsp[0] << 8) | rsp[1]) != tcp_line.tid)) {
+            abort();
+        }
+        break;
+    }
+    case 5: { /* RTU over TCP: any function code (0x41), ended by silence */
+        const uint8_t req[] = {7, 0x41, 0x01};
+        n = pymb_transact(&rot_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
+        if (n >= 0 && (rsp[0] != 7 || !pymb_rtu_crc_ok(rsp, (size_t)n + 3))) {
+            abort();
+        }
+        break;
+    }
     default: { /* one hub sweep, slave 249 */
         pymb_span spans[8];
         pymb_hub_request rq;
