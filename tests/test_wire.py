@@ -613,3 +613,43 @@ def test_rejecting_early_bytes_closes_the_prompt_duplicate(baud: int, gap: float
     assert stale_with == 0
     if gap:
         assert stale_without > 0
+
+
+def test_ctrl_c_interrupts_a_blocked_read_in_a_real_process() -> None:
+    # A real SIGINT (Python's default handler: KeyboardInterrupt) to a process
+    # blocked in a read with a 30 s timeout: it ends at once with the
+    # KeyboardInterrupt, not after the timeout.
+    import subprocess
+    import sys
+
+    with raw_tcp(lambda i, adu: []) as peer:
+        code = (
+            "import sys, pymb\n"
+            f"c = pymb.TcpClient('127.0.0.1', {peer.port}, slave=1, timeout=30)\n"
+            "c.connect()\n"
+            "print('ready', flush=True)\n"
+            "try:\n"
+            "    c.read_holding_registers(0, 1)\n"
+            "except KeyboardInterrupt:\n"
+            "    print('interrupted', flush=True)\n"
+            "    sys.exit(3)\n"
+        )
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                                text=True, cwd=str(Path(__file__).resolve().parent.parent))
+        try:
+            assert proc.stdout is not None
+            assert proc.stdout.readline().strip() == "ready"
+            deadline = time.monotonic() + 10
+            while not peer.requests and time.monotonic() < deadline:
+                time.sleep(0.01)  # until the request is on the wire: the read is blocked
+            assert peer.requests
+            t0 = time.monotonic()
+            proc.send_signal(signal.SIGINT)
+            rc = proc.wait(10)
+            assert time.monotonic() - t0 < 5
+            assert rc == 3
+            assert proc.stdout.read().strip() == "interrupted"
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
