@@ -6,10 +6,12 @@ that fill one preallocated array, in C. One client may be shared by threads:
 each holds a lock per request, and the blocking I/O runs with the GIL
 released, so other buses keep working.
 
-Replies are checked by pymb itself (CRC, address, function code, byte count,
-write echo). Before each request pending input is discarded; after a timeout
-or a bad frame pymb listens until the line has been silent for the response
-timeout, so a late or stray reply is never taken as a later answer.
+Replies are checked by pymb itself (over TCP the transaction id, protocol
+id, length and unit id of its own MBAP header; over RTU the CRC and address;
+then function code, byte count, write echo). A failed call returns within its
+timeout; over RTU the next request to that address first waits until the
+line has been silent for the response timeout since the failure, so a late
+or stray reply is never taken as a later answer (README, "No stale data").
 """
 
 from __future__ import annotations
