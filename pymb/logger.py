@@ -64,6 +64,7 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
+from pymb.fleet.config import MqttConfig, from_table
 from pymb.store import DeviceInfo, Event, OutputError, Sample, Sink, open_sink
 
 __all__ = [
@@ -183,6 +184,7 @@ class LogConfig:
     max_age: float | None = None
     batch: int = 200  #: samples per commit, at most
     commit_interval: float = 0.5  #: seconds between commits, at most
+    mqtt: MqttConfig | None = None  #: forward the samples to a broker (SQLite only)
 
 
 def _get(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str,
@@ -227,11 +229,13 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
         raise InvalidArgument(f"{path}: no [[bus]] configured")
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
+    mqtt = _get(doc, "mqtt", dict, str(path))
     return LogConfig(
         buses, _get(out, "format", str, f"{path}: output", "sqlite"),
         _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
         None if max_mb is None else int(max_mb * 1e6),
         None if max_days is None else float(max_days) * 86400,
+        mqtt=None if mqtt is None else from_table(mqtt, str(path)),
     )
 
 
@@ -378,8 +382,10 @@ class Logger:
     """
 
     def __init__(self, config: LogConfig, *, sink: Sink | None = None,
-                 status: TextIO | None = None) -> None:
+                 status: TextIO | None = None,
+                 extra_status: Callable[[], str] | None = None) -> None:
         self.config = config
+        self.extra_status = extra_status  #: appended to the status line (the forwarder's)
         self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
                                       max_age=config.max_age)
         self.status_out = status
@@ -478,10 +484,12 @@ class Logger:
         rate = s.samples / elapsed if elapsed > 0 else 0.0
         line = (f"{s.samples:,} samples  {rate:,.1f}/s  faults {s.faults}  "
                 f"{elapsed:6.1f} s  {s.status}")
+        if self.extra_status is not None:
+            line += "  " + self.extra_status()
         out = self.status_out
         assert out is not None
         if out.isatty():
-            out.write("\r\x1b[K" + line[:150] + ("\n" if final else ""))
+            out.write("\r\x1b[K" + line[:200] + ("\n" if final else ""))
         elif final:
             out.write(line + "\n")
         out.flush()

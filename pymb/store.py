@@ -375,6 +375,11 @@ def _iso(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1e6):06d}Z"
 
 
+def iso_utc(t: float) -> str:
+    """Seconds since the epoch as ISO 8601 UTC with microseconds (``...Z``)."""
+    return _iso(t)
+
+
 def sample_rows(sample: Sample) -> Iterator[list[Any]]:
     """A sample as long-format rows: one per quantity (and channel)."""
     d, t = sample.device, sample.time_utc

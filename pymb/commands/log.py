@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from pymb.errors import InvalidArgument
+from pymb.fleet.config import KEYS, PASSWORD_ENV, PROFILES, MqttConfig
 from pymb.logger import LogConfig, Logger, default_path, load_config, single_bus_config
 from pymb.store import FORMATS
 
@@ -33,6 +34,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-age-days", type=float, help="SQLite: delete data older than this")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no status line (for services)")
+    add_mqtt_arguments(p)
+
+
+def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
+    """The ``--mqtt*`` flags (TOML: the ``[mqtt]`` table, keys of the same names)."""
+    g = p.add_argument_group("forwarding to an MQTT broker (needs pymb[mqtt]; SQLite output)")
+    g.add_argument("--mqtt", metavar="URL",
+                   help="mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (TLS): publish every sample")
+    g.add_argument("--mqtt-profile", choices=PROFILES, help="plain JSON (default) or sparkplug")
+    g.add_argument("--mqtt-node", metavar="NAME", help="edge node name (default: the host name)")
+    g.add_argument("--mqtt-group", metavar="NAME", help="Sparkplug group (default pymb)")
+    g.add_argument("--mqtt-prefix", metavar="PREFIX",
+                   help="plain topics {prefix}/{node}/{device} (default pymb)")
+    g.add_argument("--mqtt-user", metavar="NAME", help="user name")
+    g.add_argument("--mqtt-password-file", metavar="FILE",
+                   help=f"the password's file (or ${PASSWORD_ENV}; never on the command line)")
+    g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
+    g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
+    g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+
+
+def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig | None:
+    """The [mqtt] table of the TOML file, overridden by the ``--mqtt*`` flags."""
+    keys = [k for k in KEYS if k not in ("catchup_rate", "keepalive")]
+    given = {k: getattr(args, "mqtt" if k == "url" else f"mqtt_{k}") for k in keys}
+    given = {k: v for k, v in given.items() if v is not None}
+    if base is None and not given:
+        return None
+    if base is None and "url" not in given:
+        raise InvalidArgument("the --mqtt-* options need --mqtt URL (or [mqtt] url in the TOML)")
+    table = {} if base is None else {k: getattr(base, k) for k in KEYS}
+    return MqttConfig(**{**table, **given})
 
 
 def config_from(args: argparse.Namespace) -> LogConfig:
@@ -61,12 +94,19 @@ def config_from(args: argparse.Namespace) -> LogConfig:
         cfg.max_bytes = int(args.max_mb * 1e6)
     if args.max_age_days is not None:
         cfg.max_age = args.max_age_days * 86400
+    cfg.mqtt = mqtt_from(args, cfg.mqtt)
+    if cfg.mqtt is not None and cfg.format != "sqlite":
+        raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
+                              "use --format sqlite")
     return cfg
 
 
 def run(args: argparse.Namespace) -> int:
     """Log until Ctrl-C / SIGTERM (or --seconds), then print the summary."""
     cfg = config_from(args)
+    if cfg.mqtt is not None:
+        from pymb.fleet.run import log_and_forward
+        return log_and_forward(cfg, cfg.mqtt, seconds=args.seconds, quiet=args.quiet)
     logger = Logger(cfg, status=None if args.quiet else sys.stderr)
     s = logger.run(args.seconds)
     if not args.quiet:

@@ -1,0 +1,45 @@
+"""Fleet: every logged sample reaches an MQTT broker, through outages.
+
+The SQLite log is the durable outbox: the logger commits each sample first,
+then a :class:`~pymb.fleet.forwarder.Forwarder` thread publishes the
+committed samples and advances a cursor stored in the same file only past
+what the broker acknowledged. Profiles: ``plain`` (JSON, QoS 1) and
+``sparkplug`` (Sparkplug B 3.0). Needs the extra ``pymb[mqtt]``
+(paho-mqtt 2.x). Also here: the InfluxDB line protocol output
+(:mod:`pymb.fleet.influx`) and a launcher of Debian's mosquitto for tests,
+the demo and the bench (:mod:`pymb.fleet.broker`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pymb.fleet.config import MqttConfig
+
+__all__ = ["ForwardingSink", "MqttConfig"]
+
+
+class ForwardingSink:
+    """A sink that wakes the forwarder after each commit of the sink it wraps."""
+
+    def __init__(self, sink: Any, forwarder: Any) -> None:
+        self.sink = sink
+        self.forwarder = forwarder
+
+    def write(self, sample: Any) -> None:
+        """Add a sample to the batch."""
+        self.sink.write(sample)
+
+    def event(self, event: Any) -> None:
+        """Add an event to the batch."""
+        self.sink.event(event)
+
+    def commit(self) -> None:
+        """Commit, then wake the forwarder."""
+        self.sink.commit()
+        self.forwarder.notify()
+
+    def close(self) -> None:
+        """Commit and close, then wake the forwarder."""
+        self.sink.close()
+        self.forwarder.notify()

@@ -1,0 +1,121 @@
+"""The MQTT settings of ``pymb log``: flags and the ``[mqtt]`` TOML table.
+
+Flags and TOML keys have the same names (``--mqtt-profile`` is ``profile``
+in ``[mqtt]``; ``--mqtt URL`` is ``url``)::
+
+    [mqtt]
+    url = "mqtts://broker.plant.example:8883"   # mqtt://HOST[:PORT] or mqtts://
+    profile = "sparkplug"        # plain (default) | sparkplug
+    node = "gateway-7"           # default: the host name
+    group = "pymb"               # Sparkplug group
+    prefix = "pymb"              # plain topics: {prefix}/{node}/{device}
+    user = "gateway-7"
+    password_file = "/etc/pymb/mqtt.pass"   # or PYMB_MQTT_PASSWORD; never in argv
+    ca = "/etc/pymb/ca.pem"      # server verification (default: the system's CAs)
+    cert = "/etc/pymb/client.pem"            # client certificate ...
+    key = "/etc/pymb/client.key"             # ... and its key
+    catchup_rate = 1000          # backlog messages per second after an outage
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import urlsplit
+
+from pymb.errors import InvalidArgument
+
+__all__ = ["PROFILES", "MqttConfig", "from_table"]
+
+PROFILES = ("plain", "sparkplug")
+PASSWORD_ENV = "PYMB_MQTT_PASSWORD"
+#: TOML key -> type; the flag is ``--mqtt-KEY`` with ``_`` as ``-`` (``url`` is ``--mqtt``)
+KEYS: dict[str, type | tuple[type, ...]] = {
+    "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
+    "password_file": str, "ca": str, "cert": str, "key": str,
+    "catchup_rate": (int, float), "keepalive": int,
+}
+
+
+@dataclass
+class MqttConfig:
+    """Where and how samples are forwarded to an MQTT broker."""
+
+    url: str
+    profile: str = "plain"
+    node: str = ""
+    group: str = "pymb"
+    prefix: str = "pymb"
+    user: str | None = None
+    password_file: str | None = None
+    ca: str | None = None
+    cert: str | None = None
+    key: str | None = None
+    catchup_rate: float = 1000.0  #: backlog messages per second, at most
+    keepalive: int = 15  #: seconds; a silent link is noticed after about 1.5 times this
+
+    def __post_init__(self) -> None:
+        u = urlsplit(self.url)
+        if u.scheme not in ("mqtt", "mqtts") or not u.hostname or u.path not in ("", "/"):
+            raise InvalidArgument(f"bad MQTT URL {self.url!r}; use mqtt://HOST[:PORT] or "
+                                  "mqtts://HOST[:PORT] (TLS)")
+        if u.username or u.password:
+            raise InvalidArgument("no user or password in the MQTT URL; use --mqtt-user and "
+                                  f"--mqtt-password-file (or {PASSWORD_ENV})")
+        try:
+            port = u.port
+        except ValueError:
+            raise InvalidArgument(f"bad port in the MQTT URL {self.url!r}") from None
+        self.tls = u.scheme == "mqtts"
+        self.host = u.hostname
+        self.port = port or (8883 if self.tls else 1883)
+        if self.profile not in PROFILES:
+            raise InvalidArgument(f"unknown MQTT profile {self.profile!r}; use plain or sparkplug")
+        if not self.node:
+            self.node = socket.gethostname().split(".")[0] or "pymb"
+        for what, value in (("node", self.node), ("group", self.group),
+                            ("prefix", self.prefix)):
+            if not value or any(c in value for c in "/+#") or value != value.strip():
+                raise InvalidArgument(f"MQTT {what} {value!r} must be a non-empty name "
+                                      "without '/', '+', '#' or surrounding spaces")
+        if not self.tls and (self.ca or self.cert or self.key):
+            raise InvalidArgument("--mqtt-ca/--mqtt-cert/--mqtt-key need an mqtts:// URL")
+        if bool(self.cert) != bool(self.key):
+            raise InvalidArgument("a client certificate needs both --mqtt-cert and --mqtt-key")
+        for what, path in (("ca", self.ca), ("cert", self.cert), ("key", self.key),
+                           ("password file", self.password_file)):
+            if path and not os.access(path, os.R_OK):
+                raise InvalidArgument(f"MQTT {what} {path!r} cannot be read")
+        if self.catchup_rate <= 0:
+            raise InvalidArgument("MQTT catchup_rate must be > 0")
+        if not 5 <= self.keepalive <= 3600:
+            raise InvalidArgument("MQTT keepalive must be 5..3600 seconds")
+        if self.password_file and not self.user:
+            raise InvalidArgument("--mqtt-password-file needs --mqtt-user")
+
+    def password(self) -> str | None:
+        """The password: from the file (first line), else $PYMB_MQTT_PASSWORD."""
+        if self.password_file:
+            try:
+                with open(self.password_file, encoding="utf-8") as f:
+                    return f.readline().rstrip("\r\n")
+            except OSError as e:
+                raise InvalidArgument(
+                    f"cannot read {self.password_file}: {e.strerror}") from None
+        return os.environ.get(PASSWORD_ENV) if self.user else None
+
+
+def from_table(table: dict[str, Any], where: str) -> MqttConfig:
+    """An MqttConfig from a ``[mqtt]`` TOML table."""
+    for k, v in table.items():
+        kind = KEYS.get(k)
+        if kind is None:
+            raise InvalidArgument(f"{where}: unknown key {k!r} in [mqtt]; known: "
+                                  f"{', '.join(KEYS)}")
+        if not isinstance(v, kind) or isinstance(v, bool):
+            raise InvalidArgument(f"{where}: [mqtt] {k} has the wrong type ({v!r})")
+    if "url" not in table:
+        raise InvalidArgument(f"{where}: [mqtt] needs url = \"mqtt://HOST[:PORT]\"")
+    return MqttConfig(**table)

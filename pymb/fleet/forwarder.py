@@ -1,0 +1,456 @@
+"""The forwarder: committed samples from the SQLite file to an MQTT broker.
+
+A thread publishes the samples in id order and advances a durable cursor
+(the ``outbox`` table, see :mod:`pymb.fleet.source`) only past samples the
+broker acknowledged. On a lost connection it reconnects with a doubling
+backoff (0.5 s to 30 s); each connection starts with its profile's births,
+then two lanes run side by side:
+
+* live: samples committed since the connection started, as fast as the
+  broker acknowledges them (at most ``WINDOW`` in flight);
+* catch-up: everything older that is still unacknowledged (the backlog of
+  an outage or of a restart, SIGKILL included), paced at ``catchup_rate``
+  messages per second, marked ``is_historical`` in Sparkplug.
+
+Every sample reaches the broker at least once; a sample acknowledged but not
+yet recorded in the cursor when pymb dies (at most a quarter of a second's
+worth, plus the live lane of a connection whose catch-up had not finished)
+is sent again: consumers drop duplicates by the sample's id.
+"""
+
+from __future__ import annotations
+
+import bisect
+import collections
+import contextlib
+import ssl
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from pymb.fleet.config import MqttConfig
+from pymb.fleet.profiles import Message, Profile, make_profile
+from pymb.fleet.source import Record, Source
+
+__all__ = ["Forwarder", "ForwarderStatus"]
+
+WINDOW = 200  #: messages in flight (unacknowledged), at most
+FETCH = 100  #: samples read from the database at a time
+BARRIER_EVERY = 50  #: Sparkplug (QoS 0): a SUBSCRIBE round trip after this many messages
+CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
+_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+
+
+@dataclass(frozen=True)
+class ForwarderStatus:
+    """A snapshot of the forwarder, for the status line and the summary."""
+
+    connected: bool
+    state: str  #: connected, connecting, a reason for the disconnection
+    published: int  #: samples published (repeats included)
+    acked: int  #: samples acknowledged by the broker
+    backlog: int  #: samples committed and not yet acknowledged
+    backlog_age: float | None  #: seconds since the oldest of them was taken
+    last_ack: float | None  #: time.time() of the last acknowledgement
+    rate: float  #: samples acknowledged per second, over the last few seconds
+    connections: int  #: successful connections so far
+
+    def line(self) -> str:
+        """A short status: ``mqtt ok 152/s backlog 0``."""
+        head = "mqtt " + ("ok" if self.connected else self.state)
+        age = "" if self.backlog_age is None or not self.backlog else \
+            f" ({self.backlog_age:.0f} s old)"
+        ack = "-" if self.last_ack is None else time.strftime(
+            "%H:%M:%S", time.localtime(self.last_ack))
+        return f"{head} {self.rate:,.0f}/s backlog {self.backlog:,}{age} last ack {ack}"
+
+
+class _CursorWriter(threading.Thread):
+    """Writes the latest cursor in its own thread and connection: the logger
+    holds SQLite's write lock for most of each batch, and the forwarder must
+    not wait for it."""
+
+    def __init__(self, path: str, dest: str) -> None:
+        super().__init__(name="pymb-mqtt-cursor", daemon=True)
+        self.path, self.dest = path, dest
+        self.cond = threading.Condition()
+        self.value: int | None = None
+        self.written: int | None = None
+        self.closing = False
+        self.error: BaseException | None = None
+
+    def put(self, value: int) -> None:
+        """Write ``value`` soon."""
+        with self.cond:
+            self.value = value
+            self.cond.notify()
+
+    def close(self) -> None:
+        """Write what is pending, then end."""
+        with self.cond:
+            self.closing = True
+            self.cond.notify()
+        self.join(60)
+
+    def run(self) -> None:
+        src = Source(self.path)
+        try:
+            while True:
+                with self.cond:
+                    while self.value == self.written and not self.closing:
+                        self.cond.wait()
+                    value, closing = self.value, self.closing
+                if value is not None and value != self.written:
+                    src.set_cursor(self.dest, value)
+                    self.written = value
+                if closing and self.value == self.written:
+                    return
+        except BaseException as e:
+            self.error = e
+        finally:
+            src.close()
+
+
+class _Session:
+    """One MQTT connection (a paho client); callbacks run on paho's thread."""
+
+    def __init__(self, fw: Forwarder, client_id: str) -> None:
+        import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
+
+        self.fw = fw
+        self.connack = threading.Event()
+        self.reason: str | None = None
+        self.ok = False
+        self.lost = False
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                  clean_session=True, protocol=mqtt.MQTTv311)
+        self.client.max_inflight_messages_set(WINDOW + 20)
+        self.client.max_queued_messages_set(0)
+        c = self.client
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_publish = self._on_publish
+        c.on_subscribe = self._on_subscribe
+        c.on_message = self._on_message
+
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                    props: Any = None) -> None:
+        self.ok = not rc.is_failure
+        self.reason = None if self.ok else f"refused: {rc}"
+        if self.ok and self.fw.profile.command_topic:
+            client.subscribe(self.fw.profile.command_topic, qos=1)
+        self.connack.set()
+
+    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                       props: Any = None) -> None:
+        self.lost = True
+        if self.reason is None:
+            self.reason = f"disconnected: {rc}"
+        self.connack.set()
+        self.fw.wake.set()
+
+    def _on_publish(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
+        self.fw.acks.append(mid)
+        self.fw.wake.set()
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
+        self.fw.acks.append(mid)
+        self.fw.wake.set()
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
+            self.fw.rebirth.set()
+            self.fw.wake.set()
+
+
+class Forwarder(threading.Thread):
+    """Publishes the samples committed to ``db_path``; see the module docstring.
+
+    ``notify()`` after each commit wakes it at once (it also looks every
+    0.2 s); ``stop(drain)`` ends it after at most ``drain`` seconds spent
+    sending what is left, then disconnects cleanly (the profile's goodbye).
+    """
+
+    def __init__(self, db_path: str, cfg: MqttConfig) -> None:
+        super().__init__(name="pymb-mqtt", daemon=True)
+        try:
+            import paho.mqtt.client  # noqa: F401
+        except ImportError:
+            from pymb.errors import InvalidArgument
+            raise InvalidArgument("--mqtt needs paho-mqtt: pip install 'pymb[mqtt]'") from None
+        self.cfg = cfg
+        self.profile: Profile = make_profile(cfg)
+        self.dest = f"{'mqtts' if cfg.tls else 'mqtt'}://{cfg.host}:{cfg.port}/" \
+                    f"{cfg.profile}/{cfg.group + '/' if cfg.profile == 'sparkplug' else ''}" \
+                    f"{cfg.node}"
+        self.source = Source(db_path)
+        self.password = cfg.password()
+        self.wake = threading.Event()
+        self.rebirth = threading.Event()
+        self.acks: collections.deque[int] = collections.deque()
+        self._stopping = threading.Event()
+        self._drain_until = 0.0
+        self.cursor = self.source.cursor(self.dest)
+        self._saved_cursor = self.cursor
+        self._saved_at = 0.0
+        self._writer = _CursorWriter(db_path, self.dest)
+        self._done: list[list[int]] = []  #: acknowledged [lo, hi] ranges above the cursor
+        self._lock = threading.Lock()
+        self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0)
+        self._published = self._acked = self._connections = 0
+        self._last_ack: float | None = None
+        self._ack_times: collections.deque[tuple[float, int]] = collections.deque()
+        self.error: BaseException | None = None
+
+    # -- the public side -----------------------------------------------------------
+
+    def notify(self) -> None:
+        """New samples were committed."""
+        self.wake.set()
+
+    def status(self) -> ForwarderStatus:
+        """The latest snapshot (thread-safe)."""
+        with self._lock:
+            return self._status
+
+    def stop(self, drain: float = 5.0) -> None:
+        """Send what is left for at most ``drain`` seconds, then disconnect and end."""
+        self._drain_until = time.monotonic() + drain
+        self._stopping.set()
+        self.wake.set()
+
+    # -- the thread ----------------------------------------------------------------
+
+    def run(self) -> None:
+        self._writer.start()
+        try:
+            self._run()
+        except BaseException as e:  # reported by the command, never lost silently
+            self.error = e
+        finally:
+            self._save_cursor(force=True)
+            self._writer.close()
+            self.error = self.error or self._writer.error
+            self._snapshot("stopped", False)
+            self.source.close()
+
+    def _run(self) -> None:
+        backoff = _BACKOFF_FIRST
+        while not self._stopping.is_set():
+            s = self._connect()
+            if s is not None and s.ok:
+                backoff = _BACKOFF_FIRST
+                self._connections += 1
+                self._pump(s)
+                self._close(s)
+                if self._stopping.is_set():
+                    return
+            reason = "connecting" if s is None else (s.reason or "disconnected")
+            if s is not None and s.ok:
+                backoff = _BACKOFF_FIRST
+            until = time.monotonic() + backoff
+            while (left := until - time.monotonic()) > 0:
+                self._snapshot(f"down ({reason}), retry in {left:.0f} s", False)
+                if self._stopping.wait(min(left, 0.5)):
+                    return
+            backoff = min(backoff * 2, _BACKOFF_MAX)
+
+    def _connect(self) -> _Session | None:
+        cfg = self.cfg
+        self.profile.new_connection(self.source)
+        s = _Session(self, f"pymb-{cfg.profile}-{cfg.node}")
+        c = s.client
+        if cfg.user:
+            c.username_pw_set(cfg.user, self.password)
+        if cfg.tls:
+            c.tls_set(ca_certs=cfg.ca, certfile=cfg.cert, keyfile=cfg.key,
+                      cert_reqs=ssl.CERT_REQUIRED, tls_version=ssl.PROTOCOL_TLS_CLIENT)
+        w = self.profile.will()
+        c.will_set(w.topic, w.payload, w.qos, w.retain)
+        self._snapshot("connecting", False)
+        try:
+            c.connect(cfg.host, cfg.port, keepalive=cfg.keepalive)
+        except (OSError, ssl.SSLError) as e:
+            s.reason = (e.strerror or str(e)).lower() if isinstance(e, OSError) else str(e)
+            s.ok = False
+            with contextlib.suppress(Exception):
+                c.socket() and c.disconnect()
+            return s
+        c.loop_start()
+        if not s.connack.wait(max(10.0, cfg.keepalive)) or not s.ok:
+            s.ok = False
+            s.reason = s.reason or "no CONNACK from the broker"
+            self._close(s)
+        return s
+
+    def _close(self, s: _Session) -> None:
+        with contextlib.suppress(Exception):
+            s.client.disconnect()
+        with contextlib.suppress(Exception):
+            s.client.loop_stop()
+
+    # -- acknowledgements and the cursor -------------------------------------------
+
+    def _mark(self, lo: int, hi: int) -> None:
+        """Samples lo..hi are acknowledged."""
+        if hi <= self.cursor:
+            return
+        lo = max(lo, self.cursor + 1)
+        d = self._done
+        i = bisect.bisect_left(d, [lo, lo])
+        d.insert(i, [lo, hi])
+        # merge neighbours that touch
+        j = max(i - 1, 0)
+        while j + 1 < len(d):
+            if d[j][1] + 1 >= d[j + 1][0]:
+                d[j][1] = max(d[j][1], d[j + 1][1])
+                del d[j + 1]
+            elif j > i:
+                break
+            else:
+                j += 1
+        while d and d[0][0] <= self.cursor + 1:
+            self.cursor = max(self.cursor, d.pop(0)[1])
+
+    def _skip_done(self, after: int) -> int:
+        """``after`` moved past the acknowledged range it is at the edge of."""
+        for lo, hi in self._done:
+            if lo <= after + 1 <= hi:
+                return hi
+        return after
+
+    def _next_done(self, after: int) -> int | None:
+        for lo, _hi in self._done:
+            if lo > after:
+                return lo
+        return None
+
+    def _save_cursor(self, force: bool = False) -> None:
+        if self.cursor != self._saved_cursor:
+            now = time.monotonic()
+            if force or now - self._saved_at >= CURSOR_EVERY:
+                self._writer.put(self.cursor)
+                self._saved_cursor = self.cursor
+                self._saved_at = now
+
+    def _snapshot(self, state: str, connected: bool) -> None:
+        now = time.time()
+        while self._ack_times and self._ack_times[0][0] < now - 5:
+            self._ack_times.popleft()
+        span = (now - self._ack_times[0][0]) if len(self._ack_times) > 1 else 0.0
+        rate = sum(n for _, n in self._ack_times) / max(span, 1.0) if self._ack_times else 0.0
+        old = self.source.oldest_after(self.cursor)
+        backlog = 0 if old is None else old[0] - sum(hi - lo + 1 for lo, hi in self._done)
+        age = None if old is None else max(0.0, now - old[1])
+        with self._lock:
+            self._status = ForwarderStatus(connected, state, self._published, self._acked,
+                                           max(backlog, 0), age, self._last_ack, rate,
+                                           self._connections)
+
+    # -- one connection ------------------------------------------------------------
+
+    def _pump(self, s: _Session) -> None:
+        prof = self.profile
+        c = s.client
+        qos1 = prof.data_qos > 0
+        inflight: dict[int, list[tuple[int, int]]] = {}  # mid -> sample ranges it acks
+        unbarriered: list[tuple[int, int]] = []  # QoS 0: sent, waiting for a barrier
+        since_barrier = 0
+        outstanding = 0  # samples sent and not acknowledged
+
+        def send(msgs: list[Message], ranges: list[tuple[int, int]]) -> None:
+            nonlocal since_barrier
+            for i, m in enumerate(msgs):
+                info = c.publish(m.topic, m.payload, m.qos, m.retain)
+                last = i == len(msgs) - 1
+                if qos1 and m.qos > 0:
+                    inflight[info.mid] = ranges if last else []
+                elif last:
+                    unbarriered.extend(ranges)
+                    since_barrier += 1
+
+        def barrier() -> None:
+            nonlocal since_barrier
+            if unbarriered and prof.command_topic:
+                _rc, mid = c.subscribe(prof.command_topic, qos=1)
+                if mid is not None:
+                    inflight[mid] = list(unbarriered)
+                unbarriered.clear()
+                since_barrier = 0
+
+        send(prof.births(self.source), [])
+        barrier()
+        self.rebirth.clear()
+        live_start = live_after = self.source.max_id()  # the live lane: what comes after
+        catch_after = self._skip_done(self.cursor)  # the catch-up lane: up to live_start
+        tokens, last_tick = 0.0, time.monotonic()
+        last_snap = 0.0
+        while not s.lost:
+            self.wake.clear()
+            # acknowledgements
+            while self.acks:
+                mid = self.acks.popleft()
+                ranges = inflight.pop(mid, None)
+                if ranges:
+                    n = 0
+                    for lo, hi in ranges:
+                        self._mark(lo, hi)
+                        n += 1
+                    outstanding -= n
+                    self._acked += n
+                    self._last_ack = time.time()
+                    self._ack_times.append((self._last_ack, n))
+            self._save_cursor()
+            if self.rebirth.is_set():
+                self.rebirth.clear()
+                send(prof.births(self.source), [])
+                barrier()
+            now = time.monotonic()
+            if self._stopping.is_set() and (
+                    now >= self._drain_until
+                    or (outstanding == 0 and self.cursor >= self.source.max_id())):
+                break
+            # live lane first, then the paced catch-up lane
+            room = WINDOW - outstanding
+            if room > 0:
+                for rec in self.source.samples_after(live_after, min(room, FETCH)):
+                    send(prof.data(rec, False), [(live_after + 1, rec.id)])
+                    live_after = rec.id
+                    outstanding += 1
+                    self._published += 1
+                    if since_barrier >= BARRIER_EVERY:
+                        barrier()
+            tokens = min(tokens + (now - last_tick) * self.cfg.catchup_rate,
+                         max(self.cfg.catchup_rate / 10, 1.0))
+            last_tick = now
+            room = WINDOW - outstanding
+            if room > 0 and tokens >= 1 and catch_after < live_start:
+                catch_after = self._skip_done(catch_after)
+                stop_at = min(live_start + 1, self._next_done(catch_after) or live_start + 1)
+                recs: list[Record] = self.source.samples_after(
+                    catch_after, min(room, int(tokens), FETCH), before=stop_at)
+                if not recs and catch_after < stop_at - 1:  # a gap of deleted ids
+                    self._mark(catch_after + 1, stop_at - 1)
+                    catch_after = stop_at - 1
+                for rec in recs:
+                    send(prof.data(rec, True), [(catch_after + 1, rec.id)])
+                    catch_after = rec.id
+                    outstanding += 1
+                    tokens -= 1
+                    self._published += 1
+                    if since_barrier >= BARRIER_EVERY:
+                        barrier()
+            barrier()
+            if now - last_snap >= 0.5:
+                self._snapshot("connected", True)
+                last_snap = now
+            self.wake.wait(0.05 if catch_after < live_start else 0.2)
+        if s.lost:
+            return
+        # a clean end: the goodbye, then DISCONNECT
+        self._save_cursor(force=True)
+        for m in prof.goodbye():
+            info = c.publish(m.topic, m.payload, m.qos, m.retain)
+            with contextlib.suppress(Exception):
+                info.wait_for_publish(2.0)

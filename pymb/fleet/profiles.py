@@ -1,0 +1,242 @@
+"""What goes on the wire: topics and payloads of the two profiles.
+
+``plain``
+    one JSON message per sample at QoS 1 on ``{prefix}/{node}/{device}``;
+    a retained ``{prefix}/{node}/status`` says ``online``, the will
+    ``offline``. Acknowledged by PUBACK.
+``sparkplug``
+    Sparkplug B 3.0: ``spBv1.0/{group}/{type}/{node}[/{device}]``, protobuf
+    ``Payload`` messages. NDEATH (with the connection's ``bdSeq``) is the
+    will, at QoS 1; NBIRTH (``seq`` 0, the same ``bdSeq``,
+    ``Node Control/Rebirth``) then one DBIRTH per device with every metric,
+    named and aliased; DDATA by alias, at QoS 0 as the specification
+    requires, ``is_historical`` for the backlog replayed after an outage.
+    Each DDATA carries the sample's id as the metric ``sample``. QoS 0 has no
+    acknowledgement: the forwarder follows each batch with a SUBSCRIBE of the
+    node's NCMD topic and takes the broker's SUBACK (sent after it has
+    handled everything before it on the connection) as the acknowledgement.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from pymb.fleet.config import MqttConfig
+from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
+from pymb.fleet.source import COOLPRO_FIELDS, HUB_FIELDS, Record, Source, record_dict
+
+__all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "make_profile"]
+
+NAMESPACE = "spBv1.0"
+REBIRTH = "Node Control/Rebirth"
+BDSEQ = "bdSeq"
+QUALITY_BAD = 0  #: Sparkplug 3.0's "Quality" property: 0 bad, 192 good
+
+
+@dataclass(frozen=True)
+class Message:
+    """One MQTT publication."""
+
+    topic: str
+    payload: bytes
+    qos: int
+    retain: bool = False
+
+
+def _ms(t: float) -> int:
+    return round(t * 1000)
+
+
+class Profile:
+    """The interface the forwarder drives."""
+
+    data_qos = 1
+    command_topic: str | None = None
+
+    def __init__(self, cfg: MqttConfig) -> None:
+        self.cfg = cfg
+
+    def will(self) -> Message:
+        """The last will, registered with each CONNECT."""
+        raise NotImplementedError
+
+    def births(self, source: Source) -> list[Message]:
+        """What goes first on every connection (and on a rebirth)."""
+        raise NotImplementedError
+
+    def data(self, record: Record, historical: bool) -> list[Message]:
+        """The message(s) of one sample."""
+        raise NotImplementedError
+
+    def goodbye(self) -> list[Message]:
+        """What goes last on a clean disconnect."""
+        raise NotImplementedError
+
+    def command(self, payload: bytes) -> bool:
+        """True when a command received asks for new births."""
+        return False
+
+    def new_connection(self, source: Source) -> None:
+        """Called before each CONNECT."""
+
+
+class PlainProfile(Profile):
+    """JSON at QoS 1; a retained status topic."""
+
+    def __init__(self, cfg: MqttConfig) -> None:
+        super().__init__(cfg)
+        self.base = f"{cfg.prefix}/{cfg.node}"
+
+    def will(self) -> Message:
+        """``offline``, retained."""
+        return Message(f"{self.base}/status", b"offline", 1, True)
+
+    def births(self, source: Source) -> list[Message]:
+        """``online``, retained."""
+        return [Message(f"{self.base}/status", b"online", 1, True)]
+
+    def data(self, record: Record, historical: bool) -> list[Message]:
+        """The sample as one JSON object."""
+        body = json.dumps(record_dict(record), allow_nan=False, separators=(",", ":"))
+        return [Message(f"{self.base}/{record.device}", body.encode(), 1)]
+
+    def goodbye(self) -> list[Message]:
+        """``offline``, retained (the will is not sent on a clean disconnect)."""
+        return [self.will()]
+
+
+@dataclass
+class _Birth:
+    """The metrics a DBIRTH declared for one device: name -> alias."""
+
+    aliases: dict[str, int]
+    channels: int
+
+
+class SparkplugProfile(Profile):
+    """Sparkplug B 3.0, one edge node with one Sparkplug device per pymb device."""
+
+    data_qos = 0
+
+    def __init__(self, cfg: MqttConfig) -> None:
+        super().__init__(cfg)
+        g, n = cfg.group, cfg.node
+        self.node_topic = f"{NAMESPACE}/{g}/{{}}/{n}"
+        self.command_topic = f"{NAMESPACE}/{g}/NCMD/{n}"
+        self.state_key = f"sparkplug:{g}/{n}:bdSeq"
+        self.bd_seq = 0
+        self.seq = 0
+        self.born: dict[str, _Birth] = {}
+        self.device_order: dict[str, int] = {}
+
+    def _next_seq(self) -> int:
+        s = self.seq
+        self.seq = (s + 1) % 256
+        return s
+
+    def new_connection(self, source: Source) -> None:
+        """A new bdSeq (0..255, counting across restarts), remembered durably
+        before the CONNECT that registers it in the will."""
+        last = source.state(self.state_key)
+        self.bd_seq = 0 if last is None else (last + 1) % 256
+        source.set_state(self.state_key, self.bd_seq)
+
+    def _bd_metric(self) -> Metric:
+        return Metric(BDSEQ, None, DataType.UINT64, self.bd_seq, _ms(time.time()))
+
+    def will(self) -> Message:
+        """NDEATH with this connection's bdSeq, QoS 1, not retained."""
+        payload = encode_payload([self._bd_metric()], timestamp=_ms(time.time()))
+        return Message(self.node_topic.format("NDEATH"), payload, 1, False)
+
+    def births(self, source: Source) -> list[Message]:
+        """NBIRTH (seq 0) and a DBIRTH for each device that has samples."""
+        now = _ms(time.time())
+        self.seq = 0
+        self.born.clear()
+        nbirth = encode_payload([
+            self._bd_metric(),
+            Metric(REBIRTH, 1, DataType.BOOLEAN, False, now),
+        ], timestamp=now, seq=self._next_seq())
+        out = [Message(self.node_topic.format("NBIRTH"), nbirth, 0)]
+        for name, _type, _address in source.devices():
+            self._order(name)
+            latest = source.latest(name)
+            if latest is not None:
+                out.append(self._dbirth(latest))
+        return out
+
+    def _order(self, device: str) -> int:
+        return self.device_order.setdefault(device, len(self.device_order) + 1)
+
+    def _metrics(self, r: Record) -> list[tuple[str, DataType, Any, str]]:
+        """(name, datatype, value, state) of every metric of a sample."""
+        out: list[tuple[str, DataType, Any, str]] = [
+            ("sample", DataType.UINT64, r.id, "value")]
+        if r.states is not None:
+            channels = len(r.values[HUB_FIELDS[0]])
+            for ch in range(channels):
+                for q in HUB_FIELDS:
+                    out.append((f"channel {ch + 1:03d}/{q}", DataType.DOUBLE,
+                                r.values[q][ch], r.states[q][ch]))
+        else:
+            for q in COOLPRO_FIELDS:
+                v = r.values.get(q)
+                dt = DataType.UINT64 if q == "uptime_s" else (
+                    DataType.UINT32 if q == "status" else DataType.DOUBLE)
+                out.append((q, dt, v, "value"))
+        return out
+
+    @staticmethod
+    def _props(state: str) -> tuple[tuple[str, DataType, int | str], ...]:
+        if state == "value":
+            return ()
+        return (("Quality", DataType.INT32, QUALITY_BAD), ("state", DataType.STRING, state))
+
+    def _dbirth(self, r: Record) -> Message:
+        base = self._order(r.device) * 100000
+        t = _ms(r.time_utc)
+        metrics, aliases = [], {}
+        for i, (name, dt, value, state) in enumerate(self._metrics(r)):
+            aliases[name] = base + i
+            metrics.append(Metric(name, base + i, dt, value, t, False, self._props(state)))
+        channels = len(r.values[HUB_FIELDS[0]]) if r.states is not None else 0
+        self.born[r.device] = _Birth(aliases, channels)
+        payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
+        return Message(self.node_topic.format("DBIRTH") + f"/{r.device}", payload, 0)
+
+    def data(self, record: Record, historical: bool) -> list[Message]:
+        """DDATA by alias (a DBIRTH first for a device not yet born)."""
+        out = []
+        birth = self.born.get(record.device)
+        channels = len(record.values[HUB_FIELDS[0]]) if record.states is not None else 0
+        if birth is None or birth.channels != channels:
+            out.append(self._dbirth(record))
+            birth = self.born[record.device]
+        t = _ms(record.time_utc)
+        metrics = [Metric(None, birth.aliases[name], dt, value, t, historical, self._props(st))
+                   for name, dt, value, st in self._metrics(record)]
+        payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
+        out.append(Message(self.node_topic.format("DDATA") + f"/{record.device}", payload, 0))
+        return out
+
+    def goodbye(self) -> list[Message]:
+        """NDEATH, as the will would say it."""
+        return [self.will()]
+
+    def command(self, payload: bytes) -> bool:
+        """True for ``Node Control/Rebirth`` = true (by name or its alias)."""
+        try:
+            metrics = command_metrics(payload)
+        except (ValueError, UnicodeDecodeError):
+            return False
+        return any((name == REBIRTH or (name is None and alias == 1)) and value
+                   for name, alias, value in metrics)
+
+
+def make_profile(cfg: MqttConfig) -> Profile:
+    """The profile the configuration names."""
+    return SparkplugProfile(cfg) if cfg.profile == "sparkplug" else PlainProfile(cfg)

@@ -1,0 +1,61 @@
+"""``pymb log --mqtt``: log to SQLite and forward, with the summary."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from pymb.fleet import ForwardingSink
+from pymb.fleet.config import MqttConfig
+from pymb.fleet.forwarder import Forwarder, ForwarderStatus
+from pymb.logger import LogConfig, Logger, Summary
+from pymb.store import open_sink
+
+__all__ = ["log_and_forward", "summary_lines"]
+
+DRAIN_SECONDS = 5.0  #: after logging stops, how long to keep sending what is left
+
+
+def summary_lines(st: ForwarderStatus) -> list[str]:
+    """The forwarder's part of the summary."""
+    ack = "never" if st.last_ack is None else time.strftime(
+        "%Y-%m-%d %H:%M:%S", time.localtime(st.last_ack))
+    lines = [f"mqtt: {st.acked:,} samples acknowledged by the broker ({st.published:,} "
+             f"published, {st.connections} connection(s)); last acknowledgement {ack}"]
+    if st.backlog:
+        age = "" if st.backlog_age is None else f", the oldest {st.backlog_age:.0f} s old"
+        lines.append(f"mqtt: {st.backlog:,} samples not yet acknowledged{age}: they are kept "
+                     "in the database and sent by the next run")
+    else:
+        lines.append("mqtt: nothing left to send")
+    return lines
+
+
+def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
+                    quiet: bool) -> int:
+    """Log as ``cfg`` says while a forwarder publishes; then drain and summarise."""
+    sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age)
+    try:
+        fw = Forwarder(cfg.path, mqtt)
+    except BaseException:
+        sink.close()
+        raise
+    fw.start()
+    s: Summary | None = None
+    try:
+        logger = Logger(cfg, sink=ForwardingSink(sink, fw),
+                        status=None if quiet else sys.stderr,
+                        extra_status=lambda: fw.status().line())
+        s = logger.run(seconds)
+    finally:
+        fw.notify()
+        fw.stop(DRAIN_SECONDS)
+        fw.join(DRAIN_SECONDS + 10)
+    if fw.error is not None:
+        raise fw.error
+    if not quiet:
+        print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
+              f"({s.faults} faults) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
+        for line in summary_lines(fw.status()):
+            print(line, file=sys.stderr)
+    return 0

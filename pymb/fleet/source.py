@@ -1,0 +1,176 @@
+"""What the forwarder reads from and writes to in the logger's SQLite file.
+
+Everything that knows the storage format is here, behind
+:func:`samples_after` (the samples committed after an id, decoded) and
+:func:`latest`; the durable outbox cursor and the Sparkplug ``bdSeq`` are
+two small tables of the same file:
+
+``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
+    per destination (``mqtt://host:port/profile/node``), the highest sample
+    id up to which every sample was acknowledged by the broker. The size and
+    age limits of the database (:meth:`pymb.store.SqliteSink.trim`) look at
+    the lowest cursor and record an event when they delete samples past it.
+``fleet_state(key TEXT PRIMARY KEY, value INTEGER)``
+    the Sparkplug ``bdSeq`` of the last connection, so that it keeps
+    counting across restarts.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from dataclasses import dataclass
+from typing import Any
+
+from pymb.devices import HUB, CoolProStatus, State
+from pymb.devices.maps import COOLPRO
+from pymb.store import iso_utc
+
+__all__ = ["Record", "Source", "record_dict"]
+
+COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
+HUB_FIELDS = [b.name for b in HUB.blocks]
+_INT_FIELDS = ("uptime_s", "status")
+_STATE_NAMES = {s.value: s.name.lower() for s in State}
+
+
+@dataclass
+class Record:
+    """One committed sample, decoded."""
+
+    id: int
+    bus: str
+    device: str
+    type: str
+    address: int
+    time_utc: float
+    #: coolpro: quantity -> value; hub: quantity -> one value per channel (None: no value)
+    values: dict[str, Any]
+    #: hub: quantity -> one state name per channel; coolpro: None
+    states: dict[str, list[str]] | None
+
+
+def record_dict(r: Record) -> dict[str, Any]:
+    """A record as the JSON object of the plain profile (the same keys as
+    :func:`pymb.store.sample_dict`, plus ``sample``, the id)."""
+    out: dict[str, Any] = {"device": r.device, "type": r.type, "address": r.address,
+                           "bus": r.bus, "sample": r.id, "time_utc": r.time_utc,
+                           "time": iso_utc(r.time_utc), "values": r.values}
+    if r.states is not None:
+        out["states"] = r.states
+    else:
+        status = CoolProStatus(int(r.values.get("status") or 0))
+        out["status_flags"] = [f.name for f in CoolProStatus if f in status]
+    return out
+
+
+class Source:
+    """A read connection to a pymb SQLite file, plus the outbox tables."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.db = sqlite3.connect(path, timeout=30, isolation_level=None,
+                                  check_same_thread=False)
+        self.db.execute("PRAGMA busy_timeout = 30000")
+        self.db.execute("CREATE TABLE IF NOT EXISTS outbox("
+                        "name TEXT PRIMARY KEY, sample_id INTEGER NOT NULL)")
+        self.db.execute("CREATE TABLE IF NOT EXISTS fleet_state("
+                        "key TEXT PRIMARY KEY, value INTEGER NOT NULL)")
+
+    def close(self) -> None:
+        """Release the connection."""
+        self.db.close()
+
+    # -- the cursor and the state --------------------------------------------------
+
+    def cursor(self, name: str) -> int:
+        """The outbox cursor of a destination (0: nothing sent yet)."""
+        row = self.db.execute("SELECT sample_id FROM outbox WHERE name = ?", (name,)).fetchone()
+        return int(row[0]) if row else 0
+
+    def set_cursor(self, name: str, sample_id: int) -> None:
+        """Advance the cursor (durably: one small transaction)."""
+        self.db.execute("INSERT INTO outbox VALUES (?, ?) ON CONFLICT(name) DO UPDATE SET "
+                        "sample_id = MAX(sample_id, excluded.sample_id)", (name, sample_id))
+
+    def state(self, key: str) -> int | None:
+        """A remembered integer (the Sparkplug bdSeq)."""
+        row = self.db.execute("SELECT value FROM fleet_state WHERE key = ?", (key,)).fetchone()
+        return None if row is None else int(row[0])
+
+    def set_state(self, key: str, value: int) -> None:
+        """Remember an integer durably."""
+        self.db.execute("INSERT OR REPLACE INTO fleet_state VALUES (?, ?)", (key, value))
+
+    # -- the samples ---------------------------------------------------------------
+
+    def max_id(self) -> int:
+        """The highest committed sample id (0: none)."""
+        return int(self.db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+
+    def oldest_after(self, sample_id: int) -> tuple[int, float] | None:
+        """(count, time of the oldest) of the samples after an id."""
+        row = self.db.execute("SELECT COUNT(*), MIN(time_utc) FROM samples WHERE id > ?",
+                              (sample_id,)).fetchone()
+        return None if not row[0] else (int(row[0]), float(row[1]))
+
+    def devices(self) -> list[tuple[str, str, int]]:
+        """(name, type, address) of every device the file has samples of."""
+        return [(str(n), str(t), int(a)) for n, t, a in self.db.execute(
+            "SELECT name, type, address FROM devices ORDER BY id")]
+
+    def latest(self, device: str) -> Record | None:
+        """The newest sample of a device."""
+        row = self.db.execute(
+            "SELECT MAX(s.id) FROM samples s JOIN devices d ON d.id = s.device_id "
+            "WHERE d.name = ?", (device,)).fetchone()
+        if row[0] is None:
+            return None
+        got = self.samples_after(int(row[0]) - 1, 1)
+        return got[0] if got else None
+
+    def samples_after(self, sample_id: int, limit: int,
+                      before: int | None = None) -> list[Record]:
+        """The committed samples with ids above ``sample_id`` (and below
+        ``before``), in id order, at most ``limit``."""
+        q = ("SELECT s.id, d.bus, d.name, d.type, d.address, s.time_utc FROM samples s "
+             "JOIN devices d ON d.id = s.device_id WHERE s.id > ?")
+        args: list[Any] = [sample_id]
+        if before is not None:
+            q += " AND s.id < ?"
+            args.append(before)
+        q += " ORDER BY s.id LIMIT ?"
+        args.append(limit)
+        self.db.execute("BEGIN")  # one snapshot for the samples and their values
+        try:
+            heads = self.db.execute(q, args).fetchall()
+            if not heads:
+                return []
+            lo, hi = heads[0][0], heads[-1][0]
+            coolpro = {r[0]: r[1:] for r in self.db.execute(
+                f"SELECT sample_id, {', '.join(COOLPRO_FIELDS)} FROM coolpro "
+                "WHERE sample_id BETWEEN ? AND ?", (lo, hi))}
+            hub: dict[int, list[tuple[Any, ...]]] = {}
+            if any(h[3] == "hub" for h in heads):
+                cols = ", ".join(HUB_FIELDS + [f"{f}_state" for f in HUB_FIELDS])
+                for r in self.db.execute(
+                        f"SELECT sample_id, {cols} FROM hub WHERE sample_id BETWEEN ? AND ? "
+                        "ORDER BY sample_id, channel", (lo, hi)):
+                    hub.setdefault(r[0], []).append(r[1:])
+        finally:
+            self.db.execute("COMMIT")
+        out = []
+        n = len(HUB_FIELDS)
+        for sid, bus, name, typ, address, t in heads:
+            states: dict[str, list[str]] | None = None
+            if typ == "hub":
+                rows = hub.get(sid, [])
+                values: dict[str, Any] = {f: [r[i] for r in rows]
+                                          for i, f in enumerate(HUB_FIELDS)}
+                states = {f: [_STATE_NAMES.get(r[n + i], "unknown") for r in rows]
+                          for i, f in enumerate(HUB_FIELDS)}
+            else:
+                row = coolpro.get(sid) or (None,) * len(COOLPRO_FIELDS)
+                values = {f: (int(v) if f in _INT_FIELDS and v is not None else v)
+                          for f, v in zip(COOLPRO_FIELDS, row, strict=True)}
+            out.append(Record(sid, bus, name, typ, address, t, values, states))
+        return out
