@@ -342,6 +342,7 @@ class SqliteSink:
             first_kept = (self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 0) + 1
         self.db.execute("BEGIN")
         try:
+            self._unsent_event(first_kept)
             self.db.execute("DELETE FROM hub WHERE sample_id < ?", (first_kept,))
             self.db.execute("DELETE FROM coolpro WHERE sample_id < ?", (first_kept,))
             n = self.db.execute("DELETE FROM samples WHERE id < ?", (first_kept,)).rowcount
@@ -356,6 +357,25 @@ class SqliteSink:
             self.db.execute("ROLLBACK")
             raise
         return int(n)
+
+    def _unsent_event(self, first_kept: int) -> None:
+        """Never delete samples not yet forwarded (pymb.fleet's ``outbox``
+        cursors) silently: an event says how many go."""
+        if not self.db.execute("SELECT 1 FROM sqlite_master WHERE name = 'outbox'").fetchone():
+            return
+        (low,) = self.db.execute("SELECT MIN(sample_id) FROM outbox").fetchone()
+        if low is None:
+            return
+        n, first, last = self.db.execute(
+            "SELECT COUNT(*), MIN(id), MAX(id) FROM samples WHERE id > ? AND id < ?",
+            (low, first_kept)).fetchone()
+        if n:
+            self.db.execute(
+                "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
+                "VALUES (?, ?, NULL, NULL, 'trim', ?, ?)",
+                (time.time(), time.monotonic(), n,
+                 f"the size/age limit deleted {n} samples not yet forwarded to the MQTT "
+                 f"broker (ids {first}..{last})"))
 
     def close(self) -> None:
         """Commit what is pending and close the database."""

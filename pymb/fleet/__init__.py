@@ -35,7 +35,14 @@ class ForwardingSink:
         self.sink.event(event)
 
     def commit(self) -> None:
-        """Commit, then wake the forwarder."""
+        """Commit (the forwarder's cursor with the batch), then wake the forwarder.
+
+        The logger holds SQLite's write lock for most of each batch: the
+        cursor goes in with the batch rather than waiting for the lock."""
+        db = getattr(self.sink, "db", None)
+        cursor = self.forwarder.cursor
+        if db is not None:
+            self.forwarder.source.set_cursor_on(db, self.forwarder.dest, cursor)
         self.sink.commit()
         self.forwarder.notify()
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import pwd
 import shutil
 import signal
 import socket
@@ -87,11 +88,15 @@ class Mosquitto:
         self.port = port or free_port()
         self.tls = tls
         self.proc: subprocess.Popen[bytes] | None = None
-        lines = [f"listener {self.port} 127.0.0.1",
+        # as root, mosquitto would switch to the user "mosquitto", which cannot read
+        # the files made here: it stays the user who started it
+        lines = [f"user {pwd.getpwuid(os.getuid()).pw_name}",
+                 f"listener {self.port} 127.0.0.1",
                  "persistence true", f"persistence_location {self.dir}/",
                  "autosave_interval 1", f"log_dest file {self.dir / 'mosquitto.log'}",
                  "log_type error", "log_type warning", "log_type notice",
-                 "log_type information", "max_queued_messages 0"]
+                 "log_type information", "max_queued_messages 0",
+                 "queue_qos0_messages true"]
         if users:
             pw = self.dir / "passwd"
             pw.write_text("")

@@ -89,8 +89,14 @@ class Source:
 
     def set_cursor(self, name: str, sample_id: int) -> None:
         """Advance the cursor (durably: one small transaction)."""
-        self.db.execute("INSERT INTO outbox VALUES (?, ?) ON CONFLICT(name) DO UPDATE SET "
-                        "sample_id = MAX(sample_id, excluded.sample_id)", (name, sample_id))
+        self.set_cursor_on(self.db, name, sample_id)
+
+    @staticmethod
+    def set_cursor_on(db: sqlite3.Connection, name: str, sample_id: int) -> None:
+        """Advance the cursor through another connection to the same file (the
+        logger's, inside its batch); it never moves back."""
+        db.execute("INSERT INTO outbox VALUES (?, ?) ON CONFLICT(name) DO UPDATE SET "
+                   "sample_id = MAX(sample_id, excluded.sample_id)", (name, sample_id))
 
     def state(self, key: str) -> int | None:
         """A remembered integer (the Sparkplug bdSeq)."""

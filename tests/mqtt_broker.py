@@ -1,0 +1,184 @@
+"""Fixtures and helpers for the fleet tests: Debian's mosquitto on a free
+127.0.0.1 port (plain, TLS with certificates made here, a password file),
+stopped by its PID; a paho subscriber that records what it receives; the
+Sparkplug .proto compiled independently by protoc; pymb log as a child."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from pymb.fleet.broker import Certificates, Mosquitto, find_mosquitto, make_certificates
+from pymb.sim import SimulatorProcess
+
+paho = pytest.importorskip("paho.mqtt.client")
+
+SPARKPLUG_PROTO = Path(os.environ.get("PYMB_SPECS", Path(__file__).resolve().parents[1].parent
+                                      / "shared" / "specs")) / "sparkplug_b.proto"
+if not SPARKPLUG_PROTO.exists():  # the shared specs beside the checkout, or /work/shared
+    SPARKPLUG_PROTO = Path("/work/shared/specs/sparkplug_b.proto")
+
+
+def wait_for(pred: Callable[[], Any], timeout: float, what: str) -> Any:
+    """Poll ``pred`` (every 50 ms) until it is true; fail after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        got = pred()
+        if got:
+            return got
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.05)
+
+
+@pytest.fixture
+def mosquitto(tmp_path: Path) -> Iterator[Callable[..., Mosquitto]]:
+    """A factory of started brokers (keyword arguments as Mosquitto's), all stopped
+    by their PIDs at teardown."""
+    if find_mosquitto() is None:
+        pytest.fail("mosquitto is not installed: .ci/setup installs it")
+    started: list[Mosquitto] = []
+
+    def make(**kw: Any) -> Mosquitto:
+        b = Mosquitto(tmp_path / f"broker{len(started)}", **kw)
+        b.start()
+        started.append(b)
+        return b
+
+    yield make
+    for b in started:
+        b.stop()
+
+
+@pytest.fixture(scope="session")
+def certificates(tmp_path_factory: pytest.TempPathFactory) -> Certificates:
+    """A CA, a server certificate for 127.0.0.1 and a client certificate."""
+    return make_certificates(tmp_path_factory.mktemp("tls"))
+
+
+@pytest.fixture
+def simulator() -> Iterator[str]:
+    """A simulated CoolPro (address 40) on Modbus TCP in its own process: HOST:PORT."""
+    sim = SimulatorProcess(["coolpro", "--tcp", "127.0.0.1:0"], quiet=True).start()
+    try:
+        yield sim.endpoint
+    finally:
+        sim.stop()
+
+
+class Subscriber:
+    """A paho subscriber with a persistent session (QoS 1), reconnecting by itself;
+    ``messages`` is every (topic, payload) received, in order."""
+
+    def __init__(self, broker: Mosquitto, topic: str, *, client_id: str = "pymb-test-sub",
+                 tls: Certificates | None = None, user: tuple[str, str] | None = None) -> None:
+        self.messages: list[tuple[str, bytes]] = []
+        self.lock = threading.Lock()
+        self.subscribed = threading.Event()
+        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id,
+                        clean_session=False)
+        if tls is not None:
+            c.tls_set(ca_certs=tls.ca, certfile=tls.client_cert, keyfile=tls.client_key)
+        if user is not None:
+            c.username_pw_set(*user)
+        c.reconnect_delay_set(0.05, 0.2)
+        c.on_connect = lambda cl, u, f, rc, p: cl.subscribe(topic, qos=1)
+        c.on_subscribe = lambda *a: self.subscribed.set()
+        c.on_message = self._on_message
+        self.client = c
+        c.connect("127.0.0.1", broker.port, keepalive=5)
+        c.loop_start()
+        wait_for(self.subscribed.is_set, 15, "the test subscriber's SUBACK")
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        with self.lock:
+            self.messages.append((msg.topic, bytes(msg.payload)))
+
+    def snapshot(self) -> list[tuple[str, bytes]]:
+        """A copy of what was received so far."""
+        with self.lock:
+            return list(self.messages)
+
+    def close(self) -> None:
+        """Disconnect."""
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def plain_ids(messages: list[tuple[str, bytes]]) -> list[int]:
+    """The sample ids of the plain profile's data messages."""
+    return [json.loads(p)["sample"] for t, p in messages if not t.endswith("/status")]
+
+
+def db_ids(path: Path) -> set[int]:
+    """The sample ids in a pymb database."""
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        return {i for (i,) in con.execute("SELECT id FROM samples")}
+    finally:
+        con.close()
+
+
+def db_count(path: Path) -> int:
+    """The number of samples in a database (0 while it does not exist yet)."""
+    if not path.exists():
+        return 0
+    try:
+        return len(db_ids(path))
+    except sqlite3.Error:
+        return 0
+
+
+def duplicates(ids: list[int]) -> int:
+    """Ids received more than once, counted once per extra copy."""
+    return sum(n - 1 for n in Counter(ids).values())
+
+
+def start_log(endpoint: str, db: Path, *mqtt: str, env: dict[str, str] | None = None,
+              seconds: float | None = None) -> subprocess.Popen[str]:
+    """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt`` says."""
+    args = [sys.executable, "-m", "pymb", "log", "--tcp", endpoint, "--device", "coolpro:40",
+            "--interval", "0.01", "--out", str(db), *mqtt]
+    if seconds is not None:
+        args += ["--seconds", str(seconds)]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
+
+
+def stop_log(proc: subprocess.Popen[str], timeout: float = 30) -> str:
+    """SIGTERM (a clean end: the forwarder drains); returns stderr."""
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=timeout)
+    assert proc.returncode == 0, err
+    return err
+
+
+@pytest.fixture(scope="session")
+def sparkplug_pb(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """The Sparkplug B ``Payload`` class, from the specification's .proto compiled
+    by protoc at test time (a descriptor set loaded by the protobuf runtime)."""
+    pytest.importorskip("google.protobuf")
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    out = tmp_path_factory.mktemp("proto") / "sparkplug_b.desc"
+    subprocess.run(["protoc", f"--proto_path={SPARKPLUG_PROTO.parent}",
+                    f"--descriptor_set_out={out}", SPARKPLUG_PROTO.name], check=True,
+                   timeout=60)
+    fds = descriptor_pb2.FileDescriptorSet.FromString(out.read_bytes())
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(
+        pool.FindMessageTypeByName("org.eclipse.tahu.protobuf.Payload"))
