@@ -17,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mqtt_broker import (
+
+pytest.register_assert_rewrite("mqtt_broker")
+from mqtt_broker import (  # noqa: E402
     Subscriber,
     db_count,
     db_ids,
@@ -28,7 +30,7 @@ from mqtt_broker import (
     wait_for,
 )
 
-from pymb.fleet.broker import Certificates, Mosquitto
+from pymb.fleet.broker import Certificates, Mosquitto  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]  # the fixtures: mosquitto, simulator, certificates, ...
 NODE = "gw-test"
@@ -286,3 +288,180 @@ def test_trim_records_unsent_samples(tmp_path: Path) -> None:
                                     "to the MQTT broker (ids 11..30)")]
     src.close()
     sink.close()
+
+
+# -- Sparkplug B -------------------------------------------------------------------------
+
+GROUP = "plant"
+
+
+def _sp(pb: Any, messages: list[tuple[str, bytes]]) -> list[tuple[str, Any]]:
+    """(message type, decoded Payload) of the node's messages, in order of arrival;
+    the type is NBIRTH, DDATA, ... with the device for the device messages."""
+    out = []
+    for topic, payload in messages:
+        parts = topic.split("/")
+        assert parts[0] == "spBv1.0" and parts[1] == GROUP and parts[3] == NODE, topic
+        kind = parts[2] if len(parts) == 4 else f"{parts[2]}/{parts[4]}"
+        out.append((kind, pb.FromString(payload)))
+    return out
+
+
+def _sample_ids(pb: Any, messages: list[tuple[str, bytes]]) -> list[int]:
+    """The ``sample`` metric of every DDATA, through the aliases of the last DBIRTH."""
+    aliases: dict[int, str] = {}
+    ids = []
+    for kind, p in _sp(pb, messages):
+        if kind.startswith("DBIRTH"):
+            aliases = {m.alias: m.name for m in p.metrics}
+        elif kind.startswith("DDATA"):
+            ids += [m.long_value for m in p.metrics if aliases[m.alias] == "sample"]
+    return ids
+
+
+def _metric(p: Any, name: str) -> Any:
+    return next(m for m in p.metrics if m.name == name)
+
+
+def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
+    from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
+    metrics = [
+        Metric("bdSeq", None, DataType.UINT64, 255, 1700000000123),
+        Metric("Node Control/Rebirth", 1, DataType.BOOLEAN, False, 5),
+        Metric("t", 300000, DataType.DOUBLE, -12.5, 2**41, True),
+        Metric(None, 7, DataType.UINT32, 0xFFFFFFFF),
+        Metric("s", 8, DataType.STRING, "héllo"),
+        Metric("n", 9, DataType.DOUBLE, None, None, False,
+               (("Quality", DataType.INT32, 0), ("state", DataType.STRING, "no_sensor"))),
+    ]
+    p = sparkplug_pb.FromString(encode_payload(metrics, timestamp=1700000000999, seq=200))
+    assert p.timestamp == 1700000000999 and p.seq == 200
+    m = p.metrics
+    assert (m[0].name, m[0].datatype, m[0].long_value, m[0].timestamp) == \
+        ("bdSeq", 8, 255, 1700000000123)
+    assert not m[0].HasField("alias")
+    assert (m[1].alias, m[1].datatype, m[1].boolean_value) == (1, 11, False)
+    assert m[1].HasField("boolean_value")
+    assert (m[2].double_value, m[2].is_historical, m[2].timestamp, m[2].alias) == \
+        (-12.5, True, 2**41, 300000)
+    assert not m[3].HasField("name") and m[3].int_value == 0xFFFFFFFF
+    assert m[4].string_value == "héllo"
+    assert m[5].is_null and not m[5].HasField("double_value")
+    assert list(m[5].properties.keys) == ["Quality", "state"]
+    assert m[5].properties.values[1].string_value == "no_sensor"
+    # and a command written by protoc's side is read back
+    cmd = sparkplug_pb()
+    c = cmd.metrics.add()
+    c.name, c.datatype, c.boolean_value = "Node Control/Rebirth", 11, True
+    assert command_metrics(cmd.SerializeToString()) == [("Node Control/Rebirth", None, True)]
+
+
+def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator, sparkplug_pb,
+                                                             tmp_path: Path) -> None:
+    pb = sparkplug_pb
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
+    db = tmp_path / "log.sqlite"
+    sp = ["--mqtt", broker.url, "--mqtt-profile", "sparkplug", "--mqtt-group", GROUP,
+          "--mqtt-node", NODE]
+    proc = start_log(simulator, db, *sp)
+    try:
+        # seq wraps: more than 256 messages
+        wait_for(lambda: len(sub.snapshot()) > 300, 60, "300 Sparkplug messages")
+        msgs = _sp(pb, sub.snapshot())
+        kind, nbirth = msgs[0]
+        assert kind == "NBIRTH" and nbirth.seq == 0
+        bd = _metric(nbirth, "bdSeq")
+        assert bd.datatype == 8
+        bd_seq = bd.long_value
+        rebirth = _metric(nbirth, "Node Control/Rebirth")
+        assert rebirth.datatype == 11 and rebirth.boolean_value is False
+        assert msgs[1][0] == "DBIRTH/coolpro-40"
+        dbirth = msgs[1][1]
+        declared = {m.alias: m for m in dbirth.metrics}
+        assert all(m.name and m.HasField("alias") for m in dbirth.metrics)
+        assert {m.name for m in dbirth.metrics} >= {"sample", "output_voltage_v", "status"}
+        seqs = [p.seq for _, p in msgs]
+        assert seqs == [i % 256 for i in range(len(seqs))], "seq 0..255, wrapping"
+        for kind, p in msgs[2:]:
+            assert kind == "DDATA/coolpro-40"
+            for m in p.metrics:
+                assert not m.name and m.alias in declared
+                assert m.datatype == declared[m.alias].datatype
+                assert not m.is_historical
+        # a Rebirth command: new births (same bdSeq: the connection is the same)
+        n = len(sub.snapshot())
+        cmd = pb()
+        cmd.timestamp = int(time.time() * 1000)
+        c = cmd.metrics.add()
+        c.name, c.datatype, c.boolean_value = "Node Control/Rebirth", 11, True
+        sub.client.publish(f"spBv1.0/{GROUP}/NCMD/{NODE}", cmd.SerializeToString(), qos=0)
+        wait_for(lambda: any(t.split("/")[2] == "DBIRTH" for t, _ in sub.snapshot()[n:]), 30,
+                 "births after the Rebirth command")
+        after = _sp(pb, sub.snapshot()[n:])
+        i = next(i for i, (k, _) in enumerate(after) if k == "NBIRTH")
+        assert after[i][1].seq == 0 and _metric(after[i][1], "bdSeq").long_value == bd_seq
+        assert after[i + 1][0] == "DBIRTH/coolpro-40" and after[i + 1][1].seq == 1
+        # SIGKILL: the broker sends the will, NDEATH with the births' bdSeq
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        wait_for(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", 30, "the NDEATH")
+        kind, ndeath = _sp(pb, sub.snapshot()[-1:])[0]
+        assert _metric(ndeath, "bdSeq").long_value == bd_seq
+        # the next run counts bdSeq on, and ends with its own NDEATH
+        n = len(sub.snapshot())
+        proc = start_log(simulator, db, *sp)
+        wait_for(lambda: len(sub.snapshot()) > n + 20, 30, "the second run's messages")
+        stop_log(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    wait_for(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", 30, "the clean NDEATH")
+    second = _sp(pb, sub.snapshot()[n:])
+    assert second[0][0] == "NBIRTH"
+    assert _metric(second[0][1], "bdSeq").long_value == (bd_seq + 1) % 256
+    assert _metric(second[-1][1], "bdSeq").long_value == (bd_seq + 1) % 256
+    # the samples of the killed run that were not acknowledged came again, as history
+    assert any(m.is_historical for k, p in second if k.startswith("DDATA") for m in p.metrics)
+    want = db_ids(db)
+    got = _sample_ids(pb, sub.snapshot())
+    _report("Sparkplug, pymb SIGKILLed and restarted", want, got)
+    assert set(got) == want
+    sub.close()
+
+
+def test_sparkplug_historical_replay_after_an_outage(mosquitto, simulator, sparkplug_pb,
+                                                     tmp_path: Path) -> None:
+    pb = sparkplug_pb
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
+    db = tmp_path / "log.sqlite"
+    proc = start_log(simulator, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                     "--mqtt-group", GROUP, "--mqtt-node", NODE)
+    try:
+        wait_for(lambda: len(sub.snapshot()) > 30, 30, "30 messages live")
+        broker.stop()
+        down_from = db_count(db)
+        wait_for(lambda: db_count(db) > down_from + 100, 30, "100 samples logged while down")
+        down_to = db_count(db)
+        broker.start()
+        wait_for(lambda: set(_sample_ids(pb, sub.snapshot())) >= set(range(1, down_to + 1)),
+                 60, "the outage's samples replayed")
+        stop_log(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    msgs = _sp(pb, sub.snapshot())
+    births = [i for i, (k, _) in enumerate(msgs) if k == "NBIRTH"]
+    assert len(births) >= 2
+    # after the reconnection: births first, then the backlog as history
+    assert msgs[births[1] + 1][0] == "DBIRTH/coolpro-40"
+    aliases = {m.alias: m.name for m in msgs[births[1] + 1][1].metrics}
+    historical = {m.long_value for _, p in msgs[births[1]:] for m in p.metrics
+                  if m.is_historical and aliases.get(m.alias) == "sample"}
+    assert set(range(down_from + 1, down_to + 1)) <= historical
+    want = db_ids(db)
+    got = _sample_ids(pb, sub.snapshot())
+    _report("Sparkplug, broker restart", want, got)
+    assert set(got) == want
+    sub.close()
