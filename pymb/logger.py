@@ -10,7 +10,7 @@ with a doubling backoff (0.5 s to 30 s) while the other buses keep logging.
 Configuration, as flags (one bus) or a TOML file (any number)::
 
     [output]
-    format = "sqlite"          # sqlite | csv | jsonl
+    format = "sqlite"          # sqlite | csv | jsonl | influx
     path = "pymb.sqlite"       # "-" for stdout (csv, jsonl)
     max_mb = 500               # optional: delete the oldest data past this size
     max_age_days = 30          # optional: ... or past this age

@@ -517,20 +517,25 @@ class JsonlSink(_TextSink):
             raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
 
 
-FORMATS = ("sqlite", "csv", "jsonl")
+FORMATS = ("sqlite", "csv", "jsonl", "influx")
 
 
 def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
               max_age: float | None = None) -> Sink:
-    """A sink of format ``sqlite``, ``csv`` or ``jsonl`` at ``path`` (``-``: stdout)."""
+    """A sink of format ``sqlite``, ``csv``, ``jsonl`` or ``influx`` at ``path``
+    (``-``: stdout)."""
     if fmt == "sqlite":
         if path == "-":
-            raise InvalidArgument("SQLite needs a file; use --format csv or jsonl for stdout")
+            raise InvalidArgument(
+                "SQLite needs a file; use --format csv, jsonl or influx for stdout")
         return SqliteSink(path, max_bytes=max_bytes, max_age=max_age)
     if fmt == "csv":
         return CsvSink(path)
     if fmt == "jsonl":
         return JsonlSink(path)
+    if fmt == "influx":  # InfluxDB line protocol (pymb.fleet.influx)
+        from pymb.fleet.influx import InfluxSink
+        return InfluxSink(path)
     raise InvalidArgument(f"unknown output format {fmt!r}; use one of {', '.join(FORMATS)}")
 
 

@@ -465,3 +465,52 @@ def test_sparkplug_historical_replay_after_an_outage(mosquitto, simulator, spark
     _report("Sparkplug, broker restart", want, got)
     assert set(got) == want
     sub.close()
+
+
+# -- InfluxDB line protocol ---------------------------------------------------------------
+
+_LINE = __import__("re").compile(
+    r"^(?P<m>pymb_(?:coolpro|hub|event)),(?P<tags>(?:[^ ,=\\]|\\.)+=(?:[^ ,=\\]|\\.)+"
+    r"(?:,(?:[^ ,=\\]|\\.)+=(?:[^ ,=\\]|\\.)+)*) "
+    r"(?P<fields>[a-z0-9_]+=(?:-?[0-9.e+-]+i?|\"(?:[^\"\\]|\\.)*\")"
+    r"(?:,[a-z0-9_]+=(?:-?[0-9.e+-]+i?|\"(?:[^\"\\]|\\.)*\"))*) (?P<ts>[0-9]{19})$")
+
+
+def test_influx_line_protocol_on_stdout(tmp_path: Path) -> None:
+    """``--format influx --out -`` (for Telegraf's inputs.execd): every line parses as
+    line protocol; a hub gives one line per channel, no-value states as strings."""
+    import subprocess
+    import sys
+
+    from pymb.sim import SimulatorProcess
+    sim = SimulatorProcess(["coolpro", "hub:250", "--tcp", "127.0.0.1:0"], quiet=True).start()
+    try:
+        r = subprocess.run([sys.executable, "-m", "pymb", "log", "--tcp", sim.endpoint,
+                            "--device", "coolpro:40", "--device", "hub:250", "--format",
+                            "influx", "--out", "-", "--seconds", "1.5", "--quiet"],
+                           capture_output=True, text=True, timeout=60)
+    finally:
+        sim.stop()
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines
+    parsed = [_LINE.match(line) for line in lines]
+    assert all(parsed), [line for line, p in zip(lines, parsed, strict=True) if not p][:3]
+    kinds = {p["m"] for p in parsed if p}
+    assert {"pymb_coolpro", "pymb_hub", "pymb_event"} <= kinds
+    hub = [p for p in parsed if p and p["m"] == "pymb_hub"]
+    first_ts = hub[0]["ts"]
+    channels = [p["tags"] for p in hub if p["ts"] == first_ts]
+    assert len(channels) == 100 and channels[0].endswith("channel=1")
+    cp = next(p for p in parsed if p and p["m"] == "pymb_coolpro")
+    assert "status=" in cp["fields"] and cp["fields"].count("i") >= 2
+    assert "device=coolpro-40" in cp["tags"] and "address=40" in cp["tags"]
+
+
+def test_influx_escaping() -> None:
+    from pymb.fleet.influx import event_line
+    from pymb.store import DeviceInfo, Event
+    e = Event(1.5, 0.0, "line 1", DeviceInfo("line 1", "p", "hub", 2, "a,b=c"), "timeout", 7,
+              'no "reply"\\')
+    assert event_line(e) == ('pymb_event,kind=timeout,bus=line\\ 1,device=a\\,b\\=c '
+                             'message="no \\"reply\\"\\\\",code=7i 1500000000')

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between polls (default 0: as fast as the wire allows)")
     p.add_argument("--format", choices=FORMATS, help="output format (default sqlite)")
     p.add_argument("--out", metavar="PATH",
-                   help="output file; '-' for stdout (csv, jsonl); default "
+                   help="output file; '-' for stdout (csv, jsonl, influx); default "
                         "pymb-YYYYmmdd-HHMMSS.sqlite")
     p.add_argument("--max-mb", type=float, help="SQLite: delete the oldest data past this size")
     p.add_argument("--max-age-days", type=float, help="SQLite: delete data older than this")

@@ -1,0 +1,102 @@
+"""InfluxDB line protocol, for files and stdout (``pymb log --format influx``).
+
+So that Telegraf's ``inputs.execd`` can run pymb and feed its outputs::
+
+    [[inputs.execd]]
+      command = ["pymb", "log", "--port", "/dev/ttyUSB0", "--device", "hub:250",
+                 "--format", "influx", "--out", "-", "--quiet"]
+      signal = "none"
+      data_format = "influx"
+
+One line per CoolPro sample (measurement ``pymb_coolpro``) and per hub channel
+(``pymb_hub``, tag ``channel``); tags ``bus``, ``device``, ``address``; the
+decoded values as float fields (``status`` and ``uptime_s`` as integers), a
+quantity with no value as a string field ``{quantity}_state`` saying why
+(``no_sensor``, ``offline``, ...); events as ``pymb_event`` (tags ``kind``,
+``bus``, ``device``; fields ``message``, ``code``). Timestamps in nanoseconds
+(to the microsecond).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pymb.store import Event, JsonlSink, OutputError, Sample, sample_dict
+
+__all__ = ["InfluxSink", "event_line", "sample_lines"]
+
+_INT_FIELDS = ("uptime_s", "status")
+
+
+def _tag(v: object) -> str:
+    return str(v).replace("\\", "\\\\").replace(",", "\\,").replace("=", "\\=") \
+        .replace(" ", "\\ ").replace("\n", "\\n")
+
+
+def _str(v: str) -> str:
+    return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
+def _ns(t: float) -> int:
+    return round(t * 1e6) * 1000
+
+
+def _tags(d: dict[str, Any]) -> str:
+    return f"bus={_tag(d['bus'])},device={_tag(d['device'])},address={d['address']}"
+
+
+def sample_lines(sample: Sample) -> list[str]:
+    """A sample as line protocol (one line, or one per hub channel)."""
+    d = sample_dict(sample)
+    ts = _ns(sample.time_utc)
+    if "states" in d:
+        values, states = d["values"], d["states"]
+        lines = []
+        for ch in range(len(next(iter(values.values()), []))):
+            fields = []
+            for q, vs in values.items():
+                v = vs[ch]
+                if v is None:
+                    fields.append(f"{q}_state={_str(states[q][ch])}")
+                else:
+                    fields.append(f"{q}={float(v)!r}")
+            lines.append(f"pymb_hub,{_tags(d)},channel={ch + 1} {','.join(fields)} {ts}")
+        return lines
+    fields = []
+    for q, v in d["values"].items():
+        if v is None:
+            fields.append(f"{q}_state=\"no_value\"")
+        elif q in _INT_FIELDS:
+            fields.append(f"{q}={int(v)}i")
+        else:
+            fields.append(f"{q}={float(v)!r}")
+    return [f"pymb_coolpro,{_tags(d)} {','.join(fields)} {ts}"]
+
+
+def event_line(e: Event) -> str:
+    """An event as line protocol."""
+    tags = f"kind={_tag(e.kind)},bus={_tag(e.bus)}"
+    if e.device is not None:
+        tags += f",device={_tag(e.device.name)}"
+    fields = f"message={_str(e.message)}"
+    if e.code is not None:
+        fields += f",code={int(e.code)}i"
+    return f"pymb_event,{tags} {fields} {_ns(e.time_utc)}"
+
+
+class InfluxSink(JsonlSink):
+    """Line protocol to a file or stdout (the text-file handling of the JSONL sink)."""
+
+    def write(self, sample: Sample) -> None:
+        """Write the sample's lines."""
+        try:
+            self.f.write("\n".join(sample_lines(sample)) + "\n")
+        except OSError as e:
+            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
+
+    def event(self, e: Event) -> None:
+        """Write the event's line."""
+        try:
+            self.f.write(event_line(e) + "\n")
+        except OSError as err:
+            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
