@@ -514,3 +514,31 @@ def test_influx_escaping() -> None:
               'no "reply"\\')
     assert event_line(e) == ('pymb_event,kind=timeout,bus=line\\ 1,device=a\\,b\\=c '
                              'message="no \\"reply\\"\\\\",code=7i 1500000000')
+
+
+def test_demo_mqtt_to_a_broker_it_is_given(mosquitto) -> None:
+    """``pymb demo --mqtt URL``: every sample of the demo reaches the broker, and the
+    demo says how to watch them."""
+    import re
+    import subprocess
+    import sys
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, "pymb/demo/#")
+    r = subprocess.run([sys.executable, "-m", "pymb", "demo", "--seconds", "2", "--mqtt",
+                        broker.url], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert f"mosquitto_sub -h 127.0.0.1 -p {broker.port} -t 'pymb/demo/#' -v" in r.stderr
+    m = re.search(r"mqtt: +([\d,]+) of ([\d,]+) samples received", r.stdout)
+    assert m and m[1] == m[2], r.stdout
+    n = int(m[2].replace(",", ""))
+    wait_for(lambda: len(set(plain_ids(sub.snapshot()))) == n, 30, "the demo's samples")
+    sub.close()
+
+
+def test_demo_mqtt_starts_its_own_mosquitto() -> None:
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "pymb", "demo", "--seconds", "1", "--mqtt",
+                        "--quiet"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "samples received by a subscriber" in r.stdout

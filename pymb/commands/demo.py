@@ -31,6 +31,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--baud", type=int, default=BAUD, choices=[9600, 19200, 38400, 57600, 115200],
                    help=f"emulated line speed (default {BAUD})")
     p.add_argument("--quiet", action="store_true", help="no live status line")
+    p.add_argument("--mqtt", nargs="?", const="auto", metavar="URL",
+                   help="also publish every sample over MQTT (needs pymb[mqtt]): to URL, or "
+                        "without one to a broker on 127.0.0.1:1883 or a mosquitto started "
+                        "for the demo")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,7 +60,13 @@ def run(args: argparse.Namespace) -> int:
         say(f"pymb demo: simulated CoolPro on {sims[0].port}, sensor hub on {sims[1].port}, "
             f"{args.baud} bit/s emulated; logging for {args.seconds:g} s to {out}")
         cfg = LogConfig([psu, sensors], "sqlite", out)
-        summary = Logger(cfg, status=None if args.quiet else sys.stderr).run(args.seconds)
+        mqtt_lines: list[str] = []
+        if args.mqtt:
+            from pymb.fleet.demo import run_with_mqtt
+            summary, mqtt_lines = run_with_mqtt(cfg, args.mqtt, args.seconds,
+                                                None if args.quiet else sys.stderr, say)
+        else:
+            summary = Logger(cfg, status=None if args.quiet else sys.stderr).run(args.seconds)
     finally:
         for s in sims:
             s.stop()
@@ -72,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {d.name:11s} {n:6,} {what} = {rate:7.1f}/s; the wire allows "
               f"{limit:7.1f}/s ({100 * rate / limit:.0f}%)")
     print(f"  faults seen: {summary.faults}" + (f" ({faults})" if faults else ""))
+    for line in mqtt_lines:
+        print(line)
     print(f"  database:    {out}")
     print("  try:         sqlite3 " + out + " \\\n"
           "                 \"SELECT time, channel, temperature_c, humidity_pct FROM hub_readings"

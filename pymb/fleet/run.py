@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TextIO
 
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
@@ -11,7 +12,7 @@ from pymb.fleet.forwarder import Forwarder, ForwarderStatus
 from pymb.logger import LogConfig, Logger, Summary
 from pymb.store import open_sink
 
-__all__ = ["log_and_forward", "summary_lines"]
+__all__ = ["forwarding", "log_and_forward", "summary_lines"]
 
 DRAIN_SECONDS = 5.0  #: after logging stops, how long to keep sending what is left
 
@@ -31,9 +32,10 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
     return lines
 
 
-def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
-                    quiet: bool) -> int:
-    """Log as ``cfg`` says while a forwarder publishes; then drain and summarise."""
+def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
+               status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
+    """Log as ``cfg`` says while a forwarder publishes; then let it send what is
+    left (for at most DRAIN_SECONDS) and return both summaries."""
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age)
     try:
         fw = Forwarder(cfg.path, mqtt)
@@ -41,10 +43,8 @@ def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         sink.close()
         raise
     fw.start()
-    s: Summary | None = None
     try:
-        logger = Logger(cfg, sink=ForwardingSink(sink, fw),
-                        status=None if quiet else sys.stderr,
+        logger = Logger(cfg, sink=ForwardingSink(sink, fw), status=status,
                         extra_status=lambda: fw.status().line())
         s = logger.run(seconds)
     finally:
@@ -53,9 +53,16 @@ def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         fw.join(DRAIN_SECONDS + 10)
     if fw.error is not None:
         raise fw.error
+    return s, fw.status()
+
+
+def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
+                    quiet: bool) -> int:
+    """``pymb log --mqtt``: log and forward, then print the summary."""
+    s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr)
     if not quiet:
         print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
               f"({s.faults} faults) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
-        for line in summary_lines(fw.status()):
+        for line in summary_lines(st):
             print(line, file=sys.stderr)
     return 0
