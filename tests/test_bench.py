@@ -299,3 +299,20 @@ def test_whole_quick_bench_as_a_user_runs_it(tmp_path: Path) -> None:
     assert {r["baud"] for r in result["wire"]["rows"]} == {9600, 115200}
     assert png.exists()
     assert "pymb bench: scaling" in done.stderr  # progress on stderr, JSON alone on stdout
+
+
+def test_fleet_section_through_a_real_mosquitto(capsys: pytest.CaptureFixture[str]) -> None:
+    """pymb's forwarder loses nothing across the 3 s broker outage; the figures are
+    there for every publisher, side by side."""
+    result = _bench(capsys, "--only", "pymb", "--sections", "fleet")
+    fleet = result["fleet"]
+    assert fleet["status"] == "ok", fleet
+    rows = {r["label"]: r for r in fleet["rows"]}
+    assert set(rows) == {"pymb (SQLite outbox, QoS 1)", "paho, QoS 0", "paho, QoS 1"}
+    pymb = rows["pymb (SQLite outbox, QoS 1)"]
+    assert pymb["outage_lost"] == 0 and pymb["burst_lost"] == 0
+    assert pymb["outage_sent"] == fleet["outage_samples"]
+    for r in rows.values():
+        assert r["throughput_per_s"] > 0 and r["latency_p50_ms"] > 0
+    from pymb.bench import report
+    assert "Fleet: samples through a local mosquitto" in report.to_markdown(result)

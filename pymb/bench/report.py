@@ -143,6 +143,30 @@ def tables(result: dict[str, Any]) -> list[Table]:
               f"{r['cpu_pct']:.1f} %", fmt_time(r["cpu_per_sweep_us"])]
              for r in scaling["rows"]],
             [True, True, True, True, True], []))
+    fleet = result.get("fleet")
+    if fleet and fleet.get("status") == "ok":
+        def ms(v: float | None) -> str:
+            return "-" if v is None else fmt_time(v * 1000)
+        out.append(Table(
+            "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
+            "way)",
+            f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
+            f"subscriber has them all; latency: sample time to the subscriber at "
+            f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
+            f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
+            f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
+            "persistent-session subscriber sees them",
+            ["publisher", "throughput", "latency median", "latency p95",
+             f"lost ({fleet['outage_s']:g} s outage)", "duplicated"],
+            [[r["label"],
+              "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
+              ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
+              f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
+             for r in fleet["rows"]],
+            [False, True, True, True, True, True], []))
+    elif fleet:
+        out.append(Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False],
+                         []))
     tg = result.get("targets") or []
     if tg:
         out.append(Table(

@@ -18,6 +18,10 @@ Sections (each can be chosen with ``--sections``):
              telemetry with its real ~8 ms gap.
 ``scaling``  1, 2, 4 and 8 buses swept in parallel threads at emulated
              115200: aggregate sweeps per second and the process's CPU.
+``fleet``    samples through a local mosquitto: pymb's forwarder against a
+             plain paho publisher at QoS 0 and QoS 1 (throughput, latency,
+             samples lost and duplicated across a 3 s broker outage); see
+             :mod:`pymb.bench.fleet`.
 
 Every simulator and worker is a child process stopped at the end, on error
 and on Ctrl-C (and, through ``PR_SET_PDEATHSIG``, if the bench is killed).
@@ -53,7 +57,7 @@ from pymb.sim import CoolProDevice, HubDevice, Simulator, make_device
 
 __all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
-SECTIONS = ("micro", "sweep", "wire", "scaling")
+SECTIONS = ("micro", "sweep", "wire", "scaling", "fleet")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)
@@ -614,5 +618,8 @@ def run(opts: Options) -> dict[str, Any]:
             result["wire"] = run_wire(opts, lineup, children)
         if "scaling" in opts.sections and pymb_in:
             result["scaling"] = run_scaling(opts, children)
+        if "fleet" in opts.sections and pymb_in:
+            from pymb.bench.fleet import run_fleet
+            result["fleet"] = run_fleet(opts.quick, opts.say)
     result["targets"] = targets(result)
     return result

@@ -1,0 +1,256 @@
+"""``pymb bench --sections fleet``: samples through a local mosquitto.
+
+Three publishers side by side, each fed the same synthetic CoolPro samples:
+
+* pymb: samples committed to SQLite by the logger's sink, forwarded by
+  :class:`pymb.fleet.forwarder.Forwarder` (plain profile, QoS 1, durable
+  cursor);
+* a plain paho publisher at QoS 0 and one at QoS 1 (paho's own in-memory
+  queue and automatic reconnection), publishing each sample as it is taken:
+  the approach the Modbus-to-MQTT bridges take.
+
+Measured: throughput (a backlog of samples published as fast as the
+publisher goes, until a subscriber has them all), end-to-end latency (sample
+time to a subscriber, at a steady rate) and, across a 3 s broker outage
+(mosquitto stopped and restarted mid-run), the samples lost and duplicated
+as a persistent-session subscriber sees them.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import threading
+import time
+from array import array
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+__all__ = ["run_fleet"]
+
+OUTAGE_S = 3.0
+RATE = 200.0  #: samples per second for the latency and outage runs
+
+
+class _Subscriber:
+    def __init__(self, mqtt: Any, port: int, topic: str, cid: str) -> None:
+        self.got: list[tuple[int, float, float]] = []  # (id, sample time, received)
+        self.lock = threading.Lock()
+        self.last = time.monotonic()
+        ready = threading.Event()
+        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cid, clean_session=False)
+        c.reconnect_delay_set(0.05, 0.2)
+        c.on_connect = lambda cl, u, f, rc, p: cl.subscribe(topic, qos=1)
+        c.on_subscribe = lambda *a: ready.set()
+        c.on_message = self._on_message
+        c.connect("127.0.0.1", port, keepalive=5)
+        c.loop_start()
+        if not ready.wait(15):
+            raise RuntimeError("the bench's subscriber got no SUBACK")
+        self.client = c
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        now = time.time()
+        if msg.topic.endswith("/status"):
+            return
+        d = json.loads(msg.payload)
+        with self.lock:
+            self.got.append((d["sample"], d["time_utc"], now))
+            self.last = time.monotonic()
+
+    def ids(self) -> list[int]:
+        with self.lock:
+            return [g[0] for g in self.got]
+
+    def wait(self, want: int, quiet: float, limit: float) -> None:
+        """Until ``want`` distinct ids, or ``quiet`` s without news, at most ``limit`` s."""
+        deadline = time.monotonic() + limit
+        while time.monotonic() < deadline:
+            if len(set(self.ids())) >= want or time.monotonic() - self.last > quiet:
+                return
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+class _Paho:
+    """A bridge-style publisher: each sample published as it is taken."""
+
+    def __init__(self, mqtt: Any, port: int, qos: int, topic: str) -> None:
+        self.qos, self.topic = qos, topic
+        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"bench-paho-{qos}")
+        c.reconnect_delay_set(0.5, 4)
+        c.max_inflight_messages_set(200)
+        ready = threading.Event()
+        c.on_connect = lambda *a: ready.set()
+        c.connect("127.0.0.1", port, keepalive=15)
+        c.loop_start()
+        ready.wait(15)
+        self.client = c
+
+    def produce(self, i: int, t: float) -> None:
+        body = json.dumps({"device": "coolpro-40", "sample": i, "time_utc": t,
+                           "values": _VALUES})
+        self.client.publish(self.topic, body, qos=self.qos)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+_VALUES = {"input_voltage_v": 24.5, "input_current_a": 2.45, "output_voltage_v": 24.0,
+           "output_current_a": 2.41, "temperature_c": 26.1, "uptime_s": 1, "status": 0}
+
+
+class _Pymb:
+    """The logger's SQLite sink (batches committed every 0.5 s, as the logger does)
+    and the forwarder."""
+
+    def __init__(self, db: Path, port: int, catchup_rate: float = 1000.0) -> None:
+        from pymb.devices import CoolProStatus, CoolProTelemetry
+        from pymb.fleet import ForwardingSink
+        from pymb.fleet.config import MqttConfig
+        from pymb.fleet.forwarder import Forwarder
+        from pymb.logger import LogConfig
+        from pymb.store import DeviceInfo, SqliteSink
+
+        self._info = DeviceInfo("bus1", "bench", "coolpro", 40, "coolpro-40")
+        self._data = CoolProTelemetry(24.5, 2.45, 24.0, 2.41, 26.1, 1, CoolProStatus(0),
+                                      array("H", [0] * 8))
+        self.commit_interval = LogConfig([]).commit_interval
+        self.sink = SqliteSink(db)
+        self.fw = Forwarder(str(db), MqttConfig(f"mqtt://127.0.0.1:{port}", node="bench",
+                                                catchup_rate=catchup_rate))
+        self.out = ForwardingSink(self.sink, self.fw)
+        self.fw.start()
+        self._last_commit = time.monotonic()
+        self.ids: list[int] = []
+
+    def produce(self, i: int, t: float) -> None:
+        from pymb.store import Sample
+        self.out.write(Sample(self._info, t, time.monotonic(), self._data))
+        if time.monotonic() - self._last_commit >= self.commit_interval:
+            self.flush()
+
+    def flush(self) -> None:
+        self.out.commit()
+        self._last_commit = time.monotonic()
+
+    def close(self) -> None:
+        self.out.close()
+        self.fw.stop(10)
+        self.fw.join(20)
+
+
+def _pct(xs: list[float], q: float) -> float | None:
+    if not xs:
+        return None
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, int(q * len(xs)))]
+
+
+def _scenario(make: Callable[[], Any], sub: _Subscriber, n: int, rate: float | None,
+              broker: Any, quiet: float) -> dict[str, Any]:
+    """Produce n samples (ids 1..n) at ``rate`` (None: as fast as possible); with
+    ``broker``, stop it for OUTAGE_S from a third of the run."""
+    pub = make()
+    t0 = time.monotonic()
+    outage: tuple[float, float] | None = None
+    if broker is not None and rate:
+        outage = (t0 + n / rate / 3, t0 + n / rate / 3 + OUTAGE_S)
+    down = False
+    for i in range(1, n + 1):
+        if rate:
+            delay = t0 + i / rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        if outage is not None:
+            now = time.monotonic()
+            if not down and now >= outage[0]:
+                broker.stop()
+                down = True
+            elif down and now >= outage[1] and broker.proc is None:
+                broker.start()
+        pub.produce(i, time.time())
+    pub.flush()
+    produced = time.monotonic()
+    if down and broker.proc is None:
+        broker.start()
+    sub.wait(n, quiet=quiet, limit=60.0)
+    done = time.monotonic()
+    pub.close()
+    ids = sub.ids()
+    with sub.lock:
+        lat = [(r - t) * 1000 for _, t, r in sub.got]
+        last_rx = max((r for _, _, r in sub.got), default=time.time())
+    first_tx = time.time() - (done - t0)
+    dup = sum(c - 1 for c in Counter(ids).values())
+    return {"sent": n, "received": len(set(ids) & set(range(1, n + 1))),
+            "lost": n - len(set(ids) & set(range(1, n + 1))), "duplicates": dup,
+            "latency_p50_ms": _pct(lat, 0.5), "latency_p95_ms": _pct(lat, 0.95),
+            "seconds": last_rx - first_tx, "produce_s": produced - t0}
+
+
+def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
+    """The fleet section's result (JSON-able), or a skip reason."""
+    try:
+        import paho.mqtt.client as mqtt
+    except ImportError:
+        return {"status": "skipped", "reason": "paho-mqtt is not installed (pymb[mqtt])"}
+    from pymb.fleet.broker import Mosquitto, find_mosquitto
+    if find_mosquitto() is None:
+        return {"status": "skipped", "reason": "mosquitto is not installed"}
+    n_burst = 1000 if quick else 20000
+    n_live = int(RATE * (1 if quick else 5))
+    n_outage = int(RATE * (7.5 if quick else 12))
+    quiet = 5.0 if quick else 8.0
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-fleet-") as tmp:
+        broker = Mosquitto(Path(tmp) / "broker")
+        broker.start()
+        try:
+            for label, qos, kind in (("pymb (SQLite outbox, QoS 1)", 1, "pymb"),
+                                     ("paho, QoS 0", 0, "paho"),
+                                     ("paho, QoS 1", 1, "paho")):
+                row: dict[str, Any] = {"label": label, "qos": qos}
+                for what, n, rate, outage in (("burst", n_burst, None, False),
+                                              ("live", n_live, RATE, False),
+                                              ("outage", n_outage, RATE, True)):
+                    say(f"fleet: {label}, {what} ({n} samples)")
+                    topic = f"bench/{kind}{qos}/{what}"
+                    db = Path(tmp) / f"{kind}{qos}-{what}.sqlite"
+
+                    def make(db: Path = db, topic: str = topic, q: int = qos,
+                             k: str = kind, w: str = what) -> Any:
+                        if k == "pymb":
+                            return _Pymb(db, broker.port, 1e9 if w == "burst" else 1000.0)
+                        return _Paho(mqtt, broker.port, q, topic)
+
+                    sub_topic = "pymb/bench/#" if kind == "pymb" else topic
+                    sub = _Subscriber(mqtt, broker.port, sub_topic, f"bench-sub-{kind}{qos}"
+                                      f"-{what}")
+                    try:
+                        r = _scenario(make, sub, n, rate, broker if outage else None, quiet)
+                    finally:
+                        sub.close()
+                    if what == "burst":
+                        row["throughput_per_s"] = n / r["seconds"] if r["seconds"] > 0 else None
+                        row["burst_lost"] = r["lost"]
+                    elif what == "live":
+                        row["latency_p50_ms"] = r["latency_p50_ms"]
+                        row["latency_p95_ms"] = r["latency_p95_ms"]
+                    else:
+                        row.update(outage_sent=r["sent"], outage_lost=r["lost"],
+                                   outage_duplicates=r["duplicates"])
+                rows.append(row)
+        finally:
+            broker.stop()
+    return {"status": "ok", "rate": RATE, "outage_s": OUTAGE_S, "burst": n_burst,
+            "live": n_live, "outage_samples": n_outage, "rows": rows}
