@@ -542,3 +542,57 @@ def test_demo_mqtt_starts_its_own_mosquitto() -> None:
                         "--quiet"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "samples received by a subscriber" in r.stdout
+
+
+def test_catch_up_is_paced_and_live_data_keeps_flowing(mosquitto, simulator,
+                                                       tmp_path: Path) -> None:
+    """A backlog (here: 600 samples logged without a broker) goes at catchup_rate,
+    while the samples taken now go at once, ahead of it."""
+    import subprocess
+    import sys
+    db = tmp_path / "log.sqlite"
+    r = subprocess.run([sys.executable, "-m", "pymb", "log", "--tcp", simulator, "--device",
+                        "coolpro:40", "--interval", "0.005", "--out", str(db), "--quiet",
+                        "--seconds", "8"], capture_output=True, text=True, timeout=120,
+                       check=False)
+    assert r.returncode == 0, r.stderr
+    backlog = db_count(db)
+    assert backlog >= 600
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, "pymb/#")
+    cfg = tmp_path / "pymb.toml"
+    cfg.write_text(f"""
+[output]
+path = "{db}"
+[mqtt]
+url = "{broker.url}"
+node = "{NODE}"
+catchup_rate = 100
+[[bus]]
+tcp = "{simulator}"
+interval = 0.01
+[[bus.device]]
+type = "coolpro"
+address = 40
+""")
+    proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        # live samples arrive while most of the backlog has not
+        wait_for(lambda: sum(i > backlog for i in plain_ids(sub.snapshot())) >= 20, 30,
+                 "20 live samples")
+        old = sum(i <= backlog for i in set(plain_ids(sub.snapshot())))
+        assert old < backlog / 2, f"{old} of {backlog} old samples already: not paced"
+        wait_for(lambda: set(range(1, backlog + 1)) <= set(plain_ids(sub.snapshot())), 60,
+                 "the whole backlog")
+        took = time.monotonic() - t0
+        stop_log(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    # 100 messages/s: the backlog cannot have gone much faster (bursts of 10 allowed)
+    assert took >= (backlog - 10) / 100 * 0.9, took
+    want, _ = _all_arrived(sub, db)
+    assert set(plain_ids(sub.snapshot())) == want
+    sub.close()
