@@ -147,9 +147,9 @@ def duplicates(ids: list[int]) -> int:
 
 
 def start_log(endpoint: str, db: Path, *mqtt: str, env: dict[str, str] | None = None,
-              seconds: float | None = None) -> subprocess.Popen[str]:
+              seconds: float | None = None, device: str = "coolpro:40") -> subprocess.Popen[str]:
     """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt`` says."""
-    args = [sys.executable, "-m", "pymb", "log", "--tcp", endpoint, "--device", "coolpro:40",
+    args = [sys.executable, "-m", "pymb", "log", "--tcp", endpoint, "--device", device,
             "--interval", "0.01", "--out", str(db), *mqtt]
     if seconds is not None:
         args += ["--seconds", str(seconds)]

@@ -596,3 +596,57 @@ address = 40
     want, _ = _all_arrived(sub, db)
     assert set(plain_ids(sub.snapshot())) == want
     sub.close()
+
+
+def test_readme_mqtt_toml_example() -> None:
+    import re
+
+    from pymb.fleet.config import from_table
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = re.search(r"```toml\n(\[mqtt\]\n.*?)```", readme, re.S)
+    assert block
+    import tomllib
+    cfg = from_table(tomllib.loads(block[1])["mqtt"], "README")
+    assert (cfg.tls, cfg.port, cfg.profile, cfg.node) == (True, 8883, "sparkplug", "gateway-7")
+
+
+
+def test_hub_samples_in_both_profiles(mosquitto, sparkplug_pb, tmp_path: Path) -> None:
+    """A sensor hub: plain JSON lists per quantity with null and the states; Sparkplug
+    701 metrics declared (sample + 100 channels x 7), no-value ones is_null."""
+    from pymb.sim import SimulatorProcess
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, "#")
+    sim = SimulatorProcess(["hub:250", "--tcp", "127.0.0.1:0"], quiet=True).start()
+    try:
+        for profile in ("plain", "sparkplug"):
+            db = tmp_path / f"{profile}.sqlite"
+            proc = start_log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-profile",
+                             profile, "--mqtt-node", NODE, "--mqtt-group", GROUP,
+                             seconds=1.5, device="hub:250")
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode == 0 and "nothing left to send" in err, err
+    finally:
+        sim.stop()
+    msgs = sub.snapshot()
+    plain = [json.loads(p) for t, p in msgs if t == f"pymb/{NODE}/hub-250"]
+    assert plain
+    h = plain[0]
+    assert h["type"] == "hub" and len(h["values"]["temperature_c"]) == 100
+    con = sqlite3.connect(tmp_path / "plain.sqlite")
+    rows = con.execute("SELECT channel, temperature_c, temperature_c_state FROM hub "
+                       "WHERE sample_id = ? ORDER BY channel", (h["sample"],)).fetchall()
+    states = dict(con.execute("SELECT code, name FROM states").fetchall())
+    con.close()
+    assert h["values"]["temperature_c"] == [r[1] for r in rows]
+    assert h["states"]["temperature_c"] == [states[r[2]] for r in rows]
+    assert None in h["values"]["humidity_pct"] or None in h["values"]["temperature_c"]
+    sp = [(t, sparkplug_pb.FromString(p)) for t, p in msgs if t.startswith("spBv1.0/")]
+    dbirth = next(p for t, p in sp if t == f"spBv1.0/{GROUP}/DBIRTH/{NODE}/hub-250")
+    assert len(dbirth.metrics) == 701
+    names = {m.alias: m.name for m in dbirth.metrics}
+    ddata = next(p for t, p in sp if t == f"spBv1.0/{GROUP}/DDATA/{NODE}/hub-250")
+    nulls = [m for m in ddata.metrics if m.is_null]
+    assert nulls and all(m.properties.keys[0] == "Quality" for m in nulls)
+    assert all(names[m.alias].startswith("channel ") for m in nulls)
+    sub.close()
