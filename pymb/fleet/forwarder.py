@@ -13,9 +13,10 @@ then two lanes run side by side:
   messages per second, marked ``is_historical`` in Sparkplug.
 
 Every sample reaches the broker at least once; a sample acknowledged but not
-yet recorded in the cursor when pymb dies (at most a quarter of a second's
-worth, plus the live lane of a connection whose catch-up had not finished)
-is sent again: consumers drop duplicates by the sample's id.
+yet recorded in the cursor when pymb dies (the cursor goes in with each of
+the logger's batches, see :class:`pymb.fleet.ForwardingSink`; plus the live
+lane of a connection whose catch-up had not finished) is sent again:
+consumers drop duplicates by the sample's id.
 """
 
 from __future__ import annotations
@@ -278,7 +279,11 @@ class Forwarder(threading.Thread):
                 c.socket() and c.disconnect()
             return s
         c.loop_start()
-        if not s.connack.wait(max(10.0, cfg.keepalive)) or not s.ok:
+        deadline = time.monotonic() + max(10.0, cfg.keepalive)
+        while not s.connack.wait(0.2):  # a stop does not wait for a silent broker
+            if self._stopping.is_set() or time.monotonic() > deadline:
+                break
+        if not s.connack.is_set() or not s.ok:
             s.ok = False
             s.reason = s.reason or "no CONNACK from the broker"
             self._close(s)
