@@ -338,8 +338,10 @@ class SqliteSink:
 
     def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
-        if first_kept == 0:  # nothing young enough: everything goes
-            first_kept = (self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 0) + 1
+        if first_kept == 0:  # nothing young enough: all but the newest go; the newest
+            # stays so that SQLite never hands out its id (or lower ones) again: sample
+            # ids are unique and increasing for the MQTT forwarder and its consumers
+            first_kept = self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 1
         self.db.execute("BEGIN")
         try:
             self._unsent_event(first_kept)

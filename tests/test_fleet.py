@@ -650,3 +650,22 @@ def test_hub_samples_in_both_profiles(mosquitto, sparkplug_pb, tmp_path: Path) -
     assert nulls and all(m.properties.keys[0] == "Quality" for m in nulls)
     assert all(names[m.alias].startswith("channel ") for m in nulls)
     sub.close()
+
+
+def test_sample_ids_never_repeat_after_an_age_trim_of_everything(tmp_path: Path) -> None:
+    """The forwarder's cursor and its consumers rely on ids that only increase."""
+    from pymb.devices import decode_hub
+    from pymb.store import DeviceInfo, Sample, SqliteSink
+
+    regs = __import__("array").array("H", [0] * 700)
+    dev = DeviceInfo("b", "p", "hub", 1, "hub-1")
+    sink = SqliteSink(tmp_path / "t.sqlite", max_age=100.0)
+    for i in range(5):
+        sink.write(Sample(dev, time.time() - 1000 + i, float(i), decode_hub(regs)))
+    sink.commit()
+    sink.trim()
+    sink.write(Sample(dev, time.time(), 0.0, decode_hub(regs)))
+    sink.commit()
+    ids = [i for (i,) in sink.db.execute("SELECT id FROM samples ORDER BY id")]
+    assert ids == [5, 6]
+    sink.close()

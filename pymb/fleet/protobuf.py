@@ -21,7 +21,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-__all__ = ["DataType", "Metric", "decode", "encode_payload"]
+__all__ = ["DataType", "Metric", "command_metrics", "decode", "encode_payload"]
 
 
 class DataType(IntEnum):
