@@ -17,6 +17,7 @@ two small tables of the same file:
 
 from __future__ import annotations
 
+import functools
 import sqlite3
 from dataclasses import dataclass
 from typing import Any
@@ -58,9 +59,14 @@ def record_dict(r: Record) -> dict[str, Any]:
     if r.states is not None:
         out["states"] = r.states
     else:
-        status = CoolProStatus(int(r.values.get("status") or 0))
-        out["status_flags"] = [f.name for f in CoolProStatus if f in status]
+        out["status_flags"] = list(_flags(int(r.values.get("status") or 0)))
     return out
+
+
+@functools.lru_cache(maxsize=256)
+def _flags(raw: int) -> tuple[str | None, ...]:
+    status = CoolProStatus(raw)
+    return tuple(f.name for f in CoolProStatus if f in status)
 
 
 class Source:
