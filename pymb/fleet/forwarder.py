@@ -120,6 +120,8 @@ class _Session:
         import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
 
         self.fw = fw
+        #: PUBACK/SUBACK message ids; per connection, as paho numbers them anew
+        self.acks: collections.deque[int] = collections.deque()
         self.connack = threading.Event()
         self.reason: str | None = None
         self.ok = False
@@ -152,11 +154,11 @@ class _Session:
         self.fw.wake.set()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
-        self.fw.acks.append(mid)
+        self.acks.append(mid)
         self.fw.wake.set()
 
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
-        self.fw.acks.append(mid)
+        self.acks.append(mid)
         self.fw.wake.set()
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
@@ -189,7 +191,6 @@ class Forwarder(threading.Thread):
         self.password = cfg.password()
         self.wake = threading.Event()
         self.rebirth = threading.Event()
-        self.acks: collections.deque[int] = collections.deque()
         self._stopping = threading.Event()
         self._drain_until = 0.0
         self.cursor = self.source.cursor(self.dest)
@@ -394,8 +395,8 @@ class Forwarder(threading.Thread):
         while not s.lost:
             self.wake.clear()
             # acknowledgements
-            while self.acks:
-                mid = self.acks.popleft()
+            while s.acks:
+                mid = s.acks.popleft()
                 ranges = inflight.pop(mid, None)
                 if ranges:
                     n = 0
