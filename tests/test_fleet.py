@@ -76,7 +76,12 @@ def test_broker_restart_mid_run_loses_nothing(mosquitto, simulator, tmp_path: Pa
     assert status[0] == b"online" and status[-1] == b"offline"
     con = sqlite3.connect(db)
     assert con.execute("SELECT sample_id FROM outbox").fetchone()[0] == max(want)
+    # the connection's story is in the event log, for services run with --quiet
+    story = [m for (m,) in con.execute("SELECT message FROM event_log WHERE kind = 'mqtt'")]
     con.close()
+    assert story[0].startswith("connected to mqtt://127.0.0.1")
+    assert any(m.startswith("lost the connection") for m in story)
+    assert story[-1].startswith("connected to")
     sub.close()
 
 
@@ -192,6 +197,10 @@ def test_tls_with_client_certificate_and_password(mosquitto, simulator, certific
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert "not yet acknowledged" in err and "0 samples acknowledged" in err
+    con = sqlite3.connect(db3)
+    story = [m for (m,) in con.execute("SELECT message FROM event_log WHERE kind = 'mqtt'")]
+    con.close()
+    assert story and "refused" in story[0] and "authori" in story[0].lower(), story
     sub.close()
 
 

@@ -12,15 +12,19 @@ the demo and the bench (:mod:`pymb.fleet.broker`).
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from pymb.fleet.config import MqttConfig
+from pymb.store import Event
 
 __all__ = ["ForwardingSink", "MqttConfig"]
 
 
 class ForwardingSink:
-    """A sink that wakes the forwarder after each commit of the sink it wraps."""
+    """A sink that wakes the forwarder after each commit of the sink it wraps, and
+    records what happened to the broker connection as events (bus and kind
+    ``mqtt``) in the same batches."""
 
     def __init__(self, sink: Any, forwarder: Any) -> None:
         self.sink = sink
@@ -39,6 +43,7 @@ class ForwardingSink:
 
         The logger holds SQLite's write lock for most of each batch: the
         cursor goes in with the batch rather than waiting for the lock."""
+        self._events()
         db = getattr(self.sink, "db", None)
         cursor = self.forwarder.cursor
         if db is not None:
@@ -46,7 +51,12 @@ class ForwardingSink:
         self.sink.commit()
         self.forwarder.notify()
 
+    def _events(self) -> None:
+        for t, message in self.forwarder.take_events():
+            self.sink.event(Event(t, time.monotonic(), "mqtt", None, "mqtt", None, message))
+
     def close(self) -> None:
         """Commit and close, then wake the forwarder."""
+        self._events()
         self.sink.close()
         self.forwarder.notify()

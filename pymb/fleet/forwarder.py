@@ -199,6 +199,7 @@ class Forwarder(threading.Thread):
         self._writer = _CursorWriter(db_path, self.dest)
         self._done: list[list[int]] = []  #: acknowledged [lo, hi] ranges above the cursor
         self._lock = threading.Lock()
+        self._events: list[tuple[float, str]] = []
         self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0)
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
@@ -206,6 +207,18 @@ class Forwarder(threading.Thread):
         self.error: BaseException | None = None
 
     # -- the public side -----------------------------------------------------------
+
+    def take_events(self) -> list[tuple[float, str]]:
+        """(time, message) of what happened to the connection since the last call,
+        for the logger's event log (see :class:`pymb.fleet.ForwardingSink`)."""
+        with self._lock:
+            out, self._events = self._events, []
+        return out
+
+    def _event(self, message: str) -> None:
+        with self._lock:
+            if len(self._events) < 1000:
+                self._events.append((time.time(), message))
 
     def notify(self) -> None:
         """New samples were committed."""
@@ -239,16 +252,24 @@ class Forwarder(threading.Thread):
 
     def _run(self) -> None:
         backoff = _BACKOFF_FIRST
+        was_down = ""
         while not self._stopping.is_set():
             s = self._connect()
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
                 self._connections += 1
+                self._event(f"connected to {self.dest}")
+                was_down = ""
                 self._pump(s)
                 self._close(s)
                 if self._stopping.is_set():
                     return
+                self._event(f"lost the connection to {self.dest}: {s.reason or 'closed'}; "
+                            "the samples go on accumulating in the database")
             reason = "connecting" if s is None else (s.reason or "disconnected")
+            if reason != was_down and not (s is not None and s.ok):
+                self._event(f"cannot connect to {self.dest}: {reason}")
+                was_down = reason
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
             until = time.monotonic() + backoff
