@@ -151,7 +151,8 @@ def tables(result: dict[str, Any]) -> list[Table]:
             "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
             "way)",
             f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
-            f"subscriber has them all; latency: sample time to the subscriber at "
+            f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
+            f"time to the subscriber at "
             f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
             f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
             f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
