@@ -8,7 +8,9 @@ pymb's errors into messages and exit codes (no traceback for a user mistake).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -16,12 +18,22 @@ from pymb import __version__
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 from pymb.store import OutputError
 
-__all__ = ["EXIT_CONNECTION", "EXIT_DEVICE", "EXIT_OUTPUT", "EXIT_USAGE", "main"]
+__all__ = [
+    "EXIT_CONNECTION",
+    "EXIT_DEVICE",
+    "EXIT_INTERRUPTED",
+    "EXIT_OUTPUT",
+    "EXIT_PIPE",
+    "EXIT_USAGE",
+    "main",
+]
 
 EXIT_USAGE = 2  #: bad arguments or configuration
 EXIT_DEVICE = 3  #: the device answered wrongly, or not at all
 EXIT_CONNECTION = 4  #: the port or connection failed
 EXIT_OUTPUT = 5  #: logged data could not be written (disk full, read-only)
+EXIT_INTERRUPTED = 130  #: Ctrl-C (128 + SIGINT)
+EXIT_PIPE = 141  #: the reader of stdout went away (128 + SIGPIPE), said nothing
 
 #: exception -> exit code, most specific first
 _EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
@@ -68,12 +80,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE
     try:
-        return int(args._module.run(args) or 0)
+        code = int(args._module.run(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit
+        return code
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        return _reader_gone()
     except (ModbusError, OutputError) as e:
-        print(f"pymb {args.command}: {e}", file=sys.stderr)
+        with contextlib.suppress(OSError):
+            print(f"pymb {args.command}: {e}", file=sys.stderr)
         return next(code for cls, code in _EXIT_CODES if isinstance(e, cls))
+
+
+def _reader_gone() -> int:
+    """stdout's reader went away (``pymb read ... | head``): stop quietly, as
+    Unix tools do, and keep Python from complaining about it at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+    return EXIT_PIPE
+
 
 if __name__ == "__main__":
     sys.exit(main())

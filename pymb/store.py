@@ -546,7 +546,8 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
     """Write a pymb SQLite database out as long-format CSV; returns rows."""
     if not Path(db_path).exists():
         raise InvalidArgument(f"no such database: {db_path}")
-    db = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True)
+    # A URI, escaped: '%', '#' and '?' in a file name are the file name's.
+    db = sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True)
     try:
         w = csv.writer(out)
         w.writerow(CSV_COLUMNS)

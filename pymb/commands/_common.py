@@ -7,13 +7,85 @@ import argparse
 import json
 import math
 import sys
-from typing import Any
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
+from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.logger import DEVICE_SYNTAX, DeviceConfig, device_parts, unresolved
 
-__all__ = ["add_connection_args", "make_client", "render", "to_json"]
+__all__ = [
+    "add_connection_args",
+    "add_device_arg",
+    "device_from_args",
+    "interruptible",
+    "make_client",
+    "render",
+    "to_json",
+]
+
+T = TypeVar("T")
+
+DEVICE_HELP = (f"the device: {DEVICE_SYNTAX}, e.g. coolpro, coolpro:41, hub:250, "
+               "hub:7,channels=50,humidity_unit=1")
+
+
+def add_device_arg(p: argparse.ArgumentParser, *, hub_options: bool = True) -> None:
+    """The positional DEVICE and its aliases (--address, --channels, --humidity-unit)."""
+    p.add_argument("device", metavar="DEVICE", help=DEVICE_HELP)
+    p.add_argument("--address", type=int, metavar="N",
+                   help=f"the device's address, as in TYPE:ADDRESS (default: coolpro "
+                        f"{COOLPRO.default_address}, hub {HUB.default_address})")
+    if hub_options:
+        p.add_argument("--channels", type=int, metavar="N",
+                       help="hub channels, as in hub,channels=N (50 for firmware V1.07 and "
+                            "below; default 100)")
+        p.add_argument("--humidity-unit", type=float, choices=[1, 0.1],
+                       help="hub humidity unit in %%, as in hub,humidity_unit=U (default 0.1)")
+
+
+def device_from_args(args: argparse.Namespace) -> DeviceConfig:
+    """The device the positional spec and its alias options name; a value
+    given both ways must agree."""
+    kind, options = device_parts(args.device)
+    for attr in ("address", "channels", "humidity_unit"):
+        value = getattr(args, attr, None)
+        if value is None:
+            continue
+        flag = "--" + attr.replace("_", "-")
+        if attr != "address" and kind != "hub":
+            raise InvalidArgument(f"{flag} is for a hub")
+        if attr in options and options[attr] != value:
+            raise InvalidArgument(f"{args.device!r} gives {attr} {options[attr]:g} and {flag} "
+                                  f"{value:g}: give it once")
+        options[attr] = value
+    return DeviceConfig(kind, **options)
+
+
+def interruptible(fn: Callable[[], T]) -> T:
+    """Run ``fn`` (blocking I/O) in a daemon thread and wait for it in short
+    steps, so Ctrl-C ends the command at once whatever the reply timeout:
+    the main thread gets KeyboardInterrupt within a few milliseconds, and a
+    request still waiting for its reply is abandoned with the process."""
+    result: list[T] = []
+    error: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            result.append(fn())
+        except BaseException as e:  # handed to the main thread
+            error.append(e)
+
+    t = threading.Thread(target=target, name="pymb-io", daemon=True)
+    t.start()
+    while t.is_alive():
+        t.join(0.05)
+    if error:
+        raise error[0]
+    return result[0]
 
 
 def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> None:
@@ -31,12 +103,19 @@ def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> 
 
 
 def make_client(args: argparse.Namespace) -> Client:
-    """The client the connection arguments describe (not yet open)."""
-    if args.tcp:
-        return client_for_address(args.tcp, timeout=args.timeout)
-    if getattr(args, "rtu_over_tcp", None):
-        return client_for_address(args.rtu_over_tcp, rtu_framing=True, timeout=args.timeout,
-                                  what="--rtu-over-tcp")
+    """The client the connection arguments describe (not yet open); a host
+    name that does not resolve is said so."""
+    for option, framing in (("tcp", False), ("rtu_over_tcp", True)):
+        address = getattr(args, option, None)
+        if not address:
+            continue
+        flag = "--" + option.replace("_", "-")
+        client = client_for_address(address, rtu_framing=framing, timeout=args.timeout,
+                                    what=flag)
+        why = unresolved(client.host)
+        if why is not None:
+            raise ModbusConnectionError(f"cannot connect to {address}: {why}", port=address)
+        return client
     return RtuClient(args.port, args.baud, args.parity, timeout=args.timeout)
 
 

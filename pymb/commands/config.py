@@ -1,4 +1,4 @@
-"""``pymb config coolpro``: change a CoolPro's address or baud rate, safely.
+"""``pymb config coolpro[:ADDRESS]``: change a CoolPro's address or baud rate, safely.
 
 Validated before any write, confirmed (``--yes`` to skip), and verified by
 reading the configuration back from the new address at the new rate after
@@ -12,7 +12,12 @@ import sys
 import time
 
 from pymb.client import RtuClient
-from pymb.commands._common import add_connection_args, make_client
+from pymb.commands._common import (
+    add_connection_args,
+    add_device_arg,
+    device_from_args,
+    make_client,
+)
 from pymb.devices import CoolPro
 from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
@@ -22,10 +27,8 @@ VERIFY_FOR = 5.0  # seconds to wait for the device to come back after a reset
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb config``."""
-    p.add_argument("device", choices=["coolpro"], help="the device to configure")
+    add_device_arg(p, hub_options=False)
     add_connection_args(p)
-    p.add_argument("--address", type=int, default=COOLPRO.default_address,
-                   help=f"current address (default {COOLPRO.default_address})")
     p.add_argument("--set-address", type=int, metavar="N", help="new address, 1..247")
     p.add_argument("--set-baud", type=int, metavar="BPS",
                    help=f"new baud rate: {', '.join(map(str, COOLPRO_BAUD_RATES))}")
@@ -43,6 +46,12 @@ def _confirm(question: str) -> bool:
 def run(args: argparse.Namespace) -> int:
     """Show, change, reset and verify."""
     # Validate everything before any I/O.
+    dev = device_from_args(args)
+    if dev.type != "coolpro":
+        raise InvalidArgument(f"pymb config changes a CoolPro's settings, not a {dev.type}'s: "
+                              "pymb config coolpro[:ADDRESS] ...")
+    assert dev.address is not None
+    args.address = dev.address
     low, high = COOLPRO["address"].valid or (1, 247)
     if args.set_address is not None and not low <= args.set_address <= high:
         raise InvalidArgument(f"--set-address must be {low}..{high}, got {args.set_address}")

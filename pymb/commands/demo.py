@@ -16,6 +16,7 @@ import sqlite3
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
@@ -93,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _faults(path: str) -> str:
     try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        db = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
         rows = db.execute("SELECT kind, COUNT(*) FROM events WHERE kind NOT IN "
                           "('connect', 'reconnect') GROUP BY kind ORDER BY 2 DESC").fetchall()
         db.close()

@@ -1,26 +1,41 @@
-"""``pymb log``: log devices to SQLite (default), CSV or JSON Lines."""
+"""``pymb log``: log devices to SQLite (default), CSV or JSON Lines.
+
+Exit codes at the end of a run (``--seconds``, SIGINT or SIGTERM): 0; 3 if
+some device never delivered a sample; 4 if some bus never opened its port
+(the summary says which); 5 if the output could not be written.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from pymb.commands._common import DEVICE_HELP
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, PASSWORD_ENV, PROFILES, MqttConfig
-from pymb.logger import LogConfig, Logger, default_path, load_config, single_bus_config
+from pymb.logger import (
+    LogConfig,
+    Logger,
+    default_path,
+    load_config,
+    parse_device,
+    single_bus_config,
+)
 from pymb.store import FORMATS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb log``."""
+    p.add_argument("devices", nargs="*", metavar="DEVICE",
+                   help=f"{DEVICE_HELP}; several on one bus (--port or --tcp)")
     p.add_argument("--config", metavar="FILE.toml",
                    help="buses, devices and output from a TOML file (see the README)")
     p.add_argument("--port", metavar="PATH", help="serial port of a single bus")
     p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
     p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                    help="RTU-over-TCP (raw serial server) of a single bus")
-    p.add_argument("--device", action="append", default=[], metavar="TYPE[:ADDR]",
-                   help="coolpro[:ADDR] or hub[:ADDR]; repeat for several (single bus)")
+    p.add_argument("--device", action="append", default=[], metavar="DEVICE",
+                   help="the same as a DEVICE argument (repeatable)")
     p.add_argument("--baud", type=int, default=9600)
     p.add_argument("--parity", default="N", choices=["N", "E", "O"])
     p.add_argument("--timeout", type=float, default=1.0, help="reply timeout, seconds")
@@ -70,18 +85,19 @@ def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig |
 
 def config_from(args: argparse.Namespace) -> LogConfig:
     """The LogConfig the arguments describe."""
+    specs = list(args.devices) + list(args.device)
     if args.config:
-        if args.port or args.tcp or args.rtu_over_tcp or args.device:
-            raise InvalidArgument("give either --config or --port/--tcp with --device, not both")
+        if args.port or args.tcp or args.rtu_over_tcp or specs:
+            raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
         cfg = load_config(args.config)
     else:
         if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp)) > 1:
             raise InvalidArgument("give one of --port, --tcp or --rtu-over-tcp")
-        if not (args.port or args.tcp or args.rtu_over_tcp) or not args.device:
-            raise InvalidArgument("name a bus: --port PATH (or --tcp HOST:PORT) and at least "
-                                  "one --device coolpro[:ADDR] / hub[:ADDR]; or --config FILE")
-        cfg = single_bus_config(args.port, args.tcp, args.device, baud=args.baud,
-                                parity=args.parity, timeout=args.timeout,
+        if not (args.port or args.tcp or args.rtu_over_tcp) or not specs:
+            raise InvalidArgument("name a bus and its devices: pymb log coolpro:40 hub:250 "
+                                  "--port PATH (or --tcp HOST:PORT); or --config FILE")
+        cfg = single_bus_config(args.port, args.tcp, [parse_device(s) for s in specs],
+                                baud=args.baud, parity=args.parity, timeout=args.timeout,
                                 interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
         cfg.path = ""
     if args.format:
@@ -103,13 +119,20 @@ def config_from(args: argparse.Namespace) -> LogConfig:
 
 def run(args: argparse.Namespace) -> int:
     """Log until Ctrl-C / SIGTERM (or --seconds), then print the summary."""
+    if args.seconds is not None and not args.seconds > 0:
+        raise InvalidArgument(f"--seconds must be more than 0, got {args.seconds:g}")
     cfg = config_from(args)
     if cfg.mqtt is not None:
         from pymb.fleet.run import log_and_forward
         return log_and_forward(cfg, cfg.mqtt, seconds=args.seconds, quiet=args.quiet)
     logger = Logger(cfg, status=None if args.quiet else sys.stderr)
     s = logger.run(args.seconds)
-    if not args.quiet:
-        print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
-              f"({s.faults} faults) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
-    return 0
+    skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
+    lines = [f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
+             f"({s.faults} faults{skipped}) in {s.elapsed:.1f} s to {s.path}"]
+    lines += s.problems()
+    problems = s.problems()
+    if not args.quiet or problems:
+        for line in lines if not args.quiet else problems:
+            print(("pymb log: " if line in problems else "") + line, file=sys.stderr)
+    return s.exit_code

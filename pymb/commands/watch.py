@@ -1,52 +1,231 @@
-"""``pymb watch coolpro|hub``: ``pymb read``, refreshed live, with the rate."""
+"""``pymb watch DEVICE``: ``pymb read``, refreshed live, with the rate.
+
+On a terminal each frame is drawn to fit it (80x24 included): the status
+line first, always on screen, then a compact view: a CoolPro's telemetry,
+or for a hub the chosen blocks (``--block``, default temperature and
+humidity) with ten channels to a row, as many rows as fit (``--show``
+chooses the channels). ``--json`` prints one JSON object per line per read
+attempt instead. Elsewhere (a pipe, a file) each frame is printed after the
+last.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import queue
+import shutil
 import sys
+import threading
 import time
+from typing import Any
 
 from pymb.commands import read as read_cmd
-from pymb.commands._common import make_client, render
-from pymb.errors import ModbusConnectionError, ModbusError
+from pymb.commands._common import device_from_args, make_client, render, to_json
+from pymb.devices import HUB, HubReading, State
+from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
+from pymb.logger import closest
+
+_DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
+_STATE_WORDS = {State.OFFLINE: "off", State.NO_SENSOR: "-", State.UNSUPPORTED: "n/a",
+                State.NOT_READ: ""}
+_CELL = 6  # characters per value: "-327.6" at most, a space before
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Arguments of ``pymb watch``: those of ``pymb read`` plus the pace."""
+    """Arguments of ``pymb watch``: those of ``pymb read`` plus the pace and the view."""
     read_cmd.add_arguments(p)
     p.add_argument("--interval", type=float, default=0.0,
                    help="seconds between reads (default 0: as fast as the line allows)")
-    p.add_argument("--count", type=int, default=0, help="stop after N reads (default: never)")
+    p.add_argument("--count", type=int, default=0,
+                   help="stop after N read attempts, failed ones included (default: never)")
+    p.add_argument("--block", action="append", default=[], metavar="NAME",
+                   help="hub: the block(s) to show and read, e.g. temperature_c or "
+                        "temperature_c,pressure_kpa (default temperature_c,humidity_pct; "
+                        "'all' for every block)")
+    p.add_argument("--show", metavar="CHANNELS",
+                   help="hub: the channels to show and read, e.g. 1-20 or 1-10,40 "
+                        "(default: all)")
+
+
+def parse_channels(spec: str, channels: int) -> list[int]:
+    """``1-10,40`` -> [1..10, 40], each within 1..channels."""
+    out: list[int] = []
+    try:
+        for part in spec.split(","):
+            lo, _, hi = part.strip().partition("-")
+            a, b = int(lo), int(hi or lo)
+            if not 1 <= a <= b <= channels:
+                raise ValueError
+            out.extend(c for c in range(a, b + 1) if c not in out)
+    except ValueError:
+        raise InvalidArgument(f"bad --show {spec!r}: channels 1..{channels}, e.g. 1-20 or "
+                              f"1-10,40") from None
+    return sorted(out)
+
+
+def parse_blocks(names: list[str]) -> list[str]:
+    """Block names (with or without the unit suffix), 'all', or the default."""
+    known = [b.name for b in HUB.blocks]
+    short = {b.name.rsplit("_", 1)[0]: b.name for b in HUB.blocks}
+    out: list[str] = []
+    for name in (n.strip() for arg in names for n in arg.split(",") if n.strip()):
+        if name == "all":
+            return known
+        full = name if name in known else short.get(name)
+        if full is None:
+            raise InvalidArgument(f"unknown --block {name!r}{closest(name, known)}")
+        if full not in out:
+            out.append(full)
+    return out or list(_DEFAULT_BLOCKS)
+
+
+def _value(v: float, state: int) -> str:
+    if state == State.VALUE:
+        return f"{v:.1f}" if v != int(v) or abs(v) < 1000 else f"{v:.0f}"
+    return _STATE_WORDS.get(State(state), "?")
+
+
+def hub_view(data: HubReading, blocks: list[str], shown: list[int], width: int,
+             height: int) -> list[str]:
+    """The hub's chosen blocks and channels in at most ``height`` lines of at
+    most ``width`` characters: ten (or five, or twenty) channels to a row."""
+    per_row = (width - 5) // _CELL
+    per_row = next((n for n in (20, 10, 5) if n <= per_row), max(1, per_row))
+    lines: list[str] = []
+    c = data.channels
+    for name in blocks:
+        b = HUB.block(name)
+        vals = [(ch, _value(data.values[b.index * c + ch - 1],
+                            data.raw_states[b.index * c + ch - 1])) for ch in shown]
+        lines.append(f"{name} [{b.unit}]"[:width])
+        for i in range(0, len(vals), per_row):
+            row = vals[i:i + per_row]
+            lines.append((f"{row[0][0]:>3}: " + "".join(v.rjust(_CELL) for _, v in row))[:width])
+    if len(lines) > height:
+        hidden = len(lines) - height + 1
+        note = f"… {hidden} more line(s): choose with --block or --show"[:width]
+        lines = [*lines[:height - 1], note]
+    return lines
+
+
+def _size() -> tuple[int, int]:
+    try:
+        size = os.get_terminal_size(sys.stdout.fileno())
+        return size.columns, size.lines
+    except (OSError, ValueError):
+        fallback = shutil.get_terminal_size((80, 24))
+        return fallback.columns, fallback.lines
 
 
 def run(args: argparse.Namespace) -> int:
-    """Read, redraw, repeat until Ctrl-C (or --count)."""
-    tty = sys.stdout.isatty()
-    done = faults = 0
-    t0 = time.monotonic()
+    """Read, redraw, repeat until Ctrl-C (or --count attempts)."""
+    dev = device_from_args(args)
+    if args.count < 0:
+        raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
+    if args.interval < 0:
+        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval}")
+    is_hub = dev.type == "hub"
+    if not is_hub and (args.block or args.show):
+        raise InvalidArgument("--block and --show are for a hub")
+    blocks = parse_blocks(args.block) if is_hub else []
+    shown = parse_channels(args.show, dev.channels) if is_hub and args.show else (
+        list(range(1, dev.channels + 1)))
+    full = is_hub and len(blocks) == len(HUB.blocks) and len(shown) == dev.channels
     client = make_client(args)
-    read = read_cmd.reader(args, client)  # validates the address before any I/O
-    with client:
-        while args.count <= 0 or done < args.count:
-            start = time.monotonic()
+    read = read_cmd.reader(dev, client, blocks=None if full or not is_hub else blocks,
+                           channels=None if full or not is_hub else shown)
+    frames: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=4)
+    stop = threading.Event()
+
+    def io() -> None:
+        try:
+            with client:
+                if args.identity:
+                    ident = read_cmd.identity_of(dev, client)
+                    frames.put(("identity", read_cmd.identity_text(ident)))
+                attempts = 0
+                while not stop.is_set() and (args.count <= 0 or attempts < args.count):
+                    start = time.monotonic()
+                    attempts += 1
+                    try:
+                        frames.put(("data", read()))
+                    except ModbusConnectionError:
+                        raise
+                    except ModbusError as e:
+                        frames.put(("error", e))
+                    if args.interval > 0:
+                        stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
+        except BaseException as e:  # handed to the main thread
+            frames.put(("fatal", e))
+        frames.put(("end", None))
+
+    threading.Thread(target=io, name="pymb-watch", daemon=True).start()
+    tty = sys.stdout.isatty() and not args.json
+    done = faults = attempts = 0
+    identity = ""
+    t0 = time.monotonic()
+    where = f"{dev.spec} on {client.port}"
+    if tty:
+        sys.stdout.write("\x1b[H\x1b[2J")
+    try:
+        while True:
             try:
-                data = read()
-                text = render(data)
+                kind, item = frames.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if kind == "end":
+                break
+            if kind == "fatal":
+                raise item
+            if kind == "identity":
+                identity = item
+                continue
+            attempts += 1
+            if kind == "data":
                 done += 1
-            except ModbusConnectionError:
-                raise
-            except ModbusError as e:
+            else:
                 faults += 1
-                text = f"error: {e}"
             elapsed = time.monotonic() - t0
             rate = done / elapsed if elapsed > 0 else 0.0
-            head = (f"pymb watch {args.device} on {client.port}: {done} reads, {rate:.1f}/s, "
-                    f"{faults} faults")
-            if tty:
-                sys.stdout.write("\x1b[H\x1b[2J" + head + "\n\n" + text + "\n")
+            if args.json:
+                out: dict[str, Any] = {"time_utc": time.time(), "device": dev.type,
+                                       "address": dev.address, "port": client.port,
+                                       "attempt": attempts}
+                if identity:
+                    out["identity"] = identity
+                if kind == "data":
+                    out.update(to_json(item))
+                else:
+                    out["error"] = str(item)
+                sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
+                sys.stdout.flush()
+                continue
+            head = (f"pymb watch {where}: {done} reads, {rate:.1f}/s, {faults} faults "
+                    f"in {attempts} attempts")
+            width, height = _size() if tty else (10**6, 10**6)
+            body: list[str] = []
+            if identity:
+                body += identity.splitlines()
+            if kind == "error":
+                body.append(f"error: {item}")
+            elif isinstance(item, HubReading):
+                body += hub_view(item, blocks, shown, width, height - 1 - len(body))
             else:
-                sys.stdout.write(head + "\n" + text + "\n\n")
+                body += render(item).splitlines()
+            if tty:
+                lines = [head, *body]
+                lines = [ln[:width - 1] if len(ln) >= width else ln for ln in lines][:height]
+                # Home, draw, clear the rest; no newline after the last line, so
+                # nothing scrolls and the status line stays on screen.
+                sys.stdout.write("\x1b[H" + "\x1b[K\n".join(lines) + "\x1b[K\x1b[J")
+            else:
+                sys.stdout.write(head + "\n" + "\n".join(body) + "\n\n")
             sys.stdout.flush()
-            if args.interval > 0:
-                time.sleep(max(0.0, args.interval - (time.monotonic() - start)))
-    return 0
+    finally:
+        stop.set()
+        if tty:
+            sys.stdout.write("\n")
+            sys.stdout.flush()
+    return 0 if done or attempts == 0 else 3

@@ -21,6 +21,7 @@ from enum import StrEnum
 __all__ = [
     "COOLPRO",
     "COOLPRO_BAUD_RATES",
+    "COOLPRO_GAP_S",
     "COOLPRO_RESET_VALUE",
     "COOLPRO_STATUS_BITS",
     "HUB",
@@ -112,6 +113,9 @@ class DeviceMap:
 #: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple.
 COOLPRO_BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
 #: [CP] "Reset Command": write this to holding register 2.
+#: [CP] "Frame timing": the fixed ~8 ms inter-frame gap; the CoolPro answers no sooner
+#: than this after a request ends ([NOTES] "timing").
+COOLPRO_GAP_S = 0.008
 COOLPRO_RESET_VALUE = 0xAA55
 
 #: [CP] "Status Flags bit field": bit -> (name, description). Bits 7..15 are

@@ -2,8 +2,9 @@
 wire time.
 
 A request for ``n`` registers costs, on an RTU line, the request frame (8
-bytes) and the reply (5 + 2n bytes), a 3.5-character silence after each
-(Modbus over Serial Line V1.02, 2.5.1.1), and the device's turnaround. Reading
+bytes), the silence before the reply (3.5 characters or the device's
+turnaround, whichever is longer) and the reply (5 + 2n bytes): the model of
+:mod:`pymb.wire`, the one every part of pymb uses. Reading
 a few registers nobody asked for between two wanted runs can be cheaper than a
 second request; a request never exceeds 125 registers and never crosses a
 register the device may not have. The plan is exact (dynamic programming over
@@ -16,23 +17,17 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from pymb.wire import read_time
+
 __all__ = ["ReadPlan", "naive_spans", "plan_reads", "request_time"]
 
-REQUEST_BYTES = 8  # address, function, start (2), count (2), CRC (2)
-REPLY_OVERHEAD = 5  # address, function, byte count, CRC (2)
-GAP_CHARS = 3.5
-
-
-def char_time(baudrate: int, bits_per_char: int = 10) -> float:
-    """Seconds one character takes on the line (10 bits for 8N1)."""
-    return bits_per_char / baudrate
 
 
 def request_time(count: int, baudrate: int, turnaround: float = 0.0,
                  bits_per_char: int = 10) -> float:
-    """Predicted wire time of one read of ``count`` registers."""
-    chars = REQUEST_BYTES + REPLY_OVERHEAD + 2 * count + 2 * GAP_CHARS
-    return chars * char_time(baudrate, bits_per_char) + turnaround
+    """Predicted wire time of one read of ``count`` registers
+    (:func:`pymb.wire.read_time`)."""
+    return read_time(count, baudrate, turnaround=turnaround, bits=bits_per_char)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from typing import Any, ClassVar, TypeVar
 from pymb.devices.maps import (
     COOLPRO,
     COOLPRO_BAUD_RATES,
+    COOLPRO_GAP_S,
     COOLPRO_RESET_VALUE,
     COOLPRO_STATUS_BITS,
     HUB,
@@ -281,7 +282,7 @@ class CoolProDevice(Device):
         baud: int = COOLPRO.default_baud,
         seed: int = 0,
         clock: SimClock | None = None,
-        gap: float = 0.008,
+        gap: float = COOLPRO_GAP_S,
         serial_number: int | None = None,
         hardware_revision: int = 1,
         firmware: tuple[int, int, int] | str = (1, 0, 0),
