@@ -1,24 +1,46 @@
-"""``pymb scan``: which addresses answer on a bus, and which device each is."""
+"""``pymb scan``: which addresses answer on a bus, and which device each is.
+
+On a serial line the scan does not wait for each address in turn. It sends
+one short question to each address (FC 0x04, registers 100..107: a CoolPro
+answers with its identity, a hub with exception 01, any Modbus device with
+something) and listens to the line the whole time. An RTU reply names the
+address that sent it, so a reply that comes late, while a later address is
+being asked, is credited to its sender, never to the address being asked.
+Every address heard from is then confirmed with a slower probe (long enough
+for the hub's documented 500 ms) and identified; only what confirms is
+listed, so a garbled or stray frame never becomes a phantom device. Each
+device is printed (and flushed) as soon as it is confirmed.
+
+Through a TCP gateway (which matches replies to requests itself) each
+address is identified in turn with ``--timeout``.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import queue
+import select
+import struct
 import sys
+import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import cast
 
-from pymb.client import Client
-from pymb.commands._common import add_connection_args, make_client, print_json
-from pymb.devices import HUB, CoolPro
-from pymb.devices.maps import COOLPRO
-from pymb.errors import (
-    DeviceException,
-    IllegalFunction,
-    InvalidArgument,
-    ModbusConnectionError,
-    ModbusError,
-    ModbusTimeout,
-)
+from pymb import _native
+from pymb.client import Client, RtuClient
+from pymb.commands._common import add_connection_args, make_client
+from pymb.devices.identify import Answer, Identity, client_asker, identify
+from pymb.devices.maps import COOLPRO, HUB
+from pymb.errors import InvalidArgument
+from pymb.wire import bits_per_char, char_time
+
+__all__ = ["LineListener", "add_arguments", "parse_range", "run"]
+
+_QUIET_S = 0.02  #: a partial frame with no byte for this long is noise
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_connection_args(p, timeout=0.05)
     p.add_argument("--range", default="1-255", metavar="A-B[,C...]",
                    help="addresses to try (default 1-255: the hub uses up to 255)")
+    p.add_argument("--confirm-timeout", type=float, metavar="S",
+                   help="seconds to wait for a device being confirmed (default: the hub's "
+                        "documented 0.5 s plus the reply's wire time)")
     p.add_argument("--json", action="store_true", help="print JSON")
 
 
@@ -46,70 +71,221 @@ def parse_range(spec: str) -> list[int]:
 
 @dataclass
 class Found:
-    """One address that answered."""
+    """One address that answered and confirmed."""
 
     address: int
     device: str  #: coolpro, hub, or "unknown"
     detail: str
 
 
-def probe(client: Client, address: int) -> Found | None:
-    """What answers at ``address``, or None for silence."""
-    try:
-        ident = CoolPro(client, min(address, 247)).read_identity() if address <= 247 else None
+class LineListener:
+    """Sends RTU requests on an open serial line and reads every frame that
+    comes back, crediting each to the address it names."""
+
+    def __init__(self, fd: int, baudrate: int, bits: int) -> None:
+        self.fd = fd
+        self.char = char_time(baudrate, bits)
+        self.buf = bytearray()
+        self.last_byte = 0.0
+        self.heard: list[int] = []  #: addresses heard from, in order, not yet taken
+        self.garbled = 0  #: bytes dropped as noise
+
+    def send(self, address: int, function: int, data: bytes) -> float:
+        """Send a request; returns when its last bit will have left."""
+        frame = _native.with_crc(bytes((address, function)) + data)
+        view = memoryview(frame)
+        while view:
+            _, w, _ = select.select([], [self.fd], [], 0.05)
+            if w:
+                view = view[os.write(self.fd, view):]
+        return time.monotonic() + len(frame) * self.char
+
+    def listen(self, until: float, address: int | None = None,
+               function: int | None = None) -> bytes | None:
+        """Read until ``until``; returns the first frame from ``address`` that
+        answers ``function`` (None: just listen). Every other frame is noted
+        in :attr:`heard`."""
+        while True:
+            frame = self._take(address, function)
+            if frame is not None:
+                return frame
+            left = until - time.monotonic()
+            if left <= 0:
+                return None
+            r, _, _ = select.select([self.fd], [], [], min(left, 0.05))
+            if r:
+                try:
+                    chunk = os.read(self.fd, 512)
+                except BlockingIOError:
+                    continue
+                if chunk:
+                    self.buf += chunk
+                    self.last_byte = time.monotonic()
+
+    def _take(self, address: int | None, function: int | None) -> bytes | None:
+        while len(self.buf) >= 2:
+            n = _native.rtu_response_length(self.buf)
+            if n == -1 or (n > 0 and len(self.buf) < n):
+                if time.monotonic() - self.last_byte < _QUIET_S + 3.5 * self.char:
+                    return None  # more may come
+                self._drop()  # a partial frame followed by silence: noise
+                continue
+            if n < 0 or not _native.rtu_crc_ok(self.buf[:n]):
+                self._drop()
+                continue
+            frame = bytes(self.buf[:n])
+            del self.buf[:n]
+            fc = frame[1] & 0x7F
+            if frame[0] == address and fc == function:
+                return frame
+            if frame[0] and frame[0] not in self.heard:
+                self.heard.append(frame[0])
+        return None
+
+    def _drop(self) -> None:
+        del self.buf[:1]
+        self.garbled += 1
+
+    def asker(self, timeout: float) -> Callable[[int, int, bytes], Answer]:
+        """``ask`` for :func:`~pymb.devices.identify.identify`, over this line."""
+
+        def ask(address: int, function: int, data: bytes) -> Answer:
+            sent = self.send(address, function, data)
+            frame = self.listen(sent + timeout, address, function)
+            if frame is None:
+                return None
+            if frame[1] & 0x80:
+                return frame[2]
+            return frame[2:-2]
+
+        return ask
+
+
+def _probe() -> tuple[int, bytes]:
+    fc, first, count = COOLPRO.span("identity")
+    return fc, struct.pack(">HH", first, count)
+
+
+def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
+             confirm_timeout: float) -> Iterator[tuple[str, object]]:
+    """Yields ("progress", (address, index)), ("found", Found) and
+    ("unconfirmed", address) as the scan goes."""
+    line = LineListener(client.fileno(), client.baudrate,
+                        bits_per_char(client.parity, client.stop_bits, client.data_bits))
+    ask = line.asker(confirm_timeout)
+    done: set[int] = set()
+    fc, data = _probe()
+
+    def confirm() -> Iterator[tuple[str, object]]:
+        while line.heard:
+            m = line.heard.pop(0)
+            if m in done:
+                continue
+            done.add(m)
+            ident = identify(ask, m)
+            if ident is None:
+                yield "unconfirmed", m
+            else:
+                yield "found", _found(ident)
+
+    for i, a in enumerate(addresses, 1):
+        yield "progress", (a, i)
+        if a in done:
+            continue
+        sent = line.send(a, fc, data)
+        if line.listen(sent + timeout, a, fc) is not None:
+            line.heard.insert(0, a)
+        yield from confirm()
+    # Late replies to the last questions: the hub may take 500 ms.
+    line.listen(time.monotonic() + confirm_timeout)
+    yield from confirm()
+
+
+def scan_client(client: Client, addresses: list[int]) -> Iterator[tuple[str, object]]:
+    """Each address in turn, through the client (TCP gateways)."""
+    ask = client_asker(client)
+    for i, a in enumerate(addresses, 1):
+        yield "progress", (a, i)
+        ident = identify(ask, a)
         if ident is not None:
-            return Found(address, "coolpro", f"serial {ident.serial_number}, firmware "
-                         f"{ident.firmware_version}, hardware rev {ident.hardware_revision}")
-    except ModbusTimeout:
-        return None
-    except IllegalFunction:
-        pass  # the hub answers FC 0x04 with exception 01: try its own read
-    except DeviceException as e:
-        return Found(address, "unknown", f"answers FC 0x04 at {COOLPRO.span('identity')[1]} "
-                     f"with exception {e.code:02X}")
-    except ModbusConnectionError:
-        raise
-    except ModbusError as e:
-        return Found(address, "unknown", f"garbled reply: {e.__class__.__name__}")
-    try:
-        client.read_holding_registers(HUB.first, 1, slave=address)
-        return Found(address, "hub", "answers FC 0x03 at register 31 (channel 1 temperature)")
-    except ModbusTimeout:
-        return None
-    except DeviceException as e:
-        return Found(address, "unknown", f"answers with exception {e.code:02X}")
-    except ModbusConnectionError:
-        raise
-    except ModbusError as e:
-        return Found(address, "unknown", f"garbled reply: {e.__class__.__name__}")
+            yield "found", _found(ident)
+
+
+def _found(ident: Identity) -> Found:
+    return Found(ident.address, ident.device, ident.detail)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Try every address in the range; print what answered."""
+    """Try every address in the range; print what answered as it is confirmed."""
     addresses = parse_range(args.range)
+    client = make_client(args)
+    confirm_timeout = args.confirm_timeout
+    if confirm_timeout is None:
+        baud = getattr(client, "baudrate", 9600)
+        confirm_timeout = max(args.timeout, HUB.response_time + 0.15 + 60 * 11 / baud)
+    if not 0 < confirm_timeout <= 60:
+        raise InvalidArgument(f"--confirm-timeout must be more than 0 s, got {confirm_timeout}")
+    events: queue.Queue[tuple[str, object]] = queue.Queue()
+
+    def work() -> None:
+        try:
+            with client:
+                steps = (scan_rtu(client, addresses, args.timeout, confirm_timeout)
+                         if isinstance(client, RtuClient) else scan_client(client, addresses))
+                for step in steps:
+                    events.put(step)
+        except BaseException as e:  # handed to the main thread
+            events.put(("fatal", e))
+        events.put(("end", None))
+
+    threading.Thread(target=work, name="pymb-scan", daemon=True).start()
     found: list[Found] = []
+    unconfirmed: list[int] = []
     tty = sys.stderr.isatty()
     t0 = time.monotonic()
-    with make_client(args) as client:
-        for i, a in enumerate(addresses, 1):
-            if tty:
-                sys.stderr.write(f"\r\x1b[Kscanning {a} ({i}/{len(addresses)}), "
+    interrupted = False
+    try:
+        while True:
+            try:
+                kind, item = events.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if kind == "end":
+                break
+            if kind == "fatal":
+                assert isinstance(item, BaseException)
+                raise item
+            if kind == "progress" and tty:
+                where, index = cast(tuple[int, int], item)
+                sys.stderr.write(f"\r\x1b[Kscanning {where} ({index}/{len(addresses)}), "
                                  f"{len(found)} found")
                 sys.stderr.flush()
-            f = probe(client, a)
-            if f is not None:
-                found.append(f)
+            elif kind == "unconfirmed":
+                unconfirmed.append(int(item))  # type: ignore[call-overload]
+            elif kind == "found":
+                assert isinstance(item, Found)
+                found.append(item)
                 if tty:
-                    sys.stderr.write(f"\r\x1b[K{f.address:3d}  {f.device:8s} {f.detail}\n")
+                    sys.stderr.write("\r\x1b[K")
+                    sys.stderr.flush()
+                if not args.json:
+                    print(f"{item.address:3d}  {item.device:8s} {item.detail}", flush=True)
+    except KeyboardInterrupt:
+        interrupted = True
     if tty:
         sys.stderr.write("\r\x1b[K")
     elapsed = time.monotonic() - t0
     if args.json:
-        print_json({"port": client.port, "scanned": len(addresses), "seconds": elapsed,
-                    "found": [f.__dict__ for f in found]})
-    else:
-        for f in found:
-            print(f"{f.address:3d}  {f.device:8s} {f.detail}")
-        print(f"{len(found)} device(s) in {len(addresses)} addresses, {elapsed:.1f} s",
-              file=sys.stderr)
+        doc = {"port": client.port, "scanned": len(addresses), "seconds": elapsed,
+               "found": [f.__dict__ for f in sorted(found, key=lambda f: f.address)]}
+        if interrupted:
+            doc["interrupted"] = True
+        sys.stdout.write(json.dumps(doc, indent=2) + "\n")
+        sys.stdout.flush()
+    note = (f"; {len(unconfirmed)} address(es) heard once but silent when asked again: "
+            f"{', '.join(map(str, unconfirmed))}" if unconfirmed else "")
+    print(f"{len(found)} device(s) in {len(addresses)} addresses, {elapsed:.1f} s"
+          + (" (interrupted)" if interrupted else "") + note, file=sys.stderr)
+    if interrupted:
+        raise KeyboardInterrupt
     return 0

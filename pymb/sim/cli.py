@@ -10,7 +10,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import signal
+import stat
+import termios
 import sys
 import threading
 from types import FrameType
@@ -84,6 +87,34 @@ def _tcp_address(text: str, flag: str = "--tcp") -> tuple[str, int]:
     return host, number
 
 
+def check_link(path: str) -> None:
+    """``--link PATH`` replaces only a link pymb made (one to a pseudo-terminal)."""
+    if not os.path.lexists(path):
+        parent = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(parent):
+            raise InvalidArgument(f"--link {path}: no such directory {parent}")
+        return
+    if os.path.islink(path) and os.readlink(path).startswith("/dev/pts/"):
+        return  # a link to a pseudo-terminal: pymb's, left by a simulator
+    what = "a directory" if os.path.isdir(path) else "a link elsewhere" if os.path.islink(
+        path) else "a file"
+    raise InvalidArgument(f"--link {path} exists and is {what}: refusing to replace it; "
+                          "give a path that does not exist")
+
+
+def check_serial_port(path: str) -> None:
+    """``--port PATH`` must be a terminal device."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise ModbusConnectionError(f"cannot serve on {path}: {e.strerror}", errno=e.errno,
+                                    port=path) from None
+    if not stat.S_ISCHR(st.st_mode):
+        what = "a directory" if stat.S_ISDIR(st.st_mode) else "a regular file" if \
+            stat.S_ISREG(st.st_mode) else "not a character device"
+        raise InvalidArgument(f"--port {path} is {what}, not a serial port")
+
+
 def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
     if tcp is not None:
         line = f"mbpoll -m tcp -p {tcp[1]} -a {dev.address}"
@@ -109,6 +140,10 @@ def run(args: argparse.Namespace) -> int:
                  "serial" if args.port else "pty")
     if args.link and transport != "pty":
         raise InvalidArgument("--link is for --pty only")
+    if args.link:
+        check_link(args.link)
+    if args.port:
+        check_serial_port(args.port)
     sim = Simulator(
         args.devices or ["coolpro", "hub"],
         transport=transport,
@@ -131,6 +166,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         try:
             sim.start()
+        except termios.error as e:
+            raise InvalidArgument(f"--port {args.port} is not a serial port: "
+                                  f"{e.args[-1]}") from None
         except OSError as e:
             where = args.port or args.tcp or rot or "a pseudo-terminal"
             raise ModbusConnectionError(f"cannot serve on {where}: {e.strerror or e}",

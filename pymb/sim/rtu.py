@@ -180,9 +180,11 @@ class RtuServer(Server):
             os.replace(tmp, self.link)
 
     def _close(self) -> None:
-        if self.link:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.link)
+        if self.link and self._port is not None:
+            # Only the link made here: never a file someone put there meanwhile.
+            with contextlib.suppress(OSError):
+                if os.readlink(self.link) == self._port.path:
+                    os.unlink(self.link)
         if self._port is not None:
             self._port.close()
             self._port = None
