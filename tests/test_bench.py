@@ -194,7 +194,9 @@ def test_quick_run_structure_and_ratios(capsys: pytest.CaptureFixture[str]) -> N
     for r in micro.values():
         assert r["speedup"] == pytest.approx(r["python_us"] / r["pymb_us"])
 
-    targets = {t["what"]: t for t in result["targets"]}
+    # --quick declares no targets; what a full run would judge comes from the same figures.
+    assert result["targets"] == []
+    targets = {t["what"]: t for t in runner.targets(result)}
     assert targets["hub sweep wall time, pymb / C"]["measured"] == pytest.approx(
         result["sweep"]["hub"]["rows"][1]["wall_x"])
     assert all(t["met"] in (True, False) for t in targets.values())
@@ -258,7 +260,22 @@ def test_reports_from_one_result(tmp_path: Path) -> None:
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def _synthetic() -> dict[str, Any]:
+def test_quick_report_is_indicative_and_declares_no_targets(capsys: pytest.CaptureFixture[str],
+                                                           tmp_path: Path) -> None:
+    result = _synthetic(quick=True)
+    result["targets"] = []
+    for out in (report.to_text(result), report.to_markdown(result)):
+        assert "indicative" in out and "declares no targets" in out
+        assert "Targets" not in out and "≤ 1 µs" not in out
+        assert all("[indicative: --quick]" in t.title for t in report.tables(result))
+    # --plot to a path that cannot be written fails at once, before any measuring.
+    assert main(["bench", "--quick", "--plot", str(tmp_path / "no" / "such" / "dir.png")]) == 2
+    assert "no such directory" in capsys.readouterr().err
+    assert main(["bench", "--quick", "--plot", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+
+
+def _synthetic(quick: bool = False) -> dict[str, Any]:
     def rows(base: float) -> dict[str, Any]:
         out = []
         for i, c in enumerate(CONTENDERS[:3]):
@@ -267,7 +284,7 @@ def _synthetic() -> dict[str, Any]:
                         "cpu_us": base / 4 * (1 + i), "wall_x": 1.0 + i, "cpu_x": 1.0 + i})
         return {"baseline": "c", "rows": out}
 
-    opts = Options(quick=True, command="pymb bench --quick")
+    opts = Options(quick=quick, command="pymb bench --quick")
     result = {"meta": runner.meta(opts),
               "contenders": [{"name": c.name, "label": c.label, "version": "1",
                               "status": "ok", "reason": "", "how": c.how}

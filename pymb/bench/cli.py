@@ -9,6 +9,7 @@ Progress goes to stderr.
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 
@@ -27,6 +28,17 @@ def _names(text: str, allowed: tuple[str, ...], what: str) -> tuple[str, ...]:
         raise InvalidArgument(f"--{what} takes names from {', '.join(allowed)}; "
                               f"got {text!r}")
     return tuple(n for n in allowed if n in names)
+
+
+def check_writable(path: str) -> None:
+    """Fail now, not after minutes of measuring, if ``path`` cannot be written."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise InvalidArgument(f"--plot {path} is a directory; give a file name")
+    if not os.path.isdir(folder):
+        raise InvalidArgument(f"--plot {path}: no such directory {folder}")
+    if not os.access(path if os.path.exists(path) else folder, os.W_OK):
+        raise InvalidArgument(f"--plot {path}: permission denied")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
             import matplotlib  # noqa: F401
         except ImportError:
             raise InvalidArgument("--plot needs matplotlib: pip install 'pymb[bench]'") from None
+        check_writable(args.plot)
 
     def progress(text: str) -> None:
         print(f"pymb bench: {text}", file=sys.stderr, flush=True)

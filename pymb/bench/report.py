@@ -115,18 +115,12 @@ def tables(result: dict[str, Any]) -> list[Table]:
             rows.append([str(r["baud"]), r["workload"], r["label"], fmt_time(r["wall_us"]),
                          fmt_time(r["theory_us"]), fmt_x(r.get("theory_x")),
                          fmt_x(r.get("wall_x"))])
-        for r in wire["rows"]:
-            if r["name"] == "c" and r.get("theory_x", 0) > 1.02 and r["workload"] == "hub sweep":
-                footer.append(
-                    f"at {r['baud']} baud the C program itself takes {fmt_x(r['theory_x'])} the "
-                    "theoretical time: above 19200 baud the simulator waits the Modbus serial "
-                    "line spec's fixed t3.5 of 1.75 ms before each reply, where the model "
-                    "counts 3.5 characters; x C is the distance from that emulated floor")
         out.append(Table(
             "Wire-bound: the simulator emulating the line speed",
-            "median time per sweep (per read) against the theoretical wire time of the "
-            "frames: 10 bits a byte plus two 3.5-character gaps per request "
-            "(pymb.devices.planner.request_time), plus the device's gap",
+            "median time per sweep (per read) against the least wire time of the frames "
+            "(pymb.wire): 10 bits a byte, request and reply, and between them 3.5 characters "
+            "or the device's gap, whichever is longer (the CoolPro's 8 ms gap is its silence "
+            "after the request, not added to it); no measurement can beat it",
             ["baud", "workload", "contender", "time", "theoretical", f"{X} theory", f"{X} C"],
             rows,
             [True, False, False, True, True, True, True], footer))
@@ -168,7 +162,16 @@ def tables(result: dict[str, Any]) -> list[Table]:
     elif fleet:
         out.append(Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False],
                          []))
-    tg = result.get("targets") or []
+    if m.get("quick"):
+        for t in out:
+            t.title += " [indicative: --quick]"
+        if micro:
+            for t in out:
+                if t.title.startswith("Micro") and t.headers[-1] == "target":
+                    t.headers = list(t.headers[:-1])
+                    t.rows = [r[:-1] for r in t.rows]
+                    t.right = list(t.right[:-1])
+    tg = [] if m.get("quick") else (result.get("targets") or [])
     if tg:
         out.append(Table(
             "Targets", "",
@@ -191,9 +194,15 @@ def _header(result: dict[str, Any]) -> list[tuple[str, str]]:
     ]
 
 
+_QUICK = ("--quick: a smoke test of few rounds and short runs; its figures are indicative, "
+          "and it declares no targets")
+
+
 def to_text(result: dict[str, Any]) -> str:
     """The terminal report."""
     lines = ["pymb bench: pymb against the field, side by side in one run", ""]
+    if result["meta"].get("quick"):
+        lines[1:1] = [_QUICK]
     lines += [f"  {k:<9} {v}" for k, v in _header(result)]
     for t in tables(result):
         lines += ["", t.title]
@@ -220,6 +229,8 @@ def to_markdown(result: dict[str, Any]) -> str:
     """The report as Markdown (for the README)."""
     lines = [f"- **{k}**: {f'`{v}`' if k == 'command' else _md(v)}"
              for k, v in _header(result)]
+    if result["meta"].get("quick"):
+        lines.insert(0, f"**{_md(_QUICK)}**\n")
     for t in tables(result):
         lines += ["", f"**{_md(t.title)}**" + (f" ({_md(t.note)})" if t.note else ""), ""]
         if t.rows:

@@ -13,8 +13,8 @@ import logging
 import os
 import signal
 import stat
-import termios
 import sys
+import termios
 import threading
 from types import FrameType
 
