@@ -86,7 +86,7 @@ __all__ = [
 DEVICE_TYPES = ("coolpro", "hub")
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 _FAULTS_BEFORE_BACKOFF = 3  #: consecutive failed reads of a device before it is backed off
-_STOP_WAIT = 0.3  #: seconds a stopping run waits for a poller in the middle of a request
+_STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 
 #: keys a device takes after its ``TYPE[:ADDRESS]`` (command line) or in TOML
 DEVICE_KEYS: dict[str, tuple[str, ...]] = {
@@ -168,8 +168,19 @@ def _integer(text: str, what: str, spec: str) -> int:
         raise InvalidArgument(f"{spec!r}: {what} must be a whole number, got {text!r}") from None
 
 
+#: words users write for a known key
+_SYNONYMS = {"file": "path", "filename": "path", "out": "path", "output": "path",
+             "addr": "address", "slave": "address", "unit": "address", "id": "address",
+             "kind": "type", "speed": "baud", "baudrate": "baud", "baud_rate": "baud",
+             "serial": "port", "device": "port", "host": "tcp", "devices": "device",
+             "buses": "bus", "interval_s": "interval", "timeout_s": "timeout",
+             "humidity": "humidity_unit", "channel": "channels"}
+
+
 def closest(key: str, known: Sequence[str]) -> str:
     """``; did you mean 'x'?`` (or the list of known keys) for an unknown ``key``."""
+    if _SYNONYMS.get(key.lower()) in known:
+        return f"; did you mean {_SYNONYMS[key.lower()]!r}?"
     near = difflib.get_close_matches(key, list(known), n=1, cutoff=0.5)
     if near:
         return f"; did you mean {near[0]!r}?"
@@ -753,7 +764,7 @@ class Logger:
                     if self._stop.is_set():
                         break
                     try:
-                        item: Sample | Event | None = self._queue.get(timeout=0.05)
+                        item: Sample | Event | None = self._queue.get(timeout=0.02)
                     except queue.Empty:
                         item = None
                     if item is not None:

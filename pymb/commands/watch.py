@@ -166,14 +166,44 @@ def run(args: argparse.Namespace) -> int:
     done = faults = attempts = 0
     identity = ""
     t0 = time.monotonic()
-    where = f"{dev.spec} on {client.port}"
+    last_draw = 0.0
+    last: tuple[str, Any] | None = None  # the newest reading not drawn yet
     if tty:
         sys.stdout.write("\x1b[H\x1b[2J")
+
+    def draw(kind: str, item: Any) -> None:
+        elapsed = time.monotonic() - t0
+        rate = done / elapsed if elapsed > 0 else 0.0
+        # The status line: the words that matter first, the port last (cut first).
+        head = (f"{dev.spec}  {done} reads {rate:.1f}/s  faults {faults}/{attempts}  "
+                f"on {client.port}")
+        width, height = _size() if tty else (10**6, 10**6)
+        body: list[str] = []
+        if identity:
+            body += identity.splitlines()
+        if kind == "error":
+            body.append(f"error: {item}")
+        elif isinstance(item, HubReading):
+            body += hub_view(item, blocks, shown, width, height - 1 - len(body))
+        else:
+            body += render(item).splitlines()
+        if tty:
+            lines = [ln[:width - 1] if len(ln) >= width else ln for ln in [head, *body]]
+            # Home, draw, clear the rest; no newline after the last line, so
+            # nothing scrolls and the status line stays on screen.
+            sys.stdout.write("\x1b[H" + "\x1b[K\n".join(lines[:height]) + "\x1b[K\x1b[J")
+        else:
+            sys.stdout.write(head + "\n" + "\n".join(body) + "\n\n")
+        sys.stdout.flush()
+
     try:
         while True:
             try:
                 kind, item = frames.get(timeout=0.1)
             except queue.Empty:
+                if last is not None and time.monotonic() - last_draw >= 0.1:
+                    draw(*last)
+                    last, last_draw = None, time.monotonic()
                 continue
             if kind == "end":
                 break
@@ -187,8 +217,6 @@ def run(args: argparse.Namespace) -> int:
                 done += 1
             else:
                 faults += 1
-            elapsed = time.monotonic() - t0
-            rate = done / elapsed if elapsed > 0 else 0.0
             if args.json:
                 out: dict[str, Any] = {"time_utc": time.time(), "device": dev.type,
                                        "address": dev.address, "port": client.port,
@@ -202,27 +230,13 @@ def run(args: argparse.Namespace) -> int:
                 sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
                 sys.stdout.flush()
                 continue
-            head = (f"pymb watch {where}: {done} reads, {rate:.1f}/s, {faults} faults "
-                    f"in {attempts} attempts")
-            width, height = _size() if tty else (10**6, 10**6)
-            body: list[str] = []
-            if identity:
-                body += identity.splitlines()
-            if kind == "error":
-                body.append(f"error: {item}")
-            elif isinstance(item, HubReading):
-                body += hub_view(item, blocks, shown, width, height - 1 - len(body))
-            else:
-                body += render(item).splitlines()
-            if tty:
-                lines = [head, *body]
-                lines = [ln[:width - 1] if len(ln) >= width else ln for ln in lines][:height]
-                # Home, draw, clear the rest; no newline after the last line, so
-                # nothing scrolls and the status line stays on screen.
-                sys.stdout.write("\x1b[H" + "\x1b[K\n".join(lines) + "\x1b[K\x1b[J")
-            else:
-                sys.stdout.write(head + "\n" + "\n".join(body) + "\n\n")
-            sys.stdout.flush()
+            last = (kind, item)
+            # A terminal is redrawn at most ten times a second; a pipe gets every frame.
+            if not tty or time.monotonic() - last_draw >= 0.1:
+                draw(*last)
+                last, last_draw = None, time.monotonic()
+        if last is not None:
+            draw(*last)
     finally:
         stop.set()
         if tty:
