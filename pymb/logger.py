@@ -85,7 +85,7 @@ __all__ = [
 
 DEVICE_TYPES = ("coolpro", "hub")
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
-_FAULTS_BEFORE_BACKOFF = 3  #: consecutive failed reads of a device before it is backed off
+_FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 
 #: keys a device takes after its ``TYPE[:ADDRESS]`` (command line) or in TOML
@@ -899,9 +899,9 @@ def is_pymb_database(path: str) -> bool:
                 "SELECT name FROM sqlite_master WHERE type = 'table'")}
             if not tables:
                 return True
-            if "meta" not in tables or "samples" not in tables:
+            if "meta" not in tables:
                 return False
-            return db.execute("SELECT COUNT(*) FROM meta WHERE key = 'schema_version'"
+            return db.execute("SELECT COUNT(*) FROM meta WHERE key = 'pymb_version'"
                               ).fetchone()[0] == 1
         finally:
             db.close()

@@ -4,6 +4,7 @@ the logger surviving faults and an unplugged port, SIGKILL mid-run."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import itertools
 import json
@@ -179,7 +180,8 @@ address = 1
                                  "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
                                 stderr=subprocess.PIPE, text=True)
         try:
-            time.sleep(1.5)
+            # Unplug only once bus a is logging (a loaded machine starts pymb slowly).
+            _wait_for_samples(db, "a", 3)
             a.unplug()
             time.sleep(2.0)
             a.replug()
@@ -205,6 +207,20 @@ address = 1
                         "WHERE d.bus = 'a' AND s.time_utc > ?", (t_back,)).fetchone()[0]
     assert after > 3  # logging resumed on the replugged bus
     con.close()
+
+
+def _wait_for_samples(db: Path, bus: str, n: int, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if db.exists():
+            with contextlib.suppress(sqlite3.OperationalError), \
+                    sqlite3.connect(db, timeout=5) as con:
+                got = con.execute("SELECT COUNT(*) FROM samples s JOIN devices d ON "
+                                  "d.id = s.device_id WHERE d.bus = ?", (bus,)).fetchone()[0]
+                if got >= n:
+                    return
+        time.sleep(0.1)
+    raise AssertionError(f"bus {bus} logged fewer than {n} samples in {timeout:g} s")
 
 
 def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:

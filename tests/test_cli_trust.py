@@ -250,7 +250,7 @@ def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
         assert first.split()[:2] == [b"3", b"coolpro"], first
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
-        rest, err = proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=30)
         took = time.monotonic() - t0
     print(f"scan stopped {took:.3f} s after SIGINT")
     assert took < STOP_BOUND

@@ -41,3 +41,14 @@ def test_the_toml_example_is_a_valid_configuration(tmp_path: Path) -> None:
     assert [b.name for b in cfg.buses] == ["line1", "gateway"]
     assert [d.name for d in cfg.buses[0].devices] == ["psu-a", "hub-250"]
     assert cfg.buses[1].tcp == "192.168.1.50:502" and cfg.max_bytes == 500_000_000
+    assert "channels = " in example and "humidity_unit = " in example
+    hub = cfg.buses[0].devices[1]
+    assert hub.channels == 100 and hub.humidity_unit == 0.1
+
+
+def test_readme_shows_the_one_device_syntax() -> None:
+    assert "`TYPE[:ADDRESS][,key=value...]`" in README
+    for line in ("pymb read hub:250 --port", "pymb log coolpro:40 hub:250 --port",
+                 "pymb simulate coolpro hub:250", "[--device hub:250]", "pymb config coolpro:40",
+                 "pymb watch hub:250"):
+        assert line in README, line

@@ -24,13 +24,13 @@ from pymb.client import Client
 from pymb.devices.maps import HUB, Block
 from pymb.devices.planner import ReadPlan, plan_reads
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
+from pymb.wire import bits_per_char
 
 __all__ = ["HubChannel", "HubReading", "SensorHub", "State", "decode_hub"]
 
 _N = HUB.count  # 700 registers, 31..730
 _ALL = (1 << len(HUB.blocks)) - 1
 _ZERO_REGS = array("H", bytes(2 * _N))
-_BITS_PER_CHAR = 10
 
 
 class State(IntEnum):
@@ -291,6 +291,11 @@ class SensorHub:
     def _baudrate(self) -> int:
         return int(getattr(self.client, "baudrate", HUB.default_baud))
 
+    def _bits(self) -> int:
+        c = self.client
+        return bits_per_char(getattr(c, "parity", "N"), getattr(c, "stop_bits", 1),
+                             getattr(c, "data_bits", 8))
+
     def _wanted(self, blocks: Iterable[str] | None,
                 channels: Iterable[int] | None) -> tuple[list[int], bool]:
         chosen = list(HUB.blocks) if blocks is None else [HUB.block(b) for b in blocks]
@@ -330,7 +335,7 @@ class SensorHub:
             return cached
         addresses, full = self._wanted(key[0], key[1])
         plan = plan_reads(addresses, self._baudrate(), readable=self._readable,
-                          turnaround=self.turnaround, bits_per_char=_BITS_PER_CHAR)
+                          turnaround=self.turnaround, bits_per_char=self._bits())
         wanted: bytes | None = None
         if not full:
             bitmap = bytearray(_native.HUB_BITMAP_BYTES)
