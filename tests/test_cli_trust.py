@@ -80,10 +80,10 @@ class Pty:
                     break
         return pattern in self.out
 
-    def interrupt(self) -> float:
+    def interrupt(self, sig: int = signal.SIGINT) -> float:
         """SIGINT, as Ctrl-C sends it; returns the seconds until the process ended."""
         t0 = time.monotonic()
-        self.proc.send_signal(signal.SIGINT)
+        self.proc.send_signal(sig)
         while self.proc.poll() is None and time.monotonic() - t0 < 30:
             r, _, _ = select.select([self.master], [], [], 0.01)
             if r:
@@ -189,6 +189,32 @@ def test_device_that_never_answers_gives_exit_3_and_is_named(sim: Simulator,
     assert r.returncode == 3, r.stderr
     assert "coolpro-41 delivered no sample" in r.stderr
     assert "coolpro-40 delivered" not in r.stderr
+
+
+def test_a_device_that_keeps_failing_is_backed_off(sim: Simulator, tmp_path: Path) -> None:
+    db = tmp_path / "silent.sqlite"
+    r = pymb("log", "coolpro:41", "--port", sim.port, "--timeout", "0.05", "--seconds", "4",
+             "--out", str(db), "--quiet")
+    assert r.returncode == 3
+    con = sqlite3.connect(db)
+    msgs = [m for (m,) in con.execute("SELECT message FROM events WHERE kind = 'timeout' "
+                                      "ORDER BY id")]
+    con.close()
+    # Ten timeouts in a row, then 0.5 s, 1 s, 2 s between tries: not ~40 in 4 s.
+    assert 10 <= len(msgs) <= 14, len(msgs)
+    assert "next try" not in msgs[8] and msgs[9].endswith("next try in 0.5 s")
+    assert msgs[10].endswith("next try in 1 s")
+
+
+def test_default_names_on_two_buses_are_qualified(tmp_path: Path) -> None:
+    from pymb.logger import load_config
+
+    cfg = tmp_path / "two.toml"
+    cfg.write_text(TOML_BUS.replace('"coolpro"', '"hub"') +
+                   TOML_BUS.replace('"line1"', '"line2"').replace("USB0", "USB1")
+                   .replace('"coolpro"', '"hub"'))
+    names = [d.name for b in load_config(cfg).buses for d in b.devices]
+    assert names == ["line1-hub-1", "line2-hub-1"]
 
 
 def test_log_status_line_is_one_line_that_fits(tmp_path: Path) -> None:
@@ -462,12 +488,15 @@ def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim: Simulator, t
         assert b"coolpro-99 delivered no sample" in p.out
 
 
-def test_log_flushes_what_it_read_on_sigint(sim: Simulator, tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_log_flushes_what_it_read_on_sigint(sim: Simulator, tmp_path: Path, sig: int) -> None:
     db = tmp_path / "flush.sqlite"
     p = Pty(["log", "coolpro", "--port", sim.port, "--out", str(db)])
     assert p.read_until(b"samples", 20)
     p.read_until(b"\x00", 1.0)
-    p.interrupt()
+    took = p.interrupt(sig)
+    assert took < STOP_BOUND
+    assert p.proc.returncode == 0
     m = re.search(rb"logged ([\d,]+) samples", p.out)
     assert m, p.out
     con = sqlite3.connect(db)
