@@ -267,6 +267,17 @@ def test_scan_whole_range_finds_slow_hub_and_coolpro_no_phantom() -> None:
     assert took < 30 * float(os.environ.get("PYMB_TIMING_SLACK", "1.5"))
 
 
+def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
+    with Simulator(["coolpro"], seed=2) as sim:
+        # The CoolPro's first reply names address 41, with a good CRC.
+        sim.faults.inject("wrong_address", count=1, address=40)
+        r = pymb("scan", "--port", sim.port, "--range", "30-50", "--json")
+    assert r.returncode == 0, r.stderr
+    found = {f["address"]: f["device"] for f in json.loads(r.stdout)["found"]}
+    assert found == {40: "coolpro"}, r.stdout
+    assert "heard once but silent when asked again: 41" in r.stderr
+
+
 def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
     with Simulator(["coolpro:3", "hub:250"], seed=2) as sim:
         proc = subprocess.Popen([*PYMB, "scan", "--port", sim.port, "--timeout", "0.2"],

@@ -150,13 +150,12 @@ class LineListener:
         """``ask`` for :func:`~pymb.devices.identify.identify`, over this line."""
 
         def ask(address: int, function: int, data: bytes) -> Answer:
-            sent = self.send(address, function, data)
-            frame = self.listen(sent + timeout, address, function)
-            if frame is None:
-                return None
-            if frame[1] & 0x80:
-                return frame[2]
-            return frame[2:-2]
+            for _ in range(2):  # a lost reply is asked again once: noise is no answer
+                sent = self.send(address, function, data)
+                frame = self.listen(sent + timeout, address, function)
+                if frame is not None:
+                    return frame[2] if frame[1] & 0x80 else frame[2:-2]
+            return None
 
         return ask
 
@@ -188,13 +187,20 @@ def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
             else:
                 yield "found", _found(ident)
 
+    asked: set[int] = set()
     for i, a in enumerate(addresses, 1):
         yield "progress", (a, i)
         if a in done:
             continue
+        asked.add(a)
+        heard = len(line.heard)
         sent = line.send(a, fc, data)
         if line.listen(sent + timeout, a, fc) is not None:
             line.heard.insert(0, a)
+        elif any(m not in asked for m in line.heard[heard:]):
+            # A reply from an address not asked yet is no late reply: it may be
+            # the answer to this question, mangled. Ask this address again too.
+            line.heard.append(a)
         yield from confirm()
     # Late replies to the last questions: the hub may take 500 ms.
     line.listen(time.monotonic() + confirm_timeout)
