@@ -584,7 +584,7 @@ def test_watch_block_show_json_identity(sim: Simulator) -> None:
     assert r.returncode == 0, r.stderr
     docs = [json.loads(ln) for ln in r.stdout.splitlines()]
     assert len(docs) == 3 and all(20 < d["input_voltage_v"] < 30 for d in docs)
-    assert "Serial Number" in docs[0]["identity"]
+    assert docs[0]["identity"]["serial_number"] == 12345
 
 
 def test_demo_never_claims_more_than_the_wire_allows(tmp_path: Path) -> None:

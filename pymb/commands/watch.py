@@ -143,8 +143,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with client:
                 if args.identity:
-                    ident = read_cmd.identity_of(dev, client)
-                    frames.put(("identity", read_cmd.identity_text(ident)))
+                    frames.put(("identity", read_cmd.identity_of(dev, client)))
                 attempts = 0
                 while not stop.is_set() and (args.count <= 0 or attempts < args.count):
                     start = time.monotonic()
@@ -165,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
     tty = sys.stdout.isatty() and not args.json
     done = faults = attempts = 0
     identity = ""
+    identity_doc: Any = None
     t0 = time.monotonic()
     last_draw = 0.0
     last: tuple[str, Any] | None = None  # the newest reading not drawn yet
@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
             if kind == "fatal":
                 raise item
             if kind == "identity":
-                identity = item
+                identity, identity_doc = read_cmd.identity_text(item), read_cmd.identity_json(item)
                 continue
             attempts += 1
             if kind == "data":
@@ -222,7 +222,7 @@ def run(args: argparse.Namespace) -> int:
                                        "address": dev.address, "port": client.port,
                                        "attempt": attempts}
                 if identity:
-                    out["identity"] = identity
+                    out["identity"] = identity_doc
                 if kind == "data":
                     out.update(to_json(item))
                 else:
