@@ -35,7 +35,7 @@ from pymb.client import Client, RtuClient
 from pymb.commands._common import add_connection_args, make_client
 from pymb.devices.identify import Answer, Identity, client_asker, identify
 from pymb.devices.maps import COOLPRO, HUB
-from pymb.errors import InvalidArgument
+from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.wire import bits_per_char, char_time
 
 __all__ = ["LineListener", "add_arguments", "parse_range", "run"]
@@ -97,8 +97,17 @@ class LineListener:
         while view:
             _, w, _ = select.select([], [self.fd], [], 0.05)
             if w:
-                view = view[os.write(self.fd, view):]
+                try:
+                    view = view[os.write(self.fd, view):]
+                except BlockingIOError:
+                    continue
+                except OSError as e:
+                    raise self._lost(e) from None
         return time.monotonic() + len(frame) * self.char
+
+    def _lost(self, e: OSError) -> ModbusConnectionError:
+        return ModbusConnectionError(f"the line failed during the scan: {e.strerror}",
+                                     errno=e.errno)
 
     def listen(self, until: float, address: int | None = None,
                function: int | None = None) -> bytes | None:
@@ -118,6 +127,8 @@ class LineListener:
                     chunk = os.read(self.fd, 512)
                 except BlockingIOError:
                     continue
+                except OSError as e:
+                    raise self._lost(e) from None
                 if chunk:
                     self.buf += chunk
                     self.last_byte = time.monotonic()
