@@ -130,6 +130,15 @@ def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim: Simulator,
     assert db.stat().st_size < 1_000_000
 
 
+def test_simulate_takes_the_same_humidity_key(tmp_path: Path) -> None:
+    with SimulatorProcess(["hub:9,humidity_unit=1"], quiet=True) as s:
+        r = pymb("read", "hub:9,humidity_unit=1", "--port", s.endpoint, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    values = [v for v in doc["values"]["humidity_pct"] if v is not None]
+    assert values and all(v == int(v) for v in values)  # whole percent: the 1 % unit
+
+
 def test_old_firmware_hub_says_how_to_log_it(sim: Simulator, tmp_path: Path) -> None:
     r = pymb("log", "hub:7", "--port", sim.port, "--seconds", "2", "--out",
              str(tmp_path / "a.sqlite"))

@@ -30,8 +30,8 @@ devices: KIND[:ADDRESS][,key=value...]
   coolpro (address 40)  keys: gap (s, default 0.008), serial, firmware (x.y.z),
                         hardware, uptime (s), baud, dynamic (0/1)
   hub (address 1)       keys: firmware (e.g. 1.07, 2.18, 2.22, 2.23), delay (s or
-                        LOW-HIGH), humidity (0.1 or 1: unit on every channel), baud,
-                        dynamic (0/1)
+                        LOW-HIGH), humidity or humidity_unit (0.1 or 1: unit on every
+                        channel), baud, dynamic (0/1)
 faults: KIND[:PROBABILITY][,key=value...]  (probability 1 when omitted)
   kinds: {', '.join(KINDS)}
   keys: delay, code, keep, extra (hex), to, seconds, bits, channels (3+4), address

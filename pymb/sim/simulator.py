@@ -65,6 +65,8 @@ _OPTIONS: dict[str, dict[str, tuple[str, Any]]] = {
         "firmware": ("firmware", str),
         "delay": ("response_delay", _delay),
         "humidity": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v]),
+        # the key pymb read / log use for the same fact
+        "humidity_unit": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v]),
         "baud": ("baud", int),
         "dynamic": ("dynamic", _flag),
     },
