@@ -28,6 +28,7 @@ from typing import Any
 
 from pymb import _native
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.wire import bits_per_char, char_time
 
 __all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient", "client_for_address"]
 
@@ -566,9 +567,10 @@ class RtuClient(Client):
             self._link.set_rs485(mode, r, delay)
 
     def frame_time(self, nbytes: int) -> float:
-        """Seconds ``nbytes`` take on this line (start, data, parity, stop bits)."""
-        bits = 1 + self.data_bits + (0 if self.parity == "N" else 1) + self.stop_bits
-        return nbytes * bits / self.baudrate
+        """Seconds ``nbytes`` take on this line (start, data, parity, stop bits;
+        :mod:`pymb.wire`)."""
+        return nbytes * char_time(self.baudrate,
+                                  bits_per_char(self.parity, self.stop_bits, self.data_bits))
 
 
 class TcpClient(Client):
