@@ -9,7 +9,7 @@ from typing import TextIO
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus
-from pymb.logger import LogConfig, Logger, Summary
+from pymb.logger import LogConfig, Logger, Summary, check_output
 from pymb.store import open_sink
 
 __all__ = ["forwarding", "log_and_forward", "summary_lines"]
@@ -36,6 +36,7 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
     left (for at most DRAIN_SECONDS) and return both summaries."""
+    check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age)
     try:
         fw = Forwarder(cfg.path, mqtt)
@@ -61,8 +62,11 @@ def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     """``pymb log --mqtt``: log and forward, then print the summary."""
     s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr)
     if not quiet:
+        skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
         print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
-              f"({s.faults} faults) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
+              f"({s.faults} faults{skipped}) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
         for line in summary_lines(st):
             print(line, file=sys.stderr)
-    return 0
+    for line in s.problems():  # a bus that never opened, a device that never delivered
+        print(f"pymb log: {line}", file=sys.stderr)
+    return s.exit_code
