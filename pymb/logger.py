@@ -886,6 +886,8 @@ def check_output(fmt: str, path: str) -> None:
         return
     if fmt == "jsonl" and not sqlite and head.startswith(b'{"time_utc": '):
         return
+    if fmt == "influx" and not sqlite and head.startswith(b"pymb_"):  # pymb's measurements
+        return
     raise InvalidArgument(f"{path} exists and is {kind}, not {fmt.upper()} written by pymb: "
                           f"refusing to append {fmt.upper()} to it; choose another --out")
 

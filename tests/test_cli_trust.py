@@ -378,11 +378,19 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
     assert digest(logged) == before
     doc = tmp_path / "report.txt"
     doc.write_text("quarterly numbers\n")
-    for fmt in ("sqlite", "csv", "jsonl"):
+    for fmt in ("sqlite", "csv", "jsonl", "influx"):
         r = pymb("log", "coolpro", "--port", "/dev/null", "--format", fmt, "--out", str(doc),
                  "--seconds", "1")
         assert r.returncode == 2 and "refusing" in r.stderr, (fmt, r.stderr)
     assert doc.read_text() == "quarterly numbers\n"
+    # A file pymb wrote in that format is appended to (the port fails: events only).
+    for fmt in ("csv", "jsonl", "influx"):
+        own = tmp_path / f"own.{fmt}"
+        for _ in range(2):
+            r = pymb("log", "coolpro", "--port", "/dev/ttyUSB-none", "--format", fmt, "--out",
+                     str(own), "--seconds", "0.7")
+            assert r.returncode == 4 and "refusing" not in r.stderr, (fmt, r.stderr)
+        assert own.stat().st_size > 0
 
 
 def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> None:
