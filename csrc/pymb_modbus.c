@@ -314,7 +314,9 @@ static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t ea
             }
             wait = deadline - now;
         }
-        if ((*got) > 0 && byte_us > 0) {
+        /* A byte timeout fails a frame of known length whose bytes stop; a
+         * frame of unknown length is ended by a stop, so it does not apply. */
+        if ((*got) > 0 && byte_us > 0 && !by_silence) {
             if (now - last >= byte_us) {
                 errno = ETIMEDOUT; /* the reply stopped mid-frame */
                 return -1;
@@ -329,6 +331,10 @@ static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t ea
         }
         if (rc == 0) {
             continue; /* the clocks above decide (a signal is not a timeout) */
+        }
+        if ((*got) >= cap) {
+            errno = EMBBADDATA; /* a frame of unknown length goes on past the limit */
+            return -1;
         }
         k = read(fd, rsp + (*got), (size_t)(cap - (*got)));
         if (k < 0) {
@@ -367,7 +373,7 @@ static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t ea
                 }
             }
         }
-        if ((*got) >= cap && (want < 0 || (*got) < want)) {
+        if (!by_silence && (*got) >= cap && (want < 0 || (*got) < want)) {
             errno = EMBBADDATA; /* longer than any RTU frame */
             return -1;
         }

@@ -654,3 +654,49 @@ def test_ctrl_c_interrupts_a_blocked_read_in_a_real_process() -> None:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait(10)
+
+
+# -- found by review: frame limits, byte timeout, argument kinds ----------------------------
+
+
+@pytest.mark.parametrize("transport", ["rtu", "rtu-over-tcp", "tcp"])
+def test_diagnostics_echo_of_every_length_up_to_the_frame_limit(transport: str) -> None:
+    # fc 0x08 (return query data) echoes its request: with 252 data bytes the
+    # RTU frame is 256 bytes, the limit itself, ended by the line's silence.
+    def echo(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return [(0, frame)]
+
+    peer_cm = raw_pty(echo) if transport == "rtu" else raw_tcp(
+        echo, rtu_frames=transport == "rtu-over-tcp")
+    with peer_cm as peer:
+        c: pymb.Client
+        if transport == "rtu":
+            c = pymb.RtuClient(peer.port, 115200, slave=1, timeout=2)
+        elif transport == "tcp":
+            c = pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=2)
+        else:
+            c = pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=1, timeout=2)
+        with c:
+            for n in (0, 1, 2, 4, 100, 250, 251, 252):
+                data = bytes((7 * k + n) & 0xFF for k in range(n))
+                assert c.raw_request(0x08, data) == data, n
+
+
+def test_rtu_frame_of_unknown_length_past_the_limit_is_refused() -> None:
+    def long_reply(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return [(0, rtu(bytes((frame[0], 0x41)) + bytes(260)))]
+
+    with raw_pty(long_reply) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c, \
+            pytest.raises(pymb.ProtocolError, match="longer than 256"):
+        c.raw_request(0x41)
+
+
+def test_byte_timeout_below_the_silence_does_not_fail_a_frame_ended_by_silence() -> None:
+    # At 9600 baud t3.5 is 4 ms: a byte timeout of 2 ms must not turn the
+    # silence that ends a reply of unknown length into a timeout.
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return [(0, rtu(bytes((frame[0], 0x41)) + b"abc"))]
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 9600, slave=1, timeout=1,
+                                               byte_timeout=0.002) as c:
+        assert c.raw_request(0x41) == b"abc"
