@@ -9,6 +9,7 @@ buses keep working while one waits on its line.
 from __future__ import annotations
 
 import os
+import socket
 import threading
 from typing import Any
 
@@ -194,6 +195,8 @@ def _os_hint(err: int) -> str:
         return "connection refused (nothing is listening there)"
     if err == lib.ECONNRESET:
         return "connection closed by the peer"
+    if err == lib.ENOTTY:
+        return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
     return os.strerror(err)
 
 
@@ -206,8 +209,9 @@ class Link:
 
     def __init__(self, name: str, factory: Any, *, serial: bool,
                  framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
-                 reject_early: bool | None = None) -> None:
+                 reject_early: bool | None = None, host: str | None = None) -> None:
         self.name = name
+        self.host = host  # TCP: the host name or address as given
         self.serial = serial
         self._factory = factory
         self._framing = framing if framing is not None else (
@@ -257,8 +261,16 @@ class Link:
         if lib.modbus_connect(ctx) == -1:
             err = ffi.errno
             lib.modbus_free(ctx)
+            hint = _os_hint(err)
+            if not self.serial and err == lib.ECONNREFUSED and self.host is not None:
+                # libmodbus 3.1.6 reports a name that does not resolve as
+                # ECONNREFUSED: tell the two apart (only after a failure).
+                try:
+                    socket.getaddrinfo(self.host, None, type=socket.SOCK_STREAM)
+                except (OSError, UnicodeError) as e:
+                    hint = f"cannot resolve the host name {self.host!r} ({e})"
             raise ModbusConnectionError(
-                f"cannot open {self.name}: {_os_hint(err)}", errno=err, port=self.name
+                f"cannot open {self.name}: {hint}", errno=err, port=self.name
             )
         if self.serial and lib.flock(lib.modbus_get_socket(ctx), lib.LOCK_EX | lib.LOCK_NB):
             lib.modbus_close(ctx)
@@ -530,6 +542,7 @@ def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
     node = host.encode()
     service = str(port).encode()
     return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
+                host=host,
                 framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
                 silence=silence)
 

@@ -22,7 +22,7 @@ import sys
 import threading
 import warnings
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence, Set
 from types import TracebackType
 from typing import Any
 
@@ -57,8 +57,10 @@ _RTS_MODES = {"none": 0, "up": 1, "down": 2}
 
 
 def _int(name: str, value: Any, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
+    # Any integer (numpy's too, through __index__), but not a bool or a float.
+    if isinstance(value, bool) or not hasattr(type(value), "__index__"):
         raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
+    value = operator.index(value)
     if not low <= value <= high:
         raise InvalidArgument(f"{name} must be from {low} to {high}, got {value}")
     return value
@@ -79,6 +81,8 @@ def _coil(value: Any) -> int:
     """A coil value: a bool, or the integers 0 and 1, and nothing else."""
     if isinstance(value, bool):
         return int(value)
+    if getattr(getattr(value, "dtype", None), "kind", None) == "b" and value.ndim == 0:
+        return int(bool(value))  # a numpy bool (an element of a bool array)
     if isinstance(value, (str, bytes, bytearray, memoryview, float)) or not hasattr(
             type(value), "__index__"):
         raise TypeError(
@@ -94,6 +98,9 @@ def _register_values(values: Any) -> bytes:
     if isinstance(values, array) and values.typecode == "H":
         a = values
     else:
+        if isinstance(values, (Set, Mapping)):
+            raise TypeError(f"register values are a sequence, not a {type(values).__name__} "
+                            "(which has no order)")
         if isinstance(values, (str, bytes, bytearray, memoryview)):
             raise TypeError(
                 "register values are a sequence of integers 0..65535 (an array('H') or a "
@@ -249,8 +256,8 @@ class Client:
 
     @staticmethod
     def _range(address: int, count: int, limit: int | None) -> tuple[int, int]:
-        _int("address", address, 0, 0xFFFF)
-        _int("count", count, 1, 0x10000 if limit is None else limit)
+        address = _int("address", address, 0, 0xFFFF)
+        count = _int("count", count, 1, 0x10000 if limit is None else limit)
         if address + count > 0x10000:
             raise InvalidArgument(
                 f"address {address} + count {count} runs past the last address 65535"
@@ -276,7 +283,8 @@ class Client:
 
         Any count up to the end of the address space: requests of at most 125
         registers are made as needed. Returns an ``array('H')``."""
-        out = array("H", bytes(2 * self._range(address, count, None)[1]))
+        address, count = self._range(address, count, None)
+        out = array("H", bytes(2 * count))
         self.read_holding_registers_into(address, out, slave=slave)
         return out
 
@@ -284,7 +292,8 @@ class Client:
                              slave: int | None = None) -> array[int]:
         """Read ``count`` input registers (function 0x04); see
         :meth:`read_holding_registers`."""
-        out = array("H", bytes(2 * self._range(address, count, None)[1]))
+        address, count = self._range(address, count, None)
+        out = array("H", bytes(2 * count))
         self.read_input_registers_into(address, out, slave=slave)
         return out
 
@@ -307,12 +316,16 @@ class Client:
             raise TypeError(
                 f"dest must be a writable uint16 buffer (array('H')), got {type(dest).__name__}"
             ) from None
-        if (view.itemsize != 2 or view.readonly or not view.c_contiguous
-                or view.format.lstrip("@=") not in ("H", "h")):
+        # Not a signed 'h' buffer either: register 40000 would read as -25536.
+        problem = ("is read-only" if view.readonly else
+                   "is not C-contiguous" if not view.c_contiguous else
+                   f"has items of format {view.format!r}"
+                   if view.itemsize != 2 or view.format.lstrip("@=") != "H" else None)
+        if problem:
             raise InvalidArgument(
-                "dest must be a writable, contiguous buffer of 16-bit integers (array('H'))")
-        n = view.nbytes // 2
-        self._range(address, n, None)
+                "dest must be a writable, contiguous buffer of unsigned 16-bit integers "
+                f"(array('H'), numpy uint16); this one {problem}")
+        address, n = self._range(address, view.nbytes // 2, None)
         self._call(self._link.read_registers, fc, s, address, n, view.cast("B"))
 
     def _read_registers_prechecked(self, function: int, slave: int, address: int,
@@ -325,10 +338,10 @@ class Client:
         """Write one holding register (function 0x06). The device's echo must
         match the request exactly, or :class:`~pymb.ProtocolError` is raised."""
         s = self._slave_for(slave, write=True)
-        _int("address", address, 0, 0xFFFF)
+        address = _int("address", address, 0, 0xFFFF)
         if isinstance(value, bool):
             raise TypeError("a register value is an integer 0..65535, not a bool")
-        _int("value", value, 0, 0xFFFF)
+        value = _int("value", value, 0, 0xFFFF)
         self._transact(s, _FC_WRITE_REGISTER, struct.pack(">HH", address, value), address, 1)
 
     def write_registers(self, address: int, values: Sequence[int] | array[int], *,
@@ -337,7 +350,7 @@ class Client:
         s = self._slave_for(slave, write=True)
         data = self._u16_payload(values)
         n = len(data) // 2
-        self._range(address, n, MAX_WRITE_REGISTERS)
+        address, n = self._range(address, n, MAX_WRITE_REGISTERS)
         self._transact(s, _FC_WRITE_REGISTERS,
                        struct.pack(">HHB", address, n, 2 * n) + data, address, n)
 
@@ -345,9 +358,9 @@ class Client:
                             slave: int | None = None) -> None:
         """Mask write (function 0x16): register = (reg & and_mask) | (or_mask & ~and_mask)."""
         s = self._slave_for(slave, write=True)
-        _int("address", address, 0, 0xFFFF)
-        _int("and_mask", and_mask, 0, 0xFFFF)
-        _int("or_mask", or_mask, 0, 0xFFFF)
+        address = _int("address", address, 0, 0xFFFF)
+        and_mask = _int("and_mask", and_mask, 0, 0xFFFF)
+        or_mask = _int("or_mask", or_mask, 0, 0xFFFF)
         self._transact(s, _FC_MASK_WRITE, struct.pack(">HHH", address, and_mask, or_mask),
                        address, 1)
 
@@ -358,8 +371,8 @@ class Client:
         s = self._slave_for(slave)
         data = self._u16_payload(values)
         n = len(data) // 2
-        self._range(write_address, n, MAX_WR_WRITE_REGISTERS)
-        self._range(read_address, read_count, MAX_READ_REGISTERS)
+        write_address, n = self._range(write_address, n, MAX_WR_WRITE_REGISTERS)
+        read_address, read_count = self._range(read_address, read_count, MAX_READ_REGISTERS)
         pdu = self._transact(
             s, _FC_WRITE_READ,
             struct.pack(">HHHHB", read_address, read_count, write_address, n, 2 * n) + data,
@@ -388,7 +401,7 @@ class Client:
 
     def _read_bits(self, fc: int, address: int, count: int, slave: int | None) -> array[int]:
         s = self._slave_for(slave)
-        self._range(address, count, None)
+        address, count = self._range(address, count, None)
         out = array("B", bytes(count))
         self._call(self._link.read_bits, fc, s, address, count, out)
         return out
@@ -396,7 +409,7 @@ class Client:
     def write_coil(self, address: int, value: bool, *, slave: int | None = None) -> None:
         """Write one coil (function 0x05)."""
         s = self._slave_for(slave, write=True)
-        _int("address", address, 0, 0xFFFF)
+        address = _int("address", address, 0, 0xFFFF)
         on = _coil(value)
         self._transact(s, _FC_WRITE_COIL,
                        struct.pack(">HH", address, 0xFF00 if on else 0), address, 1)
@@ -405,7 +418,7 @@ class Client:
                     slave: int | None = None) -> None:
         """Write 1 to 1968 coils (function 0x0F)."""
         s = self._slave_for(slave, write=True)
-        if isinstance(values, (str, bytes, bytearray, memoryview)):
+        if isinstance(values, (str, bytes, bytearray, memoryview, Set, Mapping)):
             raise TypeError(f"coil values are a sequence of bools or 0/1, not "
                             f"{type(values).__name__}")
         try:
@@ -415,7 +428,7 @@ class Client:
                 raise
             raise TypeError(f"coil values must be a sequence, got {type(values).__name__}"
                             ) from None
-        self._range(address, len(bits) if bits else 0, MAX_WRITE_BITS)
+        address, _ = self._range(address, len(bits), MAX_WRITE_BITS)
         packed = bytearray((len(bits) + 7) // 8)
         for i, b in enumerate(bits):
             if b:
@@ -450,11 +463,20 @@ class Client:
         the reply's data, what this method returns) says how long it is.
         The CRC is checked over the whole frame either way."""
         s = self._slave_for(slave, write=True)
-        _int("function", function, 1, 0x7F)
-        if isinstance(data, str):
-            raise TypeError("data must be bytes (or a sequence of integers 0..255), not str")
+        function = _int("function", function, 1, 0x7F)
+        if isinstance(data, (str, int)):  # bytes(3) would be three zero bytes
+            raise TypeError("data must be bytes (or a sequence of integers 0..255), not "
+                            f"{type(data).__name__}")
         try:
-            payload = bytes(data)
+            view = memoryview(data)
+        except TypeError:
+            view = None
+        if view is not None and view.itemsize != 1:
+            raise TypeError(
+                f"data must be bytes, not a buffer of {view.itemsize}-byte items (its bytes "
+                "would depend on the host's byte order)")
+        try:
+            payload = view.tobytes() if view is not None else bytes(data)
         except ValueError:
             raise InvalidArgument("data bytes must be integers 0..255") from None
         except TypeError:
@@ -523,7 +545,8 @@ class RtuClient(Client):
     ) -> None:
         if not isinstance(port, str) or not port:
             raise InvalidArgument(f"port must be a device path, got {port!r}")
-        if isinstance(baudrate, bool) or baudrate not in _native.BAUD_RATES:
+        if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
+                or operator.index(baudrate) not in _native.BAUD_RATES):
             raise InvalidArgument(
                 f"baudrate {baudrate!r} is not a rate the serial driver supports; "
                 f"use one of {sorted(_native.BAUD_RATES)}"
@@ -531,8 +554,9 @@ class RtuClient(Client):
         p = _PARITIES.get(str(parity).upper())
         if p is None:
             raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
-        _int("data_bits", data_bits, 5, 8)
-        _int("stop_bits", stop_bits, 1, 2)
+        baudrate = operator.index(baudrate)
+        data_bits = _int("data_bits", data_bits, 5, 8)
+        stop_bits = _int("stop_bits", stop_bits, 1, 2)
         self.baudrate = baudrate
         self.parity = p
         self.data_bits = data_bits
@@ -586,7 +610,7 @@ class TcpClient(Client):
                  byte_timeout: float = 0.0) -> None:
         if not isinstance(host, str) or not host:
             raise InvalidArgument(f"host must be a name or an address, got {host!r}")
-        _int("port", port, 1, 65535)
+        port = _int("port", port, 1, 65535)
         self.host = host
         self.tcp_port = port
         super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
@@ -608,7 +632,7 @@ class RtuOverTcpClient(Client):
                  byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
         if not isinstance(host, str) or not host:
             raise InvalidArgument(f"host must be a name or an address, got {host!r}")
-        _int("port", port, 1, 65535)
+        port = _int("port", port, 1, 65535)
         silence = _seconds("frame_silence", frame_silence)
         if silence > 1.0:
             raise InvalidArgument(f"frame_silence must be up to 1 second, got {frame_silence!r}")

@@ -4,6 +4,7 @@ scripted responders written from the Modbus specifications
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import os
@@ -700,3 +701,88 @@ def test_byte_timeout_below_the_silence_does_not_fail_a_frame_ended_by_silence()
     with raw_pty(script) as pty, pymb.RtuClient(pty.port, 9600, slave=1, timeout=1,
                                                byte_timeout=0.002) as c:
         assert c.raw_request(0x41) == b"abc"
+
+
+def test_raw_request_data_must_be_bytes_that_mean_one_thing(
+        echo_pty: tuple[pymb.RtuClient, list[bytes]]) -> None:
+    c, requests = echo_pty
+    # bytes(3) is three zero bytes; array('H') bytes depend on the byte order.
+    for bad in (3, True, array("H", [1]), memoryview(array("H", [1]))):
+        with pytest.raises(TypeError):
+            c.raw_request(0x41, bad)  # type: ignore[arg-type]
+    assert requests == []
+
+
+def test_numpy_values_and_buffers() -> None:
+    np = pytest.importorskip("numpy")
+
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if frame[1] in (5, 6):
+            return [(0, frame)]
+        if frame[1] in (15, 16):
+            return [(0, rtu(frame[:6]))]
+        return [(0, rtu(bytes((frame[0], 3)) + registers([40000, 1])))]
+
+    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
+        c.write_coils(0, np.array([True, False, True]))  # numpy bools are bools
+        c.write_coil(np.int64(2), np.True_)
+        c.write_register(np.uint16(3), np.uint16(4))
+        c.write_registers(np.int64(4), np.array([5, 6], dtype=np.uint16))
+        assert list(c.read_holding_registers(np.int64(0), np.int32(2))) == [40000, 1]
+        assert pty.requests[0][:8] == bytes((1, 15, 0, 0, 0, 3, 1, 0b101))
+        assert pty.requests[1][:6] == bytes((1, 5, 0, 2, 0xFF, 0))
+        assert pty.requests[2][:6] == bytes((1, 6, 0, 3, 0, 4))
+        n = len(pty.requests)
+        # A signed or byte-swapped destination would turn 40000 into another number.
+        for dtype in (np.int16, np.dtype(">u2"), np.float16, np.uint32):
+            with pytest.raises(pymb.InvalidArgument):
+                c.read_holding_registers_into(0, np.zeros(2, dtype=dtype))
+        with pytest.raises(pymb.InvalidArgument):
+            c.read_holding_registers_into(0, memoryview(bytearray(4)).cast("h"))
+        for unordered in ({1, 0}, {0: 1}):
+            with pytest.raises(TypeError):
+                c.write_coils(0, unordered)  # type: ignore[arg-type]
+            with pytest.raises(TypeError):
+                c.write_registers(0, unordered)  # type: ignore[arg-type]
+        with pytest.raises(pymb.InvalidArgument):
+            c.write_register(0, np.float64(1.0))
+        assert len(pty.requests) == n
+        out = np.zeros(2, dtype=np.uint16)
+        c.read_holding_registers_into(0, out)
+        assert out.tolist() == [40000, 1]
+
+
+def test_connect_failures_name_their_cause_and_leave_nothing_open() -> None:
+    def fds() -> int:
+        return len(os.listdir("/proc/self/fd"))
+
+    before = fds()
+    c = pymb.TcpClient("no-such-host.invalid", 502, timeout=1)
+    with pytest.raises(pymb.ModbusConnectionError, match="cannot resolve the host name"):
+        c.connect()
+    assert not c.connected
+    with socket_listening_nowhere() as port:
+        c = pymb.TcpClient("127.0.0.1", port, timeout=1)
+        with pytest.raises(pymb.ModbusConnectionError, match="connection refused"):
+            c.connect()
+    c2 = pymb.RtuClient("/dev/null")
+    with pytest.raises(pymb.ModbusConnectionError, match="not a serial port"):
+        c2.connect()
+    with pytest.raises(pymb.ModbusConnectionError, match="no such port"):
+        pymb.RtuClient("/dev/pymb-no-such-port").connect()
+    del c, c2
+    gc.collect()
+    assert fds() == before
+
+
+@contextlib.contextmanager
+def socket_listening_nowhere() -> Iterator[int]:
+    """A loopback port nothing listens on (bound, never listening)."""
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    try:
+        yield s.getsockname()[1]
+    finally:
+        s.close()
