@@ -276,9 +276,10 @@ static int late_frame(pymb_line *line, int slave, const uint8_t *f, int len)
  * knows the length, or else at line->silence_us of silence. Bytes after the
  * frame that arrived in the same read are stray: they are dropped. A frame
  * of known length must arrive within the response timeout; one that ends by
- * silence must start within it, and ends by the silence (bounded by the
- * frame limit). With a byte timeout set, a gap longer than it after the
- * first byte fails. Returns the frame's length or -1 and errno; *got is
+ * silence too, and its silence must have come by the timeout plus that
+ * silence (so a peer that trickles bytes cannot hold a call past it). With a
+ * byte timeout set, a gap longer than it after the first byte of a frame of
+ * known length fails. Returns the frame's length or -1 and errno; *got is
  * the number of bytes in rsp. */
 static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t earliest,
                        uint8_t *rsp, int cap, int *got)
@@ -305,6 +306,10 @@ static int rtu_receive(pymb_line *line, int slave, int expect_total, uint64_t ea
                 *got = 0;
                 by_silence = 0;
                 continue;
+            }
+            if (now >= deadline + silence) {
+                errno = ETIMEDOUT; /* still not silent when the timeout (and its t3.5) ran out */
+                return -1;
             }
             wait = last + silence - now;
         } else {

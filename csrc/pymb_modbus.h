@@ -156,7 +156,8 @@ int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
  *      knows it, 0 when not. RTU needs it only for function codes whose reply
  *      length pymb_rtu_response_length cannot tell; without it such a reply
  *      ends at line->silence_us of silence (the byte timeout does not apply
- *      to it), at most PYMB_RTU_MAX_ADU bytes. Then the CRC is checked over
+ *      to it), at most PYMB_RTU_MAX_ADU bytes, and must have ended within the
+ *      response timeout plus that silence. Then the CRC is checked over
  *      the whole frame. An exception reply is always accepted (2 bytes).
  * rsp: receives the whole reply as received (MBAP or address first);
  *      rsp_cap >= MODBUS_MAX_ADU_LENGTH.

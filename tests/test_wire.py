@@ -786,3 +786,18 @@ def socket_listening_nowhere() -> Iterator[int]:
         yield s.getsockname()[1]
     finally:
         s.close()
+
+
+def test_a_reply_trickled_byte_by_byte_cannot_hold_a_call_past_its_timeout() -> None:
+    # A reply of unknown length ends by silence; a peer that keeps sending a
+    # byte every 10 ms (under RTU over TCP's 20 ms frame silence) for 2.5 s
+    # must not keep a call with timeout=0.3 waiting until the frame limit.
+    def trickle(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        return [(0.01, bytes((k,))) for k in range(250)]
+
+    with raw_tcp(trickle, rtu_frames=True) as peer, \
+            pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=1, timeout=0.3) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ModbusError):
+            c.raw_request(0x41)
+        assert time.monotonic() - t0 < 0.3 + 0.02 + 0.3
