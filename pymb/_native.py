@@ -482,8 +482,8 @@ class Link:
             timeout = self._timeout[0]
             if got:
                 return ModbusTimeout(
-                    f"{asked}: the reply stopped after {len(got)} bytes, incomplete "
-                    f"within the {timeout:g} s timeout{received}", **kw)
+                    f"{asked}: the reply was incomplete after {len(got)} bytes, within "
+                    f"the {timeout:g} s timeout{received}", **kw)
             return ModbusTimeout(
                 f"{asked}: no reply within the {timeout:g} s timeout (the device is silent, "
                 "or the address, baud rate or wiring is wrong)", **kw

@@ -793,7 +793,7 @@ def test_a_reply_trickled_byte_by_byte_cannot_hold_a_call_past_its_timeout() -> 
     # byte every 10 ms (under RTU over TCP's 20 ms frame silence) for 2.5 s
     # must not keep a call with timeout=0.3 waiting until the frame limit.
     def trickle(i: int, frame: bytes) -> list[tuple[float, bytes]]:
-        return [(0.01, bytes((k,))) for k in range(250)]
+        return [(0.01, bytes((1, 0x41) if k == 0 else (k,))) for k in range(250)]
 
     with raw_tcp(trickle, rtu_frames=True) as peer, \
             pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=1, timeout=0.3) as c:

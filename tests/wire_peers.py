@@ -88,6 +88,8 @@ class RawTcp:
                 continue
             with conn:
                 conn.settimeout(0.05)
+                # Pieces go out when the script says (no Nagle holding them back).
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 buf = b""
                 while not self._stop.is_set():
                     try:
