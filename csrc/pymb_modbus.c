@@ -177,6 +177,17 @@ static int drain_since(pymb_line *line, uint64_t last, uint64_t quiet_us, uint64
     return dropped;
 }
 
+/* Whether input is waiting to be read now (no waiting). */
+static int input_pending(const pymb_line *line)
+{
+    struct pollfd p;
+
+    p.fd = modbus_get_socket(line->ctx);
+    p.events = POLLIN;
+    p.revents = 0;
+    return poll(&p, 1, 0) > 0;
+}
+
 int pymb_flush(pymb_line *line)
 {
     struct pollfd p;
@@ -641,8 +652,14 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
         errno = pymb_exception_errno(exc);
         return -1;
     }
+    /* RTU: what follows a bad frame cannot be told from an answer: owe a
+     * quiet window. TCP: the MBAP length delimited the frame, so the stream
+     * is in step (later frames are sorted by transaction id) unless bytes
+     * are already waiting behind it (a length that lied): only then. */
+    if (hl == 1 || input_pending(line)) {
+        owe(line, req[0]);
+    }
     errno = frame_errno(status);
-    owe(line, req[0]);
     return -1;
 }
 

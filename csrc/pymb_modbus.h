@@ -32,7 +32,11 @@
  *     timeout each;
  *   - TCP: a reply is accepted only when its transaction id, protocol id (0),
  *     length and unit id match the request; replies to older transactions
- *     are read and dropped while the wait goes on to the deadline;
+ *     are read and dropped while the wait goes on to the deadline. A whole
+ *     frame that fails a check leaves the stream in step, so nothing is
+ *     owed, unless bytes already wait behind it (its length lied); a frame
+ *     cut short (a timeout or an interrupt mid-frame, an impossible MBAP
+ *     header) owes the quiet window as over RTU;
  *   - returns -1 with errno set on failure, as libmodbus does: ETIMEDOUT,
  *     EMBBADCRC, EMBBADSLAVE, EMBBADDATA (a malformed or mismatched reply),
  *     EINTR (the interrupt hook asked to stop), EINVAL for a bad argument,

@@ -801,3 +801,105 @@ def test_a_reply_trickled_byte_by_byte_cannot_hold_a_call_past_its_timeout() -> 
         with pytest.raises(pymb.ModbusError):
             c.raw_request(0x41)
         assert time.monotonic() - t0 < 0.3 + 0.02 + 0.3
+
+
+# -- against pymodbus as the server -------------------------------------------------------
+
+
+def _device_objects(reply: bytes) -> dict[int, bytes]:
+    """The objects of a Read Device Identification reply ([MB-AP] 6.21):
+    MEI type, read code, conformity, more follows, next id, count, then
+    (id, length, value) each."""
+    assert reply[0] == 0x0E
+    objects, i = {}, 6
+    for _ in range(reply[5]):
+        oid, n = reply[i], reply[i + 1]
+        objects[oid] = reply[i + 2:i + 2 + n]
+        i += 2 + n
+    assert i == len(reply)
+    return objects
+
+
+@pytest.mark.parametrize("mode", ["tcp", "rtu-over-tcp"])
+def test_against_a_pymodbus_server(mode: str) -> None:
+    pytest.importorskip("pymodbus")
+    from tests.pymodbus_server import IDENTITY
+    from tests.wire_peers import pymodbus_server
+
+    with pymodbus_server(mode) as port:
+        cls = pymb.TcpClient if mode == "tcp" else pymb.RtuOverTcpClient
+        with cls("127.0.0.1", port, slave=17, timeout=2) as c:
+            assert list(c.read_holding_registers(0, 300)) == [7 * a for a in range(300)]
+            assert list(c.read_input_registers(10, 2)) == [40010, 40011]
+            assert list(c.read_coils(0, 4)) == [0, 1, 0, 1]
+            assert list(c.read_discrete_inputs(0, 4)) == [1, 0, 1, 0]
+            c.write_register(900, 4242)
+            c.write_registers(901, [1, 2, 3])
+            c.mask_write_register(902, 0x00FF, 0x1200)
+            assert list(c.read_holding_registers(900, 4)) == [4242, 1, 0x1202, 3]
+            c.write_coils(2, [1, 1])
+            assert list(c.read_coils(0, 4)) == [0, 1, 1, 1]
+            assert list(c.write_read_registers(950, [9, 8], 949, 3)) == [7 * 949, 9, 8]
+            # Device identification, several objects per reply (regular: six).
+            basic = _device_objects(c.raw_request(0x2B, b"\x0e\x01\x00"))
+            assert basic == {0: IDENTITY["VendorName"].encode(),
+                             1: IDENTITY["ProductCode"].encode(),
+                             2: IDENTITY["MajorMinorRevision"].encode()}
+            regular = _device_objects(c.raw_request(0x2B, b"\x0e\x02\x00"))
+            assert regular[5] == IDENTITY["ModelName"].encode() and len(regular) == 6
+            assert c.raw_request(0x08, b"\x00\x00\x12\x34") == b"\x00\x00\x12\x34"
+            assert c.report_slave_id().startswith(IDENTITY["VendorName"].encode())
+            with pytest.raises(pymb.IllegalDataAddress):
+                c.read_holding_registers(990, 20)
+            # Threads sharing the client each get their own values.
+            wrong: list[object] = []
+
+            def worker(k: int) -> None:
+                for j in range(25):
+                    a = (97 * k + 13 * j) % 800
+                    try:
+                        got = list(c.read_holding_registers(a, 3))
+                    except pymb.ModbusError as e:  # pragma: no cover - reported below
+                        wrong.append(e)
+                        continue
+                    if got != [7 * x for x in range(a, a + 3)]:
+                        wrong.append((a, got))
+
+            threads = [threading.Thread(target=worker, args=(k,)) for k in range(4)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            assert wrong == []
+        if mode == "tcp":
+            # pymodbus answers an unknown function with exception code in
+            # function 0x80, which is no answer to 0x41: a ProtocolError,
+            # and the stream is in step, so the next call is not delayed.
+            with pymb.TcpClient("127.0.0.1", port, slave=1, timeout=2) as c:
+                with pytest.raises(pymb.ProtocolError, match="another function"):
+                    c.raw_request(0x41)
+                t0 = time.monotonic()
+                assert list(c.read_holding_registers(1, 1)) == [7]
+                assert time.monotonic() - t0 < 1.0
+
+
+def test_tcp_a_whole_bad_frame_costs_the_next_request_nothing() -> None:
+    # Replies from another unit or to another function are whole frames: the
+    # stream is in step, and the next request is answered at once (no quiet
+    # window of the 2 s timeout).
+    def script(i: int, adu: bytes) -> list[tuple[float, bytes]]:
+        tid, unit, _pdu = _tcp_req(adu)
+        if i == 0:
+            return [(0, mbap(tid, unit ^ 1, bytes((3,)) + registers([1])))]
+        if i == 1:
+            return [(0, mbap(tid, unit, bytes((0x84, 2))))]
+        return [(0, mbap(tid, unit, bytes((3,)) + registers([i])))]
+
+    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=2) as c:
+        t0 = time.monotonic()
+        for _ in range(2):
+            with pytest.raises(pymb.ProtocolError):
+                c.read_holding_registers(0, 1)
+        assert list(c.read_holding_registers(0, 1)) == [2]
+        assert time.monotonic() - t0 < 1.0

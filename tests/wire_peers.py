@@ -278,3 +278,21 @@ def emulated_line(baud: int, repeat_after: float | None = None) -> Iterator[Emul
         yield line
     finally:
         line.stop()
+
+
+@contextmanager
+def pymodbus_server(mode: str) -> Iterator[int]:
+    """Run tests/pymodbus_server.py (``tcp`` or ``rtu-over-tcp``) in its own
+    process; yields its port. Stopped by its PID."""
+    import sys
+
+    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().split()
+        assert line and line[0] == "READY", line
+        yield int(line[1])
+    finally:
+        proc.kill()
+        proc.wait(10)
