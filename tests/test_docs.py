@@ -52,3 +52,30 @@ def test_readme_shows_the_one_device_syntax() -> None:
                  "pymb simulate coolpro hub:250", "[--device hub:250]", "pymb config coolpro:40",
                  "pymb watch hub:250"):
         assert line in README, line
+
+
+def test_the_low_level_client_block_matches_the_classes() -> None:
+    # Every constructor parameter the README shows exists, with that default
+    # and kind, and every method it calls exists on each client class.
+    import inspect
+    import re
+
+    import pymb
+
+    start = README.index("### The low-level client")
+    block = README[README.index("```python\n", start):README.index("\n```", start + 30)]
+    block = re.sub(r"#[^\n]*", "", block)
+    calls = re.findall(r"client = pymb\.(\w+)\((.*?)\)\s*\n(?=client|with)", block, re.S)
+    assert {name for name, _ in calls} == {"RtuClient", "TcpClient", "RtuOverTcpClient"}
+    for name, params in calls:
+        namespace: dict[str, object] = {}
+        exec(f"def documented({params}): pass", namespace)
+        documented = inspect.signature(namespace["documented"])  # type: ignore[arg-type]
+        actual = inspect.signature(getattr(pymb, name)).parameters
+        for p in documented.parameters.values():
+            assert p.name in actual, (name, p.name)
+            assert actual[p.name].default == p.default, (name, p.name)
+            assert actual[p.name].kind == p.kind, (name, p.name)
+    for method in set(re.findall(r"client\.(\w+)\(", block)):
+        for cls in (pymb.RtuClient, pymb.TcpClient, pymb.RtuOverTcpClient):
+            assert callable(getattr(cls, method, None)), (cls.__name__, method)

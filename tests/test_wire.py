@@ -903,3 +903,25 @@ def test_tcp_a_whole_bad_frame_costs_the_next_request_nothing() -> None:
                 c.read_holding_registers(0, 1)
         assert list(c.read_holding_registers(0, 1)) == [2]
         assert time.monotonic() - t0 < 1.0
+
+
+def test_dropped_tcp_client_is_closed_and_a_never_connected_one_is_silent() -> None:
+    with raw_tcp(lambda i, adu: []) as peer:
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            idle = pymb.TcpClient("127.0.0.1", peer.port, slave=1)
+            del idle
+            gc.collect()
+            assert not [x for x in w if issubclass(x.category, ResourceWarning)]
+            c = pymb.TcpClient("127.0.0.1", peer.port, slave=1)
+            c.connect()
+            fd = c.fileno()
+            inode = os.readlink(f"/proc/self/fd/{fd}")
+            del c
+            gc.collect()
+        assert any(issubclass(x.category, ResourceWarning) for x in w)
+        try:
+            still = os.readlink(f"/proc/self/fd/{fd}") == inode
+        except OSError:
+            still = False
+        assert not still
