@@ -16,6 +16,7 @@ import warnings
 from array import array
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -221,7 +222,16 @@ class _Interrupt(Exception):
     pass
 
 
-@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+def _client(transport: str, port: object, **kw: Any) -> pymb.Client:
+    """A client for `transport` ("rtu", "tcp", "rtu-over-tcp") to a test peer."""
+    if transport == "rtu":
+        return pymb.RtuClient(str(port), 115200, slave=1, **kw)
+    if transport == "tcp":
+        return pymb.TcpClient("127.0.0.1", int(str(port)), slave=1, **kw)
+    return pymb.RtuOverTcpClient("127.0.0.1", int(str(port)), slave=1, **kw)
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp", "rtu-over-tcp"])
 def test_signal_handler_that_raises_interrupts_a_blocked_call(transport: str) -> None:
     def silent(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return []
@@ -231,11 +241,10 @@ def test_signal_handler_that_raises_interrupts_a_blocked_call(transport: str) ->
 
     old = signal.signal(signal.SIGALRM, handler)
     try:
-        peer_cm = raw_pty(silent) if transport == "rtu" else raw_tcp(silent)
+        peer_cm = raw_pty(silent) if transport == "rtu" else raw_tcp(
+            silent, rtu_frames=transport == "rtu-over-tcp")
         with peer_cm as peer:
-            c: pymb.Client = (pymb.RtuClient(peer.port, 115200, slave=1, timeout=5)
-                              if transport == "rtu" else
-                              pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=5))
+            c = _client(transport, peer.port, timeout=5)
             with c:
                 signal.setitimer(signal.ITIMER_REAL, 0.2)
                 t0 = time.monotonic()
@@ -243,6 +252,13 @@ def test_signal_handler_that_raises_interrupts_a_blocked_call(transport: str) ->
                     c.read_holding_registers(0, 1)
                 late = time.monotonic() - t0 - 0.2
                 assert late < 0.5, late  # seen at once, not after the 5 s timeout
+                # Again while the next request pays the quiet window the
+                # interrupt left owed: that wait is interruptible too.
+                signal.setitimer(signal.ITIMER_REAL, 0.2)
+                t0 = time.monotonic()
+                with pytest.raises(_Interrupt):
+                    c.read_holding_registers(0, 1)
+                assert time.monotonic() - t0 - 0.2 < 0.5
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
@@ -267,14 +283,17 @@ def test_signal_interrupts_within_100_ms() -> None:
         signal.signal(signal.SIGALRM, old)
 
 
-def test_signal_handler_that_returns_does_not_fail_a_good_read() -> None:
+@pytest.mark.parametrize("transport", ["rtu", "tcp", "rtu-over-tcp"])
+def test_signal_handler_that_returns_does_not_fail_a_good_read(transport: str) -> None:
     # The reply comes in two fragments 150 ms apart, with byte_timeout 0.5 s;
     # SIGUSR1 arrives between them (and more during the wait), its handler
     # returns normally: the read succeeds.
     seen: list[int] = []
 
     def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
-        reply = rtu(bytes((1, 3)) + registers([4242, 4343]))
+        body = bytes((3,)) + registers([4242, 4343])
+        reply = (mbap(_tcp_req(frame)[0], 1, body) if transport == "tcp"
+                 else rtu(bytes((1,)) + body))
         return [(0, reply[:4]), (0.15, reply[4:])]
 
     def handler(signum: int, frame: object) -> None:
@@ -283,8 +302,9 @@ def test_signal_handler_that_returns_does_not_fail_a_good_read() -> None:
     old = signal.signal(signal.SIGUSR1, handler)
     pid = os.getpid()
     try:
-        with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=2,
-                                                   byte_timeout=0.5) as c:
+        peer_cm = raw_pty(script) if transport == "rtu" else raw_tcp(
+            script, rtu_frames=transport == "rtu-over-tcp")
+        with peer_cm as peer, _client(transport, peer.port, timeout=2, byte_timeout=0.5) as c:
             stop = threading.Event()
 
             def pester() -> None:
