@@ -613,13 +613,22 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                 note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
             } else if (errno == ETIMEDOUT && got > 0) {
                 int saved = errno;
-                note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
+                if (expect > 0 && got >= 4 && pymb_rtu_crc_ok(rsp, (size_t)got)) {
+                    /* A whole frame, shorter than the caller said. */
+                    note_reply(fail, rsp, got, PYMB_FRAME_BAD_LENGTH);
+                    saved = EMBBADDATA;
+                } else {
+                    note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
+                }
                 errno = saved;
             }
             owe(line, req[0]);
             return -1;
         }
         status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)n, &exc);
+        if (status == PYMB_FRAME_BAD_CRC && expect > 0 && (got > n || input_pending(line))) {
+            status = PYMB_FRAME_BAD_LENGTH; /* the frame goes on past the length the caller said */
+        }
         pdu_len = n - 3;
     } else {
         n = tcp_receive(line, rsp, &status, &desync);

@@ -945,3 +945,24 @@ def test_dropped_tcp_client_is_closed_and_a_never_connected_one_is_silent() -> N
         except OSError:
             still = False
         assert not still
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp", "rtu-over-tcp"])
+def test_raw_request_with_a_wrong_response_length_says_so(transport: str) -> None:
+    data = bytes(range(30))
+
+    def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
+        if transport == "tcp":
+            tid, unit, pdu = _tcp_req(frame)
+            return [(0, mbap(tid, unit, bytes((pdu[0],)) + data))]
+        return [(0, rtu(bytes((frame[0], frame[1])) + data))]
+
+    peer_cm = raw_pty(script) if transport == "rtu" else raw_tcp(
+        script, rtu_frames=transport == "rtu-over-tcp")
+    with peer_cm as peer, _client(transport, peer.port, timeout=0.3) as c:
+        assert c.raw_request(0x41, response_length=30) == data
+        for wrong in (10, 31, 200):
+            with pytest.raises(pymb.ProtocolError, match="length"):
+                c.raw_request(0x41, response_length=wrong)
+        c.timeout = 2
+        assert c.raw_request(0x41) == data
