@@ -4,7 +4,6 @@ scripted responders written from the Modbus specifications
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import math
 import os
@@ -773,39 +772,45 @@ def test_numpy_values_and_buffers() -> None:
 
 
 def test_connect_failures_name_their_cause_and_leave_nothing_open() -> None:
-    def fds() -> int:
-        return len(os.listdir("/proc/self/fd"))
+    # In a process of its own, so that no other test's thread opens or
+    # closes descriptors while they are counted.
+    import subprocess
+    import sys
 
-    before = fds()
-    c = pymb.TcpClient("no-such-host.invalid", 502, timeout=1)
-    with pytest.raises(pymb.ModbusConnectionError, match="cannot resolve the host name"):
-        c.connect()
-    assert not c.connected
-    with socket_listening_nowhere() as port:
-        c = pymb.TcpClient("127.0.0.1", port, timeout=1)
-        with pytest.raises(pymb.ModbusConnectionError, match="connection refused"):
-            c.connect()
-    c2 = pymb.RtuClient("/dev/null")
-    with pytest.raises(pymb.ModbusConnectionError, match="not a serial port"):
-        c2.connect()
-    with pytest.raises(pymb.ModbusConnectionError, match="no such port"):
-        pymb.RtuClient("/dev/pymb-no-such-port").connect()
-    del c, c2
-    gc.collect()
-    assert fds() == before
+    code = """
+import gc, os, socket
+import pymb
 
+def fds():
+    return len(os.listdir("/proc/self/fd"))
 
-@contextlib.contextmanager
-def socket_listening_nowhere() -> Iterator[int]:
-    """A loopback port nothing listens on (bound, never listening)."""
-    import socket
-
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
+nowhere = socket.socket()
+nowhere.bind(("127.0.0.1", 0))  # bound, never listening: refused
+port = nowhere.getsockname()[1]
+before = fds()
+cases = [
+    (pymb.TcpClient("no-such-host.invalid", 502, timeout=1), "cannot resolve the host name"),
+    (pymb.TcpClient("127.0.0.1", port, timeout=1), "connection refused"),
+    (pymb.RtuClient("/dev/null"), "not a serial port"),
+    (pymb.RtuClient("/dev/pymb-no-such-port"), "no such port"),
+]
+for client, why in cases:
     try:
-        yield s.getsockname()[1]
-    finally:
-        s.close()
+        client.connect()
+    except pymb.ModbusConnectionError as e:
+        assert why in str(e), (why, str(e))
+    else:
+        raise AssertionError("connected")
+    assert not client.connected and client.fileno() == -1
+del cases, client
+gc.collect()
+assert fds() == before, (before, fds())
+print("ok")
+"""
+    out = subprocess.run([sys.executable, "-W", "error::ResourceWarning", "-c", code],
+                         capture_output=True, text=True, timeout=60,
+                         cwd=str(Path(__file__).resolve().parent.parent))
+    assert out.stdout.strip() == "ok", out.stderr
 
 
 def test_a_reply_trickled_byte_by_byte_cannot_hold_a_call_past_its_timeout() -> None:
