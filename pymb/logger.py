@@ -72,6 +72,7 @@ from pymb.store import CSV_COLUMNS, DeviceInfo, Event, OutputError, Sample, Sink
 from pymb.wire import bits_per_char, read_time
 
 __all__ = [
+    "FAULT_KINDS",
     "BusConfig",
     "DeviceConfig",
     "LogConfig",
@@ -490,6 +491,8 @@ _EVENT_KIND: list[tuple[type[BaseException], str]] = [
     (ModbusConnectionError, "connection"),
     (ModbusError, "error"),
 ]
+#: the kinds of the events that mean a device gave no value (a fault)
+FAULT_KINDS = frozenset(k for _, k in _EVENT_KIND)
 
 
 def _kind(e: BaseException) -> str:

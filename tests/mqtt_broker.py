@@ -85,6 +85,7 @@ class Subscriber:
     def __init__(self, broker: Mosquitto, topic: str, *, client_id: str = "pymb-test-sub",
                  tls: Certificates | None = None, user: tuple[str, str] | None = None) -> None:
         self.messages: list[tuple[str, bytes]] = []
+        self.flags: list[tuple[int, bool]] = []  #: (QoS, retain) of each message
         self.lock = threading.Lock()
         self.subscribed = threading.Event()
         c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id,
@@ -105,6 +106,7 @@ class Subscriber:
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         with self.lock:
             self.messages.append((msg.topic, bytes(msg.payload)))
+            self.flags.append((msg.qos, bool(msg.retain)))
 
     def snapshot(self) -> list[tuple[str, bytes]]:
         """A copy of what was received so far."""

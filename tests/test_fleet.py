@@ -456,6 +456,11 @@ def test_sparkplug_historical_replay_after_an_outage(mosquitto, simulator, spark
         broker.start()
         wait_for(lambda: set(_sample_ids(pb, sub.snapshot())) >= set(range(1, down_to + 1)),
                  60, "the outage's samples replayed")
+        # the node's backlog metric, once the replay is done: an NDATA
+        def ndata_after_rebirth() -> bool:
+            ks = [t.split("/")[2] for t, _ in sub.snapshot()]
+            return ks.count("NBIRTH") >= 2 and "NDATA" in ks[ks.index("NBIRTH", 1):]
+        wait_for(ndata_after_rebirth, 30, "an NDATA after the second NBIRTH")
         stop_log(proc)
     finally:
         if proc.poll() is None:
@@ -469,9 +474,89 @@ def test_sparkplug_historical_replay_after_an_outage(mosquitto, simulator, spark
     historical = {m.long_value for _, p in msgs[births[1]:] for m in p.metrics
                   if m.is_historical and aliases.get(m.alias) == "sample"}
     assert set(range(down_from + 1, down_to + 1)) <= historical
+    # NBIRTH declares Forwarder/Backlog (the samples not yet acknowledged: the
+    # outage's, on the reconnection); NDATA says it changed, by alias, with seq
+    backlog = _metric(msgs[births[1]][1], "Forwarder/Backlog")
+    assert backlog.datatype == 8 and backlog.HasField("alias") and backlog.HasField("timestamp")
+    assert backlog.long_value >= down_to - down_from
+    ndata_at = next(i for i, (k, _) in enumerate(msgs) if i > births[1] and k == "NDATA")
+    ndata = msgs[ndata_at][1]
+    assert [(m.name, m.alias) for m in ndata.metrics] == [("", backlog.alias)]
+    assert ndata.metrics[0].long_value < backlog.long_value
+    assert ndata.metrics[0].HasField("timestamp") and ndata.HasField("timestamp")
+    assert ndata.seq == (msgs[ndata_at - 1][1].seq + 1) % 256
+    assert sub.flags[ndata_at] == (0, False)
     want = db_ids(db)
     got = _sample_ids(pb, sub.snapshot())
     _report("Sparkplug, broker restart", want, got)
+    assert set(got) == want
+    sub.close()
+
+
+def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_returns(
+        mosquitto, sparkplug_pb, tmp_path: Path) -> None:
+    """A device that stops answering: DDEATH (timestamp and seq, no metrics, QoS 0,
+    not retained) after its last DDATA; when it answers again, a new DBIRTH before
+    its next DDATA. Nothing is lost and seq stays continuous throughout."""
+    from pymb.fleet.health import DOWN_AFTER
+    from pymb.sim import SimulatorProcess
+    pb = sparkplug_pb
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
+    sim = SimulatorProcess(["coolpro", "--tcp", "127.0.0.1:0"], quiet=True).start()
+    db = tmp_path / "log.sqlite"
+    proc = start_log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                     "--mqtt-group", GROUP, "--mqtt-node", NODE)
+
+    def kinds(start: int = 0) -> list[str]:
+        return [t.split("/", 2)[2] for t, _ in sub.snapshot()[start:]]
+
+    try:
+        wait_for(lambda: kinds().count(f"DDATA/{NODE}/coolpro-40") >= 20, 30, "20 DDATA")
+        port = sim.tcp_port
+        sim.stop()
+        stopped_at = time.time()
+        wait_for(lambda: f"DDEATH/{NODE}/coolpro-40" in kinds(), 60, "the DDEATH")
+        died = kinds().index(f"DDEATH/{NODE}/coolpro-40")
+        sim = SimulatorProcess(["coolpro", "--tcp", f"127.0.0.1:{port}"], quiet=True).start()
+        wait_for(lambda: f"DDATA/{NODE}/coolpro-40" in kinds(died), 60,
+                 "DDATA after the device answers again")
+        stop_log(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        sim.stop()
+    wait_for(lambda: kinds()[-1] == "NDEATH/" + NODE, 30, "the clean NDEATH")
+    msgs = _sp(pb, sub.snapshot())
+    flags = sub.flags
+    # the DDEATH: QoS 0, not retained, a timestamp (publication time) and seq, no metric
+    kind, ddeath = msgs[died]
+    assert kind == "DDEATH/coolpro-40"
+    assert flags[died] == (0, False)
+    assert ddeath.HasField("timestamp") and ddeath.HasField("seq") and not ddeath.metrics
+    assert stopped_at * 1000 - 1000 <= ddeath.timestamp <= time.time() * 1000
+    # it comes after every DDATA of the samples taken before the device stopped
+    con = sqlite3.connect(db)
+    last_before = con.execute("SELECT MAX(id) FROM samples WHERE time_utc < ?",
+                              (stopped_at,)).fetchone()[0]
+    faults = con.execute("SELECT COUNT(*) FROM events WHERE kind IN "
+                         "('timeout', 'connection', 'protocol', 'error')").fetchone()[0]
+    con.close()
+    assert faults >= DOWN_AFTER
+    before = _sample_ids(pb, sub.snapshot()[:died])
+    assert max(before) == last_before
+    # then a DBIRTH (every metric, named and aliased) before the next DDATA
+    after = [k for k, _ in msgs[died + 1:] if k != "NDEATH"]
+    assert after[0] == "DBIRTH/coolpro-40", after[:3]
+    dbirth = msgs[died + 1][1]
+    assert {m.name for m in dbirth.metrics} >= {"sample", "output_voltage_v", "status"}
+    assert all(m.HasField("alias") for m in dbirth.metrics)
+    # seq: one more than the message before, wrapping, through the DDEATH and DBIRTH
+    seqs = [p.seq for k, p in msgs if k != "NDEATH"]
+    assert seqs == [i % 256 for i in range(len(seqs))]
+    want = db_ids(db)
+    got = _sample_ids(pb, sub.snapshot())
+    _report("Sparkplug, a device stopped and came back", want, got)
     assert set(got) == want
     sub.close()
 

@@ -16,6 +16,7 @@ import time
 from typing import Any
 
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.health import DeviceHealth
 from pymb.store import Event
 
 __all__ = ["ForwardingSink", "MqttConfig"]
@@ -24,19 +25,24 @@ __all__ = ["ForwardingSink", "MqttConfig"]
 class ForwardingSink:
     """A sink that wakes the forwarder after each commit of the sink it wraps, and
     records what happened to the broker connection as events (bus and kind
-    ``mqtt``) in the same batches."""
+    ``mqtt``) in the same batches. It also follows which devices stop
+    answering (:class:`~pymb.fleet.health.DeviceHealth`) and tells the
+    forwarder after the commit (Sparkplug: DDEATH)."""
 
     def __init__(self, sink: Any, forwarder: Any) -> None:
         self.sink = sink
         self.forwarder = forwarder
+        self.health = DeviceHealth()
 
     def write(self, sample: Any) -> None:
         """Add a sample to the batch."""
         self.sink.write(sample)
+        self.health.sample(sample)
 
     def event(self, event: Any) -> None:
         """Add an event to the batch."""
         self.sink.event(event)
+        self.health.event(event)
 
     def commit(self) -> None:
         """Commit (the forwarder's cursor with the batch), then wake the forwarder.
@@ -49,7 +55,17 @@ class ForwardingSink:
         if db is not None:
             self.forwarder.source.set_cursor_on(db, self.forwarder.dest, cursor)
         self.sink.commit()
+        self._downs(db)
         self.forwarder.notify()
+
+    def _downs(self, db: Any) -> None:
+        """The devices that went down, with the highest sample id committed with them:
+        the forwarder publishes their DDEATH once it has sent everything up to it."""
+        downs = self.health.take()
+        if downs:
+            upto = 0 if db is None else int(
+                db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+            self.forwarder.devices_down(downs, upto)
 
     def _events(self) -> None:
         for t, message in self.forwarder.take_events():
@@ -58,5 +74,6 @@ class ForwardingSink:
     def close(self) -> None:
         """Commit and close, then wake the forwarder."""
         self._events()
+        self._downs(getattr(self.sink, "db", None))  # the batch's samples are counted
         self.sink.close()
         self.forwarder.notify()

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.profiles import Message, Profile, make_profile
+from pymb.fleet.health import Down
+from pymb.fleet.profiles import BACKLOG, Message, Profile, make_profile
 from pymb.fleet.source import Record, Source
 
 __all__ = ["Forwarder", "ForwarderStatus"]
@@ -200,6 +201,8 @@ class Forwarder(threading.Thread):
         self._done: list[list[int]] = []  #: acknowledged [lo, hi] ranges above the cursor
         self._lock = threading.Lock()
         self._events: list[tuple[float, str]] = []
+        self._downs_in: list[tuple[Down, int]] = []  #: from the logger's thread
+        self._downs: list[tuple[Down, int]] = []  #: not yet published (this thread)
         self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0)
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
@@ -222,6 +225,14 @@ class Forwarder(threading.Thread):
 
     def notify(self) -> None:
         """New samples were committed."""
+        self.wake.set()
+
+    def devices_down(self, downs: list[Down], upto: int) -> None:
+        """Devices stopped answering; ``upto``: the highest sample id committed
+        with the news. Each goes out (Sparkplug: DDEATH) after the samples up to
+        ``upto`` and before its device's next sample."""
+        with self._lock:
+            self._downs_in += [(d, upto) for d in downs]
         self.wake.set()
 
     def status(self) -> ForwarderStatus:
@@ -406,7 +417,29 @@ class Forwarder(threading.Thread):
                 unbarriered.clear()
                 since_barrier = 0
 
-        send(prof.births(self.source), [])
+        def node() -> dict[str, int]:
+            return {BACKLOG: self.status().backlog}
+
+        def downs(rec: Record | None, upto: int) -> None:
+            """Publish what is due: the downs of ``rec``'s device that came after
+            its previous sample, or (no rec) those committed up to ``upto``."""
+            with self._lock:
+                self._downs += self._downs_in
+                self._downs_in = []
+            keep = []
+            for d, at in self._downs:
+                if rec is None:
+                    due = at <= upto
+                else:
+                    due = d.device == rec.device and (d.last_sample is None
+                                                      or rec.time_utc > d.last_sample)
+                if due:
+                    send(prof.device_down(d.device), [])
+                else:
+                    keep.append((d, at))
+            self._downs = keep
+
+        send(prof.births(self.source, node()), [])
         barrier()
         self.rebirth.clear()
         live_start = live_after = self.source.max_id()  # the live lane: what comes after
@@ -431,7 +464,7 @@ class Forwarder(threading.Thread):
             self._save_cursor()
             if self.rebirth.is_set():
                 self.rebirth.clear()
-                send(prof.births(self.source), [])
+                send(prof.births(self.source, node()), [])
                 barrier()
             now = time.monotonic()
             if self._stopping.is_set() and (
@@ -442,12 +475,16 @@ class Forwarder(threading.Thread):
             room = WINDOW - outstanding
             if room > 0:
                 for rec in self.source.samples_after(live_after, min(room, FETCH)):
+                    if self._downs or self._downs_in:
+                        downs(rec, 0)
                     send(prof.data(rec, False), [(live_after + 1, rec.id)])
                     live_after = rec.id
                     outstanding += 1
                     self._published += 1
                     if since_barrier >= BARRIER_EVERY:
                         barrier()
+            if self._downs or self._downs_in:
+                downs(None, live_after)
             tokens = min(tokens + (now - last_tick) * self.cfg.catchup_rate,
                          max(self.cfg.catchup_rate / 10, 1.0))
             last_tick = now
@@ -472,6 +509,7 @@ class Forwarder(threading.Thread):
             if now - last_snap >= 0.5:
                 self._snapshot("connected", True)
                 last_snap = now
+                send(prof.node_data(node()), [])
             self.wake.wait(0.05 if catch_after < live_start else 0.2)
         if s.lost:
             return

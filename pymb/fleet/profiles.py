@@ -11,7 +11,12 @@
     ``Node Control/Rebirth``) then one DBIRTH per device with every metric,
     named and aliased; DDATA by alias, at QoS 0 as the specification
     requires, ``is_historical`` for the backlog replayed after an outage.
-    Each DDATA carries the sample's id as the metric ``sample``. QoS 0 has no
+    Each DDATA carries the sample's id as the metric ``sample``. A device
+    that stops answering (:mod:`pymb.fleet.health`) gets a DDEATH after its
+    last DDATA, and a new DBIRTH before the DDATA of its next live sample.
+    The node's metric ``Forwarder/Backlog`` (samples not yet acknowledged by
+    the broker) is in NBIRTH and, when it changed, in an NDATA at most every
+    5 s. QoS 0 has no
     acknowledgement: the forwarder follows each batch with a SUBSCRIBE of the
     node's NCMD topic and takes the broker's SUBACK (sent after it has
     handled everything before it on the connection) as the acknowledgement.
@@ -33,6 +38,10 @@ __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "make_profi
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
 BDSEQ = "bdSeq"
+BACKLOG = "Forwarder/Backlog"
+#: the node's metrics besides bdSeq: name -> (alias, datatype); in NBIRTH, then NDATA
+NODE_METRICS = {REBIRTH: (1, DataType.BOOLEAN), BACKLOG: (2, DataType.UINT64)}
+NDATA_EVERY = 5.0  #: seconds: a changed node metric goes in an NDATA at most this often
 QUALITY_BAD = 0  #: Sparkplug 3.0's "Quality" property: 0 bad, 192 good
 
 
@@ -63,8 +72,9 @@ class Profile:
         """The last will, registered with each CONNECT."""
         raise NotImplementedError
 
-    def births(self, source: Source) -> list[Message]:
-        """What goes first on every connection (and on a rebirth)."""
+    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
+        """What goes first on every connection (and on a rebirth); ``node``: the
+        node's metrics (``NODE_METRICS``) now."""
         raise NotImplementedError
 
     def data(self, record: Record, historical: bool) -> list[Message]:
@@ -74,6 +84,14 @@ class Profile:
     def goodbye(self) -> list[Message]:
         """What goes last on a clean disconnect."""
         raise NotImplementedError
+
+    def device_down(self, device: str) -> list[Message]:
+        """A device stopped answering (see :mod:`pymb.fleet.health`)."""
+        return []
+
+    def node_data(self, values: dict[str, int]) -> list[Message]:
+        """The node's own metrics (``NODE_METRICS``), when they changed."""
+        return []
 
     def command(self, payload: bytes) -> bool:
         """True when a command received asks for new births."""
@@ -94,7 +112,7 @@ class PlainProfile(Profile):
         """``offline``, retained."""
         return Message(f"{self.base}/status", b"offline", 1, True)
 
-    def births(self, source: Source) -> list[Message]:
+    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
         """``online``, retained."""
         return [Message(f"{self.base}/status", b"online", 1, True)]
 
@@ -131,6 +149,10 @@ class SparkplugProfile(Profile):
         self.seq = 0
         self.born: dict[str, _Birth] = {}
         self.device_order: dict[str, int] = {}
+        #: devices that stopped answering; their DDEATH was (or, unborn, need not be) sent
+        self.down: set[str] = set()
+        self.node_values: dict[str, int] = {}  #: as last published (NBIRTH or NDATA)
+        self.node_sent = 0.0  #: time.monotonic() of that
 
     def _next_seq(self) -> int:
         s = self.seq
@@ -152,22 +174,56 @@ class SparkplugProfile(Profile):
         payload = encode_payload([self._bd_metric()], timestamp=_ms(time.time()))
         return Message(self.node_topic.format("NDEATH"), payload, 1, False)
 
-    def births(self, source: Source) -> list[Message]:
-        """NBIRTH (seq 0) and a DBIRTH for each device that has samples."""
+    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
+        """NBIRTH (seq 0, with the node's metrics) and a DBIRTH for each device that
+        has samples, with its newest values; then a DDEATH for each device that is
+        down (its metrics declared, for the backlog's historical DDATA)."""
         now = _ms(time.time())
         self.seq = 0
         self.born.clear()
-        nbirth = encode_payload([
-            self._bd_metric(),
-            Metric(REBIRTH, 1, DataType.BOOLEAN, False, now),
-        ], timestamp=now, seq=self._next_seq())
+        self.node_values = dict(node or {BACKLOG: 0})
+        self.node_sent = time.monotonic()
+        metrics = [self._bd_metric(), Metric(REBIRTH, 1, DataType.BOOLEAN, False, now)]
+        metrics += [Metric(name, NODE_METRICS[name][0], NODE_METRICS[name][1], value, now)
+                    for name, value in self.node_values.items()]
+        nbirth = encode_payload(metrics, timestamp=now, seq=self._next_seq())
         out = [Message(self.node_topic.format("NBIRTH"), nbirth, 0)]
+        dead = []
         for name, _type, _address in source.devices():
             self._order(name)
             latest = source.latest(name)
             if latest is not None:
                 out.append(self._dbirth(latest))
+                if name in self.down:
+                    dead.append(name)
+        out += [self._ddeath(name) for name in dead]
         return out
+
+    def _ddeath(self, device: str) -> Message:
+        """DDEATH: the payload's timestamp (now) and seq, no metrics; QoS 0."""
+        payload = encode_payload([], timestamp=_ms(time.time()), seq=self._next_seq())
+        return Message(self.node_topic.format("DDEATH") + f"/{device}", payload, 0)
+
+    def device_down(self, device: str) -> list[Message]:
+        """A DDEATH if the device was born in this session and is not down yet."""
+        if device in self.down:
+            return []
+        self.down.add(device)
+        return [self._ddeath(device)] if device in self.born else []
+
+    def node_data(self, values: dict[str, int]) -> list[Message]:
+        """An NDATA (by alias) of the node metrics that changed since the last
+        NBIRTH or NDATA, at most every NDATA_EVERY seconds."""
+        changed = {k: v for k, v in values.items() if self.node_values.get(k) != v}
+        if not changed or time.monotonic() - self.node_sent < NDATA_EVERY:
+            return []
+        now = _ms(time.time())
+        self.node_values.update(changed)
+        self.node_sent = time.monotonic()
+        payload = encode_payload(
+            [Metric(None, NODE_METRICS[k][0], NODE_METRICS[k][1], v, now)
+             for k, v in changed.items()], timestamp=now, seq=self._next_seq())
+        return [Message(self.node_topic.format("NDATA"), payload, 0)]
 
     def _order(self, device: str) -> int:
         return self.device_order.setdefault(device, len(self.device_order) + 1)
@@ -209,13 +265,20 @@ class SparkplugProfile(Profile):
         return Message(self.node_topic.format("DBIRTH") + f"/{r.device}", payload, 0)
 
     def data(self, record: Record, historical: bool) -> list[Message]:
-        """DDATA by alias (a DBIRTH first for a device not yet born)."""
+        """DDATA by alias; a DBIRTH first for a device not yet born and for a
+        device that was down and answers again (a live sample). The backlog of a
+        device that is down goes as historical DDATA and leaves it down."""
         out = []
         birth = self.born.get(record.device)
         channels = len(record.values[HUB_FIELDS[0]]) if record.states is not None else 0
-        if birth is None or birth.channels != channels:
+        down = record.device in self.down
+        if birth is None or birth.channels != channels or (down and not historical):
             out.append(self._dbirth(record))
             birth = self.born[record.device]
+            if down and historical:
+                out.append(self._ddeath(record.device))
+            else:
+                self.down.discard(record.device)
         t = _ms(record.time_utc)
         metrics = [Metric(None, birth.aliases[name], dt, value, t, historical, self._props(st))
                    for name, dt, value, st in self._metrics(record)]
