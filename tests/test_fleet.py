@@ -226,6 +226,9 @@ def test_tls_verifies_the_broker(mosquitto, simulator, certificates, tmp_path: P
     (["--mqtt", "mqtt://host", "--mqtt-node", "a/b"], "without '/'"),
     (["--mqtt-node", "x"], "need --mqtt URL"),
     (["--mqtt", "mqtt://host", "--format", "csv", "--out", "-"], "use --format sqlite"),
+    (["--mqtt", "mqtt://host", "--mqtt-primary-host", "scada"], "needs --mqtt-profile sparkplug"),
+    (["--mqtt", "mqtt://host", "--mqtt-profile", "sparkplug", "--mqtt-primary-host", "a/b"],
+     "without '/'"),
 ])
 def test_bad_mqtt_options_are_one_line_errors(argv: list[str], message: str,
                                               tmp_path: Path) -> None:
@@ -558,6 +561,89 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
     got = _sample_ids(pb, sub.snapshot())
     _report("Sparkplug, a device stopped and came back", want, got)
     assert set(got) == want
+    sub.close()
+
+
+def test_sparkplug_primary_host_state(mosquitto, simulator, sparkplug_pb,
+                                      tmp_path: Path) -> None:
+    """--mqtt-primary-host: no births before the host's STATE says online (the samples
+    wait in the database, then go as history); a stale offline STATE (older than the
+    online one) is ignored; a valid one gets an NDEATH and a new connection that waits
+    again; nothing is lost."""
+    pb = sparkplug_pb
+    broker: Mosquitto = mosquitto()
+    sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
+    host = Subscriber(broker, "spBv1.0/STATE/#", client_id="scada")  # the host's client
+    state_topic = "spBv1.0/STATE/scada"
+
+    def state(online: bool, ts: int) -> None:
+        body = json.dumps({"online": online, "timestamp": ts}).encode()
+        host.client.publish(state_topic, body, qos=1, retain=True).wait_for_publish(10)
+
+    def kinds(start: int = 0) -> list[str]:
+        return [t.split("/")[2] for t, _ in sub.snapshot()[start:]]
+
+    db = tmp_path / "log.sqlite"
+    state(False, 1000)  # the host's death certificate, retained
+    proc = start_log(simulator, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                     "--mqtt-group", GROUP, "--mqtt-node", NODE,
+                     "--mqtt-primary-host", "scada")
+    try:
+        wait_for(lambda: db_count(db) >= 100, 30, "100 samples logged")
+        con = sqlite3.connect(db)
+        wait_for(lambda: any("connected to" in m for (m,) in con.execute(
+            "SELECT message FROM events WHERE kind = 'mqtt'")), 30, "pymb connected")
+        con.close()
+        assert sub.snapshot() == [], "births before the primary host said online"
+        waited = db_count(db)
+        t1 = int(time.time() * 1000)
+        state(True, t1)
+        wait_for(lambda: "DDATA" in kinds(), 30, "births and data once the host is online")
+        msgs = _sp(pb, sub.snapshot())
+        assert msgs[0][0] == "NBIRTH" and msgs[1][0] == "DBIRTH/coolpro-40"
+        bd_seq = _metric(msgs[0][1], "bdSeq").long_value
+        # what was logged while waiting goes as history
+        wait_for(lambda: set(range(1, waited + 1)) <= set(_sample_ids(pb, sub.snapshot())),
+                 60, "the samples logged while waiting")
+        # a stale offline STATE (an old session's will): ignored; a Rebirth proves the
+        # connection is the same one (same bdSeq, no NDEATH between)
+        state(False, t1 - 1)
+        n = len(sub.snapshot())
+        cmd = pb()
+        cmd.timestamp = int(time.time() * 1000)
+        c = cmd.metrics.add()
+        c.name, c.datatype, c.boolean_value = "Node Control/Rebirth", 11, True
+        sub.client.publish(f"spBv1.0/{GROUP}/NCMD/{NODE}", cmd.SerializeToString(), qos=1)
+        wait_for(lambda: "NBIRTH" in kinds(n), 30, "the Rebirth's NBIRTH")
+        assert "NDEATH" not in kinds()
+        rebirth = _sp(pb, sub.snapshot()[n:])
+        nb = next(p for k, p in rebirth if k == "NBIRTH")
+        assert _metric(nb, "bdSeq").long_value == bd_seq
+        # the host goes offline (its will: timestamp of its online STATE): NDEATH
+        state(False, t1)
+        wait_for(lambda: "NDEATH" in kinds(), 30, "the NDEATH after the host went offline")
+        i = kinds().index("NDEATH")
+        ndeath = pb.FromString(sub.snapshot()[i][1])
+        assert _metric(ndeath, "bdSeq").long_value == bd_seq
+        # the new connection waits for the host again, then births with the next bdSeq
+        before = db_count(db)
+        wait_for(lambda: db_count(db) >= before + 50, 30, "samples logged while offline")
+        assert "NBIRTH" not in kinds(i)
+        state(True, int(time.time() * 1000))
+        wait_for(lambda: "NBIRTH" in kinds(i), 30, "births after the host is back")
+        j = i + kinds(i).index("NBIRTH")
+        nb2 = pb.FromString(sub.snapshot()[j][1])
+        assert _metric(nb2, "bdSeq").long_value == (bd_seq + 1) % 256
+        stop_log(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    want = db_ids(db)
+    wait_for(lambda: set(_sample_ids(pb, sub.snapshot())) >= want, 30, "every sample")
+    got = _sample_ids(pb, sub.snapshot())
+    _report("Sparkplug with a primary host going offline and back", want, got)
+    assert set(got) == want
+    host.close()
     sub.close()
 
 

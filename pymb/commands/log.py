@@ -68,6 +68,9 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
     g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
     g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+    g.add_argument("--mqtt-primary-host", metavar="ID",
+                   help="Sparkplug: publish only while the primary host application ID says "
+                        "online on spBv1.0/STATE/ID (the samples wait in the database)")
 
 
 def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig | None:

@@ -15,6 +15,7 @@ in ``[mqtt]``; ``--mqtt URL`` is ``url``)::
     cert = "/etc/pymb/client.pem"            # client certificate ...
     key = "/etc/pymb/client.key"             # ... and its key
     catchup_rate = 1000          # backlog messages per second after an outage
+    primary_host = "scada"       # Sparkplug: publish only while spBv1.0/STATE/scada is online
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ PASSWORD_ENV = "PYMB_MQTT_PASSWORD"
 KEYS: dict[str, type | tuple[type, ...]] = {
     "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
     "password_file": str, "ca": str, "cert": str, "key": str,
-    "catchup_rate": (int, float), "keepalive": int,
+    "catchup_rate": (int, float), "keepalive": int, "primary_host": str,
 }
 
 
@@ -55,6 +56,8 @@ class MqttConfig:
     key: str | None = None
     catchup_rate: float = 1000.0  #: backlog messages per second, at most
     keepalive: int = 15  #: seconds; a silent link is noticed after about 1.5 times this
+    #: Sparkplug: the primary host application's id; births wait for its STATE online
+    primary_host: str | None = None
 
     def __post_init__(self) -> None:
         u = urlsplit(self.url)
@@ -79,6 +82,13 @@ class MqttConfig:
                             ("prefix", self.prefix)):
             if not value or any(c in value for c in "/+#") or value != value.strip():
                 raise InvalidArgument(f"MQTT {what} {value!r} must be a non-empty name "
+                                      "without '/', '+', '#' or surrounding spaces")
+        if self.primary_host is not None:
+            if self.profile != "sparkplug":
+                raise InvalidArgument("--mqtt-primary-host needs --mqtt-profile sparkplug")
+            h = self.primary_host
+            if not h or any(c in h for c in "/+#") or h != h.strip():
+                raise InvalidArgument(f"MQTT primary host {h!r} must be a non-empty name "
                                       "without '/', '+', '#' or surrounding spaces")
         if not self.tls and (self.ca or self.cert or self.key):
             raise InvalidArgument("--mqtt-ca/--mqtt-cert/--mqtt-key need an mqtts:// URL")

@@ -32,7 +32,7 @@ from typing import Any
 
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import Down
-from pymb.fleet.profiles import BACKLOG, Message, Profile, make_profile
+from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_profile
 from pymb.fleet.source import Record, Source
 
 __all__ = ["Forwarder", "ForwarderStatus"]
@@ -127,6 +127,7 @@ class _Session:
         self.reason: str | None = None
         self.ok = False
         self.lost = False
+        self.host_online = False  #: the primary host's STATE said online (on this connection)
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
                                   clean_session=True, protocol=mqtt.MQTTv311)
         self.client.max_inflight_messages_set(WINDOW + 20)
@@ -144,6 +145,8 @@ class _Session:
         self.reason = None if self.ok else f"refused: {rc}"
         if self.ok and self.fw.profile.command_topic:
             client.subscribe(self.fw.profile.command_topic, qos=1)
+        if self.ok and self.fw.profile.host_topic:
+            client.subscribe(self.fw.profile.host_topic, qos=1)
         self.connack.set()
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
@@ -166,6 +169,30 @@ class _Session:
         if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
             self.fw.rebirth.set()
             self.fw.wake.set()
+        elif msg.topic == self.fw.profile.host_topic:
+            self._host_state(msg.payload)
+
+    def _host_state(self, payload: bytes) -> None:
+        """The primary host's STATE (Sparkplug 3.0: online only with a timestamp >=
+        the previous STATE's; offline only with one >= the last online's)."""
+        fw = self.fw
+        state = host_state(payload)
+        if state is None:
+            fw._event(f"ignored a STATE of the primary host that is not Sparkplug 3.0 JSON: "
+                      f"{bytes(payload[:80])!r}")
+            return
+        online, ts = state
+        if online and (fw.host_ts is None or ts >= fw.host_ts):
+            fw.host_ts = fw.host_online_ts = ts
+            if not self.host_online:
+                fw._event(f"the primary host {fw.cfg.primary_host} is online")
+            self.host_online = True
+        elif not online and (fw.host_online_ts is None or ts >= fw.host_online_ts):
+            fw.host_ts = max(ts, fw.host_ts or ts)
+            if self.host_online:
+                fw._event(f"the primary host {fw.cfg.primary_host} is offline")
+            self.host_online = False
+        fw.wake.set()
 
 
 class Forwarder(threading.Thread):
@@ -203,6 +230,9 @@ class Forwarder(threading.Thread):
         self._events: list[tuple[float, str]] = []
         self._downs_in: list[tuple[Down, int]] = []  #: from the logger's thread
         self._downs: list[tuple[Down, int]] = []  #: not yet published (this thread)
+        #: the timestamps of the last STATE and of the last online STATE accepted
+        self.host_ts: float | None = None
+        self.host_online_ts: float | None = None
         self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0)
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
@@ -439,6 +469,13 @@ class Forwarder(threading.Thread):
                     keep.append((d, at))
             self._downs = keep
 
+        if prof.host_topic:  # no births until the primary host says online
+            while not s.host_online:
+                if s.lost or self._stopping.is_set():
+                    return
+                self._snapshot(f"waiting for the primary host {self.cfg.primary_host}", False)
+                self.wake.wait(0.2)
+                self.wake.clear()
         send(prof.births(self.source, node()), [])
         barrier()
         self.rebirth.clear()
@@ -448,6 +485,10 @@ class Forwarder(threading.Thread):
         last_snap = 0.0
         while not s.lost:
             self.wake.clear()
+            if prof.host_topic and not s.host_online:
+                # Sparkplug 3.0: NDEATH, disconnect, start the connection over
+                s.reason = f"the primary host {self.cfg.primary_host} went offline"
+                break
             # acknowledgements
             while s.acks:
                 mid = s.acks.popleft()

@@ -33,7 +33,8 @@ from pymb.fleet.config import MqttConfig
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
 from pymb.fleet.source import COOLPRO_FIELDS, HUB_FIELDS, Record, Source, record_dict
 
-__all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "make_profile"]
+__all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
+           "make_profile"]
 
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
@@ -64,6 +65,7 @@ class Profile:
 
     data_qos = 1
     command_topic: str | None = None
+    host_topic: str | None = None  #: the primary host application's STATE topic, if any
 
     def __init__(self, cfg: MqttConfig) -> None:
         self.cfg = cfg
@@ -144,6 +146,8 @@ class SparkplugProfile(Profile):
         g, n = cfg.group, cfg.node
         self.node_topic = f"{NAMESPACE}/{g}/{{}}/{n}"
         self.command_topic = f"{NAMESPACE}/{g}/NCMD/{n}"
+        if cfg.primary_host:
+            self.host_topic = f"{NAMESPACE}/STATE/{cfg.primary_host}"
         self.state_key = f"sparkplug:{g}/{n}:bdSeq"
         self.bd_seq = 0
         self.seq = 0
@@ -298,6 +302,21 @@ class SparkplugProfile(Profile):
             return False
         return any((name == REBIRTH or (name is None and alias == 1)) and value
                    for name, alias, value in metrics)
+
+
+def host_state(payload: bytes) -> tuple[bool, float] | None:
+    """(online, timestamp in ms) of a Sparkplug 3.0 STATE message (UTF-8 JSON
+    ``{"online": true|false, "timestamp": ms}``); None when it is not one."""
+    try:
+        doc = json.loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(doc, dict):
+        return None
+    online, ts = doc.get("online"), doc.get("timestamp")
+    if not isinstance(online, bool) or isinstance(ts, bool) or not isinstance(ts, int | float):
+        return None
+    return online, float(ts)
 
 
 def make_profile(cfg: MqttConfig) -> Profile:
