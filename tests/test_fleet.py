@@ -331,6 +331,19 @@ def _sample_ids(pb: Any, messages: list[tuple[str, bytes]]) -> list[int]:
     return ids
 
 
+def _historical_ids(pb: Any, messages: list[tuple[str, bytes]]) -> set[int]:
+    """The ``sample`` metric of the DDATA marked is_historical."""
+    aliases: dict[int, str] = {}
+    ids = set()
+    for kind, p in _sp(pb, messages):
+        if kind.startswith("DBIRTH"):
+            aliases = {m.alias: m.name for m in p.metrics}
+        elif kind.startswith("DDATA"):
+            ids |= {m.long_value for m in p.metrics
+                    if aliases[m.alias] == "sample" and m.is_historical}
+    return ids
+
+
 def _metric(p: Any, name: str) -> Any:
     return next(m for m in p.metrics if m.name == name)
 
@@ -501,6 +514,8 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
     """A device that stops answering: DDEATH (timestamp and seq, no metrics, QoS 0,
     not retained) after its last DDATA; when it answers again, a new DBIRTH before
     its next DDATA. Nothing is lost and seq stays continuous throughout."""
+    from itertools import pairwise
+
     from pymb.fleet.health import DOWN_AFTER
     from pymb.sim import SimulatorProcess
     pb = sparkplug_pb
@@ -511,8 +526,14 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
     proc = start_log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
                      "--mqtt-group", GROUP, "--mqtt-node", NODE)
 
+    def node_messages() -> list[tuple[tuple[str, bytes], tuple[int, bool]]]:
+        """What the node published (the test's own NCMD left out), with (QoS, retain)."""
+        got = sub.snapshot()
+        return [(m, f) for m, f in zip(got, sub.flags[:len(got)], strict=True)
+                if m[0].split("/")[2] != "NCMD"]
+
     def kinds(start: int = 0) -> list[str]:
-        return [t.split("/", 2)[2] for t, _ in sub.snapshot()[start:]]
+        return [t.split("/", 2)[2] for (t, _), _f in node_messages()[start:]]
 
     try:
         wait_for(lambda: kinds().count(f"DDATA/{NODE}/coolpro-40") >= 20, 30, "20 DDATA")
@@ -521,6 +542,16 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
         stopped_at = time.time()
         wait_for(lambda: f"DDEATH/{NODE}/coolpro-40" in kinds(), 60, "the DDEATH")
         died = kinds().index(f"DDEATH/{NODE}/coolpro-40")
+        # a Rebirth while it is down: its DBIRTH (its metrics declared), then its DDEATH
+        cmd = pb()
+        cmd.timestamp = int(time.time() * 1000)
+        c = cmd.metrics.add()
+        c.name, c.datatype, c.boolean_value = "Node Control/Rebirth", 11, True
+        sub.client.publish(f"spBv1.0/{GROUP}/NCMD/{NODE}", cmd.SerializeToString(), qos=1)
+        wait_for(lambda: kinds(died + 1)[:3] == [f"NBIRTH/{NODE}", f"DBIRTH/{NODE}/coolpro-40",
+                                                  f"DDEATH/{NODE}/coolpro-40"], 30,
+                 "NBIRTH, DBIRTH and DDEATH after the Rebirth")
+        first_death, died = died, died + 3
         sim = SimulatorProcess(["coolpro", "--tcp", f"127.0.0.1:{port}"], quiet=True).start()
         wait_for(lambda: f"DDATA/{NODE}/coolpro-40" in kinds(died), 60,
                  "DDATA after the device answers again")
@@ -530,14 +561,16 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
             proc.kill()
         sim.stop()
     wait_for(lambda: kinds()[-1] == "NDEATH/" + NODE, 30, "the clean NDEATH")
-    msgs = _sp(pb, sub.snapshot())
-    flags = sub.flags
-    # the DDEATH: QoS 0, not retained, a timestamp (publication time) and seq, no metric
-    kind, ddeath = msgs[died]
-    assert kind == "DDEATH/coolpro-40"
-    assert flags[died] == (0, False)
-    assert ddeath.HasField("timestamp") and ddeath.HasField("seq") and not ddeath.metrics
-    assert stopped_at * 1000 - 1000 <= ddeath.timestamp <= time.time() * 1000
+    published = node_messages()
+    msgs = _sp(pb, [m for m, _ in published])
+    flags = [f for _, f in published]
+    # the DDEATHs: QoS 0, not retained, a timestamp (publication time) and seq, no metric
+    for at in (first_death, died):
+        kind, ddeath = msgs[at]
+        assert kind == "DDEATH/coolpro-40"
+        assert flags[at] == (0, False)
+        assert ddeath.HasField("timestamp") and ddeath.HasField("seq") and not ddeath.metrics
+        assert stopped_at * 1000 - 1000 <= ddeath.timestamp <= time.time() * 1000
     # it comes after every DDATA of the samples taken before the device stopped
     con = sqlite3.connect(db)
     last_before = con.execute("SELECT MAX(id) FROM samples WHERE time_utc < ?",
@@ -546,22 +579,95 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
                          "('timeout', 'connection', 'protocol', 'error')").fetchone()[0]
     con.close()
     assert faults >= DOWN_AFTER
-    before = _sample_ids(pb, sub.snapshot()[:died])
+    before = _sample_ids(pb, [m for m, _ in published[:first_death]])
     assert max(before) == last_before
     # then a DBIRTH (every metric, named and aliased) before the next DDATA
-    after = [k for k, _ in msgs[died + 1:] if k != "NDEATH"]
-    assert after[0] == "DBIRTH/coolpro-40", after[:3]
-    dbirth = msgs[died + 1][1]
+    after = [(k, p) for k, p in msgs[died + 1:] if k not in ("NDEATH", "NDATA")]
+    assert after[0][0] == "DBIRTH/coolpro-40", [k for k, _ in after[:3]]
+    dbirth = after[0][1]
     assert {m.name for m in dbirth.metrics} >= {"sample", "output_voltage_v", "status"}
     assert all(m.HasField("alias") for m in dbirth.metrics)
-    # seq: one more than the message before, wrapping, through the DDEATH and DBIRTH
-    seqs = [p.seq for k, p in msgs if k != "NDEATH"]
-    assert seqs == [i % 256 for i in range(len(seqs))]
+    # seq: 0 in NBIRTH, then one more than the message before, wrapping, through the
+    # DDEATHs and DBIRTHs
+    seqs = [(k, p.seq) for k, p in msgs if k != "NDEATH"]
+    assert seqs[0] == ("NBIRTH", 0)
+    for (_, prev), (k, seq) in pairwise(seqs):
+        assert seq == (0 if k == "NBIRTH" else (prev + 1) % 256), (k, prev, seq)
     want = db_ids(db)
     got = _sample_ids(pb, sub.snapshot())
     _report("Sparkplug, a device stopped and came back", want, got)
     assert set(got) == want
     sub.close()
+
+
+def test_sparkplug_profile_device_down_and_back(sparkplug_pb: Any) -> None:
+    """The profile alone: DDEATH only for a device born in the session; the backlog
+    of a device that is down goes as historical DDATA without a DBIRTH (it stays
+    down); its next live sample brings a DBIRTH first."""
+    from pymb.fleet.config import MqttConfig
+    from pymb.fleet.profiles import SparkplugProfile
+    from pymb.fleet.source import COOLPRO_FIELDS, Record
+    pb = sparkplug_pb
+    prof = SparkplugProfile(MqttConfig("mqtt://127.0.0.1", profile="sparkplug",
+                                       node=NODE, group=GROUP))
+
+    def rec(i: int) -> Record:
+        return Record(i, "bus1", "coolpro-40", "coolpro", 40, 1700000000.0 + i,
+                      {f: (i if f in ("uptime_s", "status") else 1.5) for f in COOLPRO_FIELDS},
+                      None)
+
+    def kinds(msgs: Any) -> list[str]:
+        return [m.topic.split("/", 2)[2] for m in msgs]
+
+    assert prof.device_down("hub-9") == []  # never born: nothing to say
+    assert kinds(prof.data(rec(1), False)) == [f"DBIRTH/{NODE}/coolpro-40",
+                                               f"DDATA/{NODE}/coolpro-40"]
+    assert kinds(prof.data(rec(2), False)) == [f"DDATA/{NODE}/coolpro-40"]
+    down = prof.device_down("coolpro-40")
+    assert kinds(down) == [f"DDEATH/{NODE}/coolpro-40"] and down[0].qos == 0
+    assert prof.device_down("coolpro-40") == []  # already down
+    hist = prof.data(rec(3), True)
+    assert kinds(hist) == [f"DDATA/{NODE}/coolpro-40"]
+    assert all(m.is_historical for m in pb.FromString(hist[0].payload).metrics)
+    back = prof.data(rec(4), False)
+    assert kinds(back) == [f"DBIRTH/{NODE}/coolpro-40", f"DDATA/{NODE}/coolpro-40"]
+    seqs = [pb.FromString(m.payload).seq for m in down + hist + back]
+    assert seqs == [3, 4, 5, 6]
+
+
+def test_device_health_counts_faults_in_a_row() -> None:
+    """Down after DOWN_AFTER faults of any kind the logger records, with no sample
+    between them; a bus that cannot reconnect counts for each of its devices;
+    other events (connect, reconnect, trim, mqtt) do not count."""
+    from types import SimpleNamespace as NS
+
+    from pymb.fleet.health import DOWN_AFTER, DeviceHealth
+    from pymb.store import DeviceInfo, Event
+    a = DeviceInfo("b1", "p", "coolpro", 40, "coolpro-40")
+    b = DeviceInfo("b1", "p", "hub", 250, "hub-250")
+    h = DeviceHealth()
+
+    def ev(kind: str, dev: DeviceInfo | None, t: float = 1.0) -> Event:
+        return Event(t, 0.0, "b1", dev, kind, None, "x")
+
+    h.sample(NS(device=a, time_utc=5.0))
+    h.sample(NS(device=b, time_utc=6.0))
+    for kind in ("exception", "busy", "reconnect", "connect", "trim"):
+        h.event(ev(kind, a))
+    assert h.take() == [] and DOWN_AFTER == 3
+    h.event(ev("timeout", a, 7.0))
+    [d] = h.take()
+    assert (d.device, d.last_sample, d.time_utc) == ("coolpro-40", 5.0, 7.0)
+    h.event(ev("protocol", b))
+    h.sample(NS(device=b, time_utc=8.0))  # a sample: the count starts again
+    h.event(ev("protocol", b))
+    h.event(ev("connection", None))
+    assert h.take() == []
+    h.event(ev("connection", None, 9.0))
+    assert [(d.device, d.last_sample) for d in h.take()] == [("hub-250", 8.0)]
+    assert h.down == {"coolpro-40", "hub-250"}
+    h.sample(NS(device=a, time_utc=10.0))
+    assert h.down == {"hub-250"}
 
 
 def test_sparkplug_primary_host_state(mosquitto, simulator, sparkplug_pb,
@@ -603,8 +709,8 @@ def test_sparkplug_primary_host_state(mosquitto, simulator, sparkplug_pb,
         assert msgs[0][0] == "NBIRTH" and msgs[1][0] == "DBIRTH/coolpro-40"
         bd_seq = _metric(msgs[0][1], "bdSeq").long_value
         # what was logged while waiting goes as history
-        wait_for(lambda: set(range(1, waited + 1)) <= set(_sample_ids(pb, sub.snapshot())),
-                 60, "the samples logged while waiting")
+        wait_for(lambda: set(range(1, waited + 1)) <= _historical_ids(pb, sub.snapshot()),
+                 60, "the samples logged while waiting, as history")
         # a stale offline STATE (an old session's will): ignored; a Rebirth proves the
         # connection is the same one (same bdSeq, no NDEATH between)
         state(False, t1 - 1)
