@@ -351,19 +351,24 @@ def _metric(p: Any, name: str) -> Any:
 def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
     from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
     metrics = [
-        Metric("bdSeq", None, DataType.UINT64, 255, 1700000000123),
+        Metric("bdSeq", None, DataType.INT64, 255, 1700000000123),
         Metric("Node Control/Rebirth", 1, DataType.BOOLEAN, False, 5),
         Metric("t", 300000, DataType.DOUBLE, -12.5, 2**41, True),
         Metric(None, 7, DataType.UINT32, 0xFFFFFFFF),
         Metric("s", 8, DataType.STRING, "héllo"),
         Metric("n", 9, DataType.DOUBLE, None, None, False,
                (("Quality", DataType.INT32, 0), ("state", DataType.STRING, "no_sensor"))),
+        Metric("u", 10, DataType.UINT64, 2**64 - 1, 1),
+        Metric("i", 11, DataType.INT64, -2, 1),
     ]
     p = sparkplug_pb.FromString(encode_payload(metrics, timestamp=1700000000999, seq=200))
     assert p.timestamp == 1700000000999 and p.seq == 200
     m = p.metrics
     assert (m[0].name, m[0].datatype, m[0].long_value, m[0].timestamp) == \
-        ("bdSeq", 8, 255, 1700000000123)
+        ("bdSeq", 4, 255, 1700000000123)
+    # Int64 in long_value as two's complement (the .proto's uint64)
+    assert (m[6].datatype, m[6].long_value) == (8, 2**64 - 1)
+    assert (m[7].datatype, m[7].long_value) == (4, 2**64 - 2)
     assert not m[0].HasField("alias")
     assert (m[1].alias, m[1].datatype, m[1].boolean_value) == (1, 11, False)
     assert m[1].HasField("boolean_value")
@@ -397,7 +402,7 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator
         kind, nbirth = msgs[0]
         assert kind == "NBIRTH" and nbirth.seq == 0
         bd = _metric(nbirth, "bdSeq")
-        assert bd.datatype == 8
+        assert bd.datatype == 4  # Int64, as Sparkplug 3.0 says for the will and NBIRTH
         bd_seq = bd.long_value
         rebirth = _metric(nbirth, "Node Control/Rebirth")
         assert rebirth.datatype == 11 and rebirth.boolean_value is False
@@ -433,6 +438,7 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator
         wait_for(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", 30, "the NDEATH")
         kind, ndeath = _sp(pb, sub.snapshot()[-1:])[0]
         assert _metric(ndeath, "bdSeq").long_value == bd_seq
+        assert _metric(ndeath, "bdSeq").datatype == 4 and not ndeath.HasField("seq")
         # the next run counts bdSeq on, and ends with its own NDEATH
         n = len(sub.snapshot())
         proc = start_log(simulator, db, *sp)

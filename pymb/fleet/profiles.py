@@ -171,7 +171,8 @@ class SparkplugProfile(Profile):
         source.set_state(self.state_key, self.bd_seq)
 
     def _bd_metric(self) -> Metric:
-        return Metric(BDSEQ, None, DataType.UINT64, self.bd_seq, _ms(time.time()))
+        # Sparkplug 3.0: "a metric with the name of 'bdSeq', the datatype of INT64"
+        return Metric(BDSEQ, None, DataType.INT64, self.bd_seq, _ms(time.time()))
 
     def will(self) -> Message:
         """NDEATH with this connection's bdSeq, QoS 1, not retained."""

@@ -28,6 +28,7 @@ class DataType(IntEnum):
     """Sparkplug B ``DataType`` values used by pymb (from the .proto)."""
 
     INT32 = 3
+    INT64 = 4
     UINT32 = 7
     UINT64 = 8
     FLOAT = 9
@@ -117,6 +118,8 @@ def _metric(m: Metric) -> bytes:
         out += _key(12, 5) + struct.pack("<f", float(v))
     elif dt == DataType.UINT64:
         out += _uint(11, int(v))
+    elif dt == DataType.INT64:  # long_value, two's complement
+        out += _uint(11, int(v) & 0xFFFFFFFFFFFFFFFF)
     else:  # INT32 / UINT32: int_value, a uint32 on the wire
         out += _uint(10, int(v) & 0xFFFFFFFF)
     return bytes(out)
