@@ -491,8 +491,9 @@ _EVENT_KIND: list[tuple[type[BaseException], str]] = [
     (ModbusConnectionError, "connection"),
     (ModbusError, "error"),
 ]
-#: the kinds of the events that mean a device gave no value (a fault)
-FAULT_KINDS = frozenset(k for _, k in _EVENT_KIND)
+#: the kinds of the events that mean a device gave no value (a fault): an error,
+#: or a hub that answered with every block unsupported (``no_value``)
+FAULT_KINDS = frozenset([*(k for _, k in _EVENT_KIND), "no_value"])
 
 
 def _kind(e: BaseException) -> str:

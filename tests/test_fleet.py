@@ -666,7 +666,7 @@ def test_device_health_counts_faults_in_a_row() -> None:
     assert (d.device, d.last_sample, d.time_utc) == ("coolpro-40", 5.0, 7.0)
     h.event(ev("protocol", b))
     h.sample(NS(device=b, time_utc=8.0))  # a sample: the count starts again
-    h.event(ev("protocol", b))
+    h.event(ev("no_value", b))  # a hub that answered with every block unsupported
     h.event(ev("connection", None))
     assert h.take() == []
     h.event(ev("connection", None, 9.0))
