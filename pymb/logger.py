@@ -14,6 +14,9 @@ Configuration, as flags (one bus) or a TOML file (any number)::
     path = "pymb.sqlite"       # "-" for stdout (csv, jsonl)
     max_mb = 500               # optional: delete the oldest data past this size
     max_age_days = 30          # optional: ... or past this age
+    on_change = false          # optional: store by exception (SQLite)
+    heartbeat_s = 60           # ... every channel at least this often
+    deadband = { temperature_c = 0.2, humidity_pct = 1 }   # ... engineering units
 
     [[bus]]
     name = "line1"
@@ -67,9 +70,7 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
-from pymb.fleet.config import MqttConfig, from_table
-from pymb.store import CSV_COLUMNS, DeviceInfo, Event, OutputError, Sample, Sink, open_sink
-from pymb.wire import bits_per_char, read_time
+from pymb.store import DeviceInfo, Event, OnChange, OutputError, Sample, Sink, open_sink
 
 __all__ = [
     "FAULT_KINDS",
@@ -311,7 +312,15 @@ class LogConfig:
     max_age: float | None = None
     batch: int = 200  #: samples per commit, at most
     commit_interval: float = 0.5  #: seconds between commits, at most
-    mqtt: MqttConfig | None = None  #: forward the samples to a broker (SQLite only)
+    on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
+
+    def __post_init__(self) -> None:
+        if self.max_bytes is not None and not self.max_bytes > 0:
+            raise InvalidArgument(f"--max-mb / max_mb must be a positive number of megabytes, "
+                                  f"got {self.max_bytes / 1e6:g}")
+        if self.max_age is not None and not self.max_age > 0:
+            raise InvalidArgument(f"--max-age-days / max_age_days must be a positive number "
+                                  f"of days, got {self.max_age / 86400:g}")
 
     def __post_init__(self) -> None:
         check_buses(self.buses)
@@ -428,17 +437,20 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
         raise InvalidArgument(f"{path}: no [[bus]] configured")
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
-    mqtt = _get(doc, "mqtt", dict, str(path))
-    try:
-        return LogConfig(
-            buses, _get(out, "format", str, f"{path}: output", "sqlite"),
-            _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
-            None if max_mb is None else int(max_mb * 1e6),
-            None if max_days is None else float(max_days) * 86400,
-            mqtt=None if mqtt is None else from_table(mqtt, str(path)),
-        )
-    except InvalidArgument as e:
-        raise InvalidArgument(f"{path}: {e}") from None
+    on_change = None
+    if _get(out, "on_change", bool, f"{path}: output", False):
+        bands = _get(out, "deadband", dict, f"{path}: output", {})
+        for k in bands:
+            _get(bands, k, (int, float), f"{path}: output.deadband")
+        on_change = OnChange(float(_get(out, "heartbeat_s", (int, float), f"{path}: output",
+                                        60.0)), {k: float(v) for k, v in bands.items()})
+    return LogConfig(
+        buses, _get(out, "format", str, f"{path}: output", "sqlite"),
+        _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
+        None if max_mb is None else int(max_mb * 1e6),
+        None if max_days is None else float(max_days) * 86400,
+        on_change=on_change,
+    )
 
 
 # -- polling ------------------------------------------------------------------------
@@ -529,8 +541,10 @@ class _BusPoller(threading.Thread):
         self.devices: list[_Device] = []
         stats.opened.setdefault(bus.name, False)
         for d in bus.devices:
-            assert d.address is not None
-            info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name)
+            units = d.humidity_unit
+            info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
+                              d.channels if d.type == "hub" else 0,
+                              tuple(units) if isinstance(units, list) else units)
             if d.type == "coolpro":
                 self.devices.append(_Device(info, d, CoolPro(self.client, d.address)
                                             .read_telemetry, None))
@@ -721,8 +735,8 @@ class Logger:
                  extra_status: Callable[[], str] | None = None) -> None:
         self.config = config
         self.extra_status = extra_status  #: appended to the status line (the forwarder's)
-        if sink is None:
-            check_output(config.format, config.path)
+        self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
+                                      max_age=config.max_age, on_change=config.on_change)
         self.status_out = status
         self._stop = threading.Event()
         self.stats = _Stats()

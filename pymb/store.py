@@ -23,14 +23,13 @@ import sys
 import time
 from array import array
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
-from itertools import repeat
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from pymb import __version__
-from pymb.devices import HUB, CoolProTelemetry, HubReading, State
-from pymb.devices.maps import COOLPRO
+from pymb import __version__, _native
+from pymb.devices import HUB, CoolProStatus, CoolProTelemetry, HubReading, State, decode_hub
+from pymb.devices.maps import COOLPRO, Type
 from pymb.errors import InvalidArgument
 
 __all__ = [
@@ -38,14 +37,17 @@ __all__ = [
     "DeviceInfo",
     "Event",
     "JsonlSink",
+    "OnChange",
     "OutputError",
     "Sample",
     "Sink",
     "SqliteSink",
+    "StoredSample",
     "open_sink",
+    "samples_after",
+    "schema_version",
 ]
 
-SCHEMA_VERSION = 1
 _COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 _HUB_FIELDS = [b.name for b in HUB.blocks]
 
@@ -58,13 +60,17 @@ class OutputError(Exception):
 
 @dataclass(frozen=True)
 class DeviceInfo:
-    """A logged device: its bus, port, type (``coolpro``/``hub``), address, name."""
+    """A logged device: its bus, port, type (``coolpro``/``hub``), address,
+    name; for a hub, its channels (0: as read) and humidity unit (1 or 0.1 %,
+    one for all channels or a tuple, one per channel)."""
 
     bus: str
     port: str
     type: str
     address: int
     name: str
+    channels: int = 0
+    humidity_unit: float | tuple[float, ...] = 0.1
 
 
 @dataclass(frozen=True)
@@ -119,109 +125,406 @@ class Sink(Protocol):
 
 
 # -- SQLite ---------------------------------------------------------------------------
+#
+# Format 2 (SCHEMA_VERSION): what the wire gave, stored once.
+#
+#   samples      one row per stored reading: device, UTC and monotonic time, the raw
+#                registers as a BLOB of big-endian 16-bit words from the map's first
+#                register (hub: registers 31..730, block-major, 1,400 bytes; CoolPro:
+#                input registers 0..7, 16 bytes), and the hub blocks the firmware lacks
+#                (a bit mask, bit = block index). Indexed by time_utc.
+#   hub_changes  --on-change hub readings: only the channels that moved past their
+#                deadband (or whose heartbeat came), 7 registers each (14 bytes, block
+#                order); their samples row has registers NULL.
+#   devices      one row per device configuration (bus, port, type, address, name,
+#                channels, humidity units); channels: a hub's channels with the humidity
+#                unit of each (1: 0.1 %, 0: 1 %).
+#   events       faults, reconnects, trimming.
+#
+# Decoded values are views, in plain SQL (no extension; Debian 12's sqlite3 3.40):
+# hub_readings / hub and coolpro_readings / coolpro, with the same columns as the tables
+# of format 1. The decoding rules of the C core are written out in SQL below, generated
+# from the device maps, and tested value by value against the C decoder.
+
+SCHEMA_VERSION = 2
+PAGE_SIZE = 8192  #: 5 hub sweeps a page (4,096 would hold 2: 2,048 B a sweep)
+_WAL_MIN, _WAL_MAX = 256 * 1024, 8 * 1024 * 1024
+MIN_BYTES = 1_000_000  #: the smallest size bound accepted (schema pages and a WAL budget)
+
+_DIGITS = "'123456789ABCDEF'"  # instr() of a hex digit in this is its value ('0' -> 0)
+
+
+def _digit(h: str, i: int) -> str:
+    return f"instr({_DIGITS}, substr({h}, {i}, 1))"
+
+
+def _u16(h: str) -> str:
+    """The unsigned value of 4 hex digits ``h`` (an SQL expression)."""
+    return (f"({_digit(h, 1)} * 4096 + {_digit(h, 2)} * 256 + {_digit(h, 3)} * 16 + "
+            f"{_digit(h, 4)})")
+
+
+def _hub_columns() -> tuple[list[str], list[str]]:
+    """SQL for the hub's decoded values and states, one pair per block."""
+    values, states = [], []
+    for b in HUB.blocks:
+        h = (f"hex(CASE WHEN s.registers IS NULL THEN substr(x.registers, {2 * b.index + 1}, 2)"
+             f" ELSE substr(s.registers, {2 * b.index * HUB.channels + 1} + 2 * (c.channel - 1),"
+             f" 2) END)")
+        unsupported = f"((s.unsupported >> {b.index}) & 1)"
+        offline = "'FFFF'"
+        if b.name == "humidity_pct":
+            tenths, one = (f"'{m:04X}'" for m, _ in b.markers[2:0:-1])
+            no_sensor = f"{h} = CASE WHEN c.humidity_tenths THEN {tenths} ELSE {one} END"
+        else:
+            no_sensor = "0"
+        if b.type is Type.SIGN_MAGNITUDE:
+            raw = (f"(CASE WHEN {_digit(h, 1)} >= 8 THEN -1 ELSE 1 END) * (({_digit(h, 1)} % 8)"
+                   f" * 4096 + {_digit(h, 2)} * 256 + {_digit(h, 3)} * 16 + {_digit(h, 4)})")
+        elif b.type is Type.I16:
+            raw = f"({_u16(h)} - CASE WHEN {_digit(h, 1)} >= 8 THEN 65536 ELSE 0 END)"
+        else:
+            raw = _u16(h)
+        if b.per_channel_scales:
+            scaled = f"CASE WHEN c.humidity_tenths THEN {raw} / 10.0 ELSE {raw} * 1.0 END"
+        elif b.scale == 0.1:
+            scaled = f"{raw} / 10.0"
+        else:
+            scaled = f"{raw} * {b.scale:g}.0" if b.scale == int(b.scale) else f"{raw} * {b.scale}"
+        values.append(f"CASE WHEN {unsupported} OR {h} = {offline} OR ({no_sensor}) THEN NULL "
+                      f"ELSE {scaled} END AS {b.name}")
+        states.append(f"CASE WHEN {unsupported} THEN {int(State.UNSUPPORTED)} "
+                      f"WHEN {h} = {offline} THEN {int(State.OFFLINE)} "
+                      f"WHEN {no_sensor} THEN {int(State.NO_SENSOR)} "
+                      f"ELSE {int(State.VALUE)} END AS {b.name}_state")
+    return values, states
+
+
+def _coolpro_columns() -> list[str]:
+    first = COOLPRO.span("telemetry")[1]
+    out = []
+    for r in COOLPRO.group("telemetry"):
+        i = r.address - first
+
+        def word(k: int) -> str:
+            return _u16(f"hex(substr(s.registers, {2 * k + 1}, 2))")
+
+        if r.type is Type.U32_LE_WORDS:
+            expr = f"{word(i)} + 65536 * {word(i + 1)}"
+        elif r.scale == 0.001:
+            expr = f"{word(i)} / 1000.0"
+        else:
+            expr = word(i)
+        out.append(f"{expr} AS {r.name}")
+    return out
+
+
+_HUB_VALUES, _HUB_STATES = _hub_columns()
+_TIME = "strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch')"
 
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT);
 CREATE TABLE IF NOT EXISTS devices(
     id INTEGER PRIMARY KEY, bus TEXT NOT NULL, port TEXT NOT NULL, type TEXT NOT NULL,
-    address INTEGER NOT NULL, name TEXT NOT NULL, UNIQUE(bus, address, type));
+    address INTEGER NOT NULL, name TEXT NOT NULL,
+    channels INTEGER NOT NULL DEFAULT 0,   -- hub: channels logged
+    humidity_units TEXT NOT NULL DEFAULT '', -- hub: '0.1', '1', or one per channel
+    UNIQUE(bus, port, type, address, name, channels, humidity_units));
+CREATE TABLE IF NOT EXISTS channels(
+    device_id INTEGER NOT NULL REFERENCES devices(id), channel INTEGER NOT NULL,
+    humidity_tenths INTEGER NOT NULL,  -- 1: the channel's humidity is in 0.1 %, 0: in 1 %
+    PRIMARY KEY(device_id, channel)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS samples(
     id INTEGER PRIMARY KEY, device_id INTEGER NOT NULL REFERENCES devices(id),
     time_utc REAL NOT NULL, monotonic REAL NOT NULL,
-    registers BLOB NOT NULL  -- big-endian 16-bit words, from the map's first register
+    registers BLOB,  -- big-endian 16-bit words from the map's first register; NULL: hub_changes
+    unsupported INTEGER NOT NULL DEFAULT 0  -- hub blocks the firmware lacks (bit = block)
 );
 CREATE INDEX IF NOT EXISTS samples_time ON samples(time_utc);
-CREATE TABLE IF NOT EXISTS coolpro(
-    sample_id INTEGER PRIMARY KEY REFERENCES samples(id),
-    {", ".join(f"{n} {'INTEGER' if n in ('uptime_s', 'status') else 'REAL'}"
-               for n in _COOLPRO_FIELDS)});
-CREATE TABLE IF NOT EXISTS hub(
-    sample_id INTEGER NOT NULL REFERENCES samples(id), channel INTEGER NOT NULL,
-    {", ".join(f"{n} REAL" for n in _HUB_FIELDS)},
-    {", ".join(f"{n}_state INTEGER" for n in _HUB_FIELDS)},
-    PRIMARY KEY(sample_id, channel)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS hub_changes(
+    device_id INTEGER NOT NULL, channel INTEGER NOT NULL, time_utc REAL NOT NULL,
+    sample_id INTEGER NOT NULL REFERENCES samples(id),
+    registers BLOB NOT NULL,  -- the channel's 7 registers, block order, big-endian
+    PRIMARY KEY(device_id, channel, time_utc, sample_id)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS states(code INTEGER PRIMARY KEY, name TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS events(
     id INTEGER PRIMARY KEY, time_utc REAL NOT NULL, monotonic REAL NOT NULL, bus TEXT,
     device_id INTEGER REFERENCES devices(id), kind TEXT NOT NULL, code INTEGER,
     message TEXT NOT NULL);
 CREATE INDEX IF NOT EXISTS events_time ON events(time_utc);
--- Views are recreated on every open, so a file written by an older pymb gets
--- the current ones (UTC times with milliseconds; no 'subsec', which needs
--- SQLite 3.42 while Debian 12 has 3.40).
+-- Views are recreated on every open (UTC times with milliseconds; no 'subsec', which
+-- needs SQLite 3.42 while Debian 12 has 3.40).
+DROP VIEW IF EXISTS hub;
+DROP VIEW IF EXISTS coolpro;
 DROP VIEW IF EXISTS coolpro_readings;
 DROP VIEW IF EXISTS hub_readings;
 DROP VIEW IF EXISTS event_log;
-CREATE VIEW coolpro_readings AS
-    SELECT strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch') AS time, s.time_utc,
-           d.name AS device,
-           d.address, c.*
-      FROM coolpro c JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id;
 CREATE VIEW hub_readings AS
-    SELECT strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch') AS time, s.time_utc,
-           d.name AS device,
-           d.address, h.*
-      FROM hub h JOIN samples s ON s.id = h.sample_id JOIN devices d ON d.id = s.device_id;
+    SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
+           c.channel, {", ".join(_HUB_VALUES)}, {", ".join(_HUB_STATES)}
+      FROM samples s JOIN devices d ON d.id = s.device_id
+      JOIN channels c ON c.device_id = s.device_id
+      LEFT JOIN hub_changes x ON x.device_id = s.device_id AND x.channel = c.channel
+                             AND x.time_utc = s.time_utc AND x.sample_id = s.id
+     WHERE s.registers IS NOT NULL OR x.registers IS NOT NULL;
+CREATE VIEW hub AS
+    SELECT sample_id, channel, {", ".join(b.name for b in HUB.blocks)},
+           {", ".join(b.name + "_state" for b in HUB.blocks)} FROM hub_readings;
+CREATE VIEW coolpro_readings AS
+    SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
+           {", ".join(_coolpro_columns())}
+      FROM samples s JOIN devices d ON d.id = s.device_id WHERE d.type = 'coolpro';
+CREATE VIEW coolpro AS
+    SELECT sample_id, {", ".join(_COOLPRO_FIELDS)} FROM coolpro_readings;
 CREATE VIEW event_log AS
-    SELECT strftime('%Y-%m-%d %H:%M:%f', e.time_utc, 'unixepoch') AS time, e.bus, d.name AS device,
-           e.kind, e.code, e.message
+    SELECT strftime('%Y-%m-%d %H:%M:%f', e.time_utc, 'unixepoch') AS time, e.time_utc, e.bus,
+           d.name AS device, e.kind, e.code, e.message
       FROM events e LEFT JOIN devices d ON d.id = e.device_id;
 """
 
 
-class SqliteSink:
-    """Writes samples and events to a SQLite database (created if missing).
+def schema_version(db: sqlite3.Connection) -> int | None:
+    """The pymb format of an open database: 1, 2, ..., 0 if empty, None if not pymb's."""
+    tables = {n for (n,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    if not tables:
+        return 0
+    if "meta" not in tables or "samples" not in tables:
+        return None
+    row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+    try:
+        return int(row[0]) if row else None
+    except ValueError:
+        return None
 
-    ``max_bytes`` / ``max_age`` (seconds) bound the database: the oldest
-    samples and events are deleted (and their pages reused) when it grows
-    past the size or the data gets older than the age.
+
+def _humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
+    u = d.humidity_unit
+    units = [u] * channels if isinstance(u, (int, float)) else list(u)
+    if len(units) != channels:
+        raise InvalidArgument(f"{d.name}: {len(units)} humidity units for {channels} channels")
+    tenths = bytes(0 if x == 1 else 1 for x in units)
+    text = f"{units[0]:g}" if len(set(units)) == 1 else ",".join(f"{x:g}" for x in units)
+    return text, tenths
+
+
+@dataclass
+class OnChange:
+    """Report by exception (``pymb log --on-change``).
+
+    A hub channel is stored when one of its quantities moved more than its
+    ``deadband`` (engineering units, by quantity name; 0 or absent: any change)
+    since the channel was last stored, when a state changes (offline, no
+    sensor, unsupported), and at least every ``heartbeat`` seconds. A
+    CoolPro sample is stored on the same rules over its quantities (its
+    uptime only when it restarts). The value at time t is then the last
+    stored row at or before t (see the README).
+    """
+
+    heartbeat: float = 60.0
+    deadband: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (self.heartbeat > 0 and math.isfinite(self.heartbeat)):
+            raise InvalidArgument(f"the heartbeat must be a positive number of seconds, "
+                                  f"got {self.heartbeat!r}")
+        known = set(_HUB_FIELDS) | set(_COOLPRO_FIELDS) - {"uptime_s", "status"}
+        for name, value in self.deadband.items():
+            if name not in known:
+                raise InvalidArgument(f"no quantity {name!r} for a deadband; use one of "
+                                      f"{', '.join(sorted(known))}")
+            if not (value >= 0 and math.isfinite(value)):
+                raise InvalidArgument(f"deadband of {name} must be >= 0, got {value!r}")
+
+
+class _HubChanges:
+    """Which channels of a hub sweep to store, against what was last stored."""
+
+    def __init__(self, rules: OnChange, channels: int) -> None:
+        self.rules = rules
+        self.channels = channels
+        self.bands = [rules.deadband.get(b.name, 0.0) for b in HUB.blocks]
+        self.regs: array[int] | None = None  # the previous sweep's registers
+        self.mask = -1
+        self.values = array("d", bytes(8 * 7 * channels))  # last stored, per channel
+        self.states = array("B", bytes(7 * channels))
+        self.due = [0.0] * channels  # heartbeat deadline per channel (monotonic)
+        self.next_due = 0.0
+
+    def changed(self, data: HubReading, now: float) -> list[int]:
+        """0-based channels to store now (and remembers them as stored)."""
+        c = self.channels
+        regs = data.registers
+        if self.regs is None or data.unsupported_mask != self.mask:
+            pick = set(range(c))
+        else:
+            pick = set()
+            prev = self.regs
+            n = HUB.channels
+            for b in range(len(HUB.blocks)):
+                lo = b * n
+                if regs[lo:lo + c] == prev[lo:lo + c]:
+                    continue  # nothing in this block moved since the last sweep
+                band = self.bands[b]
+                vals, sts = data.values, data.raw_states
+                for ch in range(c):
+                    if ch in pick or regs[lo + ch] == prev[lo + ch]:
+                        continue
+                    i = b * c + ch
+                    if sts[i] != self.states[i] or (
+                            sts[i] == 0 and abs(vals[i] - self.values[i]) > band):
+                        pick.add(ch)
+            if now >= self.next_due:
+                pick.update(ch for ch in range(c) if now >= self.due[ch])
+        self.regs = array("H", regs)
+        self.mask = data.unsupported_mask
+        if pick:
+            vals, sts = data.values, data.raw_states
+            for ch in pick:
+                for b in range(len(HUB.blocks)):
+                    i = b * c + ch
+                    self.values[i] = vals[i]
+                    self.states[i] = sts[i]
+                self.due[ch] = now + self.rules.heartbeat
+            self.next_due = min(self.due)
+        return sorted(pick)
+
+
+class _CoolProChanges:
+    _FIELDS = ("input_voltage_v", "input_current_a", "output_voltage_v", "output_current_a",
+               "temperature_c")
+
+    def __init__(self, rules: OnChange) -> None:
+        self.rules = rules
+        self.last: CoolProTelemetry | None = None
+        self.due = 0.0
+
+    def changed(self, data: CoolProTelemetry, now: float) -> bool:
+        last = self.last
+        store = (last is None or now >= self.due or data.status != last.status
+                 or data.uptime_s < last.uptime_s
+                 or any(abs(getattr(data, f) - getattr(last, f))
+                        > self.rules.deadband.get(f, 0.0) for f in self._FIELDS))
+        if store:
+            self.last = data
+            self.due = now + self.rules.heartbeat
+        return store
+
+
+class SqliteSink:
+    """Writes samples and events to a SQLite database of format 2 (created if
+    missing; a database of an older pymb format is refused, never mixed).
+
+    ``max_bytes`` / ``max_age`` (seconds) bound the database: past the size
+    (the database file and its WAL together, checked at every commit) or the
+    age, the oldest samples and events are deleted and their pages reused.
+    ``on_change`` stores readings by exception (see :class:`OnChange`).
+
+    If the database has an ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
+    table (a forwarder's cursors: the last sample each has sent), trimming
+    past the lowest cursor records an ``unsent_deleted`` event saying how
+    many samples were deleted before they were sent.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, max_bytes: int | None = None,
-                 max_age: float | None = None) -> None:
+                 max_age: float | None = None, on_change: OnChange | None = None) -> None:
         self.path = Path(path)
+        if max_bytes is not None and not max_bytes >= MIN_BYTES:
+            raise InvalidArgument(f"the size limit must be at least {MIN_BYTES / 1e6:g} MB, "
+                                  f"got {max_bytes / 1e6:g} MB")
+        if max_age is not None and not (max_age > 0 and math.isfinite(max_age)):
+            raise InvalidArgument(f"the age limit must be a positive number of days, "
+                                  f"got {max_age / 86400:g}")
         self.max_bytes = max_bytes
         self.max_age = max_age
+        self.on_change = on_change
+        self.trimmed = 0  #: samples deleted by the size and age limits so far
+        self.stored = 0  #: samples written (on-change: those that changed)
         try:
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-            self.db.execute("PRAGMA auto_vacuum = INCREMENTAL")
-            mode = self.db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-            self.db.execute("PRAGMA synchronous = NORMAL")
-            self.db.executescript(_SCHEMA)
         except sqlite3.Error as e:
             raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+        try:
+            self._open()
+        except sqlite3.Error as e:
+            self.db.close()
+            raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+        except InvalidArgument:
+            self.db.close()
+            raise
+        self._devices: dict[DeviceInfo, tuple[int, int]] = {}
+        self._changes: dict[int, _HubChanges | _CoolProChanges] = {}
+        self._in_tx = False
+        self._last_age_trim = time.monotonic()
+        self._wal = Path(f"{self.path}-wal")
+
+    def _open(self) -> None:
+        db = self.db
+        version = schema_version(db)
+        if version is None:
+            raise InvalidArgument(f"{self.path} is not a pymb database; log to a new file")
+        if version not in (0, SCHEMA_VERSION):
+            older = version < SCHEMA_VERSION
+            raise InvalidArgument(
+                f"{self.path} holds pymb format {version}, this pymb writes format "
+                f"{SCHEMA_VERSION}; " + ("log to a new file (pymb export still reads this one)"
+                                        if older else "use the newer pymb that wrote it"))
+        if version == 0:
+            db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
+            db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+        mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
         if mode != "wal":
             raise InvalidArgument(f"{self.path}: cannot use WAL journal mode ({mode})")
-        self.db.execute("BEGIN")
-        self.db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
+        db.execute("PRAGMA synchronous = NORMAL")
+        self.page_size = int(db.execute("PRAGMA page_size").fetchone()[0])
+        self.wal_budget = _WAL_MAX
+        if self.max_bytes is not None:
+            self.wal_budget = max(_WAL_MIN, min(_WAL_MAX, self.max_bytes // 16))
+        # Checkpoint at half the budget; truncate the WAL file back to it afterwards.
+        db.execute(f"PRAGMA wal_autocheckpoint = {max(16, self.wal_budget // 2 // self.page_size)}")
+        db.execute(f"PRAGMA journal_size_limit = {self.wal_budget // 2}")
+        db.execute("BEGIN")
+        for stmt in _statements(_SCHEMA):
+            db.execute(stmt)
+        db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
             ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__),
             ("registers", "big-endian 16-bit words from the device map's first register"),
         ])
-        self.db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
-                            [(s.value, s.name.lower()) for s in State])
-        self.db.execute("COMMIT")
-        self._devices: dict[DeviceInfo, int] = {}
-        self._in_tx = False
-        self._last_trim = time.monotonic()
+        db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
+                       [(s.value, s.name.lower()) for s in State])
+        db.execute("COMMIT")
 
     def _begin(self) -> None:
         if not self._in_tx:
             self.db.execute("BEGIN")
             self._in_tx = True
 
-    def _device_id(self, d: DeviceInfo) -> int:
-        did = self._devices.get(d)
-        if did is None:
-            self._begin()
-            self.db.execute(
-                "INSERT INTO devices(bus, port, type, address, name) VALUES (?, ?, ?, ?, ?) "
-                "ON CONFLICT(bus, address, type) DO UPDATE SET port = excluded.port, "
-                "name = excluded.name", (d.bus, d.port, d.type, d.address, d.name))
+    def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
+        """(device id, channels) of a device configuration, inserted on first use."""
+        got = self._devices.get(d)
+        if got is not None:
+            return got
+        channels, units, tenths = 0, "", b""
+        if d.type == "hub":
+            channels = data.channels if isinstance(data, HubReading) else (
+                d.channels or HUB.channels)
+            units, tenths = _humidity_units(d, channels)
+        key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
+        self._begin()
+        row = self.db.execute(
+            "SELECT id FROM devices WHERE bus = ? AND port = ? AND type = ? AND address = ? "
+            "AND name = ? AND channels = ? AND humidity_units = ?", key).fetchone()
+        if row is None:
             did = self.db.execute(
-                "SELECT id FROM devices WHERE bus = ? AND address = ? AND type = ?",
-                (d.bus, d.address, d.type)).fetchone()[0]
-            self._devices[d] = did
-        return did
+                "INSERT INTO devices(bus, port, type, address, name, channels, humidity_units) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
+            self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
+                                [(did, ch + 1, t) for ch, t in enumerate(tenths)])
+        else:
+            did = row[0]
+        got = (int(did), channels)  # type: ignore[arg-type]
+        if not isinstance(data, Event):
+            self._devices[d] = got
+        return got
 
     def _failed(self, e: Exception) -> OutputError:
         if self._in_tx:
@@ -229,6 +532,7 @@ class SqliteSink:
                 self.db.execute("ROLLBACK")
             self._in_tx = False
         self._devices.clear()  # ids inserted by the rolled-back batch are gone
+        self._changes.clear()  # what was "last stored" may be rolled back too
         return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
                            "is intact, the batch being written was lost")
 
@@ -240,28 +544,46 @@ class SqliteSink:
             raise self._failed(e) from None
 
     def _write(self, sample: Sample) -> None:
-        did = self._device_id(sample.device)
-        self._begin()
         data = sample.data
-        cur = self.db.execute(
-            "INSERT INTO samples(device_id, time_utc, monotonic, registers) VALUES (?, ?, ?, ?)",
-            (did, sample.time_utc, sample.monotonic,
-             _wire_bytes(data.registers)))
-        sid = cur.lastrowid
-        if isinstance(data, HubReading):
-            c = data.channels
-            values = [data.values[b * c:(b + 1) * c].tolist() for b in range(len(_HUB_FIELDS))]
-            states = [data.raw_states[b * c:(b + 1) * c].tolist()
-                      for b in range(len(_HUB_FIELDS))]
-            # NaN is stored as NULL by sqlite3; the *_state column says why.
-            self.db.executemany(
-                f"INSERT INTO hub VALUES ({', '.join('?' * (2 + 2 * len(_HUB_FIELDS)))})",
-                zip(repeat(sid), range(1, c + 1), *values, *states))
-        else:
+        did = self._device_id(sample.device, data)[0]
+        self._begin()
+        if self.on_change is None:
             self.db.execute(
-                f"INSERT INTO coolpro VALUES ({', '.join('?' * (1 + len(_COOLPRO_FIELDS)))})",
-                (sid, *(int(getattr(data, n)) if n in ("uptime_s", "status")
-                        else getattr(data, n) for n in _COOLPRO_FIELDS)))
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (did, sample.time_utc, sample.monotonic, _wire_bytes(data.registers),
+                 data.unsupported_mask if isinstance(data, HubReading) else 0))
+            self.stored += 1
+            return
+        rules = self._changes.get(did)
+        if isinstance(data, HubReading):
+            if not isinstance(rules, _HubChanges) or rules.channels != data.channels:
+                rules = self._changes[did] = _HubChanges(self.on_change, data.channels)
+            pick = rules.changed(data, sample.monotonic)
+            if not pick:
+                return
+            sid = self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+                "VALUES (?, ?, ?, NULL, ?)",
+                (did, sample.time_utc, sample.monotonic, data.unsupported_mask)).lastrowid
+            regs = data.registers
+            n = HUB.channels
+            blocks = range(len(HUB.blocks))
+            self.db.executemany(
+                "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
+                [(did, ch + 1, sample.time_utc, sid,
+                  _wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
+                 for ch in pick])
+        else:
+            if not isinstance(rules, _CoolProChanges):
+                rules = self._changes[did] = _CoolProChanges(self.on_change)
+            if not rules.changed(data, sample.monotonic):
+                return
+            self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers) "
+                "VALUES (?, ?, ?, ?)",
+                (did, sample.time_utc, sample.monotonic, _wire_bytes(data.registers)))
+        self.stored += 1
 
     def event(self, event: Event) -> None:
         """Add one event to the current batch."""
@@ -271,7 +593,7 @@ class SqliteSink:
             raise self._failed(e) from None
 
     def _event(self, event: Event) -> None:
-        did = None if event.device is None else self._device_id(event.device)
+        did = None if event.device is None else self._device_id(event.device, event)[0]
         self._begin()
         self.db.execute(
             "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
@@ -280,7 +602,8 @@ class SqliteSink:
              event.message))
 
     def commit(self) -> None:
-        """Commit the batch (and enforce the size and age limits now and then)."""
+        """Commit the batch, then hold the size limit (database and WAL) and,
+        every few seconds, the age limit."""
         try:
             self._commit()
         except sqlite3.Error as e:
@@ -290,38 +613,73 @@ class SqliteSink:
         if self._in_tx:
             self.db.execute("COMMIT")
             self._in_tx = False
-        now = time.monotonic()
-        if (self.max_bytes or self.max_age) and now - self._last_trim >= 5.0:
-            self._last_trim = now
+        if self.max_bytes is not None:
+            if self._wal_bytes() > self.wal_budget:
+                # A reader held the WAL back: catch up now that it may have let go.
+                self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+            if self._size() > self.max_bytes - self.wal_budget:
+                self.trim()
+                return
+        if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
             self.trim()
 
-    def _size(self) -> int:
-        page_count = self.db.execute("PRAGMA page_count").fetchone()[0]
+    def _wal_bytes(self) -> int:
+        try:
+            return self._wal.stat().st_size
+        except OSError:
+            return 0
+
+    def _pages(self) -> tuple[int, int]:
+        count = self.db.execute("PRAGMA page_count").fetchone()[0]
         free = self.db.execute("PRAGMA freelist_count").fetchone()[0]
-        page_size = self.db.execute("PRAGMA page_size").fetchone()[0]
-        return int((page_count - free) * page_size)
+        return int(count), int(free)
+
+    def _size(self) -> int:
+        """Bytes the data takes: pages in use plus the WAL."""
+        count, free = self._pages()
+        return (count - free) * self.page_size + self._wal_bytes()
 
     def trim(self) -> int:
         """Delete the oldest data beyond the limits; returns samples deleted."""
+        try:
+            return self._trim()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _trim(self) -> int:
         deleted = 0
-        if self.max_age:
+        if self.max_age is not None:
+            self._last_age_trim = time.monotonic()
             cutoff = time.time() - self.max_age
             deleted += self._delete_before(
                 "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ?", (cutoff,),
                 cutoff)
-        if self.max_bytes:
+        if self.max_bytes is not None:
+            # Delete down to 95 % of the room left beside the WAL budget, so the
+            # freed pages take the next inserts and the file stops growing.
+            room = self.max_bytes - self.wal_budget
             for _ in range(64):
-                if self._size() <= self.max_bytes:
+                count, free = self._pages()
+                used = (count - free) * self.page_size
+                if used <= room:
                     break
                 lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM samples").fetchone()
                 if lo is not None and lo < hi:
-                    # Drop the oldest tenth of the samples at a time.
-                    deleted += self._delete_before("SELECT ?", (lo + max(1, (hi - lo) // 10),),
-                                                   None)
+                    share = min(0.5, (used - 0.95 * room) / used)
+                    step = max(1, int((hi - lo) * share))
+                    deleted += self._delete_before("SELECT ?", (lo + step,), None)
                 elif not self._delete_oldest_events():
                     break  # nothing left that may go
-        if deleted:
-            self.db.execute("PRAGMA incremental_vacuum")
+            count, free = self._pages()
+            if count * self.page_size > room and free:
+                # The file is larger than the limit allows (a lower limit than
+                # last time): give the free pages back, a WAL budget at a time.
+                chunk = max(1, self.wal_budget // 2 // self.page_size)
+                while free > 0 and count * self.page_size > room:
+                    self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
+                    self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+                    count, free = self._pages()
+        self.trimmed += deleted
         return deleted
 
     def _delete_oldest_events(self) -> int:
@@ -333,8 +691,21 @@ class SqliteSink:
         n = self.db.execute("DELETE FROM events WHERE id < ?",
                             (lo + max(1, (hi - lo) // 10),)).rowcount
         self.db.execute("COMMIT")
-        self.db.execute("PRAGMA incremental_vacuum")
         return int(n)
+
+    def _unsent(self, first_kept: int) -> tuple[int, str] | None:
+        """Samples about to go that a forwarder (the ``outbox`` table) has not sent."""
+        has = self.db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' "
+                              "AND name = 'outbox'").fetchone()
+        if not has:
+            return None
+        row = self.db.execute("SELECT name, sample_id FROM outbox "
+                              "ORDER BY sample_id LIMIT 1").fetchone()
+        if row is None or row[1] is None or row[1] + 1 >= first_kept:
+            return None
+        n = self.db.execute("SELECT COUNT(*) FROM samples WHERE id > ? AND id < ?",
+                            (row[1], first_kept)).fetchone()[0]
+        return (int(n), str(row[0])) if n else None
 
     def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
@@ -344,9 +715,17 @@ class SqliteSink:
             first_kept = self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 1
         self.db.execute("BEGIN")
         try:
-            self._unsent_event(first_kept)
-            self.db.execute("DELETE FROM hub WHERE sample_id < ?", (first_kept,))
-            self.db.execute("DELETE FROM coolpro WHERE sample_id < ?", (first_kept,))
+            unsent = self._unsent(first_kept)
+            kept_time = self.db.execute("SELECT time_utc FROM samples WHERE id >= ? "
+                                        "ORDER BY id LIMIT 1", (first_kept,)).fetchone()
+            limit = cutoff if cutoff is not None else (
+                kept_time[0] if kept_time else math.inf)
+            for did, ch in self.db.execute(
+                    "SELECT device_id, channel FROM channels WHERE device_id IN "
+                    "(SELECT id FROM devices WHERE type = 'hub')").fetchall():
+                self.db.execute("DELETE FROM hub_changes WHERE device_id = ? AND channel = ? "
+                                "AND time_utc < ? AND sample_id < ?",
+                                (did, ch, limit, first_kept))
             n = self.db.execute("DELETE FROM samples WHERE id < ?", (first_kept,)).rowcount
             if cutoff is not None:
                 self.db.execute("DELETE FROM events WHERE time_utc < ?", (cutoff,))
@@ -354,6 +733,15 @@ class SqliteSink:
                 self.db.execute(
                     "DELETE FROM events WHERE time_utc < (SELECT COALESCE(MIN(time_utc), 0) "
                     "FROM samples)")
+            if unsent is not None:
+                why = (f"over {self.max_bytes / 1e6:g} MB" if cutoff is None and self.max_bytes
+                       else f"older than {(self.max_age or 0) / 86400:g} days")
+                self.db.execute(
+                    "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, "
+                    "message) VALUES (?, ?, NULL, NULL, 'unsent_deleted', ?, ?)",
+                    (time.time(), time.monotonic(), unsent[0],
+                     f"deleted {unsent[0]} samples not yet sent by {unsent[1]!r} "
+                     f"(the database was {why})"))
             self.db.execute("COMMIT")
         except BaseException:
             self.db.execute("ROLLBACK")
@@ -385,6 +773,152 @@ class SqliteSink:
             self.commit()
         finally:
             self.db.close()
+
+
+def _statements(script: str) -> list[str]:
+    """An SQL script as its statements (no trigger bodies here: split at ';')."""
+    out, buf = [], ""
+    for part in script.split(";"):
+        buf += part + ";"
+        if sqlite3.complete_statement(buf):
+            if buf.strip(" \n;"):
+                out.append(buf)
+            buf = ""
+    return out
+
+
+# -- reading back -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StoredSample:
+    """A sample as stored, decoded: what :func:`samples_after` yields.
+
+    ``values``: hub: a list of ``channels`` values per quantity (None where
+    there is none); CoolPro: one value per quantity (``uptime_s`` and
+    ``status`` as integers). ``states``: hub: a list of state names per
+    quantity (``value``, ``offline``, ``no_sensor``, ``unsupported``, and
+    ``not_read`` for channels an on-change sample did not store); CoolPro:
+    ``{"status_flags": [names]}``.
+    """
+
+    id: int
+    bus: str
+    device: str
+    type: str
+    address: int
+    time_utc: float
+    monotonic: float
+    values: dict[str, Any]
+    states: dict[str, list[str]]
+
+
+_STATE_NAMES = [s.name.lower() for s in State]
+
+
+class _Decoder:
+    """Decodes rows of ``samples`` (format 2), with the device rows cached."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+        self.devices: dict[int, tuple[str, str, str, int, int, Any]] = {}
+
+    def device(self, did: int) -> tuple[str, str, str, int, int, Any]:
+        got = self.devices.get(did)
+        if got is None:
+            bus, name, kind, address, channels = self.db.execute(
+                "SELECT bus, name, type, address, channels FROM devices WHERE id = ?",
+                (did,)).fetchone()
+            units: Any = 0.1
+            if kind == "hub":
+                units = [0.1 if t else 1 for (t,) in self.db.execute(
+                    "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel",
+                    (did,))]
+            got = self.devices[did] = (bus, name, kind, address, channels, units)
+        return got
+
+    def hub(self, did: int, channels: int, units: Any, t: float, sid: int,
+            registers: bytes | None, unsupported: int) -> HubReading:
+        if registers is not None:
+            regs = _host_words(registers)
+            present = None
+        else:
+            regs = array("H", bytes(2 * HUB.count))
+            present = []
+            rows = self.db.execute(
+                f"SELECT channel, registers FROM hub_changes WHERE device_id = ? AND channel IN "
+                f"({', '.join(str(c) for c in range(1, channels + 1))}) AND time_utc = ? "
+                f"AND sample_id = ?", (did, t, sid)).fetchall()
+            for ch, blob in rows:
+                words = _host_words(blob)
+                for b in range(len(HUB.blocks)):
+                    regs[b * HUB.channels + ch - 1] = words[b]
+                present.append(ch - 1)
+        names = [b.name for b in HUB.blocks if unsupported >> b.index & 1]
+        r = decode_hub(regs, units, channels=channels, unsupported=names)
+        if present is not None:
+            keep = set(present)
+            for b in range(len(HUB.blocks)):
+                for ch in range(channels):
+                    if ch not in keep:
+                        r.values[b * channels + ch] = math.nan
+                        r.raw_states[b * channels + ch] = State.NOT_READ
+        return r
+
+
+def _host_words(blob: bytes) -> array[int]:
+    a = array("H", blob)
+    if sys.byteorder == "little":
+        a.byteswap()
+    return a
+
+
+def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:
+    if isinstance(db, sqlite3.Connection):
+        return db, False
+    p = Path(db)
+    if not p.is_file():
+        raise InvalidArgument(f"no such database: {db}")
+    return sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True), True
+
+
+def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int,
+                  limit: int = 1000) -> list[StoredSample]:
+    """Committed samples with an id above ``sample_id``, in id order, at most
+    ``limit``, decoded (the reader of a store-and-forward publisher: keep the
+    last id sent as the cursor). ``db`` is an open connection or a path
+    (opened read-only). Only format 2; format 1 raises InvalidArgument."""
+    con, own = _connect(db)
+    try:
+        if schema_version(con) != SCHEMA_VERSION:
+            raise InvalidArgument("samples_after reads pymb databases of format "
+                                  f"{SCHEMA_VERSION} only")
+        return list(_iter_samples(con, "s.id > ?", (sample_id,), limit))
+    finally:
+        if own:
+            con.close()
+
+
+def _iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
+                  limit: int | None = None) -> Iterator[StoredSample]:
+    dec = _Decoder(con)
+    q = ("SELECT s.id, s.device_id, s.time_utc, s.monotonic, s.registers, s.unsupported "
+         f"FROM samples s WHERE {where} ORDER BY s.id" + ("" if limit is None else " LIMIT ?"))
+    for sid, did, t, mono, blob, unsupported in con.execute(
+            q, (*args, limit) if limit is not None else tuple(args)).fetchall():
+        bus, name, kind, address, channels, units = dec.device(did)
+        if kind == "hub":
+            r = dec.hub(did, channels, units, t, sid, blob, unsupported)
+            values: dict[str, Any] = r.as_dict()
+            states = {n: [_STATE_NAMES[s] for s in r.states(n).tolist()] for n in _HUB_FIELDS}
+        else:
+            regs = _host_words(blob)
+            vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+            values = dict(zip(_COOLPRO_FIELDS, (vin, iin, vout, iout, temp, uptime, status),
+                              strict=True))
+            flags = CoolProStatus(status)
+            states = {"status_flags": [f.name or "" for f in CoolProStatus if f in flags]}
+        yield StoredSample(sid, bus, name, kind, address, t, mono, values, states)
 
 
 # -- text formats ---------------------------------------------------------------------
@@ -523,14 +1057,14 @@ FORMATS = ("sqlite", "csv", "jsonl", "influx")
 
 
 def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
-              max_age: float | None = None) -> Sink:
-    """A sink of format ``sqlite``, ``csv``, ``jsonl`` or ``influx`` at ``path``
-    (``-``: stdout)."""
+              max_age: float | None = None, on_change: OnChange | None = None) -> Sink:
+    """A sink of format ``sqlite``, ``csv`` or ``jsonl`` at ``path`` (``-``: stdout)."""
     if fmt == "sqlite":
         if path == "-":
-            raise InvalidArgument(
-                "SQLite needs a file; use --format csv, jsonl or influx for stdout")
-        return SqliteSink(path, max_bytes=max_bytes, max_age=max_age)
+            raise InvalidArgument("SQLite needs a file; use --format csv or jsonl for stdout")
+        return SqliteSink(path, max_bytes=max_bytes, max_age=max_age, on_change=on_change)
+    if on_change is not None:
+        raise InvalidArgument("--on-change needs the SQLite format")
     if fmt == "csv":
         return CsvSink(path)
     if fmt == "jsonl":
@@ -543,36 +1077,22 @@ def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
 
 def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
                since: float | None = None, events: bool = False) -> int:
-    """Write a pymb SQLite database out as long-format CSV; returns rows."""
+    """Write a pymb SQLite database (format 1 or 2) out as long-format CSV;
+    returns rows."""
     if not Path(db_path).exists():
         raise InvalidArgument(f"no such database: {db_path}")
     # A URI, escaped: '%', '#' and '?' in a file name are the file name's.
     db = sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True)
     try:
+        version = schema_version(db)
+        if version not in (1, SCHEMA_VERSION):
+            raise InvalidArgument(f"{db_path} is not a pymb database this pymb can read")
         w = csv.writer(out)
         w.writerow(CSV_COLUMNS)
-        rows = 0
-        where, args = _filters(device, since)
-        for sql, fields in (
-            ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, NULL, {cols} FROM coolpro c "
-             "JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id",
-             _COOLPRO_FIELDS),
-            ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, h.channel, {cols} FROM hub h "
-             "JOIN samples s ON s.id = h.sample_id JOIN devices d ON d.id = s.device_id",
-             _HUB_FIELDS),
-        ):
-            hub = fields is _HUB_FIELDS
-            cols = ", ".join(fields + ([f"{f}_state" for f in fields] if hub else []))
-            q = sql.format(cols=cols) + where + " ORDER BY s.id" + (", h.channel" if hub else "")
-            for r in db.execute(q, args):
-                head = [f"{r[0]:.6f}", _iso(r[0]), r[1], r[2], r[3], r[4]]
-                n = len(fields)
-                for i, name in enumerate(fields):
-                    v = r[6 + i]
-                    state = State(r[6 + n + i]).name.lower() if hub else "value"
-                    w.writerow([*head, "" if r[5] is None else r[5], name,
-                                "" if v is None else v, state])
-                    rows += 1
+        if version == 1:
+            rows = _export_v1(db, w, device, since)
+        else:
+            rows = _export_v2(db, w, device, since)
         if events:
             q = ("SELECT e.time_utc, e.bus, d.name, d.type, d.address, e.kind, e.code, e.message "
                  "FROM events e LEFT JOIN devices d ON d.id = e.device_id")
@@ -587,6 +1107,67 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
         raise InvalidArgument(f"{db_path} is not a readable pymb database: {e}") from None
     finally:
         db.close()
+
+
+def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
+               since: float | None) -> int:
+    parts: list[str] = ["1"]
+    args: list[Any] = []
+    if device is not None:
+        parts.append("s.device_id IN (SELECT id FROM devices WHERE name = ?)")
+        args.append(device)
+    if since is not None:
+        parts.append("s.time_utc >= ?")
+        args.append(since)
+    rows = 0
+    last = 0
+    while True:  # in chunks: a long file never sits in memory
+        chunk = list(_iter_samples(db, " AND ".join([*parts, "s.id > ?"]), (*args, last), 500))
+        if not chunk:
+            return rows
+        for s in chunk:
+            head = [f"{s.time_utc:.6f}", _iso(s.time_utc), s.bus, s.device, s.type, s.address]
+            if s.type == "hub":
+                for name in _HUB_FIELDS:
+                    vals, sts = s.values[name], s.states[name]
+                    for ch, (v, st) in enumerate(zip(vals, sts, strict=True)):
+                        if st != "not_read":
+                            w.writerow([*head, ch + 1, name, "" if v is None else v, st])
+                            rows += 1
+            else:
+                for name in _COOLPRO_FIELDS:
+                    v = s.values[name]
+                    w.writerow([*head, "", name, "" if v is None else v, "value"])
+                    rows += 1
+        last = chunk[-1].id
+
+
+def _export_v1(db: sqlite3.Connection, w: Any, device: str | None,
+               since: float | None) -> int:
+    """Format 1 (pymb before format 2): decoded tables ``coolpro`` and ``hub``."""
+    rows = 0
+    where, args = _filters(device, since)
+    for sql, fields in (
+        ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, NULL, {cols} FROM coolpro c "
+         "JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id",
+         _COOLPRO_FIELDS),
+        ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, h.channel, {cols} FROM hub h "
+         "JOIN samples s ON s.id = h.sample_id JOIN devices d ON d.id = s.device_id",
+         _HUB_FIELDS),
+    ):
+        hub = fields is _HUB_FIELDS
+        cols = ", ".join(fields + ([f"{f}_state" for f in fields] if hub else []))
+        q = sql.format(cols=cols) + where + " ORDER BY s.id" + (", h.channel" if hub else "")
+        for r in db.execute(q, args):
+            head = [f"{r[0]:.6f}", _iso(r[0]), r[1], r[2], r[3], r[4]]
+            n = len(fields)
+            for i, name in enumerate(fields):
+                v = r[6 + i]
+                state = State(r[6 + n + i]).name.lower() if hub else "value"
+                w.writerow([*head, "" if r[5] is None else r[5], name,
+                            "" if v is None else v, state])
+                rows += 1
+    return rows
 
 
 def _filters(device: str | None, since: float | None,

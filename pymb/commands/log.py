@@ -8,20 +8,14 @@ some device never delivered a sample; 4 if some bus never opened its port
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from pymb.commands._common import DEVICE_HELP
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, PASSWORD_ENV, PROFILES, MqttConfig
-from pymb.logger import (
-    LogConfig,
-    Logger,
-    default_path,
-    load_config,
-    parse_device,
-    single_bus_config,
-)
-from pymb.store import FORMATS
+from pymb.logger import LogConfig, Logger, default_path, load_config, single_bus_config
+from pymb.store import FORMATS, OnChange
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,8 +39,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="PATH",
                    help="output file; '-' for stdout (csv, jsonl, influx); default "
                         "pymb-YYYYmmdd-HHMMSS.sqlite")
-    p.add_argument("--max-mb", type=float, help="SQLite: delete the oldest data past this size")
-    p.add_argument("--max-age-days", type=float, help="SQLite: delete data older than this")
+    p.add_argument("--max-mb", type=_positive, metavar="MB",
+                   help="SQLite: keep the database and its WAL under this size, deleting the "
+                        "oldest data (at least 1)")
+    p.add_argument("--max-age-days", type=_positive, metavar="DAYS",
+                   help="SQLite: delete data older than this")
+    p.add_argument("--on-change", action="store_true",
+                   help="SQLite: store a hub channel (or a CoolPro sample) only when a value "
+                        "moved past its deadband, a state changed, or its heartbeat came")
+    p.add_argument("--deadband", action="append", default=[], metavar="QUANTITY=AMOUNT",
+                   help="with --on-change: e.g. temperature_c=0.2 (engineering units; "
+                        "default 0: any change); repeat for several")
+    p.add_argument("--heartbeat", type=_positive, metavar="SECONDS",
+                   help="with --on-change: store every channel at least this often "
+                        "(default 60)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no status line (for services)")
     add_mqtt_arguments(p)
@@ -86,6 +92,32 @@ def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig |
     return MqttConfig(**{**table, **given})
 
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
+    if not args.on_change:
+        if args.deadband or args.heartbeat is not None:
+            raise InvalidArgument("--deadband and --heartbeat go with --on-change")
+        return
+    bands = dict(cfg.on_change.deadband) if cfg.on_change else {}
+    for spec in args.deadband:
+        name, _, amount = spec.partition("=")
+        try:
+            bands[name.strip()] = float(amount)
+        except ValueError:
+            raise InvalidArgument(f"--deadband takes QUANTITY=AMOUNT, got {spec!r}") from None
+    heartbeat = args.heartbeat or (cfg.on_change.heartbeat if cfg.on_change else 60.0)
+    cfg.on_change = OnChange(heartbeat, bands)
+
+
 def config_from(args: argparse.Namespace) -> LogConfig:
     """The LogConfig the arguments describe."""
     specs = list(args.devices) + list(args.device)
@@ -113,10 +145,7 @@ def config_from(args: argparse.Namespace) -> LogConfig:
         cfg.max_bytes = int(args.max_mb * 1e6)
     if args.max_age_days is not None:
         cfg.max_age = args.max_age_days * 86400
-    cfg.mqtt = mqtt_from(args, cfg.mqtt)
-    if cfg.mqtt is not None and cfg.format != "sqlite":
-        raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
-                              "use --format sqlite")
+    _on_change(args, cfg)
     return cfg
 
 
