@@ -87,24 +87,7 @@ __all__ = [
 
 DEVICE_TYPES = ("coolpro", "hub")
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
-_FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
-_STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
-
-#: keys a device takes after its ``TYPE[:ADDRESS]`` (command line) or in TOML
-DEVICE_KEYS: dict[str, tuple[str, ...]] = {
-    "coolpro": ("name",),
-    "hub": ("channels", "humidity_unit", "name"),
-}
-DEVICE_SYNTAX = "TYPE[:ADDRESS][,key=value...] (TYPE coolpro or hub)"
-
-
-def _map(kind: str) -> Any:
-    return COOLPRO if kind == "coolpro" else HUB
-
-
-def default_address(kind: str) -> int:
-    """The address a device of this type has out of the box."""
-    return int(_map(kind).default_address)
+_DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
 
 
 @dataclass
@@ -782,9 +765,12 @@ class Logger:
                     if self._stop.is_set():
                         break
                     try:
-                        item: Sample | Event | None = self._queue.get(timeout=0.02)
+                        item: Sample | Event | None = self._queue.get_nowait()
                     except queue.Empty:
                         item = None
+                        # Drain the queue in bursts: waking on every sample would cost
+                        # a thread switch per sample (issue 12: CPU per sample).
+                        self._stop.wait(_DRAIN_EVERY)
                     if item is not None:
                         self._write(item)
                         pending += 1

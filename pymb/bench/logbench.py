@@ -20,11 +20,24 @@ import os
 import sqlite3
 import statistics
 import sys
+import tempfile
+import threading
 import time
+from array import array
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["db_bytes", "main"]
+__all__ = ["BENCH_DEADBAND", "ISSUE_NOW", "db_bytes", "main", "run_section", "targets"]
+
+#: the on-change run's deadbands: about the sensors' noise (engineering units)
+BENCH_DEADBAND = {"temperature_c": 0.5, "humidity_pct": 1.0, "pressure_temperature_c": 0.5,
+                  "pressure_kpa": 2.0, "voltage_mv": 20.0, "rssi_dbm": 3.0,
+                  "temperature2_c": 0.5}
+BENCH_HEARTBEAT = 60.0
+
+#: issue 12's figures of pymb before storage format 2, shown beside this run's
+ISSUE_NOW = {"hub_bytes": "5.8-8.3 KB", "hub_cpu_us": 300.0, "hub_cpu_x": 4.2,
+             "coolpro_cpu_x": None, "bare_hub_us": 71.0}
 
 
 def db_bytes(path: str) -> dict[str, int]:
@@ -34,12 +47,15 @@ def db_bytes(path: str) -> dict[str, int]:
         page = con.execute("PRAGMA page_size").fetchone()[0]
         count = con.execute("PRAGMA page_count").fetchone()[0]
         free = con.execute("PRAGMA freelist_count").fetchone()[0]
+        data = con.execute(
+            "SELECT COALESCE(SUM(pgsize), 0) FROM dbstat WHERE name IN "
+            "('samples', 'samples_time', 'hub_changes')").fetchone()[0]
     finally:
         con.close()
     wal = path + "-wal"
     return {"file": os.path.getsize(path),
             "wal": os.path.getsize(wal) if os.path.exists(wal) else 0,
-            "used": int((count - free) * page)}
+            "used": int((count - free) * page), "data": int(data)}
 
 
 def _bare_loop(read: Callable[[], Any], seconds: float) -> tuple[int, float]:
@@ -50,6 +66,15 @@ def _bare_loop(read: Callable[[], Any], seconds: float) -> tuple[int, float]:
         read()
         n += 1
     return n, time.process_time() - c0
+
+
+def _steady(logger: Any, seconds: float, marks: list[tuple[float, int]]) -> None:
+    """The logger's steady state: CPU and samples between 20 % and 95 % of the
+    run (its start, first sweep planning and final checkpoint left out)."""
+    t0 = time.monotonic()
+    for share in (0.2, 0.95):
+        time.sleep(max(0.0, t0 + share * seconds - time.monotonic()))
+        marks.append((time.process_time(), logger.stats.samples))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -63,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from pymb.devices import HUB, CoolPro, SensorHub
     from pymb.devices.maps import COOLPRO
     from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
+    from pymb.store import OnChange
 
     baud, hub_port, cp_port, where = int(args[0]), args[1], args[2], args[3]
     ports = {"hub": hub_port, "coolpro": cp_port}
@@ -103,14 +129,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     [DeviceConfig(kind, addresses[kind])])
                     cfg = LogConfig([bus], "sqlite", path)
                     if on_change:
-                        cfg.on_change = True  # type: ignore[attr-defined]
-                    c0 = time.process_time()
-                    summary = Logger(cfg).run(seconds)
-                    cpu_log = time.process_time() - c0
+                        cfg.on_change = OnChange(BENCH_HEARTBEAT, dict(BENCH_DEADBAND))
+                    logger = Logger(cfg)
+                    marks: list[tuple[float, int]] = []
+                    timer = threading.Thread(target=_steady, args=(logger, seconds, marks))
+                    timer.start()
+                    summary = logger.run(seconds)
+                    timer.join()
                     clients[kind].connect()
                     logged += summary.samples
+                    (c0, n0), (c1, n1) = marks
                     pairs.append({"bare_n": n_bare, "bare_cpu": cpu_bare,
-                                  "log_n": summary.samples, "log_cpu": cpu_log})
+                                  "log_n": n1 - n0, "log_cpu": c1 - c0})
             except Exception as e:
                 print(f"err {type(e).__name__}: {e}".replace("\n", " "), flush=True)
                 continue
@@ -130,12 +160,71 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                       for p in pairs),
                 "cpu_x": statistics.median(ratios) if ratios else None,
                 "samples": logged, "stored_samples": stored, "bytes": size,
-                "bytes_per_sample": size["used"] / logged if logged else None,
+                "bytes_per_sample": size["data"] / logged if logged else None,
+                "file_bytes_per_sample": (size["file"] + size["wal"]) / logged if logged
+                else None,
             }), flush=True)
     finally:
         for c in clients.values():
             c.close()
     return 0
+
+
+def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str, Any]:
+    """The bench's ``logger`` section: the worker against two simulators
+    (a hub, a CoolPro; 115200 set, no wire emulation), then the layouts."""
+    from pymb.bench import layouts
+    from pymb.bench.procs import Child, ChildError
+
+    plan = opts.plan
+    rounds, seconds = (3, 1.0) if opts.quick else (max(5, min(plan.rounds, 9)), 3.0)
+    opts.say("logger: starting the simulators")
+    sims = children.sims([["hub:1,dynamic=0,baud=115200", "--seed", "0"],
+                          ["coolpro:40,gap=0,baud=115200"]])
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-log-") as where:
+        worker = children.add(Child("logger worker", [
+            sys.executable, "-m", "pymb.bench.logbench", "115200", sims[0].port, sims[1].port,
+            where]))
+        line = worker.readline(60.0)
+        if not line.startswith("ready"):
+            raise ChildError(f"logger worker: {line}")
+        runs = {}
+        for kind, extra in (("hub", ""), ("coolpro", ""), ("hub", " on-change")):
+            opts.say(f"logger: {kind}{extra}, {rounds} pairs of {seconds:g} s")
+            runs[kind + extra.replace(" ", "_")] = json.loads(
+                worker.ask(f"run {kind} {rounds} {seconds}{extra}", 120.0 + 4 * rounds * seconds))
+        children.stop(worker)
+        for s in sims:
+            children.stop(s)
+        n = 600 if opts.quick else 3000
+        layout_rows = layouts.compare(hub_registers, where, n, opts.say)
+    full = runs["hub"]
+    oc = runs["hub_on-change"]
+    return {
+        "rounds": rounds, "seconds": seconds, "runs": runs, "now": ISSUE_NOW,
+        "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT,
+        "on_change_saving": (1 - oc["bytes_per_sample"] / full["bytes_per_sample"])
+        if oc["bytes_per_sample"] and full["bytes_per_sample"] else None,
+        "layouts": layout_rows, "layout_sweeps": n,
+    }
+
+
+def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, bool | None]]:
+    """Issue 12's targets against this run: (what, target, measured, unit, met)."""
+    runs = section["runs"]
+    hub, cp = runs["hub"], runs["coolpro"]
+    out: list[tuple[str, str, float | None, str, bool | None]] = []
+    for what, target, value, unit, limit in (
+        ("bytes on disk per hub sweep (dbstat, index included)", "<= 2000",
+         hub["bytes_per_sample"], "B", 2000.0),
+        ("bytes on disk per CoolPro sample (dbstat, index included)", "<= 100",
+         cp["bytes_per_sample"], "B", 100.0),
+        ("pymb log CPU per hub sweep / bare read_all()", "<= 1.5", hub["cpu_x"], "x", 1.5),
+        ("pymb log CPU per CoolPro sample / bare read_telemetry()", "<= 2", cp["cpu_x"], "x",
+         2.0),
+    ):
+        out.append((what, target, value, unit, None if value is None else value <= limit))
+    return out
 
 
 if __name__ == "__main__":

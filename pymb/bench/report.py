@@ -137,51 +137,61 @@ def tables(result: dict[str, Any]) -> list[Table]:
               f"{r['cpu_pct']:.1f} %", fmt_time(r["cpu_per_sweep_us"])]
              for r in scaling["rows"]],
             [True, True, True, True, True], []))
-    fleet = result.get("fleet")
-    if fleet and fleet.get("status") == "ok":
-        def ms(v: float | None) -> str:
-            return "-" if v is None else fmt_time(v * 1000)
-        out.append(Table(
-            "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
-            "way)",
-            f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
-            f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
-            f"time to the subscriber at "
-            f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
-            f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
-            f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
-            "persistent-session subscriber sees them",
-            ["publisher", "throughput", "latency median", "latency p95",
-             f"lost ({fleet['outage_s']:g} s outage)", "duplicated"],
-            [[r["label"],
-              "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
-              ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
-              f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
-             for r in fleet["rows"]],
-            [False, True, True, True, True, True], []))
-    elif fleet:
-        out.append(Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False],
-                         []))
-    if m.get("quick"):
-        for t in out:
-            t.title += " [indicative: --quick]"
-        if micro:
-            for t in out:
-                if t.title.startswith("Micro") and t.headers[-1] == "target":
-                    t.headers = list(t.headers[:-1])
-                    t.rows = [r[:-1] for r in t.rows]
-                    t.right = list(t.right[:-1])
-    tg = [] if m.get("quick") else (result.get("targets") or [])
+    logger = result.get("logger")
+    if logger:
+        out.extend(_logger_tables(logger))
+    tg = result.get("targets") or []
     if tg:
         out.append(Table(
             "Targets", "",
             ["target", "goal", "measured", "met"],
             [[t["what"], t["target"],
               "-" if t["measured"] is None else
-              (fmt_x(t["measured"]) if t["unit"] == "x" else fmt_time(t["measured"])),
+              (fmt_x(t["measured"]) if t["unit"] == "x" else
+               f"{t['measured']:,.0f} B" if t["unit"] == "B" else fmt_time(t["measured"])),
               {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
             [False, True, True, False], []))
     return out
+
+
+def _logger_tables(s: dict[str, Any]) -> list[Table]:
+    runs, now = s["runs"], s["now"]
+    labels = {"hub": "hub sweep", "coolpro": "CoolPro telemetry",
+              "hub_on-change": "hub sweep, --on-change"}
+    rows = []
+    for key, label in labels.items():
+        r = runs[key]
+        was = (f"{now['hub_cpu_us']:g} µs, {fmt_x(now['hub_cpu_x'])}; {now['hub_bytes']}"
+               if key == "hub" else "-")
+        rows.append([label, fmt_time(r["bare_cpu_us"]), fmt_time(r["log_cpu_us"]),
+                     fmt_x(r["cpu_x"]), f"{r['bytes_per_sample']:,.0f} B",
+                     f"{r['file_bytes_per_sample']:,.0f} B",
+                     f"{r['stored_samples']:,} / {r['samples']:,}", was])
+    saving = s.get("on_change_saving")
+    footer = [f"--on-change: heartbeat {s['heartbeat']:g} s, deadbands "
+              + ", ".join(f"{k} {v:g}" for k, v in s["deadband"].items())
+              + ("" if saving is None else f"; {100 * saving:.0f} % less disk than every sweep")]
+    tables = [Table(
+        "Logger: pymb log against the bare read, pair by pair",
+        f"{s['rounds']} pairs of {s['seconds']:g} s: the bare facade call, then the real "
+        "Logger (poller thread, queue, SQLite on disk, batched commits); CPU of the "
+        "process per sample in the logger's steady state (20-95 % of each run), medians; "
+        "simulators at 115200 set, no wire emulation; bytes: the data's pages (dbstat: "
+        "samples, their time index, hub_changes) over every sample read; with the schema's "
+        "fixed pages and the WAL: file + WAL column",
+        ["workload", "bare read CPU", "logged CPU", f"{X} bare", "bytes / sample",
+         "file + WAL", "stored / read", "issue 12 \"now\""], rows,
+        [False, True, True, True, True, True, True, False], footer)]
+    qnames = list(s["layouts"][0]["queries"])
+    tables.append(Table(
+        f"Storage layouts of a hub sweep ({s['layout_sweeps']:,} sweeps each)",
+        "bytes on disk per sweep (index included), insert CPU per sweep, and the README's "
+        "queries (median of 5; every plan uses the time index)",
+        ["layout", "bytes / sweep", "insert CPU", *qnames],
+        [[r["layout"], f"{r['bytes_per_sweep']:,.0f} B", fmt_time(r["insert_cpu_us"]),
+          *(f"{r['queries'][q]['ms']:.3g} ms" for q in qnames)] for r in s["layouts"]],
+        [False, True, True, *([True] * len(qnames))], []))
+    return tables
 
 
 def _header(result: dict[str, Any]) -> list[tuple[str, str]]:
