@@ -1128,12 +1128,16 @@ def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
         for s in chunk:
             head = [f"{s.time_utc:.6f}", _iso(s.time_utc), s.bus, s.device, s.type, s.address]
             if s.type == "hub":
-                for name in _HUB_FIELDS:
-                    vals, sts = s.values[name], s.states[name]
-                    for ch, (v, st) in enumerate(zip(vals, sts, strict=True)):
-                        if st != "not_read":
-                            w.writerow([*head, ch + 1, name, "" if v is None else v, st])
-                            rows += 1
+                vals = [s.values[name] for name in _HUB_FIELDS]
+                sts = [s.states[name] for name in _HUB_FIELDS]
+                for ch in range(len(vals[0])):
+                    if sts[0][ch] == "not_read":
+                        continue  # --on-change: not stored in this sample
+                    for b, name in enumerate(_HUB_FIELDS):
+                        v = vals[b][ch]  # + 0.0: a "negative zero" reads 0.0, as in format 1
+                        w.writerow([*head, ch + 1, name, "" if v is None else v + 0.0,
+                                    sts[b][ch]])
+                        rows += 1
             else:
                 for name in _COOLPRO_FIELDS:
                     v = s.values[name]

@@ -27,13 +27,12 @@ def fill(sink: SqliteSink, n: int, t0: float) -> None:
 def test_size_limit_deletes_the_oldest(tmp_path: Path) -> None:
     db = tmp_path / "small.sqlite"
     sink = SqliteSink(db, max_bytes=1_000_000)
-    fill(sink, 600, time.time() - 600)
-    deleted = sink.trim()
-    assert deleted > 0
+    fill(sink, 1500, time.time() - 1500)  # about 2.5 MB unbounded
+    assert sink.trimmed > 0  # trimmed as the batches committed
     assert sink._size() <= 1_000_000
     first, last, n = sink.db.execute(
         "SELECT MIN(id), MAX(id), COUNT(*) FROM samples").fetchone()
-    assert last == 600 and n == last - first + 1  # the newest are kept, in one run
+    assert last == 1500 and n == last - first + 1  # the newest are kept, in one run
     assert sink.db.execute("SELECT COUNT(*) FROM hub").fetchone()[0] == 100 * n
     sink.close()
     con = sqlite3.connect(db)
@@ -103,14 +102,13 @@ def test_text_outputs_turn_write_errors_into_output_errors() -> None:
 
 
 def test_size_limit_also_bounds_events_when_no_samples_come(tmp_path: Path) -> None:
-    sink = SqliteSink(tmp_path / "outage.sqlite", max_bytes=200_000)
-    for i in range(20_000):  # a long outage: one event per poll, no samples
+    sink = SqliteSink(tmp_path / "outage.sqlite", max_bytes=1_000_000)
+    for i in range(40_000):  # a long outage: one event per poll, no samples
         sink.event(Event(time.time(), float(i), "b", HUB, "timeout", None, "no reply " * 4))
         if i % 1000 == 999:
             sink.commit()
     sink.commit()
-    sink.trim()
-    assert sink._size() <= 200_000
+    assert sink._size() <= 1_000_000
     newest = sink.db.execute("SELECT MAX(monotonic) FROM events").fetchone()[0]
-    assert newest == 19_999.0  # the newest are kept
+    assert newest == 39_999.0  # the newest are kept
     sink.close()
