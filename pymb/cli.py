@@ -57,8 +57,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand registered."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser. Only ``command``'s module is imported (all of them
+    when ``command`` is None): ``pymb read`` and ``pymb log`` never load the
+    simulators or the benchmark, which matters on a small board."""
     parser = argparse.ArgumentParser(
         prog="pymb", description="Modbus RTU for real devices, fast."
     )
@@ -66,16 +68,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        mod = importlib.import_module(module)
-        mod.add_arguments(p)
-        p.set_defaults(_module=mod)
+        if command is None or name == command:
+            mod = importlib.import_module(module)
+            mod.add_arguments(p)
+            p.set_defaults(_module=mod)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    # The subcommand is the first word that is not an option (pymb's own
+    # options take no value), so only its module is imported.
+    command = next((a for a in args_in if not a.startswith("-")), "")
+    parser = build_parser(command if command in COMMANDS else "")
+    args = parser.parse_args(args_in)
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE

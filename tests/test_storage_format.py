@@ -168,7 +168,7 @@ def test_a_database_of_the_old_format_is_exported_and_never_mixed(tmp_path: Path
     readings = [(T0 + i, decode_hub(random_registers(rng))) for i in range(3)]
     write_format1(str(db), readings)
     before = db.read_bytes()
-    with pytest.raises(InvalidArgument, match="format 1.*new file.*export"):
+    with pytest.raises(InvalidArgument, match=r"format 1.*new file.*export"):
         SqliteSink(db)
     assert db.read_bytes() == before  # untouched
     out = subprocess.run(
