@@ -2,13 +2,26 @@
 
 SQLite: WAL journal, ``synchronous=NORMAL``, commits in batches. A
 transaction that committed survives the process being killed (even SIGKILL);
-what was not yet committed, at most one batch, is lost. Raw registers are
-stored losslessly (a BLOB of big-endian 16-bit words, as on the wire, from
-the device map's first register), and decoded values in plain tables and
-views that ``sqlite3`` queries directly::
+what was not yet committed, at most one batch, is lost. Format 2 stores the
+raw registers once (a BLOB of big-endian 16-bit words, as on the wire, from
+the device map's first register) and decodes them in plain-SQL views that
+``sqlite3`` queries directly, through the time index::
 
     SELECT time, device, channel, temperature_c FROM hub_readings
-     WHERE channel = 3 ORDER BY time DESC LIMIT 10;
+     WHERE channel = 3 ORDER BY time_utc DESC LIMIT 10;
+
+Interfaces other parts of pymb rely on (keep them stable):
+
+- :class:`SqliteSink` (``write``/``event``/``commit``/``close``), with
+  ``max_bytes`` (database file plus WAL), ``max_age`` and ``on_change``.
+- :func:`samples_after` ``(db, sample_id, limit)``: committed samples after
+  an id, in id order, decoded (:class:`StoredSample`): the reader of a
+  store-and-forward publisher.
+- An ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)`` table, if a
+  forwarder creates one, holds its cursors (the last sample id each sent);
+  trimming past the lowest records an ``unsent_deleted`` event whose code is
+  the number of unsent samples deleted.
+- :func:`schema_version`; :func:`export_csv` reads formats 1 and 2.
 """
 
 from __future__ import annotations
@@ -615,13 +628,23 @@ class SqliteSink:
             self._in_tx = False
         if self.max_bytes is not None:
             if self._wal_bytes() > self.wal_budget:
-                # A reader held the WAL back: catch up now that it may have let go.
-                self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+                # A reader held the WAL back: catch up if it has let go (without
+                # waiting for it: a forwarder may be reading).
+                self._checkpoint()
             if self._size() > self.max_bytes - self.wal_budget:
                 self.trim()
                 return
         if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
             self.trim()
+
+    def _checkpoint(self) -> None:
+        """Copy the WAL into the database and truncate it, unless a reader
+        still needs it (then next time; never wait for a reader)."""
+        self.db.execute("PRAGMA busy_timeout = 0")
+        try:
+            self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+        finally:
+            self.db.execute("PRAGMA busy_timeout = 5000")
 
     def _wal_bytes(self) -> int:
         try:
@@ -677,7 +700,7 @@ class SqliteSink:
                 chunk = max(1, self.wal_budget // 2 // self.page_size)
                 while free > 0 and count * self.page_size > room:
                     self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
-                    self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+                    self._checkpoint()
                     count, free = self._pages()
         self.trimmed += deleted
         return deleted

@@ -139,16 +139,21 @@ def test_the_readme_queries_use_the_time_index_in_stock_sqlite3(tmp_path: Path) 
     db = tmp_path / "data.sqlite"
     rng = random.Random(3)
     hub = DeviceInfo("b", "p", "hub", 250, "hub-250")
+    cp = DeviceInfo("b", "p", "coolpro", 40, "coolpro-40")
+    from pymb.devices import CoolProStatus, CoolProTelemetry
+
+    tele = CoolProTelemetry(1, 1, 1, 1, 1, 1, CoolProStatus(0), array("H", range(8)))
+    t0 = time.time() - 2000  # the README asks for the value now
     for on_change in (None, OnChange(60.0, {"temperature_c": 0.5})):
         sink = SqliteSink(db, on_change=on_change)
         for i in range(300):
-            sink.write(Sample(hub, T0 + i + (1000 if on_change else 0), float(i),
+            sink.write(Sample(cp, t0 + i + (1000 if on_change else 0), float(i), tele))
+            sink.write(Sample(hub, t0 + i + (1000 if on_change else 0), float(i),
                               decode_hub(random_registers(rng))))
-        sink.event(Event(T0, 0.0, "b", hub, "timeout", None, "late"))
+        sink.event(Event(t0, 0.0, "b", hub, "timeout", None, "late"))
         sink.close()
     con = sqlite3.connect(db)
     for q in queries:
-        q = q.replace(":t", str(T0 + 1200))
         plan = [r[3] for r in con.execute("EXPLAIN QUERY PLAN " + q)]
         assert not any("TEMP B-TREE" in p for p in plan), (q, plan)
         assert all(re.search(r"USING (COVERING )?INDEX (samples|events)_time", p)
@@ -328,3 +333,41 @@ def test_limits_in_toml_that_are_not_positive_are_refused(tmp_path: Path) -> Non
                    '[[bus.device]]\ntype = "hub"\naddress = 1\n')
     with pytest.raises(InvalidArgument, match="positive"):
         load_config(cfg)
+
+
+def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
+    """``pymb log --on-change`` against a simulated hub whose values drift slowly
+    (each sensor reports every 2 s): far fewer rows, every channel queryable."""
+    import os
+
+    from pymb.sim import Simulator
+
+    db = tmp_path / "oc.sqlite"
+    with Simulator(["hub:250"], seed=3) as sim:
+        r = subprocess.run(
+            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device", "hub:250",
+             "--on-change", "--deadband", "temperature_c=0.5", "--heartbeat", "30",
+             "--seconds", "3", "--out", str(db), "--timeout", "1"],
+            capture_output=True, text=True, timeout=120,
+            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"logged ([\d,]+) samples", r.stderr)
+    assert m, r.stderr
+    read = int(m.group(1).replace(",", ""))
+    con = sqlite3.connect(db)
+    stored = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+    rows = con.execute("SELECT COUNT(*) FROM hub_changes").fetchone()[0]
+    assert read >= 2 and 1 <= stored <= read
+    assert 100 <= rows < 100 * read  # the first sweep whole, then only what moved
+    for ch in (1, 50, 100):
+        row = con.execute(
+            "SELECT temperature_c_state FROM hub_readings WHERE device = 'hub-250' AND "
+            "channel = ? AND time_utc <= unixepoch('now') + 1 ORDER BY time_utc DESC LIMIT 1",
+            (ch,)).fetchone()
+        assert row is not None
+    con.close()
+    bad = subprocess.run(
+        [sys.executable, "-m", "pymb", "log", "--port", "/dev/null", "--device", "hub",
+         "--deadband", "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite")],
+        capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert bad.returncode == 2 and "--on-change" in bad.stderr

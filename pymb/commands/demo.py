@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  database:    {out}")
     print("  try:         sqlite3 " + out + " \\\n"
           "                 \"SELECT time, channel, temperature_c, humidity_pct FROM hub_readings"
-          " WHERE channel <= 3 ORDER BY time DESC LIMIT 6\"")
+          " WHERE channel <= 3 ORDER BY time_utc DESC LIMIT 6\"")
     return 0
 
 
