@@ -271,6 +271,8 @@ class SensorHub:
         self._lock = threading.Lock()  # one sweep of this hub at a time (shared C request)
         self._plans: dict[tuple[Any, ...], tuple[ReadPlan, bytes | None]] = {}
         self._current: tuple[Any, ...] | None = None  # (blocks, channels, unsupported) planned
+        self._bound: HubReading | None = None  # the reading whose buffers the sweep holds
+        self._keep: tuple[Any, ...] = ()  # ... and the cffi views that keep them valid
 
     # -- firmware knowledge -------------------------------------------------------
 
@@ -371,15 +373,20 @@ class SensorHub:
             self._connections = client.connections
             self._sweep.unsupported = 0
         # Steady state (the same read as last time, no firmware news): the
-        # sweep struct already holds the plan.
-        key = (blocks, channels, self._sweep.unsupported)
-        if key != self._current:
+        # sweep struct already holds the plan, and (read_all(into=r) again)
+        # r's buffers: nothing is allocated for them.
+        current = self._current
+        unsupported = self._sweep.unsupported
+        if (current is None or current[0] != blocks or current[1] != channels
+                or current[2] != unsupported):
             plan, wanted = self._plan(blocks, channels)
             self._sweep.set_plan(list(plan.spans), wanted)
-            self._current = key
+            self._current = (blocks, channels, unsupported)
         r = into if into is not None and into.channels == self.channels else HubReading(
             self.channels)
-        keep = self._sweep.bind(r.registers, r.values, r.raw_states)
+        if r is not self._bound:
+            self._keep = self._sweep.bind(r.registers, r.values, r.raw_states)
+            self._bound = r
         try:
             client._call(client._link.hub_read, self._sweep)
         except DeviceFailure as e:
@@ -391,8 +398,11 @@ class SensorHub:
                 count=e.count, port=e.port, response=e.response,
             ) from None
         finally:
-            self._sweep.unbind()
-            del keep
+            if r is not into:
+                # A reading of its own goes to the caller: let go of its buffers.
+                self._sweep.unbind()
+                self._keep = ()
+                self._bound = None
         # Blocks found missing in this sweep are skipped by the next plan.
         r.unsupported_mask = self._sweep.unsupported
         r.time = time.time()
