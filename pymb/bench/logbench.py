@@ -77,6 +77,29 @@ def _steady(logger: Any, seconds: float, marks: list[tuple[float, int]]) -> None
         marks.append((time.process_time(), logger.stats.samples))
 
 
+def _span(port: str, baud: int, where: str, seconds: float, heartbeat: float,
+          noise: bool) -> dict[str, Any]:
+    """One long --on-change run of the hub: what it stores per sweep read."""
+    from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
+    from pymb.store import OnChange
+
+    path = os.path.join(where, f"span-{'noise' if noise else 'any'}.sqlite")
+    bus = BusConfig("hub", port, None, baud, "N", 2.0, 0.0, [DeviceConfig("hub", 1)])
+    cfg = LogConfig([bus], "sqlite", path)
+    cfg.on_change = OnChange(heartbeat, dict(BENCH_DEADBAND) if noise else {})
+    summary = Logger(cfg).run(seconds)
+    size = db_bytes(path)
+    con = sqlite3.connect(path)
+    try:
+        rows = con.execute("SELECT COUNT(*) FROM hub_changes").fetchone()[0]
+    finally:
+        con.close()
+    return {"seconds": seconds, "heartbeat": heartbeat, "deadband": noise,
+            "samples": summary.samples, "channel_rows": rows, "bytes": size,
+            "bytes_per_sample": size["data"] / max(1, summary.samples),
+            "sweeps_per_s": summary.samples / summary.elapsed if summary.elapsed else 0.0}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the logger worker."""
     args = list(sys.argv[1:] if argv is None else argv)
@@ -112,6 +135,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             cmd, *rest = line.split()
             if cmd == "quit":
                 break
+            if cmd == "span" and len(rest) == 5:
+                print("ok " + json.dumps(_span(rest[0], int(rest[1]), where, float(rest[2]),
+                                               float(rest[3]), rest[4] == "noise")), flush=True)
+                continue
             if cmd != "run" or len(rest) not in (3, 4) or rest[0] not in ports:
                 print(f"err bad command {line.strip()!r}", flush=True)
                 continue
@@ -193,18 +220,28 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
             opts.say(f"logger: {kind}{extra}, {rounds} pairs of {seconds:g} s")
             runs[kind + extra.replace(" ", "_")] = json.loads(
                 worker.ask(f"run {kind} {rounds} {seconds}{extra}", 120.0 + 4 * rounds * seconds))
+        span_s, heartbeat = (8.0, 4.0) if opts.quick else (60.0, 10.0)
+        opts.say("logger: a hub on a line emulated at 115200, for --on-change")
+        (wired,) = children.sims([["hub:1,dynamic=0", "--baud", "115200", "--seed", "0"]])
+        spans = {}
+        for noise in (False, True):
+            what = "deadbands" if noise else "any change"
+            opts.say(f"logger: hub --on-change ({what}), one run of {span_s:g} s")
+            spans[what] = json.loads(worker.ask(
+                f"span {wired.port} 115200 {span_s} {heartbeat} {'noise' if noise else 'any'}",
+                120.0 + span_s))
+        children.stop(wired)
         children.stop(worker)
         for s in sims:
             children.stop(s)
         n = 600 if opts.quick else 3000
         layout_rows = layouts.compare(hub_registers, where, n, opts.say)
-    full = runs["hub"]
-    oc = runs["hub_on-change"]
+    full = runs["hub"]["bytes_per_sample"]
+    for sp in spans.values():
+        sp["saving"] = 1 - sp["bytes_per_sample"] / full if full else None
     return {
         "rounds": rounds, "seconds": seconds, "runs": runs, "now": ISSUE_NOW,
-        "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT,
-        "on_change_saving": (1 - oc["bytes_per_sample"] / full["bytes_per_sample"])
-        if oc["bytes_per_sample"] and full["bytes_per_sample"] else None,
+        "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT, "spans": spans,
         "layouts": layout_rows, "layout_sweeps": n,
     }
 
