@@ -371,3 +371,43 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
          "--deadband", "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite")],
         capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert bad.returncode == 2 and "--on-change" in bad.stderr
+
+
+def test_a_size_limit_below_one_megabyte_is_refused(tmp_path: Path) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "p"), "--device", "hub",
+         "--out", str(tmp_path / "x.sqlite"), "--max-mb", "0.5", "--seconds", "1"],
+        capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "at least 1 MB" in out.stderr
+
+
+def test_a_new_humidity_unit_is_a_new_device_row_and_old_samples_keep_theirs(
+        tmp_path: Path) -> None:
+    db = tmp_path / "units.sqlite"
+    regs = array("H", [200] * HUB.count)  # humidity register 200: 20.0 % or 200 %
+    for unit in (0.1, 1):
+        sink = SqliteSink(db)
+        dev = DeviceInfo("b", "p", "hub", 1, "hub-1", 100, unit)
+        sink.write(Sample(dev, T0 + unit, 0.0, decode_hub(regs, unit)))
+        sink.close()
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT COUNT(*) FROM devices").fetchone()[0] == 2
+    got = con.execute("SELECT humidity_pct FROM hub_readings WHERE channel = 1 "
+                      "ORDER BY time_utc").fetchall()
+    assert got == [(20.0,), (200.0,)]
+    con.close()
+
+
+def test_on_change_in_toml(tmp_path: Path) -> None:
+    from pymb.logger import load_config
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[output]\non_change = true\nheartbeat_s = 30\n'
+                   'deadband = { temperature_c = 0.2, humidity_pct = 1 }\n'
+                   '[[bus]]\nport = "/dev/x"\n[[bus.device]]\ntype = "hub"\naddress = 1\n')
+    c = load_config(cfg)
+    assert c.on_change == OnChange(30.0, {"temperature_c": 0.2, "humidity_pct": 1.0})
+    cfg.write_text('[output]\non_change = true\ndeadband = { temprature_c = 0.2 }\n'
+                   '[[bus]]\nport = "/dev/x"\n[[bus.device]]\ntype = "hub"\naddress = 1\n')
+    with pytest.raises(InvalidArgument, match="temprature_c"):
+        load_config(cfg)
