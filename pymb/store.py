@@ -453,8 +453,10 @@ class SqliteSink:
         self.trimmed = 0  #: samples deleted by the size and age limits so far
         self.stored = 0  #: samples written (on-change: those that changed)
         try:
+            if not self.path.exists():
+                _create(self.path)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError) as e:
             raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
         try:
             self._open()
@@ -467,6 +469,7 @@ class SqliteSink:
         self._devices: dict[DeviceInfo, tuple[int, int]] = {}
         self._changes: dict[int, _HubChanges | _CoolProChanges] = {}
         self._in_tx = False
+        self._tx_bytes = 0  # registers written in the open batch (size limit only)
         self._last_age_trim = time.monotonic()
         self._wal = Path(f"{self.path}-wal")
 
@@ -550,9 +553,15 @@ class SqliteSink:
                            "is intact, the batch being written was lost")
 
     def write(self, sample: Sample) -> None:
-        """Add one sample to the current batch."""
+        """Add one sample to the current batch. Under a size limit, a batch
+        that grows past a quarter of the WAL budget is committed at once, so
+        the bound holds at any write rate."""
         try:
             self._write(sample)
+            if self.max_bytes is not None:
+                self._tx_bytes += 2 * len(sample.data.registers) + 64
+                if self._tx_bytes >= self.wal_budget // 4:
+                    self._commit()
         except sqlite3.Error as e:
             raise self._failed(e) from None
 
@@ -626,16 +635,24 @@ class SqliteSink:
         if self._in_tx:
             self.db.execute("COMMIT")
             self._in_tx = False
+        self._tx_bytes = 0
         if self.max_bytes is not None:
             if self._wal_bytes() > self.wal_budget:
                 # A reader held the WAL back: catch up if it has let go (without
                 # waiting for it: a forwarder may be reading).
                 self._checkpoint()
-            if self._size() > self.max_bytes - self.wal_budget:
+            count, free = self._pages()
+            if (count - free) * self.page_size > self._room():
                 self.trim()
                 return
         if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
             self.trim()
+
+    def _room(self) -> int:
+        """Bytes the database's pages may take: the limit less the WAL (its
+        budget, or what it holds now if more)."""
+        assert self.max_bytes is not None
+        return self.max_bytes - max(self.wal_budget, self._wal_bytes())
 
     def _checkpoint(self) -> None:
         """Copy the WAL into the database and truncate it, unless a reader
@@ -678,9 +695,9 @@ class SqliteSink:
                 "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ?", (cutoff,),
                 cutoff)
         if self.max_bytes is not None:
-            # Delete down to 95 % of the room left beside the WAL budget, so the
-            # freed pages take the next inserts and the file stops growing.
-            room = self.max_bytes - self.wal_budget
+            # Delete down to 95 % of the room left beside the WAL, so the freed
+            # pages take the next inserts and the file stops growing.
+            room = self._room()
             for _ in range(64):
                 count, free = self._pages()
                 used = (count - free) * self.page_size
@@ -694,11 +711,12 @@ class SqliteSink:
                 elif not self._delete_oldest_events():
                     break  # nothing left that may go
             count, free = self._pages()
-            if count * self.page_size > room and free:
+            fixed = self.max_bytes - self.wal_budget
+            if count * self.page_size > 1.05 * fixed and free:
                 # The file is larger than the limit allows (a lower limit than
-                # last time): give the free pages back, a WAL budget at a time.
-                chunk = max(1, self.wal_budget // 2 // self.page_size)
-                while free > 0 and count * self.page_size > room:
+                # last time): give the free pages back, a little at a time.
+                chunk = max(1, self.wal_budget // 4 // self.page_size)
+                while free > 0 and count * self.page_size > fixed:
                     self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
                     self._checkpoint()
                     count, free = self._pages()
@@ -797,6 +815,36 @@ class SqliteSink:
             self.commit()
         finally:
             self.db.close()
+
+
+def _create(path: Path) -> None:
+    """A new database appears whole: made beside ``path`` with its schema,
+    then linked into place (a process killed meanwhile leaves no half-made
+    file at ``path``)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.creating")
+    try:
+        con = sqlite3.connect(tmp, isolation_level=None)
+        try:
+            con.execute(f"PRAGMA page_size = {PAGE_SIZE}")
+            con.execute("PRAGMA auto_vacuum = INCREMENTAL")
+            con.execute("BEGIN")
+            for stmt in _statements(_SCHEMA):
+                con.execute(stmt)
+            con.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
+                        (str(SCHEMA_VERSION),))
+            con.execute("COMMIT")
+        finally:
+            con.close()
+        try:
+            os.link(tmp, path)  # fails if another process made it meanwhile: use theirs
+        except FileExistsError:
+            pass
+        except OSError:  # no hard links here (a FAT SD card)
+            if not path.exists():
+                os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 def _statements(script: str) -> list[str]:

@@ -411,3 +411,35 @@ def test_on_change_in_toml(tmp_path: Path) -> None:
                    '[[bus]]\nport = "/dev/x"\n[[bus.device]]\ntype = "hub"\naddress = 1\n')
     with pytest.raises(InvalidArgument, match="temprature_c"):
         load_config(cfg)
+
+
+def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
+    """Issue 11's case: ``--max-mb`` at full speed, watched from outside while
+    ``pymb log`` runs: the database file and its WAL stay within 10 %."""
+    import os
+
+    from pymb.bench.procs import Children
+
+    db = tmp_path / "bound.sqlite"
+    wal = Path(f"{db}-wal")
+    with Children() as ch:
+        (sim,) = ch.sims([["hub:1,dynamic=0,baud=115200"]])  # no wire emulation: flat out
+        p = subprocess.Popen(
+            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--baud", "115200",
+             "--device", "hub", "--max-mb", "2", "--seconds", "6", "--quiet", "--out", str(db)],
+            env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE, text=True)
+        worst = 0
+        deadline = time.monotonic() + 60
+        while p.poll() is None and time.monotonic() < deadline:
+            size = sum(f.stat().st_size for f in (db, wal) if f.exists())
+            worst = max(worst, size)
+            time.sleep(0.02)
+        _, err = p.communicate(timeout=30)
+    assert p.returncode == 0, err
+    con = sqlite3.connect(db)
+    stored = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+    first = con.execute("SELECT MIN(id) FROM samples").fetchone()[0]
+    con.close()
+    assert first > 1, "the run never reached the bound: nothing was trimmed"
+    assert worst <= 1.1 * 2_000_000, worst
+    assert stored * 1400 < 2_000_000
