@@ -70,6 +70,7 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
+from pymb.fleet.config import MqttConfig, from_table
 from pymb.store import DeviceInfo, Event, OnChange, OutputError, Sample, Sink, open_sink
 
 __all__ = [
@@ -295,6 +296,7 @@ class LogConfig:
     max_age: float | None = None
     batch: int = 200  #: samples per commit, at most
     commit_interval: float = 0.5  #: seconds between commits, at most
+    mqtt: MqttConfig | None = None  #: forward the samples to a broker (SQLite only)
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
 
     def __post_init__(self) -> None:
@@ -420,6 +422,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
         raise InvalidArgument(f"{path}: no [[bus]] configured")
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
+    mqtt = _get(doc, "mqtt", dict, str(path))
     on_change = None
     if _get(out, "on_change", bool, f"{path}: output", False):
         bands = _get(out, "deadband", dict, f"{path}: output", {})
@@ -432,6 +435,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
         _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
         None if max_mb is None else int(max_mb * 1e6),
         None if max_days is None else float(max_days) * 86400,
+        mqtt=None if mqtt is None else from_table(mqtt, str(path)),
         on_change=on_change,
     )
 
@@ -779,6 +783,9 @@ class Logger:
                                     or now - last_commit >= self.config.commit_interval):
                         self.sink.commit()
                         pending, last_commit = 0, now
+                        # Leave SQLite's write lock free for a moment: another
+                        # writer (the MQTT forwarder's cursor) gets its turn.
+                        self._stop.wait(_DRAIN_EVERY)
                     if self.status_out is not None and now - last_status >= 0.5:
                         self._print_status(now - t0)
                         last_status = now

@@ -19,8 +19,8 @@ Interfaces other parts of pymb rely on (keep them stable):
   store-and-forward publisher.
 - An ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)`` table, if a
   forwarder creates one, holds its cursors (the last sample id each sent);
-  trimming past the lowest records an ``unsent_deleted`` event whose code is
-  the number of unsent samples deleted.
+  trimming past the lowest records a ``trim`` event whose code is the
+  number of unsent samples deleted (and whose message names their ids).
 - :func:`schema_version`; :func:`export_csv` reads formats 1 and 2.
 """
 
@@ -434,8 +434,8 @@ class SqliteSink:
 
     If the database has an ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
     table (a forwarder's cursors: the last sample each has sent), trimming
-    past the lowest cursor records an ``unsent_deleted`` event saying how
-    many samples were deleted before they were sent.
+    past the lowest cursor records a ``trim`` event saying how many samples
+    (and which ids) were deleted before they were sent.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, max_bytes: int | None = None,
@@ -734,20 +734,6 @@ class SqliteSink:
         self.db.execute("COMMIT")
         return int(n)
 
-    def _unsent(self, first_kept: int) -> tuple[int, str] | None:
-        """Samples about to go that a forwarder (the ``outbox`` table) has not sent."""
-        has = self.db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' "
-                              "AND name = 'outbox'").fetchone()
-        if not has:
-            return None
-        row = self.db.execute("SELECT name, sample_id FROM outbox "
-                              "ORDER BY sample_id LIMIT 1").fetchone()
-        if row is None or row[1] is None or row[1] + 1 >= first_kept:
-            return None
-        n = self.db.execute("SELECT COUNT(*) FROM samples WHERE id > ? AND id < ?",
-                            (row[1], first_kept)).fetchone()[0]
-        return (int(n), str(row[0])) if n else None
-
     def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
         if first_kept == 0:  # nothing young enough: all but the newest go; the newest
@@ -756,7 +742,7 @@ class SqliteSink:
             first_kept = self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 1
         self.db.execute("BEGIN")
         try:
-            unsent = self._unsent(first_kept)
+            self._unsent_event(first_kept)
             kept_time = self.db.execute("SELECT time_utc FROM samples WHERE id >= ? "
                                         "ORDER BY id LIMIT 1", (first_kept,)).fetchone()
             limit = cutoff if cutoff is not None else (
@@ -775,15 +761,6 @@ class SqliteSink:
                 self.db.execute(
                     "DELETE FROM events WHERE time_utc < (SELECT COALESCE(MIN(time_utc), 0) "
                     "FROM samples)")
-            if unsent is not None:
-                why = (f"over {self.max_bytes / 1e6:g} MB" if cutoff is None and self.max_bytes
-                       else f"older than {(self.max_age or 0) / 86400:g} days")
-                self.db.execute(
-                    "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, "
-                    "message) VALUES (?, ?, NULL, NULL, 'unsent_deleted', ?, ?)",
-                    (time.time(), time.monotonic(), unsent[0],
-                     f"deleted {unsent[0]} samples not yet sent by {unsent[1]!r} "
-                     f"(the database was {why})"))
             self.db.execute("COMMIT")
         except BaseException:
             self.db.execute("ROLLBACK")
@@ -955,17 +932,20 @@ def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.C
 
 
 def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int,
-                  limit: int = 1000) -> list[StoredSample]:
-    """Committed samples with an id above ``sample_id``, in id order, at most
-    ``limit``, decoded (the reader of a store-and-forward publisher: keep the
-    last id sent as the cursor). ``db`` is an open connection or a path
-    (opened read-only). Only format 2; format 1 raises InvalidArgument."""
+                  limit: int = 1000, before: int | None = None) -> list[StoredSample]:
+    """Committed samples with an id above ``sample_id`` (and below ``before``),
+    in id order, at most ``limit``, decoded (the reader of a store-and-forward
+    publisher: keep the last id sent as the cursor). ``db`` is an open
+    connection or a path (opened read-only). Only format 2; format 1 raises
+    InvalidArgument."""
     con, own = _connect(db)
     try:
         if schema_version(con) != SCHEMA_VERSION:
             raise InvalidArgument("samples_after reads pymb databases of format "
                                   f"{SCHEMA_VERSION} only")
-        return list(_iter_samples(con, "s.id > ?", (sample_id,), limit))
+        if before is None:
+            return list(_iter_samples(con, "s.id > ?", (sample_id,), limit))
+        return list(_iter_samples(con, "s.id > ? AND s.id < ?", (sample_id, before), limit))
     finally:
         if own:
             con.close()

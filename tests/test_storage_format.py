@@ -282,9 +282,9 @@ def test_outbox_cursor_trimming_records_what_was_never_sent(tmp_path: Path) -> N
     con = sqlite3.connect(db)
     first = con.execute("SELECT MIN(id) FROM samples").fetchone()[0]
     assert first > 11
-    events = con.execute("SELECT code, message FROM events WHERE kind = 'unsent_deleted' "
+    events = con.execute("SELECT code, message FROM events WHERE kind = 'trim' "
                          "ORDER BY id").fetchall()
-    assert events and "'mqtt'" in events[0][1]
+    assert events and "not yet forwarded" in events[0][1]
     # every deleted sample after the cursor is counted, once
     assert sum(code for code, _ in events) == first - 11
     con.close()

@@ -145,6 +145,10 @@ def config_from(args: argparse.Namespace) -> LogConfig:
         cfg.max_bytes = int(args.max_mb * 1e6)
     if args.max_age_days is not None:
         cfg.max_age = args.max_age_days * 86400
+    cfg.mqtt = mqtt_from(args, cfg.mqtt)
+    if cfg.mqtt is not None and cfg.format != "sqlite":
+        raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
+                              "use --format sqlite")
     _on_change(args, cfg)
     return cfg
 

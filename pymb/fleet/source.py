@@ -25,6 +25,7 @@ from typing import Any
 from pymb.devices import HUB, CoolProStatus, State
 from pymb.devices.maps import COOLPRO
 from pymb.store import iso_utc
+from pymb.store import samples_after as stored_after
 
 __all__ = ["Record", "Source", "record_dict"]
 
@@ -143,46 +144,13 @@ class Source:
     def samples_after(self, sample_id: int, limit: int,
                       before: int | None = None) -> list[Record]:
         """The committed samples with ids above ``sample_id`` (and below
-        ``before``), in id order, at most ``limit``."""
-        q = ("SELECT s.id, d.bus, d.name, d.type, d.address, s.time_utc FROM samples s "
-             "JOIN devices d ON d.id = s.device_id WHERE s.id > ?")
-        args: list[Any] = [sample_id]
-        if before is not None:
-            q += " AND s.id < ?"
-            args.append(before)
-        q += " ORDER BY s.id LIMIT ?"
-        args.append(limit)
+        ``before``), in id order, at most ``limit``: pymb.store's reader of
+        its storage format (hub channels an --on-change sample did not store
+        have the state ``not_read`` and no value)."""
         self.db.execute("BEGIN")  # one snapshot for the samples and their values
         try:
-            heads = self.db.execute(q, args).fetchall()
-            if not heads:
-                return []
-            lo, hi = heads[0][0], heads[-1][0]
-            coolpro = {r[0]: r[1:] for r in self.db.execute(
-                f"SELECT sample_id, {', '.join(COOLPRO_FIELDS)} FROM coolpro "
-                "WHERE sample_id BETWEEN ? AND ?", (lo, hi))}
-            hub: dict[int, list[tuple[Any, ...]]] = {}
-            if any(h[3] == "hub" for h in heads):
-                cols = ", ".join(HUB_FIELDS + [f"{f}_state" for f in HUB_FIELDS])
-                for r in self.db.execute(
-                        f"SELECT sample_id, {cols} FROM hub WHERE sample_id BETWEEN ? AND ? "
-                        "ORDER BY sample_id, channel", (lo, hi)):
-                    hub.setdefault(r[0], []).append(r[1:])
+            got = stored_after(self.db, sample_id, limit, before)
         finally:
             self.db.execute("COMMIT")
-        out = []
-        n = len(HUB_FIELDS)
-        for sid, bus, name, typ, address, t in heads:
-            states: dict[str, list[str]] | None = None
-            if typ == "hub":
-                rows = hub.get(sid, [])
-                values: dict[str, Any] = {f: [r[i] for r in rows]
-                                          for i, f in enumerate(HUB_FIELDS)}
-                states = {f: [_STATE_NAMES.get(r[n + i], "unknown") for r in rows]
-                          for i, f in enumerate(HUB_FIELDS)}
-            else:
-                row = coolpro.get(sid) or (None,) * len(COOLPRO_FIELDS)
-                values = {f: (int(v) if f in _INT_FIELDS and v is not None else v)
-                          for f, v in zip(COOLPRO_FIELDS, row, strict=True)}
-            out.append(Record(sid, bus, name, typ, address, t, values, states))
-        return out
+        return [Record(s.id, s.bus, s.device, s.type, s.address, s.time_utc, s.values,
+                       s.states if s.type == "hub" else None) for s in got]
