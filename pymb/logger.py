@@ -71,7 +71,17 @@ from pymb.errors import (
     ProtocolError,
 )
 from pymb.fleet.config import MqttConfig, from_table
-from pymb.store import DeviceInfo, Event, OnChange, OutputError, Sample, Sink, open_sink
+from pymb.store import (
+    CSV_COLUMNS,
+    DeviceInfo,
+    Event,
+    OnChange,
+    OutputError,
+    Sample,
+    Sink,
+    open_sink,
+)
+from pymb.wire import bits_per_char, read_time
 
 __all__ = [
     "FAULT_KINDS",
@@ -88,7 +98,25 @@ __all__ = [
 
 DEVICE_TYPES = ("coolpro", "hub")
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+_FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
+_STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 _DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
+
+#: keys a device takes after its ``TYPE[:ADDRESS]`` (command line) or in TOML
+DEVICE_KEYS: dict[str, tuple[str, ...]] = {
+    "coolpro": ("name",),
+    "hub": ("channels", "humidity_unit", "name"),
+}
+DEVICE_SYNTAX = "TYPE[:ADDRESS][,key=value...] (TYPE coolpro or hub)"
+
+
+def _map(kind: str) -> Any:
+    return COOLPRO if kind == "coolpro" else HUB
+
+
+def default_address(kind: str) -> int:
+    """The address a device of this type has out of the box."""
+    return int(_map(kind).default_address)
 
 
 @dataclass
@@ -300,15 +328,13 @@ class LogConfig:
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
 
     def __post_init__(self) -> None:
+        check_buses(self.buses)
         if self.max_bytes is not None and not self.max_bytes > 0:
             raise InvalidArgument(f"--max-mb / max_mb must be a positive number of megabytes, "
                                   f"got {self.max_bytes / 1e6:g}")
         if self.max_age is not None and not self.max_age > 0:
             raise InvalidArgument(f"--max-age-days / max_age_days must be a positive number "
                                   f"of days, got {self.max_age / 86400:g}")
-
-    def __post_init__(self) -> None:
-        check_buses(self.buses)
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:
@@ -345,7 +371,8 @@ def check_buses(buses: Sequence[BusConfig]) -> None:
 
 
 _TOP_KEYS = ("output", "bus", "mqtt")
-_OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days")
+_OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "on_change", "heartbeat_s",
+                "deadband")
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "baud", "parity", "timeout", "interval",
              "device")
 _DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
@@ -423,21 +450,25 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
     mqtt = _get(doc, "mqtt", dict, str(path))
-    on_change = None
-    if _get(out, "on_change", bool, f"{path}: output", False):
-        bands = _get(out, "deadband", dict, f"{path}: output", {})
-        for k in bands:
-            _get(bands, k, (int, float), f"{path}: output.deadband")
-        on_change = OnChange(float(_get(out, "heartbeat_s", (int, float), f"{path}: output",
-                                        60.0)), {k: float(v) for k, v in bands.items()})
-    return LogConfig(
-        buses, _get(out, "format", str, f"{path}: output", "sqlite"),
-        _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
-        None if max_mb is None else int(max_mb * 1e6),
-        None if max_days is None else float(max_days) * 86400,
-        mqtt=None if mqtt is None else from_table(mqtt, str(path)),
-        on_change=on_change,
-    )
+    try:
+        on_change = None
+        if _get(out, "on_change", bool, f"{path}: output", False):
+            bands = _get(out, "deadband", dict, f"{path}: output", {})
+            for k in bands:
+                _get(bands, k, (int, float), f"{path}: output.deadband")
+            on_change = OnChange(float(_get(out, "heartbeat_s", (int, float),
+                                            f"{path}: output", 60.0)),
+                                 {k: float(v) for k, v in bands.items()})
+        return LogConfig(
+            buses, _get(out, "format", str, f"{path}: output", "sqlite"),
+            _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
+            None if max_mb is None else int(max_mb * 1e6),
+            None if max_days is None else float(max_days) * 86400,
+            mqtt=None if mqtt is None else from_table(mqtt, str(path)),
+            on_change=on_change,
+        )
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{path}: {e}") from None
 
 
 # -- polling ------------------------------------------------------------------------
@@ -528,6 +559,7 @@ class _BusPoller(threading.Thread):
         self.devices: list[_Device] = []
         stats.opened.setdefault(bus.name, False)
         for d in bus.devices:
+            assert d.address is not None
             units = d.humidity_unit
             info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
                               d.channels if d.type == "hub" else 0,
@@ -722,8 +754,8 @@ class Logger:
                  extra_status: Callable[[], str] | None = None) -> None:
         self.config = config
         self.extra_status = extra_status  #: appended to the status line (the forwarder's)
-        self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
-                                      max_age=config.max_age, on_change=config.on_change)
+        if sink is None:
+            check_output(config.format, config.path)
         self.status_out = status
         self._stop = threading.Event()
         self.stats = _Stats()
@@ -731,7 +763,7 @@ class Logger:
         self.pollers = [_BusPoller(b, self._queue, self._stop, self.stats)
                         for b in config.buses]
         self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
-                                      max_age=config.max_age)
+                                      max_age=config.max_age, on_change=config.on_change)
         self._status_width = 0
 
     def stop(self) -> None:

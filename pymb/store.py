@@ -807,8 +807,8 @@ def _create(path: Path) -> None:
             con.execute("BEGIN")
             for stmt in _statements(_SCHEMA):
                 con.execute(stmt)
-            con.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
-                        (str(SCHEMA_VERSION),))
+            con.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
+                ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__)])
             con.execute("COMMIT")
         finally:
             con.close()
@@ -1110,10 +1110,12 @@ FORMATS = ("sqlite", "csv", "jsonl", "influx")
 
 def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
               max_age: float | None = None, on_change: OnChange | None = None) -> Sink:
-    """A sink of format ``sqlite``, ``csv`` or ``jsonl`` at ``path`` (``-``: stdout)."""
+    """A sink of format ``sqlite``, ``csv``, ``jsonl`` or ``influx`` at ``path``
+    (``-``: stdout)."""
     if fmt == "sqlite":
         if path == "-":
-            raise InvalidArgument("SQLite needs a file; use --format csv or jsonl for stdout")
+            raise InvalidArgument(
+                "SQLite needs a file; use --format csv, jsonl or influx for stdout")
         return SqliteSink(path, max_bytes=max_bytes, max_age=max_age, on_change=on_change)
     if on_change is not None:
         raise InvalidArgument("--on-change needs the SQLite format")

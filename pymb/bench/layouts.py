@@ -61,6 +61,7 @@ CREATE VIEW hub_readings AS
            d.name AS device, d.address, h.*
       FROM hub h JOIN samples s ON s.id = h.sample_id JOIN devices d ON d.id = s.device_id;
 INSERT INTO meta VALUES ('schema_version', '1');
+INSERT INTO meta VALUES ('pymb_version', '0.1.0');
 """
 
 _INTS_SCHEMA = f"""

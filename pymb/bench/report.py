@@ -140,7 +140,41 @@ def tables(result: dict[str, Any]) -> list[Table]:
     logger = result.get("logger")
     if logger:
         out.extend(_logger_tables(logger))
-    tg = result.get("targets") or []
+    fleet = result.get("fleet")
+    if fleet and fleet.get("status") == "ok":
+        def ms(v: float | None) -> str:
+            return "-" if v is None else fmt_time(v * 1000)
+        out.append(Table(
+            "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
+            "way)",
+            f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
+            f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
+            f"time to the subscriber at "
+            f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
+            f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
+            f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
+            "persistent-session subscriber sees them",
+            ["publisher", "throughput", "latency median", "latency p95",
+             f"lost ({fleet['outage_s']:g} s outage)", "duplicated"],
+            [[r["label"],
+              "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
+              ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
+              f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
+             for r in fleet["rows"]],
+            [False, True, True, True, True, True], []))
+    elif fleet:
+        out.append(Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False],
+                         []))
+    if m.get("quick"):
+        for t in out:
+            t.title += " [indicative: --quick]"
+        if micro:
+            for t in out:
+                if t.title.startswith("Micro") and t.headers[-1] == "target":
+                    t.headers = list(t.headers[:-1])
+                    t.rows = [r[:-1] for r in t.rows]
+                    t.right = list(t.right[:-1])
+    tg = [] if m.get("quick") else (result.get("targets") or [])
     if tg:
         out.append(Table(
             "Targets", "",

@@ -14,7 +14,14 @@ import sys
 from pymb.commands._common import DEVICE_HELP
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, PASSWORD_ENV, PROFILES, MqttConfig
-from pymb.logger import LogConfig, Logger, default_path, load_config, single_bus_config
+from pymb.logger import (
+    LogConfig,
+    Logger,
+    default_path,
+    load_config,
+    parse_device,
+    single_bus_config,
+)
 from pymb.store import FORMATS, OnChange
 
 

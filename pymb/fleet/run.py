@@ -36,6 +36,7 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
     left (for at most DRAIN_SECONDS) and return both summaries."""
+    check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
                      on_change=cfg.on_change)
     try:
