@@ -450,15 +450,17 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
     mqtt = _get(doc, "mqtt", dict, str(path))
+    on_change = None
+    flag = out.get("on_change", False)
+    if not isinstance(flag, bool):
+        raise InvalidArgument(f"{path}: output: on_change must be true or false, got {flag!r}")
+    if flag:
+        bands = _get(out, "deadband", dict, f"{path}: output", {})
+        for k in bands:
+            _get(bands, k, (int, float), f"{path}: output.deadband")
+        on_change = OnChange(float(_get(out, "heartbeat_s", (int, float), f"{path}: output",
+                                        60.0)), {k: float(v) for k, v in bands.items()})
     try:
-        on_change = None
-        if _get(out, "on_change", bool, f"{path}: output", False):
-            bands = _get(out, "deadband", dict, f"{path}: output", {})
-            for k in bands:
-                _get(bands, k, (int, float), f"{path}: output.deadband")
-            on_change = OnChange(float(_get(out, "heartbeat_s", (int, float),
-                                            f"{path}: output", 60.0)),
-                                 {k: float(v) for k, v in bands.items()})
         return LogConfig(
             buses, _get(out, "format", str, f"{path}: output", "sqlite"),
             _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
