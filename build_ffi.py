@@ -12,6 +12,10 @@ Run by setuptools through ``setup.py``; ``python build_ffi.py`` builds in place.
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import sysconfig
 
 from cffi import FFI
 
@@ -21,6 +25,7 @@ SOURCES = [
     f"{CSRC}/pymb_crc.c",
     f"{CSRC}/pymb_frame.c",
     f"{CSRC}/pymb_decode.c",
+    f"{CSRC}/pymb_error.c",
     f"{CSRC}/pymb_modbus.c",
     f"{CSRC}/pymb_hub.c",
 ]
@@ -192,7 +197,9 @@ typedef struct {
 uint16_t pymb_crc16(const uint8_t *data, size_t len);
 uint16_t pymb_crc16_update(uint16_t crc, const uint8_t *data, size_t len);
 int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
-size_t pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
+int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
+const char *pymb_version(void);
+const char *pymb_strerror(int errnum);
 const char *pymb_frame_strerror(int status);
 int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
 int pymb_rtu_request_length(const uint8_t *req, size_t have);
@@ -305,6 +312,24 @@ SOURCE = """
 #include "pymb_modbus.h"
 """
 
+
+
+def _require_build_tools() -> None:
+    """Stop with one line naming the Debian packages when a build need is missing."""
+    pkg_config = os.environ.get("PKG_CONFIG", "pkg-config")
+    missing = []
+    if shutil.which(pkg_config) is None:
+        missing.append("pkg-config")
+    elif subprocess.run([pkg_config, "--exists", "libmodbus"], check=False).returncode != 0:
+        missing.append("libmodbus-dev")
+    if not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")):
+        missing.append("python3-dev")
+    if missing:
+        sys.exit(f"pymb: cannot build its C extension: install {' and '.join(missing)} first "
+                 f"(Debian/Ubuntu: sudo apt install {' '.join(missing)})")
+
+
+_require_build_tools()
 ffibuilder = FFI()
 ffibuilder.cdef(CDEF)
 ffibuilder.set_source_pkgconfig(

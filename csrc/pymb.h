@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb.h - pymb's C core: Modbus RTU CRC-16, frame checks and the sensor-block
  * decoders of the two devices pymb speaks to.
@@ -8,6 +9,11 @@
  *
  * Conventions, after libmodbus: one `pymb_` prefix, the caller owns every
  * buffer and passes its length, nothing here keeps state between calls.
+ * Errors: a function that can fail returns -1 and sets errno (EINVAL for a
+ * bad argument, libmodbus's EMB* codes for protocol errors: the PYMB_EMB*
+ * values below), and pymb_strerror() names them all. The frame checks return
+ * a pymb_frame_status instead: their answer is the classification itself.
+ * Each function's man page (section 3) says what it writes on failure.
  *
  * Documents cited:
  *   [MB-AP]  Modbus Application Protocol Specification V1.1b3
@@ -26,10 +32,54 @@
 extern "C" {
 #endif
 
+/* The one home of pymb's version: the Makefile (SONAME, pymb.pc), setup.py
+ * (the Python package's version) and pymb.__version__ all read it here. */
 #define PYMB_VERSION_MAJOR 0
 #define PYMB_VERSION_MINOR 1
 #define PYMB_VERSION_PATCH 0
-#define PYMB_VERSION_STRING "0.1.0"
+
+#define PYMB_STRINGIFY_(x) #x
+#define PYMB_STRINGIFY(x) PYMB_STRINGIFY_(x)
+#define PYMB_VERSION_STRING                                                      \
+    PYMB_STRINGIFY(PYMB_VERSION_MAJOR) "." PYMB_STRINGIFY(PYMB_VERSION_MINOR) "." \
+    PYMB_STRINGIFY(PYMB_VERSION_PATCH)
+/* 0x000100 for 0.1.0: compares as the versions do. */
+#define PYMB_VERSION_HEX \
+    ((PYMB_VERSION_MAJOR << 16) | (PYMB_VERSION_MINOR << 8) | PYMB_VERSION_PATCH)
+/* True when the headers are version major.minor.patch or later. */
+#define PYMB_VERSION_CHECK(major, minor, patch) \
+    (PYMB_VERSION_HEX >= (((major) << 16) | ((minor) << 8) | (patch)))
+
+/* The version of the library linked at run time ("0.1.0"), which may differ
+ * from the PYMB_VERSION_STRING a program was compiled with. */
+const char *pymb_version(void);
+
+/* ------------------------------------------------------------------------ */
+/* Errors: errno values, as libmodbus numbers them (modbus.h: MODBUS_ENOBASE
+ * + the exception code, then its own protocol errors), so that errno means
+ * the same with or without libmodbus; pymb_modbus.c checks that they agree. */
+#define PYMB_ENOBASE 112345678
+#define PYMB_EMBXILFUN (PYMB_ENOBASE + 1)   /* exception 01: illegal function */
+#define PYMB_EMBXILADD (PYMB_ENOBASE + 2)   /* 02: illegal data address */
+#define PYMB_EMBXILVAL (PYMB_ENOBASE + 3)   /* 03: illegal data value */
+#define PYMB_EMBXSFAIL (PYMB_ENOBASE + 4)   /* 04: server device failure */
+#define PYMB_EMBXACK (PYMB_ENOBASE + 5)     /* 05: acknowledge */
+#define PYMB_EMBXSBUSY (PYMB_ENOBASE + 6)   /* 06: server device busy */
+#define PYMB_EMBXNACK (PYMB_ENOBASE + 7)    /* 07: negative acknowledge */
+#define PYMB_EMBXMEMPAR (PYMB_ENOBASE + 8)  /* 08: memory parity error */
+#define PYMB_EMBXGPATH (PYMB_ENOBASE + 10)  /* 0A: gateway path unavailable */
+#define PYMB_EMBXGTAR (PYMB_ENOBASE + 11)   /* 0B: gateway target failed */
+#define PYMB_EMBBADCRC (PYMB_ENOBASE + 12)  /* bad CRC */
+#define PYMB_EMBBADDATA (PYMB_ENOBASE + 13) /* reply not as asked */
+#define PYMB_EMBBADEXC (PYMB_ENOBASE + 14)  /* exception code above 0x0B */
+#define PYMB_EMBUNKEXC (PYMB_ENOBASE + 15)  /* unknown exception */
+#define PYMB_EMBMDATA (PYMB_ENOBASE + 16)   /* too many data */
+#define PYMB_EMBBADSLAVE (PYMB_ENOBASE + 17) /* reply from another address */
+
+/* A description of errnum: one of the codes above, or strerror()'s text for
+ * the OS's errno values. Never NULL; the text is static and must not be
+ * modified. */
+const char *pymb_strerror(int errnum);
 
 /* [MB-SL] 2.5.1.1: an RTU frame is at most 256 bytes (address, PDU, CRC). */
 #define PYMB_RTU_MAX_ADU 256
@@ -55,12 +105,13 @@ uint16_t pymb_crc16(const uint8_t *data, size_t len);
 uint16_t pymb_crc16_update(uint16_t crc, const uint8_t *data, size_t len);
 
 /* 1 when the last two bytes of `frame` are the CRC of the bytes before them
- * (low byte first), 0 otherwise (also when len < 3 or frame is NULL). */
+ * (low byte first), 0 otherwise (also when len < 3); -1 (EINVAL) when frame
+ * is NULL. */
 int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
 
-/* Append the CRC to frame[0..len). Returns the new length, or 0 when
- * len + 2 > cap or frame is NULL. */
-size_t pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
+/* Append the CRC to frame[0..len). Returns the new length, or -1 (EINVAL)
+ * when len + 2 > cap, len + 2 > PYMB_RTU_MAX_ADU or frame is NULL. */
+int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
 
 /* ------------------------------------------------------------------------ */
 /* Frame checks, on PDUs (function code first) so that RTU and TCP share them. */
@@ -138,7 +189,7 @@ double pymb_sm_tenths(uint16_t raw);
 double pymb_milli(uint16_t raw);
 
 /* A 32-bit value stored low word first, each word big-endian ([CP] ch. 04).
- * Reads regs[0] (low) and regs[1] (high). */
+ * Reads regs[0] (low) and regs[1] (high); 0 (errno EINVAL) when regs is NULL. */
 uint32_t pymb_u32_lo_hi(const uint16_t *regs);
 
 /* ------------------------------------------------------------------------ */
@@ -170,7 +221,7 @@ typedef enum {
 /* Decode one raw hub register of `block` into *value and return its
  * pymb_state. `humidity_tenths` (humidity block only): nonzero when the
  * channel's sensor reports in 0.1 %, zero for 1 %. *value is NaN for every
- * state but PYMB_VALUE. Returns -1 for an unknown block. */
+ * state but PYMB_VALUE. Returns -1 (EINVAL, *value NaN) for an unknown block. */
 int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
 
 /* Bitmaps over the 700 sweep registers: bit i (byte i / 8, bit i % 8) is
@@ -192,7 +243,8 @@ int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *va
  * values, states: out_len >= 7 * channels entries each, block-major:
  *            values[b * channels + c]. NaN wherever the state is not a value.
  *
- * Returns 0, or -1 when an argument is out of range (nothing written then).
+ * Returns 0, or -1 (EINVAL) when an argument is out of range: nothing is
+ * written then.
  */
 int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
                     const uint8_t *humidity_tenths, const uint8_t *wanted,
@@ -228,7 +280,8 @@ typedef struct {
     uint32_t manufactured; /* Unix time, UTC */
 } pymb_coolpro_identity;
 
-/* Decode input registers 0..7 / 100..107. nregs must be 8. Return 0 or -1. */
+/* Decode input registers 0..7 / 100..107. nregs must be 8. Return 0, or -1
+ * (EINVAL; *out untouched) for a NULL pointer or another nregs. */
 int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
                                   pymb_coolpro_telemetry *out);
 int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,

@@ -1,9 +1,12 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_crc.c - CRC-16/MODBUS ([MB-SL] 6.2.2): reflected polynomial 0xA001,
  * initial value 0xFFFF, sent low byte first. One lookup in a 256-entry table
  * per byte; the table is the CRC of each byte value, generated once from the
  * polynomial (see tests/test_core.c, which checks it bit by bit).
  */
+#include <errno.h>
+
 #include "pymb.h"
 
 static const uint16_t crc_table[256] = {
@@ -63,22 +66,27 @@ int pymb_rtu_crc_ok(const uint8_t *frame, size_t len)
 {
     uint16_t crc;
 
-    if (frame == NULL || len < 3) {
+    if (frame == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    if (len < 3) {
         return 0;
     }
     crc = pymb_crc16(frame, len - 2);
     return frame[len - 2] == (crc & 0xFFu) && frame[len - 1] == (crc >> 8);
 }
 
-size_t pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap)
+int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap)
 {
     uint16_t crc;
 
-    if (frame == NULL || len > cap || cap - len < 2) {
-        return 0;
+    if (frame == NULL || len > cap || cap - len < 2 || len > PYMB_RTU_MAX_ADU - 2) {
+        errno = EINVAL;
+        return -1;
     }
     crc = pymb_crc16(frame, len);
     frame[len] = (uint8_t)(crc & 0xFFu);
     frame[len + 1] = (uint8_t)(crc >> 8);
-    return len + 2;
+    return (int)len + 2;
 }

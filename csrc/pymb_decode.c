@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_decode.c - raw registers to engineering values, no allocation, no I/O.
  *
@@ -5,6 +6,7 @@
  * that every result is the correctly rounded double of the document's value:
  * 251 -> 25.1 exactly as Python's 251 / 10 gives it.
  */
+#include <errno.h>
 #include <math.h>
 
 #include "pymb.h"
@@ -22,6 +24,10 @@ double pymb_milli(uint16_t raw)
 
 uint32_t pymb_u32_lo_hi(const uint16_t *regs)
 {
+    if (regs == NULL) {
+        errno = EINVAL;
+        return 0;
+    }
     return ((uint32_t)regs[1] << 16) | regs[0];
 }
 
@@ -31,6 +37,10 @@ int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *va
     double v = NAN;
 
     if (block < 0 || block >= PYMB_HUB_BLOCKS) {
+        if (value != NULL) {
+            *value = NAN;
+        }
+        errno = EINVAL;
         return -1;
     }
     if (raw == PYMB_HUB_OFFLINE) {
@@ -142,6 +152,7 @@ int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
     if (regs == NULL || values == NULL || states == NULL ||
         nregs != PYMB_HUB_REGISTERS || channels < 1 || channels > PYMB_HUB_CHANNELS ||
         out_len < (size_t)PYMB_HUB_BLOCKS * channels) {
+        errno = EINVAL;
         return -1;
     }
     for (b = 0; b < PYMB_HUB_BLOCKS; b++) {
@@ -187,6 +198,7 @@ int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
                                   pymb_coolpro_telemetry *out)
 {
     if (regs == NULL || out == NULL || nregs != PYMB_COOLPRO_TELEMETRY_COUNT) {
+        errno = EINVAL;
         return -1;
     }
     out->input_voltage_v = pymb_milli(regs[0]);
@@ -203,6 +215,7 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
                                  pymb_coolpro_identity *out)
 {
     if (regs == NULL || out == NULL || nregs != PYMB_COOLPRO_IDENTITY_COUNT) {
+        errno = EINVAL;
         return -1;
     }
     out->serial_number = pymb_u32_lo_hi(regs + 0);

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_frame.c - Modbus frame lengths and response checks, with no I/O.
  *

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_hub.c - the sensor hub's sweep: planned block reads over libmodbus,
  * firmware fallback, busy retry, and decoding, in one call.
@@ -8,7 +9,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "pymb_modbus.h"
+#include "pymb_internal.h"
 
 #define FIRST PYMB_HUB_FIRST_REGISTER
 #define LAST (PYMB_HUB_FIRST_REGISTER + PYMB_HUB_REGISTERS - 1)
@@ -157,6 +158,10 @@ int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail)
     unsigned b, i;
     int k;
 
+    pymb_failure_reset(fail);
+    if (rq != NULL) {
+        rq->read_mask = 0;
+    }
     if (line == NULL || rq == NULL || rq->regs == NULL || rq->spans == NULL ||
         rq->nspans < 0 || rq->channels < 1 || rq->channels > PYMB_HUB_CHANNELS ||
         rq->slave < 1 || rq->slave > 255 || rq->options.busy_retries < 0 ||

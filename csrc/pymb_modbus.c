@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_modbus.c - pymb's request path over libmodbus (see pymb_modbus.h).
  */
@@ -11,7 +12,18 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "pymb_modbus.h"
+#include "pymb_internal.h"
+
+/* pymb.h numbers errors as libmodbus does, so that the core needs no libmodbus
+ * (a compile-time check: the array size is -1 when they differ; C99 has no
+ * static_assert, and libmodbus's exception codes are enum constants, which #if
+ * cannot see). */
+typedef char pymb_emb_codes_match_libmodbus
+    [(PYMB_ENOBASE == MODBUS_ENOBASE && PYMB_EMBXILFUN == EMBXILFUN &&
+      PYMB_EMBXGTAR == EMBXGTAR && PYMB_EMBBADCRC == EMBBADCRC &&
+      PYMB_EMBBADDATA == EMBBADDATA && PYMB_EMBBADEXC == EMBBADEXC &&
+      PYMB_EMBUNKEXC == EMBUNKEXC && PYMB_EMBMDATA == EMBMDATA &&
+      PYMB_EMBBADSLAVE == EMBBADSLAVE) ? 1 : -1];
 
 #define MBAP_LENGTH 7
 
@@ -574,6 +586,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
     int hl, n, status = PYMB_FRAME_OK, pdu_len, exc = 0, desync = 0;
     uint64_t sent_us;
 
+    pymb_failure_reset(fail);
     if (!line_ok(line) || req == NULL || rsp == NULL || req_len < 2 ||
         req_len > PYMB_MAX_PDU + 1 || rsp_cap < MODBUS_MAX_ADU_LENGTH || expect < 0 ||
         expect > PYMB_MAX_PDU) {
@@ -711,6 +724,7 @@ int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int 
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
     int done = 0;
 
+    pymb_failure_reset(fail);
     if ((function != MODBUS_FC_READ_HOLDING_REGISTERS &&
          function != MODBUS_FC_READ_INPUT_REGISTERS) ||
         check_read_args(line, slave, addr, nb, dest) < 0) {
@@ -739,6 +753,7 @@ int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb, u
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
     int done = 0;
 
+    pymb_failure_reset(fail);
     if ((function != MODBUS_FC_READ_COILS && function != MODBUS_FC_READ_DISCRETE_INPUTS) ||
         check_read_args(line, slave, addr, nb, dest) < 0) {
         errno = EINVAL;

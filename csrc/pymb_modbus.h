@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pymb_modbus.h - pymb's request path over libmodbus.
  *
@@ -42,7 +43,9 @@
  *     EINTR (the interrupt hook asked to stop), EINVAL for a bad argument,
  *     an exception errno (see pymb_exception_errno), or the OS's errno (EIO
  *     for an unplugged USB adapter, ECONNRESET for a closed TCP peer);
- *   - fills the optional pymb_failure with what was asked and what came back.
+ *   - fills the optional pymb_failure with what was asked and what came back;
+ *     it is reset first (function, address, count -1; frame, rsp_len 0), even
+ *     when the arguments are refused.
  *
  * Not thread-safe per line (like libmodbus): one thread per pymb_line.
  */

@@ -12,7 +12,7 @@ Errors are rooted at :class:`pymb.ModbusError`.
 
 from __future__ import annotations
 
-from pymb._native import LIBMODBUS_VERSION, crc16
+from pymb._native import LIBMODBUS_VERSION, VERSION, crc16
 from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
 from pymb.errors import (
     Acknowledge,
@@ -33,7 +33,7 @@ from pymb.errors import (
     ProtocolError,
 )
 
-__version__ = "0.1.0"
+__version__ = VERSION  # csrc/pymb.h is the one home of the version
 
 __all__ = [
     "LIBMODBUS_VERSION",

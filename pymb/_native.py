@@ -30,6 +30,7 @@ __all__ = [
     "HUB_CHANNELS",
     "HUB_REGISTERS",
     "LIBMODBUS_VERSION",
+    "VERSION",
     "HubSweep",
     "Link",
     "coolpro_identity",
@@ -45,6 +46,9 @@ __all__ = [
     "rtu_silence",
     "with_crc",
 ]
+
+#: pymb's version, as the compiled C library (csrc/pymb.h, its one home) says it.
+VERSION: str = ffi.string(lib.pymb_version()).decode()
 
 LIBMODBUS_VERSION = (
     f"{lib.libmodbus_version_major}.{lib.libmodbus_version_minor}."

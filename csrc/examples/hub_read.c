@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * hub_read.c - read every channel of a 100-channel sensor hub from C, with
  * pymb's sweep (6 requests, firmware fallback, busy retry) and decoders.

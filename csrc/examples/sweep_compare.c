@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * sweep_compare.c - pymb's hub sweep (pymb_hub_read) against the same sweep
  * written with plain libmodbus (6 x modbus_read_registers + the same C

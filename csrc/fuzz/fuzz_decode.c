@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_decode.c - libFuzzer target: the block decoders on arbitrary input.
  * The input is the register image (as many registers as it holds, copied

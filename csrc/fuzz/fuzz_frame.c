@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_frame.c - libFuzzer target: frame lengths and response checks.
  * The first byte splits the input into a request and a response, each

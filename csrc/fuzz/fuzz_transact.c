@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_transact.c - libFuzzer target: pymb's request path (pymb_transact,
  * the raw path for slaves 248..255, pymb_read_registers and the hub sweep)

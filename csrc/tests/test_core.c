@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_core.c - known-answer tests of pymb's C core (no Python, no libmodbus).
  *
@@ -5,6 +6,7 @@
  * catalogue check value, the CoolPro document's worked frames ([CP] ch. 02,
  * 04, 06), and the sensor hub's register descriptions ([HUB] 3, [NOTES]).
  */
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -73,10 +75,15 @@ static void test_crc(void)
     CHECK(pymb_rtu_crc_ok(frame, 8));
     frame[3] ^= 0x01;
     CHECK(!pymb_rtu_crc_ok(frame, 8));
-    CHECK(pymb_rtu_append_crc(frame, 7, 8) == 0); /* no room */
-    CHECK(pymb_rtu_append_crc(frame, 9, 8) == 0); /* len beyond cap */
-    CHECK(!pymb_rtu_crc_ok(frame, 2));
-    CHECK(!pymb_rtu_crc_ok(NULL, 8));
+    errno = 0;
+    CHECK(pymb_rtu_append_crc(frame, 7, 8) == -1 && errno == EINVAL); /* no room */
+    errno = 0;
+    CHECK(pymb_rtu_append_crc(frame, 9, 8) == -1 && errno == EINVAL); /* len beyond cap */
+    CHECK(pymb_rtu_append_crc(big, 255, 300) == -1); /* no RTU frame is that long */
+    CHECK(pymb_rtu_append_crc(NULL, 1, 8) == -1);
+    CHECK(pymb_rtu_crc_ok(frame, 2) == 0);
+    errno = 0;
+    CHECK(pymb_rtu_crc_ok(NULL, 8) == -1 && errno == EINVAL);
 }
 
 static size_t with_crc(uint8_t *f, size_t n)
@@ -213,7 +220,9 @@ static void test_hub_one(void)
     CHECK(pymb_hub_decode_one(PYMB_HUB_VOLTAGE, 3300, 0, &v) == PYMB_VALUE && same(v, 3300.0));
     CHECK(pymb_hub_decode_one(PYMB_HUB_RSSI, 0xFFB5, 0, &v) == PYMB_VALUE && same(v, -75.0));
     CHECK(pymb_hub_decode_one(PYMB_HUB_RSSI, 0xFFFF, 0, &v) == PYMB_OFFLINE);
-    CHECK(pymb_hub_decode_one(7, 0, 0, &v) == -1);
+    v = 0.0;
+    errno = 0;
+    CHECK(pymb_hub_decode_one(7, 0, 0, &v) == -1 && errno == EINVAL && isnan(v));
     CHECK(pymb_hub_decode_one(-1, 0, 0, &v) == -1);
 }
 
@@ -272,6 +281,10 @@ static void test_hub_block(void)
     }
 
     /* Bad arguments write nothing. */
+    errno = 0;
+    states[0] = 0xAA;
+    CHECK(pymb_hub_decode(regs, 700, 0, NULL, NULL, 0x7F, 0, values, states, 700) == -1 &&
+          errno == EINVAL && states[0] == 0xAA);
     CHECK(pymb_hub_decode(regs, 699, 100, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
     CHECK(pymb_hub_decode(regs, 700, 0, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
     CHECK(pymb_hub_decode(regs, 700, 101, NULL, NULL, 0x7F, 0, values, states, 707) == -1);
@@ -299,7 +312,32 @@ static void test_coolpro(void)
     CHECK(id.serial_number == 12345u && id.hardware_revision == 2);
     CHECK(id.firmware_major == 1 && id.firmware_minor == 0 && id.firmware_patch == 0);
     CHECK(id.manufactured == 0x6A505E00u);
-    CHECK(pymb_coolpro_decode_identity(NULL, 8, &id) == -1);
+    errno = 0;
+    CHECK(pymb_coolpro_decode_identity(NULL, 8, &id) == -1 && errno == EINVAL);
+    errno = 0;
+    CHECK(pymb_u32_lo_hi(NULL) == 0 && errno == EINVAL);
+}
+
+static void test_errors_and_version(void)
+{
+    char want[32];
+
+    /* libmodbus's texts for its codes ([MB-AP] 7 for the exceptions). */
+    CHECK(strcmp(pymb_strerror(PYMB_EMBXILADD), "Illegal data address") == 0);
+    CHECK(strcmp(pymb_strerror(PYMB_EMBBADCRC), "Invalid CRC") == 0);
+    CHECK(strcmp(pymb_strerror(PYMB_EMBBADSLAVE), "Response not from requested slave") == 0);
+    CHECK(strcmp(pymb_strerror(EINVAL), strerror(EINVAL)) == 0);
+    CHECK(strcmp(pymb_strerror(ETIMEDOUT), strerror(ETIMEDOUT)) == 0);
+    CHECK(pymb_strerror(PYMB_ENOBASE + 9) != NULL); /* no exception 09: strerror's */
+
+    snprintf(want, sizeof want, "%d.%d.%d", PYMB_VERSION_MAJOR, PYMB_VERSION_MINOR,
+             PYMB_VERSION_PATCH);
+    CHECK(strcmp(pymb_version(), want) == 0);
+    CHECK(strcmp(PYMB_VERSION_STRING, want) == 0);
+    CHECK(PYMB_VERSION_CHECK(PYMB_VERSION_MAJOR, PYMB_VERSION_MINOR, PYMB_VERSION_PATCH));
+    CHECK(PYMB_VERSION_CHECK(0, 0, 1));
+    CHECK(!PYMB_VERSION_CHECK(PYMB_VERSION_MAJOR + 1, 0, 0));
+    CHECK(!PYMB_VERSION_CHECK(PYMB_VERSION_MAJOR, PYMB_VERSION_MINOR, PYMB_VERSION_PATCH + 1));
 }
 
 int main(void)
@@ -311,6 +349,7 @@ int main(void)
     test_hub_one();
     test_hub_block();
     test_coolpro();
+    test_errors_and_version();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures ? 1 : 0;
 }
