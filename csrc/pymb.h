@@ -76,7 +76,8 @@ const char *pymb_version(void);
 #define PYMB_EMBMDATA (PYMB_ENOBASE + 16)   /* too many data */
 #define PYMB_EMBBADSLAVE (PYMB_ENOBASE + 17) /* reply from another address */
 
-/* A description of errnum: one of the codes above, or strerror()'s text for
+/* A description of errnum: one of the codes above (the exceptions named as
+ * [MB-AP] 7 names them), or strerror()'s text for
  * the OS's errno values. Never NULL; the text is static and must not be
  * modified. */
 const char *pymb_strerror(int errnum);
