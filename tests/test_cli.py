@@ -4,7 +4,6 @@ the logger surviving faults and an unplugged port, SIGKILL mid-run."""
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import itertools
 import json
@@ -18,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from dbwait import count, wait_for
 
 from pymb.cli import main
 from pymb.sim import Simulator
@@ -180,12 +180,19 @@ address = 1
                                  "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
                                 stderr=subprocess.PIPE, text=True)
         try:
-            # Unplug only once bus a is logging (a loaded machine starts pymb slowly).
-            _wait_for_samples(db, "a", 3)
+            # Events, not fixed times: both buses log, a is unplugged and seen
+            # so, b goes on logging, a is replugged and logs again.
+            per_bus = ("SELECT COUNT(*) FROM samples s JOIN devices d ON d.id = s.device_id "
+                       "WHERE d.bus = ?")
+            event = "SELECT COUNT(*) FROM events WHERE kind = ? AND bus = 'a'"
+            wait_for(db, per_bus, ("a",), proc=proc)
+            wait_for(db, per_bus, ("b",), proc=proc)
             a.unplug()
-            time.sleep(2.0)
+            wait_for(db, event, ("connection",), proc=proc)
+            wait_for(db, per_bus, ("b",), at_least=count(db, per_bus, ("b",)) + 4, proc=proc)
             a.replug()
-            time.sleep(2.5)
+            wait_for(db, event, ("reconnect",), proc=proc)
+            wait_for(db, per_bus, ("a",), at_least=count(db, per_bus, ("a",)) + 4, proc=proc)
         finally:
             proc.send_signal(signal.SIGINT)
             _, err = proc.communicate(timeout=30)
@@ -207,20 +214,6 @@ address = 1
                         "WHERE d.bus = 'a' AND s.time_utc > ?", (t_back,)).fetchone()[0]
     assert after > 3  # logging resumed on the replugged bus
     con.close()
-
-
-def _wait_for_samples(db: Path, bus: str, n: int, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if db.exists():
-            with contextlib.suppress(sqlite3.OperationalError), \
-                    sqlite3.connect(db, timeout=5) as con:
-                got = con.execute("SELECT COUNT(*) FROM samples s JOIN devices d ON "
-                                  "d.id = s.device_id WHERE d.bus = ?", (bus,)).fetchone()[0]
-                if got >= n:
-                    return
-        time.sleep(0.1)
-    raise AssertionError(f"bus {bus} logged fewer than {n} samples in {timeout:g} s")
 
 
 def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from dbwait import count, wait_for
 
 import pymb
 from pymb import _native
@@ -306,14 +307,11 @@ def sigkill_runs(n: int, tmp_path: Path, seed: int = 1) -> None:
             proc = subprocess.Popen(
                 [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device",
                  "coolpro", "--device", "hub", "--out", str(db), "--quiet"], env=env)
-            time.sleep(rng.uniform(0.4, 1.6))
-            committed = 0
-            if db.exists():
-                with sqlite3.connect(db, timeout=10) as con:
-                    try:
-                        committed = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
-                    except sqlite3.OperationalError:
-                        committed = 0
+            # Killed at a random moment once this run is logging (its first
+            # commit), however long the start takes on this machine.
+            wait_for(db, "SELECT COUNT(*) FROM samples", at_least=before + 1, proc=proc)
+            time.sleep(rng.uniform(0.0, 1.2))
+            committed = count(db, "SELECT COUNT(*) FROM samples")
             proc.send_signal(signal.SIGKILL)
             proc.wait(10)
             if not db.exists():  # killed before it made the file (a slow start)
