@@ -130,3 +130,26 @@ def test_python_build_without_libmodbus_is_one_clear_line(tmp_path: Path) -> Non
     assert done.returncode != 0
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "sudo apt install libmodbus-dev" in lines[0], done.stderr
+
+
+@needs_make
+def test_makefile_honours_the_usual_variables(tmp_path: Path) -> None:
+    """CC, AR, CPPFLAGS, CFLAGS, LDFLAGS, PKG_CONFIG, EMULATOR and WERROR=0 reach the commands."""
+    fake_pc = tmp_path / "my-pkg-config"
+    fake_pc.write_text("#!/bin/sh\ncase \"$*\" in *--cflags*) echo -I/opt/mb;; "
+                       "*--libs*) echo -lmodbus;; esac\n")
+    fake_pc.chmod(0o755)
+    args = [f"B={tmp_path}/b", "CC=my-cc", "AR=my-ar", "CPPFLAGS=-DMY_CPP",
+            "CFLAGS=-O0 -DMY_CFLAGS", "LDFLAGS=-L/my/ldflags", f"PKG_CONFIG={fake_pc}",
+            "EMULATOR=my-emulator"]
+    dry = subprocess.run(["make", "-n", "-C", str(CSRC), *args, "WERROR=0", "all", "check-core"],
+                         capture_output=True, text=True, timeout=60)
+    assert dry.returncode == 0, dry.stderr
+    out = dry.stdout
+    for want in ("my-cc ", "my-ar rcs", "-DMY_CPP", "-DMY_CFLAGS", "-L/my/ldflags", "-I/opt/mb",
+                 "my-emulator "):
+        assert want in out, want
+    assert "-Werror" not in out
+    strict = subprocess.run(["make", "-n", "-C", str(CSRC), *args, "all"],
+                            capture_output=True, text=True, timeout=60)
+    assert "-Werror" in strict.stdout
