@@ -16,8 +16,10 @@ trap 'rm -rf "$tmp"' EXIT
 for h in "$@"; do printf '#include "%s"\n' "$h"; done > "$tmp/all.c"
 ${CC:-cc} ${CPPFLAGS:-} -I"$(dirname "$1")" -E -P "$tmp/all.c" \
     | tr -s ' \t\n' ' ' | grep -o 'pymb_[a-z0-9_]* *(' | tr -d ' (' | sort -u > "$tmp/declared"
-${NM:-nm} -D --defined-only "$lib" | awk '$2 == "T" { sub(/@.*/, "", $3); print $3 }' \
-    | sort -u > "$tmp/exported"
+# (sed, not awk: a minimal system, such as an extracted Debian root, may have no awk)
+${NM:-nm} -D --defined-only "$lib" > "$tmp/nm"
+sed -n 's/^[0-9a-fA-F]* T \([^@ ]*\).*/\1/p' "$tmp/nm" | sort -u > "$tmp/exported"
+[ -s "$tmp/exported" ] || { echo "check-exports: no function exported by $lib" >&2; exit 1; }
 
 rc=0
 if ! cmp -s "$tmp/declared" "$tmp/exported"; then
