@@ -15,6 +15,7 @@ static inline void pymb_failure_reset(pymb_failure *fail)
         fail->count = -1;
         fail->frame = 0;
         fail->rsp_len = 0;
+        fail->header = 0;
     }
 }
 

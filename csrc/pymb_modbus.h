@@ -44,8 +44,8 @@
  *     an exception errno (see pymb_exception_errno), or the OS's errno (EIO
  *     for an unplugged USB adapter, ECONNRESET for a closed TCP peer);
  *   - fills the optional pymb_failure with what was asked and what came back;
- *     it is reset first (function, address, count -1; frame, rsp_len 0), even
- *     when the arguments are refused.
+ *     it is reset first (function, address, count -1; frame, rsp_len and
+ *     header 0), even when the arguments are refused.
  *
  * Not thread-safe per line (like libmodbus): one thread per pymb_line.
  */
