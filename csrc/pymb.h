@@ -75,6 +75,10 @@ const char *pymb_version(void);
 #define PYMB_EMBUNKEXC (PYMB_ENOBASE + 15)  /* unknown exception */
 #define PYMB_EMBMDATA (PYMB_ENOBASE + 16)   /* too many data */
 #define PYMB_EMBBADSLAVE (PYMB_ENOBASE + 17) /* reply from another address */
+/* Exception codes 0x0C..0xFF ([MB-AP] 7 allows 1..255 on the wire) fail a
+ * request with PYMB_EXCEPTION_ENOBASE + code: libmodbus uses PYMB_ENOBASE +
+ * 12..17 for its own errors, so those codes need a range of their own. */
+#define PYMB_EXCEPTION_ENOBASE (PYMB_ENOBASE + 0x100)
 
 /* A description of errnum: one of the codes above (the exceptions named as
  * [MB-AP] 7 names them), or strerror()'s text for

@@ -50,6 +50,8 @@ const char *pymb_strerror(int errnum)
     case PYMB_EMBBADSLAVE:
         return "Response not from requested slave";
     default:
+        if (errnum >= PYMB_EXCEPTION_ENOBASE + 0x0C && errnum <= PYMB_EXCEPTION_ENOBASE + 0xFF)
+            return "Exception code not defined by the Modbus specification";
         return strerror(errnum);
     }
 }

@@ -79,7 +79,8 @@ extern "C" {
 /* Exception codes 1..0x0B fail with errno MODBUS_ENOBASE + code, libmodbus's
  * EMBXILFUN..EMBXGTAR; codes 0x0C..0xFF, whose MODBUS_ENOBASE + code
  * libmodbus uses for its own errors, with PYMB_EXCEPTION_ENOBASE + code. */
-#define PYMB_EXCEPTION_ENOBASE (MODBUS_ENOBASE + 0x100)
+/* PYMB_EXCEPTION_ENOBASE is defined in pymb.h (PYMB_ENOBASE, which equals
+ * MODBUS_ENOBASE, + 0x100). */
 
 /* The errno a request fails with when the device answers exception `code`
  * (1..255), as above. */

@@ -329,6 +329,12 @@ static void test_errors_and_version(void)
     CHECK(strcmp(pymb_strerror(EINVAL), strerror(EINVAL)) == 0);
     CHECK(strcmp(pymb_strerror(ETIMEDOUT), strerror(ETIMEDOUT)) == 0);
     CHECK(pymb_strerror(PYMB_ENOBASE + 9) != NULL); /* no exception 09: strerror's */
+    CHECK(strcmp(pymb_strerror(PYMB_EXCEPTION_ENOBASE + 0x0C),
+                 "Exception code not defined by the Modbus specification") == 0);
+    CHECK(strcmp(pymb_strerror(PYMB_EXCEPTION_ENOBASE + 0xFF),
+                 "Exception code not defined by the Modbus specification") == 0);
+    CHECK(strcmp(pymb_strerror(PYMB_EXCEPTION_ENOBASE + 0x100),
+                 "Exception code not defined by the Modbus specification") != 0);
 
     snprintf(want, sizeof want, "%d.%d.%d", PYMB_VERSION_MAJOR, PYMB_VERSION_MINOR,
              PYMB_VERSION_PATCH);
