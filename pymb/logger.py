@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import math
 import os
 import queue
 import signal
@@ -73,6 +74,7 @@ from pymb.errors import (
 from pymb.fleet.config import MqttConfig, from_table
 from pymb.store import (
     CSV_COLUMNS,
+    FORMATS,
     DeviceInfo,
     Event,
     OnChange,
@@ -262,8 +264,9 @@ class BusConfig:
                 f"bus {self.name!r}: give exactly one of port, tcp or rtu_over_tcp")
         if not self.devices:
             raise InvalidArgument(f"bus {self.name!r} has no devices")
-        if self.interval < 0:
-            raise InvalidArgument(f"bus {self.name!r}: interval must be >= 0")
+        if not (math.isfinite(self.interval) and self.interval >= 0):
+            raise InvalidArgument(f"bus {self.name!r}: interval must be a number of seconds "
+                                  f">= 0, got {self.interval!r}")
         if not self.timeout > 0:
             raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
         seen: dict[int, DeviceConfig] = {}
@@ -392,6 +395,12 @@ def _get(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: 
     return value
 
 
+def _within(where: str, e: InvalidArgument) -> InvalidArgument:
+    """``e`` said of ``where``, which is not repeated if ``e`` already names it."""
+    text = str(e)
+    return InvalidArgument(text if text.startswith(where) else f"{where}: {text}")
+
+
 def load_config(path: str | os.PathLike[str]) -> LogConfig:
     """Read a TOML configuration (see the module docstring). Unknown keys and
     sections are errors that name the closest known one."""
@@ -433,7 +442,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
                     units,
                 ))
             except InvalidArgument as e:
-                raise InvalidArgument(f"{dwhere}: {e}") from None
+                raise _within(dwhere, e) from None
         try:
             buses.append(BusConfig(
                 _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),
@@ -444,11 +453,19 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
                 rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
             ))
         except InvalidArgument as e:
-            raise InvalidArgument(f"{path}: {e}") from None
+            raise _within(str(path), e) from None
     if not buses:
         raise InvalidArgument(f"{path}: no [[bus]] configured")
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
+    for key, value in (("max_mb", max_mb), ("max_age_days", max_days)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InvalidArgument(f"{path}: output: {key} must be a positive number, "
+                                  f"got {value!r}")
+    fmt = _get(out, "format", str, f"{path}: output", "sqlite")
+    if fmt not in FORMATS:
+        raise InvalidArgument(f"{path}: output: unknown format {fmt!r}; use one of "
+                              f"{', '.join(FORMATS)}")
     mqtt = _get(doc, "mqtt", dict, str(path))
     on_change = None
     flag = out.get("on_change", False)
@@ -462,7 +479,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
                                         60.0)), {k: float(v) for k, v in bands.items()})
     try:
         return LogConfig(
-            buses, _get(out, "format", str, f"{path}: output", "sqlite"),
+            buses, fmt,
             _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
             None if max_mb is None else int(max_mb * 1e6),
             None if max_days is None else float(max_days) * 86400,
@@ -470,7 +487,7 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
             on_change=on_change,
         )
     except InvalidArgument as e:
-        raise InvalidArgument(f"{path}: {e}") from None
+        raise _within(str(path), e) from None
 
 
 # -- polling ------------------------------------------------------------------------

@@ -450,6 +450,43 @@ def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> Non
     assert not (tmp_path / "x.sqlite").exists() and not list(Path.cwd().glob("x.sqlite"))
 
 
+@pytest.mark.parametrize(("toml", "message"), [
+    (TOML_BUS + "[output]\nmax_mb = 1e999\n", "c.toml: output: max_mb must be a positive number"),
+    (TOML_BUS + "[output]\nmax_mb = nan\n", "max_mb must be a positive number, got nan"),
+    (TOML_BUS + "[output]\nmax_age_days = inf\n", "max_age_days must be a positive number"),
+    (TOML_BUS + "[output]\nformat = 'parquet'\n", "unknown format 'parquet'; use one of sqlite"),
+    (TOML_BUS.replace('name = "line1"', 'name = "line1"\ninterval = nan'),
+     "interval must be a number of seconds >= 0, got nan"),
+    (TOML_BUS.replace('name = "line1"', 'name = "line1"\ninterval = inf'),
+     "interval must be a number of seconds >= 0, got inf"),
+    (TOML_BUS.replace('/dev/ttyUSB0"', '/dev/ttyUSB0"\nbaud = "fast"'),
+     "c.toml: bus 1: baud has the wrong type ('fast')"),
+    (TOML_BUS.replace('type = "coolpro"', 'type = "coolpro"\naddress = "40"'),
+     "c.toml: bus 1, device 1: address has the wrong type ('40')"),
+    (TOML_BUS + "[mqtt]\nurl = 5\n", "c.toml: [mqtt] url has the wrong type (5)"),
+])
+def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
+                                                 message: str) -> None:
+    """Non-finite numbers, an unknown format and wrongly typed values are one
+    line naming the file once, never a traceback, and nothing is created."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(toml)
+    r = pymb("log", "--config", "c.toml", "--seconds", "1", cwd=tmp_path)
+    no_traceback(r)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert "c.toml: c.toml" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
+    for bad in ("nan", "inf"):
+        r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--interval", bad, "--seconds", "1",
+                 cwd=tmp_path)
+        no_traceback(r)
+        assert r.returncode == 2 and f"got {bad}" in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_toml_device_without_address_takes_the_default(sim: Simulator, tmp_path: Path) -> None:
     cfg = tmp_path / "ok.toml"
     db = tmp_path / "ok.sqlite"
