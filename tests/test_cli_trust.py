@@ -39,8 +39,9 @@ STOP_BOUND = 0.5 * float(os.environ.get("PYMB_TIMING_SLACK", "3"))
 
 def pymb(*args: str, timeout: float = 120, **kw: object) -> subprocess.CompletedProcess[str]:
     """``python -m pymb ARGS`` as a user runs it."""
+    kw.setdefault("env", ENV)
     return subprocess.run([*PYMB, *args], capture_output=True, text=True, timeout=timeout,
-                          env=ENV, **kw)  # type: ignore[call-overload]
+                          **kw)  # type: ignore[call-overload]
 
 
 def no_traceback(r: subprocess.CompletedProcess[str]) -> None:
@@ -646,3 +647,38 @@ def test_demo_never_claims_more_than_the_wire_allows(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     shares = [int(x) for x in re.findall(r"the wire allows .*?\((\d+)%\)", r.stdout)]
     assert len(shares) == 2 and all(0 < s <= 100 for s in shares), r.stdout
+
+
+def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> None:
+    """Without the ``pymb[mqtt]`` extra, ``log --mqtt`` and ``demo --mqtt`` say how
+    to install it, create no database and start no simulator."""
+    blocker = tmp_path / "nopaho"
+    blocker.mkdir()
+    (blocker / "sitecustomize.py").write_text(
+        "import sys\nfor m in ('paho', 'paho.mqtt', 'paho.mqtt.client'):\n"
+        "    sys.modules[m] = None  # as if pymb[mqtt] were not installed\n")
+    env = dict(ENV, PYTHONPATH=f"{blocker}{os.pathsep}{ENV['PYTHONPATH']}")
+    db = tmp_path / "out.sqlite"
+    r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--out", str(db), "--seconds", "1",
+             "--mqtt", "mqtt://127.0.0.1", env=env)
+    no_traceback(r)
+    assert r.returncode == 2 and "pip install 'pymb[mqtt]'" in r.stderr, r.stderr
+    assert not db.exists()
+    r = pymb("demo", "--mqtt", "--out", str(db), env=env)
+    no_traceback(r)
+    assert r.returncode == 2 and r.stderr.strip() == (
+        "pymb demo: --mqtt needs paho-mqtt: pip install 'pymb[mqtt]'"), r.stderr
+    assert not db.exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["demo", "--seconds", "-1"], ["demo", "--seconds", "nan"],
+    ["watch", "coolpro", "--port", "/dev/ttyUSB0", "--interval", "inf"],
+    ["watch", "coolpro", "--port", "/dev/ttyUSB0", "--interval", "nan"],
+])
+def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list[str]) -> None:
+    r = pymb(*args, "--out", str(tmp_path / "d.sqlite")) if args[0] == "demo" else pymb(*args)
+    no_traceback(r)
+    assert r.returncode == 2 and "must be" in r.stderr and len(r.stderr.splitlines()) == 1, \
+        r.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -11,6 +11,7 @@ seen, where the file is and a query to try.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sqlite3
 import sys
@@ -18,6 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from pymb.errors import InvalidArgument
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
 
@@ -40,6 +42,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, log, summarise."""
+    if not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise InvalidArgument(f"--seconds must be more than 0, got {args.seconds:g}")
+    if args.mqtt:
+        from pymb.fleet.forwarder import require_paho
+        require_paho()  # before any simulator starts
     out = args.out or os.path.join(tempfile.gettempdir(),
                                    time.strftime("pymb-demo-%Y%m%d-%H%M%S.sqlite"))
     baud = str(args.baud)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import queue
 import shutil
@@ -124,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
     dev = device_from_args(args)
     if args.count < 0:
         raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
-    if args.interval < 0:
-        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval}")
+    if not (math.isfinite(args.interval) and args.interval >= 0):
+        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
     is_hub = dev.type == "hub"
     if not is_hub and (args.block or args.show):
         raise InvalidArgument("--block and --show are for a hub")

@@ -19,6 +19,7 @@ from typing import Any, TextIO
 from pymb.errors import InvalidArgument
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.forwarder import require_paho
 from pymb.fleet.run import forwarding, summary_lines
 from pymb.logger import LogConfig, Summary
 
@@ -37,10 +38,8 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
                   say: Callable[[str], None]) -> tuple[Summary, list[str]]:
     """Log ``cfg`` for ``seconds`` forwarding to ``url`` (``auto``: a local
     mosquitto); returns the logger's summary and the lines about MQTT."""
-    try:
-        import paho.mqtt.client as mqtt
-    except ImportError:
-        raise InvalidArgument("--mqtt needs paho-mqtt: pip install 'pymb[mqtt]'") from None
+    require_paho()
+    import paho.mqtt.client as mqtt
     broker: Mosquitto | None = None
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if url == "auto":

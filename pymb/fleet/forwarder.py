@@ -195,6 +195,15 @@ class _Session:
         fw.wake.set()
 
 
+def require_paho() -> None:
+    """Raise InvalidArgument, saying how to install it, when paho-mqtt is missing."""
+    try:
+        import paho.mqtt.client  # noqa: F401
+    except ImportError:
+        from pymb.errors import InvalidArgument
+        raise InvalidArgument("--mqtt needs paho-mqtt: pip install 'pymb[mqtt]'") from None
+
+
 class Forwarder(threading.Thread):
     """Publishes the samples committed to ``db_path``; see the module docstring.
 
@@ -205,11 +214,7 @@ class Forwarder(threading.Thread):
 
     def __init__(self, db_path: str, cfg: MqttConfig) -> None:
         super().__init__(name="pymb-mqtt", daemon=True)
-        try:
-            import paho.mqtt.client  # noqa: F401
-        except ImportError:
-            from pymb.errors import InvalidArgument
-            raise InvalidArgument("--mqtt needs paho-mqtt: pip install 'pymb[mqtt]'") from None
+        require_paho()
         self.cfg = cfg
         self.profile: Profile = make_profile(cfg)
         self.dest = f"{'mqtts' if cfg.tls else 'mqtt'}://{cfg.host}:{cfg.port}/" \

@@ -8,7 +8,7 @@ from typing import TextIO
 
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.forwarder import Forwarder, ForwarderStatus
+from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
 from pymb.logger import LogConfig, Logger, Summary, check_output
 from pymb.store import open_sink
 
@@ -36,6 +36,7 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
     left (for at most DRAIN_SECONDS) and return both summaries."""
+    require_paho()  # before the database is created
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
                      on_change=cfg.on_change)
