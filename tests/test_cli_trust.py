@@ -682,3 +682,33 @@ def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list
     assert r.returncode == 2 and "must be" in r.stderr and len(r.stderr.splitlines()) == 1, \
         r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_export_stopped_by_a_signal_leaves_no_temporary_file(logged: Path, tmp_path: Path,
+                                                             sig: int) -> None:
+    """SIGTERM (a service stopped) or SIGHUP (the terminal closed) mid-export:
+    the previous CSV stays as it was and no hidden temporary file (as big as
+    the export) is left behind to fill the disk."""
+    out = tmp_path / "out.csv"
+    r = pymb("export", str(logged), "--since", "2100-01-01", "--csv", str(out))
+    assert r.returncode == 0, r.stderr
+    before = digest(out)
+    p = subprocess.Popen([*PYMB, "export", str(logged), "--csv", str(out)], env=ENV,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not [f for f in tmp_path.iterdir() if f.name.startswith(".pymb-export-")
+                   and f.stat().st_size > 0]:
+            assert p.poll() is None and time.monotonic() < deadline, "export never started"
+            time.sleep(0.01)
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert "Traceback" not in err, err
+    assert p.returncode == 128 + sig, (p.returncode, err)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out.csv"]
+    assert digest(out) == before

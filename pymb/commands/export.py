@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import signal
 import sqlite3
 import sys
 import tempfile
@@ -144,6 +145,10 @@ def _export_atomically(args: argparse.Namespace, out: str, device: str | None,
         fd, tmp = tempfile.mkstemp(prefix=".pymb-export-", suffix=".csv.tmp", dir=folder)
     except OSError as e:
         raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
+    def terminated(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)  # as a kill would, but the temporary file goes
+
+    old = {s: signal.signal(s, terminated) for s in (signal.SIGTERM, signal.SIGHUP)}
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
             rows = export_csv(args.database, f, device=device, since=since, events=args.events)
@@ -163,4 +168,7 @@ def _export_atomically(args: argparse.Namespace, out: str, device: str | None,
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
     return rows
