@@ -471,6 +471,9 @@ def load_config(path: str | os.PathLike[str]) -> LogConfig:
     flag = out.get("on_change", False)
     if not isinstance(flag, bool):
         raise InvalidArgument(f"{path}: output: on_change must be true or false, got {flag!r}")
+    if not flag and ("deadband" in out or "heartbeat_s" in out):
+        raise InvalidArgument(f"{path}: output: deadband and heartbeat_s go with "
+                              "on_change = true")
     if flag:
         bands = _get(out, "deadband", dict, f"{path}: output", {})
         for k in bands:

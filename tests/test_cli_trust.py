@@ -465,6 +465,7 @@ def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> Non
     (TOML_BUS.replace('type = "coolpro"', 'type = "coolpro"\naddress = "40"'),
      "c.toml: bus 1, device 1: address has the wrong type ('40')"),
     (TOML_BUS + "[mqtt]\nurl = 5\n", "c.toml: [mqtt] url has the wrong type (5)"),
+    (TOML_BUS + "[output]\nheartbeat_s = 5\n", "heartbeat_s go with on_change = true"),
 ])
 def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
                                                  message: str) -> None:
