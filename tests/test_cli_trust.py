@@ -713,3 +713,20 @@ def test_export_stopped_by_a_signal_leaves_no_temporary_file(logged: Path, tmp_p
     assert p.returncode == 128 + sig, (p.returncode, err)
     assert sorted(f.name for f in tmp_path.iterdir()) == ["out.csv"]
     assert digest(out) == before
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["hub:1,firmwar=1.07"], "unknown key 'firmwar'; hub takes firmware=..."),
+    (["hub:1,channels=50"], "channel count follows its firmware (firmware=1.07: 50)"),
+    (["hub,baud=0"], "bad value for baud: '0'"),
+    (["hub", "--baud", "0"], "baud must be a positive number of bit/s, got 0"),
+    (["hub", "--baud", "-5"], "baud must be a positive number of bit/s, got -5"),
+])
+def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
+    """The simulator's device spec names the wrong key as read/log do, and a
+    zero or negative speed is refused instead of serving a line that never
+    sends a byte."""
+    r = pymb("simulate", *args, "--pty", timeout=30)
+    no_traceback(r)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr

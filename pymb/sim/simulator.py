@@ -101,11 +101,20 @@ def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
         key, eq, value = opt.partition("=")
         key = key.strip()
         if key not in _OPTIONS[kind] or not eq:
+            from pymb.logger import closest
+            what = "bad option" if key in _OPTIONS[kind] else f"unknown key {key!r}"
+            hint = closest(key, list(_OPTIONS[kind])) if what != "bad option" else ""
+            if kind == "hub" and key == "channels":
+                hint = "; a simulated hub's channel count follows its firmware (firmware=1.07: 50)"
             raise InvalidArgument(
-                f"{spec!r}: {kind} takes {', '.join(k + '=...' for k in _OPTIONS[kind])}")
+                f"{spec!r}: {what}; {kind} takes "
+                f"{', '.join(k + '=...' for k in _OPTIONS[kind])}"
+                + (hint if "; known:" not in hint else ""))
         name, parse = _OPTIONS[kind][key]
         try:
             kwargs[name] = parse(value.strip())
+            if name == "baud" and kwargs[name] <= 0:
+                raise ValueError(value)
         except (ValueError, KeyError):
             raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r}") from None
     return cls(**kwargs)  # type: ignore[no-any-return]
@@ -172,6 +181,8 @@ class Simulator:
                 raise InvalidArgument(f"two devices at address {d.address}: "
                                       f"{seen[d.address].kind} and {d.kind}")
             seen[d.address] = d
+        if baud is not None and not baud > 0:
+            raise InvalidArgument(f"baud must be a positive number of bit/s, got {baud}")
         if baud is not None and any(isinstance(d, CoolProDevice) for d in built) and \
                 baud not in COOLPRO_BAUD_RATES:
             raise InvalidArgument(f"a coolpro runs at {', '.join(map(str, COOLPRO_BAUD_RATES))} "
