@@ -797,7 +797,10 @@ class Logger:
         if threading.current_thread() is not threading.main_thread():
             yield
             return
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        # SIGHUP (the terminal or ssh session closed) ends the run as SIGTERM
+        # does, unless it is ignored (nohup): then it stays ignored.
+        hup = [] if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else [signal.SIGHUP]
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, *hup)}
         for s in old:
             signal.signal(s, lambda *_: self.stop())
         try:

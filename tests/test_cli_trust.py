@@ -730,3 +730,44 @@ def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
     no_traceback(r)
     assert r.returncode == 2 and message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.mark.parametrize("nohup", [False, True])
+def test_log_ends_cleanly_on_sighup_unless_nohup(sim: Simulator, tmp_path: Path,
+                                                 nohup: bool) -> None:
+    """The terminal closing (SIGHUP) ends ``pymb log`` as SIGTERM does: what was
+    read is committed and the summary printed. Under ``nohup`` (SIGHUP
+    ignored) it keeps logging until SIGTERM."""
+    db = tmp_path / "hup.sqlite"
+    ignore = (lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)) if nohup else None
+    p = subprocess.Popen([*PYMB, "log", "coolpro:40", "--port", sim.port, "--out", str(db)],
+                         env=ENV, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, text=True, preexec_fn=ignore)
+    try:
+        deadline = time.monotonic() + 60
+        while _samples(db) < 20:
+            assert p.poll() is None and time.monotonic() < deadline, "nothing logged"
+            time.sleep(0.05)
+        p.send_signal(signal.SIGHUP)
+        if nohup:
+            with pytest.raises(subprocess.TimeoutExpired):
+                p.wait(timeout=1.5)
+            p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    no_traceback(subprocess.CompletedProcess([], p.returncode, "", err))
+    assert p.returncode == 0, (p.returncode, err)
+    assert f"logged {_samples(db):,} samples" in err, err
+
+
+def _samples(db: Path) -> int:
+    if not db.exists():
+        return 0
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as c:
+            return int(c.execute("SELECT count(*) FROM samples").fetchone()[0])
+    except sqlite3.Error:
+        return 0
