@@ -79,3 +79,48 @@ def test_the_low_level_client_block_matches_the_classes() -> None:
     for method in set(re.findall(r"client\.(\w+)\(", block)):
         for cls in (pymb.RtuClient, pymb.TcpClient, pymb.RtuOverTcpClient):
             assert callable(getattr(cls, method, None)), (cls.__name__, method)
+
+
+def _usage_lines() -> list[str]:
+    """The command lines of the README's `pymb` command block."""
+    start = README.index("## The `pymb` command")
+    block = README[start:README.index("\n## ", start + 1)]
+    return [line.strip() for line in block.splitlines() if line.startswith("    pymb ")]
+
+
+def _spellings(line: str) -> list[list[str]]:
+    """A usage line as argv lists: without its optional parts, and with each
+    optional part in (its first alternative)."""
+    import re
+    import shlex
+
+    line = line.split("  #", 1)[0].replace("…", "").replace(",]", "]")
+    for placeholder, example in (("HOST:PORT", "127.0.0.1:1502"), ("PATH", "/tmp/pymb-doc"),
+                                 ("URL", "mqtt://localhost"), (" N]", " 9600]")):
+        line = line.replace(placeholder, example)
+    line = re.sub(r",(\s*\])", r"\1", line)
+    line = re.sub(r"\[([^\[\]]*)\[([^\[\]]*)\]\]", r"[\1\2]", line)  # [--mqtt [URL]]
+    optional = re.findall(r"\[([^\[\]]*)\]", line)
+    bare = re.sub(r"\s*\[[^\[\]]*\]", "", line)
+    argvs = [shlex.split(bare)[1:]]
+    for part in optional:
+        first = part.split(" | ")[0].strip().rstrip(",")
+        if first:
+            argvs.append(shlex.split(bare)[1:] + shlex.split(first))
+    return argvs
+
+
+def test_every_usage_line_parses() -> None:
+    """Each line of the README's command block, with and without each of its
+    optional parts, is accepted by the command's own argument parser."""
+    from pymb.cli import build_parser
+
+    lines = _usage_lines()
+    assert len(lines) >= 12
+    for line in lines:
+        for argv in _spellings(line):
+            parser = build_parser(argv[0])
+            try:
+                parser.parse_args(argv)
+            except SystemExit as e:  # argparse's way of refusing
+                raise AssertionError(f"README usage {argv!r} is refused: exit {e.code}") from e
