@@ -1045,11 +1045,20 @@ class _TextSink:
         except OSError as e:
             raise InvalidArgument(f"cannot open {path}: {e.strerror}") from None
 
+    def _failed(self, e: OSError) -> Exception:
+        """The error to raise for a failed write: stdout's reader going away
+        (``pymb log --out - | head``) stays a BrokenPipeError, which the
+        command line ends quietly with 141 as Unix tools do; anything else is
+        an OutputError."""
+        if isinstance(e, BrokenPipeError) and not self._own:
+            return e
+        return OutputError(f"cannot write to {self.path}: {e.strerror}")
+
     def commit(self) -> None:
         try:
             self.f.flush()
         except OSError as e:
-            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
+            raise self._failed(e) from None
 
     def close(self) -> None:
         try:
@@ -1073,13 +1082,13 @@ class CsvSink(_TextSink):
         try:
             self.w.writerows(sample_rows(sample))
         except OSError as e:
-            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
+            raise self._failed(e) from None
 
     def event(self, e: Event) -> None:
         try:
             self._event(e)
         except OSError as err:
-            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
+            raise self._failed(err) from None
 
     def _event(self, e: Event) -> None:
         d = e.device
@@ -1096,13 +1105,13 @@ class JsonlSink(_TextSink):
         try:
             self.f.write(json.dumps(sample_dict(sample), allow_nan=False) + "\n")
         except OSError as e:
-            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
+            raise self._failed(e) from None
 
     def event(self, e: Event) -> None:
         try:
             self.f.write(json.dumps(event_dict(e)) + "\n")
         except OSError as err:
-            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
+            raise self._failed(err) from None
 
 
 FORMATS = ("sqlite", "csv", "jsonl", "influx")

@@ -509,11 +509,13 @@ def test_address_zero_is_rejected(sim: Simulator) -> None:
 
 
 @pytest.mark.parametrize("args", [
-    ["read", "hub:250"], ["read", "hub:250", "--json"], ["export", "DB", "--csv", "-"]])
+    ["read", "hub:250"], ["read", "hub:250", "--json"], ["export", "DB", "--csv", "-"],
+    *(["log", "coolpro", "--format", f, "--out", "-", "--quiet"]
+      for f in ("csv", "jsonl", "influx"))])
 def test_broken_pipe_into_head_exits_quietly(sim: Simulator, logged: Path,
                                              args: list[str]) -> None:
     args = [str(logged) if a == "DB" else a for a in args]
-    if args[0] == "read":
+    if args[0] in ("read", "log"):
         args += ["--port", sim.port]
     cmd = " ".join(map(repr, [*PYMB, *args])) + " | head -n 1"
     r = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True,
@@ -521,6 +523,8 @@ def test_broken_pipe_into_head_exits_quietly(sim: Simulator, logged: Path,
     assert len(r.stdout.splitlines()) == 1
     assert r.stderr == "", r.stderr
     assert r.returncode in (0, 141)  # pipefail: pymb's own status, as a Unix tool's
+    if args[0] == "log":  # logs until stopped: only the closed pipe ends it
+        assert r.returncode == 141
 
 
 def test_unresolvable_tcp_host_says_so() -> None:

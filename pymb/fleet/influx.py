@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pymb.store import Event, JsonlSink, OutputError, Sample, sample_dict
+from pymb.store import Event, JsonlSink, Sample, sample_dict
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
 
@@ -92,11 +92,11 @@ class InfluxSink(JsonlSink):
         try:
             self.f.write("\n".join(sample_lines(sample)) + "\n")
         except OSError as e:
-            raise OutputError(f"cannot write to {self.path}: {e.strerror}") from None
+            raise self._failed(e) from None
 
     def event(self, e: Event) -> None:
         """Write the event's line."""
         try:
             self.f.write(event_line(e) + "\n")
         except OSError as err:
-            raise OutputError(f"cannot write to {self.path}: {err.strerror}") from None
+            raise self._failed(err) from None
