@@ -84,6 +84,9 @@ def test_pymodbus_reads_a_hub_block(pymb_simulator: MakeSim) -> None:
     sim = pymb_simulator("hub", "hub:250,firmware=1.07")
     hub = sim.device(1)
     assert isinstance(hub, HubDevice)
+    # the values follow the simulated clock (and refresh whenever the line is
+    # quiet for 0.25 s): held still, the image read afterwards is the one served
+    sim.clock.freeze()
     hub.pin("temperature_c", 1, 0x80C8)  # -20.0 °C
     client = serial_client(sim.port, baudrate=9600, timeout=1, retries=0)
     assert client.connect()
