@@ -9,6 +9,7 @@ counted and reported (at least once, never lost).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import sqlite3
@@ -176,27 +177,52 @@ def test_tls_with_client_certificate_and_password(mosquitto, simulator, certific
     db = tmp_path / "log.sqlite"
     tls = ["--mqtt-ca", certs.ca, "--mqtt-cert", certs.client_cert,
            "--mqtt-key", certs.client_key]
+    # Each run is stopped (SIGTERM) once what it is there to show has happened,
+    # so the drain on stopping has a few samples to send however slow the TLS
+    # handshakes are on a loaded machine.
+    pace = ("--interval", "0.05")
+
+    def until(proc: Any, pred: Any, what: str) -> str:
+        try:
+            wait_for(pred, 60, what)
+            return stop_log(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+    def from_node(node: str) -> int:
+        return sum(t.startswith(f"pymb/{node}/") and not t.endswith("/status")
+                   for t, _ in sub.snapshot())
+
     proc = start_log(simulator, db, "--mqtt", broker.url, "--mqtt-node", NODE, *tls,
-                     "--mqtt-user", "gw", "--mqtt-password-file", str(pw), seconds=1.5)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
+                     "--mqtt-user", "gw", "--mqtt-password-file", str(pw), *pace)
+    err = until(proc, lambda: from_node(NODE) >= 10, "10 samples over TLS")
+    assert "nothing left to send" in err, err
     want, _ = _all_arrived(sub, db)
     assert want
     # the password from the environment instead of a file
     db2 = tmp_path / "env.sqlite"
     proc = start_log(simulator, db2, "--mqtt", broker.url, "--mqtt-node", "n2", *tls,
-                     "--mqtt-user", "gw", env={"PYMB_MQTT_PASSWORD": "s3cret pass"},
-                     seconds=1.0)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    assert "nothing left to send" in err
+                     "--mqtt-user", "gw", *pace, env={"PYMB_MQTT_PASSWORD": "s3cret pass"})
+    err = until(proc, lambda: from_node("n2") >= 5, "5 samples with the password from $ENV")
+    assert "nothing left to send" in err, err
     # a wrong password: refused, nothing lost (kept for the next run)
     db3 = tmp_path / "bad.sqlite"
     proc = start_log(simulator, db3, "--mqtt", broker.url, "--mqtt-node", "n3", *tls,
-                     "--mqtt-user", "gw", env={"PYMB_MQTT_PASSWORD": "wrong"}, seconds=1.0)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    assert "not yet acknowledged" in err and "0 samples acknowledged" in err
+                     "--mqtt-user", "gw", *pace, env={"PYMB_MQTT_PASSWORD": "wrong"})
+
+    def refused() -> bool:
+        try:
+            with contextlib.closing(sqlite3.connect(f"file:{db3}?mode=ro", uri=True)) as con:
+                return bool(con.execute(
+                    "SELECT COUNT(*) FROM event_log WHERE kind = 'mqtt' AND message LIKE "
+                    "'%refused%'").fetchone()[0]) and db_count(db3) > 0
+        except sqlite3.Error:
+            return False  # not made yet
+
+    err = until(proc, refused, "the broker's refusal in the event log")
+    assert from_node("n3") == 0
+    assert "not yet acknowledged" in err and "0 samples acknowledged" in err, err
     con = sqlite3.connect(db3)
     story = [m for (m,) in con.execute("SELECT message FROM event_log WHERE kind = 'mqtt'")]
     con.close()
@@ -439,10 +465,15 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator
         kind, ndeath = _sp(pb, sub.snapshot()[-1:])[0]
         assert _metric(ndeath, "bdSeq").long_value == bd_seq
         assert _metric(ndeath, "bdSeq").datatype == 4 and not ndeath.HasField("seq")
-        # the next run counts bdSeq on, and ends with its own NDEATH
+        # the next run counts bdSeq on, and ends with its own NDEATH; stopped once
+        # the killed run's samples have all arrived (sent again as history), so
+        # its drain on stopping has only its own last few to send
+        killed = db_ids(db)
         n = len(sub.snapshot())
-        proc = start_log(simulator, db, *sp)
-        wait_for(lambda: len(sub.snapshot()) > n + 20, 30, "the second run's messages")
+        proc = start_log(simulator, db, *sp, "--interval", "0.05")
+        wait_for(lambda: len(sub.snapshot()) > n + 20
+                 and set(_sample_ids(pb, sub.snapshot())) >= killed, 60,
+                 "the second run's messages and the killed run's samples")
         stop_log(proc)
     finally:
         if proc.poll() is None:
@@ -911,13 +942,23 @@ def test_hub_samples_in_both_profiles(mosquitto, sparkplug_pb, tmp_path: Path) -
     sub = Subscriber(broker, "#")
     sim = SimulatorProcess(["hub:250", "--tcp", "127.0.0.1:0"], quiet=True).start()
     try:
-        for profile in ("plain", "sparkplug"):
+        for profile, topic in (("plain", f"pymb/{NODE}/hub-250"),
+                               ("sparkplug", f"spBv1.0/{GROUP}/DDATA/{NODE}/hub-250")):
+            # A hub's message (701 metrics) is costly to build: poll at a pace the
+            # forwarder keeps up with on a loaded machine, and stop once messages
+            # have arrived, so the drain on stopping has a sample or two to send.
             db = tmp_path / f"{profile}.sqlite"
             proc = start_log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-profile",
                              profile, "--mqtt-node", NODE, "--mqtt-group", GROUP,
-                             seconds=1.5, device="hub:250")
-            _, err = proc.communicate(timeout=60)
-            assert proc.returncode == 0 and "nothing left to send" in err, err
+                             "--interval", "0.5", device="hub:250")
+            try:
+                wait_for(lambda t=topic: sum(m[0] == t for m in sub.snapshot()) >= 3, 60,
+                         f"3 {profile} hub messages")
+                err = stop_log(proc)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+            assert "nothing left to send" in err, err
     finally:
         sim.stop()
     msgs = sub.snapshot()
