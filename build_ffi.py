@@ -1,10 +1,13 @@
 """Build pymb's cffi extension, ``pymb._pymb_cffi`` (out-of-line API mode).
 
 The extension is compiled C: the compiler checks every declaration below
-against libmodbus's and pymb's headers, and fills in every constant written as
-``...`` (function codes, libmodbus's errno values, the OS's errno values), so
-nothing here is copied by hand. libmodbus is found through pkg-config; pymb's
-own C core (``csrc/*.c``) is compiled into the same extension.
+against libmodbus's and pymb's headers, and fills in every constant and enum
+value written as ``...`` (function codes and limits, libmodbus's and the OS's
+errno values, pymb's frame statuses, value states and hub blocks), so nothing
+here is copied by hand. The cdef declares only what ``pymb._native`` uses;
+``pymb._native`` turns the constants into Python enums. libmodbus is found
+through pkg-config; pymb's own C core (``csrc/*.c``) is compiled into the same
+extension.
 
 Run by setuptools through ``setup.py``; ``python build_ffi.py`` builds in place.
 """
@@ -52,27 +55,13 @@ typedef struct _modbus modbus_t;
 #define MODBUS_MAX_WRITE_REGISTERS ...
 #define MODBUS_MAX_WR_WRITE_REGISTERS ...
 #define MODBUS_MAX_WR_READ_REGISTERS ...
-#define MODBUS_MAX_PDU_LENGTH ...
 #define MODBUS_MAX_ADU_LENGTH ...
-#define MODBUS_RTU_MAX_ADU_LENGTH ...
-#define MODBUS_TCP_MAX_ADU_LENGTH ...
-#define MODBUS_ENOBASE ...
 #define MODBUS_RTU_RS232 ...
 #define MODBUS_RTU_RS485 ...
 #define MODBUS_RTU_RTS_NONE ...
 #define MODBUS_RTU_RTS_UP ...
 #define MODBUS_RTU_RTS_DOWN ...
 
-#define EMBXILFUN ...
-#define EMBXILADD ...
-#define EMBXILVAL ...
-#define EMBXSFAIL ...
-#define EMBXACK ...
-#define EMBXSBUSY ...
-#define EMBXNACK ...
-#define EMBXMEMPAR ...
-#define EMBXGPATH ...
-#define EMBXGTAR ...
 #define EMBBADCRC ...
 #define EMBBADDATA ...
 #define EMBBADEXC ...
@@ -86,55 +75,22 @@ extern const unsigned int libmodbus_version_micro;
 
 modbus_t *modbus_new_rtu(const char *device, int baud, char parity, int data_bit,
                          int stop_bit);
-modbus_t *modbus_new_tcp(const char *ip_address, int port);
 modbus_t *modbus_new_tcp_pi(const char *node, const char *service);
 int modbus_connect(modbus_t *ctx);
 void modbus_close(modbus_t *ctx);
 void modbus_free(modbus_t *ctx);
-int modbus_flush(modbus_t *ctx);
-int modbus_set_debug(modbus_t *ctx, int flag);
 int modbus_get_socket(modbus_t *ctx);
-int modbus_get_header_length(modbus_t *ctx);
 int modbus_set_response_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
-int modbus_get_response_timeout(modbus_t *ctx, uint32_t *to_sec, uint32_t *to_usec);
 int modbus_set_byte_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
-int modbus_get_byte_timeout(modbus_t *ctx, uint32_t *to_sec, uint32_t *to_usec);
-const char *modbus_strerror(int errnum);
 int modbus_rtu_set_serial_mode(modbus_t *ctx, int mode);
-int modbus_rtu_get_serial_mode(modbus_t *ctx);
 int modbus_rtu_set_rts(modbus_t *ctx, int mode);
-int modbus_rtu_get_rts(modbus_t *ctx);
 int modbus_rtu_set_rts_delay(modbus_t *ctx, int us);
-int modbus_rtu_get_rts_delay(modbus_t *ctx);
-
-/* ---- OS errno values the error mapping needs ---- */
-#define EINVAL ...
-#define EINTR ...
-#define ETIMEDOUT ...
-#define EIO ...
-#define ENOENT ...
-#define ENXIO ...
-#define ENODEV ...
-#define EACCES ...
-#define EPERM ...
-#define EBUSY ...
-#define EBADF ...
-#define EPIPE ...
-#define ECONNRESET ...
-#define ECONNREFUSED ...
-#define EHOSTUNREACH ...
-#define ENETUNREACH ...
-#define ENOTTY ...
 
 /* ---- pymb.h ---- */
-#define PYMB_RTU_MAX_ADU ...
-#define PYMB_MAX_READ_REGISTERS ...
 #define PYMB_HUB_FIRST_REGISTER ...
 #define PYMB_HUB_CHANNELS ...
 #define PYMB_HUB_BLOCKS ...
 #define PYMB_HUB_REGISTERS ...
-#define PYMB_HUB_ALL_BLOCKS ...
-#define PYMB_HUB_OFFLINE ...
 #define PYMB_HUB_NO_HUMIDITY_1PCT ...
 #define PYMB_HUB_NO_HUMIDITY_TENTHS ...
 #define PYMB_HUB_BITMAP_BYTES ...
@@ -144,35 +100,38 @@ int modbus_rtu_get_rts_delay(modbus_t *ctx);
 #define PYMB_COOLPRO_IDENTITY_COUNT ...
 
 typedef enum {
-    PYMB_FRAME_OK = 0,
-    PYMB_FRAME_EXCEPTION = 1,
-    PYMB_FRAME_INCOMPLETE = -1,
-    PYMB_FRAME_BAD_CRC = -2,
-    PYMB_FRAME_BAD_SLAVE = -3,
-    PYMB_FRAME_BAD_FUNCTION = -4,
-    PYMB_FRAME_BAD_LENGTH = -5,
-    PYMB_FRAME_BAD_ECHO = -6,
-    PYMB_FRAME_TOO_LONG = -7,
-    PYMB_FRAME_INVALID = -8,
-    PYMB_FRAME_BAD_HEADER = -9
+    PYMB_FRAME_OK,
+    PYMB_FRAME_EXCEPTION,
+    PYMB_FRAME_INCOMPLETE,
+    PYMB_FRAME_BAD_CRC,
+    PYMB_FRAME_BAD_SLAVE,
+    PYMB_FRAME_BAD_FUNCTION,
+    PYMB_FRAME_BAD_LENGTH,
+    PYMB_FRAME_BAD_ECHO,
+    PYMB_FRAME_TOO_LONG,
+    PYMB_FRAME_INVALID,
+    PYMB_FRAME_BAD_HEADER,
+    ...
 } pymb_frame_status;
 
 typedef enum {
-    PYMB_VALUE = 0,
-    PYMB_OFFLINE = 1,
-    PYMB_NO_SENSOR = 2,
-    PYMB_UNSUPPORTED = 3,
-    PYMB_NOT_READ = 4
+    PYMB_VALUE,
+    PYMB_OFFLINE,
+    PYMB_NO_SENSOR,
+    PYMB_UNSUPPORTED,
+    PYMB_NOT_READ,
+    ...
 } pymb_state;
 
 typedef enum {
-    PYMB_HUB_TEMPERATURE = 0,
-    PYMB_HUB_HUMIDITY = 1,
-    PYMB_HUB_PRESSURE_TEMPERATURE = 2,
-    PYMB_HUB_PRESSURE = 3,
-    PYMB_HUB_VOLTAGE = 4,
-    PYMB_HUB_RSSI = 5,
-    PYMB_HUB_TEMPERATURE2 = 6
+    PYMB_HUB_TEMPERATURE,
+    PYMB_HUB_HUMIDITY,
+    PYMB_HUB_PRESSURE_TEMPERATURE,
+    PYMB_HUB_PRESSURE,
+    PYMB_HUB_VOLTAGE,
+    PYMB_HUB_RSSI,
+    PYMB_HUB_TEMPERATURE2,
+    ...
 } pymb_hub_block;
 
 typedef struct {
@@ -195,7 +154,6 @@ typedef struct {
 } pymb_coolpro_identity;
 
 uint16_t pymb_crc16(const uint8_t *data, size_t len);
-uint16_t pymb_crc16_update(uint16_t crc, const uint8_t *data, size_t len);
 int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
 int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
 const char *pymb_version(void);
@@ -203,14 +161,6 @@ const char *pymb_strerror(int errnum);
 const char *pymb_frame_strerror(int status);
 int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
 int pymb_rtu_request_length(const uint8_t *req, size_t have);
-int pymb_check_response_pdu(const uint8_t *req, size_t req_len, const uint8_t *rsp,
-                            size_t rsp_len, int *exception_code);
-int pymb_rtu_check_response(const uint8_t *req, size_t req_len, const uint8_t *rsp,
-                            size_t rsp_len, int *exception_code);
-double pymb_sm_tenths(uint16_t raw);
-double pymb_milli(uint16_t raw);
-uint32_t pymb_u32_lo_hi(const uint16_t *regs);
-int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
 int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
                     const uint8_t *humidity_tenths, const uint8_t *wanted,
                     unsigned read_mask, unsigned unsupported_mask, double *values,
@@ -224,9 +174,7 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
 #define PYMB_FRAMING_RTU ...
 #define PYMB_FRAMING_TCP ...
 #define PYMB_FRAMING_RTU_OVER_TCP ...
-#define PYMB_T35_FLOOR_US ...
 #define PYMB_INTERRUPT_SLICE_US ...
-#define PYMB_EXCEPTION_ENOBASE ...
 
 typedef struct {
     modbus_t *ctx;
@@ -251,12 +199,10 @@ typedef struct {
     uint8_t rsp[...];
 } pymb_failure;
 
-int pymb_exception_errno(int code);
 int pymb_errno_exception(int errnum);
 int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
 uint32_t pymb_rtu_silence_us(int baud);
 uint32_t pymb_rtu_char_ns(int baud, int bits);
-int pymb_flush(pymb_line *line);
 int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
 int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                   uint8_t *rsp, int rsp_cap, pymb_failure *fail);
@@ -298,15 +244,16 @@ int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, i
 int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);
 
 /* ---- a few OS calls the port lock and the link checks need ---- */
+#define FD_SETSIZE ...
 #define LOCK_EX ...
 #define LOCK_NB ...
-#define LOCK_UN ...
 int flock(int fd, int operation);
 """
 
 SOURCE = """
 #include <errno.h>
 #include <sys/file.h>
+#include <sys/select.h>
 #include <modbus.h>
 #include "pymb.h"
 #include "pymb_modbus.h"

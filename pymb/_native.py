@@ -8,9 +8,11 @@ buses keep working while one waits on its line.
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import threading
+from enum import IntEnum
 from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
@@ -21,25 +23,36 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
     exception_class,
+    os_hint,
 )
 
 __all__ = [
     "BAUD_RATES",
+    "FRAME_INCOMPLETE",
     "HUB_BITMAP_BYTES",
     "HUB_BLOCKS",
     "HUB_CHANNELS",
     "HUB_REGISTERS",
     "LIBMODBUS_VERSION",
     "VERSION",
+    "MAX_READ_BITS",
+    "MAX_READ_REGISTERS",
+    "MAX_WRITE_BITS",
+    "MAX_WRITE_REGISTERS",
+    "MAX_WR_READ_REGISTERS",
+    "MAX_WR_WRITE_REGISTERS",
+    "RTS_MODES",
+    "SERIAL_MODES",
+    "FunctionCode",
     "HubSweep",
     "Link",
+    "State",
     "coolpro_identity",
     "coolpro_telemetry",
     "crc16",
     "ffi_buffer_u16",
     "hub_decode",
     "hub_plan_all",
-    "lib_constants",
     "rtu_crc_ok",
     "rtu_request_length",
     "rtu_response_length",
@@ -62,33 +75,75 @@ BAUD_RATES = frozenset(
      500000, 576000, 921600, 1000000, 1152000, 1500000, 2500000, 3000000, 3500000, 4000000)
 )
 
-# OS errors after which the link is gone until it is opened again.
-_LINK_LOST = frozenset(
-    (lib.EIO, lib.ENXIO, lib.ENODEV, lib.EBADF, lib.EPIPE, lib.ECONNRESET, lib.ECONNREFUSED,
-     lib.ENOENT)
-)
+_FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 
-_FD_SETSIZE = 1024  # glibc's select() limit, which libmodbus's TCP code is bound by
 
-_FUNCTION_NAMES = {
-    0x01: "read_coils",
-    0x02: "read_discrete_inputs",
-    0x03: "read_holding_registers",
-    0x04: "read_input_registers",
-    0x05: "write_coil",
-    0x06: "write_register",
-    0x07: "read_exception_status",
-    0x0F: "write_coils",
-    0x10: "write_registers",
-    0x11: "report_slave_id",
-    0x16: "mask_write_register",
-    0x17: "write_read_registers",
+# -- constants, as the compiler knows them (build_ffi.py declares them "...") ----
+
+
+class FunctionCode(IntEnum):
+    """Modbus function codes ([MB-AP] 6), as libmodbus's ``modbus.h`` defines them."""
+
+    READ_COILS = lib.MODBUS_FC_READ_COILS
+    READ_DISCRETE_INPUTS = lib.MODBUS_FC_READ_DISCRETE_INPUTS
+    READ_HOLDING_REGISTERS = lib.MODBUS_FC_READ_HOLDING_REGISTERS
+    READ_INPUT_REGISTERS = lib.MODBUS_FC_READ_INPUT_REGISTERS
+    WRITE_SINGLE_COIL = lib.MODBUS_FC_WRITE_SINGLE_COIL
+    WRITE_SINGLE_REGISTER = lib.MODBUS_FC_WRITE_SINGLE_REGISTER
+    READ_EXCEPTION_STATUS = lib.MODBUS_FC_READ_EXCEPTION_STATUS
+    WRITE_MULTIPLE_COILS = lib.MODBUS_FC_WRITE_MULTIPLE_COILS
+    WRITE_MULTIPLE_REGISTERS = lib.MODBUS_FC_WRITE_MULTIPLE_REGISTERS
+    REPORT_SLAVE_ID = lib.MODBUS_FC_REPORT_SLAVE_ID
+    MASK_WRITE_REGISTER = lib.MODBUS_FC_MASK_WRITE_REGISTER
+    WRITE_AND_READ_REGISTERS = lib.MODBUS_FC_WRITE_AND_READ_REGISTERS
+
+
+#: Quantities one request may carry ([MB-AP] 6.1..6.17, libmodbus's modbus.h).
+MAX_READ_BITS = int(lib.MODBUS_MAX_READ_BITS)
+MAX_WRITE_BITS = int(lib.MODBUS_MAX_WRITE_BITS)
+MAX_READ_REGISTERS = int(lib.MODBUS_MAX_READ_REGISTERS)
+MAX_WRITE_REGISTERS = int(lib.MODBUS_MAX_WRITE_REGISTERS)
+MAX_WR_WRITE_REGISTERS = int(lib.MODBUS_MAX_WR_WRITE_REGISTERS)
+MAX_WR_READ_REGISTERS = int(lib.MODBUS_MAX_WR_READ_REGISTERS)
+
+#: libmodbus's serial modes and RTS modes, by the names the client takes.
+SERIAL_MODES = {"rs232": int(lib.MODBUS_RTU_RS232), "rs485": int(lib.MODBUS_RTU_RS485)}
+RTS_MODES = {"none": int(lib.MODBUS_RTU_RTS_NONE), "up": int(lib.MODBUS_RTU_RTS_UP),
+             "down": int(lib.MODBUS_RTU_RTS_DOWN)}
+
+#: pymb_rtu_request_length / pymb_rtu_response_length: more bytes are needed.
+FRAME_INCOMPLETE = int(lib.PYMB_FRAME_INCOMPLETE)
+
+
+class State(IntEnum):
+    """Why a decoded value is (or is not) there; see [NOTES] "offline vs absent"
+    (``pymb_state`` in csrc/pymb.h)."""
+
+    VALUE = lib.PYMB_VALUE  #: a value
+    OFFLINE = lib.PYMB_OFFLINE  #: 0xFFFF: the channel is offline (or has no such value)
+    NO_SENSOR = lib.PYMB_NO_SENSOR  #: the humidity "no humidity" marker of the channel's unit
+    UNSUPPORTED = lib.PYMB_UNSUPPORTED  #: the hub's firmware does not have this block
+    NOT_READ = lib.PYMB_NOT_READ  #: not asked for in this read
+
+
+_READS = frozenset((FunctionCode.READ_COILS, FunctionCode.READ_DISCRETE_INPUTS,
+                    FunctionCode.READ_HOLDING_REGISTERS, FunctionCode.READ_INPUT_REGISTERS))
+
+# The names error messages give a request: the client's method names.
+_FUNCTION_NAMES: dict[int, str] = {
+    FunctionCode.READ_COILS: "read_coils",
+    FunctionCode.READ_DISCRETE_INPUTS: "read_discrete_inputs",
+    FunctionCode.READ_HOLDING_REGISTERS: "read_holding_registers",
+    FunctionCode.READ_INPUT_REGISTERS: "read_input_registers",
+    FunctionCode.WRITE_SINGLE_COIL: "write_coil",
+    FunctionCode.WRITE_SINGLE_REGISTER: "write_register",
+    FunctionCode.READ_EXCEPTION_STATUS: "read_exception_status",
+    FunctionCode.WRITE_MULTIPLE_COILS: "write_coils",
+    FunctionCode.WRITE_MULTIPLE_REGISTERS: "write_registers",
+    FunctionCode.REPORT_SLAVE_ID: "report_slave_id",
+    FunctionCode.MASK_WRITE_REGISTER: "mask_write_register",
+    FunctionCode.WRITE_AND_READ_REGISTERS: "write_read_registers",
 }
-
-
-def lib_constants() -> Any:
-    """The compiled extension's ``lib`` (constants only are meant for use)."""
-    return lib
 
 
 def _bytes_arg(data: Any) -> tuple[Any, int]:
@@ -183,27 +238,6 @@ def _hex(data: bytes) -> str:
     return " ".join(f"{b:02X}" for b in data)
 
 
-def _os_hint(err: int) -> str:
-    if err in (lib.EACCES, lib.EPERM):
-        return (
-            "permission denied; add yourself to the group that owns the port "
-            "(usually `dialout`: sudo usermod -aG dialout $USER, then log in again)"
-        )
-    if err in (lib.ENOENT, lib.ENODEV, lib.ENXIO):
-        return "no such port (is the adapter plugged in? see `ls /dev/serial/by-id/`)"
-    if err == lib.EIO:
-        return "I/O error on the port (was the adapter unplugged?)"
-    if err == lib.EBUSY:
-        return "the port is in use by another process"
-    if err == lib.ECONNREFUSED:
-        return "connection refused (nothing is listening there)"
-    if err == lib.ECONNRESET:
-        return "connection closed by the peer"
-    if err == lib.ENOTTY:
-        return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
-    return os.strerror(err)
-
-
 class Link:
     """One libmodbus context: a serial line or a TCP connection.
 
@@ -252,7 +286,7 @@ class Link:
                 raise ModbusConnectionError(
                     f"cannot connect to {self.name}: this process has {probe} descriptors "
                     f"open, and libmodbus's TCP code only works below {_FD_SETSIZE}",
-                    errno=24, port=self.name,
+                    errno=errno.EMFILE, port=self.name,
                 )
         ctx = self._factory()
         if ctx == ffi.NULL:
@@ -265,8 +299,8 @@ class Link:
         if lib.modbus_connect(ctx) == -1:
             err = ffi.errno
             lib.modbus_free(ctx)
-            hint = _os_hint(err)
-            if not self.serial and err == lib.ECONNREFUSED and self.host is not None:
+            hint = os_hint(err)
+            if not self.serial and err == errno.ECONNREFUSED and self.host is not None:
                 # libmodbus 3.1.6 reports a name that does not resolve as
                 # ECONNREFUSED: tell the two apart (only after a failure).
                 try:
@@ -282,7 +316,7 @@ class Link:
             raise ModbusConnectionError(
                 f"cannot open {self.name}: the port is in use by another process "
                 "(another pymb holds its lock)",
-                errno=lib.EBUSY,
+                errno=errno.EBUSY,
                 port=self.name,
             )
         self._ctx = ctx
@@ -419,9 +453,10 @@ class Link:
         """Run a prepared hub sweep (one C call); returns the read block mask."""
         rq = sweep.request
         if self._ctx == ffi.NULL:
-            raise self._closed(0x03, rq.slave, None, None)
+            raise self._closed(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None)
         if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
-            raise self._error(0x03, rq.slave, None, None, context="hub sweep")
+            raise self._error(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None,
+                              context="hub sweep")
         return int(rq.read_mask)
 
     def drain(self, quiet: float, limit: float) -> int:
@@ -431,12 +466,10 @@ class Link:
         n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
         if n < 0:
             err = ffi.errno
-            exc = _take_interrupt() if err == lib.EINTR else None
+            exc = _take_interrupt() if err == errno.EINTR else None
             if exc is not None:
                 raise exc
-            if err in _LINK_LOST:
-                self.close()
-            raise ModbusConnectionError(f"drain on {self.name}: {_os_hint(err)}", errno=err,
+            raise ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}", errno=err,
                                         port=self.name)
         return n
 
@@ -447,16 +480,16 @@ class Link:
         op = _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
         return ModbusConnectionError(
             f"{op}(slave={slave}) on {self.name}: the port is not open",
-            errno=lib.EBADF, slave=slave, function=function, address=address, count=count,
+            errno=errno.EBADF, slave=slave, function=function, address=address, count=count,
             port=self.name,
         )
 
     def _error(self, function: int, slave: int, address: int | None,
                count: int | None, context: str | None = None) -> ModbusError:
         """Turn errno (read right after the failing call) and the failure
-        record into the exception to raise; close the link if the OS lost it."""
+        record into the exception to raise."""
         err = ffi.errno
-        if err == lib.EINTR:
+        if err == errno.EINTR:
             exc = _take_interrupt()
             if exc is not None:  # a signal handler raised: that is the error
                 return exc  # type: ignore[return-value]
@@ -469,20 +502,20 @@ class Link:
             args.append(f"count={count}")
         asked = f"{context or op}({', '.join(args)}) on {self.name}"
         if (
-            function in (1, 2, 3, 4)
+            function in _READS
             and fail.count >= 0
             and (fail.address, fail.count) != (address, count)
         ):
             asked += f" [in the request for {fail.count} at {fail.address}]"
         got = bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None
         received = f" (received {_hex(got)})" if got else ""
-        if address is None and function in (1, 2, 3, 4) and fail.count >= 0:
+        if address is None and function in _READS and fail.count >= 0:
             address, count = fail.address, fail.count
         kw: dict[str, Any] = dict(
             slave=slave, function=function, address=address, count=count, port=self.name,
             response=got,
         )
-        if err == lib.ETIMEDOUT:
+        if err == errno.ETIMEDOUT:
             timeout = self._timeout[0]
             if got:
                 return ModbusTimeout(
@@ -512,13 +545,11 @@ class Link:
             why = ffi.string(lib.pymb_frame_strerror(fail.frame)).decode() if fail.frame else (
                 "malformed reply")
             return ProtocolError(f"{asked}: {why}{received}", reason=why, **kw)
-        if err == lib.EINVAL:
+        if err == errno.EINVAL:
             return InvalidArgument(f"{asked}: invalid argument", **kw)
-        if err == lib.EINTR:
+        if err == errno.EINTR:
             return ModbusConnectionError(f"{asked}: interrupted", errno=err, **kw)
-        if err in _LINK_LOST:
-            self.close()
-        return ModbusConnectionError(f"{asked}: {_os_hint(err)}", errno=err, **kw)
+        return ModbusConnectionError(f"{asked}: {os_hint(err)}", errno=err, **kw)
 
 
 def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int,

@@ -71,7 +71,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         if command is None or name == command:
             mod = importlib.import_module(module)
             mod.add_arguments(p)
-            p.set_defaults(_module=mod)
+            p.set_defaults(command_module=mod)
     return parser
 
 
@@ -87,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE
     try:
-        code = int(args._module.run(args) or 0)
+        code = int(args.command_module.run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at exit
         return code
     except KeyboardInterrupt:

@@ -16,6 +16,7 @@ or stray reply is never taken as a later answer (README, "No stale data").
 
 from __future__ import annotations
 
+import errno
 import operator
 import struct
 import sys
@@ -32,28 +33,22 @@ from pymb.wire import bits_per_char, char_time
 
 __all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient", "client_for_address"]
 
-MAX_READ_REGISTERS = 125
-MAX_WRITE_REGISTERS = 123
-MAX_WR_WRITE_REGISTERS = 121
-MAX_READ_BITS = 2000
-MAX_WRITE_BITS = 1968
-
-_FC_READ_COILS = 0x01
-_FC_READ_DISCRETE_INPUTS = 0x02
-_FC_READ_HOLDING = 0x03
-_FC_READ_INPUT = 0x04
-_FC_WRITE_COIL = 0x05
-_FC_WRITE_REGISTER = 0x06
-_FC_READ_EXCEPTION_STATUS = 0x07
-_FC_WRITE_COILS = 0x0F
-_FC_WRITE_REGISTERS = 0x10
-_FC_REPORT_SLAVE_ID = 0x11
-_FC_MASK_WRITE = 0x16
-_FC_WRITE_READ = 0x17
+# Function codes and per-request limits: the compiler's (libmodbus's modbus.h).
+MAX_READ_REGISTERS = _native.MAX_READ_REGISTERS
+MAX_WRITE_REGISTERS = _native.MAX_WRITE_REGISTERS
+MAX_WR_WRITE_REGISTERS = _native.MAX_WR_WRITE_REGISTERS
+MAX_WR_READ_REGISTERS = _native.MAX_WR_READ_REGISTERS
+MAX_READ_BITS = _native.MAX_READ_BITS
+MAX_WRITE_BITS = _native.MAX_WRITE_BITS
+FC = _native.FunctionCode
 
 _PARITIES = {"N": "N", "E": "E", "O": "O", "NONE": "N", "EVEN": "E", "ODD": "O"}
-_SERIAL_MODES = {"rs232": 0, "rs485": 1}
-_RTS_MODES = {"none": 0, "up": 1, "down": 2}
+# OS errors after which the link is gone until it is opened again.
+_LINK_LOST = frozenset((errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF, errno.EPIPE,
+                        errno.ECONNRESET, errno.ECONNREFUSED, errno.ENOENT))
+
+_SERIAL_MODES = _native.SERIAL_MODES
+_RTS_MODES = _native.RTS_MODES
 
 
 def _int(name: str, value: Any, low: int, high: int) -> int:
@@ -273,7 +268,17 @@ class Client:
                         port=self.port,
                     )
                 self._open()
-            return fn(*args, **kwargs)
+            try:
+                return fn(*args, **kwargs)
+            except ModbusConnectionError as e:
+                self._close_if_lost(e)
+                raise
+
+    def _close_if_lost(self, e: ModbusConnectionError) -> None:
+        """After an OS error that loses the line, close it: the next request
+        opens it again (the reconnect policy; :mod:`pymb._native` only maps)."""
+        if e.errno in _LINK_LOST:
+            self._link.close()
 
     # -- registers ----------------------------------------------------------------
 
@@ -301,12 +306,12 @@ class Client:
                                     slave: int | None = None) -> None:
         """Read ``len(dest)`` holding registers into a writable uint16 buffer
         (``array('H')``, a numpy uint16 array): no allocation at all."""
-        self._read_regs(_FC_READ_HOLDING, address, dest, slave)
+        self._read_regs(FC.READ_HOLDING_REGISTERS, address, dest, slave)
 
     def read_input_registers_into(self, address: int, dest: Any, *,
                                   slave: int | None = None) -> None:
         """Read ``len(dest)`` input registers into a writable uint16 buffer."""
-        self._read_regs(_FC_READ_INPUT, address, dest, slave)
+        self._read_regs(FC.READ_INPUT_REGISTERS, address, dest, slave)
 
     def _read_regs(self, fc: int, address: int, dest: Any, slave: int | None) -> None:
         s = self._slave_for(slave)
@@ -328,11 +333,25 @@ class Client:
         address, n = self._range(address, view.nbytes // 2, None)
         self._call(self._link.read_registers, fc, s, address, n, view.cast("B"))
 
-    def _read_registers_prechecked(self, function: int, slave: int, address: int,
-                                   dest: Any) -> None:
-        """For the facades, whose arguments were checked once at construction:
-        the read without the per-call argument checks."""
+    # -- low level: prepared requests, for the device facades ------------------------
+    # The facades (pymb.devices) check their arguments once, when they are made,
+    # and then repeat the same requests: these two calls skip the per-call checks
+    # of the methods above and take the client's lock and reconnect as they do.
+
+    def read_registers_prepared(self, function: int, slave: int, address: int,
+                                dest: Any) -> None:
+        """Read ``len(dest)`` registers with ``function`` (0x03 or 0x04) into
+        ``dest``, a writable ``array('H')``, with no argument checks: the
+        caller has checked slave, address and count (1..125, within the
+        address space) once, beforehand."""
         self._call(self._link.read_registers, function, slave, address, len(dest), dest)
+
+    def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
+        """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,
+        which :class:`pymb.devices.SensorHub` makes and plans) as one C call;
+        returns the mask of the blocks read."""
+        result: int = self._call(self._link.hub_read, sweep)
+        return result
 
     def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
         """Write one holding register (function 0x06). The device's echo must
@@ -342,7 +361,7 @@ class Client:
         if isinstance(value, bool):
             raise TypeError("a register value is an integer 0..65535, not a bool")
         value = _int("value", value, 0, 0xFFFF)
-        self._transact(s, _FC_WRITE_REGISTER, struct.pack(">HH", address, value), address, 1)
+        self._transact(s, FC.WRITE_SINGLE_REGISTER, struct.pack(">HH", address, value), address, 1)
 
     def write_registers(self, address: int, values: Sequence[int] | array[int], *,
                         slave: int | None = None) -> None:
@@ -351,7 +370,7 @@ class Client:
         data = self._u16_payload(values)
         n = len(data) // 2
         address, n = self._range(address, n, MAX_WRITE_REGISTERS)
-        self._transact(s, _FC_WRITE_REGISTERS,
+        self._transact(s, FC.WRITE_MULTIPLE_REGISTERS,
                        struct.pack(">HHB", address, n, 2 * n) + data, address, n)
 
     def mask_write_register(self, address: int, and_mask: int, or_mask: int, *,
@@ -361,7 +380,7 @@ class Client:
         address = _int("address", address, 0, 0xFFFF)
         and_mask = _int("and_mask", and_mask, 0, 0xFFFF)
         or_mask = _int("or_mask", or_mask, 0, 0xFFFF)
-        self._transact(s, _FC_MASK_WRITE, struct.pack(">HHH", address, and_mask, or_mask),
+        self._transact(s, FC.MASK_WRITE_REGISTER, struct.pack(">HHH", address, and_mask, or_mask),
                        address, 1)
 
     def write_read_registers(self, write_address: int, values: Sequence[int] | array[int],
@@ -372,9 +391,9 @@ class Client:
         data = self._u16_payload(values)
         n = len(data) // 2
         write_address, n = self._range(write_address, n, MAX_WR_WRITE_REGISTERS)
-        read_address, read_count = self._range(read_address, read_count, MAX_READ_REGISTERS)
+        read_address, read_count = self._range(read_address, read_count, MAX_WR_READ_REGISTERS)
         pdu = self._transact(
-            s, _FC_WRITE_READ,
+            s, FC.WRITE_AND_READ_REGISTERS,
             struct.pack(">HHHHB", read_address, read_count, write_address, n, 2 * n) + data,
             read_address, read_count,
         )
@@ -392,12 +411,12 @@ class Client:
     def read_coils(self, address: int, count: int, *, slave: int | None = None) -> array[int]:
         """Read ``count`` coils (function 0x01); an ``array('B')`` of 0/1.
         Counts above 2000 are split into several requests."""
-        return self._read_bits(_FC_READ_COILS, address, count, slave)
+        return self._read_bits(FC.READ_COILS, address, count, slave)
 
     def read_discrete_inputs(self, address: int, count: int, *,
                              slave: int | None = None) -> array[int]:
         """Read ``count`` discrete inputs (function 0x02); an ``array('B')`` of 0/1."""
-        return self._read_bits(_FC_READ_DISCRETE_INPUTS, address, count, slave)
+        return self._read_bits(FC.READ_DISCRETE_INPUTS, address, count, slave)
 
     def _read_bits(self, fc: int, address: int, count: int, slave: int | None) -> array[int]:
         s = self._slave_for(slave)
@@ -411,7 +430,7 @@ class Client:
         s = self._slave_for(slave, write=True)
         address = _int("address", address, 0, 0xFFFF)
         on = _coil(value)
-        self._transact(s, _FC_WRITE_COIL,
+        self._transact(s, FC.WRITE_SINGLE_COIL,
                        struct.pack(">HH", address, 0xFF00 if on else 0), address, 1)
 
     def write_coils(self, address: int, values: Iterable[bool | int], *,
@@ -433,7 +452,7 @@ class Client:
         for i, b in enumerate(bits):
             if b:
                 packed[i // 8] |= 1 << (i % 8)
-        self._transact(s, _FC_WRITE_COILS,
+        self._transact(s, FC.WRITE_MULTIPLE_COILS,
                        struct.pack(">HHB", address, len(bits), len(packed)) + bytes(packed),
                        address, len(bits))
 
@@ -442,12 +461,12 @@ class Client:
     def report_slave_id(self, *, slave: int | None = None) -> bytes:
         """Report server ID (function 0x11): the device's bytes after the byte count."""
         s = self._slave_for(slave)
-        return self._transact(s, _FC_REPORT_SLAVE_ID, b"", None, None)[2:]
+        return self._transact(s, FC.REPORT_SLAVE_ID, b"", None, None)[2:]
 
     def read_exception_status(self, *, slave: int | None = None) -> int:
         """Read exception status (function 0x07, serial line): one byte."""
         s = self._slave_for(slave)
-        return self._transact(s, _FC_READ_EXCEPTION_STATUS, b"", None, None)[1]
+        return self._transact(s, FC.READ_EXCEPTION_STATUS, b"", None, None)[1]
 
     def raw_request(self, function: int, data: bytes = b"", *,
                     slave: int | None = None, response_length: int | None = None) -> bytes:
@@ -503,7 +522,11 @@ class Client:
         q = _seconds("quiet", quiet, allow_zero=True)
         lim = _seconds("limit", limit, allow_zero=True)
         with self._lock:
-            return self._link.drain(q, lim)
+            try:
+                return self._link.drain(q, lim)
+            except ModbusConnectionError as e:
+                self._close_if_lost(e)
+                raise
 
 
 class RtuClient(Client):

@@ -10,6 +10,8 @@ address, count, port) and what came back.
 
 from __future__ import annotations
 
+import errno as _errno
+import os
 from typing import ClassVar
 
 __all__ = [
@@ -215,3 +217,26 @@ _BY_CODE: dict[int, type[DeviceException]] = {
 def exception_class(code: int) -> type[DeviceException]:
     """The DeviceException subclass for a Modbus exception code."""
     return _BY_CODE.get(code, DeviceException)
+
+
+def os_hint(err: int) -> str:
+    """What an OS error number means to someone opening a port or a
+    connection, with the usual remedy (``os.strerror`` for the rest)."""
+    if err in (_errno.EACCES, _errno.EPERM):
+        return (
+            "permission denied; add yourself to the group that owns the port "
+            "(usually `dialout`: sudo usermod -aG dialout $USER, then log in again)"
+        )
+    if err in (_errno.ENOENT, _errno.ENODEV, _errno.ENXIO):
+        return "no such port (is the adapter plugged in? see `ls /dev/serial/by-id/`)"
+    if err == _errno.EIO:
+        return "I/O error on the port (was the adapter unplugged?)"
+    if err == _errno.EBUSY:
+        return "the port is in use by another process"
+    if err == _errno.ECONNREFUSED:
+        return "connection refused (nothing is listening there)"
+    if err == _errno.ECONNRESET:
+        return "connection closed by the peer"
+    if err == _errno.ENOTTY:
+        return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
+    return os.strerror(err)

@@ -12,6 +12,7 @@ import pytest
 import reference as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pymb._pymb_cffi import lib
 
 from pymb import _native
 from pymb.devices import COOLPRO, HUB, CoolProStatus, State, decode_hub
@@ -173,7 +174,6 @@ def test_coolpro_telemetry_matches_reference(raw: list[int]) -> None:
 
 
 def test_c_hub_layout_agrees_with_the_map() -> None:
-    lib = _native.lib_constants()
     assert lib.PYMB_HUB_FIRST_REGISTER == HUB.first == 31
     assert lib.PYMB_HUB_CHANNELS == HUB.channels == 100
     assert lib.PYMB_HUB_BLOCKS == len(HUB.blocks) == 7
@@ -196,7 +196,6 @@ def test_c_hub_layout_agrees_with_the_map() -> None:
 
 
 def test_c_coolpro_layout_agrees_with_the_map() -> None:
-    lib = _native.lib_constants()
     assert COOLPRO.span("telemetry") == (
         0x04, lib.PYMB_COOLPRO_TELEMETRY_ADDRESS, lib.PYMB_COOLPRO_TELEMETRY_COUNT)
     assert COOLPRO.span("identity") == (

@@ -116,7 +116,7 @@ class CoolPro:
         # The span comes from the map and the address was checked: no per-call checks.
         function, address, count = span
         regs = array("H", _ZEROS[:count])
-        self.client._read_registers_prechecked(function, self.address, address, regs)
+        self.client.read_registers_prepared(function, self.address, address, regs)
         return regs
 
     def read_telemetry(self) -> CoolProTelemetry:

@@ -16,7 +16,6 @@ import time
 from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any
 
 from pymb import _native
@@ -33,14 +32,8 @@ _ALL = (1 << len(HUB.blocks)) - 1
 _ZERO_REGS = array("H", bytes(2 * _N))
 
 
-class State(IntEnum):
-    """Why a decoded value is (or is not) there; see [NOTES] "offline vs absent"."""
-
-    VALUE = 0  #: a value
-    OFFLINE = 1  #: 0xFFFF: the channel is offline (or has no such value)
-    NO_SENSOR = 2  #: the humidity "no humidity" marker of the channel's unit
-    UNSUPPORTED = 3  #: the hub's firmware does not have this block
-    NOT_READ = 4  #: not asked for in this read
+#: Why a decoded value is (or is not) there: the C core's ``pymb_state``.
+State = _native.State
 
 
 @functools.lru_cache(maxsize=64)
@@ -388,7 +381,7 @@ class SensorHub:
             self._keep = self._sweep.bind(r.registers, r.values, r.raw_states)
             self._bound = r
         try:
-            client._call(client._link.hub_read, self._sweep)
+            client.run_hub_sweep(self._sweep)
         except DeviceFailure as e:
             # [HUB] 2.3.2.3: code 04 means busy, and the retries are used up.
             raise DeviceBusy(

@@ -29,6 +29,7 @@ from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import Any, ClassVar, TypeVar
 
+from pymb._native import FunctionCode
 from pymb.devices.maps import (
     COOLPRO,
     COOLPRO_BAUD_RATES,
@@ -42,7 +43,13 @@ from pymb.devices.maps import (
     Register,
     Type,
 )
-from pymb.errors import InvalidArgument
+from pymb.errors import (
+    DeviceFailure,
+    IllegalDataAddress,
+    IllegalDataValue,
+    IllegalFunction,
+    InvalidArgument,
+)
 from pymb.sim.clock import SimClock
 
 __all__ = [
@@ -63,22 +70,19 @@ _M64 = 0xFFFF_FFFF_FFFF_FFFF
 _TWO_PI = 2.0 * math.pi
 
 
-class Function(IntEnum):
-    """Modbus function codes the simulators meet ([MB-AP] 6)."""
-
-    READ_HOLDING_REGISTERS = 0x03
-    READ_INPUT_REGISTERS = 0x04
-    WRITE_SINGLE_REGISTER = 0x06
-    WRITE_MULTIPLE_REGISTERS = 0x10
+#: Modbus function codes ([MB-AP] 6): the compiler's, from libmodbus's modbus.h.
+Function = FunctionCode
 
 
 class ExceptionCode(IntEnum):
-    """Exception codes both documents list ([CP] ch. 05, [HUB] 2.3.2.3)."""
+    """Exception codes both documents list ([CP] ch. 05, [HUB] 2.3.2.3): the
+    codes of :mod:`pymb.errors`' classes."""
 
-    ILLEGAL_FUNCTION = 0x01
-    ILLEGAL_DATA_ADDRESS = 0x02
-    ILLEGAL_DATA_VALUE = 0x03
-    DEVICE_FAILURE = 0x04  #: the CoolPro's "Slave Device Failure", the hub's "busy"
+    ILLEGAL_FUNCTION = IllegalFunction.default_code
+    ILLEGAL_DATA_ADDRESS = IllegalDataAddress.default_code
+    ILLEGAL_DATA_VALUE = IllegalDataValue.default_code
+    #: the CoolPro's "Slave Device Failure", the hub's "busy"
+    DEVICE_FAILURE = DeviceFailure.default_code
 
 
 def exception_pdu(function: int, code: int) -> bytes:

@@ -37,8 +37,7 @@ __all__ = ["PtyPort", "RtuServer", "SerialPort", "frame_rtu"]
 
 log = logging.getLogger("pymb.sim")
 
-_lib = _native.lib_constants()
-_INCOMPLETE = _lib.PYMB_FRAME_INCOMPLETE
+_INCOMPLETE = _native.FRAME_INCOMPLETE
 _MAX_BUFFER = 1024  # garbage beyond this without a pause is dropped
 _WRITE_WAIT_S = 0.05  # a full output queue (nobody reading) drops the reply after this
 
