@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from pymb import _native
 from pymb.bench import pure
 from pymb.devices.maps import COOLPRO, HUB
 
@@ -35,18 +36,11 @@ __all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
 HUB_SLAVE = HUB.default_address
 CP_SLAVE = COOLPRO.default_address
 CP_FUNCTION, CP_ADDRESS, CP_COUNT = COOLPRO.span("telemetry")
-MAX_READ = HUB.max_read
 
 
-def hub_spans() -> list[tuple[int, int]]:
-    """The sweep's requests: registers 31..730 in reads of at most 125."""
-    out = []
-    for done in range(0, HUB.count, MAX_READ):
-        out.append((HUB.first + done, min(MAX_READ, HUB.count - done)))
-    return out
-
-
-SPANS = hub_spans()
+#: The sweep's requests: registers 31..730 in reads of at most 125, as the C
+#: core plans a full sweep (pymb_hub_plan_all) for every contender.
+SPANS = _native.hub_plan_all(0, HUB.channels)
 
 
 class Canary:
