@@ -31,7 +31,14 @@ from pymb import _native
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.wire import bits_per_char, char_time
 
-__all__ = ["Client", "RtuClient", "RtuOverTcpClient", "TcpClient", "client_for_address"]
+__all__ = [
+    "Client",
+    "RtuClient",
+    "RtuOverTcpClient",
+    "TcpClient",
+    "client_for_address",
+    "parse_host_port",
+]
 
 # Function codes and per-request limits: the compiler's (libmodbus's modbus.h).
 MAX_READ_REGISTERS = _native.MAX_READ_REGISTERS
@@ -665,14 +672,29 @@ class RtuOverTcpClient(Client):
                          slave=slave, timeout=timeout, byte_timeout=byte_timeout)
 
 
+def parse_host_port(text: str, *, what: str = "--tcp",
+                    port_only: bool = False) -> tuple[str, int]:
+    """``HOST:PORT`` as a user typed it -> ``(host, port)``; the one parser of
+    pymb's TCP addresses. ``[::1]:502`` loses its brackets, an empty host is
+    127.0.0.1, and with ``port_only`` a bare ``PORT`` is accepted too. ``what``
+    names the option or key in the one-line error."""
+    host, sep, port = str(text).rpartition(":")
+    if not sep and port_only:
+        host = ""
+    if not (sep or port_only) or not port.isdigit():
+        raise InvalidArgument(
+            f"{what} needs {'[HOST:]PORT' if port_only else 'HOST:PORT'}, got {text!r}")
+    number = int(port)
+    if number > 65535:
+        raise InvalidArgument(f"{what} port must be 0..65535, got {number}")
+    return host.strip("[]") or "127.0.0.1", number
+
+
 def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = 1.0,
                        what: str = "--tcp") -> TcpClient | RtuOverTcpClient:
     """A (not yet open) :class:`TcpClient`, or with ``rtu_framing`` an
     :class:`RtuOverTcpClient`, for ``HOST:PORT`` as a user typed it (``what``
     names the option or key in the error)."""
-    host, _, port = str(address).rpartition(":")
-    if not port.isdigit():
-        raise InvalidArgument(f"{what} needs HOST:PORT, got {address!r}")
-    host = host.strip("[]") or "127.0.0.1"
+    host, port = parse_host_port(address, what=what)
     cls = RtuOverTcpClient if rtu_framing else TcpClient
-    return cls(host, int(port), timeout=timeout)
+    return cls(host, port, timeout=timeout)

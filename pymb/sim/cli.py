@@ -18,6 +18,7 @@ import termios
 import threading
 from types import FrameType
 
+from pymb.client import parse_host_port
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import KINDS
@@ -74,17 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _tcp_address(text: str, flag: str = "--tcp") -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host, port = "", text
-    host = host.strip("[]") or "127.0.0.1"
-    try:
-        number = int(port)
-    except ValueError:
-        raise InvalidArgument(f"{flag} wants [HOST:]PORT, got {text!r}") from None
-    if not 0 <= number <= 65535:
-        raise InvalidArgument(f"{flag} port must be 0..65535, got {number}")
-    return host, number
+    return parse_host_port(text, what=flag, port_only=True)
 
 
 def check_link(path: str) -> None:
