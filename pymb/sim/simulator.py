@@ -10,17 +10,14 @@ never competes with the master for the GIL).
 from __future__ import annotations
 
 import os
-import select
 import shutil
-import signal
-import subprocess
-import sys
 import tempfile
-import time
 from collections.abc import Iterable, Sequence
 from types import TracebackType
 from typing import Any
 
+from pymb.child import Child, ChildError, pymb_argv
+from pymb.client import parse_host_port
 from pymb.devices.maps import COOLPRO_BAUD_RATES
 from pymb.errors import InvalidArgument
 from pymb.sim.bus import Bus, BusStats
@@ -355,31 +352,19 @@ class SimulatorProcess:
         self.timeout = timeout
         self.quiet = quiet  #: drop the child's stderr (its banner and summary)
         self.endpoint = ""
-        self._proc: subprocess.Popen[bytes] | None = None
+        self._child: Child | None = None
 
     def start(self) -> SimulatorProcess:
         """Start the child and wait for its endpoint line."""
-        env = dict(os.environ)
-        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-        proc = subprocess.Popen([sys.executable, "-m", "pymb", "simulate", *self.args],
-                                stdout=subprocess.PIPE, env=env,
-                                stderr=subprocess.DEVNULL if self.quiet else None)
-        self._proc = proc
-        assert proc.stdout is not None
-        line = b""
-        deadline = time.monotonic() + self.timeout
-        fd = proc.stdout.fileno()
-        while not line.endswith(b"\n"):
-            left = deadline - time.monotonic()
-            r, _, _ = select.select([fd], [], [], max(0.0, left))
-            chunk = os.read(fd, 256) if r else b""
-            if not chunk:
-                self.stop()
-                raise RuntimeError(f"pymb simulate {' '.join(self.args)} gave no endpoint "
-                                   f"within {self.timeout:g} s")
-            line += chunk
-        self.endpoint = line.decode().strip()
+        name = f"pymb simulate {' '.join(self.args)}"
+        # Started where the caller is: relative paths (--link) mean what they say.
+        self._child = Child(name, pymb_argv("simulate", *self.args), stdin=False,
+                            stderr="drop" if self.quiet else "inherit", cwd=None)
+        try:
+            self.endpoint = self._child.readline(self.timeout).strip()
+        except ChildError as e:
+            self.stop()
+            raise ChildError(f"{name} gave no endpoint within {self.timeout:g} s ({e})") from None
         return self
 
     @property
@@ -390,28 +375,17 @@ class SimulatorProcess:
     @property
     def host(self) -> str:
         """The TCP endpoint's host."""
-        return self.endpoint.rpartition(":")[0].strip("[]")
+        return parse_host_port(self.endpoint)[0]
 
     @property
     def tcp_port(self) -> int:
         """The TCP endpoint's port."""
-        return int(self.endpoint.rpartition(":")[2])
+        return parse_host_port(self.endpoint)[1]
 
     def stop(self) -> int | None:
-        """Stop the child; returns its exit code."""
-        proc, self._proc = self._proc, None
-        if proc is None:
-            return None
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(5.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
-        return proc.returncode
+        """Stop the child (SIGTERM, then SIGKILL); returns its exit code."""
+        child, self._child = self._child, None
+        return None if child is None else child.stop(term_wait=5.0)
 
     def __enter__(self) -> SimulatorProcess:
         return self.start()
