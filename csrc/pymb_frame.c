@@ -2,9 +2,9 @@
 /*
  * pymb_frame.c - Modbus frame lengths and response checks, with no I/O.
  *
- * Used by the raw request path (slaves 248..255, which libmodbus refuses and
- * whose replies it does not check), by the device simulators, and by the fuzz
- * targets. Everything reads only inside the lengths it is given.
+ * Used by the request path (pymb_modbus.c frames every request and checks
+ * every reply itself, for every address 0..255), by the device simulators,
+ * and by the fuzz targets. Everything reads only inside the lengths it is given.
  */
 #include <string.h>
 

@@ -580,10 +580,82 @@ static int frame_errno(int status)
     }
 }
 
+/* [MB-SL] 2.1: no reply to a broadcast, but the devices need the frame to
+ * end (a silence) and time to act before the next request ("turnaround
+ * delay", 100 to 200 ms there): wait until it is sent, then
+ * PYMB_BROADCAST_TURNAROUND_US. */
+static void broadcast_wait(pymb_line *line)
+{
+    struct timespec ts = {PYMB_BROADCAST_TURNAROUND_US / 1000000,
+                          (PYMB_BROADCAST_TURNAROUND_US % 1000000) * 1000L};
+    if (line->framing == PYMB_FRAMING_RTU) {
+        tcdrain(modbus_get_socket(line->ctx));
+    }
+    while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+    }
+}
+
+/* Receive the RTU reply to req and check it against req: its length (-1 and
+ * errno on failure, the line then owing a quiet window), *status and *exc. */
+static int rtu_reply(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                     uint64_t sent_us, uint8_t *rsp, int rsp_cap, pymb_failure *fail,
+                     int *status, int *exc)
+{
+    int got = 0;
+    int n = rtu_receive(line, req[0], expect > 0 ? expect + 3 : 0,
+                        earliest_reply(line, sent_us, req_len), rsp, rsp_cap, &got);
+    if (n < 0) {
+        if (errno == EMBBADDATA) {
+            note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
+        } else if (errno == ETIMEDOUT && got > 0) {
+            int saved = errno;
+            if (expect > 0 && got >= 4 && pymb_rtu_crc_ok(rsp, (size_t)got)) {
+                /* A whole frame, shorter than the caller said. */
+                note_reply(fail, rsp, got, PYMB_FRAME_BAD_LENGTH);
+                saved = EMBBADDATA;
+            } else {
+                note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
+            }
+            errno = saved;
+        }
+        owe(line, req[0]);
+        return -1;
+    }
+    *status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)n, exc);
+    if (*status == PYMB_FRAME_BAD_CRC && expect > 0 && (got > n || input_pending(line))) {
+        *status = PYMB_FRAME_BAD_LENGTH; /* the frame goes on past the length the caller said */
+    }
+    return n;
+}
+
+/* The same for a Modbus TCP reply: its MBAP header, unit id and PDU. */
+static int tcp_reply(pymb_line *line, const uint8_t *req, int req_len, uint8_t *rsp,
+                     pymb_failure *fail, int *status, int *exc)
+{
+    int desync = 0;
+    int n = tcp_receive(line, rsp, status, &desync);
+    if (n < 0) {
+        if (*status != PYMB_FRAME_OK) {
+            note_reply(fail, rsp, MBAP_LENGTH, *status);
+        }
+        if (desync) {
+            owe(line, req[0]);
+        }
+        return -1;
+    }
+    if (rsp[MBAP_LENGTH - 1] != req[0]) {
+        *status = PYMB_FRAME_BAD_SLAVE;
+    } else {
+        *status = pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + MBAP_LENGTH,
+                                          (size_t)(n - MBAP_LENGTH), exc);
+    }
+    return n;
+}
+
 int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                   uint8_t *rsp, int rsp_cap, pymb_failure *fail)
 {
-    int hl, n, status = PYMB_FRAME_OK, pdu_len, exc = 0, desync = 0;
+    int hl, n, status = PYMB_FRAME_OK, pdu_len, exc = 0;
     uint64_t sent_us;
 
     pymb_failure_reset(fail);
@@ -604,63 +676,18 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
         return -1;
     }
     if (hl == 1 && req[0] == MODBUS_BROADCAST_ADDRESS) {
-        /* [MB-SL] 2.1: no reply to a broadcast, but the devices need the
-         * frame to end (a silence) and time to act before the next request
-         * ("turnaround delay", 100 to 200 ms there): wait until it is sent,
-         * then PYMB_BROADCAST_TURNAROUND_US. */
-        struct timespec ts = {PYMB_BROADCAST_TURNAROUND_US / 1000000,
-                              (PYMB_BROADCAST_TURNAROUND_US % 1000000) * 1000L};
-        if (line->framing == PYMB_FRAMING_RTU) {
-            tcdrain(modbus_get_socket(line->ctx));
-        }
-        while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
-        }
+        broadcast_wait(line);
         return 0;
     }
     if (hl == 1) {
-        int got = 0;
-        n = rtu_receive(line, req[0], expect > 0 ? expect + 3 : 0,
-                        earliest_reply(line, sent_us, req_len), rsp, rsp_cap, &got);
-        if (n < 0) {
-            if (errno == EMBBADDATA) {
-                note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
-            } else if (errno == ETIMEDOUT && got > 0) {
-                int saved = errno;
-                if (expect > 0 && got >= 4 && pymb_rtu_crc_ok(rsp, (size_t)got)) {
-                    /* A whole frame, shorter than the caller said. */
-                    note_reply(fail, rsp, got, PYMB_FRAME_BAD_LENGTH);
-                    saved = EMBBADDATA;
-                } else {
-                    note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
-                }
-                errno = saved;
-            }
-            owe(line, req[0]);
-            return -1;
-        }
-        status = pymb_rtu_check_response(req, (size_t)req_len, rsp, (size_t)n, &exc);
-        if (status == PYMB_FRAME_BAD_CRC && expect > 0 && (got > n || input_pending(line))) {
-            status = PYMB_FRAME_BAD_LENGTH; /* the frame goes on past the length the caller said */
-        }
+        n = rtu_reply(line, req, req_len, expect, sent_us, rsp, rsp_cap, fail, &status, &exc);
         pdu_len = n - 3;
     } else {
-        n = tcp_receive(line, rsp, &status, &desync);
-        if (n < 0) {
-            if (status != PYMB_FRAME_OK) {
-                note_reply(fail, rsp, MBAP_LENGTH, status);
-            }
-            if (desync) {
-                owe(line, req[0]);
-            }
-            return -1;
-        }
-        if (rsp[MBAP_LENGTH - 1] != req[0]) {
-            status = PYMB_FRAME_BAD_SLAVE;
-        } else {
-            status = pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + MBAP_LENGTH,
-                                             (size_t)(n - MBAP_LENGTH), &exc);
-        }
+        n = tcp_reply(line, req, req_len, rsp, fail, &status, &exc);
         pdu_len = n - MBAP_LENGTH;
+    }
+    if (n < 0) {
+        return -1;
     }
     if (status == PYMB_FRAME_OK && expect > 0 && pdu_len != expect) {
         status = PYMB_FRAME_BAD_LENGTH;

@@ -542,8 +542,8 @@ class RtuClient(Client):
     ``port``: the device, e.g. ``/dev/ttyUSB0`` or ``/dev/serial/by-id/...``.
     ``baudrate``: one of the standard rates (9600, 19200, ... 115200, ...).
     ``parity``: ``"N"``, ``"E"`` or ``"O"``. ``slave``: default address,
-    1..255 (248..255 are reached through pymb's own framing, as libmodbus
-    refuses them). ``timeout``: seconds for a complete reply.
+    1..255 (pymb frames every request itself, so 248..255, which libmodbus
+    refuses, work like any other). ``timeout``: seconds for a complete reply.
 
     RS485 adapters: ``serial_mode="rs485"`` turns on the kernel's RS485 mode
     (drivers that support TIOCSRS485), ``rts="up"``/``"down"`` drives RTS

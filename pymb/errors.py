@@ -1,7 +1,8 @@
 """pymb's exceptions: one small hierarchy rooted at :class:`ModbusError`.
 
 ``ModbusError`` is never raised itself. What the *device* reported is a
-:class:`DeviceException` (one subclass per Modbus exception code); what the
+:class:`DeviceException` (a subclass for each standard exception code,
+``DeviceException`` itself for any other code 1..255); what the
 *master* saw is a :class:`ModbusTimeout`, a :class:`ProtocolError` or a
 :class:`ModbusConnectionError`; a bad argument, caught before any I/O, is an
 :class:`InvalidArgument`. Every message says what was asked (slave, function,

@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * fuzz_transact.c - libFuzzer target: pymb's request path (pymb_transact,
- * the raw path for slaves 248..255, pymb_read_registers and the hub sweep)
+ * pymb_read_registers and the hub sweep, for any slave address 0..255)
  * over libmodbus and a real pseudo-terminal. The input is what the "device"
  * sends back: it is written to the pty's master side, then pymb makes one
  * request and must return either checked data or an error, never read
