@@ -218,7 +218,7 @@ def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
     return 1
 
 
-@ffi.def_extern(onerror=_interrupt_raised)
+@ffi.def_extern(onerror=_interrupt_raised)  # type: ignore[untyped-decorator]
 def pymb_py_interrupted(arg: Any) -> int:
     return 0
 
@@ -270,7 +270,7 @@ class Link:
     @property
     def is_open(self) -> bool:
         """True while a connected context exists."""
-        return self._ctx != ffi.NULL
+        return bool(self._ctx != ffi.NULL)
 
     def open(self) -> None:
         """Create the context, connect, lock the port, apply the settings."""

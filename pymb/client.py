@@ -62,10 +62,10 @@ def _int(name: str, value: Any, low: int, high: int) -> int:
     # Any integer (numpy's too, through __index__), but not a bool or a float.
     if isinstance(value, bool) or not hasattr(type(value), "__index__"):
         raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
-    value = operator.index(value)
-    if not low <= value <= high:
-        raise InvalidArgument(f"{name} must be from {low} to {high}, got {value}")
-    return value
+    number: int = operator.index(value)
+    if not low <= number <= high:
+        raise InvalidArgument(f"{name} must be from {low} to {high}, got {number}")
+    return number
 
 
 def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:

@@ -971,8 +971,8 @@ def is_pymb_database(path: str) -> bool:
                 return True
             if "meta" not in tables:
                 return False
-            return db.execute("SELECT COUNT(*) FROM meta WHERE key = 'pymb_version'"
-                              ).fetchone()[0] == 1
+            return bool(db.execute("SELECT COUNT(*) FROM meta WHERE key = 'pymb_version'"
+                                   ).fetchone()[0] == 1)
         finally:
             db.close()
     except sqlite3.Error:

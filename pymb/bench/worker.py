@@ -136,7 +136,7 @@ class PymodbusClient(PurePythonClient):
         return regs
 
     def close(self) -> None:
-        self.client.close()
+        self.client.close()  # type: ignore[no-untyped-call]
 
 
 class MinimalmodbusClient(PurePythonClient):

@@ -57,7 +57,10 @@ def run(args: argparse.Namespace) -> int:
         SimulatorProcess(["hub", "--baud", baud, "--seed", "2", "--fault", "busy:0.02"],
                          quiet=True),
     ]
-    say = (lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    def say(message: str) -> None:
+        if not args.quiet:
+            print(message, file=sys.stderr)
+
     try:
         for s in sims:
             s.start()

@@ -40,6 +40,7 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
     mosquitto); returns the logger's summary and the lines about MQTT."""
     require_paho()
     import paho.mqtt.client as mqtt
+    from paho.mqtt.enums import CallbackAPIVersion
     broker: Mosquitto | None = None
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if url == "auto":
@@ -71,7 +72,7 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
                 with lock:
                     seen.add(json.loads(msg.payload)["sample"])
 
-        sub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="pymb-demo-watch")
+        sub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="pymb-demo-watch")
         sub.on_connect = lambda c, u, f, rc, p: c.subscribe(f"pymb/{NODE}/#", qos=1)
         sub.on_subscribe = lambda *a: ready.set()
         sub.on_message = on_message

@@ -119,6 +119,7 @@ class _Session:
 
     def __init__(self, fw: Forwarder, client_id: str) -> None:
         import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
+        from paho.mqtt.enums import CallbackAPIVersion
 
         self.fw = fw
         #: PUBACK/SUBACK message ids; per connection, as paho numbers them anew
@@ -128,7 +129,7 @@ class _Session:
         self.ok = False
         self.lost = False
         self.host_online = False  #: the primary host's STATE said online (on this connection)
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
                                   clean_session=True, protocol=mqtt.MQTTv311)
         self.client.max_inflight_messages_set(WINDOW + 20)
         self.client.max_queued_messages_set(0)
@@ -178,19 +179,19 @@ class _Session:
         fw = self.fw
         state = host_state(payload)
         if state is None:
-            fw._event(f"ignored a STATE of the primary host that is not Sparkplug 3.0 JSON: "
+            fw.record_event(f"ignored a STATE of the primary host that is not Sparkplug 3.0 JSON: "
                       f"{bytes(payload[:80])!r}")
             return
         online, ts = state
         if online and (fw.host_ts is None or ts >= fw.host_ts):
             fw.host_ts = fw.host_online_ts = ts
             if not self.host_online:
-                fw._event(f"the primary host {fw.cfg.primary_host} is online")
+                fw.record_event(f"the primary host {fw.cfg.primary_host} is online")
             self.host_online = True
         elif not online and (fw.host_online_ts is None or ts >= fw.host_online_ts):
             fw.host_ts = max(ts, fw.host_ts or ts)
             if self.host_online:
-                fw._event(f"the primary host {fw.cfg.primary_host} is offline")
+                fw.record_event(f"the primary host {fw.cfg.primary_host} is offline")
             self.host_online = False
         fw.wake.set()
 
@@ -253,7 +254,8 @@ class Forwarder(threading.Thread):
             out, self._events = self._events, []
         return out
 
-    def _event(self, message: str) -> None:
+    def record_event(self, message: str) -> None:
+        """Add a line to the connection's story (the event log the logger stores)."""
         with self._lock:
             if len(self._events) < 1000:
                 self._events.append((time.time(), message))
@@ -304,17 +306,17 @@ class Forwarder(threading.Thread):
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
                 self._connections += 1
-                self._event(f"connected to {self.dest}")
+                self.record_event(f"connected to {self.dest}")
                 was_down = ""
                 self._pump(s)
                 self._close(s)
                 if self._stopping.is_set():
                     return
-                self._event(f"lost the connection to {self.dest}: {s.reason or 'closed'}; "
+                self.record_event(f"lost the connection to {self.dest}: {s.reason or 'closed'}; "
                             "the samples go on accumulating in the database")
             reason = "connecting" if s is None else (s.reason or "disconnected")
             if reason != was_down and not (s is not None and s.ok):
-                self._event(f"cannot connect to {self.dest}: {reason}")
+                self.record_event(f"cannot connect to {self.dest}: {reason}")
                 was_down = reason
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
