@@ -176,27 +176,22 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
 #define PYMB_FRAMING_RTU_OVER_TCP ...
 #define PYMB_INTERRUPT_SLICE_US ...
 
+/* Only the fields Python reads or sets; "...;" lets the compiler lay out the rest. */
 typedef struct {
     modbus_t *ctx;
-    int framing;
-    uint32_t silence_us;
     int (*interrupted)(void *arg);
-    void *interrupt_arg;
     uint32_t char_ns;
-    uint16_t tid;
-    int owed;
-    int owed_slave;
-    uint64_t owed_since_us;
+    ...;
 } pymb_line;
 
 typedef struct {
-    int function;
     int address;
     int count;
     int frame;
     int rsp_len;
     int header;
     uint8_t rsp[...];
+    ...;
 } pymb_failure;
 
 int pymb_errno_exception(int errnum);
