@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 
 from pymb import _native
 from pymb.devices import HUB
-from pymb.devices.planner import naive_spans, plan_reads, request_time
+from pymb.devices.planner import naive_spans, plan_reads
+from pymb.wire import read_time
 
 
 def covered(spans: tuple[tuple[int, int], ...]) -> set[int]:
@@ -34,7 +35,7 @@ def test_plan_limits_coverage_and_cost(wanted: set[int], holes: set[int], baud: 
     assert starts == sorted(starts)
     assert sum(n for _, n in plan.spans) == len(on_wire)  # no overlap
     assert plan.predicted_s <= plan.naive_s + 1e-12
-    assert abs(plan.predicted_s - sum(request_time(n, baud, turnaround)
+    assert abs(plan.predicted_s - sum(read_time(n, baud, turnaround=turnaround)
                                       for _, n in plan.spans)) < 1e-9
 
 
@@ -75,3 +76,13 @@ def test_naive_spans_split_at_limit() -> None:
     assert naive_spans(range(0, 300)) == [(0, 125), (125, 125), (250, 50)]
     assert naive_spans([5, 6, 9]) == [(5, 2), (9, 1)]
     assert plan_reads([], 9600).spans == ()
+
+
+def test_explain_agrees_with_the_plans_total_on_any_line() -> None:
+    # 8E1: 11 bits a character; every line of explain() and its total use them.
+    plan = plan_reads([31, 32, 40, 131], 19200, turnaround=0.002, bits_per_char=11)
+    lines = plan.explain().splitlines()
+    per_request = [float(line.split(")")[-1].split()[0]) for line in lines[1:-1]]
+    assert len(per_request) == len(plan.spans)
+    assert abs(sum(per_request) - plan.predicted_s * 1e3) < 0.01 * len(per_request)
+    assert f"predicted {plan.predicted_s * 1e3:.2f} ms" in lines[-1]

@@ -14,7 +14,7 @@ Sections (each can be chosen with ``--sections``):
 ``wire``     the simulator emulating 9600 and 115200 baud: pymb's sweep (and
              the C program's, the floor of that emulation) against the
              theoretical wire time of the frames from
-             :func:`pymb.devices.planner.request_time`; and the CoolPro's
+             :func:`pymb.wire.read_time`; and the CoolPro's
              telemetry with its real ~8 ms gap.
 ``scaling``  1, 2, 4 and 8 buses swept in parallel threads at emulated
              115200: aggregate sweeps per second and the process's CPU.
@@ -55,8 +55,8 @@ from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB, Type
-from pymb.devices.planner import request_time
 from pymb.sim import CoolProDevice, HubDevice, Simulator, make_device
+from pymb.wire import read_time
 
 __all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
@@ -445,7 +445,7 @@ def run_sweep(opts: Options, lineup: Lineup, children: Children) -> dict[str, An
 
 
 def _theory_sweep(baud: int) -> float:
-    return sum(request_time(count, baud) for _, count in SPANS)
+    return sum(read_time(count, baud) for _, count in SPANS)
 
 
 def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any]:
@@ -479,7 +479,7 @@ def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any
         if telemetry:
             _race(entries, "telemetry", "tele", rounds, 2 * n + 2, 2, children, opts,
                   f"wire: CoolPro with its {gap * 1e3:g} ms gap")
-            t_theory = request_time(CP_COUNT, baud, turnaround=gap)
+            t_theory = read_time(CP_COUNT, baud, turnaround=gap)
             for row in _summary(entries, "telemetry", 2 * n + 2)["rows"]:
                 row.update(baud=baud, workload=f"CoolPro telemetry, {gap * 1e3:g} ms gap",
                            theory_us=t_theory * 1e6)

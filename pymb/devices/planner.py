@@ -19,15 +19,7 @@ from dataclasses import dataclass
 
 from pymb.wire import read_time
 
-__all__ = ["ReadPlan", "naive_spans", "plan_reads", "request_time"]
-
-
-
-def request_time(count: int, baudrate: int, turnaround: float = 0.0,
-                 bits_per_char: int = 10) -> float:
-    """Predicted wire time of one read of ``count`` registers
-    (:func:`pymb.wire.read_time`)."""
-    return read_time(count, baudrate, turnaround=turnaround, bits=bits_per_char)
+__all__ = ["ReadPlan", "naive_spans", "plan_reads"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +33,7 @@ class ReadPlan:
     baudrate: int
     turnaround: float
     wanted: int  #: registers asked for
+    bits_per_char: int = 10  #: the line's character (:func:`pymb.wire.bits_per_char`)
 
     @property
     def registers(self) -> int:
@@ -55,7 +48,8 @@ class ReadPlan:
             f"{self.wanted} wanted"
         ]
         for i, (address, count) in enumerate(self.spans, 1):
-            t = request_time(count, self.baudrate, self.turnaround)
+            t = read_time(count, self.baudrate, turnaround=self.turnaround,
+                          bits=self.bits_per_char)
             lines.append(f"  {i:3d}. registers {address}..{address + count - 1} "
                          f"({count}) {t * 1e3:8.2f} ms")
         saved = self.naive_s - self.predicted_s
@@ -94,12 +88,12 @@ def plan_reads(
     """
     w = sorted(set(wanted))
     if not w:
-        return ReadPlan((), 0.0, 0.0, baudrate, turnaround, 0)
+        return ReadPlan((), 0.0, 0.0, baudrate, turnaround, 0, bits_per_char)
     if baudrate <= 0 or max_count < 1:
         raise ValueError("baudrate and max_count must be positive")
 
     def cost(n: int) -> float:
-        return request_time(n, baudrate, turnaround, bits_per_char)
+        return read_time(n, baudrate, turnaround=turnaround, bits=bits_per_char)
 
     # blocked[k]: registers that may not be read lie strictly between w[k] and w[k+1].
     m = len(w)
@@ -128,4 +122,4 @@ def plan_reads(
         spans.append((w[i], w[j] - w[i] + 1))
         i = j + 1
     naive = sum(cost(c) for _, c in naive_spans(w, max_count))
-    return ReadPlan(tuple(spans), best[0], naive, baudrate, turnaround, m)
+    return ReadPlan(tuple(spans), best[0], naive, baudrate, turnaround, m, bits_per_char)

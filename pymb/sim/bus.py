@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 from pymb.sim.devices import Device, exception_pdu
 from pymb.sim.faults import Fault, Faults
+from pymb.wire import GAP_CHARS, char_time
 
 __all__ = ["IDLE_S", "Bus", "BusStats", "Outcome", "char_time", "silence", "sleep_until"]
 
@@ -23,12 +24,6 @@ log = logging.getLogger("pymb.sim")
 
 #: a quiet line lets the devices update their values this often (off the request path)
 IDLE_S = 0.25
-
-
-def char_time(baud: int, bits: int = 10) -> float:
-    """Seconds one character takes: start, 8 data, stop (10 bits for 8N1,
-    11 with parity or two stop bits)."""
-    return bits / baud
 
 
 def silence(baud: int | None, bits: int = 10) -> float:
@@ -42,9 +37,10 @@ def silence(baud: int | None, bits: int = 10) -> float:
 def reply_gap(baud: int, bits: int = 10) -> float:
     """The line model's gap between a request's last byte and the reply's
     first: exactly 3.5 characters at any speed (the theoretical wire time
-    pymb's planner and benchmark count). The 1.75 ms of :func:`silence` is a
-    receiver's frame-end timer above 19200 bit/s, not a delay a device owes."""
-    return 3.5 * bits / baud
+    pymb's planner and benchmark count: :mod:`pymb.wire`). The 1.75 ms of
+    :func:`silence` is a receiver's frame-end timer above 19200 bit/s, not a
+    delay a device owes."""
+    return GAP_CHARS * char_time(baud, bits)
 
 
 def sleep_until(deadline: float, stop: threading.Event | None = None) -> bool:
