@@ -45,7 +45,25 @@ def _confirm(question: str) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """Show, change, reset and verify."""
-    # Validate everything before any I/O.
+    changes = _validate(args)  # everything is checked before any I/O
+    with make_client(args) as client:
+        cp = CoolPro(client, args.address)
+        cfg = cp.read_config()
+        print(f"CoolPro at {args.address} on {client.port}: stored address {cfg.address}, "
+              f"baud rate {cfg.baud_rate}")
+        if not changes and not args.reset:
+            return 0
+        done = _write_and_reset(args, cp, changes)
+        if done is not None:
+            return done
+    # After the reset the device answers at the stored address and rate
+    # (those just written, or those written earlier and read back above).
+    return _verify(args, args.set_address or cfg.address,
+                   args.set_baud or cfg.baud_rate or args.baud)
+
+
+def _validate(args: argparse.Namespace) -> list[str]:
+    """Check the device and the new settings; the changes, in words."""
     dev = device_from_args(args)
     if dev.type != "coolpro":
         raise InvalidArgument(f"pymb config changes a CoolPro's settings, not a {dev.type}'s: "
@@ -63,34 +81,34 @@ def run(args: argparse.Namespace) -> int:
         changes.append(f"address {args.address} -> {args.set_address}")
     if args.set_baud is not None:
         changes.append(f"baud rate -> {args.set_baud}")
-    with make_client(args) as client:
-        cp = CoolPro(client, args.address)
-        cfg = cp.read_config()
-        print(f"CoolPro at {args.address} on {client.port}: stored address {cfg.address}, "
-              f"baud rate {cfg.baud_rate}")
-        if not changes and not args.reset:
-            return 0
-        steps = changes + (["then reset the device"] if changes and args.reset else
-                           ["reset the device"] if args.reset else [])
-        if not args.yes and not _confirm(f"CoolPro {args.address}: {'; '.join(steps)}?"):
-            print("nothing written")
-            return 1
-        if args.set_address is not None:
-            cp.set_address(args.set_address)
-        if args.set_baud is not None:
-            cp.set_baud_rate(args.set_baud)
+    return changes
+
+
+def _write_and_reset(args: argparse.Namespace, cp: CoolPro, changes: list[str]) -> int | None:
+    """Confirm, write and reset; the exit code when there is nothing to
+    verify, None when the device was reset."""
+    steps = changes + (["then reset the device"] if changes and args.reset else
+                       ["reset the device"] if args.reset else [])
+    if not args.yes and not _confirm(f"CoolPro {args.address}: {'; '.join(steps)}?"):
+        print("nothing written")
+        return 1
+    if args.set_address is not None:
+        cp.set_address(args.set_address)
+    if args.set_baud is not None:
+        cp.set_baud_rate(args.set_baud)
+    if changes:
+        print("written: " + "; ".join(changes))
+    if not args.reset:
         if changes:
-            print("written: " + "; ".join(changes))
-        if not args.reset:
-            if changes:
-                print("the changes take effect after a reset: run again with --reset")
-            return 0
-        cp.reset()
-        print("reset sent")
-    # Verify: after the reset the device answers at the stored address and rate
-    # (those just written, or those written earlier and read back above).
-    new_address = args.set_address or cfg.address
-    new_baud = args.set_baud or cfg.baud_rate or args.baud
+            print("the changes take effect after a reset: run again with --reset")
+        return 0
+    cp.reset()
+    print("reset sent")
+    return None
+
+
+def _verify(args: argparse.Namespace, new_address: int, new_baud: int) -> int:
+    """Wait for the device to answer at its new address and rate."""
     deadline = time.monotonic() + VERIFY_FOR
     last: Exception | None = None
     while time.monotonic() < deadline:
