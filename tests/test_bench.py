@@ -165,6 +165,21 @@ def test_c_program_builds_warning_free(tmp_path: Path) -> None:
 
 
 @needs_c
+def test_c_program_runs_clean_under_the_sanitizers(capsys: pytest.CaptureFixture[str],
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    # csrc/examples/bench_sweep.c built with ASan and UBSan, swept and verified
+    # against the simulated hub and CoolPro: any finding aborts it, failing the run.
+    monkeypatch.setenv("PYMB_BENCH_CFLAGS", "-O1 -g -fsanitize=address,undefined "
+                       "-fno-sanitize-recover=all -fno-omit-frame-pointer")
+    monkeypatch.setenv("ASAN_OPTIONS", "detect_leaks=1:abort_on_error=1")
+    result = _bench(capsys, "--only", "c", "--sections", "sweep")
+    (c,) = result["contenders"]
+    assert c["status"] == "ok", c
+    rows = result["sweep"]["hub"]["rows"] + result["sweep"]["telemetry"]["rows"]
+    assert [r["status"] for r in rows] == ["ok", "ok"], rows
+
+
+@needs_c
 def test_quick_run_structure_and_ratios(capsys: pytest.CaptureFixture[str]) -> None:
     result = _bench(capsys, "--only", "pymb,c", "--sections", "micro,sweep")
     meta = result["meta"]

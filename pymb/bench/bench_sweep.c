@@ -1,0 +1,1 @@
+../../csrc/examples/bench_sweep.c
