@@ -116,9 +116,9 @@ def test_unsupported_blocks_and_channel_views() -> None:
     assert set(r.states("voltage_mv")) == {State.UNSUPPORTED}
     assert r.unsupported == {"voltage_mv", "temperature2_c"}
     assert r.pressure_kpa[49] == 349.0
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"channel must be 1\.\.50, got 51"):
         r.channel(51)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"channel must be 1\.\.50, got 0"):
         r.channel(0)
     d = r.as_dict()
     assert d["voltage_mv"][0] is None and d["pressure_kpa"][0] == 300.0

@@ -243,7 +243,7 @@ def test_tls_verifies_the_broker(mosquitto, simulator, certificates, tmp_path: P
     assert "0 samples acknowledged" in err
 
 
-@pytest.mark.parametrize("argv, message", [
+@pytest.mark.parametrize(("argv", "message"), [
     (["--mqtt", "http://x"], "bad MQTT URL"),
     (["--mqtt", "mqtt://u:p@host"], "no user or password in the MQTT URL"),
     (["--mqtt", "mqtt://host", "--mqtt-ca", "/etc/hostname"], "need an mqtts:// URL"),

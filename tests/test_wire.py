@@ -326,7 +326,7 @@ def test_signal_handler_that_returns_does_not_fail_a_good_read(transport: str) -
 # -- values and arguments -----------------------------------------------------------------
 
 
-@pytest.fixture()
+@pytest.fixture
 def echo_pty() -> Iterator[tuple[pymb.RtuClient, list[bytes]]]:
     def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         if frame[1] in (5, 6):
