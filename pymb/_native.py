@@ -12,8 +12,9 @@ import errno
 import os
 import socket
 import threading
+from array import array
 from enum import IntEnum
-from typing import Any
+from typing import Any, TypeAlias
 
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
@@ -146,6 +147,11 @@ _FUNCTION_NAMES: dict[int, str] = {
 }
 
 
+#: What the byte-level helpers take: any contiguous buffer (collections.abc.Buffer
+#: from Python 3.12 on).
+Buffer: TypeAlias = "bytes | bytearray | memoryview | array[Any]"
+
+
 def _bytes_arg(data: Any) -> tuple[Any, int]:
     """A buffer as C sees it: its bytes and its length in *bytes* (an array of
     16-bit items is twice its len()). bytes go to C as they are (the fast
@@ -164,14 +170,14 @@ def _bytes_arg(data: Any) -> tuple[Any, int]:
     return ffi.from_buffer("uint8_t[]", view), view.nbytes
 
 
-def crc16(data: bytes | bytearray | memoryview) -> int:
+def crc16(data: Buffer) -> int:
     """CRC-16/MODBUS of the bytes of ``data`` (as it goes on the wire: low
     byte first). Any buffer: its whole byte length counts."""
     buf, n = _bytes_arg(data)
     return int(lib.pymb_crc16(buf, n))
 
 
-def with_crc(frame: bytes | bytearray | memoryview) -> bytes:
+def with_crc(frame: Buffer) -> bytes:
     """``frame`` with its CRC appended, low byte first (an RTU frame)."""
     buf, n = _bytes_arg(frame)
     crc = lib.pymb_crc16(buf, n)
@@ -179,19 +185,19 @@ def with_crc(frame: bytes | bytearray | memoryview) -> bytes:
     return head + bytes((crc & 0xFF, crc >> 8))
 
 
-def rtu_crc_ok(frame: bytes | bytearray | memoryview) -> bool:
+def rtu_crc_ok(frame: Buffer) -> bool:
     """True when the last two bytes of ``frame`` are the CRC of the rest."""
     return bool(lib.pymb_rtu_crc_ok(*_bytes_arg(frame)))
 
 
-def rtu_request_length(buf: bytes | bytearray | memoryview) -> int:
+def rtu_request_length(buf: Buffer) -> int:
     """Length of the RTU request starting ``buf`` as its header tells it:
     -1 needs more bytes, -4 unknown function (only silence ends it), -7 too
     long (see pymb_rtu_request_length in csrc/pymb.h)."""
     return int(lib.pymb_rtu_request_length(*_bytes_arg(buf)))
 
 
-def rtu_response_length(buf: bytes | bytearray | memoryview) -> int:
+def rtu_response_length(buf: Buffer) -> int:
     """Length of the RTU response starting ``buf`` (-1: need more bytes, -4:
     a function code whose reply length only the line's silence tells)."""
     return int(lib.pymb_rtu_response_length(*_bytes_arg(buf)))

@@ -25,7 +25,7 @@ import warnings
 from array import array
 from collections.abc import Iterable, Mapping, Sequence, Set
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 from pymb import _native
 from pymb.errors import InvalidArgument, ModbusConnectionError
@@ -195,7 +195,7 @@ class Client:
             finally:
                 link.close()
 
-    def __enter__(self) -> Client:
+    def __enter__(self) -> Self:
         self.connect()
         return self
 
@@ -432,7 +432,8 @@ class Client:
         self._call(self._link.read_bits, fc, s, address, count, out)
         return out
 
-    def write_coil(self, address: int, value: bool, *, slave: int | None = None) -> None:
+    def write_coil(self, address: int, value: bool | int, *,
+                   slave: int | None = None) -> None:
         """Write one coil (function 0x05)."""
         s = self._slave_for(slave, write=True)
         address = _int("address", address, 0, 0xFFFF)

@@ -28,8 +28,10 @@ ROOT = Path(__file__).resolve().parents[1]
 def pymb_cmd(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
     """``python -m pymb ARGS`` as a user runs it."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "pymb", *args], capture_output=True,
-                          text=True, timeout=120, env=env, **kw)  # type: ignore[call-overload]
+    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
+        [sys.executable, "-m", "pymb", *args], capture_output=True, text=True, timeout=120,
+        env=env, **kw)
+    return done
 
 
 @pytest.fixture

@@ -40,8 +40,9 @@ STOP_BOUND = 0.5 * float(os.environ.get("PYMB_TIMING_SLACK", "3"))
 def pymb(*args: str, timeout: float = 120, **kw: object) -> subprocess.CompletedProcess[str]:
     """``python -m pymb ARGS`` as a user runs it."""
     kw.setdefault("env", ENV)
-    return subprocess.run([*PYMB, *args], capture_output=True, text=True, timeout=timeout,
-                          **kw)  # type: ignore[call-overload]
+    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
+        [*PYMB, *args], capture_output=True, text=True, timeout=timeout, **kw)
+    return done
 
 
 def no_traceback(r: subprocess.CompletedProcess[str]) -> None:

@@ -13,6 +13,7 @@ import textwrap
 import threading
 import time
 from array import array
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -25,15 +26,18 @@ from pymb import _native
 # under valgrind, see .ci/valgrind).
 T = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
 
+#: What a peer hook returns: (delay, bytes) to send, or None for the normal reply.
+Reply = list[tuple[float, bytes]] | None
+
 
 @pytest.fixture
-def peer() -> PtyPeer:
+def peer() -> Iterator[PtyPeer]:
     with pty_peer() as p:
         yield p
 
 
 @pytest.fixture
-def client(peer: PtyPeer) -> pymb.RtuClient:
+def client(peer: PtyPeer) -> Iterator[pymb.RtuClient]:
     with pymb.RtuClient(peer.port, 19200, slave=40, timeout=T) as c:
         yield c
 
@@ -109,7 +113,7 @@ def test_high_slave_addresses_use_pymb_framing(peer: PtyPeer) -> None:
 def test_slave_250_reply_with_bad_crc_is_refused(peer: PtyPeer) -> None:
     # libmodbus would skip the CRC check here (the reply's address is not the
     # context's slave); pymb must not.
-    def corrupt(slave: int, pdu: bytes, normal: bytes | None):
+    def corrupt(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         frame = bytearray(peer.frame(slave, normal or b""))
         frame[4] ^= 0x01
         return [(0, bytes(frame))]
@@ -150,7 +154,7 @@ def test_writes_and_the_rest_of_the_surface(client: pymb.RtuClient, peer: PtyPee
 
 
 def test_write_echo_must_match(client: pymb.RtuClient, peer: PtyPeer) -> None:
-    def wrong_echo(slave: int, pdu: bytes, normal: bytes | None):
+    def wrong_echo(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         if pdu[0] == 6:
             return [(0, peer.frame(slave, pdu[:3] + b"\x00\x2b"))]
         return None
@@ -179,7 +183,7 @@ def test_timeout(client: pymb.RtuClient, peer: PtyPeer) -> None:
 
 
 def test_bad_crc(client: pymb.RtuClient, peer: PtyPeer) -> None:
-    def bad(slave: int, pdu: bytes, normal: bytes | None):
+    def bad(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         frame = bytearray(peer.frame(slave, normal or b""))
         frame[-1] ^= 0xFF
         return [(0, bytes(frame))]
@@ -242,7 +246,7 @@ def test_late_reply_is_never_taken_as_a_later_answer(client: pymb.RtuClient,
     peer.memory.inputs[0:2] = [0xDEAD, 0xBEEF]
     calls = {"n": 0}
 
-    def late_first(slave: int, pdu: bytes, normal: bytes | None):
+    def late_first(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         calls["n"] += 1
         if calls["n"] == 1:
             return [(1.4 * T, peer.frame(slave, normal or b""))]
@@ -259,7 +263,7 @@ def test_stray_bytes_after_a_reply_do_not_poison_the_next(client: pymb.RtuClient
                                                            peer: PtyPeer) -> None:
     stale = peer.frame(40, b"\x04\x04\xde\xad\xbe\xef")
 
-    def stray(slave: int, pdu: bytes, normal: bytes | None):
+    def stray(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         return [(0, peer.frame(slave, normal or b"")), (0.01, stale)]
 
     peer.hook = stray
@@ -278,7 +282,7 @@ def test_truncated_reply(client: pymb.RtuClient, peer: PtyPeer) -> None:
 
 
 def test_bad_arguments_never_reach_the_wire(client: pymb.RtuClient, peer: PtyPeer) -> None:
-    bad_calls = [
+    bad_calls: list[Callable[[], object]] = [
         lambda: client.read_holding_registers(-1, 1),
         lambda: client.read_holding_registers(0, 0),
         lambda: client.read_holding_registers(65535, 2),

@@ -15,7 +15,7 @@ import reference as ref
 
 import pymb
 from pymb.devices import HUB, CoolPro, CoolProStatus, SensorHub, State, decode_hub
-from pymb.sim import SimClock, Simulator
+from pymb.sim import CoolProDevice, SimClock, Simulator
 
 T = 0.3
 
@@ -44,6 +44,7 @@ def client(bus: Simulator) -> Iterator[pymb.RtuClient]:
 
 def test_coolpro_telemetry_every_field(bus: Simulator, client: pymb.RtuClient) -> None:
     dev = bus.device(40)
+    assert isinstance(dev, CoolProDevice)
     raw = {n: dev.register(n) for n in ("input_voltage_v", "input_current_a",
                                          "output_voltage_v", "output_current_a",
                                          "temperature_c")}

@@ -14,6 +14,7 @@ import json
 import signal
 import sqlite3
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,8 @@ from mqtt_broker import (  # noqa: E402
 
 from pymb.fleet.broker import Certificates, Mosquitto  # noqa: E402
 
+MakeBroker = Callable[..., Mosquitto]  # the mosquitto fixture: starts a broker
+
 pytest_plugins = ["mqtt_broker"]  # the fixtures: mosquitto, simulator, certificates, ...
 NODE = "gw-test"
 
@@ -50,7 +53,8 @@ def _report(what: str, want: set[int], got: list[int]) -> None:
           f"received, {duplicates(got)} duplicates")
 
 
-def test_broker_restart_mid_run_loses_nothing(mosquitto, simulator, tmp_path: Path) -> None:
+def test_broker_restart_mid_run_loses_nothing(mosquitto: MakeBroker, simulator: str,
+                                              tmp_path: Path) -> None:
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
@@ -86,7 +90,8 @@ def test_broker_restart_mid_run_loses_nothing(mosquitto, simulator, tmp_path: Pa
     sub.close()
 
 
-def test_broker_stalled_3s_loses_nothing(mosquitto, simulator, tmp_path: Path) -> None:
+def test_broker_stalled_3s_loses_nothing(mosquitto: MakeBroker, simulator: str,
+                                         tmp_path: Path) -> None:
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
@@ -114,7 +119,7 @@ def test_broker_stalled_3s_loses_nothing(mosquitto, simulator, tmp_path: Path) -
     sub.close()
 
 
-def test_pymb_sigkilled_and_restarted_loses_nothing(mosquitto, simulator,
+def test_pymb_sigkilled_and_restarted_loses_nothing(mosquitto: MakeBroker, simulator: str,
                                                      tmp_path: Path) -> None:
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, f"pymb/{NODE}/#")
@@ -142,7 +147,7 @@ def test_pymb_sigkilled_and_restarted_loses_nothing(mosquitto, simulator,
     sub.close()
 
 
-def test_plain_payload(mosquitto, simulator, tmp_path: Path) -> None:
+def test_plain_payload(mosquitto: MakeBroker, simulator: str, tmp_path: Path) -> None:
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, "plant/#")
     db = tmp_path / "log.sqlite"
@@ -166,8 +171,9 @@ def test_plain_payload(mosquitto, simulator, tmp_path: Path) -> None:
     sub.close()
 
 
-def test_tls_with_client_certificate_and_password(mosquitto, simulator, certificates,
-                                                   tmp_path: Path) -> None:
+def test_tls_with_client_certificate_and_password(mosquitto: MakeBroker, simulator: str,
+                                                  certificates: Certificates,
+                                                  tmp_path: Path) -> None:
     certs: Certificates = certificates
     broker: Mosquitto = mosquitto(tls=certs, require_client_cert=True,
                                   users={"gw": "s3cret pass", "test": "t"})
@@ -230,7 +236,8 @@ def test_tls_with_client_certificate_and_password(mosquitto, simulator, certific
     sub.close()
 
 
-def test_tls_verifies_the_broker(mosquitto, simulator, certificates, tmp_path: Path) -> None:
+def test_tls_verifies_the_broker(mosquitto: MakeBroker, simulator: str, certificates: Certificates,
+                                 tmp_path: Path) -> None:
     """A CA that did not sign the broker's certificate: no connection, nothing sent."""
     from pymb.fleet.broker import make_certificates
     other = make_certificates(tmp_path / "other")
@@ -268,7 +275,7 @@ def test_bad_mqtt_options_are_one_line_errors(argv: list[str], message: str,
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_toml_mqtt_table(mosquitto, simulator, tmp_path: Path) -> None:
+def test_toml_mqtt_table(mosquitto: MakeBroker, simulator: str, tmp_path: Path) -> None:
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, "site/#")
     db = tmp_path / "log.sqlite"
@@ -412,8 +419,9 @@ def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
     assert command_metrics(cmd.SerializeToString()) == [("Node Control/Rebirth", None, True)]
 
 
-def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator, sparkplug_pb,
-                                                             tmp_path: Path) -> None:
+def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto: MakeBroker, simulator: str,
+                                                            sparkplug_pb: Any,
+                                                            tmp_path: Path) -> None:
     pb = sparkplug_pb
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
@@ -492,8 +500,8 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(mosquitto, simulator
     sub.close()
 
 
-def test_sparkplug_historical_replay_after_an_outage(mosquitto, simulator, sparkplug_pb,
-                                                     tmp_path: Path) -> None:
+def test_sparkplug_historical_replay_after_an_outage(mosquitto: MakeBroker, simulator: str,
+                                                     sparkplug_pb: Any, tmp_path: Path) -> None:
     pb = sparkplug_pb
     broker: Mosquitto = mosquitto()
     sub = Subscriber(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
@@ -839,7 +847,7 @@ def test_influx_escaping() -> None:
                              'message="no \\"reply\\"\\\\",code=7i 1500000000')
 
 
-def test_demo_mqtt_to_a_broker_it_is_given(mosquitto) -> None:
+def test_demo_mqtt_to_a_broker_it_is_given(mosquitto: MakeBroker) -> None:
     """``pymb demo --mqtt URL``: every sample of the demo reaches the broker, and the
     demo says how to watch them."""
     import re
@@ -867,7 +875,7 @@ def test_demo_mqtt_starts_its_own_mosquitto() -> None:
     assert "samples received by a subscriber" in r.stdout
 
 
-def test_catch_up_is_paced_and_live_data_keeps_flowing(mosquitto, simulator,
+def test_catch_up_is_paced_and_live_data_keeps_flowing(mosquitto: MakeBroker, simulator: str,
                                                        tmp_path: Path) -> None:
     """A backlog (here: 600 samples logged without a broker) goes at catchup_rate,
     while the samples taken now go at once, ahead of it."""
@@ -934,7 +942,8 @@ def test_readme_mqtt_toml_example() -> None:
 
 
 
-def test_hub_samples_in_both_profiles(mosquitto, sparkplug_pb, tmp_path: Path) -> None:
+def test_hub_samples_in_both_profiles(mosquitto: MakeBroker, sparkplug_pb: Any,
+                                      tmp_path: Path) -> None:
     """A sensor hub: plain JSON lists per quantity with null and the states; Sparkplug
     701 metrics declared (sample + 100 channels x 7), no-value ones is_null."""
     from pymb.sim import SimulatorProcess

@@ -13,15 +13,12 @@ import threading
 import time
 import warnings
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-
-import pymb
-from pymb import _native
-from tests.wire_peers import (
+from wire_peers import (
     build_libmodbus_server,
     libmodbus_server,
     mbap,
@@ -30,6 +27,9 @@ from tests.wire_peers import (
     registers,
     rtu,
 )
+
+import pymb
+from pymb import _native
 
 
 def _tcp_req(adu: bytes) -> tuple[int, int, bytes]:
@@ -122,9 +122,9 @@ def test_exception_codes_above_0x0b_are_device_exceptions(code: int) -> None:
         tid, unit, pdu = _tcp_req(adu)
         return [(0, mbap(tid, unit, bytes((pdu[0] | 0x80, code))))]
 
-    with raw_tcp(tcp_script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c:
+    with raw_tcp(tcp_script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as tc:
         with pytest.raises(pymb.DeviceException) as ei:
-            c.read_holding_registers(0, 1)
+            tc.read_holding_registers(0, 1)
         assert ei.value.code == code
         assert not isinstance(ei.value, pymb.ProtocolError)
 
@@ -382,7 +382,7 @@ def test_bad_arguments_never_escape_as_low_level_errors(
     c, requests = echo_pty
     a = array("H", bytes(20))
     strided = memoryview(a)[::2]
-    cases = [
+    cases: list[Callable[[], object]] = [
         lambda: c.read_holding_registers_into(0, strided),
         lambda: c.read_holding_registers_into(0, b"\x00\x00"),
         lambda: c.read_holding_registers_into(0, array("B", bytes(4))),
@@ -597,7 +597,7 @@ BAUDS = (9600, 19200, 38400, 57600, 115200)
 def poll_line(baud: int, repeat_after: float | None, reject: bool,
               n: int) -> tuple[int, int, int]:
     """n reads of one register through an emulated line: (right, stale, failed)."""
-    from tests.wire_peers import emulated_line
+    from wire_peers import emulated_line
 
     right = stale = failed = 0
     with emulated_line(baud, repeat_after) as line, \
@@ -694,11 +694,11 @@ def test_diagnostics_echo_of_every_length_up_to_the_frame_limit(transport: str) 
     with peer_cm as peer:
         c: pymb.Client
         if transport == "rtu":
-            c = pymb.RtuClient(peer.port, 115200, slave=1, timeout=2)
+            c = pymb.RtuClient(str(peer.port), 115200, slave=1, timeout=2)
         elif transport == "tcp":
-            c = pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=2)
+            c = pymb.TcpClient("127.0.0.1", int(peer.port), slave=1, timeout=2)
         else:
-            c = pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=1, timeout=2)
+            c = pymb.RtuOverTcpClient("127.0.0.1", int(peer.port), slave=1, timeout=2)
         with c:
             for n in (0, 1, 2, 4, 100, 250, 251, 252):
                 data = bytes((7 * k + n) & 0xFF for k in range(n))
@@ -851,8 +851,8 @@ def _device_objects(reply: bytes) -> dict[int, bytes]:
 @pytest.mark.parametrize("mode", ["tcp", "rtu-over-tcp"])
 def test_against_a_pymodbus_server(mode: str) -> None:
     pytest.importorskip("pymodbus")
-    from tests.pymodbus_server import IDENTITY
-    from tests.wire_peers import pymodbus_server
+    from pymodbus_server import IDENTITY
+    from wire_peers import pymodbus_server
 
     with pymodbus_server(mode) as port:
         cls = pymb.TcpClient if mode == "tcp" else pymb.RtuOverTcpClient
