@@ -49,7 +49,6 @@ import queue
 import signal
 import socket
 import sqlite3
-import sys
 import threading
 import time
 import tomllib
@@ -977,27 +976,3 @@ def is_pymb_database(path: str) -> bool:
             db.close()
     except sqlite3.Error:
         return False
-
-
-def single_bus_config(port: str | None, tcp: str | None,
-                      devices: Sequence[str | DeviceConfig], *,
-                      baud: int = 9600, parity: str = "N", timeout: float = 1.0,
-                      interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
-                      max_mb: float | None = None, max_age_days: float | None = None,
-                      name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
-    """A LogConfig for one bus from command-line style arguments."""
-    bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
-                    [d if isinstance(d, DeviceConfig) else parse_device(d) for d in devices],
-                    rtu_over_tcp)
-    return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
-                     None if max_age_days is None else max_age_days * 86400)
-
-
-def default_path() -> str:
-    """``pymb-YYYYmmdd-HHMMSS.sqlite`` in the current directory."""
-    return str(Path.cwd() / time.strftime("pymb-%Y%m%d-%H%M%S.sqlite"))
-
-
-def stderr_status(quiet: bool) -> TextIO | None:
-    """Where the status line goes: stderr, unless quiet."""
-    return None if quiet else sys.stderr

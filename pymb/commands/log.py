@@ -10,17 +10,20 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
 
 from pymb.commands._common import DEVICE_HELP
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, PASSWORD_ENV, PROFILES, MqttConfig
 from pymb.logger import (
+    BusConfig,
+    DeviceConfig,
     LogConfig,
     Logger,
-    default_path,
     load_config,
     parse_device,
-    single_bus_config,
 )
 from pymb.store import FORMATS, OnChange
 
@@ -179,3 +182,22 @@ def run(args: argparse.Namespace) -> int:
         for line in lines if not args.quiet else problems:
             print(("pymb log: " if line in problems else "") + line, file=sys.stderr)
     return s.exit_code
+
+
+def single_bus_config(port: str | None, tcp: str | None,
+                      devices: Sequence[str | DeviceConfig], *,
+                      baud: int = 9600, parity: str = "N", timeout: float = 1.0,
+                      interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
+                      max_mb: float | None = None, max_age_days: float | None = None,
+                      name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
+    """A LogConfig for one bus from command-line style arguments."""
+    bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
+                    [d if isinstance(d, DeviceConfig) else parse_device(d) for d in devices],
+                    rtu_over_tcp)
+    return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
+                     None if max_age_days is None else max_age_days * 86400)
+
+
+def default_path() -> str:
+    """``pymb-YYYYmmdd-HHMMSS.sqlite`` in the current directory."""
+    return str(Path.cwd() / time.strftime("pymb-%Y%m%d-%H%M%S.sqlite"))
