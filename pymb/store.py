@@ -43,6 +43,12 @@ from typing import IO, Any, Protocol
 from pymb import __version__, _native
 from pymb.devices import HUB, CoolProStatus, CoolProTelemetry, HubReading, State, decode_hub
 from pymb.devices.maps import COOLPRO, Type
+from pymb.devices.readings import (
+    INTEGRAL_QUANTITIES,
+    STATE_NAMES,
+    reading_dict,
+    telemetry_values,
+)
 from pymb.errors import InvalidArgument
 
 __all__ = [
@@ -340,7 +346,7 @@ class OnChange:
         if not (self.heartbeat > 0 and math.isfinite(self.heartbeat)):
             raise InvalidArgument(f"the heartbeat must be a positive number of seconds, "
                                   f"got {self.heartbeat!r}")
-        known = set(_HUB_FIELDS) | set(_COOLPRO_FIELDS) - {"uptime_s", "status"}
+        known = set(_HUB_FIELDS) | set(_COOLPRO_FIELDS) - INTEGRAL_QUANTITIES
         for name, value in self.deadband.items():
             if name not in known:
                 raise InvalidArgument(f"no quantity {name!r} for a deadband; use one of "
@@ -862,9 +868,6 @@ class StoredSample:
     states: dict[str, list[str]]
 
 
-_STATE_NAMES = [s.name.lower() for s in State]
-
-
 class _Decoder:
     """Decodes rows of ``samples`` (format 2), with the device rows cached."""
 
@@ -962,7 +965,7 @@ def _iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
         if kind == "hub":
             r = dec.hub(did, channels, units, t, sid, blob, unsupported)
             values: dict[str, Any] = r.as_dict()
-            states = {n: [_STATE_NAMES[s] for s in r.states(n).tolist()] for n in _HUB_FIELDS}
+            states = {n: [STATE_NAMES[s] for s in r.states(n).tolist()] for n in _HUB_FIELDS}
         else:
             regs = _host_words(blob)
             vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
@@ -988,10 +991,23 @@ def iso_utc(t: float) -> str:
     return _iso(t)
 
 
+def csv_head(t: float, bus: str, device: str | None, kind: str | None,
+             address: int | None) -> list[Any]:
+    """The first columns of every CSV row (CSV_COLUMNS): time, ISO time, bus,
+    device, type, address; "" for what an event has no device for. The one
+    home of the row layout, for the CSV sink and for ``pymb export``."""
+    return [f"{t:.6f}", _iso(t), bus, device or "", kind or "", "" if address is None else address]
+
+
+def csv_value(v: float | None) -> Any:
+    """A value cell: "" for no value (None or NaN)."""
+    return "" if v is None or v != v else v
+
+
 def sample_rows(sample: Sample) -> Iterator[list[Any]]:
     """A sample as long-format rows: one per quantity (and channel)."""
-    d, t = sample.device, sample.time_utc
-    head = [f"{t:.6f}", _iso(t), d.bus, d.name, d.type, d.address]
+    d = sample.device
+    head = csv_head(sample.time_utc, d.bus, d.name, d.type, d.address)
     data = sample.data
     if isinstance(data, HubReading):
         c = data.channels
@@ -999,12 +1015,10 @@ def sample_rows(sample: Sample) -> Iterator[list[Any]]:
             vals = data.values[b * c:(b + 1) * c].tolist()
             sts = data.raw_states[b * c:(b + 1) * c].tolist()
             for ch in range(c):
-                v = vals[ch]
-                yield [*head, ch + 1, name, "" if v != v else v, State(sts[ch]).name.lower()]
+                yield [*head, ch + 1, name, csv_value(vals[ch]), STATE_NAMES[sts[ch]]]
     else:
-        for name in _COOLPRO_FIELDS:
-            v = getattr(data, name)
-            yield [*head, "", name, int(v) if name in ("uptime_s", "status") else v, "value"]
+        for name, v in telemetry_values(data).items():
+            yield [*head, "", name, csv_value(v), "value"]
 
 
 def sample_dict(sample: Sample) -> dict[str, Any]:
@@ -1013,16 +1027,7 @@ def sample_dict(sample: Sample) -> dict[str, Any]:
     out: dict[str, Any] = {"time_utc": sample.time_utc, "time": _iso(sample.time_utc),
                            "monotonic": sample.monotonic, "bus": d.bus, "device": d.name,
                            "type": d.type, "address": d.address}
-    data = sample.data
-    if isinstance(data, HubReading):
-        out["values"] = data.as_dict()
-        out["states"] = {n: [State(s).name.lower() for s in data.states(n).tolist()]
-                         for n in _HUB_FIELDS}
-        out["unsupported"] = sorted(data.unsupported)
-    else:
-        out["values"] = {n: (int(getattr(data, n)) if n in ("uptime_s", "status")
-                             else _finite(getattr(data, n))) for n in _COOLPRO_FIELDS}
-        out["status_flags"] = [f.name for f in type(data.status) if f in data.status]
+    out.update(reading_dict(sample.data))
     return out
 
 
@@ -1092,10 +1097,10 @@ class CsvSink(_TextSink):
 
     def _event(self, e: Event) -> None:
         d = e.device
-        self.w.writerow([f"{e.time_utc:.6f}", _iso(e.time_utc), e.bus,
-                         "" if d is None else d.name, "" if d is None else d.type,
-                         "" if d is None else d.address, "", f"event:{e.kind}",
-                         "" if e.code is None else e.code, e.message])
+        head = (csv_head(e.time_utc, e.bus, None, None, None) if d is None else
+                csv_head(e.time_utc, e.bus, d.name, d.type, d.address))
+        self.w.writerow([*head, "", f"event:{e.kind}", "" if e.code is None else e.code,
+                         e.message])
 
 
 class JsonlSink(_TextSink):
@@ -1161,8 +1166,7 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
                  "FROM events e LEFT JOIN devices d ON d.id = e.device_id")
             ew, eargs = _filters(device, since, table="e")
             for r in db.execute(q + ew + " ORDER BY e.id", eargs):
-                w.writerow([f"{r[0]:.6f}", _iso(r[0]), r[1], r[2] or "", r[3] or "",
-                            "" if r[4] is None else r[4], "", f"event:{r[5]}",
+                w.writerow([*csv_head(r[0], r[1], r[2], r[3], r[4]), "", f"event:{r[5]}",
                             "" if r[6] is None else r[6], r[7]])
                 rows += 1
         return rows
@@ -1189,7 +1193,7 @@ def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
         if not chunk:
             return rows
         for s in chunk:
-            head = [f"{s.time_utc:.6f}", _iso(s.time_utc), s.bus, s.device, s.type, s.address]
+            head = csv_head(s.time_utc, s.bus, s.device, s.type, s.address)
             if s.type == "hub":
                 vals = [s.values[name] for name in _HUB_FIELDS]
                 sts = [s.states[name] for name in _HUB_FIELDS]
@@ -1203,8 +1207,7 @@ def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
                         rows += 1
             else:
                 for name in _COOLPRO_FIELDS:
-                    v = s.values[name]
-                    w.writerow([*head, "", name, "" if v is None else v, "value"])
+                    w.writerow([*head, "", name, csv_value(s.values[name]), "value"])
                     rows += 1
         last = chunk[-1].id
 
@@ -1226,13 +1229,12 @@ def _export_v1(db: sqlite3.Connection, w: Any, device: str | None,
         cols = ", ".join(fields + ([f"{f}_state" for f in fields] if hub else []))
         q = sql.format(cols=cols) + where + " ORDER BY s.id" + (", h.channel" if hub else "")
         for r in db.execute(q, args):
-            head = [f"{r[0]:.6f}", _iso(r[0]), r[1], r[2], r[3], r[4]]
+            head = csv_head(r[0], r[1], r[2], r[3], r[4])
             n = len(fields)
             for i, name in enumerate(fields):
-                v = r[6 + i]
-                state = State(r[6 + n + i]).name.lower() if hub else "value"
-                w.writerow([*head, "" if r[5] is None else r[5], name,
-                            "" if v is None else v, state])
+                state = STATE_NAMES[r[6 + n + i]] if hub else "value"
+                w.writerow([*head, "" if r[5] is None else r[5], name, csv_value(r[6 + i]),
+                            state])
                 rows += 1
     return rows
 

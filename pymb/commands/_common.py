@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import threading
 from collections.abc import Callable
@@ -14,6 +13,7 @@ from typing import Any, TypeVar
 from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
+from pymb.devices.readings import reading_dict, status_flags, telemetry_values
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.logger import DEVICE_SYNTAX, DeviceConfig, device_parts, unresolved
 
@@ -173,18 +173,9 @@ def render(data: CoolProTelemetry | CoolProIdentity | HubReading) -> str:
 def to_json(data: Any) -> dict[str, Any]:
     """A JSON-ready dict of a reading (None where there is no value)."""
     if isinstance(data, HubReading):
-        return {"values": data.as_dict(),
-                "states": {b.name: [State(s).name.lower() for s in data.states(b.name).tolist()]
-                           for b in HUB.blocks},
-                "unsupported": sorted(data.unsupported)}
+        return reading_dict(data)
     if isinstance(data, CoolProTelemetry):
-        out: dict[str, Any] = {}
-        for reg in COOLPRO.group("telemetry"):
-            v = getattr(data, reg.name)
-            out[reg.name] = int(v) if reg.name in ("status", "uptime_s") else (
-                None if math.isnan(v) else v)
-        out["status_flags"] = [f.name for f in type(data.status) if f in data.status]
-        return out
+        return {**telemetry_values(data), "status_flags": status_flags(int(data.status))}
     return {"serial_number": data.serial_number, "hardware_revision": data.hardware_revision,
             "firmware_version": data.firmware_version,
             "manufactured": data.manufactured.isoformat()}

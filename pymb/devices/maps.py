@@ -75,6 +75,11 @@ class Register:
         """Registers it spans."""
         return 2 if self.type is Type.U32_LE_WORDS else 1
 
+    @property
+    def integral(self) -> bool:
+        """True when the value is a count or a bit field (no scale): an integer."""
+        return self.scale == 1
+
 
 @dataclass(frozen=True)
 class DeviceMap:

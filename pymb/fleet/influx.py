@@ -21,11 +21,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from pymb.devices.readings import INTEGRAL_QUANTITIES
 from pymb.store import Event, JsonlSink, Sample, sample_dict
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
 
-_INT_FIELDS = ("uptime_s", "status")
 
 
 def _tag(v: object) -> str:
@@ -66,7 +66,7 @@ def sample_lines(sample: Sample) -> list[str]:
     for q, v in d["values"].items():
         if v is None:
             fields.append(f"{q}_state=\"no_value\"")
-        elif q in _INT_FIELDS:
+        elif q in INTEGRAL_QUANTITIES:
             fields.append(f"{q}={int(v)}i")
         else:
             fields.append(f"{q}={float(v)!r}")

@@ -22,8 +22,9 @@ import sqlite3
 from dataclasses import dataclass
 from typing import Any
 
-from pymb.devices import HUB, CoolProStatus, State
+from pymb.devices import HUB, State
 from pymb.devices.maps import COOLPRO
+from pymb.devices.readings import status_flags
 from pymb.store import iso_utc
 from pymb.store import samples_after as stored_after
 
@@ -31,7 +32,6 @@ __all__ = ["Record", "Source", "record_dict"]
 
 COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 HUB_FIELDS = [b.name for b in HUB.blocks]
-_INT_FIELDS = ("uptime_s", "status")
 _STATE_NAMES = {s.value: s.name.lower() for s in State}
 
 
@@ -65,9 +65,8 @@ def record_dict(r: Record) -> dict[str, Any]:
 
 
 @functools.lru_cache(maxsize=256)
-def _flags(raw: int) -> tuple[str | None, ...]:
-    status = CoolProStatus(raw)
-    return tuple(f.name for f in CoolProStatus if f in status)
+def _flags(raw: int) -> tuple[str, ...]:
+    return tuple(status_flags(raw))
 
 
 class Source:
