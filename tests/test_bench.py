@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import PYMB_ENV
 
 import pymb
 from pymb.bench import cprogram, pure, report, runner
@@ -26,8 +27,6 @@ from pymb.bench.worker import SPANS, Canary
 from pymb.cli import main
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _have_c() -> bool:
@@ -316,7 +315,7 @@ def _synthetic(quick: bool = False) -> dict[str, Any]:
 @needs_c
 def test_whole_quick_bench_as_a_user_runs_it(tmp_path: Path) -> None:
     """``python -m pymb bench --quick --json --plot``: every section, every contender."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = PYMB_ENV
     png = tmp_path / "bench.png"
     done = subprocess.run([sys.executable, "-m", "pymb", "bench", "--quick", "--json",
                            "--plot", str(png)], capture_output=True, text=True, timeout=600,

@@ -17,48 +17,46 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import PYMB_ENV, ROOT
 from dbwait import count, wait_for
 
 from pymb.cli import main
 from pymb.sim import Simulator
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def pymb_cmd(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
     """``python -m pymb ARGS`` as a user runs it."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
-        [sys.executable, "-m", "pymb", *args], capture_output=True, text=True, timeout=120,
-        env=env, **kw)
-    return done
+    env = PYMB_ENV
+    return subprocess.run([sys.executable, "-m", "pymb", *args], capture_output=True,
+                          text=True, timeout=120, env=env, **kw)  # type: ignore[call-overload]
 
 
 @pytest.fixture
-def sim() -> Iterator[Simulator]:
+def live_sim() -> Iterator[Simulator]:
     with Simulator(["coolpro", "hub:250"], seed=3) as s:
         yield s
 
 
-def test_read_coolpro_table_and_json(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["read", "coolpro", "--port", sim.port, "--identity"]) == 0
+def test_read_coolpro_table_and_json(live_sim: Simulator,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["read", "coolpro", "--port", live_sim.port, "--identity"]) == 0
     out = capsys.readouterr().out
     assert "Input Voltage" in out and " V" in out and "Firmware" in out
-    assert main(["read", "coolpro", "--port", sim.port, "--json"]) == 0
+    assert main(["read", "coolpro", "--port", live_sim.port, "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert 20 < doc["input_voltage_v"] < 30
     assert isinstance(doc["uptime_s"], int) and isinstance(doc["status"], int)
 
 
-def test_read_hub_shows_states(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
-    hub = sim.device(250)
+def test_read_hub_shows_states(live_sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    hub = live_sim.device(250)
     hub.set_offline(3)  # type: ignore[attr-defined]
-    assert main(["read", "hub", "--port", sim.port, "--address", "250"]) == 0
+    assert main(["read", "hub", "--port", live_sim.port, "--address", "250"]) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()
     assert lines[0].split()[0] == "ch" and len(lines) >= 101
     assert "offline" in lines[3]  # channel 3
-    assert main(["read", "hub", "--port", sim.port, "--address", "250", "--json"]) == 0
+    assert main(["read", "hub", "--port", live_sim.port, "--address", "250", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["states"]["temperature_c"][2] == "offline"
     assert doc["values"]["temperature_c"][2] is None
@@ -96,9 +94,9 @@ def test_permission_denied_says_how_to_fix(tmp_path: Path) -> None:
         assert "dialout" in r.stderr and "permission denied" in r.stderr
 
 
-def test_log_then_export(sim: Simulator, tmp_path: Path) -> None:
+def test_log_then_export(live_sim: Simulator, tmp_path: Path) -> None:
     db = tmp_path / "run.sqlite"
-    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro:40", "--device", "hub:250",
+    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro:40", "--device", "hub:250",
                  "--seconds", "2", "--out", str(db), "--timeout", "0.5")
     assert r.returncode == 0, r.stderr
     assert "logged" in r.stderr
@@ -126,8 +124,8 @@ def test_log_then_export(sim: Simulator, tmp_path: Path) -> None:
     assert {r["quantity"] for r in got} >= {"input_voltage_v", "status", "uptime_s"}
 
 
-def test_log_to_jsonl_on_stdout(sim: Simulator) -> None:
-    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--format", "jsonl",
+def test_log_to_jsonl_on_stdout(live_sim: Simulator) -> None:
+    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--format", "jsonl",
                  "--out", "-", "--seconds", "1", "--quiet")
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
@@ -138,11 +136,11 @@ def test_log_to_jsonl_on_stdout(sim: Simulator) -> None:
 
 def test_log_records_faults_and_keeps_going(tmp_path: Path) -> None:
     db = tmp_path / "faults.sqlite"
-    with Simulator(["coolpro", "hub"], seed=5) as sim:
-        sim.faults.inject("no_reply", count=2, address=40)
-        sim.faults.inject("bad_crc", count=1, address=40)
-        sim.faults.inject("exception", count=1, address=1, code=2)
-        r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--device", "hub",
+    with Simulator(["coolpro", "hub"], seed=5) as live_sim:
+        live_sim.faults.inject("no_reply", count=2, address=40)
+        live_sim.faults.inject("bad_crc", count=1, address=40)
+        live_sim.faults.inject("exception", count=1, address=1, code=2)
+        r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--device", "hub",
                      "--seconds", "3", "--out", str(db), "--timeout", "0.2")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
@@ -179,7 +177,7 @@ type = "hub"
 address = 1
 """)
         proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg),
-                                 "--quiet"], env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                 "--quiet"], env=PYMB_ENV,
                                 stderr=subprocess.PIPE, text=True)
         try:
             # Events, not fixed times: both buses log, a is unplugged and seen
@@ -220,11 +218,11 @@ address = 1
 
 def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:
     db = tmp_path / "kill.sqlite"
-    with Simulator(["coolpro", "hub"], seed=9) as sim:
+    with Simulator(["coolpro", "hub"], seed=9) as live_sim:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device", "coolpro",
+            [sys.executable, "-m", "pymb", "log", "--port", live_sim.port, "--device", "coolpro",
              "--device", "hub", "--out", str(db), "--quiet"],
-            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+            env=PYMB_ENV)
         try:
             deadline = time.monotonic() + 20
             committed = 0
@@ -246,8 +244,8 @@ def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:
     con.close()
 
 
-def test_scan_finds_both_devices(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["scan", "--port", sim.port, "--range", "1-3,40,249-250", "--json"]) == 0
+def test_scan_finds_both_devices(live_sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["scan", "--port", live_sim.port, "--range", "1-3,40,249-250", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     found = {f["address"]: f["device"] for f in doc["found"]}
     assert found == {40: "coolpro", 250: "hub"}
@@ -255,25 +253,25 @@ def test_scan_finds_both_devices(sim: Simulator, capsys: pytest.CaptureFixture[s
 
 def test_config_changes_address_with_reset_and_verifies(
         capsys: pytest.CaptureFixture[str]) -> None:
-    with Simulator(["coolpro"], seed=4) as sim:
-        assert main(["config", "coolpro", "--port", sim.port, "--set-address", "42",
+    with Simulator(["coolpro"], seed=4) as live_sim:
+        assert main(["config", "coolpro", "--port", live_sim.port, "--set-address", "42",
                      "--yes"]) == 0
         out = capsys.readouterr().out
         assert "take effect after a reset" in out
-        assert sim.device(40).address == 40  # not yet
-        assert main(["config", "coolpro", "--port", sim.port, "--reset", "--yes"]) == 0
+        assert live_sim.device(40).address == 40  # not yet
+        assert main(["config", "coolpro", "--port", live_sim.port, "--reset", "--yes"]) == 0
         out = capsys.readouterr().out
         assert "verified" in out and "address 42" in out
-        assert main(["read", "coolpro", "--port", sim.port, "--address", "42", "--json"]) == 0
+        assert main(["read", "coolpro", "--port", live_sim.port, "--address", "42", "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["uptime_s"] < 10
 
 
-def test_config_refuses_without_confirmation(sim: Simulator,
+def test_config_refuses_without_confirmation(live_sim: Simulator,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    r = pymb_cmd("config", "coolpro", "--port", sim.port, "--set-address", "41",
+    r = pymb_cmd("config", "coolpro", "--port", live_sim.port, "--set-address", "41",
                  stdin=subprocess.DEVNULL)
     assert r.returncode == 2 and "--yes" in r.stderr
-    assert main(["config", "coolpro", "--port", sim.port, "--set-address", "300",
+    assert main(["config", "coolpro", "--port", live_sim.port, "--set-address", "300",
                  "--yes"]) == 2
     assert "1..247" in capsys.readouterr().err
 
@@ -295,23 +293,23 @@ def test_help_lists_every_command() -> None:
         assert cmd in r.stdout
 
 
-def test_watch_shows_the_rate(sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["watch", "coolpro", "--port", sim.port, "--count", "3"]) == 0
+def test_watch_shows_the_rate(live_sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["watch", "coolpro", "--port", live_sim.port, "--count", "3"]) == 0
     out = capsys.readouterr().out
     assert "3 reads" in out and "/s" in out and "Input Voltage" in out
 
 
 def test_read_through_a_tcp_gateway(capsys: pytest.CaptureFixture[str]) -> None:
-    with Simulator(["coolpro", "hub:250"], transport="tcp", seed=2) as sim:
-        assert main(["read", "hub", "--tcp", f"{sim.host}:{sim.tcp_port}", "--address", "250",
-                     "--json"]) == 0
+    with Simulator(["coolpro", "hub:250"], transport="tcp", seed=2) as tcp_sim:
+        assert main(["read", "hub", "--tcp", f"{tcp_sim.host}:{tcp_sim.tcp_port}",
+                     "--address", "250", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert len(doc["values"]["temperature_c"]) == 100
 
 
-def test_log_csv_and_interval_schedule(sim: Simulator, tmp_path: Path) -> None:
+def test_log_csv_and_interval_schedule(live_sim: Simulator, tmp_path: Path) -> None:
     out = tmp_path / "x.csv"
-    r = pymb_cmd("log", "--port", sim.port, "--device", "coolpro", "--format", "csv", "--out",
+    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--format", "csv", "--out",
                  str(out), "--interval", "0.25", "--seconds", "2.1", "--quiet")
     assert r.returncode == 0, r.stderr
     with out.open() as f:

@@ -26,11 +26,11 @@ from pathlib import Path
 
 import pyte
 import pytest
+from conftest import PYMB_ENV
 
 from pymb.sim import Simulator, SimulatorProcess
 
-ROOT = Path(__file__).resolve().parents[1]
-ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+ENV = PYMB_ENV
 PYMB = [sys.executable, "-m", "pymb"]
 #: Ctrl-C must end a command within 0.5 s; the tests allow this much on a
 #: loaded 2-core machine (the measured figure is printed with -s).
@@ -54,7 +54,8 @@ def digest(path: Path) -> str:
 
 
 @pytest.fixture
-def sim() -> Iterator[Simulator]:
+def sim3() -> Iterator[Simulator]:
+    """A CoolPro, a 100-channel hub and a 50-channel hub (firmware 1.07)."""
     with Simulator(["coolpro", "hub:250", "hub:7,firmware=1.07"], seed=3) as s:
         yield s
 
@@ -111,10 +112,10 @@ class Pty:
 # -- never report a dead device as healthy, never fill a disk with nothing ----------
 
 
-def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim: Simulator,
+def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim3: Simulator,
                                                              tmp_path: Path) -> None:
     db = tmp_path / "wrong.sqlite"
-    r = pymb("log", "hub:40", "--port", sim.port, "--seconds", "3", "--out", str(db))
+    r = pymb("log", "hub:40", "--port", sim3.port, "--seconds", "3", "--out", str(db))
     no_traceback(r)
     assert r.returncode == 3, r.stderr
     assert "answers like a CoolPro, not a hub" in r.stderr
@@ -141,13 +142,13 @@ def test_simulate_takes_the_same_humidity_key(tmp_path: Path) -> None:
     assert values and all(v == int(v) for v in values)  # whole percent: the 1 % unit
 
 
-def test_old_firmware_hub_says_how_to_log_it(sim: Simulator, tmp_path: Path) -> None:
-    r = pymb("log", "hub:7", "--port", sim.port, "--seconds", "2", "--out",
+def test_old_firmware_hub_says_how_to_log_it(sim3: Simulator, tmp_path: Path) -> None:
+    r = pymb("log", "hub:7", "--port", sim3.port, "--seconds", "2", "--out",
              str(tmp_path / "a.sqlite"))
     assert r.returncode == 3 and "hub:7,channels=50" in r.stderr, r.stderr
     # The command line sets what only TOML could: channels (and humidity_unit).
     db = tmp_path / "b.sqlite"
-    r = pymb("log", "hub:7,channels=50,humidity_unit=1", "--port", sim.port, "--seconds", "2",
+    r = pymb("log", "hub:7,channels=50,humidity_unit=1", "--port", sim3.port, "--seconds", "2",
              "--out", str(db), "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
@@ -155,24 +156,24 @@ def test_old_firmware_hub_says_how_to_log_it(sim: Simulator, tmp_path: Path) -> 
     con.close()
 
 
-def test_read_says_what_answered_and_exits_3(sim: Simulator) -> None:
-    r = pymb("read", "hub:40", "--port", sim.port)
+def test_read_says_what_answered_and_exits_3(sim3: Simulator) -> None:
+    r = pymb("read", "hub:40", "--port", sim3.port)
     no_traceback(r)
     assert r.returncode == 3
     assert "address 40 answers like a CoolPro, not a hub" in r.stderr
     assert "firmware" not in r.stderr.split("CoolPro, not a hub")[0]  # not blamed on it
-    r = pymb("read", "coolpro:7", "--port", sim.port)
+    r = pymb("read", "coolpro:7", "--port", sim3.port)
     assert r.returncode == 3 and "answers like a sensor hub, not a CoolPro" in r.stderr
 
 
-def test_bus_that_never_opens_is_a_fault_and_exit_4(sim: Simulator, tmp_path: Path) -> None:
+def test_bus_that_never_opens_is_a_fault_and_exit_4(sim3: Simulator, tmp_path: Path) -> None:
     cfg = tmp_path / "two.toml"
     cfg.write_text(f"""
 [output]
 path = "{tmp_path / 'two.sqlite'}"
 [[bus]]
 name = "good"
-port = "{sim.port}"
+port = "{sim3.port}"
 [[bus.device]]
 type = "coolpro"
 [[bus]]
@@ -193,18 +194,18 @@ type = "hub"
     assert "Traceback" not in text
 
 
-def test_device_that_never_answers_gives_exit_3_and_is_named(sim: Simulator,
+def test_device_that_never_answers_gives_exit_3_and_is_named(sim3: Simulator,
                                                              tmp_path: Path) -> None:
-    r = pymb("log", "coolpro:40", "coolpro:41", "--port", sim.port, "--seconds", "2",
+    r = pymb("log", "coolpro:40", "coolpro:41", "--port", sim3.port, "--seconds", "2",
              "--timeout", "0.1", "--out", str(tmp_path / "x.sqlite"))
     assert r.returncode == 3, r.stderr
     assert "coolpro-41 delivered no sample" in r.stderr
     assert "coolpro-40 delivered" not in r.stderr
 
 
-def test_a_device_that_keeps_failing_is_backed_off(sim: Simulator, tmp_path: Path) -> None:
+def test_a_device_that_keeps_failing_is_backed_off(sim3: Simulator, tmp_path: Path) -> None:
     db = tmp_path / "silent.sqlite"
-    r = pymb("log", "coolpro:41", "--port", sim.port, "--timeout", "0.05", "--seconds", "4",
+    r = pymb("log", "coolpro:41", "--port", sim3.port, "--timeout", "0.05", "--seconds", "4",
              "--out", str(db), "--quiet")
     assert r.returncode == 3
     con = sqlite3.connect(db)
@@ -267,9 +268,9 @@ def test_skipped_interval_slots_are_shown(tmp_path: Path) -> None:
 
 def test_scan_whole_range_finds_slow_hub_and_coolpro_no_phantom() -> None:
     with SimulatorProcess(["coolpro", "hub:250,delay=0.1-0.5", "--baud", "9600",
-                           "--seed", "4"], quiet=True) as sim:
+                           "--seed", "4"], quiet=True) as sim3:
         t0 = time.monotonic()
-        r = pymb("scan", "--port", sim.endpoint, "--baud", "9600", "--json", timeout=120)
+        r = pymb("scan", "--port", sim3.endpoint, "--baud", "9600", "--json", timeout=120)
         took = time.monotonic() - t0
     assert r.returncode == 0, r.stderr
     found = {f["address"]: f["device"] for f in json.loads(r.stdout)["found"]}
@@ -279,10 +280,10 @@ def test_scan_whole_range_finds_slow_hub_and_coolpro_no_phantom() -> None:
 
 
 def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
-    with Simulator(["coolpro"], seed=2) as sim:
+    with Simulator(["coolpro"], seed=2) as sim3:
         # The CoolPro's first reply names address 41, with a good CRC.
-        sim.faults.inject("wrong_address", count=1, address=40)
-        r = pymb("scan", "--port", sim.port, "--range", "30-50", "--json")
+        sim3.faults.inject("wrong_address", count=1, address=40)
+        r = pymb("scan", "--port", sim3.port, "--range", "30-50", "--json")
     assert r.returncode == 0, r.stderr
     found = {f["address"]: f["device"] for f in json.loads(r.stdout)["found"]}
     assert found == {40: "coolpro"}, r.stdout
@@ -290,8 +291,8 @@ def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
 
 
 def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
-    with Simulator(["coolpro:3", "hub:250"], seed=2) as sim:
-        proc = subprocess.Popen([*PYMB, "scan", "--port", sim.port, "--timeout", "0.2"],
+    with Simulator(["coolpro:3", "hub:250"], seed=2) as sim3:
+        proc = subprocess.Popen([*PYMB, "scan", "--port", sim3.port, "--timeout", "0.2"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV)
         assert proc.stdout is not None
         first = proc.stdout.readline()  # flushed at once, stdout being a pipe
@@ -490,10 +491,10 @@ def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
-def test_toml_device_without_address_takes_the_default(sim: Simulator, tmp_path: Path) -> None:
+def test_toml_device_without_address_takes_the_default(sim3: Simulator, tmp_path: Path) -> None:
     cfg = tmp_path / "ok.toml"
     db = tmp_path / "ok.sqlite"
-    cfg.write_text(f'[output]\npath = "{db}"\n' + TOML_BUS.replace("/dev/ttyUSB0", sim.port))
+    cfg.write_text(f'[output]\npath = "{db}"\n' + TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
     r = pymb("log", "--config", str(cfg), "--seconds", "1.5", "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
@@ -501,10 +502,10 @@ def test_toml_device_without_address_takes_the_default(sim: Simulator, tmp_path:
     con.close()
 
 
-def test_address_zero_is_rejected(sim: Simulator) -> None:
+def test_address_zero_is_rejected(sim3: Simulator) -> None:
     for args in (["read", "hub", "--address", "0"], ["watch", "coolpro", "--address", "0"],
                  ["read", "hub:0"], ["log", "hub:0", "--seconds", "1"]):
-        r = pymb(*args, "--port", sim.port)
+        r = pymb(*args, "--port", sim3.port)
         no_traceback(r)
         assert r.returncode == 2 and "got 0" in r.stderr, (args, r.stderr)
 
@@ -513,11 +514,11 @@ def test_address_zero_is_rejected(sim: Simulator) -> None:
     ["read", "hub:250"], ["read", "hub:250", "--json"], ["export", "DB", "--csv", "-"],
     *(["log", "coolpro", "--format", f, "--out", "-", "--quiet"]
       for f in ("csv", "jsonl", "influx"))])
-def test_broken_pipe_into_head_exits_quietly(sim: Simulator, logged: Path,
+def test_broken_pipe_into_head_exits_quietly(sim3: Simulator, logged: Path,
                                              args: list[str]) -> None:
     args = [str(logged) if a == "DB" else a for a in args]
     if args[0] in ("read", "log"):
-        args += ["--port", sim.port]
+        args += ["--port", sim3.port]
     cmd = " ".join(map(repr, [*PYMB, *args])) + " | head -n 1"
     r = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True,
                        timeout=60, env=ENV)
@@ -541,16 +542,16 @@ def test_unresolvable_tcp_host_says_so() -> None:
 @pytest.mark.parametrize("command", [
     ["read", "coolpro:99"], ["watch", "coolpro:99"], ["scan", "--range", "90-99"],
     ["log", "coolpro:99", "--out", "OUT"]])
-def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim: Simulator, tmp_path: Path,
+def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim3: Simulator, tmp_path: Path,
                                                                command: list[str]) -> None:
     command = [str(tmp_path / "stop.sqlite") if a == "OUT" else a for a in command]
-    p = Pty([*command, "--port", sim.port, "--timeout", "5"])
+    p = Pty([*command, "--port", sim3.port, "--timeout", "5"])
     # Wait until the request is under way (the simulator has seen it).
     deadline = time.monotonic() + 20
-    before = sim.stats.requests
-    while sim.stats.requests == before and time.monotonic() < deadline:
+    before = sim3.stats.requests
+    while sim3.stats.requests == before and time.monotonic() < deadline:
         p.read_until(b"\x00", 0.05)
-    assert sim.stats.requests > before
+    assert sim3.stats.requests > before
     took = p.interrupt()
     print(f"{command[0]} stopped {took:.3f} s after SIGINT (timeout 5 s)")
     assert took < STOP_BOUND, p.out
@@ -561,9 +562,9 @@ def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim: Simulator, t
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_log_flushes_what_it_read_on_sigint(sim: Simulator, tmp_path: Path, sig: int) -> None:
+def test_log_flushes_what_it_read_on_sigint(sim3: Simulator, tmp_path: Path, sig: int) -> None:
     db = tmp_path / "flush.sqlite"
-    p = Pty(["log", "coolpro", "--port", sim.port, "--out", str(db)])
+    p = Pty(["log", "coolpro", "--port", sim3.port, "--out", str(db)])
     assert p.read_until(b"samples", 20)
     p.read_until(b"\x00", 1.0)
     took = p.interrupt(sig)
@@ -577,8 +578,8 @@ def test_log_flushes_what_it_read_on_sigint(sim: Simulator, tmp_path: Path, sig:
     con.close()
 
 
-def test_watch_count_counts_attempts(sim: Simulator) -> None:
-    r = pymb("watch", "coolpro:99", "--port", sim.port, "--count", "3", "--timeout", "0.1",
+def test_watch_count_counts_attempts(sim3: Simulator) -> None:
+    r = pymb("watch", "coolpro:99", "--port", sim3.port, "--count", "3", "--timeout", "0.1",
              timeout=30)
     no_traceback(r)
     assert r.returncode == 3
@@ -588,31 +589,31 @@ def test_watch_count_counts_attempts(sim: Simulator) -> None:
 # -- one syntax for a device ---------------------------------------------------------
 
 
-def test_one_device_syntax_everywhere_with_aliases(sim: Simulator, tmp_path: Path) -> None:
-    a = pymb("read", "hub:250", "--port", sim.port, "--json")
-    b = pymb("read", "hub", "--address", "250", "--port", sim.port, "--json")
+def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Path) -> None:
+    a = pymb("read", "hub:250", "--port", sim3.port, "--json")
+    b = pymb("read", "hub", "--address", "250", "--port", sim3.port, "--json")
     assert a.returncode == b.returncode == 0
     assert json.loads(a.stdout)["address"] == json.loads(b.stdout)["address"] == 250
-    r = pymb("read", "hub:250", "--address", "251", "--port", sim.port)
+    r = pymb("read", "hub:250", "--address", "251", "--port", sim3.port)
     assert r.returncode == 2 and "give it once" in r.stderr
-    r = pymb("read", "hub:250,chanels=50", "--port", sim.port)
+    r = pymb("read", "hub:250,chanels=50", "--port", sim3.port)
     assert r.returncode == 2 and "did you mean 'channels'" in r.stderr
     db = tmp_path / "syntax.sqlite"
-    r = pymb("log", "coolpro:40", "--device", "hub:250", "--port", sim.port, "--seconds", "1.5",
+    r = pymb("log", "coolpro:40", "--device", "hub:250", "--port", sim3.port, "--seconds", "1.5",
              "--out", str(db), "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
     assert sorted(con.execute("SELECT name FROM devices")) == [("coolpro-40",), ("hub-250",)]
     con.close()
-    r = pymb("config", "coolpro:40", "--port", sim.port)
+    r = pymb("config", "coolpro:40", "--port", sim3.port)
     assert r.returncode == 0 and "CoolPro at 40" in r.stdout
 
 
 # -- what the terminal shows ---------------------------------------------------------
 
 
-def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim: Simulator) -> None:
-    p = Pty(["watch", "hub:250", "--port", sim.port], cols=80, rows=24)
+def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) -> None:
+    p = Pty(["watch", "hub:250", "--port", sim3.port], cols=80, rows=24)
     assert p.read_until(b"reads", 20)
     time.sleep(0)
     p.read_until(b"\x00", 1.5)
@@ -630,8 +631,8 @@ def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim: Simulator) -> 
         assert all(len(ln.replace("\x1b[K", "").replace("\x1b[J", "")) < 80 for ln in lines)
 
 
-def test_watch_block_show_json_identity(sim: Simulator) -> None:
-    p = Pty(["watch", "hub:250", "--port", sim.port, "--block", "pressure_kpa",
+def test_watch_block_show_json_identity(sim3: Simulator) -> None:
+    p = Pty(["watch", "hub:250", "--port", sim3.port, "--block", "pressure_kpa",
              "--show", "1-20", "--identity"], cols=80, rows=24)
     assert p.read_until(b"pressure_kpa", 20)
     p.read_until(b"\x00", 0.5)
@@ -641,7 +642,7 @@ def test_watch_block_show_json_identity(sim: Simulator) -> None:
     assert not any(ln.startswith("temperature_c") for ln in screen)
     rows = [ln for ln in screen if re.match(r"\s*\d+: ", ln)]
     assert [ln.split(":")[0].strip() for ln in rows] == ["1", "11"]
-    r = pymb("watch", "coolpro", "--port", sim.port, "--json", "--count", "3", "--identity")
+    r = pymb("watch", "coolpro", "--port", sim3.port, "--json", "--count", "3", "--identity")
     assert r.returncode == 0, r.stderr
     docs = [json.loads(ln) for ln in r.stdout.splitlines()]
     assert len(docs) == 3 and all(20 < d["input_voltage_v"] < 30 for d in docs)
@@ -738,14 +739,14 @@ def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
 
 
 @pytest.mark.parametrize("nohup", [False, True])
-def test_log_ends_cleanly_on_sighup_unless_nohup(sim: Simulator, tmp_path: Path,
+def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path,
                                                  nohup: bool) -> None:
     """The terminal closing (SIGHUP) ends ``pymb log`` as SIGTERM does: what was
     read is committed and the summary printed. Under ``nohup`` (SIGHUP
     ignored) it keeps logging until SIGTERM."""
     db = tmp_path / "hup.sqlite"
     ignore = (lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)) if nohup else None
-    p = subprocess.Popen([*PYMB, "log", "coolpro:40", "--port", sim.port, "--out", str(db)],
+    p = subprocess.Popen([*PYMB, "log", "coolpro:40", "--port", sim3.port, "--out", str(db)],
                          env=ENV, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, text=True, preexec_fn=ignore)
     try:

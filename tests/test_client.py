@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from conftest import TIMEOUT
 from peers import PtyPeer, pty_peer, tcp_peer
 
 import pymb
@@ -24,7 +25,7 @@ from pymb import _native
 
 # Client timeout for the error paths: short, so the suite stays fast (longer
 # under valgrind, see .ci/valgrind).
-T = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
+T = TIMEOUT
 
 #: What a peer hook returns: (delay, bytes) to send, or None for the normal reply.
 Reply = list[tuple[float, bytes]] | None
@@ -37,7 +38,7 @@ def peer() -> Iterator[PtyPeer]:
 
 
 @pytest.fixture
-def client(peer: PtyPeer) -> Iterator[pymb.RtuClient]:
+def peer_client(peer: PtyPeer) -> Iterator[pymb.RtuClient]:
     with pymb.RtuClient(peer.port, 19200, slave=40, timeout=T) as c:
         yield c
 
@@ -77,29 +78,29 @@ def test_crc16_matches_bitwise_reference() -> None:
 # -- reads --------------------------------------------------------------------
 
 
-def test_read_input_and_holding(client: pymb.RtuClient, peer: PtyPeer) -> None:
-    r = client.read_input_registers(0, 8)
+def test_read_input_and_holding(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
+    r = peer_client.read_input_registers(0, 8)
     assert isinstance(r, array) and r.typecode == "H"
     assert list(r) == list(range(8))
-    h = client.read_holding_registers(10, 3)
+    h = peer_client.read_holding_registers(10, 3)
     assert list(h) == [70, 77, 84]
     assert peer.requests == [reg_request(40, 4, 0, 8), reg_request(40, 3, 10, 3)]
 
 
-def test_long_read_is_split_into_maximal_requests(client: pymb.RtuClient,
+def test_long_read_is_split_into_maximal_requests(peer_client: pymb.RtuClient,
                                                   peer: PtyPeer) -> None:
-    r = client.read_holding_registers(31, 700)
+    r = peer_client.read_holding_registers(31, 700)
     assert list(r) == [(i * 7) & 0xFFFF for i in range(31, 731)]
     counts = [struct.unpack(">HH", pdu[1:5]) for _, pdu in peer.requests]
     assert counts == [(31, 125), (156, 125), (281, 125), (406, 125), (531, 125), (656, 75)]
 
 
-def test_read_into_preallocated_buffer(client: pymb.RtuClient) -> None:
+def test_read_into_preallocated_buffer(peer_client: pymb.RtuClient) -> None:
     buf = array("H", bytes(2 * 300))
-    client.read_input_registers_into(1000, buf)
+    peer_client.read_input_registers_into(1000, buf)
     assert list(buf) == list(range(1000, 1300))
     with pytest.raises(pymb.InvalidArgument):
-        client.read_input_registers_into(0, bytearray(10))
+        peer_client.read_input_registers_into(0, bytearray(10))
 
 
 def test_high_slave_addresses_use_pymb_framing(peer: PtyPeer) -> None:
@@ -127,33 +128,33 @@ def test_slave_250_reply_with_bad_crc_is_refused(peer: PtyPeer) -> None:
         assert list(c.read_holding_registers(31, 2)) == [217, 224]
 
 
-def test_coils_and_discrete_inputs(client: pymb.RtuClient) -> None:
-    assert list(client.read_coils(0, 10)) == [1, 0, 0, 1, 0, 0, 1, 0, 0, 1]
-    assert list(client.read_discrete_inputs(3, 5)) == [1, 0, 1, 0, 1]
-    long = client.read_discrete_inputs(0, 4500)  # split at 2000 bits
+def test_coils_and_discrete_inputs(peer_client: pymb.RtuClient) -> None:
+    assert list(peer_client.read_coils(0, 10)) == [1, 0, 0, 1, 0, 0, 1, 0, 0, 1]
+    assert list(peer_client.read_discrete_inputs(3, 5)) == [1, 0, 1, 0, 1]
+    long = peer_client.read_discrete_inputs(0, 4500)  # split at 2000 bits
     assert list(long) == [i % 2 for i in range(4500)]
-    client.write_coil(1, True)
-    client.write_coils(20, [1, 1, 0, 1, 0, 0, 0, 0, 1])
-    assert list(client.read_coils(0, 2)) == [1, 1]
-    assert list(client.read_coils(20, 9)) == [1, 1, 0, 1, 0, 0, 0, 0, 1]
+    peer_client.write_coil(1, True)
+    peer_client.write_coils(20, [1, 1, 0, 1, 0, 0, 0, 0, 1])
+    assert list(peer_client.read_coils(0, 2)) == [1, 1]
+    assert list(peer_client.read_coils(20, 9)) == [1, 1, 0, 1, 0, 0, 0, 0, 1]
 
 
-def test_writes_and_the_rest_of_the_surface(client: pymb.RtuClient, peer: PtyPeer) -> None:
-    client.write_register(5, 0xBEEF)
-    client.write_registers(100, [1, 2, 3, 0xFFFF])
-    assert list(client.read_holding_registers(100, 4)) == [1, 2, 3, 0xFFFF]
-    assert client.read_holding_registers(5, 1)[0] == 0xBEEF
-    client.mask_write_register(5, 0x00FF, 0x1200)
-    assert client.read_holding_registers(5, 1)[0] == 0x12EF
-    r = client.write_read_registers(200, [9, 8], 199, 4)
+def test_writes_and_the_rest_of_the_surface(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
+    peer_client.write_register(5, 0xBEEF)
+    peer_client.write_registers(100, [1, 2, 3, 0xFFFF])
+    assert list(peer_client.read_holding_registers(100, 4)) == [1, 2, 3, 0xFFFF]
+    assert peer_client.read_holding_registers(5, 1)[0] == 0xBEEF
+    peer_client.mask_write_register(5, 0x00FF, 0x1200)
+    assert peer_client.read_holding_registers(5, 1)[0] == 0x12EF
+    r = peer_client.write_read_registers(200, [9, 8], 199, 4)
     assert list(r) == [(199 * 7) & 0xFFFF, 9, 8, (202 * 7) & 0xFFFF]
-    assert client.report_slave_id() == b"\x2a\xffpymb-peer"
-    assert client.read_exception_status() == 0x5A
-    assert client.raw_request(0x04, struct.pack(">HH", 7, 2)) == b"\x04\x00\x07\x00\x08"
+    assert peer_client.report_slave_id() == b"\x2a\xffpymb-peer"
+    assert peer_client.read_exception_status() == 0x5A
+    assert peer_client.raw_request(0x04, struct.pack(">HH", 7, 2)) == b"\x04\x00\x07\x00\x08"
     assert peer.memory.holding[200:202] == [9, 8]
 
 
-def test_write_echo_must_match(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_write_echo_must_match(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     def wrong_echo(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         if pdu[0] == 6:
             return [(0, peer.frame(slave, pdu[:3] + b"\x00\x2b"))]
@@ -161,18 +162,18 @@ def test_write_echo_must_match(client: pymb.RtuClient, peer: PtyPeer) -> None:
 
     peer.hook = wrong_echo
     with pytest.raises(pymb.ProtocolError) as ei:
-        client.write_register(0, 42)
+        peer_client.write_register(0, 42)
     assert "echo" in str(ei.value)
 
 
 # -- errors -------------------------------------------------------------------
 
 
-def test_timeout(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_timeout(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     peer.hook = lambda *a: []
     t0 = time.monotonic()
     with pytest.raises(pymb.ModbusTimeout) as ei:
-        client.read_input_registers(0, 8)
+        peer_client.read_input_registers(0, 8)
     assert time.monotonic() - t0 < 5 * T
     e = ei.value
     assert isinstance(e, TimeoutError) and isinstance(e, pymb.ModbusError)
@@ -182,7 +183,7 @@ def test_timeout(client: pymb.RtuClient, peer: PtyPeer) -> None:
     assert (e.slave, e.function, e.address, e.count) == (40, 4, 0, 8)
 
 
-def test_bad_crc(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_bad_crc(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     def bad(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
         frame = bytearray(peer.frame(slave, normal or b""))
         frame[-1] ^= 0xFF
@@ -190,16 +191,16 @@ def test_bad_crc(client: pymb.RtuClient, peer: PtyPeer) -> None:
 
     peer.hook = bad
     with pytest.raises(pymb.ProtocolError) as ei:
-        client.read_input_registers(0, 2)
+        peer_client.read_input_registers(0, 2)
     assert ei.value.reason == "bad CRC"
     assert "CRC" in str(ei.value) and "received 28 04 04" in str(ei.value)
     assert ei.value.response is not None and ei.value.response[:3] == b"\x28\x04\x04"
 
 
-def test_wrong_slave(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_wrong_slave(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     peer.hook = lambda slave, pdu, normal: [(0, peer.frame(41, normal or b""))]
     with pytest.raises(pymb.ProtocolError) as ei:
-        client.read_input_registers(0, 2)
+        peer_client.read_input_registers(0, 2)
     assert ei.value.reason == "wrong slave"
     assert "another address 41" in str(ei.value)
 
@@ -215,31 +216,31 @@ def test_wrong_slave(client: pymb.RtuClient, peer: PtyPeer) -> None:
         (0x0B, pymb.GatewayTargetFailed),
     ],
 )
-def test_exception_codes(client: pymb.RtuClient, peer: PtyPeer, code: int,
+def test_exception_codes(peer_client: pymb.RtuClient, peer: PtyPeer, code: int,
                          cls: type[pymb.DeviceException]) -> None:
     peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, bytes((pdu[0] | 0x80, code))))]
     with pytest.raises(cls) as ei:
-        client.read_holding_registers(0, 1)
+        peer_client.read_holding_registers(0, 1)
     assert ei.value.code == code
     assert isinstance(ei.value, pymb.DeviceException)
     assert f"exception {code:02X}" in str(ei.value)
 
 
-def test_exception_from_a_real_range_error(client: pymb.RtuClient) -> None:
+def test_exception_from_a_real_range_error(peer_client: pymb.RtuClient) -> None:
     with pytest.raises(pymb.IllegalDataAddress):
-        client.read_holding_registers(60000, 4)
+        peer_client.read_holding_registers(60000, 4)
     # The line is still in step.
-    assert list(client.read_input_registers(0, 2)) == [0, 1]
+    assert list(peer_client.read_input_registers(0, 2)) == [0, 1]
 
 
-def test_mismatched_reply_length(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_mismatched_reply_length(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     # A well-formed reply to a different quantity.
     peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, b"\x04\x02\x00\x01"))]
     with pytest.raises(pymb.ProtocolError):
-        client.read_input_registers(0, 2)
+        peer_client.read_input_registers(0, 2)
 
 
-def test_late_reply_is_never_taken_as_a_later_answer(client: pymb.RtuClient,
+def test_late_reply_is_never_taken_as_a_later_answer(peer_client: pymb.RtuClient,
                                                       peer: PtyPeer) -> None:
     # The first request is answered after the client gave up; the reply has
     # exactly the shape of the next request's reply, with other data.
@@ -254,12 +255,12 @@ def test_late_reply_is_never_taken_as_a_later_answer(client: pymb.RtuClient,
 
     peer.hook = late_first
     with pytest.raises(pymb.ModbusTimeout):
-        client.read_input_registers(0, 2)
+        peer_client.read_input_registers(0, 2)
     peer.memory.inputs[0:2] = [1, 2]
-    assert list(client.read_input_registers(0, 2)) == [1, 2]
+    assert list(peer_client.read_input_registers(0, 2)) == [1, 2]
 
 
-def test_stray_bytes_after_a_reply_do_not_poison_the_next(client: pymb.RtuClient,
+def test_stray_bytes_after_a_reply_do_not_poison_the_next(peer_client: pymb.RtuClient,
                                                            peer: PtyPeer) -> None:
     stale = peer.frame(40, b"\x04\x04\xde\xad\xbe\xef")
 
@@ -267,37 +268,37 @@ def test_stray_bytes_after_a_reply_do_not_poison_the_next(client: pymb.RtuClient
         return [(0, peer.frame(slave, normal or b"")), (0.01, stale)]
 
     peer.hook = stray
-    assert list(client.read_input_registers(0, 2)) == [0, 1]
+    assert list(peer_client.read_input_registers(0, 2)) == [0, 1]
     time.sleep(0.05)
     peer.hook = None
-    assert list(client.read_input_registers(0, 2)) == [0, 1]
+    assert list(peer_client.read_input_registers(0, 2)) == [0, 1]
 
 
-def test_truncated_reply(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_truncated_reply(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, normal or b"")[:5])]
     with pytest.raises(pymb.ModbusTimeout):
-        client.read_input_registers(0, 8)
+        peer_client.read_input_registers(0, 8)
     peer.hook = None
-    assert list(client.read_input_registers(0, 3)) == [0, 1, 2]
+    assert list(peer_client.read_input_registers(0, 3)) == [0, 1, 2]
 
 
-def test_bad_arguments_never_reach_the_wire(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_bad_arguments_never_reach_the_wire(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     bad_calls: list[Callable[[], object]] = [
-        lambda: client.read_holding_registers(-1, 1),
-        lambda: client.read_holding_registers(0, 0),
-        lambda: client.read_holding_registers(65535, 2),
-        lambda: client.read_holding_registers(0, 1, slave=0),
-        lambda: client.read_holding_registers(0, 1, slave=256),
-        lambda: client.read_holding_registers(0, 1, slave=True),
-        lambda: client.read_holding_registers("0", 1),  # type: ignore[arg-type]
-        lambda: client.write_register(0, 70000),
-        lambda: client.write_register(0, -1),
-        lambda: client.write_registers(0, []),
-        lambda: client.write_registers(0, [0] * 124),
-        lambda: client.write_registers(0, [1, -5]),
-        lambda: client.write_coils(0, [1] * 1969),
-        lambda: client.raw_request(0x80),
-        lambda: client.raw_request(3, b"x" * 253),
+        lambda: peer_client.read_holding_registers(-1, 1),
+        lambda: peer_client.read_holding_registers(0, 0),
+        lambda: peer_client.read_holding_registers(65535, 2),
+        lambda: peer_client.read_holding_registers(0, 1, slave=0),
+        lambda: peer_client.read_holding_registers(0, 1, slave=256),
+        lambda: peer_client.read_holding_registers(0, 1, slave=True),
+        lambda: peer_client.read_holding_registers("0", 1),  # type: ignore[arg-type]
+        lambda: peer_client.write_register(0, 70000),
+        lambda: peer_client.write_register(0, -1),
+        lambda: peer_client.write_registers(0, []),
+        lambda: peer_client.write_registers(0, [0] * 124),
+        lambda: peer_client.write_registers(0, [1, -5]),
+        lambda: peer_client.write_coils(0, [1] * 1969),
+        lambda: peer_client.raw_request(0x80),
+        lambda: peer_client.raw_request(3, b"x" * 253),
     ]
     for call in bad_calls:
         with pytest.raises(pymb.InvalidArgument) as ei:
@@ -384,13 +385,13 @@ def test_unplugged_port_raises_connection_error_then_reconnects() -> None:
         c.close()
 
 
-def test_threads_share_one_client(client: pymb.RtuClient) -> None:
+def test_threads_share_one_client(peer_client: pymb.RtuClient) -> None:
     errors: list[BaseException] = []
 
     def worker(offset: int) -> None:
         try:
             for _ in range(30):
-                r = client.read_input_registers(offset, 10)
+                r = peer_client.read_input_registers(offset, 10)
                 assert list(r) == list(range(offset, offset + 10))
         except BaseException as e:  # pragma: no cover - reported below
             errors.append(e)
@@ -403,7 +404,7 @@ def test_threads_share_one_client(client: pymb.RtuClient) -> None:
     assert errors == []
 
 
-def test_gil_is_released_while_waiting(client: pymb.RtuClient, peer: PtyPeer) -> None:
+def test_gil_is_released_while_waiting(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     # While one thread waits on a slow reply, another keeps running Python.
     peer.hook = lambda slave, pdu, normal: [(0.15, peer.frame(slave, normal or b""))]
     ticks = 0
@@ -418,7 +419,7 @@ def test_gil_is_released_while_waiting(client: pymb.RtuClient, peer: PtyPeer) ->
     t = threading.Thread(target=spin)
     t.start()
     try:
-        client.read_input_registers(0, 2)
+        peer_client.read_input_registers(0, 2)
     finally:
         done.set()
         t.join()

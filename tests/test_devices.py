@@ -12,12 +12,13 @@ from datetime import UTC, datetime
 
 import pytest
 import reference as ref
+from conftest import TIMEOUT
 
 import pymb
 from pymb.devices import HUB, CoolPro, CoolProStatus, SensorHub, State, decode_hub
 from pymb.sim import CoolProDevice, SimClock, Simulator
 
-T = 0.3
+T = max(TIMEOUT, 0.3)  # client timeout (at least 0.3 s)
 
 
 @pytest.fixture
@@ -34,7 +35,7 @@ def bus(frozen: SimClock) -> Iterator[Simulator]:
 
 
 @pytest.fixture
-def client(bus: Simulator) -> Iterator[pymb.RtuClient]:
+def sim_client(bus: Simulator) -> Iterator[pymb.RtuClient]:
     with pymb.RtuClient(bus.port, 9600, timeout=T) as c:
         yield c
 
@@ -42,16 +43,16 @@ def client(bus: Simulator) -> Iterator[pymb.RtuClient]:
 # -- CoolPro ----------------------------------------------------------------------
 
 
-def test_coolpro_telemetry_every_field(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_coolpro_telemetry_every_field(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(40)
     assert isinstance(dev, CoolProDevice)
     raw = {n: dev.register(n) for n in ("input_voltage_v", "input_current_a",
                                          "output_voltage_v", "output_current_a",
                                          "temperature_c")}
-    t = CoolPro(client).read_telemetry()
+    t = CoolPro(sim_client).read_telemetry()
     for name, r in raw.items():
         assert getattr(t, name) == ref.milli(r)
-    regs = client.read_input_registers(0, 8, slave=40)
+    regs = sim_client.read_input_registers(0, 8, slave=40)
     assert t.uptime_s == ref.u32_low_word_first(regs[5], regs[6])
     assert isinstance(t.uptime_s, int)
     assert int(t.status) == regs[7]
@@ -59,7 +60,7 @@ def test_coolpro_telemetry_every_field(bus: Simulator, client: pymb.RtuClient) -
 
 
 def test_coolpro_documented_values_and_reserved_bits(bus: Simulator,
-                                                     client: pymb.RtuClient) -> None:
+                                                     sim_client: pymb.RtuClient) -> None:
     dev = bus.device(40)
     bus.clock.advance(30.0)  # past the startup flag
     # [CP] ch. 02 / 04: 24.5 V, 3.25 A, 24.0 V, 3.20 A, 25.8 degC; uptime 70000 s.
@@ -68,7 +69,7 @@ def test_coolpro_documented_values_and_reserved_bits(bus: Simulator,
                       ("temperature_c", 0x64C8)]:
         dev.pin(name, raw)  # type: ignore[attr-defined]
     dev.set_status(0x8044)  # type: ignore[attr-defined]  # reserved bit 15 + two faults
-    t = CoolPro(client).read_telemetry()
+    t = CoolPro(sim_client).read_telemetry()
     assert (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
             t.temperature_c) == (24.5, 3.25, 24.0, 3.2, 25.8)
     assert CoolProStatus.INPUT_MEASUREMENT_FAULT in t.status
@@ -76,11 +77,11 @@ def test_coolpro_documented_values_and_reserved_bits(bus: Simulator,
     assert t.status.reserved == 0x8000 and int(t.status) == 0x8044
 
 
-def test_coolpro_identity(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_coolpro_identity(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(40)
     dev.set_identity(serial_number=12345, hardware_revision=3, firmware_major=1,  # type: ignore[attr-defined]
                      firmware_minor=2, firmware_patch=7, manufactured=1780000000)
-    i = CoolPro(client).read_identity()
+    i = CoolPro(sim_client).read_identity()
     assert i.serial_number == 12345 and i.hardware_revision == 3
     assert i.firmware_version == "1.2.7"
     assert i.manufactured == datetime.fromtimestamp(1780000000, UTC)
@@ -88,15 +89,15 @@ def test_coolpro_identity(bus: Simulator, client: pymb.RtuClient) -> None:
 
 
 def test_coolpro_config_writes_take_effect_after_reset(bus: Simulator,
-                                                       client: pymb.RtuClient) -> None:
-    cp = CoolPro(client, 40)
+                                                       sim_client: pymb.RtuClient) -> None:
+    cp = CoolPro(sim_client, 40)
     c = cp.read_config()
     assert (c.address, c.baud_rate, c.baud_rate_index) == (40, 9600, 0)
     cp.set_address(42)
     cp.set_baud_rate(9600)
     assert cp.read_config().address == 42  # stored...
     assert cp.address == 40  # ...but the device still answers at 40
-    assert client.read_holding_registers(2, 1, slave=40)[0] == 0  # reset reads 0
+    assert sim_client.read_holding_registers(2, 1, slave=40)[0] == 0  # reset reads 0
     before = cp.read_telemetry().uptime_s
     bus.clock.advance(5.0)
     assert cp.read_telemetry().uptime_s >= before + 5
@@ -105,34 +106,34 @@ def test_coolpro_config_writes_take_effect_after_reset(bus: Simulator,
     t = cp.read_telemetry()
     assert t.uptime_s < 2 and CoolProStatus.SYSTEM_STARTUP in t.status
     with pytest.raises(pymb.ModbusTimeout):
-        client.read_input_registers(0, 1, slave=40)
+        sim_client.read_input_registers(0, 1, slave=40)
     bus.clock.advance(10.0)
     assert CoolProStatus.SYSTEM_STARTUP not in cp.read_telemetry().status
 
 
-def test_coolpro_writes_validated_before_any_io(bus: Simulator, client: pymb.RtuClient) -> None:
-    cp = CoolPro(client, 40)
+def test_coolpro_writes_validated_before_any_io(bus: Simulator, sim_client: pymb.RtuClient) -> None:
+    cp = CoolPro(sim_client, 40)
     served = bus.stats.requests  # type: ignore[attr-defined]
     for bad in (lambda: cp.set_address(0), lambda: cp.set_address(248),
-                lambda: cp.set_baud_rate(14400), lambda: CoolPro(client, 250)):
+                lambda: cp.set_baud_rate(14400), lambda: CoolPro(sim_client, 250)):
         with pytest.raises(pymb.InvalidArgument):
             bad()
     assert bus.stats.requests == served  # type: ignore[attr-defined]
 
 
-def test_coolpro_exception_codes(client: pymb.RtuClient) -> None:
+def test_coolpro_exception_codes(sim_client: pymb.RtuClient) -> None:
     with pytest.raises(pymb.IllegalDataAddress):
-        client.read_input_registers(6, 4, slave=40)  # runs past the end of the block
+        sim_client.read_input_registers(6, 4, slave=40)  # runs past the end of the block
     with pytest.raises(pymb.IllegalDataAddress):
-        client.read_input_registers(50, 1, slave=40)
+        sim_client.read_input_registers(50, 1, slave=40)
     with pytest.raises(pymb.IllegalDataValue):
-        client.write_register(0, 248, slave=40)
+        sim_client.write_register(0, 248, slave=40)
     with pytest.raises(pymb.IllegalDataValue):
-        client.write_register(1, 5, slave=40)
+        sim_client.write_register(1, 5, slave=40)
     with pytest.raises(pymb.IllegalDataValue):
-        client.write_register(2, 0x1234, slave=40)
+        sim_client.write_register(2, 0x1234, slave=40)
     with pytest.raises(pymb.IllegalFunction):
-        client.write_registers(0, [40], slave=40)
+        sim_client.write_registers(0, [40], slave=40)
 
 
 # -- sensor hub -------------------------------------------------------------------
@@ -149,9 +150,9 @@ def assert_matches_device(r: pymb.devices.HubReading, dev: object, units: bytes)
             assert (math.isnan(got) and math.isnan(want)) or got == want, (b.name, c)
 
 
-def test_hub_read_all_six_requests_every_value(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_hub_read_all_six_requests_every_value(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(1)
-    hub = SensorHub(client, 1, humidity_unit=[0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
+    hub = SensorHub(sim_client, 1, humidity_unit=[0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
     served = bus.stats.requests  # type: ignore[attr-defined]
     r = hub.read_all()
     assert bus.stats.requests - served == 6  # type: ignore[attr-defined]
@@ -161,7 +162,7 @@ def test_hub_read_all_six_requests_every_value(bus: Simulator, client: pymb.RtuC
                                 (656, 75))
 
 
-def test_hub_markers_and_units_per_channel(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_hub_markers_and_units_per_channel(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(250)
     dev.set_humidity_unit([1, 2], 1)  # type: ignore[attr-defined]
     dev.set_humidity_unit(range(3, 101), 0.1)  # type: ignore[attr-defined]
@@ -174,7 +175,7 @@ def test_hub_markers_and_units_per_channel(bus: Simulator, client: pymb.RtuClien
     dev.pin("rssi_dbm", 5, 0xFFA6)  # type: ignore[attr-defined]  # -90 dBm
     dev.set_offline(6)  # type: ignore[attr-defined]
     units = [1, 1] + [0.1] * 98
-    r = SensorHub(client, 250, humidity_unit=units).read_all()
+    r = SensorHub(sim_client, 250, humidity_unit=units).read_all()
     assert math.copysign(1, r.temperature_c[0]) == -1 and r.temperature_c[0] == 0
     assert r.temperature_c[1] == -12.3
     assert r.state("humidity_pct", 1) is State.NO_SENSOR and math.isnan(r.humidity_pct[0])
@@ -223,13 +224,13 @@ def test_hub_firmware_profiles(frozen: SimClock, firmware: str, channels: int,
             assert hub.read_all().unsupported == frozenset()
 
 
-def test_hub_busy_is_retried_then_raised(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_hub_busy_is_retried_then_raised(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     bus.faults.inject("busy", count=2, address=1)
-    r = SensorHub(client, 1, busy_backoff=0.005).read_all()
+    r = SensorHub(sim_client, 1, busy_backoff=0.005).read_all()
     assert r.unsupported == frozenset()
     assert bus.faults.counts["busy"] == 2  # type: ignore[attr-defined]
     bus.faults.inject("busy", count=10, address=1)
-    hub = SensorHub(client, 1, busy_retries=2, busy_backoff=0.005)
+    hub = SensorHub(sim_client, 1, busy_retries=2, busy_backoff=0.005)
     with pytest.raises(pymb.DeviceBusy) as ei:
         hub.read_all()
     assert ei.value.code == 4 and "busy" in str(ei.value)
@@ -237,16 +238,16 @@ def test_hub_busy_is_retried_then_raised(bus: Simulator, client: pymb.RtuClient)
     assert len(hub.read_all().temperature_c) == 100
 
 
-def test_hub_fc16_answers_illegal_function(client: pymb.RtuClient) -> None:
+def test_hub_fc16_answers_illegal_function(sim_client: pymb.RtuClient) -> None:
     with pytest.raises(pymb.IllegalFunction):
-        client.write_registers(31, [1], slave=1)
+        sim_client.write_registers(31, [1], slave=1)
     with pytest.raises(pymb.IllegalDataAddress):
-        client.read_holding_registers(725, 10, slave=1)  # past 730
+        sim_client.read_holding_registers(725, 10, slave=1)  # past 730
 
 
-def test_planned_partial_reads(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_planned_partial_reads(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(1)
-    hub = SensorHub(client, 1, turnaround=0.0)
+    hub = SensorHub(sim_client, 1, turnaround=0.0)
     served = bus.stats.requests  # type: ignore[attr-defined]
     r = hub.read(blocks=["temperature_c", "humidity_pct"], channels=range(1, 13))
     assert bus.stats.requests - served == 2  # type: ignore[attr-defined]
@@ -289,9 +290,9 @@ def test_decode_hub_of_a_device_image(bus: Simulator) -> None:
     assert_matches_device(r, dev, dev.humidity_tenths)  # type: ignore[attr-defined]
 
 
-def test_one_hub_shared_by_threads(bus: Simulator, client: pymb.RtuClient) -> None:
+def test_one_hub_shared_by_threads(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev = bus.device(1)
-    hub = SensorHub(client, 1, humidity_unit=[0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
+    hub = SensorHub(sim_client, 1, humidity_unit=[0.1 if t else 1 for t in dev.humidity_tenths])  # type: ignore[attr-defined]
     errors: list[BaseException] = []
 
     def worker() -> None:
@@ -309,8 +310,8 @@ def test_one_hub_shared_by_threads(bus: Simulator, client: pymb.RtuClient) -> No
     assert errors == []
 
 
-def test_read_all_into_reuses_the_buffers(bus: Simulator, client: pymb.RtuClient) -> None:
-    hub = SensorHub(client, 1)
+def test_read_all_into_reuses_the_buffers(bus: Simulator, sim_client: pymb.RtuClient) -> None:
+    hub = SensorHub(sim_client, 1)
     r = hub.read_all()
     values_before = r.values
     bus.device(1).pin("temperature_c", 1, 123)  # type: ignore[attr-defined]
@@ -325,8 +326,9 @@ def test_rs485_mode_on_a_port_without_it_is_a_clear_error(bus: Simulator) -> Non
     assert not c.connected
 
 
-def test_changed_channel_lists_are_planned_again(bus: Simulator, client: pymb.RtuClient) -> None:
-    hub = SensorHub(client, 1)
+def test_changed_channel_lists_are_planned_again(bus: Simulator,
+                                                 sim_client: pymb.RtuClient) -> None:
+    hub = SensorHub(sim_client, 1)
     chans = [1, 2]
     hub.read(blocks=["temperature_c"], channels=chans)
     chans.append(3)  # the same list object, changed

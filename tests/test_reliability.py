@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import PYMB_ENV, TIMEOUT
 from dbwait import count, wait_for
 
 import pymb
@@ -34,8 +35,7 @@ from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimClock, Simulator
 from pymb.store import OutputError, SqliteSink
 
-T = 0.25  # client timeout
-ROOT = Path(__file__).resolve().parents[1]
+T = TIMEOUT  # client timeout
 
 # fault -> (parameters, what the client must raise; None: the reply is good)
 MATRIX: dict[str, tuple[dict[str, Any], Any]] = {
@@ -60,7 +60,7 @@ def kind_of(name: str) -> str:
 
 
 @pytest.fixture
-def sim() -> Iterator[Simulator]:
+def frozen_sim() -> Iterator[Simulator]:
     clock = SimClock(start=100.0)
     clock.freeze()
     with Simulator(["coolpro", "hub:250"], seed=21, clock=clock) as s:
@@ -78,71 +78,71 @@ def expect(outcome: Any, call: Callable[[], Any]) -> tuple[Any, float]:
     return result, time.monotonic() - t0
 
 
-def wait_plugged(sim: Simulator) -> None:
+def wait_plugged(frozen_sim: Simulator) -> None:
     deadline = time.monotonic() + 5
-    while not sim.plugged and time.monotonic() < deadline:
+    while not frozen_sim.plugged and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert sim.plugged
+    assert frozen_sim.plugged
 
 
 def bound(name: str) -> float:
     # The timeout, then a quiet period of one timeout (stretched by the late
     # reply itself when one arrives), plus scheduling slack.
-    return 4 * T + 0.4 + float(MATRIX[name][0].get("delay", 0.0))
+    return 4 * T + 0.4 + (MATRIX[name][0].get("delay", 0.0))
 
 
 @pytest.mark.parametrize("name", list(MATRIX))
-def test_client_layer(sim: Simulator, name: str) -> None:
+def test_client_layer(frozen_sim: Simulator, name: str) -> None:
     params, outcome = MATRIX[name]
-    dev = sim.device(40)
+    dev = frozen_sim.device(40)
     dev.pin("input_voltage_v", 11111)  # type: ignore[attr-defined]
-    with pymb.RtuClient(sim.port, timeout=T, slave=40) as c:
+    with pymb.RtuClient(frozen_sim.port, timeout=T, slave=40) as c:
         assert c.read_input_registers(0, 1)[0] == 11111
-        sim.faults.inject(kind_of(name), address=40, **params)
+        frozen_sim.faults.inject(kind_of(name), address=40, **params)
         result, took = expect(outcome, lambda: c.read_input_registers(0, 8))
         assert took < bound(name), took
         if result is not None:
             assert result[0] == 11111  # a good reply is the right one
         dev.pin("input_voltage_v", 22222)  # type: ignore[attr-defined]
         if name == "unplug":
-            wait_plugged(sim)
+            wait_plugged(frozen_sim)
         # The next good request gets fresh data: never the faulty or late reply.
         assert c.read_input_registers(0, 8)[0] == 22222
         assert c.read_input_registers(0, 1)[0] == 22222
 
 
 @pytest.mark.parametrize("name", list(MATRIX))
-def test_coolpro_facade_layer(sim: Simulator, name: str) -> None:
+def test_coolpro_facade_layer(frozen_sim: Simulator, name: str) -> None:
     params, outcome = MATRIX[name]
-    dev = sim.device(40)
+    dev = frozen_sim.device(40)
     dev.pin("temperature_c", 25800)  # type: ignore[attr-defined]
-    with pymb.RtuClient(sim.port, timeout=T) as c:
+    with pymb.RtuClient(frozen_sim.port, timeout=T) as c:
         cp = CoolPro(c, 40)
-        sim.faults.inject(kind_of(name), address=40, **params)
+        frozen_sim.faults.inject(kind_of(name), address=40, **params)
         result, took = expect(outcome, cp.read_telemetry)
         assert took < bound(name)
         if result is not None:
             assert result.temperature_c == 25.8
         dev.pin("temperature_c", 30000)  # type: ignore[attr-defined]
         if name == "unplug":
-            wait_plugged(sim)
+            wait_plugged(frozen_sim)
         assert cp.read_telemetry().temperature_c == 30.0
 
 
 @pytest.mark.parametrize("name", list(MATRIX))
-def test_hub_facade_layer(sim: Simulator, name: str) -> None:
+def test_hub_facade_layer(frozen_sim: Simulator, name: str) -> None:
     params, outcome = MATRIX[name]
     if name in ("busy", "exception:04", "exception:02"):
         # [HUB] 04 = busy: retried transparently. 02 on a span makes the sweep
         # read that span block by block (in case the firmware lacks one): a
         # passing 02 is absorbed and every block still arrives.
         outcome = None
-    dev = sim.device(250)
+    dev = frozen_sim.device(250)
     dev.pin("temperature_c", 1, 215)  # type: ignore[attr-defined]
-    with pymb.RtuClient(sim.port, timeout=T) as c:
+    with pymb.RtuClient(frozen_sim.port, timeout=T) as c:
         hub = SensorHub(c, 250, busy_backoff=0.01)
         assert hub.read_all().temperature_c[0] == 21.5
-        sim.faults.inject(kind_of(name), address=250, **params)
+        frozen_sim.faults.inject(kind_of(name), address=250, **params)
         result, took = expect(outcome, hub.read_all)
         assert took < bound(name) + 6 * 0.01
         if result is not None:
@@ -150,26 +150,26 @@ def test_hub_facade_layer(sim: Simulator, name: str) -> None:
             assert list(result.registers) == list(dev.registers())  # type: ignore[attr-defined]
         dev.pin("temperature_c", 1, 0x8000 | 55)  # type: ignore[attr-defined]
         if name == "unplug":
-            wait_plugged(sim)
+            wait_plugged(frozen_sim)
         r = hub.read_all()
         assert r.temperature_c[0] == -5.5
         assert list(r.registers) == list(dev.registers())  # type: ignore[attr-defined]
 
 
-def test_hub_busy_beyond_retries_raises_device_busy(sim: Simulator) -> None:
-    sim.faults.inject("busy", count=5, address=250)
-    with pymb.RtuClient(sim.port, timeout=T) as c:
+def test_hub_busy_beyond_retries_raises_device_busy(frozen_sim: Simulator) -> None:
+    frozen_sim.faults.inject("busy", count=5, address=250)
+    with pymb.RtuClient(frozen_sim.port, timeout=T) as c:
         with pytest.raises(pymb.DeviceBusy):
             SensorHub(c, 250, busy_retries=3, busy_backoff=0.001).read_all()
-        sim.faults.clear()
+        frozen_sim.faults.clear()
         assert len(SensorHub(c, 250).read_all().temperature_c) == 100
 
 
 def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
         tmp_path: Path) -> None:
     db = tmp_path / "matrix.sqlite"
-    with Simulator(["coolpro", "hub"], seed=8) as sim:
-        bus = BusConfig("b", sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40),
+    with Simulator(["coolpro", "hub"], seed=8) as frozen_sim:
+        bus = BusConfig("b", frozen_sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40),
                                                          DeviceConfig("hub", 1)])
         logger = Logger(LogConfig([bus], "sqlite", str(db)))
         result: list[Any] = []
@@ -177,7 +177,7 @@ def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
         t.start()
         try:
             for name, (params, _) in MATRIX.items():
-                sim.faults.inject(kind_of(name), address=40, **params)
+                frozen_sim.faults.inject(kind_of(name), address=40, **params)
                 time.sleep(0.5 if name != "unplug" else 1.5)
             time.sleep(0.5)
         finally:
@@ -221,15 +221,15 @@ def rss_kb() -> int:
 
 @pytest.mark.parametrize("cycles", [1000])
 def test_unplug_replug_without_leaks(cycles: int) -> None:
-    with Simulator(["coolpro"], seed=2) as sim:
-        c = pymb.RtuClient(sim.port, timeout=T, slave=40)
+    with Simulator(["coolpro"], seed=2) as frozen_sim:
+        c = pymb.RtuClient(frozen_sim.port, timeout=T, slave=40)
         c.connect()
         try:
             def cycle() -> None:
-                sim.unplug()
+                frozen_sim.unplug()
                 with pytest.raises(pymb.ModbusConnectionError):
                     c.read_input_registers(0, 8)
-                sim.replug()
+                frozen_sim.replug()
                 assert len(c.read_input_registers(0, 8)) == 8
 
             for _ in range(50):  # warm up caches and allocators
@@ -251,8 +251,8 @@ def test_unplug_replug_without_leaks(cycles: int) -> None:
 
 def test_disk_full_is_a_clear_error_and_keeps_what_was_committed(tmp_path: Path) -> None:
     db = tmp_path / "full.sqlite"
-    with Simulator(["hub"], seed=3) as sim:
-        bus = BusConfig("b", sim.port, timeout=1.0, devices=[DeviceConfig("hub", 1)])
+    with Simulator(["hub"], seed=3) as frozen_sim:
+        bus = BusConfig("b", frozen_sim.port, timeout=1.0, devices=[DeviceConfig("hub", 1)])
         sink = SqliteSink(db)
         # SQLite's own "database or disk is full" (SQLITE_FULL), at ~2 MB.
         sink.db.execute("PRAGMA max_page_count = 500")
@@ -273,8 +273,8 @@ def test_disk_full_is_a_clear_error_and_keeps_what_was_committed(tmp_path: Path)
 def test_read_only_database_is_a_clear_error(tmp_path: Path) -> None:
     db = tmp_path / "ro.sqlite"
     SqliteSink(db).close()
-    with Simulator(["coolpro"], seed=3) as sim:
-        bus = BusConfig("b", sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40)])
+    with Simulator(["coolpro"], seed=3) as frozen_sim:
+        bus = BusConfig("b", frozen_sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40)])
         sink = SqliteSink(db)
         sink.db.execute("PRAGMA query_only = 1")  # every write now fails as read-only
         with pytest.raises(OutputError, match=r"readonly|read-only|query_only"):
@@ -287,8 +287,8 @@ def test_read_only_database_is_a_clear_error(tmp_path: Path) -> None:
 def test_cli_exit_code_for_an_unwritable_output(tmp_path: Path) -> None:
     from pymb.cli import main
 
-    with Simulator(["coolpro"], seed=3) as sim:
-        code = main(["log", "--port", sim.port, "--device", "coolpro", "--out",
+    with Simulator(["coolpro"], seed=3) as frozen_sim:
+        code = main(["log", "--port", frozen_sim.port, "--device", "coolpro", "--out",
                      str(tmp_path / "no" / "such" / "dir" / "x.sqlite"), "--seconds", "1",
                      "--quiet"])
     assert code == 2
@@ -300,12 +300,12 @@ def test_cli_exit_code_for_an_unwritable_output(tmp_path: Path) -> None:
 def sigkill_runs(n: int, tmp_path: Path, seed: int = 1) -> None:
     rng = random.Random(seed)
     db = tmp_path / "killed.sqlite"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    with Simulator(["coolpro", "hub"], seed=seed) as sim:
+    env = PYMB_ENV
+    with Simulator(["coolpro", "hub"], seed=seed) as frozen_sim:
         before = 0
         for _ in range(n):
             proc = subprocess.Popen(
-                [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device",
+                [sys.executable, "-m", "pymb", "log", "--port", frozen_sim.port, "--device",
                  "coolpro", "--device", "hub", "--out", str(db), "--quiet"], env=env)
             # Killed at a random moment once this run is logging (its first
             # commit), however long the start takes on this machine.

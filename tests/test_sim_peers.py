@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from conftest import ROOT
 
 import pymb
 from pymb.sim import CoolProDevice, HubDevice, Simulator, SimulatorProcess
@@ -21,7 +22,6 @@ from pymb.sim import CoolProDevice, HubDevice, Simulator, SimulatorProcess
 pytest_plugins = ["pymb.testing"]
 
 MakeSim = Callable[..., Simulator]
-ROOT = Path(__file__).resolve().parent.parent
 MBPOLL = shutil.which("mbpoll")
 needs_mbpoll = pytest.mark.skipif(MBPOLL is None, reason="mbpoll is not installed "
                                   "(Debian package mbpoll; CI installs it)")

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import pytest
+from conftest import TIMEOUT
 
 import pymb
 from pymb import _native
@@ -21,7 +22,7 @@ from pymb.sim import CoolProDevice, HubDevice, Simulator
 
 pytest_plugins = ["pymb.testing"]
 
-T = 0.2  # client timeout where a fault makes the client wait
+T = TIMEOUT  # client timeout where a fault makes the client wait
 MakeSim = Callable[..., Simulator]
 
 

@@ -16,10 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import PYMB_ENV
 
 from pymb.sim import SimulatorProcess
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def rss_kb(pid: int) -> int:
@@ -73,7 +72,7 @@ type = "hub"
 address = 1
 """)
         proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg)],
-                                env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                env=PYMB_ENV,
                                 stderr=subprocess.PIPE, text=True)
         warmup = min(60.0, seconds / 5)
         points: list[tuple[float, int, int]] = []
