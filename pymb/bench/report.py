@@ -68,124 +68,150 @@ def _workload_table(title: str, note: str, section: dict[str, Any]) -> Table:
 
 def tables(result: dict[str, Any]) -> list[Table]:
     """Every table of the result, in the order shown."""
-    out: list[Table] = []
     m = result["meta"]
-    plan = m["plan"]
-    out.append(Table(
+    out = [_contenders_table(result["contenders"])]
+    if result.get("sweep"):
+        out += _sweep_tables(result["sweep"], m["plan"])
+    if result.get("micro"):
+        out.append(_micro_table(result["micro"]))
+    if result.get("wire"):
+        out.append(_wire_table(result["wire"]))
+    if result.get("scaling"):
+        out.append(_scaling_table(result["scaling"]))
+    if result.get("logger"):
+        out.extend(_logger_tables(result["logger"]))
+    if result.get("fleet"):
+        out.append(_fleet_table(result["fleet"]))
+    if m.get("quick"):
+        _mark_quick(out)
+    tg = [] if m.get("quick") else (result.get("targets") or [])
+    if tg:
+        out.append(_targets_table(tg))
+    return out
+
+
+def _contenders_table(contenders: list[dict[str, Any]]) -> Table:
+    return Table(
         "Contenders", "", ["contender", "version", "how"],
-        [[c["label"], c["version"] or "-", c["how"]] for c in result["contenders"]
+        [[c["label"], c["version"] or "-", c["how"]] for c in contenders
          if c["status"] == "ok"],
         [False, False, False],
-        [f"{c['label']}: {c['status']}: {c['reason']}" for c in result["contenders"]
-         if c["status"] != "ok"]))
-    sweep = result.get("sweep")
-    if sweep:
-        common = (f"simulator in its own process over a pty at {sweep['baud']} 8N1 without "
-                  f"wire emulation; medians of {plan['rounds']} interleaved rounds")
-        out.append(_workload_table(
+        [f"{c['label']}: {c['status']}: {c['reason']}" for c in contenders
+         if c["status"] != "ok"])
+
+
+def _sweep_tables(sweep: dict[str, Any], plan: dict[str, Any]) -> list[Table]:
+    common = (f"simulator in its own process over a pty at {sweep['baud']} 8N1 without "
+              f"wire emulation; medians of {plan['rounds']} interleaved rounds")
+    return [
+        _workload_table(
             "Hub sweep: 700 registers in 6 requests, decoded to engineering values",
             f"{common} x {plan['sweeps']} sweeps, each batch after as many untimed ones "
             f"(steady state); wall and CPU (the contender's own "
             f"process) per sweep; {X} C = median of the per-round ratios to the C program",
-            sweep["hub"]))
-        out.append(_workload_table(
+            sweep["hub"]),
+        _workload_table(
             "CoolPro telemetry: 8 input registers in 1 request, decoded",
             f"{common} x {plan['reads']} reads after as many untimed; the CoolPro's ~8 ms "
             f"gap set to 0 "
             "(pure software cost; with the gap, see the wire-bound table)",
-            sweep["telemetry"]))
-    micro = result.get("micro")
-    if micro:
-        out.append(Table(
-            "Micro: in-process, per call",
-            f"timeit, median of {micro['repeat']} repeats",
-            ["operation", "pymb (C)", "pure Python", "speed-up", "target"],
-            [[r["what"], fmt_time(r["pymb_us"]), fmt_time(r["python_us"]),
-              fmt_x(r["speedup"]), f"≤ {r['target_us']:g} µs"] for r in micro["rows"]],
-            [False, True, True, True, True],
-            [f"pymb: {r['pymb_call']}; pure Python: {r['python_call']}"
-             for r in micro["rows"]]))
-    wire = result.get("wire")
-    if wire:
-        rows, footer = [], []
-        for r in wire["rows"]:
-            if "wall_us" not in r:
-                footer.append(f"{r['baud']} baud, {r['label']}: {r['status']}: {r['reason']}")
-                continue
-            rows.append([str(r["baud"]), r["workload"], r["label"], fmt_time(r["wall_us"]),
-                         fmt_time(r["theory_us"]), fmt_x(r.get("theory_x")),
-                         fmt_x(r.get("wall_x"))])
-        out.append(Table(
-            "Wire-bound: the simulator emulating the line speed",
-            "median time per sweep (per read) against the least wire time of the frames "
-            "(pymb.wire): 10 bits a byte, request and reply, and between them 3.5 characters "
-            "or the device's gap, whichever is longer (the CoolPro's 8 ms gap is its silence "
-            "after the request, not added to it); no measurement can beat it",
-            ["baud", "workload", "contender", "time", "theoretical", f"{X} theory", f"{X} C"],
-            rows,
-            [True, False, False, True, True, True, True], footer))
-    scaling = result.get("scaling")
-    if scaling:
-        out.append(Table(
-            f"Scaling: buses swept in parallel threads of one pymb process, emulated "
-            f"{scaling['baud']}",
-            f"{scaling['seconds']:g} s per run, median of {scaling['repeats']}; one "
-            f"RtuClient + SensorHub per bus; one bus's wire limit is "
-            f"{scaling['theory_sweeps_per_s']:.2f} sweeps/s",
-            ["buses", "sweeps/s", "speed-up", "CPU (% of a core)", "CPU per sweep"],
-            [[str(r["buses"]), f"{r['sweeps_per_s']:.2f}", fmt_x(r["speedup"]),
-              f"{r['cpu_pct']:.1f} %", fmt_time(r["cpu_per_sweep_us"])]
-             for r in scaling["rows"]],
-            [True, True, True, True, True], []))
-    logger = result.get("logger")
-    if logger:
-        out.extend(_logger_tables(logger))
-    fleet = result.get("fleet")
-    if fleet and fleet.get("status") == "ok":
-        def ms(v: float | None) -> str:
-            return "-" if v is None else fmt_time(v * 1000)
-        out.append(Table(
-            "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
-            "way)",
-            f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
-            f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
-            f"time to the subscriber at "
-            f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
-            f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
-            f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
-            "persistent-session subscriber sees them",
-            ["publisher", "throughput", "latency median", "latency p95",
-             f"lost ({fleet['outage_s']:g} s outage)", "duplicated"],
-            [[r["label"],
-              "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
-              ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
-              f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
-             for r in fleet["rows"]],
-            [False, True, True, True, True, True], []))
-    elif fleet:
-        out.append(Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False],
-                         []))
-    if m.get("quick"):
-        for t in out:
-            t.title += " [indicative: --quick]"
-        if micro:
-            for t in out:
-                if t.title.startswith("Micro") and t.headers[-1] == "target":
-                    t.headers = list(t.headers[:-1])
-                    t.rows = [r[:-1] for r in t.rows]
-                    t.right = list(t.right[:-1])
-    tg = [] if m.get("quick") else (result.get("targets") or [])
-    if tg:
-        out.append(Table(
-            "Targets", "",
-            ["target", "goal", "measured", "met"],
-            [[t["what"], t["target"],
-              "-" if t["measured"] is None else
-              (fmt_x(t["measured"]) if t["unit"] == "x" else
-               f"{t['measured']:,.0f} B" if t["unit"] == "B" else fmt_time(t["measured"])),
-              {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
-            [False, True, True, False], []))
-    return out
+            sweep["telemetry"]),
+    ]
+
+
+def _micro_table(micro: dict[str, Any]) -> Table:
+    return Table(
+        "Micro: in-process, per call",
+        f"timeit, median of {micro['repeat']} repeats",
+        ["operation", "pymb (C)", "pure Python", "speed-up", "target"],
+        [[r["what"], fmt_time(r["pymb_us"]), fmt_time(r["python_us"]),
+          fmt_x(r["speedup"]), f"≤ {r['target_us']:g} µs"] for r in micro["rows"]],
+        [False, True, True, True, True],
+        [f"pymb: {r['pymb_call']}; pure Python: {r['python_call']}"
+         for r in micro["rows"]])
+
+
+def _wire_table(wire: dict[str, Any]) -> Table:
+    rows, footer = [], []
+    for r in wire["rows"]:
+        if "wall_us" not in r:
+            footer.append(f"{r['baud']} baud, {r['label']}: {r['status']}: {r['reason']}")
+            continue
+        rows.append([str(r["baud"]), r["workload"], r["label"], fmt_time(r["wall_us"]),
+                     fmt_time(r["theory_us"]), fmt_x(r.get("theory_x")),
+                     fmt_x(r.get("wall_x"))])
+    return Table(
+        "Wire-bound: the simulator emulating the line speed",
+        "median time per sweep (per read) against the least wire time of the frames "
+        "(pymb.wire): 10 bits a byte, request and reply, and between them 3.5 characters "
+        "or the device's gap, whichever is longer (the CoolPro's 8 ms gap is its silence "
+        "after the request, not added to it); no measurement can beat it",
+        ["baud", "workload", "contender", "time", "theoretical", f"{X} theory", f"{X} C"],
+        rows,
+        [True, False, False, True, True, True, True], footer)
+
+
+def _scaling_table(scaling: dict[str, Any]) -> Table:
+    return Table(
+        f"Scaling: buses swept in parallel threads of one pymb process, emulated "
+        f"{scaling['baud']}",
+        f"{scaling['seconds']:g} s per run, median of {scaling['repeats']}; one "
+        f"RtuClient + SensorHub per bus; one bus's wire limit is "
+        f"{scaling['theory_sweeps_per_s']:.2f} sweeps/s",
+        ["buses", "sweeps/s", "speed-up", "CPU (% of a core)", "CPU per sweep"],
+        [[str(r["buses"]), f"{r['sweeps_per_s']:.2f}", fmt_x(r["speedup"]),
+          f"{r['cpu_pct']:.1f} %", fmt_time(r["cpu_per_sweep_us"])]
+         for r in scaling["rows"]],
+        [True, True, True, True, True], [])
+
+
+def _fleet_table(fleet: dict[str, Any]) -> Table:
+    if fleet.get("status") != "ok":
+        return Table("Fleet", "", ["status"], [[f"skipped: {fleet['reason']}"]], [False], [])
+
+    def ms(v: float | None) -> str:
+        return "-" if v is None else fmt_time(v * 1000)
+
+    return Table(
+        "Fleet: samples through a local mosquitto (pymb log --mqtt against the bridges' "
+        "way)",
+        f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
+        f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
+        f"time to the subscriber at "
+        f"{fleet['rate']:g} samples/s (pymb commits to SQLite every 0.5 s first); outage: "
+        f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
+        f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
+        "persistent-session subscriber sees them",
+        ["publisher", "throughput", "latency median", "latency p95",
+         f"lost ({fleet['outage_s']:g} s outage)", "duplicated"],
+        [[r["label"],
+          "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
+          ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
+          f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
+         for r in fleet["rows"]],
+        [False, True, True, True, True, True], [])
+
+
+def _mark_quick(out: list[Table]) -> None:
+    """--quick figures are indicative, and the micro table judges no target."""
+    for t in out:
+        t.title += " [indicative: --quick]"
+        if t.title.startswith("Micro") and t.headers[-1] == "target":
+            t.headers = list(t.headers[:-1])
+            t.rows = [r[:-1] for r in t.rows]
+            t.right = list(t.right[:-1])
+
+
+def _targets_table(tg: list[dict[str, Any]]) -> Table:
+    return Table(
+        "Targets", "",
+        ["target", "goal", "measured", "met"],
+        [[t["what"], t["target"],
+          "-" if t["measured"] is None else
+          (fmt_x(t["measured"]) if t["unit"] == "x" else
+           f"{t['measured']:,.0f} B" if t["unit"] == "B" else fmt_time(t["measured"])),
+          {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
+        [False, True, True, False], [])
 
 
 def _logger_tables(s: dict[str, Any]) -> list[Table]:
