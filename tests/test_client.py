@@ -5,7 +5,6 @@ error path."""
 from __future__ import annotations
 
 import errno
-import os
 import struct
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import TIMEOUT
+from conftest import PYMB_ENV, TIMEOUT
 from peers import PtyPeer, pty_peer, tcp_peer
 
 import pymb
@@ -479,7 +478,7 @@ def _high_fd_script(body: str) -> str:
 
 
 def _run_script(code: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = PYMB_ENV
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=60, env=env)
 

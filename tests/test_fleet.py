@@ -555,7 +555,7 @@ def test_sparkplug_historical_replay_after_an_outage(mosquitto: MakeBroker, simu
 
 
 def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_returns(
-        mosquitto, sparkplug_pb, tmp_path: Path) -> None:
+        mosquitto: MakeBroker, sparkplug_pb: Any, tmp_path: Path) -> None:
     """A device that stops answering: DDEATH (timestamp and seq, no metrics, QoS 0,
     not retained) after its last DDATA; when it answers again, a new DBIRTH before
     its next DDATA. Nothing is lost and seq stays continuous throughout."""
@@ -715,7 +715,7 @@ def test_device_health_counts_faults_in_a_row() -> None:
     assert h.down == {"hub-250"}
 
 
-def test_sparkplug_primary_host_state(mosquitto, simulator, sparkplug_pb,
+def test_sparkplug_primary_host_state(mosquitto: MakeBroker, simulator: str, sparkplug_pb: Any,
                                       tmp_path: Path) -> None:
     """--mqtt-primary-host: no births before the host's STATE says online (the samples
     wait in the database, then go as history); a stale offline STATE (older than the

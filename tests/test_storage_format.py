@@ -14,6 +14,7 @@ from array import array
 from pathlib import Path
 
 import pytest
+from conftest import PYMB_ENV, ROOT
 
 from pymb.bench.layouts import write_format1
 from pymb.devices import HUB, decode_hub
@@ -28,7 +29,6 @@ from pymb.store import (
     samples_after,
 )
 
-ROOT = Path(__file__).resolve().parent.parent
 T0 = 1_800_000_000.0
 FIELDS = [b.name for b in HUB.blocks]
 
@@ -76,8 +76,9 @@ def test_the_views_decode_exactly_as_the_c_core(tmp_path: Path) -> None:
     cases = []
     for i in range(12):
         channels = rng.choice([100, 50, 7])
-        units: float | tuple[float, ...] = rng.choice(
-            [0.1, 1, tuple(rng.choice([1, 0.1]) for _ in range(channels))])
+        choices: list[float | tuple[float, ...]] = [
+            0.1, 1, tuple(rng.choice([1, 0.1]) for _ in range(channels))]
+        units = rng.choice(choices)
         unsupported = [b.name for b in HUB.blocks if rng.random() < 0.2]
         regs = random_registers(rng)
         r = decode_hub(regs, list(units) if isinstance(units, tuple) else units,
@@ -250,10 +251,11 @@ def test_on_change_stores_moves_past_the_deadband_states_and_heartbeats(tmp_path
     assert [n for _, n in per_sample] == [100, 1, 1, 99]  # 5's heartbeat is at 13
 
     def at(t: float, ch: int) -> tuple[float | None, int]:
-        return con.execute(
+        row: tuple[float | None, int] = con.execute(
             "SELECT temperature_c, temperature_c_state FROM hub_readings WHERE device = "
             "'hub-1' AND channel = ? AND time_utc <= ? ORDER BY time_utc DESC LIMIT 1",
             (ch, T0 + t)).fetchone()
+        return row
 
     assert at(1.5, 3) == (20.0, 0)  # the 20.5 was within the deadband: 20.0 stands
     assert at(2.5, 3) == (21.1, 0)
@@ -313,8 +315,8 @@ def test_the_size_bound_holds_for_the_file_and_its_wal_at_full_speed(tmp_path: P
     assert worst <= 1.1 * limit, worst
 
 
-@pytest.mark.parametrize("flag,value", [("--max-mb", "-5"), ("--max-mb", "0"),
-                                        ("--max-age-days", "-1"), ("--max-mb", "nan")])
+@pytest.mark.parametrize(("flag", "value"), [("--max-mb", "-5"), ("--max-mb", "0"),
+                                              ("--max-age-days", "-1"), ("--max-mb", "nan")])
 def test_limits_that_are_not_positive_are_refused(tmp_path: Path, flag: str, value: str) -> None:
     out = subprocess.run(
         [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "p"), "--device", "hub",
@@ -338,7 +340,6 @@ def test_limits_in_toml_that_are_not_positive_are_refused(tmp_path: Path) -> Non
 def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
     """``pymb log --on-change`` against a simulated hub whose values drift slowly
     (each sensor reports every 2 s): far fewer rows, every channel queryable."""
-    import os
 
     from pymb.sim import Simulator
 
@@ -349,7 +350,7 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
              "--on-change", "--deadband", "temperature_c=0.5", "--heartbeat", "30",
              "--seconds", "3", "--out", str(db), "--timeout", "1"],
             capture_output=True, text=True, timeout=120,
-            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+            env=PYMB_ENV)
     assert r.returncode == 0, r.stderr
     m = re.search(r"logged ([\d,]+) samples", r.stderr)
     assert m, r.stderr
@@ -369,7 +370,7 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
     bad = subprocess.run(
         [sys.executable, "-m", "pymb", "log", "--port", "/dev/null", "--device", "hub",
          "--deadband", "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite")],
-        capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        capture_output=True, text=True, timeout=60, env=PYMB_ENV)
     assert bad.returncode == 2 and "--on-change" in bad.stderr
 
 
@@ -416,7 +417,6 @@ def test_on_change_in_toml(tmp_path: Path) -> None:
 def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
     """Issue 11's case: ``--max-mb`` at full speed, watched from outside while
     ``pymb log`` runs: the database file and its WAL stay within 10 %."""
-    import os
 
     from pymb.bench.procs import Children
 
@@ -427,7 +427,7 @@ def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
         p = subprocess.Popen(
             [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--baud", "115200",
              "--device", "hub", "--max-mb", "2", "--seconds", "6", "--quiet", "--out", str(db)],
-            env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE, text=True)
+            env=PYMB_ENV, stderr=subprocess.PIPE, text=True)
         worst = 0
         deadline = time.monotonic() + 60
         while p.poll() is None and time.monotonic() < deadline:
