@@ -59,6 +59,7 @@ from typing import Any, TextIO
 
 from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolPro, SensorHub
+from pymb.devices.hub import full_sweep_spans
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
 from pymb.errors import (
@@ -298,10 +299,8 @@ class BusConfig:
         if device.type == "coolpro":
             return read_time(COOLPRO.span("telemetry")[2], self.baud, turnaround=COOLPRO_GAP_S,
                              bits=bits)
-        count = device.channels * len(HUB.blocks)
-        full, rest = divmod(count, HUB.max_read)
-        return full * read_time(HUB.max_read, self.baud, bits=bits) + (
-            read_time(rest, self.baud, bits=bits) if rest else 0.0)
+        return sum(read_time(n, self.baud, bits=bits)
+                   for _, n in full_sweep_spans(device.channels))
 
 
 def unresolved(host: str) -> str | None:

@@ -8,7 +8,9 @@ from hypothesis import strategies as st
 
 from pymb import _native
 from pymb.devices import HUB
+from pymb.devices.hub import full_sweep_spans
 from pymb.devices.planner import naive_spans, plan_reads
+from pymb.logger import BusConfig, DeviceConfig
 from pymb.wire import read_time
 
 
@@ -86,3 +88,11 @@ def test_explain_agrees_with_the_plans_total_on_any_line() -> None:
     assert len(per_request) == len(plan.spans)
     assert abs(sum(per_request) - plan.predicted_s * 1e3) < 0.01 * len(per_request)
     assert f"predicted {plan.predicted_s * 1e3:.2f} ms" in lines[-1]
+
+
+def test_the_loggers_wire_time_prices_the_sweep_the_c_core_plans() -> None:
+    # 50 channels: seven reads of 50 (the blocks are 100 apart), not three of 125.
+    assert full_sweep_spans(50) == [(31 + 100 * b, 50) for b in range(7)]
+    hub = DeviceConfig("hub", 1, channels=50)
+    bus = BusConfig("b", "/dev/null", baud=19200, parity="E", devices=[hub])
+    assert bus.wire_time(hub) == pytest.approx(7 * read_time(50, 19200, bits=11))

@@ -27,8 +27,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from pymb import _native
 from pymb.bench import pure
+from pymb.devices.hub import full_sweep_spans
 from pymb.devices.maps import COOLPRO, HUB
 
 __all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
@@ -40,7 +40,7 @@ CP_FUNCTION, CP_ADDRESS, CP_COUNT = COOLPRO.span("telemetry")
 
 #: The sweep's requests: registers 31..730 in reads of at most 125, as the C
 #: core plans a full sweep (pymb_hub_plan_all) for every contender.
-SPANS = _native.hub_plan_all(0, HUB.channels)
+SPANS = full_sweep_spans(HUB.channels)
 
 
 class Canary:

@@ -25,7 +25,7 @@ from pymb.devices.planner import ReadPlan, plan_reads
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.wire import bits_per_char
 
-__all__ = ["HubChannel", "HubReading", "SensorHub", "State", "decode_hub"]
+__all__ = ["HubChannel", "HubReading", "SensorHub", "State", "decode_hub", "full_sweep_spans"]
 
 _N = HUB.count  # 700 registers, 31..730
 _ALL = (1 << len(HUB.blocks)) - 1
@@ -191,6 +191,13 @@ class HubReading:
 
     def __repr__(self) -> str:
         return f"<HubReading {self.channels} channels, unsupported={sorted(self.unsupported)}>"
+
+
+def full_sweep_spans(channels: int = HUB.channels) -> list[tuple[int, int]]:
+    """The requests (address, count) of a sweep of every block of ``channels``
+    channels: the C core's plan (pymb_hub_plan_all), the one the benchmark's
+    contenders and the logger's wire-time figure use."""
+    return _native.hub_plan_all(0, _channels(channels))
 
 
 def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
