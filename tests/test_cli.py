@@ -26,9 +26,10 @@ from pymb.sim import Simulator
 
 def pymb_cmd(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
     """``python -m pymb ARGS`` as a user runs it."""
-    env = PYMB_ENV
-    return subprocess.run([sys.executable, "-m", "pymb", *args], capture_output=True,
-                          text=True, timeout=120, env=env, **kw)  # type: ignore[call-overload]
+    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
+        [sys.executable, "-m", "pymb", *args], capture_output=True, text=True, timeout=120,
+        env=PYMB_ENV, **kw)
+    return done
 
 
 @pytest.fixture

@@ -88,7 +88,7 @@ def wait_plugged(frozen_sim: Simulator) -> None:
 def bound(name: str) -> float:
     # The timeout, then a quiet period of one timeout (stretched by the late
     # reply itself when one arrives), plus scheduling slack.
-    return 4 * T + 0.4 + (MATRIX[name][0].get("delay", 0.0))
+    return 4 * T + 0.4 + float(MATRIX[name][0].get("delay", 0.0))
 
 
 @pytest.mark.parametrize("name", list(MATRIX))
