@@ -961,8 +961,10 @@ def test_hub_samples_in_both_profiles(mosquitto: MakeBroker, sparkplug_pb: Any,
                              profile, "--mqtt-node", NODE, "--mqtt-group", GROUP,
                              "--interval", "0.5", device="hub:250")
             try:
-                wait_for(lambda t=topic: sum(m[0] == t for m in sub.snapshot()) >= 3, 60,
-                         f"3 {profile} hub messages")
+                def arrived(t: str = topic) -> bool:
+                    return sum(m[0] == t for m in sub.snapshot()) >= 3
+
+                wait_for(arrived, 60, f"3 {profile} hub messages")
                 err = stop_log(proc)
             finally:
                 if proc.poll() is None:
