@@ -1,12 +1,19 @@
 """pymb's exceptions: one small hierarchy rooted at :class:`ModbusError`.
 
 ``ModbusError`` is never raised itself. What the *device* reported is a
-:class:`DeviceException` (a subclass for each standard exception code,
-``DeviceException`` itself for any other code 1..255); what the
-*master* saw is a :class:`ModbusTimeout`, a :class:`ProtocolError` or a
-:class:`ModbusConnectionError`; a bad argument, caught before any I/O, is an
-:class:`InvalidArgument`. Every message says what was asked (slave, function,
+:class:`DeviceException`: a subclass for each exception code the Modbus
+specification defines (01..08, 0A, 0B), ``DeviceException`` itself, with
+``.code``, for any other code (09, and 0C..FF: vendors' own codes); an
+exception response with code 00 is no valid reply, a :class:`ProtocolError`.
+What the *master* saw is a :class:`ModbusTimeout`, a :class:`ProtocolError`
+or a :class:`ModbusConnectionError`; a bad argument, caught before any I/O,
+is an :class:`InvalidArgument`. Every message says what was asked (slave, function,
 address, count, port) and what came back.
+
+The codes come from the compiler: libmodbus's ``MODBUS_EXCEPTION_*`` enum,
+read from the compiled extension (this module sits below ``pymb._native``,
+which imports it, so it reads ``pymb._pymb_cffi.lib`` itself), never typed
+here.
 """
 
 from __future__ import annotations
@@ -14,6 +21,8 @@ from __future__ import annotations
 import errno as _errno
 import os
 from typing import ClassVar
+
+from pymb._pymb_cffi import lib as _lib
 
 __all__ = [
     "Acknowledge",
@@ -112,8 +121,8 @@ class DeviceException(ModbusError):
     """The device answered with a Modbus exception response.
 
     ``code`` is the exception code (1..255). Subclasses name the standard codes
-    (Modbus Application Protocol V1.1b3, section 7); an unknown code raises
-    this class itself.
+    (Modbus Application Protocol V1.1b3, section 7); any other code (09, not
+    defined there, and 0C..FF) raises this class itself, with ``code`` set.
     """
 
     default_code: ClassVar[int] = 0
@@ -128,7 +137,7 @@ class DeviceException(ModbusError):
 class IllegalFunction(DeviceException):
     """Exception 01: the device does not support the function code."""
 
-    default_code = 0x01
+    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION
     description = "illegal function"
 
 
@@ -136,14 +145,14 @@ class IllegalDataAddress(DeviceException):
     """Exception 02: the address, or address plus count, is not valid for the
     device (the sensor hub also answers 02 for a block its firmware lacks)."""
 
-    default_code = 0x02
+    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
     description = "illegal data address"
 
 
 class IllegalDataValue(DeviceException):
     """Exception 03: a value in the request is out of range."""
 
-    default_code = 0x03
+    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
     description = "illegal data value"
 
 
@@ -151,14 +160,14 @@ class DeviceFailure(DeviceException):
     """Exception 04: the device failed while processing the request
     (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
 
-    default_code = 0x04
+    default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
     description = "server device failure"
 
 
 class Acknowledge(DeviceException):
     """Exception 05: accepted, but it will take long; poll again later."""
 
-    default_code = 0x05
+    default_code = _lib.MODBUS_EXCEPTION_ACKNOWLEDGE
     description = "acknowledge"
 
 
@@ -166,35 +175,35 @@ class DeviceBusy(DeviceException):
     """The device is busy (standard code 06; the sensor hub's code 04).
     Worth a retry after a short wait."""
 
-    default_code = 0x06
+    default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
     description = "server device busy"
 
 
 class NegativeAcknowledge(DeviceException):
     """Exception 07: the device cannot perform the program function."""
 
-    default_code = 0x07
+    default_code = _lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE
     description = "negative acknowledge"
 
 
 class MemoryParityError(DeviceException):
     """Exception 08: the device found a parity error in its memory."""
 
-    default_code = 0x08
+    default_code = _lib.MODBUS_EXCEPTION_MEMORY_PARITY
     description = "memory parity error"
 
 
 class GatewayPathUnavailable(DeviceException):
     """Exception 0A: the gateway has no path to the target."""
 
-    default_code = 0x0A
+    default_code = _lib.MODBUS_EXCEPTION_GATEWAY_PATH
     description = "gateway path unavailable"
 
 
 class GatewayTargetFailed(DeviceException):
     """Exception 0B: the gateway's target did not respond."""
 
-    default_code = 0x0B
+    default_code = _lib.MODBUS_EXCEPTION_GATEWAY_TARGET
     description = "gateway target device failed to respond"
 
 
