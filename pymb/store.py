@@ -69,6 +69,7 @@ __all__ = [
 
 _COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 _HUB_FIELDS = [b.name for b in HUB.blocks]
+_NOT_READ = int(State.NOT_READ)
 
 
 class OutputError(Exception):
@@ -100,6 +101,18 @@ class Sample:
     time_utc: float
     monotonic: float
     data: CoolProTelemetry | HubReading
+
+
+@dataclass(frozen=True)
+class StoredSample(Sample):
+    """A sample read back from a database (what :func:`samples_after`
+    yields): the :class:`Sample` the logger wrote, decoded again from the
+    stored registers, plus ``id``, its id in the database (unique and
+    increasing). A hub channel an ``--on-change`` sample did not store has
+    the state ``NOT_READ`` and no value. :func:`sample_dict` and
+    :func:`sample_rows` take it as they take a live sample."""
+
+    id: int
 
 
 @dataclass(frozen=True)
@@ -845,48 +858,30 @@ def _statements(script: str) -> list[str]:
 # -- reading back -----------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class StoredSample:
-    """A sample as stored, decoded: what :func:`samples_after` yields.
-
-    ``values``: hub: a list of ``channels`` values per quantity (None where
-    there is none); CoolPro: one value per quantity (``uptime_s`` and
-    ``status`` as integers). ``states``: hub: a list of state names per
-    quantity (``value``, ``offline``, ``no_sensor``, ``unsupported``, and
-    ``not_read`` for channels an on-change sample did not store); CoolPro:
-    ``{"status_flags": [names]}``.
-    """
-
-    id: int
-    bus: str
-    device: str
-    type: str
-    address: int
-    time_utc: float
-    monotonic: float
-    values: dict[str, Any]
-    states: dict[str, list[str]]
-
-
 class _Decoder:
     """Decodes rows of ``samples`` (format 2), with the device rows cached."""
 
     def __init__(self, db: sqlite3.Connection) -> None:
         self.db = db
-        self.devices: dict[int, tuple[str, str, str, int, int, Any]] = {}
+        self.devices: dict[int, tuple[DeviceInfo, list[float]]] = {}
 
-    def device(self, did: int) -> tuple[str, str, str, int, int, Any]:
+    def device(self, did: int) -> tuple[DeviceInfo, list[float]]:
+        """The device row as the logger's DeviceInfo, and (hub) the humidity
+        unit of each channel."""
         got = self.devices.get(did)
         if got is None:
-            bus, name, kind, address, channels = self.db.execute(
-                "SELECT bus, name, type, address, channels FROM devices WHERE id = ?",
+            bus, port, kind, address, name, channels = self.db.execute(
+                "SELECT bus, port, type, address, name, channels FROM devices WHERE id = ?",
                 (did,)).fetchone()
-            units: Any = 0.1
+            units: list[float] = []
             if kind == "hub":
-                units = [0.1 if t else 1 for (t,) in self.db.execute(
+                units = [0.1 if t else 1.0 for (t,) in self.db.execute(
                     "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel",
                     (did,))]
-            got = self.devices[did] = (bus, name, kind, address, channels, units)
+            unit: float | tuple[float, ...] = (
+                units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
+            info = DeviceInfo(bus, port, kind, address, name, channels, unit)
+            got = self.devices[did] = (info, units)
         return got
 
     def hub(self, did: int, channels: int, units: Any, t: float, sid: int,
@@ -961,19 +956,16 @@ def _iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
          f"FROM samples s WHERE {where} ORDER BY s.id" + ("" if limit is None else " LIMIT ?"))
     for sid, did, t, mono, blob, unsupported in con.execute(
             q, (*args, limit) if limit is not None else tuple(args)).fetchall():
-        bus, name, kind, address, channels, units = dec.device(did)
-        if kind == "hub":
-            r = dec.hub(did, channels, units, t, sid, blob, unsupported)
-            values: dict[str, Any] = r.as_dict()
-            states = {n: [STATE_NAMES[s] for s in r.states(n).tolist()] for n in _HUB_FIELDS}
+        info, units = dec.device(did)
+        data: HubReading | CoolProTelemetry
+        if info.type == "hub":
+            data = dec.hub(did, info.channels, units, t, sid, blob, unsupported)
         else:
             regs = _host_words(blob)
             vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
-            values = dict(zip(_COOLPRO_FIELDS, (vin, iin, vout, iout, temp, uptime, status),
-                              strict=True))
-            flags = CoolProStatus(status)
-            states = {"status_flags": [f.name or "" for f in CoolProStatus if f in flags]}
-        yield StoredSample(sid, bus, name, kind, address, t, mono, values, states)
+            data = CoolProTelemetry(vin, iin, vout, iout, temp, uptime, CoolProStatus(status),
+                                    regs)
+        yield StoredSample(info, t, mono, data, sid)
 
 
 # -- text formats ---------------------------------------------------------------------
@@ -1005,28 +997,39 @@ def csv_value(v: float | None) -> Any:
 
 
 def sample_rows(sample: Sample) -> Iterator[list[Any]]:
-    """A sample as long-format rows: one per quantity (and channel)."""
+    """A sample as long-format rows: one per quantity (a hub's channel by
+    channel); the rows of the CSV sink and of ``pymb export``. A hub value that was not read
+    (``not_read``: a channel an ``--on-change`` sample did not store) has no
+    row; a "negative zero" is written 0.0."""
     d = sample.device
     head = csv_head(sample.time_utc, d.bus, d.name, d.type, d.address)
     data = sample.data
     if isinstance(data, HubReading):
         c = data.channels
-        for b, name in enumerate(_HUB_FIELDS):
-            vals = data.values[b * c:(b + 1) * c].tolist()
-            sts = data.raw_states[b * c:(b + 1) * c].tolist()
-            for ch in range(c):
-                yield [*head, ch + 1, name, csv_value(vals[ch]), STATE_NAMES[sts[ch]]]
+        vals = data.values.tolist()
+        sts = data.raw_states.tolist()
+        for ch in range(c):
+            for b, name in enumerate(_HUB_FIELDS):
+                i = b * c + ch
+                if sts[i] != _NOT_READ:
+                    yield [*head, ch + 1, name, csv_value(vals[i] + 0.0), STATE_NAMES[sts[i]]]
     else:
         for name, v in telemetry_values(data).items():
             yield [*head, "", name, csv_value(v), "value"]
 
 
 def sample_dict(sample: Sample) -> dict[str, Any]:
-    """A sample as one JSON-ready object (None for no value)."""
+    """A sample as one JSON-ready object (None for no value): the line of
+    ``--format jsonl`` and, for a sample read back from the database
+    (:class:`StoredSample`), with its id as ``sample``, the payload of the
+    MQTT plain profile. ``values`` and the rest come from
+    :func:`pymb.devices.readings.reading_dict`."""
     d = sample.device
     out: dict[str, Any] = {"time_utc": sample.time_utc, "time": _iso(sample.time_utc),
                            "monotonic": sample.monotonic, "bus": d.bus, "device": d.name,
                            "type": d.type, "address": d.address}
+    if isinstance(sample, StoredSample):
+        out["sample"] = sample.id
     out.update(reading_dict(sample.data))
     return out
 
@@ -1193,22 +1196,9 @@ def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
         if not chunk:
             return rows
         for s in chunk:
-            head = csv_head(s.time_utc, s.bus, s.device, s.type, s.address)
-            if s.type == "hub":
-                vals = [s.values[name] for name in _HUB_FIELDS]
-                sts = [s.states[name] for name in _HUB_FIELDS]
-                for ch in range(len(vals[0])):
-                    if sts[0][ch] == "not_read":
-                        continue  # --on-change: not stored in this sample
-                    for b, name in enumerate(_HUB_FIELDS):
-                        v = vals[b][ch]  # + 0.0: a "negative zero" reads 0.0, as in format 1
-                        w.writerow([*head, ch + 1, name, "" if v is None else v + 0.0,
-                                    sts[b][ch]])
-                        rows += 1
-            else:
-                for name in _COOLPRO_FIELDS:
-                    w.writerow([*head, "", name, csv_value(s.values[name]), "value"])
-                    rows += 1
+            for row in sample_rows(s):
+                w.writerow(row)
+                rows += 1
         last = chunk[-1].id
 
 

@@ -649,17 +649,19 @@ def test_sparkplug_profile_device_down_and_back(sparkplug_pb: Any) -> None:
     """The profile alone: DDEATH only for a device born in the session; the backlog
     of a device that is down goes as historical DDATA without a DBIRTH (it stays
     down); its next live sample brings a DBIRTH first."""
+    from pymb.devices import CoolProStatus, CoolProTelemetry
     from pymb.fleet.config import MqttConfig
     from pymb.fleet.profiles import SparkplugProfile
-    from pymb.fleet.source import COOLPRO_FIELDS, Record
+    from pymb.store import DeviceInfo, StoredSample
     pb = sparkplug_pb
     prof = SparkplugProfile(MqttConfig("mqtt://127.0.0.1", profile="sparkplug",
                                        node=NODE, group=GROUP))
+    dev = DeviceInfo("bus1", "p", "coolpro", 40, "coolpro-40")
 
-    def rec(i: int) -> Record:
-        return Record(i, "bus1", "coolpro-40", "coolpro", 40, 1700000000.0 + i,
-                      {f: (i if f in ("uptime_s", "status") else 1.5) for f in COOLPRO_FIELDS},
-                      None)
+    def rec(i: int) -> StoredSample:
+        regs = __import__("array").array("H", [1500, 1500, 1500, 1500, 1500, i, 0, i])
+        data = CoolProTelemetry(1.5, 1.5, 1.5, 1.5, 1.5, i, CoolProStatus(i), regs)
+        return StoredSample(dev, 1700000000.0 + i, float(i), data, i)
 
     def kinds(msgs: Any) -> list[str]:
         return [m.topic.split("/", 2)[2] for m in msgs]

@@ -17,7 +17,7 @@ import pytest
 from conftest import PYMB_ENV, ROOT
 
 from pymb.bench.layouts import write_format1
-from pymb.devices import HUB, decode_hub
+from pymb.devices import HUB, HubReading, State, decode_hub
 from pymb.errors import InvalidArgument
 from pymb.store import (
     DeviceInfo,
@@ -26,6 +26,7 @@ from pymb.store import (
     Sample,
     SqliteSink,
     export_csv,
+    sample_dict,
     samples_after,
 )
 
@@ -100,10 +101,9 @@ def test_the_views_decode_exactly_as_the_c_core(tmp_path: Path) -> None:
     got = samples_after(db, 0, 100)
     assert [s.id for s in got] == list(range(1, 13))
     for s, r in zip(got, cases, strict=True):
-        assert s.values == r.as_dict()
-        assert s.states["humidity_pct"] == [
-            ["value", "offline", "no_sensor", "unsupported", "not_read"][x]
-            for x in r.states("humidity_pct").tolist()]
+        assert isinstance(s.data, HubReading)
+        assert s.data.as_dict() == r.as_dict()
+        assert s.data.raw_states == r.raw_states
     con.close()
 
 
@@ -124,8 +124,12 @@ def test_coolpro_view_and_reader(tmp_path: Path) -> None:
     assert row == ("psu", 24.5, 3.25, 24.0, 3.2, 41.234, 70000, 0x8041)
     con.close()
     (s,) = samples_after(db, 0)
-    assert s.values["uptime_s"] == 70000 and s.values["input_voltage_v"] == 24.5
-    assert s.states["status_flags"] == ["SYSTEM_STARTUP", "TEMPERATURE_SENSOR_FAULT"]
+    assert isinstance(s.data, CoolProTelemetry)
+    assert s.data.uptime_s == 70000 and s.data.input_voltage_v == 24.5
+    assert s.data.status == CoolProStatus(0x8041) and s.data.registers == regs
+    d = sample_dict(s)
+    assert d["sample"] == 1 and d["device"] == "psu"
+    assert d["status_flags"] == ["SYSTEM_STARTUP", "TEMPERATURE_SENSOR_FAULT"]
 
 
 def _readme_queries() -> list[str]:
@@ -264,8 +268,10 @@ def test_on_change_stores_moves_past_the_deadband_states_and_heartbeats(tmp_path
     assert at(12.0, 4) == (20.0, 0)
     con.close()
     s = samples_after(db, 1, 1)[0]  # the second stored sample: channel 3 only
-    assert s.values["temperature_c"][2] == 21.1
-    assert s.states["temperature_c"][0] == "not_read" and s.values["temperature_c"][0] is None
+    assert isinstance(s.data, HubReading)
+    assert s.data.as_dict()["temperature_c"][2] == 21.1
+    assert s.data.state("temperature_c", 1) is State.NOT_READ
+    assert s.data.as_dict()["temperature_c"][0] is None
 
 
 def test_outbox_cursor_trimming_records_what_was_never_sent(tmp_path: Path) -> None:

@@ -33,7 +33,8 @@ from typing import Any
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import Down
 from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_profile
-from pymb.fleet.source import Record, Source
+from pymb.fleet.source import Source
+from pymb.store import StoredSample
 
 __all__ = ["Forwarder", "ForwarderStatus"]
 
@@ -457,7 +458,7 @@ class Forwarder(threading.Thread):
         def node() -> dict[str, int]:
             return {BACKLOG: self.status().backlog}
 
-        def downs(rec: Record | None, upto: int) -> None:
+        def downs(rec: StoredSample | None, upto: int) -> None:
             """Publish what is due: the downs of ``rec``'s device that came after
             its previous sample, or (no rec) those committed up to ``upto``."""
             with self._lock:
@@ -468,7 +469,7 @@ class Forwarder(threading.Thread):
                 if rec is None:
                     due = at <= upto
                 else:
-                    due = d.device == rec.device and (d.last_sample is None
+                    due = d.device == rec.device.name and (d.last_sample is None
                                                       or rec.time_utc > d.last_sample)
                 if due:
                     send(prof.device_down(d.device), [])
@@ -540,7 +541,7 @@ class Forwarder(threading.Thread):
             if room > 0 and tokens >= 1 and catch_after < live_start:
                 catch_after = self._skip_done(catch_after)
                 stop_at = min(live_start + 1, self._next_done(catch_after) or live_start + 1)
-                recs: list[Record] = self.source.samples_after(
+                recs: list[StoredSample] = self.source.samples_after(
                     catch_after, min(room, int(tokens), FETCH), before=stop_at)
                 if not recs and catch_after < stop_at - 1:  # a gap of deleted ids
                     self._mark(catch_after + 1, stop_at - 1)

@@ -29,9 +29,12 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from pymb.devices.hub import HubReading
+from pymb.devices.readings import INTEGRAL_QUANTITIES, reading_dict
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
-from pymb.fleet.source import COOLPRO_FIELDS, HUB_FIELDS, Record, Source, record_dict
+from pymb.fleet.source import Source
+from pymb.store import StoredSample, sample_dict
 
 __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
            "make_profile"]
@@ -79,7 +82,7 @@ class Profile:
         node's metrics (``NODE_METRICS``) now."""
         raise NotImplementedError
 
-    def data(self, record: Record, historical: bool) -> list[Message]:
+    def data(self, record: StoredSample, historical: bool) -> list[Message]:
         """The message(s) of one sample."""
         raise NotImplementedError
 
@@ -118,10 +121,10 @@ class PlainProfile(Profile):
         """``online``, retained."""
         return [Message(f"{self.base}/status", b"online", 1, True)]
 
-    def data(self, record: Record, historical: bool) -> list[Message]:
+    def data(self, record: StoredSample, historical: bool) -> list[Message]:
         """The sample as one JSON object."""
-        body = json.dumps(record_dict(record), allow_nan=False, separators=(",", ":"))
-        return [Message(f"{self.base}/{record.device}", body.encode(), 1)]
+        body = json.dumps(sample_dict(record), allow_nan=False, separators=(",", ":"))
+        return [Message(f"{self.base}/{record.device.name}", body.encode(), 1)]
 
     def goodbye(self) -> list[Message]:
         """``offline``, retained (the will is not sent on a clean disconnect)."""
@@ -233,21 +236,23 @@ class SparkplugProfile(Profile):
     def _order(self, device: str) -> int:
         return self.device_order.setdefault(device, len(self.device_order) + 1)
 
-    def _metrics(self, r: Record) -> list[tuple[str, DataType, Any, str]]:
-        """(name, datatype, value, state) of every metric of a sample."""
+    def _metrics(self, r: StoredSample) -> list[tuple[str, DataType, Any, str]]:
+        """(name, datatype, value, state) of every metric of a sample (its values
+        as :func:`pymb.devices.readings.reading_dict` gives them)."""
         out: list[tuple[str, DataType, Any, str]] = [
             ("sample", DataType.UINT64, r.id, "value")]
-        if r.states is not None:
-            channels = len(r.values[HUB_FIELDS[0]])
-            for ch in range(channels):
-                for q in HUB_FIELDS:
-                    out.append((f"channel {ch + 1:03d}/{q}", DataType.DOUBLE,
-                                r.values[q][ch], r.states[q][ch]))
+        d = reading_dict(r.data)
+        values = d["values"]
+        if isinstance(r.data, HubReading):
+            states = d["states"]
+            for ch in range(r.data.channels):
+                for q, vs in values.items():
+                    out.append((f"channel {ch + 1:03d}/{q}", DataType.DOUBLE, vs[ch],
+                                states[q][ch]))
         else:
-            for q in COOLPRO_FIELDS:
-                v = r.values.get(q)
-                dt = DataType.UINT64 if q == "uptime_s" else (
-                    DataType.UINT32 if q == "status" else DataType.DOUBLE)
+            for q, v in values.items():
+                dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (
+                    DataType.UINT32 if q == "status" else DataType.UINT64)
                 out.append((q, dt, v, "value"))
         return out
 
@@ -257,38 +262,38 @@ class SparkplugProfile(Profile):
             return ()
         return (("Quality", DataType.INT32, QUALITY_BAD), ("state", DataType.STRING, state))
 
-    def _dbirth(self, r: Record) -> Message:
-        base = self._order(r.device) * 100000
+    def _dbirth(self, r: StoredSample) -> Message:
+        device = r.device.name
+        base = self._order(device) * 100000
         t = _ms(r.time_utc)
         metrics, aliases = [], {}
         for i, (name, dt, value, state) in enumerate(self._metrics(r)):
             aliases[name] = base + i
             metrics.append(Metric(name, base + i, dt, value, t, False, self._props(state)))
-        channels = len(r.values[HUB_FIELDS[0]]) if r.states is not None else 0
-        self.born[r.device] = _Birth(aliases, channels)
+        self.born[device] = _Birth(aliases, _channels(r))
         payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
-        return Message(self.node_topic.format("DBIRTH") + f"/{r.device}", payload, 0)
+        return Message(self.node_topic.format("DBIRTH") + f"/{device}", payload, 0)
 
-    def data(self, record: Record, historical: bool) -> list[Message]:
+    def data(self, record: StoredSample, historical: bool) -> list[Message]:
         """DDATA by alias; a DBIRTH first for a device not yet born and for a
         device that was down and answers again (a live sample). The backlog of a
         device that is down goes as historical DDATA and leaves it down."""
         out = []
-        birth = self.born.get(record.device)
-        channels = len(record.values[HUB_FIELDS[0]]) if record.states is not None else 0
-        down = record.device in self.down
-        if birth is None or birth.channels != channels or (down and not historical):
+        device = record.device.name
+        birth = self.born.get(device)
+        down = device in self.down
+        if birth is None or birth.channels != _channels(record) or (down and not historical):
             out.append(self._dbirth(record))
-            birth = self.born[record.device]
+            birth = self.born[device]
             if down and historical:
-                out.append(self._ddeath(record.device))
+                out.append(self._ddeath(device))
             else:
-                self.down.discard(record.device)
+                self.down.discard(device)
         t = _ms(record.time_utc)
         metrics = [Metric(None, birth.aliases[name], dt, value, t, historical, self._props(st))
                    for name, dt, value, st in self._metrics(record)]
         payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
-        out.append(Message(self.node_topic.format("DDATA") + f"/{record.device}", payload, 0))
+        out.append(Message(self.node_topic.format("DDATA") + f"/{device}", payload, 0))
         return out
 
     def goodbye(self) -> list[Message]:
@@ -303,6 +308,11 @@ class SparkplugProfile(Profile):
             return False
         return any((name == REBIRTH or (name is None and alias == 1)) and value
                    for name, alias, value in metrics)
+
+
+def _channels(r: StoredSample) -> int:
+    """A hub sample's channels (0 for a CoolPro): a new count needs a new DBIRTH."""
+    return r.data.channels if isinstance(r.data, HubReading) else 0
 
 
 def host_state(payload: bytes) -> tuple[bool, float] | None:

@@ -1,9 +1,9 @@
 """What the forwarder reads from and writes to in the logger's SQLite file.
 
-Everything that knows the storage format is here, behind
-:func:`samples_after` (the samples committed after an id, decoded) and
-:func:`latest`; the durable outbox cursor and the Sparkplug ``bdSeq`` are
-two small tables of the same file:
+The samples come from :func:`pymb.store.samples_after` (the one reader of
+the storage format) as :class:`pymb.store.StoredSample`, behind
+:meth:`Source.samples_after` and :meth:`Source.latest`. The durable outbox
+cursor and the Sparkplug ``bdSeq`` are two small tables of the same file:
 
 ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
     per destination (``mqtt://host:port/profile/node``), the highest sample
@@ -17,56 +17,12 @@ two small tables of the same file:
 
 from __future__ import annotations
 
-import functools
 import sqlite3
-from dataclasses import dataclass
-from typing import Any
 
-from pymb.devices import HUB, State
-from pymb.devices.maps import COOLPRO
-from pymb.devices.readings import status_flags
-from pymb.store import iso_utc
+from pymb.store import StoredSample
 from pymb.store import samples_after as stored_after
 
-__all__ = ["Record", "Source", "record_dict"]
-
-COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
-HUB_FIELDS = [b.name for b in HUB.blocks]
-_STATE_NAMES = {s.value: s.name.lower() for s in State}
-
-
-@dataclass
-class Record:
-    """One committed sample, decoded."""
-
-    id: int
-    bus: str
-    device: str
-    type: str
-    address: int
-    time_utc: float
-    #: coolpro: quantity -> value; hub: quantity -> one value per channel (None: no value)
-    values: dict[str, Any]
-    #: hub: quantity -> one state name per channel; coolpro: None
-    states: dict[str, list[str]] | None
-
-
-def record_dict(r: Record) -> dict[str, Any]:
-    """A record as the JSON object of the plain profile (the same keys as
-    :func:`pymb.store.sample_dict`, plus ``sample``, the id)."""
-    out: dict[str, Any] = {"device": r.device, "type": r.type, "address": r.address,
-                           "bus": r.bus, "sample": r.id, "time_utc": r.time_utc,
-                           "time": iso_utc(r.time_utc), "values": r.values}
-    if r.states is not None:
-        out["states"] = r.states
-    else:
-        out["status_flags"] = list(_flags(int(r.values.get("status") or 0)))
-    return out
-
-
-@functools.lru_cache(maxsize=256)
-def _flags(raw: int) -> tuple[str, ...]:
-    return tuple(status_flags(raw))
+__all__ = ["Source"]
 
 
 class Source:
@@ -130,7 +86,7 @@ class Source:
         return [(str(n), str(t), int(a)) for n, t, a in self.db.execute(
             "SELECT name, type, address FROM devices ORDER BY id")]
 
-    def latest(self, device: str) -> Record | None:
+    def latest(self, device: str) -> StoredSample | None:
         """The newest sample of a device."""
         row = self.db.execute(
             "SELECT MAX(s.id) FROM samples s JOIN devices d ON d.id = s.device_id "
@@ -141,15 +97,12 @@ class Source:
         return got[0] if got else None
 
     def samples_after(self, sample_id: int, limit: int,
-                      before: int | None = None) -> list[Record]:
+                      before: int | None = None) -> list[StoredSample]:
         """The committed samples with ids above ``sample_id`` (and below
         ``before``), in id order, at most ``limit``: pymb.store's reader of
-        its storage format (hub channels an --on-change sample did not store
-        have the state ``not_read`` and no value)."""
+        its storage format, in one snapshot."""
         self.db.execute("BEGIN")  # one snapshot for the samples and their values
         try:
-            got = stored_after(self.db, sample_id, limit, before)
+            return stored_after(self.db, sample_id, limit, before)
         finally:
             self.db.execute("COMMIT")
-        return [Record(s.id, s.bus, s.device, s.type, s.address, s.time_utc, s.values,
-                       s.states if s.type == "hub" else None) for s in got]
