@@ -472,6 +472,7 @@ class SqliteSink:
         self.trimmed = 0  #: samples deleted by the size and age limits so far
         self.stored = 0  #: samples written (on-change: those that changed)
         try:
+            _remove_stale_creations(self.path)
             if not self.path.exists():
                 _create(self.path)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
@@ -813,11 +814,41 @@ class SqliteSink:
             self.db.close()
 
 
+def _creating(path: Path, pid: int) -> Path:
+    """Where process ``pid`` makes the database ``path`` before linking it in."""
+    return path.with_name(f".{path.name}.{pid}.creating")
+
+
+def _remove_stale_creations(path: Path) -> None:
+    """Delete what a process killed (SIGKILL, power loss) while making
+    ``path`` left beside it: ``.NAME.PID.creating`` files whose PID is no
+    longer running. A file of a running process is its own business."""
+    prefix, suffix = f".{path.name}.", ".creating"
+    try:
+        names = [p.name for p in path.parent.iterdir()
+                 if p.name.startswith(prefix) and p.name.endswith(suffix)]
+    except OSError:
+        return
+    for name in names:
+        pid = name[len(prefix):-len(suffix)]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+            continue  # running
+        except ProcessLookupError:
+            pass
+        except (PermissionError, OverflowError):
+            continue  # another user's process, or no PID at all: not ours to judge
+        with contextlib.suppress(OSError):
+            (path.parent / name).unlink()
+
+
 def _create(path: Path) -> None:
     """A new database appears whole: made beside ``path`` with its schema,
     then linked into place (a process killed meanwhile leaves no half-made
-    file at ``path``)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.creating")
+    file at ``path``; what it leaves beside it, the next open removes)."""
+    tmp = _creating(path, os.getpid())
     try:
         con = sqlite3.connect(tmp, isolation_level=None)
         try:

@@ -99,7 +99,7 @@ def _is_pymb_csv(path: str) -> bool:
 def run(args: argparse.Namespace) -> int:
     """Export; prints how many rows went out."""
     since = None
-    if args.since:
+    if args.since is not None:  # '' is no time either: an error, never "no filter"
         try:
             t = datetime.fromisoformat(args.since.replace("Z", "+00:00"))
         except ValueError:
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             t = t.replace(tzinfo=UTC)
         since = t.timestamp()
     _check_database(args.database)
-    device = resolve_device(args.database, args.device) if args.device else None
+    device = resolve_device(args.database, args.device) if args.device is not None else None
     if args.csv == "-":
         export_csv(args.database, sys.stdout, device=device, since=since, events=args.events)
         return 0
