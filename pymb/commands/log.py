@@ -84,6 +84,9 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
     g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
     g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+    g.add_argument("--mqtt-drain", metavar="SECONDS",
+                   help="on a clean stop, keep sending what is left for at most this long "
+                        "(default 5; the rest goes with the next run)")
     g.add_argument("--mqtt-primary-host", metavar="ID",
                    help="Sparkplug: publish only while the primary host application ID says "
                         "online on spBv1.0/STATE/ID (the samples wait in the database)")
@@ -94,6 +97,12 @@ def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig |
     keys = [k for k in KEYS if k not in ("catchup_rate", "keepalive")]
     given = {k: getattr(args, "mqtt" if k == "url" else f"mqtt_{k}") for k in keys}
     given = {k: v for k, v in given.items() if v is not None}
+    if "drain" in given:  # its range is MqttConfig's to check
+        try:
+            given["drain"] = float(given["drain"])
+        except ValueError:
+            raise InvalidArgument(f"--mqtt-drain needs a number of seconds, got "
+                                  f"{given['drain']!r}") from None
     if base is None and not given:
         return None
     if base is None and "url" not in given:

@@ -15,6 +15,7 @@ in ``[mqtt]``; ``--mqtt URL`` is ``url``)::
     cert = "/etc/pymb/client.pem"            # client certificate ...
     key = "/etc/pymb/client.key"             # ... and its key
     catchup_rate = 1000          # backlog messages per second after an outage
+    drain = 5                    # seconds a clean stop keeps sending what is left
     primary_host = "scada"       # Sparkplug: publish only while spBv1.0/STATE/scada is online
 """
 
@@ -37,7 +38,9 @@ KEYS: dict[str, type | tuple[type, ...]] = {
     "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
     "password_file": str, "ca": str, "cert": str, "key": str,
     "catchup_rate": (int, float), "keepalive": int, "primary_host": str,
+    "drain": (int, float),
 }
+MAX_DRAIN = 3600.0  #: seconds: the longest drain accepted
 
 
 @dataclass
@@ -58,6 +61,9 @@ class MqttConfig:
     keepalive: int = 15  #: seconds; a silent link is noticed after about 1.5 times this
     #: Sparkplug: the primary host application's id; births wait for its STATE online
     primary_host: str | None = None
+    #: seconds a clean stop (SIGTERM, Ctrl-C, --seconds) keeps sending what is left;
+    #: what is still unsent then stays in the database for the next run
+    drain: float = 5.0
 
     def __post_init__(self) -> None:
         u = urlsplit(self.url)
@@ -100,6 +106,9 @@ class MqttConfig:
                 raise InvalidArgument(f"MQTT {what} {path!r} cannot be read")
         if self.catchup_rate <= 0:
             raise InvalidArgument("MQTT catchup_rate must be > 0")
+        if not 0 <= self.drain <= MAX_DRAIN:  # NaN fails too
+            raise InvalidArgument(f"MQTT drain must be 0..{MAX_DRAIN:g} seconds, "
+                                  f"got {self.drain!r}")
         if not 5 <= self.keepalive <= 3600:
             raise InvalidArgument("MQTT keepalive must be 5..3600 seconds")
         if self.password_file and not self.user:

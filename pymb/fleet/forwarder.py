@@ -210,8 +210,9 @@ class Forwarder(threading.Thread):
     """Publishes the samples committed to ``db_path``; see the module docstring.
 
     ``notify()`` after each commit wakes it at once (it also looks every
-    0.2 s); ``stop(drain)`` ends it after at most ``drain`` seconds spent
-    sending what is left, then disconnects cleanly (the profile's goodbye).
+    0.2 s); ``stop()`` ends it after at most ``cfg.drain`` seconds (or the
+    ``drain`` given) spent sending what is left, then disconnects cleanly (the
+    profile's goodbye).
     """
 
     def __init__(self, db_path: str, cfg: MqttConfig) -> None:
@@ -278,9 +279,10 @@ class Forwarder(threading.Thread):
         with self._lock:
             return self._status
 
-    def stop(self, drain: float = 5.0) -> None:
-        """Send what is left for at most ``drain`` seconds, then disconnect and end."""
-        self._drain_until = time.monotonic() + drain
+    def stop(self, drain: float | None = None) -> None:
+        """Send what is left for at most ``drain`` seconds (default: the
+        configuration's), then disconnect and end."""
+        self._drain_until = time.monotonic() + (self.cfg.drain if drain is None else drain)
         self._stopping.set()
         self.wake.set()
 

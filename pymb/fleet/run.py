@@ -14,9 +14,6 @@ from pymb.store import open_sink
 
 __all__ = ["forwarding", "log_and_forward", "summary_lines"]
 
-DRAIN_SECONDS = 5.0  #: after logging stops, how long to keep sending what is left
-
-
 def summary_lines(st: ForwarderStatus) -> list[str]:
     """The forwarder's part of the summary."""
     ack = "never" if st.last_ack is None else time.strftime(
@@ -35,7 +32,7 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
 def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
-    left (for at most DRAIN_SECONDS) and return both summaries."""
+    left (for at most ``mqtt.drain`` seconds) and return both summaries."""
     require_paho()  # before the database is created
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
@@ -52,8 +49,8 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         s = logger.run(seconds)
     finally:
         fw.notify()
-        fw.stop(DRAIN_SECONDS)
-        fw.join(DRAIN_SECONDS + 10)
+        fw.stop()
+        fw.join(mqtt.drain + 10)
     if fw.error is not None:
         raise fw.error
     return s, fw.status()
