@@ -119,6 +119,75 @@ class Subscriber:
         self.client.loop_stop()
 
 
+class Fleet:
+    """One fleet test's parts, all stopped at its end even when it fails: the
+    brokers (the ``mosquitto`` fixture), subscribers, simulators in their own
+    processes and ``pymb log`` children (killed if still running)."""
+
+    def __init__(self, make_broker: Callable[..., Mosquitto], tmp_path: Path) -> None:
+        self.make_broker = make_broker
+        self.tmp = tmp_path
+        self.subscribers: list[Subscriber] = []
+        self.simulators: list[SimulatorProcess] = []
+        self.children: list[subprocess.Popen[str]] = []
+
+    def broker(self, **kw: Any) -> Mosquitto:
+        """A started broker (keyword arguments as Mosquitto's)."""
+        return self.make_broker(**kw)
+
+    def subscribe(self, broker: Mosquitto, topic: str, **kw: Any) -> Subscriber:
+        """A connected, subscribed Subscriber (keyword arguments as its)."""
+        sub = Subscriber(broker, topic, **kw)
+        self.subscribers.append(sub)
+        return sub
+
+    def simulator(self, *devices: str, port: int = 0) -> SimulatorProcess:
+        """``pymb simulate DEVICES --tcp 127.0.0.1:PORT`` in its own process."""
+        sim = SimulatorProcess([*devices, "--tcp", f"127.0.0.1:{port}"], quiet=True).start()
+        self.simulators.append(sim)
+        return sim
+
+    def log(self, endpoint: str, db: Path, *mqtt: str, **kw: Any) -> subprocess.Popen[str]:
+        """``start_log``, the child killed at the end if it still runs."""
+        proc = start_log(endpoint, db, *mqtt, **kw)
+        self.children.append(proc)
+        return proc
+
+    def pymb(self, *argv: str) -> subprocess.Popen[str]:
+        """``python -m pymb ARGV`` started, killed at the end if it still runs."""
+        proc = subprocess.Popen([sys.executable, "-m", "pymb", *argv], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        self.children.append(proc)
+        return proc
+
+    def close(self) -> None:
+        """Kill what still runs, disconnect the subscribers, stop the simulators."""
+        for proc in self.children:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=30)
+        for sub in self.subscribers:
+            sub.close()
+        for sim in self.simulators:
+            sim.stop()
+
+
+@pytest.fixture
+def fleet(mosquitto: Callable[..., Mosquitto], tmp_path: Path) -> Iterator[Fleet]:
+    """A :class:`Fleet` for the test; its brokers stop (by PID) after the rest."""
+    f = Fleet(mosquitto, tmp_path)
+    try:
+        yield f
+    finally:
+        f.close()
+
+
+def run_pymb(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """``python -m pymb ARGV`` to its end, its output captured."""
+    return subprocess.run([sys.executable, "-m", "pymb", *argv], capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
 def plain_ids(messages: list[tuple[str, bytes]]) -> list[int]:
     """The sample ids of the plain profile's data messages."""
     return [json.loads(p)["sample"] for t, p in messages if not t.endswith("/status")]
