@@ -1006,12 +1006,8 @@ CSV_COLUMNS = ["time_utc", "time", "bus", "device", "type", "address", "channel"
 
 
 def _iso(t: float) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1e6):06d}Z"
-
-
-def iso_utc(t: float) -> str:
     """Seconds since the epoch as ISO 8601 UTC with microseconds (``...Z``)."""
-    return _iso(t)
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1e6):06d}Z"
 
 
 def csv_head(t: float, bus: str, device: str | None, kind: str | None,
