@@ -89,7 +89,8 @@ def test_pure_decoders_match_pymb() -> None:
 def test_sweep_is_six_requests_of_at_most_125() -> None:
     assert len(SPANS) == 6
     assert all(n <= HUB.max_read for _, n in SPANS)
-    assert SPANS[0][0] == HUB.first and sum(n for _, n in SPANS) == HUB.count
+    assert SPANS[0][0] == HUB.first
+    assert sum(n for _, n in SPANS) == HUB.count
 
 
 def test_canary_catches_a_wrong_sweep() -> None:
@@ -133,7 +134,8 @@ def test_ratios_are_paired_per_round_against_c() -> None:
     p = _entry("pymb", [(1500, [150, 160, 140]), (2000, [220, 230, 210]),
                         (900, [100, 100, 100])])
     rows = {r["name"]: r for r in _summary([c, p], "hub", 3)["rows"]}
-    assert rows["c"]["wall_x"] == 1.0 and rows["c"]["cpu_x"] == 1.0
+    assert rows["c"]["wall_x"] == 1.0
+    assert rows["c"]["cpu_x"] == 1.0
     assert rows["pymb"]["wall_x"] == pytest.approx(statistics.median([1.5, 1.1, 1.0]))
     assert rows["pymb"]["cpu_x"] == pytest.approx(statistics.median([1.5, 1.0, 1.0]))
     assert rows["pymb"]["wall_us"] == pytest.approx(
@@ -147,7 +149,8 @@ def test_no_c_program_means_no_ratios() -> None:
     section = _summary([c, p], "hub", 3)
     assert section["baseline"] is None
     row = next(r for r in section["rows"] if r["name"] == "pymb")
-    assert "wall_x" not in row and "cpu_x" not in row
+    assert "wall_x" not in row
+    assert "cpu_x" not in row
     table = report._workload_table("t", "n", section)
     assert any("no ratios" in f for f in table.footer)
     assert any("no C compiler" in f for f in table.footer)
@@ -193,9 +196,11 @@ def test_quick_run_structure_and_ratios(capsys: pytest.CaptureFixture[str]) -> N
         assert section["baseline"] == "c"
         rows = {r["name"]: r for r in section["rows"]}
         c, p = rows["c"], rows["pymb"]
-        assert c["wall_x"] == 1.0 and c["cpu_x"] == 1.0
+        assert c["wall_x"] == 1.0
+        assert c["cpu_x"] == 1.0
         for r in (c, p):
-            assert r["wall_us"] > 0 and r["cpu_us"] > 0
+            assert r["wall_us"] > 0
+            assert r["cpu_us"] > 0
             assert r["rounds"] == result["meta"]["plan"]["rounds"]
         # the ratio is the median of per-round ratios to the C program's round
         assert p["wall_x"] == pytest.approx(statistics.median(
@@ -236,7 +241,8 @@ def test_skipped_contenders_say_why(monkeypatch: pytest.MonkeyPatch,
 
     result = _bench(capsys, "--only", "c,minimalmodbus", "--sections", "sweep")
     for c in result["contenders"]:
-        assert c["status"] == "skipped" and c["reason"]
+        assert c["status"] == "skipped"
+        assert c["reason"]
     assert _children() == []
 
 
@@ -263,9 +269,12 @@ def test_reports_from_one_result(tmp_path: Path) -> None:
     text = report.to_text(result)
     md = report.to_markdown(result)
     for out in (text, md):
-        assert "Hub sweep" in out and "CoolPro telemetry" in out and "Targets" in out
+        assert "Hub sweep" in out
+        assert "CoolPro telemetry" in out
+        assert "Targets" in out
         assert "pymb bench --quick" in out
-    assert "| contender | wall |" in md and "|---|---:|" in md
+    assert "| contender | wall |" in md
+    assert "|---|---:|" in md
     assert "`pymb bench --quick`" in md
     json.loads(report.to_json(result))
     pytest.importorskip("matplotlib")
@@ -279,8 +288,10 @@ def test_quick_report_is_indicative_and_declares_no_targets(capsys: pytest.Captu
     result = _synthetic(quick=True)
     result["targets"] = []
     for out in (report.to_text(result), report.to_markdown(result)):
-        assert "indicative" in out and "declares no targets" in out
-        assert "Targets" not in out and "≤ 1 µs" not in out
+        assert "indicative" in out
+        assert "declares no targets" in out
+        assert "Targets" not in out
+        assert "≤ 1 µs" not in out
         assert all("[indicative: --quick]" in t.title for t in report.tables(result))
     # --plot to a path that cannot be written fails at once, before any measuring.
     assert main(["bench", "--quick", "--plot", str(tmp_path / "no" / "such" / "dir.png")]) == 2
@@ -341,10 +352,12 @@ def test_fleet_section_through_a_real_mosquitto(capsys: pytest.CaptureFixture[st
     rows = {r["label"]: r for r in fleet["rows"]}
     assert set(rows) == {"pymb (SQLite outbox, QoS 1)", "paho, QoS 0", "paho, QoS 1"}
     pymb = rows["pymb (SQLite outbox, QoS 1)"]
-    assert pymb["outage_lost"] == 0 and pymb["burst_lost"] == 0
+    assert pymb["outage_lost"] == 0
+    assert pymb["burst_lost"] == 0
     assert pymb["outage_sent"] == fleet["outage_samples"]
     for r in rows.values():
-        assert r["throughput_per_s"] > 0 and r["latency_p50_ms"] > 0
+        assert r["throughput_per_s"] > 0
+        assert r["latency_p50_ms"] > 0
     from pymb.bench import report
     assert "Fleet: samples through a local mosquitto" in report.to_markdown(result)
 
@@ -357,13 +370,17 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
     s = result["logger"]
     for key in ("hub", "coolpro", "hub_on-change"):
         r = s["runs"][key]
-        assert r["samples"] > 0 and r["bare_cpu_us"] > 0 and r["log_cpu_us"] > 0
-        assert len(r["pairs"]) == s["rounds"] and r["cpu_x"] > 0
+        assert r["samples"] > 0
+        assert r["bare_cpu_us"] > 0
+        assert r["log_cpu_us"] > 0
+        assert len(r["pairs"]) == s["rounds"]
+        assert r["cpu_x"] > 0
     assert s["runs"]["hub"]["stored_samples"] == s["runs"]["hub"]["samples"]
     assert 1400 < s["runs"]["hub"]["bytes_per_sample"] < 4000  # 1,400 bytes of registers
     assert s["runs"]["hub_on-change"]["stored_samples"] < s["runs"]["hub_on-change"]["samples"]
     for sp in s["spans"].values():
-        assert sp["samples"] > 0 and sp["channel_rows"] >= 100
+        assert sp["samples"] > 0
+        assert sp["channel_rows"] >= 100
     assert [r["layout"] for r in s["layouts"]] == ["format2", "ints", "format1"]
     for r in s["layouts"]:
         assert all("samples_time" in q["plan"] for q in r["queries"].values())
@@ -371,6 +388,8 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
     from pymb.bench import logbench
 
     whats = [t[0] for t in logbench.targets(s)]
-    assert any("per hub sweep" in w for w in whats) and any("CoolPro" in w for w in whats)
+    assert any("per hub sweep" in w for w in whats)
+    assert any("CoolPro" in w for w in whats)
     text = report.to_text(result)
-    assert "Logger: pymb log against the bare read" in text and "Storage layouts" in text
+    assert "Logger: pymb log against the bare read" in text
+    assert "Storage layouts" in text

@@ -42,11 +42,14 @@ def test_read_coolpro_table_and_json(live_sim: Simulator,
                                      capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["read", "coolpro", "--port", live_sim.port, "--identity"]) == 0
     out = capsys.readouterr().out
-    assert "Input Voltage" in out and " V" in out and "Firmware" in out
+    assert "Input Voltage" in out
+    assert " V" in out
+    assert "Firmware" in out
     assert main(["read", "coolpro", "--port", live_sim.port, "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert 20 < doc["input_voltage_v"] < 30
-    assert isinstance(doc["uptime_s"], int) and isinstance(doc["status"], int)
+    assert isinstance(doc["uptime_s"], int)
+    assert isinstance(doc["status"], int)
 
 
 def test_read_hub_shows_states(live_sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
@@ -55,7 +58,8 @@ def test_read_hub_shows_states(live_sim: Simulator, capsys: pytest.CaptureFixtur
     assert main(["read", "hub", "--port", live_sim.port, "--address", "250"]) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()
-    assert lines[0].split()[0] == "ch" and len(lines) >= 101
+    assert lines[0].split()[0] == "ch"
+    assert len(lines) >= 101
     assert "offline" in lines[3]  # channel 3
     assert main(["read", "hub", "--port", live_sim.port, "--address", "250", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
@@ -67,11 +71,15 @@ def test_read_hub_shows_states(live_sim: Simulator, capsys: pytest.CaptureFixtur
 def test_user_mistakes_are_messages_with_exit_codes(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["read", "coolpro", "--port", "/dev/ttyUSB-missing"]) == 4
     err = capsys.readouterr().err
-    assert "/dev/ttyUSB-missing" in err and "no such port" in err and "Traceback" not in err
+    assert "/dev/ttyUSB-missing" in err
+    assert "no such port" in err
+    assert "Traceback" not in err
     assert main(["read", "coolpro", "--port", "/dev/null", "--address", "300"]) == 2
     assert "address" in capsys.readouterr().err
     r = pymb_cmd("read", "coolpro", "--port", "/dev/ttyUSB-missing")
-    assert r.returncode == 4 and "Traceback" not in r.stderr and "no such port" in r.stderr
+    assert r.returncode == 4
+    assert "Traceback" not in r.stderr
+    assert "no such port" in r.stderr
 
 
 def test_permission_denied_says_how_to_fix(tmp_path: Path) -> None:
@@ -92,7 +100,8 @@ def test_permission_denied_says_how_to_fix(tmp_path: Path) -> None:
         if "setpriv" in r.stderr and r.returncode != 4:
             pytest.skip(f"cannot drop privileges here: {r.stderr.strip()}")
         assert r.returncode == 4, r.stderr
-        assert "dialout" in r.stderr and "permission denied" in r.stderr
+        assert "dialout" in r.stderr
+        assert "permission denied" in r.stderr
 
 
 def test_log_then_export(live_sim: Simulator, tmp_path: Path) -> None:
@@ -105,12 +114,14 @@ def test_log_then_export(live_sim: Simulator, tmp_path: Path) -> None:
     assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     n_cp = con.execute("SELECT COUNT(*) FROM coolpro_readings").fetchone()[0]
     n_hub = con.execute("SELECT COUNT(DISTINCT sample_id) FROM hub_readings").fetchone()[0]
-    assert n_cp > 10 and n_hub > 2
+    assert n_cp > 10
+    assert n_hub > 2
     # Raw registers are kept losslessly beside the decoded values.
     blob, v = con.execute(
         "SELECT s.registers, c.input_voltage_v FROM samples s JOIN coolpro c "
         "ON c.sample_id = s.id LIMIT 1").fetchone()
-    assert len(blob) == 16 and int.from_bytes(blob[:2], "big") / 1000 == v
+    assert len(blob) == 16
+    assert int.from_bytes(blob[:2], "big") / 1000 == v
     rows = con.execute("SELECT COUNT(*) FROM hub WHERE sample_id = "
                        "(SELECT MIN(sample_id) FROM hub)").fetchone()[0]
     assert rows == 100
@@ -131,7 +142,8 @@ def test_log_to_jsonl_on_stdout(live_sim: Simulator) -> None:
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
     samples = [x for x in lines if "values" in x]
-    assert len(samples) > 5 and samples[0]["device"] == "coolpro-40"
+    assert len(samples) > 5
+    assert samples[0]["device"] == "coolpro-40"
     assert r.stderr == ""
 
 
@@ -146,7 +158,8 @@ def test_log_records_faults_and_keeps_going(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
     kinds = dict(con.execute("SELECT kind, COUNT(*) FROM events GROUP BY kind").fetchall())
-    assert kinds.get("timeout", 0) >= 2 and kinds.get("protocol", 0) >= 1
+    assert kinds.get("timeout", 0) >= 2
+    assert kinds.get("protocol", 0) >= 1
     msgs = [m for (m,) in con.execute("SELECT message FROM events WHERE kind = 'protocol'")]
     assert any("CRC" in m for m in msgs)
     assert con.execute("SELECT COUNT(*) FROM coolpro").fetchone()[0] > 5
@@ -262,7 +275,8 @@ def test_config_changes_address_with_reset_and_verifies(
         assert live_sim.device(40).address == 40  # not yet
         assert main(["config", "coolpro", "--port", live_sim.port, "--reset", "--yes"]) == 0
         out = capsys.readouterr().out
-        assert "verified" in out and "address 42" in out
+        assert "verified" in out
+        assert "address 42" in out
         assert main(["read", "coolpro", "--port", live_sim.port, "--address", "42", "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["uptime_s"] < 10
 
@@ -271,7 +285,8 @@ def test_config_refuses_without_confirmation(live_sim: Simulator,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     r = pymb_cmd("config", "coolpro", "--port", live_sim.port, "--set-address", "41",
                  stdin=subprocess.DEVNULL)
-    assert r.returncode == 2 and "--yes" in r.stderr
+    assert r.returncode == 2
+    assert "--yes" in r.stderr
     assert main(["config", "coolpro", "--port", live_sim.port, "--set-address", "300",
                  "--yes"]) == 2
     assert "1..247" in capsys.readouterr().err
@@ -281,7 +296,8 @@ def test_demo_runs(tmp_path: Path) -> None:
     db = tmp_path / "demo.sqlite"
     r = pymb_cmd("demo", "--seconds", "3", "--out", str(db))
     assert r.returncode == 0, r.stderr
-    assert "the wire allows" in r.stdout and str(db) in r.stdout
+    assert "the wire allows" in r.stdout
+    assert str(db) in r.stdout
     con = sqlite3.connect(db)
     assert con.execute("SELECT COUNT(*) FROM coolpro").fetchone()[0] > 50
     assert con.execute("SELECT COUNT(DISTINCT sample_id) FROM hub").fetchone()[0] >= 5
@@ -297,7 +313,9 @@ def test_help_lists_every_command() -> None:
 def test_watch_shows_the_rate(live_sim: Simulator, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["watch", "coolpro", "--port", live_sim.port, "--count", "3"]) == 0
     out = capsys.readouterr().out
-    assert "3 reads" in out and "/s" in out and "Input Voltage" in out
+    assert "3 reads" in out
+    assert "/s" in out
+    assert "Input Voltage" in out
 
 
 def test_read_through_a_tcp_gateway(capsys: pytest.CaptureFixture[str]) -> None:

@@ -46,7 +46,8 @@ def pymb(*args: str, timeout: float = 120, **kw: object) -> subprocess.Completed
 
 
 def no_traceback(r: subprocess.CompletedProcess[str]) -> None:
-    assert "Traceback" not in r.stderr and "Traceback" not in r.stdout, r.stderr
+    assert "Traceback" not in r.stderr, r.stderr
+    assert "Traceback" not in r.stdout, r.stderr
 
 
 def digest(path: Path) -> str:
@@ -121,14 +122,16 @@ def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim3: Simulator,
     assert "answers like a CoolPro, not a hub" in r.stderr
     assert "delivered no sample" in r.stderr
     final = [ln for ln in r.stderr.splitlines() if " samples " in ln and "faults" in ln][-1]
-    assert not re.search(r"faults 0\b", final) and " ok" not in final, final
+    assert not re.search(r"faults 0\b", final), final
+    assert " ok" not in final, final
     con = sqlite3.connect(db)
     assert con.execute("SELECT COUNT(*) FROM samples").fetchone()[0] == 0
     n = con.execute("SELECT COUNT(*) FROM events WHERE kind = 'no_value'").fetchone()[0]
     # Backed off (0.5 s, 1 s, 2 s...): a handful of faults, not thousands of samples.
     assert 1 <= n <= 5, n
     msg = con.execute("SELECT message FROM events WHERE kind = 'no_value'").fetchone()[0]
-    assert "answers like a CoolPro" in msg and "next try in" in msg
+    assert "answers like a CoolPro" in msg
+    assert "next try in" in msg
     con.close()
     assert db.stat().st_size < 1_000_000
 
@@ -139,13 +142,15 @@ def test_simulate_takes_the_same_humidity_key(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     values = [v for v in doc["values"]["humidity_pct"] if v is not None]
-    assert values and all(v == int(v) for v in values)  # whole percent: the 1 % unit
+    assert values
+    assert all(v == int(v) for v in values)  # whole percent: the 1 % unit
 
 
 def test_old_firmware_hub_says_how_to_log_it(sim3: Simulator, tmp_path: Path) -> None:
     r = pymb("log", "hub:7", "--port", sim3.port, "--seconds", "2", "--out",
              str(tmp_path / "a.sqlite"))
-    assert r.returncode == 3 and "hub:7,channels=50" in r.stderr, r.stderr
+    assert r.returncode == 3, r.stderr
+    assert "hub:7,channels=50" in r.stderr, r.stderr
     # The command line sets what only TOML could: channels (and humidity_unit).
     db = tmp_path / "b.sqlite"
     r = pymb("log", "hub:7,channels=50,humidity_unit=1", "--port", sim3.port, "--seconds", "2",
@@ -163,7 +168,8 @@ def test_read_says_what_answered_and_exits_3(sim3: Simulator) -> None:
     assert "address 40 answers like a CoolPro, not a hub" in r.stderr
     assert "firmware" not in r.stderr.split("CoolPro, not a hub")[0]  # not blamed on it
     r = pymb("read", "coolpro:7", "--port", sim3.port)
-    assert r.returncode == 3 and "answers like a sensor hub, not a CoolPro" in r.stderr
+    assert r.returncode == 3
+    assert "answers like a sensor hub, not a CoolPro" in r.stderr
 
 
 def test_bus_that_never_opens_is_a_fault_and_exit_4(sim3: Simulator, tmp_path: Path) -> None:
@@ -190,7 +196,8 @@ type = "hub"
     assert took < STOP_BOUND
     assert p.proc.returncode == 4
     text = p.out.decode(errors="replace")
-    assert "bus typo never opened its port" in text and "no such port" in text
+    assert "bus typo never opened its port" in text
+    assert "no such port" in text
     assert "Traceback" not in text
 
 
@@ -214,7 +221,8 @@ def test_a_device_that_keeps_failing_is_backed_off(sim3: Simulator, tmp_path: Pa
     con.close()
     # Ten timeouts in a row, then 0.5 s, 1 s, 2 s between tries: not ~40 in 4 s.
     assert 10 <= len(msgs) <= 14, len(msgs)
-    assert "next try" not in msgs[8] and msgs[9].endswith("next try in 0.5 s")
+    assert "next try" not in msgs[8]
+    assert msgs[9].endswith("next try in 0.5 s")
     assert msgs[10].endswith("next try in 1 s")
 
 
@@ -242,7 +250,8 @@ def test_log_status_line_is_one_line_that_fits(tmp_path: Path) -> None:
     assert len(draws) >= 3
     for d in draws[:-1]:
         line = d.decode(errors="replace")
-        assert "\n" not in line and len(line) <= 79, repr(line)
+        assert "\n" not in line, repr(line)
+        assert len(line) <= 79, repr(line)
     screen = [ln for ln in p.screen() if ln.strip()]
     assert sum("samples" in ln for ln in screen) <= 2, screen  # the live one and the final
 
@@ -254,12 +263,14 @@ def test_skipped_interval_slots_are_shown(tmp_path: Path) -> None:
                  "--out", str(db))
     assert r.returncode == 0, r.stderr
     m = re.search(r"(\d+) interval slot\(s\) skipped", r.stderr)
-    assert m and int(m.group(1)) > 5, r.stderr
+    assert m, r.stderr
+    assert int(m.group(1)) > 5, r.stderr
     assert re.search(r"skipped \d+", r.stderr)  # in the status line too
     con = sqlite3.connect(db)
     events = [m for (m,) in con.execute("SELECT message FROM events WHERE kind = 'skipped'")]
     con.close()
-    assert events and all("poll slot(s) of 0.05 s skipped" in e for e in events)
+    assert events
+    assert all("poll slot(s) of 0.05 s skipped" in e for e in events)
     assert sum(int(e.split()[0]) for e in events) == int(m.group(1))
 
 
@@ -303,7 +314,8 @@ def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
         took = time.monotonic() - t0
     print(f"scan stopped {took:.3f} s after SIGINT")
     assert took < STOP_BOUND
-    assert proc.returncode == 130 and b"Traceback" not in err
+    assert proc.returncode == 130
+    assert b"Traceback" not in err
     assert b"interrupted" in err
 
 
@@ -324,7 +336,8 @@ def test_export_never_writes_onto_its_input(logged: Path) -> None:
     before = digest(logged)
     r = pymb("export", str(logged), "--csv", str(logged))
     no_traceback(r)
-    assert r.returncode == 2 and "the database being exported" in r.stderr
+    assert r.returncode == 2
+    assert "the database being exported" in r.stderr
     assert digest(logged) == before
 
 
@@ -333,7 +346,8 @@ def test_export_keeps_a_file_that_is_not_pymb_csv_unless_forced(logged: Path,
     notes = tmp_path / "notes.csv"
     notes.write_text("my,own,data\n1,2,3\n")
     r = pymb("export", str(logged), "--csv", str(notes))
-    assert r.returncode == 2 and "--force" in r.stderr
+    assert r.returncode == 2
+    assert "--force" in r.stderr
     assert notes.read_text() == "my,own,data\n1,2,3\n"
     out = tmp_path / "out.csv"
     assert pymb("export", str(logged), "--csv", str(out)).returncode == 0
@@ -354,22 +368,28 @@ def test_export_names_with_uri_characters_and_directories(logged: Path,
         assert len(r.stdout.splitlines()) > 10
     r = pymb("export", str(tmp_path), "--csv", "-")
     no_traceback(r)
-    assert r.returncode == 2 and "is a directory" in r.stderr
+    assert r.returncode == 2
+    assert "is a directory" in r.stderr
     text = tmp_path / "text.sqlite"
     text.write_text("hello\n")
     r = pymb("export", str(text), "--csv", "-")
-    assert r.returncode == 2 and "not a database written by pymb" in r.stderr
+    assert r.returncode == 2
+    assert "not a database written by pymb" in r.stderr
 
 
 def test_export_device_by_syntax_or_name_and_unknown_lists(logged: Path) -> None:
     by_spec = pymb("export", str(logged), "--csv", "-", "--device", "hub:250")
     by_name = pymb("export", str(logged), "--csv", "-", "--device", "hub-250")
-    assert by_spec.returncode == 0 and by_spec.stdout == by_name.stdout
+    assert by_spec.returncode == 0
+    assert by_spec.stdout == by_name.stdout
     rows = list(csv.DictReader(by_spec.stdout.splitlines()))
-    assert rows and {r["device"] for r in rows} == {"hub-250"}
+    assert rows
+    assert {r["device"] for r in rows} == {"hub-250"}
     r = pymb("export", str(logged), "--csv", "-", "--device", "hub:9")
     assert r.returncode == 2
-    assert "no device 'hub:9'" in r.stderr and "coolpro-40" in r.stderr and "hub-250" in r.stderr
+    assert "no device 'hub:9'" in r.stderr
+    assert "coolpro-40" in r.stderr
+    assert "hub-250" in r.stderr
 
 
 def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> None:
@@ -377,14 +397,16 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
     r = pymb("log", "coolpro", "--port", "/dev/null", "--format", "csv", "--out", str(logged),
              "--seconds", "1")
     no_traceback(r)
-    assert r.returncode == 2 and "refusing to append CSV" in r.stderr
+    assert r.returncode == 2
+    assert "refusing to append CSV" in r.stderr
     assert digest(logged) == before
     doc = tmp_path / "report.txt"
     doc.write_text("quarterly numbers\n")
     for fmt in ("sqlite", "csv", "jsonl", "influx"):
         r = pymb("log", "coolpro", "--port", "/dev/null", "--format", fmt, "--out", str(doc),
                  "--seconds", "1")
-        assert r.returncode == 2 and "refusing" in r.stderr, (fmt, r.stderr)
+        assert r.returncode == 2, (fmt, r.stderr)
+        assert "refusing" in r.stderr, (fmt, r.stderr)
     assert doc.read_text() == "quarterly numbers\n"
     # A file pymb wrote in that format is appended to (the port fails: events only).
     for fmt in ("csv", "jsonl", "influx"):
@@ -392,7 +414,8 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
         for _ in range(2):
             r = pymb("log", "coolpro", "--port", "/dev/ttyUSB-none", "--format", fmt, "--out",
                      str(own), "--seconds", "0.7")
-            assert r.returncode == 4 and "refusing" not in r.stderr, (fmt, r.stderr)
+            assert r.returncode == 4, (fmt, r.stderr)
+            assert "refusing" not in r.stderr, (fmt, r.stderr)
         assert own.stat().st_size > 0
 
 
@@ -401,11 +424,13 @@ def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> Non
     mine.write_text("keep me\n")
     r = pymb("simulate", "coolpro", "--link", str(mine))
     no_traceback(r)
-    assert r.returncode == 2 and "refusing to replace" in r.stderr
+    assert r.returncode == 2
+    assert "refusing to replace" in r.stderr
     assert mine.read_text() == "keep me\n"
     r = pymb("simulate", "coolpro", "--port", str(mine))
     no_traceback(r)
-    assert r.returncode == 2 and "not a serial port" in r.stderr
+    assert r.returncode == 2
+    assert "not a serial port" in r.stderr
     assert mine.read_text() == "keep me\n"
     # A link pymb left behind (to a pseudo-terminal) may be replaced, and goes at the end.
     stale = tmp_path / "ttySIM"
@@ -414,7 +439,8 @@ def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> Non
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=ENV)
     assert proc.stdout is not None
     assert proc.stdout.readline().decode().strip() == str(stale)
-    assert os.readlink(stale).startswith("/dev/pts/") and os.readlink(stale) != "/dev/pts/9999"
+    assert os.readlink(stale).startswith("/dev/pts/")
+    assert os.readlink(stale) != "/dev/pts/9999"
     proc.send_signal(signal.SIGINT)
     assert proc.wait(30) == 0
     assert not os.path.lexists(stale)
@@ -449,8 +475,10 @@ def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> Non
     cfg.write_text(toml)
     r = pymb("log", "--config", str(cfg), "--seconds", "1")
     no_traceback(r)
-    assert r.returncode == 2 and message in r.stderr, r.stderr
-    assert not (tmp_path / "x.sqlite").exists() and not list(Path.cwd().glob("x.sqlite"))
+    assert r.returncode == 2, r.stderr
+    assert message in r.stderr, r.stderr
+    assert not (tmp_path / "x.sqlite").exists()
+    assert not list(Path.cwd().glob("x.sqlite"))
 
 
 @pytest.mark.parametrize(("toml", "message"), [
@@ -477,8 +505,10 @@ def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
     cfg.write_text(toml)
     r = pymb("log", "--config", "c.toml", "--seconds", "1", cwd=tmp_path)
     no_traceback(r)
-    assert r.returncode == 2 and message in r.stderr, r.stderr
-    assert "c.toml: c.toml" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert r.returncode == 2, r.stderr
+    assert message in r.stderr, r.stderr
+    assert "c.toml: c.toml" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
 
 
@@ -487,7 +517,8 @@ def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
         r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--interval", bad, "--seconds", "1",
                  cwd=tmp_path)
         no_traceback(r)
-        assert r.returncode == 2 and f"got {bad}" in r.stderr, r.stderr
+        assert r.returncode == 2, r.stderr
+        assert f"got {bad}" in r.stderr, r.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -507,7 +538,8 @@ def test_address_zero_is_rejected(sim3: Simulator) -> None:
                  ["read", "hub:0"], ["log", "hub:0", "--seconds", "1"]):
         r = pymb(*args, "--port", sim3.port)
         no_traceback(r)
-        assert r.returncode == 2 and "got 0" in r.stderr, (args, r.stderr)
+        assert r.returncode == 2, (args, r.stderr)
+        assert "got 0" in r.stderr, (args, r.stderr)
 
 
 @pytest.mark.parametrize("args", [
@@ -532,7 +564,8 @@ def test_broken_pipe_into_head_exits_quietly(sim3: Simulator, logged: Path,
 def test_unresolvable_tcp_host_says_so() -> None:
     r = pymb("read", "coolpro", "--tcp", "nosuchhost.invalid:502")
     no_traceback(r)
-    assert r.returncode == 4 and "did not resolve" in r.stderr
+    assert r.returncode == 4
+    assert "did not resolve" in r.stderr
     assert "refused" not in r.stderr
 
 
@@ -595,9 +628,11 @@ def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Pa
     assert a.returncode == b.returncode == 0
     assert json.loads(a.stdout)["address"] == json.loads(b.stdout)["address"] == 250
     r = pymb("read", "hub:250", "--address", "251", "--port", sim3.port)
-    assert r.returncode == 2 and "give it once" in r.stderr
+    assert r.returncode == 2
+    assert "give it once" in r.stderr
     r = pymb("read", "hub:250,chanels=50", "--port", sim3.port)
-    assert r.returncode == 2 and "did you mean 'channels'" in r.stderr
+    assert r.returncode == 2
+    assert "did you mean 'channels'" in r.stderr
     db = tmp_path / "syntax.sqlite"
     r = pymb("log", "coolpro:40", "--device", "hub:250", "--port", sim3.port, "--seconds", "1.5",
              "--out", str(db), "--quiet")
@@ -606,7 +641,8 @@ def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Pa
     assert sorted(con.execute("SELECT name FROM devices")) == [("coolpro-40",), ("hub-250",)]
     con.close()
     r = pymb("config", "coolpro:40", "--port", sim3.port)
-    assert r.returncode == 0 and "CoolPro at 40" in r.stdout
+    assert r.returncode == 0
+    assert "CoolPro at 40" in r.stdout
 
 
 # -- what the terminal shows ---------------------------------------------------------
@@ -619,7 +655,9 @@ def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) ->
     p.read_until(b"\x00", 1.5)
     screen = p.screen()
     p.interrupt()
-    assert screen[0].startswith("hub:250 ") and "reads" in screen[0] and "faults" in screen[0]
+    assert screen[0].startswith("hub:250 ")
+    assert "reads" in screen[0]
+    assert "faults" in screen[0]
     assert screen[1].startswith("temperature_c")
     assert any(ln.startswith("humidity_pct") for ln in screen)
     # No line wrapped: the raw frames never write past column 80 or row 24.
@@ -645,7 +683,8 @@ def test_watch_block_show_json_identity(sim3: Simulator) -> None:
     r = pymb("watch", "coolpro", "--port", sim3.port, "--json", "--count", "3", "--identity")
     assert r.returncode == 0, r.stderr
     docs = [json.loads(ln) for ln in r.stdout.splitlines()]
-    assert len(docs) == 3 and all(20 < d["input_voltage_v"] < 30 for d in docs)
+    assert len(docs) == 3
+    assert all(20 < d["input_voltage_v"] < 30 for d in docs)
     assert docs[0]["identity"]["serial_number"] == 12345
 
 
@@ -653,7 +692,8 @@ def test_demo_never_claims_more_than_the_wire_allows(tmp_path: Path) -> None:
     r = pymb("demo", "--seconds", "3", "--quiet", "--out", str(tmp_path / "demo.sqlite"))
     assert r.returncode == 0, r.stderr
     shares = [int(x) for x in re.findall(r"the wire allows .*?\((\d+)%\)", r.stdout)]
-    assert len(shares) == 2 and all(0 < s <= 100 for s in shares), r.stdout
+    assert len(shares) == 2, r.stdout
+    assert all(0 < s <= 100 for s in shares), r.stdout
 
 
 def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> None:
@@ -669,11 +709,13 @@ def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> Non
     r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--out", str(db), "--seconds", "1",
              "--mqtt", "mqtt://127.0.0.1", env=env)
     no_traceback(r)
-    assert r.returncode == 2 and "pip install 'pymb[mqtt]'" in r.stderr, r.stderr
+    assert r.returncode == 2, r.stderr
+    assert "pip install 'pymb[mqtt]'" in r.stderr, r.stderr
     assert not db.exists()
     r = pymb("demo", "--mqtt", "--out", str(db), env=env)
     no_traceback(r)
-    assert r.returncode == 2 and r.stderr.strip() == (
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip() == (
         "pymb demo: --mqtt needs paho-mqtt: pip install 'pymb[mqtt]'"), r.stderr
     assert not db.exists()
 
@@ -686,8 +728,9 @@ def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> Non
 def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list[str]) -> None:
     r = pymb(*args, "--out", str(tmp_path / "d.sqlite")) if args[0] == "demo" else pymb(*args)
     no_traceback(r)
-    assert r.returncode == 2 and "must be" in r.stderr and len(r.stderr.splitlines()) == 1, \
-        r.stderr
+    assert r.returncode == 2, r.stderr
+    assert "must be" in r.stderr, r.stderr
+    assert len(r.stderr.splitlines()) == 1, r.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -707,7 +750,8 @@ def test_export_stopped_by_a_signal_leaves_no_temporary_file(logged: Path, tmp_p
         deadline = time.monotonic() + 60
         while not [f for f in tmp_path.iterdir() if f.name.startswith(".pymb-export-")
                    and f.stat().st_size > 0]:
-            assert p.poll() is None and time.monotonic() < deadline, "export never started"
+            assert p.poll() is None, "export never started"
+            assert time.monotonic() < deadline, "export never started"
             time.sleep(0.01)
         p.send_signal(sig)
         _, err = p.communicate(timeout=30)
@@ -734,7 +778,8 @@ def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
     sends a byte."""
     r = pymb("simulate", *args, "--pty", timeout=30)
     no_traceback(r)
-    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert r.returncode == 2, r.stderr
+    assert message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
@@ -752,7 +797,8 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
     try:
         deadline = time.monotonic() + 60
         while _samples(db) < 20:
-            assert p.poll() is None and time.monotonic() < deadline, "nothing logged"
+            assert p.poll() is None, "nothing logged"
+            assert time.monotonic() < deadline, "nothing logged"
             time.sleep(0.05)
         p.send_signal(signal.SIGHUP)
         if nohup:

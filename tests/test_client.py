@@ -79,7 +79,8 @@ def test_crc16_matches_bitwise_reference() -> None:
 
 def test_read_input_and_holding(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     r = peer_client.read_input_registers(0, 8)
-    assert isinstance(r, array) and r.typecode == "H"
+    assert isinstance(r, array)
+    assert r.typecode == "H"
     assert list(r) == list(range(8))
     h = peer_client.read_holding_registers(10, 3)
     assert list(h) == [70, 77, 84]
@@ -175,7 +176,8 @@ def test_timeout(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
         peer_client.read_input_registers(0, 8)
     assert time.monotonic() - t0 < 5 * T
     e = ei.value
-    assert isinstance(e, TimeoutError) and isinstance(e, pymb.ModbusError)
+    assert isinstance(e, TimeoutError)
+    assert isinstance(e, pymb.ModbusError)
     msg = str(e)
     for part in ("read_input_registers", "slave=40", "address=0", "count=8", peer.port, f"{T:g}"):
         assert part in msg
@@ -192,8 +194,10 @@ def test_bad_crc(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
     with pytest.raises(pymb.ProtocolError) as ei:
         peer_client.read_input_registers(0, 2)
     assert ei.value.reason == "bad CRC"
-    assert "CRC" in str(ei.value) and "received 28 04 04" in str(ei.value)
-    assert ei.value.response is not None and ei.value.response[:3] == b"\x28\x04\x04"
+    assert "CRC" in str(ei.value)
+    assert "received 28 04 04" in str(ei.value)
+    assert ei.value.response is not None
+    assert ei.value.response[:3] == b"\x28\x04\x04"
 
 
 def test_wrong_slave(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:

@@ -98,21 +98,27 @@ def test_documented_markers() -> None:
     regs[501] = 0xFFFF  # channel 2 RSSI offline
     units = [1, 0.1, 0.1] + [0.1] * 97
     r = decode_hub(regs, units)
-    assert r.state("temperature_c", 1) is State.OFFLINE and math.isnan(r.temperature_c[0])
-    assert same(r.temperature_c[1], -0.0) and r.state("temperature_c", 2) is State.VALUE
+    assert r.state("temperature_c", 1) is State.OFFLINE
+    assert math.isnan(r.temperature_c[0])
+    assert same(r.temperature_c[1], -0.0)
+    assert r.state("temperature_c", 2) is State.VALUE
     assert r.temperature_c[2] == -12.5
     assert r.state("humidity_pct", 1) is State.NO_SENSOR
     assert r.state("humidity_pct", 2) is State.NO_SENSOR
     assert r.humidity_pct[2] == 25.5
-    assert r.rssi_dbm[0] == -75.0 and r.state("rssi_dbm", 2) is State.OFFLINE
+    assert r.rssi_dbm[0] == -75.0
+    assert r.state("rssi_dbm", 2) is State.OFFLINE
     ch = r.channel(3)
-    assert ch.channel == 3 and ch.temperature_c == -12.5 and ch.humidity_pct == 25.5
+    assert ch.channel == 3
+    assert ch.temperature_c == -12.5
+    assert ch.humidity_pct == 25.5
     assert ch.states["temperature_c"] is State.VALUE
 
 
 def test_unsupported_blocks_and_channel_views() -> None:
     r = decode_hub(range(700), 1, channels=50, unsupported=["voltage_mv", "temperature2_c"])
-    assert len(r.voltage_mv) == 50 and all(math.isnan(v) for v in r.voltage_mv)
+    assert len(r.voltage_mv) == 50
+    assert all(math.isnan(v) for v in r.voltage_mv)
     assert set(r.states("voltage_mv")) == {State.UNSUPPORTED}
     assert r.unsupported == {"voltage_mv", "temperature2_c"}
     assert r.pressure_kpa[49] == 349.0
@@ -121,7 +127,8 @@ def test_unsupported_blocks_and_channel_views() -> None:
     with pytest.raises(ValueError, match=r"channel must be 1\.\.50, got 0"):
         r.channel(0)
     d = r.as_dict()
-    assert d["voltage_mv"][0] is None and d["pressure_kpa"][0] == 300.0
+    assert d["voltage_mv"][0] is None
+    assert d["pressure_kpa"][0] == 300.0
 
 
 def test_bad_decode_arguments() -> None:
@@ -139,7 +146,8 @@ def test_views_convert_to_numpy_without_copy() -> None:
     np = pytest.importorskip("numpy")
     r = decode_hub(range(700))
     a = np.asarray(r.temperature_c)
-    assert a.dtype == np.float64 and a.shape == (100,)
+    assert a.dtype == np.float64
+    assert a.shape == (100,)
     r.values[0] = 42.0
     assert a[0] == 42.0  # a view, not a copy
 
@@ -154,11 +162,14 @@ def test_coolpro_worked_values() -> None:
     assert (vin, iin, vout, iout, temp) == (24.5, 3.25, 24.0, 3.2, 25.8)
     assert uptime == 70000 == ref.u32_low_word_first(4464, 1)
     flags = CoolProStatus(status)
-    assert CoolProStatus.SYSTEM_STARTUP in flags and CoolProStatus.TEMPERATURE_SENSOR_FAULT in flags
-    assert flags.reserved == 0x8000 and int(flags) == 0x8041  # reserved bit kept
+    assert CoolProStatus.SYSTEM_STARTUP in flags
+    assert CoolProStatus.TEMPERATURE_SENSOR_FAULT in flags
+    assert flags.reserved == 0x8000
+    assert int(flags) == 0x8041  # reserved bit kept
     serial, hw, major, minor, patch, made = _native.coolpro_identity(
         array("H", [0x3039, 0, 2, 1, 0, 0, 0x5E00, 0x6A50]))
-    assert serial == 12345 and (hw, major, minor, patch) == (2, 1, 0, 0)
+    assert serial == 12345
+    assert (hw, major, minor, patch) == (2, 1, 0, 0)
     assert datetime.fromtimestamp(made, UTC).year == 2026
 
 
@@ -192,7 +203,8 @@ def test_c_hub_layout_agrees_with_the_map() -> None:
         assert block.first == lib.PYMB_HUB_FIRST_REGISTER + block.index * lib.PYMB_HUB_CHANNELS
         assert (0xFFFF, "offline") in block.markers
     markers = dict(HUB.block("humidity_pct").markers)
-    assert lib.PYMB_HUB_NO_HUMIDITY_1PCT in markers and lib.PYMB_HUB_NO_HUMIDITY_TENTHS in markers
+    assert lib.PYMB_HUB_NO_HUMIDITY_1PCT in markers
+    assert lib.PYMB_HUB_NO_HUMIDITY_TENTHS in markers
 
 
 def test_c_coolpro_layout_agrees_with_the_map() -> None:

@@ -74,7 +74,8 @@ def test_coolpro_documented_values_and_reserved_bits(bus: Simulator,
             t.temperature_c) == (24.5, 3.25, 24.0, 3.2, 25.8)
     assert CoolProStatus.INPUT_MEASUREMENT_FAULT in t.status
     assert CoolProStatus.TEMPERATURE_SENSOR_FAULT in t.status
-    assert t.status.reserved == 0x8000 and int(t.status) == 0x8044
+    assert t.status.reserved == 0x8000
+    assert int(t.status) == 0x8044
 
 
 def test_coolpro_identity(bus: Simulator, sim_client: pymb.RtuClient) -> None:
@@ -82,7 +83,8 @@ def test_coolpro_identity(bus: Simulator, sim_client: pymb.RtuClient) -> None:
     dev.set_identity(serial_number=12345, hardware_revision=3, firmware_major=1,  # type: ignore[attr-defined]
                      firmware_minor=2, firmware_patch=7, manufactured=1780000000)
     i = CoolPro(sim_client).read_identity()
-    assert i.serial_number == 12345 and i.hardware_revision == 3
+    assert i.serial_number == 12345
+    assert i.hardware_revision == 3
     assert i.firmware_version == "1.2.7"
     assert i.manufactured == datetime.fromtimestamp(1780000000, UTC)
     assert i.manufactured.tzinfo is UTC
@@ -104,7 +106,8 @@ def test_coolpro_config_writes_take_effect_after_reset(bus: Simulator,
     cp.reset()
     assert cp.address == 42
     t = cp.read_telemetry()
-    assert t.uptime_s < 2 and CoolProStatus.SYSTEM_STARTUP in t.status
+    assert t.uptime_s < 2
+    assert CoolProStatus.SYSTEM_STARTUP in t.status
     with pytest.raises(pymb.ModbusTimeout):
         sim_client.read_input_registers(0, 1, slave=40)
     bus.clock.advance(10.0)
@@ -156,7 +159,8 @@ def test_hub_read_all_six_requests_every_value(bus: Simulator, sim_client: pymb.
     served = bus.stats.requests  # type: ignore[attr-defined]
     r = hub.read_all()
     assert bus.stats.requests - served == 6  # type: ignore[attr-defined]
-    assert len(r.temperature_c) == 100 and r.unsupported == frozenset()
+    assert len(r.temperature_c) == 100
+    assert r.unsupported == frozenset()
     assert_matches_device(r, dev, dev.humidity_tenths)  # type: ignore[attr-defined]
     assert hub.plan().spans == ((31, 125), (156, 125), (281, 125), (406, 125), (531, 125),
                                 (656, 75))
@@ -176,9 +180,11 @@ def test_hub_markers_and_units_per_channel(bus: Simulator, sim_client: pymb.RtuC
     dev.set_offline(6)  # type: ignore[attr-defined]
     units = [1, 1] + [0.1] * 98
     r = SensorHub(sim_client, 250, humidity_unit=units).read_all()
-    assert math.copysign(1, r.temperature_c[0]) == -1 and r.temperature_c[0] == 0
+    assert math.copysign(1, r.temperature_c[0]) == -1
+    assert r.temperature_c[0] == 0
     assert r.temperature_c[1] == -12.3
-    assert r.state("humidity_pct", 1) is State.NO_SENSOR and math.isnan(r.humidity_pct[0])
+    assert r.state("humidity_pct", 1) is State.NO_SENSOR
+    assert math.isnan(r.humidity_pct[0])
     assert r.humidity_pct[1] == 55.0
     assert r.state("humidity_pct", 3) is State.NO_SENSOR
     assert r.humidity_pct[3] == 25.5
@@ -202,7 +208,8 @@ def test_hub_firmware_profiles(frozen: SimClock, firmware: str, channels: int,
             pymb.RtuClient(sim.port, timeout=T) as c:
         hub = SensorHub(c, 7, channels=channels)
         r = hub.read_all()  # the first sweep finds out what is missing...
-        assert r.unsupported == missing and hub.unsupported == missing
+        assert r.unsupported == missing
+        assert hub.unsupported == missing
         for name in missing:
             assert set(r.states(name)) == {State.UNSUPPORTED}
         present = [b.name for b in HUB.blocks if b.name not in missing]
@@ -233,7 +240,8 @@ def test_hub_busy_is_retried_then_raised(bus: Simulator, sim_client: pymb.RtuCli
     hub = SensorHub(sim_client, 1, busy_retries=2, busy_backoff=0.005)
     with pytest.raises(pymb.DeviceBusy) as ei:
         hub.read_all()
-    assert ei.value.code == 4 and "busy" in str(ei.value)
+    assert ei.value.code == 4
+    assert "busy" in str(ei.value)
     bus.faults.clear()  # type: ignore[attr-defined]
     assert len(hub.read_all().temperature_c) == 100
 
@@ -258,7 +266,8 @@ def test_planned_partial_reads(bus: Simulator, sim_client: pymb.RtuClient) -> No
     assert r.state("temperature_c", 13) is State.NOT_READ
     assert set(r.states("pressure_kpa")) == {State.NOT_READ}
     plan = hub.plan(blocks=["temperature_c", "humidity_pct"], channels=range(1, 13))
-    assert plan.spans == ((31, 12), (131, 12)) and "predicted" in plan.explain()
+    assert plan.spans == ((31, 12), (131, 12))
+    assert "predicted" in plan.explain()
 
 
 def test_sweeps_of_several_buses_run_in_parallel(frozen: SimClock) -> None:
@@ -316,7 +325,9 @@ def test_read_all_into_reuses_the_buffers(bus: Simulator, sim_client: pymb.RtuCl
     values_before = r.values
     bus.device(1).pin("temperature_c", 1, 123)  # type: ignore[attr-defined]
     r2 = hub.read_all(into=r)
-    assert r2 is r and r.values is values_before and r.temperature_c[0] == 12.3
+    assert r2 is r
+    assert r.values is values_before
+    assert r.temperature_c[0] == 12.3
 
 
 def test_rs485_mode_on_a_port_without_it_is_a_clear_error(bus: Simulator) -> None:

@@ -26,7 +26,8 @@ def test_every_command_is_documented() -> None:
 def test_quick_start_commands_match_ci() -> None:
     assert ".ci/setup && .venv/bin/pymb demo" in README
     run = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
-    assert "pytest" in run and ".ci/setup" in run
+    assert "pytest" in run
+    assert ".ci/setup" in run
     assert "    .ci/run " in README
 
 
@@ -40,10 +41,13 @@ def test_the_toml_example_is_a_valid_configuration(tmp_path: Path) -> None:
     cfg = load_config(path)
     assert [b.name for b in cfg.buses] == ["line1", "gateway"]
     assert [d.name for d in cfg.buses[0].devices] == ["psu-a", "hub-250"]
-    assert cfg.buses[1].tcp == "192.168.1.50:502" and cfg.max_bytes == 500_000_000
-    assert "channels = " in example and "humidity_unit = " in example
+    assert cfg.buses[1].tcp == "192.168.1.50:502"
+    assert cfg.max_bytes == 500_000_000
+    assert "channels = " in example
+    assert "humidity_unit = " in example
     hub = cfg.buses[0].devices[1]
-    assert hub.channels == 100 and hub.humidity_unit == 0.1
+    assert hub.channels == 100
+    assert hub.humidity_unit == 0.1
 
 
 def test_readme_shows_the_one_device_syntax() -> None:

@@ -67,10 +67,12 @@ def test_codes_the_specification_does_not_name_are_device_exceptions(code: int) 
     """As the module says: 09 and 0C..FF raise DeviceException itself, with .code."""
     e = _exception_reply(code)
     assert type(e) is pymb.DeviceException
-    assert isinstance(e, pymb.DeviceException) and e.code == code
+    assert isinstance(e, pymb.DeviceException)
+    assert e.code == code
     assert f"exception {code:02X}" in str(e)
 
 
 def test_exception_code_zero_is_a_protocol_error() -> None:
     e = _exception_reply(0)
-    assert isinstance(e, pymb.ProtocolError) and not isinstance(e, pymb.DeviceException)
+    assert isinstance(e, pymb.ProtocolError)
+    assert not isinstance(e, pymb.DeviceException)

@@ -37,7 +37,8 @@ def test_export_refuses_an_empty_filter(tmp_path: Path, argv: list[str], message
                        capture_output=True, text=True, env=PYMB_ENV, timeout=60)
     assert r.returncode == 2, r
     assert r.stdout == ""
-    assert message in r.stderr and "Traceback" not in r.stderr
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 
 
@@ -71,7 +72,8 @@ def test_a_kill_during_creation_leaves_nothing_the_next_run_keeps(tmp_path: Path
                             capture_output=True)
     assert killed.returncode == -9, killed
     left = [p.name for p in tmp_path.iterdir()]
-    assert len(left) == 1 and re.fullmatch(r"\.log\.sqlite\.[0-9]+\.creating", left[0]), left
+    assert len(left) == 1, left
+    assert re.fullmatch(r"\.log\.sqlite\.[0-9]+\.creating", left[0]), left
     assert not db.exists()
     with subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]) as alive:
         try:

@@ -39,7 +39,8 @@ def _header_version() -> str:
 
 def test_one_version_everywhere() -> None:
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert "version" not in project and "version" in project["dynamic"]  # from pymb.h
+    assert "version" not in project
+    assert "version" in project["dynamic"]  # from pymb.h
     version = _header_version()
     assert pymb.__version__ == version
     assert ffi.string(lib.pymb_version()).decode() == version
@@ -55,7 +56,8 @@ def test_strerror_knows_libmodbus_codes_and_the_os_ones() -> None:
              "EMBXNACK", "EMBXMEMPAR", "EMBXGPATH", "EMBXGTAR", "EMBBADCRC", "EMBBADDATA",
              "EMBBADEXC", "EMBUNKEXC", "EMBMDATA", "EMBBADSLAVE")
     texts = [text(getattr(lib, c)) for c in codes]
-    assert len(set(texts)) == len(codes) and not any(t.startswith("Unknown error") for t in texts)
+    assert len(set(texts)) == len(codes)
+    assert not any(t.startswith("Unknown error") for t in texts)
     # [MB-AP] 7's names for the exceptions
     assert text(lib.EMBXSFAIL) == "Server device failure"
     assert text(lib.EMBXSBUSY) == "Server device busy"
@@ -66,12 +68,15 @@ def test_strerror_knows_libmodbus_codes_and_the_os_ones() -> None:
 def test_bad_arguments_set_einval_and_say_so() -> None:
     frame = ffi.new("uint8_t[8]")
     ffi.errno = 0
-    assert lib.pymb_rtu_append_crc(frame, 7, 8) == -1 and ffi.errno == errno.EINVAL
+    assert lib.pymb_rtu_append_crc(frame, 7, 8) == -1
+    assert ffi.errno == errno.EINVAL
     ffi.errno = 0
-    assert lib.pymb_rtu_crc_ok(ffi.NULL, 8) == -1 and ffi.errno == errno.EINVAL
+    assert lib.pymb_rtu_crc_ok(ffi.NULL, 8) == -1
+    assert ffi.errno == errno.EINVAL
     value = ffi.new("double *", 1.0)
     ffi.errno = 0
-    assert lib.pymb_hub_decode_one(7, 0, 0, value) == -1 and ffi.errno == errno.EINVAL
+    assert lib.pymb_hub_decode_one(7, 0, 0, value) == -1
+    assert ffi.errno == errno.EINVAL
     assert value[0] != value[0]  # NaN, not the caller's old value
 
 
@@ -131,7 +136,8 @@ def test_python_build_without_libmodbus_is_one_clear_line(tmp_path: Path) -> Non
     done = _build_ffi(dict(os.environ, PKG_CONFIG_LIBDIR=str(tmp_path), PKG_CONFIG_PATH=""))
     assert done.returncode != 0
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "sudo apt install libmodbus-dev" in lines[0], done.stderr
+    assert len(lines) == 1, done.stderr
+    assert "sudo apt install libmodbus-dev" in lines[0], done.stderr
 
 
 @needs_make

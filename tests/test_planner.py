@@ -44,9 +44,11 @@ def test_plan_limits_coverage_and_cost(wanted: set[int], holes: set[int], baud: 
 def test_full_sweep_is_six_requests_like_the_c_plan() -> None:
     everything = range(HUB.first, HUB.first + HUB.count)
     plan = plan_reads(everything, 9600)
-    assert len(plan.spans) == 6 and plan.registers == 700
+    assert len(plan.spans) == 6
+    assert plan.registers == 700
     c_plan = _native.hub_plan_all(0, 100)
-    assert len(c_plan) == 6 and sum(n for _, n in c_plan) == 700
+    assert len(c_plan) == 6
+    assert sum(n for _, n in c_plan) == 700
     assert plan.spans == tuple(c_plan)
     assert plan.predicted_s == pytest.approx(plan.naive_s)
 

@@ -71,7 +71,8 @@ def test_coolpro_telemetry_is_in_milliunits_and_plausible(cp: CoolProDevice,
         vin, iin, vout, iout, temp, _up_lo, _up_hi, status = regs(cp.handle(req(0x04, 0, 8)))
         assert 24_000 < vin < 25_000  # ~24.5 V
         assert 23_800 < vout < 24_200  # ~24.0 V
-        assert 1_000 < iout < 6_500 and iin > iout * 0.95
+        assert 1_000 < iout < 6_500
+        assert iin > iout * 0.95
         assert 0 < temp <= 65_535  # m°C, never negative
         assert status & 0x7F == 0
     assert regs(cp.handle(req(0x04, 4, 1)))[0] > 20_000  # ~25.8 °C
@@ -119,10 +120,12 @@ def test_coolpro_writes_take_effect_at_reset(cp: CoolProDevice, clock: SimClock)
     assert (cp.address, cp.baud) == (42, 19200)
     assert regs(cp.handle(req(0x03, 2, 1))) == [0]  # the reset register reads 0
     up_lo, up_hi, status = regs(cp.handle(req(0x04, 5, 3)))
-    assert (up_lo, up_hi) == (0, 0) and status & 0x01  # startup
+    assert (up_lo, up_hi) == (0, 0)
+    assert status & 0x01  # startup
     clock.advance(2.5)
     up_lo, up_hi, status = regs(cp.handle(req(0x04, 5, 3)))
-    assert up_lo == 2 and not status & 0x01
+    assert up_lo == 2
+    assert not status & 0x01
 
 
 def test_coolpro_broadcast_write_is_carried_out(cp: CoolProDevice) -> None:
@@ -135,7 +138,8 @@ def test_coolpro_status_bits_and_sensor_zeroes(cp: CoolProDevice, clock: SimCloc
     cp.set_status(0x8000 | 0x0004)  # a reserved bit and the input measurement fault
     vin, iin, vout, _iout, _temp, _, _, status = regs(cp.handle(req(0x04, 0, 8)))
     assert status == 0x8004
-    assert (vin, iin) == (0, 0) and vout > 0
+    assert (vin, iin) == (0, 0)
+    assert vout > 0
     cp.clear_status(0x0004)
     assert regs(cp.handle(req(0x04, 7, 1))) == [0x8000]
     cp.set_status(0x40, seconds=3)
@@ -162,7 +166,8 @@ def test_coolpro_model_raises_and_clears_status_faults(clock: SimClock) -> None:
     for _ in range(24 * 360):  # 24 h in 10 s steps
         clock.advance(10)
         seen.add(cp.status() & 0x7C)
-    assert 0 in seen and len(seen) >= 3  # raised, and cleared again
+    assert 0 in seen
+    assert len(seen) >= 3  # raised, and cleared again
 
 
 def test_coolpro_is_deterministic_from_seed() -> None:
@@ -221,7 +226,8 @@ def test_hub_firmware_profiles(clock: SimClock, firmware: str, ok: list[tuple[in
 
 def test_hub_firmware_switch_at_run_time(hub: HubDevice) -> None:
     hub.firmware = "1.07"
-    assert hub.channels == 50 and not hub.supports("pressure_kpa")
+    assert hub.channels == 50
+    assert not hub.supports("pressure_kpa")
     assert hub.handle(req(0x03, 331, 1)) == b"\x83\x02"
     hub.firmware = "2.23"
     assert answer(hub.handle(req(0x03, 331, 1)))[0] == 0x03
@@ -243,7 +249,8 @@ def test_hub_markers_and_units(hub: HubDevice) -> None:
     assert hub.raw("pressure_kpa", 1) == 0xFFFF  # no pressure sensor
     assert 0 <= hub.raw("humidity_pct", 1) <= 1000  # 0.1 %
     assert 0 <= hub.raw("humidity_pct", 5) <= 100  # 1 %
-    assert hub.humidity_tenths[4] == 0 and hub.humidity_tenths[0] == 1
+    assert hub.humidity_tenths[4] == 0
+    assert hub.humidity_tenths[0] == 1
     assert Channel() == hub.channel(1)
 
 
@@ -284,7 +291,8 @@ def test_hub_values_encode_as_documented(clock: SimClock) -> None:
         if v != 0xFFFF:
             assert 2_900 <= v <= 3_700
     assert negatives > 0  # some channels sit in a freezer
-    assert sign_magnitude(-125) == 0x807D and sign_magnitude(125) == 125
+    assert sign_magnitude(-125) == 0x807D
+    assert sign_magnitude(125) == 125
     assert sign_magnitude(-40_000) != 0xFFFF
 
 
@@ -314,7 +322,8 @@ def test_hub_values_move_and_channels_go_offline_and_back(clock: SimClock) -> No
             if was[ch] and not now:
                 back.add(ch)
             was[ch] = now
-    assert offline_seen and back
+    assert offline_seen
+    assert back
 
 
 def test_hub_refresh_is_exact_whatever_the_request_pattern() -> None:
@@ -343,12 +352,16 @@ def test_hub_addresses_1_to_255() -> None:
 
 def test_make_device_specs() -> None:
     d = make_device("hub:250,firmware=1.07,delay=0.01-0.02,humidity=1")
-    assert isinstance(d, HubDevice) and d.address == 250 and d.channels == 50
+    assert isinstance(d, HubDevice)
+    assert d.address == 250
+    assert d.channels == 50
     assert d.humidity_tenths == bytes(100)
     assert 0.01 <= d.turnaround() <= 0.02
     c = make_device("coolpro:41,gap=0,firmware=2.3.4,serial=0x10", baud=19200)
-    assert isinstance(c, CoolProDevice) and (c.address, c.baud, c.gap) == (41, 19200, 0.0)
-    assert c.register("serial_number") == 16 and c.register("firmware_minor") == 3
+    assert isinstance(c, CoolProDevice)
+    assert (c.address, c.baud, c.gap) == (41, 19200, 0.0)
+    assert c.register("serial_number") == 16
+    assert c.register("firmware_minor") == 3
     for bad in ("toaster", "hub:x", "hub,color=red", "coolpro:248", "coolpro,baud=1200"):
         with pytest.raises(InvalidArgument):
             make_device(bad)
@@ -358,7 +371,8 @@ def test_fault_specs_and_plan() -> None:
     f, p, a = parse_fault("late:0.25,delay=1.5,address=40")
     assert (f.kind, f.delay, p, a) == ("late", 1.5, 0.25, 40)
     f, p, a = parse_fault("sensor,channels=3+4,seconds=2")
-    assert f.channels == (3, 4) and p == 1.0
+    assert f.channels == (3, 4)
+    assert p == 1.0
     for bad in ("nope", "late:2", "late:x", "late,delay", "busy,code=3", "late,colour=1"):
         with pytest.raises(InvalidArgument):
             parse_fault(bad)
@@ -368,7 +382,8 @@ def test_fault_specs_and_plan() -> None:
     assert faults.pick(40, 3).kind == "bad_crc"  # type: ignore[union-attr]
     assert faults.pick(40, 3, tcp=True) is None  # no CRC on TCP
     assert faults.pick(40, 3).kind == "bad_crc"  # type: ignore[union-attr]
-    assert faults.pick(40, 3) is None and faults.counts["bad_crc"] == 2
+    assert faults.pick(40, 3) is None
+    assert faults.counts["bad_crc"] == 2
     faults.set_rate("no_reply", 0.5)
     hits = sum(faults.pick(1, 3) is not None for _ in range(1000))
     assert 400 < hits < 600

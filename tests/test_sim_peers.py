@@ -45,10 +45,13 @@ def test_mbpoll_reads_coolpro_telemetry_and_identity(coolpro_sim: Simulator) -> 
     rc, v, out = mbpoll(*rtu, "-t", "3", "-r", "1", "-c", "8", coolpro_sim.port)
     assert rc == 0, out
     vin, _iin, vout, _iout, temp, _up_lo, _up_hi, _status = v
-    assert 24_000 < vin < 25_000 and 23_800 < vout < 24_200 and 0 < temp <= 65_535
+    assert 24_000 < vin < 25_000
+    assert 23_800 < vout < 24_200
+    assert 0 < temp <= 65_535
     rc, v, out = mbpoll(*rtu, "-t", "3", "-0", "-r", "100", "-c", "8", coolpro_sim.port)
     assert rc == 0, out
-    assert v[0] | v[1] << 16 == 12345 and v[3:6] == [1, 0, 0]
+    assert v[0] | v[1] << 16 == 12345
+    assert v[3:6] == [1, 0, 0]
 
 
 @needs_mbpoll
@@ -61,11 +64,13 @@ def test_mbpoll_writes_coolpro_configuration(coolpro_sim: Simulator) -> None:
     rc, v, out = mbpoll(*rtu, "-r", "1", "-c", "3", coolpro_sim.port)
     assert (rc, v) == (0, [42, 3, 0]), out
     rc, _, out = mbpoll(*rtu, "-r", "3", coolpro_sim.port, "1")  # not 0xAA55
-    assert rc != 0 and "Illegal data value" in out
+    assert rc != 0
+    assert "Illegal data value" in out
     rc, _, out = mbpoll(*rtu, "-r", "3", coolpro_sim.port, str(0xAA55))
     assert rc == 0, out
     cp = coolpro_sim.devices[0]
-    assert isinstance(cp, CoolProDevice) and (cp.address, cp.baud) == (42, 57600)
+    assert isinstance(cp, CoolProDevice)
+    assert (cp.address, cp.baud) == (42, 57600)
 
 
 @needs_mbpoll
@@ -73,7 +78,8 @@ def test_mbpoll_over_tcp(pymb_simulator: MakeSim) -> None:
     sim = pymb_simulator("hub:250", transport="tcp")
     rc, v, out = mbpoll("-m", "tcp", "-p", str(sim.tcp_port), "-a", "250", "-t", "4", "-0",
                         "-r", "31", "-c", "10", "-o", "0.5", sim.host)
-    assert rc == 0 and len(v) == 10, out
+    assert rc == 0, out
+    assert len(v) == 10, out
 
 
 # -- pymodbus -------------------------------------------------------------------------
@@ -93,10 +99,12 @@ def test_pymodbus_reads_a_hub_block(pymb_simulator: MakeSim) -> None:
     try:
         rr = client.read_holding_registers(31, count=125, device_id=1)
         assert not rr.isError()
-        assert len(rr.registers) == 125 and rr.registers[0] == 0x80C8
+        assert len(rr.registers) == 125
+        assert rr.registers[0] == 0x80C8
         assert list(rr.registers) == list(hub.registers(31, 125))
         rr = client.read_holding_registers(231, count=10, device_id=250)  # 1.07: no block
-        assert rr.isError() and rr.exception_code == 2
+        assert rr.isError()
+        assert rr.exception_code == 2
     finally:
         client.close()
 
@@ -106,7 +114,8 @@ def test_pymodbus_reads_a_hub_block(pymb_simulator: MakeSim) -> None:
 
 def test_tcp_with_pymb_and_faults(pymb_simulator: MakeSim) -> None:
     sim = pymb_simulator("coolpro", "hub:250", transport="tcp")
-    assert sim.host == "127.0.0.1" and sim.endpoint == f"127.0.0.1:{sim.tcp_port}"
+    assert sim.host == "127.0.0.1"
+    assert sim.endpoint == f"127.0.0.1:{sim.tcp_port}"
     f = sim.faults
     with pymb.TcpClient(sim.host, sim.tcp_port, slave=40, timeout=0.2) as c:
         assert len(c.read_input_registers(0, 8)) == 8
@@ -127,7 +136,8 @@ def test_tcp_with_pymb_and_faults(pymb_simulator: MakeSim) -> None:
         assert e.value.code == 4
         f.inject("bad_crc")  # no CRC on TCP: not applied, the request is answered
         assert len(c.read_input_registers(0, 1)) == 1
-        assert f.counts["bad_crc"] == 0 and f.pending == 1
+        assert f.counts["bad_crc"] == 0
+        assert f.pending == 1
         f.clear()
         sim.unplug()
         with pytest.raises(pymb.ModbusConnectionError):
@@ -176,7 +186,8 @@ def test_cli_prints_the_pty_first_and_stops_cleanly(sig: int) -> None:
     finally:
         rc, err = _stop(p, sig)
     assert rc == 0, err
-    assert "coolpro at address 40" in err and "hub at address 1" in err
+    assert "coolpro at address 40" in err
+    assert "hub at address 1" in err
 
 
 def test_cli_tcp_link_faults_and_errors(tmp_path: Path) -> None:
@@ -189,24 +200,29 @@ def test_cli_tcp_link_faults_and_errors(tmp_path: Path) -> None:
             c.read_input_registers(0, 1)
     finally:
         rc, err = _stop(p)
-    assert rc == 0 and "'exception': 1" in err, err
+    assert rc == 0, err
+    assert "'exception': 1" in err, err
 
     link = tmp_path / "ttyCP"
     p, printed = _start("coolpro", "--link", str(link), "--baud", "19200")
     try:
-        assert printed == str(link) and os.path.islink(link)
+        assert printed == str(link)
+        assert os.path.islink(link)
         with pymb.RtuClient(printed, 19200, slave=40, timeout=1) as c:
             assert len(c.read_input_registers(0, 8)) == 8
     finally:
         rc, err = _stop(p)
-    assert rc == 0 and not os.path.exists(link), err
+    assert rc == 0, err
+    assert not os.path.exists(link), err
 
     bad = subprocess.run([sys.executable, "-m", "pymb", "simulate", "toaster"], cwd=ROOT,
                          capture_output=True, text=True, timeout=20, check=False)
-    assert bad.returncode == 2 and "unknown device" in bad.stderr
+    assert bad.returncode == 2
+    assert "unknown device" in bad.stderr
     bad = subprocess.run([sys.executable, "-m", "pymb", "simulate", "--port", "/nonexistent"],
                          cwd=ROOT, capture_output=True, text=True, timeout=20, check=False)
-    assert bad.returncode == 4 and "/nonexistent" in bad.stderr
+    assert bad.returncode == 4
+    assert "/nonexistent" in bad.stderr
 
 
 def test_simulator_process_for_benchmarks() -> None:
@@ -226,7 +242,8 @@ def test_simulator_process_for_benchmarks() -> None:
 
 def test_fixtures(coolpro_sim: Simulator, hub_sim: Simulator,
                   pymb_simulator: MakeSim) -> None:
-    assert coolpro_sim.devices[0].address == 40 and hub_sim.devices[0].address == 1
+    assert coolpro_sim.devices[0].address == 40
+    assert hub_sim.devices[0].address == 1
     other = pymb_simulator("hub:9", transport="tcp", seed=5)
     assert other.device(9).kind == "hub"
     assert os.path.exists(coolpro_sim.port)

@@ -126,9 +126,12 @@ def test_worked_frames_exactly(coolpro_sim: Simulator) -> None:
 def test_coolpro_through_the_client(coolpro_sim: Simulator) -> None:
     with client(coolpro_sim) as c:
         vin, _iin, vout, _iout, temp, _lo, _hi, _status = c.read_input_registers(0, 8)
-        assert 24_000 < vin < 25_000 and 23_800 < vout < 24_200 and temp > 0
+        assert 24_000 < vin < 25_000
+        assert 23_800 < vout < 24_200
+        assert temp > 0
         ident = c.read_input_registers(100, 8)
-        assert ident[0] | ident[1] << 16 == 12345 and list(ident[3:6]) == [1, 0, 0]
+        assert ident[0] | ident[1] << 16 == 12345
+        assert list(ident[3:6]) == [1, 0, 0]
         assert list(c.read_holding_registers(0, 3)) == [40, 0, 0]
 
 
@@ -169,7 +172,8 @@ def test_coolpro_gap_is_about_8_ms(pymb_simulator: MakeSim) -> None:
             slow.append(m.recv(quiet=0.02)[1] - t)
             t = m.send(rd(4, 41, 0, 1))
             fast.append(m.recv(quiet=0.02)[1] - t)
-    assert min(slow) >= 0.008 and min(slow) < 0.03
+    assert min(slow) >= 0.008
+    assert min(slow) < 0.03
     assert min(fast) < 0.005
 
 
@@ -178,7 +182,8 @@ def test_hub_response_delay(pymb_simulator: MakeSim) -> None:
     with raw(sim) as m:
         t = m.send(rd(3, 1, 31, 1))
         reply, when = m.recv()
-    assert reply[:2] == b"\x01\x03" and 0.12 <= when - t < 0.3
+    assert reply[:2] == b"\x01\x03"
+    assert 0.12 <= when - t < 0.3
 
 
 def test_hub_high_addresses_and_exceptions(bus: Simulator) -> None:
@@ -231,7 +236,8 @@ def test_coolpro_address_and_baud_change_at_reset(coolpro_sim: Simulator) -> Non
         with pytest.raises(pymb.ModbusTimeout):
             c.read_input_registers(0, 1, slave=40)
         lo, hi, status = c.read_input_registers(5, 3)
-        assert (lo, hi) == (0, 0) and status & 0x01  # uptime restarted, starting up
+        assert (lo, hi) == (0, 0)
+        assert status & 0x01  # uptime restarted, starting up
         assert list(c.read_holding_registers(0, 3)) == [42, 1, 0]
 
 
@@ -272,7 +278,8 @@ def test_fault_no_reply_late_and_recovery(coolpro_sim: Simulator) -> None:
         with pytest.raises(pymb.ModbusTimeout):
             c.read_input_registers(0, 1)
         assert len(c.read_input_registers(0, 8)) == 8
-    assert f.counts["no_reply"] == 1 and f.counts["late"] == 1
+    assert f.counts["no_reply"] == 1
+    assert f.counts["late"] == 1
 
 
 def test_fault_bad_crc_wrong_address_truncate(coolpro_sim: Simulator) -> None:
@@ -285,7 +292,8 @@ def test_fault_bad_crc_wrong_address_truncate(coolpro_sim: Simulator) -> None:
         f.inject("wrong_address")
         with pytest.raises(pymb.ProtocolError) as e:
             c.read_input_registers(0, 1)
-        assert e.value.response is not None and e.value.response[0] == 41
+        assert e.value.response is not None
+        assert e.value.response[0] == 41
         f.inject("truncate")
         with pytest.raises((pymb.ModbusTimeout, pymb.ProtocolError)):
             c.read_input_registers(0, 8)
@@ -298,7 +306,8 @@ def test_fault_stray_bytes_after_a_valid_reply(coolpro_sim: Simulator) -> None:
     coolpro_sim.faults.inject("stray", extra=b"\xde\xad")
     with raw(coolpro_sim) as m:
         reply = m.ask(rd(4, 40, 0, 1))
-    assert reply[-2:] == b"\xde\xad" and _native.rtu_crc_ok(reply[:-2])
+    assert reply[-2:] == b"\xde\xad"
+    assert _native.rtu_crc_ok(reply[:-2])
     coolpro_sim.faults.inject("stray")
     with client(coolpro_sim) as c:
         c.read_input_registers(0, 1)  # the reply itself is fine
@@ -328,7 +337,9 @@ def test_fault_sensor(bus: Simulator) -> None:
     with client(bus) as c:
         f.inject("sensor", address=40, bits=0x08, seconds=60)
         vin, _, vout, iout, *_, status = c.read_input_registers(0, 8)
-        assert status & 0x08 and (vout, iout) == (0, 0) and vin > 0
+        assert status & 0x08
+        assert (vout, iout) == (0, 0)
+        assert vin > 0
         f.inject("sensor", address=250, channels=(5,), seconds=60)
         assert c.read_holding_registers(35, 1, slave=250)[0] == 0xFFFF
         bus.clock.advance(61)

@@ -125,10 +125,13 @@ def test_coolpro_view_and_reader(tmp_path: Path) -> None:
     con.close()
     (s,) = samples_after(db, 0)
     assert isinstance(s.data, CoolProTelemetry)
-    assert s.data.uptime_s == 70000 and s.data.input_voltage_v == 24.5
-    assert s.data.status == CoolProStatus(0x8041) and s.data.registers == regs
+    assert s.data.uptime_s == 70000
+    assert s.data.input_voltage_v == 24.5
+    assert s.data.status == CoolProStatus(0x8041)
+    assert s.data.registers == regs
     d = sample_dict(s)
-    assert d["sample"] == 1 and d["device"] == "psu"
+    assert d["sample"] == 1
+    assert d["device"] == "psu"
     assert d["status_flags"] == ["SYSTEM_STARTUP", "TEMPERATURE_SENSOR_FAULT"]
 
 
@@ -186,7 +189,8 @@ def test_a_database_of_the_old_format_is_exported_and_never_mixed(tmp_path: Path
          "--device", "hub", "--out", str(db), "--seconds", "1"],
         capture_output=True, text=True, timeout=60)
     assert out.returncode == 2, out.stderr
-    assert "format 1" in out.stderr and "Traceback" not in out.stderr
+    assert "format 1" in out.stderr
+    assert "Traceback" not in out.stderr
     assert db.read_bytes() == before
     import io
 
@@ -292,7 +296,8 @@ def test_outbox_cursor_trimming_records_what_was_never_sent(tmp_path: Path) -> N
     assert first > 11
     events = con.execute("SELECT code, message FROM events WHERE kind = 'trim' "
                          "ORDER BY id").fetchall()
-    assert events and "not yet forwarded" in events[0][1]
+    assert events
+    assert "not yet forwarded" in events[0][1]
     # every deleted sample after the cursor is counted, once
     assert sum(code for code, _ in events) == first - 11
     con.close()
@@ -329,7 +334,8 @@ def test_limits_that_are_not_positive_are_refused(tmp_path: Path, flag: str, val
          "--out", str(tmp_path / "x.sqlite"), flag, value, "--seconds", "1"],
         capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
-    assert "positive" in out.stderr and "Traceback" not in out.stderr
+    assert "positive" in out.stderr
+    assert "Traceback" not in out.stderr
     assert not (tmp_path / "x.sqlite").exists()
 
 
@@ -364,7 +370,8 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
     con = sqlite3.connect(db)
     stored = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
     rows = con.execute("SELECT COUNT(*) FROM hub_changes").fetchone()[0]
-    assert read >= 2 and 1 <= stored <= read
+    assert read >= 2
+    assert 1 <= stored <= read
     assert 100 <= rows < 100 * read  # the first sweep whole, then only what moved
     for ch in (1, 50, 100):
         row = con.execute(
@@ -377,7 +384,8 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
         [sys.executable, "-m", "pymb", "log", "--port", "/dev/null", "--device", "hub",
          "--deadband", "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite")],
         capture_output=True, text=True, timeout=60, env=PYMB_ENV)
-    assert bad.returncode == 2 and "--on-change" in bad.stderr
+    assert bad.returncode == 2
+    assert "--on-change" in bad.stderr
 
 
 def test_a_size_limit_below_one_megabyte_is_refused(tmp_path: Path) -> None:
@@ -385,7 +393,8 @@ def test_a_size_limit_below_one_megabyte_is_refused(tmp_path: Path) -> None:
         [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "p"), "--device", "hub",
          "--out", str(tmp_path / "x.sqlite"), "--max-mb", "0.5", "--seconds", "1"],
         capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "at least 1 MB" in out.stderr
+    assert out.returncode == 2
+    assert "at least 1 MB" in out.stderr
 
 
 def test_a_new_humidity_unit_is_a_new_device_row_and_old_samples_keep_theirs(

@@ -32,7 +32,8 @@ def test_size_limit_deletes_the_oldest(tmp_path: Path) -> None:
     assert sink._size() <= 1_000_000
     first, last, n = sink.db.execute(
         "SELECT MIN(id), MAX(id), COUNT(*) FROM samples").fetchone()
-    assert last == 1500 and n == last - first + 1  # the newest are kept, in one run
+    assert last == 1500
+    assert n == last - first + 1  # the newest are kept, in one run
     assert sink.db.execute("SELECT COUNT(*) FROM hub").fetchone()[0] == 100 * n
     sink.close()
     con = sqlite3.connect(db)

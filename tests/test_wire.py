@@ -418,7 +418,8 @@ def test_rts_delay_out_of_range_and_failed_connect_leave_nothing_open() -> None:
         c = pymb.RtuClient(pty.port, serial_mode="rs485")  # a pty has no RS485 mode
         with pytest.raises(pymb.ModbusConnectionError):
             c.connect()
-        assert not c.connected and c.fileno() == -1
+        assert not c.connected
+        assert c.fileno() == -1
         with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
             c.read_holding_registers(0, 1, slave=1)
         with pymb.RtuClient(pty.port, slave=1) as again:  # the port's lock was released
@@ -543,9 +544,11 @@ def test_simulator_serves_rtu_over_tcp_to_pymodbus() -> None:
         assert c.connect()
         try:
             rr = c.read_input_registers(0, count=8, device_id=40)
-            assert not rr.isError() and len(rr.registers) == 8
+            assert not rr.isError()
+            assert len(rr.registers) == 8
             rr = c.read_holding_registers(31, count=100, device_id=250)
-            assert not rr.isError() and list(rr.registers) == list(
+            assert not rr.isError()
+            assert list(rr.registers) == list(
                 sim.device(250).registers(31, 100))  # type: ignore[attr-defined]
         finally:
             c.close()
@@ -874,7 +877,8 @@ def test_against_a_pymodbus_server(mode: str) -> None:
                              1: IDENTITY["ProductCode"].encode(),
                              2: IDENTITY["MajorMinorRevision"].encode()}
             regular = _device_objects(c.raw_request(0x2B, b"\x0e\x02\x00"))
-            assert regular[5] == IDENTITY["ModelName"].encode() and len(regular) == 6
+            assert regular[5] == IDENTITY["ModelName"].encode()
+            assert len(regular) == 6
             assert c.raw_request(0x08, b"\x00\x00\x12\x34") == b"\x00\x00\x12\x34"
             assert c.report_slave_id().startswith(IDENTITY["VendorName"].encode())
             with pytest.raises(pymb.IllegalDataAddress):

@@ -195,7 +195,8 @@ def libmodbus_server(exe: Path, mode: str) -> Iterator[str]:
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline().split()
-        assert line and line[0] == "READY", line
+        assert line, line
+        assert line[0] == "READY", line
         yield line[1]
     finally:
         proc.kill()
@@ -291,7 +292,8 @@ def pymodbus_server(mode: str) -> Iterator[int]:
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline().split()
-        assert line and line[0] == "READY", line
+        assert line, line
+        assert line[0] == "READY", line
         yield int(line[1])
     finally:
         proc.kill()
