@@ -8,7 +8,12 @@ tests directory is on the path, as it is for peers.py and reference.py.
 from __future__ import annotations
 
 import os
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+_T = TypeVar("_T")
 
 #: The source checkout: ``python -m pymb`` children run this pymb.
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,3 +25,25 @@ PYMB_ENV = dict(os.environ, PYTHONPATH=os.pathsep.join(
 #: A client's reply timeout where a test waits for one to pass: short, so the
 #: suite stays fast; longer under valgrind or qemu (PYMB_TEST_TIMEOUT).
 TIMEOUT = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
+
+
+def wait_until(event: Callable[[], _T], what: str | Callable[[], str], timeout: float = 10.0,
+               *, alive: Callable[[], bool] | None = None, every: float = 0.02) -> _T:
+    """Poll ``event()`` until it is true and return what it returned: the one
+    way a test waits for something to happen (a counter, a row, a state).
+
+    Fails naming ``what`` (a text, or a function that says what was seen)
+    after ``timeout`` seconds, or at once when ``alive()`` (the thing that
+    should make the event happen: a process, a thread) turns false first.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        got = event()
+        if got:
+            return got
+        said = what() if callable(what) else what
+        if alive is not None and not alive():
+            raise AssertionError(f"stopped before {said}")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {said}")
+        time.sleep(every)

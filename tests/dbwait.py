@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import sqlite3
 import subprocess
-import time
 from contextlib import closing
 from pathlib import Path
 from typing import Any
+
+from conftest import wait_until
 
 
 def count(db: Path, sql: str, params: tuple[Any, ...] = ()) -> int:
@@ -33,14 +34,18 @@ def wait_for(db: Path, sql: str, params: tuple[Any, ...] = (), at_least: int = 1
 
     Fails when ``proc`` (the logger) exits first or after ``timeout`` seconds.
     """
-    deadline = time.monotonic() + timeout
-    while True:
-        n = count(db, sql, params)
-        if n >= at_least:
-            return n
-        if proc is not None and proc.poll() is not None:
-            raise AssertionError(f"the logger exited ({proc.returncode}) with {n} of "
-                                 f"{at_least} rows for {sql!r} {params}")
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{n} of {at_least} rows after {timeout} s for {sql!r} {params}")
-        time.sleep(0.05)
+    seen = 0
+
+    def enough() -> bool:
+        nonlocal seen
+        seen = count(db, sql, params)
+        return seen >= at_least
+
+    def what() -> str:
+        exited = (f" (the logger exited {proc.returncode})"
+                  if proc is not None and proc.returncode is not None else "")
+        return f"{at_least} rows for {sql!r} {params}: {seen}{exited}"
+
+    wait_until(enough, what, timeout, every=0.05,
+               alive=None if proc is None else lambda: proc.poll() is None)
+    return seen

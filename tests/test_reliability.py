@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB_ENV, TIMEOUT
+from conftest import PYMB_ENV, TIMEOUT, wait_until
 from dbwait import count, wait_for
 
 import pymb
@@ -78,11 +78,8 @@ def expect(outcome: Any, call: Callable[[], Any]) -> tuple[Any, float]:
     return result, time.monotonic() - t0
 
 
-def wait_plugged(frozen_sim: Simulator) -> None:
-    deadline = time.monotonic() + 5
-    while not frozen_sim.plugged and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert frozen_sim.plugged
+def wait_plugged(sim: Simulator) -> None:
+    wait_until(lambda: sim.plugged, "the simulator's port to come back", timeout=5)
 
 
 def bound(name: str) -> float:
@@ -168,21 +165,39 @@ def test_hub_busy_beyond_retries_raises_device_busy(frozen_sim: Simulator) -> No
 def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
         tmp_path: Path) -> None:
     db = tmp_path / "matrix.sqlite"
-    with Simulator(["coolpro", "hub"], seed=8) as frozen_sim:
-        bus = BusConfig("b", frozen_sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40),
-                                                         DeviceConfig("hub", 1)])
+    with Simulator(["coolpro", "hub"], seed=8) as sim:
+        bus = BusConfig("b", sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40),
+                                                           DeviceConfig("hub", 1)])
         logger = Logger(LogConfig([bus], "sqlite", str(db)))
         result: list[Any] = []
-        t = threading.Thread(target=lambda: result.append(logger.run(30)))
+        t = threading.Thread(target=lambda: result.append(logger.run(300)))  # stopped below
         t.start()
+
+        def meet(name: str, params: dict[str, Any]) -> None:
+            kind = kind_of(name)
+            met = sim.faults.counts[kind]
+            sim.faults.inject(kind, address=40, **params)
+            # One of the logger's requests meets the fault...
+            wait_until(lambda: sim.faults.counts[kind] > met,
+                       f"the logger's request that meets {name}", timeout=20, alive=t.is_alive)
+            # ...and the bus is answered again (after an unplug: reconnected).
+            served = sim.stats.replies
+            wait_until(lambda: sim.stats.replies >= served + 3,
+                       f"three more replies after {name}", timeout=20, alive=t.is_alive)
+
         try:
             for name, (params, _) in MATRIX.items():
-                frozen_sim.faults.inject(kind_of(name), address=40, **params)
-                time.sleep(0.5 if name != "unplug" else 1.5)
-            time.sleep(0.5)
+                meet(name, params)
+            # Logging goes on after the last fault: samples read from now on,
+            # committed, and enough CoolPro rows to check below.
+            settled = time.time()
+            wait_for(db, "SELECT COUNT(*) FROM coolpro", at_least=21, timeout=30)
+            wait_for(db, "SELECT COUNT(*) FROM samples WHERE time_utc > ?", (settled,),
+                     at_least=4, timeout=30)
         finally:
             logger.stop()
             t.join(30)
+    assert not t.is_alive()
     summary = result[0]
     assert summary.faults >= 9
     con = sqlite3.connect(db)
@@ -221,15 +236,15 @@ def rss_kb() -> int:
 
 @pytest.mark.parametrize("cycles", [1000])
 def test_unplug_replug_without_leaks(cycles: int) -> None:
-    with Simulator(["coolpro"], seed=2) as frozen_sim:
-        c = pymb.RtuClient(frozen_sim.port, timeout=T, slave=40)
+    with Simulator(["coolpro"], seed=2) as sim:
+        c = pymb.RtuClient(sim.port, timeout=T, slave=40)
         c.connect()
         try:
             def cycle() -> None:
-                frozen_sim.unplug()
+                sim.unplug()
                 with pytest.raises(pymb.ModbusConnectionError):
                     c.read_input_registers(0, 8)
-                frozen_sim.replug()
+                sim.replug()
                 assert len(c.read_input_registers(0, 8)) == 8
 
             for _ in range(50):  # warm up caches and allocators
@@ -251,8 +266,8 @@ def test_unplug_replug_without_leaks(cycles: int) -> None:
 
 def test_disk_full_is_a_clear_error_and_keeps_what_was_committed(tmp_path: Path) -> None:
     db = tmp_path / "full.sqlite"
-    with Simulator(["hub"], seed=3) as frozen_sim:
-        bus = BusConfig("b", frozen_sim.port, timeout=1.0, devices=[DeviceConfig("hub", 1)])
+    with Simulator(["hub"], seed=3) as sim:
+        bus = BusConfig("b", sim.port, timeout=1.0, devices=[DeviceConfig("hub", 1)])
         sink = SqliteSink(db)
         # SQLite's own "database or disk is full" (SQLITE_FULL), at ~2 MB.
         sink.db.execute("PRAGMA max_page_count = 500")
@@ -273,8 +288,8 @@ def test_disk_full_is_a_clear_error_and_keeps_what_was_committed(tmp_path: Path)
 def test_read_only_database_is_a_clear_error(tmp_path: Path) -> None:
     db = tmp_path / "ro.sqlite"
     SqliteSink(db).close()
-    with Simulator(["coolpro"], seed=3) as frozen_sim:
-        bus = BusConfig("b", frozen_sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40)])
+    with Simulator(["coolpro"], seed=3) as sim:
+        bus = BusConfig("b", sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40)])
         sink = SqliteSink(db)
         sink.db.execute("PRAGMA query_only = 1")  # every write now fails as read-only
         with pytest.raises(OutputError, match=r"readonly|read-only|query_only"):
@@ -287,8 +302,8 @@ def test_read_only_database_is_a_clear_error(tmp_path: Path) -> None:
 def test_cli_exit_code_for_an_unwritable_output(tmp_path: Path) -> None:
     from pymb.cli import main
 
-    with Simulator(["coolpro"], seed=3) as frozen_sim:
-        code = main(["log", "--port", frozen_sim.port, "--device", "coolpro", "--out",
+    with Simulator(["coolpro"], seed=3) as sim:
+        code = main(["log", "--port", sim.port, "--device", "coolpro", "--out",
                      str(tmp_path / "no" / "such" / "dir" / "x.sqlite"), "--seconds", "1",
                      "--quiet"])
     assert code == 2
@@ -300,30 +315,25 @@ def test_cli_exit_code_for_an_unwritable_output(tmp_path: Path) -> None:
 def sigkill_runs(n: int, tmp_path: Path, seed: int = 1) -> None:
     rng = random.Random(seed)
     db = tmp_path / "killed.sqlite"
-    env = PYMB_ENV
-    with Simulator(["coolpro", "hub"], seed=seed) as frozen_sim:
+    with Simulator(["coolpro", "hub"], seed=seed) as sim:
         before = 0
         for _ in range(n):
             proc = subprocess.Popen(
-                [sys.executable, "-m", "pymb", "log", "--port", frozen_sim.port, "--device",
-                 "coolpro", "--device", "hub", "--out", str(db), "--quiet"], env=env)
-            # Killed at a random moment once this run is logging (its first
-            # commit), however long the start takes on this machine.
-            wait_for(db, "SELECT COUNT(*) FROM samples", at_least=before + 1, proc=proc)
-            time.sleep(rng.uniform(0.0, 1.2))
-            committed = count(db, "SELECT COUNT(*) FROM samples")
-            proc.send_signal(signal.SIGKILL)
-            proc.wait(10)
-            if not db.exists():  # killed before it made the file (a slow start)
-                continue
+                [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device",
+                 "coolpro", "--device", "hub", "--out", str(db), "--quiet"], env=PYMB_ENV)
+            # This run has committed (however long the start takes on this
+            # machine): only then is it killed, at a random moment of its
+            # commit cycle (0.5 s) or a few cycles later.
+            try:
+                wait_for(db, "SELECT COUNT(*) FROM samples", at_least=before + 1, proc=proc)
+                time.sleep(rng.uniform(0.0, 1.2))  # the random moment: not a wait for an event
+                committed = count(db, "SELECT COUNT(*) FROM samples")
+                assert committed > before, (committed, before)
+            finally:
+                proc.send_signal(signal.SIGKILL)
+                proc.wait(10)
             con = sqlite3.connect(db)
             assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
-            if not con.execute("SELECT COUNT(*) FROM sqlite_master WHERE name = 'samples'"
-                               ).fetchone()[0]:
-                # Killed before it made its tables (a loaded machine starts it slowly).
-                con.close()
-                assert committed == before == 0
-                continue
             after = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
             hub_rows = con.execute("SELECT COUNT(*) FROM hub").fetchone()[0]
             hub_samples = con.execute(
