@@ -12,7 +12,6 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -238,17 +237,7 @@ def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:
              "--device", "hub", "--out", str(db), "--quiet"],
             env=PYMB_ENV)
         try:
-            deadline = time.monotonic() + 20
-            committed = 0
-            while time.monotonic() < deadline and committed < 20:
-                time.sleep(0.3)
-                if db.exists():
-                    with sqlite3.connect(db, timeout=5) as con:
-                        try:
-                            committed = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
-                        except sqlite3.OperationalError:
-                            committed = 0
-            assert committed >= 20
+            committed = wait_for(db, "SELECT COUNT(*) FROM samples", at_least=20, proc=proc)
         finally:
             proc.kill()
             proc.wait(10)

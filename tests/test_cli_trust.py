@@ -26,7 +26,8 @@ from pathlib import Path
 
 import pyte
 import pytest
-from conftest import PYMB_ENV
+from conftest import PYMB_ENV, wait_until
+from dbwait import count, wait_for
 
 from pymb.sim import Simulator, SimulatorProcess
 
@@ -241,8 +242,7 @@ def test_log_status_line_is_one_line_that_fits(tmp_path: Path) -> None:
     p = Pty(["log", "coolpro", "hub", "--port", "/dev/ttyUSB-missing-for-a-long-name-test",
              "--out", str(tmp_path / "s.sqlite")], cols=80)
     assert p.read_until(b"retry", 5) or p.read_until(b"faults 3", 10)
-    time.sleep(0)  # the status line is redrawn every 0.5 s: wait for a few
-    assert p.read_until(b"faults 3", 20)
+    assert p.read_until(b"faults 3", 20)  # the status line is redrawn every 0.5 s: a few
     p.interrupt()
     # Every redraw starts with \r + erase-line and never wraps: the screen
     # holds one status line, not one per redraw.
@@ -651,7 +651,6 @@ def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Pa
 def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) -> None:
     p = Pty(["watch", "hub:250", "--port", sim3.port], cols=80, rows=24)
     assert p.read_until(b"reads", 20)
-    time.sleep(0)
     p.read_until(b"\x00", 1.5)
     screen = p.screen()
     p.interrupt()
@@ -747,12 +746,9 @@ def test_export_stopped_by_a_signal_leaves_no_temporary_file(logged: Path, tmp_p
     p = subprocess.Popen([*PYMB, "export", str(logged), "--csv", str(out)], env=ENV,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 60
-        while not [f for f in tmp_path.iterdir() if f.name.startswith(".pymb-export-")
-                   and f.stat().st_size > 0]:
-            assert p.poll() is None, "export never started"
-            assert time.monotonic() < deadline, "export never started"
-            time.sleep(0.01)
+        wait_until(lambda: [f for f in tmp_path.iterdir() if f.name.startswith(".pymb-export-")
+                            and f.stat().st_size > 0], "the export's temporary file", 60,
+                   alive=lambda: p.poll() is None, every=0.01)
         p.send_signal(sig)
         _, err = p.communicate(timeout=30)
     finally:
@@ -795,11 +791,7 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
                          env=ENV, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, text=True, preexec_fn=ignore)
     try:
-        deadline = time.monotonic() + 60
-        while _samples(db) < 20:
-            assert p.poll() is None, "nothing logged"
-            assert time.monotonic() < deadline, "nothing logged"
-            time.sleep(0.05)
+        wait_for(db, "SELECT COUNT(*) FROM samples", at_least=20, proc=p)
         p.send_signal(signal.SIGHUP)
         if nohup:
             with pytest.raises(subprocess.TimeoutExpired):
@@ -812,14 +804,4 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
             p.wait()
     no_traceback(subprocess.CompletedProcess([], p.returncode, "", err))
     assert p.returncode == 0, (p.returncode, err)
-    assert f"logged {_samples(db):,} samples" in err, err
-
-
-def _samples(db: Path) -> int:
-    if not db.exists():
-        return 0
-    try:
-        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as c:
-            return int(c.execute("SELECT count(*) FROM samples").fetchone()[0])
-    except sqlite3.Error:
-        return 0
+    assert f"logged {count(db, 'SELECT COUNT(*) FROM samples'):,} samples" in err, err

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import pytest
-from conftest import TIMEOUT
+from conftest import TIMEOUT, wait_until
 
 import pymb
 from pymb import _native
@@ -385,10 +385,7 @@ def test_unplug_for_a_while_and_by_fault(coolpro_sim: Simulator) -> None:
         with pytest.raises((pymb.ModbusTimeout, pymb.ModbusConnectionError)):
             c.read_input_registers(0, 1)  # the request that pulled the plug
         assert not sim.plugged
-        deadline = time.monotonic() + 3
-        while not sim.plugged and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert sim.plugged
+        wait_until(lambda: sim.plugged, "the port to come back", timeout=3)
         for _ in range(3):
             try:
                 c.read_input_registers(0, 1)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import wait_until
 from wire_peers import (
     build_libmodbus_server,
     libmodbus_server,
@@ -666,10 +667,8 @@ def test_ctrl_c_interrupts_a_blocked_read_in_a_real_process() -> None:
         try:
             assert proc.stdout is not None
             assert proc.stdout.readline().strip() == "ready"
-            deadline = time.monotonic() + 10
-            while not peer.requests and time.monotonic() < deadline:
-                time.sleep(0.01)  # until the request is on the wire: the read is blocked
-            assert peer.requests
+            # until the request is on the wire: the read is blocked
+            wait_until(lambda: peer.requests, "the request on the wire", 10, every=0.01)
             t0 = time.monotonic()
             proc.send_signal(signal.SIGINT)
             rc = proc.wait(10)
