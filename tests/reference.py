@@ -1,5 +1,6 @@
-"""Slow, obvious pure-Python decoders, straight from the documents: the
-reference the C core is tested against. Kept in tests/ only."""
+"""Slow, obvious pure-Python decoders and the RTU CRC, straight from the
+documents: the reference the C core is tested against (and the CRC the
+scripted peers frame with). Kept in tests/ only."""
 
 from __future__ import annotations
 
@@ -58,3 +59,19 @@ def milli(raw: int) -> float:
 def u32_low_word_first(low: int, high: int) -> int:
     """[CP] ch. 04: (high << 16) | low."""
     return (high << 16) | low
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/MODBUS, bit by bit ([MB-SL] 6.2.2): the polynomial 0xA001
+    (reflected 0x8005), initial value 0xFFFF."""
+    c = 0xFFFF
+    for b in data:
+        c ^= b
+        for _ in range(8):
+            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
+    return c
+
+
+def crc(data: bytes) -> bytes:
+    """The CRC as an RTU frame carries it: low byte first."""
+    return crc16(data).to_bytes(2, "little")

@@ -16,8 +16,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV, TIMEOUT
-from peers import PtyPeer, pty_peer, tcp_peer
+import reference
+from conftest import PYMB_ENV, TIMEOUT, wait_until
+from peerkit import Reply
+from peers import PtyPeer, TcpPeer
 
 import pymb
 from pymb import _native
@@ -27,12 +29,12 @@ from pymb import _native
 T = TIMEOUT
 
 #: What a peer hook returns: (delay, bytes) to send, or None for the normal reply.
-Reply = list[tuple[float, bytes]] | None
+HookReply = Reply | None
 
 
 @pytest.fixture
 def peer() -> Iterator[PtyPeer]:
-    with pty_peer() as p:
+    with PtyPeer() as p:
         yield p
 
 
@@ -61,17 +63,9 @@ def test_crc16_known_values() -> None:
 
 
 def test_crc16_matches_bitwise_reference() -> None:
-    def ref(data: bytes) -> int:
-        crc = 0xFFFF
-        for b in data:
-            crc ^= b
-            for _ in range(8):
-                crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-        return crc
-
     for n in (1, 2, 7, 64, 255, 256):
         data = bytes((i * 37 + n) & 0xFF for i in range(n))
-        assert pymb.crc16(data) == ref(data)
+        assert pymb.crc16(data) == reference.crc16(data)
 
 
 # -- reads --------------------------------------------------------------------
@@ -114,7 +108,7 @@ def test_high_slave_addresses_use_pymb_framing(peer: PtyPeer) -> None:
 def test_slave_250_reply_with_bad_crc_is_refused(peer: PtyPeer) -> None:
     # libmodbus would skip the CRC check here (the reply's address is not the
     # context's slave); pymb must not.
-    def corrupt(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
+    def corrupt(slave: int, pdu: bytes, normal: bytes | None) -> HookReply:
         frame = bytearray(peer.frame(slave, normal or b""))
         frame[4] ^= 0x01
         return [(0, bytes(frame))]
@@ -155,7 +149,7 @@ def test_writes_and_the_rest_of_the_surface(peer_client: pymb.RtuClient, peer: P
 
 
 def test_write_echo_must_match(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
-    def wrong_echo(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
+    def wrong_echo(slave: int, pdu: bytes, normal: bytes | None) -> HookReply:
         if pdu[0] == 6:
             return [(0, peer.frame(slave, pdu[:3] + b"\x00\x2b"))]
         return None
@@ -185,7 +179,7 @@ def test_timeout(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
 
 
 def test_bad_crc(peer_client: pymb.RtuClient, peer: PtyPeer) -> None:
-    def bad(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
+    def bad(slave: int, pdu: bytes, normal: bytes | None) -> HookReply:
         frame = bytearray(peer.frame(slave, normal or b""))
         frame[-1] ^= 0xFF
         return [(0, bytes(frame))]
@@ -250,7 +244,7 @@ def test_late_reply_is_never_taken_as_a_later_answer(peer_client: pymb.RtuClient
     peer.memory.inputs[0:2] = [0xDEAD, 0xBEEF]
     calls = {"n": 0}
 
-    def late_first(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
+    def late_first(slave: int, pdu: bytes, normal: bytes | None) -> HookReply:
         calls["n"] += 1
         if calls["n"] == 1:
             return [(1.4 * T, peer.frame(slave, normal or b""))]
@@ -267,12 +261,13 @@ def test_stray_bytes_after_a_reply_do_not_poison_the_next(peer_client: pymb.RtuC
                                                            peer: PtyPeer) -> None:
     stale = peer.frame(40, b"\x04\x04\xde\xad\xbe\xef")
 
-    def stray(slave: int, pdu: bytes, normal: bytes | None) -> Reply:
+    def stray(slave: int, pdu: bytes, normal: bytes | None) -> HookReply:
         return [(0, peer.frame(slave, normal or b"")), (0.01, stale)]
 
     peer.hook = stray
+    written = peer.written
     assert list(peer_client.read_input_registers(0, 2)) == [0, 1]
-    time.sleep(0.05)
+    wait_until(lambda: peer.written >= written + 2, "the stale frame after the reply", 5)
     peer.hook = None
     assert list(peer_client.read_input_registers(0, 2)) == [0, 1]
 
@@ -369,10 +364,7 @@ def test_close_is_idempotent_and_context_manager_reopens(peer: PtyPeer) -> None:
 
 
 def test_unplugged_port_raises_connection_error_then_reconnects() -> None:
-    peer = PtyPeer()
-    c = pymb.RtuClient(peer.port, slave=40, timeout=T)
-    c.connect()
-    try:
+    with PtyPeer() as peer, pymb.RtuClient(peer.port, slave=40, timeout=T) as c:
         assert c.read_input_registers(0, 1)[0] == 0
         port = peer.port
         peer.stop()  # the master side disappears, as a pulled USB adapter
@@ -384,8 +376,6 @@ def test_unplugged_port_raises_connection_error_then_reconnects() -> None:
         # The pty is gone for good: the automatic reconnect fails clearly too.
         with pytest.raises(pymb.ModbusConnectionError):
             c.read_input_registers(0, 1)
-    finally:
-        c.close()
 
 
 def test_threads_share_one_client(peer_client: pymb.RtuClient) -> None:
@@ -433,7 +423,7 @@ def test_gil_is_released_while_waiting(peer_client: pymb.RtuClient, peer: PtyPee
 
 
 def test_tcp_reads_writes_and_high_unit_ids() -> None:
-    with tcp_peer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
+    with TcpPeer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
         assert list(c.read_input_registers(0, 4)) == [0, 1, 2, 3]
         assert len(c.read_holding_registers(0, 700)) == 700
         c.write_register(3, 99)
@@ -443,7 +433,7 @@ def test_tcp_reads_writes_and_high_unit_ids() -> None:
 
 
 def test_tcp_errors() -> None:
-    with tcp_peer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
+    with TcpPeer() as peer, pymb.TcpClient(*peer.address, slave=1, timeout=T) as c:
         peer.hook = lambda slave, pdu, normal: [(0, peer.frame(slave, bytes((pdu[0] | 0x80, 2))))]
         with pytest.raises(pymb.IllegalDataAddress):
             c.read_input_registers(0, 4)
@@ -458,7 +448,7 @@ def test_tcp_errors() -> None:
 
 
 def test_tcp_connection_refused() -> None:
-    with tcp_peer() as peer:
+    with TcpPeer() as peer:
         host, port = peer.address
     c = pymb.TcpClient(host, port, slave=1, timeout=T)
     with pytest.raises(pymb.ModbusConnectionError) as ei:
@@ -477,7 +467,7 @@ def _high_fd_script(body: str) -> str:
         resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, 1300), hard))
         held = [os.open("/dev/null", os.O_RDONLY) for _ in range(1100)]
         import pymb
-        from peers import pty_peer, tcp_peer
+        from peers import PtyPeer, TcpPeer
     """) + textwrap.dedent(body)
 
 
@@ -491,7 +481,7 @@ def test_late_reply_is_dropped_on_a_descriptor_above_1024() -> None:
     # The drain after a timeout must work on any descriptor number (it used
     # select(), which stops at FD_SETSIZE: the late reply then got through).
     r = _run_script(_high_fd_script("""
-        with pty_peer() as peer:
+        with PtyPeer() as peer:
             peer.memory.inputs[0:2] = [0xDEAD, 0xBEEF]
             calls = [0]
             def late_first(slave, pdu, normal):
@@ -513,7 +503,7 @@ def test_late_reply_is_dropped_on_a_descriptor_above_1024() -> None:
 
 def test_tcp_on_a_descriptor_above_1024_is_an_error_not_an_abort() -> None:
     r = _run_script(_high_fd_script("""
-        with tcp_peer() as peer:
+        with TcpPeer() as peer:
             c = pymb.TcpClient(*peer.address, slave=1, timeout=0.25)
             try:
                 c.connect()
@@ -529,5 +519,5 @@ def test_broadcast_write_waits_the_turnaround(peer: PtyPeer) -> None:
         t0 = time.monotonic()
         c.write_register(7, 1234, slave=0)  # broadcast: no reply expected
         assert time.monotonic() - t0 >= 0.1
-        time.sleep(0.05)
+        wait_until(lambda: peer.requests, "the broadcast at the peer", 5)
         assert peer.requests[-1] == (0, b"\x06\x00\x07\x04\xd2")

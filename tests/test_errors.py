@@ -9,7 +9,8 @@ import struct
 from pathlib import Path
 
 import pytest
-from wire_peers import mbap, raw_tcp
+from peerkit import mbap
+from wire_peers import RawTcp
 
 import pymb
 from pymb import errors
@@ -56,7 +57,7 @@ def _exception_reply(code: int) -> BaseException:
         tid, _, _, unit = struct.unpack(">HHHB", adu[:7])
         return [(0, mbap(tid, unit, bytes((adu[7] | 0x80, code))))]
 
-    with (raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c,
+    with (RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c,
           pytest.raises(pymb.ModbusError) as ei):
         c.read_holding_registers(0, 1)
     return ei.value

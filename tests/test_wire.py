@@ -19,15 +19,8 @@ from typing import Any
 
 import pytest
 from conftest import wait_until
-from wire_peers import (
-    build_libmodbus_server,
-    libmodbus_server,
-    mbap,
-    raw_pty,
-    raw_tcp,
-    registers,
-    rtu,
-)
+from peerkit import mbap, registers, rtu
+from wire_peers import RawPty, RawTcp, build_libmodbus_server, libmodbus_server
 
 import pymb
 from pymb import _native
@@ -47,7 +40,7 @@ def _answer_read(adu: bytes, values: list[int]) -> bytes:
 
 
 def test_tcp_transaction_ids_increment_per_client() -> None:
-    with raw_tcp(lambda i, adu: [(0, _answer_read(adu, [i]))]) as peer, \
+    with RawTcp(lambda i, adu: [(0, _answer_read(adu, [i]))]) as peer, \
             pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=2) as c:
         for i in range(5):
             assert list(c.read_holding_registers(0, 1)) == [i]
@@ -65,7 +58,7 @@ def test_tcp_late_reply_never_becomes_a_later_answer() -> None:
             return [(0.6, _answer_read(adu, [111]))]
         return [(0, _answer_read(adu, [i]))]
 
-    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
                                                 timeout=0.25) as c:
         t0 = time.monotonic()
         with pytest.raises(pymb.ModbusTimeout):
@@ -94,7 +87,7 @@ def test_tcp_reply_must_match_tid_protocol_length_and_unit(lie: str) -> None:
             return [(0, mbap(tid, unit, body, length=len(body)))]
         return [(0, mbap(tid, 9, body))]
 
-    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
                                                 timeout=0.3) as c:
         expected = pymb.ModbusTimeout if lie == "foreign_tid" else pymb.ProtocolError
         with pytest.raises(expected) as ei:
@@ -112,7 +105,7 @@ def test_tcp_any_function_code_uses_the_mbap_length() -> None:
         tid, unit, pdu = _tcp_req(adu)
         return [(0, mbap(tid, unit, bytes((pdu[0],)) + ident))]
 
-    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c:
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as c:
         assert c.raw_request(0x2B, b"\x0e\x01\x00") == ident
         assert c.raw_request(0x41, b"\x01\x02") == ident
 
@@ -123,7 +116,7 @@ def test_exception_codes_above_0x0b_are_device_exceptions(code: int) -> None:
         tid, unit, pdu = _tcp_req(adu)
         return [(0, mbap(tid, unit, bytes((pdu[0] | 0x80, code))))]
 
-    with raw_tcp(tcp_script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as tc:
+    with RawTcp(tcp_script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1) as tc:
         with pytest.raises(pymb.DeviceException) as ei:
             tc.read_holding_registers(0, 1)
         assert ei.value.code == code
@@ -132,7 +125,7 @@ def test_exception_codes_above_0x0b_are_device_exceptions(code: int) -> None:
     def rtu_script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return [(0, rtu(bytes((frame[0], frame[1] | 0x80, code))))]
 
-    with raw_pty(rtu_script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
+    with RawPty(rtu_script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
         with pytest.raises(pymb.DeviceException) as ei:
             c.raw_request(0x41, b"")
         assert ei.value.code == code
@@ -153,7 +146,7 @@ def test_rtu_unknown_function_reply_ends_by_silence_crc_over_all() -> None:
             return [(0, f[:-3] + bytes((f[-3] ^ 1,)) + f[-2:])]
         return [(0, rtu(bytes((frame[0], fc)) + data))]
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1) as c:
         assert c.raw_request(0x08, b"\x00\x00\x12\x34") == b"\x00\x00\x12\x34"
         assert c.raw_request(0x41) == data
         with pytest.raises(pymb.ProtocolError):
@@ -172,7 +165,7 @@ def test_failed_call_returns_within_its_timeout_and_late_reply_is_dropped() -> N
         reply = rtu(bytes((frame[0], 3)) + registers([value]))
         return [(0.45 if i == 0 else 0, reply)]
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1,
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1,
                                                timeout=0.3) as c:
         t0 = time.monotonic()
         with pytest.raises(pymb.ModbusTimeout) as ei:
@@ -190,7 +183,7 @@ def test_scan_of_silent_addresses_costs_one_timeout_each() -> None:
             return [(0, rtu(bytes((9, 3)) + registers([9])))]
         return []
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.2) as c:
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.2) as c:
         t0 = time.monotonic()
         for slave in range(1, 6):
             with pytest.raises(pymb.ModbusTimeout):
@@ -208,7 +201,7 @@ def test_late_reply_from_a_scanned_address_is_not_the_next_answer() -> None:
             return [(0.3, rtu(bytes((1, 3)) + registers([1])))]
         return [(0.1, rtu(bytes((2, 3)) + registers([2])))]
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.25) as c:
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, timeout=0.25) as c:
         with pytest.raises(pymb.ModbusTimeout):
             c.read_holding_registers(0, 1, slave=1)
         c.timeout = 1.0
@@ -241,7 +234,7 @@ def test_signal_handler_that_raises_interrupts_a_blocked_call(transport: str) ->
 
     old = signal.signal(signal.SIGALRM, handler)
     try:
-        peer_cm = raw_pty(silent) if transport == "rtu" else raw_tcp(
+        peer_cm = RawPty(silent) if transport == "rtu" else RawTcp(
             silent, rtu_frames=transport == "rtu-over-tcp")
         with peer_cm as peer:
             c = _client(transport, peer.port, timeout=5)
@@ -271,7 +264,7 @@ def test_signal_interrupts_within_100_ms() -> None:
 
     old = signal.signal(signal.SIGALRM, handler)
     try:
-        with raw_pty(lambda i, f: []) as pty, \
+        with RawPty(lambda i, f: []) as pty, \
                 pymb.RtuClient(pty.port, 115200, slave=1, timeout=5) as c:
             signal.setitimer(signal.ITIMER_REAL, 0.2)
             t0 = time.monotonic()
@@ -302,7 +295,7 @@ def test_signal_handler_that_returns_does_not_fail_a_good_read(transport: str) -
     old = signal.signal(signal.SIGUSR1, handler)
     pid = os.getpid()
     try:
-        peer_cm = raw_pty(script) if transport == "rtu" else raw_tcp(
+        peer_cm = RawPty(script) if transport == "rtu" else RawTcp(
             script, rtu_frames=transport == "rtu-over-tcp")
         with peer_cm as peer, _client(transport, peer.port, timeout=2, byte_timeout=0.5) as c:
             stop = threading.Event()
@@ -339,7 +332,7 @@ def echo_pty() -> Iterator[tuple[pymb.RtuClient, list[bytes]]]:
             return [(0, rtu(bytes((frame[0], 3)) + registers(list(range(n)))))]
         return []
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
         yield c, pty.requests
 
 
@@ -413,7 +406,7 @@ def test_bad_arguments_never_escape_as_low_level_errors(
 
 
 def test_rts_delay_out_of_range_and_failed_connect_leave_nothing_open() -> None:
-    with raw_pty(lambda i, f: []) as pty:
+    with RawPty(lambda i, f: []) as pty:
         with pytest.raises(pymb.InvalidArgument):
             pymb.RtuClient(pty.port, rts_delay=3600)
         c = pymb.RtuClient(pty.port, serial_mode="rs485")  # a pty has no RS485 mode
@@ -431,7 +424,7 @@ def test_rts_delay_out_of_range_and_failed_connect_leave_nothing_open() -> None:
 
 
 def test_dropped_client_warns_and_releases_descriptor_and_lock() -> None:
-    with raw_pty(lambda i, f: []) as pty:
+    with RawPty(lambda i, f: []) as pty:
         c = pymb.RtuClient(pty.port, slave=1)
         c.connect()
         fd = c.fileno()
@@ -461,7 +454,7 @@ def test_rtu_over_tcp_client_against_a_raw_gateway() -> None:
             return [(0, rtu(bytes((frame[0], 0x41)) + b"abc"))]
         return [(0, rtu(bytes((frame[0], 3)) + registers([5])))]
 
-    with raw_tcp(script, rtu_frames=True) as peer, \
+    with RawTcp(script, rtu_frames=True) as peer, \
             pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=7, timeout=1) as c:
         assert list(c.read_holding_registers(0, 1)) == [5]
         with pytest.raises(pymb.ProtocolError, match="CRC"):
@@ -601,10 +594,10 @@ BAUDS = (9600, 19200, 38400, 57600, 115200)
 def poll_line(baud: int, repeat_after: float | None, reject: bool,
               n: int) -> tuple[int, int, int]:
     """n reads of one register through an emulated line: (right, stale, failed)."""
-    from wire_peers import emulated_line
+    from wire_peers import EmulatedLine
 
     right = stale = failed = 0
-    with emulated_line(baud, repeat_after) as line, \
+    with EmulatedLine(baud, repeat_after) as line, \
             pymb.RtuClient(line.port, baud, slave=1, timeout=0.5, reject_early=reject) as c:
         for asked in range(n):
             try:
@@ -650,7 +643,7 @@ def test_ctrl_c_interrupts_a_blocked_read_in_a_real_process() -> None:
     import subprocess
     import sys
 
-    with raw_tcp(lambda i, adu: []) as peer:
+    with RawTcp(lambda i, adu: []) as peer:
         code = (
             "import sys, pymb\n"
             f"c = pymb.TcpClient('127.0.0.1', {peer.port}, slave=1, timeout=30)\n"
@@ -691,7 +684,7 @@ def test_diagnostics_echo_of_every_length_up_to_the_frame_limit(transport: str) 
     def echo(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return [(0, frame)]
 
-    peer_cm = raw_pty(echo) if transport == "rtu" else raw_tcp(
+    peer_cm = RawPty(echo) if transport == "rtu" else RawTcp(
         echo, rtu_frames=transport == "rtu-over-tcp")
     with peer_cm as peer:
         c: pymb.Client
@@ -711,7 +704,7 @@ def test_rtu_frame_of_unknown_length_past_the_limit_is_refused() -> None:
     def long_reply(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return [(0, rtu(bytes((frame[0], 0x41)) + bytes(260)))]
 
-    with raw_pty(long_reply) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c, \
+    with RawPty(long_reply) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c, \
             pytest.raises(pymb.ProtocolError, match="longer than 256"):
         c.raw_request(0x41)
 
@@ -722,7 +715,7 @@ def test_byte_timeout_below_the_silence_does_not_fail_a_frame_ended_by_silence()
     def script(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return [(0, rtu(bytes((frame[0], 0x41)) + b"abc"))]
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 9600, slave=1, timeout=1,
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 9600, slave=1, timeout=1,
                                                byte_timeout=0.002) as c:
         assert c.raw_request(0x41) == b"abc"
 
@@ -747,7 +740,7 @@ def test_numpy_values_and_buffers() -> None:
             return [(0, rtu(frame[:6]))]
         return [(0, rtu(bytes((frame[0], 3)) + registers([40000, 1])))]
 
-    with raw_pty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=1) as c:
         c.write_coils(0, np.array([True, False, True]))  # numpy bools are bools
         c.write_coil(np.int64(2), np.True_)
         c.write_register(np.uint16(3), np.uint16(4))
@@ -825,7 +818,7 @@ def test_a_reply_trickled_byte_by_byte_cannot_hold_a_call_past_its_timeout() -> 
     def trickle(i: int, frame: bytes) -> list[tuple[float, bytes]]:
         return [(0.01, bytes((1, 0x41) if k == 0 else (k,))) for k in range(250)]
 
-    with raw_tcp(trickle, rtu_frames=True) as peer, \
+    with RawTcp(trickle, rtu_frames=True) as peer, \
             pymb.RtuOverTcpClient("127.0.0.1", peer.port, slave=1, timeout=0.3) as c:
         t0 = time.monotonic()
         with pytest.raises(pymb.ModbusError):
@@ -926,7 +919,7 @@ def test_tcp_a_whole_bad_frame_costs_the_next_request_nothing() -> None:
             return [(0, mbap(tid, unit, bytes((0x84, 2))))]
         return [(0, mbap(tid, unit, bytes((3,)) + registers([i])))]
 
-    with raw_tcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
                                                 timeout=2) as c:
         t0 = time.monotonic()
         for _ in range(2):
@@ -937,7 +930,7 @@ def test_tcp_a_whole_bad_frame_costs_the_next_request_nothing() -> None:
 
 
 def test_dropped_tcp_client_is_closed_and_a_never_connected_one_is_silent() -> None:
-    with raw_tcp(lambda i, adu: []) as peer:
+    with RawTcp(lambda i, adu: []) as peer:
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
             idle = pymb.TcpClient("127.0.0.1", peer.port, slave=1)
@@ -968,7 +961,7 @@ def test_raw_request_with_a_wrong_response_length_says_so(transport: str) -> Non
             return [(0, mbap(tid, unit, bytes((pdu[0],)) + data))]
         return [(0, rtu(bytes((frame[0], frame[1])) + data))]
 
-    peer_cm = raw_pty(script) if transport == "rtu" else raw_tcp(
+    peer_cm = RawPty(script) if transport == "rtu" else RawTcp(
         script, rtu_frames=transport == "rtu-over-tcp")
     with peer_cm as peer, _client(transport, peer.port, timeout=0.3) as c:
         assert c.raw_request(0x41, response_length=30) == data
