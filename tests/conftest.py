@@ -8,10 +8,12 @@ tests directory is on the path, as it is for peers.py and reference.py.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 _T = TypeVar("_T")
 
@@ -21,6 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The environment of a ``python -m pymb`` child: this checkout first on the path.
 PYMB_ENV = dict(os.environ, PYTHONPATH=os.pathsep.join(
     p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
+
+#: The ``pymb`` command as a user runs it (with PYMB_ENV): ``[*PYMB, "log", ...]``.
+PYMB = [sys.executable, "-m", "pymb"]
 
 #: A client's reply timeout where a test waits for one to pass: short, so the
 #: suite stays fast; longer under valgrind or qemu (PYMB_TEST_TIMEOUT).
@@ -47,3 +52,12 @@ def wait_until(event: Callable[[], _T], what: str | Callable[[], str], timeout: 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:g} s waiting for {said}")
         time.sleep(every)
+
+
+def run_pymb(*args: str, timeout: float = 120, **kw: Any) -> subprocess.CompletedProcess[str]:
+    """Run ``pymb ARGS`` to the end as a user does (this checkout, PYMB_ENV
+    unless ``env`` is given); stdout and stderr are captured as text."""
+    kw.setdefault("env", PYMB_ENV)
+    done: subprocess.CompletedProcess[str] = subprocess.run(
+        [*PYMB, *args], capture_output=True, text=True, timeout=timeout, check=False, **kw)
+    return done

@@ -11,13 +11,12 @@ import os
 import shutil
 import statistics
 import subprocess
-import sys
 from array import array
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB_ENV
+from conftest import PYMB, PYMB_ENV
 
 import pymb
 from pymb.bench import cprogram, pure, report, runner
@@ -328,7 +327,7 @@ def test_whole_quick_bench_as_a_user_runs_it(tmp_path: Path) -> None:
     """``python -m pymb bench --quick --json --plot``: every section, every contender."""
     env = PYMB_ENV
     png = tmp_path / "bench.png"
-    done = subprocess.run([sys.executable, "-m", "pymb", "bench", "--quick", "--json",
+    done = subprocess.run([*PYMB, "bench", "--quick", "--json",
                            "--plot", str(png)], capture_output=True, text=True, timeout=600,
                           env=env)
     assert done.returncode == 0, done.stderr

@@ -16,19 +16,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV, ROOT
+from conftest import PYMB, PYMB_ENV, ROOT, run_pymb
 from dbwait import count, wait_for
 
 from pymb.cli import main
 from pymb.sim import Simulator
-
-
-def pymb_cmd(*args: str, **kw: object) -> subprocess.CompletedProcess[str]:
-    """``python -m pymb ARGS`` as a user runs it."""
-    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
-        [sys.executable, "-m", "pymb", *args], capture_output=True, text=True, timeout=120,
-        env=PYMB_ENV, **kw)
-    return done
 
 
 @pytest.fixture
@@ -75,7 +67,7 @@ def test_user_mistakes_are_messages_with_exit_codes(capsys: pytest.CaptureFixtur
     assert "Traceback" not in err
     assert main(["read", "coolpro", "--port", "/dev/null", "--address", "300"]) == 2
     assert "address" in capsys.readouterr().err
-    r = pymb_cmd("read", "coolpro", "--port", "/dev/ttyUSB-missing")
+    r = run_pymb("read", "coolpro", "--port", "/dev/ttyUSB-missing")
     assert r.returncode == 4
     assert "Traceback" not in r.stderr
     assert "no such port" in r.stderr
@@ -105,7 +97,7 @@ def test_permission_denied_says_how_to_fix(tmp_path: Path) -> None:
 
 def test_log_then_export(live_sim: Simulator, tmp_path: Path) -> None:
     db = tmp_path / "run.sqlite"
-    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro:40", "--device", "hub:250",
+    r = run_pymb("log", "--port", live_sim.port, "--device", "coolpro:40", "--device", "hub:250",
                  "--seconds", "2", "--out", str(db), "--timeout", "0.5")
     assert r.returncode == 0, r.stderr
     assert "logged" in r.stderr
@@ -136,7 +128,7 @@ def test_log_then_export(live_sim: Simulator, tmp_path: Path) -> None:
 
 
 def test_log_to_jsonl_on_stdout(live_sim: Simulator) -> None:
-    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--format", "jsonl",
+    r = run_pymb("log", "--port", live_sim.port, "--device", "coolpro", "--format", "jsonl",
                  "--out", "-", "--seconds", "1", "--quiet")
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
@@ -152,7 +144,7 @@ def test_log_records_faults_and_keeps_going(tmp_path: Path) -> None:
         live_sim.faults.inject("no_reply", count=2, address=40)
         live_sim.faults.inject("bad_crc", count=1, address=40)
         live_sim.faults.inject("exception", count=1, address=1, code=2)
-        r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--device", "hub",
+        r = run_pymb("log", "--port", live_sim.port, "--device", "coolpro", "--device", "hub",
                      "--seconds", "3", "--out", str(db), "--timeout", "0.2")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
@@ -189,7 +181,7 @@ timeout = 0.5
 type = "hub"
 address = 1
 """)
-        proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg),
+        proc = subprocess.Popen([*PYMB, "log", "--config", str(cfg),
                                  "--quiet"], env=PYMB_ENV,
                                 stderr=subprocess.PIPE, text=True)
         try:
@@ -233,7 +225,7 @@ def test_sigkill_loses_at_most_one_batch(tmp_path: Path) -> None:
     db = tmp_path / "kill.sqlite"
     with Simulator(["coolpro", "hub"], seed=9) as live_sim:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "pymb", "log", "--port", live_sim.port, "--device", "coolpro",
+            [*PYMB, "log", "--port", live_sim.port, "--device", "coolpro",
              "--device", "hub", "--out", str(db), "--quiet"],
             env=PYMB_ENV)
         try:
@@ -272,7 +264,7 @@ def test_config_changes_address_with_reset_and_verifies(
 
 def test_config_refuses_without_confirmation(live_sim: Simulator,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    r = pymb_cmd("config", "coolpro", "--port", live_sim.port, "--set-address", "41",
+    r = run_pymb("config", "coolpro", "--port", live_sim.port, "--set-address", "41",
                  stdin=subprocess.DEVNULL)
     assert r.returncode == 2
     assert "--yes" in r.stderr
@@ -283,7 +275,7 @@ def test_config_refuses_without_confirmation(live_sim: Simulator,
 
 def test_demo_runs(tmp_path: Path) -> None:
     db = tmp_path / "demo.sqlite"
-    r = pymb_cmd("demo", "--seconds", "3", "--out", str(db))
+    r = run_pymb("demo", "--seconds", "3", "--out", str(db))
     assert r.returncode == 0, r.stderr
     assert "the wire allows" in r.stdout
     assert str(db) in r.stdout
@@ -294,7 +286,7 @@ def test_demo_runs(tmp_path: Path) -> None:
 
 
 def test_help_lists_every_command() -> None:
-    r = pymb_cmd("--help")
+    r = run_pymb("--help")
     for cmd in ("demo", "read", "watch", "log", "export", "scan", "config", "simulate"):
         assert cmd in r.stdout
 
@@ -317,7 +309,7 @@ def test_read_through_a_tcp_gateway(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_log_csv_and_interval_schedule(live_sim: Simulator, tmp_path: Path) -> None:
     out = tmp_path / "x.csv"
-    r = pymb_cmd("log", "--port", live_sim.port, "--device", "coolpro", "--format", "csv", "--out",
+    r = run_pymb("log", "--port", live_sim.port, "--device", "coolpro", "--format", "csv", "--out",
                  str(out), "--interval", "0.25", "--seconds", "2.1", "--quiet")
     assert r.returncode == 0, r.stderr
     with out.open() as f:

@@ -18,7 +18,6 @@ import signal
 import sqlite3
 import struct
 import subprocess
-import sys
 import termios
 import time
 from collections.abc import Iterator
@@ -26,24 +25,14 @@ from pathlib import Path
 
 import pyte
 import pytest
-from conftest import PYMB_ENV, wait_until
+from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from dbwait import count, wait_for
 
 from pymb.sim import Simulator, SimulatorProcess
 
-ENV = PYMB_ENV
-PYMB = [sys.executable, "-m", "pymb"]
 #: Ctrl-C must end a command within 0.5 s; the tests allow this much on a
 #: loaded 2-core machine (the measured figure is printed with -s).
 STOP_BOUND = 0.5 * float(os.environ.get("PYMB_TIMING_SLACK", "3"))
-
-
-def pymb(*args: str, timeout: float = 120, **kw: object) -> subprocess.CompletedProcess[str]:
-    """``python -m pymb ARGS`` as a user runs it."""
-    kw.setdefault("env", ENV)
-    done: subprocess.CompletedProcess[str] = subprocess.run(  # type: ignore[call-overload]
-        [*PYMB, *args], capture_output=True, text=True, timeout=timeout, **kw)
-    return done
 
 
 def no_traceback(r: subprocess.CompletedProcess[str]) -> None:
@@ -69,7 +58,7 @@ class Pty:
         self.master, slave = pty.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, cols, 0, 0))
         self.proc = subprocess.Popen([*PYMB, *args], stdin=slave, stdout=slave, stderr=slave,
-                                     env=ENV, close_fds=True, start_new_session=True)
+                                     env=PYMB_ENV, close_fds=True, start_new_session=True)
         os.close(slave)
         self.out = b""
 
@@ -117,7 +106,7 @@ class Pty:
 def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim3: Simulator,
                                                              tmp_path: Path) -> None:
     db = tmp_path / "wrong.sqlite"
-    r = pymb("log", "hub:40", "--port", sim3.port, "--seconds", "3", "--out", str(db))
+    r = run_pymb("log", "hub:40", "--port", sim3.port, "--seconds", "3", "--out", str(db))
     no_traceback(r)
     assert r.returncode == 3, r.stderr
     assert "answers like a CoolPro, not a hub" in r.stderr
@@ -139,7 +128,7 @@ def test_log_hub_where_a_coolpro_sits_is_a_fault_not_samples(sim3: Simulator,
 
 def test_simulate_takes_the_same_humidity_key(tmp_path: Path) -> None:
     with SimulatorProcess(["hub:9,humidity_unit=1"], quiet=True) as s:
-        r = pymb("read", "hub:9,humidity_unit=1", "--port", s.endpoint, "--json")
+        r = run_pymb("read", "hub:9,humidity_unit=1", "--port", s.endpoint, "--json")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     values = [v for v in doc["values"]["humidity_pct"] if v is not None]
@@ -148,14 +137,14 @@ def test_simulate_takes_the_same_humidity_key(tmp_path: Path) -> None:
 
 
 def test_old_firmware_hub_says_how_to_log_it(sim3: Simulator, tmp_path: Path) -> None:
-    r = pymb("log", "hub:7", "--port", sim3.port, "--seconds", "2", "--out",
-             str(tmp_path / "a.sqlite"))
+    r = run_pymb("log", "hub:7", "--port", sim3.port, "--seconds", "2", "--out",
+                 str(tmp_path / "a.sqlite"))
     assert r.returncode == 3, r.stderr
     assert "hub:7,channels=50" in r.stderr, r.stderr
     # The command line sets what only TOML could: channels (and humidity_unit).
     db = tmp_path / "b.sqlite"
-    r = pymb("log", "hub:7,channels=50,humidity_unit=1", "--port", sim3.port, "--seconds", "2",
-             "--out", str(db), "--quiet")
+    r = run_pymb("log", "hub:7,channels=50,humidity_unit=1", "--port", sim3.port, "--seconds", "2",
+                 "--out", str(db), "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
     assert con.execute("SELECT MAX(channel) FROM hub").fetchone()[0] == 50
@@ -163,12 +152,12 @@ def test_old_firmware_hub_says_how_to_log_it(sim3: Simulator, tmp_path: Path) ->
 
 
 def test_read_says_what_answered_and_exits_3(sim3: Simulator) -> None:
-    r = pymb("read", "hub:40", "--port", sim3.port)
+    r = run_pymb("read", "hub:40", "--port", sim3.port)
     no_traceback(r)
     assert r.returncode == 3
     assert "address 40 answers like a CoolPro, not a hub" in r.stderr
     assert "firmware" not in r.stderr.split("CoolPro, not a hub")[0]  # not blamed on it
-    r = pymb("read", "coolpro:7", "--port", sim3.port)
+    r = run_pymb("read", "coolpro:7", "--port", sim3.port)
     assert r.returncode == 3
     assert "answers like a sensor hub, not a CoolPro" in r.stderr
 
@@ -204,8 +193,8 @@ type = "hub"
 
 def test_device_that_never_answers_gives_exit_3_and_is_named(sim3: Simulator,
                                                              tmp_path: Path) -> None:
-    r = pymb("log", "coolpro:40", "coolpro:41", "--port", sim3.port, "--seconds", "2",
-             "--timeout", "0.1", "--out", str(tmp_path / "x.sqlite"))
+    r = run_pymb("log", "coolpro:40", "coolpro:41", "--port", sim3.port, "--seconds", "2",
+                 "--timeout", "0.1", "--out", str(tmp_path / "x.sqlite"))
     assert r.returncode == 3, r.stderr
     assert "coolpro-41 delivered no sample" in r.stderr
     assert "coolpro-40 delivered" not in r.stderr
@@ -213,8 +202,8 @@ def test_device_that_never_answers_gives_exit_3_and_is_named(sim3: Simulator,
 
 def test_a_device_that_keeps_failing_is_backed_off(sim3: Simulator, tmp_path: Path) -> None:
     db = tmp_path / "silent.sqlite"
-    r = pymb("log", "coolpro:41", "--port", sim3.port, "--timeout", "0.05", "--seconds", "4",
-             "--out", str(db), "--quiet")
+    r = run_pymb("log", "coolpro:41", "--port", sim3.port, "--timeout", "0.05", "--seconds", "4",
+                 "--out", str(db), "--quiet")
     assert r.returncode == 3
     con = sqlite3.connect(db)
     msgs = [m for (m,) in con.execute("SELECT message FROM events WHERE kind = 'timeout' "
@@ -259,8 +248,8 @@ def test_log_status_line_is_one_line_that_fits(tmp_path: Path) -> None:
 def test_skipped_interval_slots_are_shown(tmp_path: Path) -> None:
     db = tmp_path / "slots.sqlite"
     with Simulator(["hub:1,delay=0.12"], seed=1) as s:
-        r = pymb("log", "hub", "--port", s.port, "--interval", "0.05", "--seconds", "2",
-                 "--out", str(db))
+        r = run_pymb("log", "hub", "--port", s.port, "--interval", "0.05", "--seconds", "2",
+                     "--out", str(db))
     assert r.returncode == 0, r.stderr
     m = re.search(r"(\d+) interval slot\(s\) skipped", r.stderr)
     assert m, r.stderr
@@ -281,7 +270,7 @@ def test_scan_whole_range_finds_slow_hub_and_coolpro_no_phantom() -> None:
     with SimulatorProcess(["coolpro", "hub:250,delay=0.1-0.5", "--baud", "9600",
                            "--seed", "4"], quiet=True) as sim3:
         t0 = time.monotonic()
-        r = pymb("scan", "--port", sim3.endpoint, "--baud", "9600", "--json", timeout=120)
+        r = run_pymb("scan", "--port", sim3.endpoint, "--baud", "9600", "--json", timeout=120)
         took = time.monotonic() - t0
     assert r.returncode == 0, r.stderr
     found = {f["address"]: f["device"] for f in json.loads(r.stdout)["found"]}
@@ -294,7 +283,7 @@ def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
     with Simulator(["coolpro"], seed=2) as sim3:
         # The CoolPro's first reply names address 41, with a good CRC.
         sim3.faults.inject("wrong_address", count=1, address=40)
-        r = pymb("scan", "--port", sim3.port, "--range", "30-50", "--json")
+        r = run_pymb("scan", "--port", sim3.port, "--range", "30-50", "--json")
     assert r.returncode == 0, r.stderr
     found = {f["address"]: f["device"] for f in json.loads(r.stdout)["found"]}
     assert found == {40: "coolpro"}, r.stdout
@@ -304,7 +293,7 @@ def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
 def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
     with Simulator(["coolpro:3", "hub:250"], seed=2) as sim3:
         proc = subprocess.Popen([*PYMB, "scan", "--port", sim3.port, "--timeout", "0.2"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV)
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=PYMB_ENV)
         assert proc.stdout is not None
         first = proc.stdout.readline()  # flushed at once, stdout being a pipe
         assert first.split()[:2] == [b"3", b"coolpro"], first
@@ -326,15 +315,15 @@ def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
 def logged(tmp_path_factory: pytest.TempPathFactory) -> Path:
     db = tmp_path_factory.mktemp("logged") / "data.sqlite"
     with Simulator(["coolpro", "hub:250"], seed=3) as s:
-        r = pymb("log", "coolpro:40", "hub:250", "--port", s.port, "--seconds", "1.5",
-                 "--out", str(db), "--quiet")
+        r = run_pymb("log", "coolpro:40", "hub:250", "--port", s.port, "--seconds", "1.5",
+                     "--out", str(db), "--quiet")
     assert r.returncode == 0, r.stderr
     return db
 
 
 def test_export_never_writes_onto_its_input(logged: Path) -> None:
     before = digest(logged)
-    r = pymb("export", str(logged), "--csv", str(logged))
+    r = run_pymb("export", str(logged), "--csv", str(logged))
     no_traceback(r)
     assert r.returncode == 2
     assert "the database being exported" in r.stderr
@@ -345,14 +334,14 @@ def test_export_keeps_a_file_that_is_not_pymb_csv_unless_forced(logged: Path,
                                                                 tmp_path: Path) -> None:
     notes = tmp_path / "notes.csv"
     notes.write_text("my,own,data\n1,2,3\n")
-    r = pymb("export", str(logged), "--csv", str(notes))
+    r = run_pymb("export", str(logged), "--csv", str(notes))
     assert r.returncode == 2
     assert "--force" in r.stderr
     assert notes.read_text() == "my,own,data\n1,2,3\n"
     out = tmp_path / "out.csv"
-    assert pymb("export", str(logged), "--csv", str(out)).returncode == 0
-    assert pymb("export", str(logged), "--csv", str(out)).returncode == 0  # pymb's own: fine
-    assert pymb("export", str(logged), "--csv", str(notes), "--force").returncode == 0
+    assert run_pymb("export", str(logged), "--csv", str(out)).returncode == 0
+    assert run_pymb("export", str(logged), "--csv", str(out)).returncode == 0  # pymb's own: fine
+    assert run_pymb("export", str(logged), "--csv", str(notes), "--force").returncode == 0
     assert notes.read_text().startswith("time_utc,")
     assert not list(tmp_path.glob(".pymb-export-*"))  # no temporary file left
 
@@ -362,30 +351,30 @@ def test_export_names_with_uri_characters_and_directories(logged: Path,
     for name in ("a%20b.sqlite", "x#y.sqlite", "what?.sqlite"):
         odd = tmp_path / name
         odd.write_bytes(logged.read_bytes())
-        r = pymb("export", str(odd), "--csv", "-")
+        r = run_pymb("export", str(odd), "--csv", "-")
         no_traceback(r)
         assert r.returncode == 0, (name, r.stderr)
         assert len(r.stdout.splitlines()) > 10
-    r = pymb("export", str(tmp_path), "--csv", "-")
+    r = run_pymb("export", str(tmp_path), "--csv", "-")
     no_traceback(r)
     assert r.returncode == 2
     assert "is a directory" in r.stderr
     text = tmp_path / "text.sqlite"
     text.write_text("hello\n")
-    r = pymb("export", str(text), "--csv", "-")
+    r = run_pymb("export", str(text), "--csv", "-")
     assert r.returncode == 2
     assert "not a database written by pymb" in r.stderr
 
 
 def test_export_device_by_syntax_or_name_and_unknown_lists(logged: Path) -> None:
-    by_spec = pymb("export", str(logged), "--csv", "-", "--device", "hub:250")
-    by_name = pymb("export", str(logged), "--csv", "-", "--device", "hub-250")
+    by_spec = run_pymb("export", str(logged), "--csv", "-", "--device", "hub:250")
+    by_name = run_pymb("export", str(logged), "--csv", "-", "--device", "hub-250")
     assert by_spec.returncode == 0
     assert by_spec.stdout == by_name.stdout
     rows = list(csv.DictReader(by_spec.stdout.splitlines()))
     assert rows
     assert {r["device"] for r in rows} == {"hub-250"}
-    r = pymb("export", str(logged), "--csv", "-", "--device", "hub:9")
+    r = run_pymb("export", str(logged), "--csv", "-", "--device", "hub:9")
     assert r.returncode == 2
     assert "no device 'hub:9'" in r.stderr
     assert "coolpro-40" in r.stderr
@@ -394,8 +383,8 @@ def test_export_device_by_syntax_or_name_and_unknown_lists(logged: Path) -> None
 
 def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> None:
     before = digest(logged)
-    r = pymb("log", "coolpro", "--port", "/dev/null", "--format", "csv", "--out", str(logged),
-             "--seconds", "1")
+    r = run_pymb("log", "coolpro", "--port", "/dev/null", "--format", "csv", "--out", str(logged),
+                 "--seconds", "1")
     no_traceback(r)
     assert r.returncode == 2
     assert "refusing to append CSV" in r.stderr
@@ -403,8 +392,8 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
     doc = tmp_path / "report.txt"
     doc.write_text("quarterly numbers\n")
     for fmt in ("sqlite", "csv", "jsonl", "influx"):
-        r = pymb("log", "coolpro", "--port", "/dev/null", "--format", fmt, "--out", str(doc),
-                 "--seconds", "1")
+        r = run_pymb("log", "coolpro", "--port", "/dev/null", "--format", fmt, "--out", str(doc),
+                     "--seconds", "1")
         assert r.returncode == 2, (fmt, r.stderr)
         assert "refusing" in r.stderr, (fmt, r.stderr)
     assert doc.read_text() == "quarterly numbers\n"
@@ -412,8 +401,8 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
     for fmt in ("csv", "jsonl", "influx"):
         own = tmp_path / f"own.{fmt}"
         for _ in range(2):
-            r = pymb("log", "coolpro", "--port", "/dev/ttyUSB-none", "--format", fmt, "--out",
-                     str(own), "--seconds", "0.7")
+            r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB-none", "--format", fmt, "--out",
+                         str(own), "--seconds", "0.7")
             assert r.returncode == 4, (fmt, r.stderr)
             assert "refusing" not in r.stderr, (fmt, r.stderr)
         assert own.stat().st_size > 0
@@ -422,12 +411,12 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
 def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> None:
     mine = tmp_path / "important"
     mine.write_text("keep me\n")
-    r = pymb("simulate", "coolpro", "--link", str(mine))
+    r = run_pymb("simulate", "coolpro", "--link", str(mine))
     no_traceback(r)
     assert r.returncode == 2
     assert "refusing to replace" in r.stderr
     assert mine.read_text() == "keep me\n"
-    r = pymb("simulate", "coolpro", "--port", str(mine))
+    r = run_pymb("simulate", "coolpro", "--port", str(mine))
     no_traceback(r)
     assert r.returncode == 2
     assert "not a serial port" in r.stderr
@@ -436,7 +425,7 @@ def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> Non
     stale = tmp_path / "ttySIM"
     stale.symlink_to("/dev/pts/9999")
     proc = subprocess.Popen([*PYMB, "simulate", "coolpro", "--link", str(stale)],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=ENV)
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=PYMB_ENV)
     assert proc.stdout is not None
     assert proc.stdout.readline().decode().strip() == str(stale)
     assert os.readlink(stale).startswith("/dev/pts/")
@@ -473,7 +462,7 @@ type = "coolpro"
 def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> None:
     cfg = tmp_path / "bad.toml"
     cfg.write_text(toml)
-    r = pymb("log", "--config", str(cfg), "--seconds", "1")
+    r = run_pymb("log", "--config", str(cfg), "--seconds", "1")
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert message in r.stderr, r.stderr
@@ -503,7 +492,7 @@ def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
     line naming the file once, never a traceback, and nothing is created."""
     cfg = tmp_path / "c.toml"
     cfg.write_text(toml)
-    r = pymb("log", "--config", "c.toml", "--seconds", "1", cwd=tmp_path)
+    r = run_pymb("log", "--config", "c.toml", "--seconds", "1", cwd=tmp_path)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert message in r.stderr, r.stderr
@@ -514,8 +503,8 @@ def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
 
 def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
     for bad in ("nan", "inf"):
-        r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--interval", bad, "--seconds", "1",
-                 cwd=tmp_path)
+        r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--interval", bad,
+                     "--seconds", "1", cwd=tmp_path)
         no_traceback(r)
         assert r.returncode == 2, r.stderr
         assert f"got {bad}" in r.stderr, r.stderr
@@ -526,7 +515,7 @@ def test_toml_device_without_address_takes_the_default(sim3: Simulator, tmp_path
     cfg = tmp_path / "ok.toml"
     db = tmp_path / "ok.sqlite"
     cfg.write_text(f'[output]\npath = "{db}"\n' + TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
-    r = pymb("log", "--config", str(cfg), "--seconds", "1.5", "--quiet")
+    r = run_pymb("log", "--config", str(cfg), "--seconds", "1.5", "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
     assert con.execute("SELECT name, address FROM devices").fetchall() == [("coolpro-40", 40)]
@@ -536,7 +525,7 @@ def test_toml_device_without_address_takes_the_default(sim3: Simulator, tmp_path
 def test_address_zero_is_rejected(sim3: Simulator) -> None:
     for args in (["read", "hub", "--address", "0"], ["watch", "coolpro", "--address", "0"],
                  ["read", "hub:0"], ["log", "hub:0", "--seconds", "1"]):
-        r = pymb(*args, "--port", sim3.port)
+        r = run_pymb(*args, "--port", sim3.port)
         no_traceback(r)
         assert r.returncode == 2, (args, r.stderr)
         assert "got 0" in r.stderr, (args, r.stderr)
@@ -553,7 +542,7 @@ def test_broken_pipe_into_head_exits_quietly(sim3: Simulator, logged: Path,
         args += ["--port", sim3.port]
     cmd = " ".join(map(repr, [*PYMB, *args])) + " | head -n 1"
     r = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True,
-                       timeout=60, env=ENV)
+                       timeout=60, env=PYMB_ENV)
     assert len(r.stdout.splitlines()) == 1
     assert r.stderr == "", r.stderr
     assert r.returncode in (0, 141)  # pipefail: pymb's own status, as a Unix tool's
@@ -562,7 +551,7 @@ def test_broken_pipe_into_head_exits_quietly(sim3: Simulator, logged: Path,
 
 
 def test_unresolvable_tcp_host_says_so() -> None:
-    r = pymb("read", "coolpro", "--tcp", "nosuchhost.invalid:502")
+    r = run_pymb("read", "coolpro", "--tcp", "nosuchhost.invalid:502")
     no_traceback(r)
     assert r.returncode == 4
     assert "did not resolve" in r.stderr
@@ -612,8 +601,8 @@ def test_log_flushes_what_it_read_on_sigint(sim3: Simulator, tmp_path: Path, sig
 
 
 def test_watch_count_counts_attempts(sim3: Simulator) -> None:
-    r = pymb("watch", "coolpro:99", "--port", sim3.port, "--count", "3", "--timeout", "0.1",
-             timeout=30)
+    r = run_pymb("watch", "coolpro:99", "--port", sim3.port, "--count", "3", "--timeout", "0.1",
+                 timeout=30)
     no_traceback(r)
     assert r.returncode == 3
     assert "faults 3/3" in r.stdout
@@ -623,24 +612,24 @@ def test_watch_count_counts_attempts(sim3: Simulator) -> None:
 
 
 def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Path) -> None:
-    a = pymb("read", "hub:250", "--port", sim3.port, "--json")
-    b = pymb("read", "hub", "--address", "250", "--port", sim3.port, "--json")
+    a = run_pymb("read", "hub:250", "--port", sim3.port, "--json")
+    b = run_pymb("read", "hub", "--address", "250", "--port", sim3.port, "--json")
     assert a.returncode == b.returncode == 0
     assert json.loads(a.stdout)["address"] == json.loads(b.stdout)["address"] == 250
-    r = pymb("read", "hub:250", "--address", "251", "--port", sim3.port)
+    r = run_pymb("read", "hub:250", "--address", "251", "--port", sim3.port)
     assert r.returncode == 2
     assert "give it once" in r.stderr
-    r = pymb("read", "hub:250,chanels=50", "--port", sim3.port)
+    r = run_pymb("read", "hub:250,chanels=50", "--port", sim3.port)
     assert r.returncode == 2
     assert "did you mean 'channels'" in r.stderr
     db = tmp_path / "syntax.sqlite"
-    r = pymb("log", "coolpro:40", "--device", "hub:250", "--port", sim3.port, "--seconds", "1.5",
-             "--out", str(db), "--quiet")
+    r = run_pymb("log", "coolpro:40", "--device", "hub:250", "--port", sim3.port,
+                 "--seconds", "1.5", "--out", str(db), "--quiet")
     assert r.returncode == 0, r.stderr
     con = sqlite3.connect(db)
     assert sorted(con.execute("SELECT name FROM devices")) == [("coolpro-40",), ("hub-250",)]
     con.close()
-    r = pymb("config", "coolpro:40", "--port", sim3.port)
+    r = run_pymb("config", "coolpro:40", "--port", sim3.port)
     assert r.returncode == 0
     assert "CoolPro at 40" in r.stdout
 
@@ -679,7 +668,7 @@ def test_watch_block_show_json_identity(sim3: Simulator) -> None:
     assert not any(ln.startswith("temperature_c") for ln in screen)
     rows = [ln for ln in screen if re.match(r"\s*\d+: ", ln)]
     assert [ln.split(":")[0].strip() for ln in rows] == ["1", "11"]
-    r = pymb("watch", "coolpro", "--port", sim3.port, "--json", "--count", "3", "--identity")
+    r = run_pymb("watch", "coolpro", "--port", sim3.port, "--json", "--count", "3", "--identity")
     assert r.returncode == 0, r.stderr
     docs = [json.loads(ln) for ln in r.stdout.splitlines()]
     assert len(docs) == 3
@@ -688,7 +677,7 @@ def test_watch_block_show_json_identity(sim3: Simulator) -> None:
 
 
 def test_demo_never_claims_more_than_the_wire_allows(tmp_path: Path) -> None:
-    r = pymb("demo", "--seconds", "3", "--quiet", "--out", str(tmp_path / "demo.sqlite"))
+    r = run_pymb("demo", "--seconds", "3", "--quiet", "--out", str(tmp_path / "demo.sqlite"))
     assert r.returncode == 0, r.stderr
     shares = [int(x) for x in re.findall(r"the wire allows .*?\((\d+)%\)", r.stdout)]
     assert len(shares) == 2, r.stdout
@@ -703,15 +692,15 @@ def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> Non
     (blocker / "sitecustomize.py").write_text(
         "import sys\nfor m in ('paho', 'paho.mqtt', 'paho.mqtt.client'):\n"
         "    sys.modules[m] = None  # as if pymb[mqtt] were not installed\n")
-    env = dict(ENV, PYTHONPATH=f"{blocker}{os.pathsep}{ENV['PYTHONPATH']}")
+    env = dict(PYMB_ENV, PYTHONPATH=f"{blocker}{os.pathsep}{PYMB_ENV['PYTHONPATH']}")
     db = tmp_path / "out.sqlite"
-    r = pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--out", str(db), "--seconds", "1",
-             "--mqtt", "mqtt://127.0.0.1", env=env)
+    r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--out", str(db), "--seconds", "1",
+                 "--mqtt", "mqtt://127.0.0.1", env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert "pip install 'pymb[mqtt]'" in r.stderr, r.stderr
     assert not db.exists()
-    r = pymb("demo", "--mqtt", "--out", str(db), env=env)
+    r = run_pymb("demo", "--mqtt", "--out", str(db), env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip() == (
@@ -725,7 +714,8 @@ def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> Non
     ["watch", "coolpro", "--port", "/dev/ttyUSB0", "--interval", "nan"],
 ])
 def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list[str]) -> None:
-    r = pymb(*args, "--out", str(tmp_path / "d.sqlite")) if args[0] == "demo" else pymb(*args)
+    out = ["--out", str(tmp_path / "d.sqlite")] if args[0] == "demo" else []
+    r = run_pymb(*args, *out)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert "must be" in r.stderr, r.stderr
@@ -740,10 +730,10 @@ def test_export_stopped_by_a_signal_leaves_no_temporary_file(logged: Path, tmp_p
     the previous CSV stays as it was and no hidden temporary file (as big as
     the export) is left behind to fill the disk."""
     out = tmp_path / "out.csv"
-    r = pymb("export", str(logged), "--since", "2100-01-01", "--csv", str(out))
+    r = run_pymb("export", str(logged), "--since", "2100-01-01", "--csv", str(out))
     assert r.returncode == 0, r.stderr
     before = digest(out)
-    p = subprocess.Popen([*PYMB, "export", str(logged), "--csv", str(out)], env=ENV,
+    p = subprocess.Popen([*PYMB, "export", str(logged), "--csv", str(out)], env=PYMB_ENV,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         wait_until(lambda: [f for f in tmp_path.iterdir() if f.name.startswith(".pymb-export-")
@@ -772,7 +762,7 @@ def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
     """The simulator's device spec names the wrong key as read/log do, and a
     zero or negative speed is refused instead of serving a line that never
     sends a byte."""
-    r = pymb("simulate", *args, "--pty", timeout=30)
+    r = run_pymb("simulate", *args, "--pty", timeout=30)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert message in r.stderr, r.stderr
@@ -788,7 +778,7 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
     db = tmp_path / "hup.sqlite"
     ignore = (lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)) if nohup else None
     p = subprocess.Popen([*PYMB, "log", "coolpro:40", "--port", sim3.port, "--out", str(db)],
-                         env=ENV, stdout=subprocess.DEVNULL,
+                         env=PYMB_ENV, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, text=True, preexec_fn=ignore)
     try:
         wait_for(db, "SELECT COUNT(*) FROM samples", at_least=20, proc=p)

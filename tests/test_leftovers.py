@@ -11,7 +11,7 @@ from array import array
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV
+from conftest import PYMB_ENV, run_pymb
 
 from pymb.devices import decode_hub
 from pymb.store import DeviceInfo, Sample, SqliteSink
@@ -33,8 +33,7 @@ def _database(path: Path) -> None:
 def test_export_refuses_an_empty_filter(tmp_path: Path, argv: list[str], message: str) -> None:
     db = tmp_path / "log.sqlite"
     _database(db)
-    r = subprocess.run([sys.executable, "-m", "pymb", "export", str(db), "--csv", "-", *argv],
-                       capture_output=True, text=True, env=PYMB_ENV, timeout=60)
+    r = run_pymb("export", str(db), "--csv", "-", *argv, timeout=60)
     assert r.returncode == 2, r
     assert r.stdout == ""
     assert message in r.stderr
@@ -46,9 +45,7 @@ def test_export_since_still_filters(tmp_path: Path) -> None:
     db = tmp_path / "log.sqlite"
     _database(db)
     for since, rows in (("2027-01-15T08:00:00Z", 700), ("2027-01-15T08:00:01Z", 0)):
-        r = subprocess.run([sys.executable, "-m", "pymb", "export", str(db), "--csv", "-",
-                            "--since", since], capture_output=True, text=True, env=PYMB_ENV,
-                           timeout=60)
+        r = run_pymb("export", str(db), "--csv", "-", "--since", since, timeout=60)
         assert r.returncode == 0, r.stderr
         assert len(r.stdout.splitlines()) == 1 + rows
 

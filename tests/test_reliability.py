@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB_ENV, TIMEOUT, wait_until
+from conftest import PYMB, PYMB_ENV, TIMEOUT, wait_until
 from dbwait import count, wait_for
 
 import pymb
@@ -319,7 +319,7 @@ def sigkill_runs(n: int, tmp_path: Path, seed: int = 1) -> None:
         before = 0
         for _ in range(n):
             proc = subprocess.Popen(
-                [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device",
+                [*PYMB, "log", "--port", sim.port, "--device",
                  "coolpro", "--device", "hub", "--out", str(db), "--quiet"], env=PYMB_ENV)
             # This run has committed (however long the start takes on this
             # machine): only then is it killed, at a random moment of its

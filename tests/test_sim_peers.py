@@ -8,13 +8,12 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import PYMB, PYMB_ENV, run_pymb
 
 import pymb
 from pymb.sim import CoolProDevice, HubDevice, Simulator, SimulatorProcess
@@ -156,10 +155,8 @@ def test_tcp_with_pymb_and_faults(pymb_simulator: MakeSim) -> None:
 
 
 def _start(*args: str) -> tuple[subprocess.Popen[str], str]:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
-    p = subprocess.Popen([sys.executable, "-m", "pymb", "simulate", *args], text=True,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    p = subprocess.Popen([*PYMB, "simulate", *args], text=True,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=PYMB_ENV)
     assert p.stdout is not None
     line = p.stdout.readline().strip()
     return p, line
@@ -215,12 +212,10 @@ def test_cli_tcp_link_faults_and_errors(tmp_path: Path) -> None:
     assert rc == 0, err
     assert not os.path.exists(link), err
 
-    bad = subprocess.run([sys.executable, "-m", "pymb", "simulate", "toaster"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=20, check=False)
+    bad = run_pymb("simulate", "toaster", timeout=20)
     assert bad.returncode == 2
     assert "unknown device" in bad.stderr
-    bad = subprocess.run([sys.executable, "-m", "pymb", "simulate", "--port", "/nonexistent"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=20, check=False)
+    bad = run_pymb("simulate", "--port", "/nonexistent", timeout=20)
     assert bad.returncode == 4
     assert "/nonexistent" in bad.stderr
 

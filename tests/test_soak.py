@@ -11,12 +11,11 @@ import os
 import signal
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV
+from conftest import PYMB, PYMB_ENV
 
 from pymb.sim import SimulatorProcess
 
@@ -71,7 +70,7 @@ timeout = 0.5
 type = "hub"
 address = 1
 """)
-        proc = subprocess.Popen([sys.executable, "-m", "pymb", "log", "--config", str(cfg)],
+        proc = subprocess.Popen([*PYMB, "log", "--config", str(cfg)],
                                 env=PYMB_ENV,
                                 stderr=subprocess.PIPE, text=True)
         warmup = min(60.0, seconds / 5)

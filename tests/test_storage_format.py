@@ -14,7 +14,7 @@ from array import array
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV, ROOT
+from conftest import PYMB, PYMB_ENV, ROOT, run_pymb
 
 from pymb.bench.layouts import write_format1
 from pymb.devices import HUB, HubReading, State, decode_hub
@@ -184,10 +184,8 @@ def test_a_database_of_the_old_format_is_exported_and_never_mixed(tmp_path: Path
     with pytest.raises(InvalidArgument, match=r"format 1.*new file.*export"):
         SqliteSink(db)
     assert db.read_bytes() == before  # untouched
-    out = subprocess.run(
-        [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "no-such-port"),
-         "--device", "hub", "--out", str(db), "--seconds", "1"],
-        capture_output=True, text=True, timeout=60)
+    out = run_pymb("log", "--port", str(tmp_path / "no-such-port"),
+                   "--device", "hub", "--out", str(db), "--seconds", "1", timeout=60)
     assert out.returncode == 2, out.stderr
     assert "format 1" in out.stderr
     assert "Traceback" not in out.stderr
@@ -329,10 +327,8 @@ def test_the_size_bound_holds_for_the_file_and_its_wal_at_full_speed(tmp_path: P
 @pytest.mark.parametrize(("flag", "value"), [("--max-mb", "-5"), ("--max-mb", "0"),
                                               ("--max-age-days", "-1"), ("--max-mb", "nan")])
 def test_limits_that_are_not_positive_are_refused(tmp_path: Path, flag: str, value: str) -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "p"), "--device", "hub",
-         "--out", str(tmp_path / "x.sqlite"), flag, value, "--seconds", "1"],
-        capture_output=True, text=True, timeout=60)
+    out = run_pymb("log", "--port", str(tmp_path / "p"), "--device", "hub",
+                   "--out", str(tmp_path / "x.sqlite"), flag, value, "--seconds", "1", timeout=60)
     assert out.returncode == 2
     assert "positive" in out.stderr
     assert "Traceback" not in out.stderr
@@ -357,12 +353,9 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
 
     db = tmp_path / "oc.sqlite"
     with Simulator(["hub:250"], seed=3) as sim:
-        r = subprocess.run(
-            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--device", "hub:250",
-             "--on-change", "--deadband", "temperature_c=0.5", "--heartbeat", "30",
-             "--seconds", "3", "--out", str(db), "--timeout", "1"],
-            capture_output=True, text=True, timeout=120,
-            env=PYMB_ENV)
+        r = run_pymb("log", "--port", sim.port, "--device", "hub:250",
+                     "--on-change", "--deadband", "temperature_c=0.5", "--heartbeat", "30",
+                     "--seconds", "3", "--out", str(db), "--timeout", "1", timeout=120)
     assert r.returncode == 0, r.stderr
     m = re.search(r"logged ([\d,]+) samples", r.stderr)
     assert m, r.stderr
@@ -380,19 +373,15 @@ def test_pymb_log_on_change_end_to_end(tmp_path: Path) -> None:
             (ch,)).fetchone()
         assert row is not None
     con.close()
-    bad = subprocess.run(
-        [sys.executable, "-m", "pymb", "log", "--port", "/dev/null", "--device", "hub",
-         "--deadband", "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite")],
-        capture_output=True, text=True, timeout=60, env=PYMB_ENV)
+    bad = run_pymb("log", "--port", "/dev/null", "--device", "hub", "--deadband",
+                   "temperature_c=0.5", "--out", str(tmp_path / "y.sqlite"), timeout=60)
     assert bad.returncode == 2
     assert "--on-change" in bad.stderr
 
 
 def test_a_size_limit_below_one_megabyte_is_refused(tmp_path: Path) -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "pymb", "log", "--port", str(tmp_path / "p"), "--device", "hub",
-         "--out", str(tmp_path / "x.sqlite"), "--max-mb", "0.5", "--seconds", "1"],
-        capture_output=True, text=True, timeout=60)
+    out = run_pymb("log", "--port", str(tmp_path / "p"), "--device", "hub", "--out",
+                   str(tmp_path / "x.sqlite"), "--max-mb", "0.5", "--seconds", "1", timeout=60)
     assert out.returncode == 2
     assert "at least 1 MB" in out.stderr
 
@@ -440,7 +429,7 @@ def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
     with Children() as ch:
         (sim,) = ch.sims([["hub:1,dynamic=0,baud=115200"]])  # no wire emulation: flat out
         p = subprocess.Popen(
-            [sys.executable, "-m", "pymb", "log", "--port", sim.port, "--baud", "115200",
+            [*PYMB, "log", "--port", sim.port, "--baud", "115200",
              "--device", "hub", "--max-mb", "2", "--seconds", "6", "--quiet", "--out", str(db)],
             env=PYMB_ENV, stderr=subprocess.PIPE, text=True)
         worst = 0
