@@ -15,6 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import pytest
+
+from pymb.sim import SimClock
+
 _T = TypeVar("_T")
 
 #: The source checkout: ``python -m pymb`` children run this pymb.
@@ -30,6 +34,14 @@ PYMB = [sys.executable, "-m", "pymb"]
 #: A client's reply timeout where a test waits for one to pass: short, so the
 #: suite stays fast; longer under valgrind or qemu (PYMB_TEST_TIMEOUT).
 TIMEOUT = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
+
+
+@pytest.fixture
+def frozen_clock() -> SimClock:
+    """A simulator clock frozen at 1000 s: time moves only by ``advance()``."""
+    clock = SimClock(start=1000.0)
+    clock.freeze()
+    return clock
 
 
 def wait_until(event: Callable[[], _T], what: str | Callable[[], str], timeout: float = 10.0,

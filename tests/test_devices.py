@@ -22,15 +22,8 @@ T = max(TIMEOUT, 0.3)  # client timeout (at least 0.3 s)
 
 
 @pytest.fixture
-def frozen() -> SimClock:
-    clock = SimClock(start=1000.0)
-    clock.freeze()
-    return clock
-
-
-@pytest.fixture
-def bus(frozen: SimClock) -> Iterator[Simulator]:
-    with Simulator(["coolpro", "hub:1", "hub:250"], seed=11, clock=frozen) as sim:
+def bus(frozen_clock: SimClock) -> Iterator[Simulator]:
+    with Simulator(["coolpro", "hub:1", "hub:250"], seed=11, clock=frozen_clock) as sim:
         yield sim
 
 
@@ -202,9 +195,9 @@ def test_hub_markers_and_units_per_channel(bus: Simulator, sim_client: pymb.RtuC
     ("1.07", 50, {"pressure_temperature_c", "pressure_kpa", "voltage_mv", "rssi_dbm",
                   "temperature2_c"}, 2),
 ])
-def test_hub_firmware_profiles(frozen: SimClock, firmware: str, channels: int,
+def test_hub_firmware_profiles(frozen_clock: SimClock, firmware: str, channels: int,
                                missing: set[str], requests: int) -> None:
-    with Simulator([f"hub:7,firmware={firmware}"], clock=frozen) as sim, \
+    with Simulator([f"hub:7,firmware={firmware}"], clock=frozen_clock) as sim, \
             pymb.RtuClient(sim.port, timeout=T) as c:
         hub = SensorHub(c, 7, channels=channels)
         r = hub.read_all()  # the first sweep finds out what is missing...
@@ -270,11 +263,11 @@ def test_planned_partial_reads(bus: Simulator, sim_client: pymb.RtuClient) -> No
     assert "predicted" in plan.explain()
 
 
-def test_sweeps_of_several_buses_run_in_parallel(frozen: SimClock) -> None:
+def test_sweeps_of_several_buses_run_in_parallel(frozen_clock: SimClock) -> None:
     # The GIL is released for the whole sweep: two buses at an emulated line
     # speed take about as long together as one alone.
-    with Simulator(["hub"], baud=115200, clock=frozen) as a, \
-            Simulator(["hub"], baud=115200, clock=frozen) as b, \
+    with Simulator(["hub"], baud=115200, clock=frozen_clock) as a, \
+            Simulator(["hub"], baud=115200, clock=frozen_clock) as b, \
             pymb.RtuClient(a.port, 115200, timeout=1) as ca, \
             pymb.RtuClient(b.port, 115200, timeout=1) as cb:
         hubs = [SensorHub(ca, 1), SensorHub(cb, 1)]

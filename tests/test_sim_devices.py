@@ -34,20 +34,13 @@ def regs(reply: bytes | None) -> list[int]:
 
 
 @pytest.fixture
-def clock() -> SimClock:
-    c = SimClock(1000.0)
-    c.freeze()
-    return c
+def cp(frozen_clock: SimClock) -> CoolProDevice:
+    return CoolProDevice(clock=frozen_clock, uptime=100.0, dynamic=False)
 
 
 @pytest.fixture
-def cp(clock: SimClock) -> CoolProDevice:
-    return CoolProDevice(clock=clock, uptime=100.0, dynamic=False)
-
-
-@pytest.fixture
-def hub(clock: SimClock) -> HubDevice:
-    return HubDevice(clock=clock, dynamic=False)
+def hub(frozen_clock: SimClock) -> HubDevice:
+    return HubDevice(clock=frozen_clock, dynamic=False)
 
 
 # -- CoolPro -------------------------------------------------------------------------
@@ -65,9 +58,9 @@ def test_coolpro_defaults_match_the_document(cp: CoolProDevice) -> None:
 
 
 def test_coolpro_telemetry_is_in_milliunits_and_plausible(cp: CoolProDevice,
-                                                          clock: SimClock) -> None:
+                                                          frozen_clock: SimClock) -> None:
     for _ in range(50):
-        clock.advance(7.3)
+        frozen_clock.advance(7.3)
         vin, iin, vout, iout, temp, _up_lo, _up_hi, status = regs(cp.handle(req(0x04, 0, 8)))
         assert 24_000 < vin < 25_000  # ~24.5 V
         assert 23_800 < vout < 24_200  # ~24.0 V
@@ -78,14 +71,14 @@ def test_coolpro_telemetry_is_in_milliunits_and_plausible(cp: CoolProDevice,
     assert regs(cp.handle(req(0x04, 4, 1)))[0] > 20_000  # ~25.8 °C
 
 
-def test_coolpro_uptime_is_32_bit_low_word_first(cp: CoolProDevice, clock: SimClock) -> None:
-    clock.advance(70_000 - 100)
+def test_coolpro_uptime_is_32_bit_low_word_first(cp: CoolProDevice, frozen_clock: SimClock) -> None:
+    frozen_clock.advance(70_000 - 100)
     assert regs(cp.handle(req(0x04, 5, 2))) == [4464, 1]  # the document's 70000 s
 
 
 def test_coolpro_daily_reset_wraps_uptime_and_raises_bit_1(cp: CoolProDevice,
-                                                           clock: SimClock) -> None:
-    clock.advance(86_400)
+                                                           frozen_clock: SimClock) -> None:
+    frozen_clock.advance(86_400)
     up_lo, up_hi, status = regs(cp.handle(req(0x04, 5, 3)))
     assert up_lo | up_hi << 16 == 100
     assert status & 0x02
@@ -111,7 +104,7 @@ def test_coolpro_ranges_and_exceptions(cp: CoolProDevice) -> None:
     assert cp.handle(req(0x06, 2, 0x1234)) == b"\x86\x03"
 
 
-def test_coolpro_writes_take_effect_at_reset(cp: CoolProDevice, clock: SimClock) -> None:
+def test_coolpro_writes_take_effect_at_reset(cp: CoolProDevice, frozen_clock: SimClock) -> None:
     assert cp.handle(req(0x06, 0, 42)) == req(0x06, 0, 42)  # echo
     assert cp.handle(req(0x06, 1, 1)) == req(0x06, 1, 1)
     assert regs(cp.handle(req(0x03, 0, 3))) == [42, 1, 0]
@@ -122,7 +115,7 @@ def test_coolpro_writes_take_effect_at_reset(cp: CoolProDevice, clock: SimClock)
     up_lo, up_hi, status = regs(cp.handle(req(0x04, 5, 3)))
     assert (up_lo, up_hi) == (0, 0)
     assert status & 0x01  # startup
-    clock.advance(2.5)
+    frozen_clock.advance(2.5)
     up_lo, up_hi, status = regs(cp.handle(req(0x04, 5, 3)))
     assert up_lo == 2
     assert not status & 0x01
@@ -134,7 +127,7 @@ def test_coolpro_broadcast_write_is_carried_out(cp: CoolProDevice) -> None:
     cp.handle_broadcast(req(0x04, 0, 1))  # reads: nothing to do
 
 
-def test_coolpro_status_bits_and_sensor_zeroes(cp: CoolProDevice, clock: SimClock) -> None:
+def test_coolpro_status_bits_and_sensor_zeroes(cp: CoolProDevice, frozen_clock: SimClock) -> None:
     cp.set_status(0x8000 | 0x0004)  # a reserved bit and the input measurement fault
     vin, iin, vout, _iout, _temp, _, _, status = regs(cp.handle(req(0x04, 0, 8)))
     assert status == 0x8004
@@ -144,7 +137,7 @@ def test_coolpro_status_bits_and_sensor_zeroes(cp: CoolProDevice, clock: SimCloc
     assert regs(cp.handle(req(0x04, 7, 1))) == [0x8000]
     cp.set_status(0x40, seconds=3)
     assert regs(cp.handle(req(0x04, 4, 1))) == [0]
-    clock.advance(3)
+    frozen_clock.advance(3)
     assert regs(cp.handle(req(0x04, 7, 1))) == [0x8000]
 
 
@@ -160,11 +153,11 @@ def test_coolpro_pins_and_identity(cp: CoolProDevice) -> None:
         cp.pin("address", 1)
 
 
-def test_coolpro_model_raises_and_clears_status_faults(clock: SimClock) -> None:
-    cp = CoolProDevice(clock=clock, uptime=10.0)
+def test_coolpro_model_raises_and_clears_status_faults(frozen_clock: SimClock) -> None:
+    cp = CoolProDevice(clock=frozen_clock, uptime=10.0)
     seen = set()
     for _ in range(24 * 360):  # 24 h in 10 s steps
-        clock.advance(10)
+        frozen_clock.advance(10)
         seen.add(cp.status() & 0x7C)
     assert 0 in seen
     assert len(seen) >= 3  # raised, and cleared again
@@ -215,9 +208,9 @@ def test_hub_frame_is_at_most_255_bytes(hub: HubDevice) -> None:
     ("2.23", [(631, 100), (606, 125)], []),
     ("3.1", [(631, 100)], []),
 ])
-def test_hub_firmware_profiles(clock: SimClock, firmware: str, ok: list[tuple[int, int]],
+def test_hub_firmware_profiles(frozen_clock: SimClock, firmware: str, ok: list[tuple[int, int]],
                                missing: list[tuple[int, int]]) -> None:
-    hub = HubDevice(clock=clock, firmware=firmware)
+    hub = HubDevice(clock=frozen_clock, firmware=firmware)
     for a, n in ok:
         assert answer(hub.handle(req(0x03, a, n)))[0] == 0x03, (firmware, a, n)
     for a, n in missing:
@@ -264,19 +257,19 @@ def test_hub_offline_channel_reads_ffff_everywhere(hub: HubDevice) -> None:
     assert hub.raw("temperature_c", 7) != 0xFFFF
 
 
-def test_hub_timed_offline_comes_back(hub: HubDevice, clock: SimClock) -> None:
+def test_hub_timed_offline_comes_back(hub: HubDevice, frozen_clock: SimClock) -> None:
     hub.configure(9, present=True)
     assert hub.raw("voltage_mv", 9) != 0xFFFF
     hub.set_offline(9, True, seconds=5)
     assert hub.raw("voltage_mv", 9) == 0xFFFF
-    clock.advance(4.9)
+    frozen_clock.advance(4.9)
     assert hub.raw("voltage_mv", 9) == 0xFFFF
-    clock.advance(0.1)
+    frozen_clock.advance(0.1)
     assert hub.raw("voltage_mv", 9) != 0xFFFF
 
 
-def test_hub_values_encode_as_documented(clock: SimClock) -> None:
-    hub = HubDevice(clock=clock, seed=3)
+def test_hub_values_encode_as_documented(frozen_clock: SimClock) -> None:
+    hub = HubDevice(clock=frozen_clock, seed=3)
     negatives = 0
     for ch in range(1, 101):
         c = hub.channel(ch)
@@ -305,16 +298,16 @@ def test_hub_pins(hub: HubDevice) -> None:
     assert regs(hub.handle(req(0x03, 31, 1))) != [0x80FF]
 
 
-def test_hub_values_move_and_channels_go_offline_and_back(clock: SimClock) -> None:
-    hub = HubDevice(clock=clock, seed=5)
+def test_hub_values_move_and_channels_go_offline_and_back(frozen_clock: SimClock) -> None:
+    hub = HubDevice(clock=frozen_clock, seed=5)
     before = hub.registers()
-    clock.advance(60)
+    frozen_clock.advance(60)
     assert hub.registers() != before  # temperatures drift
     offline_seen: set[int] = set()
     back: set[int] = set()
     was = {ch: hub.raw("voltage_mv", ch) == 0xFFFF for ch in range(1, 101)}
     for _ in range(6 * 60):  # 6 h in 60 s steps
-        clock.advance(60)
+        frozen_clock.advance(60)
         for ch in range(1, 101):
             now = hub.raw("voltage_mv", ch) == 0xFFFF
             if now and not was[ch]:
