@@ -36,6 +36,17 @@ PYMB = [sys.executable, "-m", "pymb"]
 TIMEOUT = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
 
 
+def rss_kb(pid: int | None = None) -> int:
+    """Resident memory (VmRSS, kB) of process ``pid``, this one by default."""
+    with open(f"/proc/{pid or 'self'}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
+
+
+def open_fds(pid: int | None = None) -> int:
+    """How many descriptors process ``pid`` (this one by default) has open."""
+    return len(os.listdir(f"/proc/{pid or 'self'}/fd"))
+
+
 @pytest.fixture
 def frozen_clock() -> SimClock:
     """A simulator clock frozen at 1000 s: time moves only by ``advance()``."""

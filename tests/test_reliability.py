@@ -11,7 +11,6 @@ guard against late replies).
 from __future__ import annotations
 
 import gc
-import os
 import random
 import signal
 import sqlite3
@@ -25,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB, PYMB_ENV, TIMEOUT, wait_until
+from conftest import PYMB, PYMB_ENV, TIMEOUT, open_fds, rss_kb, wait_until
 from dbwait import count, wait_for
 
 import pymb
@@ -225,15 +224,6 @@ def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
 # -- unplug and replug ------------------------------------------------------------
 
 
-def fds() -> int:
-    return len(os.listdir("/proc/self/fd"))
-
-
-def rss_kb() -> int:
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
-
-
 @pytest.mark.parametrize("cycles", [1000])
 def test_unplug_replug_without_leaks(cycles: int) -> None:
     with Simulator(["coolpro"], seed=2) as sim:
@@ -250,11 +240,11 @@ def test_unplug_replug_without_leaks(cycles: int) -> None:
             for _ in range(50):  # warm up caches and allocators
                 cycle()
             gc.collect()
-            fd0, rss0 = fds(), rss_kb()
+            fd0, rss0 = open_fds(), rss_kb()
             for _ in range(cycles):
                 cycle()
             gc.collect()
-            assert fds() == fd0
+            assert open_fds() == fd0
             assert rss_kb() - rss0 < 2048, (rss0, rss_kb())
             assert c.connections == cycles + 51
         finally:

@@ -15,18 +15,9 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import PYMB, PYMB_ENV
+from conftest import PYMB, PYMB_ENV, open_fds, rss_kb
 
 from pymb.sim import SimulatorProcess
-
-
-def rss_kb(pid: int) -> int:
-    with open(f"/proc/{pid}/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
-
-
-def nfds(pid: int) -> int:
-    return len(os.listdir(f"/proc/{pid}/fd"))
 
 
 @pytest.mark.slow
@@ -80,7 +71,7 @@ address = 1
             while (elapsed := time.monotonic() - t0) < seconds:
                 time.sleep(min(10.0, max(1.0, seconds / 60)))
                 assert proc.poll() is None, "the logger died"
-                points.append((elapsed, rss_kb(proc.pid), nfds(proc.pid)))
+                points.append((elapsed, rss_kb(proc.pid), open_fds(proc.pid)))
         finally:
             proc.send_signal(signal.SIGTERM)
             _, err = proc.communicate(timeout=60)
