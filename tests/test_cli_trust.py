@@ -64,15 +64,21 @@ class Pty:
 
     def read_until(self, pattern: bytes, timeout: float = 30.0) -> bool:
         """Read output until ``pattern`` shows (True) or ``timeout`` passes."""
+        return self.read_more(pattern, 1 - min(1, self.out.count(pattern)), timeout)
+
+    def read_more(self, pattern: bytes, n: int = 1, timeout: float = 30.0) -> bool:
+        """Read output until ``pattern`` has shown ``n`` more times (a status
+        line or a screen redrawn): True, or False once ``timeout`` passes."""
+        want = self.out.count(pattern) + n
         deadline = time.monotonic() + timeout
-        while pattern not in self.out and time.monotonic() < deadline:
+        while self.out.count(pattern) < want and time.monotonic() < deadline:
             r, _, _ = select.select([self.master], [], [], 0.1)
             if r:
                 try:
                     self.out += os.read(self.master, 65536)
                 except OSError:
                     break
-        return pattern in self.out
+        return self.out.count(pattern) >= want
 
     def interrupt(self, sig: int = signal.SIGINT) -> float:
         """SIGINT, as Ctrl-C sends it; returns the seconds until the process ended."""
@@ -588,7 +594,7 @@ def test_log_flushes_what_it_read_on_sigint(sim3: Simulator, tmp_path: Path, sig
     db = tmp_path / "flush.sqlite"
     p = Pty(["log", "coolpro", "--port", sim3.port, "--out", str(db)])
     assert p.read_until(b"samples", 20)
-    p.read_until(b"\x00", 1.0)
+    assert p.read_more(b"samples", 2, 20)  # two more status lines: it has read more
     took = p.interrupt(sig)
     assert took < STOP_BOUND
     assert p.proc.returncode == 0
@@ -640,7 +646,7 @@ def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Pa
 def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) -> None:
     p = Pty(["watch", "hub:250", "--port", sim3.port], cols=80, rows=24)
     assert p.read_until(b"reads", 20)
-    p.read_until(b"\x00", 1.5)
+    assert p.read_more(b"\x1b[H", 2, 20)  # two more screens drawn
     screen = p.screen()
     p.interrupt()
     assert screen[0].startswith("hub:250 ")
@@ -661,7 +667,7 @@ def test_watch_block_show_json_identity(sim3: Simulator) -> None:
     p = Pty(["watch", "hub:250", "--port", sim3.port, "--block", "pressure_kpa",
              "--show", "1-20", "--identity"], cols=80, rows=24)
     assert p.read_until(b"pressure_kpa", 20)
-    p.read_until(b"\x00", 0.5)
+    assert p.read_more(b"\x1b[H", 1, 20)  # the next screen begun: the first is whole
     screen = p.screen()
     p.interrupt()
     assert any("sensor hub" in ln and "100 channels" in ln for ln in screen), screen
