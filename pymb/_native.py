@@ -30,6 +30,7 @@ from pymb.errors import (
 __all__ = [
     "BAUD_RATES",
     "FRAME_INCOMPLETE",
+    "HUB_ALL_BLOCKS",
     "HUB_BITMAP_BYTES",
     "HUB_BLOCKS",
     "HUB_CHANNELS",
@@ -77,6 +78,8 @@ BAUD_RATES = frozenset(
 )
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
+_from_buffer = ffi.from_buffer
+_NULL = ffi.NULL
 
 
 # -- constants, as the compiler knows them (build_ffi.py declares them "...") ----
@@ -264,6 +267,9 @@ class Link:
         self._char_ns = char_ns
         self.reject_early = reject_early  # None: on a real serial line, off on a pty
         self._ctx: Any = ffi.NULL
+        #: True while a connected context exists (a plain attribute: the hot
+        #: path reads it on every request).
+        self.is_open = False
         self._line = ffi.new("pymb_line *")
         self._fail = ffi.new("pymb_failure *")
         self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
@@ -272,11 +278,6 @@ class Link:
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
 
     # -- life cycle ------------------------------------------------------------
-
-    @property
-    def is_open(self) -> bool:
-        """True while a connected context exists."""
-        return bool(self._ctx != ffi.NULL)
 
     def open(self) -> None:
         """Create the context, connect, lock the port, apply the settings."""
@@ -326,6 +327,7 @@ class Link:
                 port=self.name,
             )
         self._ctx = ctx
+        self.is_open = True
         try:
             if lib.pymb_line_init(self._line, ctx, self._framing, self._silence_us) == -1:
                 raise ModbusConnectionError(
@@ -356,6 +358,7 @@ class Link:
     def close(self) -> None:
         """Close and free the context; safe to call twice."""
         ctx, self._ctx = self._ctx, ffi.NULL
+        self.is_open = False
         if ctx != ffi.NULL:
             self._line.ctx = ffi.NULL
             lib.modbus_close(ctx)
@@ -418,18 +421,15 @@ class Link:
         self, function: int, slave: int, address: int, count: int, dest: Any
     ) -> None:
         """Read ``count`` registers into ``dest`` (a writable uint16 buffer)."""
-        if self._ctx == ffi.NULL:
-            raise self._closed(function, slave, address, count)
-        rc = lib.pymb_read_registers(
-            self._line, function, slave, address, count,
-            ffi.from_buffer("uint16_t[]", dest, require_writable=True), self._fail,
-        )
-        if rc < 0:
+        # The hot path: one C call (a closed line fails in C, with EINVAL,
+        # and _error tells it apart).
+        if lib.pymb_read_registers(self._line, function, slave, address, count,
+                                   _from_buffer("uint16_t[]", dest, True), self._fail) < 0:
             raise self._error(function, slave, address, count)
 
     def read_bits(self, function: int, slave: int, address: int, count: int, dest: Any) -> None:
         """Read ``count`` bits into ``dest`` (a writable byte buffer, 0/1 each)."""
-        if self._ctx == ffi.NULL:
+        if not self.is_open:
             raise self._closed(function, slave, address, count)
         rc = lib.pymb_read_bits(
             self._line, function, slave, address, count,
@@ -445,7 +445,7 @@ class Link:
         returns ``b""``. ``expect``: the reply PDU's length when known (0:
         from the function code, the MBAP length, or the line's silence)."""
         slave, function = request[0], request[1]
-        if self._ctx == ffi.NULL:
+        if not self.is_open:
             raise self._closed(function, slave, address, count)
         n = lib.pymb_transact(
             self._line, request, len(request), expect, self._rsp, lib.MODBUS_MAX_ADU_LENGTH,
@@ -458,7 +458,7 @@ class Link:
     def hub_read(self, sweep: HubSweep) -> int:
         """Run a prepared hub sweep (one C call); returns the read block mask."""
         rq = sweep.request
-        if self._ctx == ffi.NULL:
+        if not self.is_open:
             raise self._closed(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None)
         if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
             raise self._error(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None,
@@ -467,7 +467,7 @@ class Link:
 
     def drain(self, quiet: float, limit: float) -> int:
         """Drop input until the line is quiet for ``quiet`` seconds."""
-        if self._ctx == ffi.NULL:
+        if not self.is_open:
             return 0
         n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
         if n < 0:
@@ -495,6 +495,8 @@ class Link:
         """Turn errno (read right after the failing call) and the failure
         record into the exception to raise."""
         err = ffi.errno
+        if not self.is_open:
+            return self._closed(function, slave, address, count)
         if err == errno.EINTR:
             exc = _take_interrupt()
             if exc is not None:  # a signal handler raised: that is the error
@@ -590,10 +592,9 @@ def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
 
 # -- decoders and the hub sweep --------------------------------------------------
 
-_from_buffer = ffi.from_buffer
-_NULL = ffi.NULL
 HUB_REGISTERS = int(lib.PYMB_HUB_REGISTERS)
 HUB_BLOCKS = int(lib.PYMB_HUB_BLOCKS)
+HUB_ALL_BLOCKS = int(lib.PYMB_HUB_ALL_BLOCKS)  #: the block mask with every block set
 HUB_CHANNELS = int(lib.PYMB_HUB_CHANNELS)
 HUB_BITMAP_BYTES = int(lib.PYMB_HUB_BITMAP_BYTES)
 

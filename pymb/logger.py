@@ -59,7 +59,7 @@ from typing import Any, TextIO
 
 from pymb.client import Client, RtuClient, client_for_address
 from pymb.devices import HUB, CoolPro, SensorHub
-from pymb.devices.hub import full_sweep_spans
+from pymb.devices.hub import ALL_BLOCKS, full_sweep_spans
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
 from pymb.errors import (
@@ -681,7 +681,7 @@ class _BusPoller(threading.Thread):
             code = getattr(e, "code", None) or getattr(e, "errno", None)
             self._fault(dev, _kind(e), str(e), code)
             return True
-        if dev.hub is not None and len(data.unsupported) == len(HUB.blocks):
+        if dev.hub is not None and data.unsupported_mask == ALL_BLOCKS:
             # Every block "unsupported": the device supplied no value at all.
             # Not a sample: a fault, and the next try probes the blocks again.
             if not dev.explained:

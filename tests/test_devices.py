@@ -4,6 +4,7 @@ configuration writes and the reset semantics."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -15,7 +16,8 @@ import reference as ref
 from conftest import TIMEOUT
 
 import pymb
-from pymb.devices import HUB, CoolPro, CoolProStatus, SensorHub, State, decode_hub
+from pymb.devices import HUB, CoolPro, CoolProStatus, CoolProTelemetry, SensorHub, State, decode_hub
+from pymb.devices.hub import ALL_BLOCKS
 from pymb.sim import CoolProDevice, SimClock, Simulator
 
 T = max(TIMEOUT, 0.3)  # client timeout (at least 0.3 s)
@@ -50,6 +52,25 @@ def test_coolpro_telemetry_every_field(bus: Simulator, sim_client: pymb.RtuClien
     assert isinstance(t.uptime_s, int)
     assert int(t.status) == regs[7]
     assert list(t.registers) == list(regs)
+
+
+def test_coolpro_telemetry_is_a_whole_frozen_dataclass(sim_client: pymb.RtuClient) -> None:
+    # read_telemetry sets the fields directly (no per-field __init__ call):
+    # every declared field is set, the object stays frozen, and it compares
+    # like one built through the constructor.
+    t = CoolPro(sim_client).read_telemetry()
+    names = [f.name for f in dataclasses.fields(CoolProTelemetry)]
+    assert sorted(vars(t)) == sorted(names)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.uptime_s = 0  # type: ignore[misc]
+    same = CoolProTelemetry(*(getattr(t, n) for n in names))
+    assert same == t
+    assert repr(same) == repr(t)
+
+
+def test_all_blocks_mask_is_every_block_of_the_map() -> None:
+    mask = (1 << len(HUB.blocks)) - 1
+    assert mask == ALL_BLOCKS
 
 
 def test_coolpro_documented_values_and_reserved_bits(bus: Simulator,

@@ -43,6 +43,7 @@ class CoolProStatus(IntFlag, boundary=KEEP):
 
 
 _ZEROS = array("H", bytes(2 * 125))
+_new = object.__new__
 
 
 @functools.lru_cache(maxsize=1024)
@@ -115,15 +116,26 @@ class CoolPro:
     def _read(self, span: tuple[int, int, int]) -> array[int]:
         # The span comes from the map and the address was checked: no per-call checks.
         function, address, count = span
-        regs = array("H", _ZEROS[:count])
+        regs = _ZEROS[:count]
         self.client.read_registers_prepared(function, self.address, address, regs)
         return regs
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        regs = self._read(self._telemetry)
-        vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
-        return CoolProTelemetry(vin, iin, vout, iout, temp, uptime, _status(status), regs)
+        # The hot path of a CoolPro logger: one array, one C read, one C
+        # decode, and the result's fields set directly (a frozen dataclass's
+        # __init__ makes a call per field).
+        function, address, count = self._telemetry
+        regs = _ZEROS[:count]
+        self.client.read_registers_prepared(function, self.address, address, regs)
+        t = _new(CoolProTelemetry)
+        d = t.__dict__
+        (d["input_voltage_v"], d["input_current_a"], d["output_voltage_v"],
+         d["output_current_a"], d["temperature_c"], d["uptime_s"],
+         status) = _native.coolpro_telemetry(regs)
+        d["status"] = _status(status)
+        d["registers"] = regs
+        return t
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""

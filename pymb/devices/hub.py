@@ -25,10 +25,13 @@ from pymb.devices.planner import ReadPlan, plan_reads
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.wire import bits_per_char
 
-__all__ = ["HubChannel", "HubReading", "SensorHub", "State", "decode_hub", "full_sweep_spans"]
+__all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "decode_hub",
+           "full_sweep_spans"]
 
 _N = HUB.count  # 700 registers, 31..730
-_ALL = (1 << len(HUB.blocks)) - 1
+#: The block mask with every block set (``HubReading.unsupported_mask ==
+#: ALL_BLOCKS``: the hub supplied no value at all).
+ALL_BLOCKS = _native.HUB_ALL_BLOCKS
 _ZERO_REGS = array("H", bytes(2 * _N))
 
 
@@ -227,7 +230,7 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     r = HubReading(channels, regs)
     tenths = _TENTHS_100 if humidity_unit == 0.1 and channels == HUB.channels else _tenths(
         humidity_unit, channels)
-    _native.hub_decode(regs, channels, tenths, None, _ALL & ~mask, mask, r.values,
+    _native.hub_decode(regs, channels, tenths, None, ALL_BLOCKS & ~mask, mask, r.values,
                        r.raw_states)
     r.unsupported_mask = mask
     return r

@@ -92,8 +92,10 @@ def plan_reads(
     if baudrate <= 0 or max_count < 1:
         raise ValueError("baudrate and max_count must be positive")
 
-    def cost(n: int) -> float:
-        return read_time(n, baudrate, turnaround=turnaround, bits=bits_per_char)
+    # A request's cost depends only on its length: one table, not a call per
+    # candidate (a full hub sweep tries ~87,000 of them).
+    costs = [0.0] + [read_time(n, baudrate, turnaround=turnaround, bits=bits_per_char)
+                     for n in range(1, max_count + 1)]
 
     # blocked[k]: registers that may not be read lie strictly between w[k] and w[k+1].
     m = len(w)
@@ -111,7 +113,7 @@ def plan_reads(
             j += 1
         best[i] = float("inf")
         while j >= i:
-            c = cost(w[j] - w[i] + 1) + best[j + 1]
+            c = costs[w[j] - w[i] + 1] + best[j + 1]
             if c < best[i] - 1e-12:  # ties (up to rounding) keep the longer request
                 best[i], end[i] = c, j
             j -= 1
@@ -121,5 +123,5 @@ def plan_reads(
         j = end[i]
         spans.append((w[i], w[j] - w[i] + 1))
         i = j + 1
-    naive = sum(cost(c) for _, c in naive_spans(w, max_count))
+    naive = sum(costs[c] for _, c in naive_spans(w, max_count))
     return ReadPlan(tuple(spans), best[0], naive, baudrate, turnaround, m, bits_per_char)
