@@ -41,6 +41,7 @@ Configuration, as flags (one bus) or a TOML file (any number)::
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import difflib
 import math
@@ -58,7 +59,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from pymb.client import Client, RtuClient, client_for_address
-from pymb.devices import HUB, CoolPro, SensorHub
+from pymb.devices import HUB, CoolPro, HubReading, SensorHub
 from pymb.devices.hub import ALL_BLOCKS, full_sweep_spans
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
@@ -558,17 +559,33 @@ class _Device:
     config: DeviceConfig
     read: Callable[[], Any]
     hub: SensorHub | None
+    #: hub readings the writer has finished with, for the next sweeps to read
+    #: into (no 8 KB of arrays allocated per sweep, and none freed by another
+    #: thread); None: every read makes its own
+    spare: collections.deque[HubReading] | None = None
     failures: int = 0  #: consecutive failed reads
     backoff: float = 0.0  #: seconds of the current backoff (0: none)
     retry_at: float = 0.0  #: not polled before this (clock)
     explained: str = ""  #: what answered, found once per run of failures
 
 
+def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Callable[[], Any]:
+    """``hub.read_all`` into a spare reading when there is one."""
+    def read() -> HubReading:
+        return hub.read_all(into=spare.pop() if spare else None)
+    return read
+
+
+#: spare readings kept per hub: the most a writer a batch behind hands back
+_SPARE_MAX = 64
+
+
 class _BusPoller(threading.Thread):
     """Polls one bus until told to stop; puts Samples and Events on a queue."""
 
     def __init__(self, bus: BusConfig, out: queue.Queue[Sample | Event], stop: threading.Event,
-                 stats: _Stats, clock: Callable[[], float] = time.monotonic) -> None:
+                 stats: _Stats, clock: Callable[[], float] = time.monotonic, *,
+                 reuse: bool = False) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
         self.bus = bus
         self.out = out
@@ -589,7 +606,11 @@ class _BusPoller(threading.Thread):
                                             .read_telemetry, None))
             else:
                 hub = SensorHub(self.client, d.address, d.channels, d.humidity_unit)
-                self.devices.append(_Device(info, d, hub.read_all, hub))
+                if reuse:
+                    spare: collections.deque[HubReading] = collections.deque()
+                    self.devices.append(_Device(info, d, _reading_into(hub, spare), hub, spare))
+                else:
+                    self.devices.append(_Device(info, d, hub.read_all, hub))
 
     def _event(self, kind: str, message: str, device: DeviceInfo | None = None,
                code: int | None = None) -> None:
@@ -780,8 +801,13 @@ class Logger:
         self._stop = threading.Event()
         self.stats = _Stats()
         self._queue: queue.Queue[Sample | Event] = queue.Queue(maxsize=10000)
-        self.pollers = [_BusPoller(b, self._queue, self._stop, self.stats)
+        # pymb's own sinks are done with a sample when write() returns: hub
+        # sweeps may then be read into the arrays of readings already written.
+        reuse = sink is None or getattr(sink, "keeps_samples", True) is False
+        self.pollers = [_BusPoller(b, self._queue, self._stop, self.stats, reuse=reuse)
                         for b in config.buses]
+        self._spare = {id(d.info): d.spare for p in self.pollers for d in p.devices
+                       if d.spare is not None}
         self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
                                       max_age=config.max_age, on_change=config.on_change)
         self._status_width = 0
@@ -882,6 +908,10 @@ class Logger:
     def _write(self, item: Sample | Event) -> None:
         if isinstance(item, Sample):
             self.sink.write(item)
+            spare = self._spare.get(id(item.device))
+            if spare is not None and len(spare) < _SPARE_MAX and isinstance(item.data,
+                                                                             HubReading):
+                spare.append(item.data)
             self.stats.samples += 1
             name = item.device.name
             self.stats.by_device[name] = self.stats.by_device.get(name, 0) + 1

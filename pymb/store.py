@@ -141,7 +141,14 @@ def _finite(v: float) -> float | None:
 
 
 class Sink(Protocol):
-    """What the logger writes to."""
+    """What the logger writes to.
+
+    A sink that is done with a sample when :meth:`write` returns (it has
+    copied or written what it needs) may say so with a class attribute
+    ``keeps_samples = False``: the logger then reads later hub sweeps into
+    that sample's arrays. pymb's own sinks do; any other sink is assumed to
+    keep what it is given.
+    """
 
     def write(self, sample: Sample) -> None:
         """Add a sample to the current batch."""
@@ -456,6 +463,8 @@ class SqliteSink:
     past the lowest cursor records a ``trim`` event saying how many samples
     (and which ids) were deleted before they were sent.
     """
+
+    keeps_samples = False  #: see :class:`Sink`
 
     def __init__(self, path: str | os.PathLike[str], *, max_bytes: int | None = None,
                  max_age: float | None = None, on_change: OnChange | None = None) -> None:
@@ -1069,6 +1078,7 @@ def event_dict(e: Event) -> dict[str, Any]:
 
 
 class _TextSink:
+    keeps_samples = False  #: see :class:`Sink`
     f: IO[str]
 
     def __init__(self, path: str) -> None:

@@ -34,6 +34,11 @@ class ForwardingSink:
         self.forwarder = forwarder
         self.health = DeviceHealth()
 
+    @property
+    def keeps_samples(self) -> bool:
+        """As the wrapped sink (the health record keeps no sample data)."""
+        return bool(getattr(self.sink, "keeps_samples", True))
+
     def write(self, sample: Any) -> None:
         """Add a sample to the batch."""
         self.sink.write(sample)
