@@ -8,14 +8,17 @@ import dataclasses
 import math
 import threading
 import time
+import tracemalloc
 from collections.abc import Iterator
 from datetime import UTC, datetime
+from pathlib import Path
 
 import pytest
 import reference as ref
 from conftest import TIMEOUT
 
 import pymb
+from pymb.child import Child, pymb_argv
 from pymb.devices import HUB, CoolPro, CoolProStatus, CoolProTelemetry, SensorHub, State, decode_hub
 from pymb.devices.hub import ALL_BLOCKS
 from pymb.sim import CoolProDevice, SimClock, Simulator
@@ -342,6 +345,34 @@ def test_read_all_into_reuses_the_buffers(bus: Simulator, sim_client: pymb.RtuCl
     assert r2 is r
     assert r.values is values_before
     assert r.temperature_c[0] == 12.3
+
+
+def test_read_all_into_allocates_no_arrays(tmp_path: Path) -> None:
+    # Issue 12: a steady read_all(into=r) allocates nothing for the sweep:
+    # no arrays, no per-register objects. The simulator runs in a process of
+    # its own, so that only this process's allocations are traced.
+    sim = Child("simulator", pymb_argv("simulate", "--link", str(tmp_path / "hub"),
+                                       "hub:1,dynamic=0"))
+    try:
+        sim.readline(30)
+        with pymb.RtuClient(str(tmp_path / "hub"), timeout=5) as c:
+            hub = SensorHub(c, 1)
+            r = hub.read_all()
+            hub.read_all(into=r)
+            tracemalloc.start()
+            try:
+                before, _ = tracemalloc.get_traced_memory()
+                tracemalloc.reset_peak()
+                for _ in range(30):
+                    assert hub.read_all(into=r) is r
+                after, peak = tracemalloc.get_traced_memory()
+            finally:
+                tracemalloc.stop()
+    finally:
+        sim.stop()
+    # The smallest array a sweep could make (700 registers) is 1,400 bytes.
+    assert peak - before < 1024, f"a sweep allocated {peak - before} bytes at its peak"
+    assert after - before < 256
 
 
 def test_rs485_mode_on_a_port_without_it_is_a_clear_error(bus: Simulator) -> None:
