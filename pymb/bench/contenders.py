@@ -27,7 +27,7 @@ CONTENDERS: tuple[Contender, ...] = (
     Contender("c", "C (libmodbus)", (), None,
               "plain C: 6 x modbus_read_registers + a C decode loop, built now with cc -O2"),
     Contender("pymb", "pymb", (), "pymb",
-              "SensorHub.read_all() / CoolPro.read_telemetry(): one C call per sweep, "
+              "SensorHub.read_all(into=r) / CoolPro.read_telemetry(): one C call per sweep, "
               "decoded in C"),
     Contender("pylibmodbus", "pylibmodbus", ("pylibmodbus",), "pylibmodbus",
               "ModbusRtu.read_registers x6 (libmodbus via ABI-mode cffi) + Python decode"),
