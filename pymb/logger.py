@@ -578,17 +578,25 @@ def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Calla
 
 #: spare readings kept per hub: the most a writer a batch behind hands back
 _SPARE_MAX = 64
+#: A poller hands its samples to the writer in lists of at most this many, or
+#: this old (seconds), and before it waits: one queue operation per list, not
+#: two per sample. Events go at once, after the samples before them.
+_BATCH_MAX = 64
+_BATCH_AGE = 0.02
 
 
 class _BusPoller(threading.Thread):
     """Polls one bus until told to stop; puts Samples and Events on a queue."""
 
-    def __init__(self, bus: BusConfig, out: queue.Queue[Sample | Event], stop: threading.Event,
+    def __init__(self, bus: BusConfig, out: queue.Queue[list[Sample | Event]],
+                 stop: threading.Event,
                  stats: _Stats, clock: Callable[[], float] = time.monotonic, *,
                  reuse: bool = False) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
         self.bus = bus
         self.out = out
+        self._batch: list[Sample | Event] = []
+        self._batch_since = 0.0
         self.stop_event = stop
         self.stats = stats
         self.clock = clock
@@ -614,8 +622,21 @@ class _BusPoller(threading.Thread):
 
     def _event(self, kind: str, message: str, device: DeviceInfo | None = None,
                code: int | None = None) -> None:
-        self.out.put(Event(time.time(), time.monotonic(), self.bus.name, device, kind, code,
-                           message))
+        self._batch.append(Event(time.time(), time.monotonic(), self.bus.name, device, kind,
+                                 code, message))
+        self.flush()
+
+    def flush(self) -> None:
+        """Hand what was read since the last list to the writer."""
+        batch, self._batch = self._batch, []
+        if batch:
+            self.out.put(batch)
+
+    def take_unflushed(self) -> list[Sample | Event]:
+        """What this poller read but has not handed over (for the writer, once
+        the poller is left behind at stop)."""
+        batch, self._batch = self._batch, []
+        return batch
 
     def _why_not_open(self, e: ModbusError) -> str:
         host = getattr(self.client, "host", None)
@@ -646,6 +667,7 @@ class _BusPoller(threading.Thread):
         try:
             self._run()
         finally:
+            self.flush()
             self.client.close()
 
     def _wait_for_a_device(self) -> bool:
@@ -665,8 +687,10 @@ class _BusPoller(threading.Thread):
             if interval > 0:
                 next_at = start + slot * interval
                 delay = next_at - self.clock()
-                if delay > 0 and self.stop_event.wait(delay):
-                    break
+                if delay > 0:
+                    self.flush()
+                    if self.stop_event.wait(delay):
+                        break
                 slot += 1
                 late = int((self.clock() - start) / interval) + 1 - slot
                 if late > 0:  # a long read overran whole slots: skip them
@@ -676,6 +700,7 @@ class _BusPoller(threading.Thread):
                                 f"the polls of slot {slot - late - 1} ran "
                                 f"{self.clock() - next_at:.3f} s")
             elif all(d.retry_at > self.clock() for d in self.devices):
+                self.flush()
                 if not self._wait_for_a_device():
                     break
                 continue
@@ -711,7 +736,13 @@ class _BusPoller(threading.Thread):
             self._fault(dev, "no_value", f"{dev.info.name} supplied no value: {dev.explained}",
                         None, at_once=True)
             return True
-        self.out.put(Sample(dev.info, time.time(), time.monotonic(), data))
+        batch = self._batch
+        now = time.monotonic()
+        if not batch:
+            self._batch_since = now
+        batch.append(Sample(dev.info, time.time(), now, data))
+        if len(batch) >= _BATCH_MAX or now - self._batch_since >= _BATCH_AGE:
+            self.flush()
         if dev.failures:
             dev.failures, dev.backoff, dev.explained = 0, 0.0, ""
         self.stats.ok(dev.info.name)
@@ -800,7 +831,9 @@ class Logger:
         self.status_out = status
         self._stop = threading.Event()
         self.stats = _Stats()
-        self._queue: queue.Queue[Sample | Event] = queue.Queue(maxsize=10000)
+        # Bounded (about 10,000 samples): pollers wait when the writer lags.
+        self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
+            maxsize=10000 // _BATCH_MAX)
         # pymb's own sinks are done with a sample when write() returns: hub
         # sweeps may then be read into the arrays of readings already written.
         reuse = sink is None or getattr(sink, "keeps_samples", True) is False
@@ -850,15 +883,16 @@ class Logger:
                     if self._stop.is_set():
                         break
                     try:
-                        item: Sample | Event | None = self._queue.get_nowait()
+                        item: list[Sample | Event] | None = self._queue.get_nowait()
                     except queue.Empty:
                         item = None
                         # Drain the queue in bursts: waking on every sample would cost
                         # a thread switch per sample (issue 12: CPU per sample).
                         self._stop.wait(_DRAIN_EVERY)
                     if item is not None:
-                        self._write(item)
-                        pending += 1
+                        for x in item:
+                            self._write(x)
+                        pending += len(item)
                     now = time.monotonic()
                     if pending and (pending >= self.config.batch
                                     or now - last_commit >= self.config.commit_interval):
@@ -885,9 +919,15 @@ class Logger:
                 try:
                     while failure is None:
                         try:
-                            self._write(self._queue.get_nowait())
+                            for x in self._queue.get_nowait():
+                                self._write(x)
                         except queue.Empty:
                             break
+                    # A poller left behind: what it read before the stop.
+                    for p in self.pollers:
+                        if failure is None and p.is_alive():
+                            for x in p.take_unflushed():
+                                self._write(x)
                     self.sink.close()
                 except OutputError as e:
                     failure = failure or e
