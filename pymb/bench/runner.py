@@ -583,8 +583,8 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         add("hub sweep wall time, pymb / C", "<= 1.10", w, "x", None if w is None else w <= 1.10)
         # Issue 12 tightened the CPU goals: read_all(into=r) allocates nothing.
         add("hub sweep CPU time, pymb / C", "<= 1.00", c, "x", None if c is None else c <= 1.00)
-        t = row(sweep["telemetry"]["rows"], "pymb") if sweep.get("telemetry") else {}
-        c = t.get("cpu_x")
+        tele = row(sweep["telemetry"]["rows"], "pymb") if sweep.get("telemetry") else {}
+        c = tele.get("cpu_x")
         add("CoolPro telemetry CPU time, pymb / C", "<= 1.20", c, "x",
             None if c is None else c <= 1.20)
     micro = result.get("micro")
