@@ -256,7 +256,7 @@ class Link:
 
     def __init__(self, name: str, factory: Any, *, serial: bool,
                  framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
-                 reject_early: bool | None = None, host: str | None = None) -> None:
+                 host: str | None = None) -> None:
         self.name = name
         self.host = host  # TCP: the host name or address as given
         self.serial = serial
@@ -264,8 +264,8 @@ class Link:
         self._framing = framing if framing is not None else (
             lib.PYMB_FRAMING_RTU if serial else lib.PYMB_FRAMING_TCP)
         self._silence_us = max(0, round(silence * 1e6))
-        self._char_ns = char_ns
-        self.reject_early = reject_early  # None: on a real serial line, off on a pty
+        self._char_ns = char_ns  # one character's wire time (serial lines)
+        self._reject_early = False
         self._ctx: Any = ffi.NULL
         #: True while a connected context exists (a plain attribute: the hot
         #: path reads it on every request).
@@ -334,26 +334,19 @@ class Link:
                     f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
                     errno=ffi.errno, port=self.name)
             self._line.interrupted = lib.pymb_py_interrupted
-            self._line.char_ns = self._char_ns if self._rejects_early(ctx) else 0
+            self._line.char_ns = self._char_ns if self._reject_early else 0
             self._apply_timeouts()
             self._apply_rs485()
         except BaseException:
             self.close()  # a failed open leaves nothing open, nothing locked
             raise
 
-    def _rejects_early(self, ctx: Any) -> bool:
-        """Whether replies arriving before the request can have been answered
-        are dropped: asked for, or by default on a real serial line (a
-        pseudo-terminal, Linux majors 136..143, has no wire time)."""
-        if not self.serial or self._char_ns == 0:
-            return False
-        if self.reject_early is not None:
-            return self.reject_early
-        try:
-            rdev = os.fstat(lib.modbus_get_socket(ctx)).st_rdev
-        except OSError:
-            return False
-        return not 136 <= os.major(rdev) <= 143
+    def set_reject_early(self, on: bool) -> None:
+        """Drop reply bytes that arrive before the request can have been
+        answered (its wire time plus t3.5; serial lines only)."""
+        self._reject_early = on and self._char_ns > 0
+        if self.is_open:
+            self._line.char_ns = self._char_ns if self._reject_early else 0
 
     def close(self) -> None:
         """Close and free the context; safe to call twice."""
@@ -560,8 +553,7 @@ class Link:
         return ModbusConnectionError(f"{asked}: {os_hint(err)}", errno=err, **kw)
 
 
-def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int,
-            reject_early: bool | None = None) -> Link:
+def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
     """A serial-line Link (not yet open)."""
     bits = 1 + data_bits + (0 if parity == "N" else 1) + stop_bits
     dev = port.encode()
@@ -572,7 +564,6 @@ def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: in
         serial=True,
         silence=rtu_silence(baudrate),
         char_ns=int(lib.pymb_rtu_char_ns(baudrate, bits)),
-        reject_early=reject_early,
     )
 
 

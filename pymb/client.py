@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import errno
 import operator
+import os
 import struct
 import sys
 import threading
@@ -176,7 +177,15 @@ class Client:
     def _open(self) -> None:
         if not self._link.is_open:
             self._link.open()
+            try:
+                self._opened()
+            except BaseException:
+                self._link.close()
+                raise
             self.connections += 1
+
+    def _opened(self) -> None:
+        """After the line opens: what a transport decides from the open line."""
 
     def close(self) -> None:
         """Close the line; safe to call more than once."""
@@ -615,9 +624,22 @@ class RtuClient(Client):
         self.stop_bits = stop_bits
         if reject_early is not None and not isinstance(reject_early, bool):
             raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
-        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits, reject_early)
+        self._reject_early = reject_early
+        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
         super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
         self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
+
+    def _opened(self) -> None:
+        # Rejecting early bytes is asked for, or on by default on a real
+        # serial line; a pseudo-terminal (Linux majors 136..143) has no wire
+        # time, so there nothing is early.
+        on = self._reject_early
+        if on is None:
+            try:
+                on = not 136 <= os.major(os.fstat(self._link.fileno()).st_rdev) <= 143
+            except OSError:
+                on = False
+        self._link.set_reject_early(on)
 
     def set_rs485(self, *, serial_mode: str | None = None, rts: str | None = None,
                   rts_delay: float | None = None) -> None:
