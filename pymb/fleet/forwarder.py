@@ -58,6 +58,7 @@ class ForwarderStatus:
     last_ack: float | None  #: time.time() of the last acknowledgement
     rate: float  #: samples acknowledged per second, over the last few seconds
     connections: int  #: successful connections so far
+    cursor: int  #: every sample id up to this one was acknowledged (the outbox cursor)
 
     def line(self) -> str:
         """A short status: ``mqtt ok 152/s backlog 0``."""
@@ -241,7 +242,8 @@ class Forwarder(threading.Thread):
         #: the timestamps of the last STATE and of the last online STATE accepted
         self.host_ts: float | None = None
         self.host_online_ts: float | None = None
-        self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0)
+        self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0,
+                                       self.cursor)
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
         self._ack_times: collections.deque[tuple[float, int]] = collections.deque()
@@ -424,7 +426,7 @@ class Forwarder(threading.Thread):
         with self._lock:
             self._status = ForwarderStatus(connected, state, self._published, self._acked,
                                            max(backlog, 0), age, self._last_ack, rate,
-                                           self._connections)
+                                           self._connections, self.cursor)
 
     # -- one connection ------------------------------------------------------------
 

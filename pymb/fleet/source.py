@@ -75,6 +75,11 @@ class Source:
         """The highest committed sample id (0: none)."""
         return int(self.db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
 
+    def ids_after(self, sample_id: int) -> set[int]:
+        """The ids of the committed samples above ``sample_id``."""
+        return {int(i) for (i,) in self.db.execute("SELECT id FROM samples WHERE id > ?",
+                                                   (sample_id,))}
+
     def oldest_after(self, sample_id: int) -> tuple[int, float] | None:
         """(count, time of the oldest) of the samples after an id."""
         row = self.db.execute("SELECT COUNT(*), MIN(time_utc) FROM samples WHERE id > ?",
