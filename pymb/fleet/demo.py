@@ -2,18 +2,27 @@
 
 With no URL it uses a broker already listening on 127.0.0.1:1883, else
 starts Debian's mosquitto (when installed) on a free loopback port for the
-demo's duration. A subscriber of its own counts what arrives, so the demo
-can say how many of the logged samples the broker delivered.
+demo's duration. A subscriber of its own (:class:`Watch`) counts what
+arrives, so the demo can say how many of the logged samples the broker
+delivered. The broker's acknowledgement (PUBACK) tells the forwarder that
+the broker has taken a message, not that it has delivered it to the other
+subscribers yet: before it counts, the demo waits (at most ``RECEIVE_WAIT``
+seconds) until every sample the broker acknowledged has reached its
+subscriber, and it says how many did not.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import socket
+import sqlite3
 import tempfile
 import threading
+import uuid
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TextIO
 
 from pymb.errors import InvalidArgument
@@ -21,11 +30,81 @@ from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import require_paho
 from pymb.fleet.run import forwarding, summary_lines
+from pymb.fleet.source import Source
 from pymb.logger import LogConfig, Summary
 
-__all__ = ["run_with_mqtt"]
+__all__ = ["RECEIVE_WAIT", "Watch", "run_with_mqtt"]
 
 NODE = "demo"
+#: seconds the demo's subscriber is given, once the forwarder has stopped, to receive
+#: what the broker acknowledged
+RECEIVE_WAIT = 10.0
+SUBSCRIBE_WAIT = 10.0  #: seconds for the broker's SUBACK
+
+
+class Watch:
+    """A subscriber to ``topic`` that collects the ``sample`` ids of the plain
+    profile's messages (anything else on the topic is ignored).
+
+    :meth:`wait_for` waits until given ids have arrived: a QoS 1 message the
+    broker acknowledged to its publisher may still be on its way to the other
+    subscribers.
+    """
+
+    def __init__(self, mcfg: MqttConfig, topic: str) -> None:
+        import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
+        from paho.mqtt.enums import CallbackAPIVersion
+        self.url, self.host, self.port = mcfg.url, mcfg.host, mcfg.port
+        self.ids: set[int] = set()  #: the sample ids received so far (under ``cond``)
+        self.cond = threading.Condition()
+        self.refused: str | None = None  #: why the broker refused the subscription
+        self._subscribed = threading.Event()
+        # an id of its own: two demos on one broker must not take over each other's session
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2,
+                                  client_id=f"pymb-demo-watch-{uuid.uuid4().hex[:12]}")
+        self.client.on_connect = lambda c, u, f, rc, p: c.subscribe(topic, qos=1)
+        self.client.on_subscribe = self._on_subscribe
+        self.client.on_message = self._on_message
+        if mcfg.tls:
+            self.client.tls_set(ca_certs=mcfg.ca)
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
+        bad = [rc for rc in rcs if rc.is_failure]
+        if bad:
+            self.refused = str(bad[0])
+        self._subscribed.set()
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            sample = json.loads(msg.payload)["sample"]
+        except (ValueError, TypeError, KeyError):  # the status topic, or not pymb's
+            return
+        if isinstance(sample, int):
+            with self.cond:
+                self.ids.add(sample)
+                self.cond.notify_all()
+
+    def start(self, timeout: float = SUBSCRIBE_WAIT) -> bool:
+        """Connect and subscribe; False if the broker did not confirm the
+        subscription within ``timeout`` or refused it (``refused`` says why)."""
+        try:
+            self.client.connect(self.host, self.port)
+        except OSError as e:
+            raise InvalidArgument(f"--mqtt: cannot connect to {self.url}: {e}") from None
+        self.client.loop_start()
+        return self._subscribed.wait(timeout) and self.refused is None
+
+    def wait_for(self, ids: set[int], timeout: float) -> set[int]:
+        """Wait until every id of ``ids`` has arrived, or ``timeout`` seconds
+        passed; the ids of ``ids`` that arrived."""
+        with self.cond:
+            self.cond.wait_for(lambda: ids <= self.ids, timeout)
+            return ids & self.ids
+
+    def close(self) -> None:
+        """Disconnect."""
+        self.client.disconnect()
+        self.client.loop_stop()
 
 
 def _listening(port: int) -> bool:
@@ -34,13 +113,26 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+def _last_id(path: str) -> int:
+    """The highest sample id already in ``path`` (0: none, no such file, or not a
+    pymb database: the logger then refuses it), read without writing to it."""
+    if not os.path.isfile(path):
+        return 0
+    try:
+        con = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+        try:
+            return int(con.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return 0
+
+
 def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | None,
                   say: Callable[[str], None]) -> tuple[Summary, list[str]]:
     """Log ``cfg`` for ``seconds`` forwarding to ``url`` (``auto``: a local
     mosquitto); returns the logger's summary and the lines about MQTT."""
     require_paho()
-    import paho.mqtt.client as mqtt
-    from paho.mqtt.enums import CallbackAPIVersion
     broker: Mosquitto | None = None
     tmp: tempfile.TemporaryDirectory[str] | None = None
     if url == "auto":
@@ -58,42 +150,40 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
     try:
         mcfg = MqttConfig(url, node=NODE)
         cfg.mqtt = mcfg
-        watch = shlex.join(["mosquitto_sub", "-h", mcfg.host, "-p", str(mcfg.port), "-t",
-                            f"pymb/{NODE}/#", "-v"])
+        watch_cmd = shlex.join(["mosquitto_sub", "-h", mcfg.host, "-p", str(mcfg.port),
+                                "-t", f"pymb/{NODE}/#", "-v"])
         whose = "a mosquitto started for the demo" if broker else "your broker"
         say(f"pymb demo: publishing every sample to {url} ({whose}); watch them with:\n"
-            f"    {watch}")
-        seen: set[int] = set()
-        lock = threading.Lock()
-        ready = threading.Event()
-
-        def on_message(client: Any, userdata: Any, msg: Any) -> None:
-            if not msg.topic.endswith("/status"):
-                with lock:
-                    seen.add(json.loads(msg.payload)["sample"])
-
-        sub = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="pymb-demo-watch")
-        sub.on_connect = lambda c, u, f, rc, p: c.subscribe(f"pymb/{NODE}/#", qos=1)
-        sub.on_subscribe = lambda *a: ready.set()
-        sub.on_message = on_message
-        if mcfg.tls:
-            sub.tls_set()
-        try:
-            sub.connect(mcfg.host, mcfg.port)
-        except OSError as e:
-            raise InvalidArgument(f"--mqtt: cannot connect to {url}: {e}") from None
-        sub.loop_start()
-        ready.wait(10)
+            f"    {watch_cmd}")
+        before = _last_id(cfg.path)  # --out an existing database: its samples are not ours
+        watch = Watch(mcfg, f"pymb/{NODE}/#")
+        subscribed = watch.start()
         try:
             summary, st = forwarding(cfg, mcfg, seconds=seconds, status=status)
+            src = Source(cfg.path)
+            try:
+                ours = src.ids_after(before)
+            finally:
+                src.close()
+            acked = {i for i in ours if i <= st.cursor}
+            got = watch.wait_for(acked, RECEIVE_WAIT) if subscribed else set()
+            received = watch.wait_for(ours, 0)  # and any acknowledged above the cursor
         finally:
-            sub.disconnect()
-            sub.loop_stop()
-        lines = [f"  mqtt:        {len(seen):,} of {summary.samples:,} samples received by a "
-                 f"subscriber on {url}"] + [f"               {line[6:]}"
-                                            for line in summary_lines(st)]
+            watch.close()
+        if subscribed:
+            lines = [f"  mqtt:        {len(received):,} of {summary.samples:,} samples received "
+                     f"by a subscriber on {url}"]
+            if len(got) < len(acked):
+                lines.append(f"               {len(acked) - len(got):,} samples acknowledged by "
+                             f"the broker did not reach it within {RECEIVE_WAIT:g} s")
+        else:
+            why = f"the broker refused it ({watch.refused})" if watch.refused else \
+                f"no SUBACK within {SUBSCRIBE_WAIT:g} s"
+            lines = [f"  mqtt:        the demo's subscriber to pymb/{NODE}/# on {url} could not "
+                     f"subscribe: {why}; received samples not counted"]
+        lines += [f"               {line[6:]}" for line in summary_lines(st)]
         if broker is None:
-            lines.append(f"  watch:       {watch}")
+            lines.append(f"  watch:       {watch_cmd}")
         return summary, lines
     finally:
         if broker is not None:
