@@ -87,6 +87,7 @@ class Subscriber:
         self.messages: list[tuple[str, bytes]] = []
         self.flags: list[tuple[int, bool]] = []  #: (QoS, retain) of each message
         self.lock = threading.Lock()
+        self.arrived = threading.Condition(self.lock)  #: notified on each message
         self.subscribed = threading.Event()
         c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id=client_id,
                         clean_session=False)
@@ -107,6 +108,18 @@ class Subscriber:
         with self.lock:
             self.messages.append((msg.topic, bytes(msg.payload)))
             self.flags.append((msg.qos, bool(msg.retain)))
+            self.arrived.notify_all()
+
+    def wait_until(self, pred: Callable[[list[tuple[str, bytes]]], Any], timeout: float,
+                   what: str) -> Any:
+        """Wait, woken by each message (no polling), until ``pred`` of the messages
+        received so far is true; fail after ``timeout``. ``pred`` must not keep or
+        change the list it is given."""
+        with self.arrived:
+            got = self.arrived.wait_for(lambda: pred(self.messages), timeout)
+        if not got:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        return got
 
     def snapshot(self) -> list[tuple[str, bytes]]:
         """A copy of what was received so far."""

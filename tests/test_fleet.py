@@ -27,6 +27,7 @@ from mqtt_broker import (  # noqa: E402
     db_count,
     db_ids,
     duplicates,
+    paho,
     plain_ids,
     run_pymb,
     stop_log,
@@ -849,19 +850,57 @@ def test_influx_escaping() -> None:
                              'message="no \\"reply\\"\\\\",code=7i 1500000000')
 
 
-def test_demo_mqtt_to_a_broker_it_is_given(fleet: Fleet) -> None:
-    """``pymb demo --mqtt URL``: every sample of the demo reaches the broker, and the
-    demo says how to watch them."""
+def test_demo_mqtt_to_a_broker_it_is_given(fleet: Fleet, tmp_path: Path) -> None:
+    """``pymb demo --mqtt URL``: every sample of the demo reaches the broker, the
+    demo's count of what its subscriber received is true, and it says how to
+    watch them."""
     import re
     broker = fleet.broker()
     sub = fleet.subscribe(broker, "pymb/demo/#")
-    r = run_pymb("demo", "--seconds", "2", "--mqtt", broker.url)
+    db = tmp_path / "demo.sqlite"
+    r = run_pymb("demo", "--seconds", "2", "--mqtt", broker.url, "--out", str(db))
     assert r.returncode == 0, r.stderr
     assert f"mosquitto_sub -h 127.0.0.1 -p {broker.port} -t 'pymb/demo/#' -v" in r.stderr
+    want = db_ids(db)
     m = re.search(r"mqtt: +([\d,]+) of ([\d,]+) samples received", r.stdout)
-    assert m and m[1] == m[2], r.stdout
-    n = int(m[2].replace(",", ""))
-    wait_for(lambda: len(set(plain_ids(sub.snapshot()))) == n, 30, "the demo's samples")
+    assert m and int(m[1].replace(",", "")) == int(m[2].replace(",", "")) == len(want), r.stdout
+    assert "did not reach it" not in r.stdout, r.stdout
+    sub.wait_until(lambda msgs: set(plain_ids(msgs)) >= want, 30,
+                   "the demo's samples at the test's subscriber")
+    assert set(plain_ids(sub.snapshot())) == want
+
+
+def test_demo_counts_what_the_broker_acknowledged_but_had_not_yet_delivered(
+        fleet: Fleet) -> None:
+    """A QoS 1 acknowledgement to the publisher says the broker took the message,
+    not that another subscriber has it: the demo's subscriber waits for the
+    acknowledged samples (bounded) instead of counting at once. Its thread is held
+    on the lock of its message handler while the publisher gets every PUBACK."""
+    from pymb.fleet.config import MqttConfig
+    from pymb.fleet.demo import Watch
+    broker = fleet.broker()
+    watch = Watch(MqttConfig(broker.url, node="demo"), "pymb/demo/#")
+    assert watch.start(15)
+    pub = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="pymb-test-pub")
+    pub.connect("127.0.0.1", broker.port)
+    pub.loop_start()
+    want = set(range(1, 61))
+    try:
+        with watch.cond:  # the watch's network thread cannot hand a message over
+            infos = [pub.publish("pymb/demo/junk", b"not JSON", qos=1),
+                     pub.publish("pymb/demo/status", b"online", qos=1)]
+            infos += [pub.publish(f"pymb/demo/dev-{i % 3}", json.dumps({"sample": i}), qos=1)
+                      for i in sorted(want)]
+            for info in infos:
+                info.wait_for_publish(30)
+                assert info.is_published()
+            assert watch.ids == set()  # every PUBACK in, nothing delivered yet
+        assert watch.wait_for(want, 30) == want  # what is not a sample is ignored
+        assert watch.wait_for({61}, 0) == set()  # never sent: no wait, not counted
+    finally:
+        pub.disconnect()
+        pub.loop_stop()
+        watch.close()
 
 
 def test_demo_mqtt_starts_its_own_mosquitto() -> None:
