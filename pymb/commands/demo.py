@@ -47,8 +47,10 @@ def run(args: argparse.Namespace) -> int:
     if args.mqtt:
         from pymb.fleet.forwarder import require_paho
         require_paho()  # before any simulator starts
-    out = args.out or os.path.join(tempfile.gettempdir(),
-                                   time.strftime("pymb-demo-%Y%m%d-%H%M%S.sqlite"))
+    # The process id too: two demos started in the same second (parallel CI
+    # jobs) must not log into one file.
+    out = args.out or os.path.join(
+        tempfile.gettempdir(), time.strftime("pymb-demo-%Y%m%d-%H%M%S") + f"-{os.getpid()}.sqlite")
     baud = str(args.baud)
     sims = [
         SimulatorProcess(["coolpro", "--baud", baud, "--seed", "1",
