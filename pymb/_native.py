@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import struct
 import threading
 from array import array
 from enum import IntEnum
@@ -680,15 +681,31 @@ class HubSweep:
 _telemetry_local = threading.local()
 
 
+def _unpacker(ctype: str) -> struct.Struct:
+    """A struct.Struct reading a C struct of doubles and unsigned ints field
+    by field at the offsets the compiler chose: all its fields in one call
+    (attribute reads on cdata cost a call each)."""
+    codes = {"double": "d", "uint32_t": "I", "uint16_t": "H", "uint8_t": "B"}
+    fmt, pos = "=", 0
+    for _, f in ffi.typeof(ctype).fields:
+        fmt += "x" * (f.offset - pos) + codes[f.type.cname]
+        pos = f.offset + ffi.sizeof(f.type)
+    return struct.Struct(fmt)
+
+
+_TELEMETRY = _unpacker("pymb_coolpro_telemetry")
+
+
 def coolpro_telemetry(regs: Any) -> tuple[float, float, float, float, float, int, int]:
     """Decode input registers 0..7: (Vin, Iin, Vout, Iout, temperature, uptime, status)."""
-    t = getattr(_telemetry_local, "t", None)
-    if t is None:  # one output struct per thread, not one allocation per read
-        t = _telemetry_local.t = ffi.new("pymb_coolpro_telemetry *")
-    if lib.pymb_coolpro_decode_telemetry(_from_buffer("uint16_t[]", regs), len(regs), t):
+    out = getattr(_telemetry_local, "out", None)
+    if out is None:  # one output struct per thread, not one allocation per read
+        t = ffi.new("pymb_coolpro_telemetry *")
+        out = _telemetry_local.out = (t, ffi.buffer(t))
+    if lib.pymb_coolpro_decode_telemetry(_from_buffer("uint16_t[]", regs), len(regs), out[0]):
         raise InvalidArgument(f"telemetry is 8 registers, got {len(regs)}")
-    return (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
-            t.temperature_c, t.uptime_s, t.status)
+    values: tuple[float, float, float, float, float, int, int] = _TELEMETRY.unpack_from(out[1])
+    return values
 
 
 def coolpro_identity(regs: Any) -> tuple[int, int, int, int, int, int]:
