@@ -10,15 +10,14 @@ import os
 import signal
 import sqlite3
 import subprocess
-import sys
 import threading
-import time
 from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import PYMB, PYMB_ENV, wait_until
 
 from pymb.fleet.broker import Certificates, Mosquitto, find_mosquitto, make_certificates
 from pymb.sim import SimulatorProcess
@@ -29,18 +28,6 @@ SPARKPLUG_PROTO = Path(os.environ.get("PYMB_SPECS", Path(__file__).resolve().par
                                       / "shared" / "specs")) / "sparkplug_b.proto"
 if not SPARKPLUG_PROTO.exists():  # the shared specs beside the checkout, or /work/shared
     SPARKPLUG_PROTO = Path("/work/shared/specs/sparkplug_b.proto")
-
-
-def wait_for(pred: Callable[[], Any], timeout: float, what: str) -> Any:
-    """Poll ``pred`` (every 50 ms) until it is true; fail after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        got = pred()
-        if got:
-            return got
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.05)
 
 
 @pytest.fixture
@@ -102,7 +89,7 @@ class Subscriber:
         self.client = c
         c.connect("127.0.0.1", broker.port, keepalive=5)
         c.loop_start()
-        wait_for(self.subscribed.is_set, 15, "the test subscriber's SUBACK")
+        wait_until(self.subscribed.is_set, "the test subscriber's SUBACK", 15)
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         with self.lock:
@@ -168,8 +155,8 @@ class Fleet:
 
     def pymb(self, *argv: str) -> subprocess.Popen[str]:
         """``python -m pymb ARGV`` started, killed at the end if it still runs."""
-        proc = subprocess.Popen([sys.executable, "-m", "pymb", *argv], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen([*PYMB, *argv], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=PYMB_ENV)
         self.children.append(proc)
         return proc
 
@@ -193,12 +180,6 @@ def fleet(mosquitto: Callable[..., Mosquitto], tmp_path: Path) -> Iterator[Fleet
         yield f
     finally:
         f.close()
-
-
-def run_pymb(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    """``python -m pymb ARGV`` to its end, its output captured."""
-    return subprocess.run([sys.executable, "-m", "pymb", *argv], capture_output=True,
-                          text=True, timeout=timeout, check=False)
 
 
 def plain_ids(messages: list[tuple[str, bytes]]) -> list[int]:
@@ -233,12 +214,12 @@ def duplicates(ids: list[int]) -> int:
 def start_log(endpoint: str, db: Path, *mqtt: str, env: dict[str, str] | None = None,
               seconds: float | None = None, device: str = "coolpro:40") -> subprocess.Popen[str]:
     """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt`` says."""
-    args = [sys.executable, "-m", "pymb", "log", "--tcp", endpoint, "--device", device,
+    args = [*PYMB, "log", "--tcp", endpoint, "--device", device,
             "--interval", "0.01", "--out", str(db), *mqtt]
     if seconds is not None:
         args += ["--seconds", str(seconds)]
     return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, **(env or {})})
+                            env={**PYMB_ENV, **(env or {})})
 
 
 def stop_log(proc: subprocess.Popen[str], timeout: float = 30) -> str:

@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 pytest.register_assert_rewrite("mqtt_broker")
+from conftest import run_pymb, wait_until  # noqa: E402
 from mqtt_broker import (  # noqa: E402
     Fleet,
     Subscriber,
@@ -29,9 +30,7 @@ from mqtt_broker import (  # noqa: E402
     duplicates,
     paho,
     plain_ids,
-    run_pymb,
     stop_log,
-    wait_for,
 )
 
 from pymb.fleet.broker import Certificates, Mosquitto  # noqa: E402
@@ -57,8 +56,8 @@ def _sparkplug(broker: Mosquitto) -> list[str]:
 def _all_arrived(sub: Subscriber, db: Path, ids: Ids = plain_ids) -> set[int]:
     """Wait until every sample id of the database has reached ``sub``; the ids."""
     want = db_ids(db)
-    wait_for(lambda: set(ids(sub.snapshot())) >= want, 30,
-             f"all {len(want)} samples of the database at the subscriber")
+    wait_until(lambda: set(ids(sub.snapshot())) >= want,
+               f"all {len(want)} samples of the database at the subscriber", 30)
     return want
 
 
@@ -87,20 +86,21 @@ def test_broker_restart_mid_run_loses_nothing(fleet: Fleet, simulator: str,
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_plain(broker))
-    wait_for(lambda: len(plain_ids(sub.snapshot())) >= 50, 30, "50 samples live")
+    wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples live", 30)
     broker.stop()
     before = db_count(db)
-    wait_for(lambda: db_count(db) >= before + 100, 30, "100 samples logged while down")
+    wait_until(lambda: db_count(db) >= before + 100, "100 samples logged while down", 30)
     broker.start()
-    wait_for(lambda: max(plain_ids(sub.snapshot())) > before + 100, 30,
-             "live samples after the restart")
+    wait_until(lambda: max(plain_ids(sub.snapshot())) > before + 100,
+               "live samples after the restart", 30)
     err = stop_log(proc)
     _nothing_lost("broker restart", sub, db)
     want = db_ids(db)
     assert "nothing left to send" in err
     # the retained status: online while connected, offline after the clean end
     status = [p for t, p in sub.snapshot() if t.endswith("/status")]
-    assert status[0] == b"online" and status[-1] == b"offline"
+    assert status[0] == b"online"
+    assert status[-1] == b"offline"
     con = sqlite3.connect(db)
     assert con.execute("SELECT sample_id FROM outbox").fetchone()[0] == max(want)
     # the connection's story is in the event log, for services run with --quiet
@@ -116,17 +116,16 @@ def test_broker_stalled_3s_loses_nothing(fleet: Fleet, simulator: str, tmp_path:
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_plain(broker))
-    wait_for(lambda: len(plain_ids(sub.snapshot())) >= 50, 30, "50 samples live")
+    wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples live", 30)
     broker.pause()
     t0 = time.monotonic()
     before = db_count(db)
     try:
-        wait_for(lambda: time.monotonic() - t0 >= 3.0 and db_count(db) > before + 50, 30,
-                 "3 s of stall with samples logged")
+        wait_until(lambda: time.monotonic() - t0 >= 3.0 and db_count(db) > before + 50,
+                   "3 s of stall with samples logged", 30)
     finally:
         broker.resume()
-    wait_for(lambda: max(plain_ids(sub.snapshot())) > before + 50, 30,
-             "samples after the stall")
+    wait_until(lambda: max(plain_ids(sub.snapshot())) > before + 50, "samples after the stall", 30)
     stop_log(proc)
     _nothing_lost("broker stalled 3 s", sub, db)
 
@@ -137,16 +136,16 @@ def test_pymb_sigkilled_and_restarted_loses_nothing(fleet: Fleet, simulator: str
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_plain(broker))
-    wait_for(lambda: len(plain_ids(sub.snapshot())) >= 200, 30, "200 samples live")
+    wait_until(lambda: len(plain_ids(sub.snapshot())) >= 200, "200 samples live", 30)
     proc.send_signal(signal.SIGKILL)
     proc.wait(10)
     killed_at = db_count(db)
     # the will: the broker says offline for the killed pymb
-    wait_for(lambda: sub.snapshot()[-1] == (f"pymb/{NODE}/status", b"offline"), 30,
-             "the last will (offline)")
+    wait_until(lambda: sub.snapshot()[-1] == (f"pymb/{NODE}/status", b"offline"),
+               "the last will (offline)", 30)
     proc = fleet.log(simulator, db, *_plain(broker))
-    wait_for(lambda: max(plain_ids(sub.snapshot())) > killed_at + 50, 30,
-             "samples of the second run")
+    wait_until(lambda: max(plain_ids(sub.snapshot())) > killed_at + 50,
+               "samples of the second run", 30)
     stop_log(proc)
     _nothing_lost("pymb SIGKILLed and restarted", sub, db)
 
@@ -171,8 +170,10 @@ def test_plain_payload(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
     t, first = data[0]
     assert t == "plant/n1/coolpro-40"
     assert list(first) == [*PLAIN_KEYS, "status_flags"]
-    assert first["device"] == "coolpro-40" and first["type"] == "coolpro"
-    assert first["address"] == 40 and first["time"].endswith("Z")
+    assert first["device"] == "coolpro-40"
+    assert first["type"] == "coolpro"
+    assert first["address"] == 40
+    assert first["time"].endswith("Z")
     con = sqlite3.connect(db)
     row = con.execute("SELECT s.time_utc, s.monotonic, c.output_voltage_v, c.status "
                       "FROM samples s JOIN coolpro c ON c.sample_id = s.id WHERE s.id = ?",
@@ -208,7 +209,7 @@ def test_tls_with_client_certificate_and_password(fleet: Fleet, simulator: str,
     pace = ("--interval", "0.05")
 
     def until(proc: Any, pred: Any, what: str) -> str:
-        wait_for(pred, 60, what)
+        wait_until(pred, what, 60)
         return stop_log(proc)
 
     def from_node(node: str) -> int:
@@ -242,11 +243,14 @@ def test_tls_with_client_certificate_and_password(fleet: Fleet, simulator: str,
 
     err = until(proc, refused, "the broker's refusal in the event log")
     assert from_node("n3") == 0
-    assert "not yet acknowledged" in err and "0 samples acknowledged" in err, err
+    assert "not yet acknowledged" in err, err
+    assert "0 samples acknowledged" in err, err
     con = sqlite3.connect(db3)
     story = [m for (m,) in con.execute("SELECT message FROM event_log WHERE kind = 'mqtt'")]
     con.close()
-    assert story and "refused" in story[0] and "authori" in story[0].lower(), story
+    assert story, story
+    assert "refused" in story[0], story
+    assert "authori" in story[0].lower(), story
 
 
 def test_tls_verifies_the_broker(fleet: Fleet, simulator: str, certificates: Certificates,
@@ -296,17 +300,18 @@ def test_drain_on_stopping_is_an_option(fleet: Fleet, simulator: str, tmp_path: 
                        '[[bus.device]]\ntype = "coolpro"\n')
         proc = (fleet.log(simulator, db, *_plain(broker), *how) if name == "flag"
                 else fleet.pymb("log", *how))
-        wait_for(_acknowledged(db), 30, "a first acknowledgement")
+        wait_until(_acknowledged(db), "a first acknowledgement", 30)
         broker.pause()
         try:
             before = db_count(db)
-            wait_for(_logged_past(db, before + 20), 30, "samples logged the broker cannot take")
+            wait_until(_logged_past(db, before + 20), "samples logged the broker cannot take", 30)
             t0 = time.monotonic()
             err = stop_log(proc, timeout=60)
             took[name] = time.monotonic() - t0
         finally:
             broker.resume()
-        assert "not yet acknowledged" in err and "kept in the database" in err, err
+        assert "not yet acknowledged" in err, err
+        assert "kept in the database" in err, err
     print(f"\nstopping with the broker stalled: drain 0 took {took['flag']:.1f} s, "
           f"drain 6 took {took['toml']:.1f} s")
     assert took["toml"] >= 6.0
@@ -335,7 +340,8 @@ def test_bad_mqtt_options_are_one_line_errors(argv: list[str], message: str,
     monkeypatch.chdir(tmp_path)
     r = run_pymb("log", "--tcp", "127.0.0.1:1", "--device", "coolpro", *argv, timeout=60)
     assert r.returncode == 2, r.stderr
-    assert message in r.stderr and "Traceback" not in r.stderr
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 
 
@@ -367,7 +373,8 @@ address = 40
                       ('drain = -1', "drain must be 0..3600 seconds")):
         cfg.write_text(cfg.read_text().replace('prefix = "site"', bad))
         r = run_pymb("log", "--config", str(cfg), "--seconds", "1", timeout=60)
-        assert r.returncode == 2 and says in r.stderr, r.stderr
+        assert r.returncode == 2, r.stderr
+        assert says in r.stderr, r.stderr
         cfg.write_text(cfg.read_text().replace(bad, 'prefix = "site"'))
 
 
@@ -407,7 +414,9 @@ def _sp(pb: Any, messages: list[tuple[str, bytes]]) -> list[tuple[str, Any]]:
     out = []
     for topic, payload in messages:
         parts = topic.split("/")
-        assert parts[0] == "spBv1.0" and parts[1] == GROUP and parts[3] == NODE, topic
+        assert parts[0] == "spBv1.0", topic
+        assert parts[1] == GROUP, topic
+        assert parts[3] == NODE, topic
         kind = parts[2] if len(parts) == 4 else f"{parts[2]}/{parts[4]}"
         out.append((kind, pb.FromString(payload)))
     return out
@@ -456,7 +465,8 @@ def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
         Metric("i", 11, DataType.INT64, -2, 1),
     ]
     p = sparkplug_pb.FromString(encode_payload(metrics, timestamp=1700000000999, seq=200))
-    assert p.timestamp == 1700000000999 and p.seq == 200
+    assert p.timestamp == 1700000000999
+    assert p.seq == 200
     m = p.metrics
     assert (m[0].name, m[0].datatype, m[0].long_value, m[0].timestamp) == \
         ("bdSeq", 4, 255, 1700000000123)
@@ -468,9 +478,11 @@ def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
     assert m[1].HasField("boolean_value")
     assert (m[2].double_value, m[2].is_historical, m[2].timestamp, m[2].alias) == \
         (-12.5, True, 2**41, 300000)
-    assert not m[3].HasField("name") and m[3].int_value == 0xFFFFFFFF
+    assert not m[3].HasField("name")
+    assert m[3].int_value == 0xFFFFFFFF
     assert m[4].string_value == "héllo"
-    assert m[5].is_null and not m[5].HasField("double_value")
+    assert m[5].is_null
+    assert not m[5].HasField("double_value")
     assert list(m[5].properties.keys) == ["Quality", "state"]
     assert m[5].properties.values[1].string_value == "no_sensor"
     # and a command written by protoc's side is read back
@@ -489,15 +501,17 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(fleet: Fleet, simula
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_sparkplug(broker))
     # seq wraps: more than 256 messages
-    wait_for(lambda: len(sub.snapshot()) > 300, 60, "300 Sparkplug messages")
+    wait_until(lambda: len(sub.snapshot()) > 300, "300 Sparkplug messages", 60)
     msgs = _sp(pb, sub.snapshot())
     kind, nbirth = msgs[0]
-    assert kind == "NBIRTH" and nbirth.seq == 0
+    assert kind == "NBIRTH"
+    assert nbirth.seq == 0
     bd = _metric(nbirth, "bdSeq")
     assert bd.datatype == 4  # Int64, as Sparkplug 3.0 says for the will and NBIRTH
     bd_seq = bd.long_value
     rebirth = _metric(nbirth, "Node Control/Rebirth")
-    assert rebirth.datatype == 11 and rebirth.boolean_value is False
+    assert rebirth.datatype == 11
+    assert rebirth.boolean_value is False
     assert msgs[1][0] == "DBIRTH/coolpro-40"
     dbirth = msgs[1][1]
     declared = {m.alias: m for m in dbirth.metrics}
@@ -508,36 +522,40 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(fleet: Fleet, simula
     for kind, p in msgs[2:]:
         assert kind == "DDATA/coolpro-40"
         for m in p.metrics:
-            assert not m.name and m.alias in declared
+            assert not m.name
+            assert m.alias in declared
             assert m.datatype == declared[m.alias].datatype
             assert not m.is_historical
     # a Rebirth command: new births (same bdSeq: the connection is the same)
     n = len(sub.snapshot())
     _rebirth(sub, pb, qos=0)
-    wait_for(lambda: any(t.split("/")[2] == "DBIRTH" for t, _ in sub.snapshot()[n:]), 30,
-             "births after the Rebirth command")
+    wait_until(lambda: any(t.split("/")[2] == "DBIRTH" for t, _ in sub.snapshot()[n:]),
+               "births after the Rebirth command", 30)
     after = _sp(pb, sub.snapshot()[n:])
     i = next(i for i, (k, _) in enumerate(after) if k == "NBIRTH")
-    assert after[i][1].seq == 0 and _metric(after[i][1], "bdSeq").long_value == bd_seq
-    assert after[i + 1][0] == "DBIRTH/coolpro-40" and after[i + 1][1].seq == 1
+    assert after[i][1].seq == 0
+    assert _metric(after[i][1], "bdSeq").long_value == bd_seq
+    assert after[i + 1][0] == "DBIRTH/coolpro-40"
+    assert after[i + 1][1].seq == 1
     # SIGKILL: the broker sends the will, NDEATH with the births' bdSeq
     proc.send_signal(signal.SIGKILL)
     proc.wait(10)
-    wait_for(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", 30, "the NDEATH")
+    wait_until(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", "the NDEATH", 30)
     kind, ndeath = _sp(pb, sub.snapshot()[-1:])[0]
     assert _metric(ndeath, "bdSeq").long_value == bd_seq
-    assert _metric(ndeath, "bdSeq").datatype == 4 and not ndeath.HasField("seq")
+    assert _metric(ndeath, "bdSeq").datatype == 4
+    assert not ndeath.HasField("seq")
     # the next run counts bdSeq on, and ends with its own NDEATH; stopped once
     # the killed run's samples have all arrived (sent again as history), so
     # its drain on stopping has only its own last few to send
     killed = db_ids(db)
     n = len(sub.snapshot())
     proc = fleet.log(simulator, db, *_sparkplug(broker), "--interval", "0.05")
-    wait_for(lambda: len(sub.snapshot()) > n + 20
-             and set(_sample_ids(pb, sub.snapshot())) >= killed, 60,
-             "the second run's messages and the killed run's samples")
+    wait_until(lambda: len(sub.snapshot()) > n + 20
+               and set(_sample_ids(pb, sub.snapshot())) >= killed,
+               "the second run's messages and the killed run's samples", 60)
     stop_log(proc)
-    wait_for(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", 30, "the clean NDEATH")
+    wait_until(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", "the clean NDEATH", 30)
     second = _sp(pb, sub.snapshot()[n:])
     assert second[0][0] == "NBIRTH"
     assert _metric(second[0][1], "bdSeq").long_value == (bd_seq + 1) % 256
@@ -555,19 +573,19 @@ def test_sparkplug_historical_replay_after_an_outage(fleet: Fleet, simulator: st
     sub = fleet.subscribe(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_sparkplug(broker))
-    wait_for(lambda: len(sub.snapshot()) > 30, 30, "30 messages live")
+    wait_until(lambda: len(sub.snapshot()) > 30, "30 messages live", 30)
     broker.stop()
     down_from = db_count(db)
-    wait_for(lambda: db_count(db) > down_from + 100, 30, "100 samples logged while down")
+    wait_until(lambda: db_count(db) > down_from + 100, "100 samples logged while down", 30)
     down_to = db_count(db)
     broker.start()
-    wait_for(lambda: set(_sample_ids(pb, sub.snapshot())) >= set(range(1, down_to + 1)),
-             60, "the outage's samples replayed")
+    wait_until(lambda: set(_sample_ids(pb, sub.snapshot())) >= set(range(1, down_to + 1)),
+               "the outage's samples replayed", 60)
     # the node's backlog metric, once the replay is done: an NDATA
     def ndata_after_rebirth() -> bool:
         ks = [t.split("/")[2] for t, _ in sub.snapshot()]
         return ks.count("NBIRTH") >= 2 and "NDATA" in ks[ks.index("NBIRTH", 1):]
-    wait_for(ndata_after_rebirth, 30, "an NDATA after the second NBIRTH")
+    wait_until(ndata_after_rebirth, "an NDATA after the second NBIRTH", 30)
     stop_log(proc)
     msgs = _sp(pb, sub.snapshot())
     births = [i for i, (k, _) in enumerate(msgs) if k == "NBIRTH"]
@@ -581,13 +599,16 @@ def test_sparkplug_historical_replay_after_an_outage(fleet: Fleet, simulator: st
     # NBIRTH declares Forwarder/Backlog (the samples not yet acknowledged: the
     # outage's, on the reconnection); NDATA says it changed, by alias, with seq
     backlog = _metric(msgs[births[1]][1], "Forwarder/Backlog")
-    assert backlog.datatype == 8 and backlog.HasField("alias") and backlog.HasField("timestamp")
+    assert backlog.datatype == 8
+    assert backlog.HasField("alias")
+    assert backlog.HasField("timestamp")
     assert backlog.long_value >= down_to - down_from
     ndata_at = next(i for i, (k, _) in enumerate(msgs) if i > births[1] and k == "NDATA")
     ndata = msgs[ndata_at][1]
     assert [(m.name, m.alias) for m in ndata.metrics] == [("", backlog.alias)]
     assert ndata.metrics[0].long_value < backlog.long_value
-    assert ndata.metrics[0].HasField("timestamp") and ndata.HasField("timestamp")
+    assert ndata.metrics[0].HasField("timestamp")
+    assert ndata.HasField("timestamp")
     assert ndata.seq == (msgs[ndata_at - 1][1].seq + 1) % 256
     assert sub.flags[ndata_at] == (0, False)
     _nothing_lost("Sparkplug, broker restart", sub, db, lambda m: _sample_ids(pb, m))
@@ -617,23 +638,23 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
     def kinds(start: int = 0) -> list[str]:
         return [t.split("/", 2)[2] for (t, _), _f in node_messages()[start:]]
 
-    wait_for(lambda: kinds().count(f"DDATA/{NODE}/coolpro-40") >= 20, 30, "20 DDATA")
+    wait_until(lambda: kinds().count(f"DDATA/{NODE}/coolpro-40") >= 20, "20 DDATA", 30)
     port = sim.tcp_port
     sim.stop()
     stopped_at = time.time()
-    wait_for(lambda: f"DDEATH/{NODE}/coolpro-40" in kinds(), 60, "the DDEATH")
+    wait_until(lambda: f"DDEATH/{NODE}/coolpro-40" in kinds(), "the DDEATH", 60)
     died = kinds().index(f"DDEATH/{NODE}/coolpro-40")
     # a Rebirth while it is down: its DBIRTH (its metrics declared), then its DDEATH
     _rebirth(sub, pb)
-    wait_for(lambda: kinds(died + 1)[:3] == [f"NBIRTH/{NODE}", f"DBIRTH/{NODE}/coolpro-40",
-                                              f"DDEATH/{NODE}/coolpro-40"], 30,
-             "NBIRTH, DBIRTH and DDEATH after the Rebirth")
+    wait_until(lambda: kinds(died + 1)[:3] == [f"NBIRTH/{NODE}", f"DBIRTH/{NODE}/coolpro-40",
+                                              f"DDEATH/{NODE}/coolpro-40"],
+               "NBIRTH, DBIRTH and DDEATH after the Rebirth", 30)
     first_death, died = died, died + 3
     fleet.simulator("coolpro", port=port)
-    wait_for(lambda: f"DDATA/{NODE}/coolpro-40" in kinds(died), 60,
-             "DDATA after the device answers again")
+    wait_until(lambda: f"DDATA/{NODE}/coolpro-40" in kinds(died),
+               "DDATA after the device answers again", 60)
     stop_log(proc)
-    wait_for(lambda: kinds()[-1] == "NDEATH/" + NODE, 30, "the clean NDEATH")
+    wait_until(lambda: kinds()[-1] == "NDEATH/" + NODE, "the clean NDEATH", 30)
     published = node_messages()
     msgs = _sp(pb, [m for m, _ in published])
     flags = [f for _, f in published]
@@ -642,7 +663,9 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
         kind, ddeath = msgs[at]
         assert kind == "DDEATH/coolpro-40"
         assert flags[at] == (0, False)
-        assert ddeath.HasField("timestamp") and ddeath.HasField("seq") and not ddeath.metrics
+        assert ddeath.HasField("timestamp")
+        assert ddeath.HasField("seq")
+        assert not ddeath.metrics
         assert stopped_at * 1000 - 1000 <= ddeath.timestamp <= time.time() * 1000
     # it comes after every DDATA of the samples taken before the device stopped
     con = sqlite3.connect(db)
@@ -696,7 +719,8 @@ def test_sparkplug_profile_device_down_and_back(sparkplug_pb: Any) -> None:
                                                f"DDATA/{NODE}/coolpro-40"]
     assert kinds(prof.data(rec(2), False)) == [f"DDATA/{NODE}/coolpro-40"]
     down = prof.device_down("coolpro-40")
-    assert kinds(down) == [f"DDEATH/{NODE}/coolpro-40"] and down[0].qos == 0
+    assert kinds(down) == [f"DDEATH/{NODE}/coolpro-40"]
+    assert down[0].qos == 0
     assert prof.device_down("coolpro-40") == []  # already down
     hist = prof.data(rec(3), True)
     assert kinds(hist) == [f"DDATA/{NODE}/coolpro-40"]
@@ -726,7 +750,8 @@ def test_device_health_counts_faults_in_a_row() -> None:
     h.sample(NS(device=b, time_utc=6.0))
     for kind in ("exception", "busy", "reconnect", "connect", "trim"):
         h.event(ev(kind, a))
-    assert h.take() == [] and DOWN_AFTER == 3
+    assert h.take() == []
+    assert DOWN_AFTER == 3
     h.event(ev("timeout", a, 7.0))
     [d] = h.take()
     assert (d.device, d.last_sample, d.time_utc) == ("coolpro-40", 5.0, 7.0)
@@ -764,44 +789,45 @@ def test_sparkplug_primary_host_state(fleet: Fleet, simulator: str, sparkplug_pb
     db = tmp_path / "log.sqlite"
     state(False, 1000)  # the host's death certificate, retained
     proc = fleet.log(simulator, db, *_sparkplug(broker), "--mqtt-primary-host", "scada")
-    wait_for(lambda: db_count(db) >= 100, 30, "100 samples logged")
+    wait_until(lambda: db_count(db) >= 100, "100 samples logged", 30)
     con = sqlite3.connect(db)
-    wait_for(lambda: any("connected to" in m for (m,) in con.execute(
-        "SELECT message FROM events WHERE kind = 'mqtt'")), 30, "pymb connected")
+    wait_until(lambda: any("connected to" in m for (m,) in con.execute(
+        "SELECT message FROM events WHERE kind = 'mqtt'")), "pymb connected", 30)
     con.close()
     assert sub.snapshot() == [], "births before the primary host said online"
     waited = db_count(db)
     t1 = int(time.time() * 1000)
     state(True, t1)
-    wait_for(lambda: "DDATA" in kinds(), 30, "births and data once the host is online")
+    wait_until(lambda: "DDATA" in kinds(), "births and data once the host is online", 30)
     msgs = _sp(pb, sub.snapshot())
-    assert msgs[0][0] == "NBIRTH" and msgs[1][0] == "DBIRTH/coolpro-40"
+    assert msgs[0][0] == "NBIRTH"
+    assert msgs[1][0] == "DBIRTH/coolpro-40"
     bd_seq = _metric(msgs[0][1], "bdSeq").long_value
     # what was logged while waiting goes as history
-    wait_for(lambda: set(range(1, waited + 1)) <= _historical_ids(pb, sub.snapshot()),
-             60, "the samples logged while waiting, as history")
+    wait_until(lambda: set(range(1, waited + 1)) <= _historical_ids(pb, sub.snapshot()),
+               "the samples logged while waiting, as history", 60)
     # a stale offline STATE (an old session's will): ignored; a Rebirth proves the
     # connection is the same one (same bdSeq, no NDEATH between)
     state(False, t1 - 1)
     n = len(sub.snapshot())
     _rebirth(sub, pb)
-    wait_for(lambda: "NBIRTH" in kinds(n), 30, "the Rebirth's NBIRTH")
+    wait_until(lambda: "NBIRTH" in kinds(n), "the Rebirth's NBIRTH", 30)
     assert "NDEATH" not in kinds()
     rebirth = _sp(pb, sub.snapshot()[n:])
     nb = next(p for k, p in rebirth if k == "NBIRTH")
     assert _metric(nb, "bdSeq").long_value == bd_seq
     # the host goes offline (its will: timestamp of its online STATE): NDEATH
     state(False, t1)
-    wait_for(lambda: "NDEATH" in kinds(), 30, "the NDEATH after the host went offline")
+    wait_until(lambda: "NDEATH" in kinds(), "the NDEATH after the host went offline", 30)
     i = kinds().index("NDEATH")
     ndeath = pb.FromString(sub.snapshot()[i][1])
     assert _metric(ndeath, "bdSeq").long_value == bd_seq
     # the new connection waits for the host again, then births with the next bdSeq
     before = db_count(db)
-    wait_for(lambda: db_count(db) >= before + 50, 30, "samples logged while offline")
+    wait_until(lambda: db_count(db) >= before + 50, "samples logged while offline", 30)
     assert "NBIRTH" not in kinds(i)
     state(True, int(time.time() * 1000))
-    wait_for(lambda: "NBIRTH" in kinds(i), 30, "births after the host is back")
+    wait_until(lambda: "NBIRTH" in kinds(i), "births after the host is back", 30)
     j = i + kinds(i).index("NBIRTH")
     nb2 = pb.FromString(sub.snapshot()[j][1])
     assert _metric(nb2, "bdSeq").long_value == (bd_seq + 1) % 256
@@ -835,10 +861,13 @@ def test_influx_line_protocol_on_stdout(fleet: Fleet) -> None:
     hub = [p for p in parsed if p and p["m"] == "pymb_hub"]
     first_ts = hub[0]["ts"]
     channels = [p["tags"] for p in hub if p["ts"] == first_ts]
-    assert len(channels) == 100 and channels[0].endswith("channel=1")
+    assert len(channels) == 100
+    assert channels[0].endswith("channel=1")
     cp = next(p for p in parsed if p and p["m"] == "pymb_coolpro")
-    assert "status=" in cp["fields"] and cp["fields"].count("i") >= 2
-    assert "device=coolpro-40" in cp["tags"] and "address=40" in cp["tags"]
+    assert "status=" in cp["fields"]
+    assert cp["fields"].count("i") >= 2
+    assert "device=coolpro-40" in cp["tags"]
+    assert "address=40" in cp["tags"]
 
 
 def test_influx_escaping() -> None:
@@ -863,7 +892,8 @@ def test_demo_mqtt_to_a_broker_it_is_given(fleet: Fleet, tmp_path: Path) -> None
     assert f"mosquitto_sub -h 127.0.0.1 -p {broker.port} -t 'pymb/demo/#' -v" in r.stderr
     want = db_ids(db)
     m = re.search(r"mqtt: +([\d,]+) of ([\d,]+) samples received", r.stdout)
-    assert m and int(m[1].replace(",", "")) == int(m[2].replace(",", "")) == len(want), r.stdout
+    assert m, r.stdout
+    assert int(m[1].replace(",", "")) == int(m[2].replace(",", "")) == len(want), r.stdout
     assert "did not reach it" not in r.stdout, r.stdout
     sub.wait_until(lambda msgs: set(plain_ids(msgs)) >= want, 30,
                    "the demo's samples at the test's subscriber")
@@ -939,12 +969,12 @@ address = 40
     proc = fleet.pymb("log", "--config", str(cfg))
     t0 = time.monotonic()
     # live samples arrive while most of the backlog has not
-    wait_for(lambda: sum(i > backlog for i in plain_ids(sub.snapshot())) >= 20, 30,
-             "20 live samples")
+    wait_until(lambda: sum(i > backlog for i in plain_ids(sub.snapshot())) >= 20,
+               "20 live samples", 30)
     old = sum(i <= backlog for i in set(plain_ids(sub.snapshot())))
     assert old < backlog / 2, f"{old} of {backlog} old samples already: not paced"
-    wait_for(lambda: set(range(1, backlog + 1)) <= set(plain_ids(sub.snapshot())), 60,
-             "the whole backlog")
+    wait_until(lambda: set(range(1, backlog + 1)) <= set(plain_ids(sub.snapshot())),
+               "the whole backlog", 60)
     took = time.monotonic() - t0
     stop_log(proc)
     # 100 messages/s: the backlog cannot have gone much faster (bursts of 10 allowed)
@@ -985,15 +1015,17 @@ def test_hub_samples_in_both_profiles(fleet: Fleet, sparkplug_pb: Any,
         def arrived(t: str = topic) -> bool:
             return sum(m[0] == t for m in sub.snapshot()) >= 3
 
-        wait_for(arrived, 60, f"3 {profile} hub messages")
+        wait_until(arrived, f"3 {profile} hub messages", 60)
         err = stop_log(proc)
         assert "nothing left to send" in err, err
     msgs = sub.snapshot()
     plain = [json.loads(p) for t, p in msgs if t == f"pymb/{NODE}/hub-250"]
     assert plain
     h = plain[0]
-    assert h["type"] == "hub" and len(h["values"]["temperature_c"]) == 100
-    assert list(h) == [*PLAIN_KEYS, "states", "unsupported"] and h["unsupported"] == []
+    assert h["type"] == "hub"
+    assert len(h["values"]["temperature_c"]) == 100
+    assert list(h) == [*PLAIN_KEYS, "states", "unsupported"]
+    assert h["unsupported"] == []
     con = sqlite3.connect(tmp_path / "plain.sqlite")
     rows = con.execute("SELECT channel, temperature_c, temperature_c_state FROM hub "
                        "WHERE sample_id = ? ORDER BY channel", (h["sample"],)).fetchall()
@@ -1008,7 +1040,8 @@ def test_hub_samples_in_both_profiles(fleet: Fleet, sparkplug_pb: Any,
     names = {m.alias: m.name for m in dbirth.metrics}
     ddata = next(p for t, p in sp if t == f"spBv1.0/{GROUP}/DDATA/{NODE}/hub-250")
     nulls = [m for m in ddata.metrics if m.is_null]
-    assert nulls and all(m.properties.keys[0] == "Quality" for m in nulls)
+    assert nulls
+    assert all(m.properties.keys[0] == "Quality" for m in nulls)
     assert all(names[m.alias].startswith("channel ") for m in nulls)
 
 
