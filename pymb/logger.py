@@ -890,8 +890,7 @@ class Logger:
                         # a thread switch per sample (issue 12: CPU per sample).
                         self._stop.wait(_DRAIN_EVERY)
                     if item is not None:
-                        for x in item:
-                            self._write(x)
+                        self._write_all(item)
                         pending += len(item)
                     now = time.monotonic()
                     if pending and (pending >= self.config.batch
@@ -919,15 +918,13 @@ class Logger:
                 try:
                     while failure is None:
                         try:
-                            for x in self._queue.get_nowait():
-                                self._write(x)
+                            self._write_all(self._queue.get_nowait())
                         except queue.Empty:
                             break
                     # A poller left behind: what it read before the stop.
                     for p in self.pollers:
                         if failure is None and p.is_alive():
-                            for x in p.take_unflushed():
-                                self._write(x)
+                            self._write_all(p.take_unflushed())
                     self.sink.close()
                 except OutputError as e:
                     failure = failure or e
@@ -945,19 +942,39 @@ class Logger:
         return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent)
 
-    def _write(self, item: Sample | Event) -> None:
-        if isinstance(item, Sample):
-            self.sink.write(item)
-            spare = self._spare.get(id(item.device))
-            if spare is not None and len(spare) < _SPARE_MAX and isinstance(item.data,
-                                                                             HubReading):
-                spare.append(item.data)
-            self.stats.samples += 1
-            name = item.device.name
-            self.stats.by_device[name] = self.stats.by_device.get(name, 0) + 1
-        else:
+    def _write_all(self, items: list[Sample | Event]) -> None:
+        """Write a poller's list in order: each run of samples in one call
+        when the sink takes batches (SQLite: multi-row INSERTs)."""
+        batch = getattr(self.sink, "write_batch", None)
+        run: list[Sample] = []
+        for item in items:
+            if isinstance(item, Sample):
+                run.append(item)
+                continue
+            self._samples(run, batch)
+            run = []
             self.sink.event(item)
             self.stats.events += 1
+        self._samples(run, batch)
+
+    def _samples(self, samples: list[Sample], batch: Callable[[list[Sample]], None] | None,
+                 ) -> None:
+        if not samples:
+            return
+        if batch is not None:
+            batch(samples)
+        else:
+            for sample in samples:
+                self.sink.write(sample)
+        by_device = self.stats.by_device
+        for sample in samples:
+            spare = self._spare.get(id(sample.device))
+            if spare is not None and len(spare) < _SPARE_MAX and isinstance(sample.data,
+                                                                             HubReading):
+                spare.append(sample.data)
+            name = sample.device.name
+            by_device[name] = by_device.get(name, 0) + 1
+        self.stats.samples += len(samples)
 
     def status_line(self, elapsed: float) -> str:
         """The one-line status: samples, rate, faults, skipped slots, time, state."""

@@ -44,6 +44,17 @@ class ForwardingSink:
         self.sink.write(sample)
         self.health.sample(sample)
 
+    def write_batch(self, samples: Any) -> None:
+        """Add samples to the batch (in one call when the wrapped sink can)."""
+        batch = getattr(self.sink, "write_batch", None)
+        if batch is not None:
+            batch(samples)
+        else:
+            for sample in samples:
+                self.sink.write(sample)
+        for sample in samples:
+            self.health.sample(sample)
+
     def event(self, event: Any) -> None:
         """Add an event to the batch."""
         self.sink.event(event)
