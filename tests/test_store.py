@@ -9,7 +9,7 @@ from array import array
 from datetime import UTC, datetime
 from pathlib import Path
 
-from pymb.devices import decode_hub
+from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
 from pymb.store import DeviceInfo, Event, Sample, SqliteSink
 
 HUB = DeviceInfo("b", "/dev/null", "hub", 1, "hub-1")
@@ -39,6 +39,41 @@ def test_size_limit_deletes_the_oldest(tmp_path: Path) -> None:
     con = sqlite3.connect(db)
     assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     con.close()
+
+
+def test_write_batch_stores_what_write_stores(tmp_path: Path) -> None:
+    # The logger hands runs of samples to write_batch (multi-row INSERTs):
+    # the rows must be those that write() one by one makes, with and without
+    # a size limit (which splits the statements and commits between them).
+    cp = DeviceInfo("b", "/dev/null", "coolpro", 40, "coolpro-40")
+    t0 = time.time() - 1000
+    samples = []
+    for i in range(150):
+        regs = array("H", [(i * 7 + k) & 0xFFFF for k in range(700)])
+        hub = decode_hub(regs, unsupported=("temperature2_c",) if i % 3 else ())
+        samples.append(Sample(HUB, t0 + i, float(i), hub))
+        samples.append(Sample(cp, t0 + i + 0.5, i + 0.5, CoolProTelemetry(
+            24.0, 1.0, 12.0, 2.0, 30.0, i, CoolProStatus(i & 0x7F),
+            array("H", [i, 0, 1, 0, 2, 0, i, 0]))))
+    rows = {}
+    for name, limit in (("one", None), ("batch", None), ("bounded", 50_000_000)):
+        sink = SqliteSink(tmp_path / f"{name}.sqlite", max_bytes=limit)
+        if name == "one":
+            for s in samples:
+                sink.write(s)
+        else:
+            sink.wal_budget = 256 * 1024 if limit else sink.wal_budget
+            for k in range(0, len(samples), 64):
+                sink.write_batch(samples[k:k + 64])
+        sink.close()
+        con = sqlite3.connect(tmp_path / f"{name}.sqlite")
+        rows[name] = con.execute(
+            "SELECT d.name, s.time_utc, s.monotonic, s.registers, s.unsupported "
+            "FROM samples s JOIN devices d ON d.id = s.device_id ORDER BY s.id").fetchall()
+        con.close()
+    assert len(rows["one"]) == 300
+    assert rows["batch"] == rows["one"]
+    assert rows["bounded"] == rows["one"]
 
 
 def test_age_limit_deletes_old_samples_and_events(tmp_path: Path) -> None:
