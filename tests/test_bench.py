@@ -8,6 +8,7 @@ import importlib.util
 import json
 import math
 import os
+import re
 import shutil
 import statistics
 import subprocess
@@ -16,13 +17,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB, PYMB_ENV
+from conftest import PYMB, PYMB_ENV, ROOT
 
 import pymb
 from pymb.bench import cprogram, pure, report, runner
 from pymb.bench.contenders import CONTENDERS, NAMES
 from pymb.bench.runner import Entry, Options, _summary
 from pymb.bench.worker import SPANS, Canary
+from pymb.child import Child, pymb_argv
 from pymb.cli import main
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB
@@ -178,6 +180,30 @@ def test_c_program_runs_clean_under_the_sanitizers(capsys: pytest.CaptureFixture
     assert c["status"] == "ok", c
     rows = result["sweep"]["hub"]["rows"] + result["sweep"]["telemetry"]["rows"]
     assert [r["status"] for r in rows] == ["ok", "ok"], rows
+
+
+@needs_c
+def test_sweep_compare_times_both_reads_in_c(tmp_path: Path) -> None:
+    # csrc/examples/sweep_compare: the README's measurement of pymb's C path
+    # against plain libmodbus, in C, for the hub sweep and the CoolPro read.
+    made = subprocess.run(["make", "-s", "-C", str(ROOT / "csrc"), "build/sweep_compare"],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert made.returncode == 0, made.stderr
+    link = tmp_path / "line"
+    sim = Child("simulator", pymb_argv("simulate", "--any-speed", "--link", str(link),
+                                       "hub:1,dynamic=0", "coolpro:40,gap=0"))
+    try:
+        sim.readline(30)
+        r = subprocess.run([str(ROOT / "csrc" / "build" / "sweep_compare"), str(link), "3"],
+                           capture_output=True, text=True, timeout=120, check=False)
+    finally:
+        sim.stop()
+    assert r.returncode == 0, r.stderr
+    assert "hub sweep, medians of 3 interleaved rounds" in r.stdout
+    assert "CoolPro telemetry (8 input registers, decoded)" in r.stdout
+    ratios = re.findall(r"\((\d+\.\d+)x, (\d+\.\d+)x\)", r.stdout)
+    assert len(ratios) == 2, r.stdout
+    assert all(float(x) > 0 for pair in ratios for x in pair)
 
 
 @needs_c

@@ -2,12 +2,14 @@
 /*
  * sweep_compare.c - pymb's hub sweep (pymb_hub_read) against the same sweep
  * written with plain libmodbus (6 x modbus_read_registers + the same C
- * decode), interleaved in one process on one line: medians of wall and CPU
- * time per sweep. For C users weighing pymb's request path, and to tell
- * pymb's C cost apart from the Python interpreter's in `pymb bench`.
+ * decode), and pymb's CoolPro telemetry read (pymb_read_registers + its C
+ * decode) against modbus_read_input_registers + the same decode, interleaved
+ * in one process on one line: medians of wall and CPU time per operation.
+ * For C users weighing pymb's request path, and to tell pymb's C cost apart
+ * from the Python interpreter's in `pymb bench`.
  *
- *   pymb simulate hub,dynamic=0 --any-speed        # prints e.g. /dev/pts/7
- *   ./csrc/build/sweep_compare /dev/pts/7 [ROUNDS]
+ *   pymb simulate hub,dynamic=0 coolpro:40,gap=0 --any-speed   # prints /dev/pts/N
+ *   ./csrc/build/sweep_compare /dev/pts/N [ROUNDS]
  */
 #define _POSIX_C_SOURCE 200809L
 
@@ -20,7 +22,9 @@
 #include "pymb_modbus.h"
 
 #define PER_ROUND 40
+#define TELE_PER_ROUND 100
 #define MAX_ROUNDS 200
+#define COOLPRO_SLAVE 40
 
 static double wall_now(void)
 {
@@ -47,6 +51,60 @@ static double median(double *v, int n)
 {
     qsort(v, (size_t)n, sizeof *v, by_value);
     return v[n / 2];
+}
+
+static void report(const char *what, const char *name, double wall[2][MAX_ROUNDS],
+                   double cpu[2][MAX_ROUNDS], int rounds, int per, const char *port)
+{
+    double wl = median(wall[0], rounds), wp = median(wall[1], rounds);
+    double cl = median(cpu[0], rounds), cp = median(cpu[1], rounds);
+    printf("%s, medians of %d interleaved rounds x %d on %s\n", what, rounds, per, port);
+    printf("  plain libmodbus      wall %6.0f us  CPU %5.1f us\n", wl, cl);
+    printf("  %-20s wall %6.0f us  CPU %5.1f us  (%.2fx, %.2fx)\n", name, wp, cp, wp / wl,
+           cp / cl);
+}
+
+/* The CoolPro at COOLPRO_SLAVE: its telemetry read both ways. Returns -1
+ * (and says why) when there is no CoolPro on the line: the hub's figures
+ * stand alone then. */
+static int telemetry_rounds(pymb_line *line, modbus_t *ctx, pymb_failure *fail, int rounds,
+                            double wall[2][MAX_ROUNDS], double cpu[2][MAX_ROUNDS])
+{
+    uint16_t regs[PYMB_COOLPRO_TELEMETRY_COUNT];
+    pymb_coolpro_telemetry t;
+    int r, k, i;
+
+    for (r = 0; r < rounds; r++) {
+        for (k = 0; k < 2; k++) {
+            int use_pymb = (r + k) % 2; /* the order alternates */
+            double t0 = 0, c0 = 0;
+            for (i = 0; i < 2 * TELE_PER_ROUND; i++) { /* the first half warms up */
+                int rc;
+                if (i == TELE_PER_ROUND) {
+                    t0 = wall_now();
+                    c0 = cpu_now();
+                }
+                if (use_pymb) {
+                    rc = pymb_read_registers(line, MODBUS_FC_READ_INPUT_REGISTERS,
+                                             COOLPRO_SLAVE, PYMB_COOLPRO_TELEMETRY_ADDRESS,
+                                             PYMB_COOLPRO_TELEMETRY_COUNT, regs, fail);
+                } else {
+                    modbus_set_slave(ctx, COOLPRO_SLAVE);
+                    rc = modbus_read_input_registers(ctx, PYMB_COOLPRO_TELEMETRY_ADDRESS,
+                                                     PYMB_COOLPRO_TELEMETRY_COUNT, regs);
+                }
+                if (rc < 0 || pymb_coolpro_decode_telemetry(
+                                  regs, PYMB_COOLPRO_TELEMETRY_COUNT, &t) != 0) {
+                    fprintf(stderr, "no CoolPro telemetry at address %d (%s): hub only\n",
+                            COOLPRO_SLAVE, modbus_strerror(errno));
+                    return -1;
+                }
+            }
+            wall[use_pymb][r] = (wall_now() - t0) / TELE_PER_ROUND * 1e6;
+            cpu[use_pymb][r] = (cpu_now() - c0) / TELE_PER_ROUND * 1e6;
+        }
+    }
+    return 0;
 }
 
 int main(int argc, char **argv)
@@ -117,14 +175,10 @@ int main(int argc, char **argv)
             cpu[use_pymb][r] = (cpu_now() - c0) / PER_ROUND * 1e6;
         }
     }
-    {
-        double wl = median(wall[0], rounds), wp = median(wall[1], rounds);
-        double cl = median(cpu[0], rounds), cp = median(cpu[1], rounds);
-        printf("hub sweep, medians of %d interleaved rounds x %d sweeps on %s\n", rounds,
-               PER_ROUND, argv[1]);
-        printf("  plain libmodbus   wall %6.0f us  CPU %5.0f us\n", wl, cl);
-        printf("  pymb_hub_read     wall %6.0f us  CPU %5.0f us  (%.2fx, %.2fx)\n", wp, cp,
-               wp / wl, cp / cl);
+    report("hub sweep", "pymb_hub_read", wall, cpu, rounds, PER_ROUND, argv[1]);
+    if (telemetry_rounds(&line, ctx, &fail, rounds, wall, cpu) == 0) {
+        report("CoolPro telemetry (8 input registers, decoded)",
+               "pymb_read_registers", wall, cpu, rounds, TELE_PER_ROUND, argv[1]);
     }
     modbus_close(ctx);
     modbus_free(ctx);
