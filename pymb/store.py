@@ -611,8 +611,9 @@ class SqliteSink:
     def write_batch(self, samples: Sequence[Sample]) -> None:
         """Add samples to the current batch, as :meth:`write` one by one
         would, in multi-row INSERTs: one statement (and one release of the
-        GIL) for many rows. Under a size limit, a statement carries at most a
-        quarter of the WAL budget, and the check after it is :meth:`write`'s."""
+        GIL) for many rows. Under a size limit, a statement ends at the row
+        that reaches a quarter of the WAL budget, where :meth:`write` would
+        commit, and the commit follows it."""
         if self.on_change is not None or len(samples) < 2:
             for sample in samples:
                 self.write(sample)
@@ -622,17 +623,26 @@ class SqliteSink:
                      _wire_bytes(s.data.registers),
                      s.data.unsupported_mask if isinstance(s.data, HubReading) else 0)
                     for s in samples]
-            step = _ROWS_PER_INSERT
-            if self.max_bytes is not None:
-                step = max(1, min(step, self.wal_budget // 4 // (len(rows[0][3]) + 64)))
+            bounded = self.max_bytes is not None
+            quarter = self.wal_budget // 4
             self._begin()
-            for i in range(0, len(rows), step):
-                chunk = rows[i:i + step]
+            i = 0
+            while i < len(rows):
+                # A statement ends where write() one by one would commit: at
+                # the row that brings the batch to a quarter of the WAL budget.
+                j, size = i, self._tx_bytes
+                while j < len(rows) and j - i < _ROWS_PER_INSERT:
+                    size += len(rows[j][3]) + 64
+                    j += 1
+                    if bounded and size >= quarter:
+                        break
+                chunk = rows[i:j]
+                i = j
                 self.db.execute(_insert_rows(len(chunk)), [v for row in chunk for v in row])
                 self.stored += len(chunk)
-                if self.max_bytes is not None:
-                    self._tx_bytes += sum(len(row[3]) + 64 for row in chunk)
-                    if self._tx_bytes >= self.wal_budget // 4:
+                if bounded:
+                    self._tx_bytes = size
+                    if size >= quarter:
                         self._commit()
                         self._begin()
         except sqlite3.Error as e:
