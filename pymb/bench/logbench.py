@@ -58,6 +58,16 @@ def db_bytes(path: str) -> dict[str, int]:
             "used": int((count - free) * page), "data": int(data)}
 
 
+def _count(path: str, table: str) -> int:
+    """Rows in ``table`` of the database at ``path``."""
+    con = sqlite3.connect(path)
+    try:
+        n: int = con.execute(f"SELECT COUNT(*) FROM {table}").fetchone()[0]
+    finally:
+        con.close()
+    return n
+
+
 def _bare_loop(read: Callable[[], Any], seconds: float) -> tuple[int, float]:
     n = 0
     c0 = time.process_time()
@@ -89,11 +99,7 @@ def _span(port: str, baud: int, where: str, seconds: float, heartbeat: float,
     cfg.on_change = OnChange(heartbeat, dict(BENCH_DEADBAND) if noise else {})
     summary = Logger(cfg).run(seconds)
     size = db_bytes(path)
-    con = sqlite3.connect(path)
-    try:
-        rows = con.execute("SELECT COUNT(*) FROM hub_changes").fetchone()[0]
-    finally:
-        con.close()
+    rows = _count(path, "hub_changes")
     return {"seconds": seconds, "heartbeat": heartbeat, "deadband": noise,
             "samples": summary.samples, "channel_rows": rows, "bytes": size,
             "bytes_per_sample": size["data"] / max(1, summary.samples),
@@ -172,11 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(f"err {type(e).__name__}: {e}".replace("\n", " "), flush=True)
                 continue
             size = db_bytes(path)
-            con = sqlite3.connect(path)
-            try:
-                stored = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
-            finally:
-                con.close()
+            stored = _count(path, "samples")
             ratios = [(p["log_cpu"] / p["log_n"]) / (p["bare_cpu"] / p["bare_n"])
                       for p in pairs if p["log_n"] and p["bare_n"]]
             print("ok " + json.dumps({
