@@ -125,9 +125,7 @@ class CoolPro:
         # The hot path of a CoolPro logger: one array, one C read, one C
         # decode, and the result's fields set directly (a frozen dataclass's
         # __init__ makes a call per field).
-        function, address, count = self._telemetry
-        regs = _ZEROS[:count]
-        self.client.read_registers_prepared(function, self.address, address, regs)
+        regs = self._read(self._telemetry)
         t = _new(CoolProTelemetry)
         d = t.__dict__
         (d["input_voltage_v"], d["input_current_a"], d["output_voltage_v"],
