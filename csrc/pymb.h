@@ -20,7 +20,7 @@
  *   [MB-SL]  Modbus over Serial Line Specification V1.02
  *   [CP]     CoolPro Modbus RTU Communications Protocol, CP-MODBUS-RTU rev 1
  *   [HUB]    RS485 Modbus Communication Protocol V1.5 (100-channel sensor hub)
- *   [NOTES]  shared/specs/NOTES.md, the project's reading of [CP] and [HUB]
+ *   [NOTES]  docs/device-notes.md, the project's reading of [CP] and [HUB]
  */
 #ifndef PYMB_H
 #define PYMB_H

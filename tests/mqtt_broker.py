@@ -1,12 +1,12 @@
 """Fixtures and helpers for the fleet tests: Debian's mosquitto on a free
 127.0.0.1 port (plain, TLS with certificates made here, a password file),
 stopped by its PID; a paho subscriber that records what it receives; the
-Sparkplug .proto compiled independently by protoc; pymb log as a child."""
+Sparkplug B payload schema of an independent implementation (pysparkplug);
+pymb log as a child."""
 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import sqlite3
 import subprocess
@@ -23,12 +23,6 @@ from pymb.fleet.broker import Certificates, Mosquitto, find_mosquitto, make_cert
 from pymb.sim import SimulatorProcess
 
 paho = pytest.importorskip("paho.mqtt.client")
-
-SPARKPLUG_PROTO = Path(os.environ.get("PYMB_SPECS", Path(__file__).resolve().parents[1].parent
-                                      / "shared" / "specs")) / "sparkplug_b.proto"
-if not SPARKPLUG_PROTO.exists():  # the shared specs beside the checkout, or /work/shared
-    SPARKPLUG_PROTO = Path("/work/shared/specs/sparkplug_b.proto")
-
 
 @pytest.fixture
 def mosquitto(tmp_path: Path) -> Iterator[Callable[..., Mosquitto]]:
@@ -231,19 +225,13 @@ def stop_log(proc: subprocess.Popen[str], timeout: float = 30) -> str:
 
 
 @pytest.fixture(scope="session")
-def sparkplug_pb(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """The Sparkplug B ``Payload`` class, from the specification's .proto compiled
-    by protoc at test time (a descriptor set loaded by the protobuf runtime)."""
-    pytest.importorskip("google.protobuf")
-    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-
-    out = tmp_path_factory.mktemp("proto") / "sparkplug_b.desc"
-    subprocess.run(["protoc", f"--proto_path={SPARKPLUG_PROTO.parent}",
-                    f"--descriptor_set_out={out}", SPARKPLUG_PROTO.name], check=True,
-                   timeout=60)
-    fds = descriptor_pb2.FileDescriptorSet.FromString(out.read_bytes())
-    pool = descriptor_pool.DescriptorPool()
-    for fd in fds.file:
-        pool.Add(fd)
-    return message_factory.GetMessageClass(
-        pool.FindMessageTypeByName("org.eclipse.tahu.protobuf.Payload"))
+def sparkplug_pb() -> Any:
+    """The Sparkplug B ``Payload`` message class of pysparkplug, an implementation of
+    Sparkplug B independent of pymb's own encoder (``pymb.fleet.protobuf``): the
+    specification's ``sparkplug_b.proto`` compiled by protoc, decoded by the protobuf
+    runtime."""
+    try:
+        from pysparkplug._protobuf import Payload
+    except ImportError:
+        pytest.fail("pysparkplug is not installed: the test extra installs it")
+    return Payload

@@ -451,7 +451,7 @@ def _metric(p: Any, name: str) -> Any:
     return next(m for m in p.metrics if m.name == name)
 
 
-def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
+def test_protobuf_encoder_against_pysparkplug(sparkplug_pb: Any) -> None:
     from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
     metrics = [
         Metric("bdSeq", None, DataType.INT64, 255, 1700000000123),
@@ -485,7 +485,7 @@ def test_protobuf_encoder_against_protoc(sparkplug_pb: Any) -> None:
     assert not m[5].HasField("double_value")
     assert list(m[5].properties.keys) == ["Quality", "state"]
     assert m[5].properties.values[1].string_value == "no_sensor"
-    # and a command written by protoc's side is read back
+    # and a command written by the other implementation is read back
     cmd = sparkplug_pb()
     c = cmd.metrics.add()
     c.name, c.datatype, c.boolean_value = "Node Control/Rebirth", 11, True

@@ -9,7 +9,7 @@ access and the document's description.
 Sources:
   [CP]    CoolPro Modbus RTU Communications Protocol, CP-MODBUS-RTU rev 1
   [HUB]   RS485 Modbus Communication Protocol V1.5 (100-channel sensor hub)
-  [NOTES] shared/specs/NOTES.md, the project's reading of both
+  [NOTES] docs/device-notes.md, the project's reading of both
 """
 
 from __future__ import annotations

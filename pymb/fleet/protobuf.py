@@ -6,8 +6,8 @@ below are that file's. Only what pymb publishes is encoded (payload
 timestamp, seq, metrics with name, alias, timestamp, datatype,
 is_historical, is_null, properties and the int, long, double, boolean and
 string values); :func:`decode` reads any message into raw fields, enough to
-read an NCMD. The tests check every byte against the ``.proto`` compiled
-independently by ``protoc``.
+read an NCMD. The tests decode every payload with an independent
+implementation of the same schema (pysparkplug's generated ``Payload``).
 
 Why not the ``protobuf`` package: one dependency fewer for ``pymb[mqtt]``,
 and the handful of fields here are simpler to write than to pin a
