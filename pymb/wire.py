@@ -26,6 +26,7 @@ __all__ = [
     "READ_REQUEST_BYTES",
     "bits_per_char",
     "char_time",
+    "read_bits_time",
     "read_time",
     "transaction_time",
 ]
@@ -46,13 +47,24 @@ def char_time(baudrate: int, bits: int = 10) -> float:
 
 
 def transaction_time(request_bytes: int, reply_bytes: int, baudrate: int, *,
-                     turnaround: float = 0.0, bits: int = 10) -> float:
-    """Least seconds from a request's first bit to its reply's last bit."""
+                     turnaround: float = 0.0, bits: int = 10, gap: float = 0.0) -> float:
+    """Least seconds from a request's first bit to its reply's last bit, plus
+    ``gap``: the silence a device asks for before each request to it (a map's
+    ``inter_request_gap``)."""
     c = char_time(baudrate, bits)
-    return (request_bytes + reply_bytes) * c + max(GAP_CHARS * c, turnaround)
+    return gap + (request_bytes + reply_bytes) * c + max(GAP_CHARS * c, turnaround)
 
 
-def read_time(count: int, baudrate: int, *, turnaround: float = 0.0, bits: int = 10) -> float:
+def read_time(count: int, baudrate: int, *, turnaround: float = 0.0, bits: int = 10,
+              gap: float = 0.0) -> float:
     """Least seconds of one read of ``count`` registers (FC 0x03 / 0x04)."""
     return transaction_time(READ_REQUEST_BYTES, READ_REPLY_OVERHEAD + 2 * count, baudrate,
-                            turnaround=turnaround, bits=bits)
+                            turnaround=turnaround, bits=bits, gap=gap)
+
+
+def read_bits_time(count: int, baudrate: int, *, turnaround: float = 0.0, bits: int = 10,
+                   gap: float = 0.0) -> float:
+    """Least seconds of one read of ``count`` coils or discrete inputs (FC 0x01 /
+    0x02): the reply packs eight to a byte."""
+    return transaction_time(READ_REQUEST_BYTES, READ_REPLY_OVERHEAD + (count + 7) // 8,
+                            baudrate, turnaround=turnaround, bits=bits, gap=gap)

@@ -74,6 +74,8 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out += _sweep_tables(result["sweep"], m["plan"])
     if result.get("micro"):
         out.append(_micro_table(result["micro"]))
+    if result.get("plan"):
+        out.append(_plan_table(result["plan"]))
     if result.get("wire"):
         out.append(_wire_table(result["wire"]))
     if result.get("scaling"):
@@ -129,6 +131,18 @@ def _micro_table(micro: dict[str, Any]) -> Table:
         [False, True, True, True, True],
         [f"pymb: {r['pymb_call']}; pure Python: {r['python_call']}"
          for r in micro["rows"]])
+
+
+def _plan_table(plan: dict[str, Any]) -> Table:
+    return Table(
+        f"Planning: the reads of a {plan['points']}-point map",
+        f"a fresh planner each time, median of {plan['repeat']}; the plan's predicted wire "
+        "time against one request per contiguous run",
+        ["points", "plan", "requests", "registers", "predicted wire", "naive wire", "target"],
+        [[str(plan["points"]), fmt_time(plan["plan_ms"] * 1e3), str(plan["requests"]),
+          str(plan["registers"]), fmt_time(plan["predicted_ms"] * 1e3),
+          fmt_time(plan["naive_ms"] * 1e3), f"≤ {plan['target_ms']:g} ms"]],
+        [True, True, True, True, True, True, True], [])
 
 
 def _wire_table(wire: dict[str, Any]) -> Table:

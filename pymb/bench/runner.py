@@ -4,6 +4,8 @@ Sections (each can be chosen with ``--sections``):
 
 ``micro``    in-process: CRC-16 of a 255-byte frame and the decode of 700
              hub registers, pymb (C) against pure Python (timeit, median).
+``plan``     in-process: planning the reads of a 1,000-point map
+             (:mod:`pymb.bench.planbench`).
 ``sweep``    the workload: one sweep of the hub's 700 registers (6 requests,
              decoded) and one CoolPro telemetry read, per contender, each in
              its own process against its own simulator process over a pty,
@@ -49,7 +51,7 @@ from typing import Any
 
 import pymb
 from pymb import _native
-from pymb.bench import cprogram, logbench, pure
+from pymb.bench import cprogram, logbench, planbench, pure
 from pymb.bench.contenders import CONTENDERS, NAMES, Contender, probe
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
@@ -60,7 +62,7 @@ from pymb.wire import read_time
 
 __all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
-SECTIONS = ("micro", "sweep", "wire", "scaling", "fleet", "logger")
+SECTIONS = ("micro", "plan", "sweep", "wire", "scaling", "fleet", "logger")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)
@@ -592,6 +594,9 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         for r in micro["rows"]:
             add(f"{r['what']} from Python", f"<= {r['target_us']:g} us", r["pymb_us"], "us",
                 r["pymb_us"] <= r["target_us"])
+    if result.get("plan"):
+        for what, goal, value, unit, met in planbench.targets(result["plan"]):
+            add(what, goal, value, unit, met)
     wire = result.get("wire")
     if wire:
         for baud in (9600, 115200):
@@ -623,6 +628,8 @@ def run(opts: Options) -> dict[str, Any]:
         result["c_warnings"] = lineup.c_warnings
         if "micro" in opts.sections and pymb_in:
             result["micro"] = run_micro(opts)
+        if "plan" in opts.sections and pymb_in:
+            result["plan"] = planbench.run_section(opts.plan.micro_repeat, opts.say)
         if "sweep" in opts.sections:
             result["sweep"] = run_sweep(opts, lineup, children)
         if "wire" in opts.sections and ("pymb" in opts.only or "c" in opts.only):

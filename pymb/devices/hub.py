@@ -20,8 +20,8 @@ from typing import Any
 
 from pymb import _native
 from pymb.client import Client
-from pymb.devices.maps import HUB, Block
-from pymb.devices.planner import ReadPlan, plan_reads
+from pymb.devices.maps import HUB
+from pymb.devices.planner import Item, Known, Line, ReadPlan, plan_points
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.wire import bits_per_char
 
@@ -317,11 +317,12 @@ class SensorHub:
         addresses = [b.address(c) for b in chosen if not skip >> b.index & 1 for c in chans]
         return addresses, full
 
-    def _readable(self, address: int) -> bool:
-        offset = address - HUB.first
-        block: Block = HUB.blocks[offset // HUB.channels]
-        channel = offset % HUB.channels + 1
-        return channel <= self.channels and not self._sweep.unsupported >> block.index & 1
+    def _known(self) -> dict[str, Known]:
+        """The registers this hub has: every channel of every block its
+        firmware supports (a plan may read those it was not asked for)."""
+        skip = self._sweep.unsupported
+        return {"input": Known((b.address(1), b.address(1) + self.channels)
+                               for b in HUB.blocks if not skip >> b.index & 1)}
 
     def plan(self, blocks: Iterable[str] | None = None,
              channels: Iterable[int] | None = None) -> ReadPlan:
@@ -339,8 +340,9 @@ class SensorHub:
         if cached is not None:
             return cached
         addresses, full = self._wanted(key[0], key[1])
-        plan = plan_reads(addresses, self._baudrate(), readable=self._readable,
-                          turnaround=self.turnaround, bits_per_char=self._bits())
+        items = [Item(str(a), "input", a) for a in addresses]
+        plan = plan_points(items, Line(self._baudrate(), self._bits(), self.turnaround),
+                           known=self._known())
         wanted: bytes | None = None
         if not full:
             bitmap = bytearray(_native.HUB_BITMAP_BYTES)

@@ -1,57 +1,202 @@
-"""The read planner: which requests read a set of registers in the least
-wire time.
+"""The read planner: which requests read a set of points in the least wire time.
 
-A request for ``n`` registers costs, on an RTU line, the request frame (8
-bytes), the silence before the reply (3.5 characters or the device's
-turnaround, whichever is longer) and the reply (5 + 2n bytes): the model of
-:mod:`pymb.wire`, the one every part of pymb uses. Reading
-a few registers nobody asked for between two wanted runs can be cheaper than a
-second request; a request never exceeds 125 registers and never crosses a
-register the device may not have. The plan is exact (dynamic programming over
-the wanted addresses), so it is never worse than the naive plan of one
-request per contiguous run.
+A device's points (one value each, one or more registers, or one bit) are
+planned per table: the planner chooses where the requests start and end.
+Its rules are the map contract's ([MAP] 4):
+
+1. a request never splits a point (points that overlap, a status word and
+   its bit views, are read together, once);
+2. no request exceeds ``max_registers`` (``max_bits`` for coils and discrete
+   inputs); ``single_point_requests`` gives one request per point;
+3. a request may read registers nobody asked for only where they are known
+   to exist: registers of the device's other declared points, and gaps of at
+   most ``max_gap`` undeclared registers, inside ``readable`` when the map
+   declares it (with ``readable`` and ``max_gap = 0`` any gap inside it);
+   never a bridge the device refused before, never a point it refused;
+4. among the plans that obey 1-3, the cheapest by :mod:`pymb.wire`'s model
+   (request, the silence before the reply or the device's ``turnaround``,
+   the reply, and the device's ``inter_request_gap`` before each request).
+
+The plan is exact: dynamic programming over the points sorted by address,
+so it is never worse than the naive plan of one request per contiguous run.
+:class:`PointPlanner` keeps what one device taught it (bridges it refused,
+points it refused alone, retried every ``offline_retry`` seconds).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 
-from pymb.wire import read_time
+from pymb.errors import InvalidArgument
+from pymb.wire import read_bits_time, read_time
 
-__all__ = ["ReadPlan", "naive_spans", "plan_reads"]
+__all__ = [
+    "BIT_TABLES",
+    "TABLES",
+    "Item",
+    "Known",
+    "Limits",
+    "Line",
+    "PointPlanner",
+    "ReadPlan",
+    "Request",
+    "naive_spans",
+    "plan_points",
+    "plan_reads",
+]
+
+#: The four Modbus tables, in the order a plan reads them.
+TABLES = ("coil", "discrete", "holding", "input")
+#: Tables of single bits (FC 01, 02): limits and costs count bits, not registers.
+BIT_TABLES = frozenset(("coil", "discrete"))
+
+# What the planner knows of each register (or bit) of a table.
+_UNKNOWN, _DECLARED, _READABLE, _REFUSED = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class Limits:
+    """How a device wants to be asked ([MAP] ``[device.limits]``).
+
+    ``readable``: per table, inclusive ``(first, last)`` ranges known to exist.
+    """
+
+    max_registers: int = 125
+    max_bits: int = 2000
+    max_gap: int = 0
+    readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=dict)
+    split_on_exception: bool = True
+    single_point_requests: bool = False
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.max_registers <= 125:
+            raise InvalidArgument(f"max_registers must be 1..125, got {self.max_registers!r}")
+        if not 1 <= self.max_bits <= 2000:
+            raise InvalidArgument(f"max_bits must be 1..2000, got {self.max_bits!r}")
+        if not 0 <= self.max_gap <= 124:
+            raise InvalidArgument(f"max_gap must be 0..124, got {self.max_gap!r}")
+
+    def max_count(self, table: str) -> int:
+        """Registers (bits, for a bit table) one request may read."""
+        return self.max_bits if table in BIT_TABLES else self.max_registers
+
+
+@dataclass(frozen=True)
+class Line:
+    """What a request costs depends on: the line and the device's timing."""
+
+    baudrate: int = 9600
+    bits_per_char: int = 10
+    turnaround: float = 0.0  #: seconds of silence the device needs after a request
+    inter_request_gap: float = 0.0  #: seconds of silence before each request
+
+    def __post_init__(self) -> None:
+        if self.baudrate <= 0:
+            raise InvalidArgument(f"baudrate must be positive, got {self.baudrate!r}")
+
+    def cost(self, table: str, count: int) -> float:
+        """Predicted seconds of one read of ``count`` registers (bits) of ``table``."""
+        fn = read_bits_time if table in BIT_TABLES else read_time
+        return fn(count, self.baudrate, turnaround=self.turnaround, bits=self.bits_per_char,
+                  gap=self.inter_request_gap)
+
+    def costs(self, table: str, max_count: int) -> list[float]:
+        """``cost(table, n)`` for n = 0..max_count (0 costs nothing): one table,
+        not a call per candidate request."""
+        return [0.0] + [self.cost(table, n) for n in range(1, max_count + 1)]
+
+
+@dataclass(frozen=True)
+class Item:
+    """One point as the planner sees it: where it lives and how wide it is
+    (registers; 1 for a bit). A block's channels are an item each."""
+
+    name: str
+    table: str
+    address: int
+    width: int = 1
+
+    @property
+    def end(self) -> int:
+        """The address after its last register."""
+        return self.address + self.width
+
+
+@dataclass(frozen=True)
+class Request:
+    """One read: ``count`` registers (bits) of ``table`` from ``address``.
+
+    ``items`` are the indices (into the list that was planned) of the points
+    it reads, by address; ``extents`` the groups of overlapping points among
+    them, as index tuples; ``bridged`` counts the registers it reads that no
+    wanted point needs."""
+
+    table: str
+    address: int
+    count: int
+    items: tuple[int, ...]
+    extents: tuple[tuple[int, ...], ...]
+    bridged: int
+
+    @property
+    def function(self) -> int:
+        """The function code that reads it (1 coils, 2 discrete, 3 holding, 4 input)."""
+        return TABLES.index(self.table) + 1
 
 
 @dataclass(frozen=True)
 class ReadPlan:
-    """Requests as (address, count), with their predicted wire time and that
-    of the naive plan (one request per contiguous run, split at the limit)."""
+    """The requests of a plan, with their predicted wire time and that of the
+    naive plan (one request per contiguous run, split at the limit)."""
 
-    spans: tuple[tuple[int, int], ...]
+    requests: tuple[Request, ...]
     predicted_s: float
     naive_s: float
-    baudrate: int
-    turnaround: float
-    wanted: int  #: registers asked for
-    bits_per_char: int = 10  #: the line's character (:func:`pymb.wire.bits_per_char`)
+    line: Line
+    wanted: int  #: points (registers, for :func:`plan_reads`) asked for
+
+    @property
+    def spans(self) -> tuple[tuple[int, int], ...]:
+        """The requests as ``(address, count)``."""
+        return tuple((r.address, r.count) for r in self.requests)
 
     @property
     def registers(self) -> int:
-        """Registers on the wire, wanted or not."""
-        return sum(c for _, c in self.spans)
+        """Registers (and bits) on the wire, wanted or not."""
+        return sum(r.count for r in self.requests)
+
+    @property
+    def baudrate(self) -> int:
+        """The line speed the plan was priced at."""
+        return self.line.baudrate
+
+    @property
+    def turnaround(self) -> float:
+        """The device's turnaround the plan was priced with."""
+        return self.line.turnaround
+
+    @property
+    def bits_per_char(self) -> int:
+        """Bits of one character on the line (:func:`pymb.wire.bits_per_char`)."""
+        return self.line.bits_per_char
 
     def explain(self) -> str:
         """A table of the plan: one line per request and the totals."""
+        line = self.line
+        gap = (f", inter-request gap {line.inter_request_gap * 1e3:g} ms"
+               if line.inter_request_gap else "")
         lines = [
-            f"read plan at {self.baudrate} bit/s, turnaround {self.turnaround * 1e3:g} ms: "
-            f"{len(self.spans)} request(s), {self.registers} registers on the wire for "
+            f"read plan at {line.baudrate} bit/s, turnaround {line.turnaround * 1e3:g} ms{gap}: "
+            f"{len(self.requests)} request(s), {self.registers} registers on the wire for "
             f"{self.wanted} wanted"
         ]
-        for i, (address, count) in enumerate(self.spans, 1):
-            t = read_time(count, self.baudrate, turnaround=self.turnaround,
-                          bits=self.bits_per_char)
-            lines.append(f"  {i:3d}. registers {address}..{address + count - 1} "
-                         f"({count}) {t * 1e3:8.2f} ms")
+        for i, r in enumerate(self.requests, 1):
+            what = "bits" if r.table in BIT_TABLES else "registers"
+            t = line.cost(r.table, r.count)
+            lines.append(f"  {i:3d}. {r.table} {what} {r.address}..{r.address + r.count - 1} "
+                         f"({r.count}) {t * 1e3:8.2f} ms")
         saved = self.naive_s - self.predicted_s
         lines.append(f"  predicted {self.predicted_s * 1e3:.2f} ms; naive plan "
                      f"{self.naive_s * 1e3:.2f} ms (saves {saved * 1e3:.2f} ms)")
@@ -61,8 +206,169 @@ class ReadPlan:
         return self.explain()
 
 
+class Known:
+    """What is known of the registers (bits) of one table of one device:
+    declared by a point, inside a ``readable`` range, refused, or unknown.
+    Covers only the addresses between the first and last it was told of."""
+
+    __slots__ = ("_lo", "_marks", "has_readable")
+
+    def __init__(self, declared: Iterable[tuple[int, int]] = (),
+                 readable: Iterable[tuple[int, int]] = (),
+                 refused: Iterable[tuple[int, int]] = ()) -> None:
+        """Ranges are half-open ``(start, end)``; ``readable`` ones too."""
+        declared, readable, refused = list(declared), list(readable), list(refused)
+        every = declared + readable + refused
+        self.has_readable = bool(readable)
+        self._lo = min((a for a, _ in every), default=0)
+        hi = max((b for _, b in every), default=0)
+        marks = bytearray(max(0, hi - self._lo))
+        lo = self._lo
+        for a, b in readable:
+            marks[a - lo:b - lo] = bytes((_READABLE,)) * (b - a)
+        for a, b in declared:
+            marks[a - lo:b - lo] = bytes((_DECLARED,)) * (b - a)
+        for a, b in refused:
+            marks[a - lo:b - lo] = bytes((_REFUSED,)) * (b - a)
+        self._marks = marks
+
+    def bridgeable(self, start: int, end: int, max_gap: int) -> bool:
+        """Whether a request may read registers ``start..end-1`` that no wanted
+        point needs (rule 3 of the module's list)."""
+        lo, n = self._lo, len(self._marks)
+        a, b = max(start, lo), min(end, lo + n)
+        seg = self._marks[a - lo:b - lo] if a < b else bytearray()
+        outside = (end - start) - len(seg)  # registers it was never told of
+        if _REFUSED in seg:
+            return False
+        undeclared = outside + len(seg) - seg.count(_DECLARED)
+        if undeclared == 0:
+            return True
+        if self.has_readable:
+            return outside == 0 and _UNKNOWN not in seg and (
+                max_gap == 0 or undeclared <= max_gap)
+        return undeclared <= max_gap
+
+
+def _best_cuts(starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bool],
+               max_count: int, costs: Sequence[float]) -> tuple[list[int], float]:
+    """The cheapest cut of extents (sorted, disjoint) into requests: for each
+    request's first extent ``i``, ``last[i]`` is its last one; and the cost.
+    ``joinable[k]``: extents ``k`` and ``k + 1`` may share a request."""
+    m = len(starts)
+    best = [0.0] * (m + 1)
+    last = [0] * m
+    for i in range(m - 1, -1, -1):
+        limit = starts[i] + max_count
+        j = i
+        while j + 1 < m and joinable[j] and ends[j + 1] <= limit:
+            j += 1
+        # Longer first requests are tried first, so among equal plans the one
+        # whose requests are full from the start wins (125, 125, ..., rest).
+        s = starts[i]
+        b = float("inf")
+        e = i
+        while j >= i:
+            c = costs[ends[j] - s] + best[j + 1]
+            if c < b - 1e-12:  # ties (up to rounding) keep the longer request
+                b, e = c, j
+            j -= 1
+        best[i], last[i] = b, e
+    return last, best[0]
+
+
+def _naive_cost(starts: Sequence[int], ends: Sequence[int], max_count: int,
+                costs: Sequence[float]) -> float:
+    """One request per contiguous run of extents, split (between extents) at the limit."""
+    total, first, prev = 0.0, -1, -1
+    for s, e in zip(starts, ends, strict=True):
+        if first >= 0 and s == prev and e - first <= max_count:
+            prev = e
+            continue
+        if first >= 0:
+            total += costs[prev - first]
+        first, prev = s, e
+    return total + (costs[prev - first] if first >= 0 else 0.0)
+
+
+def _extents(items: Sequence[Item], order: Sequence[int], max_count: int
+             ) -> tuple[list[int], list[int], list[list[int]]]:
+    """Wanted points of one table (indices in address order) merged where
+    they overlap: starts, ends, and the points of each extent."""
+    starts: list[int] = []
+    ends: list[int] = []
+    members: list[list[int]] = []
+    for k in order:
+        it = items[k]
+        if starts and it.address < ends[-1]:
+            ends[-1] = max(ends[-1], it.end)
+            members[-1].append(k)
+        else:
+            starts.append(it.address)
+            ends.append(it.end)
+            members.append([k])
+        if ends[-1] - starts[-1] > max_count:
+            names = ", ".join(items[i].name for i in members[-1])
+            raise InvalidArgument(
+                f"{names} at {it.table} {starts[-1]}..{ends[-1] - 1} take "
+                f"{ends[-1] - starts[-1]} {'bits' if it.table in BIT_TABLES else 'registers'}, "
+                f"more than one request may read ({max_count}): a request never splits a point")
+    return starts, ends, members
+
+
+def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None, *,
+                wanted: Iterable[int] | None = None,
+                known: Mapping[str, Known] | None = None) -> ReadPlan:
+    """The cheapest plan that reads ``items`` (or the ones whose indices are
+    ``wanted``), table by table. ``known``: what each table's registers are
+    (default: only the wanted points are known to exist)."""
+    limits = limits or Limits()
+    chosen = range(len(items)) if wanted is None else sorted(set(wanted))
+    by_table: dict[str, list[int]] = {}
+    for k in chosen:
+        t = items[k].table
+        if t not in TABLES:
+            raise InvalidArgument(f"{items[k].name}: unknown table {t!r}; use {', '.join(TABLES)}")
+        by_table.setdefault(t, []).append(k)
+    requests: list[Request] = []
+    total = naive = 0.0
+    for table in TABLES:
+        ks = by_table.get(table)
+        if not ks:
+            continue
+        ks.sort(key=lambda k: (items[k].address, -items[k].width))
+        max_count = limits.max_count(table)
+        starts, ends, members = _extents(items, ks, max_count)
+        m = len(starts)
+        if limits.single_point_requests:
+            joinable = [False] * m
+        else:
+            kn = known.get(table) if known is not None else None
+            if kn is None:
+                kn = Known(zip(starts, ends, strict=True))
+            joinable = [ends[k] == starts[k + 1] or kn.bridgeable(ends[k], starts[k + 1],
+                                                                  limits.max_gap)
+                        for k in range(m - 1)]
+        costs = line.costs(table, max_count)
+        last, cost = _best_cuts(starts, ends, joinable, max_count, costs)
+        total += cost
+        naive += _naive_cost(starts, ends, max_count, costs)
+        i = 0
+        while i < m:
+            j = last[i]
+            span = ends[j] - starts[i]
+            used = sum(ends[k] - starts[k] for k in range(i, j + 1))
+            requests.append(Request(
+                table, starts[i], span,
+                tuple(k for x in range(i, j + 1) for k in members[x]),
+                tuple(tuple(members[x]) for x in range(i, j + 1)),
+                span - used))
+            i = j + 1
+    return ReadPlan(tuple(requests), total, naive, line, len(chosen))
+
+
 def naive_spans(wanted: Iterable[int], max_count: int = 125) -> list[tuple[int, int]]:
-    """One request per contiguous run of ``wanted``, split at ``max_count``."""
+    """One request per contiguous run of ``wanted`` addresses, split at ``max_count``."""
     spans: list[tuple[int, int]] = []
     for a in sorted(set(wanted)):
         if spans and spans[-1][0] + spans[-1][1] == a and spans[-1][1] < max_count:
@@ -72,56 +378,139 @@ def naive_spans(wanted: Iterable[int], max_count: int = 125) -> list[tuple[int, 
     return spans
 
 
-def plan_reads(
-    wanted: Iterable[int],
-    baudrate: int,
-    *,
-    readable: Callable[[int], bool] = lambda a: True,
-    turnaround: float = 0.0,
-    max_count: int = 125,
-    bits_per_char: int = 10,
-) -> ReadPlan:
-    """The plan with the least predicted wire time for ``wanted`` addresses.
-
-    ``readable(address)`` says whether a register that was not asked for may
-    be read anyway to merge two requests (registers a device lacks are not).
-    """
+def plan_reads(wanted: Iterable[int], baudrate: int, *,
+               readable: Callable[[int], bool] = lambda a: True,
+               turnaround: float = 0.0, max_count: int = 125,
+               bits_per_char: int = 10) -> ReadPlan:
+    """The cheapest plan for single input registers at ``wanted`` addresses:
+    :func:`plan_points` with a one-register point at each, where
+    ``readable(address)`` says whether a register nobody asked for may be read."""
     w = sorted(set(wanted))
-    if not w:
-        return ReadPlan((), 0.0, 0.0, baudrate, turnaround, 0, bits_per_char)
-    if baudrate <= 0 or max_count < 1:
-        raise ValueError("baudrate and max_count must be positive")
+    items = [Item(str(a), "input", a, 1) for a in w]
+    runs = _runs(a for k in range(len(w) - 1) for a in range(w[k] + 1, w[k + 1])
+                 if readable(a))
+    known = {"input": Known(((a, a + 1) for a in w), readable=runs)} if w else {}
+    limits = Limits(max_registers=max_count)
+    return plan_points(items, Line(baudrate, bits_per_char, turnaround), limits, known=known)
 
-    # A request's cost depends only on its length: one table, not a call per
-    # candidate (a full hub sweep tries ~87,000 of them).
-    costs = [0.0] + [read_time(n, baudrate, turnaround=turnaround, bits=bits_per_char)
-                     for n in range(1, max_count + 1)]
 
-    # blocked[k]: registers that may not be read lie strictly between w[k] and w[k+1].
-    m = len(w)
-    blocked = [
-        any(not readable(a) for a in range(w[k] + 1, w[k + 1])) for k in range(m - 1)
-    ] + [True]
-    # best[i]: least cost of reading w[i:]; a request covers w[i..j]. Longer
-    # first requests are tried first, so among equal plans the one whose
-    # requests are full from the start wins (125, 125, ..., rest).
-    best = [0.0] * (m + 1)
-    end = [0] * m
-    for i in range(m - 1, -1, -1):
-        j = i
-        while j + 1 < m and not blocked[j] and w[j + 1] - w[i] + 1 <= max_count:
-            j += 1
-        best[i] = float("inf")
-        while j >= i:
-            c = costs[w[j] - w[i] + 1] + best[j + 1]
-            if c < best[i] - 1e-12:  # ties (up to rounding) keep the longer request
-                best[i], end[i] = c, j
-            j -= 1
-    spans: list[tuple[int, int]] = []
-    i = 0
-    while i < m:
-        j = end[i]
-        spans.append((w[i], w[j] - w[i] + 1))
-        i = j + 1
-    naive = sum(costs[c] for _, c in naive_spans(w, max_count))
-    return ReadPlan(tuple(spans), best[0], naive, baudrate, turnaround, m, bits_per_char)
+def _runs(addresses: Iterable[int]) -> list[tuple[int, int]]:
+    """Sorted addresses as half-open runs."""
+    out: list[tuple[int, int]] = []
+    for a in addresses:
+        if out and out[-1][1] == a:
+            out[-1] = (out[-1][0], a + 1)
+        else:
+            out.append((a, a + 1))
+    return out
+
+
+class PointPlanner:
+    """The planner of one device: its declared points, limits and line, and
+    what the device taught it.
+
+    ``items``: every point the device may be asked for (a block's channels
+    an item each). ``offline_retry``: seconds after which a point the device
+    refused alone is asked for again. Plans are cached until something is
+    learnt or :meth:`forget` is called.
+    """
+
+    def __init__(self, items: Sequence[Item], limits: Limits, line: Line, *,
+                 offline_retry: float = 30.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.items = tuple(items)
+        self.limits = limits
+        self.line = line
+        self.offline_retry = offline_retry
+        self._clock = clock
+        self._refused: dict[str, list[tuple[int, int]]] = {}
+        self._unsupported: dict[int, float] = {}  # item -> when to ask again
+        self._known: dict[str, Known] | None = None
+        self._plans: dict[tuple[int, ...], ReadPlan] = {}
+
+    def _knowledge(self) -> dict[str, Known]:
+        if self._known is None:
+            declared: dict[str, list[tuple[int, int]]] = {}
+            for k, it in enumerate(self.items):
+                if k not in self._unsupported:
+                    declared.setdefault(it.table, []).append((it.address, it.end))
+            refused = {t: list(r) for t, r in self._refused.items()}
+            for k in self._unsupported:
+                it = self.items[k]
+                refused.setdefault(it.table, []).append((it.address, it.end))
+            tables = set(declared) | set(refused) | set(self.limits.readable)
+            self._known = {
+                t: Known(declared.get(t, ()),
+                         [(a, b + 1) for a, b in self.limits.readable.get(t, ())],
+                         refused.get(t, ()))
+                for t in tables
+            }
+        return self._known
+
+    def _changed(self) -> None:
+        self._known = None
+        self._plans.clear()
+
+    @property
+    def unsupported(self) -> frozenset[int]:
+        """Items the device refused alone (not asked for until their retry)."""
+        return frozenset(self._unsupported)
+
+    def plan(self, wanted: Sequence[int] | None = None) -> ReadPlan:
+        """The plan for the ``wanted`` items (indices; all by default), without
+        the unsupported ones whose retry time has not come."""
+        if self._unsupported:
+            now = self._clock()
+            due = [k for k, t in self._unsupported.items() if t <= now]
+            for k in due:
+                del self._unsupported[k]
+            if due:
+                self._changed()
+        key = tuple(range(len(self.items))) if wanted is None else tuple(wanted)
+        plan = self._plans.get(key)
+        if plan is None:
+            chosen = [k for k in key if k not in self._unsupported]
+            plan = plan_points(self.items, self.line, self.limits, wanted=chosen,
+                               known=self._knowledge())
+            self._plans[key] = plan
+        return plan
+
+    def replan(self, request: Request) -> ReadPlan:
+        """A plan for the points of ``request`` alone, with what is known now
+        (after :meth:`refuse_bridge`): the same poll's second try."""
+        return plan_points(self.items, self.line, self.limits, wanted=request.items,
+                           known=self._knowledge())
+
+    def refuse_bridge(self, request: Request) -> list[tuple[int, int]]:
+        """The device refused ``request`` (exception 02/03), which read
+        registers no wanted point needs: never bridge those again. Returns
+        the gaps, half-open."""
+        gaps = []
+        ends = {}
+        for ext in request.extents:
+            a = min(self.items[k].address for k in ext)
+            ends[a] = max(self.items[k].end for k in ext)
+        prev = None
+        for a in sorted(ends):
+            if prev is not None and a > prev:
+                gaps.append((prev, a))
+            prev = ends[a] if prev is None else max(prev, ends[a])
+        if gaps:
+            self._refused.setdefault(request.table, []).extend(gaps)
+            self._changed()
+        return gaps
+
+    def mark_unsupported(self, indices: Iterable[int]) -> None:
+        """The device refused these points alone: leave them out of plans
+        for ``offline_retry`` seconds."""
+        retry = self._clock() + self.offline_retry
+        for k in indices:
+            self._unsupported[k] = retry
+        self._changed()
+
+    def forget(self) -> None:
+        """Forget refused bridges and points (a new connection may be a new device)."""
+        if self._refused or self._unsupported:
+            self._refused.clear()
+            self._unsupported.clear()
+            self._changed()
