@@ -1,0 +1,292 @@
+"""The point fields of ``pymb.map/1`` (contract section 2): one ``[[point]]``
+or ``[[block]]`` table, checked key by key, into a :class:`Point`."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, NoReturn
+
+from pymb.maps.model import DeviceInfo, MapError, Point, did_you_mean
+from pymb.maps.types import (
+    FLOAT_TYPES,
+    INTEGER_TYPES,
+    ORDER_NAMES,
+    REGISTER_TABLES,
+    TABLES,
+    TYPES,
+    normalize_order,
+)
+
+__all__ = ["POINT_KEYS", "Ctx", "build_point", "number"]
+
+POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_bytes", "encoding",
+              "bit", "shift", "width", "scale", "offset", "unit", "description", "ref", "kind",
+              "values", "flags", "markers", "access", "valid", "group", "deadband", "precision",
+              "example", "when", "min_firmware")
+BLOCK_KEYS = (*(k for k in POINT_KEYS if k != "address"), "first", "stride")
+_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+_KINDS = ("gauge", "counter", "state", "text")
+_ENCODINGS = ("ascii", "latin-1", "utf-8")
+_MAX_CHANNELS = 1000
+
+
+@dataclass(frozen=True)
+class Ctx:
+    """Where a check is: the file and the point, for the message."""
+
+    source: str
+    point: str | None = None
+
+    def fail(self, key: str | None, message: str) -> NoReturn:
+        where = f"point {self.point!r}: " if self.point else ""
+        what = f"key {key!r}: " if key and repr(key) not in message else ""
+        raise MapError(f"{self.source}: {where}{what}{message}", source=self.source,
+                       point=self.point, key=key)
+
+
+def number(ctx: Ctx, key: str, v: object, *, allow_str: bool = False) -> float:
+    """``v`` as a number (a string too when ``allow_str``), or a MapError."""
+    if allow_str and isinstance(v, str):
+        return 0.0
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        ctx.fail(key, f"{key} must be a number, got {v!r}")
+    return v
+
+
+def _option(ctx: Ctx, key: str, v: object, options: Mapping[str, int | float]) -> object:
+    """An option's value where ``v`` names one."""
+    if isinstance(v, str):
+        if v not in options:
+            ctx.fail(key, f"{key} names no option {v!r}{did_you_mean(v, list(options))}")
+        return options[v]
+    return v
+
+
+def _int_in(ctx: Ctx, key: str, v: object, lo: int, hi: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        ctx.fail(key, f"{key} must be a whole number {lo}..{hi}, got {v!r}")
+    return v
+
+
+def _keyed(ctx: Ctx, key: str, v: object, lo: int, hi: int) -> dict[int, str]:
+    """A ``{ 0xFFFF = "offline" }`` table: integer keys (TOML keys are text) to names."""
+    if not isinstance(v, dict):
+        ctx.fail(key, f"{key} must be a table such as {{ 0 = \"name\" }}")
+    out: dict[int, str] = {}
+    for k, name in v.items():
+        try:
+            n = int(k, 0)
+        except ValueError:
+            ctx.fail(key, f"{key}: {k!r} is not a whole number (decimal or 0x hex)")
+        if not lo <= n <= hi:
+            ctx.fail(key, f"{key}: {k} is outside {lo}..{hi} for this type")
+        if not isinstance(name, str) or not name:
+            ctx.fail(key, f"{key}: the name of {k} must be a non-empty string")
+        out[n] = name
+    return out
+
+
+def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
+                groups: Mapping[str, float], options: Mapping[str, int | float]) -> Point:
+    """Check one ``[[point]]``/``[[block]]`` table and make its Point."""
+    block = kind == "block"
+    known = BLOCK_KEYS if block else POINT_KEYS
+    for key in raw:
+        if key not in known:
+            hint = (" (a [[block]] starts at `first`)" if key == "address" else
+                    " (`first` and `stride` are for [[block]]; a point has `address`)"
+                    if key in ("first", "stride") else did_you_mean(key, known))
+            ctx.fail(key, f"unknown key {key!r}{hint}")
+    name = raw.get("name")
+    if not isinstance(name, str) or not _NAME.match(name):
+        ctx.fail("name", f"name must be snake_case ([a-z][a-z0-9_]*), got {name!r}")
+    for key in ("unit", "description", "ref", "min_firmware"):
+        if not isinstance(raw.get(key, ""), str):
+            ctx.fail(key, f"{key} must be a string")
+    table = raw.get("table", dev.table)
+    if table not in TABLES:
+        ctx.fail("table", f"unknown table {table!r}{did_you_mean(str(table), TABLES)}")
+    registers = table in REGISTER_TABLES
+    typ = raw.get("type", None if registers else "bool")
+    if typ is None:
+        ctx.fail("type", "type is required for a register point")
+    if typ not in TYPES:
+        ctx.fail("type", f"unknown type {typ!r}{did_you_mean(str(typ), list(TYPES))}")
+    info = TYPES[typ]
+    if (typ == "bool") == registers:
+        ctx.fail("type", f"{table} points are type bool" if not registers else
+                 "bool is for coil and discrete points; use bit for a bit of a register")
+
+    def only(key: str, types: frozenset[str] | tuple[str, ...], what: str) -> None:
+        if key in raw and typ not in types:
+            ctx.fail(key, f"{key} applies to {what} points only, not {typ}")
+
+    scalable = INTEGER_TYPES | FLOAT_TYPES
+    only("string_bytes", ("string",), "string")
+    only("encoding", ("string",), "string")
+    only("bit", ("bit",), "bit")
+    only("shift", ("bits",), "bits")
+    only("width", ("bits",), "bits")
+    only("scale", scalable, "numeric")
+    only("offset", scalable, "numeric")
+    only("markers", scalable, "numeric")
+    only("values", INTEGER_TYPES | {"bit", "bool"}, "integer")
+    only("flags", INTEGER_TYPES - {"sm16"}, "integer")
+
+    # registers (bits) one value spans
+    if block and typ in ("string", "raw"):
+        ctx.fail("type", f"a [[block]] of {typ} is not supported; write one [[point]] each")
+    if not block and "count" in raw and typ not in ("string", "raw", "bit", "bits"):
+        ctx.fail("count", f"count applies to string, raw, bit and bits points, not {typ} "
+                 "(for repeated values, use a [[block]])")
+    if info.registers:
+        count = info.registers
+        if not block and typ in ("bit", "bits") and "count" in raw:
+            count = raw["count"]
+            if count not in (1, 2, 4) or isinstance(count, bool):
+                ctx.fail("count", f"count of a {typ} view must be 1, 2 or 4 registers, "
+                         f"got {count!r}")
+    else:
+        if "count" not in raw:
+            ctx.fail("count", f"count (registers) is required for a {typ} point")
+        count = _int_in(ctx, "count", raw["count"], 1, 65536)
+
+    channels, stride = 1, count
+    if block:
+        channels = _int_in(ctx, "count", _option(ctx, "count", raw.get("count", 1), options),
+                           1, _MAX_CHANNELS)
+        stride = _int_in(ctx, "stride", raw.get("stride", count), count, 65536)
+    key = "first" if block else "address"
+    if key not in raw:
+        ctx.fail(key, f"{key} is required")
+    base = dev.address_base
+    number_ = _int_in(ctx, key, raw[key], base, 65535 + base)
+    address = number_ - base
+    end = address + (channels - 1) * stride + count
+    if end > 65536:
+        ctx.fail(key, f"address + width runs past 65535 ({address} + {end - address} registers)")
+
+    order = ""
+    nbytes = 2 * count if typ not in ("bool", "raw", "string") else 0
+    if typ == "string":
+        o = raw.get("order", dev.order)
+        if o not in (*ORDER_NAMES, "AB", "BA"):
+            ctx.fail("order", f"a string's order is one of ABCD, CDAB, BADC, DCBA (or AB, BA), "
+                     f"got {o!r}")
+        order = "BA" if o in ("BADC", "DCBA", "BA") else "AB"
+    elif nbytes:
+        o = raw.get("order", dev.order)
+        norm = normalize_order(o, nbytes) if isinstance(o, str) else None
+        if norm is None:
+            ctx.fail("order", f"order {o!r} is not ABCD, CDAB, BADC, DCBA or a permutation of "
+                     f"{nbytes} letters from A")
+        order = norm
+    elif "order" in raw:
+        ctx.fail("order", f"order does not apply to {typ} points")
+
+    bit = shift = width = None
+    if typ == "bit":
+        if "bit" not in raw:
+            ctx.fail("bit", "bit (0 = least significant) is required for a bit point")
+        bit = _int_in(ctx, "bit", raw["bit"], 0, 16 * count - 1)
+    if typ == "bits":
+        if "width" not in raw:
+            ctx.fail("width", "width (bits in the field) is required for a bits point")
+        shift = _int_in(ctx, "shift", raw.get("shift", 0), 0, 16 * count - 1)
+        width = _int_in(ctx, "width", raw["width"], 1, 16 * count - shift)
+
+    string_bytes = raw.get("string_bytes", "both")
+    if string_bytes not in ("both", "high", "low"):
+        ctx.fail("string_bytes", f"string_bytes is both, high or low, got {string_bytes!r}")
+    encoding = raw.get("encoding", "ascii")
+    if encoding not in _ENCODINGS:
+        ctx.fail("encoding", f"encoding is one of {', '.join(_ENCODINGS)}, got {encoding!r}"
+                 f"{did_you_mean(str(encoding), _ENCODINGS)}")
+
+    scale = offset = None
+    if "scale" in raw:
+        scale = float(number(ctx, "scale", _option(ctx, "scale", raw["scale"], options)))
+        if scale == 0 or scale != scale or abs(scale) == float("inf"):
+            ctx.fail("scale", f"scale must be a finite number other than 0, got {raw['scale']!r}")
+    if "offset" in raw:
+        offset = float(number(ctx, "offset", _option(ctx, "offset", raw["offset"], options)))
+        if offset != offset or abs(offset) == float("inf"):
+            ctx.fail("offset", "offset must be finite")
+
+    bits: int = (width or 1) if typ == "bits" else 8 if info.family == "half" else 16 * count
+    lo_raw = -(1 << (bits - 1)) if bits else 0
+    markers = _keyed(ctx, "markers", raw.get("markers", {}), lo_raw, (1 << bits) - 1)
+    markers = {k & ((1 << bits) - 1): v for k, v in markers.items()}
+    for state in markers.values():
+        if state == "value":
+            ctx.fail("markers", "'value' is no marker name (it is the state of a value)")
+    signed = info.signed and info.family != "float"
+    vlo = lo_raw if signed else 0
+    vhi = 1 if typ in ("bit", "bool") else (1 << (bits - 1)) - 1 if signed else (1 << bits) - 1
+    if typ == "sm16":
+        vlo, vhi = -0x7FFF, 0x7FFF
+    values = _keyed(ctx, "values", raw.get("values", {}), vlo, vhi)
+    flags = _keyed(ctx, "flags", raw.get("flags", {}), 0, bits - 1)
+
+    access = raw.get("access", "r")
+    if access not in ("r", "rw", "w"):
+        ctx.fail("access", f"access is r, rw or w, got {access!r}")
+    if access != "r" and table not in ("coil", "holding"):
+        ctx.fail("access", f"{table} points are read-only (rw and w only on coil and holding)")
+    valid = None
+    if "valid" in raw:
+        v = raw["valid"]
+        if not isinstance(v, list) or len(v) != 2:
+            ctx.fail("valid", f"valid must be [low, high], got {v!r}")
+        lo, hi = (number(ctx, "valid", x) for x in v)
+        if lo > hi:
+            ctx.fail("valid", f"valid must be [low, high] with low <= high, got {v!r}")
+        valid = (lo, hi)
+    group = raw.get("group")
+    if group is not None and group not in groups:
+        ctx.fail("group", f"no group {group!r} in [groups]{did_you_mean(str(group), list(groups))}")
+    deadband = raw.get("deadband")
+    if deadband is not None and number(ctx, "deadband", deadband) < 0:
+        ctx.fail("deadband", "deadband must be 0 or more")
+    precision = raw.get("precision")
+    if precision is not None:
+        _int_in(ctx, "precision", precision, 0, 17)
+    kind_ = raw.get("kind", "text" if typ == "string" else "gauge")
+    if kind_ not in _KINDS:
+        ctx.fail("kind", f"kind is one of {', '.join(_KINDS)}, got {kind_!r}"
+                 f"{did_you_mean(str(kind_), _KINDS)}")
+
+    point = Point(
+        name=name, table=table, address=address, count=count, type=typ, order=order,
+        channels=channels, stride=stride if block else 0, block=block, scale=scale,
+        offset=offset, markers=MappingProxyType(markers), values=MappingProxyType(values),
+        flags=MappingProxyType(flags), access=access, valid=valid, group=group,
+        deadband=None if deadband is None else float(deadband), precision=precision,
+        unit=raw.get("unit", ""), kind=kind_, description=raw.get("description", ""),
+        ref=raw.get("ref", ""), bit=bit, shift=shift, width=width, string_bytes=string_bytes,
+        encoding=encoding, example=raw.get("example"),
+        min_firmware=raw.get("min_firmware", ""),
+        when=MappingProxyType(dict(raw.get("when", {}))))
+    if "example" in raw:
+        _check_example(ctx, point, raw["example"])
+    return point
+
+
+def _check_example(ctx: Ctx, p: Point, example: object) -> None:
+    from pymb.errors import InvalidArgument
+    from pymb.maps.codec import encode
+
+    items = example if p.block and isinstance(example, list) else [example]
+    if p.block and isinstance(example, list) and len(example) != p.channels:
+        ctx.fail("example", f"example has {len(example)} values for {p.channels} channels")
+    for item in items:
+        if item is None:
+            continue
+        try:
+            encode(p, item, current=[0] * p.count, check_access=False)
+        except InvalidArgument as e:
+            ctx.fail("example", f"example {item!r}: {e}")
+

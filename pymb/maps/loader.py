@@ -1,0 +1,417 @@
+"""Reading and checking ``pymb.map/1`` files: TOML in, :class:`Map` out.
+
+Every mistake is one :class:`MapError` whose message names the file, the
+point and the key, with the closest known key or name ("did you mean ...").
+The point fields are checked in :mod:`pymb.maps.fields`; this module does the
+file's sections, options, name and overlap rules.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from pymb.maps.fields import Ctx, build_point, number
+from pymb.maps.model import (
+    DeviceInfo,
+    Identify,
+    Limits,
+    Map,
+    MapError,
+    Point,
+    Timing,
+    did_you_mean,
+)
+from pymb.maps.types import ORDER_NAMES, TABLES
+
+__all__ = ["Spec", "configure", "load", "loads"]
+
+SCHEMA = "pymb.map/1"
+_TOP = ("schema", "device", "groups", "point", "block", "identify")
+_DEVICE = ("id", "manufacturer", "model", "description", "ref", "default_address", "addresses",
+           "address_base", "table", "order", "limits", "timing", "options")
+_LIMITS = ("max_registers", "max_bits", "max_gap", "readable", "split_on_exception",
+           "single_point_requests")
+_TIMING = ("response_timeout", "turnaround", "inter_request_gap", "after_connect",
+           "offline_after", "offline_retry")
+_IDENTIFY = ("point", "range", "equals", "regex")
+_ID = re.compile(r"[a-z0-9][a-z0-9-]*\Z")
+_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A checked file before its options are applied: what :meth:`Map.configure`
+    builds a new map from."""
+
+    source: str
+    device: DeviceInfo
+    limits: Limits
+    timing: Timing
+    groups: Mapping[str, float]
+    entries: tuple[tuple[str, int, Mapping[str, Any]], ...]  #: (point|block, index, table)
+    identify: tuple[Identify, ...]
+
+
+def load(path: str | Path) -> Map:
+    """Read and check the map file at ``path``."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        raise MapError(f"{p}: cannot read the map: {why}", source=str(p)) from None
+    return loads(text, source=str(p))
+
+
+def loads(text: str, source: str = "<string>") -> Map:
+    """Check a map given as TOML text; ``source`` names it in error messages."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise MapError(f"{source}: not valid TOML: {e}", source=source) from None
+    spec = _spec(doc, source)
+    return _build(spec, dict(spec.device.options))
+
+
+def configure(m: Map, given: Mapping[str, object]) -> Map:
+    """``m`` with the option values in ``given`` (numbers or their text)."""
+    spec: Spec = m._spec  # noqa: SLF001 - the model hands its own spec back here
+    dev = spec.device
+    options = dict(m.options)
+    for name, value in given.items():
+        if name not in dev.options:
+            raise MapError(f"{spec.source}: {dev.id!r} has no option {name!r}"
+                           f"{did_you_mean(name, list(dev.options))}",
+                           source=spec.source, key=name)
+        options[name] = _option_value(spec.source, dev, name, value)
+    try:
+        return _build(spec, options)
+    except MapError as e:
+        raise MapError(f"{spec.source}: options {options}: {e}", source=spec.source,
+                       point=e.point, key=e.key) from None
+
+
+def _option_value(source: str, dev: DeviceInfo, name: str, value: object) -> int | float:
+    default = dev.options[name]
+    v: int | float
+    try:
+        if isinstance(value, str):
+            v = int(value, 0) if isinstance(default, int) else float(value)
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise TypeError
+        elif isinstance(default, int):
+            if isinstance(value, float) and not value.is_integer():
+                raise TypeError
+            v = int(value)
+        else:
+            v = float(value)
+    except (TypeError, ValueError):
+        kind = "a whole number" if isinstance(default, int) else "a number"
+        raise MapError(f"{source}: option {name!r} must be {kind}, got {value!r}",
+                       source=source, key=name) from None
+    allowed = dev.option_values.get(name)
+    if allowed and v not in allowed:
+        raise MapError(f"{source}: option {name!r} must be one of "
+                       f"{', '.join(map(str, allowed))}, got {value!r}", source=source, key=name)
+    lo, hi = dev.option_ranges.get(name, (-math.inf, math.inf))
+    if not lo <= v <= hi:
+        raise MapError(f"{source}: option {name!r} must be {lo:g}..{hi:g}, got {value!r}",
+                       source=source, key=name)
+    return v
+
+
+def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[str, Any]:
+    if not isinstance(table, dict):
+        ctx.fail(None, f"{where} must be a table")
+    for key in table:
+        if key not in known:
+            ctx.fail(key, f"unknown key {key!r} in {where}{did_you_mean(key, known)}")
+    return table
+
+
+def _spec(doc: dict[str, Any], source: str) -> Spec:
+    ctx = Ctx(source)
+    _keys(ctx, doc, _TOP, "the file")
+    if "schema" not in doc:
+        ctx.fail("schema", f"schema = {SCHEMA!r} is required at the top")
+    if doc["schema"] != SCHEMA:
+        ctx.fail("schema", f"schema must be {SCHEMA!r}, got {doc['schema']!r}")
+    if "device" not in doc:
+        ctx.fail("device", "a [device] section with an id is required")
+    device = _device(ctx, doc["device"])
+    limits = _limits(ctx, doc["device"].get("limits", {}), device)
+    timing = _timing(ctx, doc["device"].get("timing", {}))
+    groups = _groups(ctx, doc.get("groups", {}))
+    entries: list[tuple[str, int, Mapping[str, Any]]] = []
+    for kind in ("point", "block"):
+        items = doc.get(kind, [])
+        if not isinstance(items, list):
+            ctx.fail(kind, f"write points as [[{kind}]] tables")
+        for i, item in enumerate(items):
+            if not isinstance(item, dict):
+                ctx.fail(kind, f"[[{kind}]] number {i + 1} must be a table")
+            entries.append((kind, i, item))
+    if not entries:
+        ctx.fail("point", "the map has no [[point]] or [[block]]")
+    spec = Spec(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())
+    _check_variants(spec)
+    identify = tuple(_identify(ctx, i, raw, spec) for i, raw in
+                     enumerate(_list(ctx, doc.get("identify", []), "identify")))
+    return Spec(source, device, limits, timing, spec.groups, spec.entries, identify)
+
+
+def _list(ctx: Ctx, v: object, key: str) -> list[Any]:
+    if not isinstance(v, list):
+        ctx.fail(key, f"write it as [[{key}]] tables")
+    return v
+
+
+def _int(ctx: Ctx, table: Mapping[str, Any], key: str, default: int, lo: int, hi: int) -> int:
+    v = table.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        ctx.fail(key, f"{key} must be a whole number {lo}..{hi}, got {v!r}")
+    return v
+
+
+def _device(ctx: Ctx, raw: object) -> DeviceInfo:
+    t = _keys(ctx, raw, _DEVICE, "[device]")
+    ident = t.get("id")
+    if not isinstance(ident, str) or not _ID.match(ident):
+        ctx.fail("id", f"device id must match [a-z0-9][a-z0-9-]*, got {ident!r}")
+    for key in ("manufacturer", "model", "description", "ref"):
+        if not isinstance(t.get(key, ""), str):
+            ctx.fail(key, f"{key} must be a string")
+    addresses = t.get("addresses", [1, 247])
+    if (not isinstance(addresses, list) or len(addresses) != 2
+            or any(isinstance(a, bool) or not isinstance(a, int) or not 0 <= a <= 255
+                   for a in addresses) or addresses[0] > addresses[1]):
+        ctx.fail("addresses", f"addresses must be [first, last] within 0..255, got {addresses!r}")
+    lo, hi = addresses
+    default_address = _int(ctx, t, "default_address", max(lo, 1), lo, hi)
+    base = t.get("address_base", 0)
+    if base not in (0, 1) or isinstance(base, bool):
+        ctx.fail("address_base", f"address_base must be 0 or 1, got {base!r}")
+    table = t.get("table", "holding")
+    if table not in TABLES:
+        ctx.fail("table", f"table must be one of {', '.join(TABLES)}, got {table!r}"
+                 f"{did_you_mean(str(table), TABLES)}")
+    order = t.get("order", "ABCD")
+    if order not in ORDER_NAMES:
+        ctx.fail("order", f"device order must be one of {', '.join(ORDER_NAMES)}, got {order!r}")
+    options, allowed, ranges = _options(ctx, t.get("options", {}))
+    return DeviceInfo(ident, t.get("manufacturer", ""), t.get("model", ""),
+                      t.get("description", ""), t.get("ref", ""), default_address, (lo, hi),
+                      base, table, order, MappingProxyType(options), MappingProxyType(allowed),
+                      MappingProxyType(ranges))
+
+
+def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],
+                                             dict[str, tuple[int | float, ...]],
+                                             dict[str, tuple[float, float]]]:
+    if not isinstance(raw, dict):
+        ctx.fail("options", "[device.options] must be a table of name = default")
+    options: dict[str, int | float] = {}
+    allowed: dict[str, tuple[int | float, ...]] = {}
+    ranges: dict[str, tuple[float, float]] = {}
+    for name, v in raw.items():
+        if not _NAME.match(name):
+            ctx.fail(name, f"option name {name!r} must be snake_case")
+        if isinstance(v, dict):
+            _keys(ctx, v, ("default", "values", "min", "max"), f"option {name!r}")
+            vals = v.get("values", [])
+            if not isinstance(vals, list) or not all(_is_number(x) for x in vals):
+                ctx.fail(name, f"option {name!r}: values must be a list of numbers")
+            if vals:
+                allowed[name] = tuple(vals)
+            lo, hi = v.get("min", -math.inf), v.get("max", math.inf)
+            if not (_is_number(lo) and _is_number(hi) and lo <= hi):
+                ctx.fail(name, f"option {name!r}: min and max must be numbers, min <= max")
+            ranges[name] = (lo, hi)
+            v = v.get("default")
+            if _is_number(v) and ((vals and v not in vals) or not lo <= v <= hi):
+                ctx.fail(name, f"option {name!r}: default {v!r} is not one of its values")
+        if not _is_number(v):
+            ctx.fail(name, f"option {name!r} must be an int or a float, got {v!r}")
+        options[name] = v
+    return options, allowed, ranges
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
+    t = _keys(ctx, raw, _LIMITS, "[device.limits]")
+    readable: dict[str, tuple[tuple[int, int], ...]] = {}
+    rd = t.get("readable", {})
+    if not isinstance(rd, dict):
+        ctx.fail("readable", "readable must be a table: { input = [[0, 79]] }")
+    for table, ranges in rd.items():
+        if table not in TABLES:
+            ctx.fail("readable", f"readable: unknown table {table!r}{did_you_mean(table, TABLES)}")
+        out = []
+        for r in ranges if isinstance(ranges, list) else [None]:
+            base = dev.address_base
+            if (not isinstance(r, list) or len(r) != 2 or not all(
+                    isinstance(a, int) and not isinstance(a, bool) for a in r)
+                    or not base <= r[0] <= r[1] <= 65535 + base):
+                ctx.fail("readable", f"readable.{table}: each range is [first, last] "
+                         f"within {base}..{65535 + base}, got {r!r}")
+            out.append((r[0] - base, r[1] - base))
+        readable[table] = tuple(sorted(out))
+    for key in ("split_on_exception", "single_point_requests"):
+        if not isinstance(t.get(key, False), bool):
+            ctx.fail(key, f"{key} must be true or false")
+    return Limits(_int(ctx, t, "max_registers", 125, 1, 125),
+                  _int(ctx, t, "max_bits", 2000, 1, 2000),
+                  _int(ctx, t, "max_gap", 0, 0, 125), MappingProxyType(readable),
+                  t.get("split_on_exception", True), t.get("single_point_requests", False))
+
+
+def _timing(ctx: Ctx, raw: object) -> Timing:
+    t = _keys(ctx, raw, _TIMING, "[device.timing]")
+    out: dict[str, Any] = {}
+    for key in _TIMING:
+        if key not in t:
+            continue
+        if key == "offline_after":
+            out[key] = _int(ctx, t, key, 3, 1, 1_000_000)
+            continue
+        v = t[key]
+        if not _is_number(v) or v < 0 or (key == "response_timeout" and v == 0):
+            ctx.fail(key, f"{key} must be a number of seconds above 0, got {v!r}"
+                     if key == "response_timeout" else
+                     f"{key} must be a number of seconds, 0 or more, got {v!r}")
+        out[key] = float(v)
+    return Timing(**out)
+
+
+def _groups(ctx: Ctx, raw: object) -> dict[str, float]:
+    if not isinstance(raw, dict):
+        ctx.fail("groups", "[groups] must be a table: fast = { interval = 1.0 }")
+    groups: dict[str, float] = {}
+    for name, g in raw.items():
+        if not _NAME.match(name):
+            ctx.fail(name, f"group name {name!r} must be snake_case")
+        _keys(ctx, g, ("interval",), f"group {name!r}")
+        iv = g.get("interval")
+        if not _is_number(iv) or iv < 0:
+            ctx.fail("interval", f"group {name!r}: interval must be seconds, 0 or more, got {iv!r}")
+        groups[name] = float(iv)
+    return groups
+
+
+def _entry_name(kind: str, index: int, raw: Mapping[str, Any]) -> str:
+    name = raw.get("name")
+    return name if isinstance(name, str) else f"[[{kind}]] number {index + 1}"
+
+
+def _check_variants(spec: Spec) -> None:
+    """Each entry checks under the options its ``when`` names; two entries
+    may share a name only when their ``when`` can never both hold."""
+    seen: dict[str, list[Mapping[str, Any]]] = {}
+    for kind, index, raw in spec.entries:
+        ctx = Ctx(spec.source, _entry_name(kind, index, raw))
+        when = raw.get("when", {})
+        if not isinstance(when, dict):
+            ctx.fail("when", "when must be a table: { option = value }")
+        options = dict(spec.device.options)
+        for k, v in when.items():
+            if k not in options:
+                ctx.fail("when", f"when: no option {k!r}{did_you_mean(k, list(options))}")
+            if not _is_number(v):
+                ctx.fail("when", f"when: {k} must be a number, got {v!r}")
+            options[k] = v
+        build_point(ctx, kind, raw, spec.device, spec.groups, options)
+        name = raw["name"]
+        for other in seen.get(name, []):
+            if not any(k in other and other[k] != v for k, v in when.items()):
+                ctx.fail("name", f"the name {name!r} is used twice (two points may share a "
+                         "name only with `when` conditions that exclude each other)")
+        seen.setdefault(name, []).append(when)
+
+
+def _build(spec: Spec, options: dict[str, int | float]) -> Map:
+    points: dict[str, Point] = {}
+    for kind, _index, raw in spec.entries:
+        when = raw.get("when", {})
+        if any(options[k] != v for k, v in when.items()):
+            continue
+        ctx = Ctx(spec.source, raw["name"])
+        points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
+    _check_overlaps(spec.source, points.values())
+    return Map(spec.source, spec.device, spec.limits, spec.timing, spec.groups,
+               MappingProxyType(points), spec.identify, MappingProxyType(dict(options)), spec)
+
+
+_VIEWS = frozenset({"bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"})
+
+
+def _check_overlaps(source: str, points: Any) -> None:
+    """Points may share registers only as views of the same registers: the
+    same span, or a bit/byte view inside another point."""
+    spans: dict[str, list[tuple[int, int, Point, int]]] = {}
+    for p in points:
+        for c in range(p.channels):
+            a = p.address + c * p.stride
+            spans.setdefault(p.table, []).append((a, a + p.count, p, c + 1))
+    for table, items in spans.items():
+        items.sort(key=lambda s: (s[0], -s[1]))
+        wide = items[0]
+        for s in items[1:]:
+            if s[0] < wide[1]:
+                ok = (s[0], s[1]) == (wide[0], wide[1]) or (
+                    s[2].type in _VIEWS and wide[0] <= s[0] and s[1] <= wide[1])
+                if not ok:
+                    where = _where(table)
+                    raise MapError(f"{source}: point {s[2].name!r}: key 'address': {where(s)} "
+                                   f"overlaps {where(wide)}; points may overlap only as views "
+                                   "of the same registers", source=source, point=s[2].name,
+                                   key="address")
+            if s[1] > wide[1]:
+                wide = s
+
+
+def _where(table: str) -> Callable[[tuple[int, int, Point, int]], str]:
+    def where(x: tuple[int, int, Point, int]) -> str:
+        ch = f" channel {x[3]}" if x[2].block else ""
+        return f"{x[2].name!r}{ch} ({table} {x[0]}..{x[1] - 1})"
+    return where
+
+
+def _identify(ctx0: Ctx, i: int, raw: object, spec: Spec) -> Identify:
+    ctx = Ctx(spec.source)
+    t = _keys(ctx, raw, _IDENTIFY, f"[[identify]] number {i + 1}")
+    names = [r["name"] for _, _, r in spec.entries]
+    point = t.get("point")
+    if point not in names:
+        ctx.fail("point", f"[[identify]] number {i + 1}: no point {point!r}"
+                 f"{did_you_mean(str(point), names)}")
+    rules = [k for k in ("range", "equals", "regex") if k in t]
+    if len(rules) != 1:
+        ctx.fail("range", f"[[identify]] number {i + 1} needs exactly one of range, equals, regex")
+    rng = t.get("range")
+    if rng is not None:
+        if not isinstance(rng, list) or len(rng) != 2 or not all(map(_is_number, rng)) \
+                or rng[0] > rng[1]:
+            ctx.fail("range", f"range must be [low, high], got {rng!r}")
+        rng = (float(rng[0]), float(rng[1]))
+    regex = t.get("regex")
+    if regex is not None:
+        types = {r.get("type") for _, _, r in spec.entries if r["name"] == point}
+        if types != {"string"}:
+            ctx.fail("regex", f"[[identify]] number {i + 1}: regex needs a string point; "
+                     f"{point!r} is not one")
+        try:
+            re.compile(regex)
+        except (re.error, TypeError) as e:
+            ctx.fail("regex", f"regex {regex!r} does not compile: {e}")
+    number(ctx, "equals", t["equals"], allow_str=True) if "equals" in t else None
+    return Identify(str(point), rng, t.get("equals"), regex)
