@@ -15,8 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from pymb import __version__
-from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
-from pymb.store import OutputError
+from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError, OutputError
 
 __all__ = [
     "EXIT_CONNECTION",

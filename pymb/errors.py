@@ -40,6 +40,7 @@ __all__ = [
     "ModbusError",
     "ModbusTimeout",
     "NegativeAcknowledge",
+    "OutputError",
     "ProtocolError",
     "exception_class",
 ]
@@ -115,6 +116,12 @@ class ModbusConnectionError(ModbusError, ConnectionError):
 
 class InvalidArgument(ModbusError, ValueError):
     """An argument is out of range; raised before anything is sent."""
+
+
+class OutputError(Exception):
+    """Logged data could not be written (disk full, read-only database or
+    file, I/O error). What was committed before is intact; the batch being
+    written when it happened is lost."""
 
 
 class DeviceException(ModbusError):

@@ -871,8 +871,8 @@ def test_influx_line_protocol_on_stdout(fleet: Fleet) -> None:
 
 
 def test_influx_escaping() -> None:
-    from pymb.fleet.influx import event_line
     from pymb.store import DeviceInfo, Event
+    from pymb.store.influx import event_line
     e = Event(1.5, 0.0, "line 1", DeviceInfo("line 1", "p", "hub", 2, "a,b=c"), "timeout", 7,
               'no "reply"\\')
     assert event_line(e) == ('pymb_event,kind=timeout,bus=line\\ 1,device=a\\,b\\=c '

@@ -63,7 +63,7 @@ def test_a_kill_during_creation_leaves_nothing_the_next_run_keeps(tmp_path: Path
             "    con = real(*a, **k)\n"
             "    con.execute('CREATE TABLE half(x)')\n"
             "    os.kill(os.getpid(), signal.SIGKILL)\n"
-            "s.sqlite3.connect = connect\n"
+            "sqlite3.connect = connect\n"
             "s.SqliteSink(sys.argv[1])\n")
     killed = subprocess.run([sys.executable, "-c", code, str(db)], env=PYMB_ENV, timeout=60,
                             capture_output=True)

@@ -5,8 +5,7 @@ then a :class:`~pymb.fleet.forwarder.Forwarder` thread publishes the
 committed samples and advances a cursor stored in the same file only past
 what the broker acknowledged. Profiles: ``plain`` (JSON, QoS 1) and
 ``sparkplug`` (Sparkplug B 3.0). Needs the extra ``pymb[mqtt]``
-(paho-mqtt 2.x). Also here: the InfluxDB line protocol output
-(:mod:`pymb.fleet.influx`) and a launcher of Debian's mosquitto for tests,
+(paho-mqtt 2.x). Also here: a launcher of Debian's mosquitto for tests,
 the demo and the bench (:mod:`pymb.fleet.broker`).
 """
 

@@ -22,7 +22,8 @@ from __future__ import annotations
 from typing import Any
 
 from pymb.devices.readings import INTEGRAL_QUANTITIES
-from pymb.store import Event, JsonlSink, Sample, sample_dict
+from pymb.store.records import Event, Sample
+from pymb.store.text import JsonlSink, sample_dict
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
 

@@ -1,0 +1,83 @@
+"""Where logged data goes: SQLite (the default), CSV, JSON Lines, InfluxDB
+line protocol.
+
+SQLite: WAL journal, ``synchronous=NORMAL``, commits in batches. A
+transaction that committed survives the process being killed (even SIGKILL);
+what was not yet committed, at most one batch, is lost. Format 2 stores the
+raw registers once (a BLOB of big-endian 16-bit words, as on the wire, from
+the device map's first register) and decodes them in plain-SQL views that
+``sqlite3`` queries directly, through the time index::
+
+    SELECT time, device, channel, temperature_c FROM hub_readings
+     WHERE channel = 3 ORDER BY time_utc DESC LIMIT 10;
+
+Interfaces other parts of pymb rely on (keep them stable):
+
+- :class:`SqliteSink` (``write``/``event``/``commit``/``close``), with
+  ``max_bytes`` (database file plus WAL), ``max_age`` and ``on_change``.
+- :func:`samples_after` ``(db, sample_id, limit)``: committed samples after
+  an id, in id order, decoded (:class:`StoredSample`): the reader of a
+  store-and-forward publisher.
+- An ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)`` table, if a
+  forwarder creates one, holds its cursors (the last sample id each sent);
+  trimming past the lowest records a ``trim`` event whose code is the
+  number of unsent samples deleted (and whose message names their ids).
+- :func:`schema_version`; :func:`export_csv` reads formats 1 and 2.
+
+The package, one job a module: :mod:`~pymb.store.records` (samples, events,
+the sink protocol), :mod:`~pymb.store.schema` (tables and the decoding
+views), :mod:`~pymb.store.onchange` (report by exception),
+:mod:`~pymb.store.writer` (the SQLite writer), :mod:`~pymb.store.retention`
+(size and age limits), :mod:`~pymb.store.files` (atomic creation),
+:mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.text` and
+:mod:`~pymb.store.influx` (text formats), :mod:`~pymb.store.sinks`
+(``open_sink``), :mod:`~pymb.store.export` (a database as CSV).
+"""
+
+from __future__ import annotations
+
+from pymb.errors import OutputError
+from pymb.store.export import export_csv
+from pymb.store.onchange import OnChange
+from pymb.store.reader import samples_after
+from pymb.store.records import DeviceInfo, Event, Sample, Sink, StoredSample
+from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
+from pymb.store.sinks import FORMATS, open_sink
+from pymb.store.text import (
+    CSV_COLUMNS,
+    CsvSink,
+    JsonlSink,
+    csv_head,
+    csv_value,
+    event_dict,
+    sample_dict,
+    sample_rows,
+)
+from pymb.store.writer import SqliteSink
+
+__all__ = [
+    "CSV_COLUMNS",
+    "FORMATS",
+    "MIN_BYTES",
+    "PAGE_SIZE",
+    "SCHEMA_VERSION",
+    "CsvSink",
+    "DeviceInfo",
+    "Event",
+    "JsonlSink",
+    "OnChange",
+    "OutputError",
+    "Sample",
+    "Sink",
+    "SqliteSink",
+    "StoredSample",
+    "csv_head",
+    "csv_value",
+    "event_dict",
+    "export_csv",
+    "open_sink",
+    "sample_dict",
+    "sample_rows",
+    "samples_after",
+    "schema_version",
+]

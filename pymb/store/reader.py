@@ -1,0 +1,123 @@
+"""Reading back: stored samples decoded again (format 2)."""
+
+from __future__ import annotations
+
+import math
+import os
+import sqlite3
+from array import array
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from pymb import _native
+from pymb.devices import HUB, CoolProStatus, CoolProTelemetry, HubReading, State, decode_hub
+from pymb.errors import InvalidArgument
+from pymb.store.records import DeviceInfo, StoredSample
+from pymb.store.schema import SCHEMA_VERSION, host_words, schema_version
+
+__all__ = ["iter_samples", "samples_after"]
+
+
+class _Decoder:
+    """Decodes rows of ``samples`` (format 2), with the device rows cached."""
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+        self.devices: dict[int, tuple[DeviceInfo, list[float]]] = {}
+
+    def device(self, did: int) -> tuple[DeviceInfo, list[float]]:
+        """The device row as the logger's DeviceInfo, and (hub) the humidity
+        unit of each channel."""
+        got = self.devices.get(did)
+        if got is None:
+            bus, port, kind, address, name, channels = self.db.execute(
+                "SELECT bus, port, type, address, name, channels FROM devices WHERE id = ?",
+                (did,)).fetchone()
+            units: list[float] = []
+            if kind == "hub":
+                units = [0.1 if t else 1.0 for (t,) in self.db.execute(
+                    "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel",
+                    (did,))]
+            unit: float | tuple[float, ...] = (
+                units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
+            info = DeviceInfo(bus, port, kind, address, name, channels, unit)
+            got = self.devices[did] = (info, units)
+        return got
+
+    def hub(self, did: int, channels: int, units: Any, t: float, sid: int,
+            registers: bytes | None, unsupported: int) -> HubReading:
+        if registers is not None:
+            regs = host_words(registers)
+            present = None
+        else:
+            regs = array("H", bytes(2 * HUB.count))
+            present = []
+            rows = self.db.execute(
+                f"SELECT channel, registers FROM hub_changes WHERE device_id = ? AND channel IN "
+                f"({', '.join(str(c) for c in range(1, channels + 1))}) AND time_utc = ? "
+                f"AND sample_id = ?", (did, t, sid)).fetchall()
+            for ch, blob in rows:
+                words = host_words(blob)
+                for b in range(len(HUB.blocks)):
+                    regs[b * HUB.channels + ch - 1] = words[b]
+                present.append(ch - 1)
+        names = [b.name for b in HUB.blocks if unsupported >> b.index & 1]
+        r = decode_hub(regs, units, channels=channels, unsupported=names)
+        if present is not None:
+            keep = set(present)
+            for b in range(len(HUB.blocks)):
+                for ch in range(channels):
+                    if ch not in keep:
+                        r.values[b * channels + ch] = math.nan
+                        r.raw_states[b * channels + ch] = State.NOT_READ
+        return r
+
+
+
+def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:
+    if isinstance(db, sqlite3.Connection):
+        return db, False
+    p = Path(db)
+    if not p.is_file():
+        raise InvalidArgument(f"no such database: {db}")
+    return sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True), True
+
+
+def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int,
+                  limit: int = 1000, before: int | None = None) -> list[StoredSample]:
+    """Committed samples with an id above ``sample_id`` (and below ``before``),
+    in id order, at most ``limit``, decoded (the reader of a store-and-forward
+    publisher: keep the last id sent as the cursor). ``db`` is an open
+    connection or a path (opened read-only). Only format 2; format 1 raises
+    InvalidArgument."""
+    con, own = _connect(db)
+    try:
+        if schema_version(con) != SCHEMA_VERSION:
+            raise InvalidArgument("samples_after reads pymb databases of format "
+                                  f"{SCHEMA_VERSION} only")
+        if before is None:
+            return list(iter_samples(con, "s.id > ?", (sample_id,), limit))
+        return list(iter_samples(con, "s.id > ? AND s.id < ?", (sample_id, before), limit))
+    finally:
+        if own:
+            con.close()
+
+
+def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
+                  limit: int | None = None) -> Iterator[StoredSample]:
+    dec = _Decoder(con)
+    q = ("SELECT s.id, s.device_id, s.time_utc, s.monotonic, s.registers, s.unsupported "
+         f"FROM samples s WHERE {where} ORDER BY s.id" + ("" if limit is None else " LIMIT ?"))
+    for sid, did, t, mono, blob, unsupported in con.execute(
+            q, (*args, limit) if limit is not None else tuple(args)).fetchall():
+        info, units = dec.device(did)
+        data: HubReading | CoolProTelemetry
+        if info.type == "hub":
+            data = dec.hub(did, info.channels, units, t, sid, blob, unsupported)
+        else:
+            regs = host_words(blob)
+            vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+            data = CoolProTelemetry(vin, iin, vout, iout, temp, uptime, CoolProStatus(status),
+                                    regs)
+        yield StoredSample(info, t, mono, data, sid)

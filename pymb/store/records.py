@@ -1,0 +1,86 @@
+"""What the logger hands to an output: :class:`Sample` and :class:`Event`
+(with the :class:`DeviceInfo` they belong to), :class:`StoredSample` (a
+sample read back), and :class:`Sink`, the protocol every output follows."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+from pymb.devices import CoolProTelemetry, HubReading
+
+__all__ = ["DeviceInfo", "Event", "Sample", "Sink", "StoredSample"]
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """A logged device: its bus, port, type (``coolpro``/``hub``), address,
+    name; for a hub, its channels (0: as read) and humidity unit (1 or 0.1 %,
+    one for all channels or a tuple, one per channel)."""
+
+    bus: str
+    port: str
+    type: str
+    address: int
+    name: str
+    channels: int = 0
+    humidity_unit: float | tuple[float, ...] = 0.1
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One reading of one device, time-stamped when it completed."""
+
+    device: DeviceInfo
+    time_utc: float
+    monotonic: float
+    data: CoolProTelemetry | HubReading
+
+
+@dataclass(frozen=True)
+class StoredSample(Sample):
+    """A sample read back from a database (what :func:`samples_after`
+    yields): the :class:`Sample` the logger wrote, decoded again from the
+    stored registers, plus ``id``, its id in the database (unique and
+    increasing). A hub channel an ``--on-change`` sample did not store has
+    the state ``NOT_READ`` and no value. :func:`sample_dict` and
+    :func:`sample_rows` take it as they take a live sample."""
+
+    id: int
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened instead of (or besides) a sample: a timeout,
+    an exception code, a busy hub, an unplugged port, a reconnect."""
+
+    time_utc: float
+    monotonic: float
+    bus: str
+    device: DeviceInfo | None
+    kind: str  #: timeout, protocol, exception, busy, connection, reconnect, ...
+    code: int | None
+    message: str
+
+
+class Sink(Protocol):
+    """What the logger writes to.
+
+    A sink that is done with a sample when :meth:`write` returns (it has
+    copied or written what it needs) may say so with a class attribute
+    ``keeps_samples = False``: the logger then reads later hub sweeps into
+    that sample's arrays. pymb's own sinks do; any other sink is assumed to
+    keep what it is given.
+    """
+
+    def write(self, sample: Sample) -> None:
+        """Add a sample to the current batch."""
+
+    def event(self, event: Event) -> None:
+        """Add an event to the current batch."""
+
+    def commit(self) -> None:
+        """Make the batch durable."""
+
+    def close(self) -> None:
+        """Commit and release the output."""

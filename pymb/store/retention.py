@@ -1,0 +1,158 @@
+"""Retention: the size and age limits of a database (deleting the oldest
+samples and events, and giving pages back), and the event that says when
+samples not yet forwarded go."""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+import time
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Retention"]
+
+
+class Retention:
+    """The size and age limits of :class:`pymb.store.writer.SqliteSink` (its
+    base): what the database may hold, and the trimming that holds it."""
+
+    db: sqlite3.Connection
+    max_bytes: int | None
+    max_age: float | None
+    page_size: int
+    wal_budget: int
+    trimmed: int
+    _wal: Path
+    _last_age_trim: float
+
+    def _room(self) -> int:
+        """Bytes the database's pages may take: the limit less the WAL (its
+        budget, or what it holds now if more)."""
+        assert self.max_bytes is not None
+        return self.max_bytes - max(self.wal_budget, self._wal_bytes())
+
+    def _checkpoint(self) -> None:
+        """Copy the WAL into the database and truncate it, unless a reader
+        still needs it (then next time; never wait for a reader)."""
+        self.db.execute("PRAGMA busy_timeout = 0")
+        try:
+            self.db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+        finally:
+            self.db.execute("PRAGMA busy_timeout = 5000")
+
+    def _wal_bytes(self) -> int:
+        try:
+            return self._wal.stat().st_size
+        except OSError:
+            return 0
+
+    def _pages(self) -> tuple[int, int]:
+        count = self.db.execute("PRAGMA page_count").fetchone()[0]
+        free = self.db.execute("PRAGMA freelist_count").fetchone()[0]
+        return int(count), int(free)
+
+    def _size(self) -> int:
+        """Bytes the data takes: pages in use plus the WAL."""
+        count, free = self._pages()
+        return (count - free) * self.page_size + self._wal_bytes()
+
+    def _trim(self) -> int:
+        deleted = 0
+        if self.max_age is not None:
+            self._last_age_trim = time.monotonic()
+            cutoff = time.time() - self.max_age
+            deleted += self._delete_before(
+                "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ?", (cutoff,),
+                cutoff)
+        if self.max_bytes is not None:
+            # Delete down to 95 % of the room left beside the WAL, so the freed
+            # pages take the next inserts and the file stops growing.
+            room = self._room()
+            for _ in range(64):
+                count, free = self._pages()
+                used = (count - free) * self.page_size
+                if used <= room:
+                    break
+                lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM samples").fetchone()
+                if lo is not None and lo < hi:
+                    share = min(0.5, (used - 0.95 * room) / used)
+                    step = max(1, int((hi - lo) * share))
+                    deleted += self._delete_before("SELECT ?", (lo + step,), None)
+                elif not self._delete_oldest_events():
+                    break  # nothing left that may go
+            count, free = self._pages()
+            fixed = self.max_bytes - self.wal_budget
+            if count * self.page_size > 1.05 * fixed and free:
+                # The file is larger than the limit allows (a lower limit than
+                # last time): give the free pages back, a little at a time.
+                chunk = max(1, self.wal_budget // 4 // self.page_size)
+                while free > 0 and count * self.page_size > fixed:
+                    self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
+                    self._checkpoint()
+                    count, free = self._pages()
+        self.trimmed += deleted
+        return deleted
+
+    def _delete_oldest_events(self) -> int:
+        """A long outage logs events and no samples: they must go too."""
+        lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM events").fetchone()
+        if lo is None or lo >= hi:
+            return 0
+        self.db.execute("BEGIN")
+        n = self.db.execute("DELETE FROM events WHERE id < ?",
+                            (lo + max(1, (hi - lo) // 10),)).rowcount
+        self.db.execute("COMMIT")
+        return int(n)
+
+    def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
+        (first_kept,) = self.db.execute(find, args).fetchone()
+        if first_kept == 0:  # nothing young enough: all but the newest go; the newest
+            # stays so that SQLite never hands out its id (or lower ones) again: sample
+            # ids are unique and increasing for the MQTT forwarder and its consumers
+            first_kept = self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 1
+        self.db.execute("BEGIN")
+        try:
+            self._unsent_event(first_kept)
+            kept_time = self.db.execute("SELECT time_utc FROM samples WHERE id >= ? "
+                                        "ORDER BY id LIMIT 1", (first_kept,)).fetchone()
+            limit = cutoff if cutoff is not None else (
+                kept_time[0] if kept_time else math.inf)
+            on_change = self.db.execute("SELECT 1 FROM hub_changes LIMIT 1").fetchone()
+            for did, ch in self.db.execute(
+                    "SELECT device_id, channel FROM channels WHERE device_id IN "
+                    "(SELECT id FROM devices WHERE type = 'hub')").fetchall() if on_change else ():
+                self.db.execute("DELETE FROM hub_changes WHERE device_id = ? AND channel = ? "
+                                "AND time_utc < ? AND sample_id < ?",
+                                (did, ch, limit, first_kept))
+            n = self.db.execute("DELETE FROM samples WHERE id < ?", (first_kept,)).rowcount
+            if cutoff is not None:
+                self.db.execute("DELETE FROM events WHERE time_utc < ?", (cutoff,))
+            else:
+                self.db.execute(
+                    "DELETE FROM events WHERE time_utc < (SELECT COALESCE(MIN(time_utc), 0) "
+                    "FROM samples)")
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+        return int(n)
+
+    def _unsent_event(self, first_kept: int) -> None:
+        """Never delete samples not yet forwarded (pymb.fleet's ``outbox``
+        cursors) silently: an event says how many go."""
+        if not self.db.execute("SELECT 1 FROM sqlite_master WHERE name = 'outbox'").fetchone():
+            return
+        (low,) = self.db.execute("SELECT MIN(sample_id) FROM outbox").fetchone()
+        if low is None:
+            return
+        n, first, last = self.db.execute(
+            "SELECT COUNT(*), MIN(id), MAX(id) FROM samples WHERE id > ? AND id < ?",
+            (low, first_kept)).fetchone()
+        if n:
+            self.db.execute(
+                "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
+                "VALUES (?, ?, NULL, NULL, 'trim', ?, ?)",
+                (time.time(), time.monotonic(), n,
+                 f"the size/age limit deleted {n} samples not yet forwarded to the MQTT "
+                 f"broker (ids {first}..{last})"))

@@ -1,0 +1,218 @@
+"""The SQLite format: its tables, and the views that decode the stored
+registers in plain SQL (generated from the device maps)."""
+
+from __future__ import annotations
+
+import sqlite3
+import sys
+from array import array
+
+from pymb.devices import HUB, State
+from pymb.devices.maps import COOLPRO, Type
+
+__all__ = ["MIN_BYTES", "PAGE_SIZE", "SCHEMA", "SCHEMA_VERSION", "host_words", "schema_version",
+           "statements", "wire_bytes"]
+
+COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
+HUB_FIELDS = [b.name for b in HUB.blocks]
+
+
+def wire_bytes(regs: array[int]) -> bytes:
+    """Registers as stored: big-endian 16-bit words."""
+    out = array("H", regs)
+    if sys.byteorder == "little":
+        out.byteswap()
+    return out.tobytes()
+
+
+def host_words(blob: bytes) -> array[int]:
+    """Stored registers (big-endian 16-bit words) as an array of registers."""
+    a = array("H", blob)
+    if sys.byteorder == "little":
+        a.byteswap()
+    return a
+
+
+# -- SQLite ---------------------------------------------------------------------------
+#
+# Format 2 (SCHEMA_VERSION): what the wire gave, stored once.
+#
+#   samples      one row per stored reading: device, UTC and monotonic time, the raw
+#                registers as a BLOB of big-endian 16-bit words from the map's first
+#                register (hub: registers 31..730, block-major, 1,400 bytes; CoolPro:
+#                input registers 0..7, 16 bytes), and the hub blocks the firmware lacks
+#                (a bit mask, bit = block index). Indexed by time_utc.
+#   hub_changes  --on-change hub readings: only the channels that moved past their
+#                deadband (or whose heartbeat came), 7 registers each (14 bytes, block
+#                order); their samples row has registers NULL.
+#   devices      one row per device configuration (bus, port, type, address, name,
+#                channels, humidity units); channels: a hub's channels with the humidity
+#                unit of each (1: 0.1 %, 0: 1 %).
+#   events       faults, reconnects, trimming.
+#
+# Decoded values are views, in plain SQL (no extension; Debian 12's sqlite3 3.40):
+# hub_readings / hub and coolpro_readings / coolpro, with the same columns as the tables
+# of format 1. The decoding rules of the C core are written out in SQL below, generated
+# from the device maps, and tested value by value against the C decoder.
+
+SCHEMA_VERSION = 2
+PAGE_SIZE = 8192  #: 5 hub sweeps a page (4,096 would hold 2: 2,048 B a sweep)
+WAL_MIN, WAL_MAX = 256 * 1024, 8 * 1024 * 1024
+MIN_BYTES = 1_000_000  #: the smallest size bound accepted (schema pages and a WAL budget)
+
+_DIGITS = "'123456789ABCDEF'"  # instr() of a hex digit in this is its value ('0' -> 0)
+
+
+def _digit(h: str, i: int) -> str:
+    return f"instr({_DIGITS}, substr({h}, {i}, 1))"
+
+
+def _u16(h: str) -> str:
+    """The unsigned value of 4 hex digits ``h`` (an SQL expression)."""
+    return (f"({_digit(h, 1)} * 4096 + {_digit(h, 2)} * 256 + {_digit(h, 3)} * 16 + "
+            f"{_digit(h, 4)})")
+
+
+def _hub_columns() -> tuple[list[str], list[str]]:
+    """SQL for the hub's decoded values and states, one pair per block."""
+    values, states = [], []
+    for b in HUB.blocks:
+        h = (f"hex(CASE WHEN s.registers IS NULL THEN substr(x.registers, {2 * b.index + 1}, 2)"
+             f" ELSE substr(s.registers, {2 * b.index * HUB.channels + 1} + 2 * (c.channel - 1),"
+             f" 2) END)")
+        unsupported = f"((s.unsupported >> {b.index}) & 1)"
+        offline = "'FFFF'"
+        if b.name == "humidity_pct":
+            tenths, one = (f"'{m:04X}'" for m, _ in b.markers[2:0:-1])
+            no_sensor = f"{h} = CASE WHEN c.humidity_tenths THEN {tenths} ELSE {one} END"
+        else:
+            no_sensor = "0"
+        if b.type is Type.SIGN_MAGNITUDE:
+            raw = (f"(CASE WHEN {_digit(h, 1)} >= 8 THEN -1 ELSE 1 END) * (({_digit(h, 1)} % 8)"
+                   f" * 4096 + {_digit(h, 2)} * 256 + {_digit(h, 3)} * 16 + {_digit(h, 4)})")
+        elif b.type is Type.I16:
+            raw = f"({_u16(h)} - CASE WHEN {_digit(h, 1)} >= 8 THEN 65536 ELSE 0 END)"
+        else:
+            raw = _u16(h)
+        if b.per_channel_scales:
+            scaled = f"CASE WHEN c.humidity_tenths THEN {raw} / 10.0 ELSE {raw} * 1.0 END"
+        elif b.scale == 0.1:
+            scaled = f"{raw} / 10.0"
+        else:
+            scaled = f"{raw} * {b.scale:g}.0" if b.scale == int(b.scale) else f"{raw} * {b.scale}"
+        values.append(f"CASE WHEN {unsupported} OR {h} = {offline} OR ({no_sensor}) THEN NULL "
+                      f"ELSE {scaled} END AS {b.name}")
+        states.append(f"CASE WHEN {unsupported} THEN {int(State.UNSUPPORTED)} "
+                      f"WHEN {h} = {offline} THEN {int(State.OFFLINE)} "
+                      f"WHEN {no_sensor} THEN {int(State.NO_SENSOR)} "
+                      f"ELSE {int(State.VALUE)} END AS {b.name}_state")
+    return values, states
+
+
+def _coolpro_columns() -> list[str]:
+    first = COOLPRO.span("telemetry")[1]
+    out = []
+    for r in COOLPRO.group("telemetry"):
+        i = r.address - first
+
+        def word(k: int) -> str:
+            return _u16(f"hex(substr(s.registers, {2 * k + 1}, 2))")
+
+        if r.type is Type.U32_LE_WORDS:
+            expr = f"{word(i)} + 65536 * {word(i + 1)}"
+        elif r.scale == 0.001:
+            expr = f"{word(i)} / 1000.0"
+        else:
+            expr = word(i)
+        out.append(f"{expr} AS {r.name}")
+    return out
+
+
+_HUB_VALUES, _HUB_STATES = _hub_columns()
+_TIME = "strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch')"
+
+SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT);
+CREATE TABLE IF NOT EXISTS devices(
+    id INTEGER PRIMARY KEY, bus TEXT NOT NULL, port TEXT NOT NULL, type TEXT NOT NULL,
+    address INTEGER NOT NULL, name TEXT NOT NULL,
+    channels INTEGER NOT NULL DEFAULT 0,   -- hub: channels logged
+    humidity_units TEXT NOT NULL DEFAULT '', -- hub: '0.1', '1', or one per channel
+    UNIQUE(bus, port, type, address, name, channels, humidity_units));
+CREATE TABLE IF NOT EXISTS channels(
+    device_id INTEGER NOT NULL REFERENCES devices(id), channel INTEGER NOT NULL,
+    humidity_tenths INTEGER NOT NULL,  -- 1: the channel's humidity is in 0.1 %, 0: in 1 %
+    PRIMARY KEY(device_id, channel)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS samples(
+    id INTEGER PRIMARY KEY, device_id INTEGER NOT NULL REFERENCES devices(id),
+    time_utc REAL NOT NULL, monotonic REAL NOT NULL,
+    registers BLOB,  -- big-endian 16-bit words from the map's first register; NULL: hub_changes
+    unsupported INTEGER NOT NULL DEFAULT 0  -- hub blocks the firmware lacks (bit = block)
+);
+CREATE INDEX IF NOT EXISTS samples_time ON samples(time_utc);
+CREATE TABLE IF NOT EXISTS hub_changes(
+    device_id INTEGER NOT NULL, channel INTEGER NOT NULL, time_utc REAL NOT NULL,
+    sample_id INTEGER NOT NULL REFERENCES samples(id),
+    registers BLOB NOT NULL,  -- the channel's 7 registers, block order, big-endian
+    PRIMARY KEY(device_id, channel, time_utc, sample_id)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS states(code INTEGER PRIMARY KEY, name TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS events(
+    id INTEGER PRIMARY KEY, time_utc REAL NOT NULL, monotonic REAL NOT NULL, bus TEXT,
+    device_id INTEGER REFERENCES devices(id), kind TEXT NOT NULL, code INTEGER,
+    message TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS events_time ON events(time_utc);
+-- Views are recreated on every open (UTC times with milliseconds; no 'subsec', which
+-- needs SQLite 3.42 while Debian 12 has 3.40).
+DROP VIEW IF EXISTS hub;
+DROP VIEW IF EXISTS coolpro;
+DROP VIEW IF EXISTS coolpro_readings;
+DROP VIEW IF EXISTS hub_readings;
+DROP VIEW IF EXISTS event_log;
+CREATE VIEW hub_readings AS
+    SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
+           c.channel, {", ".join(_HUB_VALUES)}, {", ".join(_HUB_STATES)}
+      FROM samples s JOIN devices d ON d.id = s.device_id
+      JOIN channels c ON c.device_id = s.device_id
+      LEFT JOIN hub_changes x ON x.device_id = s.device_id AND x.channel = c.channel
+                             AND x.time_utc = s.time_utc AND x.sample_id = s.id
+     WHERE s.registers IS NOT NULL OR x.registers IS NOT NULL;
+CREATE VIEW hub AS
+    SELECT sample_id, channel, {", ".join(b.name for b in HUB.blocks)},
+           {", ".join(b.name + "_state" for b in HUB.blocks)} FROM hub_readings;
+CREATE VIEW coolpro_readings AS
+    SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
+           {", ".join(_coolpro_columns())}
+      FROM samples s JOIN devices d ON d.id = s.device_id WHERE d.type = 'coolpro';
+CREATE VIEW coolpro AS
+    SELECT sample_id, {", ".join(COOLPRO_FIELDS)} FROM coolpro_readings;
+CREATE VIEW event_log AS
+    SELECT strftime('%Y-%m-%d %H:%M:%f', e.time_utc, 'unixepoch') AS time, e.time_utc, e.bus,
+           d.name AS device, e.kind, e.code, e.message
+      FROM events e LEFT JOIN devices d ON d.id = e.device_id;
+"""
+
+
+def schema_version(db: sqlite3.Connection) -> int | None:
+    """The pymb format of an open database: 1, 2, ..., 0 if empty, None if not pymb's."""
+    tables = {n for (n,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    if not tables:
+        return 0
+    if "meta" not in tables or "samples" not in tables:
+        return None
+    row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+    try:
+        return int(row[0]) if row else None
+    except ValueError:
+        return None
+
+
+def statements(script: str) -> list[str]:
+    """An SQL script as its statements (no trigger bodies here: split at ';')."""
+    out, buf = [], ""
+    for part in script.split(";"):
+        buf += part + ";"
+        if sqlite3.complete_statement(buf):
+            if buf.strip(" \n;"):
+                out.append(buf)
+            buf = ""
+    return out

@@ -1,0 +1,34 @@
+"""Opening an output by format name."""
+
+from __future__ import annotations
+
+from pymb.errors import InvalidArgument
+from pymb.store.influx import InfluxSink
+from pymb.store.onchange import OnChange
+from pymb.store.records import Sink
+from pymb.store.text import CsvSink, JsonlSink
+from pymb.store.writer import SqliteSink
+
+__all__ = ["FORMATS", "open_sink"]
+
+FORMATS = ("sqlite", "csv", "jsonl", "influx")
+
+
+def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
+              max_age: float | None = None, on_change: OnChange | None = None) -> Sink:
+    """A sink of format ``sqlite``, ``csv``, ``jsonl`` or ``influx`` at ``path``
+    (``-``: stdout)."""
+    if fmt == "sqlite":
+        if path == "-":
+            raise InvalidArgument(
+                "SQLite needs a file; use --format csv, jsonl or influx for stdout")
+        return SqliteSink(path, max_bytes=max_bytes, max_age=max_age, on_change=on_change)
+    if on_change is not None:
+        raise InvalidArgument("--on-change needs the SQLite format")
+    if fmt == "csv":
+        return CsvSink(path)
+    if fmt == "jsonl":
+        return JsonlSink(path)
+    if fmt == "influx":  # InfluxDB line protocol (pymb.store.influx)
+        return InfluxSink(path)
+    raise InvalidArgument(f"unknown output format {fmt!r}; use one of {', '.join(FORMATS)}")

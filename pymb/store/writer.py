@@ -1,0 +1,342 @@
+"""The SQLite writer: samples and events in batches, by exception if asked,
+within the size and age limits."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import os
+import sqlite3
+import time
+from array import array
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pymb import __version__
+from pymb.devices import HUB, HubReading, State
+from pymb.errors import InvalidArgument, OutputError
+from pymb.store.files import create, remove_stale_creations
+from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
+from pymb.store.records import DeviceInfo, Event, Sample
+from pymb.store.retention import Retention
+from pymb.store.schema import (
+    MIN_BYTES,
+    PAGE_SIZE,
+    SCHEMA,
+    SCHEMA_VERSION,
+    WAL_MAX,
+    WAL_MIN,
+    schema_version,
+    statements,
+    wire_bytes,
+)
+
+__all__ = ["SqliteSink"]
+
+#: Rows one multi-row INSERT of samples carries at most (5 values each, far
+#: below SQLite's limit of bound variables).
+_ROWS_PER_INSERT = 64
+
+
+@functools.lru_cache(maxsize=_ROWS_PER_INSERT)
+def _insert_rows(n: int) -> str:
+    """The INSERT of ``n`` sample rows (device_id, time_utc, monotonic,
+    registers, unsupported)."""
+    return ("INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+            "VALUES " + ", ".join(["(?, ?, ?, ?, ?)"] * n))
+
+
+
+def _humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
+    u = d.humidity_unit
+    units = [u] * channels if isinstance(u, (int, float)) else list(u)
+    if len(units) != channels:
+        raise InvalidArgument(f"{d.name}: {len(units)} humidity units for {channels} channels")
+    tenths = bytes(0 if x == 1 else 1 for x in units)
+    text = f"{units[0]:g}" if len(set(units)) == 1 else ",".join(f"{x:g}" for x in units)
+    return text, tenths
+
+
+class SqliteSink(Retention):
+    """Writes samples and events to a SQLite database of format 2 (created if
+    missing; a database of an older pymb format is refused, never mixed).
+
+    ``max_bytes`` / ``max_age`` (seconds) bound the database: past the size
+    (the database file and its WAL together, checked at every commit) or the
+    age, the oldest samples and events are deleted and their pages reused.
+    ``on_change`` stores readings by exception (see :class:`OnChange`).
+
+    If the database has an ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
+    table (a forwarder's cursors: the last sample each has sent), trimming
+    past the lowest cursor records a ``trim`` event saying how many samples
+    (and which ids) were deleted before they were sent.
+    """
+
+    keeps_samples = False  #: see :class:`Sink`
+
+    def __init__(self, path: str | os.PathLike[str], *, max_bytes: int | None = None,
+                 max_age: float | None = None, on_change: OnChange | None = None) -> None:
+        self.path = Path(path)
+        if max_bytes is not None and not max_bytes >= MIN_BYTES:
+            raise InvalidArgument(f"the size limit must be at least {MIN_BYTES / 1e6:g} MB, "
+                                  f"got {max_bytes / 1e6:g} MB")
+        if max_age is not None and not (max_age > 0 and math.isfinite(max_age)):
+            raise InvalidArgument(f"the age limit must be a positive number of days, "
+                                  f"got {max_age / 86400:g}")
+        self.max_bytes = max_bytes
+        self.max_age = max_age
+        self.on_change = on_change
+        self.trimmed = 0  #: samples deleted by the size and age limits so far
+        self.stored = 0  #: samples written (on-change: those that changed)
+        try:
+            remove_stale_creations(self.path)
+            if not self.path.exists():
+                create(self.path)
+            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+        except (sqlite3.Error, OSError) as e:
+            raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+        try:
+            self._open()
+        except sqlite3.Error as e:
+            self.db.close()
+            raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+        except InvalidArgument:
+            self.db.close()
+            raise
+        self._devices: dict[DeviceInfo, tuple[int, int]] = {}
+        self._changes: dict[int, HubChanges | CoolProChanges] = {}
+        self._in_tx = False
+        self._tx_bytes = 0  # registers written in the open batch (size limit only)
+        self._last_age_trim = time.monotonic()
+        self._wal = Path(f"{self.path}-wal")
+
+    def _open(self) -> None:
+        db = self.db
+        version = schema_version(db)
+        if version is None:
+            raise InvalidArgument(f"{self.path} is not a pymb database; log to a new file")
+        if version not in (0, SCHEMA_VERSION):
+            older = version < SCHEMA_VERSION
+            raise InvalidArgument(
+                f"{self.path} holds pymb format {version}, this pymb writes format "
+                f"{SCHEMA_VERSION}; " + ("log to a new file (pymb export still reads this one)"
+                                        if older else "use the newer pymb that wrote it"))
+        if version == 0:
+            db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
+            db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+        mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if mode != "wal":
+            raise InvalidArgument(f"{self.path}: cannot use WAL journal mode ({mode})")
+        db.execute("PRAGMA synchronous = NORMAL")
+        self.page_size = int(db.execute("PRAGMA page_size").fetchone()[0])
+        self.wal_budget = WAL_MAX
+        if self.max_bytes is not None:
+            self.wal_budget = max(WAL_MIN, min(WAL_MAX, self.max_bytes // 16))
+        # Checkpoint at half the budget; truncate the WAL file back to it afterwards.
+        db.execute(f"PRAGMA wal_autocheckpoint = {max(16, self.wal_budget // 2 // self.page_size)}")
+        db.execute(f"PRAGMA journal_size_limit = {self.wal_budget // 2}")
+        db.execute("BEGIN")
+        for stmt in statements(SCHEMA):
+            db.execute(stmt)
+        db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
+            ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__),
+            ("registers", "big-endian 16-bit words from the device map's first register"),
+        ])
+        db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
+                       [(s.value, s.name.lower()) for s in State])
+        db.execute("COMMIT")
+
+    def _begin(self) -> None:
+        if not self._in_tx:
+            self.db.execute("BEGIN")
+            self._in_tx = True
+
+    def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
+        """(device id, channels) of a device configuration, inserted on first use."""
+        got = self._devices.get(d)
+        if got is not None:
+            return got
+        channels, units, tenths = 0, "", b""
+        if d.type == "hub":
+            channels = data.channels if isinstance(data, HubReading) else (
+                d.channels or HUB.channels)
+            units, tenths = _humidity_units(d, channels)
+        key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
+        self._begin()
+        row = self.db.execute(
+            "SELECT id FROM devices WHERE bus = ? AND port = ? AND type = ? AND address = ? "
+            "AND name = ? AND channels = ? AND humidity_units = ?", key).fetchone()
+        if row is None:
+            did = self.db.execute(
+                "INSERT INTO devices(bus, port, type, address, name, channels, humidity_units) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
+            self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
+                                [(did, ch + 1, t) for ch, t in enumerate(tenths)])
+        else:
+            did = row[0]
+        got = (int(did), channels)  # type: ignore[arg-type]
+        if not isinstance(data, Event):
+            self._devices[d] = got
+        return got
+
+    def _failed(self, e: Exception) -> OutputError:
+        if self._in_tx:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.execute("ROLLBACK")
+            self._in_tx = False
+        self._devices.clear()  # ids inserted by the rolled-back batch are gone
+        self._changes.clear()  # what was "last stored" may be rolled back too
+        return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
+                           "is intact, the batch being written was lost")
+
+    def write(self, sample: Sample) -> None:
+        """Add one sample to the current batch. Under a size limit, a batch
+        that grows past a quarter of the WAL budget is committed at once, so
+        the bound holds at any write rate."""
+        try:
+            self._write(sample)
+            if self.max_bytes is not None:
+                self._tx_bytes += 2 * len(sample.data.registers) + 64
+                if self._tx_bytes >= self.wal_budget // 4:
+                    self._commit()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def write_batch(self, samples: Sequence[Sample]) -> None:
+        """Add samples to the current batch, as :meth:`write` one by one
+        would, in multi-row INSERTs: one statement (and one release of the
+        GIL) for many rows. Under a size limit, a statement ends at the row
+        that reaches a quarter of the WAL budget, where :meth:`write` would
+        commit, and the commit follows it."""
+        if self.on_change is not None or len(samples) < 2:
+            for sample in samples:
+                self.write(sample)
+            return
+        try:
+            rows = [(self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
+                     wire_bytes(s.data.registers),
+                     s.data.unsupported_mask if isinstance(s.data, HubReading) else 0)
+                    for s in samples]
+            bounded = self.max_bytes is not None
+            quarter = self.wal_budget // 4
+            self._begin()
+            i = 0
+            while i < len(rows):
+                # A statement ends where write() one by one would commit: at
+                # the row that brings the batch to a quarter of the WAL budget.
+                j, size = i, self._tx_bytes
+                while j < len(rows) and j - i < _ROWS_PER_INSERT:
+                    size += len(rows[j][3]) + 64
+                    j += 1
+                    if bounded and size >= quarter:
+                        break
+                chunk = rows[i:j]
+                i = j
+                self.db.execute(_insert_rows(len(chunk)), [v for row in chunk for v in row])
+                self.stored += len(chunk)
+                if bounded:
+                    self._tx_bytes = size
+                    if size >= quarter:
+                        self._commit()
+                        self._begin()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _write(self, sample: Sample) -> None:
+        data = sample.data
+        did = self._device_id(sample.device, data)[0]
+        self._begin()
+        if self.on_change is None:
+            self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
+                 data.unsupported_mask if isinstance(data, HubReading) else 0))
+            self.stored += 1
+            return
+        rules = self._changes.get(did)
+        if isinstance(data, HubReading):
+            if not isinstance(rules, HubChanges) or rules.channels != data.channels:
+                rules = self._changes[did] = HubChanges(self.on_change, data.channels)
+            pick = rules.changed(data, sample.monotonic)
+            if not pick:
+                return
+            sid = self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+                "VALUES (?, ?, ?, NULL, ?)",
+                (did, sample.time_utc, sample.monotonic, data.unsupported_mask)).lastrowid
+            regs = data.registers
+            n = HUB.channels
+            blocks = range(len(HUB.blocks))
+            self.db.executemany(
+                "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
+                [(did, ch + 1, sample.time_utc, sid,
+                  wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
+                 for ch in pick])
+        else:
+            if not isinstance(rules, CoolProChanges):
+                rules = self._changes[did] = CoolProChanges(self.on_change)
+            if not rules.changed(data, sample.monotonic):
+                return
+            self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers) "
+                "VALUES (?, ?, ?, ?)",
+                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers)))
+        self.stored += 1
+
+    def event(self, event: Event) -> None:
+        """Add one event to the current batch."""
+        try:
+            self._event(event)
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _event(self, event: Event) -> None:
+        did = None if event.device is None else self._device_id(event.device, event)[0]
+        self._begin()
+        self.db.execute(
+            "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (event.time_utc, event.monotonic, event.bus, did, event.kind, event.code,
+             event.message))
+
+    def commit(self) -> None:
+        """Commit the batch, then hold the size limit (database and WAL) and,
+        every few seconds, the age limit."""
+        try:
+            self._commit()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def _commit(self) -> None:
+        if self._in_tx:
+            self.db.execute("COMMIT")
+            self._in_tx = False
+        self._tx_bytes = 0
+        if self.max_bytes is not None:
+            if self._wal_bytes() > self.wal_budget:
+                # A reader held the WAL back: catch up if it has let go (without
+                # waiting for it: a forwarder may be reading).
+                self._checkpoint()
+            count, free = self._pages()
+            if (count - free) * self.page_size > self._room():
+                self.trim()
+                return
+        if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
+            self.trim()
+
+    def trim(self) -> int:
+        """Delete the oldest data beyond the limits; returns samples deleted."""
+        try:
+            return self._trim()
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
+
+    def close(self) -> None:
+        """Commit what is pending and close the database."""
+        try:
+            self.commit()
+        finally:
+            self.db.close()
