@@ -187,6 +187,17 @@ class Client:
     def _opened(self) -> None:
         """After the line opens: what a transport decides from the open line."""
 
+    def ensure_connected(self) -> bool:
+        """Open the line now if the next request would open it (after a lost
+        link); True when it opened here. A device that needs a pause after
+        connecting (a map's ``after_connect``) calls this before its request.
+        Raises :class:`~pymb.ModbusConnectionError` as that request would."""
+        with self._lock:
+            if self._link.is_open:
+                return False
+            self._reopen()
+            return True
+
     def close(self) -> None:
         """Close the line; safe to call more than once."""
         with self._lock:

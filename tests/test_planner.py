@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from pymb import _native
 from pymb.devices import HUB
 from pymb.devices.hub import full_sweep_spans
-from pymb.devices.planner import naive_spans, plan_reads
 from pymb.logger import BusConfig, DeviceConfig
+from pymb.maps.planner import naive_spans, plan_reads
 from pymb.wire import read_time
 
 

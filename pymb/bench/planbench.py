@@ -4,7 +4,7 @@ The map is synthetic and seeded: 1,000 points of 1, 2 and 4 registers over
 the holding and input tables, with gaps of undeclared registers between
 some, ``max_gap = 8``, part of the input table declared ``readable``, at
 9600 bit/s with a 5 ms turnaround and a 2 ms inter-request gap. Each timed
-plan starts from a fresh :class:`~pymb.devices.planner.PointPlanner` (no
+plan starts from a fresh :class:`~pymb.maps.planner.PointPlanner` (no
 cache). The table also shows what the plan buys on the wire: its predicted
 time against the naive plan's (one request per contiguous run).
 """
@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from pymb.devices.planner import Item, Limits, Line, PointPlanner
+from pymb.maps.planner import Item, Limits, Line, PointPlanner
 
 __all__ = ["TARGET_MS", "run_section", "synthetic_points", "targets"]
 

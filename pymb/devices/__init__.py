@@ -3,7 +3,7 @@
     from pymb.devices import CoolPro, SensorHub, CoolProStatus, decode_hub
 
 See :mod:`pymb.devices.maps` for the maps (the only place register numbers
-appear), :mod:`pymb.devices.planner` for the read planner.
+appear), :mod:`pymb.maps.planner` for the read planner.
 """
 
 from __future__ import annotations
@@ -16,8 +16,9 @@ from pymb.devices.coolpro import (
     CoolProTelemetry,
 )
 from pymb.devices.hub import HubChannel, HubReading, SensorHub, State, decode_hub
+from pymb.devices.mapdevice import MapDevice
 from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
-from pymb.devices.planner import ReadPlan
+from pymb.maps.planner import ReadPlan
 
 __all__ = [
     "COOLPRO",
@@ -30,6 +31,7 @@ __all__ = [
     "CoolProTelemetry",
     "HubChannel",
     "HubReading",
+    "MapDevice",
     "ReadPlan",
     "SensorHub",
     "State",

@@ -21,8 +21,8 @@ from typing import Any
 from pymb import _native
 from pymb.client import Client
 from pymb.devices.maps import HUB
-from pymb.devices.planner import Item, Known, Line, ReadPlan, plan_points
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
+from pymb.maps.planner import Item, Known, Line, ReadPlan, plan_points
 from pymb.wire import bits_per_char
 
 __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "decode_hub",

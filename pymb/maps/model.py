@@ -14,6 +14,7 @@ from pymb.errors import ModbusError
 
 if TYPE_CHECKING:
     from pymb.maps.loader import Spec
+    from pymb.maps.planner import ReadPlan
 
 __all__ = ["DeviceInfo", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value"]
 
@@ -250,6 +251,20 @@ class Map:
         register's ``current`` contents."""
         from pymb.maps.codec import encode
         return encode(self.point(name), value, current=current, check_access=True)
+
+    def plan(self, group: str | None = None, *, baudrate: int = 9600,
+             bits_per_char: int = 10) -> ReadPlan:
+        """The requests that read ``group``'s points (every readable point
+        for None), planned with the device's limits and timing at
+        ``baudrate``: iterate for ``.table``, ``.address``, ``.count``; see
+        :mod:`pymb.maps.planner`."""
+        from pymb.maps.planner import Line, map_planner
+        if group is not None and group not in self.groups:
+            raise MapError(f"{self.source}: no group {group!r}"
+                           f"{did_you_mean(group, list(self.groups))}", source=self.source,
+                           key=group)
+        planner, mi = map_planner(self, Line(baudrate, bits_per_char))
+        return planner.plan(mi.wanted(mi.group(group)))
 
     def label(self, name: str, value: int) -> str | None:
         """The name ``values`` gives a raw value of the point, or None."""

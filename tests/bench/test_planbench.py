@@ -4,7 +4,7 @@ map, and the report shows it (the figure itself is the bench's, not a test's).""
 from __future__ import annotations
 
 from pymb.bench import planbench, report
-from pymb.devices.planner import Line, plan_points
+from pymb.maps.planner import Line, plan_points
 
 
 def test_plan_section_reports_the_plan_of_the_synthetic_map() -> None:

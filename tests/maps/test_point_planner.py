@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pymb.devices.planner import (
+from pymb.errors import InvalidArgument
+from pymb.maps.planner import (
     Item,
     Known,
     Limits,
@@ -17,7 +18,6 @@ from pymb.devices.planner import (
     PointPlanner,
     plan_points,
 )
-from pymb.errors import InvalidArgument
 from pymb.wire import read_bits_time, read_time
 
 
@@ -217,3 +217,19 @@ def test_a_point_wider_than_a_request_is_a_clear_error() -> None:
         plan_points([Item("name", "holding", 0, 130)], Line())
     with pytest.raises(InvalidArgument, match=r"max_registers must be 1\.\.125"):
         Limits(max_registers=126)
+
+
+def test_a_maps_plan_is_the_planners() -> None:
+    from pymb import _native, maps
+
+    hub = maps.builtin("hub")
+    plan = hub.plan(group="sweep")
+    assert [(r.table, r.address, r.count) for r in plan] == [
+        ("holding", a, n) for a, n in _native.hub_plan_all(0, 100)]
+    assert len(plan) == 6
+    # 50 channels at 9600 bit/s: the 50 registers between the blocks are
+    # readable, but a second request is cheaper than reading them
+    assert hub.configure(channels=50).plan("sweep").spans == tuple(
+        (31 + 100 * b, 50) for b in range(7))
+    with pytest.raises(maps.MapError, match="no group 'sweeep'; did you mean 'sweep'"):
+        hub.plan("sweeep")

@@ -26,11 +26,15 @@ points it refused alone, retried every ``offline_retry`` seconds).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from pymb.errors import InvalidArgument
 from pymb.wire import read_bits_time, read_time
+
+if TYPE_CHECKING:
+    from pymb.maps.model import Map, Point
 
 __all__ = [
     "BIT_TABLES",
@@ -39,9 +43,11 @@ __all__ = [
     "Known",
     "Limits",
     "Line",
+    "MapItems",
     "PointPlanner",
     "ReadPlan",
     "Request",
+    "map_planner",
     "naive_spans",
     "plan_points",
     "plan_reads",
@@ -204,6 +210,12 @@ class ReadPlan:
 
     def __str__(self) -> str:
         return self.explain()
+
+    def __iter__(self) -> Iterator[Request]:
+        return iter(self.requests)
+
+    def __len__(self) -> int:
+        return len(self.requests)
 
 
 class Known:
@@ -514,3 +526,54 @@ class PointPlanner:
             self._refused.clear()
             self._unsupported.clear()
             self._changed()
+
+
+@dataclass(frozen=True)
+class MapItems:
+    """A map's readable points as planner items: ``points`` (file order, no
+    write-only ones), and for each the index of its first item (a block
+    has one item per channel, in channel order)."""
+
+    points: tuple[Point, ...]
+    first: tuple[int, ...]
+    items: tuple[Item, ...]
+
+    @classmethod
+    def of(cls, m: Map) -> MapItems:
+        """The items of map ``m``."""
+        points = tuple(p for p in m.points.values() if p.access != "w")
+        items: list[Item] = []
+        first: list[int] = []
+        for p in points:
+            first.append(len(items))
+            if p.block:
+                items.extend(Item(f"{p.name}[{c}]", p.table, p.address_of(c), p.count)
+                             for c in range(1, p.channels + 1))
+            else:
+                items.append(Item(p.name, p.table, p.address, p.count))
+        return cls(points, tuple(first), tuple(items))
+
+    def wanted(self, indices: Iterable[int]) -> list[int]:
+        """The items of the points at ``indices`` (into :attr:`points`)."""
+        out: list[int] = []
+        for i in indices:
+            out.extend(range(self.first[i], self.first[i] + self.points[i].channels))
+        return out
+
+    def group(self, group: str | None) -> list[int]:
+        """Indices of the points of ``group`` (every readable point for None)."""
+        return [i for i, p in enumerate(self.points) if group is None or p.group == group]
+
+
+def map_planner(m: Map, line: Line | None = None, *, clock: Callable[[], float] = time.monotonic
+                ) -> tuple[PointPlanner, MapItems]:
+    """The planner of a device map ``m``: its limits, its ``turnaround`` and
+    ``inter_request_gap`` on ``line`` (default 9600 bit/s 8N1)."""
+    lim, timing = m.limits, m.timing
+    limits = Limits(lim.max_registers, lim.max_bits, lim.max_gap, lim.readable,
+                    lim.split_on_exception, lim.single_point_requests)
+    base = line or Line()
+    line = Line(base.baudrate, base.bits_per_char, timing.turnaround, timing.inter_request_gap)
+    mi = MapItems.of(m)
+    return PointPlanner(mi.items, limits, line, offline_retry=timing.offline_retry,
+                        clock=clock), mi

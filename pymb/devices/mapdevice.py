@@ -1,0 +1,339 @@
+"""Any Modbus device from its map: :class:`MapDevice`.
+
+    from pymb import maps
+    from pymb.devices import MapDevice
+
+    with pymb.RtuClient("/dev/ttyUSB0", 9600) as client:
+        meter = MapDevice(client, maps.load("eastron-sdm120.toml"), address=3)
+        meter.read(group="fast")           # {"voltage_v": 230.5, ...}
+        meter.write("relay_on", True)
+
+A read plans its requests with the device's limits and timing
+(:mod:`pymb.maps.planner`), reads each into one buffer the device keeps,
+and decodes every point from it. Exception 02 or 03 to a request that read
+registers nobody asked for makes the planner stop bridging there and the
+same read asks again without them; to a request of wanted points only, each
+is asked alone, and one the device refuses alone reads None (state
+``unsupported``) until it is tried again ``offline_retry`` seconds later.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import weakref
+from array import array
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from pymb.client import Client
+from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
+from pymb.maps import Map, Point, Value
+from pymb.maps.codec import decode_one
+from pymb.maps.model import did_you_mean
+from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request, map_planner
+from pymb.wire import bits_per_char
+
+__all__ = ["MapDevice"]
+
+#: The line speed a plan is priced at when the client has none (TCP).
+DEFAULT_BAUDRATE = 9600
+
+
+class _Quiet:
+    """When the line of one client may carry the next request: a device's
+    ``turnaround`` keeps it silent after its reply for every device on it."""
+
+    __slots__ = ("last_end", "quiet_until")
+
+    def __init__(self) -> None:
+        self.last_end = 0.0
+        self.quiet_until = 0.0
+
+
+# One per client, shared by the devices on it; gone with the client.
+_LINES: weakref.WeakKeyDictionary[Client, _Quiet] = weakref.WeakKeyDictionary()
+_LINES_LOCK = threading.Lock()
+
+
+def _quiet(client: Client) -> _Quiet:
+    with _LINES_LOCK:
+        q = _LINES.get(client)
+        if q is None:
+            q = _LINES[client] = _Quiet()
+        return q
+
+
+def _sleep_until(t: float) -> None:
+    while True:
+        left = t - time.monotonic()
+        if left <= 0:
+            return
+        time.sleep(left)
+
+
+class MapDevice:
+    """The device ``m`` describes, at unit id ``address`` on ``client`` (an
+    :class:`~pymb.RtuClient`, :class:`~pymb.TcpClient` or
+    :class:`~pymb.RtuOverTcpClient`).
+
+    ``options``: the map's options for this device (``{"channels": 50}``).
+    ``baudrate``: the line speed plans are priced at, where the client has
+    none (a TCP gateway's serial side; default 9600). The map's timing is
+    honoured on the wire: ``inter_request_gap`` of silence before each
+    request, ``turnaround`` of silence after each reply (for every map device
+    on the same client), ``after_connect`` before the first request on a new
+    connection, and ``response_timeout`` as the reply timeout of its requests.
+    """
+
+    def __init__(self, client: Client, m: Map, address: int | None = None, *,
+                 options: Mapping[str, object] | None = None,
+                 baudrate: int | None = None) -> None:
+        if options:
+            m = m.configure(options)
+        dev = m.device
+        if address is None:
+            address = dev.default_address
+        low, high = dev.addresses
+        if isinstance(address, bool) or not isinstance(address, int) or not (
+                low <= address <= high):
+            raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {address!r}")
+        self.client = client
+        self.map = m
+        self.address = address
+        rate = getattr(client, "baudrate", None) or baudrate or DEFAULT_BAUDRATE
+        line = Line(int(rate), bits_per_char(getattr(client, "parity", "N"),
+                                              getattr(client, "stop_bits", 1),
+                                              getattr(client, "data_bits", 8)))
+        self._planner, mi = map_planner(m, line)
+        self._mi = mi
+        self._points: tuple[Point, ...] = mi.points
+        self._first = mi.first
+        self._index = {p.name: i for i, p in enumerate(self._points)}
+        items = mi.items
+        self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
+        self._layouts: dict[int, tuple[ReadPlan, list[int]]] = {}
+        self._buffer = array("H", bytes(2 * 16))
+        self._unread = bytearray(len(items))  # 1: this read got no value for the item
+        self._lock = threading.Lock()
+        self._connections = -1
+        self.states: dict[str, Any] = {}  #: the last read's state of each point read
+
+    # -- what to read -----------------------------------------------------------------
+
+    def _selection(self, names: Sequence[str], group: str | None) -> tuple[int, ...]:
+        key = (tuple(names), group)
+        chosen = self._selections.get(key)
+        if chosen is not None:
+            return chosen
+        m = self.map
+        if names and group is not None:
+            raise InvalidArgument("read points by name or by group, not both")
+        if group is not None and group not in m.groups:
+            hint = did_you_mean(group, list(m.groups))
+            raise InvalidArgument(f"{m.id}: no group {group!r}{hint}")
+        if names:
+            out = []
+            for n in names:
+                p = m.point(n)  # MapError with a did-you-mean
+                if p.access == "w":
+                    raise InvalidArgument(f"{m.id}: point {n!r} is write-only")
+                out.append(self._index[n])
+        else:
+            out = self._mi.group(group)
+        chosen = tuple(dict.fromkeys(out))
+        self._selections[key] = chosen
+        return chosen
+
+    def _items(self, points: Iterable[int]) -> list[int]:
+        return self._mi.wanted(points)
+
+    def plan(self, group: str | None = None, *names: str) -> ReadPlan:
+        """The requests a read of ``group`` (or of the named points; all by
+        default) makes now, with their predicted wire time."""
+        return self._planner.plan(self._items(self._selection(names, group)))
+
+    # -- reads ------------------------------------------------------------------------
+
+    def read(self, *names: str, group: str | None = None) -> dict[str, Value]:
+        """The named points, or the points of ``group``, or every readable
+        point: name -> value (a list for a block; None where there is no
+        value, and why in :attr:`states`)."""
+        points = self._selection(names, group)
+        with self._lock:
+            self._prepare()
+            plan = self._planner.plan(self._items(points))
+            positions = self._layout(plan)
+            self._unread[:] = bytes(len(self._unread))
+            for r in self._planner.unsupported:
+                self._unread[r] = 1
+            self._run(plan, positions)
+            return self._decode(points, positions)
+
+    def _layout(self, plan: ReadPlan) -> list[int]:
+        """Where each item of ``plan`` sits in the buffer (requests end to end)."""
+        cached = self._layouts.get(id(plan))
+        if cached is not None and cached[0] is plan:
+            return cached[1]
+        positions = [0] * len(self._planner.items)
+        items = self._planner.items
+        at = 0
+        for r in plan.requests:
+            for k in r.items:
+                positions[k] = at + items[k].address - r.address
+            at += r.count
+        if len(self._buffer) < at:
+            self._buffer = array("H", bytes(2 * at))
+        if len(self._layouts) > 64:
+            self._layouts.clear()
+        self._layouts[id(plan)] = (plan, positions)
+        return positions
+
+    def _prepare(self) -> None:
+        """Before a read: reconnect if the line was lost, and after a new
+        connection wait ``after_connect`` and forget what the last device taught."""
+        client = self.client
+        opened = client.ensure_connected()
+        if opened or client.connections != self._connections:
+            self._connections = client.connections
+            self._planner.forget()
+            wait = self.map.timing.after_connect
+            if wait > 0:
+                q = _quiet(self.client)
+                q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
+
+    def _run(self, plan: ReadPlan, positions: list[int]) -> None:
+        timeout = self.map.timing.response_timeout
+        client = self.client
+        before = client.timeout
+        if timeout is not None and timeout != before:
+            client.set_timeout(timeout)
+        try:
+            items = self._planner.items
+            for r in plan.requests:
+                k = r.items[0]
+                self._fetch(r, positions[k] - (items[k].address - r.address))
+        finally:
+            if timeout is not None and timeout != before:
+                client.set_timeout(before)
+
+    def _wire(self, r: Request, at: int) -> None:
+        """One request on the wire, into the buffer at ``at``, with the
+        device's silences before and after."""
+        t = self.map.timing
+        q = _quiet(self.client)
+        _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+        try:
+            if r.table in BIT_TABLES:
+                read = (self.client.read_coils if r.table == "coil"
+                        else self.client.read_discrete_inputs)
+                bits = read(r.address, r.count, slave=self.address)
+                self._buffer[at:at + r.count] = array("H", bits)
+            else:
+                view = memoryview(self._buffer)[at:at + r.count]
+                self.client.read_registers_prepared(r.function, self.address, r.address, view)
+        finally:
+            now = time.monotonic()
+            q.last_end = now
+            q.quiet_until = max(q.quiet_until, now + t.turnaround)
+
+    def _fetch(self, r: Request, at: int) -> None:
+        """Read ``r`` into the buffer at ``at``; on exception 02/03, fall back
+        as the module says, within this read."""
+        try:
+            self._wire(r, at)
+            return
+        except (IllegalDataAddress, IllegalDataValue):
+            if not self._planner.limits.split_on_exception:
+                raise
+        planner = self._planner
+        if r.bridged and planner.refuse_bridge(r):
+            for sub in planner.replan(r).requests:
+                self._fetch(sub, at + sub.address - r.address)
+        elif len(r.extents) > 1:
+            items = planner.items
+            for ext in r.extents:
+                start = min(items[k].address for k in ext)
+                end = max(items[k].end for k in ext)
+                alone = Request(r.table, start, end - start, ext, (ext,), 0)
+                self._fetch(alone, at + start - r.address)
+        else:
+            planner.mark_unsupported(r.items)
+            for k in r.items:
+                self._unread[k] = 1
+
+    def _decode(self, points: Sequence[int], positions: list[int]) -> dict[str, Value]:
+        buf = self._buffer
+        unread = self._unread
+        out: dict[str, Value] = {}
+        states: dict[str, Any] = {}
+        for i in points:
+            p = self._points[i]
+            k0 = self._first[i]
+            n = p.count
+            if not p.block:
+                if unread[k0]:
+                    out[p.name], states[p.name] = None, "unsupported"
+                else:
+                    at = positions[k0]
+                    out[p.name], states[p.name] = decode_one(p, buf[at:at + n])
+                continue
+            values: list[Value] = []
+            st: list[str] = []
+            for k in range(k0, k0 + p.channels):
+                if unread[k]:
+                    values.append(None)
+                    st.append("unsupported")
+                else:
+                    at = positions[k]
+                    v, s = decode_one(p, buf[at:at + n])
+                    values.append(v)
+                    st.append(s)
+            out[p.name], states[p.name] = values, st
+        self.states = states
+        return out
+
+    # -- writes -----------------------------------------------------------------------
+
+    def write(self, name: str, value: object, *, channel: int | None = None) -> None:
+        """Write ``value`` to a writable point (one ``channel`` of a block).
+        The value is checked against the point (access, ``valid``, its
+        type's range, ``values``) before any byte is sent; a ``bit``/``bits``
+        view reads its register first and writes it back changed."""
+        p = self.map.point(name)
+        address = p.address
+        if p.block:
+            if channel is None:
+                raise InvalidArgument(f"{self.map.id}: {name!r} is a block: write one channel "
+                                      f"(channel=1..{p.channels})")
+            address = p.address_of(channel)
+        elif channel is not None:
+            raise InvalidArgument(f"{self.map.id}: {name!r} has no channels")
+        current = None
+        if p.writable and p.type in ("bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"):
+            m = self.map
+            m.encode(name, value, current=[0] * p.count)  # refused before any byte is sent
+            with self._lock:
+                self._prepare()
+                current = list(self.client.read_holding_registers(address, p.count,
+                                                                  slave=self.address))
+        regs = self.map.encode(name, value, current=current)
+        with self._lock:
+            self._prepare()
+            q = _quiet(self.client)
+            t = self.map.timing
+            _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+            try:
+                if p.table == "coil":
+                    self.client.write_coil(address, bool(regs[0]), slave=self.address)
+                elif len(regs) == 1:
+                    self.client.write_register(address, regs[0], slave=self.address)
+                else:
+                    self.client.write_registers(address, regs, slave=self.address)
+            finally:
+                now = time.monotonic()
+                q.last_end = now
+                q.quiet_until = max(q.quiet_until, now + t.turnaround)
+
+    def __repr__(self) -> str:
+        return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
