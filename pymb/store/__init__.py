@@ -1,8 +1,9 @@
 """Where logged data goes: SQLite (the default), CSV, JSON Lines, InfluxDB
 line protocol.
 
-SQLite: WAL journal, ``synchronous=NORMAL``, commits in batches. A
-transaction that committed survives the process being killed (even SIGKILL);
+SQLite: WAL journal, ``synchronous=FULL``, commits in batches. A
+transaction that committed survives the process being killed (even SIGKILL)
+and a power cut, and other connections see it only once it is on the disk;
 what was not yet committed, at most one batch, is lost. Format 2 stores the
 raw registers once (a BLOB of big-endian 16-bit words, as on the wire, from
 the device map's first register) and decodes them in plain-SQL views that

@@ -129,7 +129,10 @@ class SqliteSink(Retention):
         mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
         if mode != "wal":
             raise InvalidArgument(f"{self.path}: cannot use WAL journal mode ({mode})")
-        db.execute("PRAGMA synchronous = NORMAL")
+        # FULL: a commit is on the disk (the WAL synced) before other connections
+        # see it, so the forwarder never publishes a sample a power cut can take
+        # back, and no id it published is handed to another sample after one.
+        db.execute("PRAGMA synchronous = FULL")
         self.page_size = int(db.execute("PRAGMA page_size").fetchone()[0])
         self.wal_budget = WAL_MAX
         if self.max_bytes is not None:
