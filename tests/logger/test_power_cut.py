@@ -67,7 +67,8 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
             db = disk.mountpoint / "data.sqlite"
             seen = len(plain_ids(sub.snapshot()))
             proc = fleet.log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-node", NODE)
-            sub.wait_until(lambda m, n=seen: len(plain_ids(m)) >= n + per_run, 60,
+            want = seen + per_run
+            sub.wait_until(lambda m: len(plain_ids(m)) >= want, 60,  # noqa: B023
                            f"{per_run} more samples at the subscriber (run {cut + 1})")
             if cut == cuts:
                 stop_log(proc)
