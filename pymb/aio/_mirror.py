@@ -1,0 +1,69 @@
+"""Async methods made from blocking ones, so the two cannot drift apart.
+
+``read_all = Mirror(SensorHub.read_all)`` in an async class gives it a
+coroutine method ``read_all`` with the blocking method's name, signature,
+docstring and type (for mypy too: its arguments and its result are the
+blocking method's), which runs that method of the object's ``blocking``
+twin on the line's worker thread.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Awaitable, Callable, Coroutine
+from types import MethodType
+from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
+
+__all__ = ["Mirror", "Mirrored"]
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+class Mirrored:
+    """What a class with :class:`Mirror` methods has: the blocking twin
+    and a way to run one of its calls on the line's worker."""
+
+    blocking: Any
+
+    def _submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Awaitable[R]:
+        raise NotImplementedError
+
+
+def _coroutine(name: str) -> Callable[..., Coroutine[Any, Any, Any]]:
+    async def method(self: Mirrored, /, *args: Any, **kwargs: Any) -> Any:
+        return await self._submit(getattr(self.blocking, name), *args, **kwargs)
+    return method
+
+
+class Mirror(Generic[P, R]):
+    """A blocking method (``Class.method``) as a coroutine method of the
+    same name that runs it on the line's worker."""
+
+    def __init__(self, method: Callable[Concatenate[Any, P], R]) -> None:
+        self.method = method
+        self.name: str = method.__name__
+        fn: Any = _coroutine(self.name)
+        fn.__name__ = self.name
+        fn.__doc__ = method.__doc__
+        fn.__signature__ = inspect.signature(method)
+        self.fn = fn
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        if name != self.name:
+            raise TypeError(f"{owner.__name__}.{name} mirrors a method named {self.name}")
+        self.fn.__qualname__ = f"{owner.__qualname__}.{name}"
+        self.fn.__module__ = owner.__module__
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None
+                ) -> Callable[Concatenate[Any, P], Coroutine[Any, Any, R]]: ...
+
+    @overload
+    def __get__(self, obj: object, owner: type | None = None
+                ) -> Callable[P, Coroutine[Any, Any, R]]: ...
+
+    def __get__(self, obj: object | None, owner: type | None = None) -> Any:
+        if obj is None:
+            return self.fn
+        return MethodType(self.fn, obj)

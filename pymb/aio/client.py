@@ -1,0 +1,299 @@
+"""asyncio clients: :class:`AsyncRtuClient`, :class:`AsyncTcpClient` and
+:class:`AsyncRtuOverTcpClient`.
+
+Each is a blocking client of :mod:`pymb.client` (its ``blocking`` twin)
+driven by one worker thread that owns the line: every request runs there
+in the C core, which keeps the wire timing (t3.5, the quiet window after a
+failure), and the event loop only waits for the result. Methods, arguments,
+results and exceptions are the blocking client's; the request methods are
+coroutines.
+
+Order: the requests of one client run one at a time in the order they were
+awaited (concurrent awaits queue, they never interleave on the wire);
+requests of different clients run at the same time on their own threads
+(the C core releases the GIL).
+
+Cancellation: a request whose await is cancelled before its turn is never
+sent. One already on the wire completes on the worker (within the client's
+timeout) and its reply, or its failure, is dropped; the next request starts
+only after it, so no later request can take its reply, and after a timeout
+the line's quiet-window rule holds the next one back until the line has been
+silent. A cancelled ``read_*_into`` (or a sweep ``into`` a reading) may
+still fill its buffer until then.
+
+Shutdown: :meth:`AsyncClient.close` closes the line and ends the worker.
+An open client also ends when its event loop shuts down (``asyncio.run``,
+``asyncio.Runner``): a small guard task on the loop closes the line when the
+loop cancels its tasks. Nothing outlives it: no thread, no descriptor, no
+port lock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import warnings
+from collections.abc import Callable
+from types import TracebackType
+from typing import ParamSpec, Self, TypeVar
+
+from pymb.aio._line import Line
+from pymb.aio._mirror import Mirror, Mirrored
+from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
+
+__all__ = ["AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient", "AsyncTcpClient"]
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+async def _guard(line: Line, closed: asyncio.Future[None]) -> None:
+    """Wait for the client's close(); when the loop cancels every task at
+    its end instead, close the line (after the request on it) and end the
+    worker."""
+    try:
+        await closed
+    except asyncio.CancelledError:
+        await line.submit(line.blocking.close)
+        line.join_ended()
+        raise
+
+
+def _release(closed: asyncio.Future[None]) -> None:
+    if not closed.done():
+        closed.set_result(None)
+
+
+class AsyncClient(Mirrored):
+    """What the three async clients share: the life cycle, the settings and
+    the request methods, each the blocking :class:`pymb.Client`'s as a
+    coroutine. Use ``async with`` (connect on enter, close on exit) or
+    ``await connect()`` and ``await close()``."""
+
+    blocking: Client  #: the blocking client this one drives on its worker
+
+    def __init__(self, blocking: Client) -> None:
+        self.blocking = blocking
+        self._line = Line(blocking, f"pymb-aio {blocking.port}")
+        self._guard: asyncio.Task[None] | None = None
+        self._closed: asyncio.Future[None] | None = None
+
+    # -- life cycle -----------------------------------------------------------------
+
+    @property
+    def port(self) -> str:
+        """The serial device or ``host:port`` this client talks to."""
+        return self.blocking.port
+
+    @property
+    def connected(self) -> bool:
+        """True while the line is open."""
+        return self.blocking.connected
+
+    @property
+    def connections(self) -> int:
+        """Successful connects so far (the blocking client's count)."""
+        return self.blocking.connections
+
+    @property
+    def worker_threads(self) -> int:
+        """Worker threads started so far (one at a time, never two)."""
+        return self._line.started
+
+    async def connect(self) -> None:
+        """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
+        await self._line.submit(self.blocking.connect)
+        if self._guard is None or self._guard.done():
+            loop = asyncio.get_running_loop()
+            self._closed = loop.create_future()
+            self._guard = loop.create_task(_guard(self._line, self._closed),
+                                           name=f"pymb-aio guard {self.port}")
+
+    async def close(self) -> None:
+        """Close the line (after the request on it, if any) and end the
+        worker thread; safe to call more than once."""
+        await self._line.submit(self.blocking.close)
+        self._line.join_ended()
+        if self._closed is not None:
+            _release(self._closed)
+        self._guard = self._closed = None
+
+    async def __aenter__(self) -> Self:
+        await self.connect()
+        return self
+
+    async def __aexit__(self, et: type[BaseException] | None, ev: BaseException | None,
+                        tb: TracebackType | None) -> None:
+        await self.close()
+
+    def __del__(self) -> None:
+        # Like the blocking client: dropped while open, the line is closed
+        # (on its worker, which then ends), with a warning.
+        blocking = getattr(self, "blocking", None)
+        if blocking is not None and blocking.connected:
+            try:
+                warnings.warn(f"unclosed {self!r}: await close() or use `async with`",
+                              ResourceWarning, stacklevel=2, source=self)
+            finally:
+                self._line.post(blocking.close)
+        closed = getattr(self, "_closed", None)
+        if closed is not None and not closed.done():  # let the guard task end
+            with contextlib.suppress(RuntimeError):  # (its loop may be closed)
+                closed.get_loop().call_soon_threadsafe(_release, closed)
+
+    def __repr__(self) -> str:
+        state = "open" if self.connected else "closed"
+        return f"<{type(self).__name__} {self.port} slave={self.slave} {state}>"
+
+    def fileno(self) -> int:
+        """The line's file descriptor (-1 when closed)."""
+        return self.blocking.fileno()
+
+    # -- running blocking code on the line --------------------------------------------
+
+    def _submit(self, fn: Callable[P, R], /, *args: P.args,
+                **kwargs: P.kwargs) -> asyncio.Future[R]:
+        return self._line.submit(fn, *args, **kwargs)
+
+    async def run(self, fn: Callable[P, R], /, *args: P.args, **kwargs: P.kwargs) -> R:
+        """Run ``fn(*args, **kwargs)`` on this line's worker, in turn with
+        the requests, and return its result: several blocking calls on
+        :attr:`blocking` that must follow each other with no other request
+        between them (a read-modify-write), or a blocking device facade."""
+        return await self._line.submit(fn, *args, **kwargs)
+
+    # -- settings ----------------------------------------------------------------------
+
+    @property
+    def slave(self) -> int | None:
+        """Default slave address for requests that do not name one; a new
+        value applies to the requests not yet started."""
+        return self.blocking.slave
+
+    @slave.setter
+    def slave(self, value: int | None) -> None:
+        self.blocking.slave = value
+
+    @property
+    def timeout(self) -> float:
+        """Seconds to wait for a complete reply (set with :meth:`set_timeout`,
+        in turn with the requests)."""
+        return self.blocking.timeout
+
+    set_timeout = Mirror(Client.set_timeout)
+
+    # -- requests: the blocking client's, on the worker --------------------------------
+
+    read_holding_registers = Mirror(Client.read_holding_registers)
+    read_input_registers = Mirror(Client.read_input_registers)
+    read_holding_registers_into = Mirror(Client.read_holding_registers_into)
+    read_input_registers_into = Mirror(Client.read_input_registers_into)
+    read_registers_prepared = Mirror(Client.read_registers_prepared)
+    run_hub_sweep = Mirror(Client.run_hub_sweep)
+    write_register = Mirror(Client.write_register)
+    write_registers = Mirror(Client.write_registers)
+    mask_write_register = Mirror(Client.mask_write_register)
+    write_read_registers = Mirror(Client.write_read_registers)
+    read_coils = Mirror(Client.read_coils)
+    read_discrete_inputs = Mirror(Client.read_discrete_inputs)
+    write_coil = Mirror(Client.write_coil)
+    write_coils = Mirror(Client.write_coils)
+    report_slave_id = Mirror(Client.report_slave_id)
+    read_exception_status = Mirror(Client.read_exception_status)
+    raw_request = Mirror(Client.raw_request)
+    drain = Mirror(Client.drain)
+
+
+class AsyncRtuClient(AsyncClient):
+    """A Modbus RTU master on a serial port, for asyncio: the arguments of
+    :class:`pymb.RtuClient`, the requests as coroutines."""
+
+    blocking: RtuClient
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 9600,
+        parity: str = "N",
+        data_bits: int = 8,
+        stop_bits: int = 1,
+        *,
+        slave: int | None = None,
+        timeout: float = 1.0,
+        byte_timeout: float = 0.0,
+        serial_mode: str | None = None,
+        rts: str | None = None,
+        rts_delay: float | None = None,
+        reject_early: bool | None = None,
+    ) -> None:
+        super().__init__(RtuClient(
+            port, baudrate, parity, data_bits, stop_bits, slave=slave, timeout=timeout,
+            byte_timeout=byte_timeout, serial_mode=serial_mode, rts=rts, rts_delay=rts_delay,
+            reject_early=reject_early))
+
+    @property
+    def baudrate(self) -> int:
+        """The line's speed, bit/s."""
+        return self.blocking.baudrate
+
+    @property
+    def parity(self) -> str:
+        """``"N"``, ``"E"`` or ``"O"``."""
+        return self.blocking.parity
+
+    @property
+    def data_bits(self) -> int:
+        """Data bits per character."""
+        return self.blocking.data_bits
+
+    @property
+    def stop_bits(self) -> int:
+        """Stop bits per character."""
+        return self.blocking.stop_bits
+
+    set_rs485 = Mirror(RtuClient.set_rs485)
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds ``nbytes`` take on this line (no I/O)."""
+        return self.blocking.frame_time(nbytes)
+
+
+class _AsyncTcpBase(AsyncClient):
+    blocking: TcpClient | RtuOverTcpClient
+
+    @property
+    def host(self) -> str:
+        """The server's name or address."""
+        return self.blocking.host
+
+    @property
+    def tcp_port(self) -> int:
+        """The server's TCP port."""
+        return self.blocking.tcp_port
+
+
+class AsyncTcpClient(_AsyncTcpBase):
+    """A Modbus TCP client for asyncio: the arguments of
+    :class:`pymb.TcpClient`, the requests as coroutines."""
+
+    blocking: TcpClient
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0) -> None:
+        super().__init__(TcpClient(host, port, slave=slave, timeout=timeout,
+                                   byte_timeout=byte_timeout))
+
+
+class AsyncRtuOverTcpClient(_AsyncTcpBase):
+    """RTU frames over TCP for asyncio: the arguments of
+    :class:`pymb.RtuOverTcpClient`, the requests as coroutines."""
+
+    blocking: RtuOverTcpClient
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
+        super().__init__(RtuOverTcpClient(host, port, slave=slave, timeout=timeout,
+                                          byte_timeout=byte_timeout,
+                                          frame_silence=frame_silence))

@@ -1,0 +1,155 @@
+"""The device facades for asyncio: :class:`AsyncCoolPro` and
+:class:`AsyncSensorHub`.
+
+Each wraps the blocking facade of :mod:`pymb.devices` (its ``blocking``
+twin, made on the async client's blocking client) and runs every call of it
+on the client's line worker, in turn with the client's other requests: a
+hub sweep (six requests, decoded in C) is one job, the same C call as the
+blocking ``read_all``. ``poll(interval)`` reads again and again::
+
+    async for reading in hub.poll(1.0):
+        ...
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
+from typing import Any, TypeVar
+
+from pymb.aio._mirror import Mirror, Mirrored
+from pymb.aio.client import AsyncClient
+from pymb.devices.coolpro import CoolPro, CoolProTelemetry
+from pymb.devices.hub import HubReading, SensorHub
+from pymb.devices.maps import COOLPRO, HUB
+from pymb.devices.planner import ReadPlan
+from pymb.errors import InvalidArgument
+
+__all__ = ["AsyncCoolPro", "AsyncSensorHub", "poll"]
+
+R = TypeVar("R")
+
+
+def _interval(interval: float) -> float:
+    if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not (
+            0 <= interval <= 86400):
+        raise InvalidArgument(f"poll interval must be 0 to 86400 seconds, got {interval!r}")
+    return float(interval)
+
+
+async def poll(read: Callable[[], Awaitable[R]], interval: float) -> AsyncIterator[R]:
+    """``await read()`` every ``interval`` seconds (0: again at once, after
+    giving the loop its turn) and yield each result. Reads start on a fixed
+    grid (start + k * interval); a read that overruns its slot skips the
+    slots it missed, never bunches reads to catch up. An exception from a
+    read ends the iteration and propagates."""
+    step = _interval(interval)
+    loop = asyncio.get_running_loop()
+    due = loop.time()
+    while True:
+        yield await read()
+        now = loop.time()
+        due += step
+        if due < now:  # overran: on to the next slot of the grid still ahead
+            due = now if step == 0 else due + math.ceil((now - due) / step) * step
+        await asyncio.sleep(due - now)
+
+
+class _Facade(Mirrored):
+    """A blocking facade run on an async client's worker."""
+
+    def __init__(self, client: AsyncClient) -> None:
+        if not isinstance(client, AsyncClient):
+            raise TypeError(f"an async facade needs a pymb.aio client, got "
+                            f"{type(client).__name__} (use pymb.devices with a blocking one)")
+        self.client = client
+
+    def _submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Awaitable[R]:
+        return self.client.run(fn, *args, **kwargs)
+
+
+class AsyncCoolPro(_Facade):
+    """The CoolPro at ``address`` on an async ``client``: the methods of
+    :class:`pymb.devices.CoolPro`, as coroutines; :meth:`poll` yields
+    telemetry."""
+
+    blocking: CoolPro  #: the blocking facade run on the client's worker
+
+    def __init__(self, client: AsyncClient, address: int = COOLPRO.default_address) -> None:
+        super().__init__(client)
+        self.blocking = CoolPro(client.blocking, address)
+
+    @property
+    def address(self) -> int:
+        """The device's address (it changes at a reset after set_address)."""
+        return self.blocking.address
+
+    read_telemetry = Mirror(CoolPro.read_telemetry)
+    read_identity = Mirror(CoolPro.read_identity)
+    read_config = Mirror(CoolPro.read_config)
+    set_address = Mirror(CoolPro.set_address)
+    set_baud_rate = Mirror(CoolPro.set_baud_rate)
+    reset = Mirror(CoolPro.reset)
+
+    def poll(self, interval: float) -> AsyncIterator[CoolProTelemetry]:
+        """Telemetry every ``interval`` seconds (see :func:`poll`)."""
+        _interval(interval)
+        return poll(self.read_telemetry, interval)
+
+    def __repr__(self) -> str:
+        return f"<AsyncCoolPro {self.address} on {self.client!r}>"
+
+
+class AsyncSensorHub(_Facade):
+    """The sensor hub at ``address`` on an async ``client``: the arguments
+    and methods of :class:`pymb.devices.SensorHub`, the reads as coroutines;
+    :meth:`poll` yields readings."""
+
+    blocking: SensorHub  #: the blocking facade run on the client's worker
+
+    def __init__(self, client: AsyncClient, address: int = HUB.default_address,
+                 channels: int = HUB.channels, humidity_unit: float | Sequence[float] = 0.1,
+                 *, busy_retries: int = 3, busy_backoff: float = 0.02,
+                 turnaround: float = 0.005) -> None:
+        super().__init__(client)
+        self.blocking = SensorHub(client.blocking, address, channels, humidity_unit,
+                                  busy_retries=busy_retries, busy_backoff=busy_backoff,
+                                  turnaround=turnaround)
+
+    @property
+    def address(self) -> int:
+        """The hub's address."""
+        return self.blocking.address
+
+    @property
+    def channels(self) -> int:
+        """How many channels the hub has."""
+        return self.blocking.channels
+
+    @property
+    def unsupported(self) -> frozenset[str]:
+        """Blocks this hub's firmware lacks, as far as seen so far."""
+        return self.blocking.unsupported
+
+    def plan(self, blocks: Iterable[str] | None = None,
+             channels: Iterable[int] | None = None) -> ReadPlan:
+        """The requests a read would make (no I/O; see :meth:`SensorHub.plan`)."""
+        return self.blocking.plan(blocks, channels)
+
+    read_all = Mirror(SensorHub.read_all)
+    read = Mirror(SensorHub.read)
+    forget_firmware = Mirror(SensorHub.forget_firmware)
+
+    def poll(self, interval: float, blocks: Iterable[str] | None = None,
+             channels: Iterable[int] | None = None) -> AsyncIterator[HubReading]:
+        """A reading every ``interval`` seconds (see :func:`poll`): every
+        block of every channel, or ``blocks`` and/or ``channels`` as in
+        :meth:`read`. Each reading is a new one, the caller's to keep."""
+        _interval(interval)
+        b = None if blocks is None else tuple(blocks)
+        c = None if channels is None else tuple(channels)
+        return poll(lambda: self.read(b, c), interval)
+
+    def __repr__(self) -> str:
+        return f"<AsyncSensorHub {self.address} on {self.client!r}>"

@@ -1,0 +1,110 @@
+"""pymb.aio mirrors the blocking API: every public method of each blocking
+client and facade exists on its async twin with the same signature (a
+coroutine unless it does no I/O), every property can be read, and the
+constructors take the same arguments."""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+from typing import Any
+
+import pytest
+
+import pymb
+import pymb.aio
+from pymb.devices import CoolPro, SensorHub
+
+#: Methods that do no I/O and take no lock: the same plain method on both sides.
+NO_IO = {"fileno", "frame_time", "plan"}
+#: Facade methods the async form adds (no blocking twin).
+ASYNC_ONLY = {"poll", "run"}
+
+PAIRS: list[tuple[type, type]] = [
+    (pymb.RtuClient, pymb.aio.AsyncRtuClient),
+    (pymb.TcpClient, pymb.aio.AsyncTcpClient),
+    (pymb.RtuOverTcpClient, pymb.aio.AsyncRtuOverTcpClient),
+    (CoolPro, pymb.aio.AsyncCoolPro),
+    (SensorHub, pymb.aio.AsyncSensorHub),
+]
+
+
+def _public(cls: type) -> dict[str, Any]:
+    return {name: value for name, value in inspect.getmembers(cls)
+            if not name.startswith("_")}
+
+
+@pytest.mark.parametrize(("blocking", "aio"), PAIRS, ids=lambda c: c.__name__)
+def test_every_public_method_is_mirrored_with_its_signature(blocking: type, aio: type) -> None:
+    for name, member in _public(blocking).items():
+        if isinstance(member, property):
+            assert isinstance(getattr(aio, name, None), property), f"{aio.__name__}.{name}"
+            continue
+        if not callable(member):
+            continue
+        mirrored = getattr(aio, name, None)
+        assert mirrored is not None, f"{aio.__name__} lacks {name}"
+        assert inspect.signature(mirrored) == inspect.signature(member), name
+        if name in NO_IO:
+            assert not inspect.iscoroutinefunction(mirrored), name
+        else:
+            assert inspect.iscoroutinefunction(mirrored), f"{aio.__name__}.{name} is not async"
+            assert mirrored.__doc__, name
+    extra = {n for n, m in _public(aio).items() if callable(m) and not isinstance(m, property)}
+    assert extra - set(_public(blocking)) <= ASYNC_ONLY, extra - set(_public(blocking))
+
+
+@pytest.mark.parametrize(("blocking", "aio"), PAIRS, ids=lambda c: c.__name__)
+def test_constructors_take_the_same_arguments(blocking: type, aio: type) -> None:
+    want = list(inspect.signature(blocking).parameters.values())
+    got = list(inspect.signature(aio).parameters.values())
+    if blocking in (CoolPro, SensorHub):  # the client is the async one: same name and place
+        assert got[0].name == want[0].name == "client"
+        want, got = want[1:], got[1:]
+    assert got == want
+
+
+@pytest.mark.parametrize(("blocking", "aio"), PAIRS[:3], ids=lambda c: c.__name__)
+def test_instance_attributes_read_through(blocking: type, aio: type) -> None:
+    client: pymb.aio.AsyncClient = (aio("/dev/null") if aio is pymb.aio.AsyncRtuClient
+                                    else aio("127.0.0.1", 1502))
+    twin = client.blocking
+    assert isinstance(twin, blocking)
+    names = [n for n in vars(twin) if not n.startswith("_")]
+    assert names  # connections, baudrate, host, ...
+    for n in names:
+        assert getattr(client, n) == getattr(twin, n), n
+    client.slave = 17
+    assert twin.slave == 17
+    assert not client.connected
+    assert repr(client).startswith(f"<{aio.__name__} ")
+
+
+def test_bad_arguments_raise_what_the_blocking_client_raises() -> None:
+    with pytest.raises(pymb.InvalidArgument, match="baudrate 1234"):
+        pymb.aio.AsyncRtuClient("/dev/null", 1234)
+    with pytest.raises(pymb.InvalidArgument, match="port must be from 1 to 65535"):
+        pymb.aio.AsyncTcpClient("127.0.0.1", 0)
+    client = pymb.aio.AsyncTcpClient("127.0.0.1", 1502)
+    with pytest.raises(pymb.InvalidArgument, match="slave"):
+        client.slave = 256
+
+    async def unconnected() -> None:
+        with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
+            await client.read_holding_registers(0, 1, slave=1)
+        with pytest.raises(pymb.InvalidArgument, match="count must be"):
+            await client.read_holding_registers(0, 0, slave=1)
+
+    asyncio.run(unconnected())
+
+
+def test_a_facade_needs_an_async_client() -> None:
+    with pytest.raises(TypeError, match=r"pymb\.aio client"):
+        pymb.aio.AsyncCoolPro(pymb.TcpClient("127.0.0.1", 1502))  # type: ignore[arg-type]
+
+
+def test_poll_checks_its_interval() -> None:
+    hub = pymb.aio.AsyncSensorHub(pymb.aio.AsyncTcpClient("127.0.0.1", 1502), 1)
+    for bad in (-1, "1", True, 1e9):
+        with pytest.raises(pymb.InvalidArgument, match="poll interval"):
+            hub.poll(bad)  # type: ignore[arg-type]
