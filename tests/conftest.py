@@ -8,6 +8,7 @@ tests directory is on the path, as it is for peers.py and reference.py.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -34,6 +35,29 @@ PYMB = [sys.executable, "-m", "pymb"]
 #: A client's reply timeout where a test waits for one to pass: short, so the
 #: suite stays fast; longer under valgrind or qemu (PYMB_TEST_TIMEOUT).
 TIMEOUT = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
+
+
+#: SIGINT's disposition when the suite started: ``signal.SIG_IGN`` when a
+#: non-interactive shell, ``nohup`` or a CI runner started it in the background.
+SIGINT_AT_START = signal.getsignal(signal.SIGINT)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Every child starts with SIGINT at its default, as from a terminal.
+
+    An ignored signal stays ignored across ``exec``, so a suite started with
+    SIGINT ignored would start children that rightly ignore Ctrl-C, and the
+    Ctrl-C tests would wait for nothing. A handled signal is reset to its
+    default by ``exec``: the suite's own process handles SIGINT by doing
+    nothing (it still ignores it, as it was asked to), and every launcher,
+    ours or a library's, starts its children with SIGINT at its default.
+    """
+    if SIGINT_AT_START is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _ignore)
+
+
+def _ignore(signum: int, frame: Any) -> None:
+    """SIGINT in the suite's own process when it started ignored: nothing."""
 
 
 def rss_kb(pid: int | None = None) -> int:
