@@ -157,6 +157,7 @@ def test_log_records_faults_and_keeps_going(tmp_path: Path) -> None:
     con.close()
 
 
+@pytest.mark.ctrl_c
 def test_unplugged_bus_reconnects_while_the_other_keeps_logging(tmp_path: Path) -> None:
     cfg = tmp_path / "two.toml"
     db = tmp_path / "two.sqlite"

@@ -168,6 +168,7 @@ def test_read_says_what_answered_and_exits_3(sim3: Simulator) -> None:
     assert "answers like a sensor hub, not a CoolPro" in r.stderr
 
 
+@pytest.mark.ctrl_c
 def test_bus_that_never_opens_is_a_fault_and_exit_4(sim3: Simulator, tmp_path: Path) -> None:
     cfg = tmp_path / "two.toml"
     cfg.write_text(f"""
@@ -233,6 +234,7 @@ def test_default_names_on_two_buses_are_qualified(tmp_path: Path) -> None:
     assert names == ["line1-hub-1", "line2-hub-1"]
 
 
+@pytest.mark.ctrl_c
 def test_log_status_line_is_one_line_that_fits(tmp_path: Path) -> None:
     p = Pty(["log", "coolpro", "hub", "--port", "/dev/ttyUSB-missing-for-a-long-name-test",
              "--out", str(tmp_path / "s.sqlite")], cols=80)
@@ -296,6 +298,7 @@ def test_scan_lists_no_phantom_for_a_reply_naming_another_address() -> None:
     assert "heard once but silent when asked again: 41" in r.stderr
 
 
+@pytest.mark.ctrl_c
 def test_scan_prints_devices_as_found_and_keeps_them_on_ctrl_c() -> None:
     with Simulator(["coolpro:3", "hub:250"], seed=2) as sim3:
         proc = subprocess.Popen([*PYMB, "scan", "--port", sim3.port, "--timeout", "0.2"],
@@ -414,6 +417,7 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
         assert own.stat().st_size > 0
 
 
+@pytest.mark.ctrl_c
 def test_simulate_link_and_port_refuse_what_is_not_theirs(tmp_path: Path) -> None:
     mine = tmp_path / "important"
     mine.write_text("keep me\n")
@@ -570,6 +574,7 @@ def test_unresolvable_tcp_host_says_so() -> None:
 @pytest.mark.parametrize("command", [
     ["read", "coolpro:99"], ["watch", "coolpro:99"], ["scan", "--range", "90-99"],
     ["log", "coolpro:99", "--out", "OUT"]])
+@pytest.mark.ctrl_c
 def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim3: Simulator, tmp_path: Path,
                                                                command: list[str]) -> None:
     command = [str(tmp_path / "stop.sqlite") if a == "OUT" else a for a in command]
@@ -590,6 +595,7 @@ def test_ctrl_c_ends_within_half_a_second_whatever_the_timeout(sim3: Simulator, 
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.ctrl_c
 def test_log_flushes_what_it_read_on_sigint(sim3: Simulator, tmp_path: Path, sig: int) -> None:
     db = tmp_path / "flush.sqlite"
     p = Pty(["log", "coolpro", "--port", sim3.port, "--out", str(db)])
@@ -643,6 +649,7 @@ def test_one_device_syntax_everywhere_with_aliases(sim3: Simulator, tmp_path: Pa
 # -- what the terminal shows ---------------------------------------------------------
 
 
+@pytest.mark.ctrl_c
 def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) -> None:
     p = Pty(["watch", "hub:250", "--port", sim3.port], cols=80, rows=24)
     assert p.read_until(b"reads", 20)
@@ -663,6 +670,7 @@ def test_watch_hub_fits_80x24_with_the_status_line_on_screen(sim3: Simulator) ->
         assert all(len(ln.replace("\x1b[K", "").replace("\x1b[J", "")) < 80 for ln in lines)
 
 
+@pytest.mark.ctrl_c
 def test_watch_block_show_json_identity(sim3: Simulator) -> None:
     p = Pty(["watch", "hub:250", "--port", sim3.port, "--block", "pressure_kpa",
              "--show", "1-20", "--identity"], cols=80, rows=24)

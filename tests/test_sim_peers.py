@@ -173,6 +173,7 @@ def _stop(p: subprocess.Popen[str], sig: int = signal.SIGTERM) -> tuple[int, str
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.ctrl_c
 def test_cli_prints_the_pty_first_and_stops_cleanly(sig: int) -> None:
     p, path = _start("coolpro", "hub")
     try:

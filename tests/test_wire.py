@@ -636,6 +636,7 @@ def test_rejecting_early_bytes_closes_the_prompt_duplicate(baud: int, gap: float
         assert stale_without > 0
 
 
+@pytest.mark.ctrl_c
 def test_ctrl_c_interrupts_a_blocked_read_in_a_real_process() -> None:
     # A real SIGINT (Python's default handler: KeyboardInterrupt) to a process
     # blocked in a read with a 30 s timeout: it ends at once with the

@@ -51,7 +51,8 @@ def test_a_suite_started_with_sigint_ignored_too(tmp_path: Path) -> None:
     # The suite as a background job of a non-interactive shell starts it: SIGINT
     # ignored, in a session of its own (no terminal's Ctrl-C reaches it).
     bash, setsid = shutil.which("bash"), shutil.which("setsid")
-    assert bash and setsid
+    assert bash
+    assert setsid
     here = Path(__file__).relative_to(ROOT)
     done = subprocess.run(
         [bash, "-c", f"trap '' INT; exec {setsid} --wait \"$@\"", "bash", sys.executable,
