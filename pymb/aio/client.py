@@ -118,6 +118,8 @@ class AsyncClient(Mirrored):
             _release(self._closed)
         self._guard = self._closed = None
 
+    ensure_connected = Mirror(Client.ensure_connected)
+
     async def __aenter__(self) -> Self:
         await self.connect()
         return self

@@ -20,10 +20,10 @@ from typing import Any, TypeVar
 
 from pymb.aio._mirror import Mirror, Mirrored
 from pymb.aio.client import AsyncClient
+from pymb.devices import ReadPlan
 from pymb.devices.coolpro import CoolPro, CoolProTelemetry
 from pymb.devices.hub import HubReading, SensorHub
 from pymb.devices.maps import COOLPRO, HUB
-from pymb.devices.planner import ReadPlan
 from pymb.errors import InvalidArgument
 
 __all__ = ["AsyncCoolPro", "AsyncSensorHub", "poll"]
