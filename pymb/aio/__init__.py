@@ -19,11 +19,12 @@ Cancellation and shutdown: see :mod:`pymb.aio.client` and ``docs/asyncio.md``.
 from __future__ import annotations
 
 from pymb.aio.client import AsyncClient, AsyncRtuClient, AsyncRtuOverTcpClient, AsyncTcpClient
-from pymb.aio.devices import AsyncCoolPro, AsyncSensorHub, poll
+from pymb.aio.devices import AsyncCoolPro, AsyncMapDevice, AsyncSensorHub, poll
 
 __all__ = [
     "AsyncClient",
     "AsyncCoolPro",
+    "AsyncMapDevice",
     "AsyncRtuClient",
     "AsyncRtuOverTcpClient",
     "AsyncSensorHub",

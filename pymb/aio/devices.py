@@ -1,5 +1,5 @@
-"""The device facades for asyncio: :class:`AsyncCoolPro` and
-:class:`AsyncSensorHub`.
+"""The device facades for asyncio: :class:`AsyncCoolPro`,
+:class:`AsyncSensorHub` and :class:`AsyncMapDevice`.
 
 Each wraps the blocking facade of :mod:`pymb.devices` (its ``blocking``
 twin, made on the async client's blocking client) and runs every call of it
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
 from pymb.aio._mirror import Mirror, Mirrored
@@ -23,10 +23,12 @@ from pymb.aio.client import AsyncClient
 from pymb.devices import ReadPlan
 from pymb.devices.coolpro import CoolPro, CoolProTelemetry
 from pymb.devices.hub import HubReading, SensorHub
+from pymb.devices.mapdevice import MapDevice
 from pymb.devices.maps import COOLPRO, HUB
 from pymb.errors import InvalidArgument
+from pymb.maps import Map, Value
 
-__all__ = ["AsyncCoolPro", "AsyncSensorHub", "poll"]
+__all__ = ["AsyncCoolPro", "AsyncMapDevice", "AsyncSensorHub", "poll"]
 
 R = TypeVar("R")
 
@@ -153,3 +155,52 @@ class AsyncSensorHub(_Facade):
 
     def __repr__(self) -> str:
         return f"<AsyncSensorHub {self.address} on {self.client!r}>"
+
+
+class AsyncMapDevice(_Facade):
+    """The device map ``m`` describes, at ``address`` on an async ``client``:
+    the arguments and methods of :class:`pymb.devices.MapDevice`, the reads
+    and writes as coroutines (``await meter.read(group="fast")``), with the
+    map's timing kept on the worker; :meth:`poll` yields ``name -> value``
+    dictionaries."""
+
+    blocking: MapDevice  #: the blocking device run on the client's worker
+
+    def __init__(self, client: AsyncClient, m: Map, address: int | None = None, *,
+                 options: Mapping[str, object] | None = None,
+                 baudrate: int | None = None) -> None:
+        super().__init__(client)
+        self.blocking = MapDevice(client.blocking, m, address, options=options,
+                                  baudrate=baudrate)
+
+    @property
+    def map(self) -> Map:
+        """The device's map (configured with its options)."""
+        return self.blocking.map
+
+    @property
+    def address(self) -> int:
+        """The device's unit id."""
+        return self.blocking.address
+
+    @property
+    def states(self) -> dict[str, Any]:
+        """The state of each point of the last read that finished."""
+        return self.blocking.states
+
+    def plan(self, group: str | None = None, *names: str) -> ReadPlan:
+        """The requests a read would make now (no I/O; see :meth:`MapDevice.plan`)."""
+        return self.blocking.plan(group, *names)
+
+    read = Mirror(MapDevice.read)
+    write = Mirror(MapDevice.write)
+
+    def poll(self, interval: float, *names: str,
+             group: str | None = None) -> AsyncIterator[dict[str, Value]]:
+        """The named points, or ``group``'s, or all, every ``interval``
+        seconds (see :func:`poll`), as :meth:`read` returns them."""
+        _interval(interval)
+        return poll(lambda: self.read(*names, group=group), interval)
+
+    def __repr__(self) -> str:
+        return f"<AsyncMapDevice {self.map.id}:{self.address} on {self.client!r}>"
