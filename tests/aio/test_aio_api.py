@@ -59,7 +59,7 @@ def test_every_public_method_is_mirrored_with_its_signature(blocking: type, aio:
 def test_constructors_take_the_same_arguments(blocking: type, aio: type) -> None:
     want = list(inspect.signature(blocking).parameters.values())
     got = list(inspect.signature(aio).parameters.values())
-    if blocking in (CoolPro, SensorHub, MapDevice):  # the client is the async one: same name and place
+    if blocking in (CoolPro, SensorHub, MapDevice):  # an async client: same name and place
         assert got[0].name == want[0].name == "client"
         want, got = want[1:], got[1:]
     assert got == want
