@@ -51,6 +51,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
+    "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),
     "simulate": ("pymb.sim.cli", "simulate CoolPro and sensor-hub devices on a pty or TCP"),
     "bench": ("pymb.bench.cli", "benchmark pymb against other Modbus stacks, side by side"),
 }

@@ -18,6 +18,8 @@ from pymb.commands._common import (
     render,
     to_json,
 )
+from pymb.commands.mapcli import add_map_arg
+from pymb.commands.mapread import read_map, target_from_args
 from pymb.devices import HUB, CoolPro, CoolProIdentity, HubReading, SensorHub
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.errors import DeviceException, ProtocolError
@@ -32,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also say what the device is: a CoolPro's serial number, firmware "
                         "and manufacture date; a hub's channels and firmware")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    add_map_arg(p, group=True)
 
 
 def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None,
@@ -98,6 +101,9 @@ def identity_json(ident: CoolProIdentity | Identity | None) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """One reading, printed."""
+    target = target_from_args(args)  # a device a map describes
+    if target is not None:
+        return read_map(args, target)
     dev = device_from_args(args)  # checked before any I/O
     client = make_client(args)
     read = reader(dev, client)

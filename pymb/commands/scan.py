@@ -26,16 +26,19 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import cast
 
 from pymb import _native
 from pymb.client import Client, RtuClient
 from pymb.commands._common import add_connection_args, make_client
+from pymb.commands.mapcli import add_map_arg
 from pymb.devices.identify import Answer, Identity, client_asker, identify
 from pymb.devices.maps import COOLPRO, HUB
+from pymb.devices.mapspec import map_types, match_map
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.maps import Map
 from pymb.wire import bits_per_char, char_time
 
 __all__ = ["LineListener", "add_arguments", "parse_range", "run"]
@@ -52,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds to wait for a device being confirmed (default: the hub's "
                         "documented 0.5 s plus the reply's wire time)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    add_map_arg(p)
 
 
 def parse_range(spec: str) -> list[int]:
@@ -74,7 +78,7 @@ class Found:
     """One address that answered and confirmed."""
 
     address: int
-    device: str  #: coolpro, hub, or "unknown"
+    device: str  #: coolpro, hub, a map's id, or "unknown"
     detail: str
 
 
@@ -177,7 +181,8 @@ def _probe() -> tuple[int, bytes]:
 
 
 def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
-             confirm_timeout: float) -> Iterator[tuple[str, object]]:
+             confirm_timeout: float, known: Mapping[str, Map] | None = None
+             ) -> Iterator[tuple[str, object]]:
     """Yields ("progress", (address, index)), ("found", Found) and
     ("unconfirmed", address) as the scan goes."""
     line = LineListener(client.fileno(), client.baudrate,
@@ -196,7 +201,7 @@ def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
             if ident is None:
                 yield "unconfirmed", m
             else:
-                yield "found", _found(ident)
+                yield "found", _found(ident, ask, known)
 
     asked: set[int] = set()
     for i, a in enumerate(addresses, 1):
@@ -218,23 +223,31 @@ def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
     yield from confirm()
 
 
-def scan_client(client: Client, addresses: list[int]) -> Iterator[tuple[str, object]]:
+def scan_client(client: Client, addresses: list[int],
+                known: Mapping[str, Map] | None = None) -> Iterator[tuple[str, object]]:
     """Each address in turn, through the client (TCP gateways)."""
     ask = client_asker(client)
     for i, a in enumerate(addresses, 1):
         yield "progress", (a, i)
         ident = identify(ask, a)
         if ident is not None:
-            yield "found", _found(ident)
+            yield "found", _found(ident, ask, known)
 
 
-def _found(ident: Identity) -> Found:
+def _found(ident: Identity, ask: Callable[[int, int, bytes], Answer],
+           known: Mapping[str, Map] | None) -> Found:
+    """What answered: a device a map recognises (its ``[[identify]]`` rules
+    all hold), else what :func:`identify` made of it."""
+    matched = match_map(ask, ident.address, known) if known else None
+    if matched is not None:
+        return Found(ident.address, *matched)
     return Found(ident.address, ident.device, ident.detail)
 
 
 def run(args: argparse.Namespace) -> int:
     """Try every address in the range; print what answered as it is confirmed."""
     addresses = parse_range(args.range)
+    known = map_types(args.maps)
     client = make_client(args)
     confirm_timeout = args.confirm_timeout
     if confirm_timeout is None:
@@ -247,8 +260,9 @@ def run(args: argparse.Namespace) -> int:
     def work() -> None:
         try:
             with client:
-                steps = (scan_rtu(client, addresses, args.timeout, confirm_timeout)
-                         if isinstance(client, RtuClient) else scan_client(client, addresses))
+                steps = (scan_rtu(client, addresses, args.timeout, confirm_timeout, known)
+                         if isinstance(client, RtuClient) else
+                         scan_client(client, addresses, known))
                 for step in steps:
                     events.put(step)
         except BaseException as e:  # handed to the main thread

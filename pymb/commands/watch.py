@@ -24,6 +24,7 @@ from typing import Any
 
 from pymb.commands import read as read_cmd
 from pymb.commands._common import device_from_args, make_client, render, to_json
+from pymb.commands.mapread import target_from_args, watch_map
 from pymb.devices import HUB, HubReading, State
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 from pymb.logger import closest
@@ -122,6 +123,9 @@ def _size() -> tuple[int, int]:
 
 def run(args: argparse.Namespace) -> int:
     """Read, redraw, repeat until Ctrl-C (or --count attempts)."""
+    target = target_from_args(args)  # a device a map describes
+    if target is not None:
+        return watch_map(args, target)
     dev = device_from_args(args)
     if args.count < 0:
         raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")

@@ -112,8 +112,9 @@ class MapDevice:
         self._index = {p.name: i for i, p in enumerate(self._points)}
         items = mi.items
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
-        self._layouts: dict[int, tuple[ReadPlan, list[int]]] = {}
-        self._buffer = array("H", bytes(2 * 16))
+        # per selection, per table: the first address and the registers
+        # (bits) from there to the selection's last, read into in place
+        self._images: dict[tuple[int, ...], dict[str, tuple[int, array[int]]]] = {}
         self._unread = bytearray(len(items))  # 1: this read got no value for the item
         self._lock = threading.Lock()
         self._connections = -1
@@ -163,31 +164,27 @@ class MapDevice:
         with self._lock:
             self._prepare()
             plan = self._planner.plan(self._items(points))
-            positions = self._layout(plan)
+            images = self._image(points)
             self._unread[:] = bytes(len(self._unread))
             for r in self._planner.unsupported:
                 self._unread[r] = 1
-            self._run(plan, positions)
-            return self._decode(points, positions)
+            self._run(plan, images)
+            return self._decode(points, images)
 
-    def _layout(self, plan: ReadPlan) -> list[int]:
-        """Where each item of ``plan`` sits in the buffer (requests end to end)."""
-        cached = self._layouts.get(id(plan))
-        if cached is not None and cached[0] is plan:
-            return cached[1]
-        positions = [0] * len(self._planner.items)
-        items = self._planner.items
-        at = 0
-        for r in plan.requests:
-            for k in r.items:
-                positions[k] = at + items[k].address - r.address
-            at += r.count
-        if len(self._buffer) < at:
-            self._buffer = array("H", bytes(2 * at))
-        if len(self._layouts) > 64:
-            self._layouts.clear()
-        self._layouts[id(plan)] = (plan, positions)
-        return positions
+    def _image(self, points: tuple[int, ...]) -> dict[str, tuple[int, array[int]]]:
+        """The buffers of a selection, one per table, made once: registers
+        (bits) from its first point's to its last's, each request read in
+        place."""
+        images = self._images.get(points)
+        if images is None:
+            span: dict[str, tuple[int, int]] = {}
+            for i in points:
+                p = self._points[i]
+                lo, hi = span.get(p.table, (p.address, p.end))
+                span[p.table] = (min(lo, p.address), max(hi, p.end))
+            images = {t: (lo, array("H", bytes(2 * (hi - lo)))) for t, (lo, hi) in span.items()}
+            self._images[points] = images
+        return images
 
     def _prepare(self) -> None:
         """Before a read: reconnect if the line was lost, and after a new
@@ -202,46 +199,46 @@ class MapDevice:
                 q = _quiet(self.client)
                 q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
-    def _run(self, plan: ReadPlan, positions: list[int]) -> None:
+    def _run(self, plan: ReadPlan, images: dict[str, tuple[int, array[int]]]) -> None:
         timeout = self.map.timing.response_timeout
         client = self.client
         before = client.timeout
         if timeout is not None and timeout != before:
             client.set_timeout(timeout)
         try:
-            items = self._planner.items
             for r in plan.requests:
-                k = r.items[0]
-                self._fetch(r, positions[k] - (items[k].address - r.address))
+                self._fetch(r, images[r.table])
         finally:
             if timeout is not None and timeout != before:
                 client.set_timeout(before)
 
-    def _wire(self, r: Request, at: int) -> None:
-        """One request on the wire, into the buffer at ``at``, with the
+    def _wire(self, r: Request, image: tuple[int, array[int]]) -> None:
+        """One request on the wire, into its place in ``image``, with the
         device's silences before and after."""
         t = self.map.timing
         q = _quiet(self.client)
         _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+        base, buf = image
+        at = r.address - base
         try:
             if r.table in BIT_TABLES:
                 read = (self.client.read_coils if r.table == "coil"
                         else self.client.read_discrete_inputs)
                 bits = read(r.address, r.count, slave=self.address)
-                self._buffer[at:at + r.count] = array("H", bits)
+                buf[at:at + r.count] = array("H", bits)
             else:
-                view = memoryview(self._buffer)[at:at + r.count]
+                view = memoryview(buf)[at:at + r.count]
                 self.client.read_registers_prepared(r.function, self.address, r.address, view)
         finally:
             now = time.monotonic()
             q.last_end = now
             q.quiet_until = max(q.quiet_until, now + t.turnaround)
 
-    def _fetch(self, r: Request, at: int) -> None:
-        """Read ``r`` into the buffer at ``at``; on exception 02/03, fall back
-        as the module says, within this read."""
+    def _fetch(self, r: Request, image: tuple[int, array[int]]) -> None:
+        """Read ``r`` into ``image``; on exception 02/03, fall back as the
+        module says, within this read."""
         try:
-            self._wire(r, at)
+            self._wire(r, image)
             return
         except (IllegalDataAddress, IllegalDataValue):
             if not self._planner.limits.split_on_exception:
@@ -249,43 +246,43 @@ class MapDevice:
         planner = self._planner
         if r.bridged and planner.refuse_bridge(r):
             for sub in planner.replan(r).requests:
-                self._fetch(sub, at + sub.address - r.address)
+                self._fetch(sub, image)
         elif len(r.extents) > 1:
             items = planner.items
             for ext in r.extents:
                 start = min(items[k].address for k in ext)
                 end = max(items[k].end for k in ext)
-                alone = Request(r.table, start, end - start, ext, (ext,), 0)
-                self._fetch(alone, at + start - r.address)
+                self._fetch(Request(r.table, start, end - start, ext, (ext,), 0), image)
         else:
             planner.mark_unsupported(r.items)
             for k in r.items:
                 self._unread[k] = 1
 
-    def _decode(self, points: Sequence[int], positions: list[int]) -> dict[str, Value]:
-        buf = self._buffer
+    def _decode(self, points: Sequence[int],
+                images: dict[str, tuple[int, array[int]]]) -> dict[str, Value]:
         unread = self._unread
         out: dict[str, Value] = {}
         states: dict[str, Any] = {}
         for i in points:
             p = self._points[i]
+            base, buf = images[p.table]
             k0 = self._first[i]
             n = p.count
             if not p.block:
                 if unread[k0]:
                     out[p.name], states[p.name] = None, "unsupported"
                 else:
-                    at = positions[k0]
+                    at = p.address - base
                     out[p.name], states[p.name] = decode_one(p, buf[at:at + n])
                 continue
             values: list[Value] = []
             st: list[str] = []
-            for k in range(k0, k0 + p.channels):
-                if unread[k]:
+            for c in range(p.channels):
+                if unread[k0 + c]:
                     values.append(None)
                     st.append("unsupported")
                 else:
-                    at = positions[k]
+                    at = p.address + c * p.stride - base
                     v, s = decode_one(p, buf[at:at + n])
                     values.append(v)
                     st.append(s)

@@ -19,9 +19,13 @@ import threading
 from types import FrameType
 
 from pymb.client import parse_host_port
+from pymb.commands.mapcli import add_map_arg
+from pymb.devices.mapspec import map_types, near
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.sim.clock import SimClock
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import KINDS
+from pymb.sim.mapsim import MapSimDevice, map_sim_device
 from pymb.sim.simulator import Simulator
 
 __all__ = ["add_arguments", "run"]
@@ -33,6 +37,10 @@ devices: KIND[:ADDRESS][,key=value...]
   hub (address 1)       keys: firmware (e.g. 1.07, 2.18, 2.22, 2.23), delay (s or
                         LOW-HIGH), humidity or humidity_unit (0.1 or 1: unit on every
                         channel), baud, dynamic (0/1)
+  a map's id            a shipped map (eastron-sdm120, ...) or one given with --map FILE;
+                        keys: the map's options, baud, dynamic (0/1). Values from each
+                        point's example, or a seeded model; registers the map does not
+                        declare answer exception 02
 faults: KIND[:PROBABILITY][,key=value...]  (probability 1 when omitted)
   kinds: {', '.join(KINDS)}
   keys: delay, code, keep, extra (hex), to, seconds, bits, channels (3+4), address
@@ -40,6 +48,7 @@ examples:
   pymb simulate coolpro hub
   pymb simulate coolpro:41 hub:250,firmware=1.07 --baud 19200
   pymb simulate hub --tcp 127.0.0.1:5020 --fault busy:0.1 --fault late:0.05,delay=1
+  pymb simulate --map meter.toml my-meter:3 --tcp 5020
 """
 
 
@@ -65,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="seed of the values and of the faults (default 0)")
     parser.add_argument("--fault", action="append", default=[], metavar="SPEC",
                         help="inject a fault by probability (repeatable)")
+    add_map_arg(parser)
     parser.add_argument("--link", metavar="PATH",
                         help="keep a symbolic link at PATH pointing at the pseudo-terminal "
                              "and print it instead")
@@ -117,7 +127,29 @@ def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
         return f"{line} -t 3 -0 -r 0 -c 8 -1 {target}"
     if isinstance(dev, HubDevice):
         return f"{line} -t 4 -0 -r 31 -c 10 -1 {target}"
+    if isinstance(dev, MapSimDevice) and dev.map.points:
+        p = next(iter(dev.map.points.values()))
+        t = {"coil": 0, "discrete": 1, "input": 3, "holding": 4}[p.table]
+        return f"{line} -t {t} -0 -r {p.address} -c {p.count} -1 {target}"
     return line
+
+
+def _devices(args: argparse.Namespace, clock: SimClock) -> list[str | Device]:
+    """The specs as given; those naming a map's id as simulated map devices."""
+    specs = args.devices or ["coolpro", "hub"]
+    known = map_types(getattr(args, "maps", []))
+    out: list[str | Device] = []
+    for i, spec in enumerate(specs):
+        dev = map_sim_device(spec, known, seed=args.seed * 1009 + i, clock=clock,
+                             baud=args.baud)
+        kind = spec.split(",")[0].partition(":")[0].strip().lower()
+        if dev is None and kind not in ("coolpro", "hub"):
+            ids = ", ".join(sorted(known)) or "none"
+            raise InvalidArgument(f"unknown device {kind!r} in {spec!r}; use coolpro, hub or "
+                                  f"a map's id (known: {ids}; a map file needs --map FILE)"
+                                  f"{near(kind, ['coolpro', 'hub', *known])}")
+        out.append(spec if dev is None else dev)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,8 +167,10 @@ def run(args: argparse.Namespace) -> int:
         check_link(args.link)
     if args.port:
         check_serial_port(args.port)
+    clock = SimClock()
     sim = Simulator(
-        args.devices or ["coolpro", "hub"],
+        _devices(args, clock),
+        clock=clock,
         transport=transport,
         port=args.port,
         host=tcp[0] if tcp else "127.0.0.1",

@@ -1,0 +1,170 @@
+"""``pymb map``: check a device map, or probe a device's registers.
+
+``pymb map check FILE`` validates a map and prints each group's read plan
+with its predicted wire time. ``pymb map probe ADDRESS TABLE:START:COUNT``
+reads raw registers and prints, for each register it starts at, every type
+and byte order side by side: the answer to "which byte order is my meter?".
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
+from pymb.devices.mapspec import load_map
+from pymb.errors import InvalidArgument
+from pymb.maps import Point
+from pymb.maps.codec import decode_one
+from pymb.maps.planner import Line, map_planner
+from pymb.maps.types import ORDER_NAMES, normalize_order
+from pymb.wire import bits_per_char
+
+__all__ = ["add_arguments", "interpretations", "run"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``pymb map check|probe``."""
+    sub = p.add_subparsers(dest="map_command", metavar="check|probe")
+    check = sub.add_parser("check", help="validate a map; print each group's plan and "
+                                         "predicted wire time",
+                           description="validate a map; print each group's plan and "
+                                       "predicted wire time")
+    check.add_argument("file", metavar="FILE")
+    check.add_argument("--baud", type=int, default=9600,
+                       help="line speed the plans are priced at (default 9600)")
+    check.add_argument("--parity", default="N", choices=["N", "E", "O"],
+                       help="parity the plans are priced with (default N)")
+    probe = sub.add_parser("probe", help="raw registers beside every type and byte order",
+                           description="read raw registers and print every type and byte "
+                                       "order interpretation side by side")
+    probe.add_argument("address", type=int, metavar="ADDRESS", help="the device's unit id")
+    probe.add_argument("what", metavar="TABLE:START:COUNT",
+                       help="holding or input (h, i), the first register (on the wire, "
+                            "from 0) and how many (1..125), e.g. input:0:4")
+    add_connection_args(probe)
+    probe.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+def _check(args: argparse.Namespace) -> int:
+    m = load_map(args.file)
+    planner, mi = map_planner(m, Line(args.baud, bits_per_char(args.parity)))
+    what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
+    print(f"{args.file}: {m.id}{f' ({what})' if what else ''}: "
+          f"{_plural(len(m.points), 'point')}, {_plural(len(m.groups), 'group')}: valid")
+    groups: list[str | None] = [*m.groups, None]
+    for g in groups:
+        chosen = [i for i, p in enumerate(mi.points) if p.group == g]
+        if g is None and not chosen:
+            continue
+        interval = m.groups.get(g) if g is not None else None
+        when = ("read on request" if g is None else
+                "read once when the device appears" if interval == 0 else
+                f"every {interval:g} s")
+        print(f"\ngroup {g or '(none)'}: {_plural(len(chosen), 'point')}, {when}")
+        if chosen:
+            plan = planner.plan(mi.wanted(chosen))
+            print("  " + plan.explain().replace("\n", "\n  "))
+    return 0
+
+
+def _where(text: str) -> tuple[str, int, int]:
+    parts = text.split(":")
+    names = {"h": "holding", "i": "input", "holding": "holding", "input": "input"}
+    if len(parts) != 3 or parts[0].lower() not in names:
+        raise InvalidArgument(f"{text!r}: give TABLE:START:COUNT, TABLE holding or input "
+                              "(h, i), e.g. input:0:4")
+    try:
+        start, count = int(parts[1], 0), int(parts[2], 0)
+    except ValueError:
+        raise InvalidArgument(f"{text!r}: START and COUNT are whole numbers") from None
+    if not 0 <= start <= 0xFFFF or not 1 <= count <= 125 or start + count > 0x10000:
+        raise InvalidArgument(f"{text!r}: START is 0..65535 and COUNT 1..125, within the "
+                              "address space")
+    return names[parts[0].lower()], start, count
+
+
+def _fmt(v: object) -> str:
+    if v is None:
+        return "nan"
+    if isinstance(v, float):
+        return f"{v:.7g}"
+    return str(v)
+
+
+_KINDS = ((1, ("u16", "i16", "f16")), (2, ("u32", "i32", "f32")), (4, ("u64", "i64", "f64")))
+
+
+def _orders(width: int) -> tuple[str, ...]:
+    return ("AB", "BA") if width == 1 else ORDER_NAMES
+
+
+def interpretations(regs: list[int]) -> list[dict[str, object]]:
+    """For each register a value may start at: the 16-, 32- and 64-bit
+    readings in every named order, decoded by the maps' own codec (None for
+    NaN), and the text from there on."""
+    out: list[dict[str, object]] = []
+    for i in range(len(regs)):
+        row: dict[str, object] = {"offset": i, "hex": f"0x{regs[i]:04X}"}
+        for width, kinds in _KINDS:
+            if i + width > len(regs):
+                continue
+            for order in _orders(width):
+                perm = order if width == 1 else normalize_order(order, 2 * width) or ""
+                for kind in kinds:
+                    p = Point("probe", "holding", 0, width, kind, order=perm)
+                    row[f"{kind}_{order}"] = decode_one(p, regs[i:i + width])[0]
+        text = bytes(b for r in regs[i:] for b in (r >> 8, r & 0xFF))
+        row["text"] = text.split(b"\0")[0].decode("latin-1")
+        out.append(row)
+    return out
+
+
+def _probe(args: argparse.Namespace) -> int:
+    table, start, count = _where(args.what)
+    client = make_client(args)
+
+    def io() -> list[int]:
+        with client:
+            read = (client.read_holding_registers if table == "holding"
+                    else client.read_input_registers)
+            return list(read(start, count, slave=args.address))
+
+    regs = interruptible(io)
+    rows = interpretations(regs)
+    if args.json:
+        print_json({"table": table, "start": start, "registers": regs, "rows": [
+            {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+             for k, v in r.items()} for r in rows]})
+        return 0
+    print(f"{table} registers {start}..{start + count - 1} of unit {args.address}: "
+          + " ".join(f"{r:04X}" for r in regs))
+    for r in rows:
+        offset = int(str(r["offset"]))
+        print(f"\n{table} {start + offset} ({r['hex']})")
+        for width, kinds in _KINDS:
+            for order in _orders(width):
+                keys = [f"{k}_{order}" for k in kinds]
+                if keys[0] not in r:
+                    continue
+                cells = "  ".join(f"{k} {_fmt(r[key]):>22}" for k, key in zip(kinds, keys,
+                                                                                strict=True))
+                print(f"  {order:<5} {cells}")
+        if r["text"]:
+            print(f"  text  {r['text']!r}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """``pymb map check`` or ``pymb map probe``."""
+    if args.map_command == "check":
+        return _check(args)
+    if args.map_command == "probe":
+        return _probe(args)
+    raise InvalidArgument("give a subcommand: pymb map check FILE, or pymb map probe "
+                          "ADDRESS TABLE:START:COUNT --port PATH")
+

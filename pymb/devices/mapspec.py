@@ -1,0 +1,181 @@
+"""The device syntax ``TYPE[:ADDRESS][,key=value...]`` for a device map's
+id: the map types a command knows (the shipped maps, and the files given
+with ``--map``) and one device of them, checked against its map.
+
+``coolpro`` and ``hub`` keep their own facades and are not map types here;
+a map file's id may not take the name of a shipped map.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+from pymb import maps
+from pymb.errors import InvalidArgument
+from pymb.maps import Map, MapError
+from pymb.maps.codec import decode_one
+from pymb.maps.model import did_you_mean
+
+__all__ = ["FACADES", "MapTarget", "load_map", "map_types", "match_map", "near",
+           "parse_map_device"]
+
+
+#: Device types with their own facade (not read through a map here).
+FACADES = ("coolpro", "hub")
+
+
+def near(word: str, known: Sequence[str]) -> str:
+    """``; did you mean 'x'?`` when a known name is close to ``word``, else nothing."""
+    hint = did_you_mean(word, known)
+    return hint if hint.startswith("; did you mean") else ""
+
+
+def load_map(path: str) -> Map:
+    """A map file, or a one-line usage error naming the file."""
+    try:
+        return maps.load(path)
+    except MapError as e:
+        raise InvalidArgument(str(e)) from None
+    except OSError as e:
+        raise InvalidArgument(f"--map {path}: {e.strerror or e}") from None
+
+
+def map_types(files: Sequence[str] = ()) -> dict[str, Map]:
+    """Map id -> map: the shipped maps (except the facades') and ``files``."""
+    known: dict[str, Map] = {i: maps.builtin(i) for i in maps.builtin_ids() if i not in FACADES}
+    given: dict[str, str] = {}
+    for path in files:
+        m = load_map(path)
+        if m.id in FACADES or (m.id in known and m.id not in given):
+            raise InvalidArgument(f"--map {path}: device id {m.id!r} is a device pymb ships; "
+                                  "give the map another id")
+        if m.id in given:
+            raise InvalidArgument(f"--map {path}: device id {m.id!r} is also the id of "
+                                  f"--map {given[m.id]}")
+        given[m.id] = path
+        known[m.id] = m
+    return known
+
+
+@dataclass(frozen=True)
+class MapTarget:
+    """One map device as the command line named it."""
+
+    map: Map  #: with the options given applied
+    address: int
+    name: str
+    options: Mapping[str, int | float]
+
+    @property
+    def spec(self) -> str:
+        """The device in the command-line syntax, e.g. ``eastron-sdm120:3``."""
+        opts = "".join(f",{k}={v:g}" for k, v in self.options.items())
+        return f"{self.map.id}:{self.address}{opts}"
+
+
+def _number(text: str, what: str, spec: str) -> int | float:
+    try:
+        return int(text, 0)
+    except ValueError:
+        pass
+    try:
+        v = float(text)
+    except ValueError:
+        raise InvalidArgument(f"{spec!r}: {what} must be a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise InvalidArgument(f"{spec!r}: {what} must be a number, got {text!r}")
+    return v
+
+
+def parse_map_device(spec: str, known: Mapping[str, Map]) -> MapTarget | None:
+    """``TYPE[:ADDRESS][,key=value...]`` for a map's id, checked against the
+    map (address range, options); None when TYPE is not a map's id."""
+    head, *opts = spec.strip().split(",")
+    kind, colon, addr = head.partition(":")
+    kind = kind.strip().lower()
+    m = known.get(kind)
+    if m is None:
+        return None
+    dev = m.device
+    address = dev.default_address
+    if colon:
+        text = addr.strip()
+        if not text.isdigit():
+            raise InvalidArgument(f"{spec!r}: the address must be a whole number, got {text!r}")
+        address = int(text)
+    low, high = dev.addresses
+    if not low <= address <= high:
+        raise InvalidArgument(f"{spec!r}: {m.id} address must be {low}..{high}, got {address}")
+    name = ""
+    options: dict[str, int | float] = {}
+    allowed = [*dev.options, "name"]
+    for opt in opts:
+        key, eq, value = opt.partition("=")
+        key, value = key.strip().replace("-", "_"), value.strip()
+        if key not in allowed or not eq or not value:
+            what = "bad option" if key in allowed else f"unknown key {key!r}"
+            hint = did_you_mean(key, allowed) if what != "bad option" else ""
+            raise InvalidArgument(f"{spec!r}: {what}; {m.id} takes "
+                                  f"{', '.join(k + '=...' for k in allowed)}{hint}")
+        if key == "name":
+            name = value
+        elif key in options:
+            raise InvalidArgument(f"{spec!r}: {key} given twice")
+        else:
+            options[key] = _number(value, key, spec)
+    if options:
+        try:
+            m = m.configure(options)
+        except MapError as e:
+            raise InvalidArgument(f"{spec!r}: {e}") from None
+    return MapTarget(m, address, name or f"{m.id}-{address}", options)
+
+
+_FUNCTION = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
+
+
+def _rule_holds(value: object, rule: maps.Identify) -> bool:
+    if rule.range is not None:
+        return (isinstance(value, (int, float)) and not isinstance(value, bool)
+                and rule.range[0] <= value <= rule.range[1])
+    if rule.regex is not None:
+        return isinstance(value, str) and re.search(rule.regex, value) is not None
+    return bool(value == rule.equals)
+
+
+def match_map(ask: Callable[[int, int, bytes], bytes | int | None], address: int,
+              known: Mapping[str, Map]) -> tuple[str, str] | None:
+    """The first map in ``known`` whose every ``[[identify]]`` rule holds for
+    the device at ``address`` (maps without rules are never matched), as
+    (map id, what its points read); None for none. ``ask(address, function,
+    data)`` returns the reply's data, an exception code or None."""
+    for m in known.values():
+        if not m.identify:
+            continue
+        seen: list[str] = []
+        for rule in m.identify:
+            p = m.points[rule.point]
+            reply = ask(address, _FUNCTION[p.table], struct.pack(">HH", p.address, p.count))
+            if not isinstance(reply, bytes) or not reply:
+                break
+            data = reply[1:1 + reply[0]]
+            if p.table in ("coil", "discrete"):
+                regs = [data[i // 8] >> (i % 8) & 1 for i in range(p.count)] if \
+                    len(data) * 8 >= p.count else []
+            else:
+                regs = list(struct.unpack(f">{len(data) // 2}H", data[:len(data) // 2 * 2]))
+            if len(regs) < p.count:
+                break
+            value, _ = decode_one(p, regs)
+            if not _rule_holds(value, rule):
+                break
+            seen.append(f"{rule.point} {value:g}" if isinstance(value, float)
+                        else f"{rule.point} {value}")
+        else:
+            what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
+            return m.id, (f"{what}: " if what else "") + ", ".join(seen)
+    return None

@@ -1,0 +1,286 @@
+"""A simulated device for any map: :class:`MapSimDevice`.
+
+It has exactly the registers (and bits) its map declares, plus the map's
+``readable`` ranges (zeros); a read that touches any other address gets
+exception 02, as a real device that lacks them does, so the planner's
+fallbacks can be watched. Each point starts at its ``example`` value (the
+same on every channel of a block); a point without one gets a value from a
+seeded model: a gauge wanders around a seeded level (inside ``valid`` when
+the map gives it), a counter counts up, a point with ``values`` takes its
+first, text is the point's name. Writable points take writes (FC 05, 06,
+15, 16) checked as the map checks them; anything else is refused.
+
+The ``sensor`` fault puts a point that has ``markers`` (or a float's NaN) in
+its no-value state for a while: ``channels`` names channels of a block.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from array import array
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+from pymb.devices.mapspec import parse_map_device
+from pymb.errors import InvalidArgument
+from pymb.maps import Map, Point
+from pymb.maps.codec import encode
+from pymb.maps.types import TYPES
+from pymb.sim.clock import SimClock
+from pymb.sim.devices import Device, ExceptionCode, exception_pdu
+
+__all__ = ["MapSimDevice"]
+
+_TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
+_UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
+
+
+class MapSimDevice(Device):
+    """The device ``m`` describes, at ``address``; values from each point's
+    ``example`` or the model seeded by ``seed``."""
+
+    def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
+                 seed: int = 0, clock: SimClock | None = None, dynamic: bool = True) -> None:
+        super().__init__(m.device.default_address if address is None else address,
+                         baud=baud, seed=seed, clock=clock)
+        self.map = m
+        self.kind = m.id  # type: ignore[misc]
+        self.dynamic = dynamic
+        self._images: dict[str, array[int]] = {}
+        self._have: dict[str, bytearray] = {}
+        for t in _TABLE.values():
+            self._images[t] = array("H", bytes(2 * 0x10000))
+            self._have[t] = bytearray(0x10000)
+        for t, ranges in m.limits.readable.items():
+            for lo, hi in ranges:
+                self._have[t][lo:hi + 1] = b"\x01" * (hi + 1 - lo)
+        self._model: list[tuple[Point, int, float, float, float]] = []
+        rng = random.Random(seed)
+        for p in m.points.values():
+            for c in range(1, p.channels + 1):
+                a = p.address_of(c)
+                self._have[p.table][a:a + p.count] = b"\x01" * p.count
+        for p in m.points.values():
+            for c in range(1, p.channels + 1):
+                self._init(p, c, rng)
+        self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
+        self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
+        self._updated = -math.inf
+
+    # -- values -----------------------------------------------------------------------
+
+    def _put(self, p: Point, channel: int, value: object) -> None:
+        a = p.address_of(channel)
+        img = self._images[p.table]
+        current = list(img[a:a + p.count])
+        regs = encode(p, value, current=current, check_access=False)
+        img[a:a + len(regs)] = array("H", regs)
+
+    def _init(self, p: Point, channel: int, rng: random.Random) -> None:
+        family = TYPES[p.type].family
+        if p.example is not None:
+            value = p.example[channel - 1] if isinstance(p.example, list) else p.example
+            self._put(p, channel, value)
+            return
+        if p.values:
+            self._put(p, channel, next(iter(p.values)))
+        elif family in ("bool", "bit"):
+            self._put(p, channel, rng.random() < 0.5)
+        elif family == "string":
+            self._put(p, channel, p.name[:(2 if p.string_bytes == "both" else 1) * p.count])
+        elif family == "raw":
+            self._put(p, channel, [rng.randrange(0x10000) for _ in range(p.count)])
+        elif p.flags or family in ("bits", "half"):
+            self._put(p, channel, 0)
+        else:
+            lo, hi = self._range(p)
+            level = lo + (hi - lo) * (0.3 + 0.4 * rng.random())
+            self._model.append((p, channel, level, 0.02 * (hi - lo), rng.random() * 2 * math.pi))
+            self._put(p, channel, self._fit(p, level))
+
+    @staticmethod
+    def _range(p: Point) -> tuple[float, float]:
+        if p.valid is not None:
+            return p.valid
+        info = TYPES[p.type]
+        if info.family == "float":
+            lo, hi = 0.0, 100.0
+        else:
+            raw_lo, raw_hi = info.raw_range()
+            lo, hi = max(raw_lo, 0), min(raw_hi, 1000)
+        scale, offset = p.scale or 1.0, p.offset or 0.0
+        a, b = lo * scale + offset, hi * scale + offset
+        return (min(a, b), max(a, b))
+
+    @staticmethod
+    def _fit(p: Point, v: float) -> float | int:
+        """``v`` as the point can hold it: whole for an unscaled integer."""
+        if TYPES[p.type].family != "float" and p.scale is None and p.offset is None:
+            return round(v)
+        return v
+
+    def _refresh(self) -> None:
+        """Bring the model's values to the clock's time."""
+        t = self.clock.now()
+        if not self.dynamic or t - self._updated < _UPDATE_S:
+            return
+        self._updated = t
+        for p, c, level, swing, phase in self._model:
+            if (p.name, c) in self._faulted or (p.name, c) in self._pinned:
+                continue
+            if p.kind == "counter":
+                v = level + swing * t
+                lo, hi = self._range(p)
+                v = lo + (v - lo) % max(hi - lo, 1e-9)
+            else:
+                v = level + swing * math.sin(t / 30.0 + phase)
+            try:
+                self._put(p, c, self._fit(p, v))
+            except InvalidArgument:
+                continue  # outside what the point can hold: keep the last value
+        for (name, c), (until, regs) in list(self._faulted.items()):
+            if t >= until:
+                del self._faulted[(name, c)]
+                p = self.map.points[name]
+                a = p.address_of(c)
+                self._images[p.table][a:a + p.count] = array("H", regs)
+
+    # -- requests ---------------------------------------------------------------------
+
+    def _span(self, table: str, address: int, count: int) -> bool:
+        if address + count > 0x10000:
+            return False
+        return self._have[table][address:address + count].count(1) == count
+
+    def handle(self, pdu: bytes) -> bytes | None:
+        """The reply to one request PDU."""
+        if len(pdu) < 5:
+            return exception_pdu(pdu[0] if pdu else 0, ExceptionCode.ILLEGAL_DATA_VALUE)
+        fc = pdu[0]
+        address, n = struct.unpack(">HH", pdu[1:5])
+        if fc in _TABLE:
+            table = _TABLE[fc]
+            if not 1 <= n <= (2000 if fc <= 2 else 125):
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+            if not self._span(table, address, n):
+                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+            self._refresh()
+            regs = self._images[table][address:address + n]
+            if fc <= 2:
+                out = bytearray((n + 7) // 8)
+                for i, v in enumerate(regs):
+                    if v:
+                        out[i // 8] |= 1 << (i % 8)
+                return bytes((fc, len(out))) + bytes(out)
+            return bytes((fc, 2 * n)) + struct.pack(f">{n}H", *regs)
+        if fc in (5, 6):
+            return self._write(fc, "coil" if fc == 5 else "holding", address,
+                               [int(n == 0xFF00)] if fc == 5 else [n], pdu)
+        if fc in (15, 16) and len(pdu) >= 6:
+            data = pdu[6:6 + pdu[5]]
+            if fc == 16:
+                if len(data) != 2 * n:
+                    return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+                values = list(struct.unpack(f">{n}H", data))
+            else:
+                values = [data[i // 8] >> (i % 8) & 1 for i in range(n)] if \
+                    len(data) == (n + 7) // 8 else []
+                if not values:
+                    return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+            return self._write(fc, "holding" if fc == 16 else "coil", address, values,
+                               pdu[:5])
+        return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
+
+    def _write(self, fc: int, table: str, address: int, values: list[int],
+               echo: bytes) -> bytes:
+        """Store ``values`` at ``address`` if writable points cover them exactly."""
+        end = address + len(values)
+        img = self._images[table]
+        covered = bytearray(len(values))
+        for p in self.map.points.values():
+            if p.table != table or not p.writable:
+                continue
+            for c in range(1, p.channels + 1):
+                a = p.address_of(c)
+                if address <= a and a + p.count <= end:
+                    covered[a - address:a - address + p.count] = b"\x01" * p.count
+        if covered.count(1) != len(values):
+            return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+        img[address:end] = array("H", values)
+        for p in self.map.points.values():
+            if p.table == table:
+                for c in range(1, p.channels + 1):
+                    a = p.address_of(c)
+                    if a < end and address < a + p.count:
+                        self._pinned.add((p.name, c))
+        return echo
+
+    def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
+                     channels: Sequence[int] | None = None) -> str:
+        """Put points in their no-value state for ``seconds``: a block's
+        ``channels`` (default one at random) or a point with markers or NaN."""
+        choices = [p for p in self.map.points.values()
+                   if p.markers or TYPES[p.type].family == "float"]
+        if not choices:
+            return "no point can show a sensor fault"
+        p = rng.choice(choices)
+        chans = list(channels) if channels and p.block else [rng.randrange(p.channels) + 1]
+        until = self.clock.now() + seconds
+        for c in chans:
+            if not 1 <= c <= p.channels:
+                continue
+            a = p.address_of(c)
+            img = self._images[p.table]
+            if p.markers:
+                raw = next(iter(p.markers))
+                regs = list(struct.unpack(f">{p.count}H", raw.to_bytes(2 * p.count, "big")))
+            else:
+                regs = encode(replace(p, valid=None, values={}), math.nan, check_access=False)
+            before = self._faulted.get((p.name, c), (0.0, list(img[a:a + p.count])))[1]
+            img[a:a + p.count] = array("H", regs)
+            self._faulted[(p.name, c)] = (until, before)
+        return f"{p.name} channels {chans} without a value for {seconds:g} s"
+
+    def describe(self) -> str:
+        """One line for the command line's banner."""
+        what = " ".join(x for x in (self.map.device.manufacturer, self.map.device.model) if x)
+        return (f"{self.map.id} at address {self.address} ({self.baud} 8N1)"
+                + (f": {what}" if what else "") + f", {len(self.map.points)} points")
+
+    @property
+    def points(self) -> dict[str, Any]:
+        """Each point's raw registers now (for tests): name -> list of ints."""
+        out: dict[str, Any] = {}
+        for p in self.map.points.values():
+            img = self._images[p.table]
+            out[p.name] = list(img[p.address:p.end])
+        return out
+
+
+def map_sim_device(spec: str, known: dict[str, Map], *, seed: int = 0,
+                   clock: SimClock | None = None, baud: int | None = None) -> MapSimDevice | None:
+    """A simulated map device from ``TYPE[:ADDRESS][,key=value...]`` when
+    TYPE is a map's id in ``known`` (None otherwise): the map's options, and
+    ``baud`` and ``dynamic`` (0/1) as for the other simulated devices."""
+    head, *opts = spec.strip().split(",")
+    sim_keys: dict[str, str] = {}
+    rest = []
+    for opt in opts:
+        key, _, value = opt.partition("=")
+        if key.strip() in ("baud", "dynamic"):
+            sim_keys[key.strip()] = value.strip()
+        else:
+            rest.append(opt)
+    target = parse_map_device(",".join([head, *rest]), known)
+    if target is None:
+        return None
+    try:
+        speed = int(sim_keys.get("baud", baud or 9600))
+        dynamic = {"1": True, "0": False}[sim_keys.get("dynamic", "1")]
+    except (ValueError, KeyError):
+        raise InvalidArgument(f"{spec!r}: baud is a number of bit/s, dynamic 0 or 1") from None
+    return MapSimDevice(target.map, target.address, baud=speed, seed=seed, clock=clock,
+                        dynamic=dynamic)
