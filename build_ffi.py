@@ -33,6 +33,7 @@ SOURCES = [
     f"{CSRC}/pymb_error.c",
     f"{CSRC}/pymb_modbus.c",
     f"{CSRC}/pymb_hub.c",
+    f"{CSRC}/pymb_map.c",
 ]
 
 CDEF = """
@@ -282,6 +283,43 @@ SOURCE = """
 """
 
 
+# pymb_map.h: the table-driven map decoder (pymb.maps._decode is its one user).
+MAP_CDEF = """
+typedef enum {
+    PYMB_MAP_BOOL, PYMB_MAP_BIT, PYMB_MAP_BITS, PYMB_MAP_U8_HI, PYMB_MAP_U8_LO,
+    PYMB_MAP_I8_HI, PYMB_MAP_I8_LO, PYMB_MAP_U16, PYMB_MAP_I16, PYMB_MAP_U32, PYMB_MAP_I32,
+    PYMB_MAP_U64, PYMB_MAP_I64, PYMB_MAP_F16, PYMB_MAP_F32, PYMB_MAP_F64, PYMB_MAP_SM16,
+    PYMB_MAP_STRING, PYMB_MAP_RAW, PYMB_MAP_TYPES, ...
+} pymb_map_type;
+#define PYMB_MAP_SCALED ...
+#define PYMB_MAP_OFFSET ...
+#define PYMB_MAP_SWAP ...
+#define PYMB_MAP_HIGH_BYTE ...
+#define PYMB_MAP_LOW_BYTE ...
+#define PYMB_MAP_ASCII ...
+#define PYMB_MAP_NAN ...
+#define PYMB_MAP_INVALID_TEXT ...
+#define PYMB_MAP_FIRST_MARKER_STATE ...
+#define PYMB_MAP_MAX_BYTES ...
+typedef struct {
+    uint32_t first; uint32_t out; uint32_t aux;
+    uint16_t channels; uint16_t stride; uint16_t count; uint16_t first_marker; uint16_t nmarkers;
+    uint8_t type; uint8_t flags; uint8_t bit; uint8_t width; uint8_t decimals;
+    uint8_t order[...];
+    double scale; double offset;
+    ...;
+} pymb_map_entry;
+typedef struct { uint64_t raw; uint8_t state; ...; } pymb_map_marker;
+typedef struct {
+    double *values; int64_t *ints; uint8_t *states; size_t len; uint8_t *text; size_t text_len;
+    ...;
+} pymb_map_out;
+int pymb_map_order(const char *letters, int nbytes, uint8_t *perm);
+int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
+                    const pymb_map_marker *markers, size_t nmarkers,
+                    const uint16_t *regs, size_t nregs, pymb_map_out *out);
+"""
+
 
 def _require_build_tools() -> None:
     """Stop with one line naming the Debian packages when a build need is missing."""
@@ -301,6 +339,7 @@ def _require_build_tools() -> None:
 _require_build_tools()
 ffibuilder = FFI()
 ffibuilder.cdef(CDEF)
+ffibuilder.cdef(MAP_CDEF)
 ffibuilder.set_source_pkgconfig(
     "pymb._pymb_cffi",
     ["libmodbus"],

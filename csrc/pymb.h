@@ -296,4 +296,7 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
 }
 #endif
 
+/* Device maps: the table-driven decoder. */
+#include "pymb_map.h"
+
 #endif /* PYMB_H */

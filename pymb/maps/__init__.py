@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 from importlib import resources
 
+from pymb.maps._decode import Buffers, Decoder
 from pymb.maps.loader import load, loads
 from pymb.maps.model import (
     DeviceInfo,
@@ -35,6 +36,8 @@ from pymb.maps.types import STATES, TYPES
 __all__ = [
     "STATES",
     "TYPES",
+    "Buffers",
+    "Decoder",
     "DeviceInfo",
     "Identify",
     "Limits",

@@ -43,6 +43,7 @@ _TIMING = ("response_timeout", "turnaround", "inter_request_gap", "after_connect
 _IDENTIFY = ("point", "range", "equals", "regex")
 _ID = re.compile(r"[a-z0-9][a-z0-9-]*\Z")
 _NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+_HEADER = re.compile(r"^[ \t]*\[\[[ \t]*(point|block)[ \t]*\]\]", re.M)
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ def loads(text: str, source: str = "<string>") -> Map:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise MapError(f"{source}: not valid TOML: {e}", source=source) from None
-    spec = _spec(doc, source)
+    spec = _spec(doc, source, _HEADER.findall(text))
     return _build(spec, dict(spec.device.options))
 
 
@@ -136,7 +137,7 @@ def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[s
     return table
 
 
-def _spec(doc: dict[str, Any], source: str) -> Spec:
+def _spec(doc: dict[str, Any], source: str, headers: list[str]) -> Spec:
     ctx = Ctx(source)
     _keys(ctx, doc, _TOP, "the file")
     if "schema" not in doc:
@@ -149,15 +150,22 @@ def _spec(doc: dict[str, Any], source: str) -> Spec:
     limits = _limits(ctx, doc["device"].get("limits", {}), device)
     timing = _timing(ctx, doc["device"].get("timing", {}))
     groups = _groups(ctx, doc.get("groups", {}))
-    entries: list[tuple[str, int, Mapping[str, Any]]] = []
+    lists: dict[str, list[Any]] = {}
     for kind in ("point", "block"):
-        items = doc.get(kind, [])
+        items = lists[kind] = doc.get(kind, [])
         if not isinstance(items, list):
             ctx.fail(kind, f"write points as [[{kind}]] tables")
         for i, item in enumerate(items):
             if not isinstance(item, dict):
                 ctx.fail(kind, f"[[{kind}]] number {i + 1} must be a table")
-            entries.append((kind, i, item))
+    # File order: tomllib keeps [[point]] and [[block]] apart; the headers say how they mix.
+    if sorted(headers) != sorted(["point"] * len(lists["point"]) + ["block"] * len(lists["block"])):
+        headers = ["point"] * len(lists["point"]) + ["block"] * len(lists["block"])
+    seen = {"point": 0, "block": 0}
+    entries: list[tuple[str, int, Mapping[str, Any]]] = []
+    for kind in headers:
+        entries.append((kind, seen[kind], lists[kind][seen[kind]]))
+        seen[kind] += 1
     if not entries:
         ctx.fail("point", "the map has no [[point]] or [[block]]")
     spec = Spec(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())

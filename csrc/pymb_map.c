@@ -1,0 +1,355 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * pymb_map.c - the table-driven decoder of device maps (pymb_map.h).
+ *
+ * Every entry is checked before anything is written, so a bad table fails
+ * whole; the data itself never fails (markers, NaN and invalid text are
+ * states). Scale: a decimal power 10^-k divides by 10^k (exact doubles up to
+ * 1e22), so -1896 with scale 0.1 gives the double nearest -189.6 ([MAP] 3).
+ */
+#include <errno.h>
+#include <math.h>
+#include <string.h>
+
+#include "pymb.h"
+
+/* Registers each fixed-width type takes; 0: from the entry's count. */
+static const uint8_t type_registers[PYMB_MAP_TYPES] = {
+    1, 0, 0,    /* bool, bit, bits (bit and bits: 1, 2 or 4) */
+    1, 1, 1, 1, /* u8_hi u8_lo i8_hi i8_lo */
+    1, 1, 2, 2, 4, 4, /* u16 i16 u32 i32 u64 i64 */
+    1, 2, 4,    /* f16 f32 f64 */
+    1,          /* sm16 */
+    0, 0        /* string, raw */
+};
+
+/* 10^0 .. 10^22: every one an exact double. */
+static const double pow10_exact[23] = {
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
+    1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22
+};
+
+int pymb_map_order(const char *letters, int nbytes, uint8_t *perm)
+{
+    int k, nregs;
+    size_t len;
+    unsigned seen = 0;
+
+    if (letters == NULL || perm == NULL || (nbytes != 2 && nbytes != 4 && nbytes != 8)) {
+        errno = EINVAL;
+        return -1;
+    }
+    nregs = nbytes / 2;
+    len = strlen(letters);
+    if (strcmp(letters, "ABCD") == 0 || strcmp(letters, "CDAB") == 0 ||
+        strcmp(letters, "BADC") == 0 || strcmp(letters, "DCBA") == 0) {
+        int reverse_regs = letters[0] == 'C' || letters[0] == 'D';
+        int swap = letters[0] == 'B' || letters[0] == 'D';
+        for (k = 0; k < nbytes; k++) {
+            int reg = k / 2, byte = k % 2;
+            int wreg = reverse_regs ? nregs - 1 - reg : reg;
+            perm[k] = (uint8_t)(2 * wreg + (swap ? 1 - byte : byte));
+        }
+        return 0;
+    }
+    if (len != (size_t)nbytes) {
+        errno = EINVAL;
+        return -1;
+    }
+    /* letters[j] is the value byte that arrives at position j. */
+    for (k = 0; k < nbytes; k++) {
+        int letter = letters[k] - 'A';
+        if (letter < 0 || letter >= nbytes || (seen & (1u << letter))) {
+            errno = EINVAL;
+            return -1;
+        }
+        seen |= 1u << letter;
+        perm[letter] = (uint8_t)k;
+    }
+    return 0;
+}
+
+static int entry_ok(const pymb_map_entry *e, size_t nmarkers, size_t nregs,
+                    const pymb_map_out *out)
+{
+    uint64_t last, nbytes, per;
+    unsigned k, seen = 0;
+
+    if (e->type >= PYMB_MAP_TYPES || e->channels < 1 || e->count < 1) {
+        return 0;
+    }
+    if (type_registers[e->type] != 0 && e->count != type_registers[e->type]) {
+        return 0;
+    }
+    if ((e->type == PYMB_MAP_BIT || e->type == PYMB_MAP_BITS) && e->count != 1 &&
+        e->count != 2 && e->count != 4) {
+        return 0;
+    }
+    last = (uint64_t)e->first + (uint64_t)(e->channels - 1) * e->stride + e->count;
+    if (last > nregs || (uint64_t)e->out + e->channels > out->len) {
+        return 0;
+    }
+    if ((size_t)e->first_marker + e->nmarkers > nmarkers || e->decimals > 22) {
+        return 0;
+    }
+    if (e->type == PYMB_MAP_BIT && e->bit >= 16u * e->count) {
+        return 0;
+    }
+    if (e->type == PYMB_MAP_BITS &&
+        (e->width < 1 || e->width > 64 || (unsigned)e->bit + e->width > 16u * e->count)) {
+        return 0;
+    }
+    if (e->type == PYMB_MAP_STRING) {
+        if ((e->flags & PYMB_MAP_HIGH_BYTE) && (e->flags & PYMB_MAP_LOW_BYTE)) {
+            return 0;
+        }
+        per = (e->flags & (PYMB_MAP_HIGH_BYTE | PYMB_MAP_LOW_BYTE)) ? e->count : 2u * e->count;
+        if (out->text == NULL || (uint64_t)e->aux + per * e->channels > out->text_len) {
+            return 0;
+        }
+    } else if (e->type != PYMB_MAP_BOOL && e->type != PYMB_MAP_RAW) {
+        nbytes = 2u * e->count;
+        for (k = 0; k < nbytes; k++) {
+            if (e->order[k] >= nbytes || (seen & (1u << e->order[k]))) {
+                return 0;
+            }
+            seen |= 1u << e->order[k];
+        }
+    }
+    return 1;
+}
+
+/* The value's bits, most significant byte first, as the order says. */
+static uint64_t pattern(const uint16_t *r, const pymb_map_entry *e)
+{
+    uint8_t wire[PYMB_MAP_MAX_BYTES];
+    unsigned i, n = 2u * e->count;
+    uint64_t u = 0;
+
+    for (i = 0; i < e->count; i++) {
+        wire[2 * i] = (uint8_t)(r[i] >> 8);
+        wire[2 * i + 1] = (uint8_t)(r[i] & 0xFFu);
+    }
+    for (i = 0; i < n; i++) {
+        u = u << 8 | wire[e->order[i]];
+    }
+    return u;
+}
+
+static int64_t sign_extend(uint64_t u, unsigned bits)
+{
+    if (bits < 64 && ((u >> (bits - 1)) & 1u)) {
+        u |= ~(uint64_t)0 << bits;
+    }
+    if (u >> 63) {
+        return -(int64_t)(~u) - 1;
+    }
+    return (int64_t)u;
+}
+
+static double half_to_double(uint16_t h)
+{
+    int exp = (h >> 10) & 0x1F;
+    unsigned frac = h & 0x3FFu;
+    double v;
+
+    if (exp == 0) {
+        v = ldexp((double)frac, -24);
+    } else if (exp == 31) {
+        v = frac ? NAN : INFINITY;
+    } else {
+        v = ldexp((double)(frac + 1024u), exp - 25);
+    }
+    return (h & 0x8000u) ? -v : v;
+}
+
+static double apply(const pymb_map_entry *e, double v, int negative)
+{
+    if (e->decimals) {
+        v = v / pow10_exact[e->decimals];
+    } else if (e->flags & PYMB_MAP_SCALED) {
+        v = v * e->scale;
+    }
+    if (negative) {
+        v = -v;
+    }
+    if (e->flags & PYMB_MAP_OFFSET) {
+        v = v + e->offset;
+    }
+    return v;
+}
+
+static void text(const uint16_t *r, const pymb_map_entry *e, uint8_t *dst, int64_t *len,
+                 uint8_t *state)
+{
+    unsigned i, n = 0, end;
+    int swap = (e->flags & PYMB_MAP_SWAP) != 0;
+
+    for (i = 0; i < e->count; i++) {
+        uint8_t hi = (uint8_t)(r[i] >> 8), lo = (uint8_t)(r[i] & 0xFFu);
+        if (swap) {
+            uint8_t t = hi;
+            hi = lo;
+            lo = t;
+        }
+        if (e->flags & PYMB_MAP_HIGH_BYTE) {
+            dst[n++] = hi;
+        } else if (e->flags & PYMB_MAP_LOW_BYTE) {
+            dst[n++] = lo;
+        } else {
+            dst[n++] = hi;
+            dst[n++] = lo;
+        }
+    }
+    for (end = 0; end < n && dst[end] != 0; end++) {
+        if ((e->flags & PYMB_MAP_ASCII) && dst[end] > 0x7F) {
+            *state = PYMB_MAP_INVALID_TEXT;
+        }
+    }
+    *len = end;
+}
+
+/* One channel: its registers r, its slot i. */
+static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *r,
+                       size_t reg_index, size_t i, unsigned channel, const pymb_map_out *out)
+{
+    uint64_t u, raw;
+    unsigned bits = 16u * e->count, m;
+    int64_t iv = 0;
+    double v = NAN;
+    uint8_t state = PYMB_VALUE;
+
+    switch (e->type) {
+    case PYMB_MAP_BOOL:
+        iv = r[0] != 0;
+        v = (double)iv;
+        goto done;
+    case PYMB_MAP_STRING: {
+        unsigned per = (e->flags & (PYMB_MAP_HIGH_BYTE | PYMB_MAP_LOW_BYTE)) ? e->count
+                                                                             : 2u * e->count;
+        text(r, e, out->text + e->aux + (size_t)per * channel, &iv, &state);
+        goto done;
+    }
+    case PYMB_MAP_RAW:
+        iv = (int64_t)reg_index;
+        goto done;
+    default:
+        break;
+    }
+    u = pattern(r, e);
+    switch (e->type) {
+    case PYMB_MAP_BIT:
+        iv = (int64_t)((u >> e->bit) & 1u);
+        v = (double)iv;
+        goto done;
+    case PYMB_MAP_BITS:
+        raw = (u >> e->bit) & (e->width >= 64 ? ~(uint64_t)0 : (((uint64_t)1 << e->width) - 1));
+        bits = e->width;
+        break;
+    case PYMB_MAP_U8_HI:
+    case PYMB_MAP_I8_HI:
+        raw = u >> 8;
+        bits = 8;
+        break;
+    case PYMB_MAP_U8_LO:
+    case PYMB_MAP_I8_LO:
+        raw = u & 0xFFu;
+        bits = 8;
+        break;
+    default:
+        raw = u;
+        break;
+    }
+    for (m = 0; m < e->nmarkers; m++) {
+        if (mk[m].raw == raw) {
+            state = mk[m].state;
+            goto done;
+        }
+    }
+    switch (e->type) {
+    case PYMB_MAP_F16:
+    case PYMB_MAP_F32:
+    case PYMB_MAP_F64:
+        if (e->type == PYMB_MAP_F16) {
+            v = half_to_double((uint16_t)raw);
+        } else if (e->type == PYMB_MAP_F32) {
+            uint32_t w = (uint32_t)raw;
+            float f;
+            memcpy(&f, &w, sizeof f);
+            v = (double)f;
+        } else {
+            memcpy(&v, &raw, sizeof v);
+        }
+        if (isnan(v)) {
+            v = NAN;
+            state = PYMB_MAP_NAN;
+        } else if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) {
+            v = apply(e, v, 0);
+        }
+        goto done;
+    case PYMB_MAP_SM16: {
+        int negative = (raw & 0x8000u) != 0;
+        int64_t mag = (int64_t)(raw & 0x7FFFu);
+        iv = negative ? -mag : mag;
+        v = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) ? apply(e, (double)mag, negative)
+                                                            : (double)iv;
+        goto done;
+    }
+    case PYMB_MAP_I8_HI:
+    case PYMB_MAP_I8_LO:
+    case PYMB_MAP_I16:
+    case PYMB_MAP_I32:
+    case PYMB_MAP_I64:
+        iv = sign_extend(raw, bits);
+        v = (double)iv;
+        break;
+    default: /* unsigned; a u64 keeps its bit pattern in ints */
+        iv = sign_extend(raw, 64);
+        v = (double)raw;
+        break;
+    }
+    if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) {
+        v = apply(e, v, 0);
+    }
+done:
+    out->values[i] = state == PYMB_VALUE ? v : NAN;
+    out->states[i] = state;
+    if (out->ints != NULL) {
+        out->ints[i] = iv;
+    }
+}
+
+int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
+                    const pymb_map_marker *markers, size_t nmarkers,
+                    const uint16_t *regs, size_t nregs, pymb_map_out *out)
+{
+    size_t n, written = 0;
+    unsigned c;
+
+    if ((entries == NULL && nentries > 0) || (markers == NULL && nmarkers > 0) ||
+        (regs == NULL && nregs > 0) || out == NULL ||
+        (out->len > 0 && (out->values == NULL || out->states == NULL))) {
+        errno = EINVAL;
+        return -1;
+    }
+    for (n = 0; n < nentries; n++) {
+        if (!entry_ok(&entries[n], nmarkers, nregs, out)) {
+            errno = EINVAL;
+            return -1;
+        }
+        written += entries[n].channels;
+    }
+    if (written > (size_t)INT32_MAX) {
+        errno = EINVAL;
+        return -1;
+    }
+    for (n = 0; n < nentries; n++) {
+        const pymb_map_entry *e = &entries[n];
+        const pymb_map_marker *mk = markers ? markers + e->first_marker : NULL;
+        for (c = 0; c < e->channels; c++) {
+            size_t at = e->first + (size_t)c * e->stride;
+            decode_one(e, mk, regs + at, at, (size_t)e->out + c, c, out);
+        }
+    }
+    return (int)written;
+}

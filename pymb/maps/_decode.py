@@ -1,0 +1,245 @@
+"""A map's points compiled into ``pymb_map_decode``'s table: one C call
+decodes every point of a request into preallocated arrays.
+
+The only module of :mod:`pymb.maps` that touches cffi's ``ffi`` and ``lib``.
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from pymb._pymb_cffi import ffi, lib
+from pymb.errors import InvalidArgument
+from pymb.maps.codec import decimal_power
+from pymb.maps.model import Map, MapError, Point, Value
+from pymb.maps.types import STATES, TYPES, permutation
+
+__all__ = ["Buffers", "Decoder"]
+
+_U64 = (1 << 64) - 1
+# How a slot becomes a Python value.
+_INT, _UINT64, _FLOAT, _BOOL, _TEXT, _RAW = range(6)
+
+
+def _check_states() -> None:
+    """The state codes Python names are the C core's."""
+    codes = {"value": lib.PYMB_VALUE, "offline": lib.PYMB_OFFLINE,
+             "no_sensor": lib.PYMB_NO_SENSOR, "unsupported": lib.PYMB_UNSUPPORTED,
+             "not_read": lib.PYMB_NOT_READ, "nan": lib.PYMB_MAP_NAN,
+             "invalid_text": lib.PYMB_MAP_INVALID_TEXT}
+    if any(STATES.index(n) != c for n, c in codes.items()) or \
+            len(STATES) > lib.PYMB_MAP_FIRST_MARKER_STATE:
+        raise ImportError("pymb.maps.STATES disagrees with the C core's state codes")
+
+
+_check_states()
+
+
+class Buffers:
+    """One set of output arrays: ``values`` (float64, NaN where no value),
+    ``ints`` (int64: exact integers, text lengths), ``states`` (uint8 state
+    codes, names in :attr:`Map.state_names`), ``text`` (strings' bytes), and
+    ``registers``, the registers last decoded into them."""
+
+    __slots__ = ("_keep", "_out", "ints", "registers", "states", "text", "values")
+
+    def __init__(self, slots: int, text_bytes: int) -> None:
+        self.values = array("d", bytes(8 * slots))
+        self.ints = array("q", bytes(8 * slots))
+        self.states = array("B", bytes(slots))
+        self.text = bytearray(text_bytes)
+        self.registers: Sequence[int] = ()
+        out = ffi.new("pymb_map_out *")
+        keep = [ffi.from_buffer("double[]", self.values), ffi.from_buffer("int64_t[]", self.ints),
+                ffi.from_buffer("uint8_t[]", self.states), ffi.from_buffer("uint8_t[]", self.text)]
+        out.values, out.ints, out.states, out.text = keep
+        out.len = slots
+        out.text_len = text_bytes
+        self._out = out
+        self._keep = keep
+
+
+class Decoder:
+    """Some points of a map (default: every point of ``table``), compiled for
+    requests whose registers start at ``address`` (default: the first point's).
+
+    ``decode(registers)`` is one C call that fills :attr:`buffers` (or the
+    :class:`Buffers` given as ``into=``); ``read(registers)`` also builds the
+    ``{name: value}`` dict, blocks as lists. ``slot(name)`` is where a point's
+    first channel is in the arrays. Points must all be in one table.
+    """
+
+    def __init__(self, m: Map, names: Iterable[str] | None = None, *, table: str | None = None,
+                 address: int | None = None) -> None:
+        if names is None:
+            first = table or next(iter(m.points.values())).table
+            points = [p for p in m.points.values() if p.table == first]
+        else:
+            points = [m.point(n) for n in names]
+        if not points:
+            raise MapError(f"{m.source}: no points to decode", source=m.source)
+        tables = {p.table for p in points}
+        if len(tables) > 1:
+            raise MapError(f"{m.source}: one decoder decodes one table, not {sorted(tables)}",
+                           source=m.source)
+        self.map = m
+        self.table = points[0].table
+        self.address = min(p.address for p in points) if address is None else address
+        if any(p.address < self.address for p in points):
+            raise MapError(f"{m.source}: a point starts before address {self.address}",
+                           source=m.source)
+        #: registers a request must hold, from ``address``
+        self.count = max(p.end for p in points) - self.address
+        codes = {name: i for i, name in enumerate(m.state_names) if name}
+        entries = ffi.new("pymb_map_entry[]", len(points))
+        nmarkers = sum(len(p.markers) for p in points)
+        markers = ffi.new("pymb_map_marker[]", max(nmarkers, 1))
+        slot = text = mk = 0
+        self._plan: list[tuple[str, int, int, int, int, int, str]] = []
+        self._slots: dict[str, int] = {}
+        for e, p in zip(entries, points, strict=True):
+            per = 2 * p.count if p.string_bytes == "both" else p.count
+            self._compile(e, p, slot, text if p.type == "string" else 0)
+            e.first_marker, e.nmarkers = mk, len(p.markers)
+            for raw, state in p.markers.items():
+                markers[mk].raw, markers[mk].state = raw, codes[state]
+                mk += 1
+            self._plan.append((p.name, self._kind(p), slot, p.channels, text, per, p.encoding))
+            self._slots[p.name] = slot
+            if p.type == "string":
+                text += per * p.channels
+            slot += p.channels
+        self.names = tuple(p.name for p in points)
+        self.slots = slot
+        self._entries, self._n = entries, len(points)
+        self._markers, self._nmarkers = markers, nmarkers
+        self._counts = {p.name: p.count for p in points}
+        self._blocks = frozenset(p.name for p in points if p.block)
+        self._firsts = {p.name: p.address - self.address for p in points}
+        self._text_bytes = text
+        self.buffers = self.new_buffers()
+
+    def _compile(self, e: Any, p: Point, slot: int, text: int) -> None:
+        e.first = p.address - self.address
+        e.out = slot
+        e.aux = text
+        e.channels = p.channels
+        e.stride = p.stride
+        e.count = p.count
+        e.type = getattr(lib, f"PYMB_MAP_{p.type.upper()}")
+        flags = 0
+        if p.scale is not None:
+            flags |= lib.PYMB_MAP_SCALED
+            e.scale = p.scale
+            e.decimals = decimal_power(p.scale)
+        if p.offset is not None:
+            flags |= lib.PYMB_MAP_OFFSET
+            e.offset = p.offset
+        if p.type == "string":
+            flags |= lib.PYMB_MAP_SWAP if p.order == "BA" else 0
+            flags |= {"both": 0, "high": lib.PYMB_MAP_HIGH_BYTE,
+                      "low": lib.PYMB_MAP_LOW_BYTE}[p.string_bytes]
+            flags |= lib.PYMB_MAP_ASCII if p.encoding == "ascii" else 0
+        elif p.order:
+            for k, pos in enumerate(permutation(p.order)):
+                e.order[k] = pos
+        e.flags = flags
+        e.bit = p.bit if p.type == "bit" else (p.shift or 0)
+        e.width = p.width or 0
+
+    @staticmethod
+    def _kind(p: Point) -> int:
+        family = TYPES[p.type].family
+        if family in ("bool", "bit"):
+            return _BOOL
+        if family == "string":
+            return _TEXT
+        if family == "raw":
+            return _RAW
+        if family == "float" or p.scale is not None or p.offset is not None:
+            return _FLOAT
+        return _UINT64 if p.type == "u64" else _INT
+
+    def new_buffers(self) -> Buffers:
+        """A fresh set of output arrays for ``decode(..., into=)``."""
+        return Buffers(self.slots, self._text_bytes)
+
+    def slot(self, name: str) -> int:
+        """Index of the point's first channel in the output arrays."""
+        if name not in self._slots:
+            self.map.point(name)  # an unknown name: did you mean
+            raise MapError(f"{self.map.source}: point {name!r} is not in this decoder",
+                           source=self.map.source, point=name)
+        return self._slots[name]
+
+    def decode(self, registers: Sequence[int], into: Buffers | None = None) -> Buffers:
+        """Decode ``registers`` (from :attr:`address`; an ``array('H')`` is
+        taken without a copy) in one C call; returns the buffers written."""
+        b = self.buffers if into is None else into
+        if not isinstance(registers, array) or registers.typecode != "H":
+            registers = array("H", registers)
+        if len(registers) < self.count:
+            raise InvalidArgument(f"{self.map.id}: {self.count} registers from {self.address} "
+                                  f"are needed, got {len(registers)}")
+        rc = lib.pymb_map_decode(self._entries, self._n, self._markers, self._nmarkers,
+                                 ffi.from_buffer("uint16_t[]", registers), len(registers),
+                                 b._out)  # noqa: SLF001 - Buffers is this module's
+        if rc < 0:  # the table is built here: it cannot be invalid
+            raise InvalidArgument(f"{self.map.id}: the compiled map was refused")
+        b.registers = registers
+        return b
+
+    def read(self, registers: Sequence[int]) -> dict[str, Value]:
+        """``{name: value}`` of every point, blocks as lists, None where no value."""
+        return self.values(self.decode(registers))
+
+    def values(self, b: Buffers | None = None) -> dict[str, Value]:
+        """The dict of the values in ``b`` (default: :attr:`buffers`)."""
+        b = self.buffers if b is None else b
+        vals, ints, states = b.values, b.ints, b.states
+        out: dict[str, Value] = {}
+        for name, kind, slot, channels, text, per, encoding in self._plan:
+            one: list[Value] = []
+            for i in range(slot, slot + channels):
+                if states[i]:
+                    one.append(None)
+                elif kind == _FLOAT:
+                    one.append(vals[i])
+                elif kind == _INT:
+                    one.append(ints[i])
+                elif kind == _UINT64:
+                    one.append(ints[i] & _U64)
+                elif kind == _BOOL:
+                    one.append(ints[i] != 0)
+                elif kind == _TEXT:
+                    at = text + per * (i - slot)
+                    try:
+                        one.append(bytes(b.text[at:at + ints[i]]).decode(encoding))
+                    except UnicodeDecodeError:
+                        one.append(None)
+                else:
+                    at = ints[i]
+                    one.append(list(b.registers[at:at + self._counts[name]]))
+            out[name] = one if name in self._blocks else one[0]
+        return out
+
+    def states(self, b: Buffers | None = None) -> dict[str, Any]:
+        """``{name: state name}`` (lists for blocks) of the values in ``b``."""
+        b = self.buffers if b is None else b
+        names = self.map.state_names
+        out: dict[str, Any] = {}
+        for name, kind, slot, channels, text, per, encoding in self._plan:
+            one = []
+            for i in range(slot, slot + channels):
+                state = names[b.states[i]]
+                if state == "value" and kind == _TEXT:
+                    at = text + per * (i - slot)
+                    try:
+                        bytes(b.text[at:at + b.ints[i]]).decode(encoding)
+                    except UnicodeDecodeError:
+                        state = "invalid_text"
+                one.append(state)
+            out[name] = one if name in self._blocks else one[0]
+        return out
