@@ -13,7 +13,7 @@ import math
 
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
 from pymb.devices.mapspec import load_map
-from pymb.errors import InvalidArgument
+from pymb.errors import IllegalDataAddress, InvalidArgument
 from pymb.maps import Point
 from pymb.maps.codec import decode_one
 from pymb.maps.planner import Line, map_planner
@@ -132,7 +132,12 @@ def _probe(args: argparse.Namespace) -> int:
         with client:
             read = (client.read_holding_registers if table == "holding"
                     else client.read_input_registers)
-            return list(read(start, count, slave=args.address))
+            try:
+                return list(read(start, count, slave=args.address))
+            except IllegalDataAddress as e:
+                raise IllegalDataAddress(f"{e}; the device lacks some of {table} registers "
+                                         f"{start}..{start + count - 1}: probe fewer",
+                                         code=e.code) from None
 
     regs = interruptible(io)
     rows = interpretations(regs)
