@@ -22,7 +22,7 @@ from conftest import PYMB, PYMB_ENV, ROOT
 import pymb
 from pymb.bench import cprogram, pure, report, runner
 from pymb.bench.contenders import CONTENDERS, NAMES
-from pymb.bench.runner import Entry, Options, _summary
+from pymb.bench.runner import Entry, Options, summary
 from pymb.bench.worker import SPANS, Canary
 from pymb.child import Child, pymb_argv
 from pymb.cli import main
@@ -134,7 +134,7 @@ def test_ratios_are_paired_per_round_against_c() -> None:
     c = _entry("c", [(1000, [100, 110, 90]), (2000, [200, 200, 200]), (900, [100, 100, 100])])
     p = _entry("pymb", [(1500, [150, 160, 140]), (2000, [220, 230, 210]),
                         (900, [100, 100, 100])])
-    rows = {r["name"]: r for r in _summary([c, p], "hub", 3)["rows"]}
+    rows = {r["name"]: r for r in summary([c, p], "hub", 3)["rows"]}
     assert rows["c"]["wall_x"] == 1.0
     assert rows["c"]["cpu_x"] == 1.0
     assert rows["pymb"]["wall_x"] == pytest.approx(statistics.median([1.5, 1.1, 1.0]))
@@ -147,7 +147,7 @@ def test_no_c_program_means_no_ratios() -> None:
     p = _entry("pymb", [(1500, [150, 160, 140])])
     c = _entry("c", [])
     c.status, c.reason = "skipped", "no C compiler"
-    section = _summary([c, p], "hub", 3)
+    section = summary([c, p], "hub", 3)
     assert section["baseline"] is None
     row = next(r for r in section["rows"] if r["name"] == "pymb")
     assert "wall_x" not in row

@@ -80,6 +80,8 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.append(_wire_table(result["wire"]))
     if result.get("scaling"):
         out.append(_scaling_table(result["scaling"]))
+    if result.get("aio"):
+        out.extend(_aio_tables(result["aio"]))
     if result.get("logger"):
         out.extend(_logger_tables(result["logger"]))
     if result.get("fleet"):
@@ -204,6 +206,43 @@ def _fleet_table(fleet: dict[str, Any]) -> Table:
           f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
          for r in fleet["rows"]],
         [False, True, True, True, True, True], [])
+
+
+def _aio_tables(aio: dict[str, Any]) -> list[Table]:
+    rows, footer = [], []
+    for hub, tele in zip(aio["hub"]["rows"], aio["telemetry"]["rows"], strict=True):
+        if "wall_us" not in hub or "wall_us" not in tele:
+            footer.append(f"{hub['label']}: {hub['status']}: {hub['reason'] or tele['reason']}")
+            continue
+        rows.append([hub["label"]] + [f(r.get(k)) for r in (hub, tele) for k, f in (
+            ("wall_us", fmt_time), ("wall_x", fmt_x), ("cpu_us", fmt_time), ("cpu_x", fmt_x))])
+    footer += [f"{r['label']}: {r['how']}" for r in aio["hub"]["rows"] if r["status"] == "ok"]
+    per_call = Table(
+        "asyncio: per call, against the blocking calls",
+        f"each contender in its own process against its own simulator over a pty at "
+        f"{aio['baud']} 8N1 without wire emulation; medians of {aio['rounds']} interleaved "
+        f"rounds x {aio['sweeps']} sweeps / {aio['reads']} reads; CPU: the contender's "
+        f"process, worker thread included; {X} blocking: median of the per-round ratios",
+        ["contender", "sweep wall", f"{X} blocking", "sweep CPU", f"{X} blocking",
+         "telemetry wall", f"{X} blocking", "telemetry CPU", f"{X} blocking"],
+        rows, [False] + [True] * 8, footer)
+    lag = aio["lag"]
+    lrows, lfoot = [], []
+    for r in lag["rows"]:
+        if r["status"] != "ok":
+            lfoot.append(f"{r['label']}, {r['line']}: {r['status']}: {r['reason']}")
+            continue
+        lrows.append([r["label"], r["line"], f"{r['sweeps_per_s']:,.0f}",
+                      fmt_time(r["p50_ms"] * 1e3), fmt_time(r["p99_ms"] * 1e3),
+                      fmt_time(r["max_ms"] * 1e3), f"{r['cpu_pct']:.0f} %"])
+    lag_table = Table(
+        f"asyncio: event loop lag, {lag['rows'][0]['hubs']} hubs polled flat out by one loop",
+        f"a {lag['period_ms']:g} ms ticker's lateness while every hub is swept again as soon "
+        f"as its last sweep ends; {lag['seconds']:g} s runs, median of {lag['repeats']}; each "
+        "hub its own simulator process; without emulation the simulators saturate the CPUs",
+        ["stack", "line", "sweeps/s", "lag median", "lag p99", "lag max", "CPU (of a core)"],
+        lrows, [False, False, True, True, True, True, True], lfoot)
+    return [per_call, lag_table]
 
 
 def _mark_quick(out: list[Table]) -> None:

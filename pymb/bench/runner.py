@@ -24,6 +24,9 @@ Sections (each can be chosen with ``--sections``):
              plain paho publisher at QoS 0 and QoS 1 (throughput, latency,
              samples lost and duplicated across a 3 s broker outage); see
              :mod:`pymb.bench.fleet`.
+``aio``      :mod:`pymb.aio` against the blocking calls and pymodbus's async
+             client: per-call wall and CPU, and the event loop's lag with 8
+             hubs polled flat out (:mod:`pymb.bench.aiobench`).
 ``logger``   ``pymb log``'s cost on top of the bare read, pair by pair, the
              database on disk: CPU and bytes per sample, report by exception,
              and the storage layouts compared (:mod:`pymb.bench.logbench`).
@@ -62,7 +65,7 @@ from pymb.wire import read_time
 
 __all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
-SECTIONS = ("micro", "plan", "sweep", "wire", "scaling", "fleet", "logger")
+SECTIONS = ("micro", "plan", "sweep", "wire", "scaling", "aio", "fleet", "logger")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)
@@ -300,7 +303,8 @@ def _ask(e: Entry, command: str, n: int, children: Children) -> tuple[int, list[
         return None
 
 
-def _verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> None:
+def verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> None:
+    """Check one sweep (and telemetry read) of ``e`` against ``ref``; failed if wrong."""
     assert e.child is not None
     try:
         raw = [int(x) for x in e.child.ask("verify", 60.0).split()]
@@ -314,7 +318,7 @@ def _verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> No
         e.fail(f"verification failed: {err}", children)
 
 
-def _race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: int,
+def race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: int,
           warm: int, children: Children, opts: Options, label: str) -> None:
     """Interleaved rounds of ``command n`` across the running entries."""
     live = [e for e in entries if e.status == "ok"]
@@ -349,9 +353,10 @@ def _stop_all(entries: Sequence[Entry], sims: Sequence[Any], children: Children)
         children.stop(s)
 
 
-def _summary(entries: Sequence[Entry], workload: str, per: int) -> dict[str, Any]:
-    """Medians and the paired ratios to the C program for one workload."""
-    base = next((e for e in entries if e.name == "c" and e.status == "ok"), None)
+def summary(entries: Sequence[Entry], workload: str, per: int,
+            baseline: str = "c") -> dict[str, Any]:
+    """Medians and the paired ratios to ``baseline`` (the C program) for one workload."""
+    base = next((e for e in entries if e.name == baseline and e.status == "ok"), None)
     rows = []
     for e in entries:
         row: dict[str, Any] = {"name": e.name, "label": e.contender.label,
@@ -380,7 +385,7 @@ def _summary(entries: Sequence[Entry], workload: str, per: int) -> dict[str, Any
         elif e.status == "ok":
             row.update(status="failed", reason="no measurement")
         rows.append(row)
-    return {"baseline": "c" if base is not None else None, "rows": rows}
+    return {"baseline": baseline if base is not None else None, "rows": rows}
 
 
 # -- sections -------------------------------------------------------------------------------
@@ -433,16 +438,16 @@ def run_sweep(opts: Options, lineup: Lineup, children: Children) -> dict[str, An
         lineup.start(e, sim.port, SOFTWARE_BAUD)
     for e in runnable:
         if e.status == "ok":
-            _verify(e, lineup.ref, children, telemetry=True)
-    _race(entries, "hub", "sweep", plan.rounds, plan.sweeps, plan.warm_sweeps, children, opts,
+            verify(e, lineup.ref, children, telemetry=True)
+    race(entries, "hub", "sweep", plan.rounds, plan.sweeps, plan.warm_sweeps, children, opts,
           "sweep: hub")
-    _race(entries, "telemetry", "tele", plan.rounds, plan.reads, plan.warm_reads, children,
+    race(entries, "telemetry", "tele", plan.rounds, plan.reads, plan.warm_reads, children,
           opts, "sweep: CoolPro telemetry")
     _stop_all(entries, sims, children)
     return {
         "baud": SOFTWARE_BAUD,
-        "hub": _summary(entries, "hub", plan.sweeps),
-        "telemetry": _summary(entries, "telemetry", plan.reads),
+        "hub": summary(entries, "hub", plan.sweeps),
+        "telemetry": summary(entries, "telemetry", plan.reads),
     }
 
 
@@ -470,19 +475,19 @@ def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any
             lineup.start(e, sim.port, baud)
         # No verification sweep: at 9600 one costs 1.6 s, the canaries are checked on
         # every sweep, and the sweep section verified both contenders' decoding.
-        _race(entries, "hub", "sweep", rounds, n, 0 if baud < 19200 else 1, children, opts,
+        race(entries, "hub", "sweep", rounds, n, 0 if baud < 19200 else 1, children, opts,
               f"wire: {baud} baud")
         theory = _theory_sweep(baud)
-        for row in _summary(entries, "hub", n)["rows"]:
+        for row in summary(entries, "hub", n)["rows"]:
             row.update(baud=baud, workload="hub sweep", theory_us=theory * 1e6)
             if "wall_us" in row:
                 row["theory_x"] = row["wall_us"] / (theory * 1e6)
             rows.append(row)
         if telemetry:
-            _race(entries, "telemetry", "tele", rounds, 2 * n + 2, 2, children, opts,
+            race(entries, "telemetry", "tele", rounds, 2 * n + 2, 2, children, opts,
                   f"wire: CoolPro with its {gap * 1e3:g} ms gap")
             t_theory = read_time(CP_COUNT, baud, turnaround=gap)
-            for row in _summary(entries, "telemetry", 2 * n + 2)["rows"]:
+            for row in summary(entries, "telemetry", 2 * n + 2)["rows"]:
                 row.update(baud=baud, workload=f"CoolPro telemetry, {gap * 1e3:g} ms gap",
                            theory_us=t_theory * 1e6)
                 if "wall_us" in row:
@@ -609,6 +614,10 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         r = scaling["rows"][-1]
         add(f"{r['buses']} buses in parallel, sweeps/s / 1 bus", ">= 7.5", r["speedup"], "x",
             r["speedup"] >= 7.5)
+    if result.get("aio"):
+        from pymb.bench import aiobench
+        for t in aiobench.targets(result["aio"]):
+            add(*t)
     if result.get("logger"):
         for t in logbench.targets(result["logger"]):
             add(*t)
@@ -636,6 +645,10 @@ def run(opts: Options) -> dict[str, Any]:
             result["wire"] = run_wire(opts, lineup, children)
         if "scaling" in opts.sections and pymb_in:
             result["scaling"] = run_scaling(opts, children)
+        if "aio" in opts.sections and pymb_in:
+            from pymb.bench import aiobench
+            result["aio"] = aiobench.run_section(opts, children, lineup.ref,
+                                                 _software_devices())
         if "fleet" in opts.sections and pymb_in:
             from pymb.bench.fleet import run_fleet
             result["fleet"] = run_fleet(opts.quick, opts.say)

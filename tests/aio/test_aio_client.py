@@ -214,10 +214,21 @@ def test_settings_and_run_apply_in_turn_with_the_requests() -> None:
             assert (list(first), pair, list(last)) == ([1001], [1003, 1004], [1005])
             with pytest.raises(pymb.InvalidArgument, match="timeout"):
                 await c.set_timeout(0)
+            with pytest.raises(AttributeError):
+                c.timeout = 1.0  # type: ignore[misc]  # in turn only: set_timeout
+            # a new slave applies to the requests not yet started
+            on_the_wire = asyncio.ensure_future(c.read_holding_registers(6, 1))
+            await until(lambda: len(peer.requests) == 5, "the request on the wire")
+            queued = asyncio.ensure_future(c.read_holding_registers(7, 1))
+            c.slave = 2  # nobody answers at 2
+            assert list(await on_the_wire) == [1006]
+            with pytest.raises(pymb.ModbusTimeout):
+                await queued
 
-    with RawPty(echo_address()) as peer:
+    with RawPty(echo_address(delay=0.05)) as peer:
         asyncio.run(main(peer.port))
-        assert [struct.unpack(">H", f[2:4])[0] for f in peer.requests] == [1, 3, 4, 5]
+        assert [(f[0], struct.unpack(">H", f[2:4])[0]) for f in peer.requests] == \
+            [(1, 1), (1, 3), (1, 4), (1, 5), (1, 6), (2, 7)]
 
 
 def test_close_ends_the_worker_and_releases_port_and_descriptors(
