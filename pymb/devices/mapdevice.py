@@ -24,12 +24,11 @@ import time
 import weakref
 from array import array
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 from pymb.client import Client
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
-from pymb.maps import Map, Point, Value
-from pymb.maps.codec import decode_one
+from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.model import did_you_mean
 from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request, map_planner
 from pymb.wire import bits_per_char
@@ -38,6 +37,14 @@ __all__ = ["MapDevice"]
 
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = 9600
+
+
+class _Image(NamedTuple):
+    """One table's registers of a selection: read in place, decoded in C."""
+
+    address: int  #: of its first register
+    registers: array[int]
+    decoder: Decoder
 
 
 class _Quiet:
@@ -114,7 +121,7 @@ class MapDevice:
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
         # per selection, per table: the first address and the registers
         # (bits) from there to the selection's last, read into in place
-        self._images: dict[tuple[int, ...], dict[str, tuple[int, array[int]]]] = {}
+        self._images: dict[tuple[int, ...], dict[str, _Image]] = {}
         self._unread = bytearray(len(items))  # 1: this read got no value for the item
         self._lock = threading.Lock()
         self._connections = -1
@@ -171,18 +178,20 @@ class MapDevice:
             self._run(plan, images)
             return self._decode(points, images)
 
-    def _image(self, points: tuple[int, ...]) -> dict[str, tuple[int, array[int]]]:
-        """The buffers of a selection, one per table, made once: registers
-        (bits) from its first point's to its last's, each request read in
-        place."""
+    def _image(self, points: tuple[int, ...]) -> dict[str, _Image]:
+        """The buffers of a selection, one per table, made once: the
+        registers (bits) from its first point's to its last's, each request
+        read in place, and the compiled decoder that walks them in one C call."""
         images = self._images.get(points)
         if images is None:
-            span: dict[str, tuple[int, int]] = {}
+            names: dict[str, list[str]] = {}
             for i in points:
                 p = self._points[i]
-                lo, hi = span.get(p.table, (p.address, p.end))
-                span[p.table] = (min(lo, p.address), max(hi, p.end))
-            images = {t: (lo, array("H", bytes(2 * (hi - lo)))) for t, (lo, hi) in span.items()}
+                names.setdefault(p.table, []).append(p.name)
+            images = {}
+            for t, ns in names.items():
+                dec = Decoder(self.map, ns)
+                images[t] = _Image(dec.address, array("H", bytes(2 * dec.count)), dec)
             self._images[points] = images
         return images
 
@@ -199,7 +208,7 @@ class MapDevice:
                 q = _quiet(self.client)
                 q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
-    def _run(self, plan: ReadPlan, images: dict[str, tuple[int, array[int]]]) -> None:
+    def _run(self, plan: ReadPlan, images: dict[str, _Image]) -> None:
         timeout = self.map.timing.response_timeout
         client = self.client
         before = client.timeout
@@ -212,14 +221,14 @@ class MapDevice:
             if timeout is not None and timeout != before:
                 client.set_timeout(before)
 
-    def _wire(self, r: Request, image: tuple[int, array[int]]) -> None:
+    def _wire(self, r: Request, image: _Image) -> None:
         """One request on the wire, into its place in ``image``, with the
         device's silences before and after."""
         t = self.map.timing
         q = _quiet(self.client)
         _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
-        base, buf = image
-        at = r.address - base
+        buf = image.registers
+        at = r.address - image.address
         try:
             if r.table in BIT_TABLES:
                 read = (self.client.read_coils if r.table == "coil"
@@ -234,7 +243,7 @@ class MapDevice:
             q.last_end = now
             q.quiet_until = max(q.quiet_until, now + t.turnaround)
 
-    def _fetch(self, r: Request, image: tuple[int, array[int]]) -> None:
+    def _fetch(self, r: Request, image: _Image) -> None:
         """Read ``r`` into ``image``; on exception 02/03, fall back as the
         module says, within this read."""
         try:
@@ -258,37 +267,34 @@ class MapDevice:
             for k in r.items:
                 self._unread[k] = 1
 
-    def _decode(self, points: Sequence[int],
-                images: dict[str, tuple[int, array[int]]]) -> dict[str, Value]:
-        unread = self._unread
-        out: dict[str, Value] = {}
+    def _decode(self, points: Sequence[int], images: dict[str, _Image]) -> dict[str, Value]:
+        """Every table's registers decoded in one C call each; points the
+        device refused read None (``unsupported``)."""
+        values: dict[str, Value] = {}
         states: dict[str, Any] = {}
-        for i in points:
-            p = self._points[i]
-            base, buf = images[p.table]
-            k0 = self._first[i]
-            n = p.count
-            if not p.block:
-                if unread[k0]:
-                    out[p.name], states[p.name] = None, "unsupported"
+        for image in images.values():
+            dec = image.decoder
+            b = dec.decode(image.registers)
+            values.update(dec.values(b))
+            states.update(dec.states(b))
+        if self._planner.unsupported or any(self._unread):
+            unread = self._unread
+            for i in points:
+                p = self._points[i]
+                k0 = self._first[i]
+                if not any(unread[k0:k0 + p.channels]):
+                    continue
+                if p.block:
+                    v, st = values[p.name], states[p.name]
+                    assert isinstance(v, list)
+                    for c in range(p.channels):
+                        if unread[k0 + c]:
+                            v[c], st[c] = None, "unsupported"
                 else:
-                    at = p.address - base
-                    out[p.name], states[p.name] = decode_one(p, buf[at:at + n])
-                continue
-            values: list[Value] = []
-            st: list[str] = []
-            for c in range(p.channels):
-                if unread[k0 + c]:
-                    values.append(None)
-                    st.append("unsupported")
-                else:
-                    at = p.address + c * p.stride - base
-                    v, s = decode_one(p, buf[at:at + n])
-                    values.append(v)
-                    st.append(s)
-            out[p.name], states[p.name] = values, st
-        self.states = states
-        return out
+                    values[p.name], states[p.name] = None, "unsupported"
+        names = [self._points[i].name for i in points]
+        self.states = {n: states[n] for n in names}
+        return {n: values[n] for n in names}
 
     # -- writes -----------------------------------------------------------------------
 
