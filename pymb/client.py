@@ -19,6 +19,7 @@ from __future__ import annotations
 import errno
 import operator
 import os
+import socket
 import struct
 import sys
 import threading
@@ -39,6 +40,7 @@ __all__ = [
     "TcpClient",
     "client_for_address",
     "parse_host_port",
+    "unresolved",
 ]
 
 # Function codes and per-request limits: the compiler's (libmodbus's modbus.h).
@@ -753,3 +755,14 @@ def client_for_address(address: str, *, rtu_framing: bool = False, timeout: floa
     host, port = parse_host_port(address, what=what)
     cls = RtuOverTcpClient if rtu_framing else TcpClient
     return cls(host, port, timeout=timeout)
+
+
+def unresolved(host: str) -> str | None:
+    """Why ``host`` does not resolve (None when it does)."""
+    try:
+        socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except socket.gaierror as e:
+        return f"the host name {host!r} did not resolve ({e.strerror})"
+    except (UnicodeError, OSError) as e:
+        return f"the host name {host!r} did not resolve ({e})"
+    return None

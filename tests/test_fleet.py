@@ -906,8 +906,8 @@ def test_demo_counts_what_the_broker_acknowledged_but_had_not_yet_delivered(
     not that another subscriber has it: the demo's subscriber waits for the
     acknowledged samples (bounded) instead of counting at once. Its thread is held
     on the lock of its message handler while the publisher gets every PUBACK."""
+    from pymb.commands.demo_mqtt import Watch
     from pymb.fleet.config import MqttConfig
-    from pymb.fleet.demo import Watch
     broker = fleet.broker()
     watch = Watch(MqttConfig(broker.url, node="demo"), "pymb/demo/#")
     assert watch.start(15)

@@ -10,12 +10,12 @@ import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from pymb.client import Client, RtuClient, client_for_address
+from pymb.client import Client, RtuClient, client_for_address, unresolved
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
+from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, device_parts
 from pymb.errors import InvalidArgument, ModbusConnectionError
-from pymb.logger import DEVICE_SYNTAX, DeviceConfig, device_parts, unresolved
 
 __all__ = [
     "add_connection_args",

@@ -19,8 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from pymb.commands.status import StatusLine
+from pymb.devices.spec import DeviceConfig
 from pymb.errors import InvalidArgument
-from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
+from pymb.logger import BusConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
 
 BAUD = 115200
@@ -75,11 +77,12 @@ def run(args: argparse.Namespace) -> int:
         cfg = LogConfig([psu, sensors], "sqlite", out)
         mqtt_lines: list[str] = []
         if args.mqtt:
-            from pymb.fleet.demo import run_with_mqtt
+            from pymb.commands.demo_mqtt import run_with_mqtt
             summary, mqtt_lines = run_with_mqtt(cfg, args.mqtt, args.seconds,
                                                 None if args.quiet else sys.stderr, say)
         else:
-            summary = Logger(cfg, status=None if args.quiet else sys.stderr).run(args.seconds)
+            summary = Logger(cfg, tick=None if args.quiet else StatusLine(sys.stderr)).run(
+                args.seconds)
     finally:
         for s in sims:
             s.stop()

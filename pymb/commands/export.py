@@ -17,9 +17,9 @@ import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
 
+from pymb.devices.spec import device_parts
 from pymb.errors import InvalidArgument
-from pymb.logger import device_parts, is_pymb_database
-from pymb.store import CSV_COLUMNS, export_csv
+from pymb.store import CSV_COLUMNS, export_csv, is_pymb_database
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -22,8 +22,8 @@ from pymb.commands.mapcli import add_map_arg
 from pymb.commands.mapread import read_map, target_from_args
 from pymb.devices import HUB, CoolPro, CoolProIdentity, HubReading, SensorHub
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
+from pymb.devices.spec import DeviceConfig
 from pymb.errors import DeviceException, ProtocolError
-from pymb.logger import DeviceConfig
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -26,8 +26,8 @@ from pymb.commands import read as read_cmd
 from pymb.commands._common import device_from_args, make_client, render, to_json
 from pymb.commands.mapread import target_from_args, watch_map
 from pymb.devices import HUB, HubReading, State
+from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
-from pymb.logger import closest
 
 _DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
 _STATE_WORDS = {State.OFFLINE: "off", State.NO_SENSOR: "-", State.UNSUPPORTED: "n/a",

@@ -4,7 +4,7 @@ A Sparkplug edge node publishes a DDEATH for a device that "becomes
 unavailable for any reason (no response, CRC error, etc.)" (Sparkplug 3.0,
 tck-id-operational-behavior-device-ddeath) and a DBIRTH when it answers
 again. pymb's logger records every
-failed poll as a fault event (:data:`pymb.logger.FAULT_KINDS`); a device is
+failed poll as a fault event (:data:`pymb.store.FAULT_KINDS`); a device is
 *down* after :data:`DOWN_AFTER` faults in a row with no sample between them,
 and up again with its next sample. A bus that cannot be (re)connected (a
 ``connection`` event with no device) counts as a fault of every device seen
@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
+
+from pymb.store.records import FAULT_KINDS
 
 __all__ = ["DOWN_AFTER", "DeviceHealth", "Down"]
 
@@ -34,8 +36,6 @@ class DeviceHealth:
     """Counts each device's faults in a row; fed by the sink the logger writes to."""
 
     def __init__(self, down_after: int = DOWN_AFTER) -> None:
-        from pymb.logger import FAULT_KINDS  # pymb.logger imports pymb.fleet.config
-
         self.fault_kinds = FAULT_KINDS
         self.down_after = down_after
         self.on_bus: dict[str, set[str]] = {}

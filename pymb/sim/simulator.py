@@ -19,6 +19,7 @@ from typing import Any
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
 from pymb.devices.maps import COOLPRO_BAUD_RATES
+from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
@@ -98,7 +99,6 @@ def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
         key, eq, value = opt.partition("=")
         key = key.strip()
         if key not in _OPTIONS[kind] or not eq:
-            from pymb.logger import closest
             what = "bad option" if key in _OPTIONS[kind] else f"unknown key {key!r}"
             hint = closest(key, list(_OPTIONS[kind])) if what != "bad option" else ""
             if kind == "hub" and key == "channels":

@@ -29,7 +29,8 @@ The package, one job a module: :mod:`~pymb.store.records` (samples, events,
 the sink protocol), :mod:`~pymb.store.schema` (tables and the decoding
 views), :mod:`~pymb.store.onchange` (report by exception),
 :mod:`~pymb.store.writer` (the SQLite writer), :mod:`~pymb.store.retention`
-(size and age limits), :mod:`~pymb.store.files` (atomic creation),
+(size and age limits), :mod:`~pymb.store.files` (atomic creation), :mod:`~pymb.store.guard`
+(never writing into a file of another kind),
 :mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.text` and
 :mod:`~pymb.store.influx` (text formats), :mod:`~pymb.store.sinks`
 (``open_sink``), :mod:`~pymb.store.export` (a database as CSV).
@@ -39,9 +40,10 @@ from __future__ import annotations
 
 from pymb.errors import OutputError
 from pymb.store.export import export_csv
+from pymb.store.guard import check_output, is_pymb_database
 from pymb.store.onchange import OnChange
 from pymb.store.reader import samples_after
-from pymb.store.records import DeviceInfo, Event, Sample, Sink, StoredSample
+from pymb.store.records import FAULT_KINDS, DeviceInfo, Event, Sample, Sink, StoredSample
 from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
 from pymb.store.sinks import FORMATS, open_sink
 from pymb.store.text import (
@@ -58,6 +60,7 @@ from pymb.store.writer import SqliteSink
 
 __all__ = [
     "CSV_COLUMNS",
+    "FAULT_KINDS",
     "FORMATS",
     "MIN_BYTES",
     "PAGE_SIZE",
@@ -72,10 +75,12 @@ __all__ = [
     "Sink",
     "SqliteSink",
     "StoredSample",
+    "check_output",
     "csv_head",
     "csv_value",
     "event_dict",
     "export_csv",
+    "is_pymb_database",
     "open_sink",
     "sample_dict",
     "sample_rows",

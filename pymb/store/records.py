@@ -8,8 +8,16 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from pymb.devices import CoolProTelemetry, HubReading
+from pymb.errors import (
+    DeviceBusy,
+    DeviceException,
+    ModbusConnectionError,
+    ModbusError,
+    ModbusTimeout,
+    ProtocolError,
+)
 
-__all__ = ["DeviceInfo", "Event", "Sample", "Sink", "StoredSample"]
+__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind"]
 
 
 @dataclass(frozen=True)
@@ -84,3 +92,21 @@ class Sink(Protocol):
 
     def close(self) -> None:
         """Commit and release the output."""
+
+
+_EVENT_KIND: list[tuple[type[BaseException], str]] = [
+    (DeviceBusy, "busy"),
+    (DeviceException, "exception"),
+    (ModbusTimeout, "timeout"),
+    (ProtocolError, "protocol"),
+    (ModbusConnectionError, "connection"),
+    (ModbusError, "error"),
+]
+#: the kinds of the events that mean a device gave no value (a fault): an error,
+#: or a hub that answered with every block unsupported (``no_value``)
+FAULT_KINDS = frozenset([*(k for _, k in _EVENT_KIND), "no_value"])
+
+
+def event_kind(e: BaseException) -> str:
+    """The kind of the event that records the error ``e`` (``busy``, ``timeout``, ...)."""
+    return next(k for cls, k in _EVENT_KIND if isinstance(e, cls))

@@ -25,11 +25,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
+from pymb.commands.forward import forwarding, summary_lines
 from pymb.errors import InvalidArgument
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import require_paho
-from pymb.fleet.run import forwarding, summary_lines
 from pymb.fleet.source import Source
 from pymb.logger import LogConfig, Summary
 
@@ -149,7 +149,6 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
                                   "--mqtt mqtt://HOST[:PORT]")
     try:
         mcfg = MqttConfig(url, node=NODE)
-        cfg.mqtt = mcfg
         watch_cmd = shlex.join(["mosquitto_sub", "-h", mcfg.host, "-p", str(mcfg.port),
                                 "-t", f"pymb/{NODE}/#", "-v"])
         whose = "a mosquitto started for the demo" if broker else "your broker"

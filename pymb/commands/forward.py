@@ -6,11 +6,12 @@ import sys
 import time
 from typing import TextIO
 
+from pymb.commands.status import StatusLine
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
-from pymb.logger import LogConfig, Logger, Summary, check_output
-from pymb.store import open_sink
+from pymb.logger import LogConfig, Logger, Summary
+from pymb.store import check_output, open_sink
 
 __all__ = ["forwarding", "log_and_forward", "summary_lines"]
 
@@ -44,8 +45,8 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         raise
     fw.start()
     try:
-        logger = Logger(cfg, sink=ForwardingSink(sink, fw), status=status,
-                        extra_status=lambda: fw.status().line())
+        tick = None if status is None else StatusLine(status, lambda: fw.status().line())
+        logger = Logger(cfg, sink=ForwardingSink(sink, fw), tick=tick)
         s = logger.run(seconds)
     finally:
         fw.notify()

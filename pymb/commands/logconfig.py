@@ -1,0 +1,118 @@
+"""``pymb log``'s configuration, joined from its three sources: the TOML file
+(buses and output: :mod:`pymb.logger.config`; ``[mqtt]``:
+:mod:`pymb.fleet.config`), then the command-line flags over both."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from pymb.devices.spec import DeviceConfig, parse_device
+from pymb.errors import InvalidArgument
+from pymb.fleet.config import KEYS, MqttConfig, from_table
+from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml
+from pymb.store import OnChange
+
+__all__ = ["config_from", "default_path", "load", "mqtt_from", "single_bus_config"]
+
+
+def load(path: str | os.PathLike[str]) -> tuple[LogConfig, MqttConfig | None]:
+    """A TOML configuration: its buses and output, and its ``[mqtt]`` table (None
+    if it has none)."""
+    doc = read_toml(path)
+    cfg = config_from_toml(doc, path)
+    table = doc.get("mqtt")
+    return cfg, None if table is None else from_table(table, str(path))
+
+
+def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig | None:
+    """The [mqtt] table of the TOML file, overridden by the ``--mqtt*`` flags."""
+    keys = [k for k in KEYS if k not in ("catchup_rate", "keepalive")]
+    given = {k: getattr(args, "mqtt" if k == "url" else f"mqtt_{k}") for k in keys}
+    given = {k: v for k, v in given.items() if v is not None}
+    if "drain" in given:  # its range is MqttConfig's to check
+        try:
+            given["drain"] = float(given["drain"])
+        except ValueError:
+            raise InvalidArgument(f"--mqtt-drain needs a number of seconds, got "
+                                  f"{given['drain']!r}") from None
+    if base is None and not given:
+        return None
+    if base is None and "url" not in given:
+        raise InvalidArgument("the --mqtt-* options need --mqtt URL (or [mqtt] url in the TOML)")
+    table = {} if base is None else {k: getattr(base, k) for k in KEYS}
+    return MqttConfig(**{**table, **given})
+
+
+def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
+    if not args.on_change:
+        if args.deadband or args.heartbeat is not None:
+            raise InvalidArgument("--deadband and --heartbeat go with --on-change")
+        return
+    bands = dict(cfg.on_change.deadband) if cfg.on_change else {}
+    for spec in args.deadband:
+        name, _, amount = spec.partition("=")
+        try:
+            bands[name.strip()] = float(amount)
+        except ValueError:
+            raise InvalidArgument(f"--deadband takes QUANTITY=AMOUNT, got {spec!r}") from None
+    heartbeat = args.heartbeat or (cfg.on_change.heartbeat if cfg.on_change else 60.0)
+    cfg.on_change = OnChange(heartbeat, bands)
+
+
+def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]:
+    """The LogConfig the arguments describe, and where to forward (None: nowhere)."""
+    specs = list(args.devices) + list(args.device)
+    mqtt_table: MqttConfig | None = None
+    if args.config:
+        if args.port or args.tcp or args.rtu_over_tcp or specs:
+            raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
+        cfg, mqtt_table = load(args.config)
+    else:
+        if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp)) > 1:
+            raise InvalidArgument("give one of --port, --tcp or --rtu-over-tcp")
+        if not (args.port or args.tcp or args.rtu_over_tcp) or not specs:
+            raise InvalidArgument("name a bus and its devices: pymb log coolpro:40 hub:250 "
+                                  "--port PATH (or --tcp HOST:PORT); or --config FILE")
+        cfg = single_bus_config(args.port, args.tcp, [parse_device(s) for s in specs],
+                                baud=args.baud, parity=args.parity, timeout=args.timeout,
+                                interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
+        cfg.path = ""
+    if args.format:
+        cfg.format = args.format
+    if args.out:
+        cfg.path = args.out
+    elif not cfg.path or (not args.config and cfg.format == "sqlite"):
+        cfg.path = default_path() if cfg.format == "sqlite" else "-"
+    if args.max_mb is not None:
+        cfg.max_bytes = int(args.max_mb * 1e6)
+    if args.max_age_days is not None:
+        cfg.max_age = args.max_age_days * 86400
+    mqtt = mqtt_from(args, mqtt_table)
+    if mqtt is not None and cfg.format != "sqlite":
+        raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
+                              "use --format sqlite")
+    _on_change(args, cfg)
+    return cfg, mqtt
+
+
+def single_bus_config(port: str | None, tcp: str | None,
+                      devices: Sequence[str | DeviceConfig], *,
+                      baud: int = 9600, parity: str = "N", timeout: float = 1.0,
+                      interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
+                      max_mb: float | None = None, max_age_days: float | None = None,
+                      name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
+    """A LogConfig for one bus from command-line style arguments."""
+    bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
+                    [d if isinstance(d, DeviceConfig) else parse_device(d) for d in devices],
+                    rtu_over_tcp)
+    return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
+                     None if max_age_days is None else max_age_days * 86400)
+
+
+def default_path() -> str:
+    """``pymb-YYYYmmdd-HHMMSS.sqlite`` in the current directory."""
+    return str(Path.cwd() / time.strftime("pymb-%Y%m%d-%H%M%S.sqlite"))

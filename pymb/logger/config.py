@@ -1,0 +1,275 @@
+"""What ``pymb log`` logs: buses, their devices, the output; from a TOML
+file (see :mod:`pymb.logger`) or built in code.
+
+The file's ``[mqtt]`` table is the forwarder's: :func:`config_from_toml`
+checks that it is a table and leaves it to the command line
+(:mod:`pymb.commands.logconfig`), which joins the file, the flags and
+``[mqtt]`` into one run.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymb.client import Client, RtuClient, client_for_address
+from pymb.devices import HUB
+from pymb.devices.hub import full_sweep_spans
+from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
+from pymb.devices.spec import DeviceConfig, closest
+from pymb.errors import InvalidArgument
+from pymb.store import FORMATS, OnChange
+from pymb.wire import bits_per_char, read_time
+
+__all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_config",
+           "read_toml"]
+
+
+@dataclass
+class BusConfig:
+    """One serial line (or TCP gateway) and the devices on it."""
+
+    name: str
+    port: str | None = None
+    tcp: str | None = None
+    baud: int = 9600
+    parity: str = "N"
+    timeout: float = 1.0
+    interval: float = 0.0
+    devices: list[DeviceConfig] = field(default_factory=list)
+    rtu_over_tcp: str | None = None
+
+    def __post_init__(self) -> None:
+        if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp)) != 1:
+            raise InvalidArgument(
+                f"bus {self.name!r}: give exactly one of port, tcp or rtu_over_tcp")
+        if not self.devices:
+            raise InvalidArgument(f"bus {self.name!r} has no devices")
+        if not (math.isfinite(self.interval) and self.interval >= 0):
+            raise InvalidArgument(f"bus {self.name!r}: interval must be a number of seconds "
+                                  f">= 0, got {self.interval!r}")
+        if not self.timeout > 0:
+            raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
+        seen: dict[int, DeviceConfig] = {}
+        for d in self.devices:
+            assert d.address is not None
+            if d.address in seen:
+                raise InvalidArgument(f"bus {self.name!r}: two devices at address {d.address} "
+                                      f"({seen[d.address].name} and {d.name})")
+            seen[d.address] = d
+
+    @property
+    def endpoint(self) -> str:
+        """The port path or ``host:port``."""
+        return self.port if self.port is not None else str(self.tcp or self.rtu_over_tcp)
+
+    def client(self) -> Client:
+        """A new (unopened) client for this bus."""
+        if self.tcp is not None:
+            return client_for_address(self.tcp, timeout=self.timeout,
+                                      what=f"bus {self.name!r}: tcp")
+        if self.rtu_over_tcp is not None:
+            return client_for_address(self.rtu_over_tcp, rtu_framing=True,
+                                      timeout=self.timeout,
+                                      what=f"bus {self.name!r}: rtu_over_tcp")
+        return RtuClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
+
+    def wire_time(self, device: DeviceConfig) -> float:
+        """Least wire time of one poll of ``device`` (:mod:`pymb.wire`)."""
+        bits = bits_per_char(self.parity)
+        if device.type == "coolpro":
+            return read_time(COOLPRO.span("telemetry")[2], self.baud, turnaround=COOLPRO_GAP_S,
+                             bits=bits)
+        return sum(read_time(n, self.baud, bits=bits)
+                   for _, n in full_sweep_spans(device.channels))
+
+
+@dataclass
+class LogConfig:
+    """Everything ``pymb log`` needs."""
+
+    buses: list[BusConfig]
+    format: str = "sqlite"
+    path: str = "pymb.sqlite"
+    max_bytes: int | None = None
+    max_age: float | None = None
+    batch: int = 200  #: samples per commit, at most
+    commit_interval: float = 0.5  #: seconds between commits, at most
+    on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
+
+    def __post_init__(self) -> None:
+        check_buses(self.buses)
+        if self.max_bytes is not None and not self.max_bytes > 0:
+            raise InvalidArgument(f"--max-mb / max_mb must be a positive number of megabytes, "
+                                  f"got {self.max_bytes / 1e6:g}")
+        if self.max_age is not None and not self.max_age > 0:
+            raise InvalidArgument(f"--max-age-days / max_age_days must be a positive number "
+                                  f"of days, got {self.max_age / 86400:g}")
+
+
+def check_buses(buses: Sequence[BusConfig]) -> None:
+    """Bus names, device names and ports must each be unique; a default device
+    name that two buses share is qualified with its bus's name."""
+    names: dict[str, BusConfig] = {}
+    ports: dict[str, BusConfig] = {}
+    for b in buses:
+        if b.name in names:
+            raise InvalidArgument(f"two buses are named {b.name!r}")
+        names[b.name] = b
+        where = os.path.realpath(b.port) if b.port is not None else b.endpoint.lower()
+        if where in ports:
+            raise InvalidArgument(f"buses {ports[where].name!r} and {b.name!r} use the same "
+                                  f"port {b.endpoint}: one port is one bus")
+        ports[where] = b
+    count: dict[str, int] = {}
+    for b in buses:
+        for d in b.devices:
+            count[d.name] = count.get(d.name, 0) + 1
+    for b in buses:
+        for d in b.devices:
+            if count[d.name] > 1:
+                if d.name != f"{d.type}-{d.address}":
+                    raise InvalidArgument(f"two devices are named {d.name!r}: names must be "
+                                          f"unique")
+                d.name = f"{b.name}-{d.name}"
+    seen: set[str] = set()
+    for b in buses:
+        for d in b.devices:
+            if d.name in seen:
+                raise InvalidArgument(f"two devices are named {d.name!r}: names must be unique")
+            seen.add(d.name)
+
+
+_TOP_KEYS = ("output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the command line
+_OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "on_change", "heartbeat_s",
+                "deadband")
+_BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "baud", "parity", "timeout", "interval",
+             "device")
+_DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
+
+
+def _known(table: dict[str, Any], keys: Sequence[str], where: str) -> None:
+    for key in table:
+        if key not in keys:
+            raise InvalidArgument(f"{where}: unknown key {key!r}{closest(key, keys)}")
+
+
+def _get(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str,
+         default: Any = None) -> Any:
+    value = table.get(key, default)
+    if value is not None and (not isinstance(value, kind) or isinstance(value, bool)):
+        raise InvalidArgument(f"{where}: {key} has the wrong type ({value!r})")
+    return value
+
+
+def _within(where: str, e: InvalidArgument) -> InvalidArgument:
+    """``e`` said of ``where``, which is not repeated if ``e`` already names it."""
+    text = str(e)
+    return InvalidArgument(text if text.startswith(where) else f"{where}: {text}")
+
+
+def load_config(path: str | os.PathLike[str]) -> LogConfig:
+    """Read a TOML configuration (see :mod:`pymb.logger`): its buses and
+    output. Unknown keys and sections are errors that name the closest known
+    one."""
+    return config_from_toml(read_toml(path), path)
+
+
+def read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """A TOML file's tables; any failure to read or parse it is an InvalidArgument."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except IsADirectoryError:
+        raise InvalidArgument(f"{path} is a directory, not a TOML file") from None
+    except OSError as e:
+        raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InvalidArgument(f"{path}: {e}") from None
+
+
+def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogConfig:
+    """The buses and output of a parsed TOML configuration read from ``path``
+    (named in errors). Its ``[mqtt]`` table, if any, must be a table; reading
+    it is the command line's."""
+    for key in doc:
+        if key not in _TOP_KEYS:
+            raise InvalidArgument(f"{path}: unknown section [{key}]{closest(key, _TOP_KEYS)}")
+    out = _get(doc, "output", dict, str(path), {})
+    _known(out, _OUTPUT_KEYS, f"{path}: [output]")
+    buses = []
+    for i, b in enumerate(_get(doc, "bus", list, str(path), [])):
+        where = f"{path}: bus {i + 1}"
+        if not isinstance(b, dict):
+            raise InvalidArgument(f"{where}: write buses as [[bus]] tables")
+        _known(b, _BUS_KEYS, f"{where} [[bus]]")
+        devices = []
+        for j, d in enumerate(_get(b, "device", list, where, [])):
+            dwhere = f"{where}, device {j + 1}"
+            if not isinstance(d, dict):
+                raise InvalidArgument(f"{dwhere}: write devices as [[bus.device]] tables")
+            _known(d, _DEVICE_TOML_KEYS, f"{dwhere} [[bus.device]]")
+            kind = _get(d, "type", str, dwhere)
+            if kind is None:
+                raise InvalidArgument(f"{dwhere}: give its type (coolpro or hub)")
+            units = d.get("humidity_unit", 0.1)
+            try:
+                devices.append(DeviceConfig(
+                    kind.lower(), _get(d, "address", int, dwhere),
+                    _get(d, "name", str, dwhere, ""),
+                    _get(d, "channels", int, dwhere, HUB.channels),
+                    units,
+                ))
+            except InvalidArgument as e:
+                raise _within(dwhere, e) from None
+        try:
+            buses.append(BusConfig(
+                _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),
+                _get(b, "tcp", str, where), _get(b, "baud", int, where, 9600),
+                _get(b, "parity", str, where, "N"),
+                float(_get(b, "timeout", (int, float), where, 1.0)),
+                float(_get(b, "interval", (int, float), where, 0.0)), devices,
+                rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
+            ))
+        except InvalidArgument as e:
+            raise _within(str(path), e) from None
+    if not buses:
+        raise InvalidArgument(f"{path}: no [[bus]] configured")
+    max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
+    max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
+    for key, value in (("max_mb", max_mb), ("max_age_days", max_days)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InvalidArgument(f"{path}: output: {key} must be a positive number, "
+                                  f"got {value!r}")
+    fmt = _get(out, "format", str, f"{path}: output", "sqlite")
+    if fmt not in FORMATS:
+        raise InvalidArgument(f"{path}: output: unknown format {fmt!r}; use one of "
+                              f"{', '.join(FORMATS)}")
+    _get(doc, "mqtt", dict, str(path))
+    on_change = None
+    flag = out.get("on_change", False)
+    if not isinstance(flag, bool):
+        raise InvalidArgument(f"{path}: output: on_change must be true or false, got {flag!r}")
+    if not flag and ("deadband" in out or "heartbeat_s" in out):
+        raise InvalidArgument(f"{path}: output: deadband and heartbeat_s go with "
+                              "on_change = true")
+    if flag:
+        bands = _get(out, "deadband", dict, f"{path}: output", {})
+        for k in bands:
+            _get(bands, k, (int, float), f"{path}: output.deadband")
+        on_change = OnChange(float(_get(out, "heartbeat_s", (int, float), f"{path}: output",
+                                        60.0)), {k: float(v) for k, v in bands.items()})
+    try:
+        return LogConfig(
+            buses, fmt,
+            _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
+            None if max_mb is None else int(max_mb * 1e6),
+            None if max_days is None else float(max_days) * 86400,
+            on_change=on_change,
+        )
+    except InvalidArgument as e:
+        raise _within(str(path), e) from None

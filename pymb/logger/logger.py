@@ -1,0 +1,223 @@
+"""The logger: runs a poller per bus and writes what they produce to one sink."""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+from pymb.devices import HubReading
+from pymb.errors import OutputError
+from pymb.logger.config import LogConfig
+from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller, Stats
+from pymb.store import Event, Sample, Sink, check_output, open_sink
+
+__all__ = ["Logger", "Summary"]
+
+_STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
+_DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
+
+
+@dataclass
+class Summary:
+    """What a logging run did."""
+
+    samples: int
+    events: int
+    faults: int
+    elapsed: float
+    cpu: float  #: process CPU seconds used
+    by_device: dict[str, int]
+    skipped_slots: int
+    path: str
+    #: bus -> why its port never opened
+    never_opened: dict[str, str] = field(default_factory=dict)
+    #: device -> why it never delivered a sample (its last fault)
+    silent: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def rate(self) -> float:
+        """Samples per second over the run."""
+        return self.samples / self.elapsed if self.elapsed > 0 else 0.0
+
+    @property
+    def exit_code(self) -> int:
+        """0; 4 if some bus never opened its port; else 3 if some device never
+        delivered a sample (``pymb log``'s exit code)."""
+        return 4 if self.never_opened else 3 if self.silent else 0
+
+    def problems(self) -> list[str]:
+        """One line per bus that never opened and per device that never delivered."""
+        out = [f"bus {b} never opened its port: {why}" for b, why in self.never_opened.items()]
+        out += [f"{d} delivered no sample: {why}" for d, why in self.silent.items()]
+        return out
+
+
+class Logger:
+    """Runs the pollers and writes what they produce to one sink.
+
+    The calling thread writes (batched commits) and calls ``tick`` (a status
+line, the command line's) twice a second; :meth:`stop` (or SIGINT /
+    SIGTERM when :meth:`run` installs handlers) ends the run at once: what
+    was read is committed, and a poller still waiting for a reply is left to
+    time out on its own (it is a daemon thread) rather than holding the
+    stop up for its timeout.
+    """
+
+    def __init__(self, config: LogConfig, *, sink: Sink | None = None,
+                 tick: Callable[[Logger, float, bool], None] | None = None) -> None:
+        self.config = config
+        #: called with (this logger, seconds since the start, final) twice a second
+        #: during the run and once at its end (final True): a status line's hook
+        self.tick = tick
+        if sink is None:
+            check_output(config.format, config.path)
+        self._stop = threading.Event()
+        self.stats = Stats()
+        # Bounded (about 10,000 samples): pollers wait when the writer lags.
+        self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
+            maxsize=10000 // BATCH_MAX)
+        # pymb's own sinks are done with a sample when write() returns: hub
+        # sweeps may then be read into the arrays of readings already written.
+        reuse = sink is None or getattr(sink, "keeps_samples", True) is False
+        self.pollers = [BusPoller(b, self._queue, self._stop, self.stats, reuse=reuse)
+                        for b in config.buses]
+        self._spare = {id(d.info): d.spare for p in self.pollers for d in p.devices
+                       if d.spare is not None}
+        self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
+                                      max_age=config.max_age, on_change=config.on_change)
+
+    def stop(self) -> None:
+        """Ask the run to end (thread- and signal-safe)."""
+        self._stop.set()
+
+    @contextlib.contextmanager
+    def _signals(self) -> Iterator[None]:
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        # SIGHUP (the terminal or ssh session closed) ends the run as SIGTERM
+        # does, unless it is ignored (nohup): then it stays ignored.
+        hup = [] if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else [signal.SIGHUP]
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, *hup)}
+        for s in old:
+            signal.signal(s, lambda *_: self.stop())
+        try:
+            yield
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+
+    def run(self, seconds: float | None = None) -> Summary:
+        """Log until stopped (or for ``seconds``); returns the summary."""
+        t0, cpu0 = time.monotonic(), time.process_time()
+        deadline = None if seconds is None else t0 + seconds
+        last_commit = last_status = t0
+        pending = 0
+        failure: OutputError | None = None
+        with self._signals():
+            for p in self.pollers:
+                p.start()
+            try:
+                while True:
+                    if deadline is not None and time.monotonic() >= deadline:
+                        self._stop.set()
+                    if self._stop.is_set():
+                        break
+                    try:
+                        item: list[Sample | Event] | None = self._queue.get_nowait()
+                    except queue.Empty:
+                        item = None
+                        # Drain the queue in bursts: waking on every sample would cost
+                        # a thread switch per sample (issue 12: CPU per sample).
+                        self._stop.wait(_DRAIN_EVERY)
+                    if item is not None:
+                        self._write_all(item)
+                        pending += len(item)
+                    now = time.monotonic()
+                    if pending and (pending >= self.config.batch
+                                    or now - last_commit >= self.config.commit_interval):
+                        self.sink.commit()
+                        pending, last_commit = 0, now
+                        # Leave SQLite's write lock free for a moment: another
+                        # writer (the MQTT forwarder's cursor) gets its turn.
+                        self._stop.wait(_DRAIN_EVERY)
+                    if self.tick is not None and now - last_status >= 0.5:
+                        self.tick(self, now - t0, False)
+                        last_status = now
+                    if item is None and not any(p.is_alive() for p in self.pollers):
+                        break
+            except OutputError as e:
+                failure = e
+            finally:
+                self._stop.set()
+                # A poller in the middle of a request finishes it (its reply is
+                # logged) if that takes less than _STOP_WAIT; one waiting out a
+                # long timeout is left behind.
+                until = time.monotonic() + _STOP_WAIT
+                for p in self.pollers:
+                    p.join(max(0.0, until - time.monotonic()))
+                try:
+                    while failure is None:
+                        try:
+                            self._write_all(self._queue.get_nowait())
+                        except queue.Empty:
+                            break
+                    # A poller left behind: what it read before the stop.
+                    for p in self.pollers:
+                        if failure is None and p.is_alive():
+                            self._write_all(p.take_unflushed())
+                    self.sink.close()
+                except OutputError as e:
+                    failure = failure or e
+        if failure is not None:
+            raise failure
+        elapsed = time.monotonic() - t0
+        if self.tick is not None:
+            self.tick(self, elapsed, True)
+        s = self.stats
+        never = {b.name: s.last_fault.get(b.name, "").split(": ", 1)[-1] or "not yet opened"
+                 for b in self.config.buses if not s.opened.get(b.name)}
+        silent = {d.name: s.last_fault.get(d.name, f"{d.name}: no reply yet").split(": ", 1)[-1]
+                  for b in self.config.buses if b.name not in never
+                  for d in b.devices if not s.by_device.get(d.name)}
+        return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
+                       dict(s.by_device), s.skipped_slots, self.config.path, never, silent)
+
+    def _write_all(self, items: list[Sample | Event]) -> None:
+        """Write a poller's list in order: each run of samples in one call
+        when the sink takes batches (SQLite: multi-row INSERTs)."""
+        batch = getattr(self.sink, "write_batch", None)
+        run: list[Sample] = []
+        for item in items:
+            if isinstance(item, Sample):
+                run.append(item)
+                continue
+            self._samples(run, batch)
+            run = []
+            self.sink.event(item)
+            self.stats.events += 1
+        self._samples(run, batch)
+
+    def _samples(self, samples: list[Sample], batch: Callable[[list[Sample]], None] | None,
+                 ) -> None:
+        if not samples:
+            return
+        if batch is not None:
+            batch(samples)
+        else:
+            for sample in samples:
+                self.sink.write(sample)
+        by_device = self.stats.by_device
+        for sample in samples:
+            spare = self._spare.get(id(sample.device))
+            if spare is not None and len(spare) < SPARE_MAX and isinstance(sample.data,
+                                                                             HubReading):
+                spare.append(sample.data)
+            name = sample.device.name
+            by_device[name] = by_device.get(name, 0) + 1
+        self.stats.samples += len(samples)

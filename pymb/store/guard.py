@@ -1,0 +1,67 @@
+"""Output-file guards: pymb never writes into a file of another kind."""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+from pathlib import Path
+
+from pymb.errors import InvalidArgument
+from pymb.store.text import CSV_COLUMNS
+
+__all__ = ["check_output", "is_pymb_database"]
+
+
+def check_output(fmt: str, path: str) -> None:
+    """Refuse to write ``fmt`` into an existing file of another kind: CSV or
+    JSON Lines appended to a database (or to someone's document), SQLite
+    tables added to a file that is not a pymb database."""
+    if path == "-" or not os.path.exists(path):
+        return
+    if os.path.isdir(path):
+        raise InvalidArgument(f"{path} is a directory; give a file name")
+    if not os.path.isfile(path) or os.path.getsize(path) == 0:
+        return
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512)
+    except OSError as e:
+        raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
+    sqlite = head.startswith(b"SQLite format 3\x00")
+    first = head.split(b"\n", 1)[0].rstrip(b"\r")
+    if fmt == "sqlite":
+        if not sqlite:
+            raise InvalidArgument(f"{path} exists and is not a SQLite database: refusing to "
+                                  "write into it; choose another --out")
+        if not is_pymb_database(path):
+            raise InvalidArgument(f"{path} is a SQLite database not written by pymb: refusing "
+                                  "to add to it; choose another --out")
+        return
+    kind = "a SQLite database" if sqlite else "not a file pymb wrote"
+    if fmt == "csv" and not sqlite and first.decode("utf-8", "replace") == ",".join(CSV_COLUMNS):
+        return
+    if fmt == "jsonl" and not sqlite and head.startswith(b'{"time_utc": '):
+        return
+    if fmt == "influx" and not sqlite and head.startswith(b"pymb_"):  # pymb's measurements
+        return
+    raise InvalidArgument(f"{path} exists and is {kind}, not {fmt.upper()} written by pymb: "
+                          f"refusing to append {fmt.upper()} to it; choose another --out")
+
+
+def is_pymb_database(path: str) -> bool:
+    """True if ``path`` is a SQLite database pymb wrote (or an empty one)."""
+    try:
+        db = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+        try:
+            tables = {r[0] for r in db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if not tables:
+                return True
+            if "meta" not in tables:
+                return False
+            return bool(db.execute("SELECT COUNT(*) FROM meta WHERE key = 'pymb_version'"
+                                   ).fetchone()[0] == 1)
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return False
