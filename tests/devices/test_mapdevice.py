@@ -284,3 +284,16 @@ def test_against_pymodbus_that_lacks_registers(mode: str) -> None:
         reads.append((address, count))
     assert reads == [(0, 11), (0, 2), (3, 2), (10, 1),
                      (20, 4), (20, 1), (21, 1), (22, 1), (23, 1)]
+
+
+def test_exception_03_to_declared_points_reads_each_alone() -> None:
+    # The device takes at most 10 registers a request, the map says 125:
+    # exception 03 to the one request, then each point alone, all values.
+    points = "".join(f'\n[[point]]\nname = "r{i}"\naddress = {i}\ntype = "u16"\n'
+                     for i in range(12))
+    with RefusingPtyPeer({"holding": set(range(12))}, max_count=10) as peer, \
+            pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
+        dev = MapDevice(client, make_map("", "", points), 1)
+        assert dev.read() == {f"r{i}": peer_value(i) for i in range(12)}
+        assert peer.reads() == [("holding", 0, 12)] + [("holding", i, 1) for i in range(12)]
+        assert [r.refused for r in peer.log] == [3] + [0] * 12
