@@ -76,6 +76,8 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.append(_micro_table(result["micro"]))
     if result.get("plan"):
         out.append(_plan_table(result["plan"]))
+    if result.get("maps"):
+        out.append(_maps_table(result["maps"]))
     if result.get("wire"):
         out.append(_wire_table(result["wire"]))
     if result.get("scaling"):
@@ -145,6 +147,18 @@ def _plan_table(plan: dict[str, Any]) -> Table:
           str(plan["registers"]), fmt_time(plan["predicted_ms"] * 1e3),
           fmt_time(plan["naive_ms"] * 1e3), f"≤ {plan['target_ms']:g} ms"]],
         [True, True, True, True, True, True, True], [])
+
+
+def _maps_table(maps: dict[str, Any]) -> Table:
+    return Table(
+        f"Maps: decoding a {maps['points']}-point f32 map",
+        f"median of {maps['repeat']} runs: one pymb_map_decode call from Python into "
+        "preallocated arrays, the same with the {name: value} dict, and the pure Python "
+        "reference codec point by point",
+        ["points", "one C call", "with the dict", "pure Python", "target"],
+        [[str(maps["points"]), fmt_time(maps["decode_us"]), fmt_time(maps["read_us"]),
+          fmt_time(maps["python_us"]), f"≤ {maps['target_us']:g} µs"]],
+        [True, True, True, True, True], [])
 
 
 def _wire_table(wire: dict[str, Any]) -> Table:

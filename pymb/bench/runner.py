@@ -6,6 +6,8 @@ Sections (each can be chosen with ``--sections``):
              hub registers, pymb (C) against pure Python (timeit, median).
 ``plan``     in-process: planning the reads of a 1,000-point map
              (:mod:`pymb.bench.planbench`).
+``maps``     in-process: decoding a 100-point f32 map in one C call
+             (:mod:`pymb.bench.mapbench`).
 ``sweep``    the workload: one sweep of the hub's 700 registers (6 requests,
              decoded) and one CoolPro telemetry read, per contender, each in
              its own process against its own simulator process over a pty,
@@ -54,7 +56,7 @@ from typing import Any
 
 import pymb
 from pymb import _native
-from pymb.bench import cprogram, logbench, planbench, pure
+from pymb.bench import cprogram, logbench, mapbench, planbench, pure
 from pymb.bench.contenders import CONTENDERS, NAMES, Contender, probe
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
@@ -65,7 +67,7 @@ from pymb.wire import read_time
 
 __all__ = ["SECTIONS", "Options", "Plan", "hub_registers", "run"]
 
-SECTIONS = ("micro", "plan", "sweep", "wire", "scaling", "aio", "fleet", "logger")
+SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)
@@ -602,6 +604,9 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
     if result.get("plan"):
         for what, goal, value, unit, met in planbench.targets(result["plan"]):
             add(what, goal, value, unit, met)
+    if result.get("maps"):
+        for what, goal, value, unit, met in mapbench.targets(result["maps"]):
+            add(what, goal, value, unit, met)
     wire = result.get("wire")
     if wire:
         for baud in (9600, 115200):
@@ -639,6 +644,8 @@ def run(opts: Options) -> dict[str, Any]:
             result["micro"] = run_micro(opts)
         if "plan" in opts.sections and pymb_in:
             result["plan"] = planbench.run_section(opts.plan.micro_repeat, opts.say)
+        if "maps" in opts.sections and pymb_in:
+            result["maps"] = mapbench.run_section(opts.plan.micro_repeat, opts.say)
         if "sweep" in opts.sections:
             result["sweep"] = run_sweep(opts, lineup, children)
         if "wire" in opts.sections and ("pymb" in opts.only or "c" in opts.only):

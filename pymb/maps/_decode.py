@@ -117,6 +117,8 @@ class Decoder:
         self._markers, self._nmarkers = markers, nmarkers
         self._counts = {p.name: p.count for p in points}
         self._blocks = frozenset(p.name for p in points if p.block)
+        self._order = [(e[0], e[2], None if e[1] == _FLOAT and e[0] not in self._blocks else e)
+                       for e in self._plan]
         self._firsts = {p.name: p.address - self.address for p in points}
         self._text_bytes = text
         self.buffers = self.new_buffers()
@@ -198,9 +200,13 @@ class Decoder:
     def values(self, b: Buffers | None = None) -> dict[str, Value]:
         """The dict of the values in ``b`` (default: :attr:`buffers`)."""
         b = self.buffers if b is None else b
-        vals, ints, states = b.values, b.ints, b.states
+        vals, ints, states = b.values.tolist(), b.ints, b.states
         out: dict[str, Value] = {}
-        for name, kind, slot, channels, text, per, encoding in self._plan:
+        for name, slot, entry in self._order:
+            if entry is None:  # the common case: one float, no list
+                out[name] = None if states[slot] else vals[slot]
+                continue
+            _, kind, slot, channels, text, per, encoding = entry
             one: list[Value] = []
             for i in range(slot, slot + channels):
                 if states[i]:
