@@ -1,4 +1,5 @@
-"""setuptools entry: the cffi extension, the version, and a fresh build directory.
+"""setuptools entry: the cffi extension, the version, the licence, and a fresh
+build directory.
 
 cffi cannot be declared in pyproject.toml yet; everything else lives there.
 """
@@ -11,6 +12,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+import setuptools
 from setuptools import setup
 
 HERE = Path(__file__).resolve().parent
@@ -33,8 +35,15 @@ def version() -> str:
 build_base = tempfile.mkdtemp(prefix="pymb-build-")
 atexit.register(shutil.rmtree, build_base, True)
 
+# The licence as an SPDX expression where setuptools knows one (77 and later:
+# the TOML table form warns there); Debian 12's own setuptools (66), which a
+# build without isolation uses, takes the plain text.
+LICENCE = ({"license_expression": "MIT"}
+           if int(setuptools.__version__.split(".")[0]) >= 77 else {"license": "MIT"})
+
 setup(
     version=version(),
+    **LICENCE,
     cffi_modules=["build_ffi.py:ffibuilder"],
     options={
         "build": {"build_base": build_base},

@@ -260,7 +260,7 @@ def test_skipped_contenders_say_why(monkeypatch: pytest.MonkeyPatch,
                  "--sections", "sweep"]) == 0
     text = capsys.readouterr().out
     assert "minimalmodbus: skipped: not installed" in text
-    assert "pip install 'pymb[bench]'" in text
+    assert "pip install 'pymb-modbus[bench]'" in text
     assert "C (libmodbus): skipped: cannot build the C program: no C compiler" in text
     assert "no ratios" in text
 

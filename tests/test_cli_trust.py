@@ -699,26 +699,26 @@ def test_demo_never_claims_more_than_the_wire_allows(tmp_path: Path) -> None:
 
 
 def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> None:
-    """Without the ``pymb[mqtt]`` extra, ``log --mqtt`` and ``demo --mqtt`` say how
+    """Without the ``pymb-modbus[mqtt]`` extra, ``log --mqtt`` and ``demo --mqtt`` say how
     to install it, create no database and start no simulator."""
     blocker = tmp_path / "nopaho"
     blocker.mkdir()
     (blocker / "sitecustomize.py").write_text(
         "import sys\nfor m in ('paho', 'paho.mqtt', 'paho.mqtt.client'):\n"
-        "    sys.modules[m] = None  # as if pymb[mqtt] were not installed\n")
+        "    sys.modules[m] = None  # as if pymb-modbus[mqtt] were not installed\n")
     env = dict(PYMB_ENV, PYTHONPATH=f"{blocker}{os.pathsep}{PYMB_ENV['PYTHONPATH']}")
     db = tmp_path / "out.sqlite"
     r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--out", str(db), "--seconds", "1",
                  "--mqtt", "mqtt://127.0.0.1", env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
-    assert "pip install 'pymb[mqtt]'" in r.stderr, r.stderr
+    assert "pip install 'pymb-modbus[mqtt]'" in r.stderr, r.stderr
     assert not db.exists()
     r = run_pymb("demo", "--mqtt", "--out", str(db), env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip() == (
-        "pymb demo: --mqtt needs paho-mqtt: pip install 'pymb[mqtt]'"), r.stderr
+        "pymb demo: --mqtt needs paho-mqtt: pip install 'pymb-modbus[mqtt]'"), r.stderr
     assert not db.exists()
 
 

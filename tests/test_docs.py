@@ -24,11 +24,11 @@ def test_every_command_is_documented() -> None:
 
 
 def test_quick_start_commands_match_ci() -> None:
-    assert ".ci/setup && .venv/bin/pymb demo" in README
+    assert ".ci/setup --user && .venv/bin/pymb demo" in README
     run = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
     assert "pytest" in run
     assert ".ci/setup" in run
-    assert "    .ci/run " in README
+    assert "    .ci/setup && .ci/run\n" in README
 
 
 def test_the_toml_example_is_a_valid_configuration(tmp_path: Path) -> None:

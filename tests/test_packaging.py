@@ -44,7 +44,7 @@ def test_one_version_everywhere() -> None:
     version = _header_version()
     assert pymb.__version__ == version
     assert ffi.string(lib.pymb_version()).decode() == version
-    assert importlib.metadata.version("pymb") == version
+    assert importlib.metadata.version("pymb-modbus") == version
 
 
 def test_strerror_knows_libmodbus_codes_and_the_os_ones() -> None:

@@ -17,6 +17,7 @@ from pymb.bench import report, runner
 from pymb.bench.contenders import NAMES
 from pymb.bench.runner import SECTIONS, Options
 from pymb.errors import InvalidArgument
+from pymb.extras import install_hint
 
 __all__ = ["add_arguments", "run"]
 
@@ -87,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             import matplotlib  # noqa: F401
         except ImportError:
-            raise InvalidArgument("--plot needs matplotlib: pip install 'pymb[bench]'") from None
+            raise InvalidArgument(
+                f"--plot needs matplotlib: {install_hint('bench')}") from None
         check_writable(args.plot)
 
     def progress(text: str) -> None:

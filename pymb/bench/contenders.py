@@ -7,9 +7,11 @@ import importlib.util
 import sys
 from dataclasses import dataclass
 
+from pymb.extras import install_hint
+
 __all__ = ["CONTENDERS", "NAMES", "Contender", "probe"]
 
-_EXTRA = "pip install 'pymb[bench]'"
+_EXTRA = install_hint("bench")
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pymb.extras import install_hint
+
 __all__ = ["run_fleet"]
 
 OUTAGE_S = 3.0
@@ -204,7 +206,8 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
     try:
         import paho.mqtt.client as mqtt
     except ImportError:
-        return {"status": "skipped", "reason": "paho-mqtt is not installed (pymb[mqtt])"}
+        return {"status": "skipped",
+                "reason": f"paho-mqtt is not installed ({install_hint('mqtt')})"}
     from pymb.fleet.broker import Mosquitto, find_mosquitto
     if find_mosquitto() is None:
         return {"status": "skipped", "reason": "mosquitto is not installed"}

@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"emulated line speed (default {BAUD})")
     p.add_argument("--quiet", action="store_true", help="no live status line")
     p.add_argument("--mqtt", nargs="?", const="auto", metavar="URL",
-                   help="also publish every sample over MQTT (needs pymb[mqtt]): to URL, or "
+                   help="also publish every sample over MQTT (needs pymb-modbus[mqtt]): to URL, or "
                         "without one to a broker on 127.0.0.1:1883 or a mosquitto started "
                         "for the demo")
 

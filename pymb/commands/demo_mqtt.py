@@ -52,7 +52,7 @@ class Watch:
     """
 
     def __init__(self, mcfg: MqttConfig, topic: str) -> None:
-        import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
+        import paho.mqtt.client as mqtt  # the optional extra pymb-modbus[mqtt]
         from paho.mqtt.enums import CallbackAPIVersion
         self.url, self.host, self.port = mcfg.url, mcfg.host, mcfg.port
         self.ids: set[int] = set()  #: the sample ids received so far (under ``cond``)

@@ -62,7 +62,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
     """The ``--mqtt*`` flags (TOML: the ``[mqtt]`` table, keys of the same names)."""
-    g = p.add_argument_group("forwarding to an MQTT broker (needs pymb[mqtt]; SQLite output)")
+    g = p.add_argument_group(
+        "forwarding to an MQTT broker (needs pymb-modbus[mqtt]; SQLite output)")
     g.add_argument("--mqtt", metavar="URL",
                    help="mqtt://HOST[:PORT] or mqtts://HOST[:PORT] (TLS): publish every sample")
     g.add_argument("--mqtt-profile", choices=PROFILES, help="plain JSON (default) or sparkplug")

@@ -4,7 +4,7 @@ The SQLite log is the durable outbox: the logger commits each sample first,
 then a :class:`~pymb.fleet.forwarder.Forwarder` thread publishes the
 committed samples and advances a cursor stored in the same file only past
 what the broker acknowledged. Profiles: ``plain`` (JSON, QoS 1) and
-``sparkplug`` (Sparkplug B 3.0). Needs the extra ``pymb[mqtt]``
+``sparkplug`` (Sparkplug B 3.0). Needs the extra ``pymb-modbus[mqtt]``
 (paho-mqtt 2.x). Also here: a launcher of Debian's mosquitto for tests,
 the demo and the bench (:mod:`pymb.fleet.broker`).
 """

@@ -120,7 +120,7 @@ class _Session:
     """One MQTT connection (a paho client); callbacks run on paho's thread."""
 
     def __init__(self, fw: Forwarder, client_id: str) -> None:
-        import paho.mqtt.client as mqtt  # the optional extra pymb[mqtt]
+        import paho.mqtt.client as mqtt  # the optional extra pymb-modbus[mqtt]
         from paho.mqtt.enums import CallbackAPIVersion
 
         self.fw = fw
@@ -204,7 +204,8 @@ def require_paho() -> None:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
         from pymb.errors import InvalidArgument
-        raise InvalidArgument("--mqtt needs paho-mqtt: pip install 'pymb[mqtt]'") from None
+        from pymb.extras import install_hint
+        raise InvalidArgument(f"--mqtt needs paho-mqtt: {install_hint('mqtt')}") from None
 
 
 class Forwarder(threading.Thread):

@@ -9,7 +9,7 @@ string values); :func:`decode` reads any message into raw fields, enough to
 read an NCMD. The tests decode every payload with an independent
 implementation of the same schema (pysparkplug's generated ``Payload``).
 
-Why not the ``protobuf`` package: one dependency fewer for ``pymb[mqtt]``,
+Why not the ``protobuf`` package: one dependency fewer for ``pymb-modbus[mqtt]``,
 and the handful of fields here are simpler to write than to pin a
 generated-code version against a runtime version.
 """
