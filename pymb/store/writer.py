@@ -18,6 +18,7 @@ from pymb import __version__
 from pymb.devices import HUB, HubReading, State
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.files import create, remove_stale_creations
+from pymb.store.lock import WriterLock
 from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.retention import Retention
@@ -90,20 +91,26 @@ class SqliteSink(Retention):
         self.on_change = on_change
         self.trimmed = 0  #: samples deleted by the size and age limits so far
         self.stored = 0  #: samples written (on-change: those that changed)
+        self._lock: WriterLock | None = None
         try:
             remove_stale_creations(self.path)
             if not self.path.exists():
                 create(self.path)
+            # One writer: refused here, before this process writes anything.
+            self._lock = WriterLock(self.path)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
         except (sqlite3.Error, OSError) as e:
+            self._unlock()
             raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
         try:
             self._open()
         except sqlite3.Error as e:
             self.db.close()
+            self._unlock()
             raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
         except InvalidArgument:
             self.db.close()
+            self._unlock()
             raise
         self._devices: dict[DeviceInfo, tuple[int, int]] = {}
         self._changes: dict[int, HubChanges | CoolProChanges] = {}
@@ -337,9 +344,15 @@ class SqliteSink(Retention):
         except sqlite3.Error as e:
             raise self._failed(e) from None
 
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
     def close(self) -> None:
-        """Commit what is pending and close the database."""
+        """Commit what is pending, close the database and let the next writer in."""
         try:
             self.commit()
         finally:
             self.db.close()
+            self._unlock()
