@@ -53,7 +53,7 @@ def _logged(stderr: str) -> int:
 
 def _refused(proc: subprocess.Popen[str], holder: int) -> None:
     """``proc`` was refused: exit 2 and one line naming the holder."""
-    out, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2, err
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -121,7 +121,8 @@ def test_readers_never_disturb_the_writer(coolpro: str, tmp_path: Path) -> None:
             if shell:
                 q = subprocess.run([shell, str(db), SAMPLES + ";"], capture_output=True,
                                    text=True, timeout=60, check=False)
-                assert q.returncode == 0 and int(q.stdout) > 0, q.stderr
+                assert q.returncode == 0, q.stderr
+                assert int(q.stdout) > 0
             # A reader that holds its snapshot while the writer commits on.
             with sqlite3.connect(db) as con:
                 con.execute("BEGIN")
