@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
+from pymb import maps
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
 from pymb.devices.mapspec import load_map
 from pymb.errors import IllegalDataAddress, InvalidArgument
@@ -30,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                          "predicted wire time",
                            description="validate a map; print each group's plan and "
                                        "predicted wire time")
-    check.add_argument("file", metavar="FILE")
+    check.add_argument("file", metavar="FILE",
+                       help="a map file, or the id of a map pymb ships (e.g. hub)")
     check.add_argument("--baud", type=int, default=9600,
                        help="line speed the plans are priced at (default 9600)")
     check.add_argument("--parity", default="N", choices=["N", "E", "O"],
@@ -51,7 +54,11 @@ def _plural(n: int, word: str) -> str:
 
 
 def _check(args: argparse.Namespace) -> int:
-    m = load_map(args.file)
+    shipped = maps.builtin_ids()
+    if not os.path.exists(args.file) and args.file in shipped:
+        m = maps.builtin(args.file)
+    else:
+        m = load_map(args.file)
     planner, mi = map_planner(m, Line(args.baud, bits_per_char(args.parity)))
     what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
     print(f"{args.file}: {m.id}{f' ({what})' if what else ''}: "

@@ -105,6 +105,10 @@ def test_map_check_prints_each_groups_plan_and_wire_time(meter: Path) -> None:
     assert "      1. input registers 0..7 (8)" in r.stdout
     assert f"predicted {plan.predicted_s * 1e3:.2f} ms" in r.stdout
     assert "group (none): 2 points, read on request" in lines
+    r = run_pymb("map", "check", "hub")  # a shipped map, by its id
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("hub: hub (100-channel sensor hub): 7 points, 1 group: valid")
+    assert "6 request(s), 700 registers on the wire" in r.stdout
 
 
 def test_map_check_mistakes_are_one_line(tmp_path: Path, meter: Path) -> None:
