@@ -1,0 +1,60 @@
+"""Every map pymb ships beside the CoolPro and the hub, read back through
+``pymb simulate`` (no ``--map``: a shipped map's id is a device type) with
+``pymb read``: each point with an ``example`` reads that example, every
+other point reads a value; a map with ``[[identify]]`` rules is what ``pymb
+scan`` names at that address."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import pytest
+from conftest import run_pymb
+
+from pymb import maps
+from pymb.devices.mapspec import FACADES
+from pymb.maps import Point
+from pymb.sim import SimulatorProcess
+
+SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
+
+
+def same(p: Point, got: Any, want: Any) -> bool:
+    if isinstance(want, list):
+        return isinstance(got, list) and all(same(p, g, w) for g, w in zip(got, want,
+                                                                          strict=True))
+    if isinstance(want, str) and p.values:
+        want = {name: raw for raw, name in p.values.items()}[want]
+    if isinstance(want, bool) or isinstance(got, bool):
+        return bool(got) == bool(want)
+    if isinstance(want, float) or isinstance(got, float):
+        # an f32 holds about 7 digits
+        return isinstance(got, (int, float)) and math.isclose(got, want, rel_tol=1e-6,
+                                                              abs_tol=1e-9)
+    return bool(got == want)
+
+
+@pytest.mark.parametrize("map_id", SHIPPED)
+def test_a_shipped_map_reads_back_through_the_simulator(map_id: str) -> None:
+    m = maps.builtin(map_id)
+    address = m.device.default_address
+    with SimulatorProcess([f"{map_id}:{address}"], quiet=True) as sim:
+        r = run_pymb("read", f"{map_id}:{address}", "--port", sim.port, "--json")
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        readable = [p for p in m.points.values() if p.access != "w"]
+        assert list(doc["values"]) == [p.name for p in readable]
+        for p in readable:
+            got, state = doc["values"][p.name], doc["states"][p.name]
+            if p.example is not None:
+                want = p.example if not p.block or isinstance(p.example, list) else [
+                    p.example] * p.channels
+                assert same(p, got, want), (p.name, got, p.example)
+            states = state if isinstance(state, list) else [state]
+            assert set(states) == {"value"}, (p.name, state)
+        if m.identify:
+            r = run_pymb("scan", "--port", sim.port, "--range", str(address))
+            assert r.returncode == 0, r.stderr
+            assert r.stdout.split()[:2] == [str(address), map_id], r.stdout
