@@ -19,7 +19,8 @@ from collections.abc import Callable
 from typing import Any
 
 from pymb import maps
-from pymb.maps.planner import Item, map_planner
+from pymb.maps.device_plan import map_planner
+from pymb.maps.planner import Item
 
 __all__ = ["TARGET_MS", "run_section", "synthetic_map", "synthetic_points", "targets"]
 

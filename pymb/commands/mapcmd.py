@@ -18,7 +18,8 @@ from pymb.devices.mapspec import load_map
 from pymb.errors import IllegalDataAddress, InvalidArgument
 from pymb.maps import Point
 from pymb.maps.codec import decode_one
-from pymb.maps.planner import Line, map_planner
+from pymb.maps.device_plan import map_planner
+from pymb.maps.planner import Line
 from pymb.maps.types import ORDER_NAMES, normalize_order
 from pymb.wire import bits_per_char
 

@@ -29,8 +29,9 @@ from typing import Any, NamedTuple
 from pymb.client import Client
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
 from pymb.maps import Decoder, Map, Point, Value
+from pymb.maps.device_plan import map_planner
 from pymb.maps.model import did_you_mean
-from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request, map_planner
+from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
 from pymb.wire import bits_per_char
 
 __all__ = ["MapDevice"]

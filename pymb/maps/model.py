@@ -258,7 +258,8 @@ class Map:
         for None), planned with the device's limits and timing at
         ``baudrate``: iterate for ``.table``, ``.address``, ``.count``; see
         :mod:`pymb.maps.planner`."""
-        from pymb.maps.planner import Line, map_planner
+        from pymb.maps.device_plan import map_planner
+        from pymb.maps.planner import Line
         if group is not None and group not in self.groups:
             raise MapError(f"{self.source}: no group {group!r}"
                            f"{did_you_mean(group, list(self.groups))}", source=self.source,

@@ -10,12 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pymb.errors import InvalidArgument
+from pymb.maps.device_plan import PointPlanner
 from pymb.maps.planner import (
     Item,
     Known,
     Limits,
     Line,
-    PointPlanner,
     plan_points,
 )
 from pymb.wire import read_bits_time, read_time
