@@ -31,7 +31,11 @@ SOURCES = [
     f"{CSRC}/pymb_frame.c",
     f"{CSRC}/pymb_decode.c",
     f"{CSRC}/pymb_error.c",
-    f"{CSRC}/pymb_modbus.c",
+    f"{CSRC}/pymb_line.c",
+    f"{CSRC}/pymb_request.c",
+    f"{CSRC}/pymb_rtu.c",
+    f"{CSRC}/pymb_tcp.c",
+    f"{CSRC}/pymb_rtu_tcp.c",
     f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
 ]
@@ -125,6 +129,9 @@ int modbus_rtu_set_rts_delay(modbus_t *ctx, int us);
 #define PYMB_COOLPRO_TELEMETRY_COUNT ...
 #define PYMB_COOLPRO_IDENTITY_ADDRESS ...
 #define PYMB_COOLPRO_IDENTITY_COUNT ...
+#define PYMB_MAX_PDU ...
+#define PYMB_MAX_READ_REGISTERS ...
+#define PYMB_MAX_READ_BITS ...
 
 typedef enum {
     PYMB_FRAME_OK,
@@ -183,59 +190,13 @@ typedef struct {
 uint16_t pymb_crc16(const uint8_t *data, size_t len);
 int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
 int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
-int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
+int pymb_hub_decode_one(pymb_hub_block block, uint16_t raw, int humidity_tenths,
+                        double *value);
 const char *pymb_version(void);
 const char *pymb_strerror(int errnum);
-const char *pymb_frame_strerror(int status);
+const char *pymb_frame_strerror(pymb_frame_status status);
 int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
 int pymb_rtu_request_length(const uint8_t *req, size_t have);
-int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, const uint8_t *wanted,
-                    unsigned read_mask, unsigned unsupported_mask, double *values,
-                    uint8_t *states, size_t out_len);
-int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
-                                  pymb_coolpro_telemetry *out);
-int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
-                                 pymb_coolpro_identity *out);
-
-/* ---- pymb_modbus.h ---- */
-#define PYMB_FRAMING_RTU ...
-#define PYMB_FRAMING_TCP ...
-#define PYMB_FRAMING_RTU_OVER_TCP ...
-#define PYMB_INTERRUPT_SLICE_US ...
-
-/* Only the fields Python reads or sets; "...;" lets the compiler lay out the rest. */
-typedef struct {
-    modbus_t *ctx;
-    int (*interrupted)(void *arg);
-    uint32_t char_ns;
-    ...;
-} pymb_line;
-
-typedef struct {
-    int address;
-    int count;
-    int frame;
-    int rsp_len;
-    int header;
-    uint8_t rsp[...];
-    ...;
-} pymb_failure;
-
-int pymb_errno_exception(int errnum);
-int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
-uint32_t pymb_rtu_silence_us(int baud);
-uint32_t pymb_rtu_char_ns(int baud, int bits);
-int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
-int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
-                  uint8_t *rsp, int rsp_cap, pymb_failure *fail);
-int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
-                        uint16_t *dest, pymb_failure *fail);
-int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
-                   uint8_t *dest, pymb_failure *fail);
-
-/* The interrupt hook: pymb._native calls Python's pending signal handlers. */
-extern "Python" int pymb_py_interrupted(void *arg);
 
 typedef struct {
     uint16_t address;
@@ -262,6 +223,52 @@ typedef struct {
     uint8_t *states;
     size_t out_len;
 } pymb_hub_request;
+
+int pymb_hub_decode(const pymb_hub_request *rq);
+int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
+                                  pymb_coolpro_telemetry *out);
+int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
+                                 pymb_coolpro_identity *out);
+
+/* ---- pymb_modbus.h ---- */
+typedef enum {
+    PYMB_FRAMING_RTU,
+    PYMB_FRAMING_TCP,
+    PYMB_FRAMING_RTU_OVER_TCP,
+    ...
+} pymb_framing;
+#define PYMB_INTERRUPT_SLICE_US ...
+
+typedef struct pymb_line pymb_line;
+
+typedef struct {
+    int address;
+    int count;
+    int frame;
+    int rsp_len;
+    int header;
+    uint8_t rsp[...];
+    ...;
+} pymb_failure;
+
+int pymb_errno_exception(int errnum);
+pymb_line *pymb_line_new(modbus_t *ctx, pymb_framing framing, uint32_t silence_us);
+void pymb_line_free(pymb_line *line);
+int pymb_line_set_interrupt(pymb_line *line, int (*interrupted)(void *arg), void *arg);
+int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns);
+int pymb_line_header_length(const pymb_line *line);
+uint32_t pymb_rtu_silence_us(int baud);
+uint32_t pymb_rtu_char_ns(int baud, int bits);
+int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
+int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                  uint8_t *rsp, int rsp_cap, pymb_failure *fail);
+int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
+                        uint16_t *dest, pymb_failure *fail);
+int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
+                   uint8_t *dest, pymb_failure *fail);
+
+/* The interrupt hook: pymb._native calls Python's pending signal handlers. */
+extern "Python" int pymb_py_interrupted(void *arg);
 
 int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
 int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);

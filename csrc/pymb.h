@@ -57,7 +57,7 @@ const char *pymb_version(void);
 /* ------------------------------------------------------------------------ */
 /* Errors: errno values, as libmodbus numbers them (modbus.h: MODBUS_ENOBASE
  * + the exception code, then its own protocol errors), so that errno means
- * the same with or without libmodbus; pymb_modbus.c checks that they agree. */
+ * the same with or without libmodbus; pymb_line.c checks that they agree. */
 #define PYMB_ENOBASE 112345678
 #define PYMB_EMBXILFUN (PYMB_ENOBASE + 1)   /* exception 01: illegal function */
 #define PYMB_EMBXILADD (PYMB_ENOBASE + 2)   /* 02: illegal data address */
@@ -138,7 +138,7 @@ typedef enum {
 } pymb_frame_status;
 
 /* Short English description of a pymb_frame_status ("bad CRC", ...). */
-const char *pymb_frame_strerror(int status);
+const char *pymb_frame_strerror(pymb_frame_status status);
 
 /* Total length of the RTU response frame whose first `have` bytes are in
  * `rsp` (address, function, ...; CRC included), as the function code and byte
@@ -193,9 +193,11 @@ double pymb_sm_tenths(uint16_t raw);
 /* Milliunits ([CP] ch. 04): raw / 1000. */
 double pymb_milli(uint16_t raw);
 
-/* A 32-bit value stored low word first, each word big-endian ([CP] ch. 04).
- * Reads regs[0] (low) and regs[1] (high); 0 (errno EINVAL) when regs is NULL. */
-uint32_t pymb_u32_lo_hi(const uint16_t *regs);
+/* A 32-bit value stored low word first, each word big-endian ([CP] ch. 04):
+ * reads regs[0] (low) and regs[1] (high) into *value. Returns 0, or -1
+ * (EINVAL, *value untouched) when regs or value is NULL: every uint32_t is a
+ * valid value, so the status comes apart from it. */
+int pymb_u32_lo_hi(const uint16_t *regs, uint32_t *value);
 
 /* ------------------------------------------------------------------------ */
 /* Sensor hub ([HUB] 3, [NOTES]): 7 blocks of 100 registers from 31 to 730.  */
@@ -227,34 +229,65 @@ typedef enum {
  * pymb_state. `humidity_tenths` (humidity block only): nonzero when the
  * channel's sensor reports in 0.1 %, zero for 1 %. *value is NaN for every
  * state but PYMB_VALUE. Returns -1 (EINVAL, *value NaN) for an unknown block. */
-int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value);
+int pymb_hub_decode_one(pymb_hub_block block, uint16_t raw, int humidity_tenths,
+                        double *value);
 
 /* Bitmaps over the 700 sweep registers: bit i (byte i / 8, bit i % 8) is
  * register PYMB_HUB_FIRST_REGISTER + i. */
 #define PYMB_HUB_BITMAP_BYTES ((PYMB_HUB_REGISTERS + 7) / 8)
 
-/* Decode a block of hub registers.
- *
- * regs:      raw registers 31..730 in address order (regs[100 * b + c]);
- *            nregs must be PYMB_HUB_REGISTERS.
- * channels:  1..100: channels 1..channels are decoded.
- * humidity_tenths: `channels` bytes, nonzero where that channel's humidity is
- *            in 0.1 %; NULL means 0.1 % on every channel.
- * wanted:    PYMB_HUB_BITMAP_BYTES bytes, the registers that were asked for;
- *            NULL means all. Registers not wanted decode as PYMB_NOT_READ.
- * read_mask: bit b set when block b was read. A block not read decodes as
- *            PYMB_UNSUPPORTED when its bit is set in unsupported_mask, as
- *            PYMB_NOT_READ otherwise.
- * values, states: out_len >= 7 * channels entries each, block-major:
- *            values[b * channels + c]. NaN wherever the state is not a value.
- *
- * Returns 0, or -1 (EINVAL) when an argument is out of range: nothing is
- * written then.
- */
-int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, const uint8_t *wanted,
-                    unsigned read_mask, unsigned unsupported_mask, double *values,
-                    uint8_t *states, size_t out_len);
+/* One read request: `count` registers from `address`. */
+typedef struct {
+    uint16_t address;
+    uint16_t count;
+} pymb_span;
+
+typedef struct {
+    int busy_retries;         /* re-sends after the hub's busy answer (exception
+                               * 04, [HUB] 2.3.2.3) before giving up */
+    uint32_t busy_backoff_us; /* wait before the first re-send; doubles each time */
+} pymb_hub_options;
+
+/* A hub read and its decoding: pymb_hub_read (pymb_modbus.h) fills regs and
+ * read_mask and then decodes; pymb_hub_decode decodes registers that came
+ * another way. The fields a function does not use are ignored by it. */
+typedef struct {
+    /* in (pymb_hub_read) */
+    int slave;                       /* 1..255 */
+    /* in (both) */
+    unsigned channels;               /* 1..100: channels 1..channels are decoded */
+    const uint8_t *humidity_tenths;  /* `channels` bytes, nonzero where that channel's
+                                      * humidity is in 0.1 %; NULL: 0.1 % on every one */
+    const uint8_t *wanted;           /* PYMB_HUB_BITMAP_BYTES: the registers asked for;
+                                      * NULL: all of the spans (all 700 when decoding) */
+    /* in (pymb_hub_read) */
+    const pymb_span *spans;          /* the plan, inside 31..730 */
+    int nspans;
+    pymb_hub_options options;
+    /* in and out: blocks known to be missing from the firmware; pymb_hub_read
+     * adds the blocks it finds missing (exception 02 on a read of that block
+     * alone). A block not read decodes as PYMB_UNSUPPORTED when its bit is
+     * set here, as PYMB_NOT_READ otherwise. */
+    unsigned unsupported;
+    /* out (pymb_hub_read), in (pymb_hub_decode): bit b set when every
+     * requested register of block b was read */
+    unsigned read_mask;
+    uint16_t *regs;                  /* PYMB_HUB_REGISTERS raw registers 31..730 in
+                                      * address order (regs[100 * b + c]) */
+    /* out: out_len >= 7 * channels entries each, block-major
+     * (values[b * channels + c]); NaN wherever the state is not a value.
+     * pymb_hub_read: values NULL means no decode. */
+    double *values;
+    uint8_t *states;
+    size_t out_len;
+} pymb_hub_request;
+
+/* Decode rq->regs into rq->values and rq->states as rq->read_mask,
+ * rq->unsupported, rq->wanted and rq->humidity_tenths say: registers not
+ * wanted decode as PYMB_NOT_READ. Returns 0, or -1 (EINVAL) when rq, regs,
+ * values or states is NULL, channels is not 1..100 or out_len is short:
+ * nothing is written then. */
+int pymb_hub_decode(const pymb_hub_request *rq);
 
 /* ------------------------------------------------------------------------ */
 /* CoolPro ([CP] ch. 03).                                                    */

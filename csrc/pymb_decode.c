@@ -22,21 +22,28 @@ double pymb_milli(uint16_t raw)
     return (double)raw / 1000.0;
 }
 
-uint32_t pymb_u32_lo_hi(const uint16_t *regs)
+int pymb_u32_lo_hi(const uint16_t *regs, uint32_t *value)
 {
-    if (regs == NULL) {
+    if (regs == NULL || value == NULL) {
         errno = EINVAL;
-        return 0;
+        return -1;
     }
+    *value = ((uint32_t)regs[1] << 16) | regs[0];
+    return 0;
+}
+
+static uint32_t u32_lo_hi(const uint16_t *regs)
+{
     return ((uint32_t)regs[1] << 16) | regs[0];
 }
 
-int pymb_hub_decode_one(int block, uint16_t raw, int humidity_tenths, double *value)
+int pymb_hub_decode_one(pymb_hub_block block, uint16_t raw, int humidity_tenths,
+                        double *value)
 {
     int state = PYMB_VALUE;
     double v = NAN;
 
-    if (block < 0 || block >= PYMB_HUB_BLOCKS) {
+    if ((int)block < 0 || (int)block >= PYMB_HUB_BLOCKS) {
         if (value != NULL) {
             *value = NAN;
         }
@@ -142,19 +149,28 @@ static void mark(unsigned n, uint8_t state, double *v, uint8_t *st)
     }
 }
 
-int pymb_hub_decode(const uint16_t *regs, size_t nregs, unsigned channels,
-                    const uint8_t *humidity_tenths, const uint8_t *wanted,
-                    unsigned read_mask, unsigned unsupported_mask, double *values,
-                    uint8_t *states, size_t out_len)
+int pymb_hub_decode(const pymb_hub_request *rq)
 {
-    unsigned b, c;
+    const uint16_t *regs;
+    const uint8_t *humidity_tenths, *wanted;
+    unsigned b, c, channels, read_mask, unsupported_mask;
+    double *values;
+    uint8_t *states;
 
-    if (regs == NULL || values == NULL || states == NULL ||
-        nregs != PYMB_HUB_REGISTERS || channels < 1 || channels > PYMB_HUB_CHANNELS ||
-        out_len < (size_t)PYMB_HUB_BLOCKS * channels) {
+    if (rq == NULL || rq->regs == NULL || rq->values == NULL || rq->states == NULL ||
+        rq->channels < 1 || rq->channels > PYMB_HUB_CHANNELS ||
+        rq->out_len < (size_t)PYMB_HUB_BLOCKS * rq->channels) {
         errno = EINVAL;
         return -1;
     }
+    regs = rq->regs;
+    channels = rq->channels;
+    humidity_tenths = rq->humidity_tenths;
+    wanted = rq->wanted;
+    read_mask = rq->read_mask;
+    unsupported_mask = rq->unsupported;
+    values = rq->values;
+    states = rq->states;
     for (b = 0; b < PYMB_HUB_BLOCKS; b++) {
         const uint16_t *raw = regs + (size_t)b * PYMB_HUB_CHANNELS;
         double *v = values + (size_t)b * channels;
@@ -206,7 +222,7 @@ int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
     out->output_voltage_v = pymb_milli(regs[2]);
     out->output_current_a = pymb_milli(regs[3]);
     out->temperature_c = pymb_milli(regs[4]);
-    out->uptime_s = pymb_u32_lo_hi(regs + 5);
+    out->uptime_s = u32_lo_hi(regs + 5);
     out->status = regs[7];
     return 0;
 }
@@ -218,11 +234,11 @@ int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
         errno = EINVAL;
         return -1;
     }
-    out->serial_number = pymb_u32_lo_hi(regs + 0);
+    out->serial_number = u32_lo_hi(regs + 0);
     out->hardware_revision = regs[2];
     out->firmware_major = regs[3];
     out->firmware_minor = regs[4];
     out->firmware_patch = regs[5];
-    out->manufactured = pymb_u32_lo_hi(regs + 6);
+    out->manufactured = u32_lo_hi(regs + 6);
     return 0;
 }

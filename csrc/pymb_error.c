@@ -50,7 +50,9 @@ const char *pymb_strerror(int errnum)
     case PYMB_EMBBADSLAVE:
         return "Response not from requested slave";
     default:
-        if (errnum >= PYMB_EXCEPTION_ENOBASE + 0x0C && errnum <= PYMB_EXCEPTION_ENOBASE + 0xFF)
+        /* 09 (libmodbus names no EMBX for it) and 0C..FF */
+        if (errnum == PYMB_ENOBASE + 9 ||
+            (errnum >= PYMB_EXCEPTION_ENOBASE + 0x0C && errnum <= PYMB_EXCEPTION_ENOBASE + 0xFF))
             return "Exception code not defined by the Modbus specification";
         return strerror(errnum);
     }

@@ -2,7 +2,7 @@
 /*
  * pymb_frame.c - Modbus frame lengths and response checks, with no I/O.
  *
- * Used by the request path (pymb_modbus.c frames every request and checks
+ * Used by the request path (pymb_request.c frames every request and checks
  * every reply itself, for every address 0..255), by the device simulators,
  * and by the fuzz targets. Everything reads only inside the lengths it is given.
  */
@@ -10,7 +10,7 @@
 
 #include "pymb.h"
 
-const char *pymb_frame_strerror(int status)
+const char *pymb_frame_strerror(pymb_frame_status status)
 {
     switch (status) {
     case PYMB_FRAME_OK:

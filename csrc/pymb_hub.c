@@ -207,9 +207,7 @@ int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail)
         }
     }
     if (rq->values != NULL &&
-        pymb_hub_decode(rq->regs, PYMB_HUB_REGISTERS, rq->channels, rq->humidity_tenths,
-                        rq->wanted, rq->read_mask, rq->unsupported, rq->values, rq->states,
-                        rq->out_len) < 0) {
+        pymb_hub_decode(rq) < 0) {
         errno = EINVAL;
         return -1;
     }

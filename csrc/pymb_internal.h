@@ -1,9 +1,78 @@
 /* SPDX-License-Identifier: MIT */
-/* pymb_internal.h - helpers shared by the request-path sources; not installed. */
+/*
+ * pymb_internal.h - the line, the transport table and the helpers shared by
+ * the request-path sources; not installed. Internal functions shared between
+ * files are named pymbi_*: the version script exports pymb_* only.
+ */
 #ifndef PYMB_INTERNAL_H
 #define PYMB_INTERNAL_H
 
+#include <sys/types.h>
+
 #include "pymb_modbus.h"
+
+/* [MB-TCP] 3.1.3: transaction id, protocol id, length, unit id. */
+#define PYMB_MBAP_LENGTH 7
+
+typedef struct pymb_transport pymb_transport;
+
+struct pymb_line {
+    modbus_t *ctx;
+    const pymb_transport *tr; /* chosen by pymb_line_new */
+    uint32_t silence_us;      /* RTU: the silence that ends a reply of unknown length */
+    int (*interrupted)(void *arg);
+    void *interrupt_arg;
+    uint32_t char_ns;         /* RTU: one character's wire time, 0: no early-byte check */
+    uint16_t tid;             /* TCP: the last MBAP transaction id sent */
+    int owed;                 /* a quiet window is owed (after a failure) */
+    int owed_slave;           /* the address the failed request went to */
+    uint64_t owed_since_us;   /* when it failed: CLOCK_MONOTONIC, microseconds */
+    int rx_extra;             /* bytes after the last reply in the same read */
+};
+
+/*
+ * A transport: how a request is framed, sent, received and checked. One
+ * const table per transport, in its own file (pymb_rtu.c, pymb_tcp.c,
+ * pymb_rtu_tcp.c), listed in pymbi_transports[] (pymb_line.c) and chosen by
+ * pymb_line_new; the request path (pymb_request.c) calls only these. A new
+ * transport (Modbus over UDP, ASCII) is one new file and one line in that list.
+ */
+struct pymb_transport {
+    pymb_framing framing;
+    int ctx_header_length; /* what modbus_get_header_length says of a fitting context */
+    int header_length;     /* ADU bytes before the function code */
+    int trailer_length;    /* ADU bytes after the PDU (the RTU CRC) */
+    int lowest_slave;      /* the lowest address a read may go to (1 where 0 broadcasts) */
+    int broadcast;         /* address 0 is a broadcast: sent, never answered */
+    /* Before a request to `slave`: drop stray input or pay a quiet window
+     * owed after a failure. 0, or -1 and errno. */
+    int (*prepare)(pymb_line *line, int slave);
+    /* The ADU for req (address + PDU) in adu[0..cap): its length. */
+    int (*build)(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap);
+    /* Send a built ADU: 0, or -1 and errno. */
+    int (*send)(pymb_line *line, const uint8_t *adu, int len);
+    /* After a broadcast has been handed over: wait until it has left. */
+    void (*flush_output)(pymb_line *line);
+    /* The reply ADU's total length from its first `have` bytes; expect: the
+     * reply PDU's length when the caller knows it (0: not). A negative
+     * pymb_frame_status: PYMB_FRAME_INCOMPLETE (more bytes needed),
+     * PYMB_FRAME_BAD_FUNCTION (only silence ends it), others impossible. */
+    int (*reply_length)(const uint8_t *adu, int have, int expect);
+    /* Receive one reply ADU into rsp[0..cap): its length, or -1 and errno,
+     * having noted what came in fail and owed a quiet window if need be. */
+    int (*receive)(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                   uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail);
+    /* Check a received ADU against req: a pymb_frame_status (and *exc). */
+    int (*check)(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
+                 int expect, int *exc);
+    /* After a reply that failed its check: nonzero when what follows it
+     * cannot be told from an answer (a quiet window is then owed). */
+    int (*lost_step)(pymb_line *line);
+};
+
+extern const pymb_transport pymbi_transport_rtu;
+extern const pymb_transport pymbi_transport_tcp;
+extern const pymb_transport pymbi_transport_rtu_over_tcp;
 
 /* What every function taking a pymb_failure writes first, even when it then
  * refuses its arguments: nothing asked, nothing received. */
@@ -18,5 +87,28 @@ static inline void pymb_failure_reset(pymb_failure *fail)
         fail->header = 0;
     }
 }
+
+/* pymb_line.c: clocks, waits and the quiet window. */
+uint64_t pymbi_now_us(void);
+uint64_t pymbi_timeout_us(modbus_t *ctx, int byte);
+int pymbi_line_ok(const pymb_line *line);
+int pymbi_wait_readable(pymb_line *line, int fd, uint64_t wait_us);
+int pymbi_input_pending(const pymb_line *line);
+int pymbi_drain_since(pymb_line *line, uint64_t last, uint64_t quiet_us, uint64_t max_us);
+void pymbi_owe(pymb_line *line, int slave);
+int pymbi_pay_owed(pymb_line *line);
+uint64_t pymbi_quiet_window_us(pymb_line *line);
+int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n);
+void pymbi_no_flush(pymb_line *line);
+void pymbi_note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame);
+
+/* pymb_rtu.c: the RTU half that RTU over TCP shares. */
+int pymbi_rtu_prepare(pymb_line *line, int slave);
+int pymbi_rtu_reply_length(const uint8_t *adu, int have, int expect);
+int pymbi_rtu_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
+                      uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail);
+int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
+                    int expect, int *exc);
+int pymbi_rtu_lost_step(pymb_line *line);
 
 #endif /* PYMB_INTERNAL_H */

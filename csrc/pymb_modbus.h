@@ -15,10 +15,12 @@
  *   - cannot read a reply to a function code it does not know,
  *   - has no RTU-over-TCP transport (its issue #192).
  *
- * The state a line needs between requests (framing, the next MBAP
- * transaction id, a quiet window owed after a failure, the frame silence,
- * an interrupt hook) lives in a pymb_line the caller owns, beside its
- * modbus_t: nothing here keeps state of its own.
+ * A pymb_line is opaque: pymb_line_new() makes one for an opened modbus_t
+ * and a framing, and picks the transport (RTU, TCP, RTU over TCP) then; it
+ * keeps the state a line needs between requests (the next MBAP transaction
+ * id, a quiet window owed after a failure, the frame silence, an interrupt
+ * hook), and nothing else in the library keeps state. The caller keeps
+ * owning the modbus_t: pymb_line_free() frees the line only.
  *
  * Every request function:
  *   - RTU (and RTU over TCP): after a timeout, a bad frame or an interrupt,
@@ -64,10 +66,12 @@ extern "C" {
  * delay", 100 to 200 ms there) before its next request. */
 #define PYMB_BROADCAST_TURNAROUND_US 100000
 
-/* Framings of a pymb_line. */
-#define PYMB_FRAMING_RTU 1          /* address + PDU + CRC on a serial line */
-#define PYMB_FRAMING_TCP 2          /* [MB-TCP] MBAP header + PDU */
-#define PYMB_FRAMING_RTU_OVER_TCP 3 /* RTU frames on a TCP socket (raw gateways) */
+/* Framings (transports) of a pymb_line. */
+typedef enum {
+    PYMB_FRAMING_RTU = 1,         /* address + PDU + CRC on a serial line */
+    PYMB_FRAMING_TCP = 2,         /* [MB-TCP] MBAP header + PDU */
+    PYMB_FRAMING_RTU_OVER_TCP = 3 /* RTU frames on a TCP socket (raw gateways) */
+} pymb_framing;
 
 /* [MB-SL] 2.5.1.1: above 19200 baud t3.5 is fixed at 1750 us. */
 #define PYMB_T35_FLOOR_US 1750
@@ -91,38 +95,42 @@ int pymb_exception_errno(int code);
 int pymb_errno_exception(int errnum);
 
 /* One line: a libmodbus context (opened by the caller, which also sets its
- * response and byte timeouts) and pymb's state for it. Set up with
- * pymb_line_init; the fields marked "in" may be changed between requests. */
-typedef struct {
-    modbus_t *ctx;         /* in: the context */
-    int framing;           /* in: PYMB_FRAMING_* */
-    uint32_t silence_us;   /* in: RTU: silence that ends a reply of unknown
-                            * length (t3.5, pymb_rtu_silence_us) */
-    /* in: called (with arg) when a wait is interrupted by a signal and at
-     * least every PYMB_INTERRUPT_SLICE_US of waiting; nonzero stops the
-     * request with EINTR (the line then owes a quiet window). NULL: a
-     * signal never stops a request. */
-    int (*interrupted)(void *arg);
-    void *interrupt_arg;
-    /* in: RTU on a real line: one character's wire time in nanoseconds
-     * (pymb_rtu_char_ns). Nonzero: bytes that arrive before the request can
-     * have been answered (its own wire time plus 3.5 characters, less 5 %)
-     * start no reply; they and the rest of their frame (until line->silence_us
-     * of silence) are dropped: a duplicated reply that follows its original
-     * at once is never taken as the next answer. 0 (pymb_line_init's
-     * default; right for a pseudo-terminal, which has no wire time, and for
-     * RTU over TCP): no such check. */
-    uint32_t char_ns;
-    uint16_t tid;          /* the last MBAP transaction id sent */
-    int owed;              /* a quiet window is owed (after a failure) */
-    int owed_slave;        /* the address the failed request went to */
-    uint64_t owed_since_us;/* when it failed: CLOCK_MONOTONIC, microseconds */
-} pymb_line;
+ * response and byte timeouts) and pymb's state for it. Opaque. */
+typedef struct pymb_line pymb_line;
 
-/* Set up `line` for `ctx` with `framing` (PYMB_FRAMING_*) and the frame
- * silence `silence_us` (0: PYMB_T35_FLOOR_US). Returns 0, or -1 and EINVAL
- * when line or ctx is NULL or framing is unknown. */
-int pymb_line_init(pymb_line *line, modbus_t *ctx, int framing, uint32_t silence_us);
+/* A line for `ctx` with `framing` and the frame silence `silence_us` that
+ * ends an RTU reply of unknown length (t3.5, pymb_rtu_silence_us; 0:
+ * PYMB_T35_FLOOR_US). No quiet window owed, no interrupt hook, no early-byte
+ * check. Returns NULL and errno: EINVAL when ctx is NULL, framing is unknown
+ * or ctx is not a context of that kind (RTU needs modbus_new_rtu's, TCP and
+ * RTU over TCP modbus_new_tcp's), ENOMEM. */
+pymb_line *pymb_line_new(modbus_t *ctx, pymb_framing framing, uint32_t silence_us);
+
+/* Free a line made by pymb_line_new (NULL: nothing). The modbus_t is the
+ * caller's: close and free it with libmodbus. */
+void pymb_line_free(pymb_line *line);
+
+/* The interrupt hook: called (with arg) when a wait is interrupted by a
+ * signal and at least every PYMB_INTERRUPT_SLICE_US of waiting; nonzero
+ * stops the request with EINTR (the line then owes a quiet window).
+ * interrupted NULL (the default): a signal never stops a request. Returns
+ * 0, or -1 (EINVAL) when line is NULL. */
+int pymb_line_set_interrupt(pymb_line *line, int (*interrupted)(void *arg), void *arg);
+
+/* RTU on a real line: one character's wire time in nanoseconds
+ * (pymb_rtu_char_ns). Nonzero: bytes that arrive before the request can
+ * have been answered (its own wire time plus 3.5 characters, less 5 %)
+ * start no reply; they and the rest of their frame (until the frame silence)
+ * are dropped, so a duplicated reply that follows its original at once is
+ * never taken as the next answer. 0 (the default; right for a
+ * pseudo-terminal, which has no wire time, and for TCP): no such check.
+ * Returns 0, or -1 (EINVAL) when line is NULL. */
+int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns);
+
+/* Where a reply's PDU starts in the rsp that pymb_transact fills: 1 (RTU,
+ * RTU over TCP: after the address) or 7 (TCP: after the MBAP header); -1
+ * (EINVAL) when line is NULL. */
+int pymb_line_header_length(const pymb_line *line);
 
 /* t3.5 of [MB-SL] 2.5.1.1 at `baud` for 11-bit characters, in microseconds:
  * 3.5 x 11 bits / baud up to 19200 baud, PYMB_T35_FLOOR_US above. Returns 0
@@ -163,7 +171,7 @@ int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
  * expect: the reply PDU's length (function code included) when the caller
  *      knows it, 0 when not. RTU needs it only for function codes whose reply
  *      length pymb_rtu_response_length cannot tell; without it such a reply
- *      ends at line->silence_us of silence (the byte timeout does not apply
+ *      ends at the line's frame silence (the byte timeout does not apply
  *      to it), at most PYMB_RTU_MAX_ADU bytes, and must have ended within the
  *      response timeout plus that silence. Then the CRC is checked over
  *      the whole frame. An exception reply is always accepted (2 bytes).
@@ -190,18 +198,6 @@ int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
 /* ------------------------------------------------------------------------ */
 /* The sensor hub's sweep ([HUB] 3, [NOTES]).                               */
 
-/* One read request: `count` registers from `address`. */
-typedef struct {
-    uint16_t address;
-    uint16_t count;
-} pymb_span;
-
-typedef struct {
-    int busy_retries;         /* re-sends after the hub's busy answer (exception
-                               * 04, [HUB] 2.3.2.3) before giving up */
-    uint32_t busy_backoff_us; /* wait before the first re-send; doubles each time */
-} pymb_hub_options;
-
 /* The fewest requests (at most 125 registers each) that read channels
  * 1..channels of every block not in skip_mask. Returns the number of spans
  * written to spans[0..cap), or -1 (EINVAL) when cap is too small. With all 7
@@ -209,27 +205,7 @@ typedef struct {
 int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
 
 /* A hub read, sweep and decode in one call (so that Python makes one call,
- * with the GIL released for the whole of it). */
-typedef struct {
-    /* in */
-    int slave;                       /* 1..255 */
-    unsigned channels;               /* 1..100 */
-    const uint8_t *humidity_tenths;  /* `channels` bytes or NULL (all 0.1 %) */
-    const uint8_t *wanted;           /* PYMB_HUB_BITMAP_BYTES or NULL (spans) */
-    const pymb_span *spans;          /* the plan, inside 31..730 */
-    int nspans;
-    pymb_hub_options options;
-    /* in and out: blocks known to be missing from the firmware; blocks found
-     * missing (exception 02 on a read of that block alone) are added */
-    unsigned unsupported;
-    /* out */
-    unsigned read_mask;              /* blocks whose requested registers were all read */
-    uint16_t *regs;                  /* PYMB_HUB_REGISTERS raw registers */
-    double *values;                  /* out_len >= 7 * channels, or NULL: no decode */
-    uint8_t *states;
-    size_t out_len;
-} pymb_hub_request;
-
+ * with the GIL released for the whole of it); pymb_hub_request is in pymb.h. */
 /* Execute rq->spans with function 0x03. A span answered with exception 02
  * is read again block by block (only the wanted registers of each block); a
  * block still answered 02 is marked unsupported and the sweep goes on, so

@@ -271,10 +271,12 @@ class Link:
         #: True while a connected context exists (a plain attribute: the hot
         #: path reads it on every request).
         self.is_open = False
-        self._line = ffi.new("pymb_line *")
+        #: the C line (pymb_line_new) while open, NULL when closed: a request
+        #: on a closed Link fails in C with EINVAL
+        self._line: Any = ffi.NULL
         self._fail = ffi.new("pymb_failure *")
         self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
-        self._header = 7 if self._framing == lib.PYMB_FRAMING_TCP else 1
+        self._header = 1  # where a reply's PDU starts: pymb_line_header_length
         self._timeout = (1.0, 0.0)
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
 
@@ -330,12 +332,15 @@ class Link:
         self._ctx = ctx
         self.is_open = True
         try:
-            if lib.pymb_line_init(self._line, ctx, self._framing, self._silence_us) == -1:
+            line = lib.pymb_line_new(ctx, self._framing, self._silence_us)
+            if line == ffi.NULL:
                 raise ModbusConnectionError(
                     f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
                     errno=ffi.errno, port=self.name)
-            self._line.interrupted = lib.pymb_py_interrupted
-            self._line.char_ns = self._char_ns if self._reject_early else 0
+            self._line = line
+            self._header = int(lib.pymb_line_header_length(line))
+            lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
+            lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
             self._apply_timeouts()
             self._apply_rs485()
         except BaseException:
@@ -347,20 +352,23 @@ class Link:
         answered (its wire time plus t3.5; serial lines only)."""
         self._reject_early = on and self._char_ns > 0
         if self.is_open:
-            self._line.char_ns = self._char_ns if self._reject_early else 0
+            lib.pymb_line_set_char_ns(self._line, self._char_ns if self._reject_early else 0)
 
     def close(self) -> None:
         """Close and free the context; safe to call twice."""
         ctx, self._ctx = self._ctx, ffi.NULL
+        line, self._line = self._line, ffi.NULL
         self.is_open = False
+        if line != ffi.NULL:
+            lib.pymb_line_free(line)
         if ctx != ffi.NULL:
-            self._line.ctx = ffi.NULL
             lib.modbus_close(ctx)
             lib.modbus_free(ctx)
 
     def __del__(self) -> None:
         # The descriptor and, on a serial line, its lock go with the Link.
-        if getattr(self, "_ctx", ffi.NULL) != ffi.NULL:
+        if getattr(self, "_ctx", ffi.NULL) != ffi.NULL or getattr(
+                self, "_line", ffi.NULL) != ffi.NULL:
             self.close()
 
     def fileno(self) -> int:
@@ -595,14 +603,19 @@ def hub_decode(regs: Any, channels: int, tenths: bytes | None, wanted: bytes | N
                read_mask: int, unsupported: int, values: Any, states: Any) -> None:
     """Decode 700 raw hub registers into ``values`` (float64) and ``states``
     (uint8), 7 x ``channels`` each, block-major (see pymb_hub_decode)."""
-    rc = lib.pymb_hub_decode(
-        _from_buffer("uint16_t[]", regs), len(regs), channels,
-        _NULL if tenths is None else tenths,
-        _NULL if wanted is None else wanted,
-        read_mask, unsupported,
-        _from_buffer("double[]", values, True), _from_buffer("uint8_t[]", states, True),
-        len(values),
-    )
+    rq = ffi.new("pymb_hub_request *")
+    # pymb_hub_decode reads PYMB_HUB_REGISTERS registers: a shorter buffer is
+    # refused here, before C could read past it.
+    keep = (_from_buffer("uint16_t[]", regs), _from_buffer("double[]", values, True),
+            _from_buffer("uint8_t[]", states, True),
+            _NULL if tenths is None else ffi.from_buffer("uint8_t[]", tenths),
+            _NULL if wanted is None else ffi.from_buffer("uint8_t[]", wanted))
+    rq.regs, rq.values, rq.states, rq.humidity_tenths, rq.wanted = keep
+    rq.channels = channels
+    rq.read_mask = read_mask
+    rq.unsupported = unsupported
+    rq.out_len = len(values)
+    rc = -1 if len(regs) != HUB_REGISTERS else lib.pymb_hub_decode(rq)
     if rc < 0:
         raise InvalidArgument(
             f"cannot decode {len(regs)} registers for {channels} channels: the hub block is "

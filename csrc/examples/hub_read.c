@@ -34,7 +34,7 @@ int main(int argc, char **argv)
     pymb_hub_request rq;
     pymb_failure fail;
     modbus_t *ctx;
-    pymb_line line;
+    pymb_line *line;
     int baud, slave, n, rc;
     unsigned b, c;
 
@@ -53,7 +53,13 @@ int main(int argc, char **argv)
     /* [NOTES]: the hub may take 500 ms plus the reply's own wire time. */
     modbus_set_response_timeout(ctx, 1, 0);
     modbus_set_byte_timeout(ctx, 0, 0);
-    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(baud));
+    line = pymb_line_new(ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(baud));
+    if (line == NULL) {
+        fprintf(stderr, "cannot set up %s: %s\n", argv[1], pymb_strerror(errno));
+        modbus_close(ctx);
+        modbus_free(ctx);
+        return 4;
+    }
 
     n = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 16);
     rq = (pymb_hub_request){
@@ -67,10 +73,10 @@ int main(int argc, char **argv)
         .states = states,
         .out_len = PYMB_HUB_REGISTERS,
     };
-    rc = pymb_hub_read(&line, &rq, &fail);
+    rc = pymb_hub_read(line, &rq, &fail);
     if (rc == -1) {
         fprintf(stderr, "hub %d on %s: %s (request for %d registers at %d)\n", slave, argv[1],
-                modbus_strerror(errno), fail.count, fail.address);
+                pymb_strerror(errno), fail.count, fail.address);
     } else {
         printf("channel");
         for (b = 0; b < PYMB_HUB_BLOCKS; b++) {
@@ -90,6 +96,7 @@ int main(int argc, char **argv)
             printf("\n");
         }
     }
+    pymb_line_free(line);
     modbus_close(ctx);
     modbus_free(ctx);
     return rc == -1 ? 3 : 0;

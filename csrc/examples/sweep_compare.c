@@ -117,7 +117,7 @@ int main(int argc, char **argv)
     pymb_hub_request rq = {0};
     pymb_failure fail;
     modbus_t *ctx;
-    pymb_line line;
+    pymb_line *line;
     int rounds = argc > 2 ? atoi(argv[2]) : 30, r, k, i;
 
     if (argc < 2 || rounds < 1 || rounds > MAX_ROUNDS) {
@@ -131,7 +131,11 @@ int main(int argc, char **argv)
     }
     modbus_set_response_timeout(ctx, 2, 0);
     modbus_set_byte_timeout(ctx, 0, 0);
-    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
+    line = pymb_line_new(ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
+    if (line == NULL) {
+        fprintf(stderr, "pymb_line_new: %s\n", pymb_strerror(errno));
+        return 4;
+    }
     rq.slave = 1;
     rq.channels = PYMB_HUB_CHANNELS;
     rq.spans = spans;
@@ -151,7 +155,7 @@ int main(int argc, char **argv)
                     c0 = cpu_now();
                 }
                 if (use_pymb) {
-                    if (pymb_hub_read(&line, &rq, &fail) == -1) {
+                    if (pymb_hub_read(line, &rq, &fail) == -1) {
                         fprintf(stderr, "pymb_hub_read: %s\n", modbus_strerror(errno));
                         return 3;
                     }
@@ -167,8 +171,8 @@ int main(int argc, char **argv)
                             return 3;
                         }
                     }
-                    pymb_hub_decode(regs, PYMB_HUB_REGISTERS, PYMB_HUB_CHANNELS, NULL, NULL,
-                                    PYMB_HUB_ALL_BLOCKS, 0, values, states, PYMB_HUB_REGISTERS);
+                    rq.read_mask = PYMB_HUB_ALL_BLOCKS;
+                    pymb_hub_decode(&rq);
                 }
             }
             wall[use_pymb][r] = (wall_now() - t0) / PER_ROUND * 1e6;
@@ -176,10 +180,11 @@ int main(int argc, char **argv)
         }
     }
     report("hub sweep", "pymb_hub_read", wall, cpu, rounds, PER_ROUND, argv[1]);
-    if (telemetry_rounds(&line, ctx, &fail, rounds, wall, cpu) == 0) {
+    if (telemetry_rounds(line, ctx, &fail, rounds, wall, cpu) == 0) {
         report("CoolPro telemetry (8 input registers, decoded)",
                "pymb_read_registers", wall, cpu, rounds, TELE_PER_ROUND, argv[1]);
     }
+    pymb_line_free(line);
     modbus_close(ctx);
     modbus_free(ctx);
     return 0;

@@ -23,6 +23,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     double *values;
     pymb_coolpro_telemetry t;
     pymb_coolpro_identity id;
+    pymb_hub_request rq;
 
     if (size < 1) {
         return 0;
@@ -46,9 +47,19 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     for (i = 0; i < PYMB_HUB_BITMAP_BYTES; i++) {
         wanted[i] = data[(i * 7) % size];
     }
-    if (pymb_hub_decode(regs, nregs, channels, (data[0] & 0x80) ? NULL : tenths,
-                        (data[0] & 0x40) ? wanted : NULL, mask, ~mask & 0x7Fu, values, states,
-                        (size_t)PYMB_HUB_BLOCKS * channels) == 0) {
+    memset(&rq, 0, sizeof rq);
+    rq.regs = regs;
+    rq.channels = channels;
+    rq.humidity_tenths = (data[0] & 0x80) ? NULL : tenths;
+    rq.wanted = (data[0] & 0x40) ? wanted : NULL;
+    rq.read_mask = mask;
+    rq.unsupported = ~mask & 0x7Fu;
+    rq.values = values;
+    rq.states = states;
+    rq.out_len = (size_t)PYMB_HUB_BLOCKS * channels;
+    /* The request holds PYMB_HUB_REGISTERS registers: shorter inputs are the
+     * caller's mistake that the struct's contract rules out. */
+    if (nregs >= PYMB_HUB_REGISTERS && pymb_hub_decode(&rq) == 0) {
         for (i = 0; i < (size_t)PYMB_HUB_BLOCKS * channels; i++) {
             /* Invariants: a value iff state VALUE; states in range. */
             if (states[i] > PYMB_NOT_READ || (states[i] == PYMB_VALUE) == isnan(values[i])) {
@@ -58,7 +69,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     for (i = 0; i < nregs; i++) {
         double v;
-        int st = pymb_hub_decode_one((int)(i % 9) - 1, regs[i], (int)(i & 1), &v);
+        int st = pymb_hub_decode_one((pymb_hub_block)((int)(i % 9) - 1), regs[i], (int)(i & 1), &v);
         if (st > PYMB_NO_SENSOR || (st == PYMB_VALUE && isnan(v))) {
             abort();
         }

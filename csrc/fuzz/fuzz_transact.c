@@ -27,17 +27,17 @@
 #include <termios.h>
 #include <unistd.h>
 
-#include "../pymb_modbus.h"
+#include "../pymb_internal.h" /* the line's private state: owed, tid */
 
 int LLVMFuzzerInitialize(int *argc, char ***argv);
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 static int master_fd = -1;
 static modbus_t *ctx;
-static pymb_line line;
+static pymb_line *line;
 static int sock_fd = -1; /* the "device" end of the socket pair */
 static modbus_t *tcp_ctx;
-static pymb_line tcp_line, rot_line;
+static pymb_line *tcp_line, *rot_line;
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
 {
@@ -60,7 +60,7 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
     }
     modbus_set_response_timeout(ctx, 0, 3000);
     modbus_set_byte_timeout(ctx, 0, 0);
-    pymb_line_init(&line, ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
+    line = pymb_line_new(ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
     {
         int sp[2];
         if (socketpair(AF_UNIX, SOCK_STREAM, 0, sp) != 0) {
@@ -77,8 +77,12 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
         }
         modbus_set_response_timeout(tcp_ctx, 0, 3000);
         modbus_set_byte_timeout(tcp_ctx, 0, 0);
-        pymb_line_init(&tcp_line, tcp_ctx, PYMB_FRAMING_TCP, 0);
-        pymb_line_init(&rot_line, tcp_ctx, PYMB_FRAMING_RTU_OVER_TCP, 2000);
+        tcp_line = pymb_line_new(tcp_ctx, PYMB_FRAMING_TCP, 0);
+        rot_line = pymb_line_new(tcp_ctx, PYMB_FRAMING_RTU_OVER_TCP, 2000);
+        if (line == NULL || tcp_line == NULL || rot_line == NULL) {
+            perror("pymb_line_new");
+            exit(1);
+        }
     }
     return 0;
 }
@@ -133,10 +137,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         reply = 600;
     }
     drain_master();
-    line.owed = 0;
-    tcp_line.owed = 0;
-    rot_line.owed = 0;
-    pymb_flush(&line);
+    line->owed = 0;
+    tcp_line->owed = 0;
+    rot_line->owed = 0;
+    pymb_flush(line);
     if ((size && (data[0] & 0x80)) && reply && write(dev_fd, data + 1, reply) < 0 &&
         errno != EAGAIN) {
         abort();
@@ -152,7 +156,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     switch (which) {
     case 0: { /* raw read of 3 registers from slave 250 */
         const uint8_t req[] = {250, 0x03, 0x00, 0x1F, 0x00, 0x03};
-        n = pymb_transact(&line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (n != 8 || rsp[0] != 250 || !pymb_rtu_crc_ok(rsp, (size_t)n + 3))) {
             abort();
         }
@@ -160,30 +164,30 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     case 1: { /* write single register, echo checked */
         const uint8_t req[] = {40, 0x06, 0x00, 0x00, 0x00, 0x2A};
-        n = pymb_transact(&line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(line, req, sizeof req, which == 0 && size > 2 && (data[1] & 1) ? 8 : 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (n != 5 || memcmp(rsp, req, 6) != 0)) {
             abort();
         }
         break;
     }
     case 2: /* split read, slave 251 */
-        n = pymb_read_registers(&line, 3, 251, 31, 130, regs, &fail);
+        n = pymb_read_registers(line, 3, 251, 31, 130, regs, &fail);
         if (n != -1 && n != 130) {
             abort();
         }
         break;
     case 4: { /* Modbus TCP: a read of 3 registers from unit 250 */
         const uint8_t req[] = {250, 0x03, 0x00, 0x1F, 0x00, 0x03};
-        n = pymb_transact(&tcp_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(tcp_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (n != 8 || rsp[6] != 250 || rsp[2] != 0 || rsp[3] != 0 ||
-                       ((rsp[0] << 8) | rsp[1]) != tcp_line.tid)) {
+                       ((rsp[0] << 8) | rsp[1]) != tcp_line->tid)) {
             abort();
         }
         break;
     }
     case 5: { /* RTU over TCP: any function code (0x41), ended by silence */
         const uint8_t req[] = {7, 0x41, 0x01};
-        n = pymb_transact(&rot_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
+        n = pymb_transact(rot_line, req, sizeof req, 0, rsp, (int)sizeof rsp - 8, &fail);
         if (n >= 0 && (rsp[0] != 7 || !pymb_rtu_crc_ok(rsp, (size_t)n + 3))) {
             abort();
         }
@@ -199,7 +203,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         rq.spans = spans;
         rq.nspans = ns;
         rq.regs = regs;
-        pymb_hub_read(&line, &rq, &fail);
+        pymb_hub_read(line, &rq, &fail);
         break;
     }
     }

@@ -198,8 +198,13 @@ static void test_primitives(void)
     CHECK(same(pymb_sm_tenths(0x7FFF), 3276.7));
     CHECK(same(pymb_milli(24500), 24.5));
     CHECK(same(pymb_milli(25800), 25.8));
-    CHECK(pymb_u32_lo_hi(uptime) == 70000u);
-    CHECK(pymb_u32_lo_hi(serial) == 12345u);
+    const uint16_t zero[2] = {0, 0};
+    uint32_t u = 1;
+
+    CHECK(pymb_u32_lo_hi(uptime, &u) == 0 && u == 70000u);
+    CHECK(pymb_u32_lo_hi(serial, &u) == 0 && u == 12345u);
+    /* 0 is a value like any other: the status says whether it is one. */
+    CHECK(pymb_u32_lo_hi(zero, &u) == 0 && u == 0u);
 }
 
 static void test_hub_one(void)
@@ -222,8 +227,9 @@ static void test_hub_one(void)
     CHECK(pymb_hub_decode_one(PYMB_HUB_RSSI, 0xFFFF, 0, &v) == PYMB_OFFLINE);
     v = 0.0;
     errno = 0;
-    CHECK(pymb_hub_decode_one(7, 0, 0, &v) == -1 && errno == EINVAL && isnan(v));
-    CHECK(pymb_hub_decode_one(-1, 0, 0, &v) == -1);
+    CHECK(pymb_hub_decode_one((pymb_hub_block)7, 0, 0, &v) == -1 && errno == EINVAL &&
+          isnan(v));
+    CHECK(pymb_hub_decode_one((pymb_hub_block)-1, 0, 0, &v) == -1);
 }
 
 static void test_hub_block(void)
@@ -232,6 +238,7 @@ static void test_hub_block(void)
     double values[PYMB_HUB_REGISTERS];
     uint8_t states[PYMB_HUB_REGISTERS];
     uint8_t tenths[PYMB_HUB_CHANNELS];
+    pymb_hub_request rq;
     unsigned b, c, ch = 100;
 
     for (b = 0; b < PYMB_HUB_BLOCKS; b++) {
@@ -248,9 +255,16 @@ static void test_hub_block(void)
     regs[500 + 9] = 0xFF9C;     /* channel 10 RSSI -100 dBm */
     regs[600 + 99] = 0x8001;    /* channel 100 temperature 2: -0.1 */
 
-    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, tenths, NULL,
-                          PYMB_HUB_ALL_BLOCKS & ~0x40u, 0x40u, values, states,
-                          sizeof values / sizeof values[0]) == 0);
+    memset(&rq, 0, sizeof rq);
+    rq.regs = regs;
+    rq.channels = ch;
+    rq.humidity_tenths = tenths;
+    rq.read_mask = PYMB_HUB_ALL_BLOCKS & ~0x40u;
+    rq.unsupported = 0x40u;
+    rq.values = values;
+    rq.states = states;
+    rq.out_len = sizeof values / sizeof values[0];
+    CHECK(pymb_hub_decode(&rq) == 0);
     CHECK(states[0] == PYMB_OFFLINE && isnan(values[0]));
     CHECK(states[1] == PYMB_VALUE && same(values[1], 0.1));
     CHECK(states[ch + 2] == PYMB_NO_SENSOR);
@@ -263,8 +277,12 @@ static void test_hub_block(void)
 
     /* Fewer channels: block-major with the smaller stride. */
     ch = 50;
-    CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, ch, NULL, NULL, PYMB_HUB_ALL_BLOCKS, 0,
-                          values, states, 7 * 50) == 0);
+    rq.channels = ch;
+    rq.humidity_tenths = NULL;
+    rq.read_mask = PYMB_HUB_ALL_BLOCKS;
+    rq.unsupported = 0;
+    rq.out_len = 7 * 50;
+    CHECK(pymb_hub_decode(&rq) == 0);
     CHECK(same(values[6 * ch + 49], 604.9));
     CHECK(same(values[ch + 5], 100.5)); /* NULL tenths: all 0.1 % */
 
@@ -273,8 +291,13 @@ static void test_hub_block(void)
     {
         uint8_t wanted[PYMB_HUB_BITMAP_BYTES] = {0};
         wanted[0] = 0x05; /* channels 1 and 3 of the temperature block */
-        CHECK(pymb_hub_decode(regs, PYMB_HUB_REGISTERS, 10, NULL, wanted, 0x01u, 0x40u, values,
-                              states, 70) == 0);
+        rq.channels = 10;
+        rq.wanted = wanted;
+        rq.read_mask = 0x01u;
+        rq.unsupported = 0x40u;
+        rq.out_len = 70;
+        CHECK(pymb_hub_decode(&rq) == 0);
+        rq.wanted = NULL;
         CHECK(states[0] == PYMB_OFFLINE && states[1] == PYMB_NOT_READ && isnan(values[1]));
         CHECK(states[2] == PYMB_VALUE && same(values[2], 0.2));
         CHECK(states[10] == PYMB_NOT_READ && states[60] == PYMB_UNSUPPORTED);
@@ -283,13 +306,26 @@ static void test_hub_block(void)
     /* Bad arguments write nothing. */
     errno = 0;
     states[0] = 0xAA;
-    CHECK(pymb_hub_decode(regs, 700, 0, NULL, NULL, 0x7F, 0, values, states, 700) == -1 &&
-          errno == EINVAL && states[0] == 0xAA);
-    CHECK(pymb_hub_decode(regs, 699, 100, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 0, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 101, NULL, NULL, 0x7F, 0, values, states, 707) == -1);
-    CHECK(pymb_hub_decode(regs, 700, 100, NULL, NULL, 0x7F, 0, values, states, 699) == -1);
-    CHECK(pymb_hub_decode(NULL, 700, 100, NULL, NULL, 0x7F, 0, values, states, 700) == -1);
+    rq.read_mask = 0x7F;
+    rq.unsupported = 0;
+    rq.channels = 0;
+    rq.out_len = 700;
+    CHECK(pymb_hub_decode(&rq) == -1 && errno == EINVAL && states[0] == 0xAA);
+    rq.channels = 101;
+    rq.out_len = 707;
+    CHECK(pymb_hub_decode(&rq) == -1);
+    rq.channels = 100;
+    rq.out_len = 699;
+    CHECK(pymb_hub_decode(&rq) == -1);
+    rq.out_len = 700;
+    rq.regs = NULL;
+    CHECK(pymb_hub_decode(&rq) == -1);
+    rq.regs = regs;
+    rq.states = NULL;
+    CHECK(pymb_hub_decode(&rq) == -1);
+    CHECK(pymb_hub_decode(NULL) == -1);
+    rq.states = states;
+    CHECK(pymb_hub_decode(&rq) == 0 && states[0] != 0xAA);
 }
 
 static void test_coolpro(void)
@@ -315,7 +351,12 @@ static void test_coolpro(void)
     errno = 0;
     CHECK(pymb_coolpro_decode_identity(NULL, 8, &id) == -1 && errno == EINVAL);
     errno = 0;
-    CHECK(pymb_u32_lo_hi(NULL) == 0 && errno == EINVAL);
+    {
+        uint32_t u = 7;
+        CHECK(pymb_u32_lo_hi(NULL, &u) == -1 && errno == EINVAL && u == 7u);
+        errno = 0;
+        CHECK(pymb_u32_lo_hi(ident, NULL) == -1 && errno == EINVAL);
+    }
 }
 
 static void test_errors_and_version(void)

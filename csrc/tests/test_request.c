@@ -1,0 +1,945 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * test_request.c - known-answer tests of the request path (pymb_transact,
+ * pymb_read_registers, pymb_read_bits, pymb_hub_read) on every transport,
+ * against a scripted responder: a thread playing the device on the other end
+ * of a real pseudo-terminal (RTU, through libmodbus's serial code) or of a
+ * socket pair (Modbus TCP, RTU over TCP).
+ *
+ * The responder is independent of the code under test: it frames with its
+ * own bit-by-bit CRC ([MB-SL] 6.2.2) and MBAP header ([MB-TCP] 3.1.3), and
+ * every request pymb sends is compared byte for byte with the frame the
+ * specification gives for it. Each script waits on the bytes it receives,
+ * never on the clock, except where the clock is the subject (late replies,
+ * the byte timeout); every wait is bounded.
+ */
+#define _XOPEN_SOURCE 700
+#define _DEFAULT_SOURCE
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <poll.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "../pymb_modbus.h"
+
+static int failures;
+static int checks;
+
+#define CHECK(cond)                                                                  \
+    do {                                                                             \
+        checks++;                                                                    \
+        if (!(cond)) {                                                               \
+            failures++;                                                              \
+            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
+        }                                                                            \
+    } while (0)
+
+/* The test's own clock and CRC, apart from the library's. */
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static void sleep_ms(int ms)
+{
+    struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+    while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+    }
+}
+
+static uint16_t crc_bitwise(const uint8_t *p, size_t n)
+{
+    uint16_t crc = 0xFFFF;
+    size_t i;
+    int b;
+    for (i = 0; i < n; i++) {
+        crc ^= p[i];
+        for (b = 0; b < 8; b++) {
+            crc = (crc & 1u) ? (uint16_t)((crc >> 1) ^ 0xA001u) : (uint16_t)(crc >> 1);
+        }
+    }
+    return crc;
+}
+
+/* ------------------------------------------------------------------------ */
+/* The device end.                                                          */
+
+enum kind { RTU, TCP, RTU_TCP };
+
+struct dev;
+/* Called for each request received (the ADU as it came, CRC or MBAP
+ * included); answers with dev_reply/dev_send. Returns 0 to go on. */
+typedef void (*handler)(struct dev *d, const uint8_t *req, int n);
+
+struct dev {
+    enum kind kind;
+    int fd;                 /* the device's end */
+    handler handle;
+    volatile int stop;
+    int requests;           /* requests received so far */
+    uint8_t last[300];      /* the last request, as received */
+    int last_len;
+    int state;              /* the script's own counter */
+    pthread_t main_thread;  /* for the signal scripts */
+};
+
+static void dev_send(struct dev *d, const uint8_t *b, size_t n)
+{
+    while (n > 0) {
+        ssize_t k = write(d->fd, b, n);
+        if (k < 0) {
+            if (errno == EAGAIN || errno == EINTR) {
+                struct pollfd p = {d->fd, POLLOUT, 0};
+                poll(&p, 1, 100);
+                continue;
+            }
+            return;
+        }
+        b += k;
+        n -= (size_t)k;
+    }
+}
+
+/* Frame `pdu` (function code first) from `unit` as the device's transport
+ * wants it into out: RTU with the CRC, TCP with an MBAP header carrying `tid`. */
+static size_t frame(enum kind kind, unsigned tid, int unit, const uint8_t *pdu, size_t n,
+                    uint8_t *out)
+{
+    size_t h = 0;
+    if (kind == TCP) {
+        out[0] = (uint8_t)(tid >> 8);
+        out[1] = (uint8_t)tid;
+        out[2] = 0;
+        out[3] = 0;
+        out[4] = (uint8_t)((n + 1) >> 8);
+        out[5] = (uint8_t)(n + 1);
+        h = 6;
+    }
+    out[h] = (uint8_t)unit;
+    memcpy(out + h + 1, pdu, n);
+    if (kind == TCP) {
+        return h + 1 + n;
+    }
+    {
+        uint16_t crc = crc_bitwise(out, n + 1);
+        out[n + 1] = (uint8_t)crc;
+        out[n + 2] = (uint8_t)(crc >> 8);
+    }
+    return n + 3;
+}
+
+/* The request's transaction id (TCP), unit and PDU. */
+static unsigned req_tid(const struct dev *d, const uint8_t *req)
+{
+    return d->kind == TCP ? ((unsigned)req[0] << 8 | req[1]) : 0;
+}
+static int req_unit(const struct dev *d, const uint8_t *req)
+{
+    return req[d->kind == TCP ? 6 : 0];
+}
+static const uint8_t *req_pdu(const struct dev *d, const uint8_t *req)
+{
+    return req + (d->kind == TCP ? 7 : 1);
+}
+
+/* Answer the request with pdu from its own unit. */
+static void dev_reply(struct dev *d, const uint8_t *req, const uint8_t *pdu, size_t n)
+{
+    uint8_t out[300];
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, n, out);
+    dev_send(d, out, len);
+}
+
+/* A read's reply: register i holds base + address + i. */
+static void dev_read_reply(struct dev *d, const uint8_t *req, unsigned base)
+{
+    const uint8_t *p = req_pdu(d, req);
+    unsigned addr = (unsigned)p[1] << 8 | p[2], count = (unsigned)p[3] << 8 | p[4], i;
+    uint8_t pdu[256];
+
+    pdu[0] = p[0];
+    pdu[1] = (uint8_t)(2 * count);
+    for (i = 0; i < count && i < 125; i++) {
+        unsigned v = (base + addr + i) & 0xFFFFu;
+        pdu[2 + 2 * i] = (uint8_t)(v >> 8);
+        pdu[3 + 2 * i] = (uint8_t)v;
+    }
+    dev_reply(d, req, pdu, 2 + 2 * count);
+}
+
+static void dev_exception(struct dev *d, const uint8_t *req, int code)
+{
+    uint8_t pdu[2];
+    pdu[0] = (uint8_t)(req_pdu(d, req)[0] | 0x80u);
+    pdu[1] = (uint8_t)code;
+    dev_reply(d, req, pdu, 2);
+}
+
+/* Receive one request: the bytes that come until 5 ms of quiet (pymb sends
+ * each request in one write). 0 when none came within 50 ms. */
+static int dev_receive(struct dev *d, uint8_t *buf, int cap)
+{
+    struct pollfd p = {d->fd, POLLIN, 0};
+    int n = 0;
+
+    if (poll(&p, 1, 50) <= 0) {
+        return 0;
+    }
+    while (n < cap) {
+        ssize_t k = read(d->fd, buf + n, (size_t)(cap - n));
+        if (k <= 0) {
+            if (k < 0 && (errno == EAGAIN || errno == EINTR)) {
+                if (poll(&p, 1, 5) <= 0) {
+                    break;
+                }
+                continue;
+            }
+            break;
+        }
+        n += (int)k;
+        if (poll(&p, 1, 5) <= 0) {
+            break;
+        }
+    }
+    return n;
+}
+
+static void *dev_run(void *arg)
+{
+    struct dev *d = arg;
+    uint8_t req[300];
+
+    while (!d->stop) {
+        int n = dev_receive(d, req, (int)sizeof req);
+        if (n <= 0) {
+            continue;
+        }
+        memcpy(d->last, req, (size_t)n);
+        d->last_len = n;
+        d->requests++;
+        if (d->handle != NULL) {
+            d->handle(d, req, n);
+        }
+    }
+    return NULL;
+}
+
+/* ------------------------------------------------------------------------ */
+/* The master end: a libmodbus context and a pymb line on each transport.   */
+
+struct rig {
+    enum kind kind;
+    modbus_t *ctx;
+    pymb_line *line;
+    struct dev dev;
+    pthread_t thread;
+};
+
+static int rig_open(struct rig *r, enum kind kind)
+{
+    memset(r, 0, sizeof *r);
+    r->kind = kind;
+    r->dev.kind = kind;
+    if (kind == RTU) {
+        struct termios tio;
+        int m = posix_openpt(O_RDWR | O_NOCTTY);
+        if (m < 0 || grantpt(m) != 0 || unlockpt(m) != 0) {
+            perror("pty");
+            return -1;
+        }
+        tcgetattr(m, &tio);
+        cfmakeraw(&tio);
+        tcsetattr(m, TCSANOW, &tio);
+        fcntl(m, F_SETFL, fcntl(m, F_GETFL) | O_NONBLOCK);
+        r->dev.fd = m;
+        r->ctx = modbus_new_rtu(ptsname(m), 115200, 'N', 8, 1);
+        if (r->ctx == NULL || modbus_connect(r->ctx) == -1) {
+            perror("modbus_new_rtu");
+            return -1;
+        }
+    } else {
+        int sp[2];
+        if (socketpair(AF_UNIX, SOCK_STREAM, 0, sp) != 0) {
+            perror("socketpair");
+            return -1;
+        }
+        fcntl(sp[1], F_SETFL, fcntl(sp[1], F_GETFL) | O_NONBLOCK);
+        r->dev.fd = sp[1];
+        r->ctx = modbus_new_tcp("127.0.0.1", 502);
+        if (r->ctx == NULL || modbus_set_socket(r->ctx, sp[0]) == -1) {
+            perror("modbus_new_tcp");
+            return -1;
+        }
+    }
+    modbus_set_response_timeout(r->ctx, 0, 300000);
+    modbus_set_byte_timeout(r->ctx, 0, 0);
+    r->line = pymb_line_new(r->ctx,
+                            kind == RTU ? PYMB_FRAMING_RTU
+                                        : kind == TCP ? PYMB_FRAMING_TCP
+                                                      : PYMB_FRAMING_RTU_OVER_TCP,
+                            2000);
+    if (r->line == NULL) {
+        perror("pymb_line_new");
+        return -1;
+    }
+    return 0;
+}
+
+static void rig_start(struct rig *r, handler h)
+{
+    r->dev.handle = h;
+    r->dev.stop = 0;
+    r->dev.requests = 0;
+    r->dev.state = 0;
+    r->dev.main_thread = pthread_self();
+    if (pthread_create(&r->thread, NULL, dev_run, &r->dev) != 0) {
+        perror("pthread_create");
+        exit(2);
+    }
+}
+
+static void rig_stop(struct rig *r)
+{
+    r->dev.stop = 1;
+    pthread_join(r->thread, NULL);
+}
+
+static void rig_close(struct rig *r)
+{
+    pymb_line_free(r->line);
+    modbus_close(r->ctx);
+    modbus_free(r->ctx);
+    close(r->dev.fd);
+}
+
+/* The request as the specification frames it: compared with what came. */
+static int last_request_is(const struct rig *r, unsigned tid, int unit, const uint8_t *pdu,
+                           size_t n)
+{
+    uint8_t want[300];
+    size_t len = frame(r->kind, tid, unit, pdu, n, want);
+    return r->dev.last_len == (int)len && memcmp(r->dev.last, want, len) == 0;
+}
+
+static const char *kind_name(enum kind k)
+{
+    return k == RTU ? "RTU" : k == TCP ? "TCP" : "RTU over TCP";
+}
+
+/* ------------------------------------------------------------------------ */
+/* Scripts.                                                                 */
+
+static void answer_reads(struct dev *d, const uint8_t *req, int n)
+{
+    (void)n;
+    dev_read_reply(d, req, 1000);
+}
+
+static void answer_bits(struct dev *d, const uint8_t *req, int n)
+{
+    /* [MB-AP] 6.1's example: coils 20..38 read as CD 6B 05. */
+    const uint8_t pdu[] = {0x01, 0x03, 0xCD, 0x6B, 0x05};
+    (void)n;
+    dev_reply(d, req, pdu, sizeof pdu);
+}
+
+static void answer_echo(struct dev *d, const uint8_t *req, int n)
+{
+    uint8_t pdu[5];
+    (void)n;
+    memcpy(pdu, req_pdu(d, req), 5);
+    if (d->state++ == 1) {
+        pdu[4] ^= 1; /* the second answer's echo differs from the write */
+    }
+    dev_reply(d, req, pdu, 5);
+}
+
+static int exception_code;
+static void answer_exception(struct dev *d, const uint8_t *req, int n)
+{
+    (void)n;
+    dev_exception(d, req, exception_code);
+}
+
+/* The reply in three pieces, 20 ms apart (well inside the timeouts). */
+static void answer_split(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x06, 0x00, 0x01, 0x00, 0x02, 0x00, 0x03};
+    uint8_t out[300];
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, sizeof pdu, out);
+    (void)n;
+    dev_send(d, out, 2);
+    sleep_ms(20);
+    dev_send(d, out + 2, 5);
+    sleep_ms(20);
+    dev_send(d, out + 7, len - 7);
+}
+
+/* The first request answered only after the response timeout (300 ms): a
+ * late reply, with other values than the answers that follow. */
+static void answer_late_first(struct dev *d, const uint8_t *req, int n)
+{
+    (void)n;
+    if (d->state++ == 0) {
+        sleep_ms(450);
+        dev_read_reply(d, req, 5000);
+    } else {
+        dev_read_reply(d, req, 1000);
+    }
+}
+
+static void answer_bad_crc(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x02, 0x12, 0x34};
+    uint8_t out[300];
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, sizeof pdu, out);
+    (void)n;
+    out[len - 1] ^= 0xFF;
+    dev_send(d, out, len);
+}
+
+static void answer_other_unit(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x02, 0x12, 0x34};
+    uint8_t out[300];
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req) + 1, pdu, sizeof pdu, out);
+    (void)n;
+    dev_send(d, out, len);
+}
+
+/* TCP: first a reply to an older transaction (other values), then the answer. */
+static void answer_old_tid_first(struct dev *d, const uint8_t *req, int n)
+{
+    uint8_t old[300];
+    memcpy(old, req, (size_t)n);
+    old[1] = (uint8_t)(old[1] - 1u);
+    if (old[1] == 0xFF) {
+        old[0] = (uint8_t)(old[0] - 1u);
+    }
+    dev_read_reply(d, old, 5000);
+    dev_read_reply(d, req, 1000);
+}
+
+static void answer_bad_protocol(struct dev *d, const uint8_t *req, int n)
+{
+    uint8_t out[300];
+    const uint8_t pdu[] = {0x03, 0x02, 0x12, 0x34};
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, sizeof pdu, out);
+    (void)n;
+    out[3] = 1; /* protocol id 1 */
+    dev_send(d, out, len);
+}
+
+/* A function code whose reply length only the line's silence tells. */
+static void answer_user_function(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x41, 0xAA, 0xBB, 0xCC};
+    (void)n;
+    dev_reply(d, req, pdu, sizeof pdu);
+}
+
+/* The hub ([HUB] 3): registers 31..630 answer address + 0; a request that
+ * touches 631..730 (the firmware lacks the second temperature block)
+ * answers exception 02, as firmware before V2.23 does. The first request
+ * is answered busy (exception 04, [HUB] 2.3.2.3) `busy` times. */
+static int hub_busy_answers;
+static void answer_hub(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t *p = req_pdu(d, req);
+    unsigned addr = (unsigned)p[1] << 8 | p[2], count = (unsigned)p[3] << 8 | p[4];
+    (void)n;
+    if (d->state < hub_busy_answers) {
+        d->state++;
+        dev_exception(d, req, 0x04);
+    } else if (addr + count - 1 >= 631) {
+        dev_exception(d, req, 0x02);
+    } else {
+        dev_read_reply(d, req, 0);
+    }
+}
+
+/* Silent, but sends the main thread SIGUSR1 60 ms after the request. */
+static void answer_signal_silence(struct dev *d, const uint8_t *req, int n)
+{
+    (void)req;
+    (void)n;
+    sleep_ms(60);
+    pthread_kill(d->main_thread, SIGUSR1);
+}
+
+/* A signal 30 ms after the request, then the answer 30 ms later. */
+static void answer_signal_then_reply(struct dev *d, const uint8_t *req, int n)
+{
+    (void)n;
+    sleep_ms(30);
+    pthread_kill(d->main_thread, SIGUSR1);
+    sleep_ms(30);
+    dev_read_reply(d, req, 1000);
+}
+
+static volatile sig_atomic_t got_signal;
+static void on_signal(int sig)
+{
+    (void)sig;
+    got_signal = 1;
+}
+static int stop_on_signal(void *arg)
+{
+    int *calls = arg;
+    (*calls)++;
+    return got_signal != 0;
+}
+static int never_stop(void *arg)
+{
+    int *calls = arg;
+    (*calls)++;
+    return 0;
+}
+
+/* ------------------------------------------------------------------------ */
+/* Tests.                                                                   */
+
+static void test_reads(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[130];
+    uint8_t bits[19];
+    pymb_failure fail;
+    int unit = k == TCP ? 0 : 250; /* 250: above libmodbus's 247 */
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_reads);
+    /* [MB-AP] 6.3: 03, address 31, 3 registers. */
+    {
+        const uint8_t pdu[] = {0x03, 0x00, 0x1F, 0x00, 0x03};
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, unit, 31, 3, regs,
+                                  &fail) == 3);
+        CHECK(last_request_is(&r, 1, unit, pdu, sizeof pdu));
+        CHECK(regs[0] == 1031 && regs[1] == 1032 && regs[2] == 1033);
+    }
+    /* 130 registers: two requests, 125 then 5 ([MB-AP] 6.4's limit). */
+    {
+        const uint8_t pdu[] = {0x04, 0x00, 0x7D, 0x00, 0x05};
+        r.dev.requests = 0;
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_INPUT_REGISTERS, unit, 0, 130, regs,
+                                  &fail) == 130);
+        CHECK(r.dev.requests == 2);
+        CHECK(last_request_is(&r, 3, unit, pdu, sizeof pdu));
+        CHECK(regs[0] == 1000 && regs[124] == 1124 && regs[125] == 1125 && regs[129] == 1129);
+    }
+    rig_stop(&r);
+    /* [MB-AP] 6.1: read coils 20..38 (19 bits) answered CD 6B 05. */
+    rig_start(&r, answer_bits);
+    {
+        const uint8_t pdu[] = {0x01, 0x00, 0x13, 0x00, 0x13};
+        const uint8_t want[19] = {1, 0, 1, 1, 0, 0, 1, 1, 1, 1, 0, 1, 0, 1, 1, 0, 1, 0, 1};
+        CHECK(pymb_read_bits(r.line, MODBUS_FC_READ_COILS, unit, 19, 19, bits, &fail) == 19);
+        CHECK(last_request_is(&r, 4, unit, pdu, sizeof pdu));
+        CHECK(memcmp(bits, want, sizeof want) == 0);
+    }
+    rig_stop(&r);
+    /* A write's echo: equal passes, different fails with BAD_ECHO. */
+    rig_start(&r, answer_echo);
+    {
+        const uint8_t req[] = {(uint8_t)unit, 0x06, 0x00, 0x01, 0x00, 0x03};
+        uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+        int h = pymb_line_header_length(r.line);
+        CHECK(h == (k == TCP ? 7 : 1));
+        CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == 5);
+        CHECK(memcmp(rsp + h, req + 1, 5) == 0);
+        errno = 0;
+        CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == -1 &&
+              errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_ECHO);
+        CHECK(fail.function == 0x06 && fail.address == 1 && fail.count == 3);
+        CHECK(fail.rsp_len == (k == TCP ? 12 : 8) && fail.header == h);
+    }
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: reads, bits, echo\n", kind_name(k));
+}
+
+static void test_exceptions(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[2];
+    pymb_failure fail;
+    int code, ok = 1;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_exception);
+    /* [MB-AP] 7: any code 01..FF on the wire; each its own errno. */
+    for (code = 1; code <= 0xFF; code++) {
+        int e;
+        exception_code = code;
+        errno = 0;
+        if (pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 7, 100, 2, regs,
+                                &fail) != -1) {
+            ok = 0;
+            continue;
+        }
+        e = errno;
+        if (e != pymb_exception_errno(code) || pymb_errno_exception(e) != code ||
+            fail.frame != PYMB_FRAME_EXCEPTION || fail.rsp_len != (k == TCP ? 9 : 5) ||
+            fail.rsp[fail.header] != 0x83 || fail.rsp[fail.header + 1] != code ||
+            strcmp(pymb_strerror(e), strerror(e)) == 0) {
+            fprintf(stderr, "%s: exception %02X: errno %d\n", kind_name(k), code, e);
+            ok = 0;
+        }
+    }
+    CHECK(ok);
+    CHECK(r.dev.requests == 255);
+    /* A well-formed exception leaves the line in step: no quiet window, so
+     * the next request goes out at once and is answered. */
+    rig_stop(&r);
+    rig_start(&r, answer_reads);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 7, 100, 2, regs,
+                              &fail) == 2 && regs[1] == 1101);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: exceptions 01..FF\n", kind_name(k));
+}
+
+static void test_split_and_bad(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[3];
+    pymb_failure fail;
+    double t0;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    /* A reply in three pieces is one reply. */
+    rig_start(&r, answer_split);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 3, regs, &fail) ==
+          3);
+    CHECK(regs[0] == 1 && regs[1] == 2 && regs[2] == 3);
+    /* With a byte timeout shorter than the gaps, the reply stops mid-frame
+     * (RTU: the byte timeout applies to a frame of known length). */
+    if (k != TCP) {
+        modbus_set_byte_timeout(r.ctx, 0, 5000);
+        errno = 0;
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 3, regs,
+                                  &fail) == -1 && errno == ETIMEDOUT);
+        CHECK(fail.frame == PYMB_FRAME_INCOMPLETE && fail.rsp_len == 2);
+        modbus_set_byte_timeout(r.ctx, 0, 0);
+        sleep_ms(60); /* the rest of the split reply arrives and is owed away */
+    }
+    rig_stop(&r);
+
+    rig_start(&r, k == TCP ? answer_bad_protocol : answer_bad_crc);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs, &fail) ==
+          -1);
+    if (k == TCP) {
+        CHECK(errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_HEADER);
+    } else {
+        CHECK(errno == EMBBADCRC && fail.frame == PYMB_FRAME_BAD_CRC && fail.rsp_len == 7);
+    }
+    rig_stop(&r);
+
+    rig_start(&r, answer_other_unit);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs, &fail) ==
+          -1 && errno == EMBBADSLAVE && fail.frame == PYMB_FRAME_BAD_SLAVE);
+    CHECK(fail.rsp[fail.header - 1] == 10);
+    rig_stop(&r);
+
+    /* Silence: ETIMEDOUT after the response timeout (300 ms), not before. */
+    rig_start(&r, NULL);
+    t0 = now_s();
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && fail.rsp_len == 0);
+    CHECK(now_s() - t0 >= 0.29);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: split reads, bad frames, silence\n", kind_name(k));
+}
+
+static void test_late_and_stale(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[2];
+    pymb_failure fail;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    /* A late reply to a request that timed out is never the next answer:
+     * the next request to that address waits for a quiet line. */
+    rig_start(&r, answer_late_first);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 5, 0, 2, regs, &fail) ==
+          -1 && errno == ETIMEDOUT);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 5, 0, 2, regs, &fail) ==
+          2);
+    CHECK(regs[0] == 1000 && regs[1] == 1001); /* not the late 5000, 5001 */
+    CHECK(r.dev.requests == 2);
+    rig_stop(&r);
+
+    if (k != TCP) {
+        /* Another address does not wait; the failed address's late frame,
+         * arriving during its request, is dropped. */
+        rig_start(&r, answer_late_first);
+        errno = 0;
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 5, 0, 2, regs,
+                                  &fail) == -1 && errno == ETIMEDOUT);
+        modbus_set_response_timeout(r.ctx, 1, 0);
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 6, 0, 2, regs,
+                                  &fail) == 2);
+        CHECK(regs[0] == 1000 && regs[1] == 1001);
+        modbus_set_response_timeout(r.ctx, 0, 300000);
+        rig_stop(&r);
+        sleep_ms(350); /* let the window pass */
+    }
+
+    /* Stale bytes waiting before the request are not its answer. */
+    rig_start(&r, k == TCP ? answer_old_tid_first : answer_reads);
+    if (k != TCP) {
+        const uint8_t pdu[] = {0x03, 0x04, 0x00, 0x07, 0x00, 0x08};
+        uint8_t out[32];
+        size_t len = frame(k, 0, 5, pdu, sizeof pdu, out);
+        dev_send(&r.dev, out, len);
+        sleep_ms(20);
+    }
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 5, 0, 2, regs, &fail) ==
+          2);
+    CHECK(regs[0] == 1000 && regs[1] == 1001);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: late and stale replies\n", kind_name(k));
+}
+
+static void test_hub(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[PYMB_HUB_REGISTERS];
+    double values[PYMB_HUB_REGISTERS];
+    uint8_t states[PYMB_HUB_REGISTERS];
+    pymb_span spans[8];
+    pymb_hub_request rq;
+    pymb_failure fail;
+    int unit = k == TCP ? 1 : 249;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    memset(&rq, 0, sizeof rq);
+    rq.slave = unit;
+    rq.channels = PYMB_HUB_CHANNELS;
+    rq.spans = spans;
+    rq.nspans = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
+    rq.options.busy_retries = 2;
+    rq.options.busy_backoff_us = 1000;
+    rq.regs = regs;
+    rq.values = values;
+    rq.states = states;
+    rq.out_len = PYMB_HUB_REGISTERS;
+    CHECK(rq.nspans == 6);
+
+    /* Busy twice, then the sweep; the spans that touch 631..730 answer 02,
+     * are read again block by block, and block 6 is found missing. */
+    hub_busy_answers = 2;
+    rig_start(&r, answer_hub);
+    CHECK(pymb_hub_read(r.line, &rq, &fail) == 0);
+    CHECK(rq.read_mask == 0x3Fu && rq.unsupported == 0x40u);
+    /* 2 busy + 6 spans + the fifth span (531..655) again as block 5
+     * (531..630) and block 6 (631..655); the sixth (656..730) is then
+     * known to be missing and not read again. */
+    CHECK(r.dev.requests == 10);
+    CHECK(regs[0] == 31 && regs[599] == 630);
+    CHECK(states[0] == PYMB_VALUE && values[0] == 3.1);       /* 31: 3.1 degC */
+    CHECK(states[3 * 100 + 5] == PYMB_VALUE && values[3 * 100 + 5] == 336.0);
+    CHECK(states[6 * 100] == PYMB_UNSUPPORTED && isnan(values[6 * 100]));
+    rig_stop(&r);
+
+    /* Busy beyond the retries: EMBXSFAIL. */
+    hub_busy_answers = 3;
+    rq.unsupported = 0;
+    rig_start(&r, answer_hub);
+    errno = 0;
+    CHECK(pymb_hub_read(r.line, &rq, &fail) == -1 && errno == EMBXSFAIL);
+    CHECK(r.dev.requests == 3 && rq.read_mask == 0);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: hub sweep, exception-02 fallback, busy retries\n", kind_name(k));
+}
+
+static void test_signals(enum kind k)
+{
+    struct rig r;
+    struct sigaction sa;
+    uint16_t regs[2];
+    pymb_failure fail;
+    int calls = 0;
+    double t0;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGUSR1, &sa, NULL); /* no SA_RESTART: poll is interrupted */
+    modbus_set_response_timeout(r.ctx, 3, 0);
+
+    /* The hook asks to stop: EINTR at once, not after the 3 s timeout. */
+    got_signal = 0;
+    pymb_line_set_interrupt(r.line, stop_on_signal, &calls);
+    rig_start(&r, answer_signal_silence);
+    t0 = now_s();
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 3, 0, 2, regs, &fail) ==
+          -1 && errno == EINTR);
+    CHECK(now_s() - t0 < 2.0 && got_signal && calls >= 1);
+    rig_stop(&r);
+
+    /* The hook lets it pass: the request goes on and takes its reply. The
+     * stopped request left a quiet window owed (as long as the timeout):
+     * a short timeout keeps it short. */
+    modbus_set_response_timeout(r.ctx, 0, 300000);
+    got_signal = 0;
+    calls = 0;
+    pymb_line_set_interrupt(r.line, never_stop, &calls);
+    rig_start(&r, answer_signal_then_reply);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 3, 0, 2, regs, &fail) ==
+          2 && regs[1] == 1001);
+    CHECK(got_signal && calls >= 1);
+    rig_stop(&r);
+
+    /* No hook: a signal never stops a request. */
+    got_signal = 0;
+    pymb_line_set_interrupt(r.line, NULL, NULL);
+    rig_start(&r, answer_signal_then_reply);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 3, 0, 2, regs, &fail) ==
+          2 && regs[0] == 1000);
+    CHECK(got_signal);
+    rig_stop(&r);
+    signal(SIGUSR1, SIG_DFL);
+    rig_close(&r);
+    printf("%s: signals\n", kind_name(k));
+}
+
+static void test_unknown_length_and_broadcast(enum kind k)
+{
+    struct rig r;
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    pymb_failure fail;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    /* A user function code (0x41): the reply ends by the line's silence
+     * (RTU) or by the MBAP length (TCP). */
+    rig_start(&r, answer_user_function);
+    {
+        const uint8_t req[] = {12, 0x41, 0x01};
+        int h = pymb_line_header_length(r.line);
+        CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == 4);
+        CHECK(rsp[h] == 0x41 && rsp[h + 1] == 0xAA && rsp[h + 3] == 0xCC);
+        CHECK(last_request_is(&r, 1, 12, req + 1, 2));
+        /* Told the length, a shorter reply is not taken. */
+        errno = 0;
+        CHECK(pymb_transact(r.line, req, sizeof req, 6, rsp, sizeof rsp, &fail) == -1 &&
+              errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_LENGTH);
+    }
+    rig_stop(&r);
+    if (k != TCP) {
+        /* Address 0 is a broadcast: sent, no reply awaited. */
+        const uint8_t req[] = {0, 0x06, 0x00, 0x01, 0x00, 0x03};
+        uint16_t regs[1];
+        rig_start(&r, NULL);
+        CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == 0);
+        CHECK(r.dev.requests == 1); /* it came during the turnaround delay */
+        CHECK(last_request_is(&r, 0, 0, req + 1, 5));
+        /* A read needs an answer: never to address 0. */
+        errno = 0;
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 0, 0, 1, regs,
+                                  &fail) == -1 && errno == EINVAL);
+        rig_stop(&r);
+    }
+    rig_close(&r);
+    printf("%s: unknown reply length, broadcast\n", kind_name(k));
+}
+
+static void test_arguments(void)
+{
+    struct rig r;
+    uint16_t regs[4];
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    const uint8_t req[] = {1, 0x03, 0, 0, 0, 1};
+    pymb_failure fail;
+
+    if (rig_open(&r, TCP) != 0) {
+        failures++;
+        return;
+    }
+    /* A line for the wrong kind of context, an unknown framing. */
+    errno = 0;
+    CHECK(pymb_line_new(r.ctx, PYMB_FRAMING_RTU, 0) == NULL && errno == EINVAL);
+    CHECK(pymb_line_new(r.ctx, (pymb_framing)9, 0) == NULL && errno == EINVAL);
+    CHECK(pymb_line_new(NULL, PYMB_FRAMING_TCP, 0) == NULL && errno == EINVAL);
+    pymb_line_free(NULL);
+    CHECK(pymb_line_set_interrupt(NULL, NULL, NULL) == -1 && errno == EINVAL);
+    CHECK(pymb_line_set_char_ns(NULL, 1) == -1 && errno == EINVAL);
+    CHECK(pymb_line_header_length(NULL) == -1 && errno == EINVAL);
+    /* Refused before any I/O, the failure record reset all the same. */
+    memset(&fail, 0x55, sizeof fail);
+    errno = 0;
+    CHECK(pymb_read_registers(NULL, 3, 1, 0, 1, regs, &fail) == -1 && errno == EINVAL);
+    CHECK(fail.function == -1 && fail.address == -1 && fail.count == -1 && fail.rsp_len == 0);
+    CHECK(pymb_read_registers(r.line, 0x05, 1, 0, 1, regs, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_read_registers(r.line, 3, 256, 0, 1, regs, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_read_registers(r.line, 3, 1, 65535, 2, regs, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_read_registers(r.line, 3, 1, 0, 0, regs, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_read_bits(r.line, 3, 1, 0, 1, rsp, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_transact(r.line, req, 1, 0, rsp, sizeof rsp, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, 10, &fail) == -1 && errno == EINVAL);
+    CHECK(pymb_hub_read(r.line, NULL, &fail) == -1 && errno == EINVAL);
+    CHECK(r.dev.requests == 0);
+    rig_close(&r);
+}
+
+int main(void)
+{
+    static const enum kind kinds[] = {RTU, TCP, RTU_TCP};
+    size_t i;
+
+    signal(SIGPIPE, SIG_IGN);
+    test_arguments();
+    for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {
+        test_reads(kinds[i]);
+        test_exceptions(kinds[i]);
+        test_split_and_bad(kinds[i]);
+        test_late_and_stale(kinds[i]);
+        test_hub(kinds[i]);
+        test_signals(kinds[i]);
+        test_unknown_length_and_broadcast(kinds[i]);
+    }
+    printf("%d passed, %d failed\n", checks - failures, failures);
+    return failures ? 1 : 0;
+}
