@@ -21,6 +21,7 @@ from pymb.commands._common import (
 from pymb.commands.mapcli import add_map_arg
 from pymb.commands.mapread import read_map, target_from_args
 from pymb.devices import HUB, CoolPro, CoolProIdentity, HubReading, SensorHub
+from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.spec import DeviceConfig
 from pymb.errors import DeviceException, ProtocolError
@@ -44,6 +45,9 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
     supplied no value at all, and names what answered a device exception."""
     assert dev.address is not None
     address = dev.address
+    # The blocks asked for: when every one of them is missing, the device
+    # supplied no value at all (a whole sweep, or watch's few blocks).
+    wanted = ALL_BLOCKS if blocks is None else sum(1 << HUB.block(b).index for b in blocks)
     if dev.type == "coolpro":
         read: Callable[[], Any] = CoolPro(client, address).read_telemetry
         hub = None
@@ -62,7 +66,7 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
                 raise type(e)(f"{why}; {e}", code=e.code) from None
             raise
         if hub is not None and isinstance(data, HubReading) and \
-                len(data.unsupported) == len(HUB.blocks):
+                data.unsupported_mask & wanted == wanted:
             hub.forget_firmware()  # the next read asks again
             why = mismatch(identify(client_asker(client), address), "hub", address,
                            dev.channels)

@@ -33,6 +33,11 @@ _DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
 _STATE_WORDS = {State.OFFLINE: "off", State.NO_SENSOR: "-", State.UNSUPPORTED: "n/a",
                 State.NOT_READ: ""}
 _CELL = 6  # characters per value: "-327.6" at most, a space before
+#: As ``pymb log``: a device that supplied no value is tried again after a
+#: pause at once, any other fault after this many in a row; the pause starts
+#: at the first value and doubles up to the second.
+_FAULTS_BEFORE_BACKOFF = 10
+_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -149,16 +154,28 @@ def run(args: argparse.Namespace) -> int:
             with client:
                 if args.identity:
                     frames.put(("identity", read_cmd.identity_of(dev, client)))
-                attempts = 0
+                attempts = failures = 0
+                backoff = 0.0
                 while not stop.is_set() and (args.count <= 0 or attempts < args.count):
                     start = time.monotonic()
                     attempts += 1
                     try:
                         frames.put(("data", read()))
+                        failures, backoff = 0, 0.0
                     except ModbusConnectionError:
                         raise
                     except ModbusError as e:
-                        frames.put(("error", e))
+                        failures += 1
+                        no_value = getattr(e, "reason", "") == "no value"
+                        if no_value or failures >= _FAULTS_BEFORE_BACKOFF:
+                            backoff = min(max(backoff * 2, _BACKOFF_FIRST), _BACKOFF_MAX)
+                            if 0 < args.count <= attempts:  # no next try
+                                frames.put(("error", str(e)))
+                                break
+                            frames.put(("error", f"{e}; next try in {backoff:g} s"))
+                            stop.wait(backoff)
+                            continue
+                        frames.put(("error", str(e)))
                     if args.interval > 0:
                         stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
         except BaseException as e:  # handed to the main thread

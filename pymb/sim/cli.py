@@ -199,6 +199,8 @@ def run(args: argparse.Namespace) -> int:
             raise ModbusConnectionError(f"cannot serve on {where}: {e.strerror or e}",
                                         errno=e.errno, port=where) from None
         endpoint = sim.endpoint
+        if tcp is not None:  # the port bound (--tcp HOST:0 asks for any free one)
+            tcp = (tcp[0], int(endpoint.rsplit(":", 1)[1]))
         with contextlib.suppress(BrokenPipeError):
             print(endpoint, flush=True)
         for dev in sim.devices:
