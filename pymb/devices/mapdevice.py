@@ -23,7 +23,8 @@ import threading
 import time
 import weakref
 from array import array
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 from pymb.client import Client
@@ -52,11 +53,14 @@ class _Quiet:
     """When the line of one client may carry the next request: a device's
     ``turnaround`` keeps it silent after its reply for every device on it."""
 
-    __slots__ = ("last_end", "quiet_until")
+    __slots__ = ("last_end", "lock", "quiet_until")
 
     def __init__(self) -> None:
         self.last_end = 0.0
         self.quiet_until = 0.0
+        #: held from the wait for silence to the end of the request: two map
+        #: devices on one client in two threads keep each other's silences
+        self.lock = threading.Lock()
 
 
 # One per client, shared by the devices on it; gone with the client.
@@ -207,30 +211,43 @@ class MapDevice:
             wait = self.map.timing.after_connect
             if wait > 0:
                 q = _quiet(self.client)
-                q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
+                with q.lock:
+                    q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
     def _run(self, plan: ReadPlan, images: dict[str, _Image]) -> None:
         timeout = self.map.timing.response_timeout
         client = self.client
         before = client.timeout
         if timeout is not None and timeout != before:
-            client.set_timeout(timeout)
+            client.timeout = timeout  # the byte timeout stays
         try:
             for r in plan.requests:
                 self._fetch(r, images[r.table])
         finally:
             if timeout is not None and timeout != before:
-                client.set_timeout(before)
+                client.timeout = before
 
-    def _wire(self, r: Request, image: _Image) -> None:
-        """One request on the wire, into its place in ``image``, with the
-        device's silences before and after."""
+    @contextmanager
+    def _turn(self) -> Iterator[None]:
+        """One request's turn on the line: the device's silence before it
+        (``inter_request_gap``, and any device's ``turnaround`` after its
+        reply), the line held for it, and the end noted for the next."""
         t = self.map.timing
         q = _quiet(self.client)
-        _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+        with q.lock:
+            _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+            try:
+                yield
+            finally:
+                now = time.monotonic()
+                q.last_end = now
+                q.quiet_until = max(q.quiet_until, now + t.turnaround)
+
+    def _wire(self, r: Request, image: _Image) -> None:
+        """One request on the wire, into its place in ``image``."""
         buf = image.registers
         at = r.address - image.address
-        try:
+        with self._turn():
             if r.table in BIT_TABLES:
                 read = (self.client.read_coils if r.table == "coil"
                         else self.client.read_discrete_inputs)
@@ -239,10 +256,6 @@ class MapDevice:
             else:
                 view = memoryview(buf)[at:at + r.count]
                 self.client.read_registers_prepared(r.function, self.address, r.address, view)
-        finally:
-            now = time.monotonic()
-            q.last_end = now
-            q.quiet_until = max(q.quiet_until, now + t.turnaround)
 
     def _fetch(self, r: Request, image: _Image) -> None:
         """Read ``r`` into ``image``; on exception 02/03, fall back as the
@@ -319,25 +332,19 @@ class MapDevice:
             m.encode(name, value, current=[0] * p.count)  # refused before any byte is sent
             with self._lock:
                 self._prepare()
-                current = list(self.client.read_holding_registers(address, p.count,
-                                                                  slave=self.address))
+                with self._turn():
+                    current = list(self.client.read_holding_registers(address, p.count,
+                                                                      slave=self.address))
         regs = self.map.encode(name, value, current=current)
         with self._lock:
             self._prepare()
-            q = _quiet(self.client)
-            t = self.map.timing
-            _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
-            try:
+            with self._turn():
                 if p.table == "coil":
                     self.client.write_coil(address, bool(regs[0]), slave=self.address)
                 elif len(regs) == 1:
                     self.client.write_register(address, regs[0], slave=self.address)
                 else:
                     self.client.write_registers(address, regs, slave=self.address)
-            finally:
-                now = time.monotonic()
-                q.last_end = now
-                q.quiet_until = max(q.quiet_until, now + t.turnaround)
 
     def __repr__(self) -> str:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"

@@ -297,3 +297,27 @@ def test_exception_03_to_declared_points_reads_each_alone() -> None:
         assert dev.read() == {f"r{i}": peer_value(i) for i in range(12)}
         assert peer.reads() == [("holding", 0, 12)] + [("holding", i, 1) for i in range(12)]
         assert [r.refused for r in peer.log] == [3] + [0] * 12
+
+
+def test_two_map_devices_on_one_client_in_two_threads_keep_the_turnaround() -> None:
+    import threading
+
+    have = {"holding": {0, 1, 3, 4, 10}}
+    with RefusingPtyPeer(have) as peer, \
+            pymb.RtuClient(peer.port, 115200, timeout=1.0) as client:
+        m = make_map("", "turnaround = 0.03")
+        devices = [MapDevice(client, m, 1), MapDevice(client, m, 2)]
+
+        def poll(dev: MapDevice) -> None:
+            for _ in range(4):
+                dev.read("a", "b")
+
+        threads = [threading.Thread(target=poll, args=(d,)) for d in devices]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        assert {r.slave for r in peer.log} == {1, 2}
+        assert len(peer.log) == 8
+        for before, after in pairwise(peer.log):
+            assert after.arrived - before.replied >= 0.03
