@@ -1,0 +1,113 @@
+"""The shipped maps: the hub and CoolPro maps decode registers exactly as
+today's facades do (the C hub decoder, the CoolPro struct decoders), and each
+of the other shipped maps is served by ``pymb simulate`` and read back."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+from array import array
+
+import pytest
+from conftest import run_pymb
+
+from pymb import _native, maps
+from pymb.devices import decode_hub
+from pymb.devices.coolpro import CoolProStatus
+from pymb.devices.hub import State
+from pymb.sim import SimulatorProcess
+
+BLOCKS = ("temperature_c", "humidity_pct", "pressure_temperature_c", "pressure_kpa",
+          "voltage_mv", "rssi_dbm", "temperature2_c")
+MARKERS = (0xFFFF, 0x8000, 0x00FF, 0x8001, 0x7FFF, 0)
+
+
+def hub_registers(rng: random.Random) -> array[int]:
+    return array("H", [rng.choice(MARKERS) if rng.random() < 0.2 else rng.randrange(0x10000)
+                       for _ in range(700)])
+
+
+@pytest.mark.parametrize(("unit", "channels"), [(0.1, 100), (1, 100), (0.1, 50), (1, 7)])
+def test_hub_map_reads_what_the_c_hub_decoder_reads(unit: float, channels: int) -> None:
+    hub = maps.builtin("hub").configure(humidity_unit=unit, channels=channels)
+    names = {"offline": State.OFFLINE, "no_sensor": State.NO_SENSOR, "value": State.VALUE}
+    rng = random.Random(f"{unit}/{channels}")
+    for _ in range(20):
+        regs = hub_registers(rng)
+        today = decode_hub(regs, unit, channels=channels)
+        d = maps.Decoder(hub)
+        assert d.address == 31
+        values, states = d.read(regs), d.states()
+        for name in BLOCKS:
+            ours = values[name]
+            assert isinstance(ours, list)
+            theirs = list(getattr(today, name))
+            assert len(ours) == len(theirs) == channels
+            for v, t, s, ts in zip(ours, theirs, states[name], today.states(name), strict=True):
+                assert names[s] == ts
+                if math.isnan(t):
+                    assert v is None
+                else:  # the same double, -0.0 included
+                    assert v == t, (name, v, t)
+                    assert math.copysign(1, v) == math.copysign(1, t), (name, v, t)
+
+
+def test_coolpro_map_reads_what_the_coolpro_decoders_read() -> None:
+    cp = maps.builtin("coolpro")
+    telemetry = maps.Decoder(cp, [p.name for p in cp.points.values() if p.group == "telemetry"])
+    identity = maps.Decoder(cp, [p.name for p in cp.points.values() if p.group == "identity"])
+    assert (telemetry.address, telemetry.count, identity.address, identity.count) == \
+        (0, 8, 100, 8)
+    rng = random.Random(7)
+    for _ in range(500):
+        regs = array("H", [rng.randrange(0x10000) for _ in range(8)])
+        vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+        got = telemetry.read(regs)
+        assert got == {"input_voltage_v": vin, "input_current_a": iin,
+                       "output_voltage_v": vout, "output_current_a": iout,
+                       "temperature_c": temp, "uptime_s": uptime, "status": status}
+        assert cp.flag_names("status", status) == [
+            f.name for f in CoolProStatus if f in CoolProStatus(status)]
+        serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
+        assert identity.read(regs) == {
+            "serial_number": serial, "hardware_revision": hw, "firmware_major": major,
+            "firmware_minor": minor, "firmware_patch": patch, "manufactured": made}
+
+
+def test_every_shipped_map_names_its_source() -> None:
+    from importlib import resources
+
+    for ident in maps.builtin_ids():
+        text = (resources.files("pymb.maps") / "builtin" / f"{ident}.toml").read_text()
+        assert text.startswith("#")
+        assert "Source:" in text.split("schema")[0], ident
+        m = maps.builtin(ident)
+        assert m.id == ident
+        assert m.identify or ident == "hub", ident  # the hub is recognised by its sweep
+
+
+@pytest.mark.parametrize("ident", ["eastron-sdm120", "eastron-sdm630", "generic-vfd"])
+def test_shipped_maps_are_served_and_read_back(ident: str) -> None:
+    m = maps.builtin(ident)
+    with SimulatorProcess([f"{ident}:5"], quiet=True) as sim:
+        r = run_pymb("read", f"{ident}:5", "--port", sim.port, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["device"] == ident
+    values = doc["values"]
+    examples = {p.name: p.example for p in m.points.values()
+                if p.example is not None and p.group is not None}
+    assert examples
+    for name, example in examples.items():
+        assert values[name] == pytest.approx(example, rel=1e-6), name
+
+
+def test_the_docs_list_every_shipped_map() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "maps.md").read_text()
+    table = doc[doc.index("## Shipped maps"):doc.index("## What pymb decides")]
+    listed = [line.split("`")[1] for line in table.splitlines() if line.startswith("| `")]
+    assert listed == ["coolpro", "hub", "eastron-sdm120", "eastron-sdm630", "generic-vfd"]
+    assert sorted(listed) == maps.builtin_ids()
