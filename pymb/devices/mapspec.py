@@ -149,10 +149,13 @@ def _rule_holds(value: object, rule: maps.Identify) -> bool:
 
 def match_map(ask: Callable[[int, int, bytes], bytes | int | None], address: int,
               known: Mapping[str, Map]) -> tuple[str, str] | None:
-    """The first map in ``known`` whose every ``[[identify]]`` rule holds for
-    the device at ``address`` (maps without rules are never matched), as
-    (map id, what its points read); None for none. ``ask(address, function,
-    data)`` returns the reply's data, an exception code or None."""
+    """The map in ``known`` whose every ``[[identify]]`` rule holds for the
+    device at ``address`` (maps without rules are never matched), the one
+    with the most rules where several do (an SDM630 also passes an SDM120's
+    checks), the first of those on a tie; as (map id, what its points read);
+    None for none. ``ask(address, function, data)`` returns the reply's
+    data, an exception code or None."""
+    best: tuple[int, str, str] | None = None
     for m in known.values():
         if not m.identify:
             continue
@@ -177,5 +180,6 @@ def match_map(ask: Callable[[int, int, bytes], bytes | int | None], address: int
                         else f"{rule.point} {value}")
         else:
             what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
-            return m.id, (f"{what}: " if what else "") + ", ".join(seen)
-    return None
+            if best is None or len(m.identify) > best[0]:
+                best = (len(m.identify), m.id, (f"{what}: " if what else "") + ", ".join(seen))
+    return None if best is None else (best[1], best[2])
