@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import queue
 import threading
-from collections import deque
 from collections.abc import Callable
 from typing import Any, ParamSpec, TypeVar
 
@@ -52,8 +52,8 @@ class Line:
     def __init__(self, blocking: Client, name: str) -> None:
         self.blocking = blocking
         self.name = name
-        self._cond = threading.Condition(threading.Lock())
-        self._jobs: deque[_Job] = deque()
+        self._jobs: queue.SimpleQueue[_Job] = queue.SimpleQueue()
+        self._lock = threading.Lock()  # starting and ending the thread
         self._thread: threading.Thread | None = None
         self._ended: threading.Thread | None = None  # the last thread that ended
         self.started = 0  #: worker threads started so far
@@ -73,54 +73,41 @@ class Line:
         self._put((None, None, fn, args, {}))
 
     def _put(self, job: _Job) -> None:
-        with self._cond:
-            self._jobs.append(job)
+        with self._lock:
+            self._jobs.put(job)
             if self._thread is None:
                 t = threading.Thread(target=self._run, name=self.name, daemon=True)
+                t.start()
                 self._thread = t
                 self.started += 1
-                t.start()
-            else:
-                self._cond.notify()
-
-    @property
-    def busy(self) -> bool:
-        """True while the worker thread exists (jobs queued or running, or the line open)."""
-        return self._thread is not None
 
     def join_ended(self, timeout: float = 5.0) -> None:
         """Wait for the thread that last ended to be gone (it has nothing
         left to do but return: microseconds)."""
-        with self._cond:
+        with self._lock:
             t, self._ended = self._ended, None
         if t is not None and t is not threading.current_thread():
             t.join(timeout)
 
-    def _next(self) -> _Job | None:
-        """The next job, waiting while the line is open; None: end the thread."""
-        with self._cond:
-            while not self._jobs:
-                if self._end_if_idle():
-                    return None
-                self._cond.wait()
-            return self._jobs.popleft()
-
     def _end_if_idle(self) -> bool:
-        # Under the lock: nothing queued and the line closed ends the thread.
-        # Decided before the last result goes out, so whoever awaited it
-        # (close()) can join the thread.
-        if self._jobs or self.blocking.connected:
-            return False
-        self._thread = None
-        self._ended = threading.current_thread()
-        return True
+        # Nothing queued and the line closed ends the thread; decided under
+        # the lock _put takes, so a job queued meanwhile starts a new one.
+        with self._lock:
+            if not self._jobs.empty() or self.blocking.connected:
+                return False
+            self._thread = None
+            self._ended = threading.current_thread()
+            return True
 
     def _run(self) -> None:
-        while (job := self._next()) is not None:
+        jobs = self._jobs
+        while True:
+            job = jobs.get()  # waits in C, the GIL released, while the line is open
             outcome = self._do(job)
             del job  # hold no request, reply or traceback while idle
-            with self._cond:
-                end = self._end_if_idle()
+            # Decided before the result goes out, so whoever awaited it
+            # (close()) can join the thread.
+            end = not self.blocking.connected and self._end_if_idle()
             if outcome is not None:
                 fut, loop, ok, value = outcome
                 with contextlib.suppress(RuntimeError):  # a closed loop: nobody to tell
@@ -137,7 +124,9 @@ class Line:
             return None  # cancelled before it started: nothing was sent
         try:
             value, ok = fn(*args, **kwargs), True
-        except Exception as e:
+        except StopIteration as e:  # a future cannot hold one
+            value, ok = RuntimeError(f"{fn!r} raised StopIteration: {e}"), False
+        except BaseException as e:  # the worker goes on, whatever the job raised
             value, ok = e, False
         if fut is None or loop is None:
             return None

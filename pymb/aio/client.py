@@ -161,7 +161,9 @@ class AsyncClient(Mirrored):
         """Run ``fn(*args, **kwargs)`` on this line's worker, in turn with
         the requests, and return its result: several blocking calls on
         :attr:`blocking` that must follow each other with no other request
-        between them (a read-modify-write), or a blocking device facade."""
+        between them (a read-modify-write), or a blocking device facade.
+        Cancelled before its turn, ``fn`` never runs; after, it runs to its
+        end and its result is dropped."""
         return await self._line.submit(fn, *args, **kwargs)
 
     # -- settings ----------------------------------------------------------------------
