@@ -50,7 +50,7 @@ class LoopDisk:
     device; ``umount()`` (or the end of a ``with``) detaches it."""
 
     def __init__(self, image: Path, mountpoint: Path, *, size_mb: int = 64,
-                 fresh: bool = True) -> None:
+                 fresh: bool = True, options: str = "") -> None:
         self.image, self.mountpoint = image, mountpoint
         if fresh:
             with open(image, "wb") as f:
@@ -59,7 +59,7 @@ class LoopDisk:
         mountpoint.mkdir(parents=True, exist_ok=True)
         self.device = _run("losetup", "--find", "--show", str(image)).strip()
         try:
-            _run("mount", self.device, str(mountpoint))
+            _run("mount", *(["-o", options] if options else []), self.device, str(mountpoint))
         except BaseException:
             _run("losetup", "-d", self.device)
             raise
@@ -87,6 +87,13 @@ class LoopDisk:
                     return copy
             time.sleep(0.01)
         raise RuntimeError(f"{self.device} never stood still long enough to be copied")
+
+    def fail(self) -> None:
+        """Make ext4 meet an error (its ``trigger_fs_error``): mounted with
+        ``errors=remount-ro`` it turns read-only at once, flushing nothing,
+        as after a failing card's I/O error."""
+        name = Path(self.device).name
+        Path(f"/sys/fs/ext4/{name}/trigger_fs_error").write_text("pymb test\n")
 
     def remount_ro(self) -> None:
         """Remount read-only (an emergency remount: writers get EROFS)."""

@@ -296,7 +296,7 @@ def test_cli_exit_code_for_an_unwritable_output(tmp_path: Path) -> None:
         code = main(["log", "--port", sim.port, "--device", "coolpro", "--out",
                      str(tmp_path / "no" / "such" / "dir" / "x.sqlite"), "--seconds", "1",
                      "--quiet"])
-    assert code == 2
+    assert code == 5  # a storage fault (the card not mounted yet?): a service retries
 
 
 # -- killed at random moments -------------------------------------------------------

@@ -15,11 +15,11 @@ import sqlite3
 import sys
 import tempfile
 from datetime import UTC, datetime
-from pathlib import Path
 
 from pymb.devices.spec import device_parts
 from pymb.errors import InvalidArgument
 from pymb.store import CSV_COLUMNS, export_csv, is_pymb_database
+from pymb.store.readonly import open_readonly
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,7 +52,7 @@ def _check_database(path: str) -> None:
 
 def _devices(path: str) -> list[tuple[str, str, int, str]]:
     """(name, type, address, bus) of every device in the database."""
-    db = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+    db = open_readonly(path)
     try:
         return [(str(n), str(t), int(a), str(b)) for n, t, a, b in db.execute(
             "SELECT name, type, address, bus FROM devices ORDER BY id")]

@@ -5,12 +5,12 @@ from __future__ import annotations
 import csv
 import sqlite3
 from collections.abc import Sequence
-from pathlib import Path
 from typing import IO, Any
 
 from pymb.devices.readings import STATE_NAMES
 from pymb.errors import InvalidArgument
 from pymb.store.reader import iter_samples
+from pymb.store.readonly import open_readonly
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
 
@@ -21,10 +21,10 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
                since: float | None = None, events: bool = False) -> int:
     """Write a pymb SQLite database (format 1 or 2) out as long-format CSV;
     returns rows."""
-    if not Path(db_path).exists():
-        raise InvalidArgument(f"no such database: {db_path}")
-    # A URI, escaped: '%', '#' and '?' in a file name are the file name's.
-    db = sqlite3.connect(Path(db_path).resolve().as_uri() + "?mode=ro", uri=True)
+    try:
+        db = open_readonly(db_path)
+    except sqlite3.Error as e:
+        raise InvalidArgument(f"{db_path} is not a readable pymb database: {e}") from None
     try:
         version = schema_version(db)
         if version not in (1, SCHEMA_VERSION):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import os
 import sqlite3
-from pathlib import Path
 
 from pymb.errors import InvalidArgument
+from pymb.store.readonly import open_readonly
 from pymb.store.text import CSV_COLUMNS
 
 __all__ = ["check_output", "is_pymb_database"]
@@ -51,7 +51,7 @@ def check_output(fmt: str, path: str) -> None:
 def is_pymb_database(path: str) -> bool:
     """True if ``path`` is a SQLite database pymb wrote (or an empty one)."""
     try:
-        db = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+        db = open_readonly(path)
         try:
             tables = {r[0] for r in db.execute(
                 "SELECT name FROM sqlite_master WHERE type = 'table'")}

@@ -7,12 +7,12 @@ import os
 import sqlite3
 from array import array
 from collections.abc import Iterator, Sequence
-from pathlib import Path
 from typing import Any
 
 from pymb import _native
 from pymb.devices import HUB, CoolProStatus, CoolProTelemetry, HubReading, State, decode_hub
 from pymb.errors import InvalidArgument
+from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
 from pymb.store.schema import SCHEMA_VERSION, host_words, schema_version
 
@@ -78,10 +78,7 @@ class _Decoder:
 def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:
     if isinstance(db, sqlite3.Connection):
         return db, False
-    p = Path(db)
-    if not p.is_file():
-        raise InvalidArgument(f"no such database: {db}")
-    return sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True), True
+    return open_readonly(db), True
 
 
 def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int,

@@ -4,13 +4,17 @@ samples not yet forwarded go."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import re
 import sqlite3
 import time
 from pathlib import Path
 from typing import Any
 
 __all__ = ["Retention"]
+
+_TRIM_IDS = re.compile(r"\(ids (\d+)\.\.(\d+)\)$")
 
 
 class Retention:
@@ -23,6 +27,8 @@ class Retention:
     page_size: int
     wal_budget: int
     trimmed: int
+    #: trim in small steps, each checkpointed (a full disk: little room for the WAL)
+    small_steps = False
     _wal: Path
     _last_age_trim: float
 
@@ -76,9 +82,11 @@ class Retention:
                     break
                 lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM samples").fetchone()
                 if lo is not None and lo < hi:
-                    share = min(0.5, (used - 0.95 * room) / used)
+                    share = min(0.02 if self.small_steps else 0.5, (used - 0.95 * room) / used)
                     step = max(1, int((hi - lo) * share))
                     deleted += self._delete_before("SELECT ?", (lo + step,), None)
+                    if self.small_steps:
+                        self._checkpoint()
                 elif not self._delete_oldest_events():
                     break  # nothing left that may go
             count, free = self._pages()
@@ -86,7 +94,8 @@ class Retention:
             if count * self.page_size > 1.05 * fixed and free:
                 # The file is larger than the limit allows (a lower limit than
                 # last time): give the free pages back, a little at a time.
-                chunk = max(1, self.wal_budget // 4 // self.page_size)
+                chunk = max(1, self.wal_budget // (64 if self.small_steps else 4)
+                            // self.page_size)
                 while free > 0 and count * self.page_size > fixed:
                     self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
                     self._checkpoint()
@@ -100,10 +109,25 @@ class Retention:
         if lo is None or lo >= hi:
             return 0
         self.db.execute("BEGIN")
-        n = self.db.execute("DELETE FROM events WHERE id < ?",
-                            (lo + max(1, (hi - lo) // 10),)).rowcount
-        self.db.execute("COMMIT")
+        try:
+            # The records of unsent samples deleted go last of all.
+            n = self.db.execute("DELETE FROM events WHERE id < ? AND kind != 'trim'",
+                                (lo + max(1, (hi - lo) // 10),)).rowcount
+            if not n:
+                n = self.db.execute("DELETE FROM events WHERE id < ?",
+                                    (lo + max(1, (hi - lo) // 10),)).rowcount
+            self.db.execute("COMMIT")
+        except BaseException:
+            self._rollback()
+            raise
         return int(n)
+
+    def _rollback(self) -> None:
+        """Roll back what failed, if SQLite has not already (a full disk
+        rolls back by itself; a second ROLLBACK would hide why)."""
+        if self.db.in_transaction:
+            with contextlib.suppress(sqlite3.Error):
+                self.db.execute("ROLLBACK")
 
     def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
@@ -126,15 +150,18 @@ class Retention:
                                 "AND time_utc < ? AND sample_id < ?",
                                 (did, ch, limit, first_kept))
             n = self.db.execute("DELETE FROM samples WHERE id < ?", (first_kept,)).rowcount
+            # The events of the time deleted go too, but not the records of
+            # unsent samples deleted (this trim's and earlier ones).
             if cutoff is not None:
-                self.db.execute("DELETE FROM events WHERE time_utc < ?", (cutoff,))
+                self.db.execute("DELETE FROM events WHERE time_utc < ? AND kind != 'trim'",
+                                (cutoff,))
             else:
                 self.db.execute(
                     "DELETE FROM events WHERE time_utc < (SELECT COALESCE(MIN(time_utc), 0) "
-                    "FROM samples)")
+                    "FROM samples) AND kind != 'trim'")
             self.db.execute("COMMIT")
         except BaseException:
-            self.db.execute("ROLLBACK")
+            self._rollback()
             raise
         return int(n)
 
@@ -149,10 +176,19 @@ class Retention:
         n, first, last = self.db.execute(
             "SELECT COUNT(*), MIN(id), MAX(id) FROM samples WHERE id > ? AND id < ?",
             (low, first_kept)).fetchone()
-        if n:
-            self.db.execute(
-                "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
-                "VALUES (?, ?, NULL, NULL, 'trim', ?, ?)",
-                (time.time(), time.monotonic(), n,
-                 f"the size/age limit deleted {n} samples not yet forwarded to the MQTT "
-                 f"broker (ids {first}..{last})"))
+        if not n:
+            return
+        # One record per outage: a trim that goes on where the last one ended
+        # (the cursor still below it) adds to its event rather than a new one.
+        prev = self.db.execute("SELECT id, code, message FROM events WHERE kind = 'trim' "
+                               "ORDER BY id DESC LIMIT 1").fetchone()
+        span = None if prev is None else _TRIM_IDS.search(prev[2])
+        if span is not None and low < int(span[1]) and int(span[2]) < first:
+            n, first = n + int(prev[1] or 0), int(span[1])
+            self.db.execute("DELETE FROM events WHERE id = ?", (prev[0],))
+        self.db.execute(
+            "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
+            "VALUES (?, ?, NULL, NULL, 'trim', ?, ?)",
+            (time.time(), time.monotonic(), n,
+             f"the size/age limit deleted {n} samples not yet forwarded to the MQTT "
+             f"broker (ids {first}..{last})"))

@@ -3,6 +3,7 @@ registers in plain SQL (generated from the device maps)."""
 
 from __future__ import annotations
 
+import hashlib
 import sqlite3
 import sys
 from array import array
@@ -10,8 +11,8 @@ from array import array
 from pymb.devices import HUB, State
 from pymb.devices.maps import COOLPRO, Type
 
-__all__ = ["MIN_BYTES", "PAGE_SIZE", "SCHEMA", "SCHEMA_VERSION", "host_words", "schema_version",
-           "statements", "wire_bytes"]
+__all__ = ["MIN_BYTES", "PAGE_SIZE", "SCHEMA", "SCHEMA_SQL", "SCHEMA_VERSION", "host_words",
+           "schema_version", "statements", "wire_bytes"]
 
 COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 HUB_FIELDS = [b.name for b in HUB.blocks]
@@ -190,6 +191,11 @@ CREATE VIEW event_log AS
            d.name AS device, e.kind, e.code, e.message
       FROM events e LEFT JOIN devices d ON d.id = e.device_id;
 """
+
+
+#: what identifies the schema above (a digest of its text): a database whose
+#: ``meta`` holds it needs no schema statement at open
+SCHEMA_SQL = hashlib.sha256(SCHEMA.encode()).hexdigest()[:16]
 
 
 def schema_version(db: sqlite3.Connection) -> int | None:

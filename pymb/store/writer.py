@@ -17,15 +17,18 @@ from typing import Any
 from pymb import __version__
 from pymb.devices import HUB, HubReading, State
 from pymb.errors import InvalidArgument, OutputError
+from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
 from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
 from pymb.store.records import DeviceInfo, Event, Sample
+from pymb.store.reserve import Reserve
 from pymb.store.retention import Retention
 from pymb.store.schema import (
     MIN_BYTES,
     PAGE_SIZE,
     SCHEMA,
+    SCHEMA_SQL,
     SCHEMA_VERSION,
     WAL_MAX,
     WAL_MIN,
@@ -101,13 +104,13 @@ class SqliteSink(Retention):
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
         except (sqlite3.Error, OSError) as e:
             self._unlock()
-            raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+            raise self._open_failed(e) from None
         try:
             self._open()
         except sqlite3.Error as e:
             self.db.close()
             self._unlock()
-            raise InvalidArgument(f"cannot open the database {self.path}: {e}") from None
+            raise self._open_failed(e) from None
         except InvalidArgument:
             self.db.close()
             self._unlock()
@@ -118,6 +121,42 @@ class SqliteSink(Retention):
         self._tx_bytes = 0  # registers written in the open batch (size limit only)
         self._last_age_trim = time.monotonic()
         self._wal = Path(f"{self.path}-wal")
+        self._reserve = Reserve(self.path)
+        if max_bytes is not None:
+            # Within the bound before the first sample (a lower bound than last
+            # time, or a database that filled its disk: trimming makes room).
+            try:
+                self._trim_at_open()
+            except sqlite3.Error as e:
+                self.db.close()
+                self._unlock()
+                raise self._open_failed(e) from None
+        self._reserve.keep()
+
+    def _trim_at_open(self) -> None:
+        count, free = self._pages()
+        if (count - free) * self.page_size <= self._room():
+            return
+        try:
+            self._trim()
+        except sqlite3.Error as e:
+            if not is_storage_fault(e) or not self._reserve.give_up():
+                raise
+            # The disk is full: the reserve's room lets the trim run, in small
+            # steps with a checkpoint after each (a short WAL).
+            self.small_steps = True
+            try:
+                self._checkpoint()
+                self._trim()
+            finally:
+                self.small_steps = False
+
+    def _open_failed(self, e: Exception) -> Exception:
+        """The error for a failed open: the storage's (exit 5: a service
+        retries) or the file's content's (exit 2)."""
+        if is_storage_fault(e):
+            return storage_error(self.path, e, opening=True)
+        return InvalidArgument(f"cannot open the database {self.path}: {e}")
 
     def _open(self) -> None:
         db = self.db
@@ -147,12 +186,16 @@ class SqliteSink(Retention):
         # Checkpoint at half the budget; truncate the WAL file back to it afterwards.
         db.execute(f"PRAGMA wal_autocheckpoint = {max(16, self.wal_budget // 2 // self.page_size)}")
         db.execute(f"PRAGMA journal_size_limit = {self.wal_budget // 2}")
+        if version == SCHEMA_VERSION and db.execute(
+                "SELECT value FROM meta WHERE key = 'schema_sql'").fetchone() == (SCHEMA_SQL,):
+            return  # as this pymb would write it: nothing to write (a full disk opens too)
         db.execute("BEGIN")
         for stmt in statements(SCHEMA):
             db.execute(stmt)
         db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
             ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__),
             ("registers", "big-endian 16-bit words from the device map's first register"),
+            ("schema_sql", SCHEMA_SQL),
         ])
         db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
                        [(s.value, s.name.lower()) for s in State])
@@ -192,12 +235,16 @@ class SqliteSink(Retention):
         return got
 
     def _failed(self, e: Exception) -> OutputError:
-        if self._in_tx:
+        if self._in_tx or self.db.in_transaction:
             with contextlib.suppress(sqlite3.Error):
                 self.db.execute("ROLLBACK")
             self._in_tx = False
         self._devices.clear()  # ids inserted by the rolled-back batch are gone
         self._changes.clear()  # what was "last stored" may be rolled back too
+        if isinstance(e, OutputError):
+            return e
+        if is_storage_fault(e):
+            return storage_error(self.path, e)
         return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
                            "is intact, the batch being written was lost")
 
@@ -211,7 +258,7 @@ class SqliteSink(Retention):
                 self._tx_bytes += 2 * len(sample.data.registers) + 64
                 if self._tx_bytes >= self.wal_budget // 4:
                     self._commit()
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def write_batch(self, samples: Sequence[Sample]) -> None:
@@ -251,7 +298,7 @@ class SqliteSink(Retention):
                     if size >= quarter:
                         self._commit()
                         self._begin()
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def _write(self, sample: Sample) -> None:
@@ -300,7 +347,7 @@ class SqliteSink(Retention):
         """Add one event to the current batch."""
         try:
             self._event(event)
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def _event(self, event: Event) -> None:
@@ -317,11 +364,16 @@ class SqliteSink(Retention):
         every few seconds, the age limit."""
         try:
             self._commit()
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def _commit(self) -> None:
         if self._in_tx:
+            gone = vanished(self.path)
+            if gone is not None:  # SQLite would write on into the deleted files
+                raise OutputError(
+                    f"cannot write to {self.path}: {gone}; the samples logged into it went "
+                    "with it; restore the directory (or log to another --out)")
             self.db.execute("COMMIT")
             self._in_tx = False
         self._tx_bytes = 0
@@ -341,7 +393,7 @@ class SqliteSink(Retention):
         """Delete the oldest data beyond the limits; returns samples deleted."""
         try:
             return self._trim()
-        except sqlite3.Error as e:
+        except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def _unlock(self) -> None:
