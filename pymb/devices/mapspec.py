@@ -45,20 +45,23 @@ def load_map(path: str) -> Map:
 
 
 def map_types(files: Sequence[str] = ()) -> dict[str, Map]:
-    """Map id -> map: the shipped maps (except the facades') and ``files``."""
-    known: dict[str, Map] = {i: maps.builtin(i) for i in maps.builtin_ids() if i not in FACADES}
-    given: dict[str, str] = {}
+    """Map id -> map: ``files`` first (a user's map is tried first where
+    several would do, as by ``pymb scan``), then the shipped maps except the
+    facades'."""
+    shipped = [i for i in maps.builtin_ids() if i not in FACADES]
+    given: dict[str, Map] = {}
+    paths: dict[str, str] = {}
     for path in files:
         m = load_map(path)
-        if m.id in FACADES or (m.id in known and m.id not in given):
+        if m.id in FACADES or m.id in shipped:
             raise InvalidArgument(f"--map {path}: device id {m.id!r} is a device pymb ships; "
                                   "give the map another id")
         if m.id in given:
             raise InvalidArgument(f"--map {path}: device id {m.id!r} is also the id of "
-                                  f"--map {given[m.id]}")
-        given[m.id] = path
-        known[m.id] = m
-    return known
+                                  f"--map {paths[m.id]}")
+        given[m.id] = m
+        paths[m.id] = path
+    return {**given, **{i: maps.builtin(i) for i in shipped}}
 
 
 @dataclass(frozen=True)
@@ -147,39 +150,52 @@ def _rule_holds(value: object, rule: maps.Identify) -> bool:
     return bool(value == rule.equals)
 
 
+def _holds(ask: Callable[[int, int, bytes], bytes | int | None], address: int,
+           m: Map) -> list[str] | None:
+    """What each identify point of ``m`` reads, when every rule holds; else None."""
+    seen: list[str] = []
+    for rule in m.identify:
+        p = m.points[rule.point]
+        reply = ask(address, _FUNCTION[p.table], struct.pack(">HH", p.address, p.count))
+        if not isinstance(reply, bytes) or not reply:
+            return None
+        data = reply[1:1 + reply[0]]
+        if p.table in ("coil", "discrete"):
+            regs = [data[i // 8] >> (i % 8) & 1 for i in range(p.count)] if \
+                len(data) * 8 >= p.count else []
+        else:
+            regs = list(struct.unpack(f">{len(data) // 2}H", data[:len(data) // 2 * 2]))
+        if len(regs) < p.count:
+            return None
+        value, _ = decode_one(p, regs)
+        if not _rule_holds(value, rule):
+            return None
+        seen.append(f"{rule.point} {value:g}" if isinstance(value, float)
+                    else f"{rule.point} {value}")
+    return seen
+
+
 def match_map(ask: Callable[[int, int, bytes], bytes | int | None], address: int,
               known: Mapping[str, Map]) -> tuple[str, str] | None:
     """The map in ``known`` whose every ``[[identify]]`` rule holds for the
-    device at ``address`` (maps without rules are never matched), the one
-    with the most rules where several do (an SDM630 also passes an SDM120's
-    checks), the first of those on a tie; as (map id, what its points read);
-    None for none. ``ask(address, function, data)`` returns the reply's
+    device at ``address``, as (map id, what its points read); None for none.
+    Maps without rules are never matched. Where several match, the one with
+    the most rules (the most specific) wins, and the detail names the others
+    that match as well. ``ask(address, function, data)`` returns the reply's
     data, an exception code or None."""
-    best: tuple[int, str, str] | None = None
+    matches: list[tuple[Map, list[str]]] = []
     for m in known.values():
-        if not m.identify:
-            continue
-        seen: list[str] = []
-        for rule in m.identify:
-            p = m.points[rule.point]
-            reply = ask(address, _FUNCTION[p.table], struct.pack(">HH", p.address, p.count))
-            if not isinstance(reply, bytes) or not reply:
-                break
-            data = reply[1:1 + reply[0]]
-            if p.table in ("coil", "discrete"):
-                regs = [data[i // 8] >> (i % 8) & 1 for i in range(p.count)] if \
-                    len(data) * 8 >= p.count else []
-            else:
-                regs = list(struct.unpack(f">{len(data) // 2}H", data[:len(data) // 2 * 2]))
-            if len(regs) < p.count:
-                break
-            value, _ = decode_one(p, regs)
-            if not _rule_holds(value, rule):
-                break
-            seen.append(f"{rule.point} {value:g}" if isinstance(value, float)
-                        else f"{rule.point} {value}")
-        else:
-            what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
-            if best is None or len(m.identify) > best[0]:
-                best = (len(m.identify), m.id, (f"{what}: " if what else "") + ", ".join(seen))
-    return None if best is None else (best[1], best[2])
+        if m.identify:
+            seen = _holds(ask, address, m)
+            if seen is not None:
+                matches.append((m, seen))
+    if not matches:
+        return None
+    most = max(len(m.identify) for m, _ in matches)
+    best = [(m, seen) for m, seen in matches if len(m.identify) == most]
+    m, seen = best[0]
+    what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
+    detail = (f"{what}: " if what else "") + ", ".join(seen)
+    if len(best) > 1:
+        detail += f" (the identify rules of {', '.join(o.id for o, _ in best[1:])} hold too)"
+    return m.id, detail
