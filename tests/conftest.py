@@ -12,13 +12,13 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
 
-from pymb.sim import SimClock
+from pymb.sim import SimClock, Simulator
 
 _T = TypeVar("_T")
 
@@ -108,3 +108,21 @@ def run_pymb(*args: str, timeout: float = 120, **kw: Any) -> subprocess.Complete
     done: subprocess.CompletedProcess[str] = subprocess.run(
         [*PYMB, *args], capture_output=True, text=True, timeout=timeout, check=False, **kw)
     return done
+
+
+@pytest.fixture
+def sim3() -> Iterator[Simulator]:
+    """A CoolPro, a 100-channel hub and a 50-channel hub (firmware 1.07)."""
+    with Simulator(["coolpro", "hub:250", "hub:7,firmware=1.07"], seed=3) as s:
+        yield s
+
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A database ``pymb log`` wrote from a CoolPro and a hub (1.5 s)."""
+    db = tmp_path_factory.mktemp("logged") / "data.sqlite"
+    with Simulator(["coolpro", "hub:250"], seed=3) as s:
+        r = run_pymb("log", "coolpro:40", "hub:250", "--port", s.port, "--seconds", "1.5",
+                     "--out", str(db), "--quiet")
+    assert r.returncode == 0, r.stderr
+    return db

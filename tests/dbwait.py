@@ -1,4 +1,5 @@
-"""Waiting on what a logger process has committed to its SQLite file.
+"""Waiting on what a logger process has committed to its SQLite file (and a
+small database to start from).
 
 Tests that start ``pymb log`` wait for rows (the logger is up, a bus is
 logging, an event was recorded) instead of sleeping a fixed time, which a slow
@@ -9,11 +10,15 @@ from __future__ import annotations
 
 import sqlite3
 import subprocess
+from array import array
 from contextlib import closing
 from pathlib import Path
 from typing import Any
 
 from conftest import wait_until
+
+from pymb.devices import decode_hub
+from pymb.store import DeviceInfo, Sample, SqliteSink
 
 
 def count(db: Path, sql: str, params: tuple[Any, ...] = ()) -> int:
@@ -49,3 +54,11 @@ def wait_for(db: Path, sql: str, params: tuple[Any, ...] = (), at_least: int = 1
     wait_until(enough, what, timeout, every=0.05,
                alive=None if proc is None else lambda: proc.poll() is None)
     return seen
+
+
+def one_sample_database(path: Path) -> None:
+    """A pymb database at ``path`` holding one hub sample (every register 0)."""
+    sink = SqliteSink(path)
+    sink.write(Sample(DeviceInfo("b", "p", "hub", 1, "hub-1"), 1_800_000_000.0, 1.0,
+                      decode_hub(array("H", [0] * 700))))
+    sink.close()

@@ -1,6 +1,6 @@
 /*
  * libmodbus_server.c - an independent Modbus server for pymb's tests, built
- * by the test itself (tests/test_wire.py) with Debian's libmodbus:
+ * by the test itself (tests/client/test_client_peers.py) with Debian's libmodbus:
  *
  *   libmodbus_server tcp            Modbus TCP on 127.0.0.1, a free port
  *   libmodbus_server rtu            Modbus RTU on a new pseudo-terminal

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import struct
 import subprocess
 import sys
 import time
@@ -20,11 +21,23 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
-from peerkit import PtyPeerBase, Reply, TcpPeerBase, registers, rtu
+from peerkit import PtyPeerBase, Reply, TcpPeerBase, mbap, registers, rtu
 
 HERE = Path(__file__).resolve().parent
 
 Script = Callable[[int, bytes], Reply]
+
+
+def tcp_request(adu: bytes) -> tuple[int, int, bytes]:
+    """A Modbus TCP request's transaction id, unit id and PDU."""
+    tid, _, _, unit = struct.unpack(">HHHB", adu[:7])
+    return tid, unit, adu[7:]
+
+
+def answer_read(adu: bytes, values: list[int]) -> bytes:
+    """The Modbus TCP reply to a read request ``adu``: ``values`` as its registers."""
+    tid, unit, pdu = tcp_request(adu)
+    return mbap(tid, unit, bytes((pdu[0],)) + registers(values))
 
 
 class RawTcp(TcpPeerBase):

@@ -8,7 +8,7 @@ from pathlib import Path
 from pymb.cli import COMMANDS
 from pymb.devices.maps import markdown_tables
 
-README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
 
 
 def test_register_tables_come_from_the_maps() -> None:
@@ -25,7 +25,7 @@ def test_every_command_is_documented() -> None:
 
 def test_quick_start_commands_match_ci() -> None:
     assert ".ci/setup --user && .venv/bin/pymb demo" in README
-    run = (Path(__file__).resolve().parents[1] / ".ci" / "run").read_text()
+    run = (Path(__file__).resolve().parents[2] / ".ci" / "run").read_text()
     assert "pytest" in run
     assert ".ci/setup" in run
     assert "    .ci/setup && .ci/run\n" in README

@@ -460,7 +460,7 @@ def test_tcp_connection_refused() -> None:
 def _high_fd_script(body: str) -> str:
     return textwrap.dedent(f"""
         import os, resource, sys
-        sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})
+        sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})
         soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
         if hard != resource.RLIM_INFINITY and hard < 1300:
             print("skip: RLIMIT_NOFILE hard limit", hard); sys.exit(0)

@@ -22,7 +22,7 @@ from pymb._pymb_cffi import ffi, lib
 
 import pymb
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CSRC = ROOT / "csrc"
 
 needs_make = pytest.mark.skipif(shutil.which("make") is None or shutil.which("cc") is None,

@@ -2,7 +2,7 @@
 switched on (including unplug episodes) for PYMB_SOAK_SECONDS (default 30
 minutes); the logger's resident memory and open descriptors must stay flat.
 
-    PYMB_SOAK_SECONDS=1800 .venv/bin/python -m pytest -m slow tests/test_soak.py -s
+    PYMB_SOAK_SECONDS=1800 .venv/bin/python -m pytest -m slow tests/logger/test_soak.py -s
 """
 
 from __future__ import annotations
