@@ -146,6 +146,13 @@ def test_simulate_read_watch_probe_and_scan_a_map_over_a_pty(meter: Path) -> Non
         assert abcd.split()[-1] == "230.5"
         cdab = next(line for line in r.stdout.splitlines() if line.strip().startswith("CDAB"))
         assert cdab.split()[-1] != "230.5"
+        r = run_pymb("map", "probe", "--port", sim.port, "3", "i:0:2", "--json")
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        assert doc["registers"] == [0x4366, 0x8000]
+        assert doc["rows"][0]["f32_ABCD"] == 230.5
+        assert doc["rows"][0]["u16_AB"] == 0x4366
+        assert doc["rows"][1]["u16_BA"] == 0x0080
         r = run_pymb("scan", "--port", sim.port, "--range", "1-4", "--map", str(meter))
         assert r.returncode == 0, r.stderr
         assert r.stdout.split()[:2] == ["3", "acme-meter"]
@@ -199,3 +206,7 @@ def test_device_syntax_mistakes_are_one_line(meter: Path) -> None:
                             "/dev/null"), "missing")
     one_line_error(run_pymb("map", "probe", "--port", "/dev/null", "3", "coils:0:2"),
                    "TABLE:START:COUNT")
+    clash = meter.parent / "clash.toml"
+    clash.write_text(METER.replace('id = "acme-meter"', 'id = "eastron-sdm120"'))
+    one_line_error(run_pymb("read", "--map", str(clash), "eastron-sdm120", "--port",
+                            "/dev/null"), "a device pymb ships")

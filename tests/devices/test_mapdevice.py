@@ -321,3 +321,24 @@ def test_two_map_devices_on_one_client_in_two_threads_keep_the_turnaround() -> N
         assert len(peer.log) == 8
         for before, after in pairwise(peer.log):
             assert after.arrived - before.replied >= 0.03
+
+
+def test_a_block_is_written_one_channel_at_a_time() -> None:
+    points = """
+[[block]]
+name = "levels"
+first = 50
+count = 3
+type = "u16"
+access = "rw"
+"""
+    with RefusingPtyPeer({"holding": {50, 51, 52}}) as peer, \
+            pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
+        dev = MapDevice(client, make_map("", "", points), 1)
+        with pytest.raises(InvalidArgument, match="is a block"):
+            dev.write("levels", 7)
+        with pytest.raises(maps.MapError, match=r"channels 1\.\.3"):
+            dev.write("levels", 7, channel=4)
+        dev.write("levels", 7, channel=2)
+        assert [(r.function, r.address) for r in peer.log] == [(6, 51)]
+        assert dev.read("levels") == {"levels": [peer_value(50), 7, peer_value(52)]}
