@@ -14,8 +14,10 @@ a 10 ms ticker measures how late the loop runs it; once with the simulators
 emulating 115200 baud (polling as fast as the wire allows) and once without
 emulation (as fast as the CPUs allow: the two cores are then saturated by
 the simulators, and the ticker waits for a CPU too). The stacks: pymb.aio,
-pymodbus's async client, and pymb's blocking calls made from coroutines
-(the control: what the loop suffers without a worker thread).
+pymodbus's async client, pymb's blocking calls made from coroutines (the
+control: what the loop suffers without a worker thread), and the floor: the
+ticker alone in an idle process while another process polls the same hubs
+with blocking calls in threads (the lag the machine gives any process).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import json
 import statistics
 import sys
+import threading
 from collections.abc import Sequence
 from typing import Any
 
@@ -50,7 +53,8 @@ CONTENDERS: tuple[Contender, ...] = (
 )
 #: the lag run's stacks: (aioworker name, label)
 LAG_STACKS = (("pymb-aio", "pymb.aio"), ("pymodbus-async", "pymodbus async"),
-              ("blocking-in-loop", "pymb blocking, called in the loop"))
+              ("blocking-in-loop", "pymb blocking, called in the loop"),
+              ("ticker-alone", "the ticker alone (hubs polled by another process)"))
 
 
 def _start(e: Entry, port: str, ref: Reference, children: Children) -> None:
@@ -98,12 +102,57 @@ def _per_call(opts: Options, children: Children, ref: Reference,
             "telemetry": summary(entries, "telemetry", plan.reads, baseline="pymb")}
 
 
+def _started(child: Child) -> Child:
+    ready = child.readline(60.0)
+    if not ready.startswith("ready"):
+        raise ChildError(ready)
+    return child
+
+
+def _ask_into(child: Child, command: str, timeout: float, box: dict[str, str]) -> None:
+    box["answer"] = child.ask(command, timeout)
+
+
+def _floor_runs(children: Children, ports: Sequence[str], seconds: float,
+                repeats: int) -> list[dict[str, Any]]:
+    """The ticker alone in a process of its own, while another process (the
+    scaling worker: one thread per bus, blocking calls) polls the same hubs
+    flat out: the lag the machine itself gives a waiting process."""
+    scale = children.add(Child("lag load", [sys.executable, "-m", "pymb.bench.scale",
+                                            str(BAUD), *ports]))
+    ticker = children.add(Child("lag ticker-alone", [
+        sys.executable, "-m", "pymb.bench.aioworker", "lag", "ticker-alone", str(BAUD)]))
+    try:
+        _started(scale)
+        _started(ticker)
+        runs = []
+        for _ in range(repeats):
+            load: dict[str, str] = {}
+            t = threading.Thread(target=_ask_into, args=(
+                scale, f"run {HUBS} {seconds + 0.5}", 60.0 + seconds, load))
+            t.start()
+            try:
+                run = json.loads(ticker.ask(f"run {seconds}", 60.0 + seconds))
+            finally:
+                t.join()
+            if "answer" not in load:
+                raise ChildError("the load process did not answer")
+            busy = json.loads(load["answer"])
+            runs.append({**run, "sweeps": busy["sweeps"], "wall": busy["wall"],
+                         "cpu": run["cpu"]})
+        return runs
+    finally:
+        children.stop(ticker)
+        children.stop(scale)
+
+
 def _lag(opts: Options, children: Children, emulate: bool, seconds: float,
          repeats: int) -> list[dict[str, Any]]:
     spec = f"hub:{HUB.default_address},dynamic=0"
     args = [spec, "--baud", str(BAUD)] if emulate else [f"{spec},baud={BAUD}"]
     line = f"emulated {BAUD}" if emulate else "no emulation"
     sims = children.sims([[*args, "--seed", "0"] for _ in range(HUBS)])
+    ports = [s.port for s in sims]
     rows = []
     for name, label in LAG_STACKS:
         row: dict[str, Any] = {"stack": name, "label": label, "line": line, "hubs": HUBS}
@@ -112,20 +161,22 @@ def _lag(opts: Options, children: Children, emulate: bool, seconds: float,
             rows.append({**row, "status": "skipped", "reason": reason})
             continue
         opts.say(f"aio: loop lag, {label}, {HUBS} hubs, {line}")
-        worker = children.add(Child(f"lag {name}", [
-            sys.executable, "-m", "pymb.bench.aioworker", "lag", name, str(BAUD),
-            *(s.port for s in sims)]))
         try:
-            ready = worker.readline(60.0)
-            if not ready.startswith("ready"):
-                raise ChildError(ready)
-            runs = [json.loads(worker.ask(f"run {seconds}", 60.0 + seconds))
-                    for _ in range(repeats)]
+            if name == "ticker-alone":
+                runs = _floor_runs(children, ports, seconds, repeats)
+            else:
+                worker = children.add(Child(f"lag {name}", [
+                    sys.executable, "-m", "pymb.bench.aioworker", "lag", name, str(BAUD),
+                    *ports]))
+                try:
+                    _started(worker)
+                    runs = [json.loads(worker.ask(f"run {seconds}", 60.0 + seconds))
+                            for _ in range(repeats)]
+                finally:
+                    children.stop(worker)
         except (ChildError, ValueError) as err:
             rows.append({**row, "status": "failed", "reason": str(err)})
             continue
-        finally:
-            children.stop(worker)
         rows.append({**row, "status": "ok", "runs": runs,
                      "p50_ms": statistics.median(r["p50_ms"] for r in runs),
                      "p99_ms": statistics.median(r["p99_ms"] for r in runs),

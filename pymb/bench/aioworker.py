@@ -12,7 +12,8 @@ and hub per port; ``run SECONDS`` polls every hub flat out (each in its own
 task) while a 10 ms ticker measures the loop's lag, and answers ``ok`` and a
 JSON object (the ticker's lateness, sweeps per hub, wall and CPU time). NAME
 may also be ``blocking-in-loop``: pymb's blocking ``read_all`` called from
-coroutines, the mistake the async clients exist to avoid (the control).
+coroutines, the mistake the async clients exist to avoid (the control), or
+``ticker-alone`` (no PORT): the ticker with nothing else to do.
 """
 
 from __future__ import annotations
@@ -245,6 +246,8 @@ async def lag_run(clients: Sequence[Any], seconds: float) -> dict[str, Any]:
 
     ticker = Ticker().start()
     t0, c0 = time.perf_counter(), time.process_time()
+    if not clients:  # the ticker alone: the machine's own lag
+        await asyncio.sleep(seconds)
     await asyncio.gather(*(poll(i) for i in range(len(clients))))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     await ticker.stop()
@@ -255,7 +258,7 @@ def lag_main(args: Sequence[str]) -> int:
     """``lag NAME BAUD PORT...``: answer ``run SECONDS`` until ``quit``."""
     name, baud, ports = args[0], int(args[1]), args[2:]
     loop = asyncio.new_event_loop()
-    clients = [LAG_STACKS[name](p, baud, 2.0) for p in ports]
+    clients = [] if name == "ticker-alone" else [LAG_STACKS[name](p, baud, 2.0) for p in ports]
     try:
         try:
             for c in clients:
@@ -284,12 +287,13 @@ def lag_main(args: Sequence[str]) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the worker process."""
     args = list(sys.argv[1:] if argv is None else argv)
-    if len(args) >= 3 and args[0] == "lag" and args[1] in LAG_STACKS:
+    if len(args) >= 3 and args[0] == "lag" and (args[1] in LAG_STACKS
+                                                 or args[1] == "ticker-alone"):
         return lag_main(args[1:])
     if len(args) != 6 or args[0] not in CLIENTS:
         print(f"usage: python -m pymb.bench.aioworker {{{','.join(CLIENTS)}}} PORT BAUD "
               "K_OFF K_VAL TIMEOUT\n       python -m pymb.bench.aioworker lag "
-              f"{{{','.join(LAG_STACKS)}}} BAUD PORT...", file=sys.stderr)
+              f"{{{','.join(LAG_STACKS)},ticker-alone}} BAUD PORT...", file=sys.stderr)
         return 2
     name, port, baud, k_off, k_val, timeout = args
     loop = asyncio.new_event_loop()

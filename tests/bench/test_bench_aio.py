@@ -34,7 +34,7 @@ def test_the_aio_section_measures_every_stack(capsys: pytest.CaptureFixture[str]
     lag = aio["lag"]["rows"]
     assert [(r["stack"], r["line"]) for r in lag] == [
         (s, line) for line in ("emulated 115200", "no emulation")
-        for s in ("pymb-aio", "pymodbus-async", "blocking-in-loop")]
+        for s in ("pymb-aio", "pymodbus-async", "blocking-in-loop", "ticker-alone")]
     for r in lag:
         assert r["status"] == "ok" or (r["stack"] == "pymodbus-async" and r["reason"]), r
         if r["status"] == "ok":
