@@ -202,7 +202,7 @@ def run_section(opts: Options, children: Children, ref: Reference,
 
 
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, bool | None]]:
-    """The issue's target: (what, goal, measured, unit, met)."""
+    """This section's target: (what, goal, measured, unit, met)."""
     row = next((r for r in section["lag"]["rows"] if r["stack"] == "pymb-aio"
                 and r["line"].startswith("emulated") and r["status"] == "ok"), None)
     p99 = None if row is None else row["p99_ms"]

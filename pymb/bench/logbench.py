@@ -27,18 +27,13 @@ from array import array
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["BENCH_DEADBAND", "ISSUE_NOW", "db_bytes", "main", "run_section", "targets"]
+__all__ = ["BENCH_DEADBAND", "db_bytes", "main", "run_section", "targets"]
 
 #: the on-change run's deadbands: about the sensors' noise (engineering units)
 BENCH_DEADBAND = {"temperature_c": 0.5, "humidity_pct": 1.0, "pressure_temperature_c": 0.5,
                   "pressure_kpa": 2.0, "voltage_mv": 20.0, "rssi_dbm": 3.0,
                   "temperature2_c": 0.5}
 BENCH_HEARTBEAT = 60.0
-
-#: issue 12's figures of pymb before storage format 2, shown beside this run's
-ISSUE_NOW = {"hub_bytes": "5.8-8.3 KB", "hub_cpu_us": 300.0, "hub_cpu_x": 4.2,
-             "coolpro_cpu_x": None, "bare_hub_us": 71.0}
-
 
 def db_bytes(path: str) -> dict[str, int]:
     """The database's size: file, WAL, and pages in use (file minus free pages)."""
@@ -242,14 +237,14 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
     for sp in spans.values():
         sp["saving"] = 1 - sp["bytes_per_sample"] / full if full else None
     return {
-        "rounds": rounds, "seconds": seconds, "runs": runs, "now": ISSUE_NOW,
+        "rounds": rounds, "seconds": seconds, "runs": runs,
         "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT, "spans": spans,
         "layouts": layout_rows, "layout_sweeps": n,
     }
 
 
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, bool | None]]:
-    """Issue 12's targets against this run: (what, target, measured, unit, met)."""
+    """The logger's targets against this run: (what, target, measured, unit, met)."""
     runs = section["runs"]
     hub, cp = runs["hub"], runs["coolpro"]
     out: list[tuple[str, str, float | None, str, bool | None]] = []

@@ -69,7 +69,7 @@ def run_section(repeat: int, say: Callable[[str], None]) -> dict[str, Any]:
 
 
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float, str, bool]]:
-    """The issue's target for this section: (what, goal, measured, unit, met)."""
+    """This section's target: (what, goal, measured, unit, met)."""
     us = section["decode_us"]
     return [(f"decoding a {section['points']}-point f32 map in one C call from Python",
              f"<= {TARGET_US:g} us", us, "us", us <= TARGET_US)]

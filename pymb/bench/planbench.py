@@ -74,7 +74,7 @@ def run_section(repeat: int, say: Callable[[str], None]) -> dict[str, Any]:
 
 
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float, str, bool]]:
-    """The issue's target for this section: (what, goal, measured, unit, met)."""
+    """This section's target: (what, goal, measured, unit, met)."""
     ms = section["plan_ms"]
     return [(f"planning a {section['points']}-point map", f"<= {TARGET_MS:g} ms", ms * 1e3,
              "us", ms <= TARGET_MS)]

@@ -282,18 +282,16 @@ def _targets_table(tg: list[dict[str, Any]]) -> Table:
 
 
 def _logger_tables(s: dict[str, Any]) -> list[Table]:
-    runs, now = s["runs"], s["now"]
+    runs = s["runs"]
     labels = {"hub": "hub sweep", "coolpro": "CoolPro telemetry",
               "hub_on-change": "hub sweep, --on-change"}
     rows = []
     for key, label in labels.items():
         r = runs[key]
-        was = (f"{now['hub_cpu_us']:g} µs, {fmt_x(now['hub_cpu_x'])}; {now['hub_bytes']}"
-               if key == "hub" else "-")
         rows.append([label, fmt_time(r["bare_cpu_us"]), fmt_time(r["log_cpu_us"]),
                      fmt_x(r["cpu_x"]), f"{r['bytes_per_sample']:,.0f} B",
                      f"{r['file_bytes_per_sample']:,.0f} B",
-                     f"{r['stored_samples']:,} / {r['samples']:,}", was])
+                     f"{r['stored_samples']:,} / {r['samples']:,}"])
     footer = [f"--on-change pairs (CPU): heartbeat {s['heartbeat']:g} s, deadbands "
               + ", ".join(f"{k} {v:g}" for k, v in s["deadband"].items())
               + "; each run starts a new sink, so its bytes are the first sweep's: see the "
@@ -307,8 +305,8 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
         "samples, their time index, hub_changes) over every sample read; with the schema's "
         "fixed pages and the WAL: file + WAL column",
         ["workload", "bare read CPU", "logged CPU", f"{X} bare", "bytes / sample",
-         "file + WAL", "stored / read", "issue 12 \"now\""], rows,
-        [False, True, True, True, True, True, True, False], footer)]
+         "file + WAL", "stored / read"], rows,
+        [False, True, True, True, True, True, True], footer)]
     spans = s.get("spans") or {}
     if spans:
         tables.append(Table(

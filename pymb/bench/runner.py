@@ -572,7 +572,7 @@ def meta(opts: Options) -> dict[str, Any]:
 
 
 def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """The issue's targets against what this run measured (None: not measured)."""
+    """The targets against what this run measured (None: not measured)."""
     out: list[dict[str, Any]] = []
 
     def add(what: str, target: str, value: float | None, unit: str, ok: bool | None) -> None:
@@ -590,7 +590,7 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         p = row(sweep["hub"]["rows"], "pymb")
         w, c = p.get("wall_x"), p.get("cpu_x")
         add("hub sweep wall time, pymb / C", "<= 1.10", w, "x", None if w is None else w <= 1.10)
-        # Issue 12 tightened the CPU goals: read_all(into=r) allocates nothing.
+        # The CPU goal is C's own: read_all(into=r) allocates nothing.
         add("hub sweep CPU time, pymb / C", "<= 1.00", c, "x", None if c is None else c <= 1.00)
         tele = row(sweep["telemetry"]["rows"], "pymb") if sweep.get("telemetry") else {}
         c = tele.get("cpu_x")

@@ -133,7 +133,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     except queue.Empty:
                         item = None
                         # Drain the queue in bursts: waking on every sample would cost
-                        # a thread switch per sample (issue 12: CPU per sample).
+                        # a thread switch per sample.
                         self._stop.wait(_DRAIN_EVERY)
                     if item is not None:
                         self._write_all(item)

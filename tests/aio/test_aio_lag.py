@@ -3,7 +3,7 @@
 10 ms ticker measures the loop's lag. The same probe sees pymb's blocking
 calls made from coroutines stall the loop for whole sweeps, so it can fail.
 
-The issue's bound (p99 under 5 ms) is wall-clock sensitive: it runs under
+The bound (p99 under 5 ms) is wall-clock sensitive: it runs under
 the ``timing`` marker; the default run checks a bound that only a blocked
 loop misses (a sweep at 115200 takes over 100 ms on the wire)."""
 

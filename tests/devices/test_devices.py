@@ -348,7 +348,7 @@ def test_read_all_into_reuses_the_buffers(bus: Simulator, sim_client: pymb.RtuCl
 
 
 def test_read_all_into_allocates_no_arrays(tmp_path: Path) -> None:
-    # Issue 12: a steady read_all(into=r) allocates nothing for the sweep:
+    # A steady read_all(into=r) allocates nothing for the sweep:
     # no arrays, no per-register objects. The simulator runs in a process of
     # its own, so that only this process's allocations are traced.
     sim = Child("simulator", pymb_argv("simulate", "--link", str(tmp_path / "hub"),

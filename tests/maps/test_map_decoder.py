@@ -169,7 +169,7 @@ def test_a_short_buffer_is_refused() -> None:
 # order as pymb names them, and the value Telegraf reads.
 
 # Telegraf's table reads 0xFFFFFEBCF945F684 as 18446742686322259968: the value
-# rounded through float64 (the tearing the issue names). pymb keeps it exact;
+# rounded through float64 (its low bits lost). pymb keeps it exact;
 # test_telegraf_vectors checks that it rounds to Telegraf's number.
 U64_EXACT = 0xFFFFFEBCF945F684
 assert U64_EXACT == 18446742686322259588

@@ -419,7 +419,7 @@ def test_on_change_in_toml(tmp_path: Path) -> None:
 
 
 def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
-    """Issue 11's case: ``--max-mb`` at full speed, watched from outside while
+    """``--max-mb`` at full speed, watched from outside while
     ``pymb log`` runs: the database file and its WAL stay within 10 %."""
 
     from pymb.bench.procs import Children
