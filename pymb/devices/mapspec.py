@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from pymb import maps
+from pymb.devices.spec import parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 from pymb.maps.codec import decode_one
@@ -97,28 +98,21 @@ def _number(text: str, what: str, spec: str) -> int | float:
 def parse_map_device(spec: str, known: Mapping[str, Map]) -> MapTarget | None:
     """``TYPE[:ADDRESS][,key=value...]`` for a map's id, checked against the
     map (address range, options); None when TYPE is not a map's id."""
-    head, *opts = spec.strip().split(",")
-    kind, colon, addr = head.partition(":")
-    kind = kind.strip().lower()
+    kind, addr, opts = split_spec(spec)
     m = known.get(kind)
     if m is None:
         return None
     dev = m.device
     address = dev.default_address
-    if colon:
-        text = addr.strip()
-        if not text.isdigit():
-            raise InvalidArgument(f"{spec!r}: the address must be a whole number, got {text!r}")
-        address = int(text)
+    if addr is not None:
+        address = parse_address(addr, spec)
     low, high = dev.addresses
     if not low <= address <= high:
         raise InvalidArgument(f"{spec!r}: {m.id} address must be {low}..{high}, got {address}")
     name = ""
     options: dict[str, int | float] = {}
     allowed = [*dev.options, "name"]
-    for opt in opts:
-        key, eq, value = opt.partition("=")
-        key, value = key.strip().replace("-", "_"), value.strip()
+    for key, eq, value in opts:
         if key not in allowed or not eq or not value:
             what = "bad option" if key in allowed else f"unknown key {key!r}"
             hint = did_you_mean(key, allowed) if what != "bad option" else ""

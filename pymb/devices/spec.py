@@ -20,7 +20,9 @@ __all__ = [
     "closest",
     "default_address",
     "device_parts",
+    "parse_address",
     "parse_device",
+    "split_spec",
 ]
 
 DEVICE_TYPES = ("coolpro", "hub")
@@ -124,6 +126,35 @@ def closest(key: str, known: Sequence[str]) -> str:
     return f"; known: {', '.join(known)}"
 
 
+def split_spec(spec: str) -> tuple[str, str | None, list[tuple[str, bool, str]]]:
+    """The one grammar of a device, ``TYPE[:ADDRESS][,key=value...]``, split:
+    (TYPE in lower case, the ADDRESS text or None, and each option as
+    (key with ``-`` read as ``_``, whether it had ``=``, value)), all stripped.
+    What the keys and values mean is the caller's (a device to read, to
+    simulate, a map's device)."""
+    head, *opts = spec.strip().split(",")
+    kind, colon, addr = head.partition(":")
+    options = []
+    for opt in opts:
+        key, eq, value = opt.partition("=")
+        options.append((key.strip().replace("-", "_"), bool(eq), value.strip()))
+    return kind.strip().lower(), addr.strip() if colon else None, options
+
+
+def parse_address(text: str, spec: str) -> int:
+    """A device's address as written after ``TYPE:``: decimal (``40``, ``040``)
+    or with a base prefix (``0x28``, ``0o50``, ``0b101000``)."""
+    try:
+        return int(text, 10)
+    except ValueError:
+        pass
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise InvalidArgument(
+            f"{spec!r}: the address must be a whole number, got {text!r}") from None
+
+
 def parse_device(spec: str) -> DeviceConfig:
     """``TYPE[:ADDRESS][,key=value...]`` -> DeviceConfig.
 
@@ -137,17 +168,13 @@ def parse_device(spec: str) -> DeviceConfig:
 def device_parts(spec: str) -> tuple[str, dict[str, Any]]:
     """``TYPE[:ADDRESS][,key=value...]`` -> (type, the options given:
     ``address``, ``name``, ``channels``, ``humidity_unit``), checked for syntax."""
-    head, *opts = spec.strip().split(",")
-    kind, colon, addr = head.partition(":")
-    kind = kind.strip().lower()
+    kind, addr, opts = split_spec(spec)
     if kind not in DEVICE_TYPES:
         raise InvalidArgument(f"unknown device {spec!r}: a device is {DEVICE_SYNTAX}")
     kwargs: dict[str, Any] = {}
-    if colon:
-        kwargs["address"] = _integer(addr.strip(), "the address", spec)
-    for opt in opts:
-        key, eq, value = opt.partition("=")
-        key, value = key.strip().replace("-", "_"), value.strip()
+    if addr is not None:
+        kwargs["address"] = parse_address(addr, spec)
+    for key, eq, value in opts:
         if key not in DEVICE_KEYS[kind] or not eq or not value:
             what = "bad option" if key in DEVICE_KEYS[kind] else f"unknown key {key!r}"
             raise InvalidArgument(

@@ -19,7 +19,7 @@ from typing import Any
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
 from pymb.devices.maps import COOLPRO_BAUD_RATES
-from pymb.devices.spec import closest
+from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
@@ -81,9 +81,7 @@ def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
     ``humidity`` 0.1 or 1, ``baud``, ``dynamic``). ``baud`` (the bus's
     speed) applies unless the spec names one. Example: ``hub:250,firmware=2.18``.
     """
-    head, *opts = spec.strip().split(",")
-    kind, _, addr = head.partition(":")
-    kind = kind.strip().lower()
+    kind, addr, opts = split_spec(spec)
     cls = _KINDS.get(kind)
     if cls is None:
         raise InvalidArgument(f"unknown device {kind!r} in {spec!r}; use coolpro or hub")
@@ -91,13 +89,8 @@ def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
     if baud is not None:
         kwargs["baud"] = baud
     if addr:
-        try:
-            kwargs["address"] = int(addr, 0)
-        except ValueError:
-            raise InvalidArgument(f"{spec!r}: address {addr!r} is not a number") from None
-    for opt in opts:
-        key, eq, value = opt.partition("=")
-        key = key.strip()
+        kwargs["address"] = parse_address(addr, spec)
+    for key, eq, value in opts:
         if key not in _OPTIONS[kind] or not eq:
             what = "bad option" if key in _OPTIONS[kind] else f"unknown key {key!r}"
             hint = closest(key, list(_OPTIONS[kind])) if what != "bad option" else ""
@@ -109,7 +102,7 @@ def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
                 + (hint if "; known:" not in hint else ""))
         name, parse = _OPTIONS[kind][key]
         try:
-            kwargs[name] = parse(value.strip())
+            kwargs[name] = parse(value)
             if name == "baud" and kwargs[name] <= 0:
                 raise ValueError(value)
         except (ValueError, KeyError):
