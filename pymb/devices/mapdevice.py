@@ -128,6 +128,7 @@ class MapDevice:
         # (bits) from there to the selection's last, read into in place
         self._images: dict[tuple[int, ...], dict[str, _Image]] = {}
         self._unread = bytearray(len(items))  # 1: this read got no value for the item
+        self._none_unread = bytes(len(items))
         self._lock = threading.Lock()
         self._connections = -1
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
@@ -177,9 +178,11 @@ class MapDevice:
             self._prepare()
             plan = self._planner.plan(self._items(points))
             images = self._image(points)
-            self._unread[:] = bytes(len(self._unread))
+            unread = self._unread
+            if 1 in unread:
+                unread[:] = self._none_unread
             for r in self._planner.unsupported:
-                self._unread[r] = 1
+                unread[r] = 1
             self._run(plan, images)
             return self._decode(points, images)
 
@@ -291,7 +294,7 @@ class MapDevice:
             b = dec.decode(image.registers)
             values.update(dec.values(b))
             states.update(dec.states(b))
-        if self._planner.unsupported or any(self._unread):
+        if 1 in self._unread:
             unread = self._unread
             for i in points:
                 p = self._points[i]
