@@ -39,6 +39,7 @@ __all__ = ["MapDevice"]
 
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = 9600
+_CACHED = 64  #: selections (and their buffers) kept per device
 
 
 class _Image(NamedTuple):
@@ -156,6 +157,8 @@ class MapDevice:
         else:
             out = self._mi.group(group)
         chosen = tuple(dict.fromkeys(out))
+        if len(self._selections) >= _CACHED:
+            self._selections.clear()  # many different selections: keep memory bounded
         self._selections[key] = chosen
         return chosen
 
@@ -200,6 +203,8 @@ class MapDevice:
             for t, ns in names.items():
                 dec = Decoder(self.map, ns)
                 images[t] = _Image(dec.address, array("H", bytes(2 * dec.count)), dec)
+            if len(self._images) >= _CACHED:
+                self._images.clear()
             self._images[points] = images
         return images
 

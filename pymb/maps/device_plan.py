@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 
 __all__ = ["MapItems", "PointPlanner", "map_planner"]
 
+_CACHED = 64  #: plans kept per device (groups and selections read)
+
 
 class PointPlanner:
     """The planner of one device: its declared points, limits and line, and
@@ -90,6 +92,8 @@ class PointPlanner:
             chosen = [k for k in key if k not in self._unsupported]
             plan = plan_points(self.items, self.line, self.limits, wanted=chosen,
                                known=self._knowledge())
+            if len(self._plans) >= _CACHED:
+                self._plans.clear()  # many different selections: keep memory bounded
             self._plans[key] = plan
         return plan
 
