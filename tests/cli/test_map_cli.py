@@ -210,3 +210,13 @@ def test_device_syntax_mistakes_are_one_line(meter: Path) -> None:
     clash.write_text(METER.replace('id = "acme-meter"', 'id = "eastron-sdm120"'))
     one_line_error(run_pymb("read", "--map", str(clash), "eastron-sdm120", "--port",
                             "/dev/null"), "a device pymb ships")
+
+
+def test_scan_through_a_tcp_gateway_names_a_map_device(meter: Path) -> None:
+    with SimulatorProcess(["--map", str(meter), "acme-meter:9", "coolpro:40", "--tcp",
+                           "127.0.0.1:0"], quiet=True) as sim:
+        r = run_pymb("scan", "--tcp", sim.endpoint, "--range", "8-9,40", "--timeout", "0.3",
+                     "--map", str(meter))
+        assert r.returncode == 0, r.stderr
+        rows = [line.split()[:2] for line in r.stdout.splitlines()]
+        assert rows == [["9", "acme-meter"], ["40", "coolpro"]], r.stdout
