@@ -22,7 +22,6 @@ import struct
 from array import array
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
 
 from pymb.devices.mapspec import parse_map_device
 from pymb.errors import InvalidArgument
@@ -66,6 +65,7 @@ class MapSimDevice(Device):
         for p in m.points.values():
             for c in range(1, p.channels + 1):
                 self._init(p, c, rng)
+        self._t0 = self.clock.now()  # counters count from here
         self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
         self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
         self._updated = -math.inf
@@ -116,6 +116,13 @@ class MapSimDevice(Device):
         return (min(a, b), max(a, b))
 
     @staticmethod
+    def _top(p: Point) -> float:
+        """The largest value a counter of ``p``'s type holds, engineering units."""
+        info = TYPES[p.type]
+        hi = 3.4e38 if info.family == "float" else float(info.raw_range()[1])
+        return hi * (p.scale or 1.0) + (p.offset or 0.0)
+
+    @staticmethod
     def _fit(p: Point, v: float) -> float | int:
         """``v`` as the point can hold it: whole for an unscaled integer."""
         if TYPES[p.type].family != "float" and p.scale is None and p.offset is None:
@@ -132,9 +139,11 @@ class MapSimDevice(Device):
             if (p.name, c) in self._faulted or (p.name, c) in self._pinned:
                 continue
             if p.kind == "counter":
-                v = level + swing * t
-                lo, hi = self._range(p)
-                v = lo + (v - lo) % max(hi - lo, 1e-9)
+                # counts up from its level, wrapping where the type does
+                v = level + swing * (t - self._t0)
+                top = self._top(p)
+                if v > top:
+                    v = v % top
             else:
                 v = level + swing * math.sin(t / 30.0 + phase)
             try:
@@ -249,15 +258,6 @@ class MapSimDevice(Device):
         what = " ".join(x for x in (self.map.device.manufacturer, self.map.device.model) if x)
         return (f"{self.map.id} at address {self.address} ({self.baud} 8N1)"
                 + (f": {what}" if what else "") + f", {len(self.map.points)} points")
-
-    @property
-    def points(self) -> dict[str, Any]:
-        """Each point's raw registers now (for tests): name -> list of ints."""
-        out: dict[str, Any] = {}
-        for p in self.map.points.values():
-            img = self._images[p.table]
-            out[p.name] = list(img[p.address:p.end])
-        return out
 
 
 def map_sim_device(spec: str, known: dict[str, Map], *, seed: int = 0,

@@ -1,0 +1,129 @@
+"""The simulated map device on its own (request PDUs in, reply PDUs out, a
+frozen clock): declared registers only, examples, the seeded model, writes
+of whole writable points, the sensor fault."""
+
+from __future__ import annotations
+
+import random
+import struct
+
+from pymb import maps
+from pymb.sim import SimClock
+from pymb.sim.mapsim import MapSimDevice
+
+MAP = """schema = "pymb.map/1"
+[device]
+id = "sim-test"
+table = "holding"
+[device.limits]
+readable = { holding = [[100, 103]] }
+
+[[point]]
+name = "level"
+address = 0
+type = "u16"
+scale = 0.1
+valid = [0.0, 50.0]
+
+[[point]]
+name = "total"
+address = 1
+type = "u32"
+kind = "counter"
+
+[[point]]
+name = "setpoint"
+address = 3
+type = "f32"
+access = "rw"
+example = 12.5
+
+[[point]]
+name = "probe_c"
+address = 5
+type = "i16"
+scale = 0.1
+markers = { 0x8000 = "offline" }
+example = 21.5
+"""
+
+
+def read(dev: MapSimDevice, address: int, count: int) -> list[int] | int:
+    reply = dev.handle(struct.pack(">BHH", 3, address, count))
+    assert reply is not None
+    if reply[0] & 0x80:
+        return reply[1]
+    return list(struct.unpack(f">{count}H", reply[2:]))
+
+
+def regs(dev: MapSimDevice, address: int, count: int) -> list[int]:
+    got = read(dev, address, count)
+    assert isinstance(got, list), got
+    return got
+
+
+def device(seed: int = 1) -> tuple[MapSimDevice, SimClock]:
+    clock = SimClock(start=100.0)
+    clock.freeze()
+    return MapSimDevice(maps.loads(MAP), 1, seed=seed, clock=clock), clock
+
+
+def test_only_declared_and_readable_registers_exist() -> None:
+    dev, _ = device()
+    assert isinstance(read(dev, 0, 6), list)
+    assert read(dev, 0, 7) == 2  # 6 is not declared
+    assert read(dev, 100, 4) == [0, 0, 0, 0]  # readable: zeros
+    assert read(dev, 99, 2) == 2
+    assert read(dev, 0, 126) == 3
+
+
+def test_examples_and_a_seeded_model_that_moves_with_the_clock() -> None:
+    dev, clock = device()
+    m = dev.map
+    assert m.decode("setpoint", regs(dev, 3, 2)) == 12.5
+    assert m.decode("probe_c", regs(dev, 5, 1)) == 21.5
+    level0 = m.decode("level", regs(dev, 0, 1))
+    total0 = m.decode("total", regs(dev, 1, 2))
+    assert isinstance(level0, float)
+    assert 0.0 <= level0 <= 50.0
+    clock.advance(20.0)
+    level1 = m.decode("level", regs(dev, 0, 1))
+    total1 = m.decode("total", regs(dev, 1, 2))
+    assert level1 != level0
+    assert isinstance(level1, float)
+    assert 0.0 <= level1 <= 50.0
+    assert isinstance(total0, int)
+    assert isinstance(total1, int)
+    assert total1 > total0  # a counter counts up
+    # the same seed, the same values; another seed, others
+    again, c2 = device()
+    c2.advance(20.0)
+    assert read(again, 0, 3) == read(dev, 0, 3)
+    other, c3 = device(seed=2)
+    c3.advance(20.0)
+    assert read(other, 0, 3) != read(dev, 0, 3)
+
+
+def test_writes_must_cover_whole_writable_points() -> None:
+    dev, clock = device()
+    assert dev.handle(struct.pack(">BHH", 6, 3, 0x4148)) == bytes((0x86, 2))  # half a float
+    assert dev.handle(struct.pack(">BHH", 6, 0, 5)) == bytes((0x86, 2))  # read-only
+    regs = dev.map.encode("setpoint", 49.5)
+    pdu = struct.pack(">BHHB2H", 16, 3, 2, 4, *regs)
+    assert dev.handle(pdu) == pdu[:5]
+    clock.advance(60.0)
+    assert dev.map.decode("setpoint", regs(dev, 3, 2)) == 49.5
+
+
+def test_the_sensor_fault_shows_a_marker_then_goes() -> None:
+    dev, clock = device()
+    rng = random.Random(0)
+    what = dev.sensor_fault(rng, 5.0)
+    assert "without a value" in what
+    name = what.split()[0]
+    p = dev.map.points[name]
+    value, state = dev.map.decode_state(name, regs(dev, p.address, p.count))
+    assert value is None
+    assert state in ("offline", "nan")
+    clock.advance(5.0)
+    assert dev.map.decode_state(name, regs(dev, p.address, p.count))[1] == "value"
