@@ -108,8 +108,8 @@ def test_writes_must_cover_whole_writable_points() -> None:
     dev, clock = device()
     assert dev.handle(struct.pack(">BHH", 6, 3, 0x4148)) == bytes((0x86, 2))  # half a float
     assert dev.handle(struct.pack(">BHH", 6, 0, 5)) == bytes((0x86, 2))  # read-only
-    regs = dev.map.encode("setpoint", 49.5)
-    pdu = struct.pack(">BHHB2H", 16, 3, 2, 4, *regs)
+    words = dev.map.encode("setpoint", 49.5)
+    pdu = struct.pack(">BHHB2H", 16, 3, 2, 4, *words)
     assert dev.handle(pdu) == pdu[:5]
     clock.advance(60.0)
     assert dev.map.decode("setpoint", regs(dev, 3, 2)) == 49.5
