@@ -103,8 +103,10 @@ class AsyncClient(Mirrored):
     async def connect(self) -> None:
         """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
         await self._line.submit(self.blocking.connect)
-        if self._guard is None or self._guard.done():
-            loop = asyncio.get_running_loop()
+        loop = asyncio.get_running_loop()
+        if self._guard is None or self._guard.done() or self._guard.get_loop() is not loop:
+            # (a guard left pending on another loop, closed without its end
+            # cancelling the tasks, cannot watch this one)
             self._closed = loop.create_future()
             self._guard = loop.create_task(_guard(self._line, self._closed),
                                            name=f"pymb-aio guard {self.port}")

@@ -290,6 +290,26 @@ def test_the_loop_shutting_down_closes_an_open_client(how: str) -> None:
     assert fds() == before
 
 
+def test_a_client_moved_to_a_new_loop_is_watched_by_that_loop() -> None:
+    # The first loop is closed by hand without cancelling its tasks (no
+    # asyncio.run): its guard never runs. The loop the client is used in
+    # next closes it at its end.
+    with RawPty(echo_address()) as peer:
+        c = AsyncRtuClient(peer.port, 115200, slave=1)
+        first = asyncio.new_event_loop()
+        first.run_until_complete(c.connect())
+        first.close()
+
+        async def main() -> None:
+            await c.connect()  # already open: one more guard, on this loop
+            assert list(await c.read_holding_registers(3, 1)) == [1003]
+
+        asyncio.run(main())
+        assert not c.connected
+        assert pymb_threads() == []
+        assert port_is_free(peer.port)
+
+
 def test_a_client_dropped_while_open_is_closed_with_a_warning() -> None:
     async def main(port: str) -> None:
         c = AsyncRtuClient(port, 115200, slave=1)
