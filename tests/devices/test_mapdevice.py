@@ -177,14 +177,20 @@ def test_limits_on_the_wire_max_registers_and_single_point_requests() -> None:
         assert all(r.refused == 0 for r in peer.log)
 
 
-def test_turnaround_and_inter_request_gap_are_silences_on_the_wire() -> None:
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+def test_turnaround_and_inter_request_gap_are_silences_on_the_wire(transport: str) -> None:
     have = {"holding": {0, 1, 3, 4, 10, 20, 21, 22, 23}}
     for timing, silence in (("turnaround = 0.04", 0.04), ("inter_request_gap = 0.03", 0.03)):
-        with RefusingPtyPeer(have) as peer, \
-                pymb.RtuClient(peer.port, 115200, timeout=1.0) as client:
-            dev = MapDevice(client, make_map("", timing), 1)
-            for _ in range(3):
-                dev.read()
+        pty, tcp = RefusingPtyPeer(have), RefusingTcpPeer(have)
+        peer: Refusing = pty if transport == "rtu" else tcp
+        with pty, tcp:
+            client: pymb.RtuClient | pymb.TcpClient = (
+                pymb.RtuClient(pty.port, 115200, timeout=1.0) if transport == "rtu"
+                else pymb.TcpClient("127.0.0.1", tcp.port, timeout=1.0))
+            with client:
+                dev = MapDevice(client, make_map("", timing), 1)
+                for _ in range(3):
+                    dev.read()
             assert len(peer.log) >= 9
             for before, after in pairwise(peer.log):
                 # the client heard the reply after the peer sent it
