@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TextIO
 
-from pymb.commands.status import StatusLine
+from pymb.commands.status import StatusLine, status_text
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
 from pymb.logger import LogConfig, Logger, Summary
+from pymb.service.journal import echoing
 from pymb.store import check_output, open_sink
+
+if TYPE_CHECKING:
+    from pymb.service.run import Service
 
 __all__ = ["forwarding", "log_and_forward", "summary_lines"]
 
@@ -31,22 +36,36 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
 
 
 def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
-               status: TextIO | None) -> tuple[Summary, ForwarderStatus]:
+               status: TextIO | None, service: Service | None = None,
+               ) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
-    left (for at most ``mqtt.drain`` seconds) and return both summaries."""
+    left (for at most ``mqtt.drain`` seconds) and return both summaries. With a
+    ``service``, events are lines on stderr too (when it is not a terminal) and the
+    service has its turn in the logger's tick."""
     require_paho()  # before the database is created
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
                      on_change=cfg.on_change)
+    raw = sink
+    if service is not None:
+        sink = echoing(sink)
     try:
         fw = Forwarder(cfg.path, mqtt)
     except BaseException:
         sink.close()
         raise
+    fw.say = sink is raw  # else its events are lines on stderr already
     fw.start()
     try:
-        tick = None if status is None else StatusLine(status, lambda: fw.status().line())
+        tick: Callable[[Logger, float, bool], None] | None = None
+        if status is not None:
+            tick = StatusLine(status, lambda: fw.status().line())
+        if service is not None:
+            service.text = lambda lg, t: f"{status_text(lg, t)}  {fw.status().line()}"
+            tick = service.tick(tick)
         logger = Logger(cfg, sink=ForwardingSink(sink, fw), tick=tick)
+        if service is not None:
+            service.attach(logger)
         s = logger.run(seconds)
     finally:
         fw.notify()
@@ -58,9 +77,10 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
 
 
 def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
-                    quiet: bool) -> int:
+                    quiet: bool, service: Service | None = None) -> int:
     """``pymb log --mqtt``: log and forward, then print the summary."""
-    s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr)
+    s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr,
+                       service=service)
     if not quiet:
         skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
         print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "

@@ -13,11 +13,13 @@ import sys
 
 from pymb.commands._common import DEVICE_HELP
 from pymb.commands.logconfig import config_from
-from pymb.commands.status import StatusLine
+from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import PASSWORD_ENV, PROFILES
 from pymb.logger import Logger
-from pymb.store import FORMATS
+from pymb.service.journal import echoing
+from pymb.service.run import Service
+from pymb.store import FORMATS, check_output, open_sink
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -80,6 +82,10 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mqtt-drain", metavar="SECONDS",
                    help="on a clean stop, keep sending what is left for at most this long "
                         "(default 5; the rest goes with the next run)")
+    g.add_argument("--mqtt-start", choices=("oldest", "now"),
+                   help="where a new outbox cursor (a broker, profile and node not seen "
+                        "before) starts: every sample in the database (oldest, the default) "
+                        "or those logged from now on")
     g.add_argument("--mqtt-primary-host", metavar="ID",
                    help="Sparkplug: publish only while the primary host application ID says "
                         "online on spBv1.0/STATE/ID (the samples wait in the database)")
@@ -100,10 +106,19 @@ def run(args: argparse.Namespace) -> int:
     if args.seconds is not None and not args.seconds > 0:
         raise InvalidArgument(f"--seconds must be more than 0, got {args.seconds:g}")
     cfg, mqtt = config_from(args)
+    service = Service(lambda: config_from(args), status_text)
     if mqtt is not None:
         from pymb.commands.forward import log_and_forward
-        return log_and_forward(cfg, mqtt, seconds=args.seconds, quiet=args.quiet)
-    logger = Logger(cfg, tick=None if args.quiet else StatusLine(sys.stderr))
+        code = log_and_forward(cfg, mqtt, seconds=args.seconds, quiet=args.quiet,
+                               service=service)
+        service.finish()
+        return code
+    check_output(cfg.format, cfg.path)
+    sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
+                     on_change=cfg.on_change)
+    logger = Logger(cfg, sink=echoing(sink),
+                    tick=service.tick(None if args.quiet else StatusLine(sys.stderr)))
+    service.attach(logger)
     s = logger.run(args.seconds)
     skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
     lines = [f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
@@ -113,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet or problems:
         for line in lines if not args.quiet else problems:
             print(("pymb log: " if line in problems else "") + line, file=sys.stderr)
+    service.finish()
     return s.exit_code
 
 

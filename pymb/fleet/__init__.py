@@ -66,12 +66,18 @@ class ForwardingSink:
         cursor goes in with the batch rather than waiting for the lock."""
         self._events()
         db = getattr(self.sink, "db", None)
-        cursor = self.forwarder.cursor
-        if db is not None:
-            self.forwarder.source.set_cursor_on(db, self.forwarder.dest, cursor)
+        cursor, dest = self.forwarder.cursor, self.forwarder.dest
+        if db is not None and dest is not None:  # keyed at the first connection
+            self.forwarder.source.set_cursor_on(db, dest, cursor)
         self.sink.commit()
         self._downs(db)
         self.forwarder.notify()
+
+    def restamp(self, offset: float) -> None:
+        """As the wrapped sink's (the wall clock stepped)."""
+        restamp = getattr(self.sink, "restamp", None)
+        if restamp is not None:
+            restamp(offset)
 
     def _downs(self, db: Any) -> None:
         """The devices that went down, with the highest sample id committed with them:

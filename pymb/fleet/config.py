@@ -17,6 +17,7 @@ in ``[mqtt]``; ``--mqtt URL`` is ``url``)::
     catchup_rate = 1000          # backlog messages per second after an outage
     drain = 5                    # seconds a clean stop keeps sending what is left
     primary_host = "scada"       # Sparkplug: publish only while spBv1.0/STATE/scada is online
+    start = "oldest"             # a new outbox cursor: send every sample (oldest) or new ones (now)
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ KEYS: dict[str, type | tuple[type, ...]] = {
     "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
     "password_file": str, "ca": str, "cert": str, "key": str,
     "catchup_rate": (int, float), "keepalive": int, "primary_host": str,
-    "drain": (int, float),
+    "drain": (int, float), "start": str,
 }
+STARTS = ("oldest", "now")  #: where a new outbox cursor starts
 MAX_DRAIN = 3600.0  #: seconds: the longest drain accepted
 
 
@@ -64,6 +66,9 @@ class MqttConfig:
     #: seconds a clean stop (SIGTERM, Ctrl-C, --seconds) keeps sending what is left;
     #: what is still unsent then stays in the database for the next run
     drain: float = 5.0
+    #: where a broker's new outbox cursor starts: at the oldest sample in the
+    #: database, or after those committed before the run (``now``)
+    start: str = "oldest"
 
     def __post_init__(self) -> None:
         u = urlsplit(self.url)
@@ -80,6 +85,8 @@ class MqttConfig:
         self.tls = u.scheme == "mqtts"
         self.host = u.hostname
         self.port = port or (8883 if self.tls else 1883)
+        if self.start not in STARTS:
+            raise InvalidArgument(f"MQTT start must be oldest or now, got {self.start!r}")
         if self.profile not in PROFILES:
             raise InvalidArgument(f"unknown MQTT profile {self.profile!r}; use plain or sparkplug")
         if not self.node:

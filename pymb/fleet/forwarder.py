@@ -17,6 +17,16 @@ yet recorded in the cursor when pymb dies (the cursor goes in with each of
 the logger's batches, see :class:`pymb.fleet.ForwardingSink`; plus the live
 lane of a connection whose catch-up had not finished) is sent again:
 consumers drop duplicates by the sample's id.
+
+The cursor is keyed by what identifies the receiver: the address the
+broker's host name resolved to on the first connection of the run (the
+peer of the socket), its port, the profile and the node (and the Sparkplug
+group): ``mqtt://127.0.0.1:1883/plain/board-7``. Another spelling of the same
+broker (``localhost``, ``127.0.0.1``) finds the same cursor; a cursor an older
+pymb keyed by the URL's text is taken over. A new cursor starts at the
+oldest sample (``start = "oldest"``, every sample in the database is sent)
+or after the samples committed before the run (``start = "now"``); one that
+would send more than a day of samples says so in one line on stderr.
 """
 
 from __future__ import annotations
@@ -24,7 +34,9 @@ from __future__ import annotations
 import bisect
 import collections
 import contextlib
+import ipaddress
 import ssl
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -36,9 +48,10 @@ from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_prof
 from pymb.fleet.source import Source
 from pymb.store import StoredSample
 
-__all__ = ["Forwarder", "ForwarderStatus"]
+__all__ = ["Forwarder", "ForwarderStatus", "destination"]
 
 WINDOW = 200  #: messages in flight (unacknowledged), at most
+REPLAY_NOTICE = 86400.0  #: seconds of samples a new cursor sends without a notice
 FETCH = 100  #: samples read from the database at a time
 BARRIER_EVERY = 50  #: Sparkplug (QoS 0): a SUBSCRIBE round trip after this many messages
 CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
@@ -75,9 +88,10 @@ class _CursorWriter(threading.Thread):
     holds SQLite's write lock for most of each batch, and the forwarder must
     not wait for it."""
 
-    def __init__(self, path: str, dest: str) -> None:
+    def __init__(self, path: str) -> None:
         super().__init__(name="pymb-mqtt-cursor", daemon=True)
-        self.path, self.dest = path, dest
+        self.path = path
+        self.dest = ""  #: the cursor's key, set before the first put()
         self.cond = threading.Condition()
         self.value: int | None = None
         self.written: int | None = None
@@ -198,6 +212,21 @@ class _Session:
         fw.wake.set()
 
 
+def destination(cfg: MqttConfig, host: str) -> str:
+    """The outbox cursor's key for the broker at ``host`` (an address: IPv4-mapped
+    IPv6 addresses as IPv4, IPv6 in brackets; a name as it is)."""
+    try:
+        ip = ipaddress.ip_address(host.split("%", 1)[0])
+    except ValueError:
+        name = host.lower()
+    else:
+        if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+            ip = ip.ipv4_mapped
+        name = f"[{ip}]" if ip.version == 6 else str(ip)
+    group = cfg.group + "/" if cfg.profile == "sparkplug" else ""
+    return f"{'mqtts' if cfg.tls else 'mqtt'}://{name}:{cfg.port}/{cfg.profile}/{group}{cfg.node}"
+
+
 def require_paho() -> None:
     """Raise InvalidArgument, saying how to install it, when paho-mqtt is missing."""
     try:
@@ -222,19 +251,25 @@ class Forwarder(threading.Thread):
         require_paho()
         self.cfg = cfg
         self.profile: Profile = make_profile(cfg)
-        self.dest = f"{'mqtts' if cfg.tls else 'mqtt'}://{cfg.host}:{cfg.port}/" \
-                    f"{cfg.profile}/{cfg.group + '/' if cfg.profile == 'sparkplug' else ''}" \
-                    f"{cfg.node}"
+        #: the broker as the URL names it (for messages; an older pymb's cursor key)
+        self.where = destination(cfg, cfg.host)
+        #: the outbox cursor's key (see the module docstring); None until the first
+        #: connection of the run has resolved the broker's address
+        self.dest: str | None = None
+        #: print the new-cursor notice on stderr (False: the events are lines there already)
+        self.say = True
         self.source = Source(db_path)
+        #: where a new cursor starts with start = "now": after what is committed already
+        self._now_id = self.source.max_id()
         self.password = cfg.password()
         self.wake = threading.Event()
         self.rebirth = threading.Event()
         self._stopping = threading.Event()
         self._drain_until = 0.0
-        self.cursor = self.source.cursor(self.dest)
+        self.cursor = 0
         self._saved_cursor = self.cursor
         self._saved_at = 0.0
-        self._writer = _CursorWriter(db_path, self.dest)
+        self._writer = _CursorWriter(db_path)
         self._done: list[list[int]] = []  #: acknowledged [lo, hi] ranges above the cursor
         self._lock = threading.Lock()
         self._events: list[tuple[float, str]] = []
@@ -247,6 +282,7 @@ class Forwarder(threading.Thread):
                                        self.cursor)
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
+        #: (monotonic time, samples) of the acknowledgements of the last few seconds
         self._ack_times: collections.deque[tuple[float, int]] = collections.deque()
         self.error: BaseException | None = None
 
@@ -312,6 +348,8 @@ class Forwarder(threading.Thread):
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
                 self._connections += 1
+                if self.dest is None:
+                    self._key(s)
                 self.record_event(f"connected to {self.dest}")
                 was_down = ""
                 self._pump(s)
@@ -322,7 +360,7 @@ class Forwarder(threading.Thread):
                             "the samples go on accumulating in the database")
             reason = "connecting" if s is None else (s.reason or "disconnected")
             if reason != was_down and not (s is not None and s.ok):
-                self.record_event(f"cannot connect to {self.dest}: {reason}")
+                self.record_event(f"cannot connect to {self.dest or self.where}: {reason}")
                 was_down = reason
             if s is not None and s.ok:
                 backoff = _BACKOFF_FIRST
@@ -364,6 +402,43 @@ class Forwarder(threading.Thread):
             s.reason = s.reason or "no CONNACK from the broker"
             self._close(s)
         return s
+
+    def _key(self, s: _Session) -> None:
+        """Key the cursor by the broker's address (the socket's peer) and load it."""
+        peer = self.cfg.host
+        sock: Any = s.client.socket()
+        with contextlib.suppress(OSError, AttributeError, IndexError):
+            peer = str(sock.getpeername()[0])
+        dest = destination(self.cfg, peer)
+        src = self.source
+        cursor = src.cursor_or_none(dest)
+        if cursor is None and self.where != dest and src.cursor_or_none(self.where) is not None:
+            src.rename_cursor(self.where, dest)  # an older pymb's key: the URL's text
+            cursor = src.cursor_or_none(dest)
+        new = cursor is None
+        if cursor is None:
+            cursor = 0 if self.cfg.start == "oldest" else self._now_id
+            self._replay_notice(dest, cursor)
+        self.cursor = self._saved_cursor = cursor
+        self._writer.dest = dest
+        self.dest = dest
+        if new:  # written by the cursor's thread: never wait for the logger's batch here
+            self._writer.put(cursor)
+
+    def _replay_notice(self, dest: str, cursor: int) -> None:
+        """One line when a new cursor is to send more than a day of samples."""
+        old = self.source.oldest_after(cursor)
+        if old is None or time.time() - old[1] <= REPLAY_NOTICE:
+            return
+        count, first = old
+        line = (f"a new MQTT cursor for {dest} starts at the oldest sample: {count:,} "
+                f"samples back to {time.strftime('%Y-%m-%d %H:%M', time.gmtime(first))} UTC "
+                f"({(time.time() - first) / 86400:,.1f} days) are sent; --mqtt-start now "
+                "sends only new ones")
+        self.record_event(line)
+        if self.say:
+            with contextlib.suppress(OSError, ValueError):
+                print(f"pymb log: {line}", file=sys.stderr, flush=True)
 
     def _close(self, s: _Session) -> None:
         with contextlib.suppress(Exception):
@@ -408,7 +483,7 @@ class Forwarder(threading.Thread):
         return None
 
     def _save_cursor(self, force: bool = False) -> None:
-        if self.cursor != self._saved_cursor:
+        if self.dest is not None and self.cursor != self._saved_cursor:
             now = time.monotonic()
             if force or now - self._saved_at >= CURSOR_EVERY:
                 self._writer.put(self.cursor)
@@ -417,9 +492,10 @@ class Forwarder(threading.Thread):
 
     def _snapshot(self, state: str, connected: bool) -> None:
         now = time.time()
-        while self._ack_times and self._ack_times[0][0] < now - 5:
+        tick = time.monotonic()  # a step of the wall clock leaves the rate alone
+        while self._ack_times and self._ack_times[0][0] < tick - 5:
             self._ack_times.popleft()
-        span = (now - self._ack_times[0][0]) if len(self._ack_times) > 1 else 0.0
+        span = (tick - self._ack_times[0][0]) if len(self._ack_times) > 1 else 0.0
         rate = sum(n for _, n in self._ack_times) / max(span, 1.0) if self._ack_times else 0.0
         old = self.source.oldest_after(self.cursor)
         backlog = 0 if old is None else old[0] - sum(hi - lo + 1 for lo, hi in self._done)
@@ -514,7 +590,7 @@ class Forwarder(threading.Thread):
                     outstanding -= n
                     self._acked += n
                     self._last_ack = time.time()
-                    self._ack_times.append((self._last_ack, n))
+                    self._ack_times.append((time.monotonic(), n))
             self._save_cursor()
             if self.rebirth.is_set():
                 self.rebirth.clear()

@@ -6,7 +6,8 @@ the storage format) as :class:`pymb.store.StoredSample`, behind
 cursor and the Sparkplug ``bdSeq`` are two small tables of the same file:
 
 ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
-    per destination (``mqtt://host:port/profile/node``), the highest sample
+    per destination (``mqtt://ADDRESS:PORT/PROFILE/[GROUP/]NODE``, the address
+    the broker's name resolved to: see :mod:`pymb.fleet.forwarder`), the highest sample
     id up to which every sample was acknowledged by the broker. The size and
     age limits of the database (:meth:`pymb.store.SqliteSink.trim`) look at
     the lowest cursor and record an event when they delete samples past it.
@@ -48,6 +49,16 @@ class Source:
         """The outbox cursor of a destination (0: nothing sent yet)."""
         row = self.db.execute("SELECT sample_id FROM outbox WHERE name = ?", (name,)).fetchone()
         return int(row[0]) if row else 0
+
+    def cursor_or_none(self, name: str) -> int | None:
+        """The outbox cursor of a destination, None when it has none."""
+        row = self.db.execute("SELECT sample_id FROM outbox WHERE name = ?", (name,)).fetchone()
+        return None if row is None else int(row[0])
+
+    def rename_cursor(self, old: str, new: str) -> None:
+        """Key a destination's cursor anew (kept if ``new`` has one already)."""
+        self.db.execute("UPDATE OR IGNORE outbox SET name = ? WHERE name = ?", (new, old))
+        self.db.execute("DELETE FROM outbox WHERE name = ?", (old,))
 
     def set_cursor(self, name: str, sample_id: int) -> None:
         """Advance the cursor (durably: one small transaction)."""

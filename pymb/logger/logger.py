@@ -14,6 +14,7 @@ from pymb.devices import HubReading
 from pymb.errors import OutputError
 from pymb.logger.config import LogConfig
 from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller, Stats
+from pymb.service.clock import ClockWatch, restamped
 from pymb.store import Event, Sample, Sink, check_output, open_sink
 
 __all__ = ["Logger", "Summary"]
@@ -74,6 +75,9 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         #: called with (this logger, seconds since the start, final) twice a second
         #: during the run and once at its end (final True): a status line's hook
         self.tick = tick
+        #: what SIGHUP does instead of stopping the run (a service's reload)
+        self.on_hangup: Callable[[], None] | None = None
+        self.clock = ClockWatch()  #: steps of the wall clock (events, re-stamping)
         if sink is None:
             check_output(config.format, config.path)
         self._stop = threading.Event()
@@ -106,6 +110,9 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, *hup)}
         for s in old:
             signal.signal(s, lambda *_: self.stop())
+        if hup and self.on_hangup is not None:
+            hangup = self.on_hangup
+            signal.signal(signal.SIGHUP, lambda *_: hangup())
         try:
             yield
         finally:
@@ -146,6 +153,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)
+                    if (step := self.clock.check()) is not None:
+                        self._clock_step(step)
                     if self.tick is not None and now - last_status >= 0.5:
                         self.tick(self, now - t0, False)
                         last_status = now
@@ -188,11 +197,23 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent)
 
+    def _clock_step(self, step: float) -> None:
+        """The wall clock stepped: an event, and what this run stored with the
+        old clock re-stamped (the sink's ``restamp``, when it has one)."""
+        self.sink.event(Event(time.time(), time.monotonic(), "clock", None, "clock", None,
+                              self.clock.message(step)))
+        self.stats.events += 1
+        restamp = getattr(self.sink, "restamp", None)
+        if restamp is not None:
+            restamp(self.clock.offset)
+
     def _write_all(self, items: list[Sample | Event]) -> None:
         """Write a poller's list in order: each run of samples in one call
         when the sink takes batches (SQLite: multi-row INSERTs)."""
         batch = getattr(self.sink, "write_batch", None)
         run: list[Sample] = []
+        if self.clock.steps:  # some may have been stamped before the step came
+            items = restamped(items, self.clock.offset)
         for item in items:
             if isinstance(item, Sample):
                 run.append(item)

@@ -4,11 +4,13 @@ file, signals."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import signal
 import sqlite3
 import subprocess
+import termios
 from pathlib import Path
 
 import pytest
@@ -320,10 +322,20 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
     read is committed and the summary printed. Under ``nohup`` (SIGHUP
     ignored) it keeps logging until SIGTERM."""
     db = tmp_path / "hup.sqlite"
-    ignore = (lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN)) if nohup else None
+    # A terminal of its own (a pty as its controlling terminal), as in a shell:
+    # without one, SIGHUP is a service's reload (tests/service/test_reload.py).
+    master, slave = os.openpty()
+
+    def session() -> None:
+        os.setsid()
+        fcntl.ioctl(slave, termios.TIOCSCTTY, 0)
+        if nohup:
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
     p = subprocess.Popen([*PYMB, "log", "coolpro:40", "--port", sim3.port, "--out", str(db)],
-                         env=PYMB_ENV, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, text=True, preexec_fn=ignore)
+                         env=PYMB_ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, preexec_fn=session, pass_fds=(slave,))
+    os.close(slave)
     try:
         wait_for(db, "SELECT COUNT(*) FROM samples", at_least=20, proc=p)
         p.send_signal(signal.SIGHUP)
@@ -336,6 +348,7 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
         if p.poll() is None:
             p.kill()
             p.wait()
+        os.close(master)
     no_traceback(subprocess.CompletedProcess([], p.returncode, "", err))
     assert p.returncode == 0, (p.returncode, err)
     assert f"logged {count(db, 'SELECT COUNT(*) FROM samples'):,} samples" in err, err

@@ -1,0 +1,83 @@
+"""Steps of the wall clock, seen from the monotonic clock.
+
+A board without a real-time clock boots in 1970 (or at the date its image
+was built) and is stepped to the right time by NTP a minute later; an
+operator may set the clock back. The offset ``time.time() -
+time.monotonic()`` stays put while the clock runs (NTP's slewing moves it
+by microseconds a second) and jumps at a step: :class:`ClockWatch` sees the
+jump, and the logger records it as a ``clock`` event and re-stamps the
+samples it took before it (see ``docs/board.md``).
+
+A time before :data:`PLAUSIBLE` cannot be the real time: pymb did not exist
+then. Samples stamped before it were taken while the clock was not set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from pymb.store import Event, Sample
+
+__all__ = ["PLAUSIBLE", "STEP", "ClockWatch", "clock_plausible", "offset", "restamped"]
+
+#: 2025-01-01 00:00:00 UTC: a clock earlier than this has not been set
+PLAUSIBLE = 1735689600.0
+#: seconds: a change of the offset larger than this is a step, not drift
+STEP = 1.0
+
+
+def offset() -> float:
+    """``time.time() - time.monotonic()``: the wall time of monotonic 0."""
+    return time.time() - time.monotonic()
+
+
+def clock_plausible(now: float | None = None) -> bool:
+    """True when the wall clock (or ``now``) is not before :data:`PLAUSIBLE`."""
+    return (time.time() if now is None else now) >= PLAUSIBLE
+
+
+class ClockWatch:
+    """Notices steps of the wall clock (call :meth:`check` often)."""
+
+    #: seconds a stamp may differ from monotonic + offset and still be of the same clock
+    tolerance = STEP
+
+    def __init__(self) -> None:
+        self.offset = offset()  #: the current offset (wall minus monotonic)
+        self.steps = 0
+
+    def check(self) -> float | None:
+        """The step (seconds, positive: forward) since the last call, or None."""
+        now = offset()
+        step = now - self.offset
+        if abs(step) <= STEP:
+            return None
+        self.offset = now
+        self.steps += 1
+        return step
+
+    def message(self, step: float) -> str:
+        """The event's words for a step of ``step`` seconds."""
+        after = time.time()
+        before = after - step
+
+        def when(t: float) -> str:
+            return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(t))
+
+        way = "forward" if step > 0 else "back"
+        note = "" if clock_plausible(before) else " (the clock had not been set)"
+        return (f"the clock stepped {way} by {abs(step):,.1f} s, from {when(before)} to "
+                f"{when(after)}{note}; this run's earlier samples and events are "
+                "re-stamped from the monotonic clock")
+
+
+def restamped(items: list[Sample | Event], offset: float) -> list[Sample | Event]:
+    """``items`` with the wall time of those stamped before a clock step
+    recomputed from their monotonic time and the clock's ``offset`` (the same
+    list when none needs it)."""
+    limit = ClockWatch.tolerance
+    if all(abs(i.time_utc - i.monotonic - offset) <= limit for i in items):
+        return items
+    return [i if abs(i.time_utc - i.monotonic - offset) <= limit
+            else dataclasses.replace(i, time_utc=i.monotonic + offset) for i in items]
