@@ -23,7 +23,7 @@ import threading
 import time
 import weakref
 from array import array
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any, NamedTuple
 
@@ -125,6 +125,7 @@ class MapDevice:
         self._index = {p.name: i for i, p in enumerate(self._points)}
         items = mi.items
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
+        self._wanted: dict[tuple[int, ...], tuple[int, ...]] = {}  # points -> their items
         # per selection, per table: the first address and the registers
         # (bits) from there to the selection's last, read into in place
         self._images: dict[tuple[int, ...], dict[str, _Image]] = {}
@@ -162,8 +163,14 @@ class MapDevice:
         self._selections[key] = chosen
         return chosen
 
-    def _items(self, points: Iterable[int]) -> list[int]:
-        return self._mi.wanted(points)
+    def _items(self, points: tuple[int, ...]) -> tuple[int, ...]:
+        """The planner items of a selection, the same tuple each time."""
+        items = self._wanted.get(points)
+        if items is None:
+            if len(self._wanted) >= _CACHED:
+                self._wanted.clear()
+            items = self._wanted[points] = tuple(self._mi.wanted(points))
+        return items
 
     def plan(self, group: str | None = None, *names: str) -> ReadPlan:
         """The requests a read of ``group`` (or of the named points; all by

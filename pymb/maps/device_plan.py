@@ -47,6 +47,9 @@ class PointPlanner:
         self._unsupported: dict[int, float] = {}  # item -> when to ask again
         self._known: dict[str, Known] | None = None
         self._plans: dict[tuple[int, ...], ReadPlan] = {}
+        # the last plan and the very tuple it was asked for: a poll that asks
+        # with the same tuple again finds it without hashing it
+        self._last: tuple[tuple[int, ...], ReadPlan] | None = None
 
     def _knowledge(self) -> dict[str, Known]:
         if self._known is None:
@@ -70,6 +73,7 @@ class PointPlanner:
     def _changed(self) -> None:
         self._known = None
         self._plans.clear()
+        self._last = None
 
     @property
     def unsupported(self) -> frozenset[int]:
@@ -86,6 +90,9 @@ class PointPlanner:
                 del self._unsupported[k]
             if due:
                 self._changed()
+        last = self._last
+        if last is not None and wanted is last[0]:
+            return last[1]
         key = tuple(range(len(self.items))) if wanted is None else tuple(wanted)
         plan = self._plans.get(key)
         if plan is None:
@@ -95,6 +102,8 @@ class PointPlanner:
             if len(self._plans) >= _CACHED:
                 self._plans.clear()  # many different selections: keep memory bounded
             self._plans[key] = plan
+        if isinstance(wanted, tuple):
+            self._last = (wanted, plan)
         return plan
 
     def replan(self, request: Request) -> ReadPlan:
