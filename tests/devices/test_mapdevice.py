@@ -14,7 +14,7 @@ from map_peers import Refusing, RefusingPtyPeer, RefusingTcpPeer, sparse_pymodbu
 from peerkit import rtu
 
 import pymb
-from pymb import maps
+from pymb import _native, maps
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import InvalidArgument, ModbusTimeout
 
@@ -348,3 +348,31 @@ access = "rw"
         dev.write("levels", 7, channel=2)
         assert [(r.function, r.address) for r in peer.log] == [(6, 51)]
         assert dev.read("levels") == {"levels": [peer_value(50), 7, peer_value(52)]}
+
+
+@pytest.mark.parametrize("firmware", ["2.23", "2.18", "1.07"])
+def test_the_hub_through_its_map_reads_what_its_facade_reads(firmware: str) -> None:
+    from pymb.devices import SensorHub
+    from pymb.sim import SimClock, Simulator
+
+    channels = 50 if firmware == "1.07" else 100
+    clock = SimClock(start=1000.0)
+    clock.freeze()  # the same values for both readers
+    with Simulator([f"hub:7,firmware={firmware}"], clock=clock) as sim, \
+            pymb.RtuClient(sim.port, 9600, timeout=2.0) as client:
+        reading = SensorHub(client, 7, channels).read_all()
+        dev = MapDevice(client, maps.builtin("hub"), 7, options={"channels": channels})
+        got = dev.read(group="sweep")
+        again = dev.read(group="sweep")
+        assert again == got
+        # the blocks the firmware lacks are known now: the plan is the C sweep's
+        assert dev.plan("sweep").spans == tuple(
+            _native.hub_plan_all(reading.unsupported_mask, channels))
+        for name, values in reading.as_dict().items():
+            states = dev.states[name]
+            if name in reading.unsupported:
+                assert got[name] == [None] * channels
+                assert set(states) == {"unsupported"}
+            else:
+                assert got[name] == values, name
+                assert "unsupported" not in states
