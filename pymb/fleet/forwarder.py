@@ -42,6 +42,8 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from pymb.errors import InvalidArgument
+from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import Down
 from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_profile
@@ -232,8 +234,6 @@ def require_paho() -> None:
     try:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
-        from pymb.errors import InvalidArgument
-        from pymb.extras import install_hint
         raise InvalidArgument(f"--mqtt needs paho-mqtt: {install_hint('mqtt')}") from None
 
 
