@@ -11,7 +11,7 @@ id, length and unit id of its own MBAP header; over RTU the CRC and address;
 then function code, byte count, write echo). A failed call returns within its
 timeout; over RTU the next request to that address first waits until the
 line has been silent for the response timeout since the failure, so a late
-or stray reply is never taken as a later answer (README, "No stale data").
+or stray reply is never taken as a later answer (docs/library.md, "No stale data").
 """
 
 from __future__ import annotations

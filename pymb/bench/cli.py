@@ -2,7 +2,7 @@
 
 With no arguments it runs everything (a few minutes on 2 cores) and prints
 the side-by-side table; ``--json`` and ``--markdown`` print the same result
-for machines and for the README; ``--plot FILE.png`` draws the bars.
+for machines and for docs/benchmarks.md; ``--plot FILE.png`` draws the bars.
 Progress goes to stderr.
 """
 
@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out = parser.add_mutually_exclusive_group()
     out.add_argument("--json", action="store_true", help="print the result as JSON")
     out.add_argument("--markdown", action="store_true",
-                     help="print the result as Markdown tables (for the README)")
+                     help="print the result as Markdown (docs/benchmarks.md's tables)")
     parser.add_argument("--plot", metavar="FILE.png",
                         help="also draw the bars side by side (needs matplotlib)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")

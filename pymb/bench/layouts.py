@@ -1,4 +1,4 @@
-"""Storage layouts of a hub sweep compared: size, insert CPU, the README's queries.
+"""Storage layouts of a hub sweep compared: size, insert CPU, the documented queries.
 
 ``format2``  pymb's format: one ``samples`` row per sweep holding the 700
              registers once as a BLOB; decoded values through views.

@@ -1,7 +1,7 @@
 """The bench's result as a terminal table, Markdown, JSON or a bar chart.
 
 The tables are built once from the result (:func:`tables`) and rendered in
-either format, so the README's Markdown says what the terminal said.
+either format, so the Markdown of docs/benchmarks.md says what the terminal said.
 """
 
 from __future__ import annotations
@@ -325,7 +325,7 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
     qnames = list(s["layouts"][0]["queries"])
     tables.append(Table(
         f"Storage layouts of a hub sweep ({s['layout_sweeps']:,} sweeps each)",
-        "bytes on disk per sweep (index included), insert CPU per sweep, and the README's "
+        "bytes on disk per sweep (index included), insert CPU per sweep, and the documented "
         "queries (median of 5; every plan uses the time index)",
         ["layout", "bytes / sweep", "insert CPU", *qnames],
         [[r["layout"], f"{r['bytes_per_sweep']:,.0f} B", fmt_time(r["insert_cpu_us"]),
@@ -376,7 +376,7 @@ def _md(cell: str) -> str:
 
 
 def to_markdown(result: dict[str, Any]) -> str:
-    """The report as Markdown (for the README)."""
+    """The report as Markdown (docs/benchmarks.md's tables)."""
     lines = [f"- **{k}**: {f'`{v}`' if k == 'command' else _md(v)}"
              for k, v in _header(result)]
     if result["meta"].get("quick"):

@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("devices", nargs="*", metavar="DEVICE",
                    help=f"{DEVICE_HELP}; several on one bus (--port or --tcp)")
     p.add_argument("--config", metavar="FILE.toml",
-                   help="buses, devices and output from a TOML file (see the README)")
+                   help="buses, devices and output from a TOML file (see docs/cli.md)")
     p.add_argument("--port", metavar="PATH", help="serial port of a single bus")
     p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
     p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",

@@ -1,7 +1,7 @@
 """The two devices' register maps, as data.
 
 This is the only place a register number appears. The facades, the
-simulators, the CLI's output and the README's register tables are derived
+simulators, the CLI's output and the register tables of docs/registers.md are derived
 from these rows (or tested against them), after SunSpec's models: each point
 is a row with its name, function code, address, type, scale, unit, markers,
 access and the document's description.
@@ -317,7 +317,7 @@ HUB_FIRMWARE_PROFILES: dict[str, tuple[int, tuple[str, ...]]] = {
 
 
 def markdown_tables() -> str:
-    """The README's register tables, rendered from the maps above."""
+    """The register tables of docs/registers.md, rendered from the maps above."""
     lines = [
         "#### CoolPro (default address 40, 9600 8N1)",
         "",

@@ -7,36 +7,12 @@ A bus is polled as fast as its wire allows (``interval = 0``) or every
 and counted, not crammed in). A bus whose port fails is closed and reopened
 with a doubling backoff (0.5 s to 30 s) while the other buses keep logging.
 
-Configuration, as flags (one bus) or a TOML file (any number)::
-
-    [output]
-    format = "sqlite"          # sqlite | csv | jsonl | influx
-    path = "pymb.sqlite"       # "-" for stdout (csv, jsonl)
-    max_mb = 500               # optional: delete the oldest data past this size
-    max_age_days = 30          # optional: ... or past this age
-    on_change = false          # optional: store by exception (SQLite)
-    heartbeat_s = 60           # ... every channel at least this often
-    deadband = { temperature_c = 0.2, humidity_pct = 1 }   # ... engineering units
-
-    [[bus]]
-    name = "line1"
-    port = "/dev/ttyUSB0"      # or tcp = "192.168.1.50:502", or
-                               # rtu_over_tcp = "192.168.1.60:4001" (a raw serial server)
-    baud = 9600
-    parity = "N"
-    timeout = 1.0
-    interval = 0               # seconds between polls; 0 = as fast as the wire allows
-
-    [[bus.device]]
-    type = "coolpro"           # coolpro | hub
-    address = 40
-    name = "psu-a"             # optional
-
-    [[bus.device]]
-    type = "hub"
-    address = 250
-    channels = 100
-    humidity_unit = 0.1        # or a list, one per channel
+Configuration, as flags (one bus) or a TOML file (any number): tables
+``[output]`` (format, path, max_mb, max_age_days, on_change, heartbeat_s,
+deadband), ``[[bus]]`` (name, port / tcp / rtu_over_tcp, baud, parity,
+timeout, interval) and ``[[bus.device]]`` (type, address, name, channels,
+humidity_unit); ``[mqtt]`` is the forwarder's. The example and the table of
+keys are in the documentation (``docs/cli.md``, ``docs/examples/buses.toml``).
 
 The package: :mod:`~pymb.logger.config` (buses, devices, output; the TOML
 file), :mod:`~pymb.logger.poller` (a bus's thread), :mod:`~pymb.logger.logger`

@@ -24,7 +24,7 @@ class OnChange:
     sensor, unsupported), and at least every ``heartbeat`` seconds. A
     CoolPro sample is stored on the same rules over its quantities (its
     uptime only when it restarts). The value at time t is then the last
-    stored row at or before t (see the README).
+    stored row at or before t (docs/storage.md).
     """
 
     heartbeat: float = 60.0

@@ -184,7 +184,7 @@ def test_c_program_runs_clean_under_the_sanitizers(capsys: pytest.CaptureFixture
 
 @needs_c
 def test_sweep_compare_times_both_reads_in_c(tmp_path: Path) -> None:
-    # csrc/examples/sweep_compare: the README's measurement of pymb's C path
+    # csrc/examples/sweep_compare: docs/benchmarks.md's measurement of pymb's C path
     # against plain libmodbus, in C, for the hub sweep and the CoolPro read.
     made = subprocess.run(["make", "-s", "-C", str(ROOT / "csrc"), "build/sweep_compare"],
                           capture_output=True, text=True, timeout=300, check=False)

@@ -183,8 +183,8 @@ def test_plain_payload(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
     assert first["values"]["output_voltage_v"] == row[2]
     assert first["values"]["status"] == row[3]
     assert isinstance(first["status_flags"], list)
-    # the README's example has the same keys in the same order
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    # docs/fleet.md's example has the same keys in the same order
+    readme = (Path(__file__).resolve().parents[2] / "docs" / "fleet.md").read_text()
     example = next(line for line in readme.splitlines()
                    if line.startswith("    pymb/gw1/coolpro-40 {"))
     top = __import__("re").sub(r'"values":\{[^}]*\}', '"values":0', example)
@@ -986,11 +986,11 @@ def test_readme_mqtt_toml_example() -> None:
     import re
 
     from pymb.fleet.config import from_table
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[2] / "docs" / "fleet.md").read_text()
     block = re.search(r"```toml\n(\[mqtt\]\n.*?)```", readme, re.S)
     assert block
     import tomllib
-    cfg = from_table(tomllib.loads(block[1])["mqtt"], "README")
+    cfg = from_table(tomllib.loads(block[1])["mqtt"], "docs/fleet.md")
     assert (cfg.tls, cfg.port, cfg.profile, cfg.node) == (True, 8883, "sparkplug", "gateway-7")
 
 

@@ -136,7 +136,9 @@ def test_coolpro_view_and_reader(tmp_path: Path) -> None:
 
 
 def _readme_queries() -> list[str]:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    """The queries the README and docs/storage.md show."""
+    text = "\n".join((ROOT / page).read_text(encoding="utf-8")
+                     for page in ("README.md", "docs/storage.md"))
     return [q.replace("\n", " ") for q in
             re.findall(r'sqlite3 data\.sqlite "([^"]+)"', text, flags=re.S)]
 
