@@ -29,8 +29,6 @@ def test_the_readme_is_a_front_door() -> None:
     assert len(README.splitlines()) <= 300
     for link in re.findall(r"\]\(((?:docs/|CHANGELOG)[^)#]*)", README):
         assert (ROOT / link).exists(), link
-    for page in (ROOT / "docs").glob("*.md"):  # every guide is reachable from here
-        assert f"docs/{page.name}" in README, page.name
 
 
 def test_the_python_example_runs() -> None:
