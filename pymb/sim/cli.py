@@ -38,9 +38,9 @@ devices: KIND[:ADDRESS][,key=value...]
                         LOW-HIGH), humidity or humidity_unit (0.1 or 1: unit on every
                         channel), baud, dynamic (0/1)
   a map's id            a shipped map (eastron-sdm120, ...) or one given with --map FILE;
-                        keys: the map's options, baud, dynamic (0/1). Values from each
-                        point's example, or a seeded model; registers the map does not
-                        declare answer exception 02
+                        keys: the map's options, baud, dynamic (0/1), delay (s before
+                        each reply). Values from each point's example, or a seeded
+                        model; registers the map does not declare answer exception 02
 faults: KIND[:PROBABILITY][,key=value...]  (probability 1 when omitted)
   kinds: {', '.join(KINDS)}
   keys: delay, code, keep, extra (hex), to, seconds, bits, channels (3+4), address

@@ -42,12 +42,16 @@ class MapSimDevice(Device):
     ``example`` or the model seeded by ``seed``."""
 
     def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
-                 seed: int = 0, clock: SimClock | None = None, dynamic: bool = True) -> None:
+                 seed: int = 0, clock: SimClock | None = None, dynamic: bool = True,
+                 delay: float = 0.0) -> None:
         super().__init__(m.device.default_address if address is None else address,
                          baud=baud, seed=seed, clock=clock)
         self.map = m
         self.kind = m.id  # type: ignore[misc]
         self.dynamic = dynamic
+        if not 0.0 <= delay <= 60.0:
+            raise InvalidArgument(f"{m.id}: delay must be 0..60 s, got {delay!r}")
+        self.delay = delay  #: seconds from a request's end to the reply
         self._images: dict[str, array[int]] = {}
         self._have: dict[str, bytearray] = {}
         for t in _TABLE.values():
@@ -159,6 +163,10 @@ class MapSimDevice(Device):
 
     # -- requests ---------------------------------------------------------------------
 
+    def turnaround(self) -> float:
+        """Seconds from the end of a request to the start of the reply (``delay``)."""
+        return self.delay
+
     def _span(self, table: str, address: int, count: int) -> bool:
         if address + count > 0x10000:
             return False
@@ -264,13 +272,14 @@ def map_sim_device(spec: str, known: dict[str, Map], *, seed: int = 0,
                    clock: SimClock | None = None, baud: int | None = None) -> MapSimDevice | None:
     """A simulated map device from ``TYPE[:ADDRESS][,key=value...]`` when
     TYPE is a map's id in ``known`` (None otherwise): the map's options, and
-    ``baud`` and ``dynamic`` (0/1) as for the other simulated devices."""
+    ``baud``, ``dynamic`` (0/1) and ``delay`` (seconds before each reply)
+    as for the other simulated devices."""
     head, *opts = spec.strip().split(",")
     sim_keys: dict[str, str] = {}
     rest = []
     for opt in opts:
         key, _, value = opt.partition("=")
-        if key.strip() in ("baud", "dynamic"):
+        if key.strip() in ("baud", "dynamic", "delay"):
             sim_keys[key.strip()] = value.strip()
         else:
             rest.append(opt)
@@ -280,7 +289,9 @@ def map_sim_device(spec: str, known: dict[str, Map], *, seed: int = 0,
     try:
         speed = int(sim_keys.get("baud", baud or 9600))
         dynamic = {"1": True, "0": False}[sim_keys.get("dynamic", "1")]
+        delay = float(sim_keys.get("delay", "0"))
     except (ValueError, KeyError):
-        raise InvalidArgument(f"{spec!r}: baud is a number of bit/s, dynamic 0 or 1") from None
+        raise InvalidArgument(f"{spec!r}: baud is a number of bit/s, dynamic 0 or 1, delay "
+                              "seconds") from None
     return MapSimDevice(target.map, target.address, baud=speed, seed=seed, clock=clock,
-                        dynamic=dynamic)
+                        dynamic=dynamic, delay=delay)

@@ -7,7 +7,10 @@ from __future__ import annotations
 import random
 import struct
 
+import pytest
+
 from pymb import maps
+from pymb.errors import InvalidArgument
 from pymb.sim import SimClock
 from pymb.sim.mapsim import MapSimDevice
 
@@ -127,3 +130,17 @@ def test_the_sensor_fault_shows_a_marker_then_goes() -> None:
     assert state in ("offline", "nan")
     clock.advance(5.0)
     assert dev.map.decode_state(name, regs(dev, p.address, p.count))[1] == "value"
+
+
+def test_the_device_syntax_of_a_simulated_map_device() -> None:
+    from pymb.sim.mapsim import map_sim_device
+
+    known = {"sim-test": maps.loads(MAP)}
+    dev = map_sim_device("sim-test:9,delay=0.25,dynamic=0,baud=19200", known)
+    assert dev is not None
+    assert (dev.address, dev.turnaround(), dev.dynamic, dev.baud) == (9, 0.25, False, 19200)
+    assert map_sim_device("coolpro", known) is None
+    with pytest.raises(InvalidArgument, match="delay seconds"):
+        map_sim_device("sim-test,delay=soon", known)
+    with pytest.raises(InvalidArgument, match="unknown key 'delya'"):
+        map_sim_device("sim-test,delya=1", known)
