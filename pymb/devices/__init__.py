@@ -1,6 +1,7 @@
 """Device facades, generated from one declarative register map each.
 
     from pymb.devices import CoolPro, SensorHub, CoolProStatus, decode_hub
+    from pymb.devices import MapDevice      # any device from its pymb.map/1 map
 
 See :mod:`pymb.devices.maps` for the maps (the only place register numbers
 appear), :mod:`pymb.maps.planner` for the read planner.
