@@ -1,10 +1,12 @@
-"""The two devices' register maps, as data.
+"""The two devices' register maps, as the facades and simulators see them.
 
-This is the only place a register number appears. The facades, the
-simulators, the CLI's output and the register tables of docs/registers.md are derived
-from these rows (or tested against them), after SunSpec's models: each point
-is a row with its name, function code, address, type, scale, unit, markers,
-access and the document's description.
+The rows come from the shipped map files (``pymb/maps/builtin/coolpro.toml``
+and ``hub.toml``, read through :func:`pymb.maps.builtin`), the one place a
+register number appears; this module only turns their points into the
+facades' ``Register`` and ``Block`` rows and keeps the device facts the map
+format has no field for (baud rate, function codes, exception texts). The
+facades, the simulators, the CLI's output and the register tables of
+docs/registers.md are derived from these rows.
 
 Sources:
   [CP]    CoolPro Modbus RTU Communications Protocol, CP-MODBUS-RTU rev 1
@@ -17,6 +19,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
+
+from pymb import maps
 
 __all__ = [
     "COOLPRO",
@@ -115,33 +119,60 @@ class DeviceMap:
 # ---------------------------------------------------------------------------
 # CoolPro
 
-#: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple.
-COOLPRO_BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
-#: [CP] "Reset Command": write this to holding register 2.
-#: [CP] "Frame timing": the fixed ~8 ms inter-frame gap; the CoolPro answers no sooner
-#: than this after a request ends ([NOTES] "timing").
-COOLPRO_GAP_S = 0.008
-COOLPRO_RESET_VALUE = 0xAA55
+_CP_MAP = maps.builtin("coolpro")
+_FUNCTION = {"holding": 0x03, "input": 0x04}
 
-#: [CP] "Status Flags bit field": bit -> (name, description). Bits 7..15 are
-#: reserved and reported as raw bits.
+#: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple
+#: (the map's names of the index values).
+COOLPRO_BAUD_RATES = tuple(int(v) for _, v in sorted(_CP_MAP.points["baud_rate_index"]
+                                                       .values.items()))
+#: [CP] "Frame timing": the fixed ~8 ms inter-frame gap; the CoolPro answers no sooner
+#: than this after a request ends ([NOTES] "timing"): the map's turnaround.
+COOLPRO_GAP_S = _CP_MAP.timing.turnaround
+#: [CP] "Reset Command": write this to holding register 2 (the only value its
+#: ``valid`` range allows).
+COOLPRO_RESET_VALUE = int((_CP_MAP.points["reset"].valid or (0, 0))[0])
+
+#: [CP] "Status Flags bit field": what each flag of the map's ``status`` means.
+_STATUS_MEANING = {
+    "SYSTEM_STARTUP": "Device is initialising (cleared once startup completes)",
+    "DAILY_RESET": "Daily reset has occurred (uptime counter reset)",
+    "INPUT_MEASUREMENT_FAULT": "Fault communicating with the input measurement sensor",
+    "OUTPUT_MEASUREMENT_FAULT": "Fault communicating with the output measurement sensor",
+    "CALIBRATION_INVALID": "Stored calibration data failed validation",
+    "CALIBRATION_MISSING": "No calibration data stored",
+    "TEMPERATURE_SENSOR_FAULT": "Fault communicating with the temperature sensor",
+}
+#: bit -> (name, description), the names from the map's ``flags``. Bits 7..15
+#: are reserved and reported as raw bits.
 COOLPRO_STATUS_BITS: dict[int, tuple[str, str]] = {
-    0: ("SYSTEM_STARTUP", "Device is initialising (cleared once startup completes)"),
-    1: ("DAILY_RESET", "Daily reset has occurred (uptime counter reset)"),
-    2: ("INPUT_MEASUREMENT_FAULT", "Fault communicating with the input measurement sensor"),
-    3: ("OUTPUT_MEASUREMENT_FAULT", "Fault communicating with the output measurement sensor"),
-    4: ("CALIBRATION_INVALID", "Stored calibration data failed validation"),
-    5: ("CALIBRATION_MISSING", "No calibration data stored"),
-    6: ("TEMPERATURE_SENSOR_FAULT", "Fault communicating with the temperature sensor"),
+    bit: (name, _STATUS_MEANING.get(name, ""))
+    for bit, name in sorted(_CP_MAP.points["status"].flags.items())
 }
 
-_H, _I = 0x03, 0x04
-_CP = "[CP] ch. 03"
+
+def _register(p: maps.Point) -> Register:
+    if p.type == "u32" and p.order == "CDAB":
+        kind = Type.U32_LE_WORDS
+    elif p.flags:
+        kind = Type.BITS
+    else:
+        kind = Type(p.type)
+    valid = None if p.valid is None else (int(p.valid[0]), int(p.valid[1]))
+    return Register(p.name, _FUNCTION[p.table], p.address, kind, _scale(p), p.unit,
+                    Access(p.access), p.description, valid, p.ref, p.group or "")
+
+
+def _scale(p: maps.Point) -> float:
+    """The point's scale, 1 for none (an int where it is whole, as the rows had it)."""
+    s = 1.0 if p.scale is None else p.scale
+    return int(s) if s.is_integer() else s
+
 
 COOLPRO = DeviceMap(
-    name="coolpro",
-    default_address=40,
-    default_baud=9600,
+    name=_CP_MAP.id,
+    default_address=_CP_MAP.device.default_address,
+    default_baud=9600,  # [CP] ch. 02: 9600 8N1 out of the box
     function_codes=(0x03, 0x04, 0x06),
     exception_codes={
         0x01: "Illegal Function: function code not supported",
@@ -149,53 +180,9 @@ COOLPRO = DeviceMap(
         0x03: "Illegal Data Value: value out of range",
         0x04: "Slave Device Failure: device cannot process the request",
     },
-    registers=(
-        # Holding registers (FC 0x03 read, 0x06 write): configuration.
-        Register("address", _H, 0, Type.U16, access=Access.RW, valid=(1, 247),
-                 description="Device Address; takes effect after reset",
-                 ref=f"{_CP}, 40001", group="config"),
-        Register("baud_rate_index", _H, 1, Type.U16, access=Access.RW, valid=(0, 4),
-                 description="Baud Rate Index: 0 = 9600, 1 = 19200, 2 = 38400, 3 = 57600, "
-                 "4 = 115200; takes effect after reset",
-                 ref=f"{_CP}, 40002", group="config"),
-        Register("reset", _H, 2, Type.U16, access=Access.RW,
-                 valid=(COOLPRO_RESET_VALUE, COOLPRO_RESET_VALUE),
-                 description="Reset Command: write 0xAA55 to trigger a reset; always reads 0",
-                 ref=f"{_CP}, 40003", group="config"),
-        # Input registers 0..7 (FC 0x04): live telemetry, milliunits.
-        Register("input_voltage_v", _I, 0, Type.U16, 0.001, "V",
-                 description="Input Voltage (mV)", ref=f"{_CP}, 30001", group="telemetry"),
-        Register("input_current_a", _I, 1, Type.U16, 0.001, "A",
-                 description="Input Current (mA)", ref=f"{_CP}, 30002", group="telemetry"),
-        Register("output_voltage_v", _I, 2, Type.U16, 0.001, "V",
-                 description="Output Voltage (mV)", ref=f"{_CP}, 30003", group="telemetry"),
-        Register("output_current_a", _I, 3, Type.U16, 0.001, "A",
-                 description="Output Current (mA)", ref=f"{_CP}, 30004", group="telemetry"),
-        Register("temperature_c", _I, 4, Type.U16, 0.001, "°C",
-                 description="Temperature (m°C); cannot be negative, tops out at 65.535 °C",
-                 ref=f"{_CP}, 30005", group="telemetry"),
-        Register("uptime_s", _I, 5, Type.U32_LE_WORDS, 1, "s",
-                 description="Uptime, low word at 30006, high word at 30007",
-                 ref=f"{_CP}, 30006-30007", group="telemetry"),
-        Register("status", _I, 7, Type.BITS,
-                 description="Status Flags bit field; bits 7..15 reserved",
-                 ref=f"{_CP}, 30008", group="telemetry"),
-        # Input registers 100..107 (FC 0x04): device information.
-        Register("serial_number", _I, 100, Type.U32_LE_WORDS,
-                 description="Serial Number, low word at 30101, high word at 30102",
-                 ref=f"{_CP}, 30101-30102", group="identity"),
-        Register("hardware_revision", _I, 102, Type.U16,
-                 description="Hardware Revision", ref=f"{_CP}, 30103", group="identity"),
-        Register("firmware_major", _I, 103, Type.U16,
-                 description="Firmware Major Version", ref=f"{_CP}, 30104", group="identity"),
-        Register("firmware_minor", _I, 104, Type.U16,
-                 description="Firmware Minor Version", ref=f"{_CP}, 30105", group="identity"),
-        Register("firmware_patch", _I, 105, Type.U16,
-                 description="Firmware Patch Version", ref=f"{_CP}, 30106", group="identity"),
-        Register("manufactured", _I, 106, Type.U32_LE_WORDS, 1, "s",
-                 description="Manufacture Date, Unix time, low word at 30107, high at 30108",
-                 ref=f"{_CP}, 30107-30108", group="identity"),
-    ),
+    registers=tuple(_register(p) for p in _CP_MAP.points.values()),
+    addresses=_CP_MAP.device.addresses,
+    max_read=_CP_MAP.limits.max_registers,
 )
 
 
@@ -261,14 +248,46 @@ class HubMap:
         raise KeyError(name)
 
 
-_TEMP_DOC = ("bit 15 sign (1 = negative), bits 14..0 magnitude in 0.1 °C; "
-             "0xFFFF offline / no temperature")
+_HUB_MAP = maps.builtin("hub")
+_HUB_TYPES = {"sm16": Type.SIGN_MAGNITUDE, "u16": Type.U16, "i16": Type.I16}
+
+
+def _firmware(text: str) -> tuple[int, int]:
+    major, _, minor = text.partition(".")
+    return (int(major), int(minor)) if text else (0, 0)
+
+
+def _blocks() -> tuple[Block, ...]:
+    """One Block per block of the map; a block with a variant per option value
+    (the humidity's markers per unit) lists every variant's markers, in the
+    order of the option's values."""
+    spec = _HUB_MAP.device
+    out: list[Block] = []
+    for p in _HUB_MAP.points.values():
+        markers = [(raw, state.replace("_", " ")) for raw, state in p.markers.items()]
+        scales: tuple[float, ...] = ()
+        for option in p.when:
+            values = spec.option_values.get(option, ())
+            scales = tuple(values)
+            markers = [(raw, name) for raw, name in markers if all(
+                raw in _HUB_MAP.configure({option: v}).points[p.name].markers for v in values)]
+            for v in values:
+                variant = _HUB_MAP.configure({option: v}).points[p.name]
+                markers += [(raw, f"{state.replace('_', ' ')} ({v:g} {p.unit} unit)")
+                            for raw, state in variant.markers.items()
+                            if raw not in dict(markers)]
+        out.append(Block(len(out), p.name, p.address, _HUB_TYPES[p.type], _scale(p),
+                         p.unit, p.description,
+                         _firmware(p.min_firmware), tuple(markers), p.ref,
+                         per_channel_scales=scales))
+    return tuple(out)
+
 
 HUB = HubMap(
-    name="hub",
-    default_address=1,
-    default_baud=9600,
-    channels=100,
+    name=_HUB_MAP.id,
+    default_address=_HUB_MAP.device.default_address,
+    default_baud=9600,  # [HUB] 2.1
+    channels=int(_HUB_MAP.options["channels"]),
     function_codes=(0x03,),
     exception_codes={
         0x01: "Invalid protocol type",
@@ -277,31 +296,10 @@ HUB = HubMap(
         0x04: "Device is busy",
     },
     max_frame=255,
-    max_read=125,
-    response_time=0.5,
-    blocks=(
-        Block(0, "temperature_c", 31, Type.SIGN_MAGNITUDE, 0.1, "°C",
-              f"Channel temperature: {_TEMP_DOC}"),
-        Block(1, "humidity_pct", 131, Type.U16, 0.1, "%",
-              "Channel humidity, 1 % or 0.1 % by sensor type (configuration, per channel); "
-              "0xFFFF offline; 0x00FF no humidity (1 % unit); 0x8000 no humidity (0.1 % unit)",
-              markers=((0xFFFF, "offline"), (0x00FF, "no sensor (1 % unit)"),
-                       (0x8000, "no sensor (0.1 % unit)")),
-              per_channel_scales=(1, 0.1)),
-        Block(2, "pressure_temperature_c", 231, Type.SIGN_MAGNITUDE, 0.1, "°C",
-              f"Pressure sensor temperature: {_TEMP_DOC}"),
-        Block(3, "pressure_kpa", 331, Type.U16, 1, "kPa",
-              "Pressure sensor pressure, kPa unsigned; 0xFFFF offline / no pressure"),
-        Block(4, "voltage_mv", 431, Type.U16, 1, "mV",
-              "Channel voltage, mV unsigned; 0xFFFF offline (firmware V2.19 and above)",
-              min_firmware=(2, 19)),
-        Block(5, "rssi_dbm", 531, Type.I16, 1, "dBm",
-              "Channel RSSI, dBm signed 16-bit; 0xFFFF offline (firmware V2.19 and above)",
-              min_firmware=(2, 19)),
-        Block(6, "temperature2_c", 631, Type.SIGN_MAGNITUDE, 0.1, "°C",
-              f"Second temperature: {_TEMP_DOC} (firmware V2.23 and above)",
-              min_firmware=(2, 23)),
-    ),
+    max_read=_HUB_MAP.limits.max_registers,
+    response_time=0.5,  # [HUB] 2.1: the hub answers within 500 ms
+    blocks=_blocks(),
+    addresses=_HUB_MAP.device.addresses,
 )
 
 #: Firmware profiles of [HUB] / [NOTES]: (version, channels, blocks present).

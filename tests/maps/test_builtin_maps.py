@@ -93,3 +93,20 @@ def test_the_docs_list_every_shipped_map() -> None:
     listed = [line.split("`")[1] for line in table.splitlines() if line.startswith("| `")]
     assert listed == ["coolpro", "hub", "eastron-sdm120", "eastron-sdm630", "generic-vfd"]
     assert sorted(listed) == maps.builtin_ids()
+
+
+def test_the_facades_rows_are_the_shipped_maps_points() -> None:
+    from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES, COOLPRO_GAP_S, HUB
+
+    cp, hub = maps.builtin("coolpro"), maps.builtin("hub")
+    assert [(r.name, r.address, r.count) for r in COOLPRO.registers] == [
+        (p.name, p.address, p.count) for p in cp.points.values()]
+    assert [(b.name, b.first, b.unit) for b in HUB.blocks] == [
+        (p.name, p.address, p.unit) for p in hub.points.values()]
+    assert HUB.channels == hub.options["channels"] == 100
+    assert COOLPRO_BAUD_RATES == (9600, 19200, 38400, 57600, 115200)
+    assert COOLPRO_GAP_S == cp.timing.turnaround == 0.008
+    humidity = HUB.block("humidity_pct")
+    assert humidity.markers == ((0xFFFF, "offline"), (0x00FF, "no sensor (1 % unit)"),
+                                (0x8000, "no sensor (0.1 % unit)"))
+    assert humidity.per_channel_scales == (1, 0.1)
