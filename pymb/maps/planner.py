@@ -154,7 +154,7 @@ class ReadPlan:
     predicted_s: float
     naive_s: float
     line: Line
-    wanted: int  #: points (registers, for :func:`plan_reads`) asked for
+    wanted: int  #: points asked for (a block's channels one each)
 
     @property
     def spans(self) -> tuple[tuple[int, int], ...]:
@@ -189,7 +189,7 @@ class ReadPlan:
         lines = [
             f"read plan at {line.baudrate} bit/s, turnaround {line.turnaround * 1e3:g} ms{gap}: "
             f"{len(self.requests)} request(s), {self.registers} registers on the wire for "
-            f"{self.wanted} wanted"
+            f"{self.wanted} point(s)"
         ]
         for i, r in enumerate(self.requests, 1):
             what = "bits" if r.table in BIT_TABLES else "registers"
