@@ -14,15 +14,12 @@ subscriber, and it says how many did not.
 from __future__ import annotations
 
 import json
-import os
 import shlex
 import socket
-import sqlite3
 import tempfile
 import threading
 import uuid
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, TextIO
 
 from pymb.commands.forward import forwarding, summary_lines
@@ -30,8 +27,9 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import require_paho
-from pymb.fleet.source import Source
 from pymb.logger import LogConfig, Summary
+from pymb.store import Outbox
+from pymb.store.outbox import last_sample_id
 
 __all__ = ["RECEIVE_WAIT", "Watch", "run_with_mqtt"]
 
@@ -116,16 +114,7 @@ def _listening(port: int) -> bool:
 def _last_id(path: str) -> int:
     """The highest sample id already in ``path`` (0: none, no such file, or not a
     pymb database: the logger then refuses it), read without writing to it."""
-    if not os.path.isfile(path):
-        return 0
-    try:
-        con = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
-        try:
-            return int(con.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
-        finally:
-            con.close()
-    except sqlite3.Error:
-        return 0
+    return last_sample_id(path)
 
 
 def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | None,
@@ -159,7 +148,7 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
         subscribed = watch.start()
         try:
             summary, st = forwarding(cfg, mcfg, seconds=seconds, status=status)
-            src = Source(cfg.path)
+            src = Outbox(cfg.path)
             try:
                 ours = src.ids_after(before)
             finally:

@@ -65,12 +65,11 @@ class ForwardingSink:
         The logger holds SQLite's write lock for most of each batch: the
         cursor goes in with the batch rather than waiting for the lock."""
         self._events()
-        db = getattr(self.sink, "db", None)
         cursor, dest = self.forwarder.cursor, self.forwarder.dest
-        if db is not None and dest is not None:  # keyed at the first connection
-            self.forwarder.source.set_cursor_on(db, dest, cursor)
+        if dest is not None:  # keyed at the first connection
+            self.sink.set_outbox_cursor(dest, cursor)
         self.sink.commit()
-        self._downs(db)
+        self._downs()
         self.forwarder.notify()
 
     def restamp(self, offset: float) -> None:
@@ -79,14 +78,12 @@ class ForwardingSink:
         if restamp is not None:
             restamp(offset)
 
-    def _downs(self, db: Any) -> None:
+    def _downs(self) -> None:
         """The devices that went down, with the highest sample id committed with them:
         the forwarder publishes their DDEATH once it has sent everything up to it."""
         downs = self.health.take()
         if downs:
-            upto = 0 if db is None else int(
-                db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
-            self.forwarder.devices_down(downs, upto)
+            self.forwarder.devices_down(downs, self.sink.max_id())
 
     def _events(self) -> None:
         for t, message in self.forwarder.take_events():
@@ -95,6 +92,6 @@ class ForwardingSink:
     def close(self) -> None:
         """Commit and close, then wake the forwarder."""
         self._events()
-        self._downs(getattr(self.sink, "db", None))  # the batch's samples are counted
+        self._downs()  # the batch's samples are counted
         self.sink.close()
         self.forwarder.notify()

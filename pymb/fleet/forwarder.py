@@ -1,7 +1,7 @@
 """The forwarder: committed samples from the SQLite file to an MQTT broker.
 
 A thread publishes the samples in id order and advances a durable cursor
-(the ``outbox`` table, see :mod:`pymb.fleet.source`) only past samples the
+(the ``outbox`` table, see :mod:`pymb.store.outbox`) only past samples the
 broker acknowledged. On a lost connection it reconnects with a doubling
 backoff (0.5 s to 30 s); each connection starts with its profile's births,
 then two lanes run side by side:
@@ -47,8 +47,7 @@ from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import Down
 from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_profile
-from pymb.fleet.source import Source
-from pymb.store import StoredSample
+from pymb.store import Outbox, StoredSample
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
 
@@ -114,7 +113,7 @@ class _CursorWriter(threading.Thread):
         self.join(60)
 
     def run(self) -> None:
-        src = Source(self.path)
+        src = Outbox(self.path)
         try:
             while True:
                 with self.cond:
@@ -258,7 +257,7 @@ class Forwarder(threading.Thread):
         self.dest: str | None = None
         #: print the new-cursor notice on stderr (False: the events are lines there already)
         self.say = True
-        self.source = Source(db_path)
+        self.source = Outbox(db_path)
         #: where a new cursor starts with start = "now": after what is committed already
         self._now_id = self.source.max_id()
         self.password = cfg.password()

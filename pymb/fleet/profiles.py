@@ -33,8 +33,7 @@ from pymb.devices.hub import HubReading
 from pymb.devices.readings import INTEGRAL_QUANTITIES, reading_dict
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
-from pymb.fleet.source import Source
-from pymb.store import StoredSample, sample_dict
+from pymb.store import Outbox, StoredSample, sample_dict
 
 __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
            "make_profile"]
@@ -77,7 +76,7 @@ class Profile:
         """The last will, registered with each CONNECT."""
         raise NotImplementedError
 
-    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
+    def births(self, source: Outbox, node: dict[str, int] | None = None) -> list[Message]:
         """What goes first on every connection (and on a rebirth); ``node``: the
         node's metrics (``NODE_METRICS``) now."""
         raise NotImplementedError
@@ -102,7 +101,7 @@ class Profile:
         """True when a command received asks for new births."""
         return False
 
-    def new_connection(self, source: Source) -> None:
+    def new_connection(self, source: Outbox) -> None:
         """Called before each CONNECT."""
 
 
@@ -117,7 +116,7 @@ class PlainProfile(Profile):
         """``offline``, retained."""
         return Message(f"{self.base}/status", b"offline", 1, True)
 
-    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
+    def births(self, source: Outbox, node: dict[str, int] | None = None) -> list[Message]:
         """``online``, retained."""
         return [Message(f"{self.base}/status", b"online", 1, True)]
 
@@ -166,7 +165,7 @@ class SparkplugProfile(Profile):
         self.seq = (s + 1) % 256
         return s
 
-    def new_connection(self, source: Source) -> None:
+    def new_connection(self, source: Outbox) -> None:
         """A new bdSeq (0..255, counting across restarts), remembered durably
         before the CONNECT that registers it in the will."""
         last = source.state(self.state_key)
@@ -182,7 +181,7 @@ class SparkplugProfile(Profile):
         payload = encode_payload([self._bd_metric()], timestamp=_ms(time.time()))
         return Message(self.node_topic.format("NDEATH"), payload, 1, False)
 
-    def births(self, source: Source, node: dict[str, int] | None = None) -> list[Message]:
+    def births(self, source: Outbox, node: dict[str, int] | None = None) -> list[Message]:
         """NBIRTH (seq 0, with the node's metrics) and a DBIRTH for each device that
         has samples, with its newest values; then a DDEATH for each device that is
         down (its metrics declared, for the backlog's historical DDATA)."""

@@ -31,7 +31,8 @@ views), :mod:`~pymb.store.onchange` (report by exception),
 :mod:`~pymb.store.writer` (the SQLite writer), :mod:`~pymb.store.retention`
 (size and age limits), :mod:`~pymb.store.files` (atomic creation), :mod:`~pymb.store.guard`
 (never writing into a file of another kind),
-:mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.text` and
+:mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.outbox` (a
+forwarder's reads and cursors), :mod:`~pymb.store.text` and
 :mod:`~pymb.store.influx` (text formats), :mod:`~pymb.store.sinks`
 (``open_sink``), :mod:`~pymb.store.export` (a database as CSV).
 """
@@ -42,6 +43,7 @@ from pymb.errors import OutputError
 from pymb.store.export import export_csv
 from pymb.store.guard import check_output, is_pymb_database
 from pymb.store.onchange import OnChange
+from pymb.store.outbox import Outbox
 from pymb.store.reader import samples_after
 from pymb.store.records import FAULT_KINDS, DeviceInfo, Event, Sample, Sink, StoredSample
 from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
@@ -70,6 +72,7 @@ __all__ = [
     "Event",
     "JsonlSink",
     "OnChange",
+    "Outbox",
     "OutputError",
     "Sample",
     "Sink",

@@ -21,6 +21,7 @@ from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
 from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
+from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Retention
@@ -400,6 +401,16 @@ class SqliteSink(Retention):
         if self._lock is not None:
             self._lock.release()
             self._lock = None
+
+    def max_id(self) -> int:
+        """The highest sample id written (0: none), this batch's included."""
+        return max_id(self.db)
+
+    def set_outbox_cursor(self, name: str, sample_id: int) -> None:
+        """Advance a forwarder's outbox cursor with the open batch (the writer
+        holds SQLite's write lock for most of a batch: the cursor goes in with
+        it rather than waiting for the lock)."""
+        set_cursor_on(self.db, name, sample_id)
 
     def close(self) -> None:
         """Commit what is pending, close the database and let the next writer in."""

@@ -381,8 +381,7 @@ address = 40
 def test_trim_records_unsent_samples(tmp_path: Path) -> None:
     """The size/age limits never delete samples not yet forwarded silently."""
     from pymb.devices import decode_hub
-    from pymb.fleet.source import Source
-    from pymb.store import DeviceInfo, Sample, SqliteSink
+    from pymb.store import DeviceInfo, Outbox, Sample, SqliteSink
 
     regs = __import__("array").array("H", [0] * 700)
     dev = DeviceInfo("b", "p", "hub", 1, "hub-1")
@@ -392,7 +391,7 @@ def test_trim_records_unsent_samples(tmp_path: Path) -> None:
     for i in range(30):
         sink.write(Sample(dev, now - 300 + i, float(i), decode_hub(regs)))
     sink.commit()
-    src = Source(str(db))
+    src = Outbox(str(db))
     src.set_cursor("dest", 10)  # 10 sent; 20 old ones not yet
     for i in range(5):
         sink.write(Sample(dev, now - 5 + i, float(i), decode_hub(regs)))

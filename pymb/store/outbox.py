@@ -1,8 +1,10 @@
-"""What the forwarder reads from and writes to in the logger's SQLite file.
+"""The store's side of store-and-forward: what a forwarder reads from and
+writes to in the logger's SQLite file, so that no SQL is written outside the
+store.
 
 The samples come from :func:`pymb.store.samples_after` (the one reader of
 the storage format) as :class:`pymb.store.StoredSample`, behind
-:meth:`Source.samples_after` and :meth:`Source.latest`. The durable outbox
+:meth:`Outbox.samples_after` and :meth:`Outbox.latest`. The durable outbox
 cursor and the Sparkplug ``bdSeq`` are two small tables of the same file:
 
 ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
@@ -18,15 +20,17 @@ cursor and the Sparkplug ``bdSeq`` are two small tables of the same file:
 
 from __future__ import annotations
 
+import os
 import sqlite3
+from pathlib import Path
 
-from pymb.store import StoredSample
-from pymb.store import samples_after as stored_after
+from pymb.store.reader import samples_after as stored_after
+from pymb.store.records import StoredSample
 
-__all__ = ["Source"]
+__all__ = ["Outbox", "last_sample_id", "max_id", "set_cursor_on"]
 
 
-class Source:
+class Outbox:
     """A read connection to a pymb SQLite file, plus the outbox tables."""
 
     def __init__(self, path: str) -> None:
@@ -62,14 +66,7 @@ class Source:
 
     def set_cursor(self, name: str, sample_id: int) -> None:
         """Advance the cursor (durably: one small transaction)."""
-        self.set_cursor_on(self.db, name, sample_id)
-
-    @staticmethod
-    def set_cursor_on(db: sqlite3.Connection, name: str, sample_id: int) -> None:
-        """Advance the cursor through another connection to the same file (the
-        logger's, inside its batch); it never moves back."""
-        db.execute("INSERT INTO outbox VALUES (?, ?) ON CONFLICT(name) DO UPDATE SET "
-                   "sample_id = MAX(sample_id, excluded.sample_id)", (name, sample_id))
+        set_cursor_on(self.db, name, sample_id)
 
     def state(self, key: str) -> int | None:
         """A remembered integer (the Sparkplug bdSeq)."""
@@ -84,7 +81,7 @@ class Source:
 
     def max_id(self) -> int:
         """The highest committed sample id (0: none)."""
-        return int(self.db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+        return max_id(self.db)
 
     def ids_after(self, sample_id: int) -> set[int]:
         """The ids of the committed samples above ``sample_id``."""
@@ -122,3 +119,31 @@ class Source:
             return stored_after(self.db, sample_id, limit, before)
         finally:
             self.db.execute("COMMIT")
+
+
+def set_cursor_on(db: sqlite3.Connection, name: str, sample_id: int) -> None:
+    """Advance a destination's cursor through any connection to the file (the
+    writer's, inside its batch: :meth:`pymb.store.SqliteSink.set_outbox_cursor`);
+    it never moves back."""
+    db.execute("INSERT INTO outbox VALUES (?, ?) ON CONFLICT(name) DO UPDATE SET "
+               "sample_id = MAX(sample_id, excluded.sample_id)", (name, sample_id))
+
+
+def max_id(db: sqlite3.Connection) -> int:
+    """The highest committed sample id (0: none)."""
+    return int(db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+
+
+def last_sample_id(path: str) -> int:
+    """The highest sample id already in the file at ``path`` (0: none, no such
+    file, or not a pymb database), read without writing to it."""
+    if not os.path.isfile(path):
+        return 0
+    try:
+        con = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+        try:
+            return max_id(con)
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return 0
