@@ -251,6 +251,7 @@ typedef struct {
     ...;
 } pymb_failure;
 
+int pymb_exception_errno(int code);
 int pymb_errno_exception(int errnum);
 pymb_line *pymb_line_new(modbus_t *ctx, pymb_framing framing, uint32_t silence_us);
 void pymb_line_free(pymb_line *line);

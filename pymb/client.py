@@ -553,11 +553,12 @@ class Client:
             raise TypeError(
                 f"data must be bytes or a sequence of integers 0..255, got "
                 f"{type(data).__name__}") from None
-        if len(payload) > 252:
-            raise InvalidArgument(f"data is {len(payload)} bytes; a PDU holds at most 252")
+        if len(payload) > _native.MAX_PDU_DATA:
+            raise InvalidArgument(f"data is {len(payload)} bytes; a PDU holds at most "
+                                  f"{_native.MAX_PDU_DATA}")
         expect = 0
         if response_length is not None:
-            expect = _int("response_length", response_length, 0, 252) + 1
+            expect = _int("response_length", response_length, 0, _native.MAX_PDU_DATA) + 1
         return self._transact(s, function, payload, None, None, expect)[1:]
 
     def _transact(self, slave: int, function: int, data: bytes, address: int | None,

@@ -13,15 +13,18 @@ address, count, port) and what came back.
 The codes come from the compiler: libmodbus's ``MODBUS_EXCEPTION_*`` enum,
 read from the compiled extension (this module sits below ``pymb._native``,
 which imports it, so it reads ``pymb._pymb_cffi.lib`` itself), never typed
-here.
+here; their names are the C library's (``pymb_strerror``), their one home.
+The messages of a failed request are written here too
+(:func:`request_error`), from what ``pymb._native`` hands up.
 """
 
 from __future__ import annotations
 
 import errno as _errno
 import os
-from typing import ClassVar
+from typing import Any, ClassVar
 
+from pymb._pymb_cffi import ffi as _ffi
 from pymb._pymb_cffi import lib as _lib
 
 __all__ = [
@@ -42,8 +45,19 @@ __all__ = [
     "NegativeAcknowledge",
     "OutputError",
     "ProtocolError",
+    "describe_exception",
     "exception_class",
+    "function_name",
+    "os_hint",
+    "request_error",
 ]
+
+
+def describe_exception(code: int) -> str:
+    """The name of Modbus exception ``code`` ([MB-AP] 7), as the C library's
+    pymb_strerror gives it, in lower case: "illegal data address"."""
+    text: str = _ffi.string(_lib.pymb_strerror(_lib.pymb_exception_errno(code))).decode()
+    return text[:1].lower() + text[1:]
 
 
 class ModbusError(Exception):
@@ -145,7 +159,7 @@ class IllegalFunction(DeviceException):
     """Exception 01: the device does not support the function code."""
 
     default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION
-    description = "illegal function"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION)
 
 
 class IllegalDataAddress(DeviceException):
@@ -153,14 +167,14 @@ class IllegalDataAddress(DeviceException):
     device (the sensor hub also answers 02 for a block its firmware lacks)."""
 
     default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
-    description = "illegal data address"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS)
 
 
 class IllegalDataValue(DeviceException):
     """Exception 03: a value in the request is out of range."""
 
     default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
-    description = "illegal data value"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE)
 
 
 class DeviceFailure(DeviceException):
@@ -168,14 +182,14 @@ class DeviceFailure(DeviceException):
     (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
 
     default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
-    description = "server device failure"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE)
 
 
 class Acknowledge(DeviceException):
     """Exception 05: accepted, but it will take long; poll again later."""
 
     default_code = _lib.MODBUS_EXCEPTION_ACKNOWLEDGE
-    description = "acknowledge"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_ACKNOWLEDGE)
 
 
 class DeviceBusy(DeviceException):
@@ -183,35 +197,35 @@ class DeviceBusy(DeviceException):
     Worth a retry after a short wait."""
 
     default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
-    description = "server device busy"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY)
 
 
 class NegativeAcknowledge(DeviceException):
     """Exception 07: the device cannot perform the program function."""
 
     default_code = _lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE
-    description = "negative acknowledge"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE)
 
 
 class MemoryParityError(DeviceException):
     """Exception 08: the device found a parity error in its memory."""
 
     default_code = _lib.MODBUS_EXCEPTION_MEMORY_PARITY
-    description = "memory parity error"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_MEMORY_PARITY)
 
 
 class GatewayPathUnavailable(DeviceException):
     """Exception 0A: the gateway has no path to the target."""
 
     default_code = _lib.MODBUS_EXCEPTION_GATEWAY_PATH
-    description = "gateway path unavailable"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_GATEWAY_PATH)
 
 
 class GatewayTargetFailed(DeviceException):
     """Exception 0B: the gateway's target did not respond."""
 
     default_code = _lib.MODBUS_EXCEPTION_GATEWAY_TARGET
-    description = "gateway target device failed to respond"
+    description = describe_exception(_lib.MODBUS_EXCEPTION_GATEWAY_TARGET)
 
 
 _BY_CODE: dict[int, type[DeviceException]] = {
@@ -257,3 +271,98 @@ def os_hint(err: int) -> str:
     if err == _errno.ENOTTY:
         return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
     return os.strerror(err)
+
+
+# The names messages give a request: the client's method names.
+_FUNCTION_NAMES: dict[int, str] = {
+    _lib.MODBUS_FC_READ_COILS: "read_coils",
+    _lib.MODBUS_FC_READ_DISCRETE_INPUTS: "read_discrete_inputs",
+    _lib.MODBUS_FC_READ_HOLDING_REGISTERS: "read_holding_registers",
+    _lib.MODBUS_FC_READ_INPUT_REGISTERS: "read_input_registers",
+    _lib.MODBUS_FC_WRITE_SINGLE_COIL: "write_coil",
+    _lib.MODBUS_FC_WRITE_SINGLE_REGISTER: "write_register",
+    _lib.MODBUS_FC_READ_EXCEPTION_STATUS: "read_exception_status",
+    _lib.MODBUS_FC_WRITE_MULTIPLE_COILS: "write_coils",
+    _lib.MODBUS_FC_WRITE_MULTIPLE_REGISTERS: "write_registers",
+    _lib.MODBUS_FC_REPORT_SLAVE_ID: "report_slave_id",
+    _lib.MODBUS_FC_MASK_WRITE_REGISTER: "mask_write_register",
+    _lib.MODBUS_FC_WRITE_AND_READ_REGISTERS: "write_read_registers",
+}
+_READS = frozenset((_lib.MODBUS_FC_READ_COILS, _lib.MODBUS_FC_READ_DISCRETE_INPUTS,
+                    _lib.MODBUS_FC_READ_HOLDING_REGISTERS, _lib.MODBUS_FC_READ_INPUT_REGISTERS))
+
+
+def function_name(function: int) -> str:
+    """What messages call a request of ``function``: the client method's name."""
+    return _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
+
+
+def _hex(data: bytes) -> str:
+    return " ".join(f"{b:02X}" for b in data)
+
+
+def closed_error(function: int, slave: int, address: int | None, count: int | None,
+                 port: str) -> ModbusConnectionError:
+    """A request on a line that is not open."""
+    return ModbusConnectionError(
+        f"{function_name(function)}(slave={slave}) on {port}: the port is not open",
+        errno=_errno.EBADF, slave=slave, function=function, address=address, count=count,
+        port=port,
+    )
+
+
+def request_error(err: int, *, function: int, slave: int, address: int | None,
+                  count: int | None, port: str, timeout: float, failed: tuple[int, int],
+                  response: bytes | None, header: int, frame: str | None,
+                  context: str | None = None) -> ModbusError:
+    """The exception for a request that failed with errno ``err``: what was
+    asked, what came back (``response``, its unit id at ``header - 1``),
+    ``failed`` the (address, count) of the request that failed inside a
+    longer read, ``frame`` the C library's words for a rejected reply."""
+    op = function_name(function)
+    args = [f"slave={slave}"]
+    if address is not None:
+        args.append(f"address={address}")
+    if count is not None:
+        args.append(f"count={count}")
+    asked = f"{context or op}({', '.join(args)}) on {port}"
+    if function in _READS and failed[1] >= 0 and failed != (address, count):
+        asked += f" [in the request for {failed[1]} at {failed[0]}]"
+    got = response or None
+    received = f" (received {_hex(got)})" if got else ""
+    if address is None and function in _READS and failed[1] >= 0:
+        address, count = failed
+    kw: dict[str, Any] = dict(slave=slave, function=function, address=address, count=count,
+                                 port=port, response=got)
+    if err == _errno.ETIMEDOUT:
+        if got:
+            return ModbusTimeout(
+                f"{asked}: the reply was incomplete after {len(got)} bytes, within "
+                f"the {timeout:g} s timeout{received}", **kw)
+        return ModbusTimeout(
+            f"{asked}: no reply within the {timeout:g} s timeout (the device is silent, "
+            "or the address, baud rate or wiring is wrong)", **kw)
+    code = int(_lib.pymb_errno_exception(err))
+    if code:
+        return exception_class(code)(
+            f"{asked}: device answered exception {code:02X} ({describe_exception(code)})"
+            f"{received}", code=code, **kw)
+    if err == _lib.EMBBADCRC:
+        return ProtocolError(f"{asked}: reply failed its CRC check{received}",
+                             reason="bad CRC", **kw)
+    if err == _lib.EMBBADSLAVE:
+        h = header if 1 <= header <= len(got or b"") else 0
+        who = f" {got[h - 1]}" if got and h else ""
+        return ProtocolError(f"{asked}: reply came from another address{who}{received}",
+                             reason="wrong slave", **kw)
+    if err == _lib.EMBBADEXC:
+        return ProtocolError(f"{asked}: reply is an invalid exception response{received}",
+                             reason="invalid exception", **kw)
+    if err in (_lib.EMBBADDATA, _lib.EMBMDATA, _lib.EMBUNKEXC):
+        why = frame or "malformed reply"
+        return ProtocolError(f"{asked}: {why}{received}", reason=why, **kw)
+    if err == _errno.EINVAL:
+        return InvalidArgument(f"{asked}: invalid argument", **kw)
+    if err == _errno.EINTR:
+        return ModbusConnectionError(f"{asked}: interrupted", errno=err, **kw)
+    return ModbusConnectionError(f"{asked}: {os_hint(err)}", errno=err, **kw)

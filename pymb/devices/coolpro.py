@@ -42,7 +42,7 @@ class CoolProStatus(IntFlag, boundary=KEEP):
         return int(self) & 0xFF80
 
 
-_ZEROS = array("H", bytes(2 * 125))
+_ZEROS = array("H", bytes(2 * _native.MAX_READ_REGISTERS))
 _new = object.__new__
 
 

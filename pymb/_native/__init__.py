@@ -1,0 +1,203 @@
+"""The low-level layer: the only package that touches cffi's ``ffi`` and
+``lib`` for the request path and the decoders (``pymb.errors`` reads the
+compiled constants and ``pymb.maps`` has its own decoder's seam).
+
+Allocate, call, check, return: everything above sees Python objects, arrays
+and pymb's exceptions. Calls into the extension release the GIL (cffi's API
+mode does so for every call), so other threads and other buses keep working
+while one waits on its line. This module holds the constants as the compiler
+knows them and the byte-level helpers; :mod:`pymb._native.link` the line,
+:mod:`pymb._native.decode` the decoders and the hub sweep.
+"""
+
+from __future__ import annotations
+
+from array import array
+from enum import IntEnum
+from typing import Any, TypeAlias
+
+from pymb._pymb_cffi import ffi, lib
+
+__all__ = [
+    "BAUD_RATES",
+    "FRAME_INCOMPLETE",
+    "HUB_ALL_BLOCKS",
+    "HUB_BITMAP_BYTES",
+    "HUB_BLOCKS",
+    "HUB_CHANNELS",
+    "HUB_REGISTERS",
+    "LIBMODBUS_VERSION",
+    "MAX_PDU_DATA",
+    "MAX_READ_BITS",
+    "MAX_READ_REGISTERS",
+    "MAX_WRITE_BITS",
+    "MAX_WRITE_REGISTERS",
+    "MAX_WR_READ_REGISTERS",
+    "MAX_WR_WRITE_REGISTERS",
+    "RTS_MODES",
+    "SERIAL_MODES",
+    "VERSION",
+    "FunctionCode",
+    "HubSweep",
+    "Link",
+    "State",
+    "coolpro_identity",
+    "coolpro_telemetry",
+    "crc16",
+    "ffi_buffer_u16",
+    "hub_decode",
+    "hub_plan_all",
+    "new_rtu",
+    "new_tcp",
+    "rtu_crc_ok",
+    "rtu_request_length",
+    "rtu_response_length",
+    "rtu_silence",
+    "with_crc",
+]
+
+#: pymb's version, as the compiled C library (csrc/pymb.h, its one home) says it.
+VERSION: str = ffi.string(lib.pymb_version()).decode()
+
+LIBMODBUS_VERSION = (
+    f"{lib.libmodbus_version_major}.{lib.libmodbus_version_minor}."
+    f"{lib.libmodbus_version_micro}"
+)
+
+#: Baud rates libmodbus 3.1.6 maps to termios speeds; any other it silently
+#: replaces with 9600, so pymb refuses it instead.
+BAUD_RATES = frozenset(
+    (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800,
+     500000, 576000, 921600, 1000000, 1152000, 1500000, 2500000, 3000000, 3500000, 4000000)
+)
+
+_from_buffer = ffi.from_buffer
+_NULL = ffi.NULL
+
+
+# -- constants, as the compiler knows them (build_ffi.py declares them "...") ----
+
+
+class FunctionCode(IntEnum):
+    """Modbus function codes ([MB-AP] 6), as libmodbus's ``modbus.h`` defines them."""
+
+    READ_COILS = lib.MODBUS_FC_READ_COILS
+    READ_DISCRETE_INPUTS = lib.MODBUS_FC_READ_DISCRETE_INPUTS
+    READ_HOLDING_REGISTERS = lib.MODBUS_FC_READ_HOLDING_REGISTERS
+    READ_INPUT_REGISTERS = lib.MODBUS_FC_READ_INPUT_REGISTERS
+    WRITE_SINGLE_COIL = lib.MODBUS_FC_WRITE_SINGLE_COIL
+    WRITE_SINGLE_REGISTER = lib.MODBUS_FC_WRITE_SINGLE_REGISTER
+    READ_EXCEPTION_STATUS = lib.MODBUS_FC_READ_EXCEPTION_STATUS
+    WRITE_MULTIPLE_COILS = lib.MODBUS_FC_WRITE_MULTIPLE_COILS
+    WRITE_MULTIPLE_REGISTERS = lib.MODBUS_FC_WRITE_MULTIPLE_REGISTERS
+    REPORT_SLAVE_ID = lib.MODBUS_FC_REPORT_SLAVE_ID
+    MASK_WRITE_REGISTER = lib.MODBUS_FC_MASK_WRITE_REGISTER
+    WRITE_AND_READ_REGISTERS = lib.MODBUS_FC_WRITE_AND_READ_REGISTERS
+
+
+#: Quantities one request may carry ([MB-AP] 6.1..6.17, libmodbus's modbus.h).
+MAX_READ_BITS = int(lib.PYMB_MAX_READ_BITS)
+MAX_WRITE_BITS = int(lib.MODBUS_MAX_WRITE_BITS)
+MAX_READ_REGISTERS = int(lib.PYMB_MAX_READ_REGISTERS)
+MAX_WRITE_REGISTERS = int(lib.MODBUS_MAX_WRITE_REGISTERS)
+MAX_WR_WRITE_REGISTERS = int(lib.MODBUS_MAX_WR_WRITE_REGISTERS)
+MAX_WR_READ_REGISTERS = int(lib.MODBUS_MAX_WR_READ_REGISTERS)
+#: Data bytes one PDU carries after its function code ([MB-AP] 4.1: 253 - 1).
+MAX_PDU_DATA = int(lib.PYMB_MAX_PDU) - 1
+
+#: libmodbus's serial modes and RTS modes, by the names the client takes.
+SERIAL_MODES = {"rs232": int(lib.MODBUS_RTU_RS232), "rs485": int(lib.MODBUS_RTU_RS485)}
+RTS_MODES = {"none": int(lib.MODBUS_RTU_RTS_NONE), "up": int(lib.MODBUS_RTU_RTS_UP),
+             "down": int(lib.MODBUS_RTU_RTS_DOWN)}
+
+#: pymb_rtu_request_length / pymb_rtu_response_length: more bytes are needed.
+FRAME_INCOMPLETE = int(lib.PYMB_FRAME_INCOMPLETE)
+
+
+class State(IntEnum):
+    """Why a decoded value is (or is not) there; see [NOTES] "offline vs absent"
+    (``pymb_state`` in csrc/pymb.h)."""
+
+    VALUE = lib.PYMB_VALUE  #: a value
+    OFFLINE = lib.PYMB_OFFLINE  #: 0xFFFF: the channel is offline (or has no such value)
+    NO_SENSOR = lib.PYMB_NO_SENSOR  #: the humidity "no humidity" marker of the channel's unit
+    UNSUPPORTED = lib.PYMB_UNSUPPORTED  #: the hub's firmware does not have this block
+    NOT_READ = lib.PYMB_NOT_READ  #: not asked for in this read
+
+
+#: What the byte-level helpers take: any contiguous buffer (collections.abc.Buffer
+#: from Python 3.12 on).
+Buffer: TypeAlias = "bytes | bytearray | memoryview | array[Any]"
+
+
+def _bytes_arg(data: Any) -> tuple[Any, int]:
+    """A buffer as C sees it: its bytes and its length in *bytes* (an array of
+    16-bit items is twice its len()). bytes go to C as they are (the fast
+    path); other contiguous buffers through from_buffer; a non-contiguous
+    view is copied in its logical order."""
+    if type(data) is bytes:
+        return data, len(data)
+    try:
+        view = memoryview(data)
+    except TypeError:
+        raise TypeError(
+            f"expected bytes or a buffer, got {type(data).__name__}") from None
+    if not view.c_contiguous:
+        b = view.tobytes()
+        return b, len(b)
+    return ffi.from_buffer("uint8_t[]", view), view.nbytes
+
+
+def crc16(data: Buffer) -> int:
+    """CRC-16/MODBUS of the bytes of ``data`` (as it goes on the wire: low
+    byte first). Any buffer: its whole byte length counts."""
+    buf, n = _bytes_arg(data)
+    return int(lib.pymb_crc16(buf, n))
+
+
+def with_crc(frame: Buffer) -> bytes:
+    """``frame`` with its CRC appended, low byte first (an RTU frame)."""
+    buf, n = _bytes_arg(frame)
+    crc = lib.pymb_crc16(buf, n)
+    head = buf if type(buf) is bytes else bytes(ffi.buffer(buf, n))
+    return head + bytes((crc & 0xFF, crc >> 8))
+
+
+def rtu_crc_ok(frame: Buffer) -> bool:
+    """True when the last two bytes of ``frame`` are the CRC of the rest."""
+    return bool(lib.pymb_rtu_crc_ok(*_bytes_arg(frame)))
+
+
+def rtu_request_length(buf: Buffer) -> int:
+    """Length of the RTU request starting ``buf`` as its header tells it:
+    -1 needs more bytes, -4 unknown function (only silence ends it), -7 too
+    long (see pymb_rtu_request_length in csrc/pymb.h)."""
+    return int(lib.pymb_rtu_request_length(*_bytes_arg(buf)))
+
+
+def rtu_response_length(buf: Buffer) -> int:
+    """Length of the RTU response starting ``buf`` (-1: need more bytes, -4:
+    a function code whose reply length only the line's silence tells)."""
+    return int(lib.pymb_rtu_response_length(*_bytes_arg(buf)))
+
+
+def rtu_silence(baudrate: int) -> float:
+    """t3.5 at ``baudrate`` in seconds ([MB-SL] 2.5.1.1; 1.75 ms above 19200)."""
+    return int(lib.pymb_rtu_silence_us(baudrate)) / 1e6
+
+
+# The line and the decoders, re-exported: ``from pymb import _native`` sees
+# the whole layer.
+from pymb._native.decode import (  # noqa: E402
+    HUB_ALL_BLOCKS,
+    HUB_BITMAP_BYTES,
+    HUB_BLOCKS,
+    HUB_CHANNELS,
+    HUB_REGISTERS,
+    HubSweep,
+    coolpro_identity,
+    coolpro_telemetry,
+    hub_decode,
+    hub_plan_all,
+)
+from pymb._native.link import Link, ffi_buffer_u16, new_rtu, new_tcp  # noqa: E402

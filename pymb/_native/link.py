@@ -1,0 +1,351 @@
+"""A line: one libmodbus context and its pymb_line (pymb_line_new), the
+interrupt hook that lets Python's signal handlers stop a wait, and the
+requests. What a failure means in words is :func:`pymb.errors.request_error`'s.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import socket
+import threading
+from typing import TYPE_CHECKING, Any
+
+from pymb._native import FunctionCode, rtu_silence
+from pymb._pymb_cffi import ffi, lib
+from pymb.errors import (
+    InvalidArgument,
+    ModbusConnectionError,
+    ModbusError,
+    closed_error,
+    os_hint,
+    request_error,
+)
+from pymb.wire import bits_per_char
+
+if TYPE_CHECKING:
+    from pymb._native.decode import HubSweep
+
+__all__ = ["Link", "ffi_buffer_u16", "new_rtu", "new_tcp"]
+
+_FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
+_from_buffer = ffi.from_buffer
+
+
+# -- signals -------------------------------------------------------------------
+# While a request waits, C calls pymb_py_interrupted when poll() is interrupted
+# by a signal and at least every PYMB_INTERRUPT_SLICE_US. Running this Python
+# function lets the interpreter run the pending signal handlers (it does so on
+# entering a function); a handler that raises (SIGINT's KeyboardInterrupt)
+# lands in _interrupt_raised, which keeps the exception and tells C to stop.
+# A handler that returns normally changes nothing: the wait goes on.
+
+_pending = threading.local()
+
+
+def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
+    _pending.exc = exc if exc is not None else exc_type()
+    return 1
+
+
+@ffi.def_extern(onerror=_interrupt_raised)  # type: ignore[untyped-decorator]
+def pymb_py_interrupted(arg: Any) -> int:
+    return 0
+
+
+def _take_interrupt() -> BaseException | None:
+    exc: BaseException | None = getattr(_pending, "exc", None)
+    _pending.exc = None
+    return exc
+
+
+def ffi_buffer_u16(array: Any) -> Any:
+    """A ``uint16_t *`` over a writable buffer (an ``array('H')``)."""
+    return ffi.from_buffer("uint16_t[]", array, require_writable=True)
+
+
+class Link:
+    """One libmodbus context: a serial line or a TCP connection.
+
+    Not thread-safe by itself; the clients in :mod:`pymb.client` hold a lock
+    around every call.
+    """
+
+    def __init__(self, name: str, factory: Any, *, serial: bool,
+                 framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
+                 host: str | None = None) -> None:
+        self.name = name
+        self.host = host  # TCP: the host name or address as given
+        self.serial = serial
+        self._factory = factory
+        self._framing = framing if framing is not None else (
+            lib.PYMB_FRAMING_RTU if serial else lib.PYMB_FRAMING_TCP)
+        self._silence_us = max(0, round(silence * 1e6))
+        self._char_ns = char_ns  # one character's wire time (serial lines)
+        self._reject_early = False
+        self._ctx: Any = ffi.NULL
+        #: True while a connected context exists (a plain attribute: the hot
+        #: path reads it on every request).
+        self.is_open = False
+        #: the C line (pymb_line_new) while open, NULL when closed: a request
+        #: on a closed Link fails in C with EINVAL
+        self._line: Any = ffi.NULL
+        self._fail = ffi.new("pymb_failure *")
+        self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
+        self._header = 1  # where a reply's PDU starts: pymb_line_header_length
+        self._timeout = (1.0, 0.0)
+        self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
+
+    # -- life cycle ------------------------------------------------------------
+
+    def open(self) -> None:
+        """Create the context, connect, lock the port, apply the settings."""
+        if self.is_open:
+            return
+        if not self.serial:
+            # libmodbus's TCP code waits with select(), which aborts the whole
+            # process (glibc's fd_set check) on a descriptor >= FD_SETSIZE. The
+            # socket will take the lowest free descriptor: look at it first.
+            probe = os.open("/dev/null", os.O_RDONLY)
+            os.close(probe)
+            if probe >= _FD_SETSIZE:
+                raise ModbusConnectionError(
+                    f"cannot connect to {self.name}: this process has {probe} descriptors "
+                    f"open, and libmodbus's TCP code only works below {_FD_SETSIZE}",
+                    errno=errno.EMFILE, port=self.name,
+                )
+        ctx = self._factory()
+        if ctx == ffi.NULL:
+            err = ffi.errno
+            raise ModbusConnectionError(
+                f"cannot create a Modbus context for {self.name}: {os.strerror(err)}",
+                errno=err,
+                port=self.name,
+            )
+        if lib.modbus_connect(ctx) == -1:
+            err = ffi.errno
+            lib.modbus_free(ctx)
+            hint = os_hint(err)
+            if not self.serial and err == errno.ECONNREFUSED and self.host is not None:
+                # libmodbus 3.1.6 reports a name that does not resolve as
+                # ECONNREFUSED: tell the two apart (only after a failure).
+                try:
+                    socket.getaddrinfo(self.host, None, type=socket.SOCK_STREAM)
+                except (OSError, UnicodeError) as e:
+                    hint = f"cannot resolve the host name {self.host!r} ({e})"
+            raise ModbusConnectionError(
+                f"cannot open {self.name}: {hint}", errno=err, port=self.name
+            )
+        if self.serial and lib.flock(lib.modbus_get_socket(ctx), lib.LOCK_EX | lib.LOCK_NB):
+            lib.modbus_close(ctx)
+            lib.modbus_free(ctx)
+            raise ModbusConnectionError(
+                f"cannot open {self.name}: the port is in use by another process "
+                "(another pymb holds its lock)",
+                errno=errno.EBUSY,
+                port=self.name,
+            )
+        self._ctx = ctx
+        self.is_open = True
+        try:
+            line = lib.pymb_line_new(ctx, self._framing, self._silence_us)
+            if line == ffi.NULL:
+                raise ModbusConnectionError(
+                    f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
+                    errno=ffi.errno, port=self.name)
+            self._line = line
+            self._header = int(lib.pymb_line_header_length(line))
+            lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
+            lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
+            self._apply_timeouts()
+            self._apply_rs485()
+        except BaseException:
+            self.close()  # a failed open leaves nothing open, nothing locked
+            raise
+
+    def set_reject_early(self, on: bool) -> None:
+        """Drop reply bytes that arrive before the request can have been
+        answered (its wire time plus t3.5; serial lines only)."""
+        self._reject_early = on and self._char_ns > 0
+        if self.is_open:
+            lib.pymb_line_set_char_ns(self._line, self._char_ns if self._reject_early else 0)
+
+    def close(self) -> None:
+        """Close and free the context; safe to call twice."""
+        ctx, self._ctx = self._ctx, ffi.NULL
+        line, self._line = self._line, ffi.NULL
+        self.is_open = False
+        if line != ffi.NULL:
+            lib.pymb_line_free(line)
+        if ctx != ffi.NULL:
+            lib.modbus_close(ctx)
+            lib.modbus_free(ctx)
+
+    def __del__(self) -> None:
+        # The descriptor and, on a serial line, its lock go with the Link.
+        if getattr(self, "_ctx", ffi.NULL) != ffi.NULL or getattr(
+                self, "_line", ffi.NULL) != ffi.NULL:
+            self.close()
+
+    def fileno(self) -> int:
+        """The file descriptor of the open line, -1 when closed."""
+        return int(lib.modbus_get_socket(self._ctx)) if self.is_open else -1
+
+    # -- settings --------------------------------------------------------------
+
+    def set_timeouts(self, response: float, byte: float) -> None:
+        """Response timeout and inter-byte timeout (0 disables it: the whole
+        reply must then arrive within the response timeout)."""
+        self._timeout = (response, byte)
+        if self.is_open:
+            self._apply_timeouts()
+
+    def _apply_timeouts(self) -> None:
+        response, byte = self._timeout
+        rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)
+        bs, bus = divmod(max(0, round(byte * 1e6)), 1_000_000)
+        if (
+            lib.modbus_set_response_timeout(self._ctx, rs, rus) == -1
+            or lib.modbus_set_byte_timeout(self._ctx, bs, bus) == -1
+        ):
+            raise InvalidArgument(f"timeout out of range: {response!r}, {byte!r}")
+
+    def set_rs485(self, mode: int | None, rts: int | None, rts_delay_us: int | None) -> None:
+        """Serial mode (MODBUS_RTU_RS232/RS485), RTS mode and RTS delay."""
+        self._rs485 = (mode, rts, rts_delay_us)
+        if self.is_open:
+            self._apply_rs485()
+
+    def _apply_rs485(self) -> None:
+        mode, rts, delay = self._rs485
+        calls = (
+            (mode, lib.modbus_rtu_set_serial_mode, "serial mode"),
+            (rts, lib.modbus_rtu_set_rts, "RTS mode"),
+            (delay, lib.modbus_rtu_set_rts_delay, "RTS delay"),
+        )
+        for value, fn, what in calls:
+            if value is not None and fn(self._ctx, value) == -1:
+                err = ffi.errno
+                raise ModbusConnectionError(
+                    f"cannot set {what} {value} on {self.name}: {os.strerror(err)} "
+                    "(RS485 settings need a port whose driver supports them)",
+                    errno=err,
+                    port=self.name,
+                )
+
+    # -- requests --------------------------------------------------------------
+
+    def read_registers(
+        self, function: int, slave: int, address: int, count: int, dest: Any
+    ) -> None:
+        """Read ``count`` registers into ``dest`` (a writable uint16 buffer)."""
+        # The hot path: one C call (a closed line fails in C, with EINVAL,
+        # and _error tells it apart).
+        if lib.pymb_read_registers(self._line, function, slave, address, count,
+                                   _from_buffer("uint16_t[]", dest, True), self._fail) < 0:
+            raise self._error(function, slave, address, count)
+
+    def read_bits(self, function: int, slave: int, address: int, count: int, dest: Any) -> None:
+        """Read ``count`` bits into ``dest`` (a writable byte buffer, 0/1 each)."""
+        if not self.is_open:
+            raise self._closed(function, slave, address, count)
+        rc = lib.pymb_read_bits(
+            self._line, function, slave, address, count,
+            ffi.from_buffer("uint8_t[]", dest, require_writable=True), self._fail,
+        )
+        if rc < 0:
+            raise self._error(function, slave, address, count)
+
+    def transact(self, request: bytes, *, address: int | None = None,
+                 count: int | None = None, expect: int = 0) -> bytes:
+        """Send ``request`` (slave address + PDU) and return the checked reply
+        PDU (function code first). Broadcast (slave 0 on a serial line)
+        returns ``b""``. ``expect``: the reply PDU's length when known (0:
+        from the function code, the MBAP length, or the line's silence)."""
+        slave, function = request[0], request[1]
+        if not self.is_open:
+            raise self._closed(function, slave, address, count)
+        n = lib.pymb_transact(
+            self._line, request, len(request), expect, self._rsp, lib.MODBUS_MAX_ADU_LENGTH,
+            self._fail,
+        )
+        if n < 0:
+            raise self._error(function, slave, address, count)
+        return bytes(ffi.buffer(self._rsp + self._header, n))
+
+    def hub_read(self, sweep: HubSweep) -> int:
+        """Run a prepared hub sweep (one C call); returns the read block mask."""
+        rq = sweep.request
+        if not self.is_open:
+            raise self._closed(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None)
+        if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
+            raise self._error(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None,
+                              context="hub sweep")
+        return int(rq.read_mask)
+
+    def drain(self, quiet: float, limit: float) -> int:
+        """Drop input until the line is quiet for ``quiet`` seconds."""
+        if not self.is_open:
+            return 0
+        n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
+        if n < 0:
+            err = ffi.errno
+            exc = _take_interrupt() if err == errno.EINTR else None
+            if exc is not None:
+                raise exc
+            raise ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}", errno=err,
+                                        port=self.name)
+        return n
+
+    # -- errors ----------------------------------------------------------------
+
+    def _closed(self, function: int, slave: int, address: int | None,
+                count: int | None) -> ModbusConnectionError:
+        return closed_error(function, slave, address, count, self.name)
+
+    def _error(self, function: int, slave: int, address: int | None,
+               count: int | None, context: str | None = None) -> ModbusError:
+        """Turn errno (read right after the failing call) and the failure
+        record into the exception to raise."""
+        err = ffi.errno
+        if not self.is_open:
+            return self._closed(function, slave, address, count)
+        if err == errno.EINTR:
+            exc = _take_interrupt()
+            if exc is not None:  # a signal handler raised: that is the error
+                return exc  # type: ignore[return-value]
+        fail = self._fail
+        frame = ffi.string(lib.pymb_frame_strerror(fail.frame)).decode() if fail.frame else None
+        return request_error(
+            err, function=function, slave=slave, address=address, count=count, port=self.name,
+            timeout=self._timeout[0], failed=(fail.address, fail.count),
+            response=bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None,
+            header=fail.header, frame=frame, context=context)
+
+
+def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
+    """A serial-line Link (not yet open)."""
+    bits = bits_per_char(parity, stop_bits, data_bits)
+    dev = port.encode()
+    par = parity.encode()
+    return Link(
+        port,
+        lambda: lib.modbus_new_rtu(dev, baudrate, par, data_bits, stop_bits),
+        serial=True,
+        silence=rtu_silence(baudrate),
+        char_ns=int(lib.pymb_rtu_char_ns(baudrate, bits)),
+    )
+
+
+def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
+            silence: float = 0.0) -> Link:
+    """A Modbus TCP Link (not yet open); ``host`` is a name or an address.
+    ``rtu_framing``: RTU frames (address, PDU, CRC) on the socket instead of
+    MBAP, as transparent serial servers in "raw" mode carry them; a reply of
+    unknown length then ends at ``silence`` seconds of silence."""
+    node = host.encode()
+    service = str(port).encode()
+    return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
+                host=host,
+                framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
+                silence=silence)
