@@ -284,7 +284,7 @@ def test_interrupt_stops_every_child(monkeypatch: pytest.MonkeyPatch) -> None:
         assert len(_children()) >= 4  # two simulators and two contenders are running
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "_race", interrupted)
+    monkeypatch.setattr(runner, "race", interrupted)
     assert main(["bench", "--quick", "-q", "--only", "pymb,c", "--sections", "sweep"]) == 130
     assert _children() == []
 
