@@ -134,6 +134,10 @@ def test_simulate_read_watch_probe_and_scan_a_map_over_a_pty(meter: Path) -> Non
                      "--port", sim.port)
         assert r.returncode == 0, r.stderr
         assert r.stdout.split("\n") == ["voltage_v  230.5 V", "current_a  4.25 A", ""]
+        r = run_pymb("read", "--map", str(meter), "acme-meter", "--group", "fast",
+                     "--identity", "--port", sim.port)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.splitlines()[-1] == "Identity         ACME M-1 (voltage_v 230.5)"
         r = run_pymb("watch", "--map", str(meter), "acme-meter:3", "--port", sim.port,
                      "--count", "2", "--json")
         assert r.returncode == 0, r.stderr
