@@ -210,6 +210,10 @@ def test_device_syntax_mistakes_are_one_line(meter: Path) -> None:
                             "/dev/null"), "missing")
     one_line_error(run_pymb("map", "probe", "--port", "/dev/null", "3", "coils:0:2"),
                    "TABLE:START:COUNT")
+    twin = meter.parent / "twin.toml"
+    twin.write_text(METER)
+    one_line_error(run_pymb("read", "--map", m, "--map", str(twin), "acme-meter", "--port",
+                            "/dev/null"), "also the id of --map")
     clash = meter.parent / "clash.toml"
     clash.write_text(METER.replace('id = "acme-meter"', 'id = "eastron-sdm120"'))
     one_line_error(run_pymb("read", "--map", str(clash), "eastron-sdm120", "--port",
@@ -224,3 +228,16 @@ def test_scan_through_a_tcp_gateway_names_a_map_device(meter: Path) -> None:
         assert r.returncode == 0, r.stderr
         rows = [line.split()[:2] for line in r.stdout.splitlines()]
         assert rows == [["9", "acme-meter"], ["40", "coolpro"]], r.stdout
+
+
+def test_two_maps_on_one_simulated_bus(meter: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other.toml"
+    other.write_text(METER.replace('id = "acme-meter"', 'id = "acme-other"')
+                     .replace("example = 230.5", "example = 115.0"))
+    with SimulatorProcess(["--map", str(meter), "--map", str(other), "acme-meter:3",
+                           "acme-other:4"], quiet=True) as sim:
+        for device, volts in (("acme-meter:3", 230.5), ("acme-other:4", 115.0)):
+            r = run_pymb("read", "--map", str(meter), "--map", str(other), device,
+                         "--group", "fast", "--port", sim.port, "--json")
+            assert r.returncode == 0, r.stderr
+            assert json.loads(r.stdout)["values"]["voltage_v"] == volts
