@@ -31,10 +31,8 @@ would send more than a day of samples says so in one line on stderr.
 
 from __future__ import annotations
 
-import bisect
 import collections
 import contextlib
-import ipaddress
 import ssl
 import sys
 import threading
@@ -45,16 +43,16 @@ from typing import Any
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.cursor import Acknowledged, CursorWriter, destination
 from pymb.fleet.health import Down
-from pymb.fleet.profiles import BACKLOG, Message, Profile, host_state, make_profile
+from pymb.fleet.lanes import WINDOW, Publisher, catch_up_lane, live_lane
+from pymb.fleet.profiles import BACKLOG, Profile, make_profile
+from pymb.fleet.session import Session
 from pymb.store import Outbox, StoredSample
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
 
-WINDOW = 200  #: messages in flight (unacknowledged), at most
 REPLAY_NOTICE = 86400.0  #: seconds of samples a new cursor sends without a notice
-FETCH = 100  #: samples read from the database at a time
-BARRIER_EVERY = 50  #: Sparkplug (QoS 0): a SUBSCRIBE round trip after this many messages
 CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
@@ -82,150 +80,6 @@ class ForwarderStatus:
         ack = "-" if self.last_ack is None else time.strftime(
             "%H:%M:%S", time.localtime(self.last_ack))
         return f"{head} {self.rate:,.0f}/s backlog {self.backlog:,}{age} last ack {ack}"
-
-
-class _CursorWriter(threading.Thread):
-    """Writes the latest cursor in its own thread and connection: the logger
-    holds SQLite's write lock for most of each batch, and the forwarder must
-    not wait for it."""
-
-    def __init__(self, path: str) -> None:
-        super().__init__(name="pymb-mqtt-cursor", daemon=True)
-        self.path = path
-        self.dest = ""  #: the cursor's key, set before the first put()
-        self.cond = threading.Condition()
-        self.value: int | None = None
-        self.written: int | None = None
-        self.closing = False
-        self.error: BaseException | None = None
-
-    def put(self, value: int) -> None:
-        """Write ``value`` soon."""
-        with self.cond:
-            self.value = value
-            self.cond.notify()
-
-    def close(self) -> None:
-        """Write what is pending, then end."""
-        with self.cond:
-            self.closing = True
-            self.cond.notify()
-        self.join(60)
-
-    def run(self) -> None:
-        src = Outbox(self.path)
-        try:
-            while True:
-                with self.cond:
-                    while self.value == self.written and not self.closing:
-                        self.cond.wait()
-                    value, closing = self.value, self.closing
-                if value is not None and value != self.written:
-                    src.set_cursor(self.dest, value)
-                    self.written = value
-                if closing and self.value == self.written:
-                    return
-        except BaseException as e:
-            self.error = e
-        finally:
-            src.close()
-
-
-class _Session:
-    """One MQTT connection (a paho client); callbacks run on paho's thread."""
-
-    def __init__(self, fw: Forwarder, client_id: str) -> None:
-        import paho.mqtt.client as mqtt  # the optional extra pymb-modbus[mqtt]
-        from paho.mqtt.enums import CallbackAPIVersion
-
-        self.fw = fw
-        #: PUBACK/SUBACK message ids; per connection, as paho numbers them anew
-        self.acks: collections.deque[int] = collections.deque()
-        self.connack = threading.Event()
-        self.reason: str | None = None
-        self.ok = False
-        self.lost = False
-        self.host_online = False  #: the primary host's STATE said online (on this connection)
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
-                                  clean_session=True, protocol=mqtt.MQTTv311)
-        self.client.max_inflight_messages_set(WINDOW + 20)
-        self.client.max_queued_messages_set(0)
-        c = self.client
-        c.on_connect = self._on_connect
-        c.on_disconnect = self._on_disconnect
-        c.on_publish = self._on_publish
-        c.on_subscribe = self._on_subscribe
-        c.on_message = self._on_message
-
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
-                    props: Any = None) -> None:
-        self.ok = not rc.is_failure
-        self.reason = None if self.ok else f"refused: {rc}"
-        if self.ok and self.fw.profile.command_topic:
-            client.subscribe(self.fw.profile.command_topic, qos=1)
-        if self.ok and self.fw.profile.host_topic:
-            client.subscribe(self.fw.profile.host_topic, qos=1)
-        self.connack.set()
-
-    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
-                       props: Any = None) -> None:
-        self.lost = True
-        if self.reason is None:
-            self.reason = f"disconnected: {rc}"
-        self.connack.set()
-        self.fw.wake.set()
-
-    def _on_publish(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
-        self.acks.append(mid)
-        self.fw.wake.set()
-
-    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
-        self.acks.append(mid)
-        self.fw.wake.set()
-
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
-        if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
-            self.fw.rebirth.set()
-            self.fw.wake.set()
-        elif msg.topic == self.fw.profile.host_topic:
-            self._host_state(msg.payload)
-
-    def _host_state(self, payload: bytes) -> None:
-        """The primary host's STATE (Sparkplug 3.0: online only with a timestamp >=
-        the previous STATE's; offline only with one >= the last online's)."""
-        fw = self.fw
-        state = host_state(payload)
-        if state is None:
-            fw.record_event(f"ignored a STATE of the primary host that is not Sparkplug 3.0 JSON: "
-                      f"{bytes(payload[:80])!r}")
-            return
-        online, ts = state
-        if online and (fw.host_ts is None or ts >= fw.host_ts):
-            fw.host_ts = fw.host_online_ts = ts
-            if not self.host_online:
-                fw.record_event(f"the primary host {fw.cfg.primary_host} is online")
-            self.host_online = True
-        elif not online and (fw.host_online_ts is None or ts >= fw.host_online_ts):
-            fw.host_ts = max(ts, fw.host_ts or ts)
-            if self.host_online:
-                fw.record_event(f"the primary host {fw.cfg.primary_host} is offline")
-            self.host_online = False
-        fw.wake.set()
-
-
-def destination(cfg: MqttConfig, host: str) -> str:
-    """The outbox cursor's key for the broker at ``host`` (an address: IPv4-mapped
-    IPv6 addresses as IPv4, IPv6 in brackets; a name as it is)."""
-    try:
-        ip = ipaddress.ip_address(host.split("%", 1)[0])
-    except ValueError:
-        name = host.lower()
-    else:
-        if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
-            ip = ip.ipv4_mapped
-        name = f"[{ip}]" if ip.version == 6 else str(ip)
-    group = cfg.group + "/" if cfg.profile == "sparkplug" else ""
-    return f"{'mqtts' if cfg.tls else 'mqtt'}://{name}:{cfg.port}/{cfg.profile}/{group}{cfg.node}"
 
 
 def require_paho() -> None:
@@ -265,11 +119,10 @@ class Forwarder(threading.Thread):
         self.rebirth = threading.Event()
         self._stopping = threading.Event()
         self._drain_until = 0.0
-        self.cursor = 0
+        self.acked = Acknowledged()  #: what the broker acknowledged: the cursor and above
         self._saved_cursor = self.cursor
         self._saved_at = 0.0
-        self._writer = _CursorWriter(db_path)
-        self._done: list[list[int]] = []  #: acknowledged [lo, hi] ranges above the cursor
+        self._writer = CursorWriter(db_path)
         self._lock = threading.Lock()
         self._events: list[tuple[float, str]] = []
         self._downs_in: list[tuple[Down, int]] = []  #: from the logger's thread
@@ -286,6 +139,11 @@ class Forwarder(threading.Thread):
         self.error: BaseException | None = None
 
     # -- the public side -----------------------------------------------------------
+
+    @property
+    def cursor(self) -> int:
+        """Every sample id up to this one was acknowledged (the outbox cursor)."""
+        return self.acked.cursor
 
     def take_events(self) -> list[tuple[float, str]]:
         """(time, message) of what happened to the connection since the last call,
@@ -370,10 +228,10 @@ class Forwarder(threading.Thread):
                     return
             backoff = min(backoff * 2, _BACKOFF_MAX)
 
-    def _connect(self) -> _Session | None:
+    def _connect(self) -> Session | None:
         cfg = self.cfg
         self.profile.new_connection(self.source)
-        s = _Session(self, f"pymb-{cfg.profile}-{cfg.node}")
+        s = Session(self, f"pymb-{cfg.profile}-{cfg.node}", WINDOW)
         c = s.client
         if cfg.user:
             c.username_pw_set(cfg.user, self.password)
@@ -402,7 +260,7 @@ class Forwarder(threading.Thread):
             self._close(s)
         return s
 
-    def _key(self, s: _Session) -> None:
+    def _key(self, s: Session) -> None:
         """Key the cursor by the broker's address (the socket's peer) and load it."""
         peer = self.cfg.host
         sock: Any = s.client.socket()
@@ -418,7 +276,7 @@ class Forwarder(threading.Thread):
         if cursor is None:
             cursor = 0 if self.cfg.start == "oldest" else self._now_id
             self._replay_notice(dest, cursor)
-        self.cursor = self._saved_cursor = cursor
+        self.acked.cursor = self._saved_cursor = cursor
         self._writer.dest = dest
         self.dest = dest
         if new:  # written by the cursor's thread: never wait for the logger's batch here
@@ -439,47 +297,13 @@ class Forwarder(threading.Thread):
             with contextlib.suppress(OSError, ValueError):
                 print(f"pymb log: {line}", file=sys.stderr, flush=True)
 
-    def _close(self, s: _Session) -> None:
+    def _close(self, s: Session) -> None:
         with contextlib.suppress(Exception):
             s.client.disconnect()
         with contextlib.suppress(Exception):
             s.client.loop_stop()
 
-    # -- acknowledgements and the cursor -------------------------------------------
-
-    def _mark(self, lo: int, hi: int) -> None:
-        """Samples lo..hi are acknowledged."""
-        if hi <= self.cursor:
-            return
-        lo = max(lo, self.cursor + 1)
-        d = self._done
-        i = bisect.bisect_left(d, [lo, lo])
-        d.insert(i, [lo, hi])
-        # merge neighbours that touch
-        j = max(i - 1, 0)
-        while j + 1 < len(d):
-            if d[j][1] + 1 >= d[j + 1][0]:
-                d[j][1] = max(d[j][1], d[j + 1][1])
-                del d[j + 1]
-            elif j > i:
-                break
-            else:
-                j += 1
-        while d and d[0][0] <= self.cursor + 1:
-            self.cursor = max(self.cursor, d.pop(0)[1])
-
-    def _skip_done(self, after: int) -> int:
-        """``after`` moved past the acknowledged range it is at the edge of."""
-        for lo, hi in self._done:
-            if lo <= after + 1 <= hi:
-                return hi
-        return after
-
-    def _next_done(self, after: int) -> int | None:
-        for lo, _hi in self._done:
-            if lo > after:
-                return lo
-        return None
+    # -- the cursor and the status ------------------------------------------------
 
     def _save_cursor(self, force: bool = False) -> None:
         if self.dest is not None and self.cursor != self._saved_cursor:
@@ -497,7 +321,7 @@ class Forwarder(threading.Thread):
         span = (tick - self._ack_times[0][0]) if len(self._ack_times) > 1 else 0.0
         rate = sum(n for _, n in self._ack_times) / max(span, 1.0) if self._ack_times else 0.0
         old = self.source.oldest_after(self.cursor)
-        backlog = 0 if old is None else old[0] - sum(hi - lo + 1 for lo, hi in self._done)
+        backlog = 0 if old is None else old[0] - self.acked.above_cursor()
         age = None if old is None else max(0.0, now - old[1])
         with self._lock:
             self._status = ForwarderStatus(connected, state, self._published, self._acked,
@@ -506,57 +330,10 @@ class Forwarder(threading.Thread):
 
     # -- one connection ------------------------------------------------------------
 
-    def _pump(self, s: _Session) -> None:
+    def _pump(self, s: Session) -> None:
+        """Publish on one connection until it is lost or the run stops."""
         prof = self.profile
-        c = s.client
-        qos1 = prof.data_qos > 0
-        inflight: dict[int, list[tuple[int, int]]] = {}  # mid -> sample ranges it acks
-        unbarriered: list[tuple[int, int]] = []  # QoS 0: sent, waiting for a barrier
-        since_barrier = 0
-        outstanding = 0  # samples sent and not acknowledged
-
-        def send(msgs: list[Message], ranges: list[tuple[int, int]]) -> None:
-            nonlocal since_barrier
-            for i, m in enumerate(msgs):
-                info = c.publish(m.topic, m.payload, m.qos, m.retain)
-                last = i == len(msgs) - 1
-                if qos1 and m.qos > 0:
-                    inflight[info.mid] = ranges if last else []
-                elif last:
-                    unbarriered.extend(ranges)
-                    since_barrier += 1
-
-        def barrier() -> None:
-            nonlocal since_barrier
-            if unbarriered and prof.command_topic:
-                _rc, mid = c.subscribe(prof.command_topic, qos=1)
-                if mid is not None:
-                    inflight[mid] = list(unbarriered)
-                unbarriered.clear()
-                since_barrier = 0
-
-        def node() -> dict[str, int]:
-            return {BACKLOG: self.status().backlog}
-
-        def downs(rec: StoredSample | None, upto: int) -> None:
-            """Publish what is due: the downs of ``rec``'s device that came after
-            its previous sample, or (no rec) those committed up to ``upto``."""
-            with self._lock:
-                self._downs += self._downs_in
-                self._downs_in = []
-            keep = []
-            for d, at in self._downs:
-                if rec is None:
-                    due = at <= upto
-                else:
-                    due = d.device == rec.device.name and (d.last_sample is None
-                                                      or rec.time_utc > d.last_sample)
-                if due:
-                    send(prof.device_down(d.device), [])
-                else:
-                    keep.append((d, at))
-            self._downs = keep
-
+        pub = Publisher(s.client, prof)
         if prof.host_topic:  # no births until the primary host says online
             while not s.host_online:
                 if s.lost or self._stopping.is_set():
@@ -564,11 +341,11 @@ class Forwarder(threading.Thread):
                 self._snapshot(f"waiting for the primary host {self.cfg.primary_host}", False)
                 self.wake.wait(0.2)
                 self.wake.clear()
-        send(prof.births(self.source, node()), [])
-        barrier()
+        pub.send(prof.births(self.source, self._node()), [])
+        pub.barrier()
         self.rebirth.clear()
         live_start = live_after = self.source.max_id()  # the live lane: what comes after
-        catch_after = self._skip_done(self.cursor)  # the catch-up lane: up to live_start
+        catch_after = self.acked.skip_done(self.cursor)  # the catch-up lane: up to live_start
         tokens, last_tick = 0.0, time.monotonic()
         last_snap = 0.0
         while not s.lost:
@@ -577,74 +354,75 @@ class Forwarder(threading.Thread):
                 # Sparkplug 3.0: NDEATH, disconnect, start the connection over
                 s.reason = f"the primary host {self.cfg.primary_host} went offline"
                 break
-            # acknowledgements
-            while s.acks:
-                mid = s.acks.popleft()
-                ranges = inflight.pop(mid, None)
-                if ranges:
-                    n = 0
-                    for lo, hi in ranges:
-                        self._mark(lo, hi)
-                        n += 1
-                    outstanding -= n
-                    self._acked += n
-                    self._last_ack = time.time()
-                    self._ack_times.append((time.monotonic(), n))
+            self._acknowledged(pub, s)
             self._save_cursor()
             if self.rebirth.is_set():
                 self.rebirth.clear()
-                send(prof.births(self.source, node()), [])
-                barrier()
+                pub.send(prof.births(self.source, self._node()), [])
+                pub.barrier()
             now = time.monotonic()
             if self._stopping.is_set() and (
                     now >= self._drain_until
-                    or (outstanding == 0 and self.cursor >= self.source.max_id())):
+                    or (pub.outstanding == 0 and self.cursor >= self.source.max_id())):
                 break
             # live lane first, then the paced catch-up lane
-            room = WINDOW - outstanding
-            if room > 0:
-                for rec in self.source.samples_after(live_after, min(room, FETCH)):
-                    if self._downs or self._downs_in:
-                        downs(rec, 0)
-                    send(prof.data(rec, False), [(live_after + 1, rec.id)])
-                    live_after = rec.id
-                    outstanding += 1
-                    self._published += 1
-                    if since_barrier >= BARRIER_EVERY:
-                        barrier()
+            live_after, sent = live_lane(pub, self.source, live_after,
+                                         lambda rec: self._publish_downs(pub, rec, 0))
+            self._published += sent
             if self._downs or self._downs_in:
-                downs(None, live_after)
+                self._publish_downs(pub, None, live_after)
             tokens = min(tokens + (now - last_tick) * self.cfg.catchup_rate,
                          max(self.cfg.catchup_rate / 10, 1.0))
             last_tick = now
-            room = WINDOW - outstanding
-            if room > 0 and tokens >= 1 and catch_after < live_start:
-                catch_after = self._skip_done(catch_after)
-                stop_at = min(live_start + 1, self._next_done(catch_after) or live_start + 1)
-                recs: list[StoredSample] = self.source.samples_after(
-                    catch_after, min(room, int(tokens), FETCH), before=stop_at)
-                if not recs and catch_after < stop_at - 1:  # a gap of deleted ids
-                    self._mark(catch_after + 1, stop_at - 1)
-                    catch_after = stop_at - 1
-                for rec in recs:
-                    send(prof.data(rec, True), [(catch_after + 1, rec.id)])
-                    catch_after = rec.id
-                    outstanding += 1
-                    tokens -= 1
-                    self._published += 1
-                    if since_barrier >= BARRIER_EVERY:
-                        barrier()
-            barrier()
+            catch_after, tokens, sent = catch_up_lane(pub, self.source, self.acked, catch_after,
+                                                      live_start, tokens)
+            self._published += sent
+            pub.barrier()
             if now - last_snap >= 0.5:
                 self._snapshot("connected", True)
                 last_snap = now
-                send(prof.node_data(node()), [])
+                pub.send(prof.node_data(self._node()), [])
             self.wake.wait(0.05 if catch_after < live_start else 0.2)
         if s.lost:
             return
         # a clean end: the goodbye, then DISCONNECT
         self._save_cursor(force=True)
         for m in prof.goodbye():
-            info = c.publish(m.topic, m.payload, m.qos, m.retain)
+            info = s.client.publish(m.topic, m.payload, m.qos, m.retain)
             with contextlib.suppress(Exception):
                 info.wait_for_publish(2.0)
+
+    def _node(self) -> dict[str, int]:
+        """The node's own metrics (Sparkplug NDATA): the backlog."""
+        return {BACKLOG: self.status().backlog}
+
+    def _acknowledged(self, pub: Publisher, s: Session) -> None:
+        """Mark what the broker acknowledged since the last look."""
+        for ranges in pub.acknowledged(s.acks):
+            for lo, hi in ranges:
+                self.acked.mark(lo, hi)
+            n = len(ranges)
+            self._acked += n
+            self._last_ack = time.time()
+            self._ack_times.append((time.monotonic(), n))
+
+    def _publish_downs(self, pub: Publisher, rec: StoredSample | None, upto: int) -> None:
+        """Publish what is due: the downs of ``rec``'s device that came after
+        its previous sample, or (no rec) those committed up to ``upto``."""
+        if not (self._downs or self._downs_in):
+            return
+        with self._lock:
+            self._downs += self._downs_in
+            self._downs_in = []
+        keep = []
+        for d, at in self._downs:
+            if rec is None:
+                due = at <= upto
+            else:
+                due = d.device == rec.device.name and (d.last_sample is None
+                                                  or rec.time_utc > d.last_sample)
+            if due:
+                pub.send(self.profile.device_down(d.device), [])
+            else:
+                keep.append((d, at))
+        self._downs = keep

@@ -1,0 +1,111 @@
+"""One MQTT connection of the forwarder: a paho client and its callbacks,
+which run on paho's thread and only record what happened (acknowledgements,
+a lost connection, a command, the primary host's state) for the forwarder's
+thread, which they wake."""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Any, Protocol
+
+from pymb.fleet.config import MqttConfig
+from pymb.fleet.profiles import Profile, host_state
+
+__all__ = ["Session"]
+
+
+class _Owner(Protocol):
+    """What a session tells the forwarder that owns it."""
+
+    cfg: MqttConfig
+    profile: Profile
+    wake: threading.Event
+    rebirth: threading.Event
+    host_ts: float | None
+    host_online_ts: float | None
+
+    def record_event(self, message: str) -> None:
+        """Add a line to the connection's story."""
+
+
+class Session:
+    """One MQTT connection (a paho client); callbacks run on paho's thread."""
+
+    def __init__(self, fw: _Owner, client_id: str, window: int) -> None:
+        import paho.mqtt.client as mqtt  # the optional extra pymb-modbus[mqtt]
+        from paho.mqtt.enums import CallbackAPIVersion
+
+        self.fw = fw
+        #: PUBACK/SUBACK message ids; per connection, as paho numbers them anew
+        self.acks: collections.deque[int] = collections.deque()
+        self.connack = threading.Event()
+        self.reason: str | None = None
+        self.ok = False
+        self.lost = False
+        self.host_online = False  #: the primary host's STATE said online (on this connection)
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
+                                  clean_session=True, protocol=mqtt.MQTTv311)
+        self.client.max_inflight_messages_set(window + 20)
+        self.client.max_queued_messages_set(0)
+        c = self.client
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_publish = self._on_publish
+        c.on_subscribe = self._on_subscribe
+        c.on_message = self._on_message
+
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                    props: Any = None) -> None:
+        self.ok = not rc.is_failure
+        self.reason = None if self.ok else f"refused: {rc}"
+        if self.ok and self.fw.profile.command_topic:
+            client.subscribe(self.fw.profile.command_topic, qos=1)
+        if self.ok and self.fw.profile.host_topic:
+            client.subscribe(self.fw.profile.host_topic, qos=1)
+        self.connack.set()
+
+    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                       props: Any = None) -> None:
+        self.lost = True
+        if self.reason is None:
+            self.reason = f"disconnected: {rc}"
+        self.connack.set()
+        self.fw.wake.set()
+
+    def _on_publish(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
+        self.acks.append(mid)
+        self.fw.wake.set()
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
+        self.acks.append(mid)
+        self.fw.wake.set()
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
+            self.fw.rebirth.set()
+            self.fw.wake.set()
+        elif msg.topic == self.fw.profile.host_topic:
+            self._host_state(msg.payload)
+
+    def _host_state(self, payload: bytes) -> None:
+        """The primary host's STATE (Sparkplug 3.0: online only with a timestamp >=
+        the previous STATE's; offline only with one >= the last online's)."""
+        fw = self.fw
+        state = host_state(payload)
+        if state is None:
+            fw.record_event(f"ignored a STATE of the primary host that is not Sparkplug 3.0 JSON: "
+                      f"{bytes(payload[:80])!r}")
+            return
+        online, ts = state
+        if online and (fw.host_ts is None or ts >= fw.host_ts):
+            fw.host_ts = fw.host_online_ts = ts
+            if not self.host_online:
+                fw.record_event(f"the primary host {fw.cfg.primary_host} is online")
+            self.host_online = True
+        elif not online and (fw.host_online_ts is None or ts >= fw.host_online_ts):
+            fw.host_ts = max(ts, fw.host_ts or ts)
+            if self.host_online:
+                fw.record_event(f"the primary host {fw.cfg.primary_host} is offline")
+            self.host_online = False
+        fw.wake.set()
