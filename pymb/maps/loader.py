@@ -77,8 +77,9 @@ def loads(text: str, source: str = "<string>") -> Map:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise MapError(f"{source}: not valid TOML: {e}", source=source) from None
-    spec = _spec(doc, source, _HEADER.findall(text))
-    return _build(spec, dict(spec.device.options))
+    built: dict[int, Point] = {}
+    spec = _spec(doc, source, _HEADER.findall(text), built)
+    return _build(spec, dict(spec.device.options), built)
 
 
 def configure(m: Map, given: Mapping[str, object]) -> Map:
@@ -137,7 +138,8 @@ def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[s
     return table
 
 
-def _spec(doc: dict[str, Any], source: str, headers: list[str]) -> Spec:
+def _spec(doc: dict[str, Any], source: str, headers: list[str],
+          built: dict[int, Point]) -> Spec:
     ctx = Ctx(source)
     _keys(ctx, doc, _TOP, "the file")
     if "schema" not in doc:
@@ -169,7 +171,7 @@ def _spec(doc: dict[str, Any], source: str, headers: list[str]) -> Spec:
     if not entries:
         ctx.fail("point", "the map has no [[point]] or [[block]]")
     spec = Spec(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())
-    _check_variants(spec)
+    _check_variants(spec, built)
     identify = tuple(_identify(ctx, i, raw, spec) for i, raw in
                      enumerate(_list(ctx, doc.get("identify", []), "identify")))
     return Spec(source, device, limits, timing, spec.groups, spec.entries, identify)
@@ -321,11 +323,13 @@ def _entry_name(kind: str, index: int, raw: Mapping[str, Any]) -> str:
     return name if isinstance(name, str) else f"[[{kind}]] number {index + 1}"
 
 
-def _check_variants(spec: Spec) -> None:
+def _check_variants(spec: Spec, built: dict[int, Point]) -> None:
     """Each entry checks under the options its ``when`` names; two entries
-    may share a name only when their ``when`` can never both hold."""
+    may share a name only when their ``when`` can never both hold. ``built``
+    keeps, by position, the points made under the default options."""
     seen: dict[str, list[Mapping[str, Any]]] = {}
-    for kind, index, raw in spec.entries:
+    defaults = dict(spec.device.options)
+    for position, (kind, index, raw) in enumerate(spec.entries):
         ctx = Ctx(spec.source, _entry_name(kind, index, raw))
         when = raw.get("when", {})
         if not isinstance(when, dict):
@@ -337,7 +341,9 @@ def _check_variants(spec: Spec) -> None:
             if not _is_number(v):
                 ctx.fail("when", f"when: {k} must be a number, got {v!r}")
             options[k] = v
-        build_point(ctx, kind, raw, spec.device, spec.groups, options)
+        point = build_point(ctx, kind, raw, spec.device, spec.groups, options)
+        if options == defaults:
+            built[position] = point
         name = raw["name"]
         for other in seen.get(name, []):
             if not any(k in other and other[k] != v for k, v in when.items()):
@@ -346,11 +352,15 @@ def _check_variants(spec: Spec) -> None:
         seen.setdefault(name, []).append(when)
 
 
-def _build(spec: Spec, options: dict[str, int | float]) -> Map:
+def _build(spec: Spec, options: dict[str, int | float],
+           built: Mapping[int, Point] | None = None) -> Map:
     points: dict[str, Point] = {}
-    for kind, _index, raw in spec.entries:
+    for position, (kind, _index, raw) in enumerate(spec.entries):
         when = raw.get("when", {})
         if any(options[k] != v for k, v in when.items()):
+            continue
+        if built is not None and position in built:
+            points[raw["name"]] = built[position]
             continue
         ctx = Ctx(spec.source, raw["name"])
         points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
