@@ -5,6 +5,7 @@ as under systemd)."""
 
 from __future__ import annotations
 
+import re
 import socket
 import subprocess
 import threading
@@ -15,6 +16,16 @@ import pytest
 from conftest import PYMB, PYMB_ENV, wait_until
 
 from pymb.sim import SimulatorProcess
+
+#: a logger's event as a line on stderr (pymb.service.journal.event_line):
+#: ``pymb log: BUS[/DEVICE] KIND: message``
+EVENT_LINE = re.compile(r"^pymb log: \S+ [a-z_]+: ")
+
+
+def without_events(stderr: str) -> list[str]:
+    """The lines of a logger's stderr that are not its events (which are lines there
+    when stderr is not a terminal): what it said besides."""
+    return [line for line in stderr.strip().splitlines() if not EVENT_LINE.match(line)]
 
 
 class NotifyListener:

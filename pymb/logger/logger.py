@@ -200,12 +200,12 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the
         old clock re-stamped (the sink's ``restamp``, when it has one)."""
-        self.sink.event(Event(time.time(), time.monotonic(), "clock", None, "clock", None,
-                              self.clock.message(step)))
-        self.stats.events += 1
         restamp = getattr(self.sink, "restamp", None)
         if restamp is not None:
             restamp(self.clock.offset)
+        self.sink.event(Event(time.time(), time.monotonic(), "clock", None, "clock", None,
+                              self.clock.message(step, restamp is not None)))
+        self.stats.events += 1
 
     def _write_all(self, items: list[Sample | Event]) -> None:
         """Write a poller's list in order: each run of samples in one call

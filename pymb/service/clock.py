@@ -18,23 +18,16 @@ import dataclasses
 import time
 
 from pymb.store import Event, Sample
+from pymb.store.retention import PLAUSIBLE, RESTAMP_TOLERANCE, clock_plausible
 
 __all__ = ["PLAUSIBLE", "STEP", "ClockWatch", "clock_plausible", "offset", "restamped"]
 
-#: 2025-01-01 00:00:00 UTC: a clock earlier than this has not been set
-PLAUSIBLE = 1735689600.0
-#: seconds: a change of the offset larger than this is a step, not drift
-STEP = 1.0
+STEP = RESTAMP_TOLERANCE  #: seconds: a change of the offset larger than this is a step
 
 
 def offset() -> float:
     """``time.time() - time.monotonic()``: the wall time of monotonic 0."""
     return time.time() - time.monotonic()
-
-
-def clock_plausible(now: float | None = None) -> bool:
-    """True when the wall clock (or ``now``) is not before :data:`PLAUSIBLE`."""
-    return (time.time() if now is None else now) >= PLAUSIBLE
 
 
 class ClockWatch:
@@ -57,8 +50,9 @@ class ClockWatch:
         self.steps += 1
         return step
 
-    def message(self, step: float) -> str:
-        """The event's words for a step of ``step`` seconds."""
+    def message(self, step: float, stored: bool) -> str:
+        """The event's words for a step of ``step`` seconds (``stored``: what the run
+        stored before it is re-stamped too, not only what it still holds)."""
         after = time.time()
         before = after - step
 
@@ -67,9 +61,10 @@ class ClockWatch:
 
         way = "forward" if step > 0 else "back"
         note = "" if clock_plausible(before) else " (the clock had not been set)"
+        what = "this run's earlier samples and events are" if stored else \
+            "the samples not yet written are"
         return (f"the clock stepped {way} by {abs(step):,.1f} s, from {when(before)} to "
-                f"{when(after)}{note}; this run's earlier samples and events are "
-                "re-stamped from the monotonic clock")
+                f"{when(after)}{note}; {what} re-stamped from the monotonic clock")
 
 
 def restamped(items: list[Sample | Event], offset: float) -> list[Sample | Event]:

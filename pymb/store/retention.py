@@ -12,7 +12,20 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Retention"]
+__all__ = ["PLAUSIBLE", "RESTAMP_TOLERANCE", "Retention", "clock_plausible"]
+
+#: 2025-01-01 00:00:00 UTC: a wall clock earlier than this has not been set (a
+#: board without a real-time clock boots in 1970); samples stamped before it were
+#: taken before the clock was set, and their age is unknown
+PLAUSIBLE = 1735689600.0
+#: seconds a stamp may differ from its monotonic time plus the clock's offset and
+#: still be of the same clock (a larger change of the offset is a step)
+RESTAMP_TOLERANCE = 1.0
+
+
+def clock_plausible(now: float | None = None) -> bool:
+    """True when the wall clock (or ``now``) is not before :data:`PLAUSIBLE`."""
+    return (time.time() if now is None else now) >= PLAUSIBLE
 
 _TRIM_IDS = re.compile(r"\(ids (\d+)\.\.(\d+)\)$")
 
@@ -67,9 +80,13 @@ class Retention:
         deleted = 0
         if self.max_age is not None:
             self._last_age_trim = time.monotonic()
+        if self.max_age is not None and clock_plausible():
+            # Only with a clock that was set; and samples stamped before a clock was
+            # set (their age unknown) stay until a forwarder has sent them.
             cutoff = time.time() - self.max_age
             deleted += self._delete_before(
-                "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ?", (cutoff,),
+                "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ? "
+                "OR (time_utc < ? AND id > ?)", (cutoff, PLAUSIBLE, self._lowest_cursor()),
                 cutoff)
         if self.max_bytes is not None:
             # Delete down to 95 % of the room left beside the WAL, so the freed
@@ -164,6 +181,15 @@ class Retention:
             self._rollback()
             raise
         return int(n)
+
+    def _lowest_cursor(self) -> float:
+        """The lowest outbox cursor (every sample up to it was forwarded): 0 for a
+        forwarder that has not sent anything yet; infinity when no forwarder ever
+        used the database."""
+        if not self.db.execute("SELECT 1 FROM sqlite_master WHERE name = 'outbox'").fetchone():
+            return math.inf
+        (low,) = self.db.execute("SELECT MIN(sample_id) FROM outbox").fetchone()
+        return 0.0 if low is None else float(low)
 
     def _unsent_event(self, first_kept: int) -> None:
         """Never delete samples not yet forwarded (pymb.fleet's ``outbox``

@@ -24,7 +24,7 @@ from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
-from pymb.store.retention import Retention
+from pymb.store.retention import RESTAMP_TOLERANCE, Retention
 from pymb.store.schema import (
     MIN_BYTES,
     PAGE_SIZE,
@@ -118,6 +118,10 @@ class SqliteSink(Retention):
             raise
         self._devices: dict[DeviceInfo, tuple[int, int]] = {}
         self._changes: dict[int, HubChanges | CoolProChanges] = {}
+        #: the first sample and event ids this sink writes (what restamp() may change)
+        self._first_ids = tuple(int(self.db.execute(
+            f"SELECT COALESCE(MAX(id), 0) + 1 FROM {t}").fetchone()[0])
+            for t in ("samples", "events"))
         self._in_tx = False
         self._tx_bytes = 0  # registers written in the open batch (size limit only)
         self._last_age_trim = time.monotonic()
@@ -359,6 +363,25 @@ class SqliteSink(Retention):
             "VALUES (?, ?, ?, ?, ?, ?, ?)",
             (event.time_utc, event.monotonic, event.bus, did, event.kind, event.code,
              event.message))
+
+    def restamp(self, offset: float) -> None:
+        """The wall clock stepped: the samples and events this sink wrote with
+        the old clock get the time their monotonic time gives with the new
+        ``offset`` (wall time less monotonic time), in the open batch."""
+        first_sample, first_event = self._first_ids
+        wrong = "ABS(time_utc - monotonic - :off) > :tol"
+        args = {"off": offset, "tol": RESTAMP_TOLERANCE, "s": first_sample, "e": first_event}
+        try:
+            self._begin()
+            self.db.execute(f"UPDATE samples SET time_utc = monotonic + :off "
+                            f"WHERE id >= :s AND {wrong}", args)
+            self.db.execute(f"UPDATE events SET time_utc = monotonic + :off "
+                            f"WHERE id >= :e AND {wrong}", args)
+            self.db.execute("UPDATE hub_changes SET time_utc = (SELECT time_utc FROM samples "
+                            "WHERE id = sample_id) WHERE sample_id >= :s AND time_utc != "
+                            "(SELECT time_utc FROM samples WHERE id = sample_id)", args)
+        except sqlite3.Error as e:
+            raise self._failed(e) from None
 
     def commit(self) -> None:
         """Commit the batch, then hold the size limit (database and WAL) and,

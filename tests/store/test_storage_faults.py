@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from dbwait import wait_for
+from servicekit import without_events
 
 pytest.register_assert_rewrite("disks")
 from disks import LoopDisk, Tmpfs, need_root  # noqa: E402
@@ -67,7 +68,7 @@ def _intact(db: Path, seen: set[int]) -> None:
 def _failed(proc: subprocess.Popen[str], *words: str) -> str:
     """The logger ended with exit 5 and one line holding ``words``; that line."""
     _, err = proc.communicate(timeout=120)
-    lines = err.strip().splitlines()
+    lines = without_events(err)  # the events are lines on stderr too (not a terminal)
     assert proc.returncode == 5, err
     assert len(lines) == 1, err
     for w in words:

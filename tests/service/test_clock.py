@@ -1,0 +1,179 @@
+"""Steps of the wall clock under a running logger, made by Debian's
+libfaketime (``FAKETIME_TIMESTAMP_FILE`` re-read at every call, the
+monotonic clock left real): a board that boots in 1970 and is stepped to
+the present, and a step back. Nothing is lost by age before the clock is
+set or before it is forwarded, what the run stored is re-stamped (time order
+is id order again), a step is an event, and the forwarder's rate stays
+sane."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.register_assert_rewrite("mqtt_broker", "servicekit")
+from conftest import PYMB, PYMB_ENV, run_pymb, wait_until  # noqa: E402
+from mqtt_broker import Fleet, db_ids, plain_ids  # noqa: E402
+from servicekit import NotifyListener, StderrLines  # noqa: E402
+
+from pymb.store.retention import PLAUSIBLE  # noqa: E402
+
+pytest_plugins = ["mqtt_broker"]  # the fixtures: fleet, simulator, ...
+NODE = "gw-clock"
+
+
+def _set_clock(file: Path, spec: str) -> None:
+    """What libfaketime reads at the next call: ``@1970-01-02 00:00:00``, ``+0``, ``-3600``."""
+    tmp = file.with_suffix(".new")
+    tmp.write_text(spec + "\n")
+    os.replace(tmp, file)  # never seen half-written
+
+
+def _faketime(file: Path, spec: str) -> dict[str, str]:
+    """The environment of a child whose wall clock ``file`` sets."""
+    if shutil.which("faketime") is None:
+        pytest.fail("faketime is not installed: .ci/setup installs it")
+    # the library the faketime command preloads (its path has the loader's $LIB)
+    lib = subprocess.run(["faketime", "-f", "+0", "sh", "-c", 'printf %s "$LD_PRELOAD"'],
+                         capture_output=True, text=True, check=True, timeout=30).stdout
+    assert "libfaketime" in lib
+    _set_clock(file, spec)
+    return {**PYMB_ENV, "LD_PRELOAD": lib, "FAKETIME_TIMESTAMP_FILE": str(file),
+            "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
+
+
+def _rows(db: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=10)
+    try:
+        return con.execute(sql, args).fetchall()
+    finally:
+        con.close()
+
+
+def _ids(db: Path, where: str, *args: object) -> set[int]:
+    return {int(i) for (i,) in _rows(db, f"SELECT id FROM samples WHERE {where}", *args)}
+
+
+def _time_order_is_id_order(db: Path) -> bool:
+    ids = [i for (i,) in _rows(db, "SELECT id FROM samples WHERE time_utc >= ? "
+                                   "ORDER BY time_utc, id", PLAUSIBLE)]
+    return ids == sorted(ids)
+
+
+def _log(sim: str, db: Path, env: dict[str, str], *more: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([*PYMB, "log", "--tcp", sim, "coolpro:40", "--interval", "0.02",
+                             "--out", str(db), *more], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+
+
+def test_a_board_that_boots_in_1970(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
+    db, clock = tmp_path / "board.sqlite", tmp_path / "faketime.rc"
+    # the previous boots: three days ago (clock set), then one in 1970 (clock never set)
+    for spec in ("-259200", "@1970-01-02 00:00:00"):
+        r = run_pymb("log", "--tcp", simulator, "coolpro:40", "--interval", "0.05",
+                     "--seconds", "1", "--out", str(db), "--quiet", env=_faketime(clock, spec))
+        assert r.returncode == 0, r.stderr
+    old = _ids(db, "time_utc >= ?", PLAUSIBLE)  # three days old: past --max-age-days 1
+    unset = _ids(db, "time_utc < ?", PLAUSIBLE)  # 1970: age unknown
+    assert old
+    assert unset
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
+    broker.stop()  # the network comes later than the logger
+    proc = _log(simulator, db, _faketime(clock, "@1970-01-02 00:00:00"), "--max-age-days", "1",
+                "--mqtt", broker.url, "--mqtt-node", NODE)
+    err = StderrLines(proc)
+    try:
+        # long enough for the age limit to have been looked at (every 5 s) in 1970
+        wait_until(lambda: (_rows(db, "SELECT MAX(monotonic) - MIN(monotonic) FROM samples "
+                                      "WHERE id > ?", max(unset))[0][0] or 0) >= 6,
+                   "6 s of samples in 1970", 30, alive=lambda: proc.poll() is None)
+        assert _ids(db, "id <= ?", max(unset)) == old | unset  # nothing deleted by age
+        before = _ids(db, "id > ?", max(unset))
+        assert all(t < PLAUSIBLE for (t,) in _rows(db, "SELECT time_utc FROM samples "
+                                                       "WHERE id > ?", max(unset)))
+        _set_clock(clock, "+0")  # NTP: the present
+        wait_until(lambda: _rows(db, "SELECT message FROM events WHERE kind = 'clock'"),
+                   "the clock event", 30, alive=lambda: proc.poll() is None)
+        (message,), = _rows(db, "SELECT message FROM events WHERE kind = 'clock'")
+        assert "the clock stepped forward by" in message
+        assert "(the clock had not been set)" in message
+        err.wait_for("pymb log: clock clock: the clock stepped forward")  # in the journal
+        # the age limit runs with the clock set: the samples three days old go ...
+        wait_until(lambda: not _ids(db, "id <= ?", max(old)), "the old samples trimmed", 30,
+                   alive=lambda: proc.poll() is None)
+        # ... those of 1970 stay until forwarded; this run's are re-stamped
+        assert _ids(db, "id <= ?", max(unset)) == unset
+        assert _ids(db, "id > ? AND time_utc < ?", max(unset), PLAUSIBLE) == set()
+        assert before <= _ids(db, "id > ?", max(unset))
+        assert _time_order_is_id_order(db)  # "the value at time t" finds the right row
+        offsets = _rows(db, "SELECT MAX(time_utc - monotonic) - MIN(time_utc - monotonic) "
+                            "FROM samples WHERE id > ?", max(unset))[0][0]
+        assert offsets < 1.0  # one clock for the whole run
+        # the broker comes: everything is sent, then the 1970 samples may go by age
+        broker.start()
+        wait_until(lambda: set(plain_ids(sub.snapshot())) >= unset | before,
+                   "the 1970 samples at the subscriber", 60, alive=lambda: proc.poll() is None)
+        wait_until(lambda: not _ids(db, "time_utc < ?", PLAUSIBLE), "the 1970 samples trimmed "
+                   "once forwarded", 30, alive=lambda: proc.poll() is None)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0, err.text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert set(plain_ids(sub.snapshot())) >= db_ids(db)
+
+
+def test_a_step_back(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
+    db, clock = tmp_path / "back.sqlite", tmp_path / "faketime.rc"
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
+    name = f"@pymb-test-clock-{os.getpid()}"
+    listener = NotifyListener(name)
+    env = {**_faketime(clock, "+0"), "NOTIFY_SOCKET": name}
+    proc = _log(simulator, db, env, "--mqtt", broker.url, "--mqtt-node", NODE, "--quiet")
+    err = StderrLines(proc)
+    try:
+        wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples forwarded", 30,
+                   alive=lambda: proc.poll() is None)
+        stepped_at = time.monotonic()
+        _set_clock(clock, "-3600")  # an operator sets the clock back an hour
+        wait_until(lambda: _rows(db, "SELECT message FROM events WHERE kind = 'clock'"),
+                   "the clock event", 30, alive=lambda: proc.poll() is None)
+        (message,), = _rows(db, "SELECT message FROM events WHERE kind = 'clock'")
+        assert "the clock stepped back by 3,600" in message
+
+        def rate_after_step() -> list[float]:
+            # STATUS= every 5 s; the forwarder's rate from a status sent 6 s after the step
+            if time.monotonic() - stepped_at < 6:
+                return []
+            got = [float(m.group(1).replace(",", "")) for line in listener.lines()[-3:]
+                   if (m := re.search(r"mqtt ok ([\d,.]+)/s", line))]
+            return got
+
+        rates = wait_until(rate_after_step, "a STATUS with the forwarder's rate", 30,
+                           alive=lambda: proc.poll() is None)
+        # 50 samples/s are logged; a rate kept over a head in the future grows past it
+        assert rates[-1] < 120
+        assert _time_order_is_id_order(db)  # re-stamped: nothing "in the future"
+        latest = _rows(db, "SELECT MAX(time_utc) FROM samples")[0][0]
+        assert latest < time.time() - 3000  # the child's clock is an hour behind
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0, err.text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        listener.close()
+    assert set(plain_ids(sub.snapshot())) == db_ids(db)
