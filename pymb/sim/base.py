@@ -1,0 +1,190 @@
+"""What every simulated device shares: the :class:`Device` base (a pure
+function of request PDUs, with its lock and register images), the Modbus
+exception codes and replies, the deterministic noise the value models draw
+on, and the encodings (sign-magnitude, firmware versions).
+
+A device takes a request PDU (function code first) and returns the reply PDU,
+or ``None`` for silence; it does no I/O and knows nothing of framing or
+timing, which the bus adds (:mod:`pymb.sim.bus`). State lives in
+``array('H')`` register images, so a read is one slice, one ``byteswap`` and
+one ``tobytes``. Values are a deterministic function of the device's seed and
+the simulated time of its :class:`~pymb.sim.clock.SimClock`: freeze or step
+the clock and the values follow. Test hooks (pin a raw value, force a channel
+offline, raise a status bit, change the firmware) take effect at once.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import random
+import sys
+import threading
+from array import array
+from collections.abc import Callable, Sequence
+from enum import IntEnum
+from typing import Any, ClassVar, TypeVar
+
+from pymb._native import FunctionCode
+from pymb.devices.maps import (
+    COOLPRO,
+)
+from pymb.errors import (
+    DeviceFailure,
+    IllegalDataAddress,
+    IllegalDataValue,
+    IllegalFunction,
+    InvalidArgument,
+)
+from pymb.sim.clock import SimClock
+
+__all__ = [
+    "Device",
+    "ExceptionCode",
+    "Function",
+    "exception_pdu",
+    "parse_firmware",
+    "sign_magnitude",
+]
+
+_SWAP = sys.byteorder == "little"  # registers go on the wire big-endian
+_MAX_READ = COOLPRO.max_read  # [MB-AP] 6.3, 6.4: 1..125 registers per read
+_M64 = 0xFFFF_FFFF_FFFF_FFFF
+_TWO_PI = 2.0 * math.pi
+
+
+#: Modbus function codes ([MB-AP] 6): the compiler's, from libmodbus's modbus.h.
+Function = FunctionCode
+
+
+class ExceptionCode(IntEnum):
+    """Exception codes both documents list ([CP] ch. 05, [HUB] 2.3.2.3): the
+    codes of :mod:`pymb.errors`' classes."""
+
+    ILLEGAL_FUNCTION = IllegalFunction.default_code
+    ILLEGAL_DATA_ADDRESS = IllegalDataAddress.default_code
+    ILLEGAL_DATA_VALUE = IllegalDataValue.default_code
+    #: the CoolPro's "Slave Device Failure", the hub's "busy"
+    DEVICE_FAILURE = DeviceFailure.default_code
+
+
+def exception_pdu(function: int, code: int) -> bytes:
+    """The exception reply to ``function``: function | 0x80, then ``code``."""
+    return bytes(((function | 0x80) & 0xFF, code & 0xFF))
+
+
+def _mix(x: int) -> int:
+    """splitmix64's finaliser: a fast, well-spread 64-bit hash step."""
+    x = (x + 0x9E3779B97F4A7C15) & _M64
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _M64
+    return x ^ (x >> 31)
+
+
+def _noise(*keys: int) -> float:
+    """A number in [0, 1) that depends only on ``keys`` (seed, channel, tick, salt)."""
+    h = 0
+    for k in keys:
+        h = _mix(h ^ (k & _M64))
+    return h / 18446744073709551616.0
+
+
+def sign_magnitude(tenths: int) -> int:
+    """Encode tenths of a degree as [HUB] 3 does: bit 15 sign, bits 14..0
+    magnitude. The magnitude is capped so the result is never 0xFFFF."""
+    if tenths < 0:
+        return 0x8000 | min(-tenths, 0x7FFE)
+    return min(tenths, 0x7FFE)
+
+
+def parse_firmware(version: str | Sequence[int]) -> tuple[int, ...]:
+    """``"2.19"``, ``"V2.19"`` or ``(2, 19)`` as a tuple of ints, for comparing."""
+    if isinstance(version, str):
+        text = version.strip().lstrip("vV")
+        try:
+            parts = tuple(int(p) for p in text.split("."))
+        except ValueError:
+            parts = ()
+        if not parts:
+            raise InvalidArgument(f"firmware version must look like 2.19, got {version!r}")
+        return parts
+    return tuple(int(p) for p in version)
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _locked(method: _F) -> _F:
+    """Run ``method`` holding the device's lock (the bus thread and a test
+    thread may both touch a device)."""
+
+    @functools.wraps(method)
+    def wrapper(self: Device, *args: Any, **kwargs: Any) -> Any:
+        with self.lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _swapped(regs: array[int]) -> bytes:
+    if _SWAP:
+        regs.byteswap()
+    return regs.tobytes()
+
+
+class Device:
+    """What the bus needs of a simulated device.
+
+    ``address`` and ``baud`` are the ones it answers at *now* (a CoolPro
+    changes them only at a reset). ``handle`` returns the reply PDU or None.
+    """
+
+    kind: ClassVar[str] = ""
+    #: exception code the ``busy`` fault answers with
+    busy_code: ClassVar[int] = ExceptionCode.DEVICE_FAILURE
+
+    def __init__(self, address: int, *, baud: int, seed: int, clock: SimClock | None) -> None:
+        self.seed = int(seed)
+        self.clock = clock if clock is not None else SimClock()
+        self._address = address
+        self._baud = baud
+        self.rng = random.Random(_mix(self.seed ^ 0x5EED))  # turnaround jitter, faults
+        #: held by the bus around :meth:`handle` and by every public setter
+        self.lock = threading.RLock()
+
+    @property
+    def address(self) -> int:
+        """The slave address the device answers at."""
+        return self._address
+
+    @property
+    def baud(self) -> int:
+        """The line speed the device listens at (8N1)."""
+        return self._baud
+
+    def turnaround(self) -> float:
+        """Seconds from the end of a request to the start of the reply."""
+        return 0.0
+
+    def handle(self, pdu: bytes) -> bytes | None:
+        """The reply PDU to request ``pdu`` addressed to this device."""
+        raise NotImplementedError
+
+    def handle_broadcast(self, pdu: bytes) -> None:
+        """A request sent to address 0: never answered."""
+
+    def idle(self) -> None:
+        """The line is quiet: a chance to bring values up to date off the
+        request path."""
+
+    def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
+                     channels: Sequence[int] | None = None) -> str:
+        """Raise a sensor fault for ``seconds``; returns what it did."""
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        """One line for the command line's banner."""
+        return f"{self.kind} at address {self.address} ({self.baud} 8N1)"
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} address={self.address} baud={self.baud}>"
