@@ -16,10 +16,6 @@ or stray reply is never taken as a later answer (docs/library.md, "No stale data
 
 from __future__ import annotations
 
-import errno
-import operator
-import os
-import socket
 import struct
 import sys
 import threading
@@ -30,106 +26,21 @@ from types import TracebackType
 from typing import Any, Self
 
 from pymb import _native
+from pymb.client.checks import (
+    _LINK_LOST,
+    FC,
+    MAX_WR_READ_REGISTERS,
+    MAX_WR_WRITE_REGISTERS,
+    MAX_WRITE_BITS,
+    MAX_WRITE_REGISTERS,
+    _coil,
+    _int,
+    _register_values,
+    _seconds,
+)
 from pymb.errors import InvalidArgument, ModbusConnectionError
-from pymb.wire import bits_per_char, char_time
 
-__all__ = [
-    "Client",
-    "RtuClient",
-    "RtuOverTcpClient",
-    "TcpClient",
-    "client_for_address",
-    "parse_host_port",
-    "unresolved",
-]
-
-# Function codes and per-request limits: the compiler's (libmodbus's modbus.h).
-MAX_READ_REGISTERS = _native.MAX_READ_REGISTERS
-MAX_WRITE_REGISTERS = _native.MAX_WRITE_REGISTERS
-MAX_WR_WRITE_REGISTERS = _native.MAX_WR_WRITE_REGISTERS
-MAX_WR_READ_REGISTERS = _native.MAX_WR_READ_REGISTERS
-MAX_READ_BITS = _native.MAX_READ_BITS
-MAX_WRITE_BITS = _native.MAX_WRITE_BITS
-FC = _native.FunctionCode
-
-_PARITIES = {"N": "N", "E": "E", "O": "O", "NONE": "N", "EVEN": "E", "ODD": "O"}
-# OS errors after which the link is gone until it is opened again.
-_LINK_LOST = frozenset((errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF, errno.EPIPE,
-                        errno.ECONNRESET, errno.ECONNREFUSED, errno.ENOENT))
-
-_SERIAL_MODES = _native.SERIAL_MODES
-_RTS_MODES = _native.RTS_MODES
-
-
-def _int(name: str, value: Any, low: int, high: int) -> int:
-    # Any integer (numpy's too, through __index__), but not a bool or a float.
-    if isinstance(value, bool) or not hasattr(type(value), "__index__"):
-        raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
-    number: int = operator.index(value)
-    if not low <= number <= high:
-        raise InvalidArgument(f"{name} must be from {low} to {high}, got {number}")
-    return number
-
-
-def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidArgument(f"{name} must be a number of seconds, got {value!r}")
-    v = float(value)
-    if not (v >= 0.0 if allow_zero else v > 0.0) or v > 3600.0:
-        raise InvalidArgument(
-            f"{name} must be {'0' if allow_zero else 'more than 0'} to 3600 seconds, got {value!r}"
-        )
-    return v
-
-
-def _coil(value: Any) -> int:
-    """A coil value: a bool, or the integers 0 and 1, and nothing else."""
-    if isinstance(value, bool):
-        return int(value)
-    if getattr(getattr(value, "dtype", None), "kind", None) == "b" and value.ndim == 0:
-        return int(bool(value))  # a numpy bool (an element of a bool array)
-    if isinstance(value, (str, bytes, bytearray, memoryview, float)) or not hasattr(
-            type(value), "__index__"):
-        raise TypeError(
-            f"a coil value is a bool or 0 or 1, got {type(value).__name__} {value!r}")
-    v = operator.index(value)
-    if v not in (0, 1):
-        raise InvalidArgument(f"a coil value is a bool or 0 or 1, got {value!r}")
-    return v
-
-
-def _register_values(values: Any) -> bytes:
-    """Register values (ints 0..65535, not bools, not bytes) as big-endian bytes."""
-    if isinstance(values, array) and values.typecode == "H":
-        a = values
-    else:
-        if isinstance(values, (Set, Mapping)):
-            raise TypeError(f"register values are a sequence, not a {type(values).__name__} "
-                            "(which has no order)")
-        if isinstance(values, (str, bytes, bytearray, memoryview)):
-            raise TypeError(
-                "register values are a sequence of integers 0..65535 (an array('H') or a "
-                f"list), not {type(values).__name__}: bytes would depend on byte order")
-        try:
-            items = list(values)
-        except TypeError:
-            raise TypeError(
-                f"register values must be a sequence of integers, got {type(values).__name__}"
-            ) from None
-        for v in items:
-            if isinstance(v, bool) or not hasattr(type(v), "__index__") or isinstance(
-                    v, float):
-                raise TypeError(
-                    f"a register value is an integer 0..65535, got {type(v).__name__} {v!r}")
-            if not 0 <= operator.index(v) <= 0xFFFF:
-                raise InvalidArgument(f"a register value is 0..65535, got {v!r}")
-        a = array("H", [operator.index(v) for v in items])
-    if len(a) == 0:
-        raise InvalidArgument("no values to write")
-    if sys.byteorder == "little":
-        a = array("H", a)
-        a.byteswap()
-    return a.tobytes()
+__all__ = ["Client"]
 
 
 class Client:
@@ -579,191 +490,3 @@ class Client:
             except ModbusConnectionError as e:
                 self._close_if_lost(e)
                 raise
-
-
-class RtuClient(Client):
-    """A Modbus RTU master on a serial port (or a pseudo-terminal).
-
-    ``port``: the device, e.g. ``/dev/ttyUSB0`` or ``/dev/serial/by-id/...``.
-    ``baudrate``: one of the standard rates (9600, 19200, ... 115200, ...).
-    ``parity``: ``"N"``, ``"E"`` or ``"O"``. ``slave``: default address,
-    1..255 (pymb frames every request itself, so 248..255, which libmodbus
-    refuses, work like any other). ``timeout``: seconds for a complete reply.
-
-    RS485 adapters: ``serial_mode="rs485"`` turns on the kernel's RS485 mode
-    (drivers that support TIOCSRS485), ``rts="up"``/``"down"`` drives RTS
-    from user space around each request and ``rts_delay`` (0 to 1 second)
-    waits that long around it.
-
-    ``reject_early``: drop bytes that arrive before the request can have been
-    answered (its own wire time plus t3.5 at ``baudrate``), with the rest of
-    their frame: a repeater's duplicate that follows its original at once is
-    then never taken as the next answer. ``None`` (default): on for a real
-    serial port, off on a pseudo-terminal, which has no wire time.
-    """
-
-    def __init__(
-        self,
-        port: str,
-        baudrate: int = 9600,
-        parity: str = "N",
-        data_bits: int = 8,
-        stop_bits: int = 1,
-        *,
-        slave: int | None = None,
-        timeout: float = 1.0,
-        byte_timeout: float = 0.0,
-        serial_mode: str | None = None,
-        rts: str | None = None,
-        rts_delay: float | None = None,
-        reject_early: bool | None = None,
-    ) -> None:
-        if not isinstance(port, str) or not port:
-            raise InvalidArgument(f"port must be a device path, got {port!r}")
-        if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
-                or operator.index(baudrate) not in _native.BAUD_RATES):
-            raise InvalidArgument(
-                f"baudrate {baudrate!r} is not a rate the serial driver supports; "
-                f"use one of {sorted(_native.BAUD_RATES)}"
-            )
-        p = _PARITIES.get(str(parity).upper())
-        if p is None:
-            raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
-        baudrate = operator.index(baudrate)
-        data_bits = _int("data_bits", data_bits, 5, 8)
-        stop_bits = _int("stop_bits", stop_bits, 1, 2)
-        self.baudrate = baudrate
-        self.parity = p
-        self.data_bits = data_bits
-        self.stop_bits = stop_bits
-        if reject_early is not None and not isinstance(reject_early, bool):
-            raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
-        self._reject_early = reject_early
-        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
-        super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
-        self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
-
-    def _opened(self) -> None:
-        # Rejecting early bytes is asked for, or on by default on a real
-        # serial line; a pseudo-terminal (Linux majors 136..143) has no wire
-        # time, so there nothing is early.
-        on = self._reject_early
-        if on is None:
-            try:
-                on = not 136 <= os.major(os.fstat(self._link.fileno()).st_rdev) <= 143
-            except OSError:
-                on = False
-        self._link.set_reject_early(on)
-
-    def set_rs485(self, *, serial_mode: str | None = None, rts: str | None = None,
-                  rts_delay: float | None = None) -> None:
-        """RS485 settings, applied now if open and on every connect."""
-        mode = None
-        if serial_mode is not None:
-            if serial_mode not in _SERIAL_MODES:
-                raise InvalidArgument(
-                    f"serial_mode must be 'rs232' or 'rs485', got {serial_mode!r}")
-            mode = _SERIAL_MODES[serial_mode]
-        r = None
-        if rts is not None:
-            if rts not in _RTS_MODES:
-                raise InvalidArgument(f"rts must be 'none', 'up' or 'down', got {rts!r}")
-            r = _RTS_MODES[rts]
-        delay = None
-        if rts_delay is not None:
-            d = _seconds("rts_delay", rts_delay, allow_zero=True)
-            if d > 1.0:  # libmodbus takes microseconds in an int
-                raise InvalidArgument(f"rts_delay must be 0 to 1 second, got {rts_delay!r}")
-            delay = round(d * 1e6)
-        with self._lock:
-            self._link.set_rs485(mode, r, delay)
-
-    def frame_time(self, nbytes: int) -> float:
-        """Seconds ``nbytes`` take on this line (start, data, parity, stop bits;
-        :mod:`pymb.wire`)."""
-        return nbytes * char_time(self.baudrate,
-                                  bits_per_char(self.parity, self.stop_bits, self.data_bits))
-
-
-class TcpClient(Client):
-    """A Modbus TCP client (also for gateways that translate Modbus TCP to
-    RTU; for gateways that pass RTU frames through, see
-    :class:`RtuOverTcpClient`). ``host`` is a name or an address; ``slave`` is the unit identifier,
-    0..255 (many gateways route it to the RTU address)."""
-
-    _min_read_slave = 0
-
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0,
-                 byte_timeout: float = 0.0) -> None:
-        if not isinstance(host, str) or not host:
-            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
-        port = _int("port", port, 1, 65535)
-        self.host = host
-        self.tcp_port = port
-        super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
-                         byte_timeout=byte_timeout)
-
-
-class RtuOverTcpClient(Client):
-    """Modbus RTU frames (address, PDU, CRC) over a TCP socket: what
-    transparent serial servers and Ethernet gateways in "raw" mode carry
-    (libmodbus has no such transport). Every check of :class:`RtuClient`
-    applies (CRC, address, function, length, echo); replies of function codes
-    whose length only the line tells end after ``frame_silence`` seconds of
-    silence (default 20 ms: a gateway's TCP segments are not a serial line's
-    character timing). ``slave`` is the RTU address, 1..255 (0: broadcast,
-    writes only)."""
-
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0,
-                 byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
-        if not isinstance(host, str) or not host:
-            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
-        port = _int("port", port, 1, 65535)
-        silence = _seconds("frame_silence", frame_silence)
-        if silence > 1.0:
-            raise InvalidArgument(f"frame_silence must be up to 1 second, got {frame_silence!r}")
-        self.host = host
-        self.tcp_port = port
-        super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
-                         slave=slave, timeout=timeout, byte_timeout=byte_timeout)
-
-
-def parse_host_port(text: str, *, what: str = "--tcp",
-                    port_only: bool = False) -> tuple[str, int]:
-    """``HOST:PORT`` as a user typed it -> ``(host, port)``; the one parser of
-    pymb's TCP addresses. ``[::1]:502`` loses its brackets, an empty host is
-    127.0.0.1, and with ``port_only`` a bare ``PORT`` is accepted too. ``what``
-    names the option or key in the one-line error."""
-    host, sep, port = str(text).rpartition(":")
-    if not sep and port_only:
-        host = ""
-    if not (sep or port_only) or not port.isdigit():
-        raise InvalidArgument(
-            f"{what} needs {'[HOST:]PORT' if port_only else 'HOST:PORT'}, got {text!r}")
-    number = int(port)
-    if number > 65535:
-        raise InvalidArgument(f"{what} port must be 0..65535, got {number}")
-    return host.strip("[]") or "127.0.0.1", number
-
-
-def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = 1.0,
-                       what: str = "--tcp") -> TcpClient | RtuOverTcpClient:
-    """A (not yet open) :class:`TcpClient`, or with ``rtu_framing`` an
-    :class:`RtuOverTcpClient`, for ``HOST:PORT`` as a user typed it (``what``
-    names the option or key in the error)."""
-    host, port = parse_host_port(address, what=what)
-    cls = RtuOverTcpClient if rtu_framing else TcpClient
-    return cls(host, port, timeout=timeout)
-
-
-def unresolved(host: str) -> str | None:
-    """Why ``host`` does not resolve (None when it does)."""
-    try:
-        socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
-    except socket.gaierror as e:
-        return f"the host name {host!r} did not resolve ({e.strerror})"
-    except (UnicodeError, OSError) as e:
-        return f"the host name {host!r} did not resolve ({e})"
-    return None

@@ -1,0 +1,106 @@
+"""The client's argument checks and per-request limits: every argument is
+checked here before anything is sent, and the limits are the compiler's
+(libmodbus's modbus.h)."""
+
+from __future__ import annotations
+
+import errno
+import operator
+import sys
+from array import array
+from collections.abc import Mapping, Set
+from typing import Any
+
+from pymb import _native
+from pymb.errors import InvalidArgument
+
+__all__ = ["FC", "MAX_READ_BITS", "MAX_READ_REGISTERS", "MAX_WRITE_BITS",
+           "MAX_WRITE_REGISTERS", "MAX_WR_READ_REGISTERS", "MAX_WR_WRITE_REGISTERS"]
+
+# Function codes and per-request limits: the compiler's (libmodbus's modbus.h).
+MAX_READ_REGISTERS = _native.MAX_READ_REGISTERS
+MAX_WRITE_REGISTERS = _native.MAX_WRITE_REGISTERS
+MAX_WR_WRITE_REGISTERS = _native.MAX_WR_WRITE_REGISTERS
+MAX_WR_READ_REGISTERS = _native.MAX_WR_READ_REGISTERS
+MAX_READ_BITS = _native.MAX_READ_BITS
+MAX_WRITE_BITS = _native.MAX_WRITE_BITS
+FC = _native.FunctionCode
+
+_PARITIES = {"N": "N", "E": "E", "O": "O", "NONE": "N", "EVEN": "E", "ODD": "O"}
+# OS errors after which the link is gone until it is opened again.
+_LINK_LOST = frozenset((errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF, errno.EPIPE,
+                        errno.ECONNRESET, errno.ECONNREFUSED, errno.ENOENT))
+
+_SERIAL_MODES = _native.SERIAL_MODES
+_RTS_MODES = _native.RTS_MODES
+
+
+def _int(name: str, value: Any, low: int, high: int) -> int:
+    # Any integer (numpy's too, through __index__), but not a bool or a float.
+    if isinstance(value, bool) or not hasattr(type(value), "__index__"):
+        raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
+    number: int = operator.index(value)
+    if not low <= number <= high:
+        raise InvalidArgument(f"{name} must be from {low} to {high}, got {number}")
+    return number
+
+
+def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidArgument(f"{name} must be a number of seconds, got {value!r}")
+    v = float(value)
+    if not (v >= 0.0 if allow_zero else v > 0.0) or v > 3600.0:
+        raise InvalidArgument(
+            f"{name} must be {'0' if allow_zero else 'more than 0'} to 3600 seconds, got {value!r}"
+        )
+    return v
+
+
+def _coil(value: Any) -> int:
+    """A coil value: a bool, or the integers 0 and 1, and nothing else."""
+    if isinstance(value, bool):
+        return int(value)
+    if getattr(getattr(value, "dtype", None), "kind", None) == "b" and value.ndim == 0:
+        return int(bool(value))  # a numpy bool (an element of a bool array)
+    if isinstance(value, (str, bytes, bytearray, memoryview, float)) or not hasattr(
+            type(value), "__index__"):
+        raise TypeError(
+            f"a coil value is a bool or 0 or 1, got {type(value).__name__} {value!r}")
+    v = operator.index(value)
+    if v not in (0, 1):
+        raise InvalidArgument(f"a coil value is a bool or 0 or 1, got {value!r}")
+    return v
+
+
+def _register_values(values: Any) -> bytes:
+    """Register values (ints 0..65535, not bools, not bytes) as big-endian bytes."""
+    if isinstance(values, array) and values.typecode == "H":
+        a = values
+    else:
+        if isinstance(values, (Set, Mapping)):
+            raise TypeError(f"register values are a sequence, not a {type(values).__name__} "
+                            "(which has no order)")
+        if isinstance(values, (str, bytes, bytearray, memoryview)):
+            raise TypeError(
+                "register values are a sequence of integers 0..65535 (an array('H') or a "
+                f"list), not {type(values).__name__}: bytes would depend on byte order")
+        try:
+            items = list(values)
+        except TypeError:
+            raise TypeError(
+                f"register values must be a sequence of integers, got {type(values).__name__}"
+            ) from None
+        for v in items:
+            if isinstance(v, bool) or not hasattr(type(v), "__index__") or isinstance(
+                    v, float):
+                raise TypeError(
+                    f"a register value is an integer 0..65535, got {type(v).__name__} {v!r}")
+            if not 0 <= operator.index(v) <= 0xFFFF:
+                raise InvalidArgument(f"a register value is 0..65535, got {v!r}")
+        a = array("H", [operator.index(v) for v in items])
+    if len(a) == 0:
+        raise InvalidArgument("no values to write")
+    if sys.byteorder == "little":
+        a = array("H", a)
+        a.byteswap()
+    return a.tobytes()

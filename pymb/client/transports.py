@@ -1,0 +1,171 @@
+"""The three clients: :class:`RtuClient` (a serial line), :class:`TcpClient`
+(Modbus TCP) and :class:`RtuOverTcpClient` (RTU frames through a raw serial
+server)."""
+
+from __future__ import annotations
+
+import operator
+import os
+
+from pymb import _native
+from pymb.client.base import Client
+from pymb.client.checks import (
+    _PARITIES,
+    _RTS_MODES,
+    _SERIAL_MODES,
+    _int,
+    _seconds,
+)
+from pymb.errors import InvalidArgument
+from pymb.wire import bits_per_char, char_time
+
+__all__ = ["RtuClient", "RtuOverTcpClient", "TcpClient"]
+
+
+class RtuClient(Client):
+    """A Modbus RTU master on a serial port (or a pseudo-terminal).
+
+    ``port``: the device, e.g. ``/dev/ttyUSB0`` or ``/dev/serial/by-id/...``.
+    ``baudrate``: one of the standard rates (9600, 19200, ... 115200, ...).
+    ``parity``: ``"N"``, ``"E"`` or ``"O"``. ``slave``: default address,
+    1..255 (pymb frames every request itself, so 248..255, which libmodbus
+    refuses, work like any other). ``timeout``: seconds for a complete reply.
+
+    RS485 adapters: ``serial_mode="rs485"`` turns on the kernel's RS485 mode
+    (drivers that support TIOCSRS485), ``rts="up"``/``"down"`` drives RTS
+    from user space around each request and ``rts_delay`` (0 to 1 second)
+    waits that long around it.
+
+    ``reject_early``: drop bytes that arrive before the request can have been
+    answered (its own wire time plus t3.5 at ``baudrate``), with the rest of
+    their frame: a repeater's duplicate that follows its original at once is
+    then never taken as the next answer. ``None`` (default): on for a real
+    serial port, off on a pseudo-terminal, which has no wire time.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 9600,
+        parity: str = "N",
+        data_bits: int = 8,
+        stop_bits: int = 1,
+        *,
+        slave: int | None = None,
+        timeout: float = 1.0,
+        byte_timeout: float = 0.0,
+        serial_mode: str | None = None,
+        rts: str | None = None,
+        rts_delay: float | None = None,
+        reject_early: bool | None = None,
+    ) -> None:
+        if not isinstance(port, str) or not port:
+            raise InvalidArgument(f"port must be a device path, got {port!r}")
+        if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
+                or operator.index(baudrate) not in _native.BAUD_RATES):
+            raise InvalidArgument(
+                f"baudrate {baudrate!r} is not a rate the serial driver supports; "
+                f"use one of {sorted(_native.BAUD_RATES)}"
+            )
+        p = _PARITIES.get(str(parity).upper())
+        if p is None:
+            raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
+        baudrate = operator.index(baudrate)
+        data_bits = _int("data_bits", data_bits, 5, 8)
+        stop_bits = _int("stop_bits", stop_bits, 1, 2)
+        self.baudrate = baudrate
+        self.parity = p
+        self.data_bits = data_bits
+        self.stop_bits = stop_bits
+        if reject_early is not None and not isinstance(reject_early, bool):
+            raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
+        self._reject_early = reject_early
+        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
+        super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
+        self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
+
+    def _opened(self) -> None:
+        # Rejecting early bytes is asked for, or on by default on a real
+        # serial line; a pseudo-terminal (Linux majors 136..143) has no wire
+        # time, so there nothing is early.
+        on = self._reject_early
+        if on is None:
+            try:
+                on = not 136 <= os.major(os.fstat(self._link.fileno()).st_rdev) <= 143
+            except OSError:
+                on = False
+        self._link.set_reject_early(on)
+
+    def set_rs485(self, *, serial_mode: str | None = None, rts: str | None = None,
+                  rts_delay: float | None = None) -> None:
+        """RS485 settings, applied now if open and on every connect."""
+        mode = None
+        if serial_mode is not None:
+            if serial_mode not in _SERIAL_MODES:
+                raise InvalidArgument(
+                    f"serial_mode must be 'rs232' or 'rs485', got {serial_mode!r}")
+            mode = _SERIAL_MODES[serial_mode]
+        r = None
+        if rts is not None:
+            if rts not in _RTS_MODES:
+                raise InvalidArgument(f"rts must be 'none', 'up' or 'down', got {rts!r}")
+            r = _RTS_MODES[rts]
+        delay = None
+        if rts_delay is not None:
+            d = _seconds("rts_delay", rts_delay, allow_zero=True)
+            if d > 1.0:  # libmodbus takes microseconds in an int
+                raise InvalidArgument(f"rts_delay must be 0 to 1 second, got {rts_delay!r}")
+            delay = round(d * 1e6)
+        with self._lock:
+            self._link.set_rs485(mode, r, delay)
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds ``nbytes`` take on this line (start, data, parity, stop bits;
+        :mod:`pymb.wire`)."""
+        return nbytes * char_time(self.baudrate,
+                                  bits_per_char(self.parity, self.stop_bits, self.data_bits))
+
+
+class TcpClient(Client):
+    """A Modbus TCP client (also for gateways that translate Modbus TCP to
+    RTU; for gateways that pass RTU frames through, see
+    :class:`RtuOverTcpClient`). ``host`` is a name or an address; ``slave`` is the unit identifier,
+    0..255 (many gateways route it to the RTU address)."""
+
+    _min_read_slave = 0
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        port = _int("port", port, 1, 65535)
+        self.host = host
+        self.tcp_port = port
+        super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
+                         byte_timeout=byte_timeout)
+
+
+class RtuOverTcpClient(Client):
+    """Modbus RTU frames (address, PDU, CRC) over a TCP socket: what
+    transparent serial servers and Ethernet gateways in "raw" mode carry
+    (libmodbus has no such transport). Every check of :class:`RtuClient`
+    applies (CRC, address, function, length, echo); replies of function codes
+    whose length only the line tells end after ``frame_silence`` seconds of
+    silence (default 20 ms: a gateway's TCP segments are not a serial line's
+    character timing). ``slave`` is the RTU address, 1..255 (0: broadcast,
+    writes only)."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0,
+                 byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        port = _int("port", port, 1, 65535)
+        silence = _seconds("frame_silence", frame_silence)
+        if silence > 1.0:
+            raise InvalidArgument(f"frame_silence must be up to 1 second, got {frame_silence!r}")
+        self.host = host
+        self.tcp_port = port
+        super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
+                         slave=slave, timeout=timeout, byte_timeout=byte_timeout)
