@@ -244,11 +244,18 @@ def test_close_ends_the_worker_and_releases_port_and_descriptors(
         for _ in range(2):  # close, then open again
             await c.connect()
             await t.connect()
+            guards = sorted(task.get_name() for task in asyncio.all_tasks()
+                            if task.get_name().startswith("pymb-aio guard"))
+            assert guards == [f"pymb-aio guard {rtu_sim.port}",
+                              f"pymb-aio guard {t.port}"]
             await asyncio.gather(c.read_input_registers(0, 8), t.read_input_registers(0, 8))
             assert len(pymb_threads()) == 2
             assert not port_is_free(rtu_sim.port)
             await asyncio.gather(c.close(), t.close())
             assert pymb_threads() == []
+            await asyncio.sleep(0)  # the guards' turn to end
+            assert not [task for task in asyncio.all_tasks()
+                        if task.get_name().startswith("pymb-aio guard")]
             assert port_is_free(rtu_sim.port)
         await c.close()  # twice is fine
         assert c.worker_threads == 3  # one per connection, and one for the last close
