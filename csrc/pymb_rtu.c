@@ -181,26 +181,32 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
             continue;
         }
         (*got) += (int)k;
-        if (want < 0 && !by_silence) {
-            want = line->tr->reply_length(rsp, *got, expect);
-            if (want == PYMB_FRAME_BAD_FUNCTION) {
-                want = -1;
-                by_silence = 1;
-            } else if (want == PYMB_FRAME_TOO_LONG) {
-                errno = EMBBADDATA;
-                return -1;
-            } else if (want < 0) {
-                want = -1; /* more bytes are needed to tell */
+        /* The bytes in hand, again after each late frame dropped from their
+         * front: the reply may have come in the same read behind it. */
+        for (;;) {
+            if (want < 0 && !by_silence) {
+                want = line->tr->reply_length(rsp, *got, expect);
+                if (want == PYMB_FRAME_BAD_FUNCTION) {
+                    want = -1;
+                    by_silence = 1;
+                } else if (want == PYMB_FRAME_TOO_LONG) {
+                    errno = EMBBADDATA;
+                    return -1;
+                } else if (want < 0) {
+                    want = -1; /* more bytes are needed to tell */
+                }
             }
-        }
-        if (!by_silence && (*got) >= cap && (want < 0 || (*got) < want)) {
-            errno = EMBBADDATA; /* longer than any RTU frame */
-            return -1;
-        }
-        if (want > 0 && *got >= want && late_frame(line, slave, rsp, want)) {
-            memmove(rsp, rsp + want, (size_t)(*got - want));
-            *got -= want;
-            want = -1;
+            if (!by_silence && (*got) >= cap && (want < 0 || (*got) < want)) {
+                errno = EMBBADDATA; /* longer than any RTU frame */
+                return -1;
+            }
+            if (want > 0 && *got >= want && late_frame(line, slave, rsp, want)) {
+                memmove(rsp, rsp + want, (size_t)(*got - want));
+                *got -= want;
+                want = -1;
+                continue;
+            }
+            break;
         }
     }
     return want;

@@ -419,6 +419,26 @@ static void answer_late_first(struct dev *d, const uint8_t *req, int n)
     }
 }
 
+/* Silent to the first request; the second is answered by the first's late
+ * reply and its own answer in one write: one read holds both. */
+static void answer_late_and_reply_together(struct dev *d, const uint8_t *req, int n)
+{
+    uint8_t both[64], late[300];
+    const uint8_t pdu[] = {0x03, 0x04, 0x13, 0x88, 0x13, 0x89}; /* 5000, 5001 */
+    size_t k;
+    (void)n;
+    if (d->state++ == 0) {
+        return;
+    }
+    k = frame(d->kind, 0, 5, pdu, sizeof pdu, late);
+    memcpy(both, late, k);
+    {
+        const uint8_t mine[] = {0x03, 0x04, 0x03, 0xE8, 0x03, 0xE9}; /* 1000, 1001 */
+        k += frame(d->kind, 0, req_unit(d, req), mine, sizeof mine, both + k);
+    }
+    dev_send(d, both, k);
+}
+
 static void answer_bad_crc(struct dev *d, const uint8_t *req, int n)
 {
     const uint8_t pdu[] = {0x03, 0x02, 0x12, 0x34};
@@ -730,6 +750,18 @@ static void test_late_and_stale(enum kind k)
         modbus_set_response_timeout(r.ctx, 0, 300000);
         rig_stop(&r);
         sleep_ms(350); /* let the window pass */
+
+        /* The late frame and the answer in one read: the frame is dropped
+         * from the front and the answer behind it taken. */
+        rig_start(&r, answer_late_and_reply_together);
+        errno = 0;
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 5, 0, 2, regs,
+                                  &fail) == -1 && errno == ETIMEDOUT);
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 6, 0, 2, regs,
+                                  &fail) == 2);
+        CHECK(regs[0] == 1000 && regs[1] == 1001);
+        rig_stop(&r);
+        sleep_ms(350);
     }
 
     /* Stale bytes waiting before the request are not its answer. */
