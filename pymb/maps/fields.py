@@ -113,7 +113,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     typ = raw.get("type", None if registers else "bool")
     if typ is None:
         ctx.fail("type", "type is required for a register point")
-    if typ not in TYPES:
+    if not isinstance(typ, str) or typ not in TYPES:
         ctx.fail("type", f"unknown type {typ!r}{did_you_mean(str(typ), list(TYPES))}")
     info = TYPES[typ]
     if (typ == "bool") == registers:
@@ -246,7 +246,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
             ctx.fail("valid", f"valid must be [low, high] with low <= high, got {v!r}")
         valid = (lo, hi)
     group = raw.get("group")
-    if group is not None and group not in groups:
+    if group is not None and (not isinstance(group, str) or group not in groups):
         ctx.fail("group", f"no group {group!r} in [groups]{did_you_mean(str(group), list(groups))}")
     deadband = raw.get("deadband")
     if deadband is not None and number(ctx, "deadband", deadband) < 0:
