@@ -1,0 +1,69 @@
+"""What a bench run is asked to do: its options and plan, and the constants
+every section shares."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymb.bench.contenders import NAMES
+from pymb.devices.maps import Type
+
+__all__ = ["BUSES", "SECTIONS", "SEED", "SOFTWARE_BAUD", "Options", "Plan", "Progress"]
+
+SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger")
+SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
+SEED = 0
+BUSES = (1, 2, 4, 8)
+_TIMEOUT = 2.0  #: every stack's reply timeout, seconds (the hub may take 0.5 s)
+_KINDS = {Type.SIGN_MAGNITUDE: "S", Type.I16: "I", Type.U16: "U"}
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How much of everything to do."""
+
+    rounds: int  #: interleaved rounds of the sweep comparison
+    sweeps: int  #: hub sweeps per contender per round
+    reads: int  #: telemetry reads per contender per round
+    warm_sweeps: int
+    warm_reads: int
+    micro_repeat: int
+    micro_seconds: float  #: at least this long per timeit repeat
+    wire_rounds: int  #: interleaved rounds at emulated 115200
+    rounds_9600: int  #: a sweep at 9600 baud takes 1.6 s: one sweep per round, few rounds
+    sweeps_115200: int
+    scale_seconds: float
+    scale_repeats: int
+
+    @classmethod
+    def make(cls, quick: bool, rounds: int | None) -> Plan:
+        """The full plan (about two minutes on 2 cores) or the quick one."""
+        if quick:
+            r = rounds or 3
+            return cls(r, 5, 10, 2, 4, 5, 0.02, min(r, 2), 1, 2, 0.6, 1)
+        r = rounds or 20
+        return cls(r, 40, 100, 5, 20, 15, 0.2, min(r, 6), min(r, 3), 4, 4.0, 2)
+
+
+@dataclass
+class Options:
+    """What the user asked for."""
+
+    quick: bool = False
+    only: tuple[str, ...] = NAMES
+    rounds: int | None = None
+    sections: tuple[str, ...] = SECTIONS
+    command: str = "pymb bench"
+    progress: Progress | None = None
+    plan: Plan = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.plan = Plan.make(self.quick, self.rounds)
+
+    def say(self, text: str) -> None:
+        """A progress line (stderr), if wanted."""
+        if self.progress is not None:
+            self.progress(text)
