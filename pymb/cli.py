@@ -49,6 +49,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("pymb.commands.watch", "readings refreshed live, with the achieved rate"),
     "log": ("pymb.commands.log", "log devices on one or more buses to SQLite, CSV or JSONL"),
     "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
+    "info": ("pymb.commands.info", "what a logged database holds: devices, span, faults, sizes"),
+    "plot": ("pymb.commands.plot", "plot a quantity of a logged device to PNG or SVG"),
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),

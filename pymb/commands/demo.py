@@ -17,13 +17,13 @@ import sqlite3
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 from pymb.commands.status import StatusLine
 from pymb.devices.spec import DeviceConfig
 from pymb.errors import InvalidArgument
 from pymb.logger import BusConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
+from pymb.store import open_readonly
 
 BAUD = 115200
 
@@ -109,10 +109,10 @@ def run(args: argparse.Namespace) -> int:
 
 def _faults(path: str) -> str:
     try:
-        db = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+        db = open_readonly(path)  # leaves no -wal or -shm behind
         rows = db.execute("SELECT kind, COUNT(*) FROM events WHERE kind NOT IN "
                           "('connect', 'reconnect') GROUP BY kind ORDER BY 2 DESC").fetchall()
         db.close()
-    except sqlite3.Error:
+    except (sqlite3.Error, InvalidArgument):
         return ""
     return ", ".join(f"{n} {kind}" for kind, n in rows)

@@ -1,4 +1,5 @@
-"""``pymb export FILE.sqlite --csv OUT``: get logged data back out.
+"""``pymb export FILE.sqlite --csv OUT``: get logged data back out, long (one
+row per value) or wide (one row per sample, a column per value).
 
 Never destroys anything: the CSV is written to a temporary file beside OUT
 and renamed over it only when complete; OUT may not be the database itself;
@@ -11,80 +12,43 @@ import argparse
 import contextlib
 import os
 import signal
-import sqlite3
 import sys
 import tempfile
-from datetime import UTC, datetime
+from collections.abc import Callable
+from functools import partial
+from typing import IO
 
-from pymb.devices.spec import device_parts
+from pymb.commands._data import check_database, device_name, parse_channels, parse_times
+from pymb.devices import HUB
+from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
-from pymb.store import CSV_COLUMNS, export_csv, is_pymb_database
-from pymb.store.readonly import open_readonly
+from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, quantities
+from pymb.store.export import WIDE_HEAD
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb export``."""
     p.add_argument("database", help="a database written by pymb log / pymb demo")
     p.add_argument("--csv", required=True, metavar="OUT",
-                   help="write long-format CSV here ('-' for stdout)")
+                   help="write CSV here ('-' for stdout)")
+    p.add_argument("--layout", choices=LAYOUTS, default="long",
+                   help="long: a row per value, with its state (default); wide: a row per "
+                        "sample, a column per value (QUANTITY, or QUANTITY_CHANNEL for a hub)")
     p.add_argument("--device", metavar="DEVICE",
                    help="only this device: TYPE[:ADDRESS] as logged (e.g. hub:250) or its "
                         "name (e.g. hub-250)")
-    p.add_argument("--since", help="only data from this UTC time on (ISO 8601)")
+    p.add_argument("--since", help="only data from this time on (ISO 8601, UTC unless it "
+                                   "says otherwise)")
+    p.add_argument("--until", help="only data before this time (ISO 8601)")
+    p.add_argument("--channel", metavar="CHANNELS",
+                   help="only these hub channels, e.g. 3 or 1-10,40 (leaves out what has no "
+                        "channel: a CoolPro)")
+    p.add_argument("--quantity", metavar="NAMES",
+                   help="only these quantities, e.g. temperature_c or "
+                        "temperature_c,humidity_pct")
     p.add_argument("--events", action="store_true", help="include the events (faults etc.)")
     p.add_argument("--force", action="store_true",
                    help="overwrite OUT even if it is not a CSV written by pymb")
-
-
-def _check_database(path: str) -> None:
-    if os.path.isdir(path):
-        raise InvalidArgument(f"{path} is a directory, not a database")
-    if not os.path.exists(path):
-        raise InvalidArgument(f"no such database: {path}")
-    try:
-        with open(path, "rb") as f:
-            head = f.read(16)
-    except OSError as e:
-        raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
-    if head != b"SQLite format 3\x00" or not is_pymb_database(path):
-        raise InvalidArgument(f"{path} is not a database written by pymb")
-
-
-def _devices(path: str) -> list[tuple[str, str, int, str]]:
-    """(name, type, address, bus) of every device in the database."""
-    db = open_readonly(path)
-    try:
-        return [(str(n), str(t), int(a), str(b)) for n, t, a, b in db.execute(
-            "SELECT name, type, address, bus FROM devices ORDER BY id")]
-    except sqlite3.Error as e:
-        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
-    finally:
-        db.close()
-
-
-def resolve_device(path: str, wanted: str) -> str:
-    """The name of the device ``wanted`` (a name or TYPE[:ADDRESS]) in the
-    database; an error listing the devices there if it is not one of them."""
-    devices = _devices(path)
-    names = [d[0] for d in devices]
-    if wanted in names:
-        return wanted
-    matches: list[str] = []
-    try:
-        kind, options = device_parts(wanted)
-    except InvalidArgument:
-        kind, options = "", {}
-    if kind:
-        address = options.get("address")
-        matches = [n for n, t, a, _ in devices
-                   if t == kind and (address is None or a == address)]
-    if len(matches) == 1:
-        return matches[0]
-    listing = ", ".join(f"{n} ({t}:{a} on {b})" for n, t, a, b in devices) or "none"
-    if len(matches) > 1:
-        raise InvalidArgument(f"--device {wanted!r} matches several devices in {path}: "
-                              f"{', '.join(matches)}; give one of those names")
-    raise InvalidArgument(f"no device {wanted!r} in {path}; it has: {listing}")
 
 
 def _is_pymb_csv(path: str) -> bool:
@@ -93,24 +57,37 @@ def _is_pymb_csv(path: str) -> bool:
             first = f.readline().rstrip("\r\n")
     except (OSError, UnicodeDecodeError):
         return False
-    return first == ",".join(CSV_COLUMNS)
+    return first == ",".join(CSV_COLUMNS) or first.startswith(",".join(WIDE_HEAD) + ",")
+
+
+def _quantities(spec: str | None) -> list[str] | None:
+    if spec is None:
+        return None
+    known = list(dict.fromkeys([*quantities("coolpro"), *quantities("hub")]))
+    out = [q.strip() for q in spec.split(",") if q.strip()]
+    if not out:
+        raise InvalidArgument(f"--quantity needs names, e.g. temperature_c; got {spec!r}")
+    for q in out:
+        if q not in known:
+            raise InvalidArgument(f"unknown --quantity {q!r}{closest(q, known)}")
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
     """Export; prints how many rows went out."""
-    since = None
-    if args.since is not None:  # '' is no time either: an error, never "no filter"
-        try:
-            t = datetime.fromisoformat(args.since.replace("Z", "+00:00"))
-        except ValueError:
-            raise InvalidArgument(f"--since needs an ISO 8601 time, got {args.since!r}") from None
-        if t.tzinfo is None:
-            t = t.replace(tzinfo=UTC)
-        since = t.timestamp()
-    _check_database(args.database)
-    device = resolve_device(args.database, args.device) if args.device is not None else None
+    since, until = parse_times(args.since, args.until)
+    channels = None if args.channel is None else parse_channels(args.channel, HUB.channels,
+                                                               "--channel")
+    wanted = _quantities(args.quantity)
+    if args.events and args.layout == "wide":
+        raise InvalidArgument("--events is for the long layout (an event is no sample)")
+    check_database(args.database)
+    device = device_name(args.database, args.device) if args.device is not None else None
+    export = partial(export_csv, args.database, device=device, since=since, until=until,
+                     channels=channels, quantities=wanted, events=args.events,
+                     layout=args.layout)
     if args.csv == "-":
-        export_csv(args.database, sys.stdout, device=device, since=since, events=args.events)
+        export(sys.stdout)
         return 0
     out = args.csv
     if os.path.isdir(out):
@@ -127,18 +104,16 @@ def run(args: argparse.Namespace) -> int:
         # A FIFO, a device: write to it directly.
         try:
             with open(out, "w", encoding="utf-8", newline="") as f:
-                rows = export_csv(args.database, f, device=device, since=since,
-                                  events=args.events)
+                rows = export(f)
         except OSError as e:
             raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
     else:
-        rows = _export_atomically(args, out, device, since)
+        rows = _export_atomically(out, export)
     print(f"exported {rows:,} rows to {out}", file=sys.stderr)
     return 0
 
 
-def _export_atomically(args: argparse.Namespace, out: str, device: str | None,
-                       since: float | None) -> int:
+def _export_atomically(out: str, export: Callable[[IO[str]], int]) -> int:
     """Write a temporary file beside ``out``, rename it over ``out`` when done."""
     folder = os.path.dirname(os.path.abspath(out))
     try:
@@ -151,7 +126,7 @@ def _export_atomically(args: argparse.Namespace, out: str, device: str | None,
     old = {s: signal.signal(s, terminated) for s in (signal.SIGTERM, signal.SIGHUP)}
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            rows = export_csv(args.database, f, device=device, since=since, events=args.events)
+            rows = export(f)
         if os.path.exists(out):
             with contextlib.suppress(OSError):
                 os.chmod(tmp, os.stat(out).st_mode & 0o7777)

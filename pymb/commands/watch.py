@@ -24,6 +24,7 @@ from typing import Any
 
 from pymb.commands import read as read_cmd
 from pymb.commands._common import device_from_args, make_client, render, to_json
+from pymb.commands._data import parse_channels
 from pymb.commands.mapread import target_from_args, watch_map
 from pymb.devices import HUB, HubReading, State
 from pymb.devices.spec import closest
@@ -54,22 +55,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--show", metavar="CHANNELS",
                    help="hub: the channels to show and read, e.g. 1-20 or 1-10,40 "
                         "(default: all)")
-
-
-def parse_channels(spec: str, channels: int) -> list[int]:
-    """``1-10,40`` -> [1..10, 40], each within 1..channels."""
-    out: list[int] = []
-    try:
-        for part in spec.split(","):
-            lo, _, hi = part.strip().partition("-")
-            a, b = int(lo), int(hi or lo)
-            if not 1 <= a <= b <= channels:
-                raise ValueError
-            out.extend(c for c in range(a, b + 1) if c not in out)
-    except ValueError:
-        raise InvalidArgument(f"bad --show {spec!r}: channels 1..{channels}, e.g. 1-20 or "
-                              f"1-10,40") from None
-    return sorted(out)
 
 
 def parse_blocks(names: list[str]) -> list[str]:

@@ -34,20 +34,26 @@ views), :mod:`~pymb.store.onchange` (report by exception),
 :mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.outbox` (a
 forwarder's reads and cursors), :mod:`~pymb.store.text` and
 :mod:`~pymb.store.influx` (text formats), :mod:`~pymb.store.sinks`
-(``open_sink``), :mod:`~pymb.store.export` (a database as CSV).
+(``open_sink``), :mod:`~pymb.store.export` (a database as CSV),
+:mod:`~pymb.store.readonly` (reading without leaving files),
+:mod:`~pymb.store.summary` (what a database holds), :mod:`~pymb.store.series`
+(a quantity over time, and the lookups the data commands share).
 """
 
 from __future__ import annotations
 
 from pymb.errors import OutputError
-from pymb.store.export import export_csv
+from pymb.store.export import LAYOUTS, export_csv
 from pymb.store.guard import check_output, is_pymb_database
 from pymb.store.onchange import OnChange
 from pymb.store.outbox import Outbox
 from pymb.store.reader import samples_after
+from pymb.store.readonly import open_readonly
 from pymb.store.records import FAULT_KINDS, DeviceInfo, Event, Sample, Sink, StoredSample
 from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
+from pymb.store.series import Series, quantities, resolve_device, series
 from pymb.store.sinks import FORMATS, open_sink
+from pymb.store.summary import DeviceSummary, Summary, summarize
 from pymb.store.text import (
     CSV_COLUMNS,
     CsvSink,
@@ -64,29 +70,38 @@ __all__ = [
     "CSV_COLUMNS",
     "FAULT_KINDS",
     "FORMATS",
+    "LAYOUTS",
     "MIN_BYTES",
     "PAGE_SIZE",
     "SCHEMA_VERSION",
     "CsvSink",
     "DeviceInfo",
+    "DeviceSummary",
     "Event",
     "JsonlSink",
     "OnChange",
     "Outbox",
     "OutputError",
     "Sample",
+    "Series",
     "Sink",
     "SqliteSink",
     "StoredSample",
+    "Summary",
     "check_output",
     "csv_head",
     "csv_value",
     "event_dict",
     "export_csv",
     "is_pymb_database",
+    "open_readonly",
     "open_sink",
+    "quantities",
+    "resolve_device",
     "sample_dict",
     "sample_rows",
     "samples_after",
     "schema_version",
+    "series",
+    "summarize",
 ]

@@ -1,4 +1,5 @@
-"""``pymb export``'s library side: a database (format 1 or 2) as long-format CSV."""
+"""``pymb export``'s library side: a database (format 1 or 2) as CSV, long
+(one row per value) or wide (one row per sample, a column per value)."""
 
 from __future__ import annotations
 
@@ -7,20 +8,38 @@ import sqlite3
 from collections.abc import Sequence
 from typing import IO, Any
 
-from pymb.devices.readings import STATE_NAMES
+from pymb.devices import HubReading, State
+from pymb.devices.readings import STATE_NAMES, telemetry_values
 from pymb.errors import InvalidArgument
-from pymb.store.reader import iter_samples
 from pymb.store.readonly import open_readonly
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
+from pymb.store.series import chunks, sample_filter
 from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
 
-__all__ = ["export_csv"]
+__all__ = ["LAYOUTS", "WIDE_HEAD", "export_csv", "wide_columns"]
+
+LAYOUTS = ("long", "wide")
+_NOT_READ = int(State.NOT_READ)
+#: The wide layout's first columns (then one per value).
+WIDE_HEAD = CSV_COLUMNS[:6]
 
 
 def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
-               since: float | None = None, events: bool = False) -> int:
-    """Write a pymb SQLite database (format 1 or 2) out as long-format CSV;
-    returns rows."""
+               since: float | None = None, until: float | None = None,
+               channels: Sequence[int] | None = None, quantities: Sequence[str] | None = None,
+               events: bool = False, layout: str = "long") -> int:
+    """Write a pymb SQLite database out as CSV; returns the rows written.
+
+    ``device`` (a name), ``since`` (included) and ``until`` (excluded, UTC
+    seconds), ``channels`` (a hub's; rows without a channel are left out) and
+    ``quantities`` choose what goes out. ``layout`` ``long``: one row per
+    value, with its state (format 1 or 2); ``wide``: one row per sample and a
+    column per value, ``QUANTITY`` for a CoolPro, ``QUANTITY_CHANNEL`` for a
+    hub (format 2)."""
+    if layout not in LAYOUTS:
+        raise InvalidArgument(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    if events and layout == "wide":
+        raise InvalidArgument("--events is for the long layout (an event is no sample)")
     try:
         db = open_readonly(db_path)
     except sqlite3.Error as e:
@@ -30,15 +49,27 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
         if version not in (1, SCHEMA_VERSION):
             raise InvalidArgument(f"{db_path} is not a pymb database this pymb can read")
         w = csv.writer(out)
+        keep = _Keep(channels, quantities)
+        if layout == "wide":
+            if version != SCHEMA_VERSION:
+                raise InvalidArgument(f"the wide layout reads databases of format "
+                                      f"{SCHEMA_VERSION}; {db_path} is of format {version}")
+            return _export_wide(db, w, device, since, until, keep)
         w.writerow(CSV_COLUMNS)
         if version == 1:
-            rows = _export_v1(db, w, device, since)
+            rows = _export_v1(db, w, device, since, until, keep)
         else:
-            rows = _export_v2(db, w, device, since)
+            rows = 0
+            where, args = sample_filter(device, since, until)
+            for s in chunks(db, where, args):
+                for row in sample_rows(s):
+                    if keep.row(row):
+                        w.writerow(row)
+                        rows += 1
         if events:
             q = ("SELECT e.time_utc, e.bus, d.name, d.type, d.address, e.kind, e.code, e.message "
                  "FROM events e LEFT JOIN devices d ON d.id = e.device_id")
-            ew, eargs = _filters(device, since, table="e")
+            ew, eargs = _filters(device, since, until, table="e")
             for r in db.execute(q + ew + " ORDER BY e.id", eargs):
                 w.writerow([*csv_head(r[0], r[1], r[2], r[3], r[4]), "", f"event:{r[5]}",
                             "" if r[6] is None else r[6], r[7]])
@@ -50,34 +81,83 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
         db.close()
 
 
-def _export_v2(db: sqlite3.Connection, w: Any, device: str | None,
-               since: float | None) -> int:
-    parts: list[str] = ["1"]
-    args: list[Any] = []
-    if device is not None:
-        parts.append("s.device_id IN (SELECT id FROM devices WHERE name = ?)")
-        args.append(device)
-    if since is not None:
-        parts.append("s.time_utc >= ?")
-        args.append(since)
+class _Keep:
+    """Which values go out: the chosen channels and quantities."""
+
+    def __init__(self, channels: Sequence[int] | None, quantities: Sequence[str] | None) -> None:
+        self.channels = None if channels is None else set(channels)
+        self.quantities = None if quantities is None else list(quantities)
+
+    def value(self, channel: int | None, quantity: str) -> bool:
+        if self.quantities is not None and quantity not in self.quantities:
+            return False
+        return self.channels is None or channel in self.channels
+
+    def row(self, row: list[Any]) -> bool:
+        return self.value(row[6] if row[6] != "" else None, row[7])
+
+
+def wide_columns(kinds: Sequence[tuple[str, int]], channels: Sequence[int] | None = None,
+                 quantities: Sequence[str] | None = None) -> list[str]:
+    """The wide layout's value columns for devices of ``kinds`` ((type,
+    channels) each), as chosen."""
+    keep = _Keep(channels, quantities)
+    cols: list[str] = []
+    if any(k == "coolpro" for k, _ in kinds):
+        cols += [q for q in COOLPRO_FIELDS if keep.value(None, q)]
+    hub = max((c for k, c in kinds if k == "hub"), default=0)
+    for ch in range(1, hub + 1):
+        cols += [f"{q}_{ch}" for q in HUB_FIELDS if keep.value(ch, q)]
+    return cols
+
+
+def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
+                 until: float | None, keep: _Keep) -> int:
+    q = "SELECT type, channels FROM devices" + (" WHERE name = ?" if device else "")
+    kinds = [(str(t), int(c)) for t, c in db.execute(q, (device,) if device else ())]
+    cols = wide_columns(kinds, None if keep.channels is None else sorted(keep.channels),
+                        keep.quantities)
+    if not cols:
+        raise InvalidArgument("no value to export: the --channel and --quantity chosen match "
+                              "nothing these devices have")
+    index = {c: i for i, c in enumerate(cols)}
+    w.writerow([*WIDE_HEAD, *cols])
     rows = 0
-    last = 0
-    while True:  # in chunks: a long file never sits in memory
-        chunk = list(iter_samples(db, " AND ".join([*parts, "s.id > ?"]), (*args, last), 500))
-        if not chunk:
-            return rows
-        for s in chunk:
-            for row in sample_rows(s):
-                w.writerow(row)
-                rows += 1
-        last = chunk[-1].id
+    where, args = sample_filter(device, since, until)
+    for s in chunks(db, where, args):
+        d = s.device
+        cells: list[Any] = [""] * len(cols)
+        data = s.data
+        # A sample with none of the chosen values has no row (an --on-change
+        # sample may hold none of the chosen channels).
+        if isinstance(data, HubReading):
+            c = data.channels
+            vals, states = data.values.tolist(), data.raw_states.tolist()
+            stored = False
+            for b, name in enumerate(HUB_FIELDS):
+                for ch in range(1, c + 1):
+                    i = index.get(f"{name}_{ch}")
+                    if i is not None and states[b * c + ch - 1] != _NOT_READ:
+                        cells[i] = csv_value(vals[b * c + ch - 1] + 0.0)
+                        stored = True
+        else:
+            stored = False  # none of its quantities chosen (--channel, --quantity)
+            for name, v in telemetry_values(data).items():
+                i = index.get(name)
+                if i is not None:
+                    cells[i] = csv_value(v)
+                    stored = True
+        if stored:
+            w.writerow([*csv_head(s.time_utc, d.bus, d.name, d.type, d.address), *cells])
+            rows += 1
+    return rows
 
 
-def _export_v1(db: sqlite3.Connection, w: Any, device: str | None,
-               since: float | None) -> int:
+def _export_v1(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
+               until: float | None, keep: _Keep) -> int:
     """Format 1 (pymb before format 2): decoded tables ``coolpro`` and ``hub``."""
     rows = 0
-    where, args = _filters(device, since)
+    where, args = _filters(device, since, until)
     for sql, fields in (
         ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, NULL, {cols} FROM coolpro c "
          "JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id",
@@ -93,6 +173,8 @@ def _export_v1(db: sqlite3.Connection, w: Any, device: str | None,
             head = csv_head(r[0], r[1], r[2], r[3], r[4])
             n = len(fields)
             for i, name in enumerate(fields):
+                if not keep.value(r[5], name):
+                    continue
                 state = STATE_NAMES[r[6 + n + i]] if hub else "value"
                 w.writerow([*head, "" if r[5] is None else r[5], name, csv_value(r[6 + i]),
                             state])
@@ -100,7 +182,7 @@ def _export_v1(db: sqlite3.Connection, w: Any, device: str | None,
     return rows
 
 
-def _filters(device: str | None, since: float | None,
+def _filters(device: str | None, since: float | None, until: float | None,
              table: str = "s") -> tuple[str, Sequence[Any]]:
     parts: list[str] = []
     args: list[Any] = []
@@ -110,4 +192,7 @@ def _filters(device: str | None, since: float | None,
     if since is not None:
         parts.append(f"{table}.time_utc >= ?")
         args.append(since)
+    if until is not None:
+        parts.append(f"{table}.time_utc < ?")
+        args.append(until)
     return (" WHERE " + " AND ".join(parts)) if parts else "", args

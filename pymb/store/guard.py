@@ -63,5 +63,5 @@ def is_pymb_database(path: str) -> bool:
                                    ).fetchone()[0] == 1)
         finally:
             db.close()
-    except sqlite3.Error:
+    except (sqlite3.Error, InvalidArgument):
         return False

@@ -10,6 +10,7 @@ from array import array
 
 from pymb.devices import HUB, State
 from pymb.devices.maps import COOLPRO, Type
+from pymb.devices.readings import STATE_NAMES
 
 __all__ = ["MIN_BYTES", "PAGE_SIZE", "SCHEMA", "SCHEMA_SQL", "SCHEMA_VERSION", "host_words",
            "schema_version", "statements", "wire_bytes"]
@@ -110,6 +111,13 @@ def _hub_columns() -> tuple[list[str], list[str]]:
     return values, states
 
 
+def _state_names() -> list[str]:
+    """Each block's state by name (``value``, ``offline``, ...), from its code
+    column: the views read without a join on ``states``."""
+    cases = " ".join(f"WHEN {int(s)} THEN '{STATE_NAMES[int(s)]}'" for s in State)
+    return [f"CASE {b.name}_state {cases} END AS {b.name}_state_name" for b in HUB.blocks]
+
+
 def _coolpro_columns() -> list[str]:
     first = COOLPRO.span("telemetry")[1]
     out = []
@@ -130,7 +138,8 @@ def _coolpro_columns() -> list[str]:
 
 
 _HUB_VALUES, _HUB_STATES = _hub_columns()
-_TIME = "strftime('%Y-%m-%d %H:%M:%f', s.time_utc, 'unixepoch')"
+#: UTC, ISO 8601, marked as such ('Z'), to the millisecond.
+_TIME = "strftime('%Y-%m-%dT%H:%M:%fZ', s.time_utc, 'unixepoch')"
 
 SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT);
@@ -170,13 +179,14 @@ DROP VIEW IF EXISTS coolpro_readings;
 DROP VIEW IF EXISTS hub_readings;
 DROP VIEW IF EXISTS event_log;
 CREATE VIEW hub_readings AS
+    SELECT *, {", ".join(_state_names())} FROM (
     SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
            c.channel, {", ".join(_HUB_VALUES)}, {", ".join(_HUB_STATES)}
       FROM samples s JOIN devices d ON d.id = s.device_id
       JOIN channels c ON c.device_id = s.device_id
       LEFT JOIN hub_changes x ON x.device_id = s.device_id AND x.channel = c.channel
                              AND x.time_utc = s.time_utc AND x.sample_id = s.id
-     WHERE s.registers IS NOT NULL OR x.registers IS NOT NULL;
+     WHERE s.registers IS NOT NULL OR x.registers IS NOT NULL);
 CREATE VIEW hub AS
     SELECT sample_id, channel, {", ".join(b.name for b in HUB.blocks)},
            {", ".join(b.name + "_state" for b in HUB.blocks)} FROM hub_readings;
@@ -187,7 +197,7 @@ CREATE VIEW coolpro_readings AS
 CREATE VIEW coolpro AS
     SELECT sample_id, {", ".join(COOLPRO_FIELDS)} FROM coolpro_readings;
 CREATE VIEW event_log AS
-    SELECT strftime('%Y-%m-%d %H:%M:%f', e.time_utc, 'unixepoch') AS time, e.time_utc, e.bus,
+    SELECT strftime('%Y-%m-%dT%H:%M:%fZ', e.time_utc, 'unixepoch') AS time, e.time_utc, e.bus,
            d.name AS device, e.kind, e.code, e.message
       FROM events e LEFT JOIN devices d ON d.id = e.device_id;
 """

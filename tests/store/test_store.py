@@ -114,7 +114,7 @@ def test_views_give_readable_utc_times(tmp_path: Path) -> None:
     sink.close()
     con = sqlite3.connect(db)
     def utc(t: float) -> str:
-        return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+        return datetime.fromtimestamp(t, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
     times = {t for (t,) in con.execute("SELECT time FROM hub_readings")}
     assert times == {utc(1795413913.25), utc(1795413914.25)}

@@ -1,0 +1,75 @@
+"""What the data commands (``export``, ``info``, ``plot``) share: the
+database argument checked, UTC times parsed, a device looked up, output
+files guarded. They parse and format; the store reads."""
+
+from __future__ import annotations
+
+import os
+from datetime import UTC, datetime
+
+from pymb.errors import InvalidArgument
+from pymb.store import is_pymb_database, open_readonly, resolve_device
+
+__all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times"]
+
+
+def check_database(path: str) -> None:
+    """A one-line error unless ``path`` is a database pymb wrote."""
+    if os.path.isdir(path):
+        raise InvalidArgument(f"{path} is a directory, not a database")
+    if not os.path.exists(path):
+        raise InvalidArgument(f"no such database: {path}")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError as e:
+        raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
+    if head != b"SQLite format 3\x00" or not is_pymb_database(path):
+        raise InvalidArgument(f"{path} is not a database written by pymb")
+
+
+def parse_time(flag: str, text: str | None) -> float | None:
+    """An ISO 8601 time (UTC unless it says otherwise) as UTC seconds."""
+    if text is None:
+        return None
+    try:  # '' is no time either: an error, never "no filter"
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise InvalidArgument(f"{flag} needs an ISO 8601 time, got {text!r} (e.g. "
+                              "2026-12-01T17:00:00Z; UTC unless it says otherwise)") from None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    return t.timestamp()
+
+
+def parse_times(since: str | None, until: str | None) -> tuple[float | None, float | None]:
+    """``--since`` and ``--until``, checked to make a span."""
+    a, b = parse_time("--since", since), parse_time("--until", until)
+    if a is not None and b is not None and b <= a:
+        raise InvalidArgument(f"--until ({until}) must be after --since ({since})")
+    return a, b
+
+
+def device_name(path: str, wanted: str) -> str:
+    """The name of the device ``wanted`` (a name or ``TYPE[:ADDRESS]``) in the database."""
+    con = open_readonly(path)
+    try:
+        return resolve_device(con, wanted, path)[0]
+    finally:
+        con.close()
+
+
+def parse_channels(spec: str, channels: int, flag: str = "--show") -> list[int]:
+    """``1-10,40`` -> [1..10, 40], each within 1..channels."""
+    out: list[int] = []
+    try:
+        for part in spec.split(","):
+            lo, _, hi = part.strip().partition("-")
+            a, b = int(lo), int(hi or lo)
+            if not 1 <= a <= b <= channels:
+                raise ValueError
+            out.extend(c for c in range(a, b + 1) if c not in out)
+    except ValueError:
+        raise InvalidArgument(f"bad {flag} {spec!r}: channels 1..{channels}, e.g. 1-20 or "
+                              f"1-10,40") from None
+    return sorted(out)

@@ -1,0 +1,96 @@
+"""``pymb info DB``: what a database holds, at a glance: its devices, the time
+span, the samples, the faults by kind, the database and WAL sizes, and each
+forwarder's backlog. Reads without writing (read-only media included)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from typing import Any
+
+from pymb.commands._data import check_database
+from pymb.store import Summary, summarize
+
+__all__ = ["add_arguments", "iso", "run"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``pymb info``."""
+    p.add_argument("database", help="a database written by pymb log / pymb demo")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+
+def iso(t: float | None) -> str:
+    """UTC seconds as ISO 8601 with milliseconds and ``Z``; "-" for none."""
+    if t is None:
+        return "-"
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1000):03d}Z"
+
+
+def _size(n: int) -> str:
+    if n < 1000:
+        return f"{n} B"
+    x = float(n)
+    for unit in ("kB", "MB", "GB"):
+        x /= 1000
+        if x < 1000 or unit == "GB":
+            break
+    return f"{x:.1f} {unit}"
+
+
+def _counts(counts: dict[str, int]) -> str:
+    total = sum(counts.values())
+    if not total:
+        return "none"
+    return f"{total:,}: " + ", ".join(f"{n:,} {k}" for k, n in
+                                       sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def text(s: Summary) -> str:
+    """The summary as lines of text."""
+    span = "-" if s.first is None or s.last is None else (
+        f"{iso(s.first)} .. {iso(s.last)} ({s.last - s.first:,.1f} s)")
+    lines = [f"{s.path}: pymb database, format {s.schema} (pymb {s.pymb_version})",
+             f"  time span   {span}",
+             f"  samples     {s.samples:,}",
+             f"  devices     {len(s.devices)}"]
+    width = max((len(d.name) for d in s.devices), default=0)
+    for d in s.devices:
+        what = f"{d.type}:{d.address} on {d.bus} ({d.port})"
+        if d.type == "hub":
+            what += f", {d.channels} channels"
+        lines.append(f"    {d.name:<{width}}  {what}: {d.samples:,} samples, "
+                     f"{iso(d.first)} .. {iso(d.last)}")
+    other = {k: n for k, n in s.events.items() if k not in s.faults}
+    lines += [f"  faults      {_counts(s.faults)}",
+              f"  events      {_counts(other)} (not faults)",
+              f"  size        {_size(s.size)} database, {_size(s.wal)} WAL"]
+    if s.backlog:
+        lines += [f"  forwarder   {name}: {n:,} sample(s) not yet sent"
+                  for name, n in s.backlog.items()]
+    else:
+        lines.append("  forwarder   none")
+    return "\n".join(lines)
+
+
+def as_json(s: Summary) -> dict[str, Any]:
+    """The summary as JSON (times as UTC seconds and ISO 8601)."""
+    return {
+        "path": s.path, "format": s.schema, "pymb_version": s.pymb_version,
+        "first": s.first, "last": s.last, "first_iso": iso(s.first) if s.first else None,
+        "last_iso": iso(s.last) if s.last else None, "samples": s.samples,
+        "devices": [{"name": d.name, "type": d.type, "address": d.address, "bus": d.bus,
+                     "port": d.port, "channels": d.channels, "samples": d.samples,
+                     "first": d.first, "last": d.last} for d in s.devices],
+        "faults": s.faults, "events": s.events, "size_bytes": s.size, "wal_bytes": s.wal,
+        "backlog": s.backlog,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the summary."""
+    check_database(args.database)
+    s = summarize(args.database)
+    print(json.dumps(as_json(s), indent=2) if args.json else text(s))
+    return 0

@@ -1,0 +1,161 @@
+"""One quantity of one device over time (``pymb plot``), and the lookups the
+data commands share: a device by name or ``TYPE[:ADDRESS]``, a quantity by
+name, a time span."""
+
+from __future__ import annotations
+
+import math
+import os
+import sqlite3
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from pymb.devices import HUB, HubReading, State
+from pymb.devices.maps import COOLPRO
+from pymb.devices.readings import telemetry_values
+from pymb.devices.spec import closest, device_parts
+from pymb.errors import InvalidArgument
+from pymb.store.reader import iter_samples
+from pymb.store.readonly import open_readonly
+from pymb.store.records import StoredSample
+from pymb.store.schema import SCHEMA_VERSION, schema_version
+from pymb.store.summary import devices
+
+__all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series", "unit_of"]
+
+_UNITS = {**{r.name: r.unit for r in COOLPRO.group("telemetry")},
+          **{b.name: b.unit for b in HUB.blocks}}
+_NOT_READ = int(State.NOT_READ)
+_VALUE = int(State.VALUE)
+
+
+def quantities(kind: str) -> list[str]:
+    """The quantities a device of ``kind`` (``hub``, ``coolpro``) has."""
+    if kind == "hub":
+        return [b.name for b in HUB.blocks]
+    return [r.name for r in COOLPRO.group("telemetry")]
+
+
+def unit_of(quantity: str) -> str:
+    """The unit of a quantity ("" for none)."""
+    return _UNITS.get(quantity, "")
+
+
+def resolve_device(con: sqlite3.Connection, wanted: str, path: str) -> tuple[str, str]:
+    """(name, type) of the device ``wanted`` (its name, or ``TYPE[:ADDRESS]``)
+    in an open database; an error listing the devices there if it is not one."""
+    devs = devices(con)
+    for name, kind, _, _ in devs:
+        if name == wanted:
+            return name, kind
+    matches: list[tuple[str, str]] = []
+    try:
+        kind, options = device_parts(wanted)
+    except InvalidArgument:
+        kind, options = "", {}
+    if kind:
+        address = options.get("address")
+        matches = [(n, t) for n, t, a, _ in devs
+                   if t == kind and (address is None or a == address)]
+    if len(matches) == 1:
+        return matches[0]
+    if len(matches) > 1:
+        raise InvalidArgument(f"device {wanted!r} matches several devices in {path}: "
+                              f"{', '.join(n for n, _ in matches)}; give one of those names")
+    listing = ", ".join(f"{n} ({t}:{a} on {b})" for n, t, a, b in devs) or "none"
+    raise InvalidArgument(f"no device {wanted!r} in {path}; it has: {listing}")
+
+
+def sample_filter(device: str | None, since: float | None,
+                  until: float | None) -> tuple[str, list[Any]]:
+    """The WHERE clause (over ``samples s``) and its arguments for a device
+    name and a time span (``since`` included, ``until`` excluded)."""
+    parts: list[str] = ["1"]
+    args: list[Any] = []
+    if device is not None:
+        parts.append("s.device_id IN (SELECT id FROM devices WHERE name = ?)")
+        args.append(device)
+    if since is not None:
+        parts.append("s.time_utc >= ?")
+        args.append(since)
+    if until is not None:
+        parts.append("s.time_utc < ?")
+        args.append(until)
+    return " AND ".join(parts), args
+
+
+def chunks(con: sqlite3.Connection, where: str, args: list[Any],
+           size: int = 500) -> Iterator[StoredSample]:
+    """The samples ``where`` says, in id order, decoded a chunk at a time (a
+    long file never sits in memory)."""
+    last = 0
+    while True:
+        chunk = list(iter_samples(con, f"{where} AND s.id > ?", (*args, last), size))
+        yield from chunk
+        if len(chunk) < size:
+            return
+        last = chunk[-1].id
+
+
+@dataclass(frozen=True)
+class Series:
+    """A quantity over time: UTC seconds and values (NaN where the device
+    gave none: offline, no sensor, unsupported)."""
+
+    device: str
+    type: str
+    quantity: str
+    channel: int | None
+    unit: str
+    times: list[float]
+    values: list[float]
+
+
+def series(path: str | os.PathLike[str], device: str, quantity: str, *,
+           channel: int | None = None, since: float | None = None,
+           until: float | None = None) -> Series:
+    """``quantity`` of ``device`` (a name or ``TYPE[:ADDRESS]``; a hub's
+    ``channel``) from the database at ``path``, between ``since`` and
+    ``until``. Samples of an ``--on-change`` log that did not store the
+    channel have no point."""
+    con = open_readonly(path)
+    try:
+        if schema_version(con) != SCHEMA_VERSION:
+            raise InvalidArgument(f"{path} is not a pymb database of format {SCHEMA_VERSION}")
+        name, kind = resolve_device(con, device, str(path))
+        known = quantities(kind)
+        if quantity not in known:
+            raise InvalidArgument(f"{name} ({kind}) has no quantity {quantity!r}"
+                                  f"{closest(quantity, known)}")
+        channels = int(con.execute("SELECT channels FROM devices WHERE name = ?",
+                                   (name,)).fetchone()[0])
+        if kind == "hub":
+            if channel is None:
+                raise InvalidArgument(f"{name} is a hub: give --channel (1..{channels})")
+            if not 1 <= channel <= channels:
+                raise InvalidArgument(f"--channel {channel}: {name} has channels 1..{channels}")
+        elif channel is not None:
+            raise InvalidArgument(f"--channel is for a hub; {name} is a {kind}")
+        where, args = sample_filter(name, since, until)
+        times: list[float] = []
+        values: list[float] = []
+        block = HUB.block(quantity).index if kind == "hub" else 0
+        for s in chunks(con, where, args):
+            data = s.data
+            if isinstance(data, HubReading):
+                i = block * data.channels + (channel or 1) - 1
+                state = data.raw_states[i]
+                if state == _NOT_READ:
+                    continue
+                v = float(data.values[i]) if state == _VALUE else math.nan
+            else:
+                got = telemetry_values(data)[quantity]
+                v = math.nan if got is None else float(got)
+            times.append(s.time_utc)
+            values.append(v)
+        return Series(name, kind, quantity, channel, unit_of(quantity), times, values)
+    except sqlite3.Error as e:
+        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
+    finally:
+        con.close()

@@ -1,0 +1,101 @@
+"""What a database holds, in a few figures (``pymb info``): its devices and
+their samples, the time span, faults by kind, the file and WAL sizes, and
+each forwarder's backlog."""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymb.errors import InvalidArgument
+from pymb.store.readonly import open_readonly
+from pymb.store.records import FAULT_KINDS
+from pymb.store.schema import SCHEMA_VERSION, schema_version
+
+__all__ = ["DeviceSummary", "Summary", "devices", "summarize"]
+
+
+@dataclass(frozen=True)
+class DeviceSummary:
+    """One device of a database and its samples."""
+
+    name: str
+    type: str
+    address: int
+    bus: str
+    port: str
+    channels: int
+    samples: int
+    first: float | None  #: UTC seconds of its first sample (None: no sample)
+    last: float | None
+
+
+@dataclass(frozen=True)
+class Summary:
+    """What ``pymb info`` shows of a database."""
+
+    path: str
+    schema: int
+    pymb_version: str
+    devices: list[DeviceSummary]
+    samples: int
+    first: float | None
+    last: float | None
+    faults: dict[str, int]  #: fault events by kind (reconnects and the rest are not faults)
+    events: dict[str, int]  #: every event by kind
+    size: int  #: the database file, bytes
+    wal: int  #: its write-ahead log, bytes (0: none)
+    backlog: dict[str, int] = field(default_factory=dict)  #: forwarder: samples not yet sent
+
+
+def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
+    """(name, type, address, bus) of every device of an open database."""
+    return [(str(n), str(t), int(a), str(b)) for n, t, a, b in con.execute(
+        "SELECT name, type, address, bus FROM devices ORDER BY id")]
+
+
+def summarize(path: str | os.PathLike[str]) -> Summary:
+    """The summary of the pymb database at ``path``, read without writing."""
+    con = open_readonly(path)
+    try:
+        return _summarize(con, str(path))
+    except sqlite3.Error as e:
+        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
+    finally:
+        con.close()
+
+
+def _summarize(con: sqlite3.Connection, path: str) -> Summary:
+    version = schema_version(con)
+    if version not in (1, SCHEMA_VERSION):
+        raise InvalidArgument(f"{path} is not a database written by pymb")
+    row = con.execute("SELECT value FROM meta WHERE key = 'pymb_version'").fetchone()
+    devs = []
+    per = {did: (n, f, la) for did, n, f, la in con.execute(
+        "SELECT device_id, COUNT(*), MIN(time_utc), MAX(time_utc) FROM samples "
+        "GROUP BY device_id")}
+    for did, name, kind, address, bus, port, channels in con.execute(
+            "SELECT id, name, type, address, bus, port, channels FROM devices ORDER BY id"):
+        n, first, last = per.get(did, (0, None, None))
+        devs.append(DeviceSummary(name, kind, address, bus, port, channels, n, first, last))
+    # The time index answers these two without reading the table.
+    (first,) = con.execute("SELECT MIN(time_utc) FROM samples").fetchone()
+    (last,) = con.execute("SELECT MAX(time_utc) FROM samples").fetchone()
+    events = {str(k): int(n) for k, n in con.execute(
+        "SELECT kind, COUNT(*) FROM events GROUP BY kind ORDER BY kind")}
+    backlog: dict[str, int] = {}
+    if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'outbox'"
+                   ).fetchone():
+        for name, cursor in con.execute("SELECT name, sample_id FROM outbox ORDER BY name"):
+            (n,) = con.execute("SELECT COUNT(*) FROM samples WHERE id > ?",
+                               (cursor or 0,)).fetchone()
+            backlog[str(name)] = int(n)
+    wal = Path(f"{path}-wal")
+    return Summary(
+        path=path, schema=int(version or 0), pymb_version=str(row[0]) if row else "?",
+        devices=devs, samples=sum(d.samples for d in devs), first=first, last=last,
+        faults={k: n for k, n in events.items() if k in FAULT_KINDS}, events=events,
+        size=os.path.getsize(path), wal=wal.stat().st_size if wal.exists() else 0,
+        backlog=backlog)

@@ -1,0 +1,51 @@
+"""docs/data.md's examples run as a user runs them, in a directory of their own,
+and what they show is there: the info labels, the files, the view's state names."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import shutil
+import subprocess
+from pathlib import Path
+
+from conftest import run_pymb
+
+DOC = (Path(__file__).resolve().parents[2] / "docs" / "data.md").read_text()
+SHELL = [line[2:] for block in re.findall(r"```sh\n(.*?)```", DOC, re.S)
+         for line in block.splitlines() if line.startswith("$ ")]
+
+
+def test_the_examples_run(tmp_path: Path) -> None:
+    assert len(SHELL) >= 7
+    outputs = []
+    for line in SHELL:
+        argv = shlex.split(line)
+        if argv[0] == "pymb":
+            done = run_pymb(*argv[1:], cwd=tmp_path, timeout=120)
+        else:
+            tool = shutil.which(argv[0])
+            assert tool, argv[0]
+            done = subprocess.run([tool, *argv[1:]], cwd=tmp_path, capture_output=True,
+                                  text=True, timeout=60, check=False)
+        assert done.returncode == 0, (line, done.stdout, done.stderr)
+        assert "Traceback" not in done.stderr
+        outputs.append(done.stdout)
+    info = outputs[1]
+    shown = re.findall(r"```text\n(.*?)```", DOC, re.S)[0]
+    labels = [ln.split()[0] for ln in shown.splitlines()[1:] if ln.startswith("  ") and
+              not ln.startswith("    ")]
+    assert labels == ["time", "samples", "devices", "faults", "events", "size", "forwarder"]
+    for label in labels:
+        assert f"\n  {label} " in info, label
+    for name in ("t3.png", "vout.svg", "wide.csv", "vout.csv"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["demo.sqlite", "t3.png", "vout.svg", "wide.csv", "vout.csv"])  # nothing else left
+    assert (tmp_path / "wide.csv").read_text().splitlines()[0].endswith(
+        "temperature_c_1,humidity_pct_1,temperature_c_2,humidity_pct_2,temperature_c_3,"
+        "humidity_pct_3")
+    rows = [r.split("|") for r in outputs[-1].splitlines()]
+    assert len(rows) == 6
+    assert all(r[0].endswith("Z") and "T" in r[0] for r in rows)
+    assert {r[3] for r in rows} <= {"value", "offline", "no_sensor"}
