@@ -97,6 +97,8 @@ class CoolPro:
     """
 
     def __init__(self, client: Client, address: int = COOLPRO.default_address) -> None:
+        if not callable(getattr(client, "read_registers_prepared", None)):
+            raise InvalidArgument(f"a CoolPro needs a pymb client, got {client!r}")
         self.client = client
         self.address = self._valid_address(address)
         self._pending_address: int | None = None

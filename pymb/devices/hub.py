@@ -54,7 +54,11 @@ def _tenths(humidity_unit: float | Sequence[float], channels: int) -> bytes:
 
     if isinstance(humidity_unit, (int, float)):
         return _uniform_tenths(one(humidity_unit), channels)
-    units = list(humidity_unit)
+    try:
+        units = list(humidity_unit)
+    except TypeError:
+        raise InvalidArgument(f"humidity unit must be 1 or 0.1 (%), or a list of them, "
+                              f"got {humidity_unit!r}") from None
     if len(units) != channels:
         raise InvalidArgument(f"{len(units)} humidity units given for {channels} channels")
     return bytes(one(u) for u in units)
@@ -106,6 +110,8 @@ class HubReading:
                  "unsupported_mask", "values")
 
     def __init__(self, channels: int, registers: array[int] | None = None) -> None:
+        if channels != HUB.channels:
+            _channels(channels)
         values, states = _zeros(channels)
         self.channels = channels
         self.registers = array("H", _ZERO_REGS) if registers is None else registers
@@ -196,6 +202,40 @@ class HubReading:
         return f"<HubReading {self.channels} channels, unsupported={sorted(self.unsupported)}>"
 
 
+def _seconds_in(value: Any, high: float) -> bool:
+    """``value`` is a number of seconds in 0..high."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float))
+            and 0 <= value <= high)
+
+
+def _names(blocks: Iterable[str] | None) -> tuple[str, ...] | None:
+    """Block names as given (a copy), each checked; a lone string is refused
+    (it would be read letter by letter)."""
+    if blocks is None:
+        return None
+    if isinstance(blocks, str):
+        raise InvalidArgument(f"blocks is a list of block names, e.g. [{blocks!r}]")
+    try:
+        names = tuple(blocks)
+    except TypeError:
+        raise InvalidArgument(f"blocks is a list of block names, got {blocks!r}") from None
+    for name in names:
+        HUB.block(name)  # an unknown name is an InvalidArgument naming the blocks
+    return names
+
+
+def _numbers(channels: Iterable[int] | None) -> tuple[int, ...] | None:
+    """Channel numbers as given (a copy); each is checked against the hub's."""
+    if channels is None:
+        return None
+    try:
+        return tuple(channels)
+    except TypeError:
+        raise InvalidArgument(
+            f"channels is a list of channel numbers, e.g. range(1, 13), got {channels!r}"
+        ) from None
+
+
 def full_sweep_spans(channels: int = HUB.channels) -> list[tuple[int, int]]:
     """The requests (address, count) of a sweep of every block of ``channels``
     channels: the C core's plan (pymb_hub_plan_all), the one the benchmark's
@@ -260,10 +300,15 @@ class SensorHub:
             low <= address <= high
         ):
             raise InvalidArgument(f"hub address must be {low}..{high}, got {address!r}")
-        if not isinstance(busy_retries, int) or not 0 <= busy_retries <= 100:
+        if not callable(getattr(client, "run_hub_sweep", None)):
+            raise InvalidArgument(f"a SensorHub needs a pymb client, got {client!r}")
+        if isinstance(busy_retries, bool) or not isinstance(busy_retries, int) or not (
+                0 <= busy_retries <= 100):
             raise InvalidArgument(f"busy_retries must be 0..100, got {busy_retries!r}")
-        if not 0 <= busy_backoff <= 10:
+        if not _seconds_in(busy_backoff, 10):
             raise InvalidArgument(f"busy_backoff must be 0..10 s, got {busy_backoff!r}")
+        if not _seconds_in(turnaround, 10):
+            raise InvalidArgument(f"turnaround must be 0..10 s, got {turnaround!r}")
         self.client = client
         self.address = address
         self.channels = _channels(channels)
@@ -301,8 +346,8 @@ class SensorHub:
         return bits_per_char(getattr(c, "parity", "N"), getattr(c, "stop_bits", 1),
                              getattr(c, "data_bits", 8))
 
-    def _wanted(self, blocks: Iterable[str] | None,
-                channels: Iterable[int] | None) -> tuple[list[int], bool]:
+    def _wanted(self, blocks: Sequence[str] | None,
+                channels: Sequence[int] | None) -> tuple[list[int], bool]:
         chosen = list(HUB.blocks) if blocks is None else [HUB.block(b) for b in blocks]
         if channels is None:
             chans = list(range(1, self.channels + 1))
@@ -333,9 +378,7 @@ class SensorHub:
 
     def _plan(self, blocks: Iterable[str] | None,
               channels: Iterable[int] | None) -> tuple[ReadPlan, bytes | None]:
-        key = (None if blocks is None else tuple(blocks),
-               None if channels is None else tuple(channels),
-               self._sweep.unsupported, self._baudrate())
+        key = (_names(blocks), _numbers(channels), self._sweep.unsupported, self._baudrate())
         cached = self._plans.get(key)
         if cached is not None:
             return cached
@@ -365,8 +408,9 @@ class SensorHub:
         """Some blocks (by name, e.g. ``["temperature_c"]``) and/or channels
         (1-based), in the planned requests; the rest is :attr:`State.NOT_READ`."""
         # Plans are cached by these: copies, so the caller's lists may change.
-        b = None if blocks is None else tuple(blocks)
-        c = None if channels is None else tuple(channels)
+        b, c = _names(blocks), _numbers(channels)
+        if into is not None and not isinstance(into, HubReading):
+            raise InvalidArgument(f"into must be a HubReading, got {into!r}")
         with self._lock:
             return self._read(b, c, into)
 

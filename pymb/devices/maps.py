@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from pymb import maps
+from pymb.errors import InvalidArgument
 
 __all__ = [
     "COOLPRO",
@@ -102,7 +103,8 @@ class DeviceMap:
         for r in self.registers:
             if r.name == name:
                 return r
-        raise KeyError(name)
+        raise InvalidArgument(f"no register {name!r}; use one of "
+                              f"{', '.join(r.name for r in self.registers)}")
 
     def group(self, group: str) -> tuple[Register, ...]:
         """The points read together in one request, in address order."""
@@ -245,7 +247,8 @@ class HubMap:
         for b in self.blocks:
             if b.name == name:
                 return b
-        raise KeyError(name)
+        raise InvalidArgument(
+            f"unknown block {name!r}; use one of {', '.join(b.name for b in self.blocks)}")
 
 
 _HUB_MAP = maps.builtin("hub")
