@@ -117,7 +117,7 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     kinds = [(str(t), int(c)) for t, c in db.execute(q, (device,) if device else ())]
     cols = wide_columns(kinds, None if keep.channels is None else sorted(keep.channels),
                         keep.quantities)
-    if not cols:
+    if not cols and kinds:
         raise InvalidArgument("no value to export: the --channel and --quantity chosen match "
                               "nothing these devices have")
     index = {c: i for i, c in enumerate(cols)}

@@ -269,6 +269,13 @@ def test_export_long_filters(db: Path) -> None:
     assert rows[1]["output_voltage_v"] == "12.01"
 
 
+def test_export_wide_of_an_empty_database(tmp_path: Path) -> None:
+    SqliteSink(tmp_path / "new.sqlite").close()
+    done = _pymb("export", str(tmp_path / "new.sqlite"), "--csv", "-", "--layout", "wide")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "time_utc,time,bus,device,type,address\n"
+
+
 def test_views_name_the_states(db: Path) -> None:
     con = sqlite3.connect(db)
     rows = con.execute("SELECT time, temperature_c_state, temperature_c_state_name, "
