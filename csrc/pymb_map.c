@@ -333,15 +333,13 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
         return -1;
     }
     for (n = 0; n < nentries; n++) {
-        if (!entry_ok(&entries[n], nmarkers, nregs, out)) {
+        /* the count of slots written must fit the int returned */
+        if (!entry_ok(&entries[n], nmarkers, nregs, out) ||
+            entries[n].channels > (size_t)INT32_MAX - written) {
             errno = EINVAL;
             return -1;
         }
         written += entries[n].channels;
-    }
-    if (written > (size_t)INT32_MAX) {
-        errno = EINVAL;
-        return -1;
     }
     for (n = 0; n < nentries; n++) {
         const pymb_map_entry *e = &entries[n];

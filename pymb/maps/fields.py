@@ -152,13 +152,14 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     else:
         if "count" not in raw:
             ctx.fail("count", f"count (registers) is required for a {typ} point")
-        count = _int_in(ctx, "count", raw["count"], 1, 65536)
+        # a point is read in one request, never split: at most 125 registers ([MB-AP] 6.3)
+        count = _int_in(ctx, "count", raw["count"], 1, 125)
 
     channels, stride = 1, count
     if block:
         channels = _int_in(ctx, "count", _option(ctx, "count", raw.get("count", 1), options),
                            1, _MAX_CHANNELS)
-        stride = _int_in(ctx, "stride", raw.get("stride", count), count, 65536)
+        stride = _int_in(ctx, "stride", raw.get("stride", count), count, 65535)
     key = "first" if block else "address"
     if key not in raw:
         ctx.fail(key, f"{key} is required")

@@ -60,6 +60,7 @@ def test_map_error_is_a_modbus_error_and_a_value_error() -> None:
     ('[[point]]\nname = "a"\naddress = 0\n', ("'type'", "required")),
     ('[[point]]\nname = "A b"\naddress = 0\ntype = "u16"\n', ("'name'", "snake_case")),
     ('[[point]]\nname = "s"\naddress = 0\ntype = "string"\n', ("'count'", "required")),
+    ('[[point]]\nname = "s"\naddress = 0\ntype = "raw"\ncount = 126\n', ("'count'", "1..125")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "u32"\ncount = 2\n', ("'count'", "[[block]]")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "bit"\n', ("'bit'", "required")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "bit"\nbit = 16\n', ("'bit'", "0..15")),
