@@ -30,8 +30,9 @@ from collections.abc import Sequence
 from typing import Any
 
 from pymb.bench.contenders import Contender, probe
+from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
-from pymb.bench.runner import Entry, Options, Reference, race, summary, verify
+from pymb.bench.race import Entry, Reference, race, summary, verify
 from pymb.devices.maps import HUB
 
 __all__ = ["CONTENDERS", "LAG_TARGET_MS", "run_section", "targets"]
