@@ -8,7 +8,8 @@ before the worker reached it is dropped unrun (nothing was sent); a job
 already running finishes (its request and its reply complete on the line,
 within the client's timeout) and its result is dropped. The result goes
 back to the future's loop with ``call_soon_threadsafe``: the loop never
-waits on a lock, a descriptor or the wire.
+waits on the wire, a descriptor or the client's lock (only, for
+microseconds, on the lock that starts and ends the worker thread).
 
 The thread starts with the first job and ends as soon as it has nothing to
 do and the line is closed, so a closed client holds no thread.
