@@ -319,6 +319,56 @@ done:
     }
 }
 
+/* The common case of a block (the hub's seven): a 16-bit integer or
+ * sign-magnitude value a channel, in one tight loop with no call per channel.
+ * The same arithmetic as decode_one(). */
+static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
+                      const pymb_map_out *out)
+{
+    unsigned c, m;
+    int swap = e->order[0] == 1, scaled = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) != 0;
+
+    for (c = 0; c < e->channels; c++) {
+        size_t i = (size_t)e->out + c;
+        uint16_t raw = regs[e->first + (size_t)c * e->stride];
+        uint8_t state = PYMB_VALUE;
+        int64_t iv;
+        double v;
+
+        if (swap) {
+            raw = (uint16_t)(raw << 8 | raw >> 8);
+        }
+        for (m = 0; m < e->nmarkers; m++) {
+            if (mk[m].raw == raw) {
+                state = mk[m].state;
+                break;
+            }
+        }
+        if (state != PYMB_VALUE) {
+            out->values[i] = NAN;
+            out->states[i] = state;
+            if (out->ints != NULL) {
+                out->ints[i] = 0;
+            }
+            continue;
+        }
+        if (e->type == PYMB_MAP_SM16) {
+            int64_t mag = raw & 0x7FFF;
+            int negative = (raw & 0x8000u) != 0;
+            iv = negative ? -mag : mag;
+            v = scaled ? apply(e, (double)mag, negative) : (double)iv;
+        } else {
+            iv = e->type == PYMB_MAP_I16 ? (int64_t)(int16_t)raw : (int64_t)raw;
+            v = scaled ? apply(e, (double)iv, 0) : (double)iv;
+        }
+        out->values[i] = v;
+        out->states[i] = PYMB_VALUE;
+        if (out->ints != NULL) {
+            out->ints[i] = iv;
+        }
+    }
+}
+
 int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
                     const pymb_map_marker *markers, size_t nmarkers,
                     const uint16_t *regs, size_t nregs, pymb_map_out *out)
@@ -344,6 +394,10 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
     for (n = 0; n < nentries; n++) {
         const pymb_map_entry *e = &entries[n];
         const pymb_map_marker *mk = markers ? markers + e->first_marker : NULL;
+        if (e->type == PYMB_MAP_U16 || e->type == PYMB_MAP_I16 || e->type == PYMB_MAP_SM16) {
+            decode_16(e, mk, regs, out);
+            continue;
+        }
         for (c = 0; c < e->channels; c++) {
             size_t at = e->first + (size_t)c * e->stride;
             decode_one(e, mk, regs + at, at, (size_t)e->out + c, c, out);
