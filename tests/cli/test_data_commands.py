@@ -111,22 +111,37 @@ def test_info_says_what_the_database_holds(db: Path) -> None:
         con.close()
 
 
+def _read_only_runner(folder: Path) -> list[str]:
+    """The command prefix that runs a command which cannot write ``folder``:
+    as it is for a user other than root (the folder is mode 0555); for root,
+    who may write anywhere, inside a mount namespace where the folder is a
+    read-only bind mount (EROFS, as a card mounted read-only), or else as
+    nobody."""
+    if os.geteuid() != 0:
+        return []
+    unshare, sh = shutil.which("unshare"), shutil.which("sh")
+    if unshare and sh:
+        script = 'mount --bind "$0" "$0" && mount -o remount,ro,bind "$0" && exec "$@"'
+        prefix = [unshare, "--mount", sh, "-c", script, str(folder)]
+        probe = subprocess.run([*prefix, sh, "-c", 'touch "$0/probe"', str(folder)],
+                               capture_output=True, text=True, timeout=30, check=False)
+        if probe.returncode != 0 and "Read-only file system" in probe.stderr:
+            return prefix
+    setpriv = shutil.which("setpriv")
+    assert setpriv, "neither a mount namespace nor setpriv: cannot make read-only media"
+    return [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups"]
+
+
 @pytest.fixture
 def readonly_copy(db: Path) -> Iterator[tuple[Path, list[str]]]:
-    """A copy of the database in a directory nobody may write (read-only
-    media), and the command prefix that runs as a user who cannot write it
-    (root may write anywhere: the command then runs as nobody)."""
+    """A copy of the database in a directory that the command run with the
+    prefix given cannot write (read-only media)."""
     folder = Path(tempfile.mkdtemp(prefix="pymb-ro-"))
     shutil.copy(db, folder / db.name)
     os.chmod(folder / db.name, 0o444)
     os.chmod(folder, 0o555)
-    prefix: list[str] = []
-    if os.geteuid() == 0:
-        setpriv = shutil.which("setpriv")
-        assert setpriv
-        prefix = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups"]
     try:
-        yield folder / db.name, prefix
+        yield folder / db.name, _read_only_runner(folder)
     finally:
         os.chmod(folder, 0o755)
         shutil.rmtree(folder)
