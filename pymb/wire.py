@@ -16,11 +16,23 @@ rate can never be above it (pymb's simulator, emulating the line, delivers
 each reply exactly at this time). The 3.5-character silence a master owes
 after a reply before its next request is left out, because it overlaps the
 master's own turnaround.
+
+Also here, as facts of the line: registers travel big-endian
+(:func:`registers_to_wire`, :func:`registers_from_wire`, the one pair of
+byte-order helpers), and a serial bus's defaults when nothing is said
+(:data:`DEFAULT_BAUD`, :data:`DEFAULT_PARITY`, :data:`DEFAULT_TIMEOUT`).
 """
 
 from __future__ import annotations
 
+import sys
+from array import array
+from typing import Any
+
 __all__ = [
+    "DEFAULT_BAUD",
+    "DEFAULT_PARITY",
+    "DEFAULT_TIMEOUT",
     "GAP_CHARS",
     "READ_REPLY_OVERHEAD",
     "READ_REQUEST_BYTES",
@@ -28,8 +40,16 @@ __all__ = [
     "char_time",
     "read_bits_time",
     "read_time",
+    "registers_from_wire",
+    "registers_to_wire",
     "transaction_time",
 ]
+
+DEFAULT_BAUD = 9600  #: bit/s of a serial bus when nothing is said (both devices' default)
+DEFAULT_PARITY = "N"  #: 8N1
+DEFAULT_TIMEOUT = 1.0  #: seconds to wait for a reply (the hub may take 500 ms, plus the reply)
+
+_SWAP = sys.byteorder == "little"  # registers go on the wire big-endian
 
 GAP_CHARS = 3.5  #: [MB-SL] 2.5.1.1: the silence that ends a frame, in characters
 READ_REQUEST_BYTES = 8  #: address, function, start (2), count (2), CRC (2)
@@ -68,3 +88,21 @@ def read_bits_time(count: int, baudrate: int, *, turnaround: float = 0.0, bits: 
     0x02): the reply packs eight to a byte."""
     return transaction_time(READ_REQUEST_BYTES, READ_REPLY_OVERHEAD + (count + 7) // 8,
                             baudrate, turnaround=turnaround, bits=bits, gap=gap)
+
+
+def registers_to_wire(registers: Any, *, in_place: bool = False) -> bytes:
+    """16-bit registers (an ``array('H')`` or a sequence of ints) as they
+    travel: big-endian words. ``in_place``: ``registers`` is a scratch array
+    that may be byte-swapped where it is (no copy)."""
+    out = registers if in_place else array("H", registers)
+    if _SWAP:
+        out.byteswap()
+    return out.tobytes()
+
+
+def registers_from_wire(data: bytes) -> array[int]:
+    """Big-endian 16-bit words as they travel, as an ``array('H')``."""
+    out = array("H", data)
+    if _SWAP:
+        out.byteswap()
+    return out

@@ -7,6 +7,7 @@ import socket
 
 from pymb.client.transports import RtuOverTcpClient, TcpClient
 from pymb.errors import InvalidArgument
+from pymb.wire import DEFAULT_TIMEOUT
 
 __all__ = ["client_for_address", "parse_host_port", "unresolved"]
 
@@ -29,7 +30,7 @@ def parse_host_port(text: str, *, what: str = "--tcp",
     return host.strip("[]") or "127.0.0.1", number
 
 
-def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = 1.0,
+def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = DEFAULT_TIMEOUT,
                        what: str = "--tcp") -> TcpClient | RtuOverTcpClient:
     """A (not yet open) :class:`TcpClient`, or with ``rtu_framing`` an
     :class:`RtuOverTcpClient`, for ``HOST:PORT`` as a user typed it (``what``

@@ -17,7 +17,6 @@ or stray reply is never taken as a later answer (docs/library.md, "No stale data
 from __future__ import annotations
 
 import struct
-import sys
 import threading
 import warnings
 from array import array
@@ -39,6 +38,7 @@ from pymb.client.checks import (
     _seconds,
 )
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.wire import registers_from_wire
 
 __all__ = ["Client"]
 
@@ -358,10 +358,7 @@ class Client:
             struct.pack(">HHHHB", read_address, read_count, write_address, n, 2 * n) + data,
             read_address, read_count,
         )
-        out = array("H", pdu[2:])
-        if sys.byteorder == "little":
-            out.byteswap()
-        return out
+        return registers_from_wire(pdu[2:])
 
     @staticmethod
     def _u16_payload(values: Sequence[int] | array[int]) -> bytes:

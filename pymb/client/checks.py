@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import errno
 import operator
-import sys
 from array import array
 from collections.abc import Mapping, Set
 from typing import Any
 
 from pymb import _native
 from pymb.errors import InvalidArgument
+from pymb.wire import registers_to_wire
 
 __all__ = ["FC", "MAX_READ_BITS", "MAX_READ_REGISTERS", "MAX_WRITE_BITS",
            "MAX_WRITE_REGISTERS", "MAX_WR_READ_REGISTERS", "MAX_WR_WRITE_REGISTERS"]
@@ -100,7 +100,4 @@ def _register_values(values: Any) -> bytes:
         a = array("H", [operator.index(v) for v in items])
     if len(a) == 0:
         raise InvalidArgument("no values to write")
-    if sys.byteorder == "little":
-        a = array("H", a)
-        a.byteswap()
-    return a.tobytes()
+    return registers_to_wire(a)

@@ -17,7 +17,7 @@ from pymb.client.checks import (
     _seconds,
 )
 from pymb.errors import InvalidArgument
-from pymb.wire import bits_per_char, char_time
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, char_time
 
 __all__ = ["RtuClient", "RtuOverTcpClient", "TcpClient"]
 
@@ -46,13 +46,13 @@ class RtuClient(Client):
     def __init__(
         self,
         port: str,
-        baudrate: int = 9600,
-        parity: str = "N",
+        baudrate: int = DEFAULT_BAUD,
+        parity: str = DEFAULT_PARITY,
         data_bits: int = 8,
         stop_bits: int = 1,
         *,
         slave: int | None = None,
-        timeout: float = 1.0,
+        timeout: float = DEFAULT_TIMEOUT,
         byte_timeout: float = 0.0,
         serial_mode: str | None = None,
         rts: str | None = None,
@@ -135,7 +135,7 @@ class TcpClient(Client):
     _min_read_slave = 0
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0,
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0) -> None:
         if not isinstance(host, str) or not host:
             raise InvalidArgument(f"host must be a name or an address, got {host!r}")
@@ -157,7 +157,7 @@ class RtuOverTcpClient(Client):
     writes only)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0,
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
         if not isinstance(host, str) or not host:
             raise InvalidArgument(f"host must be a name or an address, got {host!r}")

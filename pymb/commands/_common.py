@@ -16,6 +16,7 @@ from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
 from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, device_parts
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = [
     "add_connection_args",
@@ -88,7 +89,8 @@ def interruptible(fn: Callable[[], T]) -> T:
     return result[0]
 
 
-def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> None:
+def add_connection_args(p: argparse.ArgumentParser, *,
+                        timeout: float = DEFAULT_TIMEOUT) -> None:
     """--port / --tcp / --rtu-over-tcp, --baud, --parity, --timeout."""
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", metavar="PATH",
@@ -96,8 +98,10 @@ def add_connection_args(p: argparse.ArgumentParser, *, timeout: float = 1.0) -> 
     where.add_argument("--tcp", metavar="HOST:PORT", help="a Modbus TCP gateway")
     where.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                        help="RTU frames over TCP: a transparent serial server (\"raw\" mode)")
-    p.add_argument("--baud", type=int, default=9600, help="baud rate (default 9600)")
-    p.add_argument("--parity", default="N", choices=["N", "E", "O"], help="parity (default N)")
+    p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                   help=f"baud rate (default {DEFAULT_BAUD})")
+    p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"],
+                   help=f"parity (default {DEFAULT_PARITY})")
     p.add_argument("--timeout", type=float, default=timeout,
                    help=f"seconds to wait for a reply (default {timeout:g})")
 

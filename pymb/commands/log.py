@@ -20,6 +20,7 @@ from pymb.logger import Logger
 from pymb.service.journal import echoing
 from pymb.service.run import Service
 from pymb.store import FORMATS, check_output, open_sink
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,9 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="RTU-over-TCP (raw serial server) of a single bus")
     p.add_argument("--device", action="append", default=[], metavar="DEVICE",
                    help="the same as a DEVICE argument (repeatable)")
-    p.add_argument("--baud", type=int, default=9600)
-    p.add_argument("--parity", default="N", choices=["N", "E", "O"])
-    p.add_argument("--timeout", type=float, default=1.0, help="reply timeout, seconds")
+    p.add_argument("--baud", type=int, default=DEFAULT_BAUD)
+    p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"])
+    p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, help="reply timeout, seconds")
     p.add_argument("--interval", type=float, default=0.0,
                    help="seconds between polls (default 0: as fast as the wire allows)")
     p.add_argument("--format", choices=FORMATS, help="output format (default sqlite)")

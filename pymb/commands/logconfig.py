@@ -15,6 +15,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml
 from pymb.store import OnChange
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = ["config_from", "default_path", "load", "mqtt_from", "single_bus_config"]
 
@@ -101,7 +102,8 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
 
 def single_bus_config(port: str | None, tcp: str | None,
                       devices: Sequence[str | DeviceConfig], *,
-                      baud: int = 9600, parity: str = "N", timeout: float = 1.0,
+                      baud: int = DEFAULT_BAUD, parity: str = DEFAULT_PARITY,
+                      timeout: float = DEFAULT_TIMEOUT,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
                       max_mb: float | None = None, max_age_days: float | None = None,
                       name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:

@@ -13,6 +13,7 @@ import math
 import os
 
 from pymb import maps
+from pymb._native import MAX_READ_REGISTERS
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
 from pymb.devices.mapspec import load_map
 from pymb.errors import IllegalDataAddress, InvalidArgument
@@ -21,7 +22,7 @@ from pymb.maps.codec import decode_one
 from pymb.maps.device_plan import map_planner
 from pymb.maps.planner import Line
 from pymb.maps.types import ORDER_NAMES, normalize_order
-from pymb.wire import bits_per_char
+from pymb.wire import DEFAULT_BAUD, bits_per_char
 
 __all__ = ["add_arguments", "interpretations", "run"]
 
@@ -35,8 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                        "predicted wire time")
     check.add_argument("file", metavar="FILE",
                        help="a map file, or the id of a map pymb ships (e.g. hub)")
-    check.add_argument("--baud", type=int, default=9600,
-                       help="line speed the plans are priced at (default 9600)")
+    check.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                       help=f"line speed the plans are priced at (default {DEFAULT_BAUD})")
     check.add_argument("--parity", default="N", choices=["N", "E", "O"],
                        help="parity the plans are priced with (default N)")
     probe = sub.add_parser("probe", help="raw registers beside every type and byte order",
@@ -90,9 +91,9 @@ def _where(text: str) -> tuple[str, int, int]:
         start, count = int(parts[1], 0), int(parts[2], 0)
     except ValueError:
         raise InvalidArgument(f"{text!r}: START and COUNT are whole numbers") from None
-    if not 0 <= start <= 0xFFFF or not 1 <= count <= 125 or start + count > 0x10000:
-        raise InvalidArgument(f"{text!r}: START is 0..65535 and COUNT 1..125, within the "
-                              "address space")
+    if not 0 <= start <= 0xFFFF or not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
+        raise InvalidArgument(f"{text!r}: START is 0..65535 and COUNT "
+                              f"1..{MAX_READ_REGISTERS}, within the address space")
     return names[parts[0].lower()], start, count
 
 

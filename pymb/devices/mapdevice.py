@@ -33,12 +33,12 @@ from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
 from pymb.maps.model import did_you_mean
 from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
-from pymb.wire import bits_per_char
+from pymb.wire import DEFAULT_BAUD, bits_per_char
 
 __all__ = ["MapDevice"]
 
 #: The line speed a plan is priced at when the client has none (TCP).
-DEFAULT_BAUDRATE = 9600
+DEFAULT_BAUDRATE = DEFAULT_BAUD
 _CACHED = 64  #: selections (and their buffers) kept per device
 
 

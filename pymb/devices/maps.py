@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from pymb import maps
+from pymb._native import MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument
 
 __all__ = [
@@ -97,7 +98,7 @@ class DeviceMap:
     function_codes: tuple[int, ...]
     exception_codes: dict[int, str] = field(default_factory=dict)
     addresses: tuple[int, int] = (1, 247)  #: device addresses it can be set to
-    max_read: int = 125  #: registers per read, [MB-AP] 6.3, 6.4
+    max_read: int = MAX_READ_REGISTERS  #: registers per read, [MB-AP] 6.3, 6.4
 
     def __getitem__(self, name: str) -> Register:
         for r in self.registers:

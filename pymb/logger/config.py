@@ -23,7 +23,7 @@ from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
 from pymb.devices.spec import DeviceConfig, closest
 from pymb.errors import InvalidArgument
 from pymb.store import FORMATS, OnChange
-from pymb.wire import bits_per_char, read_time
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, read_time
 
 __all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_config",
            "read_toml"]
@@ -36,9 +36,9 @@ class BusConfig:
     name: str
     port: str | None = None
     tcp: str | None = None
-    baud: int = 9600
-    parity: str = "N"
-    timeout: float = 1.0
+    baud: int = DEFAULT_BAUD
+    parity: str = DEFAULT_PARITY
+    timeout: float = DEFAULT_TIMEOUT
     interval: float = 0.0
     devices: list[DeviceConfig] = field(default_factory=list)
     rtu_over_tcp: str | None = None
@@ -229,9 +229,9 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
         try:
             buses.append(BusConfig(
                 _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),
-                _get(b, "tcp", str, where), _get(b, "baud", int, where, 9600),
-                _get(b, "parity", str, where, "N"),
-                float(_get(b, "timeout", (int, float), where, 1.0)),
+                _get(b, "tcp", str, where), _get(b, "baud", int, where, DEFAULT_BAUD),
+                _get(b, "parity", str, where, DEFAULT_PARITY),
+                float(_get(b, "timeout", (int, float), where, DEFAULT_TIMEOUT)),
                 float(_get(b, "interval", (int, float), where, 0.0)), devices,
                 rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
             ))

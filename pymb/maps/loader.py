@@ -17,6 +17,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.fields import Ctx, build_point, number
 from pymb.maps.model import (
     DeviceInfo,
@@ -279,9 +280,9 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
     for key in ("split_on_exception", "single_point_requests"):
         if not isinstance(t.get(key, False), bool):
             ctx.fail(key, f"{key} must be true or false")
-    return Limits(_int(ctx, t, "max_registers", 125, 1, 125),
-                  _int(ctx, t, "max_bits", 2000, 1, 2000),
-                  _int(ctx, t, "max_gap", 0, 0, 125), MappingProxyType(readable),
+    return Limits(_int(ctx, t, "max_registers", MAX_READ_REGISTERS, 1, MAX_READ_REGISTERS),
+                  _int(ctx, t, "max_bits", MAX_READ_BITS, 1, MAX_READ_BITS),
+                  _int(ctx, t, "max_gap", 0, 0, MAX_READ_REGISTERS), MappingProxyType(readable),
                   t.get("split_on_exception", True), t.get("single_point_requests", False))
 
 

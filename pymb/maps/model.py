@@ -10,7 +10,9 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import ModbusError
+from pymb.wire import DEFAULT_BAUD
 
 if TYPE_CHECKING:
     from pymb.maps.loader import Spec
@@ -62,8 +64,8 @@ def did_you_mean(word: str, known: Sequence[str]) -> str:
 class Limits:
     """How requests to the device may be planned (contract section 4)."""
 
-    max_registers: int = 125  #: registers per FC 03/04 request (1..125)
-    max_bits: int = 2000  #: bits per FC 01/02 request (1..2000)
+    max_registers: int = MAX_READ_REGISTERS  #: registers per FC 03/04 request (1..125)
+    max_bits: int = MAX_READ_BITS  #: bits per FC 01/02 request (1..2000)
     max_gap: int = 0  #: undeclared registers a request may span
     #: table -> on-wire (first, last) ranges known to exist (inclusive)
     readable: Mapping[str, tuple[tuple[int, int], ...]] = field(default_factory=_empty)
@@ -252,7 +254,7 @@ class Map:
         from pymb.maps.codec import encode
         return encode(self.point(name), value, current=current, check_access=True)
 
-    def plan(self, group: str | None = None, *, baudrate: int = 9600,
+    def plan(self, group: str | None = None, *, baudrate: int = DEFAULT_BAUD,
              bits_per_char: int = 10) -> ReadPlan:
         """The requests that read ``group``'s points (every readable point
         for None), planned with the device's limits and timing at

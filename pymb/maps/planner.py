@@ -29,8 +29,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument
-from pymb.wire import read_bits_time, read_time
+from pymb.wire import DEFAULT_BAUD, read_bits_time, read_time
 
 __all__ = [
     "BIT_TABLES",
@@ -62,18 +63,19 @@ class Limits:
     ``readable``: per table, inclusive ``(first, last)`` ranges known to exist.
     """
 
-    max_registers: int = 125
-    max_bits: int = 2000
+    max_registers: int = MAX_READ_REGISTERS
+    max_bits: int = MAX_READ_BITS
     max_gap: int = 0
     readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=dict)
     split_on_exception: bool = True
     single_point_requests: bool = False
 
     def __post_init__(self) -> None:
-        if not 1 <= self.max_registers <= 125:
-            raise InvalidArgument(f"max_registers must be 1..125, got {self.max_registers!r}")
-        if not 1 <= self.max_bits <= 2000:
-            raise InvalidArgument(f"max_bits must be 1..2000, got {self.max_bits!r}")
+        if not 1 <= self.max_registers <= MAX_READ_REGISTERS:
+            raise InvalidArgument(f"max_registers must be 1..{MAX_READ_REGISTERS}, "
+                                  f"got {self.max_registers!r}")
+        if not 1 <= self.max_bits <= MAX_READ_BITS:
+            raise InvalidArgument(f"max_bits must be 1..{MAX_READ_BITS}, got {self.max_bits!r}")
         if not 0 <= self.max_gap <= 124:
             raise InvalidArgument(f"max_gap must be 0..124, got {self.max_gap!r}")
 
@@ -86,7 +88,7 @@ class Limits:
 class Line:
     """What a request costs depends on: the line and the device's timing."""
 
-    baudrate: int = 9600
+    baudrate: int = DEFAULT_BAUD
     bits_per_char: int = 10
     turnaround: float = 0.0  #: seconds of silence the device needs after a request
     inter_request_gap: float = 0.0  #: seconds of silence before each request
@@ -372,7 +374,8 @@ def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None,
     return ReadPlan(tuple(requests), total, naive, line, len(chosen))
 
 
-def naive_spans(wanted: Iterable[int], max_count: int = 125) -> list[tuple[int, int]]:
+def naive_spans(wanted: Iterable[int],
+                max_count: int = MAX_READ_REGISTERS) -> list[tuple[int, int]]:
     """One request per contiguous run of ``wanted`` addresses, split at ``max_count``."""
     spans: list[tuple[int, int]] = []
     for a in sorted(set(wanted)):
@@ -385,7 +388,7 @@ def naive_spans(wanted: Iterable[int], max_count: int = 125) -> list[tuple[int, 
 
 def plan_reads(wanted: Iterable[int], baudrate: int, *,
                readable: Callable[[int], bool] = lambda a: True,
-               turnaround: float = 0.0, max_count: int = 125,
+               turnaround: float = 0.0, max_count: int = MAX_READ_REGISTERS,
                bits_per_char: int = 10) -> ReadPlan:
     """The cheapest plan for single input registers at ``wanted`` addresses:
     :func:`plan_points` with a one-register point at each, where

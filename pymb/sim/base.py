@@ -37,6 +37,7 @@ from pymb.errors import (
     InvalidArgument,
 )
 from pymb.sim.clock import SimClock
+from pymb.wire import registers_to_wire
 
 __all__ = [
     "Device",
@@ -127,9 +128,8 @@ def _locked(method: _F) -> _F:
 
 
 def _swapped(regs: array[int]) -> bytes:
-    if _SWAP:
-        regs.byteswap()
-    return regs.tobytes()
+    """A fresh slice of registers as they go on the wire (swapped in place)."""
+    return registers_to_wire(regs, in_place=True)
 
 
 class Device:

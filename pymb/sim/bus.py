@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from pymb import _native
 from pymb.sim.devices import Device, exception_pdu
 from pymb.sim.faults import Fault, Faults
 from pymb.wire import GAP_CHARS, char_time
@@ -21,6 +22,8 @@ from pymb.wire import GAP_CHARS, char_time
 __all__ = ["IDLE_S", "Bus", "BusStats", "Outcome", "char_time", "silence", "sleep_until"]
 
 log = logging.getLogger("pymb.sim")
+
+_FAST = 38400  #: a rate above 19200 bit/s, where the silence is the fixed floor
 
 #: a quiet line lets the devices update their values this often (off the request path)
 IDLE_S = 0.25
@@ -30,8 +33,8 @@ def silence(baud: int | None, bits: int = 10) -> float:
     """The 3.5-character silence that ends an RTU frame ([MB-SL] 2.5.1.1);
     1.75 ms at any rate above 19200. None (speed unknown): 1.75 ms."""
     if baud is None or baud > 19200:
-        return 0.00175
-    return 3.5 * bits / baud
+        return _native.rtu_silence(_FAST)  # the C core's floor: one home for it
+    return GAP_CHARS * char_time(baud, bits)
 
 
 def reply_gap(baud: int, bits: int = 10) -> float:

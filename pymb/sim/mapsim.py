@@ -23,6 +23,7 @@ from array import array
 from collections.abc import Sequence
 from dataclasses import replace
 
+from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.devices.mapspec import parse_map_device
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
@@ -180,7 +181,7 @@ class MapSimDevice(Device):
         address, n = struct.unpack(">HH", pdu[1:5])
         if fc in _TABLE:
             table = _TABLE[fc]
-            if not 1 <= n <= (2000 if fc <= 2 else 125):
+            if not 1 <= n <= (MAX_READ_BITS if fc <= 2 else MAX_READ_REGISTERS):
                 return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
             if not self._span(table, address, n):
                 return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)

@@ -7,8 +7,7 @@ import os
 import sqlite3
 from pathlib import Path
 
-from pymb import __version__
-from pymb.store.schema import PAGE_SIZE, SCHEMA, SCHEMA_VERSION, statements
+from pymb.store.schema import PAGE_SIZE, install
 
 __all__ = ["create", "remove_stale_creations"]
 
@@ -53,12 +52,7 @@ def create(path: Path) -> None:
         try:
             con.execute(f"PRAGMA page_size = {PAGE_SIZE}")
             con.execute("PRAGMA auto_vacuum = INCREMENTAL")
-            con.execute("BEGIN")
-            for stmt in statements(SCHEMA):
-                con.execute(stmt)
-            con.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
-                ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__)])
-            con.execute("COMMIT")
+            install(con)
         finally:
             con.close()
         try:

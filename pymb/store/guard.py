@@ -7,6 +7,7 @@ import sqlite3
 
 from pymb.errors import InvalidArgument
 from pymb.store.readonly import open_readonly
+from pymb.store.schema import schema_version
 from pymb.store.text import CSV_COLUMNS
 
 __all__ = ["check_output", "is_pymb_database"]
@@ -53,14 +54,7 @@ def is_pymb_database(path: str) -> bool:
     try:
         db = open_readonly(path)
         try:
-            tables = {r[0] for r in db.execute(
-                "SELECT name FROM sqlite_master WHERE type = 'table'")}
-            if not tables:
-                return True
-            if "meta" not in tables:
-                return False
-            return bool(db.execute("SELECT COUNT(*) FROM meta WHERE key = 'pymb_version'"
-                                   ).fetchone()[0] == 1)
+            return schema_version(db) is not None  # the one test of "is this pymb's"
         finally:
             db.close()
     except (sqlite3.Error, InvalidArgument):

@@ -5,34 +5,39 @@ from __future__ import annotations
 
 import hashlib
 import sqlite3
-import sys
 from array import array
 
+from pymb import __version__
 from pymb.devices import HUB, State
 from pymb.devices.maps import COOLPRO, Type
 from pymb.devices.readings import STATE_NAMES
+from pymb.wire import registers_from_wire, registers_to_wire
 
-__all__ = ["MIN_BYTES", "PAGE_SIZE", "SCHEMA", "SCHEMA_SQL", "SCHEMA_VERSION", "host_words",
-           "schema_version", "statements", "wire_bytes"]
+__all__ = [
+    "MIN_BYTES",
+    "PAGE_SIZE",
+    "SCHEMA",
+    "SCHEMA_SQL",
+    "SCHEMA_VERSION",
+    "host_words",
+    "install",
+    "schema_version",
+    "statements",
+    "wire_bytes",
+]
 
 COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
 HUB_FIELDS = [b.name for b in HUB.blocks]
 
 
 def wire_bytes(regs: array[int]) -> bytes:
-    """Registers as stored: big-endian 16-bit words."""
-    out = array("H", regs)
-    if sys.byteorder == "little":
-        out.byteswap()
-    return out.tobytes()
+    """Registers as stored: big-endian 16-bit words, as on the wire."""
+    return registers_to_wire(regs)
 
 
 def host_words(blob: bytes) -> array[int]:
     """Stored registers (big-endian 16-bit words) as an array of registers."""
-    a = array("H", blob)
-    if sys.byteorder == "little":
-        a.byteswap()
-    return a
+    return registers_from_wire(blob)
 
 
 # -- SQLite ---------------------------------------------------------------------------
@@ -232,3 +237,19 @@ def statements(script: str) -> list[str]:
                 out.append(buf)
             buf = ""
     return out
+
+
+def install(db: sqlite3.Connection) -> None:
+    """Write the schema, its views and its meta rows into ``db`` (autocommit
+    mode), in one transaction: the one set-up of a new or opened database."""
+    db.execute("BEGIN")
+    for stmt in statements(SCHEMA):
+        db.execute(stmt)
+    db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
+        ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__),
+        ("registers", "big-endian 16-bit words from the device map's first register"),
+        ("schema_sql", SCHEMA_SQL),
+    ])
+    db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
+                   [(s.value, s.name.lower()) for s in State])
+    db.execute("COMMIT")

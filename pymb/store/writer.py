@@ -14,8 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pymb import __version__
-from pymb.devices import HUB, HubReading, State
+from pymb.devices import HUB, HubReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
@@ -28,13 +27,12 @@ from pymb.store.retention import RESTAMP_TOLERANCE, Retention
 from pymb.store.schema import (
     MIN_BYTES,
     PAGE_SIZE,
-    SCHEMA,
     SCHEMA_SQL,
     SCHEMA_VERSION,
     WAL_MAX,
     WAL_MIN,
+    install,
     schema_version,
-    statements,
     wire_bytes,
 )
 
@@ -194,17 +192,7 @@ class SqliteSink(Retention):
         if version == SCHEMA_VERSION and db.execute(
                 "SELECT value FROM meta WHERE key = 'schema_sql'").fetchone() == (SCHEMA_SQL,):
             return  # as this pymb would write it: nothing to write (a full disk opens too)
-        db.execute("BEGIN")
-        for stmt in statements(SCHEMA):
-            db.execute(stmt)
-        db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [
-            ("schema_version", str(SCHEMA_VERSION)), ("pymb_version", __version__),
-            ("registers", "big-endian 16-bit words from the device map's first register"),
-            ("schema_sql", SCHEMA_SQL),
-        ])
-        db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
-                       [(s.value, s.name.lower()) for s in State])
-        db.execute("COMMIT")
+        install(db)
 
     def _begin(self) -> None:
         if not self._in_tx:
