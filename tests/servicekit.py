@@ -5,7 +5,9 @@ as under systemd)."""
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import socket
 import subprocess
 import threading
@@ -26,6 +28,26 @@ def without_events(stderr: str) -> list[str]:
     """The lines of a logger's stderr that are not its events (which are lines there
     when stderr is not a terminal): what it said besides."""
     return [line for line in stderr.strip().splitlines() if not EVENT_LINE.match(line)]
+
+
+def set_clock(file: Path, spec: str) -> None:
+    """What libfaketime reads at the next call: ``@1970-01-02 00:00:00``, ``+0``, ``-3600``."""
+    tmp = file.with_suffix(".new")
+    tmp.write_text(spec + "\n")
+    os.replace(tmp, file)  # never seen half-written
+
+
+def faketime_env(file: Path, spec: str) -> dict[str, str]:
+    """The environment of a child whose wall clock ``file`` sets."""
+    if shutil.which("faketime") is None:
+        pytest.fail("faketime is not installed: .ci/setup installs it")
+    # the library the faketime command preloads (its path has the loader's $LIB)
+    lib = subprocess.run(["faketime", "-f", "+0", "sh", "-c", 'printf %s "$LD_PRELOAD"'],
+                         capture_output=True, text=True, check=True, timeout=30).stdout
+    assert "libfaketime" in lib
+    set_clock(file, spec)
+    return {**PYMB_ENV, "LD_PRELOAD": lib, "FAKETIME_TIMESTAMP_FILE": str(file),
+            "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
 
 
 class NotifyListener:

@@ -302,6 +302,11 @@ class Forwarder(threading.Thread):
             s.client.disconnect()
         with contextlib.suppress(Exception):
             s.client.loop_stop()
+        # The client and the session's callbacks hold each other: without this the
+        # client (and the socket pair paho keeps for its thread) waits for the cycle
+        # collector, two descriptors a reconnection.
+        for hook in ("on_connect", "on_disconnect", "on_publish", "on_subscribe", "on_message"):
+            setattr(s.client, hook, None)
 
     # -- the cursor and the status ------------------------------------------------
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import signal
 import sqlite3
 import subprocess
@@ -21,34 +20,14 @@ from typing import Any
 import pytest
 
 pytest.register_assert_rewrite("mqtt_broker", "servicekit")
-from conftest import PYMB, PYMB_ENV, run_pymb, wait_until  # noqa: E402
+from conftest import PYMB, run_pymb, wait_until  # noqa: E402
 from mqtt_broker import Fleet, db_ids, plain_ids  # noqa: E402
-from servicekit import NotifyListener, StderrLines  # noqa: E402
+from servicekit import NotifyListener, StderrLines, faketime_env, set_clock  # noqa: E402
 
 from pymb.store.retention import PLAUSIBLE  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]  # the fixtures: fleet, simulator, ...
 NODE = "gw-clock"
-
-
-def _set_clock(file: Path, spec: str) -> None:
-    """What libfaketime reads at the next call: ``@1970-01-02 00:00:00``, ``+0``, ``-3600``."""
-    tmp = file.with_suffix(".new")
-    tmp.write_text(spec + "\n")
-    os.replace(tmp, file)  # never seen half-written
-
-
-def _faketime(file: Path, spec: str) -> dict[str, str]:
-    """The environment of a child whose wall clock ``file`` sets."""
-    if shutil.which("faketime") is None:
-        pytest.fail("faketime is not installed: .ci/setup installs it")
-    # the library the faketime command preloads (its path has the loader's $LIB)
-    lib = subprocess.run(["faketime", "-f", "+0", "sh", "-c", 'printf %s "$LD_PRELOAD"'],
-                         capture_output=True, text=True, check=True, timeout=30).stdout
-    assert "libfaketime" in lib
-    _set_clock(file, spec)
-    return {**PYMB_ENV, "LD_PRELOAD": lib, "FAKETIME_TIMESTAMP_FILE": str(file),
-            "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
 
 
 def _rows(db: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:
@@ -81,7 +60,7 @@ def test_a_board_that_boots_in_1970(fleet: Fleet, simulator: str, tmp_path: Path
     # the previous boots: three days ago (clock set), then one in 1970 (clock never set)
     for spec in ("-259200", "@1970-01-02 00:00:00"):
         r = run_pymb("log", "--tcp", simulator, "coolpro:40", "--interval", "0.05",
-                     "--seconds", "1", "--out", str(db), "--quiet", env=_faketime(clock, spec))
+                     "--seconds", "1", "--out", str(db), "--quiet", env=faketime_env(clock, spec))
         assert r.returncode == 0, r.stderr
     old = _ids(db, "time_utc >= ?", PLAUSIBLE)  # three days old: past --max-age-days 1
     unset = _ids(db, "time_utc < ?", PLAUSIBLE)  # 1970: age unknown
@@ -90,7 +69,7 @@ def test_a_board_that_boots_in_1970(fleet: Fleet, simulator: str, tmp_path: Path
     broker = fleet.broker()
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     broker.stop()  # the network comes later than the logger
-    proc = _log(simulator, db, _faketime(clock, "@1970-01-02 00:00:00"), "--max-age-days", "1",
+    proc = _log(simulator, db, faketime_env(clock, "@1970-01-02 00:00:00"), "--max-age-days", "1",
                 "--mqtt", broker.url, "--mqtt-node", NODE)
     err = StderrLines(proc)
     try:
@@ -102,7 +81,7 @@ def test_a_board_that_boots_in_1970(fleet: Fleet, simulator: str, tmp_path: Path
         before = _ids(db, "id > ?", max(unset))
         assert all(t < PLAUSIBLE for (t,) in _rows(db, "SELECT time_utc FROM samples "
                                                        "WHERE id > ?", max(unset)))
-        _set_clock(clock, "+0")  # NTP: the present
+        set_clock(clock, "+0")  # NTP: the present
         wait_until(lambda: _rows(db, "SELECT message FROM events WHERE kind = 'clock'"),
                    "the clock event", 30, alive=lambda: proc.poll() is None)
         (message,), = _rows(db, "SELECT message FROM events WHERE kind = 'clock'")
@@ -141,14 +120,14 @@ def test_a_step_back(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     name = f"@pymb-test-clock-{os.getpid()}"
     listener = NotifyListener(name)
-    env = {**_faketime(clock, "+0"), "NOTIFY_SOCKET": name}
+    env = {**faketime_env(clock, "+0"), "NOTIFY_SOCKET": name}
     proc = _log(simulator, db, env, "--mqtt", broker.url, "--mqtt-node", NODE, "--quiet")
     err = StderrLines(proc)
     try:
         wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples forwarded", 30,
                    alive=lambda: proc.poll() is None)
         stepped_at = time.monotonic()
-        _set_clock(clock, "-3600")  # an operator sets the clock back an hour
+        set_clock(clock, "-3600")  # an operator sets the clock back an hour
         wait_until(lambda: _rows(db, "SELECT message FROM events WHERE kind = 'clock'"),
                    "the clock event", 30, alive=lambda: proc.poll() is None)
         (message,), = _rows(db, "SELECT message FROM events WHERE kind = 'clock'")
