@@ -27,6 +27,7 @@ from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import KINDS
 from pymb.sim.mapsim import MapSimDevice, map_sim_device
 from pymb.sim.simulator import Simulator
+from pymb.sim.tcp import MAX_PORTS, parse_ports
 
 __all__ = ["add_arguments", "run"]
 
@@ -49,6 +50,7 @@ examples:
   pymb simulate coolpro:41 hub:250,firmware=1.07 --baud 19200
   pymb simulate hub --tcp 127.0.0.1:5020 --fault busy:0.1 --fault late:0.05,delay=1
   pymb simulate --map meter.toml my-meter:3 --tcp 5020
+  pymb simulate eastron-sdm630 --tcp 127.0.0.1:5020-5119   (100 TCP devices)
 """
 
 
@@ -63,10 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="serve on a new pseudo-terminal and print its path (default)")
     where.add_argument("--port", metavar="PATH", help="serve on a real serial port")
     where.add_argument("--tcp", metavar="[HOST:]PORT",
-                       help="serve Modbus TCP (host 127.0.0.1 unless named; port 0: any)")
+                       help="serve Modbus TCP (host 127.0.0.1 unless named; port 0: any); "
+                            "FIRST-LAST serves the same devices on each port of the range")
     where.add_argument("--rtu-over-tcp", metavar="[HOST:]PORT",
                        help="serve RTU frames over TCP, as a transparent serial server "
                             "(\"raw\" gateway) does (host 127.0.0.1 unless named; port 0: any)")
+    parser.add_argument("--count", type=int, metavar="N",
+                        help="with --tcp PORT: serve the same devices on N ports, PORT to "
+                             "PORT+N-1 (port 0: N free ports), as N TCP devices")
     parser.add_argument("--baud", type=int, metavar="N",
                         help="line speed: every device is set to it and each frame takes "
                              "its real wire time (default 9600, no emulation)")
@@ -86,6 +92,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _tcp_address(text: str, flag: str = "--tcp") -> tuple[str, int]:
     return parse_host_port(text, what=flag, port_only=True)
+
+
+def tcp_ports(text: str, count: int | None) -> tuple[str, list[int] | None]:
+    """``--tcp [HOST:]FIRST-LAST`` or ``--tcp [HOST:]PORT --count N`` ->
+    ``(host, ports)``; ports None for one port (the plain ``--tcp``)."""
+    head, sep, tail = text.rpartition(":")
+    if "-" in tail:
+        if count is not None:
+            raise InvalidArgument("give --tcp FIRST-LAST or --tcp PORT --count N, not both")
+        ports = parse_ports(tail)
+        return _tcp_address(f"{head}{sep}{ports[0]}")[0], ports
+    host, port = _tcp_address(text)
+    if count is None:
+        return host, None
+    if not 1 <= count <= MAX_PORTS:
+        raise InvalidArgument(f"--count must be 1..{MAX_PORTS}, got {count}")
+    if port and port + count - 1 > 65535:
+        raise InvalidArgument(f"--tcp {port} --count {count} runs past port 65535")
+    return host, [port + i if port else 0 for i in range(count)]
 
 
 def check_link(path: str) -> None:
@@ -157,8 +182,14 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="pymb simulate: %(message)s", stream=sys.stderr)
     rot = getattr(args, "rtu_over_tcp", None)
-    tcp = (_tcp_address(args.tcp) if args.tcp else
-           _tcp_address(rot, "--rtu-over-tcp") if rot else None)
+    many: list[int] | None = None
+    if args.count is not None and not args.tcp:
+        raise InvalidArgument("--count is for --tcp only")
+    if args.tcp:
+        host, many = tcp_ports(args.tcp, args.count)
+        tcp: tuple[str, int] | None = (host, many[0] if many else _tcp_address(args.tcp)[1])
+    else:
+        tcp = _tcp_address(rot, "--rtu-over-tcp") if rot else None
     transport = ("tcp" if args.tcp else "rtu-over-tcp" if rot else
                  "serial" if args.port else "pty")
     if args.link and transport != "pty":
@@ -175,6 +206,7 @@ def run(args: argparse.Namespace) -> int:
         port=args.port,
         host=tcp[0] if tcp else "127.0.0.1",
         tcp_port=tcp[1] if tcp else 0,
+        tcp_ports=many,
         baud=args.baud,
         seed=args.seed,
         faults=args.fault,
@@ -200,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
                                         errno=e.errno, port=where) from None
         endpoint = sim.endpoint
         if tcp is not None:  # the port bound (--tcp HOST:0 asks for any free one)
-            tcp = (tcp[0], int(endpoint.rsplit(":", 1)[1]))
+            tcp = (tcp[0], sim.tcp_port)
         with contextlib.suppress(BrokenPipeError):
             print(endpoint, flush=True)
         for dev in sim.devices:

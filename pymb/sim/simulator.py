@@ -27,7 +27,7 @@ from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
 from pymb.sim.rtu import RtuServer
 from pymb.sim.server import Server
-from pymb.sim.tcp import TcpServer
+from pymb.sim.tcp import TcpServer, format_ports
 
 __all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
 
@@ -143,6 +143,7 @@ class Simulator:
         port: str | None = None,
         host: str = "127.0.0.1",
         tcp_port: int = 0,
+        tcp_ports: list[int] | None = None,
         baud: int | None = None,
         seed: int = 0,
         faults: Faults | Sequence[str] | None = None,
@@ -191,6 +192,7 @@ class Simulator:
         self._serial = port
         self._host = host
         self._tcp_port = tcp_port
+        self._tcp_ports = tcp_ports
         self._server: Server | None = None
 
     # -- life cycle ---------------------------------------------------------------------
@@ -203,7 +205,8 @@ class Simulator:
         server: Server
         if self.transport in ("tcp", "rtu-over-tcp"):
             server = TcpServer(self.bus, self._host, self._tcp_port, emulate_baud=self.baud,
-                               rtu_framing=self.transport == "rtu-over-tcp")
+                               rtu_framing=self.transport == "rtu-over-tcp",
+                               ports=self._tcp_ports)
         else:
             link = None
             if self.transport == "pty" and self._link_opt:
@@ -286,12 +289,21 @@ class Simulator:
         return server.port
 
     @property
+    def tcp_ports(self) -> list[int]:
+        """Every port the TCP server answers on (the same devices on each)."""
+        server = self._running()
+        if not isinstance(server, TcpServer):
+            raise RuntimeError("not a TCP simulator: use port")
+        return list(server.ports)
+
+    @property
     def endpoint(self) -> str:
-        """What the command line prints: the port path, or ``HOST:PORT``."""
+        """What the command line prints: the port path, or ``HOST:PORT``
+        (``HOST:FIRST-LAST`` or ``HOST:P1,P2,...`` for many ports)."""
         server = self._running()
         if isinstance(server, TcpServer):
             host = f"[{self._host}]" if ":" in self._host else self._host
-            return f"{host}:{server.port}"
+            return f"{host}:{format_ports(server.ports)}"
         return self.port
 
     # -- control --------------------------------------------------------------------------

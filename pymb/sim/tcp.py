@@ -10,7 +10,10 @@ out, as behind a gateway that relays to a silent bus). Unit 0xFF ("not
 used", what a TCP device answers to itself; mbpoll sends it) reaches the
 only device of a one-device bus, unless a hub sits at address 255. All connections are
 served by one thread, one request at a time, as a gateway serialises its
-RTU line. The device's turnaround applies; with ``emulate_baud`` the RTU
+RTU line. Given ``ports``, the same bus answers on each of them (a 0 is any
+free port), as many TCP devices on one network would, for tests and benchmarks
+of a master that polls them all; one thread serves them all through one
+selector. The device's turnaround applies; with ``emulate_baud`` the RTU
 wire time of request and reply is added. ``bad_crc`` has no meaning here (a
 TCP frame has no CRC) and is never applied.
 """
@@ -20,18 +23,19 @@ from __future__ import annotations
 import contextlib
 import logging
 import select
+import selectors
 import socket
 import struct
 import time
-from typing import Any
 
 from pymb import _native
+from pymb.errors import InvalidArgument
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault
 from pymb.sim.rtu import frame_rtu
 from pymb.sim.server import Server
 
-__all__ = ["TcpServer", "frame_tcp"]
+__all__ = ["MAX_PORTS", "TcpServer", "format_ports", "frame_tcp", "parse_ports"]
 
 log = logging.getLogger("pymb.sim")
 
@@ -40,6 +44,34 @@ _MAX_PDU = 253  # [MB-AP] 4.1
 _SEND_WAIT_S = 1.0
 #: [MB-TCP] 4.4.1: unit 0xFF addresses a TCP device itself (mbpoll sends it)
 _UNIT_NOT_USED = 0xFF
+#: the most ports one simulator serves (each a listener and a connection: 2 descriptors)
+MAX_PORTS = 1000
+
+
+def parse_ports(text: str, what: str = "--tcp") -> list[int]:
+    """``PORT``, ``FIRST-LAST`` or ``P1,P2,...`` as a list of ports."""
+    ports: list[int] = []
+    try:
+        for part in text.split(","):
+            first, dash, last = part.strip().partition("-")
+            a = int(first)
+            b = int(last) if dash else a
+            if not (0 <= a <= 65535 and 0 <= b <= 65535 and a <= b):
+                raise ValueError(part)
+            ports.extend(range(a, b + 1))
+    except ValueError:
+        raise InvalidArgument(f"{what}: bad port or port range {text!r} "
+                              "(PORT, FIRST-LAST or P1,P2,... in 0..65535)") from None
+    if len(ports) > MAX_PORTS:
+        raise InvalidArgument(f"{what}: {len(ports)} ports; at most {MAX_PORTS}")
+    return ports
+
+
+def format_ports(ports: list[int]) -> str:
+    """``FIRST-LAST`` when ``ports`` run on by one, else ``P1,P2,...``."""
+    if len(ports) > 1 and ports == list(range(ports[0], ports[0] + len(ports))):
+        return f"{ports[0]}-{ports[-1]}"
+    return ",".join(str(p) for p in ports)
 
 
 def frame_tcp(tid: int, unit: int, pdu: bytes, fault: Fault | None) -> bytes:
@@ -64,66 +96,94 @@ class TcpServer(Server):
     name = "tcp"
 
     def __init__(self, bus: Bus, host: str = "127.0.0.1", port: int = 0, *,
-                 emulate_baud: int | None = None, rtu_framing: bool = False) -> None:
+                 emulate_baud: int | None = None, rtu_framing: bool = False,
+                 ports: list[int] | None = None) -> None:
         super().__init__(bus)
+        if ports is not None and not 1 <= len(ports) <= MAX_PORTS:
+            raise InvalidArgument(f"give 1..{MAX_PORTS} ports, got {len(ports)}")
         self.host = host
         self.port = port
+        #: the ports served (0: picked by the system, then kept across replugs)
+        self.ports = list(ports) if ports is not None else [port]
         self.emulate_baud = emulate_baud
         self.rtu_framing = rtu_framing
         if rtu_framing:
             self.name = "rtu-over-tcp"
-        self._listener: socket.socket | None = None
+        self._listeners: list[socket.socket] = []
         self._clients: dict[socket.socket, bytearray] = {}
+        self._selector: selectors.BaseSelector | None = None
+        self._wake_fd = -1
 
     def _open(self) -> None:
         family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
-        s = socket.socket(family, socket.SOCK_STREAM)
+        sel = selectors.DefaultSelector()
+        listeners: list[socket.socket] = []
         try:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            s.bind((self.host, self.port))
-            s.listen(8)
-            s.setblocking(False)
+            for i, port in enumerate(self.ports):
+                s = socket.socket(family, socket.SOCK_STREAM)
+                listeners.append(s)
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind((self.host, port))
+                s.listen(8)
+                s.setblocking(False)
+                self.ports[i] = s.getsockname()[1]  # the same ports across replugs
+                sel.register(s, selectors.EVENT_READ, "listener")
         except OSError:
-            s.close()
+            for s in listeners:
+                s.close()
+            sel.close()
             raise
-        self.port = s.getsockname()[1]  # keep the same port across replugs
-        self._listener = s
+        self.port = self.ports[0]
+        self._listeners = listeners
+        self._selector = sel
+        self._wake_fd = -1
 
     def _close(self) -> None:
         for c in list(self._clients):
             self._drop(c)
-        if self._listener is not None:
-            self._listener.close()
-            self._listener = None
+        for s in self._listeners:
+            s.close()
+        self._listeners = []
+        if self._selector is not None:
+            self._selector.close()
+            self._selector = None
 
     def _drop(self, conn: socket.socket) -> None:
-        self._clients.pop(conn, None)
+        if self._clients.pop(conn, None) is not None and self._selector is not None:
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._selector.unregister(conn)
         with contextlib.suppress(OSError):
             conn.close()
 
     def _serve_once(self, wake_fd: int) -> None:
-        listener = self._listener
-        assert listener is not None
-        watched: list[Any] = [listener, wake_fd, *self._clients]
-        r, _, _ = select.select(watched, [], [], IDLE_S)
-        if not r:
+        sel = self._selector
+        assert sel is not None
+        if self._wake_fd != wake_fd:
+            sel.register(wake_fd, selectors.EVENT_READ, "wake")
+            self._wake_fd = wake_fd
+        events = sel.select(IDLE_S)
+        if not events:
             self.bus.idle()
             return
-        if wake_fd in r:
-            self._drain_wake()
-            return
-        for s in r:
-            if s is listener:
+        for key, _ in events:
+            if key.data == "wake":
+                self._drain_wake()
+                return
+        for key, _ in events:
+            s = key.fileobj
+            assert isinstance(s, socket.socket)
+            if key.data == "listener":
                 try:
-                    conn, _ = listener.accept()
+                    conn, _ = s.accept()
                 except OSError:
                     continue
                 conn.setblocking(False)
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 self._clients[conn] = bytearray()
+                sel.register(conn, selectors.EVENT_READ, "client")
             elif s in self._clients:
                 self._receive(s)
-            if self._listener is not listener:
+            if self._selector is not sel:
                 return  # unplugged by a fault
 
     def _receive(self, conn: socket.socket) -> None:
