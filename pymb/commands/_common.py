@@ -24,6 +24,8 @@ __all__ = [
     "device_from_args",
     "interruptible",
     "make_client",
+    "parse_channels",
+    "parse_numbers",
     "render",
     "to_json",
 ]
@@ -64,6 +66,34 @@ def device_from_args(args: argparse.Namespace) -> DeviceConfig:
                                   f"{value:g}: give it once")
         options[attr] = value
     return DeviceConfig(kind, **options)
+
+
+def parse_numbers(spec: str, low: int, high: int, what: str) -> list[int]:
+    """``1-10,40`` -> the numbers (in the order given, without repeats), each
+    within ``low..high``; a mistake is an InvalidArgument ``bad {what}``:
+    the one parser of the ranges the commands take (``--range``, ``--show``,
+    ``--channel``)."""
+    out: list[int] = []
+    seen: set[int] = set()
+    try:
+        for part in spec.split(","):
+            lo, _, hi = part.strip().partition("-")
+            a, b = int(lo), int(hi or lo)
+            if not low <= a <= b <= high:
+                raise ValueError
+            for n in range(a, b + 1):
+                if n not in seen:
+                    seen.add(n)
+                    out.append(n)
+    except ValueError:
+        raise InvalidArgument(f"bad {what}") from None
+    return out
+
+
+def parse_channels(spec: str, channels: int, flag: str = "--show") -> list[int]:
+    """``1-10,40`` -> [1..10, 40], each within 1..channels."""
+    return sorted(parse_numbers(spec, 1, channels, f"{flag} {spec!r}: channels 1..{channels}, "
+                                                   "e.g. 1-20 or 1-10,40"))
 
 
 def interruptible(fn: Callable[[], T]) -> T:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 from datetime import UTC, datetime
 
+from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
 from pymb.store import is_pymb_database, open_readonly, resolve_device
 
@@ -57,19 +58,3 @@ def device_name(path: str, wanted: str) -> str:
         return resolve_device(con, wanted, path)[0]
     finally:
         con.close()
-
-
-def parse_channels(spec: str, channels: int, flag: str = "--show") -> list[int]:
-    """``1-10,40`` -> [1..10, 40], each within 1..channels."""
-    out: list[int] = []
-    try:
-        for part in spec.split(","):
-            lo, _, hi = part.strip().partition("-")
-            a, b = int(lo), int(hi or lo)
-            if not 1 <= a <= b <= channels:
-                raise ValueError
-            out.extend(c for c in range(a, b + 1) if c not in out)
-    except ValueError:
-        raise InvalidArgument(f"bad {flag} {spec!r}: channels 1..{channels}, e.g. 1-20 or "
-                              f"1-10,40") from None
-    return sorted(out)

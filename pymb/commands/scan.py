@@ -32,7 +32,7 @@ from typing import cast
 
 from pymb import _native
 from pymb.client import Client, RtuClient
-from pymb.commands._common import add_connection_args, make_client
+from pymb.commands._common import add_connection_args, make_client, parse_numbers
 from pymb.commands.mapcli import add_map_arg
 from pymb.devices.identify import Answer, Identity, client_asker, identify
 from pymb.devices.maps import COOLPRO, HUB
@@ -60,17 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def parse_range(spec: str) -> list[int]:
     """``1-10,40,248-255`` -> the addresses, in order, without repeats."""
-    out: list[int] = []
-    try:
-        for part in spec.split(","):
-            lo, _, hi = part.strip().partition("-")
-            a, b = int(lo), int(hi or lo)
-            if not (1 <= a <= b <= 255):
-                raise ValueError
-            out.extend(x for x in range(a, b + 1) if x not in out)
-    except ValueError:
-        raise InvalidArgument(f"bad --range {spec!r}: use e.g. 1-247 or 1-10,40,250") from None
-    return out
+    return parse_numbers(spec, 1, 255, f"--range {spec!r}: use e.g. 1-247 or 1-10,40,250")
 
 
 @dataclass

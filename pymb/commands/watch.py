@@ -23,8 +23,7 @@ import time
 from typing import Any
 
 from pymb.commands import read as read_cmd
-from pymb.commands._common import device_from_args, make_client, render, to_json
-from pymb.commands._data import parse_channels
+from pymb.commands._common import device_from_args, make_client, parse_channels, render, to_json
 from pymb.commands.mapread import target_from_args, watch_map
 from pymb.devices import HUB, HubReading, State
 from pymb.devices.spec import closest
