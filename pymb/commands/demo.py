@@ -23,7 +23,7 @@ from pymb.devices.spec import DeviceConfig
 from pymb.errors import InvalidArgument
 from pymb.logger import BusConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
-from pymb.store import open_readonly
+from pymb.store.summary import event_counts
 
 BAUD = 115200
 
@@ -109,10 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _faults(path: str) -> str:
     try:
-        db = open_readonly(path)  # leaves no -wal or -shm behind
-        rows = db.execute("SELECT kind, COUNT(*) FROM events WHERE kind NOT IN "
-                          "('connect', 'reconnect') GROUP BY kind ORDER BY 2 DESC").fetchall()
-        db.close()
+        rows = event_counts(path)
     except (sqlite3.Error, InvalidArgument):
         return ""
     return ", ".join(f"{n} {kind}" for kind, n in rows)

@@ -14,7 +14,7 @@ from pymb.store.readonly import open_readonly
 from pymb.store.records import FAULT_KINDS
 from pymb.store.schema import SCHEMA_VERSION, schema_version
 
-__all__ = ["DeviceSummary", "Summary", "devices", "summarize"]
+__all__ = ["DeviceSummary", "Summary", "devices", "event_counts", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,20 @@ def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
     """(name, type, address, bus) of every device of an open database."""
     return [(str(n), str(t), int(a), str(b)) for n, t, a, b in con.execute(
         "SELECT name, type, address, bus FROM devices ORDER BY id")]
+
+
+def event_counts(path: str | os.PathLike[str],
+                 leave_out: tuple[str, ...] = ("connect", "reconnect")) -> list[tuple[str, int]]:
+    """(kind, count) of the events of the database at ``path``, the most
+    frequent first, without the kinds in ``leave_out``; read without writing."""
+    con = open_readonly(path)  # leaves no -wal or -shm behind
+    try:
+        marks = ", ".join("?" * len(leave_out)) or "NULL"
+        return [(str(k), int(n)) for k, n in con.execute(
+            f"SELECT kind, COUNT(*) FROM events WHERE kind NOT IN ({marks}) "
+            "GROUP BY kind ORDER BY 2 DESC", leave_out)]
+    finally:
+        con.close()
 
 
 def summarize(path: str | os.PathLike[str]) -> Summary:

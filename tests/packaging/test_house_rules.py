@@ -1,0 +1,33 @@
+"""Rules of the source tree that keep it a house a maintainer can live in:
+every module of the product stays small enough to read in one sitting, and
+the SQLite file has one owner (only pymb.store speaks SQL to it)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+PRODUCT = sorted((ROOT / "pymb").rglob("*.py"))
+MAX_LINES = 500
+
+#: speaking SQL: a statement run, or a connection opened
+SQL = re.compile(r"\.execute(?:many|script)?\(|sqlite3\.connect\(")
+
+
+def _rel(p: Path) -> str:
+    return str(p.relative_to(ROOT))
+
+
+def test_every_module_is_under_500_lines() -> None:
+    long = {_rel(p): n for p in PRODUCT
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
+    assert long == {}, f"split these along their seams: {long}"
+
+
+def test_only_the_store_speaks_sql() -> None:
+    # The bench measures storage layouts of its own, in files of its own.
+    outside = [_rel(p) for p in PRODUCT
+               if not _rel(p).startswith(("pymb/store/", "pymb/bench/"))
+               and SQL.search(p.read_text(encoding="utf-8"))]
+    assert outside == [], f"SQL outside pymb/store: {outside}"
