@@ -173,7 +173,7 @@ def _spec(doc: dict[str, Any], source: str, headers: list[str],
         ctx.fail("point", "the map has no [[point]] or [[block]]")
     spec = Spec(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())
     _check_variants(spec, built)
-    identify = tuple(_identify(ctx, i, raw, spec) for i, raw in
+    identify = tuple(_identify(i, raw, spec) for i, raw in
                      enumerate(_list(ctx, doc.get("identify", []), "identify")))
     return Spec(source, device, limits, timing, spec.groups, spec.entries, identify)
 
@@ -405,7 +405,7 @@ def _where(table: str) -> Callable[[tuple[int, int, Point, int]], str]:
     return where
 
 
-def _identify(ctx0: Ctx, i: int, raw: object, spec: Spec) -> Identify:
+def _identify(i: int, raw: object, spec: Spec) -> Identify:
     ctx = Ctx(spec.source)
     t = _keys(ctx, raw, _IDENTIFY, f"[[identify]] number {i + 1}")
     names = [r["name"] for _, _, r in spec.entries]
