@@ -87,6 +87,30 @@ class CoolProConfig:
     baud_rate_index: int
 
 
+def decode_telemetry(regs: array[int]) -> CoolProTelemetry:
+    """Input registers 0..7 (an ``array('H')``) as :class:`CoolProTelemetry`,
+    decoded in C, with no I/O: the one decoder of the facade, the store's
+    reader and the logger."""
+    # The result's fields are set directly (a frozen dataclass's __init__
+    # makes a call per field): this is a CoolPro logger's hot path.
+    t = _new(CoolProTelemetry)
+    d = t.__dict__
+    (d["input_voltage_v"], d["input_current_a"], d["output_voltage_v"],
+     d["output_current_a"], d["temperature_c"], d["uptime_s"],
+     status) = _native.coolpro_telemetry(regs)
+    d["status"] = _status(status)
+    d["registers"] = regs
+    return t
+
+
+def decode_identity(regs: array[int]) -> CoolProIdentity:
+    """Input registers 100..107 (an ``array('H')``) as :class:`CoolProIdentity`,
+    with no I/O: the one decoder of the facade and of device identification."""
+    serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
+    return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
+                           datetime.fromtimestamp(made, UTC), regs)
+
+
 class CoolPro:
     """The CoolPro at ``address`` (1..247, default 40) on ``client``.
 
@@ -124,25 +148,12 @@ class CoolPro:
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        # The hot path of a CoolPro logger: one array, one C read, one C
-        # decode, and the result's fields set directly (a frozen dataclass's
-        # __init__ makes a call per field).
-        regs = self._read(self._telemetry)
-        t = _new(CoolProTelemetry)
-        d = t.__dict__
-        (d["input_voltage_v"], d["input_current_a"], d["output_voltage_v"],
-         d["output_current_a"], d["temperature_c"], d["uptime_s"],
-         status) = _native.coolpro_telemetry(regs)
-        d["status"] = _status(status)
-        d["registers"] = regs
-        return t
+        # The hot path of a CoolPro logger: one array, one C read, one C decode.
+        return decode_telemetry(self._read(self._telemetry))
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
-        regs = self._read(self._identity)
-        serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
-        return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
-                               datetime.fromtimestamp(made, UTC), regs)
+        return decode_identity(self._read(self._identity))
 
     def read_config(self) -> CoolProConfig:
         """Device address and baud rate as stored (effective after a reset)."""

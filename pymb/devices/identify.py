@@ -25,11 +25,13 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 
+from pymb._native import FunctionCode
 from pymb.client import Client
+from pymb.devices.coolpro import decode_identity
 from pymb.devices.maps import COOLPRO, HUB
 from pymb.errors import DeviceException, ModbusConnectionError, ModbusError, ModbusTimeout
+from pymb.wire import registers_from_wire
 
 __all__ = ["Answer", "Identity", "client_asker", "identify", "mismatch"]
 
@@ -37,7 +39,8 @@ __all__ = ["Answer", "Identity", "client_asker", "identify", "mismatch"]
 Answer = bytes | int | None
 Ask = Callable[[int, int, bytes], Answer]
 
-_FC_HOLDING, _FC_INPUT = 0x03, 0x04
+_FC_HOLDING = FunctionCode.READ_HOLDING_REGISTERS
+_FC_INPUT = FunctionCode.READ_INPUT_REGISTERS
 
 
 @dataclass(frozen=True)
@@ -85,11 +88,10 @@ def identify(ask: Ask, address: int) -> Identity | None:
     reply = _read(ask, address, fc, first, count) if address <= 247 else 1
     if isinstance(reply, bytes):
         if len(reply) == 1 + 2 * count and reply[0] == 2 * count:
-            r = struct.unpack(f">{count}H", reply[1:])
-            serial = r[0] | r[1] << 16
-            made = datetime.fromtimestamp(r[6] | r[7] << 16, UTC).date().isoformat()
-            return Identity(address, "coolpro", f"serial {serial}, firmware "
-                            f"{r[3]}.{r[4]}.{r[5]}, hardware rev {r[2]}, made {made}")
+            i = decode_identity(registers_from_wire(reply[1:]))
+            return Identity(address, "coolpro", f"serial {i.serial_number}, firmware "
+                            f"{i.firmware_version}, hardware rev {i.hardware_revision}, "
+                            f"made {i.manufactured.date().isoformat()}")
         return Identity(address, "unknown", f"a malformed reply to FC 0x04 at {first}")
     if reply is None:
         # Silent to FC 0x04: a hub always answers it (exception 01); try FC 0x03

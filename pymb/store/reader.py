@@ -9,8 +9,8 @@ from array import array
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from pymb import _native
-from pymb.devices import HUB, CoolProStatus, CoolProTelemetry, HubReading, State, decode_hub
+from pymb.devices import HUB, CoolProTelemetry, HubReading, State, decode_hub
+from pymb.devices.coolpro import decode_telemetry
 from pymb.errors import InvalidArgument
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
@@ -114,7 +114,5 @@ def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
             data = dec.hub(did, info.channels, units, t, sid, blob, unsupported)
         else:
             regs = host_words(blob)
-            vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
-            data = CoolProTelemetry(vin, iin, vout, iout, temp, uptime, CoolProStatus(status),
-                                    regs)
+            data = decode_telemetry(regs)
         yield StoredSample(info, t, mono, data, sid)
