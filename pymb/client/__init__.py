@@ -27,6 +27,7 @@ from pymb.client.checks import (
     MAX_WRITE_BITS,
     MAX_WRITE_REGISTERS,
 )
+from pymb.client.listener import LineListener
 from pymb.client.transports import RtuClient, RtuOverTcpClient, TcpClient
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "MAX_WR_READ_REGISTERS",
     "MAX_WR_WRITE_REGISTERS",
     "Client",
+    "LineListener",
     "RtuClient",
     "RtuOverTcpClient",
     "TcpClient",

@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import queue
-import select
 import struct
 import sys
 import threading
@@ -30,20 +28,19 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import cast
 
-from pymb import _native
 from pymb.client import Client, RtuClient
+from pymb.client.listener import LineListener
 from pymb.commands._common import add_connection_args, make_client, parse_numbers
 from pymb.commands.mapcli import add_map_arg
 from pymb.devices.identify import Answer, Identity, client_asker, identify
 from pymb.devices.maps import COOLPRO, HUB
 from pymb.devices.mapspec import map_types, match_map
-from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.errors import InvalidArgument
 from pymb.maps import Map
-from pymb.wire import bits_per_char, char_time
+from pymb.wire import bits_per_char
 
-__all__ = ["LineListener", "add_arguments", "parse_range", "run"]
+__all__ = ["LineListener", "add_arguments", "line_asker", "parse_range", "run"]
 
-_QUIET_S = 0.02  #: a partial frame with no byte for this long is noise
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -72,97 +69,18 @@ class Found:
     detail: str
 
 
-class LineListener:
-    """Sends RTU requests on an open serial line and reads every frame that
-    comes back, crediting each to the address it names."""
+def line_asker(line: LineListener, timeout: float) -> Callable[[int, int, bytes], Answer]:
+    """``ask`` for :func:`~pymb.devices.identify.identify`, over a listened line."""
 
-    def __init__(self, fd: int, baudrate: int, bits: int) -> None:
-        self.fd = fd
-        self.char = char_time(baudrate, bits)
-        self.buf = bytearray()
-        self.last_byte = 0.0
-        self.heard: list[int] = []  #: addresses heard from, in order, not yet taken
-        self.garbled = 0  #: bytes dropped as noise
-
-    def send(self, address: int, function: int, data: bytes) -> float:
-        """Send a request; returns when its last bit will have left."""
-        frame = _native.with_crc(bytes((address, function)) + data)
-        view = memoryview(frame)
-        while view:
-            _, w, _ = select.select([], [self.fd], [], 0.05)
-            if w:
-                try:
-                    view = view[os.write(self.fd, view):]
-                except BlockingIOError:
-                    continue
-                except OSError as e:
-                    raise self._lost(e) from None
-        return time.monotonic() + len(frame) * self.char
-
-    def _lost(self, e: OSError) -> ModbusConnectionError:
-        return ModbusConnectionError(f"the line failed during the scan: {e.strerror}",
-                                     errno=e.errno)
-
-    def listen(self, until: float, address: int | None = None,
-               function: int | None = None) -> bytes | None:
-        """Read until ``until``; returns the first frame from ``address`` that
-        answers ``function`` (None: just listen). Every other frame is noted
-        in :attr:`heard`."""
-        while True:
-            frame = self._take(address, function)
+    def ask(address: int, function: int, data: bytes) -> Answer:
+        for _ in range(2):  # a lost reply is asked again once: noise is no answer
+            sent = line.send(address, function, data)
+            frame = line.listen(sent + timeout, address, function)
             if frame is not None:
-                return frame
-            left = until - time.monotonic()
-            if left <= 0:
-                return None
-            r, _, _ = select.select([self.fd], [], [], min(left, 0.05))
-            if r:
-                try:
-                    chunk = os.read(self.fd, 512)
-                except BlockingIOError:
-                    continue
-                except OSError as e:
-                    raise self._lost(e) from None
-                if chunk:
-                    self.buf += chunk
-                    self.last_byte = time.monotonic()
-
-    def _take(self, address: int | None, function: int | None) -> bytes | None:
-        while len(self.buf) >= 2:
-            n = _native.rtu_response_length(self.buf)
-            if n == -1 or (n > 0 and len(self.buf) < n):
-                if time.monotonic() - self.last_byte < _QUIET_S + 3.5 * self.char:
-                    return None  # more may come
-                self._drop()  # a partial frame followed by silence: noise
-                continue
-            if n < 0 or not _native.rtu_crc_ok(self.buf[:n]):
-                self._drop()
-                continue
-            frame = bytes(self.buf[:n])
-            del self.buf[:n]
-            fc = frame[1] & 0x7F
-            if frame[0] == address and fc == function:
-                return frame
-            if frame[0] and frame[0] not in self.heard:
-                self.heard.append(frame[0])
+                return frame[2] if frame[1] & 0x80 else frame[2:-2]
         return None
 
-    def _drop(self) -> None:
-        del self.buf[:1]
-        self.garbled += 1
-
-    def asker(self, timeout: float) -> Callable[[int, int, bytes], Answer]:
-        """``ask`` for :func:`~pymb.devices.identify.identify`, over this line."""
-
-        def ask(address: int, function: int, data: bytes) -> Answer:
-            for _ in range(2):  # a lost reply is asked again once: noise is no answer
-                sent = self.send(address, function, data)
-                frame = self.listen(sent + timeout, address, function)
-                if frame is not None:
-                    return frame[2] if frame[1] & 0x80 else frame[2:-2]
-            return None
-
-        return ask
+    return ask
 
 
 def _probe() -> tuple[int, bytes]:
@@ -177,7 +95,7 @@ def scan_rtu(client: RtuClient, addresses: list[int], timeout: float,
     ("unconfirmed", address) as the scan goes."""
     line = LineListener(client.fileno(), client.baudrate,
                         bits_per_char(client.parity, client.stop_bits, client.data_bits))
-    ask = line.asker(confirm_timeout)
+    ask = line_asker(line, confirm_timeout)
     done: set[int] = set()
     fc, data = _probe()
 
