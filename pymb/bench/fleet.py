@@ -113,7 +113,8 @@ _VALUES = {"input_voltage_v": 24.5, "input_current_a": 2.45, "output_voltage_v":
 
 
 class _Pymb:
-    """The logger's SQLite sink (batches committed every 0.5 s, as the logger does)
+    """The logger's SQLite sink (batches committed every second, as the logger does
+    when it forwards)
     and the forwarder."""
 
     def __init__(self, db: Path, port: int, catchup_rate: float = 1000.0) -> None:
@@ -121,13 +122,13 @@ class _Pymb:
         from pymb.fleet import ForwardingSink
         from pymb.fleet.config import MqttConfig
         from pymb.fleet.forwarder import Forwarder
-        from pymb.logger import LogConfig
+        from pymb.logger.config import MQTT_COMMIT_INTERVAL
         from pymb.store import DeviceInfo, SqliteSink
 
         self._info = DeviceInfo("bus1", "bench", "coolpro", 40, "coolpro-40")
         self._data = CoolProTelemetry(24.5, 2.45, 24.0, 2.41, 26.1, 1, CoolProStatus(0),
                                       array("H", [0] * 8))
-        self.commit_interval = LogConfig([]).commit_interval
+        self.commit_interval = MQTT_COMMIT_INTERVAL
         self.sink = SqliteSink(db)
         self.fw = Forwarder(str(db), MqttConfig(f"mqtt://127.0.0.1:{port}", node="bench",
                                                 catchup_rate=catchup_rate))

@@ -233,13 +233,15 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
             children.stop(s)
         n = 600 if opts.quick else 3000
         layout_rows = layouts.compare(hub_registers, where, n, opts.say)
+    from pymb.bench import wear
+    wear_rows = wear.run_wear(opts, children)
     full = runs["hub"]["bytes_per_sample"]
     for sp in spans.values():
         sp["saving"] = 1 - sp["bytes_per_sample"] / full if full else None
     return {
         "rounds": rounds, "seconds": seconds, "runs": runs,
         "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT, "spans": spans,
-        "layouts": layout_rows, "layout_sweeps": n,
+        "layouts": layout_rows, "layout_sweeps": n, "wear": wear_rows,
     }
 
 
@@ -258,6 +260,9 @@ def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, 
          2.0),
     ):
         out.append((what, target, value, unit, None if value is None else value <= limit))
+    if section.get("wear"):
+        from pymb.bench import wear
+        out += wear.targets(section["wear"])
     return out
 
 

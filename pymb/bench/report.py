@@ -335,6 +335,9 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
         [[r["layout"], f"{r['bytes_per_sweep']:,.0f} B", fmt_time(r["insert_cpu_us"]),
           *(f"{r['queries'][q]['ms']:.3g} ms" for q in qnames)] for r in s["layouts"]],
         [False, True, True, *([True] * len(qnames))], []))
+    if s.get("wear"):
+        from pymb.bench.wear import table
+        tables.append(table(s["wear"]))
     return tables
 
 

@@ -49,6 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "oldest data (at least 1)")
     p.add_argument("--max-age-days", type=_positive, metavar="DAYS",
                    help="SQLite: delete data older than this")
+    p.add_argument("--commit-interval", type=_positive, metavar="SECONDS",
+                   help="SQLite: commit at least this often (default 60, or 1 with --mqtt; "
+                        "also when 64 KB of samples wait): a power cut loses what waits, "
+                        "more commits wear an SD card more (docs/reliability.md)")
     p.add_argument("--on-change", action="store_true",
                    help="SQLite: store a hub channel (or a CoolPro sample) only when a value "
                         "moved past its deadband, a state changed, or its heartbeat came")

@@ -92,6 +92,8 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         cfg.max_bytes = int(args.max_mb * 1e6)
     if args.max_age_days is not None:
         cfg.max_age = args.max_age_days * 86400
+    if getattr(args, "commit_interval", None) is not None:
+        cfg.commit_interval = args.commit_interval
     mqtt = mqtt_from(args, mqtt_table)
     if mqtt is not None and cfg.format != "sqlite":
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "

@@ -88,6 +88,20 @@ class BusConfig:
                    for _, n in full_sweep_spans(device.channels))
 
 
+#: Commits: when the samples waiting hold this many bytes of registers, or
+#: when the oldest has waited COMMIT_INTERVAL seconds. Each commit writes
+#: whole pages to the WAL (and syncs it); fewer, fuller commits write less to
+#: an SD card (docs/reliability.md has the figures), and a power cut loses
+#: the samples waiting.
+COMMIT_BYTES = 256 * 1024
+COMMIT_INTERVAL = 120.0
+#: ... forwarding to MQTT, the broker gets a sample once it is committed:
+#: live data over wear
+MQTT_COMMIT_INTERVAL = 1.0
+#: an event (a fault, a reconnect) waits for its commit this long at most
+EVENT_COMMIT_INTERVAL = 1.0
+
+
 @dataclass
 class LogConfig:
     """Everything ``pymb log`` needs."""
@@ -97,8 +111,11 @@ class LogConfig:
     path: str = "pymb.sqlite"
     max_bytes: int | None = None
     max_age: float | None = None
-    batch: int = 200  #: samples per commit, at most
-    commit_interval: float = 0.5  #: seconds between commits, at most
+    #: bytes of samples (their registers) a commit waits for, at most
+    commit_bytes: int = COMMIT_BYTES
+    #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL,
+    #: or MQTT_COMMIT_INTERVAL when forwarding)
+    commit_interval: float | None = None
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
 
     def __post_init__(self) -> None:
@@ -109,6 +126,15 @@ class LogConfig:
         if self.max_age is not None and not self.max_age > 0:
             raise InvalidArgument(f"--max-age-days / max_age_days must be a positive number "
                                   f"of days, got {self.max_age / 86400:g}")
+        if self.commit_interval is not None and not (
+                math.isfinite(self.commit_interval) and self.commit_interval > 0):
+            raise InvalidArgument(f"--commit-interval / commit_interval_s must be a positive "
+                                  f"number of seconds, got {self.commit_interval!r}")
+
+    @property
+    def commit_every(self) -> float:
+        """Seconds a sample waits for its commit, at most (the default if unset)."""
+        return COMMIT_INTERVAL if self.commit_interval is None else self.commit_interval
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:
@@ -145,7 +171,8 @@ def check_buses(buses: Sequence[BusConfig]) -> None:
 
 
 _TOP_KEYS = ("output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the command line
-_OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "on_change", "heartbeat_s",
+_OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s", "on_change",
+                "heartbeat_s",
                 "deadband")
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "baud", "parity", "timeout", "interval",
              "device")
@@ -241,7 +268,9 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
         raise InvalidArgument(f"{path}: no [[bus]] configured")
     max_mb = _get(out, "max_mb", (int, float), f"{path}: output")
     max_days = _get(out, "max_age_days", (int, float), f"{path}: output")
-    for key, value in (("max_mb", max_mb), ("max_age_days", max_days)):
+    commit_s = _get(out, "commit_interval_s", (int, float), f"{path}: output")
+    for key, value in (("max_mb", max_mb), ("max_age_days", max_days),
+                       ("commit_interval_s", commit_s)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InvalidArgument(f"{path}: output: {key} must be a positive number, "
                                   f"got {value!r}")
@@ -269,6 +298,7 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
             _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
             None if max_mb is None else int(max_mb * 1e6),
             None if max_days is None else float(max_days) * 86400,
+            commit_interval=None if commit_s is None else float(commit_s),
             on_change=on_change,
         )
     except InvalidArgument as e:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import queue
 import signal
 import threading
@@ -12,7 +13,7 @@ from dataclasses import dataclass, field
 
 from pymb.devices import HubReading
 from pymb.errors import OutputError
-from pymb.logger.config import LogConfig
+from pymb.logger.config import EVENT_COMMIT_INTERVAL, LogConfig
 from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller, Stats
 from pymb.service.clock import ClockWatch, restamped
 from pymb.store import Event, Sample, Sink, check_output, open_sink
@@ -56,6 +57,18 @@ class Summary:
         out = [f"bus {b} never opened its port: {why}" for b, why in self.never_opened.items()]
         out += [f"{d} delivered no sample: {why}" for d, why in self.silent.items()]
         return out
+
+
+def _weight(items: list[Sample | Event]) -> tuple[int, bool]:
+    """(bytes of registers, whether there is an event) of a poller's list."""
+    size = 0
+    events = False
+    for item in items:
+        if isinstance(item, Sample):
+            size += 2 * len(item.data.registers)
+        else:
+            events = True
+    return size, events
 
 
 class Logger:
@@ -123,8 +136,10 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         """Log until stopped (or for ``seconds``); returns the summary."""
         t0, cpu0 = time.monotonic(), time.process_time()
         deadline = None if seconds is None else t0 + seconds
-        last_commit = last_status = t0
-        pending = 0
+        last_status = t0
+        pending = 0  # bytes of registers waiting for the commit
+        due: float | None = None  # when what waits must be committed (monotonic)
+        commit_every = self.config.commit_every
         failure: OutputError | None = None
         with self._signals():
             for p in self.pollers:
@@ -142,14 +157,18 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         # Drain the queue in bursts: waking on every sample would cost
                         # a thread switch per sample.
                         self._stop.wait(_DRAIN_EVERY)
+                    now = time.monotonic()
                     if item is not None:
                         self._write_all(item)
-                        pending += len(item)
-                    now = time.monotonic()
-                    if pending and (pending >= self.config.batch
-                                    or now - last_commit >= self.config.commit_interval):
+                        size, events = _weight(item)
+                        pending += size
+                        first = min(now, item[0].monotonic)  # the oldest of the list
+                        wait = min(commit_every, EVENT_COMMIT_INTERVAL) if events else \
+                            commit_every
+                        due = min(due if due is not None else math.inf, first + wait)
+                    if due is not None and (pending >= self.config.commit_bytes or now >= due):
                         self.sink.commit()
-                        pending, last_commit = 0, now
+                        pending, due = 0, None
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)

@@ -167,7 +167,8 @@ def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
     with Simulator(["coolpro", "hub"], seed=8) as sim:
         bus = BusConfig("b", sim.port, timeout=T, devices=[DeviceConfig("coolpro", 40),
                                                            DeviceConfig("hub", 1)])
-        logger = Logger(LogConfig([bus], "sqlite", str(db)))
+        # Commits twice a second: the test waits on what is committed.
+        logger = Logger(LogConfig([bus], "sqlite", str(db), commit_interval=0.5))
         result: list[Any] = []
         t = threading.Thread(target=lambda: result.append(logger.run(300)))  # stopped below
         t.start()

@@ -1,0 +1,260 @@
+"""SD wear: what logging writes to the disk, beside what it stores.
+
+``python -m pymb.bench.wear MODE KIND PORT INTERVAL SECONDS DB`` logs one
+device (``hub`` or ``coolpro``, on a simulator's pseudo-terminal emulating
+a 115200 baud line) for SECONDS, at wire speed (INTERVAL 0) or every
+INTERVAL seconds, and prints one JSON line: samples, the bytes this process
+had written to the block layer (``write_bytes`` of ``/proc/self/io``: pages
+it dirtied, what writeback sends to the disk), and the bytes the samples
+take in the database (``dbstat``: the bytes in use on their table and index
+pages). The file and its schema are made before the count starts.
+
+MODE ``pymb`` is ``pymb log`` (:class:`pymb.logger.Logger` and its SQLite
+sink, as configured by default); ``naive`` is the logger everyone writes
+first: SQLite's defaults (rollback journal, ``synchronous=FULL``, 4 KB
+pages), one INSERT and one commit per sample.
+
+:func:`run_wear` runs the worker for each kind, interval and mode, each
+under ``strace -c`` (when installed) to count its ``fsync``/``fdatasync``
+calls.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from typing import Any
+
+__all__ = ["main", "run_wear", "targets"]
+
+ADDRESSES = {"hub": 1, "coolpro": 40}
+_NAIVE_SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples(id INTEGER PRIMARY KEY, device TEXT NOT NULL,
+                                   time_utc REAL NOT NULL, registers BLOB NOT NULL);
+CREATE INDEX IF NOT EXISTS samples_time ON samples(time_utc);
+"""
+
+
+def _write_bytes() -> int:
+    with open("/proc/self/io") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("write_bytes"))
+
+
+def _stored(db: str, tables: Sequence[str]) -> int:
+    con = sqlite3.connect(db)
+    try:
+        marks = ", ".join("?" * len(tables))
+        return int(con.execute(f"SELECT COALESCE(SUM(pgsize - unused), 0) FROM dbstat "
+                               f"WHERE name IN ({marks})", tuple(tables)).fetchone()[0])
+    finally:
+        con.close()
+
+
+#: (write_bytes, samples stored) just after the run's first commit: what
+#: comes after is the steady state (the start's own writes left out)
+_FIRST: list[tuple[int, int]] = []
+_COMMIT: list[float] = []  #: the commit interval asked for, if not the default
+
+
+def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int:
+    from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
+    from pymb.store import SqliteSink
+
+    class Sink(SqliteSink):
+        def commit(self) -> None:
+            super().commit()
+            if not _FIRST and self.stored:
+                _FIRST.append((_write_bytes(), self.stored))
+
+    bus = BusConfig(kind, port, None, 115200, "N", 2.0, interval,
+                    [DeviceConfig(kind, ADDRESSES[kind])])
+    cfg = LogConfig([bus], "sqlite", db, commit_interval=_COMMIT[0] if _COMMIT else None)
+    return Logger(cfg, sink=Sink(db)).run(seconds).samples
+
+
+def _naive(kind: str, port: str, interval: float, seconds: float, db: str) -> int:
+    from pymb import RtuClient
+    from pymb.devices import CoolPro, SensorHub
+    from pymb.store.schema import wire_bytes
+
+    client = RtuClient(port, 115200, timeout=2.0)
+    client.connect()
+    read = (SensorHub(client, ADDRESSES[kind]).read_all if kind == "hub"
+            else CoolPro(client, ADDRESSES[kind]).read_telemetry)
+    con = sqlite3.connect(db, isolation_level=None)
+    con.executescript(_NAIVE_SCHEMA)
+    n = 0
+    start = time.monotonic()
+    try:
+        while (now := time.monotonic()) < start + seconds:
+            data = read()
+            con.execute("BEGIN")
+            con.execute("INSERT INTO samples(device, time_utc, registers) VALUES (?, ?, ?)",
+                        (kind, time.time(), wire_bytes(data.registers)))
+            con.execute("COMMIT")
+            n += 1
+            if n == 1:
+                _FIRST.append((_write_bytes(), n))
+            if interval > 0:
+                time.sleep(max(0.0, start + n * interval - time.monotonic()))
+            del now
+    finally:
+        con.close()
+        client.close()
+    return n
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the worker."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) not in (6, 7) or args[0] not in ("pymb", "naive") or \
+            args[1] not in ADDRESSES:
+        print("usage: python -m pymb.bench.wear pymb|naive hub|coolpro PORT INTERVAL "
+              "SECONDS DB [COMMIT_INTERVAL]", file=sys.stderr)
+        return 2
+    if len(args) == 7:
+        _COMMIT.append(float(args[6]))
+    mode, kind, port, interval, seconds, db = args[0], args[1], args[2], float(args[3]), \
+        float(args[4]), args[5]
+    # Everything imported and the file made first: compiled modules and the
+    # schema are not the samples' cost.
+    import pymb.devices
+    import pymb.logger
+    import pymb.store.schema  # noqa: F401
+    if mode == "pymb":
+        from pymb.store import SqliteSink
+        SqliteSink(db).close()
+    else:
+        with sqlite3.connect(db) as con:
+            con.executescript(_NAIVE_SCHEMA)
+        con.close()
+    w0 = _write_bytes()
+    t0 = time.monotonic()
+    samples = (_pymb if mode == "pymb" else _naive)(kind, port, interval, seconds, db)
+    elapsed = time.monotonic() - t0
+    written = _write_bytes() - w0
+    stored = _stored(db, ("samples", "samples_time", "hub_changes"))
+    w1, n1 = _FIRST[0] if _FIRST else (w0, 0)
+    steady = None if samples <= n1 else (_write_bytes() - w1) / (
+        (samples - n1) * stored / max(1, samples))
+    print(json.dumps({"mode": mode, "kind": kind, "interval": interval, "samples": samples,
+                      "elapsed": elapsed, "written": written, "stored": stored,
+                      "steady": steady}), flush=True)
+    return 0
+
+
+def _syncs(path: str) -> int | None:
+    """fsync + fdatasync calls in an ``strace -c`` summary."""
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return None
+    n = 0
+    for line in text.splitlines():
+        m = re.match(r"\s*[\d.]+\s+[\d.]+\s+\d+\s+(\d+)\s+(?:\d+\s+)?(fsync|fdatasync)\s*$", line)
+        if m:
+            n += int(m.group(1))
+    return n
+
+
+def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
+    """Every kind at wire speed and at a 1 s interval, pymb and the naive
+    logger side by side; each row with bytes written and stored per sample,
+    their ratio, and fdatasyncs per second."""
+    strace = shutil.which("strace")
+    wire_s, slow_s = (10.0, 30.0) if opts.quick else (60.0, 600.0)
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=os.getcwd()) as where:
+        for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):
+            what = "wire speed" if interval == 0 else f"a {interval:g} s interval"
+            opts.say(f"logger: SD wear at {what}, {seconds:g} s")
+            runs = [(mode, kind) for kind in ADDRESSES for mode in ("pymb", "naive")]
+            sims = children.sims([[f"{kind}:{ADDRESSES[kind]},dynamic=0", "--baud", "115200",
+                                   "--seed", "0"] for _, kind in runs])
+            procs = []
+            for (mode, kind), sim in zip(runs, sims, strict=True):
+                db = os.path.join(where, f"{mode}-{kind}-{interval:g}.sqlite")
+                trace = db + ".strace"
+                argv = [sys.executable, "-m", "pymb.bench.wear", mode, kind, sim.port,
+                        str(interval), str(seconds), db]
+                if strace:
+                    argv = [strace, "-f", "-c", "-e", "trace=fsync,fdatasync", "-o", trace,
+                            "--", *argv]
+                procs.append((subprocess.Popen(argv, stdout=subprocess.PIPE, text=True,
+                                               env=_env()), trace))
+            for p, trace in procs:
+                out, _ = p.communicate(timeout=seconds + 300)
+                row = json.loads(out.strip().splitlines()[-1])
+                syncs = _syncs(trace) if strace else None
+                n = max(1, row["samples"])
+                row.update(written_per_sample=row["written"] / n,
+                           stored_per_sample=row["stored"] / n,
+                           ratio=row["written"] / max(1, row["stored"]),
+                           syncs_per_s=None if syncs is None else syncs / row["elapsed"])
+                rows.append(row)
+            for s in sims:
+                children.stop(s)
+    return rows
+
+
+def _env() -> dict[str, str]:
+    from pymb.child import python_env
+    return {**python_env(), "PYTHONDONTWRITEBYTECODE": "1"}  # no .pyc counted as written
+
+
+def table(rows: list[dict[str, Any]]) -> Any:
+    """The SD wear rows as a report table."""
+    from pymb.bench.report import Table
+
+    def syncs(r: dict[str, Any]) -> str:
+        return "-" if r["syncs_per_s"] is None else f"{r['syncs_per_s']:.2f}"
+
+    out = []
+    for r in rows:
+        what = "hub sweep" if r["kind"] == "hub" else "CoolPro sample"
+        when = "wire speed" if r["interval"] == 0 else f"every {r['interval']:g} s"
+        who = "pymb log" if r["mode"] == "pymb" else "naive (INSERT + COMMIT each)"
+        steady = "-" if r.get("steady") is None else f"{r['steady']:.2f}x"
+        out.append([what, when, who, f"{r['samples']:,}", f"{r['stored_per_sample']:,.0f} B",
+                    f"{r['written_per_sample']:,.0f} B", f"{r['ratio']:.2f}x", steady,
+                    syncs(r)])
+    return Table(
+        "SD wear: bytes written to the disk per sample, beside the bytes stored",
+        "each run its own process against its own simulator on a line emulated at 115200; "
+        "written: write_bytes of /proc/PID/io (pages dirtied, what writeback sends to the "
+        "disk: WAL, database, -shm), the file and schema made before; stored: the bytes in "
+        "use on the samples' table and index pages (dbstat); steady: from the first commit "
+        "to the end (the start's one-off writes left out, the last checkpoint in); "
+        "fdatasync: strace -c",
+        ["sample", "rate", "logger", "samples", "stored", "written", "written / stored",
+         "steady", "fdatasync/s"], out, [False, False, False, True, True, True, True, True,
+                                         True], [])
+
+
+def targets(rows: list[dict[str, Any]]) -> list[tuple[str, str, float | None, str, bool | None]]:
+    """The SD wear goals against this run: bytes written over bytes stored."""
+    out: list[tuple[str, str, float | None, str, bool | None]] = []
+    for r in rows:
+        if r["mode"] != "pymb":
+            continue
+        wire = r["interval"] == 0
+        limit = 3.0 if wire else 4.0
+        what = (f"bytes written / stored, {'hub sweep' if r['kind'] == 'hub' else 'CoolPro'}"
+                f" at {'wire speed' if wire else 'a 1 s interval'}")
+        value = r.get("steady")
+        out.append((what + " (steady)", f"<= {limit:g}", value, "x",
+                    None if value is None else value <= limit))
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())
