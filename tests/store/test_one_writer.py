@@ -39,8 +39,9 @@ def coolpro() -> Iterator[str]:
 
 
 def _log(endpoint: str, db: Path, *extra: str) -> subprocess.Popen[str]:
+    # Commits five times a second: the test waits on what is committed.
     return subprocess.Popen([*PYMB, "log", "coolpro:40", "--tcp", endpoint, "--out", str(db),
-                             *extra],
+                             "--commit-interval", "0.2", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=PYMB_ENV)
 

@@ -41,8 +41,10 @@ def devices() -> Iterator[str]:
 
 
 def _log(endpoint: str, db: Path, *extra: str) -> subprocess.Popen[str]:
+    """``pymb log`` of both devices, committing twice a second (readers see it)."""
     return subprocess.Popen([*PYMB, "log", "hub:1", "coolpro:40", "--tcp", endpoint, "--out",
-                             str(db), "--quiet", *extra], stdout=subprocess.PIPE,
+                             str(db), "--quiet", "--commit-interval", "0.5", *extra],
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=PYMB_ENV)
 
 
