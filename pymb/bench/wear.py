@@ -171,7 +171,7 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     logger side by side; each row with bytes written and stored per sample,
     their ratio, and fdatasyncs per second."""
     strace = shutil.which("strace")
-    wire_s, slow_s = (10.0, 30.0) if opts.quick else (60.0, 600.0)
+    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, 600.0)
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=os.getcwd()) as where:
         for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):

@@ -419,3 +419,14 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
     assert "Logger: pymb log against the bare read" in text
     assert "issue" not in text.lower()  # no history of the work in the program's output
     assert "Storage layouts" in text
+    # SD wear: every kind at both rates, pymb and the naive logger, measured
+    wear = {(r["mode"], r["kind"], r["interval"]): r for r in s["wear"]}
+    assert len(wear) == 8
+    for r in wear.values():
+        assert r["samples"] > 0
+        assert r["stored"] > 0
+    for kind in ("hub", "coolpro"):  # one commit per sample writes far more per sample
+        assert wear["naive", kind, 0.0]["written_per_sample"] > \
+            wear["pymb", kind, 0.0]["written_per_sample"]
+    assert any("bytes written / stored" in w for w in whats)
+    assert "SD wear: bytes written to the disk per sample" in text
