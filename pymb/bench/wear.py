@@ -112,6 +112,19 @@ def _naive(kind: str, port: str, interval: float, seconds: float, db: str) -> in
     return n
 
 
+def _prepare(mode: str, db: str) -> None:
+    """Make the database and its schema (nothing if it is made already)."""
+    if mode == "pymb":
+        from pymb.store import SqliteSink
+        SqliteSink(db).close()
+    else:
+        con = sqlite3.connect(db)
+        try:
+            con.executescript(_NAIVE_SCHEMA)
+        finally:
+            con.close()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the worker."""
     args = list(sys.argv[1:] if argv is None else argv)
@@ -129,13 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import pymb.devices
     import pymb.logger
     import pymb.store.schema  # noqa: F401
-    if mode == "pymb":
-        from pymb.store import SqliteSink
-        SqliteSink(db).close()
-    else:
-        with sqlite3.connect(db) as con:
-            con.executescript(_NAIVE_SCHEMA)
-        con.close()
+    _prepare(mode, db)
     w0 = _write_bytes()
     t0 = time.monotonic()
     samples = (_pymb if mode == "pymb" else _naive)(kind, port, interval, seconds, db)
@@ -183,6 +190,7 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
             procs = []
             for (mode, kind), sim in zip(runs, sims, strict=True):
                 db = os.path.join(where, f"{mode}-{kind}-{interval:g}.sqlite")
+                _prepare(mode, db)  # made here: its syncs are not the run's
                 trace = db + ".strace"
                 argv = [sys.executable, "-m", "pymb.bench.wear", mode, kind, sim.port,
                         str(interval), str(seconds), db]
