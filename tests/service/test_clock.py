@@ -50,6 +50,7 @@ def _time_order_is_id_order(db: Path) -> bool:
 
 def _log(sim: str, db: Path, env: dict[str, str], *more: str) -> subprocess.Popen[str]:
     return subprocess.Popen([*PYMB, "log", "--tcp", sim, "coolpro:40", "--interval", "0.02",
+                             "--commit-interval", "0.5",  # the test watches the rows
                              "--out", str(db), *more], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, env=env,
                             start_new_session=True)

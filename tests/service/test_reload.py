@@ -25,6 +25,7 @@ pytest_plugins = ["servicekit"]  # the coolpro fixture
 CONFIG = """
 [output]
 path = "{db}"
+commit_interval_s = 0.5
 
 [[bus]]
 tcp = "{endpoint}"
