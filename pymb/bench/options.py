@@ -11,7 +11,8 @@ from pymb.devices.maps import Type
 
 __all__ = ["BUSES", "SECTIONS", "SEED", "SOFTWARE_BAUD", "Options", "Plan", "Progress"]
 
-SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger")
+SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger",
+            "gateway")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)

@@ -86,6 +86,9 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.extend(_aio_tables(result["aio"]))
     if result.get("logger"):
         out.extend(_logger_tables(result["logger"]))
+    if result.get("gateway"):
+        from pymb.bench import gatebench
+        out.extend(gatebench.tables(result["gateway"]))
     if result.get("fleet"):
         out.append(_fleet_table(result["fleet"]))
     if m.get("quick"):

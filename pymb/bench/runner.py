@@ -32,6 +32,11 @@ Sections (each can be chosen with ``--sections``):
 ``logger``   ``pymb log``'s cost on top of the bare read, pair by pair, the
              database on disk: CPU and bytes per sample, report by exception,
              and the storage layouts compared (:mod:`pymb.bench.logbench`).
+``gateway``  10, 100 and 300 Modbus TCP devices polled flat out by one
+             process, every poll stored in SQLite: values per CPU-second,
+             CPU per poll, RSS, threads; pymb's fan-out loop against a
+             thread per connection and pymodbus's async client
+             (:mod:`pymb.bench.gatebench`).
 
 Every simulator and worker is a child process stopped at the end, on error
 and on Ctrl-C (and, through ``PR_SET_PDEATHSIG``, if the bench is killed).
@@ -322,6 +327,10 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
     if result.get("logger"):
         for t in logbench.targets(result["logger"]):
             add(*t)
+    if result.get("gateway"):
+        from pymb.bench import gatebench
+        for t in gatebench.targets(result["gateway"]):
+            add(*t)
     return out
 
 
@@ -357,6 +366,9 @@ def run(opts: Options) -> dict[str, Any]:
             result["fleet"] = run_fleet(opts.quick, opts.say)
         if "logger" in opts.sections and pymb_in:
             result["logger"] = logbench.run_section(opts, children, hub_registers())
+        if "gateway" in opts.sections and pymb_in:
+            from pymb.bench import gatebench
+            result["gateway"] = gatebench.run_section(opts, children, tmp)
     # --quick is a smoke test: its figures are indicative and it judges no target.
     result["targets"] = [] if opts.quick else targets(result)
     return result

@@ -27,7 +27,7 @@ from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
 from pymb.sim.rtu import RtuServer
 from pymb.sim.server import Server
-from pymb.sim.tcp import TcpServer, format_ports
+from pymb.sim.tcp import TcpServer, format_ports, parse_ports
 
 __all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
 
@@ -384,8 +384,13 @@ class SimulatorProcess:
 
     @property
     def tcp_port(self) -> int:
-        """The TCP endpoint's port."""
-        return parse_host_port(self.endpoint)[1]
+        """The TCP endpoint's port (the first, when it serves many)."""
+        return self.tcp_ports[0]
+
+    @property
+    def tcp_ports(self) -> list[int]:
+        """Every port of the TCP endpoint (``--tcp FIRST-LAST`` or ``--count N``)."""
+        return parse_ports(self.endpoint.rpartition(":")[2])
 
     def stop(self) -> int | None:
         """Stop the child (SIGTERM, then SIGKILL); returns its exit code."""

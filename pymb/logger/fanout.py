@@ -1,0 +1,379 @@
+"""Many Modbus TCP devices polled by one thread: :class:`TcpFanout`.
+
+A gateway board polls tens or hundreds of TCP devices, each its own server.
+A thread per connection costs a stack, a switch per reply and the GIL
+handed round; here one loop waits on every connection at once (the
+system's selector: epoll on Linux) over non-blocking sockets. Each
+device's poll is a fixed list of requests (planned once, from the map);
+their frames are built once, and a reply is checked against the exact 9
+bytes it must start with (transaction, protocol, length, unit, function,
+byte count) in one comparison, then its data bytes are copied into the
+device's sample image at their place: the registers, big-endian, as the
+store keeps them. No object per register or per point is made on the way.
+
+``pipeline`` requests may be in flight on a connection at once (Modbus TCP
+allows it, [MB-TCP] 4.2; a server answers them in order); 1 is the safe
+default for devices that take one transaction at a time.
+
+Each device polls at ``interval`` seconds on fixed slots (``start + k *
+interval``): a slot that comes while the last poll is still out, or while
+the device is not connected, is counted as missed. ``interval`` 0 polls flat
+out: the next poll as soon as the last one ends. A poll that takes longer
+than ``timeout`` closes the connection (counted); it is opened again after
+``retry`` seconds. Finished samples go to ``sink`` in batches (``(t_ns,
+device, image)`` tuples) at most every ``flush`` seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import heapq
+import selectors
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from pymb.errors import InvalidArgument
+
+__all__ = ["Device", "FanoutStats", "Sample", "TcpFanout"]
+
+Sample = tuple[int, int, bytes]  #: (poll start, time.time_ns(); device index; registers)
+_HEAD = struct.Struct(">HHHBBB")  # transaction, protocol, length, unit, function, bytes
+_REQ = struct.Struct(">HHHBBHH")  # the request: MBAP + function, address, count
+_TABLES = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
+
+
+@dataclass(frozen=True)
+class Device:
+    """One TCP device: where it is and what one poll reads (``(table,
+    address, count)`` requests). The sample image holds each table's span,
+    from its first address read to its last, in the order the tables first
+    come: registers 2 bytes each, big-endian (bits as bytes of 8), so a
+    table's part decodes as one block from its first address (see
+    :meth:`layout`)."""
+
+    host: str
+    port: int
+    unit: int
+    requests: tuple[tuple[str, int, int], ...]
+
+    def __post_init__(self) -> None:
+        if not self.requests:
+            raise InvalidArgument(f"{self.host}:{self.port}: a poll needs a request")
+        for table, address, count in self.requests:
+            if table not in _TABLES:
+                raise InvalidArgument(f"unknown table {table!r}")
+            limit = 2000 if _TABLES[table] <= 2 else 125
+            if not (0 <= address <= 0xFFFF and 1 <= count <= limit
+                    and address + count <= 0x10000):
+                raise InvalidArgument(f"{table} {address}+{count}: not one read")
+
+    def layout(self) -> list[tuple[str, int, int, int]]:
+        """``(table, first address, registers, byte offset)`` of each
+        table's part of the image."""
+        spans: dict[str, list[int]] = {}
+        for table, address, count in self.requests:
+            lo, hi = spans.setdefault(table, [address, address + count])
+            spans[table] = [min(lo, address), max(hi, address + count)]
+        out, off = [], 0
+        for table, (lo, hi) in spans.items():
+            out.append((table, lo, hi - lo, off))
+            off += _data_bytes(table, hi - lo)
+        return out
+
+    @property
+    def image_bytes(self) -> int:
+        """Bytes of one sample."""
+        return sum(_data_bytes(t, n) for t, _, n, _ in self.layout())
+
+
+def _data_bytes(table: str, count: int) -> int:
+    return 2 * count if _TABLES[table] > 2 else (count + 7) // 8
+
+
+@dataclass
+class FanoutStats:
+    """Counts, per device and in total."""
+
+    polls: list[int]
+    missed: list[int]
+    timeouts: list[int]
+    exceptions: list[int]
+    errors: list[int]  #: connections refused or lost, replies out of step
+    started_ns: int = field(default_factory=time.monotonic_ns)
+
+    @classmethod
+    def of(cls, n: int) -> FanoutStats:
+        """Zeroed counts of ``n`` devices."""
+        return cls([0] * n, [0] * n, [0] * n, [0] * n, [0] * n)
+
+
+class _Conn:
+    __slots__ = ("busy", "deadline", "frames", "heads", "image", "index", "next_slot",
+                 "offsets", "rbuf", "recv_i", "retry_at", "send_i", "sizes", "sock",
+                 "started", "state", "target")
+
+    def __init__(self, index: int, d: Device) -> None:
+        self.index = index
+        self.target = d
+        self.frames: list[bytes] = []
+        self.heads: list[bytes] = []
+        self.sizes: list[int] = []
+        self.offsets: list[int] = []
+        base = {t: (first, off) for t, first, _, off in d.layout()}
+        for i, (table, address, count) in enumerate(d.requests):
+            fc = _TABLES[table]
+            nbytes = _data_bytes(table, count)
+            tid = i + 1
+            self.frames.append(_REQ.pack(tid, 0, 6, d.unit, fc, address, count))
+            self.heads.append(_HEAD.pack(tid, 0, 3 + nbytes, d.unit, fc, nbytes))
+            self.sizes.append(9 + nbytes)
+            first, off = base[table]
+            if fc <= 2 and (address - first) % 8:
+                raise InvalidArgument(f"{table} {address}: bit reads of one table must "
+                                      "start 8 bits apart")
+            self.offsets.append(off + _data_bytes(table, address - first))
+        self.image = bytearray(d.image_bytes)
+        self.rbuf = bytearray()
+        self.sock: socket.socket | None = None
+        self.state = "closed"  # closed, connecting, open
+        self.busy = False
+        self.send_i = self.recv_i = 0
+        self.started = 0
+        self.deadline = 0.0
+        self.retry_at = 0.0
+        self.next_slot = 0.0
+
+
+class TcpFanout:
+    """Polls ``devices`` from one thread until :meth:`stop` or ``run(seconds)``
+    ends; see the module's description."""
+
+    def __init__(self, devices: Sequence[Device], sink: Callable[[list[Sample]], None], *,
+                 interval: float = 1.0, timeout: float = 1.0, retry: float = 1.0,
+                 pipeline: int = 1, flush: float = 0.25) -> None:
+        if not devices:
+            raise InvalidArgument("no devices to poll")
+        if not (interval >= 0 and timeout > 0 and retry >= 0 and flush > 0):
+            raise InvalidArgument("interval, retry must be >= 0 s; timeout, flush > 0 s")
+        if isinstance(pipeline, bool) or not 1 <= pipeline <= 16:
+            raise InvalidArgument(f"pipeline must be 1..16, got {pipeline!r}")
+        self.devices = tuple(devices)
+        self.sink = sink
+        self.interval = interval
+        self.timeout = timeout
+        self.retry = retry
+        self.pipeline = pipeline
+        self.flush = flush
+        self.stats = FanoutStats.of(len(self.devices))
+        self._conns = [_Conn(i, d) for i, d in enumerate(self.devices)]
+        self._sel = selectors.DefaultSelector()
+        self._stop = threading.Event()
+        self._batch: list[Sample] = []
+        self._slots: list[tuple[float, int]] = []
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (from any thread) within about 50 ms."""
+        self._stop.set()
+
+    # -- connections ---------------------------------------------------------------------
+
+    def _connect(self, c: _Conn, now: float) -> None:
+        d = c.target
+        family = socket.AF_INET6 if ":" in d.host else socket.AF_INET
+        s = socket.socket(family, socket.SOCK_STREAM)
+        s.setblocking(False)
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        rc = s.connect_ex((d.host, d.port))
+        if rc not in (0, errno.EINPROGRESS):
+            s.close()
+            self.stats.errors[c.index] += 1
+            c.retry_at = now + self.retry
+            return
+        c.sock = s
+        c.state = "connecting"
+        c.deadline = now + self.timeout
+        self._sel.register(s, selectors.EVENT_WRITE, c)
+
+    def _drop(self, c: _Conn, now: float) -> None:
+        if c.sock is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(c.sock)
+            c.sock.close()
+        c.sock = None
+        c.state = "closed"
+        c.busy = False
+        c.rbuf.clear()
+        c.retry_at = now + self.retry
+
+    def _connected(self, c: _Conn, now: float) -> None:
+        assert c.sock is not None
+        if c.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR):
+            self.stats.errors[c.index] += 1
+            self._drop(c, now)
+            return
+        c.state = "open"
+        self._sel.modify(c.sock, selectors.EVENT_READ, c)
+        if self.interval == 0:
+            self._start(c, now)
+
+    # -- polls ---------------------------------------------------------------------------
+
+    def _start(self, c: _Conn, now: float) -> None:
+        c.busy = True
+        c.started = time.time_ns()
+        c.deadline = now + self.timeout
+        c.recv_i = 0
+        n = min(self.pipeline, len(c.frames))
+        c.send_i = n
+        assert c.sock is not None
+        try:
+            c.sock.send(b"".join(c.frames[:n]) if n > 1 else c.frames[0])
+        except OSError:
+            self.stats.errors[c.index] += 1
+            self._drop(c, now)
+
+    def _readable(self, c: _Conn, now: float) -> None:
+        sock = c.sock
+        assert sock is not None
+        try:
+            data = sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data or not c.busy:  # closed by the device, or a reply nobody asked for
+            self.stats.errors[c.index] += 1
+            self._drop(c, now)
+            return
+        buf = c.rbuf
+        if buf:
+            buf += data
+            data = bytes(buf)
+            buf.clear()
+        pos = 0
+        heads, sizes, offsets, image = c.heads, c.sizes, c.offsets, c.image
+        while c.busy:
+            i = c.recv_i
+            size = sizes[i]
+            if len(data) - pos < 9:
+                break
+            if data[pos + 7] & 0x80:  # an exception reply: the poll fails
+                self.stats.exceptions[c.index] += 1
+                if c.send_i > i + 1:  # more replies are on their way: start afresh
+                    self._drop(c, now)
+                    return
+                c.busy = False
+                pos = len(data)
+                break
+            if len(data) - pos < size:
+                break
+            if data[pos:pos + 9] != heads[i]:
+                self.stats.errors[c.index] += 1
+                self._drop(c, now)
+                return
+            off = offsets[i]
+            image[off:off + size - 9] = data[pos + 9:pos + size]
+            pos += size
+            c.recv_i = i + 1
+            if c.send_i < len(c.frames):
+                try:
+                    sock.send(c.frames[c.send_i])
+                except OSError:
+                    self.stats.errors[c.index] += 1
+                    self._drop(c, now)
+                    return
+                c.send_i += 1
+            elif c.recv_i == len(c.frames):
+                c.busy = False
+                self.stats.polls[c.index] += 1
+                self._batch.append((c.started, c.index, bytes(image)))
+                if self.interval == 0:
+                    self._start(c, now)
+                    pos = len(data)  # nothing may follow a whole poll
+                break
+        if pos < len(data):
+            buf += data[pos:]
+
+    # -- the loop ------------------------------------------------------------------------
+
+    def _due(self, now: float) -> None:
+        slots, interval = self._slots, self.interval
+        while slots and slots[0][0] <= now:
+            at, i = heapq.heappop(slots)
+            c = self._conns[i]
+            late = int((now - at) // interval)  # slots passed while the loop was away
+            if late:
+                self.stats.missed[i] += late
+                at += late * interval
+            heapq.heappush(slots, (at + interval, i))
+            if c.busy or c.state != "open":
+                self.stats.missed[i] += 1
+                continue
+            self._start(c, now)
+
+    def _sweep(self, now: float) -> None:
+        for c in self._conns:
+            if c.state == "closed":
+                if now >= c.retry_at:
+                    self._connect(c, now)
+            elif not c.busy and c.state == "open" and self.interval == 0:
+                self._start(c, now)  # flat out, after a poll that failed
+            elif (c.busy or c.state == "connecting") and now > c.deadline:
+                self.stats.timeouts[c.index] += 1
+                self._drop(c, now)
+
+    def run(self, seconds: float | None = None) -> FanoutStats:
+        """Poll until :meth:`stop` or for ``seconds``; returns the counts."""
+        now = time.monotonic()
+        end = None if seconds is None else now + seconds
+        for c in self._conns:
+            self._connect(c, now)
+        # the first slots come once the connections are made (or failed), timeout at most
+        while any(c.state == "connecting" for c in self._conns) and not self._stop.is_set() \
+                and time.monotonic() < now + self.timeout:
+            for key, _ in self._sel.select(0.05):
+                if key.data.state == "connecting":
+                    self._connected(key.data, time.monotonic())
+        now = time.monotonic()
+        if self.interval:
+            self._slots = [(now + self.interval * i / len(self._conns), i)
+                           for i in range(len(self._conns))]  # spread over one interval
+            heapq.heapify(self._slots)
+        next_sweep = next_flush = now
+        select, sink, batch = self._sel.select, self.sink, self._batch
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if end is not None and now >= end:
+                    break
+                if now >= next_sweep:
+                    self._sweep(now)
+                    next_sweep = now + 0.05
+                if self.interval:
+                    self._due(now)
+                if batch and now >= next_flush:
+                    sink(batch[:])
+                    batch.clear()
+                    next_flush = now + self.flush
+                wait = next_sweep - now
+                if self._slots:
+                    wait = min(wait, self._slots[0][0] - now)
+                for key, mask in select(max(wait, 0.0)):
+                    c = key.data
+                    if c.state == "open":
+                        self._readable(c, now)
+                    elif mask & selectors.EVENT_WRITE:
+                        self._connected(c, now)
+        finally:
+            for c in self._conns:
+                self._drop(c, time.monotonic())
+            self._sel.close()
+            if batch:
+                sink(batch[:])
+                batch.clear()
+        return self.stats

@@ -1,0 +1,61 @@
+"""``pymb bench --sections gateway``: every design polls the same simulated TCP
+devices and stores every poll; the tables and targets come from one result.
+No timing assertions: the figures are the bench's."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+
+from pymb.bench import gatebench, report
+from pymb.bench.gateworker import DESIGNS
+from pymb.cli import main
+
+
+def test_the_gateway_section_runs_every_design(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--quick", "-q", "--json", "--only", "pymb", "--sections",
+                 "gateway"]) == 0
+    result: dict[str, Any] = json.loads(capsys.readouterr().out)
+    rows = result["gateway"]["rows"]
+    assert [(r["workload"], r["devices"], r["design"]) for r in rows] == [
+        (w, n, d) for w in ("10 points", "SDM630") for n in (10, 30) for d in DESIGNS]
+    for r in rows:
+        if r["design"] == "pymodbus" and r["status"] == "skipped":
+            assert r["reason"]
+            continue
+        assert r["status"] == "ok", r
+        assert r["samples"] > 0
+        assert r["checked"] is True  # the stored registers decode to what the device holds
+        assert r["values_per_poll"] == (10 if r["workload"] == "10 points" else 74)
+        assert r["requests"] == (1 if r["workload"] == "10 points" else 9)
+        assert r["cpu_s"] > 0
+        assert r["rss_kb"] > 0
+        threads = r["threads"]
+        if r["design"] == "threads":
+            assert threads >= r["devices"]  # one per connection
+        else:
+            assert threads < 5  # one loop (and the worker's two helpers)
+    titles = [t.title for t in report.tables(result)]
+    assert any(t.startswith("Gateway: many Modbus TCP devices") for t in titles)
+
+
+def _row(design: str, devices: int, values: float, rss_mb: float) -> dict[str, Any]:
+    return {"workload": "SDM630", "devices": devices, "design": design, "status": "ok",
+            "values_per_cpu_s": values, "rss_kb": rss_mb * 1024}
+
+
+def test_the_targets_take_the_worst_pipelined_row_and_the_most_devices() -> None:
+    section = {"rows": [_row("fanout-pipelined", 10, 2e6, 30), _row("fanout-pipelined", 300,
+                                                                   9e5, 59),
+                        _row("fanout", 300, 5e6, 61), _row("threads", 300, 9e9, 99)]}
+    (values, rss) = gatebench.targets(section)
+    assert values[2] == 9e5
+    assert values[4] is False
+    assert rss[2] == 61  # the fan-out rows at 300 devices; the thread design is not pymb's
+    assert rss[4] is False
+    section["rows"] = section["rows"][:2]
+    (values, rss) = gatebench.targets(section)
+    assert rss[2] == 59
+    assert rss[4] is True

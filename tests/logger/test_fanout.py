@@ -1,0 +1,158 @@
+"""Many Modbus TCP devices polled by one thread (pymb.logger.fanout): every
+device on its own port of one ``pymb simulate --tcp ... --count N`` process;
+at a 1 s interval no slot is missed, every poll is one stored sample whose
+registers decode to the device's values; a silent device costs its own
+timeouts only; exceptions and refused connections are counted per device."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+from pathlib import Path
+
+import pytest
+
+from pymb.logger.fanout import Device, Sample, TcpFanout
+from pymb.maps import Decoder, load
+from pymb.sim import SimulatorProcess
+
+TEN = """schema = "pymb.map/1"
+
+[device]
+id = "ten-floats"
+default_address = 1
+table = "input"
+order = "ABCD"
+""" + "".join(f"""
+[[point]]
+name = "value_{i}"
+address = {2 * i}
+type = "f32"
+example = {i}.5
+""" for i in range(10))
+READ = (("input", 0, 20),)  # the ten points, one request
+
+
+def _poll(tmp_path: Path, devices: int, seconds: float) -> None:
+    path = tmp_path / "ten.toml"
+    path.write_text(TEN)
+    m = load(str(path))
+    samples: list[Sample] = []
+    with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
+                           "127.0.0.1:0", "--count", str(devices)], quiet=True) as sim:
+        ports = sim.tcp_ports
+        assert len(ports) == devices
+        f = TcpFanout([Device("127.0.0.1", p, 1, READ) for p in ports], samples.extend,
+                      interval=1.0, timeout=0.5)
+        stats = f.run(seconds)
+    assert stats.missed == [0] * devices
+    assert stats.timeouts == [0] * devices
+    assert stats.errors == [0] * devices
+    assert stats.exceptions == [0] * devices
+    polls = int(seconds)
+    assert all(polls - 1 <= n <= polls + 1 for n in stats.polls), stats.polls
+    assert len(samples) == sum(stats.polls)
+    assert {i for _, i, _ in samples} == set(range(devices))
+    decoder = Decoder(m)
+    want = [i + 0.5 for i in range(10)]
+    for _, _, image in samples[:: max(1, len(samples) // 50)]:
+        b = decoder.decode(list(struct.unpack(">20H", image)))
+        assert list(b.values[:10]) == want
+
+
+def test_twenty_devices_for_ten_seconds_miss_no_slot(tmp_path: Path) -> None:
+    _poll(tmp_path, 20, 10.0)
+
+
+@pytest.mark.slow
+def test_a_hundred_devices_for_ten_minutes_miss_no_slot(tmp_path: Path) -> None:
+    _poll(tmp_path, 100, 600.0)
+
+
+def _silent_server() -> tuple[socket.socket, threading.Event]:
+    """A TCP server that accepts and never answers (a hung device)."""
+    srv = socket.create_server(("127.0.0.1", 0))
+    done = threading.Event()
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        srv.settimeout(0.1)
+        while not done.is_set():
+            try:
+                held.append(srv.accept()[0])
+            except TimeoutError:
+                continue
+        for s in held:
+            s.close()
+        srv.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return srv, done
+
+
+def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path) -> None:
+    path = tmp_path / "ten.toml"
+    path.write_text(TEN)
+    srv, done = _silent_server()
+    free = socket.create_server(("127.0.0.1", 0))
+    refused = free.getsockname()[1]
+    free.close()  # nothing listens there now
+    samples: list[Sample] = []
+    try:
+        with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
+                               "127.0.0.1:0", "--count", "3"], quiet=True) as sim:
+            live = [Device("127.0.0.1", p, 1, READ) for p in sim.tcp_ports]
+            bad = Device("127.0.0.1", sim.tcp_ports[0], 1, (("input", 100, 2),))
+            devices = [*live, Device("127.0.0.1", srv.getsockname()[1], 1, READ), bad,
+                       Device("127.0.0.1", refused, 1, READ)]
+            f = TcpFanout(devices, samples.extend, interval=0.5, timeout=0.2, retry=0.5)
+            stats = f.run(4.0)
+    finally:
+        done.set()
+    assert stats.missed[:3] == [0, 0, 0]
+    assert min(stats.polls[:3]) >= 7
+    assert stats.timeouts[3] >= 2  # the silent one: a timeout, a new connection, again
+    assert stats.polls[3] == 0
+    assert stats.exceptions[4] >= 7  # exception 02: an address the map does not have
+    assert stats.polls[4] == 0
+    assert stats.errors[5] >= 2  # refused, retried
+    assert {i for _, i, _ in samples} == {0, 1, 2}
+
+
+def test_flat_out_pipelined_polls_keep_the_requests_in_order(tmp_path: Path) -> None:
+    path = tmp_path / "ten.toml"
+    path.write_text(TEN)
+    m = load(str(path))
+    # the ten points as five requests, all in flight at once, answered in order
+    reads = tuple(("input", a, 4) for a in range(0, 20, 4))
+    samples: list[Sample] = []
+    with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
+                           "127.0.0.1:0", "--count", "4"], quiet=True) as sim:
+        devices = [Device("127.0.0.1", p, 1, reads) for p in sim.tcp_ports]
+        f = TcpFanout(devices, samples.extend, interval=0, pipeline=5, timeout=2.0)
+        timer = threading.Timer(1.5, f.stop)
+        timer.start()
+        stats = f.run(30.0)
+        timer.cancel()
+    assert min(stats.polls) > 10
+    assert stats.errors == [0] * 4
+    assert stats.timeouts == [0] * 4
+    decoder = Decoder(m)
+    for _, _, image in samples[:: max(1, len(samples) // 50)]:
+        assert list(decoder.decode(list(struct.unpack(">20H", image))).values[:10]) == [
+            i + 0.5 for i in range(10)]
+
+
+def test_mistakes_are_invalid_arguments() -> None:
+    from pymb.errors import InvalidArgument
+    with pytest.raises(InvalidArgument, match="unknown table"):
+        Device("127.0.0.1", 502, 1, (("inputs", 0, 2),))
+    with pytest.raises(InvalidArgument, match="not one read"):
+        Device("127.0.0.1", 502, 1, (("input", 0, 126),))
+    with pytest.raises(InvalidArgument, match="a poll needs a request"):
+        Device("127.0.0.1", 502, 1, ())
+    with pytest.raises(InvalidArgument, match="pipeline"):
+        TcpFanout([Device("127.0.0.1", 502, 1, READ)], print, pipeline=0)
+    with pytest.raises(InvalidArgument, match="no devices"):
+        TcpFanout([], print)
