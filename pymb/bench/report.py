@@ -283,7 +283,9 @@ def _targets_table(tg: list[dict[str, Any]]) -> Table:
         [[t["what"], t["target"],
           "-" if t["measured"] is None else
           (fmt_x(t["measured"]) if t["unit"] == "x" else
-           f"{t['measured']:,.0f} B" if t["unit"] == "B" else fmt_time(t["measured"])),
+           f"{t['measured']:,.0f} B" if t["unit"] == "B" else
+           f"{t['measured']:,.1f} MB" if t["unit"] == "MB" else
+           f"{t['measured']:,.0f}" if t["unit"] == "values/s" else fmt_time(t["measured"])),
           {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
         [False, True, True, False], [])
 
