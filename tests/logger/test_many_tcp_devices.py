@@ -9,8 +9,8 @@ import sqlite3
 from pathlib import Path
 
 import pytest
-
 from conftest import run_pymb
+
 from pymb.sim import SimulatorProcess
 
 
