@@ -13,6 +13,7 @@ import sys
 
 from pymb.commands._common import DEVICE_HELP
 from pymb.commands.logconfig import config_from
+from pymb.commands.mapcli import add_map_arg
 from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import PASSWORD_ENV, PROFILES
@@ -27,6 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb log``."""
     p.add_argument("devices", nargs="*", metavar="DEVICE",
                    help=f"{DEVICE_HELP}; several on one bus (--port or --tcp)")
+    add_map_arg(p)
     p.add_argument("--config", metavar="FILE.toml",
                    help="buses, devices and output from a TOML file (see docs/cli.md)")
     p.add_argument("--port", metavar="PATH", help="serial port of a single bus")

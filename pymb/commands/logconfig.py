@@ -10,10 +10,12 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from pymb.devices.spec import DeviceConfig, parse_device
+from pymb.devices.mapspec import parse_map_device
+from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml
+from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, from_target
 from pymb.store import OnChange
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
@@ -62,6 +64,7 @@ def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
             raise InvalidArgument(f"--deadband takes QUANTITY=AMOUNT, got {spec!r}") from None
     heartbeat = args.heartbeat or (cfg.on_change.heartbeat if cfg.on_change else 60.0)
     cfg.on_change = OnChange(heartbeat, bands)
+    cfg.check_on_change()
 
 
 def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]:
@@ -71,6 +74,8 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     if args.config:
         if args.port or args.tcp or args.rtu_over_tcp or specs:
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
+        if getattr(args, "maps", None):
+            raise InvalidArgument("with --config, name map files in the file: maps = [...]")
         cfg, mqtt_table = load(args.config)
     else:
         if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp)) > 1:
@@ -78,7 +83,10 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         if not (args.port or args.tcp or args.rtu_over_tcp) or not specs:
             raise InvalidArgument("name a bus and its devices: pymb log coolpro:40 hub:250 "
                                   "--port PATH (or --tcp HOST:PORT); or --config FILE")
-        cfg = single_bus_config(args.port, args.tcp, [parse_device(s) for s in specs],
+        known = KnownMaps()
+        for f in getattr(args, "maps", None) or []:
+            known.add_file(f, "--map")
+        cfg = single_bus_config(args.port, args.tcp, [device_from(s, known) for s in specs],
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
                                 interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
         cfg.path = ""
@@ -102,8 +110,22 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     return cfg, mqtt
 
 
+def device_from(spec: str, known: KnownMaps) -> DeviceConfig | MapDeviceConfig:
+    """A device as the command line names it: ``coolpro``/``hub`` or a map's
+    id (a shipped map's or a ``--map`` file's)."""
+    kind = split_spec(spec)[0]
+    if kind in ("coolpro", "hub"):
+        return parse_device(spec)
+    src = known.get(kind)
+    target = parse_map_device(spec, known.as_dict()) if src is not None else None
+    if src is None or target is None:
+        raise InvalidArgument(f"unknown device {spec!r}: a device is {DEVICE_SYNTAX}, or a "
+                              f"map's id ({', '.join(known.ids)}; --map FILE adds one)")
+    return from_target(target, src)
+
+
 def single_bus_config(port: str | None, tcp: str | None,
-                      devices: Sequence[str | DeviceConfig], *,
+                      devices: Sequence[str | DeviceConfig | MapDeviceConfig], *,
                       baud: int = DEFAULT_BAUD, parity: str = DEFAULT_PARITY,
                       timeout: float = DEFAULT_TIMEOUT,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
@@ -111,7 +133,7 @@ def single_bus_config(port: str | None, tcp: str | None,
                       name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
     """A LogConfig for one bus from command-line style arguments."""
     bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
-                    [d if isinstance(d, DeviceConfig) else parse_device(d) for d in devices],
+                    [parse_device(d) if isinstance(d, str) else d for d in devices],
                     rtu_over_tcp)
     return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
                      None if max_age_days is None else max_age_days * 86400)

@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from typing import Any, NamedTuple
 
 from pymb.client import Client
+from pymb.devices.mapreading import MapReading
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
 from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
@@ -195,6 +196,20 @@ class MapDevice:
                 unread[r] = 1
             self._run(plan, images)
             return self._decode(points, images)
+
+    def read_group(self, group: str | None = None) -> MapReading:
+        """Read ``group`` (every readable point for None) as the logger keeps
+        it: a :class:`~pymb.devices.mapreading.MapReading` with the registers
+        the requests read (laid out as
+        :func:`~pymb.devices.mapreading.group_layout` says), copied."""
+        values = self.read(group=group)
+        images = self._image(self._selection((), group))
+        regs = array("H")
+        for image in images.values():
+            regs.extend(image.registers)
+        gone = tuple(n for n, s in self.states.items()
+                     if s == "unsupported" or (isinstance(s, list) and "unsupported" in s))
+        return MapReading(self.map, group, values, dict(self.states), regs, gone)
 
     def _image(self, points: tuple[int, ...]) -> dict[str, _Image]:
         """The buffers of a selection, one per table, made once: the

@@ -14,6 +14,7 @@ from typing import Any
 
 from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry
 from pymb.devices.hub import HubReading, State
+from pymb.devices.mapreading import MapReading
 from pymb.devices.maps import COOLPRO, HUB
 
 __all__ = [
@@ -47,9 +48,23 @@ def status_flags(status: int) -> list[str]:
     return [f.name for f in CoolProStatus if f in flags and f.name is not None]
 
 
-def reading_dict(data: HubReading | CoolProTelemetry) -> dict[str, Any]:
+def _clean(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, list):
+        return [_clean(x) for x in v]
+    return v
+
+
+def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, Any]:
     """``values`` and, for a hub, ``states`` (one name per channel) and
-    ``unsupported``; for a CoolPro, ``status_flags``."""
+    ``unsupported``; for a CoolPro, ``status_flags``; for a map device,
+    ``values`` and ``states`` by point name (blocks as lists), the
+    ``group`` read and the points ``unsupported``."""
+    if isinstance(data, MapReading):
+        return {"values": {k: _clean(v) for k, v in data.values.items()},
+                "states": dict(data.states), "group": data.group,
+                "unsupported": list(data.unsupported)}
     if isinstance(data, HubReading):
         return {"values": data.as_dict(),
                 "states": {b.name: [STATE_NAMES[s] for s in data.states(b.name).tolist()]

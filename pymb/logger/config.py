@@ -14,6 +14,7 @@ import os
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from pymb.client import Client, RtuClient, client_for_address
@@ -22,6 +23,7 @@ from pymb.devices.hub import full_sweep_spans
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
 from pymb.devices.spec import DeviceConfig, closest
 from pymb.errors import InvalidArgument
+from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, add_maps, map_device_from_toml
 from pymb.store import FORMATS, OnChange
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, read_time
 
@@ -40,7 +42,7 @@ class BusConfig:
     parity: str = DEFAULT_PARITY
     timeout: float = DEFAULT_TIMEOUT
     interval: float = 0.0
-    devices: list[DeviceConfig] = field(default_factory=list)
+    devices: list[DeviceConfig | MapDeviceConfig] = field(default_factory=list)
     rtu_over_tcp: str | None = None
 
     def __post_init__(self) -> None:
@@ -54,7 +56,7 @@ class BusConfig:
                                   f">= 0, got {self.interval!r}")
         if not self.timeout > 0:
             raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
-        seen: dict[int, DeviceConfig] = {}
+        seen: dict[int, DeviceConfig | MapDeviceConfig] = {}
         for d in self.devices:
             assert d.address is not None
             if d.address in seen:
@@ -78,9 +80,13 @@ class BusConfig:
                                       what=f"bus {self.name!r}: rtu_over_tcp")
         return RtuClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
 
-    def wire_time(self, device: DeviceConfig) -> float:
-        """Least wire time of one poll of ``device`` (:mod:`pymb.wire`)."""
+    def wire_time(self, device: DeviceConfig | MapDeviceConfig) -> float:
+        """Least wire time of one poll of ``device`` (:mod:`pymb.wire`; a
+        map device: of its groups, each once)."""
         bits = bits_per_char(self.parity)
+        if isinstance(device, MapDeviceConfig):
+            return sum(device.map.plan(g, baudrate=self.baud, bits_per_char=bits).predicted_s
+                       for g, _ in device.polls)
         if device.type == "coolpro":
             return read_time(COOLPRO.span("telemetry")[2], self.baud, turnaround=COOLPRO_GAP_S,
                              bits=bits)
@@ -120,6 +126,7 @@ class LogConfig:
 
     def __post_init__(self) -> None:
         check_buses(self.buses)
+        self.check_on_change()
         if self.max_bytes is not None and not self.max_bytes > 0:
             raise InvalidArgument(f"--max-mb / max_mb must be a positive number of megabytes, "
                                   f"got {self.max_bytes / 1e6:g}")
@@ -135,6 +142,17 @@ class LogConfig:
     def commit_every(self) -> float:
         """Seconds a sample waits for its commit, at most (the default if unset)."""
         return COMMIT_INTERVAL if self.commit_interval is None else self.commit_interval
+
+    def check_on_change(self) -> None:
+        """On-change storage is for the coolpro and hub devices: refuse it with
+        a map device (an InvalidArgument naming the device)."""
+        if self.on_change is None:
+            return
+        for b in self.buses:
+            for d in b.devices:
+                if isinstance(d, MapDeviceConfig):
+                    raise InvalidArgument(f"on-change storage takes the coolpro and hub "
+                                          f"devices; log map device {d.name} without it")
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:
@@ -170,7 +188,7 @@ def check_buses(buses: Sequence[BusConfig]) -> None:
             seen.add(d.name)
 
 
-_TOP_KEYS = ("output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the command line
+_TOP_KEYS = ("maps", "output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the CLI
 _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s", "on_change",
                 "heartbeat_s",
                 "deadband")
@@ -228,21 +246,28 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
             raise InvalidArgument(f"{path}: unknown section [{key}]{closest(key, _TOP_KEYS)}")
     out = _get(doc, "output", dict, str(path), {})
     _known(out, _OUTPUT_KEYS, f"{path}: [output]")
+    base = Path(path).parent
+    known = KnownMaps()
+    add_maps(known, doc.get("maps", []), str(path), base)
     buses = []
     for i, b in enumerate(_get(doc, "bus", list, str(path), [])):
         where = f"{path}: bus {i + 1}"
         if not isinstance(b, dict):
             raise InvalidArgument(f"{where}: write buses as [[bus]] tables")
         _known(b, _BUS_KEYS, f"{where} [[bus]]")
-        devices = []
+        devices: list[DeviceConfig | MapDeviceConfig] = []
         for j, d in enumerate(_get(b, "device", list, where, [])):
             dwhere = f"{where}, device {j + 1}"
             if not isinstance(d, dict):
                 raise InvalidArgument(f"{dwhere}: write devices as [[bus.device]] tables")
-            _known(d, _DEVICE_TOML_KEYS, f"{dwhere} [[bus.device]]")
             kind = _get(d, "type", str, dwhere)
+            if "map" in d or (kind is not None and kind.lower() not in ("coolpro", "hub")):
+                devices.append(map_device_from_toml(d, known, dwhere, base))
+                continue
+            _known(d, _DEVICE_TOML_KEYS, f"{dwhere} [[bus.device]]")
             if kind is None:
-                raise InvalidArgument(f"{dwhere}: give its type (coolpro or hub)")
+                raise InvalidArgument(f"{dwhere}: give its type (coolpro, hub or a map's id) "
+                                      "or map = \"FILE\"")
             units = d.get("humidity_unit", 0.1)
             try:
                 devices.append(DeviceConfig(

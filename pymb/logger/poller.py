@@ -19,7 +19,9 @@ from pymb.devices.spec import DeviceConfig
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.store import DeviceInfo, Event, Sample
-from pymb.store.records import event_kind
+from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.schedule import run_scheduled, slots_of
+from pymb.store.records import event_kind, short_fault
 
 __all__ = ["BusPoller", "Stats"]
 
@@ -38,6 +40,8 @@ class Stats:
     problems: dict[str, str] = field(default_factory=dict)
     opened: dict[str, bool] = field(default_factory=dict)  #: bus -> port opened at least once
     last_fault: dict[str, str] = field(default_factory=dict)  #: device or bus -> last fault
+    device_faults: dict[str, int] = field(default_factory=dict)  #: map device -> failed polls
+    unsupported: dict[str, int] = field(default_factory=dict)  #: map device -> points refused
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def fault(self, key: str, text: str) -> None:
@@ -50,6 +54,11 @@ class Stats:
         if key in self.problems:
             with self.lock:
                 self.problems.pop(key, None)
+
+    def count(self, counts: dict[str, int], key: str, n: int) -> None:
+        """Add ``n`` to ``counts[key]`` (one of the per-device counts)."""
+        with self.lock:
+            counts[key] = counts.get(key, 0) + n
 
     def skipped(self, n: int) -> None:
         with self.lock:
@@ -117,9 +126,16 @@ class BusPoller(threading.Thread):
         self.clock = clock
         self.client = bus.client()
         self.devices: list[_Device] = []
+        self.maps: list[tuple[DeviceInfo, MapDeviceConfig]] = []
         stats.opened.setdefault(bus.name, False)
         for d in bus.devices:
             assert d.address is not None
+            if isinstance(d, MapDeviceConfig):
+                self.maps.append((DeviceInfo(
+                    bus.name, bus.endpoint, d.type, d.address, d.name,
+                    map_source=d.source.text, map_options=tuple(
+                        (k, float(v)) for k, v in sorted(d.options.items()))), d))
+                continue
             units = d.humidity_unit
             info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
                               d.channels if d.type == "hub" else 0,
@@ -140,6 +156,33 @@ class BusPoller(threading.Thread):
         self._batch.append(Event(time.time(), time.monotonic(), self.bus.name, device, kind,
                                  code, message))
         self.flush()
+
+    def event(self, kind: str, message: str, device: DeviceInfo | None = None,
+              code: int | None = None) -> None:
+        """Record an event now (handed over at once)."""
+        self._event(kind, message, device, code)
+
+    def stamp(self) -> tuple[float, float]:
+        """(UTC, monotonic) time of a sample completed now."""
+        return time.time(), time.monotonic()
+
+    def add_sample(self, sample: Sample) -> None:
+        """Add a sample to the list for the writer (handed over when full or old)."""
+        batch = self._batch
+        now = sample.monotonic
+        if not batch:
+            self._batch_since = now
+        batch.append(sample)
+        if len(batch) >= BATCH_MAX or now - self._batch_since >= _BATCH_AGE:
+            self.flush()
+
+    def connect(self) -> bool:
+        """Open the bus, retrying with a backoff; False: told to stop first."""
+        return self._connect()
+
+    def poll_device(self, dev: _Device) -> bool:
+        """Read one built-in device; False when the bus is gone for good."""
+        return self._poll(dev)
 
     def flush(self) -> None:
         """Hand what was read since the last list to the writer."""
@@ -194,7 +237,11 @@ class BusPoller(threading.Thread):
     def _run(self) -> None:
         if not self._connect():
             return
-        self._event("connect", f"polling {len(self.devices)} device(s) on {self.bus.endpoint}")
+        self._event("connect", f"polling {len(self.devices) + len(self.maps)} device(s) on "
+                    f"{self.bus.endpoint}")
+        if self.maps:
+            run_scheduled(self, slots_of(self, self.maps))
+            return
         interval = self.bus.interval
         start = self.clock()
         slot = 0
@@ -278,14 +325,7 @@ class BusPoller(threading.Thread):
             dev.backoff = min(max(dev.backoff * 2, _BACKOFF_FIRST), _BACKOFF_MAX)
             dev.retry_at = self.clock() + dev.backoff
             retry = f"; next try in {dev.backoff:g} s"
-        self.stats.fault(dev.info.name, f"{dev.info.name}: {_short(kind, message)}")
+        self.stats.fault(dev.info.name, f"{dev.info.name}: {short_fault(kind, message)}")
         self._event(kind, message + retry, dev.info, code)
 
 
-def _short(kind: str, message: str) -> str:
-    """The status line's words for a fault."""
-    if kind == "no_value":
-        return message.split(": ", 1)[-1]
-    if kind == "timeout":
-        return "no reply (timeout)"
-    return message.split(" on ", 1)[-1] if kind == "connection" else message

@@ -9,12 +9,21 @@ from array import array
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from pymb import maps
 from pymb.devices import HUB, CoolProTelemetry, HubReading, State, decode_hub
 from pymb.devices.coolpro import decode_telemetry
+from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.errors import InvalidArgument
+from pymb.maps import Decoder, Map, Value
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
-from pymb.store.schema import SCHEMA_VERSION, host_words, schema_version
+from pymb.store.schema import (
+    MAP_UNSUPPORTED_BITS,
+    SCHEMA_VERSION,
+    host_words,
+    parse_layout_key,
+    schema_version,
+)
 
 __all__ = ["iter_samples", "samples_after"]
 
@@ -25,6 +34,7 @@ class _Decoder:
     def __init__(self, db: sqlite3.Connection) -> None:
         self.db = db
         self.devices: dict[int, tuple[DeviceInfo, list[float]]] = {}
+        self.maps: dict[int, tuple[Map, str | None, list[Decoder], list[str]]] = {}
 
     def device(self, did: int) -> tuple[DeviceInfo, list[float]]:
         """The device row as the logger's DeviceInfo, and (hub) the humidity
@@ -44,6 +54,46 @@ class _Decoder:
             info = DeviceInfo(bus, port, kind, address, name, channels, unit)
             got = self.devices[did] = (info, units)
         return got
+
+    def map_reading(self, did: int, info: DeviceInfo, blob: bytes, unsupported: int
+                    ) -> MapReading:
+        """A map device's stored group, decoded again by its stored map."""
+        got = self.maps.get(did)
+        if got is None:
+            (units,) = self.db.execute("SELECT humidity_units FROM devices WHERE id = ?",
+                                       (did,)).fetchone()
+            group, options = parse_layout_key(units)
+            row = self.db.execute("SELECT source FROM maps WHERE id = ?",
+                                  (info.type,)).fetchone()
+            if row is None:
+                raise InvalidArgument(f"the database has no map {info.type!r} for device "
+                                      f"{info.name}")
+            m = maps.loads(row[0], source=f"map {info.type} (stored)")
+            if options:
+                m = m.configure(options)
+            got = self.maps[did] = (m, group, group_layout(m, group), group_points(m, group))
+        m, group, layout, names = got
+        regs = host_words(blob)
+        values: dict[str, Value] = {}
+        states: dict[str, Any] = {}
+        at = 0
+        for dec in layout:
+            b = dec.decode(regs[at:at + dec.count])
+            values.update(dec.values(b))
+            states.update(dec.states(b))
+            at += dec.count
+        gone: list[str] = []
+        if unsupported:
+            for i, n in enumerate(names):
+                if unsupported >> min(i, MAP_UNSUPPORTED_BITS) & 1:
+                    gone.append(n)
+                    v = values[n]
+                    if isinstance(v, list):
+                        values[n], states[n] = [None] * len(v), ["unsupported"] * len(v)
+                    else:
+                        values[n], states[n] = None, "unsupported"
+        out = {n: values[n] for n in names}
+        return MapReading(m, group, out, {n: states[n] for n in names}, regs, tuple(gone))
 
     def hub(self, did: int, channels: int, units: Any, t: float, sid: int,
             registers: bytes | None, unsupported: int) -> HubReading:
@@ -109,9 +159,11 @@ def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
     for sid, did, t, mono, blob, unsupported in con.execute(
             q, (*args, limit) if limit is not None else tuple(args)).fetchall():
         info, units = dec.device(did)
-        data: HubReading | CoolProTelemetry
+        data: HubReading | CoolProTelemetry | MapReading
         if info.type == "hub":
             data = dec.hub(did, info.channels, units, t, sid, blob, unsupported)
+        elif info.type != "coolpro":
+            data = dec.map_reading(did, info, blob, unsupported)
         else:
             regs = host_words(blob)
             data = decode_telemetry(regs)

@@ -4,10 +4,11 @@ sample read back), and :class:`Sink`, the protocol every output follows."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 from pymb.devices import CoolProTelemetry, HubReading
+from pymb.devices.mapreading import MapReading
 from pymb.errors import (
     DeviceBusy,
     DeviceException,
@@ -17,12 +18,12 @@ from pymb.errors import (
     ProtocolError,
 )
 
-__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind"]
+__all__ = ["FAULT_KINDS", "short_fault", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind"]
 
 
 @dataclass(frozen=True)
 class DeviceInfo:
-    """A logged device: its bus, port, type (``coolpro``/``hub``), address,
+    """A logged device: its bus, port, type (``coolpro``/``hub`` or a map's id), address,
     name; for a hub, its channels (0: as read) and humidity unit (1 or 0.1 %,
     one for all channels or a tuple, one per channel)."""
 
@@ -33,6 +34,10 @@ class DeviceInfo:
     name: str
     channels: int = 0
     humidity_unit: float | tuple[float, ...] = 0.1
+    #: a map device: its map's TOML text (stored with its samples) and the
+    #: options it was read with, as ``key=value`` pairs
+    map_source: str = field(default="", compare=False, repr=False)
+    map_options: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ class Sample:
     device: DeviceInfo
     time_utc: float
     monotonic: float
-    data: CoolProTelemetry | HubReading
+    data: CoolProTelemetry | HubReading | MapReading
 
 
 @dataclass(frozen=True)
@@ -110,3 +115,12 @@ FAULT_KINDS = frozenset([*(k for _, k in _EVENT_KIND), "no_value"])
 def event_kind(e: BaseException) -> str:
     """The kind of the event that records the error ``e`` (``busy``, ``timeout``, ...)."""
     return next(k for cls, k in _EVENT_KIND if isinstance(e, cls))
+
+
+def short_fault(kind: str, message: str) -> str:
+    """The status line's words for a fault of ``kind``."""
+    if kind == "no_value":
+        return message.split(": ", 1)[-1]
+    if kind == "timeout":
+        return "no reply (timeout)"
+    return message.split(" on ", 1)[-1] if kind == "connection" else message

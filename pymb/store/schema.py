@@ -6,14 +6,18 @@ from __future__ import annotations
 import hashlib
 import sqlite3
 from array import array
+from collections.abc import Sequence
 
 from pymb import __version__
 from pymb.devices import HUB, State
+from pymb.devices.mapreading import group_points
 from pymb.devices.maps import COOLPRO, Type
 from pymb.devices.readings import STATE_NAMES
+from pymb.maps import Map
 from pymb.wire import registers_from_wire, registers_to_wire
 
 __all__ = [
+    "MAP_UNSUPPORTED_BITS",
     "MIN_BYTES",
     "PAGE_SIZE",
     "SCHEMA",
@@ -21,8 +25,11 @@ __all__ = [
     "SCHEMA_VERSION",
     "host_words",
     "install",
+    "map_layout_key",
+    "parse_layout_key",
     "schema_version",
     "statements",
+    "unsupported_mask",
     "wire_bytes",
 ]
 
@@ -40,6 +47,40 @@ def host_words(blob: bytes) -> array[int]:
     return registers_from_wire(blob)
 
 
+# -- map devices ---------------------------------------------------------------------
+
+#: bits of ``samples.unsupported`` for a map reading's points: bit i is the
+#: group's i-th point; the last bit stands for it and every point after it
+MAP_UNSUPPORTED_BITS = 62
+
+
+def map_layout_key(group: str | None, options: tuple[tuple[str, float], ...]) -> str:
+    """What a map device's ``devices.humidity_units`` holds: the group its
+    samples read (``group=fast``; ``group=`` for every readable point) and
+    the map options it was read with (``,channels=50``)."""
+    return f"group={group or ''}" + "".join(f",{k}={v:g}" for k, v in options)
+
+
+def parse_layout_key(text: str) -> tuple[str | None, dict[str, float]]:
+    """(group, options) of :func:`map_layout_key`'s text."""
+    head, *opts = text.split(",")
+    group = head.partition("=")[2] or None
+    options = {}
+    for o in opts:
+        k, _, v = o.partition("=")
+        options[k] = float(v)
+    return group, options
+
+
+def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
+    """``samples.unsupported`` of a map reading whose ``names`` were refused."""
+    index = {n: i for i, n in enumerate(group_points(m, group))}
+    mask = 0
+    for n in names:
+        mask |= 1 << min(index[n], MAP_UNSUPPORTED_BITS)
+    return mask
+
+
 # -- SQLite ---------------------------------------------------------------------------
 #
 # Format 2 (SCHEMA_VERSION): what the wire gave, stored once.
@@ -54,7 +95,12 @@ def host_words(blob: bytes) -> array[int]:
 #                order); their samples row has registers NULL.
 #   devices      one row per device configuration (bus, port, type, address, name,
 #                channels, humidity units); channels: a hub's channels with the humidity
-#                unit of each (1: 0.1 %, 0: 1 %).
+#                unit of each (1: 0.1 %, 0: 1 %). A map device has a row per polling
+#                group, its humidity_units saying which (map_layout_key).
+#   maps         a map device's map (its pymb.map/1 text), by its id: a map device's
+#                samples hold the registers of one group, each of its tables from the
+#                group's first register to its last, one table after the other; its
+#                unsupported column has a bit per point of the group the device refused.
 #   events       faults, reconnects, trimming.
 #
 # Decoded values are views, in plain SQL (no extension; Debian 12's sqlite3 3.40):
@@ -171,6 +217,9 @@ CREATE TABLE IF NOT EXISTS hub_changes(
     registers BLOB NOT NULL,  -- the channel's 7 registers, block order, big-endian
     PRIMARY KEY(device_id, channel, time_utc, sample_id)) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS states(code INTEGER PRIMARY KEY, name TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS maps(
+    id TEXT PRIMARY KEY,   -- a map device's type
+    source TEXT NOT NULL); -- the pymb.map/1 file it was read with
 CREATE TABLE IF NOT EXISTS events(
     id INTEGER PRIMARY KEY, time_utc REAL NOT NULL, monotonic REAL NOT NULL, bus TEXT,
     device_id INTEGER REFERENCES devices(id), kind TEXT NOT NULL, code INTEGER,

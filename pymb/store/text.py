@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from typing import IO, Any
 
 from pymb.devices import HubReading, State
+from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import STATE_NAMES, reading_dict, telemetry_values
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.records import Event, Sample, StoredSample
@@ -39,7 +40,7 @@ def csv_head(t: float, bus: str, device: str | None, kind: str | None,
     return [f"{t:.6f}", _iso(t), bus, device or "", kind or "", "" if address is None else address]
 
 
-def csv_value(v: float | None) -> Any:
+def csv_value(v: Any) -> Any:
     """A value cell: "" for no value (None or NaN)."""
     return "" if v is None or v != v else v
 
@@ -61,6 +62,14 @@ def sample_rows(sample: Sample) -> Iterator[list[Any]]:
                 i = b * c + ch
                 if sts[i] != _NOT_READ:
                     yield [*head, ch + 1, name, csv_value(vals[i] + 0.0), STATE_NAMES[sts[i]]]
+    elif isinstance(data, MapReading):
+        for name, v in data.values.items():
+            st = data.states.get(name)
+            if isinstance(v, list):
+                for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1):
+                    yield [*head, ch, name, csv_value(cv), cs]
+            else:
+                yield [*head, "", name, csv_value(v), st]
     else:
         for name, v in telemetry_values(data).items():
             yield [*head, "", name, csv_value(v), "value"]

@@ -21,11 +21,14 @@ from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
 from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
+from pymb.devices.mapreading import MapReading
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
 from pymb.store.retention import RESTAMP_TOLERANCE, Retention
 from pymb.store.schema import (
     MIN_BYTES,
+    map_layout_key,
+    unsupported_mask,
     PAGE_SIZE,
     SCHEMA_SQL,
     SCHEMA_VERSION,
@@ -50,6 +53,15 @@ def _insert_rows(n: int) -> str:
     return ("INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
             "VALUES " + ", ".join(["(?, ?, ?, ?, ?)"] * n))
 
+
+
+def _unsupported(data: Any) -> int:
+    """The ``unsupported`` column: a hub's blocks, a map reading's points."""
+    if isinstance(data, HubReading):
+        return data.unsupported_mask
+    if isinstance(data, MapReading) and data.unsupported:
+        return unsupported_mask(data.map, data.group, data.unsupported)
+    return 0
 
 
 def _humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
@@ -114,7 +126,7 @@ class SqliteSink(Retention):
             self.db.close()
             self._unlock()
             raise
-        self._devices: dict[DeviceInfo, tuple[int, int]] = {}
+        self._devices: dict[Any, tuple[int, int]] = {}
         self._changes: dict[int, HubChanges | CoolProChanges] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
         self._first_ids = tuple(int(self.db.execute(
@@ -201,11 +213,14 @@ class SqliteSink(Retention):
 
     def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
         """(device id, channels) of a device configuration, inserted on first use."""
-        got = self._devices.get(d)
+        cache: Any = (d, data.group) if isinstance(data, MapReading) else d
+        got = self._devices.get(cache)
         if got is not None:
             return got
         channels, units, tenths = 0, "", b""
-        if d.type == "hub":
+        if isinstance(data, MapReading):
+            units = map_layout_key(data.group, d.map_options)
+        elif d.type == "hub":
             channels = data.channels if isinstance(data, HubReading) else (
                 d.channels or HUB.channels)
             units, tenths = _humidity_units(d, channels)
@@ -220,11 +235,14 @@ class SqliteSink(Retention):
                 "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
             self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
                                 [(did, ch + 1, t) for ch, t in enumerate(tenths)])
+            if isinstance(data, MapReading):
+                self.db.execute("INSERT OR IGNORE INTO maps(id, source) VALUES (?, ?)",
+                                (d.type, d.map_source))
         else:
             did = row[0]
         got = (int(did), channels)  # type: ignore[arg-type]
         if not isinstance(data, Event):
-            self._devices[d] = got
+            self._devices[cache] = got
         return got
 
     def _failed(self, e: Exception) -> OutputError:
@@ -267,7 +285,7 @@ class SqliteSink(Retention):
         try:
             rows = [(self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
                      wire_bytes(s.data.registers),
-                     s.data.unsupported_mask if isinstance(s.data, HubReading) else 0)
+                     _unsupported(s.data))
                     for s in samples]
             bounded = self.max_bytes is not None
             quarter = self.wal_budget // 4
@@ -303,7 +321,7 @@ class SqliteSink(Retention):
                 "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
                 "VALUES (?, ?, ?, ?, ?)",
                 (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
-                 data.unsupported_mask if isinstance(data, HubReading) else 0))
+                 _unsupported(data)))
             self.stored += 1
             return
         rules = self._changes.get(did)

@@ -1,0 +1,172 @@
+"""A bus with map devices: every polling group of every map device at its
+own interval (0: once after each (re)connect), the built-in devices at the
+bus's interval, and each map device's health: after ``offline_after``
+failed polls in a row it is left alone for ``offline_retry`` seconds and
+then tried with one request, so a dead unit costs the live ones on its bus
+at most one timeout per retry period."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from pymb.devices.mapdevice import MapDevice
+from pymb.errors import DeviceException, ModbusConnectionError, ModbusError
+from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.store import DeviceInfo, Sample
+from pymb.store.records import event_kind, short_fault
+
+if TYPE_CHECKING:
+    from pymb.logger.poller import BusPoller, _Device
+
+__all__ = ["MapHealth", "Slot", "run_scheduled"]
+
+
+@dataclass(eq=False)
+class MapHealth:
+    """A map device being polled and how its polling goes."""
+
+    info: DeviceInfo
+    config: MapDeviceConfig
+    device: MapDevice
+    failures: int = 0  #: failed polls in a row
+    retry_at: float = 0.0  #: offline: not polled before this (clock)
+    offline: bool = False
+
+
+@dataclass(eq=False)
+class Slot:
+    """One thing read on a schedule: a map device's group, or a built-in device."""
+
+    interval: float  #: seconds; 0: a map group once per connection, a built-in flat out
+    group: str | None = None
+    map: MapHealth | None = None
+    builtin: _Device | None = None
+    next_at: float = 0.0
+    read_once: bool = False  #: an interval-0 group read on this connection
+
+    def due(self, now: float) -> bool:
+        """Whether this slot is to be read at ``now``."""
+        if self.map is not None:
+            if self.map.offline and now < self.map.retry_at:
+                return False
+            if self.interval == 0:
+                return not self.read_once
+        elif self.builtin is not None and self.builtin.retry_at > now:
+            return False
+        return self.interval == 0 or now >= self.next_at
+
+    def wake(self, now: float) -> float:
+        """When this slot is due next (inf: not before a reconnect)."""
+        if self.map is not None and self.map.offline:
+            return max(self.map.retry_at, self.next_at if self.interval else self.map.retry_at)
+        if self.map is not None and self.interval == 0:
+            return math.inf if self.read_once else now
+        if self.builtin is not None:
+            return max(self.builtin.retry_at, self.next_at)
+        return self.next_at
+
+
+def slots_of(poller: BusPoller, maps: list[tuple[DeviceInfo, MapDeviceConfig]]) -> list[Slot]:
+    """The slots of a bus: each group of each map device, each built-in device."""
+    out: list[Slot] = []
+    rate = poller.bus.baud if poller.bus.port is not None else None
+    for info, cfg in maps:
+        dev = MapDevice(poller.client, cfg.map, cfg.address, baudrate=rate)
+        health = MapHealth(info, cfg, dev)
+        for group, interval in cfg.polls:
+            out.append(Slot(poller.bus.interval if interval is None else interval, group,
+                            health))
+    out += [Slot(poller.bus.interval, builtin=d) for d in poller.devices]
+    return out
+
+
+def run_scheduled(poller: BusPoller, slots: list[Slot]) -> None:
+    """Poll ``slots`` until told to stop (the poller is connected)."""
+    clock, stop = poller.clock, poller.stop_event
+    start = clock()
+    for s in slots:
+        s.next_at = start
+    while not stop.is_set():
+        now = clock()
+        due = [s for s in slots if s.due(now)]
+        if not due:
+            wake = min(s.wake(now) for s in slots)
+            poller.flush()
+            if stop.wait(min(max(wake - now, 0.0), 30.0)):
+                return
+            continue
+        for s in due:
+            if stop.is_set():
+                return
+            if s.builtin is not None:
+                ok = poller.poll_device(s.builtin)
+            else:
+                ok = _poll_map(poller, s, slots)
+            if not ok:
+                return
+            _advance(poller, s)
+
+
+def _advance(poller: BusPoller, s: Slot) -> None:
+    """The slot's next time; whole slots a long read overran are skipped and counted."""
+    if s.interval == 0:
+        s.read_once = True
+        return
+    s.next_at += s.interval
+    now = poller.clock()
+    if now > s.next_at:
+        late = int((now - s.next_at) / s.interval) + 1
+        s.next_at += late * s.interval
+        poller.stats.skipped(late)
+        what = f"{s.map.info.name} group {s.group}" if s.map is not None and s.group else \
+            "a device"
+        poller.event("skipped", f"{late} poll slot(s) of {s.interval:g} s skipped ({what})")
+
+
+def _poll_map(poller: BusPoller, s: Slot, slots: list[Slot]) -> bool:
+    """Read one group of a map device; False when the bus is gone for good."""
+    h = s.map
+    assert h is not None
+    name = h.info.name
+    try:
+        reading = h.device.read_group(s.group)
+    except ModbusConnectionError as e:
+        _failed(poller, h, event_kind(e), str(e), getattr(e, "errno", None))
+        poller.client.close()
+        if not poller.connect():
+            return False
+        for other in slots:
+            other.read_once = False
+        poller.event("reconnect", f"reconnected to {poller.bus.endpoint}")
+        return True
+    except ModbusError as e:
+        code = getattr(e, "code", None) if isinstance(e, DeviceException) else \
+            getattr(e, "errno", None)
+        _failed(poller, h, event_kind(e), str(e), code)
+        return True
+    poller.add_sample(Sample(h.info, *poller.stamp(), reading))
+    if reading.unsupported:
+        poller.stats.count(poller.stats.unsupported, name, len(reading.unsupported))
+    if h.offline:
+        poller.event("online", f"{name} answers again", h.info)
+    h.failures, h.offline = 0, False
+    poller.stats.ok(name)
+    return True
+
+
+def _failed(poller: BusPoller, h: MapHealth, kind: str, message: str, code: int | None) -> None:
+    h.failures += 1
+    stats = poller.stats
+    stats.count(stats.device_faults, h.info.name, 1)
+    retry = ""
+    after = h.config.offline_after or 1
+    if h.failures >= after:
+        wait = float(h.config.offline_retry or 30.0)
+        h.retry_at = poller.clock() + wait
+        if not h.offline:
+            retry = f"; offline after {h.failures} failed poll(s), next try in {wait:g} s"
+        h.offline = True
+    stats.fault(h.info.name, f"{h.info.name}: {short_fault(kind, message)}")
+    poller.event(kind, message + retry, h.info, code)
