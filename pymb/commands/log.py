@@ -130,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
     skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
     lines = [f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
              f"({s.faults} faults{skipped}) in {s.elapsed:.1f} s to {s.path}"]
+    lines += s.health()
     lines += s.problems()
     problems = s.problems()
     if not args.quiet or problems:

@@ -18,7 +18,14 @@ def status_text(logger: Logger, elapsed: float) -> str:
     rate = s.samples / elapsed if elapsed > 0 else 0.0
     skipped = (f"  skipped {s.skipped_slots}"
                if s.skipped_slots or any(b.interval > 0 for b in logger.config.buses) else "")
-    return (f"{s.samples:,} samples  {rate:,.1f}/s  faults {s.faults}{skipped}  "
+    with s.lock:
+        gone = sum(s.unsupported.values())
+        down = [n for n, k in s.device_faults.items() if k and n in s.problems]
+    health = f"  unsupported {gone}" if gone else ""
+    if down:
+        health += f"  failing {len(down)}: {', '.join(down[:3])}" + (
+            f" +{len(down) - 3}" if len(down) > 3 else "")
+    return (f"{s.samples:,} samples  {rate:,.1f}/s  faults {s.faults}{skipped}{health}  "
             f"{elapsed:.1f} s  {s.status}")
 
 

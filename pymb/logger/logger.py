@@ -40,6 +40,10 @@ class Summary:
     never_opened: dict[str, str] = field(default_factory=dict)
     #: device -> why it never delivered a sample (its last fault)
     silent: dict[str, str] = field(default_factory=dict)
+    #: map device -> its failed polls (timeouts, exceptions, ...)
+    device_faults: dict[str, int] = field(default_factory=dict)
+    #: map device -> points it refused (read as ``unsupported``), summed over its polls
+    unsupported: dict[str, int] = field(default_factory=dict)
 
     @property
     def rate(self) -> float:
@@ -51,6 +55,20 @@ class Summary:
         """0; 4 if some bus never opened its port; else 3 if some device never
         delivered a sample (``pymb log``'s exit code)."""
         return 4 if self.never_opened else 3 if self.silent else 0
+
+    def health(self) -> list[str]:
+        """One line per map device that failed a poll or refused a point:
+        ``NAME: 3 failed poll(s), 2 point(s) unsupported, 10 sample(s)``."""
+        out = []
+        for name in dict.fromkeys([*self.device_faults, *self.unsupported]):
+            parts = []
+            if self.device_faults.get(name):
+                parts.append(f"{self.device_faults[name]} failed poll(s)")
+            if self.unsupported.get(name):
+                parts.append(f"{self.unsupported[name]} point(s) unsupported")
+            parts.append(f"{self.by_device.get(name, 0)} sample(s)")
+            out.append(f"{name}: {', '.join(parts)}")
+        return out
 
     def problems(self) -> list[str]:
         """One line per bus that never opened and per device that never delivered."""
@@ -214,7 +232,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                   for b in self.config.buses if b.name not in never
                   for d in b.devices if not s.by_device.get(d.name)}
         return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
-                       dict(s.by_device), s.skipped_slots, self.config.path, never, silent)
+                       dict(s.by_device), s.skipped_slots, self.config.path, never, silent,
+                       dict(s.device_faults), dict(s.unsupported))
 
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the

@@ -1,6 +1,6 @@
 """Map devices in the logger's configuration: :class:`MapDeviceConfig` (a
-device read through a ``pymb.map/1`` map: which groups, its health timing,
-its deadbands), the maps a configuration knows (``maps = [...]`` in TOML,
+device read through a ``pymb.map/1`` map: which groups, its health timing),
+the maps a configuration knows (``maps = [...]`` in TOML,
 ``--map FILE`` on the command line, the shipped maps) and the
 ``[[bus.device]]`` table of a map device."""
 
@@ -24,7 +24,7 @@ __all__ = ["MAP_DEVICE_KEYS", "KnownMaps", "MapDeviceConfig", "map_device_from_t
 
 #: keys of a map device's ``[[bus.device]]`` table, besides the map's options
 MAP_DEVICE_KEYS = ("type", "map", "address", "name", "groups", "offline_after",
-                   "offline_retry", "deadband")
+                   "offline_retry")
 
 
 @dataclass(frozen=True)
@@ -88,10 +88,9 @@ class KnownMaps:
 class MapDeviceConfig:
     """A device on a bus read through its map: the groups polled (each at
     its own interval; default every group, or every readable point in one
-    poll for a map without groups), ``offline_after`` failed polls in a row
-    before it is left alone for ``offline_retry`` seconds (default: the
-    map's ``[device.timing]``), and deadbands by point name for on-change
-    storage (default: each point's ``deadband``)."""
+    poll for a map without groups), and ``offline_after`` failed polls in a
+    row before it is left alone for ``offline_retry`` seconds (default: the
+    map's ``[device.timing]``)."""
 
     source: MapText
     address: int
@@ -99,7 +98,6 @@ class MapDeviceConfig:
     groups: tuple[str, ...] = ()
     offline_after: int | None = None
     offline_retry: float | None = None
-    deadband: Mapping[str, float] = field(default_factory=dict)
     options: Mapping[str, int | float] = field(default_factory=dict)
     channels: int = 0  #: 0: a map device has no hub channels
     humidity_unit: float = 0.1  #: unused: a map device has no humidity unit
@@ -110,8 +108,8 @@ class MapDeviceConfig:
             self.groups = tuple(m.groups) if m.groups else ()
         for g in self.groups:
             if g not in m.groups:
-                raise InvalidArgument(f"groups: {m.id} has no group {g!r}"
-                                      f"{near(g, list(m.groups)) or '; it has ' + ', '.join(m.groups)}")
+                hint = near(g, list(m.groups)) or "; it has " + ", ".join(m.groups)
+                raise InvalidArgument(f"groups: {m.id} has no group {g!r}{hint}")
             if not group_points(m, g):
                 raise InvalidArgument(f"groups: {m.id}'s group {g!r} has no readable point")
         if self.offline_after is None:
@@ -125,13 +123,6 @@ class MapDeviceConfig:
         if not (math.isfinite(self.offline_retry) and self.offline_retry > 0):
             raise InvalidArgument(f"offline_retry must be a number of seconds above 0, "
                                   f"got {self.offline_retry!r}")
-        for point, band in self.deadband.items():
-            p = m.points.get(point)
-            if p is None:
-                raise InvalidArgument(f"deadband: {m.id} has no point {point!r}"
-                                      f"{near(point, list(m.points))}")
-            if not (math.isfinite(band) and band >= 0):
-                raise InvalidArgument(f"deadband: {point} must be 0 or more, got {band!r}")
         if not self.name:
             self.name = f"{m.id}-{self.address}"
 
@@ -189,8 +180,9 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     else:
         got = known.get(str(kind))
         if got is None:
-            raise InvalidArgument(f"{where}: unknown type {kind!r}{near(str(kind), [*FACADES, *known.ids])}"
-                                  f"; give coolpro, hub, a map's id or map = \"FILE\"")
+            hint = near(str(kind), [*FACADES, *known.ids])
+            raise InvalidArgument(f"{where}: unknown type {kind!r}{hint}; give coolpro, hub, "
+                                  f"a map's id or map = \"FILE\"")
         src = got
     m = src.map
     option_keys = list(m.device.options)
@@ -217,20 +209,13 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     if not isinstance(groups, list) or not all(isinstance(g, str) for g in groups):
         raise InvalidArgument(f"{where}: groups must be a list of group names, "
                               f"e.g. groups = [\"fast\"]")
-    bands = d.get("deadband", {})
-    if not isinstance(bands, dict):
-        raise InvalidArgument(f"{where}: deadband must be a table: deadband = "
-                              "{ voltage_v = 0.5 }")
-    for k in bands:
-        _number(bands, k, f"{where}: deadband")
     after = d.get("offline_after")
     if after is not None and (isinstance(after, bool) or not isinstance(after, int)):
         raise InvalidArgument(f"{where}: offline_after must be a whole number, got {after!r}")
     retry = _number(d, "offline_retry", where)
     try:
         return MapDeviceConfig(src, address, name, tuple(groups), after,
-                               None if retry is None else float(retry),
-                               {k: float(v) for k, v in bands.items()}, options)
+                               None if retry is None else float(retry), options)
     except InvalidArgument as e:
         raise InvalidArgument(f"{where}: {e}") from None
 

@@ -18,9 +18,9 @@ from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.spec import DeviceConfig
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
-from pymb.store import DeviceInfo, Event, Sample
 from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.schedule import run_scheduled, slots_of
+from pymb.store import DeviceInfo, Event, Sample
 from pymb.store.records import event_kind, short_fault
 
 __all__ = ["BusPoller", "Stats"]

@@ -39,7 +39,8 @@ class MapHealth:
 class Slot:
     """One thing read on a schedule: a map device's group, or a built-in device."""
 
-    interval: float  #: seconds; 0: a map group once per connection, a built-in flat out
+    interval: float  #: seconds; 0: once per connection (``once``) or flat out
+    once: bool = False  #: a map group of interval 0: read once after each (re)connect
     group: str | None = None
     map: MapHealth | None = None
     builtin: _Device | None = None
@@ -51,7 +52,7 @@ class Slot:
         if self.map is not None:
             if self.map.offline and now < self.map.retry_at:
                 return False
-            if self.interval == 0:
+            if self.once:
                 return not self.read_once
         elif self.builtin is not None and self.builtin.retry_at > now:
             return False
@@ -61,7 +62,7 @@ class Slot:
         """When this slot is due next (inf: not before a reconnect)."""
         if self.map is not None and self.map.offline:
             return max(self.map.retry_at, self.next_at if self.interval else self.map.retry_at)
-        if self.map is not None and self.interval == 0:
+        if self.map is not None and self.once:
             return math.inf if self.read_once else now
         if self.builtin is not None:
             return max(self.builtin.retry_at, self.next_at)
@@ -76,8 +77,8 @@ def slots_of(poller: BusPoller, maps: list[tuple[DeviceInfo, MapDeviceConfig]]) 
         dev = MapDevice(poller.client, cfg.map, cfg.address, baudrate=rate)
         health = MapHealth(info, cfg, dev)
         for group, interval in cfg.polls:
-            out.append(Slot(poller.bus.interval if interval is None else interval, group,
-                            health))
+            out.append(Slot(poller.bus.interval if interval is None else interval,
+                            interval == 0, group, health))
     out += [Slot(poller.bus.interval, builtin=d) for d in poller.devices]
     return out
 
@@ -111,8 +112,10 @@ def run_scheduled(poller: BusPoller, slots: list[Slot]) -> None:
 
 def _advance(poller: BusPoller, s: Slot) -> None:
     """The slot's next time; whole slots a long read overran are skipped and counted."""
-    if s.interval == 0:
+    if s.once:
         s.read_once = True
+        return
+    if s.interval == 0:
         return
     s.next_at += s.interval
     now = poller.clock()

@@ -9,8 +9,10 @@ from collections.abc import Sequence
 from typing import IO, Any
 
 from pymb.devices import HubReading, State
+from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import STATE_NAMES, telemetry_values
 from pymb.errors import InvalidArgument
+from pymb.store.reader import map_columns
 from pymb.store.readonly import open_readonly
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.series import chunks, sample_filter
@@ -117,6 +119,9 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     kinds = [(str(t), int(c)) for t, c in db.execute(q, (device,) if device else ())]
     cols = wide_columns(kinds, None if keep.channels is None else sorted(keep.channels),
                         keep.quantities)
+    points = map_columns(db, device)
+    cols += [c for c, p in points.items() if c not in cols and keep.value(
+        int(c.rsplit("_", 1)[1]) if p.block else None, p.name)]
     if not cols and kinds:
         raise InvalidArgument("no value to export: the --channel and --quantity chosen match "
                               "nothing these devices have")
@@ -139,6 +144,20 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
                     i = index.get(f"{name}_{ch}")
                     if i is not None and states[b * c + ch - 1] != _NOT_READ:
                         cells[i] = csv_value(vals[b * c + ch - 1] + 0.0)
+                        stored = True
+        elif isinstance(data, MapReading):
+            stored = False
+            for name, v in data.values.items():
+                if isinstance(v, list):
+                    for ch, cv in enumerate(v, 1):
+                        i = index.get(f"{name}_{ch}")
+                        if i is not None:
+                            cells[i] = csv_value(cv)
+                            stored = True
+                else:
+                    i = index.get(name)
+                    if i is not None:
+                        cells[i] = csv_value(v)
                         stored = True
         else:
             stored = False  # none of its quantities chosen (--channel, --quantity)

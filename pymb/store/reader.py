@@ -14,7 +14,7 @@ from pymb.devices import HUB, CoolProTelemetry, HubReading, State, decode_hub
 from pymb.devices.coolpro import decode_telemetry
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.errors import InvalidArgument
-from pymb.maps import Decoder, Map, Value
+from pymb.maps import Decoder, Map, Point, Value
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
 from pymb.store.schema import (
@@ -25,7 +25,40 @@ from pymb.store.schema import (
     schema_version,
 )
 
-__all__ = ["iter_samples", "samples_after"]
+__all__ = ["iter_samples", "map_columns", "samples_after", "stored_map"]
+
+
+def stored_map(db: sqlite3.Connection, kind: str, layout: str = ""
+               ) -> tuple[Map, str | None] | None:
+    """The map a database stored for device type ``kind``, with the options
+    of a devices row's ``layout`` key (its humidity_units), and the group of
+    that row; None if the database has no map of that id."""
+    row = db.execute("SELECT source FROM maps WHERE id = ?", (kind,)).fetchone() if \
+        db.execute("SELECT 1 FROM sqlite_master WHERE name = 'maps'").fetchone() else None
+    if row is None:
+        return None
+    group, options = parse_layout_key(layout) if layout else (None, {})
+    m = maps.loads(row[0], source=f"map {kind} (stored)")
+    return (m.configure(options) if options else m), group
+
+
+def map_columns(db: sqlite3.Connection, device: str | None = None) -> dict[str, Point]:
+    """The wide layout's columns of the map devices in a database (of one
+    ``device``, by name): a point name, or ``name_N`` for channel N of a
+    block, in the order of each map's points -> the point."""
+    q = ("SELECT type, humidity_units FROM devices WHERE type NOT IN ('coolpro', 'hub')"
+         + (" AND name = ?" if device else "") + " ORDER BY id")
+    cols: dict[str, Point] = {}
+    for kind, layout in db.execute(q, (device,) if device else ()).fetchall():
+        got = stored_map(db, kind, layout)
+        if got is None:
+            continue
+        m, group = got
+        for n in group_points(m, group):
+            p = m.points[n]
+            for c in range(1, p.channels + 1) if p.block else (0,):
+                cols.setdefault(f"{n}_{c}" if c else n, p)
+    return cols
 
 
 class _Decoder:
@@ -62,15 +95,11 @@ class _Decoder:
         if got is None:
             (units,) = self.db.execute("SELECT humidity_units FROM devices WHERE id = ?",
                                        (did,)).fetchone()
-            group, options = parse_layout_key(units)
-            row = self.db.execute("SELECT source FROM maps WHERE id = ?",
-                                  (info.type,)).fetchone()
-            if row is None:
+            found = stored_map(self.db, info.type, units)
+            if found is None:
                 raise InvalidArgument(f"the database has no map {info.type!r} for device "
                                       f"{info.name}")
-            m = maps.loads(row[0], source=f"map {info.type} (stored)")
-            if options:
-                m = m.configure(options)
+            m, group = found
             got = self.maps[did] = (m, group, group_layout(m, group), group_points(m, group))
         m, group, layout, names = got
         regs = host_words(blob)

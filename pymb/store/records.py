@@ -18,7 +18,8 @@ from pymb.errors import (
     ProtocolError,
 )
 
-__all__ = ["FAULT_KINDS", "short_fault", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind"]
+__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind",
+           "short_fault"]
 
 
 @dataclass(frozen=True)

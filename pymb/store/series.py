@@ -12,11 +12,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymb.devices import HUB, HubReading, State
+from pymb.devices.mapreading import MapReading
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import telemetry_values
 from pymb.devices.spec import closest, device_parts
 from pymb.errors import InvalidArgument
-from pymb.store.reader import iter_samples
+from pymb.store.reader import iter_samples, stored_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import StoredSample
 from pymb.store.schema import SCHEMA_VERSION, schema_version
@@ -124,7 +125,9 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         if schema_version(con) != SCHEMA_VERSION:
             raise InvalidArgument(f"{path} is not a pymb database of format {SCHEMA_VERSION}")
         name, kind = resolve_device(con, device, str(path))
-        known = quantities(kind)
+        stored = None if kind in ("coolpro", "hub") else stored_map(con, kind)
+        known = quantities(kind) if stored is None else [
+            n for n, p in stored[0].points.items() if p.access != "w" and not p.block]
         if quantity not in known:
             raise InvalidArgument(f"{name} ({kind}) has no quantity {quantity!r}"
                                   f"{closest(quantity, known)}")
@@ -149,12 +152,18 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
                 if state == _NOT_READ:
                     continue
                 v = float(data.values[i]) if state == _VALUE else math.nan
+            elif isinstance(data, MapReading):
+                if quantity not in data.values:
+                    continue  # another group's sample
+                got = data.values[quantity]
+                v = float(got) if isinstance(got, (int, float)) else math.nan
             else:
                 got = telemetry_values(data)[quantity]
                 v = math.nan if got is None else float(got)
             times.append(s.time_utc)
             values.append(v)
-        return Series(name, kind, quantity, channel, unit_of(quantity), times, values)
+        unit = unit_of(quantity) if stored is None else stored[0].points[quantity].unit
+        return Series(name, kind, quantity, channel, unit, times, values)
     except sqlite3.Error as e:
         raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
     finally:

@@ -15,27 +15,28 @@ from pathlib import Path
 from typing import Any
 
 from pymb.devices import HUB, HubReading
+from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
+from pymb.store.mapviews import create_map_views
 from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
-from pymb.devices.mapreading import MapReading
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
 from pymb.store.retention import RESTAMP_TOLERANCE, Retention
 from pymb.store.schema import (
     MIN_BYTES,
-    map_layout_key,
-    unsupported_mask,
     PAGE_SIZE,
     SCHEMA_SQL,
     SCHEMA_VERSION,
     WAL_MAX,
     WAL_MIN,
     install,
+    map_layout_key,
     schema_version,
+    unsupported_mask,
     wire_bytes,
 )
 
@@ -236,14 +237,22 @@ class SqliteSink(Retention):
             self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
                                 [(did, ch + 1, t) for ch, t in enumerate(tenths)])
             if isinstance(data, MapReading):
-                self.db.execute("INSERT OR IGNORE INTO maps(id, source) VALUES (?, ?)",
-                                (d.type, d.map_source))
+                self._store_map(d, data)
         else:
             did = row[0]
         got = (int(did), channels)  # type: ignore[arg-type]
         if not isinstance(data, Event):
             self._devices[cache] = got
         return got
+
+    def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
+        """A map device's map beside its samples, and its views (again when
+        the map's text changed)."""
+        row = self.db.execute("SELECT source FROM maps WHERE id = ?", (d.type,)).fetchone()
+        if row is None or row[0] != d.map_source:
+            self.db.execute("INSERT OR REPLACE INTO maps(id, source) VALUES (?, ?)",
+                            (d.type, d.map_source))
+            create_map_views(self.db, data.map)
 
     def _failed(self, e: Exception) -> OutputError:
         if self._in_tx or self.db.in_transaction:
@@ -343,6 +352,9 @@ class SqliteSink(Retention):
                 [(did, ch + 1, sample.time_utc, sid,
                   wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
                  for ch in pick])
+        elif isinstance(data, MapReading):
+            raise InvalidArgument(f"on-change storage takes the coolpro and hub devices, not "
+                                  f"map device {sample.device.name}")
         else:
             if not isinstance(rules, CoolProChanges):
                 rules = self._changes[did] = CoolProChanges(self.on_change)
