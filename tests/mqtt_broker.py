@@ -177,8 +177,10 @@ def fleet(mosquitto: Callable[..., Mosquitto], tmp_path: Path) -> Iterator[Fleet
 
 
 def plain_ids(messages: list[tuple[str, bytes]]) -> list[int]:
-    """The sample ids of the plain profile's data messages."""
-    return [json.loads(p)["sample"] for t, p in messages if not t.endswith("/status")]
+    """The sample ids of the plain profile's data messages (not the retained
+    status, nor a map device's retained metadata)."""
+    return [json.loads(p)["sample"] for t, p in messages
+            if not t.endswith(("/status", "/meta"))]
 
 
 def db_ids(path: Path) -> set[int]:

@@ -30,8 +30,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymb.devices.hub import HubReading
+from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import INTEGRAL_QUANTITIES, reading_dict
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
 from pymb.store import Outbox, StoredSample, sample_dict
 
@@ -111,19 +113,36 @@ class PlainProfile(Profile):
     def __init__(self, cfg: MqttConfig) -> None:
         super().__init__(cfg)
         self.base = f"{cfg.prefix}/{cfg.node}"
+        self.meta_sent: set[str] = set()  #: map devices whose metadata went out
 
     def will(self) -> Message:
         """``offline``, retained."""
         return Message(f"{self.base}/status", b"offline", 1, True)
 
     def births(self, source: Outbox, node: dict[str, int] | None = None) -> list[Message]:
-        """``online``, retained."""
-        return [Message(f"{self.base}/status", b"online", 1, True)]
+        """``online``, retained; and for each map device, its retained
+        ``{device}/meta`` (units and kinds of its points)."""
+        out = [Message(f"{self.base}/status", b"online", 1, True)]
+        for name, _type, _address in source.devices():
+            latest = source.latest(name)
+            if latest is not None and isinstance(latest.data, MapReading):
+                self.meta_sent.add(name)
+                out.append(Message(f"{self.base}/{name}/meta", map_metadata(latest.data.map),
+                                   1, True))
+        return out
 
     def data(self, record: StoredSample, historical: bool) -> list[Message]:
-        """The sample as one JSON object."""
+        """The sample as one JSON object (a map device's metadata first, if
+        it came after the births)."""
         body = json.dumps(sample_dict(record), allow_nan=False, separators=(",", ":"))
-        return [Message(f"{self.base}/{record.device.name}", body.encode(), 1)]
+        name = record.device.name
+        out = []
+        if isinstance(record.data, MapReading) and name not in self.meta_sent:
+            self.meta_sent.add(name)
+            out.append(Message(f"{self.base}/{name}/meta", map_metadata(record.data.map), 1,
+                               True))
+        out.append(Message(f"{self.base}/{name}", body.encode(), 1))
+        return out
 
     def goodbye(self) -> list[Message]:
         """``offline``, retained (the will is not sent on a clean disconnect)."""
@@ -235,11 +254,17 @@ class SparkplugProfile(Profile):
     def _order(self, device: str) -> int:
         return self.device_order.setdefault(device, len(self.device_order) + 1)
 
-    def _metrics(self, r: StoredSample) -> list[tuple[str, DataType, Any, str]]:
-        """(name, datatype, value, state) of every metric of a sample (its values
-        as :func:`pymb.devices.readings.reading_dict` gives them)."""
-        out: list[tuple[str, DataType, Any, str]] = [
-            ("sample", DataType.UINT64, r.id, "value")]
+    def _metrics(self, r: StoredSample, birth: bool = False
+                 ) -> list[tuple[str, DataType, Any, str, tuple[Any, ...]]]:
+        """(name, datatype, value, state, birth properties) of every metric of
+        a sample (its values as :func:`pymb.devices.readings.reading_dict`
+        gives them; a map device's in a birth: every point of its map)."""
+        out: list[tuple[str, DataType, Any, str, tuple[Any, ...]]] = [
+            ("sample", DataType.UINT64, r.id, "value", ())]
+        if isinstance(r.data, MapReading):
+            out += [(name, dt, v, st, point_properties(p) if birth else ())
+                    for name, dt, v, st, p in map_metrics(r.data, birth)]
+            return out
         d = reading_dict(r.data)
         values = d["values"]
         if isinstance(r.data, HubReading):
@@ -247,12 +272,12 @@ class SparkplugProfile(Profile):
             for ch in range(r.data.channels):
                 for q, vs in values.items():
                     out.append((f"channel {ch + 1:03d}/{q}", DataType.DOUBLE, vs[ch],
-                                states[q][ch]))
+                                states[q][ch], ()))
         else:
             for q, v in values.items():
                 dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (
                     DataType.UINT32 if q == "status" else DataType.UINT64)
-                out.append((q, dt, v, "value"))
+                out.append((q, dt, v, "value", ()))
         return out
 
     @staticmethod
@@ -266,9 +291,10 @@ class SparkplugProfile(Profile):
         base = self._order(device) * 100000
         t = _ms(r.time_utc)
         metrics, aliases = [], {}
-        for i, (name, dt, value, state) in enumerate(self._metrics(r)):
+        for i, (name, dt, value, state, props) in enumerate(self._metrics(r, True)):
             aliases[name] = base + i
-            metrics.append(Metric(name, base + i, dt, value, t, False, self._props(state)))
+            metrics.append(Metric(name, base + i, dt, value, t, False,
+                                  props + self._props(state)))
         self.born[device] = _Birth(aliases, _channels(r))
         payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
         return Message(self.node_topic.format("DBIRTH") + f"/{device}", payload, 0)
@@ -290,7 +316,7 @@ class SparkplugProfile(Profile):
                 self.down.discard(device)
         t = _ms(record.time_utc)
         metrics = [Metric(None, birth.aliases[name], dt, value, t, historical, self._props(st))
-                   for name, dt, value, st in self._metrics(record)]
+                   for name, dt, value, st, _ in self._metrics(record)]
         payload = encode_payload(metrics, timestamp=_ms(time.time()), seq=self._next_seq())
         out.append(Message(self.node_topic.format("DDATA") + f"/{device}", payload, 0))
         return out
@@ -310,7 +336,7 @@ class SparkplugProfile(Profile):
 
 
 def _channels(r: StoredSample) -> int:
-    """A hub sample's channels (0 for a CoolPro): a new count needs a new DBIRTH."""
+    """A hub sample's channels (0 for the others): a new count needs a new DBIRTH."""
     return r.data.channels if isinstance(r.data, HubReading) else 0
 
 

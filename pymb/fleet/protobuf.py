@@ -27,8 +27,12 @@ __all__ = ["DataType", "Metric", "command_metrics", "decode", "encode_payload"]
 class DataType(IntEnum):
     """Sparkplug B ``DataType`` values used by pymb (from the .proto)."""
 
+    INT8 = 1
+    INT16 = 2
     INT32 = 3
     INT64 = 4
+    UINT8 = 5
+    UINT16 = 6
     UINT32 = 7
     UINT64 = 8
     FLOAT = 9
@@ -89,6 +93,10 @@ def _property_set(props: Iterable[tuple[str, DataType, int | str]]) -> bytes:
     return bytes(keys + values)
 
 
+#: a negative Int8/Int16 in int_value: two's complement in its own width
+_INT_MASK = {DataType.INT8: 0xFF, DataType.INT16: 0xFFFF}
+
+
 def _metric(m: Metric) -> bytes:
     out = bytearray()
     if m.name is not None:
@@ -120,8 +128,8 @@ def _metric(m: Metric) -> bytes:
         out += _uint(11, int(v))
     elif dt == DataType.INT64:  # long_value, two's complement
         out += _uint(11, int(v) & 0xFFFFFFFFFFFFFFFF)
-    else:  # INT32 / UINT32: int_value, a uint32 on the wire
-        out += _uint(10, int(v) & 0xFFFFFFFF)
+    else:  # the 8-, 16- and 32-bit integers: int_value, a uint32 on the wire
+        out += _uint(10, int(v) & _INT_MASK.get(dt, 0xFFFFFFFF))
     return bytes(out)
 
 

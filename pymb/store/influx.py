@@ -14,13 +14,18 @@ decoded values as float fields (``status`` and ``uptime_s`` as integers), a
 quantity with no value as a string field ``{quantity}_state`` saying why
 (``no_sensor``, ``offline``, ...); events as ``pymb_event`` (tags ``kind``,
 ``bus``, ``device``; fields ``message``, ``code``). Timestamps in nanoseconds
-(to the microsecond).
+(to the microsecond). A map device's sample is one line of measurement
+``pymb_<map id>`` (``-`` as ``_``) with a tag ``group`` and a field per
+point (``{point}_{N}`` for channel N of a block): integers as integers,
+floats as floats, flags as booleans, text as strings, and
+``{point}_state`` where it has no value.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import INTEGRAL_QUANTITIES
 from pymb.store.records import Event, Sample
 from pymb.store.text import JsonlSink, sample_dict
@@ -46,8 +51,41 @@ def _tags(d: dict[str, Any]) -> str:
     return f"bus={_tag(d['bus'])},device={_tag(d['device'])},address={d['address']}"
 
 
+def _field(name: str, v: Any, state: Any) -> str:
+    if v is None:
+        return f"{name}_state={_str(str(state))}"
+    if isinstance(v, bool):
+        return f"{name}={'true' if v else 'false'}"
+    if isinstance(v, int):
+        return f"{name}={v}i" if v < 1 << 63 else f"{name}={float(v)!r}"
+    if isinstance(v, float):
+        return f"{name}={v!r}"
+    if isinstance(v, list):  # raw registers
+        return f"{name}={_str(''.join(f'{r:04X}' for r in v))}"
+    return f"{name}={_str(str(v))}"
+
+
+def _map_line(sample: Sample, data: MapReading) -> str:
+    fields = []
+    for name, v in data.values.items():
+        st = data.states.get(name)
+        if isinstance(v, list) and data.map.points[name].block:
+            states = st if isinstance(st, list) else [st] * len(v)
+            fields += [_field(f"{name}_{c}", cv, cs)
+                       for c, (cv, cs) in enumerate(zip(v, states, strict=False), 1)]
+        else:
+            fields.append(_field(name, v, st))
+    d = sample.device
+    tags = (f"bus={_tag(d.bus)},device={_tag(d.name)},address={d.address},"
+            f"group={_tag(data.group or '-')}")
+    measurement = "pymb_" + "".join(c if c.isalnum() else "_" for c in data.map.id)
+    return f"{measurement},{tags} {','.join(fields)} {_ns(sample.time_utc)}"
+
+
 def sample_lines(sample: Sample) -> list[str]:
     """A sample as line protocol (one line, or one per hub channel)."""
+    if isinstance(sample.data, MapReading):
+        return [_map_line(sample, sample.data)]
     d = sample_dict(sample)
     ts = _ns(sample.time_utc)
     if "states" in d:

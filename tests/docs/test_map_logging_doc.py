@@ -64,3 +64,37 @@ def test_the_value_at_time_t_query_of_the_storage_page(tmp_path: Path) -> None:
     out = subprocess.run(["sqlite3", str(db), query], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip().endswith("|230.5"), out
+
+
+def test_the_fleet_page_datatype_table_is_the_code() -> None:
+    from pymb.fleet.mapmetrics import datatype
+    from pymb.fleet.protobuf import DataType
+    from pymb.maps import TYPES, loads
+
+    page = (ROOT / "docs" / "fleet.md").read_text()
+    table = page[page.index("| point type | Sparkplug datatype |"):]
+    table = table[:table.index("\n\n")]
+    names = {"UInt8": DataType.UINT8, "Int8": DataType.INT8, "UInt16": DataType.UINT16,
+             "Int16": DataType.INT16, "UInt32": DataType.UINT32, "Int32": DataType.INT32,
+             "UInt64": DataType.UINT64, "Int64": DataType.INT64, "Float": DataType.FLOAT,
+             "Double": DataType.DOUBLE, "String": DataType.STRING, "Boolean": DataType.BOOLEAN}
+    said: dict[str, DataType] = {}
+    for row in table.splitlines()[2:]:
+        types, kinds = (c.strip() for c in row.strip("| ").split("|"))
+        groups = [re.findall(r"`(\w+)`", part) for part in types.split(" / ")]
+        for ts, kind in zip(groups, kinds.split(" / "), strict=True):
+            for t in ts:
+                said[t] = names[kind.strip()]
+    assert set(said) >= set(TYPES) - {"scale", "offset"}
+    for t in TYPES:
+        count = 4 if t == "string" else None
+        extra = {"bit": "bit = 0\n", "bits": "shift = 0\nwidth = 3\n"}.get(t, "")
+        text = ('schema = "pymb.map/1"\n[device]\nid = "x"\n[[point]]\nname = "p"\n'
+                f'address = 0\ntype = "{t}"\n' + (f"count = {count}\n" if count else "")
+                + ("count = 2\n" if t == "raw" else "")
+                + ('table = "coil"\n' if t == "bool" else "") + extra)
+        p = loads(text).points["p"]
+        assert datatype(p) == said[t], t
+    scaled = loads('schema = "pymb.map/1"\n[device]\nid = "x"\n[[point]]\nname = "p"\n'
+                   'address = 0\ntype = "u16"\nscale = 0.1\n').points["p"]
+    assert datatype(scaled) == DataType.DOUBLE
