@@ -15,6 +15,7 @@ import sys
 
 from pymb.bench import report, runner
 from pymb.bench.contenders import NAMES
+from pymb.bench.options import EXTRA_SECTIONS
 from pymb.bench.runner import SECTIONS, Options
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
@@ -50,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"contenders to run, from {','.join(NAMES)} (default: all); "
                              "ratios need c")
     parser.add_argument("--sections", metavar="NAME[,NAME]",
-                        help=f"what to measure, from {','.join(SECTIONS)} (default: all)")
+                        help=f"what to measure, from {','.join(SECTIONS)} (default: all), "
+                             f"or {','.join(EXTRA_SECTIONS)} (a 30-minute soak, only when named)")
     parser.add_argument("--rounds", type=int, metavar="N",
                         help="interleaved rounds of the sweep comparison (default 20, --quick 3; "
                              "the wire-bound one does at most 6, at 9600 baud at most 3)")
@@ -83,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     if args.rounds is not None and not 1 <= args.rounds <= 1000:
         raise InvalidArgument(f"--rounds must be 1..1000, got {args.rounds}")
     only = _names(args.only, NAMES, "only") if args.only else NAMES
-    sections = _names(args.sections, SECTIONS, "sections") if args.sections else SECTIONS
+    sections = _names(args.sections, SECTIONS + EXTRA_SECTIONS, "sections") \
+        if args.sections else SECTIONS
     if args.plot:
         try:
             import matplotlib  # noqa: F401

@@ -9,10 +9,13 @@ from dataclasses import dataclass, field
 from pymb.bench.contenders import NAMES
 from pymb.devices.maps import Type
 
-__all__ = ["BUSES", "SECTIONS", "SEED", "SOFTWARE_BAUD", "Options", "Plan", "Progress"]
+__all__ = ["BUSES", "EXTRA_SECTIONS", "SECTIONS", "SEED", "SOFTWARE_BAUD", "Options", "Plan",
+           "Progress"]
 
 SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger",
             "gateway")
+#: sections run only when named in --sections (long: the soak takes 30 minutes)
+EXTRA_SECTIONS = ("soak",)
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)

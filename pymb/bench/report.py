@@ -91,6 +91,8 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.extend(gatebench.tables(result["gateway"]))
     if result.get("fleet"):
         out.append(_fleet_table(result["fleet"]))
+    if result.get("soak"):
+        out.append(_soak_table(result["soak"]))
     if m.get("quick"):
         _mark_quick(out)
     tg = [] if m.get("quick") else (result.get("targets") or [])
@@ -227,6 +229,25 @@ def _fleet_table(fleet: dict[str, Any]) -> Table:
           f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
          for r in fleet["rows"]],
         [False, True, True, True, True, True], [])
+
+
+def _soak_table(s: dict[str, Any]) -> Table:
+    if s.get("status") != "ok":
+        return Table("Soak", "", ["status"], [[f"skipped: {s['reason']}"]], [False], [])
+    events = s["events"]
+    through = ", ".join(f"{k} x{events.count(k)}" for k in sorted(set(events)))
+    note = (f"{s['seconds']:g} s of pymb log (a hub and a CoolPro every 0.1 s) forwarding to "
+            f"mosquitto, restarted as Restart=on-failure does, through: {through}")
+    return Table(
+        "Soak: a month in an hour", note,
+        ["samples", "received (distinct)", "duplicates", "lost", "integrity", "logger exits",
+         "clock steps", "RSS of the last logger", "descriptors"],
+        [[f"{s['samples']:,}", f"{s['received']:,} ({s['distinct']:,})", f"{s['duplicates']:,}",
+          f"{s['lost']:,}", s["integrity"], " ".join(map(str, s["exits"])) or "-",
+          f"{s['clock_steps']}", f"{s['rss_kb'][0]:,} -> {s['rss_kb'][1]:,} kB",
+          f"{s['fds'][0]} -> {s['fds'][1]}"]],
+        [True, True, True, True, False, False, True, True, True],
+        [f"left out: {w}" for w in s["left_out"]])
 
 
 def _aio_tables(aio: dict[str, Any]) -> list[Table]:

@@ -369,6 +369,9 @@ def run(opts: Options) -> dict[str, Any]:
         if "gateway" in opts.sections and pymb_in:
             from pymb.bench import gatebench
             result["gateway"] = gatebench.run_section(opts, children, tmp)
+        if "soak" in opts.sections and pymb_in:
+            from pymb.bench import soak
+            result["soak"] = soak.run_section(60.0 if opts.quick else None, opts.say)
     # --quick is a smoke test: its figures are indicative and it judges no target.
     result["targets"] = [] if opts.quick else targets(result)
     return result

@@ -272,15 +272,12 @@ class Forwarder(threading.Thread):
         if cursor is None and self.where != dest and src.cursor_or_none(self.where) is not None:
             src.rename_cursor(self.where, dest)  # an older pymb's key: the URL's text
             cursor = src.cursor_or_none(dest)
-        new = cursor is None
         if cursor is None:
             cursor = 0 if self.cfg.start == "oldest" else self._now_id
             self._replay_notice(dest, cursor)
         self.acked.cursor = self._saved_cursor = cursor
         self._writer.dest = dest
         self.dest = dest
-        if new:  # written by the cursor's thread: never wait for the logger's batch here
-            self._writer.put(cursor)
 
     def _replay_notice(self, dest: str, cursor: int) -> None:
         """One line when a new cursor is to send more than a day of samples."""
