@@ -193,6 +193,7 @@ class AsyncMapDevice(_Facade):
         return self.blocking.plan(group, *names)
 
     read = Mirror(MapDevice.read)
+    read_group = Mirror(MapDevice.read_group)
     write = Mirror(MapDevice.write)
 
     def poll(self, interval: float, *names: str,

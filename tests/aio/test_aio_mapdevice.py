@@ -66,6 +66,9 @@ def test_the_shipped_coolpro_map_read_and_written(
                 await meter.write("address", 300)  # refused before any byte is sent
             with pytest.raises(pymb.InvalidArgument, match="no group"):
                 await meter.read(group="fastest")
+            kept = await meter.read_group("telemetry")  # as the logger keeps it
+            assert set(kept.values) == set(tele)
+            assert len(kept.registers) == 8
             polled = []
             async for values in meter.poll(0, group="telemetry"):
                 polled.append(values)
