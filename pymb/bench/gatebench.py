@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import json
 import os
+import sqlite3
 import sys
+import time
 from typing import Any
 
 from pymb.bench.contenders import CONTENDERS, probe
@@ -25,6 +27,7 @@ from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.report import Table, fmt_time
 from pymb.child import pymb_argv
+from pymb.sim.tcp import parse_ports
 
 __all__ = ["RSS_TARGET_MB", "TEN_POINTS", "VALUES_TARGET", "run_section", "tables",
            "targets"]
@@ -51,7 +54,77 @@ example = {i}.5
 LABELS = {"fanout": "pymb fan-out (1 thread, 1 request in flight)",
           "fanout-pipelined": "pymb fan-out, a poll's requests pipelined",
           "threads": "a thread per connection (pymb framing)",
-          "pymodbus": "pymodbus AsyncModbusTcpClient"}
+          "pymodbus": "pymodbus AsyncModbusTcpClient",
+          "pymb-log": "pymb log, a thread per bus (CoolPro telemetry, 8 values)"}
+COOLPRO_VALUES = 8  #: values in a CoolPro telemetry sample
+
+
+def _proc(pid: int) -> tuple[float, int, int]:
+    """(CPU seconds, RSS kB, threads) of a running process."""
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rpartition(")")[2].split()
+    cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    rss = threads = 0
+    with open(f"/proc/{pid}/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                rss = int(line.split()[1])
+            elif line.startswith("Threads:"):
+                threads = int(line.split()[1])
+    return cpu, rss, threads
+
+
+def _stored(db: str) -> tuple[int, int]:
+    """(last sample id, devices with a sample) of the logger's database."""
+    if not os.path.exists(db):
+        return 0, 0
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5.0)
+    try:
+        last, devices = con.execute(
+            "SELECT coalesce(max(id), 0), count(DISTINCT device_id) FROM samples").fetchone()
+        return int(last), int(devices)
+    except sqlite3.OperationalError:  # no table yet
+        return 0, 0
+    finally:
+        con.close()
+
+
+def _pymb_log(children: Children, ports: list[str], tmp: str, warmup: float,
+              seconds: float) -> dict[str, Any]:
+    """``pymb log`` itself: a bus per port, CoolPro telemetry flat out, commits
+    every 0.25 s; its CPU from /proc, samples from the database's ids."""
+    db = os.path.join(tmp, f"gateway-log-{len(ports)}.sqlite")
+    cfg = os.path.join(tmp, f"gateway-log-{len(ports)}.toml")
+    with open(cfg, "w", encoding="utf-8") as f:
+        f.write(f'[output]\npath = "{db}"\ncommit_interval_s = 0.25\n' + "".join(
+            f'\n[[bus]]\nname = "d{i}"\ntcp = "127.0.0.1:{p}"\ninterval = 0\ntimeout = 2\n'
+            f'  [[bus.device]]\n  type = "coolpro"\n  address = 40\n'
+            for i, p in enumerate(ports)))
+    child = children.add(Child("gateway pymb log", pymb_argv(
+        "log", "--config", cfg, "--seconds", str(warmup + seconds + 30), "--quiet"),
+        stdin=False))
+    try:
+        deadline = time.monotonic() + 60.0
+        while _stored(db)[0] == 0:
+            if time.monotonic() > deadline or child.proc.poll() is not None:
+                raise ChildError(f"pymb log stored nothing: {child.stderr_tail()}")
+            time.sleep(0.1)
+        time.sleep(warmup)
+        t0, (cpu0, _, _), (id0, _) = time.monotonic(), _proc(child.pid), _stored(db)
+        time.sleep(seconds)
+        t1, (cpu1, rss, threads), (id1, devices) = (time.monotonic(), _proc(child.pid),
+                                                     _stored(db))
+    finally:
+        children.stop(child)
+        for suffix in ("", "-wal", "-shm"):
+            if os.path.exists(db + suffix):
+                os.remove(db + suffix)
+    samples, cpu = id1 - id0, cpu1 - cpu0
+    return {"samples": samples, "cpu_s": cpu, "wall_s": t1 - t0, "rss_kb": rss,
+            "hwm_kb": rss, "threads": threads, "values_per_poll": COOLPRO_VALUES,
+            "requests": 1, "checked": devices == len(ports),
+            "values_per_cpu_s": samples * COOLPRO_VALUES / cpu if cpu else None,
+            "cpu_per_poll_us": cpu / samples * 1e6 if samples else None}
 
 
 def _one(children: Children, design: str, map_arg: str, ports: str, db: str,
@@ -79,7 +152,7 @@ def run_section(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
     skip = probe(next(c for c in CONTENDERS if c.name == "pymodbus"))[0]
     rows: list[dict[str, Any]] = []
     for workload, map_arg, sim_args in (
-            ("10 points", ten, ["--map", ten, "ten-floats:1,dynamic=0"]),
+            ("10 points", ten, ["--map", ten, "ten-floats:1,dynamic=0", "coolpro:40"]),
             ("SDM630", "eastron-sdm630", ["eastron-sdm630:1,dynamic=0"])):
         for n in counts:
             sim = children.add(Child(f"simulator x{n}", pymb_argv(
@@ -103,6 +176,15 @@ def run_section(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
                         for suffix in ("", "-wal", "-shm"):
                             if os.path.exists(db + suffix):
                                 os.remove(db + suffix)
+                    rows.append(row)
+                if workload == "10 points":
+                    opts.say(f"gateway: pymb log, {n} devices")
+                    row = {"workload": "CoolPro", "devices": n, "design": "pymb-log"}
+                    try:
+                        row.update(_pymb_log(children, [str(p) for p in parse_ports(ports)],
+                                             tmp, warmup, seconds), status="ok")
+                    except (ChildError, OSError, sqlite3.Error) as e:
+                        row.update(status="failed", reason=str(e)[:300])
                     rows.append(row)
             finally:
                 children.stop(sim)

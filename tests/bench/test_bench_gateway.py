@@ -19,8 +19,13 @@ def test_the_gateway_section_runs_every_design(capsys: pytest.CaptureFixture[str
                  "gateway"]) == 0
     result: dict[str, Any] = json.loads(capsys.readouterr().out)
     rows = result["gateway"]["rows"]
-    assert [(r["workload"], r["devices"], r["design"]) for r in rows] == [
-        (w, n, d) for w in ("10 points", "SDM630") for n in (10, 30) for d in DESIGNS]
+    want = []
+    for w in ("10 points", "SDM630"):
+        for n in (10, 30):
+            want += [(w, n, d) for d in DESIGNS]
+            if w == "10 points":  # the logger itself, a bus per device
+                want.append(("CoolPro", n, "pymb-log"))
+    assert [(r["workload"], r["devices"], r["design"]) for r in rows] == want
     for r in rows:
         if r["design"] == "pymodbus" and r["status"] == "skipped":
             assert r["reason"]
@@ -28,12 +33,13 @@ def test_the_gateway_section_runs_every_design(capsys: pytest.CaptureFixture[str
         assert r["status"] == "ok", r
         assert r["samples"] > 0
         assert r["checked"] is True  # the stored registers decode to what the device holds
-        assert r["values_per_poll"] == (10 if r["workload"] == "10 points" else 74)
-        assert r["requests"] == (1 if r["workload"] == "10 points" else 9)
+        assert r["values_per_poll"] == {"10 points": 10, "SDM630": 74, "CoolPro": 8}[
+            r["workload"]]
+        assert r["requests"] == (9 if r["workload"] == "SDM630" else 1)
         assert r["cpu_s"] > 0
         assert r["rss_kb"] > 0
         threads = r["threads"]
-        if r["design"] == "threads":
+        if r["design"] in ("threads", "pymb-log"):
             assert threads >= r["devices"]  # one per connection
         else:
             assert threads < 5  # one loop (and the worker's two helpers)
