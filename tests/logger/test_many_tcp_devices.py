@@ -1,7 +1,7 @@
 """``pymb log`` with many Modbus TCP devices, each its own server: one
 ``pymb simulate --tcp 127.0.0.1:0 --count N`` process serves N ports, the
-configuration has a bus per port (one device each) at a 1 s interval; every
-device gets a sample at every slot and none is skipped."""
+configuration has a bus per port (one map device of 10 points each) at a 1 s
+interval; every device gets a sample at every slot and none is skipped."""
 
 from __future__ import annotations
 
@@ -12,18 +12,35 @@ import pytest
 from conftest import run_pymb
 
 from pymb.sim import SimulatorProcess
+from pymb.store.mapviews import view_names
+
+TEN = """schema = "pymb.map/1"
+
+[device]
+id = "ten-floats"
+default_address = 1
+table = "input"
+order = "ABCD"
+""" + "".join(f"""
+[[point]]
+name = "value_{i}"
+address = {2 * i}
+type = "f32"
+example = {i}.5
+""" for i in range(10))
 
 
 def _log_many(tmp_path: Path, devices: int, seconds: float) -> None:
     db = tmp_path / "many.sqlite"
     config = tmp_path / "many.toml"
-    with SimulatorProcess(["coolpro:40", "--tcp", "127.0.0.1:0", "--count", str(devices)],
-                          quiet=True) as sim:
+    (tmp_path / "ten.toml").write_text(TEN)
+    with SimulatorProcess(["--map", str(tmp_path / "ten.toml"), "ten-floats:1,dynamic=0", "--tcp",
+                           "127.0.0.1:0", "--count", str(devices)], quiet=True) as sim:
         ports = sim.tcp_ports
         assert len(ports) == devices
         config.write_text(f'[output]\npath = "{db}"\n' + "".join(
             f'\n[[bus]]\nname = "d{i}"\ntcp = "127.0.0.1:{p}"\ninterval = 1\ntimeout = 0.5\n'
-            f'  [[bus.device]]\n  type = "coolpro"\n  address = 40\n  name = "dev-{i}"\n'
+            f'  [[bus.device]]\n  map = "ten.toml"\n  address = 1\n  name = "dev-{i}"\n'
             for i, p in enumerate(ports)))
         r = run_pymb("log", "--config", str(config), "--seconds", str(seconds),
                      timeout=seconds + 120)
@@ -34,11 +51,14 @@ def _log_many(tmp_path: Path, devices: int, seconds: float) -> None:
     try:
         counts = dict(con.execute("SELECT d.name, count(*) FROM samples s JOIN devices d "
                                   "ON d.id = s.device_id GROUP BY d.id"))
+        view = view_names("ten-floats")[0]
+        values = set(con.execute(f"SELECT value_0, value_9 FROM {view}"))
     finally:
         con.close()
     assert set(counts) == {f"dev-{i}" for i in range(devices)}
     slots = int(seconds)
     assert all(slots <= n <= slots + 1 for n in counts.values()), counts
+    assert values == {(0.5, 9.5)}  # every sample's registers, decoded by the map's view
 
 
 def test_twenty_tcp_devices_for_ten_seconds_skip_no_slot(tmp_path: Path) -> None:
