@@ -125,7 +125,7 @@ class Retention:
         lo, hi = self.db.execute("SELECT MIN(id), MAX(id) FROM events").fetchone()
         if lo is None or lo >= hi:
             return 0
-        self.db.execute("BEGIN")
+        self.db.execute("BEGIN IMMEDIATE")
         try:
             # The records of unsent samples deleted go last of all.
             n = self.db.execute("DELETE FROM events WHERE id < ? AND kind != 'trim'",
@@ -152,7 +152,7 @@ class Retention:
             # stays so that SQLite never hands out its id (or lower ones) again: sample
             # ids are unique and increasing for the MQTT forwarder and its consumers
             first_kept = self.db.execute("SELECT MAX(id) FROM samples").fetchone()[0] or 1
-        self.db.execute("BEGIN")
+        self.db.execute("BEGIN IMMEDIATE")
         try:
             self._unsent_event(first_kept)
             kept_time = self.db.execute("SELECT time_utc FROM samples WHERE id >= ? "

@@ -291,7 +291,7 @@ def statements(script: str) -> list[str]:
 def install(db: sqlite3.Connection) -> None:
     """Write the schema, its views and its meta rows into ``db`` (autocommit
     mode), in one transaction: the one set-up of a new or opened database."""
-    db.execute("BEGIN")
+    db.execute("BEGIN IMMEDIATE")
     for stmt in statements(SCHEMA):
         db.execute(stmt)
     db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", [

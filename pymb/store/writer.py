@@ -209,7 +209,11 @@ class SqliteSink(Retention):
 
     def _begin(self) -> None:
         if not self._in_tx:
-            self.db.execute("BEGIN")
+            # IMMEDIATE: the write lock is taken (waiting up to the busy timeout)
+            # before the first read. A deferred transaction that reads and then
+            # writes fails at once with "database is locked" if the forwarder
+            # moved its outbox cursor in between (SQLITE_BUSY_SNAPSHOT in WAL mode).
+            self.db.execute("BEGIN IMMEDIATE")
             self._in_tx = True
 
     def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
