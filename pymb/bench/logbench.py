@@ -233,6 +233,8 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
             children.stop(s)
         n = 600 if opts.quick else 3000
         layout_rows = layouts.compare(hub_registers, where, n, opts.say)
+        from pymb.bench import mapbytes
+        map_rows = mapbytes.compare(where, 200 if opts.quick else 2000, opts.say)
     from pymb.bench import wear
     wear_rows = wear.run_wear(opts, children)
     full = runs["hub"]["bytes_per_sample"]
@@ -241,7 +243,7 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
     return {
         "rounds": rounds, "seconds": seconds, "runs": runs,
         "deadband": BENCH_DEADBAND, "heartbeat": BENCH_HEARTBEAT, "spans": spans,
-        "layouts": layout_rows, "layout_sweeps": n, "wear": wear_rows,
+        "layouts": layout_rows, "layout_sweeps": n, "wear": wear_rows, "maps": map_rows,
     }
 
 

@@ -352,6 +352,16 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
               "-" if sp["saving"] is None else f"{100 * sp['saving']:.1f} %"]
              for what, sp in spans.items()],
             [False, True, True, True, True, True, True, True], []))
+    if s.get("maps"):
+        tables.append(Table(
+            "Map devices: bytes per stored sample of the shipped maps",
+            "one sample row per group read, the group's registers once (each table from the "
+            "group's first register to its last); bytes on disk: samples and their time "
+            "index (dbstat) over the samples written",
+            ["map", "group", "interval", "points", "registers BLOB", "bytes / sample"],
+            [[r["map"], r["group"], f"{r['interval_s']:g} s", str(r["points"]),
+              f"{r['blob_bytes']:,} B", f"{r['bytes_per_sample']:,.0f} B"] for r in s["maps"]],
+            [False, False, True, True, True, True], []))
     qnames = list(s["layouts"][0]["queries"])
     tables.append(Table(
         f"Storage layouts of a hub sweep ({s['layout_sweeps']:,} sweeps each)",

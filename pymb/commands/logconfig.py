@@ -64,7 +64,6 @@ def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
             raise InvalidArgument(f"--deadband takes QUANTITY=AMOUNT, got {spec!r}") from None
     heartbeat = args.heartbeat or (cfg.on_change.heartbeat if cfg.on_change else 60.0)
     cfg.on_change = OnChange(heartbeat, bands)
-    cfg.check_on_change()
 
 
 def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]:

@@ -126,7 +126,6 @@ class LogConfig:
 
     def __post_init__(self) -> None:
         check_buses(self.buses)
-        self.check_on_change()
         if self.max_bytes is not None and not self.max_bytes > 0:
             raise InvalidArgument(f"--max-mb / max_mb must be a positive number of megabytes, "
                                   f"got {self.max_bytes / 1e6:g}")
@@ -142,17 +141,6 @@ class LogConfig:
     def commit_every(self) -> float:
         """Seconds a sample waits for its commit, at most (the default if unset)."""
         return COMMIT_INTERVAL if self.commit_interval is None else self.commit_interval
-
-    def check_on_change(self) -> None:
-        """On-change storage is for the coolpro and hub devices: refuse it with
-        a map device (an InvalidArgument naming the device)."""
-        if self.on_change is None:
-            return
-        for b in self.buses:
-            for d in b.devices:
-                if isinstance(d, MapDeviceConfig):
-                    raise InvalidArgument(f"on-change storage takes the coolpro and hub "
-                                          f"devices; log map device {d.name} without it")
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:

@@ -24,7 +24,7 @@ __all__ = ["MAP_DEVICE_KEYS", "KnownMaps", "MapDeviceConfig", "map_device_from_t
 
 #: keys of a map device's ``[[bus.device]]`` table, besides the map's options
 MAP_DEVICE_KEYS = ("type", "map", "address", "name", "groups", "offline_after",
-                   "offline_retry")
+                   "offline_retry", "deadband")
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,8 @@ class MapDeviceConfig:
     its own interval; default every group, or every readable point in one
     poll for a map without groups), and ``offline_after`` failed polls in a
     row before it is left alone for ``offline_retry`` seconds (default: the
-    map's ``[device.timing]``)."""
+    map's ``[device.timing]``), and for on-change storage, deadbands by point
+    name over the map's own ``deadband`` of each point."""
 
     source: MapText
     address: int
@@ -99,6 +100,7 @@ class MapDeviceConfig:
     offline_after: int | None = None
     offline_retry: float | None = None
     options: Mapping[str, int | float] = field(default_factory=dict)
+    deadband: Mapping[str, float] = field(default_factory=dict)
     channels: int = 0  #: 0: a map device has no hub channels
     humidity_unit: float = 0.1  #: unused: a map device has no humidity unit
 
@@ -123,6 +125,12 @@ class MapDeviceConfig:
         if not (math.isfinite(self.offline_retry) and self.offline_retry > 0):
             raise InvalidArgument(f"offline_retry must be a number of seconds above 0, "
                                   f"got {self.offline_retry!r}")
+        for point, band in self.deadband.items():
+            if point not in m.points:
+                raise InvalidArgument(f"deadband: {m.id} has no point {point!r}"
+                                      f"{near(point, list(m.points))}")
+            if not (math.isfinite(band) and band >= 0):
+                raise InvalidArgument(f"deadband: {point} must be 0 or more, got {band!r}")
         if not self.name:
             self.name = f"{m.id}-{self.address}"
 
@@ -213,9 +221,16 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     if after is not None and (isinstance(after, bool) or not isinstance(after, int)):
         raise InvalidArgument(f"{where}: offline_after must be a whole number, got {after!r}")
     retry = _number(d, "offline_retry", where)
+    bands = d.get("deadband", {})
+    if not isinstance(bands, dict):
+        raise InvalidArgument(f"{where}: deadband must be a table: deadband = "
+                              "{ voltage_v = 0.5 }")
+    for k in bands:
+        _number(bands, k, f"{where}: deadband")
     try:
         return MapDeviceConfig(src, address, name, tuple(groups), after,
-                               None if retry is None else float(retry), options)
+                               None if retry is None else float(retry), options,
+                               {k: float(v) for k, v in bands.items()})
     except InvalidArgument as e:
         raise InvalidArgument(f"{where}: {e}") from None
 

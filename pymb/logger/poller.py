@@ -134,7 +134,8 @@ class BusPoller(threading.Thread):
                 self.maps.append((DeviceInfo(
                     bus.name, bus.endpoint, d.type, d.address, d.name,
                     map_source=d.source.text, map_options=tuple(
-                        (k, float(v)) for k, v in sorted(d.options.items()))), d))
+                        (k, float(v)) for k, v in sorted(d.options.items())),
+                    map_deadband=tuple(sorted(d.deadband.items()))), d))
                 continue
             units = d.humidity_unit
             info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,

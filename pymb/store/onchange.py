@@ -7,11 +7,12 @@ from array import array
 from dataclasses import dataclass, field
 
 from pymb.devices import HUB, CoolProTelemetry, HubReading
+from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import INTEGRAL_QUANTITIES
 from pymb.errors import InvalidArgument
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS
 
-__all__ = ["CoolProChanges", "HubChanges", "OnChange"]
+__all__ = ["CoolProChanges", "HubChanges", "MapChanges", "OnChange"]
 
 
 @dataclass
@@ -111,6 +112,47 @@ class CoolProChanges:
                  or data.uptime_s < last.uptime_s
                  or any(abs(getattr(data, f) - getattr(last, f))
                         > self.rules.deadband.get(f, 0.0) for f in self._FIELDS))
+        if store:
+            self.last = data
+            self.due = now + self.rules.heartbeat
+        return store
+
+
+class MapChanges:
+    """Whether to store a map device's group reading: when a point moved more
+    than its deadband (``bands`` by point name, else the point's ``deadband``
+    in its map, else 0: any change; a block channel by channel), when a
+    state or a value that is not a number changes, and at least every
+    heartbeat."""
+
+    def __init__(self, rules: OnChange, bands: dict[str, float]) -> None:
+        self.rules = rules
+        self.bands = bands
+        self.last: MapReading | None = None
+        self.due = 0.0
+
+    def _moved(self, data: MapReading, last: MapReading) -> bool:
+        if data.states != last.states:
+            return True
+        points = data.map.points
+        for name, v in data.values.items():
+            old = last.values.get(name)
+            band = self.bands.get(name, points[name].deadband or 0.0)
+            pairs = zip(v, old, strict=False) if isinstance(v, list) and isinstance(
+                old, list) else ((v, old),)
+            for a, b in pairs:
+                if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not \
+                        isinstance(a, bool):
+                    if abs(a - b) > band or (a != a) != (b != b):
+                        return True
+                elif a != b:
+                    return True
+        return False
+
+    def changed(self, data: MapReading, now: float) -> bool:
+        """Whether ``data`` is stored (and becomes what the next is compared with)."""
+        last = self.last
+        store = last is None or now >= self.due or self._moved(data, last)
         if store:
             self.last = data
             self.due = now + self.rules.heartbeat

@@ -39,6 +39,8 @@ class DeviceInfo:
     #: options it was read with, as ``key=value`` pairs
     map_source: str = field(default="", compare=False, repr=False)
     map_options: tuple[tuple[str, float], ...] = ()
+    #: a map device: deadbands by point name for on-change storage (over the map's)
+    map_deadband: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

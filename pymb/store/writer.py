@@ -21,7 +21,7 @@ from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
 from pymb.store.mapviews import create_map_views
-from pymb.store.onchange import CoolProChanges, HubChanges, OnChange
+from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
@@ -128,7 +128,7 @@ class SqliteSink(Retention):
             self._unlock()
             raise
         self._devices: dict[Any, tuple[int, int]] = {}
-        self._changes: dict[int, HubChanges | CoolProChanges] = {}
+        self._changes: dict[int, HubChanges | CoolProChanges | MapChanges] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
         self._first_ids = tuple(int(self.db.execute(
             f"SELECT COALESCE(MAX(id), 0) + 1 FROM {t}").fetchone()[0])
@@ -357,8 +357,16 @@ class SqliteSink(Retention):
                   wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
                  for ch in pick])
         elif isinstance(data, MapReading):
-            raise InvalidArgument(f"on-change storage takes the coolpro and hub devices, not "
-                                  f"map device {sample.device.name}")
+            if not isinstance(rules, MapChanges):
+                rules = self._changes[did] = MapChanges(self.on_change,
+                                                        dict(sample.device.map_deadband))
+            if not rules.changed(data, sample.monotonic):
+                return
+            self.db.execute(
+                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
+                 _unsupported(data)))
         else:
             if not isinstance(rules, CoolProChanges):
                 rules = self._changes[did] = CoolProChanges(self.on_change)

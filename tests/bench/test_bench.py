@@ -393,6 +393,10 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
     read, report by exception, the layouts, and the logger's targets."""
     result = _bench(capsys, "--only", "pymb", "--sections", "logger")
     s = result["logger"]
+    # bytes per stored sample of each group of the shipped maps
+    assert {r["map"] for r in s["maps"]} == {"eastron-sdm120", "eastron-sdm630", "generic-vfd"}
+    for r in s["maps"]:
+        assert r["bytes_per_sample"] >= r["blob_bytes"] > 0
     for key in ("hub", "coolpro", "hub_on-change"):
         r = s["runs"][key]
         assert r["samples"] > 0

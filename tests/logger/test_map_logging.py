@@ -137,6 +137,8 @@ groups = ["energy"]
                                                   "did you mean 'groups'?"),
     ('map = "missing.toml"', "device 1: map: cannot read the map"),
     ('type = "eastron-sdm120"\nchanels = 5', "unknown key 'chanels' for eastron-sdm120"),
+    ('type = "eastron-sdm120"\ndeadband = { voltage = 1 }', "deadband: eastron-sdm120 has "
+                                                            "no point 'voltage'"),
     ('type = "eastron-sdm120"\noffline_retry = 0', "offline_retry must be a number of "
                                                    "seconds above 0"),
 ])
@@ -228,3 +230,53 @@ type = "f32"
         assert s.data.states["missing_a"] == "unsupported"
         assert s.data.values["voltage_v"] == 230.5
     assert f"test-meter-1: {len(got)} point(s) unsupported, {len(got)} sample(s)" in r.stderr
+
+
+def test_on_change_with_a_map_device(tmp_path: Path) -> None:
+    """--on-change with a map device read flat out: values that never move
+    are stored once and then at each heartbeat, not at every poll."""
+    (tmp_path / "meter.toml").write_text(TEST_MAP)
+    db = tmp_path / "oc.sqlite"
+    with SimulatorProcess(["--map", str(tmp_path / "meter.toml"), "test-meter:1",
+                           "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        r = run_pymb("log", "--map", str(tmp_path / "meter.toml"), "--tcp", sim.endpoint,
+                     "test-meter:1", "--on-change", "--heartbeat", "1", "--seconds", "2.5",
+                     "--out", str(db))
+    assert r.returncode == 0, r.stderr
+    polled = int(r.stderr.split("logged ")[1].split(" samples")[0].replace(",", ""))
+    stored = _counts(db)[("test-meter-1", "group=")]
+    assert polled > 100
+    assert 2 <= stored <= 4, (polled, stored)  # at 0, 1 and 2 s
+
+
+def _rate_of_live_units(tmp_path: Path, meter: Path, endpoint: str, units: tuple[int, ...],
+                        name: str) -> float:
+    db = tmp_path / f"{name}.sqlite"
+    config = tmp_path / f"{name}.toml"
+    config.write_text(f'''maps = ["{meter}"]
+[output]
+path = "{db}"
+[[bus]]
+tcp = "{endpoint}"
+timeout = 0.1
+''' + "".join(f'[[bus.device]]\ntype = "test-meter"\naddress = {a}\noffline_after = 1\n'
+              f'offline_retry = 5\n' for a in units))
+    r = run_pymb("log", "--config", str(config), "--seconds", "6", "--quiet")
+    assert r.returncode in (0, 3), r.stderr
+    counts = _counts(db)
+    return (counts[("test-meter-1", "group=")] + counts[("test-meter-2", "group=")]) / 6.0
+
+
+@pytest.mark.timing
+def test_the_live_units_keep_their_rate_beside_a_silent_one(tmp_path: Path) -> None:
+    """Two live units alone, then with a silent third on the same gateway
+    (offline_after 1, offline_retry 5 s, 0.1 s timeout): the live units' rate
+    stays within 10 % of their rate alone."""
+    meter = tmp_path / "meter.toml"
+    meter.write_text(TEST_MAP)
+    with SimulatorProcess(["--map", str(meter), "test-meter:1", "test-meter:2",
+                           "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        alone = _rate_of_live_units(tmp_path, meter, sim.endpoint, (1, 2), "alone")
+        beside = _rate_of_live_units(tmp_path, meter, sim.endpoint, (1, 2, 3), "beside")
+    print(f"\nlive units: {alone:,.0f} samples/s alone, {beside:,.0f} beside a silent unit")
+    assert beside >= 0.9 * alone, (alone, beside)

@@ -45,6 +45,7 @@ address = 1
 type = "i16"
 scale = 0.1
 group = "a"
+deadband = 5.0
 [[point]]
 name = "u32_cdab"
 address = 2
@@ -74,6 +75,7 @@ name = "f64"
 address = 14
 type = "f64"
 group = "a"
+deadband = 0
 [[point]]
 name = "f32_dcba"
 address = 18
@@ -255,3 +257,43 @@ def test_the_value_at_time_t_query_for_any_map(tmp_path: Path) -> None:
     plan = " ".join(str(r) for r in con.execute("EXPLAIN QUERY PLAN " + query, (t,)))
     con.close()
     assert "samples_time" in plan, plan
+
+
+def test_on_change_by_the_points_deadbands_and_the_heartbeat(tmp_path: Path) -> None:
+    """A map reading is stored when a point moved past its deadband (the
+    map's, or the device's override), when a state changes, and at the
+    heartbeat; not otherwise."""
+    from pymb.store import OnChange
+
+    m = maps.loads(EVERY_TYPE)
+    db = tmp_path / "oc.sqlite"
+    sink = SqliteSink(db, on_change=OnChange(heartbeat=10.0))
+    # i16 (scale 0.1) moves by 0.5 at most unless overridden; f64 by the map's 0
+    info = DeviceInfo("bus1", "x:502", m.id, 3, "meter", map_source=EVERY_TYPE,
+                      map_deadband=(("i16", 0.5),))
+    rng = random.Random(5)
+    base = random_reading(m, "a", rng)
+
+    def with_values(**changes: Any) -> MapReading:
+        values = {**base.values, **changes}
+        return MapReading(m, "a", values, base.states, base.registers)
+
+    i16 = base.values["i16"]
+    assert isinstance(i16, float)
+    steps = [(0.0, with_values(), True),            # the first: stored
+             (1.0, with_values(), False),           # nothing moved
+             (2.0, with_values(i16=i16 + 0.4), False),  # within the device's 0.5
+             (3.0, with_values(i16=i16 + 0.6), True),   # past it
+             (4.0, with_values(i16=i16 + 0.6, f64=1.0 if base.values["f64"] != 1.0 else 2.0),
+              True),                                # f64: any change
+             (5.0, MapReading(m, "a", base.values, {**base.states, "u16": "offline"},
+                              base.registers), True),  # a state changed
+             (15.1, MapReading(m, "a", base.values, {**base.states, "u16": "offline"},
+                               base.registers), True)]  # the heartbeat
+    for t, r, _ in steps:
+        sink.write(Sample(info, 1_700_000_000 + t, t, r))
+    sink.close()
+    con = sqlite3.connect(db)
+    stored = [t for (t,) in con.execute("SELECT monotonic FROM samples ORDER BY id")]
+    con.close()
+    assert stored == [t for t, _, keep in steps if keep]
