@@ -13,10 +13,11 @@ from importlib import resources
 from typing import Any
 
 from pymb import maps
+from pymb.bench.report import Table
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.store import DeviceInfo, Sample, SqliteSink
 
-__all__ = ["MAPS", "compare"]
+__all__ = ["MAPS", "compare", "table"]
 
 #: the shipped maps measured
 MAPS = ("eastron-sdm120", "eastron-sdm630", "generic-vfd")
@@ -63,3 +64,16 @@ def compare(where: str, n: int, say: Callable[[str], None]) -> list[dict[str, An
                 if name.startswith(base) or name.startswith("." + base):
                     os.remove(os.path.join(where, name))
     return rows
+
+
+def table(rows: list[dict[str, Any]]) -> Table:
+    """The report's table of :func:`compare`'s rows."""
+    return Table(
+        "Map devices: bytes per stored sample of the shipped maps",
+        "one sample row per group read, the group's registers once (each table from the "
+        "group's first register to its last); bytes on disk: samples and their time "
+        "index (dbstat) over the samples written",
+        ["map", "group", "interval", "points", "registers BLOB", "bytes / sample"],
+        [[r["map"], r["group"], f"{r['interval_s']:g} s", str(r["points"]),
+          f"{r['blob_bytes']:,} B", f"{r['bytes_per_sample']:,.0f} B"] for r in rows],
+        [False, False, True, True, True, True], [])

@@ -352,16 +352,6 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
               "-" if sp["saving"] is None else f"{100 * sp['saving']:.1f} %"]
              for what, sp in spans.items()],
             [False, True, True, True, True, True, True, True], []))
-    if s.get("maps"):
-        tables.append(Table(
-            "Map devices: bytes per stored sample of the shipped maps",
-            "one sample row per group read, the group's registers once (each table from the "
-            "group's first register to its last); bytes on disk: samples and their time "
-            "index (dbstat) over the samples written",
-            ["map", "group", "interval", "points", "registers BLOB", "bytes / sample"],
-            [[r["map"], r["group"], f"{r['interval_s']:g} s", str(r["points"]),
-              f"{r['blob_bytes']:,} B", f"{r['bytes_per_sample']:,.0f} B"] for r in s["maps"]],
-            [False, False, True, True, True, True], []))
     qnames = list(s["layouts"][0]["queries"])
     tables.append(Table(
         f"Storage layouts of a hub sweep ({s['layout_sweeps']:,} sweeps each)",
@@ -371,9 +361,8 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
         [[r["layout"], f"{r['bytes_per_sweep']:,.0f} B", fmt_time(r["insert_cpu_us"]),
           *(f"{r['queries'][q]['ms']:.3g} ms" for q in qnames)] for r in s["layouts"]],
         [False, True, True, *([True] * len(qnames))], []))
-    if s.get("wear"):
-        from pymb.bench.wear import table
-        tables.append(table(s["wear"]))
+    from pymb.bench import mapbytes, wear  # their tables: the maps' bytes, SD wear
+    tables += [m.table(s[key]) for key, m in (("maps", mapbytes), ("wear", wear)) if s.get(key)]
     return tables
 
 
