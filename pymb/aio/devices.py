@@ -194,6 +194,7 @@ class AsyncMapDevice(_Facade):
 
     read = Mirror(MapDevice.read)
     read_group = Mirror(MapDevice.read_group)
+    read_into = Mirror(MapDevice.read_into)
     write = Mirror(MapDevice.write)
 
     def poll(self, interval: float, *names: str,

@@ -7,7 +7,9 @@ Sections (each can be chosen with ``--sections``):
 ``plan``     in-process: planning the reads of a 1,000-point map
              (:mod:`pymb.bench.planbench`).
 ``maps``     in-process: decoding a 100-point f32 map in one C call
-             (:mod:`pymb.bench.mapbench`).
+             (:mod:`pymb.bench.mapbench`); then the hub and the CoolPro
+             read through their maps against the dedicated facades, over
+             the ``sweep`` section's simulator (:mod:`pymb.bench.mapwire`).
 ``sweep``    the workload: one sweep of the hub's 700 registers (6 requests,
              decoded) and one CoolPro telemetry read, per contender, each in
              its own process against its own simulator process over a pty,
@@ -59,7 +61,7 @@ from typing import Any
 
 import pymb
 from pymb import _native
-from pymb.bench import logbench, mapbench, planbench, pure
+from pymb.bench import logbench, mapbench, mapwire, planbench, pure
 from pymb.bench.options import (
     BUSES,
     SECTIONS,
@@ -308,6 +310,9 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
     if result.get("maps"):
         for what, goal, value, unit, met in mapbench.targets(result["maps"]):
             add(what, goal, value, unit, met)
+        if "wire" in result["maps"]:
+            for what, goal, value, unit, met in mapwire.targets(result["maps"]["wire"]):
+                add(what, goal, value, unit, met)
     wire = result.get("wire")
     if wire:
         for baud in (9600, 115200):
@@ -351,6 +356,7 @@ def run(opts: Options) -> dict[str, Any]:
             result["plan"] = planbench.run_section(opts.plan.micro_repeat, opts.say)
         if "maps" in opts.sections and pymb_in:
             result["maps"] = mapbench.run_section(opts.plan.micro_repeat, opts.say)
+            result["maps"]["wire"] = mapwire.run_section(opts, children)
         if "sweep" in opts.sections:
             result["sweep"] = run_sweep(opts, lineup, children)
         if "wire" in opts.sections and ("pymb" in opts.only or "c" in opts.only):

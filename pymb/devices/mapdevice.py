@@ -19,6 +19,7 @@ is asked alone, and one the device refuses alone reads None (state
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 import weakref
@@ -34,6 +35,7 @@ from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
 from pymb.maps.model import did_you_mean
 from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
+from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
 __all__ = ["MapDevice"]
@@ -186,16 +188,54 @@ class MapDevice:
         value, and why in :attr:`states`)."""
         points = self._selection(names, group)
         with self._lock:
-            self._prepare()
-            plan = self._planner.plan(self._items(points))
-            images = self._image(points)
-            unread = self._unread
-            if 1 in unread:
-                unread[:] = self._none_unread
-            for r in self._planner.unsupported:
-                unread[r] = 1
-            self._run(plan, images)
+            images = self._fetch_all(points)
             return self._decode(points, images)
+
+    def read_into(self, *names: str, group: str | None = None) -> tuple[Decoder, ...]:
+        """Read as :meth:`read` does, but build no dict: the values stay in
+        the C decoder's arrays, one :class:`~pymb.maps.Decoder` per table of
+        the selection (``d.buffers.values[d.slot(name) + channel - 1]``, its
+        state in ``d.buffers.states``; NaN and ``unsupported`` where the
+        device refused a point). The same decoders and arrays come back on
+        every read of the same selection: a poller's steady state allocates
+        nothing for the values."""
+        points = self._selection(names, group)
+        with self._lock:
+            images = self._fetch_all(points)
+            decoders = tuple(image.decoder for image in images.values())
+            for image in images.values():
+                image.decoder.decode(image.registers)
+            if 1 in self._unread:
+                self._mark_unread(points, images)
+            return decoders
+
+    def _mark_unread(self, points: Sequence[int], images: dict[str, _Image]) -> None:
+        """In the decoders' arrays: NaN and ``unsupported`` where this read got
+        no value."""
+        unread, code = self._unread, STATES.index("unsupported")
+        for i in points:
+            p = self._points[i]
+            k0 = self._first[i]
+            b = images[p.table].decoder.buffers
+            slot = images[p.table].decoder.slot(p.name)
+            for c in range(p.channels):
+                if unread[k0 + c]:
+                    b.values[slot + c] = math.nan
+                    b.states[slot + c] = code
+
+    def _fetch_all(self, points: tuple[int, ...]) -> dict[str, _Image]:
+        """The requests of a read of ``points``, each into its place in the
+        selection's buffers (the caller holds the lock)."""
+        self._prepare()
+        plan = self._planner.plan(self._items(points))
+        images = self._image(points)
+        unread = self._unread
+        if 1 in unread:
+            unread[:] = self._none_unread
+        for r in self._planner.unsupported:
+            unread[r] = 1
+        self._run(plan, images)
+        return images
 
     def read_group(self, group: str | None = None) -> MapReading:
         """Read ``group`` (every readable point for None) as the logger keeps
