@@ -204,7 +204,7 @@ def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, 
     devices."""
     piped = [r for r in section["rows"] if r["workload"] == "SDM630" and r["status"] == "ok"
              and r["design"] == "fanout-pipelined"]
-    low = min((r["values_per_cpu_s"] for r in piped), default=None)
+    low = min((r["values_per_cpu_s"] or 0.0 for r in piped), default=None)
     most = max((r["devices"] for r in section["rows"]), default=0)
     rss = [r["rss_kb"] / 1024 for r in section["rows"] if r["status"] == "ok"
            and r["devices"] == most and r["design"].startswith("fanout")]
@@ -224,8 +224,9 @@ def tables(section: dict[str, Any]) -> list[Table]:
             rows.append([r["workload"], str(r["devices"]), LABELS[r["design"]], r["status"],
                          "", "", "", "", ""])
             continue
+        v = r["values_per_cpu_s"]
         rows.append([r["workload"], str(r["devices"]), LABELS[r["design"]],
-                     f"{r['values_per_cpu_s']:,.0f}", fmt_time(r["cpu_per_poll_us"]),
+                     "-" if v is None else f"{v:,.0f}", fmt_time(r["cpu_per_poll_us"]),
                      f"{r['samples'] / r['wall_s']:,.0f}", f"{r['rss_kb'] / 1024:.1f} MB",
                      str(r["threads"]), "yes" if r["checked"] else "NO"])
     return [Table(

@@ -64,3 +64,10 @@ def test_the_targets_take_the_worst_pipelined_row_and_the_most_devices() -> None
     (values, rss) = gatebench.targets(section)
     assert rss[2] == 59
     assert rss[4] is True
+
+
+def test_a_row_that_measured_nothing_prints_as_a_dash() -> None:
+    row = {**_row("pymb-log", 300, 0, 40), "values_per_cpu_s": None, "cpu_per_poll_us": None,
+           "samples": 0, "wall_s": 3.0, "threads": 301, "checked": True}
+    (table,) = gatebench.tables({"warmup": 1.0, "seconds": 3.0, "rows": [row]})
+    assert table.rows[0][3:5] == ["-", "-"]
