@@ -200,6 +200,16 @@ class Link:
         if self.is_open:
             self._apply_timeouts()
 
+    def swap_response_timeout(self, response: float) -> float:
+        """Set the response timeout alone (one C call; the byte timeout
+        stays) and return the one it replaces."""
+        before, byte = self._timeout
+        self._timeout = (response, byte)
+        if self.is_open:
+            rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)
+            lib.modbus_set_response_timeout(self._ctx, rs, rus)
+        return before
+
     def _apply_timeouts(self) -> None:
         response, byte = self._timeout
         rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)

@@ -282,6 +282,14 @@ class Client:
     # and then repeat the same requests: these two calls skip the per-call checks
     # of the methods above and take the client's lock and reconnect as they do.
 
+    def swap_response_timeout_prepared(self, timeout: float) -> float:
+        """Give the line the reply timeout ``timeout`` (checked by the
+        caller) and return the one it had, the byte timeout and
+        :attr:`timeout` unchanged: a facade's own timeout for its requests,
+        given back after them."""
+        with self._lock:
+            return float(self._link.swap_response_timeout(timeout))
+
     def read_registers_prepared(self, function: int, slave: int, address: int,
                                 dest: Any) -> None:
         """Read ``len(dest)`` registers with ``function`` (0x03 or 0x04) into

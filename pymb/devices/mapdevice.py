@@ -300,9 +300,10 @@ class MapDevice:
     def _run(self, plan: ReadPlan, images: dict[str, _Image]) -> None:
         timeout = self.map.timing.response_timeout
         client = self.client
-        before = client.timeout
-        if timeout is not None and timeout != before:
-            client.timeout = timeout  # the byte timeout stays
+        swap = timeout is not None and timeout != client.timeout
+        if swap:
+            assert timeout is not None
+            before = client.swap_response_timeout_prepared(timeout)  # the byte timeout stays
         try:
             prepared = self._prepared(plan, images)
             if prepared is None:
@@ -311,8 +312,8 @@ class MapDevice:
             else:
                 self._run_prepared(prepared)
         finally:
-            if timeout is not None and timeout != before:
-                client.timeout = before
+            if swap:
+                client.swap_response_timeout_prepared(before)
 
     def _prepared(self, plan: ReadPlan, images: dict[str, _Image]
                   ) -> tuple[_Prepared, ...] | None:

@@ -1,17 +1,20 @@
 """``MapDevice.read_into``: the same read as ``read``, the values left in the
 decoders' arrays (no dict), the same arrays every time, and a point the
-device refuses reads NaN with the state ``unsupported``; against the
-scripted responder that lacks some registers, over a real pseudo-terminal."""
+device refuses reads NaN with the state ``unsupported``; and the map's reply
+timeout given back to the line after a read. Against the scripted responder
+that lacks some registers, over a real pseudo-terminal."""
 
 from __future__ import annotations
 
 import math
 
+import pytest
 from map_peers import RefusingPtyPeer
 
 import pymb
 from pymb import maps
 from pymb.devices.mapdevice import MapDevice
+from pymb.errors import ModbusTimeout
 from pymb.maps import STATES
 
 #: four points at 20..23; the peer lacks register 22 (g)
@@ -50,3 +53,17 @@ def test_read_into_leaves_read_s_values_in_the_decoders_arrays() -> None:
         assert again[0].buffers is b
         assert d.values() == {"e": 140, "f": 147, "g": None, "h": 161}
         assert dev.read_into("e", "h")[0].values() == {"e": 140, "h": 161}
+
+
+def test_the_map_s_reply_timeout_is_given_back_to_the_line_after_its_read() -> None:
+    m = maps.loads(MAP.replace("offline_retry = 3600", "response_timeout = 0.1"))
+    with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=2.0) as client:
+        delay = [0.4]
+        peer.hook = lambda slave, pdu, normal: (
+            None if normal is None else [(delay[0], peer.frame(slave, normal))])
+        dev = MapDevice(client, m, 1)
+        with pytest.raises(ModbusTimeout):
+            dev.read("e")  # 0.1 s, the map's
+        assert client.timeout == 2.0
+        delay[0] = 0.3
+        assert list(client.read_holding_registers(20, 1, slave=1)) == [140]  # 2 s again
