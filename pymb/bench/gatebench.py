@@ -101,13 +101,13 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str, war
             f'  [[bus.device]]\n  map = "{map_file}"\n  address = 1\n'
             for i, p in enumerate(ports)))
     child = children.add(Child("gateway pymb log", pymb_argv(
-        "log", "--config", cfg, "--seconds", str(warmup + seconds + 30), "--quiet"),
+        "log", "--config", cfg, "--seconds", str(warmup + seconds + 150), "--quiet"),
         stdin=False))
     try:
-        deadline = time.monotonic() + 60.0
+        deadline = time.monotonic() + 120.0
         while _stored(db)[1] < len(ports):  # the warm-up starts once every bus stores
             if time.monotonic() > deadline or child.proc.poll() is not None:
-                raise ChildError(f"pymb log did not store from every device within 60 s: "
+                raise ChildError(f"pymb log did not store from every device within 120 s: "
                                  f"{child.stderr_tail()}")
             time.sleep(0.1)
         time.sleep(warmup)
@@ -115,6 +115,8 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str, war
         time.sleep(seconds)
         t1, (cpu1, rss, threads), (id1, devices) = (time.monotonic(), _proc(child.pid),
                                                      _stored(db))
+        if child.proc.poll() is not None:
+            raise ChildError(f"pymb log ended before the window did: {child.stderr_tail()}")
     finally:
         children.stop(child)
         for suffix in ("", "-wal", "-shm"):
