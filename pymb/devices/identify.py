@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pymb._native import FunctionCode
 from pymb.client import Client
 from pymb.devices.coolpro import decode_identity
-from pymb.devices.maps import COOLPRO, HUB
+from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
 from pymb.errors import DeviceException, ModbusConnectionError, ModbusError, ModbusTimeout
 from pymb.wire import registers_from_wire
 
@@ -108,23 +108,47 @@ def identify(ask: Ask, address: int) -> Identity | None:
     if isinstance(hub, int):
         return Identity(address, "unknown", f"answers FC 0x04 with exception 01 and FC 0x03 "
                         f"at {first_hub} with exception {hub:02X}")
-    # A hub: how many channels, which blocks.
+    # A hub: how many channels, which blocks, and so which firmware profile.
     ch51 = _read(ask, address, _FC_HOLDING, HUB.blocks[0].address(51), 1)
-    channels = 50 if ch51 == 2 else HUB.channels
-    blocks = ["temperature_c", "humidity_pct"]
-    if channels == HUB.channels:
-        for name in ("pressure_kpa", "voltage_mv", "temperature2_c"):
-            b = HUB.block(name)
-            if not isinstance(_read(ask, address, _FC_HOLDING, b.first, 1), bytes):
+    profiles = _hub_profiles()
+    if ch51 == 2:  # no channel 51: the profile with the fewest channels
+        at = min(range(len(profiles)), key=lambda k: profiles[k][1])
+    else:
+        # each later profile adds blocks: probe the first block each adds
+        full = [k for k, p in enumerate(profiles) if p[1] == HUB.channels]
+        at = full[0]
+        for k in full[1:]:
+            added = [b for b in HUB.blocks if b.name in profiles[k][2]
+                     and b.name not in profiles[at][2]]
+            if not added or not isinstance(_read(ask, address, _FC_HOLDING, added[0].first, 1),
+                                           bytes):
                 break
-            blocks += {"pressure_kpa": ["pressure_temperature_c", "pressure_kpa"],
-                       "voltage_mv": ["voltage_mv", "rssi_dbm"],
-                       "temperature2_c": ["temperature2_c"]}[name]
-    firmware = ("V1.07 or below" if channels == 50 else
-                "V2.23 or above" if "temperature2_c" in blocks else
-                "V2.19..V2.22" if "voltage_mv" in blocks else "below V2.19")
-    return Identity(address, "hub", f"{channels} channels, firmware {firmware}",
-                    channels, tuple(b for b in (x.name for x in HUB.blocks) if b in blocks))
+            at = k
+    _, channels, blocks = profiles[at]
+    return Identity(address, "hub", f"{channels} channels, firmware {_firmware_range(at)}",
+                    channels, tuple(b.name for b in HUB.blocks if b.name in blocks))
+
+
+def _version(text: str) -> tuple[int, ...]:
+    return tuple(int(x) for x in text.split("."))
+
+
+def _hub_profiles() -> list[tuple[str, int, frozenset[str]]]:
+    """HUB_FIRMWARE_PROFILES in version order: (the last version of each, its
+    channels, its blocks); a profile covers the versions above the one before."""
+    return sorted(((v, ch, frozenset(b)) for v, (ch, b) in HUB_FIRMWARE_PROFILES.items()),
+                  key=lambda p: _version(p[0]))
+
+
+def _firmware_range(i: int) -> str:
+    """The firmware versions profile ``i`` covers, in words."""
+    profiles = _hub_profiles()
+    last = profiles[i][0]
+    if i == 0:
+        return f"V{last} or below"
+    major, _, minor = profiles[i - 1][0].partition(".")
+    first = f"{major}.{int(minor) + 1:0{len(minor)}d}"  # 1.07 -> 1.08, 2.18 -> 2.19
+    return f"V{first} or above" if i == len(profiles) - 1 else f"V{first}..V{last}"
 
 
 def mismatch(found: Identity | None, wanted: str, address: int, channels: int) -> str:

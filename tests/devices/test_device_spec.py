@@ -9,6 +9,9 @@ from pathlib import Path
 import pytest
 from conftest import run_pymb
 
+import pymb
+from pymb.devices import HUB_FIRMWARE_PROFILES
+from pymb.devices.identify import client_asker, identify
 from pymb.devices.spec import parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.sim import Simulator
@@ -50,3 +53,17 @@ def test_pymb_log_takes_a_hex_address_as_simulate_serves_it(tmp_path: Path) -> N
         (n,) = con.execute("SELECT COUNT(*) FROM samples").fetchone()
     assert address == 40
     assert n > 0
+
+
+@pytest.mark.parametrize("firmware", sorted(HUB_FIRMWARE_PROFILES))
+def test_identification_names_each_firmware_profile(firmware: str) -> None:
+    """What answers is named from the one table of which firmware has which
+    block (HUB_FIRMWARE_PROFILES), as the simulator serves it."""
+    channels, blocks = HUB_FIRMWARE_PROFILES[firmware]
+    with Simulator([f"hub:7,firmware={firmware}"], seed=1) as sim, \
+            pymb.RtuClient(sim.port, 9600, timeout=1.0) as c:
+        found = identify(client_asker(c), 7)
+    assert found is not None
+    assert (found.device, found.channels) == ("hub", channels)
+    assert set(found.blocks) == set(blocks)
+    assert f"V{firmware}" in found.detail
