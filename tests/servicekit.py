@@ -6,7 +6,6 @@ as under systemd)."""
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import socket
 import subprocess
@@ -18,16 +17,6 @@ import pytest
 from conftest import PYMB, PYMB_ENV, wait_until
 
 from pymb.sim import SimulatorProcess
-
-#: a logger's event as a line on stderr (pymb.service.journal.event_line):
-#: ``pymb log: BUS[/DEVICE] KIND: message``
-EVENT_LINE = re.compile(r"^pymb log: \S+ [a-z_]+: ")
-
-
-def without_events(stderr: str) -> list[str]:
-    """The lines of a logger's stderr that are not its events (which are lines there
-    when stderr is not a terminal): what it said besides."""
-    return [line for line in stderr.strip().splitlines() if not EVENT_LINE.match(line)]
 
 
 def set_clock(file: Path, spec: str) -> None:

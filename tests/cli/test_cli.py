@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from conftest import PYMB, PYMB_ENV, ROOT, run_pymb
 from dbwait import count, wait_for
-from servicekit import without_events
+from eventlines import without_events
 
 from pymb.cli import main
 from pymb.sim import Simulator

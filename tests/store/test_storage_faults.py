@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from dbwait import wait_for
-from servicekit import without_events
+from eventlines import without_events
 
 pytest.register_assert_rewrite("disks")
 from disks import LoopDisk, Tmpfs, need_root  # noqa: E402
