@@ -20,9 +20,11 @@ from typing import IO
 
 from pymb.commands._data import check_database, device_name, parse_channels, parse_times
 from pymb.devices import HUB
+from pymb.devices.mapspec import load_map
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
-from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, quantities
+from pymb.maps import Map
+from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, map_point_names, quantities
 from pymb.store.export import WIDE_HEAD
 
 
@@ -47,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="only these quantities, e.g. temperature_c or "
                         "temperature_c,humidity_pct")
     p.add_argument("--events", action="store_true", help="include the events (faults etc.)")
+    p.add_argument("--map", action="append", default=[], metavar="FILE", dest="maps",
+                   help="decode a map device with this map (pymb.map/1) instead of the copy "
+                        "of its map that the database keeps (repeatable)")
     p.add_argument("--force", action="store_true",
                    help="overwrite OUT even if it is not a CSV written by pymb")
 
@@ -60,10 +65,20 @@ def _is_pymb_csv(path: str) -> bool:
     return first == ",".join(CSV_COLUMNS) or first.startswith(",".join(WIDE_HEAD) + ",")
 
 
-def _quantities(spec: str | None) -> list[str] | None:
+def _given_maps(files: list[str]) -> dict[str, Map]:
+    given: dict[str, Map] = {}
+    for path in files:
+        m = load_map(path)
+        if m.id in given:
+            raise InvalidArgument(f"--map {path}: device id {m.id!r} is given twice")
+        given[m.id] = m
+    return given
+
+
+def _quantities(spec: str | None, points: list[str]) -> list[str] | None:
     if spec is None:
         return None
-    known = list(dict.fromkeys([*quantities("coolpro"), *quantities("hub")]))
+    known = list(dict.fromkeys([*quantities("coolpro"), *quantities("hub"), *points]))
     out = [q.strip() for q in spec.split(",") if q.strip()]
     if not out:
         raise InvalidArgument(f"--quantity needs names, e.g. temperature_c; got {spec!r}")
@@ -78,14 +93,16 @@ def run(args: argparse.Namespace) -> int:
     since, until = parse_times(args.since, args.until)
     channels = None if args.channel is None else parse_channels(args.channel, HUB.channels,
                                                                "--channel")
-    wanted = _quantities(args.quantity)
+    given = _given_maps(args.maps)
     if args.events and args.layout == "wide":
         raise InvalidArgument("--events is for the long layout (an event is no sample)")
     check_database(args.database)
+    wanted = _quantities(args.quantity, map_point_names(args.database, given)
+                         if args.quantity is not None else [])
     device = device_name(args.database, args.device) if args.device is not None else None
     export = partial(export_csv, args.database, device=device, since=since, until=until,
                      channels=channels, quantities=wanted, events=args.events,
-                     layout=args.layout)
+                     layout=args.layout, maps=given)
     if args.csv == "-":
         export(sys.stdout)
         return 0

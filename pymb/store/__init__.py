@@ -47,7 +47,7 @@ from pymb.store.export import LAYOUTS, export_csv
 from pymb.store.guard import check_output, is_pymb_database
 from pymb.store.onchange import OnChange
 from pymb.store.outbox import Outbox
-from pymb.store.reader import samples_after
+from pymb.store.reader import map_point_names, samples_after
 from pymb.store.readonly import open_readonly
 from pymb.store.records import FAULT_KINDS, DeviceInfo, Event, Sample, Sink, StoredSample
 from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
@@ -94,6 +94,7 @@ __all__ = [
     "event_dict",
     "export_csv",
     "is_pymb_database",
+    "map_point_names",
     "open_readonly",
     "open_sink",
     "quantities",

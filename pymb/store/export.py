@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import csv
 import sqlite3
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import IO, Any
 
 from pymb.devices import HubReading, State
 from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import STATE_NAMES, telemetry_values
 from pymb.errors import InvalidArgument
+from pymb.maps import Map
 from pymb.store.reader import map_columns
 from pymb.store.readonly import open_readonly
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
@@ -29,7 +30,8 @@ WIDE_HEAD = CSV_COLUMNS[:6]
 def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
                since: float | None = None, until: float | None = None,
                channels: Sequence[int] | None = None, quantities: Sequence[str] | None = None,
-               events: bool = False, layout: str = "long") -> int:
+               events: bool = False, layout: str = "long",
+               maps: Mapping[str, Map] | None = None) -> int:
     """Write a pymb SQLite database out as CSV; returns the rows written.
 
     ``device`` (a name), ``since`` (included) and ``until`` (excluded, UTC
@@ -37,7 +39,9 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
     ``quantities`` choose what goes out. ``layout`` ``long``: one row per
     value, with its state (format 1 or 2); ``wide``: one row per sample and a
     column per value, ``QUANTITY`` for a CoolPro, ``QUANTITY_CHANNEL`` for a
-    hub (format 2)."""
+    hub (format 2). A map device is decoded by the copy of its map that the
+    database stored, or by the map of the same id in ``maps``
+    (``pymb export --map FILE``: a corrected scale, say)."""
     if layout not in LAYOUTS:
         raise InvalidArgument(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     if events and layout == "wide":
@@ -56,14 +60,14 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
             if version != SCHEMA_VERSION:
                 raise InvalidArgument(f"the wide layout reads databases of format "
                                       f"{SCHEMA_VERSION}; {db_path} is of format {version}")
-            return _export_wide(db, w, device, since, until, keep)
+            return _export_wide(db, w, device, since, until, keep, maps)
         w.writerow(CSV_COLUMNS)
         if version == 1:
             rows = _export_v1(db, w, device, since, until, keep)
         else:
             rows = 0
             where, args = sample_filter(device, since, until)
-            for s in chunks(db, where, args):
+            for s in chunks(db, where, args, given=maps):
                 for row in sample_rows(s):
                     if keep.row(row):
                         w.writerow(row)
@@ -114,12 +118,12 @@ def wide_columns(kinds: Sequence[tuple[str, int]], channels: Sequence[int] | Non
 
 
 def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
-                 until: float | None, keep: _Keep) -> int:
+                 until: float | None, keep: _Keep, maps: Mapping[str, Map] | None) -> int:
     q = "SELECT type, channels FROM devices" + (" WHERE name = ?" if device else "")
     kinds = [(str(t), int(c)) for t, c in db.execute(q, (device,) if device else ())]
     cols = wide_columns(kinds, None if keep.channels is None else sorted(keep.channels),
                         keep.quantities)
-    points = map_columns(db, device)
+    points = map_columns(db, device, maps)
     cols += [c for c, p in points.items() if c not in cols and keep.value(
         int(c.rsplit("_", 1)[1]) if p.block else None, p.name)]
     if not cols and kinds:
@@ -129,7 +133,7 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     w.writerow([*WIDE_HEAD, *cols])
     rows = 0
     where, args = sample_filter(device, since, until)
-    for s in chunks(db, where, args):
+    for s in chunks(db, where, args, given=maps):
         d = s.device
         cells: list[Any] = [""] * len(cols)
         data = s.data

@@ -6,7 +6,7 @@ import math
 import os
 import sqlite3
 from array import array
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from pymb import maps
@@ -25,24 +25,29 @@ from pymb.store.schema import (
     schema_version,
 )
 
-__all__ = ["iter_samples", "map_columns", "samples_after", "stored_map"]
+__all__ = ["iter_samples", "map_columns", "map_point_names", "samples_after", "stored_map"]
 
 
-def stored_map(db: sqlite3.Connection, kind: str, layout: str = ""
-               ) -> tuple[Map, str | None] | None:
+def stored_map(db: sqlite3.Connection, kind: str, layout: str = "",
+               given: Mapping[str, Map] | None = None) -> tuple[Map, str | None] | None:
     """The map a database stored for device type ``kind``, with the options
     of a devices row's ``layout`` key (its humidity_units), and the group of
-    that row; None if the database has no map of that id."""
+    that row; None if the database has no map of that id. A map in ``given``
+    (``pymb export --map FILE``) is used instead of the stored copy."""
+    group, options = parse_layout_key(layout) if layout else (None, {})
+    if given and kind in given:
+        m = given[kind]
+        return (m.configure(options) if options else m), group
     row = db.execute("SELECT source FROM maps WHERE id = ?", (kind,)).fetchone() if \
         db.execute("SELECT 1 FROM sqlite_master WHERE name = 'maps'").fetchone() else None
     if row is None:
         return None
-    group, options = parse_layout_key(layout) if layout else (None, {})
     m = maps.loads(row[0], source=f"map {kind} (stored)")
     return (m.configure(options) if options else m), group
 
 
-def map_columns(db: sqlite3.Connection, device: str | None = None) -> dict[str, Point]:
+def map_columns(db: sqlite3.Connection, device: str | None = None,
+                given: Mapping[str, Map] | None = None) -> dict[str, Point]:
     """The wide layout's columns of the map devices in a database (of one
     ``device``, by name): a point name, or ``name_N`` for channel N of a
     block, in the order of each map's points -> the point."""
@@ -50,7 +55,7 @@ def map_columns(db: sqlite3.Connection, device: str | None = None) -> dict[str, 
          + (" AND name = ?" if device else "") + " ORDER BY id")
     cols: dict[str, Point] = {}
     for kind, layout in db.execute(q, (device,) if device else ()).fetchall():
-        got = stored_map(db, kind, layout)
+        got = stored_map(db, kind, layout, given)
         if got is None:
             continue
         m, group = got
@@ -61,11 +66,22 @@ def map_columns(db: sqlite3.Connection, device: str | None = None) -> dict[str, 
     return cols
 
 
+def map_point_names(path: str, given: Mapping[str, Map] | None = None) -> list[str]:
+    """The point names of the map devices a database at ``path`` holds (by
+    their stored maps, or the ones in ``given``), in the maps' order."""
+    db = open_readonly(path)
+    try:
+        return list(dict.fromkeys(p.name for p in map_columns(db, None, given).values()))
+    finally:
+        db.close()
+
+
 class _Decoder:
     """Decodes rows of ``samples`` (format 2), with the device rows cached."""
 
-    def __init__(self, db: sqlite3.Connection) -> None:
+    def __init__(self, db: sqlite3.Connection, given: Mapping[str, Map] | None = None) -> None:
         self.db = db
+        self.given = given
         self.devices: dict[int, tuple[DeviceInfo, list[float]]] = {}
         self.maps: dict[int, tuple[Map, str | None, list[Decoder], list[str]]] = {}
 
@@ -95,7 +111,7 @@ class _Decoder:
         if got is None:
             (units,) = self.db.execute("SELECT humidity_units FROM devices WHERE id = ?",
                                        (did,)).fetchone()
-            found = stored_map(self.db, info.type, units)
+            found = stored_map(self.db, info.type, units, self.given)
             if found is None:
                 raise InvalidArgument(f"the database has no map {info.type!r} for device "
                                       f"{info.name}")
@@ -181,8 +197,11 @@ def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: in
 
 
 def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
-                  limit: int | None = None) -> Iterator[StoredSample]:
-    dec = _Decoder(con)
+                  limit: int | None = None, given: Mapping[str, Map] | None = None
+                  ) -> Iterator[StoredSample]:
+    """The samples ``where`` says, decoded (map devices by their stored map,
+    or by the one in ``given``)."""
+    dec = _Decoder(con, given)
     q = ("SELECT s.id, s.device_id, s.time_utc, s.monotonic, s.registers, s.unsupported "
          f"FROM samples s WHERE {where} ORDER BY s.id" + ("" if limit is None else " LIMIT ?"))
     for sid, did, t, mono, blob, unsupported in con.execute(

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +17,7 @@ from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import telemetry_values
 from pymb.devices.spec import closest, device_parts
 from pymb.errors import InvalidArgument
+from pymb.maps import Map
 from pymb.store.reader import iter_samples, stored_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import StoredSample
@@ -87,12 +88,12 @@ def sample_filter(device: str | None, since: float | None,
 
 
 def chunks(con: sqlite3.Connection, where: str, args: list[Any],
-           size: int = 500) -> Iterator[StoredSample]:
+           size: int = 500, given: Mapping[str, Map] | None = None) -> Iterator[StoredSample]:
     """The samples ``where`` says, in id order, decoded a chunk at a time (a
     long file never sits in memory)."""
     last = 0
     while True:
-        chunk = list(iter_samples(con, f"{where} AND s.id > ?", (*args, last), size))
+        chunk = list(iter_samples(con, f"{where} AND s.id > ?", (*args, last), size, given))
         yield from chunk
         if len(chunk) < size:
             return
