@@ -18,9 +18,11 @@ import sys
 import tempfile
 import time
 
+from pymb.commands.demo_mqtt import run_with_mqtt
 from pymb.commands.status import StatusLine
 from pymb.devices.spec import DeviceConfig
 from pymb.errors import InvalidArgument
+from pymb.fleet.forwarder import require_paho
 from pymb.logger import BusConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
 from pymb.store.summary import event_counts
@@ -47,7 +49,6 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.seconds) and args.seconds > 0):
         raise InvalidArgument(f"--seconds must be more than 0, got {args.seconds:g}")
     if args.mqtt:
-        from pymb.fleet.forwarder import require_paho
         require_paho()  # before any simulator starts
     # The process id too: two demos started in the same second (parallel CI
     # jobs) must not log into one file.
@@ -77,7 +78,6 @@ def run(args: argparse.Namespace) -> int:
         cfg = LogConfig([psu, sensors], "sqlite", out)
         mqtt_lines: list[str] = []
         if args.mqtt:
-            from pymb.commands.demo_mqtt import run_with_mqtt
             summary, mqtt_lines = run_with_mqtt(cfg, args.mqtt, args.seconds,
                                                 None if args.quiet else sys.stderr, say)
         else:

@@ -12,6 +12,7 @@ import math
 import sys
 
 from pymb.commands._common import DEVICE_HELP
+from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
 from pymb.commands.mapcli import add_map_arg
 from pymb.commands.status import StatusLine, status_text
@@ -115,7 +116,6 @@ def run(args: argparse.Namespace) -> int:
     cfg, mqtt = config_from(args)
     service = Service(lambda: config_from(args), status_text)
     if mqtt is not None:
-        from pymb.commands.forward import log_and_forward
         code = log_and_forward(cfg, mqtt, seconds=args.seconds, quiet=args.quiet,
                                service=service)
         service.finish()

@@ -13,7 +13,8 @@ from typing import Any
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import InvalidArgument
 from pymb.maps.codec import decimal_power
-from pymb.maps.model import Map, MapError, Point, Value
+from pymb.maps.model import Map
+from pymb.maps.point import MapError, Point, Value
 from pymb.maps.types import STATES, TYPES, permutation
 
 __all__ = ["Buffers", "Decoder"]

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from pymb.errors import InvalidArgument
-from pymb.maps.model import MapError, Point, Value, did_you_mean
+from pymb.maps.point import MapError, Point, Value, did_you_mean
 from pymb.maps.types import STATES, TYPES, permutation
 
 if TYPE_CHECKING:

@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 from pymb.maps.planner import Item, Known, Limits, Line, ReadPlan, Request, plan_points
 
 if TYPE_CHECKING:
-    from pymb.maps.model import Map, Point
+    from pymb.maps.model import Map
+    from pymb.maps.point import Point
 
 __all__ = ["MapItems", "PointPlanner", "map_planner"]
 

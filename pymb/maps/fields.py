@@ -9,7 +9,9 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, NoReturn
 
-from pymb.maps.model import DeviceInfo, MapError, Point, did_you_mean
+from pymb.errors import InvalidArgument
+from pymb.maps.codec import encode
+from pymb.maps.point import DeviceInfo, MapError, Point, did_you_mean
 from pymb.maps.types import (
     FLOAT_TYPES,
     INTEGER_TYPES,
@@ -277,9 +279,6 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
 
 
 def _check_example(ctx: Ctx, p: Point, example: object) -> None:
-    from pymb.errors import InvalidArgument
-    from pymb.maps.codec import encode
-
     items = example if p.block and isinstance(example, list) else [example]
     if p.block and isinstance(example, list) and len(example) != p.channels:
         ctx.fail("example", f"example has {len(example)} values for {p.channels} channels")

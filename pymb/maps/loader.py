@@ -19,11 +19,11 @@ from typing import Any
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.fields import Ctx, build_point, number
-from pymb.maps.model import (
+from pymb.maps.model import Map
+from pymb.maps.point import (
     DeviceInfo,
     Identify,
     Limits,
-    Map,
     MapError,
     Point,
     Timing,
@@ -60,6 +60,24 @@ class Spec:
     entries: tuple[tuple[str, int, Mapping[str, Any]], ...]  #: (point|block, index, table)
     identify: tuple[Identify, ...]
 
+    def configure(self, m: Map, given: Mapping[str, object]) -> Map:
+        """``m`` (built from this spec) with the option values in ``given``
+        (numbers or their text)."""
+        spec = self
+        dev = spec.device
+        options = dict(m.options)
+        for name, value in given.items():
+            if name not in dev.options:
+                raise MapError(f"{spec.source}: {dev.id!r} has no option {name!r}"
+                               f"{did_you_mean(name, list(dev.options))}",
+                               source=spec.source, key=name)
+            options[name] = _option_value(spec.source, dev, name, value)
+        try:
+            return _build(spec, options)
+        except MapError as e:
+            raise MapError(f"{spec.source}: options {options}: {e}", source=spec.source,
+                           point=e.point, key=e.key) from None
+
 
 def load(path: str | Path) -> Map:
     """Read and check the map file at ``path``."""
@@ -85,20 +103,7 @@ def loads(text: str, source: str = "<string>") -> Map:
 
 def configure(m: Map, given: Mapping[str, object]) -> Map:
     """``m`` with the option values in ``given`` (numbers or their text)."""
-    spec: Spec = m._spec  # noqa: SLF001 - the model hands its own spec back here
-    dev = spec.device
-    options = dict(m.options)
-    for name, value in given.items():
-        if name not in dev.options:
-            raise MapError(f"{spec.source}: {dev.id!r} has no option {name!r}"
-                           f"{did_you_mean(name, list(dev.options))}",
-                           source=spec.source, key=name)
-        options[name] = _option_value(spec.source, dev, name, value)
-    try:
-        return _build(spec, options)
-    except MapError as e:
-        raise MapError(f"{spec.source}: options {options}: {e}", source=spec.source,
-                       point=e.point, key=e.key) from None
+    return m.configure(given)
 
 
 def _option_value(source: str, dev: DeviceInfo, name: str, value: object) -> int | float:

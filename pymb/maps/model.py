@@ -1,190 +1,40 @@
-"""The data model of a loaded map: :class:`Map`, :class:`Point` and the
-device's settings. Everything is immutable; :meth:`Map.configure` makes a new
-map for other option values."""
+"""The data model of a loaded map: :class:`Map` over the records of
+:mod:`pymb.maps.point`. Everything is immutable; :meth:`Map.configure` makes a
+new map for other option values."""
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.errors import ModbusError
+from pymb.maps import codec
+from pymb.maps.device_plan import map_planner
+from pymb.maps.planner import Line, ReadPlan
+from pymb.maps.point import (
+    DeviceInfo,
+    Identify,
+    Limits,
+    MapError,
+    Point,
+    Timing,
+    Value,
+    did_you_mean,
+)
 from pymb.wire import DEFAULT_BAUD
 
-if TYPE_CHECKING:
-    from pymb.maps.loader import Spec
-    from pymb.maps.planner import ReadPlan
-
-__all__ = ["DeviceInfo", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value"]
-
-#: What a point decodes to: None where there is no value (a marker, NaN,
-#: invalid text, unsupported); a list for blocks and ``raw``.
-Value = int | float | str | bool | list[Any] | None
-
-_EMPTY: Mapping[Any, Any] = MappingProxyType({})
+__all__ = ["DeviceInfo", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value",
+           "did_you_mean"]
 
 
-def _empty() -> Mapping[Any, Any]:
-    return _EMPTY
+class Source(Protocol):
+    """What a map was built from (:class:`pymb.maps.loader.Spec`): it builds
+    the map again for other option values. A protocol, so that the model
+    needs nothing from the loader, which sits above it."""
 
-
-class MapError(ModbusError, ValueError):
-    """A mistake in a map file, or a name a map does not have.
-
-    The message names the file (``source``), the point and the key; ``source``,
-    ``point`` and ``key`` are also attributes (None where they do not apply).
-    """
-
-    source: str | None
-    point: str | None
-    key: str | None
-
-    def __init__(self, message: str, *, source: str | None = None, point: str | None = None,
-                 key: str | None = None) -> None:
-        super().__init__(message)
-        self.source = source
-        self.point = point
-        self.key = key
-
-
-def did_you_mean(word: str, known: Sequence[str]) -> str:
-    """``; did you mean 'x'?``, or the known names, or nothing when there are none."""
-    near = difflib.get_close_matches(word, list(known), n=1, cutoff=0.5)
-    if near:
-        return f"; did you mean {near[0]!r}?"
-    if known:
-        return f"; known: {', '.join(sorted(known))}"
-    return ""
-
-
-@dataclass(frozen=True)
-class Limits:
-    """How requests to the device may be planned (contract section 4)."""
-
-    max_registers: int = MAX_READ_REGISTERS  #: registers per FC 03/04 request (1..125)
-    max_bits: int = MAX_READ_BITS  #: bits per FC 01/02 request (1..2000)
-    max_gap: int = 0  #: undeclared registers a request may span
-    #: table -> on-wire (first, last) ranges known to exist (inclusive)
-    readable: Mapping[str, tuple[tuple[int, int], ...]] = field(default_factory=_empty)
-    split_on_exception: bool = True  #: exception 02/03 on a bridged read: stop bridging there
-    single_point_requests: bool = False  #: one request per point
-
-
-@dataclass(frozen=True)
-class Timing:
-    """The device's timing, seconds; None: the bus's own value."""
-
-    response_timeout: float | None = None
-    turnaround: float = 0.0  #: silence the device needs after its reply
-    inter_request_gap: float = 0.0  #: silence before each request to it
-    after_connect: float = 0.0  #: wait after (re)connecting
-    offline_after: int = 3  #: failed polls in a row before backing off
-    offline_retry: float = 30.0  #: retry period once backed off
-
-
-@dataclass(frozen=True)
-class DeviceInfo:
-    """The ``[device]`` section."""
-
-    id: str
-    manufacturer: str = ""
-    model: str = ""
-    description: str = ""
-    ref: str = ""
-    default_address: int = 1
-    addresses: tuple[int, int] = (1, 247)  #: unit ids it can take, inclusive
-    address_base: int = 0  #: 0: addresses in the file are on-wire; 1: numbers from 1
-    table: str = "holding"  #: default table of points
-    order: str = "ABCD"  #: default byte order of points
-    #: option name -> default
-    options: Mapping[str, int | float] = field(default_factory=_empty)
-    #: option name -> the values it may take, where the file lists them
-    option_values: Mapping[str, tuple[int | float, ...]] = field(default_factory=_empty)
-    #: option name -> (min, max), where the file gives them
-    option_ranges: Mapping[str, tuple[float, float]] = field(default_factory=_empty)
-
-
-@dataclass(frozen=True)
-class Identify:
-    """One ``[[identify]]`` rule: how ``pymb scan`` recognises the device."""
-
-    point: str
-    range: tuple[float, float] | None = None
-    equals: Any = None
-    regex: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Point:
-    """One value of a map (a ``[[point]]``), or a ``[[block]]`` of ``channels``
-    values ``stride`` registers apart.
-
-    ``address`` is on the wire (``address_base`` applied) and is the first
-    channel's; ``count`` is the registers one value spans (bits for coil and
-    discrete points); ``order`` is the explicit byte permutation of the value
-    (``"CDAB"``, ``"BADCFEHG"``; ``"AB"``/``"BA"`` for strings: swapped in each
-    register or not; empty for ``bool`` and ``raw``). ``scale`` and ``offset``
-    are None when the file gives none: an integer type then decodes to an
-    exact ``int``.
-    """
-
-    name: str
-    table: str
-    address: int
-    count: int
-    type: str
-    order: str = ""
-    channels: int = 1
-    stride: int = 0
-    block: bool = False
-    scale: float | None = None
-    offset: float | None = None
-    #: raw value (its unsigned bit pattern) -> state name
-    markers: Mapping[int, str] = field(default_factory=_empty)
-    values: Mapping[int, str] = field(default_factory=_empty)  #: raw value -> name
-    flags: Mapping[int, str] = field(default_factory=_empty)  #: bit number -> name
-    access: str = "r"
-    valid: tuple[float, float] | None = None
-    group: str | None = None
-    deadband: float | None = None
-    precision: int | None = None
-    unit: str = ""
-    kind: str = "gauge"
-    description: str = ""
-    ref: str = ""
-    bit: int | None = None  #: for ``bit``
-    shift: int | None = None  #: for ``bits``
-    width: int | None = None  #: for ``bits``: bits in the field
-    string_bytes: str = "both"
-    encoding: str = "ascii"
-    example: Any = None
-    min_firmware: str = ""
-    when: Mapping[str, int | float] = field(default_factory=_empty)
-
-    @property
-    def end(self) -> int:
-        """One past the last register (or bit) of the last channel."""
-        return self.address + (self.channels - 1) * self.stride + self.count
-
-    @property
-    def span(self) -> int:
-        """Registers (or bits) from the first channel's first to the last's last."""
-        return self.end - self.address
-
-    def address_of(self, channel: int) -> int:
-        """On-wire address of ``channel`` (1-based) of a block."""
-        if not 1 <= channel <= self.channels:
-            raise MapError(f"point {self.name!r} has channels 1..{self.channels}, "
-                           f"not {channel!r}", point=self.name)
-        return self.address + (channel - 1) * self.stride
-
-    @property
-    def writable(self) -> bool:
-        """True for ``rw`` and ``w`` points."""
-        return self.access != "r"
+    def configure(self, m: Map, given: Mapping[str, object]) -> Map:
+        """``m`` with the option values in ``given``."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,7 +54,7 @@ class Map:
     points: Mapping[str, Point]
     identify: tuple[Identify, ...]
     options: Mapping[str, int | float]
-    _spec: Spec = field(repr=False)
+    _spec: Source = field(repr=False)
 
     @property
     def id(self) -> str:
@@ -215,8 +65,7 @@ class Map:
     def state_names(self) -> tuple[str, ...]:
         """Every state name by its code: the fixed ones, then this map's own
         marker names from code 16 up."""
-        from pymb.maps.codec import state_names
-        return state_names(self)
+        return codec.state_names(self)
 
     def point(self, name: str) -> Point:
         """The point called ``name``; a :class:`MapError` with a did-you-mean if none."""
@@ -230,19 +79,16 @@ class Map:
     def configure(self, options: Mapping[str, object] | None = None, **kw: object) -> Map:
         """This map with other option values (``channels=50``): numbers, or
         the strings of the device syntax ``TYPE:ADDRESS,name=value``."""
-        from pymb.maps.loader import configure
-        return configure(self, {**(options or {}), **kw})
+        return self._spec.configure(self, {**(options or {}), **kw})
 
     def decode(self, name: str, registers: Sequence[int]) -> Value:
         """One point's value from its registers (bits for coil/discrete), the
         first channel's first register first; a block gives a list."""
-        from pymb.maps.codec import decode
-        return decode(self.point(name), registers)[0]
+        return codec.decode(self.point(name), registers)[0]
 
     def decode_state(self, name: str, registers: Sequence[int]) -> tuple[Value, Any]:
         """(value, state name) of one point; a block gives two lists."""
-        from pymb.maps.codec import decode
-        return decode(self.point(name), registers)
+        return codec.decode(self.point(name), registers)
 
     def encode(self, name: str, value: object, *, current: Sequence[int] | None = None
                ) -> list[int]:
@@ -251,8 +97,7 @@ class Map:
         type's range, or a name ``values`` does not list
         (:class:`pymb.InvalidArgument`). ``bit``/``bits`` views need the
         register's ``current`` contents."""
-        from pymb.maps.codec import encode
-        return encode(self.point(name), value, current=current, check_access=True)
+        return codec.encode(self.point(name), value, current=current, check_access=True)
 
     def plan(self, group: str | None = None, *, baudrate: int = DEFAULT_BAUD,
              bits_per_char: int = 10) -> ReadPlan:
@@ -260,8 +105,6 @@ class Map:
         for None), planned with the device's limits and timing at
         ``baudrate``: iterate for ``.table``, ``.address``, ``.count``; see
         :mod:`pymb.maps.planner`."""
-        from pymb.maps.device_plan import map_planner
-        from pymb.maps.planner import Line
         if group is not None and group not in self.groups:
             raise MapError(f"{self.source}: no group {group!r}"
                            f"{did_you_mean(group, list(self.groups))}", source=self.source,
