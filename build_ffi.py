@@ -267,6 +267,11 @@ int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int 
                         uint16_t *dest, pymb_failure *fail);
 int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
+typedef struct {
+    uint8_t function; uint8_t slave; uint16_t address; uint16_t count; uint32_t offset;
+} pymb_plan_request;
+int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uint32_t gap_us,
+                   uint16_t *regs, size_t nregs, size_t *done, pymb_failure *fail);
 
 /* The interrupt hook: pymb._native calls Python's pending signal handlers. */
 extern "Python" int pymb_py_interrupted(void *arg);

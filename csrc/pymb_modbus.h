@@ -195,6 +195,36 @@ int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int 
 int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb,
                    uint8_t *dest, pymb_failure *fail);
 
+/* One register read of a prepared plan (pymb_read_plan). */
+typedef struct {
+    uint8_t function; /* 0x03 or 0x04 */
+    uint8_t slave;    /* RTU 1..255, TCP 0..255 */
+    uint16_t address; /* first register */
+    uint16_t count;   /* 1..125 registers, address + count <= 65536 */
+    uint32_t offset;  /* where its registers go: regs[offset..offset + count) */
+} pymb_plan_request;
+
+/* Run reqs[0..n) in order, each one request on the wire whose registers go
+ * to regs + reqs[i].offset (so that a caller makes one call for a whole
+ * read, with Python's GIL released for all of it). Before each request but
+ * the first, gap_us of silence after the previous reply (a device's
+ * turnaround or inter-request gap; the line's own frame silences and quiet
+ * windows apply as to every request). Stops at the first failure.
+ *
+ * done (optional): set to the number of requests that succeeded, which on
+ * failure is the index of the one that failed (regs then holds the
+ * registers of reqs[0..*done)); on EINVAL for a bad argument, 0.
+ * Every request is checked before any is sent: a function other than 0x03
+ * or 0x04, a count outside 1..125, an address + count past 65536, a slave
+ * the line cannot address, or an offset + count past nregs fails with
+ * EINVAL and sends nothing. n = 0 succeeds at once.
+ *
+ * Returns 0, or -1 and errno as pymb_read_registers (an exception errno, so
+ * the caller can tell a refused request from a lost line and go on with
+ * reqs + *done + 1). */
+int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uint32_t gap_us,
+                   uint16_t *regs, size_t nregs, size_t *done, pymb_failure *fail);
+
 /* ------------------------------------------------------------------------ */
 /* The sensor hub's sweep ([HUB] 3, [NOTES]).                               */
 

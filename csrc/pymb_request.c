@@ -164,6 +164,63 @@ int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int 
     return nb;
 }
 
+static void pause_plan_us(uint32_t us)
+{
+    struct timespec ts;
+    ts.tv_sec = (time_t)(us / 1000000u);
+    ts.tv_nsec = (long)(us % 1000000u) * 1000L;
+    while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+    }
+}
+
+int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uint32_t gap_us,
+                   uint16_t *regs, size_t nregs, size_t *done, pymb_failure *fail)
+{
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    size_t k;
+
+    pymb_failure_reset(fail);
+    if (done != NULL) {
+        *done = 0;
+    }
+    if (line == NULL || (n > 0 && (reqs == NULL || regs == NULL))) {
+        errno = EINVAL;
+        return -1;
+    }
+    for (k = 0; k < n; k++) {
+        const pymb_plan_request *rq = &reqs[k];
+        if ((rq->function != MODBUS_FC_READ_HOLDING_REGISTERS &&
+             rq->function != MODBUS_FC_READ_INPUT_REGISTERS) ||
+            rq->count < 1 || rq->count > PYMB_MAX_READ_REGISTERS ||
+            check_read_args(line, rq->slave, rq->address, rq->count, regs) < 0 ||
+            rq->offset > nregs || rq->count > nregs - rq->offset) {
+            errno = EINVAL;
+            return -1;
+        }
+    }
+    for (k = 0; k < n; k++) {
+        const pymb_plan_request *rq = &reqs[k];
+        const uint8_t *data;
+        uint16_t *dest = regs + rq->offset;
+        int i;
+
+        if (k > 0 && gap_us > 0) {
+            pause_plan_us(gap_us);
+        }
+        data = read_request(line, rq->function, rq->slave, rq->address, rq->count, rsp, fail);
+        if (data == NULL) {
+            return -1;
+        }
+        for (i = 0; i < rq->count; i++) {
+            dest[i] = (uint16_t)(data[2 * i] << 8 | data[2 * i + 1]);
+        }
+        if (done != NULL) {
+            *done = k + 1;
+        }
+    }
+    return 0;
+}
+
 int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb, uint8_t *dest,
                    pymb_failure *fail)
 {

@@ -837,6 +837,106 @@ static void test_hub(enum kind k)
     printf("%s: hub sweep, exception-02 fallback, busy retries\n", kind_name(k));
 }
 
+/* pymb_read_plan: a whole plan in one call, its silences, its stop at the
+ * first refusal (and the rest run from the one after), its checks. */
+static void test_plan(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[140];
+    pymb_failure fail;
+    size_t done = 99;
+    int unit = k == TCP ? 0 : 250;
+    double t0;
+    pymb_plan_request plan[3] = {
+        {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 31, 3, 0},
+        {MODBUS_FC_READ_INPUT_REGISTERS, 0, 100, 125, 3},
+        {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 500, 2, 128},
+    };
+    pymb_plan_request refused[3] = {
+        {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 31, 10, 0},
+        {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 625, 10, 10}, /* 631..634: exception 02 */
+        {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 40, 2, 20},
+    };
+    size_t i;
+
+    for (i = 0; i < 3; i++) {
+        plan[i].slave = (uint8_t)unit;
+        refused[i].slave = (uint8_t)unit;
+    }
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_reads);
+    {
+        /* The last of the three requests on the wire: 03, address 500, 2. */
+        const uint8_t pdu[] = {0x03, 0x01, 0xF4, 0x00, 0x02};
+        memset(regs, 0xEE, sizeof regs);
+        CHECK(pymb_read_plan(r.line, plan, 3, 0, regs, 140, &done, &fail) == 0);
+        CHECK(done == 3 && r.dev->requests == 3);
+        CHECK(last_request_is(&r, 3, unit, pdu, sizeof pdu));
+        CHECK(regs[0] == 1031 && regs[2] == 1033 && regs[3] == 1100 && regs[127] == 1224 &&
+              regs[128] == 1500 && regs[129] == 1501 && regs[130] == 0xEEEE);
+    }
+    /* 25 ms of silence between requests: two silences in a plan of three. */
+    t0 = now_s();
+    CHECK(pymb_read_plan(r.line, plan, 3, 25000, regs, 140, &done, &fail) == 0 && done == 3);
+    CHECK(now_s() - t0 >= 0.050);
+    /* Refused arguments send nothing: a bad function, count, offset. */
+    r.dev->requests = 0;
+    {
+        pymb_plan_request bad = plan[2];
+        bad.function = 0x01;
+        errno = 0;
+        CHECK(pymb_read_plan(r.line, &bad, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL && done == 0);
+        bad = plan[2];
+        bad.count = 126;
+        CHECK(pymb_read_plan(r.line, &bad, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL);
+        bad = plan[2];
+        bad.offset = 139; /* 139 + 2 > 140 */
+        CHECK(pymb_read_plan(r.line, plan, 2, 0, regs, 140, &done, &fail) == 0 && done == 2);
+        r.dev->requests = 0;
+        plan[2] = bad;
+        CHECK(pymb_read_plan(r.line, plan, 3, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL && done == 0);
+        plan[2].offset = 128;
+        bad = plan[0];
+        bad.address = 65535; /* 65535 + 3 > 65536 */
+        CHECK(pymb_read_plan(r.line, &bad, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL);
+        bad = plan[0];
+        bad.offset = UINT32_MAX;
+        CHECK(pymb_read_plan(r.line, &bad, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL);
+        CHECK(pymb_read_plan(r.line, NULL, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL);
+        CHECK(pymb_read_plan(NULL, plan, 1, 0, regs, 140, &done, &fail) == -1 &&
+              errno == EINVAL);
+        CHECK(pymb_read_plan(r.line, plan, 0, 0, regs, 140, &done, &fail) == 0 && done == 0);
+        CHECK(r.dev->requests == 0);
+    }
+    rig_stop(&r);
+    /* Exception 02 on the second request: it says which, keeps the first's
+     * registers, and the rest runs from the one after. */
+    r.dev->param = 0;
+    r.dev->state = 0;
+    rig_start(&r, answer_hub);
+    memset(regs, 0, sizeof regs);
+    errno = 0;
+    CHECK(pymb_read_plan(r.line, refused, 3, 0, regs, 140, &done, &fail) == -1 &&
+          errno == EMBXILADD && done == 1);
+    CHECK(fail.function == 0x03 && fail.address == 625 && fail.count == 10);
+    CHECK(regs[0] == 31 && regs[9] == 40 && regs[10] == 0 && regs[20] == 0);
+    CHECK(pymb_read_plan(r.line, refused + done + 1, 3 - done - 1, 0, regs, 140, NULL,
+                         &fail) == 0);
+    CHECK(regs[20] == 40 && regs[21] == 41);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: read plan\n", kind_name(k));
+}
+
 static void test_signals(enum kind k)
 {
     struct rig r;
@@ -989,6 +1089,7 @@ int main(void)
         test_split_and_bad(kinds[i]);
         test_late_and_stale(kinds[i]);
         test_hub(kinds[i]);
+        test_plan(kinds[i]);
         test_signals(kinds[i]);
         test_unknown_length_and_broadcast(kinds[i]);
     }

@@ -40,6 +40,7 @@ __all__ = [
     "FunctionCode",
     "HubSweep",
     "Link",
+    "RegisterPlan",
     "State",
     "coolpro_identity",
     "coolpro_telemetry",
@@ -200,4 +201,10 @@ from pymb._native.decode import (  # noqa: E402
     hub_decode,
     hub_plan_all,
 )
-from pymb._native.link import Link, ffi_buffer_u16, new_rtu, new_tcp  # noqa: E402
+from pymb._native.link import (  # noqa: E402
+    Link,
+    RegisterPlan,
+    ffi_buffer_u16,
+    new_rtu,
+    new_tcp,
+)

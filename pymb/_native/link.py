@@ -9,6 +9,7 @@ import errno
 import os
 import socket
 import threading
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from pymb._native import FunctionCode, rtu_silence
@@ -26,7 +27,7 @@ from pymb.wire import bits_per_char
 if TYPE_CHECKING:
     from pymb._native.decode import HubSweep
 
-__all__ = ["Link", "ffi_buffer_u16", "new_rtu", "new_tcp"]
+__all__ = ["Link", "RegisterPlan", "ffi_buffer_u16", "new_rtu", "new_tcp"]
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
@@ -62,6 +63,31 @@ def _take_interrupt() -> BaseException | None:
 def ffi_buffer_u16(array: Any) -> Any:
     """A ``uint16_t *`` over a writable buffer (an ``array('H')``)."""
     return ffi.from_buffer("uint16_t[]", array, require_writable=True)
+
+
+class RegisterPlan:
+    """A prepared list of register reads into one writable ``array('H')``
+    (pymb_read_plan): ``requests`` are (function, slave, address, count,
+    offset into ``dest``) tuples, checked by the caller and again in C before
+    anything is sent; ``gap`` seconds of silence between two requests. After
+    a failed run, :attr:`failed` is the index of the request that failed."""
+
+    __slots__ = ("done", "failed", "gap_us", "n", "nregs", "regs", "reqs", "requests")
+
+    def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
+                 gap: float = 0.0) -> None:
+        self.requests = tuple(requests)
+        self.n = len(self.requests)
+        self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))
+        for i, (function, slave, address, count, offset) in enumerate(self.requests):
+            r = self.reqs[i]
+            r.function, r.slave, r.address, r.count, r.offset = (
+                function, slave, address, count, offset)
+        self.regs = _from_buffer("uint16_t[]", dest, True)
+        self.nregs = len(self.regs)
+        self.done = ffi.new("size_t *")
+        self.gap_us = max(0, min(0xFFFFFFFF, round(gap * 1e6)))
+        self.failed = -1
 
 
 class Link:
@@ -282,6 +308,15 @@ class Link:
         if n < 0:
             raise self._error(function, slave, address, count)
         return bytes(ffi.buffer(self._rsp + self._header, n))
+
+    def read_plan(self, plan: RegisterPlan, start: int = 0) -> None:
+        """Run ``plan``'s requests from ``start`` on, in one C call; on
+        failure ``plan.failed`` is the index of the request that failed."""
+        if lib.pymb_read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
+                              plan.regs, plan.nregs, plan.done, self._fail) < 0:
+            k = plan.failed = start + int(plan.done[0])
+            function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
+            raise self._error(function, slave, address, count)
 
     def hub_read(self, sweep: HubSweep) -> int:
         """Run a prepared hub sweep (one C call); returns the read block mask."""

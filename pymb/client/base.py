@@ -308,6 +308,20 @@ class Client:
                 self._close_if_lost(e)
                 raise
 
+    def run_read_plan(self, plan: _native.RegisterPlan, start: int = 0) -> None:
+        """Run a prepared list of register reads (:class:`pymb._native.RegisterPlan`,
+        which :class:`pymb.devices.MapDevice` makes) from request ``start`` on,
+        as one C call; on failure ``plan.failed`` says which request failed."""
+        link = self._link
+        with self._lock:
+            if not link.is_open:
+                self._reopen()
+            try:
+                link.read_plan(plan, start)
+            except ModbusConnectionError as e:
+                self._close_if_lost(e)
+                raise
+
     def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
         """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,
         which :class:`pymb.devices.SensorHub` makes and plans) as one C call;

@@ -26,8 +26,11 @@ import weakref
 from array import array
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from itertools import groupby
+from operator import attrgetter
 from typing import Any, NamedTuple
 
+from pymb._native import RegisterPlan
 from pymb.client import Client
 from pymb.devices.mapreading import MapReading
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
@@ -54,13 +57,11 @@ class _Image(NamedTuple):
 
 
 class _Prepared(NamedTuple):
-    """One register request of a prepared plan, ready for the wire."""
+    """A run of a prepared plan's requests into one table's buffer: one C call."""
 
-    request: Request
-    function: int
-    address: int
-    view: memoryview  #: its registers' place in the selection's buffer
+    requests: tuple[Request, ...]
     image: _Image
+    plan: RegisterPlan  #: the requests as C takes them
 
 
 class _Quiet:
@@ -317,55 +318,58 @@ class MapDevice:
 
     def _prepared(self, plan: ReadPlan, images: dict[str, _Image]
                   ) -> tuple[_Prepared, ...] | None:
-        """A plan of register reads only, made ready once: each request with
-        the slice of the selection's buffer it reads into (None: a plan with
-        bits, read request by request)."""
+        """A plan of register reads only, made ready once: its requests in runs
+        of one table, each a RegisterPlan over that table's buffer (None: a
+        plan with bits, read request by request)."""
         got = self._ready.get(id(plan))  # the entry holds plan and images: ids stay theirs
         if got is not None and got[0] is plan and got[1] is images:
             return got[2]
         ready: tuple[_Prepared, ...] | None = None
         if not any(r.table in BIT_TABLES for r in plan.requests):
+            t = self.map.timing
+            gap = max(t.inter_request_gap, t.turnaround)
+            runs = [tuple(g) for _, g in groupby(plan.requests, key=attrgetter("table"))]
             ready = tuple(
-                _Prepared(r, r.function, r.address, memoryview(image.registers)[
-                    r.address - image.address:r.address - image.address + r.count], image)
-                for r in plan.requests for image in (images[r.table],))
+                _Prepared(rs, image, RegisterPlan(
+                    [(r.function, self.address, r.address, r.count, r.address - image.address)
+                     for r in rs], image.registers, gap))
+                for rs in runs for image in (images[rs[0].table],))
         if len(self._ready) >= _CACHED:
             self._ready.clear()
         self._ready[id(plan)] = (plan, images, ready)
         return ready
 
     def _run_prepared(self, prepared: tuple[_Prepared, ...]) -> None:
-        """The requests of a prepared plan, each in its turn on the line (as
-        :meth:`_turn` keeps it, written out: no Python frame per request
-        beyond the client's call), falling back as :meth:`_fetch` does on
-        exception 02/03."""
-        t = self.map.timing
-        gap, turnaround = t.inter_request_gap, t.turnaround
+        """A prepared plan, a C call per run holding the line (silences as
+        :meth:`_turn` keeps them); on exception 02/03 as :meth:`_fetch`."""
+        gap, turnaround = self.map.timing.inter_request_gap, self.map.timing.turnaround
         q = _quiet(self.client)
-        read = self.client.read_registers_prepared
-        slave = self.address
+        run = self.client.run_read_plan
         monotonic = time.monotonic
         for p in prepared:
-            refused = False
-            with q.lock:
-                until = q.quiet_until
-                if q.last_end + gap > until:
-                    until = q.last_end + gap
-                if until > monotonic():
-                    _sleep_until(until)
-                try:
-                    read(p.function, slave, p.address, p.view)
-                except (IllegalDataAddress, IllegalDataValue):
-                    if not self._planner.limits.split_on_exception:
-                        raise
-                    refused = True
-                finally:
-                    now = monotonic()
-                    q.last_end = now
-                    if now + turnaround > q.quiet_until:
-                        q.quiet_until = now + turnaround
-            if refused:
-                self._fall_back(p.request, p.image)
+            start, n, refused = 0, p.plan.n, -1
+            while start < n:
+                with q.lock:
+                    until = q.quiet_until
+                    if q.last_end + gap > until:
+                        until = q.last_end + gap
+                    if until > monotonic():
+                        _sleep_until(until)
+                    try:
+                        run(p.plan, start)
+                        start, refused = n, -1
+                    except (IllegalDataAddress, IllegalDataValue):
+                        if not self._planner.limits.split_on_exception:
+                            raise
+                        refused = p.plan.failed
+                    finally:
+                        now = monotonic()
+                        q.last_end = now
+                        if now + turnaround > q.quiet_until:
+                            q.quiet_until = now + turnaround
+                if refused >= 0:
+                    self._fall_back(p.requests[refused], p.image)
+                    start = refused + 1
 
     @contextmanager
     def _turn(self) -> Iterator[None]:
