@@ -40,6 +40,7 @@ from typing import ParamSpec, Self, TypeVar
 from pymb.aio._line import Line
 from pymb.aio._mirror import Mirror, Mirrored
 from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
+from pymb.errors import InvalidArgument
 
 __all__ = ["AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient", "AsyncTcpClient"]
 
@@ -166,6 +167,8 @@ class AsyncClient(Mirrored):
         between them (a read-modify-write), or a blocking device facade.
         Cancelled before its turn, ``fn`` never runs; after, it runs to its
         end and its result is dropped."""
+        if not callable(fn):
+            raise InvalidArgument(f"run needs a function to call, got {type(fn).__name__}")
         return await self._line.submit(fn, *args, **kwargs)
 
     # -- settings ----------------------------------------------------------------------

@@ -63,7 +63,7 @@ class _Facade(Mirrored):
 
     def __init__(self, client: AsyncClient) -> None:
         if not isinstance(client, AsyncClient):
-            raise TypeError(f"an async facade needs a pymb.aio client, got "
+            raise InvalidArgument(f"an async facade needs a pymb.aio client, got "
                             f"{type(client).__name__} (use pymb.devices with a blocking one)")
         self.client = client
 
@@ -149,8 +149,11 @@ class AsyncSensorHub(_Facade):
         block of every channel, or ``blocks`` and/or ``channels`` as in
         :meth:`read`. Each reading is a new one, the caller's to keep."""
         _interval(interval)
-        b = None if blocks is None else tuple(blocks)
-        c = None if channels is None else tuple(channels)
+        # kept as tuples (an iterator is read once); anything else goes to
+        # plan as given, which refuses it here rather than at the first read
+        b = tuple(blocks) if isinstance(blocks, Iterable) else blocks
+        c = tuple(channels) if isinstance(channels, Iterable) else channels
+        self.plan(b, c)
         return poll(lambda: self.read(b, c), interval)
 
     def __repr__(self) -> str:
@@ -202,6 +205,7 @@ class AsyncMapDevice(_Facade):
         """The named points, or ``group``'s, or all, every ``interval``
         seconds (see :func:`poll`), as :meth:`read` returns them."""
         _interval(interval)
+        self.plan(group, *names)  # a mistake in names or group raises here, not at the first read
         return poll(lambda: self.read(*names, group=group), interval)
 
     def __repr__(self) -> str:

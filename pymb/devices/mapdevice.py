@@ -36,7 +36,7 @@ from pymb.devices.mapreading import MapReading
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
 from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
-from pymb.maps.model import did_you_mean
+from pymb.maps.model import check_group, did_you_mean
 from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
 from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
@@ -116,6 +116,18 @@ class MapDevice:
     def __init__(self, client: Client, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
                  baudrate: int | None = None) -> None:
+        if not isinstance(client, Client):
+            raise InvalidArgument(f"a map device needs a pymb client (RtuClient, TcpClient, "
+                                  f"RtuOverTcpClient), got {type(client).__name__}")
+        if not isinstance(m, Map):
+            raise InvalidArgument(f"a map device needs a map (pymb.maps.load or "
+                                  f"pymb.maps.builtin), got {type(m).__name__}")
+        if baudrate is not None and (isinstance(baudrate, bool) or not isinstance(baudrate, int)
+                                     or baudrate <= 0):
+            raise InvalidArgument(f"baudrate is a number of bit/s, got {baudrate!r}")
+        if options is not None and not isinstance(options, Mapping):
+            raise InvalidArgument(f"options are a mapping of names to values, "
+                                  f"got {type(options).__name__}")
         if options:
             m = m.configure(options)
         dev = m.device
@@ -156,10 +168,17 @@ class MapDevice:
 
     def _selection(self, names: Sequence[str], group: str | None) -> tuple[int, ...]:
         key = (tuple(names), group)
-        chosen = self._selections.get(key)
+        m = self.map
+        try:
+            chosen = self._selections.get(key)
+        except TypeError:  # a name or group that is not text (a list): say so
+            chosen = None
+            for n in names:
+                m.point(n)
+            check_group(m, group)
         if chosen is not None:
             return chosen
-        m = self.map
+        check_group(m, group)
         if names and group is not None:
             raise InvalidArgument("read points by name or by group, not both")
         if group is not None and group not in m.groups:

@@ -59,9 +59,15 @@ def builtin_ids() -> list[str]:
     return sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".toml"))
 
 
-@functools.lru_cache(maxsize=32)
 def builtin(id: str) -> Map:
     """The shipped map of device ``id`` (``"coolpro"``, ``"hub"``, ...)."""
+    if not isinstance(id, str):
+        raise MapError(f"a built-in map's id is text, got {id!r}", key=str(id))
+    return _builtin(id)
+
+
+@functools.lru_cache(maxsize=32)
+def _builtin(id: str) -> Map:
     known = builtin_ids()
     if id not in known:
         raise MapError(f"no built-in map {id!r}{did_you_mean(id, known)}", key=id)

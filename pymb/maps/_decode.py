@@ -74,6 +74,8 @@ class Decoder:
 
     def __init__(self, m: Map, names: Iterable[str] | None = None, *, table: str | None = None,
                  address: int | None = None) -> None:
+        if not isinstance(m, Map):
+            raise InvalidArgument(f"a decoder needs a map, got {type(m).__name__}")
         if names is None:
             first = table or next(iter(m.points.values())).table
             points = [p for p in m.points.values() if p.table == first]

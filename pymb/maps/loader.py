@@ -9,6 +9,7 @@ file's sections, options, name and overlap rules.
 from __future__ import annotations
 
 import math
+import os
 import re
 import tomllib
 from collections.abc import Callable, Mapping
@@ -81,6 +82,8 @@ class Spec:
 
 def load(path: str | Path) -> Map:
     """Read and check the map file at ``path``."""
+    if not isinstance(path, str | os.PathLike):
+        raise MapError(f"a map's path is text or a path, got {path!r}", source=str(path))
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
@@ -92,6 +95,8 @@ def load(path: str | Path) -> Map:
 
 def loads(text: str, source: str = "<string>") -> Map:
     """Check a map given as TOML text; ``source`` names it in error messages."""
+    if not isinstance(text, str):
+        raise MapError(f"{source}: a map is TOML text, got {type(text).__name__}", source=source)
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

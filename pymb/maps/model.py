@@ -8,6 +8,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from pymb.errors import InvalidArgument
 from pymb.maps import codec
 from pymb.maps.device_plan import map_planner
 from pymb.maps.planner import Line, ReadPlan
@@ -69,6 +70,8 @@ class Map:
 
     def point(self, name: str) -> Point:
         """The point called ``name``; a :class:`MapError` with a did-you-mean if none."""
+        if not isinstance(name, str):
+            raise InvalidArgument(f"{self.source}: a point name is text, got {name!r}")
         try:
             return self.points[name]
         except KeyError:
@@ -79,16 +82,24 @@ class Map:
     def configure(self, options: Mapping[str, object] | None = None, **kw: object) -> Map:
         """This map with other option values (``channels=50``): numbers, or
         the strings of the device syntax ``TYPE:ADDRESS,name=value``."""
+        if options is not None and not isinstance(options, Mapping):
+            raise InvalidArgument(f"{self.source}: options are a mapping of names to values, "
+                                  f"got {type(options).__name__}")
         return self._spec.configure(self, {**(options or {}), **kw})
 
     def decode(self, name: str, registers: Sequence[int]) -> Value:
         """One point's value from its registers (bits for coil/discrete), the
         first channel's first register first; a block gives a list."""
-        return codec.decode(self.point(name), registers)[0]
+        return self.decode_state(name, registers)[0]
 
     def decode_state(self, name: str, registers: Sequence[int]) -> tuple[Value, Any]:
         """(value, state name) of one point; a block gives two lists."""
-        return codec.decode(self.point(name), registers)
+        p = self.point(name)
+        try:
+            return codec.decode(p, registers)
+        except TypeError:
+            raise InvalidArgument(f"{self.source}: {name!r} decodes a sequence of register "
+                                  f"(or bit) values, got {registers!r:.60}") from None
 
     def encode(self, name: str, value: object, *, current: Sequence[int] | None = None
                ) -> list[int]:
@@ -105,6 +116,9 @@ class Map:
         for None), planned with the device's limits and timing at
         ``baudrate``: iterate for ``.table``, ``.address``, ``.count``; see
         :mod:`pymb.maps.planner`."""
+        check_group(self, group)
+        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+            raise InvalidArgument(f"{self.source}: baudrate is a number of bit/s, got {baudrate!r}")
         if group is not None and group not in self.groups:
             raise MapError(f"{self.source}: no group {group!r}"
                            f"{did_you_mean(group, list(self.groups))}", source=self.source,
@@ -119,4 +133,15 @@ class Map:
     def flag_names(self, name: str, value: int) -> list[str]:
         """The names of the point's ``flags`` set in ``value``, lowest bit first."""
         p = self.point(name)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InvalidArgument(f"{self.source}: {name!r} flags come from a raw integer, "
+                                  f"got {value!r}")
         return [n for bit, n in sorted(p.flags.items()) if value >> bit & 1]
+
+
+def check_group(m: Map, group: object) -> None:
+    """Refuse a ``group`` that is neither None nor text (an
+    :class:`~pymb.InvalidArgument`); whether the map has it is the caller's
+    check, with its own message."""
+    if group is not None and not isinstance(group, str):
+        raise InvalidArgument(f"{m.source}: a group name is text, got {group!r}")

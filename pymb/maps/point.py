@@ -173,7 +173,8 @@ class Point:
 
     def address_of(self, channel: int) -> int:
         """On-wire address of ``channel`` (1-based) of a block."""
-        if not 1 <= channel <= self.channels:
+        if isinstance(channel, bool) or not isinstance(channel, int) or not (
+                1 <= channel <= self.channels):
             raise MapError(f"point {self.name!r} has channels 1..{self.channels}, "
                            f"not {channel!r}", point=self.name)
         return self.address + (channel - 1) * self.stride

@@ -100,7 +100,7 @@ def test_bad_arguments_raise_what_the_blocking_client_raises() -> None:
 
 
 def test_a_facade_needs_an_async_client() -> None:
-    with pytest.raises(TypeError, match=r"pymb\.aio client"):
+    with pytest.raises(pymb.InvalidArgument, match=r"pymb\.aio client"):
         pymb.aio.AsyncCoolPro(pymb.TcpClient("127.0.0.1", 1502))  # type: ignore[arg-type]
 
 
