@@ -69,13 +69,17 @@ class RegisterPlan:
     """A prepared list of register reads into one writable ``array('H')``
     (pymb_read_plan): ``requests`` are (function, slave, address, count,
     offset into ``dest``) tuples, checked by the caller and again in C before
-    anything is sent; ``gap`` seconds of silence between two requests. After
+    anything is sent; ``gap`` seconds of silence between two requests;
+    ``timeout``: the reply timeout of its requests (None: the line's). After
     a failed run, :attr:`failed` is the index of the request that failed."""
 
-    __slots__ = ("done", "failed", "gap_us", "n", "nregs", "regs", "reqs", "requests")
+    __slots__ = ("done", "failed", "gap_us", "n", "nregs", "regs", "reqs", "requests",
+                 "timeout", "timeout_us")
 
     def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
-                 gap: float = 0.0) -> None:
+                 gap: float = 0.0, timeout: float | None = None) -> None:
+        self.timeout = timeout
+        self.timeout_us = divmod(max(1, round((timeout or 0) * 1e6)), 1_000_000)
         self.requests = tuple(requests)
         self.n = len(self.requests)
         self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))
@@ -312,8 +316,17 @@ class Link:
     def read_plan(self, plan: RegisterPlan, start: int = 0) -> None:
         """Run ``plan``'s requests from ``start`` on, in one C call; on
         failure ``plan.failed`` is the index of the request that failed."""
-        if lib.pymb_read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
-                              plan.regs, plan.nregs, plan.done, self._fail) < 0:
+        swap = plan.timeout is not None and plan.timeout != self._timeout[0] and self.is_open
+        if swap:
+            lib.modbus_set_response_timeout(self._ctx, *plan.timeout_us)
+        rc = lib.pymb_read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
+                                plan.regs, plan.nregs, plan.done, self._fail)
+        if swap:  # the line's own again, errno kept for _error
+            err = ffi.errno
+            lib.modbus_set_response_timeout(
+                self._ctx, *divmod(max(1, round(self._timeout[0] * 1e6)), 1_000_000))
+            ffi.errno = err
+        if rc < 0:
             k = plan.failed = start + int(plan.done[0])
             function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
             raise self._error(function, slave, address, count)

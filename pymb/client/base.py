@@ -278,15 +278,12 @@ class Client:
         self._call(self._link.read_registers, fc, s, address, n, view.cast("B"))
 
     # -- low level: prepared requests, for the device facades ------------------------
-    # The facades (pymb.devices) check their arguments once, when they are made,
-    # and then repeat the same requests: these two calls skip the per-call checks
-    # of the methods above and take the client's lock and reconnect as they do.
+    # The facades (pymb.devices) check their arguments once and repeat the same requests:
+    # these calls skip the checks above and take the lock and reconnect as they do.
 
     def swap_response_timeout_prepared(self, timeout: float) -> float:
-        """Give the line the reply timeout ``timeout`` (checked by the
-        caller) and return the one it had, the byte timeout and
-        :attr:`timeout` unchanged: a facade's own timeout for its requests,
-        given back after them."""
+        """Give the line the reply timeout ``timeout`` (checked by the caller) and return
+        the one it had, the byte timeout and :attr:`timeout` unchanged."""
         with self._lock:
             return float(self._link.swap_response_timeout(timeout))
 
@@ -309,18 +306,9 @@ class Client:
                 raise
 
     def run_read_plan(self, plan: _native.RegisterPlan, start: int = 0) -> None:
-        """Run a prepared list of register reads (:class:`pymb._native.RegisterPlan`,
-        which :class:`pymb.devices.MapDevice` makes) from request ``start`` on,
-        as one C call; on failure ``plan.failed`` says which request failed."""
-        link = self._link
-        with self._lock:
-            if not link.is_open:
-                self._reopen()
-            try:
-                link.read_plan(plan, start)
-            except ModbusConnectionError as e:
-                self._close_if_lost(e)
-                raise
+        """Run a prepared :class:`pymb._native.RegisterPlan` from request ``start`` on, in one
+        C call; on failure ``plan.failed`` says which request failed."""
+        self._call(self._link.read_plan, plan, start)
 
     def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
         """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,

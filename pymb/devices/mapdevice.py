@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-import weakref
 from array import array
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -32,6 +31,7 @@ from typing import Any, NamedTuple
 
 from pymb._native import RegisterPlan
 from pymb.client import Client
+from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.devices.mapreading import MapReading
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
 from pymb.maps import Decoder, Map, Point, Value
@@ -62,41 +62,6 @@ class _Prepared(NamedTuple):
     requests: tuple[Request, ...]
     image: _Image
     plan: RegisterPlan  #: the requests as C takes them
-
-
-class _Quiet:
-    """When the line of one client may carry the next request: a device's
-    ``turnaround`` keeps it silent after its reply for every device on it."""
-
-    __slots__ = ("last_end", "lock", "quiet_until")
-
-    def __init__(self) -> None:
-        self.last_end = 0.0
-        self.quiet_until = 0.0
-        #: held from the wait for silence to the end of the request: two map
-        #: devices on one client in two threads keep each other's silences
-        self.lock = threading.Lock()
-
-
-# One per client, shared by the devices on it; gone with the client.
-_LINES: weakref.WeakKeyDictionary[Client, _Quiet] = weakref.WeakKeyDictionary()
-_LINES_LOCK = threading.Lock()
-
-
-def _quiet(client: Client) -> _Quiet:
-    with _LINES_LOCK:
-        q = _LINES.get(client)
-        if q is None:
-            q = _LINES[client] = _Quiet()
-        return q
-
-
-def _sleep_until(t: float) -> None:
-    while True:
-        left = t - time.monotonic()
-        if left <= 0:
-            return
-        time.sleep(left)
 
 
 class MapDevice:
@@ -138,6 +103,7 @@ class MapDevice:
                 low <= address <= high):
             raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {address!r}")
         self.client = client
+        self._quiet = quiet_of(client)  #: the line's silences, shared with its other devices
         self.map = m
         self.address = address
         rate = getattr(client, "baudrate", None) or baudrate or DEFAULT_BAUDRATE
@@ -313,27 +279,31 @@ class MapDevice:
             self._planner.forget()
             wait = self.map.timing.after_connect
             if wait > 0:
-                q = _quiet(self.client)
+                q = self._quiet
                 with q.lock:
                     q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
     def _run(self, plan: ReadPlan, images: dict[str, _Image]) -> None:
-        timeout = self.map.timing.response_timeout
-        client = self.client
-        swap = timeout is not None and timeout != client.timeout
-        if swap:
-            assert timeout is not None
-            before = client.swap_response_timeout_prepared(timeout)  # the byte timeout stays
+        prepared = self._prepared(plan, images)
+        if prepared is not None:
+            self._run_prepared(prepared)  # its RegisterPlans carry the map's reply timeout
+            return
+        with self._map_timeout():
+            for r in plan.requests:
+                self._fetch(r, images[r.table])
+
+    @contextmanager
+    def _map_timeout(self) -> Iterator[None]:
+        """The map's ``response_timeout`` on the line (the byte timeout stays)."""
+        timeout, client = self.map.timing.response_timeout, self.client
+        if timeout is None or timeout == client.timeout:
+            yield
+            return
+        before = client.swap_response_timeout_prepared(timeout)
         try:
-            prepared = self._prepared(plan, images)
-            if prepared is None:
-                for r in plan.requests:
-                    self._fetch(r, images[r.table])
-            else:
-                self._run_prepared(prepared)
+            yield
         finally:
-            if swap:
-                client.swap_response_timeout_prepared(before)
+            client.swap_response_timeout_prepared(before)
 
     def _prepared(self, plan: ReadPlan, images: dict[str, _Image]
                   ) -> tuple[_Prepared, ...] | None:
@@ -351,7 +321,7 @@ class MapDevice:
             ready = tuple(
                 _Prepared(rs, image, RegisterPlan(
                     [(r.function, self.address, r.address, r.count, r.address - image.address)
-                     for r in rs], image.registers, gap))
+                     for r in rs], image.registers, gap, t.response_timeout))
                 for rs in runs for image in (images[rs[0].table],))
         if len(self._ready) >= _CACHED:
             self._ready.clear()
@@ -362,7 +332,7 @@ class MapDevice:
         """A prepared plan, a C call per run holding the line (silences as
         :meth:`_turn` keeps them); on exception 02/03 as :meth:`_fetch`."""
         gap, turnaround = self.map.timing.inter_request_gap, self.map.timing.turnaround
-        q = _quiet(self.client)
+        q = self._quiet
         run = self.client.run_read_plan
         monotonic = time.monotonic
         for p in prepared:
@@ -373,7 +343,7 @@ class MapDevice:
                     if q.last_end + gap > until:
                         until = q.last_end + gap
                     if until > monotonic():
-                        _sleep_until(until)
+                        sleep_until(until)
                     try:
                         run(p.plan, start)
                         start, refused = n, -1
@@ -387,7 +357,8 @@ class MapDevice:
                         if now + turnaround > q.quiet_until:
                             q.quiet_until = now + turnaround
                 if refused >= 0:
-                    self._fall_back(p.requests[refused], p.image)
+                    with self._map_timeout():
+                        self._fall_back(p.requests[refused], p.image)
                     start = refused + 1
 
     @contextmanager
@@ -396,9 +367,9 @@ class MapDevice:
         (``inter_request_gap``, and any device's ``turnaround`` after its
         reply), the line held for it, and the end noted for the next."""
         t = self.map.timing
-        q = _quiet(self.client)
+        q = self._quiet
         with q.lock:
-            _sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
+            sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
             try:
                 yield
             finally:
