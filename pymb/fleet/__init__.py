@@ -32,6 +32,7 @@ class ForwardingSink:
         self.sink = sink
         self.forwarder = forwarder
         self.health = DeviceHealth()
+        sink.on_commit(self._committed)
 
     @property
     def keeps_samples(self) -> bool:
@@ -60,7 +61,8 @@ class ForwardingSink:
         self.health.event(event)
 
     def commit(self) -> None:
-        """Commit (the forwarder's cursor with the batch), then wake the forwarder.
+        """Commit the batch with the broker's events and the forwarder's
+        cursor; the store then calls :meth:`_committed`.
 
         The logger holds SQLite's write lock for most of each batch: the
         cursor goes in with the batch rather than waiting for the lock."""
@@ -69,7 +71,15 @@ class ForwardingSink:
         if dest is not None:  # keyed at the first connection
             self.sink.set_outbox_cursor(dest, cursor)
         self.sink.commit()
-        self._downs()
+
+    def _committed(self, top: int) -> None:
+        """The store's on-commit hook: tell the forwarder the devices that
+        went down, with ``top``, the highest sample id committed with them (it
+        publishes their DDEATH once it has sent everything up to it), then
+        wake it."""
+        downs = self.health.take()
+        if downs:
+            self.forwarder.devices_down(downs, top)
         self.forwarder.notify()
 
     def restamp(self, offset: float) -> None:
@@ -78,20 +88,11 @@ class ForwardingSink:
         if restamp is not None:
             restamp(offset)
 
-    def _downs(self) -> None:
-        """The devices that went down, with the highest sample id committed with them:
-        the forwarder publishes their DDEATH once it has sent everything up to it."""
-        downs = self.health.take()
-        if downs:
-            self.forwarder.devices_down(downs, self.sink.max_id())
-
     def _events(self) -> None:
         for t, message in self.forwarder.take_events():
             self.sink.event(Event(t, time.monotonic(), "mqtt", None, "mqtt", None, message))
 
     def close(self) -> None:
-        """Commit and close, then wake the forwarder."""
+        """Commit and close (the store's on-commit hook wakes the forwarder)."""
         self._events()
-        self._downs()  # the batch's samples are counted
         self.sink.close()
-        self.forwarder.notify()

@@ -10,7 +10,7 @@ import os
 import sqlite3
 import time
 from array import array
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +106,7 @@ class SqliteSink(Retention):
         self.on_change = on_change
         self.trimmed = 0  #: samples deleted by the size and age limits so far
         self.stored = 0  #: samples written (on-change: those that changed)
+        self._on_commit: list[Callable[[int], None]] = []
         self._lock: WriterLock | None = None
         try:
             remove_stale_creations(self.path)
@@ -421,7 +422,21 @@ class SqliteSink(Retention):
         except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
+    def on_commit(self, callback: Callable[[int], None]) -> None:
+        """Call ``callback(max_id)`` after each commit, with the highest
+        sample id then durable (0: none): at :meth:`commit`, at
+        :meth:`close`, and where a size limit commits within a batch. A
+        forwarder wakes on it; an exception from it is the committer's."""
+        self._on_commit.append(callback)
+
     def _commit(self) -> None:
+        self._commit_batch()
+        if self._on_commit:
+            top = max_id(self.db)
+            for callback in self._on_commit:
+                callback(top)
+
+    def _commit_batch(self) -> None:
         if self._in_tx:
             gone = vanished(self.path)
             if gone is not None:  # SQLite would write on into the deleted files
