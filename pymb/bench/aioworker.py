@@ -26,7 +26,7 @@ import time
 from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
-from pymb.bench import pure
+from pymb.bench import pure, worker
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_FUNCTION, CP_SLAVE, HUB_SLAVE, SPANS, Canary
 from pymb.devices.hub import HubReading
 
@@ -200,37 +200,12 @@ async def _batch(op: Op, n: int, check: Callable[[Sequence[int], Sequence[float]
     return f"ok {cpu} " + " ".join(map(str, walls))
 
 
-def _telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
-    if len(raw) != CP_COUNT or not values[0] > 0:
-        raise RuntimeError("telemetry reads no input voltage")
-
-
 def serve(loop: asyncio.AbstractEventLoop, client: Any, canary: Canary, lines: Any,
           out: Any) -> None:
     """Answer :mod:`pymb.bench.worker`'s commands until ``quit`` or EOF."""
-    for line in lines:
-        cmd, _, arg = line.strip().partition(" ")
-        try:
-            if cmd == "sweep":
-                answer = loop.run_until_complete(_batch(client.sweep, int(arg), canary.check))
-            elif cmd == "tele":
-                answer = loop.run_until_complete(
-                    _batch(client.telemetry, int(arg), _telemetry_check))
-            elif cmd in ("verify", "tverify"):
-                op = client.sweep if cmd == "verify" else client.telemetry
-                raw, values = loop.run_until_complete(op())
-                if cmd == "verify":
-                    canary.check(raw, values)
-                answer = "ok " + " ".join(map(str, raw)) + "\nok " + " ".join(
-                    repr(float(v)) for v in values)
-            elif cmd == "quit":
-                return
-            else:
-                answer = f"err unknown command {cmd!r}"
-        except Exception as e:  # reported to the parent, which skips the contender
-            answer = f"err {type(e).__name__}: {e}".replace("\n", " ")
-        out.write(answer + "\n")
-        out.flush()
+    worker.serve(client, canary, lines, out,
+                 batch=lambda op, n, check: loop.run_until_complete(_batch(op, n, check)),
+                 call=lambda op: loop.run_until_complete(op()))
 
 
 async def lag_run(clients: Sequence[Any], seconds: float) -> dict[str, Any]:

@@ -254,22 +254,35 @@ def _batch(op: Callable[[], tuple[Sequence[int], Sequence[float]]], n: int,
     return f"ok {cpu} " + " ".join(map(str, walls))
 
 
-def _telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
+def telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
+    """Raise unless a CoolPro telemetry read came back whole with an input voltage."""
     if len(raw) != CP_COUNT or not values[0] > 0:
         raise RuntimeError("telemetry reads no input voltage")
 
 
-def serve(client: Any, canary: Canary, lines: Any, out: Any) -> None:
-    """Answer commands from ``lines`` on ``out`` until ``quit`` or EOF."""
+Check = Callable[[Sequence[int], Sequence[float]], None]
+Reading = tuple[Sequence[int], Sequence[float]]
+
+
+def serve(client: Any, canary: Canary, lines: Any, out: Any,
+          batch: Callable[[Any, int, Check], str] = _batch,
+          call: Callable[[Any], Reading] | None = None) -> None:
+    """Answer commands from ``lines`` on ``out`` until ``quit`` or EOF.
+
+    ``batch(op, n, check)`` times ``n`` calls of the client's ``op`` and ``call(op)`` makes
+    one; the defaults (``call=None``: ``op()``) call a blocking client, while
+    :mod:`pymb.bench.aioworker` passes ones that run an asyncio client's coroutines on its loop.
+    """
     for line in lines:
         cmd, _, arg = line.strip().partition(" ")
         try:
             if cmd == "sweep":
-                answer = _batch(client.sweep, int(arg), canary.check)
+                answer = batch(client.sweep, int(arg), canary.check)
             elif cmd == "tele":
-                answer = _batch(client.telemetry, int(arg), _telemetry_check)
+                answer = batch(client.telemetry, int(arg), telemetry_check)
             elif cmd in ("verify", "tverify"):
-                raw, values = client.sweep() if cmd == "verify" else client.telemetry()
+                op = client.sweep if cmd == "verify" else client.telemetry
+                raw, values = op() if call is None else call(op)
                 if cmd == "verify":
                     canary.check(raw, values)
                 answer = "ok " + " ".join(map(str, raw)) + "\nok " + " ".join(
