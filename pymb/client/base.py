@@ -1,17 +1,8 @@
-"""Modbus clients: :class:`RtuClient` (serial line) and :class:`TcpClient`.
+"""The :class:`Client` base every transport shares.
 
-Every argument is checked before anything is sent. Reads longer than one
-request allows (125 registers, 2000 bits) are split into maximal requests
-that fill one preallocated array, in C. One client may be shared by threads:
-each holds a lock per request, and the blocking I/O runs with the GIL
-released, so other buses keep working.
-
-Replies are checked by pymb itself (over TCP the transaction id, protocol
-id, length and unit id of its own MBAP header; over RTU the CRC and address;
-then function code, byte count, write echo). A failed call returns within its
-timeout; over RTU the next request to that address first waits until the
-line has been silent for the response timeout since the failure, so a late
-or stray reply is never taken as a later answer (docs/library.md, "No stale data").
+It checks each argument before anything is sent, splits long reads into maximal requests
+filling one preallocated array, holds a lock per request and checks each reply; the
+behaviour it promises is described once, in :mod:`pymb.client`.
 """
 
 from __future__ import annotations
