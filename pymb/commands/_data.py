@@ -4,14 +4,21 @@ files guarded. They parse and format; the store reads."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import tempfile
+from collections.abc import Callable
 from datetime import UTC, datetime
+from typing import TypeVar
 
 from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
 from pymb.store import is_pymb_database, open_readonly, resolve_device
 
-__all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times"]
+__all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times",
+           "write_beside"]
+
+T = TypeVar("T")
 
 
 def check_database(path: str) -> None:
@@ -58,3 +65,37 @@ def device_name(path: str, wanted: str) -> str:
         return resolve_device(con, wanted, path)[0]
     finally:
         con.close()
+
+
+def write_beside(out: str, prefix: str, suffix: str, write: Callable[[int, str], T], *,
+                 keep_mode: bool) -> T:
+    """Write a temporary file beside ``out`` and rename it over ``out`` when done.
+
+    ``write(fd, tmp)`` fills the temporary file (it owns ``fd``). The file gets the mode of the
+    ``out`` it replaces with ``keep_mode``, else the umask's. On any failure the temporary file
+    goes and ``out`` stays as it was; an ``OSError`` becomes a one-line ``InvalidArgument``.
+    """
+    folder = os.path.dirname(os.path.abspath(out))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
+    except OSError as e:
+        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
+    try:
+        result = write(fd, tmp)
+        if keep_mode and os.path.exists(out):
+            with contextlib.suppress(OSError):
+                os.chmod(tmp, os.stat(out).st_mode & 0o7777)
+        else:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, out)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return result

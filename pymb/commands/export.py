@@ -9,16 +9,20 @@ an existing OUT that is not a CSV written by pymb is kept unless ``--force``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
-import tempfile
 from collections.abc import Callable
 from functools import partial
 from typing import IO
 
-from pymb.commands._data import check_database, device_name, parse_channels, parse_times
+from pymb.commands._data import (
+    check_database,
+    device_name,
+    parse_channels,
+    parse_times,
+    write_beside,
+)
 from pymb.devices import HUB
 from pymb.devices.mapspec import load_map
 from pymb.devices.spec import closest
@@ -132,35 +136,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _export_atomically(out: str, export: Callable[[IO[str]], int]) -> int:
     """Write a temporary file beside ``out``, rename it over ``out`` when done."""
-    folder = os.path.dirname(os.path.abspath(out))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=".pymb-export-", suffix=".csv.tmp", dir=folder)
-    except OSError as e:
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
     def terminated(signum: int, _frame: object) -> None:
         raise SystemExit(128 + signum)  # as a kill would, but the temporary file goes
 
+    def write(fd: int, _tmp: str) -> int:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
+            return export(f)
+
     old = {s: signal.signal(s, terminated) for s in (signal.SIGTERM, signal.SIGHUP)}
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            rows = export(f)
-        if os.path.exists(out):
-            with contextlib.suppress(OSError):
-                os.chmod(tmp, os.stat(out).st_mode & 0o7777)
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, out)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+        return write_beside(out, ".pymb-export-", ".csv.tmp", write, keep_mode=True)
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
-    return rows

@@ -8,15 +8,13 @@ its path and renamed into place only when complete."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import re
 import sys
-import tempfile
 from datetime import UTC, datetime
 from typing import Any, cast
 
-from pymb.commands._data import check_database, parse_times
+from pymb.commands._data import check_database, parse_times, write_beside
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
 from pymb.store import Series, series
@@ -83,12 +81,8 @@ def _mine(path: str) -> bool:
 def _save(fig: Any, out: str, size: tuple[int, int]) -> None:
     """Write beside ``out``, then rename into place."""
     ext = os.path.splitext(out)[1].lower()
-    folder = os.path.dirname(os.path.abspath(out))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=".pymb-plot-", suffix=ext, dir=folder)
-    except OSError as e:
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
-    try:
+
+    def write(fd: int, tmp: str) -> None:
         with os.fdopen(fd, "wb") as f:
             if ext == ".png":
                 fig.savefig(f, format="png", dpi=DPI, metadata={"Software": MARK})
@@ -96,18 +90,8 @@ def _save(fig: Any, out: str, size: tuple[int, int]) -> None:
                 fig.savefig(f, format="svg", metadata={"Creator": MARK})
         if ext == ".svg":
             _svg_pixels(tmp, size)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, out)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+
+    write_beside(out, ".pymb-plot-", ext, write, keep_mode=False)
 
 
 def _svg_pixels(path: str, size: tuple[int, int]) -> None:
