@@ -13,24 +13,12 @@ from pathlib import Path
 
 import pytest
 
+from pymb.bench.gatebench import TEN_POINTS
 from pymb.logger.fanout import Device, Sample, TcpFanout
 from pymb.maps import Decoder, load
 from pymb.sim import SimulatorProcess
 
-TEN = """schema = "pymb.map/1"
-
-[device]
-id = "ten-floats"
-default_address = 1
-table = "input"
-order = "ABCD"
-""" + "".join(f"""
-[[point]]
-name = "value_{i}"
-address = {2 * i}
-type = "f32"
-example = {i}.5
-""" for i in range(10))
+TEN = TEN_POINTS  # the 10-point device the gateway bench polls
 READ = (("input", 0, 20),)  # the ten points, one request
 
 

@@ -11,23 +11,11 @@ from pathlib import Path
 import pytest
 from conftest import run_pymb
 
+from pymb.bench.gatebench import TEN_POINTS
 from pymb.sim import SimulatorProcess
 from pymb.store.mapviews import view_names
 
-TEN = """schema = "pymb.map/1"
-
-[device]
-id = "ten-floats"
-default_address = 1
-table = "input"
-order = "ABCD"
-""" + "".join(f"""
-[[point]]
-name = "value_{i}"
-address = {2 * i}
-type = "f32"
-example = {i}.5
-""" for i in range(10))
+TEN = TEN_POINTS  # the 10-point device the gateway bench polls
 
 
 def _log_many(tmp_path: Path, devices: int, seconds: float) -> None:
