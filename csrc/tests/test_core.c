@@ -12,18 +12,7 @@
 #include <string.h>
 
 #include "../pymb.h"
-
-static int failures;
-static int checks;
-
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        checks++;                                                                    \
-        if (!(cond)) {                                                               \
-            failures++;                                                              \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
-    } while (0)
+#include "check.h"
 
 /* Bit-by-bit CRC straight from [MB-SL] 6.2.2, to check the table. */
 static uint16_t crc_bitwise(const uint8_t *p, size_t n)
@@ -397,6 +386,5 @@ int main(void)
     test_hub_block();
     test_coolpro();
     test_errors_and_version();
-    printf("%d passed, %d failed\n", checks - failures, failures);
-    return failures ? 1 : 0;
+    return check_report();
 }

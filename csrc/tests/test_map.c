@@ -15,18 +15,7 @@
 #include <string.h>
 
 #include "../pymb.h"
-
-static int failures;
-static int checks;
-
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        checks++;                                                                    \
-        if (!(cond)) {                                                               \
-            failures++;                                                              \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
-    } while (0)
+#include "check.h"
 
 #define SLOTS 16
 static double values[SLOTS];
@@ -327,6 +316,5 @@ int main(void)
     test_markers_blocks_strings();
     test_invalid();
     test_man_page_example();
-    printf("%d passed, %d failed\n", checks - failures, failures);
-    return failures ? 1 : 0;
+    return check_report();
 }

@@ -32,18 +32,7 @@
 #include <unistd.h>
 
 #include "../pymb_modbus.h"
-
-static int failures;
-static int checks;
-
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        checks++;                                                                    \
-        if (!(cond)) {                                                               \
-            failures++;                                                              \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-        }                                                                            \
-    } while (0)
+#include "check.h"
 
 /* The test's own clock and CRC, apart from the library's. */
 static double now_s(void)
@@ -1093,6 +1082,5 @@ int main(void)
         test_signals(kinds[i]);
         test_unknown_length_and_broadcast(kinds[i]);
     }
-    printf("%d passed, %d failed\n", checks - failures, failures);
-    return failures ? 1 : 0;
+    return check_report();
 }
