@@ -41,18 +41,17 @@ def device() -> ModbusDeviceContext:
     )
 
 
-async def main(mode: str) -> None:
+def free_port() -> int:
+    """A loopback TCP port free a moment ago, for the server to bind."""
     probe = socket.socket()
     probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
+    port: int = probe.getsockname()[1]
     probe.close()
-    context = ModbusServerContext(devices={1: device(), 17: device()}, single=False)
-    server = ModbusTcpServer(
-        context,
-        framer=FramerType.RTU if mode == "rtu-over-tcp" else FramerType.SOCKET,
-        identity=ModbusDeviceIdentification(info_name=IDENTITY),
-        address=("127.0.0.1", port),
-    )
+    return port
+
+
+async def serve_announced(server: ModbusTcpServer, port: int) -> None:
+    """Serve until killed, printing ``READY <port>`` once ``port`` accepts connections."""
     task = asyncio.create_task(server.serve_forever())
     for _ in range(200):
         await asyncio.sleep(0.02)
@@ -63,6 +62,18 @@ async def main(mode: str) -> None:
             continue
     print("READY", port, flush=True)
     await task
+
+
+async def main(mode: str) -> None:
+    port = free_port()
+    context = ModbusServerContext(devices={1: device(), 17: device()}, single=False)
+    server = ModbusTcpServer(
+        context,
+        framer=FramerType.RTU if mode == "rtu-over-tcp" else FramerType.SOCKET,
+        identity=ModbusDeviceIdentification(info_name=IDENTITY),
+        address=("127.0.0.1", port),
+    )
+    await serve_announced(server, port)
 
 
 if __name__ == "__main__":

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
 import sys
 import time
 
 from pymodbus import FramerType
 from pymodbus.datastore import ModbusDeviceContext, ModbusServerContext, ModbusSparseDataBlock
 from pymodbus.server import ModbusTcpServer
+from pymodbus_server import free_port, serve_announced
 
 UNIT = 5
 
@@ -35,10 +35,7 @@ def trace(sending: bool, packet: bytes) -> bytes:
 
 
 async def main(mode: str, spec: dict[str, dict[str, int]]) -> None:
-    probe = socket.socket()
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()
+    port = free_port()
     device = ModbusDeviceContext(hr=block(spec.get("holding", {})),
                                  ir=block(spec.get("input", {})),
                                  co=block(spec.get("coil", {})),
@@ -47,16 +44,7 @@ async def main(mode: str, spec: dict[str, dict[str, int]]) -> None:
         ModbusServerContext(devices={UNIT: device}, single=False),
         framer=FramerType.RTU if mode == "rtu-over-tcp" else FramerType.SOCKET,
         address=("127.0.0.1", port), trace_packet=trace)
-    task = asyncio.create_task(server.serve_forever())
-    for _ in range(200):
-        await asyncio.sleep(0.02)
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            break
-        except OSError:
-            continue
-    print("READY", port, flush=True)
-    await task
+    await serve_announced(server, port)
 
 
 if __name__ == "__main__":
