@@ -202,6 +202,18 @@ def db_count(path: Path) -> int:
         return 0
 
 
+def restart_broker_mid_run(broker: Mosquitto, sub: Subscriber, db: Path) -> None:
+    """Once 50 plain samples came live, stop ``broker`` until 100 more are logged into
+    ``db`` while it is down, start it again and wait for live samples past the outage."""
+    wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples live", 30)
+    broker.stop()
+    before = db_count(db)
+    wait_until(lambda: db_count(db) >= before + 100, "100 samples logged while down", 30)
+    broker.start()
+    wait_until(lambda: max(plain_ids(sub.snapshot())) > before + 100,
+               "live samples after the restart", 30)
+
+
 def duplicates(ids: list[int]) -> int:
     """Ids received more than once, counted once per extra copy."""
     return sum(n - 1 for n in Counter(ids).values())

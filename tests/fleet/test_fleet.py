@@ -30,6 +30,7 @@ from mqtt_broker import (  # noqa: E402
     duplicates,
     paho,
     plain_ids,
+    restart_broker_mid_run,
     stop_log,
 )
 
@@ -86,13 +87,7 @@ def test_broker_restart_mid_run_loses_nothing(fleet: Fleet, simulator: str,
     sub = fleet.subscribe(broker, f"pymb/{NODE}/#")
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, *_plain(broker))
-    wait_until(lambda: len(plain_ids(sub.snapshot())) >= 50, "50 samples live", 30)
-    broker.stop()
-    before = db_count(db)
-    wait_until(lambda: db_count(db) >= before + 100, "100 samples logged while down", 30)
-    broker.start()
-    wait_until(lambda: max(plain_ids(sub.snapshot())) > before + 100,
-               "live samples after the restart", 30)
+    restart_broker_mid_run(broker, sub, db)
     err = stop_log(proc)
     _nothing_lost("broker restart", sub, db)
     want = db_ids(db)
