@@ -22,7 +22,7 @@ from pymb.maps.types import (
     normalize_order,
 )
 
-__all__ = ["POINT_KEYS", "Ctx", "build_point", "number"]
+__all__ = ["POINT_KEYS", "Ctx", "build_point", "number", "strings"]
 
 POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_bytes", "encoding",
               "bit", "shift", "width", "scale", "offset", "unit", "description", "ref", "kind",
@@ -56,6 +56,13 @@ def number(ctx: Ctx, key: str, v: object, *, allow_str: bool = False) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         ctx.fail(key, f"{key} must be a number, got {v!r}")
     return v
+
+
+def strings(ctx: Ctx, raw: Mapping[str, Any], keys: tuple[str, ...]) -> None:
+    """Fail unless each of ``keys`` that ``raw`` has is a string."""
+    for key in keys:
+        if not isinstance(raw.get(key, ""), str):
+            ctx.fail(key, f"{key} must be a string")
 
 
 def _option(ctx: Ctx, key: str, v: object, options: Mapping[str, int | float]) -> object:
@@ -105,9 +112,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     name = raw.get("name")
     if not isinstance(name, str) or not _NAME.match(name):
         ctx.fail("name", f"name must be snake_case ([a-z][a-z0-9_]*), got {name!r}")
-    for key in ("unit", "description", "ref", "min_firmware"):
-        if not isinstance(raw.get(key, ""), str):
-            ctx.fail(key, f"{key} must be a string")
+    strings(ctx, raw, ("unit", "description", "ref", "min_firmware"))
     table = raw.get("table", dev.table)
     if table not in TABLES:
         ctx.fail("table", f"unknown table {table!r}{did_you_mean(str(table), TABLES)}")

@@ -19,7 +19,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.maps.fields import Ctx, build_point, number
+from pymb.maps.fields import Ctx, build_point, number, strings
 from pymb.maps.model import Map
 from pymb.maps.point import (
     DeviceInfo,
@@ -206,9 +206,7 @@ def _device(ctx: Ctx, raw: object) -> DeviceInfo:
     ident = t.get("id")
     if not isinstance(ident, str) or not _ID.match(ident):
         ctx.fail("id", f"device id must match [a-z0-9][a-z0-9-]*, got {ident!r}")
-    for key in ("manufacturer", "model", "description", "ref"):
-        if not isinstance(t.get(key, ""), str):
-            ctx.fail(key, f"{key} must be a string")
+    strings(ctx, t, ("manufacturer", "model", "description", "ref"))
     addresses = t.get("addresses", [1, 247])
     if (not isinstance(addresses, list) or len(addresses) != 2
             or any(isinstance(a, bool) or not isinstance(a, int) or not 0 <= a <= 255
