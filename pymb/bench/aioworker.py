@@ -27,7 +27,17 @@ from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
 from pymb.bench import pure, worker
-from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_FUNCTION, CP_SLAVE, HUB_SLAVE, SPANS, Canary
+from pymb.bench.worker import (
+    CP_ADDRESS,
+    CP_COUNT,
+    CP_FUNCTION,
+    CP_SLAVE,
+    HUB_SLAVE,
+    SPANS,
+    Canary,
+    answer_commands,
+    err_line,
+)
 from pymb.devices.hub import HubReading
 
 __all__ = ["CLIENTS", "LAG_STACKS", "Ticker", "main"]
@@ -240,18 +250,16 @@ def lag_main(args: Sequence[str]) -> int:
                 loop.run_until_complete(c.open())
                 loop.run_until_complete(c.sweep())
         except Exception as e:
-            print(f"err {type(e).__name__}: {e}".replace("\n", " "), flush=True)
+            print(err_line(e), flush=True)
             return 4
-        print("ready", flush=True)
-        for line in sys.stdin:
-            cmd, *rest = line.split()
-            if cmd == "quit":
-                break
+
+        def answer(_cmd: str, rest: list[str], _line: str) -> str:
             try:
-                result = loop.run_until_complete(lag_run(clients, float(rest[0])))
-                print("ok " + json.dumps(result), flush=True)
+                return "ok " + json.dumps(loop.run_until_complete(lag_run(clients, float(rest[0]))))
             except Exception as e:
-                print(f"err {type(e).__name__}: {e}".replace("\n", " "), flush=True)
+                return err_line(e)
+
+        answer_commands(sys.stdin, answer)
     finally:
         for c in clients:
             loop.run_until_complete(c.close())

@@ -17,6 +17,8 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from pymb.bench.worker import answer_commands, err_line
+
 __all__ = ["main", "run_threads"]
 
 
@@ -79,21 +81,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             for h in hubs:
                 h.read_all()
         except Exception as e:
-            print(f"err {type(e).__name__}: {e}".replace("\n", " "), flush=True)
+            print(err_line(e), flush=True)
             return 4
-        print("ready", flush=True)
-        for line in sys.stdin:
-            cmd, *rest = line.split()
-            if cmd == "quit":
-                break
+
+        def answer(cmd: str, rest: list[str], line: str) -> str:
             if cmd != "run" or len(rest) != 2 or not 1 <= int(rest[0]) <= len(hubs):
-                print(f"err bad command {line.strip()!r}", flush=True)
-                continue
+                return f"err bad command {line.strip()!r}"
             result = run_threads(hubs[:int(rest[0])], float(rest[1]))
             if result["errors"]:
-                print("err " + "; ".join(result["errors"]).replace("\n", " "), flush=True)
-            else:
-                print("ok " + json.dumps(result), flush=True)
+                return "err " + "; ".join(result["errors"]).replace("\n", " ")
+            return "ok " + json.dumps(result)
+
+        answer_commands(sys.stdin, answer)
     finally:
         for c in clients:
             c.close()

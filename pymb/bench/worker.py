@@ -260,6 +260,21 @@ def telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
         raise RuntimeError("telemetry reads no input voltage")
 
 
+def err_line(e: BaseException) -> str:
+    """The one-line ``err`` answer a worker gives its parent for ``e``."""
+    return f"err {type(e).__name__}: {e}".replace("\n", " ")
+
+
+def answer_commands(lines: Any, answer: Callable[[str, list[str], str], str]) -> None:
+    """Print ``ready``, then ``answer(cmd, args, line)`` for each line until ``quit`` or EOF."""
+    print("ready", flush=True)
+    for line in lines:
+        cmd, *rest = line.split()
+        if cmd == "quit":
+            break
+        print(answer(cmd, rest, line), flush=True)
+
+
 Check = Callable[[Sequence[int], Sequence[float]], None]
 Reading = tuple[Sequence[int], Sequence[float]]
 
@@ -292,7 +307,7 @@ def serve(client: Any, canary: Canary, lines: Any, out: Any,
             else:
                 answer = f"err unknown command {cmd!r}"
         except Exception as e:  # reported to the parent, which skips the contender
-            answer = f"err {type(e).__name__}: {e}".replace("\n", " ")
+            answer = err_line(e)
         out.write(answer + "\n")
         out.flush()
 
