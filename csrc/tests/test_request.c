@@ -33,8 +33,9 @@
 
 #include "../pymb_modbus.h"
 #include "check.h"
+#include "crc_ref.h"
 
-/* The test's own clock and CRC, apart from the library's. */
+/* The test's own clock (its CRC is crc_ref.h's), apart from the library's. */
 static double now_s(void)
 {
     struct timespec ts;
@@ -47,20 +48,6 @@ static void sleep_ms(int ms)
     struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
     while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
     }
-}
-
-static uint16_t crc_bitwise(const uint8_t *p, size_t n)
-{
-    uint16_t crc = 0xFFFF;
-    size_t i;
-    int b;
-    for (i = 0; i < n; i++) {
-        crc ^= p[i];
-        for (b = 0; b < 8; b++) {
-            crc = (crc & 1u) ? (uint16_t)((crc >> 1) ^ 0xA001u) : (uint16_t)(crc >> 1);
-        }
-    }
-    return crc;
 }
 
 /* ------------------------------------------------------------------------ */
