@@ -112,6 +112,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         if sink is None:
             check_output(config.format, config.path)
         self._stop = threading.Event()
+        #: set by a signal handler: the run loop sees it within _DRAIN_EVERY
+        self._signalled = False
         self.stats = Stats()
         # Bounded (about 10,000 samples): pollers wait when the writer lags.
         self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
@@ -127,8 +129,14 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                                       max_age=config.max_age, on_change=config.on_change)
 
     def stop(self) -> None:
-        """Ask the run to end (thread- and signal-safe)."""
+        """Ask the run to end (thread-safe; a signal handler uses :meth:`_on_signal`)."""
         self._stop.set()
+
+    def _on_signal(self, *_: object) -> None:
+        """SIGINT/SIGTERM/SIGHUP: only a flag. ``Event.set()`` takes the event's
+        lock, which the main thread holds for a moment in every ``Event.wait()``:
+        a handler run there would wait for its own thread for ever."""
+        self._signalled = True
 
     @contextlib.contextmanager
     def _signals(self) -> Iterator[None]:
@@ -140,7 +148,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         hup = [] if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN else [signal.SIGHUP]
         old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, *hup)}
         for s in old:
-            signal.signal(s, lambda *_: self.stop())
+            signal.signal(s, self._on_signal)
         if hup and self.on_hangup is not None:
             hangup = self.on_hangup
             signal.signal(signal.SIGHUP, lambda *_: hangup())
@@ -166,7 +174,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                 while True:
                     if deadline is not None and time.monotonic() >= deadline:
                         self._stop.set()
-                    if self._stop.is_set():
+                    if self._stop.is_set() or self._signalled:
                         break
                     try:
                         item: list[Sample | Event] | None = self._queue.get_nowait()

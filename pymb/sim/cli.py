@@ -15,7 +15,7 @@ import signal
 import stat
 import sys
 import termios
-import threading
+import time
 from types import FrameType
 
 from pymb.client import parse_host_port
@@ -214,10 +214,12 @@ def run(args: argparse.Namespace) -> int:
         check_line=not args.any_speed,
         trace=args.verbose,
     )
-    stop = threading.Event()
+    # A flag, not a threading.Event: Event.set() from a handler can wait for
+    # the event's lock held by this same (main) thread inside Event.wait().
+    stopped = [False]
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        stopped[0] = True
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -242,8 +244,8 @@ def run(args: argparse.Namespace) -> int:
         if args.fault:
             print(f"  faults: {', '.join(args.fault)} (seed {args.seed})", file=sys.stderr)
         print("  Ctrl-C or SIGTERM stops it", file=sys.stderr, flush=True)
-        while not stop.wait(0.5):
-            pass
+        while not stopped[0]:
+            time.sleep(0.1)
     finally:
         sim.stop()
         for s, handler in previous.items():

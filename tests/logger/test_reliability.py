@@ -343,3 +343,23 @@ def test_sigkill_a_few_times(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_sigkill_100_times(tmp_path: Path) -> None:
     sigkill_runs(100, tmp_path, seed=7)
+
+
+def test_the_stop_signal_handler_never_waits_for_a_lock(tmp_path: Path) -> None:
+    """SIGTERM may arrive while the main thread, in ``Event.wait()``, holds the
+    stop event's lock for a moment: a handler that took that lock would wait
+    for its own thread for ever (the logger then ignored SIGTERM until it was
+    killed). The handler only sets a flag, which the run loop honours."""
+    bus = BusConfig("b", "/dev/null", timeout=T, devices=[DeviceConfig("coolpro", 40)])
+    logger = Logger(LogConfig([bus], "sqlite", str(tmp_path / "s.sqlite")))
+    with logger._signals():
+        handler = signal.getsignal(signal.SIGTERM)
+        assert callable(handler)
+        with logger._stop._cond:  # type: ignore[attr-defined]  # the lock Event.wait() holds
+            t = threading.Thread(target=handler, args=(signal.SIGTERM, None))
+            t.start()
+            t.join(2.0)
+            done = not t.is_alive()
+        t.join()
+    assert done, "the SIGTERM handler waited for the stop event's lock"
+    assert logger.run(30).elapsed < 25  # the run sees the flag and ends at once
