@@ -60,7 +60,10 @@ def text(s: Summary) -> str:
         what = f"{d.type}:{d.address} on {d.bus} ({d.port})"
         if d.type == "hub":
             what += f", {d.channels} channels"
-        lines.append(f"    {d.name:<{width}}  {what}: {d.samples:,} samples, "
+        by_group = ""
+        if len(d.groups) > 1:
+            by_group = " (" + ", ".join(f"{n:,} {g or 'all points'}" for g, n in d.groups) + ")"
+        lines.append(f"    {d.name:<{width}}  {what}: {d.samples:,} samples{by_group}, "
                      f"{iso(d.first)} .. {iso(d.last)}")
     other = {k: n for k, n in s.events.items() if k not in s.faults}
     lines += [f"  faults      {_counts(s.faults)}",
@@ -82,7 +85,8 @@ def as_json(s: Summary) -> dict[str, Any]:
         "last_iso": iso(s.last) if s.last else None, "samples": s.samples,
         "devices": [{"name": d.name, "type": d.type, "address": d.address, "bus": d.bus,
                      "port": d.port, "channels": d.channels, "samples": d.samples,
-                     "first": d.first, "last": d.last} for d in s.devices],
+                     "groups": dict(d.groups), "first": d.first, "last": d.last}
+                    for d in s.devices],
         "faults": s.faults, "events": s.events, "size_bytes": s.size, "wal_bytes": s.wal,
         "backlog": s.backlog,
     }

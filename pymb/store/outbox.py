@@ -95,9 +95,11 @@ class Outbox:
         return None if not row[0] else (int(row[0]), float(row[1]))
 
     def devices(self) -> list[tuple[str, str, int]]:
-        """(name, type, address) of every device the file has samples of."""
+        """(name, type, address) of every device the file has samples of, once
+        each (a map device has a devices row per polling group)."""
         return [(str(n), str(t), int(a)) for n, t, a in self.db.execute(
-            "SELECT name, type, address FROM devices ORDER BY id")]
+            "SELECT name, type, address FROM devices GROUP BY name, type, address "
+            "ORDER BY MIN(id)")]
 
     def latest(self, device: str) -> StoredSample | None:
         """The newest sample of a device."""

@@ -15,7 +15,7 @@ from pymb.devices import HUB, HubReading, State
 from pymb.devices.mapreading import MapReading
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import telemetry_values
-from pymb.devices.spec import closest, device_parts
+from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store.reader import iter_samples, stored_map
@@ -52,12 +52,12 @@ def resolve_device(con: sqlite3.Connection, wanted: str, path: str) -> tuple[str
         if name == wanted:
             return name, kind
     matches: list[tuple[str, str]] = []
+    kind, addr, _ = split_spec(wanted)  # any type: a map device's too
     try:
-        kind, options = device_parts(wanted)
+        address = None if addr is None else parse_address(addr, wanted)
     except InvalidArgument:
-        kind, options = "", {}
+        kind = ""
     if kind:
-        address = options.get("address")
         matches = [(n, t) for n, t, a, _ in devs
                    if t == kind and (address is None or a == address)]
     if len(matches) == 1:

@@ -12,7 +12,7 @@ from pathlib import Path
 from pymb.errors import InvalidArgument
 from pymb.store.readonly import open_readonly
 from pymb.store.records import FAULT_KINDS
-from pymb.store.schema import SCHEMA_VERSION, schema_version
+from pymb.store.schema import SCHEMA_VERSION, parse_layout_key, schema_version
 
 __all__ = ["DeviceSummary", "Summary", "devices", "event_counts", "summarize"]
 
@@ -30,6 +30,9 @@ class DeviceSummary:
     samples: int
     first: float | None  #: UTC seconds of its first sample (None: no sample)
     last: float | None
+    #: a map device: its samples by polling group ("" for every point), in the
+    #: order they were first logged; empty for the built-in devices
+    groups: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -51,9 +54,12 @@ class Summary:
 
 
 def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
-    """(name, type, address, bus) of every device of an open database."""
+    """(name, type, address, bus) of every device of an open database, once
+    each (the store keeps a row per configuration, and a map device a row per
+    polling group: those are one device)."""
     return [(str(n), str(t), int(a), str(b)) for n, t, a, b in con.execute(
-        "SELECT name, type, address, bus FROM devices ORDER BY id")]
+        "SELECT name, type, address, bus FROM devices GROUP BY name, type, address, bus "
+        "ORDER BY MIN(id)")]
 
 
 def event_counts(path: str | os.PathLike[str],
@@ -86,14 +92,28 @@ def _summarize(con: sqlite3.Connection, path: str) -> Summary:
     if version not in (1, SCHEMA_VERSION):
         raise InvalidArgument(f"{path} is not a database written by pymb")
     row = con.execute("SELECT value FROM meta WHERE key = 'pymb_version'").fetchone()
-    devs = []
     per = {did: (n, f, la) for did, n, f, la in con.execute(
         "SELECT device_id, COUNT(*), MIN(time_utc), MAX(time_utc) FROM samples "
         "GROUP BY device_id")}
-    for did, name, kind, address, bus, port, channels in con.execute(
-            "SELECT id, name, type, address, bus, port, channels FROM devices ORDER BY id"):
-        n, first, last = per.get(did, (0, None, None))
-        devs.append(DeviceSummary(name, kind, address, bus, port, channels, n, first, last))
+    # one device: the rows of its configurations (and of a map device's groups) merged
+    merged: dict[tuple[str, str, int, str, str], list[tuple[int, int, str]]] = {}
+    for did, name, kind, address, bus, port, channels, units in con.execute(
+            "SELECT id, name, type, address, bus, port, channels, humidity_units "
+            "FROM devices ORDER BY id"):
+        merged.setdefault((name, kind, address, bus, port), []).append((did, channels, units))
+    devs = []
+    for (name, kind, address, bus, port), rows in merged.items():
+        got = [per.get(did, (0, None, None)) for did, _, _ in rows]
+        firsts = [f for _, f, _ in got if f is not None]
+        lasts = [la for _, _, la in got if la is not None]
+        groups: dict[str, int] = {}
+        if kind not in ("coolpro", "hub"):
+            for (_, _, units), (n, _, _) in zip(rows, got, strict=True):
+                group = parse_layout_key(units)[0] or ""
+                groups[group] = groups.get(group, 0) + n
+        devs.append(DeviceSummary(
+            name, kind, address, bus, port, rows[-1][1], sum(n for n, _, _ in got),
+            min(firsts, default=None), max(lasts, default=None), tuple(groups.items())))
     # The time index answers these two without reading the table.
     (first,) = con.execute("SELECT MIN(time_utc) FROM samples").fetchone()
     (last,) = con.execute("SELECT MAX(time_utc) FROM samples").fetchone()
