@@ -13,6 +13,7 @@ from __future__ import annotations
 import errno
 import os
 import sqlite3
+import stat
 from pathlib import Path
 
 from pymb.errors import OutputError
@@ -47,18 +48,32 @@ def is_storage_fault(e: BaseException) -> bool:
     return isinstance(e, sqlite3.Error) and _code(e) in _STORAGE_CODES
 
 
-def vanished(path: Path) -> str | None:
-    """Why the database at ``path`` is no longer there (None: it is)."""
-    if not path.parent.is_dir():
+def _missing(path: Path, *, directory: bool = False) -> bool:
+    """True if ``path`` is not there (or, with ``directory``, is no directory);
+    False when it cannot be told (no permission to look): not missing."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return True
+    except OSError as e:
+        return e.errno == errno.ENOTDIR
+    return directory and not stat.S_ISDIR(st.st_mode)
+
+
+def vanished(path: Path, *, made: bool = True) -> str | None:
+    """Why the database at ``path`` is no longer there (None: it is, or no
+    permission to look). ``made=False``: a database about to be made, only
+    its directory must be there."""
+    if _missing(path.parent, directory=True):
         return f"its directory {path.parent} was removed"
-    if not path.exists():
+    if made and _missing(path):
         return "the file was deleted or moved away"
     return None
 
 
-def _probe(path: Path, e: BaseException) -> tuple[int | None, str]:
+def _probe(path: Path, e: BaseException, opening: bool) -> tuple[int | None, str]:
     """(errno, words) of what went wrong with the storage of ``path``."""
-    gone = vanished(path)
+    gone = vanished(path, made=not opening)
     if gone is not None:
         return errno.ENOENT, gone
     if isinstance(e, OSError) and e.errno:
@@ -73,7 +88,8 @@ def _probe(path: Path, e: BaseException) -> tuple[int | None, str]:
         return errno.EROFS, os.strerror(errno.EROFS)
     if code == "SQLITE_FULL" or (st is not None and st.f_bavail * st.f_frsize < 65536):
         return errno.ENOSPC, os.strerror(errno.ENOSPC)
-    if not os.access(path, os.W_OK) or not os.access(where, os.W_OK | os.X_OK):
+    if not os.access(where, os.W_OK | os.X_OK) or (not _missing(path) and
+                                                   not os.access(path, os.W_OK)):
         return errno.EACCES, os.strerror(errno.EACCES)
     if code == "SQLITE_IOERR":
         return errno.EIO, os.strerror(errno.EIO)
@@ -83,7 +99,7 @@ def _probe(path: Path, e: BaseException) -> tuple[int | None, str]:
 def storage_error(path: Path, e: BaseException, *, opening: bool = False) -> OutputError:
     """The one-line :class:`OutputError` (``pymb log`` exits 5) for a storage
     failure of the database at ``path`` while opening it or writing to it."""
-    num, words = _probe(path, e)
+    num, words = _probe(path, e, opening)
     reason = words if num is None or num == errno.ENOENT else \
         f"{words} ({errno.errorcode.get(num, num)})"
     todo = _TODO.get(num) if num is not None else None

@@ -112,6 +112,9 @@ class SqliteSink(Retention):
             remove_stale_creations(self.path)
             if not self.path.exists():
                 create(self.path)
+            # A file this user may not write is refused here: SQLite would open
+            # it read-only and fail at the first commit.
+            os.close(os.open(self.path, os.O_RDWR | os.O_CLOEXEC))
             # One writer: refused here, before this process writes anything.
             self._lock = WriterLock(self.path)
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
