@@ -45,7 +45,7 @@ _EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("pymb.commands.demo", "log simulated devices for a few seconds (no hardware)"),
-    "read": ("pymb.commands.read", "one reading of a CoolPro or a sensor hub"),
+    "read": ("pymb.commands.read", "one reading of a device (CoolPro, sensor hub or a map's)"),
     "watch": ("pymb.commands.watch", "readings refreshed live, with the achieved rate"),
     "log": ("pymb.commands.log", "log devices on one or more buses to SQLite, CSV or JSONL"),
     "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
@@ -54,7 +54,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),
-    "simulate": ("pymb.sim.cli", "simulate CoolPro and sensor-hub devices on a pty or TCP"),
+    "simulate": ("pymb.sim.cli", "simulate devices (CoolPro, sensor hub, maps) on a pty or TCP"),
     "bench": ("pymb.bench.cli", "benchmark pymb against other Modbus stacks, side by side"),
 }
 

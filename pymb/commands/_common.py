@@ -10,11 +10,12 @@ import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+from pymb import maps
 from pymb.client import Client, RtuClient, client_for_address, unresolved
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
-from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, device_parts
+from pymb.devices.spec import DeviceConfig, device_parts
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
@@ -22,6 +23,7 @@ __all__ = [
     "add_connection_args",
     "add_device_arg",
     "device_from_args",
+    "device_help",
     "interruptible",
     "make_client",
     "parse_channels",
@@ -32,13 +34,20 @@ __all__ = [
 
 T = TypeVar("T")
 
-DEVICE_HELP = (f"the device: {DEVICE_SYNTAX}, e.g. coolpro, coolpro:41, hub:250, "
-               "hub:7,channels=50,humidity_unit=1")
+def device_help() -> str:
+    """The help of a DEVICE argument of a command that reads any device:
+    the syntax, the types (the shipped maps' ids among them) and examples."""
+    ids = [i for i in maps.builtin_ids() if i not in ("coolpro", "hub")]
+    return (f"the device: TYPE[:ADDRESS][,key=value...], TYPE coolpro, hub or a map's id "
+            f"(shipped: {', '.join(ids)}; --map FILE adds one), e.g. coolpro:41, hub:250, "
+            f"hub:7,channels=50,humidity_unit=1, {ids[0] if ids else 'my-meter'}:3")
 
 
 def add_device_arg(p: argparse.ArgumentParser, *, hub_options: bool = True) -> None:
-    """The positional DEVICE and its aliases (--address, --channels, --humidity-unit)."""
-    p.add_argument("device", metavar="DEVICE", help=DEVICE_HELP)
+    """The positional DEVICE and its aliases (--address, --channels, --humidity-unit);
+    without ``hub_options``, a CoolPro only (``pymb config``)."""
+    p.add_argument("device", metavar="DEVICE", help=device_help() if hub_options else
+                   "the CoolPro: coolpro[:ADDRESS], e.g. coolpro, coolpro:41")
     p.add_argument("--address", type=int, metavar="N",
                    help=f"the device's address, as in TYPE:ADDRESS (default: coolpro "
                         f"{COOLPRO.default_address}, hub {HUB.default_address})")

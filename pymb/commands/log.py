@@ -11,7 +11,7 @@ import argparse
 import math
 import sys
 
-from pymb.commands._common import DEVICE_HELP
+from pymb.commands._common import device_help
 from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
 from pymb.commands.mapcli import add_map_arg
@@ -28,7 +28,7 @@ from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb log``."""
     p.add_argument("devices", nargs="*", metavar="DEVICE",
-                   help=f"{DEVICE_HELP}; several on one bus (--port or --tcp)")
+                   help=f"{device_help()}; several on one bus (--port or --tcp)")
     add_map_arg(p)
     p.add_argument("--config", metavar="FILE.toml",
                    help="buses, devices and output from a TOML file (see docs/cli.md)")
@@ -57,13 +57,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "also when 64 KB of samples wait): a power cut loses what waits, "
                         "more commits wear an SD card more (docs/reliability.md)")
     p.add_argument("--on-change", action="store_true",
-                   help="SQLite: store a hub channel (or a CoolPro sample) only when a value "
-                        "moved past its deadband, a state changed, or its heartbeat came")
-    p.add_argument("--deadband", action="append", default=[], metavar="QUANTITY=AMOUNT",
-                   help="with --on-change: e.g. temperature_c=0.2 (engineering units; "
-                        "default 0: any change); repeat for several")
+                   help="SQLite: store a hub channel (a CoolPro sample, a map device's group "
+                        "reading) only when a value moved past its deadband, a state "
+                        "changed, or its heartbeat came")
+    p.add_argument("--deadband", action="append", default=[], metavar="NAME=AMOUNT",
+                   help="with --on-change: a quantity (temperature_c=0.2) or a map "
+                        "device's point (voltage_v=0.5), in engineering units, over the "
+                        "map's deadband; default 0: any change; repeat for several")
     p.add_argument("--heartbeat", type=_positive, metavar="SECONDS",
-                   help="with --on-change: store every channel at least this often "
+                   help="with --on-change: store every channel (reading) at least this often "
                         "(default 60)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no status line (for services)")

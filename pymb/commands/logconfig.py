@@ -14,7 +14,7 @@ from pymb.devices.mapspec import parse_map_device
 from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
-from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml
+from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
 from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, from_target
 from pymb.store import OnChange
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
@@ -55,13 +55,15 @@ def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
         if args.deadband or args.heartbeat is not None:
             raise InvalidArgument("--deadband and --heartbeat go with --on-change")
         return
-    bands = dict(cfg.on_change.deadband) if cfg.on_change else {}
+    given = {}
     for spec in args.deadband:
         name, _, amount = spec.partition("=")
         try:
-            bands[name.strip()] = float(amount)
+            given[name.strip()] = float(amount)
         except ValueError:
-            raise InvalidArgument(f"--deadband takes QUANTITY=AMOUNT, got {spec!r}") from None
+            raise InvalidArgument(f"--deadband takes NAME=AMOUNT, got {spec!r}") from None
+    bands = dict(cfg.on_change.deadband) if cfg.on_change else {}
+    bands.update(share_deadbands(cfg.buses, given, True))
     heartbeat = args.heartbeat or (cfg.on_change.heartbeat if cfg.on_change else 60.0)
     cfg.on_change = OnChange(heartbeat, bands)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,10 +25,11 @@ from pymb.devices.spec import DeviceConfig, closest
 from pymb.errors import InvalidArgument
 from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, add_maps, map_device_from_toml
 from pymb.store import FORMATS, OnChange
+from pymb.store.onchange import DEADBAND_QUANTITIES
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, read_time
 
 __all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_config",
-           "read_toml"]
+           "read_toml", "share_deadbands"]
 
 
 @dataclass
@@ -176,6 +177,34 @@ def check_buses(buses: Sequence[BusConfig]) -> None:
             seen.add(d.name)
 
 
+def share_deadbands(buses: Sequence[BusConfig], bands: Mapping[str, float],
+                    over_devices: bool) -> dict[str, float]:
+    """On-change deadbands given by name for the whole run (``--deadband``,
+    ``[output] deadband``), shared out: a quantity of the built-in devices is
+    returned (for :class:`~pymb.store.OnChange`); a point name of the map
+    devices logged goes to each of those devices that has the point, over
+    the device's own ``deadband`` table when ``over_devices`` (the command
+    line), under it otherwise. A name that is neither, or an amount that is
+    not a number of 0 or more, is a one-line error."""
+    maps = [d for b in buses for d in b.devices if isinstance(d, MapDeviceConfig)]
+    points = sorted({p for d in maps for p in d.map.points})
+    builtin: dict[str, float] = {}
+    for name, band in bands.items():
+        if not (math.isfinite(band) and band >= 0):
+            raise InvalidArgument(f"deadband of {name} must be 0 or more, got {band!r}")
+        owners = [d for d in maps if name in d.map.points]
+        if name not in DEADBAND_QUANTITIES and not owners:
+            known = sorted({*DEADBAND_QUANTITIES, *points})
+            raise InvalidArgument(f"no quantity or point {name!r} for a deadband"
+                                  f"{closest(name, known)}")
+        if name in DEADBAND_QUANTITIES:
+            builtin[name] = band
+        for d in owners:
+            if over_devices or name not in d.deadband:
+                d.deadband = {**d.deadband, name: band}
+    return builtin
+
+
 _TOP_KEYS = ("maps", "output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the CLI
 _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s", "on_change",
                 "heartbeat_s",
@@ -303,8 +332,12 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
         bands = _get(out, "deadband", dict, f"{path}: output", {})
         for k in bands:
             _get(bands, k, (int, float), f"{path}: output.deadband")
+        try:
+            shared = share_deadbands(buses, {k: float(v) for k, v in bands.items()}, False)
+        except InvalidArgument as e:
+            raise _within(f"{path}: output", e) from None
         on_change = OnChange(float(_get(out, "heartbeat_s", (int, float), f"{path}: output",
-                                        60.0)), {k: float(v) for k, v in bands.items()})
+                                        60.0)), shared)
     try:
         return LogConfig(
             buses, fmt,

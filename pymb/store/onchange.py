@@ -12,7 +12,10 @@ from pymb.devices.readings import INTEGRAL_QUANTITIES
 from pymb.errors import InvalidArgument
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS
 
-__all__ = ["CoolProChanges", "HubChanges", "MapChanges", "OnChange"]
+__all__ = ["DEADBAND_QUANTITIES", "CoolProChanges", "HubChanges", "MapChanges", "OnChange"]
+
+#: the built-in devices' quantities that take a deadband (OnChange.deadband)
+DEADBAND_QUANTITIES = tuple(sorted(set(HUB_FIELDS) | set(COOLPRO_FIELDS) - INTEGRAL_QUANTITIES))
 
 
 @dataclass
@@ -35,11 +38,10 @@ class OnChange:
         if not (self.heartbeat > 0 and math.isfinite(self.heartbeat)):
             raise InvalidArgument(f"the heartbeat must be a positive number of seconds, "
                                   f"got {self.heartbeat!r}")
-        known = set(HUB_FIELDS) | set(COOLPRO_FIELDS) - INTEGRAL_QUANTITIES
         for name, value in self.deadband.items():
-            if name not in known:
+            if name not in DEADBAND_QUANTITIES:
                 raise InvalidArgument(f"no quantity {name!r} for a deadband; use one of "
-                                      f"{', '.join(sorted(known))}")
+                                      f"{', '.join(DEADBAND_QUANTITIES)}")
             if not (value >= 0 and math.isfinite(value)):
                 raise InvalidArgument(f"deadband of {name} must be >= 0, got {value!r}")
 
