@@ -2,7 +2,8 @@
 
 Exit codes at the end of a run (``--seconds``, SIGINT or SIGTERM): 0; 3 if
 some device never delivered a sample; 4 if some bus never opened its port
-(the summary says which); 5 if the output could not be written.
+(the summary says which); 5 if the output could not be written; 70 if a
+bus's poller stopped on an internal error (a bug).
 """
 
 from __future__ import annotations

@@ -44,6 +44,8 @@ class Summary:
     device_faults: dict[str, int] = field(default_factory=dict)
     #: map device -> points it refused (read as ``unsupported``), summed over its polls
     unsupported: dict[str, int] = field(default_factory=dict)
+    #: bus -> the exception that stopped its poller (a bug in pymb: it ends the run)
+    crashed: dict[str, str] = field(default_factory=dict)
 
     @property
     def rate(self) -> float:
@@ -52,9 +54,10 @@ class Summary:
 
     @property
     def exit_code(self) -> int:
-        """0; 4 if some bus never opened its port; else 3 if some device never
+        """0; 70 (EX_SOFTWARE) if a poller stopped on an internal error; else 4
+        if some bus never opened its port; else 3 if some device never
         delivered a sample (``pymb log``'s exit code)."""
-        return 4 if self.never_opened else 3 if self.silent else 0
+        return 70 if self.crashed else 4 if self.never_opened else 3 if self.silent else 0
 
     def health(self) -> list[str]:
         """One line per map device that failed a poll or refused a point:
@@ -71,8 +74,11 @@ class Summary:
         return out
 
     def problems(self) -> list[str]:
-        """One line per bus that never opened and per device that never delivered."""
-        out = [f"bus {b} never opened its port: {why}" for b, why in self.never_opened.items()]
+        """One line per bus whose poller failed, per bus that never opened and
+        per device that never delivered."""
+        out = [f"bus {b} stopped on an internal error (a bug in pymb): {why}"
+               for b, why in self.crashed.items()]
+        out += [f"bus {b} never opened its port: {why}" for b, why in self.never_opened.items()]
         out += [f"{d} delivered no sample: {why}" for d, why in self.silent.items()]
         return out
 
@@ -87,6 +93,22 @@ def _weight(items: list[Sample | Event]) -> tuple[int, bool]:
         else:
             events = True
     return size, events
+
+
+class _Poller(BusPoller):
+    """A bus's poller that keeps the exception that ended it, if any: that is
+    a bug, which stops the run (its traceback goes to stderr) instead of
+    leaving the bus silently unpolled."""
+
+    crashed = ""
+
+    def run(self) -> None:
+        try:
+            super().run()
+        except Exception as e:
+            self.crashed = f"{type(e).__name__}: {e}"
+            self.stop_event.set()
+            raise
 
 
 class Logger:
@@ -121,7 +143,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         # pymb's own sinks are done with a sample when write() returns: hub
         # sweeps may then be read into the arrays of readings already written.
         reuse = sink is None or getattr(sink, "keeps_samples", True) is False
-        self.pollers = [BusPoller(b, self._queue, self._stop, self.stats, reuse=reuse)
+        self.pollers = [_Poller(b, self._queue, self._stop, self.stats, reuse=reuse)
                         for b in config.buses]
         self._spare = {id(d.info): d.spare for p in self.pollers for d in p.devices
                        if d.spare is not None}
@@ -234,14 +256,15 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         if self.tick is not None:
             self.tick(self, elapsed, True)
         s = self.stats
+        crashed = {p.bus.name: p.crashed for p in self.pollers if p.crashed}
         never = {b.name: s.last_fault.get(b.name, "").split(": ", 1)[-1] or "not yet opened"
-                 for b in self.config.buses if not s.opened.get(b.name)}
+                 for b in self.config.buses if not s.opened.get(b.name) and b.name not in crashed}
         silent = {d.name: s.last_fault.get(d.name, f"{d.name}: no reply yet").split(": ", 1)[-1]
-                  for b in self.config.buses if b.name not in never
+                  for b in self.config.buses if b.name not in never and b.name not in crashed
                   for d in b.devices if not s.by_device.get(d.name)}
         return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent,
-                       dict(s.device_faults), dict(s.unsupported))
+                       dict(s.device_faults), dict(s.unsupported), crashed)
 
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the
