@@ -45,6 +45,8 @@ class BusConfig:
     interval: float = 0.0
     devices: list[DeviceConfig | MapDeviceConfig] = field(default_factory=list)
     rtu_over_tcp: str | None = None
+    #: Modbus TCP: a poll's requests in flight on the connection at once
+    pipeline: int = 1
 
     def __post_init__(self) -> None:
         if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp)) != 1:
@@ -55,6 +57,12 @@ class BusConfig:
         if not (math.isfinite(self.interval) and self.interval >= 0):
             raise InvalidArgument(f"bus {self.name!r}: interval must be a number of seconds "
                                   f">= 0, got {self.interval!r}")
+        if isinstance(self.pipeline, bool) or not isinstance(self.pipeline, int) or not (
+                1 <= self.pipeline <= 16):
+            raise InvalidArgument(f"bus {self.name!r}: pipeline must be 1..16 requests, "
+                                  f"got {self.pipeline!r}")
+        if self.pipeline > 1 and self.tcp is None:
+            raise InvalidArgument(f"bus {self.name!r}: pipeline is for a tcp bus")
         if not self.timeout > 0:
             raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
         seen: dict[int, DeviceConfig | MapDeviceConfig] = {}
@@ -210,7 +218,7 @@ _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s",
                 "heartbeat_s",
                 "deadband")
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "baud", "parity", "timeout", "interval",
-             "device")
+             "pipeline", "device")
 _DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
 
 
@@ -303,6 +311,7 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
                 float(_get(b, "timeout", (int, float), where, DEFAULT_TIMEOUT)),
                 float(_get(b, "interval", (int, float), where, 0.0)), devices,
                 rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
+                pipeline=_get(b, "pipeline", int, where, 1),
             ))
         except InvalidArgument as e:
             raise _within(str(path), e) from None

@@ -1,4 +1,5 @@
-"""The logger: runs a poller per bus and writes what they produce to one sink."""
+"""The logger: runs the pollers (a thread per serial bus, one loop for every
+map device on Modbus TCP) and writes what they produce to one sink."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pymb.devices import HubReading
 from pymb.errors import OutputError
 from pymb.logger.config import EVENT_COMMIT_INTERVAL, LogConfig
 from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller, Stats
+from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped
 from pymb.store import Event, Sample, Sink, check_output, open_sink
 
@@ -111,6 +113,21 @@ class _Poller(BusPoller):
             raise
 
 
+class _TcpPoller(TcpMapPoller):
+    """The one loop over the TCP buses, keeping what ended it as
+    :class:`_Poller` does: every bus it polls stopped with it."""
+
+    crashed = ""
+
+    def run(self) -> None:
+        try:
+            super().run()
+        except Exception as e:
+            self.crashed = f"{type(e).__name__}: {e}"
+            self.stop_event.set()
+            raise
+
+
 class Logger:
     """Runs the pollers and writes what they produce to one sink.
 
@@ -143,10 +160,14 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         # pymb's own sinks are done with a sample when write() returns: hub
         # sweeps may then be read into the arrays of readings already written.
         reuse = sink is None or getattr(sink, "keeps_samples", True) is False
-        self.pollers = [_Poller(b, self._queue, self._stop, self.stats, reuse=reuse)
-                        for b in config.buses]
-        self._spare = {id(d.info): d.spare for p in self.pollers for d in p.devices
-                       if d.spare is not None}
+        self.pollers: list[_Poller | _TcpPoller] = [
+            _Poller(b, self._queue, self._stop, self.stats, reuse=reuse)
+            for b in config.buses if not fans_out(b)]
+        tcp = [b for b in config.buses if fans_out(b)]
+        if tcp:  # every map device on plain Modbus TCP: one thread, one loop
+            self.pollers.append(_TcpPoller(tcp, self._queue, self._stop, self.stats))
+        self._spare = {id(d.info): d.spare for p in self.pollers
+                       if isinstance(p, BusPoller) for d in p.devices if d.spare is not None}
         self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
                                       max_age=config.max_age, on_change=config.on_change)
 
@@ -256,7 +277,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         if self.tick is not None:
             self.tick(self, elapsed, True)
         s = self.stats
-        crashed = {p.bus.name: p.crashed for p in self.pollers if p.crashed}
+        crashed = {b: p.crashed for p in self.pollers if p.crashed
+                   for b in ([p.bus.name] if isinstance(p, BusPoller) else p.bus_names)}
         never = {b.name: s.last_fault.get(b.name, "").split(": ", 1)[-1] or "not yet opened"
                  for b in self.config.buses if not s.opened.get(b.name) and b.name not in crashed}
         silent = {d.name: s.last_fault.get(d.name, f"{d.name}: no reply yet").split(": ", 1)[-1]

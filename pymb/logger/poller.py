@@ -23,7 +23,7 @@ from pymb.logger.schedule import run_scheduled, slots_of
 from pymb.store import DeviceInfo, Event, Sample
 from pymb.store.records import event_kind, short_fault
 
-__all__ = ["BusPoller", "Stats"]
+__all__ = ["BusPoller", "Stats", "map_info"]
 
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 _FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
@@ -93,6 +93,14 @@ class _Device:
     explained: str = ""  #: what answered, found once per run of failures
 
 
+def map_info(bus: BusConfig, d: MapDeviceConfig) -> DeviceInfo:
+    """The record a map device's samples and events carry."""
+    return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
+                      map_source=d.source.text,
+                      map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())),
+                      map_deadband=tuple(sorted(d.deadband.items())))
+
+
 def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Callable[[], Any]:
     """``hub.read_all`` into a spare reading when there is one."""
     def read() -> HubReading:
@@ -131,11 +139,7 @@ class BusPoller(threading.Thread):
         for d in bus.devices:
             assert d.address is not None
             if isinstance(d, MapDeviceConfig):
-                self.maps.append((DeviceInfo(
-                    bus.name, bus.endpoint, d.type, d.address, d.name,
-                    map_source=d.source.text, map_options=tuple(
-                        (k, float(v)) for k, v in sorted(d.options.items())),
-                    map_deadband=tuple(sorted(d.deadband.items()))), d))
+                self.maps.append((map_info(bus, d), d))
                 continue
             units = d.humidity_unit
             info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,

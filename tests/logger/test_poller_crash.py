@@ -49,7 +49,7 @@ type = "eastron-sdm120"
 address = 1
 [[bus]]
 name = "broken"
-tcp = "127.0.0.1:1"
+rtu_over_tcp = "127.0.0.1:1"
 [[bus.device]]
 type = "eastron-sdm120"
 address = 2

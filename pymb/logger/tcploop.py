@@ -1,0 +1,595 @@
+"""Every map device on every plain Modbus TCP bus of a run, polled from one
+thread: :class:`TcpMapPoller`.
+
+One selector (epoll on Linux) waits on every connection at once over
+non-blocking sockets: a connection per bus (per ``host:port``), shared by
+the devices behind it (a TCP gateway's unit ids). A connection carries one
+poll at a time, a device's group; its requests go out ``pipeline`` at a
+time (1 by default: one transaction at a time, as a gateway to a serial
+line needs) and each reply is checked against the exact 9 bytes it must
+start with in one comparison and copied into the group's sample image.
+
+It keeps the logger's contract for map devices (:mod:`pymb.logger.schedule`
+is the same contract for a thread per bus): each group at its own interval
+on drift-free slots, skipped slots counted; ``offline_after`` /
+``offline_retry`` per device; exception 02/03 with ``split_on_exception``
+re-plans within the same poll, a point refused alone reads ``unsupported``;
+samples and events go to the writer's queue as :class:`~pymb.store.Sample`
+and :class:`~pymb.store.Event` records, the registers stored as a thread per
+bus would store them.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import errno
+import heapq
+import os
+import queue
+import selectors
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+from pymb.client import unresolved
+from pymb.client.address import parse_host_port
+from pymb.errors import (
+    ModbusConnectionError,
+    ModbusError,
+    ProtocolError,
+    describe_exception,
+    exception_class,
+    function_name,
+    request_error,
+)
+from pymb.logger.config import BusConfig
+from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.poller import BATCH_MAX, Stats, map_info
+from pymb.logger.tcpunits import Entry, Spec, Unit, lazy_reading
+from pymb.maps.planner import Request
+from pymb.store import Event, Sample
+from pymb.store.records import event_kind, short_fault
+
+__all__ = ["TcpMapPoller", "fans_out"]
+
+_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+_BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
+_TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
+
+
+def fans_out(bus: BusConfig) -> bool:
+    """Whether ``bus`` is polled by the one loop: plain Modbus TCP with map
+    devices only (the CoolPro and the hub facades keep a thread per bus)."""
+    return bus.tcp is not None and all(isinstance(d, MapDeviceConfig) for d in bus.devices)
+
+
+@dataclass(eq=False)
+class _Conn:
+    """One bus: a connection to ``host:port`` and the polls waiting for it."""
+
+    bus: BusConfig
+    host: str
+    port: int
+    units: list[Unit]
+    entries: list[Entry]
+    pipeline: int
+    sock: socket.socket | None = None
+    state: str = "closed"  # closed, connecting, open
+    opened_once: bool = False
+    retry_at: float = 0.0
+    backoff: float = _BACKOFF_FIRST
+    deadline: float = 0.0
+    waiting: collections.deque[Entry] = field(default_factory=collections.deque)
+    entry: Entry | None = None  #: the poll under way
+    todo: list[Spec] = field(default_factory=list)  #: its requests
+    sent: int = 0  #: of ``todo``
+    inflight: collections.deque[tuple[bytes, Spec]] = field(
+        default_factory=collections.deque)  #: (expected first 9 bytes, request)
+    unread: set[int] = field(default_factory=set)  #: items refused in this poll
+    tid: int = 0
+    rbuf: bytearray = field(default_factory=bytearray)
+    quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
+    last_end: float = 0.0
+
+
+class TcpMapPoller(threading.Thread):
+    """Polls the map devices of ``buses`` (each :func:`fans_out`) until
+    ``stop`` is set; puts Samples and Events on ``out`` as a
+    :class:`~pymb.logger.poller.BusPoller` does."""
+
+    def __init__(self, buses: list[BusConfig], out: queue.Queue[list[Sample | Event]],
+                 stop: threading.Event, stats: Stats) -> None:
+        super().__init__(name="pymb-tcp", daemon=True)
+        self.out = out
+        self.stop_event = stop
+        self.stats = stats
+        self.conns: list[_Conn] = []
+        for bus in buses:
+            host, port = parse_host_port(str(bus.tcp), what=f"bus {bus.name!r}: tcp")
+            units, entries = [], []
+            for d in bus.devices:
+                assert isinstance(d, MapDeviceConfig)
+                u = Unit.of(map_info(bus, d), d, bus.timeout)
+                units.append(u)
+                for group, interval in d.polls:
+                    entries.append(Entry.of(u, group, bus.interval if interval is None
+                                            else interval, interval == 0))
+            self.conns.append(_Conn(bus, host, port, units, entries, max(1, bus.pipeline)))
+            stats.opened.setdefault(bus.name, False)
+        self.bus_names = [b.name for b in buses]
+        self._sel = selectors.DefaultSelector()
+        self._batch: list[Sample | Event] = []
+        self._batch_since = 0.0
+        self._slots: list[tuple[float, int, Entry]] = []
+        self._seq = 0
+        self._conn_of = {id(e): c for c in self.conns for e in c.entries}
+        self._silent: set[_Conn] = set()  #: connections waiting out a device's silence
+        self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
+
+    # -- hand-over -----------------------------------------------------------------------
+
+    def flush(self) -> None:
+        """Hand what was read since the last list to the writer."""
+        batch, self._batch = self._batch, []
+        if batch:
+            self.out.put(batch)
+
+    def take_unflushed(self) -> list[Sample | Event]:
+        """What this poller read but has not handed over (the writer takes it
+        when the poller is left behind at stop)."""
+        batch, self._batch = self._batch, []
+        return batch
+
+    def _event(self, c: _Conn, kind: str, message: str, unit: Unit | None = None,
+               code: int | None = None) -> None:
+        self._batch.append(Event(time.time(), time.monotonic(), c.bus.name,
+                                 None if unit is None else unit.info, kind, code, message))
+        self.flush()
+
+    # -- connections ---------------------------------------------------------------------
+
+    def _connect(self, c: _Conn, now: float) -> None:
+        try:
+            infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
+            family, _, _, _, addr = infos[0]
+            s = socket.socket(family, socket.SOCK_STREAM)
+        except OSError:
+            why = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
+            self._not_open(c, now, why)
+            return
+        s.setblocking(False)
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        rc = s.connect_ex(addr)
+        if rc not in (0, errno.EINPROGRESS):
+            s.close()
+            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(rc)}")
+            return
+        c.sock, c.state = s, "connecting"
+        c.deadline = now + c.bus.timeout
+        self._soonest = min(self._soonest, c.deadline)
+        self._sel.register(s, selectors.EVENT_WRITE, c)
+
+    def _not_open(self, c: _Conn, now: float, why: str) -> None:
+        self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
+        self._event(c, "connection", f"{why}; retrying in {c.backoff:g} s")
+        c.retry_at = now + c.backoff
+        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
+
+    def _connected(self, c: _Conn, now: float) -> None:
+        assert c.sock is not None
+        err = c.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if err:
+            self._close(c)
+            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(err)}")
+            return
+        c.state = "open"
+        c.backoff = _BACKOFF_FIRST
+        self._sel.modify(c.sock, selectors.EVENT_READ, c)
+        self.stats.opened[c.bus.name] = True
+        self.stats.ok(c.bus.name)
+        if c.opened_once:
+            self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
+        else:
+            self._event(c, "connect", f"polling {len(c.units)} device(s) on {c.bus.endpoint}")
+        c.opened_once = True
+        # a new connection may be a new device: forget what the last one taught
+        for u in c.units:
+            u.planner.forget()
+        wait = max(u.config.map.timing.after_connect for u in c.units)
+        c.quiet_until = now + wait
+        # the polls waiting, in the order of the devices and groups
+        c.waiting.clear()
+        for e in c.entries:
+            e.read_once = False
+            if e.queued or e.once or e.interval == 0:
+                e.queued = True
+                c.waiting.append(e)
+
+    def _close(self, c: _Conn) -> None:
+        if c.sock is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(c.sock)
+            c.sock.close()
+        c.sock, c.state = None, "closed"
+        c.rbuf.clear()
+        c.inflight.clear()
+        c.entry = None
+
+    def _lost(self, c: _Conn, now: float, why: str, err: int | None) -> None:
+        """The connection failed under a poll: the poll's device is told, and
+        the bus is opened again at once (then with the backoff)."""
+        e = c.entry
+        if e is not None:
+            spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
+            exc = ModbusConnectionError(
+                f"{_asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
+            self._failed(c, e.unit, exc)
+            self._requeue(c, e, now)
+        self._close(c)
+        c.retry_at = now
+
+    # -- polls ---------------------------------------------------------------------------
+
+    def _queue(self, c: _Conn, e: Entry) -> None:
+        if not e.queued:
+            e.queued = True
+            c.waiting.append(e)
+
+    def _next(self, c: _Conn, now: float) -> None:
+        """Start the next waiting poll on an idle open connection."""
+        while c.entry is None and c.waiting and c.state == "open":
+            e = c.waiting.popleft()
+            e.queued = False
+            if not e.due(now):
+                self._at(e.wake(now), e)
+                continue
+            c.entry = e
+            c.todo = list(e.requests())
+            c.sent = 0
+            if c.unread:
+                c.unread.clear()
+            if not c.todo:  # every point refused: the poll reads nothing
+                self._done(c, e, now)
+                continue
+            self._send(c, now)
+
+    def _send(self, c: _Conn, now: float) -> None:
+        e = c.entry
+        assert e is not None
+        assert c.sock is not None
+        u = e.unit
+        pipe = 1 if u.timed else c.pipeline
+        frames = []
+        while len(c.inflight) < pipe and c.sent < len(c.todo):
+            if u.timed or c.quiet_until > now:
+                at = max(c.quiet_until, c.last_end + u.gap)
+                if at > now:
+                    c.deadline = at  # the loop sends when the silence is over
+                    self._silent.add(c)
+                    break
+            spec = c.todo[c.sent]
+            c.sent += 1
+            c.tid = tid = (c.tid + 1) & 0xFFFF
+            t = tid.to_bytes(2, "big")
+            frames.append(t + spec.tail)
+            c.inflight.append((t + spec.head, spec))
+        if not frames:
+            return
+        if len(c.inflight) == len(frames):
+            c.deadline = now + u.timeout
+            if c.deadline < self._soonest:
+                self._soonest = c.deadline
+        try:
+            c.sock.send(frames[0] if len(frames) == 1 else b"".join(frames))
+        except OSError as err:
+            self._lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
+
+    def _readable(self, c: _Conn, now: float) -> None:
+        sock = c.sock
+        assert sock is not None
+        try:
+            data = sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError as err:
+            self._lost(c, now, os.strerror(err.errno or errno.ECONNRESET), err.errno)
+            return
+        if not data:
+            self._lost(c, now, "the connection was closed by the device", errno.ECONNRESET)
+            return
+        if c.rbuf:
+            c.rbuf += data
+            data = bytes(c.rbuf)
+            c.rbuf.clear()
+        pos, n = 0, len(data)
+        inflight = c.inflight
+        while n - pos >= 9:
+            if inflight:
+                head, spec = inflight[0]
+                if data[pos:pos + 9] == head:
+                    size = spec.size
+                    if n - pos < size:
+                        break
+                    e = c.entry
+                    assert e is not None
+                    spec.place(e.image, data, pos)
+                    pos += size
+                    inflight.popleft()
+                    self._replied(c, e, now)
+                    if c.sock is not sock:
+                        return
+                    continue
+            used = self._odd(c, data, pos, now)
+            if used < 0 or c.sock is not sock:
+                return
+            if used == 0:
+                break
+            pos += used
+        if pos < n:
+            c.rbuf += data[pos:]
+
+    def _odd(self, c: _Conn, data: bytes, pos: int, now: float) -> int:
+        """A reply that is not the expected one: a late one (another
+        transaction id: skipped), an exception, or garbage (the connection is
+        dropped: -1). Returns the bytes used (0: wait for more)."""
+        if data[pos + 2:pos + 4] != b"\x00\x00":
+            self._garbage(c, now, data[pos:pos + 9])
+            return -1
+        length = int.from_bytes(data[pos + 4:pos + 6], "big")
+        if not 3 <= length <= 254:
+            self._garbage(c, now, data[pos:pos + 9])
+            return -1
+        if len(data) - pos < 6 + length:
+            return 0
+        if not c.inflight or data[pos:pos + 2] != c.inflight[0][0][:2]:
+            return 6 + length  # the late reply of a request that timed out
+        head, spec = c.inflight[0]
+        e = c.entry
+        assert e is not None
+        if data[pos + 6] == head[6] and data[pos + 7] == head[7] | 0x80 and length == 3:
+            c.inflight.popleft()
+            self._exception(c, e, spec, data[pos + 8], now)
+            return 9
+        self._garbage(c, now, data[pos:pos + 6 + length], spec)
+        return -1
+
+    def _garbage(self, c: _Conn, now: float, got: bytes, spec: Spec | None = None) -> None:
+        e = c.entry
+        if e is not None:
+            spec = spec or (c.inflight[0][1] if c.inflight else None)
+            exc = ProtocolError(f"{_asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
+                                f"not match the request (received {got.hex(' ').upper()})",
+                                response=got)
+            self._failed(c, e.unit, exc)
+            self._requeue(c, e, now)
+            c.entry = None
+        self._close(c)
+        c.retry_at = now
+
+    def _exception(self, c: _Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
+        u = e.unit
+        planner = u.planner
+        if code in (2, 3) and planner.limits.split_on_exception:
+            r = spec.request
+            if r.bridged and planner.refuse_bridge(r):
+                subs = list(planner.replan(r).requests)
+            elif len(r.extents) > 1:
+                items = planner.items
+                subs = []
+                for ext in r.extents:
+                    start = min(items[k].address for k in ext)
+                    end = max(items[k].end for k in ext)
+                    subs.append(Request(r.table, start, end - start, ext, (ext,), 0))
+            else:
+                planner.mark_unsupported(r.items)
+                c.unread.update(r.items)
+                subs = []
+            c.todo[c.sent:c.sent] = [e.spec(s) for s in subs]
+            self._replied(c, e, now)
+            return
+        exc = exception_class(code)(
+            f"{_asked(spec, u)} on {c.bus.endpoint}: device answered exception {code:02X} "
+            f"({describe_exception(code)})", code=code, slave=u.info.address,
+            function=spec.function, address=spec.address, count=spec.count,
+            port=c.bus.endpoint)
+        self._failed(c, u, exc)
+        c.inflight.clear()  # replies still on their way are skipped as late ones
+        c.entry = None
+        self._requeue(c, e, now)
+        self._next(c, now)
+
+    def _replied(self, c: _Conn, e: Entry, now: float) -> None:
+        u = e.unit
+        if u.timed:
+            c.last_end = now
+            c.quiet_until = max(c.quiet_until, now + u.turnaround)
+        if c.sent < len(c.todo):
+            self._send(c, now)
+        elif not c.inflight:
+            self._done(c, e, now)
+            self._next(c, now)
+
+    def _done(self, c: _Conn, e: Entry, now: float) -> None:
+        """A poll read every request: its sample."""
+        u = e.unit
+        c.entry = None
+        unread = u.planner.unsupported
+        if unread or c.unread:
+            unread = (unread | c.unread) & e.decode.items
+        reading = lazy_reading(e.decode, bytes(e.image), unread)
+        batch = self._batch
+        if not batch:
+            self._batch_since = now
+        batch.append(Sample(u.info, time.time(), time.monotonic(), reading))
+        if len(batch) >= BATCH_MAX:
+            self.flush()
+        stats = self.stats
+        if reading.unsupported:
+            stats.count(stats.unsupported, u.info.name, len(reading.unsupported))
+        if u.offline:
+            self._event(c, "online", f"{u.info.name} answers again", u)
+        if u.failures:
+            u.failures, u.offline = 0, False
+        stats.ok(u.info.name)
+        self._requeue(c, e, now)
+
+    def _requeue(self, c: _Conn, e: Entry, now: float) -> None:
+        """After a poll (or a failed one): the group's next slot; whole slots
+        a long poll overran are skipped and counted."""
+        if e.once:
+            e.read_once = True
+            return
+        if e.interval == 0:
+            if e.due(now):
+                self._queue(c, e)
+            else:
+                self._at(e.wake(now), e)
+            return
+        e.next_at += e.interval
+        if now > e.next_at:
+            late = int((now - e.next_at) / e.interval) + 1
+            e.next_at += late * e.interval
+            self.stats.skipped(late)
+            what = f"{e.unit.info.name} group {e.group}" if e.group else e.unit.info.name
+            self._event(c, "skipped", f"{late} poll slot(s) of {e.interval:g} s skipped "
+                        f"({what})")
+        self._at(e.wake(now), e)
+
+    def _at(self, when: float, e: Entry) -> None:
+        if when != float("inf"):
+            self._seq += 1
+            heapq.heappush(self._slots, (when, self._seq, e))
+
+    def _failed(self, c: _Conn, u: Unit, e: ModbusError) -> None:
+        kind = event_kind(e)
+        code = getattr(e, "code", None) or getattr(e, "errno", None)
+        u.failures += 1
+        stats = self.stats
+        stats.count(stats.device_faults, u.info.name, 1)
+        retry = ""
+        after = u.config.offline_after or 1
+        if u.failures >= after:
+            wait = float(u.config.offline_retry or 30.0)
+            u.retry_at = time.monotonic() + wait
+            if not u.offline:
+                retry = f"; offline after {u.failures} failed poll(s), next try in {wait:g} s"
+            u.offline = True
+        stats.fault(u.info.name, f"{u.info.name}: {short_fault(kind, str(e))}")
+        self._event(c, kind, str(e) + retry, u, code)
+
+    # -- the loop ------------------------------------------------------------------------
+
+    def _sweep(self, now: float) -> None:
+        self._soonest = soonest = float("inf")
+        for c in self.conns:
+            if c.state == "closed":
+                if now >= c.retry_at:
+                    self._connect(c, now)
+            elif c.state == "connecting":
+                if now >= c.deadline:
+                    self._close(c)
+                    self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: no answer "
+                                           f"within {c.bus.timeout:g} s")
+            elif c.entry is not None and now >= c.deadline:
+                if c.inflight:
+                    self._timeout(c, now)
+                elif c.sent < len(c.todo):
+                    self._send(c, now)  # a silence is over
+            elif c.entry is None and c.waiting:
+                self._next(c, now)
+            if (c.state == "connecting" or c.inflight) and c.deadline < soonest:
+                soonest = c.deadline
+        self._soonest = min(self._soonest, soonest)
+
+    def _timeout(self, c: _Conn, now: float) -> None:
+        e = c.entry
+        assert e is not None
+        spec = c.inflight[0][1]
+        u = e.unit
+        got = bytes(c.rbuf) or None
+        exc = request_error(errno.ETIMEDOUT, function=spec.function, slave=u.info.address,
+                            address=spec.address, count=spec.count, port=c.bus.endpoint,
+                            timeout=u.timeout, failed=(spec.address, spec.count),
+                            response=got, header=7, frame=None)
+        c.inflight.clear()  # a late reply is skipped by its transaction id
+        c.entry = None
+        self._failed(c, u, exc)
+        self._requeue(c, e, now)
+        self._next(c, now)
+
+    def _quiet_over(self, now: float) -> float:
+        """Send what waited for a silence that is over; seconds to the next."""
+        wait = _TICK
+        for c in list(self._silent):
+            if c.entry is None or c.inflight or c.sock is None:
+                self._silent.discard(c)
+            elif c.deadline <= now:
+                self._silent.discard(c)
+                self._send(c, now)
+            else:
+                wait = min(wait, c.deadline - now)
+        return wait
+
+    def _due(self, now: float) -> None:
+        slots = self._slots
+        while slots and slots[0][0] <= now:
+            _, _, e = heapq.heappop(slots)
+            c = self._conn_of[id(e)]
+            if e.due(now):
+                self._queue(c, e)
+                if c.entry is None:
+                    self._next(c, now)
+            else:
+                self._at(e.wake(now), e)
+
+    def run(self) -> None:
+        try:
+            self._run()
+        finally:
+            self.flush()
+            for c in self.conns:
+                self._close(c)
+            self._sel.close()
+
+    def _run(self) -> None:
+        start = time.monotonic()
+        for c in self.conns:
+            for e in c.entries:
+                e.next_at = start
+                if not (e.once or e.interval == 0):
+                    self._at(start, e)
+        stop, select = self.stop_event, self._sel.select
+        next_sweep = start
+        while not stop.is_set():
+            now = time.monotonic()
+            if now >= next_sweep or now >= self._soonest:
+                self._sweep(now)
+                next_sweep = now + _TICK
+            if self._slots and self._slots[0][0] <= now:
+                self._due(now)
+            batch = self._batch
+            if batch and now - self._batch_since >= _BATCH_AGE:
+                self.flush()
+            wait = min(next_sweep, self._soonest) - now
+            if self._slots:
+                wait = min(wait, self._slots[0][0] - now)
+            if self._silent:
+                wait = min(wait, self._quiet_over(now))
+            for key, mask in select(max(wait, 0.0)):
+                c = key.data
+                t = time.monotonic()
+                if c.state == "open":
+                    self._readable(c, t)
+                elif mask & selectors.EVENT_WRITE:
+                    self._connected(c, t)
+                    self._next(c, t)
+
+
+def _asked(spec: Spec | None, u: Unit) -> str:
+    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``."""
+    if spec is None:
+        return f"{u.info.name}(slave={u.info.address})"
+    return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
+            f"count={spec.count})")

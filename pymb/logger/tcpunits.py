@@ -1,0 +1,271 @@
+"""What the one-loop TCP poller (:mod:`pymb.logger.tcploop`) keeps per map
+device and per polling group: :class:`Unit` (a map device at a unit id: its
+planner, timing and health), :class:`Entry` (one group of a unit: its
+schedule, its prepared requests and its sample image) and
+:class:`GroupDecode` (the group's registers decoded only when someone asks
+for the values: the SQLite writer stores the registers and never does).
+
+An entry's image is laid out as the store keeps a map reading
+(:func:`pymb.devices.mapreading.group_layout`): each table's registers, from
+its first point's to its last's, big-endian, one table after the other (a
+bit as a 0/1 word). A reply's data bytes go to their place in it in one
+slice assignment; a poll's sample is that image, copied once.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import sys
+import threading
+from array import array
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymb.devices.mapreading import MapReading, group_layout, group_points
+from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.maps import Map, Value
+from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
+from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
+from pymb.store import DeviceInfo
+from pymb.wire import DEFAULT_BAUD, bits_per_char
+
+__all__ = ["Entry", "GroupDecode", "Spec", "Unit", "lazy_reading"]
+
+_TAIL = struct.Struct(">HHBBHH")  # a request after its transaction id
+_HEAD_TAIL = struct.Struct(">HHBBB")  # a reply's first 9 bytes after its transaction id
+#: a byte of coils as the store keeps bits: 8 big-endian 0/1 words, bit 0 first
+_BITS16 = tuple(b"".join(b"\x00\x01" if v >> i & 1 else b"\x00\x00" for i in range(8))
+                for v in range(256))
+#: the line a TCP client's plans are priced at (as MapDevice prices them)
+TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
+
+
+@dataclass(eq=False)
+class Unit:
+    """A map device on a TCP bus and how its polling goes."""
+
+    info: DeviceInfo
+    config: MapDeviceConfig
+    planner: PointPlanner
+    items: MapItems
+    timeout: float  #: seconds a request waits for its reply
+    gap: float  #: silence before each request (``inter_request_gap``)
+    turnaround: float  #: silence after its reply
+    failures: int = 0  #: failed polls in a row
+    retry_at: float = 0.0  #: offline: not polled before this (clock)
+    offline: bool = False
+
+    @classmethod
+    def of(cls, info: DeviceInfo, cfg: MapDeviceConfig, bus_timeout: float) -> Unit:
+        """The unit of a configured map device (its planner as MapDevice's)."""
+        m = cfg.map
+        planner, mi = map_planner(m, TCP_LINE)
+        t = m.timing
+        return cls(info, cfg, planner, mi, t.response_timeout or bus_timeout,
+                   t.inter_request_gap, t.turnaround)
+
+    @property
+    def timed(self) -> bool:
+        """Whether the device needs silences around its requests (no pipelining)."""
+        return self.gap > 0 or self.turnaround > 0
+
+
+class Spec:
+    """One request of a poll, made ready: its frame after the transaction
+    id, the reply's first 9 bytes after it, the reply's size, and where its
+    data goes in the image."""
+
+    __slots__ = ("address", "bits", "count", "function", "head", "offset", "request", "size",
+                 "tail")
+
+    def __init__(self, r: Request, unit: int, offset: int) -> None:
+        self.request = r
+        self.function = r.function
+        self.address = r.address
+        self.count = r.count
+        self.bits = r.table in BIT_TABLES
+        nbytes = (r.count + 7) // 8 if self.bits else 2 * r.count
+        self.tail = _TAIL.pack(0, 6, unit, r.function, r.address, r.count)
+        self.head = _HEAD_TAIL.pack(0, 3 + nbytes, unit, r.function, nbytes)
+        self.size = 9 + nbytes
+        self.offset = offset
+
+    def place(self, image: bytearray, data: bytes, pos: int) -> None:
+        """The reply's data (at ``pos`` in ``data``) into its place in ``image``."""
+        off = self.offset
+        if self.bits:
+            words = b"".join([_BITS16[b] for b in data[pos + 9:pos + self.size]])
+            image[off:off + 2 * self.count] = words[:2 * self.count]
+        else:
+            image[off:off + self.size - 9] = data[pos + 9:pos + self.size]
+
+
+class GroupDecode:
+    """A group's registers decoded as MapDevice decodes them: a C decoder per
+    table, NaN/None and ``unsupported`` where the device refused a point."""
+
+    def __init__(self, m: Map, group: str | None, items: MapItems) -> None:
+        self.map = m
+        self.group = group
+        self.decoders = group_layout(m, group)
+        self.names = group_points(m, group)
+        index = {p.name: i for i, p in enumerate(items.points)}
+        # (name, first item, channels, block) of each point of the group
+        self.points = [(n, items.first[index[n]], items.points[index[n]].channels,
+                        items.points[index[n]].block) for n in self.names]
+        self.items = frozenset(k for _, k0, n, _ in self.points for k in range(k0, k0 + n))
+        self.lock = threading.Lock()  # the decoders' arrays are shared
+
+    def layout(self) -> dict[str, tuple[int, int, int]]:
+        """Table -> (first address, registers, byte offset in the image)."""
+        out, off = {}, 0
+        for d in self.decoders:
+            out[d.table] = (d.address, d.count, off)
+            off += 2 * d.count
+        return out
+
+    def unsupported(self, unread: frozenset[int]) -> tuple[str, ...]:
+        """The group's points with an item in ``unread``, in map order."""
+        return tuple(n for n, k0, c, _ in self.points if not unread.isdisjoint(range(k0, k0 + c)))
+
+    def decode(self, regs: array[int], unread: frozenset[int]
+               ) -> tuple[dict[str, Value], dict[str, Any]]:
+        """(values, states) of the group's points from its registers."""
+        values: dict[str, Value] = {}
+        states: dict[str, Any] = {}
+        at = 0
+        with self.lock:
+            for dec in self.decoders:
+                b = dec.decode(regs[at:at + dec.count])
+                at += dec.count
+                values.update(dec.values(b))
+                states.update(dec.states(b))
+        for name, k0, channels, block in self.points:
+            if unread.isdisjoint(range(k0, k0 + channels)):
+                continue
+            if block:
+                v, st = values[name], states[name]
+                assert isinstance(v, list)
+                for c in range(channels):
+                    if k0 + c in unread:
+                        v[c], st[c] = None, "unsupported"
+            else:
+                values[name], states[name] = None, "unsupported"
+        return {n: values[n] for n in self.names}, {n: states[n] for n in self.names}
+
+
+class _Decoded:
+    """A sample's values and states, decoded on first use."""
+
+    __slots__ = ("_got", "_how", "_regs", "_unread")
+
+    def __init__(self, how: GroupDecode, regs: array[int], unread: frozenset[int]) -> None:
+        self._how, self._regs, self._unread = how, regs, unread
+        self._got: tuple[dict[str, Value], dict[str, Any]] | None = None
+
+    def get(self, which: int) -> dict[str, Any]:
+        got = self._got
+        if got is None:
+            got = self._got = self._how.decode(self._regs, self._unread)
+        return got[which]
+
+
+class _Lazy(Mapping[str, Any]):
+    """The values (or states) of a sample: decoded when first read."""
+
+    __slots__ = ("_src", "_which")
+
+    def __init__(self, src: _Decoded, which: int) -> None:
+        self._src, self._which = src, which
+
+    def __getitem__(self, key: str) -> Any:
+        return self._src.get(self._which)[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._src.get(self._which))
+
+    def __len__(self) -> int:
+        return len(self._src.get(self._which))
+
+    def __repr__(self) -> str:
+        return repr(self._src.get(self._which))
+
+
+_SWAP = sys.byteorder == "little"
+_NONE: frozenset[int] = frozenset()
+
+
+def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
+                 ) -> MapReading:
+    """The :class:`MapReading` of one poll: the registers of ``image``
+    (big-endian, as on the wire), values and states decoded on first use."""
+    regs = array("H", image)
+    if _SWAP:
+        regs.byteswap()
+    src = _Decoded(how, regs, unread)
+    gone = how.unsupported(unread) if unread else ()
+    return MapReading(how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs, gone)
+
+
+@dataclass(eq=False)
+class Entry:
+    """One polling group of a unit: its schedule and its requests."""
+
+    unit: Unit
+    group: str | None
+    interval: float  #: seconds; 0: flat out (or once, see ``once``)
+    once: bool  #: interval 0 in the map: once after each (re)connect
+    decode: GroupDecode
+    wanted: tuple[int, ...]  #: the planner items of the group (the same tuple each poll)
+    next_at: float = 0.0
+    read_once: bool = False
+    queued: bool = False  #: waiting in its connection's queue
+    plan: ReadPlan | None = None
+    specs: list[Spec] = field(default_factory=list)
+    image: bytearray = field(default_factory=bytearray)
+
+    @classmethod
+    def of(cls, unit: Unit, group: str | None, interval: float, once: bool) -> Entry:
+        """The entry of ``unit``'s ``group``."""
+        how = GroupDecode(unit.config.map, group, unit.items)
+        wanted = tuple(sorted(how.items))
+        return cls(unit, group, interval, once, how, wanted,
+                   image=bytearray(2 * sum(d.count for d in how.decoders)))
+
+    def requests(self) -> list[Spec]:
+        """This poll's requests as the planner plans them now (made ready
+        again only when the plan changed: a refused bridge or point)."""
+        plan = self.unit.planner.plan(self.wanted)
+        if plan is not self.plan:
+            lay = self.decode.layout()
+            self.specs = [self.spec(r, lay) for r in plan.requests]
+            self.plan = plan
+        return self.specs
+
+    def spec(self, r: Request, lay: dict[str, tuple[int, int, int]] | None = None) -> Spec:
+        """A request of this group made ready."""
+        first, count, off = (lay or self.decode.layout())[r.table]
+        if not first <= r.address <= r.address + r.count <= first + count:
+            raise ValueError(f"{r.table} {r.address}+{r.count} outside the group's "
+                             f"registers {first}+{count}")
+        return Spec(r, self.unit.info.address, off + 2 * (r.address - first))
+
+    def due(self, now: float) -> bool:
+        """Whether this group is to be read at ``now``."""
+        u = self.unit
+        if u.offline and now < u.retry_at:
+            return False
+        if self.once:
+            return not self.read_once
+        return self.interval == 0 or now >= self.next_at
+
+    def wake(self, now: float) -> float:
+        """When this group is due next (inf: not before a reconnect)."""
+        u = self.unit
+        if u.offline:
+            return max(u.retry_at, self.next_at if self.interval else u.retry_at)
+        if self.once:
+            return math.inf if self.read_once else now
+        return self.next_at if self.interval else now
