@@ -17,7 +17,9 @@ from conftest import PYMB_ENV
 from pymb.sim import SimulatorProcess
 
 #: ``pymb log`` whose poller of the bus named "broken" raises once the other
-#: bus has logged a sample (it waits for that counter, at most 30 s)
+#: bus has logged a sample (it waits for that counter, at most 30 s); that bus
+#: is RTU over TCP, polled by a thread of its own (map devices on plain TCP
+#: share the one loop of pymb.logger.tcploop)
 DRIVER = '''
 import sys, time
 from pymb.logger import poller
