@@ -60,6 +60,11 @@ def _take_interrupt() -> BaseException | None:
     return exc
 
 
+def _seconds_us(seconds: float) -> tuple[int, int]:
+    """A timeout as libmodbus takes it: (seconds, microseconds), at least 1 us."""
+    return divmod(max(1, round(seconds * 1e6)), 1_000_000)
+
+
 def ffi_buffer_u16(array: Any) -> Any:
     """A ``uint16_t *`` over a writable buffer (an ``array('H')``)."""
     return ffi.from_buffer("uint16_t[]", array, require_writable=True)
@@ -79,7 +84,7 @@ class RegisterPlan:
     def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
                  gap: float = 0.0, timeout: float | None = None) -> None:
         self.timeout = timeout
-        self.timeout_us = divmod(max(1, round((timeout or 0) * 1e6)), 1_000_000)
+        self.timeout_us = _seconds_us(timeout or 0)
         self.requests = tuple(requests)
         self.n = len(self.requests)
         self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))
@@ -124,6 +129,11 @@ class Link:
         self._rsp = ffi.new("uint8_t[]", lib.MODBUS_MAX_ADU_LENGTH)
         self._header = 1  # where a reply's PDU starts: pymb_line_header_length
         self._timeout = (1.0, 0.0)
+        self._timeout_us = (1, 0)  # the response timeout as libmodbus takes it (s, us)
+        #: a plan's response timeout the context holds instead of the line's
+        #: own (None: its own): left there for the next run of such a plan,
+        #: put back before any other request
+        self._held: tuple[int, int] | None = None
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
 
     # -- life cycle ------------------------------------------------------------
@@ -205,6 +215,7 @@ class Link:
         ctx, self._ctx = self._ctx, ffi.NULL
         line, self._line = self._line, ffi.NULL
         self.is_open = False
+        self._held = None
         if line != ffi.NULL:
             lib.pymb_line_free(line)
         if ctx != ffi.NULL:
@@ -227,6 +238,7 @@ class Link:
         """Response timeout and inter-byte timeout (0 disables it: the whole
         reply must then arrive within the response timeout)."""
         self._timeout = (response, byte)
+        self._timeout_us = _seconds_us(response)
         if self.is_open:
             self._apply_timeouts()
 
@@ -235,20 +247,27 @@ class Link:
         stays) and return the one it replaces."""
         before, byte = self._timeout
         self._timeout = (response, byte)
+        self._timeout_us = _seconds_us(response)
         if self.is_open:
-            rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)
-            lib.modbus_set_response_timeout(self._ctx, rs, rus)
+            lib.modbus_set_response_timeout(self._ctx, *self._timeout_us)
+            self._held = None
         return before
 
     def _apply_timeouts(self) -> None:
         response, byte = self._timeout
-        rs, rus = divmod(max(1, round(response * 1e6)), 1_000_000)
+        rs, rus = self._timeout_us
         bs, bus = divmod(max(0, round(byte * 1e6)), 1_000_000)
         if (
             lib.modbus_set_response_timeout(self._ctx, rs, rus) == -1
             or lib.modbus_set_byte_timeout(self._ctx, bs, bus) == -1
         ):
             raise InvalidArgument(f"timeout out of range: {response!r}, {byte!r}")
+        self._held = None
+
+    def _own_timeout(self) -> None:
+        """Give the context the line's own response timeout back (after a plan's)."""
+        lib.modbus_set_response_timeout(self._ctx, *self._timeout_us)
+        self._held = None
 
     def set_rs485(self, mode: int | None, rts: int | None, rts_delay_us: int | None) -> None:
         """Serial mode (MODBUS_RTU_RS232/RS485), RTS mode and RTS delay."""
@@ -281,6 +300,8 @@ class Link:
         """Read ``count`` registers into ``dest`` (a writable uint16 buffer)."""
         # The hot path: one C call (a closed line fails in C, with EINVAL,
         # and _error tells it apart).
+        if self._held is not None:
+            self._own_timeout()
         if lib.pymb_read_registers(self._line, function, slave, address, count,
                                    _from_buffer("uint16_t[]", dest, True), self._fail) < 0:
             raise self._error(function, slave, address, count)
@@ -289,6 +310,8 @@ class Link:
         """Read ``count`` bits into ``dest`` (a writable byte buffer, 0/1 each)."""
         if not self.is_open:
             raise self._closed(function, slave, address, count)
+        if self._held is not None:
+            self._own_timeout()
         rc = lib.pymb_read_bits(
             self._line, function, slave, address, count,
             ffi.from_buffer("uint8_t[]", dest, require_writable=True), self._fail,
@@ -305,6 +328,8 @@ class Link:
         slave, function = request[0], request[1]
         if not self.is_open:
             raise self._closed(function, slave, address, count)
+        if self._held is not None:
+            self._own_timeout()
         n = lib.pymb_transact(
             self._line, request, len(request), expect, self._rsp, lib.MODBUS_MAX_ADU_LENGTH,
             self._fail,
@@ -315,17 +340,19 @@ class Link:
 
     def read_plan(self, plan: RegisterPlan, start: int = 0) -> None:
         """Run ``plan``'s requests from ``start`` on, in one C call; on
-        failure ``plan.failed`` is the index of the request that failed."""
-        swap = plan.timeout is not None and plan.timeout != self._timeout[0] and self.is_open
-        if swap:
+        failure ``plan.failed`` is the index of the request that failed.
+        The plan's reply timeout stays on the line until a request of another
+        timeout: a poller running the same plan sets it once."""
+        timeout = plan.timeout
+        if timeout is None or timeout == self._timeout[0]:
+            if self._held is not None:
+                self._own_timeout()
+        elif self._held != plan.timeout_us and self.is_open:
             lib.modbus_set_response_timeout(self._ctx, *plan.timeout_us)
-        rc = lib.pymb_read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
-                                plan.regs, plan.nregs, plan.done, self._fail)
-        if swap:  # the line's own again, errno kept for _error
-            err = ffi.errno
-            lib.modbus_set_response_timeout(
-                self._ctx, *divmod(max(1, round(self._timeout[0] * 1e6)), 1_000_000))
-            ffi.errno = err
+            self._held = plan.timeout_us
+        rc = lib.pymb_read_plan(self._line, plan.reqs if start == 0 else plan.reqs + start,
+                                plan.n - start, plan.gap_us, plan.regs, plan.nregs, plan.done,
+                                self._fail)
         if rc < 0:
             k = plan.failed = start + int(plan.done[0])
             function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
@@ -336,6 +363,8 @@ class Link:
         rq = sweep.request
         if not self.is_open:
             raise self._closed(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None)
+        if self._held is not None:
+            self._own_timeout()
         if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
             raise self._error(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None,
                               context="hub sweep")
@@ -345,6 +374,8 @@ class Link:
         """Drop input until the line is quiet for ``quiet`` seconds."""
         if not self.is_open:
             return 0
+        if self._held is not None:
+            self._own_timeout()
         n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
         if n < 0:
             err = ffi.errno

@@ -299,7 +299,15 @@ class Client:
     def run_read_plan(self, plan: _native.RegisterPlan, start: int = 0) -> None:
         """Run a prepared :class:`pymb._native.RegisterPlan` from request ``start`` on, in one
         C call; on failure ``plan.failed`` says which request failed."""
-        self._call(self._link.read_plan, plan, start)
+        link = self._link  # _call, written out, as in read_registers_prepared
+        with self._lock:
+            if not link.is_open:
+                self._reopen()
+            try:
+                link.read_plan(plan, start)
+            except ModbusConnectionError as e:
+                self._close_if_lost(e)
+                raise
 
     def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
         """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,

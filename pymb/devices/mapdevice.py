@@ -23,21 +23,17 @@ import math
 import threading
 import time
 from array import array
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
-from itertools import groupby
-from operator import attrgetter
-from typing import Any, NamedTuple
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
-from pymb._native import RegisterPlan
 from pymb.client import Client
-from pymb.devices.linequiet import quiet_of, sleep_until
+from pymb.devices.mapfetch import Fetcher, Image, Run
 from pymb.devices.mapreading import MapReading
-from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument
-from pymb.maps import Decoder, Map, Point, Value
+from pymb.errors import InvalidArgument
+from pymb.maps import Buffers, Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
 from pymb.maps.model import check_group, did_you_mean
-from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
+from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
@@ -46,22 +42,33 @@ __all__ = ["MapDevice"]
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = DEFAULT_BAUD
 _CACHED = 64  #: selections (and their buffers) kept per device
+_NEVER = math.inf
 
 
-class _Image(NamedTuple):
-    """One table's registers of a selection: read in place, decoded in C."""
+class _Read:
+    """One selection's read, made ready: its points and planner items, its
+    buffers (one :class:`~pymb.devices.mapfetch.Image` per table) with their
+    decoders bound to them, and the plan and its runs of the planner's
+    :attr:`~pymb.maps.device_plan.PointPlanner.version` it was made at. A
+    read at the same version on the same connection asks the same requests:
+    it runs them and decodes, nothing else."""
 
-    address: int  #: of its first register
-    registers: array[int]
-    decoder: Decoder
+    __slots__ = ("decoders", "decodes", "images", "items", "plan", "points", "runs",
+                 "version")
 
-
-class _Prepared(NamedTuple):
-    """A run of a prepared plan's requests into one table's buffer: one C call."""
-
-    requests: tuple[Request, ...]
-    image: _Image
-    plan: RegisterPlan  #: the requests as C takes them
+    def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
+                 images: dict[str, Image]) -> None:
+        self.points = points
+        self.items = items
+        self.images = images
+        self.decoders = tuple(image.decoder for image in images.values())
+        #: per table: the decoder's C call bound to its buffer, its buffers, the buffer
+        self.decodes: tuple[tuple[Callable[[], int], Buffers, array[int]], ...] = tuple(
+            (image.decoder.bind(image.registers), image.decoder.buffers, image.registers)
+            for image in images.values())
+        self.plan: ReadPlan | None = None
+        self.runs: tuple[Run, ...] | None = None
+        self.version = -1  # made at no version yet
 
 
 class MapDevice:
@@ -103,7 +110,6 @@ class MapDevice:
                 low <= address <= high):
             raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {address!r}")
         self.client = client
-        self._quiet = quiet_of(client)  #: the line's silences, shared with its other devices
         self.map = m
         self.address = address
         rate = getattr(client, "baudrate", None) or baudrate or DEFAULT_BAUDRATE
@@ -115,17 +121,12 @@ class MapDevice:
         self._points: tuple[Point, ...] = mi.points
         self._first = mi.first
         self._index = {p.name: i for i, p in enumerate(self._points)}
-        items = mi.items
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
-        self._wanted: dict[tuple[int, ...], tuple[int, ...]] = {}  # points -> their items
-        # per selection, per table: the first address and the registers
-        # (bits) from there to the selection's last, read into in place
-        self._images: dict[tuple[int, ...], dict[str, _Image]] = {}
-        #: id(plan) -> (plan, its images, its register requests made ready)
-        self._ready: dict[int, tuple[ReadPlan, dict[str, _Image],
-                                     tuple[_Prepared, ...] | None]] = {}
-        self._unread = bytearray(len(items))  # 1: this read got no value for the item
-        self._none_unread = bytes(len(items))
+        self._reads: dict[tuple[int, ...], _Read] = {}  # per selection (points)
+        #: the last read's names, group and _Read: a poller asking the same again finds it
+        self._last: tuple[tuple[str, ...], str | None, _Read] | None = None
+        self._fetcher = Fetcher(client, m, address, self._planner)
+        self._none_unread = bytes(len(mi.items))
         self._lock = threading.Lock()
         self._connections = -1
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
@@ -165,19 +166,33 @@ class MapDevice:
         self._selections[key] = chosen
         return chosen
 
-    def _items(self, points: tuple[int, ...]) -> tuple[int, ...]:
-        """The planner items of a selection, the same tuple each time."""
-        items = self._wanted.get(points)
-        if items is None:
-            if len(self._wanted) >= _CACHED:
-                self._wanted.clear()
-            items = self._wanted[points] = tuple(self._mi.wanted(points))
-        return items
+    def _read_of(self, names: tuple[str, ...], group: str | None) -> _Read:
+        """The selection's :class:`_Read`, made on its first read: a buffer
+        per table, from its first point's register (bit) to its last's, each
+        request read in place, and the compiled decoder that walks it in one
+        C call."""
+        points = self._selection(names, group)
+        r = self._reads.get(points)
+        if r is None:
+            tables: dict[str, list[str]] = {}
+            for i in points:
+                p = self._points[i]
+                tables.setdefault(p.table, []).append(p.name)
+            images = {}
+            for t, ns in tables.items():
+                dec = Decoder(self.map, ns)
+                images[t] = Image(dec.address, array("H", bytes(2 * dec.count)), dec)
+            r = _Read(points, tuple(self._mi.wanted(points)), images)
+            if len(self._reads) >= _CACHED:
+                self._reads.clear()  # many different selections: keep memory bounded
+            self._reads[points] = r
+        self._last = (names, group, r)
+        return r
 
     def plan(self, group: str | None = None, *names: str) -> ReadPlan:
         """The requests a read of ``group`` (or of the named points; all by
         default) makes now, with their predicted wire time."""
-        return self._planner.plan(self._items(self._selection(names, group)))
+        return self._planner.plan(tuple(self._mi.wanted(self._selection(names, group))))
 
     # -- reads ------------------------------------------------------------------------
 
@@ -185,10 +200,12 @@ class MapDevice:
         """The named points, or the points of ``group``, or every readable
         point: name -> value (a list for a block; None where there is no
         value, and why in :attr:`states`)."""
-        points = self._selection(names, group)
+        last = self._last
+        r = last[2] if last is not None and last[0] == names and last[1] == group else (
+            self._read_of(names, group))
         with self._lock:
-            images = self._fetch_all(points)
-            return self._decode(points, images)
+            self._fetch(r)
+            return self._decode(r.points, r.images)
 
     def read_into(self, *names: str, group: str | None = None) -> tuple[Decoder, ...]:
         """Read as :meth:`read` does, but build no dict: the values stay in
@@ -198,20 +215,22 @@ class MapDevice:
         device refused a point). The same decoders and arrays come back on
         every read of the same selection: a poller's steady state allocates
         nothing for the values."""
-        points = self._selection(names, group)
+        last = self._last
+        r = last[2] if last is not None and last[0] == names and last[1] == group else (
+            self._read_of(names, group))
         with self._lock:
-            images = self._fetch_all(points)
-            decoders = tuple(image.decoder for image in images.values())
-            for image in images.values():
-                image.decoder.decode(image.registers)
-            if 1 in self._unread:
-                self._mark_unread(points, images)
-            return decoders
+            self._fetch(r)
+            for decode, buffers, registers in r.decodes:
+                decode()
+                buffers.registers = registers
+            if 1 in self._fetcher.unread:
+                self._mark_unread(r.points, r.images)
+            return r.decoders
 
-    def _mark_unread(self, points: Sequence[int], images: dict[str, _Image]) -> None:
+    def _mark_unread(self, points: Sequence[int], images: dict[str, Image]) -> None:
         """In the decoders' arrays: NaN and ``unsupported`` where this read got
         no value."""
-        unread, code = self._unread, STATES.index("unsupported")
+        unread, code = self._fetcher.unread, STATES.index("unsupported")
         for i in points:
             p = self._points[i]
             k0 = self._first[i]
@@ -222,19 +241,29 @@ class MapDevice:
                     b.values[slot + c] = math.nan
                     b.states[slot + c] = code
 
-    def _fetch_all(self, points: tuple[int, ...]) -> dict[str, _Image]:
-        """The requests of a read of ``points``, each into its place in the
-        selection's buffers (the caller holds the lock)."""
-        self._prepare()
-        plan = self._planner.plan(self._items(points))
-        images = self._image(points)
-        unread = self._unread
-        if 1 in unread:
-            unread[:] = self._none_unread
-        for r in self._planner.unsupported:
-            unread[r] = 1
-        self._run(plan, images)
-        return images
+    def _fetch(self, r: _Read) -> None:
+        """The requests of read ``r``, each into its place in its buffers
+        (the caller holds the lock). Made again (reconnected, planned, the
+        unread marks reset) when the line was lost or reopened, when the
+        planner learnt something, or when an unsupported point is due."""
+        planner, client = self._planner, self.client
+        if (r.version != planner.version or not client.connected
+                or client.connections != self._connections
+                or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
+            self._prepare()
+            r.plan = planner.plan(r.items)
+            unread = self._fetcher.unread
+            if 1 in unread:
+                unread[:] = self._none_unread
+            for k in planner.unsupported:
+                unread[k] = 1
+            r.runs = self._fetcher.runs(r.plan, r.images)
+            r.version = planner.version
+        if r.runs is not None:
+            self._fetcher.run_ready(r.runs)
+        else:
+            assert r.plan is not None
+            self._fetcher.run(r.plan, r.images)
 
     def read_group(self, group: str | None = None) -> MapReading:
         """Read ``group`` (every readable point for None) as the logger keeps
@@ -242,32 +271,13 @@ class MapDevice:
         the requests read (laid out as
         :func:`~pymb.devices.mapreading.group_layout` says), copied."""
         values = self.read(group=group)
-        images = self._image(self._selection((), group))
+        images = self._read_of((), group).images
         regs = array("H")
         for image in images.values():
             regs.extend(image.registers)
         gone = tuple(n for n, s in self.states.items()
                      if s == "unsupported" or (isinstance(s, list) and "unsupported" in s))
         return MapReading(self.map, group, values, dict(self.states), regs, gone)
-
-    def _image(self, points: tuple[int, ...]) -> dict[str, _Image]:
-        """The buffers of a selection, one per table, made once: the
-        registers (bits) from its first point's to its last's, each request
-        read in place, and the compiled decoder that walks them in one C call."""
-        images = self._images.get(points)
-        if images is None:
-            names: dict[str, list[str]] = {}
-            for i in points:
-                p = self._points[i]
-                names.setdefault(p.table, []).append(p.name)
-            images = {}
-            for t, ns in names.items():
-                dec = Decoder(self.map, ns)
-                images[t] = _Image(dec.address, array("H", bytes(2 * dec.count)), dec)
-            if len(self._images) >= _CACHED:
-                self._images.clear()
-            self._images[points] = images
-        return images
 
     def _prepare(self) -> None:
         """Before a read: reconnect if the line was lost, and after a new
@@ -279,148 +289,11 @@ class MapDevice:
             self._planner.forget()
             wait = self.map.timing.after_connect
             if wait > 0:
-                q = self._quiet
+                q = self._fetcher.quiet
                 with q.lock:
                     q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
-    def _run(self, plan: ReadPlan, images: dict[str, _Image]) -> None:
-        prepared = self._prepared(plan, images)
-        if prepared is not None:
-            self._run_prepared(prepared)  # its RegisterPlans carry the map's reply timeout
-            return
-        with self._map_timeout():
-            for r in plan.requests:
-                self._fetch(r, images[r.table])
-
-    @contextmanager
-    def _map_timeout(self) -> Iterator[None]:
-        """The map's ``response_timeout`` on the line (the byte timeout stays)."""
-        timeout, client = self.map.timing.response_timeout, self.client
-        if timeout is None or timeout == client.timeout:
-            yield
-            return
-        before = client.swap_response_timeout_prepared(timeout)
-        try:
-            yield
-        finally:
-            client.swap_response_timeout_prepared(before)
-
-    def _prepared(self, plan: ReadPlan, images: dict[str, _Image]
-                  ) -> tuple[_Prepared, ...] | None:
-        """A plan of register reads only, made ready once: its requests in runs
-        of one table, each a RegisterPlan over that table's buffer (None: a
-        plan with bits, read request by request)."""
-        got = self._ready.get(id(plan))  # the entry holds plan and images: ids stay theirs
-        if got is not None and got[0] is plan and got[1] is images:
-            return got[2]
-        ready: tuple[_Prepared, ...] | None = None
-        if not any(r.table in BIT_TABLES for r in plan.requests):
-            t = self.map.timing
-            gap = max(t.inter_request_gap, t.turnaround)
-            runs = [tuple(g) for _, g in groupby(plan.requests, key=attrgetter("table"))]
-            ready = tuple(
-                _Prepared(rs, image, RegisterPlan(
-                    [(r.function, self.address, r.address, r.count, r.address - image.address)
-                     for r in rs], image.registers, gap, t.response_timeout))
-                for rs in runs for image in (images[rs[0].table],))
-        if len(self._ready) >= _CACHED:
-            self._ready.clear()
-        self._ready[id(plan)] = (plan, images, ready)
-        return ready
-
-    def _run_prepared(self, prepared: tuple[_Prepared, ...]) -> None:
-        """A prepared plan, a C call per run holding the line (silences as
-        :meth:`_turn` keeps them); on exception 02/03 as :meth:`_fetch`."""
-        gap, turnaround = self.map.timing.inter_request_gap, self.map.timing.turnaround
-        q = self._quiet
-        run = self.client.run_read_plan
-        monotonic = time.monotonic
-        for p in prepared:
-            start, n, refused = 0, p.plan.n, -1
-            while start < n:
-                with q.lock:
-                    until = q.quiet_until
-                    if q.last_end + gap > until:
-                        until = q.last_end + gap
-                    if until > monotonic():
-                        sleep_until(until)
-                    try:
-                        run(p.plan, start)
-                        start, refused = n, -1
-                    except (IllegalDataAddress, IllegalDataValue):
-                        if not self._planner.limits.split_on_exception:
-                            raise
-                        refused = p.plan.failed
-                    finally:
-                        now = monotonic()
-                        q.last_end = now
-                        if now + turnaround > q.quiet_until:
-                            q.quiet_until = now + turnaround
-                if refused >= 0:
-                    with self._map_timeout():
-                        self._fall_back(p.requests[refused], p.image)
-                    start = refused + 1
-
-    @contextmanager
-    def _turn(self) -> Iterator[None]:
-        """One request's turn on the line: the device's silence before it
-        (``inter_request_gap``, and any device's ``turnaround`` after its
-        reply), the line held for it, and the end noted for the next."""
-        t = self.map.timing
-        q = self._quiet
-        with q.lock:
-            sleep_until(max(q.quiet_until, q.last_end + t.inter_request_gap))
-            try:
-                yield
-            finally:
-                now = time.monotonic()
-                q.last_end = now
-                q.quiet_until = max(q.quiet_until, now + t.turnaround)
-
-    def _wire(self, r: Request, image: _Image) -> None:
-        """One request on the wire, into its place in ``image``."""
-        buf = image.registers
-        at = r.address - image.address
-        with self._turn():
-            if r.table in BIT_TABLES:
-                read = (self.client.read_coils if r.table == "coil"
-                        else self.client.read_discrete_inputs)
-                bits = read(r.address, r.count, slave=self.address)
-                buf[at:at + r.count] = array("H", bits)
-            else:
-                view = memoryview(buf)[at:at + r.count]
-                self.client.read_registers_prepared(r.function, self.address, r.address, view)
-
-    def _fetch(self, r: Request, image: _Image) -> None:
-        """Read ``r`` into ``image``; on exception 02/03, fall back as the
-        module says, within this read."""
-        try:
-            self._wire(r, image)
-            return
-        except (IllegalDataAddress, IllegalDataValue):
-            if not self._planner.limits.split_on_exception:
-                raise
-        self._fall_back(r, image)
-
-    def _fall_back(self, r: Request, image: _Image) -> None:
-        """``r`` was refused with exception 02/03: re-plan without the bridge,
-        read the extents apart, or mark its points unsupported."""
-        planner = self._planner
-        if r.bridged and planner.refuse_bridge(r):
-            for sub in planner.replan(r).requests:
-                self._fetch(sub, image)
-        elif len(r.extents) > 1:
-            items = planner.items
-            for ext in r.extents:
-                start = min(items[k].address for k in ext)
-                end = max(items[k].end for k in ext)
-                self._fetch(Request(r.table, start, end - start, ext, (ext,), 0), image)
-        else:
-            planner.mark_unsupported(r.items)
-            for k in r.items:
-                self._unread[k] = 1
-
-    def _decode(self, points: Sequence[int], images: dict[str, _Image]) -> dict[str, Value]:
+    def _decode(self, points: Sequence[int], images: dict[str, Image]) -> dict[str, Value]:
         """Every table's registers decoded in one C call each; points the
         device refused read None (``unsupported``)."""
         values: dict[str, Value] = {}
@@ -430,8 +303,8 @@ class MapDevice:
             b = dec.decode(image.registers)
             values.update(dec.values(b))
             states.update(dec.states(b))
-        if 1 in self._unread:
-            unread = self._unread
+        if 1 in self._fetcher.unread:
+            unread = self._fetcher.unread
             for i in points:
                 p = self._points[i]
                 k0 = self._first[i]
@@ -471,13 +344,13 @@ class MapDevice:
             m.encode(name, value, current=[0] * p.count)  # refused before any byte is sent
             with self._lock:
                 self._prepare()
-                with self._turn():
+                with self._fetcher.turn():
                     current = list(self.client.read_holding_registers(address, p.count,
                                                                       slave=self.address))
         regs = self.map.encode(name, value, current=current)
         with self._lock:
             self._prepare()
-            with self._turn():
+            with self._fetcher.turn():
                 if p.table == "coil":
                     self.client.write_coil(address, bool(regs[0]), slave=self.address)
                 elif len(regs) == 1:

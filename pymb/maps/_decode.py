@@ -7,7 +7,8 @@ The only module of :mod:`pymb.maps` that touches cffi's ``ffi`` and ``lib``.
 from __future__ import annotations
 
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from functools import partial
 from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
@@ -195,6 +196,21 @@ class Decoder:
             raise InvalidArgument(f"{self.map.id}: the compiled map was refused")
         b.registers = registers
         return b
+
+    def bind(self, registers: array[int]) -> Callable[[], int]:
+        """The C call of :meth:`decode` of ``registers`` into :attr:`buffers`,
+        its arguments converted once: each call decodes them again and
+        returns the number of values written. For a reader that decodes the
+        same buffer over and over; while the call lives, ``registers`` (an
+        ``array('H')`` of at least :attr:`count` registers) cannot change its
+        size."""
+        if not isinstance(registers, array) or registers.typecode != "H":
+            raise InvalidArgument(f"{self.map.id}: bind takes an array('H'), "
+                                  f"got {type(registers).__name__}")
+        self.decode(registers)  # checks the length, and the table once
+        return partial(lib.pymb_map_decode, self._entries, self._n, self._markers,
+                       self._nmarkers, ffi.from_buffer("uint16_t[]", registers),
+                       len(registers), self.buffers._out)  # noqa: SLF001 - this module's
 
     def read(self, registers: Sequence[int]) -> dict[str, Value]:
         """``{name: value}`` of every point, blocks as lists, None where no value."""

@@ -10,6 +10,7 @@ one for a :class:`~pymb.maps.Map`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -43,7 +44,14 @@ class PointPlanner:
         self.limits = limits
         self.line = line
         self.offline_retry = offline_retry
-        self._clock = clock
+        self.clock = clock  #: the time :attr:`retry_at` and unsupported points' retries are on
+        #: changes of what the device taught (bridges refused, points
+        #: unsupported or due again, forgotten): a plan made at one version
+        #: is the plan while the version is the same and :attr:`retry_at`
+        #: has not come
+        self.version = 0
+        #: when the first unsupported point is due to be asked again (inf: none)
+        self.retry_at = math.inf
         self._refused: dict[str, list[tuple[int, int]]] = {}
         self._unsupported: dict[int, float] = {}  # item -> when to ask again
         self._known: dict[str, Known] | None = None
@@ -75,6 +83,8 @@ class PointPlanner:
         self._known = None
         self._plans.clear()
         self._last = None
+        self.version += 1
+        self.retry_at = min(self._unsupported.values(), default=math.inf)
 
     @property
     def unsupported(self) -> frozenset[int]:
@@ -85,7 +95,7 @@ class PointPlanner:
         """The plan for the ``wanted`` items (indices; all by default), without
         the unsupported ones whose retry time has not come."""
         if self._unsupported:
-            now = self._clock()
+            now = self.clock()
             due = [k for k, t in self._unsupported.items() if t <= now]
             for k in due:
                 del self._unsupported[k]
@@ -135,7 +145,7 @@ class PointPlanner:
     def mark_unsupported(self, indices: Iterable[int]) -> None:
         """The device refused these points alone: leave them out of plans
         for ``offline_retry`` seconds."""
-        retry = self._clock() + self.offline_retry
+        retry = self.clock() + self.offline_retry
         for k in indices:
             self._unsupported[k] = retry
         self._changed()

@@ -67,3 +67,22 @@ def test_the_map_s_reply_timeout_is_given_back_to_the_line_after_its_read() -> N
         assert client.timeout == 2.0
         delay[0] = 0.3
         assert list(client.read_holding_registers(20, 1, slave=1)) == [140]  # 2 s again
+
+
+def test_after_a_read_in_the_map_s_timeout_other_requests_get_the_line_s_own() -> None:
+    m = maps.loads(MAP.replace("offline_retry = 3600", "response_timeout = 0.1"))
+    with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=2.0) as client:
+        delay = [0.0]
+        peer.hook = lambda slave, pdu, normal: (
+            None if normal is None else [(delay[0], peer.frame(slave, normal))])
+        dev = MapDevice(client, m, 1)
+        for _ in range(2):  # the map's timeout stays on the line between its reads
+            assert dev.read_into("e", "f")[0].values() == {"e": 140, "f": 147}
+        delay[0] = 0.3  # longer than the map's 0.1 s, well within the line's 2 s
+        assert client.raw_request(3, bytes([0, 20, 0, 1]), slave=1) == bytes([2, 0, 140])
+        assert list(client.read_holding_registers(21, 1, slave=1)) == [147]
+        with pytest.raises(ModbusTimeout):
+            dev.read_into("e", "f")  # and the map's own again for its next read
+        delay[0] = 0.0
+        client.drain(0.5, 2.0)  # the late reply
+        assert dev.read_into("e", "f")[0].values() == {"e": 140, "f": 147}

@@ -300,3 +300,22 @@ def test_pymodbus_conversions(typ: str, little: bool, data: st.DataObject) -> No
         assert ours is None
     else:
         assert ours == theirs
+
+
+def test_a_bound_decode_is_decode_on_the_same_buffer_again() -> None:
+    m = maps.loads(HEAD + "".join(f'[[point]]\nname = "v{i}"\naddress = {2 * i}\ntype = "f32"\n'
+                                  for i in range(3)))
+    d = Decoder(m)
+    regs = array("H", struct.unpack(">6H", struct.pack(">3f", 1.5, -2.25, 1e3)))
+    call = d.bind(regs)
+    assert d.values() == {"v0": 1.5, "v1": -2.25, "v2": 1e3}  # bind decodes once
+    regs[0:2] = array("H", struct.unpack(">2H", struct.pack(">f", 7.0)))
+    assert call() == 3
+    assert d.values() == {"v0": 7.0, "v1": -2.25, "v2": 1e3}
+    assert d.read(regs) == d.values()
+    with pytest.raises(BufferError):
+        regs.append(0)  # held by the call: its size cannot change under it
+    with pytest.raises(InvalidArgument, match="array"):
+        d.bind([0] * 6)  # type: ignore[arg-type]
+    with pytest.raises(InvalidArgument, match="6 registers"):
+        d.bind(array("H", [0] * 5))

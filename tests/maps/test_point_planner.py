@@ -4,6 +4,7 @@ what is known to exist, and is the cheapest plan (against brute force)."""
 from __future__ import annotations
 
 import itertools
+import math
 
 import pytest
 from hypothesis import given, settings
@@ -210,6 +211,31 @@ def test_planner_remembers_refused_bridges_and_unsupported_points() -> None:
     assert planner.plan().spans == ((0, 2), (4, 2), (8, 1))
     planner.forget()
     assert planner.plan().spans == ((0, 9),)
+
+
+def test_the_planner_s_version_counts_what_it_learns_and_retry_at_the_first_retry() -> None:
+    now = [100.0]
+    items = [Item("a", "holding", 0, 2), Item("b", "holding", 4, 2), Item("c", "holding", 8, 1)]
+    planner = PointPlanner(items, Limits(max_gap=2), Line(9600), offline_retry=30.0,
+                           clock=lambda: now[0])
+    v = planner.version
+    first = planner.plan()
+    assert planner.plan() is first and planner.version == v  # planning teaches nothing
+    assert planner.retry_at == math.inf
+    planner.refuse_bridge(first.requests[0])
+    assert planner.version == v + 1
+    planner.mark_unsupported([1])
+    assert (planner.version, planner.retry_at) == (v + 2, 130.0)
+    now[0] += 10.0
+    planner.mark_unsupported([2])
+    assert (planner.version, planner.retry_at) == (v + 3, 130.0)  # the first one due
+    now[0] = 130.0
+    planner.plan()  # item 1 is due again: asked for, and item 2's retry is next
+    assert (planner.version, planner.retry_at, planner.unsupported) == (v + 4, 140.0, {2})
+    planner.forget()
+    assert (planner.version, planner.retry_at) == (v + 5, math.inf)
+    planner.forget()  # nothing to forget: nothing changes
+    assert planner.version == v + 5
 
 
 def test_a_point_wider_than_a_request_is_a_clear_error() -> None:

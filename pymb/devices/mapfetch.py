@@ -1,0 +1,193 @@
+"""The requests of one map device on its client's line: :class:`Fetcher`.
+
+A plan's register reads go to C in runs (one :class:`~pymb._native.RegisterPlan`
+per run of one table, one C call each); a plan with bit reads goes request by
+request. Either way the line's silences are kept (the device's
+``inter_request_gap`` before a request, any device's ``turnaround`` after a
+reply, shared through :func:`~pymb.devices.linequiet.quiet_of`), the map's
+``response_timeout`` is the reply timeout, and exception 02 or 03 falls back
+as :mod:`pymb.devices.mapdevice` says, within the same read.
+"""
+
+from __future__ import annotations
+
+import time
+from array import array
+from collections.abc import Iterator
+from contextlib import contextmanager
+from itertools import groupby
+from operator import attrgetter
+from typing import NamedTuple
+
+from pymb._native import RegisterPlan
+from pymb.client import Client
+from pymb.devices.linequiet import quiet_of, sleep_until
+from pymb.errors import IllegalDataAddress, IllegalDataValue
+from pymb.maps import Decoder, Map
+from pymb.maps.device_plan import PointPlanner
+from pymb.maps.planner import BIT_TABLES, ReadPlan, Request
+
+__all__ = ["Fetcher", "Image", "Run"]
+
+
+class Image(NamedTuple):
+    """One table's registers of a selection: read in place, decoded in C."""
+
+    address: int  #: of its first register
+    registers: array[int]
+    decoder: Decoder
+
+
+class Run(NamedTuple):
+    """A run of a plan's requests into one table's buffer: one C call."""
+
+    requests: tuple[Request, ...]
+    image: Image
+    plan: RegisterPlan  #: the requests as C takes them
+
+
+class Fetcher:
+    """The requests of the device ``m`` describes at unit id ``address`` on
+    ``client``, planned by ``planner``.
+
+    :attr:`unread` has a byte per planner item: 1 where the device refused
+    the item alone (this read got no value for it).
+    """
+
+    def __init__(self, client: Client, m: Map, address: int, planner: PointPlanner) -> None:
+        self.client = client
+        self.map = m
+        self.address = address
+        self.planner = planner
+        self.quiet = quiet_of(client)  #: the line's silences, shared with its other devices
+        t = m.timing
+        self._gap, self._turnaround = t.inter_request_gap, t.turnaround
+        self.unread = bytearray(len(planner.items))
+
+    def runs(self, plan: ReadPlan, images: dict[str, Image]) -> tuple[Run, ...] | None:
+        """``plan``'s requests in runs of one table, each a RegisterPlan over
+        that table's buffer (None: a plan with bits, read request by request)."""
+        if any(r.table in BIT_TABLES for r in plan.requests):
+            return None
+        t = self.map.timing
+        gap = max(t.inter_request_gap, t.turnaround)
+        runs = [tuple(g) for _, g in groupby(plan.requests, key=attrgetter("table"))]
+        return tuple(
+            Run(rs, image, RegisterPlan(
+                [(r.function, self.address, r.address, r.count, r.address - image.address)
+                 for r in rs], image.registers, gap, t.response_timeout))
+            for rs in runs for image in (images[rs[0].table],))
+
+    def run(self, plan: ReadPlan, images: dict[str, Image]) -> None:
+        """Every request of ``plan``, each into its place in ``images``."""
+        with self._map_timeout():
+            for r in plan.requests:
+                self._fetch(r, images[r.table])
+
+    def run_ready(self, runs: tuple[Run, ...]) -> None:
+        """Runs made by :meth:`runs`, a C call per run holding the line
+        (silences as :meth:`turn` keeps them; the RegisterPlans carry the
+        map's reply timeout); on exception 02/03 as :meth:`run`."""
+        gap, turnaround = self._gap, self._turnaround
+        q = self.quiet
+        run = self.client.run_read_plan
+        monotonic = time.monotonic
+        for p in runs:
+            plan = p.plan
+            start, n, refused = 0, plan.n, -1
+            while start < n:
+                with q.lock:
+                    last, until = q.last_end, q.quiet_until
+                    if last + gap > until:
+                        until = last + gap
+                    # the line's last request ended in the past: no clock needed to
+                    # know that silence until then is kept
+                    if until > last and until > monotonic():
+                        sleep_until(until)
+                    try:
+                        run(plan, start)
+                        start, refused = n, -1
+                    except (IllegalDataAddress, IllegalDataValue):
+                        if not self.planner.limits.split_on_exception:
+                            raise
+                        refused = plan.failed
+                    finally:
+                        now = monotonic()
+                        q.last_end = now
+                        if now + turnaround > q.quiet_until:
+                            q.quiet_until = now + turnaround
+                if refused >= 0:
+                    with self._map_timeout():
+                        self._fall_back(p.requests[refused], p.image)
+                    start = refused + 1
+
+    @contextmanager
+    def _map_timeout(self) -> Iterator[None]:
+        """The map's ``response_timeout`` on the line (the byte timeout stays)."""
+        timeout, client = self.map.timing.response_timeout, self.client
+        if timeout is None or timeout == client.timeout:
+            yield
+            return
+        before = client.swap_response_timeout_prepared(timeout)
+        try:
+            yield
+        finally:
+            client.swap_response_timeout_prepared(before)
+
+    @contextmanager
+    def turn(self) -> Iterator[None]:
+        """One request's turn on the line: the device's silence before it
+        (``inter_request_gap``, and any device's ``turnaround`` after its
+        reply), the line held for it, and the end noted for the next."""
+        q = self.quiet
+        with q.lock:
+            sleep_until(max(q.quiet_until, q.last_end + self._gap))
+            try:
+                yield
+            finally:
+                now = time.monotonic()
+                q.last_end = now
+                q.quiet_until = max(q.quiet_until, now + self._turnaround)
+
+    def _wire(self, r: Request, image: Image) -> None:
+        """One request on the wire, into its place in ``image``."""
+        buf = image.registers
+        at = r.address - image.address
+        with self.turn():
+            if r.table in BIT_TABLES:
+                read = (self.client.read_coils if r.table == "coil"
+                        else self.client.read_discrete_inputs)
+                bits = read(r.address, r.count, slave=self.address)
+                buf[at:at + r.count] = array("H", bits)
+            else:
+                view = memoryview(buf)[at:at + r.count]
+                self.client.read_registers_prepared(r.function, self.address, r.address, view)
+
+    def _fetch(self, r: Request, image: Image) -> None:
+        """Read ``r`` into ``image``; on exception 02/03, fall back as the
+        module says, within this read."""
+        try:
+            self._wire(r, image)
+            return
+        except (IllegalDataAddress, IllegalDataValue):
+            if not self.planner.limits.split_on_exception:
+                raise
+        self._fall_back(r, image)
+
+    def _fall_back(self, r: Request, image: Image) -> None:
+        """``r`` was refused with exception 02/03: re-plan without the bridge,
+        read the extents apart, or mark its points unsupported."""
+        planner = self.planner
+        if r.bridged and planner.refuse_bridge(r):
+            for sub in planner.replan(r).requests:
+                self._fetch(sub, image)
+        elif len(r.extents) > 1:
+            items = planner.items
+            for ext in r.extents:
+                start = min(items[k].address for k in ext)
+                end = max(items[k].end for k in ext)
+                self._fetch(Request(r.table, start, end - start, ext, (ext,), 0), image)
+        else:
+            planner.mark_unsupported(r.items)
+            for k in r.items:
+                self.unread[k] = 1
