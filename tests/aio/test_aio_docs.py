@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from aiokit import until
+from docblocks import claim
 
 import pymb.aio
 from pymb.aio import AsyncRtuClient, AsyncSensorHub
@@ -17,7 +18,7 @@ from pymb.devices import HubReading
 from pymb.sim import Simulator
 
 DOC = (Path(__file__).resolve().parents[2] / "docs" / "asyncio.md").read_text()
-BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
+BLOCKS = [b.text for b in claim("docs/asyncio.md", "python", how="run")]
 
 
 def test_the_complete_example_runs(capsys: pytest.CaptureFixture[str]) -> None:

@@ -9,6 +9,7 @@ import json
 import math
 import os
 import re
+import shlex
 import shutil
 import statistics
 import subprocess
@@ -18,6 +19,7 @@ from typing import Any
 
 import pytest
 from conftest import PYMB, PYMB_ENV, ROOT
+from docblocks import claim_one
 
 import pymb
 from pymb.bench import cprogram, pure, report, runner
@@ -189,13 +191,18 @@ def test_sweep_compare_times_both_reads_in_c(tmp_path: Path) -> None:
     made = subprocess.run(["make", "-s", "-C", str(ROOT / "csrc"), "build/sweep_compare"],
                           capture_output=True, text=True, timeout=300, check=False)
     assert made.returncode == 0, made.stderr
+    # The two commands as docs/benchmarks.md shows them (3 rounds instead of 30).
+    block = claim_one("docs/benchmarks.md", "sh", how="run", contains="sweep_compare")
+    simulate, compare = (shlex.split(line, comments=True) for line in block.lines()[:2])
+    assert simulate[:2] == ["pymb", "simulate"]
+    assert compare[0] == "./csrc/build/sweep_compare"
     link = tmp_path / "line"
-    sim = Child("simulator", pymb_argv("simulate", "--any-speed", "--link", str(link),
-                                       "hub:1,dynamic=0", "coolpro:40,gap=0"))
+    sim = Child("simulator", pymb_argv(*simulate[1:], "--link", str(link)))
     try:
         sim.readline(30)
-        r = subprocess.run([str(ROOT / "csrc" / "build" / "sweep_compare"), str(link), "3"],
-                           capture_output=True, text=True, timeout=120, check=False)
+        argv = [str(ROOT / compare[0]), *(str(link) if a == "/dev/pts/N" else a
+                                          for a in compare[1:-1]), "3"]
+        r = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
     finally:
         sim.stop()
     assert r.returncode == 0, r.stderr

@@ -3,19 +3,18 @@ pages' examples are compiled by ``make -C csrc check-man``)."""
 
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
+from docblocks import claim
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def c_blocks() -> list[str]:
-    text = (ROOT / "docs" / "c-api.md").read_text()
-    return re.findall(r"```c\n(.*?)```", text, re.S)
+    return [b.text for b in claim("docs/c-api.md", "c", how="compile")]
 
 
 def test_the_guide_has_a_c_example() -> None:

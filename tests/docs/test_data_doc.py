@@ -3,17 +3,16 @@ and what they show is there: the info labels, the files, the view's state names.
 
 from __future__ import annotations
 
-import re
 import shlex
 import shutil
 import subprocess
 from pathlib import Path
 
 from conftest import run_pymb
+from docblocks import claim, claim_one
 
-DOC = (Path(__file__).resolve().parents[2] / "docs" / "data.md").read_text()
-SHELL = [line[2:] for block in re.findall(r"```sh\n(.*?)```", DOC, re.S)
-         for line in block.splitlines() if line.startswith("$ ")]
+SHELL = [line[2:] for block in claim("docs/data.md", "sh", how="run")
+         for line in block.lines() if line.startswith("$ ")]
 
 
 def test_the_examples_run(tmp_path: Path) -> None:
@@ -32,7 +31,7 @@ def test_the_examples_run(tmp_path: Path) -> None:
         assert "Traceback" not in done.stderr
         outputs.append(done.stdout)
     info = outputs[1]
-    shown = re.findall(r"```text\n(.*?)```", DOC, re.S)[0]
+    shown = claim_one("docs/data.md", "text", how="compare").text
     labels = [ln.split()[0] for ln in shown.splitlines()[1:] if ln.startswith("  ") and
               not ln.startswith("    ")]
     assert labels == ["time", "samples", "devices", "faults", "events", "size", "forwarder"]

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from docblocks import claim, claim_one
+
 from pymb.cli import COMMANDS
 from pymb.devices.maps import markdown_tables
 
@@ -30,20 +32,21 @@ def test_every_command_is_documented() -> None:
 
 
 def test_quick_start_commands_match_ci() -> None:
-    assert ".ci/setup --user && .venv/bin/pymb demo" in README
     run = (ROOT / ".ci" / "run").read_text()
     assert "pytest" in run
     assert ".ci/setup" in run
-    assert "    .ci/setup && .ci/run\n" in README
+    lines = [b.text.split("#")[0].strip() for b in claim("README.md", "sh", how="check",
+                                                          contains=".ci/")]
+    assert lines == [".ci/setup --user && .venv/bin/pymb demo", ".ci/setup && .ci/run"]
 
 
 def test_the_toml_example_is_a_valid_configuration() -> None:
     from pymb.logger import load_config
 
     example = TOML_EXAMPLE.read_text()
-    for page in (README, CLI):  # shown whole, never a copy that could drift
-        start = page.index("```toml\n") + len("```toml\n")
-        assert page[start:page.index("```", start)] == example
+    for block in (claim_one("README.md", "toml", how="load", index=0),
+                  claim_one("docs/cli.md", "toml", how="load", index=0)):
+        assert block.text == example  # shown whole, never a copy that could drift
     cfg = load_config(TOML_EXAMPLE)
     assert [b.name for b in cfg.buses] == ["line1", "gateway"]
     assert [d.name for d in cfg.buses[0].devices] == ["psu-a", "hub-250"]
@@ -83,8 +86,7 @@ def test_the_low_level_client_block_matches_the_classes() -> None:
 
     import pymb
 
-    start = LIBRARY.index("## The low-level client")
-    block = LIBRARY[LIBRARY.index("```python\n", start):LIBRARY.index("\n```", start + 30)]
+    block = claim_one("docs/library.md", "python", how="check", contains="pymb.TcpClient(").text
     block = re.sub(r"#[^\n]*", "", block)
     calls = re.findall(r"client = pymb\.(\w+)\((.*?)\)\s*\n(?=client|with)", block, re.S)
     assert {name for name, _ in calls} == {"RtuClient", "TcpClient", "RtuOverTcpClient"}
@@ -103,10 +105,10 @@ def test_the_low_level_client_block_matches_the_classes() -> None:
 
 
 def _usage_lines() -> list[str]:
-    """The command lines of docs/cli.md's first section and of the README."""
-    block = CLI[:CLI.index("\n## ")]
-    lines = [line.strip() for line in block.splitlines() if line.startswith("    pymb ")]
-    return lines + [line.strip() for line in README.splitlines() if line.startswith("    pymb ")]
+    """The command lines of docs/cli.md's synopsis and of the README's logger section."""
+    blocks = [claim_one("docs/cli.md", "sh", how="parse", index=0),
+              claim_one("README.md", "sh", how="parse", contains="pymb read hub:250")]
+    return [line.strip() for b in blocks for line in b.lines() if line.startswith("pymb ")]
 
 
 def _spellings(line: str) -> list[list[str]]:

@@ -6,22 +6,15 @@ from __future__ import annotations
 
 import contextlib
 import io
-import re
-from pathlib import Path
+
+from docblocks import claim_one
 
 from pymb.sim import Simulator
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
-LIBRARY = (DOCS / "library.md").read_text()
-SIMULATORS = (DOCS / "simulators.md").read_text()
-
-
-def blocks(text: str) -> list[str]:
-    return [str(b) for b in re.findall(r"```python\n(.*?)```", text, re.S)]
-
 
 def test_the_facade_examples_run_and_print_the_documented_plan() -> None:
-    first, plan = blocks(LIBRARY)[:2]
+    first = claim_one("docs/library.md", "python", how="run", index=0).text
+    plan = claim_one("docs/library.md", "python", how="run", index=1).text
     with Simulator(["coolpro", "hub:250"], seed=2) as sim:
         out = io.StringIO()
         namespace: dict[str, object] = {}
@@ -37,5 +30,5 @@ def test_the_facade_examples_run_and_print_the_documented_plan() -> None:
 
 
 def test_the_simulator_example_runs() -> None:
-    (code,) = blocks(SIMULATORS)
+    code = claim_one("docs/simulators.md", "python", how="run").text
     exec(compile("import pymb\n" + code, "simulators.md", "exec"), {})

@@ -4,20 +4,19 @@ as a user would run it against the ``pymb simulate`` line's simulator."""
 
 from __future__ import annotations
 
-import re
 import shlex
 from pathlib import Path
 
 import pytest
 from conftest import run_pymb
+from docblocks import claim, claim_one
 
 from pymb.sim import SimulatorProcess
 
-DOC = (Path(__file__).resolve().parents[2] / "docs" / "map-devices.md").read_text()
-DEMO = re.findall(r"```toml\n(.*?)```", DOC, re.S)[0]
-BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
-SHELL = [line[2:] for block in re.findall(r"```sh\n(.*?)```", DOC, re.S)
-         for line in block.splitlines() if line.startswith("$ pymb ")]
+DEMO = claim_one("docs/map-devices.md", "toml", how="load").text
+BLOCKS = [b.text for b in claim("docs/map-devices.md", "python", how="run")]
+SHELL = [line[2:] for block in claim("docs/map-devices.md", "sh", how="run")
+         for line in block.lines() if line.startswith("$ pymb ")]
 
 
 @pytest.mark.parametrize("code", BLOCKS, ids=[f"block{i}" for i in range(len(BLOCKS))])

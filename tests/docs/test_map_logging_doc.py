@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from conftest import run_pymb
+from docblocks import claim_one
 
 from pymb.logger import load_config
 from pymb.logger.mapconfig import MAP_DEVICE_KEYS, MapDeviceConfig
@@ -25,8 +26,7 @@ EXAMPLE = ROOT / "docs" / "examples" / "meters.toml"
 def test_the_meters_example_is_shown_whole_and_loads() -> None:
     text = EXAMPLE.read_text()
     section = CLI[CLI.index("### Map devices"):]
-    start = section.index("```toml\n") + len("```toml\n")
-    assert section[start:section.index("```", start)] == text
+    assert claim_one("docs/cli.md", "toml", how="load", index=1).text == text
     cfg = load_config(EXAMPLE)
     devices = cfg.buses[0].devices
     assert all(isinstance(d, MapDeviceConfig) for d in devices)
@@ -43,7 +43,7 @@ def test_the_meters_example_is_shown_whole_and_loads() -> None:
 
 
 def test_the_value_at_time_t_query_of_the_storage_page(tmp_path: Path) -> None:
-    block = STORAGE[STORAGE.index("    sqlite3 meters.sqlite"):]
+    block = claim_one("docs/storage.md", "sh", how="run", contains="sqlite3 meters.sqlite").text
     block = block[:block.index('LIMIT 1"') + len("LIMIT 1")]
     query = re.sub(r"\s+", " ", block.split('"', 1)[1])
     db = tmp_path / "meters.sqlite"

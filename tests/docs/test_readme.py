@@ -12,6 +12,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from docblocks import claim_one
 
 from pymb.devices import State
 from pymb.sim import Simulator
@@ -21,8 +22,9 @@ README = (ROOT / "README.md").read_text()
 
 
 def block(lang: str) -> str:
-    (code,) = re.findall(rf"```{lang}\n(.*?)```", README, re.S)
-    return str(code)
+    if lang == "python":
+        return claim_one("README.md", "python", how="run").text
+    return claim_one("README.md", "c", how="compile").text
 
 
 def test_the_readme_is_a_front_door() -> None:

@@ -7,6 +7,8 @@ import re
 from array import array
 from pathlib import Path
 
+from docblocks import claim_one
+
 import pymb
 from pymb._native import coolpro_identity, coolpro_telemetry
 
@@ -49,7 +51,7 @@ def test_no_file_names_a_path_outside_the_repository() -> None:
 
 
 def _worked(kind: str) -> list[tuple[list[int], str]]:
-    block = NOTES.read_text().split("```text\n", 1)[1].split("```", 1)[0]
+    block = claim_one("docs/device-notes.md", "text", how="compare").text
     rows = []
     for line in block.splitlines():
         name, rest = line.split(" ", 1)

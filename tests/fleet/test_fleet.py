@@ -22,6 +22,7 @@ import pytest
 
 pytest.register_assert_rewrite("mqtt_broker")
 from conftest import run_pymb, wait_until  # noqa: E402
+from docblocks import claim_one  # noqa: E402
 from mqtt_broker import (  # noqa: E402
     Fleet,
     Subscriber,
@@ -179,9 +180,8 @@ def test_plain_payload(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
     assert first["values"]["status"] == row[3]
     assert isinstance(first["status_flags"], list)
     # docs/fleet.md's example has the same keys in the same order
-    readme = (Path(__file__).resolve().parents[2] / "docs" / "fleet.md").read_text()
-    example = next(line for line in readme.splitlines()
-                   if line.startswith("    pymb/gw1/coolpro-40 {"))
+    example = claim_one("docs/fleet.md", "text", how="compare",
+                        contains="pymb/gw1/coolpro-40 {").text.strip()
     top = __import__("re").sub(r'"values":\{[^}]*\}', '"values":0', example)
     assert __import__("re").findall(r'"(\w+)":', top) == [*PLAIN_KEYS, "status_flags"]
 
@@ -977,14 +977,10 @@ address = 40
 
 
 def test_readme_mqtt_toml_example() -> None:
-    import re
-
     from pymb.fleet.config import from_table
-    readme = (Path(__file__).resolve().parents[2] / "docs" / "fleet.md").read_text()
-    block = re.search(r"```toml\n(\[mqtt\]\n.*?)```", readme, re.S)
-    assert block
+    block = claim_one("docs/fleet.md", "toml", how="load", contains="[mqtt]\n").text
     import tomllib
-    cfg = from_table(tomllib.loads(block[1])["mqtt"], "docs/fleet.md")
+    cfg = from_table(tomllib.loads(block)["mqtt"], "docs/fleet.md")
     assert (cfg.tls, cfg.port, cfg.profile, cfg.node) == (True, 8883, "sparkplug", "gateway-7")
 
 

@@ -3,16 +3,13 @@ every Python block below it uses."""
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
-
 import pytest
+from docblocks import claim, claim_one
 
 from pymb import maps
 
-DOC = (Path(__file__).resolve().parents[2] / "docs" / "maps.md").read_text()
-DEMO = re.findall(r"```toml\n(.*?)```", DOC, re.S)[0]
-BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
+DEMO = claim_one("docs/maps.md", "toml", how="load").text
+BLOCKS = [b.text for b in claim("docs/maps.md", "python", how="run")]
 
 
 def test_the_demo_map_loads() -> None:

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from dbwait import count, wait_for
+from docblocks import claim_one
 
 from pymb.sim import SimulatorProcess
 from pymb.store import SqliteSink
@@ -60,6 +61,11 @@ def _refused(proc: subprocess.Popen[str], holder: int) -> None:
     assert len(lines) == 1, err
     assert re.fullmatch(rf"pymb log: .*data\.sqlite is being written by pymb log, PID {holder}"
                         r"; stop it first or log to another file", lines[0]), lines[0]
+    # docs/reliability.md shows this line, for data.sqlite in the current folder
+    shown = claim_one("docs/reliability.md", "text", how="compare",
+                      contains="is being written by").text.strip()
+    real = re.sub(r"\S*data\.sqlite", "data.sqlite", lines[0].replace(f"PID {holder}", "PID 1234"))
+    assert real == shown, (real, shown)
 
 
 def _stop(proc: subprocess.Popen[str], db: Path) -> None:

