@@ -154,9 +154,10 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         #: set by a signal handler: the run loop sees it within _DRAIN_EVERY
         self._signalled = False
         self.stats = Stats()
-        # Bounded (about 10,000 samples): pollers wait when the writer lags.
+        # Bounded (about 2,000 samples): pollers wait when the writer lags (a
+        # flat-out poller, a bounded memory).
         self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
-            maxsize=10000 // BATCH_MAX)
+            maxsize=2048 // BATCH_MAX)
         # pymb's own sinks are done with a sample when write() returns: hub
         # sweeps may then be read into the arrays of readings already written.
         reuse = sink is None or getattr(sink, "keeps_samples", True) is False

@@ -52,6 +52,9 @@ class KnownMaps:
         except (OSError, UnicodeDecodeError) as e:
             why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
             raise InvalidArgument(f"{where}: cannot read the map {path}: {why}") from None
+        for got in self._maps.values():  # a file many devices name is loaded once
+            if got.text == text and self._paths.get(got.map.id) == str(path):
+                return got
         try:
             m = maps.loads(text, source=str(path))
         except MapError as e:

@@ -47,7 +47,8 @@ from pymb.errors import (
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
-from pymb.logger.tcpunits import Entry, Spec, Unit, lazy_reading
+from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
+from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import Request
 from pymb.store import Event, Sample
 from pymb.store.records import event_kind, short_fault
@@ -106,16 +107,18 @@ class TcpMapPoller(threading.Thread):
         self.stop_event = stop
         self.stats = stats
         self.conns: list[_Conn] = []
+        planners: dict[int, tuple[PointPlanner, MapItems]] = {}
+        decoders: dict[tuple[int, str | None], GroupDecode] = {}
         for bus in buses:
             host, port = parse_host_port(str(bus.tcp), what=f"bus {bus.name!r}: tcp")
             units, entries = [], []
             for d in bus.devices:
                 assert isinstance(d, MapDeviceConfig)
-                u = Unit.of(map_info(bus, d), d, bus.timeout)
+                u = Unit.of(map_info(bus, d), d, bus.timeout, planners)
                 units.append(u)
                 for group, interval in d.polls:
                     entries.append(Entry.of(u, group, bus.interval if interval is None
-                                            else interval, interval == 0))
+                                            else interval, interval == 0, decoders))
             self.conns.append(_Conn(bus, host, port, units, entries, max(1, bus.pipeline)))
             stats.opened.setdefault(bus.name, False)
         self.bus_names = [b.name for b in buses]
@@ -314,9 +317,15 @@ class TcpMapPoller(threading.Thread):
                         break
                     e = c.entry
                     assert e is not None
-                    spec.place(e.image, data, pos)
+                    if spec.bits:
+                        spec.place(e.image, data, pos)
+                    else:
+                        off = spec.offset
+                        e.image[off:off + size - 9] = data[pos + 9:pos + size]
                     pos += size
                     inflight.popleft()
+                    if inflight and c.sent == len(c.todo) and not e.unit.timed:
+                        continue  # the rest of this poll's replies are on their way
                     self._replied(c, e, now)
                     if c.sock is not sock:
                         return

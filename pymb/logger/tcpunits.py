@@ -56,20 +56,28 @@ class Unit:
     failures: int = 0  #: failed polls in a row
     retry_at: float = 0.0  #: offline: not polled before this (clock)
     offline: bool = False
+    #: whether the device needs silences around its requests (no pipelining)
+    timed: bool = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.timed = self.gap > 0 or self.turnaround > 0
 
     @classmethod
-    def of(cls, info: DeviceInfo, cfg: MapDeviceConfig, bus_timeout: float) -> Unit:
-        """The unit of a configured map device (its planner as MapDevice's)."""
+    def of(cls, info: DeviceInfo, cfg: MapDeviceConfig, bus_timeout: float,
+           shared: dict[int, tuple[PointPlanner, MapItems]]) -> Unit:
+        """The unit of a configured map device (its planner as MapDevice's;
+        the map's items ``shared`` by the devices of one map)."""
         m = cfg.map
-        planner, mi = map_planner(m, TCP_LINE)
+        got = shared.get(id(m))
+        if got is None:
+            planner, mi = shared[id(m)] = map_planner(m, TCP_LINE)
+        else:
+            first, mi = got
+            planner = PointPlanner(mi.items, first.limits, first.line,
+                                   offline_retry=first.offline_retry)
         t = m.timing
         return cls(info, cfg, planner, mi, t.response_timeout or bus_timeout,
                    t.inter_request_gap, t.turnaround)
-
-    @property
-    def timed(self) -> bool:
-        """Whether the device needs silences around its requests (no pipelining)."""
-        return self.gap > 0 or self.turnaround > 0
 
 
 class Spec:
@@ -227,9 +235,14 @@ class Entry:
     image: bytearray = field(default_factory=bytearray)
 
     @classmethod
-    def of(cls, unit: Unit, group: str | None, interval: float, once: bool) -> Entry:
-        """The entry of ``unit``'s ``group``."""
-        how = GroupDecode(unit.config.map, group, unit.items)
+    def of(cls, unit: Unit, group: str | None, interval: float, once: bool,
+           shared: dict[tuple[int, str | None], GroupDecode]) -> Entry:
+        """The entry of ``unit``'s ``group`` (its decoders ``shared`` by the
+        devices of one map)."""
+        m = unit.config.map
+        how = shared.get((id(m), group))
+        if how is None:
+            how = shared[id(m), group] = GroupDecode(m, group, unit.items)
         wanted = tuple(sorted(how.items))
         return cls(unit, group, interval, once, how, wanted,
                    image=bytearray(2 * sum(d.count for d in how.decoders)))

@@ -22,9 +22,8 @@ def test_the_gateway_section_runs_every_design(capsys: pytest.CaptureFixture[str
     want = []
     for w in ("10 points", "SDM630"):
         for n in (10, 30):
-            want += [(w, n, d) for d in DESIGNS]
-            if w == "10 points":  # the logger itself, a bus per device
-                want.append((w, n, "pymb-log"))
+            # the designs, then the logger itself: a bus per device, one loop for all
+            want += [(w, n, d) for d in (*DESIGNS, *gatebench.LOG_DESIGNS)]
     assert [(r["workload"], r["devices"], r["design"]) for r in rows] == want
     for r in rows:
         if r["design"] == "pymodbus" and r["status"] == "skipped":
@@ -38,8 +37,10 @@ def test_the_gateway_section_runs_every_design(capsys: pytest.CaptureFixture[str
         assert r["cpu_s"] > 0
         assert r["rss_kb"] > 0
         threads = r["threads"]
-        if r["design"] in ("threads", "pymb-log"):
+        if r["design"] == "threads":
             assert threads >= r["devices"]  # one per connection
+        elif r["design"] in gatebench.LOG_DESIGNS:
+            assert threads == 2  # the writer and the one loop, whatever the devices
         else:
             assert threads < 5  # one loop (and the worker's two helpers)
     titles = [t.title for t in report.tables(result)]
@@ -55,15 +56,22 @@ def test_the_targets_take_the_worst_pipelined_row_and_the_most_devices() -> None
     section = {"rows": [_row("fanout-pipelined", 10, 2e6, 30), _row("fanout-pipelined", 300,
                                                                    9e5, 59),
                         _row("fanout", 300, 5e6, 61), _row("threads", 300, 9e9, 99)]}
-    (values, rss) = gatebench.targets(section)
+    (values, logged, rss) = gatebench.targets(section)
     assert values[2] == 9e5
     assert values[4] is False
+    assert logged[2] is None  # no pymb log row measured
     assert rss[2] == 61  # the fan-out rows at 300 devices; the thread design is not pymb's
     assert rss[4] is False
     section["rows"] = section["rows"][:2]
-    (values, rss) = gatebench.targets(section)
+    (values, logged, rss) = gatebench.targets(section)
     assert rss[2] == 59
     assert rss[4] is True
+    section["rows"] += [_row("pymb-log-pipelined", 10, 1.2e6, 40),
+                        _row("pymb-log-pipelined", 300, 1.1e6, 58)]
+    (values, logged, rss) = gatebench.targets(section)
+    assert logged[2] == 1.1e6
+    assert logged[4] is True
+    assert rss[2] == 59
 
 
 def test_a_row_that_measured_nothing_prints_as_a_dash() -> None:
