@@ -321,50 +321,80 @@ done:
 
 /* The common case of a block (the hub's seven): a 16-bit integer or
  * sign-magnitude value a channel, in one tight loop with no call per channel.
- * The same arithmetic as decode_one(). */
+ * The same arithmetic as decode_one() and apply(). What the loop reads of the
+ * entry and of out is in locals first: a store into out's arrays (a uint8_t
+ * state may alias anything) would otherwise make the compiler read the entry
+ * again for every channel. */
 static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
                       const pymb_map_out *out)
 {
+    const unsigned channels = e->channels, nmarkers = e->nmarkers;
+    const size_t stride = e->stride;
+    const uint16_t *r = regs + e->first;
+    double *values = out->values + e->out;
+    uint8_t *states = out->states + e->out;
+    int64_t *ints = out->ints != NULL ? out->ints + e->out : NULL;
+    const int swap = e->order[0] == 1, sm16 = e->type == PYMB_MAP_SM16,
+              i16 = e->type == PYMB_MAP_I16;
+    const int scaled = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) != 0;
+    const int by_scale = (e->flags & PYMB_MAP_SCALED) != 0, has_offset =
+        (e->flags & PYMB_MAP_OFFSET) != 0;
+    const double divisor = pow10_exact[e->decimals], scale = e->scale, offset = e->offset;
+    const int decimals = e->decimals != 0;
     unsigned c, m;
-    int swap = e->order[0] == 1, scaled = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) != 0;
 
-    for (c = 0; c < e->channels; c++) {
-        size_t i = (size_t)e->out + c;
-        uint16_t raw = regs[e->first + (size_t)c * e->stride];
+    for (c = 0; c < channels; c++) {
+        uint16_t raw = r[c * stride];
         uint8_t state = PYMB_VALUE;
         int64_t iv;
         double v;
+        int negative = 0;
 
         if (swap) {
             raw = (uint16_t)(raw << 8 | raw >> 8);
         }
-        for (m = 0; m < e->nmarkers; m++) {
+        for (m = 0; m < nmarkers; m++) {
             if (mk[m].raw == raw) {
                 state = mk[m].state;
                 break;
             }
         }
         if (state != PYMB_VALUE) {
-            out->values[i] = NAN;
-            out->states[i] = state;
-            if (out->ints != NULL) {
-                out->ints[i] = 0;
+            values[c] = NAN;
+            states[c] = state;
+            if (ints != NULL) {
+                ints[c] = 0;
             }
             continue;
         }
-        if (e->type == PYMB_MAP_SM16) {
+        if (sm16) {
             int64_t mag = raw & 0x7FFF;
-            int negative = (raw & 0x8000u) != 0;
+            negative = (raw & 0x8000u) != 0;
             iv = negative ? -mag : mag;
-            v = scaled ? apply(e, (double)mag, negative) : (double)iv;
+            v = (double)mag; /* the sign after the scale, as apply() does */
         } else {
-            iv = e->type == PYMB_MAP_I16 ? (int64_t)(int16_t)raw : (int64_t)raw;
-            v = scaled ? apply(e, (double)iv, 0) : (double)iv;
+            iv = i16 ? (int64_t)(int16_t)raw : (int64_t)raw;
+            v = (double)iv;
         }
-        out->values[i] = v;
-        out->states[i] = PYMB_VALUE;
-        if (out->ints != NULL) {
-            out->ints[i] = iv;
+        if (scaled) {
+            if (decimals) {
+                v = v / divisor;
+            } else if (by_scale) {
+                v = v * scale;
+            }
+            if (negative) {
+                v = -v;
+            }
+            if (has_offset) {
+                v = v + offset;
+            }
+        } else if (negative) {
+            v = (double)iv;
+        }
+        values[c] = v;
+        states[c] = PYMB_VALUE;
+        if (ints != NULL) {
+            ints[c] = iv;
         }
     }
 }
