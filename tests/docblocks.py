@@ -168,3 +168,38 @@ def claim_one(page: str, lang: str, *, how: str, index: int | None = None,
         raise LookupError(f"{len(got)} blocks of {page} match, not one: "
                           + ", ".join(b.where for b in got))
     return got[0]
+
+
+# -- output shown in the docs, against real output -----------------------------
+
+NUMBER = r"-?\d[\d,]*(?:\.\d+)?"  #: a number as pymb prints one
+SIZE = rf"{NUMBER} (?:B|kB|MB|GB)"  #: a size as pymb prints one
+
+
+def shape(line: str) -> str:
+    """A regular expression that output matches where the doc's ``line``
+    shows it: numbers stand for any number, ``…``/``...`` for any text, runs
+    of spaces for any run of spaces (columns are fitted to the values), a
+    size (``180.2 kB``) for any size."""
+    out = []
+    for part in re.split(rf"(…|\.\.\.|{SIZE}|{NUMBER}|\s+)", line):
+        if part in ("…", "..."):
+            out.append(".*")
+        elif part and re.fullmatch(SIZE, part):
+            out.append(SIZE)
+        elif part and part.isspace():
+            out.append(r"\s+")
+        elif part and re.fullmatch(NUMBER, part):
+            out.append(NUMBER)
+        else:
+            out.append(re.escape(part))
+    return "".join(out)
+
+
+def assert_shaped(block: Block, real: list[str]) -> None:
+    """Every line of ``block`` matches the real line at its place."""
+    shown = [line for line in block.lines() if line.strip()]
+    assert len(real) >= len(shown), (block.where, real)
+    for doc, got in zip(shown, real, strict=False):
+        assert re.fullmatch(shape(doc.strip()), got.strip()), \
+            f"{block.where}: the doc shows\n  {doc.strip()}\npymb prints\n  {got.strip()}"

@@ -10,47 +10,20 @@ from __future__ import annotations
 import os
 import re
 import shlex
+import sqlite3
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
 
 from conftest import PYMB_ENV, run_pymb
-from docblocks import Block, claim_one
+from docblocks import NUMBER, ROOT, assert_shaped, claim_one, shape
 from peers import PtyPeer
 
 import pymb
 from pymb.cli import build_parser
 from pymb.devices import CoolPro
 from pymb.sim import Simulator
-
-_NUMBER = r"-?\d[\d,]*(?:\.\d+)?"
-
-
-def shape(line: str) -> str:
-    """A regular expression that output matches where the doc's ``line``
-    shows it: numbers stand for any number, ``…``/``...`` for any text, runs
-    of spaces for any run of spaces (columns are fitted to the values)."""
-    out = []
-    for part in re.split(rf"(…|\.\.\.|{_NUMBER}|\s+)", line):
-        if part in ("…", "..."):
-            out.append(".*")
-        elif part and part.isspace():
-            out.append(r"\s+")
-        elif part and re.fullmatch(_NUMBER, part):
-            out.append(_NUMBER)
-        else:
-            out.append(re.escape(part))
-    return "".join(out)
-
-
-def assert_shaped(block: Block, real: list[str]) -> None:
-    """Every line of ``block`` matches the real line at its place."""
-    shown = [line for line in block.lines() if line.strip()]
-    assert len(real) >= len(shown), (block.where, real)
-    for doc, got in zip(shown, real, strict=False):
-        assert re.fullmatch(shape(doc.strip()), got.strip()), \
-            f"{block.where}: the doc shows\n  {doc.strip()}\npymb prints\n  {got.strip()}"
 
 
 def test_the_demo_summary_is_what_pymb_demo_prints(tmp_path: Path) -> None:
@@ -77,7 +50,7 @@ def test_the_influx_lines_are_what_pymb_log_writes() -> None:
     for doc in block.lines():
         # the doc's hub line is channel 7 with a temperature and no humidity
         # sensor: any channel of that shape will do
-        pattern = shape(doc).replace("channel=" + _NUMBER, "channel=" + _NUMBER)
+        pattern = shape(doc).replace("channel=" + NUMBER, "channel=" + NUMBER)
         assert any(re.fullmatch(pattern, line) for line in real), \
             f"{block.where}: no line pymb writes looks like\n  {doc}"
 
@@ -140,3 +113,56 @@ def _split_commands(text: str) -> list[list[str]]:
         else:
             out[-1].append(w)
     return out
+
+
+def test_the_board_pages_configuration_check_runs(tmp_path: Path) -> None:
+    """docs/board.md's check of a configuration before a reload, with
+    contrib/pymb.toml as /etc/pymb/pymb.toml: its serial port moved to a
+    simulated bus, its broker to a port where nothing listens (the check
+    logs all the same)."""
+    block = claim_one("docs/board.md", "sh", how="run", contains="--config /etc/pymb/pymb.toml")
+    (argv,) = [shlex.split(line, comments=True) for line in block.lines()]
+    assert argv[:2] == ["pymb", "log"]
+    config = (ROOT / "contrib" / "pymb.toml").read_text()
+    port = re.search(r'port = "(/dev/[^"]+)"', config)
+    url = re.search(r'url = "(mqtt://[^"]+)"', config)
+    assert port
+    assert url
+    with Simulator(["coolpro", "hub:250"], seed=5) as sim:
+        (tmp_path / "pymb.toml").write_text(
+            config.replace(port[1], sim.port).replace(url[1], "mqtt://127.0.0.1:1"))
+        args = [str(tmp_path / "pymb.toml") if a == "/etc/pymb/pymb.toml" else
+                str(tmp_path / "check.sqlite") if a == "/tmp/check.sqlite" else a
+                for a in argv[1:]]
+        r = run_pymb(*args, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    con = sqlite3.connect(tmp_path / "check.sqlite")
+    try:
+        names = {n for (n,) in con.execute("SELECT DISTINCT d.name FROM samples s "
+                                           "JOIN devices d ON d.id = s.device_id")}
+    finally:
+        con.close()
+    assert names == {"psu-a", "hub-a"}
+
+
+def test_the_journal_line_of_a_silent_device(tmp_path: Path) -> None:
+    """docs/board.md's journal line of a timeout: the CoolPro psu-a of bus
+    line1 (contrib/pymb.toml's names) does not answer; stderr is not a
+    terminal, so each event is a line on it."""
+    block = claim_one("docs/board.md", "text", how="compare", contains="psu-a timeout")
+    config = (ROOT / "contrib" / "pymb.toml").read_text()
+    port = re.search(r'port = "(/dev/[^"]+)"', config)
+    assert port
+    with Simulator(["hub:250"], seed=5) as sim:  # nothing at address 40
+        (tmp_path / "pymb.toml").write_text(
+            '[[bus]]\nname = "line1"\nport = "PORT"\ntimeout = 1.0\n'
+            '[[bus.device]]\ntype = "coolpro"\naddress = 40\nname = "psu-a"\n'
+            .replace("PORT", sim.port))
+        r = run_pymb("log", "--config", str(tmp_path / "pymb.toml"), "--seconds", "1.5",
+                     "--out", str(tmp_path / "t.sqlite"), "--quiet", timeout=120)
+        real = [line.replace(sim.port, port[1]) for line in r.stderr.splitlines()
+                if "psu-a timeout" in line]
+    assert r.returncode == 3, r.stderr  # psu-a delivered nothing
+    assert real, r.stderr
+    assert_shaped(block, real[:1])

@@ -39,7 +39,6 @@ BLOCKS: list[Block] = [
     *claim("docs/install.md", "sh", how="check"),
     *claim("docs/c-api.md", "sh", how="check"),
     *claim("docs/board.md", "sh", how="check", contains="apt install"),
-    *claim("docs/board.md", "sh", how="check", contains="--config /etc/pymb/pymb.toml"),
     *claim("docs/benchmarks.md", "sh", how="check", contains="pymb bench"),
     *claim("docs/fleet.md", "sh", how="check"),
     *claim("docs/simulators.md", "sh", how="check"),

@@ -22,7 +22,7 @@ import pytest
 
 pytest.register_assert_rewrite("mqtt_broker")
 from conftest import run_pymb, wait_until  # noqa: E402
-from docblocks import claim_one  # noqa: E402
+from docblocks import assert_shaped, claim_one  # noqa: E402
 from mqtt_broker import (  # noqa: E402
     Fleet,
     Subscriber,
@@ -105,6 +105,12 @@ def test_broker_restart_mid_run_loses_nothing(fleet: Fleet, simulator: str,
     assert story[0].startswith("connected to mqtt://127.0.0.1")
     assert any(m.startswith("lost the connection") for m in story)
     assert story[-1].startswith("connected to")
+    # and on stderr (not a terminal) as docs/board.md shows it in the journal
+    block = claim_one("docs/board.md", "text", how="compare", contains="lost the connection")
+    lost = [line.replace(f"/{NODE}:", "/board-7:") for line in err.splitlines()
+            if "lost the connection" in line]
+    assert lost, err
+    assert_shaped(block, lost[:1])
 
 
 def test_broker_stalled_3s_loses_nothing(fleet: Fleet, simulator: str, tmp_path: Path) -> None:
