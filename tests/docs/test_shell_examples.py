@@ -1,0 +1,75 @@
+"""Shell examples of the guides that talk to programs other than pymb run as
+a user runs them: docs/simulators.md's ``mbpoll`` against ``pymb simulate``
+(an independent master reading the simulated CoolPro), and docs/fleet.md's
+``mosquitto_sub`` watching ``pymb log --mqtt`` (Debian's broker on a free
+port in place of localhost:1883)."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+from conftest import run_pymb
+from docblocks import claim_one
+
+from pymb.fleet.broker import Mosquitto
+from pymb.sim import Simulator, SimulatorProcess
+
+pytest_plugins = ["mqtt_broker"]  # the mosquitto fixture
+
+
+def _commands(text: str) -> list[list[str]]:
+    """The commands of a shell block, comments and a trailing ``&`` dropped."""
+    return [shlex.split(line.removesuffix("&").strip()) for line in
+            (re.sub(r"(^|\s)#.*", "", raw).strip() for raw in text.splitlines()) if line]
+
+
+def test_mbpoll_reads_the_simulated_coolpro() -> None:
+    block = claim_one("docs/simulators.md", "sh", how="run")
+    simulate, mbpoll = _commands(block.text)
+    assert simulate[:2] == ["pymb", "simulate"]
+    assert mbpoll[0] == "mbpoll"
+    with SimulatorProcess(simulate[2:], quiet=True) as sim:
+        assert sim.endpoint.startswith("/dev/")  # it printed the pty path
+        argv = [sim.endpoint if a.startswith("/dev/pts/") else a for a in mbpoll]
+        r = subprocess.run(argv, capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stdout + r.stderr
+    values = re.findall(r"^\[(\d+)\]:\s+(-?\d+)", r.stdout, re.M)
+    assert [int(n) for n, _ in values] == list(range(1, 9)), r.stdout  # input registers 0..7
+    assert int(values[0][1]) > 20000  # the input voltage, in mV
+
+
+def test_mosquitto_sub_watches_pymb_log(mosquitto: Callable[..., Mosquitto],
+                                        tmp_path: Path) -> None:
+    block = claim_one("docs/fleet.md", "sh", how="run", contains="mosquitto_sub")
+    commands = _commands(block.text)
+    assert commands[0][:2] == ["apt-get", "install"]  # .ci/setup installs them
+    sub_argv, log_argv = commands[1], commands[2]
+    assert sub_argv[0] == "mosquitto_sub"
+    assert log_argv[:2] == ["pymb", "log"]
+    broker = mosquitto()
+    port = str(broker.port)
+    # at most 3 messages, at most 30 s
+    sub = subprocess.Popen([*sub_argv, "-h", "127.0.0.1", "-p", port, "-C", "3", "-W", "30"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with Simulator(["hub:250"], seed=5) as sim:
+            args = [sim.port if a == "/dev/ttyUSB0" else
+                    f"mqtt://127.0.0.1:{port}" if a == "mqtt://localhost" else a
+                    for a in log_argv[1:]]
+            r = run_pymb(*args, "--seconds", "2", cwd=tmp_path, timeout=120)
+        out, err = sub.communicate(timeout=60)
+    finally:
+        if sub.poll() is None:
+            sub.kill()
+            sub.communicate(timeout=10)
+    assert r.returncode == 0, r.stderr
+    assert sub.returncode == 0, err
+    topics = [line.split(" ", 1)[0] for line in out.splitlines()]
+    assert len(topics) == 3, out
+    assert all(t.startswith("pymb/") for t in topics), topics
+    assert any(t.endswith("/hub-250") for t in topics), topics
+    assert (tmp_path / "plant.sqlite").exists()
