@@ -21,16 +21,15 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from array import array
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from pymb.client import Client
-from pymb.devices.mapfetch import Fetcher, Image, Run
+from pymb.devices.mapfetch import Fetcher, Image, Read
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument
-from pymb.maps import Buffers, Decoder, Map, Point, Value
+from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
 from pymb.maps.model import check_group, did_you_mean
 from pymb.maps.planner import Line, ReadPlan
@@ -42,33 +41,6 @@ __all__ = ["MapDevice"]
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = DEFAULT_BAUD
 _CACHED = 64  #: selections (and their buffers) kept per device
-_NEVER = math.inf
-
-
-class _Read:
-    """One selection's read, made ready: its points and planner items, its
-    buffers (one :class:`~pymb.devices.mapfetch.Image` per table) with their
-    decoders bound to them, and the plan and its runs of the planner's
-    :attr:`~pymb.maps.device_plan.PointPlanner.version` it was made at. A
-    read at the same version on the same connection asks the same requests:
-    it runs them and decodes, nothing else."""
-
-    __slots__ = ("decoders", "decodes", "images", "items", "plan", "points", "runs",
-                 "version")
-
-    def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
-                 images: dict[str, Image]) -> None:
-        self.points = points
-        self.items = items
-        self.images = images
-        self.decoders = tuple(image.decoder for image in images.values())
-        #: per table: the decoder's C call bound to its buffer, its buffers, the buffer
-        self.decodes: tuple[tuple[Callable[[], int], Buffers, array[int]], ...] = tuple(
-            (image.decoder.bind(image.registers), image.decoder.buffers, image.registers)
-            for image in images.values())
-        self.plan: ReadPlan | None = None
-        self.runs: tuple[Run, ...] | None = None
-        self.version = -1  # made at no version yet
 
 
 class MapDevice:
@@ -122,13 +94,11 @@ class MapDevice:
         self._first = mi.first
         self._index = {p.name: i for i, p in enumerate(self._points)}
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
-        self._reads: dict[tuple[int, ...], _Read] = {}  # per selection (points)
-        #: the last read's names, group and _Read: a poller asking the same again finds it
-        self._last: tuple[tuple[str, ...], str | None, _Read] | None = None
+        self._reads: dict[tuple[int, ...], Read] = {}  # per selection (points)
+        #: the last read's names, group and Read: a poller asking the same again finds it
+        self._last: tuple[tuple[str, ...], str | None, Read] | None = None
         self._fetcher = Fetcher(client, m, address, self._planner)
-        self._none_unread = bytes(len(mi.items))
         self._lock = threading.Lock()
-        self._connections = -1
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
 
     # -- what to read -----------------------------------------------------------------
@@ -166,8 +136,8 @@ class MapDevice:
         self._selections[key] = chosen
         return chosen
 
-    def _read_of(self, names: tuple[str, ...], group: str | None) -> _Read:
-        """The selection's :class:`_Read`, made on its first read: a buffer
+    def _read_of(self, names: tuple[str, ...], group: str | None) -> Read:
+        """The selection's :class:`Read`, made on its first read: a buffer
         per table, from its first point's register (bit) to its last's, each
         request read in place, and the compiled decoder that walks it in one
         C call."""
@@ -182,7 +152,7 @@ class MapDevice:
             for t, ns in tables.items():
                 dec = Decoder(self.map, ns)
                 images[t] = Image(dec.address, array("H", bytes(2 * dec.count)), dec)
-            r = _Read(points, tuple(self._mi.wanted(points)), images)
+            r = Read(points, tuple(self._mi.wanted(points)), images)
             if len(self._reads) >= _CACHED:
                 self._reads.clear()  # many different selections: keep memory bounded
             self._reads[points] = r
@@ -204,7 +174,7 @@ class MapDevice:
         r = last[2] if last is not None and last[0] == names and last[1] == group else (
             self._read_of(names, group))
         with self._lock:
-            self._fetch(r)
+            self._fetcher.fetch(r)
             return self._decode(r.points, r.images)
 
     def read_into(self, *names: str, group: str | None = None) -> tuple[Decoder, ...]:
@@ -219,7 +189,7 @@ class MapDevice:
         r = last[2] if last is not None and last[0] == names and last[1] == group else (
             self._read_of(names, group))
         with self._lock:
-            self._fetch(r)
+            self._fetcher.fetch(r)
             for decode, buffers, registers in r.decodes:
                 decode()
                 buffers.registers = registers
@@ -241,30 +211,6 @@ class MapDevice:
                     b.values[slot + c] = math.nan
                     b.states[slot + c] = code
 
-    def _fetch(self, r: _Read) -> None:
-        """The requests of read ``r``, each into its place in its buffers
-        (the caller holds the lock). Made again (reconnected, planned, the
-        unread marks reset) when the line was lost or reopened, when the
-        planner learnt something, or when an unsupported point is due."""
-        planner, client = self._planner, self.client
-        if (r.version != planner.version or not client.connected
-                or client.connections != self._connections
-                or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
-            self._prepare()
-            r.plan = planner.plan(r.items)
-            unread = self._fetcher.unread
-            if 1 in unread:
-                unread[:] = self._none_unread
-            for k in planner.unsupported:
-                unread[k] = 1
-            r.runs = self._fetcher.runs(r.plan, r.images)
-            r.version = planner.version
-        if r.runs is not None:
-            self._fetcher.run_ready(r.runs)
-        else:
-            assert r.plan is not None
-            self._fetcher.run(r.plan, r.images)
-
     def read_group(self, group: str | None = None) -> MapReading:
         """Read ``group`` (every readable point for None) as the logger keeps
         it: a :class:`~pymb.devices.mapreading.MapReading` with the registers
@@ -278,20 +224,6 @@ class MapDevice:
         gone = tuple(n for n, s in self.states.items()
                      if s == "unsupported" or (isinstance(s, list) and "unsupported" in s))
         return MapReading(self.map, group, values, dict(self.states), regs, gone)
-
-    def _prepare(self) -> None:
-        """Before a read: reconnect if the line was lost, and after a new
-        connection wait ``after_connect`` and forget what the last device taught."""
-        client = self.client
-        opened = client.ensure_connected()
-        if opened or client.connections != self._connections:
-            self._connections = client.connections
-            self._planner.forget()
-            wait = self.map.timing.after_connect
-            if wait > 0:
-                q = self._fetcher.quiet
-                with q.lock:
-                    q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
     def _decode(self, points: Sequence[int], images: dict[str, Image]) -> dict[str, Value]:
         """Every table's registers decoded in one C call each; points the
@@ -343,13 +275,13 @@ class MapDevice:
             m = self.map
             m.encode(name, value, current=[0] * p.count)  # refused before any byte is sent
             with self._lock:
-                self._prepare()
+                self._fetcher.after_connect()
                 with self._fetcher.turn():
                     current = list(self.client.read_holding_registers(address, p.count,
                                                                       slave=self.address))
         regs = self.map.encode(name, value, current=current)
         with self._lock:
-            self._prepare()
+            self._fetcher.after_connect()
             with self._fetcher.turn():
                 if p.table == "coil":
                     self.client.write_coil(address, bool(regs[0]), slave=self.address)

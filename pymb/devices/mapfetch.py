@@ -11,9 +11,10 @@ as :mod:`pymb.devices.mapdevice` says, within the same read.
 
 from __future__ import annotations
 
+import math
 import time
 from array import array
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from itertools import groupby
 from operator import attrgetter
@@ -23,11 +24,14 @@ from pymb._native import RegisterPlan
 from pymb.client import Client
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import IllegalDataAddress, IllegalDataValue
-from pymb.maps import Decoder, Map
+from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import PointPlanner
 from pymb.maps.planner import BIT_TABLES, ReadPlan, Request
 
-__all__ = ["Fetcher", "Image", "Run"]
+__all__ = ["Fetcher", "Image", "Read", "Run"]
+
+_NEVER = math.inf
+_monotonic = time.monotonic
 
 
 class Image(NamedTuple):
@@ -44,6 +48,32 @@ class Run(NamedTuple):
     requests: tuple[Request, ...]
     image: Image
     plan: RegisterPlan  #: the requests as C takes them
+
+
+class Read:
+    """One selection's read, made ready: its points (indices into the map's
+    readable points) and planner items, its buffers (one :class:`Image` per
+    table) with their decoders bound to them, and the plan and its runs of
+    the planner's :attr:`~pymb.maps.device_plan.PointPlanner.version` they
+    were made at. A read at the same version on the same connection asks the
+    same requests: it runs them and decodes, nothing else."""
+
+    __slots__ = ("decoders", "decodes", "images", "items", "plan", "points", "runs",
+                 "version")
+
+    def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
+                 images: dict[str, Image]) -> None:
+        self.points = points
+        self.items = items
+        self.images = images
+        self.decoders = tuple(image.decoder for image in images.values())
+        #: per table: the decoder's C call bound to its buffer, its buffers, the buffer
+        self.decodes: tuple[tuple[Callable[[], int], Buffers, array[int]], ...] = tuple(
+            (image.decoder.bind(image.registers), image.decoder.buffers, image.registers)
+            for image in images.values())
+        self.plan: ReadPlan | None = None
+        self.runs: tuple[Run, ...] | None = None
+        self.version = -1  # made at no version yet
 
 
 class Fetcher:
@@ -63,6 +93,80 @@ class Fetcher:
         t = m.timing
         self._gap, self._turnaround = t.inter_request_gap, t.turnaround
         self.unread = bytearray(len(planner.items))
+        self._none_unread = bytes(len(planner.items))
+        self._connections = -1  # the client's connection the planner's knowledge is from
+
+    def fetch(self, r: Read) -> None:
+        """The requests of read ``r``, each into its place in its buffers.
+        ``r`` is made again first (reconnected, planned, the unread marks
+        reset) when the line was lost or reopened, when the planner learnt
+        something, or when an unsupported point is due. Then each run is one
+        C call holding the line (the silences as :meth:`turn` keeps them; the
+        RegisterPlans carry the map's reply timeout); exception 02/03 falls
+        back as :meth:`run` does. A plan with bits goes through :meth:`run`."""
+        planner, client = self.planner, self.client
+        if (r.version != planner.version or not client.connected
+                or client.connections != self._connections
+                or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
+            self._remake(r)
+        runs = r.runs
+        if runs is None:
+            assert r.plan is not None
+            self.run(r.plan, r.images)
+            return
+        q = self.quiet
+        for p in runs:
+            refused = -1
+            with q.lock:
+                last, until = q.last_end, q.quiet_until
+                if last + self._gap > until:
+                    until = last + self._gap
+                # the last request ended in the past: silence until then is kept
+                if until > last and until > _monotonic():
+                    sleep_until(until)
+                try:
+                    client.run_read_plan(p.plan)
+                except (IllegalDataAddress, IllegalDataValue):
+                    if not planner.limits.split_on_exception:
+                        raise
+                    refused = p.plan.failed
+                finally:
+                    now = _monotonic()
+                    q.last_end = now
+                    if now + self._turnaround > q.quiet_until:
+                        q.quiet_until = now + self._turnaround
+            if refused >= 0:
+                self._refused(p, refused)
+
+    def _remake(self, r: Read) -> None:
+        """Reconnect if the line was lost (after a new connection: wait
+        ``after_connect``, forget what the last device taught), then plan
+        ``r`` and make its runs at the planner's version now."""
+        self.after_connect()
+        planner = self.planner
+        r.plan = planner.plan(r.items)
+        unread = self.unread
+        if 1 in unread:
+            unread[:] = self._none_unread
+        for k in planner.unsupported:
+            unread[k] = 1
+        r.runs = self.runs(r.plan, r.images)
+        r.version = planner.version
+
+    def after_connect(self) -> None:
+        """Reconnect if the line was lost; after a new connection wait
+        ``after_connect`` and forget what the last device taught. Before
+        every read (in :meth:`fetch`) and write."""
+        client = self.client
+        opened = client.ensure_connected()
+        if opened or client.connections != self._connections:
+            self._connections = client.connections
+            self.planner.forget()
+            wait = self.map.timing.after_connect
+            if wait > 0:
+                q = self.quiet
+                with q.lock:
+                    q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
     def runs(self, plan: ReadPlan, images: dict[str, Image]) -> tuple[Run, ...] | None:
         """``plan``'s requests in runs of one table, each a RegisterPlan over
@@ -84,42 +188,31 @@ class Fetcher:
             for r in plan.requests:
                 self._fetch(r, images[r.table])
 
-    def run_ready(self, runs: tuple[Run, ...]) -> None:
-        """Runs made by :meth:`runs`, a C call per run holding the line
-        (silences as :meth:`turn` keeps them; the RegisterPlans carry the
-        map's reply timeout); on exception 02/03 as :meth:`run`."""
+    def _refused(self, p: Run, refused: int) -> None:
+        """Request ``refused`` of run ``p`` was refused with exception 02/03:
+        fall back for it as :meth:`run` does, then run the rest of ``p`` in
+        C, holding the line as :meth:`fetch` does, as often as needed."""
         gap, turnaround = self._gap, self._turnaround
         q = self.quiet
-        run = self.client.run_read_plan
-        monotonic = time.monotonic
-        for p in runs:
-            plan = p.plan
-            start, n, refused = 0, plan.n, -1
-            while start < n:
-                with q.lock:
-                    last, until = q.last_end, q.quiet_until
-                    if last + gap > until:
-                        until = last + gap
-                    # the line's last request ended in the past: no clock needed to
-                    # know that silence until then is kept
-                    if until > last and until > monotonic():
-                        sleep_until(until)
-                    try:
-                        run(plan, start)
-                        start, refused = n, -1
-                    except (IllegalDataAddress, IllegalDataValue):
-                        if not self.planner.limits.split_on_exception:
-                            raise
-                        refused = plan.failed
-                    finally:
-                        now = monotonic()
-                        q.last_end = now
-                        if now + turnaround > q.quiet_until:
-                            q.quiet_until = now + turnaround
-                if refused >= 0:
-                    with self._map_timeout():
-                        self._fall_back(p.requests[refused], p.image)
-                    start = refused + 1
+        plan = p.plan
+        while refused >= 0:
+            with self._map_timeout():
+                self._fall_back(p.requests[refused], p.image)
+            start, refused = refused + 1, -1
+            if start >= plan.n:
+                return
+            with q.lock:
+                sleep_until(max(q.quiet_until, q.last_end + gap))
+                try:
+                    self.client.run_read_plan(plan, start)
+                except (IllegalDataAddress, IllegalDataValue):
+                    if not self.planner.limits.split_on_exception:
+                        raise
+                    refused = plan.failed
+                finally:
+                    now = _monotonic()
+                    q.last_end = now
+                    q.quiet_until = max(q.quiet_until, now + turnaround)
 
     @contextmanager
     def _map_timeout(self) -> Iterator[None]:

@@ -145,6 +145,21 @@ def test_a_point_refused_alone_is_unsupported_and_retried_later() -> None:
         assert peer.reads()[5:] == peer.reads()[:5]
 
 
+def test_a_request_refused_mid_run_falls_back_and_the_run_goes_on() -> None:
+    # one request per point, all in one C call: the third is refused, the
+    # fourth is still asked in the same read, and so on every read after
+    with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
+        m = make_map("single_point_requests = true", "offline_retry = 3600")
+        dev = MapDevice(client, m, 1)
+        for _ in range(3):
+            decoders = dev.read_into(group="slow")
+            assert decoders[0].values() == {"e": 140, "f": 147, "g": None, "h": 161}
+            assert dev.read(group="slow") == {"e": 140, "f": 147, "g": None, "h": 161}
+        assert dev.states == {"e": "value", "f": "value", "g": "unsupported", "h": "value"}
+        asked = [("holding", a, 1) for a in (20, 21, 22, 23)]
+        assert peer.reads() == asked + [("holding", a, 1) for a in (20, 21, 23)] * 5
+
+
 def test_without_split_on_exception_the_exception_is_raised() -> None:
     with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
         dev = MapDevice(client, make_map("max_gap = 8\nsplit_on_exception = false"), 1)
