@@ -1,5 +1,6 @@
-"""The logger: several buses, several devices each, every bus in its own
-thread, every sample time-stamped, every fault recorded as an event.
+"""The logger: several buses, several devices each, every serial bus in its
+own thread and every map device on Modbus TCP in one loop of one thread,
+every sample time-stamped, every fault recorded as an event.
 
 A bus is polled as fast as its wire allows (``interval = 0``) or every
 ``interval`` seconds on a drift-free schedule (slot k starts at
@@ -15,7 +16,9 @@ humidity_unit); ``[mqtt]`` is the forwarder's. The example and the table of
 keys are in the documentation (``docs/cli.md``, ``docs/examples/buses.toml``).
 
 The package: :mod:`~pymb.logger.config` (buses, devices, output; the TOML
-file), :mod:`~pymb.logger.poller` (a bus's thread), :mod:`~pymb.logger.logger`
+file), :mod:`~pymb.logger.poller` (a bus's thread), :mod:`~pymb.logger.tcploop`
+(the one loop over the TCP buses' map devices, with :mod:`~pymb.logger.tcpunits`),
+:mod:`~pymb.logger.logger`
 (the run: pollers, the writer, the summary). The device syntax lives with the
 devices (:mod:`pymb.devices.spec`), the status line and the joining of the
 file, the flags and ``[mqtt]`` with the command line (:mod:`pymb.commands`).

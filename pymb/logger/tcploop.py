@@ -21,19 +21,14 @@ bus would store them.
 
 from __future__ import annotations
 
-import collections
-import contextlib
 import errno
 import heapq
 import os
 import queue
 import selectors
-import socket
 import threading
 import time
-from dataclasses import dataclass, field
 
-from pymb.client import unresolved
 from pymb.client.address import parse_host_port
 from pymb.errors import (
     ModbusConnectionError,
@@ -41,12 +36,12 @@ from pymb.errors import (
     ProtocolError,
     describe_exception,
     exception_class,
-    function_name,
     request_error,
 )
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
+from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import Request
@@ -55,7 +50,6 @@ from pymb.store.records import event_kind, short_fault
 
 __all__ = ["TcpMapPoller", "fans_out"]
 
-_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 _BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
 
@@ -66,47 +60,14 @@ def fans_out(bus: BusConfig) -> bool:
     return bus.tcp is not None and all(isinstance(d, MapDeviceConfig) for d in bus.devices)
 
 
-@dataclass(eq=False)
-class _Conn:
-    """One bus: a connection to ``host:port`` and the polls waiting for it."""
-
-    bus: BusConfig
-    host: str
-    port: int
-    units: list[Unit]
-    entries: list[Entry]
-    pipeline: int
-    sock: socket.socket | None = None
-    state: str = "closed"  # closed, connecting, open
-    opened_once: bool = False
-    retry_at: float = 0.0
-    backoff: float = _BACKOFF_FIRST
-    deadline: float = 0.0
-    waiting: collections.deque[Entry] = field(default_factory=collections.deque)
-    entry: Entry | None = None  #: the poll under way
-    todo: list[Spec] = field(default_factory=list)  #: its requests
-    sent: int = 0  #: of ``todo``
-    inflight: collections.deque[tuple[bytes, Spec]] = field(
-        default_factory=collections.deque)  #: (expected first 9 bytes, request)
-    unread: set[int] = field(default_factory=set)  #: items refused in this poll
-    tid: int = 0
-    rbuf: bytearray = field(default_factory=bytearray)
-    quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
-    last_end: float = 0.0
-
-
-class TcpMapPoller(threading.Thread):
+class TcpMapPoller(TcpLoopBase):
     """Polls the map devices of ``buses`` (each :func:`fans_out`) until
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
 
     def __init__(self, buses: list[BusConfig], out: queue.Queue[list[Sample | Event]],
                  stop: threading.Event, stats: Stats) -> None:
-        super().__init__(name="pymb-tcp", daemon=True)
-        self.out = out
-        self.stop_event = stop
-        self.stats = stats
-        self.conns: list[_Conn] = []
+        super().__init__(out, stop, stats)
         planners: dict[int, tuple[PointPlanner, MapItems]] = {}
         decoders: dict[tuple[int, str | None], GroupDecode] = {}
         for bus in buses:
@@ -119,115 +80,24 @@ class TcpMapPoller(threading.Thread):
                 for group, interval in d.polls:
                     entries.append(Entry.of(u, group, bus.interval if interval is None
                                             else interval, interval == 0, decoders))
-            self.conns.append(_Conn(bus, host, port, units, entries, max(1, bus.pipeline)))
+            self.conns.append(Conn(bus, host, port, units, entries, max(1, bus.pipeline)))
             stats.opened.setdefault(bus.name, False)
         self.bus_names = [b.name for b in buses]
-        self._sel = selectors.DefaultSelector()
-        self._batch: list[Sample | Event] = []
-        self._batch_since = 0.0
         self._slots: list[tuple[float, int, Entry]] = []
         self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
-        self._silent: set[_Conn] = set()  #: connections waiting out a device's silence
-        self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
+        self._silent: set[Conn] = set()  #: connections waiting out a device's silence
 
-    # -- hand-over -----------------------------------------------------------------------
+    # -- polls ---------------------------------------------------------------------------
 
-    def flush(self) -> None:
-        """Hand what was read since the last list to the writer."""
-        batch, self._batch = self._batch, []
-        if batch:
-            self.out.put(batch)
-
-    def take_unflushed(self) -> list[Sample | Event]:
-        """What this poller read but has not handed over (the writer takes it
-        when the poller is left behind at stop)."""
-        batch, self._batch = self._batch, []
-        return batch
-
-    def _event(self, c: _Conn, kind: str, message: str, unit: Unit | None = None,
-               code: int | None = None) -> None:
-        self._batch.append(Event(time.time(), time.monotonic(), c.bus.name,
-                                 None if unit is None else unit.info, kind, code, message))
-        self.flush()
-
-    # -- connections ---------------------------------------------------------------------
-
-    def _connect(self, c: _Conn, now: float) -> None:
-        try:
-            infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
-            family, _, _, _, addr = infos[0]
-            s = socket.socket(family, socket.SOCK_STREAM)
-        except OSError:
-            why = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
-            self._not_open(c, now, why)
-            return
-        s.setblocking(False)
-        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        rc = s.connect_ex(addr)
-        if rc not in (0, errno.EINPROGRESS):
-            s.close()
-            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(rc)}")
-            return
-        c.sock, c.state = s, "connecting"
-        c.deadline = now + c.bus.timeout
-        self._soonest = min(self._soonest, c.deadline)
-        self._sel.register(s, selectors.EVENT_WRITE, c)
-
-    def _not_open(self, c: _Conn, now: float, why: str) -> None:
-        self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
-        self._event(c, "connection", f"{why}; retrying in {c.backoff:g} s")
-        c.retry_at = now + c.backoff
-        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
-
-    def _connected(self, c: _Conn, now: float) -> None:
-        assert c.sock is not None
-        err = c.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-        if err:
-            self._close(c)
-            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(err)}")
-            return
-        c.state = "open"
-        c.backoff = _BACKOFF_FIRST
-        self._sel.modify(c.sock, selectors.EVENT_READ, c)
-        self.stats.opened[c.bus.name] = True
-        self.stats.ok(c.bus.name)
-        if c.opened_once:
-            self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
-        else:
-            self._event(c, "connect", f"polling {len(c.units)} device(s) on {c.bus.endpoint}")
-        c.opened_once = True
-        # a new connection may be a new device: forget what the last one taught
-        for u in c.units:
-            u.planner.forget()
-        wait = max(u.config.map.timing.after_connect for u in c.units)
-        c.quiet_until = now + wait
-        # the polls waiting, in the order of the devices and groups
-        c.waiting.clear()
-        for e in c.entries:
-            e.read_once = False
-            if e.queued or e.once or e.interval == 0:
-                e.queued = True
-                c.waiting.append(e)
-
-    def _close(self, c: _Conn) -> None:
-        if c.sock is not None:
-            with contextlib.suppress(KeyError, ValueError):
-                self._sel.unregister(c.sock)
-            c.sock.close()
-        c.sock, c.state = None, "closed"
-        c.rbuf.clear()
-        c.inflight.clear()
-        c.entry = None
-
-    def _lost(self, c: _Conn, now: float, why: str, err: int | None) -> None:
+    def _lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
         """The connection failed under a poll: the poll's device is told, and
         the bus is opened again at once (then with the backoff)."""
         e = c.entry
         if e is not None:
             spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
             exc = ModbusConnectionError(
-                f"{_asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
+                f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
             self._failed(c, e.unit, exc)
             self._requeue(c, e, now)
         self._close(c)
@@ -235,12 +105,12 @@ class TcpMapPoller(threading.Thread):
 
     # -- polls ---------------------------------------------------------------------------
 
-    def _queue(self, c: _Conn, e: Entry) -> None:
+    def _queue(self, c: Conn, e: Entry) -> None:
         if not e.queued:
             e.queued = True
             c.waiting.append(e)
 
-    def _next(self, c: _Conn, now: float) -> None:
+    def _next(self, c: Conn, now: float) -> None:
         """Start the next waiting poll on an idle open connection."""
         while c.entry is None and c.waiting and c.state == "open":
             e = c.waiting.popleft()
@@ -255,10 +125,10 @@ class TcpMapPoller(threading.Thread):
                 c.unread.clear()
             if not c.todo:  # every point refused: the poll reads nothing
                 self._done(c, e, now)
-                continue
+                return  # (a flat-out one again after the next select, not in a loop here)
             self._send(c, now)
 
-    def _send(self, c: _Conn, now: float) -> None:
+    def _send(self, c: Conn, now: float) -> None:
         e = c.entry
         assert e is not None
         assert c.sock is not None
@@ -289,7 +159,7 @@ class TcpMapPoller(threading.Thread):
         except OSError as err:
             self._lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
 
-    def _readable(self, c: _Conn, now: float) -> None:
+    def _readable(self, c: Conn, now: float) -> None:
         sock = c.sock
         assert sock is not None
         try:
@@ -325,6 +195,7 @@ class TcpMapPoller(threading.Thread):
                     pos += size
                     inflight.popleft()
                     if inflight and c.sent == len(c.todo) and not e.unit.timed:
+                        c.deadline = now + e.unit.timeout
                         continue  # the rest of this poll's replies are on their way
                     self._replied(c, e, now)
                     if c.sock is not sock:
@@ -339,7 +210,7 @@ class TcpMapPoller(threading.Thread):
         if pos < n:
             c.rbuf += data[pos:]
 
-    def _odd(self, c: _Conn, data: bytes, pos: int, now: float) -> int:
+    def _odd(self, c: Conn, data: bytes, pos: int, now: float) -> int:
         """A reply that is not the expected one: a late one (another
         transaction id: skipped), an exception, or garbage (the connection is
         dropped: -1). Returns the bytes used (0: wait for more)."""
@@ -364,11 +235,11 @@ class TcpMapPoller(threading.Thread):
         self._garbage(c, now, data[pos:pos + 6 + length], spec)
         return -1
 
-    def _garbage(self, c: _Conn, now: float, got: bytes, spec: Spec | None = None) -> None:
+    def _garbage(self, c: Conn, now: float, got: bytes, spec: Spec | None = None) -> None:
         e = c.entry
         if e is not None:
             spec = spec or (c.inflight[0][1] if c.inflight else None)
-            exc = ProtocolError(f"{_asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
+            exc = ProtocolError(f"{asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
                                 f"not match the request (received {got.hex(' ').upper()})",
                                 response=got)
             self._failed(c, e.unit, exc)
@@ -377,7 +248,7 @@ class TcpMapPoller(threading.Thread):
         self._close(c)
         c.retry_at = now
 
-    def _exception(self, c: _Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
+    def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
         u = e.unit
         planner = u.planner
         if code in (2, 3) and planner.limits.split_on_exception:
@@ -399,7 +270,7 @@ class TcpMapPoller(threading.Thread):
             self._replied(c, e, now)
             return
         exc = exception_class(code)(
-            f"{_asked(spec, u)} on {c.bus.endpoint}: device answered exception {code:02X} "
+            f"{asked(spec, u)} on {c.bus.endpoint}: device answered exception {code:02X} "
             f"({describe_exception(code)})", code=code, slave=u.info.address,
             function=spec.function, address=spec.address, count=spec.count,
             port=c.bus.endpoint)
@@ -409,7 +280,7 @@ class TcpMapPoller(threading.Thread):
         self._requeue(c, e, now)
         self._next(c, now)
 
-    def _replied(self, c: _Conn, e: Entry, now: float) -> None:
+    def _replied(self, c: Conn, e: Entry, now: float) -> None:
         u = e.unit
         if u.timed:
             c.last_end = now
@@ -420,7 +291,7 @@ class TcpMapPoller(threading.Thread):
             self._done(c, e, now)
             self._next(c, now)
 
-    def _done(self, c: _Conn, e: Entry, now: float) -> None:
+    def _done(self, c: Conn, e: Entry, now: float) -> None:
         """A poll read every request: its sample."""
         u = e.unit
         c.entry = None
@@ -444,7 +315,7 @@ class TcpMapPoller(threading.Thread):
         stats.ok(u.info.name)
         self._requeue(c, e, now)
 
-    def _requeue(self, c: _Conn, e: Entry, now: float) -> None:
+    def _requeue(self, c: Conn, e: Entry, now: float) -> None:
         """After a poll (or a failed one): the group's next slot; whole slots
         a long poll overran are skipped and counted."""
         if e.once:
@@ -471,7 +342,7 @@ class TcpMapPoller(threading.Thread):
             self._seq += 1
             heapq.heappush(self._slots, (when, self._seq, e))
 
-    def _failed(self, c: _Conn, u: Unit, e: ModbusError) -> None:
+    def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
         kind = event_kind(e)
         code = getattr(e, "code", None) or getattr(e, "errno", None)
         u.failures += 1
@@ -512,7 +383,7 @@ class TcpMapPoller(threading.Thread):
                 soonest = c.deadline
         self._soonest = min(self._soonest, soonest)
 
-    def _timeout(self, c: _Conn, now: float) -> None:
+    def _timeout(self, c: Conn, now: float) -> None:
         e = c.entry
         assert e is not None
         spec = c.inflight[0][1]
@@ -594,11 +465,3 @@ class TcpMapPoller(threading.Thread):
                 elif mask & selectors.EVENT_WRITE:
                     self._connected(c, t)
                     self._next(c, t)
-
-
-def _asked(spec: Spec | None, u: Unit) -> str:
-    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``."""
-    if spec is None:
-        return f"{u.info.name}(slave={u.info.address})"
-    return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
-            f"count={spec.count})")

@@ -10,7 +10,9 @@ refuses alone (``unsupported``), a block, coils and three group intervals
 from __future__ import annotations
 
 import queue
+import socket
 import sqlite3
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -187,14 +189,23 @@ address = 2
     assert set(strip[0]) == set(strip[1])
 
 
-def test_buses_that_keep_a_thread(tmp_path: Path) -> None:
-    """The facades, serial lines and RTU over TCP keep a thread per bus."""
+def test_one_loop_for_every_tcp_bus_a_thread_for_the_others(tmp_path: Path) -> None:
+    """Every TCP bus of map devices goes to the one loop; a bus with a
+    facade (and serial lines, RTU over TCP) keeps a thread of its own."""
     coolpro = BusConfig("c", tcp="127.0.0.1:1", devices=[DeviceConfig("coolpro", 40)])
     assert not fans_out(coolpro)
-    cfg = LogConfig([coolpro], path=str(tmp_path / "x.sqlite"))
-    logger = Logger(cfg)
-    assert [type(p) for p in logger.pollers if isinstance(p, TcpMapPoller)] == []
-    assert len(logger.pollers) == 1
+    (tmp_path / "log.toml").write_text("".join(
+        f'[[bus]]\nname = "m{i}"\ntcp = "127.0.0.1:{1000 + i}"\n'
+        f'[[bus.device]]\ntype = "eastron-sdm120"\n' for i in range(3)) +
+        '[[bus]]\nname = "r"\nrtu_over_tcp = "127.0.0.1:999"\n'
+        '[[bus.device]]\ntype = "eastron-sdm120"\n')
+    buses = load_config(tmp_path / "log.toml").buses
+    assert [fans_out(b) for b in buses] == [True, True, True, False]
+    logger = Logger(LogConfig([coolpro, *buses], path=str(tmp_path / "x.sqlite")))
+    loops = [p for p in logger.pollers if isinstance(p, TcpMapPoller)]
+    assert len(loops) == 1
+    assert loops[0].bus_names == ["m0", "m1", "m2"]
+    assert len(logger.pollers) == 3  # the CoolPro's bus, the RTU-over-TCP bus, the loop
     logger.sink.close()
 
 
@@ -210,3 +221,123 @@ def test_pipeline_mistakes(tmp_path: Path, pipeline: str, says: str) -> None:
     assert r.returncode == 2, r.stderr
     assert says in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+LATE_MAP = '''schema = "pymb.map/1"
+[device]
+id = "late-test"
+table = "holding"
+[device.timing]
+offline_after = 1
+offline_retry = 0.5
+[[point]]
+name = "a"
+address = 0
+type = "u16"
+[[point]]
+name = "b"
+address = 1
+type = "u16"
+'''
+
+
+class _Gateway:
+    """A scripted Modbus TCP gateway (not pymb's simulator): registers
+    ``100 x unit + address``; unit 2 answers 0.3 s late (after the loop's
+    0.2 s timeout, while unit 1's request waits behind it); counts the
+    connections it accepts. Requests are answered in order."""
+
+    def __init__(self) -> None:
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.accepted = 0
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._accept, daemon=True)
+        self.thread.start()
+
+    def _accept(self) -> None:
+        self.server.settimeout(0.1)
+        while not self.done.is_set():
+            try:
+                conn, _ = self.server.accept()
+            except TimeoutError:
+                continue
+            self.accepted += 1
+            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        buf = b""
+        with conn:
+            conn.settimeout(0.1)
+            while not self.done.is_set():
+                try:
+                    data = conn.recv(4096)
+                except TimeoutError:
+                    continue
+                if not data:
+                    return
+                buf += data
+                while len(buf) >= 12:
+                    tid, _, _, unit, fc, address, count = struct.unpack(">HHHBBHH", buf[:12])
+                    buf = buf[12:]
+                    if unit == 2:
+                        time.sleep(0.3)
+                    regs = [100 * unit + address + i for i in range(count)]
+                    pdu = struct.pack(f">BB{count}H", fc, 2 * count, *regs)
+                    conn.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+
+    def close(self) -> None:
+        self.done.set()
+        self.thread.join(5.0)
+        self.server.close()
+
+
+def test_a_late_reply_is_skipped_and_the_gateway_keeps_one_connection(tmp_path: Path
+                                                                      ) -> None:
+    (tmp_path / "late.toml").write_text(LATE_MAP)
+    gw = _Gateway()
+    try:
+        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
+[[bus]]
+tcp = "127.0.0.1:{gw.port}"
+timeout = 0.2
+[[bus.device]]
+type = "late-test"
+address = 1
+[[bus.device]]
+type = "late-test"
+address = 2
+''')
+        bus = load_config(tmp_path / "log.toml").buses[0]
+        q: queue.Queue[list[Sample | Event]] = queue.Queue()
+        stop = threading.Event()
+        poller = TcpMapPoller([bus], q, stop, Stats())
+        poller.start()
+        samples: list[Sample] = []
+        events: list[Event] = []
+        deadline = time.monotonic() + 20.0
+        try:
+            while time.monotonic() < deadline:
+                try:
+                    items = q.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                samples += [s for s in items if isinstance(s, Sample)]
+                events += [e for e in items if isinstance(e, Event)]
+                late = [e for e in events if e.kind == "timeout"]
+                if len(late) >= 3 and len(samples) >= 50:
+                    break
+        finally:
+            stop.set()
+            poller.join(5.0)
+    finally:
+        gw.close()
+    assert len([e for e in events if e.kind == "timeout"]) >= 3
+    assert all(e.device is not None and e.device.address == 2
+               for e in events if e.kind == "timeout")
+    assert [e.kind for e in events if e.kind not in ("timeout", "connect")] == []
+    assert gw.accepted == 1  # one connection for both units, kept through the timeouts
+    assert len(samples) >= 50
+    # every sample holds its own unit's registers: no late reply taken for another's
+    assert {(s.device.address, tuple(_map(s).values.values())) for s in samples} == {
+        (1, (100, 101))}

@@ -1,0 +1,173 @@
+"""The connections of the one TCP loop (:mod:`pymb.logger.tcploop`):
+:class:`Conn`, a bus's connection to its ``host:port`` and the polls waiting
+for it, and :class:`TcpLoopBase`, the thread's part that opens, closes and
+reopens them (non-blocking connects under one selector, the bus's doubling
+backoff, the connect and reconnect events) and hands samples and events to
+the writer."""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import errno
+import os
+import queue
+import selectors
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+from pymb.client import unresolved
+from pymb.errors import function_name
+from pymb.logger.config import BusConfig
+from pymb.logger.poller import Stats
+from pymb.logger.tcpunits import Entry, Spec, Unit
+from pymb.store import Event, Sample
+
+__all__ = ["Conn", "TcpLoopBase", "asked"]
+
+_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+
+
+@dataclass(eq=False)
+class Conn:
+    """One bus: a connection to ``host:port`` and the polls waiting for it."""
+
+    bus: BusConfig
+    host: str
+    port: int
+    units: list[Unit]
+    entries: list[Entry]
+    pipeline: int
+    sock: socket.socket | None = None
+    state: str = "closed"  # closed, connecting, open
+    opened_once: bool = False
+    retry_at: float = 0.0
+    backoff: float = _BACKOFF_FIRST
+    deadline: float = 0.0
+    waiting: collections.deque[Entry] = field(default_factory=collections.deque)
+    entry: Entry | None = None  #: the poll under way
+    todo: list[Spec] = field(default_factory=list)  #: its requests
+    sent: int = 0  #: of ``todo``
+    inflight: collections.deque[tuple[bytes, Spec]] = field(
+        default_factory=collections.deque)  #: (expected first 9 bytes, request)
+    unread: set[int] = field(default_factory=set)  #: items refused in this poll
+    tid: int = 0
+    rbuf: bytearray = field(default_factory=bytearray)
+    quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
+    last_end: float = 0.0
+
+
+class TcpLoopBase(threading.Thread):
+    """The loop's thread: its connections (:attr:`conns`), its selector, and
+    the list of samples and events it hands to the writer on ``out``."""
+
+    def __init__(self, out: queue.Queue[list[Sample | Event]], stop: threading.Event,
+                 stats: Stats) -> None:
+        super().__init__(name="pymb-tcp", daemon=True)
+        self.out = out
+        self.stop_event = stop
+        self.stats = stats
+        self.conns: list[Conn] = []
+        self._sel = selectors.DefaultSelector()
+        self._batch: list[Sample | Event] = []
+        self._batch_since = 0.0
+        self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
+
+    # -- hand-over -----------------------------------------------------------------------
+
+    def flush(self) -> None:
+        """Hand what was read since the last list to the writer."""
+        batch, self._batch = self._batch, []
+        if batch:
+            self.out.put(batch)
+
+    def take_unflushed(self) -> list[Sample | Event]:
+        """What this poller read but has not handed over (the writer takes it
+        when the poller is left behind at stop)."""
+        batch, self._batch = self._batch, []
+        return batch
+
+    def _event(self, c: Conn, kind: str, message: str, unit: Unit | None = None,
+               code: int | None = None) -> None:
+        self._batch.append(Event(time.time(), time.monotonic(), c.bus.name,
+                                 None if unit is None else unit.info, kind, code, message))
+        self.flush()
+
+    # -- connections ---------------------------------------------------------------------
+
+    def _connect(self, c: Conn, now: float) -> None:
+        try:
+            infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
+            family, _, _, _, addr = infos[0]
+            s = socket.socket(family, socket.SOCK_STREAM)
+        except OSError:
+            why = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
+            self._not_open(c, now, why)
+            return
+        s.setblocking(False)
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        rc = s.connect_ex(addr)
+        if rc not in (0, errno.EINPROGRESS):
+            s.close()
+            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(rc)}")
+            return
+        c.sock, c.state = s, "connecting"
+        c.deadline = now + c.bus.timeout
+        self._soonest = min(self._soonest, c.deadline)
+        self._sel.register(s, selectors.EVENT_WRITE, c)
+
+    def _not_open(self, c: Conn, now: float, why: str) -> None:
+        self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
+        self._event(c, "connection", f"{why}; retrying in {c.backoff:g} s")
+        c.retry_at = now + c.backoff
+        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
+
+    def _connected(self, c: Conn, now: float) -> None:
+        assert c.sock is not None
+        err = c.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if err:
+            self._close(c)
+            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(err)}")
+            return
+        c.state = "open"
+        c.backoff = _BACKOFF_FIRST
+        self._sel.modify(c.sock, selectors.EVENT_READ, c)
+        self.stats.opened[c.bus.name] = True
+        self.stats.ok(c.bus.name)
+        if c.opened_once:
+            self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
+        else:
+            self._event(c, "connect", f"polling {len(c.units)} device(s) on {c.bus.endpoint}")
+        c.opened_once = True
+        # a new connection may be a new device: forget what the last one taught
+        for u in c.units:
+            u.planner.forget()
+        wait = max(u.config.map.timing.after_connect for u in c.units)
+        c.quiet_until = now + wait
+        # the polls waiting, in the order of the devices and groups
+        c.waiting.clear()
+        for e in c.entries:
+            e.read_once = False
+            if e.queued or e.once or e.interval == 0:
+                e.queued = True
+                c.waiting.append(e)
+
+    def _close(self, c: Conn) -> None:
+        if c.sock is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(c.sock)
+            c.sock.close()
+        c.sock, c.state = None, "closed"
+        c.rbuf.clear()
+        c.inflight.clear()
+        c.entry = None
+
+
+def asked(spec: Spec | None, u: Unit) -> str:
+    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``."""
+    if spec is None:
+        return f"{u.info.name}(slave={u.info.address})"
+    return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
+            f"count={spec.count})")
