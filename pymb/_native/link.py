@@ -78,13 +78,15 @@ class RegisterPlan:
     ``timeout``: the reply timeout of its requests (None: the line's). After
     a failed run, :attr:`failed` is the index of the request that failed."""
 
-    __slots__ = ("done", "failed", "gap_us", "n", "nregs", "regs", "reqs", "requests",
-                 "timeout", "timeout_us")
+    __slots__ = ("done", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs",
+                 "requests", "timeout", "timeout_us")
 
     def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
                  gap: float = 0.0, timeout: float | None = None) -> None:
         self.timeout = timeout
         self.timeout_us = _seconds_us(timeout or 0)
+        #: what the line's context holds while this plan runs (None: the line's own)
+        self.hold = self.timeout_us if timeout is not None else None
         self.requests = tuple(requests)
         self.n = len(self.requests)
         self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))
@@ -343,13 +345,13 @@ class Link:
         failure ``plan.failed`` is the index of the request that failed.
         The plan's reply timeout stays on the line until a request of another
         timeout: a poller running the same plan sets it once."""
-        timeout = plan.timeout
-        if timeout is None or timeout == self._timeout[0]:
-            if self._held is not None:
+        hold = plan.hold
+        if hold is not self._held:
+            if hold is None:
                 self._own_timeout()
-        elif self._held != plan.timeout_us and self.is_open:
-            lib.modbus_set_response_timeout(self._ctx, *plan.timeout_us)
-            self._held = plan.timeout_us
+            elif self.is_open:
+                lib.modbus_set_response_timeout(self._ctx, *hold)
+                self._held = hold
         rc = lib.pymb_read_plan(self._line, plan.reqs if start == 0 else plan.reqs + start,
                                 plan.n - start, plan.gap_us, plan.regs, plan.nregs, plan.done,
                                 self._fail)

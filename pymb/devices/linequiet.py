@@ -21,8 +21,10 @@ class Quiet:
     def __init__(self) -> None:
         self.last_end = 0.0
         self.quiet_until = 0.0
-        #: held from the wait for silence to the end of the request: two map
-        #: devices on one client in two threads keep each other's silences
+        #: the line's lock: a map device holds it for each whole read or write
+        #: (from the wait for silence to the end of its last request, and its
+        #: decoding), so two map devices on one client in two threads keep
+        #: each other's silences
         self.lock = threading.Lock()
 
 

@@ -20,7 +20,6 @@ is asked alone, and one the device refuses alone reads None (state
 from __future__ import annotations
 
 import math
-import threading
 from array import array
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -98,7 +97,11 @@ class MapDevice:
         #: the last read's names, group and Read: a poller asking the same again finds it
         self._last: tuple[tuple[str, ...], str | None, Read] | None = None
         self._fetcher = Fetcher(client, m, address, self._planner)
-        self._lock = threading.Lock()
+        self._unread = self._fetcher.unread  # the same bytearray, one lookup fewer a read
+        # The line's lock, for each whole read and write: a device's requests
+        # and the silences between them are never interleaved with another
+        # map device's on the same client (and one lock a read, not two).
+        self._lock = self._fetcher.quiet.lock
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
 
     # -- what to read -----------------------------------------------------------------
@@ -193,7 +196,7 @@ class MapDevice:
             for decode, buffers, registers in r.decodes:
                 decode()
                 buffers.registers = registers
-            if 1 in self._fetcher.unread:
+            if 1 in self._unread:
                 self._mark_unread(r.points, r.images)
             return r.decoders
 

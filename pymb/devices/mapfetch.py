@@ -82,6 +82,11 @@ class Fetcher:
 
     :attr:`unread` has a byte per planner item: 1 where the device refused
     the item alone (this read got no value for it).
+
+    Every method that asks the line is called holding ``quiet.lock``, the
+    line's lock (the map devices on one client take it for each read and
+    write): the silences it keeps are then the line's, whichever device and
+    thread asks next.
     """
 
     def __init__(self, client: Client, m: Map, address: int, planner: PointPlanner) -> None:
@@ -117,24 +122,23 @@ class Fetcher:
         q = self.quiet
         for p in runs:
             refused = -1
-            with q.lock:
-                last, until = q.last_end, q.quiet_until
-                if last + self._gap > until:
-                    until = last + self._gap
-                # the last request ended in the past: silence until then is kept
-                if until > last and until > _monotonic():
-                    sleep_until(until)
-                try:
-                    client.run_read_plan(p.plan)
-                except (IllegalDataAddress, IllegalDataValue):
-                    if not planner.limits.split_on_exception:
-                        raise
-                    refused = p.plan.failed
-                finally:
-                    now = _monotonic()
-                    q.last_end = now
-                    if now + self._turnaround > q.quiet_until:
-                        q.quiet_until = now + self._turnaround
+            last, until = q.last_end, q.quiet_until
+            if last + self._gap > until:
+                until = last + self._gap
+            # the last request ended in the past: silence until then is kept
+            if until > last and until > _monotonic():
+                sleep_until(until)
+            try:
+                client.run_read_plan(p.plan)
+            except (IllegalDataAddress, IllegalDataValue):
+                if not planner.limits.split_on_exception:
+                    raise
+                refused = p.plan.failed
+            finally:
+                now = _monotonic()
+                q.last_end = now
+                if now + self._turnaround > q.quiet_until:
+                    q.quiet_until = now + self._turnaround
             if refused >= 0:
                 self._refused(p, refused)
 
@@ -165,8 +169,7 @@ class Fetcher:
             wait = self.map.timing.after_connect
             if wait > 0:
                 q = self.quiet
-                with q.lock:
-                    q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
+                q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
     def runs(self, plan: ReadPlan, images: dict[str, Image]) -> tuple[Run, ...] | None:
         """``plan``'s requests in runs of one table, each a RegisterPlan over
@@ -201,18 +204,17 @@ class Fetcher:
             start, refused = refused + 1, -1
             if start >= plan.n:
                 return
-            with q.lock:
-                sleep_until(max(q.quiet_until, q.last_end + gap))
-                try:
-                    self.client.run_read_plan(plan, start)
-                except (IllegalDataAddress, IllegalDataValue):
-                    if not self.planner.limits.split_on_exception:
-                        raise
-                    refused = plan.failed
-                finally:
-                    now = _monotonic()
-                    q.last_end = now
-                    q.quiet_until = max(q.quiet_until, now + turnaround)
+            sleep_until(max(q.quiet_until, q.last_end + gap))
+            try:
+                self.client.run_read_plan(plan, start)
+            except (IllegalDataAddress, IllegalDataValue):
+                if not self.planner.limits.split_on_exception:
+                    raise
+                refused = plan.failed
+            finally:
+                now = _monotonic()
+                q.last_end = now
+                q.quiet_until = max(q.quiet_until, now + turnaround)
 
     @contextmanager
     def _map_timeout(self) -> Iterator[None]:
@@ -229,18 +231,17 @@ class Fetcher:
 
     @contextmanager
     def turn(self) -> Iterator[None]:
-        """One request's turn on the line: the device's silence before it
-        (``inter_request_gap``, and any device's ``turnaround`` after its
-        reply), the line held for it, and the end noted for the next."""
+        """One request's turn on the line (the caller holds its lock): the
+        device's silence before it (``inter_request_gap``, and any device's
+        ``turnaround`` after its reply), and the end noted for the next."""
         q = self.quiet
-        with q.lock:
-            sleep_until(max(q.quiet_until, q.last_end + self._gap))
-            try:
-                yield
-            finally:
-                now = time.monotonic()
-                q.last_end = now
-                q.quiet_until = max(q.quiet_until, now + self._turnaround)
+        sleep_until(max(q.quiet_until, q.last_end + self._gap))
+        try:
+            yield
+        finally:
+            now = time.monotonic()
+            q.last_end = now
+            q.quiet_until = max(q.quiet_until, now + self._turnaround)
 
     def _wire(self, r: Request, image: Image) -> None:
         """One request on the wire, into its place in ``image``."""
