@@ -274,6 +274,8 @@ class _Gateway:
                     data = conn.recv(4096)
                 except TimeoutError:
                     continue
+                except OSError:  # the poller closed its end at stop
+                    return
                 if not data:
                     return
                 buf += data
@@ -284,7 +286,10 @@ class _Gateway:
                         time.sleep(0.3)
                     regs = [100 * unit + address + i for i in range(count)]
                     pdu = struct.pack(f">BB{count}H", fc, 2 * count, *regs)
-                    conn.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+                    try:
+                        conn.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+                    except OSError:  # the poller closed its end at stop
+                        return
 
     def close(self) -> None:
         self.done.set()
@@ -341,3 +346,53 @@ address = 2
     # every sample holds its own unit's registers: no late reply taken for another's
     assert {(s.device.address, tuple(_map(s).values.values())) for s in samples} == {
         (1, (100, 101))}
+
+
+def test_slots_a_slow_unit_overran_are_skipped_and_counted(tmp_path: Path) -> None:
+    """Unit 2 answers in 0.3 s, the bus's interval is 0.1 s: its slots that
+    a poll overran are skipped, counted and recorded as ``skipped`` events
+    naming it; unit 1 behind the same gateway waits its turn."""
+    (tmp_path / "late.toml").write_text(LATE_MAP)
+    gw = _Gateway()
+    try:
+        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
+[[bus]]
+tcp = "127.0.0.1:{gw.port}"
+timeout = 1
+interval = 0.1
+[[bus.device]]
+type = "late-test"
+address = 1
+[[bus.device]]
+type = "late-test"
+address = 2
+''')
+        bus = load_config(tmp_path / "log.toml").buses[0]
+        q: queue.Queue[list[Sample | Event]] = queue.Queue()
+        stop = threading.Event()
+        stats = Stats()
+        poller = TcpMapPoller([bus], q, stop, stats)
+        poller.start()
+        events: list[Event] = []
+        samples: list[Sample] = []
+        deadline = time.monotonic() + 20.0
+        try:
+            while time.monotonic() < deadline and len(
+                    [e for e in events if e.kind == "skipped"]) < 3:
+                try:
+                    items = q.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                events += [e for e in items if isinstance(e, Event)]
+                samples += [s for s in items if isinstance(s, Sample)]
+        finally:
+            stop.set()
+            poller.join(5.0)
+    finally:
+        gw.close()
+    skipped = [e for e in events if e.kind == "skipped"]
+    assert len(skipped) >= 3
+    assert stats.skipped_slots >= len(skipped)
+    assert any("late-test-2" in e.message for e in skipped)
+    assert "timeout" not in {e.kind for e in events}
+    assert {s.device.address for s in samples} == {1, 2}
