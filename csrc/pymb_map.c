@@ -324,9 +324,13 @@ done:
  * The same arithmetic as decode_one() and apply(). What the loop reads of the
  * entry and of out is in locals first: a store into out's arrays (a uint8_t
  * state may alias anything) would otherwise make the compiler read the entry
- * again for every channel. */
-static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
-                      const pymb_map_out *out)
+ * again for every channel. The kind of value and of scaling are parameters,
+ * constant where decode_16() calls it for the common cases, so that the
+ * compiler drops the branches that do not apply from each copy. */
+static void decode_16_loop(const pymb_map_entry *e, const pymb_map_marker *mk,
+                           const uint16_t *regs, const pymb_map_out *out, const int sm16,
+                           const int i16, const int decimals, const int by_scale,
+                           const int has_offset)
 {
     const unsigned channels = e->channels, nmarkers = e->nmarkers;
     const size_t stride = e->stride;
@@ -334,13 +338,8 @@ static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const 
     double *values = out->values + e->out;
     uint8_t *states = out->states + e->out;
     int64_t *ints = out->ints != NULL ? out->ints + e->out : NULL;
-    const int swap = e->order[0] == 1, sm16 = e->type == PYMB_MAP_SM16,
-              i16 = e->type == PYMB_MAP_I16;
-    const int scaled = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) != 0;
-    const int by_scale = (e->flags & PYMB_MAP_SCALED) != 0, has_offset =
-        (e->flags & PYMB_MAP_OFFSET) != 0;
+    const int swap = e->order[0] == 1;
     const double divisor = pow10_exact[e->decimals], scale = e->scale, offset = e->offset;
-    const int decimals = e->decimals != 0;
     unsigned c, m;
 
     for (c = 0; c < channels; c++) {
@@ -376,7 +375,7 @@ static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const 
             iv = i16 ? (int64_t)(int16_t)raw : (int64_t)raw;
             v = (double)iv;
         }
-        if (scaled) {
+        if (decimals || by_scale || has_offset) {
             if (decimals) {
                 v = v / divisor;
             } else if (by_scale) {
@@ -397,6 +396,37 @@ static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const 
             ints[c] = iv;
         }
     }
+}
+
+static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
+                      const pymb_map_out *out)
+{
+    const int sm16 = e->type == PYMB_MAP_SM16, i16 = e->type == PYMB_MAP_I16;
+    /* as decode_one(): no scaling without a flag; with one, apply()'s order */
+    const int scaled = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) != 0;
+    const int has_offset = (e->flags & PYMB_MAP_OFFSET) != 0;
+    const int decimals = scaled && e->decimals != 0;
+    const int by_scale = scaled && !decimals && (e->flags & PYMB_MAP_SCALED) != 0;
+
+    if (!has_offset && !by_scale) { /* a decimal scale, or none: the hub's blocks */
+        if (decimals) {
+            if (sm16) {
+                decode_16_loop(e, mk, regs, out, 1, 0, 1, 0, 0);
+            } else if (i16) {
+                decode_16_loop(e, mk, regs, out, 0, 1, 1, 0, 0);
+            } else {
+                decode_16_loop(e, mk, regs, out, 0, 0, 1, 0, 0);
+            }
+        } else if (sm16) {
+            decode_16_loop(e, mk, regs, out, 1, 0, 0, 0, 0);
+        } else if (i16) {
+            decode_16_loop(e, mk, regs, out, 0, 1, 0, 0, 0);
+        } else {
+            decode_16_loop(e, mk, regs, out, 0, 0, 0, 0, 0);
+        }
+        return;
+    }
+    decode_16_loop(e, mk, regs, out, sm16, i16, decimals, by_scale, has_offset);
 }
 
 int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,

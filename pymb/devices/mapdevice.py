@@ -97,7 +97,6 @@ class MapDevice:
         #: the last read's names, group and Read: a poller asking the same again finds it
         self._last: tuple[tuple[str, ...], str | None, Read] | None = None
         self._fetcher = Fetcher(client, m, address, self._planner)
-        self._unread = self._fetcher.unread  # the same bytearray, one lookup fewer a read
         # The line's lock, for each whole read and write: a device's requests
         # and the silences between them are never interleaved with another
         # map device's on the same client (and one lock a read, not two).
@@ -196,7 +195,7 @@ class MapDevice:
             for decode, buffers, registers in r.decodes:
                 decode()
                 buffers.registers = registers
-            if 1 in self._unread:
+            if self._fetcher.marked:
                 self._mark_unread(r.points, r.images)
             return r.decoders
 
@@ -238,7 +237,7 @@ class MapDevice:
             b = dec.decode(image.registers)
             values.update(dec.values(b))
             states.update(dec.states(b))
-        if 1 in self._fetcher.unread:
+        if self._fetcher.marked:
             unread = self._fetcher.unread
             for i in points:
                 p = self._points[i]

@@ -81,7 +81,8 @@ class Fetcher:
     ``client``, planned by ``planner``.
 
     :attr:`unread` has a byte per planner item: 1 where the device refused
-    the item alone (this read got no value for it).
+    the item alone (this read got no value for it); :attr:`marked` is False
+    while it has none.
 
     Every method that asks the line is called holding ``quiet.lock``, the
     line's lock (the map devices on one client take it for each read and
@@ -99,6 +100,7 @@ class Fetcher:
         self._gap, self._turnaround = t.inter_request_gap, t.turnaround
         self.unread = bytearray(len(planner.items))
         self._none_unread = bytes(len(planner.items))
+        self.marked = False  #: some byte of :attr:`unread` is 1
         self._connections = -1  # the client's connection the planner's knowledge is from
 
     def fetch(self, r: Read) -> None:
@@ -150,8 +152,9 @@ class Fetcher:
         planner = self.planner
         r.plan = planner.plan(r.items)
         unread = self.unread
-        if 1 in unread:
+        if self.marked:
             unread[:] = self._none_unread
+        self.marked = bool(planner.unsupported)
         for k in planner.unsupported:
             unread[k] = 1
         r.runs = self.runs(r.plan, r.images)
@@ -285,3 +288,4 @@ class Fetcher:
             planner.mark_unsupported(r.items)
             for k in r.items:
                 self.unread[k] = 1
+            self.marked = True
