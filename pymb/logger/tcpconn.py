@@ -17,6 +17,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from pymb.client import unresolved
 from pymb.errors import function_name
@@ -57,6 +58,9 @@ class Conn:
     rbuf: bytearray = field(default_factory=bytearray)
     quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
     last_end: float = 0.0
+    #: (family, address) the host resolved to: resolved again only after a
+    #: failed connect (a name lookup blocks the loop)
+    resolved: tuple[int, Any] | None = None
 
 
 class TcpLoopBase(threading.Thread):
@@ -99,8 +103,10 @@ class TcpLoopBase(threading.Thread):
 
     def _connect(self, c: Conn, now: float) -> None:
         try:
-            infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
-            family, _, _, _, addr = infos[0]
+            if c.resolved is None:
+                infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
+                c.resolved = (infos[0][0], infos[0][4])
+            family, addr = c.resolved
             s = socket.socket(family, socket.SOCK_STREAM)
         except OSError:
             why = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
@@ -119,6 +125,7 @@ class TcpLoopBase(threading.Thread):
         self._sel.register(s, selectors.EVENT_WRITE, c)
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
+        c.resolved = None
         self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
         self._event(c, "connection", f"{why}; retrying in {c.backoff:g} s")
         c.retry_at = now + c.backoff

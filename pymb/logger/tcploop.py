@@ -100,6 +100,9 @@ class TcpMapPoller(TcpLoopBase):
                 f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
             self._failed(c, e.unit, exc)
             self._requeue(c, e, now)
+        else:  # between polls: the bus's event
+            self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
+            self._event(c, "connection", f"{c.bus.endpoint}: {why}")
         self._close(c)
         c.retry_at = now
 

@@ -251,6 +251,7 @@ class _Gateway:
         self.server = socket.create_server(("127.0.0.1", 0))
         self.port = self.server.getsockname()[1]
         self.accepted = 0
+        self.open: list[socket.socket] = []
         self.done = threading.Event()
         self.thread = threading.Thread(target=self._accept, daemon=True)
         self.thread.start()
@@ -263,6 +264,7 @@ class _Gateway:
             except TimeoutError:
                 continue
             self.accepted += 1
+            self.open.append(conn)
             threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
 
     def _serve(self, conn: socket.socket) -> None:
@@ -290,6 +292,12 @@ class _Gateway:
                         conn.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
                     except OSError:  # the poller closed its end at stop
                         return
+
+    def drop(self) -> None:
+        """Close every connection (the gateway restarted)."""
+        for conn in self.open:
+            conn.shutdown(socket.SHUT_RDWR)
+        self.open.clear()
 
     def close(self) -> None:
         self.done.set()
@@ -396,3 +404,48 @@ address = 2
     assert any("late-test-2" in e.message for e in skipped)
     assert "timeout" not in {e.kind for e in events}
     assert {s.device.address for s in samples} == {1, 2}
+
+
+def test_a_dropped_connection_is_reopened_with_events(tmp_path: Path) -> None:
+    """The gateway closes the connection: the device being polled gets a
+    ``connection`` event, the bus is opened again (``reconnect``) and its
+    devices are polled on the new connection."""
+    (tmp_path / "late.toml").write_text(LATE_MAP)
+    gw = _Gateway()
+    try:
+        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
+[[bus]]
+tcp = "127.0.0.1:{gw.port}"
+[[bus.device]]
+type = "late-test"
+address = 1
+''')
+        bus = load_config(tmp_path / "log.toml").buses[0]
+        q: queue.Queue[list[Sample | Event]] = queue.Queue()
+        stop = threading.Event()
+        poller = TcpMapPoller([bus], q, stop, Stats())
+        poller.start()
+        kinds: list[str] = []
+        after = 0  # samples after the reconnect
+        deadline = time.monotonic() + 20.0
+        try:
+            while time.monotonic() < deadline and after < 20:
+                try:
+                    items = q.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                for item in items:
+                    if isinstance(item, Event):
+                        kinds.append(item.kind)
+                    elif "reconnect" in kinds:
+                        after += 1
+                    elif len(kinds) == 1 and gw.open:  # connected and polling: drop it
+                        gw.drop()
+        finally:
+            stop.set()
+            poller.join(5.0)
+    finally:
+        gw.close()
+    assert kinds[:3] == ["connect", "connection", "reconnect"], kinds
+    assert after >= 20
+    assert gw.accepted == 2
