@@ -10,8 +10,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from pymb.devices.mapspec import parse_map_device
-from pymb.devices.spec import DEVICE_SYNTAX, DeviceConfig, parse_device, split_spec
+from pymb.devices.mapspec import parse_map_device, unknown_device
+from pymb.devices.spec import DeviceConfig, parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
@@ -120,8 +120,7 @@ def device_from(spec: str, known: KnownMaps) -> DeviceConfig | MapDeviceConfig:
     src = known.get(kind)
     target = parse_map_device(spec, known.as_dict()) if src is not None else None
     if src is None or target is None:
-        raise InvalidArgument(f"unknown device {spec!r}: a device is {DEVICE_SYNTAX}, or a "
-                              f"map's id ({', '.join(known.ids)}; --map FILE adds one)")
+        raise unknown_device(spec, list(known.ids))
     return from_target(target, src)
 
 

@@ -15,7 +15,13 @@ from pymb.client import Client
 from pymb.commands._common import interruptible, make_client, print_json
 from pymb.commands.mapcli import map_json, render_map
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.mapspec import FACADES, MapTarget, map_types, near, parse_map_device
+from pymb.devices.mapspec import (
+    FACADES,
+    MapTarget,
+    map_types,
+    parse_map_device,
+    unknown_device,
+)
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 from pymb.maps.model import did_you_mean
 
@@ -31,11 +37,7 @@ def target_from_args(args: argparse.Namespace) -> MapTarget | None:
     kind = args.device.split(",")[0].partition(":")[0].strip().lower()
     if target is None:
         if kind not in FACADES:
-            ids = ", ".join(sorted(known)) or "none"
-            raise InvalidArgument(
-                f"unknown device {args.device!r}: a device is TYPE[:ADDRESS][,key=value...], "
-                f"TYPE coolpro, hub or a map's id (known: {ids}; a map file needs --map FILE)"
-                f"{near(kind, [*FACADES, *known])}")
+            raise unknown_device(args.device, list(known))
         if getattr(args, "group", None):
             raise InvalidArgument("--group is for a device read through a map")
         return None

@@ -22,7 +22,7 @@ from pymb.maps.codec import decode_one
 from pymb.maps.model import did_you_mean
 
 __all__ = ["FACADES", "MapTarget", "load_map", "map_types", "match_map", "near",
-           "parse_map_device"]
+           "parse_map_device", "unknown_device"]
 
 
 #: Device types with their own facade (not read through a map here).
@@ -33,6 +33,17 @@ def near(word: str, known: Sequence[str]) -> str:
     """``; did you mean 'x'?`` when a known name is close to ``word``, else nothing."""
     hint = did_you_mean(word, known)
     return hint if hint.startswith("; did you mean") else ""
+
+
+def unknown_device(spec: str, known: Sequence[str]) -> InvalidArgument:
+    """The one-line error for a device whose TYPE is neither a facade's nor
+    one of the ``known`` map ids, with a did-you-mean."""
+    kind = split_spec(spec)[0] if spec.strip() else spec
+    ids = ", ".join(sorted(known)) or "none"
+    return InvalidArgument(
+        f"unknown device {spec!r}: a device is TYPE[:ADDRESS][,key=value...], TYPE coolpro, "
+        f"hub or a map's id (known: {ids}; a map file needs --map FILE)"
+        f"{near(kind, [*FACADES, *known])}")
 
 
 def load_map(path: str) -> Map:

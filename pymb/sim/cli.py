@@ -20,7 +20,7 @@ from types import FrameType
 
 from pymb.client import parse_host_port
 from pymb.commands.mapcli import add_map_arg
-from pymb.devices.mapspec import map_types, near
+from pymb.devices.mapspec import FACADES, map_types, unknown_device
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.sim.clock import SimClock
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
@@ -168,11 +168,8 @@ def _devices(args: argparse.Namespace, clock: SimClock) -> list[str | Device]:
         dev = map_sim_device(spec, known, seed=args.seed * 1009 + i, clock=clock,
                              baud=args.baud)
         kind = spec.split(",")[0].partition(":")[0].strip().lower()
-        if dev is None and kind not in ("coolpro", "hub"):
-            ids = ", ".join(sorted(known)) or "none"
-            raise InvalidArgument(f"unknown device {kind!r} in {spec!r}; use coolpro, hub or "
-                                  f"a map's id (known: {ids}; a map file needs --map FILE)"
-                                  f"{near(kind, ['coolpro', 'hub', *known])}")
+        if dev is None and kind not in FACADES:
+            raise unknown_device(spec, list(known))
         out.append(spec if dev is None else dev)
     return out
 
