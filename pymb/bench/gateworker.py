@@ -6,7 +6,7 @@ as one SQLite row (time, device, big-endian BLOB: the store's way) in
 batches, and prints one JSON line: samples and values stored in the steady
 window, this process's CPU seconds in it (every thread's), RSS, threads.
 
-Designs: ``fanout`` (:class:`pymb.logger.fanout.TcpFanout`, one thread, one
+Designs: ``fanout`` (:class:`pymb.bench.fanout.TcpFanout`, one thread, one
 selector), ``fanout-pipelined`` (the same, every request of a poll in flight
 at once), ``threads`` (a thread per connection, blocking sockets, the same
 frames and checks), ``pymodbus`` (pymodbus's ``AsyncModbusTcpClient``, one
@@ -29,9 +29,9 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from pymb.bench.fanout import Device, Sample, TcpFanout
 from pymb.client import TcpClient
 from pymb.devices.mapdevice import MapDevice
-from pymb.logger.fanout import Device, Sample, TcpFanout
 from pymb.maps import Decoder, Map, builtin, load
 from pymb.sim.tcp import parse_ports
 

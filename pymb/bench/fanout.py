@@ -1,15 +1,18 @@
-"""Many Modbus TCP devices polled by one thread: :class:`TcpFanout`.
+"""The bench's bare one-thread loop over many Modbus TCP devices:
+:class:`TcpFanout`, the floor `pymb log`'s own loop
+(:mod:`pymb.logger.tcploop`) is measured against in ``pymb bench
+--sections gateway``: what one selector over non-blocking sockets costs
+with nothing of the logger's (no groups, no re-plans, no events, no writer
+thread).
 
-A gateway board polls tens or hundreds of TCP devices, each its own server.
-A thread per connection costs a stack, a switch per reply and the GIL
-handed round; here one loop waits on every connection at once (the
-system's selector: epoll on Linux) over non-blocking sockets. Each
-device's poll is a fixed list of requests (planned once, from the map);
-their frames are built once, and a reply is checked against the exact 9
-bytes it must start with (transaction, protocol, length, unit, function,
-byte count) in one comparison, then its data bytes are copied into the
-device's sample image at their place: the registers, big-endian, as the
-store keeps them. No object per register or per point is made on the way.
+One loop waits on every connection at once (the system's selector: epoll
+on Linux) over non-blocking sockets. Each device's poll is a fixed list of
+requests; their frames are built once, and a reply is checked against the
+exact 9 bytes it must start with (transaction, protocol, length, unit,
+function, byte count) in one comparison, then its data bytes are copied
+into the device's sample image at their place: the registers, big-endian,
+as the store keeps them. No object per register or per point is made on
+the way.
 
 ``pipeline`` requests may be in flight on a connection at once (Modbus TCP
 allows it, [MB-TCP] 4.2; a server answers them in order); 1 is the safe

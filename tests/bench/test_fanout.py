@@ -1,4 +1,4 @@
-"""Many Modbus TCP devices polled by one thread (pymb.logger.fanout): every
+"""The bench's bare loop over many Modbus TCP devices (pymb.bench.fanout): every
 device on its own port of one ``pymb simulate --tcp ... --count N`` process;
 at a 1 s interval no slot is missed, every poll is one stored sample whose
 registers decode to the device's values; a silent device costs its own
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from pymb.bench.fanout import Device, Sample, TcpFanout
 from pymb.bench.gatebench import TEN_POINTS
-from pymb.logger.fanout import Device, Sample, TcpFanout
 from pymb.maps import Decoder, load
 from pymb.sim import SimulatorProcess
 
@@ -51,11 +51,6 @@ def _poll(tmp_path: Path, devices: int, seconds: float) -> None:
 
 def test_twenty_devices_for_ten_seconds_miss_no_slot(tmp_path: Path) -> None:
     _poll(tmp_path, 20, 10.0)
-
-
-@pytest.mark.slow
-def test_a_hundred_devices_for_ten_minutes_miss_no_slot(tmp_path: Path) -> None:
-    _poll(tmp_path, 100, 600.0)
 
 
 def _silent_server() -> tuple[socket.socket, threading.Event]:
