@@ -83,6 +83,32 @@ def _float(u: str, bits: int) -> str:
             f"{exp} - {bias + man_bits}) END")
 
 
+def _text(p: Point, at: str) -> str:
+    """A string point's text: its bytes in the order the decoder takes them
+    (one or two a register, swapped for BA), cut at the first NUL, as the
+    characters of those byte values (exact for ascii and latin-1); where a
+    character is not ASCII, NULL for ascii (invalid text, as the decoder
+    says) and for utf-8 (SQL cannot check UTF-8: NULL, never a wrong text)."""
+    pos = []
+    for i in range(p.count):
+        hi, lo = f"{at} + {2 * i}", f"{at} + {2 * i + 1}"
+        if p.order == "BA":
+            hi, lo = lo, hi
+        pos += [hi, lo] if p.string_bytes == "both" else \
+            [hi if p.string_bytes == "high" else lo]
+    k = len(pos)
+    octets = ", ".join(f"{_byte(x)} AS b{j}" for j, x in enumerate(pos))
+    end = " ".join(f"WHEN b{j} = 0 THEN {j}" for j in range(k))
+    # a NUL never goes into the text (SQL's text functions stop at one): it is cut anyway
+    chars = " || ".join(
+        "char(" + ", ".join(f"b{j} + (b{j} = 0)" for j in range(c, min(c + 100, k))) + ")"
+        for c in range(0, k, 100))
+    text = f"substr({chars}, 1, CASE {end} ELSE {k} END)"
+    out = "t" if p.encoding == "latin-1" else \
+        "CASE WHEN t GLOB '*[^' || char(1) || '-' || char(127) || ']*' THEN NULL ELSE t END"
+    return f"(SELECT {out} FROM (SELECT {text} AS t FROM (SELECT {octets})))"
+
+
 def _value(p: Point, at: str) -> str:
     """The SQL of one channel's value from byte ``at`` of the stored registers."""
     family = TYPES[p.type].family
@@ -91,10 +117,7 @@ def _value(p: Point, at: str) -> str:
     if family == "raw":
         return f"hex(substr(s.registers, {at} + 1, {2 * p.count}))"
     if family == "string":
-        if p.string_bytes == "both" and p.order != "BA":
-            return (f"rtrim(CAST(substr(s.registers, {at} + 1, {2 * p.count}) AS TEXT), "
-                    f"char(0))")
-        return f"hex(substr(s.registers, {at} + 1, {2 * p.count}))"
+        return _text(p, at)
     u, signed = _pattern(p, at)
     if family == "bit":
         return f"(({u} >> {p.bit or 0}) & 1)"
