@@ -152,7 +152,7 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
         elif isinstance(data, MapReading):
             stored = False
             for name, v in data.values.items():
-                if isinstance(v, list):
+                if isinstance(v, list) and data.map.points[name].block:
                     for ch, cv in enumerate(v, 1):
                         i = index.get(f"{name}_{ch}")
                         if i is not None:

@@ -41,7 +41,10 @@ def csv_head(t: float, bus: str, device: str | None, kind: str | None,
 
 
 def csv_value(v: Any) -> Any:
-    """A value cell: "" for no value (None or NaN)."""
+    """A value cell: "" for no value (None or NaN); a ``raw`` point's
+    registers as one cell, space-separated (``55125 5306``)."""
+    if isinstance(v, list):
+        return " ".join(str(x) for x in v)
     return "" if v is None or v != v else v
 
 
@@ -65,7 +68,7 @@ def sample_rows(sample: Sample) -> Iterator[list[Any]]:
     elif isinstance(data, MapReading):
         for name, v in data.values.items():
             st = data.states.get(name)
-            if isinstance(v, list):
+            if isinstance(v, list) and data.map.points[name].block:
                 for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1):
                     yield [*head, ch, name, csv_value(cv), cs]
             else:

@@ -14,6 +14,7 @@ from conftest import run_pymb
 from pymb import maps
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.store import DeviceInfo, Sample, SqliteSink
+from pymb.store.text import CsvSink
 
 MAP = '''schema = "pymb.map/1"
 [device]
@@ -100,3 +101,56 @@ def test_export_map_mistakes_are_one_line(tmp_path: Path) -> None:
     assert broken.stderr.count("\n") == 1
     assert "bad.toml" in broken.stderr
     assert "Traceback" not in broken.stderr
+
+
+RAW_MAP = '''schema = "pymb.map/1"
+[device]
+id = "raw-dev"
+table = "holding"
+[groups]
+g = { interval = 1 }
+[[point]]
+name = "rawregs"
+address = 0
+type = "raw"
+count = 2
+group = "g"
+[[point]]
+name = "level"
+address = 2
+type = "u16"
+group = "g"
+'''
+
+
+def test_a_raw_point_is_one_cell_of_its_registers_in_every_csv(tmp_path: Path) -> None:
+    """A ``raw`` point's registers go out as one space-separated cell with
+    the point's state: in long CSV (export and the logger's sink) one row,
+    in wide CSV its column."""
+    m = maps.loads(RAW_MAP)
+    dec = group_layout(m, "g")[0]
+    words = array("H", [55125, 5306, 7])
+    b = dec.decode(words)
+    names = group_points(m, "g")
+    values, states = dec.values(b), dec.states(b)
+    reading = MapReading(m, "g", {n: values[n] for n in names},
+                         {n: states[n] for n in names}, words)
+    db = tmp_path / "raw.sqlite"
+    sink = SqliteSink(db)
+    info = DeviceInfo("bus1", "127.0.0.1:502", "raw-dev", 7, "my-dev", map_source=RAW_MAP)
+    sample = Sample(info, 1_700_000_000.0, 0.0, reading)
+    sink.write(sample)
+    sink.close()
+    logged = tmp_path / "log.csv"
+    log = CsvSink(str(logged))
+    log.write(sample)
+    log.close()
+    long = run_pymb("export", str(db), "--csv", "-", "--device", "raw-dev:7")
+    assert long.returncode == 0, long.stderr
+    for text in (long.stdout, logged.read_text()):
+        rows = [r for r in csv.DictReader(io.StringIO(text)) if r["quantity"] == "rawregs"]
+        assert [(r["channel"], r["value"], r["state"]) for r in rows] == \
+            [("", "55125 5306", "value")]
+    wide = run_pymb("export", str(db), "--csv", "-", "--layout", "wide")
+    assert wide.returncode == 0, wide.stderr
+    assert [(r["rawregs"], r["level"]) for r in _wide(wide.stdout)] == [("55125 5306", "7")]
