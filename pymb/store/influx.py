@@ -16,7 +16,8 @@ quantity with no value as a string field ``{quantity}_state`` saying why
 ``bus``, ``device``; fields ``message``, ``code``). Timestamps in nanoseconds
 (to the microsecond). A map device's sample is one line of measurement
 ``pymb_<map id>`` (``-`` as ``_``) with a tag ``group`` and a field per
-point (``{point}_{N}`` for channel N of a block): integers as integers,
+point (``{point}_{N}`` for channel N of a block): integers as integers
+(``i``; a ``u64`` point, which may pass 2**63, always unsigned, ``u``),
 floats as floats, flags as booleans, text as strings, and
 ``{point}_state`` where it has no value.
 """
@@ -51,13 +52,13 @@ def _tags(d: dict[str, Any]) -> str:
     return f"bus={_tag(d['bus'])},device={_tag(d['device'])},address={d['address']}"
 
 
-def _field(name: str, v: Any, state: Any) -> str:
+def _field(name: str, v: Any, state: Any, unsigned: bool = False) -> str:
     if v is None:
         return f"{name}_state={_str(str(state))}"
     if isinstance(v, bool):
         return f"{name}={'true' if v else 'false'}"
     if isinstance(v, int):
-        return f"{name}={v}i" if v < 1 << 63 else f"{name}={float(v)!r}"
+        return f"{name}={v}{'u' if unsigned else 'i'}"
     if isinstance(v, float):
         return f"{name}={v!r}"
     if isinstance(v, list):  # raw registers
@@ -73,8 +74,8 @@ def _map_line(sample: Sample, data: MapReading) -> str:
             states = st if isinstance(st, list) else [st] * len(v)
             fields += [_field(f"{name}_{c}", cv, cs)
                        for c, (cv, cs) in enumerate(zip(v, states, strict=False), 1)]
-        else:
-            fields.append(_field(name, v, st))
+        else:  # a u64 is an unsigned field whatever its value: one type per field
+            fields.append(_field(name, v, st, data.map.points[name].type == "u64"))
     d = sample.device
     tags = (f"bus={_tag(d.bus)},device={_tag(d.name)},address={d.address},"
             f"group={_tag(data.group or '-')}")

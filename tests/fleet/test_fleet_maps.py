@@ -222,5 +222,5 @@ def test_influx_lines_carry_point_names(meter: Path) -> None:
     assert head == "pymb_test_meter,bus=bus1,device=test-meter-3,address=3,group=-"
     assert fields.split(",") == [
         "status_word=7i", "temperature_c=-12.5", "offset_i32=-70000i",
-        "runtime_s=9007199254740993i", "voltage_v=230.5", "energy_kwh=1234.5",
+        "runtime_s=9007199254740993u", "voltage_v=230.5", "energy_kwh=1234.5",
         'model="MTR1"', "running=true", "count_u32=123456i"]
