@@ -4,7 +4,9 @@ It has exactly the registers (and bits) its map declares, plus the map's
 ``readable`` ranges (zeros); a read that touches any other address gets
 exception 02, as a real device that lacks them does, so the planner's
 fallbacks can be watched. Each point starts at its ``example`` value (the
-same on every channel of a block); a point without one gets a value from a
+same on every channel of a block), which a view of the same registers
+without an example (a ``bit`` of a status word) leaves as it is; a point
+without one, on registers no example sets, gets a value from a
 seeded model: a gauge wanders around a seeded level (inside ``valid`` when
 the map gives it), a counter counts up, a point with ``values`` takes its
 first, text is the point's name. Writable points take writes (FC 05, 06,
@@ -67,9 +69,20 @@ class MapSimDevice(Device):
             for c in range(1, p.channels + 1):
                 a = p.address_of(c)
                 self._have[p.table][a:a + p.count] = b"\x01" * p.count
+        # an example wins over the views of its registers that have none: points
+        # with an example go last, and one without that shares a register with
+        # one that has an example is left as the example makes it
+        shown: dict[str, bytearray] = {t: bytearray(0x10000) for t in _TABLE.values()}
         for p in m.points.values():
+            if p.example is not None:
+                for c in range(1, p.channels + 1):
+                    a = p.address_of(c)
+                    shown[p.table][a:a + p.count] = b"\x01" * p.count
+        for p in sorted(m.points.values(), key=lambda p: p.example is not None):
             for c in range(1, p.channels + 1):
-                self._init(p, c, rng)
+                a = p.address_of(c)
+                if p.example is not None or not any(shown[p.table][a:a + p.count]):
+                    self._init(p, c, rng)
         self._t0 = self.clock.now()  # counters count from here
         self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
         self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be

@@ -144,3 +144,44 @@ def test_the_device_syntax_of_a_simulated_map_device() -> None:
         map_sim_device("sim-test,delay=soon", known)
     with pytest.raises(InvalidArgument, match="unknown key 'delya'"):
         map_sim_device("sim-test,delya=1", known)
+
+
+VIEWS = """schema = "pymb.map/1"
+[device]
+id = "views-test"
+table = "holding"
+[[point]]
+name = "status"
+address = 0
+type = "u16"
+example = 9
+[[point]]
+name = "fault"
+address = 0
+type = "bit"
+bit = 0
+[[point]]
+name = "mode_bits"
+address = 0
+type = "bits"
+shift = 4
+width = 3
+[[point]]
+name = "word"
+address = 1
+type = "u16"
+[[point]]
+name = "alarm"
+address = 1
+type = "bit"
+bit = 15
+example = true
+"""
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_an_example_wins_over_views_of_its_register_without_one(seed: int) -> None:
+    dev = MapSimDevice(maps.loads(VIEWS), 1, seed=seed, clock=SimClock(0.0))
+    assert read(dev, 0, 2) == [9, 0x8000]
+    dev.clock.advance(10.0)
+    assert read(dev, 0, 2) == [9, 0x8000]  # the model leaves them be
