@@ -352,3 +352,17 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
     no_traceback(subprocess.CompletedProcess([], p.returncode, "", err))
     assert p.returncode == 0, (p.returncode, err)
     assert f"logged {count(db, 'SELECT COUNT(*) FROM samples'):,} samples" in err, err
+
+
+def test_log_help_gives_the_commit_policy_the_logger_and_docs_use() -> None:
+    """--commit-interval's help quotes the logger's own constants, which
+    docs/cli.md states too."""
+    from pymb.logger.config import COMMIT_BYTES, COMMIT_INTERVAL, MQTT_COMMIT_INTERVAL
+    done = run_pymb("log", "--help")
+    assert done.returncode == 0, done.stderr
+    text = " ".join(done.stdout.split())
+    assert (f"default {COMMIT_INTERVAL:g}, or {MQTT_COMMIT_INTERVAL:g} with --mqtt; also when "
+            f"{COMMIT_BYTES // 1024} KB of samples wait") in text
+    docs = " ".join((Path(__file__).parents[2] / "docs" / "cli.md").read_text().split())
+    assert f"commits when {COMMIT_BYTES // 1024} KB of samples wait or every " \
+        f"{COMMIT_INTERVAL:g} s" in docs
