@@ -135,6 +135,10 @@ def interpretations(regs: list[int]) -> list[dict[str, object]]:
 
 def _probe(args: argparse.Namespace) -> int:
     table, start, count = _where(args.what)
+    if not 1 <= args.address <= 255:
+        raise InvalidArgument(f"ADDRESS must be the device's unit id, 1..255, got {args.address}"
+                              + (" (0 is broadcast, which no device answers)"
+                                 if args.address == 0 else ""))
     client = make_client(args)
 
     def io() -> list[int]:

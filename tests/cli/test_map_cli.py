@@ -210,6 +210,9 @@ def test_device_syntax_mistakes_are_one_line(meter: Path) -> None:
                             "/dev/null"), "missing")
     one_line_error(run_pymb("map", "probe", "--port", "/dev/null", "3", "coils:0:2"),
                    "TABLE:START:COUNT")
+    for unit in ("0", "256"):  # refused before any port is opened or byte sent
+        one_line_error(run_pymb("map", "probe", "--tcp", "127.0.0.1:1", unit, "holding:0:2"),
+                       "ADDRESS must be the device's unit id, 1..255")
     twin = meter.parent / "twin.toml"
     twin.write_text(METER)
     one_line_error(run_pymb("read", "--map", m, "--map", str(twin), "acme-meter", "--port",
