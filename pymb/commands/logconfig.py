@@ -17,6 +17,7 @@ from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
 from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, from_target
 from pymb.store import OnChange
+from pymb.store.mapcheck import check_stored_maps
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = ["config_from", "default_path", "load", "mqtt_from", "single_bus_config"]
@@ -108,6 +109,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
                               "use --format sqlite")
     _on_change(args, cfg)
+    if cfg.format == "sqlite":  # at the start and before a SIGHUP reload
+        check_stored_maps(cfg.path, {d.type: d.source.text for b in cfg.buses
+                                     for d in b.devices if isinstance(d, MapDeviceConfig)})
     return cfg, mqtt
 
 

@@ -20,6 +20,7 @@ from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.lock import WriterLock
+from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
@@ -244,23 +245,26 @@ class SqliteSink(Retention):
                 "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
             self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
                                 [(did, ch + 1, t) for ch, t in enumerate(tenths)])
-            if isinstance(data, MapReading):
-                self._store_map(d, data)
         else:
             did = row[0]
+        if isinstance(data, MapReading):
+            self._store_map(d, data)
         got = (int(did), channels)  # type: ignore[arg-type]
         if not isinstance(data, Event):
             self._devices[cache] = got
         return got
 
     def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
-        """A map device's map beside its samples, and its views (again when
-        the map's text changed)."""
+        """A map device's map beside its samples, and its views. A map id keeps
+        its first text: other text would change how the stored samples read
+        (:mod:`pymb.store.mapcheck`)."""
         row = self.db.execute("SELECT source FROM maps WHERE id = ?", (d.type,)).fetchone()
-        if row is None or row[0] != d.map_source:
-            self.db.execute("INSERT OR REPLACE INTO maps(id, source) VALUES (?, ?)",
+        if row is None:
+            self.db.execute("INSERT INTO maps(id, source) VALUES (?, ?)",
                             (d.type, d.map_source))
             create_map_views(self.db, data.map)
+        elif row[0] != d.map_source:
+            raise OutputError(changed_map_message(self.path, d.type))
 
     def _failed(self, e: Exception) -> OutputError:
         if self._in_tx or self.db.in_transaction:
