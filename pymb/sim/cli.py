@@ -18,6 +18,7 @@ import termios
 import time
 from types import FrameType
 
+from pymb import maps
 from pymb.client import parse_host_port
 from pymb.commands.mapcli import add_map_arg
 from pymb.devices.mapspec import FACADES, map_types, unknown_device
@@ -59,7 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = _EPILOG
     parser.add_argument("devices", nargs="*", metavar="DEVICE",
-                        help="devices on the bus (default: coolpro hub)")
+                        help="devices on the bus (default: each --map's device at its "
+                             "default address, or without --map: coolpro hub)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true",
                        help="serve on a new pseudo-terminal and print its path (default)")
@@ -161,8 +163,10 @@ def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
 
 def _devices(args: argparse.Namespace, clock: SimClock) -> list[str | Device]:
     """The specs as given; those naming a map's id as simulated map devices."""
-    specs = args.devices or ["coolpro", "hub"]
     known = map_types(getattr(args, "maps", []))
+    # no DEVICE: each --map's device at its default address, else a CoolPro and a hub
+    given = [i for i in known if i not in maps.builtin_ids()]
+    specs = args.devices or given or ["coolpro", "hub"]
     out: list[str | Device] = []
     for i, spec in enumerate(specs):
         dev = map_sim_device(spec, known, seed=args.seed * 1009 + i, clock=clock,

@@ -244,3 +244,24 @@ def test_two_maps_on_one_simulated_bus(meter: Path, tmp_path: Path) -> None:
                          "--group", "fast", "--port", sim.port, "--json")
             assert r.returncode == 0, r.stderr
             assert json.loads(r.stdout)["values"]["voltage_v"] == volts
+
+
+def test_simulate_with_maps_and_no_device_serves_the_maps_devices(meter: Path,
+                                                                  tmp_path: Path) -> None:
+    """``--map`` without DEVICE serves each map's device at its default
+    address, and no CoolPro or hub beside them."""
+    other = tmp_path / "other.toml"
+    other.write_text(METER.replace('id = "acme-meter"', 'id = "acme-other"')
+                     .replace("default_address = 3", "default_address = 5")
+                     .replace("example = 230.5", "example = 115.0"))
+    with SimulatorProcess(["--map", str(meter), "--map", str(other), "--tcp", "127.0.0.1:0"],
+                          quiet=True) as sim:
+        r = run_pymb("scan", "--tcp", sim.endpoint, "--range", "1-5,40", "--timeout", "0.3",
+                     "--map", str(meter), "--map", str(other))
+        assert r.returncode == 0, r.stderr
+        assert [line.split()[0] for line in r.stdout.splitlines()] == ["3", "5"], r.stdout
+        for device, volts in (("acme-meter:3", 230.5), ("acme-other:5", 115.0)):
+            r = run_pymb("read", "--map", str(meter), "--map", str(other), device,
+                         "--group", "fast", "--tcp", sim.endpoint, "--json")
+            assert r.returncode == 0, r.stderr
+            assert json.loads(r.stdout)["values"]["voltage_v"] == volts
