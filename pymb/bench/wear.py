@@ -175,33 +175,42 @@ def _syncs(path: str) -> int | None:
 
 def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     """Every kind at wire speed and at a 1 s interval, pymb and the naive
-    logger side by side; each row with bytes written and stored per sample,
-    their ratio, and fdatasyncs per second."""
+    logger side by side (and, at 1 s, a CoolPro committed every
+    COMMIT_INTERVAL: what the longer bound buys); each row with bytes written
+    and stored per sample, their ratio, and fdatasyncs per second."""
+    from pymb.logger.config import COMMIT_INTERVAL, COMMIT_LONGEST
     strace = shutil.which("strace")
-    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, 600.0)
+    # At 1 s a lone CoolPro fills no batch: it commits every COMMIT_LONGEST
+    # seconds, and a run of four of those holds three whole commit intervals
+    # after the first commit (the quick plan only checks the machinery).
+    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, max(600.0, 4 * COMMIT_LONGEST))
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=os.getcwd()) as where:
         for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):
             what = "wire speed" if interval == 0 else f"a {interval:g} s interval"
             opts.say(f"logger: SD wear at {what}, {seconds:g} s")
-            runs = [(mode, kind) for kind in ADDRESSES for mode in ("pymb", "naive")]
+            runs: list[tuple[str, str, float | None]] = [
+                (mode, kind, None) for kind in ADDRESSES for mode in ("pymb", "naive")]
+            if interval:  # what the longer bound for a small batch buys
+                runs.append(("pymb", "coolpro", COMMIT_INTERVAL))
             sims = children.sims([[f"{kind}:{ADDRESSES[kind]},dynamic=0", "--baud", "115200",
-                                   "--seed", "0"] for _, kind in runs])
+                                   "--seed", "0"] for _, kind, _ in runs])
             procs = []
-            for (mode, kind), sim in zip(runs, sims, strict=True):
-                db = os.path.join(where, f"{mode}-{kind}-{interval:g}.sqlite")
+            for (mode, kind, commit), sim in zip(runs, sims, strict=True):
+                db = os.path.join(where, f"{mode}-{kind}-{interval:g}-{commit}.sqlite")
                 _prepare(mode, db)  # made here: its syncs are not the run's
                 trace = db + ".strace"
                 argv = [sys.executable, "-m", "pymb.bench.wear", mode, kind, sim.port,
-                        str(interval), str(seconds), db]
+                        str(interval), str(seconds), db, *([] if commit is None else [str(commit)])]
                 if strace:
                     argv = [strace, "-f", "-c", "-e", "trace=fsync,fdatasync", "-o", trace,
                             "--", *argv]
                 procs.append((subprocess.Popen(argv, stdout=subprocess.PIPE, text=True,
-                                               env=_env()), trace))
-            for p, trace in procs:
+                                               env=_env()), trace, commit))
+            for p, trace, commit in procs:
                 out, _ = p.communicate(timeout=seconds + 300)
                 row = json.loads(out.strip().splitlines()[-1])
+                row["commit_interval"] = commit
                 syncs = _syncs(trace) if strace else None
                 n = max(1, row["samples"])
                 row.update(written_per_sample=row["written"] / n,
@@ -222,6 +231,7 @@ def _env() -> dict[str, str]:
 def table(rows: list[dict[str, Any]]) -> Any:
     """The SD wear rows as a report table."""
     from pymb.bench.report import Table
+    from pymb.logger.config import COMMIT_LONGEST
 
     def syncs(r: dict[str, Any]) -> str:
         return "-" if r["syncs_per_s"] is None else f"{r['syncs_per_s']:.2f}"
@@ -231,8 +241,11 @@ def table(rows: list[dict[str, Any]]) -> Any:
         what = "hub sweep" if r["kind"] == "hub" else "CoolPro sample"
         when = "wire speed" if r["interval"] == 0 else f"every {r['interval']:g} s"
         who = "pymb log" if r["mode"] == "pymb" else "naive (INSERT + COMMIT each)"
+        if r.get("commit_interval") is not None:
+            who += f" --commit-interval {r['commit_interval']:g}"
         steady = "-" if r.get("steady") is None else f"{r['steady']:.2f}x"
-        out.append([what, when, who, f"{r['samples']:,}", f"{r['stored_per_sample']:,.0f} B",
+        out.append([what, when, who, f"{r['elapsed']:,.0f} s", f"{r['samples']:,}",
+                    f"{r['stored_per_sample']:,.0f} B",
                     f"{r['written_per_sample']:,.0f} B", f"{r['ratio']:.2f}x", steady,
                     syncs(r)])
     return Table(
@@ -241,10 +254,12 @@ def table(rows: list[dict[str, Any]]) -> Any:
         "written: write_bytes of /proc/PID/io (pages dirtied, what writeback sends to the "
         "disk: WAL, database, -shm), the file and schema made before; stored: the bytes in "
         "use on the samples' table and index pages (dbstat); steady: from the first commit "
-        "to the end (the start's one-off writes left out, the last checkpoint in); "
+        "to the end (the start's one-off writes left out, the last checkpoint in); run: its "
+        "length, several of pymb's commit intervals (a lone CoolPro at 1 s commits every "
+        f"{COMMIT_LONGEST / 60:g} minutes); "
         "fdatasync: strace -c",
-        ["sample", "rate", "logger", "samples", "stored", "written", "written / stored",
-         "steady", "fdatasync/s"], out, [False, False, False, True, True, True, True, True,
+        ["sample", "rate", "logger", "run", "samples", "stored", "written", "written / stored",
+         "steady", "fdatasync/s"], out, [False, False, False, True, True, True, True, True, True,
                                          True], [])
 
 
@@ -252,8 +267,8 @@ def targets(rows: list[dict[str, Any]]) -> list[tuple[str, str, float | None, st
     """The SD wear goals against this run: bytes written over bytes stored."""
     out: list[tuple[str, str, float | None, str, bool | None]] = []
     for r in rows:
-        if r["mode"] != "pymb":
-            continue
+        if r["mode"] != "pymb" or r.get("commit_interval") is not None:
+            continue  # the goals are the default's
         wire = r["interval"] == 0
         limit = 3.0 if wire else 4.0
         what = (f"bytes written / stored, {'hub sweep' if r['kind'] == 'hub' else 'CoolPro'}"

@@ -103,13 +103,18 @@ class BusConfig:
                    for _, n in full_sweep_spans(device.channels))
 
 
-#: Commits: when the samples waiting hold this many bytes of registers, or
-#: when the oldest has waited COMMIT_INTERVAL seconds. Each commit writes
-#: whole pages to the WAL (and syncs it); fewer, fuller commits write less to
-#: an SD card (docs/reliability.md has the figures), and a power cut loses
-#: the samples waiting.
+#: Commits: when the samples waiting hold COMMIT_BYTES of registers; when
+#: the oldest has waited COMMIT_INTERVAL seconds and they hold at least
+#: COMMIT_SMALL bytes of registers; or when the oldest has waited
+#: COMMIT_LONGEST. Each commit writes whole pages to the WAL (the last page of
+#: the samples and of their time index, however few rows changed) and syncs
+#: it: a batch of a few slow samples would write many times its size, so it
+#: waits longer (docs/reliability.md has the figures). A power cut loses the
+#: samples waiting.
 COMMIT_BYTES = 256 * 1024
 COMMIT_INTERVAL = 120.0
+COMMIT_SMALL = 16 * 1024
+COMMIT_LONGEST = 900.0
 #: ... forwarding to MQTT, the broker gets a sample once it is committed:
 #: live data over wear
 MQTT_COMMIT_INTERVAL = 1.0
@@ -128,9 +133,16 @@ class LogConfig:
     max_age: float | None = None
     #: bytes of samples (their registers) a commit waits for, at most
     commit_bytes: int = COMMIT_BYTES
-    #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL,
-    #: or MQTT_COMMIT_INTERVAL when forwarding)
+    #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL
+    #: for a batch of commit_small bytes, commit_longest for a smaller one;
+    #: MQTT_COMMIT_INTERVAL when forwarding)
     commit_interval: float | None = None
+    #: without commit_interval: a batch is committed after commit_default
+    #: seconds if it holds commit_small bytes of registers, else after up to
+    #: commit_longest seconds
+    commit_default: float = COMMIT_INTERVAL
+    commit_small: int = COMMIT_SMALL
+    commit_longest: float = COMMIT_LONGEST
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
 
     def __post_init__(self) -> None:
@@ -148,8 +160,19 @@ class LogConfig:
 
     @property
     def commit_every(self) -> float:
-        """Seconds a sample waits for its commit, at most (the default if unset)."""
-        return COMMIT_INTERVAL if self.commit_interval is None else self.commit_interval
+        """Seconds after which a batch of samples is committed (the default if
+        unset: a batch of at least commit_small bytes of registers)."""
+        return self.commit_default if self.commit_interval is None else self.commit_interval
+
+    def commit_rule(self) -> tuple[float, int, float]:
+        """(seconds, bytes, longest): a batch is committed once its oldest
+        sample has waited ``seconds`` if it holds ``bytes`` of registers, and
+        once it has waited ``longest`` whatever it holds (besides at
+        commit_bytes). An interval that was set is the one bound."""
+        if self.commit_interval is not None:
+            return self.commit_interval, 0, self.commit_interval
+        return (self.commit_default, self.commit_small,
+                max(self.commit_default, self.commit_longest))
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:

@@ -209,7 +209,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         last_status = t0
         pending = 0  # bytes of registers waiting for the commit
         due: float | None = None  # when what waits must be committed (monotonic)
-        commit_every = self.config.commit_every
+        oldest = math.inf  # when the oldest waiting sample was taken (monotonic)
+        commit_every, commit_small, commit_longest = self.config.commit_rule()
         failure: OutputError | None = None
         with self._signals():
             for p in self.pollers:
@@ -233,12 +234,15 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         size, events = _weight(item)
                         pending += size
                         first = min(now, item[0].monotonic)  # the oldest of the list
-                        wait = min(commit_every, EVENT_COMMIT_INTERVAL) if events else \
-                            commit_every
+                        oldest = min(oldest, first)
+                        wait = min(commit_longest, EVENT_COMMIT_INTERVAL) if events else \
+                            commit_longest
                         due = min(due if due is not None else math.inf, first + wait)
-                    if due is not None and (pending >= self.config.commit_bytes or now >= due):
+                    if due is not None and (
+                            pending >= self.config.commit_bytes or now >= due or
+                            (pending >= commit_small and now >= oldest + commit_every)):
                         self.sink.commit()
-                        pending, due = 0, None
+                        pending, due, oldest = 0, None, math.inf
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)
