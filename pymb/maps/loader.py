@@ -30,7 +30,7 @@ from pymb.maps.point import (
     Timing,
     did_you_mean,
 )
-from pymb.maps.types import ORDER_NAMES, TABLES
+from pymb.maps.types import ORDER_NAMES, REGISTER_TABLES, TABLES
 
 __all__ = ["Spec", "configure", "load", "loads"]
 
@@ -374,6 +374,7 @@ def _build(spec: Spec, options: dict[str, int | float],
         ctx = Ctx(spec.source, raw["name"])
         points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
     _check_overlaps(spec.source, points.values())
+    _check_widths(spec.source, spec.limits, points.values())
     return Map(spec.source, spec.device, spec.limits, spec.timing, spec.groups,
                MappingProxyType(points), spec.identify, MappingProxyType(dict(options)), spec)
 
@@ -404,6 +405,20 @@ def _check_overlaps(source: str, points: Any) -> None:
                                    key="address")
             if s[1] > wide[1]:
                 wide = s
+
+
+def _check_widths(source: str, limits: Limits, points: Any) -> None:
+    """Every point fits one request: a point (a block's channel) wider than
+    ``max_registers`` (``max_bits``) could never be read."""
+    for p in points:
+        regs = p.table in REGISTER_TABLES
+        key, most = ("max_registers", limits.max_registers) if regs else \
+            ("max_bits", limits.max_bits)
+        if p.count > most:
+            what = "registers" if regs else "bits"
+            Ctx(source, p.name).fail(key, f"the point is {p.count} {what} ({p.type}) but "
+                                     f"[device.limits] {key} = {most} allows at most {most} "
+                                     f"per request; raise {key} to at least {p.count}")
 
 
 def _where(table: str) -> Callable[[tuple[int, int, Point, int]], str]:
