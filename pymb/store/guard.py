@@ -38,15 +38,26 @@ def check_output(fmt: str, path: str) -> None:
             raise InvalidArgument(f"{path} is a SQLite database not written by pymb: refusing "
                                   "to add to it; choose another --out")
         return
-    kind = "a SQLite database" if sqlite else "not a file pymb wrote"
     if fmt == "csv" and not sqlite and first.decode("utf-8", "replace") == ",".join(CSV_COLUMNS):
         return
     if fmt == "jsonl" and not sqlite and head.startswith(b'{"time_utc": '):
         return
     if fmt == "influx" and not sqlite and head.startswith(b"pymb_"):  # pymb's measurements
         return
-    raise InvalidArgument(f"{path} exists and is {kind}, not {fmt.upper()} written by pymb: "
-                          f"refusing to append {fmt.upper()} to it; choose another --out")
+    name = _NAMES.get(fmt, fmt)
+    if sqlite:
+        raise InvalidArgument(f"{path} is a SQLite database: refusing to append {name} to it; "
+                              "choose another --out")
+    wide = ",".join(CSV_COLUMNS[:6]) + ","
+    if fmt == "csv" and first.decode("utf-8", "replace").startswith(wide):
+        raise InvalidArgument(f"{path} is a wide CSV (pymb export --layout wide), whose columns "
+                              "the long rows pymb log writes do not fit: refusing to append to "
+                              "it; choose another --out")
+    raise InvalidArgument(f"{path} exists and is not {name} that pymb wrote: refusing to append "
+                          "to it; choose another --out")
+
+
+_NAMES = {"csv": "CSV", "jsonl": "JSON Lines", "influx": "InfluxDB line protocol"}
 
 
 def is_pymb_database(path: str) -> bool:

@@ -177,7 +177,21 @@ def test_log_refuses_to_append_another_format(logged: Path, tmp_path: Path) -> N
                      "--seconds", "1")
         assert r.returncode == 2, (fmt, r.stderr)
         assert "refusing" in r.stderr, (fmt, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "report.txt exists and is not InfluxDB line protocol that pymb wrote" in r.stderr
     assert doc.read_text() == "quarterly numbers\n"
+    # a wide CSV pymb export wrote: its columns do not take log's long rows
+    wide = tmp_path / "wide.csv"
+    r = run_pymb("export", str(logged), "--csv", str(wide), "--layout", "wide")
+    assert r.returncode == 0, r.stderr
+    before = digest(wide)
+    r = run_pymb("log", "coolpro", "--port", "/dev/null", "--format", "csv", "--out", str(wide),
+                 "--seconds", "1")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines() == [
+        f"pymb log: {wide} is a wide CSV (pymb export --layout wide), whose columns the long "
+        "rows pymb log writes do not fit: refusing to append to it; choose another --out"]
+    assert digest(wide) == before
     # A file pymb wrote in that format is appended to (the port fails: events only).
     for fmt in ("csv", "jsonl", "influx"):
         own = tmp_path / f"own.{fmt}"
