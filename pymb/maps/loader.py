@@ -375,6 +375,7 @@ def _build(spec: Spec, options: dict[str, int | float],
         points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
     _check_overlaps(spec.source, points.values())
     _check_widths(spec.source, spec.limits, points.values())
+    _check_channel_names(spec.source, points)
     return Map(spec.source, spec.device, spec.limits, spec.timing, spec.groups,
                MappingProxyType(points), spec.identify, MappingProxyType(dict(options)), spec)
 
@@ -419,6 +420,31 @@ def _check_widths(source: str, limits: Limits, points: Any) -> None:
             Ctx(source, p.name).fail(key, f"the point is {p.count} {what} ({p.type}) but "
                                      f"[device.limits] {key} = {most} allows at most {most} "
                                      f"per request; raise {key} to at least {p.count}")
+
+
+def _check_channel_names(source: str, points: Mapping[str, Point]) -> None:
+    """A point may not be named as a block's channel is in exports and
+    InfluxDB (``t_1`` beside a block ``t``), nor as InfluxDB's field of a
+    column without a value (``x_state`` beside ``x``): two values would share
+    a column."""
+    columns: dict[str, str] = {}  # column -> what it is, for the message
+    for b in points.values():
+        if b.block:
+            for c in range(1, b.channels + 1):
+                name = f"{b.name}_{c}"
+                if name in points:
+                    Ctx(source, name).fail(
+                        "name", f"the name {name!r} is channel {c} of block {b.name!r} "
+                        f"in exports and InfluxDB ({b.name}_1..{b.name}_{b.channels}); "
+                        f"rename the point or the block")
+                columns[name] = f"channel {c} of block {b.name!r}"
+        else:
+            columns[b.name] = f"point {b.name!r}"
+    for col, what in columns.items():
+        if f"{col}_state" in points:
+            Ctx(source, f"{col}_state").fail(
+                "name", f"the name '{col}_state' is the InfluxDB field that says why "
+                f"{what} has no value; rename the point")
 
 
 def _where(table: str) -> Callable[[tuple[int, int, Point, int]], str]:
