@@ -133,6 +133,7 @@ class SqliteSink(Retention):
             self._unlock()
             raise
         self._devices: dict[Any, tuple[int, int]] = {}
+        self._viewed: set[str] = set()  #: map ids whose views this session made
         self._changes: dict[int, HubChanges | CoolProChanges | MapChanges] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
         self._first_ids = tuple(int(self.db.execute(
@@ -255,16 +256,17 @@ class SqliteSink(Retention):
         return got
 
     def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
-        """A map device's map beside its samples, and its views. A map id keeps
-        its first text: other text would change how the stored samples read
-        (:mod:`pymb.store.mapcheck`)."""
+        """A map device's map beside its samples, and its views, made once a session (a
+        file's older views too). A map id keeps its first text (:mod:`pymb.store.mapcheck`)."""
         row = self.db.execute("SELECT source FROM maps WHERE id = ?", (d.type,)).fetchone()
         if row is None:
             self.db.execute("INSERT INTO maps(id, source) VALUES (?, ?)",
                             (d.type, d.map_source))
-            create_map_views(self.db, data.map)
         elif row[0] != d.map_source:
             raise OutputError(changed_map_message(self.path, d.type))
+        if d.type not in self._viewed:
+            create_map_views(self.db, data.map)
+            self._viewed.add(d.type)
 
     def _failed(self, e: Exception) -> OutputError:
         if self._in_tx or self.db.in_transaction:
@@ -272,6 +274,7 @@ class SqliteSink(Retention):
                 self.db.execute("ROLLBACK")
             self._in_tx = False
         self._devices.clear()  # ids inserted by the rolled-back batch are gone
+        self._viewed.clear()  # and views made in it
         self._changes.clear()  # what was "last stored" may be rolled back too
         if isinstance(e, OutputError):
             return e

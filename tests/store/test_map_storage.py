@@ -371,3 +371,31 @@ def test_on_change_by_the_points_deadbands_and_the_heartbeat(tmp_path: Path) -> 
     stored = [t for (t,) in con.execute("SELECT monotonic FROM samples ORDER BY id")]
     con.close()
     assert stored == [t for t, _, keep in steps if keep]
+
+
+def test_a_files_older_views_are_made_again_when_it_is_logged_to(tmp_path: Path) -> None:
+    """Views an older pymb made (a string column as hex, say) are replaced by
+    today's the first time a session stores a sample of that map."""
+    m = maps.loads(EVERY_TYPE)
+    db = tmp_path / "old.sqlite"
+    info = DeviceInfo("bus1", "127.0.0.1:502", "every-type", 3, "meter", map_source=EVERY_TYPE)
+    rng = random.Random(7)
+    first = random_reading(m, "b", rng)
+    sink = SqliteSink(db)
+    sink.write(Sample(info, time.time(), 0.0, first))
+    sink.close()
+    readings, _ = view_names("every-type")
+    con = sqlite3.connect(db)
+    con.execute(f"DROP VIEW {readings}")
+    con.execute(f"CREATE VIEW {readings} AS SELECT s.id AS sample_id, hex(s.registers) AS text "
+                "FROM samples s")
+    con.commit()
+    con.close()
+    second = random_reading(m, "b", rng)
+    sink = SqliteSink(db)
+    sink.write(Sample(info, time.time() + 1, 1.0, second))
+    sink.close()
+    con = sqlite3.connect(db)
+    got = [r[0] for r in con.execute(f"SELECT text FROM {readings} ORDER BY sample_id")]
+    con.close()
+    assert got == [first.values["text"], second.values["text"]]
