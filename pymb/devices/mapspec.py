@@ -9,6 +9,7 @@ a map file's id may not take the name of a shipped map.
 from __future__ import annotations
 
 import math
+import os
 import re
 import struct
 from collections.abc import Callable, Mapping, Sequence
@@ -63,7 +64,11 @@ def map_types(files: Sequence[str] = ()) -> dict[str, Map]:
     shipped = [i for i in maps.builtin_ids() if i not in FACADES]
     given: dict[str, Map] = {}
     paths: dict[str, str] = {}
+    seen: set[str] = set()
     for path in files:
+        if (real := os.path.realpath(path)) in seen:
+            continue  # the same file given twice: once
+        seen.add(real)
         m = load_map(path)
         if m.id in FACADES or m.id in shipped:
             raise InvalidArgument(f"--map {path}: device id {m.id!r} is a device pymb ships; "

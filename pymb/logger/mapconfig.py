@@ -53,7 +53,8 @@ class KnownMaps:
             why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
             raise InvalidArgument(f"{where}: cannot read the map {path}: {why}") from None
         for got in self._maps.values():  # a file many devices name is loaded once
-            if got.text == text and self._paths.get(got.map.id) == str(path):
+            if got.text == text and os.path.realpath(self._paths.get(got.map.id, "")) == \
+                    os.path.realpath(path):
                 return got
         try:
             m = maps.loads(text, source=str(path))
@@ -62,7 +63,7 @@ class KnownMaps:
         if m.id in FACADES or m.id in maps.builtin_ids():
             raise InvalidArgument(f"{where}: {path}: device id {m.id!r} is a device pymb "
                                   "ships; give the map another id")
-        if m.id in self._maps and self._paths.get(m.id) != str(path):
+        if m.id in self._maps:
             raise InvalidArgument(f"{where}: {path}: device id {m.id!r} is also the id of "
                                   f"{self._paths[m.id]}")
         got = self._maps[m.id] = MapText(m, text)

@@ -190,7 +190,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
         norm = normalize_order(o, nbytes) if isinstance(o, str) else None
         if norm is None:
             ctx.fail("order", f"order {o!r} is not ABCD, CDAB, BADC, DCBA or a permutation of "
-                     f"{nbytes} letters from A")
+                     f"the {nbytes} letters {'ABCDEFGH'[:nbytes]}")
         order = norm
     elif "order" in raw:
         ctx.fail("order", f"order does not apply to {typ} points")
@@ -204,7 +204,12 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
         if "width" not in raw:
             ctx.fail("width", "width (bits in the field) is required for a bits point")
         shift = _int_in(ctx, "shift", raw.get("shift", 0), 0, 16 * count - 1)
-        width = _int_in(ctx, "width", raw["width"], 1, 16 * count - shift)
+        width = _int_in(ctx, "width", raw["width"], 1, 16 * count)
+        if shift + width > 16 * count:
+            room = "the register's 16 bits" if count == 1 else f"its {count} registers' " \
+                f"{16 * count} bits"
+            ctx.fail("width", f"shift + width ({shift} + {width} = {shift + width}) exceeds "
+                     f"{room}")
 
     string_bytes = raw.get("string_bytes", "both")
     if string_bytes not in ("both", "high", "low"):

@@ -65,7 +65,7 @@ def test_map_error_is_a_modbus_error_and_a_value_error() -> None:
     ('[[point]]\nname = "a"\naddress = 0\ntype = "bit"\n', ("'bit'", "required")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "bit"\nbit = 16\n', ("'bit'", "0..15")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "bits"\nshift = 12\nwidth = 5\n',
-     ("'width'", "1..4")),
+     ("'width'", "shift + width (12 + 5 = 17) exceeds the register's 16 bits")),
     # keys that do not apply to the type
     ('[[point]]\nname = "a"\naddress = 0\ntype = "string"\ncount = 2\nscale = 2\n',
      ("'scale'", "numeric")),
