@@ -168,6 +168,14 @@ count = 2
 encoding = "latin-1"
 string_bytes = "low"
 group = "b"
+[[point]]
+name = "text_high_badc"
+address = 58
+type = "string"
+count = 2
+string_bytes = "high"
+order = "BADC"
+group = "b"
 [[block]]
 name = "temps"
 first = 30
