@@ -169,7 +169,7 @@ def _columns(m: Map, blocks: bool) -> list[str]:
             cond = f"g.grp = '{g or ''}' AND NOT (s.unsupported >> {bit}) & 1"
             if blocks:
                 cond += f" AND c.channel <= {p.channels}"
-            out.append(f"CASE WHEN {cond} THEN {_value(p, at_sql)} END AS {n}")
+            out.append(f"CASE WHEN {cond} THEN {_value(p, at_sql)} END AS \"{n}\"")
     return out
 
 
@@ -184,16 +184,16 @@ def create_map_views(db: sqlite3.Connection, m: Map) -> None:
     src = ("FROM samples s JOIN devices d ON d.id = s.device_id "
            "JOIN (SELECT id, substr(humidity_units, 7, instr(humidity_units || ',', ',') - 7) "
            f"AS grp FROM devices WHERE type = '{m.id}') g ON g.id = s.device_id")
-    db.execute(f"DROP VIEW IF EXISTS {readings}")
-    db.execute(f"DROP VIEW IF EXISTS {channels}")
+    db.execute(f'DROP VIEW IF EXISTS "{readings}"')
+    db.execute(f'DROP VIEW IF EXISTS "{channels}"')
     cols = _columns(m, False)
     if cols:
-        db.execute(f"CREATE VIEW {readings} AS {head}, {', '.join(cols)} {src} "
+        db.execute(f"CREATE VIEW \"{readings}\" AS {head}, {', '.join(cols)} {src} "
                    "WHERE s.registers IS NOT NULL")
     bcols = _columns(m, True)
     if bcols:
         most = max(p.channels for p in m.points.values() if p.block)
         seq = ", ".join(f"({c})" for c in range(1, most + 1))
-        db.execute(f"CREATE VIEW {channels} AS {head}, c.channel, {', '.join(bcols)} {src} "
+        db.execute(f"CREATE VIEW \"{channels}\" AS {head}, c.channel, {', '.join(bcols)} {src} "
                    f"JOIN (SELECT column1 AS channel FROM (VALUES {seq})) c "
                    "WHERE s.registers IS NOT NULL")
