@@ -44,6 +44,7 @@ class Conn:
     sock: socket.socket | None = None
     state: str = "closed"  # closed, connecting, open
     opened_once: bool = False
+    answered: bool = False  #: a reply came on this connection (it is worth reopening at once)
     retry_at: float = 0.0
     backoff: float = _BACKOFF_FIRST
     deadline: float = 0.0
@@ -139,7 +140,7 @@ class TcpLoopBase(threading.Thread):
             self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(err)}")
             return
         c.state = "open"
-        c.backoff = _BACKOFF_FIRST
+        c.answered = False
         self._sel.modify(c.sock, selectors.EVENT_READ, c)
         self.stats.opened[c.bus.name] = True
         self.stats.ok(c.bus.name)
@@ -160,6 +161,19 @@ class TcpLoopBase(threading.Thread):
             if e.queued or e.once or e.interval == 0:
                 e.queued = True
                 c.waiting.append(e)
+
+    def _reopen(self, c: Conn, now: float) -> str:
+        """Close ``c`` after a failure on it: opened again at once when it
+        carried a reply, else after the bus's doubling backoff (a device
+        that accepts and drops every connection is not hammered). Returns
+        the retry as an event says it ("" when at once)."""
+        self._close(c)
+        if c.answered:
+            c.backoff, c.retry_at = _BACKOFF_FIRST, now
+            return ""
+        wait, c.retry_at = c.backoff, now + c.backoff
+        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
+        return f"; retrying in {wait:g} s"
 
     def _close(self, c: Conn) -> None:
         if c.sock is not None:

@@ -91,20 +91,19 @@ class TcpMapPoller(TcpLoopBase):
     # -- polls ---------------------------------------------------------------------------
 
     def _lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
-        """The connection failed under a poll: the poll's device is told, and
-        the bus is opened again at once (then with the backoff)."""
+        """The connection failed: the device of the poll under way is told
+        (else the bus), and the bus is opened again (:meth:`_reopen`)."""
         e = c.entry
+        spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
+        retry = self._reopen(c, now)
         if e is not None:
-            spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
             exc = ModbusConnectionError(
                 f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
             self._failed(c, e.unit, exc)
             self._requeue(c, e, now)
         else:  # between polls: the bus's event
             self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
-            self._event(c, "connection", f"{c.bus.endpoint}: {why}")
-        self._close(c)
-        c.retry_at = now
+            self._event(c, "connection", f"{c.bus.endpoint}: {why}{retry}")
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -197,6 +196,7 @@ class TcpMapPoller(TcpLoopBase):
                         e.image[off:off + size - 9] = data[pos + 9:pos + size]
                     pos += size
                     inflight.popleft()
+                    c.answered = True
                     if inflight and c.sent == len(c.todo) and not e.unit.timed:
                         c.deadline = now + e.unit.timeout
                         continue  # the rest of this poll's replies are on their way
@@ -233,6 +233,7 @@ class TcpMapPoller(TcpLoopBase):
         assert e is not None
         if data[pos + 6] == head[6] and data[pos + 7] == head[7] | 0x80 and length == 3:
             c.inflight.popleft()
+            c.answered = True
             self._exception(c, e, spec, data[pos + 8], now)
             return 9
         self._garbage(c, now, data[pos:pos + 6 + length], spec)
@@ -248,8 +249,11 @@ class TcpMapPoller(TcpLoopBase):
             self._failed(c, e.unit, exc)
             self._requeue(c, e, now)
             c.entry = None
-        self._close(c)
-        c.retry_at = now
+        else:  # between polls: the bus's event
+            self.stats.fault(c.bus.name, f"bus {c.bus.name}: unexpected bytes")
+            self._event(c, "protocol", f"{c.bus.endpoint}: bytes no request asked for "
+                        f"(received {got.hex(' ').upper()})")
+        self._reopen(c, now)
 
     def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
         u = e.unit
