@@ -46,6 +46,8 @@ type = "u16"
 
 #: (transaction id, unit, function, address, count) of a read request
 Request = tuple[int, int, int, int, int]
+#: what a gateway does with the ``n``-th request of a connection (see :class:`Hostile`)
+Script = Callable[[int, Request, socket.socket], bytes | None]
 
 
 def good(tid: int, unit: int, fc: int, address: int, count: int) -> bytes:
@@ -61,8 +63,7 @@ class Hostile:
     send nothing) or acts on ``conn`` itself. ``script=None``: every
     connection is closed as soon as it is accepted."""
 
-    def __init__(self, script: Callable[[int, Request, socket.socket], bytes | None] | None
-                 ) -> None:
+    def __init__(self, script: Script | None) -> None:
         self.script = script
         self.server = socket.create_server(("127.0.0.1", 0))
         self.port = self.server.getsockname()[1]

@@ -404,6 +404,8 @@ class TcpMapPoller(TcpLoopBase):
         c.entry = None
         self._failed(c, u, exc)
         self._requeue(c, e, now)
+        if got:  # a part of a reply (one whose length lied?): the stream is out of step
+            self._reopen(c, now)
         self._next(c, now)
 
     def _quiet_over(self, now: float) -> float:

@@ -5,9 +5,11 @@ the fault against the device, records it as an event and recovers."""
 
 from __future__ import annotations
 
+import socket
+from collections.abc import Callable
 from pathlib import Path
 
-from hostile_gateway import Hostile, poll
+from hostile_gateway import Hostile, Request, Script, good, poll
 
 
 def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
@@ -28,3 +30,30 @@ def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
     assert len(lost) == len(gw.accepted) == 3
     assert all(e.device is not None and e.device.address == 1 for e in lost), lost
     assert got.stats.device_faults["hx-1"] == len(lost)
+
+
+def _once(lie: Callable[[bytes], bytes], at: int = 3) -> Script:
+    """A script answering right but for the ``at``-th request of all,
+    whose reply is ``lie(right reply)``."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes:
+        seen[0] += 1
+        reply = good(*req)
+        return lie(reply) if seen[0] == at else reply
+    return script
+
+
+def test_a_reply_whose_length_lies_costs_one_timeout(tmp_path: Path) -> None:
+    """A reply whose length field promises more than comes: one timeout,
+    then a new connection (the bytes left over would be read as the start
+    of the next replies, which would time out one after the other)."""
+    gw = Hostile(_once(lambda r: r[:4] + b"\x00\x40" + r[6:]))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 12)
+    finally:
+        gw.close()
+    assert got.kinds().count("timeout") == 1, got.events
+    assert "reconnect" in got.kinds()
+    assert len(got.samples) >= 12
+    assert got.values() == {(1, (100, 101))}
