@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
+import ipaddress
 import os
 import queue
 import selectors
@@ -60,8 +61,12 @@ class Conn:
     quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
     last_end: float = 0.0
     #: (family, address) the host resolved to: resolved again only after a
-    #: failed connect (a name lookup blocks the loop)
+    #: failed connect
     resolved: tuple[int, Any] | None = None
+    #: a name lookup under way in a thread of its own (it may take seconds:
+    #: the loop does not wait for it) and what it found (or why not)
+    lookup: threading.Thread | None = None
+    found: tuple[int, Any] | str | None = None
 
 
 class TcpLoopBase(threading.Thread):
@@ -103,15 +108,27 @@ class TcpLoopBase(threading.Thread):
     # -- connections ---------------------------------------------------------------------
 
     def _connect(self, c: Conn, now: float) -> None:
+        if c.resolved is None:
+            if _is_address(c.host):  # no lookup
+                _look_up(c)
+            else:
+                if c.lookup is None:  # a name: looked up aside, the sweeps ask again
+                    c.found = None
+                    c.lookup = threading.Thread(target=_look_up, args=(c,), daemon=True,
+                                                name="pymb-tcp-lookup")
+                    c.lookup.start()
+                if c.lookup.is_alive():
+                    return
+                c.lookup = None
+            if not isinstance(c.found, tuple):
+                self._not_open(c, now, c.found or f"cannot connect to {c.bus.endpoint}")
+                return
+            c.resolved = c.found
+        family, addr = c.resolved
         try:
-            if c.resolved is None:
-                infos = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)
-                c.resolved = (infos[0][0], infos[0][4])
-            family, addr = c.resolved
             s = socket.socket(family, socket.SOCK_STREAM)
-        except OSError:
-            why = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
-            self._not_open(c, now, why)
+        except OSError as err:
+            self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {err.strerror}")
             return
         s.setblocking(False)
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -184,6 +201,24 @@ class TcpLoopBase(threading.Thread):
         c.rbuf.clear()
         c.inflight.clear()
         c.entry = None
+
+
+def _is_address(host: str) -> bool:
+    """Whether ``host`` is an IP address (no name to look up)."""
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+def _look_up(c: Conn) -> None:
+    """Resolve ``c``'s host into ``c.found`` (a name in a thread of its own)."""
+    try:
+        info = socket.getaddrinfo(c.host, c.port, type=socket.SOCK_STREAM)[0]
+        c.found = (info[0], info[4])
+    except (OSError, UnicodeError):
+        c.found = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
 
 
 def asked(spec: Spec | None, u: Unit) -> str:

@@ -6,10 +6,13 @@ the fault against the device, records it as an event and recovers."""
 from __future__ import annotations
 
 import socket
+import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from hostile_gateway import Hostile, Request, Script, good, poll
+import pytest
+from hostile_gateway import Handed, Hostile, Request, Script, good, poll
 
 
 def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
@@ -56,4 +59,43 @@ def test_a_reply_whose_length_lies_costs_one_timeout(tmp_path: Path) -> None:
     assert got.kinds().count("timeout") == 1, got.events
     assert "reconnect" in got.kinds()
     assert len(got.samples) >= 12
+    assert got.values() == {(1, (100, 101))}
+
+
+def test_a_name_lookup_that_hangs_does_not_stop_the_other_buses(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The resolver takes its time over one bus's host name (a board whose
+    DNS server is gone waits seconds per lookup): the other buses are polled
+    meanwhile, and the name that does not resolve is one event line."""
+    release = threading.Event()
+    blocked = threading.Event()
+    real = socket.getaddrinfo
+
+    def slow(host: Any, *args: Any, **kwargs: Any) -> Any:
+        if host == "slow.invalid":
+            blocked.set()
+            release.wait(10.0)
+            raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", slow)
+    gw = Hostile(lambda n, req, conn: good(*req))
+    meanwhile: list[int] = []
+
+    def until(h: Handed) -> bool:
+        if not release.is_set() and blocked.is_set() and len(h.samples) >= 10:
+            meanwhile.append(len(h.samples))  # read while the lookup hung
+            release.set()
+        return release.is_set() and "connection" in h.kinds()
+
+    try:
+        got = poll(tmp_path, ["slow.invalid:502", gw.port], until)
+    finally:
+        release.set()
+        gw.close()
+    assert meanwhile, "no samples while a lookup hung"
+    lost = [e for e in got.events if e.kind == "connection"]
+    assert lost[0].bus == "bus1"
+    assert lost[0].message.startswith("the host name 'slow.invalid' did not resolve"), lost
+    assert "\n" not in lost[0].message
     assert got.values() == {(1, (100, 101))}
