@@ -6,7 +6,9 @@ the fault against the device, records it as an event and recovers."""
 from __future__ import annotations
 
 import socket
+import struct
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -98,4 +100,109 @@ def test_a_name_lookup_that_hangs_does_not_stop_the_other_buses(
     assert lost[0].bus == "bus1"
     assert lost[0].message.startswith("the host name 'slow.invalid' did not resolve"), lost
     assert "\n" not in lost[0].message
+    assert got.values() == {(1, (100, 101))}
+
+
+def _exception(code: int) -> Callable[[bytes], bytes]:
+    return lambda r: r[:4] + b"\x00\x03" + r[6:7] + bytes((r[7] | 0x80, code))
+
+
+#: (what the gateway does to the 3rd reply of all, the event it makes)
+LIES: dict[str, tuple[Callable[[bytes], bytes], str]] = {
+    "another transaction id": (lambda r: b"\x7f\x7f" + r[2:], "timeout"),
+    "protocol id 1": (lambda r: r[:3] + b"\x01" + r[4:], "protocol"),
+    "length 3": (lambda r: r[:4] + b"\x00\x03" + r[6:], "protocol"),
+    "length 0": (lambda r: r[:4] + b"\x00\x00" + r[6:], "protocol"),
+    "length 65535": (lambda r: r[:4] + b"\xff\xff" + r[6:], "protocol"),
+    "another unit": (lambda r: r[:6] + b"\x09" + r[7:], "protocol"),
+    "another function": (lambda r: r[:7] + b"\x04" + r[8:], "protocol"),
+    "byte count 2": (lambda r: r[:4] + b"\x00\x05" + r[6:8] + b"\x02" + r[9:11], "protocol"),
+    "exception 0B": (_exception(0x0B), "exception"),
+    "exception 0A": (_exception(0x0A), "exception"),
+    "exception 04": (_exception(0x04), "exception"),
+    "garbage first": (lambda r: b"\x13\x37\x00" + r, "protocol"),
+    "a reply never asked for first": (lambda r: b"\x7f\x7f" + r[2:] + r, ""),
+    "twice, glued": (lambda r: r + r, ""),
+}
+
+
+@pytest.mark.parametrize("lie", list(LIES))
+def test_a_reply_that_lies_is_counted_and_never_stored(tmp_path: Path, lie: str) -> None:
+    """The 3rd reply of the gateway lies: the poll fails with an event of
+    the right kind against the device (counted), or the lie is skipped; no
+    sample holds registers but the ones asked for; the polls go on."""
+    how, kind = LIES[lie]
+    gw = Hostile(_once(how))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 8)
+    finally:
+        gw.close()
+    faults = [e for e in got.events if e.kind not in ("connect", "reconnect", "skipped")]
+    assert [e.kind for e in faults] == ([kind] if kind else []), faults
+    assert all(e.device is not None and e.device.address == 1 for e in faults)
+    assert got.stats.device_faults.get("hx-1", 0) == len(faults)
+    assert len(got.samples) >= 8
+    assert got.values() == {(1, (100, 101))}
+
+
+def _dribble(n: int, req: Request, conn: socket.socket) -> None:
+    for b in good(*req):
+        conn.send(bytes((b,)))
+        time.sleep(0.002)
+
+
+def _reset_mid_reply(n: int, req: Request, conn: socket.socket) -> bytes | None:
+    if n == 3:
+        conn.sendall(good(*req)[:7])
+        time.sleep(0.05)
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        conn.close()  # an RST
+        return None
+    return good(*req)
+
+
+@pytest.mark.parametrize(("script", "kinds"), [
+    (_dribble, []),
+    (_reset_mid_reply, ["connection", "reconnect"]),
+])
+def test_a_reply_in_pieces_or_cut_by_a_reset(tmp_path: Path, script: Script,
+                                             kinds: list[str]) -> None:
+    """A reply written a byte at a time is read whole; one cut by a reset is
+    a ``connection`` event for the device, and the bus is opened again."""
+    gw = Hostile(script)
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 8,
+                   bus="timeout = 0.5\ninterval = 0.05\n")
+    finally:
+        gw.close()
+    assert [k for k in got.kinds() if k not in ("connect", "skipped")][:2] == kinds
+    assert got.values() == {(1, (100, 101))}
+
+
+def _chatter() -> Script:
+    """Right replies; after the 3rd of all, bytes no request asked for."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> None:
+        seen[0] += 1
+        conn.sendall(good(*req))
+        if seen[0] == 3:
+            time.sleep(0.01)  # (the next poll is 0.05 s away)
+            conn.sendall(b"\x00\x01\x00\x01\x00\x03\x01\x83\x02")
+    return script
+
+
+def test_bytes_between_polls_are_an_event(tmp_path: Path) -> None:
+    """Bytes that are no Modbus TCP reply, sent when no request is out,
+    close the connection with a ``protocol`` event (it was closed without a
+    word); the bus is opened again and polled."""
+    gw = Hostile(_chatter())
+    try:
+        got = poll(tmp_path, [gw.port],
+                   lambda h: len(h.samples) >= 8 and "reconnect" in h.kinds())
+    finally:
+        gw.close()
+    odd = [e for e in got.events if e.kind == "protocol"]
+    assert len(odd) == 1, got.events
+    assert "00 01 00 01 00 03 01 83 02" in odd[0].message
     assert got.values() == {(1, (100, 101))}
