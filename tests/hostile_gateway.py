@@ -63,9 +63,9 @@ class Hostile:
     send nothing) or acts on ``conn`` itself. ``script=None``: every
     connection is closed as soon as it is accepted."""
 
-    def __init__(self, script: Script | None) -> None:
+    def __init__(self, script: Script | None, port: int = 0) -> None:
         self.script = script
-        self.server = socket.create_server(("127.0.0.1", 0))
+        self.server = socket.create_server(("127.0.0.1", port))
         self.port = self.server.getsockname()[1]
         self.accepted: list[float] = []  #: when each connection was accepted (monotonic)
         self.done = threading.Event()

@@ -206,3 +206,27 @@ def test_bytes_between_polls_are_an_event(tmp_path: Path) -> None:
     assert len(odd) == 1, got.events
     assert "00 01 00 01 00 03 01 83 02" in odd[0].message
     assert got.values() == {(1, (100, 101))}
+
+
+def test_refused_then_accepted(tmp_path: Path) -> None:
+    """Nobody listens at first: ``connection`` events that say the backoff
+    (0.5 s, then 1 s); once a gateway listens, the bus connects and polls."""
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        port = s.getsockname()[1]
+    gws: list[Hostile] = []
+
+    def until(h: Handed) -> bool:
+        if not gws and h.kinds().count("connection") >= 2:
+            gws.append(Hostile(lambda n, req, conn: good(*req), port))
+        return len(h.samples) >= 5
+
+    try:
+        got = poll(tmp_path, [port], until)
+    finally:
+        for gw in gws:
+            gw.close()
+    refused = [e.message for e in got.events if e.kind == "connection"]
+    assert "Connection refused; retrying in 0.5 s" in refused[0], refused
+    assert "retrying in 1 s" in refused[1], refused
+    assert got.kinds()[len(refused)] == "connect"
+    assert got.values() == {(1, (100, 101))}
