@@ -141,12 +141,12 @@ class Handed:
 
 def poll(tmp: Path, ports: list[int | str], until: Callable[[Handed], bool], *,
          units: tuple[int, ...] = (1,), bus: str = "timeout = 0.2\ninterval = 0.05\n",
-         within: float = 20.0) -> Handed:
+         within: float = 20.0, points: str = "") -> Handed:
     """Poll ``units`` (the HX map) behind each port in ``ports`` (a bus
     each; a str port is a ``host:port``) with one TcpMapPoller until
     ``until(handed)`` or ``within`` seconds; the poller is stopped and
-    must end."""
-    (tmp / "hx.toml").write_text(HX_MAP)
+    must end. ``points``: more ``[[point]]`` tables for the map."""
+    (tmp / "hx.toml").write_text(HX_MAP + points)
     text = 'maps = ["hx.toml"]\n'
     for port in ports:
         where = port if isinstance(port, str) else f"127.0.0.1:{port}"

@@ -28,6 +28,7 @@ import queue
 import selectors
 import threading
 import time
+from collections import deque
 
 from pymb.client.address import parse_host_port
 from pymb.errors import (
@@ -52,6 +53,16 @@ __all__ = ["TcpMapPoller", "fans_out"]
 
 _BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
+
+
+def _which(inflight: deque[tuple[bytes, Spec]], data: bytes, pos: int, n: int) -> int:
+    """Which request in flight the reply at ``pos`` answers, by its first
+    ``n`` bytes (2: its transaction id); -1: none."""
+    got = data[pos:pos + n]
+    for i, (head, _) in enumerate(inflight):
+        if head[:n] == got:
+            return i
+    return -1
 
 
 def fans_out(bus: BusConfig) -> bool:
@@ -182,8 +193,9 @@ class TcpMapPoller(TcpLoopBase):
         inflight = c.inflight
         while n - pos >= 9:
             if inflight:
-                head, spec = inflight[0]
-                if data[pos:pos + 9] == head:
+                i = 0 if data[pos:pos + 9] == inflight[0][0] else _which(inflight, data, pos, 9)
+                if i >= 0:  # (a server may answer pipelined requests in any order)
+                    spec = inflight[i][1]
                     size = spec.size
                     if n - pos < size:
                         break
@@ -195,7 +207,7 @@ class TcpMapPoller(TcpLoopBase):
                         off = spec.offset
                         e.image[off:off + size - 9] = data[pos + 9:pos + size]
                     pos += size
-                    inflight.popleft()
+                    del inflight[i]
                     c.answered = True
                     if inflight and c.sent == len(c.todo) and not e.unit.timed:
                         c.deadline = now + e.unit.timeout
@@ -226,13 +238,14 @@ class TcpMapPoller(TcpLoopBase):
             return -1
         if len(data) - pos < 6 + length:
             return 0
-        if not c.inflight or data[pos:pos + 2] != c.inflight[0][0][:2]:
+        i = _which(c.inflight, data, pos, 2)
+        if i < 0:
             return 6 + length  # the late reply of a request that timed out
-        head, spec = c.inflight[0]
+        head, spec = c.inflight[i]
         e = c.entry
         assert e is not None
         if data[pos + 6] == head[6] and data[pos + 7] == head[7] | 0x80 and length == 3:
-            c.inflight.popleft()
+            del c.inflight[i]
             c.answered = True
             self._exception(c, e, spec, data[pos + 8], now)
             return 9

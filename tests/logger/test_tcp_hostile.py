@@ -230,3 +230,41 @@ def test_refused_then_accepted(tmp_path: Path) -> None:
     assert "retrying in 1 s" in refused[1], refused
     assert got.kinds()[len(refused)] == "connect"
     assert got.values() == {(1, (100, 101))}
+
+
+#: two more points, too far apart to be read in one request: a poll of 3
+FAR = "".join(f'[[point]]\nname = "p{a}"\naddress = {a}\ntype = "u16"\n' for a in (300, 600))
+
+
+def _backwards() -> Script:
+    """Each poll's 3 requests answered together, the last first."""
+    held: dict[int, list[Request]] = {}
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        mine = held.setdefault(id(conn), [])
+        mine.append(req)
+        if len(mine) < 3:
+            return None
+        out = b"".join(good(*r) for r in reversed(mine))
+        mine.clear()
+        return out
+    return script
+
+
+def test_pipelined_replies_in_any_order(tmp_path: Path) -> None:
+    """With ``pipeline = 4`` a gateway answers a poll's three requests last
+    first (a server may: the transaction id tells them apart): each reply
+    goes to its own request's place, every poll makes its sample."""
+    gw = Hostile(_backwards())
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 10, units=(1, 2),
+                   bus="timeout = 0.5\ninterval = 0.05\npipeline = 4\n", points=FAR)
+    finally:
+        gw.close()
+    assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
+    want = {u: {0: 100 * u, 1: 100 * u + 1, 300: 100 * u + 300, 600: 100 * u + 600}
+            for u in (1, 2)}
+    for s in got.samples:
+        regs = s.data.registers  # type: ignore[union-attr]
+        assert {a: regs[a] for a in (0, 1, 300, 600)} == want[s.device.address]
+    assert {s.device.address for s in got.samples} == {1, 2}
