@@ -6,6 +6,7 @@ the fault against the device, records it as an event and recovers."""
 from __future__ import annotations
 
 import socket
+import sqlite3
 import struct
 import threading
 import time
@@ -14,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hostile_gateway import Handed, Hostile, Request, Script, good, poll
+from conftest import run_pymb
+from hostile_gateway import HX_MAP, Handed, Hostile, Request, Script, good, poll
 
 
 def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
@@ -268,3 +270,48 @@ def test_pipelined_replies_in_any_order(tmp_path: Path) -> None:
         regs = s.data.registers  # type: ignore[union-attr]
         assert {a: regs[a] for a in (0, 1, 300, 600)} == want[s.device.address]
     assert {s.device.address for s in got.samples} == {1, 2}
+
+
+def test_pymb_log_beside_hostile_gateways(tmp_path: Path) -> None:
+    """A real ``pymb log`` run: one gateway answers right, one drops every
+    connection, one lies about the protocol id in every 4th reply. The run
+    ends as it should (exit 3, one line for the device that never
+    delivered); the good bus's samples, and the liar's, hold their own
+    registers; the faults are events in the file, the dropper's a few
+    (backoff), not one per sweep."""
+    (tmp_path / "hx.toml").write_text(HX_MAP)
+    right = Hostile(lambda n, req, conn: good(*req))
+    dropper = Hostile(None)
+    liar = Hostile(lambda n, req, conn: good(*req)[:3] + b"\x01" + good(*req)[4:]
+                   if n % 4 == 0 else good(*req))
+    text = 'maps = ["hx.toml"]\n'
+    for name, gw in (("right", right), ("dropper", dropper), ("liar", liar)):
+        text += (f'[[bus]]\nname = "{name}"\ntcp = "127.0.0.1:{gw.port}"\ntimeout = 0.2\n'
+                 f'interval = 0.05\n[[bus.device]]\ntype = "hx"\nname = "{name}"\n'
+                 'address = 3\n')
+    (tmp_path / "log.toml").write_text(text)
+    db = tmp_path / "data.sqlite"
+    try:
+        r = run_pymb("log", "--config", str(tmp_path / "log.toml"), "--seconds", "3",
+                     "--out", str(db), "--quiet", timeout=60)
+    finally:
+        for gw in (right, dropper, liar):
+            gw.close()
+    assert r.returncode == 3, r.stderr  # a device delivered nothing
+    assert "Traceback" not in r.stderr
+    assert "pymb log: dropper delivered no sample: " in r.stderr
+    con = sqlite3.connect(db)
+    try:
+        regs = con.execute("SELECT d.name, s.registers, count(*) FROM samples s JOIN devices d"
+                           " ON d.id = s.device_id GROUP BY d.name, s.registers").fetchall()
+        events = con.execute("SELECT bus, kind FROM events").fetchall()
+    finally:
+        con.close()
+    assert {(name, bytes(blob)) for name, blob, _ in regs} == {
+        ("right", struct.pack(">2H", 300, 301)), ("liar", struct.pack(">2H", 300, 301))}
+    counts = {name: n for name, _, n in regs}
+    assert counts["right"] >= 20, counts
+    assert counts["liar"] >= 10, counts
+    assert ("liar", "protocol") in events
+    dropped = [k for b, k in events if b == "dropper" and k == "connection"]
+    assert 1 <= len(dropped) <= 4, events
