@@ -27,7 +27,7 @@ from pymb.logger.poller import Stats
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event, Sample
 
-__all__ = ["Conn", "TcpLoopBase", "asked"]
+__all__ = ["Conn", "TcpLoopBase", "asked", "sent_after", "which"]
 
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
@@ -227,3 +227,20 @@ def asked(spec: Spec | None, u: Unit) -> str:
         return f"{u.info.name}(slave={u.info.address})"
     return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
             f"count={spec.count})")
+
+
+def which(inflight: collections.deque[tuple[bytes, Spec]], data: bytes, pos: int, n: int
+          ) -> int:
+    """Which request in flight the reply at ``pos`` answers, by its first
+    ``n`` bytes (2: its transaction id); -1: none."""
+    got = data[pos:pos + n]
+    for i, (head, _) in enumerate(inflight):
+        if head[:n] == got:
+            return i
+    return -1
+
+
+def sent_after(head: bytes, tid: int) -> bool:
+    """Whether the request whose reply starts with ``head`` went out after
+    the one with transaction id ``tid`` (ids count up, modulo 65536)."""
+    return (int.from_bytes(head[:2], "big") - tid - 1) & 0xFFFF < 0x8000

@@ -28,7 +28,6 @@ import queue
 import selectors
 import threading
 import time
-from collections import deque
 
 from pymb.client.address import parse_host_port
 from pymb.errors import (
@@ -42,7 +41,7 @@ from pymb.errors import (
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
-from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
+from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, sent_after, which
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import Request
@@ -53,16 +52,6 @@ __all__ = ["TcpMapPoller", "fans_out"]
 
 _BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
-
-
-def _which(inflight: deque[tuple[bytes, Spec]], data: bytes, pos: int, n: int) -> int:
-    """Which request in flight the reply at ``pos`` answers, by its first
-    ``n`` bytes (2: its transaction id); -1: none."""
-    got = data[pos:pos + n]
-    for i, (head, _) in enumerate(inflight):
-        if head[:n] == got:
-            return i
-    return -1
 
 
 def fans_out(bus: BusConfig) -> bool:
@@ -191,9 +180,12 @@ class TcpMapPoller(TcpLoopBase):
             c.rbuf.clear()
         pos, n = 0, len(data)
         inflight = c.inflight
+        fresh = c.tid  # the last request sent before these bytes came: none later is answered
         while n - pos >= 9:
             if inflight:
-                i = 0 if data[pos:pos + 9] == inflight[0][0] else _which(inflight, data, pos, 9)
+                i = 0 if data[pos:pos + 9] == inflight[0][0] else which(inflight, data, pos, 9)
+                if i >= 0 and c.tid != fresh and sent_after(inflight[i][0], fresh):
+                    i = -1  # a reply that came before its request went out: skipped
                 if i >= 0:  # (a server may answer pipelined requests in any order)
                     spec = inflight[i][1]
                     size = spec.size
@@ -216,7 +208,7 @@ class TcpMapPoller(TcpLoopBase):
                     if c.sock is not sock:
                         return
                     continue
-            used = self._odd(c, data, pos, now)
+            used = self._odd(c, data, pos, now, fresh)
             if used < 0 or c.sock is not sock:
                 return
             if used == 0:
@@ -225,7 +217,7 @@ class TcpMapPoller(TcpLoopBase):
         if pos < n:
             c.rbuf += data[pos:]
 
-    def _odd(self, c: Conn, data: bytes, pos: int, now: float) -> int:
+    def _odd(self, c: Conn, data: bytes, pos: int, now: float, fresh: int) -> int:
         """A reply that is not the expected one: a late one (another
         transaction id: skipped), an exception, or garbage (the connection is
         dropped: -1). Returns the bytes used (0: wait for more)."""
@@ -238,9 +230,9 @@ class TcpMapPoller(TcpLoopBase):
             return -1
         if len(data) - pos < 6 + length:
             return 0
-        i = _which(c.inflight, data, pos, 2)
-        if i < 0:
-            return 6 + length  # the late reply of a request that timed out
+        i = which(c.inflight, data, pos, 2)
+        if i < 0 or (c.tid != fresh and sent_after(c.inflight[i][0], fresh)):
+            return 6 + length  # the late reply of a request that timed out, or an early one
         head, spec = c.inflight[i]
         e = c.entry
         assert e is not None

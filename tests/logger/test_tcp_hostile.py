@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 from conftest import run_pymb
 from hostile_gateway import HX_MAP, Handed, Hostile, Request, Script, good, poll
+from peerkit import mbap, registers
 
 
 def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
@@ -315,3 +316,33 @@ def test_pymb_log_beside_hostile_gateways(tmp_path: Path) -> None:
     assert ("liar", "protocol") in events
     dropped = [k for b, k in events if b == "dropper" and k == "connection"]
     assert 1 <= len(dropped) <= 4, events
+
+
+def _ahead() -> Script:
+    """Right replies; the 5th of all followed at once by a reply for the
+    next transaction id (registers 999), before that request is sent."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes:
+        seen[0] += 1
+        out = good(*req)
+        if seen[0] == 5:
+            tid, unit, fc, _, _ = req
+            out += mbap((tid + 1) & 0xFFFF, unit, bytes((fc,)) + registers([999, 999]))
+        return out
+    return script
+
+
+def test_a_reply_that_comes_before_its_request_is_skipped(tmp_path: Path) -> None:
+    """Polled flat out, the next request goes out as soon as a reply is in:
+    a reply glued behind it for the transaction id that request will have
+    came before the request and answers nothing (stored, it would put a
+    server's guess into the log)."""
+    gw = Hostile(_ahead())
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 30,
+                   bus="timeout = 0.5\ninterval = 0\n")
+    finally:
+        gw.close()
+    assert got.values() == {(1, (100, 101))}
+    assert got.kinds() == ["connect"]
