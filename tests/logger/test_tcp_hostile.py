@@ -346,3 +346,31 @@ def test_a_reply_that_comes_before_its_request_is_skipped(tmp_path: Path) -> Non
         gw.close()
     assert got.values() == {(1, (100, 101))}
     assert got.kinds() == ["connect"]
+
+
+def _silent_first(k: int) -> Script:
+    """No answer to the first ``k`` requests of all, then right ones."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        seen[0] += 1
+        return good(*req) if seen[0] > k else None
+    return script
+
+
+def test_a_unit_silent_for_a_while_goes_offline_and_comes_back(tmp_path: Path) -> None:
+    """Three timeouts in a row (``offline_after = 3``) take the unit offline
+    (said once, with the retry); a poll ``offline_retry`` later finds it
+    again: an ``online`` event, and samples; the faults are counted."""
+    gw = Hostile(_silent_first(3))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 5)
+    finally:
+        gw.close()
+    kinds = [k for k in got.kinds() if k != "skipped"]
+    assert kinds == ["connect", "timeout", "timeout", "timeout", "online"], got.events
+    timeouts = [e.message for e in got.events if e.kind == "timeout"]
+    assert "offline after 3 failed poll(s), next try in 0.5 s" in timeouts[2]
+    assert not any("offline" in m for m in timeouts[:2])
+    assert got.stats.device_faults["hx-1"] == 3
+    assert got.values() == {(1, (100, 101))}
