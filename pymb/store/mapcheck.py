@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from pymb.errors import InvalidArgument
+from pymb.store.readonly import open_readonly
 
 __all__ = ["changed_map_message", "check_stored_maps"]
 
@@ -37,7 +38,6 @@ def check_stored_maps(path: str | os.PathLike[str], texts: Mapping[str, str]) ->
     there is no such file, or it is not a database (what opens it says so)."""
     if not texts or not Path(path).is_file():
         return
-    from pymb.store.readonly import open_readonly
     try:
         db = open_readonly(path)
         try:
