@@ -156,10 +156,17 @@ class TcpMapPoller(TcpLoopBase):
             c.deadline = now + u.timeout
             if c.deadline < self._soonest:
                 self._soonest = c.deadline
+        data = frames[0] if len(frames) == 1 else b"".join(frames)
         try:
-            c.sock.send(frames[0] if len(frames) == 1 else b"".join(frames))
+            sent = c.sock.send(data)
+        except BlockingIOError:
+            sent = 0
         except OSError as err:
             self._lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
+            return
+        if sent != len(data):  # half a request would put the stream out of step
+            self._lost(c, now, f"the connection took {sent} of {len(data)} request bytes "
+                               "(the device does not read its requests)", None)
 
     def _readable(self, c: Conn, now: float) -> None:
         sock = c.sock
