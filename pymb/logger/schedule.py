@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import DeviceException, ModbusConnectionError, ModbusError
-from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.store import DeviceInfo, Sample
 from pymb.store.records import event_kind, short_fault
 
@@ -160,16 +160,8 @@ def _poll_map(poller: BusPoller, s: Slot, slots: list[Slot]) -> bool:
 
 
 def _failed(poller: BusPoller, h: MapHealth, kind: str, message: str, code: int | None) -> None:
-    h.failures += 1
+    retry = failed_poll(h, poller.clock())
     stats = poller.stats
     stats.count(stats.device_faults, h.info.name, 1)
-    retry = ""
-    after = h.config.offline_after or 1
-    if h.failures >= after:
-        wait = float(h.config.offline_retry or 30.0)
-        h.retry_at = poller.clock() + wait
-        if not h.offline:
-            retry = f"; offline after {h.failures} failed poll(s), next try in {wait:g} s"
-        h.offline = True
     stats.fault(h.info.name, f"{h.info.name}: {short_fault(kind, message)}")
     poller.event(kind, message + retry, h.info, code)

@@ -39,7 +39,7 @@ from pymb.errors import (
     request_error,
 )
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, sent_after, which
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
@@ -364,17 +364,9 @@ class TcpMapPoller(TcpLoopBase):
     def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
         kind = event_kind(e)
         code = getattr(e, "code", None) or getattr(e, "errno", None)
-        u.failures += 1
+        retry = failed_poll(u, time.monotonic())
         stats = self.stats
         stats.count(stats.device_faults, u.info.name, 1)
-        retry = ""
-        after = u.config.offline_after or 1
-        if u.failures >= after:
-            wait = float(u.config.offline_retry or 30.0)
-            u.retry_at = time.monotonic() + wait
-            if not u.offline:
-                retry = f"; offline after {u.failures} failed poll(s), next try in {wait:g} s"
-            u.offline = True
         stats.fault(u.info.name, f"{u.info.name}: {short_fault(kind, str(e))}")
         self._event(c, kind, str(e) + retry, u, code)
 
