@@ -97,12 +97,13 @@ def _weight(items: list[Sample | Event]) -> tuple[int, bool]:
     return size, events
 
 
-class _Poller(BusPoller):
-    """A bus's poller that keeps the exception that ended it, if any: that is
-    a bug, which stops the run (its traceback goes to stderr) instead of
-    leaving the bus silently unpolled."""
+class _Crashes(threading.Thread):
+    """A poller thread that keeps the exception that ended it, if any: that
+    is a bug, which stops the run (its traceback goes to stderr) instead of
+    leaving its buses silently unpolled."""
 
     crashed = ""
+    stop_event: threading.Event
 
     def run(self) -> None:
         try:
@@ -113,19 +114,12 @@ class _Poller(BusPoller):
             raise
 
 
-class _TcpPoller(TcpMapPoller):
-    """The one loop over the TCP buses, keeping what ended it as
-    :class:`_Poller` does: every bus it polls stopped with it."""
+class _Poller(_Crashes, BusPoller):
+    """A bus's own poller thread."""
 
-    crashed = ""
 
-    def run(self) -> None:
-        try:
-            super().run()
-        except Exception as e:
-            self.crashed = f"{type(e).__name__}: {e}"
-            self.stop_event.set()
-            raise
+class _TcpPoller(_Crashes, TcpMapPoller):
+    """The one loop over the TCP buses: every bus it polls stops with it."""
 
 
 class Logger:
