@@ -12,7 +12,6 @@ from __future__ import annotations
 import queue
 import socket
 import sqlite3
-import struct
 import threading
 import time
 from collections.abc import Callable
@@ -20,6 +19,7 @@ from pathlib import Path
 
 import pytest
 from conftest import run_pymb
+from hostile_gateway import Hostile, Request, good, poll
 
 from pymb.devices.mapreading import MapReading
 from pymb.devices.spec import DeviceConfig
@@ -223,229 +223,70 @@ def test_pipeline_mistakes(tmp_path: Path, pipeline: str, says: str) -> None:
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-LATE_MAP = '''schema = "pymb.map/1"
-[device]
-id = "late-test"
-table = "holding"
-[device.timing]
-offline_after = 1
-offline_retry = 0.5
-[[point]]
-name = "a"
-address = 0
-type = "u16"
-[[point]]
-name = "b"
-address = 1
-type = "u16"
-'''
-
-
-class _Gateway:
-    """A scripted Modbus TCP gateway (not pymb's simulator): registers
-    ``100 x unit + address``; unit 2 answers 0.3 s late (after the loop's
-    0.2 s timeout, while unit 1's request waits behind it); counts the
-    connections it accepts. Requests are answered in order."""
-
-    def __init__(self) -> None:
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-        self.accepted = 0
-        self.open: list[socket.socket] = []
-        self.done = threading.Event()
-        self.thread = threading.Thread(target=self._accept, daemon=True)
-        self.thread.start()
-
-    def _accept(self) -> None:
-        self.server.settimeout(0.1)
-        while not self.done.is_set():
-            try:
-                conn, _ = self.server.accept()
-            except TimeoutError:
-                continue
-            self.accepted += 1
-            self.open.append(conn)
-            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
-
-    def _serve(self, conn: socket.socket) -> None:
-        buf = b""
-        with conn:
-            conn.settimeout(0.1)
-            while not self.done.is_set():
-                try:
-                    data = conn.recv(4096)
-                except TimeoutError:
-                    continue
-                except OSError:  # the poller closed its end at stop
-                    return
-                if not data:
-                    return
-                buf += data
-                while len(buf) >= 12:
-                    tid, _, _, unit, fc, address, count = struct.unpack(">HHHBBHH", buf[:12])
-                    buf = buf[12:]
-                    if unit == 2:
-                        time.sleep(0.3)
-                    regs = [100 * unit + address + i for i in range(count)]
-                    pdu = struct.pack(f">BB{count}H", fc, 2 * count, *regs)
-                    try:
-                        conn.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
-                    except OSError:  # the poller closed its end at stop
-                        return
-
-    def drop(self) -> None:
-        """Close every connection (the gateway restarted)."""
-        for conn in self.open:
-            conn.shutdown(socket.SHUT_RDWR)
-        self.open.clear()
-
-    def close(self) -> None:
-        self.done.set()
-        self.thread.join(5.0)
-        self.server.close()
+def _late_unit_2(n: int, req: Request, conn: socket.socket) -> bytes:
+    """Registers ``100 x unit + address``; unit 2 answers 0.3 s late."""
+    if req[1] == 2:
+        time.sleep(0.3)
+    return good(*req)
 
 
 def test_a_late_reply_is_skipped_and_the_gateway_keeps_one_connection(tmp_path: Path
                                                                       ) -> None:
-    (tmp_path / "late.toml").write_text(LATE_MAP)
-    gw = _Gateway()
+    """Unit 2 answers after the 0.2 s timeout while unit 1's request waits
+    behind it on the one connection: its late replies are skipped by their
+    transaction id, never taken for unit 1's."""
+    gw = Hostile(_late_unit_2)
     try:
-        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
-[[bus]]
-tcp = "127.0.0.1:{gw.port}"
-timeout = 0.2
-[[bus.device]]
-type = "late-test"
-address = 1
-[[bus.device]]
-type = "late-test"
-address = 2
-''')
-        bus = load_config(tmp_path / "log.toml").buses[0]
-        q: queue.Queue[list[Sample | Event]] = queue.Queue()
-        stop = threading.Event()
-        poller = TcpMapPoller([bus], q, stop, Stats())
-        poller.start()
-        samples: list[Sample] = []
-        events: list[Event] = []
-        deadline = time.monotonic() + 20.0
-        try:
-            while time.monotonic() < deadline:
-                try:
-                    items = q.get(timeout=0.5)
-                except queue.Empty:
-                    continue
-                samples += [s for s in items if isinstance(s, Sample)]
-                events += [e for e in items if isinstance(e, Event)]
-                late = [e for e in events if e.kind == "timeout"]
-                if len(late) >= 3 and len(samples) >= 50:
-                    break
-        finally:
-            stop.set()
-            poller.join(5.0)
+        got = poll(tmp_path, [gw.port], lambda h: h.kinds().count("timeout") >= 3
+                   and len(h.samples) >= 50, units=(1, 2), bus="timeout = 0.2\n")
     finally:
         gw.close()
-    assert len([e for e in events if e.kind == "timeout"]) >= 3
-    assert all(e.device is not None and e.device.address == 2
-               for e in events if e.kind == "timeout")
-    assert [e.kind for e in events if e.kind not in ("timeout", "connect")] == []
-    assert gw.accepted == 1  # one connection for both units, kept through the timeouts
-    assert len(samples) >= 50
+    timeouts = [e for e in got.events if e.kind == "timeout"]
+    assert len(timeouts) >= 3
+    assert all(e.device is not None and e.device.address == 2 for e in timeouts)
+    assert [k for k in got.kinds() if k not in ("timeout", "connect")] == []
+    assert len(gw.accepted) == 1  # one connection for both units, kept through the timeouts
+    assert len(got.samples) >= 50
     # every sample holds its own unit's registers: no late reply taken for another's
-    assert {(s.device.address, tuple(_map(s).values.values())) for s in samples} == {
-        (1, (100, 101))}
+    assert got.values() == {(1, (100, 101))}
 
 
 def test_slots_a_slow_unit_overran_are_skipped_and_counted(tmp_path: Path) -> None:
     """Unit 2 answers in 0.3 s, the bus's interval is 0.1 s: its slots that
     a poll overran are skipped, counted and recorded as ``skipped`` events
     naming it; unit 1 behind the same gateway waits its turn."""
-    (tmp_path / "late.toml").write_text(LATE_MAP)
-    gw = _Gateway()
+    gw = Hostile(_late_unit_2)
     try:
-        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
-[[bus]]
-tcp = "127.0.0.1:{gw.port}"
-timeout = 1
-interval = 0.1
-[[bus.device]]
-type = "late-test"
-address = 1
-[[bus.device]]
-type = "late-test"
-address = 2
-''')
-        bus = load_config(tmp_path / "log.toml").buses[0]
-        q: queue.Queue[list[Sample | Event]] = queue.Queue()
-        stop = threading.Event()
-        stats = Stats()
-        poller = TcpMapPoller([bus], q, stop, stats)
-        poller.start()
-        events: list[Event] = []
-        samples: list[Sample] = []
-        deadline = time.monotonic() + 20.0
-        try:
-            while time.monotonic() < deadline and len(
-                    [e for e in events if e.kind == "skipped"]) < 3:
-                try:
-                    items = q.get(timeout=0.5)
-                except queue.Empty:
-                    continue
-                events += [e for e in items if isinstance(e, Event)]
-                samples += [s for s in items if isinstance(s, Sample)]
-        finally:
-            stop.set()
-            poller.join(5.0)
+        got = poll(tmp_path, [gw.port], lambda h: h.kinds().count("skipped") >= 3,
+                   units=(1, 2), bus="timeout = 1\ninterval = 0.1\n")
     finally:
         gw.close()
-    skipped = [e for e in events if e.kind == "skipped"]
+    skipped = [e for e in got.events if e.kind == "skipped"]
     assert len(skipped) >= 3
-    assert stats.skipped_slots >= len(skipped)
-    assert any("late-test-2" in e.message for e in skipped)
-    assert "timeout" not in {e.kind for e in events}
-    assert {s.device.address for s in samples} == {1, 2}
+    assert got.stats.skipped_slots >= len(skipped)
+    assert any("hx-2" in e.message for e in skipped)
+    assert "timeout" not in got.kinds()
+    assert {s.device.address for s in got.samples} == {1, 2}
 
 
 def test_a_dropped_connection_is_reopened_with_events(tmp_path: Path) -> None:
-    """The gateway closes the connection: the device being polled gets a
-    ``connection`` event, the bus is opened again (``reconnect``) and its
-    devices are polled on the new connection."""
-    (tmp_path / "late.toml").write_text(LATE_MAP)
-    gw = _Gateway()
+    """The gateway closes the connection after four polls: the device being
+    polled gets a ``connection`` event, the bus is opened again
+    (``reconnect``) and its devices are polled on the new connection."""
+    gw: Hostile
+
+    def drop_once(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        if len(gw.accepted) == 1 and n == 5:
+            conn.shutdown(socket.SHUT_RDWR)
+            return None
+        return good(*req)
+
+    gw = Hostile(drop_once)
     try:
-        (tmp_path / "log.toml").write_text(f'''maps = ["late.toml"]
-[[bus]]
-tcp = "127.0.0.1:{gw.port}"
-[[bus.device]]
-type = "late-test"
-address = 1
-''')
-        bus = load_config(tmp_path / "log.toml").buses[0]
-        q: queue.Queue[list[Sample | Event]] = queue.Queue()
-        stop = threading.Event()
-        poller = TcpMapPoller([bus], q, stop, Stats())
-        poller.start()
-        kinds: list[str] = []
-        after = 0  # samples after the reconnect
-        deadline = time.monotonic() + 20.0
-        try:
-            while time.monotonic() < deadline and after < 20:
-                try:
-                    items = q.get(timeout=0.5)
-                except queue.Empty:
-                    continue
-                for item in items:
-                    if isinstance(item, Event):
-                        kinds.append(item.kind)
-                    elif "reconnect" in kinds:
-                        after += 1
-                    elif len(kinds) == 1 and gw.open:  # connected and polling: drop it
-                        gw.drop()
-        finally:
-            stop.set()
-            poller.join(5.0)
+        got = poll(tmp_path, [gw.port], lambda h: "reconnect" in h.kinds()
+                   and len(h.samples) >= 24, bus="")
     finally:
         gw.close()
-    assert kinds[:3] == ["connect", "connection", "reconnect"], kinds
-    assert after >= 20
-    assert gw.accepted == 2
+    assert got.kinds()[:3] == ["connect", "connection", "reconnect"], got.kinds()
+    assert len(got.samples) >= 24  # 4 before the drop, 20 on the new connection
+    assert len(gw.accepted) == 2
