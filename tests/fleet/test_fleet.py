@@ -649,10 +649,19 @@ def test_sparkplug_ddeath_when_a_device_stops_answering_and_dbirth_when_it_retur
     died = kinds().index(f"DDEATH/{NODE}/coolpro-40")
     # a Rebirth while it is down: its DBIRTH (its metrics declared), then its DDEATH
     _rebirth(sub, pb)
-    wait_until(lambda: kinds(died + 1)[:3] == [f"NBIRTH/{NODE}", f"DBIRTH/{NODE}/coolpro-40",
-                                              f"DDEATH/{NODE}/coolpro-40"],
-               "NBIRTH, DBIRTH and DDEATH after the Rebirth", 30)
-    first_death, died = died, died + 3
+    births = [f"NBIRTH/{NODE}", f"DBIRTH/{NODE}/coolpro-40", f"DDEATH/{NODE}/coolpro-40"]
+
+    def reborn() -> int | None:
+        """Where the Rebirth's NBIRTH is, once it and the two after it came
+        (an NDATA of the node's backlog may come before it)."""
+        k = kinds()
+        at = next((i for i in range(died + 1, len(k)) if k[i] == births[0]), None)
+        return at if at is not None and k[at:at + 3] == births else None
+
+    at = wait_until(reborn, lambda: "NBIRTH, DBIRTH and DDEATH after the Rebirth; after the "
+                    f"first DDEATH came {kinds(died + 1)}", 30)
+    assert at is not None
+    first_death, died = died, at + 2
     fleet.simulator("coolpro", port=port)
     wait_until(lambda: f"DDATA/{NODE}/coolpro-40" in kinds(died),
                "DDATA after the device answers again", 60)
