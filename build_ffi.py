@@ -38,6 +38,7 @@ SOURCES = [
     f"{CSRC}/pymb_rtu_tcp.c",
     f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
+    f"{CSRC}/pymb_mbap.c",  # the extension's alone (not in libpymb)
 ]
 
 CDEF = """
@@ -293,6 +294,7 @@ SOURCE = """
 #include <modbus.h>
 #include "pymb.h"
 #include "pymb_modbus.h"
+#include "pymb_mbap.h"
 """
 
 
@@ -334,6 +336,22 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
 """
 
 
+# pymb_mbap.h: a pipelined Modbus TCP poll's frames and replies (pymb.logger.tcpfast
+# is its one user); internal to the extension, not part of libpymb.
+MBAP_CDEF = """
+#define PYMBI_MBAP_FRAME ...
+#define PYMBI_MBAP_HEAD ...
+typedef struct {
+    uint8_t tail[10]; uint8_t head[7]; uint16_t size; uint32_t offset;
+} pymbi_mbap_req;
+int pymbi_mbap_frames(const pymbi_mbap_req *reqs, size_t nreqs, size_t first, size_t n,
+                      uint16_t tid, uint8_t *out, size_t out_cap);
+int pymbi_mbap_take(const pymbi_mbap_req *reqs, size_t nreqs, size_t first, size_t n,
+                    uint16_t tid, const uint8_t *buf, size_t len, uint8_t *image,
+                    size_t image_len, size_t *used);
+"""
+
+
 def _require_build_tools() -> None:
     """Stop with one line naming the Debian packages when a build need is missing."""
     pkg_config = os.environ.get("PKG_CONFIG", "pkg-config")
@@ -353,6 +371,7 @@ _require_build_tools()
 ffibuilder = FFI()
 ffibuilder.cdef(CDEF)
 ffibuilder.cdef(MAP_CDEF)
+ffibuilder.cdef(MBAP_CDEF)
 ffibuilder.set_source_pkgconfig(
     "pymb._pymb_cffi",
     ["libmodbus"],

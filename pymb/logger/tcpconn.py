@@ -24,6 +24,7 @@ from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import Stats
+from pymb.logger.tcpfast import PollTable
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event, Sample
 
@@ -53,8 +54,18 @@ class Conn:
     entry: Entry | None = None  #: the poll under way
     todo: list[Spec] = field(default_factory=list)  #: its requests
     sent: int = 0  #: of ``todo``
-    inflight: collections.deque[tuple[bytes, Spec]] = field(
-        default_factory=collections.deque)  #: (expected first 9 bytes, request)
+    _inflight: collections.deque[tuple[bytes, Spec]] = field(
+        default_factory=collections.deque)
+    #: the poll's requests as the C core sends and takes them (None: one at
+    #: a time in Python, as :attr:`inflight` says); ``fast_n`` of them are
+    #: in flight, ``todo[sent - fast_n:sent]``, with the ids up to ``tid``
+    fast: PollTable | None = None
+    fast_n: int = 0
+    #: the socket's SO_RCVLOWAT: while a poll's last requests are in flight,
+    #: the bytes their replies take, so the loop wakes once for them all
+    lowat: int = 1
+    sent_at: float = 0.0  #: when the last requests of the poll under way went out
+    took: float = 0.0  #: seconds a poll's replies took to come in full, of late
     unread: set[int] = field(default_factory=set)  #: items refused in this poll
     tid: int = 0
     rbuf: bytearray = field(default_factory=bytearray)
@@ -67,6 +78,42 @@ class Conn:
     #: the loop does not wait for it) and what it found (or why not)
     lookup: threading.Thread | None = None
     found: tuple[int, Any] | str | None = None
+
+    @property
+    def inflight(self) -> collections.deque[tuple[bytes, Spec]]:
+        """The requests in flight: (their reply's expected first 9 bytes,
+        the request), oldest first. Asking for them ends the C core's part
+        in the poll under way: the rest of it goes one request at a time."""
+        if self.fast is not None:
+            self.slow()
+        return self._inflight
+
+    @property
+    def busy(self) -> bool:
+        """Whether a request is in flight."""
+        return self.fast_n > 0 or bool(self._inflight)
+
+    def forget(self) -> None:
+        """Nothing is in flight any more (replies still on their way are
+        skipped as late ones by their transaction ids)."""
+        self.fast, self.fast_n = None, 0
+        self._inflight.clear()
+
+    def wake_at(self, size: int) -> None:
+        """Let the selector say readable once ``size`` bytes came (1: any)."""
+        if size != self.lowat and self.sock is not None:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, size)
+            self.lowat = size
+
+    def slow(self) -> None:
+        """The poll under way goes on one request at a time (an exception,
+        a reply out of order, a silence, a timeout, a loss)."""
+        self.wake_at(1)
+        n, self.fast, self.fast_n = self.fast_n, None, 0
+        first, tid = self.sent - n, self.tid - n + 1
+        for i in range(n):
+            spec = self.todo[first + i]
+            self._inflight.append((((tid + i) & 0xFFFF).to_bytes(2, "big") + spec.head, spec))
 
 
 class TcpLoopBase(threading.Thread):
@@ -137,7 +184,7 @@ class TcpLoopBase(threading.Thread):
             s.close()
             self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: {os.strerror(rc)}")
             return
-        c.sock, c.state = s, "connecting"
+        c.sock, c.state, c.lowat = s, "connecting", 1
         c.deadline = now + c.bus.timeout
         self._soonest = min(self._soonest, c.deadline)
         self._sel.register(s, selectors.EVENT_WRITE, c)
@@ -199,7 +246,7 @@ class TcpLoopBase(threading.Thread):
             c.sock.close()
         c.sock, c.state = None, "closed"
         c.rbuf.clear()
-        c.inflight.clear()
+        c.forget()
         c.entry = None
 
 

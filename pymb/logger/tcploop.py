@@ -42,6 +42,7 @@ from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, sent_after, which
+from pymb.logger.tcpfast import ReadBuffer
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import Request
@@ -52,6 +53,10 @@ __all__ = ["TcpMapPoller", "fans_out"]
 
 _BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
+#: a poll's replies have twice the time they took of late (at least this
+#: many seconds) to come in full before the loop reads them as they come (an
+#: exception reply is shorter than the reply it stands for)
+_LOOK = 0.002
 
 
 def fans_out(bus: BusConfig) -> bool:
@@ -87,6 +92,10 @@ class TcpMapPoller(TcpLoopBase):
         self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
+        self._rx = ReadBuffer()
+        #: a heap of (when, seq, connection, its last transaction id): a poll
+        #: waiting for all of its replies at once, read as they come from then on
+        self._looks: list[tuple[float, int, Conn, int]] = []
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -121,8 +130,9 @@ class TcpMapPoller(TcpLoopBase):
                 self._at(e.wake(now), e)
                 continue
             c.entry = e
-            c.todo = list(e.requests())
+            c.todo = e.requests()
             c.sent = 0
+            c.fast = None if e.unit.timed else e.table
             if c.unread:
                 c.unread.clear()
             if not c.todo:  # every point refused: the poll reads nothing
@@ -135,6 +145,31 @@ class TcpMapPoller(TcpLoopBase):
         assert e is not None
         assert c.sock is not None
         u = e.unit
+        t = c.fast
+        if t is not None:
+            if c.quiet_until <= now:  # the C core writes the frames
+                n = min(c.pipeline - c.fast_n, len(c.todo) - c.sent)
+                if n <= 0:
+                    return
+                size = t.frames(c.sent, n, (c.tid + 1) & 0xFFFF)
+                c.sent += n
+                c.tid = (c.tid + n) & 0xFFFF
+                if not c.fast_n:
+                    c.deadline = now + u.timeout
+                    if c.deadline < self._soonest:
+                        self._soonest = c.deadline
+                c.fast_n += n
+                if c.sent == len(c.todo):  # the poll's last: one wake-up for their replies
+                    c.wake_at(t.ends[c.sent] - t.ends[c.sent - c.fast_n])
+                    c.sent_at = now
+                    look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
+                    self._seq += 1
+                    heapq.heappush(self._looks,
+                                   (now + min(look, u.timeout / 4), self._seq, c, c.tid))
+                self._put(c, t.out if size == len(t.out) else t.out[:size], now)
+                return
+            c.slow()  # a silence after the connect: one request at a time
+        c.wake_at(1)
         pipe = 1 if u.timed else c.pipeline
         frames = []
         while len(c.inflight) < pipe and c.sent < len(c.todo):
@@ -147,16 +182,20 @@ class TcpMapPoller(TcpLoopBase):
             spec = c.todo[c.sent]
             c.sent += 1
             c.tid = tid = (c.tid + 1) & 0xFFFF
-            t = tid.to_bytes(2, "big")
-            frames.append(t + spec.tail)
-            c.inflight.append((t + spec.head, spec))
+            head = tid.to_bytes(2, "big")
+            frames.append(head + spec.tail)
+            c.inflight.append((head + spec.head, spec))
         if not frames:
             return
         if len(c.inflight) == len(frames):
             c.deadline = now + u.timeout
             if c.deadline < self._soonest:
                 self._soonest = c.deadline
-        data = frames[0] if len(frames) == 1 else b"".join(frames)
+        self._put(c, frames[0] if len(frames) == 1 else b"".join(frames), now)
+
+    def _put(self, c: Conn, data: bytes | bytearray, now: float) -> None:
+        """Send requests (whole, or the connection is lost)."""
+        assert c.sock is not None
         try:
             sent = c.sock.send(data)
         except BlockingIOError:
@@ -171,23 +210,58 @@ class TcpMapPoller(TcpLoopBase):
     def _readable(self, c: Conn, now: float) -> None:
         sock = c.sock
         assert sock is not None
+        rx = self._rx
+        kept = len(c.rbuf)  # a part of a reply from the last read goes first
         try:
-            data = sock.recv(65536)
+            if kept:
+                rx.data[:kept] = c.rbuf
+                got = sock.recv_into(rx.view[kept:])
+            else:
+                got = sock.recv_into(rx.view)
         except BlockingIOError:
             return
         except OSError as err:
             self._lost(c, now, os.strerror(err.errno or errno.ECONNRESET), err.errno)
             return
-        if not data:
+        if not got:
             self._lost(c, now, "the connection was closed by the device", errno.ECONNRESET)
             return
-        if c.rbuf:
-            c.rbuf += data
-            data = bytes(c.rbuf)
+        n = kept + got
+        if kept:
             c.rbuf.clear()
+        fresh = c.tid  # the last request sent before these bytes came: none later is answered
+        pos = 0
+        t = c.fast
+        if t is not None and c.fast_n:  # the replies in the order sent, by the C core
+            k = c.fast_n
+            first, tid = c.sent - k, (c.tid - k + 1) & 0xFFFF
+            taken, pos = t.take(first, k, tid, rx, n)
+            if taken < k and pos < n and n - pos < t.sizes[first + taken] and (
+                    n - pos < 9 or rx.data[pos:pos + 9] == ((tid + taken) & 0xFFFF).to_bytes(
+                        2, "big") + c.todo[first + taken].head):
+                c.rbuf += rx.view[pos:n]  # the rest of that reply is on its way
+                pos = n
+            if taken:
+                e = c.entry
+                assert e is not None
+                c.answered = True
+                c.fast_n = k - taken
+                if c.sent < len(c.todo):
+                    self._send(c, now)  # the next of a poll longer than the pipeline
+                elif c.fast_n:
+                    c.deadline = now + e.unit.timeout  # the rest are on their way
+                    if c.lowat > 1:
+                        c.wake_at(max(1, t.ends[c.sent] - t.ends[c.sent - c.fast_n]
+                                      - len(c.rbuf)))
+                else:
+                    c.took += (now - c.sent_at - c.took) / 8
+                    self._done(c, e, now)
+                    self._next(c, now)
+            if pos == n or c.sock is not sock:
+                return
+        data = bytes(rx.view[pos:n])
         pos, n = 0, len(data)
         inflight = c.inflight
-        fresh = c.tid  # the last request sent before these bytes came: none later is answered
         while n - pos >= 9:
             if inflight:
                 i = 0 if data[pos:pos + 9] == inflight[0][0] else which(inflight, data, pos, 9)
@@ -285,7 +359,7 @@ class TcpMapPoller(TcpLoopBase):
                 planner.mark_unsupported(r.items)
                 c.unread.update(r.items)
                 subs = []
-            c.todo[c.sent:c.sent] = [e.spec(s) for s in subs]
+            c.todo = [*c.todo[:c.sent], *(e.spec(s) for s in subs), *c.todo[c.sent:]]
             self._replied(c, e, now)
             return
         exc = exception_class(code)(
@@ -294,7 +368,7 @@ class TcpMapPoller(TcpLoopBase):
             function=spec.function, address=spec.address, count=spec.count,
             port=c.bus.endpoint)
         self._failed(c, u, exc)
-        c.inflight.clear()  # replies still on their way are skipped as late ones
+        c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
         self._requeue(c, e, now)
         self._next(c, now)
@@ -306,7 +380,7 @@ class TcpMapPoller(TcpLoopBase):
             c.quiet_until = max(c.quiet_until, now + u.turnaround)
         if c.sent < len(c.todo):
             self._send(c, now)
-        elif not c.inflight:
+        elif not c.busy:
             self._done(c, e, now)
             self._next(c, now)
 
@@ -384,13 +458,17 @@ class TcpMapPoller(TcpLoopBase):
                     self._not_open(c, now, f"cannot connect to {c.bus.endpoint}: no answer "
                                            f"within {c.bus.timeout:g} s")
             elif c.entry is not None and now >= c.deadline:
-                if c.inflight:
-                    self._timeout(c, now)
-                elif c.sent < len(c.todo):
-                    self._send(c, now)  # a silence is over
+                if c.busy and c.lowat > 1:
+                    c.wake_at(1)
+                    self._readable(c, now)  # what came before the time was up
+                if c.entry is not None and now >= c.deadline:
+                    if c.busy:
+                        self._timeout(c, now)
+                    elif c.sent < len(c.todo):
+                        self._send(c, now)  # a silence is over
             elif c.entry is None and c.waiting:
                 self._next(c, now)
-            if (c.state == "connecting" or c.inflight) and c.deadline < soonest:
+            if (c.state == "connecting" or c.busy) and c.deadline < soonest:
                 soonest = c.deadline
         self._soonest = min(self._soonest, soonest)
 
@@ -404,7 +482,7 @@ class TcpMapPoller(TcpLoopBase):
                             address=spec.address, count=spec.count, port=c.bus.endpoint,
                             timeout=u.timeout, failed=(spec.address, spec.count),
                             response=got, header=7, frame=None)
-        c.inflight.clear()  # a late reply is skipped by its transaction id
+        c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
         self._failed(c, u, exc)
         self._requeue(c, e, now)
@@ -416,7 +494,7 @@ class TcpMapPoller(TcpLoopBase):
         """Send what waited for a silence that is over; seconds to the next."""
         wait = _TICK
         for c in list(self._silent):
-            if c.entry is None or c.inflight or c.sock is None:
+            if c.entry is None or c.busy or c.sock is None:
                 self._silent.discard(c)
             elif c.deadline <= now:
                 self._silent.discard(c)
@@ -470,6 +548,14 @@ class TcpMapPoller(TcpLoopBase):
                 wait = min(wait, self._slots[0][0] - now)
             if self._silent:
                 wait = min(wait, self._quiet_over(now))
+            looks = self._looks
+            while looks and looks[0][0] <= now:
+                _, _, c, tid = heapq.heappop(looks)
+                if c.tid == tid and c.fast_n and c.lowat > 1:  # read them as they come
+                    c.wake_at(1)
+                    self._readable(c, now)
+            if looks:
+                wait = min(wait, looks[0][0] - now)
             for key, mask in select(max(wait, 0.0)):
                 c = key.data
                 t = time.monotonic()

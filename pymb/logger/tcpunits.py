@@ -25,6 +25,7 @@ from typing import Any
 
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.tcpfast import PollTable
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
@@ -233,6 +234,9 @@ class Entry:
     plan: ReadPlan | None = None
     specs: list[Spec] = field(default_factory=list)
     image: bytearray = field(default_factory=bytearray)
+    #: :attr:`specs` made ready for the C core's pipelined calls (None: a
+    #: request of bits, whose replies the loop spreads into words itself)
+    table: PollTable | None = None
 
     @classmethod
     def of(cls, unit: Unit, group: str | None, interval: float, once: bool,
@@ -249,11 +253,14 @@ class Entry:
 
     def requests(self) -> list[Spec]:
         """This poll's requests as the planner plans them now (made ready
-        again only when the plan changed: a refused bridge or point)."""
+        again only when the plan changed: a refused bridge or point). The
+        list is this entry's: not to be changed."""
         plan = self.unit.planner.plan(self.wanted)
         if plan is not self.plan:
             lay = self.decode.layout()
             self.specs = [self.spec(r, lay) for r in plan.requests]
+            self.table = None if any(s.bits for s in self.specs) else \
+                PollTable(self.specs, self.image)
             self.plan = plan
         return self.specs
 

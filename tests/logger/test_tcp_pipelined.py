@@ -1,0 +1,160 @@
+"""The one TCP loop's pipelined polls (:mod:`pymb.logger.tcploop`, the C
+core's ``pymbi_mbap_*`` through :mod:`pymb.logger.tcpfast`): a poll's
+requests go out in one write and the loop waits for all of their replies at
+once, yet a reply that is not the expected one (an exception, a reply in
+pieces, one never sent) is handled as the loop handles it one request at a
+time."""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import pytest
+from hostile_gateway import Hostile, Request, Script, good, poll
+
+from pymb.logger.tcpfast import PollTable
+from pymb.logger.tcpunits import Spec
+from pymb.maps.planner import Request as Planned
+
+#: two more points, too far apart to be read in one request: a poll of 3
+#: requests (addresses 0, 300 and 600)
+FAR = "".join(f'[[point]]\nname = "p{a}"\naddress = {a}\ntype = "u16"\n' for a in (300, 600))
+#: register -> value of unit 1 (the gateway's rule: 100 x unit + address)
+WANT = {0: 100, 1: 101, 300: 400, 600: 700}
+PIPELINED = "timeout = 0.5\ninterval = 0.05\npipeline = 4\n"
+
+
+def _exception(req: Request, code: int) -> bytes:
+    tid, unit, fc, _, _ = req
+    return tid.to_bytes(2, "big") + b"\x00\x00\x00\x03" + bytes((unit, fc | 0x80, code))
+
+
+def _second(what: str) -> Script:
+    """The request for register 300 (the 2nd of each poll) answered with
+    ``what`` ("02", "04": that exception; "none": nothing), every other one
+    right."""
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        if req[3] != 300:
+            return good(*req)
+        return None if what == "none" else _exception(req, int(what, 16))
+    return script
+
+
+def _dribble(n: int, req: Request, conn: socket.socket) -> None:
+    for b in good(*req):
+        conn.send(bytes((b,)))
+        time.sleep(0.001)
+
+
+def _registers(got: object) -> set[tuple[int, ...]]:
+    return {tuple(s.data.registers[a] for a in WANT)  # type: ignore[union-attr]
+            for s in got.samples}  # type: ignore[attr-defined]
+
+
+def test_pipelined_replies_written_a_byte_at_a_time_are_read_whole(tmp_path: Path) -> None:
+    """Each reply of a pipelined poll comes a byte at a time: the loop keeps
+    the part that came and reads every poll whole."""
+    gw = Hostile(_dribble)
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 5, bus=PIPELINED,
+                   points=FAR)
+    finally:
+        gw.close()
+    assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
+    assert _registers(got) == {tuple(WANT.values())}
+
+
+def test_a_refused_point_in_a_pipelined_poll_is_replanned_in_the_same_poll(
+        tmp_path: Path) -> None:
+    """Exception 02 to the 2nd of a poll's three requests, the others
+    answered: the point reads ``unsupported`` in that same poll's sample and
+    the next polls leave it out; nothing times out."""
+    gw = Hostile(_second("02"))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 5, bus=PIPELINED,
+                   points=FAR)
+    finally:
+        gw.close()
+    assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
+    assert all(s.data.unsupported == ("p300",) for s in got.samples)  # type: ignore[union-attr]
+    for s in got.samples:
+        regs = s.data.registers  # type: ignore[union-attr]
+        assert (regs[0], regs[1], regs[600]) == (100, 101, 700)
+    assert got.stats.unsupported.get("hx-1", 0) >= len(got.samples)
+
+
+def test_an_exception_in_a_pipelined_poll_fails_that_poll_only(tmp_path: Path) -> None:
+    """Exception 04 to the 2nd request of every poll: each poll fails with an
+    ``exception`` event naming that request, none stores a sample, the
+    replies to the 3rd request are skipped, nothing times out."""
+    gw = Hostile(_second("04"))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.events) >= 4, bus=PIPELINED,
+                   points=FAR)
+    finally:
+        gw.close()
+    kinds = [k for k in got.kinds() if k not in ("connect", "skipped", "offline", "online")]
+    assert set(kinds) == {"exception"}, kinds
+    first = next(e for e in got.events if e.kind == "exception")
+    assert "address=300, count=1" in first.message
+    assert "exception 04" in first.message
+    assert got.samples == []
+
+
+def test_a_request_never_answered_times_out_by_name(tmp_path: Path) -> None:
+    """The 2nd of a poll's three requests is never answered: the replies to
+    the 1st and the 3rd are read, and the timeout names the one missing."""
+    gw = Hostile(_second("none"))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.events) >= 2, bus=PIPELINED,
+                   points=FAR)
+    finally:
+        gw.close()
+    first = next(e for e in got.events if e.kind == "timeout")
+    assert "address=300, count=1" in first.message, first.message
+    assert got.samples == []
+
+
+def _every_other() -> Script:
+    """Every other poll's 2nd request answered with exception 04."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        if req[3] == 300:
+            seen[0] += 1
+            if seen[0] % 2:
+                return _exception(req, 4)
+        return good(*req)
+    return script
+
+
+@pytest.mark.timing
+def test_an_exception_reply_is_read_long_before_the_timeout(tmp_path: Path) -> None:
+    """An exception reply is shorter than the reply the loop waits for (it
+    wakes once for a poll's replies): it is read within milliseconds, not at
+    the 2 s timeout; the next poll follows at its interval."""
+    gw = Hostile(_every_other())
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 6,
+                   bus="timeout = 2\ninterval = 0.05\npipeline = 4\n", points=FAR,
+                   within=10.0)
+    finally:
+        gw.close()
+    faults = [e for e in got.events if e.kind == "exception"]
+    assert len(faults) >= 5
+    for e in faults[1:]:  # its poll began 0.05 s after the last sample; waited out: 2 s
+        before = max(s.monotonic for s in got.samples if s.monotonic < e.monotonic)
+        assert e.monotonic - before < 0.5
+
+
+def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
+    r = Planned("holding", 10, 4, (0,), ((0,),), 0)
+    ok = PollTable([Spec(r, 1, 0)], bytearray(8))
+    assert ok.frames(0, 1, 0xFFFF) == 12
+    assert bytes(ok.out) == bytes.fromhex("ffff 0000 0006 01 03 000a 0004".replace(" ", ""))
+    with pytest.raises(ValueError, match="do not fit"):
+        PollTable([Spec(r, 1, 2)], bytearray(8))
+    with pytest.raises(ValueError, match="not in a poll of 1"):
+        ok.frames(1, 1, 0)
