@@ -159,7 +159,9 @@ class TcpMapPoller(TcpLoopBase):
                     if c.deadline < self._soonest:
                         self._soonest = c.deadline
                 c.fast_n += n
-                if c.sent == len(c.todo):  # the poll's last: one wake-up for their replies
+                if n != len(c.todo):  # a poll longer than the pipeline: a wake-up a reply
+                    c.wake_at(1)
+                else:  # the whole poll at once: one wake-up for its replies
                     c.wake_at(t.ends[c.sent] - t.ends[c.sent - c.fast_n])
                     c.sent_at = now
                     look = 2 * c.took if 2 * c.took > _LOOK else _LOOK

@@ -149,6 +149,25 @@ def test_an_exception_reply_is_read_long_before_the_timeout(tmp_path: Path) -> N
         assert e.monotonic - before < 0.5
 
 
+@pytest.mark.parametrize("pipeline", [1, 2])
+def test_a_poll_longer_than_the_pipeline_never_waits_for_its_timeout(
+        tmp_path: Path, pipeline: int) -> None:
+    """A poll of three requests, one or two at a time, flat out with a 2 s
+    timeout (its last reply longer than its first): each reply is read as it
+    comes, every poll makes its sample."""
+    last_big = FAR.replace('address = 600\ntype = "u16"', 'address = 600\ntype = "f64"')
+    gw = Hostile(lambda n, req, conn: good(*req))
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 30,
+                   bus=f"timeout = 2\ninterval = 0\npipeline = {pipeline}\n",
+                   points=last_big, within=10.0)
+    finally:
+        gw.close()
+    assert got.kinds() == ["connect"]
+    assert len(got.samples) >= 30
+    assert _registers(got) == {tuple(WANT.values())}
+
+
 def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
     r = Planned("holding", 10, 4, (0,), ((0,),), 0)
     ok = PollTable([Spec(r, 1, 0)], bytearray(8))
