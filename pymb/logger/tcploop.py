@@ -6,8 +6,13 @@ non-blocking sockets: a connection per bus (per ``host:port``), shared by
 the devices behind it (a TCP gateway's unit ids). A connection carries one
 poll at a time, a device's group; its requests go out ``pipeline`` at a
 time (1 by default: one transaction at a time, as a gateway to a serial
-line needs) and each reply is checked against the exact 9 bytes it must
-start with in one comparison and copied into the group's sample image.
+line needs), written by the C core into one buffer and sent in one write;
+the replies (:mod:`pymb.logger.tcpreplies`) are checked against the exact 9
+bytes each must start with and copied into the group's sample image. While
+a whole poll is out, the socket wakes the loop once, when the bytes of all
+of its replies are in (``SO_RCVLOWAT``); a poll whose replies take more than
+twice as long as they did of late (an exception reply is shorter than the
+reply it stands for) is read as its replies come.
 
 It keeps the logger's contract for map devices (:mod:`pymb.logger.schedule`
 is the same contract for a thread per bus): each group at its own interval
@@ -33,7 +38,6 @@ from pymb.client.address import parse_host_port
 from pymb.errors import (
     ModbusConnectionError,
     ModbusError,
-    ProtocolError,
     describe_exception,
     exception_class,
     request_error,
@@ -41,8 +45,8 @@ from pymb.errors import (
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
-from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, sent_after, which
-from pymb.logger.tcpfast import ReadBuffer
+from pymb.logger.tcpconn import Conn, asked
+from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import Request
@@ -65,7 +69,7 @@ def fans_out(bus: BusConfig) -> bool:
     return bus.tcp is not None and all(isinstance(d, MapDeviceConfig) for d in bus.devices)
 
 
-class TcpMapPoller(TcpLoopBase):
+class TcpMapPoller(TcpReplies):
     """Polls the map devices of ``buses`` (each :func:`fans_out`) until
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
@@ -92,7 +96,6 @@ class TcpMapPoller(TcpLoopBase):
         self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
-        self._rx = ReadBuffer()
         #: a heap of (when, seq, connection, its last transaction id): a poll
         #: waiting for all of its replies at once, read as they come from then on
         self._looks: list[tuple[float, int, Conn, int]] = []
@@ -208,140 +211,6 @@ class TcpMapPoller(TcpLoopBase):
         if sent != len(data):  # half a request would put the stream out of step
             self._lost(c, now, f"the connection took {sent} of {len(data)} request bytes "
                                "(the device does not read its requests)", None)
-
-    def _readable(self, c: Conn, now: float) -> None:
-        sock = c.sock
-        assert sock is not None
-        rx = self._rx
-        kept = len(c.rbuf)  # a part of a reply from the last read goes first
-        try:
-            if kept:
-                rx.data[:kept] = c.rbuf
-                got = sock.recv_into(rx.view[kept:])
-            else:
-                got = sock.recv_into(rx.view)
-        except BlockingIOError:
-            return
-        except OSError as err:
-            self._lost(c, now, os.strerror(err.errno or errno.ECONNRESET), err.errno)
-            return
-        if not got:
-            self._lost(c, now, "the connection was closed by the device", errno.ECONNRESET)
-            return
-        n = kept + got
-        if kept:
-            c.rbuf.clear()
-        fresh = c.tid  # the last request sent before these bytes came: none later is answered
-        pos = 0
-        t = c.fast
-        if t is not None and c.fast_n:  # the replies in the order sent, by the C core
-            k = c.fast_n
-            first, tid = c.sent - k, (c.tid - k + 1) & 0xFFFF
-            taken, pos = t.take(first, k, tid, rx, n)
-            if taken < k and pos < n and n - pos < t.sizes[first + taken] and (
-                    n - pos < 9 or rx.data[pos:pos + 9] == ((tid + taken) & 0xFFFF).to_bytes(
-                        2, "big") + c.todo[first + taken].head):
-                c.rbuf += rx.view[pos:n]  # the rest of that reply is on its way
-                pos = n
-            if taken:
-                e = c.entry
-                assert e is not None
-                c.answered = True
-                c.fast_n = k - taken
-                if c.sent < len(c.todo):
-                    self._send(c, now)  # the next of a poll longer than the pipeline
-                elif c.fast_n:
-                    c.deadline = now + e.unit.timeout  # the rest are on their way
-                    if c.lowat > 1:
-                        c.wake_at(max(1, t.ends[c.sent] - t.ends[c.sent - c.fast_n]
-                                      - len(c.rbuf)))
-                else:
-                    c.took += (now - c.sent_at - c.took) / 8
-                    self._done(c, e, now)
-                    self._next(c, now)
-            if pos == n or c.sock is not sock:
-                return
-        data = bytes(rx.view[pos:n])
-        pos, n = 0, len(data)
-        inflight = c.inflight
-        while n - pos >= 9:
-            if inflight:
-                i = 0 if data[pos:pos + 9] == inflight[0][0] else which(inflight, data, pos, 9)
-                if i >= 0 and c.tid != fresh and sent_after(inflight[i][0], fresh):
-                    i = -1  # a reply that came before its request went out: skipped
-                if i >= 0:  # (a server may answer pipelined requests in any order)
-                    spec = inflight[i][1]
-                    size = spec.size
-                    if n - pos < size:
-                        break
-                    e = c.entry
-                    assert e is not None
-                    if spec.bits:
-                        spec.place(e.image, data, pos)
-                    else:
-                        off = spec.offset
-                        e.image[off:off + size - 9] = data[pos + 9:pos + size]
-                    pos += size
-                    del inflight[i]
-                    c.answered = True
-                    if inflight and c.sent == len(c.todo) and not e.unit.timed:
-                        c.deadline = now + e.unit.timeout
-                        continue  # the rest of this poll's replies are on their way
-                    self._replied(c, e, now)
-                    if c.sock is not sock:
-                        return
-                    continue
-            used = self._odd(c, data, pos, now, fresh)
-            if used < 0 or c.sock is not sock:
-                return
-            if used == 0:
-                break
-            pos += used
-        if pos < n:
-            c.rbuf += data[pos:]
-
-    def _odd(self, c: Conn, data: bytes, pos: int, now: float, fresh: int) -> int:
-        """A reply that is not the expected one: a late one (another
-        transaction id: skipped), an exception, or garbage (the connection is
-        dropped: -1). Returns the bytes used (0: wait for more)."""
-        if data[pos + 2:pos + 4] != b"\x00\x00":
-            self._garbage(c, now, data[pos:pos + 9])
-            return -1
-        length = int.from_bytes(data[pos + 4:pos + 6], "big")
-        if not 3 <= length <= 254:
-            self._garbage(c, now, data[pos:pos + 9])
-            return -1
-        if len(data) - pos < 6 + length:
-            return 0
-        i = which(c.inflight, data, pos, 2)
-        if i < 0 or (c.tid != fresh and sent_after(c.inflight[i][0], fresh)):
-            return 6 + length  # the late reply of a request that timed out, or an early one
-        head, spec = c.inflight[i]
-        e = c.entry
-        assert e is not None
-        if data[pos + 6] == head[6] and data[pos + 7] == head[7] | 0x80 and length == 3:
-            del c.inflight[i]
-            c.answered = True
-            self._exception(c, e, spec, data[pos + 8], now)
-            return 9
-        self._garbage(c, now, data[pos:pos + 6 + length], spec)
-        return -1
-
-    def _garbage(self, c: Conn, now: float, got: bytes, spec: Spec | None = None) -> None:
-        e = c.entry
-        if e is not None:
-            spec = spec or (c.inflight[0][1] if c.inflight else None)
-            exc = ProtocolError(f"{asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
-                                f"not match the request (received {got.hex(' ').upper()})",
-                                response=got)
-            self._failed(c, e.unit, exc)
-            self._requeue(c, e, now)
-            c.entry = None
-        else:  # between polls: the bus's event
-            self.stats.fault(c.bus.name, f"bus {c.bus.name}: unexpected bytes")
-            self._event(c, "protocol", f"{c.bus.endpoint}: bytes no request asked for "
-                        f"(received {got.hex(' ').upper()})")
-        self._reopen(c, now)
 
     def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
         u = e.unit
