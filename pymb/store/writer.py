@@ -4,7 +4,6 @@ within the size and age limits."""
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import os
 import sqlite3
@@ -27,6 +26,7 @@ from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.reserve import Reserve
 from pymb.store.retention import RESTAMP_TOLERANCE, Retention
+from pymb.store.rows import ROWS_PER_INSERT, humidity_units, insert_rows, unsupported_of
 from pymb.store.schema import (
     MIN_BYTES,
     PAGE_SIZE,
@@ -37,44 +37,10 @@ from pymb.store.schema import (
     install,
     map_layout_key,
     schema_version,
-    unsupported_mask,
     wire_bytes,
 )
 
 __all__ = ["SqliteSink"]
-
-#: Rows one multi-row INSERT of samples carries at most (5 values each, far
-#: below SQLite's limit of bound variables).
-_ROWS_PER_INSERT = 64
-
-
-@functools.lru_cache(maxsize=_ROWS_PER_INSERT)
-def _insert_rows(n: int) -> str:
-    """The INSERT of ``n`` sample rows (device_id, time_utc, monotonic,
-    registers, unsupported)."""
-    return ("INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
-            "VALUES " + ", ".join(["(?, ?, ?, ?, ?)"] * n))
-
-
-
-def _unsupported(data: Any) -> int:
-    """The ``unsupported`` column: a hub's blocks, a map reading's points."""
-    if isinstance(data, HubReading):
-        return data.unsupported_mask
-    if isinstance(data, MapReading) and data.unsupported:
-        return unsupported_mask(data.map, data.group, data.unsupported)
-    return 0
-
-
-def _humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
-    u = d.humidity_unit
-    units = [u] * channels if isinstance(u, (int, float)) else list(u)
-    if len(units) != channels:
-        raise InvalidArgument(f"{d.name}: {len(units)} humidity units for {channels} channels")
-    tenths = bytes(0 if x == 1 else 1 for x in units)
-    text = f"{units[0]:g}" if len(set(units)) == 1 else ",".join(f"{x:g}" for x in units)
-    return text, tenths
-
 
 class SqliteSink(Retention):
     """Writes samples and events to a SQLite database of format 2 (created if
@@ -234,7 +200,7 @@ class SqliteSink(Retention):
         elif d.type == "hub":
             channels = data.channels if isinstance(data, HubReading) else (
                 d.channels or HUB.channels)
-            units, tenths = _humidity_units(d, channels)
+            units, tenths = humidity_units(d, channels)
         key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
         self._begin()
         row = self.db.execute(
@@ -309,7 +275,7 @@ class SqliteSink(Retention):
         try:
             rows = [(self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
                      wire_bytes(s.data.registers),
-                     _unsupported(s.data))
+                     unsupported_of(s.data))
                     for s in samples]
             bounded = self.max_bytes is not None
             quarter = self.wal_budget // 4
@@ -319,14 +285,14 @@ class SqliteSink(Retention):
                 # A statement ends where write() one by one would commit: at
                 # the row that brings the batch to a quarter of the WAL budget.
                 j, size = i, self._tx_bytes
-                while j < len(rows) and j - i < _ROWS_PER_INSERT:
+                while j < len(rows) and j - i < ROWS_PER_INSERT:
                     size += len(rows[j][3]) + 64
                     j += 1
                     if bounded and size >= quarter:
                         break
                 chunk = rows[i:j]
                 i = j
-                self.db.execute(_insert_rows(len(chunk)), [v for row in chunk for v in row])
+                self.db.execute(insert_rows(len(chunk)), [v for row in chunk for v in row])
                 self.stored += len(chunk)
                 if bounded:
                     self._tx_bytes = size
@@ -345,7 +311,7 @@ class SqliteSink(Retention):
                 "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
                 "VALUES (?, ?, ?, ?, ?)",
                 (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
-                 _unsupported(data)))
+                 unsupported_of(data)))
             self.stored += 1
             return
         rules = self._changes.get(did)
@@ -377,7 +343,7 @@ class SqliteSink(Retention):
                 "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
                 "VALUES (?, ?, ?, ?, ?)",
                 (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
-                 _unsupported(data)))
+                 unsupported_of(data)))
         else:
             if not isinstance(rules, CoolProChanges):
                 rules = self._changes[did] = CoolProChanges(self.on_change)
