@@ -220,10 +220,16 @@ def duplicates(ids: list[int]) -> int:
 
 
 def start_log(endpoint: str, db: Path, *mqtt: str, env: dict[str, str] | None = None,
-              seconds: float | None = None, device: str = "coolpro:40") -> subprocess.Popen[str]:
-    """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt`` says."""
+              seconds: float | None = None, device: str = "coolpro:40",
+              commit: float | None = 1.0) -> subprocess.Popen[str]:
+    """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt``
+    says, committing every ``commit`` seconds: the tests watch the database
+    from outside (None: the logger's own rule, which commits a few hundred
+    samples minutes later; the forwarder publishes them before that)."""
     args = [*PYMB, "log", "--tcp", endpoint, "--device", device,
             "--interval", "0.01", "--out", str(db), *mqtt]
+    if commit is not None:
+        args += ["--commit-interval", f"{commit:g}"]
     if seconds is not None:
         args += ["--seconds", str(seconds)]
     return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -113,25 +113,25 @@ _VALUES = {"input_voltage_v": 24.5, "input_current_a": 2.45, "output_voltage_v":
 
 
 class _Pymb:
-    """The logger's SQLite sink (batches committed every second, as the logger does
-    when it forwards)
-    and the forwarder."""
+    """The logger's SQLite sink (batches committed as the logger commits a
+    batch of this rate: every COMMIT_INTERVAL) and the forwarder, which
+    publishes from the open batch."""
 
     def __init__(self, db: Path, port: int, catchup_rate: float = 1000.0) -> None:
         from pymb.devices import CoolProStatus, CoolProTelemetry
         from pymb.fleet import ForwardingSink
         from pymb.fleet.config import MqttConfig
         from pymb.fleet.forwarder import Forwarder
-        from pymb.logger.config import MQTT_COMMIT_INTERVAL
+        from pymb.logger.config import COMMIT_INTERVAL
         from pymb.store import DeviceInfo, SqliteSink
 
         self._info = DeviceInfo("bus1", "bench", "coolpro", 40, "coolpro-40")
         self._data = CoolProTelemetry(24.5, 2.45, 24.0, 2.41, 26.1, 1, CoolProStatus(0),
                                       array("H", [0] * 8))
-        self.commit_interval = MQTT_COMMIT_INTERVAL
+        self.commit_interval = COMMIT_INTERVAL
         self.sink = SqliteSink(db)
         self.fw = Forwarder(str(db), MqttConfig(f"mqtt://127.0.0.1:{port}", node="bench",
-                                                catchup_rate=catchup_rate))
+                                                catchup_rate=catchup_rate), writer=self.sink)
         self.out = ForwardingSink(self.sink, self.fw)
         self.fw.start()
         self._last_commit = time.monotonic()

@@ -240,13 +240,15 @@ def _soak_table(s: dict[str, Any]) -> Table:
             f"mosquitto, restarted as Restart=on-failure does, through: {through}")
     return Table(
         "Soak: a month in an hour", note,
-        ["samples", "received (distinct)", "duplicates", "lost", "integrity", "logger exits",
+        ["samples", "received (distinct)", "duplicates", "lost", "taken back by a kill",
+         "ids with two samples", "integrity", "logger exits",
          "clock steps", "RSS of the last logger", "descriptors"],
         [[f"{s['samples']:,}", f"{s['received']:,} ({s['distinct']:,})", f"{s['duplicates']:,}",
-          f"{s['lost']:,}", s["integrity"], " ".join(map(str, s["exits"])) or "-",
+          f"{s['lost']:,}", f"{s['taken_back']:,}", f"{s['reused']:,}", s["integrity"],
+          " ".join(map(str, s["exits"])) or "-",
           f"{s['clock_steps']}", f"{s['rss_kb'][0]:,} -> {s['rss_kb'][1]:,} kB",
           f"{s['fds'][0]} -> {s['fds'][1]}"]],
-        [True, True, True, True, False, False, True, True, True],
+        [True, True, True, True, True, True, False, False, True, True, True],
         [f"left out: {w}" for w in s["left_out"]])
 
 

@@ -78,6 +78,8 @@ class _Subscriber:
         import paho.mqtt.client as mqtt
         from paho.mqtt.enums import CallbackAPIVersion
         self.ids: list[int] = []
+        #: the monotonic stamp of each id received (a clock step leaves it alone)
+        self.stamps: dict[int, set[float]] = {}
         self.lock = threading.Lock()
         subscribed = threading.Event()
         c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="pymb-bench-month",
@@ -94,8 +96,10 @@ class _Subscriber:
 
     def _message(self, client: Any, userdata: Any, msg: Any) -> None:
         if not msg.topic.endswith("/status"):
+            d = json.loads(msg.payload)
             with self.lock:
-                self.ids.append(int(json.loads(msg.payload)["sample"]))
+                self.ids.append(int(d["sample"]))
+                self.stamps.setdefault(int(d["sample"]), set()).add(float(d["monotonic"]))
 
     def snapshot(self) -> list[int]:
         with self.lock:
@@ -238,6 +242,7 @@ def run_section(seconds: float | None, say: Callable[[str], None]) -> dict[str, 
             con = sqlite3.connect(db)
             try:
                 ids = {int(i) for (i,) in con.execute("SELECT id FROM samples")}
+                stamps = dict(con.execute("SELECT id, monotonic FROM samples"))
                 steps = int(con.execute("SELECT COUNT(*) FROM events WHERE kind = 'clock'")
                             .fetchone()[0])
             finally:
@@ -249,6 +254,11 @@ def run_section(seconds: float | None, say: Callable[[str], None]) -> dict[str, 
             finally:
                 con.close()
             got = sub.snapshot()
+            with sub.lock:
+                # an id with two samples: two stamps at the subscriber, or one that
+                # is not the database's
+                reused = sum(1 for i, ts in sub.stamps.items()
+                             if len(ts) > 1 or (i in stamps and stamps[i] not in ts))
         finally:
             if logger.proc.poll() is None:
                 logger.kill()
@@ -260,7 +270,8 @@ def run_section(seconds: float | None, say: Callable[[str], None]) -> dict[str, 
     first, last = samples[len(samples) // 4], samples[-1]
     return {"status": "ok", "seconds": seconds, "samples": len(ids), "received": len(got),
             "distinct": len(set(got)), "duplicates": len(got) - len(set(got)),
-            "lost": len(ids - set(got)), "foreign": len(set(got) - ids),
+            "lost": len(ids - set(got)), "taken_back": len(set(got) - ids),
+            "reused": reused,
             "integrity": integrity, "events": done, "left_out": left_out,
             "exits": logger.exits, "final_exit": final, "starts": logger.starts,
             "clock_steps": steps, "rss_kb": [first[0], last[0]], "fds": [first[1], last[1]]}

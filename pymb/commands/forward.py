@@ -12,7 +12,6 @@ from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
 from pymb.logger import LogConfig, Logger, Summary
-from pymb.logger.config import MQTT_COMMIT_INTERVAL
 from pymb.service.journal import echoing
 from pymb.store import check_output, open_sink
 
@@ -44,8 +43,6 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     ``service``, events are lines on stderr too (when it is not a terminal) and the
     service has its turn in the logger's tick."""
     require_paho()  # before the database is created
-    if cfg.commit_interval is None:  # the broker gets what is committed: live data first
-        cfg.commit_interval = MQTT_COMMIT_INTERVAL
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
                      on_change=cfg.on_change)
@@ -53,7 +50,7 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     if service is not None:
         sink = echoing(sink)
     try:
-        fw = Forwarder(cfg.path, mqtt)
+        fw = Forwarder(cfg.path, mqtt, writer=raw)
     except BaseException:
         sink.close()
         raise

@@ -25,7 +25,6 @@ from pymb.logger.config import (
     COMMIT_INTERVAL,
     COMMIT_LONGEST,
     COMMIT_SMALL,
-    MQTT_COMMIT_INTERVAL,
 )
 from pymb.service.journal import echoing
 from pymb.service.run import Service
@@ -63,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--commit-interval", type=_positive, metavar="SECONDS",
                    help=f"SQLite: commit at least this often (default {COMMIT_INTERVAL:g} once "
                         f"{COMMIT_SMALL // 1024} KB of registers wait, else up to "
-                        f"{COMMIT_LONGEST:g}; {MQTT_COMMIT_INTERVAL:g} with --mqtt; always when "
+                        f"{COMMIT_LONGEST:g}; always when "
                         f"{COMMIT_BYTES // 1024} KB wait): a power cut loses what waits, more "
                         "commits wear an SD card more (docs/reliability.md)")
     p.add_argument("--on-change", action="store_true",

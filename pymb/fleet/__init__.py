@@ -1,12 +1,14 @@
 """Fleet: every logged sample reaches an MQTT broker, through outages.
 
-The SQLite log is the durable outbox: the logger commits each sample first,
-then a :class:`~pymb.fleet.forwarder.Forwarder` thread publishes the
-committed samples and advances a cursor stored in the same file only past
-what the broker acknowledged. Profiles: ``plain`` (JSON, QoS 1) and
-``sparkplug`` (Sparkplug B 3.0). Needs the extra ``pymb-modbus[mqtt]``
-(paho-mqtt 2.x). Also here: a launcher of Debian's mosquitto for tests,
-the demo and the bench (:mod:`pymb.fleet.broker`).
+The SQLite log is the durable outbox: a
+:class:`~pymb.fleet.forwarder.Forwarder` thread publishes each sample the
+logger writes (at once, from the writer's open batch: its id is under the
+writer's durable high-water mark, never given to another sample) and
+advances a cursor stored in the same file only past what the broker
+acknowledged; the backlog of an outage is published from the file.
+Profiles: ``plain`` (JSON, QoS 1) and ``sparkplug`` (Sparkplug B 3.0).
+Needs the extra ``pymb-modbus[mqtt]`` (paho-mqtt 2.x). Also here: a
+launcher of Debian's mosquitto for tests, the demo and the bench (:mod:`pymb.fleet.broker`).
 """
 
 from __future__ import annotations
@@ -22,16 +24,19 @@ __all__ = ["ForwardingSink", "MqttConfig"]
 
 
 class ForwardingSink:
-    """A sink that wakes the forwarder after each commit of the sink it wraps, and
-    records what happened to the broker connection as events (bus and kind
-    ``mqtt``) in the same batches. It also follows which devices stop
-    answering (:class:`~pymb.fleet.health.DeviceHealth`) and tells the
-    forwarder after the commit (Sparkplug: DDEATH)."""
+    """A sink that wakes the forwarder after each write (a forwarder reading
+    the writer's batch, see :class:`~pymb.fleet.forwarder.Forwarder`) or
+    commit of the sink it wraps, and records what happened to the broker
+    connection as events (bus and kind ``mqtt``). It also follows which
+    devices stop answering (:class:`~pymb.fleet.health.DeviceHealth`) and
+    tells the forwarder (Sparkplug: DDEATH) once the news is written."""
 
     def __init__(self, sink: Any, forwarder: Any) -> None:
         self.sink = sink
         self.forwarder = forwarder
         self.health = DeviceHealth()
+        #: the forwarder reads what this writes before the commit
+        self.live = bool(forwarder.source.live)
         sink.on_commit(self._committed)
 
     @property
@@ -43,6 +48,7 @@ class ForwardingSink:
         """Add a sample to the batch."""
         self.sink.write(sample)
         self.health.sample(sample)
+        self._written()
 
     def write_batch(self, samples: Any) -> None:
         """Add samples to the batch (in one call when the wrapped sink can)."""
@@ -54,11 +60,27 @@ class ForwardingSink:
                 self.sink.write(sample)
         for sample in samples:
             self.health.sample(sample)
+        self._written()
 
     def event(self, event: Any) -> None:
         """Add an event to the batch."""
         self.sink.event(event)
         self.health.event(event)
+        self._written()
+
+    def _written(self) -> None:
+        """A live forwarder hears of it now: the devices that went down (with
+        the last id written) and the new samples."""
+        if self.live:
+            self._tell(self.sink.last_id)
+
+    def turn(self) -> bool:
+        """The logger's loop, at each turn: the broker connection's events go
+        into the batch; True when the batch should be committed now (those
+        events, or a forwarder's state that must be durable: the Sparkplug
+        bdSeq)."""
+        wrote = self._events()
+        return wrote or self.forwarder.source.commit_wanted.is_set()
 
     def commit(self) -> None:
         """Commit the batch with the broker's events and the forwarder's
@@ -73,10 +95,17 @@ class ForwardingSink:
         self.sink.commit()
 
     def _committed(self, top: int) -> None:
-        """The store's on-commit hook: tell the forwarder the devices that
-        went down, with ``top``, the highest sample id committed with them (it
-        publishes their DDEATH once it has sent everything up to it), then
-        wake it."""
+        """The store's on-commit hook: tell the forwarder (see :meth:`_tell`),
+        and let a forwarder waiting for a durable write go on."""
+        source = self.forwarder.source
+        source.commit_wanted.clear()
+        source.committed.set()
+        self._tell(top)
+
+    def _tell(self, top: int) -> None:
+        """Tell the forwarder the devices that went down, with ``top``, the
+        highest sample id written with them (it publishes their DDEATH once it
+        has sent everything up to it), then wake it."""
         downs = self.health.take()
         if downs:
             self.forwarder.devices_down(downs, top)
@@ -88,11 +117,17 @@ class ForwardingSink:
         if restamp is not None:
             restamp(offset)
 
-    def _events(self) -> None:
-        for t, message in self.forwarder.take_events():
+    def _events(self) -> bool:
+        got = self.forwarder.take_events()
+        for t, message in got:
             self.sink.event(Event(t, time.monotonic(), "mqtt", None, "mqtt", None, message))
+        return bool(got)
 
     def close(self) -> None:
-        """Commit and close (the store's on-commit hook wakes the forwarder)."""
+        """Commit (the broker's events and the cursor too) and close (the
+        store's on-commit hook wakes the forwarder)."""
         self._events()
+        cursor, dest = self.forwarder.cursor, self.forwarder.dest
+        if dest is not None:
+            self.sink.set_outbox_cursor(dest, cursor)
         self.sink.close()

@@ -107,7 +107,7 @@ class CursorWriter(threading.Thread):
         self.join(60)
 
     def run(self) -> None:
-        src = Outbox(self.path)
+        src: Outbox | None = None  # opened at the first write
         try:
             while True:
                 with self.cond:
@@ -115,6 +115,7 @@ class CursorWriter(threading.Thread):
                         self.cond.wait()
                     value, closing = self.value, self.closing
                 if value is not None and value != self.written:
+                    src = src or Outbox(self.path)
                     src.set_cursor(self.dest, value)
                     self.written = value
                 if closing and self.value == self.written:
@@ -122,4 +123,5 @@ class CursorWriter(threading.Thread):
         except BaseException as e:
             self.error = e
         finally:
-            src.close()
+            if src is not None:
+                src.close()

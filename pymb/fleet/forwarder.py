@@ -1,4 +1,4 @@
-"""The forwarder: committed samples from the SQLite file to an MQTT broker.
+"""The forwarder: samples from the SQLite file to an MQTT broker.
 
 A thread publishes the samples in id order and advances a durable cursor
 (the ``outbox`` table, see :mod:`pymb.store.outbox`) only past samples the
@@ -11,6 +11,14 @@ then two lanes run side by side:
 * catch-up: everything older that is still unacknowledged (the backlog of
   an outage or of a restart, SIGKILL included), paced at ``catchup_rate``
   messages per second, marked ``is_historical`` in Sparkplug.
+
+Run beside the logger's writer (``writer``), it reads the writer's open
+batch too and publishes a sample as soon as it is written, before its
+commit: the writer's commits stay as rare as without MQTT (SD wear), and
+the sample's id is under the writer's durable high-water mark
+(:mod:`pymb.store.ids`), so a power cut that takes the batch back never
+lets another sample have that id. Without a writer it publishes what is
+committed.
 
 Every sample reaches the broker at least once; a sample acknowledged but not
 yet recorded in the cursor when pymb dies (the cursor goes in with each of
@@ -75,8 +83,9 @@ class ForwarderStatus:
     def line(self) -> str:
         """A short status: ``mqtt ok 152/s backlog 0``."""
         head = "mqtt " + ("ok" if self.connected else self.state)
-        age = "" if self.backlog_age is None or not self.backlog else \
-            f" ({self.backlog_age:.0f} s old)"
+        # the age of a backlog, not of the few samples in flight a moment
+        age = "" if self.backlog_age is None or not self.backlog or self.backlog_age < 1 \
+            else f" ({self.backlog_age:.0f} s old)"
         ack = "-" if self.last_ack is None else time.strftime(
             "%H:%M:%S", time.localtime(self.last_ack))
         return f"{head} {self.rate:,.0f}/s backlog {self.backlog:,}{age} last ack {ack}"
@@ -91,17 +100,21 @@ def require_paho() -> None:
 
 
 class Forwarder(threading.Thread):
-    """Publishes the samples committed to ``db_path``; see the module docstring.
+    """Publishes the samples of ``db_path``: those ``writer`` (the
+    :class:`pymb.store.SqliteSink` writing it, if in this process) writes,
+    else those committed; see the module docstring.
 
-    ``notify()`` after each commit wakes it at once (it also looks every
+    ``notify()`` after each write or commit wakes it at once (it also looks every
     0.2 s); ``stop()`` ends it after at most ``cfg.drain`` seconds (or the
     ``drain`` given) spent sending what is left, then disconnects cleanly (the
     profile's goodbye).
     """
 
-    def __init__(self, db_path: str, cfg: MqttConfig) -> None:
+    def __init__(self, db_path: str, cfg: MqttConfig, writer: Any = None) -> None:
         super().__init__(name="pymb-mqtt", daemon=True)
         require_paho()
+        if writer is not None:
+            writer.publish_live()
         self.cfg = cfg
         self.profile: Profile = make_profile(cfg)
         #: the broker as the URL names it (for messages; an older pymb's cursor key)
@@ -111,7 +124,7 @@ class Forwarder(threading.Thread):
         self.dest: str | None = None
         #: print the new-cursor notice on stderr (False: the events are lines there already)
         self.say = True
-        self.source = Outbox(db_path)
+        self.source = Outbox(db_path, writer)
         #: where a new cursor starts with start = "now": after what is committed already
         self._now_id = self.source.max_id()
         self.password = cfg.password()
@@ -308,7 +321,10 @@ class Forwarder(threading.Thread):
     # -- the cursor and the status ------------------------------------------------
 
     def _save_cursor(self, force: bool = False) -> None:
-        if self.dest is not None and self.cursor != self._saved_cursor:
+        # Beside a running writer the cursor goes in with each of its batches
+        # (ForwardingSink.commit); here once the writer has closed.
+        if self.dest is not None and self.cursor != self._saved_cursor and \
+                not self.source.live:
             now = time.monotonic()
             if force or now - self._saved_at >= CURSOR_EVERY:
                 self._writer.put(self.cursor)

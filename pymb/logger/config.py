@@ -110,14 +110,12 @@ class BusConfig:
 #: the samples and of their time index, however few rows changed) and syncs
 #: it: a batch of a few slow samples would write many times its size, so it
 #: waits longer (docs/reliability.md has the figures). A power cut loses the
-#: samples waiting.
+#: samples waiting. Forwarding to MQTT changes nothing here: the forwarder
+#: publishes from the open batch (pymb.store.ids).
 COMMIT_BYTES = 256 * 1024
 COMMIT_INTERVAL = 120.0
 COMMIT_SMALL = 16 * 1024
 COMMIT_LONGEST = 900.0
-#: ... forwarding to MQTT, the broker gets a sample once it is committed:
-#: live data over wear
-MQTT_COMMIT_INTERVAL = 1.0
 #: an event (a fault, a reconnect) waits for its commit this long at most
 EVENT_COMMIT_INTERVAL = 1.0
 
@@ -134,8 +132,7 @@ class LogConfig:
     #: bytes of samples (their registers) a commit waits for, at most
     commit_bytes: int = COMMIT_BYTES
     #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL
-    #: for a batch of commit_small bytes, commit_longest for a smaller one;
-    #: MQTT_COMMIT_INTERVAL when forwarding)
+    #: for a batch of commit_small bytes, commit_longest for a smaller one)
     commit_interval: float | None = None
     #: without commit_interval: a batch is committed after commit_default
     #: seconds if it holds commit_small bytes of registers, else after up to

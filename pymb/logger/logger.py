@@ -205,6 +205,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         due: float | None = None  # when what waits must be committed (monotonic)
         oldest = math.inf  # when the oldest waiting sample was taken (monotonic)
         commit_every, commit_small, commit_longest = self.config.commit_rule()
+        #: a sink's own turn of the loop (a forwarder's events); True: commit now
+        turn: Callable[[], bool] | None = getattr(self.sink, "turn", None)
         failure: OutputError | None = None
         with self._signals():
             for p in self.pollers:
@@ -232,6 +234,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         wait = min(commit_longest, EVENT_COMMIT_INTERVAL) if events else \
                             commit_longest
                         due = min(due if due is not None else math.inf, first + wait)
+                    if turn is not None and turn():
+                        due = now
                     if due is not None and (
                             pending >= self.config.commit_bytes or now >= due or
                             (pending >= commit_small and now >= oldest + commit_every)):

@@ -1,30 +1,35 @@
-"""What the SQLite writer puts in a row: the multi-row INSERT of samples,
-the ``unsupported`` column, a hub's humidity units."""
+"""What the SQLite writer puts in its rows: the multi-row INSERT of
+samples, the ``unsupported`` column, the ``devices`` rows (a hub's humidity
+units) and a map device's ``maps`` row and views."""
 
 from __future__ import annotations
 
 import functools
+import sqlite3
+from pathlib import Path
 from typing import Any
 
-from pymb.devices import HubReading
+from pymb.devices import HUB, HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.errors import InvalidArgument
-from pymb.store.records import DeviceInfo
-from pymb.store.schema import unsupported_mask
+from pymb.errors import InvalidArgument, OutputError
+from pymb.store.mapcheck import changed_map_message
+from pymb.store.mapviews import create_map_views
+from pymb.store.records import DeviceInfo, Event
+from pymb.store.schema import map_layout_key, unsupported_mask
 
-__all__ = ["ROWS_PER_INSERT", "humidity_units", "insert_rows", "unsupported_of"]
+__all__ = ["ROWS_PER_INSERT", "DeviceRows", "humidity_units", "insert_rows", "unsupported_of"]
 
-#: Rows one multi-row INSERT of samples carries at most (5 values each, far
+#: Rows one multi-row INSERT of samples carries at most (6 values each, far
 #: below SQLite's limit of bound variables).
 ROWS_PER_INSERT = 64
 
 
 @functools.lru_cache(maxsize=ROWS_PER_INSERT)
 def insert_rows(n: int) -> str:
-    """The INSERT of ``n`` sample rows (device_id, time_utc, monotonic,
+    """The INSERT of ``n`` sample rows (id, device_id, time_utc, monotonic,
     registers, unsupported)."""
-    return ("INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
-            "VALUES " + ", ".join(["(?, ?, ?, ?, ?)"] * n))
+    return ("INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
+            "VALUES " + ", ".join(["(?, ?, ?, ?, ?, ?)"] * n))
 
 
 def unsupported_of(data: Any) -> int:
@@ -46,3 +51,63 @@ def humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
     tenths = bytes(0 if x == 1 else 1 for x in units)
     text = f"{units[0]:g}" if len(set(units)) == 1 else ",".join(f"{x:g}" for x in units)
     return text, tenths
+
+
+class DeviceRows:
+    """The ``devices`` (and ``channels``, ``maps``) rows of
+    :class:`pymb.store.writer.SqliteSink` (its base): a device
+    configuration's id, inserted on first use."""
+
+    db: sqlite3.Connection
+    path: Path
+    _devices: dict[Any, tuple[int, int]]
+    _viewed: set[str]  #: map ids whose views this session made
+
+    def _begin(self) -> None:
+        raise NotImplementedError
+
+    def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
+        """(device id, channels) of a device configuration, inserted on first use."""
+        cache: Any = (d, data.group) if isinstance(data, MapReading) else d
+        got = self._devices.get(cache)
+        if got is not None:
+            return got
+        channels, units, tenths = 0, "", b""
+        if isinstance(data, MapReading):
+            units = map_layout_key(data.group, d.map_options)
+        elif d.type == "hub":
+            channels = data.channels if isinstance(data, HubReading) else (
+                d.channels or HUB.channels)
+            units, tenths = humidity_units(d, channels)
+        key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
+        self._begin()
+        row = self.db.execute(
+            "SELECT id FROM devices WHERE bus = ? AND port = ? AND type = ? AND address = ? "
+            "AND name = ? AND channels = ? AND humidity_units = ?", key).fetchone()
+        if row is None:
+            did = self.db.execute(
+                "INSERT INTO devices(bus, port, type, address, name, channels, humidity_units) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
+            self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
+                                [(did, ch + 1, t) for ch, t in enumerate(tenths)])
+        else:
+            did = row[0]
+        if isinstance(data, MapReading):
+            self._store_map(d, data)
+        got = (int(did), channels)  # type: ignore[arg-type]
+        if not isinstance(data, Event):
+            self._devices[cache] = got
+        return got
+
+    def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
+        """A map device's map beside its samples, and its views, made once a session (a
+        file's older views too). A map id keeps its first text (:mod:`pymb.store.mapcheck`)."""
+        row = self.db.execute("SELECT source FROM maps WHERE id = ?", (d.type,)).fetchone()
+        if row is None:
+            self.db.execute("INSERT INTO maps(id, source) VALUES (?, ?)",
+                            (d.type, d.map_source))
+        elif row[0] != d.map_source:
+            raise OutputError(changed_map_message(self.path, d.type))
+        if d.type not in self._viewed:
+            create_map_views(self.db, data.map)
+            self._viewed.add(d.type)

@@ -7,9 +7,10 @@ import contextlib
 import math
 import os
 import sqlite3
+import threading
 import time
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,15 +19,14 @@ from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
+from pymb.store.ids import SampleIds
 from pymb.store.lock import WriterLock
-from pymb.store.mapcheck import changed_map_message
-from pymb.store.mapviews import create_map_views
 from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
-from pymb.store.records import DeviceInfo, Event, Sample
+from pymb.store.records import Event, Sample
 from pymb.store.reserve import Reserve
 from pymb.store.retention import RESTAMP_TOLERANCE, Retention
-from pymb.store.rows import ROWS_PER_INSERT, humidity_units, insert_rows, unsupported_of
+from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
 from pymb.store.schema import (
     MIN_BYTES,
     PAGE_SIZE,
@@ -35,14 +35,13 @@ from pymb.store.schema import (
     WAL_MAX,
     WAL_MIN,
     install,
-    map_layout_key,
     schema_version,
     wire_bytes,
 )
 
 __all__ = ["SqliteSink"]
 
-class SqliteSink(Retention):
+class SqliteSink(DeviceRows, Retention):
     """Writes samples and events to a SQLite database of format 2 (created if
     missing; a database of an older pymb format is refused, never mixed).
 
@@ -99,6 +98,10 @@ class SqliteSink(Retention):
             self._unlock()
             raise
         self._devices: dict[Any, tuple[int, int]] = {}
+        #: one thread at a time: the logger's writes, a live forwarder's reads
+        self._mutex = threading.RLock()
+        self._closed = False
+        self._ids = SampleIds(self.db)
         self._viewed: set[str] = set()  #: map ids whose views this session made
         self._changes: dict[int, HubChanges | CoolProChanges | MapChanges] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
@@ -188,52 +191,6 @@ class SqliteSink(Retention):
             self.db.execute("BEGIN IMMEDIATE")
             self._in_tx = True
 
-    def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
-        """(device id, channels) of a device configuration, inserted on first use."""
-        cache: Any = (d, data.group) if isinstance(data, MapReading) else d
-        got = self._devices.get(cache)
-        if got is not None:
-            return got
-        channels, units, tenths = 0, "", b""
-        if isinstance(data, MapReading):
-            units = map_layout_key(data.group, d.map_options)
-        elif d.type == "hub":
-            channels = data.channels if isinstance(data, HubReading) else (
-                d.channels or HUB.channels)
-            units, tenths = humidity_units(d, channels)
-        key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
-        self._begin()
-        row = self.db.execute(
-            "SELECT id FROM devices WHERE bus = ? AND port = ? AND type = ? AND address = ? "
-            "AND name = ? AND channels = ? AND humidity_units = ?", key).fetchone()
-        if row is None:
-            did = self.db.execute(
-                "INSERT INTO devices(bus, port, type, address, name, channels, humidity_units) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?)", key).lastrowid
-            self.db.executemany("INSERT INTO channels VALUES (?, ?, ?)",
-                                [(did, ch + 1, t) for ch, t in enumerate(tenths)])
-        else:
-            did = row[0]
-        if isinstance(data, MapReading):
-            self._store_map(d, data)
-        got = (int(did), channels)  # type: ignore[arg-type]
-        if not isinstance(data, Event):
-            self._devices[cache] = got
-        return got
-
-    def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
-        """A map device's map beside its samples, and its views, made once a session (a
-        file's older views too). A map id keeps its first text (:mod:`pymb.store.mapcheck`)."""
-        row = self.db.execute("SELECT source FROM maps WHERE id = ?", (d.type,)).fetchone()
-        if row is None:
-            self.db.execute("INSERT INTO maps(id, source) VALUES (?, ?)",
-                            (d.type, d.map_source))
-        elif row[0] != d.map_source:
-            raise OutputError(changed_map_message(self.path, d.type))
-        if d.type not in self._viewed:
-            create_map_views(self.db, data.map)
-            self._viewed.add(d.type)
-
     def _failed(self, e: Exception) -> OutputError:
         if self._in_tx or self.db.in_transaction:
             with contextlib.suppress(sqlite3.Error):
@@ -253,14 +210,16 @@ class SqliteSink(Retention):
         """Add one sample to the current batch. Under a size limit, a batch
         that grows past a quarter of the WAL budget is committed at once, so
         the bound holds at any write rate."""
-        try:
-            self._write(sample)
-            if self.max_bytes is not None:
-                self._tx_bytes += 2 * len(sample.data.registers) + 64
-                if self._tx_bytes >= self.wal_budget // 4:
-                    self._commit()
-        except (sqlite3.Error, OSError, OutputError) as e:
-            raise self._failed(e) from None
+        with self._mutex:
+            try:
+                self._make_room(1)
+                self._write(sample)
+                if self.max_bytes is not None:
+                    self._tx_bytes += 2 * len(sample.data.registers) + 64
+                    if self._tx_bytes >= self.wal_budget // 4:
+                        self._commit()
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
 
     def write_batch(self, samples: Sequence[Sample]) -> None:
         """Add samples to the current batch, as :meth:`write` one by one
@@ -272,10 +231,15 @@ class SqliteSink(Retention):
             for sample in samples:
                 self.write(sample)
             return
+        with self._mutex:
+            self._write_rows(samples)
+
+    def _write_rows(self, samples: Sequence[Sample]) -> None:
         try:
-            rows = [(self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
-                     wire_bytes(s.data.registers),
-                     unsupported_of(s.data))
+            self._make_room(len(samples))
+            take = self._ids.take
+            rows = [(take(), self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
+                     wire_bytes(s.data.registers), unsupported_of(s.data))
                     for s in samples]
             bounded = self.max_bytes is not None
             quarter = self.wal_budget // 4
@@ -286,7 +250,7 @@ class SqliteSink(Retention):
                 # the row that brings the batch to a quarter of the WAL budget.
                 j, size = i, self._tx_bytes
                 while j < len(rows) and j - i < ROWS_PER_INSERT:
-                    size += len(rows[j][3]) + 64
+                    size += len(rows[j][4]) + 64
                     j += 1
                     if bounded and size >= quarter:
                         break
@@ -302,16 +266,29 @@ class SqliteSink(Retention):
         except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
+    def _insert(self, did: int, sample: Sample, registers: bytes | None,
+                unsupported: int) -> int:
+        sid = self._ids.take()
+        self.db.execute(
+            "INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
+            "VALUES (?, ?, ?, ?, ?, ?)",
+            (sid, did, sample.time_utc, sample.monotonic, registers, unsupported))
+        return sid
+
+    def _make_room(self, n: int) -> None:
+        """Live: the mark covers ``n`` more ids (committed first if it must move)."""
+        if self._ids.short(n):
+            self._begin()
+            mark = self._ids.write_mark(self.db, n)
+            self._commit()
+            self._ids.marked(mark)
+
     def _write(self, sample: Sample) -> None:
         data = sample.data
         did = self._device_id(sample.device, data)[0]
         self._begin()
         if self.on_change is None:
-            self.db.execute(
-                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
-                "VALUES (?, ?, ?, ?, ?)",
-                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
-                 unsupported_of(data)))
+            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
             self.stored += 1
             return
         rules = self._changes.get(did)
@@ -321,10 +298,7 @@ class SqliteSink(Retention):
             pick = rules.changed(data, sample.monotonic)
             if not pick:
                 return
-            sid = self.db.execute(
-                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
-                "VALUES (?, ?, ?, NULL, ?)",
-                (did, sample.time_utc, sample.monotonic, data.unsupported_mask)).lastrowid
+            sid = self._insert(did, sample, None, data.unsupported_mask)
             regs = data.registers
             n = HUB.channels
             blocks = range(len(HUB.blocks))
@@ -339,28 +313,22 @@ class SqliteSink(Retention):
                                                         dict(sample.device.map_deadband))
             if not rules.changed(data, sample.monotonic):
                 return
-            self.db.execute(
-                "INSERT INTO samples(device_id, time_utc, monotonic, registers, unsupported) "
-                "VALUES (?, ?, ?, ?, ?)",
-                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers),
-                 unsupported_of(data)))
+            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
         else:
             if not isinstance(rules, CoolProChanges):
                 rules = self._changes[did] = CoolProChanges(self.on_change)
             if not rules.changed(data, sample.monotonic):
                 return
-            self.db.execute(
-                "INSERT INTO samples(device_id, time_utc, monotonic, registers) "
-                "VALUES (?, ?, ?, ?)",
-                (did, sample.time_utc, sample.monotonic, wire_bytes(data.registers)))
+            self._insert(did, sample, wire_bytes(data.registers), 0)
         self.stored += 1
 
     def event(self, event: Event) -> None:
         """Add one event to the current batch."""
-        try:
-            self._event(event)
-        except (sqlite3.Error, OSError, OutputError) as e:
-            raise self._failed(e) from None
+        with self._mutex:
+            try:
+                self._event(event)
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
 
     def _event(self, event: Event) -> None:
         did = None if event.device is None else self._device_id(event.device, event)[0]
@@ -378,25 +346,28 @@ class SqliteSink(Retention):
         first_sample, first_event = self._first_ids
         wrong = "ABS(time_utc - monotonic - :off) > :tol"
         args = {"off": offset, "tol": RESTAMP_TOLERANCE, "s": first_sample, "e": first_event}
-        try:
-            self._begin()
-            self.db.execute(f"UPDATE samples SET time_utc = monotonic + :off "
-                            f"WHERE id >= :s AND {wrong}", args)
-            self.db.execute(f"UPDATE events SET time_utc = monotonic + :off "
-                            f"WHERE id >= :e AND {wrong}", args)
-            self.db.execute("UPDATE hub_changes SET time_utc = (SELECT time_utc FROM samples "
-                            "WHERE id = sample_id) WHERE sample_id >= :s AND time_utc != "
-                            "(SELECT time_utc FROM samples WHERE id = sample_id)", args)
-        except sqlite3.Error as e:
-            raise self._failed(e) from None
+        with self._mutex:
+            try:
+                self._begin()
+                self.db.execute(f"UPDATE samples SET time_utc = monotonic + :off "
+                                f"WHERE id >= :s AND {wrong}", args)
+                self.db.execute(f"UPDATE events SET time_utc = monotonic + :off "
+                                f"WHERE id >= :e AND {wrong}", args)
+                self.db.execute("UPDATE hub_changes SET time_utc = (SELECT time_utc FROM "
+                                "samples WHERE id = sample_id) WHERE sample_id >= :s AND "
+                                "time_utc != (SELECT time_utc FROM samples WHERE id = sample_id)",
+                                args)
+            except sqlite3.Error as e:
+                raise self._failed(e) from None
 
     def commit(self) -> None:
         """Commit the batch, then hold the size limit (database and WAL) and,
         every few seconds, the age limit."""
-        try:
-            self._commit()
-        except (sqlite3.Error, OSError, OutputError) as e:
-            raise self._failed(e) from None
+        with self._mutex:
+            try:
+                self._commit()
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
 
     def on_commit(self, callback: Callable[[int], None]) -> None:
         """Call ``callback(max_id)`` after each commit, with the highest
@@ -436,10 +407,11 @@ class SqliteSink(Retention):
 
     def trim(self) -> int:
         """Delete the oldest data beyond the limits; returns samples deleted."""
-        try:
-            return self._trim()
-        except (sqlite3.Error, OSError, OutputError) as e:
-            raise self._failed(e) from None
+        with self._mutex:
+            try:
+                return self._trim()
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
 
     def _unlock(self) -> None:
         if self._lock is not None:
@@ -448,18 +420,58 @@ class SqliteSink(Retention):
 
     def max_id(self) -> int:
         """The highest sample id written (0: none), this batch's included."""
-        return max_id(self.db)
+        with self._mutex:
+            return max_id(self.db)
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran."""
+        return self._closed
+
+    @property
+    def last_id(self) -> int:
+        """The highest sample id handed out (0: none; not a query)."""
+        return self._ids.last
 
     def set_outbox_cursor(self, name: str, sample_id: int) -> None:
         """Advance a forwarder's outbox cursor with the open batch (the writer
         holds SQLite's write lock for most of a batch: the cursor goes in with
         it rather than waiting for the lock)."""
-        set_cursor_on(self.db, name, sample_id)
+        with self._mutex:
+            self._begin()
+            set_cursor_on(self.db, name, sample_id)
+
+    def publish_live(self) -> None:
+        """Samples may be read through :meth:`reading` (and published) before
+        their commit: from now on every id handed out is under a durable mark
+        (:mod:`pymb.store.ids`), so none is ever handed out twice."""
+        with self._mutex:
+            try:
+                self._commit()
+                self._ids.live = True
+                self._make_room(1)
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
+
+    @contextlib.contextmanager
+    def reading(self) -> Iterator[sqlite3.Connection | None]:
+        """This writer's connection, its open batch included, for another
+        thread to read while no write runs (None once closed)."""
+        with self._mutex:
+            yield None if self._closed else self.db
 
     def close(self) -> None:
         """Commit what is pending, close the database and let the next writer in."""
-        try:
-            self.commit()
-        finally:
-            self.db.close()
-            self._unlock()
+        with self._mutex:
+            try:
+                settled = None
+                if self._ids.live:
+                    self._begin()
+                    settled = self._ids.write_settled(self.db)
+                self.commit()
+                if settled is not None:
+                    self._ids.marked(settled)
+            finally:
+                self._closed = True
+                self.db.close()
+                self._unlock()

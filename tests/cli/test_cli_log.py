@@ -376,13 +376,12 @@ def test_log_help_gives_the_commit_policy_the_logger_and_docs_use() -> None:
         COMMIT_INTERVAL,
         COMMIT_LONGEST,
         COMMIT_SMALL,
-        MQTT_COMMIT_INTERVAL,
     )
     done = run_pymb("log", "--help")
     assert done.returncode == 0, done.stderr
     text = " ".join(done.stdout.split())
     assert (f"default {COMMIT_INTERVAL:g} once {COMMIT_SMALL // 1024} KB of registers wait, "
-            f"else up to {COMMIT_LONGEST:g}; {MQTT_COMMIT_INTERVAL:g} with --mqtt; always when "
+            f"else up to {COMMIT_LONGEST:g}; always when "
             f"{COMMIT_BYTES // 1024} KB wait") in text
     docs = " ".join((Path(__file__).parents[2] / "docs" / "cli.md").read_text().split())
     assert (f"commits when {COMMIT_BYTES // 1024} KB of registers wait, every "

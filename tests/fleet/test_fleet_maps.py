@@ -18,7 +18,6 @@ pytest.register_assert_rewrite("mqtt_broker")
 from conftest import run_pymb, wait_until  # noqa: E402
 from mqtt_broker import (  # noqa: E402
     Fleet,
-    db_count,
     db_ids,
     duplicates,
     plain_ids,
@@ -112,11 +111,14 @@ def _plain(fleet: Fleet, broker: Any, meter: Path) -> list[str]:
     return ["--map", str(meter), "--mqtt", broker.url, "--mqtt-node", NODE]
 
 
-def _nothing_lost(what: str, got: list[int], db: Path) -> None:
+def _nothing_lost(what: str, got: list[int], db: Path, killed: int = 0) -> None:
+    """Every sample of the database arrived, and no other but those a kill
+    took back (published from the batch it lost: ids up to ``killed``)."""
     want = db_ids(db)
     print(f"\n{what}: {len(want)} samples in the database, {len(set(got))} distinct "
           f"received, {duplicates(got)} duplicates")
-    assert set(got) == want
+    assert set(got) >= want
+    assert all(i <= killed for i in set(got) - want), sorted(set(got) - want)[:5]
 
 
 def test_a_map_device_through_a_broker_restart_loses_nothing(fleet: Fleet, meter: Path,
@@ -157,15 +159,16 @@ def test_a_map_device_through_a_sigkill_loses_nothing(fleet: Fleet, meter: Path,
     wait_until(lambda: len(plain_ids(sub.snapshot())) >= 200, "200 samples live", 30)
     proc.send_signal(signal.SIGKILL)
     proc.wait(10)
-    killed_at = db_count(db)
     wait_until(lambda: (f"pymb/{NODE}/status", b"offline") in sub.snapshot(),
                "the last will (offline)", 30)
+    killed = max(plain_ids(sub.snapshot()))  # published, maybe taken back by the kill
     proc = fleet.log(endpoint, db, *_plain(fleet, broker, meter), device="test-meter:3")
-    wait_until(lambda: max(plain_ids(sub.snapshot())) > killed_at + 50,
+    wait_until(lambda: sum(1 for i in set(plain_ids(sub.snapshot())) if i > killed) >= 50,
                "samples of the second run", 30)
     stop_log(proc)
     wait_until(lambda: set(plain_ids(sub.snapshot())) >= db_ids(db), "every sample", 30)
-    _nothing_lost("map device, SIGKILLed and restarted", plain_ids(sub.snapshot()), db)
+    _nothing_lost("map device, SIGKILLed and restarted", plain_ids(sub.snapshot()), db,
+                  killed=killed)
 
 
 def test_sparkplug_births_of_a_map_device(fleet: Fleet, meter: Path, sparkplug_pb: Any,
