@@ -146,11 +146,20 @@ class Outbox:
                                                   (sample_id,))}
 
     def oldest_after(self, sample_id: int) -> tuple[int, float] | None:
-        """(count, time of the oldest) of the samples after an id."""
-        with self._db() as db:
-            row = db.execute("SELECT COUNT(*), MIN(time_utc) FROM samples WHERE id > ?",
-                             (sample_id,)).fetchone()
-        return None if not row[0] else (int(row[0]), float(row[1]))
+        """(count, time of the oldest) of the samples after an id. The count of
+        a long backlog takes a while: it runs on this outbox's own connection
+        (never holding a writer up), plus a writer's samples not yet committed."""
+        count, oldest, top = self.db.execute(
+            "SELECT COUNT(*), MIN(time_utc), (SELECT MAX(id) FROM samples) FROM samples "
+            "WHERE id > ?", (sample_id,)).fetchone()
+        if self.live:
+            after = max(sample_id, int(top or 0))
+            with self._db() as db:  # the batch: a short range of ids
+                n, first = db.execute("SELECT COUNT(*), MIN(time_utc) FROM samples "
+                                      "WHERE id > ?", (after,)).fetchone()
+            count += n
+            oldest = first if oldest is None else oldest
+        return None if not count else (int(count), float(oldest))
 
     def devices(self) -> list[tuple[str, str, int]]:
         """(name, type, address) of every device the file has samples of, once
@@ -161,14 +170,19 @@ class Outbox:
                 "ORDER BY MIN(id)")]
 
     def latest(self, device: str) -> StoredSample | None:
-        """The newest sample of a device."""
-        with self._db() as db:
-            row = db.execute(
-                "SELECT MAX(s.id) FROM samples s JOIN devices d ON d.id = s.device_id "
-                "WHERE d.name = ?", (device,)).fetchone()
-        if row[0] is None:
+        """The newest sample of a device (looked up in what is committed on
+        this outbox's own connection, never holding a writer up; then in a
+        writer's batch, a short range of ids)."""
+        find = ("SELECT MAX(s.id) FROM samples s JOIN devices d ON d.id = s.device_id "
+                "WHERE d.name = ? AND s.id > ?")
+        top = int(self.db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+        found = self.db.execute(find, (device, 0)).fetchone()[0]
+        if self.live:
+            with self._db() as db:
+                found = db.execute(find, (device, top)).fetchone()[0] or found
+        if found is None:
             return None
-        got = self.samples_after(int(row[0]) - 1, 1)
+        got = self.samples_after(int(found) - 1, 1)
         return got[0] if got else None
 
     def samples_after(self, sample_id: int, limit: int,
