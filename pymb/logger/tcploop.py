@@ -162,8 +162,8 @@ class TcpMapPoller(TcpReplies):
                     if c.deadline < self._soonest:
                         self._soonest = c.deadline
                 c.fast_n += n
-                if n != len(c.todo):  # a poll longer than the pipeline: a wake-up a reply
-                    c.wake_at(1)
+                if n != len(c.todo) or n == 1:  # woken by each reply (one, or a poll
+                    c.wake_at(1)  # longer than the pipeline)
                 else:  # the whole poll at once: one wake-up for its replies
                     c.wake_at(t.ends[c.sent] - t.ends[c.sent - c.fast_n])
                     c.sent_at = now
@@ -266,7 +266,7 @@ class TcpMapPoller(TcpReplies):
         batch = self._batch
         if not batch:
             self._batch_since = now
-        batch.append(Sample(u.info, time.time(), time.monotonic(), reading))
+        batch.append(Sample(u.info, time.time(), now, reading))
         if len(batch) >= BATCH_MAX:
             self.flush()
         stats = self.stats
