@@ -102,8 +102,9 @@ class Conn:
     def wake_at(self, size: int) -> None:
         """Let the selector say readable once ``size`` bytes came (1: any)."""
         if size != self.lowat and self.sock is not None:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, size)
-            self.lowat = size
+            with contextlib.suppress(OSError):  # (a socket gone bad: its next read says so)
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, size)
+                self.lowat = size
 
     def slow(self) -> None:
         """The poll under way goes on one request at a time (an exception,
