@@ -216,8 +216,8 @@ def _fleet_table(fleet: dict[str, Any]) -> Table:
         "way)",
         f"throughput: {fleet['burst']:,} samples as fast as each publisher goes, until a "
         f"subscriber has them all (median of {fleet.get('repeats', 1)}); latency: sample "
-        f"time to the subscriber at "
-        f"{fleet['rate']:g} samples/s (pymb writes each to SQLite and publishes it from the open batch); outage: "
+        f"time to the subscriber at {fleet['rate']:g} samples/s (pymb writes each to "
+        "SQLite and publishes it from the open batch); outage: "
         f"{fleet['outage_samples']:,} samples at {fleet['rate']:g}/s with mosquitto "
         f"stopped for {fleet['outage_s']:g} s from a third of the run, as a "
         "persistent-session subscriber sees them",
