@@ -181,9 +181,9 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     from pymb.logger.config import COMMIT_INTERVAL, COMMIT_LONGEST
     strace = shutil.which("strace")
     # At 1 s a lone CoolPro fills no batch: it commits every COMMIT_LONGEST
-    # seconds, and a run of four of those holds three whole commit intervals
+    # seconds, and a run of three of those holds two whole commit intervals
     # after the first commit (the quick plan only checks the machinery).
-    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, max(600.0, 4 * COMMIT_LONGEST))
+    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, max(600.0, 3 * COMMIT_LONGEST))
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=os.getcwd()) as where:
         for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):

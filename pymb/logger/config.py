@@ -114,8 +114,8 @@ class BusConfig:
 #: publishes from the open batch (pymb.store.ids).
 COMMIT_BYTES = 256 * 1024
 COMMIT_INTERVAL = 120.0
-COMMIT_SMALL = 16 * 1024
-COMMIT_LONGEST = 900.0
+COMMIT_SMALL = 32 * 1024
+COMMIT_LONGEST = 1800.0
 #: an event (a fault, a reconnect) waits for its commit this long at most
 EVENT_COMMIT_INTERVAL = 1.0
 
