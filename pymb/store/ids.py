@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import sqlite3
 
+from pymb.store.outbox import max_id
+
 __all__ = ["BLOCK", "RESERVED_KEY", "SampleIds"]
 
 RESERVED_KEY = "sample_ids_reserved"
@@ -34,7 +36,7 @@ class SampleIds:
             mark = int(row[0]) if row else 0
         except ValueError:
             mark = 0
-        top = int(db.execute("SELECT COALESCE(MAX(id), 0) FROM samples").fetchone()[0])
+        top = max_id(db)
         #: ids up to this one are durably reserved (may have been published)
         self.reserved = mark
         self._stored_mark = mark

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
-from hostile_gateway import Hostile, Request, Script, good, poll
+from hostile_gateway import Handed, Hostile, Request, Script, good, poll
 
 from pymb.logger.tcpfast import PollTable
 from pymb.logger.tcpunits import Spec
@@ -48,6 +50,16 @@ def _dribble(n: int, req: Request, conn: socket.socket) -> None:
         time.sleep(0.001)
 
 
+def _poll(tmp_path: Path, script: Script, until: Callable[[Handed], bool],
+          **kw: Any) -> Handed:
+    """``poll`` of one hostile gateway running ``script``, closed afterwards."""
+    gw = Hostile(script)
+    try:
+        return poll(tmp_path, [gw.port], until, **kw)
+    finally:
+        gw.close()
+
+
 def _registers(got: object) -> set[tuple[int, ...]]:
     return {tuple(s.data.registers[a] for a in WANT)  # type: ignore[union-attr]
             for s in got.samples}  # type: ignore[attr-defined]
@@ -56,12 +68,8 @@ def _registers(got: object) -> set[tuple[int, ...]]:
 def test_pipelined_replies_written_a_byte_at_a_time_are_read_whole(tmp_path: Path) -> None:
     """Each reply of a pipelined poll comes a byte at a time: the loop keeps
     the part that came and reads every poll whole."""
-    gw = Hostile(_dribble)
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 5, bus=PIPELINED,
+    got = _poll(tmp_path, _dribble, lambda h: len(h.samples) >= 5, bus=PIPELINED,
                    points=FAR)
-    finally:
-        gw.close()
     assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
     assert _registers(got) == {tuple(WANT.values())}
 
@@ -71,12 +79,8 @@ def test_a_refused_point_in_a_pipelined_poll_is_replanned_in_the_same_poll(
     """Exception 02 to the 2nd of a poll's three requests, the others
     answered: the point reads ``unsupported`` in that same poll's sample and
     the next polls leave it out; nothing times out."""
-    gw = Hostile(_second("02"))
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 5, bus=PIPELINED,
+    got = _poll(tmp_path, _second("02"), lambda h: len(h.samples) >= 5, bus=PIPELINED,
                    points=FAR)
-    finally:
-        gw.close()
     assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
     assert all(s.data.unsupported == ("p300",) for s in got.samples)  # type: ignore[union-attr]
     for s in got.samples:
@@ -89,12 +93,8 @@ def test_an_exception_in_a_pipelined_poll_fails_that_poll_only(tmp_path: Path) -
     """Exception 04 to the 2nd request of every poll: each poll fails with an
     ``exception`` event naming that request, none stores a sample, the
     replies to the 3rd request are skipped, nothing times out."""
-    gw = Hostile(_second("04"))
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.events) >= 4, bus=PIPELINED,
+    got = _poll(tmp_path, _second("04"), lambda h: len(h.events) >= 4, bus=PIPELINED,
                    points=FAR)
-    finally:
-        gw.close()
     kinds = [k for k in got.kinds() if k not in ("connect", "skipped", "offline", "online")]
     assert set(kinds) == {"exception"}, kinds
     first = next(e for e in got.events if e.kind == "exception")
@@ -106,12 +106,8 @@ def test_an_exception_in_a_pipelined_poll_fails_that_poll_only(tmp_path: Path) -
 def test_a_request_never_answered_times_out_by_name(tmp_path: Path) -> None:
     """The 2nd of a poll's three requests is never answered: the replies to
     the 1st and the 3rd are read, and the timeout names the one missing."""
-    gw = Hostile(_second("none"))
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.events) >= 2, bus=PIPELINED,
+    got = _poll(tmp_path, _second("none"), lambda h: len(h.events) >= 2, bus=PIPELINED,
                    points=FAR)
-    finally:
-        gw.close()
     first = next(e for e in got.events if e.kind == "timeout")
     assert "address=300, count=1" in first.message, first.message
     assert got.samples == []
@@ -135,13 +131,9 @@ def test_an_exception_reply_is_read_long_before_the_timeout(tmp_path: Path) -> N
     """An exception reply is shorter than the reply the loop waits for (it
     wakes once for a poll's replies): it is read within milliseconds, not at
     the 2 s timeout; the next poll follows at its interval."""
-    gw = Hostile(_every_other())
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 6,
+    got = _poll(tmp_path, _every_other(), lambda h: len(h.samples) >= 6,
                    bus="timeout = 2\ninterval = 0.05\npipeline = 4\n", points=FAR,
                    within=10.0)
-    finally:
-        gw.close()
     faults = [e for e in got.events if e.kind == "exception"]
     assert len(faults) >= 5
     for e in faults[1:]:  # its poll began 0.05 s after the last sample; waited out: 2 s
@@ -156,13 +148,9 @@ def test_a_poll_longer_than_the_pipeline_never_waits_for_its_timeout(
     timeout (its last reply longer than its first): each reply is read as it
     comes, every poll makes its sample."""
     last_big = FAR.replace('address = 600\ntype = "u16"', 'address = 600\ntype = "f64"')
-    gw = Hostile(lambda n, req, conn: good(*req))
-    try:
-        got = poll(tmp_path, [gw.port], lambda h: len(h.samples) >= 30,
+    got = _poll(tmp_path, lambda n, req, conn: good(*req), lambda h: len(h.samples) >= 30,
                    bus=f"timeout = 2\ninterval = 0\npipeline = {pipeline}\n",
                    points=last_big, within=10.0)
-    finally:
-        gw.close()
     assert got.kinds() == ["connect"]
     assert len(got.samples) >= 30
     assert _registers(got) == {tuple(WANT.values())}
