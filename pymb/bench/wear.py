@@ -43,6 +43,21 @@ CREATE INDEX IF NOT EXISTS samples_time ON samples(time_utc);
 """
 
 
+def _disk_temp() -> str:
+    """A temporary folder on a real disk: the system's, unless it is a tmpfs
+    (nothing reaches the block layer there), then ``/var/tmp``."""
+    where = tempfile.gettempdir()
+    try:
+        with open("/proc/mounts") as f:
+            mounts = [line.split()[1:3] for line in f]
+    except OSError:
+        return where
+    real = os.path.realpath(where)
+    best = max((m for m in mounts if real == m[0] or real.startswith(m[0].rstrip("/") + "/")),
+               key=lambda m: len(m[0]), default=None)
+    return "/var/tmp" if best is not None and best[1] == "tmpfs" else where
+
+
 def _write_bytes() -> int:
     with open("/proc/self/io") as f:
         return next(int(line.split()[1]) for line in f if line.startswith("write_bytes"))
@@ -185,7 +200,7 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     # after the first commit (the quick plan only checks the machinery).
     wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, max(600.0, 3 * COMMIT_LONGEST))
     rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=os.getcwd()) as where:
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=_disk_temp()) as where:
         for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):
             what = "wire speed" if interval == 0 else f"a {interval:g} s interval"
             opts.say(f"logger: SD wear at {what}, {seconds:g} s")

@@ -285,6 +285,10 @@ def test_demo_runs(tmp_path: Path) -> None:
     assert con.execute("SELECT COUNT(*) FROM coolpro").fetchone()[0] > 50
     assert con.execute("SELECT COUNT(DISTINCT sample_id) FROM hub").fetchone()[0] >= 5
     con.close()
+    # the finished demo leaves its database and nothing else (no full-disk reserve)
+    left = {p.name for p in tmp_path.iterdir()} - {"demo.sqlite", "demo.sqlite-wal",
+                                                    "demo.sqlite-shm"}
+    assert left == set()
 
 
 def test_help_lists_every_command() -> None:
