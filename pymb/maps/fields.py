@@ -27,7 +27,7 @@ __all__ = ["POINT_KEYS", "Ctx", "build_point", "number", "strings"]
 POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_bytes", "encoding",
               "bit", "shift", "width", "scale", "offset", "unit", "description", "ref", "kind",
               "values", "flags", "markers", "access", "valid", "group", "deadband", "precision",
-              "example", "when", "min_firmware")
+              "example", "when", "min_firmware", "max_writes_per_hour")
 BLOCK_KEYS = (*(k for k in POINT_KEYS if k != "address"), "first", "stride")
 _NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 _KINDS = ("gauge", "counter", "state", "text")
@@ -258,6 +258,14 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
         if lo > hi:
             ctx.fail("valid", f"valid must be [low, high] with low <= high, got {v!r}")
         valid = (lo, hi)
+    budget = dev.max_writes_per_hour
+    if "max_writes_per_hour" in raw:
+        if access == "r":
+            ctx.fail("max_writes_per_hour", "max_writes_per_hour applies to writable points "
+                     "(access rw or w) only")
+        budget = _int_in(ctx, "max_writes_per_hour", raw["max_writes_per_hour"], 1, 1_000_000)
+    if access == "r":
+        budget = None
     group = raw.get("group")
     if group is not None and (not isinstance(group, str) or group not in groups):
         ctx.fail("group", f"no group {group!r} in [groups]{did_you_mean(str(group), list(groups))}")
@@ -282,7 +290,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
         ref=raw.get("ref", ""), bit=bit, shift=shift, width=width, string_bytes=string_bytes,
         encoding=encoding, example=raw.get("example"),
         min_firmware=raw.get("min_firmware", ""),
-        when=MappingProxyType(dict(raw.get("when", {}))))
+        when=MappingProxyType(dict(raw.get("when", {}))), max_writes_per_hour=budget)
     if "example" in raw:
         _check_example(ctx, point, raw["example"])
     return point

@@ -37,9 +37,10 @@ __all__ = ["Spec", "configure", "load", "loads"]
 SCHEMA = "pymb.map/1"
 _TOP = ("schema", "device", "groups", "point", "block", "identify")
 _DEVICE = ("id", "manufacturer", "model", "description", "ref", "default_address", "addresses",
-           "address_base", "table", "order", "limits", "timing", "options")
+           "address_base", "table", "order", "limits", "timing", "options",
+           "max_writes_per_hour")
 _LIMITS = ("max_registers", "max_bits", "max_gap", "readable", "split_on_exception",
-           "single_point_requests")
+           "single_point_requests", "write_multiple", "mask_write")
 _TIMING = ("response_timeout", "turnaround", "inter_request_gap", "after_connect",
            "offline_after", "offline_retry")
 _IDENTIFY = ("point", "range", "equals", "regex")
@@ -225,10 +226,13 @@ def _device(ctx: Ctx, raw: object) -> DeviceInfo:
     if order not in ORDER_NAMES:
         ctx.fail("order", f"device order must be one of {', '.join(ORDER_NAMES)}, got {order!r}")
     options, allowed, ranges = _options(ctx, t.get("options", {}))
+    budget = None
+    if "max_writes_per_hour" in t:
+        budget = _int(ctx, t, "max_writes_per_hour", 0, 1, 1_000_000)
     return DeviceInfo(ident, t.get("manufacturer", ""), t.get("model", ""),
                       t.get("description", ""), t.get("ref", ""), default_address, (lo, hi),
                       base, table, order, MappingProxyType(options), MappingProxyType(allowed),
-                      MappingProxyType(ranges))
+                      MappingProxyType(ranges), budget)
 
 
 def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],
@@ -285,13 +289,18 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
                          f"within {base}..{65535 + base}, got {r!r}")
             out.append((r[0] - base, r[1] - base))
         readable[table] = tuple(sorted(out))
-    for key in ("split_on_exception", "single_point_requests"):
+    for key in ("split_on_exception", "single_point_requests", "mask_write"):
         if not isinstance(t.get(key, False), bool):
             ctx.fail(key, f"{key} must be true or false")
+    multiple = t.get("write_multiple", "auto")
+    if multiple not in ("auto", "always"):
+        ctx.fail("write_multiple", f"write_multiple is \"auto\" (FC 06 for one register) or "
+                 f"\"always\" (FC 16 for every write), got {multiple!r}")
     return Limits(_int(ctx, t, "max_registers", MAX_READ_REGISTERS, 1, MAX_READ_REGISTERS),
                   _int(ctx, t, "max_bits", MAX_READ_BITS, 1, MAX_READ_BITS),
                   _int(ctx, t, "max_gap", 0, 0, MAX_READ_REGISTERS), MappingProxyType(readable),
-                  t.get("split_on_exception", True), t.get("single_point_requests", False))
+                  t.get("split_on_exception", True), t.get("single_point_requests", False),
+                  multiple, t.get("mask_write", False))
 
 
 def _timing(ctx: Ctx, raw: object) -> Timing:

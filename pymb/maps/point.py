@@ -68,6 +68,9 @@ class Limits:
     readable: Mapping[str, tuple[tuple[int, int], ...]] = field(default_factory=_empty)
     split_on_exception: bool = True  #: exception 02/03 on a bridged read: stop bridging there
     single_point_requests: bool = False  #: one request per point
+    #: "always": FC 16 even for one register; "auto": FC 06 for one, FC 16 for several
+    write_multiple: str = "auto"
+    mask_write: bool = False  #: FC 22 mask write for bit/bits/8-bit halves (no read first)
 
 
 @dataclass(frozen=True)
@@ -102,6 +105,8 @@ class DeviceInfo:
     option_values: Mapping[str, tuple[int | float, ...]] = field(default_factory=_empty)
     #: option name -> (min, max), where the file gives them
     option_ranges: Mapping[str, tuple[float, float]] = field(default_factory=_empty)
+    #: writes of each point allowed in any sliding hour (None: no budget)
+    max_writes_per_hour: int | None = None
 
 
 @dataclass(frozen=True)
@@ -160,6 +165,8 @@ class Point:
     example: Any = None
     min_firmware: str = ""
     when: Mapping[str, int | float] = field(default_factory=_empty)
+    #: writes allowed in any sliding hour (the point's own or ``[device]``'s; None: no budget)
+    max_writes_per_hour: int | None = None
 
     @property
     def end(self) -> int:
