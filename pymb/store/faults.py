@@ -18,7 +18,7 @@ from pathlib import Path
 
 from pymb.errors import OutputError
 
-__all__ = ["is_storage_fault", "storage_error", "vanished"]
+__all__ = ["file_open_error", "is_storage_fault", "storage_error", "vanished"]
 
 #: SQLite's primary result codes that mean the storage failed (not the file's content)
 _STORAGE_CODES = {"SQLITE_FULL", "SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_IOERR",
@@ -110,3 +110,19 @@ def storage_error(path: Path, e: BaseException, *, opening: bool = False) -> Out
     tail = "" if opening else ("; everything committed before is intact, the batch being "
                                "written was lost")
     return OutputError(f"{head}: {reason}" + (f"; {todo}" if todo else "") + tail)
+
+
+def file_open_error(path: str, e: OSError) -> OutputError:
+    """The one-line :class:`OutputError` (exit 5, as for a database) for a
+    text output (CSV, JSON Lines, line protocol) that cannot be opened for
+    writing: the operating system's reason and what to do."""
+    num = e.errno
+    words = e.strerror or str(e)
+    if num == errno.ENOENT:
+        words = f"its directory {Path(path).parent} does not exist"
+        todo: str | None = "create it, or mount the disk that holds it (or write to another --out)"
+    else:
+        todo = _TODO.get(num) if num is not None else None
+        if num is not None:
+            words += f" ({errno.errorcode.get(num, num)})"
+    return OutputError(f"cannot open {path}: {words}" + (f"; {todo}" if todo else ""))

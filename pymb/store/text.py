@@ -15,6 +15,7 @@ from pymb.devices import HubReading, State
 from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import STATE_NAMES, reading_dict, telemetry_values
 from pymb.errors import InvalidArgument, OutputError
+from pymb.store.faults import file_open_error
 from pymb.store.records import Event, Sample, StoredSample
 from pymb.store.schema import HUB_FIELDS
 
@@ -111,8 +112,10 @@ class _TextSink:
         try:
             self.f = (open(path, "a", encoding="utf-8", newline="")  # noqa: SIM115
                       if self._own else sys.stdout)
+        except IsADirectoryError:
+            raise InvalidArgument(f"{path} is a directory; give a file name") from None
         except OSError as e:
-            raise InvalidArgument(f"cannot open {path}: {e.strerror}") from None
+            raise file_open_error(path, e) from None
 
     def _failed(self, e: OSError) -> Exception:
         """The error to raise for a failed write: stdout's reader going away

@@ -185,3 +185,24 @@ def test_permissions_taken_away_while_logging(endpoint: str, place: Path) -> Non
     again = _ids(db)
     assert again[:len(kept)] == kept
     assert len(again) > len(kept)
+
+
+@pytest.mark.parametrize("fmt", ["csv", "jsonl", "influx"])
+@pytest.mark.parametrize("case", ["new file, directory read-only", "file read-only"])
+def test_a_text_output_refused_at_start_exits_5_as_sqlite(endpoint: str, place: Path, fmt: str,
+                                                           case: str) -> None:
+    where = place / "out"
+    where.mkdir()
+    out = where / f"data.{fmt}"
+    if case == "file read-only":
+        out.write_text("")
+        _mine(out, 0o444)
+        _mine(where, 0o755)
+    else:
+        _mine(where, 0o555)
+    line = _refused(_log(endpoint, out, "--format", fmt, "--seconds", "30"))
+    assert str(out) in line
+    where.chmod(0o755)
+    assert out.exists() == (case == "file read-only")
+    if out.exists():
+        assert out.read_bytes() == b""
