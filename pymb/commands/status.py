@@ -19,7 +19,7 @@ def status_text(logger: Logger, elapsed: float) -> str:
     skipped = (f"  skipped {s.skipped_slots}"
                if s.skipped_slots or any(b.interval > 0 for b in logger.config.buses) else "")
     with s.lock:
-        gone = sum(s.unsupported.values())
+        gone = sum(len(v) for v in s.unsupported.values())
         down = [n for n, k in s.device_faults.items() if k and n in s.problems]
     health = f"  unsupported {gone}" if gone else ""
     if down:

@@ -44,7 +44,8 @@ class Summary:
     silent: dict[str, str] = field(default_factory=dict)
     #: map device -> its failed polls (timeouts, exceptions, ...)
     device_faults: dict[str, int] = field(default_factory=dict)
-    #: map device -> points it refused (read as ``unsupported``), summed over its polls
+    #: map device -> how many of its points it refused (read as ``unsupported``), each
+    #: point once however many polls it was refused in
     unsupported: dict[str, int] = field(default_factory=dict)
     #: bus -> the exception that stopped its poller (a bug in pymb: it ends the run)
     crashed: dict[str, str] = field(default_factory=dict)
@@ -289,7 +290,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                   for d in b.devices if not s.by_device.get(d.name)}
         return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent,
-                       dict(s.device_faults), dict(s.unsupported), crashed)
+                       dict(s.device_faults),
+                       {k: len(v) for k, v in s.unsupported.items()}, crashed)
 
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the

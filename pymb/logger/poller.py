@@ -7,7 +7,7 @@ import collections
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,7 +41,8 @@ class Stats:
     opened: dict[str, bool] = field(default_factory=dict)  #: bus -> port opened at least once
     last_fault: dict[str, str] = field(default_factory=dict)  #: device or bus -> last fault
     device_faults: dict[str, int] = field(default_factory=dict)  #: map device -> failed polls
-    unsupported: dict[str, int] = field(default_factory=dict)  #: map device -> points refused
+    #: map device -> the names of the points it refused (each point once, however often)
+    unsupported: dict[str, set[str]] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def fault(self, key: str, text: str) -> None:
@@ -59,6 +60,11 @@ class Stats:
         """Add ``n`` to ``counts[key]`` (one of the per-device counts)."""
         with self.lock:
             counts[key] = counts.get(key, 0) + n
+
+    def refused(self, key: str, points: Iterable[str]) -> None:
+        """The points device ``key`` refused in a reading (each counted once a run)."""
+        with self.lock:
+            self.unsupported.setdefault(key, set()).update(points)
 
     def skipped(self, n: int) -> None:
         with self.lock:

@@ -151,7 +151,7 @@ def _poll_map(poller: BusPoller, s: Slot, slots: list[Slot]) -> bool:
         return True
     poller.add_sample(Sample(h.info, *poller.stamp(), reading))
     if reading.unsupported:
-        poller.stats.count(poller.stats.unsupported, name, len(reading.unsupported))
+        poller.stats.refused(name, reading.unsupported)
     if h.offline:
         poller.event("online", f"{name} answers again", h.info)
     h.failures, h.offline = 0, False

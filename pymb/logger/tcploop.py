@@ -271,7 +271,7 @@ class TcpMapPoller(TcpReplies):
             self.flush()
         stats = self.stats
         if reading.unsupported:
-            stats.count(stats.unsupported, u.info.name, len(reading.unsupported))
+            stats.refused(u.info.name, reading.unsupported)
         if u.offline:
             self._event(c, "online", f"{u.info.name} answers again", u)
         if u.failures:
