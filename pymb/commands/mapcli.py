@@ -7,12 +7,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import struct
 from collections.abc import Mapping
+from decimal import Decimal
 from typing import Any
 
 from pymb.maps import Map
+from pymb.maps.point import Point
 
-__all__ = ["add_map_arg", "map_json", "render_map"]
+__all__ = ["add_map_arg", "map_json", "number_text", "render_map"]
 
 
 def add_map_arg(p: argparse.ArgumentParser, *, group: bool = False) -> None:
@@ -26,6 +29,48 @@ def add_map_arg(p: argparse.ArgumentParser, *, group: bool = False) -> None:
                             "group (default: every readable point)")
 
 
+def _decimals(x: float | None) -> int:
+    """Decimal places of a map's ``scale`` or ``offset`` as written (0.1: 1, 0.25: 2)."""
+    if x is None or not math.isfinite(x):
+        return 0
+    exponent = Decimal(repr(x)).normalize().as_tuple().exponent
+    return min(17, -exponent) if isinstance(exponent, int) and exponent < 0 else 0
+
+
+def _shortest(value: float, kind: str) -> str:
+    """The fewest digits that give ``value`` back in its type (an ``f32``'s
+    7 or so, a double's up to 17), written without an exponent unless the
+    number is huge or tiny."""
+    text = repr(value)
+    if kind in ("f32", "f16") and math.isfinite(value):
+        code = "e" if kind == "f16" else "f"
+        want = struct.pack(f"<{code}", value)
+        for n in range(1, 10):
+            text = f"{value:.{n}g}"
+            try:
+                if struct.pack(f"<{code}", float(text)) == want:
+                    break
+            except OverflowError:  # rounded up past the type's largest
+                continue
+    if value != 0 and not 1e-6 <= abs(value) < 1e16:
+        return text
+    return format(Decimal(text), "f")
+
+
+def number_text(p: Point, value: float) -> str:
+    """A point's float as the digits it has: ``precision`` decimals when the
+    map gives them; else as many as its ``scale`` and ``offset`` have (a
+    scale of 0.1: one); else the shortest that its type gives back
+    (123456.7 as an ``f32``, never rounded to 6 significant digits)."""
+    if not math.isfinite(value):
+        return str(value)
+    if p.precision is not None:
+        return f"{value:.{p.precision}f}"
+    if p.scale is not None or p.offset is not None:
+        return f"{value:.{max(_decimals(p.scale), _decimals(p.offset))}f}"
+    return _shortest(value, p.type)
+
+
 def _text(m: Map, name: str, value: Any, state: Any) -> str:
     p = m.points[name]
     if value is None:
@@ -33,7 +78,7 @@ def _text(m: Map, name: str, value: Any, state: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
-        text = f"{value:.{p.precision}f}" if p.precision is not None else f"{value:g}"
+        text = number_text(p, value)
     elif isinstance(value, int) and p.values and value in p.values:
         text = f"{value} ({p.values[value]})"
     elif isinstance(value, int) and p.flags:

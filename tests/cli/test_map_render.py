@@ -4,9 +4,13 @@ block one line per channel, names of values and flags, states for no value."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
+
+from conftest import run_pymb
 
 from pymb import maps
 from pymb.commands.mapcli import map_json, render_map
+from pymb.sim import SimulatorProcess
 
 MAP = """schema = "pymb.map/1"
 [device]
@@ -59,3 +63,59 @@ def test_a_reading_as_lines_and_as_json() -> None:
     doc = map_json({**values, "flow_lpm": float("nan")}, states)
     assert doc["values"]["flow_lpm"] is None
     assert json.loads(json.dumps(doc))["states"]["temp_c"] == ["value", "offline"]
+
+
+DIGITS = """schema = "pymb.map/1"
+[device]
+id = "digits-meter"
+default_address = 1
+table = "input"
+
+[[point]]
+name = "energy_kwh"
+address = 0
+type = "f32"
+unit = "kWh"
+example = 123456.7
+
+[[point]]
+name = "voltage_v"
+address = 2
+type = "i32"
+scale = 0.1
+unit = "V"
+example = 214748364.7
+
+[[point]]
+name = "current_a"
+address = 4
+type = "u16"
+scale = 0.001
+unit = "A"
+example = 1.5
+
+[[point]]
+name = "frequency_hz"
+address = 5
+type = "f32"
+precision = 2
+unit = "Hz"
+example = 50
+"""
+
+
+def test_numbers_show_the_digits_of_their_type_scale_or_precision(tmp_path: Path) -> None:
+    """As a user reads a meter: an f32 energy counter keeps its decimal, an
+    i32 overflow pattern with scale 0.1 is not written with an exponent, a
+    scale of 0.001 gives three decimals, ``precision`` its own."""
+    path = tmp_path / "digits.toml"
+    path.write_text(DIGITS)
+    with SimulatorProcess(["--map", str(path), "digits-meter:1"], quiet=True) as sim:
+        r = run_pymb("read", "--map", str(path), "digits-meter:1", "--port", sim.port)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == [
+        "energy_kwh    123456.7 kWh",
+        "voltage_v     214748364.7 V",
+        "current_a     1.500 A",
+        "frequency_hz  50.00 Hz",
+    ]
