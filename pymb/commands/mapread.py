@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import shutil
 import sys
 import threading
 import time
@@ -25,7 +27,7 @@ from pymb.devices.mapspec import (
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 from pymb.maps.model import did_you_mean
 
-__all__ = ["read_map", "target_from_args", "watch_map"]
+__all__ = ["fit", "read_map", "screen", "target_from_args", "terminal_size", "watch_map"]
 
 
 def target_from_args(args: argparse.Namespace) -> MapTarget | None:
@@ -107,6 +109,36 @@ def read_map(args: argparse.Namespace, target: MapTarget) -> int:
     return 0
 
 
+def fit(lines: list[str], width: int, height: int) -> list[str]:
+    """A map device's lines in at most ``height`` lines of fewer than
+    ``width`` characters: those that do not fit give way to one that says
+    how many more there are (as the hub view does)."""
+    if height < 1:
+        return []
+    if len(lines) > height:
+        hidden = len(lines) - height + 1
+        lines = [*lines[:height - 1], f"… {hidden} more: use --group"]
+    return [ln[:width - 1] if len(ln) >= width else ln for ln in lines]
+
+
+def screen(head: str, body: list[str], width: int, height: int) -> str:
+    """A frame for a terminal: home, the status line (always on screen) and
+    what of ``body`` fits below it, the rest of the screen cleared; no newline
+    after the last line, so nothing scrolls."""
+    lines = fit([head], width, 1) + fit(body, width, height - 1)
+    return "\x1b[H" + "\x1b[K\n".join(lines) + "\x1b[K\x1b[J"
+
+
+def terminal_size() -> tuple[int, int]:
+    """(columns, lines) of the terminal on stdout (80x24 when it says none)."""
+    try:
+        size = os.get_terminal_size(sys.stdout.fileno())
+        return size.columns, size.lines
+    except (OSError, ValueError):
+        fallback = shutil.get_terminal_size((80, 24))
+        return fallback.columns, fallback.lines
+
+
 def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     """``pymb watch`` of a map device: read, print, repeat until Ctrl-C or
     ``--count`` attempts; a terminal is redrawn in place, a pipe gets every
@@ -143,7 +175,7 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
             body = (render_map(target.map, values, dev.states) if values is not None
                     else f"error: {error}")
             if tty:
-                sys.stdout.write("\x1b[H\x1b[2J" + head + "\n" + body + "\n")
+                sys.stdout.write(screen(head, body.splitlines(), *terminal_size()))
             else:
                 sys.stdout.write(head + "\n" + body + "\n\n")
         sys.stdout.flush()

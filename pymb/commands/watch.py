@@ -14,9 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import queue
-import shutil
 import sys
 import threading
 import time
@@ -24,7 +22,7 @@ from typing import Any
 
 from pymb.commands import read as read_cmd
 from pymb.commands._common import device_from_args, make_client, parse_channels, render, to_json
-from pymb.commands.mapread import target_from_args, watch_map
+from pymb.commands.mapread import target_from_args, terminal_size, watch_map
 from pymb.devices import HUB, HubReading, State
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
@@ -101,15 +99,6 @@ def hub_view(data: HubReading, blocks: list[str], shown: list[int], width: int,
     return lines
 
 
-def _size() -> tuple[int, int]:
-    try:
-        size = os.get_terminal_size(sys.stdout.fileno())
-        return size.columns, size.lines
-    except (OSError, ValueError):
-        fallback = shutil.get_terminal_size((80, 24))
-        return fallback.columns, fallback.lines
-
-
 def run(args: argparse.Namespace) -> int:
     """Read, redraw, repeat until Ctrl-C (or --count attempts)."""
     target = target_from_args(args)  # a device a map describes
@@ -183,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         # The status line: the words that matter first, the port last (cut first).
         head = (f"{dev.spec}  {done} reads {rate:.1f}/s  faults {faults}/{attempts}  "
                 f"on {client.port}")
-        width, height = _size() if tty else (10**6, 10**6)
+        width, height = terminal_size() if tty else (10**6, 10**6)
         body: list[str] = []
         if identity:
             body += identity.splitlines()
