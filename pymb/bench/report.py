@@ -443,7 +443,7 @@ def to_json(result: dict[str, Any]) -> str:
 def plot(result: dict[str, Any], path: str) -> None:
     """Bars side by side (wall and CPU per contender, log scale) to ``path``.
 
-    Needs matplotlib (``pip install 'pymb-modbus[bench]'``); raises ImportError without it.
+    Needs matplotlib (the ``bench`` extra); raises ImportError without it.
     """
     import matplotlib
 

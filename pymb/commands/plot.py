@@ -8,6 +8,7 @@ its path and renamed into place only when complete."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import sys
@@ -122,9 +123,14 @@ def run(args: argparse.Namespace) -> int:
     check_database(args.database)
     s = series(args.database, args.device, args.quantity, channel=args.channel, since=since,
                until=until)
+    span = " in that span" if since or until else ""
     if not s.times:
         raise InvalidArgument(f"no samples of {s.device}'s {s.quantity} in "
-                              f"{args.database}" + (" in that span" if since or until else ""))
+                              f"{args.database}{span}")
+    if all(math.isnan(v) for v in s.values):
+        raise InvalidArgument(f"{s.device}'s {s.quantity} has no value in {args.database}"
+                              f"{span}: none of its {len(s.times):,} sample(s) holds one "
+                              "(offline, no sensor or unsupported); nothing to draw")
     if out is None:
         out = f"{s.device}-{s.quantity}" + (f"-ch{s.channel}" if s.channel else "") + ".png"
     if os.path.exists(out):

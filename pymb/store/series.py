@@ -132,6 +132,10 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         if quantity not in known:
             raise InvalidArgument(f"{name} ({kind}) has no quantity {quantity!r}"
                                   f"{closest(quantity, known)}")
+        if stored is not None and stored[0].points[quantity].type in ("string", "raw"):
+            raise InvalidArgument(f"{name}'s {quantity} is text, not a number: there is "
+                                  f"nothing to draw (pymb export --quantity {quantity} "
+                                  "lists its values)")
         channels = int(con.execute("SELECT channels FROM devices WHERE name = ?",
                                    (name,)).fetchone()[0])
         if kind == "hub":

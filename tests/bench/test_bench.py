@@ -13,6 +13,7 @@ import shlex
 import shutil
 import statistics
 import subprocess
+import sys
 from array import array
 from pathlib import Path
 from typing import Any
@@ -267,7 +268,7 @@ def test_skipped_contenders_say_why(monkeypatch: pytest.MonkeyPatch,
                  "--sections", "sweep"]) == 0
     text = capsys.readouterr().out
     assert "minimalmodbus: skipped: not installed" in text
-    assert "pip install 'pymb-modbus[bench]'" in text
+    assert f"{sys.executable} -m pip install 'pymodbus" in text
     assert "C (libmodbus): skipped: cannot build the C program: no C compiler" in text
     assert "no ratios" in text
 

@@ -10,6 +10,7 @@ import re
 import signal
 import sqlite3
 import subprocess
+import sys
 import termios
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from clikit import STOP_BOUND, Pty, digest, no_traceback
 from conftest import PYMB, PYMB_ENV, run_pymb
 from dbwait import count, wait_for
 
+from pymb.extras import install_hint
 from pymb.sim import Simulator
 
 
@@ -319,13 +321,13 @@ def test_mqtt_without_paho_fails_before_creating_anything(tmp_path: Path) -> Non
                  "--mqtt", "mqtt://127.0.0.1", env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
-    assert "pip install 'pymb-modbus[mqtt]'" in r.stderr, r.stderr
+    assert f"{sys.executable} -m pip install 'paho-mqtt" in r.stderr, r.stderr
     assert not db.exists()
     r = run_pymb("demo", "--mqtt", "--out", str(db), env=env)
     no_traceback(r)
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip() == (
-        "pymb demo: --mqtt needs paho-mqtt: pip install 'pymb-modbus[mqtt]'"), r.stderr
+        f"pymb demo: --mqtt needs paho-mqtt: {install_hint('mqtt')}"), r.stderr
     assert not db.exists()
 
 

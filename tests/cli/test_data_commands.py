@@ -28,6 +28,7 @@ from conftest import PYMB, PYMB_ENV, run_pymb
 from pymb import _native
 from pymb.commands.plot import figure
 from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
+from pymb.extras import install_hint
 from pymb.store import DeviceInfo, Event, Sample, SqliteSink, series
 
 T0 = 1_796_000_000.0  # 2026-11-30T00:53:20Z
@@ -246,8 +247,7 @@ def test_plot_without_matplotlib_says_how_to_install_it(db: Path, tmp_path: Path
     done = subprocess.run([sys.executable, "-c", code, str(db)], capture_output=True,
                           text=True, env=PYMB_ENV, cwd=tmp_path, timeout=120, check=False)
     assert done.returncode == 2
-    assert done.stderr == ("pymb plot: pymb plot needs matplotlib: "
-                           "pip install 'pymb-modbus[plot]'\n")
+    assert done.stderr == f"pymb plot: pymb plot needs matplotlib: {install_hint('plot')}\n"
     assert not list(tmp_path.iterdir())
 
 

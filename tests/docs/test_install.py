@@ -8,12 +8,13 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
 import pytest
 
-from pymb.extras import DISTRIBUTION, install_hint
+from pymb.extras import DISTRIBUTION, extra_requirements, install_hint
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -85,7 +86,14 @@ def test_the_docs_apt_line_is_what_setup_user_installs(page: str) -> None:
 def test_one_distribution_name() -> None:
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert project["name"] == DISTRIBUTION
-    assert install_hint("mqtt") == f"pip install '{DISTRIBUTION}[mqtt]'"
+    # a hint names the extra's packages, installed by the Python that runs pymb
+    assert install_hint("mqtt") == f"{sys.executable} -m pip install 'paho-mqtt<3,>=2.1'"
+    def name(req: str) -> str:
+        return re.split(r"[<>=!~ ]", req, maxsplit=1)[0]
+
+    for extra in ("mqtt", "plot", "bench"):
+        want = project["optional-dependencies"][extra]
+        assert sorted(map(name, extra_requirements(extra))) == sorted(map(name, want)), extra
     assert set(project["optional-dependencies"]) >= {"mqtt", "plot", "bench", "test"}
 
 
