@@ -48,6 +48,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "read": ("pymb.commands.read", "one reading of a device (CoolPro, sensor hub or a map's)"),
     "watch": ("pymb.commands.watch", "readings refreshed live, with the achieved rate"),
     "log": ("pymb.commands.log", "log devices on one or more buses to SQLite, CSV or JSONL"),
+    "collect": ("pymb.commands.collect",
+                "store what a fleet's boards publish to MQTT in SQLite or PostgreSQL"),
     "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
     "info": ("pymb.commands.info", "what a logged database holds: devices, span, faults, sizes"),
     "plot": ("pymb.commands.plot", "plot a quantity of a logged device to PNG or SVG"),

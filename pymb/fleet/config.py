@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import socket
+import ssl
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
@@ -131,6 +132,16 @@ class MqttConfig:
                 raise InvalidArgument(
                     f"cannot read {self.password_file}: {e.strerror}") from None
         return os.environ.get(PASSWORD_ENV) if self.user else None
+
+    def secure(self, client: Any, password: str | None) -> None:
+        """Give a paho client this configuration's user (with ``password``, from
+        :meth:`password`) and, for ``mqtts://``, TLS with the broker verified
+        (``ca``, or the system's CAs) and the client certificate, if any."""
+        if self.user:
+            client.username_pw_set(self.user, password)
+        if self.tls:
+            client.tls_set(ca_certs=self.ca, certfile=self.cert, keyfile=self.key,
+                           cert_reqs=ssl.CERT_REQUIRED, tls_version=ssl.PROTOCOL_TLS_CLIENT)
 
 
 def from_table(table: dict[str, Any], where: str) -> MqttConfig:

@@ -246,11 +246,7 @@ class Forwarder(threading.Thread):
         self.profile.new_connection(self.source)
         s = Session(self, f"pymb-{cfg.profile}-{cfg.node}", WINDOW)
         c = s.client
-        if cfg.user:
-            c.username_pw_set(cfg.user, self.password)
-        if cfg.tls:
-            c.tls_set(ca_certs=cfg.ca, certfile=cfg.cert, keyfile=cfg.key,
-                      cert_reqs=ssl.CERT_REQUIRED, tls_version=ssl.PROTOCOL_TLS_CLIENT)
+        cfg.secure(c, self.password)
         w = self.profile.will()
         c.will_set(w.topic, w.payload, w.qos, w.retain)
         self._snapshot("connecting", False)

@@ -1,0 +1,288 @@
+"""The collector's loop: MQTT in, rows committed, then the acknowledgements.
+
+paho's thread only queues what arrives (``manual_ack``: paho sends no PUBACK
+by itself). The collector's thread takes what is queued (at most
+:data:`MAX_BATCH` messages), turns it into rows, writes them in one
+transaction and, once it is committed, acknowledges the batch's QoS 1
+messages. While the database cannot be reached the batch is held and
+written again (backing off from 0.5 s to 10 s); the broker sends no more than
+:data:`RECEIVE_MAXIMUM` unacknowledged messages meanwhile and keeps the rest
+in the collector's persistent session (MQTT 5, session expiry
+:data:`SESSION_EXPIRY`). A message that arrived on an earlier connection is
+not acknowledged: the broker sends it again on the new one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import socket
+import ssl
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymb.collect.rows import BadInput, Row, plain_rows, plain_topic
+from pymb.collect.sparkplug import SparkplugHost, state_payload
+from pymb.collect.sqlstore import Store, StoreDown
+from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.fleet.config import MqttConfig
+
+__all__ = ["MAX_BATCH", "RECEIVE_MAXIMUM", "SESSION_EXPIRY", "CollectConfig", "Collector",
+           "Stats"]
+
+MAX_BATCH = 2000  #: messages written in one transaction, at most
+RECEIVE_MAXIMUM = 20000  #: unacknowledged messages the broker may send (MQTT 5)
+SESSION_EXPIRY = 7 * 86400  #: seconds the broker keeps the session of a stopped collector
+BAD_EVERY = 60.0  #: seconds: a topic's bad input is reported at most this often
+_BACKOFF = (0.5, 10.0)
+
+
+@dataclass
+class CollectConfig:
+    """What ``pymb collect`` does: from which broker (``mqtt``: its URL, user,
+    TLS, and the plain prefix or the Sparkplug group) into which ``out``."""
+
+    mqtt: MqttConfig
+    out: str
+    profile: str = "plain"
+    share: str | None = None
+    host_id: str = ""
+    client_id: str = ""
+
+    def __post_init__(self) -> None:
+        if self.profile not in ("plain", "sparkplug"):
+            raise InvalidArgument(f"unknown profile {self.profile!r}; use plain or sparkplug")
+        host = socket.gethostname().split(".")[0] or "pymb"
+        for what, value in (("share", self.share), ("host id", self.host_id or None),
+                            ("client id", self.client_id or None)):
+            if value is not None and (not value or any(c in value for c in "/+#$")
+                                      or value != value.strip()):
+                raise InvalidArgument(f"{what} {value!r} must be a non-empty name without "
+                                      "'/', '+', '#', '$' or surrounding spaces")
+        if self.share and self.profile == "sparkplug":
+            raise InvalidArgument("--share is for the plain profile: a Sparkplug node's seq "
+                                  "and aliases need all its messages in one host application")
+        self.host_id = self.host_id or f"pymb-{host}"
+        if not self.client_id:
+            self.client_id = f"pymb-collect-{self.profile}-{host}" + (
+                f"-{self.share}" if self.share else "")
+
+    @property
+    def topic(self) -> str:
+        """The subscription (``$share/NAME/...`` with ``share``)."""
+        t = (f"{self.mqtt.prefix}/+/+" if self.profile == "plain"
+             else f"spBv1.0/{self.mqtt.group}/#")
+        return f"$share/{self.share}/{t}" if self.share else t
+
+
+@dataclass
+class Stats:
+    """What the collector did so far (read by the status line)."""
+
+    messages: int = 0
+    rows: int = 0  #: rows stored
+    duplicates: int = 0  #: rows already stored (delivered again)
+    bad: int = 0  #: messages that were not what the profile publishes
+    batches: int = 0
+    lag: float = 0.0  #: seconds from the newest sample's time to its commit, last batch
+    lags: list[float] = field(default_factory=list)  #: per message, when kept
+    db_ok: bool = True
+    mqtt_ok: bool = False
+    started: float = field(default_factory=time.monotonic)
+
+
+class Collector:
+    """One collector: ``run()`` until ``stop`` is set; ``event(text)`` reports."""
+
+    def __init__(self, cfg: CollectConfig, store: Store, event: Callable[[str], None],
+                 keep_lags: bool = False) -> None:
+        import paho.mqtt.client as mqtt  # the extra pymb-modbus[collect]
+        from paho.mqtt.enums import CallbackAPIVersion
+        from paho.mqtt.packettypes import PacketTypes
+        from paho.mqtt.properties import Properties
+
+        self.cfg = cfg
+        self.store = store
+        self.event = event
+        self.keep_lags = keep_lags
+        self.stats = Stats()
+        self.stop = threading.Event()
+        self.inbox: queue.SimpleQueue[tuple[int, int, int, str, bytes]] = queue.SimpleQueue()
+        self.generation = 0  #: counts connections; a message remembers its own
+        self.connack = threading.Event()
+        self.refused: str | None = None
+        self.bad_said: dict[str, float] = {}
+        self.host: SparkplugHost | None = None
+        self.born_ms = round(time.time() * 1000)
+        c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
+                        protocol=mqtt.MQTTv5, manual_ack=True)
+        cfg.mqtt.secure(c, cfg.mqtt.password())
+        c.reconnect_delay_set(1, 30)
+        c.max_inflight_messages_set(100)
+        c.max_queued_messages_set(0)
+        self.props = Properties(PacketTypes.CONNECT)  # type: ignore[no-untyped-call]
+        self.props.SessionExpiryInterval = SESSION_EXPIRY
+        self.props.ReceiveMaximum = RECEIVE_MAXIMUM
+        if cfg.profile == "sparkplug":
+            self.host = SparkplugHost(cfg.mqtt.group, cfg.host_id, self._send, event)
+            c.will_set(self.host.state_topic, state_payload(False, self.born_ms), 1, True)
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_message = self._on_message
+        self.client = c
+
+    # paho's thread
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                    props: Any = None) -> None:
+        if rc.is_failure:
+            self.refused = f"the broker refused the connection: {rc}"
+            self.connack.set()
+            return
+        self.generation += 1
+        self.stats.mqtt_ok = True
+        client.subscribe(self.cfg.topic, qos=1)
+        if self.host is not None:
+            client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
+        if self.connack.is_set():
+            self.event(f"connected to {self.cfg.mqtt.url} again")
+        self.connack.set()
+
+    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
+                       props: Any = None) -> None:
+        if self.stats.mqtt_ok and not self.stop.is_set():
+            self.event(f"lost the broker {self.cfg.mqtt.url}: {rc}; reconnecting")
+        self.stats.mqtt_ok = False
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        self.inbox.put((self.generation, msg.mid, msg.qos, msg.topic, bytes(msg.payload)))
+
+    def _send(self, topic: str, payload: bytes) -> None:
+        self.client.publish(topic, payload, 0, False)
+
+    # the collector's thread
+    def connect(self, timeout: float = 15.0) -> None:
+        """Connect (persistent session) and wait for the CONNACK; raises
+        ModbusConnectionError when the broker cannot be reached or refuses."""
+        m = self.cfg.mqtt
+        try:
+            self.client.connect(m.host, m.port, keepalive=m.keepalive, clean_start=False,
+                                properties=self.props)
+        except (OSError, ssl.SSLError) as e:
+            why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
+            raise ModbusConnectionError(f"cannot reach the broker {m.url}: {why}") from None
+        self.client.loop_start()
+        if not self.connack.wait(timeout) or self.refused:
+            self.client.loop_stop()
+            with contextlib.suppress(Exception):
+                self.client.disconnect()
+            raise ModbusConnectionError(self.refused or f"no answer from the broker {m.url}")
+        self.event(f"connected to {m.url} as {self.cfg.client_id}, subscribed to "
+                   f"{self.cfg.topic}")
+
+    def _take(self) -> list[tuple[int, int, int, str, bytes]]:
+        try:
+            first = self.inbox.get(timeout=0.2)
+        except queue.Empty:
+            return []
+        batch = [first]
+        with contextlib.suppress(queue.Empty):
+            while len(batch) < MAX_BATCH:
+                batch.append(self.inbox.get_nowait())
+        return batch
+
+    def _bad(self, topic: str, why: str) -> None:
+        self.stats.bad += 1
+        now = time.monotonic()
+        if now - self.bad_said.get(topic, -BAD_EVERY) >= BAD_EVERY:
+            self.bad_said[topic] = now
+            self.event(f"bad input on {topic}: {why} (the message is not stored; "
+                       f"{self.stats.bad} bad so far)")
+
+    def _rows(self, topic: str, payload: bytes) -> list[Row] | None:
+        try:
+            if self.host is not None:
+                return self.host.rows(topic, payload)
+            where = plain_topic(topic, self.cfg.mqtt.prefix)
+            return None if where is None else plain_rows(where[0], where[1], payload)
+        except BadInput as e:
+            self._bad(topic, str(e))
+            return None
+
+    def _write(self, rows: list[Row]) -> bool:
+        """Write until committed (True), or False when stopped while the database
+        cannot be reached."""
+        delay = _BACKOFF[0]
+        while True:
+            try:
+                n = self.store.write(rows) if rows else 0
+            except StoreDown as e:
+                if self.stats.db_ok:
+                    self.event(f"the database cannot take the batch ({e}); holding "
+                               "its messages unacknowledged and trying again")
+                self.stats.db_ok = False
+                if self.stop.wait(delay):
+                    return False
+                delay = min(delay * 2, _BACKOFF[1])
+                continue
+            if not self.stats.db_ok:
+                self.event(f"the database takes rows again ({self.store.target})")
+                self.stats.db_ok = True
+            self.stats.rows += n
+            self.stats.duplicates += len(rows) - n
+            return True
+
+    def step(self) -> bool:
+        """Take, write and acknowledge one batch; False when there was none (or it
+        could not be written before a stop)."""
+        batch = self._take()
+        if not batch:
+            return False
+        rows: list[Row] = []
+        newest: list[float] = []
+        for _gen, _mid, _qos, topic, payload in batch:
+            got = self._rows(topic, payload)
+            if got:
+                rows.extend(got)
+                newest.append(max(r[3] for r in got))
+        if not self._write(rows):
+            return False
+        now = time.time()
+        gen = self.generation
+        for g, mid, qos, _topic, _payload in batch:
+            if qos and g == gen:
+                self.client.ack(mid, qos)
+        s = self.stats
+        s.messages += len(batch)
+        s.batches += 1
+        if newest:
+            s.lag = now - max(newest)
+            if self.keep_lags:
+                s.lags.extend(now - t for t in newest)
+        return True
+
+    def run(self, tick: Callable[[], None] | None = None) -> Stats:
+        """Collect until ``stop`` is set, then finish the batch in hand and
+        disconnect (Sparkplug: STATE offline first). Raises StoreRefused when
+        the database refuses the writes."""
+        try:
+            while not self.stop.is_set():
+                self.step()
+                if tick is not None:
+                    tick()
+        finally:
+            self.close()
+        return self.stats
+
+    def close(self) -> None:
+        """Disconnect cleanly (unacknowledged messages stay in the session)."""
+        c = self.client
+        with contextlib.suppress(Exception):
+            if self.host is not None and self.stats.mqtt_ok:
+                info = c.publish(self.host.state_topic,
+                                 state_payload(False, self.born_ms), 1, True)
+                info.wait_for_publish(5)
+            c.disconnect()
+        c.loop_stop()

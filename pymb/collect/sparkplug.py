@@ -1,0 +1,260 @@
+"""The Sparkplug B profile of the collector: a host application.
+
+It reads ``spBv1.0/{group}/#``: births (NBIRTH, DBIRTH) declare each metric's
+name, alias and datatype, data (NDATA, DDATA) may name metrics by alias only.
+Every message but NDEATH carries a ``seq`` (0..255, wrapping) per edge node;
+on a gap, or on data from a node or device it has no birth for, the host asks
+the node for new births with an NCMD ``Node Control/Rebirth`` (at most once
+per node every :data:`REBIRTH_EVERY` seconds). Its own state goes on
+``spBv1.0/STATE/{host_id}`` (retained; the will says offline).
+
+Rows: ``node`` is the edge node, ``device`` the device (``""`` for the node's
+own metrics), ``point`` the metric's name (pymb's ``channel NNN/NAME`` as
+``NAME_N``, as in the plain profile); ``bdSeq`` and ``Node Control/*`` are
+not stored, nor metrics of the kinds that are no single value (DataSet,
+Template, Bytes, File).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymb.collect.rows import NO_VALUE, BadInput, Row
+from pymb.fleet.protobuf import DataType, Metric, decode, encode_payload
+
+__all__ = ["REBIRTH_EVERY", "SparkplugHost", "state_payload"]
+
+NAMESPACE = "spBv1.0"
+REBIRTH = "Node Control/Rebirth"
+REBIRTH_EVERY = 5.0  #: seconds: a node is asked for births at most this often
+_KINDS = ("NBIRTH", "NDEATH", "NDATA", "DBIRTH", "DDEATH", "DDATA", "NCMD", "DCMD")
+_CHANNEL = re.compile(r"channel 0*(\d+)/(.+)")
+#: datatypes with no single value (DataSet, Bytes, File, Template)
+_SKIPPED = {16, 17, 18, 19}
+_SIGNED = {1: 8, 2: 16, 3: 32, 4: 64}  #: Int8/16/32/64: their width
+
+
+def state_payload(online: bool, timestamp_ms: int) -> bytes:
+    """A Sparkplug 3.0 STATE payload."""
+    return json.dumps({"online": online, "timestamp": timestamp_ms},
+                      separators=(",", ":")).encode()
+
+
+@dataclass
+class _Node:
+    """What the host knows of one edge node (since its last NBIRTH)."""
+
+    born: bool = False
+    bd_seq: int | None = None
+    seq: int | None = None
+    aliases: dict[int, tuple[str, int]] = field(default_factory=dict)
+    devices: dict[str, dict[int, tuple[str, int]]] = field(default_factory=dict)
+    asked: float = float("-inf")  #: time.monotonic() of the last rebirth request
+
+
+def _point(name: str) -> str:
+    m = _CHANNEL.fullmatch(name)
+    return f"{m.group(2)}_{int(m.group(1))}" if m else name
+
+
+def _one(fields: dict[int, list[int | bytes]], number: int) -> int | bytes | None:
+    v = fields.get(number)
+    return v[-1] if v else None
+
+
+def _int(fields: dict[int, list[int | bytes]], number: int) -> int | None:
+    v = _one(fields, number)
+    if isinstance(v, bytes):
+        raise BadInput(f"field {number} is not a number")
+    return v
+
+
+def _text(fields: dict[int, list[int | bytes]], number: int) -> str | None:
+    v = _one(fields, number)
+    if v is None:
+        return None
+    if not isinstance(v, bytes):
+        raise BadInput(f"field {number} is not a string")
+    try:
+        return v.decode()
+    except UnicodeDecodeError:
+        raise BadInput(f"field {number} is not UTF-8") from None
+
+
+def _state_property(raw: bytes) -> str | None:
+    """The ``state`` property of a metric's PropertySet, if any."""
+    props = decode(raw)
+    keys = [k.decode(errors="replace") for k in props.get(1, []) if isinstance(k, bytes)]
+    values = [v for v in props.get(2, []) if isinstance(v, bytes)]
+    for k, v in zip(keys, values, strict=False):
+        if k == "state":
+            return _text(decode(v), 8)
+    return None
+
+
+def _value(f: dict[int, list[int | bytes]], datatype: int) -> float | str | None:
+    """A metric's value as stored: a number (float), a string, or None."""
+    if datatype in (12, 14, 15):  # String, Text, UUID
+        return _text(f, 15)
+    if 12 in f or 13 in f:  # float_value (fixed32), double_value (fixed64)
+        raw = _int(f, 12)
+        if raw is not None:
+            return float(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
+        raw = _int(f, 13)
+        assert raw is not None
+        return float(struct.unpack("<d", raw.to_bytes(8, "little"))[0])
+    if 14 in f:
+        return 1.0 if _int(f, 14) else 0.0
+    for number in (10, 11):
+        raw = _int(f, number)
+        if raw is not None:
+            bits = _SIGNED.get(datatype)
+            if bits is not None:
+                raw &= (1 << bits) - 1
+                if raw >= 1 << (bits - 1):
+                    raw -= 1 << bits
+            return float(raw)
+    if 15 in f:
+        return _text(f, 15)
+    raise BadInput(f"a metric of datatype {datatype} has no value")
+
+
+class SparkplugHost:
+    """The host application's view of every edge node of one group.
+
+    ``send(topic, payload)`` publishes (QoS 0) a rebirth request; ``event`` reports
+    what happened (a seq gap, an unknown birth)."""
+
+    def __init__(self, group: str, host_id: str, send: Callable[[str, bytes], None],
+                 event: Callable[[str], None]) -> None:
+        self.group = group
+        self.host_id = host_id
+        self.state_topic = f"{NAMESPACE}/STATE/{host_id}"
+        self.subscription = f"{NAMESPACE}/{group}/#"
+        self.send = send
+        self.event = event
+        self.nodes: dict[str, _Node] = {}
+        self.rebirths = 0  #: rebirth requests sent
+        self.unborn = 0  #: messages dropped for want of a birth
+
+    def _rebirth(self, node: str, st: _Node, why: str) -> None:
+        now = time.monotonic()
+        if now - st.asked < REBIRTH_EVERY:
+            return
+        st.asked = now
+        self.rebirths += 1
+        ms = round(time.time() * 1000)
+        payload = encode_payload([Metric(REBIRTH, None, DataType.BOOLEAN, True, ms)],
+                                 timestamp=ms)
+        self.send(f"{NAMESPACE}/{self.group}/NCMD/{node}", payload)
+        self.event(f"asked {self.group}/{node} for a rebirth: {why}")
+
+    def rows(self, topic: str, payload: bytes) -> list[Row]:
+        """The rows of one message (none for births' bookkeeping, deaths and
+        commands). Raises BadInput for a topic or payload of no known shape."""
+        parts = topic.split("/")
+        if (len(parts) not in (4, 5) or parts[0] != NAMESPACE or parts[1] != self.group
+                or parts[2] not in _KINDS or not all(parts[3:])):
+            raise BadInput("not a Sparkplug B topic spBv1.0/{group}/{type}/{node}[/{device}]")
+        kind, node = parts[2], parts[3]
+        device = parts[4] if len(parts) == 5 else None
+        if (device is None) != (kind[0] == "N"):
+            raise BadInput(f"a {kind} topic with the wrong number of levels")
+        if kind in ("NCMD", "DCMD"):
+            return []
+        try:
+            p = decode(payload)
+            metrics = [decode(m) if isinstance(m, bytes) else None for m in p.get(2, [])]
+        except ValueError as e:
+            raise BadInput(f"not a Sparkplug B payload ({e})") from None
+        if any(m is None for m in metrics):
+            raise BadInput("not a Sparkplug B payload (a metric is not a message)")
+        ms = _int(p, 1)
+        seq = _int(p, 3)
+        st = self.nodes.setdefault(node, _Node())
+        if kind == "NDEATH":
+            return self._death(node, st, metrics)  # type: ignore[arg-type]
+        if seq is None or seq > 255:
+            raise BadInput(f"a {kind} without a seq of 0..255")
+        if kind == "NBIRTH":
+            st.born, st.seq, st.aliases, st.devices = True, seq, {}, {}
+            for m in metrics:
+                assert m is not None
+                if _text(m, 1) == "bdSeq":
+                    st.bd_seq = _int(m, 11)
+        elif not st.born:
+            self.unborn += 1
+            self._rebirth(node, st, f"{kind} before its NBIRTH")
+            return []
+        else:
+            expected = ((st.seq or 0) + 1) % 256 if st.seq is not None else seq
+            st.seq = seq
+            if seq != expected:
+                self._rebirth(node, st, f"seq {seq} after {(expected - 1) % 256}")
+        if kind == "DBIRTH":
+            assert device is not None
+            st.devices[device] = {}
+        if kind == "DDEATH":
+            return []
+        if device is not None and device not in st.devices:
+            self.unborn += 1
+            self._rebirth(node, st, f"{kind} of {device}, which has no DBIRTH")
+            return []
+        aliases = st.aliases if device is None else st.devices[device]
+        t0 = ms / 1000 if ms is not None else time.time()
+        out: list[Row] = []
+        for m in metrics:
+            assert m is not None
+            row = self._metric(node, device or "", m, aliases, t0, kind.endswith("BIRTH"))
+            if row is None and kind.endswith("DATA") and _text(m, 1) is None:
+                self.unborn += 1
+                self._rebirth(node, st, f"{kind} with an alias no birth declared")
+                return []
+            if row is not None and row[2]:
+                out.append(row)
+        return out
+
+    def _death(self, node: str, st: _Node, metrics: list[dict[int, list[int | bytes]]]
+               ) -> list[Row]:
+        bd = next((_int(m, 11) for m in metrics if _text(m, 1) == "bdSeq"), None)
+        if st.born and (bd is None or st.bd_seq is None or bd == st.bd_seq):
+            st.born = False
+            self.event(f"{self.group}/{node} is offline (NDEATH)")
+        return []
+
+    def _metric(self, node: str, device: str, m: dict[int, list[int | bytes]],
+                aliases: dict[int, tuple[str, int]], t0: float, birth: bool) -> Row | None:
+        """The row of one metric; None for an alias no birth declared. A row with
+        an empty point is a metric that is not stored (bdSeq, Node Control/*)."""
+        name = _text(m, 1)
+        alias = _int(m, 2)
+        datatype = _int(m, 4)
+        if name is None:
+            if alias is None or alias not in aliases:
+                return None
+            name, declared = aliases[alias]
+            datatype = datatype if datatype is not None else declared
+        if datatype is None:
+            raise BadInput(f"metric {name!r} has no datatype")
+        if birth and alias is not None:
+            aliases[alias] = (name, datatype)
+        if name == "bdSeq" or name.startswith("Node Control/") or datatype in _SKIPPED:
+            return (node, device, "", t0, None, None, None, None)
+        ts = _int(m, 3)
+        t = ts / 1000 if ts is not None else t0
+        point = _point(name)
+        if _int(m, 7):  # is_null
+            props = _one(m, 9)
+            why = _state_property(props) if isinstance(props, bytes) else None
+            return (node, device, point, t, None, None, why or NO_VALUE, None)
+        v = _value(m, datatype)
+        if isinstance(v, str):
+            return (node, device, point, t, None, v, None, None)
+        if v is None or v != v or v in (float("inf"), float("-inf")):
+            return (node, device, point, t, None, None, NO_VALUE, None)
+        return (node, device, point, t, v, None, None, None)
