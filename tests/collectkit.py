@@ -21,8 +21,8 @@ from pymb.collect.postgres import Postgres, find_postgres
 
 psycopg = pytest.importorskip("psycopg")
 
-#: (node, device, point, time, value, text, state): what a row says
-Fact = tuple[str, str, str, float, float | None, str | None, str | None]
+#: (node, device, point, time, value, text, state, sample): what a row says
+Fact = tuple[str, str, str, float, float | None, str | None, str | None, int | None]
 
 
 @pytest.fixture
@@ -105,6 +105,7 @@ def expected_plain(messages: list[tuple[str, bytes]], prefix: str = "pymb") -> s
             continue
         doc = json.loads(payload)
         t = float(doc["time_utc"])
+        n = doc.get("sample")
         states = doc.get("states") or {}
         for name, v in doc["values"].items():
             items = list(enumerate(v, 1)) if isinstance(v, list) else [(0, v)]
@@ -113,11 +114,11 @@ def expected_plain(messages: list[tuple[str, bytes]], prefix: str = "pymb") -> s
                 st = states.get(name)
                 st = st[i - 1] if isinstance(st, list) else st
                 if x is None:
-                    out.add((parts[1], parts[2], point, t, None, None, st or "no_value"))
+                    out.add((parts[1], parts[2], point, t, None, None, st or "no_value", n))
                 elif isinstance(x, str):
-                    out.add((parts[1], parts[2], point, t, None, x, None))
+                    out.add((parts[1], parts[2], point, t, None, x, None, n))
                 else:
-                    out.add((parts[1], parts[2], point, t, _float(x), None, None))
+                    out.add((parts[1], parts[2], point, t, _float(x), None, None, n))
     return out
 
 
@@ -126,7 +127,7 @@ def sqlite_facts(path: Path) -> list[Fact]:
     con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
     try:
         return [tuple(r) for r in con.execute(  # type: ignore[misc]
-            "SELECT node, device, point, time, value, text, state FROM pymb_values")]
+            "SELECT node, device, point, time, value, text, state, sample FROM pymb_values")]
     finally:
         con.close()
 
@@ -150,7 +151,7 @@ def pg_facts(url: str) -> list[Fact]:
     with psycopg.connect(url) as con:
         return [tuple(r) for r in con.execute(  # type: ignore[misc]
             "SELECT node, device, point, extract(epoch FROM time)::float8, value, text, "
-            "state FROM pymb_values")]
+            "state, sample FROM pymb_values")]
 
 
 def pg_count(url: str) -> int:
@@ -163,16 +164,51 @@ def pg_count(url: str) -> int:
 
 
 def same_facts(stored: list[Fact], expected: set[Fact], *, us: bool = False) -> None:
-    """Every expected fact stored exactly once, nothing else. ``us``: times
-    compared to the microsecond (PostgreSQL's timestamptz)."""
-    def key(f: Fact) -> Fact:
-        return (f[0], f[1], f[2], round(f[3], 6) if us else f[3], *f[4:])  # type: ignore[return-value]
+    """Every expected fact stored exactly once, nothing else. ``us``: the times
+    of PostgreSQL's timestamptz, to the microsecond: facts are matched by their
+    sample id instead, and their times must agree within 1 µs."""
+    def key(f: Fact) -> tuple[Any, ...]:
+        return (*f[:3], *f[4:]) if us else f
     got = [key(f) for f in stored]
     want = {key(f) for f in expected}
+    if us:
+        times = {key(f): f[3] for f in expected}
+        off = [(f, times[key(f)]) for f in stored
+               if key(f) in times and abs(f[3] - times[key(f)]) > 1.01e-6]
+        assert not off, f"{len(off)} rows at another time, e.g. {off[:2]}"
     assert len(got) == len(set(got)), f"{len(got) - len(set(got))} rows stored twice"
     missing, extra = want - set(got), set(got) - want
     assert not missing, f"{len(missing)} missing, e.g. {sorted(missing)[:3]}"
     assert not extra, f"{len(extra)} unexpected, e.g. {sorted(extra)[:3]}"
+
+
+def all_received(sub: Any, log_db: Path) -> list[tuple[str, bytes]]:
+    """Wait until the subscriber ``sub`` (tests/mqtt_broker.py) has every sample
+    of the board's database ``log_db``; what it received."""
+    from mqtt_broker import db_ids, plain_ids
+
+    ids = db_ids(log_db)
+    sub.wait_until(lambda m: ids <= set(plain_ids(m)), 60,
+                   "every logged sample at the subscriber")
+    return list(sub.snapshot())
+
+
+def publish(broker_port: int, messages: list[tuple[str, bytes]]) -> None:
+    """Publish ``messages`` at QoS 1 from a client of the test's own and wait
+    for the broker's acknowledgements."""
+    import paho.mqtt.client as paho
+    from paho.mqtt.enums import CallbackAPIVersion
+
+    c = paho.Client(CallbackAPIVersion.VERSION2, client_id="pymb-test-pub")
+    c.connect("127.0.0.1", broker_port)
+    c.loop_start()
+    try:
+        infos = [c.publish(t, p, qos=1) for t, p in messages]
+        for i in infos:
+            i.wait_for_publish(30)
+    finally:
+        c.disconnect()
+        c.loop_stop()
 
 
 def wait_rows(count: Callable[[], int], n: int, what: str, timeout: float = 60) -> None:

@@ -9,14 +9,15 @@ from __future__ import annotations
 import json
 import signal
 import time
-from pathlib import Path
 
 import pytest
 
 pytest.register_assert_rewrite("mqtt_broker", "collectkit")
 from collectkit import (  # noqa: E402
     Collectors,
+    all_received,
     expected_plain,
+    publish,
     same_facts,
     sqlite_count,
     sqlite_facts,
@@ -25,32 +26,9 @@ from collectkit import (  # noqa: E402
     wait_subscribed,
 )
 from conftest import wait_until  # noqa: E402
-from mqtt_broker import Fleet, db_count, db_ids, paho, plain_ids, stop_log  # noqa: E402
+from mqtt_broker import Fleet, db_count, plain_ids, stop_log  # noqa: E402
 
 pytest_plugins = ["mqtt_broker", "collectkit"]
-
-
-def _all_received(fleet: Fleet, sub: object, log_db: Path) -> list[tuple[str, bytes]]:
-    ids = db_ids(log_db)
-    got = sub.wait_until(  # type: ignore[attr-defined]
-        lambda m: ids <= set(plain_ids(m)), 60, "every logged sample at the subscriber")
-    assert got
-    return sub.snapshot()  # type: ignore[attr-defined,no-any-return]
-
-
-def _publish(broker_port: int, messages: list[tuple[str, bytes]]) -> None:
-    """Publish ``messages`` at QoS 1 from a client of the test's own, and wait
-    for the broker's acknowledgements."""
-    c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="pymb-test-pub")
-    c.connect("127.0.0.1", broker_port)
-    c.loop_start()
-    try:
-        infos = [c.publish(t, p, qos=1) for t, p in messages]
-        for i in infos:
-            i.wait_for_publish(30)
-    finally:
-        c.disconnect()
-        c.loop_stop()
 
 
 def test_sigkill_and_broker_restart_lose_nothing_and_store_nothing_twice(
@@ -79,7 +57,7 @@ def test_sigkill_and_broker_restart_lose_nothing_and_store_nothing_twice(
     wait_until(lambda: max(plain_ids(sub.snapshot())) > before + 100,
                "live samples after the broker's restart", 60)
     stop_log(log)
-    messages = _all_received(fleet, sub, log_db)
+    messages = all_received(sub, log_db)
     expected = expected_plain(messages)
     wait_rows(lambda: sqlite_count(out), len(expected), "every value stored")
     err = stop(col)
@@ -99,11 +77,11 @@ def test_the_same_samples_twice_are_stored_once(fleet: Fleet, collectors: Collec
                     seconds=2)
     _, log_err = log.communicate(timeout=60)
     assert log.returncode == 0, log_err
-    messages = _all_received(fleet, sub, log_db)
+    messages = all_received(sub, log_db)
     expected = expected_plain(messages)
     wait_rows(lambda: sqlite_count(out), len(expected), "every value stored")
     data = [(t, p) for t, p in messages if not t.endswith("/status")]
-    _publish(broker.port, data)  # a board's backlog sent again
+    publish(broker.port, data)  # a board's backlog sent again
     wait_until(lambda: len(sub.snapshot()) >= len(messages) + len(data),
                "the copies at the subscriber", 60)
     time.sleep(1.0)  # the collector has them too: no row may come of them
@@ -121,7 +99,7 @@ def test_bad_input_is_counted_reported_and_never_blocks(
     good = {"time_utc": 1800000000.5, "sample": 7, "values": {"v": 1.5, "flag": True,
             "name": "pump", "block": [1, None, 3]},
             "states": {"block": [None, "offline", None]}}
-    _publish(broker.port, [
+    publish(broker.port, [
         ("pymb/gw/notjson", b"\xff{not json"),
         ("pymb/gw/wrongtype", json.dumps({"time_utc": 1.0, "values": {"v": {"a": 1}}}).encode()),
         ("pymb/gw/notime", json.dumps({"values": {"v": 1}}).encode()),
@@ -135,10 +113,10 @@ def test_bad_input_is_counted_reported_and_never_blocks(
     assert "3 bad" in err
     assert "status" not in err.replace("subscribed", "")
     assert sorted(sqlite_facts(out)) == [
-        ("gw", "dev", "block_1", 1800000000.5, 1.0, None, None),
-        ("gw", "dev", "block_2", 1800000000.5, None, None, "offline"),
-        ("gw", "dev", "block_3", 1800000000.5, 3.0, None, None),
-        ("gw", "dev", "flag", 1800000000.5, 1.0, None, None),
-        ("gw", "dev", "name", 1800000000.5, None, "pump", None),
-        ("gw", "dev", "v", 1800000000.5, 1.5, None, None),
+        ("gw", "dev", "block_1", 1800000000.5, 1.0, None, None, 7),
+        ("gw", "dev", "block_2", 1800000000.5, None, None, "offline", 7),
+        ("gw", "dev", "block_3", 1800000000.5, 3.0, None, None, 7),
+        ("gw", "dev", "flag", 1800000000.5, 1.0, None, None, 7),
+        ("gw", "dev", "name", 1800000000.5, None, "pump", None, 7),
+        ("gw", "dev", "v", 1800000000.5, 1.5, None, None, 7),
     ]
