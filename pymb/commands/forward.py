@@ -26,6 +26,9 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
         "%Y-%m-%d %H:%M:%S", time.localtime(st.last_ack))
     lines = [f"mqtt: {st.acked:,} samples acknowledged by the broker ({st.published:,} "
              f"published, {st.connections} connection(s)); last acknowledgement {ack}"]
+    if st.refusal is not None:
+        lines.append(f"mqtt: the broker refuses samples ({st.refusal}): they are kept in the "
+                     "database and offered again")
     if st.backlog:
         age = "" if st.backlog_age is None else f", the oldest {st.backlog_age:.0f} s old"
         lines.append(f"mqtt: {st.backlog:,} samples not yet acknowledged{age}: they are kept "

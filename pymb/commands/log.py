@@ -18,7 +18,7 @@ from pymb.commands.logconfig import config_from
 from pymb.commands.mapcli import add_map_arg
 from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
-from pymb.fleet.config import PASSWORD_ENV, PROFILES
+from pymb.fleet.config import PASSWORD_ENV, PROFILES, PROTOCOLS
 from pymb.logger import Logger
 from pymb.logger.config import (
     COMMIT_BYTES,
@@ -105,6 +105,9 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
                    help="where a new outbox cursor (a broker, profile and node not seen "
                         "before) starts: every sample in the database (oldest, the default) "
                         "or those logged from now on")
+    g.add_argument("--mqtt-protocol", choices=PROTOCOLS,
+                   help="the MQTT version: 5 (default; the broker says when it refuses a "
+                        "sample, which then stays in the database) or 3.1.1")
     g.add_argument("--mqtt-primary-host", metavar="ID",
                    help="Sparkplug: publish only while the primary host application ID says "
                         "online on spBv1.0/STATE/ID (the samples wait in the database)")

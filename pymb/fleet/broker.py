@@ -73,12 +73,14 @@ class Mosquitto:
 
     ``tls``: certificates (the broker then speaks TLS only);
     ``require_client_cert``: reject clients without a certificate the CA signed;
-    ``users``: name -> password (a password file; anonymous clients refused).
+    ``users``: name -> password (a password file; anonymous clients refused);
+    ``extra``: more lines of its configuration (``acl_file PATH``,
+    ``message_size_limit BYTES``), read again on :meth:`reload`.
     """
 
     def __init__(self, directory: str | os.PathLike[str], *, port: int | None = None,
                  tls: Certificates | None = None, require_client_cert: bool = False,
-                 users: dict[str, str] | None = None) -> None:
+                 users: dict[str, str] | None = None, extra: tuple[str, ...] = ()) -> None:
         exe = find_mosquitto()
         if exe is None:
             raise FileNotFoundError("mosquitto is not installed (apt-get install mosquitto)")
@@ -111,6 +113,8 @@ class Mosquitto:
             lines += [f"cafile {tls.ca}", f"certfile {tls.server_cert}",
                       f"keyfile {tls.server_key}",
                       f"require_certificate {'true' if require_client_cert else 'false'}"]
+        lines += extra
+        self.extra = tuple(extra)
         self.conf = self.dir / "mosquitto.conf"
         self.conf.write_text("\n".join(lines) + "\n")
 
@@ -163,6 +167,17 @@ class Mosquitto:
             p.wait(10)
         if p.stderr:
             p.stderr.close()
+
+    def reload(self, extra: tuple[str, ...] | None = None) -> None:
+        """Read the configuration (and its ACL file) again (SIGHUP), with the
+        lines ``extra`` in place of those given at construction if given."""
+        assert self.proc is not None
+        if extra is not None:
+            lines = self.conf.read_text().splitlines()
+            lines = lines[:len(lines) - len(self.extra)] + list(extra)
+            self.conf.write_text("\n".join(lines) + "\n")
+            self.extra = tuple(extra)
+        os.kill(self.proc.pid, signal.SIGHUP)
 
     def pause(self) -> None:
         """Stall it (SIGSTOP): connections stay open, nothing is answered."""

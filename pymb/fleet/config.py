@@ -18,6 +18,7 @@ in ``[mqtt]``; ``--mqtt URL`` is ``url``)::
     drain = 5                    # seconds a clean stop keeps sending what is left
     primary_host = "scada"       # Sparkplug: publish only while spBv1.0/STATE/scada is online
     start = "oldest"             # a new outbox cursor: send every sample (oldest) or new ones (now)
+    protocol = "5"               # MQTT 5 (default) or "3.1.1" for a broker of 3.1.1 only
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from urllib.parse import urlsplit
 
 from pymb.errors import InvalidArgument
 
-__all__ = ["PROFILES", "MqttConfig", "from_table"]
+__all__ = ["PROFILES", "PROTOCOLS", "MqttConfig", "from_table"]
 
 PROFILES = ("plain", "sparkplug")
 PASSWORD_ENV = "PYMB_MQTT_PASSWORD"
@@ -40,8 +41,9 @@ KEYS: dict[str, type | tuple[type, ...]] = {
     "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
     "password_file": str, "ca": str, "cert": str, "key": str,
     "catchup_rate": (int, float), "keepalive": int, "primary_host": str,
-    "drain": (int, float), "start": str,
+    "drain": (int, float), "start": str, "protocol": str,
 }
+PROTOCOLS = ("5", "3.1.1")  #: MQTT versions: 5 says when the broker refuses a message
 STARTS = ("oldest", "now")  #: where a new outbox cursor starts
 MAX_DRAIN = 3600.0  #: seconds: the longest drain accepted
 
@@ -70,6 +72,8 @@ class MqttConfig:
     #: where a broker's new outbox cursor starts: at the oldest sample in the
     #: database, or after those committed before the run (``now``)
     start: str = "oldest"
+    #: the MQTT version: "5" (the broker says when it refuses a message) or "3.1.1"
+    protocol: str = "5"
 
     def __post_init__(self) -> None:
         u = urlsplit(self.url)
@@ -88,6 +92,8 @@ class MqttConfig:
         self.port = port or (8883 if self.tls else 1883)
         if self.start not in STARTS:
             raise InvalidArgument(f"MQTT start must be oldest or now, got {self.start!r}")
+        if self.protocol not in PROTOCOLS:
+            raise InvalidArgument(f"MQTT protocol must be 5 or 3.1.1, got {self.protocol!r}")
         if self.profile not in PROFILES:
             raise InvalidArgument(f"unknown MQTT profile {self.profile!r}; use plain or sparkplug")
         if not self.node:

@@ -63,6 +63,8 @@ __all__ = ["Forwarder", "ForwarderStatus", "destination"]
 REPLAY_NOTICE = 86400.0  #: seconds of samples a new cursor sends without a notice
 CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+#: seconds before refused samples are offered again: doubling from the first to the last
+RETRY_FIRST, RETRY_MAX = 5.0, 300.0
 
 
 @dataclass(frozen=True)
@@ -79,10 +81,15 @@ class ForwarderStatus:
     rate: float  #: samples acknowledged per second, over the last few seconds
     connections: int  #: successful connections so far
     cursor: int  #: every sample id up to this one was acknowledged (the outbox cursor)
+    #: the broker's reason while it refuses samples (MQTT 5); they are kept and offered again
+    refusal: str | None = None
 
     def line(self) -> str:
-        """A short status: ``mqtt ok 152/s backlog 0``."""
+        """A short status: ``mqtt ok 152/s backlog 0``; ``mqtt refused (Not
+        authorized) ...`` while the broker refuses samples."""
         head = "mqtt " + ("ok" if self.connected else self.state)
+        if self.refusal is not None:
+            head = f"mqtt refused ({self.refusal})"
         # the age of a backlog, not of the few samples in flight a moment
         age = "" if self.backlog_age is None or not self.backlog or self.backlog_age < 1 \
             else f" ({self.backlog_age:.0f} s old)"
@@ -145,6 +152,13 @@ class Forwarder(threading.Thread):
         self.host_online_ts: float | None = None
         self._status = ForwarderStatus(False, "connecting", 0, 0, 0, None, None, 0.0, 0,
                                        self.cursor)
+        #: the broker's last reason for refusing a sample, until it takes that sample
+        self._refusal: str | None = None
+        self._first_refused = 0  #: the lowest sample id refused since
+        self._refused_here = False  #: a sample was refused on this connection
+        self._said: set[str] = set()  #: the reasons said since the broker last took one
+        self._retry_at = 0.0  #: when this connection ends to offer them again
+        self._retry_wait = RETRY_FIRST
         self._published = self._acked = self._connections = 0
         self._last_ack: float | None = None
         #: (monotonic time, samples) of the acknowledgements of the last few seconds
@@ -213,6 +227,7 @@ class Forwarder(threading.Thread):
     def _run(self) -> None:
         backoff = _BACKOFF_FIRST
         was_down = ""
+        again = False
         while not self._stopping.is_set():
             s = self._connect()
             if s is not None and s.ok:
@@ -220,14 +235,19 @@ class Forwarder(threading.Thread):
                 self._connections += 1
                 if self.dest is None:
                     self._key(s)
-                self.record_event(f"connected to {self.dest}")
+                if not again:
+                    self.record_event(f"connected to {self.dest}")
                 was_down = ""
                 self._pump(s)
                 self._close(s)
                 if self._stopping.is_set():
                     return
+                again = s.again
+                if again:  # to offer refused samples again: at once, no story
+                    continue
                 self.record_event(f"lost the connection to {self.dest}: {s.reason or 'closed'}; "
                             "the samples go on accumulating in the database")
+            again = False
             reason = "connecting" if s is None else (s.reason or "disconnected")
             if reason != was_down and not (s is not None and s.ok):
                 self.record_event(f"cannot connect to {self.dest or self.where}: {reason}")
@@ -340,7 +360,7 @@ class Forwarder(threading.Thread):
         with self._lock:
             self._status = ForwarderStatus(connected, state, self._published, self._acked,
                                            max(backlog, 0), age, self._last_ack, rate,
-                                           self._connections, self.cursor)
+                                           self._connections, self.cursor, self._refusal)
 
     # -- one connection ------------------------------------------------------------
 
@@ -359,6 +379,7 @@ class Forwarder(threading.Thread):
         pub.barrier()
         self.rebirth.clear()
         live_start = live_after = self.source.max_id()  # the live lane: what comes after
+        self._refused_here = False
         catch_after = self.acked.skip_done(self.cursor)  # the catch-up lane: up to live_start
         tokens, last_tick = 0.0, time.monotonic()
         last_snap = 0.0
@@ -391,6 +412,11 @@ class Forwarder(threading.Thread):
             catch_after, tokens, sent = catch_up_lane(pub, self.source, self.acked, catch_after,
                                                       live_start, tokens)
             self._published += sent
+            if self._refused_here and now >= self._retry_at:
+                # a new connection offers them again: its catch-up lane starts at the cursor
+                s.again = True
+                self._retry_wait = min(self._retry_wait * 2, RETRY_MAX)
+                break
             pub.barrier()
             if now - last_snap >= 0.5:
                 self._snapshot("connected", True)
@@ -398,6 +424,7 @@ class Forwarder(threading.Thread):
                 pub.send(prof.node_data(self._node()), [])
             self.wake.wait(0.05 if catch_after < live_start else 0.2)
         if s.lost:
+            self._acknowledged(pub, s)  # what came before the loss (a refusal, say)
             return
         # a clean end: the goodbye, then DISCONNECT
         self._save_cursor(force=True)
@@ -411,14 +438,46 @@ class Forwarder(threading.Thread):
         return {BACKLOG: self.status().backlog}
 
     def _acknowledged(self, pub: Publisher, s: Session) -> None:
-        """Mark what the broker acknowledged since the last look."""
-        for ranges in pub.acknowledged(s.acks):
+        """Mark what the broker acknowledged since the last look; keep what it
+        refused (MQTT 5) to offer it again."""
+        for ranges, refused, topic in pub.acknowledged(s.acks):
+            if refused is not None:
+                self._refused(ranges, refused, topic)
+                continue
             for lo, hi in ranges:
                 self.acked.mark(lo, hi)
             n = len(ranges)
             self._acked += n
             self._last_ack = time.time()
             self._ack_times.append((time.monotonic(), n))
+            if self._refusal is not None and any(
+                    lo <= self._first_refused <= hi for lo, hi in ranges):
+                self.record_event(f"the broker takes the samples it refused: sample "
+                                  f"{self._first_refused} was acknowledged")
+                self._said.clear()
+                self._refusal = None
+                self._retry_wait = RETRY_FIRST
+
+    def _refused(self, ranges: list[tuple[int, int]], reason: str, topic: str) -> None:
+        """The broker said no to a sample: it stays in the outbox (the cursor
+        stops before it) and is offered again on the next connection."""
+        if not self._refused_here:
+            self._refused_here = True
+            self._retry_at = time.monotonic() + self._retry_wait
+        first = ranges[-1][1]
+        if self._refusal is None or first < self._first_refused:
+            self._first_refused = first
+        self._refusal = reason
+        if reason in self._said:
+            return
+        self._said.add(reason)
+        line = (f"the broker refused sample {first} on {topic}: {reason}; it stays in the "
+                f"database and is offered again after {self._retry_wait:g} s (doubling up to "
+                f"{RETRY_MAX:g} s while the broker refuses)")
+        self.record_event(line)
+        if self.say:
+            with contextlib.suppress(OSError, ValueError):
+                print(f"pymb log: {line}", file=sys.stderr, flush=True)
 
     def _publish_downs(self, pub: Publisher, rec: StoredSample | None, upto: int) -> None:
         """Publish what is due: the downs of ``rec``'s device that came after

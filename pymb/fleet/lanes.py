@@ -29,6 +29,7 @@ class Publisher:
         self.profile = profile
         self.qos1 = profile.data_qos > 0
         self.inflight: dict[int, list[tuple[int, int]]] = {}  # mid -> sample ranges it acks
+        self.topics: dict[int, str] = {}  # mid -> the topic of a sample's last message
         self.unbarriered: list[tuple[int, int]] = []  # QoS 0: sent, waiting for a barrier
         self.since_barrier = 0
         self.outstanding = 0  # samples sent and not acknowledged
@@ -44,6 +45,8 @@ class Publisher:
             last = i == len(msgs) - 1
             if self.qos1 and m.qos > 0:
                 self.inflight[info.mid] = ranges if last else []
+                if last and ranges:
+                    self.topics[info.mid] = m.topic
             elif last:
                 self.unbarriered.extend(ranges)
                 self.since_barrier += 1
@@ -64,14 +67,18 @@ class Publisher:
             self.unbarriered.clear()
             self.since_barrier = 0
 
-    def acknowledged(self, acks: collections.deque[int]) -> list[list[tuple[int, int]]]:
-        """The sample ranges of each acknowledgement in ``acks`` (taken from it)."""
+    def acknowledged(self, acks: collections.deque[tuple[int, str | None]]
+                     ) -> list[tuple[list[tuple[int, int]], str | None, str]]:
+        """Each acknowledgement in ``acks`` (taken from it) as (the sample ranges
+        it answers, the broker's reason if it refused them, the topic)."""
         out = []
         while acks:
-            ranges = self.inflight.pop(acks.popleft(), None)
+            mid, refused = acks.popleft()
+            ranges = self.inflight.pop(mid, None)
+            topic = self.topics.pop(mid, "")
             if ranges:
                 self.outstanding -= len(ranges)
-                out.append(ranges)
+                out.append((ranges, refused, topic))
         return out
 
 

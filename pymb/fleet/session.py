@@ -37,15 +37,22 @@ class Session:
         from paho.mqtt.enums import CallbackAPIVersion
 
         self.fw = fw
-        #: PUBACK/SUBACK message ids; per connection, as paho numbers them anew
-        self.acks: collections.deque[int] = collections.deque()
+        #: PUBACK/SUBACK message ids, each with the broker's reason when it refused
+        #: the message (MQTT 5; None: taken); per connection, as paho numbers them anew
+        self.acks: collections.deque[tuple[int, str | None]] = collections.deque()
         self.connack = threading.Event()
         self.reason: str | None = None
         self.ok = False
         self.lost = False
+        self.again = False  #: ended by the forwarder to offer refused samples again
         self.host_online = False  #: the primary host's STATE said online (on this connection)
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
-                                  clean_session=True, protocol=mqtt.MQTTv311)
+        self.v5 = fw.cfg.protocol == "5"
+        if self.v5:  # a clean start is the argument of connect() in MQTT 5
+            self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
+                                      protocol=mqtt.MQTTv5)
+        else:
+            self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
+                                      clean_session=True, protocol=mqtt.MQTTv311)
         self.client.max_inflight_messages_set(window + 20)
         self.client.max_queued_messages_set(0)
         c = self.client
@@ -54,11 +61,15 @@ class Session:
         c.on_publish = self._on_publish
         c.on_subscribe = self._on_subscribe
         c.on_message = self._on_message
+        c.on_log = self._on_log
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
                     props: Any = None) -> None:
         self.ok = not rc.is_failure
         self.reason = None if self.ok else f"refused: {rc}"
+        if self.v5 and rc.value == 0x84:  # a broker of MQTT 3.1.1 only
+            self.reason = (f"refused: {rc} (MQTT 5); a broker of MQTT 3.1.1 only needs "
+                           "--mqtt-protocol 3.1.1")
         if self.ok and self.fw.profile.command_topic:
             client.subscribe(self.fw.profile.command_topic, qos=1)
         if self.ok and self.fw.profile.host_topic:
@@ -74,12 +85,22 @@ class Session:
         self.fw.wake.set()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, rc: Any, props: Any) -> None:
-        self.acks.append(mid)
+        # MQTT 5: a PUBACK's reason code of 0x80 or more is the broker's no
+        refused = str(rc) if rc is not None and getattr(rc, "is_failure", False) else None
+        self.acks.append((mid, refused))
         self.fw.wake.set()
 
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
-        self.acks.append(mid)
+        self.acks.append((mid, None))
         self.fw.wake.set()
+
+    def _on_log(self, client: Any, userdata: Any, level: int, buf: str) -> None:
+        if buf.startswith("Received malformed packet") and self.reason is None:
+            # mosquitto 2.0 answers a message over its message_size_limit with a
+            # PUBACK whose reason (0x95) MQTT 5 does not allow there; paho drops
+            # the connection
+            self.reason = ("the broker sent a packet paho cannot read (mosquitto 2.0 does "
+                           "for a message over its message_size_limit)")
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
