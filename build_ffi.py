@@ -39,6 +39,7 @@ SOURCES = [
     f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
     f"{CSRC}/pymb_mbap.c",  # the extension's alone (not in libpymb)
+    f"{CSRC}/pymb_serve.c",  # the extension's alone (not in libpymb)
 ]
 
 CDEF = """
@@ -295,6 +296,7 @@ SOURCE = """
 #include "pymb.h"
 #include "pymb_modbus.h"
 #include "pymb_mbap.h"
+#include "pymb_serve.h"
 """
 
 
@@ -352,6 +354,24 @@ int pymbi_mbap_take(const pymbi_mbap_req *reqs, size_t nreqs, size_t first, size
 """
 
 
+# pymb_serve.h: the requests pymb serve takes from its clients (pymb.serve is its one
+# user); internal to the extension, not part of libpymb.
+SERVE_CDEF = """
+#define PYMBI_SRV_MBAP ...
+#define PYMBI_SRV_MAX_PDU ...
+#define PYMBI_SRV_MAX_FRAME ...
+typedef struct {
+    uint16_t tid; uint8_t unit; uint8_t function; uint16_t pdu_len; uint8_t exception; ...;
+} pymbi_srv_req;
+int pymbi_srv_check_pdu(const uint8_t *pdu, size_t len);
+int pymbi_srv_take(const uint8_t *buf, size_t len, pymbi_srv_req *req);
+int pymbi_srv_reply(uint16_t tid, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                    uint8_t *out, size_t out_cap);
+int pymbi_srv_exception(uint16_t tid, uint8_t unit, uint8_t function, uint8_t code,
+                        uint8_t *out, size_t out_cap);
+"""
+
+
 def _require_build_tools() -> None:
     """Stop with one line naming the Debian packages when a build need is missing."""
     pkg_config = os.environ.get("PKG_CONFIG", "pkg-config")
@@ -372,6 +392,7 @@ ffibuilder = FFI()
 ffibuilder.cdef(CDEF)
 ffibuilder.cdef(MAP_CDEF)
 ffibuilder.cdef(MBAP_CDEF)
+ffibuilder.cdef(SERVE_CDEF)
 ffibuilder.set_source_pkgconfig(
     "pymb._pymb_cffi",
     ["libmodbus"],

@@ -56,6 +56,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),
+    "serve": ("pymb.commands.serve", "share one bus with many Modbus TCP clients (and TLS)"),
     "simulate": ("pymb.sim.cli", "simulate devices (CoolPro, sensor hub, maps) on a pty or TCP"),
     "bench": ("pymb.bench.cli", "benchmark pymb against other Modbus stacks, side by side"),
 }

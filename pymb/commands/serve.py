@@ -1,0 +1,115 @@
+"""``pymb serve``: a Modbus TCP server (and Modbus/TCP Security with
+``--tls``) in front of one upstream line, shared by many clients."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import ssl
+import sys
+
+from pymb.client.address import parse_host_port
+from pymb.commands._common import add_connection_args, make_client
+from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.serve import Server, UnitMap, Upstream
+
+__all__ = ["add_arguments", "run", "tls_server_context"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``pymb serve``."""
+    add_connection_args(p, timeout=1.0)
+    p.add_argument("--listen", default="127.0.0.1:502", metavar="HOST:PORT",
+                   help="where to accept Modbus TCP clients (default 127.0.0.1:502; "
+                        "0.0.0.0:502 for every interface; port 0 picks a free one)")
+    p.add_argument("--unit", action="append", default=[], metavar="LISTEN=UPSTREAM",
+                   help="route a unit id to another upstream unit (repeatable); others pass "
+                        "through unchanged")
+    p.add_argument("--max-clients", type=int, default=64, metavar="N",
+                   help="clients connected at once (default 64); more are refused")
+    tls = p.add_argument_group("Modbus/TCP Security (TLS, client certificates required)")
+    tls.add_argument("--tls", action="store_true",
+                     help="accept only TLS clients with a certificate signed by --ca")
+    tls.add_argument("--cert", metavar="FILE", help="the server's certificate (PEM)")
+    tls.add_argument("--key", metavar="FILE", help="its private key (PEM)")
+    tls.add_argument("--ca", metavar="FILE", help="the CA that signs client certificates (PEM)")
+    tls.add_argument("--write-roles", default="", metavar="ROLE[,ROLE...]",
+                     help="roles (from the client certificate's Modbus role extension) that may "
+                          "write; every other client may only read")
+    p.add_argument("--quiet", action="store_true", help="no event lines")
+
+
+def tls_server_context(cert: str | None, key: str | None, ca: str | None) -> ssl.SSLContext:
+    """A TLS 1.2+ server context that requires a client certificate signed by
+    ``ca``; a missing or unreadable file is said in one line."""
+    if not cert or not key or not ca:
+        flag = "--cert" if not cert else "--key" if not key else "--ca"
+        raise InvalidArgument(f"--tls needs {flag} FILE")
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    ctx.verify_mode = ssl.CERT_REQUIRED
+    try:
+        ctx.load_cert_chain(cert, key)
+    except (OSError, ssl.SSLError) as e:
+        raise InvalidArgument(f"--cert {cert} / --key {key}: {_why(e)}") from None
+    try:
+        ctx.load_verify_locations(cafile=ca)
+    except (OSError, ssl.SSLError) as e:
+        raise InvalidArgument(f"--ca {ca}: {_why(e)}") from None
+    return ctx
+
+
+def _why(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        return e.strerror
+    return str(getattr(e, "reason", None) or e)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve until SIGINT or SIGTERM; exit 0."""
+    host, port = parse_host_port(args.listen, what="--listen")
+    units = UnitMap.parse(args.unit)
+    if args.max_clients < 1:
+        raise InvalidArgument(f"--max-clients must be at least 1, got {args.max_clients}")
+    tls = tls_server_context(args.cert, args.key, args.ca) if args.tls else None
+    roles = frozenset(r.strip() for r in args.write_roles.split(",") if r.strip())
+    if roles and tls is None:
+        raise InvalidArgument("--write-roles needs --tls (roles come from client certificates)")
+    line = make_client(args)
+
+    def say(text: str) -> None:
+        if not args.quiet:
+            print(f"pymb serve: {text}", file=sys.stderr, flush=True)
+
+    upstream = Upstream(line, on_event=say)
+    server = Server(upstream, host, port, units=units, max_clients=args.max_clients, tls=tls,
+                    write_roles=roles, on_event=say)
+    upstream_name = args.port or args.tcp or args.rtu_over_tcp
+    return asyncio.run(_serve(server, upstream, upstream_name))
+
+
+async def _serve(server: Server, upstream: Upstream, upstream_name: str) -> int:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await server.start()
+    except OSError as e:
+        raise ModbusConnectionError(
+            f"cannot listen on {server.host}:{server.port}: {e.strerror or e}",
+            port=f"{server.host}:{server.port}") from None
+    upstream.start()
+    scheme = "mbaps" if server.tls is not None else "mbap"
+    # The one line on stdout: where clients connect (port 0 becomes the real one).
+    print(f"pymb serve: {scheme}://{server.host}:{server.port} -> {upstream_name}", flush=True)
+    try:
+        await server.serve_until(stop)
+    finally:
+        upstream.stop()
+    st = server.stats
+    print(f"pymb serve: {st.requests:,} requests from {st.connections:,} connections; "
+          f"upstream: {upstream.sent:,} sent, {upstream.timeouts:,} unanswered, "
+          f"{upstream.unreachable:,} while unreachable", file=sys.stderr)
+    return 0

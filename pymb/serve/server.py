@@ -1,0 +1,265 @@
+"""The listening side of ``pymb serve``: an asyncio server whose connections
+take requests with the C core, answer badly formed ones at once, and hand
+the rest to the :class:`~pymb.serve.upstream.Upstream`, each reply going back
+to the client that asked, with its own transaction id."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ssl
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymb._native.serve import BadFrame, exception_frame, reply_frame, take_requests
+from pymb.errors import InvalidArgument
+from pymb.serve.roles import CertificateError, role_of
+from pymb.serve.upstream import EX_PATH, Upstream
+
+__all__ = ["WRITE_FUNCTIONS", "ServeStats", "Server", "UnitMap"]
+
+#: function codes that change a device: with TLS, only the write roles send them
+WRITE_FUNCTIONS = frozenset({0x05, 0x06, 0x0F, 0x10, 0x15, 0x16, 0x17})
+#: requests one client may have waiting upstream before its reading pauses
+PENDING_PER_CLIENT = 16
+EX_FUNCTION = 0x01  #: what an unauthorised request is answered (Modbus/TCP Security)
+
+
+@dataclass
+class UnitMap:
+    """Listen unit -> upstream unit. Units not named pass through unchanged
+    (1..255); unit 0 (a broadcast, which no device answers) is refused with
+    exception 0x0A."""
+
+    routes: dict[int, int] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, specs: list[str]) -> UnitMap:
+        """From ``LISTEN=UPSTREAM`` texts (``--unit 1=17``)."""
+        routes: dict[int, int] = {}
+        for spec in specs:
+            left, sep, right = spec.partition("=")
+            if not sep or not left.strip().isdigit() or not right.strip().isdigit():
+                raise InvalidArgument(f"--unit needs LISTEN=UPSTREAM (unit ids), got {spec!r}")
+            a, b = int(left), int(right)
+            for what, n in (("listen", a), ("upstream", b)):
+                if not 1 <= n <= 255:
+                    raise InvalidArgument(f"--unit {spec}: the {what} unit must be 1..255")
+            if a in routes:
+                raise InvalidArgument(f"--unit {a} is routed twice")
+            routes[a] = b
+        return cls(routes)
+
+    def upstream(self, unit: int) -> int | None:
+        """The upstream unit for listen ``unit`` (None: refused)."""
+        if unit == 0:
+            return None
+        return self.routes.get(unit, unit)
+
+
+@dataclass
+class ServeStats:
+    """What the server has done since it started."""
+
+    connections: int = 0
+    open: int = 0
+    refused_connections: int = 0
+    requests: int = 0
+    replies: int = 0
+    malformed: int = 0
+    garbage: int = 0
+    denied: int = 0
+    tls_failures: int = 0
+
+
+class _Conn(asyncio.Protocol):
+    def __init__(self, server: Server) -> None:
+        self.server = server
+        self.buf = bytearray()
+        self.transport: asyncio.Transport | None = None
+        self.pending = 0
+        self.closed = False
+        self.paused_reading = False
+        self.paused_writing = False
+        self.may_write = True
+        self.peer = "?"
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        s = self.server
+        s.stats.connections += 1
+        peer = transport.get_extra_info("peername")
+        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        if s.stats.open >= s.max_clients:
+            s.stats.refused_connections += 1
+            s.say(f"client {self.peer}: refused, {s.max_clients} clients are connected")
+            self.closed = True
+            transport.abort()
+            return
+        s.stats.open += 1
+        s.conns.add(self)
+        transport.set_write_buffer_limits(high=64 * 1024)
+        if s.tls is not None:
+            self.may_write = self._role_may_write(transport)
+
+    def _role_may_write(self, transport: asyncio.Transport) -> bool:
+        obj = transport.get_extra_info("ssl_object")
+        der = obj.getpeercert(binary_form=True) if obj is not None else None
+        if not der:
+            return False
+        try:
+            role = role_of(der)
+        except CertificateError as e:
+            self.server.say(f"client {self.peer}: its certificate's role cannot be read ({e}); "
+                            "reads only")
+            return False
+        return role is not None and role in self.server.write_roles
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.closed:
+            self.closed = True
+            self.server.stats.open -= 1
+        self.server.conns.discard(self)
+
+    def pause_writing(self) -> None:
+        # The client does not read its replies: stop taking its requests.
+        self.paused_writing = True
+        self._pause()
+
+    def resume_writing(self) -> None:
+        self.paused_writing = False
+        self._resume()
+
+    def _pause(self) -> None:
+        if not self.paused_reading and self.transport is not None and not self.closed:
+            self.paused_reading = True
+            self.transport.pause_reading()
+
+    def _resume(self) -> None:
+        if (self.paused_reading and not self.paused_writing and self.pending < PENDING_PER_CLIENT
+                and self.transport is not None and not self.closed):
+            self.paused_reading = False
+            self.transport.resume_reading()
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        s = self.server
+        self.buf += data
+        try:
+            requests = take_requests(self.buf)
+        except BadFrame as e:
+            s.stats.garbage += 1
+            s.say(f"client {self.peer}: bytes that are not Modbus TCP ({e}): closed")
+            self._close()
+            return
+        for r in requests:
+            s.stats.requests += 1
+            function = r.pdu[0]
+            if r.exception:
+                s.stats.malformed += 1
+                self._send(exception_frame(r.tid, r.unit, function, r.exception))
+                continue
+            if not self.may_write and function in WRITE_FUNCTIONS:
+                s.stats.denied += 1
+                self._send(exception_frame(r.tid, r.unit, function, EX_FUNCTION))
+                continue
+            unit = s.units.upstream(r.unit)
+            if unit is None:
+                self._send(exception_frame(r.tid, r.unit, function, EX_PATH))
+                continue
+            self.pending += 1
+            s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit))
+        if self.pending >= PENDING_PER_CLIENT:
+            self._pause()
+
+    def answered(self, tid: int, unit: int, pdu: bytes) -> None:
+        """On the loop: the upstream's reply to one of this client's requests."""
+        self.pending -= 1
+        if self.closed:
+            return
+        self._send(reply_frame(tid, unit, pdu))
+        self._resume()
+
+    def _send(self, frame: bytes) -> None:
+        if self.transport is not None and not self.closed:
+            self.server.stats.replies += 1
+            self.transport.write(frame)
+
+    def _close(self) -> None:
+        if self.transport is not None and not self.closed:
+            self.transport.abort()
+
+    def abort(self) -> None:
+        """Drop the connection (the server is stopping)."""
+        self._close()
+
+
+class Server:
+    """A Modbus TCP server on ``host:port`` in front of ``upstream``. With
+    ``tls`` (a server :class:`ssl.SSLContext` that requires client
+    certificates), only clients whose certificate's role is in
+    ``write_roles`` may send the function codes that write."""
+
+    def __init__(self, upstream: Upstream, host: str, port: int, *,
+                 units: UnitMap | None = None, max_clients: int = 64,
+                 tls: ssl.SSLContext | None = None, write_roles: frozenset[str] = frozenset(),
+                 on_event: Callable[[str], None] | None = None) -> None:
+        self.upstream = upstream
+        self.host, self.port = host, port
+        self.units = units or UnitMap()
+        self.max_clients = max_clients
+        self.tls = tls
+        self.write_roles = write_roles
+        self.stats = ServeStats()
+        self._on_event = on_event or (lambda _text: None)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: asyncio.Server | None = None
+        self.conns: set[_Conn] = set()
+
+    def say(self, text: str) -> None:
+        """One event line."""
+        self._on_event(text)
+
+    def replier(self, conn: _Conn, tid: int, unit: int) -> Callable[[bytes], None]:
+        """The callback the upstream's thread calls with the reply PDU."""
+        loop = self._loop
+        assert loop is not None
+
+        def done(pdu: bytes) -> None:
+            with contextlib.suppress(RuntimeError):  # the loop closed: the server is stopping
+                loop.call_soon_threadsafe(conn.answered, tid, unit, pdu)
+        return done
+
+    async def start(self) -> None:
+        """Listen (the port is bound when this returns; ``port`` 0 picks one)."""
+        self._loop = asyncio.get_running_loop()
+        self._loop.set_exception_handler(self._loop_exception)
+        self._server = await self._loop.create_server(
+            lambda: _Conn(self), self.host, self.port, ssl=self.tls, reuse_address=True,
+            backlog=1024)
+        sock = self._server.sockets[0]
+        self.port = sock.getsockname()[1]
+
+    def _loop_exception(self, loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
+        exc = context.get("exception")
+        if isinstance(exc, ssl.SSLError | ConnectionError | OSError):
+            # A client's failed handshake (expired, wrongly signed, no
+            # certificate) or a reset: one line, and the server goes on.
+            self.stats.tls_failures += isinstance(exc, ssl.SSLError)
+            reason = getattr(exc, "reason", None) or exc
+            self.say(f"client refused: {reason}")
+            return
+        loop.default_exception_handler(context)
+
+    async def serve_until(self, stop: asyncio.Event) -> None:
+        """Serve until ``stop`` is set, then close every connection."""
+        if self._server is None:
+            await self.start()
+        assert self._server is not None
+        await stop.wait()
+        self._server.close()
+        for conn in list(self.conns):
+            conn.abort()
+        await asyncio.sleep(0)

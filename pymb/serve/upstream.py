@@ -1,0 +1,113 @@
+"""The one line behind ``pymb serve``: a thread that owns the client and sends
+the clients' requests one transaction at a time, in the order they came."""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable
+from typing import Protocol
+
+from pymb.errors import (
+    DeviceException,
+    InvalidArgument,
+    ModbusConnectionError,
+    ModbusError,
+    ModbusTimeout,
+)
+
+__all__ = ["EX_PATH", "EX_TARGET", "Upstream"]
+
+EX_PATH = 0x0A  #: gateway path unavailable: the line cannot be reached
+EX_TARGET = 0x0B  #: gateway target device failed to respond
+
+#: what a finished transaction hands back: the reply PDU
+Done = Callable[[bytes], None]
+
+
+class _Line(Protocol):
+    def connect(self) -> None: ...
+    def close(self) -> None: ...
+    def raw_request(self, function: int, data: bytes = b"", *, slave: int | None = None,
+                    response_length: int | None = None) -> bytes: ...
+
+
+class Upstream:
+    """Sends requests on ``line`` (a :class:`pymb.Client`, not yet open) from
+    one thread. :meth:`submit` is called from any thread; ``done`` gets the
+    reply PDU (the device's reply, its exception, or the gateway's exception
+    0x0A when the line is down and 0x0B when the device did not answer) on the
+    upstream's thread. At most ``depth`` requests wait: more are answered
+    0x0B at once (the line cannot serve them within anyone's timeout)."""
+
+    def __init__(self, line: _Line, *, depth: int = 1024,
+                 on_event: Callable[[str], None] | None = None) -> None:
+        self.line = line
+        self.depth = depth
+        self._jobs: queue.Queue[tuple[int, bytes, Done] | None] = queue.Queue()
+        self._on_event = on_event or (lambda _text: None)
+        self._thread = threading.Thread(target=self._run, name="pymb-serve-upstream", daemon=True)
+        self._connected = False
+        self._down_said = False
+        #: transactions sent, and how each ended
+        self.sent = self.timeouts = self.exceptions = self.unreachable = 0
+
+    def start(self) -> None:
+        """Start the upstream's thread."""
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Finish the transaction under way, drop the rest, close the line."""
+        self._jobs.put(None)
+        self._thread.join(timeout)
+
+    def submit(self, unit: int, pdu: bytes, done: Done) -> None:
+        """Queue request ``pdu`` for ``unit``."""
+        if self._jobs.qsize() >= self.depth:
+            done(bytes((pdu[0] | 0x80, EX_TARGET)))
+            return
+        self._jobs.put((unit, pdu, done))
+
+    def _run(self) -> None:
+        try:
+            while True:
+                job = self._jobs.get()
+                if job is None:
+                    return
+                unit, pdu, done = job
+                done(self._transact(unit, pdu))
+        finally:
+            self.line.close()
+
+    def _transact(self, unit: int, pdu: bytes) -> bytes:
+        function = pdu[0]
+        if not self._connected:
+            try:
+                self.line.connect()
+            except ModbusError as e:
+                self.unreachable += 1
+                if not self._down_said:
+                    self._down_said = True
+                    self._on_event(f"upstream unreachable: {e} (answering 0x0A)")
+                return bytes((function | 0x80, EX_PATH))
+            if self._down_said:
+                self._on_event("upstream reachable again")
+            self._connected, self._down_said = True, False
+        self.sent += 1
+        try:
+            return bytes((function,)) + self.line.raw_request(function, pdu[1:], slave=unit)
+        except DeviceException as e:
+            self.exceptions += 1
+            return bytes((function | 0x80, e.code & 0xFF))
+        except ModbusTimeout:
+            self.timeouts += 1
+            return bytes((function | 0x80, EX_TARGET))
+        except ModbusConnectionError as e:
+            self._connected = False
+            self.line.close()
+            self.unreachable += 1
+            self._on_event(f"upstream connection lost: {e}")
+            return bytes((function | 0x80, EX_PATH))
+        except (ModbusError, InvalidArgument):  # a reply that was not one: no answer
+            self.timeouts += 1
+            return bytes((function | 0x80, EX_TARGET))

@@ -1,0 +1,231 @@
+"""``pymb serve`` in front of a scripted RTU peer on a real pseudo-terminal,
+used by independent clients: pymodbus, mbpoll (libmodbus's client) and a raw
+socket written from the specification that also sends hostile frames."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import struct
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+from conftest import rss_kb, wait_until
+from peers import PtyPeer
+from servekit import RawClient, Served, mbap, read_pdu, serve_args, words
+
+
+@pytest.fixture
+def peer() -> Iterator[PtyPeer]:
+    with PtyPeer() as p:
+        yield p
+
+
+def test_pymodbus_reads_and_writes_through_one_line(peer: PtyPeer) -> None:
+    from pymodbus.client import ModbusTcpClient
+    with Served(*serve_args(peer.port)) as s:
+        c = ModbusTcpClient("127.0.0.1", port=s.port, timeout=5)
+        assert c.connect()  # type: ignore[no-untyped-call]
+        try:
+            r = c.read_holding_registers(10, count=5, device_id=3)
+            assert r.registers == [(i * 7) & 0xFFFF for i in range(10, 15)]
+            assert not c.write_register(100, 0xBEEF, device_id=3).isError()
+            assert peer.memory.holding[100] == 0xBEEF
+            assert not c.write_registers(200, [1, 2, 3], device_id=3).isError()
+            assert c.read_holding_registers(200, count=3, device_id=3).registers == [1, 2, 3]
+            assert c.read_coils(0, count=10, device_id=3).bits[:10] == \
+                [bool(i % 3 == 0) for i in range(10)]
+            assert not c.write_coil(5, True, device_id=3).isError()
+            assert peer.memory.coils[5] == 1
+            r = c.readwrite_registers(read_address=300, read_count=2, write_address=300,
+                                      values=[7, 8], device_id=3)
+            assert r.registers == [7, 8]
+            # the device's own exception comes back as it was
+            r = c.read_holding_registers(60001, count=2, device_id=3)
+            assert r.isError()
+            assert r.exception_code == 2
+        finally:
+            c.close()  # type: ignore[no-untyped-call]
+        assert s.stop() == 0
+    assert all(slave == 3 for slave, _ in peer.requests)
+
+
+@pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed")
+def test_mbpoll_reads_through_serve(peer: PtyPeer) -> None:
+    with Served(*serve_args(peer.port)) as s:
+        r = subprocess.run(["mbpoll", "-m", "tcp", "-p", str(s.port), "-a", "9", "-t", "4",
+                            "-0", "-r", "20", "-c", "4", "-1", "127.0.0.1"],
+                           capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stdout + r.stderr
+    for i in range(20, 24):
+        assert f"[{i}]: \t{(i * 7) & 0xFFFF}" in r.stdout
+
+
+def test_malformed_requests_are_answered_without_touching_the_line(peer: PtyPeer) -> None:
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        assert c.ask(1, 3, read_pdu(0, 0)) == bytes((0x83, 3))         # quantity 0
+        assert c.ask(2, 3, read_pdu(0, 126)) == bytes((0x83, 3))       # 126 registers
+        assert c.ask(3, 3, read_pdu(65535, 2)) == bytes((0x83, 2))     # past 65535
+        assert c.ask(4, 3, bytes((0x10, 0, 0, 0, 2, 3, 0, 1, 0))) == bytes((0x90, 3))
+        assert c.ask(5, 3, bytes((0x85, 0, 0))) == bytes((0x85, 1))    # not a function
+        assert c.ask(6, 0, read_pdu(0, 1)) == bytes((0x83, 0x0A))      # broadcast unit
+        assert peer.requests == []
+        # the connection is still good
+        assert words(c.ask(7, 3, read_pdu(1, 1))) == [7]
+        c.close()
+
+
+def test_pipelined_and_split_requests_keep_their_transaction_ids(peer: PtyPeer) -> None:
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        frames = b"".join(mbap(1000 + i, 4, read_pdu(i, 1)) for i in range(10))
+        c.send(frames)  # ten requests in one segment
+        got = {}
+        for _ in range(10):
+            tid, unit, pdu = c.reply()
+            assert unit == 4
+            got[tid] = words(pdu)
+        assert got == {1000 + i: [(i * 7) & 0xFFFF] for i in range(10)}
+        one = mbap(0xFFFF, 4, read_pdu(50, 2))
+        for b in one:  # a byte at a time
+            c.send(bytes((b,)))
+            time.sleep(0.002)
+        tid, _, pdu = c.reply()
+        assert tid == 0xFFFF
+        assert words(pdu) == [350, 357]
+        c.close()
+
+
+@pytest.mark.parametrize("garbage", [
+    b"GET / HTTP/1.1\r\nHost: x\r\n\r\n",            # not Modbus at all
+    struct.pack(">HHHB", 1, 1, 6, 1) + read_pdu(0, 1),  # protocol id 1
+    struct.pack(">HHHB", 1, 0, 1, 1),                  # length 1: no function code
+    struct.pack(">HHHB", 1, 0, 300, 1) + bytes(300),   # longer than any PDU
+])
+def test_a_clients_garbage_closes_that_client_only(peer: PtyPeer, garbage: bytes) -> None:
+    with Served(*serve_args(peer.port)) as s:
+        good = RawClient(s.port)
+        bad = RawClient(s.port)
+        assert words(good.ask(1, 2, read_pdu(3, 1))) == [21]
+        bad.send(garbage)
+        assert bad.closed_by_server()
+        assert words(good.ask(2, 2, read_pdu(4, 1))) == [28]
+        good.close()
+        bad.close()
+        wait_until(lambda: any("not Modbus TCP" in line for line in s.stderr_lines),
+                   "the event line about the garbage")
+
+
+def test_a_silent_device_is_answered_0x0B_and_the_line_goes_on(peer: PtyPeer) -> None:
+    peer.hook = lambda slave, pdu, normal: [] if slave == 66 else None
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        assert c.ask(1, 66, read_pdu(0, 1)) == bytes((0x83, 0x0B))
+        assert words(c.ask(2, 65, read_pdu(0, 1))) == [0]
+        c.close()
+
+
+def test_units_are_routed(peer: PtyPeer) -> None:
+    with Served(*serve_args(peer.port, ["--unit", "5=17", "--unit", "6=5"])) as s:
+        c = RawClient(s.port)
+        assert c.ask(1, 5, bytes((6, 0, 9, 0, 42))) == bytes((6, 0, 9, 0, 42))
+        assert c.ask(2, 6, read_pdu(9, 1))
+        assert c.ask(3, 7, read_pdu(9, 1))
+        c.close()
+    assert [slave for slave, _ in peer.requests] == [17, 5, 7]
+
+
+def test_32_clients_read_and_write_at_once_with_no_cross_talk(peer: PtyPeer) -> None:
+    rounds = 25
+    errors: list[str] = []
+
+    def client(n: int, port: int) -> None:
+        try:
+            c = RawClient(port, timeout=30)
+            base = 1000 + 10 * n
+            for r in range(rounds):
+                value = (n << 8) | r
+                tid = (n * rounds + r) & 0xFFFF
+                assert c.ask(tid, 1 + n % 3, struct.pack(">BHH", 6, base, value)) == \
+                    struct.pack(">BHH", 6, base, value)
+                got = words(c.ask(tid ^ 0x8000, 1 + n % 3, read_pdu(base, 1)))
+                if got != [value]:
+                    errors.append(f"client {n} round {r}: wrote {value:#x}, read {got}")
+            c.close()
+        except Exception as e:  # every client's failure is reported
+            errors.append(f"client {n}: {e!r}")
+
+    with Served(*serve_args(peer.port)) as s:
+        threads = [threading.Thread(target=client, args=(n, s.port)) for n in range(32)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(120)
+        assert s.stop() == 0
+    assert errors == []
+    assert len(peer.requests) == 32 * rounds * 2  # nothing lost, nothing twice
+
+
+def test_clients_that_drop_or_never_read_cost_the_others_nothing(peer: PtyPeer) -> None:
+    with Served(*serve_args(peer.port, ["--max-clients", "2000"])) as s:
+        good = RawClient(s.port)
+        assert words(good.ask(1, 1, read_pdu(2, 1))) == [14]
+        rss0 = rss_kb(s.proc.pid)
+        # 1,000 connections opened and dropped, half of them mid-transaction
+        for i in range(1000):
+            sock = socket.create_connection(("127.0.0.1", s.port))
+            if i % 2:
+                sock.sendall(mbap(i, 1, read_pdu(i, 1)))
+            sock.close()
+        # a client that sends many requests and never reads its replies
+        hog = socket.create_connection(("127.0.0.1", s.port))
+        hog.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        hog.setblocking(False)
+        burst = mbap(1, 1, read_pdu(0, 125)) * 200
+        sent = 0
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and sent < 200 * len(burst):
+            try:
+                sent += hog.send(burst)
+            except BlockingIOError:
+                time.sleep(0.05)
+        for i in range(20):
+            assert words(good.ask(100 + i, 1, read_pdu(i, 1))) == [(i * 7) & 0xFFFF]
+        grew = rss_kb(s.proc.pid) - rss0
+        assert grew < 20_000, f"pymb serve grew by {grew} kB"
+        hog.close()
+        good.close()
+        wait_until(lambda: s.proc.poll() is None, "pymb serve still running")
+        assert s.stop() == 0
+
+
+@pytest.mark.parametrize(("extra", "code", "said"), [
+    (["--unit", "5"], 2, "--unit needs LISTEN=UPSTREAM"),
+    (["--unit", "0=3"], 2, "the listen unit must be 1..255"),
+    (["--max-clients", "0"], 2, "--max-clients must be at least 1"),
+    (["--tls", "--cert", "c.pem"], 2, "--tls needs --key FILE"),
+    (["--write-roles", "operator"], 2, "--write-roles needs --tls"),
+])
+def test_a_users_mistake_is_one_line(peer: PtyPeer, extra: list[str], code: int,
+                                     said: str) -> None:
+    from conftest import run_pymb
+    r = run_pymb("serve", *serve_args(peer.port, extra), "--listen", "127.0.0.1:0", timeout=30)
+    assert r.returncode == code, r.stderr
+    assert said in r.stderr
+    assert "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_port_in_use_exits_4(peer: PtyPeer) -> None:
+    from conftest import run_pymb
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        r = run_pymb("serve", *serve_args(peer.port), "--listen", f"127.0.0.1:{port}",
+                     timeout=30)
+    assert r.returncode == 4, r.stderr
+    assert "cannot listen on 127.0.0.1:" in r.stderr
+    assert "Traceback" not in r.stderr
