@@ -92,7 +92,7 @@ def test_the_docs_list_every_shipped_map() -> None:
     table = doc[doc.index("## Shipped maps"):doc.index("## What pymb decides")]
     listed = [line.split("`")[1] for line in table.splitlines() if line.startswith("| `")]
     assert listed == ["coolpro", "hub", "eastron-sdm120", "eastron-sdm630", "generic-vfd"]
-    assert sorted(listed) == maps.builtin_ids()
+    assert set(listed) <= set(maps.builtin_ids())  # the rest: map-devices.md's library
 
 
 def test_the_facades_rows_are_the_shipped_maps_points() -> None:
