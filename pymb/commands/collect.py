@@ -79,7 +79,7 @@ class _Output:
         if not self.status:
             return
         try:
-            width = os.get_terminal_size(self.out.fileno()).columns
+            width = os.get_terminal_size(self.out.fileno()).columns or 80
         except (OSError, ValueError):
             width = 80
         self.line = line if len(line) < width else line[:max(0, width - 2)] + "…"

@@ -1,0 +1,125 @@
+"""``pymb collect``'s user mistakes and failures: one line and an exit code
+(2 usage, 4 broker or database unreachable at the start, 5 the database
+refuses the writes), SIGINT ends with 0, a file that is not SQLite is left
+alone, the status line on a terminal."""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import select
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.register_assert_rewrite("mqtt_broker", "collectkit")
+from collectkit import Collectors, pg_count, psycopg, publish, wait_rows, wait_subscribed  # noqa: E402
+from conftest import PYMB, PYMB_ENV, run_pymb  # noqa: E402
+from mqtt_broker import Fleet  # noqa: E402
+
+from pymb.collect.postgres import Postgres  # noqa: E402
+from pymb.fleet.broker import free_port  # noqa: E402
+
+pytest_plugins = ["mqtt_broker", "collectkit"]
+
+
+def _one_line(r: subprocess.CompletedProcess[str], code: int, text: str) -> None:
+    assert r.returncode == code, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("pymb collect: "), r.stderr
+    assert text in lines[0], r.stderr
+
+
+def test_usage_errors_exit_2(tmp_path: Path) -> None:
+    out = str(tmp_path / "f.sqlite")
+    _one_line(run_pymb("collect", "--mqtt", "http://x", "--out", out), 2, "bad MQTT URL")
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out", out, "--profile",
+                       "sparkplug", "--share", "s"), 2, "--share is for the plain profile")
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out", out, "--share",
+                       "a/b"), 2, "share 'a/b' must be")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n" * 200)
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out", str(notes)), 2,
+              "cannot use")
+    assert notes.read_text() == "my notes\n" * 200
+    r = run_pymb("collect", "--out", out)
+    assert r.returncode == 2
+    assert "--mqtt" in r.stderr
+
+
+def test_nothing_to_reach_at_the_start_exits_4(tmp_path: Path, postgres: Postgres) -> None:
+    port = free_port()
+    _one_line(run_pymb("collect", "--mqtt", f"mqtt://127.0.0.1:{port}", "--out",
+                       str(tmp_path / "f.sqlite")), 4, "cannot reach the broker")
+    _one_line(run_pymb("collect", "--mqtt", f"mqtt://127.0.0.1:{port}", "--out",
+                       f"postgresql://pymb@127.0.0.1:{port}/pymb"), 4, "cannot connect to")
+
+
+def test_refused_writes_exit_5_and_sigint_exits_0(
+        fleet: Fleet, collectors: Collectors, postgres: Postgres) -> None:
+    with psycopg.connect(postgres.url, autocommit=True) as con:
+        con.execute("CREATE ROLE writer LOGIN")
+        con.execute("GRANT CREATE ON SCHEMA public TO writer")
+    url = postgres.url.replace("//pymb@", "//writer@")
+    broker = fleet.broker()
+    col = collectors.start(broker.url, url, "--client-id", "w1")
+    wait_subscribed(col)
+    doc = {"time_utc": 1800000000.0, "sample": 1, "values": {"v": 1.0}}
+    publish(broker.port, [("pymb/gw/dev", json.dumps(doc).encode())])
+    wait_rows(lambda: pg_count(postgres.url), 1, "the first row")
+    with psycopg.connect(postgres.url, autocommit=True) as con:
+        con.execute("REVOKE INSERT ON pymb_values FROM writer")
+    doc["time_utc"] = 1800000001.0
+    publish(broker.port, [("pymb/gw/dev", json.dumps(doc).encode())])
+    _, err = col.communicate(timeout=60)
+    assert col.returncode == 5, err
+    assert "Traceback" not in err
+    assert "refuses the rows: permission denied" in err.strip().splitlines()[-1], err
+    # the refused message was not acknowledged: with the right back, it is stored
+    with psycopg.connect(postgres.url, autocommit=True) as con:
+        con.execute("GRANT INSERT ON pymb_values TO writer")
+    col = collectors.start(broker.url, url, "--client-id", "w1")
+    wait_subscribed(col)
+    wait_rows(lambda: pg_count(postgres.url), 2, "the refused row, delivered again")
+    col.send_signal(signal.SIGINT)
+    _, err = col.communicate(timeout=60)
+    assert col.returncode == 0, err
+    assert "1 rows stored" in err, err
+
+
+def test_status_line_on_a_terminal(fleet: Fleet, tmp_path: Path) -> None:
+    broker = fleet.broker()
+    main, child = pty.openpty()
+    proc = subprocess.Popen([*PYMB, "collect", "--mqtt", broker.url, "--out",
+                             str(tmp_path / "f.sqlite"), "--client-id", "tty"],
+                            stdin=child, stdout=child, stderr=child, env=PYMB_ENV)
+    os.close(child)
+    seen = b""
+    try:
+        deadline = time.monotonic() + 30
+        while b"mqtt ok" not in seen and time.monotonic() < deadline:
+            if select.select([main], [], [], 0.5)[0]:
+                seen += os.read(main, 4096)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+        while select.select([main], [], [], 0.2)[0]:
+            try:
+                seen += os.read(main, 4096)
+            except OSError:
+                break
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(30)
+        os.close(main)
+    text = seen.decode(errors="replace")
+    assert proc.returncode == 0, text
+    assert "\r\x1b[K0 messages  0/s  0 rows  0/s  lag 0.0 s  bad 0  db ok  mqtt ok" in text, text
+    assert "connected to" in text
+    assert "0 messages, 0 rows stored" in text

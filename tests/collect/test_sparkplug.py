@@ -1,0 +1,211 @@
+"""``pymb collect --profile sparkplug``: a host application, end to end with
+``pymb log --mqtt-profile sparkplug`` boards (rows compared with what an
+independent subscriber decoded with pysparkplug's ``Payload``), its STATE
+(retained, will), and rebirth requests on a seq gap and on data with no
+birth, at most once per node per 5 s, against messages made by pysparkplug."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from typing import Any
+
+import pytest
+
+pytest.register_assert_rewrite("mqtt_broker", "collectkit")
+from collectkit import (  # noqa: E402
+    Collectors,
+    Fact,
+    publish,
+    same_facts,
+    sqlite_count,
+    sqlite_facts,
+    stop,
+    wait_rows,
+    wait_subscribed,
+)
+from conftest import wait_until  # noqa: E402
+from mqtt_broker import Fleet  # noqa: E402
+
+pytest_plugins = ["mqtt_broker", "collectkit"]
+
+GROUP = "plant"
+
+
+def _value(m: Any) -> tuple[float | None, str | None]:
+    kind = m.WhichOneof("value")
+    v = getattr(m, kind) if kind else None
+    if isinstance(v, str):
+        return None, v
+    if v is None:
+        return None, None
+    if m.datatype in (1, 2, 3) and kind == "int_value":  # Int8/16/32 on a uint32
+        bits = {1: 8, 2: 16, 3: 32}[m.datatype]
+        v = v - (1 << bits) if v >= 1 << (bits - 1) else v
+    return float(v), None
+
+
+def expected_sparkplug(pb: Any, messages: list[tuple[str, bytes]]) -> set[Fact]:
+    """The facts of births and data as an independent decoder reads them: aliases
+    from the births, a metric's own timestamp, node metrics with device ""."""
+    aliases: dict[tuple[str, str], dict[int, str]] = {}
+    out: set[Fact] = set()
+    for topic, payload in messages:
+        parts = topic.split("/")
+        kind, node = parts[2], parts[3]
+        device = parts[4] if len(parts) > 4 else ""
+        if kind not in ("NBIRTH", "DBIRTH", "NDATA", "DDATA"):
+            continue
+        p = pb.FromString(payload)
+        names = aliases.setdefault((node, device), {})
+        for m in p.metrics:
+            if kind.endswith("BIRTH") and m.HasField("alias"):
+                names[m.alias] = m.name
+            name = m.name or names[m.alias]
+            if name == "bdSeq" or name.startswith("Node Control/"):
+                continue
+            if name.startswith("channel "):
+                ch, q = name[len("channel "):].split("/", 1)
+                name = f"{q}_{int(ch)}"
+            t = m.timestamp / 1000
+            if m.is_null:
+                keys = list(m.properties.keys)
+                st = (m.properties.values[keys.index("state")].string_value
+                      if "state" in keys else "no_value")
+                out.add((node, device, name, t, None, None, st, None))
+            else:
+                v, text = _value(m)
+                out.add((node, device, name, t, v, text, None, None))
+    return out
+
+
+def test_sparkplug_board_to_sqlite_value_by_value(
+        fleet: Fleet, collectors: Collectors, sparkplug_pb: Any) -> None:
+    broker = fleet.broker()
+    sim = fleet.simulator("coolpro")
+    sub = fleet.subscribe(broker, f"spBv1.0/{GROUP}/#")
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--profile", "sparkplug", "--group", GROUP,
+                           "--host-id", "scada", "--client-id", "sp1")
+    wait_subscribed(col)
+    log_db = fleet.tmp / "board.sqlite"
+    log = fleet.log(sim.endpoint, log_db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                    "--mqtt-group", GROUP, "--mqtt-node", "gw1", "--mqtt-primary-host", "scada",
+                    seconds=3)
+    _, log_err = log.communicate(timeout=60)
+    assert log.returncode == 0, log_err  # it published: the collector's STATE said online
+    wait_until(lambda: sub.snapshot() and sub.snapshot()[-1][0].endswith("/NDEATH/gw1"),
+               "the board's NDEATH", 30)
+    expected = expected_sparkplug(sparkplug_pb, sub.snapshot())
+    assert len({f[1] for f in expected}) == 2  # the node's own metrics and the CoolPro's
+    wait_rows(lambda: sqlite_count(out), len(expected), "every value stored")
+    err = stop(col)
+    same_facts(sqlite_facts(out), expected)
+    assert "0 bad" in err
+    assert "rebirth" not in err, err
+
+
+def _pb(pb: Any, seq: int | None, *metrics: dict[str, Any], ts: int = 1800000000000) -> bytes:
+    p = pb()
+    p.timestamp = ts
+    if seq is not None:
+        p.seq = seq
+    for d in metrics:
+        m = p.metrics.add()
+        for k, v in d.items():
+            setattr(m, k, v)
+    return bytes(p.SerializeToString())
+
+
+def test_state_rebirth_on_a_seq_gap_and_on_data_without_birth(
+        fleet: Fleet, collectors: Collectors, sparkplug_pb: Any) -> None:
+    pb = sparkplug_pb
+    broker = fleet.broker()
+    state = fleet.subscribe(broker, "spBv1.0/STATE/scada", client_id="state-watch")
+    ncmd = fleet.subscribe(broker, f"spBv1.0/{GROUP}/NCMD/#", client_id="ncmd-watch")
+    out = fleet.tmp / "fleet.sqlite"
+    args = ("--profile", "sparkplug", "--group", GROUP, "--host-id", "scada",
+            "--client-id", "sp2")
+    col = collectors.start(broker.url, str(out), *args)
+    wait_subscribed(col)
+    state.wait_until(lambda m: m, 15, "the host's STATE")
+    online = json.loads(state.snapshot()[0][1])
+    assert online["online"] is True
+    assert isinstance(online["timestamp"], int)
+    late = fleet.subscribe(broker, "spBv1.0/STATE/scada", client_id="late-watch")
+    late.wait_until(lambda m: m, 15, "the retained STATE")
+    assert late.flags[0] == (1, True)  # retained, QoS 1
+    assert json.loads(late.snapshot()[0][1]) == online
+    t = 1800000000000
+    publish(broker.port, [
+        # data before any birth: a rebirth request, nothing stored
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 5, {"alias": 7, "datatype": 10,
+                                                     "double_value": 1.0, "timestamp": t})),
+    ])
+    ncmd.wait_until(lambda m: m, 15, "the NCMD of data with no birth")
+    topic, payload = ncmd.snapshot()[0]
+    assert topic == f"spBv1.0/{GROUP}/NCMD/n1"
+    cmd = pb.FromString(payload).metrics[0]
+    assert (cmd.name, cmd.datatype, cmd.boolean_value) == ("Node Control/Rebirth", 11, True)
+    time.sleep(5.2)  # the next request of n1 may come 5 s after the first
+    publish(broker.port, [
+        (f"spBv1.0/{GROUP}/NBIRTH/n1", _pb(pb, 0, {"name": "bdSeq", "datatype": 4,
+                                                   "long_value": 3},
+                                           {"name": "Node Control/Rebirth", "alias": 1,
+                                            "datatype": 11, "boolean_value": False},
+                                           {"name": "uptime", "alias": 2, "datatype": 8,
+                                            "long_value": 99, "timestamp": t})),
+        (f"spBv1.0/{GROUP}/DBIRTH/n1/d1", _pb(
+            pb, 1, {"name": "channel 002/temperature_c", "alias": 7, "datatype": 10,
+                    "double_value": 20.5, "timestamp": t},
+            {"name": "label", "alias": 8, "datatype": 12, "string_value": "tank",
+             "timestamp": t},
+            {"name": "level", "alias": 9, "datatype": 2, "int_value": 0xFFFE,
+             "timestamp": t})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 2, {"alias": 7, "datatype": 10,
+                                                     "double_value": 21.0,
+                                                     "timestamp": t + 1000},
+                                             {"alias": 9, "datatype": 2, "is_null": True,
+                                              "timestamp": t + 1000})),
+        # seq 3 lost: a gap, and one request only for the two gaps within 5 s
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 4, {"alias": 7, "datatype": 10,
+                                                     "double_value": 22.0,
+                                                     "timestamp": t + 2000})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 7, {"alias": 7, "datatype": 10,
+                                                     "double_value": 23.0,
+                                                     "timestamp": t + 3000})),
+        (f"spBv1.0/{GROUP}/BOGUS/n1", b"x"),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", b"\xff\xff\xff"),
+    ])
+    wait_rows(lambda: sqlite_count(out), 7, "the rows of the births and data")
+    ncmd.wait_until(lambda m: len(m) >= 2, 15, "the NCMD of the seq gap")
+    time.sleep(1.0)
+    assert len(ncmd.snapshot()) == 2, "at most one rebirth request per node per 5 s"
+    col.send_signal(signal.SIGKILL)
+    _, err = col.communicate(timeout=30)
+    for what in (f"bad input on spBv1.0/{GROUP}/BOGUS/n1: not a Sparkplug B topic",
+                 f"bad input on spBv1.0/{GROUP}/DDATA/n1/d1: not a Sparkplug B payload",
+                 f"asked {GROUP}/n1 for a rebirth: DDATA before its NBIRTH",
+                 f"asked {GROUP}/n1 for a rebirth: seq 4 after 2"):
+        assert what in err, err
+    state.wait_until(lambda m: len(m) >= 2, 15, "the will: STATE offline")
+    will = json.loads(state.snapshot()[-1][1])
+    assert will == {"online": False, "timestamp": online["timestamp"]}
+    col = collectors.start(broker.url, str(out), *args)
+    wait_subscribed(col)
+    state.wait_until(lambda m: len(m) >= 3 and json.loads(m[-1][1])["online"], 15,
+                     "STATE online again")
+    stop(col)
+    state.wait_until(lambda m: not json.loads(m[-1][1])["online"], 15,
+                     "STATE offline on a clean stop")
+    assert sorted(sqlite_facts(out)) == [
+        ("n1", "", "uptime", 1800000000.0, 99.0, None, None, None),
+        ("n1", "d1", "label", 1800000000.0, None, "tank", None, None),
+        ("n1", "d1", "level", 1800000000.0, -2.0, None, None, None),
+        ("n1", "d1", "level", 1800000001.0, None, None, "no_value", None),
+        ("n1", "d1", "temperature_c_2", 1800000000.0, 20.5, None, None, None),
+        ("n1", "d1", "temperature_c_2", 1800000001.0, 21.0, None, None, None),
+        ("n1", "d1", "temperature_c_2", 1800000002.0, 22.0, None, None, None),
+        ("n1", "d1", "temperature_c_2", 1800000003.0, 23.0, None, None, None),
+    ]
