@@ -12,7 +12,7 @@ from typing import Any
 from pymb.commands._data import check_database
 from pymb.store import Summary, summarize
 
-__all__ = ["add_arguments", "iso", "run"]
+__all__ = ["add_arguments", "age_text", "iso", "run"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,11 +47,44 @@ def _counts(counts: dict[str, int]) -> str:
                                        sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
-def text(s: Summary) -> str:
-    """The summary as lines of text."""
+def age_text(seconds: float) -> str:
+    """A duration as a person says it: ``4.2 s``, ``3 min 10 s``, ``2 h 5 min``, ``3 d 4 h``."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    s = int(seconds)
+    for unit, size, sub_unit, sub_size in (("d", 86400, "h", 3600), ("h", 3600, "min", 60),
+                                           ("min", 60, "s", 1)):
+        if s >= size:
+            return f"{s // size} {unit} {s % size // sub_size} {sub_unit}"
+    return f"{s} s"  # pragma: no cover (seconds >= 60 took a branch)
+
+
+def newest_age(s: Summary, now: float) -> float | None:
+    """Seconds since the newest committed sample (None: no sample)."""
+    return None if s.last is None else now - s.last
+
+
+def _writer_line(s: Summary, now: float) -> str:
+    age = newest_age(s, now)
+    if age is None:
+        newest = "no sample committed yet"
+    elif age < -1:
+        newest = f"the newest sample is {age_text(-age)} in the future (a clock step?)"
+    else:
+        newest = f"the newest committed sample is {age_text(max(0.0, age))} old"
+    if s.writer is None:
+        return f"  writer      none: no logger writes it now; {newest}"
+    return (f"  writer      {s.writer} is writing it; {newest} (what it logged since "
+            "shows once committed)")
+
+
+def text(s: Summary, now: float | None = None) -> str:
+    """The summary as lines of text (``now``: UTC seconds, for the newest sample's age)."""
+    now = time.time() if now is None else now
     span = "-" if s.first is None or s.last is None else (
         f"{iso(s.first)} .. {iso(s.last)} ({s.last - s.first:,.1f} s)")
     lines = [f"{s.path}: pymb database, format {s.schema} (pymb {s.pymb_version})",
+             _writer_line(s, now),
              f"  time span   {span}",
              f"  samples     {s.samples:,}",
              f"  devices     {len(s.devices)}"]
@@ -77,9 +110,11 @@ def text(s: Summary) -> str:
     return "\n".join(lines)
 
 
-def as_json(s: Summary) -> dict[str, Any]:
+def as_json(s: Summary, now: float | None = None) -> dict[str, Any]:
     """The summary as JSON (times as UTC seconds and ISO 8601)."""
+    now = time.time() if now is None else now
     return {
+        "writer": s.writer, "newest_age_s": newest_age(s, now),
         "path": s.path, "format": s.schema, "pymb_version": s.pymb_version,
         "first": s.first, "last": s.last, "first_iso": iso(s.first) if s.first else None,
         "last_iso": iso(s.last) if s.last else None, "samples": s.samples,

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from pymb.errors import InvalidArgument
 
-__all__ = ["DatabaseInUse", "WriterLock", "describe_process"]
+__all__ = ["DatabaseInUse", "WriterLock", "describe_process", "writer_of"]
 
 
 class DatabaseInUse(InvalidArgument):
@@ -61,6 +61,20 @@ def _holder(fd: int) -> int | None:
                 if pid > 0:
                     return pid
     return None
+
+
+def writer_of(path: str | os.PathLike[str]) -> str | None:
+    """The process that holds the writer's lock on ``path`` now (``pymb log,
+    PID 1234``), or None: read from ``/proc/locks``, taking no lock."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        pid = _holder(fd)
+    finally:
+        os.close(fd)
+    return None if pid is None else describe_process(pid)
 
 
 class WriterLock:

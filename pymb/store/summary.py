@@ -9,7 +9,9 @@ import sqlite3
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pymb.errors import InvalidArgument
+from pymb.errors import InvalidArgument, ModbusError
+from pymb.store.lock import writer_of
+from pymb.store.reader import stored_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import FAULT_KINDS
 from pymb.store.schema import SCHEMA_VERSION, parse_layout_key, schema_version
@@ -30,8 +32,10 @@ class DeviceSummary:
     samples: int
     first: float | None  #: UTC seconds of its first sample (None: no sample)
     last: float | None
-    #: a map device: its samples by polling group ("" for every point), in the
-    #: order they were first logged; empty for the built-in devices
+    #: a map device: its samples by polling group ("" for every point of a map
+    #: without groups): every group of its stored map, in the map's order, 0 for
+    #: one that never delivered, then any other group logged; empty for the
+    #: built-in devices
     groups: tuple[tuple[str, int], ...] = ()
 
 
@@ -51,6 +55,8 @@ class Summary:
     size: int  #: the database file, bytes
     wal: int  #: its write-ahead log, bytes (0: none)
     backlog: dict[str, int] = field(default_factory=dict)  #: forwarder: samples not yet sent
+    #: the process writing the database now (``pymb log, PID 1234``), or None
+    writer: str | None = None
 
 
 def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
@@ -108,7 +114,10 @@ def _summarize(con: sqlite3.Connection, path: str) -> Summary:
         lasts = [la for _, _, la in got if la is not None]
         groups: dict[str, int] = {}
         if kind not in ("coolpro", "hub"):
+            groups = dict.fromkeys(_map_groups(con, kind), 0)
             for (_, _, units), (n, _, _) in zip(rows, got, strict=True):
+                if not units.startswith("group="):
+                    continue  # the row of an event alone (a timeout): no group of its own
                 group = parse_layout_key(units)[0] or ""
                 groups[group] = groups.get(group, 0) + n
         devs.append(DeviceSummary(
@@ -132,4 +141,14 @@ def _summarize(con: sqlite3.Connection, path: str) -> Summary:
         devices=devs, samples=sum(d.samples for d in devs), first=first, last=last,
         faults={k: n for k, n in events.items() if k in FAULT_KINDS}, events=events,
         size=os.path.getsize(path), wal=wal.stat().st_size if wal.exists() else 0,
-        backlog=backlog)
+        backlog=backlog, writer=writer_of(path))
+
+
+def _map_groups(con: sqlite3.Connection, kind: str) -> list[str]:
+    """The polling groups of the map stored for device type ``kind`` (empty:
+    no map stored, or one without groups)."""
+    try:
+        got = stored_map(con, kind)
+    except (ModbusError, sqlite3.Error):
+        return []
+    return list(got[0].groups) if got is not None else []

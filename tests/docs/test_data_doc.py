@@ -35,17 +35,18 @@ def test_the_examples_run(tmp_path: Path) -> None:
     shown = claim_one("docs/data.md", "text", how="compare")
     labels = [ln.split()[0] for ln in shown.lines()[1:] if ln.startswith("  ") and
               not ln.startswith("    ")]
-    assert labels == ["time", "samples", "devices", "faults", "events", "size", "forwarder"]
+    assert labels == ["writer", "time", "samples", "devices", "faults", "events", "size",
+                      "forwarder"]
     # line by line as pymb info prints it; the demo's faults are random, so
     # that line is checked for its form only
     real = info.splitlines()
     (faults,) = [ln for ln in real if ln.startswith("  faults ")]
     assert re.fullmatch(rf"  faults\s+(none|{NUMBER}: {NUMBER} \w+(, {NUMBER} \w+)*)", faults)
     assert_shaped(shown, [shown.lines()[real.index(ln)] if ln is faults else ln for ln in real])
-    for name in ("t3.png", "vout.svg", "wide.csv", "vout.csv"):
+    for name in ("t2.png", "vout.svg", "wide.csv", "vout.csv"):
         assert (tmp_path / name).stat().st_size > 0, name
     left = {p.name for p in tmp_path.iterdir()}  # the readers left no -wal or -shm
-    assert {"demo.sqlite", "t3.png", "vout.svg", "wide.csv", "vout.csv"} <= left
+    assert {"demo.sqlite", "t2.png", "vout.svg", "wide.csv", "vout.csv"} <= left
     assert not [n for n in left if n.endswith(("-wal", "-shm", ".tmp"))], left
     assert (tmp_path / "wide.csv").read_text().splitlines()[0].endswith(
         "temperature_c_1,humidity_pct_1,temperature_c_2,humidity_pct_2,temperature_c_3,"
