@@ -74,6 +74,42 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("chint-dtsu666", "l1_current_a", f32(4250.0), 4.25, "value"),
     ("chint-dtsu666", "frequency_hz", f32(4998.0), 49.98, "value"),
     ("chint-dtsu666", "import_active_energy_kwh", f32(1234.5), 1234.5, "value"),
+    # Huawei SUN2000: big-endian, divided by the gain
+    ("huawei-sun2000", "active_power_kw", msw_first(9300, 2), 9.3, "value"),
+    ("huawei-sun2000", "pv1_current_a", [825], 8.25, "value"),
+    ("huawei-sun2000", "internal_temperature_c", [0xFFEC], -2.0, "value"),
+    ("huawei-sun2000", "device_status", [0x0200], 0x0200, "value"),  # on-grid
+    ("huawei-sun2000", "model", text("SUN2000-10KTL-M1", 15), "SUN2000-10KTL-M1", "value"),
+    # Growatt: 0.1 W in 32 bits, high word first
+    ("growatt-inverter", "pv_power_w", msw_first(34567, 2), 3456.7, "value"),
+    ("growatt-inverter", "grid_frequency_hz", [5001], 50.01, "value"),
+    ("growatt-inverter", "time_total_s", msw_first(7200, 2), 3600.0, "value"),  # 0.5 s units
+    # Sungrow: U32/S32 low word first
+    ("sungrow-sg", "total_energy_kwh", [0x1170, 0x0001], 70000, "value"),
+    ("sungrow-sg", "reactive_power_var", lsw_first(-120), -120, "value"),
+    ("sungrow-sg", "grid_frequency_hz", [500], 50.0, "value"),
+    ("sungrow-sg", "work_state", [0x5500], 0x5500, "value"),  # fault
+    # SMA: NaN patterns per type; FIX2 = two decimals
+    ("sma-inverter", "active_power_w", [0x8000, 0x0000], None, "not_available"),
+    ("sma-inverter", "l1_voltage_v", [0xFFFF, 0xFFFF], None, "not_available"),
+    ("sma-inverter", "l1_voltage_v", msw_first(23050, 2), 230.5, "value"),
+    ("sma-inverter", "condition", [0x00FF, 0xFFFD], None, "not_available"),
+    ("sma-inverter", "condition", [0, 307], 307, "value"),  # Ok
+    ("sma-inverter", "total_yield_wh", [0xFFFF] * 4, None, "not_available"),
+    ("sma-inverter", "total_yield_wh", msw_first(12345678, 4), 12345678, "value"),
+    # Victron GX: divided by the list's scale factor
+    ("victron-gx-system", "battery_current_a", [0xFF83], -12.5, "value"),
+    ("victron-gx-system", "grid_l1_w", [0xFEA2], -350, "value"),
+    ("victron-gx-vebus", "input_l1_power_va", [103], 1030.0, "value"),  # scale factor 0.1
+    ("victron-gx-vebus", "battery_voltage_v", [5241], 52.41, "value"),
+    ("victron-gx-vebus", "state", [9], 9, "value"),  # inverting
+    ("victron-gx-grid", "l1_energy_from_net_kwh", [12345], 123.45, "value"),
+    ("victron-gx-battery", "temperature_c", [0xFFF6], -1.0, "value"),
+    ("victron-gx-battery", "soc_pct", [785], 78.5, "value"),
+    # KOSTAL: Float32 low word first (CDAB)
+    ("kostal-plenticore", "l1_voltage_v", [0x8000, 0x4366], 230.5, "value"),
+    ("kostal-plenticore", "powermeter_total_active_power_w", list(reversed(f32(-2500.0))),
+     -2500.0, "value"),
 ]
 
 

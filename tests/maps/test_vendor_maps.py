@@ -25,6 +25,7 @@ from pymb.sim import Simulator
 from pymb.sim.mapsim import MapSimDevice
 
 SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
+OLDER = ("eastron-sdm120", "eastron-sdm630", "generic-vfd")  # before the vendor library
 
 
 def views(m: Map) -> set[str]:
@@ -99,6 +100,8 @@ def test_a_shipped_map_names_its_device_and_document(map_id: str) -> None:
         if p.writable and TYPES[p.type].family not in ("bool", "bit", "string", "raw") \
                 and not p.values:
             assert p.valid is not None, (map_id, p.name, "a writable number needs `valid`")
+        if p.writable and map_id not in OLDER:
+            assert p.max_writes_per_hour, (map_id, p.name, "a writable point needs a budget")
 
 
 @pytest.mark.parametrize("map_id", SHIPPED)
