@@ -31,6 +31,8 @@ from pymb.errors import (
     ModbusTimeout,
     NegativeAcknowledge,
     ProtocolError,
+    WriteNotApplied,
+    WriteRefused,
 )
 
 __version__ = VERSION  # csrc/pymb.h is the one home of the version
@@ -57,6 +59,8 @@ __all__ = [
     "RtuClient",
     "RtuOverTcpClient",
     "TcpClient",
+    "WriteNotApplied",
+    "WriteRefused",
     "__version__",
     "crc16",
 ]

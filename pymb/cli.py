@@ -15,7 +15,13 @@ import sys
 from collections.abc import Sequence
 
 from pymb import __version__
-from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError, OutputError
+from pymb.errors import (
+    InvalidArgument,
+    ModbusConnectionError,
+    ModbusError,
+    OutputError,
+    WriteRefused,
+)
 
 __all__ = [
     "EXIT_CONNECTION",
@@ -37,6 +43,7 @@ EXIT_PIPE = 141  #: the reader of stdout went away (128 + SIGPIPE), said nothing
 #: exception -> exit code, most specific first
 _EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
     (InvalidArgument, EXIT_USAGE),
+    (WriteRefused, EXIT_USAGE),
     (ModbusConnectionError, EXIT_CONNECTION),
     (OutputError, EXIT_OUTPUT),
     (ModbusError, EXIT_DEVICE),
@@ -54,6 +61,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "info": ("pymb.commands.info", "what a logged database holds: devices, span, faults, sizes"),
     "plot": ("pymb.commands.plot", "plot a quantity of a logged device to PNG or SVG"),
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
+    "write": ("pymb.commands.write", "write points of a device, checked and read back"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),
     "serve": ("pymb.commands.serve", "share one bus with many Modbus TCP clients (and TLS)"),

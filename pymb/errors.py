@@ -45,6 +45,8 @@ __all__ = [
     "NegativeAcknowledge",
     "OutputError",
     "ProtocolError",
+    "WriteNotApplied",
+    "WriteRefused",
     "describe_exception",
     "exception_class",
     "function_name",
@@ -130,6 +132,37 @@ class ModbusConnectionError(ModbusError, ConnectionError):
 
 class InvalidArgument(ModbusError, ValueError):
     """An argument is out of range; raised before anything is sent."""
+
+
+class WriteRefused(ModbusError):
+    """A write refused by a policy (the point's write budget, the allow
+    list); nothing was sent. ``reason`` names the policy (``"budget"``,
+    ``"not_allowed"``), ``point`` the point."""
+
+    def __init__(self, message: str, *, reason: str = "budget", point: str | None = None,
+                 **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.reason = reason
+        self.point = point
+
+
+class WriteNotApplied(ModbusError):
+    """The device answered a write but, read back, holds another value.
+
+    ``point`` names the point, ``sent`` the value written and ``found`` the
+    value read back; ``applied`` maps the points of the same command that
+    the device did apply to their values read back."""
+
+    def __init__(self, message: str, *, point: str | None = None, sent: object = None,
+                 found: object = None, applied: dict[str, Any] | None = None,
+                 **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.point = point
+        self.sent = sent
+        self.found = found
+        self.applied = dict(applied or {})
+        #: what became of every value of the command (:class:`pymb.devices.mapwrite.Outcome`)
+        self.outcomes: list[Any] = []
 
 
 class OutputError(Exception):

@@ -27,7 +27,19 @@ from typing import Any
 from pymb.client import Client
 from pymb.devices.mapfetch import Fetcher, Image, Read
 from pymb.devices.mapreading import MapReading
-from pymb.errors import InvalidArgument
+from pymb.devices.mapwrite import (
+    Change,
+    Outcome,
+    Request,
+    WriteBudget,
+    budget_refusal,
+    check,
+    decoded,
+    not_applied,
+    note_applied,
+    requests,
+)
+from pymb.errors import InvalidArgument, ModbusError
 from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import map_planner
 from pymb.maps.model import check_group, did_you_mean
@@ -54,11 +66,13 @@ class MapDevice:
     request, ``turnaround`` of silence after each reply (for every map device
     on the same client), ``after_connect`` before the first request on a new
     connection, and ``response_timeout`` as the reply timeout of its requests.
+    ``budget``: where writes are counted against ``max_writes_per_hour``
+    (a :class:`~pymb.devices.mapwrite.WriteBudget`; one of its own by default).
     """
 
     def __init__(self, client: Client, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
-                 baudrate: int | None = None) -> None:
+                 baudrate: int | None = None, budget: WriteBudget | None = None) -> None:
         if not isinstance(client, Client):
             raise InvalidArgument(f"a map device needs a pymb client (RtuClient, TcpClient, "
                                   f"RtuOverTcpClient), got {type(client).__name__}")
@@ -102,6 +116,8 @@ class MapDevice:
         # map device's on the same client (and one lock a read, not two).
         self._lock = self._fetcher.quiet.lock
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
+        #: the writes counted against ``max_writes_per_hour`` (in memory unless given)
+        self.budget = budget if budget is not None else WriteBudget()
 
     # -- what to read -----------------------------------------------------------------
 
@@ -258,39 +274,151 @@ class MapDevice:
 
     # -- writes -----------------------------------------------------------------------
 
-    def write(self, name: str, value: object, *, channel: int | None = None) -> None:
-        """Write ``value`` to a writable point (one ``channel`` of a block).
-        The value is checked against the point (access, ``valid``, its
-        type's range, ``values``) before any byte is sent; a ``bit``/``bits``
-        view reads its register first and writes it back changed."""
-        p = self.map.point(name)
-        address = p.address
-        if p.block:
-            if channel is None:
-                raise InvalidArgument(f"{self.map.id}: {name!r} is a block: write one channel "
-                                      f"(channel=1..{p.channels})")
-            address = p.address_of(channel)
-        elif channel is not None:
-            raise InvalidArgument(f"{self.map.id}: {name!r} has no channels")
-        current = None
-        if p.writable and p.type in ("bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"):
-            m = self.map
-            m.encode(name, value, current=[0] * p.count)  # refused before any byte is sent
-            with self._lock:
-                self._fetcher.after_connect()
-                with self._fetcher.turn():
-                    current = list(self.client.read_holding_registers(address, p.count,
-                                                                      slave=self.address))
-        regs = self.map.encode(name, value, current=current)
-        with self._lock:
+    def write(self, name: str, value: object, *, channel: int | None = None,
+              verify: bool = True) -> Value:
+        """Write ``value`` to a writable point (one ``channel`` of a block,
+        from 1) and return the value read back (None with ``verify=False``
+        or for a write-only point). Everything is checked before any byte is
+        sent (:class:`~pymb.InvalidArgument`); a spent write budget is a
+        :class:`~pymb.WriteRefused`; a device that answers but holds another
+        value raises :class:`~pymb.WriteNotApplied`."""
+        return self.write_points([(name, channel, value)], verify=verify)[0].after
+
+    def write_many(self, values: Mapping[str, object], *, verify: bool = True
+                   ) -> dict[str, Value]:
+        """Write ``{name: value}`` (a block's channel as ``name_N``) with the
+        fewest requests that keep each point whole, checked whole first:
+        one refused value writes nothing. Returns ``{name: value read back}``."""
+        if not isinstance(values, Mapping):
+            raise InvalidArgument(f"write_many takes a mapping of point names to values, "
+                                  f"got {type(values).__name__}")
+        out = self.write_points([(n, None, v) for n, v in values.items()], verify=verify)
+        return {o.name: o.after for o in out}
+
+    def plan_write(self, values: Mapping[str, object]) -> list[Request]:
+        """The requests :meth:`write_many` would send, checked as it checks;
+        nothing is sent (``pymb write --dry-run``)."""
+        changes = check(self.map, [(n, None, v) for n, v in values.items()])
+        return requests(self.map, changes)
+
+    def write_points(self, items: Sequence[tuple[str, int | None, object]], *,
+                     verify: bool = True, before: bool = False) -> list[Outcome]:
+        """Write ``(name, channel, value)`` items (see :mod:`pymb.devices.mapwrite`)
+        and say what became of each: with ``before``, each point is read
+        first. A point with a write budget is always read first: a value
+        the device already holds is not sent, and does not count."""
+        m = self.map
+        changes = check(m, items)
+        key = f"{m.id}:{self.address}"
+        for c in changes:
+            limit = c.point.max_writes_per_hour
+            if limit is not None and self.budget.spent(f"{key}/{c.name}", limit):
+                raise budget_refusal(m, key, c)
+        outcomes = [Outcome(c.name, c.value) for c in changes]
+        rmw = not m.limits.mask_write
+        with self._lock, self._fetcher.map_timeout():
             self._fetcher.after_connect()
+            first = [c for c in changes if (c.point.access != "w" and (
+                before or c.point.max_writes_per_hour is not None))
+                or (rmw and c.view)]
+            current = self._read_spans(first) if first else {}
+            todo = []
+            for c, o in zip(changes, outcomes, strict=True):
+                regs = _regs(current, c)
+                if regs is not None and c.point.access != "w" and (
+                        before or c.point.max_writes_per_hour is not None):
+                    o.before = decoded(c.point, regs)
+                    if c.point.max_writes_per_hour is not None and \
+                            tuple(regs) == c.merged(regs):
+                        o.after, o.applied = o.before, True  # held already: not sent
+                        continue
+                todo.append(c)
+            holding = {a: v for (t, a), v in current.items() if t == "holding"}
+            written: list[str] = []
+            for r in requests(m, todo, holding):
+                for n in r.names:
+                    c = next(c for c in todo if c.name == n)
+                    if c.point.max_writes_per_hour is not None:
+                        self.budget.count(f"{key}/{n}")
+                try:
+                    self._send(r)
+                except ModbusError as e:
+                    note_applied(e, written)
+                    raise
+                written.extend(r.names)
+            for o in outcomes:
+                o.sent = o.sent or o.name in written
+            if verify:
+                self._verify(todo, outcomes, key)
+        return outcomes
+
+    def _send(self, r: Request) -> None:
+        client, slave = self.client, self.address
+        with self._fetcher.turn():
+            if r.function == 5:
+                client.write_coil(r.address, r.values[0], slave=slave)
+            elif r.function == 15:
+                client.write_coils(r.address, r.values, slave=slave)
+            elif r.function == 6:
+                client.write_register(r.address, r.values[0], slave=slave)
+            elif r.function == 16:
+                client.write_registers(r.address, r.values, slave=slave)
+            else:
+                client.mask_write_register(r.address, r.values[0], r.values[1], slave=slave)
+
+    def _read_spans(self, changes: Sequence[Change]) -> dict[tuple[str, int], int]:
+        """(table, address) -> register (bit) of every point of ``changes``,
+        adjacent ones in one request."""
+        out: dict[tuple[str, int], int] = {}
+        wanted = sorted({(c.point.table, a) for c in changes for a in range(
+            c.point.address, c.point.address + c.point.count)})
+        runs: list[list[tuple[str, int]]] = []
+        for t, a in wanted:
+            most = 2000 if t == "coil" else 125
+            last = runs[-1] if runs else None
+            if last and last[-1][0] == t and last[-1][1] + 1 == a and len(last) < most:
+                last.append((t, a))
+            else:
+                runs.append([(t, a)])
+        for run in runs:
+            t, a0 = run[0]
             with self._fetcher.turn():
-                if p.table == "coil":
-                    self.client.write_coil(address, bool(regs[0]), slave=self.address)
-                elif len(regs) == 1:
-                    self.client.write_register(address, regs[0], slave=self.address)
+                if t == "coil":
+                    got = self.client.read_coils(a0, len(run), slave=self.address)
                 else:
-                    self.client.write_registers(address, regs, slave=self.address)
+                    got = self.client.read_holding_registers(a0, len(run), slave=self.address)
+            out.update(((t, a0 + k), int(v)) for k, v in enumerate(got))
+        return out
+
+    def _verify(self, todo: Sequence[Change], outcomes: Sequence[Outcome], key: str) -> None:
+        """Read back what was written; :class:`~pymb.WriteNotApplied` where
+        the device holds another value."""
+        readable = [c for c in todo if c.point.access != "w"]
+        back = self._read_spans(readable) if readable else {}
+        by_name = {o.name: o for o in outcomes}
+        failed: list[tuple[Change, Value]] = []
+        for c in readable:
+            regs = _regs(back, c)
+            assert regs is not None
+            o = by_name[c.name]
+            o.after = decoded(c.point, regs)
+            o.applied = tuple(regs) == c.merged(regs)
+            if not o.applied:
+                failed.append((c, o.after))
+        if failed:
+            applied = {o.name: o.after for o in outcomes if o.applied}
+            e = not_applied(f"{key} on {self.client.port}", failed, applied)
+            e.outcomes = list(outcomes)
+            raise e
 
     def __repr__(self) -> str:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
+
+
+def _regs(current: Mapping[tuple[str, int], int], c: Change) -> list[int] | None:
+    """The registers (bits) of ``c``'s point in ``current``, or None."""
+    p = c.point
+    try:
+        return [current[(p.table, a)] for a in range(p.address, p.address + p.count)]
+    except KeyError:
+        return None

@@ -190,7 +190,7 @@ class Fetcher:
 
     def run(self, plan: ReadPlan, images: dict[str, Image]) -> None:
         """Every request of ``plan``, each into its place in ``images``."""
-        with self._map_timeout():
+        with self.map_timeout():
             for r in plan.requests:
                 self._fetch(r, images[r.table])
 
@@ -202,7 +202,7 @@ class Fetcher:
         q = self.quiet
         plan = p.plan
         while refused >= 0:
-            with self._map_timeout():
+            with self.map_timeout():
                 self._fall_back(p.requests[refused], p.image)
             start, refused = refused + 1, -1
             if start >= plan.n:
@@ -220,7 +220,7 @@ class Fetcher:
                 q.quiet_until = max(q.quiet_until, now + turnaround)
 
     @contextmanager
-    def _map_timeout(self) -> Iterator[None]:
+    def map_timeout(self) -> Iterator[None]:
         """The map's ``response_timeout`` on the line (the byte timeout stays)."""
         timeout, client = self.map.timing.response_timeout, self.client
         if timeout is None or timeout == client.timeout:

@@ -279,8 +279,9 @@ access = "rw"
         dev.write("limit_a", 12.5)
         dev.write("run", True)
         dev.write("relay", True)
-        assert [(r.function, r.address) for r in peer.log] == [(6, 30), (16, 32), (3, 40),
-                                                               (6, 40), (5, 5)]
+        # each write is read back
+        assert [(r.function, r.address) for r in peer.log] == [
+            (6, 30), (3, 30), (16, 32), (3, 32), (3, 40), (6, 40), (3, 40), (5, 5), (1, 5)]
         got = dev.read()
         assert got == {"setpoint": 999, "limit_a": 12.5, "status": 0x0108, "run": True,
                        "relay": True}
@@ -358,10 +359,10 @@ access = "rw"
         dev = MapDevice(client, make_map("", "", points), 1)
         with pytest.raises(InvalidArgument, match="is a block"):
             dev.write("levels", 7)
-        with pytest.raises(maps.MapError, match=r"channels 1\.\.3"):
+        with pytest.raises(InvalidArgument, match=r"channels 1\.\.3"):
             dev.write("levels", 7, channel=4)
-        dev.write("levels", 7, channel=2)
-        assert [(r.function, r.address) for r in peer.log] == [(6, 51)]
+        assert dev.write("levels", 7, channel=2) == 7
+        assert [(r.function, r.address) for r in peer.log] == [(6, 51), (3, 51)]
         assert dev.read("levels") == {"levels": [peer_value(50), 7, peer_value(52)]}
 
 

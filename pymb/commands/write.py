@@ -1,0 +1,138 @@
+"""``pymb write DEVICE POINT=VALUE ...``: write points of a map device,
+checked before anything is sent and read back.
+
+Prints one line per point, ``POINT: BEFORE -> AFTER UNIT``; ``--dry-run``
+prints the requests it would send and sends nothing, not even a read. Exit
+codes: 0 every value applied; 2 refused before anything was sent; 3 the
+device refused, did not answer, or did not apply; 4 the connection failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from pymb import maps
+from pymb.commands._common import add_connection_args, interruptible, make_client
+from pymb.commands.mapcli import add_map_arg
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapspec import FACADES, map_types, parse_map_device, unknown_device
+from pymb.devices.mapwrite import Outcome, resolve
+from pymb.errors import InvalidArgument, WriteNotApplied
+from pymb.maps import Point
+
+__all__ = ["add_arguments", "parse_value", "run"]
+
+_TRUE = ("true", "on", "1")
+_FALSE = ("false", "off", "0")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``pymb write``."""
+    p.add_argument("device", metavar="DEVICE",
+                   help="TYPE[:ADDRESS][,key=value...]: a map's id (a shipped map's, or a "
+                        "--map FILE's)")
+    p.add_argument("values", metavar="POINT=VALUE", nargs="+",
+                   help="a number, an enum name from the point's values, true/false (or "
+                        "1/0) for a bit or coil, text for a string point; a block's channel "
+                        "as name_N=VALUE")
+    add_connection_args(p)
+    add_map_arg(p)
+    p.add_argument("--dry-run", action="store_true",
+                   help="check everything and print each request; send nothing, not even "
+                        "a read")
+    p.add_argument("--no-verify", action="store_true",
+                   help="do not read the points back after writing")
+
+
+def parse_value(p: Point, text: str) -> object:
+    """The value ``text`` gives point ``p``: a number, an enum name, true/false
+    for a bit or coil, text for a string, comma-separated registers for raw."""
+    if p.type == "string":
+        return text
+    low = text.strip().lower()
+    if p.type in ("bool", "bit"):
+        if low in _TRUE:
+            return True
+        if low in _FALSE:
+            return False
+        if not p.values:
+            raise InvalidArgument(f"point {p.name!r}: true or false is needed, got {text!r}")
+    if p.type == "raw":
+        try:
+            return [int(x, 0) for x in text.split(",")]
+        except ValueError:
+            raise InvalidArgument(f"point {p.name!r}: registers as 1,2,3 are needed, "
+                                  f"got {text!r}") from None
+    try:
+        return int(low, 0)
+    except ValueError:
+        pass
+    try:
+        return float(low)
+    except ValueError:
+        return text  # an enum name, or refused by the point's check with its own message
+
+
+def _items(args: argparse.Namespace, m: maps.Map) -> dict[str, object]:
+    out: dict[str, object] = {}
+    for item in args.values:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise InvalidArgument(f"{item!r}: write values as POINT=VALUE")
+        if name in out:
+            raise InvalidArgument(f"{name!r} is given twice")
+        _, p = resolve(m, name)
+        out[name] = parse_value(p, text)
+    return out
+
+
+def _text(p: Point, value: Any) -> str:
+    if value is None:
+        return "?"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.{p.precision}f}" if p.precision is not None else f"{value:g}"
+    return str(value)
+
+
+def _line(m: maps.Map, o: Outcome) -> str:
+    _, p = resolve(m, o.name)
+    after = _text(p, o.after) if o.applied is not None else \
+        f"{_text(p, o.requested)} (not read back)"
+    note = "" if o.applied is not False else " (not applied)"
+    return f"{o.name}: {_text(p, o.before)} -> {after} {p.unit}".rstrip() + note
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check, write, read back; print each point."""
+    known = {**map_types(args.maps or []), **{f: maps.builtin(f) for f in FACADES}}
+    target = parse_map_device(args.device, known)
+    if target is None:
+        raise unknown_device(args.device, [k for k in known if k not in FACADES])
+    m = target.map
+    values = _items(args, m)
+    client = make_client(args)
+    dev = MapDevice(client, m, target.address, baudrate=args.baud)
+    plan = dev.plan_write(values)  # everything checked before the line is opened
+    if args.dry_run:
+        for r in plan:
+            print(r.describe())
+        return 0
+    items = [(n, None, v) for n, v in values.items()]
+
+    def io() -> list[Outcome]:
+        with client:
+            return dev.write_points(items, verify=not args.no_verify, before=True)
+
+    try:
+        outcomes = interruptible(io)
+    except WriteNotApplied as e:
+        for o in e.outcomes:
+            print(_line(m, o))
+        raise
+    for o in outcomes:
+        print(_line(m, o))
+    return 0

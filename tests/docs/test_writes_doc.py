@@ -1,0 +1,63 @@
+"""docs/writes.md's examples run: its TOML block is the inverter every
+example uses, its Python block runs against a simulated inverter, and each
+``$ pymb`` line of its shell block runs as a user would run it against the
+``pymb simulate`` line's simulator, its output compared with the lines the
+page shows under it."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+from conftest import run_pymb
+from docblocks import claim_one
+
+from pymb import maps
+from pymb.sim import SimulatorProcess
+
+INVERTER = claim_one("docs/writes.md", "toml", how="load").text
+CODE = claim_one("docs/writes.md", "python", how="run").text
+SHELL = claim_one("docs/writes.md", "sh", how="run")
+SYNOPSIS = claim_one("docs/writes.md", "text", how="check", contains="pymb write DEVICE").text
+
+
+def test_the_synopsis_names_every_option_of_pymb_write() -> None:
+    shown = set(re.findall(r"--[a-z-]+", SYNOPSIS))
+    helped = set(re.findall(r"--[a-z-]+", run_pymb("write", "--help").stdout))
+    # the synopsis leaves out what every command with a line has (--parity, --timeout)
+    assert shown == helped - {"--help", "--parity", "--timeout"}
+
+
+def test_the_map_loads() -> None:
+    m = maps.loads(INVERTER, source="inverter.toml")
+    assert m.points["frequency_setpoint_hz"].max_writes_per_hour == 4
+    assert m.points["power_limit_pct"].max_writes_per_hour is None
+
+
+def test_the_python_example_runs() -> None:
+    exec(compile(CODE, "docs/writes.md", "exec"), {"INVERTER": INVERTER})
+
+
+def test_the_shell_example_runs_and_prints_what_it_shows(tmp_path: Path) -> None:
+    (tmp_path / "inverter.toml").write_text(INVERTER)
+    commands: list[tuple[str, list[str]]] = []
+    for line in SHELL.lines():
+        if line.startswith("$ "):
+            commands.append((line[2:].rstrip("\n"), []))
+        else:
+            commands[-1][1].append(line.rstrip("\n"))
+    simulate = commands[0][0]
+    assert simulate.startswith("pymb simulate")
+    assert commands[0][1] == []
+    endpoint = simulate.split("--tcp ")[1].split()[0]
+    args = shlex.split(simulate)[2:]
+    args[args.index("--tcp") + 1] = "127.0.0.1:0"
+    args[args.index("inverter.toml")] = str(tmp_path / "inverter.toml")
+    assert len(commands) == 5
+    with SimulatorProcess(args, quiet=True) as sim:
+        for line, shown in commands[1:]:
+            argv = shlex.split(line.replace(endpoint, sim.endpoint))[1:]
+            r = run_pymb(*argv, cwd=tmp_path)
+            assert (r.returncode, r.stderr) == (0, ""), line
+            assert r.stdout.splitlines() == shown, line

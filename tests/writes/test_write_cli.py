@@ -1,0 +1,194 @@
+"""``pymb write`` as a user runs it, in its own process, against peers that
+are not pymb: the scripted peer that logs every request and can acknowledge
+a write without applying it (Modbus TCP, and RTU on a real pseudo-terminal),
+pymodbus's server (TCP, RTU over TCP) and Debian's libmodbus (TCP, RTU on a
+pty). Output lines ``POINT: BEFORE -> AFTER UNIT``; exit codes 0/2/3/4;
+``--dry-run`` and every refusal send no byte."""
+
+from __future__ import annotations
+
+import socket
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import run_pymb
+from wire_peers import build_libmodbus_server, libmodbus_server, pymodbus_server
+from write_peers import WRITE_MAP, FreezingPtyPeer, FreezingTcpPeer
+
+import pymb
+
+
+@pytest.fixture(scope="module")
+def map_file(tmp_path_factory: pytest.TempPathFactory) -> str:
+    path = tmp_path_factory.mktemp("map") / "wdev.toml"
+    path.write_text(WRITE_MAP.format(device="", limits="", budget=""))
+    return str(path)
+
+
+@pytest.fixture
+def peer() -> Iterator[FreezingTcpPeer]:
+    with FreezingTcpPeer() as p:
+        yield p
+
+
+def write(map_file: str, *args: str) -> tuple[int, str, str]:
+    r = run_pymb("write", "--map", map_file, *args)
+    return r.returncode, r.stdout, r.stderr
+
+
+def test_write_prints_before_and_after_and_reads_back(map_file: str,
+                                                      peer: FreezingTcpPeer) -> None:
+    peer.memory.holding[10] = 5000
+    peer.memory.holding[12] = 0
+    code, out, err = write(map_file, "wdev:1", "setpoint_hz=49.5", "mode=run", "pump_on=false",
+                           "zone_c_2=21.5", "--tcp", f"127.0.0.1:{peer.port}")
+    assert (code, err) == (0, "")
+    before_zone = (41 * 7) / 10
+    assert out.splitlines() == [
+        "setpoint_hz: 50 -> 49.5 Hz",
+        "mode: stop -> run",
+        "pump_on: false -> false",
+        f"zone_c_2: {before_zone:g} -> 21.5 °C",
+    ]
+    assert peer.memory.holding[10] == 4950
+    assert peer.memory.holding[41] == 215
+
+
+def test_no_verify_reads_before_but_not_after(map_file: str, peer: FreezingTcpPeer) -> None:
+    peer.memory.holding[11] = 10
+    code, out, _ = write(map_file, "wdev", "power_limit_pct=80", "--no-verify",
+                         "--tcp", f"127.0.0.1:{peer.port}")
+    assert code == 0
+    assert out == "power_limit_pct: 10 -> 80 (not read back) %\n"
+    assert peer.functions() == [3, 6]
+
+
+def test_not_applied_exits_3_and_says_what_the_device_holds(map_file: str,
+                                                             peer: FreezingTcpPeer) -> None:
+    peer.memory.holding[11] = 10
+    peer.frozen.add(11)
+    code, out, err = write(map_file, "wdev:1", "power_limit_pct=80", "--tcp",
+                           f"127.0.0.1:{peer.port}")
+    assert code == 3
+    assert out == "power_limit_pct: 10 -> 10 % (not applied)\n"
+    assert err == (f"pymb write: wdev:1 on 127.0.0.1:{peer.port}: not applied: "
+                   "'power_limit_pct': sent 80, the device holds 10\n")
+
+
+def test_a_device_exception_exits_3(map_file: str, peer: FreezingTcpPeer) -> None:
+    peer.hook = lambda s, pdu, normal: [(0.0, peer.frame(s, bytes((0x86, 3))))] \
+        if pdu[0] == 6 else None
+    code, out, err = write(map_file, "wdev:1", "power_limit_pct=80", "--tcp",
+                           f"127.0.0.1:{peer.port}")
+    assert code == 3
+    assert out == ""
+    assert err.startswith("pymb write: ")
+    assert "illegal data value" in err.lower()
+
+
+def test_no_answer_exits_3(map_file: str) -> None:
+    with FreezingTcpPeer(slaves={2}) as silent:
+        code, _, err = write(map_file, "wdev:1", "mode=run", "--tcp",
+                             f"127.0.0.1:{silent.port}", "--timeout", "0.3")
+    assert code == 3, err
+
+
+def test_connection_failure_exits_4(map_file: str) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # nothing listens there
+    code, out, err = write(map_file, "wdev:1", "mode=run", "--tcp", f"127.0.0.1:{port}")
+    assert (code, out) == (4, "")
+    assert err.startswith("pymb write: ")
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["setpoint_hz=70"], "outside its valid range 45..65"),
+    (["setpont_hz=50"], "did you mean 'setpoint_hz'?"),
+    (["firmware=2"], "read-only"),
+    (["mode=running"], "did you mean 'run'?"),
+    (["relay_2=maybe"], "true or false"),
+    (["setpoint_hz"], "write values as POINT=VALUE"),
+    (["mode=run", "mode=stop"], "given twice"),
+    (["mode=run", "setpoint_hz=99"], "outside"),  # one refused value writes nothing
+])
+def test_every_refusal_exits_2_and_sends_no_byte(map_file: str, peer: FreezingTcpPeer,
+                                                 args: list[str], message: str) -> None:
+    code, out, err = write(map_file, "wdev:1", *args, "--tcp", f"127.0.0.1:{peer.port}")
+    assert (code, out) == (2, "")
+    assert message in err
+    assert err.count("\n") == 1
+    assert "Traceback" not in err
+    assert peer.requests == []
+
+
+def test_unknown_device_type_exits_2(map_file: str) -> None:
+    code, _, err = write(map_file, "wdevv:1", "mode=run", "--tcp", "127.0.0.1:1")
+    assert code == 2
+    assert "unknown device" in err
+    assert "did you mean" in err
+
+
+def test_dry_run_prints_the_requests_and_sends_nothing(map_file: str,
+                                                       peer: FreezingTcpPeer) -> None:
+    code, out, err = write(map_file, "wdev:1", "setpoint_hz=49.5", "power_limit_pct=80",
+                           "relay_2=true", "pump_on=1", "fan_on=1", "--dry-run",
+                           "--tcp", f"127.0.0.1:{peer.port}")
+    assert (code, err) == (0, "")
+    assert out.splitlines() == [
+        "FC 15 coil 5: 1 1 (pump_on, fan_on)",
+        "FC 16 holding 10: 0x1356 0x0050 (setpoint_hz, power_limit_pct)",
+        "FC 06 holding 20: read (FC 03), then 0x0004 with the other bits as read (relay_2)",
+    ]
+    assert peer.requests == []
+
+
+def test_rtu_on_a_pty(map_file: str) -> None:
+    with FreezingPtyPeer() as peer:
+        peer.memory.holding[20] = 0x0001
+        code, out, err = write(map_file, "wdev:1", "relay_5=on", "--port", peer.port,
+                               "--baud", "19200")
+        assert (code, err) == (0, "")
+        assert out == "relay_5: false -> true\n"
+        assert peer.memory.holding[20] == 0x0021
+        assert peer.functions() == [3, 6, 3]  # read, changed and written back, read back
+
+
+@pytest.mark.parametrize("mode", ["tcp", "rtu-over-tcp"])
+def test_against_pymodbus(map_file: str, mode: str) -> None:
+    pytest.importorskip("pymodbus")
+    with pymodbus_server(mode) as port:
+        code, out, err = write(map_file, "wdev:1", "setpoint_hz=49.5", "target_w=-12.25",
+                               "fan_on=true", "level=200", f"--{mode}", f"127.0.0.1:{port}")
+        assert (code, err) == (0, ""), out
+        assert out.splitlines()[:2] == ["setpoint_hz: 0.7 -> 49.5 Hz",
+                                        f"target_w: {_f32(7 * 14, 7 * 15):g} -> -12.25 W"]
+        cls = pymb.TcpClient if mode == "tcp" else pymb.RtuOverTcpClient
+        with cls("127.0.0.1", port, timeout=2.0) as c:
+            assert list(c.read_holding_registers(10, 1, slave=1)) == [4950]
+            assert list(c.read_holding_registers(21, 1, slave=1)) == [(7 * 21) & 0xFF00 | 200]
+
+
+def _f32(hi: int, lo: int) -> float:
+    value: float = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+    return value
+
+
+@pytest.fixture(scope="module")
+def libmodbus_exe(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return build_libmodbus_server(tmp_path_factory.mktemp("libmodbus"))
+
+
+@pytest.mark.parametrize("mode", ["tcp", "rtu"])
+def test_against_libmodbus(map_file: str, libmodbus_exe: Path, mode: str) -> None:
+    with libmodbus_server(libmodbus_exe, mode) as where:
+        line = ["--tcp", f"127.0.0.1:{where}"] if mode == "tcp" else ["--port", where]
+        code, out, err = write(map_file, "wdev:17", "power_limit_pct=42", "relay_2=true",
+                               "zone_c_1=7.5", *line)
+        assert (code, err) == (0, ""), out
+        assert out.splitlines() == ["power_limit_pct: 33 -> 42 %",
+                                    "relay_2: true -> true" if (60 >> 2) & 1 else
+                                    "relay_2: false -> true",
+                                    "zone_c_1: 12 -> 7.5 °C"]
