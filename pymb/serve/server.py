@@ -23,6 +23,7 @@ WRITE_FUNCTIONS = frozenset({0x05, 0x06, 0x0F, 0x10, 0x15, 0x16, 0x17})
 #: requests one client may have waiting upstream before its reading pauses
 PENDING_PER_CLIENT = 16
 EX_FUNCTION = 0x01  #: what an unauthorised request is answered (Modbus/TCP Security)
+HANDSHAKE_TIMEOUT = 10.0  #: seconds a TLS client has to finish its handshake
 
 
 @dataclass
@@ -72,6 +73,56 @@ class ServeStats:
     tls_failures: int = 0
 
 
+class _Tls:
+    """One connection's TLS, server side, over memory buffers: the bytes from
+    the client go in, the plaintext comes out, and a failed handshake is an
+    exception this connection can say in one line."""
+
+    def __init__(self, ctx: ssl.SSLContext) -> None:
+        self._in = ssl.MemoryBIO()
+        self._out = ssl.MemoryBIO()
+        self._obj = ctx.wrap_bio(self._in, self._out, server_side=True)
+        self.done = False  #: the handshake is over
+        self.closed = False  #: the client sent close_notify
+
+    def feed(self, data: bytes) -> bytes:
+        """The client's bytes in; the plaintext they complete out. Raises
+        :class:`ssl.SSLError` when the handshake or a record fails."""
+        self._in.write(data)
+        if not self.done:
+            try:
+                self._obj.do_handshake()
+            except ssl.SSLWantReadError:
+                return b""
+            self.done = True
+        chunks = []
+        while True:
+            try:
+                chunk = self._obj.read(65536)
+            except ssl.SSLWantReadError:
+                break
+            except ssl.SSLZeroReturnError:
+                self.closed = True
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+        return b"".join(chunks)
+
+    def outgoing(self) -> bytes:
+        """What TLS has to send to the client now (handshake, alerts)."""
+        return self._out.read()
+
+    def encrypt(self, data: bytes) -> bytes:
+        """``data`` as TLS records for the client."""
+        self._obj.write(data)
+        return self._out.read()
+
+    def peer_certificate(self) -> bytes | None:
+        """The client's certificate (DER), once the handshake is over."""
+        return self._obj.getpeercert(binary_form=True)
+
+
 class _Conn(asyncio.Protocol):
     def __init__(self, server: Server) -> None:
         self.server = server
@@ -83,6 +134,8 @@ class _Conn(asyncio.Protocol):
         self.paused_writing = False
         self.may_write = True
         self.peer = "?"
+        self.tls: _Tls | None = None
+        self.handshake_timer: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -101,11 +154,24 @@ class _Conn(asyncio.Protocol):
         s.conns.add(self)
         transport.set_write_buffer_limits(high=64 * 1024)
         if s.tls is not None:
-            self.may_write = self._role_may_write(transport)
+            self.tls = _Tls(s.tls)
+            self.handshake_timer = asyncio.get_running_loop().call_later(
+                HANDSHAKE_TIMEOUT, self._handshake_late)
 
-    def _role_may_write(self, transport: asyncio.Transport) -> bool:
-        obj = transport.get_extra_info("ssl_object")
-        der = obj.getpeercert(binary_form=True) if obj is not None else None
+    def _handshake_late(self) -> None:
+        if self.tls is not None and not self.tls.done and not self.closed:
+            self._refuse(f"no TLS handshake within {HANDSHAKE_TIMEOUT:g} s")
+
+    def _refuse(self, reason: str) -> None:
+        self.server.stats.tls_failures += 1
+        self.server.say(f"client {self.peer}: TLS refused: {reason}")
+        if self.transport is not None and self.tls is not None:
+            alert = self.tls.outgoing()
+            if alert:
+                self.transport.write(alert)  # the alert that tells the client why
+            self.transport.close()
+
+    def _role_may_write(self, der: bytes | None) -> bool:
         if not der:
             return False
         try:
@@ -120,6 +186,8 @@ class _Conn(asyncio.Protocol):
         if not self.closed:
             self.closed = True
             self.server.stats.open -= 1
+        if self.handshake_timer is not None:
+            self.handshake_timer.cancel()
         self.server.conns.discard(self)
 
     def pause_writing(self) -> None:
@@ -146,6 +214,26 @@ class _Conn(asyncio.Protocol):
         if self.closed:
             return
         s = self.server
+        if self.tls is not None:
+            tls = self.tls
+            was_done = tls.done
+            try:
+                data = tls.feed(data)
+            except ssl.SSLError as e:
+                self._refuse(str(getattr(e, "verify_message", None) or e.reason or e))
+                return
+            out = tls.outgoing()
+            if out and self.transport is not None:
+                self.transport.write(out)
+            if tls.done and not was_done:
+                if self.handshake_timer is not None:
+                    self.handshake_timer.cancel()
+                self.may_write = self._role_may_write(tls.peer_certificate())
+            if tls.closed:
+                self._close()
+                return
+            if not data:
+                return
         self.buf += data
         try:
             requests = take_requests(self.buf)
@@ -185,7 +273,7 @@ class _Conn(asyncio.Protocol):
     def _send(self, frame: bytes) -> None:
         if self.transport is not None and not self.closed:
             self.server.stats.replies += 1
-            self.transport.write(frame)
+            self.transport.write(frame if self.tls is None else self.tls.encrypt(frame))
 
     def _close(self) -> None:
         if self.transport is not None and not self.closed:
@@ -235,23 +323,11 @@ class Server:
     async def start(self) -> None:
         """Listen (the port is bound when this returns; ``port`` 0 picks one)."""
         self._loop = asyncio.get_running_loop()
-        self._loop.set_exception_handler(self._loop_exception)
         self._server = await self._loop.create_server(
-            lambda: _Conn(self), self.host, self.port, ssl=self.tls, reuse_address=True,
+            lambda: _Conn(self), self.host, self.port, reuse_address=True,
             backlog=1024)
         sock = self._server.sockets[0]
         self.port = sock.getsockname()[1]
-
-    def _loop_exception(self, loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
-        exc = context.get("exception")
-        if isinstance(exc, ssl.SSLError | ConnectionError | OSError):
-            # A client's failed handshake (expired, wrongly signed, no
-            # certificate) or a reset: one line, and the server goes on.
-            self.stats.tls_failures += isinstance(exc, ssl.SSLError)
-            reason = getattr(exc, "reason", None) or exc
-            self.say(f"client refused: {reason}")
-            return
-        loop.default_exception_handler(context)
 
     async def serve_until(self, stop: asyncio.Event) -> None:
         """Serve until ``stop`` is set, then close every connection."""

@@ -1,0 +1,179 @@
+"""Modbus/TCP Security: docs/security.md's openssl steps run as written, then
+``pymb serve --tls`` used by pymodbus's TLS client and Python's ssl: roles
+from the certificates, refused certificates (expired, another CA, none, the
+wrong name, TLS 1.1), and the role extension read from any bytes."""
+
+from __future__ import annotations
+
+import shlex
+import shutil
+import socket
+import ssl
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import wait_until
+from docblocks import claim, claim_one
+from hypothesis import given
+from hypothesis import strategies as st
+from peers import PtyPeer
+from servekit import Served, mbap, read_pdu
+
+from pymb.serve.roles import CertificateError, role_of
+
+
+def _sh(block_text: str, cwd: Path, prefix: list[str] | None = None) -> None:
+    for line in block_text.splitlines():
+        r = subprocess.run([*(prefix or []), "sh", "-c", line], cwd=cwd, capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0, f"{line}\n{r.stderr}"
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """docs/security.md's certificates, and three more that must be refused:
+    an expired client certificate, one signed by another CA, and the
+    operator's key with an expired validity (made under faketime)."""
+    d = tmp_path_factory.mktemp("security")
+    ca_block, server_block, clients_block = claim("docs/security.md", "sh", how="run",
+                                                  contains="openssl")
+    for block in (ca_block, server_block, clients_block):
+        _sh(block.text, d)
+    # a client certificate that expired in 2020, and one from another CA
+    if shutil.which("faketime") is None:
+        pytest.fail("faketime is not installed: .ci/setup installs it")
+    operator_lines = "".join(line + "\n" for line in clients_block.lines() if "operator" in line)
+    old = operator_lines.replace("operator", "expired").replace("-days 825", "-days 1")
+    _sh(old, d, ["faketime", "2020-01-01 00:00:00"])
+    other = d / "other"
+    other.mkdir()
+    _sh(ca_block.text, other)
+    _sh(clients_block.text, other)
+    return d
+
+
+@pytest.fixture
+def served(certs: Path) -> Iterator[tuple[Served, PtyPeer]]:
+    block = claim_one("docs/security.md", "sh", how="run", contains="pymb serve")
+    argv = shlex.split(block.text)
+    assert argv[:2] == ["pymb", "serve"]
+    with PtyPeer() as peer:
+        args = [peer.port if a == "/dev/ttyUSB0" else str(certs / a) if a.endswith(
+            (".pem", ".key")) else a for a in argv[2:]]
+        i = args.index("--listen")
+        assert args[i + 1] == "0.0.0.0:802"
+        del args[i:i + 2]
+        with Served(*args, listen="127.0.0.1:0") as s:
+            yield s, peer
+            assert s.stop() == 0
+
+
+def _context(certs: Path, who: str | None, *, ca: Path | None = None) -> ssl.SSLContext:
+    ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=str(ca or certs / "ca.pem"))
+    if who is not None:
+        base = certs / who if "/" not in who else Path(who)
+        ctx.load_cert_chain(f"{base}.pem", f"{base}.key")
+    return ctx
+
+
+def _ask(ctx: ssl.SSLContext, port: int, pdu: bytes, *, name: str = "localhost") -> bytes:
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as raw, \
+            ctx.wrap_socket(raw, server_hostname=name) as tls:
+        tls.sendall(mbap(7, 1, pdu))
+        buf = b""
+        while len(buf) < 6 or len(buf) < 6 + int.from_bytes(buf[4:6], "big"):
+            data = tls.recv(4096)
+            if not data:
+                raise ConnectionError("closed")
+            buf += data
+        assert buf[:2] == b"\x00\x07"
+        return buf[7:]
+
+
+def test_the_guides_pymodbus_client_reads_and_writes_as_operator(
+        certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, peer = served
+    block = claim_one("docs/security.md", "python", how="run")
+    code = block.text.replace("port=802", f"port={s.port}")
+    r = subprocess.run([sys.executable, "-c", code], cwd=certs, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[0, 7]"
+    assert peer.memory.holding[10] == 1234
+    assert (1, bytes((6, 0, 10, 0x04, 0xD2))) in peer.requests
+
+
+def test_a_viewer_reads_and_its_writes_are_refused_before_the_line(
+        certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, peer = served
+    viewer = _context(certs, "viewer")
+    assert _ask(viewer, s.port, read_pdu(2, 1)) == bytes((3, 2, 0, 14))
+    before = list(peer.requests)
+    for pdu in (bytes((6, 0, 10, 0, 1)), bytes((0x10, 0, 10, 0, 1, 2, 0, 1)),
+                bytes((5, 0, 1, 0xFF, 0)), bytes((0x16, 0, 1, 0, 0, 0, 1)),
+                bytes((0x17, 0, 0, 0, 1, 0, 10, 0, 1, 2, 0, 1))):
+        assert _ask(viewer, s.port, pdu) == bytes((pdu[0] | 0x80, 1))
+    assert peer.requests == before  # not a byte of it reached the line
+    operator = _context(certs, "operator")
+    assert _ask(operator, s.port, bytes((6, 0, 11, 0, 5))) == bytes((6, 0, 11, 0, 5))
+
+
+@pytest.mark.parametrize("who", ["expired", "other/operator", None])
+def test_bad_client_certificates_are_refused_with_one_line(
+        certs: Path, served: tuple[Served, PtyPeer], who: str | None) -> None:
+    s, _ = served
+    ctx = _context(certs, str(certs / who) if who else None)
+    with pytest.raises((ssl.SSLError, ConnectionError, OSError)):
+        _ask(ctx, s.port, read_pdu(0, 1))
+    wait_until(lambda: any("TLS refused" in line for line in s.stderr_lines),
+               lambda: f"the refusal line (stderr: {s.stderr_lines})")
+    assert not any("Traceback" in line for line in s.stderr_lines)
+    # the others are still served
+    assert _ask(_context(certs, "viewer"), s.port, read_pdu(1, 1)) == bytes((3, 2, 0, 7))
+
+
+def test_a_server_name_the_certificate_does_not_list_is_refused_by_the_client(
+        certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, _ = served
+    with pytest.raises(ssl.SSLCertVerificationError):
+        _ask(_context(certs, "operator"), s.port, read_pdu(0, 1), name="gateway.example")
+
+
+def test_tls_1_1_is_refused(certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, _ = served
+    ctx = _context(certs, "operator")
+    ctx.minimum_version = ssl.TLSVersion.MINIMUM_SUPPORTED
+    ctx.maximum_version = ssl.TLSVersion.TLSv1_1
+    with pytest.raises((ssl.SSLError, ConnectionError, OSError)):
+        _ask(ctx, s.port, read_pdu(0, 1))
+
+
+def test_the_role_is_read_from_the_certificates(certs: Path) -> None:
+    def der(name: str) -> bytes:
+        return ssl.PEM_cert_to_DER_cert((certs / f"{name}.pem").read_text())
+    assert role_of(der("operator")) == "operator"
+    assert role_of(der("viewer")) == "viewer"
+    assert role_of(der("server")) is None
+    assert role_of(der("ca")) is None
+
+
+@given(st.binary(max_size=300))
+def test_any_bytes_give_a_role_none_or_a_certificate_error(data: bytes) -> None:
+    try:
+        role = role_of(data)
+    except CertificateError:
+        return
+    assert role is None or isinstance(role, str)
+
+
+def test_a_truncated_certificate_is_a_certificate_error(certs: Path) -> None:
+    whole = ssl.PEM_cert_to_DER_cert((certs / "operator.pem").read_text())
+    for n in range(0, len(whole), 7):
+        try:
+            role_of(whole[:n])
+        except CertificateError:
+            continue
+        raise AssertionError(f"{n} bytes of {len(whole)} read as a certificate")
