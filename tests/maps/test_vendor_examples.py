@@ -110,6 +110,44 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("kostal-plenticore", "l1_voltage_v", [0x8000, 0x4366], 230.5, "value"),
     ("kostal-plenticore", "powermeter_total_active_power_w", list(reversed(f32(-2500.0))),
      -2500.0, "value"),
+    # Schneider ATV320: ETA 0637h = ready, switched on, operation enabled, voltage, quick stop off
+    ("schneider-atv320", "status_word", [0x0637], 0x0637, "value"),
+    ("schneider-atv320", "output_frequency_hz", [0xFE0C], -50.0, "value"),  # reverse
+    ("schneider-atv320", "frequency_reference_hz", [500], 50.0, "value"),
+    ("schneider-atv320", "command_word", [0x000F], 0x000F, "value"),  # enable operation
+    # ABB ACS580: 20000 = 100 % of the scaling parameter
+    ("abb-acs580", "reference1_pct", [20000], 100.0, "value"),
+    ("abb-acs580", "actual1_pct", [0xB1E0], -100.0, "value"),
+    ("abb-acs580", "control_word", [0x047F], 0x047F, "value"),  # run
+    # Siemens V20 and Danfoss FC: 4000h = 100 %
+    ("siemens-v20", "setpoint_pct", [0x4000], 100.0, "value"),
+    ("siemens-v20", "actual_pct", [0x2000], 50.0, "value"),
+    ("danfoss-fc", "reference_pct", [0x4000], 100.0, "value"),
+    ("danfoss-fc", "main_actual_value_pct", [0xC000], -100.0, "value"),
+    # KEBA: UNSIGNED32 high word first; mA, mW, 0.1 Wh
+    ("keba-p30", "l1_current_a", msw_first(16000, 2), 16.0, "value"),
+    ("keba-p30", "active_power_w", msw_first(11040500, 2), 11040.5, "value"),
+    ("keba-p30", "total_energy_wh", msw_first(12345678, 2), 1234567.8, "value"),
+    ("keba-p30", "charging_state", msw_first(3, 2), 3, "value"),  # charging
+    # Alfen: FLOAT32/FLOAT64 big-endian, mode 3 state as text
+    ("alfen-ng9xx", "total_active_power_w", f32(10980.0), 10980.0, "value"),
+    ("alfen-ng9xx", "delivered_energy_wh", list(struct.unpack(">4H", struct.pack(">d", 1234567.5))),
+     1234567.5, "value"),
+    ("alfen-ng9xx", "mode3_state", text("C2", 5), "C2", "value"),
+    # Carlo Gavazzi EM340: as the EM24, least significant word first
+    ("carlo-gavazzi-em340", "l3_current_a", lsw_first(5001), 5.001, "value"),
+    ("carlo-gavazzi-em340", "total_active_power_w", lsw_first(-12345), -1234.5, "value"),
+    # SolaX: 16-bit values, signed battery current and power
+    ("solax-x1-hybrid", "battery_current_a", [0xFF83], -12.5, "value"),
+    ("solax-x1-hybrid", "grid_frequency_hz", [5001], 50.01, "value"),
+    ("solax-x1-hybrid", "run_mode", [2], 2, "value"),  # normal
+    # Huawei meter and battery through the inverter
+    ("huawei-dtsu666-h", "active_power_w", msw_first(-1500, 2), -1500, "value"),
+    ("huawei-dtsu666-h", "l1_voltage_v", msw_first(2305, 2), 230.5, "value"),
+    ("huawei-luna2000", "soc_pct", [655], 65.5, "value"),
+    ("huawei-luna2000", "total_charge_kwh", msw_first(123456, 2), 1234.56, "value"),
+    ("victron-gx-solarcharger", "pv_voltage_v", [9525], 95.25, "value"),
+    ("victron-gx-solarcharger", "charge_state", [3], 3, "value"),  # bulk
 ]
 
 
