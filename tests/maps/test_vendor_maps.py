@@ -75,6 +75,8 @@ def random_value(p: Point, rng: random.Random) -> Any:
 
 
 def same(p: Point, got: Any, want: Any) -> bool:
+    if isinstance(got, str) and p.values:  # a write gives back the value's name
+        got = {label: raw for raw, label in p.values.items()}.get(got, got)
     if isinstance(want, bool) or isinstance(got, bool):
         return bool(got) == bool(want)
     if isinstance(want, float) or isinstance(got, float):
@@ -192,3 +194,35 @@ def test_the_device_library_table_lists_every_shipped_map() -> None:
     section = doc[doc.index("## The device library"):]
     listed = [line for line in section.splitlines() if line.startswith("| `")]
     assert listed == library_rows(), "the table should read:\n" + "\n".join(library_rows())
+
+
+WRITABLE = [(i, p.name) for i in SHIPPED if i not in OLDER
+            for p in maps.builtin(i).points.values() if p.writable]
+
+
+@pytest.mark.parametrize(("map_id", "name"), WRITABLE, ids=[f"{i}:{n}" for i, n in WRITABLE])
+def test_a_writable_point_takes_its_range_and_refuses_beyond_it(map_id: str, name: str) -> None:
+    m = maps.builtin(map_id)
+    p = m.points[name]
+    rng = random.Random(f"{map_id}:{name}")
+    value = random_value(p, rng)
+    address = m.device.default_address
+    with Simulator([MapSimDevice(m, address, dynamic=False)], transport="tcp") as sim, \
+            pymb.TcpClient(sim.host, sim.tcp_port, slave=address, timeout=5.0) as client:
+        device = MapDevice(client, m, address=address)
+        after = device.write(name, value)
+        if p.access == "rw":
+            assert same(p, after, value), (map_id, name, after, value)
+            assert same(p, device.read(name)[name], value)
+        else:
+            assert after is None
+        if p.valid is not None:
+            lo, hi = p.valid
+            for outside in (lo - abs(lo) - 1, hi + abs(hi) + 1):
+                with pytest.raises(pymb.InvalidArgument):
+                    device.write(name, outside)
+        elif p.values:
+            with pytest.raises(pymb.InvalidArgument):
+                device.write(name, max(p.values) + 1)
+        assert p.max_writes_per_hour is not None
+        assert 1 <= p.max_writes_per_hour <= 3600
