@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "ratios need c")
     parser.add_argument("--sections", metavar="NAME[,NAME]",
                         help=f"what to measure, from {','.join(SECTIONS)} (default: all), "
-                             f"or {','.join(EXTRA_SECTIONS)} (a 30-minute soak, only when named)")
+                             f"or {','.join(EXTRA_SECTIONS)} (only when named: a 30-minute soak; "
+                             "a fleet into SQLite and PostgreSQL)")
     parser.add_argument("--rounds", type=int, metavar="N",
                         help="interleaved rounds of the sweep comparison (default 20, --quick 3; "
                              "the wire-bound one does at most 6, at 9600 baud at most 3)")

@@ -14,8 +14,9 @@ __all__ = ["BUSES", "EXTRA_SECTIONS", "SECTIONS", "SEED", "SOFTWARE_BAUD", "Opti
 
 SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger",
             "gateway")
-#: sections run only when named in --sections (long: the soak takes 30 minutes)
-EXTRA_SECTIONS = ("soak",)
+#: sections run only when named in --sections (long: the soak takes 30 minutes; collect
+#: starts a broker and a PostgreSQL of its own)
+EXTRA_SECTIONS = ("soak", "collect")
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)

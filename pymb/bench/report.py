@@ -89,9 +89,9 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.extend(_aio_tables(result["aio"]))
     if result.get("logger"):
         out.extend(_logger_tables(result["logger"]))
-    if result.get("gateway"):
-        from pymb.bench import gatebench
-        out.extend(gatebench.tables(result["gateway"]))
+    from pymb.bench import collectbench, gatebench  # they import this module
+    for key, mod in (("gateway", gatebench), ("collect", collectbench)):
+        out.extend(mod.tables(result[key]) if result.get(key) else [])
     if result.get("fleet"):
         out.append(_fleet_table(result["fleet"]))
     if result.get("soak"):

@@ -370,6 +370,9 @@ def run(opts: Options) -> dict[str, Any]:
         if "fleet" in opts.sections and pymb_in:
             from pymb.bench.fleet import run_fleet
             result["fleet"] = run_fleet(opts.quick, opts.say)
+        if "collect" in opts.sections and pymb_in:
+            from pymb.bench.collectbench import run_collect
+            result["collect"] = run_collect(opts.quick, opts.say)
         if "logger" in opts.sections and pymb_in:
             result["logger"] = logbench.run_section(opts, children, hub_registers())
         if "gateway" in opts.sections and pymb_in:

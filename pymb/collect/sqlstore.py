@@ -37,7 +37,7 @@ SQLITE_SCHEMA = """
 CREATE TABLE IF NOT EXISTS pymb_values (
     node TEXT NOT NULL, device TEXT NOT NULL, point TEXT NOT NULL, time REAL NOT NULL,
     value REAL, text TEXT, state TEXT, sample INTEGER, received REAL NOT NULL,
-    PRIMARY KEY (node, device, point, time)) WITHOUT ROWID;
+    PRIMARY KEY (node, device, point, time));
 CREATE INDEX IF NOT EXISTS pymb_values_device_point ON pymb_values (device, point, time);
 CREATE VIEW IF NOT EXISTS pymb_latest AS
     SELECT node, device, point, max(time) AS time, value, text, state, sample, received
@@ -102,6 +102,7 @@ class SqliteStore(Store):
                                        timeout=30)
             self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=FULL")
+            self.con.execute("PRAGMA cache_size=-65536")  # 64 MiB: the key's B-tree stays in memory
             self.con.executescript(SQLITE_SCHEMA)
         except sqlite3.DatabaseError as e:
             raise InvalidArgument(f"cannot use {path} as the collector's database: "
