@@ -148,6 +148,11 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("huawei-luna2000", "total_charge_kwh", msw_first(123456, 2), 1234.56, "value"),
     ("victron-gx-solarcharger", "pv_voltage_v", [9525], 95.25, "value"),
     ("victron-gx-solarcharger", "charge_state", [3], 3, "value"),  # bulk
+    # Finder 7E.23: the manual's own example, high register first, 0.01 kWh
+    ("finder-7e23", "import_energy_kwh", [13, 60383], 9123.51, "value"),
+    ("finder-7e23", "export_energy_kwh", [13, 60383], 9123.51, "value"),
+    ("finder-7e23", "firmware_version", [11], 1.1, "value"),  # FW 1.1
+    ("finder-7e23", "baud_rate", [1, 49664], 115200, "value"),  # the manual's example
 ]
 
 
