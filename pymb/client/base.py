@@ -17,6 +17,7 @@ from typing import Any, Self
 
 from pymb import _native
 from pymb.client.checks import (
+    _CLOSED_BY_PEER,
     _LINK_LOST,
     FC,
     MAX_WR_READ_REGISTERS,
@@ -28,7 +29,7 @@ from pymb.client.checks import (
     _register_values,
     _seconds,
 )
-from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.errors import DeviceException, InvalidArgument, ModbusConnectionError
 from pymb.wire import registers_from_wire
 
 __all__ = ["Client"]
@@ -41,11 +42,20 @@ class Client:
     :meth:`connect` and :meth:`close`. After the OS loses the link (an
     unplugged adapter, a reset TCP connection) the request that saw it raises
     :class:`~pymb.ModbusConnectionError`; the next request reconnects once
-    by itself, and :attr:`connections` counts every successful connect.
+    by itself, and :attr:`connections` counts every successful connect. Over
+    TCP, a read that finds the connection closed by the device after it
+    carried a reply (some devices take one request a connection) is sent
+    again on a new connection (:attr:`resends` counts those); a write never is.
     """
 
     _max_slave = 255
     _min_read_slave = 1
+    #: a transport whose peer may close the connection after each reply (some
+    #: Modbus TCP devices and gateways take one request a connection): a read
+    #: that finds the connection closed after it carried a reply is sent again
+    #: on a new one (never a write: the device may have done it)
+    _resend_reads = False
+    _served = 0  #: replies on the connection open now
 
     def __init__(self, link: _native.Link, *, slave: int | None, timeout: float,
                  byte_timeout: float) -> None:
@@ -56,6 +66,9 @@ class Client:
         self._byte_timeout = 0.0
         self._wanted = False  # connect() called and close() not since
         self.connections = 0
+        #: of :attr:`connections`, those opened to send a read again because the
+        #: peer closed the last one after its reply (the same device)
+        self.resends = 0
         if slave is not None:
             self.slave = slave
         self.set_timeout(timeout, byte_timeout)
@@ -87,6 +100,7 @@ class Client:
                 self._link.close()
                 raise
             self.connections += 1
+            self._served = 0
 
     def _opened(self) -> None:
         """After the line opens: what a transport decides from the open line."""
@@ -215,6 +229,36 @@ class Client:
         if e.errno in _LINK_LOST:
             self._link.close()
 
+    def _again(self, e: ModbusConnectionError, served: int) -> bool:
+        """Whether a read that failed with ``e`` goes out again on a new
+        connection: the peer closed this one after it carried ``served``
+        replies (at least one; each new try carries one more, so the tries
+        end)."""
+        if self._resend_reads and served > 0 and e.errno in _CLOSED_BY_PEER:
+            self.resends += 1
+            return True
+        return False
+
+    def _read_call(self, fn: Any, *args: Any) -> Any:
+        """``fn(*args)``, a read, with the lock and the reconnect policy (:meth:`_again`)."""
+        with self._lock:
+            while True:
+                if not self._link.is_open:
+                    self._reopen()
+                served = self._served
+                try:
+                    out = fn(*args)
+                except DeviceException:  # a reply too
+                    self._served = served + 1
+                    raise
+                except ModbusConnectionError as e:
+                    self._close_if_lost(e)
+                    if self._again(e, served):
+                        continue
+                    raise
+                self._served = served + 1
+                return out
+
     # -- registers ----------------------------------------------------------------
 
     def read_holding_registers(self, address: int, count: int, *,
@@ -266,7 +310,7 @@ class Client:
                 "dest must be a writable, contiguous buffer of unsigned 16-bit integers "
                 f"(array('H'), numpy uint16); this one {problem}")
         address, n = self._range(address, view.nbytes // 2, None)
-        self._call(self._link.read_registers, fc, s, address, n, view.cast("B"))
+        self._read_call(self._link.read_registers, fc, s, address, n, view.cast("B"))
 
     # -- low level: prepared requests, for the device facades ------------------------
     # The facades (pymb.devices) check their arguments once and repeat the same requests:
@@ -290,24 +334,46 @@ class Client:
         with self._lock:
             if not link.is_open:
                 self._reopen()
+            served = self._served
             try:
                 link.read_registers(function, slave, address, len(dest), dest)
+            except DeviceException:  # a reply too
+                self._served = served + 1
+                raise
             except ModbusConnectionError as e:
                 self._close_if_lost(e)
-                raise
+                if not self._again(e, served):
+                    raise
+            else:
+                self._served = served + 1
+                return
+        self._read_call(link.read_registers, function, slave, address, len(dest), dest)
 
     def run_read_plan(self, plan: _native.RegisterPlan, start: int = 0) -> None:
         """Run a prepared :class:`pymb._native.RegisterPlan` from request ``start`` on, in one
         C call; on failure ``plan.failed`` says which request failed."""
         link = self._link  # _call, written out, as in read_registers_prepared
         with self._lock:
-            if not link.is_open:
-                self._reopen()
-            try:
-                link.read_plan(plan, start)
-            except ModbusConnectionError as e:
-                self._close_if_lost(e)
-                raise
+            while True:
+                if not link.is_open:
+                    self._reopen()
+                served = self._served
+                try:
+                    link.read_plan(plan, start)
+                except DeviceException:  # a reply too, after those before it
+                    self._served = served + max(0, plan.failed - start) + 1
+                    raise
+                except ModbusConnectionError as e:
+                    self._close_if_lost(e)
+                    failed = plan.failed
+                    # the rest of the plan on a new connection, if this one
+                    # carried a reply before the peer closed it
+                    if self._again(e, served + max(0, failed - start)):
+                        start = max(start, failed)
+                        continue
+                    raise
+                self._served = served + 1
+                return
 
     def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
         """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,
@@ -389,7 +455,7 @@ class Client:
         s = self._slave_for(slave)
         address, count = self._range(address, count, None)
         out = array("B", bytes(count))
-        self._call(self._link.read_bits, fc, s, address, count, out)
+        self._read_call(self._link.read_bits, fc, s, address, count, out)
         return out
 
     def write_coil(self, address: int, value: bool | int, *,

@@ -28,6 +28,8 @@ FC = _native.FunctionCode
 
 _PARITIES = {"N": "N", "E": "E", "O": "O", "NONE": "N", "EVEN": "E", "ODD": "O"}
 # OS errors after which the link is gone until it is opened again.
+#: what a connection the peer closed (or reset) fails with
+_CLOSED_BY_PEER = frozenset((errno.EPIPE, errno.ECONNRESET))
 _LINK_LOST = frozenset((errno.EIO, errno.ENXIO, errno.ENODEV, errno.EBADF, errno.EPIPE,
                         errno.ECONNRESET, errno.ECONNREFUSED, errno.ENOENT))
 

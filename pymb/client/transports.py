@@ -133,6 +133,7 @@ class TcpClient(Client):
     0..255 (many gateways route it to the RTU address)."""
 
     _min_read_slave = 0
+    _resend_reads = True
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
                  slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,

@@ -113,7 +113,7 @@ class Fetcher:
         back as :meth:`run` does. A plan with bits goes through :meth:`run`."""
         planner, client = self.planner, self.client
         if (r.version != planner.version or not client.connected
-                or client.connections != self._connections
+                or _fresh(client) != self._connections
                 or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
             self._remake(r)
         runs = r.runs
@@ -166,8 +166,8 @@ class Fetcher:
         every read (in :meth:`fetch`) and write."""
         client = self.client
         opened = client.ensure_connected()
-        if opened or client.connections != self._connections:
-            self._connections = client.connections
+        if opened or _fresh(client) != self._connections:
+            self._connections = _fresh(client)
             self.planner.forget()
             wait = self.map.timing.after_connect
             if wait > 0:
@@ -289,3 +289,10 @@ class Fetcher:
             for k in r.items:
                 self.unread[k] = 1
             self.marked = True
+
+
+def _fresh(client: Client) -> int:
+    """The client's connections that may be to another device: not those it
+    opened to send a read again to a device that closes a connection after
+    each reply (what the device taught holds on those)."""
+    return client.connections - getattr(client, "resends", 0)

@@ -78,6 +78,23 @@ class Conn:
     #: the loop does not wait for it) and what it found (or why not)
     lookup: threading.Thread | None = None
     found: tuple[int, Any] | str | None = None
+    #: requests sent on this connection (the replies to those not in flight came)
+    asked: int = 0
+    #: the requests a connection of this device carries: the device closes it
+    #: after that many replies, as it did twice in a row (0: no such limit)
+    limit: int = 0
+    closed_after: int = 0  #: the replies the last connection the device closed carried
+    #: the poll under way while the connection is opened again for the rest of
+    #: it (the device closes a connection after its replies); opened again so,
+    #: the connection is the same device: what it taught is kept
+    resume: Entry | None = None
+    renew: bool = False  #: being opened again so (not after a failure)
+    tell: bool = False  #: ... and the reconnect is an event (the way of working not yet known)
+
+    @property
+    def in_flight(self) -> int:
+        """How many requests are in flight (taking nothing from the C core)."""
+        return self.fast_n + len(self._inflight)
 
     @property
     def inflight(self) -> collections.deque[tuple[bytes, Spec]]:
@@ -180,6 +197,7 @@ class TcpLoopBase(threading.Thread):
             return
         s.setblocking(False)
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        c.asked = 0
         rc = s.connect_ex(addr)
         if rc not in (0, errno.EINPROGRESS):
             s.close()
@@ -209,6 +227,18 @@ class TcpLoopBase(threading.Thread):
         self._sel.modify(c.sock, selectors.EVENT_READ, c)
         self.stats.opened[c.bus.name] = True
         self.stats.ok(c.bus.name)
+        wait = max(u.config.map.timing.after_connect for u in c.units)
+        c.quiet_until = now + wait
+        if c.renew:
+            # opened again because the device closes a connection after its
+            # replies: the same device, what it taught kept, the poll under
+            # way goes on, "once after connect" groups are not read again
+            c.entry, c.resume, c.renew = c.resume, None, False
+            c.backoff = _BACKOFF_FIRST
+            if c.tell:
+                c.tell = False
+                self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
+            return
         if c.opened_once:
             self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
         else:
@@ -217,8 +247,6 @@ class TcpLoopBase(threading.Thread):
         # a new connection may be a new device: forget what the last one taught
         for u in c.units:
             u.planner.forget()
-        wait = max(u.config.map.timing.after_connect for u in c.units)
-        c.quiet_until = now + wait
         # the polls waiting, in the order of the devices and groups
         c.waiting.clear()
         for e in c.entries:

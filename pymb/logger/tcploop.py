@@ -55,6 +55,8 @@ from pymb.store.records import event_kind, short_fault
 
 __all__ = ["TcpMapPoller", "fans_out"]
 
+#: a connection the device closed (EOF) or reset
+_CLOSED = (errno.ECONNRESET, errno.EPIPE)
 _BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
 #: a poll's replies have twice the time they took of late (at least this
@@ -104,7 +106,12 @@ class TcpMapPoller(TcpReplies):
 
     def _lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
         """The connection failed: the device of the poll under way is told
-        (else the bus), and the bus is opened again (:meth:`_reopen`)."""
+        (else the bus), and the bus is opened again (:meth:`_reopen`). A
+        connection the device closed after replying is no failure
+        (:meth:`_closed_after_replies`)."""
+        if err in _CLOSED and c.asked > c.in_flight and not c.rbuf:
+            self._closed_after_replies(c, now)
+            return
         e = c.entry
         spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
         retry = self._reopen(c, now)
@@ -116,6 +123,54 @@ class TcpMapPoller(TcpReplies):
         else:  # between polls: the bus's event
             self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
             self._event(c, "connection", f"{c.bus.endpoint}: {why}{retry}")
+
+    def _closed_after_replies(self, c: Conn, now: float) -> None:
+        """The device closed the connection after it answered (some devices
+        and gateways take one request a connection): the requests it did
+        not answer go out again on a new connection, at once, and the poll
+        under way goes on there. Closed after as many replies twice in a
+        row, that many is what a connection carries from then on
+        (:attr:`Conn.limit`): the loop opens the next one itself."""
+        answered = c.asked - c.in_flight
+        replies = f"{answered} repl{'y' if answered == 1 else 'ies'}"
+        c.tell = False
+        if answered == c.closed_after and not c.limit:
+            c.limit = answered
+            self._event(c, "reconnect", f"{c.bus.endpoint} closes the connection after "
+                        f"{replies}: {answered} request(s) per connection from now on")
+        elif not c.limit:  # not (yet) its way of working: said, as a loss is
+            self.stats.fault(c.bus.name, f"bus {c.bus.name}: the connection was closed")
+            self._event(c, "connection", f"{c.bus.endpoint}: the connection was closed by "
+                        f"the device after {replies}; opening it again")
+            c.tell = True
+        c.closed_after = answered
+        if c.entry is not None:  # what is in flight goes out again
+            if c.fast is not None:
+                pending = c.todo[c.sent - c.fast_n:c.sent]
+            else:
+                pending = [spec for _, spec in c.inflight]
+            if pending:
+                gone = {id(s) for s in pending}
+                done = [s for s in c.todo[:c.sent] if id(s) not in gone]
+                c.todo = [*done, *pending, *c.todo[c.sent:]]
+                c.sent = len(done)
+        self._renew(c, now)
+
+    def _renew(self, c: Conn, now: float) -> None:
+        """Open ``c`` again for the rest of the poll under way (and the
+        next ones), the device being the same (:meth:`_closed_after_replies`)."""
+        c.resume, c.renew = c.entry, True
+        self._close(c)
+        c.retry_at = now
+        self._connect(c, now)
+
+    def _not_open(self, c: Conn, now: float, why: str) -> None:
+        e, c.resume, c.renew = c.resume, None, False
+        super()._not_open(c, now, why)
+        if e is not None:  # the poll that waited for the connection fails with it
+            self._failed(c, e.unit, ModbusConnectionError(
+                f"{asked(None, e.unit)} on {c.bus.endpoint}: {why}"))
+            self._requeue(c, e, now)
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -152,10 +207,15 @@ class TcpMapPoller(TcpReplies):
         if t is not None:
             if c.quiet_until <= now:  # the C core writes the frames
                 n = min(c.pipeline - c.fast_n, len(c.todo) - c.sent)
+                if c.limit and n > c.limit - c.asked:
+                    n = c.limit - c.asked
+                    if n <= 0 and not c.fast_n:
+                        self._renew(c, now)  # this connection carried what it can
                 if n <= 0:
                     return
                 size = t.frames(c.sent, n, (c.tid + 1) & 0xFFFF)
                 c.sent += n
+                c.asked += n
                 c.tid = (c.tid + n) & 0xFFFF
                 if not c.fast_n:
                     c.deadline = now + u.timeout
@@ -177,7 +237,8 @@ class TcpMapPoller(TcpReplies):
         c.wake_at(1)
         pipe = 1 if u.timed else c.pipeline
         frames = []
-        while len(c.inflight) < pipe and c.sent < len(c.todo):
+        limit = c.limit or 1 << 62
+        while len(c.inflight) < pipe and c.sent < len(c.todo) and c.asked < limit:
             if u.timed or c.quiet_until > now:
                 at = max(c.quiet_until, c.last_end + u.gap)
                 if at > now:
@@ -186,11 +247,14 @@ class TcpMapPoller(TcpReplies):
                     break
             spec = c.todo[c.sent]
             c.sent += 1
+            c.asked += 1
             c.tid = tid = (c.tid + 1) & 0xFFFF
             head = tid.to_bytes(2, "big")
             frames.append(head + spec.tail)
             c.inflight.append((head + spec.head, spec))
         if not frames:
+            if c.asked >= limit and not c.inflight and c.sent < len(c.todo):
+                self._renew(c, now)  # this connection carried what it can
             return
         if len(c.inflight) == len(frames):
             c.deadline = now + u.timeout
@@ -434,4 +498,6 @@ class TcpMapPoller(TcpReplies):
                     self._readable(c, t)
                 elif mask & selectors.EVENT_WRITE:
                     self._connected(c, t)
+                    if c.entry is not None and c.state == "open" and not c.busy:
+                        self._send(c, t)  # the rest of a poll, on a new connection
                     self._next(c, t)
