@@ -127,7 +127,12 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     # KEBA: UNSIGNED32 high word first; mA, mW, 0.1 Wh
     ("keba-p30", "l1_current_a", msw_first(16000, 2), 16.0, "value"),
     ("keba-p30", "active_power_w", msw_first(11040500, 2), 11040.5, "value"),
-    ("keba-p30", "total_energy_wh", msw_first(12345678, 2), 1234567.8, "value"),
+    ("keba-p30", "total_energy_wh", msw_first(38101, 2), 38101, "value"),  # the guide's examples
+    ("keba-p30", "active_power_w", msw_first(98661, 2), 98.661, "value"),
+    ("keba-p30", "l3_current_a", msw_first(645, 2), 0.645, "value"),
+    ("keba-p30", "l1_voltage_v", msw_first(230, 2), 230, "value"),
+    ("keba-p30", "serial_number", msw_first(18416854, 2), 18416854, "value"),
+    ("keba-p30", "product_type", msw_first(304111, 2), 304111, "value"),
     ("keba-p30", "charging_state", msw_first(3, 2), 3, "value"),  # charging
     # Alfen: FLOAT32/FLOAT64 big-endian, mode 3 state as text
     ("alfen-ng9xx", "total_active_power_w", f32(10980.0), 10980.0, "value"),
@@ -183,3 +188,25 @@ def test_every_vendor_map_has_documented_decodings() -> None:
     have = {e[0] for e in EXAMPLES}
     older = {"eastron-sdm120", "eastron-sdm630", "generic-vfd"}  # test_builtin_maps, tests/sim
     assert set(shipped) - older <= have, sorted(set(shipped) - older - have)
+
+
+#: (map id, writable point, value, registers the document says the device takes)
+WRITES: list[tuple[str, str, Any, list[int]]] = [
+    ("keba-p30", "set_charging_current_a", 8.0, [8000]),  # "value 8000: 8 A"
+    ("keba-p30", "set_energy_wh", 10.0, [1]),  # "value 1: 10 Wh"
+    ("keba-p30", "enable_station", "disable", [0]),
+    ("schneider-atv320", "command_word", "run_forward", [0x000F]),
+    ("schneider-atv320", "frequency_reference_hz", -25.0, [0xFF06]),
+    ("abb-acs580", "reference1_pct", 100.0, [20000]),
+    ("siemens-v20", "setpoint_pct", 100.0, [0x4000]),
+    ("danfoss-fc", "reference_pct", -100.0, [0xC000]),
+    ("victron-gx-vebus", "input_current_limit_a", 16.0, [160]),
+    ("alfen-ng9xx", "max_current_a", 16.0, f32(16.0)),
+]
+
+
+@pytest.mark.parametrize(("map_id", "point", "value", "regs"), WRITES,
+                         ids=[f"{w[0]}:{w[1]}" for w in WRITES])
+def test_a_documented_write(map_id: str, point: str, value: Any, regs: list[int]) -> None:
+    m = maps.builtin(map_id)
+    assert m.encode(point, value) == regs
