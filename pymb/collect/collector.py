@@ -88,7 +88,6 @@ class Stats:
     bad: int = 0  #: messages that were not what the profile publishes
     batches: int = 0
     lag: float = 0.0  #: seconds from the newest sample's time to its commit, last batch
-    lags: list[float] = field(default_factory=list)  #: per message, when kept
     db_ok: bool = True
     mqtt_ok: bool = False
     started: float = field(default_factory=time.monotonic)
@@ -97,8 +96,7 @@ class Stats:
 class Collector:
     """One collector: ``run()`` until ``stop`` is set; ``event(text)`` reports."""
 
-    def __init__(self, cfg: CollectConfig, store: Store, event: Callable[[str], None],
-                 keep_lags: bool = False) -> None:
+    def __init__(self, cfg: CollectConfig, store: Store, event: Callable[[str], None]) -> None:
         import paho.mqtt.client as mqtt  # the extra pymb-modbus[collect]
         from paho.mqtt.enums import CallbackAPIVersion
         from paho.mqtt.packettypes import PacketTypes
@@ -107,7 +105,6 @@ class Collector:
         self.cfg = cfg
         self.store = store
         self.event = event
-        self.keep_lags = keep_lags
         self.stats = Stats()
         self.stop = threading.Event()
         self.inbox: queue.SimpleQueue[tuple[int, int, int, str, bytes]] = queue.SimpleQueue()
@@ -259,8 +256,6 @@ class Collector:
         s.batches += 1
         if newest:
             s.lag = now - max(newest)
-            if self.keep_lags:
-                s.lags.extend(now - t for t in newest)
         return True
 
     def run(self, tick: Callable[[], None] | None = None) -> Stats:
