@@ -16,6 +16,7 @@ from pymb.devices import decode_hub
 from pymb.devices.coolpro import CoolProStatus
 from pymb.devices.hub import State
 
+UNIDENTIFIABLE = ("abb-acs580", "danfoss-fc", "siemens-v20")
 BLOCKS = ("temperature_c", "humidity_pct", "pressure_temperature_c", "pressure_kpa",
           "voltage_mv", "rssi_dbm", "temperature2_c")
 MARKERS = (0xFFFF, 0x8000, 0x00FF, 0x8001, 0x7FFF, 0)
@@ -82,7 +83,9 @@ def test_every_shipped_map_names_its_source() -> None:
         assert "Source:" in text.split("schema")[0], ident
         m = maps.builtin(ident)
         assert m.id == ident
-        assert m.identify or ident == "hub", ident  # the hub is recognised by its sweep
+        # the hub is recognised by its sweep; a drive's control and status words hold
+        # nothing that tells it from another device's registers
+        assert m.identify or ident in ("hub", *UNIDENTIFIABLE), ident
 
 
 def test_the_docs_list_every_shipped_map() -> None:
