@@ -21,6 +21,7 @@ from typing import Any
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.fields import Ctx, build_point, number, strings
 from pymb.maps.model import Map
+from pymb.maps.planner import MAX_GAP
 from pymb.maps.point import (
     DeviceInfo,
     Identify,
@@ -298,7 +299,8 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
                  f"\"always\" (FC 16 for every write), got {multiple!r}")
     return Limits(_int(ctx, t, "max_registers", MAX_READ_REGISTERS, 1, MAX_READ_REGISTERS),
                   _int(ctx, t, "max_bits", MAX_READ_BITS, 1, MAX_READ_BITS),
-                  _int(ctx, t, "max_gap", 0, 0, MAX_READ_REGISTERS), MappingProxyType(readable),
+                  None if "max_gap" not in t else _int(ctx, t, "max_gap", 0, 0, MAX_GAP),
+                  MappingProxyType(readable),
                   t.get("split_on_exception", True), t.get("single_point_requests", False),
                   multiple, t.get("mask_write", False))
 

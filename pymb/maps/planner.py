@@ -11,7 +11,7 @@ Its rules are the map contract's ([MAP] 4):
 3. a request may read registers nobody asked for only where they are known
    to exist: registers of the device's other declared points, and gaps of at
    most ``max_gap`` undeclared registers, inside ``readable`` when the map
-   declares it (with ``readable`` and ``max_gap = 0`` any gap inside it);
+   declares it (with ``readable`` and ``max_gap`` unset, any gap inside it);
    never a bridge the device refused before, never a point it refused;
 4. among the plans that obey 1-3, the cheapest by :mod:`pymb.wire`'s model
    (request, the silence before the reply or the device's ``turnaround``,
@@ -52,6 +52,10 @@ TABLES = ("coil", "discrete", "holding", "input")
 #: Tables of single bits (FC 01, 02): limits and costs count bits, not registers.
 BIT_TABLES = frozenset(("coil", "discrete"))
 
+#: the most undeclared registers ``max_gap`` may name: one request reads at
+#: most MAX_READ_REGISTERS, so a gap spans at most all but one of them
+MAX_GAP = MAX_READ_REGISTERS - 1
+
 # What the planner knows of each register (or bit) of a table.
 _UNKNOWN, _DECLARED, _READABLE, _REFUSED = 0, 1, 2, 3
 
@@ -65,7 +69,9 @@ class Limits:
 
     max_registers: int = MAX_READ_REGISTERS
     max_bits: int = MAX_READ_BITS
-    max_gap: int = 0
+    #: undeclared registers a request may span; None (unset): any gap inside
+    #: ``readable`` when the map declares it, else none
+    max_gap: int | None = None
     readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=dict)
     split_on_exception: bool = True
     single_point_requests: bool = False
@@ -76,8 +82,8 @@ class Limits:
                                   f"got {self.max_registers!r}")
         if not 1 <= self.max_bits <= MAX_READ_BITS:
             raise InvalidArgument(f"max_bits must be 1..{MAX_READ_BITS}, got {self.max_bits!r}")
-        if not 0 <= self.max_gap <= 124:
-            raise InvalidArgument(f"max_gap must be 0..124, got {self.max_gap!r}")
+        if self.max_gap is not None and not 0 <= self.max_gap <= MAX_GAP:
+            raise InvalidArgument(f"max_gap must be 0..{MAX_GAP}, got {self.max_gap!r}")
 
     def max_count(self, table: str) -> int:
         """Registers (bits, for a bit table) one request may read."""
@@ -239,7 +245,7 @@ class Known:
             marks[a - lo:b - lo] = bytes((_REFUSED,)) * (b - a)
         self._marks = marks
 
-    def bridgeable(self, start: int, end: int, max_gap: int) -> bool:
+    def bridgeable(self, start: int, end: int, max_gap: int | None) -> bool:
         """Whether a request may read registers ``start..end-1`` that no wanted
         point needs (rule 3 of the module's list)."""
         lo, n = self._lo, len(self._marks)
@@ -253,8 +259,8 @@ class Known:
             return True
         if self.has_readable:
             return outside == 0 and _UNKNOWN not in seg and (
-                max_gap == 0 or undeclared <= max_gap)
-        return undeclared <= max_gap
+                max_gap is None or undeclared <= max_gap)
+        return undeclared <= (max_gap or 0)
 
 
 def _best_cuts(starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bool],

@@ -63,7 +63,9 @@ class Limits:
 
     max_registers: int = MAX_READ_REGISTERS  #: registers per FC 03/04 request (1..125)
     max_bits: int = MAX_READ_BITS  #: bits per FC 01/02 request (1..2000)
-    max_gap: int = 0  #: undeclared registers a request may span
+    #: undeclared registers a request may span; None (unset): any gap inside
+    #: ``readable`` where the map declares it, else none
+    max_gap: int | None = None
     #: table -> on-wire (first, last) ranges known to exist (inclusive)
     readable: Mapping[str, tuple[tuple[int, int], ...]] = field(default_factory=_empty)
     split_on_exception: bool = True  #: exception 02/03 on a bridged read: stop bridging there

@@ -153,6 +153,28 @@ def test_readable_ranges_bound_the_bridges() -> None:
     # max_gap still applies inside readable
     limits = Limits(max_gap=2, readable={"input": [(0, 10)]})
     assert plan_points(items, line, limits, known=known).spans == ((0, 2), (5, 2), (20, 1))
+    # and max_gap = 0 said outright reads only declared registers, readable or not
+    # (device-map.md section 3); only an unset max_gap means any gap inside readable
+    limits = Limits(max_gap=0, readable={"input": [(0, 10)]})
+    assert plan_points(items, line, limits, known=known).spans == ((0, 2), (5, 2), (20, 1))
+
+
+def test_max_gap_has_one_range_at_load_and_plan() -> None:
+    from pymb.errors import InvalidArgument
+    from pymb.maps import loads
+    from pymb.maps.planner import MAX_GAP
+
+    head = ('schema = "pymb.map/1"\n[device]\nid = "x"\n[device.limits]\nmax_gap = {}\n'
+            '[[point]]\nname = "a"\naddress = 0\ntable = "holding"\ntype = "u16"\n')
+    assert loads(head.format(MAX_GAP)).limits.max_gap == MAX_GAP
+    Limits(max_gap=MAX_GAP)
+    for bad in (MAX_GAP + 1, -1):
+        with pytest.raises(ValueError, match=f"max_gap must be .*0..{MAX_GAP}"):
+            loads(head.format(bad))
+        with pytest.raises(InvalidArgument, match=f"max_gap must be 0..{MAX_GAP}"):
+            Limits(max_gap=bad)
+    unset = head.replace("max_gap = {}\n", "")
+    assert loads(unset).limits.max_gap is None
 
 
 def test_other_declared_points_may_be_bridged() -> None:
