@@ -5,15 +5,19 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from pymb.commands.status import StatusLine, status_text
+from pymb.errors import InvalidArgument
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
 from pymb.logger import LogConfig, Logger, Summary
+from pymb.logger.commands import CommandDesk
+from pymb.logger.targets import write_targets
 from pymb.service.journal import echoing
 from pymb.store import check_output, open_sink
+from pymb.store.commands import CommandLog
 
 if TYPE_CHECKING:
     from pymb.service.run import Service
@@ -58,7 +62,7 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         sink.close()
         raise
     fw.say = sink is raw  # else its events are lines on stderr already
-    fw.start()
+    desk = None
     try:
         tick: Callable[[Logger, float, bool], None] | None = None
         if status is not None:
@@ -67,16 +71,47 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
             service.text = lambda lg, t: f"{status_text(lg, t)}  {fw.status().line()}"
             tick = service.tick(tick)
         logger = Logger(cfg, sink=ForwardingSink(sink, fw), tick=tick)
+        if cfg.allow_writes:
+            desk = command_desk(cfg, logger, raw, fw)
+        fw.start()
         if service is not None:
             service.attach(logger)
         s = logger.run(seconds)
     finally:
-        fw.notify()
-        fw.stop()
-        fw.join(mqtt.drain + 10)
+        if desk is not None:
+            desk.stop()
+        if fw.ident is None:  # the logger could not be made: nothing was sent
+            sink.close()
+        else:
+            fw.notify()
+            fw.stop()
+            fw.join(mqtt.drain + 10)
     if fw.error is not None:
         raise fw.error
     return s, fw.status()
+
+
+def command_desk(cfg: LogConfig, logger: Logger, raw: Any, fw: Forwarder) -> CommandDesk:
+    """The desk that executes write commands from ``fw``'s set topics on the
+    logger's devices, recorded in the database ``raw`` writes."""
+    if cfg.format != "sqlite" or not hasattr(raw, "in_batch"):
+        raise InvalidArgument("--allow-writes needs the SQLite database: its record of "
+                              "commands makes each id execute once")
+    log = CommandLog(raw.in_batch)
+    desk = CommandDesk(log, write_targets(logger.pollers, log), cfg.allow_writes,
+                       fw.record_event)
+    devices = desk.writable()
+    if not devices:
+        raise InvalidArgument(f"--allow-writes {' '.join(cfg.allow_writes)}: no writable point "
+                              "of a logged device matches (DEVICE/POINT, the device's name)")
+
+    def reply(device: str, payload: bytes) -> None:
+        fw.publish_result(device, payload)  # offline: the record answers the command again
+
+    desk.reply = reply
+    fw.take_commands(devices, lambda device, payload: desk.submit("mqtt", device, payload))
+    desk.start()
+    return desk
 
 
 def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,

@@ -104,10 +104,18 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         cfg.max_age = args.max_age_days * 86400
     if getattr(args, "commit_interval", None) is not None:
         cfg.commit_interval = args.commit_interval
+    for pattern in getattr(args, "allow_writes", None) or []:
+        if "/" not in pattern:
+            raise InvalidArgument(f"--allow-writes {pattern!r}: a pattern is DEVICE/POINT "
+                                  "(fnmatch: meter-3/*)")
+        cfg.allow_writes = (*cfg.allow_writes, pattern)
     mqtt = mqtt_from(args, mqtt_table)
     if mqtt is not None and cfg.format != "sqlite":
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
                               "use --format sqlite")
+    if cfg.allow_writes and (mqtt is None or mqtt.profile != "plain"):
+        raise InvalidArgument("write commands come over MQTT's plain profile: --allow-writes "
+                              "([writes] allow) needs --mqtt URL")
     _on_change(args, cfg)
     if cfg.format == "sqlite":  # at the start and before a SIGHUP reload
         check_stored_maps(cfg.path, {d.type: d.source.text for b in cfg.buses

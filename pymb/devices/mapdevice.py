@@ -28,6 +28,7 @@ from pymb.client import Client
 from pymb.devices.mapfetch import Fetcher, Image, Read
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapwrite import (
+    Budget,
     Change,
     Outcome,
     Request,
@@ -72,7 +73,7 @@ class MapDevice:
 
     def __init__(self, client: Client, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
-                 baudrate: int | None = None, budget: WriteBudget | None = None) -> None:
+                 baudrate: int | None = None, budget: Budget | None = None) -> None:
         if not isinstance(client, Client):
             raise InvalidArgument(f"a map device needs a pymb client (RtuClient, TcpClient, "
                                   f"RtuOverTcpClient), got {type(client).__name__}")
@@ -117,7 +118,7 @@ class MapDevice:
         self._lock = self._fetcher.quiet.lock
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
         #: the writes counted against ``max_writes_per_hour`` (in memory unless given)
-        self.budget = budget if budget is not None else WriteBudget()
+        self.budget: Budget = budget if budget is not None else WriteBudget()
 
     # -- what to read -----------------------------------------------------------------
 

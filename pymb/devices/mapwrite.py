@@ -27,14 +27,14 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
 from pymb.maps import Map, Point, Value
 from pymb.maps.codec import decode_one, encode
 from pymb.maps.point import did_you_mean
 
-__all__ = ["Change", "Outcome", "Request", "WriteBudget", "check", "requests"]
+__all__ = ["Budget", "Change", "Outcome", "Request", "WriteBudget", "check", "requests"]
 
 _VIEWS = frozenset({"bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"})
 _MAX_FC16 = 123  #: registers of one FC 16 request ([MB-AP] 6.12)
@@ -111,6 +111,18 @@ class Outcome:
     after: Value = None
     applied: bool | None = None
     sent: bool = False
+
+
+class Budget(Protocol):
+    """Where writes are counted against ``max_writes_per_hour``."""
+
+    def spent(self, key: str, limit: int) -> bool:
+        """True when ``limit`` writes of ``key`` were made in the last hour."""
+        ...
+
+    def count(self, key: str) -> None:
+        """Count one write of ``key``, now."""
+        ...
 
 
 class WriteBudget:

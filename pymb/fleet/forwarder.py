@@ -50,6 +50,7 @@ from typing import Any
 
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
+from pymb.fleet.commands import CommandTopics
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.cursor import Acknowledged, CursorWriter, destination
 from pymb.fleet.health import Down
@@ -106,7 +107,7 @@ def require_paho() -> None:
         raise InvalidArgument(f"--mqtt needs paho-mqtt: {install_hint('mqtt')}") from None
 
 
-class Forwarder(threading.Thread):
+class Forwarder(threading.Thread, CommandTopics):
     """Publishes the samples of ``db_path``: those ``writer`` (the
     :class:`pymb.store.SqliteSink` writing it, if in this process) writes,
     else those committed; see the module docstring.
@@ -164,6 +165,7 @@ class Forwarder(threading.Thread):
         #: (monotonic time, samples) of the acknowledgements of the last few seconds
         self._ack_times: collections.deque[tuple[float, int]] = collections.deque()
         self.error: BaseException | None = None
+        CommandTopics.__init__(self)
 
     # -- the public side -----------------------------------------------------------
 
@@ -238,7 +240,11 @@ class Forwarder(threading.Thread):
                 if not again:
                     self.record_event(f"connected to {self.dest}")
                 was_down = ""
-                self._pump(s)
+                self._session = s
+                try:
+                    self._pump(s)
+                finally:
+                    self._session = None
                 self._close(s)
                 if self._stopping.is_set():
                     return

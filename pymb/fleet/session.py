@@ -24,6 +24,11 @@ class _Owner(Protocol):
     rebirth: threading.Event
     host_ts: float | None
     host_online_ts: float | None
+    #: set topic -> device: the plain profile's write commands (empty: none)
+    set_topics: dict[str, str]
+
+    def command_arrived(self, topic: str, payload: bytes) -> None:
+        """A write command arrived on one of ``set_topics``."""
 
     def record_event(self, message: str) -> None:
         """Add a line to the connection's story."""
@@ -74,6 +79,9 @@ class Session:
             client.subscribe(self.fw.profile.command_topic, qos=1)
         if self.ok and self.fw.profile.host_topic:
             client.subscribe(self.fw.profile.host_topic, qos=1)
+        if self.ok:
+            for topic in self.fw.set_topics:
+                client.subscribe(topic, qos=1)
         self.connack.set()
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
@@ -103,7 +111,9 @@ class Session:
                            "for a message over its message_size_limit)")
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
-        if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
+        if msg.topic in self.fw.set_topics:
+            self.fw.command_arrived(msg.topic, msg.payload)
+        elif msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
             self.fw.rebirth.set()
             self.fw.wake.set()
         elif msg.topic == self.fw.profile.host_topic:

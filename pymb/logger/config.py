@@ -141,6 +141,8 @@ class LogConfig:
     commit_small: int = COMMIT_SMALL
     commit_longest: float = COMMIT_LONGEST
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
+    #: DEVICE/POINT patterns (fnmatch) write commands may reach (``[writes] allow``)
+    allow_writes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         check_buses(self.buses)
@@ -233,7 +235,7 @@ def share_deadbands(buses: Sequence[BusConfig], bands: Mapping[str, float],
     return builtin
 
 
-_TOP_KEYS = ("maps", "output", "bus", "mqtt")  # [mqtt]: the forwarder's, read by the CLI
+_TOP_KEYS = ("maps", "output", "bus", "mqtt", "writes")  # [mqtt]: the forwarder's, read by the CLI
 _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s", "on_change",
                 "heartbeat_s",
                 "deadband")
@@ -280,6 +282,17 @@ def read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise InvalidArgument(f"{path}: {e}") from None
+
+
+def _allow(doc: dict[str, Any], path: str) -> tuple[str, ...]:
+    """``[writes] allow = ["DEVICE/POINT", ...]``: what write commands may reach."""
+    table = _get(doc, "writes", dict, path, {})
+    _known(table, ("allow",), f"{path}: [writes]")
+    allow = table.get("allow", [])
+    if not isinstance(allow, list) or not all(isinstance(a, str) and "/" in a for a in allow):
+        raise InvalidArgument(f"{path}: [writes] allow must be a list of \"DEVICE/POINT\" "
+                              f"patterns, got {allow!r}")
+    return tuple(allow)
 
 
 def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogConfig:
@@ -350,6 +363,7 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
         raise InvalidArgument(f"{path}: output: unknown format {fmt!r}; use one of "
                               f"{', '.join(FORMATS)}")
     _get(doc, "mqtt", dict, str(path))
+    allow = _allow(doc, str(path))
     on_change = None
     flag = out.get("on_change", False)
     if not isinstance(flag, bool):
@@ -374,7 +388,7 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
             None if max_mb is None else int(max_mb * 1e6),
             None if max_days is None else float(max_days) * 86400,
             commit_interval=None if commit_s is None else float(commit_s),
-            on_change=on_change,
+            on_change=on_change, allow_writes=allow,
         )
     except InvalidArgument as e:
         raise _within(str(path), e) from None

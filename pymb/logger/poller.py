@@ -19,7 +19,7 @@ from pymb.devices.spec import DeviceConfig
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
-from pymb.logger.schedule import run_scheduled, slots_of
+from pymb.logger.schedule import MapHealth, run_scheduled, slots_of
 from pymb.store import DeviceInfo, Event, Sample
 from pymb.store.records import event_kind, short_fault
 
@@ -141,6 +141,8 @@ class BusPoller(threading.Thread):
         self.client = bus.client()
         self.devices: list[_Device] = []
         self.maps: list[tuple[DeviceInfo, MapDeviceConfig]] = []
+        #: map device name -> its MapDevice and health, once polling started
+        self.healths: dict[str, MapHealth] = {}
         stats.opened.setdefault(bus.name, False)
         for d in bus.devices:
             assert d.address is not None

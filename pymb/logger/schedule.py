@@ -76,6 +76,7 @@ def slots_of(poller: BusPoller, maps: list[tuple[DeviceInfo, MapDeviceConfig]]) 
     for info, cfg in maps:
         dev = MapDevice(poller.client, cfg.map, cfg.address, baudrate=rate)
         health = MapHealth(info, cfg, dev)
+        poller.healths[info.name] = health  # for write commands
         for group, interval in cfg.polls:
             out.append(Slot(poller.bus.interval if interval is None else interval,
                             interval == 0, group, health))

@@ -369,6 +369,19 @@ class SqliteSink(DeviceRows, Retention):
             except (sqlite3.Error, OSError, OutputError) as e:
                 raise self._failed(e) from None
 
+    def in_batch(self, fn: Callable[[sqlite3.Connection], Any], commit: bool) -> Any:
+        """``fn(db)`` inside the current batch, under the writer's lock; the
+        batch is committed after it when ``commit`` (the record of writes)."""
+        with self._mutex:
+            try:
+                self._begin()
+                out = fn(self.db)
+                if commit:
+                    self._commit()
+                return out
+            except (sqlite3.Error, OSError, OutputError) as e:
+                raise self._failed(e) from None
+
     def on_commit(self, callback: Callable[[int], None]) -> None:
         """Call ``callback(max_id)`` after each commit, with the highest
         sample id then durable (0: none): at :meth:`commit`, at

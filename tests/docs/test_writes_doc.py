@@ -6,19 +6,24 @@ page shows under it."""
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
+import tomllib
 from pathlib import Path
 
 from conftest import run_pymb
-from docblocks import claim_one
+from docblocks import claim, claim_one
 
 from pymb import maps
+from pymb.logger.config import config_from_toml
 from pymb.sim import SimulatorProcess
 
-INVERTER = claim_one("docs/writes.md", "toml", how="load").text
+INVERTER = claim_one("docs/writes.md", "toml", how="load", contains="acme-inverter").text
 CODE = claim_one("docs/writes.md", "python", how="run").text
 SHELL = claim_one("docs/writes.md", "sh", how="run")
+ALLOW = claim_one("docs/writes.md", "toml", how="load", contains="[writes]").text
+COMMANDS = claim("docs/writes.md", "json", how="parse")
 SYNOPSIS = claim_one("docs/writes.md", "text", how="check", contains="pymb write DEVICE").text
 
 
@@ -61,3 +66,19 @@ def test_the_shell_example_runs_and_prints_what_it_shows(tmp_path: Path) -> None
             r = run_pymb(*argv, cwd=tmp_path)
             assert (r.returncode, r.stderr) == (0, ""), line
             assert r.stdout.splitlines() == shown, line
+
+
+def test_the_allow_list_loads_as_a_logger_configuration(tmp_path: Path) -> None:
+    bus = '[[bus]]\nname = "b"\ntcp = "127.0.0.1:5020"\n[[bus.device]]\ntype = "eastron-sdm120"\n'
+    cfg = config_from_toml(tomllib.loads(ALLOW + bus), tmp_path / "log.toml")
+    assert cfg.allow_writes == ("psu-a/output_voltage_setpoint_v", "meter-3/*")
+
+
+def test_the_command_and_results_are_what_the_logger_takes_and_publishes() -> None:
+    command, results = (json.loads(b.text) for b in COMMANDS[:1]), COMMANDS[1]
+    for c in command:
+        assert set(c) == {"id", "values"}
+    for line in results.lines():
+        doc = json.loads(line)
+        assert set(doc) == ({"id", "ok", "values", "time"} if doc["ok"] else
+                            {"id", "ok", "reason", "error", "values", "time"})

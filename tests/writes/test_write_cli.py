@@ -192,3 +192,19 @@ def test_against_libmodbus(map_file: str, libmodbus_exe: Path, mode: str) -> Non
                                     "relay_2: true -> true" if (60 >> 2) & 1 else
                                     "relay_2: false -> true",
                                     "zone_c_1: 12 -> 7.5 °C"]
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (["--allow-writes", "psu-a/setpoint_hz"], "needs --mqtt URL"),
+    (["--allow-writes", "setpoint_hz", "--mqtt", "mqtt://127.0.0.1:1"], "DEVICE/POINT"),
+    (["--allow-writes", "psu-a/nothing_*", "--mqtt", "mqtt://127.0.0.1:1"],
+     "no writable point of a logged device matches"),
+])
+def test_log_allow_writes_mistakes_exit_2(map_file: str, tmp_path: Path, extra: list[str],
+                                          message: str) -> None:
+    r = run_pymb("log", "--map", map_file, "--tcp", "127.0.0.1:1", "--device",
+                 "wdev:1,name=psu-a", "--out", str(tmp_path / "x.sqlite"), "--seconds", "1",
+                 *extra)
+    assert r.returncode == 2, r.stderr
+    assert message in r.stderr
+    assert "Traceback" not in r.stderr

@@ -1,0 +1,50 @@
+"""The forwarder's side of write commands (the plain profile): the set
+topics it subscribes to on every connection, the commands it hands on, the
+results it publishes. What a command does is :mod:`pymb.logger.commands`'s."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from pymb.fleet.config import MqttConfig
+from pymb.fleet.session import Session
+
+__all__ = ["CommandTopics"]
+
+
+class CommandTopics:
+    """Mixed into the forwarder: ``set_topics`` (topic -> device) are
+    subscribed to (QoS 1) on each connection."""
+
+    cfg: MqttConfig
+
+    def __init__(self) -> None:
+        #: set topic -> device: the plain profile's write commands (see :meth:`take_commands`)
+        self.set_topics: dict[str, str] = {}
+        self._commands: Callable[[str, bytes], None] | None = None
+        self._session: Session | None = None  #: the connection up now, if any
+
+    def take_commands(self, devices: list[str], submit: Callable[[str, bytes], None]) -> None:
+        """Subscribe (QoS 1) to ``{prefix}/{node}/{device}/set`` of each of
+        ``devices`` from the next connection on (before :meth:`start`); each
+        command goes to ``submit(device, payload)``."""
+        base = f"{self.cfg.prefix}/{self.cfg.node}"
+        self.set_topics = {f"{base}/{d}/set": d for d in devices}
+        self._commands = submit
+
+    def command_arrived(self, topic: str, payload: bytes) -> None:
+        """A command on a set topic (paho's thread): handed on, never waited for."""
+        if self._commands is not None:
+            self._commands(self.set_topics[topic], payload)
+
+    def publish_result(self, device: str, payload: bytes) -> bool:
+        """Publish a command's result (QoS 1, not retained) on
+        ``{prefix}/{node}/{device}/set/result``; False when no connection is up
+        (the result is on record: the command sent again gets it)."""
+        s = self._session
+        if s is None or s.lost:
+            return False
+        topic = f"{self.cfg.prefix}/{self.cfg.node}/{device}/set/result"
+        info = s.client.publish(topic, payload, qos=1, retain=False)
+        return bool(info.rc == 0)
+

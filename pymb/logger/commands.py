@@ -1,0 +1,251 @@
+"""Write commands from the network (MQTT ``.../set``), executed once per id:
+:class:`CommandDesk`.
+
+A command is checked whole (its points exist, are writable, allowed by
+``[writes] allow`` and fit their maps), then its write budget; a refusal
+writes nothing. A command that will write is put on record (committed)
+*before* its write goes out, so a logger killed between the write and the
+result never writes it again: the command redelivered, or sent again with
+the same id, is answered from the record. Writes use the device's own
+:class:`~pymb.devices.MapDevice` and its line lock, so they go between polls.
+"""
+
+from __future__ import annotations
+
+import collections
+import fnmatch
+import json
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapwrite import Outcome, check, resolve
+from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.maps import Map
+from pymb.store.commands import CommandLog, PointRow
+
+__all__ = ["CommandDesk", "Target", "allowed", "reason_of"]
+
+QUEUE_MAX = 2048  #: commands waiting at most; more are dropped (and said once)
+_UNKNOWN = ("the logger stopped while this command was being executed; it is not executed "
+            "again: read the points to know their values")
+
+
+@dataclass
+class Target:
+    """A logged map device commands may write: its map, its MapDevice (None
+    while its line is not open) and whether it is offline now."""
+
+    name: str
+    map: Map
+    device: Callable[[], MapDevice | None]
+    offline: Callable[[], bool]
+
+
+def allowed(patterns: Sequence[str], device: str, point: str) -> bool:
+    """Whether ``DEVICE/POINT`` matches one of ``patterns`` (fnmatch)."""
+    return any(fnmatch.fnmatchcase(f"{device}/{point}", p) for p in patterns)
+
+
+def reason_of(e: InvalidArgument) -> str:
+    """``range`` for a value outside what the point takes, else ``invalid``."""
+    text = str(e)
+    if any(w in text for w in ("outside", "not one of its values", "does not fit", "too long",
+                               "longer than")):
+        return "range"
+    if "read-only" in text:
+        return "not_allowed"
+    return "invalid"
+
+
+def _now_iso(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t * 1000) % 1000:03d}Z"
+
+
+class _Refused(Exception):
+    def __init__(self, reason: str, error: str) -> None:
+        super().__init__(error)
+        self.reason = reason
+
+
+class CommandDesk(threading.Thread):
+    """Executes the commands :meth:`submit` hands it, one at a time, and
+    hands each result to ``reply(device, payload)``."""
+
+    def __init__(self, log: CommandLog, targets: Mapping[str, Target], allow: Sequence[str],
+                 event: Callable[[str], None]) -> None:
+        super().__init__(name="pymb-commands", daemon=True)
+        self.log = log
+        self.targets = dict(targets)
+        self.allow = tuple(allow)
+        self.event = event
+        self.reply: Callable[[str, bytes], None] | None = None
+        self._queue: collections.deque[tuple[str, str, bytes]] = collections.deque()
+        self._cond = threading.Condition()
+        self._stop = False
+        self._dropped = 0
+        self.handled = 0  #: commands answered
+
+    def writable(self) -> list[str]:
+        """The devices with at least one point commands may write."""
+        return [n for n, t in self.targets.items()
+                if any(p.writable and allowed(self.allow, n, p.name)
+                       for p in t.map.points.values())]
+
+    def submit(self, source: str, device: str, payload: bytes) -> None:
+        """A command arrived (any thread; never blocks)."""
+        with self._cond:
+            if len(self._queue) >= QUEUE_MAX:
+                self._dropped += 1
+                if self._dropped == 1:
+                    self.event(f"write commands arrive faster than they can be answered: "
+                               f"more than {QUEUE_MAX} wait; the rest are dropped unanswered")
+                return
+            self._queue.append((source, device, bytes(payload)))
+            self._cond.notify()
+
+    def stop(self) -> None:
+        """End after the command in hand."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+
+    def run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop:
+                    self._cond.wait()
+                if self._stop:
+                    return
+                source, device, payload = self._queue.popleft()
+                if not self._queue:
+                    self._dropped = 0
+            try:
+                out = self.handle(source, device, payload)
+            except Exception as e:  # a database failure: said, and the desk goes on
+                self.event(f"write command for {device} failed: {e}")
+                continue
+            self.handled += 1
+            if out is not None and self.reply is not None:
+                self.reply(device, out)
+
+    # -- one command ------------------------------------------------------------------
+
+    def handle(self, source: str, device: str, payload: bytes) -> bytes | None:
+        """Execute one command; returns the result to publish."""
+        try:
+            doc = json.loads(payload)
+        except (ValueError, UnicodeDecodeError):
+            doc = None
+        cid = doc.get("id") if isinstance(doc, dict) else None
+        if not (isinstance(cid, str) and 1 <= len(cid) <= 64 and cid.isprintable()):
+            why = "not a JSON object" if not isinstance(doc, dict) else \
+                "the id must be a string of 1 to 64 printable characters"
+            self.event(f"write command for {device} refused: {why}")
+            return self._result(cid if isinstance(cid, str) else None, False, {}, "invalid", why)
+        known, stored = self.log.seen(cid)
+        if stored is not None:
+            return stored.encode()
+        if known:  # on record, no result: the logger stopped during its write
+            out = self._result(cid, False, {}, "device", _UNKNOWN)
+            self.log.finish(cid, device, source, out.decode(), [])
+            return out
+        values = doc.get("values")
+        target = self.targets.get(device)
+        rows: list[PointRow] = []
+        try:
+            if target is None:
+                raise _Refused("invalid", f"no device {device!r} takes commands here")
+            if not isinstance(values, dict) or not values:
+                raise _Refused("invalid", "values must be an object of point names to values")
+            rows = [PointRow(str(n), v) for n, v in values.items()]
+            dev = self._check(target, values)
+        except _Refused as r:
+            for row in rows:
+                row.reason = r.reason
+            self.log.receive(cid, device, source, durable=False)
+            return self._finish(cid, device, source, rows, {}, r.reason, str(r), durable=False)
+        self.log.receive(cid, device, source, durable=True)  # on record before the write
+        items = [(n, None, v) for n, v in values.items()]
+        try:
+            outcomes = dev.write_points(items, before=True)
+        except WriteNotApplied as e:
+            self._fill(rows, e.outcomes, "not_applied")
+            return self._finish(cid, device, source, rows, e.applied, "not_applied", str(e))
+        except WriteRefused as e:
+            for row in rows:
+                row.reason = e.reason
+            return self._finish(cid, device, source, rows, {}, e.reason, str(e))
+        except ModbusError as e:
+            for row in rows:
+                row.reason = "device"
+            return self._finish(cid, device, source, rows, {}, "device", str(e))
+        self._fill(rows, outcomes, None)
+        return self._finish(cid, device, source, rows, {o.name: o.after for o in outcomes},
+                            None, None)
+
+    def _check(self, t: Target, values: Mapping[str, object]) -> MapDevice:
+        m = t.map
+        for name, value in values.items():
+            try:
+                _, p = resolve(m, name)
+            except InvalidArgument as e:
+                raise _Refused("invalid", str(e)) from None
+            if not p.writable:
+                raise _Refused("not_allowed", f"{t.name}: point {name!r} is read-only")
+            if not allowed(self.allow, t.name, name):
+                raise _Refused("not_allowed", f"{t.name}: point {name!r} is not in the "
+                               "allow list of [writes] (or --allow-writes)")
+            try:
+                check(m, [(name, None, value)])
+            except InvalidArgument as e:
+                raise _Refused(reason_of(e), str(e)) from None
+        try:
+            changes = check(m, [(n, None, v) for n, v in values.items()])
+        except InvalidArgument as e:
+            raise _Refused(reason_of(e), str(e)) from None
+        dev = t.device()
+        if dev is None or t.offline():
+            raise _Refused("device", f"{t.name} is offline: nothing was sent")
+        key = f"{m.id}:{dev.address}"
+        for c in changes:
+            limit = c.point.max_writes_per_hour
+            if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
+                raise _Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
+                               f"({limit} writes per hour); nothing was sent")
+        return dev
+
+    @staticmethod
+    def _fill(rows: list[PointRow], outcomes: Sequence[Outcome], reason: str | None) -> None:
+        by = {o.name: o for o in outcomes}
+        for row in rows:
+            o = by.get(row.point)
+            if o is None:
+                continue
+            row.before, row.after = o.before, o.after
+            row.ok = bool(o.applied) or (o.applied is None and o.sent)
+            row.reason = None if row.ok else reason
+
+    def _finish(self, cid: str, device: str, source: str, rows: list[PointRow],
+                values: Mapping[str, Any], reason: str | None, error: str | None, *,
+                durable: bool = True) -> bytes:
+        out = self._result(cid, reason is None, values, reason, error)
+        self.log.finish(cid, device, source, out.decode(), rows, durable=durable)
+        if reason is not None:
+            self.event(f"write command {cid} for {device} refused ({reason}): {error}")
+        return out
+
+    @staticmethod
+    def _result(cid: str | None, ok: bool, values: Mapping[str, Any], reason: str | None,
+                error: str | None) -> bytes:
+        doc: dict[str, Any] = {"id": cid, "ok": ok}
+        if not ok:
+            doc["reason"] = reason
+            doc["error"] = error
+        doc["values"] = dict(values)
+        doc["time"] = _now_iso(time.time())
+        return json.dumps(doc, ensure_ascii=False, allow_nan=False,
+                          separators=(",", ":")).encode()

@@ -1,0 +1,64 @@
+"""The map devices of a logging run that write commands may reach
+(:class:`~pymb.logger.commands.Target`): on a bus with a thread, the
+poller's own MapDevice (its line lock puts a write between two polls); on
+the one TCP loop, a MapDevice over a connection of its own to the device's
+endpoint, made at the first command."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+
+from pymb.client import TcpClient
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapwrite import Budget
+from pymb.logger.commands import Target
+from pymb.logger.poller import BusPoller
+from pymb.logger.tcploop import TcpMapPoller
+from pymb.logger.tcpunits import Unit
+from pymb.maps import Map
+
+__all__ = ["write_targets"]
+
+
+def write_targets(pollers: Sequence[object], budget: Budget) -> dict[str, Target]:
+    """Every map device the ``pollers`` poll, by name; writes counted in ``budget``."""
+    out: dict[str, Target] = {}
+    for p in pollers:
+        if isinstance(p, BusPoller):
+            for info, cfg in p.maps:
+                out[info.name] = _threaded(p, info.name, cfg.map, budget)
+        elif isinstance(p, TcpMapPoller):
+            for c in p.conns:
+                client = TcpClient(c.host, c.port, timeout=c.bus.timeout)
+                lock = threading.Lock()
+                for u in c.units:
+                    out[u.info.name] = _looped(u, client, lock, budget)
+    return out
+
+
+def _threaded(p: BusPoller, name: str, m: Map, budget: Budget) -> Target:
+    def device() -> MapDevice | None:
+        h = p.healths.get(name)
+        if h is None:
+            return None
+        h.device.budget = budget
+        return h.device
+
+    def offline() -> bool:
+        h = p.healths.get(name)
+        return h is None or h.offline or not p.stats.opened.get(p.bus.name, False)
+
+    return Target(name, m, device, offline)
+
+
+def _looped(u: Unit, client: TcpClient, lock: threading.Lock, budget: Budget) -> Target:
+    made: list[MapDevice] = []
+
+    def device() -> MapDevice:
+        with lock:
+            if not made:
+                made.append(MapDevice(client, u.config.map, u.config.address, budget=budget))
+            return made[0]
+
+    return Target(u.info.name, u.config.map, device, lambda: u.offline)

@@ -1,0 +1,228 @@
+"""Write commands over MQTT (the plain profile's ``.../set`` and
+``.../set/result``) end to end: ``pymb log`` in its own process, Debian's
+mosquitto, a paho client that publishes commands and reads results, and a
+scripted RTU device on a real pseudo-terminal that logs every request and
+can acknowledge a write without applying it. Once per id across a restart
+and a SIGKILL between the write and its result; every refusal sends no
+write; the ``writes`` view."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sqlite3
+import subprocess
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import PYMB, PYMB_ENV
+from mqtt_broker import Fleet, Subscriber, fleet, mosquitto  # noqa: F401 (fixtures)
+from write_peers import WRITE_MAP, FreezingPtyPeer
+
+paho = pytest.importorskip("paho.mqtt.client")
+
+WRITES = (5, 6, 15, 16, 22)  #: function codes that write
+SET = "pymb/n1/psu-a/set"
+
+
+def writes_sent(peer: FreezingPtyPeer) -> list[bytes]:
+    return [pdu for _, pdu in list(peer.requests) if pdu[0] in WRITES]
+
+
+@pytest.fixture
+def peer() -> Iterator[FreezingPtyPeer]:
+    with FreezingPtyPeer() as p:
+        p.memory.holding[10] = 5000
+        p.memory.holding[12] = 0
+        yield p
+
+
+@pytest.fixture
+def map_file(tmp_path: Path) -> Path:
+    path = tmp_path / "wdev.toml"
+    path.write_text(WRITE_MAP.format(device="", limits="", budget="max_writes_per_hour = 3"))
+    return path
+
+
+def start(fleet: Fleet, broker: Any, peer: FreezingPtyPeer, map_file: Path,  # noqa: F811
+          db: Path) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(
+        [*PYMB, "log", "--map", str(map_file), "--port", peer.port, "--baud", "19200",
+         "--device", "wdev:1,name=psu-a", "--interval", "0.2", "--out", str(db),
+         "--mqtt", f"mqtt://127.0.0.1:{broker.port}", "--mqtt-node", "n1",
+         "--allow-writes", "psu-a/setpoint_hz", "--allow-writes", "psu-a/mode",
+         "--allow-writes", "psu-a/relay_*", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=PYMB_ENV)
+    fleet.children.append(proc)
+    return proc
+
+
+class Commander:
+    """A paho client that publishes commands (QoS 1) and waits for their results."""
+
+    def __init__(self, fleet: Fleet, broker: Any) -> None:  # noqa: F811
+        self.results = fleet.subscribe(broker, SET + "/result", client_id="pymb-test-results")
+        c = paho.Client(paho.CallbackAPIVersion.VERSION2, client_id="pymb-test-commander")
+        c.connect("127.0.0.1", broker.port, keepalive=5)
+        c.loop_start()
+        self.client = c
+
+    def send(self, command: Any, *, raw: bytes | None = None, timeout: float = 30) -> Any:
+        """Publish until its result comes (the logger subscribes once it is up)."""
+        payload = raw if raw is not None else json.dumps(command).encode()
+        cid = command.get("id") if isinstance(command, dict) else None
+        n = len(self.results.snapshot())
+        deadline_each = 1.0
+        for _ in range(int(timeout / deadline_each)):
+            if n == len(self.results.snapshot()):
+                self.client.publish(SET, payload, qos=1).wait_for_publish(5)
+            got = self._wait(n, cid, deadline_each)
+            if got is not None:
+                return got
+        raise AssertionError(f"no result for {command!r}")
+
+    def _wait(self, n: int, cid: Any, timeout: float) -> Any:
+        def found(msgs: list[tuple[str, bytes]]) -> Any:
+            for _, p in msgs[n:]:
+                doc = json.loads(p)
+                if doc.get("id") == cid:
+                    return doc
+            return None
+        try:
+            return self.results.wait_until(found, timeout, "a result")
+        except AssertionError:
+            return None
+
+    def close(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+
+def rows(db: Path) -> list[tuple[Any, ...]]:
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        return con.execute("SELECT source, command_id, device, point, requested, before, "
+                           "after, ok, reason FROM writes").fetchall()
+    finally:
+        con.close()
+
+
+def stop(proc: subprocess.Popen[str]) -> str:
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    return err
+
+
+def test_set_result_refusals_once_per_id_and_the_record(fleet: Fleet, peer: FreezingPtyPeer,  # noqa: F811
+                                                         map_file: Path, tmp_path: Path) -> None:
+    broker = fleet.broker()
+    db = tmp_path / "log.sqlite"
+    proc = start(fleet, broker, peer, map_file, db)
+    cmd = Commander(fleet, broker)
+    try:
+        r = cmd.send({"id": "c-1", "values": {"setpoint_hz": 49.5, "mode": "run"}})
+        assert (r["ok"], r["values"]) == (True, {"setpoint_hz": 49.5, "mode": "run"})
+        assert r["time"].endswith("Z")
+        assert list(r) == ["id", "ok", "values", "time"]
+        assert peer.memory.holding[10] == 4950
+        n = len(writes_sent(peer))
+        assert n == 2  # setpoint_hz (10) and mode (12): not adjacent
+
+        for command, reason in [
+            ({"id": "c-2", "values": {"setpoint_hz": 70}}, "range"),
+            ({"id": "c-3", "values": {"mode": "running"}}, "range"),
+            ({"id": "c-4", "values": {"power_limit_pct": 5}}, "not_allowed"),
+            ({"id": "c-5", "values": {"firmware": 5}}, "not_allowed"),
+            ({"id": "c-6", "values": {"setpont_hz": 50}}, "invalid"),
+            ({"id": "c-7", "values": {"setpoint_hz": "fast"}}, "invalid"),
+            ({"id": "c-8", "values": {}}, "invalid"),
+            ({"id": "c-9", "values": {"setpoint_hz": 50, "mode": 9}}, "range"),
+        ]:
+            r = cmd.send(command)
+            assert (r["ok"], r["reason"], r["values"]) == (False, reason, {}), r
+            assert list(r) == ["id", "ok", "reason", "error", "values", "time"]
+            assert r["error"]
+            assert "\n" not in r["error"]
+        assert len(writes_sent(peer)) == n  # not one refusal wrote
+
+        # the same id again, whatever its values: the stored result, nothing written
+        again = cmd.send({"id": "c-1", "values": {"setpoint_hz": 46}})
+        assert (again["ok"], again["values"]) == (True, {"setpoint_hz": 49.5, "mode": "run"})
+        assert len(writes_sent(peer)) == n
+
+        # acknowledged, not applied
+        peer.frozen.add(10)
+        r = cmd.send({"id": "c-10", "values": {"setpoint_hz": 48}})
+        assert (r["ok"], r["reason"]) == (False, "not_applied")
+        assert "sent 48, the device holds 49.5" in r["error"]
+        peer.frozen.clear()
+
+        # the budget: 3 writes an hour of setpoint_hz (c-1, c-10 counted); a held value is free
+        assert cmd.send({"id": "c-11", "values": {"setpoint_hz": 49.5}})["ok"] is True
+        assert cmd.send({"id": "c-12", "values": {"setpoint_hz": 47}})["ok"] is True
+        n = len(writes_sent(peer))
+        r = cmd.send({"id": "c-13", "values": {"setpoint_hz": 46}})
+        assert (r["ok"], r["reason"]) == (False, "budget")
+        assert len(writes_sent(peer)) == n
+        r = cmd.send(None, raw=b"not json")
+        assert (r["id"], r["ok"], r["reason"]) == (None, False, "invalid")
+    finally:
+        cmd.close()
+    stop(proc)
+    got = rows(db)
+    assert got[0] == ("mqtt", "c-1", "psu-a", "setpoint_hz", "49.5", "50.0", "49.5", 1, None)
+    assert got[1] == ("mqtt", "c-1", "psu-a", "mode", '"run"', '"stop"', '"run"', 1, None)
+    assert ("mqtt", "c-2", "psu-a", "setpoint_hz", "70", None, None, 0, "range") in got
+    assert [r[1] for r in got].count("c-1") == 2  # the repeat is no new row
+
+    # once per id across a restart of the logger
+    proc = start(fleet, broker, peer, map_file, db)
+    cmd = Commander(fleet, broker)
+    try:
+        n = len(writes_sent(peer))
+        again = cmd.send({"id": "c-12", "values": {"setpoint_hz": 45}})
+        assert (again["ok"], again["values"]) == (True, {"setpoint_hz": 47.0})
+        budget = cmd.send({"id": "c-15", "values": {"setpoint_hz": 45}})
+        assert budget["reason"] == "budget"  # the count was kept in the database
+        assert len(writes_sent(peer)) == n
+    finally:
+        cmd.close()
+    stop(proc)
+
+
+def test_sigkill_between_the_write_and_its_result_never_writes_twice(
+        fleet: Fleet, peer: FreezingPtyPeer, map_file: Path, tmp_path: Path) -> None:  # noqa: F811
+    broker = fleet.broker()
+    db = tmp_path / "log.sqlite"
+    wrote = threading.Event()
+
+    def hold_the_write(slave: int, pdu: bytes,
+                       normal: bytes | None) -> list[tuple[float, bytes]] | None:
+        if pdu[0] == 6 and pdu[1:3] == b"\x00\x0c":  # mode: applied, never answered
+            wrote.set()
+            return []
+        return None
+
+    peer.hook = hold_the_write
+    proc = start(fleet, broker, peer, map_file, db)
+    cmd = Commander(fleet, broker)
+    try:
+        assert cmd.send({"id": "k-0", "values": {"setpoint_hz": 50}})["ok"]  # subscribed
+        cmd.client.publish(SET, json.dumps({"id": "k-1", "values": {"mode": "run"}}), qos=1)
+        assert wrote.wait(60), "the write never came"
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=30)
+        peer.hook = None
+        proc = start(fleet, broker, peer, map_file, db)
+        r = cmd.send({"id": "k-1", "values": {"mode": "run"}})
+        assert (r["ok"], r["reason"]) == (False, "device")
+        assert "not executed again" in r["error"]
+        mode_writes = [p for p in writes_sent(peer) if p[1:3] == b"\x00\x0c"]
+        assert len(mode_writes) == 1
+    finally:
+        cmd.close()
+    stop(proc)
