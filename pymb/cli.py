@@ -65,7 +65,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
     "map": ("pymb.commands.mapcmd", "check a device map, or probe a device's registers"),
     "serve": ("pymb.commands.serve", "share one bus with many Modbus TCP clients (and TLS)"),
-    "simulate": ("pymb.sim.cli", "simulate devices (CoolPro, sensor hub, maps) on a pty or TCP"),
+    "simulate": ("pymb.commands.simulate",
+                 "simulate devices (CoolPro, sensor hub, maps) on a pty or TCP"),
     "bench": ("pymb.bench.cli", "benchmark pymb against other Modbus stacks, side by side"),
 }
 

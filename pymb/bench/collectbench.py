@@ -31,7 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pymb.bench.report import Table
+from pymb.bench.table import Table
 from pymb.extras import install_hint
 
 __all__ = ["run_collect", "tables"]

@@ -26,7 +26,7 @@ from pymb.bench.contenders import CONTENDERS, probe
 from pymb.bench.gateworker import DESIGNS
 from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
-from pymb.bench.report import Table, fmt_time
+from pymb.bench.table import Table, fmt_time
 from pymb.child import pymb_argv
 from pymb.client import TcpClient
 from pymb.devices.mapdevice import MapDevice

@@ -13,7 +13,7 @@ from importlib import resources
 from typing import Any
 
 from pymb import maps
-from pymb.bench.report import Table
+from pymb.bench.table import Table
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.store import DeviceInfo, Sample, SqliteSink
 

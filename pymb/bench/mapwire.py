@@ -40,7 +40,7 @@ from typing import Any
 from pymb.bench.options import SEED, SOFTWARE_BAUD, Options
 from pymb.bench.procs import Children
 from pymb.bench.race import _software_devices
-from pymb.bench.report import Table, fmt_time, fmt_x
+from pymb.bench.table import Table, fmt_time, fmt_x
 from pymb.bench.worker import CP_SLAVE, HUB_SLAVE
 
 __all__ = ["ROUNDS_PER_ROUND", "TARGET_X", "run_section", "table", "targets"]

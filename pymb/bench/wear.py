@@ -245,7 +245,7 @@ def _env() -> dict[str, str]:
 
 def table(rows: list[dict[str, Any]]) -> Any:
     """The SD wear rows as a report table."""
-    from pymb.bench.report import Table
+    from pymb.bench.table import Table
     from pymb.logger.config import COMMIT_LONGEST
 
     def syncs(r: dict[str, Any]) -> str:

@@ -7,6 +7,7 @@ import struct
 
 from pymb import maps
 from pymb.bench import mapbench, report
+from pymb.bench.table import fmt_time
 
 
 def test_maps_section_reports_the_one_call_decode() -> None:
@@ -32,4 +33,4 @@ def test_maps_section_reports_the_one_call_decode() -> None:
     result = {"meta": {"plan": {}, "quick": False}, "contenders": [], "maps": section,
               "targets": []}
     table = next(t for t in report.tables(result) if t.title.startswith("Maps"))
-    assert table.rows[0][:2] == ["100", report.fmt_time(section["decode_us"])]
+    assert table.rows[0][:2] == ["100", fmt_time(section["decode_us"])]

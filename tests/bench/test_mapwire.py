@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 
 from pymb.bench import mapwire, report, runner
+from pymb.bench.table import fmt_x
 from pymb.cli import main
 
 
@@ -42,6 +43,6 @@ def test_quick_maps_section_reports_both_pairs_side_by_side(
     table = next(t for t in report.tables(result) if t.title.startswith(
         "Maps over the wire: MapDevice against the dedicated facade"))
     assert [r[0] for r in table.rows] == [what for _, what in mapwire.PAIRS]
-    assert table.rows[0][3] == report.fmt_x(wire["hub"]["cpu_x"])
+    assert table.rows[0][3] == fmt_x(wire["hub"]["cpu_x"])
     assert "Maps over the wire" in report.to_text(result)
     assert "Maps over the wire" in report.to_markdown(result)

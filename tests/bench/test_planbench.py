@@ -4,6 +4,7 @@ map, and the report shows it (the figure itself is the bench's, not a test's).""
 from __future__ import annotations
 
 from pymb.bench import planbench, report
+from pymb.bench.table import fmt_time
 from pymb.maps.planner import Line, plan_points
 
 
@@ -30,5 +31,5 @@ def test_plan_section_reports_the_plan_of_the_synthetic_map() -> None:
               "targets": []}
     table = next(t for t in report.tables(result) if t.title.startswith("Planning"))
     assert table.title == "Planning: the reads of a 1000-point map"
-    assert table.rows[0][:4] == ["1000", report.fmt_time(section["plan_ms"] * 1e3),
+    assert table.rows[0][:4] == ["1000", fmt_time(section["plan_ms"] * 1e3),
                                  str(section["requests"]), str(section["registers"])]

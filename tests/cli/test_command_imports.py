@@ -45,6 +45,7 @@ def test_a_command_that_reads_a_device_loads_no_logger_store_or_fleet(command: s
     ("pymb.store", ("pymb.logger", "pymb.fleet", "pymb.commands", "pymb.sim")),
     ("pymb.logger", ("pymb.fleet", "pymb.commands", "pymb.sim")),
     ("pymb.fleet", ("pymb.logger", "pymb.commands", "pymb.sim")),
+    ("pymb.sim", ("pymb.logger", "pymb.store", "pymb.fleet", "pymb.commands", "pymb.bench")),
 ])
 def test_no_layer_imports_one_above_it(module: str, forbidden: tuple[str, ...]) -> None:
     code = (f"import sys\nimport {module}\n"
