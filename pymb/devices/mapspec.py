@@ -12,7 +12,7 @@ import math
 import os
 import re
 import struct
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 from pymb import maps
@@ -57,10 +57,33 @@ def load_map(path: str) -> Map:
         raise InvalidArgument(f"--map {path}: {e.strerror or e}") from None
 
 
-def map_types(files: Sequence[str] = ()) -> dict[str, Map]:
+class _Known(Mapping[str, Map]):
+    """The maps given, then the shipped ones, each shipped map loaded when
+    first looked up: a command that reads one device does not parse them all."""
+
+    def __init__(self, given: dict[str, Map], shipped: list[str]) -> None:
+        self._given = given
+        self._shipped = [i for i in shipped if i not in given]
+
+    def __getitem__(self, key: str) -> Map:
+        if key in self._given:
+            return self._given[key]
+        if key in self._shipped:
+            return maps.builtin(key)
+        raise KeyError(key)
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._given
+        yield from self._shipped
+
+    def __len__(self) -> int:
+        return len(self._given) + len(self._shipped)
+
+
+def map_types(files: Sequence[str] = ()) -> Mapping[str, Map]:
     """Map id -> map: ``files`` first (a user's map is tried first where
     several would do, as by ``pymb scan``), then the shipped maps except the
-    facades'."""
+    facades' (each loaded when looked up)."""
     shipped = [i for i in maps.builtin_ids() if i not in FACADES]
     given: dict[str, Map] = {}
     paths: dict[str, str] = {}
@@ -78,7 +101,7 @@ def map_types(files: Sequence[str] = ()) -> dict[str, Map]:
                                   f"--map {paths[m.id]}")
         given[m.id] = m
         paths[m.id] = path
-    return {**given, **{i: maps.builtin(i) for i in shipped}}
+    return _Known(given, shipped)
 
 
 @dataclass(frozen=True)

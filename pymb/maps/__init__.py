@@ -66,7 +66,7 @@ def builtin(id: str) -> Map:
     return _builtin(id)
 
 
-@functools.lru_cache(maxsize=32)
+@functools.cache  # a few dozen small, immutable maps
 def _builtin(id: str) -> Map:
     known = builtin_ids()
     if id not in known:

@@ -22,7 +22,7 @@ import math
 import random
 import struct
 from array import array
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
@@ -282,7 +282,7 @@ class MapSimDevice(Device):
                 + (f": {what}" if what else "") + f", {len(self.map.points)} points")
 
 
-def map_sim_device(spec: str, known: dict[str, Map], *, seed: int = 0,
+def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
                    clock: SimClock | None = None, baud: int | None = None) -> MapSimDevice | None:
     """A simulated map device from ``TYPE[:ADDRESS][,key=value...]`` when
     TYPE is a map's id in ``known`` (None otherwise): the map's options, and
