@@ -125,6 +125,9 @@ def test_every_group_plans_within_the_maps_limits(map_id: str) -> None:
         for r in plan:
             limit = lim.max_bits if r.table in ("coil", "discrete") else lim.max_registers
             assert 1 <= r.count <= limit, (map_id, group, r)
+            for table, first, last, most in getattr(lim, "ranges", ()):  # per-range limits
+                if r.table == table and r.address <= last and first < r.address + r.count:
+                    assert r.count <= most, (map_id, group, r, (first, last, most))
             assert r.address + r.count <= 0x10000
             for a in range(r.address, r.address + r.count):
                 inside = any(lo <= a <= hi for lo, hi in lim.readable.get(r.table, ()))
