@@ -29,14 +29,18 @@ from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, map_point_names, quantities
+from pymb.store.commands import WRITE_COLUMNS, export_writes
 from pymb.store.export import WIDE_HEAD
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb export``."""
     p.add_argument("database", help="a database written by pymb log / pymb demo")
-    p.add_argument("--csv", required=True, metavar="OUT",
-                   help="write CSV here ('-' for stdout)")
+    p.add_argument("--csv", metavar="OUT",
+                   help="write CSV here ('-' for stdout; required but with --writes)")
+    p.add_argument("--writes", action="store_true",
+                   help="export the record of writes (the writes view) instead of the samples "
+                        "(to stdout without --csv)")
     p.add_argument("--layout", choices=LAYOUTS, default="long",
                    help="long: a row per value, with its state (default); wide: a row per "
                         "sample, a column per value (QUANTITY, or QUANTITY_CHANNEL for a hub)")
@@ -66,7 +70,8 @@ def _is_pymb_csv(path: str) -> bool:
             first = f.readline().rstrip("\r\n")
     except (OSError, UnicodeDecodeError):
         return False
-    return first == ",".join(CSV_COLUMNS) or first.startswith(",".join(WIDE_HEAD) + ",")
+    return first in (",".join(CSV_COLUMNS), ",".join(WRITE_COLUMNS)) or \
+        first.startswith(",".join(WIDE_HEAD) + ",")
 
 
 def _given_maps(files: list[str]) -> dict[str, Map]:
@@ -95,6 +100,25 @@ def _quantities(spec: str | None, points: list[str]) -> list[str] | None:
 def run(args: argparse.Namespace) -> int:
     """Export; prints how many rows went out."""
     since, until = parse_times(args.since, args.until)
+    if args.writes:
+        others = [f for f, on in (("--layout wide", args.layout != "long"), ("--device",
+                  args.device), ("--channel", args.channel), ("--quantity", args.quantity),
+                  ("--events", args.events), ("--map", args.maps)) if on]
+        if others:
+            raise InvalidArgument(f"--writes exports every write; {others[0]} is for samples")
+        check_database(args.database)
+        args.csv = args.csv or "-"
+        export: Callable[[IO[str]], int] = partial(export_writes, args.database, since=since,
+                                                   until=until)
+    elif args.csv is None:
+        raise InvalidArgument("--csv OUT is required (or --writes for the record of writes)")
+    else:
+        export = _samples(args, since, until)
+    return _out(args, export)
+
+
+def _samples(args: argparse.Namespace, since: float | None,
+             until: float | None) -> Callable[[IO[str]], int]:
     channels = None if args.channel is None else parse_channels(args.channel, HUB.channels,
                                                                "--channel")
     given = _given_maps(args.maps)
@@ -104,9 +128,12 @@ def run(args: argparse.Namespace) -> int:
     wanted = _quantities(args.quantity, map_point_names(args.database, given)
                          if args.quantity is not None else [])
     device = device_name(args.database, args.device) if args.device is not None else None
-    export = partial(export_csv, args.database, device=device, since=since, until=until,
-                     channels=channels, quantities=wanted, events=args.events,
-                     layout=args.layout, maps=given)
+    return partial(export_csv, args.database, device=device, since=since, until=until,
+                   channels=channels, quantities=wanted, events=args.events,
+                   layout=args.layout, maps=given)
+
+
+def _out(args: argparse.Namespace, export: Callable[[IO[str]], int]) -> int:
     if args.csv == "-":
         export(sys.stdout)
         return 0

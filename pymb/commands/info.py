@@ -102,6 +102,9 @@ def text(s: Summary, now: float | None = None) -> str:
     lines += [f"  faults      {_counts(s.faults)}",
               f"  events      {_counts(other)} (not faults)",
               f"  size        {_size(s.size)} database, {_size(s.wal)} WAL"]
+    if s.writes != (0, 0):
+        lines.append(f"  writes      {s.writes[0]:,} point(s) applied, {s.writes[1]:,} refused "
+                     "or failed (pymb export --writes)")
     if s.backlog:
         lines += [f"  forwarder   {name}: {n:,} sample(s) not yet sent"
                   for name, n in s.backlog.items()]
@@ -124,6 +127,7 @@ def as_json(s: Summary, now: float | None = None) -> dict[str, Any]:
                     for d in s.devices],
         "faults": s.faults, "events": s.events, "size_bytes": s.size, "wal_bytes": s.wal,
         "backlog": s.backlog,
+        "writes": {"applied": s.writes[0], "refused": s.writes[1]},
     }
 
 

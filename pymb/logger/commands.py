@@ -207,8 +207,13 @@ class CommandDesk(threading.Thread):
             changes = check(m, [(n, None, v) for n, v in values.items()])
         except InvalidArgument as e:
             raise _Refused(reason_of(e), str(e)) from None
-        dev = t.device()
-        if dev is None or t.offline():
+        if t.offline():
+            raise _Refused("device", f"{t.name} is offline: nothing was sent")
+        try:
+            dev = t.device()
+        except ModbusError as e:
+            raise _Refused("device", str(e)) from None
+        if dev is None:
             raise _Refused("device", f"{t.name} is offline: nothing was sent")
         key = f"{m.id}:{dev.address}"
         for c in changes:

@@ -57,6 +57,8 @@ def _looped(u: Unit, client: TcpClient, lock: threading.Lock, budget: Budget) ->
 
     def device() -> MapDevice:
         with lock:
+            if not client.connected:  # the first command, or after a failed one
+                client.connect()
             if not made:
                 made.append(MapDevice(client, u.config.map, u.config.address, budget=budget))
             return made[0]

@@ -9,14 +9,20 @@ these: a command id is kept for :data:`KEEP_DAYS` days, then forgotten.
 
 from __future__ import annotations
 
+import csv
 import json
 import sqlite3
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import IO, Any
 
-__all__ = ["KEEP_DAYS", "CommandLog", "PointRow", "ensure", "write_counts"]
+__all__ = ["KEEP_DAYS", "WRITE_COLUMNS", "CommandLog", "PointRow", "ensure", "export_writes",
+           "write_counts"]
+
+#: the columns of the writes view (and of ``pymb export --writes``)
+WRITE_COLUMNS = ("time", "source", "command_id", "device", "point", "requested", "before",
+                 "after", "ok", "reason")
 
 KEEP_DAYS = 30  #: days a command id (and its result) is kept; the contract asks for 7
 
@@ -69,6 +75,31 @@ def write_counts(db: sqlite3.Connection) -> tuple[int, int]:
     except sqlite3.OperationalError:  # no such table: no writes
         return 0, 0
     return int(row[0]), int(row[1])
+
+
+def export_writes(path: str, out: IO[str], *, since: float | None = None,
+                  until: float | None = None) -> int:
+    """The ``writes`` view of the database at ``path`` as CSV on ``out``
+    (a header, then a row per point of each command); returns the rows."""
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(WRITE_COLUMNS)
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        try:
+            rows = db.execute(
+                "SELECT strftime('%Y-%m-%dT%H:%M:%fZ', time_utc, 'unixepoch'), source, "
+                "command_id, device, point, requested, before, after, ok, reason "
+                "FROM write_points WHERE time_utc >= ? AND time_utc < ? ORDER BY id",
+                (-1e18 if since is None else since, 1e18 if until is None else until))
+        except sqlite3.OperationalError:  # no such table: never took a command
+            return 0
+        n = 0
+        for row in rows:
+            w.writerow(["" if v is None else v for v in row])
+            n += 1
+        return n
+    finally:
+        db.close()
 
 
 def _text(v: object) -> str | None:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pymb.errors import InvalidArgument, ModbusError
+from pymb.store.commands import write_counts
 from pymb.store.lock import writer_of
 from pymb.store.reader import stored_map
 from pymb.store.readonly import open_readonly
@@ -57,6 +58,8 @@ class Summary:
     backlog: dict[str, int] = field(default_factory=dict)  #: forwarder: samples not yet sent
     #: the process writing the database now (``pymb log, PID 1234``), or None
     writer: str | None = None
+    #: points of write commands (applied, refused or failed); (0, 0): none
+    writes: tuple[int, int] = (0, 0)
 
 
 def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
@@ -141,7 +144,7 @@ def _summarize(con: sqlite3.Connection, path: str) -> Summary:
         devices=devs, samples=sum(d.samples for d in devs), first=first, last=last,
         faults={k: n for k, n in events.items() if k in FAULT_KINDS}, events=events,
         size=os.path.getsize(path), wal=wal.stat().st_size if wal.exists() else 0,
-        backlog=backlog, writer=writer_of(path))
+        backlog=backlog, writer=writer_of(path), writes=write_counts(con))
 
 
 def _map_groups(con: sqlite3.Connection, kind: str) -> list[str]:

@@ -13,14 +13,18 @@ import signal
 import sqlite3
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import PYMB, PYMB_ENV
+from conftest import PYMB, PYMB_ENV, run_pymb, wait_until
 from mqtt_broker import Fleet, Subscriber, fleet, mosquitto  # noqa: F401 (fixtures)
+from wire_peers import pymodbus_server
 from write_peers import WRITE_MAP, FreezingPtyPeer
+
+import pymb
 
 paho = pytest.importorskip("paho.mqtt.client")
 
@@ -47,10 +51,11 @@ def map_file(tmp_path: Path) -> Path:
     return path
 
 
-def start(fleet: Fleet, broker: Any, peer: FreezingPtyPeer, map_file: Path,  # noqa: F811
-          db: Path) -> subprocess.Popen[str]:
+def start(fleet: Fleet, broker: Any, peer: FreezingPtyPeer | None, map_file: Path,  # noqa: F811
+          db: Path, *line: str) -> subprocess.Popen[str]:
+    where = line or ("--port", peer.port if peer else "", "--baud", "19200")
     proc = subprocess.Popen(
-        [*PYMB, "log", "--map", str(map_file), "--port", peer.port, "--baud", "19200",
+        [*PYMB, "log", "--map", str(map_file), *where,
          "--device", "wdev:1,name=psu-a", "--interval", "0.2", "--out", str(db),
          "--mqtt", f"mqtt://127.0.0.1:{broker.port}", "--mqtt-node", "n1",
          "--allow-writes", "psu-a/setpoint_hz", "--allow-writes", "psu-a/mode",
@@ -110,10 +115,10 @@ def rows(db: Path) -> list[tuple[Any, ...]]:
         con.close()
 
 
-def stop(proc: subprocess.Popen[str]) -> str:
+def stop(proc: subprocess.Popen[str], code: int = 0) -> str:
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
+    assert proc.returncode == code, err
     return err
 
 
@@ -178,6 +183,16 @@ def test_set_result_refusals_once_per_id_and_the_record(fleet: Fleet, peer: Free
     assert got[1] == ("mqtt", "c-1", "psu-a", "mode", '"run"', '"stop"', '"run"', 1, None)
     assert ("mqtt", "c-2", "psu-a", "setpoint_hz", "70", None, None, 0, "range") in got
     assert [r[1] for r in got].count("c-1") == 2  # the repeat is no new row
+    exported = run_pymb("export", "--writes", str(db))
+    assert exported.returncode == 0, exported.stderr
+    lines = exported.stdout.splitlines()
+    assert lines[0] == "time,source,command_id,device,point,requested,before,after,ok,reason"
+    assert len(lines) == 1 + len(got)
+    assert lines[1].endswith(",mqtt,c-1,psu-a,setpoint_hz,49.5,50.0,49.5,1,")
+    applied = sum(r[7] for r in got)
+    info = run_pymb("info", str(db))
+    assert f"writes      {applied} point(s) applied, {len(got) - applied} refused or failed" \
+        in info.stdout
 
     # once per id across a restart of the logger
     proc = start(fleet, broker, peer, map_file, db)
@@ -226,3 +241,57 @@ def test_sigkill_between_the_write_and_its_result_never_writes_twice(
     finally:
         cmd.close()
     stop(proc)
+
+
+def test_a_device_on_the_tcp_loop_against_pymodbus(fleet: Fleet, map_file: Path,  # noqa: F811
+                                                   tmp_path: Path) -> None:
+    pytest.importorskip("pymodbus")
+    broker = fleet.broker()
+    with pymodbus_server("tcp") as port:
+        proc = start(fleet, broker, None, map_file, tmp_path / "log.sqlite",
+                     "--tcp", f"127.0.0.1:{port}")
+        cmd = Commander(fleet, broker)
+        try:
+            r = cmd.send({"id": "t-1", "values": {"setpoint_hz": 49.5, "relay_5": True}})
+            assert (r["ok"], r["values"]) == (True, {"setpoint_hz": 49.5, "relay_5": True}), r
+            with pymb.TcpClient("127.0.0.1", port, timeout=2.0) as c:
+                assert list(c.read_holding_registers(10, 1, slave=1)) == [4950]
+                assert c.read_holding_registers(20, 1, slave=1)[0] == (7 * 20) | 0x20
+        finally:
+            cmd.close()
+        stop(proc)
+
+
+def test_an_offline_device_fails_fast_with_reason_device(fleet: Fleet,  # noqa: F811
+                                                         map_file: Path,
+                                                         tmp_path: Path) -> None:
+    broker = fleet.broker()
+    with FreezingPtyPeer(slaves={1}) as peer:
+        proc = subprocess.Popen(
+            [*PYMB, "log", "--map", str(map_file), "--port", peer.port, "--timeout", "0.2",
+             "--device", "wdev:1,name=psu-a", "--device", "wdev:2,name=dead",
+             "--interval", "0.2", "--out", str(tmp_path / "log.sqlite"),
+             "--mqtt", f"mqtt://127.0.0.1:{broker.port}", "--mqtt-node", "n1",
+             "--allow-writes", "*/setpoint_hz", "--quiet"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=PYMB_ENV)
+        fleet.children.append(proc)
+        cmd = Commander(fleet, broker)
+        dead = fleet.subscribe(broker, "pymb/n1/dead/set/result", client_id="pymb-test-dead")
+        try:
+            assert cmd.send({"id": "o-0", "values": {"setpoint_hz": 50}})["ok"]  # subscribed
+            # the dead unit misses offline_after (3) polls and is backed off
+            wait_until(lambda: sum(1 for s, _ in list(peer.requests) if s == 2) >= 3,
+                       "three polls of the dead unit", 30)
+            time.sleep(1.0)
+            t0 = time.monotonic()
+            cmd.client.publish("pymb/n1/dead/set", json.dumps(
+                {"id": "o-1", "values": {"setpoint_hz": 50}}), qos=1).wait_for_publish(5)
+            dead.wait_until(lambda m: m, 30, "the dead unit's result")
+            took = time.monotonic() - t0
+            r = json.loads(dead.snapshot()[0][1])
+            assert (r["id"], r["ok"], r["reason"]) == ("o-1", False, "device")
+            assert took < 5.0
+            assert not [p for s, p in list(peer.requests) if s == 2 and p[0] in WRITES]
+        finally:
+            cmd.close()
+        stop(proc, 3)  # exit 3: a device delivered no sample
