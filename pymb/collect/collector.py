@@ -2,10 +2,11 @@
 
 paho's thread only queues what arrives (``manual_ack``: paho sends no PUBACK
 by itself). The collector's thread takes what is queued (at most
-:data:`MAX_BATCH` messages), turns it into rows, writes them in one
-transaction and, once it is committed, acknowledges the batch's QoS 1
-messages. While the database cannot be reached the batch is held and
-written again (backing off from 0.5 s to 10 s); the broker sends no more than
+:data:`MAX_BATCH` messages), turns it into rows and hands them to a writer
+(:mod:`pymb.collect.writers`), which writes them in one transaction; once it
+is committed, and every batch before it, the collector's thread acknowledges
+the batch's QoS 1 messages. While the database cannot be reached the batch is
+held and written again (backing off from 0.5 s to 10 s); the broker sends no more than
 :data:`RECEIVE_MAXIMUM` unacknowledged messages meanwhile and keeps the rest
 in the collector's persistent session (MQTT 5, session expiry
 :data:`SESSION_EXPIRY`). A message that arrived on an earlier connection is
@@ -20,13 +21,14 @@ import socket
 import ssl
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymb.collect.rows import BadInput, Row, plain_rows, plain_topic
 from pymb.collect.sparkplug import SparkplugHost, state_payload
-from pymb.collect.sqlstore import Store, StoreDown
+from pymb.collect.sqlstore import Store
+from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import MqttConfig
 
@@ -37,7 +39,6 @@ MAX_BATCH = 2000  #: messages written in one transaction, at most
 RECEIVE_MAXIMUM = 20000  #: unacknowledged messages the broker may send (MQTT 5)
 SESSION_EXPIRY = 7 * 86400  #: seconds the broker keeps the session of a stopped collector
 BAD_EVERY = 60.0  #: seconds: a topic's bad input is reported at most this often
-_BACKOFF = (0.5, 10.0)
 
 
 @dataclass
@@ -94,20 +95,22 @@ class Stats:
 
 
 class Collector:
-    """One collector: ``run()`` until ``stop`` is set; ``event(text)`` reports."""
+    """One collector: ``run()`` until ``stop`` is set; ``event(text)`` reports.
+    ``stores``: one connection per writer (several for PostgreSQL)."""
 
-    def __init__(self, cfg: CollectConfig, store: Store, event: Callable[[str], None]) -> None:
+    def __init__(self, cfg: CollectConfig, stores: Sequence[Store],
+                 event: Callable[[str], None]) -> None:
         import paho.mqtt.client as mqtt  # the extra pymb-modbus[collect]
         from paho.mqtt.enums import CallbackAPIVersion
         from paho.mqtt.packettypes import PacketTypes
         from paho.mqtt.properties import Properties
 
         self.cfg = cfg
-        self.store = store
         self.event = event
         self.stats = Stats()
         self.stop = threading.Event()
-        self.inbox: queue.SimpleQueue[tuple[int, int, int, str, bytes]] = queue.SimpleQueue()
+        self.writers = Writers(stores, self.stop, event)
+        self.inbox: queue.SimpleQueue[Message] = queue.SimpleQueue()
         self.generation = 0  #: counts connections; a message remembers its own
         self.connack = threading.Event()
         self.refused: str | None = None
@@ -179,7 +182,7 @@ class Collector:
         self.event(f"connected to {m.url} as {self.cfg.client_id}, subscribed to "
                    f"{self.cfg.topic}")
 
-    def _take(self) -> list[tuple[int, int, int, str, bytes]]:
+    def _take(self) -> list[Message]:
         try:
             first = self.inbox.get(timeout=0.2)
         except queue.Empty:
@@ -208,54 +211,46 @@ class Collector:
             self._bad(topic, str(e))
             return None
 
-    def _write(self, rows: list[Row]) -> bool:
-        """Write until committed (True), or False when stopped while the database
-        cannot be reached."""
-        delay = _BACKOFF[0]
-        while True:
-            try:
-                n = self.store.write(rows) if rows else 0
-            except StoreDown as e:
-                if self.stats.db_ok:
-                    self.event(f"the database cannot take the batch ({e}); holding "
-                               "its messages unacknowledged and trying again")
-                self.stats.db_ok = False
-                if self.stop.wait(delay):
-                    return False
-                delay = min(delay * 2, _BACKOFF[1])
+    def _finish(self) -> bool:
+        """Acknowledge the batches committed, in order; True when there was one."""
+        any_done = False
+        gen = self.generation
+        s = self.stats
+        for job in self.writers.finished():
+            any_done = True
+            if job.stored is None:  # given up at a stop: the broker sends it again
                 continue
-            if not self.stats.db_ok:
-                self.event(f"the database takes rows again ({self.store.target})")
-                self.stats.db_ok = True
-            self.stats.rows += n
-            self.stats.duplicates += len(rows) - n
-            return True
+            for g, mid, qos, _topic, _payload in job.messages:
+                if qos and g == gen:
+                    self.client.ack(mid, qos)
+            s.messages += len(job.messages)
+            s.rows += job.stored
+            s.duplicates += len(job.rows) - job.stored
+            s.batches += 1
+            if job.newest is not None:
+                s.lag = time.time() - job.newest
+        s.db_ok = self.writers.db_ok
+        return any_done
 
     def step(self) -> bool:
-        """Take, write and acknowledge one batch; False when there was none (or it
-        could not be written before a stop)."""
+        """Acknowledge what was committed; take a batch, make its rows and hand
+        them to a writer. False when nothing happened."""
+        done = self._finish()
+        if self.writers.full():
+            self.writers.wait(0.2)
+            return self._finish() or done
         batch = self._take()
         if not batch:
-            return False
+            return done
         rows: list[Row] = []
-        newest: list[float] = []
+        newest: float | None = None
         for _gen, _mid, _qos, topic, payload in batch:
             got = self._rows(topic, payload)
             if got:
                 rows.extend(got)
-                newest.append(max(r[3] for r in got))
-        if not self._write(rows):
-            return False
-        now = time.time()
-        gen = self.generation
-        for g, mid, qos, _topic, _payload in batch:
-            if qos and g == gen:
-                self.client.ack(mid, qos)
-        s = self.stats
-        s.messages += len(batch)
-        s.batches += 1
-        if newest:
-            s.lag = now - max(newest)
+                t = max(r[3] for r in got)
+                newest = t if newest is None or t > newest else newest
+        self.writers.submit(Job(batch, rows, newest))
         return True
 
     def run(self, tick: Callable[[], None] | None = None) -> Stats:
@@ -267,7 +262,11 @@ class Collector:
                 self.step()
                 if tick is not None:
                     tick()
+            self.writers.drain()  # the batches in hand: committed, or given up
+            self._finish()
         finally:
+            self.stop.set()
+            self.writers.close()
             self.close()
         return self.stats
 

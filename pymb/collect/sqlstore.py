@@ -22,7 +22,12 @@ from pymb.collect.rows import Row
 from pymb.errors import InvalidArgument, ModbusConnectionError, OutputError
 from pymb.extras import install_hint
 
-__all__ = ["PostgresStore", "SqliteStore", "Store", "StoreDown", "StoreRefused", "open_store"]
+__all__ = ["PG_WRITERS", "PostgresStore", "SqliteStore", "Store", "StoreDown", "StoreRefused",
+           "open_store", "open_stores"]
+
+#: connections (writer threads) of a collector into PostgreSQL, which takes
+#: several transactions at once; a SQLite file has one writer
+PG_WRITERS = 3
 
 
 class StoreDown(ModbusConnectionError):
@@ -60,7 +65,8 @@ CREATE OR REPLACE VIEW pymb_latest AS
     FROM pymb_values ORDER BY node, device, point, time DESC
 """
 #: the batch's rows go first into this (times as Unix seconds), then into
-#: pymb_values in one INSERT that skips what is stored already
+#: pymb_values in one INSERT that skips what is stored already, in key order:
+#: writers inserting the same keys at once wait for each other, never deadlock
 PG_INCOMING = """
 CREATE TEMP TABLE IF NOT EXISTS pymb_incoming (
     node text, device text, point text, time double precision, value double precision,
@@ -69,7 +75,7 @@ CREATE TEMP TABLE IF NOT EXISTS pymb_incoming (
 PG_MOVE = """
 INSERT INTO pymb_values (node, device, point, time, value, text, state, sample, received)
 SELECT node, device, point, to_timestamp(time), value, text, state, sample, to_timestamp(%s)
-FROM pymb_incoming ON CONFLICT DO NOTHING
+FROM pymb_incoming ORDER BY node, device, point, time ON CONFLICT DO NOTHING
 """
 #: serialises the schema's creation between collectors starting together
 PG_LOCK = 0x70796D62  # "pymb"
@@ -260,3 +266,17 @@ def is_postgres(target: str) -> bool:
 def open_store(target: str) -> Store:
     """The store ``target`` names: a PostgreSQL URL, else a SQLite file."""
     return PostgresStore(target) if is_postgres(target) else SqliteStore(target)
+
+
+def open_stores(target: str) -> list[Store]:
+    """One store per writer: :data:`PG_WRITERS` connections to PostgreSQL, one
+    SQLite file."""
+    stores = [open_store(target)]
+    try:
+        if is_postgres(target):
+            stores += [PostgresStore(target) for _ in range(PG_WRITERS - 1)]
+    except BaseException:
+        for s in stores:
+            s.close()
+        raise
+    return stores

@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
         raise InvalidArgument(f"pymb collect needs paho-mqtt: {install_hint('collect')}") from None
-    from pymb.collect import CollectConfig, Collector, open_store
+    from pymb.collect import CollectConfig, Collector
+    from pymb.collect.sqlstore import open_stores
 
     mqtt = MqttConfig(url=args.mqtt, node="collector", prefix=args.prefix, group=args.group,
                       user=args.mqtt_user, password_file=args.mqtt_password_file,
@@ -104,9 +105,10 @@ def run(args: argparse.Namespace) -> int:
     cfg = CollectConfig(mqtt=mqtt, out=args.out, profile=args.profile, share=args.share,
                         host_id=args.host_id or "", client_id=args.client_id or "")
     out = _Output(sys.stderr, args.quiet)
-    store = open_store(cfg.out)
+    stores = open_stores(cfg.out)
+    target = stores[0].target
     try:
-        col = Collector(cfg, store, out.event)
+        col = Collector(cfg, stores, out.event)
         stopping = col.stop
 
         def on_signal(signum: int, frame: Any) -> None:
@@ -132,12 +134,13 @@ def run(args: argparse.Namespace) -> int:
             for s, h in old.items():
                 signal.signal(s, h)
     finally:
-        store.close()
+        for store in stores:
+            store.close()
     if out.status:
         out.out.write("\n")
     if not args.quiet:
         el = time.monotonic() - started
         print(f"pymb collect: {st.messages:,} messages, {st.rows:,} rows stored "
               f"({st.duplicates:,} already stored), {st.bad:,} bad, in {el:.1f} s "
-              f"into {store.target}", file=sys.stderr)
+              f"into {target}", file=sys.stderr)
     return 0
