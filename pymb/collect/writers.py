@@ -58,8 +58,8 @@ class Writers:
             t.start()
 
     def full(self) -> bool:
-        """Every writer has a job."""
-        return len(self.pending) >= len(self.stores)
+        """Every writer has a job and one more waits (parsed while they write)."""
+        return len(self.pending) > len(self.stores)
 
     def submit(self, job: Job) -> None:
         """Hand a job to the next free writer."""
