@@ -161,14 +161,14 @@ def _pct(xs: list[float], q: float) -> float | None:
 
 
 def _scenario(make: Callable[[], Any], sub: _Subscriber, n: int, rate: float | None,
-              broker: Any, quiet: float) -> dict[str, Any]:
+              broker: Any, quiet: float, outage_s: float = OUTAGE_S) -> dict[str, Any]:
     """Produce n samples (ids 1..n) at ``rate`` (None: as fast as possible); with
-    ``broker``, stop it for OUTAGE_S from a third of the run."""
+    ``broker``, stop it for ``outage_s`` from a third of the run."""
     pub = make()
     t0 = time.monotonic()
     outage: tuple[float, float] | None = None
     if broker is not None and rate:
-        outage = (t0 + n / rate / 3, t0 + n / rate / 3 + OUTAGE_S)
+        outage = (t0 + n / rate / 3, t0 + n / rate / 3 + outage_s)
     down = False
     for i in range(1, n + 1):
         if rate:
@@ -214,8 +214,11 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
         return {"status": "skipped", "reason": "mosquitto is not installed"}
     n_burst = 1000 if quick else 20000
     n_live = int(RATE * (1 if quick else 5))
-    n_outage = int(RATE * (7.5 if quick else 12))
-    quiet = 5.0 if quick else 8.0
+    # --quick: a 1 s outage, pymb's publisher only (the bridges lose samples by
+    # design; waiting out their silence costs most of the section), to fit its budget
+    outage_s = 1.0 if quick else OUTAGE_S
+    n_outage = int(RATE * (3 if quick else 12))
+    quiet = 2.0 if quick else 8.0
     repeats = 1 if quick else 3  #: burst runs per publisher; the median is reported
     rows = []
     with tempfile.TemporaryDirectory(prefix="pymb-bench-fleet-") as tmp:
@@ -228,7 +231,8 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
                 row: dict[str, Any] = {"label": label, "qos": qos}
                 bursts: list[float] = []
                 runs = [("burst", n_burst, None, False)] * repeats + [
-                    ("live", n_live, RATE, False), ("outage", n_outage, RATE, True)]
+                    ("live", n_live, RATE, False)] + (
+                    [("outage", n_outage, RATE, True)] if kind == "pymb" or not quick else [])
                 for k, (what, n, rate, outage) in enumerate(runs):
                     say(f"fleet: {label}, {what} ({n} samples)")
                     topic = f"bench/{kind}{qos}/{what}{k}"
@@ -244,7 +248,8 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
                     sub = _Subscriber(mqtt, broker.port, sub_topic, f"bench-sub-{kind}{qos}"
                                       f"-{what}{k}")
                     try:
-                        r = _scenario(make, sub, n, rate, broker if outage else None, quiet)
+                        r = _scenario(make, sub, n, rate, broker if outage else None, quiet,
+                                      outage_s)
                     finally:
                         sub.close()
                     if what == "burst":
@@ -261,6 +266,6 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
                 rows.append(row)
         finally:
             broker.stop()
-    return {"status": "ok", "rate": RATE, "outage_s": OUTAGE_S, "burst": n_burst,
+    return {"status": "ok", "rate": RATE, "outage_s": outage_s, "burst": n_burst,
             "repeats": repeats,
             "live": n_live, "outage_samples": n_outage, "rows": rows}

@@ -197,11 +197,25 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str, Any]:
     """The bench's ``logger`` section: the worker against two simulators
     (a hub, a CoolPro; 115200 set, no wire emulation), then the layouts."""
-    from pymb.bench import layouts
+    from pymb.bench import layouts, wear
     from pymb.bench.procs import Child, ChildError
 
     plan = opts.plan
-    rounds, seconds = (3, 1.0) if opts.quick else (max(5, min(plan.rounds, 9)), 3.0)
+    rounds, seconds = (1, 0.5) if opts.quick else (max(5, min(plan.rounds, 9)), 3.0)
+    # --quick: the SD wear runs (processes of their own, mostly waiting out their
+    # seconds) go on beside the rest of the section, to fit its budget
+    wear_rows: list[dict[str, Any]] = []
+    failed: list[BaseException] = []
+
+    def wear_runs() -> None:
+        try:
+            wear_rows.extend(wear.run_wear(opts, children))
+        except BaseException as e:  # handed to the section's thread
+            failed.append(e)
+
+    side = threading.Thread(target=wear_runs, name="pymb-bench-wear", daemon=True)
+    if opts.quick:
+        side.start()
     opts.say("logger: starting the simulators")
     sims = children.sims([["hub:1,dynamic=0,baud=115200", "--seed", "0"],
                           ["coolpro:40,gap=0,baud=115200"]])
@@ -217,7 +231,7 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
             opts.say(f"logger: {kind}{extra}, {rounds} pairs of {seconds:g} s")
             runs[kind + extra.replace(" ", "_")] = json.loads(
                 worker.ask(f"run {kind} {rounds} {seconds}{extra}", 120.0 + 4 * rounds * seconds))
-        span_s, heartbeat = (8.0, 4.0) if opts.quick else (60.0, 10.0)
+        span_s, heartbeat = (2.0, 1.0) if opts.quick else (60.0, 10.0)
         opts.say("logger: a hub on a line emulated at 115200, for --on-change")
         (wired,) = children.sims([["hub:1,dynamic=0", "--baud", "115200", "--seed", "0"]])
         spans = {}
@@ -231,12 +245,18 @@ def run_section(opts: Any, children: Any, hub_registers: array[int]) -> dict[str
         children.stop(worker)
         for s in sims:
             children.stop(s)
-        n = 600 if opts.quick else 3000
+        n = 200 if opts.quick else 3000
         layout_rows = layouts.compare(hub_registers, where, n, opts.say)
         from pymb.bench import mapbytes
-        map_rows = mapbytes.compare(where, 200 if opts.quick else 2000, opts.say)
-    from pymb.bench import wear
-    wear_rows = wear.run_wear(opts, children)
+        map_rows = mapbytes.compare(where, 100 if opts.quick else 2000, opts.say)
+    if opts.quick:
+        side.join()
+        if failed:
+            raise failed[0]
+    else:
+        wear_runs()
+        if failed:
+            raise failed[0]
     full = runs["hub"]["bytes_per_sample"]
     for sp in spans.values():
         sp["saving"] = 1 - sp["bytes_per_sample"] / full if full else None

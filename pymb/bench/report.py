@@ -190,7 +190,8 @@ def _fleet_table(fleet: dict[str, Any]) -> Table:
         [[r["label"],
           "-" if r.get("throughput_per_s") is None else f"{r['throughput_per_s']:,.0f}/s",
           ms(r.get("latency_p50_ms")), ms(r.get("latency_p95_ms")),
-          f"{r['outage_lost']:,} of {r['outage_sent']:,}", f"{r['outage_duplicates']:,}"]
+          f"{r['outage_lost']:,} of {r['outage_sent']:,}" if "outage_sent" in r else "-",
+          f"{r['outage_duplicates']:,}" if "outage_sent" in r else "-"]
          for r in fleet["rows"]],
         [False, True, True, True, True, True], [])
 
@@ -334,12 +335,16 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
 
 def _header(result: dict[str, Any]) -> list[tuple[str, str]]:
     m = result["meta"]
+    took, budget = m.get("section_seconds") or {}, m.get("quick_budget") or {}
+    over = [k for k, s in took.items() if m.get("quick") and s > budget.get(k, s)]
     return [
         ("date", m["date"]),
         ("machine", f"{m['cpu']}, {m['cores']} cores, {m['platform']}"),
         ("software", f"{m['python']}, libmodbus {m['libmodbus']}, pymb {m['pymb']}"),
         ("command", m["command"]),
-    ]
+    ] + ([("sections", ", ".join(f"{k} {s:.1f} s" for k, s in took.items())
+           + f" ({sum(took.values()):.0f} s" + (f"; over the quick budget: {', '.join(over)}"
+                                                 if over else "") + ")")] if took else [])
 
 
 _QUICK = ("--quick: a smoke test of few rounds and short runs; its figures are indicative, "

@@ -55,6 +55,7 @@ import random
 import statistics
 import sys
 import tempfile
+import time
 import timeit
 from collections.abc import Callable
 from typing import Any
@@ -64,6 +65,7 @@ from pymb import _native
 from pymb.bench import logbench, mapbench, mapwire, planbench, pure
 from pymb.bench.options import (
     BUSES,
+    QUICK_BUDGET,
     SECTIONS,
     SEED,
     SOFTWARE_BAUD,
@@ -170,7 +172,9 @@ def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any
     setups = [(9600, plan.rounds_9600, 1, False),
               (115200, plan.wire_rounds, plan.sweeps_115200, True)]
     for baud, rounds, n, telemetry in setups:
-        entries = lineup.entries(("pymb", "c"))
+        # --quick: pymb alone at 9600 (a sweep there takes 1.6 s of wire, the
+        # C program's is the same wire), to fit its budget
+        entries = lineup.entries(("pymb",) if opts.quick and baud == 9600 else ("pymb", "c"))
         runnable = [e for e in entries if e.status == "ok"]
         devices = [f"hub:{HUB_SLAVE},dynamic=0"] + ([f"coolpro:{CP_SLAVE}"] if telemetry else [])
         opts.say(f"wire: {baud} baud, {len(runnable)} contenders")
@@ -271,6 +275,8 @@ def meta(opts: Options) -> dict[str, Any]:
         "quick": opts.quick,
         "sections": list(opts.sections),
         "plan": opts.plan.__dict__,
+        "section_seconds": {},  #: what each section run took, in the order run
+        "quick_budget": {k: QUICK_BUDGET[k] for k in opts.sections if k in QUICK_BUDGET},
     }
 
 
@@ -339,8 +345,41 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+def _run_maps(opts: Options, children: Children) -> dict[str, Any]:
+    out = mapbench.run_section(opts.plan.micro_repeat, opts.say)
+    out["wire"] = mapwire.run_section(opts, children)
+    return out
+
+
+def _run_aio(opts: Options, children: Children, lineup: Lineup) -> dict[str, Any]:
+    from pymb.bench import aiobench
+    return aiobench.run_section(opts, children, lineup.ref, _software_devices())
+
+
+def _run_fleet(opts: Options) -> dict[str, Any]:
+    from pymb.bench.fleet import run_fleet
+    return run_fleet(opts.quick, opts.say)
+
+
+def _run_collect(opts: Options) -> dict[str, Any]:
+    from pymb.bench.collectbench import run_collect
+    return run_collect(opts.quick, opts.say)
+
+
+def _run_gateway(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
+    from pymb.bench import gatebench
+    return gatebench.run_section(opts, children, tmp)
+
+
+def _run_soak(opts: Options) -> dict[str, Any]:
+    from pymb.bench import soak
+    return soak.run_section(60.0 if opts.quick else None, opts.say)
+
+
 def run(opts: Options) -> dict[str, Any]:
-    """Run the chosen sections; returns the result (JSON-able)."""
+    """Run the chosen sections, timing each (``meta.section_seconds``, against
+    :data:`~pymb.bench.options.QUICK_BUDGET` with ``--quick``); returns the
+    result (JSON-able)."""
     result: dict[str, Any] = {"meta": meta(opts)}
     pymb_in = "pymb" in opts.only
     with tempfile.TemporaryDirectory(prefix="pymb-bench-") as tmp, Children() as children:
@@ -350,37 +389,27 @@ def run(opts: Options) -> dict[str, Any]:
              "status": e.status, "reason": e.reason, "how": e.contender.how}
             for e in lineup.entries()]
         result["c_warnings"] = lineup.c_warnings
-        if "micro" in opts.sections and pymb_in:
-            result["micro"] = run_micro(opts)
-        if "plan" in opts.sections and pymb_in:
-            result["plan"] = planbench.run_section(opts.plan.micro_repeat, opts.say)
-        if "maps" in opts.sections and pymb_in:
-            result["maps"] = mapbench.run_section(opts.plan.micro_repeat, opts.say)
-            result["maps"]["wire"] = mapwire.run_section(opts, children)
-        if "sweep" in opts.sections:
-            result["sweep"] = run_sweep(opts, lineup, children)
-        if "wire" in opts.sections and ("pymb" in opts.only or "c" in opts.only):
-            result["wire"] = run_wire(opts, lineup, children)
-        if "scaling" in opts.sections and pymb_in:
-            result["scaling"] = run_scaling(opts, children)
-        if "aio" in opts.sections and pymb_in:
-            from pymb.bench import aiobench
-            result["aio"] = aiobench.run_section(opts, children, lineup.ref,
-                                                 _software_devices())
-        if "fleet" in opts.sections and pymb_in:
-            from pymb.bench.fleet import run_fleet
-            result["fleet"] = run_fleet(opts.quick, opts.say)
-        if "collect" in opts.sections and pymb_in:
-            from pymb.bench.collectbench import run_collect
-            result["collect"] = run_collect(opts.quick, opts.say)
-        if "logger" in opts.sections and pymb_in:
-            result["logger"] = logbench.run_section(opts, children, hub_registers())
-        if "gateway" in opts.sections and pymb_in:
-            from pymb.bench import gatebench
-            result["gateway"] = gatebench.run_section(opts, children, tmp)
-        if "soak" in opts.sections and pymb_in:
-            from pymb.bench import soak
-            result["soak"] = soak.run_section(60.0 if opts.quick else None, opts.say)
+        c_in = "c" in opts.only
+        steps: list[tuple[str, bool, Callable[[], Any]]] = [
+            ("micro", pymb_in, lambda: run_micro(opts)),
+            ("plan", pymb_in, lambda: planbench.run_section(opts.plan.micro_repeat, opts.say)),
+            ("maps", pymb_in, lambda: _run_maps(opts, children)),
+            ("sweep", True, lambda: run_sweep(opts, lineup, children)),
+            ("wire", pymb_in or c_in, lambda: run_wire(opts, lineup, children)),
+            ("scaling", pymb_in, lambda: run_scaling(opts, children)),
+            ("aio", pymb_in, lambda: _run_aio(opts, children, lineup)),
+            ("fleet", pymb_in, lambda: _run_fleet(opts)),
+            ("collect", pymb_in, lambda: _run_collect(opts)),
+            ("logger", pymb_in, lambda: logbench.run_section(opts, children, hub_registers())),
+            ("gateway", pymb_in, lambda: _run_gateway(opts, children, tmp)),
+            ("soak", pymb_in, lambda: _run_soak(opts)),
+        ]
+        took: dict[str, float] = result["meta"]["section_seconds"]
+        for name, wanted, step in steps:
+            if name in opts.sections and wanted:
+                t0 = time.monotonic()
+                result[name] = step()
+                took[name] = time.monotonic() - t0
     # --quick is a smoke test: its figures are indicative and it judges no target.
     result["targets"] = [] if opts.quick else targets(result)
     return result

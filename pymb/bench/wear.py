@@ -198,7 +198,7 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     # At 1 s a lone CoolPro fills no batch: it commits every COMMIT_LONGEST
     # seconds, and a run of three of those holds two whole commit intervals
     # after the first commit (the quick plan only checks the machinery).
-    wire_s, slow_s = (8.0, 12.0) if opts.quick else (300.0, max(600.0, 3 * COMMIT_LONGEST))
+    wire_s, slow_s = (3.0, 3.0) if opts.quick else (300.0, max(600.0, 3 * COMMIT_LONGEST))
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=_disk_temp()) as where:
         for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):

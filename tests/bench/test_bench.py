@@ -25,6 +25,7 @@ from docblocks import claim_one
 import pymb
 from pymb.bench import cprogram, pure, report, runner
 from pymb.bench.contenders import CONTENDERS, NAMES
+from pymb.bench.options import EXTRA_SECTIONS, QUICK_BUDGET, SECTIONS
 from pymb.bench.runner import Entry, Options, summary
 from pymb.bench.worker import SPANS, Canary
 from pymb.child import Child, pymb_argv
@@ -445,3 +446,28 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
             wear["pymb", kind, 0.0]["written_per_sample"]
     assert any("bytes written / stored" in w for w in whats)
     assert "SD wear: bytes written to the disk per sample" in text
+
+
+def test_every_section_has_a_quick_budget_and_the_default_ones_fit_a_minute() -> None:
+    """``--quick`` is sized per section: each section (the extra ones too)
+    declares the seconds its quick plan may take, and those of a default run
+    add up to less than a minute."""
+    assert set(QUICK_BUDGET) == set(SECTIONS) | set(EXTRA_SECTIONS)
+    assert all(v > 0 for v in QUICK_BUDGET.values())
+    assert sum(QUICK_BUDGET[s] for s in SECTIONS) < 60
+
+
+def test_a_run_times_each_section_against_its_budget(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    result = _bench(capsys, "--only", "pymb", "--sections", "plan,micro")
+    took = result["meta"]["section_seconds"]
+    assert list(took) == ["micro", "plan"]  # in the order run
+    assert all(s > 0 for s in took.values())
+    assert result["meta"]["quick_budget"] == {"plan": QUICK_BUDGET["plan"],
+                                              "micro": QUICK_BUDGET["micro"]}
+    text = report.to_text(result)
+    line = next(ln for ln in text.splitlines() if ln.startswith("  sections "))
+    assert re.fullmatch(r"  sections  micro [\d.]+ s, plan [\d.]+ s \(\d+ s(; over the quick "
+                        r"budget: [a-z, ]+)?\)", line), line
+    result["meta"]["section_seconds"]["plan"] = 99.0
+    assert "over the quick budget: plan)" in report.to_text(result)
