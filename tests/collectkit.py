@@ -193,9 +193,9 @@ def all_received(sub: Any, log_db: Path) -> list[tuple[str, bytes]]:
     return list(sub.snapshot())
 
 
-def publish(broker_port: int, messages: list[tuple[str, bytes]]) -> None:
-    """Publish ``messages`` at QoS 1 from a client of the test's own and wait
-    for the broker's acknowledgements."""
+def publish(broker_port: int, messages: list[tuple[str, bytes]], qos: int = 1) -> None:
+    """Publish ``messages`` (at QoS 1: and wait for the broker's
+    acknowledgements) from a client of the test's own."""
     import paho.mqtt.client as paho
     from paho.mqtt.enums import CallbackAPIVersion
 
@@ -203,7 +203,7 @@ def publish(broker_port: int, messages: list[tuple[str, bytes]]) -> None:
     c.connect("127.0.0.1", broker_port)
     c.loop_start()
     try:
-        infos = [c.publish(t, p, qos=1) for t, p in messages]
+        infos = [c.publish(t, p, qos=qos) for t, p in messages]
         for i in infos:
             i.wait_for_publish(30)
     finally:

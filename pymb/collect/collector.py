@@ -39,6 +39,10 @@ MAX_BATCH = 2000  #: messages written in one transaction, at most
 RECEIVE_MAXIMUM = 20000  #: unacknowledged messages the broker may send (MQTT 5)
 SESSION_EXPIRY = 7 * 86400  #: seconds the broker keeps the session of a stopped collector
 BAD_EVERY = 60.0  #: seconds: a topic's bad input is reported at most this often
+#: messages waiting to be written, at most: beyond, a QoS 0 message (Sparkplug
+#: data) is dropped, as QoS 0 allows (the host sees the seq gap and asks for a
+#: rebirth); QoS 1 messages are bounded by RECEIVE_MAXIMUM
+MAX_INBOX = 50000
 
 
 @dataclass
@@ -87,6 +91,7 @@ class Stats:
     rows: int = 0  #: rows stored
     duplicates: int = 0  #: rows already stored (delivered again)
     bad: int = 0  #: messages that were not what the profile publishes
+    dropped: int = 0  #: QoS 0 messages dropped while MAX_INBOX messages waited
     batches: int = 0
     lag: float = 0.0  #: seconds from the newest sample's time to its commit, last batch
     db_ok: bool = True
@@ -115,6 +120,8 @@ class Collector:
         self.connack = threading.Event()
         self.refused: str | None = None
         self.bad_said: dict[str, float] = {}
+        self.dropped_said = 0
+        self.dropped_at = -BAD_EVERY
         self.host: SparkplugHost | None = None
         self.born_ms = round(time.time() * 1000)
         c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
@@ -157,6 +164,9 @@ class Collector:
         self.stats.mqtt_ok = False
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        if msg.qos == 0 and self.inbox.qsize() >= MAX_INBOX:
+            self.stats.dropped += 1
+            return
         self.inbox.put((self.generation, msg.mid, msg.qos, msg.topic, bytes(msg.payload)))
 
     def _send(self, topic: str, payload: bytes) -> None:
@@ -230,6 +240,10 @@ class Collector:
             if job.newest is not None:
                 s.lag = time.time() - job.newest
         s.db_ok = self.writers.db_ok
+        if s.dropped > self.dropped_said and time.monotonic() - self.dropped_at >= BAD_EVERY:
+            self.event(f"dropped {s.dropped - self.dropped_said:,} QoS 0 messages: "
+                       f"{MAX_INBOX:,} were waiting for the database")
+            self.dropped_said, self.dropped_at = s.dropped, time.monotonic()
         return any_done
 
     def step(self) -> bool:

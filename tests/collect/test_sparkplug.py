@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import signal
+import threading
 import time
 from typing import Any
 
@@ -17,6 +18,7 @@ pytest.register_assert_rewrite("mqtt_broker", "collectkit")
 from collectkit import (  # noqa: E402
     Collectors,
     Fact,
+    pg_count,
     publish,
     same_facts,
     sqlite_count,
@@ -27,6 +29,11 @@ from collectkit import (  # noqa: E402
 )
 from conftest import wait_until  # noqa: E402
 from mqtt_broker import Fleet  # noqa: E402
+
+from pymb.collect import collector as collector_module  # noqa: E402
+from pymb.collect.postgres import Postgres  # noqa: E402
+from pymb.collect.sqlstore import open_stores  # noqa: E402
+from pymb.fleet.config import MqttConfig  # noqa: E402
 
 pytest_plugins = ["mqtt_broker", "collectkit"]
 
@@ -209,3 +216,51 @@ def test_state_rebirth_on_a_seq_gap_and_on_data_without_birth(
         ("n1", "d1", "temperature_c_2", 1800000002.0, 22.0, None, None, None),
         ("n1", "d1", "temperature_c_2", 1800000003.0, 23.0, None, None, None),
     ]
+
+
+def test_qos0_data_beyond_the_inbox_are_dropped_and_a_rebirth_asked(
+        fleet: Fleet, postgres: Postgres, sparkplug_pb: Any,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """While PostgreSQL is down, QoS 0 data pile up: beyond MAX_INBOX waiting
+    messages they are dropped (counted, an event), the seq gap brings a
+    rebirth request, and what was kept is stored when PostgreSQL is back."""
+    pb = sparkplug_pb
+    monkeypatch.setattr(collector_module, "MAX_INBOX", 20)
+    monkeypatch.setattr(collector_module, "MAX_BATCH", 5)
+    broker = fleet.broker()
+    ncmd = fleet.subscribe(broker, f"spBv1.0/{GROUP}/NCMD/#", client_id="ncmd-watch")
+    events: list[str] = []
+    cfg = collector_module.CollectConfig(
+        mqtt=MqttConfig(url=broker.url, node="collector", group=GROUP), out=postgres.url,
+        profile="sparkplug", host_id="h", client_id="drop1")
+    col = collector_module.Collector(cfg, open_stores(postgres.url), events.append)
+    col.connect()
+    runner = threading.Thread(target=col.run, daemon=True)
+    runner.start()
+    try:
+        t = 1800000000000
+        publish(broker.port, [
+            (f"spBv1.0/{GROUP}/NBIRTH/n1", _pb(pb, 0, {"name": "bdSeq", "datatype": 4,
+                                                       "long_value": 0})),
+            (f"spBv1.0/{GROUP}/DBIRTH/n1/d1", _pb(pb, 1, {"name": "v", "alias": 7,
+                                                          "datatype": 10, "double_value": 0.0,
+                                                          "timestamp": t}))])
+        wait_rows(lambda: pg_count(postgres.url), 1, "the birth's row")
+        postgres.stop()
+        publish(broker.port, [(f"spBv1.0/{GROUP}/DDATA/n1/d1",
+                               _pb(pb, (2 + k) % 256, {"alias": 7, "datatype": 10,
+                                                       "double_value": float(k),
+                                                       "timestamp": t + 1000 * (k + 1)}))
+                              for k in range(200)], qos=0)
+        wait_until(lambda: col.stats.dropped > 0, "dropped QoS 0 messages", 30)
+        time.sleep(1.0)  # the rest of the 200 arrive (and are dropped)
+        postgres.start()
+        ncmd.wait_until(lambda m: m, 30, "the rebirth request of the seq gap")
+        kept = 200 - col.stats.dropped
+        wait_rows(lambda: pg_count(postgres.url), 1 + kept, "what was kept")
+    finally:
+        col.stop.set()
+        runner.join(60)
+    assert pg_count(postgres.url) == 1 + kept
+    assert any(e.startswith("dropped ") and "QoS 0 messages" in e for e in events), events
+    assert any("rebirth" in e for e in events), events
