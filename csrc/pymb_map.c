@@ -99,6 +99,19 @@ static int entry_ok(const pymb_map_entry *e, size_t nmarkers, size_t nregs,
         (e->width < 1 || e->width > 64 || (unsigned)e->bit + e->width > 16u * e->count)) {
         return 0;
     }
+    if (e->flags & PYMB_MAP_SCALE_FROM) {
+        if (e->type == PYMB_MAP_BOOL || e->type == PYMB_MAP_BIT || e->type == PYMB_MAP_STRING ||
+            e->type == PYMB_MAP_RAW || (e->aux & ~PYMB_MAP_SF_SWAPPED) >= nregs) {
+            return 0;
+        }
+    }
+    if (e->flags & PYMB_MAP_MASKED) {
+        if (e->nmarkers < 1 || e->type == PYMB_MAP_BOOL || e->type == PYMB_MAP_BIT ||
+            e->type == PYMB_MAP_STRING || e->type == PYMB_MAP_RAW || e->type == PYMB_MAP_F16 ||
+            e->type == PYMB_MAP_F32 || e->type == PYMB_MAP_F64) {
+            return 0;
+        }
+    }
     if (e->type == PYMB_MAP_STRING) {
         if ((e->flags & PYMB_MAP_HIGH_BYTE) && (e->flags & PYMB_MAP_LOW_BYTE)) {
             return 0;
@@ -163,9 +176,49 @@ static double half_to_double(uint16_t h)
     return (h & 0x8000u) ? -v : v;
 }
 
-static double apply(const pymb_map_entry *e, double v, int negative)
+/* The state markers give a raw value: the first that matches, or PYMB_VALUE.
+ * A PYMB_MAP_MARKER_MASK entry is the care mask of the marker after it. */
+static inline uint8_t marker_state(const pymb_map_marker *mk, unsigned n, uint64_t raw)
 {
-    if (e->decimals) {
+    uint64_t care = ~(uint64_t)0;
+    unsigned m;
+
+    for (m = 0; m < n; m++) {
+        if (mk[m].state == PYMB_MAP_MARKER_MASK) {
+            care = mk[m].raw;
+            continue;
+        }
+        if ((raw & care) == mk[m].raw) {
+            return mk[m].state;
+        }
+        care = ~(uint64_t)0;
+    }
+    return PYMB_VALUE;
+}
+
+/* The scale factor of a PYMB_MAP_SCALE_FROM entry: 1 with *sf set, or 0 when
+ * it is not implemented or out of range. */
+static int scale_factor(const pymb_map_entry *e, const uint16_t *regs, int *sf)
+{
+    uint16_t w = regs[e->aux & ~PYMB_MAP_SF_SWAPPED];
+    int v;
+
+    if (e->aux & PYMB_MAP_SF_SWAPPED) {
+        w = (uint16_t)(w << 8 | w >> 8);
+    }
+    v = (int)(int16_t)w;
+    if (v < PYMB_MAP_SF_MIN || v > PYMB_MAP_SF_MAX) {
+        return 0;
+    }
+    *sf = v;
+    return 1;
+}
+
+static double apply(const pymb_map_entry *e, double v, int negative, int sf)
+{
+    if (e->flags & PYMB_MAP_SCALE_FROM) {
+        v = sf < 0 ? v / pow10_exact[-sf] : v * pow10_exact[sf];
+    } else if (e->decimals) {
         v = v / pow10_exact[e->decimals];
     } else if (e->flags & PYMB_MAP_SCALED) {
         v = v * e->scale;
@@ -209,15 +262,17 @@ static void text(const uint16_t *r, const pymb_map_entry *e, uint8_t *dst, int64
     *len = end;
 }
 
-/* One channel: its registers r, its slot i. */
-static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *r,
+/* One channel: its registers regs + reg_index, its slot i. */
+static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
                        size_t reg_index, size_t i, unsigned channel, const pymb_map_out *out)
 {
+    const uint16_t *r = regs + reg_index;
     uint64_t u, raw;
-    unsigned bits = 16u * e->count, m;
+    unsigned bits = 16u * e->count, nmk = e->nmarkers;
     int64_t iv = 0;
     double v = NAN;
     uint8_t state = PYMB_VALUE;
+    int sf = 0;
 
     switch (e->type) {
     case PYMB_MAP_BOOL:
@@ -260,11 +315,18 @@ static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const
         raw = u;
         break;
     }
-    for (m = 0; m < e->nmarkers; m++) {
-        if (mk[m].raw == raw) {
-            state = mk[m].state;
-            goto done;
-        }
+    if (e->flags & PYMB_MAP_MASKED) { /* checked: the first marker is the mask */
+        raw &= mk[0].raw;
+        mk++;
+        nmk--;
+    }
+    state = marker_state(mk, nmk, raw);
+    if (state != PYMB_VALUE) {
+        goto done;
+    }
+    if ((e->flags & PYMB_MAP_SCALE_FROM) && !scale_factor(e, regs, &sf)) {
+        state = PYMB_MAP_NO_SCALE;
+        goto done;
     }
     switch (e->type) {
     case PYMB_MAP_F16:
@@ -283,16 +345,17 @@ static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const
         if (isnan(v)) {
             v = NAN;
             state = PYMB_MAP_NAN;
-        } else if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) {
-            v = apply(e, v, 0);
+        } else if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET | PYMB_MAP_SCALE_FROM)) {
+            v = apply(e, v, 0, sf);
         }
         goto done;
     case PYMB_MAP_SM16: {
         int negative = (raw & 0x8000u) != 0;
         int64_t mag = (int64_t)(raw & 0x7FFFu);
         iv = negative ? -mag : mag;
-        v = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) ? apply(e, (double)mag, negative)
-                                                            : (double)iv;
+        v = (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET | PYMB_MAP_SCALE_FROM))
+                ? apply(e, (double)mag, negative, sf)
+                : (double)iv;
         goto done;
     }
     case PYMB_MAP_I8_HI:
@@ -308,8 +371,8 @@ static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const
         v = (double)raw;
         break;
     }
-    if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET)) {
-        v = apply(e, v, 0);
+    if (e->flags & (PYMB_MAP_SCALED | PYMB_MAP_OFFSET | PYMB_MAP_SCALE_FROM)) {
+        v = apply(e, v, 0, sf);
     }
 done:
     out->values[i] = state == PYMB_VALUE ? v : NAN;
@@ -340,7 +403,7 @@ static void decode_16_loop(const pymb_map_entry *e, const pymb_map_marker *mk,
     int64_t *ints = out->ints != NULL ? out->ints + e->out : NULL;
     const int swap = e->order[0] == 1;
     const double divisor = pow10_exact[e->decimals], scale = e->scale, offset = e->offset;
-    unsigned c, m;
+    unsigned c;
 
     for (c = 0; c < channels; c++) {
         uint16_t raw = r[c * stride];
@@ -352,11 +415,8 @@ static void decode_16_loop(const pymb_map_entry *e, const pymb_map_marker *mk,
         if (swap) {
             raw = (uint16_t)(raw << 8 | raw >> 8);
         }
-        for (m = 0; m < nmarkers; m++) {
-            if (mk[m].raw == raw) {
-                state = mk[m].state;
-                break;
-            }
+        if (nmarkers) {
+            state = marker_state(mk, nmarkers, raw);
         }
         if (state != PYMB_VALUE) {
             values[c] = NAN;
@@ -454,13 +514,14 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
     for (n = 0; n < nentries; n++) {
         const pymb_map_entry *e = &entries[n];
         const pymb_map_marker *mk = markers ? markers + e->first_marker : NULL;
-        if (e->type == PYMB_MAP_U16 || e->type == PYMB_MAP_I16 || e->type == PYMB_MAP_SM16) {
+        if ((e->type == PYMB_MAP_U16 || e->type == PYMB_MAP_I16 || e->type == PYMB_MAP_SM16) &&
+            !(e->flags & (PYMB_MAP_SCALE_FROM | PYMB_MAP_MASKED))) {
             decode_16(e, mk, regs, out);
             continue;
         }
         for (c = 0; c < e->channels; c++) {
             size_t at = e->first + (size_t)c * e->stride;
-            decode_one(e, mk, regs + at, at, (size_t)e->out + c, c, out);
+            decode_one(e, mk, regs, at, (size_t)e->out + c, c, out);
         }
     }
     return (int)written;

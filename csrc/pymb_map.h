@@ -56,11 +56,29 @@ typedef enum {
 #define PYMB_MAP_HIGH_BYTE 0x08u   /* strings: one character a register, its high byte */
 #define PYMB_MAP_LOW_BYTE 0x10u    /* strings: one character a register, its low byte */
 #define PYMB_MAP_ASCII 0x20u       /* strings: a byte above 0x7F is invalid text */
+/* Numbers: the value is raw * 10^SF, SF the int16 at buffer index aux (bit 31
+ * of aux cleared) of the same regs; with bit 31 (PYMB_MAP_SF_SWAPPED) set,
+ * that register's two bytes are swapped first. An SF of -32768 (SunSpec's
+ * "not implemented") or outside PYMB_MAP_SF_MIN..PYMB_MAP_SF_MAX gives no
+ * value: the state PYMB_MAP_NO_SCALE. Replaces PYMB_MAP_SCALED. */
+#define PYMB_MAP_SCALE_FROM 0x40u
+/* Integers: the entry's first marker is no marker but a mask; the value is
+ * the bits of the raw value under it (raw & mask), and the markers after
+ * it are matched against that. */
+#define PYMB_MAP_MASKED 0x80u
+#define PYMB_MAP_SF_SWAPPED 0x80000000u
+#define PYMB_MAP_SF_MIN (-10)
+#define PYMB_MAP_SF_MAX 10
 
 /* States written beside each value; 0..4 are pymb_state's (pymb.h). A map's
  * own marker names take codes from PYMB_MAP_FIRST_MARKER_STATE up. */
 #define PYMB_MAP_NAN 5           /* a float's NaN */
 #define PYMB_MAP_INVALID_TEXT 6  /* text with a byte its encoding does not allow */
+#define PYMB_MAP_NO_SCALE 7      /* PYMB_MAP_SCALE_FROM: the scale factor is not implemented */
+/* Not a state: in the markers array, a marker with this state is the care
+ * mask of the marker after it, which then matches when (raw & mask) == its
+ * raw (a pattern with don't-care bits). */
+#define PYMB_MAP_MARKER_MASK 15
 #define PYMB_MAP_FIRST_MARKER_STATE 16
 
 /* The longest value: 4 registers, 8 bytes. */
@@ -70,7 +88,8 @@ typedef enum {
 typedef struct {
     uint32_t first;    /* buffer index of channel 1's first register */
     uint32_t out;      /* output index of channel 1; channel c is at out + c - 1 */
-    uint32_t aux;      /* strings: byte offset of channel 1's text in out->text */
+    uint32_t aux;      /* strings: byte offset of channel 1's text in out->text;
+                        * PYMB_MAP_SCALE_FROM: where the scale factor is */
     uint16_t channels; /* 1 for a point */
     uint16_t stride;   /* registers from one channel to the next */
     uint16_t count;    /* registers of one value (the type's width; strings, raw: any) */

@@ -63,13 +63,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         e[i].first_marker = d[17] % 3;
         e[i].nmarkers = d[18] % 3;
         e[i].out = d[19] % SLOTS;
-        e[i].aux = d[20] % TEXT;
+        e[i].aux = d[20] % TEXT | ((d[13] & 0x80) ? PYMB_MAP_SF_SWAPPED : 0u);
         e[i].scale = scales[d[21] % 4];
         e[i].offset = (double)(int8_t)d[22];
     }
     for (i = 0; i < 2; i++, at += 3) {
         mk[i].raw = (uint64_t)(data[at] << 8 | data[at + 1]);
-        mk[i].state = (uint8_t)(16 + data[at + 2] % 4);
+        mk[i].state = (uint8_t)(data[at + 2] % 5 == 4 ? PYMB_MAP_MARKER_MASK
+                                                       : 16 + data[at + 2] % 5);
     }
     nregs = (size - at) / 2;
     regs = malloc((nregs ? nregs : 1) * sizeof *regs);
@@ -98,7 +99,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                 uint8_t st = states[s];
                 /* a known state; no value unless the state says so */
                 if (!(st == PYMB_VALUE || st == PYMB_MAP_NAN || st == PYMB_MAP_INVALID_TEXT ||
-                      (st >= 16 && st < 20))) {
+                      st == PYMB_MAP_NO_SCALE || (st >= 16 && st < 20))) {
                     abort();
                 }
                 if (st != PYMB_VALUE && !isnan(values[s])) {

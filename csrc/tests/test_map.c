@@ -236,6 +236,63 @@ static void test_markers_blocks_strings(void)
     CHECK(pymb_map_decode(e, 1, NULL, 0, coils, 3, &out) == 3 && ints[0] == 777);
 }
 
+/* A scale taken from another register (SunSpec's W and W_SF), a value under
+ * a mask (an Altivar's ETA AND 0x006F) and a marker with don't-care bits (an
+ * EM24's overflow: high word 0x7FFF, any low word). */
+static void test_scale_from_masks_patterns(void)
+{
+    uint16_t regs[6] = {3342, 1, 0xFFA3, 0x1234, 0x7FFF, 0x0100};
+    pymb_map_marker mk[3] = {{0x006F, 0}, {0xFFFF0000u, PYMB_MAP_MARKER_MASK},
+                             {0x7FFF0000u, PYMB_MAP_FIRST_MARKER_STATE}};
+    pymb_map_entry e[3];
+    pymb_map_out out = fresh_out();
+
+    e[0] = entry(PYMB_MAP_I16, 1, "ABCD");
+    e[0].flags = PYMB_MAP_SCALE_FROM;
+    e[0].aux = 1;
+    e[1] = entry(PYMB_MAP_U16, 1, "ABCD");
+    e[1].first = 2;
+    e[1].out = 1;
+    e[1].flags = PYMB_MAP_MASKED;
+    e[1].nmarkers = 1;
+    e[2] = entry(PYMB_MAP_I32, 2, "ABCD");
+    e[2].first = 4;
+    e[2].out = 2;
+    e[2].first_marker = 1;
+    e[2].nmarkers = 2;
+    CHECK(pymb_map_decode(e, 3, mk, 3, regs, 6, &out) == 3);
+    CHECK(values[0] == 33420.0 && states[0] == PYMB_VALUE && ints[0] == 3342);
+    CHECK(ints[1] == 0x23 && values[1] == 35.0 && states[1] == PYMB_VALUE);
+    CHECK(isnan(values[2]) && states[2] == PYMB_MAP_FIRST_MARKER_STATE);
+    regs[5] = 0xFFFF; /* any low word */
+    regs[1] = 0xFFFF; /* SF -1: divide, as the decimal rule does */
+    out = fresh_out();
+    CHECK(pymb_map_decode(e, 3, mk, 3, regs, 6, &out) == 3);
+    CHECK(values[0] == 334.2 && states[2] == PYMB_MAP_FIRST_MARKER_STATE);
+    regs[4] = 0x7FFE; /* no overflow */
+    regs[1] = 0x8000; /* SunSpec's not implemented */
+    out = fresh_out();
+    CHECK(pymb_map_decode(e, 3, mk, 3, regs, 6, &out) == 3);
+    CHECK(isnan(values[0]) && states[0] == PYMB_MAP_NO_SCALE);
+    CHECK(states[2] == PYMB_VALUE && ints[2] == 0x7FFEFFFF);
+    regs[1] = 11; /* out of SunSpec's range */
+    out = fresh_out();
+    CHECK(pymb_map_decode(e, 1, mk, 3, regs, 6, &out) == 1 && states[0] == PYMB_MAP_NO_SCALE);
+    regs[1] = 0x0200; /* SF 2 with its bytes swapped */
+    e[0].aux = 1 | PYMB_MAP_SF_SWAPPED;
+    out = fresh_out();
+    CHECK(pymb_map_decode(e, 1, mk, 3, regs, 6, &out) == 1 && values[0] == 334200.0);
+    /* the scale factor must be inside the registers; a mask needs its marker */
+    e[0].aux = 6;
+    out = fresh_out();
+    errno = 0;
+    CHECK(pymb_map_decode(e, 1, mk, 3, regs, 6, &out) == -1 && errno == EINVAL &&
+          states[0] == 99);
+    e[1].nmarkers = 0;
+    errno = 0;
+    CHECK(pymb_map_decode(&e[1], 1, mk, 3, regs, 6, &out) == -1 && errno == EINVAL);
+}
+
 /* Every invalid table fails whole, with EINVAL, and writes nothing. */
 static void test_invalid(void)
 {
@@ -315,6 +372,7 @@ int main(void)
     test_integers();
     test_markers_blocks_strings();
     test_invalid();
+    test_scale_from_masks_patterns();
     test_man_page_example();
     return check_report();
 }

@@ -39,6 +39,7 @@ from pymb.devices.mapwrite import (
     not_applied,
     note_applied,
     requests,
+    resolve,
 )
 from pymb.errors import InvalidArgument, ModbusError
 from pymb.maps import Decoder, Map, Point, Value
@@ -149,7 +150,9 @@ class MapDevice:
                 out.append(self._index[n])
         else:
             out = self._mi.group(group)
-        chosen = tuple(dict.fromkeys(out))
+        # a scale_from point's scale factor is read with it
+        chosen = tuple(dict.fromkeys(self._index[n] for n in m.with_scale_factors(
+            self._points[i].name for i in out)))
         if len(self._selections) >= _CACHED:
             self._selections.clear()  # many different selections: keep memory bounded
         self._selections[key] = chosen
@@ -299,8 +302,31 @@ class MapDevice:
     def plan_write(self, values: Mapping[str, object]) -> list[Request]:
         """The requests :meth:`write_many` would send, checked as it checks;
         nothing is sent (``pymb write --dry-run``)."""
-        changes = check(self.map, [(n, None, v) for n, v in values.items()])
+        items = [(n, None, v) for n, v in values.items()]
+        changes = check(self.map, items, self._scale_factors(items))
         return requests(self.map, changes)
+
+    def _scale_factors(self, items: Sequence[tuple[str, int | None, object]]
+                       ) -> dict[str, int | None]:
+        """The scale factors the ``scale_from`` points among ``items`` need,
+        read from the device (None: not implemented): name -> value."""
+        m = self.map
+        names = {sf for sf in (resolve(m, n, c)[1].scale_from for n, c, _ in items)
+                 if sf is not None}
+        out: dict[str, int | None] = {}
+        if not names:
+            return out
+        with self._lock, self._fetcher.map_timeout():
+            self._fetcher.after_connect()
+            for n in sorted(names):
+                q = m.points[n]
+                with self._fetcher.turn():
+                    read = (self.client.read_input_registers if q.table == "input"
+                            else self.client.read_holding_registers)
+                    got = read(q.address, 1, slave=self.address)
+                v = m.decode(n, list(got))
+                out[n] = v if isinstance(v, int) else None
+        return out
 
     def write_points(self, items: Sequence[tuple[str, int | None, object]], *,
                      verify: bool = True, before: bool = False) -> list[Outcome]:
@@ -309,7 +335,7 @@ class MapDevice:
         first. A point with a write budget is always read first: a value
         the device already holds is not sent, and does not count."""
         m = self.map
-        changes = check(m, items)
+        changes = check(m, items, self._scale_factors(items))
         key = f"{m.id}:{self.address}"
         for c in changes:
             limit = c.point.max_writes_per_hour
@@ -328,7 +354,7 @@ class MapDevice:
                 regs = _regs(current, c)
                 if regs is not None and c.point.access != "w" and (
                         before or c.point.max_writes_per_hour is not None):
-                    o.before = decoded(c.point, regs)
+                    o.before = decoded(c.point, regs, c.sf)
                     if c.point.max_writes_per_hour is not None and \
                             tuple(regs) == c.merged(regs):
                         o.after, o.applied = o.before, True  # held already: not sent
@@ -402,7 +428,7 @@ class MapDevice:
             regs = _regs(back, c)
             assert regs is not None
             o = by_name[c.name]
-            o.after = decoded(c.point, regs)
+            o.after = decoded(c.point, regs, c.sf)
             o.applied = tuple(regs) == c.merged(regs)
             if not o.applied:
                 failed.append((c, o.after))

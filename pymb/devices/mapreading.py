@@ -17,9 +17,10 @@ __all__ = ["MapReading", "group_layout", "group_points"]
 
 def group_points(m: Map, group: str | None) -> list[str]:
     """The readable points a poll of ``group`` reads, in map order (every
-    readable point for None)."""
-    return [p.name for p in m.points.values()
-            if p.access != "w" and (group is None or p.group == group)]
+    readable point for None), then the scale factors of its ``scale_from``
+    points that are not in it."""
+    return list(m.with_scale_factors(p.name for p in m.points.values()
+                                     if p.access != "w" and (group is None or p.group == group)))
 
 
 def group_layout(m: Map, group: str | None) -> list[Decoder]:

@@ -55,6 +55,7 @@ class Change:
     value: object
     registers: tuple[int, ...]
     keep: tuple[int, ...] | None = None
+    sf: int | None = None  #: the scale factor it was encoded with (``scale_from``)
 
     @property
     def view(self) -> bool:
@@ -193,20 +194,26 @@ def resolve(m: Map, name: object, channel: int | None = None) -> tuple[str, Poin
     return name, p
 
 
-def check(m: Map, values: Iterable[tuple[str, int | None, object]]) -> list[Change]:
+def check(m: Map, values: Iterable[tuple[str, int | None, object]],
+          scale_factors: Mapping[str, int | None] | None = None) -> list[Change]:
     """Every ``(name, channel, value)`` checked and encoded, or an
-    :class:`~pymb.InvalidArgument` for the first refused (nothing sent)."""
+    :class:`~pymb.InvalidArgument` for the first refused (nothing sent).
+    ``scale_factors``: the values of the ``scale_from`` points they need,
+    by name (a point scaled by one that is missing or not implemented is
+    refused)."""
     changes: list[Change] = []
     for name, channel, value in values:
         label, p = resolve(m, name, channel)
+        sf = (scale_factors or {}).get(p.scale_from) if p.scale_from is not None else None
         try:
-            if p.type in _VIEWS:
-                low = encode(p, value, current=[0] * p.count)
-                high = encode(p, value, current=[0xFFFF] * p.count)
+            if p.type in _VIEWS or p.mask is not None:
+                low = encode(p, value, current=[0] * p.count, sf=sf)
+                high = encode(p, value, current=[0xFFFF] * p.count, sf=sf)
                 keep = tuple(a ^ b for a, b in zip(low, high, strict=True))
-                changes.append(Change(label, p, value, tuple(low), keep))
+                changes.append(Change(label, p, value, tuple(low), keep, sf))
             else:
-                changes.append(Change(label, p, value, tuple(encode(p, value))))
+                changes.append(Change(label, p, value, tuple(encode(p, value, sf=sf)),
+                                      sf=sf))
         except InvalidArgument as e:
             raise InvalidArgument(f"{m.id}: {e}") from None
     _check_overlaps(m, changes)
@@ -320,9 +327,10 @@ def label(p: Point, value: Value) -> Value:
     return value
 
 
-def decoded(p: Point, registers: Sequence[int]) -> Value:
-    """One channel's value from its registers (bits), named where ``values`` names it."""
-    return label(p, decode_one(p, registers)[0])
+def decoded(p: Point, registers: Sequence[int], sf: int | None = None) -> Value:
+    """One channel's value from its registers (bits), named where ``values``
+    names it; ``sf``: its scale factor, for a ``scale_from`` point."""
+    return label(p, decode_one(p, registers, sf)[0])
 
 
 def budget_refusal(m: Map, key: str, c: Change) -> WriteRefused:

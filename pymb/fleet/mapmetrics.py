@@ -22,13 +22,13 @@ _TYPES = {
     "i8_lo": DataType.INT8, "f16": DataType.FLOAT, "f32": DataType.FLOAT,
     "f64": DataType.DOUBLE, "string": DataType.STRING, "bool": DataType.BOOLEAN,
     "bit": DataType.BOOLEAN, "bits": DataType.UINT16, "sm16": DataType.INT16,
-    "raw": DataType.STRING,
+    "sunssf": DataType.INT16, "raw": DataType.STRING,
 }
 
 
 def datatype(p: Point) -> DataType:
     """The Sparkplug B datatype of a point: its type's, Double when scaled."""
-    if p.scale is not None or p.offset is not None:
+    if p.scale is not None or p.offset is not None or p.scale_from is not None:
         return DataType.DOUBLE
     return _TYPES[p.type]
 

@@ -21,6 +21,14 @@ from pymb.maps.types import STATES, TYPES, permutation
 __all__ = ["Buffers", "Decoder"]
 
 _U64 = (1 << 64) - 1
+#: Types the C decoder knows by another name.
+_C_TYPE = {"sunssf": "i16"}
+
+
+def _markers_of(p: Point) -> int:
+    """Entries of the C markers array a point takes: its mask, its markers,
+    two for each marker with don't-care bits."""
+    return (p.mask is not None) + len(p.markers) + 2 * len(p.marker_masks)
 # How a slot becomes a Python value.
 _INT, _UINT64, _FLOAT, _BOOL, _TEXT, _RAW = range(6)
 
@@ -30,7 +38,7 @@ def _check_states() -> None:
     codes = {"value": lib.PYMB_VALUE, "offline": lib.PYMB_OFFLINE,
              "no_sensor": lib.PYMB_NO_SENSOR, "unsupported": lib.PYMB_UNSUPPORTED,
              "not_read": lib.PYMB_NOT_READ, "nan": lib.PYMB_MAP_NAN,
-             "invalid_text": lib.PYMB_MAP_INVALID_TEXT}
+             "invalid_text": lib.PYMB_MAP_INVALID_TEXT, "no_scale": lib.PYMB_MAP_NO_SCALE}
     if any(STATES.index(n) != c for n, c in codes.items()) or \
             len(STATES) > lib.PYMB_MAP_FIRST_MARKER_STATE:
         raise ImportError("pymb.maps.STATES disagrees with the C core's state codes")
@@ -82,6 +90,8 @@ class Decoder:
             points = [p for p in m.points.values() if p.table == first]
         else:
             points = [m.point(n) for n in names]
+        # a scale_from point's scale factor is decoded with it (one table, by the loader)
+        points += [m.points[n] for n in m.with_scale_factors(p.name for p in points)[len(points):]]
         if not points:
             raise MapError(f"{m.source}: no points to decode", source=m.source)
         tables = {p.table for p in points}
@@ -98,7 +108,7 @@ class Decoder:
         self.count = max(p.end for p in points) - self.address
         codes = {name: i for i, name in enumerate(m.state_names) if name}
         entries = ffi.new("pymb_map_entry[]", len(points))
-        nmarkers = sum(len(p.markers) for p in points)
+        nmarkers = sum(_markers_of(p) for p in points)
         markers = ffi.new("pymb_map_marker[]", max(nmarkers, 1))
         slot = text = mk = 0
         self._plan: list[tuple[str, int, int, int, int, int, str]] = []
@@ -106,9 +116,14 @@ class Decoder:
         for e, p in zip(entries, points, strict=True):
             per = 2 * p.count if p.string_bytes == "both" else p.count
             self._compile(e, p, slot, text if p.type == "string" else 0)
-            e.first_marker, e.nmarkers = mk, len(p.markers)
-            for raw, state in p.markers.items():
-                markers[mk].raw, markers[mk].state = raw, codes[state]
+            e.first_marker, e.nmarkers = mk, _markers_of(p)
+            # a mask first (PYMB_MAP_MASKED), then exact markers, then patterns
+            entry_markers: list[tuple[int, int]] = [(p.mask, 0)] if p.mask is not None else []
+            entry_markers += [(raw, codes[state]) for raw, state in p.markers.items()]
+            for pattern, care, state in p.marker_masks:
+                entry_markers += [(care, lib.PYMB_MAP_MARKER_MASK), (pattern, codes[state])]
+            for raw, code in entry_markers:
+                markers[mk].raw, markers[mk].state = raw, code
                 mk += 1
             self._plan.append((p.name, self._kind(p), slot, p.channels, text, per, p.encoding))
             self._slots[p.name] = slot
@@ -134,8 +149,15 @@ class Decoder:
         e.channels = p.channels
         e.stride = p.stride
         e.count = p.count
-        e.type = getattr(lib, f"PYMB_MAP_{p.type.upper()}")
+        e.type = getattr(lib, f"PYMB_MAP_{_C_TYPE.get(p.type, p.type).upper()}")
         flags = 0
+        if p.scale_from is not None:
+            sf = self.map.points[p.scale_from]
+            flags |= lib.PYMB_MAP_SCALE_FROM
+            e.aux = (sf.address - self.address) | (
+                lib.PYMB_MAP_SF_SWAPPED if sf.order == "BA" else 0)
+        if p.mask is not None:
+            flags |= lib.PYMB_MAP_MASKED
         if p.scale is not None:
             flags |= lib.PYMB_MAP_SCALED
             e.scale = p.scale
@@ -164,7 +186,8 @@ class Decoder:
             return _TEXT
         if family == "raw":
             return _RAW
-        if family == "float" or p.scale is not None or p.offset is not None:
+        if (family == "float" or p.scale is not None or p.offset is not None
+                or p.scale_from is not None):
             return _FLOAT
         return _UINT64 if p.type == "u64" else _INT
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from pymb.errors import InvalidArgument
 from pymb.maps.point import MapError, Point, Value, did_you_mean
-from pymb.maps.types import STATES, TYPES, permutation
+from pymb.maps.types import SF_RANGE, STATES, TYPES, permutation
 
 if TYPE_CHECKING:
     from pymb.maps.model import Map
@@ -53,12 +53,16 @@ def decimal_power(scale: float | None) -> int:
     return 0
 
 
-def scaled(raw: float, p: Point, negative: bool = False) -> float:
+def scaled(raw: float, p: Point, negative: bool = False, sf: int = 0) -> float:
     """``raw * scale + offset`` in binary64, dividing by 10**k for a decimal
-    scale; ``negative`` negates before the offset (sign-magnitude)."""
+    scale (``raw * 10**sf`` for a ``scale_from`` point, dividing by
+    10**-sf for a negative one); ``negative`` negates before the offset
+    (sign-magnitude)."""
     k = decimal_power(p.scale)
     v = float(raw)
-    if k:
+    if p.scale_from is not None:
+        v = v / 10.0 ** -sf if sf < 0 else v * 10.0 ** sf
+    elif k:
         v = v / 10.0 ** k
     elif p.scale is not None:
         v = v * p.scale
@@ -100,8 +104,14 @@ def _text(p: Point, regs: Sequence[int]) -> tuple[Value, str]:
         return None, "invalid_text"
 
 
-def decode_one(p: Point, regs: Sequence[int]) -> tuple[Value, str]:
-    """(value, state name) of one channel from its ``p.count`` registers."""
+def scale_factor_ok(sf: int | None) -> bool:
+    """True when ``sf`` is a scale factor a ``scale_from`` point can use."""
+    return sf is not None and SF_RANGE[0] <= sf <= SF_RANGE[1]
+
+
+def decode_one(p: Point, regs: Sequence[int], sf: int | None = None) -> tuple[Value, str]:
+    """(value, state name) of one channel from its ``p.count`` registers;
+    ``sf``: the value of its ``scale_from`` point (None: not read)."""
     if len(regs) < p.count:
         raise MapError(f"point {p.name!r} needs {p.count} registers, got {len(regs)}",
                        point=p.name)
@@ -120,8 +130,17 @@ def decode_one(p: Point, regs: Sequence[int]) -> tuple[Value, str]:
         u = u >> (p.shift or 0) & ((1 << (p.width or 1)) - 1)
     elif family == "half":
         u = u >> 8 if t.endswith("_hi") else u & 0xFF
+    if p.mask is not None:
+        u &= p.mask
     if u in p.markers:
         return None, p.markers[u]
+    for pattern, care, state in p.marker_masks:
+        if u & care == pattern:
+            return None, state
+    if p.scale_from is not None:
+        if not scale_factor_ok(sf):
+            return None, "no_scale"
+        return _scaled_value(p, u, family, sf or 0)
     plain = p.scale is None and p.offset is None
     if family == "float":
         f = struct.unpack(">" + _FLOAT[2 * p.count], u.to_bytes(2 * p.count, "big"))[0]
@@ -138,15 +157,29 @@ def decode_one(p: Point, regs: Sequence[int]) -> tuple[Value, str]:
     return (u if plain else scaled(u, p)), "value"
 
 
-def decode(p: Point, regs: Sequence[int]) -> tuple[Value, Any]:
+def _scaled_value(p: Point, u: int, family: str, sf: int) -> tuple[Value, str]:
+    """(value, state) of a ``scale_from`` point from its raw pattern ``u``."""
+    if family == "float":
+        f = struct.unpack(">" + _FLOAT[2 * p.count], u.to_bytes(2 * p.count, "big"))[0]
+        return (None, "nan") if math.isnan(f) else (scaled(f, p, sf=sf), "value")
+    if family == "sm":
+        return scaled(u & 0x7FFF, p, bool(u & 0x8000), sf), "value"
+    if TYPES[p.type].signed:
+        u = _signed(u, 8 if family == "half" else 16 * p.count)
+    return scaled(u, p, sf=sf), "value"
+
+
+def decode(p: Point, regs: Sequence[int], sf: int | None = None) -> tuple[Value, Any]:
     """(value, state) of a point, or two lists for a block: ``regs`` starts
-    at the first channel's first register."""
+    at the first channel's first register; ``sf``: the value of its
+    ``scale_from`` point, if it has one."""
     if not p.block:
-        return decode_one(p, regs)
+        return decode_one(p, regs, sf)
     if len(regs) < p.span:
         raise MapError(f"block {p.name!r} spans {p.span} registers, got {len(regs)}",
                        point=p.name)
-    pairs = [decode_one(p, regs[c * p.stride:c * p.stride + p.count]) for c in range(p.channels)]
+    pairs = [decode_one(p, regs[c * p.stride:c * p.stride + p.count], sf)
+             for c in range(p.channels)]
     return [v for v, _ in pairs], [s for _, s in pairs]
 
 
@@ -167,9 +200,15 @@ def _to_regs(p: Point, u: int) -> list[int]:
     return list(struct.unpack(f">{p.count}H", wire))
 
 
-def _unscale(p: Point, v: float) -> float:
+def _unscale(p: Point, v: float, sf: int | None) -> float:
     if p.offset is not None:
         v = v - p.offset
+    if p.scale_from is not None:
+        if not scale_factor_ok(sf):
+            raise _refuse(p, f"its scale factor ({p.scale_from}) is needed to write it, and "
+                          f"must be {SF_RANGE[0]}..{SF_RANGE[1]}, got {sf!r}")
+        s = sf or 0
+        return v * 10.0 ** -s if s < 0 else v / 10.0 ** s
     k = decimal_power(p.scale)
     if k:
         return v * 10.0 ** k
@@ -177,9 +216,10 @@ def _unscale(p: Point, v: float) -> float:
 
 
 def encode(p: Point, value: object, *, current: Sequence[int] | None = None,
-           check_access: bool = True) -> list[int]:
+           check_access: bool = True, sf: int | None = None) -> list[int]:
     """The registers (bits for a coil) that write ``value`` to one channel of
-    ``p``; :class:`InvalidArgument` for anything the point refuses."""
+    ``p``; :class:`InvalidArgument` for anything the point refuses. ``sf``:
+    the value of its ``scale_from`` point, if it has one."""
     if check_access and not p.writable:
         raise _refuse(p, "read-only (access = \"r\")")
     t = p.type
@@ -213,20 +253,20 @@ def encode(p: Point, value: object, *, current: Sequence[int] | None = None,
     if p.valid is not None and not p.valid[0] <= v <= p.valid[1]:
         raise _refuse(p, f"{value!r} is outside its valid range {p.valid[0]:g}..{p.valid[1]:g}")
     if family == "float":
-        f = _unscale(p, float(v))
+        f = _unscale(p, float(v), sf)
         try:
             u = int.from_bytes(struct.pack(">" + _FLOAT[2 * p.count], f), "big")
         except (OverflowError, struct.error):
             raise _refuse(p, f"{value!r} does not fit a {t}") from None
         return _to_regs(p, u)
-    raw = _unscale(p, v)
+    raw = _unscale(p, v, sf)
     if family == "bit":
         raw_int = 1 if v else 0
     else:
         if not math.isfinite(raw):
             raise _refuse(p, f"{value!r} is not a finite number")
         raw_int = round(raw)
-        if p.scale is None and p.offset is None and raw_int != raw:
+        if p.scale is None and p.offset is None and p.scale_from is None and raw_int != raw:
             raise _refuse(p, f"a whole number is needed, got {value!r}")
     if family == "bits":
         lo, hi = 0, (1 << (p.width or 1)) - 1
@@ -238,6 +278,13 @@ def encode(p: Point, value: object, *, current: Sequence[int] | None = None,
     if family == "sm":
         u = (0x8000 | -raw_int) if raw_int < 0 else raw_int
         return _to_regs(p, u)
+    if family == "int" and p.mask is not None:
+        if raw_int & ~p.mask:
+            raise _refuse(p, f"{value!r} has bits outside its mask 0x{p.mask:X}")
+        if current is None or len(current) < p.count:
+            raise _refuse(p, "a masked value shares its register: pass the register's current "
+                          "contents (current=...) to write it")
+        return _to_regs(p, (_pattern(p, current) & ~p.mask) | raw_int)
     if family == "int":
         return _to_regs(p, raw_int & ((1 << (16 * p.count)) - 1))
     if current is None or len(current) < p.count:
@@ -283,7 +330,7 @@ def state_names(m: Map) -> tuple[str, ...]:
     """The fixed states, padded to code 16, then the map's own marker names."""
     names = list(STATES) + [""] * (16 - len(STATES))
     for p in m.points.values():
-        for s in p.markers.values():
+        for s in (*p.markers.values(), *(m[2] for m in p.marker_masks)):
             if s not in names:
                 names.append(s)
     return tuple(names)

@@ -39,8 +39,12 @@ class PointPlanner:
 
     def __init__(self, items: Sequence[Item], limits: Limits, line: Line, *,
                  offline_retry: float = 30.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 ties: Sequence[tuple[int, int]] = ()) -> None:
         self.items = tuple(items)
+        #: pairs of items read in one request where the rules allow (a value
+        #: and its scale factor)
+        self.ties = tuple(ties)
         self.limits = limits
         self.line = line
         self.offline_retry = offline_retry
@@ -109,7 +113,7 @@ class PointPlanner:
         if plan is None:
             chosen = [k for k in key if k not in self._unsupported]
             plan = plan_points(self.items, self.line, self.limits, wanted=chosen,
-                               known=self._knowledge())
+                               known=self._knowledge(), ties=self.ties)
             if len(self._plans) >= _CACHED:
                 self._plans.clear()  # many different selections: keep memory bounded
             self._plans[key] = plan
@@ -121,7 +125,7 @@ class PointPlanner:
         """A plan for the points of ``request`` alone, with what is known now
         (after :meth:`refuse_bridge`): the same poll's second try."""
         return plan_points(self.items, self.line, self.limits, wanted=request.items,
-                           known=self._knowledge())
+                           known=self._knowledge(), ties=self.ties)
 
     def refuse_bridge(self, request: Request) -> list[tuple[int, int]]:
         """The device refused ``request`` (exception 02/03), which read
@@ -191,8 +195,26 @@ class MapItems:
         return out
 
     def group(self, group: str | None) -> list[int]:
-        """Indices of the points of ``group`` (every readable point for None)."""
-        return [i for i, p in enumerate(self.points) if group is None or p.group == group]
+        """Indices of the points of ``group`` (every readable point for None),
+        then those of the scale factors its ``scale_from`` points need."""
+        chosen = [i for i, p in enumerate(self.points) if group is None or p.group == group]
+        index = {p.name: i for i, p in enumerate(self.points)}
+        for i in list(chosen):
+            sf = self.points[i].scale_from
+            if sf is not None and index[sf] not in chosen:
+                chosen.append(index[sf])
+        return chosen
+
+    def ties(self) -> list[tuple[int, int]]:
+        """(item, its scale factor's item) for each ``scale_from`` point (each
+        channel of a block): the pairs the planner keeps in one request."""
+        index = {p.name: i for i, p in enumerate(self.points)}
+        out: list[tuple[int, int]] = []
+        for i, p in enumerate(self.points):
+            if p.scale_from is not None:
+                sf = self.first[index[p.scale_from]]
+                out.extend((k, sf) for k in range(self.first[i], self.first[i] + p.channels))
+        return out
 
 
 def map_planner(m: Map, line: Line | None = None, *, clock: Callable[[], float] = time.monotonic
@@ -201,9 +223,9 @@ def map_planner(m: Map, line: Line | None = None, *, clock: Callable[[], float] 
     ``inter_request_gap`` on ``line`` (default 9600 bit/s 8N1)."""
     lim, timing = m.limits, m.timing
     limits = Limits(lim.max_registers, lim.max_bits, lim.max_gap, lim.readable,
-                    lim.split_on_exception, lim.single_point_requests)
+                    lim.split_on_exception, lim.single_point_requests, lim.ranges)
     base = line or Line()
     line = Line(base.baudrate, base.bits_per_char, timing.turnaround, timing.inter_request_gap)
     mi = MapItems.of(m)
     return PointPlanner(mi.items, limits, line, offline_retry=timing.offline_retry,
-                        clock=clock), mi
+                        clock=clock, ties=mi.ties()), mi

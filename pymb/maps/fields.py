@@ -17,19 +17,25 @@ from pymb.maps.types import (
     INTEGER_TYPES,
     ORDER_NAMES,
     REGISTER_TABLES,
+    SUNSSF_NOT_IMPLEMENTED,
     TABLES,
     TYPES,
     normalize_order,
 )
 
-__all__ = ["POINT_KEYS", "Ctx", "build_point", "number", "strings"]
+__all__ = ["POINT_KEYS", "POINT_NAME", "Ctx", "build_point", "marker_pattern", "number", "strings"]
 
 POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_bytes", "encoding",
               "bit", "shift", "width", "scale", "offset", "unit", "description", "ref", "kind",
               "values", "flags", "markers", "access", "valid", "group", "deadband", "precision",
-              "example", "when", "min_firmware", "max_writes_per_hour")
+              "example", "when", "min_firmware", "max_writes_per_hour", "scale_from", "mask",
+              "view_of")
 BLOCK_KEYS = (*(k for k in POINT_KEYS if k != "address"), "first", "stride")
-_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+#: A point's name: snake_case by convention (``power_w``); letters of either
+#: case and dotted prefixes too, so that a converted model keeps its own
+#: names (SunSpec's ``W``, ``W_SF``, ``inverter.W``).
+POINT_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*\Z")
+_NAME = POINT_NAME
 _KINDS = ("gauge", "counter", "state", "text")
 _ENCODINGS = ("ascii", "latin-1", "utf-8")
 _MAX_CHANNELS = 1000
@@ -98,6 +104,52 @@ def _keyed(ctx: Ctx, key: str, v: object, lo: int, hi: int) -> dict[int, str]:
     return out
 
 
+def marker_pattern(text: str) -> tuple[int, int] | None:
+    """``(pattern, care mask)`` of a marker key with don't-care digits
+    (``"0x7FFFxxxx"``: an ``x`` is 4 don't-care bits in hex, 1 in binary
+    ``"0b1xxx"``; ``_`` separates digits), or None when ``text`` has none.
+    A ValueError for a digit the base does not have."""
+    t = text.strip().replace("_", "").lower()
+    if t[:2] not in ("0x", "0b") or "x" not in t[2:]:
+        return None
+    radix, step = (16, 4) if t[:2] == "0x" else (2, 1)
+    pattern = care = 0
+    for d in t[2:]:
+        pattern <<= step
+        care <<= step
+        if d != "x":
+            pattern |= int(d, radix)
+            care |= (1 << step) - 1
+    return pattern, care
+
+
+def _markers(ctx: Ctx, v: object, lo: int, bits: int
+             ) -> tuple[dict[int, str], list[tuple[int, int, str]]]:
+    """``markers``: exact raw values, and patterns with don't-care bits."""
+    if not isinstance(v, dict):
+        ctx.fail("markers", "markers must be a table such as { 0xFFFF = \"offline\" }")
+    exact: dict[str, str] = {}
+    masked: list[tuple[int, int, str]] = []
+    full = (1 << bits) - 1
+    for k, name in v.items():
+        try:
+            pm = marker_pattern(k)
+        except ValueError:
+            ctx.fail("markers", f"markers: {k!r} is neither a whole number nor a pattern such "
+                     "as \"0x7FFFxxxx\" (x: a don't-care digit)")
+        if pm is None:
+            exact[k] = name
+            continue
+        pattern, care = pm
+        if care > full or pattern > full:
+            ctx.fail("markers", f"markers: the pattern {k} is wider than the value's {bits} bits")
+        if not isinstance(name, str) or not name:
+            ctx.fail("markers", f"markers: the name of {k} must be a non-empty string")
+        masked.append((pattern, care, name))
+    out = _keyed(ctx, "markers", exact, lo, full)
+    return {n & full: name for n, name in out.items()}, masked
+
+
 def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
                 groups: Mapping[str, float], options: Mapping[str, int | float]) -> Point:
     """Check one ``[[point]]``/``[[block]]`` table and make its Point."""
@@ -111,7 +163,8 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
             ctx.fail(key, f"unknown key {key!r}{hint}")
     name = raw.get("name")
     if not isinstance(name, str) or not _NAME.match(name):
-        ctx.fail("name", f"name must be snake_case ([a-z][a-z0-9_]*), got {name!r}")
+        ctx.fail("name", "name must be snake_case or a model's own name (letters, digits and _, "
+                 f"starting with a letter; dots between such parts), got {name!r}")
     strings(ctx, raw, ("unit", "description", "ref", "min_firmware"))
     table = raw.get("table", dev.table)
     if table not in TABLES:
@@ -142,6 +195,8 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     only("markers", scalable, "numeric")
     only("values", INTEGER_TYPES | {"bit", "bool"}, "integer")
     only("flags", INTEGER_TYPES - {"sm16"}, "integer")
+    only("scale_from", scalable - {"sunssf"}, "numeric")
+    only("mask", ("u16", "u32", "u64"), "u16, u32 and u64")
 
     # registers (bits) one value spans
     if block and typ in ("string", "raw"):
@@ -219,6 +274,22 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
         ctx.fail("encoding", f"encoding is one of {', '.join(_ENCODINGS)}, got {encoding!r}"
                  f"{did_you_mean(str(encoding), _ENCODINGS)}")
 
+    scale_from = raw.get("scale_from")
+    if scale_from is not None:
+        if not isinstance(scale_from, str) or not _NAME.match(scale_from):
+            ctx.fail("scale_from", f"scale_from names a point (its scale factor), got "
+                     f"{scale_from!r}")
+        if "scale" in raw:
+            ctx.fail("scale_from", "a point has scale or scale_from, not both")
+    mask = raw.get("mask")
+    if mask is not None:
+        mask = _int_in(ctx, "mask", mask, 1, (1 << 16 * count) - 1)
+    view_of = raw.get("view_of")
+    if view_of is not None and (not isinstance(view_of, str) or not _NAME.match(view_of)):
+        ctx.fail("view_of", f"view_of names another point, got {view_of!r}")
+    if view_of == name:
+        ctx.fail("view_of", "a point is no view of itself")
+
     scale = offset = None
     if "scale" in raw:
         scale = float(number(ctx, "scale", _option(ctx, "scale", raw["scale"], options)))
@@ -231,9 +302,10 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
 
     bits: int = (width or 1) if typ == "bits" else 8 if info.family == "half" else 16 * count
     lo_raw = -(1 << (bits - 1)) if bits else 0
-    markers = _keyed(ctx, "markers", raw.get("markers", {}), lo_raw, (1 << bits) - 1)
-    markers = {k & ((1 << bits) - 1): v for k, v in markers.items()}
-    for state in markers.values():
+    markers, marker_masks = _markers(ctx, raw.get("markers", {}), lo_raw, bits)
+    if typ == "sunssf":
+        markers.setdefault(SUNSSF_NOT_IMPLEMENTED, "not_implemented")
+    for state in (*markers.values(), *(m[2] for m in marker_masks)):
         if state == "value":
             ctx.fail("markers", "'value' is no marker name (it is the state of a value)")
     signed = info.signed and info.family != "float"
@@ -283,7 +355,8 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     point = Point(
         name=name, table=table, address=address, count=count, type=typ, order=order,
         channels=channels, stride=stride if block else 0, block=block, scale=scale,
-        offset=offset, markers=MappingProxyType(markers), values=MappingProxyType(values),
+        offset=offset, markers=MappingProxyType(markers), marker_masks=tuple(marker_masks),
+        scale_from=scale_from, mask=mask, view_of=view_of, values=MappingProxyType(values),
         flags=MappingProxyType(flags), access=access, valid=valid, group=group,
         deadband=None if deadband is None else float(deadband), precision=precision,
         unit=raw.get("unit", ""), kind=kind_, description=raw.get("description", ""),

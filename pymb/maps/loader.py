@@ -41,7 +41,8 @@ _DEVICE = ("id", "manufacturer", "model", "description", "ref", "default_address
            "address_base", "table", "order", "limits", "timing", "options",
            "max_writes_per_hour")
 _LIMITS = ("max_registers", "max_bits", "max_gap", "readable", "split_on_exception",
-           "single_point_requests", "write_multiple", "mask_write")
+           "single_point_requests", "write_multiple", "mask_write", "ranges")
+_RANGE = ("table", "first", "last", "max_registers", "max_bits")
 _TIMING = ("response_timeout", "turnaround", "inter_request_gap", "after_connect",
            "offline_after", "offline_retry")
 _IDENTIFY = ("point", "range", "equals", "regex")
@@ -302,7 +303,38 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
                   None if "max_gap" not in t else _int(ctx, t, "max_gap", 0, 0, MAX_GAP),
                   MappingProxyType(readable),
                   t.get("split_on_exception", True), t.get("single_point_requests", False),
-                  multiple, t.get("mask_write", False))
+                  multiple, t.get("mask_write", False),
+                  _ranges(ctx, t.get("ranges", []), dev))
+
+
+def _ranges(ctx: Ctx, raw: object, dev: DeviceInfo) -> tuple[tuple[str, int, int, int], ...]:
+    """``ranges = [{ first = 0, last = 9, max_registers = 1 }, ...]``: limits
+    of requests that touch an address range (on-wire, inclusive)."""
+    if not isinstance(raw, list):
+        ctx.fail("ranges", "ranges must be a list of tables: "
+                 "[{ first = 0, last = 9, max_registers = 1 }]")
+    out = []
+    base = dev.address_base
+    for i, r in enumerate(raw):
+        where = f"ranges[{i}]"
+        _keys(ctx, r, _RANGE, where)
+        table = r.get("table", dev.table)
+        if table not in TABLES:
+            ctx.fail("ranges", f"{where}: unknown table {table!r}"
+                     f"{did_you_mean(str(table), TABLES)}")
+        bits = table not in REGISTER_TABLES
+        key, other = ("max_bits", "max_registers") if bits else ("max_registers", "max_bits")
+        if other in r or key not in r:
+            ctx.fail("ranges", f"{where}: a range of {table} {'bits' if bits else 'registers'} "
+                     f"gives {key}")
+        most = _int(ctx, r, key, 1, 1, MAX_READ_BITS if bits else MAX_READ_REGISTERS)
+        first, last = r.get("first"), r.get("last")
+        if (any(isinstance(a, bool) or not isinstance(a, int) for a in (first, last))
+                or not base <= first <= last <= 65535 + base):
+            ctx.fail("ranges", f"{where}: first and last are addresses within "
+                     f"{base}..{65535 + base}, first <= last, got {first!r}, {last!r}")
+        out.append((table, first - base, last - base, most))
+    return tuple(out)
 
 
 def _timing(ctx: Ctx, raw: object) -> Timing:
@@ -384,6 +416,7 @@ def _build(spec: Spec, options: dict[str, int | float],
             continue
         ctx = Ctx(spec.source, raw["name"])
         points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
+    _check_refs(spec.source, points)
     _check_overlaps(spec.source, points.values())
     _check_widths(spec.source, spec.limits, points.values())
     _check_channel_names(spec.source, points)
@@ -392,6 +425,32 @@ def _build(spec: Spec, options: dict[str, int | float],
 
 
 _VIEWS = frozenset({"bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"})
+#: The types a ``scale_from`` may name: a one-register signed exponent of 10.
+SCALE_FACTOR_TYPES = ("sunssf", "i16")
+
+
+def _check_refs(source: str, points: Mapping[str, Point]) -> None:
+    """``scale_from`` and ``view_of`` name points of the same map; a scale
+    factor is a plain ``sunssf`` (or ``i16``) point of the same table that
+    can be read."""
+    for p in points.values():
+        for key, ref in (("scale_from", p.scale_from), ("view_of", p.view_of)):
+            if ref is not None and ref not in points:
+                Ctx(source, p.name).fail(key, f"{key} names no point {ref!r}"
+                                         f"{did_you_mean(ref, list(points))}")
+        if p.scale_from is None:
+            continue
+        sf = points[p.scale_from]
+        why = (f"is a {sf.type}; a scale factor is a {' or '.join(SCALE_FACTOR_TYPES)} point"
+               if sf.type not in SCALE_FACTOR_TYPES else
+               "is a [[block]]; a scale factor is one value" if sf.block else
+               f"is in the {sf.table} table, the point in {p.table}; both must be in one table"
+               if sf.table != p.table else
+               "is write-only; a scale factor must be read" if sf.access == "w" else
+               "has a scale or offset of its own; a scale factor is a plain exponent"
+               if sf.scale is not None or sf.offset is not None else "")
+        if why:
+            Ctx(source, p.name).fail("scale_from", f"scale_from {sf.name!r} {why}")
 
 
 def _check_overlaps(source: str, points: Any) -> None:
@@ -421,8 +480,17 @@ def _check_overlaps(source: str, points: Any) -> None:
 
 def _check_widths(source: str, limits: Limits, points: Any) -> None:
     """Every point fits one request: a point (a block's channel) wider than
-    ``max_registers`` (``max_bits``) could never be read."""
+    ``max_registers`` (``max_bits``), or than a range limit where it lies,
+    could never be read."""
     for p in points:
+        for table, first, last, most in limits.ranges:
+            for c in range(1, p.channels + 1):
+                a = p.address_of(c)
+                if p.table == table and a <= last and first < a + p.count and p.count > most:
+                    Ctx(source, p.name).fail(
+                        "ranges", f"the point is {p.count} registers ({p.type}) but "
+                        f"[device.limits] ranges allow {most} a request at {table} "
+                        f"{first}..{last}; it could never be read")
         regs = p.table in REGISTER_TABLES
         key, most = ("max_registers", limits.max_registers) if regs else \
             ("max_bits", limits.max_bits)
@@ -451,6 +519,12 @@ def _check_channel_names(source: str, points: Mapping[str, Point]) -> None:
                 columns[name] = f"channel {c} of block {b.name!r}"
         else:
             columns[b.name] = f"point {b.name!r}"
+    folded: dict[str, str] = {}
+    for col, what in columns.items():
+        other = folded.setdefault(col.casefold(), col)
+        if other != col:
+            Ctx(source, col).fail("name", f"{what} and {columns[other]} differ only in case; "
+                                  "SQL columns and InfluxDB fields do not tell them apart")
     for col, what in columns.items():
         if f"{col}_state" in points:
             Ctx(source, f"{col}_state").fail(

@@ -4,7 +4,7 @@ new map for other option values."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -68,6 +68,16 @@ class Map:
         marker names from code 16 up."""
         return codec.state_names(self)
 
+    def with_scale_factors(self, names: Iterable[str]) -> tuple[str, ...]:
+        """``names`` and, after them, the ``scale_from`` points they need that
+        are not among them: what a read of ``names`` must read."""
+        out = dict.fromkeys(names)
+        for n in list(out):
+            sf = self.points[n].scale_from
+            if sf is not None:
+                out.setdefault(sf)
+        return tuple(out)
+
     def point(self, name: str) -> Point:
         """The point called ``name``; a :class:`MapError` with a did-you-mean if none."""
         if not isinstance(name, str):
@@ -87,28 +97,38 @@ class Map:
                                   f"got {type(options).__name__}")
         return self._spec.configure(self, {**(options or {}), **kw})
 
-    def decode(self, name: str, registers: Sequence[int]) -> Value:
+    def decode(self, name: str, registers: Sequence[int], *,
+               scale_factor: int | None = None) -> Value:
         """One point's value from its registers (bits for coil/discrete), the
-        first channel's first register first; a block gives a list."""
-        return self.decode_state(name, registers)[0]
+        first channel's first register first; a block gives a list. A
+        ``scale_from`` point needs its ``scale_factor`` (the value of the
+        point it names; None: no value)."""
+        return self.decode_state(name, registers, scale_factor=scale_factor)[0]
 
-    def decode_state(self, name: str, registers: Sequence[int]) -> tuple[Value, Any]:
+    def decode_state(self, name: str, registers: Sequence[int], *,
+                     scale_factor: int | None = None) -> tuple[Value, Any]:
         """(value, state name) of one point; a block gives two lists."""
         p = self.point(name)
+        if scale_factor is not None and (isinstance(scale_factor, bool)
+                                         or not isinstance(scale_factor, int)):
+            raise InvalidArgument(f"{self.source}: a scale factor is a whole number, "
+                                  f"got {scale_factor!r}")
         try:
-            return codec.decode(p, registers)
+            return codec.decode(p, registers, scale_factor)
         except TypeError:
             raise InvalidArgument(f"{self.source}: {name!r} decodes a sequence of register "
                                   f"(or bit) values, got {registers!r:.60}") from None
 
-    def encode(self, name: str, value: object, *, current: Sequence[int] | None = None
-               ) -> list[int]:
+    def encode(self, name: str, value: object, *, current: Sequence[int] | None = None,
+               scale_factor: int | None = None) -> list[int]:
         """The registers (bits for a coil) that write ``value`` to a writable
         point; refuses a read-only point, a value outside ``valid`` or the
         type's range, or a name ``values`` does not list
-        (:class:`pymb.InvalidArgument`). ``bit``/``bits`` views need the
-        register's ``current`` contents."""
-        return codec.encode(self.point(name), value, current=current, check_access=True)
+        (:class:`pymb.InvalidArgument`). ``bit``/``bits`` views and masked
+        values need the register's ``current`` contents, a ``scale_from``
+        point its ``scale_factor``."""
+        return codec.encode(self.point(name), value, current=current, check_access=True,
+                            sf=scale_factor)
 
     def plan(self, group: str | None = None, *, baudrate: int = DEFAULT_BAUD,
              bits_per_char: int = 10) -> ReadPlan:

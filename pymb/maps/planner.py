@@ -75,6 +75,9 @@ class Limits:
     readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=dict)
     split_on_exception: bool = True
     single_point_requests: bool = False
+    #: (table, first, last, most): a request that reads any register (bit)
+    #: of ``first..last`` (inclusive) reads at most ``most``
+    ranges: Sequence[tuple[str, int, int, int]] = ()
 
     def __post_init__(self) -> None:
         if not 1 <= self.max_registers <= MAX_READ_REGISTERS:
@@ -84,6 +87,10 @@ class Limits:
             raise InvalidArgument(f"max_bits must be 1..{MAX_READ_BITS}, got {self.max_bits!r}")
         if self.max_gap is not None and not 0 <= self.max_gap <= MAX_GAP:
             raise InvalidArgument(f"max_gap must be 0..{MAX_GAP}, got {self.max_gap!r}")
+        for table, first, last, most in self.ranges:
+            if table not in TABLES or not 0 <= first <= last <= 65535 or not most >= 1:
+                raise InvalidArgument(f"a range limit is (table, first, last, most), got "
+                                      f"{(table, first, last, most)!r}")
 
     def max_count(self, table: str) -> int:
         """Registers (bits, for a bit table) one request may read."""
@@ -263,11 +270,41 @@ class Known:
         return undeclared <= (max_gap or 0)
 
 
+def _reach(i: int, starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bool],
+           max_count: int, ranges: Sequence[tuple[int, int, int]] | None) -> int:
+    """The last extent a request from extent ``i`` may reach: joinable all
+    the way, within ``max_count`` and within every range limit it touches
+    (``ranges``: half-open ``(start, end, most)``)."""
+    m = len(starts)
+    s = starts[i]
+    limit = s + max_count
+    if ranges:
+        limit = min([limit] + [s + most for a, b, most in ranges if a < ends[i] and s < b])
+    j = i
+    while j + 1 < m and joinable[j] and ends[j + 1] <= limit:
+        if ranges:
+            e = ends[j + 1]
+            cap = min([limit] + [s + most for a, b, most in ranges if a < e and s < b])
+            if e > cap:
+                break
+        j += 1
+    return j
+
+
 def _best_cuts(starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bool],
-               max_count: int, costs: Sequence[float]) -> tuple[list[int], float]:
+               max_count: int, costs: Sequence[float],
+               broken: Sequence[int] | None = None,
+               ranges: Sequence[tuple[int, int, int]] | None = None
+               ) -> tuple[list[int], float]:
     """The cheapest cut of extents (sorted, disjoint) into requests: for each
     request's first extent ``i``, ``last[i]`` is its last one; and the cost.
-    ``joinable[k]``: extents ``k`` and ``k + 1`` may share a request."""
+    ``joinable[k]``: extents ``k`` and ``k + 1`` may share a request.
+    ``broken[k]``: the tied pairs a cut after extent ``k`` separates; with
+    it, the plan that separates the fewest wins, then the cheapest.
+    ``ranges``: half-open ``(start, end, most)`` range limits."""
+    if (broken is not None and any(broken)) or ranges:
+        return _best_tied_cuts(starts, ends, joinable, max_count, costs,
+                               broken or [0] * len(starts), ranges)
     m = len(starts)
     best = [0.0] * (m + 1)
     last = [0] * m
@@ -290,9 +327,42 @@ def _best_cuts(starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bo
     return last, best[0]
 
 
+def _best_tied_cuts(starts: Sequence[int], ends: Sequence[int], joinable: Sequence[bool],
+                    max_count: int, costs: Sequence[float], broken: Sequence[int],
+                    ranges: Sequence[tuple[int, int, int]] | None = None
+                    ) -> tuple[list[int], float]:
+    """:func:`_best_cuts` ordered by (pairs separated, cost), with range limits."""
+    m = len(starts)
+    best: list[tuple[int, float]] = [(0, 0.0)] * (m + 1)
+    last = [0] * m
+    for i in range(m - 1, -1, -1):
+        j = _reach(i, starts, ends, joinable, max_count, ranges)
+        s = starts[i]
+        b: tuple[int, float] = (1 << 62, float("inf"))
+        e = i
+        while j >= i:
+            nb, nc = best[j + 1]
+            c = (nb + (broken[j] if j + 1 < m else 0), costs[ends[j] - s] + nc)
+            if c[0] < b[0] or (c[0] == b[0] and c[1] < b[1] - 1e-12):
+                b, e = c, j
+            j -= 1
+        best[i], last[i] = b, e
+    return last, best[0][1]
+
+
 def _naive_cost(starts: Sequence[int], ends: Sequence[int], max_count: int,
-                costs: Sequence[float]) -> float:
+                costs: Sequence[float],
+                ranges: Sequence[tuple[int, int, int]] | None = None) -> float:
     """One request per contiguous run of extents, split (between extents) at the limit."""
+    if ranges:
+        m = len(starts)
+        contiguous = [ends[k] == starts[k + 1] for k in range(m - 1)]
+        total, i = 0.0, 0
+        while i < m:
+            j = _reach(i, starts, ends, contiguous, max_count, ranges)
+            total += costs[ends[j] - starts[i]]
+            i = j + 1
+        return total
     total, first, prev = 0.0, -1, -1
     for s, e in zip(starts, ends, strict=True):
         if first >= 0 and s == prev and e - first <= max_count:
@@ -331,10 +401,14 @@ def _extents(items: Sequence[Item], order: Sequence[int], max_count: int
 
 def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None, *,
                 wanted: Iterable[int] | None = None,
-                known: Mapping[str, Known] | None = None) -> ReadPlan:
+                known: Mapping[str, Known] | None = None,
+                ties: Sequence[tuple[int, int]] = ()) -> ReadPlan:
     """The cheapest plan that reads ``items`` (or the ones whose indices are
     ``wanted``), table by table. ``known``: what each table's registers are
-    (default: only the wanted points are known to exist)."""
+    (default: only the wanted points are known to exist). ``ties``: pairs of
+    items read in one request wherever the rules allow it (a value and its
+    scale factor): among the plans, the one that separates the fewest pairs
+    wins, then the cheapest."""
     limits = limits or Limits()
     chosen = range(len(items)) if wanted is None else sorted(set(wanted))
     by_table: dict[str, list[int]] = {}
@@ -363,9 +437,11 @@ def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None,
                                                                   limits.max_gap)
                         for k in range(m - 1)]
         costs = line.costs(table, max_count)
-        last, cost = _best_cuts(starts, ends, joinable, max_count, costs)
+        broken = _broken(ties, members, m) if ties else None
+        ranges = [(a, b + 1, most) for t, a, b, most in limits.ranges if t == table]
+        last, cost = _best_cuts(starts, ends, joinable, max_count, costs, broken, ranges)
         total += cost
-        naive += _naive_cost(starts, ends, max_count, costs)
+        naive += _naive_cost(starts, ends, max_count, costs, ranges)
         i = 0
         while i < m:
             j = last[i]
@@ -378,6 +454,20 @@ def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None,
                 span - used))
             i = j + 1
     return ReadPlan(tuple(requests), total, naive, line, len(chosen))
+
+
+def _broken(ties: Sequence[tuple[int, int]], members: Sequence[Sequence[int]], m: int
+            ) -> list[int]:
+    """For each cut after extent k: the tied pairs (both wanted) it separates."""
+    extent = {k: x for x, ks in enumerate(members) for k in ks}
+    broken = [0] * m
+    for a, b in ties:
+        xa, xb = extent.get(a), extent.get(b)
+        if xa is None or xb is None or xa == xb:
+            continue
+        for k in range(min(xa, xb), max(xa, xb)):
+            broken[k] += 1
+    return broken
 
 
 def naive_spans(wanted: Iterable[int],

@@ -73,6 +73,9 @@ class Limits:
     #: "always": FC 16 even for one register; "auto": FC 06 for one, FC 16 for several
     write_multiple: str = "auto"
     mask_write: bool = False  #: FC 22 mask write for bit/bits/8-bit halves (no read first)
+    #: (table, first, last, most): on-wire inclusive ranges where a request may
+    #: read at most ``most`` registers (bits), the device's own rules
+    ranges: tuple[tuple[str, int, int, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -148,6 +151,16 @@ class Point:
     offset: float | None = None
     #: raw value (its unsigned bit pattern) -> state name
     markers: Mapping[int, str] = field(default_factory=_empty)
+    #: markers with don't-care bits: (pattern, care mask, state name), in file
+    #: order; one matches when ``raw & care == pattern`` (after ``markers``)
+    marker_masks: tuple[tuple[int, int, str], ...] = ()
+    #: the name of the ``sunssf`` (or ``i16``) point whose value SF scales
+    #: this one: value = raw x 10^SF
+    scale_from: str | None = None
+    #: the value is ``raw & mask`` (the bits under the mask, not shifted)
+    mask: int | None = None
+    #: the point is a view of the registers of this other point
+    view_of: str | None = None
     values: Mapping[int, str] = field(default_factory=_empty)  #: raw value -> name
     flags: Mapping[int, str] = field(default_factory=_empty)  #: bit number -> name
     access: str = "r"

@@ -14,7 +14,9 @@ __all__ = [
     "INTEGER_TYPES",
     "ORDER_NAMES",
     "REGISTER_TABLES",
+    "SF_RANGE",
     "STATES",
+    "SUNSSF_NOT_IMPLEMENTED",
     "TABLES",
     "TYPES",
     "TypeInfo",
@@ -77,6 +79,7 @@ TYPES: dict[str, TypeInfo] = dict([
     _t("f32", 2, True, "float"),
     _t("f64", 4, True, "float"),
     _t("sm16", 1, False, "sm"),
+    _t("sunssf", 1, True, "int"),
     _t("string", 0, False, "string"),
     _t("raw", 0, False, "raw"),
 ])
@@ -92,7 +95,15 @@ _LETTERS = "ABCDEFGH"
 
 #: State names by code, the codes the C decoder writes. 0..6 are fixed;
 #: a map's own marker names get codes from 16 up (``Map.state_names``).
-STATES = ("value", "offline", "no_sensor", "unsupported", "not_read", "nan", "invalid_text")
+STATES = ("value", "offline", "no_sensor", "unsupported", "not_read", "nan", "invalid_text",
+          "no_scale")
+
+#: A ``sunssf`` point (SunSpec's scale factor: an int16 exponent of 10) that
+#: reads 0x8000 is not implemented: this marker is every ``sunssf``'s own.
+SUNSSF_NOT_IMPLEMENTED = 0x8000
+#: The scale factors a ``scale_from`` point accepts (SunSpec's range): any
+#: other, or a not-implemented one, gives no value (the state ``no_scale``).
+SF_RANGE = (-10, 10)
 
 
 def normalize_order(order: str, nbytes: int) -> str | None:

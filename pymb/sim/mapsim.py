@@ -30,7 +30,7 @@ from pymb.devices.mapspec import parse_map_device
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
 from pymb.maps.codec import encode
-from pymb.maps.types import TYPES
+from pymb.maps.types import SF_RANGE, TYPES
 from pymb.sim.clock import SimClock
 from pymb.sim.devices import Device, ExceptionCode, exception_pdu
 
@@ -78,7 +78,10 @@ class MapSimDevice(Device):
                 for c in range(1, p.channels + 1):
                     a = p.address_of(c)
                     shown[p.table][a:a + p.count] = b"\x01" * p.count
-        for p in sorted(m.points.values(), key=lambda p: p.example is not None):
+        # scale factors first: the values they scale are encoded with them
+        sfs = {p.scale_from for p in m.points.values()}
+        for p in sorted(m.points.values(),
+                        key=lambda p: (p.name not in sfs, p.example is not None)):
             for c in range(1, p.channels + 1):
                 a = p.address_of(c)
                 if p.example is not None or not any(shown[p.table][a:a + p.count]):
@@ -94,8 +97,20 @@ class MapSimDevice(Device):
         a = p.address_of(channel)
         img = self._images[p.table]
         current = list(img[a:a + p.count])
-        regs = encode(p, value, current=current, check_access=False)
+        sf = self._sf_of(p)
+        if p.scale_from is not None and sf is None:
+            return  # the scale factor says "not implemented": the raw value stays
+        regs = encode(p, value, current=current, check_access=False, sf=sf)
         img[a:a + len(regs)] = array("H", regs)
+
+    def _sf_of(self, p: Point) -> int | None:
+        """The scale factor a ``scale_from`` point has now (None: none, or
+        not implemented)."""
+        if p.scale_from is None:
+            return None
+        q = self.map.points[p.scale_from]
+        v = self.map.decode(q.name, self._images[q.table][q.address:q.address + 1])
+        return v if isinstance(v, int) and SF_RANGE[0] <= v <= SF_RANGE[1] else None
 
     def _init(self, p: Point, channel: int, rng: random.Random) -> None:
         family = TYPES[p.type].family
@@ -111,10 +126,12 @@ class MapSimDevice(Device):
             self._put(p, channel, p.name[:(2 if p.string_bytes == "both" else 1) * p.count])
         elif family == "raw":
             self._put(p, channel, [rng.randrange(0x10000) for _ in range(p.count)])
-        elif p.flags or family in ("bits", "half"):
+        elif p.flags or family in ("bits", "half") or p.type == "sunssf":
             self._put(p, channel, 0)
         else:
             lo, hi = self._range(p)
+            if p.scale_from is not None and p.valid is None:
+                lo, hi = (x * 10.0 ** (self._sf_of(p) or 0) for x in (lo, hi))
             level = lo + (hi - lo) * (0.3 + 0.4 * rng.random())
             self._model.append((p, channel, level, 0.02 * (hi - lo), rng.random() * 2 * math.pi))
             self._put(p, channel, self._fit(p, level))
@@ -143,7 +160,8 @@ class MapSimDevice(Device):
     @staticmethod
     def _fit(p: Point, v: float) -> float | int:
         """``v`` as the point can hold it: whole for an unscaled integer."""
-        if TYPES[p.type].family != "float" and p.scale is None and p.offset is None:
+        if TYPES[p.type].family != "float" and p.scale is None and p.offset is None \
+                and p.scale_from is None:
             return round(v)
         return v
 

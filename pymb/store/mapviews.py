@@ -17,7 +17,7 @@ import sqlite3
 from pymb.devices.mapreading import group_layout, group_points
 from pymb.maps import Map, Point
 from pymb.maps.codec import decimal_power
-from pymb.maps.types import TYPES, permutation
+from pymb.maps.types import SF_RANGE, TYPES, permutation
 from pymb.store.schema import MAP_UNSUPPORTED_BITS
 
 __all__ = ["create_map_views", "view_names"]
@@ -56,6 +56,8 @@ def _pattern(p: Point, at: str) -> tuple[str, str]:
 
 
 def _scaled(v: str, p: Point) -> str:
+    if p.scale_from is not None:  # scaled by its scale factor, then the offset: _sf_scaled
+        return f"(({v}) * 1.0)"
     k = decimal_power(p.scale)
     if k:
         v = f"({v}) / 1e{k}"
@@ -109,8 +111,22 @@ def _text(p: Point, at: str) -> str:
     return f"(SELECT {out} FROM (SELECT {text} AS t FROM (SELECT {octets})))"
 
 
-def _value(p: Point, at: str) -> str:
-    """The SQL of one channel's value from byte ``at`` of the stored registers."""
+def _sf_scaled(v: str, sf: str) -> str:
+    """``v`` x 10^sf as the decoder makes it (dividing by 10^-sf for a
+    negative one); NULL for a scale factor outside SunSpec's range."""
+    lo, hi = SF_RANGE
+    cases = " ".join(f"WHEN {k} THEN ({v}) / 1e{-k}" if k < 0 else f"WHEN {k} THEN ({v}) * 1e{k}"
+                     for k in range(lo, hi + 1))
+    return f"(CASE {sf} {cases} ELSE NULL END)"
+
+
+def _signed64(r: int) -> int:
+    return r - (1 << 64) if r >> 63 else r
+
+
+def _value(p: Point, at: str, sf_at: str | None = None, sf: Point | None = None) -> str:
+    """The SQL of one channel's value from byte ``at`` of the stored
+    registers (a ``scale_from`` point: its scale factor ``sf`` at ``sf_at``)."""
     family = TYPES[p.type].family
     if family in ("bool",):
         return f"(CASE WHEN {_byte(at)} * 256 + {_byte(f'{at} + 1')} != 0 THEN 1 ELSE 0 END)"
@@ -127,6 +143,9 @@ def _value(p: Point, at: str) -> str:
     elif family == "half":
         u = f"({u} >> 8)" if p.type.endswith("_hi") else f"({u} & 255)"
         signed = f"({u} - CASE WHEN {u} >= 128 THEN 256 ELSE 0 END)" if p.type[0] == "i" else u
+    if p.mask is not None:  # u16, u32, u64 only
+        u = f"({u} & {_signed64(p.mask)})"
+        signed = f"({signed} & {_signed64(p.mask)})"
     if family == "float":
         v = _scaled(_float(u if p.count < 4 else signed, 16 * p.count), p)
     elif family == "sm":
@@ -138,19 +157,30 @@ def _value(p: Point, at: str) -> str:
                     f"4294967295) * 4294967296.0 + ({signed} & 4294967295)) END)", p)
     else:
         v = _scaled(signed if TYPES[p.type].signed else u, p)
+    if p.scale_from is not None and sf is not None and sf_at is not None:
+        v = _sf_scaled(v, _pattern(sf, sf_at)[1])
+        if p.offset is not None:
+            v = f"({v} + {p.offset!r})"
+    marker = u if p.count < 4 else signed
     if p.markers:
         raws = ", ".join(str(r) for r in p.markers)
-        marker = u if p.count < 4 else signed
         if p.count == 4:  # the markers of a 64-bit value, as the signed pattern holds them
-            raws = ", ".join(str(r - (1 << 64) if r >> 63 else r) for r in p.markers)
+            raws = ", ".join(str(_signed64(r)) for r in p.markers)
         v = f"CASE WHEN {marker} IN ({raws}) THEN NULL ELSE {v} END"
+    if p.marker_masks:
+        fix = _signed64 if p.count == 4 else int
+        whens = " OR ".join(f"({marker} & {fix(care)}) = {fix(pattern)}"
+                            for pattern, care, _ in p.marker_masks)
+        v = f"CASE WHEN {whens} THEN NULL ELSE {v} END"
     return v
 
 
 def _columns(m: Map, blocks: bool) -> list[str]:
     """Each point's column (blocks or the others), NULL outside its group."""
     groups: list[str | None] = list(m.groups) if m.groups else [None]
-    out = []
+    # name -> (condition, value) for each group that reads it (a scale factor
+    # is read by its own group and by those of the points it scales)
+    cases: dict[str, list[tuple[str, str]]] = {}
     for g in groups:
         names = group_points(m, g)
         offsets: dict[str, int] = {}
@@ -169,8 +199,11 @@ def _columns(m: Map, blocks: bool) -> list[str]:
             cond = f"g.grp = '{g or ''}' AND NOT (s.unsupported >> {bit}) & 1"
             if blocks:
                 cond += f" AND c.channel <= {p.channels}"
-            out.append(f"CASE WHEN {cond} THEN {_value(p, at_sql)} END AS \"{n}\"")
-    return out
+            sf = m.points[p.scale_from] if p.scale_from is not None else None
+            sf_at = str(offsets[sf.name]) if sf is not None else None
+            cases.setdefault(n, []).append((cond, _value(p, at_sql, sf_at, sf)))
+    return [f"CASE {' '.join(f'WHEN {c} THEN {v}' for c, v in whens)} END AS \"{n}\""
+            for n, whens in cases.items()]
 
 
 def create_map_views(db: sqlite3.Connection, m: Map) -> None:

@@ -102,3 +102,7 @@ def test_the_fleet_page_datatype_table_is_the_code() -> None:
     scaled = loads('schema = "pymb.map/1"\n[device]\nid = "x"\n[[point]]\nname = "p"\n'
                    'address = 0\ntype = "u16"\nscale = 0.1\n').points["p"]
     assert datatype(scaled) == DataType.DOUBLE
+    by_sf = loads('schema = "pymb.map/1"\n[device]\nid = "x"\n[[point]]\nname = "p"\n'
+                  'address = 0\ntype = "u16"\nscale_from = "sf"\n[[point]]\nname = "sf"\n'
+                  'address = 1\ntype = "sunssf"\n').points["p"]
+    assert datatype(by_sf) == DataType.DOUBLE

@@ -59,6 +59,7 @@ def test_map_error_is_a_modbus_error_and_a_value_error() -> None:
     ('[[point]]\nname = "a"\ntype = "u16"\n', ("point 'a'", "'address'", "required")),
     ('[[point]]\nname = "a"\naddress = 0\n', ("'type'", "required")),
     ('[[point]]\nname = "A b"\naddress = 0\ntype = "u16"\n', ("'name'", "snake_case")),
+    ('[[point]]\nname = "a..b"\naddress = 0\ntype = "u16"\n', ("'name'", "snake_case")),
     ('[[point]]\nname = "s"\naddress = 0\ntype = "string"\n', ("'count'", "required")),
     ('[[point]]\nname = "s"\naddress = 0\ntype = "raw"\ncount = 126\n', ("'count'", "1..125")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "u32"\ncount = 2\n', ("'count'", "[[block]]")),

@@ -176,6 +176,50 @@ count = 2
 string_bytes = "high"
 order = "BADC"
 group = "b"
+[[point]]
+name = "W"
+address = 60
+type = "i16"
+scale_from = "W_SF"
+group = "a"
+[[point]]
+name = "Hz"
+address = 61
+type = "u32"
+scale_from = "Hz_SF"
+offset = 0.5
+group = "a"
+[[point]]
+name = "W_SF"
+address = 63
+type = "sunssf"
+[[point]]
+name = "Hz_SF"
+address = 64
+type = "i16"
+order = "BA"
+group = "b"
+[[point]]
+name = "eta"
+address = 65
+type = "u16"
+mask = 0x006F
+markers = { 0x0020 = "off" }
+group = "a"
+[[point]]
+name = "energy"
+address = 66
+type = "u32"
+markers = { "0x7FFFxxxx" = "overflow" }
+group = "a"
+[[point]]
+name = "big"
+address = 68
+type = "u64"
+order = "CDAB"
+mask = 0xFFFF00000000FFFF
+markers = { "0xFFFFxxxxxxxxxxxx" = "top" }
+group = "a"
 [[block]]
 name = "temps"
 first = 30
@@ -236,6 +280,15 @@ def random_reading(m: Map, group: str | None, rng: random.Random) -> MapReading:
             if p.type in ("f32", "f64", "f16") and rng.random() < 0.2:
                 for k in range(p.address - dec.address, p.address - dec.address + p.span):
                     words[k] = 0  # zeros and small exponents too
+        for n in dec.names:  # scale factors: in SunSpec's range mostly, some not
+            p = m.points[n]
+            if p.type in ("sunssf", "i16") and n.endswith("_SF"):
+                sf = rng.choice((*range(-10, 11), -32768, 11, -11, 32767))
+                w = sf & 0xFFFF
+                words[p.address - dec.address] = (w >> 8 | (w & 0xFF) << 8) \
+                    if p.order == "BA" else w
+            if n in ("energy", "big") and rng.random() < 0.3:
+                words[p.address - dec.address + 1] = 0x7FFF if n == "energy" else 0xFFFF
         if rng.random() < 0.3:  # the markers of every point
             for n in dec.names:
                 p = m.points[n]
