@@ -150,6 +150,48 @@ def _markers(ctx: Ctx, v: object, lo: int, bits: int
     return {n & full: name for n, name in out.items()}, masked
 
 
+def _bits_of(n: int) -> list[int]:
+    return [b for b in range(n.bit_length()) if n >> b & 1]
+
+
+def _flags(ctx: Ctx, v: object, bits: int, typ: str) -> dict[int, str]:
+    """``flags``: bit numbers in decimal (0 = least significant) to names. A
+    key written in hex, binary or octal (``0x0008``) is a mask, as manuals
+    print them: refused with the bit it meant (``3``)."""
+    if not isinstance(v, dict):
+        ctx.fail("flags", "flags must be a table of bit numbers: { 0 = \"fault\", 3 = \"alarm\" }")
+    out: dict[int, str] = {}
+    for k, name in v.items():
+        t = k.strip().lower()
+        if t[:2] in ("0x", "0b", "0o"):
+            try:
+                n = int(t, 0)
+            except ValueError:
+                ctx.fail("flags", f"flags: {k!r} is not a bit number")
+            set_bits = _bits_of(n)
+            if len(set_bits) == 1:
+                ctx.fail("flags", f"flags: {k} is a mask; flags keys are bit numbers in decimal "
+                         f"(0 = least significant): write {set_bits[0]} = \"{name}\"")
+            ctx.fail("flags", f"flags: {k} is a mask of bits "
+                     f"{', '.join(map(str, set_bits)) or 'none'}; flags keys are bit numbers "
+                     "in decimal, one bit each (a field of several bits is a bits point, or "
+                     "a point with mask)")
+        try:
+            n = int(t, 10)
+        except ValueError:
+            ctx.fail("flags", f"flags: {k!r} is not a bit number (0 = least significant, "
+                     "in decimal)")
+        if not 0 <= n < bits:
+            hint = ""
+            if n > 0 and len(_bits_of(n)) == 1:
+                hint = f"; if {k} is a mask, it is bit {n.bit_length() - 1}"
+            ctx.fail("flags", f"flags: {k} is no bit of a {typ} (bits 0..{bits - 1}){hint}")
+        if not isinstance(name, str) or not name:
+            ctx.fail("flags", f"flags: the name of bit {k} must be a non-empty string")
+        out[n] = name
+    return out
+
+
 def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
                 groups: Mapping[str, float], options: Mapping[str, int | float]) -> Point:
     """Check one ``[[point]]``/``[[block]]`` table and make its Point."""
@@ -314,7 +356,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
     if typ == "sm16":
         vlo, vhi = -0x7FFF, 0x7FFF
     values = _keyed(ctx, "values", raw.get("values", {}), vlo, vhi)
-    flags = _keyed(ctx, "flags", raw.get("flags", {}), 0, bits - 1)
+    flags = _flags(ctx, raw.get("flags", {}), bits, typ)
 
     access = raw.get("access", "r")
     if access not in ("r", "rw", "w"):

@@ -12,13 +12,14 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
+from pymb.maps.checks import check_channel_names, check_overlaps, check_refs, check_widths
 from pymb.maps.fields import Ctx, build_point, number, strings
 from pymb.maps.model import Map
 from pymb.maps.planner import MAX_GAP
@@ -416,127 +417,12 @@ def _build(spec: Spec, options: dict[str, int | float],
             continue
         ctx = Ctx(spec.source, raw["name"])
         points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
-    _check_refs(spec.source, points)
-    _check_overlaps(spec.source, points.values())
-    _check_widths(spec.source, spec.limits, points.values())
-    _check_channel_names(spec.source, points)
+    check_refs(spec.source, points)
+    check_overlaps(spec.source, points.values())
+    check_widths(spec.source, spec.limits, points.values())
+    check_channel_names(spec.source, points)
     return Map(spec.source, spec.device, spec.limits, spec.timing, spec.groups,
                MappingProxyType(points), spec.identify, MappingProxyType(dict(options)), spec)
-
-
-_VIEWS = frozenset({"bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"})
-#: The types a ``scale_from`` may name: a one-register signed exponent of 10.
-SCALE_FACTOR_TYPES = ("sunssf", "i16")
-
-
-def _check_refs(source: str, points: Mapping[str, Point]) -> None:
-    """``scale_from`` and ``view_of`` name points of the same map; a scale
-    factor is a plain ``sunssf`` (or ``i16``) point of the same table that
-    can be read."""
-    for p in points.values():
-        for key, ref in (("scale_from", p.scale_from), ("view_of", p.view_of)):
-            if ref is not None and ref not in points:
-                Ctx(source, p.name).fail(key, f"{key} names no point {ref!r}"
-                                         f"{did_you_mean(ref, list(points))}")
-        if p.scale_from is None:
-            continue
-        sf = points[p.scale_from]
-        why = (f"is a {sf.type}; a scale factor is a {' or '.join(SCALE_FACTOR_TYPES)} point"
-               if sf.type not in SCALE_FACTOR_TYPES else
-               "is a [[block]]; a scale factor is one value" if sf.block else
-               f"is in the {sf.table} table, the point in {p.table}; both must be in one table"
-               if sf.table != p.table else
-               "is write-only; a scale factor must be read" if sf.access == "w" else
-               "has a scale or offset of its own; a scale factor is a plain exponent"
-               if sf.scale is not None or sf.offset is not None else "")
-        if why:
-            Ctx(source, p.name).fail("scale_from", f"scale_from {sf.name!r} {why}")
-
-
-def _check_overlaps(source: str, points: Any) -> None:
-    """Points may share registers only as views of the same registers: the
-    same span, or a bit/byte view inside another point."""
-    spans: dict[str, list[tuple[int, int, Point, int]]] = {}
-    for p in points:
-        for c in range(p.channels):
-            a = p.address + c * p.stride
-            spans.setdefault(p.table, []).append((a, a + p.count, p, c + 1))
-    for table, items in spans.items():
-        items.sort(key=lambda s: (s[0], -s[1]))
-        wide = items[0]
-        for s in items[1:]:
-            if s[0] < wide[1]:
-                ok = (s[0], s[1]) == (wide[0], wide[1]) or (
-                    s[2].type in _VIEWS and wide[0] <= s[0] and s[1] <= wide[1])
-                if not ok:
-                    where = _where(table)
-                    raise MapError(f"{source}: point {s[2].name!r}: key 'address': {where(s)} "
-                                   f"overlaps {where(wide)}; points may overlap only as views "
-                                   "of the same registers", source=source, point=s[2].name,
-                                   key="address")
-            if s[1] > wide[1]:
-                wide = s
-
-
-def _check_widths(source: str, limits: Limits, points: Any) -> None:
-    """Every point fits one request: a point (a block's channel) wider than
-    ``max_registers`` (``max_bits``), or than a range limit where it lies,
-    could never be read."""
-    for p in points:
-        for table, first, last, most in limits.ranges:
-            for c in range(1, p.channels + 1):
-                a = p.address_of(c)
-                if p.table == table and a <= last and first < a + p.count and p.count > most:
-                    Ctx(source, p.name).fail(
-                        "ranges", f"the point is {p.count} registers ({p.type}) but "
-                        f"[device.limits] ranges allow {most} a request at {table} "
-                        f"{first}..{last}; it could never be read")
-        regs = p.table in REGISTER_TABLES
-        key, most = ("max_registers", limits.max_registers) if regs else \
-            ("max_bits", limits.max_bits)
-        if p.count > most:
-            what = "registers" if regs else "bits"
-            Ctx(source, p.name).fail(key, f"the point is {p.count} {what} ({p.type}) but "
-                                     f"[device.limits] {key} = {most} allows at most {most} "
-                                     f"per request; raise {key} to at least {p.count}")
-
-
-def _check_channel_names(source: str, points: Mapping[str, Point]) -> None:
-    """A point may not be named as a block's channel is in exports and
-    InfluxDB (``t_1`` beside a block ``t``), nor as InfluxDB's field of a
-    column without a value (``x_state`` beside ``x``): two values would share
-    a column."""
-    columns: dict[str, str] = {}  # column -> what it is, for the message
-    for b in points.values():
-        if b.block:
-            for c in range(1, b.channels + 1):
-                name = f"{b.name}_{c}"
-                if name in points:
-                    Ctx(source, name).fail(
-                        "name", f"the name {name!r} is channel {c} of block {b.name!r} "
-                        f"in exports and InfluxDB ({b.name}_1..{b.name}_{b.channels}); "
-                        f"rename the point or the block")
-                columns[name] = f"channel {c} of block {b.name!r}"
-        else:
-            columns[b.name] = f"point {b.name!r}"
-    folded: dict[str, str] = {}
-    for col, what in columns.items():
-        other = folded.setdefault(col.casefold(), col)
-        if other != col:
-            Ctx(source, col).fail("name", f"{what} and {columns[other]} differ only in case; "
-                                  "SQL columns and InfluxDB fields do not tell them apart")
-    for col, what in columns.items():
-        if f"{col}_state" in points:
-            Ctx(source, f"{col}_state").fail(
-                "name", f"the name '{col}_state' is the InfluxDB field that says why "
-                f"{what} has no value; rename the point")
-
-
-def _where(table: str) -> Callable[[tuple[int, int, Point, int]], str]:
-    def where(x: tuple[int, int, Point, int]) -> str:
-        ch = f" channel {x[3]}" if x[2].block else ""
-        return f"{x[2].name!r}{ch} ({table} {x[0]}..{x[1] - 1})"
-    return where
 
 
 def _identify(i: int, raw: object, spec: Spec) -> Identify:
