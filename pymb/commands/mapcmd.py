@@ -1,4 +1,5 @@
-"""``pymb map``: check a device map, or probe a device's registers.
+"""``pymb map``: check a device map, probe a device's registers, list the
+shipped maps or show one's points (:mod:`pymb.commands.mapshow`).
 
 ``pymb map check FILE`` validates a map and prints each group's read plan
 with its predicted wire time. ``pymb map probe ADDRESS TABLE:START:COUNT``
@@ -15,6 +16,7 @@ import os
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
+from pymb.commands.mapshow import add_list_show, run_list, run_show
 from pymb.devices.mapspec import load_map
 from pymb.errors import IllegalDataAddress, InvalidArgument
 from pymb.maps import Point
@@ -29,7 +31,7 @@ __all__ = ["add_arguments", "interpretations", "run"]
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``pymb map check|probe``."""
-    sub = p.add_subparsers(dest="map_command", metavar="check|probe")
+    sub = p.add_subparsers(dest="map_command", metavar="check|probe|list|show")
     check = sub.add_parser("check", help="validate a map; print each group's plan and "
                                          "predicted wire time",
                            description="validate a map; print each group's plan and "
@@ -49,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                             "from 0) and how many (1..125), e.g. input:0:4")
     add_connection_args(probe)
     probe.add_argument("--json", action="store_true", help="print JSON")
+    add_list_show(sub)
 
 
 def _plural(n: int, word: str) -> str:
@@ -183,6 +186,11 @@ def run(args: argparse.Namespace) -> int:
         return _check(args)
     if args.map_command == "probe":
         return _probe(args)
-    raise InvalidArgument("give a subcommand: pymb map check FILE, or pymb map probe "
-                          "ADDRESS TABLE:START:COUNT --port PATH")
+    if args.map_command == "list":
+        return run_list(args)
+    if args.map_command == "show":
+        return run_show(args)
+    raise InvalidArgument("give a subcommand: pymb map check FILE, pymb map probe "
+                          "ADDRESS TABLE:START:COUNT --port PATH, pymb map list, or "
+                          "pymb map show ID")
 

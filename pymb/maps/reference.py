@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from pathlib import Path
+from typing import Any
 
 from pymb.maps import loader
 from pymb.maps.checks import SCALE_FACTOR_TYPES
@@ -149,7 +150,7 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
     }),
 }
 
-_RECORDS = {"limits": Limits, "timing": Timing}
+_RECORDS: dict[str, Any] = {"limits": Limits, "timing": Timing}
 
 #: What each type is (the loader's TYPES gives its width and family).
 TYPE_DOCS = {
@@ -191,8 +192,9 @@ ORDER_DOCS = {
 
 def _default(section: str, default: str) -> str:
     record = _RECORDS.get(section)
-    if record is not None and default in record.__dataclass_fields__:
-        f = record.__dataclass_fields__[default]
+    fields = {f.name: f for f in dataclasses.fields(record)} if record is not None else {}
+    if default in fields:
+        f = fields[default]
         v = f.default if f.default is not dataclasses.MISSING else None
         if isinstance(v, bool):
             return f"`{str(v).lower()}`"
