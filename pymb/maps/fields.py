@@ -17,6 +17,7 @@ from pymb.maps.types import (
     INTEGER_TYPES,
     ORDER_NAMES,
     REGISTER_TABLES,
+    SF_RANGE,
     SUNSSF_NOT_IMPLEMENTED,
     TABLES,
     TYPES,
@@ -415,11 +416,17 @@ def _check_example(ctx: Ctx, p: Point, example: object) -> None:
     items = example if p.block and isinstance(example, list) else [example]
     if p.block and isinstance(example, list) and len(example) != p.channels:
         ctx.fail("example", f"example has {len(example)} values for {p.channels} channels")
+    # a scale_from point's example must fit with some scale factor (its own is another point's)
+    sfs: list[int | None] = [None] if p.scale_from is None else list(
+        range(SF_RANGE[0], SF_RANGE[1] + 1))
     for item in items:
         if item is None:
             continue
-        try:
-            encode(p, item, current=[0] * p.count, check_access=False)
-        except InvalidArgument as e:
-            ctx.fail("example", f"example {item!r}: {e}")
+        for i, sf in enumerate(sfs):
+            try:
+                encode(p, item, current=[0] * p.count, check_access=False, sf=sf)
+                break
+            except InvalidArgument as e:
+                if i == len(sfs) - 1:
+                    ctx.fail("example", f"example {item!r}: {e}")
 

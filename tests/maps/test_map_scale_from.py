@@ -6,6 +6,7 @@ registers, and the loader's refusals."""
 from __future__ import annotations
 
 import math
+import struct
 from array import array
 from typing import Any
 
@@ -203,3 +204,48 @@ type = "sunssf"
     assert message in str(e.value)
     assert "\n" not in str(e.value)
     assert str(e.value).startswith("dev.toml: point 'v'")
+
+
+def test_the_map_simulator_serves_scaled_values_with_their_scale_factor() -> None:
+    from pymb.sim.mapsim import MapSimDevice
+
+    m = maps.loads(HEAD + '''
+[[point]]
+name = "W"
+address = 100
+type = "i16"
+scale_from = "W_SF"
+example = 33420.0
+[[point]]
+name = "W_SF"
+address = 101
+type = "sunssf"
+example = 1
+[[point]]
+name = "Hz"
+address = 102
+type = "u16"
+scale_from = "Hz_SF"
+[[point]]
+name = "Hz_SF"
+address = 103
+type = "sunssf"
+example = -2
+[[point]]
+name = "state"
+address = 104
+type = "u16"
+mask = 0x006F
+example = 0x27
+''')
+    sim = MapSimDevice(m, 1, dynamic=False)
+    reply = sim.handle(bytes((3, 0, 100, 0, 5)))
+    assert reply is not None
+    regs = list(struct.unpack(">5H", reply[2:]))
+    assert regs[:2] == [3342, 1]
+    got = Decoder(m).read(regs)
+    assert got["W"] == 33420.0
+    assert got["state"] == 0x27
+    hz = got["Hz"]
+    assert isinstance(hz, float)
+    assert hz == regs[2] / 100  # a modelled value, encoded with its scale factor
