@@ -62,7 +62,8 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
     "limits": ("`[device.limits]`", loader._LIMITS, {  # noqa: SLF001
         "max_registers": ("registers per FC 03/04 request (1..125)", "max_registers"),
         "max_bits": ("bits per FC 01/02 request (1..2000)", "max_bits"),
-        "max_gap": ("undeclared registers a request may span to merge two reads", "max_gap"),
+        "max_gap": ("undeclared registers (0..124) a request may span to merge two reads; "
+                    "unset: none, or any gap inside `readable`", "unset"),
         "readable": ("`{ input = [[0, 79]] }`: ranges known to exist; gaps are bridged only "
                      "inside them", "-"),
         "split_on_exception": ("exception 02/03 on a bridged read: stop bridging there",
