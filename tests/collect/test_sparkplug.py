@@ -255,12 +255,18 @@ def test_qos0_data_beyond_the_inbox_are_dropped_and_a_rebirth_asked(
         wait_until(lambda: col.stats.dropped > 0, "dropped QoS 0 messages", 30)
         time.sleep(1.0)  # the rest of the 200 arrive (and are dropped)
         postgres.start()
-        ncmd.wait_until(lambda m: m, 30, "the rebirth request of the seq gap")
         kept = 200 - col.stats.dropped
         wait_rows(lambda: pg_count(postgres.url), 1 + kept, "what was kept")
+        # the next message shows the gap the drops left
+        publish(broker.port, [(f"spBv1.0/{GROUP}/DDATA/n1/d1",
+                               _pb(pb, 202 % 256, {"alias": 7, "datatype": 10,
+                                                   "double_value": 200.0,
+                                                   "timestamp": t + 201000}))], qos=0)
+        ncmd.wait_until(lambda m: m, 30, "the rebirth request of the seq gap")
+        wait_rows(lambda: pg_count(postgres.url), 2 + kept, "the message after the gap")
     finally:
         col.stop.set()
         runner.join(60)
-    assert pg_count(postgres.url) == 1 + kept
+    assert pg_count(postgres.url) == 2 + kept
     assert any(e.startswith("dropped ") and "QoS 0 messages" in e for e in events), events
     assert any("rebirth" in e for e in events), events
