@@ -51,6 +51,13 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("carlo-gavazzi-em24", "phase_sequence", [0xFFFF], -1, "value"),  # L1-L3-L2
     ("carlo-gavazzi-em21", "total_power_factor", [0xFC2E], -0.978, "value"),  # leading
     ("carlo-gavazzi-em21", "frequency_hz", [500], 50.0, "value"),
+    # an overflow: the most significant word is 7FFFh, whatever the least significant one
+    ("carlo-gavazzi-em24", "l1_current_a", [0x0000, 0x7FFF], None, "overflow"),
+    ("carlo-gavazzi-em24", "total_active_power_w", [0xFFFF, 0x7FFF], None, "overflow"),
+    ("carlo-gavazzi-em21", "import_active_energy_kwh", [0x1234, 0x7FFF], None, "overflow"),
+    ("carlo-gavazzi-em340", "l1_voltage_v", [0x0901, 0x7FFF], None, "overflow"),
+    ("carlo-gavazzi-em24", "l1_current_a", [0xFFFF, 0x7FFE], 2147418.111, "value"),  # not one
+    ("carlo-gavazzi-em24", "version_code", [0], 0, "value"),  # version A
     # ABB B23/B24: big-endian; 0.01 kWh energies in 64 bits; a missing value is all ones
     ("abb-b23", "import_active_energy_kwh", msw_first(123456789, 4), 1234567.89, "value"),
     ("abb-b23", "net_active_energy_kwh", msw_first(-250, 4), -2.5, "value"),
@@ -115,6 +122,12 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("schneider-atv320", "output_frequency_hz", [0xFE0C], -50.0, "value"),  # reverse
     ("schneider-atv320", "frequency_reference_hz", [500], 50.0, "value"),
     ("schneider-atv320", "command_word", [0x000F], 0x000F, "value"),  # enable operation
+    # the DRIVECOM state is ETA AND 006Fh, whatever the other bits say
+    ("schneider-atv320", "drive_state", [0x0637], 0x0027, "value"),  # operation enabled
+    ("schneider-atv320", "drive_state", [0x0250], 0x0040, "value"),  # switch on disabled
+    ("schneider-atv320", "drive_state", [0x8231], 0x0021, "value"),  # ready to switch on
+    ("schneider-atv320", "drive_state", [0x0217], 0x0007, "value"),  # quick stop active
+    ("schneider-atv320", "drive_state", [0x0218], 0x0008, "value"),  # fault
     # ABB ACS580: 20000 = 100 % of the scaling parameter
     ("abb-acs580", "reference1_pct", [20000], 100.0, "value"),
     ("abb-acs580", "actual1_pct", [0xB1E0], -100.0, "value"),
@@ -210,3 +223,9 @@ WRITES: list[tuple[str, str, Any, list[int]]] = [
 def test_a_documented_write(map_id: str, point: str, value: Any, regs: list[int]) -> None:
     m = maps.builtin(map_id)
     assert m.encode(point, value) == regs
+
+
+def test_the_em24_version_codes_are_read_one_word_a_request() -> None:
+    for map_id in ("carlo-gavazzi-em21", "carlo-gavazzi-em24"):
+        plan = maps.builtin(map_id).plan("identity")
+        assert [(r.address, r.count) for r in plan] == [(0x0302, 1), (0x0303, 1)]
