@@ -225,7 +225,7 @@ def start_log(endpoint: str, db: Path, *mqtt: str, env: dict[str, str] | None = 
     """``pymb log`` of the simulated CoolPro into ``db``, forwarding as ``mqtt``
     says, committing every ``commit`` seconds: the tests watch the database
     from outside (None: the logger's own rule, which commits a few hundred
-    samples minutes later; the forwarder publishes them before that)."""
+    samples within 1.5 s; the forwarder publishes them before that)."""
     args = [*PYMB, "log", "--tcp", endpoint, "--device", device,
             "--interval", "0.01", "--out", str(db), *mqtt]
     if commit is not None:

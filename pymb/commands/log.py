@@ -20,12 +20,7 @@ from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import PASSWORD_ENV, PROFILES, PROTOCOLS
 from pymb.logger import Logger
-from pymb.logger.config import (
-    COMMIT_BYTES,
-    COMMIT_INTERVAL,
-    COMMIT_LONGEST,
-    COMMIT_SMALL,
-)
+from pymb.logger.config import COMMIT_BYTES, COMMIT_INTERVAL
 from pymb.service.journal import echoing
 from pymb.service.run import Service
 from pymb.store import FORMATS, check_output, open_sink
@@ -60,11 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-age-days", type=_positive, metavar="DAYS",
                    help="SQLite: delete data older than this")
     p.add_argument("--commit-interval", type=_positive, metavar="SECONDS",
-                   help=f"SQLite: commit at least this often (default {COMMIT_INTERVAL:g} once "
-                        f"{COMMIT_SMALL // 1024} KB of registers wait, else up to "
-                        f"{COMMIT_LONGEST:g}; always when "
-                        f"{COMMIT_BYTES // 1024} KB wait): a power cut loses what waits, more "
-                        "commits wear an SD card more (docs/reliability.md)")
+                   help=f"SQLite: commit at least this often (default {COMMIT_INTERVAL:g}; "
+                        f"always when {COMMIT_BYTES // 1024} KB of registers wait): a power "
+                        "cut loses what waits, more commits wear an SD card more "
+                        "(docs/reliability.md)")
     p.add_argument("--on-change", action="store_true",
                    help="SQLite: store a hub channel (a CoolPro sample, a map device's group "
                         "reading) only when a value moved past its deadband, a state "

@@ -103,19 +103,17 @@ class BusConfig:
                    for _, n in full_sweep_spans(device.channels))
 
 
-#: Commits: when the samples waiting hold COMMIT_BYTES of registers; when
-#: the oldest has waited COMMIT_INTERVAL seconds and they hold at least
-#: COMMIT_SMALL bytes of registers; or when the oldest has waited
-#: COMMIT_LONGEST. Each commit writes whole pages to the WAL (the last page of
-#: the samples and of their time index, however few rows changed) and syncs
-#: it: a batch of a few slow samples would write many times its size, so it
-#: waits longer (docs/reliability.md has the figures). A power cut loses the
-#: samples waiting. Forwarding to MQTT changes nothing here: the forwarder
-#: publishes from the open batch (pymb.store.ids).
+#: Commits: when the samples waiting hold COMMIT_BYTES of registers, or when
+#: the oldest has waited COMMIT_INTERVAL seconds, at any rate. A power cut,
+#: a SIGKILL or an OOM kill loses the samples waiting: at most the last
+#: COMMIT_INTERVAL seconds (and the commit being written). Each commit writes
+#: whole pages to the WAL (the last page of the samples and of their time
+#: index, however few rows changed) and syncs it: a 1 Hz device commits every
+#: other sample, two 4 KB pages (docs/reliability.md has the figures).
+#: Forwarding to MQTT changes nothing here: the forwarder publishes from the
+#: open batch (pymb.store.ids).
 COMMIT_BYTES = 256 * 1024
-COMMIT_INTERVAL = 120.0
-COMMIT_SMALL = 32 * 1024
-COMMIT_LONGEST = 1800.0
+COMMIT_INTERVAL = 1.5
 #: an event (a fault, a reconnect) waits for its commit this long at most
 EVENT_COMMIT_INTERVAL = 1.0
 
@@ -131,15 +129,8 @@ class LogConfig:
     max_age: float | None = None
     #: bytes of samples (their registers) a commit waits for, at most
     commit_bytes: int = COMMIT_BYTES
-    #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL
-    #: for a batch of commit_small bytes, commit_longest for a smaller one)
+    #: seconds a sample waits for its commit, at most (None: COMMIT_INTERVAL)
     commit_interval: float | None = None
-    #: without commit_interval: a batch is committed after commit_default
-    #: seconds if it holds commit_small bytes of registers, else after up to
-    #: commit_longest seconds
-    commit_default: float = COMMIT_INTERVAL
-    commit_small: int = COMMIT_SMALL
-    commit_longest: float = COMMIT_LONGEST
     on_change: OnChange | None = None  #: SQLite: store by exception (``--on-change``)
     #: DEVICE/POINT patterns (fnmatch) write commands may reach (``[writes] allow``)
     allow_writes: tuple[str, ...] = ()
@@ -159,19 +150,8 @@ class LogConfig:
 
     @property
     def commit_every(self) -> float:
-        """Seconds after which a batch of samples is committed (the default if
-        unset: a batch of at least commit_small bytes of registers)."""
-        return self.commit_default if self.commit_interval is None else self.commit_interval
-
-    def commit_rule(self) -> tuple[float, int, float]:
-        """(seconds, bytes, longest): a batch is committed once its oldest
-        sample has waited ``seconds`` if it holds ``bytes`` of registers, and
-        once it has waited ``longest`` whatever it holds (besides at
-        commit_bytes). An interval that was set is the one bound."""
-        if self.commit_interval is not None:
-            return self.commit_interval, 0, self.commit_interval
-        return (self.commit_default, self.commit_small,
-                max(self.commit_default, self.commit_longest))
+        """Seconds a sample waits for its commit, at most."""
+        return COMMIT_INTERVAL if self.commit_interval is None else self.commit_interval
 
 
 def check_buses(buses: Sequence[BusConfig]) -> None:

@@ -204,8 +204,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         last_status = t0
         pending = 0  # bytes of registers waiting for the commit
         due: float | None = None  # when what waits must be committed (monotonic)
-        oldest = math.inf  # when the oldest waiting sample was taken (monotonic)
-        commit_every, commit_small, commit_longest = self.config.commit_rule()
+        commit_every = self.config.commit_every
         #: a sink's own turn of the loop (a forwarder's events); True: commit now
         turn: Callable[[], bool] | None = getattr(self.sink, "turn", None)
         failure: OutputError | None = None
@@ -230,18 +229,17 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         self._write_all(item)
                         size, events = _weight(item)
                         pending += size
-                        first = min(now, item[0].monotonic)  # the oldest of the list
-                        oldest = min(oldest, first)
-                        wait = min(commit_longest, EVENT_COMMIT_INTERVAL) if events else \
-                            commit_longest
+                        # The oldest of the list: when it was read (the loss bound
+                        # counts from the read, not from the queue).
+                        first = min(now, item[0].monotonic)
+                        wait = min(commit_every, EVENT_COMMIT_INTERVAL) if events else \
+                            commit_every
                         due = min(due if due is not None else math.inf, first + wait)
                     if turn is not None and turn():
                         due = now
-                    if due is not None and (
-                            pending >= self.config.commit_bytes or now >= due or
-                            (pending >= commit_small and now >= oldest + commit_every)):
+                    if due is not None and (pending >= self.config.commit_bytes or now >= due):
                         self.sink.commit()
-                        pending, due, oldest = 0, None, math.inf
+                        pending, due = 0, None
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)
@@ -296,10 +294,11 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the
         old clock re-stamped (the sink's ``restamp``, when it has one)."""
-        restamp = getattr(self.sink, "restamp", None)
+        restamp = None if self.clock.held else getattr(self.sink, "restamp", None)
         if restamp is not None:
             restamp(self.clock.offset)
-        self.sink.event(Event(time.time(), time.monotonic(), "clock", None, "clock", None,
+        mono = time.monotonic()
+        self.sink.event(Event(mono + self.clock.offset, mono, "clock", None, "clock", None,
                               self.clock.message(step, restamp is not None)))
         self.stats.events += 1
 

@@ -9,7 +9,11 @@ jump, and the logger records it as a ``clock`` event and re-stamps the
 samples it took before it (see ``docs/board.md``).
 
 A time before :data:`PLAUSIBLE` cannot be the real time: pymb did not exist
-then. Samples stamped before it were taken while the clock was not set.
+then. Samples stamped before it were taken while the clock was not set. A
+clock that was set and steps to such a time (a lost real-time clock, a bad
+step) is wrong, not the stamps: they are kept, and the samples that follow
+are stamped from the monotonic clock and the last offset of the set clock,
+until the clock is set again.
 """
 
 from __future__ import annotations
@@ -37,17 +41,26 @@ class ClockWatch:
     tolerance = STEP
 
     def __init__(self) -> None:
-        self.offset = offset()  #: the current offset (wall minus monotonic)
+        self.offset = offset()  #: the offset the stamps use (wall minus monotonic)
+        self._clock = self.offset  #: the offset the wall clock itself last gave
         self.steps = 0
+        #: True while a clock that was set reads a time before PLAUSIBLE: the
+        #: stamps keep the last offset of the set clock
+        self.held = False
 
     def check(self) -> float | None:
         """The step (seconds, positive: forward) since the last call, or None."""
         now = offset()
-        step = now - self.offset
+        step = now - self._clock
         if abs(step) <= STEP:
             return None
-        self.offset = now
+        self._clock = now
         self.steps += 1
+        mono = time.monotonic()
+        # A set clock stepped into an earlier epoch: the clock is wrong, not the stamps.
+        self.held = clock_plausible(mono + self.offset) and not clock_plausible(mono + now)
+        if not self.held:
+            self.offset = now
         return step
 
     def message(self, step: float, stored: bool) -> str:
@@ -60,6 +73,11 @@ class ClockWatch:
             return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(t))
 
         way = "forward" if step > 0 else "back"
+        if self.held:
+            return (f"the clock stepped {way} by {abs(step):,.1f} s, from {when(before)} to "
+                    f"{when(after)}, a time before {when(PLAUSIBLE)[:10]} that cannot be the "
+                    "real one; what was stored keeps its time, and the samples are stamped "
+                    "from the monotonic clock and the last time the clock was set")
         note = "" if clock_plausible(before) else " (the clock had not been set)"
         what = "this run's earlier samples and events are" if stored else \
             "the samples not yet written are"

@@ -6,18 +6,22 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import re
 import sqlite3
 import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["PLAUSIBLE", "RESTAMP_TOLERANCE", "Retention", "clock_plausible"]
+__all__ = ["PLAUSIBLE", "RESTAMP_TOLERANCE", "Restamp", "Retention", "clock_plausible"]
 
 #: 2025-01-01 00:00:00 UTC: a wall clock earlier than this has not been set (a
 #: board without a real-time clock boots in 1970); samples stamped before it were
 #: taken before the clock was set, and their age is unknown
 PLAUSIBLE = 1735689600.0
+#: bytes of the disk left free under a size limit the disk cannot hold (the
+#: -shm index, the journal of the file system)
+DISK_MARGIN = 1 << 20
 #: seconds a stamp may differ from its monotonic time plus the clock's offset and
 #: still be of the same clock (a larger change of the offset is a step)
 RESTAMP_TOLERANCE = 1.0
@@ -26,6 +30,44 @@ RESTAMP_TOLERANCE = 1.0
 def clock_plausible(now: float | None = None) -> bool:
     """True when the wall clock (or ``now``) is not before :data:`PLAUSIBLE`."""
     return (time.time() if now is None else now) >= PLAUSIBLE
+
+class Restamp:
+    """A pending re-stamping of a run after a clock step: the new offset, the
+    next id and the last id to look at in ``samples`` and ``events``."""
+
+    def __init__(self, offset: float, first: list[int], top: list[int]) -> None:
+        self.offset = offset
+        self.next = first
+        self.top = top
+        self._row_bytes: float | None = None
+
+    def rows(self, db: sqlite3.Connection, budget: int) -> int:
+        """Rows a step may re-stamp: about ``budget`` bytes of rows."""
+        if self._row_bytes is None:
+            (avg,) = db.execute("SELECT AVG(LENGTH(registers)) FROM (SELECT registers FROM "
+                                "samples WHERE id >= ? LIMIT 64)", (self.next[0],)).fetchone()
+            self._row_bytes = float(avg or 0) + 64  # the row's other columns, its index entry
+        return max(16, int(budget / self._row_bytes))
+
+    def step(self, db: sqlite3.Connection, budget: int) -> bool:
+        """Re-stamp the next rows (about ``budget`` bytes of them) in the
+        open transaction of ``db``; True once every row was looked at."""
+        rows = self.rows(db, budget)
+        for i, table in enumerate(("samples", "events")):
+            lo, hi = self.next[i], min(self.next[i] + rows, self.top[i] + 1)
+            if lo >= hi:
+                continue
+            args = {"off": self.offset, "tol": RESTAMP_TOLERANCE, "lo": lo, "hi": hi}
+            db.execute(f"UPDATE {table} SET time_utc = monotonic + :off WHERE id >= :lo "
+                       "AND id < :hi AND ABS(time_utc - monotonic - :off) > :tol", args)
+            if table == "samples" and db.execute("SELECT 1 FROM hub_changes LIMIT 1").fetchone():
+                db.execute("UPDATE hub_changes SET time_utc = (SELECT time_utc FROM samples "
+                           "WHERE id = sample_id) WHERE sample_id >= :lo AND sample_id < :hi "
+                           "AND time_utc != (SELECT time_utc FROM samples WHERE id = sample_id)",
+                           args)
+            self.next[i] = hi
+        return all(n > t for n, t in zip(self.next, self.top, strict=True))
+
 
 _TRIM_IDS = re.compile(r"\(ids (\d+)\.\.(\d+)\)$")
 
@@ -47,9 +89,22 @@ class Retention:
 
     def _room(self) -> int:
         """Bytes the database's pages may take: the limit less the WAL (its
-        budget, or what it holds now if more)."""
+        budget, or what it holds now if more). A limit above what the disk
+        can hold is the disk's: the file as it is plus the free space, less
+        room for the WAL to reach its budget (the file's free pages are
+        reused rather than the disk filled)."""
         assert self.max_bytes is not None
-        return self.max_bytes - max(self.wal_budget, self._wal_bytes())
+        wal = self._wal_bytes()
+        limit = self.max_bytes
+        try:
+            st = os.statvfs(self._wal.parent)
+            size = self._wal.with_name(self._wal.name[:-4]).stat().st_size
+        except OSError:
+            pass  # the next write says what is wrong
+        else:
+            disk = size + wal + st.f_bavail * st.f_frsize - self.wal_budget - DISK_MARGIN
+            limit = min(limit, max(disk, size))
+        return limit - max(self.wal_budget, wal)
 
     def _checkpoint(self) -> None:
         """Copy the WAL into the database and truncate it, unless a reader
@@ -81,13 +136,14 @@ class Retention:
         if self.max_age is not None:
             self._last_age_trim = time.monotonic()
         if self.max_age is not None and clock_plausible():
-            # Only with a clock that was set; and samples stamped before a clock was
-            # set (their age unknown) stay until a forwarder has sent them.
+            # Only with a clock that was set; and never a sample a forwarder has not
+            # sent: its age is what a clock says, which may have been wrong when it
+            # was stamped or be wrong now (a board's saved date, a step); samples
+            # stamped before a clock was set (their age unknown) go once sent.
             cutoff = time.time() - self.max_age
             deleted += self._delete_before(
-                "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ? "
-                "OR (time_utc < ? AND id > ?)", (cutoff, PLAUSIBLE, self._lowest_cursor()),
-                cutoff)
+                "SELECT COALESCE(MIN(id), 0) FROM samples WHERE time_utc >= ? OR id > ?",
+                (cutoff, self._lowest_cursor()), cutoff)
         if self.max_bytes is not None:
             # Delete down to 95 % of the room left beside the WAL, so the freed
             # pages take the next inserts and the file stops growing.
@@ -127,12 +183,15 @@ class Retention:
             return 0
         self.db.execute("BEGIN IMMEDIATE")
         try:
-            # The records of unsent samples deleted go last of all.
+            # The records of unsent samples deleted go last of all, and the
+            # newest of them never (it counts every outage before it).
+            below = lo + max(1, (hi - lo) // 10)
             n = self.db.execute("DELETE FROM events WHERE id < ? AND kind != 'trim'",
-                                (lo + max(1, (hi - lo) // 10),)).rowcount
+                                (below,)).rowcount
             if not n:
-                n = self.db.execute("DELETE FROM events WHERE id < ?",
-                                    (lo + max(1, (hi - lo) // 10),)).rowcount
+                n = self.db.execute(
+                    "DELETE FROM events WHERE id < ? AND id < (SELECT MAX(id) FROM events "
+                    "WHERE kind = 'trim')", (below,)).rowcount
             self.db.execute("COMMIT")
         except BaseException:
             self._rollback()
@@ -193,12 +252,12 @@ class Retention:
 
     def _unsent_event(self, first_kept: int) -> None:
         """Never delete samples not yet forwarded (pymb.fleet's ``outbox``
-        cursors) silently: an event says how many go."""
+        cursors) silently: an event says how many go. A forwarder that never
+        reached its broker has no cursor yet (its table is there): every
+        sample is unsent."""
         if not self.db.execute("SELECT 1 FROM sqlite_master WHERE name = 'outbox'").fetchone():
             return
-        (low,) = self.db.execute("SELECT MIN(sample_id) FROM outbox").fetchone()
-        if low is None:
-            return
+        (low,) = self.db.execute("SELECT COALESCE(MIN(sample_id), 0) FROM outbox").fetchone()
         n, first, last = self.db.execute(
             "SELECT COUNT(*), MIN(id), MAX(id) FROM samples WHERE id > ? AND id < ?",
             (low, first_kept)).fetchone()

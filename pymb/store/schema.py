@@ -109,7 +109,11 @@ def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
 # from the device maps, and tested value by value against the C decoder.
 
 SCHEMA_VERSION = 2
-PAGE_SIZE = 8192  #: 5 hub sweeps a page (4,096 would hold 2: 2,048 B a sweep)
+#: a new database's page size: a commit writes at least two pages (the last
+#: of the samples and of their time index), and a device polled every second
+#: commits every 1.5 s: two 4 KB pages (8 KB would write twice as much for
+#: the same few rows; a file made with 8 KB pages keeps them)
+PAGE_SIZE = 4096
 WAL_MIN, WAL_MAX = 256 * 1024, 8 * 1024 * 1024
 MIN_BYTES = 1_000_000  #: the smallest size bound accepted (schema pages and a WAL budget)
 

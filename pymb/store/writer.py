@@ -25,7 +25,7 @@ from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import Event, Sample
 from pymb.store.reserve import Reserve
-from pymb.store.retention import RESTAMP_TOLERANCE, Retention
+from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
 from pymb.store.schema import (
     MIN_BYTES,
@@ -109,6 +109,7 @@ class SqliteSink(DeviceRows, Retention):
             f"SELECT COALESCE(MAX(id), 0) + 1 FROM {t}").fetchone()[0])
             for t in ("samples", "events"))
         self._in_tx = False
+        self._restamp: Restamp | None = None  # a re-stamping's steps left
         self._tx_bytes = 0  # registers written in the open batch (size limit only)
         self._last_age_trim = time.monotonic()
         self._wal = Path(f"{self.path}-wal")
@@ -342,23 +343,28 @@ class SqliteSink(DeviceRows, Retention):
     def restamp(self, offset: float) -> None:
         """The wall clock stepped: the samples and events this sink wrote with
         the old clock get the time their monotonic time gives with the new
-        ``offset`` (wall time less monotonic time), in the open batch."""
-        first_sample, first_event = self._first_ids
-        wrong = "ABS(time_utc - monotonic - :off) > :tol"
-        args = {"off": offset, "tol": RESTAMP_TOLERANCE, "s": first_sample, "e": first_event}
+        ``offset`` (wall time less monotonic time). In bounded steps, one
+        with each commit (a step's work and WAL bounded however long the run
+        was); a later step starts over with its offset."""
         with self._mutex:
             try:
-                self._begin()
-                self.db.execute(f"UPDATE samples SET time_utc = monotonic + :off "
-                                f"WHERE id >= :s AND {wrong}", args)
-                self.db.execute(f"UPDATE events SET time_utc = monotonic + :off "
-                                f"WHERE id >= :e AND {wrong}", args)
-                self.db.execute("UPDATE hub_changes SET time_utc = (SELECT time_utc FROM "
-                                "samples WHERE id = sample_id) WHERE sample_id >= :s AND "
-                                "time_utc != (SELECT time_utc FROM samples WHERE id = sample_id)",
-                                args)
+                tops = [int(self.db.execute(f"SELECT COALESCE(MAX(id), 0) FROM {t}").fetchone()[0])
+                        for t in ("samples", "events")]
             except sqlite3.Error as e:
                 raise self._failed(e) from None
+            self._restamp = Restamp(offset, [*self._first_ids], tops)
+
+    def _restamp_step(self) -> None:
+        """One bounded step of a pending re-stamping, in the open batch."""
+        if self._restamp is not None:
+            self._begin()
+            if self._restamp.step(self.db, self.wal_budget // 4):
+                self._restamp = None
+
+    @property
+    def restamping(self) -> bool:
+        """True while a re-stamping has steps left (see :meth:`restamp`)."""
+        return self._restamp is not None
 
     def commit(self) -> None:
         """Commit the batch, then hold the size limit (database and WAL) and,
@@ -390,6 +396,7 @@ class SqliteSink(DeviceRows, Retention):
         self._on_commit.append(callback)
 
     def _commit(self) -> None:
+        self._restamp_step()
         self._commit_batch()
         if self._on_commit:
             top = max_id(self.db)
@@ -478,6 +485,8 @@ class SqliteSink(DeviceRows, Retention):
         with self._mutex:
             try:
                 settled = None
+                while self._restamp is not None:  # its steps, each committed
+                    self.commit()
                 if self._ids.live:
                     self._begin()
                     settled = self._ids.write_settled(self.db)

@@ -437,7 +437,7 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
             if r["commit_interval"] is None}
     assert len(wear) == 8
     assert [(r["kind"], r["interval"]) for r in s["wear"] if r["commit_interval"]] == [
-        ("coolpro", 1.0)]  # beside it, a CoolPro committed every 120 s
+        ("coolpro", 1.0)]  # beside it, a CoolPro committed every LONGER_COMMIT s
     for r in wear.values():
         assert r["samples"] > 0
         assert r["stored"] > 0
@@ -445,6 +445,8 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
         assert wear["naive", kind, 0.0]["written_per_sample"] > \
             wear["pymb", kind, 0.0]["written_per_sample"]
     assert any("bytes written / stored" in w for w in whats)
+    assert any("KB written per second, CoolPro every 1 s" in w for w in whats)
+    assert all(r.get("steady_bps") is None or r["steady_bps"] > 0 for r in s["wear"])
     assert "SD wear: bytes written to the disk per sample" in text
 
 

@@ -373,19 +373,12 @@ def test_log_ends_cleanly_on_sighup_unless_nohup(sim3: Simulator, tmp_path: Path
 def test_log_help_gives_the_commit_policy_the_logger_and_docs_use() -> None:
     """--commit-interval's help quotes the logger's own constants, which
     docs/cli.md states too."""
-    from pymb.logger.config import (
-        COMMIT_BYTES,
-        COMMIT_INTERVAL,
-        COMMIT_LONGEST,
-        COMMIT_SMALL,
-    )
+    from pymb.logger.config import COMMIT_BYTES, COMMIT_INTERVAL
     done = run_pymb("log", "--help")
     assert done.returncode == 0, done.stderr
     text = " ".join(done.stdout.split())
-    assert (f"default {COMMIT_INTERVAL:g} once {COMMIT_SMALL // 1024} KB of registers wait, "
-            f"else up to {COMMIT_LONGEST:g}; always when "
-            f"{COMMIT_BYTES // 1024} KB wait") in text
+    assert (f"default {COMMIT_INTERVAL:g}; always when {COMMIT_BYTES // 1024} KB of "
+            "registers wait") in text
     docs = " ".join((Path(__file__).parents[2] / "docs" / "cli.md").read_text().split())
-    assert (f"commits when {COMMIT_BYTES // 1024} KB of registers wait, every "
-            f"{COMMIT_INTERVAL:g} s once {COMMIT_SMALL // 1024} KB wait, and at the latest every "
-            f"{COMMIT_LONGEST / 60:g} minutes") in docs
+    assert (f"commits when {COMMIT_BYTES // 1024} KB of registers wait, and at the latest "
+            f"{COMMIT_INTERVAL:g} s after a sample was read") in docs

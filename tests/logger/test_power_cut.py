@@ -12,9 +12,9 @@ The forwarder publishes each sample as soon as it is written, before its
 commit; the writer hands out only ids under a high-water mark it committed
 first (pymb.store.ids). The subscriber must never see one id with two
 different samples, including after a cut that took back samples it had
-received (the default commit rule: a run of a few hundred CoolPro samples
-commits none of them); with ``--commit-interval 1`` the copy must hold every
-sample read up to that interval before the cut.
+received (those of the open batch); and with the default commit rule the
+copy must hold every sample read up to 2 s before the cut (the loss bound
+docs/reliability.md gives).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from pymb.store.ids import BLOCK  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]
 NODE = "gw-cut"
+LOSS_BOUND = 2.0  #: seconds of samples a power cut may take back (docs/reliability.md)
 
 
 def _samples(messages: list[tuple[str, bytes]]) -> list[tuple[int, float, float]]:
@@ -63,7 +64,7 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
     broker = fleet.broker()
     sub = fleet.subscribe(broker, "pymb/#")
     sim = fleet.simulator("coolpro")
-    bound = 1.0  # --commit-interval of the odd runs
+    bound = LOSS_BOUND
     disk = LoopDisk(tmp_path / "disk0.img", tmp_path / "mnt0")
     worst = 0.0
     taken_back = 0  # samples the subscriber had that a cut took back
@@ -72,11 +73,8 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
             db = disk.mountpoint / "data.sqlite"
             before = set(plain_ids(sub.snapshot()))  # what earlier runs published
             seen = len(before)
-            # even runs: the default commit rule (nothing of the run committed
-            # before its cut); odd runs: a commit every second
-            every = bound if cut % 2 else None
             proc = fleet.log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-node", NODE,
-                             commit=every)
+                             commit=None)
             want = seen + per_run
             sub.wait_until(lambda m: len(plain_ids(m)) >= want, 60,  # noqa: B023
                            f"{per_run} more samples at the subscriber (run {cut + 1})")
@@ -97,15 +95,14 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
             assert not changed, f"cut {cut + 1}: ids {changed[:5]} hold other samples on the disk"
             lost = [(i, t) for i, t, _ in received if i not in kept and i not in before]
             taken_back += len(lost)
-            if every is not None:
-                newest = max(t for t, _ in kept.values())
-                worst = max(worst, frozen_at - newest)
-                assert frozen_at - newest <= bound + 1.0, (
-                    f"cut {cut + 1}: the disk's newest sample is {frozen_at - newest:.1f} s "
-                    f"old, more than the commit interval ({bound:g} s)")
-                old = [i for i, t in lost if t < frozen_at - bound - 1.0]
-                assert not old, f"cut {cut + 1}: published samples older than the commit " \
-                                f"interval are not on the disk (ids {old[:5]}...)"
+            newest = max(t for t, _ in kept.values())
+            worst = max(worst, frozen_at - newest)
+            assert frozen_at - newest <= bound, (
+                f"cut {cut + 1}: the disk's newest sample is {frozen_at - newest:.2f} s "
+                f"old, more than the loss bound ({bound:g} s)")
+            old = [i for i, t in lost if t < frozen_at - bound]
+            assert not old, f"cut {cut + 1}: published samples older than the loss bound " \
+                            f"are not on the disk (ids {old[:5]}...)"
     finally:
         disk.umount()
     got = _samples(sub.snapshot())
@@ -117,7 +114,7 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
                        f"{sorted(reused)[:5]}..."
     missing = set(final) - set(by_id)
     assert not missing, f"{len(missing)} samples of the database never reached the broker"
-    # the even runs' cuts took back what the subscriber had: the test's point
+    # cuts took back what the subscriber had (the open batch): the test's point
     assert taken_back, "no cut took back a published sample: nothing was tested"
     return {"messages": len(got), "ids": len(by_id), "worst_loss_s": worst,
             "taken_back": taken_back}
@@ -126,7 +123,7 @@ def _cuts(fleet: Fleet, tmp_path: Path, cuts: int, per_run: int) -> dict[str, An
 def test_ids_restart_above_the_mark_after_a_kill_and_close_the_gap_on_a_clean_stop(
         fleet: Fleet, tmp_path: Path) -> None:
     """No root needed: SIGKILL takes back the open batch of a --mqtt run (the
-    default commit rule commits none of a few hundred CoolPro samples); the
+    samples of the last second or so, published before their commit); the
     next run's ids start above the writer's mark, and a clean stop brings the
     mark down, so the run after it goes on without a gap."""
     broker = fleet.broker()
