@@ -111,6 +111,12 @@ class ForwardingSink:
             self.forwarder.devices_down(downs, top)
         self.forwarder.notify()
 
+    def check(self) -> None:
+        """As the wrapped sink's (its storage still there)."""
+        check = getattr(self.sink, "check", None)
+        if check is not None:
+            check()
+
     def restamp(self, offset: float) -> None:
         """As the wrapped sink's (the wall clock stepped)."""
         restamp = getattr(self.sink, "restamp", None)

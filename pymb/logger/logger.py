@@ -24,6 +24,7 @@ __all__ = ["Logger", "Summary"]
 
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 _DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
+_IDLE_CHECK = 1.0  #: seconds between looks at the storage when nothing is committed
 
 
 @dataclass
@@ -205,6 +206,10 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         pending = 0  # bytes of registers waiting for the commit
         due: float | None = None  # when what waits must be committed (monotonic)
         commit_every = self.config.commit_every
+        # With nothing to commit, the storage is looked at every second (a removed
+        # directory is noticed at any rate, none included).
+        check: Callable[[], None] | None = getattr(self.sink, "check", None)
+        last_check = t0
         #: a sink's own turn of the loop (a forwarder's events); True: commit now
         turn: Callable[[], bool] | None = getattr(self.sink, "turn", None)
         failure: OutputError | None = None
@@ -243,6 +248,9 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)
+                    elif check is not None and now - last_check >= _IDLE_CHECK:
+                        check()
+                        last_check = now
                     if (step := self.clock.check()) is not None:
                         self._clock_step(step)
                     if self.tick is not None and now - last_status >= 0.5:

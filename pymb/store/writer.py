@@ -405,11 +405,7 @@ class SqliteSink(DeviceRows, Retention):
 
     def _commit_batch(self) -> None:
         if self._in_tx:
-            gone = vanished(self.path)
-            if gone is not None:  # SQLite would write on into the deleted files
-                raise OutputError(
-                    f"cannot write to {self.path}: {gone}; the samples logged into it went "
-                    "with it; restore the directory (or log to another --out)")
+            self._check()  # SQLite would write on into the deleted files
             self.db.execute("COMMIT")
             self._in_tx = False
         self._tx_bytes = 0
@@ -424,6 +420,18 @@ class SqliteSink(DeviceRows, Retention):
                 return
         if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
             self.trim()
+
+    def check(self) -> None:
+        """Raise :class:`OutputError` if the database's file or directory was
+        removed (a logger with nothing to commit looks every second)."""
+        with self._mutex:
+            self._check()
+
+    def _check(self) -> None:
+        gone = vanished(self.path)
+        if gone is not None:
+            raise OutputError(f"cannot write to {self.path}: {gone}; the samples logged into "
+                              "it went with it; restore the directory (or log to another --out)")
 
     def trim(self) -> int:
         """Delete the oldest data beyond the limits; returns samples deleted."""

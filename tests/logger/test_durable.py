@@ -132,3 +132,29 @@ def test_a_removed_directory_ends_a_slow_log_within_seconds(
     assert "was removed" in lines[0], err
     # the commit interval and a turn of the loop, with room for a loaded machine
     assert noticed <= 5.0, f"noticed {noticed:.1f} s after the removal"
+
+
+
+def test_a_removed_directory_ends_a_log_with_nothing_to_commit_within_seconds(
+        coolpro: str, tmp_path: Path) -> None:
+    """A device polled once a minute: after its first sample the logger has
+    nothing to commit for a minute, and still notices the removal."""
+    where = tmp_path / "state"
+    where.mkdir()
+    db = where / "data.sqlite"
+    proc = _slow_log(coolpro, db, "--interval", "60")
+    try:
+        wait_until(lambda: len(_times(db)) >= 1, "the first sample committed", 60,
+                   alive=lambda: proc.poll() is None, every=0.1)
+        time.sleep(2.0)  # nothing more to commit
+        shutil.rmtree(where)
+        removed = time.monotonic()
+        wait_until(lambda: proc.poll() is not None, "the logger to notice the removal", 30,
+                   every=0.05)
+        noticed = time.monotonic() - removed
+        _, err = proc.communicate(timeout=30)
+    finally:
+        _kill(proc)
+    assert proc.returncode == 5, err
+    assert "was removed" in err, err
+    assert noticed <= 5.0, f"noticed {noticed:.1f} s after the removal"
