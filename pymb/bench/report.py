@@ -60,6 +60,9 @@ def tables(result: dict[str, Any]) -> list[Table]:
         out.append(_fleet_table(result["fleet"]))
     if result.get("soak"):
         out.append(_soak_table(result["soak"]))
+    if result.get("writes"):
+        from pymb.bench.writebench import tables as write_tables  # it imports this package
+        out.extend(write_tables(result["writes"]))
     if m.get("quick"):
         _mark_quick(out)
     tg = [] if m.get("quick") else (result.get("targets") or [])

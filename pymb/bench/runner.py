@@ -371,6 +371,11 @@ def _run_gateway(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
     return gatebench.run_section(opts, children, tmp)
 
 
+def _run_writes(opts: Options) -> dict[str, Any]:
+    from pymb.bench.writebench import run_writes
+    return run_writes(opts.quick, opts.say)
+
+
 def _run_soak(opts: Options) -> dict[str, Any]:
     from pymb.bench import soak
     return soak.run_section(60.0 if opts.quick else None, opts.say)
@@ -403,6 +408,7 @@ def run(opts: Options) -> dict[str, Any]:
             ("logger", pymb_in, lambda: logbench.run_section(opts, children, hub_registers())),
             ("gateway", pymb_in, lambda: _run_gateway(opts, children, tmp)),
             ("soak", pymb_in, lambda: _run_soak(opts)),
+            ("writes", pymb_in, lambda: _run_writes(opts)),
         ]
         took: dict[str, float] = result["meta"]["section_seconds"]
         for name, wanted, step in steps:

@@ -6,6 +6,8 @@ thread, which they wake."""
 from __future__ import annotations
 
 import collections
+import contextlib
+import socket
 import threading
 from typing import Any, Protocol
 
@@ -79,7 +81,12 @@ class Session:
             client.subscribe(self.fw.profile.command_topic, qos=1)
         if self.ok and self.fw.profile.host_topic:
             client.subscribe(self.fw.profile.host_topic, qos=1)
-        if self.ok:
+        if self.ok and self.fw.set_topics:
+            # a command's result goes out at once, not after the ACK of the
+            # samples in flight (Nagle): the write commands' latency
+            sock: Any = client.socket()
+            with contextlib.suppress(OSError, AttributeError):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             for topic in self.fw.set_topics:
                 client.subscribe(topic, qos=1)
         self.connack.set()

@@ -236,7 +236,7 @@ class CommandDesk(threading.Thread):
 
     def _finish(self, cid: str, device: str, source: str, rows: list[PointRow],
                 values: Mapping[str, Any], reason: str | None, error: str | None, *,
-                durable: bool = True) -> bytes:
+                durable: bool = False) -> bytes:
         out = self._result(cid, reason is None, values, reason, error)
         self.log.finish(cid, device, source, out.decode(), rows, durable=durable)
         if reason is not None:
