@@ -121,3 +121,36 @@ def test_commands_after_a_broker_restart_and_once_per_id(
     finally:
         cmd.close()
     stop(proc)
+
+
+def test_writes_go_between_polls_never_inside_one(
+        fleet: Fleet, peer: FreezingPtyPeer, map_file: Path, tmp_path: Path) -> None:  # noqa: F811
+    broker = fleet.broker()
+    proc = start(fleet, broker, peer, map_file, tmp_path / "log.sqlite")
+    cmd = Commander(fleet, broker)
+    try:
+        assert cmd.send({"id": "p-0", "values": {"setpoint_hz": 49}})["ok"]
+        for i in range(1, 41):
+            values = {"setpoint_hz": 45 + i % 10} if i % 2 else {"mode": "run" if i % 4 else
+                                                                 "stop"}
+            r = cmd.send({"id": f"p-{i}", "values": values})
+            assert r["ok"], r
+    finally:
+        cmd.close()
+    stop(proc)
+    log = [pdu[:5] for _, pdu in list(peer.requests)]
+    # a poll is the same run of reads each time; find it from the first reads logged
+    first = log[0]
+    starts = [i for i, pdu in enumerate(log) if pdu == first]
+    assert len(starts) >= 5
+    poll = log[starts[0]:starts[1]]
+    assert len(poll) >= 3  # several requests a poll: something to tear
+    assert all(p[0] in (1, 3, 4) for p in poll)
+    whole = 0
+    for s in starts:
+        got = log[s:s + len(poll)]
+        if len(got) == len(poll):
+            assert got == poll, (s, got)  # no write (nor its reads) inside a poll
+            whole += 1
+    assert whole >= 5
+    assert len(writes_sent(peer)) >= 40
