@@ -25,7 +25,6 @@ from pymb.sim import Simulator
 from pymb.sim.mapsim import MapSimDevice
 
 SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
-OLDER = ("eastron-sdm120", "eastron-sdm630", "generic-vfd")  # before the vendor library
 
 
 def views(m: Map) -> set[str]:
@@ -103,7 +102,7 @@ def test_a_shipped_map_names_its_device_and_document(map_id: str) -> None:
         if p.writable and TYPES[p.type].family not in ("bool", "bit", "string", "raw") \
                 and not p.values:
             assert p.valid is not None, (map_id, p.name, "a writable number needs `valid`")
-        if p.writable and map_id not in OLDER:
+        if p.writable:
             assert p.max_writes_per_hour, (map_id, p.name, "a writable point needs a budget")
 
 
@@ -200,8 +199,7 @@ def test_the_device_library_table_lists_every_shipped_map() -> None:
     assert listed == library_rows(), "the table should read:\n" + "\n".join(library_rows())
 
 
-WRITABLE = [(i, p.name) for i in SHIPPED if i not in OLDER
-            for p in maps.builtin(i).points.values() if p.writable]
+WRITABLE = [(i, p.name) for i in SHIPPED for p in maps.builtin(i).points.values() if p.writable]
 
 
 @pytest.mark.parametrize(("map_id", "name"), WRITABLE, ids=[f"{i}:{n}" for i, n in WRITABLE])
