@@ -75,7 +75,7 @@ class Unit:
         else:
             first, mi = got
             planner = PointPlanner(mi.items, first.limits, first.line,
-                                   offline_retry=first.offline_retry)
+                                   offline_retry=first.offline_retry, ties=first.ties)
         t = m.timing
         return cls(info, cfg, planner, mi, t.response_timeout or bus_timeout,
                    t.inter_request_gap, t.turnaround)
