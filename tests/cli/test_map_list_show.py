@@ -3,12 +3,15 @@ ID`` (a map's points as a table), run as a user runs them."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
+import pytest
 from conftest import run_pymb
 
 from pymb import maps
+from pymb.commands.mapshow import run_show
 
 MAP = '''schema = "pymb.map/1"
 [device]
@@ -101,3 +104,12 @@ def test_show_a_shipped_map_and_an_unknown_one() -> None:
     assert bad.stderr.count("\n") == 1
     assert "did you mean 'eastron-sdm120'" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_show_renders_every_shipped_map(capsys: pytest.CaptureFixture[str]) -> None:
+    for ident in maps.builtin_ids():
+        assert run_show(argparse.Namespace(map=ident, json=False)) == 0
+        out = capsys.readouterr().out.splitlines()
+        m = maps.builtin(ident)
+        assert out[0].startswith(f"{ident}: ")
+        assert [line.split()[0] for line in out[2:]] == list(m.points)
