@@ -10,12 +10,13 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.mapspec import parse_map_device, unknown_device
 from pymb.devices.spec import DeviceConfig, parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
-from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, from_target
+from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, MapText, from_target
 from pymb.store import OnChange
 from pymb.store.mapcheck import check_stored_maps
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
@@ -88,7 +89,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         known = KnownMaps()
         for f in getattr(args, "maps", None) or []:
             known.add_file(f, "--map")
-        cfg = single_bus_config(args.port, args.tcp, [device_from(s, known) for s in specs],
+        devices = [sunspec_device(args, s) if is_sunspec(s) else device_from(s, known)
+                   for s in specs]
+        cfg = single_bus_config(args.port, args.tcp, devices,
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
                                 interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
         cfg.path = ""
@@ -134,6 +137,12 @@ def device_from(spec: str, known: KnownMaps) -> DeviceConfig | MapDeviceConfig:
     if src is None or target is None:
         raise unknown_device(spec, list(known.ids))
     return from_target(target, src)
+
+
+def sunspec_device(args: argparse.Namespace, spec: str) -> MapDeviceConfig:
+    """A SunSpec device (``sunspec:1``): its map is found on the device now."""
+    target, text = sunspec_target(args, spec)
+    return from_target(target, MapText(target.map, text))
 
 
 def single_bus_config(port: str | None, tcp: str | None,

@@ -15,6 +15,7 @@ import os
 
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
+from pymb.commands import sunspeccli
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
 from pymb.commands.mapshow import add_list_show, run_list, run_show
 from pymb.devices.mapspec import load_map
@@ -42,13 +43,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help=f"line speed the plans are priced at (default {DEFAULT_BAUD})")
     check.add_argument("--parity", default="N", choices=["N", "E", "O"],
                        help="parity the plans are priced with (default N)")
-    probe = sub.add_parser("probe", help="raw registers beside every type and byte order",
+    probe = sub.add_parser("probe", help="raw registers beside every type and byte order; "
+                                         "with --sunspec, a SunSpec device's models",
                            description="read raw registers and print every type and byte "
-                                       "order interpretation side by side")
+                                       "order interpretation side by side; with --sunspec, "
+                                       "find a SunSpec device's models and build its map")
     probe.add_argument("address", type=int, metavar="ADDRESS", help="the device's unit id")
-    probe.add_argument("what", metavar="TABLE:START:COUNT",
+    probe.add_argument("what", metavar="TABLE:START:COUNT", nargs="?",
                        help="holding or input (h, i), the first register (on the wire, "
                             "from 0) and how many (1..125), e.g. input:0:4")
+    probe.add_argument("--sunspec", action="store_true",
+                       help="find 'SunS' at 40000, 0 or 50000, walk the model chain and "
+                            "build the device's map")
+    probe.add_argument("--save", metavar="FILE",
+                       help="with --sunspec: write the device's map to FILE (a new file)")
     add_connection_args(probe)
     probe.add_argument("--json", action="store_true", help="print JSON")
     add_list_show(sub)
@@ -137,6 +145,15 @@ def interpretations(regs: list[int]) -> list[dict[str, object]]:
 
 
 def _probe(args: argparse.Namespace) -> int:
+    if args.sunspec:
+        if args.what is not None:
+            raise InvalidArgument("--sunspec finds the registers itself: give ADDRESS only")
+        return sunspeccli.probe(args)
+    if args.save:
+        raise InvalidArgument("--save is for --sunspec (the SunSpec device's map)")
+    if args.what is None:
+        raise InvalidArgument("give TABLE:START:COUNT after ADDRESS (e.g. input:0:4), "
+                              "or --sunspec")
     table, start, count = _where(args.what)
     if not 1 <= args.address <= 255:
         raise InvalidArgument(f"ADDRESS must be the device's unit id, 1..255, got {args.address}"

@@ -16,6 +16,7 @@ from typing import Any
 from pymb.client import Client
 from pymb.commands._common import interruptible, make_client, print_json
 from pymb.commands.mapcli import map_json, render_map
+from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapspec import (
     FACADES,
@@ -34,6 +35,12 @@ def target_from_args(args: argparse.Namespace) -> MapTarget | None:
     """The map device the positional DEVICE names (with ``--address``), or
     None for ``coolpro``/``hub``; an unknown TYPE is a one-line error that
     names the map types known."""
+    if is_sunspec(args.device):
+        if getattr(args, "address", None) is not None:
+            raise InvalidArgument("give a SunSpec device's unit id as sunspec:ADDRESS")
+        found = sunspec_target(args, args.device)[0]
+        _check_group(args, found)
+        return found
     known = map_types(getattr(args, "maps", None) or [])
     target = parse_map_device(args.device, known)
     kind = args.device.split(",")[0].partition(":")[0].strip().lower()
@@ -55,11 +62,15 @@ def target_from_args(args: argparse.Namespace) -> MapTarget | None:
         spec[0] = f"{kind}:{args.address}"
         target = parse_map_device(",".join(spec), known)
         assert target is not None
+    _check_group(args, target)
+    return target
+
+
+def _check_group(args: argparse.Namespace, target: MapTarget) -> None:
     group = getattr(args, "group", None)
     if group is not None and group not in target.map.groups:
         raise InvalidArgument(f"{target.map.id} has no group {group!r}"
                               f"{did_you_mean(group, list(target.map.groups))}")
-    return target
 
 
 def _device(args: argparse.Namespace, target: MapTarget, client: Client) -> MapDevice:

@@ -33,9 +33,10 @@ POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_byte
               "view_of")
 BLOCK_KEYS = (*(k for k in POINT_KEYS if k != "address"), "first", "stride")
 #: A point's name: snake_case by convention (``power_w``); letters of either
-#: case and dotted prefixes too, so that a converted model keeps its own
-#: names (SunSpec's ``W``, ``W_SF``, ``inverter.W``).
-POINT_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*\Z")
+#: case, dotted paths and instance numbers too, so that a converted model keeps
+#: its own names (SunSpec's ``W``, ``inverter.W``, ``DERVoltVar.Crv[2].Pt.V``).
+_WORD = r"[A-Za-z][A-Za-z0-9_-]*(\[[0-9]+\])?"
+POINT_NAME = re.compile(rf"{_WORD}(\.{_WORD})*\Z")
 _NAME = POINT_NAME
 _KINDS = ("gauge", "counter", "state", "text")
 _ENCODINGS = ("ascii", "latin-1", "utf-8")
@@ -206,8 +207,9 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
             ctx.fail(key, f"unknown key {key!r}{hint}")
     name = raw.get("name")
     if not isinstance(name, str) or not _NAME.match(name):
-        ctx.fail("name", "name must be snake_case or a model's own name (letters, digits and _, "
-                 f"starting with a letter; dots between such parts), got {name!r}")
+        ctx.fail("name", "name must be snake_case or a model's own name (letters, "
+                 "digits, _ and -, starting with a letter; dots between such parts, "
+                 f"each with an optional [N]), got {name!r}")
     strings(ctx, raw, ("unit", "description", "ref", "min_firmware"))
     table = raw.get("table", dev.table)
     if table not in TABLES:

@@ -1,0 +1,132 @@
+"""Finding a SunSpec device's models: ``SunS`` at 40000, 0 or 50000, then
+the chain of models (ID, L, L registers) up to the end marker (ID 0xFFFF).
+
+Reads holding registers only, through any pymb client; each model's
+registers are read whole once (in requests of at most 125 registers), since
+the counts of some repeating groups are points of the model (``NPt``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from pymb import maps
+from pymb.errors import DeviceException, ModbusError, ModbusTimeout
+from pymb.maps.model import Map
+from pymb.maps.sunspec.layout import Placed, map_text, model_def, model_ids
+
+__all__ = ["BASES", "MARKER", "Discovery", "NotSunSpec", "Reader", "discover"]
+
+#: Where the ``SunS`` marker is looked for, in this order (on-wire addresses).
+BASES = (40000, 0, 50000)
+#: ``SunS`` as two registers.
+MARKER = (0x5375, 0x6E53)
+_END = 0xFFFF
+_MAX_MODELS = 256
+
+#: Reads ``count`` holding registers at ``address``: ``client.read_holding_registers``
+#: with the unit id bound.
+Reader = Callable[[int, int], Sequence[int]]
+
+
+class NotSunSpec(ModbusError):
+    """The device has no ``SunS`` marker where SunSpec puts it, or its model
+    chain is broken."""
+
+
+@dataclass(frozen=True)
+class Discovery:
+    """What :func:`discover` found: the marker's address, the models pymb
+    knows (in chain order, placed), the ones it skipped (id, address, L),
+    and one past the end marker."""
+
+    base: int
+    models: tuple[Placed, ...]
+    skipped: tuple[tuple[int, int, int], ...] = ()
+    end: int = 0
+    manufacturer: str = ""
+    model: str = ""
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def map_id(self) -> str:
+        """The map's id: ``sunspec-`` and the model ids, e.g. ``sunspec-1-103-160``."""
+        return "sunspec-" + "-".join(str(m.id) for m in self.models)
+
+    def text(self, unit: int = 1) -> str:
+        """The device's map, as ``pymb.map/1`` TOML."""
+        return map_text(self.models, base=self.base, unit=unit, device_id=self.map_id,
+                        manufacturer=self.manufacturer, model=self.model, end=self.end)
+
+    def map(self, unit: int = 1) -> Map:
+        """The device's map, loaded."""
+        return maps.loads(self.text(unit), source=f"sunspec:{unit}")
+
+
+def _text(regs: Sequence[int]) -> str:
+    raw = b"".join(r.to_bytes(2, "big") for r in regs)
+    return raw.split(b"\0")[0].decode("latin-1").strip()
+
+
+def _read(read: Reader, address: int, count: int) -> list[int]:
+    out: list[int] = []
+    while count > 0:
+        n = min(count, 125)
+        out.extend(read(address, n))
+        address += n
+        count -= n
+    return out
+
+
+def _find_base(read: Reader) -> int:
+    tried = []
+    for base in BASES:
+        try:
+            regs = tuple(read(base, 2))
+        except (DeviceException, ModbusTimeout) as e:
+            tried.append(f"{base}: {type(e).__name__}")
+            continue
+        if regs == MARKER:
+            return base
+        tried.append(f"{base}: {regs[0]:04X} {regs[1]:04X}")
+    raise NotSunSpec("no SunSpec device: 'SunS' (0x5375 0x6E53) is at none of holding "
+                     f"registers 40000, 0, 50000 ({'; '.join(tried)})")
+
+
+def discover(read: Reader) -> Discovery:
+    """Find the marker and walk the model chain through ``read``."""
+    base = _find_base(read)
+    known = set(model_ids())
+    address = base + 2
+    placed: list[Placed] = []
+    skipped: list[tuple[int, int, int]] = []
+    notes: list[str] = []
+    names: dict[str, int] = {}
+    manufacturer = model = ""
+    for _ in range(_MAX_MODELS):
+        if address + 2 > 0x10000:
+            raise NotSunSpec(f"the SunSpec model chain from {base} runs past register 65535 "
+                             "without its end marker (0xFFFF)")
+        mid, length = read(address, 2)
+        if mid == _END:
+            return Discovery(base, tuple(placed), tuple(skipped), address + 2, manufacturer,
+                             model, tuple(notes))
+        if address + 2 + length > 0x10000:
+            raise NotSunSpec(f"SunSpec model {mid} at {address} says L = {length}, past "
+                             "register 65535")
+        if mid not in known:
+            skipped.append((mid, address, length))
+            notes.append(f"model {mid} at {address} (L = {length}) skipped: pymb does not "
+                         "know it")
+        else:
+            regs = tuple(_read(read, address, 2 + length))
+            name = str(model_def(mid)["group"]["name"])
+            names[name] = names.get(name, 0) + 1
+            prefix = name if names[name] == 1 else f"{name}_{names[name]}"
+            placed.append(Placed(mid, address, length, prefix, regs))
+            if mid == 1 and not manufacturer and len(regs) >= 34:
+                manufacturer, model = _text(regs[2:18]), _text(regs[18:34])
+        address += 2 + length
+    raise NotSunSpec(f"the SunSpec model chain from {base} has more than {_MAX_MODELS} models "
+                     "without its end marker (0xFFFF)")
