@@ -5,8 +5,8 @@ pysunspec2 built (tests/sunspec_peer.py), for the SunSpec tests. Run as
 prints ``READY <port>``, serves on 127.0.0.1 and then takes commands on
 stdin, one JSON line each: ``{"after": N, "set": {"ADDRESS": [VALUE, ...],
 ...}}`` waits until N more requests have come (at most 60 s), then writes the
-registers from each address at once (between two requests) and prints
-``OK <requests so far>``. A read outside the image is answered with
+registers from each address at once (one write request of its own, function
+16, to itself) and prints ``OK <requests so far>``. A read outside the image is answered with
 exception 02.
 """
 
@@ -16,6 +16,7 @@ import asyncio
 import json
 import sys
 
+from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.datastore import ModbusDeviceContext, ModbusServerContext, ModbusSparseDataBlock
 from pymodbus.server import ModbusTcpServer
 from pymodbus_server import free_port, serve_announced
@@ -29,7 +30,7 @@ def count(sending: bool, packet: bytes) -> bytes:
     return packet
 
 
-async def commands(block: ModbusSparseDataBlock) -> None:
+async def commands(port: int, unit: int) -> None:
     loop = asyncio.get_running_loop()
     while True:
         line = await loop.run_in_executor(None, sys.stdin.readline)
@@ -41,8 +42,14 @@ async def commands(block: ModbusSparseDataBlock) -> None:
             if REQUESTS[0] >= until:
                 break
             await asyncio.sleep(0.02)
-        for address, values in cmd.get("set", {}).items():
-            block.setValues(int(address), values)
+        writes = cmd.get("set", {})
+        if writes:
+            client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=10)
+            await client.connect()
+            for address, values in writes.items():
+                reply = await client.write_registers(int(address), values, device_id=unit)
+                assert not reply.isError(), reply
+            client.close()
         print("OK", REQUESTS[0], flush=True)
 
 
@@ -57,7 +64,7 @@ async def main(path: str) -> None:
     port = free_port()
     server = ModbusTcpServer(ModbusServerContext(devices={spec["unit"]: device}, single=False),
                              address=("127.0.0.1", port), trace_packet=count)
-    task = asyncio.create_task(commands(block))
+    task = asyncio.create_task(commands(port, spec["unit"]))
     await serve_announced(server, port)
     task.cancel()
 

@@ -32,7 +32,8 @@ def test_logged_power_follows_its_scale_factor(tmp_path: Path) -> None:
                                  "--out", str(db), "--quiet"], env=PYMB_ENV,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
-            server.set({}, after=6)  # discovery and the first polls: 3,342 W (SF 0)
+            # discovery (6 requests) and the first polls: 3,342 W (SF 0)
+            server.set({}, after=14)
             server.set({w: [3342, 1]})  # 33,420 W: the same register, SF 1
             server.set({}, after=6)
             server.set({w: [3342, 0x8000]})  # the scale factor not implemented

@@ -39,13 +39,13 @@ INVERTER: list[tuple[int, dict[str, Any]]] = [
 UNKNOWN = [64999, 4, 1, 2, 3, 4]  # a vendor model pymb does not know
 
 
-def _flat(m: maps.Map, values: dict[str, Any]) -> dict[int, Any]:
-    """pymb's values by on-wire address."""
-    out: dict[int, Any] = {}
+def _flat(m: maps.Map, values: dict[str, Any]) -> dict[int, tuple[maps.Point, Any]]:
+    """pymb's values by on-wire address, with their points."""
+    out: dict[int, tuple[maps.Point, Any]] = {}
     for name, v in values.items():
         p = m.points[name]
         for c, x in enumerate(v if p.block else [v], 1):
-            out[p.address_of(c)] = x
+            out[p.address_of(c)] = (p, x)
     return out
 
 
@@ -65,8 +65,7 @@ def _compare(m: maps.Map, values: dict[str, Any], theirs: dict[int, tuple[str, A
     checked = 0
     for address, (typ, raw, computed) in theirs.items():
         assert address in ours, address
-        got = ours[address]
-        p = next(p for p in m.points.values() if p.address <= address < p.end)
+        p, got = ours[address]
         expected = computed
         if p.scale_from is not None:
             sf = scale_factors[m.points[p.scale_from].address]
@@ -126,7 +125,7 @@ def test_read_sunspec_device_from_the_command_line(tmp_path: Path) -> None:
     assert states["inverter_three_phase.PhVphC"] == "not_implemented"
     assert values["inverter_three_phase.St"] == 4
     assert values["common.Mn"] == "Acme Solar"
-    assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, None])
+    assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.0])
     assert values["mppt.module.DCW"] == [3258, None, None]
     assert values["mppt.module[2].IDStr"] == "west"
     assert values["ac_meter_abcn_float.W"] == -1500.5
