@@ -88,7 +88,7 @@ def _summary(found: Discovery, unit: int, m: maps.Map) -> dict[str, Any]:
     models.sort(key=lambda x: int(x["address"]))
     return {"unit": unit, "base": found.base, "end": found.end, "map_id": m.id,
             "manufacturer": found.manufacturer, "model": found.model, "models": models,
-            "points": len(m.points)}
+            "points": len(m.points), "notes": list(found.notes)}
 
 
 def probe(args: argparse.Namespace) -> int:
@@ -123,6 +123,9 @@ def probe(args: argparse.Namespace) -> int:
             print(f"  model {x['id']:<5} at {x['address']}, L {x['length']}: {x['name']} "
                   f"({x['label']}), {x['points']} points")
     print(f"  end at {found.end - 2}")
+    for note in found.notes:
+        if "shorter than SunSpec" in note:
+            print(f"  note: {note}")
     print(f"map {m.id}: {len(m.points)} points"
           + (f", saved to {save}" if save else "; --save FILE writes it"))
     return 0

@@ -179,3 +179,27 @@ def test_no_sunspec_device_is_one_line_and_exit_3(tmp_path: Path) -> None:
     assert "no SunSpec device: 'SunS'" in r.stderr
     assert "40000: 0001 0002" in r.stderr
     assert r.stderr.count("\n") == 1
+
+
+def test_a_model_shorter_than_sunspec_defines_leaves_its_last_points_out(tmp_path: Path) -> None:
+    """An inverter whose model 103 stops after 35 of its 50 registers: the
+    points past its end (and those whose scale factor is past it) are not
+    read from the next model's registers; the others read as they are."""
+    full = image(INVERTER[:2])
+    at = 2 + 68  # SunS, then model 1 (ID, L, 66 registers)
+    assert full[at:at + 2] == [103, 50]
+    short = [*full[:at], 103, 35, *full[at + 2:at + 37], 0xFFFF, 0]
+    with serve(short, tmp_path) as server:
+        tcp = f"127.0.0.1:{server.port}"
+        probe = run_pymb("map", "probe", "1", "--sunspec", "--tcp", tcp, "--json")
+        read = run_pymb("read", "sunspec:1", "--tcp", tcp, "--json")
+    assert probe.returncode == 0, probe.stderr
+    (note,) = json.loads(probe.stdout)["notes"]
+    assert "model 103 at 40070 (L = 35) is shorter than SunSpec defines it" in note
+    assert read.returncode == 0, read.stderr
+    values = json.loads(read.stdout)["values"]
+    assert values["inverter_three_phase.W"] == 3342
+    assert values["inverter_three_phase.DCA_SF"] is None  # offset 28: inside, not implemented
+    for name in ("TmpOt", "Tmp_SF", "St", "Evt1",  # offsets 36 and on: past the 37 registers
+                 "TmpCab", "TmpSnk"):  # scaled by Tmp_SF
+        assert f"inverter_three_phase.{name}" not in values, name

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pymb import maps
 from pymb.errors import DeviceException, ModbusError, ModbusTimeout
 from pymb.maps.model import Map
-from pymb.maps.sunspec.layout import Placed, map_text, model_def, model_ids
+from pymb.maps.sunspec.layout import Placed, left_out, map_text, model_def, model_ids
 
 __all__ = ["BASES", "MARKER", "Discovery", "NotSunSpec", "Reader", "discover"]
 
@@ -125,6 +125,12 @@ def discover(read: Reader) -> Discovery:
             names[name] = names.get(name, 0) + 1
             prefix = name if names[name] == 1 else f"{name}_{names[name]}"
             placed.append(Placed(mid, address, length, prefix, regs))
+            short = left_out(placed[-1])
+            if short:
+                notes.append(f"model {mid} at {address} (L = {length}) is shorter than SunSpec "
+                             f"defines it: {', '.join(short[:5])}"
+                             f"{f' and {len(short) - 5} more' if len(short) > 5 else ''} "
+                             "left out")
             if mid == 1 and not manufacturer and len(regs) >= 34:
                 manufacturer, model = _text(regs[2:18]), _text(regs[18:34])
         address += 2 + length

@@ -153,7 +153,6 @@ class _Layout:
         self.placed = placed
         self.entries = entries
         self.end = placed.address + 2 + placed.length
-        self.notes: list[str] = []
 
     def count(self, g: Mapping[str, Any], at: int, parents: list[tuple[Mapping[str, Any], int]],
               instance_len: int) -> int:
@@ -281,14 +280,48 @@ class _Layout:
         self.entries.append(e)
 
 
-def entries_of(placed: Placed) -> list[dict[str, Any]]:
-    """The map entries (``[[point]]``/``[[block]]`` tables as dicts, a block
-    having ``first``) of one placed model."""
+_WIDTHS = {"u16": 1, "i16": 1, "sunssf": 1, "u32": 2, "i32": 2, "f32": 2, "u64": 4, "i64": 4,
+           "f64": 4}
+
+
+def _layout(placed: Placed) -> tuple[list[dict[str, Any]], list[str]]:
+    """The entries of one placed model that lie inside it (its ``L``), and
+    the names of those that do not (a device may implement a shorter model)."""
     top = model_def(placed.id)["group"]
     out: list[dict[str, Any]] = []
     lay = _Layout(placed, out)
     lay.group(top, placed.address, [placed.prefix], [], None, {})
-    return out
+    kept: list[dict[str, Any]] = []
+    left: list[str] = []
+    for e in out:
+        width = _WIDTHS.get(e["type"]) or int(e["count"])
+        if "first" in e:
+            fit = (lay.end - e["first"] - width) // e["stride"] + 1
+            if fit < e["count"]:
+                left.append(e["name"])
+                if fit < 1:
+                    continue
+                e = dict(e, count=fit)
+        elif e["address"] + width > lay.end:
+            left.append(e["name"])
+            continue
+        kept.append(e)
+    names = {e["name"] for e in kept}
+    scaled = [e for e in kept if e.get("scale_from", e["name"]) in names]
+    left += [e["name"] for e in kept if e.get("scale_from", e["name"]) not in names]
+    return scaled, left
+
+
+def entries_of(placed: Placed) -> list[dict[str, Any]]:
+    """The map entries (``[[point]]``/``[[block]]`` tables as dicts, a block
+    having ``first``) of one placed model, those inside its length ``L``."""
+    return _layout(placed)[0]
+
+
+def left_out(placed: Placed) -> list[str]:
+    """The points of a placed model that its length ``L`` leaves out (or
+    cuts short, for a block), and those whose scale factor it leaves out."""
+    return _layout(placed)[1]
 
 
 def toml_value(v: object) -> str:
