@@ -203,3 +203,17 @@ def test_a_model_shorter_than_sunspec_defines_leaves_its_last_points_out(tmp_pat
     for name in ("TmpOt", "Tmp_SF", "St", "Evt1",  # offsets 36 and on: past the 37 registers
                  "TmpCab", "TmpSnk"):  # scaled by Tmp_SF
         assert f"inverter_three_phase.{name}" not in values, name
+
+
+def test_a_sunspec_device_takes_a_name_only(tmp_path: Path) -> None:
+    r = run_pymb("read", "sunspec:1,channels=3", "--tcp", "127.0.0.1:9")
+    assert r.returncode == 2
+    assert "a sunspec device takes only name=..." in r.stderr
+    assert r.stderr.count("\n") == 1
+    with _serve_inverter(tmp_path) as server:
+        w = run_pymb("watch", "sunspec:1,name=roof", "--tcp", f"127.0.0.1:{server.port}",
+                     "--count", "2", "--json")
+    assert w.returncode == 0, w.stderr
+    readings = [json.loads(line) for line in w.stdout.splitlines()]
+    assert len(readings) == 2
+    assert all(x["values"]["inverter_three_phase.W"] == 3342 for x in readings)
