@@ -44,7 +44,7 @@ def test_the_commands_run_and_the_probe_prints_what_the_page_shows(tmp_path: Pat
             assert "Traceback" not in done.stderr
             outputs.append(done.stdout)
     assert_shaped(shown, outputs[0].splitlines())
-    assert re.search(r"^inverter_three_phase\.W +3342 W$", outputs[1], re.M), outputs[1]
+    assert re.search(r"^inverter_three_phase\.W +3342(\.0)? W$", outputs[1], re.M), outputs[1]
     assert json.loads(outputs[2])["values"]["mppt.module.DCA"] == [8.12, None, None]
     stored = [s.data.values for s in samples_after(tmp_path / "solar.sqlite", 0, limit=100)
               if isinstance(s.data, MapReading)]
