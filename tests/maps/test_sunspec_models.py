@@ -156,3 +156,26 @@ def test_types_and_scale_factors_as_sunspec_defines_them() -> None:
 def test_a_model_pymb_does_not_know_is_a_clear_error() -> None:
     with pytest.raises(maps.MapError, match="no SunSpec model 4242"):
         sunspec.model_map(4242)
+
+
+def test_groups_parts_and_a_second_model_of_a_name() -> None:
+    common = sunspec.model_map(1).points
+    assert {common[f"common.{n}"].group for n in ("ID", "L", "Mn", "SN")} == {"config"}
+    assert common["common.DA"].group == "fast"
+    inverter = sunspec.model_map(103).points
+    assert inverter["inverter_three_phase.W"].group == "fast"
+    assert inverter["inverter_three_phase.W_SF"].group == "fast"
+    sim = sunspec.model_map(64411).points  # harmonics as 150-register text: two parts
+    first, second = sim["ACSimInterface.VHarA"], sim["ACSimInterface.VHarA_2"]
+    assert (first.count, second.count, second.address) == (125, 25, first.address + 125)
+    regs = [0x5375, 0x6E53]
+    for mid in (1, 213, 213):
+        regs += model_registers(mid, {"W": 10.5} if mid == 213 else {})
+    regs += [0xFFFF, 0]
+    found = sunspec.discover(lambda a, n: regs[a - 40000:a - 40000 + n])
+    assert [p.prefix for p in found.models] == ["common", "ac_meter_abcn_float",
+                                                 "ac_meter_abcn_float_2"]
+    assert found.map_id == "sunspec-1-213-213"
+    m = found.map(1)
+    assert m.points["ac_meter_abcn_float_2.W"].address == \
+        m.points["ac_meter_abcn_float.W"].address + 126
