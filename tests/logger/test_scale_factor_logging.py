@@ -6,6 +6,9 @@ or no value (``no_scale``): never 3,342 W for 33,420 W."""
 
 from __future__ import annotations
 
+import csv
+import io
+import sqlite3
 from pathlib import Path
 
 from conftest import run_pymb
@@ -32,7 +35,7 @@ name = "W_SF"
 address = 40084
 type = "sunssf"
 [[point]]
-name = "Hz"
+name = "inverter.Hz"
 address = 40085
 type = "u16"
 scale = 0.01
@@ -70,8 +73,8 @@ def test_stored_watts_follow_the_scale_factor_read_with_them(tmp_path: Path) -> 
     for s in samples:
         assert isinstance(s.data, MapReading)
         v, st = s.data.values, s.data.states
-        assert set(v) == {"W", "Hz", "W_SF"}  # the scale factor is read and stored with W
-        assert v["Hz"] == 50.0
+        assert set(v) == {"W", "inverter.Hz", "W_SF"}  # the SF is read and stored with W
+        assert v["inverter.Hz"] == 50.0
         sf = v["W_SF"]
         if sf is None:
             assert (v["W"], st["W"], st["W_SF"]) == (None, "no_scale", "not_implemented")
@@ -84,3 +87,18 @@ def test_stored_watts_follow_the_scale_factor_read_with_them(tmp_path: Path) -> 
     assert seen[3:6] == [33420.0] * 3
     assert seen[6:]
     assert all(w is None for w in seen[6:])
+    # a model's own names (W, a dotted prefix) go through export and the SQL views
+    wide = run_pymb("export", str(db), "--csv", "-", "--layout", "wide")
+    assert wide.returncode == 0, wide.stderr
+    rows = list(csv.DictReader(io.StringIO(wide.stdout)))
+    assert [r["W"] for r in rows[:4]] == ["3342.0", "3342.0", "3342.0", "33420.0"]
+    assert rows[0]["inverter.Hz"] == "50.0"
+    con = sqlite3.connect(db)
+    try:
+        got = con.execute('SELECT "W", "W_SF", "inverter.Hz" FROM sunspec_103_readings '
+                          "ORDER BY sample_id").fetchall()
+    finally:
+        con.close()
+    assert got[0] == (3342.0, 0, 50.0)
+    assert got[3] == (33420.0, 1, 50.0)
+    assert got[-1] == (None, None, 50.0)

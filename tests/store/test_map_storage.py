@@ -183,10 +183,10 @@ type = "i16"
 scale_from = "W_SF"
 group = "a"
 [[point]]
-name = "Hz"
+name = "inverter.Hz"
 address = 61
 type = "u32"
-scale_from = "Hz_SF"
+scale_from = "inverter.Hz_SF"
 offset = 0.5
 group = "a"
 [[point]]
@@ -194,7 +194,7 @@ name = "W_SF"
 address = 63
 type = "sunssf"
 [[point]]
-name = "Hz_SF"
+name = "inverter.Hz_SF"
 address = 64
 type = "i16"
 order = "BA"
