@@ -57,7 +57,13 @@ class Upstream:
         self._thread.start()
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Finish the transaction under way, drop the rest, close the line."""
+        """Finish the transaction under way, drop the rest (their clients are
+        gone with the server), close the line."""
+        while True:
+            try:
+                self._jobs.get_nowait()
+            except queue.Empty:
+                break
         self._jobs.put(None)
         self._thread.join(timeout)
 

@@ -229,3 +229,15 @@ def test_a_port_in_use_exits_4(peer: PtyPeer) -> None:
     assert r.returncode == 4, r.stderr
     assert "cannot listen on 127.0.0.1:" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_a_stop_drops_the_queued_requests_of_a_silent_device(peer: PtyPeer) -> None:
+    peer.hook = lambda slave, pdu, normal: []  # nobody answers: each request takes --timeout
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        c.send(b"".join(mbap(i, 9, read_pdu(i, 1)) for i in range(16)))  # 8 s of timeouts
+        wait_until(lambda: len(peer.requests) >= 1, "the first request on the line")
+        t = time.monotonic()
+        assert s.stop() == 0
+        assert time.monotonic() - t < 4.0  # the one under way, not all sixteen
+        c.close()
