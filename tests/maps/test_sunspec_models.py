@@ -17,7 +17,7 @@ from sunspec_peer import model_registers, random_values
 from pymb import maps
 from pymb.maps import sunspec
 from pymb.maps.codec import decode_one
-from pymb.maps.sunspec import Placed, map_text
+from pymb.maps.sunspec.layout import Placed, left_out, map_text
 
 MODELS = Path(sunspec2.__file__).parent / "models" / "json"
 OURS = resources.files("pymb.maps.sunspec")
@@ -179,3 +179,17 @@ def test_groups_parts_and_a_second_model_of_a_name() -> None:
     m = found.map(1)
     assert m.points["ac_meter_abcn_float_2.W"].address == \
         m.points["ac_meter_abcn_float.W"].address + 126
+
+
+def test_a_count_larger_than_the_model_holds_is_cut_to_its_length() -> None:
+    """Model 705 whose NCrv says 60,000 curves but whose L holds two: two."""
+    values = {"NPt": 2, "NCrv": 2, "V_SF": -1,
+              "Crv": [{"Pt": [{"V": 1}, {"V": 2}]}, {"Pt": [{"V": 3}, {"V": 4}]}]}
+    regs = model_registers(705, values)
+    ncrv = 6  # offset of NCrv in model 705
+    regs[ncrv] = 60000
+    placed = Placed(705, 40002, len(regs) - 2, "DERVoltVar", tuple(regs))
+    assert left_out(placed) == []  # laid out as two curves, not cut from 60,000
+    m = maps.loads(map_text([placed], base=40000), source="model 705")
+    assert m.points["DERVoltVar.Crv.ActPt"].channels == 2
+    assert "DERVoltVar.Crv[3].Pt.V" not in m.points

@@ -169,8 +169,10 @@ class _Layout:
                     i = off - self.placed.address
                     if regs is None or i >= len(regs):
                         return 1
-                    v = regs[i]
-                    return 0 if v == _UNMAPPED else v
+                    v = 0 if regs[i] == _UNMAPPED else regs[i]
+                    # never more than the model's length holds (a device may say anything)
+                    room = max(0, (self.end - at) // instance_len) if instance_len else 0
+                    return min(v, room)
                 off += int(p["size"])
         raise MapError(f"SunSpec model {self.placed.id}: group {g['name']!r} counts "
                        f"{c!r}, which no enclosing group has")
