@@ -114,10 +114,10 @@ class Collector:
         self.event = event
         self.stats = Stats()
         self.stop = threading.Event()
-        self.writers = Writers(stores, self.stop, event)
         self.inbox: queue.SimpleQueue[Message] = queue.SimpleQueue()
         self.generation = 0  #: counts connections; a message remembers its own
         self.connack = threading.Event()
+        self.suback = threading.Event()  #: the broker took the subscription
         self.refused: str | None = None
         self.bad_said: dict[str, float] = {}
         self.dropped_said = 0
@@ -139,7 +139,9 @@ class Collector:
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
+        c.on_subscribe = self._on_subscribe
         self.client = c
+        self.writers = Writers(stores, self.stop, event)  # last: its threads run from here
 
     # paho's thread
     def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
@@ -163,6 +165,14 @@ class Collector:
             self.event(f"lost the broker {self.cfg.mqtt.url}: {rc}; reconnecting")
         self.stats.mqtt_ok = False
 
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any,
+                      props: Any = None) -> None:
+        failed = [rc for rc in rcs if getattr(rc, "is_failure", False)]
+        if failed:
+            self.refused = f"the broker refused the subscription to {self.cfg.topic}: {failed[0]}"
+            self.event(self.refused)
+        self.suback.set()
+
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         if msg.qos == 0 and self.inbox.qsize() >= MAX_INBOX:
             self.stats.dropped += 1
@@ -174,7 +184,8 @@ class Collector:
 
     # the collector's thread
     def connect(self, timeout: float = 15.0) -> None:
-        """Connect (persistent session) and wait for the CONNACK; raises
+        """Connect (persistent session) and wait for the CONNACK and the SUBACK
+        (from then on the broker keeps what comes for the collector); raises
         ModbusConnectionError when the broker cannot be reached or refuses."""
         m = self.cfg.mqtt
         try:
@@ -184,7 +195,8 @@ class Collector:
             why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
             raise ModbusConnectionError(f"cannot reach the broker {m.url}: {why}") from None
         self.client.loop_start()
-        if not self.connack.wait(timeout) or self.refused:
+        if (not self.connack.wait(timeout) or self.refused or not self.suback.wait(timeout)
+                or self.refused):
             self.client.loop_stop()
             with contextlib.suppress(Exception):
                 self.client.disconnect()
