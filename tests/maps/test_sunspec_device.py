@@ -18,7 +18,9 @@ from sunspec_peer import image, pysunspec2_values, random_values, serve
 import pymb
 from pymb import maps
 from pymb.devices import MapDevice
+from pymb.devices.mapreading import MapReading
 from pymb.maps import sunspec
+from pymb.store import samples_after
 
 INVERTER: list[tuple[int, dict[str, Any]]] = [
     (1, {"Mn": "Acme Solar", "Md": "AS-10K", "SN": "SN0042", "Vr": "1.2.3"}),
@@ -165,11 +167,19 @@ def test_probe_finds_suns_at_each_base_and_saves_the_map(tmp_path: Path, base: i
         assert info["base"] == base
         assert [x["id"] for x in info["models"]] == [1, 103, 120, 160, 213, 705, 64999]
         assert info["models"][-1]["skipped"]
-        # the saved map is a map file like any other
+        # the saved map is a map file like any other: --map, and map = "FILE" in a TOML
         r = run_pymb("read", "--map", str(saved), "sunspec-1-103-120-160-213-705:3",
                      "--tcp", tcp, "--json")
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["values"]["inverter_three_phase.W"] == 3342
+        (tmp_path / "log.toml").write_text(
+            f'[output]\npath = "{tmp_path / "solar.sqlite"}"\n[[bus]]\ntcp = "{tcp}"\n'
+            '[[bus.device]]\nmap = "inverter.toml"\naddress = 3\n')
+        r = run_pymb("log", "--config", str(tmp_path / "log.toml"), "--seconds", "1", "--quiet")
+        assert r.returncode == 0, r.stderr
+    logged = [s.data.values for s in samples_after(tmp_path / "solar.sqlite", 0, limit=100)
+              if isinstance(s.data, MapReading)]
+    assert any(v.get("inverter_three_phase.W") == 3342 for v in logged)
 
 
 def test_no_sunspec_device_is_one_line_and_exit_3(tmp_path: Path) -> None:
