@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from typing import Any
 
 from pymb import maps
@@ -72,6 +73,8 @@ def sunspec_target(args: argparse.Namespace, spec: str) -> tuple[MapTarget, str]
         raise InvalidArgument(f"{spec!r}: the device has no SunSpec model pymb knows "
                               f"({'; '.join(found.notes) or 'no models'})")
     m, text = _map(found, unit)
+    for note in found.notes:  # what the map leaves out, said once, beside the output
+        print(f"pymb: {spec}: {note}", file=sys.stderr)
     return MapTarget(m, unit, name or f"sunspec-{unit}", {}), text
 
 

@@ -118,6 +118,8 @@ def test_read_sunspec_device_from_the_command_line(tmp_path: Path) -> None:
         finally:
             dev.close()
     out = json.loads(r.stdout)
+    assert r.stderr == ("pymb: sunspec:1: model 64999 at 40393 (L = 4) skipped: pymb does not "
+                        "know it\n")
     assert out["device"] == "sunspec-1-103-120-160-213-705"
     values, states = out["values"], out["states"]
     assert values["inverter_three_phase.W"] == 3342
