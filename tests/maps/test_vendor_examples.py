@@ -171,6 +171,11 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("finder-7e23", "export_energy_kwh", [13, 60383], 9123.51, "value"),
     ("finder-7e23", "firmware_version", [11], 1.1, "value"),  # FW 1.1
     ("finder-7e23", "baud_rate", [1, 49664], 115200, "value"),  # the manual's example
+    # NIBE S-series: signed 16-bit temperatures, division factor 10; frequency unsigned, factor 10
+    ("nibe-s-series", "outdoor_temperature_c", [0xFFCE], -5.0, "value"),
+    ("nibe-s-series", "hot_water_top_c", [495], 49.5, "value"),
+    ("nibe-s-series", "compressor_frequency_hz", [525], 52.5, "value"),
+    ("nibe-s-series", "heating_offset", [0xFFFE], -2, "value"),  # 8-bit setting, sign-extended
 ]
 
 
@@ -215,6 +220,8 @@ WRITES: list[tuple[str, str, Any, list[int]]] = [
     ("danfoss-fc", "reference_pct", -100.0, [0xC000]),
     ("victron-gx-vebus", "input_current_limit_a", 16.0, [160]),
     ("alfen-ng9xx", "max_current_a", 16.0, f32(16.0)),
+    ("nibe-s-series", "heating_offset", -3, [0xFFFD]),
+    ("nibe-s-series", "room_setpoint_c", 21.5, [215]),
 ]
 
 
