@@ -176,6 +176,11 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("nibe-s-series", "hot_water_top_c", [495], 49.5, "value"),
     ("nibe-s-series", "compressor_frequency_hz", [525], 52.5, "value"),
     ("nibe-s-series", "heating_offset", [0xFFFE], -2, "value"),  # 8-bit setting, sign-extended
+    # STIEBEL ELTRON ISG: signed 16-bit, 0.1 °C, 0.01 bar; 8000h for a sensor not fitted
+    ("stiebel-eltron-isg", "outside_temperature_c", [0xFFE8], -2.4, "value"),
+    ("stiebel-eltron-isg", "actual_dhw_temperature_c", [487], 48.7, "value"),
+    ("stiebel-eltron-isg", "heating_pressure_bar", [185], 1.85, "value"),
+    ("stiebel-eltron-isg", "actual_temperature_hk2_c", [0x8000], None, "not_available"),
 ]
 
 
@@ -222,6 +227,8 @@ WRITES: list[tuple[str, str, Any, list[int]]] = [
     ("alfen-ng9xx", "max_current_a", 16.0, f32(16.0)),
     ("nibe-s-series", "heating_offset", -3, [0xFFFD]),
     ("nibe-s-series", "room_setpoint_c", 21.5, [215]),
+    ("stiebel-eltron-isg", "comfort_temperature_hk1_c", 21.5, [215]),
+    ("stiebel-eltron-isg", "eco_temperature_dhw_c", 45.0, [450]),
 ]
 
 
