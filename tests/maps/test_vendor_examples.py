@@ -181,6 +181,12 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("stiebel-eltron-isg", "actual_dhw_temperature_c", [487], 48.7, "value"),
     ("stiebel-eltron-isg", "heating_pressure_bar", [185], 1.85, "value"),
     ("stiebel-eltron-isg", "actual_temperature_hk2_c", [0x8000], None, "not_available"),
+    # Socomec COUNTIS: 32 bits high word first; V/100, A/1000, kW/100 signed
+    ("socomec-countis-e3x", "l1_voltage_v", msw_first(23050, 2), 230.5, "value"),
+    ("socomec-countis-e3x", "l2_current_a", msw_first(12345, 2), 12.345, "value"),
+    ("socomec-countis-e3x", "total_active_power_w", msw_first(-152, 2), -1520.0, "value"),
+    ("socomec-countis-e3x", "total_power_factor", msw_first(-978, 2), -0.978, "value"),  # leading
+    ("socomec-countis-e3x", "product_order_id", [100], 100, "value"),  # Countis
 ]
 
 
