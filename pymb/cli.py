@@ -59,6 +59,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
                 "store what a fleet's boards publish to MQTT in SQLite or PostgreSQL"),
     "export": ("pymb.commands.export", "export a logged SQLite database as CSV"),
     "info": ("pymb.commands.info", "what a logged database holds: devices, span, faults, sizes"),
+    "salvage": ("pymb.commands.salvage",
+                "copy every readable row of a damaged database into a new one"),
     "plot": ("pymb.commands.plot", "plot a quantity of a logged device to PNG or SVG"),
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "write": ("pymb.commands.write", "write points of a device, checked and read back"),

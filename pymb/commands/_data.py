@@ -6,17 +6,23 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from typing import TypeVar
 
 from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
 from pymb.store import is_pymb_database, open_readonly, resolve_device
+from pymb.store.damage import damage, looks_like_pymb
+from pymb.store.salvage import salvage
 
 __all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times",
-           "write_beside"]
+           "readable_database", "write_beside"]
+
+#: seconds a reader (export, info) spends checking a database before reading it
+READ_CHECK_SECONDS = 3.0
 
 T = TypeVar("T")
 
@@ -34,6 +40,41 @@ def check_database(path: str) -> None:
         raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
     if head != b"SQLite format 3\x00" or not is_pymb_database(path):
         raise InvalidArgument(f"{path} is not a database written by pymb")
+
+
+def _damage(path: str) -> str | None:
+    """What is wrong with the pymb database at ``path`` (None: nothing found,
+    or not pymb's at all: check_database says so)."""
+    if not os.path.isfile(path):
+        return None
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError:
+        return None
+    if head != b"SQLite format 3\x00":
+        return "its header is damaged" if looks_like_pymb(path) else None
+    return damage(path, READ_CHECK_SECONDS)
+
+
+@contextlib.contextmanager
+def readable_database(path: str, command: str) -> Iterator[str]:
+    """The database to read for ``path``: itself, or for a damaged one every
+    row that can be read of it, salvaged into a temporary file (the damaged
+    file is only read), with what was skipped said on stderr."""
+    problem = _damage(path)
+    if problem is None:
+        check_database(path)
+        yield path
+        return
+    with tempfile.TemporaryDirectory(prefix="pymb-read-") as tmp:
+        new = os.path.join(tmp, "salvaged.sqlite")
+        result = salvage(path, new)
+        print(f"pymb {command}: {path} is damaged ({problem}): reading every row that can "
+              "be read", file=sys.stderr)
+        for line in result.lines():
+            print(f"pymb {command}: {line}", file=sys.stderr)
+        yield new
 
 
 def parse_time(flag: str, text: str | None) -> float | None:

@@ -21,6 +21,7 @@ from pymb.commands._data import (
     device_name,
     parse_channels,
     parse_times,
+    readable_database,
     write_beside,
 )
 from pymb.devices import HUB
@@ -110,25 +111,27 @@ def run(args: argparse.Namespace) -> int:
         args.csv = args.csv or "-"
         export: Callable[[IO[str]], int] = partial(export_writes, args.database, since=since,
                                                    until=until)
-    elif args.csv is None:
+        return _out(args, export)
+    if args.csv is None:
         raise InvalidArgument("--csv OUT is required (or --writes for the record of writes)")
-    else:
-        export = _samples(args, since, until)
-    return _out(args, export)
+    # a damaged database: every row that can be read, what was skipped said on stderr
+    with readable_database(args.database, "export") as db:
+        return _out(args, _samples(args, db, since, until))
 
 
-def _samples(args: argparse.Namespace, since: float | None,
+def _samples(args: argparse.Namespace, db: str, since: float | None,
              until: float | None) -> Callable[[IO[str]], int]:
+    """The export of the samples of ``db`` (the database, or what was read of a
+    damaged one)."""
     channels = None if args.channel is None else parse_channels(args.channel, HUB.channels,
                                                                "--channel")
     given = _given_maps(args.maps)
     if args.events and args.layout == "wide":
         raise InvalidArgument("--events is for the long layout (an event is no sample)")
-    check_database(args.database)
-    wanted = _quantities(args.quantity, map_point_names(args.database, given)
+    wanted = _quantities(args.quantity, map_point_names(db, given)
                          if args.quantity is not None else [])
-    device = device_name(args.database, args.device) if args.device is not None else None
-    return partial(export_csv, args.database, device=device, since=since, until=until,
+    device = device_name(db, args.device) if args.device is not None else None
+    return partial(export_csv, db, device=device, since=since, until=until,
                    channels=channels, quantities=wanted, events=args.events,
                    layout=args.layout, maps=given)
 

@@ -5,11 +5,14 @@ forwarder's backlog. Reads without writing (read-only media included)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import os
 import time
+from pathlib import Path
 from typing import Any
 
-from pymb.commands._data import check_database
+from pymb.commands._data import readable_database
 from pymb.store import Summary, summarize
 
 __all__ = ["add_arguments", "age_text", "iso", "run"]
@@ -133,7 +136,12 @@ def as_json(s: Summary, now: float | None = None) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Print the summary."""
-    check_database(args.database)
-    s = summarize(args.database)
+    with readable_database(args.database, "info") as db:
+        s = summarize(db)
+        if db != args.database:  # what was read of a damaged file: its own name and sizes
+            wal = Path(f"{args.database}-wal")
+            s = dataclasses.replace(s, path=args.database,
+                                    size=os.path.getsize(args.database),
+                                    wal=wal.stat().st_size if wal.exists() else 0)
     print(json.dumps(as_json(s), indent=2) if args.json else text(s))
     return 0

@@ -6,6 +6,7 @@ import os
 import sqlite3
 
 from pymb.errors import InvalidArgument
+from pymb.store.damage import looks_like_pymb
 from pymb.store.readonly import open_readonly
 from pymb.store.schema import schema_version
 from pymb.store.text import CSV_COLUMNS
@@ -31,6 +32,8 @@ def check_output(fmt: str, path: str) -> None:
     sqlite = head.startswith(b"SQLite format 3\x00")
     first = head.split(b"\n", 1)[0].rstrip(b"\r")
     if fmt == "sqlite":
+        if looks_like_pymb(path) and (not sqlite or not is_pymb_database(path)):
+            return  # a damaged pymb database: the writer moves it aside
         if not sqlite:
             raise InvalidArgument(f"{path} exists and is not a SQLite database: refusing to "
                                   "write into it; choose another --out")

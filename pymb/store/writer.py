@@ -7,6 +7,7 @@ import contextlib
 import math
 import os
 import sqlite3
+import sys
 import threading
 import time
 from array import array
@@ -17,6 +18,7 @@ from typing import Any
 from pymb.devices import HUB, HubReading
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
+from pymb.store.damage import damage, is_corruption, notice, replace_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.ids import SampleIds
@@ -83,6 +85,8 @@ class SqliteSink(DeviceRows, Retention):
             os.close(os.open(self.path, os.O_RDWR | os.O_CLOEXEC))
             # One writer: refused here, before this process writes anything.
             self._lock = WriterLock(self.path)
+            #: a damaged database found here and moved aside (the line that says so)
+            self.notice = self._set_aside_if_damaged()
             self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
         except (sqlite3.Error, OSError) as e:
             self._unlock()
@@ -124,6 +128,23 @@ class SqliteSink(DeviceRows, Retention):
                 self._unlock()
                 raise self._open_failed(e) from None
         self._reserve.keep()
+        if self.notice is not None:
+            print(f"pymb log: {self.notice}", file=sys.stderr, flush=True)
+            with self._mutex:
+                self._event(Event(time.time(), time.monotonic(), "", None, "damaged", None,
+                                  self.notice))
+                self._commit()
+
+    def _set_aside_if_damaged(self) -> str | None:
+        """Check the database (``quick_check``, bounded in time); a damaged one is
+        moved aside, never written, and a new one made in its place."""
+        problem = damage(self.path)
+        if problem is None:
+            return None
+        aside = replace_damaged(self.path)
+        self._unlock()  # the lock was the damaged file's
+        self._lock = WriterLock(self.path)
+        return notice(self.path, aside, problem)
 
     def _trim_at_open(self) -> None:
         count, free = self._pages()
@@ -148,7 +169,25 @@ class SqliteSink(DeviceRows, Retention):
         retries) or the file's content's (exit 2)."""
         if is_storage_fault(e):
             return storage_error(self.path, e, opening=True)
+        if is_corruption(e):
+            return self._damaged(e)
         return InvalidArgument(f"cannot open the database {self.path}: {e}")
+
+    def _damaged(self, e: Exception) -> OutputError:
+        """Damage met while opening or writing (past the start's check): the file
+        is moved aside (exit 5: the service's restart logs into a new file)."""
+        db = getattr(self, "db", None)
+        if db is not None:
+            with contextlib.suppress(sqlite3.Error):
+                db.close()
+        try:
+            aside = replace_damaged(self.path)
+        except (OSError, sqlite3.Error) as moved:
+            return OutputError(f"cannot write to {self.path}: the database is damaged ({e}) "
+                               f"and could not be moved aside ({moved}); move it away by hand")
+        return OutputError(f"cannot write to {self.path}: the database is damaged ({e}); "
+                           f"moved aside to {aside.name} (kept); the batch being written was "
+                           f"lost; the next start logs into a new {self.path.name}")
 
     def _open(self) -> None:
         db = self.db
@@ -204,6 +243,8 @@ class SqliteSink(DeviceRows, Retention):
             return e
         if is_storage_fault(e):
             return storage_error(self.path, e)
+        if is_corruption(e):
+            return self._damaged(e)
         return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
                            "is intact, the batch being written was lost")
 
