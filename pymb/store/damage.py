@@ -16,6 +16,7 @@ import sqlite3
 import time
 from pathlib import Path
 
+from pymb.store.files import create
 from pymb.store.ids import RESERVED_KEY
 
 __all__ = ["CHECK_SECONDS", "damage", "id_floor", "is_corruption", "looks_like_pymb",
@@ -149,8 +150,6 @@ def notice(path: Path, aside: Path, problem: str) -> str:
 def replace_damaged(path: Path) -> Path:
     """Move the damaged database aside and make a new one in its place, whose
     ids start above the old one's; returns where the damaged one is now."""
-    from pymb.store.files import create
-
     floor = id_floor(path)
     aside = move_aside(path)
     create(path)
