@@ -16,11 +16,13 @@ import sqlite3
 import time
 from pathlib import Path
 
+from pymb.errors import OutputError
 from pymb.store.files import create
 from pymb.store.ids import RESERVED_KEY
 
-__all__ = ["CHECK_SECONDS", "damage", "id_floor", "is_corruption", "looks_like_pymb",
-           "move_aside", "notice", "replace_damaged", "seed_ids"]
+__all__ = ["CHECK_SECONDS", "damage", "damaged_error", "id_floor", "is_corruption",
+           "looks_like_pymb", "move_aside", "notice", "replace_damaged", "seed_ids",
+           "set_aside_if_damaged"]
 
 #: seconds ``quick_check`` may take at the start (a large file on a slow card
 #: is checked as far as it gets; damage met later is found when it is written);
@@ -155,3 +157,30 @@ def replace_damaged(path: Path) -> Path:
     create(path)
     seed_ids(path, floor)
     return aside
+
+
+def set_aside_if_damaged(path: Path) -> str | None:
+    """Check the database at ``path`` (``quick_check``, bounded in time); a
+    damaged one is moved aside, never written, and a new one made in its
+    place. Returns the line that says so (None: nothing found)."""
+    problem = damage(path)
+    if problem is None:
+        return None
+    return notice(path, replace_damaged(path), problem)
+
+
+def damaged_error(path: Path, db: sqlite3.Connection | None, e: BaseException) -> OutputError:
+    """Damage met while opening or writing (past the start's check): ``db`` is
+    closed, the file moved aside (exit 5: the service's restart logs into a new
+    file), and the error says so."""
+    if db is not None:
+        with contextlib.suppress(sqlite3.Error):
+            db.close()
+    try:
+        aside = replace_damaged(path)
+    except (OSError, sqlite3.Error) as moved:
+        return OutputError(f"cannot write to {path}: the database is damaged ({e}) and could "
+                           f"not be moved aside ({moved}); move it away by hand")
+    return OutputError(f"cannot write to {path}: the database is damaged ({e}); moved aside "
+                       f"to {aside.name} (kept); the batch being written was lost; the next "
+                       f"start logs into a new {path.name}")

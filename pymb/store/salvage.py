@@ -95,19 +95,23 @@ def _header(page_size: int, pages: int, wal: bool) -> bytes:
     return bytes(h)
 
 
-def _open_copy(path: Path) -> sqlite3.Connection:
-    """The copy, read only (it may make its -shm: it is a copy)."""
+def _open_copy(path: Path, lenient: bool = True) -> sqlite3.Connection:
+    """The copy, read only (it may make its -shm: it is a copy); ``lenient``:
+    a schema entry whose table is damaged does not stop the others being read."""
     con = sqlite3.connect(path, isolation_level=None)
     con.execute("PRAGMA query_only = 1")
+    if lenient:
+        con.execute("PRAGMA writable_schema = ON")
     return con
 
 
-def _readable(path: Path) -> bool:
+def _readable(path: Path, lenient: bool) -> bool:
+    """True if the copy's list of tables reads (and names pymb's samples)."""
     try:
-        con = _open_copy(path)
+        con = _open_copy(path, lenient)
         try:
-            con.execute("SELECT name FROM sqlite_master").fetchall()
-            return True
+            names = {n for (n,) in con.execute("SELECT name FROM sqlite_master")}
+            return "samples" in names
         finally:
             con.close()
     except sqlite3.Error:
@@ -116,18 +120,21 @@ def _readable(path: Path) -> bool:
 
 def _repair_header(copy: Path) -> bool:
     """Rewrite a header SQLite does not take (True if it was rewritten)."""
-    if _readable(copy):
+    with open(copy, "rb") as f:
+        magic = f.read(16) == _MAGIC
+    if _readable(copy, False) or (magic and _readable(copy, True)):
         return False
     size = copy.stat().st_size
     wal = Path(f"{copy}-wal").exists()
     with open(copy, "r+b") as f:
         old = f.read(100)
-        for ps in _PAGE_SIZES:
-            f.seek(0)
-            f.write(_header(ps, max(1, size // ps), wal))
-            f.flush()
-            if _readable(copy):
-                return True
+        for lenient in (False, True):
+            for ps in _PAGE_SIZES:
+                f.seek(0)
+                f.write(_header(ps, max(1, size // ps), wal))
+                f.flush()
+                if _readable(copy, lenient):
+                    return True
         f.seek(0)
         f.write(old)
     return False
@@ -324,7 +331,7 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
         except OSError as e:
             raise InvalidArgument(f"cannot read {damaged}: {e.strerror}") from None
         result = Salvaged(header_rewritten=_repair_header(copy))
-        if not _readable(copy):
+        if not _readable(copy, True):
             raise InvalidArgument(f"{damaged}: not even the list of tables can be read; "
                                   "nothing to salvage")
         src = _open_copy(copy)

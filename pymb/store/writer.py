@@ -18,7 +18,7 @@ from typing import Any
 from pymb.devices import HUB, HubReading
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
-from pymb.store.damage import damage, is_corruption, notice, replace_damaged
+from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.ids import SampleIds
@@ -136,15 +136,13 @@ class SqliteSink(DeviceRows, Retention):
                 self._commit()
 
     def _set_aside_if_damaged(self) -> str | None:
-        """Check the database (``quick_check``, bounded in time); a damaged one is
-        moved aside, never written, and a new one made in its place."""
-        problem = damage(self.path)
-        if problem is None:
-            return None
-        aside = replace_damaged(self.path)
-        self._unlock()  # the lock was the damaged file's
-        self._lock = WriterLock(self.path)
-        return notice(self.path, aside, problem)
+        """A damaged database moved aside, a new one in its place (the line that
+        says so; None: nothing found)."""
+        line = set_aside_if_damaged(self.path)
+        if line is not None:
+            self._unlock()  # the lock was the damaged file's
+            self._lock = WriterLock(self.path)
+        return line
 
     def _trim_at_open(self) -> None:
         count, free = self._pages()
@@ -170,24 +168,8 @@ class SqliteSink(DeviceRows, Retention):
         if is_storage_fault(e):
             return storage_error(self.path, e, opening=True)
         if is_corruption(e):
-            return self._damaged(e)
+            return damaged_error(self.path, getattr(self, "db", None), e)
         return InvalidArgument(f"cannot open the database {self.path}: {e}")
-
-    def _damaged(self, e: Exception) -> OutputError:
-        """Damage met while opening or writing (past the start's check): the file
-        is moved aside (exit 5: the service's restart logs into a new file)."""
-        db = getattr(self, "db", None)
-        if db is not None:
-            with contextlib.suppress(sqlite3.Error):
-                db.close()
-        try:
-            aside = replace_damaged(self.path)
-        except (OSError, sqlite3.Error) as moved:
-            return OutputError(f"cannot write to {self.path}: the database is damaged ({e}) "
-                               f"and could not be moved aside ({moved}); move it away by hand")
-        return OutputError(f"cannot write to {self.path}: the database is damaged ({e}); "
-                           f"moved aside to {aside.name} (kept); the batch being written was "
-                           f"lost; the next start logs into a new {self.path.name}")
 
     def _open(self) -> None:
         db = self.db
@@ -244,7 +226,7 @@ class SqliteSink(DeviceRows, Retention):
         if is_storage_fault(e):
             return storage_error(self.path, e)
         if is_corruption(e):
-            return self._damaged(e)
+            return damaged_error(self.path, getattr(self, "db", None), e)
         return OutputError(f"cannot write to {self.path}: {e}; everything committed before "
                            "is intact, the batch being written was lost")
 
