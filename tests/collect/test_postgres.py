@@ -63,6 +63,14 @@ def test_postgresql_down_for_10_s_while_messages_flow(
         at_newest = con.execute("SELECT count(*) FROM pymb_latest WHERE time = %s",
                                 newest).fetchone()
     assert latest[0] == latest[1] == len({f[:3] for f in facts})
+    with psycopg.connect(postgres.url) as con:
+        indexes = {r[0]: r[1] for r in con.execute(
+            "SELECT indexname, indexdef FROM pg_indexes WHERE tablename = 'pymb_values'")}
+        timescale = con.execute("SELECT count(*) FROM pg_extension "
+                                "WHERE extname = 'timescaledb'").fetchone()
+    assert timescale == (0,)  # not installed here: a plain table, with its two indexes
+    assert indexes["pymb_values_key"].endswith("(node, device, point, \"time\")")
+    assert indexes["pymb_values_device_point"].endswith("(device, point, \"time\")")
     assert at_newest[0] == latest[0]  # one CoolPro: every point's newest is the last sample
 
 
