@@ -176,6 +176,11 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     ("nibe-s-series", "hot_water_top_c", [495], 49.5, "value"),
     ("nibe-s-series", "compressor_frequency_hz", [525], 52.5, "value"),
     ("nibe-s-series", "heating_offset", [0xFFFE], -2, "value"),  # 8-bit setting, sign-extended
+    # NIBE F-series (MODBUS 40): s16 divided by the list's factor 10; prio 30 = heat
+    ("nibe-f-series", "outdoor_temperature_c", [0xFFDD], -3.5, "value"),
+    ("nibe-f-series", "degree_minutes", [0xFB4B], -120.5, "value"),
+    ("nibe-f-series", "compressor_frequency_hz", [485], 48.5, "value"),
+    ("nibe-f-series", "priority", [30], 30, "value"),
     # STIEBEL ELTRON ISG: signed 16-bit, 0.1 °C, 0.01 bar; 8000h for a sensor not fitted
     ("stiebel-eltron-isg", "outside_temperature_c", [0xFFE8], -2.4, "value"),
     ("stiebel-eltron-isg", "actual_dhw_temperature_c", [487], 48.7, "value"),
@@ -232,6 +237,8 @@ WRITES: list[tuple[str, str, Any, list[int]]] = [
     ("victron-gx-vebus", "input_current_limit_a", 16.0, [160]),
     ("alfen-ng9xx", "max_current_a", 16.0, f32(16.0)),
     ("nibe-s-series", "heating_offset", -3, [0xFFFD]),
+    ("nibe-f-series", "heat_offset", -3, [0xFFFD]),
+    ("nibe-f-series", "hot_water_comfort_mode", "luxury", [2]),
     ("nibe-s-series", "room_setpoint_c", 21.5, [215]),
     ("stiebel-eltron-isg", "comfort_temperature_hk1_c", 21.5, [215]),
     ("stiebel-eltron-isg", "eco_temperature_dhw_c", 45.0, [450]),
