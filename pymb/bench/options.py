@@ -15,15 +15,15 @@ __all__ = ["BUSES", "EXTRA_SECTIONS", "QUICK_BUDGET", "SECTIONS", "SEED", "SOFTW
 SECTIONS = ("micro", "plan", "maps", "sweep", "wire", "scaling", "aio", "fleet", "logger",
             "gateway")
 #: sections run only when named in --sections (long: the soak takes 30 minutes; collect
-#: starts a broker and a PostgreSQL of its own)
-EXTRA_SECTIONS = ("soak", "collect", "writes")
+#: starts a broker and a PostgreSQL of its own; serve, three simulators and two servers)
+EXTRA_SECTIONS = ("soak", "collect", "writes", "serve")
 #: --quick: the seconds each section may take on a loaded 2-core machine. The
 #: default sections' budgets add up to less than a minute: a section's quick plan
 #: is sized to fit its own, a new section declares one (tests/bench checks both),
 #: and a run reports what each section took against it.
 QUICK_BUDGET = {"micro": 1.0, "plan": 1.0, "maps": 3.0, "sweep": 4.0, "wire": 8.0,
                 "scaling": 5.0, "aio": 8.0, "fleet": 9.0, "logger": 9.0, "gateway": 8.0,
-                "soak": 65.0, "collect": 60.0, "writes": 60.0}
+                "soak": 65.0, "collect": 60.0, "writes": 60.0, "serve": 30.0}
 SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software comparison
 SEED = 0
 BUSES = (1, 2, 4, 8)

@@ -63,6 +63,9 @@ def tables(result: dict[str, Any]) -> list[Table]:
     if result.get("writes"):
         from pymb.bench.writebench import tables as write_tables  # it imports this package
         out.extend(write_tables(result["writes"]))
+    if result.get("serve"):
+        from pymb.bench.servebench import tables as serve_tables
+        out.extend(serve_tables(result["serve"]))
     if m.get("quick"):
         _mark_quick(out)
     tg = [] if m.get("quick") else (result.get("targets") or [])

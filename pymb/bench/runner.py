@@ -39,6 +39,9 @@ Sections (each can be chosen with ``--sections``):
              CPU per poll, RSS, threads; pymb's fan-out loop against a
              thread per connection and pymodbus's async client
              (:mod:`pymb.bench.gatebench`).
+``serve``    a read direct and through ``pymb serve`` (plain and TLS): the
+             latency it adds and its CPU per read (:mod:`pymb.bench.servebench`;
+             only when named).
 
 Every simulator and worker is a child process stopped at the end, on error
 and on Ctrl-C (and, through ``PR_SET_PDEATHSIG``, if the bench is killed).
@@ -342,6 +345,10 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         from pymb.bench import gatebench
         for t in gatebench.targets(result["gateway"]):
             add(*t)
+    if result.get("serve"):
+        from pymb.bench import servebench
+        for t in servebench.targets(result["serve"]):
+            add(*t)
     return out
 
 
@@ -374,6 +381,11 @@ def _run_gateway(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
 def _run_writes(opts: Options) -> dict[str, Any]:
     from pymb.bench.writebench import run_writes
     return run_writes(opts.quick, opts.say)
+
+
+def _run_serve(opts: Options, children: Children) -> dict[str, Any]:
+    from pymb.bench import servebench
+    return servebench.run_section(opts, children)
 
 
 def _run_soak(opts: Options) -> dict[str, Any]:
@@ -409,6 +421,7 @@ def run(opts: Options) -> dict[str, Any]:
             ("gateway", pymb_in, lambda: _run_gateway(opts, children, tmp)),
             ("soak", pymb_in, lambda: _run_soak(opts)),
             ("writes", pymb_in, lambda: _run_writes(opts)),
+            ("serve", pymb_in, lambda: _run_serve(opts, children)),
         ]
         took: dict[str, float] = result["meta"]["section_seconds"]
         for name, wanted, step in steps:
