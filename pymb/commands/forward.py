@@ -12,6 +12,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
+from pymb.fleet.profiles import SparkplugProfile
 from pymb.logger import LogConfig, Logger, Summary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
@@ -109,7 +110,14 @@ def command_desk(cfg: LogConfig, logger: Logger, raw: Any, fw: Forwarder) -> Com
         fw.publish_result(device, payload)  # offline: the record answers the command again
 
     desk.reply = reply
-    fw.take_commands(devices, lambda device, payload: desk.submit("mqtt", device, payload))
+    source = "mqtt"
+    prof = fw.profile
+    if isinstance(prof, SparkplugProfile):  # DCMD: DBIRTH says writable, DDATA answers
+        source = "sparkplug"
+        prof.writable = desk.may_write
+        desk.births = prof.birth_aliases
+        desk.answer = fw.answer_dcmd
+    fw.take_commands(devices, lambda device, payload: desk.submit(source, device, payload))
     desk.start()
     return desk
 

@@ -104,7 +104,8 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
                         "sample, which then stays in the database) or 3.1.1")
     g.add_argument("--allow-writes", metavar="PATTERN", action="append", default=[],
                    help="DEVICE/POINT (fnmatch, repeatable) that write commands on "
-                        "{prefix}/{node}/{device}/set may change (default: nothing)")
+                        "{prefix}/{node}/{device}/set (Sparkplug: DCMD) may change "
+                        "(default: nothing)")
     g.add_argument("--mqtt-primary-host", metavar="ID",
                    help="Sparkplug: publish only while the primary host application ID says "
                         "online on spBv1.0/STATE/ID (the samples wait in the database)")

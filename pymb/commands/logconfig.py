@@ -116,9 +116,10 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     if mqtt is not None and cfg.format != "sqlite":
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox): "
                               "use --format sqlite")
-    if cfg.allow_writes and (mqtt is None or mqtt.profile != "plain"):
-        raise InvalidArgument("write commands come over MQTT's plain profile: --allow-writes "
-                              "([writes] allow) needs --mqtt URL")
+    if cfg.allow_writes and mqtt is None:
+        raise InvalidArgument("write commands come over MQTT (the plain profile's set topics, "
+                              "Sparkplug's DCMD): --allow-writes ([writes] allow) needs "
+                              "--mqtt URL")
     _on_change(args, cfg)
     if cfg.format == "sqlite":  # at the start and before a SIGHUP reload
         check_stored_maps(cfg.path, {d.type: d.source.text for b in cfg.buses

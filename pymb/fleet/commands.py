@@ -1,12 +1,17 @@
-"""The forwarder's side of write commands (the plain profile): the set
-topics it subscribes to on every connection, the commands it hands on, the
-results it publishes. What a command does is :mod:`pymb.logger.commands`'s."""
+"""The forwarder's side of write commands: the topics it subscribes to on
+every connection (the plain profile's ``.../set``, Sparkplug's DCMD), the
+commands it hands on, the results it publishes (a result message; Sparkplug:
+a DDATA of the metrics a DCMD named). What a command does is
+:mod:`pymb.logger.commands`'s."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.profiles import NAMESPACE
 from pymb.fleet.session import Session
 
 __all__ = ["CommandTopics"]
@@ -23,13 +28,21 @@ class CommandTopics:
         self.set_topics: dict[str, str] = {}
         self._commands: Callable[[str, bytes], None] | None = None
         self._session: Session | None = None  #: the connection up now, if any
+        #: (device, values read back, metric names) of DCMDs answered, for the DDATA
+        self._answers: list[tuple[str, dict[str, Any], list[str]]] = []
+        self._answers_lock = threading.Lock()
 
     def take_commands(self, devices: list[str], submit: Callable[[str, bytes], None]) -> None:
         """Subscribe (QoS 1) to ``{prefix}/{node}/{device}/set`` of each of
         ``devices`` from the next connection on (before :meth:`start`); each
         command goes to ``submit(device, payload)``."""
-        base = f"{self.cfg.prefix}/{self.cfg.node}"
-        self.set_topics = {f"{base}/{d}/set": d for d in devices}
+        cfg = self.cfg
+        if cfg.profile == "sparkplug":  # DCMD on spBv1.0/{group}/DCMD/{node}/{device}
+            base = f"{NAMESPACE}/{cfg.group}/DCMD/{cfg.node}"
+            self.set_topics = {f"{base}/{d}": d for d in devices}
+        else:
+            base = f"{cfg.prefix}/{cfg.node}"
+            self.set_topics = {f"{base}/{d}/set": d for d in devices}
         self._commands = submit
 
     def command_arrived(self, topic: str, payload: bytes) -> None:
@@ -48,3 +61,21 @@ class CommandTopics:
         info = s.client.publish(topic, payload, qos=1, retain=False)
         return bool(info.rc == 0)
 
+
+    def answer_dcmd(self, device: str, values: Mapping[str, Any], names: Sequence[str]) -> None:
+        """A DCMD was executed (or refused): the forwarder's thread publishes a
+        DDATA of ``names``, with ``values`` (read back) where given, else the
+        current value (any thread)."""
+        with self._answers_lock:
+            if len(self._answers) < 1000:
+                self._answers.append((device, dict(values), list(names)))
+        self.wake_answers()
+
+    def wake_answers(self) -> None:
+        """Wake the forwarder's thread (the forwarder sets its event)."""
+
+    def take_answers(self) -> list[tuple[str, dict[str, Any], list[str]]]:
+        """The DCMD answers waiting to be published (the forwarder's thread)."""
+        with self._answers_lock:
+            out, self._answers = self._answers, []
+        return out

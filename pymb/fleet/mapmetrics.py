@@ -13,7 +13,7 @@ from pymb.devices.mapreading import MapReading
 from pymb.fleet.protobuf import DataType
 from pymb.maps import Map, Point
 
-__all__ = ["datatype", "map_metadata", "map_metrics", "point_properties"]
+__all__ = ["datatype", "map_metadata", "map_metrics", "plain_value", "point_properties"]
 
 _TYPES = {
     "u16": DataType.UINT16, "i16": DataType.INT16, "u32": DataType.UINT32,
@@ -41,7 +41,8 @@ def _names(p: Point) -> Iterator[tuple[str, int | None]]:
         yield p.name, None
 
 
-def _plain(v: Any) -> Any:
+def plain_value(v: Any) -> Any:
+    """A value as a metric carries it: raw registers as hex text, NaN as null."""
     if isinstance(v, list):  # raw registers
         return "".join(f"{r:04X}" for r in v)
     if isinstance(v, float) and v != v:
@@ -63,9 +64,9 @@ def map_metrics(data: MapReading, every: bool) -> list[tuple[str, DataType, Any,
         dt = datatype(p)
         for name, ch in _names(p):
             if ch is None or p.type == "raw":
-                value, state = _plain(v), st
+                value, state = plain_value(v), st
             else:
-                value = None if v is None else _plain(v[ch])  # type: ignore[index]
+                value = None if v is None else plain_value(v[ch])  # type: ignore[index]
                 state = st[ch] if isinstance(st, list) else st
             out.append((name, dt, value, str(state), p))
     return out

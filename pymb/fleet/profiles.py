@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,10 +36,11 @@ from pymb.devices.readings import INTEGRAL_QUANTITIES, reading_dict
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
+from pymb.maps import Point
 from pymb.store import Outbox, StoredSample, sample_dict
 
 __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
-           "make_profile"]
+           "make_profile", "write_name"]
 
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
@@ -102,6 +104,11 @@ class Profile:
     def command(self, payload: bytes) -> bool:
         """True when a command received asks for new births."""
         return False
+
+    def command_data(self, device: str, values: Mapping[str, Any], names: Sequence[str],
+                     latest: StoredSample | None) -> list[Message]:
+        """What answers a device command (Sparkplug: a DDATA)."""
+        return []
 
     def new_connection(self, source: Outbox) -> None:
         """Called before each CONNECT."""
@@ -178,6 +185,39 @@ class SparkplugProfile(Profile):
         self.down: set[str] = set()
         self.node_values: dict[str, int] = {}  #: as last published (NBIRTH or NDATA)
         self.node_sent = 0.0  #: time.monotonic() of that
+        #: (device, point) -> whether a DCMD may write it: its DBIRTH metric says
+        #: ``writable`` (set by the logger that takes write commands)
+        self.writable: Callable[[str, str], bool] = lambda device, point: False
+
+    def birth_aliases(self, device: str) -> dict[str, int] | None:
+        """The metrics (name -> alias) of ``device``'s last DBIRTH of this
+        session; None before it (any thread)."""
+        birth = self.born.get(device)
+        return None if birth is None else birth.aliases
+
+    def command_data(self, device: str, values: Mapping[str, Any], names: Sequence[str],
+                     latest: StoredSample | None) -> list[Message]:
+        """The DDATA that answers a DCMD: each metric of ``names`` with its value
+        in ``values`` (read back after the write), else its current value (the
+        device's latest sample); nothing while the device is not born."""
+        birth = self.born.get(device)
+        if birth is None or latest is None or not isinstance(latest.data, MapReading):
+            return []
+        now = _ms(time.time())
+        current = {name: (dt, v, st) for name, dt, v, st, _ in map_metrics(latest.data, True)}
+        metrics = []
+        for name in dict.fromkeys(names):
+            if name not in current or name not in birth.aliases:
+                continue
+            dt, v, st = current[name]
+            if name in values:
+                v, st = values[name], "value"
+            metrics.append(Metric(None, birth.aliases[name], dt, v, now, False,
+                                  self._props(st)))
+        if not metrics:
+            return []
+        payload = encode_payload(metrics, timestamp=now, seq=self._next_seq())
+        return [Message(self.node_topic.format("DDATA") + f"/{device}", payload, 0)]
 
     def _next_seq(self) -> int:
         s = self.seq
@@ -262,7 +302,7 @@ class SparkplugProfile(Profile):
         out: list[tuple[str, DataType, Any, str, tuple[Any, ...]]] = [
             ("sample", DataType.UINT64, r.id, "value", ())]
         if isinstance(r.data, MapReading):
-            out += [(name, dt, v, st, point_properties(p) if birth else ())
+            out += [(name, dt, v, st, self._birth_props(r.device.name, name, p) if birth else ())
                     for name, dt, v, st, p in map_metrics(r.data, birth)]
             return out
         d = reading_dict(r.data)
@@ -279,6 +319,14 @@ class SparkplugProfile(Profile):
                     DataType.UINT32 if q == "status" else DataType.UINT64)
                 out.append((q, dt, v, "value", ()))
         return out
+
+    def _birth_props(self, device: str, metric: str, p: Point
+                     ) -> tuple[tuple[str, DataType, int | str], ...]:
+        """A point's birth properties, and ``writable`` (true) where a DCMD may write it."""
+        props = point_properties(p)
+        if p.writable and self.writable(device, write_name(metric)):
+            props += (("writable", DataType.BOOLEAN, 1),)
+        return props
 
     @staticmethod
     def _props(state: str) -> tuple[tuple[str, DataType, int | str], ...]:
@@ -333,6 +381,14 @@ class SparkplugProfile(Profile):
             return False
         return any((name == REBIRTH or (name is None and alias == 1)) and value
                    for name, alias, value in metrics)
+
+
+def write_name(metric: str) -> str:
+    """The point name a write takes for a DBIRTH metric: ``channel 003/x`` is ``x_3``."""
+    head, _, point = metric.partition("/")
+    if head.startswith("channel ") and head[8:].isdigit() and point:
+        return f"{point}_{int(head[8:])}"
+    return metric
 
 
 def _channels(r: StoredSample) -> int:

@@ -21,7 +21,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-__all__ = ["DataType", "Metric", "command_metrics", "decode", "encode_payload"]
+__all__ = ["DataType", "Metric", "command_metrics", "command_values", "decode",
+           "encode_payload"]
 
 
 class DataType(IntEnum):
@@ -85,7 +86,9 @@ def _property_set(props: Iterable[tuple[str, DataType, int | str]]) -> bytes:
     for name, dtype, value in props:
         keys += _len(1, name.encode())
         v = _uint(1, int(dtype))
-        if isinstance(value, str):
+        if dtype == DataType.BOOLEAN:  # PropertyValue.boolean_value
+            v += _uint(7, 1 if value else 0)
+        elif isinstance(value, str):
             v += _len(8, value.encode())
         else:
             v += _uint(3, value & 0xFFFFFFFF)
@@ -213,3 +216,54 @@ def command_metrics(payload: bytes) -> list[tuple[str | None, int | None, bool |
                        alias if isinstance(alias, int) else None,
                        bool(boolean) if isinstance(boolean, int) else None))
     return result
+
+
+def _signed(v: int, bits: int) -> int:
+    v &= (1 << bits) - 1
+    return v - (1 << bits) if v >> (bits - 1) else v
+
+
+_SIGNED = {DataType.INT8: 8, DataType.INT16: 16, DataType.INT32: 32, DataType.INT64: 64}
+
+
+def _value(f: Fields, dt: int | None) -> float | int | bool | str | None:
+    """A metric's value from its fields, read as its datatype says."""
+    def first(n: int) -> int | bytes | None:
+        return f.get(n, [None])[-1]
+    if first(7):  # is_null
+        return None
+    if (b := first(14)) is not None and isinstance(b, int):
+        return bool(b)
+    if (s := first(15)) is not None and isinstance(s, bytes):
+        return s.decode("utf-8")
+    if (d := first(13)) is not None and isinstance(d, int):
+        return float(struct.unpack("<d", d.to_bytes(8, "little"))[0])
+    if (x := first(12)) is not None and isinstance(x, int):
+        return float(struct.unpack("<f", x.to_bytes(4, "little"))[0])
+    for number in (10, 11):
+        if (n := first(number)) is not None and isinstance(n, int):
+            if dt is not None and dt in _SIGNED:
+                return _signed(n, _SIGNED[DataType(dt)])
+            return n
+    return None
+
+
+def command_values(payload: bytes
+                   ) -> tuple[int | None, int | None,
+                              list[tuple[str | None, int | None, float | int | bool | str | None]]]:
+    """(payload timestamp, seq, [(name, alias, value)]) of a DCMD: each
+    metric's value as its datatype says (a signed integer from its two's
+    complement). Raises ValueError on a malformed payload."""
+    top = decode(payload)
+    ts, seq = top.get(1, [None])[0], top.get(3, [None])[0]
+    metrics = []
+    for raw in top.get(2, []):
+        if not isinstance(raw, bytes):
+            raise ValueError("metric is not a message")
+        f = decode(raw)
+        name, alias, dt = f.get(1, [None])[0], f.get(2, [None])[0], f.get(4, [None])[0]
+        metrics.append((name.decode("utf-8") if isinstance(name, bytes) else None,
+                        alias if isinstance(alias, int) else None,
+                        _value(f, dt if isinstance(dt, int) else None)))
+    return (ts if isinstance(ts, int) else None, seq if isinstance(seq, int) else None,
+            metrics)

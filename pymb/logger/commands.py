@@ -27,7 +27,7 @@ from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefu
 from pymb.maps import Map
 from pymb.store.commands import CommandLog, PointRow
 
-__all__ = ["CommandDesk", "Target", "allowed", "reason_of"]
+__all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
 
 QUEUE_MAX = 2048  #: commands waiting at most; more are dropped (and said once)
 _UNKNOWN = ("the logger stopped while this command was being executed; it is not executed "
@@ -65,7 +65,9 @@ def _now_iso(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t * 1000) % 1000:03d}Z"
 
 
-class _Refused(Exception):
+class Refused(Exception):
+    """A command (or one value of it) refused before anything was sent: its ``reason``."""
+
     def __init__(self, reason: str, error: str) -> None:
         super().__init__(error)
         self.reason = reason
@@ -83,6 +85,10 @@ class CommandDesk(threading.Thread):
         self.allow = tuple(allow)
         self.event = event
         self.reply: Callable[[str, bytes], None] | None = None
+        #: Sparkplug: (device, values read back, metric names) of an executed DCMD
+        self.answer: Callable[[str, dict[str, Any], list[str]], None] | None = None
+        #: Sparkplug: the device's DBIRTH metrics (name -> alias), None before it
+        self.births: Callable[[str], dict[str, int] | None] = lambda device: None
         self._queue: collections.deque[tuple[str, str, bytes]] = collections.deque()
         self._cond = threading.Condition()
         self._stop = False
@@ -135,7 +141,12 @@ class CommandDesk(threading.Thread):
     # -- one command ------------------------------------------------------------------
 
     def handle(self, source: str, device: str, payload: bytes) -> bytes | None:
-        """Execute one command; returns the result to publish."""
+        """Execute one command; returns the result to publish (a DCMD's
+        answer goes to :attr:`answer` instead)."""
+        if source == "sparkplug":
+            from pymb.logger.dcmd import handle_dcmd
+            handle_dcmd(self, device, payload)
+            return None
         try:
             doc = json.loads(payload)
         except (ValueError, UnicodeDecodeError):
@@ -158,12 +169,12 @@ class CommandDesk(threading.Thread):
         rows: list[PointRow] = []
         try:
             if target is None:
-                raise _Refused("invalid", f"no device {device!r} takes commands here")
+                raise Refused("invalid", f"no device {device!r} takes commands here")
             if not isinstance(values, dict) or not values:
-                raise _Refused("invalid", "values must be an object of point names to values")
+                raise Refused("invalid", "values must be an object of point names to values")
             rows = [PointRow(str(n), v) for n, v in values.items()]
-            dev = self._check(target, values)
-        except _Refused as r:
+            dev = self.check_command(target, values)
+        except Refused as r:
             for row in rows:
                 row.reason = r.reason
             self.log.receive(cid, device, source, durable=False)
@@ -187,39 +198,58 @@ class CommandDesk(threading.Thread):
         return self._finish(cid, device, source, rows, {o.name: o.after for o in outcomes},
                             None, None)
 
-    def _check(self, t: Target, values: Mapping[str, object]) -> MapDevice:
+    def may_write(self, device: str, name: str) -> bool:
+        """Whether commands may write point ``name`` (``x_N``: a block's
+        channel) of ``device``: writable in its map and allowed."""
+        t = self.targets.get(device)
+        if t is None or not allowed(self.allow, device, name):
+            return False
+        try:
+            return resolve(t.map, name)[1].writable
+        except InvalidArgument:
+            return False
+
+    def check_point(self, t: Target, name: str, value: object) -> None:
+        """Section 1's checks of one value and the allow list: a ``Refused``
+        when it may not be written."""
+        m = t.map
+        try:
+            _, p = resolve(m, name)
+        except InvalidArgument as e:
+            raise Refused("invalid", str(e)) from None
+        if not p.writable:
+            raise Refused("not_allowed", f"{t.name}: point {name!r} is read-only")
+        if not allowed(self.allow, t.name, name):
+            raise Refused("not_allowed", f"{t.name}: point {name!r} is not in the "
+                           "allow list of [writes] (or --allow-writes)")
+        try:
+            check(m, [(name, None, value)])
+        except InvalidArgument as e:
+            raise Refused(reason_of(e), str(e)) from None
+
+    def check_command(self, t: Target, values: Mapping[str, object]) -> MapDevice:
+        """A whole command checked (each value, the device online, the budgets):
+        the device to write, or a ``Refused``."""
         m = t.map
         for name, value in values.items():
-            try:
-                _, p = resolve(m, name)
-            except InvalidArgument as e:
-                raise _Refused("invalid", str(e)) from None
-            if not p.writable:
-                raise _Refused("not_allowed", f"{t.name}: point {name!r} is read-only")
-            if not allowed(self.allow, t.name, name):
-                raise _Refused("not_allowed", f"{t.name}: point {name!r} is not in the "
-                               "allow list of [writes] (or --allow-writes)")
-            try:
-                check(m, [(name, None, value)])
-            except InvalidArgument as e:
-                raise _Refused(reason_of(e), str(e)) from None
+            self.check_point(t, name, value)
         try:
             changes = check(m, [(n, None, v) for n, v in values.items()])
         except InvalidArgument as e:
-            raise _Refused(reason_of(e), str(e)) from None
+            raise Refused(reason_of(e), str(e)) from None
         if t.offline():
-            raise _Refused("device", f"{t.name} is offline: nothing was sent")
+            raise Refused("device", f"{t.name} is offline: nothing was sent")
         try:
             dev = t.device()
         except ModbusError as e:
-            raise _Refused("device", str(e)) from None
+            raise Refused("device", str(e)) from None
         if dev is None:
-            raise _Refused("device", f"{t.name} is offline: nothing was sent")
+            raise Refused("device", f"{t.name} is offline: nothing was sent")
         key = f"{m.id}:{dev.address}"
         for c in changes:
             limit = c.point.max_writes_per_hour
             if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
-                raise _Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
+                raise Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
                                f"({limit} writes per hour); nothing was sent")
         return dev
 

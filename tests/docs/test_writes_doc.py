@@ -21,7 +21,7 @@ from pymb.sim import SimulatorProcess
 
 INVERTER = claim_one("docs/writes.md", "toml", how="load", contains="acme-inverter").text
 CODE = claim_one("docs/writes.md", "python", how="run").text
-SHELL = claim_one("docs/writes.md", "sh", how="run")
+SHELL = claim_one("docs/writes.md", "sh", how="run", contains="pymb write")
 ALLOW = claim_one("docs/writes.md", "toml", how="load", contains="[writes]").text
 COMMANDS = claim("docs/writes.md", "json", how="parse")
 SYNOPSIS = claim_one("docs/writes.md", "text", how="check", contains="pymb write DEVICE").text

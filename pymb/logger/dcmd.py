@@ -1,0 +1,163 @@
+"""Sparkplug B device commands (DCMD) as writes: :func:`handle_dcmd`.
+
+A DCMD names metrics of the device's DBIRTH by name or by alias. Each
+metric is checked as any write is (its point exists, is writable, its value
+fits; the allow list); one refused metric refuses the whole DCMD, so nothing
+of it is written, and a metric that names no metric of the DBIRTH is refused
+too. The DCMD is on record before its write goes out, and is answered by a
+DDATA of its metrics: the values read back where written, else their current
+values (the device's latest sample, or the read back of a write the device
+did not apply).
+
+A DCMD's command id, in the ``writes`` view, is
+``sparkplug:{device}:{payload timestamp}:{seq}`` (``-`` for a missing seq);
+the same DCMD delivered again (same device, timestamp and seq) is not
+executed again. A DCMD without a timestamp gets its arrival time in
+nanoseconds instead, so it is never taken for another.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import TYPE_CHECKING, Any
+
+from pymb.devices.mapwrite import Outcome, resolve
+from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.fleet.mapmetrics import plain_value
+from pymb.fleet.profiles import write_name
+from pymb.fleet.protobuf import command_values
+from pymb.store.commands import PointRow
+
+if TYPE_CHECKING:
+    from pymb.logger.commands import CommandDesk, Target
+
+__all__ = ["command_id", "handle_dcmd"]
+
+SOURCE = "sparkplug"
+
+
+def command_id(device: str, timestamp: int | None, seq: int | None) -> str:
+    """The record's id of a DCMD (see the module docstring)."""
+    if timestamp is None:
+        return f"{SOURCE}:{device}:arrived-{time.time_ns()}"
+    return f"{SOURCE}:{device}:{timestamp}:{'-' if seq is None else seq}"
+
+
+def _metric_value(t: Target, name: str, v: object) -> object:
+    """A value read back as its metric carries it (an enum's number, not its name)."""
+    try:
+        p = resolve(t.map, name)[1]
+    except InvalidArgument:
+        return v
+    if p.values and isinstance(v, str):
+        for raw, label in p.values.items():
+            if label == v:
+                return raw
+    return plain_value(v)
+
+
+def handle_dcmd(desk: CommandDesk, device: str, payload: bytes) -> None:
+    """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
+    from pymb.logger.commands import Refused
+
+    try:
+        ts, seq, metrics = command_values(payload)
+    except (ValueError, UnicodeDecodeError) as e:
+        desk.event(f"DCMD for {device} ignored: not a Sparkplug B payload ({e})")
+        return
+    cid = command_id(device, ts, seq)
+    known, stored = desk.log.seen(cid)
+    if known:
+        earlier = json.loads(stored).get("metrics", []) if stored else []
+        desk.event(f"DCMD {cid} was received before: not executed again")
+        _answer(desk, device, {}, earlier)
+        return
+    target = desk.targets.get(device)
+    birth = desk.births(device) or {}
+    by_alias = {a: n for n, a in birth.items()}
+    rows: list[PointRow] = []
+    refusals: list[Refused | None] = []
+    names: list[str] = []  #: the DBIRTH metrics it names
+    items: list[tuple[str, int | None, object]] = []
+    for name, alias, value in metrics:
+        metric = name if name is not None else by_alias.get(alias) if alias is not None else None
+        label = metric if metric is not None else (
+            f"alias {alias}" if alias is not None else "(no name, no alias)")
+        refusal: Refused | None = None
+        if target is None or metric is None or metric not in birth:
+            refusal = Refused("invalid", f"{device}: the DCMD metric {label!r} names no "
+                              "metric of the DBIRTH")
+            rows.append(PointRow(label, value))
+        else:
+            point = write_name(metric)
+            names.append(metric)
+            items.append((point, None, value))
+            rows.append(PointRow(point, value))
+            try:
+                desk.check_point(target, point, value)
+            except Refused as why:
+                refusal = why
+        refusals.append(refusal)
+    if not metrics:
+        refusals.append(Refused("invalid", f"{device}: the DCMD names no metric"))
+    first = next((r for r in refusals if r is not None), None)
+    if first is None and target is not None:
+        try:
+            dev = desk.check_command(target, {p: v for p, _, v in items})
+        except Refused as why:
+            first = why
+            refusals = [why] * len(rows)
+    if first is not None or target is None:
+        first = first or Refused("invalid", f"no device {device!r} takes commands here")
+        for row, r in zip(rows, refusals, strict=False):
+            row.reason = (r or first).reason
+            if r is not None:
+                desk.event(f"DCMD {cid}: {row.point!r} refused ({r.reason}): {r}")
+        if all(r is None for r in refusals[:len(rows)]):
+            desk.event(f"DCMD {cid} refused ({first.reason}): {first}")
+        desk.log.receive(cid, device, SOURCE, durable=False)
+        _finish(desk, cid, device, rows, first.reason, names, durable=False)
+        _answer(desk, device, {}, names)
+        return
+    desk.log.receive(cid, device, SOURCE, durable=True)  # on record before the write
+    to_metric = dict(zip([p for p, _, _ in items], names, strict=True))
+    outcomes: list[Outcome] = []
+    reason: str | None = None
+    try:
+        outcomes = dev.write_points(items, before=True)
+    except WriteNotApplied as e:
+        outcomes, reason = list(e.outcomes), "not_applied"
+        desk.event(f"DCMD {cid} for {device} not applied: {e}")
+    except WriteRefused as e:
+        reason = e.reason
+        desk.event(f"DCMD {cid} for {device} refused ({e.reason}): {e}")
+    except ModbusError as e:
+        reason = "device"
+        desk.event(f"DCMD {cid} for {device} failed (device): {e}")
+    by = {o.name: o for o in outcomes}
+    values: dict[str, Any] = {}
+    for row in rows:
+        o = by.get(row.point)
+        if o is None:
+            row.reason = reason
+            continue
+        row.before, row.after = o.before, o.after
+        row.ok = bool(o.applied) or (o.applied is None and o.sent)
+        row.reason = None if row.ok else reason
+        if o.after is not None:
+            values[to_metric[row.point]] = _metric_value(target, row.point, o.after)
+    _finish(desk, cid, device, rows, reason, names, durable=True)
+    _answer(desk, device, values, names)
+
+
+def _finish(desk: CommandDesk, cid: str, device: str, rows: list[PointRow],
+            reason: str | None, names: list[str], *, durable: bool) -> None:
+    result = json.dumps({"id": cid, "ok": reason is None, "reason": reason,
+                         "metrics": names}, separators=(",", ":"))
+    desk.log.finish(cid, device, SOURCE, result, rows, durable=durable)
+
+
+def _answer(desk: CommandDesk, device: str, values: dict[str, Any], names: list[str]) -> None:
+    if desk.answer is not None and names:
+        desk.answer(device, values, names)
