@@ -11,8 +11,9 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.profiles import NAMESPACE
+from pymb.fleet.profiles import NAMESPACE, Message, Profile
 from pymb.fleet.session import Session
+from pymb.store import Outbox
 
 __all__ = ["CommandTopics"]
 
@@ -22,6 +23,9 @@ class CommandTopics:
     subscribed to (QoS 1) on each connection."""
 
     cfg: MqttConfig
+    profile: Profile
+    source: Outbox
+    wake: threading.Event  #: wakes the forwarder's thread
 
     def __init__(self) -> None:
         #: set topic -> device: the plain profile's write commands (see :meth:`take_commands`)
@@ -69,13 +73,14 @@ class CommandTopics:
         with self._answers_lock:
             if len(self._answers) < 1000:
                 self._answers.append((device, dict(values), list(names)))
-        self.wake_answers()
+        self.wake.set()
 
-    def wake_answers(self) -> None:
-        """Wake the forwarder's thread (the forwarder sets its event)."""
-
-    def take_answers(self) -> list[tuple[str, dict[str, Any], list[str]]]:
-        """The DCMD answers waiting to be published (the forwarder's thread)."""
+    def answers_due(self) -> list[Message]:
+        """The DDATA of the DCMDs answered since the last call (the forwarder's
+        thread: the profile's seq and the outbox are its own)."""
         with self._answers_lock:
-            out, self._answers = self._answers, []
+            answers, self._answers = self._answers, []
+        out: list[Message] = []
+        for device, values, names in answers:
+            out += self.profile.command_data(device, values, names, self.source.latest(device))
         return out

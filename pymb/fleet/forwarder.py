@@ -191,10 +191,6 @@ class Forwarder(threading.Thread, CommandTopics):
         """New samples were committed."""
         self.wake.set()
 
-    def wake_answers(self) -> None:
-        """A DCMD's answer waits to be published."""
-        self.wake.set()
-
     def devices_down(self, downs: list[Down], upto: int) -> None:
         """Devices stopped answering; ``upto``: the highest sample id committed
         with the news. Each goes out (Sparkplug: DDEATH) after the samples up to
@@ -416,9 +412,7 @@ class Forwarder(threading.Thread, CommandTopics):
             self._published += sent
             if self._downs or self._downs_in:
                 self._publish_downs(pub, None, live_after)
-            for device, values, names in self.take_answers():
-                latest = self.source.latest(device)
-                pub.send(prof.command_data(device, values, names, latest), [])
+            pub.send(self.answers_due(), [])  # the DDATA of DCMDs executed
             tokens = min(tokens + (now - last_tick) * self.cfg.catchup_rate,
                          max(self.cfg.catchup_rate / 10, 1.0))
             last_tick = now
