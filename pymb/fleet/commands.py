@@ -7,6 +7,7 @@ a DDATA of the metrics a DCMD named). What a command does is
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -32,8 +33,10 @@ class CommandTopics:
         self.set_topics: dict[str, str] = {}
         self._commands: Callable[[str, bytes], None] | None = None
         self._session: Session | None = None  #: the connection up now, if any
-        #: (device, values read back, metric names) of DCMDs answered, for the DDATA
-        self._answers: list[tuple[str, dict[str, Any], list[str]]] = []
+        #: (device, values read back, metric names, time) of DCMDs answered, for the DDATA
+        self._answers: list[tuple[str, dict[str, Any], list[str], float]] = []
+        #: device -> metric -> (time, value) read back by the last DCMD that wrote it
+        self._read_back: dict[str, dict[str, tuple[float, Any]]] = {}
         self._answers_lock = threading.Lock()
 
     def take_commands(self, devices: list[str], submit: Callable[[str, bytes], None]) -> None:
@@ -72,15 +75,23 @@ class CommandTopics:
         current value (any thread)."""
         with self._answers_lock:
             if len(self._answers) < 1000:
-                self._answers.append((device, dict(values), list(names)))
+                self._answers.append((device, dict(values), list(names), time.time()))
         self.wake.set()
 
     def answers_due(self) -> list[Message]:
         """The DDATA of the DCMDs answered since the last call (the forwarder's
-        thread: the profile's seq and the outbox are its own)."""
+        thread: the profile's seq and the outbox are its own). A metric not
+        written carries the latest sample's value, or the value a DCMD read back
+        after that sample's poll began."""
         with self._answers_lock:
             answers, self._answers = self._answers, []
         out: list[Message] = []
-        for device, values, names in answers:
-            out += self.profile.command_data(device, values, names, self.source.latest(device))
+        for device, values, names, t in answers:
+            known = self._read_back.setdefault(device, {})
+            known.update((k, (t, v)) for k, v in values.items())
+            latest = self.source.latest(device)
+            # a value read back after the latest sample's poll began is the newer one
+            since = -1.0 if latest is None else latest.time_utc
+            newer = {k: v for k, (tk, v) in known.items() if tk > since and k in names}
+            out += self.profile.command_data(device, {**newer, **values}, names, latest)
         return out
