@@ -97,6 +97,12 @@ class AsyncClient(Mirrored):
         return self.blocking.connections
 
     @property
+    def resends(self) -> int:
+        """Of :attr:`connections`, those opened to send a read again after the
+        peer closed the last one behind its reply (the blocking client's count)."""
+        return self.blocking.resends
+
+    @property
     def worker_threads(self) -> int:
         """Worker threads started so far (one at a time, never two)."""
         return self._line.started

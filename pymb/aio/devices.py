@@ -25,6 +25,7 @@ from pymb.devices.coolpro import CoolPro, CoolProTelemetry
 from pymb.devices.hub import HubReading, SensorHub
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.maps import COOLPRO, HUB
+from pymb.devices.mapwrite import Budget
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Value
 
@@ -171,10 +172,10 @@ class AsyncMapDevice(_Facade):
 
     def __init__(self, client: AsyncClient, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
-                 baudrate: int | None = None) -> None:
+                 baudrate: int | None = None, budget: Budget | None = None) -> None:
         super().__init__(client)
         self.blocking = MapDevice(client.blocking, m, address, options=options,
-                                  baudrate=baudrate)
+                                  baudrate=baudrate, budget=budget)
 
     @property
     def map(self) -> Map:
@@ -199,6 +200,10 @@ class AsyncMapDevice(_Facade):
     read_group = Mirror(MapDevice.read_group)
     read_into = Mirror(MapDevice.read_into)
     write = Mirror(MapDevice.write)
+    write_many = Mirror(MapDevice.write_many)
+    # a plan reads the scale factors its values need from the device: I/O
+    plan_write = Mirror(MapDevice.plan_write)
+    write_points = Mirror(MapDevice.write_points)
 
     def poll(self, interval: float, *names: str,
              group: str | None = None) -> AsyncIterator[dict[str, Value]]:

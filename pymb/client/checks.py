@@ -103,3 +103,82 @@ def _register_values(values: Any) -> bytes:
     if len(a) == 0:
         raise InvalidArgument("no values to write")
     return registers_to_wire(a)
+
+
+def _coil_payload(values: Any) -> tuple[int, bytes]:
+    """Coil values (bools or 0/1) -> (how many, packed LSB first, FC 0x0F)."""
+    if isinstance(values, (str, bytes, bytearray, memoryview, Set, Mapping)):
+        raise TypeError(f"coil values are a sequence of bools or 0/1, not "
+                        f"{type(values).__name__}")
+    try:
+        bits = [_coil(v) for v in values]
+    except TypeError as e:
+        if "coil value" in str(e):
+            raise
+        raise TypeError(f"coil values must be a sequence, got {type(values).__name__}"
+                        ) from None
+    packed = bytearray((len(bits) + 7) // 8)
+    for i, b in enumerate(bits):
+        if b:
+            packed[i // 8] |= 1 << (i % 8)
+    return len(bits), bytes(packed)
+
+
+def _pdu_data(data: Any) -> bytes:
+    """A raw request's data as bytes: bytes-like of 1-byte items or integers 0..255,
+    at most a PDU's worth."""
+    if isinstance(data, (str, int)):  # bytes(3) would be three zero bytes
+        raise TypeError("data must be bytes (or a sequence of integers 0..255), not "
+                        f"{type(data).__name__}")
+    try:
+        view = memoryview(data)
+    except TypeError:
+        view = None
+    if view is not None and view.itemsize != 1:
+        raise TypeError(
+            f"data must be bytes, not a buffer of {view.itemsize}-byte items (its bytes "
+            "would depend on the host's byte order)")
+    try:
+        payload = view.tobytes() if view is not None else bytes(data)
+    except ValueError:
+        raise InvalidArgument("data bytes must be integers 0..255") from None
+    except TypeError:
+        raise TypeError(
+            f"data must be bytes or a sequence of integers 0..255, got "
+            f"{type(data).__name__}") from None
+    if len(payload) > _native.MAX_PDU_DATA:
+        raise InvalidArgument(f"data is {len(payload)} bytes; a PDU holds at most "
+                              f"{_native.MAX_PDU_DATA}")
+    return payload
+
+
+def _range(address: int, count: int, limit: int | None) -> tuple[int, int]:
+    """``address`` and ``count`` checked: count 1..limit (any when None), within 0..65535."""
+    address = _int("address", address, 0, 0xFFFF)
+    count = _int("count", count, 1, 0x10000 if limit is None else limit)
+    if address + count > 0x10000:
+        raise InvalidArgument(
+            f"address {address} + count {count} runs past the last address 65535"
+        )
+    return address, count
+
+
+def _u16_dest(dest: Any) -> memoryview:
+    """A read's destination as a memoryview: a writable, contiguous buffer of
+    unsigned 16-bit integers (``array('H')``, numpy uint16)."""
+    try:
+        view = memoryview(dest)
+    except TypeError:
+        raise TypeError(
+            f"dest must be a writable uint16 buffer (array('H')), got {type(dest).__name__}"
+        ) from None
+    # Not a signed 'h' buffer either: register 40000 would read as -25536.
+    problem = ("is read-only" if view.readonly else
+               "is not C-contiguous" if not view.c_contiguous else
+               f"has items of format {view.format!r}"
+               if view.itemsize != 2 or view.format.lstrip("@=") != "H" else None)
+    if problem:
+        raise InvalidArgument(
+            "dest must be a writable, contiguous buffer of unsigned 16-bit integers "
+            f"(array('H'), numpy uint16); this one {problem}")
+    return view

@@ -10,6 +10,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from pymb.collect import CollectConfig, Collector
+from pymb.collect.sqlstore import open_stores
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
@@ -96,8 +98,6 @@ def run(args: argparse.Namespace) -> int:
         import paho.mqtt.client  # noqa: F401
     except ImportError:
         raise InvalidArgument(f"pymb collect needs paho-mqtt: {install_hint('collect')}") from None
-    from pymb.collect import CollectConfig, Collector
-    from pymb.collect.sqlstore import open_stores
 
     mqtt = MqttConfig(url=args.mqtt, node="collector", prefix=args.prefix, group=args.group,
                       user=args.mqtt_user, password_file=args.mqtt_password_file,
