@@ -355,3 +355,32 @@ def test_dcmd_values_of_every_datatype_as_pysparkplug_encodes_them(sparkplug_pb:
     assert metrics[-1] == (None, 42, None)
     with pytest.raises(ValueError, match="truncated"):
         command_values(b"\x12\x05\x0a\x01")
+
+
+def test_a_dcmd_for_a_device_gone_silent_fails_fast_with_reason_device(
+        fleet: Fleet, peer: FreezingPtyPeer, tmp_path: Path,  # noqa: F811
+        sparkplug_pb: Any) -> None:  # noqa: F811
+    map_file = tmp_path / "wdev.toml"
+    map_file.write_text(WRITE_MAP.format(device="", limits="", budget=""))
+    broker = fleet.broker()
+    db = tmp_path / "log.sqlite"
+    host = Host(fleet, broker, sparkplug_pb)
+    proc = start(fleet, broker, peer, map_file, db)
+    try:
+        aliases = {m.name: m.alias for m in host.birth().metrics}
+        peer.slaves = {9}  # unit 1 stops answering: after its missed polls, a DDEATH
+        host.sub.wait_until(lambda ms: any("/DDEATH/" in t for t, _ in ms), 60, "a DDEATH")
+        polls = len(peer.requests)
+        t0 = time.monotonic()
+        n = len(host.sub.snapshot())
+        host.dcmd(("setpoint_hz", DOUBLE, 49.5))
+        assert host.answer(n, aliases) == {"setpoint_hz": 50.0}  # its last value
+        assert time.monotonic() - t0 < 5.0
+        assert not [p for _, p in list(peer.requests)[polls:] if p[0] in (5, 6, 15, 16, 22)]
+        wait_until(lambda: len(rows(db)) == 1, "the DCMD on record", 30)
+    finally:
+        host.close()
+    peer.slaves = None
+    stop(proc)
+    (row,) = rows(db)
+    assert (row[0], row[3], row[7], row[8]) == ("sparkplug", "setpoint_hz", 0, "device")
