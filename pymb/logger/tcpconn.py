@@ -268,6 +268,46 @@ class TcpLoopBase(threading.Thread):
         c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
         return f"; retrying in {wait:g} s"
 
+    def _closed_after_replies(self, c: Conn, now: float) -> None:
+        """The device closed the connection after it answered (some devices
+        and gateways take one request a connection): the requests it did
+        not answer go out again on a new connection, at once, and the poll
+        under way goes on there. Closed after as many replies twice in a
+        row, that many is what a connection carries from then on
+        (:attr:`Conn.limit`): the loop opens the next one itself."""
+        answered = c.asked - c.in_flight
+        replies = f"{answered} repl{'y' if answered == 1 else 'ies'}"
+        c.tell = False
+        if answered == c.closed_after and not c.limit:
+            c.limit = answered
+            self._event(c, "reconnect", f"{c.bus.endpoint} closes the connection after "
+                        f"{replies}: {answered} request(s) per connection from now on")
+        elif not c.limit:  # not (yet) its way of working: said, as a loss is
+            self.stats.fault(c.bus.name, f"bus {c.bus.name}: the connection was closed")
+            self._event(c, "connection", f"{c.bus.endpoint}: the connection was closed by "
+                        f"the device after {replies}; opening it again")
+            c.tell = True
+        c.closed_after = answered
+        if c.entry is not None:  # what is in flight goes out again
+            if c.fast is not None:
+                pending = c.todo[c.sent - c.fast_n:c.sent]
+            else:
+                pending = [spec for _, spec in c.inflight]
+            if pending:
+                gone = {id(s) for s in pending}
+                done = [s for s in c.todo[:c.sent] if id(s) not in gone]
+                c.todo = [*done, *pending, *c.todo[c.sent:]]
+                c.sent = len(done)
+        self._renew(c, now)
+
+    def _renew(self, c: Conn, now: float) -> None:
+        """Open ``c`` again for the rest of the poll under way (and the
+        next ones), the device being the same (:meth:`_closed_after_replies`)."""
+        c.resume, c.renew = c.entry, True
+        self._close(c)
+        c.retry_at = now
+        self._connect(c, now)
+
     def _close(self, c: Conn) -> None:
         if c.sock is not None:
             with contextlib.suppress(KeyError, ValueError):

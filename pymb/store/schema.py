@@ -7,12 +7,14 @@ import hashlib
 import sqlite3
 from array import array
 from collections.abc import Sequence
+from pathlib import Path
 
 from pymb import __version__
 from pymb.devices import HUB, State
 from pymb.devices.mapreading import group_points
 from pymb.devices.maps import COOLPRO, Type
 from pymb.devices.readings import STATE_NAMES
+from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.wire import registers_from_wire, registers_to_wire
 
@@ -26,6 +28,7 @@ __all__ = [
     "host_words",
     "install",
     "map_layout_key",
+    "open_format",
     "parse_layout_key",
     "schema_version",
     "statements",
@@ -306,3 +309,42 @@ def install(db: sqlite3.Connection) -> None:
     db.executemany("INSERT OR REPLACE INTO states VALUES (?, ?)",
                    [(s.value, s.name.lower()) for s in State])
     db.execute("COMMIT")
+
+
+def open_format(db: sqlite3.Connection, path: Path, max_bytes: int | None) -> tuple[int, int]:
+    """Check that ``db`` (the writer's connection, autocommit) is a pymb
+    database of this format or a new one, set it up as the writer uses it
+    (WAL, ``synchronous=FULL``, the checkpoint and WAL size from ``max_bytes``)
+    and install the schema if it is not there as this pymb writes it.
+    Returns ``(page_size, wal_budget)``."""
+    version = schema_version(db)
+    if version is None:
+        raise InvalidArgument(f"{path} is not a pymb database; log to a new file")
+    if version not in (0, SCHEMA_VERSION):
+        older = version < SCHEMA_VERSION
+        raise InvalidArgument(
+            f"{path} holds pymb format {version}, this pymb writes format "
+            f"{SCHEMA_VERSION}; " + ("log to a new file (pymb export still reads this one)"
+                                    if older else "use the newer pymb that wrote it"))
+    if version == 0:
+        db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
+        db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+    mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+    if mode != "wal":
+        raise InvalidArgument(f"{path}: cannot use WAL journal mode ({mode})")
+    # FULL: a commit is on the disk (the WAL synced) before other connections
+    # see it, so the forwarder never publishes a sample a power cut can take
+    # back, and no id it published is handed to another sample after one.
+    db.execute("PRAGMA synchronous = FULL")
+    page_size = int(db.execute("PRAGMA page_size").fetchone()[0])
+    wal_budget = WAL_MAX
+    if max_bytes is not None:
+        wal_budget = max(WAL_MIN, min(WAL_MAX, max_bytes // 16))
+    # Checkpoint at half the budget; truncate the WAL file back to it afterwards.
+    db.execute(f"PRAGMA wal_autocheckpoint = {max(16, wal_budget // 2 // page_size)}")
+    db.execute(f"PRAGMA journal_size_limit = {wal_budget // 2}")
+    if version == SCHEMA_VERSION and db.execute(
+            "SELECT value FROM meta WHERE key = 'schema_sql'").fetchone() == (SCHEMA_SQL,):
+        return page_size, wal_budget  # as this pymb would write it: nothing to write
+    install(db)
+    return page_size, wal_budget

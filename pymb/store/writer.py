@@ -31,13 +31,7 @@ from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
 from pymb.store.schema import (
     MIN_BYTES,
-    PAGE_SIZE,
-    SCHEMA_SQL,
-    SCHEMA_VERSION,
-    WAL_MAX,
-    WAL_MIN,
-    install,
-    schema_version,
+    open_format,
     wire_bytes,
 )
 
@@ -172,37 +166,7 @@ class SqliteSink(DeviceRows, Retention):
         return InvalidArgument(f"cannot open the database {self.path}: {e}")
 
     def _open(self) -> None:
-        db = self.db
-        version = schema_version(db)
-        if version is None:
-            raise InvalidArgument(f"{self.path} is not a pymb database; log to a new file")
-        if version not in (0, SCHEMA_VERSION):
-            older = version < SCHEMA_VERSION
-            raise InvalidArgument(
-                f"{self.path} holds pymb format {version}, this pymb writes format "
-                f"{SCHEMA_VERSION}; " + ("log to a new file (pymb export still reads this one)"
-                                        if older else "use the newer pymb that wrote it"))
-        if version == 0:
-            db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
-            db.execute("PRAGMA auto_vacuum = INCREMENTAL")
-        mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
-        if mode != "wal":
-            raise InvalidArgument(f"{self.path}: cannot use WAL journal mode ({mode})")
-        # FULL: a commit is on the disk (the WAL synced) before other connections
-        # see it, so the forwarder never publishes a sample a power cut can take
-        # back, and no id it published is handed to another sample after one.
-        db.execute("PRAGMA synchronous = FULL")
-        self.page_size = int(db.execute("PRAGMA page_size").fetchone()[0])
-        self.wal_budget = WAL_MAX
-        if self.max_bytes is not None:
-            self.wal_budget = max(WAL_MIN, min(WAL_MAX, self.max_bytes // 16))
-        # Checkpoint at half the budget; truncate the WAL file back to it afterwards.
-        db.execute(f"PRAGMA wal_autocheckpoint = {max(16, self.wal_budget // 2 // self.page_size)}")
-        db.execute(f"PRAGMA journal_size_limit = {self.wal_budget // 2}")
-        if version == SCHEMA_VERSION and db.execute(
-                "SELECT value FROM meta WHERE key = 'schema_sql'").fetchone() == (SCHEMA_SQL,):
-            return  # as this pymb would write it: nothing to write (a full disk opens too)
-        install(db)
+        self.page_size, self.wal_budget = open_format(self.db, self.path, self.max_bytes)
 
     def _begin(self) -> None:
         if not self._in_tx:
