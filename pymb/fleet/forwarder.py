@@ -45,7 +45,6 @@ import ssl
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any
 
 from pymb.errors import InvalidArgument
@@ -57,6 +56,7 @@ from pymb.fleet.health import Down
 from pymb.fleet.lanes import WINDOW, Publisher, catch_up_lane, live_lane
 from pymb.fleet.profiles import BACKLOG, Profile, make_profile
 from pymb.fleet.session import Session
+from pymb.fleet.status import ForwarderStatus
 from pymb.store import Outbox, StoredSample
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
@@ -66,37 +66,6 @@ CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 #: seconds before refused samples are offered again: doubling from the first to the last
 RETRY_FIRST, RETRY_MAX = 5.0, 300.0
-
-
-@dataclass(frozen=True)
-class ForwarderStatus:
-    """A snapshot of the forwarder, for the status line and the summary."""
-
-    connected: bool
-    state: str  #: connected, connecting, a reason for the disconnection
-    published: int  #: samples published (repeats included)
-    acked: int  #: samples acknowledged by the broker
-    backlog: int  #: samples committed and not yet acknowledged
-    backlog_age: float | None  #: seconds since the oldest of them was taken
-    last_ack: float | None  #: time.time() of the last acknowledgement
-    rate: float  #: samples acknowledged per second, over the last few seconds
-    connections: int  #: successful connections so far
-    cursor: int  #: every sample id up to this one was acknowledged (the outbox cursor)
-    #: the broker's reason while it refuses samples (MQTT 5); they are kept and offered again
-    refusal: str | None = None
-
-    def line(self) -> str:
-        """A short status: ``mqtt ok 152/s backlog 0``; ``mqtt refused (Not
-        authorized) ...`` while the broker refuses samples."""
-        head = "mqtt " + ("ok" if self.connected else self.state)
-        if self.refusal is not None:
-            head = f"mqtt refused ({self.refusal})"
-        # the age of a backlog, not of the few samples in flight a moment
-        age = "" if self.backlog_age is None or not self.backlog or self.backlog_age < 1 \
-            else f" ({self.backlog_age:.0f} s old)"
-        ack = "-" if self.last_ack is None else time.strftime(
-            "%H:%M:%S", time.localtime(self.last_ack))
-        return f"{head} {self.rate:,.0f}/s backlog {self.backlog:,}{age} last ack {ack}"
 
 
 def require_paho() -> None:

@@ -24,6 +24,8 @@ from typing import Any
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Outcome, check, resolve
 from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.logger.dcmd import handle_dcmd
+from pymb.logger.refusal import Refused
 from pymb.maps import Map
 from pymb.store.commands import CommandLog, PointRow
 
@@ -63,14 +65,6 @@ def reason_of(e: InvalidArgument) -> str:
 
 def _now_iso(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t * 1000) % 1000:03d}Z"
-
-
-class Refused(Exception):
-    """A command (or one value of it) refused before anything was sent: its ``reason``."""
-
-    def __init__(self, reason: str, error: str) -> None:
-        super().__init__(error)
-        self.reason = reason
 
 
 class CommandDesk(threading.Thread):
@@ -144,7 +138,6 @@ class CommandDesk(threading.Thread):
         """Execute one command; returns the result to publish (a DCMD's
         answer goes to :attr:`answer` instead)."""
         if source == "sparkplug":
-            from pymb.logger.dcmd import handle_dcmd
             handle_dcmd(self, device, payload)
             return None
         try:

@@ -27,6 +27,7 @@ from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefu
 from pymb.fleet.mapmetrics import plain_value
 from pymb.fleet.profiles import write_name
 from pymb.fleet.protobuf import command_values
+from pymb.logger.refusal import Refused
 from pymb.store.commands import PointRow
 
 if TYPE_CHECKING:
@@ -59,8 +60,6 @@ def _metric_value(t: Target, name: str, v: object) -> object:
 
 def handle_dcmd(desk: CommandDesk, device: str, payload: bytes) -> None:
     """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
-    from pymb.logger.commands import Refused
-
     try:
         ts, seq, metrics = command_values(payload)
     except (ValueError, UnicodeDecodeError) as e:
