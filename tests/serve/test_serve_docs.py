@@ -4,18 +4,16 @@ and contrib/pymb-serve.service checked by systemd."""
 
 from __future__ import annotations
 
-import configparser
 import shlex
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-import pytest
 from conftest import ROOT
 from docblocks import claim
 from peers import PtyPeer
 from servekit import Served
+from unitkit import unit_of, verify_unit
 
 from pymb.cli import EXIT_USAGE, build_parser
 
@@ -44,25 +42,11 @@ def test_the_serve_commands_run_and_mbpoll_reads_through_them() -> None:
 
 
 def test_systemd_accepts_the_serve_unit(tmp_path: Path) -> None:
-    tool = shutil.which("systemd-analyze")
-    if tool is None:
-        pytest.fail("systemd-analyze is not installed: .ci/setup installs systemd")
-    pymb = Path(sys.executable).parent / "pymb"
-    text = UNIT.read_text()
-    assert "/opt/pymb/bin/pymb serve " in text
-    unit = tmp_path / "pymb-serve.service"
-    unit.write_text(text.replace("/opt/pymb/bin/pymb", str(pymb)))
-    r = subprocess.run([tool, "verify", "--man=no", str(unit)], capture_output=True,
-                       text=True, timeout=60, check=False)
-    assert r.returncode == 0, r.stderr
-    assert r.stderr.strip() == "", r.stderr
+    verify_unit(UNIT, "serve", tmp_path)
 
 
 def test_the_serve_units_command_line_is_one_pymb_takes() -> None:
-    unit = configparser.ConfigParser(strict=False, interpolation=None)
-    unit.optionxform = str  # type: ignore[assignment,method-assign]
-    unit.read_string(UNIT.read_text())
-    s = unit["Service"]
+    s = unit_of(UNIT)["Service"]
     assert s["Restart"] == "on-failure"
     assert s["RestartPreventExitStatus"] == str(EXIT_USAGE)
     args = build_parser("serve").parse_args(s["ExecStart"].split()[1:])

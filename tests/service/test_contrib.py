@@ -6,13 +6,10 @@ configuration loader."""
 from __future__ import annotations
 
 import configparser
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
-import pytest
 from conftest import ROOT
+from unitkit import unit_of, verify_unit
 
 from pymb.cli import EXIT_USAGE, build_parser
 from pymb.commands.logconfig import load
@@ -22,28 +19,11 @@ TOML = ROOT / "contrib" / "pymb.toml"
 
 
 def _unit() -> configparser.ConfigParser:
-    unit = configparser.ConfigParser(strict=False, interpolation=None)
-    unit.optionxform = str  # type: ignore[assignment,method-assign]
-    unit.read_string(UNIT.read_text())
-    return unit
+    return unit_of(UNIT)
 
 
 def test_systemd_analyze_verify_accepts_the_unit(tmp_path: Path) -> None:
-    tool = shutil.which("systemd-analyze")
-    if tool is None:
-        pytest.fail("systemd-analyze is not installed: .ci/setup installs systemd")
-    # ExecStart names /opt/pymb/bin/pymb, as docs/board.md installs it; verify
-    # checks that the program exists, so point it at this pymb
-    pymb = Path(sys.executable).parent / "pymb"
-    assert pymb.exists()
-    text = UNIT.read_text()
-    assert "/opt/pymb/bin/pymb log " in text
-    unit = tmp_path / "pymb.service"
-    unit.write_text(text.replace("/opt/pymb/bin/pymb", str(pymb)))
-    r = subprocess.run([tool, "verify", "--man=no", str(unit)], capture_output=True,
-                       text=True, timeout=60, check=False)
-    assert r.returncode == 0, r.stderr
-    assert r.stderr.strip() == "", r.stderr  # unknown keys and bad values are only warnings
+    verify_unit(UNIT, "log", tmp_path)
 
 
 def test_the_unit_is_a_notify_service_restarted_on_failure_only() -> None:
