@@ -86,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
     server = Server(upstream, host, port, units=units, max_clients=args.max_clients, tls=tls,
                     write_roles=roles, on_event=say)
     upstream_name = args.port or args.tcp or args.rtu_over_tcp
+    # Two threads hand each request to each other: with Python's default 5 ms
+    # switch interval, a thread that wants the GIL back can wait that long.
+    sys.setswitchinterval(0.0002)
     return asyncio.run(_serve(server, upstream, upstream_name))
 
 

@@ -96,7 +96,8 @@ class _Tls:
                 return b""
             self.done = True
         chunks = []
-        while True:
+        # read while a record is (or may be) complete: no exception per call
+        while self._in.pending or self._obj.pending():
             try:
                 chunk = self._obj.read(65536)
             except ssl.SSLWantReadError:
