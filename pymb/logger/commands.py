@@ -18,15 +18,13 @@ import json
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Outcome, check, resolve
 from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
 from pymb.logger.dcmd import handle_dcmd
-from pymb.logger.refusal import Refused
-from pymb.maps import Map
+from pymb.logger.refusal import Refused, Target
 from pymb.store.commands import CommandLog, PointRow
 
 __all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
@@ -34,17 +32,6 @@ __all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
 QUEUE_MAX = 2048  #: commands waiting at most; more are dropped (and said once)
 _UNKNOWN = ("the logger stopped while this command was being executed; it is not executed "
             "again: read the points to know their values")
-
-
-@dataclass
-class Target:
-    """A logged map device commands may write: its map, its MapDevice (None
-    while its line is not open) and whether it is offline now."""
-
-    name: str
-    map: Map
-    device: Callable[[], MapDevice | None]
-    offline: Callable[[], bool]
 
 
 def allowed(patterns: Sequence[str], device: str, point: str) -> bool:

@@ -20,18 +20,15 @@ from __future__ import annotations
 
 import json
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pymb.devices.mapwrite import Outcome, resolve
 from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
 from pymb.fleet.mapmetrics import plain_value
 from pymb.fleet.profiles import write_name
 from pymb.fleet.protobuf import command_values
-from pymb.logger.refusal import Refused
+from pymb.logger.refusal import Desk, Refused, Target
 from pymb.store.commands import PointRow
-
-if TYPE_CHECKING:
-    from pymb.logger.commands import CommandDesk, Target
 
 __all__ = ["command_id", "handle_dcmd"]
 
@@ -58,7 +55,7 @@ def _metric_value(t: Target, name: str, v: object) -> object:
     return plain_value(v)
 
 
-def handle_dcmd(desk: CommandDesk, device: str, payload: bytes) -> None:
+def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
     try:
         ts, seq, metrics = command_values(payload)
@@ -150,13 +147,13 @@ def handle_dcmd(desk: CommandDesk, device: str, payload: bytes) -> None:
     _answer(desk, device, values, names)
 
 
-def _finish(desk: CommandDesk, cid: str, device: str, rows: list[PointRow],
+def _finish(desk: Desk, cid: str, device: str, rows: list[PointRow],
             reason: str | None, names: list[str], *, durable: bool) -> None:
     result = json.dumps({"id": cid, "ok": reason is None, "reason": reason,
                          "metrics": names}, separators=(",", ":"))
     desk.log.finish(cid, device, SOURCE, result, rows, durable=durable)
 
 
-def _answer(desk: CommandDesk, device: str, values: dict[str, Any], names: list[str]) -> None:
+def _answer(desk: Desk, device: str, values: dict[str, Any], names: list[str]) -> None:
     if desk.answer is not None and names:
         desk.answer(device, values, names)

@@ -1,10 +1,19 @@
 """What the command desk (:mod:`pymb.logger.commands`) and its Sparkplug
-half (:mod:`pymb.logger.dcmd`) raise for a command refused before anything
-was sent."""
+half (:mod:`pymb.logger.dcmd`) share: the device a command writes
+(:class:`Target`), the desk as the Sparkplug half uses it (:class:`Desk`),
+and what they raise for a command refused before anything was sent."""
 
 from __future__ import annotations
 
-__all__ = ["Refused"]
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from pymb.devices.mapdevice import MapDevice
+from pymb.maps import Map
+from pymb.store.commands import CommandLog
+
+__all__ = ["Desk", "Refused", "Target"]
 
 
 class Refused(Exception):
@@ -13,3 +22,33 @@ class Refused(Exception):
     def __init__(self, reason: str, error: str) -> None:
         super().__init__(error)
         self.reason = reason
+
+
+@dataclass
+class Target:
+    """A logged map device commands may write: its map, its MapDevice (None
+    while its line is not open) and whether it is offline now."""
+
+    name: str
+    map: Map
+    device: Callable[[], MapDevice | None]
+    offline: Callable[[], bool]
+
+
+class Desk(Protocol):
+    """The command desk as a Sparkplug DCMD's execution needs it
+    (:class:`pymb.logger.commands.CommandDesk` is the one)."""
+
+    log: CommandLog
+    targets: dict[str, Target]
+    event: Callable[[str], None]
+    answer: Callable[[str, dict[str, Any], list[str]], None] | None
+    births: Callable[[str], dict[str, int] | None]
+
+    def check_point(self, t: Target, name: str, value: object) -> None:
+        """One value checked: a :class:`Refused` when it may not be written."""
+        ...
+
+    def check_command(self, t: Target, values: Mapping[str, object]) -> MapDevice:
+        """A whole command checked: the device to write, or a :class:`Refused`."""
+        ...

@@ -13,14 +13,11 @@ import functools
 import math
 import struct
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pymb.errors import InvalidArgument
-from pymb.maps.point import MapError, Point, Value, did_you_mean
+from pymb.maps.point import MapError, Point, Points, Value, did_you_mean
 from pymb.maps.types import SF_RANGE, STATES, TYPES, permutation
-
-if TYPE_CHECKING:
-    from pymb.maps.model import Map
 
 __all__ = ["decimal_power", "decode", "decode_one", "encode", "scaled", "state_names"]
 
@@ -326,7 +323,7 @@ def _encode_text(p: Point, value: object) -> list[int]:
 
 
 @functools.lru_cache(maxsize=64)
-def state_names(m: Map) -> tuple[str, ...]:
+def state_names(m: Points) -> tuple[str, ...]:
     """The fixed states, padded to code 16, then the map's own marker names."""
     names = list(STATES) + [""] * (16 - len(STATES))
     for p in m.points.values():

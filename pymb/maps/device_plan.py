@@ -14,13 +14,9 @@ import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from pymb.maps.planner import Item, Known, Limits, Line, ReadPlan, Request, plan_points
-
-if TYPE_CHECKING:
-    from pymb.maps.model import Map
-    from pymb.maps.point import Point
+from pymb.maps.point import Point, Points
 
 __all__ = ["MapItems", "PointPlanner", "map_planner"]
 
@@ -173,7 +169,7 @@ class MapItems:
     items: tuple[Item, ...]
 
     @classmethod
-    def of(cls, m: Map) -> MapItems:
+    def of(cls, m: Points) -> MapItems:
         """The items of map ``m``."""
         points = tuple(p for p in m.points.values() if p.access != "w")
         items: list[Item] = []
@@ -217,7 +213,7 @@ class MapItems:
         return out
 
 
-def map_planner(m: Map, line: Line | None = None, *, clock: Callable[[], float] = time.monotonic
+def map_planner(m: Points, line: Line | None = None, *, clock: Callable[[], float] = time.monotonic
                 ) -> tuple[PointPlanner, MapItems]:
     """The planner of a device map ``m``: its limits, its ``turnaround`` and
     ``inter_request_gap`` on ``line`` (default 9600 bit/s 8N1)."""

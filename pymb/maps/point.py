@@ -9,12 +9,12 @@ import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Protocol
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import ModbusError
 
-__all__ = ["DeviceInfo", "Identify", "Limits", "MapError", "Point", "Timing", "Value",
+__all__ = ["DeviceInfo", "Identify", "Limits", "MapError", "Point", "Points", "Timing", "Value",
            "did_you_mean"]
 
 #: What a point decodes to: None where there is no value (a marker, NaN,
@@ -207,3 +207,22 @@ class Point:
         return self.access != "r"
 
 
+class Points(Protocol):
+    """What the codec's state table and the planner need of a map: its
+    points, limits and timing. :class:`~pymb.maps.Map` is one; the modules
+    below the model take this, so none of them imports the model."""
+
+    @property
+    def points(self) -> Mapping[str, Point]:
+        """Each point by its name, in file order."""
+        ...
+
+    @property
+    def limits(self) -> Limits:
+        """How requests to the device may be planned."""
+        ...
+
+    @property
+    def timing(self) -> Timing:
+        """The device's timing."""
+        ...
