@@ -259,6 +259,13 @@ pymb_line *pymb_line_new(modbus_t *ctx, pymb_framing framing, uint32_t silence_u
 void pymb_line_free(pymb_line *line);
 int pymb_line_set_interrupt(pymb_line *line, int (*interrupted)(void *arg), void *arg);
 int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns);
+typedef struct {
+    int (*read)(void *arg, uint8_t *buf, int n);
+    int (*write)(void *arg, const uint8_t *buf, int n);
+    int (*pending)(void *arg);
+    void *arg;
+} pymb_line_io;
+int pymb_line_set_io(pymb_line *line, const pymb_line_io *io);
 int pymb_line_header_length(const pymb_line *line);
 uint32_t pymb_rtu_silence_us(int baud);
 uint32_t pymb_rtu_char_ns(int baud, int bits);
@@ -277,6 +284,10 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
 
 /* The interrupt hook: pymb._native calls Python's pending signal handlers. */
 extern "Python" int pymb_py_interrupted(void *arg);
+/* TLS under a line (pymb._native.tls): the line's I/O, over Python's ssl. */
+extern "Python" int pymb_py_tls_read(void *arg, uint8_t *buf, int n);
+extern "Python" int pymb_py_tls_write(void *arg, const uint8_t *buf, int n);
+extern "Python" int pymb_py_tls_pending(void *arg);
 
 int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
 int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);

@@ -28,6 +28,7 @@ struct pymb_line {
     int owed_slave;           /* the address the failed request went to */
     uint64_t owed_since_us;   /* when it failed: CLOCK_MONOTONIC, microseconds */
     int rx_extra;             /* bytes after the last reply in the same read */
+    pymb_line_io io;          /* io.read NULL: the socket's own read and send */
 };
 
 /*
@@ -99,6 +100,7 @@ void pymbi_owe(pymb_line *line, int slave);
 int pymbi_pay_owed(pymb_line *line);
 uint64_t pymbi_quiet_window_us(pymb_line *line);
 int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n);
+ssize_t pymbi_read(pymb_line *line, int fd, uint8_t *buf, size_t n);
 void pymbi_no_flush(pymb_line *line);
 void pymbi_note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame);
 

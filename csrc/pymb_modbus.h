@@ -117,6 +117,29 @@ void pymb_line_free(pymb_line *line);
  * 0, or -1 (EINVAL) when line is NULL. */
 int pymb_line_set_interrupt(pymb_line *line, int (*interrupted)(void *arg), void *arg);
 
+/* I/O in place of the socket's own, for a line whose bytes are carried by
+ * something else over the same descriptor (TLS: the callbacks encrypt and
+ * decrypt). Each callback gets `arg`:
+ *   read(arg, buf, n): up to n bytes into buf without blocking: their count,
+ *     0 when the peer closed the stream, or a negative errno (-EAGAIN:
+ *     nothing now; the line then waits until the descriptor is readable);
+ *   write(arg, buf, n): all n bytes (within the response timeout): 0, or a
+ *     negative errno;
+ *   pending(arg): bytes that read would return now without the descriptor
+ *     (already decrypted), so the line does not wait for them.
+ * The descriptor (modbus_get_socket) is still the one waited on. */
+typedef struct {
+    int (*read)(void *arg, uint8_t *buf, int n);
+    int (*write)(void *arg, const uint8_t *buf, int n);
+    int (*pending)(void *arg);
+    void *arg;
+} pymb_line_io;
+
+/* Give the line the I/O `io` (copied; every callback set), or the socket's
+ * own again when io is NULL (the default). Returns 0, or -1 (EINVAL) when
+ * line is NULL or a callback is missing. */
+int pymb_line_set_io(pymb_line *line, const pymb_line_io *io);
+
 /* RTU on a real line: one character's wire time in nanoseconds
  * (pymb_rtu_char_ns). Nonzero: bytes that arrive before the request can
  * have been answered (its own wire time plus 3.5 characters, less 5 %)

@@ -160,7 +160,7 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
             errno = EMBBADDATA; /* a frame of unknown length goes on past the limit */
             return -1;
         }
-        k = read(fd, rsp + (*got), (size_t)(cap - (*got)));
+        k = pymbi_read(line, fd, rsp + (*got), (size_t)(cap - (*got)));
         if (k < 0) {
             if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
                 continue;

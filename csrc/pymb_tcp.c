@@ -79,7 +79,7 @@ static int read_exact(pymb_line *line, int fd, uint8_t *buf, int n, uint64_t dea
         if (rc == 0) {
             continue;
         }
-        k = read(fd, buf + *got, (size_t)(n - *got));
+        k = pymbi_read(line, fd, buf + *got, (size_t)(n - *got));
         if (k < 0) {
             if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
                 continue;

@@ -13,7 +13,7 @@ Errors are rooted at :class:`pymb.ModbusError`.
 from __future__ import annotations
 
 from pymb._native import LIBMODBUS_VERSION, VERSION, crc16
-from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
+from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient, TlsConfig
 from pymb.errors import (
     Acknowledge,
     DeviceBusy,
@@ -31,6 +31,7 @@ from pymb.errors import (
     ModbusTimeout,
     NegativeAcknowledge,
     ProtocolError,
+    TlsError,
     WriteNotApplied,
     WriteRefused,
 )
@@ -59,6 +60,8 @@ __all__ = [
     "RtuClient",
     "RtuOverTcpClient",
     "TcpClient",
+    "TlsConfig",
+    "TlsError",
     "WriteNotApplied",
     "WriteRefused",
     "__version__",

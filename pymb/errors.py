@@ -45,6 +45,7 @@ __all__ = [
     "NegativeAcknowledge",
     "OutputError",
     "ProtocolError",
+    "TlsError",
     "WriteNotApplied",
     "WriteRefused",
     "describe_exception",
@@ -128,6 +129,13 @@ class ModbusConnectionError(ModbusError, ConnectionError):
     def __init__(self, message: str, *, errno: int | None = None, **kw: object) -> None:
         super().__init__(message, **kw)  # type: ignore[arg-type]
         self.errno = errno
+
+
+class TlsError(ModbusConnectionError):
+    """Modbus/TCP Security (``mbaps://``) failed: the server's certificate
+    was refused (expired, not signed by the CA given, made for another
+    name), the server refused this client or its certificate, or the port
+    does not speak TLS. The message says which, in one line."""
 
 
 class InvalidArgument(ModbusError, ValueError):
@@ -347,11 +355,12 @@ def closed_error(function: int, slave: int, address: int | None, count: int | No
 def request_error(err: int, *, function: int, slave: int, address: int | None,
                   count: int | None, port: str, timeout: float, failed: tuple[int, int],
                   response: bytes | None, header: int, frame: str | None,
-                  context: str | None = None) -> ModbusError:
+                  context: str | None = None, tls: str | None = None) -> ModbusError:
     """The exception for a request that failed with errno ``err``: what was
     asked, what came back (``response``, its unit id at ``header - 1``),
     ``failed`` the (address, count) of the request that failed inside a
-    longer read, ``frame`` the C library's words for a rejected reply."""
+    longer read, ``frame`` the C library's words for a rejected reply,
+    ``tls`` the words of a TLS failure under the line."""
     op = function_name(function)
     args = [f"slave={slave}"]
     if address is not None:
@@ -367,6 +376,8 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
         address, count = failed
     kw: dict[str, Any] = dict(slave=slave, function=function, address=address, count=count,
                                  port=port, response=got)
+    if tls is not None:
+        return TlsError(f"{asked}: {tls}", errno=err, **kw)
     if err == _errno.ETIMEDOUT:
         if got:
             return ModbusTimeout(

@@ -1,5 +1,7 @@
 """A pymodbus server, an independent slave for the wire tests: run as
-``python tests/pymodbus_server.py tcp|rtu-over-tcp``; it prints ``READY
+``python tests/pymodbus_server.py tcp|rtu-over-tcp``, or ``tls DIR`` for
+Modbus/TCP Security with ``DIR``'s ``server.pem``/``server.key``, client
+certificates required and signed by ``DIR/ca.pem``; it prints ``READY
 <port>`` and serves units 1 and 17 on 127.0.0.1 until killed.
 
 Holding registers 0..999 hold 7 * address (mod 65536), input registers
@@ -11,7 +13,9 @@ from __future__ import annotations
 
 import asyncio
 import socket
+import ssl
 import sys
+from pathlib import Path
 
 from pymodbus import FramerType, ModbusDeviceIdentification
 from pymodbus.datastore import (
@@ -19,7 +23,7 @@ from pymodbus.datastore import (
     ModbusSequentialDataBlock,
     ModbusServerContext,
 )
-from pymodbus.server import ModbusTcpServer
+from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 
 IDENTITY = {
     "VendorName": "pymb tests",
@@ -50,7 +54,7 @@ def free_port() -> int:
     return port
 
 
-async def serve_announced(server: ModbusTcpServer, port: int) -> None:
+async def serve_announced(server: ModbusTcpServer | ModbusTlsServer, port: int) -> None:
     """Serve until killed, printing ``READY <port>`` once ``port`` accepts connections."""
     task = asyncio.create_task(server.serve_forever())
     for _ in range(200):
@@ -64,9 +68,26 @@ async def serve_announced(server: ModbusTcpServer, port: int) -> None:
     await task
 
 
-async def main(mode: str) -> None:
+def tls_server_context(d: Path) -> ssl.SSLContext:
+    """A Modbus/TCP Security server's context: ``d``'s server certificate,
+    client certificates required and signed by ``d/ca.pem``."""
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    ctx.load_cert_chain(d / "server.pem", d / "server.key")
+    ctx.load_verify_locations(d / "ca.pem")
+    ctx.verify_mode = ssl.CERT_REQUIRED
+    return ctx
+
+
+async def main(mode: str, *args: str) -> None:
     port = free_port()
     context = ModbusServerContext(devices={1: device(), 17: device()}, single=False)
+    if mode == "tls":
+        tls = ModbusTlsServer(context, identity=ModbusDeviceIdentification(info_name=IDENTITY),
+                              address=("127.0.0.1", port),
+                              sslctx=tls_server_context(Path(args[0])))
+        await serve_announced(tls, port)
+        return
     server = ModbusTcpServer(
         context,
         framer=FramerType.RTU if mode == "rtu-over-tcp" else FramerType.SOCKET,
@@ -77,4 +98,4 @@ async def main(mode: str) -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main(sys.argv[1]))
+    asyncio.run(main(*sys.argv[1:]))

@@ -118,10 +118,10 @@ def libmodbus_server(exe: Path, mode: str) -> Iterator[str]:
 
 
 @contextmanager
-def pymodbus_server(mode: str) -> Iterator[int]:
-    """Run tests/pymodbus_server.py (``tcp`` or ``rtu-over-tcp``) in its own
-    process; yields its port. Stopped by its PID."""
-    with _ready_server([sys.executable, str(HERE / "pymodbus_server.py"), mode],
+def pymodbus_server(mode: str, *args: str) -> Iterator[int]:
+    """Run tests/pymodbus_server.py (``tcp``, ``rtu-over-tcp``, or ``tls DIR``)
+    in its own process; yields its port. Stopped by its PID."""
+    with _ready_server([sys.executable, str(HERE / "pymodbus_server.py"), mode, *args],
                        stderr=subprocess.DEVNULL) as port:
         yield int(port)
 

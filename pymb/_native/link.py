@@ -8,16 +8,19 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import ssl
 import threading
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from pymb._native import FunctionCode, rtu_silence
+from pymb._native.tls import TlsSession, tls_words
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
     InvalidArgument,
     ModbusConnectionError,
     ModbusError,
+    TlsError,
     closed_error,
     os_hint,
     request_error,
@@ -110,8 +113,12 @@ class Link:
 
     def __init__(self, name: str, factory: Any, *, serial: bool,
                  framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
-                 host: str | None = None) -> None:
+                 host: str | None = None,
+                 tls: tuple[ssl.SSLContext, str | None] | None = None) -> None:
         self.name = name
+        #: TLS under the line: (the client's context, the server name to check)
+        self.tls = tls
+        self._session: TlsSession | None = None
         self.host = host  # TCP: the host name or address as given
         self.serial = serial
         self._factory = factory
@@ -201,9 +208,30 @@ class Link:
             lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
             self._apply_timeouts()
             self._apply_rs485()
+            if self.tls is not None:
+                self._start_tls(*self.tls)
         except BaseException:
             self.close()  # a failed open leaves nothing open, nothing locked
             raise
+
+    def _start_tls(self, context: ssl.SSLContext, server_name: str | None) -> None:
+        """The TLS handshake on the connected socket, within the response
+        timeout; then the line's I/O goes through it."""
+        fd = int(lib.modbus_get_socket(self._ctx))
+        os.set_blocking(fd, False)
+        session = TlsSession(context, server_name, fd)
+        session.write_timeout = self._timeout[0]
+        try:
+            session.handshake(self._timeout[0])
+        except (ssl.SSLError, TimeoutError, OSError) as e:
+            err = e.errno if isinstance(e, OSError) and not isinstance(
+                e, ssl.SSLError) and e.errno else errno.EPROTO
+            raise TlsError(f"cannot open {self.name}: {tls_words(e)}", errno=err,
+                           port=self.name) from None
+        if lib.pymb_line_set_io(self._line, session.io) < 0:
+            raise ModbusConnectionError(f"cannot set up {self.name}: TLS I/O refused",
+                                        errno=errno.EINVAL, port=self.name)
+        self._session = session
 
     def set_reject_early(self, on: bool) -> None:
         """Drop reply bytes that arrive before the request can have been
@@ -216,8 +244,11 @@ class Link:
         """Close and free the context; safe to call twice."""
         ctx, self._ctx = self._ctx, ffi.NULL
         line, self._line = self._line, ffi.NULL
+        session, self._session = self._session, None
         self.is_open = False
         self._held = None
+        if session is not None:
+            session.close()  # close_notify while the socket is open
         if line != ffi.NULL:
             lib.pymb_line_free(line)
         if ctx != ffi.NULL:
@@ -241,6 +272,8 @@ class Link:
         reply must then arrive within the response timeout)."""
         self._timeout = (response, byte)
         self._timeout_us = _seconds_us(response)
+        if self._session is not None:
+            self._session.write_timeout = response
         if self.is_open:
             self._apply_timeouts()
 
@@ -406,12 +439,20 @@ class Link:
             if exc is not None:  # a signal handler raised: that is the error
                 return exc  # type: ignore[return-value]
         fail = self._fail
+        tls = None
+        session = self._session
+        if session is not None:
+            if session.error is not None:
+                tls, session.error = session.error, None
+            elif not session.received and err in (errno.ECONNRESET, errno.EPIPE):
+                tls = ("the server closed the connection after the TLS handshake, before any "
+                       "reply (does it refuse this client or its certificate?)")
         frame = ffi.string(lib.pymb_frame_strerror(fail.frame)).decode() if fail.frame else None
         return request_error(
             err, function=function, slave=slave, address=address, count=count, port=self.name,
             timeout=self._timeout[0], failed=(fail.address, fail.count),
             response=bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None,
-            header=fail.header, frame=frame, context=context)
+            header=fail.header, frame=frame, context=context, tls=tls)
 
 
 def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
@@ -429,14 +470,17 @@ def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: in
 
 
 def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
-            silence: float = 0.0) -> Link:
+            silence: float = 0.0,
+            tls: tuple[ssl.SSLContext, str | None] | None = None) -> Link:
     """A Modbus TCP Link (not yet open); ``host`` is a name or an address.
     ``rtu_framing``: RTU frames (address, PDU, CRC) on the socket instead of
     MBAP, as transparent serial servers in "raw" mode carry them; a reply of
-    unknown length then ends at ``silence`` seconds of silence."""
+    unknown length then ends at ``silence`` seconds of silence. ``tls``:
+    Modbus/TCP Security, (the client's ssl context, the server name to
+    check and send; None: none), the handshake made on every connect."""
     node = host.encode()
     service = str(port).encode()
     return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
-                host=host,
+                host=host, tls=tls,
                 framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
                 silence=silence)

@@ -39,7 +39,7 @@ from typing import ParamSpec, Self, TypeVar
 
 from pymb.aio._line import Line
 from pymb.aio._mirror import Mirror, Mirrored
-from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient
+from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient, TlsConfig
 from pymb.errors import InvalidArgument
 
 __all__ = ["AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient", "AsyncTcpClient"]
@@ -295,11 +295,16 @@ class AsyncTcpClient(_AsyncTcpBase):
 
     blocking: TcpClient
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, *,
                  slave: int | None = None, timeout: float = 1.0,
-                 byte_timeout: float = 0.0) -> None:
+                 byte_timeout: float = 0.0, tls: TlsConfig | None = None) -> None:
         super().__init__(TcpClient(host, port, slave=slave, timeout=timeout,
-                                   byte_timeout=byte_timeout))
+                                   byte_timeout=byte_timeout, tls=tls))
+
+    @property
+    def tls(self) -> TlsConfig | None:
+        """Modbus/TCP Security's settings (None: plain Modbus TCP)."""
+        return self.blocking.tls
 
 
 class AsyncRtuOverTcpClient(_AsyncTcpBase):

@@ -28,6 +28,7 @@ from pymb.client.checks import (
     MAX_WRITE_REGISTERS,
 )
 from pymb.client.listener import LineListener
+from pymb.client.tls import MBAPS_PORT, TlsConfig
 from pymb.client.transports import RtuClient, RtuOverTcpClient, TcpClient
 
 __all__ = [
@@ -38,11 +39,13 @@ __all__ = [
     "MAX_WRITE_REGISTERS",
     "MAX_WR_READ_REGISTERS",
     "MAX_WR_WRITE_REGISTERS",
+    "MBAPS_PORT",
     "Client",
     "LineListener",
     "RtuClient",
     "RtuOverTcpClient",
     "TcpClient",
+    "TlsConfig",
     "client_for_address",
     "parse_host_port",
     "unresolved",

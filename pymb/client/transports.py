@@ -16,6 +16,7 @@ from pymb.client.checks import (
     _int,
     _seconds,
 )
+from pymb.client.tls import MBAPS_PORT, TlsConfig
 from pymb.errors import InvalidArgument
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, char_time
 
@@ -130,20 +131,33 @@ class TcpClient(Client):
     """A Modbus TCP client (also for gateways that translate Modbus TCP to
     RTU; for gateways that pass RTU frames through, see
     :class:`RtuOverTcpClient`). ``host`` is a name or an address; ``slave`` is the unit identifier,
-    0..255 (many gateways route it to the RTU address)."""
+    0..255 (many gateways route it to the RTU address).
+
+    ``tls``: Modbus/TCP Security (a :class:`~pymb.TlsConfig`; ``port`` then
+    defaults to 802): every connect makes the TLS handshake within
+    ``timeout`` and checks the server's certificate; the requests, their
+    checks, timeouts and reconnects are those of plain TCP. A refused
+    certificate fails the connect with :class:`~pymb.TlsError`."""
 
     _min_read_slave = 0
     _resend_reads = True
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+    def __init__(self, host: str = "127.0.0.1", port: int | None = None, *,
                  slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
-                 byte_timeout: float = 0.0) -> None:
+                 byte_timeout: float = 0.0, tls: TlsConfig | None = None) -> None:
         if not isinstance(host, str) or not host:
             raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        if tls is not None and not isinstance(tls, TlsConfig):
+            raise InvalidArgument(f"tls must be a pymb.TlsConfig or None, got {tls!r}")
+        if port is None:
+            port = MBAPS_PORT if tls is not None else 502
         port = _int("port", port, 1, 65535)
         self.host = host
         self.tcp_port = port
-        super().__init__(_native.new_tcp(host, port), slave=slave, timeout=timeout,
+        #: Modbus/TCP Security's settings (None: plain Modbus TCP)
+        self.tls = tls
+        session = None if tls is None else (tls.context(), tls.server_name_for(host))
+        super().__init__(_native.new_tcp(host, port, tls=session), slave=slave, timeout=timeout,
                          byte_timeout=byte_timeout)
 
 

@@ -6,7 +6,6 @@ wrong name, TLS 1.1), and the role extension read from any bytes."""
 from __future__ import annotations
 
 import shlex
-import shutil
 import socket
 import ssl
 import subprocess
@@ -16,43 +15,20 @@ from pathlib import Path
 
 import pytest
 from conftest import wait_until
-from docblocks import claim, claim_one
+from docblocks import claim_one
 from hypothesis import given
 from hypothesis import strategies as st
 from peers import PtyPeer
 from servekit import Served, mbap, read_pdu
+from tlskit import make_certs
 
 from pymb.serve.roles import CertificateError, role_of
 
 
-def _sh(block_text: str, cwd: Path, prefix: list[str] | None = None) -> None:
-    for line in block_text.splitlines():
-        r = subprocess.run([*(prefix or []), "sh", "-c", line], cwd=cwd, capture_output=True,
-                           text=True, timeout=60)
-        assert r.returncode == 0, f"{line}\n{r.stderr}"
-
-
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """docs/security.md's certificates, and three more that must be refused:
-    an expired client certificate, one signed by another CA, and the
-    operator's key with an expired validity (made under faketime)."""
-    d = tmp_path_factory.mktemp("security")
-    ca_block, server_block, clients_block = claim("docs/security.md", "sh", how="run",
-                                                  contains="openssl")
-    for block in (ca_block, server_block, clients_block):
-        _sh(block.text, d)
-    # a client certificate that expired in 2020, and one from another CA
-    if shutil.which("faketime") is None:
-        pytest.fail("faketime is not installed: .ci/setup installs it")
-    operator_lines = "".join(line + "\n" for line in clients_block.lines() if "operator" in line)
-    old = operator_lines.replace("operator", "expired").replace("-days 825", "-days 1")
-    _sh(old, d, ["faketime", "2020-01-01 00:00:00"])
-    other = d / "other"
-    other.mkdir()
-    _sh(ca_block.text, other)
-    _sh(clients_block.text, other)
-    return d
+    """docs/security.md's certificates and those that must be refused (tlskit)."""
+    return make_certs(tmp_path_factory.mktemp("security"))
 
 
 @pytest.fixture
@@ -96,7 +72,7 @@ def _ask(ctx: ssl.SSLContext, port: int, pdu: bytes, *, name: str = "localhost")
 def test_the_guides_pymodbus_client_reads_and_writes_as_operator(
         certs: Path, served: tuple[Served, PtyPeer]) -> None:
     s, peer = served
-    block = claim_one("docs/security.md", "python", how="run")
+    block = claim_one("docs/security.md", "python", how="run", contains="pymodbus")
     code = block.text.replace("port=802", f"port={s.port}")
     r = subprocess.run([sys.executable, "-c", code], cwd=certs, capture_output=True, text=True,
                        timeout=60)
