@@ -117,7 +117,8 @@ def command_desk(cfg: LogConfig, logger: Logger, raw: Any, fw: Forwarder) -> Com
         prof.writable = desk.may_write
         desk.births = prof.birth_aliases
         desk.answer = fw.answer_dcmd
-    fw.take_commands(devices, lambda device, payload: desk.submit(source, device, payload))
+    fw.take_commands(devices, lambda device, payload, done: desk.submit(source, device, payload,
+                                                                        done))
     desk.start()
     return desk
 

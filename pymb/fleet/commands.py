@@ -31,7 +31,7 @@ class CommandTopics:
     def __init__(self) -> None:
         #: set topic -> device: the plain profile's write commands (see :meth:`take_commands`)
         self.set_topics: dict[str, str] = {}
-        self._commands: Callable[[str, bytes], None] | None = None
+        self._commands: Callable[[str, bytes, Callable[[], None] | None], None] | None = None
         self._session: Session | None = None  #: the connection up now, if any
         #: (device, values read back, metric names, time) of DCMDs answered, for the DDATA
         self._answers: list[tuple[str, dict[str, Any], list[str], float]] = []
@@ -39,10 +39,12 @@ class CommandTopics:
         self._read_back: dict[str, dict[str, tuple[float, Any]]] = {}
         self._answers_lock = threading.Lock()
 
-    def take_commands(self, devices: list[str], submit: Callable[[str, bytes], None]) -> None:
+    def take_commands(self, devices: list[str],
+                      submit: Callable[[str, bytes, Callable[[], None] | None], None]) -> None:
         """Subscribe (QoS 1) to ``{prefix}/{node}/{device}/set`` of each of
         ``devices`` from the next connection on (before :meth:`start`); each
-        command goes to ``submit(device, payload)``."""
+        command goes to ``submit(device, payload, done)``, ``done()`` to be
+        called once it is answered (None: nothing to call)."""
         cfg = self.cfg
         if cfg.profile == "sparkplug":  # DCMD on spBv1.0/{group}/DCMD/{node}/{device}
             base = f"{NAMESPACE}/{cfg.group}/DCMD/{cfg.node}"
@@ -52,10 +54,14 @@ class CommandTopics:
             self.set_topics = {f"{base}/{d}/set": d for d in devices}
         self._commands = submit
 
-    def command_arrived(self, topic: str, payload: bytes) -> None:
-        """A command on a set topic (paho's thread): handed on, never waited for."""
+    def command_arrived(self, topic: str, payload: bytes,
+                        done: Callable[[], None] | None = None) -> None:
+        """A command on a set topic (paho's thread): handed on, never waited for;
+        ``done()`` acknowledges it to the broker once it is answered."""
         if self._commands is not None:
-            self._commands(self.set_topics[topic], payload)
+            self._commands(self.set_topics[topic], payload, done)
+        elif done is not None:
+            done()
 
     def publish_result(self, device: str, payload: bytes) -> bool:
         """Publish a command's result (QoS 1, not retained) on

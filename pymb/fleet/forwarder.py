@@ -246,7 +246,7 @@ class Forwarder(threading.Thread, CommandTopics):
         c.will_set(w.topic, w.payload, w.qos, w.retain)
         self._snapshot("connecting", False)
         try:
-            c.connect(cfg.host, cfg.port, keepalive=cfg.keepalive)
+            c.connect(cfg.host, cfg.port, keepalive=cfg.keepalive, **s.connect_args())
         except (OSError, ssl.SSLError) as e:
             s.reason = (e.strerror or str(e)).lower() if isinstance(e, OSError) else str(e)
             s.ok = False
@@ -300,7 +300,7 @@ class Forwarder(threading.Thread, CommandTopics):
 
     def _close(self, s: Session) -> None:
         with contextlib.suppress(Exception):
-            s.client.disconnect()
+            s.disconnect(end_session=self._stopping.is_set())
         with contextlib.suppress(Exception):
             s.client.loop_stop()
         # The client and the session's callbacks hold each other: without this the

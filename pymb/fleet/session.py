@@ -1,7 +1,15 @@
 """One MQTT connection of the forwarder: a paho client and its callbacks,
 which run on paho's thread and only record what happened (acknowledgements,
 a lost connection, a command, the primary host's state) for the forwarder's
-thread, which they wake."""
+thread, which they wake.
+
+A logger that takes the plain profile's write commands over MQTT 5 keeps a
+persistent session (clean start off, :data:`COMMAND_SESSION_EXPIRY` seconds
+of session expiry, ended by a clean stop) and acknowledges each command only
+once it is answered: a command delivered to a logger that stops before its
+answer is delivered again when the logger comes back, and answered then (from
+the record when it was on record). Sparkplug B asks its edge nodes for clean
+sessions; MQTT 3.1.1 has no session expiry, so both keep clean sessions."""
 
 from __future__ import annotations
 
@@ -9,12 +17,18 @@ import collections
 import contextlib
 import socket
 import threading
+from collections.abc import Callable
 from typing import Any, Protocol
 
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.profiles import Profile, host_state
 
-__all__ = ["Session"]
+__all__ = ["COMMAND_SESSION_EXPIRY", "Session"]
+
+#: seconds the broker keeps a commands-taking logger's session after it is gone
+#: (a crash and a restart by the service manager keep it; a longer absence drops it,
+#: and the commands it holds, so no command waits longer for a logger to come back)
+COMMAND_SESSION_EXPIRY = 60
 
 
 class _Owner(Protocol):
@@ -29,8 +43,10 @@ class _Owner(Protocol):
     #: set topic -> device: the plain profile's write commands (empty: none)
     set_topics: dict[str, str]
 
-    def command_arrived(self, topic: str, payload: bytes) -> None:
-        """A write command arrived on one of ``set_topics``."""
+    def command_arrived(self, topic: str, payload: bytes,
+                        done: Callable[[], None] | None = None) -> None:
+        """A write command arrived on one of ``set_topics``; ``done()``, once it is
+        answered, acknowledges it to the broker (None: acknowledged already)."""
 
     def record_event(self, message: str) -> None:
         """Add a line to the connection's story."""
@@ -54,9 +70,11 @@ class Session:
         self.again = False  #: ended by the forwarder to offer refused samples again
         self.host_online = False  #: the primary host's STATE said online (on this connection)
         self.v5 = fw.cfg.protocol == "5"
+        #: a persistent session whose commands are acknowledged once answered
+        self.persistent = self.v5 and bool(fw.set_topics) and fw.cfg.profile != "sparkplug"
         if self.v5:  # a clean start is the argument of connect() in MQTT 5
             self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
-                                      protocol=mqtt.MQTTv5)
+                                      protocol=mqtt.MQTTv5, manual_ack=self.persistent)
         else:
             self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id,
                                       clean_session=True, protocol=mqtt.MQTTv311)
@@ -69,6 +87,37 @@ class Session:
         c.on_subscribe = self._on_subscribe
         c.on_message = self._on_message
         c.on_log = self._on_log
+
+    def connect_args(self) -> dict[str, Any]:
+        """connect()'s session arguments: a persistent session resumed (MQTT 5)."""
+        if not self.persistent:
+            return {}
+        from paho.mqtt.packettypes import PacketTypes
+        from paho.mqtt.properties import Properties
+
+        props = Properties(PacketTypes.CONNECT)  # type: ignore[no-untyped-call]
+        props.SessionExpiryInterval = COMMAND_SESSION_EXPIRY
+        return {"clean_start": False, "properties": props}
+
+    def disconnect(self, *, end_session: bool) -> None:
+        """DISCONNECT; ``end_session``: a persistent session ends with it (a clean
+        stop: no command waits for this logger to come back)."""
+        if self.persistent and end_session:
+            from paho.mqtt.packettypes import PacketTypes
+            from paho.mqtt.properties import Properties
+
+            props = Properties(PacketTypes.DISCONNECT)  # type: ignore[no-untyped-call]
+            props.SessionExpiryInterval = 0
+            self.client.disconnect(properties=props)
+        else:
+            self.client.disconnect()
+
+    def _ack(self, mid: int, qos: int) -> None:
+        """Acknowledge a received message (a persistent session's, by hand); on
+        a lost connection the broker delivers it again on the next."""
+        if self.persistent and not self.lost:
+            with contextlib.suppress(Exception):
+                self.client.ack(mid, qos)
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
                     props: Any = None) -> None:
@@ -119,8 +168,14 @@ class Session:
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         if msg.topic in self.fw.set_topics:
-            self.fw.command_arrived(msg.topic, msg.payload)
-        elif msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
+            if self.persistent:
+                mid, qos = msg.mid, msg.qos
+                self.fw.command_arrived(msg.topic, msg.payload, lambda: self._ack(mid, qos))
+            else:
+                self.fw.command_arrived(msg.topic, msg.payload)
+            return
+        self._ack(msg.mid, msg.qos)  # a topic of an earlier run's session, say
+        if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):
             self.fw.rebirth.set()
             self.fw.wake.set()
         elif msg.topic == self.fw.profile.host_topic:

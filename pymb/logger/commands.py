@@ -70,7 +70,8 @@ class CommandDesk(threading.Thread):
         self.answer: Callable[[str, dict[str, Any], list[str]], None] | None = None
         #: Sparkplug: the device's DBIRTH metrics (name -> alias), None before it
         self.births: Callable[[str], dict[str, int] | None] = lambda device: None
-        self._queue: collections.deque[tuple[str, str, bytes]] = collections.deque()
+        self._queue: collections.deque[tuple[str, str, bytes, Callable[[], None] | None]] = \
+            collections.deque()
         self._cond = threading.Condition()
         self._stop = False
         self._dropped = 0
@@ -82,17 +83,23 @@ class CommandDesk(threading.Thread):
                 if any(p.writable and allowed(self.allow, n, p.name)
                        for p in t.map.points.values())]
 
-    def submit(self, source: str, device: str, payload: bytes) -> None:
-        """A command arrived (any thread; never blocks)."""
+    def submit(self, source: str, device: str, payload: bytes,
+               done: Callable[[], None] | None = None) -> None:
+        """A command arrived (any thread; never blocks); ``done()`` is called
+        once its result is handed to :attr:`reply` (or it is dropped): the
+        broker's acknowledgement of a persistent session's command."""
         with self._cond:
             if len(self._queue) >= QUEUE_MAX:
                 self._dropped += 1
                 if self._dropped == 1:
                     self.event(f"write commands arrive faster than they can be answered: "
                                f"more than {QUEUE_MAX} wait; the rest are dropped unanswered")
+            else:
+                self._queue.append((source, device, bytes(payload), done))
+                self._cond.notify()
                 return
-            self._queue.append((source, device, bytes(payload)))
-            self._cond.notify()
+        if done is not None:
+            done()
 
     def stop(self) -> None:
         """End after the command in hand."""
@@ -107,17 +114,20 @@ class CommandDesk(threading.Thread):
                     self._cond.wait()
                 if self._stop:
                     return
-                source, device, payload = self._queue.popleft()
+                source, device, payload, done = self._queue.popleft()
                 if not self._queue:
                     self._dropped = 0
             try:
                 out = self.handle(source, device, payload)
             except Exception as e:  # a database failure: said, and the desk goes on
                 self.event(f"write command for {device} failed: {e}")
-                continue
-            self.handled += 1
+                out = None
+            else:
+                self.handled += 1
             if out is not None and self.reply is not None:
                 self.reply(device, out)
+            if done is not None:
+                done()
 
     # -- one command ------------------------------------------------------------------
 
