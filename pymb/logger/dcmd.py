@@ -33,6 +33,8 @@ from pymb.store.commands import PointRow
 __all__ = ["command_id", "handle_dcmd"]
 
 SOURCE = "sparkplug"
+_UNKNOWN = ("the logger stopped while it was being executed; its DDATA carries the current "
+            "values")
 
 
 def command_id(device: str, timestamp: int | None, seq: int | None) -> str:
@@ -63,15 +65,22 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         desk.event(f"DCMD for {device} ignored: not a Sparkplug B payload ({e})")
         return
     cid = command_id(device, ts, seq)
-    known, stored = desk.log.seen(cid)
-    if known:
-        earlier = json.loads(stored).get("metrics", []) if stored else []
-        desk.event(f"DCMD {cid} was received before: not executed again")
-        _answer(desk, device, {}, earlier)
-        return
     target = desk.targets.get(device)
     birth = desk.births(device) or {}
     by_alias = {a: n for n, a in birth.items()}
+    known, stored = desk.log.seen(cid)
+    if known:
+        desk.event(f"DCMD {cid} was received before: not executed again")
+        if stored is None:  # on record, no result: the logger stopped during its write
+            named = [n for n in (name if name is not None else
+                                 by_alias.get(alias) if alias is not None else None
+                                 for name, alias, _ in metrics) if n is not None and n in birth]
+            desk.event(f"DCMD {cid}: {_UNKNOWN}")
+            _finish(desk, cid, device, [], "device", named, durable=True)
+            _answer(desk, device, {}, named)
+            return
+        _answer(desk, device, {}, json.loads(stored).get("metrics", []))
+        return
     rows: list[PointRow] = []
     refusals: list[Refused | None] = []
     names: list[str] = []  #: the DBIRTH metrics it names
