@@ -38,7 +38,7 @@ SOURCES = [
     f"{CSRC}/pymb_rtu_tcp.c",
     f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
-    f"{CSRC}/pymb_mbap.c",  # the extension's alone (not in libpymb)
+    f"{CSRC}/pymb_master.c",
     f"{CSRC}/pymb_serve.c",  # the extension's alone (not in libpymb)
 ]
 
@@ -306,7 +306,7 @@ SOURCE = """
 #include <modbus.h>
 #include "pymb.h"
 #include "pymb_modbus.h"
-#include "pymb_mbap.h"
+#include "pymb_master.h"
 #include "pymb_serve.h"
 """
 
@@ -354,19 +354,37 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
 """
 
 
-# pymb_mbap.h: a pipelined Modbus TCP poll's frames and replies (pymb.logger.tcpfast
-# is its one user); internal to the extension, not part of libpymb.
-MBAP_CDEF = """
-#define PYMBI_MBAP_FRAME ...
-#define PYMBI_MBAP_HEAD ...
+# pymb_master.h: the sans-I/O Modbus TCP master (pymb._native.master is its one
+# Python user); internal (pymbi_*), not exported by libpymb.
+MASTER_CDEF = """
+#define PYMBI_MASTER_FRAME ...
+#define PYMBI_MASTER_HEAD ...
+#define PYMBI_MASTER_ADU ...
+#define PYMBI_MASTER_INFLIGHT ...
+#define PYMBI_NO_TOKEN ...
+#define PYMBI_EV_EXCEPTION ...
+#define PYMBI_EV_LATE ...
+#define PYMBI_EV_FOREIGN ...
+#define PYMBI_EV_BAD ...
 typedef struct {
-    uint8_t tail[10]; uint8_t head[7]; uint16_t size; uint32_t offset;
-} pymbi_mbap_req;
-int pymbi_mbap_frames(const pymbi_mbap_req *reqs, size_t nreqs, size_t first, size_t n,
-                      uint16_t tid, uint8_t *out, size_t out_cap);
-int pymbi_mbap_take(const pymbi_mbap_req *reqs, size_t nreqs, size_t first, size_t n,
-                    uint16_t tid, const uint8_t *buf, size_t len, uint8_t *image,
-                    size_t image_len, size_t *used);
+    uint32_t offset; uint32_t token; uint16_t address; uint16_t count; uint8_t unit;
+    uint8_t function;
+} pymbi_mreq;
+typedef struct {
+    int kind; int status; uint32_t token; uint16_t tid; uint8_t code;
+} pymbi_mevent;
+typedef struct {
+    uint16_t next_tid; uint32_t in_flight; uint64_t replies; int broken; size_t part_len;
+    uint8_t part[...]; size_t bad_len; uint8_t bad[...];
+    ...;
+} pymbi_master;
+void pymbi_master_reset(pymbi_master *m, uint16_t tid);
+void pymbi_master_forget(pymbi_master *m);
+int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_t image_len,
+                        uint8_t *out, size_t out_cap);
+int pymbi_master_take(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
+                      size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used);
+size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap);
 """
 
 
@@ -407,7 +425,7 @@ _require_build_tools()
 ffibuilder = FFI()
 ffibuilder.cdef(CDEF)
 ffibuilder.cdef(MAP_CDEF)
-ffibuilder.cdef(MBAP_CDEF)
+ffibuilder.cdef(MASTER_CDEF)
 ffibuilder.cdef(SERVE_CDEF)
 ffibuilder.set_source_pkgconfig(
     "pymb._pymb_cffi",

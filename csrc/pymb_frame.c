@@ -3,12 +3,15 @@
  * pymb_frame.c - Modbus frame lengths and response checks, with no I/O.
  *
  * Used by the request path (pymb_request.c frames every request and checks
- * every reply itself, for every address 0..255), by the device simulators,
- * and by the fuzz targets. Everything reads only inside the lengths it is given.
+ * every reply itself, for every address 0..255), by the sans-I/O TCP master
+ * (pymb_master.c, which shares the MBAP length rule, pymbi_mbap_length, with
+ * the request path's TCP transport), by the device simulators, and by the
+ * fuzz targets. Everything reads only inside the lengths it is given.
  */
 #include <string.h>
 
 #include "pymb.h"
+#include "pymb_master.h"
 
 const char *pymb_frame_strerror(pymb_frame_status status)
 {
@@ -117,6 +120,21 @@ int pymb_rtu_request_length(const uint8_t *req, size_t have)
         return PYMB_FRAME_BAD_FUNCTION; /* unknown: only silence ends it */
     }
     return len > PYMB_RTU_MAX_ADU ? PYMB_FRAME_TOO_LONG : len;
+}
+
+int pymbi_mbap_length(const uint8_t *adu, size_t have)
+{
+    unsigned proto, length;
+
+    if (adu == NULL || have < 7) {
+        return PYMB_FRAME_INCOMPLETE;
+    }
+    proto = (unsigned)adu[2] << 8 | adu[3];
+    length = (unsigned)adu[4] << 8 | adu[5];
+    if (proto != 0 || length < 2 || length > 1 + PYMB_MAX_PDU) {
+        return PYMB_FRAME_BAD_HEADER;
+    }
+    return 6 + (int)length;
 }
 
 static unsigned be16(const uint8_t *p)

@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "pymb_internal.h"
+#include "pymb_master.h"
 
 /* Complete replies to earlier transactions are dropped by their id as they
  * are read, so pending input is kept; an owed window (after a frame cut
@@ -41,21 +42,11 @@ static int tcp_send(pymb_line *line, const uint8_t *adu, int len)
     return pymbi_send_all(line, adu, (size_t)len);
 }
 
-/* [MB-TCP] 3.1.3: the MBAP length counts the unit id and the PDU (1..253). */
+/* [MB-TCP] 3.1.3: the one MBAP length rule (pymb_frame.c). */
 static int tcp_reply_length(const uint8_t *adu, int have, int expect)
 {
-    unsigned proto, length;
-
     (void)expect;
-    if (have < PYMB_MBAP_LENGTH) {
-        return PYMB_FRAME_INCOMPLETE;
-    }
-    proto = (unsigned)adu[2] << 8 | adu[3];
-    length = (unsigned)adu[4] << 8 | adu[5];
-    if (proto != 0 || length < 2 || length > 1 + PYMB_MAX_PDU) {
-        return PYMB_FRAME_BAD_HEADER;
-    }
-    return 6 + (int)length;
+    return have < 0 ? PYMB_FRAME_INCOMPLETE : pymbi_mbap_length(adu, (size_t)have);
 }
 
 /* Read exactly n bytes into buf before `deadline`. Returns n, or -1 and

@@ -26,7 +26,7 @@ from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import PointPlanner
-from pymb.maps.planner import BIT_TABLES, ReadPlan, Request
+from pymb.maps.planner import BIT_TABLES, ReadPlan, Request, on_refusal, replans
 
 __all__ = ["Fetcher", "Image", "Read", "Run"]
 
@@ -123,7 +123,7 @@ class Fetcher:
             return
         q = self.quiet
         for p in runs:
-            refused = -1
+            refused, code = -1, 0
             last, until = q.last_end, q.quiet_until
             if last + self._gap > until:
                 until = last + self._gap
@@ -132,17 +132,17 @@ class Fetcher:
                 sleep_until(until)
             try:
                 client.run_read_plan(p.plan)
-            except (IllegalDataAddress, IllegalDataValue):
-                if not planner.limits.split_on_exception:
+            except (IllegalDataAddress, IllegalDataValue) as exc:
+                if not replans(planner.limits, exc.code):
                     raise
-                refused = p.plan.failed
+                refused, code = p.plan.failed, exc.code
             finally:
                 now = _monotonic()
                 q.last_end = now
                 if now + self._turnaround > q.quiet_until:
                     q.quiet_until = now + self._turnaround
             if refused >= 0:
-                self._refused(p, refused)
+                self._refused(p, refused, code)
 
     def _remake(self, r: Read) -> None:
         """Reconnect if the line was lost (after a new connection: wait
@@ -194,7 +194,7 @@ class Fetcher:
             for r in plan.requests:
                 self._fetch(r, images[r.table])
 
-    def _refused(self, p: Run, refused: int) -> None:
+    def _refused(self, p: Run, refused: int, code: int) -> None:
         """Request ``refused`` of run ``p`` was refused with exception 02/03:
         fall back for it as :meth:`run` does, then run the rest of ``p`` in
         C, holding the line as :meth:`fetch` does, as often as needed."""
@@ -203,17 +203,17 @@ class Fetcher:
         plan = p.plan
         while refused >= 0:
             with self.map_timeout():
-                self._fall_back(p.requests[refused], p.image)
+                self._fall_back(p.requests[refused], p.image, code)
             start, refused = refused + 1, -1
             if start >= plan.n:
                 return
             sleep_until(max(q.quiet_until, q.last_end + gap))
             try:
                 self.client.run_read_plan(plan, start)
-            except (IllegalDataAddress, IllegalDataValue):
-                if not self.planner.limits.split_on_exception:
+            except (IllegalDataAddress, IllegalDataValue) as exc:
+                if not replans(self.planner.limits, exc.code):
                     raise
-                refused = plan.failed
+                refused, code = plan.failed, exc.code
             finally:
                 now = _monotonic()
                 q.last_end = now
@@ -262,31 +262,26 @@ class Fetcher:
 
     def _fetch(self, r: Request, image: Image) -> None:
         """Read ``r`` into ``image``; on exception 02/03, fall back as the
-        module says, within this read."""
+        planner's policy says (:func:`pymb.maps.planner.on_refusal`), within
+        this read."""
         try:
             self._wire(r, image)
             return
-        except (IllegalDataAddress, IllegalDataValue):
-            if not self.planner.limits.split_on_exception:
+        except (IllegalDataAddress, IllegalDataValue) as exc:
+            if not replans(self.planner.limits, exc.code):
                 raise
-        self._fall_back(r, image)
+            code = exc.code
+        self._fall_back(r, image, code)
 
-    def _fall_back(self, r: Request, image: Image) -> None:
-        """``r`` was refused with exception 02/03: re-plan without the bridge,
-        read the extents apart, or mark its points unsupported."""
-        planner = self.planner
-        if r.bridged and planner.refuse_bridge(r):
-            for sub in planner.replan(r).requests:
-                self._fetch(sub, image)
-        elif len(r.extents) > 1:
-            items = planner.items
-            for ext in r.extents:
-                start = min(items[k].address for k in ext)
-                end = max(items[k].end for k in ext)
-                self._fetch(Request(r.table, start, end - start, ext, (ext,), 0), image)
-        else:
-            planner.mark_unsupported(r.items)
-            for k in r.items:
+    def _fall_back(self, r: Request, image: Image, code: int) -> None:
+        """``r`` was refused with exception ``code`` (02/03): read what the
+        planner's policy says instead, or mark its points unread."""
+        refusal = on_refusal(self.planner, r, code)
+        assert refusal is not None  # (replans said so)
+        for sub in refusal.requests:
+            self._fetch(sub, image)
+        if refusal.unsupported:
+            for k in refusal.unsupported:
                 self.unread[k] = 1
             self.marked = True
 

@@ -20,15 +20,15 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from pymb._native.master import Master, PollTable
 from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import Stats
-from pymb.logger.tcpfast import PollTable
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event, Sample
 
-__all__ = ["Conn", "TcpLoopBase", "asked", "sent_after", "which"]
+__all__ = ["Conn", "TcpLoopBase", "asked"]
 
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
@@ -53,22 +53,21 @@ class Conn:
     waiting: collections.deque[Entry] = field(default_factory=collections.deque)
     entry: Entry | None = None  #: the poll under way
     todo: list[Spec] = field(default_factory=list)  #: its requests
+    #: ``todo`` made ready for the master (each request's token its index)
+    table: PollTable | None = None
     sent: int = 0  #: of ``todo``
-    _inflight: collections.deque[tuple[bytes, Spec]] = field(
-        default_factory=collections.deque)
-    #: the poll's requests as the C core sends and takes them (None: one at
-    #: a time in Python, as :attr:`inflight` says); ``fast_n`` of them are
-    #: in flight, ``todo[sent - fast_n:sent]``, with the ids up to ``tid``
-    fast: PollTable | None = None
-    fast_n: int = 0
+    #: the stream's transactions (:class:`pymb._native.master.Master`): the
+    #: requests in flight, ``todo[sent - in_flight:sent]`` (or some of them),
+    #: and a reply cut short
+    m: Master = field(default_factory=Master)
     #: the socket's SO_RCVLOWAT: while a poll's last requests are in flight,
     #: the bytes their replies take, so the loop wakes once for them all
     lowat: int = 1
+    whole: bool = False  #: the poll under way went out at once, all of it
+    look: int = 0  #: that poll's mark in the loop's heap of looks
     sent_at: float = 0.0  #: when the last requests of the poll under way went out
     took: float = 0.0  #: seconds a poll's replies took to come in full, of late
     unread: set[int] = field(default_factory=set)  #: items refused in this poll
-    tid: int = 0
-    rbuf: bytearray = field(default_factory=bytearray)
     quiet_until: float = 0.0  #: a timed device's silence (turnaround, after_connect)
     last_end: float = 0.0
     #: (family, address) the host resolved to: resolved again only after a
@@ -93,28 +92,24 @@ class Conn:
 
     @property
     def in_flight(self) -> int:
-        """How many requests are in flight (taking nothing from the C core)."""
-        return self.fast_n + len(self._inflight)
-
-    @property
-    def inflight(self) -> collections.deque[tuple[bytes, Spec]]:
-        """The requests in flight: (their reply's expected first 9 bytes,
-        the request), oldest first. Asking for them ends the C core's part
-        in the poll under way: the rest of it goes one request at a time."""
-        if self.fast is not None:
-            self.slow()
-        return self._inflight
+        """How many requests are in flight."""
+        return self.m.in_flight
 
     @property
     def busy(self) -> bool:
         """Whether a request is in flight."""
-        return self.fast_n > 0 or bool(self._inflight)
+        return self.m.in_flight > 0
+
+    def pending(self) -> list[Spec]:
+        """The requests in flight, oldest first."""
+        todo = self.todo
+        return [todo[k] for k in self.m.pending()]
 
     def forget(self) -> None:
         """Nothing is in flight any more (replies still on their way are
         skipped as late ones by their transaction ids)."""
-        self.fast, self.fast_n = None, 0
-        self._inflight.clear()
+        self.m.forget()
+        self.whole = False
 
     def wake_at(self, size: int) -> None:
         """Let the selector say readable once ``size`` bytes came (1: any)."""
@@ -122,16 +117,6 @@ class Conn:
             with contextlib.suppress(OSError):  # (a socket gone bad: its next read says so)
                 self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, size)
                 self.lowat = size
-
-    def slow(self) -> None:
-        """The poll under way goes on one request at a time (an exception,
-        a reply out of order, a silence, a timeout, a loss)."""
-        self.wake_at(1)
-        n, self.fast, self.fast_n = self.fast_n, None, 0
-        first, tid = self.sent - n, self.tid - n + 1
-        for i in range(n):
-            spec = self.todo[first + i]
-            self._inflight.append((((tid + i) & 0xFFFF).to_bytes(2, "big") + spec.head, spec))
 
 
 class TcpLoopBase(threading.Thread):
@@ -289,15 +274,13 @@ class TcpLoopBase(threading.Thread):
             c.tell = True
         c.closed_after = answered
         if c.entry is not None:  # what is in flight goes out again
-            if c.fast is not None:
-                pending = c.todo[c.sent - c.fast_n:c.sent]
-            else:
-                pending = [spec for _, spec in c.inflight]
+            pending = c.pending()
             if pending:
                 gone = {id(s) for s in pending}
                 done = [s for s in c.todo[:c.sent] if id(s) not in gone]
                 c.todo = [*done, *pending, *c.todo[c.sent:]]
                 c.sent = len(done)
+                c.table = c.entry.table_of(c.todo)
         self._renew(c, now)
 
     def _renew(self, c: Conn, now: float) -> None:
@@ -314,8 +297,8 @@ class TcpLoopBase(threading.Thread):
                 self._sel.unregister(c.sock)
             c.sock.close()
         c.sock, c.state = None, "closed"
-        c.rbuf.clear()
         c.forget()
+        c.m.reset()  # (a reply cut short is dropped with the stream)
         c.entry = None
 
 
@@ -343,20 +326,3 @@ def asked(spec: Spec | None, u: Unit) -> str:
         return f"{u.info.name}(slave={u.info.address})"
     return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
             f"count={spec.count})")
-
-
-def which(inflight: collections.deque[tuple[bytes, Spec]], data: bytes, pos: int, n: int
-          ) -> int:
-    """Which request in flight the reply at ``pos`` answers, by its first
-    ``n`` bytes (2: its transaction id); -1: none."""
-    got = data[pos:pos + n]
-    for i, (head, _) in enumerate(inflight):
-        if head[:n] == got:
-            return i
-    return -1
-
-
-def sent_after(head: bytes, tid: int) -> bool:
-    """Whether the request whose reply starts with ``head`` went out after
-    the one with transaction id ``tid`` (ids count up, modulo 65536)."""
-    return (int.from_bytes(head[:2], "big") - tid - 1) & 0xFFFF < 0x8000

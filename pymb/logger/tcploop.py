@@ -6,19 +6,23 @@ non-blocking sockets: a connection per bus (per ``host:port``), shared by
 the devices behind it (a TCP gateway's unit ids). A connection carries one
 poll at a time, a device's group; its requests go out ``pipeline`` at a
 time (1 by default: one transaction at a time, as a gateway to a serial
-line needs), written by the C core into one buffer and sent in one write;
-the replies (:mod:`pymb.logger.tcpreplies`) are checked against the exact 9
-bytes each must start with and copied into the group's sample image. While
-a whole poll is out, the socket wakes the loop once, when the bytes of all
-of its replies are in (``SO_RCVLOWAT``); a poll whose replies take more than
-twice as long as they did of late (an exception reply is shorter than the
-reply it stands for) is read as its replies come.
+line needs), framed by the connection's C master
+(:class:`pymb._native.master.Master`, the sans-I/O core) into one buffer and
+sent in one write; the master takes the replies as they come
+(:mod:`pymb.logger.tcpreplies` reads them), matches them by transaction id,
+checks them with the request path's rules and copies their data into the
+group's sample image. While a whole poll is out, the socket wakes the loop
+once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
+whose replies take more than twice as long as they did of late (an
+exception reply is shorter than the reply it stands for) is read as its
+replies come. This module is the runner: the sockets and the schedule.
 
 It keeps the logger's contract for map devices (:mod:`pymb.logger.schedule`
 is the same contract for a thread per bus): each group at its own interval
 on drift-free slots, skipped slots counted; ``offline_after`` /
-``offline_retry`` per device; exception 02/03 with ``split_on_exception``
-re-plans within the same poll, a point refused alone reads ``unsupported``;
+``offline_retry`` per device; an exception re-plans within the same poll as
+the planner's policy says (:func:`pymb.maps.planner.on_refusal`: 02/03 with
+``split_on_exception``; a point refused alone reads ``unsupported``);
 samples and events go to the writer's queue as :class:`~pymb.store.Sample`
 and :class:`~pymb.store.Event` records, the registers stored as a thread per
 bus would store them.
@@ -49,7 +53,7 @@ from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
-from pymb.maps.planner import Request
+from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
 from pymb.store.records import event_kind, short_fault
 
@@ -98,9 +102,10 @@ class TcpMapPoller(TcpReplies):
         self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
-        #: a heap of (when, seq, connection, its last transaction id): a poll
-        #: waiting for all of its replies at once, read as they come from then on
-        self._looks: list[tuple[float, int, Conn, int]] = []
+        #: a heap of (when, seq, connection): a poll waiting for all of its
+        #: replies at once (the connection's ``look`` is its seq), read as they
+        #: come from then on
+        self._looks: list[tuple[float, int, Conn]] = []
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -109,11 +114,12 @@ class TcpMapPoller(TcpReplies):
         (else the bus), and the bus is opened again (:meth:`_reopen`). A
         connection the device closed after replying is no failure
         (:meth:`_closed_after_replies`)."""
-        if err in _CLOSED and c.asked > c.in_flight and not c.rbuf:
+        if err in _CLOSED and c.asked > c.in_flight and not c.m.kept:
             self._closed_after_replies(c, now)
             return
         e = c.entry
-        spec = c.inflight[0][1] if c.inflight else (c.todo[0] if c.todo else None)
+        pending = c.pending()
+        spec = pending[0] if pending else (c.todo[0] if c.todo else None)
         retry = self._reopen(c, now)
         if e is not None:
             exc = ModbusConnectionError(
@@ -149,8 +155,8 @@ class TcpMapPoller(TcpReplies):
                 continue
             c.entry = e
             c.todo = e.requests()
+            c.table = e.table
             c.sent = 0
-            c.fast = None if e.unit.timed else e.table
             if c.unread:
                 c.unread.clear()
             if not c.todo:  # every point refused: the poll reads nothing
@@ -159,68 +165,53 @@ class TcpMapPoller(TcpReplies):
             self._send(c, now)
 
     def _send(self, c: Conn, now: float) -> None:
+        """Send the poll's next requests: as many as the pipeline has room
+        for (one at a time for a device that needs silences around its
+        requests, and after a silence it asked for)."""
         e = c.entry
         assert e is not None
         assert c.sock is not None
         u = e.unit
-        t = c.fast
-        if t is not None:
-            if c.quiet_until <= now:  # the C core writes the frames
-                n = min(c.pipeline - c.fast_n, len(c.todo) - c.sent)
-                if c.limit and n > c.limit - c.asked:
-                    n = c.limit - c.asked
-                    if n <= 0 and not c.fast_n:
-                        self._renew(c, now)  # this connection carried what it can
-                if n <= 0:
-                    return
-                size = t.frames(c.sent, n, (c.tid + 1) & 0xFFFF)
-                c.sent += n
-                c.asked += n
-                c.tid = (c.tid + n) & 0xFFFF
-                if not c.fast_n:
-                    c.deadline = now + u.timeout
-                    if c.deadline < self._soonest:
-                        self._soonest = c.deadline
-                c.fast_n += n
-                if n != len(c.todo) or n == 1:  # woken by each reply (one, or a poll
-                    c.wake_at(1)  # longer than the pipeline)
-                else:  # the whole poll at once: one wake-up for its replies
-                    c.wake_at(t.ends[c.sent] - t.ends[c.sent - c.fast_n])
-                    c.sent_at = now
-                    look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
-                    self._seq += 1
-                    heapq.heappush(self._looks,
-                                   (now + min(look, u.timeout / 4), self._seq, c, c.tid))
-                self._put(c, t.out if size == len(t.out) else t.out[:size], now)
-                return
-            c.slow()  # a silence after the connect: one request at a time
-        c.wake_at(1)
-        pipe = 1 if u.timed else c.pipeline
-        frames = []
-        limit = c.limit or 1 << 62
-        while len(c.inflight) < pipe and c.sent < len(c.todo) and c.asked < limit:
-            if u.timed or c.quiet_until > now:
-                at = max(c.quiet_until, c.last_end + u.gap)
-                if at > now:
+        m = c.m
+        pipe = c.pipeline
+        if u.timed or c.quiet_until > now:
+            if u.timed:
+                pipe = 1
+            at = max(c.quiet_until, c.last_end + u.gap) if u.timed else c.quiet_until
+            if at > now:
+                if not m.in_flight:
                     c.deadline = at  # the loop sends when the silence is over
                     self._silent.add(c)
-                    break
-            spec = c.todo[c.sent]
-            c.sent += 1
-            c.asked += 1
-            c.tid = tid = (c.tid + 1) & 0xFFFF
-            head = tid.to_bytes(2, "big")
-            frames.append(head + spec.tail)
-            c.inflight.append((head + spec.head, spec))
-        if not frames:
-            if c.asked >= limit and not c.inflight and c.sent < len(c.todo):
+                return
+        busy = m.in_flight
+        n = min(pipe - busy, len(c.todo) - c.sent)
+        if c.limit and n > c.limit - c.asked:
+            n = c.limit - c.asked
+            if n <= 0 and not busy:
                 self._renew(c, now)  # this connection carried what it can
+        if n <= 0:
             return
-        if len(c.inflight) == len(frames):
+        t = c.table
+        assert t is not None
+        size = m.frames(t, c.sent, n)
+        c.sent += n
+        c.asked += n
+        if not busy:
             c.deadline = now + u.timeout
             if c.deadline < self._soonest:
                 self._soonest = c.deadline
-        self._put(c, frames[0] if len(frames) == 1 else b"".join(frames), now)
+        if n != len(c.todo) or n == 1 or u.timed:  # woken by each reply (one, or a poll
+            c.wake_at(1)  # longer than the pipeline)
+        else:  # the whole poll at once: one wake-up for its replies
+            c.wake_at(t.ends[n])
+            c.whole = True
+            c.sent_at = now
+            look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
+            self._seq += 1
+            c.look = self._seq
+            heapq.heappush(self._looks, (now + min(look, u.timeout / 4), self._seq, c))
+        out = m.out
+        self._put(c, out if size == len(out) else out[:size], now)
 
     def _put(self, c: Conn, data: bytes | bytearray, now: float) -> None:
         """Send requests (whole, or the connection is lost)."""
@@ -238,24 +229,13 @@ class TcpMapPoller(TcpReplies):
 
     def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
         u = e.unit
-        planner = u.planner
-        if code in (2, 3) and planner.limits.split_on_exception:
-            r = spec.request
-            if r.bridged and planner.refuse_bridge(r):
-                subs = list(planner.replan(r).requests)
-            elif len(r.extents) > 1:
-                items = planner.items
-                subs = []
-                for ext in r.extents:
-                    start = min(items[k].address for k in ext)
-                    end = max(items[k].end for k in ext)
-                    subs.append(Request(r.table, start, end - start, ext, (ext,), 0))
-            else:
-                planner.mark_unsupported(r.items)
-                c.unread.update(r.items)
-                subs = []
-            c.todo = [*c.todo[:c.sent], *(e.spec(s) for s in subs), *c.todo[c.sent:]]
-            self._replied(c, e, now)
+        refusal = on_refusal(u.planner, spec.request, code)
+        if refusal is not None:  # the poll goes on (the reader calls _progress)
+            c.unread.update(refusal.unsupported)
+            if refusal.requests:
+                subs = [e.spec(s) for s in refusal.requests]
+                c.todo = [*c.todo[:c.sent], *subs, *c.todo[c.sent:]]
+                c.table = e.table_of(c.todo)
             return
         exc = exception_class(code)(
             f"{asked(spec, u)} on {c.bus.endpoint}: device answered exception {code:02X} "
@@ -268,21 +248,35 @@ class TcpMapPoller(TcpReplies):
         self._requeue(c, e, now)
         self._next(c, now)
 
-    def _replied(self, c: Conn, e: Entry, now: float) -> None:
+    def _progress(self, c: Conn, e: Entry, now: float) -> None:
+        """Replies (or refusals) came for the poll under way: the next of
+        its requests go out, or it is done."""
         u = e.unit
         if u.timed:
             c.last_end = now
             c.quiet_until = max(c.quiet_until, now + u.turnaround)
         if c.sent < len(c.todo):
             self._send(c, now)
-        elif not c.busy:
+        m = c.m
+        if not m.in_flight:
+            if c.sent < len(c.todo):
+                return  # (waiting for a silence)
+            if c.whole:
+                c.took += (now - c.sent_at - c.took) / 8
             self._done(c, e, now)
             self._next(c, now)
+        else:
+            c.deadline = now + u.timeout  # the rest of the poll's replies are on their way
+            if c.lowat > 1 and c.sent == len(c.todo):
+                t = c.table
+                assert t is not None
+                c.wake_at(max(1, sum(t.sizes[k] for k in m.pending()) - m.kept))
 
     def _done(self, c: Conn, e: Entry, now: float) -> None:
         """A poll read every request: its sample."""
         u = e.unit
         c.entry = None
+        c.whole = False
         unread = u.planner.unsupported
         if unread or c.unread:
             unread = (unread | c.unread) & e.decode.items
@@ -370,9 +364,9 @@ class TcpMapPoller(TcpReplies):
     def _timeout(self, c: Conn, now: float) -> None:
         e = c.entry
         assert e is not None
-        spec = c.inflight[0][1]
+        spec = c.pending()[0]
         u = e.unit
-        got = bytes(c.rbuf) or None
+        got = c.m.partial() or None
         exc = request_error(errno.ETIMEDOUT, function=spec.function, slave=u.info.address,
                             address=spec.address, count=spec.count, port=c.bus.endpoint,
                             timeout=u.timeout, failed=(spec.address, spec.count),
@@ -445,8 +439,8 @@ class TcpMapPoller(TcpReplies):
                 wait = min(wait, self._quiet_over(now))
             looks = self._looks
             while looks and looks[0][0] <= now:
-                _, _, c, tid = heapq.heappop(looks)
-                if c.tid == tid and c.fast_n and c.lowat > 1:  # read them as they come
+                _, seq, c = heapq.heappop(looks)
+                if c.look == seq and c.busy and c.lowat > 1:  # read them as they come
                     c.wake_at(1)
                     self._readable(c, now)
             if looks:

@@ -15,7 +15,6 @@ slice assignment; a poll's sample is that image, copied once.
 from __future__ import annotations
 
 import math
-import struct
 import sys
 import threading
 from array import array
@@ -23,22 +22,17 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from pymb._native.master import PollTable
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.logger.mapconfig import MapDeviceConfig
-from pymb.logger.tcpfast import PollTable
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
-from pymb.maps.planner import BIT_TABLES, Line, ReadPlan, Request
+from pymb.maps.planner import Line, ReadPlan, Request
 from pymb.store import DeviceInfo
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
 __all__ = ["Entry", "GroupDecode", "Spec", "Unit", "lazy_reading"]
 
-_TAIL = struct.Struct(">HHBBHH")  # a request after its transaction id
-_HEAD_TAIL = struct.Struct(">HHBBB")  # a reply's first 9 bytes after its transaction id
-#: a byte of coils as the store keeps bits: 8 big-endian 0/1 words, bit 0 first
-_BITS16 = tuple(b"".join(b"\x00\x01" if v >> i & 1 else b"\x00\x00" for i in range(8))
-                for v in range(256))
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
 
@@ -82,33 +76,18 @@ class Unit:
 
 
 class Spec:
-    """One request of a poll, made ready: its frame after the transaction
-    id, the reply's first 9 bytes after it, the reply's size, and where its
-    data goes in the image."""
+    """One request of a poll, made ready: the planner's request and where
+    its data go in the image (the C master frames it, checks its reply and
+    copies the data: :class:`pymb._native.master.PollTable`)."""
 
-    __slots__ = ("address", "bits", "count", "function", "head", "offset", "request", "size",
-                 "tail")
+    __slots__ = ("address", "count", "function", "offset", "request")
 
-    def __init__(self, r: Request, unit: int, offset: int) -> None:
+    def __init__(self, r: Request, offset: int) -> None:
         self.request = r
         self.function = r.function
         self.address = r.address
         self.count = r.count
-        self.bits = r.table in BIT_TABLES
-        nbytes = (r.count + 7) // 8 if self.bits else 2 * r.count
-        self.tail = _TAIL.pack(0, 6, unit, r.function, r.address, r.count)
-        self.head = _HEAD_TAIL.pack(0, 3 + nbytes, unit, r.function, nbytes)
-        self.size = 9 + nbytes
         self.offset = offset
-
-    def place(self, image: bytearray, data: bytes, pos: int) -> None:
-        """The reply's data (at ``pos`` in ``data``) into its place in ``image``."""
-        off = self.offset
-        if self.bits:
-            words = b"".join([_BITS16[b] for b in data[pos + 9:pos + self.size]])
-            image[off:off + 2 * self.count] = words[:2 * self.count]
-        else:
-            image[off:off + self.size - 9] = data[pos + 9:pos + self.size]
 
 
 class GroupDecode:
@@ -234,8 +213,7 @@ class Entry:
     plan: ReadPlan | None = None
     specs: list[Spec] = field(default_factory=list)
     image: bytearray = field(default_factory=bytearray)
-    #: :attr:`specs` made ready for the C core's pipelined calls (None: a
-    #: request of bits, whose replies the loop spreads into words itself)
+    #: :attr:`specs` made ready for the C master
     table: PollTable | None = None
 
     @classmethod
@@ -259,10 +237,13 @@ class Entry:
         if plan is not self.plan:
             lay = self.decode.layout()
             self.specs = [self.spec(r, lay) for r in plan.requests]
-            self.table = None if any(s.bits for s in self.specs) else \
-                PollTable(self.specs, self.image)
+            self.table = self.table_of(self.specs)
             self.plan = plan
         return self.specs
+
+    def table_of(self, specs: list[Spec]) -> PollTable:
+        """``specs`` (this group's) made ready for the C master."""
+        return PollTable(specs, self.unit.info.address, self.image)
 
     def spec(self, r: Request, lay: dict[str, tuple[int, int, int]] | None = None) -> Spec:
         """A request of this group made ready."""
@@ -270,7 +251,7 @@ class Entry:
         if not first <= r.address <= r.address + r.count <= first + count:
             raise ValueError(f"{r.table} {r.address}+{r.count} outside the group's "
                              f"registers {first}+{count}")
-        return Spec(r, self.unit.info.address, off + 2 * (r.address - first))
+        return Spec(r, off + 2 * (r.address - first))
 
     def due(self, now: float) -> bool:
         """Whether this group is to be read at ``now``."""

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument
@@ -36,16 +37,20 @@ from pymb.wire import DEFAULT_BAUD, read_bits_time, read_time
 
 __all__ = [
     "BIT_TABLES",
+    "REPLAN_CODES",
     "TABLES",
     "Item",
     "Known",
     "Limits",
     "Line",
     "ReadPlan",
+    "Refusal",
     "Request",
     "naive_spans",
+    "on_refusal",
     "plan_points",
     "plan_reads",
+    "replans",
 ]
 
 #: The four Modbus tables, in the order a plan reads them.
@@ -159,6 +164,68 @@ class Request:
     def function(self) -> int:
         """The function code that reads it (1 coils, 2 discrete, 3 holding, 4 input)."""
         return TABLES.index(self.table) + 1
+
+
+#: the exceptions after which a poll re-plans the refused read (02: illegal
+#: data address, 03: illegal data value) when ``split_on_exception`` is on
+REPLAN_CODES = frozenset((2, 3))
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """What a poll does after the device refused one of its reads: read
+    ``requests`` instead, within the same poll; ``unsupported``: the items
+    it left out (the device refused them alone: read as unsupported)."""
+
+    requests: tuple[Request, ...]
+    unsupported: tuple[int, ...]
+
+
+class Learner(Protocol):
+    """What :func:`on_refusal` asks of a device's planner
+    (:class:`pymb.maps.device_plan.PointPlanner`)."""
+
+    @property
+    def items(self) -> tuple[Item, ...]: ...
+
+    @property
+    def limits(self) -> Limits: ...
+
+    def refuse_bridge(self, request: Request) -> list[tuple[int, int]]: ...
+
+    def replan(self, request: Request) -> ReadPlan: ...
+
+    def mark_unsupported(self, indices: Iterable[int]) -> None: ...
+
+
+def replans(limits: Limits, code: int) -> bool:
+    """Whether a poll re-plans after exception ``code`` (:func:`on_refusal`)
+    rather than failing."""
+    return code in REPLAN_CODES and limits.split_on_exception
+
+
+def on_refusal(planner: Learner, request: Request, code: int) -> Refusal | None:
+    """The device answered exception ``code`` to ``request``: the one re-plan
+    policy of every poller. ``None``: the poll fails (another code, or
+    ``split_on_exception`` off). Else, for 02/03: a read that bridged
+    registers nobody asked for is planned again without the bridge (never
+    bridged again); one of several extents is read extent by extent; the
+    points of a single extent are marked unsupported (asked again after
+    ``offline_retry``)."""
+    if not replans(planner.limits, code):
+        return None
+    if request.bridged and planner.refuse_bridge(request):
+        return Refusal(tuple(planner.replan(request).requests), ())
+    if len(request.extents) > 1:
+        items = planner.items
+        subs = []
+        for ext in request.extents:
+            start = min(items[k].address for k in ext)
+            end = max(items[k].end for k in ext)
+            subs.append(Request(request.table, start, end - start, ext, (ext,), 0))
+        return Refusal(tuple(subs), ())
+    planner.mark_unsupported(request.items)
+    return Refusal((), request.items)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """The one TCP loop's pipelined polls (:mod:`pymb.logger.tcploop`, the C
-core's ``pymbi_mbap_*`` through :mod:`pymb.logger.tcpfast`): a poll's
+core's sans-I/O master through :mod:`pymb._native.master`): a poll's
 requests go out in one write and the loop waits for all of their replies at
 once, yet a reply that is not the expected one (an exception, a reply in
 pieces, one never sent) is handled as the loop handles it one request at a
@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from hostile_gateway import Handed, Hostile, Request, Script, good, poll
 
-from pymb.logger.tcpfast import PollTable
+from pymb._native.master import Master, PollTable
 from pymb.logger.tcpunits import Spec
 from pymb.maps.planner import Request as Planned
 
@@ -158,10 +158,13 @@ def test_a_poll_longer_than_the_pipeline_never_waits_for_its_timeout(
 
 def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
     r = Planned("holding", 10, 4, (0,), ((0,),), 0)
-    ok = PollTable([Spec(r, 1, 0)], bytearray(8))
-    assert ok.frames(0, 1, 0xFFFF) == 12
-    assert bytes(ok.out) == bytes.fromhex("ffff 0000 0006 01 03 000a 0004".replace(" ", ""))
+    ok = PollTable([Spec(r, 0)], 1, bytearray(8))
+    m = Master()
+    m.reset(0xFFFF)
+    assert m.frames(ok, 0, 1) == 12
+    assert bytes(m.out[:12]) == bytes.fromhex("ffff 0000 0006 01 03 000a 0004".replace(" ", ""))
+    assert m.in_flight == 1
     with pytest.raises(ValueError, match="do not fit"):
-        PollTable([Spec(r, 1, 2)], bytearray(8))
+        PollTable([Spec(r, 2)], 1, bytearray(8))
     with pytest.raises(ValueError, match="not in a poll of 1"):
-        ok.frames(1, 1, 0)
+        m.frames(ok, 1, 1)

@@ -17,7 +17,10 @@ from pymb.maps.planner import (
     Known,
     Limits,
     Line,
+    Refusal,
+    on_refusal,
     plan_points,
+    replans,
 )
 from pymb.wire import read_bits_time, read_time
 
@@ -283,3 +286,41 @@ def test_a_maps_plan_is_the_planners() -> None:
         (31 + 100 * b, 50) for b in range(7))
     with pytest.raises(maps.MapError, match="no group 'sweeep'; did you mean 'sweep'"):
         hub.plan("sweeep")
+
+
+def test_the_one_re_plan_policy_after_a_refused_read() -> None:
+    """Exception 02/03 (with ``split_on_exception``): a bridged read is planned
+    again without its bridge, a read of several extents is read extent by
+    extent, a single extent's points are marked unsupported; another code,
+    or the option off, fails the poll (None). Every poller calls this."""
+    items = [Item("a", "holding", 0, 2), Item("b", "holding", 4, 2)]
+    p = PointPlanner(items, Limits(max_gap=5), Line())
+    (bridged,) = p.plan().requests
+    assert (bridged.address, bridged.count, bridged.bridged) == (0, 6, 2)
+    assert on_refusal(p, bridged, 4) is None
+    assert not replans(p.limits, 1)
+    assert replans(p.limits, 2)
+    assert replans(p.limits, 3)
+    got = on_refusal(p, bridged, 2)
+    assert got is not None
+    assert got.unsupported == ()
+    assert covered(got.requests) == [(0, 2), (4, 6)]
+    assert covered(p.plan().requests) == [(0, 2), (4, 6)]  # never bridged again
+    alone = got.requests[0]
+    got = on_refusal(p, alone, 3)
+    assert got == Refusal((), (0,))
+    assert covered(p.plan().requests) == [(4, 6)]  # left out until offline_retry
+
+    side = PointPlanner([Item("a", "input", 0, 2), Item("b", "input", 2, 2)], Limits(), Line())
+    (both,) = side.plan().requests
+    assert both.extents == ((0,), (1,))
+    assert not both.bridged
+    got = on_refusal(side, both, 2)
+    assert got is not None
+    assert got.unsupported == ()
+    assert covered(got.requests) == [(0, 2), (2, 4)]
+    assert [r.items for r in got.requests] == [(0,), (1,)]
+
+    off = PointPlanner(items, Limits(max_gap=5, split_on_exception=False), Line())
+    assert on_refusal(off, off.plan().requests[0], 2) is None
+    assert covered(off.plan().requests) == [(0, 6)]  # nothing learnt

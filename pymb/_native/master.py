@@ -1,0 +1,202 @@
+"""The sans-I/O Modbus TCP master of the C core (``csrc/pymb_master.h``,
+compiled into the extension): :class:`Master`, one stream's transactions,
+and :class:`PollTable`, a poll's read requests made ready for it.
+
+The runners that use it do only I/O and scheduling (``pymb log``'s one TCP
+loop, :mod:`pymb.logger.tcploop`, and the bench's bare loop,
+:mod:`pymb.bench.fanout`): :meth:`Master.frames` writes a poll's requests,
+transaction ids counted on, into one buffer for one ``send``;
+:meth:`Master.take` takes whatever bytes came (a part of a reply, several,
+in any order), matches each reply to its request by its transaction id,
+checks it with the request path's rules and copies its data into the poll's
+register image (big-endian; a bit as a 0/1 word). What is not such a reply
+comes back as :class:`Event` records: a refused request (an exception), a
+late reply, a foreign one, a bad frame (the stream is out of step).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, NamedTuple, Protocol
+
+from pymb._pymb_cffi import ffi, lib
+
+__all__ = [
+    "BAD",
+    "EXCEPTION",
+    "FOREIGN",
+    "FRAME",
+    "LATE",
+    "NO_TOKEN",
+    "Event",
+    "Master",
+    "PollTable",
+    "Read",
+    "ReadBuffer",
+]
+
+FRAME: int = lib.PYMBI_MASTER_FRAME  #: bytes of a read request
+HEAD: int = lib.PYMBI_MASTER_HEAD  #: a read reply's bytes before its data
+INFLIGHT: int = lib.PYMBI_MASTER_INFLIGHT  #: the most requests in flight on a stream
+EXCEPTION: int = lib.PYMBI_EV_EXCEPTION  #: a request refused: :attr:`Event.code`
+LATE: int = lib.PYMBI_EV_LATE  #: a reply to a request no longer in flight (skipped)
+FOREIGN: int = lib.PYMBI_EV_FOREIGN  #: a reply to an id never sent (skipped)
+BAD: int = lib.PYMBI_EV_BAD  #: a frame that is no answer: the stream is out of step
+NO_TOKEN: int = lib.PYMBI_NO_TOKEN  #: an event about no request
+
+_frames = lib.pymbi_master_frames
+_take = lib.pymbi_master_take
+_EVENTS = 32  #: events one take reports at most (it is called again for more)
+_NO_IMAGE = ffi.new("uint8_t[]", 1)
+
+
+class Read(Protocol):
+    """A read request as a poll plans it (:class:`pymb.logger.tcpunits.Spec`)."""
+
+    function: int  #: 1..4
+    address: int
+    count: int
+    offset: int  #: where its data go in the image, in bytes (2 a register, 2 a bit)
+
+
+class Event(NamedTuple):
+    """What a take saw that is not a reply taken into the image."""
+
+    kind: int  #: :data:`EXCEPTION`, :data:`LATE`, :data:`FOREIGN` or :data:`BAD`
+    token: int  #: the request's index in its :class:`PollTable` (:data:`NO_TOKEN`: none)
+    code: int  #: :data:`EXCEPTION`: the exception code
+    status: int  #: :data:`BAD`: a frame status (``pymb_frame_status``)
+
+
+class ReadBuffer:
+    """A receive buffer: :attr:`data` to ``recv_into``, and the C view of it."""
+
+    __slots__ = ("c", "data", "view")
+
+    def __init__(self, size: int = 65536) -> None:
+        self.data = bytearray(size)
+        self.view = memoryview(self.data)
+        self.c: Any = ffi.from_buffer("uint8_t[]", self.data)
+
+
+class PollTable:
+    """A poll's read requests (``reads``, in the order the poll sends them;
+    each one's index is its token) and the register ``image`` their replies
+    fill."""
+
+    __slots__ = ("ends", "image", "image_c", "n", "rows", "sizes")
+
+    def __init__(self, reads: Sequence[Read], unit: int, image: bytearray) -> None:
+        n = self.n = len(reads)
+        rows = ffi.new("pymbi_mreq[]", max(n, 1))
+        for i, r in enumerate(reads):
+            row = rows[i]
+            row.offset = r.offset
+            row.token = i
+            row.address = r.address
+            row.count = r.count
+            row.unit = unit
+            row.function = r.function
+            if r.offset + 2 * r.count > len(image):
+                raise ValueError(f"request {i}: its reply's data do not fit the image")
+        self.rows: Any = rows
+        #: each reply's bytes
+        self.sizes = [HEAD + ((r.count + 7) // 8 if r.function <= 2 else 2 * r.count)
+                      for r in reads]
+        #: the bytes of the replies before each request's: ``ends[j] - ends[i]``
+        #: is what the replies to requests ``i .. j - 1`` take
+        self.ends = [0]
+        for size in self.sizes:
+            self.ends.append(self.ends[-1] + size)
+        self.image = image
+        self.image_c: Any = ffi.from_buffer("uint8_t[]", image)
+
+
+class Master:
+    """One stream's master: the requests in flight, a reply cut short, and
+    the buffer :meth:`frames` writes to. :meth:`reset` on each new stream."""
+
+    __slots__ = ("_ev", "_m", "_out", "_used", "out")
+
+    def __init__(self) -> None:
+        self._m: Any = ffi.new("pymbi_master *")
+        self._ev: Any = ffi.new("pymbi_mevent[]", _EVENTS)
+        self._used: Any = ffi.new("size_t *")
+        self.out = bytearray(FRAME * INFLIGHT)  #: the frames :meth:`frames` wrote
+        self._out = ffi.from_buffer("uint8_t[]", self.out)
+        lib.pymbi_master_reset(self._m, 1)
+
+    def reset(self, tid: int = 1) -> None:
+        """A new stream: nothing in flight, nothing kept; the first request
+        gets id ``tid``."""
+        lib.pymbi_master_reset(self._m, tid & 0xFFFF)
+
+    def forget(self) -> None:
+        """Nothing is in flight any more: replies on their way are late."""
+        lib.pymbi_master_forget(self._m)
+
+    @property
+    def in_flight(self) -> int:
+        """Requests waiting for their reply."""
+        return int(self._m.in_flight)
+
+    @property
+    def replies(self) -> int:
+        """Replies taken into an image since the reset."""
+        return int(self._m.replies)
+
+    @property
+    def kept(self) -> int:
+        """Bytes of a reply cut short, kept for the next take."""
+        return int(self._m.part_len)
+
+    def partial(self) -> bytes:
+        """The bytes of a reply cut short, kept for the next take."""
+        m = self._m
+        return bytes(ffi.buffer(m.part, m.part_len))
+
+    def bad_frame(self) -> bytes:
+        """The frame (or its first bytes) a :data:`BAD` event was about."""
+        m = self._m
+        return bytes(ffi.buffer(m.bad, m.bad_len))
+
+    def pending(self) -> list[int]:
+        """The tokens of the requests in flight, oldest first."""
+        n = int(self._m.in_flight)
+        tokens = ffi.new("uint32_t[]", max(n, 1))
+        got = lib.pymbi_master_pending(self._m, tokens, n)
+        return [int(tokens[i]) for i in range(min(got, n))]
+
+    def frames(self, table: PollTable, first: int, n: int) -> int:
+        """Write requests ``first .. first + n - 1`` of ``table`` to
+        :attr:`out` with the next transaction ids, now in flight; returns the
+        bytes written."""
+        if first < 0 or n < 0 or first + n > table.n:
+            raise ValueError(f"requests {first}+{n} are not in a poll of {table.n}")
+        got: int = _frames(self._m, table.rows + first, n, len(table.image), self._out,
+                           len(self.out))
+        if got < 0:
+            raise ValueError(f"requests {first}+{n}: more than {INFLIGHT} in flight")
+        return got
+
+    def take(self, buf: ReadBuffer, start: int, length: int, table: PollTable | None
+             ) -> tuple[int, int]:
+        """Take ``buf.data[start:start + length]`` into ``table``'s image
+        (``None``: no poll under way, nothing in flight): (events, bytes
+        used); the events are :meth:`event` ``0 .. events - 1``. Fewer bytes
+        used than given: the events filled up (take the rest after them) or
+        a :data:`BAD` event ended the take."""
+        if table is None:
+            image, size = _NO_IMAGE, 0
+        else:
+            image, size = table.image_c, len(table.image)
+        got: int = _take(self._m, buf.c + start, length, image, size, self._ev, _EVENTS,
+                         self._used)
+        if got < 0:
+            raise ValueError("a request in flight does not fit this poll's image")
+        return got, int(self._used[0])
+
+    def event(self, i: int) -> Event:
+        """Event ``i`` of the last :meth:`take`."""
+        e = self._ev[i]
+        return Event(int(e.kind), int(e.token), int(e.code), int(e.status))
