@@ -10,6 +10,7 @@ import contextlib
 import ssl
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import cast
 
 from pymb._native.serve import BadFrame, exception_frame, reply_frame, take_requests
 from pymb.errors import InvalidArgument
@@ -24,6 +25,7 @@ WRITE_FUNCTIONS = frozenset({0x05, 0x06, 0x0F, 0x10, 0x15, 0x16, 0x17})
 PENDING_PER_CLIENT = 16
 EX_FUNCTION = 0x01  #: what an unauthorised request is answered (Modbus/TCP Security)
 HANDSHAKE_TIMEOUT = 10.0  #: seconds a TLS client has to finish its handshake
+_TLS_CHUNK = 16384  #: the largest TLS record's plaintext
 
 
 @dataclass
@@ -84,35 +86,38 @@ class _Tls:
         self._obj = ctx.wrap_bio(self._in, self._out, server_side=True)
         self.done = False  #: the handshake is over
         self.closed = False  #: the client sent close_notify
+        # plaintext lands here (no 64 KiB bytes object made and shrunk per record)
+        self._plain = bytearray(_TLS_CHUNK)
 
-    def feed(self, data: bytes) -> bytes:
-        """The client's bytes in; the plaintext they complete out. Raises
-        :class:`ssl.SSLError` when the handshake or a record fails."""
+    def feed(self, data: bytes, into: bytearray) -> None:
+        """The client's bytes in; the plaintext they complete appended to
+        ``into``. Raises :class:`ssl.SSLError` when the handshake or a
+        record fails."""
         self._in.write(data)
         if not self.done:
             try:
                 self._obj.do_handshake()
             except ssl.SSLWantReadError:
-                return b""
+                return
             self.done = True
-        chunks = []
+        obj, plain = self._obj, self._plain
         # read while a record is (or may be) complete: no exception per call
-        while self._in.pending or self._obj.pending():
+        while self._in.pending or obj.pending():
             try:
-                chunk = self._obj.read(65536)
+                # with a buffer, read returns the count (typeshed says bytes)
+                n = cast(int, obj.read(_TLS_CHUNK, plain))
             except ssl.SSLWantReadError:
-                break
+                return
             except ssl.SSLZeroReturnError:
                 self.closed = True
-                break
-            if not chunk:
-                break
-            chunks.append(chunk)
-        return b"".join(chunks)
+                return
+            if not n:
+                return
+            into += plain if n == _TLS_CHUNK else memoryview(plain)[:n]
 
     def outgoing(self) -> bytes:
         """What TLS has to send to the client now (handshake, alerts)."""
-        return self._out.read()
+        return self._out.read() if self._out.pending else b""
 
     def encrypt(self, data: bytes) -> bytes:
         """``data`` as TLS records for the client."""
@@ -215,27 +220,10 @@ class _Conn(asyncio.Protocol):
         if self.closed:
             return
         s = self.server
-        if self.tls is not None:
-            tls = self.tls
-            was_done = tls.done
-            try:
-                data = tls.feed(data)
-            except ssl.SSLError as e:
-                self._refuse(str(getattr(e, "verify_message", None) or e.reason or e))
-                return
-            out = tls.outgoing()
-            if out and self.transport is not None:
-                self.transport.write(out)
-            if tls.done and not was_done:
-                if self.handshake_timer is not None:
-                    self.handshake_timer.cancel()
-                self.may_write = self._role_may_write(tls.peer_certificate())
-            if tls.closed:
-                self._close()
-                return
-            if not data:
-                return
-        self.buf += data
+        if self.tls is None:
+            self.buf += data
+        elif not self._tls_in(self.tls, data):
+            return
         try:
             requests = take_requests(self.buf)
         except BadFrame as e:
@@ -262,6 +250,26 @@ class _Conn(asyncio.Protocol):
             s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit))
         if self.pending >= PENDING_PER_CLIENT:
             self._pause()
+
+    def _tls_in(self, tls: _Tls, data: bytes) -> bool:
+        """Decrypt ``data`` into the request buffer; False: nothing more to do."""
+        was_done = tls.done
+        try:
+            tls.feed(data, self.buf)
+        except ssl.SSLError as e:
+            self._refuse(str(getattr(e, "verify_message", None) or e.reason or e))
+            return False
+        out = tls.outgoing()
+        if out and self.transport is not None:
+            self.transport.write(out)
+        if not was_done and tls.done:
+            if self.handshake_timer is not None:
+                self.handshake_timer.cancel()
+            self.may_write = self._role_may_write(tls.peer_certificate())
+        if tls.closed:
+            self._close()
+            return False
+        return bool(self.buf)
 
     def answered(self, tid: int, unit: int, pdu: bytes) -> None:
         """On the loop: the upstream's reply to one of this client's requests."""

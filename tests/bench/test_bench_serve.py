@@ -23,6 +23,8 @@ def test_serve_section(capsys: pytest.CaptureFixture[str]) -> None:
         assert 0 < r["p50_us"] <= r["p99_us"]
     assert s["serve_cpu_us"] > 0
     assert s["serve_cpu_tls_us"] > 0
+    # one round (--quick): the median of one ratio, that round's TLS / plain
+    assert len(s["tls_cpu_x_rounds"]) == 1
     assert s["tls_cpu_x"] == pytest.approx(s["serve_cpu_tls_us"] / s["serve_cpu_us"], rel=0.02)
     md = report.to_markdown(result)
     assert "pymb serve: a telemetry read direct and through pymb serve" in md
