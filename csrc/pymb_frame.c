@@ -4,9 +4,9 @@
  *
  * Used by the request path (pymb_request.c frames every request and checks
  * every reply itself, for every address 0..255), by the sans-I/O TCP master
- * (pymb_master.c, which shares the MBAP length rule, pymbi_mbap_length, with
- * the request path's TCP transport), by the device simulators, and by the
- * fuzz targets. Everything reads only inside the lengths it is given.
+ * (pymb_master.c, which shares the MBAP length rule, pymbi_mbap_length, and
+ * the TCP reply check, pymbi_tcp_check, with the request path's TCP
+ * transport), by the device simulators, and by the fuzz targets. Everything reads only inside the lengths it is given.
  */
 #include <string.h>
 
@@ -135,6 +135,21 @@ int pymbi_mbap_length(const uint8_t *adu, size_t have)
         return PYMB_FRAME_BAD_HEADER;
     }
     return 6 + (int)length;
+}
+
+int pymbi_tcp_check(uint8_t unit, const uint8_t *req_pdu, size_t req_len, const uint8_t *adu,
+                    size_t n, int *exception_code)
+{
+    if (req_pdu == NULL || adu == NULL) {
+        return PYMB_FRAME_INVALID;
+    }
+    if (n < 7) {
+        return PYMB_FRAME_BAD_LENGTH;
+    }
+    if (adu[6] != unit) {
+        return PYMB_FRAME_BAD_SLAVE;
+    }
+    return pymb_check_response_pdu(req_pdu, req_len, adu + 7, n - 7, exception_code);
 }
 
 static unsigned be16(const uint8_t *p)

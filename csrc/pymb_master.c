@@ -37,13 +37,17 @@ void pymbi_master_forget(pymbi_master *m)
     m->in_flight = 0;
 }
 
-/* The bytes a read's data take in the image (2 a register, 2 a bit), 0: not a read. */
+/* The bytes a read's data take in the image (2 a register, 2 a bit or 1 per 8
+ * packed), 0: not a read. */
 static uint32_t image_bytes(const pymbi_mreq *r)
 {
     switch (r->function) {
     case 0x01:
     case 0x02:
-        return r->count >= 1 && r->count <= PYMB_MAX_READ_BITS ? 2u * r->count : 0;
+        if (r->count < 1 || r->count > PYMB_MAX_READ_BITS) {
+            return 0;
+        }
+        return r->flags & PYMBI_MREQ_PACKED ? (r->count + 7u) / 8u : 2u * r->count;
     case 0x03:
     case 0x04:
         return r->count >= 1 && r->count <= PYMB_MAX_READ_REGISTERS ? 2u * r->count : 0;
@@ -136,6 +140,10 @@ static void copy_data(const pymbi_mreq *r, const uint8_t *data, uint8_t *image)
         memcpy(dst, data, 2u * r->count);
         return;
     }
+    if (r->flags & PYMBI_MREQ_PACKED) {
+        memcpy(dst, data, (r->count + 7u) / 8u);
+        return;
+    }
     for (i = 0; i < r->count; i++) { /* least significant bit first ([MB-APP] 6.1) */
         dst[2 * i] = 0;
         dst[2 * i + 1] = (uint8_t)((data[i / 8] >> (i % 8)) & 1u);
@@ -177,16 +185,12 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
         ev->code = 0;
         return 1;
     }
-    if (f[6] != s->req.unit) {
-        note_bad(m, f, n, PYMB_FRAME_BAD_SLAVE, s->req.token, tid, ev);
-        return 1;
-    }
     req[0] = s->req.function;
     req[1] = (uint8_t)(s->req.address >> 8);
     req[2] = (uint8_t)s->req.address;
     req[3] = (uint8_t)(s->req.count >> 8);
     req[4] = (uint8_t)s->req.count;
-    status = pymb_check_response_pdu(req, sizeof req, f + 7, n - 7, &exc);
+    status = pymbi_tcp_check(s->req.unit, req, sizeof req, f, n, &exc);
     if (status == PYMB_FRAME_OK) {
         copy_data(&s->req, f + PYMBI_MASTER_HEAD, image);
         m->replies++;

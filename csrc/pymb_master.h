@@ -14,8 +14,9 @@
  * only). No I/O, no allocation, no state but the pymbi_master the caller
  * owns; every length is checked. Needs only the C99 library and pymb_frame.c.
  * Users: pymb log's one TCP loop and pymb bench's bare loop (through
- * pymb._native.master) and the request path's Modbus TCP transport (for the
- * MBAP length rule).
+ * pymb._native.master); the request path's Modbus TCP transport (one request
+ * at a time) frames and matches its own, and checks each reply with the same
+ * two rules (pymbi_mbap_length, pymbi_tcp_check).
  *
  * Documents cited:
  *   [MB-TCP] Modbus Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3 (MBAP)
@@ -41,6 +42,16 @@
  */
 int pymbi_mbap_length(const uint8_t *adu, size_t have);
 
+/*
+ * A Modbus TCP reply ADU adu[0 .. n) (its MBAP length checked) against the
+ * request it answers: its unit id and its PDU req_pdu[0 .. req_len). A
+ * pymb_frame_status: PYMB_FRAME_BAD_SLAVE (another unit), or what
+ * pymb_check_response_pdu says (*exception_code for an exception). The one
+ * TCP reply check (the request path's TCP transport uses it too).
+ */
+int pymbi_tcp_check(uint8_t unit, const uint8_t *req_pdu, size_t req_len, const uint8_t *adu,
+                    size_t n, int *exception_code);
+
 /* One read request of a poll ([MB-APP] 6.1-6.4). */
 typedef struct {
     uint32_t offset;   /* where its data go in the image, in bytes */
@@ -48,9 +59,13 @@ typedef struct {
     uint16_t address;
     uint16_t count;    /* 1..125 registers (functions 3, 4), 1..2000 bits (1, 2) */
     uint8_t unit;
-    uint8_t function;  /* 1, 2: each bit as a big-endian 0/1 word (2 bytes) in the image;
-                          3, 4: the registers as they come (big-endian) */
+    uint8_t function;  /* 1, 2: each bit as a big-endian 0/1 word (2 bytes) in the image
+                          (PYMBI_MREQ_PACKED: the reply's (count + 7) / 8 bytes as they
+                          come); 3, 4: the registers as they come (big-endian) */
+    uint8_t flags;     /* 0 or PYMBI_MREQ_PACKED */
 } pymbi_mreq;
+
+#define PYMBI_MREQ_PACKED 1 /* a read of bits: its data bytes as the reply packs them */
 
 typedef enum {
     PYMBI_EV_EXCEPTION = 1, /* the request `token` was refused: exception `code` */

@@ -132,11 +132,7 @@ static int tcp_check(pymb_line *line, const uint8_t *req, int req_len, const uin
 {
     (void)line;
     (void)expect;
-    if (rsp[PYMB_MBAP_LENGTH - 1] != req[0]) {
-        return PYMB_FRAME_BAD_SLAVE;
-    }
-    return pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + PYMB_MBAP_LENGTH,
-                                   (size_t)(n - PYMB_MBAP_LENGTH), exc);
+    return pymbi_tcp_check(req[0], req + 1, (size_t)req_len - 1, rsp, (size_t)n, exc);
 }
 
 /* The MBAP length delimited the frame, so the stream is in step (later

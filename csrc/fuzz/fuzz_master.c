@@ -44,8 +44,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         r->count = data[pos + 2] % 64;
         r->offset = data[pos + 3] % (IMAGE + 8);
         r->token = (uint32_t)i;
+        r->flags = (uint8_t)(data[pos + 2] >> 7); /* PYMBI_MREQ_PACKED or not */
         if (pymbi_master_frames(&m, r, 1, IMAGE, frames, sizeof frames) == PYMBI_MASTER_FRAME) {
-            for (k = 0; k < 2u * r->count; k++) {
+            size_t nb = r->function <= 2 && r->flags ? (r->count + 7u) / 8u : 2u * r->count;
+            for (k = 0; k < nb; k++) {
                 owned[r->offset + k] = 1; /* (frames checked it fits) */
             }
         }

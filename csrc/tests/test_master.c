@@ -244,6 +244,23 @@ static void test_bad(void)
         const uint8_t most[] = {0, 0, 0, 0, 0, 254, 1};
         CHECK(pymbi_mbap_length(most, sizeof most) == 260);
     }
+    /* the one TCP reply check: unit, then the PDU against the request's */
+    {
+        const uint8_t req[5] = {3, 0, 1, 0, 2};
+        const uint8_t ok[] = {1, 2, 0, 0, 0, 7, 1, 3, 4, 0, 1, 0, 2};
+        const uint8_t refused[] = {1, 2, 0, 0, 0, 3, 1, 0x83, 0x0B};
+        int code = 0;
+        CHECK(pymbi_tcp_check(1, req, sizeof req, ok, sizeof ok, &code) == PYMB_FRAME_OK);
+        CHECK(pymbi_tcp_check(9, req, sizeof req, unit, sizeof unit, &code) == PYMB_FRAME_OK);
+        CHECK(pymbi_tcp_check(1, req, sizeof req, unit, sizeof unit, &code) ==
+              PYMB_FRAME_BAD_SLAVE);
+        CHECK(pymbi_tcp_check(1, req, sizeof req, refused, sizeof refused, &code) ==
+                  PYMB_FRAME_EXCEPTION &&
+              code == 0x0B);
+        CHECK(pymbi_tcp_check(1, req, sizeof req, ok, 6, &code) == PYMB_FRAME_BAD_LENGTH);
+        CHECK(pymbi_tcp_check(1, NULL, 0, ok, sizeof ok, &code) == PYMB_FRAME_INVALID);
+        CHECK(pymbi_tcp_check(1, req, sizeof req, NULL, 0, &code) == PYMB_FRAME_INVALID);
+    }
 }
 
 static void test_bits(void)
@@ -263,6 +280,16 @@ static void test_bits(void)
     CHECK(pymbi_master_take(&M, rsp, sizeof rsp, image, sizeof image, ev, 1, &used) == 0 &&
           used == sizeof rsp && M.in_flight == 0);
     CHECK(memcmp(image, want, sizeof want) == 0);
+    /* packed: the reply's bytes as they come, (10 + 7) / 8 of them */
+    memset(image, 0xEE, sizeof image);
+    r.flags = PYMBI_MREQ_PACKED;
+    r.offset = 21;
+    pymbi_master_reset(&M, 1);
+    CHECK(pymbi_master_frames(&M, &r, 1, 22, out, sizeof out) == -1);
+    CHECK(pymbi_master_frames(&M, &r, 1, 23, out, sizeof out) == 12);
+    CHECK(pymbi_master_take(&M, rsp, sizeof rsp, image, 23, ev, 1, &used) == 0 &&
+          M.in_flight == 0);
+    CHECK(image[20] == 0xEE && image[21] == 0x0D && image[22] == 0x03 && image[23] == 0xEE);
 }
 
 static void test_args(void)

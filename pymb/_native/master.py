@@ -82,11 +82,13 @@ class ReadBuffer:
 class PollTable:
     """A poll's read requests (``reads``, in the order the poll sends them;
     each one's index is its token) and the register ``image`` their replies
-    fill."""
+    fill: a bit as a 0/1 word, or with ``packed_bits`` the reply's bytes of
+    bits as they come."""
 
     __slots__ = ("ends", "image", "image_c", "n", "rows", "sizes")
 
-    def __init__(self, reads: Sequence[Read], unit: int, image: bytearray) -> None:
+    def __init__(self, reads: Sequence[Read], unit: int, image: bytearray, *,
+                 packed_bits: bool = False) -> None:
         n = self.n = len(reads)
         rows = ffi.new("pymbi_mreq[]", max(n, 1))
         for i, r in enumerate(reads):
@@ -97,7 +99,10 @@ class PollTable:
             row.count = r.count
             row.unit = unit
             row.function = r.function
-            if r.offset + 2 * r.count > len(image):
+            packed = packed_bits and r.function <= 2
+            row.flags = lib.PYMBI_MREQ_PACKED if packed else 0
+            size = (r.count + 7) // 8 if packed else 2 * r.count
+            if r.offset + size > len(image):
                 raise ValueError(f"request {i}: its reply's data do not fit the image")
         self.rows: Any = rows
         #: each reply's bytes

@@ -7,16 +7,17 @@ thread).
 
 One loop waits on every connection at once (the system's selector: epoll
 on Linux) over non-blocking sockets. Each device's poll is a fixed list of
-requests; their frames are built once, and a reply is checked against the
-exact 9 bytes it must start with (transaction, protocol, length, unit,
-function, byte count) in one comparison, then its data bytes are copied
-into the device's sample image at their place: the registers, big-endian,
-as the store keeps them. No object per register or per point is made on
-the way.
+requests made ready once for the C core's sans-I/O master
+(:class:`pymb._native.master.Master`, the one ``pymb log``'s loop runs on):
+it frames them with transaction ids, takes the bytes that come, matches each
+reply to its request, checks it with the request path's rules and copies its
+data bytes into the device's sample image at their place: the registers,
+big-endian, as the store keeps them (bits as the reply packs them). No object
+per register or per point is made on the way.
 
 ``pipeline`` requests may be in flight on a connection at once (Modbus TCP
-allows it, [MB-TCP] 4.2; a server answers them in order); 1 is the safe
-default for devices that take one transaction at a time.
+allows it, [MB-TCP] 4.2; replies are matched by transaction id); 1 is the
+safe default for devices that take one transaction at a time.
 
 Each device polls at ``interval`` seconds on fixed slots (``start + k *
 interval``): a slot that comes while the last poll is still out, or while
@@ -34,19 +35,17 @@ import errno
 import heapq
 import selectors
 import socket
-import struct
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from pymb._native.master import EXCEPTION, Master, PollTable, ReadBuffer
 from pymb.errors import InvalidArgument
 
 __all__ = ["Device", "FanoutStats", "Sample", "TcpFanout"]
 
 Sample = tuple[int, int, bytes]  #: (poll start, time.time_ns(); device index; registers)
-_HEAD = struct.Struct(">HHHBBB")  # transaction, protocol, length, unit, function, bytes
-_REQ = struct.Struct(">HHHBBHH")  # the request: MBAP + function, address, count
 _TABLES = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
 
 
@@ -115,37 +114,38 @@ class FanoutStats:
         return cls([0] * n, [0] * n, [0] * n, [0] * n, [0] * n)
 
 
+class _Read:
+    """One request of a device's poll as the master takes it."""
+
+    __slots__ = ("address", "count", "function", "offset")
+
+    def __init__(self, function: int, address: int, count: int, offset: int) -> None:
+        self.function, self.address, self.count, self.offset = function, address, count, offset
+
+
 class _Conn:
-    __slots__ = ("busy", "deadline", "frames", "heads", "image", "index", "next_slot",
-                 "offsets", "rbuf", "recv_i", "retry_at", "send_i", "sizes", "sock",
-                 "started", "state", "target")
+    __slots__ = ("busy", "deadline", "index", "m", "n", "next_slot", "retry_at", "sock",
+                 "started", "state", "table", "target", "todo")
 
     def __init__(self, index: int, d: Device) -> None:
         self.index = index
         self.target = d
-        self.frames: list[bytes] = []
-        self.heads: list[bytes] = []
-        self.sizes: list[int] = []
-        self.offsets: list[int] = []
         base = {t: (first, off) for t, first, _, off in d.layout()}
-        for i, (table, address, count) in enumerate(d.requests):
+        reads = []
+        for table, address, count in d.requests:
             fc = _TABLES[table]
-            nbytes = _data_bytes(table, count)
-            tid = i + 1
-            self.frames.append(_REQ.pack(tid, 0, 6, d.unit, fc, address, count))
-            self.heads.append(_HEAD.pack(tid, 0, 3 + nbytes, d.unit, fc, nbytes))
-            self.sizes.append(9 + nbytes)
             first, off = base[table]
             if fc <= 2 and (address - first) % 8:
                 raise InvalidArgument(f"{table} {address}: bit reads of one table must "
                                       "start 8 bits apart")
-            self.offsets.append(off + _data_bytes(table, address - first))
-        self.image = bytearray(d.image_bytes)
-        self.rbuf = bytearray()
+            reads.append(_Read(fc, address, count, off + _data_bytes(table, address - first)))
+        self.n = len(reads)
+        self.table = PollTable(reads, d.unit, bytearray(d.image_bytes), packed_bits=True)
+        self.m = Master()
         self.sock: socket.socket | None = None
         self.state = "closed"  # closed, connecting, open
         self.busy = False
-        self.send_i = self.recv_i = 0
+        self.todo = 0  #: requests of the poll under way not yet sent
         self.started = 0
         self.deadline = 0.0
         self.retry_at = 0.0
@@ -178,6 +178,7 @@ class TcpFanout:
         self._stop = threading.Event()
         self._batch: list[Sample] = []
         self._slots: list[tuple[float, int]] = []
+        self._rx = ReadBuffer()
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (from any thread) within about 50 ms."""
@@ -210,7 +211,7 @@ class TcpFanout:
         c.sock = None
         c.state = "closed"
         c.busy = False
-        c.rbuf.clear()
+        c.m.reset()
         c.retry_at = now + self.retry
 
     def _connected(self, c: _Conn, now: float) -> None:
@@ -230,12 +231,16 @@ class TcpFanout:
         c.busy = True
         c.started = time.time_ns()
         c.deadline = now + self.timeout
-        c.recv_i = 0
-        n = min(self.pipeline, len(c.frames))
-        c.send_i = n
+        n = min(self.pipeline, c.n)
+        c.todo = c.n - n
+        self._send(c, c.n - c.todo - n, n, now)
+
+    def _send(self, c: _Conn, first: int, n: int, now: float) -> None:
+        m = c.m
+        size = m.frames(c.table, first, n)
         assert c.sock is not None
         try:
-            c.sock.send(b"".join(c.frames[:n]) if n > 1 else c.frames[0])
+            c.sock.send(m.out[:size])
         except OSError:
             self.stats.errors[c.index] += 1
             self._drop(c, now)
@@ -243,64 +248,42 @@ class TcpFanout:
     def _readable(self, c: _Conn, now: float) -> None:
         sock = c.sock
         assert sock is not None
+        rx = self._rx
         try:
-            data = sock.recv(65536)
+            got = sock.recv_into(rx.view)
         except BlockingIOError:
             return
         except OSError:
-            data = b""
-        if not data or not c.busy:  # closed by the device, or a reply nobody asked for
+            got = 0
+        if not got or not c.busy:  # closed by the device, or a reply nobody asked for
             self.stats.errors[c.index] += 1
             self._drop(c, now)
             return
-        buf = c.rbuf
-        if buf:
-            buf += data
-            data = bytes(buf)
-            buf.clear()
-        pos = 0
-        heads, sizes, offsets, image = c.heads, c.sizes, c.offsets, c.image
-        while c.busy:
-            i = c.recv_i
-            size = sizes[i]
-            if len(data) - pos < 9:
-                break
-            if data[pos + 7] & 0x80:  # an exception reply: the poll fails
+        m = c.m
+        before = m.in_flight
+        events, used = m.take(rx, 0, got, c.table)
+        if events or used < got:  # an exception (the poll fails), or no reply of this poll
+            if events and m.event(0).kind == EXCEPTION:
                 self.stats.exceptions[c.index] += 1
-                if c.send_i > i + 1:  # more replies are on their way: start afresh
+                if m.in_flight:  # more replies are on their way: start afresh
                     self._drop(c, now)
                     return
                 c.busy = False
-                pos = len(data)
-                break
-            if len(data) - pos < size:
-                break
-            if data[pos:pos + 9] != heads[i]:
-                self.stats.errors[c.index] += 1
-                self._drop(c, now)
                 return
-            off = offsets[i]
-            image[off:off + size - 9] = data[pos + 9:pos + size]
-            pos += size
-            c.recv_i = i + 1
-            if c.send_i < len(c.frames):
-                try:
-                    sock.send(c.frames[c.send_i])
-                except OSError:
-                    self.stats.errors[c.index] += 1
-                    self._drop(c, now)
-                    return
-                c.send_i += 1
-            elif c.recv_i == len(c.frames):
-                c.busy = False
-                self.stats.polls[c.index] += 1
-                self._batch.append((c.started, c.index, bytes(image)))
-                if self.interval == 0:
-                    self._start(c, now)
-                    pos = len(data)  # nothing may follow a whole poll
-                break
-        if pos < len(data):
-            buf += data[pos:]
+            self.stats.errors[c.index] += 1
+            self._drop(c, now)
+            return
+        if c.todo:
+            n = min(before - m.in_flight, c.todo)
+            if n:
+                c.todo -= n
+                self._send(c, c.n - c.todo - n, n, now)
+        elif not m.in_flight:
+            c.busy = False
+            self.stats.polls[c.index] += 1
+            self._batch.append((c.started, c.index, bytes(c.table.image)))
+            if self.interval == 0:
+                self._start(c, now)
 
     # -- the loop ------------------------------------------------------------------------
 
