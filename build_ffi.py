@@ -112,6 +112,7 @@ int modbus_connect(modbus_t *ctx);
 void modbus_close(modbus_t *ctx);
 void modbus_free(modbus_t *ctx);
 int modbus_get_socket(modbus_t *ctx);
+int modbus_set_socket(modbus_t *ctx, int s);
 int modbus_set_response_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
 int modbus_set_byte_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
 int modbus_rtu_set_serial_mode(modbus_t *ctx, int mode);

@@ -14,13 +14,13 @@ from typing import Any
 
 from conftest import PYMB, PYMB_ENV
 from mqtt_broker import Fleet, paho
-from write_peers import FreezingPtyPeer
+from write_peers import Freezing, FreezingPtyPeer
 
 WRITES = (5, 6, 15, 16, 22)  #: function codes that write
 SET = "pymb/n1/psu-a/set"
 
 
-def writes_sent(peer: FreezingPtyPeer) -> list[bytes]:
+def writes_sent(peer: Freezing) -> list[bytes]:
     return [pdu for _, pdu in list(peer.requests) if pdu[0] in WRITES]
 
 

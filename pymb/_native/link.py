@@ -144,6 +144,11 @@ class Link:
         #: put back before any other request
         self._held: tuple[int, int] | None = None
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
+        #: a connected socket's descriptor the next open() takes instead of
+        #: connecting (TCP; the Link closes it); once set, the Link never connects
+        #: by itself: a lost borrowed connection stays lost
+        self.adopt: int | None = None
+        self.borrowed = False
 
     # -- life cycle ------------------------------------------------------------
 
@@ -171,7 +176,15 @@ class Link:
                 errno=err,
                 port=self.name,
             )
-        if lib.modbus_connect(ctx) == -1:
+        adopted, self.adopt = self.adopt, None
+        if self.borrowed and adopted is None:
+            lib.modbus_free(ctx)
+            raise ModbusConnectionError(
+                f"{self.name}: the connection this client borrowed is closed",
+                errno=errno.ENOTCONN, port=self.name)
+        if adopted is not None:
+            lib.modbus_set_socket(ctx, adopted)
+        elif lib.modbus_connect(ctx) == -1:
             err = ffi.errno
             lib.modbus_free(ctx)
             hint = os_hint(err)
@@ -252,6 +265,11 @@ class Link:
         if line != ffi.NULL:
             lib.pymb_line_free(line)
         if ctx != ffi.NULL:
+            if self.borrowed:  # libmodbus would shut the connection down: only our descriptor
+                fd = int(lib.modbus_get_socket(ctx))
+                lib.modbus_set_socket(ctx, -1)
+                if fd >= 0:
+                    os.close(fd)
             lib.modbus_close(ctx)
             lib.modbus_free(ctx)
 

@@ -160,6 +160,25 @@ class TcpClient(Client):
         super().__init__(_native.new_tcp(host, port, tls=session), slave=slave, timeout=timeout,
                          byte_timeout=byte_timeout)
 
+    def attach(self, fd: int) -> None:
+        """Connect over a connected socket of the caller's instead of a new
+        connection (a poll connection lent between polls): the client takes a
+        duplicate of ``fd`` and closes only that; a lost connection is not
+        opened again by the client. Raises :class:`~pymb.ModbusConnectionError`."""
+        if self.tls is not None:
+            raise InvalidArgument("attach() takes a plain Modbus TCP connection")
+        with self._lock:
+            self._link.close()
+            self._link.borrowed = True
+            self._link.adopt = os.dup(fd)
+            try:
+                self._open()
+            finally:
+                if self._link.adopt is not None:  # not taken: open() failed before it
+                    os.close(self._link.adopt)
+                    self._link.adopt = None
+            self._wanted = True
+
 
 class RtuOverTcpClient(Client):
     """Modbus RTU frames (address, PDU, CRC) over a TCP socket: what

@@ -169,9 +169,9 @@ class CommandDesk(threading.Thread):
                 row.reason = r.reason
             self.log.receive(cid, device, source, durable=False)
             return self._finish(cid, device, source, rows, {}, r.reason, str(r), durable=False)
-        self.log.receive(cid, device, source, durable=True)  # on record before the write
         items = [(n, None, v) for n, v in values.items()]
         try:
+            self.log.receive(cid, device, source, durable=True)  # on record before the write
             outcomes = dev.write_points(items, before=True)
         except WriteNotApplied as e:
             self._fill(rows, e.outcomes, "not_applied")
@@ -184,6 +184,8 @@ class CommandDesk(threading.Thread):
             for row in rows:
                 row.reason = "device"
             return self._finish(cid, device, source, rows, {}, "device", str(e))
+        finally:
+            target.release()  # the line goes back to its polls
         self._fill(rows, outcomes, None)
         return self._finish(cid, device, source, rows, {o.name: o.after for o in outcomes},
                             None, None)
@@ -239,6 +241,7 @@ class CommandDesk(threading.Thread):
         for c in changes:
             limit = c.point.max_writes_per_hour
             if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
+                t.release()
                 raise Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
                                f"({limit} writes per hour); nothing was sent")
         return dev

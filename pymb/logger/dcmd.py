@@ -125,11 +125,11 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         _finish(desk, cid, device, rows, first.reason, names, durable=False)
         _answer(desk, device, {}, names)
         return
-    desk.log.receive(cid, device, SOURCE, durable=True)  # on record before the write
     to_metric = dict(zip([p for p, _, _ in items], names, strict=True))
     outcomes: list[Outcome] = []
     reason: str | None = None
     try:
+        desk.log.receive(cid, device, SOURCE, durable=True)  # on record before the write
         outcomes = dev.write_points(items, before=True)
     except WriteNotApplied as e:
         outcomes, reason = list(e.outcomes), "not_applied"
@@ -140,6 +140,8 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     except ModbusError as e:
         reason = "device"
         desk.event(f"DCMD {cid} for {device} failed (device): {e}")
+    finally:
+        target.release()  # the line goes back to its polls
     by = {o.name: o for o in outcomes}
     values: dict[str, Any] = {}
     for row in rows:

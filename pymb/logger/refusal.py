@@ -24,15 +24,22 @@ class Refused(Exception):
         self.reason = reason
 
 
+def _nothing() -> None:
+    """Nothing to give back."""
+
+
 @dataclass
 class Target:
     """A logged map device commands may write: its map, its MapDevice (None
-    while its line is not open) and whether it is offline now."""
+    while its line is not open), whether it is offline now, and what gives
+    the line back to its polls once a command that got the MapDevice is
+    done with it (``release``)."""
 
     name: str
     map: Map
     device: Callable[[], MapDevice | None]
     offline: Callable[[], bool]
+    release: Callable[[], None] = _nothing
 
 
 class Desk(Protocol):

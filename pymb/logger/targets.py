@@ -1,8 +1,9 @@
 """The map devices of a logging run that write commands may reach
 (:class:`~pymb.logger.commands.Target`): on a bus with a thread, the
 poller's own MapDevice (its line lock puts a write between two polls); on
-the one TCP loop, a MapDevice over a connection of its own to the device's
-endpoint, made at the first command."""
+the one TCP loop, a MapDevice over the device's own poll connection, lent by
+the loop between two polls (:mod:`pymb.logger.tcplend`) and given back once
+the command is done."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Budget
 from pymb.logger.commands import Target
 from pymb.logger.poller import BusPoller
+from pymb.logger.tcpconn import Conn
 from pymb.logger.tcploop import TcpMapPoller
 from pymb.logger.tcpunits import Unit
 from pymb.maps import Map
@@ -30,10 +32,8 @@ def write_targets(pollers: Sequence[object], budget: Budget) -> dict[str, Target
                 out[info.name] = _threaded(p, info.name, cfg.map, budget)
         elif isinstance(p, TcpMapPoller):
             for c in p.conns:
-                client = TcpClient(c.host, c.port, timeout=c.bus.timeout)
-                lock = threading.Lock()
                 for u in c.units:
-                    out[u.info.name] = _looped(u, client, lock, budget)
+                    out[u.info.name] = _looped(p, c, u, budget)
     return out
 
 
@@ -52,15 +52,28 @@ def _threaded(p: BusPoller, name: str, m: Map, budget: Budget) -> Target:
     return Target(name, m, device, offline)
 
 
-def _looped(u: Unit, client: TcpClient, lock: threading.Lock, budget: Budget) -> Target:
+def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
+    client = TcpClient(c.host, c.port, timeout=u.timeout)
     made: list[MapDevice] = []
+    held = threading.Event()
 
     def device() -> MapDevice:
-        with lock:
-            if not client.connected:  # the first command, or after a failed one
-                client.connect()
-            if not made:
-                made.append(MapDevice(client, u.config.map, u.config.address, budget=budget))
-            return made[0]
+        # the poll under way on the connection ends first: up to twice the timeout
+        fd = loop.borrow(c, 2 * u.timeout + 0.5)
+        held.set()
+        try:
+            client.attach(fd)
+        except BaseException:
+            release()
+            raise
+        if not made:
+            made.append(MapDevice(client, u.config.map, u.config.address, budget=budget))
+        return made[0]
 
-    return Target(u.info.name, u.config.map, device, lambda: u.offline)
+    def release() -> None:
+        if held.is_set():
+            held.clear()
+            client.close()
+            loop.give_back(c)
+
+    return Target(u.info.name, u.config.map, device, lambda: u.offline, release)

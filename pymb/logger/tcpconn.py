@@ -25,6 +25,7 @@ from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import Stats
+from pymb.logger.tcplend import Loan
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event, Sample
 
@@ -89,6 +90,7 @@ class Conn:
     resume: Entry | None = None
     renew: bool = False  #: being opened again so (not after a failure)
     tell: bool = False  #: ... and the reconnect is an event (the way of working not yet known)
+    loan: Loan | None = None  #: a write command's thread borrows it between polls (tcplend)
 
     @property
     def in_flight(self) -> int:

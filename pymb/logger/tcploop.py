@@ -50,6 +50,7 @@ from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.logger.poller import BATCH_MAX, Stats, map_info
 from pymb.logger.tcpconn import Conn, asked
+from pymb.logger.tcplend import Lending
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
@@ -75,7 +76,7 @@ def fans_out(bus: BusConfig) -> bool:
     return bus.tcp is not None and all(isinstance(d, MapDeviceConfig) for d in bus.devices)
 
 
-class TcpMapPoller(TcpReplies):
+class TcpMapPoller(TcpReplies, Lending):
     """Polls the map devices of ``buses`` (each :func:`fans_out`) until
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
@@ -106,6 +107,7 @@ class TcpMapPoller(TcpReplies):
         #: replies at once (the connection's ``look`` is its seq), read as they
         #: come from then on
         self._looks: list[tuple[float, int, Conn]] = []
+        self._lending_init()
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -147,6 +149,8 @@ class TcpMapPoller(TcpReplies):
 
     def _next(self, c: Conn, now: float) -> None:
         """Start the next waiting poll on an idle open connection."""
+        if c.loan is not None and self._lend(c):  # lent to a write command
+            return
         while c.entry is None and c.waiting and c.state == "open":
             e = c.waiting.popleft()
             e.queued = False
@@ -355,7 +359,7 @@ class TcpMapPoller(TcpReplies):
                         self._timeout(c, now)
                     elif c.sent < len(c.todo):
                         self._send(c, now)  # a silence is over
-            elif c.entry is None and c.waiting:
+            elif c.entry is None and (c.waiting or c.loan is not None):
                 self._next(c, now)
             if (c.state == "connecting" or c.busy) and c.deadline < soonest:
                 soonest = c.deadline
@@ -411,6 +415,7 @@ class TcpMapPoller(TcpReplies):
             self.flush()
             for c in self.conns:
                 self._close(c)
+            self._lending_close()
             self._sel.close()
 
     def _run(self) -> None:
@@ -447,6 +452,9 @@ class TcpMapPoller(TcpReplies):
                 wait = min(wait, looks[0][0] - now)
             for key, mask in select(max(wait, 0.0)):
                 c = key.data
+                if c is self:  # a write command's thread woke the loop (tcplend)
+                    self._woken()
+                    continue
                 t = time.monotonic()
                 if c.state == "open":
                     self._readable(c, t)

@@ -4,7 +4,9 @@ DCMD's write and its answer (the DCMD on record before the write; sent
 again after the restart it is answered from the record with a DDATA of the
 current values and never written twice), and DCMDs written to pymodbus's
 Modbus TCP server (read back by pymb's own client too) and to Debian's
-libmodbus server (tests/libmodbus_server.c) on a pseudo-terminal (RTU)."""
+libmodbus server (tests/libmodbus_server.c) on a pseudo-terminal (RTU) and
+on TCP, where it serves one connection at a time: the write goes over the
+logger's poll connection, between two polls."""
 
 from __future__ import annotations
 
@@ -83,6 +85,12 @@ def test_sigkill_between_a_dcmd_write_and_its_answer_never_writes_twice(
         proc = start(fleet, broker, peer, map_file, db)
         host.sub.wait_until(lambda ms: any("/DBIRTH/" in t for t, _ in ms[n:]), 60,
                             "the DBIRTH after the restart")
+
+        def mode_run(ms: list[tuple[str, bytes]]) -> bool:  # a poll after the restart has it
+            return any(m.alias == aliases["mode"] and m.int_value == 1
+                       for kind in ("DBIRTH", "DDATA") for p in host.decoded(kind, n, ms)
+                       for m in p.metrics)
+        host.sub.wait_until(mode_run, 60, "the mode polled after the restart")
         n = len(host.sub.snapshot())
         host.dcmd(("mode", UINT16, 1), seq=3, timestamp=stamp)  # the host sends it again
         assert host.answer(n, aliases) == {"mode": 1}  # what the device holds now
@@ -146,3 +154,16 @@ def test_dcmd_against_libmodbus_on_a_serial_line(fleet: Fleet, sparkplug_pb: Any
     with libmodbus_server(libmodbus_exe, "rtu") as where:
         dcmd_writes_and_reads_back(fleet, sparkplug_pb, map_file, tmp_path / "log.sqlite",
                                    ["--port", where, "--baud", "19200"], 17)
+
+
+def test_dcmd_over_the_poll_connection_of_a_one_connection_server(
+        fleet: Fleet, sparkplug_pb: Any, map_file: Path, tmp_path: Path,  # noqa: F811
+        libmodbus_exe: Path) -> None:
+    # libmodbus's server serves one connection at a time (the next waits in the
+    # listen queue until it closes): the TCP loop's polls hold it, so a write on a
+    # second connection would never be answered; the writes go on the poll connection
+    with libmodbus_server(libmodbus_exe, "tcp") as where:
+        dcmd_writes_and_reads_back(fleet, sparkplug_pb, map_file, tmp_path / "log.sqlite",
+                                   ["--tcp", f"127.0.0.1:{where}"], 17)
+        with pymb.TcpClient("127.0.0.1", int(where), timeout=2.0) as c:  # 11 is 3 * 11
+            assert list(c.read_holding_registers(10, 3, slave=17)) == [4950, 33, 1]

@@ -1,0 +1,139 @@
+"""A poll connection of the one TCP loop lent to another thread between two
+polls: :class:`Lending` (mixed into :class:`~pymb.logger.tcploop.TcpMapPoller`).
+
+A write command for a device on the loop goes over the connection its polls
+use, so a gateway that takes one connection, or a device that serves one
+master, sees one master. The command's thread asks for the connection
+(:meth:`Lending.borrow`); the loop hands it over when no poll is under way on
+it (before it starts the next one, never between a poll's requests): it stops
+watching the socket, drops whatever late bytes wait in it, and gives its
+descriptor. The thread writes and reads back over a duplicate of it, then
+gives it back (:meth:`Lending.give_back`), and the loop's polls go on. The
+polls that fall due meanwhile wait (a slot that passes is counted skipped).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import selectors
+import socket
+import threading
+import time
+from typing import TYPE_CHECKING
+
+from pymb.errors import ModbusConnectionError, ModbusTimeout
+
+if TYPE_CHECKING:
+    from pymb.logger.tcpconn import Conn
+
+__all__ = ["Lending", "Loan"]
+
+
+class Loan:
+    """One lending of a connection: asked, given (``fd``), given back."""
+
+    def __init__(self) -> None:
+        self.given = threading.Event()
+        self.back = threading.Event()
+        self.cancelled = False  #: the borrower stopped waiting before it was given
+        self.fd = -1
+
+
+class Lending:
+    """The loop's side and the borrower's side of lending a poll connection."""
+
+    _sel: selectors.DefaultSelector
+    _soonest: float
+
+    def _lending_init(self) -> None:
+        self._loan_lock = threading.Lock()
+        #: written to by a borrower to wake the loop's select at once
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._sel.register(self._wake_r, selectors.EVENT_READ, self)
+
+    def _woken(self) -> None:
+        """The loop: a borrower woke the select (its byte is dropped)."""
+        with contextlib.suppress(OSError):
+            self._wake_r.recv(64)
+
+    def _lending_close(self) -> None:
+        for s in (self._wake_r, self._wake_w):
+            s.close()
+
+    def _wake(self) -> None:
+        self._soonest = 0.0  # a sweep at once: it calls _next on an idle connection
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"\0")
+
+    # -- the borrower's side (any thread) ---------------------------------------------
+
+    def borrow(self, c: Conn, timeout: float) -> int:
+        """Wait until the loop lends ``c`` (no poll under way on it); its
+        socket's descriptor. Raises :class:`~pymb.ModbusTimeout` when it is
+        not lent within ``timeout`` seconds, :class:`~pymb.ModbusConnectionError`
+        while it is not open."""
+        deadline = time.monotonic() + timeout
+        while c.loan is not None:  # the last loan is being taken back
+            if time.monotonic() > deadline:
+                raise ModbusTimeout(f"{c.bus.endpoint}: the poll connection was not free "
+                                    f"within {timeout:g} s", port=c.bus.endpoint)
+            time.sleep(0.002)
+        if c.state != "open":
+            raise ModbusConnectionError(f"{c.bus.endpoint}: not connected now "
+                                        f"({c.state}): nothing was sent", port=c.bus.endpoint)
+        loan = Loan()
+        c.loan = loan
+        self._wake()
+        if loan.given.wait(max(0.0, deadline - time.monotonic())):
+            return loan.fd
+        with self._loan_lock:
+            if not loan.given.is_set():
+                loan.cancelled = True
+                self._wake()
+                raise ModbusTimeout(f"{c.bus.endpoint}: the poll connection was not free "
+                                    f"within {timeout:g} s", port=c.bus.endpoint)
+        return loan.fd
+
+    def give_back(self, c: Conn) -> None:
+        """The borrower is done with ``c``: the loop's polls go on."""
+        loan = c.loan
+        if loan is not None:
+            loan.back.set()
+            self._wake()
+
+    # -- the loop's side ------------------------------------------------------------
+
+    def _lend(self, c: Conn) -> bool:
+        """On an idle connection with a loan asked for (the loop's thread):
+        lend it, or take it back; True while it is lent (no poll starts)."""
+        loan = c.loan
+        assert loan is not None
+        if loan.back.is_set() or loan.cancelled:  # taken back
+            c.loan = None
+            if loan.given.is_set() and c.sock is not None and c.state == "open":
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._sel.register(c.sock, selectors.EVENT_READ, c)
+            return False
+        if loan.given.is_set():
+            return True
+        if c.state != "open" or c.sock is None or c.entry is not None or c.busy or c.m.kept:
+            return False  # (a late reply cut short: the loop sorts its stream out first)
+        with self._loan_lock:
+            if loan.cancelled:
+                c.loan = None
+                return False
+            c.wake_at(1)
+            sock = c.sock
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(sock)
+            for _ in range(64):  # late replies of polls given up: not the borrower's
+                try:
+                    if not sock.recv(4096):
+                        break
+                except OSError:
+                    break
+            loan.fd = sock.fileno()
+            loan.given.set()
+        return True
