@@ -144,11 +144,8 @@ class Link:
         #: put back before any other request
         self._held: tuple[int, int] | None = None
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
-        #: a connected socket's descriptor the next open() takes instead of
-        #: connecting (TCP; the Link closes it); once set, the Link never connects
-        #: by itself: a lost borrowed connection stays lost
-        self.adopt: int | None = None
-        self.borrowed = False
+        self.adopt: int | None = None  #: a lent socket the next open() takes (TCP)
+        self.borrowed = False  #: lent sockets only: never a connection of its own
 
     # -- life cycle ------------------------------------------------------------
 
@@ -177,14 +174,11 @@ class Link:
                 port=self.name,
             )
         adopted, self.adopt = self.adopt, None
-        if self.borrowed and adopted is None:
+        if self.borrowed and (adopted is None or lib.modbus_set_socket(ctx, adopted)):
             lib.modbus_free(ctx)
-            raise ModbusConnectionError(
-                f"{self.name}: the connection this client borrowed is closed",
-                errno=errno.ENOTCONN, port=self.name)
-        if adopted is not None:
-            lib.modbus_set_socket(ctx, adopted)
-        elif lib.modbus_connect(ctx) == -1:
+            raise ModbusConnectionError(f"{self.name}: the borrowed connection is closed",
+                                        errno=errno.ENOTCONN, port=self.name)
+        if not self.borrowed and lib.modbus_connect(ctx) == -1:
             err = ffi.errno
             lib.modbus_free(ctx)
             hint = os_hint(err)
@@ -265,11 +259,9 @@ class Link:
         if line != ffi.NULL:
             lib.pymb_line_free(line)
         if ctx != ffi.NULL:
-            if self.borrowed:  # libmodbus would shut the connection down: only our descriptor
-                fd = int(lib.modbus_get_socket(ctx))
+            if self.borrowed:  # only our descriptor (libmodbus would shut the connection down)
+                os.close(lib.modbus_get_socket(ctx))
                 lib.modbus_set_socket(ctx, -1)
-                if fd >= 0:
-                    os.close(fd)
             lib.modbus_close(ctx)
             lib.modbus_free(ctx)
 
