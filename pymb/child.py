@@ -22,9 +22,9 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from typing import IO
+from typing import IO, Protocol
 
-__all__ = ["ROOT", "Child", "ChildError", "pymb_argv", "python_env"]
+__all__ = ["ROOT", "Child", "ChildError", "Process", "pymb_argv", "python_env"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -57,6 +57,20 @@ class ChildError(RuntimeError):
     """A child failed, answered ``err``, or missed its deadline."""
 
 
+class Process(Protocol):
+    """What :class:`Child` uses of its process (a :class:`subprocess.Popen`)."""
+
+    pid: int
+    stdin: IO[bytes] | None
+    stdout: IO[bytes] | None
+    returncode: int | None
+
+    def poll(self) -> int | None: ...
+    def wait(self, timeout: float | None = None) -> int: ...
+    def terminate(self) -> None: ...
+    def kill(self) -> None: ...
+
+
 class Child:
     """A child process that speaks in lines on stdout.
 
@@ -76,12 +90,17 @@ class Child:
             if stderr == "file" else None)
         err: IO[bytes] | int | None = (self._log if self._log is not None else
                                        subprocess.DEVNULL if stderr == "drop" else None)
-        self.proc = subprocess.Popen(
+        self.proc: Process = self._launch(stdin, err, env or python_env(), cwd)
+        self._buf = b""
+
+    def _launch(self, stdin: bool, err: IO[bytes] | int | None, env: dict[str, str],
+                cwd: str | None) -> Process:
+        """Start the process: ``argv`` in its own session, dying with this one."""
+        return subprocess.Popen(
             self.argv, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
-            stdout=subprocess.PIPE, stderr=err, env=env or python_env(), cwd=cwd,
+            stdout=subprocess.PIPE, stderr=err, env=env, cwd=cwd,
             preexec_fn=_die_with_parent, start_new_session=True,
         )
-        self._buf = b""
 
     @property
     def pid(self) -> int:

@@ -62,7 +62,7 @@ def _start(e: Entry, port: str, ref: Reference, children: Children) -> None:
     module = "pymb.bench.worker" if e.name == "pymb" else "pymb.bench.aioworker"
     argv = [sys.executable, "-m", module, e.name, port, str(BAUD), str(ref.k_off),
             str(ref.k_val), str(_TIMEOUT)]
-    e.child = children.add(Child(e.contender.label, argv))
+    e.child = children.start(e.contender.label, argv)
     try:
         line = e.child.readline(60.0)
         if not line.startswith("ready"):
@@ -119,10 +119,10 @@ def _floor_runs(children: Children, ports: Sequence[str], seconds: float,
     """The ticker alone in a process of its own, while another process (the
     scaling worker: one thread per bus, blocking calls) polls the same hubs
     flat out: the lag the machine itself gives a waiting process."""
-    scale = children.add(Child("lag load", [sys.executable, "-m", "pymb.bench.scale",
-                                            str(BAUD), *ports]))
-    ticker = children.add(Child("lag ticker-alone", [
-        sys.executable, "-m", "pymb.bench.aioworker", "lag", "ticker-alone", str(BAUD)]))
+    scale = children.start("lag load", [sys.executable, "-m", "pymb.bench.scale",
+                                            str(BAUD), *ports])
+    ticker = children.start("lag ticker-alone", [
+        sys.executable, "-m", "pymb.bench.aioworker", "lag", "ticker-alone", str(BAUD)])
     try:
         _started(scale)
         _started(ticker)
@@ -166,9 +166,9 @@ def _lag(opts: Options, children: Children, emulate: bool, seconds: float,
             if name == "ticker-alone":
                 runs = _floor_runs(children, ports, seconds, repeats)
             else:
-                worker = children.add(Child(f"lag {name}", [
+                worker = children.start(f"lag {name}", [
                     sys.executable, "-m", "pymb.bench.aioworker", "lag", name, str(BAUD),
-                    *ports]))
+                    *ports])
                 try:
                     _started(worker)
                     runs = [json.loads(worker.ask(f"run {seconds}", 60.0 + seconds))

@@ -239,6 +239,12 @@ async def lag_run(clients: Sequence[Any], seconds: float) -> dict[str, Any]:
     return {**ticker.summary(), "sweeps": counts, "wall": wall, "cpu": cpu}
 
 
+async def _warm(clients: Sequence[Any]) -> None:
+    """Open every client, then sweep each once, side by side."""
+    await asyncio.gather(*(c.open() for c in clients))
+    await asyncio.gather(*(c.sweep() for c in clients))
+
+
 def lag_main(args: Sequence[str]) -> int:
     """``lag NAME BAUD PORT...``: answer ``run SECONDS`` until ``quit``."""
     name, baud, ports = args[0], int(args[1]), args[2:]
@@ -246,9 +252,8 @@ def lag_main(args: Sequence[str]) -> int:
     clients = [] if name == "ticker-alone" else [LAG_STACKS[name](p, baud, 2.0) for p in ports]
     try:
         try:
-            for c in clients:
-                loop.run_until_complete(c.open())
-                loop.run_until_complete(c.sweep())
+            # opened and warmed side by side (the blocking stack's one by one)
+            loop.run_until_complete(_warm(clients))
         except Exception as e:
             print(err_line(e), flush=True)
             return 4

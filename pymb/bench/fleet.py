@@ -213,11 +213,11 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
     if find_mosquitto() is None:
         return {"status": "skipped", "reason": "mosquitto is not installed"}
     n_burst = 1000 if quick else 20000
-    n_live = int(RATE * (1 if quick else 5))
+    n_live = int(RATE * (0.5 if quick else 5))
     # --quick: a 1 s outage, pymb's publisher only (the bridges lose samples by
     # design; waiting out their silence costs most of the section), to fit its budget
     outage_s = 1.0 if quick else OUTAGE_S
-    n_outage = int(RATE * (3 if quick else 12))
+    n_outage = int(RATE * (2 if quick else 12))
     quiet = 2.0 if quick else 8.0
     repeats = 1 if quick else 3  #: burst runs per publisher; the median is reported
     rows = []

@@ -25,7 +25,7 @@ from typing import Any
 from pymb.bench.contenders import CONTENDERS, probe
 from pymb.bench.gateworker import DESIGNS
 from pymb.bench.options import Options
-from pymb.bench.procs import Child, ChildError, Children
+from pymb.bench.procs import ChildError, Children
 from pymb.bench.table import Table, fmt_time
 from pymb.child import pymb_argv
 from pymb.client import TcpClient
@@ -147,9 +147,9 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
             f'\n[[bus]]\nname = "d{i}"\ntcp = "127.0.0.1:{p}"\ninterval = 0\ntimeout = 2\n'
             f'{pipe}  [[bus.device]]\n  map = "{map_file}"\n  address = 1\n  name = "d{i}"\n'
             for i, p in enumerate(ports)))
-    child = children.add(Child("gateway pymb log", pymb_argv(
+    child = children.start("gateway pymb log", pymb_argv(
         "log", "--config", cfg, "--seconds", str(warmup + seconds + 150), "--quiet"),
-        stdin=False))
+        stdin=False)
     try:
         deadline = time.monotonic() + 120.0
         while _stored(db)[1] < len(ports):  # the warm-up starts once every bus stores
@@ -181,9 +181,9 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
 
 def _one(children: Children, design: str, map_arg: str, ports: str, db: str,
          warmup: float, seconds: float) -> dict[str, Any]:
-    child = children.add(Child(f"gateway {design}", [
+    child = children.start(f"gateway {design}", [
         sys.executable, "-m", "pymb.bench.gateworker", design, map_arg, "127.0.0.1", ports,
-        db, "--warmup", str(warmup), "--seconds", str(seconds)], stdin=False))
+        db, "--warmup", str(warmup), "--seconds", str(seconds)], stdin=False)
     try:
         r: dict[str, Any] = json.loads(child.readline(90.0 + warmup + seconds))
     finally:
@@ -212,9 +212,9 @@ def run_section(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
                  ("SDM630", "eastron-sdm630", sdm, ["eastron-sdm630:1,dynamic=0"])]
     for workload, map_arg, log_map, sim_args in workloads[1:] if opts.quick else workloads:
         for n in counts:
-            sim = children.add(Child(f"simulator x{n}", pymb_argv(
+            sim = children.start(f"simulator x{n}", pymb_argv(
                 "simulate", *sim_args, "--tcp", "127.0.0.1:0", "--count", str(n)),
-                stdin=False))
+                stdin=False)
             try:
                 ports = sim.readline(60.0).strip().rpartition(":")[2]
                 for design in DESIGNS:

@@ -30,8 +30,10 @@ def _reading(m: maps.Map, group: str | None, rng: random.Random) -> MapReading:
     return MapReading(m, group, {}, {}, regs)
 
 
-def compare(where: str, n: int, say: Callable[[str], None]) -> list[dict[str, Any]]:
-    """For each group of each of :data:`MAPS`: ``n`` samples written to a new
+def compare(where: str, n: int, say: Callable[[str], None],
+            first_group_only: bool = False) -> list[dict[str, Any]]:
+    """For each group of each of :data:`MAPS` (only its first with
+    ``first_group_only``, as ``--quick`` does): ``n`` samples written to a new
     database in ``where``; the BLOB's bytes and the data's pages (samples and
     their time index, dbstat) per sample."""
     rows = []
@@ -39,7 +41,7 @@ def compare(where: str, n: int, say: Callable[[str], None]) -> list[dict[str, An
     for map_id in MAPS:
         m = maps.builtin(map_id)
         text = (resources.files("pymb.maps") / "builtin" / f"{map_id}.toml").read_text()
-        for group in m.groups:
+        for group in list(m.groups)[:1] if first_group_only else m.groups:
             say(f"logger: {map_id} group {group}, {n} samples")
             path = os.path.join(where, f"map-{map_id}-{group}.sqlite")
             sink = SqliteSink(path)

@@ -9,12 +9,15 @@ on the way out of a ``with`` block: normal end, error or Ctrl-C.
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Sequence
 from types import TracebackType
+from typing import IO, Any
 
-from pymb.child import ROOT, Child, ChildError, pymb_argv, python_env
+from pymb.bench.forked import can_fork, fork_module, preload
+from pymb.child import ROOT, Child, ChildError, Process, pymb_argv, python_env
 
-__all__ = ["ROOT", "Child", "ChildError", "Children", "SimChild", "python_env"]
+__all__ = ["ROOT", "Child", "ChildError", "Children", "ForkedChild", "SimChild", "python_env"]
 
 
 class SimChild(Child):
@@ -40,21 +43,48 @@ class SimChild(Child):
         return super().stop(grace=grace, term_wait=term_wait)
 
 
-class Children:
-    """Owns children; stops every one on exit, newest first."""
+class ForkedChild(Child):
+    """A :class:`Child` forked from this process when its argv is a pymb
+    module (:mod:`pymb.bench.forked`; ``--quick``), started as usual otherwise."""
 
-    def __init__(self) -> None:
+    def _launch(self, stdin: bool, err: IO[bytes] | int | None, env: dict[str, str],
+                cwd: str | None) -> Process:
+        if can_fork(self.argv):
+            return fork_module(self.argv, stdin=stdin, err=err, env=env, cwd=cwd)
+        return super()._launch(stdin, err, env, cwd)
+
+
+class _ForkedSim(ForkedChild, SimChild):
+    """A :class:`SimChild` forked from this process (``--quick``)."""
+
+
+class Children:
+    """Owns children; stops every one on exit, newest first. With ``fork``
+    (``--quick``), pymb's own children are forked from this process rather
+    than started as new interpreters (:mod:`pymb.bench.forked`)."""
+
+    def __init__(self, *, fork: bool = False) -> None:
         self._children: list[Child] = []
+        self.fork = fork
+        if fork:
+            preload()
+        self._lock = threading.Lock()  # the SD wear runs start theirs from a thread
 
     def add(self, child: Child) -> Child:
         """Take ``child`` into care."""
-        self._children.append(child)
+        with self._lock:
+            self._children.append(child)
         return child
+
+    def start(self, name: str, argv: Sequence[str], **kw: Any) -> Child:
+        """Start a child (forked with ``fork``, see above) and take it into care."""
+        return self.add((ForkedChild if self.fork else Child)(name, argv, **kw))
 
     def sims(self, args_list: Sequence[Sequence[str]], timeout: float = 30.0) -> list[SimChild]:
         """Start simulators side by side and wait until each serves."""
-        sims = [SimChild(a) for a in args_list]
-        self._children.extend(sims)
+        sims = [(_ForkedSim if self.fork else SimChild)(a) for a in args_list]
+        with self._lock:
+            self._children.extend(sims)
         for s in sims:
             s.wait_ready(timeout)
         return sims
@@ -62,13 +92,16 @@ class Children:
     def stop(self, child: Child) -> None:
         """Stop one child now."""
         child.stop()
-        with contextlib.suppress(ValueError):
+        with self._lock, contextlib.suppress(ValueError):
             self._children.remove(child)
 
     def stop_all(self) -> None:
         """Stop every child, newest first."""
-        while self._children:
-            child = self._children.pop()
+        while True:
+            with self._lock:
+                if not self._children:
+                    return
+                child = self._children.pop()
             with contextlib.suppress(Exception):
                 child.stop()
 

@@ -182,7 +182,7 @@ class Lineup:
         else:
             argv = [sys.executable, "-m", "pymb.bench.worker", e.name, port, str(baud),
                     str(self.ref.k_off), str(self.ref.k_val), str(_TIMEOUT)]
-        e.child = self.children.add(Child(e.contender.label, argv))
+        e.child = self.children.start(e.contender.label, argv)
         try:
             line = e.child.readline(60.0)
             if not line.startswith("ready"):
@@ -221,8 +221,10 @@ def verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> Non
 
 
 def race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: int,
-          warm: int, children: Children, opts: Options, label: str) -> None:
-    """Interleaved rounds of ``command n`` across the running entries."""
+          warm: int, children: Children, opts: Options, label: str,
+          settle: bool = True) -> None:
+    """Interleaved rounds of ``command n`` across the running entries (each
+    timed batch after as many untimed operations, unless not ``settle``)."""
     live = [e for e in entries if e.status == "ok"]
     if warm:
         for e in live:
@@ -238,7 +240,7 @@ def race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: 
             # steady state, not while its process (and the line's) re-warm
             # after the others' turns, which penalises large processes after
             # long turns (pymodbus, minimalmodbus) by 20-30% on this machine.
-            if _ask(e, command, n, children) is None:
+            if settle and _ask(e, command, n, children) is None:
                 continue
             got = _ask(e, command, n, children)
             if got is not None:

@@ -75,7 +75,7 @@ from pymb.bench.options import (
     Options,
     Plan,
 )
-from pymb.bench.procs import Child, ChildError, Children
+from pymb.bench.procs import ChildError, Children
 from pymb.bench.race import (
     Entry,
     Lineup,
@@ -187,8 +187,9 @@ def run_wire(opts: Options, lineup: Lineup, children: Children) -> dict[str, Any
             lineup.start(e, sim.port, baud)
         # No verification sweep: at 9600 one costs 1.6 s, the canaries are checked on
         # every sweep, and the sweep section verified both contenders' decoding.
+        # --quick at 9600: no untimed sweep before the timed one (1.6 s each)
         race(entries, "hub", "sweep", rounds, n, 0 if baud < 19200 else 1, children, opts,
-              f"wire: {baud} baud")
+              f"wire: {baud} baud", settle=not (opts.quick and baud < 19200))
         theory = _theory_sweep(baud)
         for row in summary(entries, "hub", n)["rows"]:
             row.update(baud=baud, workload="hub sweep", theory_us=theory * 1e6)
@@ -216,8 +217,8 @@ def run_scaling(opts: Options, children: Children) -> dict[str, Any]:
     opts.say(f"scaling: starting {max(BUSES)} simulators")
     sims = children.sims([[f"hub:{HUB_SLAVE},dynamic=0", "--baud", str(baud), "--seed",
                            str(SEED)] for _ in range(max(BUSES))])
-    worker = children.add(Child("scaling worker", [sys.executable, "-m", "pymb.bench.scale",
-                                                   str(baud), *(s.port for s in sims)]))
+    worker = children.start("scaling worker", [sys.executable, "-m", "pymb.bench.scale",
+                                                   str(baud), *(s.port for s in sims)])
     line = worker.readline(60.0)
     if not line.startswith("ready"):
         raise ChildError(f"scaling worker: {line}")
@@ -399,7 +400,8 @@ def run(opts: Options) -> dict[str, Any]:
     result (JSON-able)."""
     result: dict[str, Any] = {"meta": meta(opts)}
     pymb_in = "pymb" in opts.only
-    with tempfile.TemporaryDirectory(prefix="pymb-bench-") as tmp, Children() as children:
+    with tempfile.TemporaryDirectory(prefix="pymb-bench-") as tmp, \
+            Children(fork=opts.quick) as children:
         lineup = Lineup(opts, children, tmp)
         result["contenders"] = [
             {"name": e.name, "label": e.contender.label, "version": e.version,

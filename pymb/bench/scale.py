@@ -1,7 +1,7 @@
 """The scaling worker: ``python -m pymb.bench.scale BAUD PORT...``.
 
 One :class:`~pymb.RtuClient` and :class:`~pymb.devices.SensorHub` per bus,
-all opened at start and warmed by one sweep each. ``run K SECONDS`` sweeps
+all opened at start and warmed by one sweep each (side by side). ``run K SECONDS`` sweeps
 the first K buses in K threads (one per bus) for SECONDS and answers ``ok``
 with a JSON object: sweeps per bus, each thread's span, the wall time and
 this process's CPU (``time.process_time``, every thread). A sweep releases
@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from pymb.bench.worker import answer_commands, err_line
@@ -78,8 +79,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 c.connect()
                 clients.append(c)
             hubs = [SensorHub(c, HUB.default_address) for c in clients]
-            for h in hubs:
-                h.read_all()
+            # the warming sweeps side by side (each releases the GIL on the wire)
+            with ThreadPoolExecutor(len(hubs)) as pool:
+                list(pool.map(lambda h: h.read_all(), hubs))
         except Exception as e:
             print(err_line(e), flush=True)
             return 4

@@ -30,7 +30,7 @@ import tempfile
 import time
 from typing import Any
 
-from pymb.bench.procs import Child, Children
+from pymb.bench.procs import Children
 from pymb.bench.table import Table, fmt_time, fmt_x
 from pymb.child import pymb_argv
 
@@ -107,13 +107,13 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
     sims = children.sims([["coolpro:40,gap=0", "--any-speed", "--seed", "0"]] * 3)
     with tempfile.TemporaryDirectory(prefix="pymb-bench-serve-") as tmp:
         certs = make_certificates(tmp)
-        plain = children.add(Child("pymb serve", pymb_argv(
+        plain = children.start("pymb serve", pymb_argv(
             "serve", "--port", sims[1].port, "--baud", "115200", "--listen", "127.0.0.1:0",
-            "--quiet"), stdin=False))
-        secure = children.add(Child("pymb serve --tls", pymb_argv(
+            "--quiet"), stdin=False)
+        secure = children.start("pymb serve --tls", pymb_argv(
             "serve", "--port", sims[2].port, "--baud", "115200", "--listen", "127.0.0.1:0",
             "--tls", "--cert", certs.server_cert, "--key", certs.server_key, "--ca", certs.ca,
-            "--quiet"), stdin=False))
+            "--quiet"), stdin=False)
         ports = [int(c.readline(20).rsplit(":", 1)[1].split()[0]) for c in (plain, secure)]
         ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=certs.ca)
         ctx.load_cert_chain(certs.client_cert, certs.client_key)

@@ -16,7 +16,7 @@ pages), one INSERT and one commit per sample.
 
 :func:`run_wear` runs the worker for each kind, interval and mode, each
 under ``strace -c`` (when installed) to count its ``fsync``/``fdatasync``
-calls.
+calls; ``--quick`` runs them all side by side, forked, without strace.
 """
 
 from __future__ import annotations
@@ -204,33 +204,47 @@ def run_wear(opts: Any, children: Any) -> list[dict[str, Any]]:
     # A run holds many commits of each kind (the quick plan only checks the machinery).
     wire_s, slow_s = (3.0, 3.0) if opts.quick else (300.0, 600.0)
     rows: list[dict[str, Any]] = []
+    # --quick: every run side by side (its figures only show the machinery works)
+    plans = [(0.0, wire_s), (1.0, slow_s)]
+    batches = [plans] if opts.quick else [[p] for p in plans]
     with tempfile.TemporaryDirectory(prefix="pymb-bench-wear-", dir=_disk_temp()) as where:
-        for interval, seconds in ((0.0, wire_s), (1.0, slow_s)):
-            what = "wire speed" if interval == 0 else f"a {interval:g} s interval"
-            opts.say(f"logger: SD wear at {what}, {seconds:g} s")
-            runs: list[tuple[str, str, float | None]] = [
-                (mode, kind, None) for kind in ADDRESSES for mode in ("pymb", "naive")]
-            if interval:  # what the longer bound for a small batch buys
-                runs.append(("pymb", "coolpro", LONGER_COMMIT))
+        for batch in batches:
+            runs: list[tuple[float, float, str, str, float | None]] = []
+            for interval, seconds in batch:
+                what = "wire speed" if interval == 0 else f"a {interval:g} s interval"
+                opts.say(f"logger: SD wear at {what}, {seconds:g} s")
+                runs += [(interval, seconds, mode, kind, None)
+                         for kind in ADDRESSES for mode in ("pymb", "naive")]
+                if interval:  # what the longer bound for a small batch buys
+                    runs.append((interval, seconds, "pymb", "coolpro", LONGER_COMMIT))
             sims = children.sims([[f"{kind}:{ADDRESSES[kind]},dynamic=0", "--baud", "115200",
-                                   "--seed", "0"] for _, kind, _ in runs])
-            procs = []
-            for (mode, kind, commit), sim in zip(runs, sims, strict=True):
+                                   "--seed", "0"] for _, _, _, kind, _ in runs])
+            procs: list[tuple[Any, str, float | None, float]] = []
+            for (interval, seconds, mode, kind, commit), sim in zip(runs, sims, strict=True):
                 db = os.path.join(where, f"{mode}-{kind}-{interval:g}-{commit}.sqlite")
                 _prepare(mode, db)  # made here: its syncs are not the run's
                 trace = db + ".strace"
                 argv = [sys.executable, "-m", "pymb.bench.wear", mode, kind, sim.port,
-                        str(interval), str(seconds), db, *([] if commit is None else [str(commit)])]
+                        str(interval), str(seconds), db,
+                        *([] if commit is None else [str(commit)])]
+                if opts.quick:  # forked (see pymb.bench.forked), no fdatasync count
+                    procs.append((children.start(f"SD wear {mode} {kind}", argv, env=_env(),
+                                                 stdin=False), "", commit, seconds))
+                    continue
                 if strace:
                     argv = [strace, "-f", "-c", "-e", "trace=fsync,fdatasync", "-o", trace,
                             "--", *argv]
                 procs.append((subprocess.Popen(argv, stdout=subprocess.PIPE, text=True,
-                                               env=_env()), trace, commit))
-            for p, trace, commit in procs:
-                out, _ = p.communicate(timeout=seconds + 300)
+                                               env=_env()), trace, commit, seconds))
+            for p, trace, commit, seconds in procs:
+                if isinstance(p, subprocess.Popen):
+                    out, _ = p.communicate(timeout=seconds + 300)
+                else:
+                    out = p.readline(seconds + 300)
+                    children.stop(p)
                 row = json.loads(out.strip().splitlines()[-1])
                 row["commit_interval"] = commit
-                syncs = _syncs(trace) if strace else None
+                syncs = _syncs(trace) if strace and trace else None
                 n = max(1, row["samples"])
                 row.update(written_per_sample=row["written"] / n,
                            stored_per_sample=row["stored"] / n,

@@ -472,4 +472,5 @@ def test_a_run_times_each_section_against_its_budget(
     assert re.fullmatch(r"  sections  micro [\d.]+ s, plan [\d.]+ s \(\d+ s(; over the quick "
                         r"budget: [a-z, ]+)?\)", line), line
     result["meta"]["section_seconds"]["plan"] = 99.0
-    assert "over the quick budget: plan)" in report.to_text(result)
+    # (micro may be over its own on a loaded machine too)
+    assert re.search(r"over the quick budget: (micro, )?plan\)", report.to_text(result))
