@@ -166,14 +166,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.monotonic()
     samples = (_pymb if mode == "pymb" else _naive)(kind, port, interval, seconds, db)
     elapsed = time.monotonic() - t0
-    written = _write_bytes() - w0
+    w2, t2 = _write_bytes(), time.monotonic()
+    written = w2 - w0
+    # (counted before this reader opens the file: its own -shm is not the logger's)
     stored = _stored(db, ("samples", "samples_time", "hub_changes"))
     w1, n1, t1 = _FIRST[0] if _FIRST else (w0, 0, t0)
-    w2 = _write_bytes()
     steady = None if samples <= n1 else (w2 - w1) / (
         (samples - n1) * stored / max(1, samples))
     # bytes written per second from the first commit on (the 1 Hz goal)
-    steady_bps = None if samples <= n1 else (w2 - w1) / max(1e-9, time.monotonic() - t1)
+    steady_bps = None if samples <= n1 else (w2 - w1) / max(1e-9, t2 - t1)
     print(json.dumps({"mode": mode, "kind": kind, "interval": interval, "samples": samples,
                       "elapsed": elapsed, "written": written, "stored": stored,
                       "steady": steady, "steady_bps": steady_bps}), flush=True)
