@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
@@ -16,8 +16,8 @@ from pymb.fleet.profiles import SparkplugProfile
 from pymb.logger import LogConfig, Logger, Summary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
-from pymb.service.journal import echoing
-from pymb.store import check_output, open_sink
+from pymb.service.journal import EventLines, wanted
+from pymb.store import SqliteSink, check_output, open_sink
 from pymb.store.commands import CommandLog
 
 if TYPE_CHECKING:
@@ -54,15 +54,16 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
                      on_change=cfg.on_change)
-    raw = sink
-    if service is not None:
-        sink = echoing(sink)
+    if not isinstance(sink, SqliteSink):
+        sink.close()
+        raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox)")
+    echo = EventLines(sys.stderr) if service is not None and wanted(sys.stderr) else None
     try:
-        fw = Forwarder(cfg.path, mqtt, writer=raw)
+        fw = Forwarder(cfg.path, mqtt, writer=sink)
     except BaseException:
         sink.close()
         raise
-    fw.say = sink is raw  # else its events are lines on stderr already
+    fw.say = echo is None  # else its events are lines on stderr already
     desk = None
     try:
         tick: Callable[[Logger, float, bool], None] | None = None
@@ -71,9 +72,9 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         if service is not None:
             service.text = lambda lg, t: f"{status_text(lg, t)}  {fw.status().line()}"
             tick = service.tick(tick)
-        logger = Logger(cfg, sink=ForwardingSink(sink, fw), tick=tick)
+        logger = Logger(cfg, sink=ForwardingSink(sink, fw, echo), tick=tick)
         if cfg.allow_writes:
-            desk = command_desk(cfg, logger, raw, fw)
+            desk = command_desk(cfg, logger, sink, fw)
         fw.start()
         if service is not None:
             service.attach(logger)
@@ -92,10 +93,11 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     return s, fw.status()
 
 
-def command_desk(cfg: LogConfig, logger: Logger, raw: Any, fw: Forwarder) -> CommandDesk:
+def command_desk(cfg: LogConfig, logger: Logger, raw: SqliteSink, fw: Forwarder,
+                 ) -> CommandDesk:
     """The desk that executes write commands from ``fw``'s set topics on the
     logger's devices, recorded in the database ``raw`` writes."""
-    if cfg.format != "sqlite" or not hasattr(raw, "in_batch"):
+    if cfg.format != "sqlite":
         raise InvalidArgument("--allow-writes needs the SQLite database: its record of "
                               "commands makes each id execute once")
     log = CommandLog(raw.in_batch)

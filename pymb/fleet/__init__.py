@@ -14,57 +14,58 @@ launcher of Debian's mosquitto for tests, the demo and the bench (:mod:`pymb.fle
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import DeviceHealth
-from pymb.store import Event
+from pymb.store import Event, Sample, SinkWrapper, SqliteSink
+
+if TYPE_CHECKING:  # the forwarder needs paho, which this package's face must not
+    from pymb.fleet.forwarder import Forwarder
 
 __all__ = ["ForwardingSink", "MqttConfig"]
 
 
-class ForwardingSink:
+class ForwardingSink(SinkWrapper):
     """A sink that wakes the forwarder after each write (a forwarder reading
     the writer's batch, see :class:`~pymb.fleet.forwarder.Forwarder`) or
     commit of the sink it wraps, and records what happened to the broker
     connection as events (bus and kind ``mqtt``). It also follows which
     devices stop answering (:class:`~pymb.fleet.health.DeviceHealth`) and
-    tells the forwarder (Sparkplug: DDEATH) once the news is written."""
+    tells the forwarder (Sparkplug: DDEATH) once the news is written.
+    ``echo``, when given, is called with every event stored (a service's
+    lines on stderr), the broker's own included."""
 
-    def __init__(self, sink: Any, forwarder: Any) -> None:
-        self.sink = sink
+    def __init__(self, sink: SqliteSink, forwarder: Forwarder,
+                 echo: Callable[[Event], None] | None = None) -> None:
+        super().__init__(sink)
+        self.outbox = sink
         self.forwarder = forwarder
+        self.echo = echo
         self.health = DeviceHealth()
         #: the forwarder reads what this writes before the commit
         self.live = bool(forwarder.source.live)
         sink.on_commit(self._committed)
 
-    @property
-    def keeps_samples(self) -> bool:
-        """As the wrapped sink (the health record keeps no sample data)."""
-        return bool(getattr(self.sink, "keeps_samples", True))
-
-    def write(self, sample: Any) -> None:
+    def write(self, sample: Sample) -> None:
         """Add a sample to the batch."""
         self.sink.write(sample)
         self.health.sample(sample)
         self._written()
 
-    def write_batch(self, samples: Any) -> None:
-        """Add samples to the batch (in one call when the wrapped sink can)."""
-        batch = getattr(self.sink, "write_batch", None)
-        if batch is not None:
-            batch(samples)
-        else:
-            for sample in samples:
-                self.sink.write(sample)
+    def write_batch(self, samples: Sequence[Sample]) -> None:
+        """Add samples to the batch."""
+        self.sink.write_batch(samples)
         for sample in samples:
             self.health.sample(sample)
         self._written()
 
-    def event(self, event: Any) -> None:
+    def event(self, event: Event) -> None:
         """Add an event to the batch."""
         self.sink.event(event)
+        if self.echo is not None:
+            self.echo(event)
         self.health.event(event)
         self._written()
 
@@ -72,7 +73,7 @@ class ForwardingSink:
         """A live forwarder hears of it now: the devices that went down (with
         the last id written) and the new samples."""
         if self.live:
-            self._tell(self.sink.last_id)
+            self._tell(self.outbox.last_id)
 
     def turn(self) -> bool:
         """The logger's loop, at each turn: the broker connection's events go
@@ -91,7 +92,7 @@ class ForwardingSink:
         self._events()
         cursor, dest = self.forwarder.cursor, self.forwarder.dest
         if dest is not None:  # keyed at the first connection
-            self.sink.set_outbox_cursor(dest, cursor)
+            self.outbox.set_outbox_cursor(dest, cursor)
         self.sink.commit()
 
     def _committed(self, top: int) -> None:
@@ -111,22 +112,13 @@ class ForwardingSink:
             self.forwarder.devices_down(downs, top)
         self.forwarder.notify()
 
-    def check(self) -> None:
-        """As the wrapped sink's (its storage still there)."""
-        check = getattr(self.sink, "check", None)
-        if check is not None:
-            check()
-
-    def restamp(self, offset: float) -> None:
-        """As the wrapped sink's (the wall clock stepped)."""
-        restamp = getattr(self.sink, "restamp", None)
-        if restamp is not None:
-            restamp(offset)
-
     def _events(self) -> bool:
         got = self.forwarder.take_events()
         for t, message in got:
-            self.sink.event(Event(t, time.monotonic(), "mqtt", None, "mqtt", None, message))
+            event = Event(t, time.monotonic(), "mqtt", None, "mqtt", None, message)
+            self.sink.event(event)
+            if self.echo is not None:
+                self.echo(event)
         return bool(got)
 
     def close(self) -> None:
@@ -135,5 +127,5 @@ class ForwardingSink:
         self._events()
         cursor, dest = self.forwarder.cursor, self.forwarder.dest
         if dest is not None:
-            self.sink.set_outbox_cursor(dest, cursor)
+            self.outbox.set_outbox_cursor(dest, cursor)
         self.sink.close()

@@ -18,7 +18,7 @@ from pymb.logger.config import EVENT_COMMIT_INTERVAL, LogConfig
 from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller, Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped
-from pymb.store import Event, Sample, Sink, check_output, open_sink
+from pymb.store import Event, Sample, Sink, as_sink, check_output, open_sink
 
 __all__ = ["Logger", "Summary"]
 
@@ -156,7 +156,10 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             maxsize=2048 // BATCH_MAX)
         # pymb's own sinks are done with a sample when write() returns: hub
         # sweeps may then be read into the arrays of readings already written.
-        reuse = sink is None or getattr(sink, "keeps_samples", True) is False
+        self.sink: Sink = as_sink(sink) if sink is not None else open_sink(
+            config.format, config.path, max_bytes=config.max_bytes, max_age=config.max_age,
+            on_change=config.on_change)
+        reuse = not self.sink.keeps_samples
         self.pollers: list[_Poller | _TcpPoller] = [
             _Poller(b, self._queue, self._stop, self.stats, reuse=reuse)
             for b in config.buses if not fans_out(b)]
@@ -165,8 +168,6 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             self.pollers.append(_TcpPoller(tcp, self._queue, self._stop, self.stats))
         self._spare = {id(d.info): d.spare for p in self.pollers
                        if isinstance(p, BusPoller) for d in p.devices if d.spare is not None}
-        self.sink = sink or open_sink(config.format, config.path, max_bytes=config.max_bytes,
-                                      max_age=config.max_age, on_change=config.on_change)
 
     def stop(self) -> None:
         """Ask the run to end (thread-safe; a signal handler uses :meth:`_on_signal`)."""
@@ -208,10 +209,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         commit_every = self.config.commit_every
         # With nothing to commit, the storage is looked at every second (a removed
         # directory is noticed at any rate, none included).
-        check: Callable[[], None] | None = getattr(self.sink, "check", None)
         last_check = t0
-        #: a sink's own turn of the loop (a forwarder's events); True: commit now
-        turn: Callable[[], bool] | None = getattr(self.sink, "turn", None)
         failure: OutputError | None = None
         with self._signals():
             for p in self.pollers:
@@ -240,7 +238,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         wait = min(commit_every, EVENT_COMMIT_INTERVAL) if events else \
                             commit_every
                         due = min(due if due is not None else math.inf, first + wait)
-                    if turn is not None and turn():
+                    if self.sink.turn():
                         due = now
                     if due is not None and (pending >= self.config.commit_bytes or now >= due):
                         self.sink.commit()
@@ -248,8 +246,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
                         self._stop.wait(_DRAIN_EVERY)
-                    elif check is not None and now - last_check >= _IDLE_CHECK:
-                        check()
+                    elif now - last_check >= _IDLE_CHECK:
+                        self.sink.check()
                         last_check = now
                     if (step := self.clock.check()) is not None:
                         self._clock_step(step)
@@ -301,19 +299,16 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
 
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the
-        old clock re-stamped (the sink's ``restamp``, when it has one)."""
-        restamp = None if self.clock.held else getattr(self.sink, "restamp", None)
-        if restamp is not None:
-            restamp(self.clock.offset)
+        old clock re-stamped (when the sink can)."""
+        restamped = not self.clock.held and self.sink.restamp(self.clock.offset)
         mono = time.monotonic()
         self.sink.event(Event(mono + self.clock.offset, mono, "clock", None, "clock", None,
-                              self.clock.message(step, restamp is not None)))
+                              self.clock.message(step, restamped)))
         self.stats.events += 1
 
     def _write_all(self, items: list[Sample | Event]) -> None:
         """Write a poller's list in order: each run of samples in one call
         when the sink takes batches (SQLite: multi-row INSERTs)."""
-        batch = getattr(self.sink, "write_batch", None)
         run: list[Sample] = []
         if self.clock.steps:  # some may have been stamped before the step came
             items = restamped(items, self.clock.offset)
@@ -321,21 +316,16 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             if isinstance(item, Sample):
                 run.append(item)
                 continue
-            self._samples(run, batch)
+            self._samples(run)
             run = []
             self.sink.event(item)
             self.stats.events += 1
-        self._samples(run, batch)
+        self._samples(run)
 
-    def _samples(self, samples: list[Sample], batch: Callable[[list[Sample]], None] | None,
-                 ) -> None:
+    def _samples(self, samples: list[Sample]) -> None:
         if not samples:
             return
-        if batch is not None:
-            batch(samples)
-        else:
-            for sample in samples:
-                self.sink.write(sample)
+        self.sink.write_batch(samples)
         by_device = self.stats.by_device
         for sample in samples:
             spare = self._spare.get(id(sample.device))

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any, TextIO
+from typing import TextIO
 
-from pymb.store import Event
+from pymb.store import Event, Sink, SinkWrapper
 
 __all__ = ["BURST", "WINDOW", "EchoingSink", "EventLines", "echoing", "event_line"]
 
@@ -74,12 +74,12 @@ def wanted(out: TextIO) -> bool:
         return False
 
 
-class EchoingSink:
+class EchoingSink(SinkWrapper):
     """A sink that writes every event it stores as a line too (see
     :class:`EventLines`); everything else goes to the sink it wraps."""
 
-    def __init__(self, sink: Any, out: TextIO | None = None) -> None:
-        self.sink = sink
+    def __init__(self, sink: Sink, out: TextIO | None = None) -> None:
+        super().__init__(sink)
         self.lines = EventLines(sys.stderr if out is None else out)
 
     def event(self, event: Event) -> None:
@@ -87,11 +87,8 @@ class EchoingSink:
         self.sink.event(event)
         self.lines(event)
 
-    def __getattr__(self, name: str) -> Any:  # write, write_batch, commit, close, db, ...
-        return getattr(self.sink, name)
 
-
-def echoing(sink: Any, out: TextIO | None = None) -> Any:
+def echoing(sink: Sink, out: TextIO | None = None) -> Sink:
     """``sink`` wrapped in an :class:`EchoingSink` when ``out`` (stderr by
     default) is not a terminal, else ``sink`` itself."""
     out = sys.stderr if out is None else out

@@ -50,7 +50,17 @@ from pymb.store.onchange import OnChange
 from pymb.store.outbox import Outbox
 from pymb.store.reader import map_point_names, samples_after
 from pymb.store.readonly import open_readonly
-from pymb.store.records import FAULT_KINDS, DeviceInfo, Event, Sample, Sink, StoredSample
+from pymb.store.records import (
+    FAULT_KINDS,
+    DeviceInfo,
+    Event,
+    Sample,
+    Sink,
+    SinkBase,
+    SinkWrapper,
+    StoredSample,
+    as_sink,
+)
 from pymb.store.schema import MIN_BYTES, PAGE_SIZE, SCHEMA_VERSION, schema_version
 from pymb.store.series import Series, quantities, resolve_device, series
 from pymb.store.sinks import FORMATS, open_sink
@@ -86,9 +96,12 @@ __all__ = [
     "Sample",
     "Series",
     "Sink",
+    "SinkBase",
+    "SinkWrapper",
     "SqliteSink",
     "StoredSample",
     "Summary",
+    "as_sink",
     "check_output",
     "csv_head",
     "csv_value",

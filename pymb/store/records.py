@@ -4,22 +4,25 @@ sample read back), and :class:`Sink`, the protocol every output follows."""
 
 from __future__ import annotations
 
+import abc
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from pymb.devices import CoolProTelemetry, HubReading
 from pymb.devices.mapreading import MapReading
 from pymb.errors import (
     DeviceBusy,
     DeviceException,
+    InvalidArgument,
     ModbusConnectionError,
     ModbusError,
     ModbusTimeout,
     ProtocolError,
 )
 
-__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "StoredSample", "event_kind",
-           "short_fault"]
+__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
+           "StoredSample", "as_sink", "event_kind", "short_fault"]
 
 
 @dataclass(frozen=True)
@@ -80,26 +83,177 @@ class Event:
 
 
 class Sink(Protocol):
-    """What the logger writes to.
+    """What the logger writes to: every member is called, none is probed.
+    :class:`SinkBase` gives an output the defaults, :class:`SinkWrapper` a
+    sink that wraps another; :func:`as_sink` fits any object with ``write``,
+    ``event``, ``commit`` and ``close``."""
 
-    A sink that is done with a sample when :meth:`write` returns (it has
-    copied or written what it needs) may say so with a class attribute
-    ``keeps_samples = False``: the logger then reads later hub sweeps into
-    that sample's arrays. pymb's own sinks do; any other sink is assumed to
-    keep what it is given.
-    """
+    @property
+    def keeps_samples(self) -> bool:
+        """False when the sink is done with a sample once :meth:`write`
+        returns (it copied or wrote what it needs): the logger may then read
+        later hub sweeps into that sample's arrays."""
+        ...
 
     def write(self, sample: Sample) -> None:
         """Add a sample to the current batch."""
+        ...
+
+    def write_batch(self, samples: Sequence[Sample]) -> None:
+        """Add samples to the current batch, in order."""
+        ...
 
     def event(self, event: Event) -> None:
         """Add an event to the current batch."""
+        ...
 
     def commit(self) -> None:
         """Make the batch durable."""
+        ...
 
     def close(self) -> None:
         """Commit and release the output."""
+        ...
+
+    def turn(self) -> bool:
+        """The logger's loop, at each turn: True when the batch should be
+        committed now."""
+        ...
+
+    def check(self) -> None:
+        """Raise (an :class:`~pymb.errors.OutputError`) when the output is
+        gone (its directory removed); called about once a second."""
+        ...
+
+    def restamp(self, offset: float) -> bool:
+        """The wall clock stepped (``offset``: wall time less monotonic time
+        now): re-stamp what was written with the old clock; False when this
+        sink cannot."""
+        ...
+
+
+class SinkBase(abc.ABC):
+    """The defaults of an output: it keeps the samples it is given, writes a
+    batch a sample at a time, never asks for a commit, has nothing to check
+    and cannot re-stamp. An output defines :meth:`write`, :meth:`event`,
+    :meth:`commit` and :meth:`close`."""
+
+    @property
+    def keeps_samples(self) -> bool:
+        """True: the sink may keep what it is given."""
+        return True
+
+    @abc.abstractmethod
+    def write(self, sample: Sample) -> None:
+        """Add a sample to the current batch."""
+
+    @abc.abstractmethod
+    def event(self, event: Event) -> None:
+        """Add an event to the current batch."""
+
+    @abc.abstractmethod
+    def commit(self) -> None:
+        """Make the batch durable."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Commit and release the output."""
+
+    def write_batch(self, samples: Sequence[Sample]) -> None:
+        """Each sample's :meth:`write`, in order."""
+        for sample in samples:
+            self.write(sample)
+
+    def turn(self) -> bool:
+        """Never asks for a commit."""
+        return False
+
+    def check(self) -> None:
+        """Nothing to check."""
+        return None
+
+    def restamp(self, offset: float) -> bool:
+        """Cannot re-stamp."""
+        return False
+
+
+class SinkWrapper(SinkBase):
+    """A sink in front of another (``sink``): every member is the wrapped
+    sink's unless the wrapper defines its own."""
+
+    def __init__(self, sink: Sink) -> None:
+        self.sink = sink
+
+    @property
+    def keeps_samples(self) -> bool:
+        """As the wrapped sink."""
+        return self.sink.keeps_samples
+
+    def write(self, sample: Sample) -> None:
+        """As the wrapped sink."""
+        self.sink.write(sample)
+
+    def write_batch(self, samples: Sequence[Sample]) -> None:
+        """As the wrapped sink."""
+        self.sink.write_batch(samples)
+
+    def event(self, event: Event) -> None:
+        """As the wrapped sink."""
+        self.sink.event(event)
+
+    def commit(self) -> None:
+        """As the wrapped sink."""
+        self.sink.commit()
+
+    def close(self) -> None:
+        """As the wrapped sink."""
+        self.sink.close()
+
+    def turn(self) -> bool:
+        """As the wrapped sink."""
+        return self.sink.turn()
+
+    def check(self) -> None:
+        """As the wrapped sink."""
+        self.sink.check()
+
+    def restamp(self, offset: float) -> bool:
+        """As the wrapped sink."""
+        return self.sink.restamp(offset)
+
+
+class _Minimal(SinkBase):
+    """Any object with ``write``, ``event``, ``commit`` and ``close`` as a :class:`Sink`."""
+
+    def __init__(self, out: Any) -> None:
+        self.out = out
+
+    def write(self, sample: Sample) -> None:
+        self.out.write(sample)
+
+    def event(self, event: Event) -> None:
+        self.out.event(event)
+
+    def commit(self) -> None:
+        self.out.commit()
+
+    def close(self) -> None:
+        self.out.close()
+
+
+def as_sink(out: object) -> Sink:
+    """``out`` itself when it is a :class:`SinkBase`, else ``out`` with the
+    defaults of one (it keeps the samples it is given; a batch is written a
+    sample at a time). Refuses an object without ``write``, ``event``,
+    ``commit`` and ``close``."""
+    if isinstance(out, SinkBase):
+        return out
+    missing = [n for n in ("write", "event", "commit", "close")
+               if not callable(getattr(out, n, None))]
+    if missing:
+        raise InvalidArgument(f"a sink needs write, event, commit and close; "
+                              f"{type(out).__name__} has no {', '.join(missing)}")
+    return _Minimal(out)
 
 
 _EVENT_KIND: list[tuple[type[BaseException], str]] = [

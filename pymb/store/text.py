@@ -16,7 +16,7 @@ from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import STATE_NAMES, reading_dict, telemetry_values
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import file_open_error
-from pymb.store.records import Event, Sample, StoredSample
+from pymb.store.records import Event, Sample, SinkBase, StoredSample
 from pymb.store.schema import HUB_FIELDS
 
 __all__ = ["CSV_COLUMNS", "CsvSink", "JsonlSink", "csv_head", "csv_value", "event_dict",
@@ -102,7 +102,7 @@ def event_dict(e: Event) -> dict[str, Any]:
             "message": e.message}
 
 
-class _TextSink:
+class _TextSink(SinkBase):
     keeps_samples = False  #: see :class:`Sink`
     f: IO[str]
 

@@ -25,7 +25,7 @@ from pymb.store.ids import SampleIds
 from pymb.store.lock import WriterLock
 from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
-from pymb.store.records import Event, Sample
+from pymb.store.records import Event, Sample, SinkBase
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
@@ -37,7 +37,7 @@ from pymb.store.schema import (
 
 __all__ = ["SqliteSink"]
 
-class SqliteSink(DeviceRows, Retention):
+class SqliteSink(SinkBase, DeviceRows, Retention):
     """Writes samples and events to a SQLite database of format 2 (created if
     missing; a database of an older pymb format is refused, never mixed).
 
@@ -327,7 +327,7 @@ class SqliteSink(DeviceRows, Retention):
             (event.time_utc, event.monotonic, event.bus, did, event.kind, event.code,
              event.message))
 
-    def restamp(self, offset: float) -> None:
+    def restamp(self, offset: float) -> bool:
         """The wall clock stepped: the samples and events this sink wrote with
         the old clock get the time their monotonic time gives with the new
         ``offset`` (wall time less monotonic time). In bounded steps, one
@@ -340,6 +340,7 @@ class SqliteSink(DeviceRows, Retention):
             except sqlite3.Error as e:
                 raise self._failed(e) from None
             self._restamp = Restamp(offset, [*self._first_ids], tops)
+        return True
 
     def _restamp_step(self) -> None:
         """One bounded step of a pending re-stamping, in the open batch."""

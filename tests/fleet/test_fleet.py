@@ -526,13 +526,21 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(fleet: Fleet, simula
     assert {m.name for m in dbirth.metrics} >= {"sample", "output_voltage_v", "status"}
     seqs = [p.seq for _, p in msgs]
     assert seqs == [i % 256 for i in range(len(seqs))], "seq 0..255, wrapping"
+    historical = []
     for kind, p in msgs[2:]:
         assert kind == "DDATA/coolpro-40"
         for m in p.metrics:
             assert not m.name
             assert m.alias in declared
             assert m.datatype == declared[m.alias].datatype
-            assert not m.is_historical
+        flags = {m.is_historical for m in p.metrics}
+        assert len(flags) == 1, "one sample, one kind"
+        historical.append((flags.pop(), max(m.timestamp for m in p.metrics)))
+    # samples written before the connection was up (a loaded machine) are the
+    # backlog, marked historical (and may go after the first live ones); every
+    # sample after the first live one is live
+    first_live = min(t for h, t in historical if not h)
+    assert all(t < first_live for h, t in historical if h)
     # a Rebirth command: new births (same bdSeq: the connection is the same)
     n = len(sub.snapshot())
     _rebirth(sub, pb, qos=0)

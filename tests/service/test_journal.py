@@ -16,7 +16,7 @@ from servicekit import StderrLines, start_log  # noqa: E402
 
 from pymb.service.journal import EventLines, echoing, event_line  # noqa: E402
 from pymb.sim import SimulatorProcess  # noqa: E402
-from pymb.store import DeviceInfo, Event  # noqa: E402
+from pymb.store import CsvSink, DeviceInfo, Event  # noqa: E402
 
 pytest_plugins = ["servicekit"]  # the coolpro fixture
 
@@ -48,12 +48,12 @@ def test_a_storm_is_rate_limited_and_the_rest_counted() -> None:
                     "table", event_line(_event(99))]
 
 
-def test_a_terminal_gets_no_lines() -> None:
+def test_a_terminal_gets_no_lines(tmp_path: Path) -> None:
     class Tty(io.StringIO):
         def isatty(self) -> bool:
             return True
 
-    sink = object()
+    sink = CsvSink(str(tmp_path / "out.csv"))
     assert echoing(sink, Tty()) is sink
     assert echoing(sink, io.StringIO()) is not sink
 
