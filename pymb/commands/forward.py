@@ -44,7 +44,7 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
 
 
 def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
-               status: TextIO | None, service: Service | None = None,
+               status: TextIO | None, service: Service[Logger] | None = None,
                ) -> tuple[Summary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
     left (for at most ``mqtt.drain`` seconds) and return both summaries. With a
@@ -126,7 +126,7 @@ def command_desk(cfg: LogConfig, logger: Logger, raw: SqliteSink, fw: Forwarder,
 
 
 def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
-                    quiet: bool, service: Service | None = None) -> int:
+                    quiet: bool, service: Service[Logger] | None = None) -> int:
     """``pymb log --mqtt``: log and forward, then print the summary."""
     s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr,
                        service=service)

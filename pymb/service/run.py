@@ -7,18 +7,31 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Generic, Protocol, TypeVar
 
 from pymb.service.notify import Notifier
 from pymb.service.reload import Reload, controlling_terminal, exec_again
-from pymb.store import Event
+from pymb.store import Event, Sink
 
-__all__ = ["Service"]
-
-Tick = Callable[[Any, float, bool], None]
+__all__ = ["Logged", "Service"]
 
 
-class Service:
+class Logged(Protocol):
+    """What a service needs of the logger it runs
+    (:class:`pymb.logger.Logger`, which sits above this package)."""
+
+    sink: Sink
+    on_hangup: Callable[[], None] | None
+
+    def stop(self) -> None:
+        """Ask the run to end."""
+        ...
+
+
+L = TypeVar("L", bound=Logged)
+
+
+class Service(Generic[L]):
     """``tick(inner)`` is the logger's ``tick`` (``inner``, the status line, is
     called as before); :meth:`attach` takes the logger's SIGHUP; after the run,
     :meth:`finish` (which executes pymb again when the run stopped for a reload).
@@ -27,32 +40,33 @@ class Service:
     mistake); ``text(logger, elapsed)`` is the status, for ``STATUS=``."""
 
     def __init__(self, check_config: Callable[[], object],
-                 text: Callable[[Any, float], str]) -> None:
+                 text: Callable[[L, float], str]) -> None:
         self.notifier = Notifier()
         self.reload: Reload | None = None if controlling_terminal() else Reload(check_config)
         self.text = text
-        self.logger: Any = None
+        self.logger: L | None = None
 
-    def attach(self, logger: Any) -> None:
+    def attach(self, logger: L) -> None:
         """Take ``logger``'s SIGHUP (a reload, without a controlling terminal)."""
         self.logger = logger
         if self.reload is not None:
             logger.on_hangup = self.reload.hangup
 
-    def tick(self, inner: Tick | None) -> Tick:
+    def tick(self, inner: Callable[[L, float, bool], None] | None,
+             ) -> Callable[[L, float, bool], None]:
         """The logger's tick: the service's turn, then ``inner``'s."""
-        def tick(logger: Any, elapsed: float, final: bool) -> None:
+        def tick(logger: L, elapsed: float, final: bool) -> None:
             if not final:
                 self._turn(logger, elapsed)
             if inner is not None:
                 inner(logger, elapsed, final)
         return tick
 
-    def _event(self, logger: Any, kind: str, message: str) -> None:
+    def _event(self, logger: L, kind: str, message: str) -> None:
         logger.sink.event(Event(time.time(), time.monotonic(), "service", None, kind, None,
                                 message))
 
-    def _turn(self, logger: Any, elapsed: float) -> None:
+    def _turn(self, logger: L, elapsed: float) -> None:
         n = self.notifier
         if n.enabled:
             if not n.ready_sent:
