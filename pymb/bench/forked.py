@@ -49,14 +49,31 @@ _FORK_LOCK = threading.Lock()
 def preload() -> None:
     """Import :data:`PRELOAD` (what is not installed is left to the child)."""
     for name in PRELOAD:
-        with contextlib.suppress(ImportError):
+        with contextlib.suppress(Exception):  # a broken install is the child's to report
             importlib.import_module(name)
 
 
 def can_fork(argv: Sequence[str]) -> bool:
-    """True for ``[this python, -m, pymb...]``: a module this process can run."""
-    return (len(argv) >= 3 and argv[0] == sys.executable and argv[1] == "-m"
-            and (argv[2] == "pymb" or argv[2].startswith("pymb.")))
+    """True for ``[this python, -m, pymb...]`` whose module has its source
+    here: a module this process can run (anything else is started anew)."""
+    if not (len(argv) >= 3 and argv[0] == sys.executable and argv[1] == "-m"
+            and (argv[2] == "pymb" or argv[2].startswith("pymb."))):
+        return False
+    try:
+        return _source(argv[2]) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def _source(module: str) -> tuple[str, str] | None:
+    """(the module ``python -m`` runs, its source file), None if not a .py file."""
+    spec = importlib.util.find_spec(module)
+    if spec is not None and spec.submodule_search_locations is not None:
+        module = f"{module}.__main__"
+        spec = importlib.util.find_spec(module)
+    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+        return None
+    return module, spec.origin
 
 
 class Forked:
@@ -110,15 +127,10 @@ def _run_as_main(module: str, args: Sequence[str]) -> None:
     """Run ``module`` (a package: its ``__main__``) afresh as ``__main__``,
     as ``python -m`` does, from its source (whatever import hooks the
     parent has, a test runner's included)."""
-    spec = importlib.util.find_spec(module)
-    if spec is None:
-        raise ImportError(f"no module named {module!r}")
-    if spec.submodule_search_locations is not None:
-        module = f"{module}.__main__"
-        spec = importlib.util.find_spec(module)
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+    found = _source(module)
+    if found is None:
         raise ImportError(f"{module!r} has no source to run")
-    path = spec.origin
+    module, path = found
     main = types.ModuleType("__main__")
     main.__file__ = path
     main.__package__ = module.rpartition(".")[0]

@@ -22,6 +22,7 @@ def test_only_pymb_modules_of_this_python_are_forked() -> None:
     assert can_fork([sys.executable, "-m", "pymb.bench.worker", "pymb"])
     assert not can_fork(["/usr/bin/python3", "-m", "pymb", "simulate"])
     assert not can_fork([sys.executable, "-m", "pymodbus"])
+    assert not can_fork([sys.executable, "-m", "pymb.no_such_module"])
     assert not can_fork(["/bin/cat"])
 
 
