@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from pymb.collect.rows import BadInput, Row, plain_rows, plain_topic
+from pymb.collect.rows import BadInput, Batch, plain_sample, plain_topic
 from pymb.collect.sparkplug import SparkplugHost, state_payload
 from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
@@ -223,15 +223,19 @@ class Collector:
             self.event(f"bad input on {topic}: {why} (the message is not stored; "
                        f"{self.stats.bad} bad so far)")
 
-    def _rows(self, topic: str, payload: bytes) -> list[Row] | None:
+    def _add(self, batch: Batch, topic: str, payload: bytes) -> None:
+        """The rows of one message into the batch (bad input: counted, said)."""
         try:
             if self.host is not None:
-                return self.host.rows(topic, payload)
+                rows = self.host.rows(topic, payload)
+                if rows:
+                    batch.add_rows(rows)
+                return
             where = plain_topic(topic, self.cfg.mqtt.prefix)
-            return None if where is None else plain_rows(where[0], where[1], payload)
+            if where is not None:
+                batch.add_plain(where[0], where[1], plain_sample(payload))
         except BadInput as e:
             self._bad(topic, str(e))
-            return None
 
     def _finish(self) -> bool:
         """Acknowledge the batches committed, in order; True when there was one."""
@@ -247,10 +251,10 @@ class Collector:
                     self.client.ack(mid, qos)
             s.messages += len(job.messages)
             s.rows += job.stored
-            s.duplicates += len(job.rows) - job.stored
+            s.duplicates += job.batch.rows - job.stored
             s.batches += 1
-            if job.newest is not None:
-                s.lag = time.time() - job.newest
+            if job.batch.newest is not None:
+                s.lag = time.time() - job.batch.newest
         s.db_ok = self.writers.db_ok
         if s.dropped > self.dropped_said and time.monotonic() - self.dropped_at >= BAD_EVERY:
             self.event(f"dropped {s.dropped - self.dropped_said:,} QoS 0 messages: "
@@ -268,15 +272,10 @@ class Collector:
         batch = self._take()
         if not batch:
             return done
-        rows: list[Row] = []
-        newest: float | None = None
+        rows = self.writers.batch()
         for _gen, _mid, _qos, topic, payload in batch:
-            got = self._rows(topic, payload)
-            if got:
-                rows.extend(got)
-                t = max(r[3] for r in got)
-                newest = t if newest is None or t > newest else newest
-        self.writers.submit(Job(batch, rows, newest))
+            self._add(rows, topic, payload)
+        self.writers.submit(Job(batch, rows))
         return True
 
     def run(self, tick: Callable[[], None] | None = None) -> Stats:

@@ -15,10 +15,10 @@ import contextlib
 import os
 import sqlite3
 import time
-from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
-from pymb.collect.rows import Row
+from pymb.collect.pgcopy import COPY_COLUMNS, CopyBatch
+from pymb.collect.rows import Batch, RowBatch
 from pymb.errors import InvalidArgument, ModbusConnectionError, OutputError
 from pymb.extras import install_hint
 
@@ -53,7 +53,7 @@ PG_TABLE = """
 CREATE TABLE IF NOT EXISTS pymb_values (
     node text NOT NULL, device text NOT NULL, point text NOT NULL, time timestamptz NOT NULL,
     value double precision, text text, state text, sample bigint,
-    received timestamptz NOT NULL,
+    received timestamptz NOT NULL DEFAULT now(),
     CONSTRAINT pymb_values_key UNIQUE (node, device, point, time))
 """
 PG_INDEX = ("CREATE INDEX IF NOT EXISTS pymb_values_device_point "
@@ -64,19 +64,35 @@ CREATE OR REPLACE VIEW pymb_latest AS
            node, device, point, time, value, text, state, sample, received
     FROM pymb_values ORDER BY node, device, point, time DESC
 """
-#: the batch's rows go first into this (times as Unix seconds), then into
-#: pymb_values in one INSERT that skips what is stored already, in key order:
-#: writers inserting the same keys at once wait for each other, never deadlock
+#: a batch is COPYed straight into pymb_values (received: the table's default,
+#: the transaction's start); a batch that holds a row stored already (a
+#: redelivery) goes instead into this, then into pymb_values in one INSERT that
+#: skips what is stored. Both take the rows in the order (node, device, time,
+#: point), by their bytes: writers inserting the same keys at once wait for
+#: each other, never deadlock
 PG_INCOMING = """
 CREATE TEMP TABLE IF NOT EXISTS pymb_incoming (
-    node text, device text, point text, time double precision, value double precision,
-    text text, state text, sample bigint) ON COMMIT DELETE ROWS
+    point text, value double precision, node text, device text, time timestamptz,
+    sample bigint, text text, state text) ON COMMIT DELETE ROWS
 """
+PG_COPY = "COPY {table} ({columns}) FROM STDIN (FORMAT binary)"
 PG_MOVE = """
-INSERT INTO pymb_values (node, device, point, time, value, text, state, sample, received)
-SELECT node, device, point, to_timestamp(time), value, text, state, sample, to_timestamp(%s)
-FROM pymb_incoming ORDER BY node, device, point, time ON CONFLICT DO NOTHING
+INSERT INTO pymb_values ({columns})
+SELECT {columns} FROM pymb_incoming
+ORDER BY node COLLATE "C", device COLLATE "C", time, point COLLATE "C" ON CONFLICT DO NOTHING
 """
+#: tables made before received had its default get it
+PG_RECEIVED = """
+SELECT 1 FROM pg_attrdef d JOIN pg_attribute a ON a.attrelid = d.adrelid AND a.attnum = d.adnum
+WHERE d.adrelid = 'pymb_values'::regclass AND a.attname = 'received'
+"""
+#: seconds a writer sends its batches through pymb_incoming after one held a
+#: row stored already (redeliveries come in runs)
+STAGED_FOR = 30.0
+#: a batch that lost a deadlock (two writers, the same rows) is tried again
+#: this many times at once
+DEADLOCK_TRIES = 5
+_COLUMNS = ", ".join(COPY_COLUMNS)
 #: serialises the schema's creation between collectors starting together
 PG_LOCK = 0x70796D62  # "pymb"
 
@@ -87,8 +103,12 @@ class Store:
     target: str  #: what the user gave (a PostgreSQL URL with any password hidden)
     hypertable = False  #: PostgreSQL with TimescaleDB: pymb_values is a hypertable
 
-    def write(self, rows: Sequence[Row]) -> int:
-        """Store ``rows`` in one committed transaction; the number of new rows."""
+    def batch(self) -> Batch:
+        """An empty batch of the kind :meth:`write` takes."""
+        raise NotImplementedError
+
+    def write(self, batch: Batch) -> int:
+        """Store a batch in one committed transaction; the number of new rows."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -114,8 +134,14 @@ class SqliteStore(Store):
             raise InvalidArgument(f"cannot use {path} as the collector's database: "
                                   f"{e}") from None
 
-    def write(self, rows: Sequence[Row]) -> int:
+    def batch(self) -> RowBatch:
+        """Rows as tuples (SQLite binds them one by one)."""
+        return RowBatch()
+
+    def write(self, batch: Batch) -> int:
         """One transaction of INSERT OR IGNORE."""
+        assert isinstance(batch, RowBatch)
+        rows = batch.items
         received = time.time()
         con = self.con
         try:
@@ -138,22 +164,6 @@ class SqliteStore(Store):
             self.con.close()
 
 
-def _copy_field(v: str | float | int | None) -> str:
-    if v is None:
-        return "\\N"
-    if isinstance(v, str):
-        if "\\" in v or "\t" in v or "\n" in v or "\r" in v:
-            v = (v.replace("\\", "\\\\").replace("\t", "\\t").replace("\n", "\\n")
-                 .replace("\r", "\\r"))
-        return v
-    return str(v)
-
-
-def copy_text(rows: Sequence[Row]) -> str:
-    """The rows in COPY's text format (tab-separated, ``\\N`` for NULL)."""
-    return "".join("\t".join([_copy_field(x) for x in r]) + "\n" for r in rows)
-
-
 def _hide_password(url: str) -> str:
     from urllib.parse import urlsplit, urlunsplit
     u = urlsplit(url)
@@ -164,10 +174,11 @@ def _hide_password(url: str) -> str:
 
 
 class PostgresStore(Store):
-    """A PostgreSQL database (psycopg 3): each batch is COPYed into a temporary
-    table and moved into ``pymb_values`` with ``ON CONFLICT DO NOTHING``, one
-    commit per batch. With TimescaleDB installed, ``pymb_values`` is a
-    hypertable."""
+    """A PostgreSQL database (psycopg 3): each batch is one binary COPY into
+    ``pymb_values`` and one commit; a batch holding a row stored already goes
+    through a temporary table and ``INSERT ... ON CONFLICT DO NOTHING`` (and so
+    do the batches of the next :data:`STAGED_FOR` seconds). With TimescaleDB
+    installed, ``pymb_values`` is a hypertable."""
 
     def __init__(self, url: str) -> None:
         try:
@@ -179,12 +190,15 @@ class PostgresStore(Store):
         self.url = url
         self.target = _hide_password(url)
         self.con: Any = None
+        self._staged_until = 0.0  #: monotonic time until which batches go through pymb_incoming
+        self._caches: CopyBatch | None = None
         self._connect()
 
     def _connect(self) -> None:
         psycopg = self.psycopg
         try:
-            con = psycopg.connect(self.url, connect_timeout=10, autocommit=False)
+            con = psycopg.connect(self.url, connect_timeout=10, autocommit=False,
+                                  client_encoding="UTF8")
         except psycopg.ProgrammingError as e:  # a malformed URL
             raise InvalidArgument(f"bad PostgreSQL URL {self.target}: {e}") from None
         except psycopg.Error as e:
@@ -194,6 +208,8 @@ class PostgresStore(Store):
                 cur.execute("SELECT pg_advisory_xact_lock(%s)", (PG_LOCK,))
                 self.hypertable = self._timescale(cur)
                 cur.execute(PG_TABLE)
+                if not cur.execute(PG_RECEIVED).fetchone():
+                    cur.execute("ALTER TABLE pymb_values ALTER COLUMN received SET DEFAULT now()")
                 cur.execute(PG_INDEX)
                 if self.hypertable:
                     cur.execute("SELECT create_hypertable('pymb_values', 'time', "
@@ -225,27 +241,65 @@ class PostgresStore(Store):
             return False  # not preloaded, or not ours to create: a plain table
         return True
 
-    def write(self, rows: Sequence[Row]) -> int:
-        """COPY into the temporary table, INSERT ... ON CONFLICT DO NOTHING, COMMIT."""
+    def batch(self) -> CopyBatch:
+        """Rows in COPY's binary format (the formats of messages made once)."""
+        b = CopyBatch()
+        if self._caches is not None:
+            b.adopt(self._caches)
+        self._caches = b
+        return b
+
+    def write(self, batch: Batch) -> int:
+        """One binary COPY and a commit; through pymb_incoming when a row is
+        stored already."""
+        assert isinstance(batch, CopyBatch)
         psycopg = self.psycopg
         if self.con is None or self.con.closed:
             self._connect()
+        data = batch.data()
+        lost = 0
+        while True:
+            staged = time.monotonic() < self._staged_until
+            try:
+                return self._copy(data, staged)
+            except (psycopg.errors.UniqueViolation, psycopg.errors.TransactionRollback) as e:
+                # a row stored already, or a deadlock with a writer storing the same
+                # rows: once more through pymb_incoming, in key order
+                with contextlib.suppress(psycopg.Error):
+                    self.con.rollback()
+                self._staged_until = time.monotonic() + STAGED_FOR
+                if isinstance(e, psycopg.errors.TransactionRollback):
+                    lost += 1
+                    if lost < DEADLOCK_TRIES:
+                        continue
+                elif not staged:
+                    continue
+                self._failed(e)
+            except psycopg.Error as e:
+                self._failed(e)
+
+    def _copy(self, data: bytes, staged: bool) -> int:
         con = self.con
-        try:
-            with con.cursor() as cur:
-                with cur.copy("COPY pymb_incoming FROM STDIN") as cp:
-                    cp.write(copy_text(rows))
-                cur.execute(PG_MOVE, (time.time(),))
-                n = int(cur.rowcount)
-            con.commit()
-            return n
-        except psycopg.Error as e:
-            with contextlib.suppress(psycopg.Error):
-                con.close()
-            self.con = None
-            if isinstance(e, psycopg.OperationalError):
-                raise StoreDown(f"{self.target}: {_first_line(e)}") from None
-            raise StoreRefused(f"{self.target} refuses the rows: {_first_line(e)}") from None
+        with con.cursor() as cur:
+            with cur.copy(PG_COPY.format(table="pymb_incoming" if staged else "pymb_values",
+                                         columns=_COLUMNS)) as cp:
+                cp.write(data)
+            n = cur.rowcount
+            if staged:
+                cur.execute(PG_MOVE.format(columns=_COLUMNS))
+                n = cur.rowcount
+        con.commit()
+        return int(n)
+
+    def _failed(self, e: BaseException) -> NoReturn:
+        """Close the connection (the next write opens another) and raise
+        StoreDown (it cannot be reached) or StoreRefused."""
+        with contextlib.suppress(self.psycopg.Error):
+            self.con.close()
+        self.con = None
+        if isinstance(e, self.psycopg.OperationalError):
+            raise StoreDown(f"{self.target}: {_first_line(e)}") from None
+        raise StoreRefused(f"{self.target} refuses the rows: {_first_line(e)}") from None
 
     def close(self) -> None:
         """Close the connection."""

@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
-from pymb.collect.rows import Row
+from pymb.collect.rows import Batch
 from pymb.collect.sqlstore import Store, StoreDown
 
 __all__ = ["Job", "Message", "Writers"]
@@ -31,8 +31,7 @@ class Job:
     """One batch: its messages and their rows."""
 
     messages: list[Message]
-    rows: list[Row]
-    newest: float | None  #: the newest sample's time in it
+    batch: Batch
     done: threading.Event = field(default_factory=threading.Event)
     stored: int | None = None  #: new rows once committed; None: not written (a stop)
     error: BaseException | None = None
@@ -56,6 +55,10 @@ class Writers:
                         for i, s in enumerate(self.stores)]
         for t in self.threads:
             t.start()
+
+    def batch(self) -> Batch:
+        """An empty batch of the kind the stores take."""
+        return self.stores[0].batch()
 
     def full(self) -> bool:
         """Every writer has a job and one more waits (parsed while they write)."""
@@ -107,17 +110,17 @@ class Writers:
             if job is None:
                 return
             try:
-                job.stored = self._write(store, job.rows)
+                job.stored = self._write(store, job.batch)
             except BaseException as e:  # StoreRefused: the collector's thread raises it
                 job.error = e
             finally:
                 job.done.set()
 
-    def _write(self, store: Store, rows: list[Row]) -> int | None:
+    def _write(self, store: Store, batch: Batch) -> int | None:
         delay = _BACKOFF[0]
         while True:
             try:
-                n = store.write(rows) if rows else 0
+                n = store.write(batch) if batch.rows else 0
             except StoreDown as e:
                 with self._lock:
                     if self.db_ok:
