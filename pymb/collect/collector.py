@@ -170,7 +170,8 @@ class Collector:
         failed = [rc for rc in rcs if getattr(rc, "is_failure", False)]
         if failed:
             self.refused = f"the broker refused the subscription to {self.cfg.topic}: {failed[0]}"
-            self.event(self.refused)
+            if self.suback.is_set():  # again, after a reconnection (at the start: the error)
+                self.event(self.refused)
         self.suback.set()
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
@@ -197,6 +198,7 @@ class Collector:
         self.client.loop_start()
         if (not self.connack.wait(timeout) or self.refused or not self.suback.wait(timeout)
                 or self.refused):
+            self.stats.mqtt_ok = False  # not a broker lost: the start failed
             self.client.loop_stop()
             with contextlib.suppress(Exception):
                 self.client.disconnect()

@@ -5,6 +5,7 @@ alone, the status line on a terminal."""
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import pty
@@ -59,6 +60,39 @@ def test_nothing_to_reach_at_the_start_exits_4(tmp_path: Path, postgres: Postgre
                        str(tmp_path / "f.sqlite")), 4, "cannot reach the broker")
     _one_line(run_pymb("collect", "--mqtt", f"mqtt://127.0.0.1:{port}", "--out",
                        f"postgresql://pymb@127.0.0.1:{port}/pymb"), 4, "cannot connect to")
+
+
+def _dynamic_security() -> str:
+    """mosquitto's dynamic security plugin (Debian's mosquitto ships it): unlike an
+    acl_file, it refuses a subscription in the SUBACK."""
+    found = sorted(glob.glob("/usr/lib/*/mosquitto_dynamic_security.so")
+                   + glob.glob("/usr/lib/mosquitto_dynamic_security.so"))
+    if not found:
+        pytest.fail("mosquitto's dynamic security plugin is missing: .ci/setup installs "
+                    "mosquitto")
+    return found[0]
+
+
+def test_a_refused_subscription_exits_4(fleet: Fleet, collectors: Collectors,
+                                        tmp_path: Path) -> None:
+    deny = [{"acltype": "subscribePattern", "topic": t, "priority": 0, "allow": False}
+            for t in ("pymb/#", "$share/+/pymb/#")]
+    config = tmp_path / "dynamic-security.json"
+    config.write_text(json.dumps({
+        "defaultACLAccess": {"publishClientSend": True, "publishClientReceive": True,
+                             "subscribe": True, "unsubscribe": True},
+        "clients": [], "roles": [{"rolename": "no-pymb", "acls": deny}],
+        "groups": [{"groupname": "anonymous", "roles": [{"rolename": "no-pymb"}],
+                    "clients": []}],
+        "anonymousGroup": "anonymous"}))
+    broker = fleet.broker(extra=(f"plugin {_dynamic_security()}",
+                                 f"plugin_opt_config_file {config}"))
+    out = tmp_path / "f.sqlite"
+    for more, topic in (((), "pymb/+/+"), (("--share", "plant"), "$share/plant/pymb/+/+")):
+        _one_line(run_pymb("collect", "--mqtt", broker.url, "--out", str(out), *more), 4,
+                  f"the broker refused the subscription to {topic}: Not authorized")
+    # the same broker takes a subscription the rules allow (the refusal was the topic's)
+    wait_subscribed(collectors.start(broker.url, str(out), "--prefix", "other"))
 
 
 def test_refused_writes_exit_5_and_sigint_exits_0(
