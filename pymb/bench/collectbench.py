@@ -31,6 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pymb.bench.cpuload import Span
 from pymb.bench.table import Table
 from pymb.extras import install_hint
 
@@ -49,7 +50,8 @@ def _points() -> list[str]:
 
 def _messages(samples: int, t0: float, points: list[str], rng: random.Random,
               period: float = 1.0) -> list[tuple[str, bytes, float]]:
-    """(topic, payload, time) of ``samples`` samples of each board, in time order."""
+    """(topic, payload, time) of ``samples`` samples of each board, in time order;
+    each payload starts with its ``time_utc`` (the live publisher stamps it)."""
     out = []
     for k in range(samples):
         for b in range(BOARDS):
@@ -57,10 +59,20 @@ def _messages(samples: int, t0: float, points: list[str], rng: random.Random,
             doc = {"time_utc": t, "sample": k + 1, "bus": "bus1", "device": "sdm630-1",
                    "type": "map", "address": 1,
                    "values": {p: round(rng.uniform(0, 500), 3) for p in points},
-                   "states": {}, "group": None, "unsupported": []}
+                   "states": {p: "value" for p in points}, "group": None,
+                   "unsupported": []}
             out.append((f"pymb/board-{b:03d}/sdm630-1",
                         json.dumps(doc, separators=(",", ":")).encode(), t))
     return out
+
+
+def _stamped(payload: bytes, t: float) -> bytes:
+    """The payload with ``time_utc`` set to ``t`` (it is the first member)."""
+    rest = payload[payload.index(b",", len(_TIME_KEY)):]
+    return _TIME_KEY + repr(t).encode() + rest
+
+
+_TIME_KEY = b'{"time_utc":'
 
 
 class _Publisher:
@@ -74,16 +86,16 @@ class _Publisher:
         self.c.loop_start()
 
     def send(self, msgs: list[tuple[str, bytes, float]], rate: float | None = None) -> None:
+        """Publish at QoS 1 (``rate``: messages a second, each stamped as it
+        goes, in bursts every 10 ms) and wait for every PUBACK."""
         infos = []
         start = time.monotonic()
         for i, (topic, payload, _t) in enumerate(msgs):
             if rate is not None:
-                due = start + i / rate
+                due = start + int(i * 100 / rate) / 100
                 if due > time.monotonic():
                     time.sleep(due - time.monotonic())
-                doc = json.loads(payload)
-                doc["time_utc"] = time.time()
-                payload = json.dumps(doc, separators=(",", ":")).encode()
+                payload = _stamped(payload, time.time())
             infos.append(self.c.publish(topic, payload, qos=1))
         for info in infos:
             info.wait_for_publish(60)
@@ -93,56 +105,65 @@ class _Publisher:
         self.c.loop_stop()
 
 
-def _cpu(pid: int) -> float:
-    """User + system CPU seconds of a process so far."""
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 class _Target:
-    """A database the collectors write to, counted and emptied by the bench."""
+    """A database the collectors write to, counted and emptied by the bench
+    (through one connection of its own, opened once)."""
 
     def __init__(self, kind: str, where: str) -> None:
         self.kind, self.where = kind, where
+        self._pg: Any = None
 
-    def count(self) -> int:
+    def _query(self, sql: str, args: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
         if self.kind == "sqlite":
             if not Path(self.where).exists():
-                return 0
+                return []
             con = sqlite3.connect(self.where, timeout=30)
             try:
-                return int(con.execute("SELECT count(*) FROM pymb_values").fetchone()[0])
-            except sqlite3.Error:
-                return 0
+                return con.execute(sql.replace("%s", "?"), args).fetchall()
+            except sqlite3.OperationalError:  # no table yet
+                return []
             finally:
                 con.close()
         import psycopg
-        with psycopg.connect(self.where) as pgc:
-            row = pgc.execute("SELECT count(*) FROM pymb_values").fetchone()
-            return int(row[0]) if row else 0
+        if self._pg is None:
+            self._pg = psycopg.connect(self.where, autocommit=True)
+        try:
+            cur = self._pg.execute(sql, args)
+        except psycopg.errors.UndefinedTable:
+            return []
+        return list(cur.fetchall()) if cur.description else []
+
+    def count(self) -> int:
+        """Rows stored."""
+        r = self._query("SELECT count(*) FROM pymb_values")
+        return int(r[0][0]) if r else 0
+
+    def stored(self, point: str) -> int:
+        """Messages stored: the rows of one point (every message has each
+        point, and its rows are committed together), read through the index
+        on (device, point, time), cheaply enough to ask every 50 ms."""
+        r = self._query("SELECT count(*) FROM pymb_values WHERE device = %s AND point = %s",
+                        ("sdm630-1", point))
+        return int(r[0][0]) if r else 0
 
     def lags(self) -> list[float]:
         """received - time of every row, seconds."""
         if self.kind == "sqlite":
-            con = sqlite3.connect(self.where, timeout=30)
-            try:
-                return [r[0] for r in con.execute("SELECT received - time FROM pymb_values")]
-            finally:
-                con.close()
-        import psycopg
-        with psycopg.connect(self.where) as pgc:
-            return [float(r[0]) for r in pgc.execute(
-                "SELECT extract(epoch FROM received - time) FROM pymb_values")]
+            return [float(r[0]) for r in self._query("SELECT received - time FROM pymb_values")]
+        return [float(r[0]) for r in self._query(
+            "SELECT extract(epoch FROM received - time) FROM pymb_values")]
 
     def empty(self) -> None:
         if self.kind == "sqlite":
             for suffix in ("", "-wal", "-shm"):
                 Path(self.where + suffix).unlink(missing_ok=True)
             return
-        import psycopg
-        with psycopg.connect(self.where) as con:
-            con.execute("DROP TABLE IF EXISTS pymb_values CASCADE")
+        self._query("DROP TABLE IF EXISTS pymb_values CASCADE")
+
+    def close(self) -> None:
+        if self._pg is not None:
+            self._pg.close()
+            self._pg = None
 
 
 def _start(broker_url: str, target: _Target, cid: str, share: bool) -> subprocess.Popen[str]:
@@ -172,66 +193,85 @@ def _stop(procs: list[subprocess.Popen[str]]) -> None:
             p.communicate(timeout=30)
 
 
-def _wait_count(target: _Target, n: int, timeout: float) -> float:
+def _wait_stored(target: _Target, point: str, messages: int, timeout: float) -> float:
+    """Wait until every message is stored; the monotonic time it was seen."""
     deadline = time.monotonic() + timeout
-    while target.count() < n:
+    while (n := target.stored(point)) < messages:
         if time.monotonic() > deadline:
-            raise RuntimeError(f"{target.kind}: {target.count():,} of {n:,} rows after "
+            raise RuntimeError(f"{target.kind}: {n:,} of {messages:,} messages after "
                                f"{timeout:g} s")
-        time.sleep(0.1)
+        time.sleep(0.05)
     return time.monotonic()
 
 
-def _throughput(broker: Any, target: _Target, collectors: int, samples: int,
+def _throughput(env: _Env, target: _Target, collectors: int, samples: int,
                 points: list[str], say: Callable[[str], None]) -> dict[str, Any]:
     target.empty()
     msgs = _messages(samples, time.time() - samples, points, random.Random(collectors))
     values = len(msgs) * len(points)
     say(f"collect: {target.kind}, {collectors} collector(s), {values:,} values")
-    procs = [_start(broker.url, target, f"bench-{target.kind}-{collectors}-{i}",
+    procs = [_start(env.broker.url, target, f"bench-{target.kind}-{collectors}-{i}",
                     collectors > 1) for i in range(collectors)]
     try:
         for p in procs:
             os.kill(p.pid, signal.SIGSTOP)
-        pub = _Publisher(broker.port)
+        pub = _Publisher(env.broker.port)
         try:
             pub.send(msgs)
         finally:
             pub.close()
-        cpu0 = sum(_cpu(p.pid) for p in procs)
-        t0 = time.monotonic()
+        span = Span({"collectors": ([p.pid for p in procs], False),
+                     "broker": ([env.broker.pid or 0], False),
+                     "database": ([env.pg.pid or 0] if target.kind == "postgresql" else [],
+                                  True)})
+        span.start()
         for p in procs:
             os.kill(p.pid, signal.SIGCONT)
-        t1 = _wait_count(target, values, 600)
-        cpu = sum(_cpu(p.pid) for p in procs) - cpu0
+        _wait_stored(target, points[-1], len(msgs), 600)
+        span.stop()
     finally:
         _stop(procs)
-    wall = t1 - t0
+    stored = target.count()
+    if stored != values:
+        raise RuntimeError(f"{target.kind}: {stored:,} rows stored of {values:,}")
+    cpu = span.cpu
     return {"target": target.kind, "collectors": collectors, "values": values,
-            "messages": len(msgs), "seconds": wall, "values_per_s": values / wall,
-            "values_per_cpu_s": values / cpu if cpu > 0 else None}
+            "messages": len(msgs), "seconds": span.seconds,
+            "values_per_s": values / span.seconds,
+            "values_per_cpu_s": values / cpu["collectors"] if cpu["collectors"] > 0 else None,
+            "cpu_us_per_value": {k: v / values * 1e6 for k, v in cpu.items()},
+            "busy_cores": span.busy_cores,
+            "ours_cores": sum(cpu.values()) / span.seconds}
 
 
-def _lag(broker: Any, target: _Target, seconds: float, rate: float, points: list[str],
+def _lag(env: _Env, target: _Target, seconds: float, rate: float, points: list[str],
          say: Callable[[str], None]) -> dict[str, Any]:
     target.empty()
     n = int(seconds * rate)
-    msgs = _messages(max(1, n // BOARDS), time.time(), points, random.Random(7))[:n]
+    msgs = _messages(max(1, -(-n // BOARDS)), time.time(), points, random.Random(7))[:n]
     say(f"collect: lag, {target.kind}, {len(msgs):,} samples at {rate:g}/s")
-    procs = [_start(broker.url, target, f"bench-lag-{target.kind}", False)]
+    procs = [_start(env.broker.url, target, f"bench-lag-{target.kind}", False)]
     try:
-        pub = _Publisher(broker.port)
+        pub = _Publisher(env.broker.port)
         try:
             pub.send(msgs, rate)
         finally:
             pub.close()
-        _wait_count(target, len(msgs) * len(points), 120)
+        _wait_stored(target, points[-1], len(msgs), 300)
     finally:
         _stop(procs)
     lags = sorted(target.lags())
     return {"target": target.kind, "rate": rate, "samples": len(msgs),
+            "values_per_s": rate * len(points),
             "lag_p50_s": statistics.median(lags),
             "lag_p99_s": lags[min(len(lags) - 1, int(0.99 * len(lags)))]}
+
+
+class _Env:
+    """The broker and the PostgreSQL server of the section."""
+
+    def __init__(self, broker: Any, pg: Any) -> None:
+        self.broker, self.pg = broker, pg
 
 
 def run_collect(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
@@ -252,15 +292,18 @@ def run_collect(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
         broker = Mosquitto(Path(tmp) / "broker")
         broker.start()
         pg = Postgres()
+        env = _Env(broker, pg)
+        sqlite = _Target("sqlite", str(Path(tmp) / "fleet.sqlite"))
+        postgres = _Target("postgresql", pg.url)
         try:
             pg.start()
-            sqlite = _Target("sqlite", str(Path(tmp) / "fleet.sqlite"))
-            postgres = _Target("postgresql", pg.url)
-            rows.append(_throughput(broker, sqlite, 1, samples, points, say))
-            rows.append(_throughput(broker, postgres, 1, samples, points, say))
-            rows.append(_throughput(broker, postgres, 2, samples, points, say))
-            lag = _lag(broker, postgres, 1.0 if quick else 10.0, 500.0, points, say)
+            rows.append(_throughput(env, sqlite, 1, samples, points, say))
+            rows.append(_throughput(env, postgres, 1, samples, points, say))
+            rows.append(_throughput(env, postgres, 2, samples, points, say))
+            lag = _lag(env, postgres, 1.0 if quick else 10.0,
+                       GOAL_VALUES_PER_S / len(points), points, say)
         finally:
+            postgres.close()
             pg.cleanup()
             broker.stop()
     one, two = rows[1]["values_per_s"], rows[2]["values_per_s"]
@@ -269,36 +312,56 @@ def run_collect(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
             "cpus": os.cpu_count()}
 
 
+def _capacity(r: dict[str, Any], cpus: int) -> float:
+    """Values a second the machine's cores would store at this run's CPU cost
+    per value (collectors, broker and database), with nothing else running."""
+    us = sum(r["cpu_us_per_value"].values())
+    return cpus / us * 1e6 if us > 0 else 0.0
+
+
 def tables(section: dict[str, Any]) -> list[Table]:
     """The section's table."""
     if section.get("status") != "ok":
         return [Table("Collect", "", ["status"], [[f"skipped: {section['reason']}"]],
                       [False], [])]
+    cpus = section["cpus"] or 1
     rows = []
     for r in section["rows"]:
         per_cpu = r["values_per_cpu_s"]
+        us = r["cpu_us_per_value"]
         rows.append([r["target"], str(r["collectors"]), f"{r['values']:,}",
                      f"{r['values_per_s']:,.0f}",
-                     "-" if per_cpu is None else f"{per_cpu:,.0f}"])
+                     "-" if per_cpu is None else f"{per_cpu:,.0f}",
+                     f"{us['collectors']:.2f}", f"{us['broker']:.2f}",
+                     f"{us['database']:.2f}" if r["target"] == "postgresql" else "-",
+                     f"{r['busy_cores']:.2f} ({r['ours_cores']:.2f})",
+                     f"{_capacity(r, cpus):,.0f}"])
     lag = section["lag"]
-    pg_one = section["rows"][1]["values_per_s"]
+    pg_one, pg_two = section["rows"][1], section["rows"][2]
     scaling = section["scaling"]
     footer = [
         f"lag ({lag['target']}, {lag['samples']:,} samples published live at "
-        f"{lag['rate']:g}/s): median {lag['lag_p50_s']:.3f} s, p99 {lag['lag_p99_s']:.3f} s "
-        f"(goal under {GOAL_LAG_P99_S:g} s: "
-        f"{'met' if lag['lag_p99_s'] < GOAL_LAG_P99_S else 'NOT met'})",
-        f"PostgreSQL, one collector: {pg_one:,.0f} values/s (goal {GOAL_VALUES_PER_S:,}: "
-        f"{'met' if pg_one >= GOAL_VALUES_PER_S else 'NOT met'})",
+        f"{lag['rate']:,.0f}/s, {lag['values_per_s']:,.0f} values/s): median "
+        f"{lag['lag_p50_s']:.3f} s, p99 {lag['lag_p99_s']:.3f} s (goal under "
+        f"{GOAL_LAG_P99_S:g} s: {'met' if lag['lag_p99_s'] < GOAL_LAG_P99_S else 'NOT met'})",
+        f"PostgreSQL, one collector: {pg_one['values_per_s']:,.0f} values/s (goal "
+        f"{GOAL_VALUES_PER_S:,}: "
+        f"{'met' if pg_one['values_per_s'] >= GOAL_VALUES_PER_S else 'NOT met'})",
         "two collectors sharing the stream: "
-        + ("-" if scaling is None else f"{scaling:.2f}x one (goal {GOAL_SCALING:g}x, "
-           f"CPU permitting: {section['cpus']} CPUs also run mosquitto and PostgreSQL)"),
+        + ("-" if scaling is None else f"{scaling:.2f}x one (goal {GOAL_SCALING:g}x, CPU "
+           f"permitting: with one collector {pg_one['busy_cores']:.2f} of the {cpus} cores "
+           f"were busy, {pg_one['ours_cores']:.2f} of them with the collector, broker and "
+           f"database; with two {pg_two['busy_cores']:.2f} and {pg_two['ours_cores']:.2f})"),
     ]
     return [Table(
         f"Collect: {section['boards']} boards' SDM630 samples ({section['points']} values "
         "each) through mosquitto into one database",
         f"{section['samples']} samples per board published while the collectors are stalled "
-        "(SIGSTOP), then drained: values stored per second until the last commit, and per "
-        "CPU-second of the collectors",
-        ["database", "collectors", "values", "values/s", "values / CPU-s"], rows,
-        [False, True, True, True, True], footer)]
+        "(SIGSTOP), then drained: values stored per second until the last commit, per "
+        "CPU-second of the collectors, and the CPU microseconds per value of the collectors, "
+        "the broker and PostgreSQL; cores busy on the whole machine (with the section's "
+        "processes); capacity: the values a second all the machine's cores would store at "
+        "that cost",
+        ["database", "collectors", "values", "values/s", "values / CPU-s",
+         "µs collectors", "µs broker", "µs database", "cores busy (ours)", "capacity"], rows,
+        [False, True, True, True, True, True, True, True, True, True], footer)]
