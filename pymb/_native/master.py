@@ -48,6 +48,7 @@ _frames = lib.pymbi_master_frames
 _take = lib.pymbi_master_take
 _EVENTS = 32  #: events one take reports at most (it is called again for more)
 _NO_IMAGE = ffi.new("uint8_t[]", 1)
+_OUT = FRAME * INFLIGHT  #: bytes of the frames buffer
 
 
 class Read(Protocol):
@@ -85,7 +86,7 @@ class PollTable:
     fill: a bit as a 0/1 word, or with ``packed_bits`` the reply's bytes of
     bits as they come."""
 
-    __slots__ = ("ends", "image", "image_c", "n", "rows", "sizes")
+    __slots__ = ("ends", "image", "image_c", "image_len", "n", "rows", "sizes")
 
     def __init__(self, reads: Sequence[Read], unit: int, image: bytearray, *,
                  packed_bits: bool = False) -> None:
@@ -114,6 +115,7 @@ class PollTable:
         for size in self.sizes:
             self.ends.append(self.ends[-1] + size)
         self.image = image
+        self.image_len = len(image)
         self.image_c: Any = ffi.from_buffer("uint8_t[]", image)
 
 
@@ -121,13 +123,14 @@ class Master:
     """One stream's master: the requests in flight, a reply cut short, and
     the buffer :meth:`frames` writes to. :meth:`reset` on each new stream."""
 
-    __slots__ = ("_ev", "_m", "_out", "_used", "out")
+    __slots__ = ("_ev", "_m", "_out", "_used", "out", "view")
 
     def __init__(self) -> None:
         self._m: Any = ffi.new("pymbi_master *")
         self._ev: Any = ffi.new("pymbi_mevent[]", _EVENTS)
         self._used: Any = ffi.new("size_t *")
-        self.out = bytearray(FRAME * INFLIGHT)  #: the frames :meth:`frames` wrote
+        self.out = bytearray(_OUT)  #: the frames :meth:`frames` wrote
+        self.view = memoryview(self.out)  #: :attr:`out`, to send a slice of without a copy
         self._out = ffi.from_buffer("uint8_t[]", self.out)
         lib.pymbi_master_reset(self._m, 1)
 
@@ -143,12 +146,12 @@ class Master:
     @property
     def in_flight(self) -> int:
         """Requests waiting for their reply."""
-        return int(self._m.in_flight)
+        return self._m.in_flight  # type: ignore[no-any-return]
 
     @property
     def replies(self) -> int:
         """Replies taken into an image since the reset."""
-        return int(self._m.replies)
+        return self._m.replies  # type: ignore[no-any-return]
 
     @property
     def kept(self) -> int:
@@ -178,8 +181,8 @@ class Master:
         bytes written."""
         if first < 0 or n < 0 or first + n > table.n:
             raise ValueError(f"requests {first}+{n} are not in a poll of {table.n}")
-        got: int = _frames(self._m, table.rows + first, n, len(table.image), self._out,
-                           len(self.out))
+        got: int = _frames(self._m, table.rows + first if first else table.rows, n,
+                           table.image_len, self._out, _OUT)
         if got < 0:
             raise ValueError(f"requests {first}+{n}: more than {INFLIGHT} in flight")
         return got
@@ -194,9 +197,9 @@ class Master:
         if table is None:
             image, size = _NO_IMAGE, 0
         else:
-            image, size = table.image_c, len(table.image)
-        got: int = _take(self._m, buf.c + start, length, image, size, self._ev, _EVENTS,
-                         self._used)
+            image, size = table.image_c, table.image_len
+        got: int = _take(self._m, buf.c + start if start else buf.c, length, image, size,
+                         self._ev, _EVENTS, self._used)
         if got < 0:
             raise ValueError("a request in flight does not fit this poll's image")
         return got, int(self._used[0])

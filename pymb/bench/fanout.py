@@ -240,7 +240,7 @@ class TcpFanout:
         size = m.frames(c.table, first, n)
         assert c.sock is not None
         try:
-            c.sock.send(m.out[:size])
+            c.sock.send(m.view[:size])
         except OSError:
             self.stats.errors[c.index] += 1
             self._drop(c, now)

@@ -214,10 +214,9 @@ class TcpMapPoller(TcpReplies, Lending):
             self._seq += 1
             c.look = self._seq
             heapq.heappush(self._looks, (now + min(look, u.timeout / 4), self._seq, c))
-        out = m.out
-        self._put(c, out if size == len(out) else out[:size], now)
+        self._put(c, m.view[:size], now)
 
-    def _put(self, c: Conn, data: bytes | bytearray, now: float) -> None:
+    def _put(self, c: Conn, data: bytes | bytearray | memoryview, now: float) -> None:
         """Send requests (whole, or the connection is lost)."""
         assert c.sock is not None
         try:

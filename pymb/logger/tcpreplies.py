@@ -17,7 +17,7 @@ import socket
 import threading
 import time
 
-from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, Event, ReadBuffer
+from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
 from pymb.logger.poller import Stats
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
@@ -91,14 +91,19 @@ class TcpReplies(TcpLoopBase):
         e = c.entry
         table = c.table if e is not None else None
         replies = m.replies
-        events: list[Event] = []
-        pos = 0
-        while pos < got:
+        n, pos = m.take(rx, 0, got, table)
+        if not n and pos == got:  # replies only (or a part of one)
+            if m.replies != replies and e is not None:
+                c.answered = True
+                self._progress(c, e, now)
+            if peek and c.sock is sock:
+                self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
+            return
+        events = [m.event(i) for i in range(n)]
+        while pos < got and n and events[-1].kind != BAD:
             n, used = m.take(rx, pos, got - pos, table)
             events += [m.event(i) for i in range(n)]
             pos += used
-            if not n or events[-1].kind == BAD:
-                break
         answered = m.replies != replies
         for ev in events:
             if ev.kind == EXCEPTION:
