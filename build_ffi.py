@@ -36,6 +36,8 @@ SOURCES = [
     f"{CSRC}/pymb_rtu.c",
     f"{CSRC}/pymb_tcp.c",
     f"{CSRC}/pymb_rtu_tcp.c",
+    f"{CSRC}/pymb_ascii.c",
+    f"{CSRC}/pymb_udp.c",
     f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
     f"{CSRC}/pymb_master.c",
@@ -238,6 +240,8 @@ typedef enum {
     PYMB_FRAMING_RTU,
     PYMB_FRAMING_TCP,
     PYMB_FRAMING_RTU_OVER_TCP,
+    PYMB_FRAMING_ASCII,
+    PYMB_FRAMING_UDP,
     ...
 } pymb_framing;
 #define PYMB_INTERRUPT_SLICE_US ...
@@ -268,6 +272,9 @@ typedef struct {
 } pymb_line_io;
 int pymb_line_set_io(pymb_line *line, const pymb_line_io *io);
 int pymb_line_header_length(const pymb_line *line);
+int pymb_line_connect(pymb_line *line, const char *node, const char *service);
+void pymb_line_close(pymb_line *line);
+int pymb_line_set_retries(pymb_line *line, int retries);
 uint32_t pymb_rtu_silence_us(int baud);
 uint32_t pymb_rtu_char_ns(int baud, int bits);
 int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);

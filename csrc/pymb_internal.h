@@ -23,7 +23,8 @@ struct pymb_line {
     int (*interrupted)(void *arg);
     void *interrupt_arg;
     uint32_t char_ns;         /* RTU: one character's wire time, 0: no early-byte check */
-    uint16_t tid;             /* TCP: the last MBAP transaction id sent */
+    uint16_t tid;             /* TCP, UDP: the last MBAP transaction id sent */
+    int retries;              /* UDP: sends of a request again after a timeout */
     int owed;                 /* a quiet window is owed (after a failure) */
     int owed_slave;           /* the address the failed request went to */
     uint64_t owed_since_us;   /* when it failed: CLOCK_MONOTONIC, microseconds */
@@ -34,9 +35,10 @@ struct pymb_line {
 /*
  * A transport: how a request is framed, sent, received and checked. One
  * const table per transport, in its own file (pymb_rtu.c, pymb_tcp.c,
- * pymb_rtu_tcp.c), listed in pymbi_transports[] (pymb_line.c) and chosen by
- * pymb_line_new; the request path (pymb_request.c) calls only these. A new
- * transport (Modbus over UDP, ASCII) is one new file and one line in that list.
+ * pymb_rtu_tcp.c, pymb_ascii.c, pymb_udp.c), listed in transports[]
+ * (pymb_line.c) and chosen by pymb_line_new; pymb_line_connect/close and the
+ * request path (pymb_request.c) call only these. A new transport is one new
+ * file and one line in that list.
  */
 struct pymb_transport {
     pymb_framing framing;
@@ -69,11 +71,19 @@ struct pymb_transport {
     /* After a reply that failed its check: nonzero when what follows it
      * cannot be told from an answer (a quiet window is then owed). */
     int (*lost_step)(pymb_line *line);
+    /* Open the line's descriptor: 0, or -1 and errno. node and service say
+     * where, for a transport that opens its own socket (UDP); the others
+     * let libmodbus open what their context names (pymbi_modbus_connect). */
+    int (*connect)(pymb_line *line, const char *node, const char *service);
+    /* Close what connect opened; the context stays and can connect again. */
+    void (*close)(pymb_line *line);
 };
 
 extern const pymb_transport pymbi_transport_rtu;
 extern const pymb_transport pymbi_transport_tcp;
 extern const pymb_transport pymbi_transport_rtu_over_tcp;
+extern const pymb_transport pymbi_transport_ascii;
+extern const pymb_transport pymbi_transport_udp;
 
 /* What every function taking a pymb_failure writes first, even when it then
  * refuses its arguments: nothing asked, nothing received. */
@@ -103,6 +113,41 @@ int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n);
 ssize_t pymbi_read(pymb_line *line, int fd, uint8_t *buf, size_t n);
 void pymbi_no_flush(pymb_line *line);
 void pymbi_note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame);
+int pymbi_modbus_connect(pymb_line *line, const char *node, const char *service);
+void pymbi_modbus_close(pymb_line *line);
+int pymbi_write_all(pymb_line *line, const uint8_t *b, size_t n);
+
+/* pymb_ascii.c: the ASCII frame ([MB-SL] 2.5.2), for its tests and fuzzer.
+ * ':', two hexadecimal characters per byte of address, PDU and LRC, CR LF. */
+#define PYMB_ASCII_MAX_BYTES (1 + PYMB_MAX_PDU + 1)        /* address, PDU, LRC */
+#define PYMB_ASCII_MAX_TEXT (1 + 2 * PYMB_ASCII_MAX_BYTES + 2) /* ':' ... CR LF */
+
+/* The LRC of b[0..n): the two's complement of their sum, modulo 256. */
+uint8_t pymbi_ascii_lrc(const uint8_t *b, size_t n);
+/* The frame of b[0..n) (address + PDU) with its LRC into out[0..cap): its
+ * length, or -1 when it does not fit or n is not 2..254. */
+int pymbi_ascii_encode(const uint8_t *b, int n, uint8_t *out, int cap);
+
+/* A receiver: bytes in, whole frames out. Zeroed: waiting for a ':'. */
+typedef struct {
+    int in_frame;  /* a ':' has started a frame */
+    int cr;        /* its last character was CR */
+    int bad;       /* it holds a character that is not a hexadecimal digit */
+    int nhex;      /* hexadecimal digits so far */
+    uint8_t out[PYMB_ASCII_MAX_BYTES];
+} pymbi_ascii_rx;
+
+/* Feed one character. Returns PYMB_FRAME_INCOMPLETE until a frame ends
+ * (CR LF), then its bytes' count (address, PDU, LRC: 3 or more) with the
+ * bytes in rx->out, or PYMB_FRAME_TOO_LONG (more bytes than any frame) or
+ * PYMB_FRAME_BAD_LENGTH (an odd number of digits, a character that is no
+ * digit, fewer than 3 bytes). A ':' starts a frame again wherever it comes;
+ * characters outside a frame are ignored. The LRC is not checked here. */
+int pymbi_ascii_feed(pymbi_ascii_rx *rx, uint8_t c);
+
+/* The check of a decoded reply f[0..n) (address, PDU, LRC) against req
+ * (address + PDU): a pymb_frame_status, PYMB_FRAME_BAD_CRC for a bad LRC. */
+int pymbi_ascii_check(const uint8_t *req, int req_len, const uint8_t *f, int n, int *exc);
 
 /* pymb_rtu.c: the RTU half that RTU over TCP shares. */
 int pymbi_rtu_prepare(pymb_line *line, int slave);

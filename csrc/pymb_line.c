@@ -32,6 +32,8 @@ static const pymb_transport *const transports[] = {
     &pymbi_transport_rtu,
     &pymbi_transport_tcp,
     &pymbi_transport_rtu_over_tcp,
+    &pymbi_transport_ascii,
+    &pymbi_transport_udp,
 };
 
 pymb_line *pymb_line_new(modbus_t *ctx, pymb_framing framing, uint32_t silence_us)
@@ -116,6 +118,48 @@ int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns)
     }
     line->char_ns = char_ns;
     return 0;
+}
+
+int pymb_line_connect(pymb_line *line, const char *node, const char *service)
+{
+    if (line == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    if (modbus_get_socket(line->ctx) >= 0) {
+        return 0; /* open already */
+    }
+    line->owed = 0;
+    return line->tr->connect(line, node, service);
+}
+
+void pymb_line_close(pymb_line *line)
+{
+    if (line != NULL && modbus_get_socket(line->ctx) >= 0) {
+        line->tr->close(line);
+    }
+}
+
+int pymb_line_set_retries(pymb_line *line, int retries)
+{
+    if (line == NULL || retries < 0 || retries > PYMB_MAX_RETRIES) {
+        errno = EINVAL;
+        return -1;
+    }
+    line->retries = retries;
+    return 0;
+}
+
+int pymbi_modbus_connect(pymb_line *line, const char *node, const char *service)
+{
+    (void)node;
+    (void)service;
+    return modbus_connect(line->ctx) == -1 ? -1 : 0;
+}
+
+void pymbi_modbus_close(pymb_line *line)
+{
+    modbus_close(line->ctx);
 }
 
 int pymb_line_header_length(const pymb_line *line)
@@ -362,6 +406,33 @@ int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n)
     }
     while (n > 0) {
         ssize_t k = send(fd, b, n, MSG_NOSIGNAL);
+        if (k < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            if (errno == EAGAIN || errno == EWOULDBLOCK) {
+                struct pollfd p = {fd, POLLOUT, 0};
+                if (poll(&p, 1, (int)(pymbi_timeout_us(line->ctx, 0) / 1000u) + 1) == 0) {
+                    errno = ETIMEDOUT;
+                    return -1;
+                }
+                continue;
+            }
+            return -1;
+        }
+        b += k;
+        n -= (size_t)k;
+    }
+    return 0;
+}
+
+/* write(2) for a serial line, where send(2) fails (ENOTSOCK). */
+int pymbi_write_all(pymb_line *line, const uint8_t *b, size_t n)
+{
+    int fd = modbus_get_socket(line->ctx);
+
+    while (n > 0) {
+        ssize_t k = write(fd, b, n);
         if (k < 0) {
             if (errno == EINTR) {
                 continue;

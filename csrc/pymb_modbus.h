@@ -70,8 +70,17 @@ extern "C" {
 typedef enum {
     PYMB_FRAMING_RTU = 1,         /* address + PDU + CRC on a serial line */
     PYMB_FRAMING_TCP = 2,         /* [MB-TCP] MBAP header + PDU */
-    PYMB_FRAMING_RTU_OVER_TCP = 3 /* RTU frames on a TCP socket (raw gateways) */
+    PYMB_FRAMING_RTU_OVER_TCP = 3, /* RTU frames on a TCP socket (raw gateways) */
+    PYMB_FRAMING_ASCII = 4,        /* [MB-SL] 2.5.2 ':', hex, LRC, CR LF on a serial line */
+    PYMB_FRAMING_UDP = 5           /* one MBAP frame per UDP datagram */
 } pymb_framing;
+
+/* [MB-SL] 2.5.2.1: the longest gap between two characters of an ASCII
+ * frame when the context's byte timeout is 0 (one second by default there). */
+#define PYMB_ASCII_CHAR_US 1000000
+
+/* The most a request is sent again (pymb_line_set_retries). */
+#define PYMB_MAX_RETRIES 10
 
 /* [MB-SL] 2.5.1.1: above 19200 baud t3.5 is fixed at 1750 us. */
 #define PYMB_T35_FLOOR_US 1750
@@ -150,8 +159,30 @@ int pymb_line_set_io(pymb_line *line, const pymb_line_io *io);
  * Returns 0, or -1 (EINVAL) when line is NULL. */
 int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns);
 
+/* Open the line's descriptor, as its transport does: RTU, ASCII, TCP and
+ * RTU over TCP with modbus_connect(ctx) (node and service are not used: the
+ * context names its port or host); UDP with a datagram socket connected to
+ * node:service (a host name or address and a port), handed to its context
+ * (a TCP one) with modbus_set_socket. Nothing happens when the context is
+ * open already. Returns 0, or -1 and errno (EINVAL when line is NULL, or
+ * node or service is NULL for UDP; the OS's or libmodbus's errno). */
+int pymb_line_connect(pymb_line *line, const char *node, const char *service);
+
+/* Close what pymb_line_connect opened (modbus_close for the libmodbus
+ * transports); the line and its context stay and can connect again. NULL
+ * or a closed line: nothing. */
+void pymb_line_close(pymb_line *line);
+
+/* How many times a request unanswered within the response timeout is sent
+ * again, 0..PYMB_MAX_RETRIES (0, the default: never). UDP only (its
+ * datagrams may be lost; a resend carries the same transaction id, and a
+ * reply to either send is the answer); the other transports ignore it.
+ * Returns 0, or -1 (EINVAL) when line is NULL or retries is out of range. */
+int pymb_line_set_retries(pymb_line *line, int retries);
+
 /* Where a reply's PDU starts in the rsp that pymb_transact fills: 1 (RTU,
- * RTU over TCP: after the address) or 7 (TCP: after the MBAP header); -1
+ * RTU over TCP, ASCII: after the address) or 7 (TCP, UDP: after the MBAP
+ * header); -1
  * (EINVAL) when line is NULL. */
 int pymb_line_header_length(const pymb_line *line);
 
@@ -198,10 +229,11 @@ int pymb_drain(pymb_line *line, uint32_t quiet_us, uint32_t max_us);
  *      to it), at most PYMB_RTU_MAX_ADU bytes, and must have ended within the
  *      response timeout plus that silence. Then the CRC is checked over
  *      the whole frame. An exception reply is always accepted (2 bytes).
- * rsp: receives the whole reply as received (MBAP or address first);
+ * rsp: receives the whole reply as received (MBAP or address first; ASCII:
+ *      its bytes decoded from their characters, address, PDU and LRC);
  *      rsp_cap >= MODBUS_MAX_ADU_LENGTH.
- * Returns the length of the reply's PDU, which starts at rsp + 7 (TCP) or
- * rsp + 1 (RTU, RTU over TCP); -1 and errno on failure. */
+ * Returns the length of the reply's PDU, which starts at rsp + 7 (TCP, UDP)
+ * or rsp + 1 (RTU, RTU over TCP, ASCII); -1 and errno on failure. */
 int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                   uint8_t *rsp, int rsp_cap, pymb_failure *fail);
 

@@ -52,7 +52,7 @@ static void broadcast_wait(pymb_line *line)
 int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
                   uint8_t *rsp, int rsp_cap, pymb_failure *fail)
 {
-    uint8_t adu[PYMB_MBAP_LENGTH + PYMB_MAX_PDU + 2];
+    uint8_t adu[PYMB_ASCII_MAX_TEXT]; /* the longest: ASCII's characters */
     const pymb_transport *tr;
     int n, status, pdu_len, exc = 0, adu_len;
     uint64_t sent_us;

@@ -275,4 +275,6 @@ const pymb_transport pymbi_transport_rtu = {
     pymbi_rtu_receive,
     pymbi_rtu_check,
     pymbi_rtu_lost_step,
+    pymbi_modbus_connect,
+    pymbi_modbus_close,
 };

@@ -36,4 +36,6 @@ const pymb_transport pymbi_transport_rtu_over_tcp = {
     pymbi_rtu_receive,
     pymbi_rtu_check,
     pymbi_rtu_lost_step,
+    pymbi_modbus_connect,
+    pymbi_modbus_close,
 };

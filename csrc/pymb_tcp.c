@@ -158,4 +158,6 @@ const pymb_transport pymbi_transport_tcp = {
     tcp_receive,
     tcp_check,
     tcp_lost_step,
+    pymbi_modbus_connect,
+    pymbi_modbus_close,
 };

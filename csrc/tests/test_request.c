@@ -25,13 +25,15 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
-#include "../pymb_modbus.h"
+#include "../pymb_internal.h"
 #include "check.h"
 #include "crc_ref.h"
 
@@ -53,7 +55,56 @@ static void sleep_ms(int ms)
 /* ------------------------------------------------------------------------ */
 /* The device end.                                                          */
 
-enum kind { RTU, TCP, RTU_TCP };
+enum kind { RTU, TCP, RTU_TCP, ASCII, UDP };
+
+/* An MBAP header frames the kind's requests and replies (TCP, UDP). */
+static int mbap(enum kind k)
+{
+    return k == TCP || k == UDP;
+}
+
+/* [MB-SL] 2.5.2.2, the test's own: the two's complement of the bytes' sum. */
+static uint8_t lrc_ref(const uint8_t *b, size_t n)
+{
+    unsigned sum = 0;
+    while (n-- > 0) {
+        sum = (sum + *b++) & 0xFFu;
+    }
+    return (uint8_t)((0x100u - sum) & 0xFFu);
+}
+
+/* b[0..n) as an ASCII frame: ':', two upper-case hexadecimal digits a byte,
+ * CR LF. */
+static size_t ascii_text(const uint8_t *b, size_t n, uint8_t *out)
+{
+    size_t i, k = 0;
+    out[k++] = ':';
+    for (i = 0; i < n; i++) {
+        k += (size_t)sprintf((char *)out + k, "%02X", b[i]);
+    }
+    out[k++] = '\r';
+    out[k++] = '\n';
+    return k;
+}
+
+/* An ASCII request's text back to bytes (address, PDU, LRC): their count,
+ * 0 when it is not one whole frame. */
+static int ascii_bytes(const uint8_t *t, int n, uint8_t *out)
+{
+    int i, k = 0;
+    if (n < 5 || t[0] != ':' || t[n - 2] != '\r' || t[n - 1] != '\n' || (n - 3) % 2 != 0) {
+        return 0;
+    }
+    for (i = 1; i + 1 < n - 2; i += 2) {
+        unsigned v;
+        char two[3] = {(char)t[i], (char)t[i + 1], 0};
+        if (sscanf(two, "%2X", &v) != 1) {
+            return 0;
+        }
+        out[k++] = (uint8_t)v;
+    }
+    return k;
+}
 
 struct dev;
 /* Called for each request received (the ADU as it came, CRC or MBAP
@@ -99,7 +150,14 @@ static size_t frame(enum kind kind, unsigned tid, int unit, const uint8_t *pdu, 
                     uint8_t *out)
 {
     size_t h = 0;
-    if (kind == TCP) {
+    if (kind == ASCII) {
+        uint8_t b[300];
+        b[0] = (uint8_t)unit;
+        memcpy(b + 1, pdu, n);
+        b[n + 1] = lrc_ref(b, n + 1);
+        return ascii_text(b, n + 2, out);
+    }
+    if (mbap(kind)) {
         out[0] = (uint8_t)(tid >> 8);
         out[1] = (uint8_t)tid;
         out[2] = 0;
@@ -110,7 +168,7 @@ static size_t frame(enum kind kind, unsigned tid, int unit, const uint8_t *pdu, 
     }
     out[h] = (uint8_t)unit;
     memcpy(out + h + 1, pdu, n);
-    if (kind == TCP) {
+    if (mbap(kind)) {
         return h + 1 + n;
     }
     {
@@ -124,21 +182,21 @@ static size_t frame(enum kind kind, unsigned tid, int unit, const uint8_t *pdu, 
 /* The request's transaction id (TCP), unit and PDU. */
 static unsigned req_tid(const struct dev *d, const uint8_t *req)
 {
-    return d->kind == TCP ? ((unsigned)req[0] << 8 | req[1]) : 0;
+    return mbap(d->kind) ? ((unsigned)req[0] << 8 | req[1]) : 0;
 }
 static int req_unit(const struct dev *d, const uint8_t *req)
 {
-    return req[d->kind == TCP ? 6 : 0];
+    return req[mbap(d->kind) ? 6 : 0];
 }
 static const uint8_t *req_pdu(const struct dev *d, const uint8_t *req)
 {
-    return req + (d->kind == TCP ? 7 : 1);
+    return req + (mbap(d->kind) ? 7 : 1);
 }
 
 /* Answer the request with pdu from its own unit. */
 static void dev_reply(struct dev *d, const uint8_t *req, const uint8_t *pdu, size_t n)
 {
-    uint8_t out[300];
+    uint8_t out[600]; /* ASCII: two characters a byte */
     size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, n, out);
     dev_send(d, out, len);
 }
@@ -190,7 +248,7 @@ static int dev_receive(struct dev *d, uint8_t *buf, int cap)
             break;
         }
         n += (int)k;
-        if (poll(&p, 1, 5) <= 0) {
+        if (d->kind == UDP || poll(&p, 1, 5) <= 0) { /* UDP: one datagram */
             break;
         }
     }
@@ -209,6 +267,13 @@ static void dev_run(struct dev *d)
         memcpy(d->last, req, (size_t)n);
         d->last_len = n;
         d->requests++;
+        if (d->kind == ASCII) {
+            /* The scripts take bytes: the text as the device decodes it. */
+            n = ascii_bytes(d->last, n, req);
+            if (n == 0) {
+                continue;
+            }
+        }
         if (d->handle != NULL) {
             d->handle(d, req, n);
         }
@@ -238,7 +303,7 @@ static int rig_open(struct rig *r, enum kind kind)
     }
     memset(r->dev, 0, sizeof *r->dev);
     r->dev->kind = kind;
-    if (kind == RTU) {
+    if (kind == RTU || kind == ASCII) {
         struct termios tio;
         int m = posix_openpt(O_RDWR | O_NOCTTY);
         if (m < 0 || grantpt(m) != 0 || unlockpt(m) != 0) {
@@ -257,7 +322,7 @@ static int rig_open(struct rig *r, enum kind kind)
         }
     } else {
         int sp[2];
-        if (socketpair(AF_UNIX, SOCK_STREAM, 0, sp) != 0) {
+        if (socketpair(AF_UNIX, kind == UDP ? SOCK_DGRAM : SOCK_STREAM, 0, sp) != 0) {
             perror("socketpair");
             return -1;
         }
@@ -271,11 +336,12 @@ static int rig_open(struct rig *r, enum kind kind)
     }
     modbus_set_response_timeout(r->ctx, 0, 300000);
     modbus_set_byte_timeout(r->ctx, 0, 0);
-    r->line = pymb_line_new(r->ctx,
-                            kind == RTU ? PYMB_FRAMING_RTU
-                                        : kind == TCP ? PYMB_FRAMING_TCP
-                                                      : PYMB_FRAMING_RTU_OVER_TCP,
-                            2000);
+    {
+        static const pymb_framing framings[] = {PYMB_FRAMING_RTU, PYMB_FRAMING_TCP,
+                                                PYMB_FRAMING_RTU_OVER_TCP, PYMB_FRAMING_ASCII,
+                                                PYMB_FRAMING_UDP};
+        r->line = pymb_line_new(r->ctx, framings[kind], 2000);
+    }
     if (r->line == NULL) {
         perror("pymb_line_new");
         return -1;
@@ -330,7 +396,8 @@ static int last_request_is(const struct rig *r, unsigned tid, int unit, const ui
 
 static const char *kind_name(enum kind k)
 {
-    return k == RTU ? "RTU" : k == TCP ? "TCP" : "RTU over TCP";
+    static const char *const names[] = {"RTU", "TCP", "RTU over TCP", "ASCII", "UDP"};
+    return names[k];
 }
 
 /* ------------------------------------------------------------------------ */
@@ -421,7 +488,11 @@ static void answer_bad_crc(struct dev *d, const uint8_t *req, int n)
     uint8_t out[300];
     size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, sizeof pdu, out);
     (void)n;
-    out[len - 1] ^= 0xFF;
+    if (d->kind == ASCII) {
+        out[len - 3] = out[len - 3] == '0' ? '1' : '0'; /* the LRC's last digit */
+    } else {
+        out[len - 1] ^= 0xFF;
+    }
     dev_send(d, out, len);
 }
 
@@ -531,7 +602,7 @@ static void test_reads(enum kind k)
     uint16_t regs[130];
     uint8_t bits[19];
     pymb_failure fail;
-    int unit = k == TCP ? 0 : 250; /* 250: above libmodbus's 247 */
+    int unit = mbap(k) ? 0 : 250; /* 250: above libmodbus's 247 */
 
     if (rig_open(&r, k) != 0) {
         failures++;
@@ -573,14 +644,14 @@ static void test_reads(enum kind k)
         const uint8_t req[] = {(uint8_t)unit, 0x06, 0x00, 0x01, 0x00, 0x03};
         uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
         int h = pymb_line_header_length(r.line);
-        CHECK(h == (k == TCP ? 7 : 1));
+        CHECK(h == (mbap(k) ? 7 : 1));
         CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == 5);
         CHECK(memcmp(rsp + h, req + 1, 5) == 0);
         errno = 0;
         CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, sizeof rsp, &fail) == -1 &&
               errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_ECHO);
         CHECK(fail.function == 0x06 && fail.address == 1 && fail.count == 3);
-        CHECK(fail.rsp_len == (k == TCP ? 12 : 8) && fail.header == h);
+        CHECK(fail.rsp_len == (mbap(k) ? 12 : k == ASCII ? 7 : 8) && fail.header == h);
     }
     rig_stop(&r);
     rig_close(&r);
@@ -611,7 +682,7 @@ static void test_exceptions(enum kind k)
         }
         e = errno;
         if (e != pymb_exception_errno(code) || pymb_errno_exception(e) != code ||
-            fail.frame != PYMB_FRAME_EXCEPTION || fail.rsp_len != (k == TCP ? 9 : 5) ||
+            fail.frame != PYMB_FRAME_EXCEPTION || fail.rsp_len != (mbap(k) ? 9 : k == ASCII ? 4 : 5) ||
             fail.rsp[fail.header] != 0x83 || fail.rsp[fail.header + 1] != code ||
             strcmp(pymb_strerror(e), strerror(e)) == 0) {
             fprintf(stderr, "%s: exception %02X: errno %d\n", kind_name(k), code, e);
@@ -642,40 +713,53 @@ static void test_split_and_bad(enum kind k)
         failures++;
         return;
     }
-    /* A reply in three pieces is one reply. */
+    /* A reply in three pieces is one reply (a datagram cannot be split). */
     rig_start(&r, answer_split);
-    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 3, regs, &fail) ==
-          3);
-    CHECK(regs[0] == 1 && regs[1] == 2 && regs[2] == 3);
+    if (k != UDP) {
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 3, regs,
+                                  &fail) == 3);
+        CHECK(regs[0] == 1 && regs[1] == 2 && regs[2] == 3);
+    }
     /* With a byte timeout shorter than the gaps, the reply stops mid-frame
-     * (RTU: the byte timeout applies to a frame of known length). */
-    if (k != TCP) {
+     * (RTU: the byte timeout applies to a frame of known length; ASCII: it
+     * is the inter-character timeout, which drops the frame begun). */
+    if (!mbap(k)) {
         modbus_set_byte_timeout(r.ctx, 0, 5000);
         errno = 0;
         CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 3, regs,
                                   &fail) == -1 && errno == ETIMEDOUT);
-        CHECK(fail.frame == PYMB_FRAME_INCOMPLETE && fail.rsp_len == 2);
+        CHECK(fail.frame == PYMB_FRAME_INCOMPLETE && (k == ASCII || fail.rsp_len == 2));
         modbus_set_byte_timeout(r.ctx, 0, 0);
         sleep_ms(60); /* the rest of the split reply arrives and is owed away */
     }
     rig_stop(&r);
 
-    rig_start(&r, k == TCP ? answer_bad_protocol : answer_bad_crc);
+    rig_start(&r, mbap(k) ? answer_bad_protocol : answer_bad_crc);
     errno = 0;
     CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs, &fail) ==
           -1);
     if (k == TCP) {
         CHECK(errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_HEADER);
+    } else if (k == UDP) {
+        CHECK(errno == ETIMEDOUT); /* not a Modbus datagram: dropped, the wait went on */
     } else {
-        CHECK(errno == EMBBADCRC && fail.frame == PYMB_FRAME_BAD_CRC && fail.rsp_len == 7);
+        CHECK(errno == EMBBADCRC && fail.frame == PYMB_FRAME_BAD_CRC &&
+              fail.rsp_len == (k == ASCII ? 6 : 7));
     }
     rig_stop(&r);
 
     rig_start(&r, answer_other_unit);
     errno = 0;
-    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs, &fail) ==
-          -1 && errno == EMBBADSLAVE && fail.frame == PYMB_FRAME_BAD_SLAVE);
-    CHECK(fail.rsp[fail.header - 1] == 10);
+    if (k == UDP) {
+        /* Another unit's datagram is not the answer: dropped. */
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs,
+                                  &fail) == -1 && errno == ETIMEDOUT && fail.rsp_len == 0);
+    } else {
+        CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs,
+                                  &fail) == -1 && errno == EMBBADSLAVE &&
+              fail.frame == PYMB_FRAME_BAD_SLAVE);
+        CHECK(fail.rsp[fail.header - 1] == 10);
+    }
     rig_stop(&r);
 
     /* Silence: ETIMEDOUT after the response timeout (300 ms), not before. */
@@ -712,7 +796,7 @@ static void test_late_and_stale(enum kind k)
     CHECK(r.dev->requests == 2);
     rig_stop(&r);
 
-    if (k != TCP) {
+    if (!mbap(k)) {
         /* Another address does not wait; the failed address's late frame,
          * arriving during its request, is dropped. */
         rig_start(&r, answer_late_first);
@@ -741,8 +825,8 @@ static void test_late_and_stale(enum kind k)
     }
 
     /* Stale bytes waiting before the request are not its answer. */
-    rig_start(&r, k == TCP ? answer_old_tid_first : answer_reads);
-    if (k != TCP) {
+    rig_start(&r, mbap(k) ? answer_old_tid_first : answer_reads);
+    if (!mbap(k)) {
         const uint8_t pdu[] = {0x03, 0x04, 0x00, 0x07, 0x00, 0x08};
         uint8_t out[32];
         size_t len = frame(k, 0, 5, pdu, sizeof pdu, out);
@@ -766,7 +850,7 @@ static void test_hub(enum kind k)
     pymb_span spans[8];
     pymb_hub_request rq;
     pymb_failure fail;
-    int unit = k == TCP ? 1 : 249;
+    int unit = mbap(k) ? 1 : 249;
 
     if (rig_open(&r, k) != 0) {
         failures++;
@@ -821,7 +905,7 @@ static void test_plan(enum kind k)
     uint16_t regs[140];
     pymb_failure fail;
     size_t done = 99;
-    int unit = k == TCP ? 0 : 250;
+    int unit = mbap(k) ? 0 : 250;
     double t0;
     pymb_plan_request plan[3] = {
         {MODBUS_FC_READ_HOLDING_REGISTERS, 0, 31, 3, 0},
@@ -994,7 +1078,7 @@ static void test_unknown_length_and_broadcast(enum kind k)
               errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_LENGTH);
     }
     rig_stop(&r);
-    if (k != TCP) {
+    if (!mbap(k)) {
         /* Address 0 is a broadcast: sent, no reply awaited. */
         const uint8_t req[] = {0, 0x06, 0x00, 0x01, 0x00, 0x03};
         uint16_t regs[1];
@@ -1103,6 +1187,256 @@ static void test_io(enum kind k)
           -1 && errno == ECONNRESET);
     rig_close(&r);
     printf("%s: I/O callbacks\n", kind_name(k));
+/* The ASCII frame by itself ([MB-SL] 2.5.2): the LRC, the text, and the
+ * receiver's refusals, against the test's own encoder. */
+static int feed_all(pymbi_ascii_rx *rx, const char *text, size_t n)
+{
+    size_t i;
+    int rc = PYMB_FRAME_INCOMPLETE;
+    for (i = 0; i < n; i++) {
+        rc = pymbi_ascii_feed(rx, (uint8_t)text[i]);
+        if (rc != PYMB_FRAME_INCOMPLETE && i + 1 < n) {
+            return -100; /* ended before its last character */
+        }
+    }
+    return rc;
+}
+
+static void test_ascii_frame(void)
+{
+    /* Read 10 holding registers from 0 at address 1: LRC 0xF2. */
+    const uint8_t req[] = {0x01, 0x03, 0x00, 0x00, 0x00, 0x0A};
+    const char want[] = ":01030000000AF2\r\n";
+    uint8_t out[PYMB_ASCII_MAX_TEXT], big[PYMB_MAX_PDU + 2], text[PYMB_ASCII_MAX_TEXT + 8];
+    pymbi_ascii_rx rx;
+    size_t i;
+    int n, exc = 0;
+
+    CHECK(pymbi_ascii_lrc(req, sizeof req) == 0xF2 && lrc_ref(req, sizeof req) == 0xF2);
+    CHECK(pymbi_ascii_lrc(req, 0) == 0);
+    n = pymbi_ascii_encode(req, (int)sizeof req, out, (int)sizeof out);
+    CHECK(n == (int)strlen(want) && memcmp(out, want, strlen(want)) == 0);
+    CHECK(pymbi_ascii_encode(req, 1, out, (int)sizeof out) == -1);
+    CHECK(pymbi_ascii_encode(req, (int)sizeof req, out, 16) == -1); /* 17 needed */
+    CHECK(pymbi_ascii_encode(req, (int)sizeof req, out, 17) == 17);
+    for (i = 0; i < sizeof big; i++) {
+        big[i] = (uint8_t)(i * 7u);
+    }
+    CHECK(pymbi_ascii_encode(big, 1 + PYMB_MAX_PDU, out, (int)sizeof out) ==
+          PYMB_ASCII_MAX_TEXT);
+    CHECK(pymbi_ascii_encode(big, 2 + PYMB_MAX_PDU, out, (int)sizeof out) == -1);
+
+    /* A whole frame, after noise, in either case. */
+    memset(&rx, 0, sizeof rx);
+    CHECK(feed_all(&rx, "xx\r\n:01030000000AF2\r\n", strlen("xx\r\n:01030000000AF2\r\n")) == 7);
+    CHECK(memcmp(rx.out, req, sizeof req) == 0 && rx.out[6] == 0xF2);
+    memset(&rx, 0, sizeof rx);
+    CHECK(feed_all(&rx, ":01030000000af2\r\n", strlen(":01030000000af2\r\n")) == 7 && rx.out[6] == 0xF2);
+    /* A ':' starts again: the frame before it is gone. */
+    memset(&rx, 0, sizeof rx);
+    CHECK(feed_all(&rx, ":0103:01030000000AF2\r\n", strlen(":0103:01030000000AF2\r\n")) == 7);
+    /* Refused: an odd digit count, a non-digit, CR without LF, too short. */
+    memset(&rx, 0, sizeof rx);
+    CHECK(feed_all(&rx, ":01030000000AF\r\n", strlen(":01030000000AF\r\n")) == PYMB_FRAME_BAD_LENGTH);
+    CHECK(feed_all(&rx, ":0103000G000AF2\r\n", strlen(":0103000G000AF2\r\n")) == PYMB_FRAME_BAD_LENGTH);
+    CHECK(feed_all(&rx, ":01030000000AF2\rX", strlen(":01030000000AF2\rX")) == PYMB_FRAME_BAD_LENGTH);
+    CHECK(feed_all(&rx, ":0100\r\n", strlen(":0100\r\n")) == PYMB_FRAME_BAD_LENGTH);
+    /* After a refusal, the next frame is whole again. */
+    CHECK(feed_all(&rx, ":01030000000AF2\r\n", strlen(":01030000000AF2\r\n")) == 7);
+    /* Longer than any frame: refused as soon as it is. */
+    memset(&rx, 0, sizeof rx);
+    text[0] = ':';
+    memset(text + 1, '0', PYMB_ASCII_MAX_TEXT + 4);
+    n = PYMB_FRAME_INCOMPLETE;
+    for (i = 0; i < PYMB_ASCII_MAX_TEXT + 5 && n == PYMB_FRAME_INCOMPLETE; i++) {
+        n = pymbi_ascii_feed(&rx, text[i]);
+    }
+    CHECK(n == PYMB_FRAME_TOO_LONG && i == 1 + 2 * PYMB_ASCII_MAX_BYTES + 1);
+    /* The longest frame passes. */
+    n = pymbi_ascii_encode(big, 1 + PYMB_MAX_PDU, out, (int)sizeof out);
+    memset(&rx, 0, sizeof rx);
+    CHECK(feed_all(&rx, (const char *)out, (size_t)n) == PYMB_ASCII_MAX_BYTES);
+
+    /* The checks of a decoded reply: LRC, address, PDU, exception. */
+    {
+        uint8_t f[] = {0x01, 0x03, 0x02, 0x12, 0x34, 0};
+        uint8_t e[] = {0x01, 0x83, 0x02, 0};
+        f[5] = lrc_ref(f, 5);
+        e[3] = lrc_ref(e, 3);
+        const uint8_t one[] = {0x01, 0x03, 0x00, 0x00, 0x00, 0x01};
+        CHECK(pymbi_ascii_check(one, 6, f, 6, &exc) == PYMB_FRAME_OK);
+        f[5] ^= 1;
+        CHECK(pymbi_ascii_check(one, 6, f, 6, &exc) == PYMB_FRAME_BAD_CRC);
+        f[5] ^= 1;
+        f[0] = 2;
+        f[5] = lrc_ref(f, 5);
+        CHECK(pymbi_ascii_check(one, 6, f, 6, &exc) == PYMB_FRAME_BAD_SLAVE);
+        CHECK(pymbi_ascii_check(one, 6, e, 4, &exc) == PYMB_FRAME_EXCEPTION && exc == 2);
+        CHECK(pymbi_ascii_check(one, 6, e, 2, &exc) == PYMB_FRAME_INVALID);
+    }
+    printf("ASCII: frame, LRC, receiver\n");
+}
+
+/* ASCII's inter-character timeout: 1 s when the byte timeout is 0. A gap
+ * of 0.4 s inside a frame is kept; one of 1.2 s drops the frame begun, and
+ * the whole frame that follows is the answer. */
+static void answer_ascii_gaps(struct dev *d, const uint8_t *req, int n)
+{
+    uint8_t out[64];
+    const uint8_t slow[] = {0x03, 0x02, 0x00, 0x07};
+    const uint8_t fine[] = {0x03, 0x02, 0x00, 0x08};
+    size_t len = frame(d->kind, 0, req[0], slow, sizeof slow, out);
+    (void)n;
+    dev_send(d, out, 5);
+    sleep_ms(d->param);
+    dev_send(d, out + 5, len - 5);
+    len = frame(d->kind, 0, req[0], fine, sizeof fine, out);
+    dev_send(d, out, len);
+}
+
+static void test_ascii_char_timeout(void)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+
+    if (rig_open(&r, ASCII) != 0) {
+        failures++;
+        return;
+    }
+    modbus_set_response_timeout(r.ctx, 4, 0);
+    r.dev->param = 400;
+    rig_start(&r, answer_ascii_gaps);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
+          1 && regs[0] == 7);
+    rig_stop(&r);
+    sleep_ms(100); /* the second frame of that script, unread, is flushed */
+    r.dev->param = 1200;
+    rig_start(&r, answer_ascii_gaps);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
+          1 && regs[0] == 8);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("ASCII: inter-character timeout\n");
+}
+
+/* UDP: the first datagram of each request is lost (not answered); the
+ * resend, with the same transaction id, is. */
+static void answer_every_second(struct dev *d, const uint8_t *req, int n)
+{
+    (void)n;
+    if (d->state++ % 2 == 1) {
+        dev_read_reply(d, req, 1000);
+    }
+}
+
+static void test_udp_retries(void)
+{
+    struct rig r;
+    uint16_t regs[2];
+    pymb_failure fail;
+    uint8_t first[300];
+    int first_len;
+
+    if (rig_open(&r, UDP) != 0) {
+        failures++;
+        return;
+    }
+    modbus_set_response_timeout(r.ctx, 0, 100000);
+    rig_start(&r, answer_every_second);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 4, 0, 2, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && r.dev->requests == 1); /* no retries by default */
+    rig_stop(&r);
+    r.dev->state = 0;
+    CHECK(pymb_line_set_retries(r.line, 1) == 0);
+    rig_start(&r, answer_every_second);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 4, 0, 2, regs, &fail) ==
+          2 && regs[1] == 1001 && r.dev->requests == 2);
+    first_len = r.dev->last_len;
+    memcpy(first, r.dev->last, (size_t)first_len);
+    {
+        /* Each send of the request is the same datagram: transaction 2. */
+        const uint8_t pdu[] = {0x03, 0x00, 0x00, 0x00, 0x02};
+        CHECK(last_request_is(&r, 2, 4, pdu, sizeof pdu));
+    }
+    rig_stop(&r);
+    /* Never answered: retries + 1 sends, then ETIMEDOUT. */
+    CHECK(pymb_line_set_retries(r.line, 2) == 0);
+    rig_start(&r, NULL);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 4, 0, 2, regs, &fail) ==
+          -1 && errno == ETIMEDOUT);
+    CHECK(r.dev->requests == 3);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("UDP: retries\n");
+}
+
+/* pymb_line_connect opens a UDP line's own socket: a device on a real
+ * 127.0.0.1 port answers through it; pymb_line_close closes it. */
+static void test_udp_connect(void)
+{
+    struct sockaddr_in sa;
+    socklen_t len = sizeof sa;
+    char port[16];
+    int dev = socket(AF_INET, SOCK_DGRAM, 0);
+    modbus_t *ctx;
+    pymb_line *line;
+    uint16_t regs[1];
+    pid_t child;
+
+    memset(&sa, 0, sizeof sa);
+    sa.sin_family = AF_INET;
+    sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    CHECK(dev >= 0 && bind(dev, (struct sockaddr *)&sa, sizeof sa) == 0 &&
+          getsockname(dev, (struct sockaddr *)&sa, &len) == 0);
+    snprintf(port, sizeof port, "%u", (unsigned)ntohs(sa.sin_port));
+    fflush(NULL);
+    child = fork();
+    if (child == 0) {
+        uint8_t q[300], a[32];
+        struct sockaddr_in from;
+        socklen_t flen = sizeof from;
+        struct pollfd p = {dev, POLLIN, 0};
+        ssize_t n;
+        if (poll(&p, 1, 5000) <= 0) {
+            _exit(1);
+        }
+        n = recvfrom(dev, q, sizeof q, 0, (struct sockaddr *)&from, &flen);
+        if (n != 12) {
+            _exit(1);
+        }
+        memcpy(a, q, 7);
+        a[5] = 5;   /* unit + 4 bytes of PDU */
+        a[7] = 0x03;
+        a[8] = 2;
+        a[9] = 0x12;
+        a[10] = 0x34;
+        sendto(dev, a, 11, 0, (struct sockaddr *)&from, flen);
+        _exit(0);
+    }
+    ctx = modbus_new_tcp_pi("127.0.0.1", port);
+    line = pymb_line_new(ctx, PYMB_FRAMING_UDP, 0);
+    CHECK(line != NULL);
+    modbus_set_response_timeout(ctx, 3, 0);
+    errno = 0;
+    CHECK(pymb_line_connect(line, NULL, port) == -1 && errno == EINVAL);
+    CHECK(pymb_line_connect(line, "127.0.0.1", port) == 0 && modbus_get_socket(ctx) >= 0);
+    CHECK(pymb_line_connect(line, "127.0.0.1", port) == 0); /* open already */
+    CHECK(pymb_read_registers(line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, NULL) == 1 &&
+          regs[0] == 0x1234);
+    pymb_line_close(line);
+    CHECK(modbus_get_socket(ctx) == -1);
+    pymb_line_close(line); /* twice: nothing */
+    errno = 0;
+    CHECK(pymb_read_registers(line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, NULL) ==
+          -1 && errno == EINVAL);
+    waitpid(child, NULL, 0);
+    pymb_line_free(line);
+    modbus_free(ctx);
+    close(dev);
+    printf("UDP: connect, close\n");
 }
 
 static void test_arguments(void)
@@ -1132,6 +1466,13 @@ static void test_arguments(void)
         CHECK(pymb_line_set_io(r.line, &partial) == -1 && errno == EINVAL);
     }
     CHECK(pymb_line_header_length(NULL) == -1 && errno == EINVAL);
+    CHECK(pymb_line_new(r.ctx, PYMB_FRAMING_ASCII, 0) == NULL && errno == EINVAL);
+    CHECK(pymb_line_set_retries(NULL, 1) == -1 && errno == EINVAL);
+    CHECK(pymb_line_set_retries(r.line, -1) == -1 && errno == EINVAL);
+    CHECK(pymb_line_set_retries(r.line, PYMB_MAX_RETRIES + 1) == -1 && errno == EINVAL);
+    CHECK(pymb_line_set_retries(r.line, PYMB_MAX_RETRIES) == 0);
+    CHECK(pymb_line_connect(NULL, NULL, NULL) == -1 && errno == EINVAL);
+    pymb_line_close(NULL);
     /* Refused before any I/O, the failure record reset all the same. */
     memset(&fail, 0x55, sizeof fail);
     errno = 0;
@@ -1151,13 +1492,17 @@ static void test_arguments(void)
 
 int main(void)
 {
-    static const enum kind kinds[] = {RTU, TCP, RTU_TCP};
+    static const enum kind kinds[] = {RTU, TCP, RTU_TCP, ASCII, UDP};
     size_t i;
 
     setvbuf(stdout, NULL, _IOLBF, 0); /* progress shows at once, also under qemu */
     alarm(600); /* bounded: a run that hangs is killed and fails */
     signal(SIGPIPE, SIG_IGN);
     test_arguments();
+    test_ascii_frame();
+    test_ascii_char_timeout();
+    test_udp_retries();
+    test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {
         test_reads(kinds[i]);
         test_exceptions(kinds[i]);
@@ -1167,7 +1512,7 @@ int main(void)
         test_plan(kinds[i]);
         test_signals(kinds[i]);
         test_unknown_length_and_broadcast(kinds[i]);
-        if (kinds[i] != RTU) {
+        if (kinds[i] == TCP || kinds[i] == RTU_TCP) { /* the stream sockets (TLS) */
             test_io(kinds[i]);
         }
     }
