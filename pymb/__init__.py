@@ -13,7 +13,15 @@ Errors are rooted at :class:`pymb.ModbusError`.
 from __future__ import annotations
 
 from pymb._native import LIBMODBUS_VERSION, VERSION, crc16
-from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient, TlsConfig
+from pymb.client import (
+    AsciiClient,
+    Client,
+    RtuClient,
+    RtuOverTcpClient,
+    TcpClient,
+    TlsConfig,
+    UdpClient,
+)
 from pymb.errors import (
     Acknowledge,
     DeviceBusy,
@@ -41,6 +49,7 @@ __version__ = VERSION  # csrc/pymb.h is the one home of the version
 __all__ = [
     "LIBMODBUS_VERSION",
     "Acknowledge",
+    "AsciiClient",
     "Client",
     "DeviceBusy",
     "DeviceException",
@@ -62,6 +71,7 @@ __all__ = [
     "TcpClient",
     "TlsConfig",
     "TlsError",
+    "UdpClient",
     "WriteNotApplied",
     "WriteRefused",
     "__version__",

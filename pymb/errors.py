@@ -355,12 +355,14 @@ def closed_error(function: int, slave: int, address: int | None, count: int | No
 def request_error(err: int, *, function: int, slave: int, address: int | None,
                   count: int | None, port: str, timeout: float, failed: tuple[int, int],
                   response: bytes | None, header: int, frame: str | None,
-                  context: str | None = None, tls: str | None = None) -> ModbusError:
+                  context: str | None = None, tls: str | None = None,
+                  checksum: str = "CRC") -> ModbusError:
     """The exception for a request that failed with errno ``err``: what was
     asked, what came back (``response``, its unit id at ``header - 1``),
     ``failed`` the (address, count) of the request that failed inside a
     longer read, ``frame`` the C library's words for a rejected reply,
-    ``tls`` the words of a TLS failure under the line."""
+    ``tls`` the words of a TLS failure under the line,
+    ``checksum`` the frame check's name (ASCII: ``"LRC"``)."""
     op = function_name(function)
     args = [f"slave={slave}"]
     if address is not None:
@@ -392,8 +394,8 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
             f"{asked}: device answered exception {code:02X} ({describe_exception(code)})"
             f"{received}", code=code, **kw)
     if err == _lib.EMBBADCRC:
-        return ProtocolError(f"{asked}: reply failed its CRC check{received}",
-                             reason="bad CRC", **kw)
+        return ProtocolError(f"{asked}: reply failed its {checksum} check{received}",
+                             reason=f"bad {checksum}", **kw)
     if err == _lib.EMBBADSLAVE:
         h = header if 1 <= header <= len(got or b"") else 0
         who = f" {got[h - 1]}" if got and h else ""

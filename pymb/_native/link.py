@@ -30,7 +30,8 @@ from pymb.wire import bits_per_char
 if TYPE_CHECKING:
     from pymb._native.decode import HubSweep
 
-__all__ = ["Link", "RegisterPlan", "ffi_buffer_u16", "new_rtu", "new_tcp"]
+__all__ = ["Link", "RegisterPlan", "ffi_buffer_u16", "new_ascii", "new_rtu", "new_tcp",
+           "new_udp"]
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
@@ -113,13 +114,17 @@ class Link:
 
     def __init__(self, name: str, factory: Any, *, serial: bool,
                  framing: int | None = None, silence: float = 0.0, char_ns: int = 0,
-                 host: str | None = None,
+                 host: str | None = None, service: str | None = None,
                  tls: tuple[ssl.SSLContext, str | None] | None = None) -> None:
         self.name = name
         #: TLS under the line: (the client's context, the server name to check)
         self.tls = tls
         self._session: TlsSession | None = None
         self.host = host  # TCP: the host name or address as given
+        #: where a transport that opens its own socket (UDP) connects
+        self._node = host.encode() if host is not None and service is not None else ffi.NULL
+        self._service = service.encode() if service is not None else ffi.NULL
+        self._retries = 0
         self.serial = serial
         self._factory = factory
         self._framing = framing if framing is not None else (
@@ -153,7 +158,7 @@ class Link:
         """Create the context, connect, lock the port, apply the settings."""
         if self.is_open:
             return
-        if not self.serial:
+        if not self.serial and self._service == ffi.NULL:
             # libmodbus's TCP code waits with select(), which aborts the whole
             # process (glibc's fd_set check) on a descriptor >= FD_SETSIZE. The
             # socket will take the lowest free descriptor: look at it first.
@@ -178,11 +183,20 @@ class Link:
             lib.modbus_free(ctx)
             raise ModbusConnectionError(f"{self.name}: the borrowed connection is closed",
                                         errno=errno.ENOTCONN, port=self.name)
-        if not self.borrowed and lib.modbus_connect(ctx) == -1:
+        # A borrowed socket is open already: pymb_line_connect then does nothing.
+        line = lib.pymb_line_new(ctx, self._framing, self._silence_us)
+        if line == ffi.NULL:
             err = ffi.errno
             lib.modbus_free(ctx)
+            raise ModbusConnectionError(f"cannot set up {self.name}: {os.strerror(err)}",
+                                        errno=err, port=self.name)
+        if lib.pymb_line_connect(line, self._node, self._service) == -1:
+            err = ffi.errno
+            lib.pymb_line_free(line)
+            lib.modbus_free(ctx)
             hint = os_hint(err)
-            if not self.serial and err == errno.ECONNREFUSED and self.host is not None:
+            if not self.serial and err in (errno.ECONNREFUSED, errno.EHOSTUNREACH) \
+                    and self.host is not None:
                 # libmodbus 3.1.6 reports a name that does not resolve as
                 # ECONNREFUSED: tell the two apart (only after a failure).
                 try:
@@ -193,7 +207,8 @@ class Link:
                 f"cannot open {self.name}: {hint}", errno=err, port=self.name
             )
         if self.serial and lib.flock(lib.modbus_get_socket(ctx), lib.LOCK_EX | lib.LOCK_NB):
-            lib.modbus_close(ctx)
+            lib.pymb_line_close(line)
+            lib.pymb_line_free(line)
             lib.modbus_free(ctx)
             raise ModbusConnectionError(
                 f"cannot open {self.name}: the port is in use by another process "
@@ -202,15 +217,11 @@ class Link:
                 port=self.name,
             )
         self._ctx = ctx
+        self._line = line
         self.is_open = True
         try:
-            line = lib.pymb_line_new(ctx, self._framing, self._silence_us)
-            if line == ffi.NULL:
-                raise ModbusConnectionError(
-                    f"cannot set up {self.name}: {os.strerror(ffi.errno)}",
-                    errno=ffi.errno, port=self.name)
-            self._line = line
             self._header = int(lib.pymb_line_header_length(line))
+            lib.pymb_line_set_retries(line, self._retries)
             lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
             lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
             self._apply_timeouts()
@@ -247,8 +258,14 @@ class Link:
         if self.is_open:
             lib.pymb_line_set_char_ns(self._line, self._char_ns if self._reject_early else 0)
 
+    def set_retries(self, retries: int) -> None:
+        """How many times an unanswered request is sent again (UDP)."""
+        self._retries = retries
+        if self.is_open:
+            lib.pymb_line_set_retries(self._line, retries)
+
     def close(self) -> None:
-        """Close and free the context; safe to call twice."""
+        """Close the line and free the context; safe to call twice."""
         ctx, self._ctx = self._ctx, ffi.NULL
         line, self._line = self._line, ffi.NULL
         session, self._session = self._session, None
@@ -256,13 +273,16 @@ class Link:
         self._held = None
         if session is not None:
             session.close()  # close_notify while the socket is open
+        if ctx != ffi.NULL and self.borrowed and lib.modbus_get_socket(ctx) >= 0:
+            # only our descriptor (libmodbus would shut the connection down)
+            os.close(lib.modbus_get_socket(ctx))
+            lib.modbus_set_socket(ctx, -1)
         if line != ffi.NULL:
+            lib.pymb_line_close(line)
             lib.pymb_line_free(line)
-        if ctx != ffi.NULL:
-            if self.borrowed:  # only our descriptor (libmodbus would shut the connection down)
-                os.close(lib.modbus_get_socket(ctx))
-                lib.modbus_set_socket(ctx, -1)
+        elif ctx != ffi.NULL:
             lib.modbus_close(ctx)
+        if ctx != ffi.NULL:
             lib.modbus_free(ctx)
 
     def __del__(self) -> None:
@@ -462,7 +482,8 @@ class Link:
             err, function=function, slave=slave, address=address, count=count, port=self.name,
             timeout=self._timeout[0], failed=(fail.address, fail.count),
             response=bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None,
-            header=fail.header, frame=frame, context=context, tls=tls)
+            header=fail.header, frame=frame, context=context, tls=tls,
+            checksum="LRC" if self._framing == lib.PYMB_FRAMING_ASCII else "CRC")
 
 
 def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
@@ -494,3 +515,21 @@ def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
                 host=host, tls=tls,
                 framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
                 silence=silence)
+
+
+def new_ascii(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
+    """A Modbus ASCII Link on a serial line (not yet open): libmodbus opens
+    and sets up the port, pymb frames in characters."""
+    dev = port.encode()
+    par = parity.encode()
+    return Link(port, lambda: lib.modbus_new_rtu(dev, baudrate, par, data_bits, stop_bits),
+                serial=True, framing=lib.PYMB_FRAMING_ASCII)
+
+
+def new_udp(host: str, port: int) -> Link:
+    """A Modbus UDP Link (not yet open): MBAP frames in datagrams on a socket
+    pymb opens; ``host`` is a name or an address."""
+    node = host.encode()
+    service = str(port).encode()
+    return Link(f"{host}:{port}/udp", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
+                host=host, service=str(port), framing=lib.PYMB_FRAMING_UDP)

@@ -18,10 +18,18 @@ Cancellation and shutdown: see :mod:`pymb.aio.client` and ``docs/asyncio.md``.
 
 from __future__ import annotations
 
-from pymb.aio.client import AsyncClient, AsyncRtuClient, AsyncRtuOverTcpClient, AsyncTcpClient
+from pymb.aio.client import (
+    AsyncAsciiClient,
+    AsyncClient,
+    AsyncRtuClient,
+    AsyncRtuOverTcpClient,
+    AsyncTcpClient,
+    AsyncUdpClient,
+)
 from pymb.aio.devices import AsyncCoolPro, AsyncMapDevice, AsyncSensorHub, poll
 
 __all__ = [
+    "AsyncAsciiClient",
     "AsyncClient",
     "AsyncCoolPro",
     "AsyncMapDevice",
@@ -29,5 +37,6 @@ __all__ = [
     "AsyncRtuOverTcpClient",
     "AsyncSensorHub",
     "AsyncTcpClient",
+    "AsyncUdpClient",
     "poll",
 ]

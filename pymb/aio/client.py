@@ -1,5 +1,6 @@
-"""asyncio clients: :class:`AsyncRtuClient`, :class:`AsyncTcpClient` and
-:class:`AsyncRtuOverTcpClient`.
+"""asyncio clients: :class:`AsyncRtuClient`, :class:`AsyncTcpClient`,
+:class:`AsyncRtuOverTcpClient`, :class:`AsyncAsciiClient` and
+:class:`AsyncUdpClient`.
 
 Each is a blocking client of :mod:`pymb.client` (its ``blocking`` twin)
 driven by one worker thread that owns the line: every request runs there
@@ -39,10 +40,19 @@ from typing import ParamSpec, Self, TypeVar
 
 from pymb.aio._line import Line
 from pymb.aio._mirror import Mirror, Mirrored
-from pymb.client import Client, RtuClient, RtuOverTcpClient, TcpClient, TlsConfig
+from pymb.client import (
+    AsciiClient,
+    Client,
+    RtuClient,
+    RtuOverTcpClient,
+    TcpClient,
+    TlsConfig,
+    UdpClient,
+)
 from pymb.errors import InvalidArgument
 
-__all__ = ["AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient", "AsyncTcpClient"]
+__all__ = ["AsyncAsciiClient", "AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient",
+           "AsyncTcpClient", "AsyncUdpClient"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -319,3 +329,75 @@ class AsyncRtuOverTcpClient(_AsyncTcpBase):
         super().__init__(RtuOverTcpClient(host, port, slave=slave, timeout=timeout,
                                           byte_timeout=byte_timeout,
                                           frame_silence=frame_silence))
+
+
+class AsyncAsciiClient(AsyncClient):
+    """Modbus ASCII on a serial line for asyncio: the arguments of
+    :class:`pymb.AsciiClient`, the requests as coroutines."""
+
+    blocking: AsciiClient
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = 9600,
+        parity: str = "N",
+        data_bits: int = 8,
+        stop_bits: int = 1,
+        *,
+        slave: int | None = None,
+        timeout: float = 1.0,
+        byte_timeout: float = 0.0,
+    ) -> None:
+        super().__init__(AsciiClient(port, baudrate, parity, data_bits, stop_bits, slave=slave,
+                                     timeout=timeout, byte_timeout=byte_timeout))
+
+    @property
+    def baudrate(self) -> int:
+        """The line's speed, bit/s."""
+        return self.blocking.baudrate
+
+    @property
+    def parity(self) -> str:
+        """``"N"``, ``"E"`` or ``"O"``."""
+        return self.blocking.parity
+
+    @property
+    def data_bits(self) -> int:
+        """Data bits per character."""
+        return self.blocking.data_bits
+
+    @property
+    def stop_bits(self) -> int:
+        """Stop bits per character."""
+        return self.blocking.stop_bits
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds a frame of ``nbytes`` bytes takes on this line (no I/O)."""
+        return self.blocking.frame_time(nbytes)
+
+
+class AsyncUdpClient(AsyncClient):
+    """Modbus over UDP for asyncio: the arguments of :class:`pymb.UdpClient`,
+    the requests as coroutines."""
+
+    blocking: UdpClient
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = 1.0, retries: int = 2) -> None:
+        super().__init__(UdpClient(host, port, slave=slave, timeout=timeout, retries=retries))
+
+    @property
+    def host(self) -> str:
+        """The server's name or address."""
+        return self.blocking.host
+
+    @property
+    def udp_port(self) -> int:
+        """The server's UDP port."""
+        return self.blocking.udp_port
+
+    @property
+    def retries(self) -> int:
+        """How many times an unanswered request is sent again."""
+        return self.blocking.retries

@@ -1,4 +1,5 @@
-"""Modbus clients: :class:`RtuClient` (serial line) and :class:`TcpClient`.
+"""Modbus clients: :class:`RtuClient` (serial line), :class:`TcpClient`,
+:class:`RtuOverTcpClient`, :class:`AsciiClient` and :class:`UdpClient`.
 
 Every argument is checked before anything is sent. Reads longer than one
 request allows (125 registers, 2000 bits) are split into maximal requests
@@ -29,7 +30,13 @@ from pymb.client.checks import (
 )
 from pymb.client.listener import LineListener
 from pymb.client.tls import MBAPS_PORT, TlsConfig
-from pymb.client.transports import RtuClient, RtuOverTcpClient, TcpClient
+from pymb.client.transports import (
+    AsciiClient,
+    RtuClient,
+    RtuOverTcpClient,
+    TcpClient,
+    UdpClient,
+)
 
 __all__ = [
     "FC",
@@ -40,12 +47,14 @@ __all__ = [
     "MAX_WR_READ_REGISTERS",
     "MAX_WR_WRITE_REGISTERS",
     "MBAPS_PORT",
+    "AsciiClient",
     "Client",
     "LineListener",
     "RtuClient",
     "RtuOverTcpClient",
     "TcpClient",
     "TlsConfig",
+    "UdpClient",
     "client_for_address",
     "parse_host_port",
     "unresolved",

@@ -1,6 +1,7 @@
-"""The three clients: :class:`RtuClient` (a serial line), :class:`TcpClient`
-(Modbus TCP) and :class:`RtuOverTcpClient` (RTU frames through a raw serial
-server)."""
+"""The clients, one a transport: :class:`RtuClient` (a serial line),
+:class:`TcpClient` (Modbus TCP), :class:`RtuOverTcpClient` (RTU frames
+through a raw serial server), :class:`AsciiClient` (Modbus ASCII on a serial
+line) and :class:`UdpClient` (Modbus over UDP)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,23 @@ from pymb.client.tls import MBAPS_PORT, TlsConfig
 from pymb.errors import InvalidArgument
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, char_time
 
-__all__ = ["RtuClient", "RtuOverTcpClient", "TcpClient"]
+__all__ = ["AsciiClient", "RtuClient", "RtuOverTcpClient", "TcpClient", "UdpClient"]
+
+
+def _serial(baudrate: int, parity: str, data_bits: int,
+            stop_bits: int) -> tuple[int, str, int, int]:
+    """A serial line's settings checked: (baudrate, parity, data bits, stop bits)."""
+    if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
+            or operator.index(baudrate) not in _native.BAUD_RATES):
+        raise InvalidArgument(
+            f"baudrate {baudrate!r} is not a rate the serial driver supports; "
+            f"use one of {sorted(_native.BAUD_RATES)}"
+        )
+    p = _PARITIES.get(str(parity).upper())
+    if p is None:
+        raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
+    return (operator.index(baudrate), p,
+            _int("data_bits", data_bits, 5, 8), _int("stop_bits", stop_bits, 1, 2))
 
 
 class RtuClient(Client):
@@ -62,18 +79,7 @@ class RtuClient(Client):
     ) -> None:
         if not isinstance(port, str) or not port:
             raise InvalidArgument(f"port must be a device path, got {port!r}")
-        if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
-                or operator.index(baudrate) not in _native.BAUD_RATES):
-            raise InvalidArgument(
-                f"baudrate {baudrate!r} is not a rate the serial driver supports; "
-                f"use one of {sorted(_native.BAUD_RATES)}"
-            )
-        p = _PARITIES.get(str(parity).upper())
-        if p is None:
-            raise InvalidArgument(f"parity must be 'N', 'E' or 'O', got {parity!r}")
-        baudrate = operator.index(baudrate)
-        data_bits = _int("data_bits", data_bits, 5, 8)
-        stop_bits = _int("stop_bits", stop_bits, 1, 2)
+        baudrate, p, data_bits, stop_bits = _serial(baudrate, parity, data_bits, stop_bits)
         self.baudrate = baudrate
         self.parity = p
         self.data_bits = data_bits
@@ -203,3 +209,72 @@ class RtuOverTcpClient(Client):
         self.tcp_port = port
         super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
                          slave=slave, timeout=timeout, byte_timeout=byte_timeout)
+
+
+class AsciiClient(Client):
+    """A Modbus ASCII master on a serial port ([MB-SL] 2.5.2): each frame is
+    ``:``, the address, PDU and LRC as two hexadecimal characters a byte,
+    then CR LF. The specification's line is 7 data bits, even parity
+    (``data_bits=7, parity="E"``); the defaults are :class:`RtuClient`'s.
+
+    ``timeout``: seconds for a complete reply. ``byte_timeout``: the
+    inter-character timeout, the longest gap inside a frame (0, the default:
+    one second, as the specification says); a longer gap drops the frame
+    begun. Bad LRC, another address, a wrong length or echo fail as on RTU;
+    after a failure the line waits for silence before the next request to
+    that address, so a late reply is never taken as a later answer. Address
+    0 broadcasts (writes only).
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baudrate: int = DEFAULT_BAUD,
+        parity: str = DEFAULT_PARITY,
+        data_bits: int = 8,
+        stop_bits: int = 1,
+        *,
+        slave: int | None = None,
+        timeout: float = DEFAULT_TIMEOUT,
+        byte_timeout: float = 0.0,
+    ) -> None:
+        if not isinstance(port, str) or not port:
+            raise InvalidArgument(f"port must be a device path, got {port!r}")
+        baudrate, p, data_bits, stop_bits = _serial(baudrate, parity, data_bits, stop_bits)
+        self.baudrate = baudrate
+        self.parity = p
+        self.data_bits = data_bits
+        self.stop_bits = stop_bits
+        super().__init__(_native.new_ascii(port, baudrate, p, data_bits, stop_bits), slave=slave,
+                         timeout=timeout, byte_timeout=byte_timeout)
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds a frame of ``nbytes`` bytes (address, PDU) takes on this
+        line: ``:``, two characters a byte and the LRC's two, CR LF."""
+        return (1 + 2 * (nbytes + 1) + 2) * char_time(
+            self.baudrate, bits_per_char(self.parity, self.stop_bits, self.data_bits))
+
+
+class UdpClient(Client):
+    """Modbus over UDP: one MBAP frame ([MB-TCP] 3.1.3) a datagram, on a
+    socket pymb opens. ``host`` is a name or an address; ``slave`` the unit
+    identifier, 0..255. A request unanswered within ``timeout`` is sent
+    again, ``retries`` times (0..10), with the same transaction id; a reply
+    to an older request or from another unit, and any datagram that is not
+    one whole Modbus frame, is dropped, never taken as the answer."""
+
+    _min_read_slave = 0
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
+                 retries: int = 2) -> None:
+        if not isinstance(host, str) or not host:
+            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        port = _int("port", port, 1, 65535)
+        retries = _int("retries", retries, 0, 10)
+        self.host = host
+        self.udp_port = port
+        self.retries = retries
+        link = _native.new_udp(host, port)
+        link.set_retries(retries)
+        super().__init__(link, slave=slave, timeout=timeout, byte_timeout=0.0)

@@ -11,7 +11,15 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from pymb import maps
-from pymb.client import Client, RtuClient, client_for_address, unresolved
+from pymb.client import (
+    AsciiClient,
+    Client,
+    RtuClient,
+    UdpClient,
+    client_for_address,
+    parse_host_port,
+    unresolved,
+)
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
@@ -130,13 +138,17 @@ def interruptible(fn: Callable[[], T]) -> T:
 
 def add_connection_args(p: argparse.ArgumentParser, *,
                         timeout: float = DEFAULT_TIMEOUT) -> None:
-    """--port / --tcp / --rtu-over-tcp, --baud, --parity, --timeout."""
+    """--port (with --ascii) / --tcp / --rtu-over-tcp / --udp, --baud, --parity,
+    --timeout."""
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", metavar="PATH",
                        help="serial port, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")
     where.add_argument("--tcp", metavar="HOST:PORT", help="a Modbus TCP gateway")
     where.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                        help="RTU frames over TCP: a transparent serial server (\"raw\" mode)")
+    where.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP (MBAP datagrams)")
+    p.add_argument("--ascii", action="store_true",
+                   help="Modbus ASCII instead of RTU on the --port serial line")
     p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
                    help=f"baud rate (default {DEFAULT_BAUD})")
     p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"],
@@ -148,6 +160,16 @@ def add_connection_args(p: argparse.ArgumentParser, *,
 def make_client(args: argparse.Namespace) -> Client:
     """The client the connection arguments describe (not yet open); a host
     name that does not resolve is said so."""
+    if getattr(args, "ascii", False) and not args.port:
+        raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with --port PATH")
+    if getattr(args, "udp", None):
+        host, port = parse_host_port(args.udp, what="--udp")
+        why = unresolved(host)
+        if why is not None:
+            raise ModbusConnectionError(f"cannot connect to {args.udp}: {why}", port=args.udp)
+        return UdpClient(host, port, timeout=args.timeout)
+    if getattr(args, "ascii", False):
+        return AsciiClient(args.port, args.baud, args.parity, timeout=args.timeout)
     for option, framing in (("tcp", False), ("rtu_over_tcp", True)):
         address = getattr(args, option, None)
         if not address:

@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
     p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                    help="RTU-over-TCP (raw serial server) of a single bus")
+    p.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP device of a single bus")
+    p.add_argument("--ascii", action="store_true",
+                   help="Modbus ASCII instead of RTU on the --port serial line")
     p.add_argument("--device", action="append", default=[], metavar="DEVICE",
                    help="the same as a DEVICE argument (repeatable)")
     p.add_argument("--baud", type=int, default=DEFAULT_BAUD)

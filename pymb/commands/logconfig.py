@@ -73,17 +73,22 @@ def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
 def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]:
     """The LogConfig the arguments describe, and where to forward (None: nowhere)."""
     specs = list(args.devices) + list(args.device)
+    udp: str | None = getattr(args, "udp", None)
+    ascii_line: bool = getattr(args, "ascii", False)
     mqtt_table: MqttConfig | None = None
     if args.config:
-        if args.port or args.tcp or args.rtu_over_tcp or specs:
+        if args.port or args.tcp or args.rtu_over_tcp or udp or ascii_line or specs:
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
         if getattr(args, "maps", None):
             raise InvalidArgument("with --config, name map files in the file: maps = [...]")
         cfg, mqtt_table = load(args.config)
     else:
-        if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp)) > 1:
-            raise InvalidArgument("give one of --port, --tcp or --rtu-over-tcp")
-        if not (args.port or args.tcp or args.rtu_over_tcp) or not specs:
+        if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp, udp)) > 1:
+            raise InvalidArgument("give one of --port, --tcp, --rtu-over-tcp or --udp")
+        if ascii_line and not args.port:
+            raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with "
+                                  "--port PATH")
+        if not (args.port or args.tcp or args.rtu_over_tcp or udp) or not specs:
             raise InvalidArgument("name a bus and its devices: pymb log coolpro:40 hub:250 "
                                   "--port PATH (or --tcp HOST:PORT); or --config FILE")
         known = KnownMaps()
@@ -93,7 +98,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
                    for s in specs]
         cfg = single_bus_config(args.port, args.tcp, devices,
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
-                                interval=args.interval, rtu_over_tcp=args.rtu_over_tcp)
+                                interval=args.interval, rtu_over_tcp=args.rtu_over_tcp,
+                                udp=udp,
+                                ascii=ascii_line)
         cfg.path = ""
     if args.format:
         cfg.format = args.format
@@ -152,11 +159,12 @@ def single_bus_config(port: str | None, tcp: str | None,
                       timeout: float = DEFAULT_TIMEOUT,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
                       max_mb: float | None = None, max_age_days: float | None = None,
-                      name: str = "bus1", rtu_over_tcp: str | None = None) -> LogConfig:
+                      name: str = "bus1", rtu_over_tcp: str | None = None,
+                      udp: str | None = None, ascii: bool = False) -> LogConfig:
     """A LogConfig for one bus from command-line style arguments."""
     bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
                     [parse_device(d) if isinstance(d, str) else d for d in devices],
-                    rtu_over_tcp)
+                    rtu_over_tcp, udp=udp, ascii=ascii)
     return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
                      None if max_age_days is None else max_age_days * 86400)
 

@@ -17,7 +17,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pymb.client import Client, RtuClient, client_for_address
+from pymb.client import (
+    AsciiClient,
+    Client,
+    RtuClient,
+    UdpClient,
+    client_for_address,
+    parse_host_port,
+)
 from pymb.devices import HUB
 from pymb.devices.hub import full_sweep_spans
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
@@ -34,7 +41,7 @@ __all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_co
 
 @dataclass
 class BusConfig:
-    """One serial line (or TCP gateway) and the devices on it."""
+    """One serial line (or TCP gateway, or UDP device) and the devices on it."""
 
     name: str
     port: str | None = None
@@ -47,11 +54,17 @@ class BusConfig:
     rtu_over_tcp: str | None = None
     #: Modbus TCP: a poll's requests in flight on the connection at once
     pipeline: int = 1
+    #: Modbus over UDP: ``HOST:PORT``
+    udp: str | None = None
+    #: the serial line (``port``) speaks Modbus ASCII instead of RTU
+    ascii: bool = False
 
     def __post_init__(self) -> None:
-        if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp)) != 1:
+        if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp, self.udp)) != 1:
             raise InvalidArgument(
-                f"bus {self.name!r}: give exactly one of port, tcp or rtu_over_tcp")
+                f"bus {self.name!r}: give exactly one of port, tcp, rtu_over_tcp or udp")
+        if self.ascii and self.port is None:
+            raise InvalidArgument(f"bus {self.name!r}: ascii = true is for a serial bus (port)")
         if not self.devices:
             raise InvalidArgument(f"bus {self.name!r} has no devices")
         if not (math.isfinite(self.interval) and self.interval >= 0):
@@ -76,7 +89,8 @@ class BusConfig:
     @property
     def endpoint(self) -> str:
         """The port path or ``host:port``."""
-        return self.port if self.port is not None else str(self.tcp or self.rtu_over_tcp)
+        return self.port if self.port is not None else str(
+            self.tcp or self.rtu_over_tcp or self.udp)
 
     def client(self) -> Client:
         """A new (unopened) client for this bus."""
@@ -87,12 +101,19 @@ class BusConfig:
             return client_for_address(self.rtu_over_tcp, rtu_framing=True,
                                       timeout=self.timeout,
                                       what=f"bus {self.name!r}: rtu_over_tcp")
+        if self.udp is not None:
+            host, port = parse_host_port(self.udp, what=f"bus {self.name!r}: udp")
+            return UdpClient(host, port, timeout=self.timeout)
+        if self.ascii:
+            return AsciiClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
         return RtuClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
 
     def wire_time(self, device: DeviceConfig | MapDeviceConfig) -> float:
         """Least wire time of one poll of ``device`` (:mod:`pymb.wire`; a
         map device: of its groups, each once)."""
         bits = bits_per_char(self.parity)
+        if self.ascii:
+            bits *= 2  # two characters a byte (and a few for ':', LRC, CR LF)
         if isinstance(device, MapDeviceConfig):
             return sum(device.map.plan(g, baudrate=self.baud, bits_per_char=bits).predicted_s
                        for g, _ in device.polls)
@@ -219,8 +240,8 @@ _TOP_KEYS = ("maps", "output", "bus", "mqtt", "writes")  # [mqtt]: the forwarder
 _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s", "on_change",
                 "heartbeat_s",
                 "deadband")
-_BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "baud", "parity", "timeout", "interval",
-             "pipeline", "device")
+_BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "udp", "ascii", "baud", "parity", "timeout",
+             "interval", "pipeline", "device")
 _DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
 
 
@@ -228,6 +249,13 @@ def _known(table: dict[str, Any], keys: Sequence[str], where: str) -> None:
     for key in table:
         if key not in keys:
             raise InvalidArgument(f"{where}: unknown key {key!r}{closest(key, keys)}")
+
+
+def _flag(table: dict[str, Any], key: str, where: str) -> bool:
+    value = table.get(key, False)
+    if not isinstance(value, bool):
+        raise InvalidArgument(f"{where}: {key} is true or false, got {value!r}")
+    return value
 
 
 def _get(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str,
@@ -325,6 +353,8 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
                 float(_get(b, "interval", (int, float), where, 0.0)), devices,
                 rtu_over_tcp=_get(b, "rtu_over_tcp", str, where),
                 pipeline=_get(b, "pipeline", int, where, 1),
+                udp=_get(b, "udp", str, where),
+                ascii=_flag(b, "ascii", where),
             ))
         except InvalidArgument as e:
             raise _within(str(path), e) from None

@@ -24,6 +24,8 @@ PAIRS: list[tuple[type, type]] = [
     (pymb.RtuClient, pymb.aio.AsyncRtuClient),
     (pymb.TcpClient, pymb.aio.AsyncTcpClient),
     (pymb.RtuOverTcpClient, pymb.aio.AsyncRtuOverTcpClient),
+    (pymb.AsciiClient, pymb.aio.AsyncAsciiClient),
+    (pymb.UdpClient, pymb.aio.AsyncUdpClient),
     (CoolPro, pymb.aio.AsyncCoolPro),
     (SensorHub, pymb.aio.AsyncSensorHub),
     (MapDevice, pymb.aio.AsyncMapDevice),
@@ -65,9 +67,10 @@ def test_constructors_take_the_same_arguments(blocking: type, aio: type) -> None
     assert got == want
 
 
-@pytest.mark.parametrize(("blocking", "aio"), PAIRS[:3], ids=lambda c: c.__name__)
+@pytest.mark.parametrize(("blocking", "aio"), PAIRS[:5], ids=lambda c: c.__name__)
 def test_instance_attributes_read_through(blocking: type, aio: type) -> None:
-    client: pymb.aio.AsyncClient = (aio("/dev/null") if aio is pymb.aio.AsyncRtuClient
+    serial = (pymb.aio.AsyncRtuClient, pymb.aio.AsyncAsciiClient)
+    client: pymb.aio.AsyncClient = (aio("/dev/null") if aio in serial
                                     else aio("127.0.0.1", 1502))
     twin = client.blocking
     assert isinstance(twin, blocking)

@@ -89,7 +89,8 @@ def test_the_low_level_client_block_matches_the_classes() -> None:
     block = claim_one("docs/library.md", "python", how="check", contains="pymb.TcpClient(").text
     block = re.sub(r"#[^\n]*", "", block)
     calls = re.findall(r"client = pymb\.(\w+)\((.*?)\)\s*\n(?=client|with)", block, re.S)
-    assert {name for name, _ in calls} == {"RtuClient", "TcpClient", "RtuOverTcpClient"}
+    assert {name for name, _ in calls} == {"RtuClient", "TcpClient", "RtuOverTcpClient",
+                                           "AsciiClient", "UdpClient"}
     for name, params in calls:
         namespace: dict[str, object] = {}
         exec(f"def documented({params}): pass", namespace)
@@ -100,7 +101,8 @@ def test_the_low_level_client_block_matches_the_classes() -> None:
             assert actual[p.name].default == p.default, (name, p.name)
             assert actual[p.name].kind == p.kind, (name, p.name)
     for method in set(re.findall(r"client\.(\w+)\(", block)):
-        for cls in (pymb.RtuClient, pymb.TcpClient, pymb.RtuOverTcpClient):
+        for cls in (pymb.RtuClient, pymb.TcpClient, pymb.RtuOverTcpClient, pymb.AsciiClient,
+                    pymb.UdpClient):
             assert callable(getattr(cls, method, None)), (cls.__name__, method)
 
 

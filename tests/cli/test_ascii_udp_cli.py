@@ -1,0 +1,138 @@
+"""``--ascii`` (with ``--port PATH --baud N``) and ``--udp HOST:PORT`` in
+``pymb read`` and ``pymb log``, and ``ascii = true`` / ``udp = "HOST:PORT"``
+in the logger's TOML, against pymodbus serving ASCII on a pseudo-terminal
+and UDP on 127.0.0.1 (tests/pymodbus_server.py: holding register a holds
+7 * a)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from conftest import run_pymb
+
+from pymb.errors import InvalidArgument
+from pymb.logger.config import config_from_toml
+
+HERE = Path(__file__).resolve().parent.parent
+
+MAP = '''schema = "pymb.map/1"
+[device]
+id = "pm-test"
+table = "holding"
+[groups]
+fast = { interval = 0.2 }
+[[point]]
+name = "a"
+address = 3
+type = "u16"
+group = "fast"
+[[point]]
+name = "b"
+address = 300
+type = "u16"
+group = "fast"
+'''
+
+
+@contextmanager
+def pymodbus_peer(mode: str) -> Iterator[str]:
+    """tests/pymodbus_server.py in ``mode``: the pty path or the UDP port."""
+    pytest.importorskip("pymodbus")
+    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().split()
+        assert line, "the server printed nothing"
+        assert line[0] == "READY", line
+        yield line[1]
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+@pytest.fixture
+def map_file(tmp_path: Path) -> Path:
+    path = tmp_path / "pm.toml"
+    path.write_text(MAP)
+    return path
+
+
+def where(mode: str, peer: str) -> list[str]:
+    return (["--ascii", "--port", peer, "--baud", "19200"] if mode == "ascii"
+            else ["--udp", f"127.0.0.1:{peer}"])
+
+
+@pytest.mark.parametrize("mode", ["ascii", "udp"])
+def test_read_and_log(mode: str, map_file: Path, tmp_path: Path) -> None:
+    with pymodbus_peer(mode) as peer:
+        done = run_pymb("read", "--map", str(map_file), "pm-test:17", *where(mode, peer),
+                        "--json")
+        assert done.returncode == 0, done.stderr
+        assert json.loads(done.stdout)["values"] == {"a": 21, "b": 2100}
+        out = tmp_path / "log.jsonl"
+        done = run_pymb("log", "--map", str(map_file), "pm-test:17", *where(mode, peer),
+                        "--format", "jsonl", "--out", str(out), "--seconds", "1.5", "--quiet")
+        assert done.returncode == 0, done.stderr
+        rows = [json.loads(line) for line in out.read_text().splitlines()]
+        assert rows
+        assert "2100" in out.read_text()
+        assert "21" in out.read_text()
+
+
+def test_toml_buses(map_file: Path, tmp_path: Path) -> None:
+    with pymodbus_peer("ascii") as pty, pymodbus_peer("udp") as port:
+        config = tmp_path / "buses.toml"
+        out = tmp_path / "log.jsonl"
+        config.write_text(f'''maps = ["{map_file}"]
+[output]
+format = "jsonl"
+path = "{out}"
+
+[[bus]]
+name = "serial-ascii"
+port = "{pty}"
+ascii = true
+baud = 19200
+[[bus.device]]
+type = "pm-test"
+address = 17
+name = "over-ascii"
+
+[[bus]]
+name = "udp"
+udp = "127.0.0.1:{port}"
+[[bus.device]]
+type = "pm-test"
+address = 1
+name = "over-udp"
+''')
+        done = run_pymb("log", "--config", str(config), "--seconds", "1.5", "--quiet")
+        assert done.returncode == 0, done.stderr
+        text = out.read_text()
+        assert "over-ascii" in text
+        assert "over-udp" in text
+        assert "2100" in text
+
+
+def test_mistakes_are_one_line() -> None:
+    done = run_pymb("read", "coolpro", "--ascii", "--tcp", "127.0.0.1:502")
+    assert done.returncode == 2
+    assert "--ascii" in done.stderr
+    assert "Traceback" not in done.stderr
+    done = run_pymb("read", "coolpro", "--udp", "nohost")
+    assert done.returncode == 2
+    assert "--udp" in done.stderr
+    with pytest.raises(InvalidArgument, match="ascii = true is for a serial bus"):
+        config_from_toml(tomllib.loads('[[bus]]\nudp = "127.0.0.1:502"\nascii = true\n'
+                                       '[[bus.device]]\ntype = "coolpro"\n'), "x.toml")
+    with pytest.raises(InvalidArgument, match="ascii is true or false"):
+        config_from_toml(tomllib.loads('[[bus]]\nport = "/dev/null"\nascii = "yes"\n'
+                                       '[[bus.device]]\ntype = "coolpro"\n'), "x.toml")
