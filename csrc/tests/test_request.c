@@ -1187,6 +1187,8 @@ static void test_io(enum kind k)
           -1 && errno == ECONNRESET);
     rig_close(&r);
     printf("%s: I/O callbacks\n", kind_name(k));
+}
+
 /* The ASCII frame by itself ([MB-SL] 2.5.2): the LRC, the text, and the
  * receiver's refusals, against the test's own encoder. */
 static int feed_all(pymbi_ascii_rx *rx, const char *text, size_t n)
