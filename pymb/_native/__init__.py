@@ -207,8 +207,5 @@ from pymb._native.link import (  # noqa: E402
     Link,
     RegisterPlan,
     ffi_buffer_u16,
-    new_ascii,
-    new_rtu,
-    new_tcp,
-    new_udp,
 )
+from pymb._native.transports import new_ascii, new_rtu, new_tcp, new_udp  # noqa: E402

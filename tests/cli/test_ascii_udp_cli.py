@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from conftest import run_pymb
+from docblocks import claim_one
 
 from pymb.errors import InvalidArgument
 from pymb.logger.config import config_from_toml
@@ -24,7 +25,7 @@ HERE = Path(__file__).resolve().parent.parent
 
 MAP = '''schema = "pymb.map/1"
 [device]
-id = "pm-test"
+id = "acme-meter"
 table = "holding"
 [groups]
 fast = { interval = 0.2 }
@@ -73,12 +74,12 @@ def where(mode: str, peer: str) -> list[str]:
 @pytest.mark.parametrize("mode", ["ascii", "udp"])
 def test_read_and_log(mode: str, map_file: Path, tmp_path: Path) -> None:
     with pymodbus_peer(mode) as peer:
-        done = run_pymb("read", "--map", str(map_file), "pm-test:17", *where(mode, peer),
+        done = run_pymb("read", "--map", str(map_file), "acme-meter:17", *where(mode, peer),
                         "--json")
         assert done.returncode == 0, done.stderr
         assert json.loads(done.stdout)["values"] == {"a": 21, "b": 2100}
         out = tmp_path / "log.jsonl"
-        done = run_pymb("log", "--map", str(map_file), "pm-test:17", *where(mode, peer),
+        done = run_pymb("log", "--map", str(map_file), "acme-meter:17", *where(mode, peer),
                         "--format", "jsonl", "--out", str(out), "--seconds", "1.5", "--quiet")
         assert done.returncode == 0, done.stderr
         rows = [json.loads(line) for line in out.read_text().splitlines()]
@@ -102,7 +103,7 @@ port = "{pty}"
 ascii = true
 baud = 19200
 [[bus.device]]
-type = "pm-test"
+type = "acme-meter"
 address = 17
 name = "over-ascii"
 
@@ -110,7 +111,7 @@ name = "over-ascii"
 name = "udp"
 udp = "127.0.0.1:{port}"
 [[bus.device]]
-type = "pm-test"
+type = "acme-meter"
 address = 1
 name = "over-udp"
 ''')
@@ -136,3 +137,20 @@ def test_mistakes_are_one_line() -> None:
     with pytest.raises(InvalidArgument, match="ascii is true or false"):
         config_from_toml(tomllib.loads('[[bus]]\nport = "/dev/null"\nascii = "yes"\n'
                                        '[[bus.device]]\ntype = "coolpro"\n'), "x.toml")
+
+
+def test_the_docs_lines_run(map_file: Path, tmp_path: Path) -> None:
+    # docs/cli.md's two lines, as shown, with meter.toml this test's map and
+    # the pty and port pymodbus serves on.
+    block = claim_one("docs/cli.md", "sh", how="run", contains="--ascii --port")
+    lines = [line.split() for line in block.lines() if line.startswith("pymb ")]
+    assert len(lines) == 2
+    (tmp_path / "meter.toml").write_text(map_file.read_text())
+    with pymodbus_peer("ascii") as pty, pymodbus_peer("udp") as port:
+        for argv in lines:
+            argv = [pty if a == "/dev/ttyUSB1" else f"127.0.0.1:{port}"
+                    if a == "192.168.1.51:502" else a for a in argv[1:]]
+            extra = ["--seconds", "1"] if argv[0] == "log" else []
+            done = run_pymb(*argv, *extra, cwd=tmp_path)
+            assert done.returncode == 0, (argv, done.stderr)
+            assert "2100" in done.stdout, argv
