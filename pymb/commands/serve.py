@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
     upstream = Upstream(line, on_event=say)
     server = Server(upstream, host, port, units=units, max_clients=args.max_clients, tls=tls,
                     write_roles=roles, on_event=say)
-    upstream_name = args.port or args.tcp or args.rtu_over_tcp
+    upstream_name = (f"{args.port} (ASCII)" if args.ascii else args.port or args.tcp
+                     or args.rtu_over_tcp or f"{args.udp} (UDP)")
     # Two threads hand each request to each other: with Python's default 5 ms
     # switch interval, a thread that wants the GIL back can wait that long.
     sys.setswitchinterval(0.0002)

@@ -1,0 +1,84 @@
+"""``pymb serve --ascii --port PATH`` and ``pymb serve --udp HOST:PORT``:
+Modbus TCP clients in front of a Modbus ASCII line (pymodbus's ASCII server
+on a pseudo-terminal) or a Modbus UDP device (pymodbus's UDP server)
+(tests/pymodbus_server.py: holding register a holds 7 * a, units 1 and 17)."""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from servekit import RawClient, Served, read_pdu, words
+
+HERE = Path(__file__).resolve().parent.parent
+
+
+@contextmanager
+def pymodbus_peer(mode: str) -> Iterator[str]:
+    """pymodbus serving ``mode``; yields the pseudo-terminal's path or the port."""
+    pytest.importorskip("pymodbus")
+    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline().split()
+        assert line, "the server printed nothing"
+        assert line[0] == "READY", line
+        yield line[1]
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_clients_share_an_ascii_line() -> None:
+    with pymodbus_peer("ascii") as pty, \
+            Served("--ascii", "--port", pty, "--baud", "19200", "--timeout", "1") as served:
+        a, b = RawClient(served.port), RawClient(served.port)
+        try:
+            assert words(a.ask(7, 17, read_pdu(0, 5))) == [0, 7, 14, 21, 28]
+            assert words(b.ask(900, 1, read_pdu(10, 2))) == [70, 77]
+            # A write, then its value read back by the other client.
+            write = struct.pack(">BHH", 6, 500, 4242)
+            assert a.ask(8, 17, write) == write
+            assert words(b.ask(901, 17, read_pdu(500, 1))) == [4242]
+            # The device's exception passes through, and the line stays in step.
+            assert a.ask(9, 17, read_pdu(990, 20)) == bytes((0x83, 0x02))
+            assert words(a.ask(10, 17, read_pdu(3, 1))) == [21]
+            # Both clients at once: each gets its own answers.
+            wrong: list[str] = []
+
+            def worker(c: RawClient, unit: int, base: int) -> None:
+                for k in range(20):
+                    got = words(c.ask(base + k, unit, read_pdu(k, 2)))
+                    if got != [7 * k, 7 * k + 7]:
+                        wrong.append(f"{unit}: {k}: {got}")
+
+            threads = [threading.Thread(target=worker, args=(a, 17, 100)),
+                       threading.Thread(target=worker, args=(b, 1, 300))]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(60)
+            assert not wrong
+        finally:
+            a.close()
+            b.close()
+        assert served.stop() == 0
+
+
+def test_a_udp_device_upstream() -> None:
+    with pymodbus_peer("udp") as port, \
+            Served("--udp", f"127.0.0.1:{port}", "--timeout", "1") as served:
+        c = RawClient(served.port)
+        try:
+            assert words(c.ask(1, 17, read_pdu(4, 2))) == [28, 35]
+            assert c.ask(2, 17, read_pdu(990, 20)) == bytes((0x83, 0x02))
+        finally:
+            c.close()
+        assert served.stop() == 0
