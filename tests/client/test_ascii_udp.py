@@ -151,13 +151,16 @@ def test_ascii_request_on_the_wire_and_a_bad_lrc() -> None:
 def test_ascii_late_reply_is_never_a_later_answer() -> None:
     # Request 0 is answered after its timeout; request 1 asks the same
     # address: the late frame (value 111) must not be its answer.
+    # It comes 0.25 s after the timeout: within the quiet window the next
+    # request to that address first waits for (the timeout again, from the
+    # failure), with a margin of 0.25 s either side.
     def script(i: int, req: bytes) -> Reply:
         if i == 0:
-            return [(0.6, ascii_frame(read_reply(req, [111])))]
+            return [(0.75, ascii_frame(read_reply(req, [111])))]
         return [(0, ascii_frame(read_reply(req, [222])))]
 
     with AsciiPty(script) as peer, \
-            pymb.AsciiClient(peer.port, 19200, slave=3, timeout=0.3) as c:
+            pymb.AsciiClient(peer.port, 19200, slave=3, timeout=0.5) as c:
         with pytest.raises(pymb.ModbusTimeout):
             c.read_holding_registers(0, 1)
         assert list(c.read_holding_registers(0, 1)) == [222]
