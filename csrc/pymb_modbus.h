@@ -16,7 +16,8 @@
  *   - has no RTU-over-TCP transport (its issue #192).
  *
  * A pymb_line is opaque: pymb_line_new() makes one for an opened modbus_t
- * and a framing, and picks the transport (RTU, TCP, RTU over TCP) then; it
+ * and a framing, and picks the transport (RTU, TCP, RTU over TCP, ASCII,
+ * UDP) then; it
  * keeps the state a line needs between requests (the next MBAP transaction
  * id, a quiet window owed after a failure, the frame silence, an interrupt
  * hook), and nothing else in the library keeps state. The caller keeps
@@ -40,6 +41,14 @@
  *     owed, unless bytes already wait behind it (its length lied); a frame
  *     cut short (a timeout or an interrupt mid-frame, an impossible MBAP
  *     header) owes the quiet window as over RTU;
+ *   - ASCII: as RTU (the quiet window after a failure, late frames of the
+ *     failed address dropped), frames delimited by ':' and CR LF, the LRC
+ *     checked (a bad one is EMBBADCRC), a frame whose characters stop for
+ *     longer than the byte timeout (PYMB_ASCII_CHAR_US when 0) dropped;
+ *   - UDP: as TCP, but a datagram that is not the answer (another
+ *     transaction id or unit, not one whole MBAP frame) is always dropped
+ *     and the wait goes on, and an unanswered request is sent again
+ *     (pymb_line_set_retries);
  *   - returns -1 with errno set on failure, as libmodbus does: ETIMEDOUT,
  *     EMBBADCRC, EMBBADSLAVE, EMBBADDATA (a malformed or mismatched reply),
  *     EINTR (the interrupt hook asked to stop), EINVAL for a bad argument,
