@@ -58,11 +58,16 @@ class TlsPeer:
     ``d/ca.pem`` required. Each request (a whole MBAP frame) goes to
     ``script(index, request)``, whose frames are sent one by one; with
     ``close_after_reply`` the connection is closed after each answer.
-    ``requests`` keeps every request, ``connections`` counts accepts."""
+    ``version`` offers that TLS version only. ``requests`` keeps every
+    request, ``connections`` counts accepts."""
 
     def __init__(self, d: Path, script: Callable[[int, bytes], list[bytes]], *,
-                 close_after_reply: bool = False) -> None:
+                 close_after_reply: bool = False,
+                 version: ssl.TLSVersion | None = None) -> None:
         self.ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        if version is not None:  # only this version (an old one: at OpenSSL's level 0)
+            self.ctx.set_ciphers("DEFAULT:@SECLEVEL=0")
+            self.ctx.minimum_version = self.ctx.maximum_version = version
         self.ctx.load_cert_chain(d / "server.pem", d / "server.key")
         self.ctx.load_verify_locations(d / "ca.pem")
         self.ctx.verify_mode = ssl.CERT_REQUIRED

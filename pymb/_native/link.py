@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from pymb._native import FunctionCode
-from pymb._native.tls import TlsSession, tls_words
+from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
     InvalidArgument,
@@ -240,11 +240,13 @@ class Link:
         try:
             session.handshake(self._timeout[0])
         except (ssl.SSLError, TimeoutError, OSError) as e:
+            session.release()
             err = e.errno if isinstance(e, OSError) and not isinstance(
                 e, ssl.SSLError) and e.errno else errno.EPROTO
             raise TlsError(f"cannot open {self.name}: {tls_words(e)}", errno=err,
                            port=self.name) from None
         if lib.pymb_line_set_io(self._line, session.io) < 0:
+            session.release()
             raise ModbusConnectionError(f"cannot set up {self.name}: TLS I/O refused",
                                         errno=errno.EINVAL, port=self.name)
         self._session = session
@@ -278,7 +280,9 @@ class Link:
         if line != ffi.NULL:
             lib.pymb_line_close(line)
             lib.pymb_line_free(line)
-        elif ctx != ffi.NULL:
+        if session is not None:
+            session.release()
+        if ctx != ffi.NULL and line == ffi.NULL:
             lib.modbus_close(ctx)
         if ctx != ffi.NULL:
             lib.modbus_free(ctx)
@@ -442,7 +446,7 @@ class Link:
         n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
         if n < 0:
             err = ffi.errno
-            exc = _take_interrupt() if err == errno.EINTR else None
+            exc = (_take_interrupt() or take_raised()) if err == errno.EINTR else None
             if exc is not None:
                 raise exc
             raise ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}", errno=err,
@@ -463,7 +467,7 @@ class Link:
         if not self.is_open:
             return self._closed(function, slave, address, count)
         if err == errno.EINTR:
-            exc = _take_interrupt()
+            exc = _take_interrupt() or take_raised()
             if exc is not None:  # a signal handler raised: that is the error
                 return exc  # type: ignore[return-value]
         fail = self._fail

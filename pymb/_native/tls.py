@@ -15,12 +15,13 @@ import errno
 import os
 import select
 import ssl
+import threading
 import time
 from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["TlsSession", "tls_words"]
+__all__ = ["TlsSession", "take_raised", "tls_words"]
 
 _CHUNK = 65536  #: raw bytes taken from the socket at a time
 
@@ -81,8 +82,8 @@ class TlsSession:
         self.received = False
         self.write_timeout = 1.0  #: seconds a write may wait on a full socket
         self._starved = False  # the buffered ciphertext is not a whole record
-        self.handle = ffi.new_handle(self)
-        self.io = ffi.new("pymb_line_io *")
+        self.handle: Any = ffi.new_handle(self)
+        self.io: Any = ffi.new("pymb_line_io *")
         self.io.read = lib.pymb_py_tls_read
         self.io.write = lib.pymb_py_tls_write
         self.io.pending = lib.pymb_py_tls_pending
@@ -192,6 +193,11 @@ class TlsSession:
             return 1
         return 1 if self._in.pending and not self._starved else 0
 
+    def release(self) -> None:
+        """Drop the handle C held (after the line is freed): no cycle stays."""
+        self.io = None
+        self.handle = None
+
     def close(self) -> None:
         """Send close_notify if the socket takes it now (never waits)."""
         with contextlib.suppress(ssl.SSLError, ValueError):
@@ -210,8 +216,21 @@ def _poll(fd: int, events: int, seconds: float) -> bool:
     return bool(p.poll(max(1, int(seconds * 1000) + 1)))
 
 
+_raised = threading.local()
+
+
+def take_raised() -> BaseException | None:
+    """The exception a callback of this thread raised (a signal handler's
+    KeyboardInterrupt), once; None if none."""
+    exc: BaseException | None = getattr(_raised, "exc", None)
+    _raised.exc = None
+    return exc
+
+
 def _io_failed(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
-    return -errno.EIO
+    # Kept for the caller to raise (the request fails with EINTR meanwhile).
+    _raised.exc = exc if exc is not None else exc_type()
+    return -errno.EINTR
 
 
 @ffi.def_extern(onerror=_io_failed)  # type: ignore[untyped-decorator]

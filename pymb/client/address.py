@@ -1,15 +1,20 @@
-"""Where a client goes: ``HOST:PORT`` as the command line spells it, the
-client for it, and whether a host name resolves."""
+"""Where a client goes: ``HOST:PORT`` (or ``mbaps://HOST[:PORT]``, Modbus/TCP
+Security) as the command line spells it, the client for it, and whether a
+host name resolves."""
 
 from __future__ import annotations
 
 import socket
 
+from pymb.client.tls import MBAPS_PORT, TlsConfig
 from pymb.client.transports import RtuOverTcpClient, TcpClient
 from pymb.errors import InvalidArgument
 from pymb.wire import DEFAULT_TIMEOUT
 
-__all__ = ["client_for_address", "parse_host_port", "unresolved"]
+__all__ = ["MBAPS", "client_for_address", "is_mbaps", "parse_address", "parse_host_port",
+           "unresolved"]
+
+MBAPS = "mbaps://"  #: the scheme of a Modbus/TCP Security address
 
 
 def parse_host_port(text: str, *, what: str = "--tcp",
@@ -30,12 +35,43 @@ def parse_host_port(text: str, *, what: str = "--tcp",
     return host.strip("[]") or "127.0.0.1", number
 
 
+def is_mbaps(address: str) -> bool:
+    """Whether ``address`` names Modbus/TCP Security (``mbaps://...``)."""
+    return str(address).lower().startswith(MBAPS)
+
+
+def parse_address(text: str, *, what: str = "--tcp") -> tuple[str, int, bool]:
+    """``HOST:PORT`` or ``mbaps://HOST[:PORT]`` as a user typed it ->
+    ``(host, port, tls)``; ``mbaps://`` without a port is port 802."""
+    text = str(text)
+    if not is_mbaps(text):
+        return (*parse_host_port(text, what=what), False)
+    rest = text[len(MBAPS):].rstrip("/")
+    if not rest or rest.startswith(":"):
+        raise InvalidArgument(f"{what} needs mbaps://HOST[:PORT], got {text!r}")
+    if rest.endswith("]") or ":" not in rest or (rest.count(":") > 1 and "]" not in rest):
+        rest = f"{rest}:{MBAPS_PORT}"  # no port: Modbus/TCP Security's own
+    host, port = parse_host_port(rest, what=what)
+    return host, port, True
+
+
 def client_for_address(address: str, *, rtu_framing: bool = False, timeout: float = DEFAULT_TIMEOUT,
-                       what: str = "--tcp") -> TcpClient | RtuOverTcpClient:
+                       what: str = "--tcp",
+                       tls: TlsConfig | None = None) -> TcpClient | RtuOverTcpClient:
     """A (not yet open) :class:`TcpClient`, or with ``rtu_framing`` an
     :class:`RtuOverTcpClient`, for ``HOST:PORT`` as a user typed it (``what``
-    names the option or key in the error)."""
-    host, port = parse_host_port(address, what=what)
+    names the option or key in the error). ``mbaps://HOST[:PORT]`` is a
+    TcpClient with Modbus/TCP Security: ``tls`` (None: the system's trusted
+    CAs, no client certificate); ``tls`` with a plain address is refused."""
+    host, port, secure = parse_address(address, what=what)
+    if secure:
+        if rtu_framing:
+            raise InvalidArgument(f"{what} takes HOST:PORT: RTU over TCP has no TLS "
+                                  f"(mbaps:// is Modbus TCP's), got {address!r}")
+        return TcpClient(host, port, timeout=timeout, tls=tls or TlsConfig())
+    if tls is not None:
+        raise InvalidArgument(f"TLS settings need an mbaps://HOST[:PORT] address, "
+                              f"not {what} {address}")
     cls = RtuOverTcpClient if rtu_framing else TcpClient
     return cls(host, port, timeout=timeout)
 

@@ -26,6 +26,23 @@ def _path(what: str, value: str | os.PathLike[str] | None) -> str | None:
     return path
 
 
+def _chain_error(cert: str, key: str | None, e: BaseException) -> str:
+    """Why a certificate and key did not load, in one line."""
+    reason = getattr(e, "reason", None)
+    if reason == "KEY_VALUES_MISMATCH":
+        return f"tls key {key!r} is not the private key of cert {cert!r}"
+    if key is None:
+        try:
+            with open(cert, "rb") as f:
+                has_key = b"PRIVATE KEY" in f.read(1 << 20)
+        except OSError:
+            has_key = True
+        if not has_key:
+            return f"tls cert {cert!r} holds no private key: give its key file too"
+    what = f"{cert!r} and key {key!r}" if key else repr(cert)
+    return f"tls cert {what}: not a PEM certificate and its key ({reason or e})"
+
+
 @dataclass(frozen=True)
 class TlsConfig:
     """How a client speaks Modbus/TCP Security (TLS 1.2 or later, X.509 both
@@ -86,10 +103,7 @@ class TlsConfig:
             try:
                 ctx.load_cert_chain(cert, key)
             except (ssl.SSLError, OSError) as e:
-                what = f"{cert!r} and key {key!r}" if key else repr(cert)
-                raise InvalidArgument(
-                    f"tls cert {what}: not a PEM certificate and its matching key "
-                    f"({getattr(e, 'reason', None) or e})") from None
+                raise InvalidArgument(_chain_error(cert, key, e)) from None
         return ctx
 
     def server_name_for(self, host: str) -> str | None:

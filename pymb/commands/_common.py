@@ -15,11 +15,13 @@ from pymb.client import (
     AsciiClient,
     Client,
     RtuClient,
+    TlsConfig,
     UdpClient,
     client_for_address,
     parse_host_port,
     unresolved,
 )
+from pymb.client.address import is_mbaps
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
@@ -137,13 +139,16 @@ def interruptible(fn: Callable[[], T]) -> T:
 
 
 def add_connection_args(p: argparse.ArgumentParser, *,
-                        timeout: float = DEFAULT_TIMEOUT) -> None:
+                        timeout: float = DEFAULT_TIMEOUT, tls: bool = True) -> None:
     """--port (with --ascii) / --tcp / --rtu-over-tcp / --udp, --baud, --parity,
-    --timeout."""
+    --timeout, and with ``tls`` the client's Modbus/TCP Security options
+    (:func:`add_tls_args`)."""
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", metavar="PATH",
                        help="serial port, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")
-    where.add_argument("--tcp", metavar="HOST:PORT", help="a Modbus TCP gateway")
+    where.add_argument("--tcp", metavar="HOST:PORT",
+                       help="a Modbus TCP gateway; mbaps://HOST[:PORT] for Modbus/TCP "
+                            "Security (TLS, port 802)")
     where.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                        help="RTU frames over TCP: a transparent serial server (\"raw\" mode)")
     where.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP (MBAP datagrams)")
@@ -155,6 +160,52 @@ def add_connection_args(p: argparse.ArgumentParser, *,
                    help=f"parity (default {DEFAULT_PARITY})")
     p.add_argument("--timeout", type=float, default=timeout,
                    help=f"seconds to wait for a reply (default {timeout:g})")
+    if tls:
+        add_tls_args(p)
+
+
+def add_tls_args(p: argparse.ArgumentParser) -> None:
+    """--ca, --cert, --key, --server-name: for ``--tcp mbaps://HOST[:PORT]``."""
+    tls = p.add_argument_group("Modbus/TCP Security (with --tcp mbaps://HOST[:PORT])")
+    tls.add_argument("--ca", dest="tls_ca", metavar="FILE",
+                     help="the CA that signed the server's certificate (PEM; default: the "
+                          "system's trusted CAs)")
+    tls.add_argument("--cert", dest="tls_cert", metavar="FILE",
+                     help="this client's certificate (PEM)")
+    tls.add_argument("--key", dest="tls_key", metavar="FILE", help="its private key (PEM)")
+    tls.add_argument("--server-name", dest="tls_server_name", metavar="NAME",
+                     help="the name the server's certificate must be made for (default: the "
+                          "host connected to)")
+
+
+def tls_for(args: argparse.Namespace, address: str | None, flag: str = "--tcp") -> TlsConfig | None:
+    """The TLS settings of the options, which need ``address`` to be
+    ``mbaps://...`` (None: no option given)."""
+    given = any(getattr(args, f"tls_{k}", None) is not None
+                for k in ("ca", "cert", "key", "server_name"))
+    if given and not (address and is_mbaps(address)):
+        where = f", not {flag} {address}" if address else ""
+        raise InvalidArgument(f"--ca/--cert/--key/--server-name need --tcp "
+                              f"mbaps://HOST[:PORT]{where}")
+    return tls_from_args(args)
+
+
+def tls_from_args(args: argparse.Namespace) -> TlsConfig | None:
+    """The TLS settings the options give (None: no option given)."""
+    given = {k: getattr(args, f"tls_{k}", None) for k in ("ca", "cert", "key", "server_name")}
+    if all(v is None for v in given.values()):
+        return None
+    if given["key"] is not None and given["cert"] is None:
+        raise InvalidArgument("--key needs --cert (the certificate it belongs to)")
+    try:
+        return TlsConfig(ca=given["ca"], cert=given["cert"], key=given["key"],
+                         server_name=given["server_name"])
+    except InvalidArgument as e:  # its words name the field: here, the option
+        text = str(e)
+        for field in ("server_name", "ca", "cert", "key"):
+            if text.startswith(f"tls {field} "):
+                text = "--" + field.replace("_", "-") + text[len(f"tls {field}"):]
+        raise InvalidArgument(text) from None
 
 
 def make_client(args: argparse.Namespace) -> Client:
@@ -175,12 +226,14 @@ def make_client(args: argparse.Namespace) -> Client:
         if not address:
             continue
         flag = "--" + option.replace("_", "-")
+        tls = tls_for(args, address, flag)
         client = client_for_address(address, rtu_framing=framing, timeout=args.timeout,
-                                    what=flag)
+                                    what=flag, tls=tls)
         why = unresolved(client.host)
         if why is not None:
             raise ModbusConnectionError(f"cannot connect to {address}: {why}", port=address)
         return client
+    tls_for(args, None)
     return RtuClient(args.port, args.baud, args.parity, timeout=args.timeout)
 
 

@@ -12,7 +12,7 @@ import argparse
 import math
 import sys
 
-from pymb.commands._common import device_help
+from pymb.commands._common import add_tls_args, device_help
 from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
 from pymb.commands.mapcli import add_map_arg
@@ -35,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE.toml",
                    help="buses, devices and output from a TOML file (see docs/cli.md)")
     p.add_argument("--port", metavar="PATH", help="serial port of a single bus")
-    p.add_argument("--tcp", metavar="HOST:PORT", help="Modbus TCP gateway of a single bus")
+    p.add_argument("--tcp", metavar="HOST:PORT",
+                   help="Modbus TCP gateway of a single bus; mbaps://HOST[:PORT] for Modbus/TCP "
+                        "Security (TLS, port 802)")
     p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                    help="RTU-over-TCP (raw serial server) of a single bus")
     p.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP device of a single bus")
@@ -75,6 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default 60)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no status line (for services)")
+    add_tls_args(p)
     add_mqtt_arguments(p)
 
 

@@ -10,6 +10,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from pymb.client import TlsConfig
+from pymb.commands._common import tls_for, tls_from_args
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.mapspec import parse_map_device, unknown_device
 from pymb.devices.spec import DeviceConfig, parse_device, split_spec
@@ -81,6 +83,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
         if getattr(args, "maps", None):
             raise InvalidArgument("with --config, name map files in the file: maps = [...]")
+        if tls_from_args(args) is not None:
+            raise InvalidArgument("with --config, give a bus's TLS settings in the file: "
+                                  "[bus.tls]")
         cfg, mqtt_table = load(args.config)
     else:
         if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp, udp)) > 1:
@@ -100,7 +105,8 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
                                 interval=args.interval, rtu_over_tcp=args.rtu_over_tcp,
                                 udp=udp,
-                                ascii=ascii_line)
+                                ascii=ascii_line,
+                                tls=tls_for(args, args.tcp))
         cfg.path = ""
     if args.format:
         cfg.format = args.format
@@ -160,11 +166,12 @@ def single_bus_config(port: str | None, tcp: str | None,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",
                       max_mb: float | None = None, max_age_days: float | None = None,
                       name: str = "bus1", rtu_over_tcp: str | None = None,
-                      udp: str | None = None, ascii: bool = False) -> LogConfig:
+                      udp: str | None = None, ascii: bool = False,
+                      tls: TlsConfig | None = None) -> LogConfig:
     """A LogConfig for one bus from command-line style arguments."""
     bus = BusConfig(name, port, tcp, baud, parity, timeout, interval,
                     [parse_device(d) if isinstance(d, str) else d for d in devices],
-                    rtu_over_tcp, udp=udp, ascii=ascii)
+                    rtu_over_tcp, udp=udp, ascii=ascii, tls=tls)
     return LogConfig([bus], fmt, path, None if max_mb is None else int(max_mb * 1e6),
                      None if max_age_days is None else max_age_days * 86400)
 

@@ -19,7 +19,7 @@ __all__ = ["add_arguments", "run", "tls_server_context"]
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb serve``."""
-    add_connection_args(p, timeout=1.0)
+    add_connection_args(p, timeout=1.0, tls=False)  # --cert/--key/--ca: the server's own
     p.add_argument("--listen", default="127.0.0.1:502", metavar="HOST:PORT",
                    help="where to accept Modbus TCP clients (default 127.0.0.1:502; "
                         "0.0.0.0:502 for every interface; port 0 picks a free one)")

@@ -21,10 +21,12 @@ from pymb.client import (
     AsciiClient,
     Client,
     RtuClient,
+    TlsConfig,
     UdpClient,
     client_for_address,
     parse_host_port,
 )
+from pymb.client.address import is_mbaps, parse_address
 from pymb.devices import HUB
 from pymb.devices.hub import full_sweep_spans
 from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
@@ -58,6 +60,9 @@ class BusConfig:
     udp: str | None = None
     #: the serial line (``port``) speaks Modbus ASCII instead of RTU
     ascii: bool = False
+    #: ``tcp = "mbaps://..."``: Modbus/TCP Security's settings (None: the
+    #: system's trusted CAs, no client certificate)
+    tls: TlsConfig | None = None
 
     def __post_init__(self) -> None:
         if sum(x is not None for x in (self.port, self.tcp, self.rtu_over_tcp, self.udp)) != 1:
@@ -65,6 +70,14 @@ class BusConfig:
                 f"bus {self.name!r}: give exactly one of port, tcp, rtu_over_tcp or udp")
         if self.ascii and self.port is None:
             raise InvalidArgument(f"bus {self.name!r}: ascii = true is for a serial bus (port)")
+        secure = self.tcp is not None and is_mbaps(self.tcp)
+        if secure:
+            parse_address(self.tcp or "", what=f"bus {self.name!r}: tcp")
+        if self.tls is not None and not secure:
+            raise InvalidArgument(f"bus {self.name!r}: tls needs tcp = \"mbaps://HOST[:PORT]\"")
+        if secure and self.pipeline > 1:
+            raise InvalidArgument(f"bus {self.name!r}: pipeline is for a plain tcp bus (an "
+                                  "mbaps:// bus is polled one request at a time)")
         if not self.devices:
             raise InvalidArgument(f"bus {self.name!r} has no devices")
         if not (math.isfinite(self.interval) and self.interval >= 0):
@@ -96,7 +109,7 @@ class BusConfig:
         """A new (unopened) client for this bus."""
         if self.tcp is not None:
             return client_for_address(self.tcp, timeout=self.timeout,
-                                      what=f"bus {self.name!r}: tcp")
+                                      what=f"bus {self.name!r}: tcp", tls=self.tls)
         if self.rtu_over_tcp is not None:
             return client_for_address(self.rtu_over_tcp, rtu_framing=True,
                                       timeout=self.timeout,
@@ -241,7 +254,8 @@ _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s",
                 "heartbeat_s",
                 "deadband")
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "udp", "ascii", "baud", "parity", "timeout",
-             "interval", "pipeline", "device")
+             "interval", "pipeline", "device", "tls")
+_TLS_KEYS = ("ca", "cert", "key", "server_name", "check_hostname")
 _DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
 
 
@@ -303,6 +317,25 @@ def _allow(doc: dict[str, Any], path: str) -> tuple[str, ...]:
     return tuple(allow)
 
 
+def _tls(bus: dict[str, Any], where: str, base: Path) -> TlsConfig | None:
+    """A bus's ``[bus.tls]`` table; its files relative to the config file."""
+    table = _get(bus, "tls", dict, where)
+    if table is None:
+        return None
+    _known(table, _TLS_KEYS, f"{where} [bus.tls]")
+    files = {k: _get(table, k, str, f"{where} [bus.tls]") for k in ("ca", "cert", "key")}
+    check = table.get("check_hostname", True)
+    if not isinstance(check, bool):
+        raise InvalidArgument(f"{where} [bus.tls]: check_hostname must be true or false")
+    try:
+        return TlsConfig(**{k: None if v is None else str(base / os.path.expanduser(v))
+                            for k, v in files.items()},
+                         server_name=_get(table, "server_name", str, f"{where} [bus.tls]"),
+                         check_hostname=check)
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{where} [bus.tls]: {str(e).removeprefix('tls ')}") from None
+
+
 def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogConfig:
     """The buses and output of a parsed TOML configuration read from ``path``
     (named in errors). Its ``[mqtt]`` table, if any, must be a table; reading
@@ -355,6 +388,7 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
                 pipeline=_get(b, "pipeline", int, where, 1),
                 udp=_get(b, "udp", str, where),
                 ascii=_flag(b, "ascii", where),
+                tls=_tls(b, where, base),
             ))
         except InvalidArgument as e:
             raise _within(str(path), e) from None

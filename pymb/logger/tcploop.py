@@ -38,7 +38,7 @@ import selectors
 import threading
 import time
 
-from pymb.client.address import parse_host_port
+from pymb.client.address import is_mbaps, parse_host_port
 from pymb.errors import (
     ModbusConnectionError,
     ModbusError,
@@ -72,8 +72,10 @@ _LOOK = 0.002
 
 def fans_out(bus: BusConfig) -> bool:
     """Whether ``bus`` is polled by the one loop: plain Modbus TCP with map
-    devices only (the CoolPro and the hub facades keep a thread per bus)."""
-    return bus.tcp is not None and all(isinstance(d, MapDeviceConfig) for d in bus.devices)
+    devices only (the CoolPro and the hub facades keep a thread per bus, and
+    so does Modbus/TCP Security, ``mbaps://``: its TLS is the client's)."""
+    return (bus.tcp is not None and not is_mbaps(bus.tcp)
+            and all(isinstance(d, MapDeviceConfig) for d in bus.devices))
 
 
 class TcpMapPoller(TcpReplies, Lending):

@@ -8,11 +8,14 @@ TCP."""
 from __future__ import annotations
 
 import asyncio
+import signal
 import socket
+import ssl
 import struct
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -222,7 +225,7 @@ def test_config_mistakes_are_invalid_arguments(certs: Path, tmp_path: Path) -> N
         pymb.TlsConfig(ca=tmp_path / "nope.pem")
     with pytest.raises(pymb.InvalidArgument, match="without its certificate"):
         pymb.TlsConfig(key=certs / "operator.key")
-    with pytest.raises(pymb.InvalidArgument, match="matching key"):
+    with pytest.raises(pymb.InvalidArgument, match="is not the private key of"):
         pymb.TlsConfig(ca=certs / "ca.pem", cert=certs / "operator.pem",
                        key=certs / "viewer.key")
     with pytest.raises(pymb.InvalidArgument, match="not a PEM"):
@@ -231,3 +234,45 @@ def test_config_mistakes_are_invalid_arguments(certs: Path, tmp_path: Path) -> N
         pymb.TcpClient("127.0.0.1", tls="yes")  # type: ignore[arg-type]
     assert pymb.TcpClient("127.0.0.1", tls=_tls(certs)).tcp_port == 802
     assert pymb.TcpClient("127.0.0.1").tcp_port == 502
+
+
+def test_a_signal_handler_that_raises_stops_a_tls_wait(certs: Path) -> None:
+    class Stop(Exception):
+        pass
+
+    def handler(signum: int, frame: object) -> None:
+        raise Stop
+
+    old = signal.signal(signal.SIGALRM, handler)
+    try:
+        with TlsPeer(certs, lambda i, adu: [] if i == 0 else [answer_read(adu, [i])]) as peer, \
+                pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=20,
+                               tls=_tls(certs, server_name="localhost")) as c:
+            t0 = time.monotonic()
+            signal.setitimer(signal.ITIMER_REAL, 0.3)
+            with pytest.raises(Stop):
+                c.read_holding_registers(0, 1)
+            assert time.monotonic() - t0 < 10
+            # the line owes its quiet window, then answers the next request
+            c.timeout = 0.5
+            assert list(c.read_holding_registers(0, 1)) == [1]
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # ssl.TLSVersion.TLSv1_1
+def test_tls_1_2_is_taken_and_1_1_refused(certs: Path) -> None:
+    with TlsPeer(certs, lambda i, adu: [answer_read(adu, [i])],
+                 version=ssl.TLSVersion.TLSv1_2) as peer, \
+            pymb.TcpClient("127.0.0.1", peer.port, tls=_tls(certs, server_name="localhost"),
+                           slave=1, timeout=5) as c:
+        assert list(c.read_holding_registers(0, 1)) == [0]
+    with TlsPeer(certs, lambda i, adu: [answer_read(adu, [i])],
+                 version=ssl.TLSVersion.TLSv1_1) as peer:
+        c = pymb.TcpClient("127.0.0.1", peer.port, tls=_tls(certs, server_name="localhost"),
+                           slave=1, timeout=5)
+        with pytest.raises(pymb.TlsError) as e:
+            c.connect()
+        assert "TLS" in str(e.value)
+        assert peer.requests == []
