@@ -42,6 +42,9 @@ _REASONS = {
     "SSLV3_ALERT_CERTIFICATE_UNKNOWN": "the server refused this client's certificate",
     "TLSV1_ALERT_ACCESS_DENIED": "the server refused this client (access denied)",
     "TLSV1_ALERT_DECRYPT_ERROR": "the server refused this client's certificate",
+    "UNEXPECTED_EOF_WHILE_READING":
+        "the server closed the connection during the TLS handshake (does it refuse this "
+        "client, or not speak TLS there?)",
 }
 
 
@@ -63,6 +66,9 @@ def tls_words(e: BaseException) -> str:
         return f"TLS failed: {reason.replace('_', ' ').lower() or e}"
     if isinstance(e, TimeoutError):
         return "the TLS handshake did not finish within the timeout"
+    if isinstance(e, ConnectionError):
+        return (f"the server closed the connection during the TLS handshake "
+                f"({os.strerror(e.errno) if e.errno else e})")
     return f"TLS failed: {e}"
 
 

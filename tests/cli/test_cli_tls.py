@@ -6,6 +6,7 @@ aside); refused certificates exit 4 in one line; option mistakes exit 2."""
 from __future__ import annotations
 
 import json
+import re
 import shlex
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +16,7 @@ from conftest import run_pymb
 from docblocks import assert_shaped, claim, claim_one
 from servekit import Served
 from tlskit import make_certs
+from wire_peers import pymodbus_server
 
 from pymb.errors import InvalidArgument
 from pymb.logger.config import config_from_toml, load_config
@@ -129,7 +131,12 @@ def test_the_guides_logger_toml_logs_over_tls(certs: Path, served: Served) -> No
                  timeout=60)
     assert r.returncode == 0, r.stderr
     r = run_pymb("info", str(certs / "plant.sqlite"), timeout=60)
-    assert f"coolpro:40 on gateway (mbaps://localhost:{served.port})" in r.stdout, r.stdout
+    for device in ("coolpro:40", "eastron-sdm120:2"):  # a facade and a map device
+        m = re.search(rf"{device} on gateway \(mbaps://localhost:{served.port}\): (\d+) samples",
+                      r.stdout)
+        assert m is not None, r.stdout
+        assert int(m.group(1)) > 0, r.stdout
+    assert "faults      none" in r.stdout, r.stdout
 
 
 @pytest.mark.parametrize(("bus", "words"), [
@@ -145,3 +152,28 @@ def test_toml_tls_mistakes_are_named(certs: Path, bus: str, words: str) -> None:
     with pytest.raises(InvalidArgument, match=None) as e:
         config_from_toml(tomllib.loads(text), certs / "x.toml")
     assert words in str(e.value)
+
+
+def test_the_logger_retries_a_refused_certificate_and_exits_4(certs: Path, served: Served,
+                                                              tmp_path: Path) -> None:
+    r = run_pymb("log", "coolpro:40", "--tcp", f"mbaps://127.0.0.1:{served.port}", "--ca",
+                 str(certs / "ca.pem"), "--cert", str(certs / "operator.pem"), "--key",
+                 str(certs / "operator.key"), "--server-name", "gateway.example",
+                 "--seconds", "2", "--out", str(tmp_path / "log.sqlite"), "--quiet", timeout=60)
+    assert r.returncode == 4, r.stderr
+    lines = r.stderr.splitlines()
+    refused = "the server's certificate was refused: Hostname mismatch"
+    assert sum("retrying in" in line and refused in line for line in lines) >= 2, r.stderr
+    assert lines[-1].startswith("pymb log: bus bus1 never opened its port: ")
+    assert refused in lines[-1]
+    assert "Traceback" not in r.stderr
+
+
+def test_scan_over_tls_against_pymodbus(certs: Path) -> None:
+    with pymodbus_server("tls", str(certs)) as port:
+        r = run_pymb("scan", "--tcp", f"mbaps://127.0.0.1:{port}", "--ca", str(certs / "ca.pem"),
+                     "--cert", str(certs / "operator.pem"), "--key", str(certs / "operator.key"),
+                     "--server-name", "localhost", "--range", "1,17", "--json", timeout=120)
+    assert r.returncode == 0, r.stderr
+    found = {d["address"] for d in json.loads(r.stdout)["found"]}
+    assert found == {1, 17}

@@ -276,3 +276,31 @@ def test_tls_1_2_is_taken_and_1_1_refused(certs: Path) -> None:
             c.connect()
         assert "TLS" in str(e.value)
         assert peer.requests == []
+
+
+@pytest.mark.parametrize("answer", ["close", "silence"])
+def test_a_server_that_closes_or_stays_silent_in_the_handshake(certs: Path, answer: str) -> None:
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        port = listener.getsockname()[1]
+        done = threading.Event()
+
+        def serve() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                conn.settimeout(10)
+                conn.recv(4096)  # the ClientHello
+                if answer == "silence":
+                    done.wait(10)
+
+        t = threading.Thread(target=serve, daemon=True)
+        t.start()
+        c = pymb.TcpClient("127.0.0.1", port, tls=_tls(certs), slave=1, timeout=0.5)
+        t0 = time.monotonic()
+        with pytest.raises(pymb.TlsError) as e:
+            c.connect()
+        done.set()
+        words = ("closed the connection during the TLS handshake" if answer == "close"
+                 else "the TLS handshake did not finish within the timeout")
+        assert words in str(e.value)
+        assert time.monotonic() - t0 < 5
+        t.join(10)
