@@ -22,15 +22,18 @@ TLS take turns, each round's pair under the same load; the TLS / plain figure
 from __future__ import annotations
 
 import os
+import re
 import socket
 import ssl
 import statistics
 import struct
+import sys
 import tempfile
+import threading
 import time
 from typing import Any
 
-from pymb.bench.procs import Children
+from pymb.bench.procs import Child, Children
 from pymb.bench.table import Table, fmt_time, fmt_x
 from pymb.child import pymb_argv
 
@@ -96,6 +99,81 @@ def _direct(port: str, n: int) -> list[float]:
     return out
 
 
+FAR_DELAY = 0.002  #: the far device's latency (s)
+CLIENTS = 8  #: clients reading at once through serve to the far device
+INFLIGHT = (1, 8)  #: --max-inflight compared
+
+
+def _listening(serve: Child) -> int:
+    """The port ``pymb serve`` printed it listens on (its first line:
+    ``pymb serve: mbap://HOST:PORT -> UPSTREAM``)."""
+    line = serve.readline(20)
+    m = re.search(r"mbaps?://\S*:(\d+) ", line)
+    if m is None:
+        raise RuntimeError(f"pymb serve printed {line!r}")
+    return int(m.group(1))
+
+
+def _clients_at_once(port: int, clients: int, each: int) -> tuple[float, list[float]]:
+    """``clients`` threads, each on its own kept connection reading ``each``
+    times one after another: the wall time for all, every read's latency."""
+    lat: list[float] = []
+    socks = []
+    for _ in range(clients):
+        s = socket.create_connection(("127.0.0.1", port))
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        socks.append(s)
+    failed: list[BaseException] = []
+
+    def one(sock: socket.socket) -> None:
+        try:
+            lat.extend(_through(sock, each))
+        except (OSError, RuntimeError) as e:
+            failed.append(e)
+
+    threads = [threading.Thread(target=one, args=(s,)) for s in socks]
+    t = time.perf_counter()
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join(120)
+    wall = time.perf_counter() - t
+    for s in socks:
+        s.close()
+    if failed:
+        raise RuntimeError(f"through pymb serve --tcp: {failed[0]}")
+    return wall, lat
+
+
+def _pipelined(opts: Any, children: Children) -> dict[str, Any]:
+    """Eight clients at once through serve to a Modbus TCP device 2 ms away,
+    one transaction at a time and eight in flight, turn about."""
+    each = 40 if opts.quick else 250
+    rounds = 1 if opts.quick else 4
+    far = children.start("far Modbus TCP device", [
+        sys.executable, "-m", "pymb.bench.farpeer", str(FAR_DELAY)], stdin=False)
+    far_port = int(far.readline(20))
+    serves = [children.start(f"pymb serve --max-inflight {n}", pymb_argv(
+        "serve", "--tcp", f"127.0.0.1:{far_port}", "--max-inflight", str(n), "--timeout", "10",
+        "--listen", "127.0.0.1:0", "--quiet"), stdin=False) for n in INFLIGHT]
+    ports = [_listening(c) for c in serves]
+    rates: dict[int, list[float]] = {n: [] for n in INFLIGHT}
+    lats: dict[int, list[float]] = {n: [] for n in INFLIGHT}
+    for i in range(rounds):
+        order = list(zip(INFLIGHT, ports, strict=True))
+        for n, port in order if i % 2 == 0 else order[::-1]:
+            wall, lat = _clients_at_once(port, CLIENTS, each)
+            rates[n].append(CLIENTS * each / wall)
+            lats[n] += lat
+    us = 1e6
+    rows = [{"max_inflight": n, "reads": len(lats[n]),
+             "reads_per_s": round(statistics.median(rates[n])),
+             "p50_us": round(_pct(lats[n], 0.5) * us, 1),
+             "p99_us": round(_pct(lats[n], 0.99) * us, 1)} for n in INFLIGHT]
+    return {"delay_ms": FAR_DELAY * 1e3, "clients": CLIENTS, "rows": rows,
+            "speedup_x": round(rows[-1]["reads_per_s"] / rows[0]["reads_per_s"], 2)}
+
+
 def run_section(opts: Any, children: Children) -> dict[str, Any]:
     """Measure; returns the section's result (JSON-able)."""
     from pymb.fleet.broker import make_certificates
@@ -114,7 +192,7 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
             "serve", "--port", sims[2].port, "--baud", "115200", "--listen", "127.0.0.1:0",
             "--tls", "--cert", certs.server_cert, "--key", certs.server_key, "--ca", certs.ca,
             "--quiet"), stdin=False)
-        ports = [int(c.readline(20).rsplit(":", 1)[1].split()[0]) for c in (plain, secure)]
+        ports = [_listening(c) for c in (plain, secure)]
         ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=certs.ca)
         ctx.load_cert_chain(certs.client_cert, certs.client_key)
         sock = socket.create_connection(("127.0.0.1", ports[0]))
@@ -142,6 +220,9 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
         finally:
             tls.close()
             sock.close()
+    opts.say(f"serve: {CLIENTS} clients at once to a Modbus TCP device "
+             f"{FAR_DELAY * 1e3:g} ms away, --max-inflight {' and '.join(map(str, INFLIGHT))}")
+    pipelined = _pipelined(opts, children)
     us = 1e6
     rows = [{"way": way, "reads": len(v), "p50_us": round(_pct(v, 0.5) * us, 1),
              "p99_us": round(_pct(v, 0.99) * us, 1)}
@@ -159,6 +240,7 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
         "serve_cpu_tls_us": round(tls_cpu, 1),
         "tls_cpu_x": round(statistics.median(ratios), 2) if ratios else None,
         "tls_cpu_x_rounds": [round(x, 2) for x in ratios],
+        "pipelined": pipelined,
         "note": "pymb serve's CPU per read from /proc (every thread's schedstat): medians of "
                 "rounds; TLS / plain is the median of each round's ratio",
     }
@@ -180,7 +262,7 @@ def tables(result: dict[str, Any]) -> list[Table]:
     """The section's table for the report."""
     rows = [[r["way"], f"{r['reads']:,}", fmt_time(r["p50_us"]), fmt_time(r["p99_us"])]
             for r in result["rows"]]
-    return [Table(
+    main = Table(
         "pymb serve: a telemetry read direct and through pymb serve",
         "simulated CoolPro on a pty, no wire emulation; a plain socket client on a kept "
         "connection",
@@ -188,4 +270,20 @@ def tables(result: dict[str, Any]) -> list[Table]:
         [f"latency added by pymb serve, p99: {fmt_time(result['added_p99_us'])} "
          f"(TLS: {fmt_time(result['added_p99_tls_us'])})",
          f"pymb serve's CPU per read: {fmt_time(result['serve_cpu_us'])} plain, "
-         f"{fmt_time(result['serve_cpu_tls_us'])} TLS ({fmt_x(result['tls_cpu_x'])})"])]
+         f"{fmt_time(result['serve_cpu_tls_us'])} TLS ({fmt_x(result['tls_cpu_x'])})"])
+    return [main, *_pipelined_tables(result.get("pipelined"))]
+
+
+def _pipelined_tables(p: dict[str, Any] | None) -> list[Table]:
+    if not p:
+        return []
+    rows = [[str(r["max_inflight"]), f"{r['reads']:,}", f"{r['reads_per_s']:,}",
+             fmt_time(r["p50_us"]), fmt_time(r["p99_us"])] for r in p["rows"]]
+    return [Table(
+        "pymb serve --tcp: requests in flight to a Modbus TCP device",
+        f"{p['clients']} clients reading at once on kept connections; the device answers "
+        f"each read {p['delay_ms']:g} ms after it arrives",
+        ["--max-inflight", "reads", "reads/s", "p50", "p99"], rows,
+        [True, True, True, True, True],
+        [f"reads per second, {p['rows'][-1]['max_inflight']} in flight / 1: "
+         f"{fmt_x(p['speedup_x'])}"])]

@@ -13,8 +13,11 @@ from pymb.client.address import parse_host_port
 from pymb.commands._common import add_connection_args, make_client
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.serve import Server, UnitMap, Upstream
+from pymb.serve.pipeline import DEFAULT_MAX_INFLIGHT, PipelinedUpstream
 
 __all__ = ["add_arguments", "run", "tls_server_context"]
+
+MAX_INFLIGHT = 255  #: the most --max-inflight takes
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,6 +29,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--unit", action="append", default=[], metavar="LISTEN=UPSTREAM",
                    help="route a unit id to another upstream unit (repeatable); others pass "
                         "through unchanged")
+    p.add_argument("--max-inflight", type=int, default=None, metavar="N",
+                   help="with --tcp: requests in flight to the upstream at once, each under "
+                        f"its own transaction id (default {DEFAULT_MAX_INFLIGHT}; 1: one at a "
+                        "time); a serial line always takes one at a time")
     p.add_argument("--max-clients", type=int, default=64, metavar="N",
                    help="clients connected at once (default 64); more are refused")
     tls = p.add_argument_group("Modbus/TCP Security (TLS, client certificates required)")
@@ -76,13 +83,27 @@ def run(args: argparse.Namespace) -> int:
     roles = frozenset(r.strip() for r in args.write_roles.split(",") if r.strip())
     if roles and tls is None:
         raise InvalidArgument("--write-roles needs --tls (roles come from client certificates)")
+    if args.max_inflight is not None:
+        if not args.tcp:
+            raise InvalidArgument("--max-inflight needs --tcp (a serial line, or RTU over TCP, "
+                                  "takes one transaction at a time)")
+        if not 1 <= args.max_inflight <= MAX_INFLIGHT:
+            raise InvalidArgument(f"--max-inflight must be 1..{MAX_INFLIGHT}, "
+                                  f"got {args.max_inflight}")
     line = make_client(args)
 
     def say(text: str) -> None:
         if not args.quiet:
             print(f"pymb serve: {text}", file=sys.stderr, flush=True)
 
-    upstream = Upstream(line, on_event=say)
+    upstream: Upstream | PipelinedUpstream
+    if args.tcp:
+        host_port = parse_host_port(args.tcp, what="--tcp")
+        upstream = PipelinedUpstream(
+            *host_port, timeout=args.timeout, on_event=say,
+            max_inflight=args.max_inflight or DEFAULT_MAX_INFLIGHT)
+    else:
+        upstream = Upstream(line, on_event=say)
     server = Server(upstream, host, port, units=units, max_clients=args.max_clients, tls=tls,
                     write_roles=roles, on_event=say)
     upstream_name = (f"{args.port} (ASCII)" if args.ascii else args.port or args.tcp
@@ -93,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     return asyncio.run(_serve(server, upstream, upstream_name))
 
 
-async def _serve(server: Server, upstream: Upstream, upstream_name: str) -> int:
+async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
+                 upstream_name: str) -> int:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -14,6 +14,7 @@ from typing import cast
 
 from pymb._native.serve import BadFrame, exception_frame, reply_frame, take_requests
 from pymb.errors import InvalidArgument
+from pymb.serve.pipeline import PipelinedUpstream
 from pymb.serve.roles import CertificateError, role_of
 from pymb.serve.upstream import EX_PATH, Upstream
 
@@ -299,7 +300,7 @@ class Server:
     certificates), only clients whose certificate's role is in
     ``write_roles`` may send the function codes that write."""
 
-    def __init__(self, upstream: Upstream, host: str, port: int, *,
+    def __init__(self, upstream: Upstream | PipelinedUpstream, host: str, port: int, *,
                  units: UnitMap | None = None, max_clients: int = 64,
                  tls: ssl.SSLContext | None = None, write_roles: frozenset[str] = frozenset(),
                  on_event: Callable[[str], None] | None = None) -> None:
@@ -320,9 +321,12 @@ class Server:
         self._on_event(text)
 
     def replier(self, conn: _Conn, tid: int, unit: int) -> Callable[[bytes], None]:
-        """The callback the upstream's thread calls with the reply PDU."""
+        """The callback the upstream calls with the reply PDU: on the event
+        loop already, or from the upstream's thread."""
         loop = self._loop
         assert loop is not None
+        if isinstance(self.upstream, PipelinedUpstream):
+            return lambda pdu: conn.answered(tid, unit, pdu)
 
         def done(pdu: bytes) -> None:
             with contextlib.suppress(RuntimeError):  # the loop closed: the server is stopping
