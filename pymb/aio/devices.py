@@ -28,6 +28,7 @@ from pymb.devices.maps import COOLPRO, HUB
 from pymb.devices.mapwrite import Budget
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Value
+from pymb.maps.device_plan import PointPlanner
 
 __all__ = ["AsyncCoolPro", "AsyncMapDevice", "AsyncSensorHub", "poll"]
 
@@ -172,10 +173,15 @@ class AsyncMapDevice(_Facade):
 
     def __init__(self, client: AsyncClient, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
-                 baudrate: int | None = None, budget: Budget | None = None) -> None:
+                 baudrate: int | None = None, budget: Budget | None = None,
+                 busy_retries: int = 0, busy_backoff: float = 0.02,
+                 plan_turnaround: float | None = None,
+                 split_on: Iterable[int] = (2, 3)) -> None:
         super().__init__(client)
         self.blocking = MapDevice(client.blocking, m, address, options=options,
-                                  baudrate=baudrate, budget=budget)
+                                  baudrate=baudrate, budget=budget, busy_retries=busy_retries,
+                                  busy_backoff=busy_backoff, plan_turnaround=plan_turnaround,
+                                  split_on=split_on)
 
     @property
     def map(self) -> Map:
@@ -192,13 +198,20 @@ class AsyncMapDevice(_Facade):
         """The state of each point of the last read that finished."""
         return self.blocking.states
 
-    def plan(self, group: str | None = None, *names: str) -> ReadPlan:
+    @property
+    def planner(self) -> PointPlanner:
+        """The device's read planner (see :attr:`MapDevice.planner`)."""
+        return self.blocking.planner
+
+    def plan(self, group: str | None = None, *names: str,
+             channels: Iterable[int] | None = None) -> ReadPlan:
         """The requests a read would make now (no I/O; see :meth:`MapDevice.plan`)."""
-        return self.blocking.plan(group, *names)
+        return self.blocking.plan(group, *names, channels=channels)
 
     read = Mirror(MapDevice.read)
     read_group = Mirror(MapDevice.read_group)
     read_into = Mirror(MapDevice.read_into)
+    fetch = Mirror(MapDevice.fetch)
     write = Mirror(MapDevice.write)
     write_many = Mirror(MapDevice.write_many)
     # a plan reads the scale factors its values need from the device: I/O

@@ -1,22 +1,26 @@
 """The CoolPro power-supply monitor ([CP] CP-MODBUS-RTU rev 1).
 
 Telemetry (input registers 0..7) and identity (100..107) are each one
-request, decoded by pymb's C core: milliunits to volts, amps and °C, 32-bit
-values low word first.
+request, read through the CoolPro's map and decoded by the map's C decoder:
+milliunits to volts, amps and °C, 32-bit values low word first.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import threading
 from array import array
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import KEEP, IntFlag
 
-from pymb import _native
+from pymb import maps
 from pymb.client import Client
+from pymb.devices.mapdevice import MapDevice
 from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES, COOLPRO_RESET_VALUE
 from pymb.errors import InvalidArgument
+from pymb.maps import Buffers, Decoder, Map
 
 __all__ = ["CoolPro", "CoolProConfig", "CoolProIdentity", "CoolProStatus", "CoolProTelemetry"]
 
@@ -42,7 +46,6 @@ class CoolProStatus(IntFlag, boundary=KEEP):
         return int(self) & 0xFF80
 
 
-_ZEROS = array("H", bytes(2 * _native.MAX_READ_REGISTERS))
 _new = object.__new__
 
 
@@ -87,32 +90,98 @@ class CoolProConfig:
     baud_rate_index: int
 
 
-def decode_telemetry(regs: array[int]) -> CoolProTelemetry:
-    """Input registers 0..7 (an ``array('H')``) as :class:`CoolProTelemetry`,
-    decoded in C, with no I/O: the one decoder of the facade, the store's
-    reader and the logger."""
+def _coolpro_map() -> Map:
+    """The CoolPro's map as the facade reads it: no silence kept after a
+    reply (the device's ~8 ms answer delay is its own; the facade has always
+    left the gap between reads to its caller), and an exception raised as
+    the device answered it (each read is one request of declared registers:
+    nothing to split)."""
+    m = maps.builtin("coolpro")
+    return dataclasses.replace(
+        m, timing=dataclasses.replace(m.timing, turnaround=0.0),
+        limits=dataclasses.replace(m.limits, split_on_exception=False))
+
+
+_MAP = _coolpro_map()
+_FLOATS = ("input_voltage_v", "input_current_a", "output_voltage_v", "output_current_a",
+           "temperature_c")
+
+
+class _Group:
+    """The slots of one group's points in its decoder's arrays."""
+
+    def __init__(self, dec: Decoder, floats: tuple[str, ...], ints: tuple[str, ...]) -> None:
+        self.decoder = dec
+        self.names = (floats, ints)
+        self.floats = tuple(dec.slot(n) for n in floats)
+        self.ints = tuple(dec.slot(n) for n in ints)
+        self.lock = threading.Lock()  # the decoder's arrays, for decode_*() without I/O
+
+
+_TELEMETRY = _Group(Decoder(_MAP, [p.name for p in _MAP.points.values()
+                                   if p.group == "telemetry"]),
+                    _FLOATS, ("uptime_s", "status"))
+_IDENTITY_NAMES = ("serial_number", "hardware_revision", "firmware_major", "firmware_minor",
+                   "firmware_patch", "manufactured")
+_IDENTITY = _Group(Decoder(_MAP, [p.name for p in _MAP.points.values()
+                                  if p.group == "identity"]), (), _IDENTITY_NAMES)
+
+
+def _telemetry(g: _Group, b: Buffers, regs: array[int]) -> CoolProTelemetry:
     # The result's fields are set directly (a frozen dataclass's __init__
     # makes a call per field): this is a CoolPro logger's hot path.
+    vals, ints = b.values, b.ints
+    f, i = g.floats, g.ints
     t = _new(CoolProTelemetry)
     d = t.__dict__
-    (d["input_voltage_v"], d["input_current_a"], d["output_voltage_v"],
-     d["output_current_a"], d["temperature_c"], d["uptime_s"],
-     status) = _native.coolpro_telemetry(regs)
-    d["status"] = _status(status)
+    d["input_voltage_v"] = vals[f[0]]
+    d["input_current_a"] = vals[f[1]]
+    d["output_voltage_v"] = vals[f[2]]
+    d["output_current_a"] = vals[f[3]]
+    d["temperature_c"] = vals[f[4]]
+    d["uptime_s"] = ints[i[0]]
+    d["status"] = _status(ints[i[1]])
     d["registers"] = regs
     return t
 
 
-def decode_identity(regs: array[int]) -> CoolProIdentity:
-    """Input registers 100..107 (an ``array('H')``) as :class:`CoolProIdentity`,
-    with no I/O: the one decoder of the facade and of device identification."""
-    serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
+def _identity(g: _Group, b: Buffers, regs: array[int]) -> CoolProIdentity:
+    serial, hw, major, minor, patch, made = (b.ints[k] for k in g.ints)
     return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
                            datetime.fromtimestamp(made, UTC), regs)
 
 
+def _registers(regs: array[int], count: int, what: str) -> array[int]:
+    if not isinstance(regs, array) or regs.typecode != "H":
+        regs = array("H", regs)
+    if len(regs) < count:
+        raise InvalidArgument(f"{what} needs {count} registers, got {len(regs)}")
+    return regs
+
+
+def decode_telemetry(regs: array[int]) -> CoolProTelemetry:
+    """Input registers 0..7 (an ``array('H')``) as :class:`CoolProTelemetry`,
+    decoded by the CoolPro map's C decoder, with no I/O: the decoder of the
+    facade, the store's reader and the logger."""
+    g = _TELEMETRY
+    regs = _registers(regs, g.decoder.count, "CoolPro telemetry")
+    with g.lock:
+        return _telemetry(g, g.decoder.decode(regs), regs)
+
+
+def decode_identity(regs: array[int]) -> CoolProIdentity:
+    """Input registers 100..107 (an ``array('H')``) as :class:`CoolProIdentity`,
+    with no I/O: the decoder of the facade and of device identification."""
+    g = _IDENTITY
+    regs = _registers(regs, g.decoder.count, "CoolPro identity")
+    with g.lock:
+        return _identity(g, g.decoder.decode(regs), regs)
+
+
 class CoolPro:
-    """The CoolPro at ``address`` (1..247, default 40) on ``client``.
+    """The CoolPro at ``address`` (1..247, default 40) on ``client``: a typed
+    view of the CoolPro's map (``pymb.maps.builtin("coolpro")``) read by a
+    :class:`~pymb.devices.MapDevice`.
 
     After :meth:`set_address` and :meth:`reset`, this object talks to the
     new address. A new baud rate takes effect at the reset too: reopen the
@@ -121,14 +190,24 @@ class CoolPro:
     """
 
     def __init__(self, client: Client, address: int = COOLPRO.default_address) -> None:
-        if not callable(getattr(client, "read_registers_prepared", None)):
+        if not isinstance(client, Client):
             raise InvalidArgument(f"a CoolPro needs a pymb client, got {client!r}")
         self.client = client
-        self.address = self._valid_address(address)
+        self._address = self._valid_address(address)
         self._pending_address: int | None = None
-        self._telemetry = COOLPRO.span("telemetry")
-        self._identity = COOLPRO.span("identity")
-        self._config = COOLPRO.span("config")
+        self.device = MapDevice(client, _MAP, self._address)
+        self._groups: dict[str, _Group] = {}
+
+    @property
+    def address(self) -> int:
+        """The device address this object talks to."""
+        return self._address
+
+    @address.setter
+    def address(self, address: int) -> None:
+        self._address = self._valid_address(address)
+        self.device = MapDevice(self.client, _MAP, self._address)
+        self._groups = {}
 
     @staticmethod
     def _valid_address(address: int) -> int:
@@ -139,26 +218,28 @@ class CoolPro:
             raise InvalidArgument(f"CoolPro address must be {low}..{high}, got {address!r}")
         return address
 
-    def _read(self, span: tuple[int, int, int]) -> array[int]:
-        # The span comes from the map and the address was checked: no per-call checks.
-        function, address, count = span
-        regs = _ZEROS[:count]
-        self.client.read_registers_prepared(function, self.address, address, regs)
-        return regs
+    def _group(self, name: str, model: _Group) -> tuple[_Group, Buffers]:
+        """Read ``name``'s group: the slots of its points and the buffers read."""
+        dec = self.device.read_into(group=name)[0]
+        g = self._groups.get(name)
+        if g is None or g.decoder is not dec:
+            g = self._groups[name] = _Group(dec, *model.names)
+        return g, dec.buffers
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        # The hot path of a CoolPro logger: one array, one C read, one C decode.
-        return decode_telemetry(self._read(self._telemetry))
+        g, b = self._group("telemetry", _TELEMETRY)
+        return _telemetry(g, b, array("H", b.registers))
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
-        return decode_identity(self._read(self._identity))
+        g, b = self._group("identity", _IDENTITY)
+        return _identity(g, b, array("H", b.registers))
 
     def read_config(self) -> CoolProConfig:
         """Device address and baud rate as stored (effective after a reset)."""
-        regs = self._read(self._config)
-        address, index = regs[0], regs[1]
+        b = self.device.read_into(group="config")[0].buffers
+        address, index = b.registers[0], b.registers[1]
         baud = COOLPRO_BAUD_RATES[index] if index < len(COOLPRO_BAUD_RATES) else 0
         return CoolProConfig(address, baud, index)
 

@@ -1,29 +1,33 @@
 """The 100-channel sensor hub ([HUB] RS485 Modbus Communication Protocol V1.5).
 
-``SensorHub.read_all()`` reads registers 31..730 in the fewest requests the
-255-byte frame allows (6) and decodes them in C, with the GIL released for
-the whole sweep: no Python object per register. Results are views over one
-float64 array and one uint8 state array, which numpy takes without a copy
-(``numpy.asarray(reading.temperature_c)``).
+``SensorHub`` is a typed view of the hub's map (``pymb.maps.builtin("hub")``)
+read by a :class:`~pymb.devices.MapDevice`: ``read_all()`` reads registers
+31..730 in the fewest requests the 255-byte frame allows (6), in one C call
+with the GIL released, and the map's C decoder decodes them: no Python object
+per register. Results are views over one float64 array and one uint8 state
+array, which numpy takes without a copy (``numpy.asarray(reading.temperature_c)``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import threading
 import time
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
-from pymb import _native
+from pymb import _native, maps
 from pymb.client import Client
+from pymb.devices.mapdevice import MapDevice
 from pymb.devices.maps import HUB
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
-from pymb.maps.planner import Item, Known, Line, ReadPlan, plan_points
-from pymb.wire import bits_per_char
+from pymb.maps import Buffers, Decoder, Map
+from pymb.maps.device_plan import map_planner
+from pymb.maps.planner import ReadPlan
 
 __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "decode_hub",
            "full_sweep_spans"]
@@ -31,7 +35,7 @@ __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "deco
 _N = HUB.count  # 700 registers, 31..730
 #: The block mask with every block set (``HubReading.unsupported_mask ==
 #: ALL_BLOCKS``: the hub supplied no value at all).
-ALL_BLOCKS = _native.HUB_ALL_BLOCKS
+ALL_BLOCKS = (1 << len(HUB.blocks)) - 1
 _ZERO_REGS = array("H", bytes(2 * _N))
 
 
@@ -64,7 +68,6 @@ def _tenths(humidity_unit: float | Sequence[float], channels: int) -> bytes:
     return bytes(one(u) for u in units)
 
 
-_TENTHS_100 = _uniform_tenths(1, HUB.channels)
 
 
 @functools.lru_cache(maxsize=128)
@@ -238,15 +241,74 @@ def _numbers(channels: Iterable[int] | None) -> tuple[int, ...] | None:
 
 def full_sweep_spans(channels: int = HUB.channels) -> list[tuple[int, int]]:
     """The requests (address, count) of a sweep of every block of ``channels``
-    channels: the C core's plan (pymb_hub_plan_all), the one the benchmark's
-    contenders and the logger's wire-time figure use."""
-    return _native.hub_plan_all(0, _channels(channels))
+    channels as the hub's map plans them (a request of at most 125
+    registers; whole blocks merge when every channel is read): the plan the
+    benchmark's contenders and the logger's wire-time figure use."""
+    return list(_sweep_plan(_channels(channels)).spans)
+
+
+@functools.lru_cache(maxsize=128)
+def _sweep_plan(channels: int) -> ReadPlan:
+    return map_planner(_hub_map(channels, 0.1))[0].plan()
+
+
+@functools.lru_cache(maxsize=16)
+def _hub_map(channels: int, unit: float) -> Map:
+    """The hub's map for ``channels`` channels of humidity in ``unit`` %, as
+    the facade reads it: the client's reply timeout (the facade has always
+    used it), and blocks the firmware lacks skipped until the next
+    connection (not retried on a timer)."""
+    m = maps.builtin("hub").configure({"channels": channels, "humidity_unit": unit})
+    return dataclasses.replace(m, timing=dataclasses.replace(
+        m.timing, response_timeout=None, offline_retry=math.inf))
+
+
+@functools.lru_cache(maxsize=8)
+def _decoder(channels: int, unit: float) -> Decoder:
+    """The map decoder of every block of ``channels`` channels, registers 31..."""
+    m = _hub_map(channels, unit)
+    return Decoder(m, [b.name for b in HUB.blocks])
+
+
+def _units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
+    """The humidity unit the map decodes with (the channels' most common)
+    and, per channel, 1 where the channel's unit is the other one."""
+    tenths = _tenths(humidity_unit, channels)
+    ones = tenths.count(0)
+    unit = 1.0 if ones > channels - ones else 0.1
+    other = 1 if unit == 1.0 else 0
+    return unit, bytes(1 if t == other else 0 for t in tenths)
+
+
+def _other_units(r: HubReading, unit: float, other: bytes) -> None:
+    """Channel humidity of the channels whose unit is not ``unit`` (1 in
+    ``other``), decoded again from the raw registers ([HUB] 3, [NOTES]:
+    0x00FF is no humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
+    c = r.channels
+    regs, values, states = r.registers, r.values, r.raw_states
+    first = HUB.block("humidity_pct").first - HUB.first
+    for i, flag in enumerate(other):
+        if not flag or states[c + i] not in _DECODED:
+            continue
+        raw = regs[first + i]
+        if raw == 0xFFFF:
+            continue  # offline in either unit
+        if raw == (0x8000 if unit == 1.0 else 0x00FF):
+            values[c + i], states[c + i] = math.nan, State.NO_SENSOR
+        else:
+            values[c + i] = raw / 10 if unit == 1.0 else float(raw)
+            states[c + i] = State.VALUE
+
+
+_DECODED = (State.VALUE, State.NO_SENSOR)
+_DECODING = threading.Lock()
 
 
 def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
                channels: int = HUB.channels, unsupported: Iterable[str] = ()) -> HubReading:
     """Decode raw registers 31..730 (700 of them, any uint16 buffer or a
-    sequence of ints) into a :class:`HubReading`, with no I/O.
+    sequence of ints) into a :class:`HubReading`, with no I/O: the hub's map
+    decoder, the one the facade reads with.
 
     ``unsupported`` names blocks to mark as missing from the firmware.
     """
@@ -267,17 +329,40 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     mask = 0
     for name in unsupported:
         mask |= 1 << HUB.block(name).index
+    unit, other = _units(humidity_unit, channels)
     r = HubReading(channels, regs)
-    tenths = _TENTHS_100 if humidity_unit == 0.1 and channels == HUB.channels else _tenths(
-        humidity_unit, channels)
-    _native.hub_decode(regs, channels, tenths, None, ALL_BLOCKS & ~mask, mask, r.values,
-                       r.raw_states)
+    dec = _decoder(channels, unit)
+    with _DECODING:  # the decoder's arrays are shared
+        b = dec.decode(regs)
+        r.values[:] = b.values
+        r.raw_states[:] = b.states
+    if any(other):
+        _other_units(r, unit, other)
+    if mask:
+        _mark_blocks(r, mask, State.UNSUPPORTED)
     r.unsupported_mask = mask
     return r
 
 
+def _mark_blocks(r: HubReading, mask: int, state: State) -> None:
+    """NaN and ``state`` for every channel of the blocks in ``mask``."""
+    c = r.channels
+    nan, fill = _nans(c), bytes([state]) * c
+    for b in HUB.blocks:
+        if mask >> b.index & 1:
+            r.values[b.index * c:(b.index + 1) * c] = nan
+            r.raw_states[b.index * c:(b.index + 1) * c] = array("B", fill)
+
+
+@functools.lru_cache(maxsize=128)
+def _nans(channels: int) -> array[float]:
+    return array("d", [math.nan]) * channels
+
+
 class SensorHub:
-    """The sensor hub at ``address`` (1..255) on ``client``.
+    """The sensor hub at ``address`` (1..255) on ``client``: a typed view of
+    the hub's map (``pymb.maps.builtin("hub")``) read by a
+    :class:`~pymb.devices.MapDevice`.
 
     ``channels``: how many channels the hub has (50 for firmware V1.07 and
     below). ``humidity_unit``: 1 or 0.1 (%), for all channels or one per
@@ -300,7 +385,7 @@ class SensorHub:
             low <= address <= high
         ):
             raise InvalidArgument(f"hub address must be {low}..{high}, got {address!r}")
-        if not callable(getattr(client, "run_hub_sweep", None)):
+        if not isinstance(client, Client):
             raise InvalidArgument(f"a SensorHub needs a pymb client, got {client!r}")
         if isinstance(busy_retries, bool) or not isinstance(busy_retries, int) or not (
                 0 <= busy_retries <= 100):
@@ -313,147 +398,173 @@ class SensorHub:
         self.address = address
         self.channels = _channels(channels)
         self.turnaround = turnaround
-        self._sweep = _native.HubSweep(address, self.channels, _tenths(humidity_unit, channels),
-                                       busy_retries, busy_backoff)
-        self._connections = -1
-        self._lock = threading.Lock()  # one sweep of this hub at a time (shared C request)
-        self._plans: dict[tuple[Any, ...], tuple[ReadPlan, bytes | None]] = {}
-        self._current: tuple[Any, ...] | None = None  # (blocks, channels, unsupported) planned
-        self._bound: HubReading | None = None  # the reading whose buffers the sweep holds
-        self._keep: tuple[Any, ...] = ()  # ... and the cffi views that keep them valid
+        self._busy_retries = busy_retries
+        self._unit, self._other = _units(humidity_unit, channels)
+        self._mixed = any(self._other)
+        self.device = MapDevice(client, _hub_map(self.channels, self._unit), address,
+                                busy_retries=busy_retries, busy_backoff=busy_backoff,
+                                plan_turnaround=turnaround, split_on=(2,))
+        self._lock = threading.Lock()  # one read of this hub at a time (shared buffers)
+        self._planner = self.device.planner
+        self._version = -1  # the planner's version self._mask is of
+        #: the reading read_all(into=) decodes into, the registers its decode
+        #: call is bound to, that call, and the buffers it writes (which must
+        #: live as long as the call)
+        self._bound: tuple[HubReading, array[int], Callable[[], int], Buffers] | None = None
+        self._refused = False  # the planner knows points the hub refused
+        self._refused_channels: tuple[int, ...] = ()  # ... those outside whole blocks
+        self._mask = 0
+        # per block, its planner items (a block the firmware lacks: all refused)
+        self._items = tuple(frozenset(range(b.index * self.channels,
+                                            (b.index + 1) * self.channels))
+                            for b in HUB.blocks)
 
     # -- firmware knowledge -------------------------------------------------------
+
+    def _unsupported_mask(self) -> int:
+        """The blocks the device refused, as the planner knows them."""
+        planner = self._planner
+        if planner.version != self._version:
+            gone = planner.unsupported
+            mask = 0
+            if gone:
+                for b, items in zip(HUB.blocks, self._items, strict=True):
+                    if items <= gone:
+                        mask |= 1 << b.index
+            c = self.channels
+            self._refused = bool(gone)
+            self._refused_channels = tuple(sorted(k for k in gone if not mask >> (k // c) & 1))
+            self._mask, self._version = mask, planner.version
+        return self._mask
 
     @property
     def unsupported(self) -> frozenset[str]:
         """Blocks this hub's firmware lacks, as far as seen so far."""
-        m = self._sweep.unsupported
+        m = self._unsupported_mask()
         return frozenset(b.name for b in HUB.blocks if m >> b.index & 1)
 
     def forget_firmware(self) -> None:
         """Forget which blocks are missing: the next read probes them all."""
-        with self._lock:  # not while a sweep (GIL released) may update it
-            self._sweep.unsupported = 0
-            self._current = None
+        with self._lock:
+            self._planner.forget()
 
     # -- planning -----------------------------------------------------------------
-
-    def _baudrate(self) -> int:
-        return int(getattr(self.client, "baudrate", HUB.default_baud))
-
-    def _bits(self) -> int:
-        c = self.client
-        return bits_per_char(getattr(c, "parity", "N"), getattr(c, "stop_bits", 1),
-                             getattr(c, "data_bits", 8))
-
-    def _wanted(self, blocks: Sequence[str] | None,
-                channels: Sequence[int] | None) -> tuple[list[int], bool]:
-        chosen = list(HUB.blocks) if blocks is None else [HUB.block(b) for b in blocks]
-        if channels is None:
-            chans = list(range(1, self.channels + 1))
-            full = blocks is None
-        else:
-            chans = sorted(set(channels))
-            for c in chans:
-                if isinstance(c, bool) or not isinstance(c, int) or not 1 <= c <= self.channels:
-                    raise InvalidArgument(f"channel must be 1..{self.channels}, got {c!r}")
-            full = blocks is None and len(chans) == self.channels
-        skip = self._sweep.unsupported
-        addresses = [b.address(c) for b in chosen if not skip >> b.index & 1 for c in chans]
-        return addresses, full
-
-    def _known(self) -> dict[str, Known]:
-        """The registers this hub has: every channel of every block its
-        firmware supports (a plan may read those it was not asked for)."""
-        skip = self._sweep.unsupported
-        return {"input": Known((b.address(1), b.address(1) + self.channels)
-                               for b in HUB.blocks if not skip >> b.index & 1)}
 
     def plan(self, blocks: Iterable[str] | None = None,
              channels: Iterable[int] | None = None) -> ReadPlan:
         """The requests a read of these blocks and channels would make, with
         their predicted wire time at the client's baud rate (see
         :meth:`ReadPlan.explain`)."""
-        return self._plan(blocks, channels)[0]
+        names, chans = _names(blocks), self._numbers(channels)
+        if names is None:
+            return self.device.plan("sweep", channels=chans)
+        return self.device.plan(None, *names, channels=chans)
 
-    def _plan(self, blocks: Iterable[str] | None,
-              channels: Iterable[int] | None) -> tuple[ReadPlan, bytes | None]:
-        key = (_names(blocks), _numbers(channels), self._sweep.unsupported, self._baudrate())
-        cached = self._plans.get(key)
-        if cached is not None:
-            return cached
-        addresses, full = self._wanted(key[0], key[1])
-        items = [Item(str(a), "input", a) for a in addresses]
-        plan = plan_points(items, Line(self._baudrate(), self._bits(), self.turnaround),
-                           known=self._known())
-        wanted: bytes | None = None
-        if not full:
-            bitmap = bytearray(_native.HUB_BITMAP_BYTES)
-            for a in addresses:
-                i = a - HUB.first
-                bitmap[i // 8] |= 1 << (i % 8)
-            wanted = bytes(bitmap)
-        self._plans[key] = (plan, wanted)
-        return plan, wanted
+    def _numbers(self, channels: Iterable[int] | None) -> tuple[int, ...] | None:
+        chans = _numbers(channels)
+        if chans is None:
+            return None
+        for c in chans:
+            if isinstance(c, bool) or not isinstance(c, int) or not 1 <= c <= self.channels:
+                raise InvalidArgument(f"channel must be 1..{self.channels}, got {c!r}")
+        return None if len(set(chans)) == self.channels else tuple(sorted(set(chans)))
 
     # -- reads --------------------------------------------------------------------
 
     def read_all(self, *, into: HubReading | None = None) -> HubReading:
         """Every block of every channel; blocks the firmware lacks are marked
         :attr:`State.UNSUPPORTED`. ``into`` reuses an earlier reading's arrays."""
+        if into is not None and type(into) is HubReading and into.channels == self.channels:
+            return self._read_all_into(into)
         return self.read(into=into)
 
     def read(self, blocks: Iterable[str] | None = None, channels: Iterable[int] | None = None,
              *, into: HubReading | None = None) -> HubReading:
         """Some blocks (by name, e.g. ``["temperature_c"]``) and/or channels
         (1-based), in the planned requests; the rest is :attr:`State.NOT_READ`."""
-        # Plans are cached by these: copies, so the caller's lists may change.
-        b, c = _names(blocks), _numbers(channels)
         if into is not None and not isinstance(into, HubReading):
             raise InvalidArgument(f"into must be a HubReading, got {into!r}")
-        with self._lock:
-            return self._read(b, c, into)
-
-    def _read(self, blocks: Iterable[str] | None, channels: Iterable[int] | None,
-              into: HubReading | None) -> HubReading:
-        client = self.client
-        if client.connections != self._connections:
-            # A new connection may be a new device (or new firmware): probe again.
-            self._connections = client.connections
-            self._sweep.unsupported = 0
-        # Steady state (the same read as last time, no firmware news): the
-        # sweep struct already holds the plan, and (read_all(into=r) again)
-        # r's buffers: nothing is allocated for them.
-        current = self._current
-        unsupported = self._sweep.unsupported
-        if (current is None or current[0] != blocks or current[1] != channels
-                or current[2] != unsupported):
-            plan, wanted = self._plan(blocks, channels)
-            self._sweep.set_plan(list(plan.spans), wanted)
-            self._current = (blocks, channels, unsupported)
+        names = _names(blocks)
+        chans = None if channels is None else self._numbers(channels)
+        if names is None and chans is None and into is not None and \
+                into.channels == self.channels:
+            return self._read_all_into(into)
         r = into if into is not None and into.channels == self.channels else HubReading(
             self.channels)
-        if r is not self._bound:
-            self._keep = self._sweep.bind(r.registers, r.values, r.raw_states)
-            self._bound = r
-        try:
-            client.run_hub_sweep(self._sweep)
-        except DeviceFailure as e:
-            # [HUB] 2.3.2.3: code 04 means busy, and the retries are used up.
-            raise DeviceBusy(
-                f"{e} (the sensor hub's code 04 means busy; gave up after "
-                f"{self._sweep.request.options.busy_retries} retries)",
-                code=e.code, slave=e.slave, function=e.function, address=e.address,
-                count=e.count, port=e.port, response=e.response,
-            ) from None
-        finally:
-            if r is not into:
-                # A reading of its own goes to the caller: let go of its buffers.
-                self._sweep.unbind()
-                self._keep = ()
-                self._bound = None
-        # Blocks found missing in this sweep are skipped by the next plan.
-        r.unsupported_mask = self._sweep.unsupported
+        with self._lock:
+            try:
+                if names is None:
+                    decs = self.device.read_into(group="sweep", channels=chans)
+                else:
+                    decs = self.device.read_into(*names, channels=chans)
+            except DeviceFailure as e:
+                raise self._busy(e) from None
+            self._copy(decs[0], names, r)
+            mask = self._unsupported_mask()
+        if self._mixed:
+            _other_units(r, self._unit, self._other)
+        r.unsupported_mask = mask
         r.time = time.time()
         r.monotonic = time.monotonic()
         return r
+
+    def _read_all_into(self, r: HubReading) -> HubReading:
+        """Every block into ``r``: the map decoder writes straight into its
+        arrays (bound once per reading: a poller's steady state allocates
+        nothing)."""
+        with self._lock:
+            try:
+                ((dec, regs),) = self.device.fetch(group="sweep")
+            except DeviceFailure as e:
+                raise self._busy(e) from None
+            bound = self._bound
+            if bound is None or bound[0] is not r or bound[1] is not regs:
+                into = Buffers(dec.slots, 0, values=r.values, states=r.raw_states)
+                self._bound = bound = (r, regs, dec.bind(regs, into), into)
+            bound[2]()
+            r.registers[:len(regs)] = regs
+            mask = self._mask if self._planner.version == self._version else (
+                self._unsupported_mask())
+            if self._refused:
+                self._mark_refused(r, mask)
+        if self._mixed:
+            _other_units(r, self._unit, self._other)
+        r.unsupported_mask = mask
+        r.time = time.time()
+        r.monotonic = time.monotonic()
+        return r
+
+    def _mark_refused(self, r: HubReading, mask: int) -> None:
+        """NaN and ``unsupported`` where the hub refused: whole blocks, then
+        any other channel the planner knows it refused."""
+        if mask:
+            _mark_blocks(r, mask, State.UNSUPPORTED)
+        for k in self._refused_channels:
+            r.values[k] = math.nan
+            r.raw_states[k] = State.UNSUPPORTED
+
+    def _busy(self, e: DeviceFailure) -> DeviceBusy:
+        """[HUB] 2.3.2.3: code 04 means busy, and the retries are used up."""
+        return DeviceBusy(
+            f"{e} (the sensor hub's code 04 means busy; gave up after "
+            f"{self._busy_retries} retries)",
+            code=e.code, slave=e.slave, function=e.function, address=e.address,
+            count=e.count, port=e.port, response=e.response)
+
+    def _copy(self, dec: Decoder, names: tuple[str, ...] | None, r: HubReading) -> None:
+        """The decoder's values, states and registers into ``r``'s arrays."""
+        b = dec.buffers
+        regs = cast("array[int]", b.registers)  # the array read_into decoded
+        at = dec.address - HUB.first
+        r.registers[at:at + len(regs)] = regs
+        if names is None:  # every block: the decoder's arrays are the reading's layout
+            r.values[:] = b.values
+            r.raw_states[:] = b.states
+            return
+        c = self.channels
+        r.values[:] = _nans(c) * len(HUB.blocks)
+        r.raw_states[:] = array("B", bytes([State.NOT_READ]) * (c * len(HUB.blocks)))
+        for name in dict.fromkeys(names):
+            i, slot = HUB.block(name).index, dec.slot(name)
+            r.values[i * c:(i + 1) * c] = b.values[slot:slot + c]
+            r.raw_states[i * c:(i + 1) * c] = b.states[slot:slot + c]

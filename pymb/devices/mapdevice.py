@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from pymb.client import Client
@@ -41,9 +41,9 @@ from pymb.devices.mapwrite import (
     requests,
     resolve,
 )
-from pymb.errors import InvalidArgument, ModbusError
+from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument, ModbusError
 from pymb.maps import Decoder, Map, Point, Value
-from pymb.maps.device_plan import map_planner
+from pymb.maps.device_plan import PointPlanner, map_planner
 from pymb.maps.model import check_group, did_you_mean
 from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.types import STATES
@@ -54,6 +54,8 @@ __all__ = ["MapDevice"]
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = DEFAULT_BAUD
 _CACHED = 64  #: selections (and their buffers) kept per device
+_NOT_READ = STATES.index("not_read")
+_UNSEEN = object()  #: channels a read is never found again by
 
 
 class MapDevice:
@@ -70,11 +72,23 @@ class MapDevice:
     connection, and ``response_timeout`` as the reply timeout of its requests.
     ``budget``: where writes are counted against ``max_writes_per_hour``
     (a :class:`~pymb.devices.mapwrite.WriteBudget`; one of its own by default).
+    ``busy_retries`` / ``busy_backoff``: for a device that answers exception
+    04 when busy (the sensor hub): a read request answered 04 is asked again
+    up to ``busy_retries`` times, ``busy_backoff`` seconds later (doubling
+    each time), before the :class:`~pymb.DeviceFailure` is raised.
+    ``plan_turnaround``: the answer delay plans are priced at, where it is
+    not the map's ``turnaround`` (no silence is kept for it on the wire).
+    ``split_on``: the exception codes a read falls back on, where the map
+    says ``split_on_exception`` (02 and 03 by default; the sensor hub's
+    firmware answers 02 alone for a block it lacks).
     """
 
     def __init__(self, client: Client, m: Map, address: int | None = None, *,
                  options: Mapping[str, object] | None = None,
-                 baudrate: int | None = None, budget: Budget | None = None) -> None:
+                 baudrate: int | None = None, budget: Budget | None = None,
+                 busy_retries: int = 0, busy_backoff: float = 0.02,
+                 plan_turnaround: float | None = None,
+                 split_on: Iterable[int] = (2, 3)) -> None:
         if not isinstance(client, Client):
             raise InvalidArgument(f"a map device needs a pymb client (RtuClient, TcpClient, "
                                   f"RtuOverTcpClient), got {type(client).__name__}")
@@ -87,6 +101,12 @@ class MapDevice:
         if options is not None and not isinstance(options, Mapping):
             raise InvalidArgument(f"options are a mapping of names to values, "
                                   f"got {type(options).__name__}")
+        if isinstance(busy_retries, bool) or not isinstance(busy_retries, int) or not (
+                0 <= busy_retries <= 100):
+            raise InvalidArgument(f"busy_retries must be 0..100, got {busy_retries!r}")
+        if isinstance(busy_backoff, bool) or not isinstance(busy_backoff, (int, float)) or not (
+                0 <= busy_backoff <= 10):
+            raise InvalidArgument(f"busy_backoff must be 0..10 s, got {busy_backoff!r}")
         if options:
             m = m.configure(options)
         dev = m.device
@@ -104,15 +124,39 @@ class MapDevice:
                                               getattr(client, "stop_bits", 1),
                                               getattr(client, "data_bits", 8)))
         self._planner, mi = map_planner(m, line)
+        if plan_turnaround is not None:
+            if isinstance(plan_turnaround, bool) or not isinstance(
+                    plan_turnaround, (int, float)) or not 0 <= plan_turnaround <= 10:
+                raise InvalidArgument(f"plan_turnaround must be 0..10 s, got {plan_turnaround!r}")
+            pl = self._planner.line
+            self._planner.line = Line(pl.baudrate, pl.bits_per_char, plan_turnaround,
+                                      pl.inter_request_gap)
         self._mi = mi
         self._points: tuple[Point, ...] = mi.points
         self._first = mi.first
         self._index = {p.name: i for i, p in enumerate(self._points)}
         self._selections: dict[tuple[tuple[str, ...], str | None], tuple[int, ...]] = {}
-        self._reads: dict[tuple[int, ...], Read] = {}  # per selection (points)
-        #: the last read's names, group and Read: a poller asking the same again finds it
-        self._last: tuple[tuple[str, ...], str | None, Read] | None = None
+        # per selection (points, channels): its Read and the output slots of
+        # the block channels it does not read
+        self._reads: dict[tuple[tuple[int, ...], tuple[int, ...] | None],
+                          tuple[Read, tuple[tuple[Any, int], ...]]] = {}
+        #: the last read's names, group, channels, Read and unread slots: a
+        #: poller asking the same again finds it
+        self._last: tuple[tuple[str, ...], str | None, object, Read,
+                          tuple[tuple[Any, int], ...]] | None = None
         self._fetcher = Fetcher(client, m, address, self._planner)
+        refusals = {2: IllegalDataAddress, 3: IllegalDataValue}
+        try:
+            codes = set(split_on)
+        except TypeError:
+            raise InvalidArgument(f"split_on is a list of exception codes (2, 3), "
+                                  f"got {split_on!r}") from None
+        if not codes <= set(refusals):
+            raise InvalidArgument(f"split_on takes the exception codes 2 and 3, "
+                                  f"got {sorted(codes, key=repr)}")
+        self._fetcher.refusals = tuple(refusals[c] for c in sorted(codes))
+        self._fetcher.busy_retries = busy_retries
+        self._fetcher.busy_backoff = float(busy_backoff)
         # The line's lock, for each whole read and write: a device's requests
         # and the silences between them are never interleaved with another
         # map device's on the same client (and one lock a read, not two).
@@ -120,6 +164,12 @@ class MapDevice:
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
         #: the writes counted against ``max_writes_per_hour`` (in memory unless given)
         self.budget: Budget = budget if budget is not None else WriteBudget()
+
+    @property
+    def planner(self) -> PointPlanner:
+        """The device's read planner: its plans and what the device taught
+        it (the points it refused, :attr:`PointPlanner.unsupported`)."""
+        return self._planner
 
     # -- what to read -----------------------------------------------------------------
 
@@ -158,14 +208,34 @@ class MapDevice:
         self._selections[key] = chosen
         return chosen
 
-    def _read_of(self, names: tuple[str, ...], group: str | None) -> Read:
+    def _channels(self, points: tuple[int, ...], channels: Any) -> tuple[int, ...] | None:
+        """``channels`` (of the blocks among ``points``) checked: a sorted
+        tuple, None for all."""
+        if channels is None:
+            return None
+        try:
+            chosen = tuple(sorted(set(channels)))
+        except TypeError:
+            raise InvalidArgument(f"channels is a list of channel numbers, e.g. range(1, 13), "
+                                  f"got {channels!r}") from None
+        blocks = [self._points[i] for i in points if self._points[i].block]
+        most = min((p.channels for p in blocks), default=0)
+        for c in chosen:
+            if isinstance(c, bool) or not isinstance(c, int) or not 1 <= c <= most:
+                raise InvalidArgument(f"{self.map.id}: channel must be 1..{most}, got {c!r}")
+        return chosen
+
+    def _read_of(self, names: tuple[str, ...], group: str | None,
+                 channels: Any = None) -> tuple[Read, tuple[tuple[Any, int], ...]]:
         """The selection's :class:`Read`, made on its first read: a buffer
         per table, from its first point's register (bit) to its last's, each
         request read in place, and the compiled decoder that walks it in one
-        C call."""
+        C call; with it, the output slots of the block channels not read."""
         points = self._selection(names, group)
-        r = self._reads.get(points)
-        if r is None:
+        chans = self._channels(points, channels)
+        key = (points, chans)
+        got = self._reads.get(key)
+        if got is None:
             tables: dict[str, list[str]] = {}
             for i in points:
                 p = self._points[i]
@@ -174,17 +244,40 @@ class MapDevice:
             for t, ns in tables.items():
                 dec = Decoder(self.map, ns)
                 images[t] = Image(dec.address, array("H", bytes(2 * dec.count)), dec)
-            r = Read(points, tuple(self._mi.wanted(points)), images)
+            items = self._mi.wanted(points)
+            skipped: list[tuple[Any, int]] = []
+            if chans is not None:
+                keep = set(chans)
+                items = []
+                for i in points:
+                    p, k0 = self._points[i], self._first[i]
+                    if not p.block:
+                        items.append(k0)
+                        continue
+                    dec = images[p.table].decoder
+                    slot = dec.slot(p.name)
+                    for c in range(1, p.channels + 1):
+                        if c in keep:
+                            items.append(k0 + c - 1)
+                        else:
+                            skipped.append((dec.buffers, slot + c - 1))
+            got = (Read(points, tuple(items), images), tuple(skipped))
             if len(self._reads) >= _CACHED:
                 self._reads.clear()  # many different selections: keep memory bounded
-            self._reads[points] = r
-        self._last = (names, group, r)
-        return r
+            self._reads[key] = got
+        # a list may change before the next read: only a tuple is found again by identity
+        self._last = (names, group, channels if channels is None or type(channels) is tuple
+                      else _UNSEEN, got[0], got[1])
+        return got
 
-    def plan(self, group: str | None = None, *names: str) -> ReadPlan:
+    def plan(self, group: str | None = None, *names: str,
+             channels: Iterable[int] | None = None) -> ReadPlan:
         """The requests a read of ``group`` (or of the named points; all by
-        default) makes now, with their predicted wire time."""
-        return self._planner.plan(tuple(self._mi.wanted(self._selection(names, group))))
+        default; of a block, only ``channels`` if given) makes now, with
+        their predicted wire time."""
+        if channels is None:
+            return self._planner.plan(tuple(self._mi.wanted(self._selection(names, group))))
+        return self._planner.plan(self._read_of(names, group, channels)[0].items)
 
     # -- reads ------------------------------------------------------------------------
 
@@ -193,23 +286,27 @@ class MapDevice:
         point: name -> value (a list for a block; None where there is no
         value, and why in :attr:`states`)."""
         last = self._last
-        r = last[2] if last is not None and last[0] == names and last[1] == group else (
-            self._read_of(names, group))
+        r = last[3] if last is not None and last[0] == names and last[1] == group and (
+            last[2] is None) else self._read_of(names, group)[0]
         with self._lock:
             self._fetcher.fetch(r)
             return self._decode(r.points, r.images)
 
-    def read_into(self, *names: str, group: str | None = None) -> tuple[Decoder, ...]:
+    def read_into(self, *names: str, group: str | None = None,
+                  channels: Iterable[int] | None = None) -> tuple[Decoder, ...]:
         """Read as :meth:`read` does, but build no dict: the values stay in
         the C decoder's arrays, one :class:`~pymb.maps.Decoder` per table of
         the selection (``d.buffers.values[d.slot(name) + channel - 1]``, its
         state in ``d.buffers.states``; NaN and ``unsupported`` where the
         device refused a point). The same decoders and arrays come back on
         every read of the same selection: a poller's steady state allocates
-        nothing for the values."""
+        nothing for the values. ``channels`` (1-based): only these channels
+        of the blocks are asked for, the others are NaN and ``not_read``."""
         last = self._last
-        r = last[2] if last is not None and last[0] == names and last[1] == group else (
-            self._read_of(names, group))
+        if last is not None and last[0] == names and last[1] == group and last[2] is channels:
+            r, skipped = last[3], last[4]
+        else:
+            r, skipped = self._read_of(names, group, channels)
         with self._lock:
             self._fetcher.fetch(r)
             for decode, buffers, registers in r.decodes:
@@ -217,7 +314,29 @@ class MapDevice:
                 buffers.registers = registers
             if self._fetcher.marked:
                 self._mark_unread(r.points, r.images)
+            if skipped:
+                nan, code = math.nan, _NOT_READ
+                for b, slot in skipped:
+                    b.values[slot] = nan
+                    b.states[slot] = code
             return r.decoders
+
+    def fetch(self, *names: str,
+              group: str | None = None) -> tuple[tuple[Decoder, array[int]], ...]:
+        """Read as :meth:`read_into` does, but decode nothing: per table of
+        the selection, its decoder and the registers the requests read, from
+        the decoder's ``address`` (the same arrays on every read of the same
+        selection, valid until the next). For a view that decodes them
+        itself (the sensor hub's reading); where the device refused a point,
+        its registers are what they were (see :attr:`planner`)."""
+        last = self._last
+        if last is not None and last[0] == names and last[1] == group and last[2] is None:
+            r = last[3]
+        else:
+            r = self._read_of(names, group)[0]
+        with self._lock:
+            self._fetcher.fetch(r)
+        return r.fetched
 
     def _mark_unread(self, points: Sequence[int], images: dict[str, Image]) -> None:
         """In the decoders' arrays: NaN and ``unsupported`` where this read got
@@ -239,7 +358,7 @@ class MapDevice:
         the requests read (laid out as
         :func:`~pymb.devices.mapreading.group_layout` says), copied."""
         values = self.read(group=group)
-        images = self._read_of((), group).images
+        images = self._read_of((), group)[0].images
         regs = array("H")
         for image in images.values():
             regs.extend(image.registers)

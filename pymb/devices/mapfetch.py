@@ -23,7 +23,7 @@ from typing import NamedTuple
 from pymb._native import RegisterPlan
 from pymb.client import Client
 from pymb.devices.linequiet import quiet_of, sleep_until
-from pymb.errors import IllegalDataAddress, IllegalDataValue
+from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import PointPlanner
 from pymb.maps.planner import BIT_TABLES, ReadPlan, Request, on_refusal, replans
@@ -58,7 +58,7 @@ class Read:
     were made at. A read at the same version on the same connection asks the
     same requests: it runs them and decodes, nothing else."""
 
-    __slots__ = ("decoders", "decodes", "images", "items", "plan", "points", "runs",
+    __slots__ = ("decoders", "decodes", "fetched", "images", "items", "plan", "points", "runs",
                  "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
@@ -67,6 +67,8 @@ class Read:
         self.items = items
         self.images = images
         self.decoders = tuple(image.decoder for image in images.values())
+        #: per table: its decoder and its registers
+        self.fetched = tuple((image.decoder, image.registers) for image in images.values())
         #: per table: the decoder's C call bound to its buffer, its buffers, the buffer
         self.decodes: tuple[tuple[Callable[[], int], Buffers, array[int]], ...] = tuple(
             (image.decoder.bind(image.registers), image.decoder.buffers, image.registers)
@@ -101,6 +103,15 @@ class Fetcher:
         self.unread = bytearray(len(planner.items))
         self._none_unread = bytes(len(planner.items))
         self.marked = False  #: some byte of :attr:`unread` is 1
+        #: exception 04 answers asked again per request, waiting
+        #: :attr:`busy_backoff` seconds (doubling) before each (a device that
+        #: says busy with 04, as the sensor hub does); 0: raised at once
+        self.busy_retries = 0
+        self.busy_backoff = 0.02
+        #: the device exceptions a read falls back on (with the map's
+        #: ``split_on_exception``): 02 and 03
+        self.refusals: tuple[type[DeviceException], ...] = (IllegalDataAddress,
+                                                            IllegalDataValue)
         self._connections = -1  # the client's connection the planner's knowledge is from
 
     def fetch(self, r: Read) -> None:
@@ -131,8 +142,13 @@ class Fetcher:
             if until > last and until > _monotonic():
                 sleep_until(until)
             try:
-                client.run_read_plan(p.plan)
-            except (IllegalDataAddress, IllegalDataValue) as exc:
+                try:
+                    client.run_read_plan(p.plan)
+                except DeviceFailure:
+                    if not self.busy_retries:
+                        raise
+                    self._busy_again(p.plan, p.plan.failed)
+            except self.refusals as exc:
                 if not replans(planner.limits, exc.code):
                     raise
                 refused, code = p.plan.failed, exc.code
@@ -143,6 +159,33 @@ class Fetcher:
                     q.quiet_until = now + self._turnaround
             if refused >= 0:
                 self._refused(p, refused, code)
+
+    def _run_plan(self, plan: RegisterPlan, start: int) -> None:
+        """``plan`` from request ``start`` on, in one C call; a request the
+        device answers 04 to is asked again as :attr:`busy_retries` says."""
+        try:
+            self.client.run_read_plan(plan, start)
+        except DeviceFailure:
+            if not self.busy_retries:
+                raise
+            self._busy_again(plan, plan.failed)
+
+    def _busy_again(self, plan: RegisterPlan, start: int) -> None:
+        """Request ``start`` of ``plan`` was answered 04 (busy): ask again
+        from it, :attr:`busy_backoff` seconds later (doubling), up to
+        :attr:`busy_retries` times; then the DeviceFailure is raised."""
+        retries, wait = self.busy_retries, self.busy_backoff
+        while True:
+            retries -= 1
+            time.sleep(wait)
+            wait *= 2
+            try:
+                self.client.run_read_plan(plan, start)
+                return
+            except DeviceFailure:
+                if retries <= 0:
+                    raise
+                start = plan.failed
 
     def _remake(self, r: Read) -> None:
         """Reconnect if the line was lost (after a new connection: wait
@@ -209,8 +252,8 @@ class Fetcher:
                 return
             sleep_until(max(q.quiet_until, q.last_end + gap))
             try:
-                self.client.run_read_plan(plan, start)
-            except (IllegalDataAddress, IllegalDataValue) as exc:
+                self._run_plan(plan, start)
+            except self.refusals as exc:
                 if not replans(self.planner.limits, exc.code):
                     raise
                 refused, code = plan.failed, exc.code
@@ -258,7 +301,18 @@ class Fetcher:
                 buf[at:at + r.count] = array("H", bits)
             else:
                 view = memoryview(buf)[at:at + r.count]
-                self.client.read_registers_prepared(r.function, self.address, r.address, view)
+                retries, wait = self.busy_retries, self.busy_backoff
+                while True:
+                    try:
+                        self.client.read_registers_prepared(r.function, self.address,
+                                                            r.address, view)
+                        break
+                    except DeviceFailure:
+                        if retries <= 0:
+                            raise
+                    retries -= 1
+                    time.sleep(wait)
+                    wait *= 2
 
     def _fetch(self, r: Request, image: Image) -> None:
         """Read ``r`` into ``image``; on exception 02/03, fall back as the
@@ -267,7 +321,7 @@ class Fetcher:
         try:
             self._wire(r, image)
             return
-        except (IllegalDataAddress, IllegalDataValue) as exc:
+        except self.refusals as exc:
             if not replans(self.planner.limits, exc.code):
                 raise
             code = exc.code

@@ -55,10 +55,17 @@ class Buffers:
 
     __slots__ = ("_keep", "_out", "ints", "registers", "states", "text", "values")
 
-    def __init__(self, slots: int, text_bytes: int) -> None:
-        self.values = array("d", bytes(8 * slots))
+    def __init__(self, slots: int, text_bytes: int, *, values: array[float] | None = None,
+                 states: array[int] | None = None) -> None:
+        # given arrays (a reading's own) are written in place: never resized
+        # while these buffers live
+        if values is not None and (values.typecode != "d" or len(values) < slots):
+            raise InvalidArgument(f"values must be an array('d') of {slots} or more")
+        if states is not None and (states.typecode != "B" or len(states) < slots):
+            raise InvalidArgument(f"states must be an array('B') of {slots} or more")
+        self.values = array("d", bytes(8 * slots)) if values is None else values
         self.ints = array("q", bytes(8 * slots))
-        self.states = array("B", bytes(slots))
+        self.states = array("B", bytes(slots)) if states is None else states
         self.text = bytearray(text_bytes)
         self.registers: Sequence[int] = ()
         out = ffi.new("pymb_map_out *")
@@ -220,20 +227,22 @@ class Decoder:
         b.registers = registers
         return b
 
-    def bind(self, registers: array[int]) -> Callable[[], int]:
-        """The C call of :meth:`decode` of ``registers`` into :attr:`buffers`,
-        its arguments converted once: each call decodes them again and
-        returns the number of values written. For a reader that decodes the
-        same buffer over and over; while the call lives, ``registers`` (an
-        ``array('H')`` of at least :attr:`count` registers) cannot change its
-        size."""
+    def bind(self, registers: array[int], into: Buffers | None = None) -> Callable[[], int]:
+        """The C call of :meth:`decode` of ``registers`` into :attr:`buffers`
+        (or ``into``), its arguments converted once: each call decodes them
+        again and returns the number of values written. For a reader that
+        decodes the same buffer over and over; while the call lives,
+        ``registers`` (an ``array('H')`` of at least :attr:`count` registers)
+        cannot change its size, and the caller keeps ``into`` alive (the call
+        writes its arrays)."""
         if not isinstance(registers, array) or registers.typecode != "H":
             raise InvalidArgument(f"{self.map.id}: bind takes an array('H'), "
                                   f"got {type(registers).__name__}")
-        self.decode(registers)  # checks the length, and the table once
+        b = self.buffers if into is None else into
+        self.decode(registers, b)  # checks the length, and the table once
         return partial(lib.pymb_map_decode, self._entries, self._n, self._markers,
                        self._nmarkers, ffi.from_buffer("uint16_t[]", registers),
-                       len(registers), self.buffers._out)  # noqa: SLF001 - this module's
+                       len(registers), b._out)  # noqa: SLF001 - this module's
 
     def read(self, registers: Sequence[int]) -> dict[str, Value]:
         """``{name: value}`` of every point, blocks as lists, None where no value."""
