@@ -406,6 +406,8 @@ class SensorHub:
                                 plan_turnaround=turnaround, split_on=(2,))
         self._lock = threading.Lock()  # one read of this hub at a time (shared buffers)
         self._planner = self.device.planner
+        # [HUB] 3 / [NOTES]: a firmware has a block whole or answers 02 for it
+        self._planner.whole_points = True
         self._version = -1  # the planner's version self._mask is of
         #: the reading read_all(into=) decodes into, the registers its decode
         #: call is bound to, that call, and the buffers it writes (which must

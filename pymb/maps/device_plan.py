@@ -36,8 +36,16 @@ class PointPlanner:
     def __init__(self, items: Sequence[Item], limits: Limits, line: Line, *,
                  offline_retry: float = 30.0,
                  clock: Callable[[], float] = time.monotonic,
-                 ties: Sequence[tuple[int, int]] = ()) -> None:
+                 ties: Sequence[tuple[int, int]] = (),
+                 point_of: Sequence[int] = ()) -> None:
         self.items = tuple(items)
+        #: per item, the index of the point it is of (a block's channels
+        #: share one); empty: unknown
+        self.point_of = tuple(point_of)
+        #: the device has or lacks a point whole (:func:`~pymb.maps.planner.on_refusal`
+        #: reads a refused request point by point, and a point refused alone
+        #: is unsupported whole, not probed channel by channel)
+        self.whole_points = False
         #: pairs of items read in one request where the rules allow (a value
         #: and its scale factor)
         self.ties = tuple(ties)
@@ -223,5 +231,6 @@ def map_planner(m: Points, line: Line | None = None, *, clock: Callable[[], floa
     base = line or Line()
     line = Line(base.baudrate, base.bits_per_char, timing.turnaround, timing.inter_request_gap)
     mi = MapItems.of(m)
+    point_of = [i for i, p in enumerate(mi.points) for _ in range(p.channels)]
     return PointPlanner(mi.items, limits, line, offline_retry=timing.offline_retry,
-                        clock=clock, ties=mi.ties()), mi
+                        clock=clock, ties=mi.ties(), point_of=point_of), mi

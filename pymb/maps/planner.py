@@ -197,6 +197,12 @@ class Learner(Protocol):
 
     def mark_unsupported(self, indices: Iterable[int]) -> None: ...
 
+    @property
+    def whole_points(self) -> bool: ...
+
+    @property
+    def point_of(self) -> tuple[int, ...]: ...
+
 
 def replans(limits: Limits, code: int) -> bool:
     """Whether a poll re-plans after exception ``code`` (:func:`on_refusal`)
@@ -211,18 +217,32 @@ def on_refusal(planner: Learner, request: Request, code: int) -> Refusal | None:
     registers nobody asked for is planned again without the bridge (never
     bridged again); one of several extents is read extent by extent; the
     points of a single extent are marked unsupported (asked again after
-    ``offline_retry``)."""
+    ``offline_retry``). With the planner's ``whole_points`` (a device that
+    has or lacks a block whole, as the sensor hub's firmware does), the
+    extents are read point by point instead, and a point refused alone is
+    unsupported whole."""
     if not replans(planner.limits, code):
         return None
     if request.bridged and planner.refuse_bridge(request):
         return Refusal(tuple(planner.replan(request).requests), ())
     if len(request.extents) > 1:
         items = planner.items
+        runs = [request.extents]
+        if planner.whole_points and planner.point_of:
+            point_of = planner.point_of
+            by_point: dict[int, list[tuple[int, ...]]] = {}
+            for ext in request.extents:
+                by_point.setdefault(point_of[ext[0]], []).append(ext)
+            if len(by_point) == 1:
+                planner.mark_unsupported(request.items)
+                return Refusal((), request.items)
+            runs = [tuple(exts) for exts in by_point.values()]
         subs = []
-        for ext in request.extents:
-            start = min(items[k].address for k in ext)
-            end = max(items[k].end for k in ext)
-            subs.append(Request(request.table, start, end - start, ext, (ext,), 0))
+        for run in runs if len(runs) > 1 else [(ext,) for ext in request.extents]:
+            ks = tuple(k for ext in run for k in ext)
+            start = min(items[k].address for k in ks)
+            end = max(items[k].end for k in ks)
+            subs.append(Request(request.table, start, end - start, ks, tuple(run), 0))
         return Refusal(tuple(subs), ())
     planner.mark_unsupported(request.items)
     return Refusal((), request.items)

@@ -152,3 +152,28 @@ def test_plan_turnaround_prices_plans_and_keeps_no_silence() -> None:
         slow.read("flows")
         first, second = peer.log
         assert second.arrived - first.replied < 0.4  # no 0.5 s silence kept
+
+
+def test_whole_points_read_a_refused_request_point_by_point(frozen_clock: SimClock) -> None:
+    # The hub's firmware 2.18 lacks voltage_mv, rssi_dbm and temperature2_c
+    # whole: with whole_points the first sweep asks each refused request's
+    # blocks apart and gives up a block refused alone (as libpymb's own hub
+    # sweep does), never probing 100 channels one by one.
+    with Simulator(["hub:7,firmware=2.18"], clock=frozen_clock) as sim, \
+            pymb.RtuClient(sim.port, timeout=2.0) as client:
+        dev = MapDevice(client, maps.builtin("hub"), 7)
+        dev.planner.whole_points = True
+        before = sim.stats.requests  # type: ignore[attr-defined]
+        got = dev.read(group="sweep")
+        first = sim.stats.requests - before  # type: ignore[attr-defined]
+        # 3 good spans; 406..530 refused, then pressure_kpa's part and voltage_mv
+        # alone; 531..655 refused, then rssi_dbm and temperature2_c's part alone;
+        # 656..730 (temperature2_c alone) refused: libpymb's hub sweep asks as many
+        assert first == 3 + 3 + 3 + 1
+        for name in ("voltage_mv", "rssi_dbm", "temperature2_c"):
+            assert got[name] == [None] * 100
+            assert set(dev.states[name]) == {"unsupported"}
+        assert "unsupported" not in dev.states["pressure_kpa"]
+        before = sim.stats.requests  # type: ignore[attr-defined]
+        dev.read(group="sweep")
+        assert sim.stats.requests - before == 4  # type: ignore[attr-defined]
