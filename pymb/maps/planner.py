@@ -225,17 +225,17 @@ def on_refusal(planner: Learner, request: Request, code: int) -> Refusal | None:
         return None
     if request.bridged and planner.refuse_bridge(request):
         return Refusal(tuple(planner.replan(request).requests), ())
+    whole = planner.whole_points and bool(planner.point_of)
     if len(request.extents) > 1:
         items = planner.items
         runs = [request.extents]
-        if planner.whole_points and planner.point_of:
+        if whole:
             point_of = planner.point_of
             by_point: dict[int, list[tuple[int, ...]]] = {}
             for ext in request.extents:
                 by_point.setdefault(point_of[ext[0]], []).append(ext)
             if len(by_point) == 1:
-                planner.mark_unsupported(request.items)
-                return Refusal((), request.items)
+                return _refused_whole(planner, point_of[request.items[0]])
             runs = [tuple(exts) for exts in by_point.values()]
         subs = []
         for run in runs if len(runs) > 1 else [(ext,) for ext in request.extents]:
@@ -244,8 +244,18 @@ def on_refusal(planner: Learner, request: Request, code: int) -> Refusal | None:
             end = max(items[k].end for k in ks)
             subs.append(Request(request.table, start, end - start, ks, tuple(run), 0))
         return Refusal(tuple(subs), ())
+    if whole and len({planner.point_of[k] for k in request.items}) == 1:
+        return _refused_whole(planner, planner.point_of[request.items[0]])
     planner.mark_unsupported(request.items)
     return Refusal((), request.items)
+
+
+def _refused_whole(planner: Learner, point: int) -> Refusal:
+    """A point the device refused alone, with ``whole_points``: every item
+    of it is unsupported (those this poll read already too)."""
+    ks = tuple(k for k, p in enumerate(planner.point_of) if p == point)
+    planner.mark_unsupported(ks)
+    return Refusal((), ks)
 
 
 @dataclass(frozen=True)

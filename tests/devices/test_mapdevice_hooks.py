@@ -177,3 +177,18 @@ def test_whole_points_read_a_refused_request_point_by_point(frozen_clock: SimClo
         before = sim.stats.requests  # type: ignore[attr-defined]
         dev.read(group="sweep")
         assert sim.stats.requests - before == 4  # type: ignore[attr-defined]
+
+
+def test_whole_points_give_up_every_channel_of_a_point_refused_alone(
+        frozen_clock: SimClock) -> None:
+    # Firmware 1.07 serves 50 channels: a 100-channel read of each block is
+    # refused, so each block is unsupported whole, also the channels an
+    # earlier request of the same poll read (humidity 1..25 with 31..155's
+    # split): the logger's "log it with channels=50" hint depends on it.
+    with Simulator(["hub:7,firmware=1.07"], clock=frozen_clock) as sim, \
+            pymb.RtuClient(sim.port, timeout=2.0) as client:
+        dev = MapDevice(client, maps.builtin("hub"), 7)
+        dev.planner.whole_points = True
+        got = dev.read(group="sweep")
+        assert all(v == [None] * 100 for v in got.values())
+        assert {s for states in dev.states.values() for s in states} == {"unsupported"}
