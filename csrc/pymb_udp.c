@@ -21,6 +21,7 @@
 #include <unistd.h>
 
 #include "pymb_internal.h"
+#include "pymb_master.h"
 
 /* Datagrams waiting before a request are old: dropped. */
 static int udp_prepare(pymb_line *line, int slave)
@@ -71,20 +72,12 @@ static int udp_send(pymb_line *line, const uint8_t *adu, int len)
     }
 }
 
-/* The MBAP length, as over TCP; a datagram carries one frame. */
+/* The MBAP length, the one rule of Modbus TCP (pymbi_mbap_length, pymb_frame.c);
+ * a datagram carries one frame. */
 static int udp_reply_length(const uint8_t *adu, int have, int expect)
 {
-    unsigned length;
-
     (void)expect;
-    if (have < PYMB_MBAP_LENGTH) {
-        return PYMB_FRAME_INCOMPLETE;
-    }
-    length = (unsigned)adu[4] << 8 | adu[5];
-    if (adu[2] != 0 || adu[3] != 0 || length < 2 || length > 1 + PYMB_MAX_PDU) {
-        return PYMB_FRAME_BAD_HEADER;
-    }
-    return 6 + (int)length;
+    return have < 0 ? PYMB_FRAME_INCOMPLETE : pymbi_mbap_length(adu, (size_t)have);
 }
 
 static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
@@ -144,8 +137,7 @@ static int udp_check(pymb_line *line, const uint8_t *req, int req_len, const uin
 {
     (void)line;
     (void)expect;
-    return pymb_check_response_pdu(req + 1, (size_t)req_len - 1, rsp + PYMB_MBAP_LENGTH,
-                                   (size_t)(n - PYMB_MBAP_LENGTH), exc);
+    return pymbi_tcp_check(req[0], req + 1, (size_t)req_len - 1, rsp, (size_t)n, exc);
 }
 
 /* Datagrams never leave the line out of step. */
