@@ -316,6 +316,8 @@ class AsyncTcpClient(_AsyncTcpBase):
         """Modbus/TCP Security's settings (None: plain Modbus TCP)."""
         return self.blocking.tls
 
+    attach = Mirror(TcpClient.attach)
+
 
 class AsyncRtuOverTcpClient(_AsyncTcpBase):
     """RTU frames over TCP for asyncio: the arguments of
