@@ -9,6 +9,7 @@ import signal
 import ssl
 import sys
 
+from pymb.client import TcpClient
 from pymb.client.address import parse_host_port
 from pymb.commands._common import add_connection_args, make_client
 from pymb.errors import InvalidArgument, ModbusConnectionError
@@ -83,24 +84,25 @@ def run(args: argparse.Namespace) -> int:
     roles = frozenset(r.strip() for r in args.write_roles.split(",") if r.strip())
     if roles and tls is None:
         raise InvalidArgument("--write-roles needs --tls (roles come from client certificates)")
-    if args.max_inflight is not None:
-        if not args.tcp:
-            raise InvalidArgument("--max-inflight needs --tcp (a serial line, or RTU over TCP, "
-                                  "takes one transaction at a time)")
-        if not 1 <= args.max_inflight <= MAX_INFLIGHT:
-            raise InvalidArgument(f"--max-inflight must be 1..{MAX_INFLIGHT}, "
-                                  f"got {args.max_inflight}")
+    if args.max_inflight is not None and not 1 <= args.max_inflight <= MAX_INFLIGHT:
+        raise InvalidArgument(f"--max-inflight must be 1..{MAX_INFLIGHT}, "
+                              f"got {args.max_inflight}")
     line = make_client(args)
+    # plain Modbus TCP takes several requests at once; an mbaps:// upstream
+    # (TLS in the C client) stays one at a time, as every other line does
+    pipelined = isinstance(line, TcpClient) and line.tls is None
+    if args.max_inflight is not None and not pipelined:
+        raise InvalidArgument("--max-inflight needs --tcp HOST:PORT, a plain Modbus TCP "
+                              "upstream (any other line takes one transaction at a time)")
 
     def say(text: str) -> None:
         if not args.quiet:
             print(f"pymb serve: {text}", file=sys.stderr, flush=True)
 
     upstream: Upstream | PipelinedUpstream
-    if args.tcp:
-        host_port = parse_host_port(args.tcp, what="--tcp")
+    if isinstance(line, TcpClient) and pipelined:
         upstream = PipelinedUpstream(
-            *host_port, timeout=args.timeout, on_event=say,
+            line.host, line.tcp_port, timeout=args.timeout, on_event=say,
             max_inflight=args.max_inflight or DEFAULT_MAX_INFLIGHT)
     else:
         upstream = Upstream(line, on_event=say)

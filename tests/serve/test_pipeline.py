@@ -313,3 +313,12 @@ def test_a_reply_after_the_timeout_reaches_no_one(device: OutOfOrder) -> None:
         finally:
             c.close()
         assert s.stop() == 0
+
+
+def test_max_inflight_is_refused_for_an_mbaps_upstream() -> None:
+    from conftest import run_pymb
+    r = run_pymb("serve", "--tcp", "mbaps://127.0.0.1:802", "--max-inflight", "2",
+                 "--listen", "127.0.0.1:0", timeout=30)
+    assert r.returncode == 2, r.stderr
+    assert "--max-inflight needs --tcp HOST:PORT, a plain Modbus TCP upstream" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1

@@ -209,7 +209,7 @@ def test_clients_that_drop_or_never_read_cost_the_others_nothing(peer: PtyPeer) 
     (["--max-clients", "0"], 2, "--max-clients must be at least 1"),
     (["--tls", "--cert", "c.pem"], 2, "--tls needs --key FILE"),
     (["--write-roles", "operator"], 2, "--write-roles needs --tls"),
-    (["--max-inflight", "4"], 2, "--max-inflight needs --tcp"),
+    (["--max-inflight", "4"], 2, "--max-inflight needs --tcp HOST:PORT, a plain Modbus TCP"),
 ])
 def test_a_users_mistake_is_one_line(peer: PtyPeer, extra: list[str], code: int,
                                      said: str) -> None:
