@@ -16,10 +16,13 @@ are fresh interpreters, as a user's program would be.
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import importlib.util
 import os
+import re
 import signal
+import stat
 import subprocess
 import sys
 import threading
@@ -31,7 +34,8 @@ from typing import IO, NoReturn
 
 from pymb.child import Process, _die_with_parent
 
-__all__ = ["PRELOAD", "Forked", "can_fork", "fork_module", "preload"]
+__all__ = ["FORKABLE", "PRELOAD", "Forked", "can_fork", "fork_module", "fork_safe",
+           "holds_no_file", "preload"]
 
 #: what the forked children import (the simulator, pymb log, the workers and
 #: the contenders' libraries): imported once, before the first fork
@@ -53,6 +57,44 @@ def preload() -> None:
             importlib.import_module(name)
 
 
+#: what is forked at any time: the simulator and the workers that open no
+#: database. SQLite's own state (its table of open files and their locks, per
+#: process) goes with a fork: a child that opens a database while the bench
+#: has one open can meet the bench's locks as its own (SQLITE_PROTOCOL, when
+#: the new file has the inode number of one the bench holds). The others
+#: (pymb log, the logger, SD wear and gateway workers) are forked only while
+#: the bench holds no file open (:func:`holds_no_file`), else started anew.
+FORKABLE = ("pymb.bench.worker", "pymb.bench.aioworker", "pymb.bench.scale")
+#: the files the bench holds that are not SQLite's: its children's stderr
+#: (temporary files: named pymb-child-..., or unnamed where O_TMPFILE made them,
+#: which SQLite never does)
+_OWN_FILES = "pymb-child-"
+_UNNAMED = re.compile(r"#\d+ \(deleted\)")
+
+
+def holds_no_file() -> bool:
+    """True if this process has no regular file open but its children's
+    stderr files (after a garbage collection: a connection left to it is
+    closed), hence no SQLite state a fork would hand down."""
+    gc.collect()
+    try:
+        names = os.listdir("/proc/self/fd")
+    except OSError:
+        return False
+    for name in names:
+        where = f"/proc/self/fd/{name}"
+        try:
+            if not stat.S_ISREG(os.stat(where).st_mode):
+                continue
+            target = os.readlink(where)
+        except OSError:
+            continue  # closed meanwhile (the listing's own descriptor)
+        base = os.path.basename(target)
+        if not (base.startswith(_OWN_FILES) or _UNNAMED.fullmatch(base)):
+            return False
+    return True
+
+
 def can_fork(argv: Sequence[str]) -> bool:
     """True for ``[this python, -m, pymb...]`` whose module has its source
     here: a module this process can run (anything else is started anew)."""
@@ -63,6 +105,17 @@ def can_fork(argv: Sequence[str]) -> bool:
         return _source(argv[2]) is not None
     except (ImportError, ValueError):
         return False
+
+
+def fork_safe(argv: Sequence[str]) -> bool:
+    """True if ``argv`` (see :func:`can_fork`) may be forked now: the
+    simulator and :data:`FORKABLE` always, the rest while
+    :func:`holds_no_file`."""
+    if not can_fork(argv):
+        return False
+    if (argv[2] == "pymb" and argv[3:4] == ["simulate"]) or argv[2] in FORKABLE:
+        return True
+    return holds_no_file()
 
 
 def _source(module: str) -> tuple[str, str] | None:

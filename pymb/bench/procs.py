@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from types import TracebackType
 from typing import IO, Any
 
-from pymb.bench.forked import can_fork, fork_module, preload
+from pymb.bench.forked import fork_module, fork_safe, preload
 from pymb.child import ROOT, Child, ChildError, Process, pymb_argv, python_env
 
 __all__ = ["ROOT", "Child", "ChildError", "Children", "ForkedChild", "SimChild", "python_env"]
@@ -45,11 +45,12 @@ class SimChild(Child):
 
 class ForkedChild(Child):
     """A :class:`Child` forked from this process when its argv is a pymb
-    module (:mod:`pymb.bench.forked`; ``--quick``), started as usual otherwise."""
+    module it may fork now (:func:`pymb.bench.forked.fork_safe`; ``--quick``),
+    started as usual otherwise."""
 
     def _launch(self, stdin: bool, err: IO[bytes] | int | None, env: dict[str, str],
                 cwd: str | None) -> Process:
-        if can_fork(self.argv):
+        if fork_safe(self.argv):
             return fork_module(self.argv, stdin=stdin, err=err, env=env, cwd=cwd)
         return super()._launch(stdin, err, env, cwd)
 

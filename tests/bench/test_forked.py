@@ -6,13 +6,14 @@ report their exit code as a started child does."""
 from __future__ import annotations
 
 import os
+import sqlite3
 import sys
 from pathlib import Path
 
 import pytest
 
 from pymb import RtuClient
-from pymb.bench.forked import Forked, can_fork
+from pymb.bench.forked import Forked, can_fork, fork_safe, holds_no_file
 from pymb.bench.procs import ChildError, Children, ForkedChild
 from pymb.devices import CoolPro
 
@@ -20,10 +21,28 @@ from pymb.devices import CoolPro
 def test_only_pymb_modules_of_this_python_are_forked() -> None:
     assert can_fork([sys.executable, "-m", "pymb", "simulate", "hub"])
     assert can_fork([sys.executable, "-m", "pymb.bench.worker", "pymb"])
+    assert can_fork([sys.executable, "-m", "pymb", "log", "--out", "x.sqlite"])
     assert not can_fork(["/usr/bin/python3", "-m", "pymb", "simulate"])
     assert not can_fork([sys.executable, "-m", "pymodbus"])
-    assert not can_fork([sys.executable, "-m", "pymb.no_such_module"])
+    assert not can_fork([sys.executable, "-m", "pymb.no_such_module", "x"])
     assert not can_fork(["/bin/cat"])
+
+
+def test_a_child_that_opens_a_database_is_not_forked_while_the_bench_holds_one(
+        tmp_path: Path) -> None:
+    """SQLite's table of open files goes with a fork: a child opening a file
+    with the inode number of one the parent holds meets the parent's locks."""
+    log = [sys.executable, "-m", "pymb", "log", "--out", "x.sqlite"]
+    sim = [sys.executable, "-m", "pymb", "simulate", "hub"]
+    assert fork_safe(log) == holds_no_file()
+    con = sqlite3.connect(tmp_path / "held.sqlite")
+    con.execute("CREATE TABLE t(x)")
+    try:
+        assert not holds_no_file()
+        assert not fork_safe(log)
+        assert fork_safe(sim)  # the simulator opens no database: forked all the same
+    finally:
+        con.close()
 
 
 def test_a_forked_simulator_serves_and_stops_with_sigterm() -> None:
