@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from conftest import PYMB, PYMB_ENV
+from conftest import PYMB, PYMB_ENV, wait_until
 from mqtt_broker import Fleet, paho
 from write_peers import Freezing, FreezingPtyPeer
 
@@ -100,3 +100,14 @@ def stop(proc: subprocess.Popen[str], code: int = 0) -> str:
     return err
 
 
+
+
+def clean_polls_after_the_writes(peer: Freezing, polls: int = 3) -> None:
+    """Wait until the peer logged ``polls`` polls after its last write (the
+    commands may come faster than the polls: every run between two polls
+    then holds one)."""
+    def after() -> int:
+        log = [pdu[:5] for _, pdu in list(peer.requests)]
+        last = max((i for i, p in enumerate(log) if p[0] in WRITES), default=-1)
+        return sum(1 for p in log[last + 1:] if p == log[0])
+    wait_until(lambda: after() >= polls, f"{polls} polls after the last write", 30)

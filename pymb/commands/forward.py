@@ -121,6 +121,10 @@ def command_desk(cfg: LogConfig, logger: Logger, raw: SqliteSink, fw: Forwarder,
         desk.answer = fw.answer_dcmd
     fw.take_commands(devices, lambda device, payload, done: desk.submit(source, device, payload,
                                                                         done))
+    # A command goes from paho's thread to the desk's, the writer's lock and the TCP
+    # loop's: with Python's default 5 ms switch interval, each hand-over can wait that
+    # long for the GIL while the polls and the forwarder hold it.
+    sys.setswitchinterval(0.0005)
     desk.start()
     return desk
 

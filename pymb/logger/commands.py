@@ -76,6 +76,8 @@ class CommandDesk(threading.Thread):
         self._stop = False
         self._dropped = 0
         self.handled = 0  #: commands answered
+        #: the record of the command in hand's result, written once it is answered
+        self._records: list[Callable[[], None]] = []
 
     def writable(self) -> list[str]:
         """The devices with at least one point commands may write."""
@@ -118,7 +120,7 @@ class CommandDesk(threading.Thread):
                 if not self._queue:
                     self._dropped = 0
             try:
-                out = self.handle(source, device, payload)
+                out = self.run_command(source, device, payload)
             except Exception as e:  # a database failure: said, and the desk goes on
                 self.event(f"write command for {device} failed: {e}")
                 out = None
@@ -126,14 +128,34 @@ class CommandDesk(threading.Thread):
                 self.handled += 1
             if out is not None and self.reply is not None:
                 self.reply(device, out)
+            try:
+                self.record()  # the result's record waits for no lock before it goes out
+            except Exception as e:
+                self.event(f"write command for {device}: its result not recorded: {e}")
             if done is not None:
                 done()
 
     # -- one command ------------------------------------------------------------------
 
     def handle(self, source: str, device: str, payload: bytes) -> bytes | None:
-        """Execute one command; returns the result to publish (a DCMD's
-        answer goes to :attr:`answer` instead)."""
+        """Execute one command and record its result; returns the result to
+        publish (a DCMD's answer goes to :attr:`answer` instead)."""
+        try:
+            return self.run_command(source, device, payload)
+        finally:
+            self.record()
+
+    def record(self) -> None:
+        """Record the result of the command executed last (:meth:`run_command`)."""
+        records, self._records = self._records, []
+        for r in records:
+            r()
+
+    def run_command(self, source: str, device: str, payload: bytes) -> bytes | None:
+        """Execute one command; returns the result to publish. Its result's
+        record waits for :meth:`record` (the command itself is on record
+        before its write), so the result goes out first: the desk executes
+        one command at a time, so the next, the same id sent again, finds it."""
         if source == "sparkplug":
             handle_dcmd(self, device, payload)
             return None
@@ -167,7 +189,7 @@ class CommandDesk(threading.Thread):
         except Refused as r:
             for row in rows:
                 row.reason = r.reason
-            self.log.receive(cid, device, source, durable=False)
+            self._records.append(lambda: self.log.receive(cid, device, source, durable=False))
             return self._finish(cid, device, source, rows, {}, r.reason, str(r), durable=False)
         items = [(n, None, v) for n, v in values.items()]
         try:
@@ -261,7 +283,8 @@ class CommandDesk(threading.Thread):
                 values: Mapping[str, Any], reason: str | None, error: str | None, *,
                 durable: bool = False) -> bytes:
         out = self._result(cid, reason is None, values, reason, error)
-        self.log.finish(cid, device, source, out.decode(), rows, durable=durable)
+        self._records.append(lambda: self.log.finish(cid, device, source, out.decode(), rows,
+                                                     durable=durable))
         if reason is not None:
             self.event(f"write command {cid} for {device} refused ({reason}): {error}")
         return out

@@ -72,7 +72,9 @@ def test_a_command_the_broker_delivers_again_after_a_sigkill_is_answered_once(
         return None
 
     peer.hook = hold_the_write
-    proc = start(fleet, broker, peer, map_file, db)
+    # a long timeout: the held write is still waiting for its reply at the kill
+    line = ("--port", peer.port, "--baud", "19200", "--timeout", "30")
+    proc = start(fleet, broker, peer, map_file, db, *line)
     cmd = Commander(fleet, broker)
     try:
         assert cmd.send({"id": "r-0", "values": {"setpoint_hz": 50}})["ok"]  # subscribed
@@ -87,7 +89,7 @@ def test_a_command_the_broker_delivers_again_after_a_sigkill_is_answered_once(
         proc.communicate(timeout=30)
         assert not [p for _, p in cmd.results.snapshot() if b'"r-1"' in p or b'"r-2"' in p]
         peer.hook = None
-        proc = start(fleet, broker, peer, map_file, db)  # the same client id, the session kept
+        proc = start(fleet, broker, peer, map_file, db, *line)  # the same client id, session kept
         r1 = result_of(cmd, "r-1", 60)
         assert (r1["ok"], r1["reason"]) == (False, "device"), r1
         assert "not executed again" in r1["error"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from conftest import wait_until
 from mqtt_broker import Fleet, fleet, mosquitto  # noqa: F401 (fixtures)
-from write_mqtt import WRITES, Commander, start, stop, writes_sent
+from write_mqtt import WRITES, Commander, clean_polls_after_the_writes, start, stop, writes_sent
 from write_peers import WRITE_MAP, FreezingPtyPeer
 
 pytest.importorskip("paho.mqtt.client")
@@ -136,6 +136,7 @@ def test_writes_go_between_polls_never_inside_one(
                                                                  "stop"}
             r = cmd.send({"id": f"p-{i}", "values": values})
             assert r["ok"], r
+        clean_polls_after_the_writes(peer)
     finally:
         cmd.close()
     stop(proc)

@@ -69,7 +69,9 @@ def test_sigkill_between_a_dcmd_write_and_its_answer_never_writes_twice(
         return None
 
     host = Host(fleet, broker, sparkplug_pb)
-    proc = start(fleet, broker, peer, map_file, db)
+    # a long timeout: the held write is still waiting for its reply at the kill
+    line = ("--port", peer.port, "--baud", "19200", "--timeout", "30")
+    proc = start(fleet, broker, peer, map_file, db, *line)
     try:
         aliases = {m.name: m.alias for m in host.birth().metrics}
         peer.hook = hold_the_write
@@ -82,7 +84,7 @@ def test_sigkill_between_a_dcmd_write_and_its_answer_never_writes_twice(
         assert commands(db) == [(cid, None)]  # on record before the write, no result
         peer.hook = None
         n = len(host.sub.snapshot())
-        proc = start(fleet, broker, peer, map_file, db)
+        proc = start(fleet, broker, peer, map_file, db, *line)
         host.sub.wait_until(lambda ms: any("/DBIRTH/" in t for t, _ in ms[n:]), 60,
                             "the DBIRTH after the restart")
 

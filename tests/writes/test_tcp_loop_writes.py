@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from mqtt_broker import Fleet, fleet, mosquitto  # noqa: F401 (fixtures)
-from write_mqtt import Commander, start, stop, writes_sent
+from write_mqtt import Commander, clean_polls_after_the_writes, start, stop, writes_sent
 from write_peers import WRITE_MAP, FreezingTcpPeer
 
 pytest.importorskip("paho.mqtt.client")
@@ -56,6 +56,7 @@ def test_writes_share_the_poll_connection_and_never_tear_a_poll(
         peer.frozen.add(10)  # acknowledged, not applied: the read back on the same line
         r = cmd.send({"id": "t-21", "values": {"setpoint_hz": 60}})
         assert (r["ok"], r["reason"]) == (False, "not_applied"), r
+        clean_polls_after_the_writes(peer)
     finally:
         cmd.close()
     stop(proc)
