@@ -108,8 +108,9 @@ def command_desk(cfg: LogConfig, logger: Logger, raw: SqliteSink, fw: Forwarder,
         raise InvalidArgument(f"--allow-writes {' '.join(cfg.allow_writes)}: no writable point "
                               "of a logged device matches (DEVICE/POINT, the device's name)")
 
-    def reply(device: str, payload: bytes) -> None:
-        fw.publish_result(device, payload)  # offline: the record answers the command again
+    def reply(device: str, payload: bytes) -> bool:
+        # offline: the record answers the command again (the broker's redelivery, a retry)
+        return fw.publish_result(device, payload)
 
     desk.reply = reply
     source = "mqtt"

@@ -68,7 +68,7 @@ class CommandTopics:
         ``{prefix}/{node}/{device}/set/result``; False when no connection is up
         (the result is on record: the command sent again gets it)."""
         s = self._session
-        if s is None or s.lost:
+        if s is None or s.lost or not s.ok:
             return False
         topic = f"{self.cfg.prefix}/{self.cfg.node}/{device}/set/result"
         info = s.client.publish(topic, payload, qos=1, retain=False)

@@ -240,6 +240,7 @@ class Forwarder(threading.Thread, CommandTopics):
         cfg = self.cfg
         self.profile.new_connection(self.source)
         s = Session(self, f"pymb-{cfg.profile}-{cfg.node}", WINDOW)
+        self._session = s  # a command redelivered right after the CONNACK is answered on it
         c = s.client
         cfg.secure(c, self.password)
         w = self.profile.will()

@@ -65,7 +65,8 @@ class CommandDesk(threading.Thread):
         self.targets = dict(targets)
         self.allow = tuple(allow)
         self.event = event
-        self.reply: Callable[[str, bytes], None] | None = None
+        #: publishes a result; False: not sent (the broker is not acknowledged the command)
+        self.reply: Callable[[str, bytes], bool] | None = None
         #: Sparkplug: (device, values read back, metric names) of an executed DCMD
         self.answer: Callable[[str, dict[str, Any], list[str]], None] | None = None
         #: Sparkplug: the device's DBIRTH metrics (name -> alias), None before it
@@ -126,13 +127,14 @@ class CommandDesk(threading.Thread):
                 out = None
             else:
                 self.handled += 1
+            sent = True
             if out is not None and self.reply is not None:
-                self.reply(device, out)
+                sent = self.reply(device, out)
             try:
                 self.record()  # the result's record waits for no lock before it goes out
             except Exception as e:
                 self.event(f"write command for {device}: its result not recorded: {e}")
-            if done is not None:
+            if done is not None and sent:  # else delivered again on the next connection
                 done()
 
     # -- one command ------------------------------------------------------------------
