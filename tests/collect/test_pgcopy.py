@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import pytest
 
@@ -114,6 +115,8 @@ def test_rows_stored_already_are_skipped_and_the_rest_stored(postgres: Postgres)
         again.add_plain("gw1", "dev", plain_sample(MIXED))
         again.add_plain("gw1", "dev", plain_sample(MIXED))
         assert store.write(again) == 7
+        # the next 30 s of batches go through the temporary table too
+        assert store._staged_until - time.monotonic() > 20
         more = store.batch()  # the next batch (through the temporary table for a while)
         more.add_plain("gw2", "dev", plain_sample(NUMBERS))
         more.add_plain("gw1", "dev", plain_sample(NUMBERS))
