@@ -262,12 +262,15 @@ class CommandDesk(threading.Thread):
         if dev is None:
             raise Refused("device", f"{t.name} is offline: nothing was sent")
         key = f"{m.id}:{dev.address}"
-        for c in changes:
-            limit = c.point.max_writes_per_hour
-            if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
-                t.release()
-                raise Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
-                               f"({limit} writes per hour); nothing was sent")
+        try:
+            for c in changes:
+                limit = c.point.max_writes_per_hour
+                if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
+                    raise Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
+                                  f"({limit} writes per hour); nothing was sent")
+        except BaseException:
+            t.release()  # (a database failure too: the line goes back to its polls)
+            raise
         return dev
 
     @staticmethod

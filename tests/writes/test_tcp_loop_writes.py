@@ -76,3 +76,24 @@ def test_writes_share_the_poll_connection_and_never_tear_a_poll(
             whole += 1
     assert whole >= 5
     assert len(writes_sent(peer)) >= 21
+
+
+def test_a_budget_refusal_gives_the_poll_connection_back(
+        fleet: Fleet, peer: CountingPeer, tmp_path: Path) -> None:  # noqa: F811
+    map_file = tmp_path / "wdev.toml"
+    map_file.write_text(WRITE_MAP.format(device="", limits="", budget="max_writes_per_hour = 1"))
+    broker = fleet.broker()
+    proc = start(fleet, broker, None, map_file, tmp_path / "log.sqlite",
+                 "--tcp", f"127.0.0.1:{peer.port}")
+    cmd = Commander(fleet, broker)
+    try:
+        assert cmd.send({"id": "b-1", "values": {"setpoint_hz": 49}})["ok"]
+        r = cmd.send({"id": "b-2", "values": {"setpoint_hz": 48}})  # refused once lent
+        assert (r["ok"], r["reason"]) == (False, "budget"), r
+        assert cmd.send({"id": "b-3", "values": {"mode": "run"}})["ok"]
+        clean_polls_after_the_writes(peer)  # the polls go on
+    finally:
+        cmd.close()
+    stop(proc)
+    assert peer.connections == 1
+    assert peer.memory.holding[10] == 4900
