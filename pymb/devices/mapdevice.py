@@ -25,21 +25,19 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from pymb.client import Client
+from pymb.devices import writeio
 from pymb.devices.mapfetch import Fetcher, Image, Read
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapwrite import (
     Budget,
-    Change,
     Outcome,
     Request,
     WriteBudget,
     budget_refusal,
     check,
     decoded,
-    not_applied,
     note_applied,
     requests,
-    resolve,
 )
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument, ModbusError
 from pymb.maps import Decoder, Map, Point, Value
@@ -427,25 +425,7 @@ class MapDevice:
 
     def _scale_factors(self, items: Sequence[tuple[str, int | None, object]]
                        ) -> dict[str, int | None]:
-        """The scale factors the ``scale_from`` points among ``items`` need,
-        read from the device (None: not implemented): name -> value."""
-        m = self.map
-        names = {sf for sf in (resolve(m, n, c)[1].scale_from for n, c, _ in items)
-                 if sf is not None}
-        out: dict[str, int | None] = {}
-        if not names:
-            return out
-        with self._lock, self._fetcher.map_timeout():
-            self._fetcher.after_connect()
-            for n in sorted(names):
-                q = m.points[n]
-                with self._fetcher.turn():
-                    read = (self.client.read_input_registers if q.table == "input"
-                            else self.client.read_holding_registers)
-                    got = read(q.address, 1, slave=self.address)
-                v = m.decode(n, list(got))
-                out[n] = v if isinstance(v, int) else None
-        return out
+        return writeio.scale_factors(self.client, self.address, self._fetcher, self.map, items)
 
     def write_points(self, items: Sequence[tuple[str, int | None, object]], *,
                      verify: bool = True, before: bool = False) -> list[Outcome]:
@@ -467,10 +447,11 @@ class MapDevice:
             first = [c for c in changes if (c.point.access != "w" and (
                 before or c.point.max_writes_per_hour is not None))
                 or (rmw and c.view)]
-            current = self._read_spans(first) if first else {}
+            current = (writeio.read_spans(self.client, self.address, self._fetcher, first)
+                       if first else {})
             todo = []
             for c, o in zip(changes, outcomes, strict=True):
-                regs = _regs(current, c)
+                regs = writeio.regs_of(current, c)
                 if regs is not None and c.point.access != "w" and (
                         before or c.point.max_writes_per_hour is not None):
                     o.before = decoded(c.point, regs, c.sf)
@@ -487,7 +468,7 @@ class MapDevice:
                     if c.point.max_writes_per_hour is not None:
                         self.budget.count(f"{key}/{n}")
                 try:
-                    self._send(r)
+                    writeio.send(self.client, self.address, self._fetcher, r)
                 except ModbusError as e:
                     note_applied(e, written)
                     raise
@@ -495,76 +476,8 @@ class MapDevice:
             for o in outcomes:
                 o.sent = o.sent or o.name in written
             if verify:
-                self._verify(todo, outcomes, key)
+                writeio.verify(self.client, self.address, self._fetcher, todo, outcomes, key)
         return outcomes
-
-    def _send(self, r: Request) -> None:
-        client, slave = self.client, self.address
-        with self._fetcher.turn():
-            if r.function == 5:
-                client.write_coil(r.address, r.values[0], slave=slave)
-            elif r.function == 15:
-                client.write_coils(r.address, r.values, slave=slave)
-            elif r.function == 6:
-                client.write_register(r.address, r.values[0], slave=slave)
-            elif r.function == 16:
-                client.write_registers(r.address, r.values, slave=slave)
-            else:
-                client.mask_write_register(r.address, r.values[0], r.values[1], slave=slave)
-
-    def _read_spans(self, changes: Sequence[Change]) -> dict[tuple[str, int], int]:
-        """(table, address) -> register (bit) of every point of ``changes``,
-        adjacent ones in one request."""
-        out: dict[tuple[str, int], int] = {}
-        wanted = sorted({(c.point.table, a) for c in changes for a in range(
-            c.point.address, c.point.address + c.point.count)})
-        runs: list[list[tuple[str, int]]] = []
-        for t, a in wanted:
-            most = 2000 if t == "coil" else 125
-            last = runs[-1] if runs else None
-            if last and last[-1][0] == t and last[-1][1] + 1 == a and len(last) < most:
-                last.append((t, a))
-            else:
-                runs.append([(t, a)])
-        for run in runs:
-            t, a0 = run[0]
-            with self._fetcher.turn():
-                if t == "coil":
-                    got = self.client.read_coils(a0, len(run), slave=self.address)
-                else:
-                    got = self.client.read_holding_registers(a0, len(run), slave=self.address)
-            out.update(((t, a0 + k), int(v)) for k, v in enumerate(got))
-        return out
-
-    def _verify(self, todo: Sequence[Change], outcomes: Sequence[Outcome], key: str) -> None:
-        """Read back what was written; :class:`~pymb.WriteNotApplied` where
-        the device holds another value."""
-        readable = [c for c in todo if c.point.access != "w"]
-        back = self._read_spans(readable) if readable else {}
-        by_name = {o.name: o for o in outcomes}
-        failed: list[tuple[Change, Value]] = []
-        for c in readable:
-            regs = _regs(back, c)
-            assert regs is not None
-            o = by_name[c.name]
-            o.after = decoded(c.point, regs, c.sf)
-            o.applied = tuple(regs) == c.merged(regs)
-            if not o.applied:
-                failed.append((c, o.after))
-        if failed:
-            applied = {o.name: o.after for o in outcomes if o.applied}
-            e = not_applied(f"{key} on {self.client.port}", failed, applied)
-            e.outcomes = list(outcomes)
-            raise e
 
     def __repr__(self) -> str:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
-
-
-def _regs(current: Mapping[tuple[str, int], int], c: Change) -> list[int] | None:
-    """The registers (bits) of ``c``'s point in ``current``, or None."""
-    p = c.point
-    try:
-        return [current[(p.table, a)] for a in range(p.address, p.address + p.count)]
-    except KeyError:
-        return None
