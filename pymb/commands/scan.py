@@ -12,7 +12,11 @@ listed, so a garbled or stray frame never becomes a phantom device. Each
 device is printed (and flushed) as soon as it is confirmed.
 
 Through a TCP gateway (which matches replies to requests itself) each
-address is identified in turn with ``--timeout``.
+address is identified in turn with ``--timeout``; a gateway's exception
+0x0A or 0x0B (no path to the address, no answer from it) counts as
+silence. A gateway in front of a serial line answers one request at a time
+and waits its own timeout for an address that is silent: give ``--timeout``
+above the gateway's (``pymb serve``'s ``--timeout``, 1 s by default).
 """
 
 from __future__ import annotations

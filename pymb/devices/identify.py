@@ -30,7 +30,14 @@ from pymb._native import FunctionCode
 from pymb.client import Client
 from pymb.devices.coolpro import decode_identity
 from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
-from pymb.errors import DeviceException, ModbusConnectionError, ModbusError, ModbusTimeout
+from pymb.errors import (
+    DeviceException,
+    GatewayPathUnavailable,
+    GatewayTargetFailed,
+    ModbusConnectionError,
+    ModbusError,
+    ModbusTimeout,
+)
 from pymb.wire import registers_from_wire
 
 __all__ = ["Answer", "Identity", "client_asker", "identify", "mismatch"]
@@ -60,12 +67,17 @@ class Identity:
         return f"{what} ({self.detail})"
 
 
+
 def client_asker(client: Client) -> Ask:
-    """``ask`` over a client: exceptions become their code, a timeout None."""
+    """``ask`` over a client: exceptions become their code, a timeout None.
+    Exceptions 0x0A and 0x0B are a gateway's, not the device's (no path to
+    it, no answer from it): None, as no answer is."""
 
     def ask(address: int, function: int, data: bytes) -> Answer:
         try:
             return client.raw_request(function, data, slave=address)
+        except (GatewayPathUnavailable, GatewayTargetFailed):
+            return None
         except DeviceException as e:
             return int(e.code or 0)
         except ModbusConnectionError:

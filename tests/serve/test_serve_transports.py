@@ -5,6 +5,7 @@ on a pseudo-terminal) or a Modbus UDP device (pymodbus's UDP server)
 
 from __future__ import annotations
 
+import json
 import struct
 import subprocess
 import sys
@@ -14,7 +15,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from conftest import run_pymb
 from servekit import RawClient, Served, read_pdu, words
+
+from pymb.sim import Simulator
 
 HERE = Path(__file__).resolve().parent.parent
 
@@ -82,3 +86,14 @@ def test_a_udp_device_upstream() -> None:
         finally:
             c.close()
         assert served.stop() == 0
+
+
+def test_a_scan_through_serve_finds_the_devices_behind_it_and_no_phantoms() -> None:
+    # The gateway answers 0x0B for every silent address: silence, not a device.
+    with Simulator(["coolpro:40", "hub:7"], seed=5) as sim, \
+            Served("--port", sim.port, "--baud", "9600", "--timeout", "0.3") as served:
+        done = run_pymb("scan", "--tcp", f"127.0.0.1:{served.port}", "--timeout", "0.6",
+                        "--range", "5-8,40,41", "--json", timeout=120)
+        assert done.returncode == 0, done.stderr
+        found = {d["address"]: d["device"] for d in json.loads(done.stdout)["found"]}
+        assert found == {7: "hub", 40: "coolpro"}
