@@ -101,11 +101,18 @@ def plain_sample(payload: bytes) -> PlainSample:
     --mqtt``). Raises BadInput when it is not such a message."""
     try:
         doc = _loads(payload)
+        strict = _loads is not json.loads  # orjson refuses a lone surrogate
     except ValueError:  # orjson refuses more (NaN, huge integers): the json module says
         try:
             doc = json.loads(payload)
         except (UnicodeDecodeError, ValueError) as e:
             raise BadInput(f"not JSON ({e})") from None
+        strict = False
+    if not strict:  # the json module takes a lone surrogate, which no database stores
+        try:
+            json.dumps(doc, ensure_ascii=False).encode()
+        except UnicodeEncodeError:
+            raise BadInput("a text or name is not valid Unicode (a lone surrogate)") from None
     if not isinstance(doc, dict):
         raise BadInput("not a JSON object")
     t = _number(doc.get("time_utc"))
@@ -114,6 +121,8 @@ def plain_sample(payload: bytes) -> PlainSample:
     sample = doc.get("sample")
     if sample is not None and (isinstance(sample, bool) or not isinstance(sample, int)):
         raise BadInput(f"sample is not an integer: {sample!r:.40}")
+    if sample is not None and not -(2**63) <= sample < 2**63:
+        raise BadInput(f"sample {sample!r:.40} does not fit in 64 bits")
     values = doc.get("values")
     if not isinstance(values, dict):
         raise BadInput("no values object")
