@@ -303,5 +303,8 @@ class CommandDesk(threading.Thread):
             doc["error"] = error
         doc["values"] = dict(values)
         doc["time"] = _now_iso(time.time())
-        return json.dumps(doc, ensure_ascii=False, allow_nan=False,
-                          separators=(",", ":")).encode()
+        try:
+            return json.dumps(doc, ensure_ascii=False, allow_nan=False,
+                              separators=(",", ":")).encode()
+        except UnicodeEncodeError:  # a lone surrogate (an id refused): as \uXXXX escapes
+            return json.dumps(doc, allow_nan=False, separators=(",", ":")).encode()
