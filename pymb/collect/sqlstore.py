@@ -166,7 +166,10 @@ class SqliteStore(Store):
 
 def _hide_password(url: str) -> str:
     from urllib.parse import urlsplit, urlunsplit
-    u = urlsplit(url)
+    try:
+        u = urlsplit(url)
+    except ValueError as e:  # "Invalid IPv6 URL": said without the URL (its password)
+        raise InvalidArgument(f"bad PostgreSQL URL: {e}") from None
     if u.password is None:
         return url
     netloc = u.netloc.replace(f":{u.password}@", ":***@", 1)

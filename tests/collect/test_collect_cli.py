@@ -49,6 +49,8 @@ def test_usage_errors_exit_2(tmp_path: Path) -> None:
     _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out", str(notes)), 2,
               "cannot use")
     assert notes.read_text() == "my notes\n" * 200
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out",
+                       "postgresql://me:secret@[::1/db"), 2, "bad PostgreSQL URL")
     r = run_pymb("collect", "--out", out)
     assert r.returncode == 2
     assert "--mqtt" in r.stderr
