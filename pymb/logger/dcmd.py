@@ -11,13 +11,16 @@ did not apply).
 
 A DCMD's command id, in the ``writes`` view, is
 ``sparkplug:{device}:{payload timestamp}:{seq}`` (``-`` for a missing seq);
-the same DCMD delivered again (same device, timestamp and seq) is not
-executed again. A DCMD without a timestamp gets its arrival time in
+the same DCMD delivered again (same device, timestamp, seq and bytes) is
+not executed again; another DCMD of the same timestamp and seq (sent within
+one millisecond, without a seq) gets ``:`` and 16 hex digits of its payload's
+SHA-256 after that id. A DCMD without a timestamp gets its arrival time in
 nanoseconds instead, so it is never taken for another.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from typing import Any
@@ -69,6 +72,10 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     birth = desk.births(device) or {}
     by_alias = {a: n for n, a in birth.items()}
     known, stored = desk.log.seen(cid)
+    digest = hashlib.sha256(payload).hexdigest()[:16]
+    if stored is not None and json.loads(stored).get("digest", digest) != digest:
+        cid = f"{cid}:{digest}"  # another DCMD of the same timestamp and seq
+        known, stored = desk.log.seen(cid)
     if known:
         desk.event(f"DCMD {cid} was received before: not executed again")
         if stored is None:  # on record, no result: the logger stopped during its write
@@ -76,7 +83,8 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
                                  by_alias.get(alias) if alias is not None else None
                                  for name, alias, _ in metrics) if n is not None and n in birth]
             desk.event(f"DCMD {cid}: {_UNKNOWN}")
-            _finish(desk, cid, device, [], "device", named, durable=True)
+            _finish(desk, cid, device, [], "device", named, durable=True,
+                    digest=digest)
             _answer(desk, device, {}, named)
             return
         _answer(desk, device, {}, json.loads(stored).get("metrics", []))
@@ -122,7 +130,7 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         if all(r is None for r in refusals[:len(rows)]):
             desk.event(f"DCMD {cid} refused ({first.reason}): {first}")
         desk.log.receive(cid, device, SOURCE, durable=False)
-        _finish(desk, cid, device, rows, first.reason, names, durable=False)
+        _finish(desk, cid, device, rows, first.reason, names, durable=False, digest=digest)
         _answer(desk, device, {}, names)
         return
     to_metric = dict(zip([p for p, _, _ in items], names, strict=True))
@@ -154,14 +162,14 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         row.reason = None if row.ok else reason
         if o.after is not None:
             values[to_metric[row.point]] = _metric_value(target, row.point, o.after)
-    _finish(desk, cid, device, rows, reason, names, durable=True)
+    _finish(desk, cid, device, rows, reason, names, durable=True, digest=digest)
     _answer(desk, device, values, names)
 
 
 def _finish(desk: Desk, cid: str, device: str, rows: list[PointRow],
-            reason: str | None, names: list[str], *, durable: bool) -> None:
+            reason: str | None, names: list[str], *, durable: bool, digest: str) -> None:
     result = json.dumps({"id": cid, "ok": reason is None, "reason": reason,
-                         "metrics": names}, separators=(",", ":"))
+                         "metrics": names, "digest": digest}, separators=(",", ":"))
     desk.log.finish(cid, device, SOURCE, result, rows, durable=durable)
 
 
