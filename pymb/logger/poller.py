@@ -4,11 +4,12 @@ reconnects with a backoff, and hands samples and events to the writer."""
 from __future__ import annotations
 
 import collections
+import functools
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from pymb.client import unresolved
@@ -20,6 +21,7 @@ from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.schedule import MapHealth, run_scheduled, slots_of
+from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
 from pymb.store.records import event_kind, short_fault
 
@@ -27,58 +29,6 @@ __all__ = ["BusPoller", "Stats", "map_info"]
 
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 _FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
-
-
-@dataclass
-class Stats:
-    samples: int = 0
-    events: int = 0
-    faults: int = 0
-    skipped_slots: int = 0
-    by_device: dict[str, int] = field(default_factory=dict)
-    #: what is wrong now, by bus or device name (empty: all is well)
-    problems: dict[str, str] = field(default_factory=dict)
-    opened: dict[str, bool] = field(default_factory=dict)  #: bus -> port opened at least once
-    last_fault: dict[str, str] = field(default_factory=dict)  #: device or bus -> last fault
-    device_faults: dict[str, int] = field(default_factory=dict)  #: map device -> failed polls
-    #: map device -> the names of the points it refused (each point once, however often)
-    unsupported: dict[str, set[str]] = field(default_factory=dict)
-    lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def fault(self, key: str, text: str) -> None:
-        with self.lock:
-            self.faults += 1
-            self.problems[key] = text
-            self.last_fault[key] = text
-
-    def ok(self, key: str) -> None:
-        if key in self.problems:
-            with self.lock:
-                self.problems.pop(key, None)
-
-    def count(self, counts: dict[str, int], key: str, n: int) -> None:
-        """Add ``n`` to ``counts[key]`` (one of the per-device counts)."""
-        with self.lock:
-            counts[key] = counts.get(key, 0) + n
-
-    def refused(self, key: str, points: Iterable[str]) -> None:
-        """The points device ``key`` refused in a reading (each counted once a run)."""
-        with self.lock:
-            self.unsupported.setdefault(key, set()).update(points)
-
-    def skipped(self, n: int) -> None:
-        with self.lock:
-            self.skipped_slots += n
-
-    @property
-    def status(self) -> str:
-        """``ok``, or the latest problem (and how many more there are)."""
-        with self.lock:
-            problems = list(self.problems.values())
-        if not problems:
-            return "ok"
-        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
-        return problems[-1] + more
 
 
 @dataclass
@@ -253,7 +203,8 @@ class BusPoller(threading.Thread):
         self._event("connect", f"polling {len(self.devices) + len(self.maps)} device(s) on "
                     f"{self.bus.endpoint}")
         if self.maps:
-            run_scheduled(self, slots_of(self, self.maps))
+            builtins = [(d, functools.partial(self.poll_device, d)) for d in self.devices]
+            run_scheduled(self, slots_of(self, self.maps, builtins))
             return
         interval = self.bus.interval
         start = self.clock()

@@ -8,19 +8,21 @@ at most one timeout per retry period."""
 from __future__ import annotations
 
 import math
+import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from pymb.client import Client
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import DeviceException, ModbusConnectionError, ModbusError
+from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
+from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Sample
 from pymb.store.records import event_kind, short_fault
 
-if TYPE_CHECKING:
-    from pymb.logger.poller import BusPoller, _Device
-
-__all__ = ["MapHealth", "Slot", "run_scheduled"]
+__all__ = ["Builtin", "Bus", "MapHealth", "Slot", "run_scheduled", "slots_of"]
 
 
 @dataclass(eq=False)
@@ -35,6 +37,46 @@ class MapHealth:
     offline: bool = False
 
 
+
+class Builtin(Protocol):
+    """A built-in device on the bus, as the schedule sees it."""
+
+    retry_at: float  #: not polled before this (clock)
+
+
+class Bus(Protocol):
+    """The poller of a bus as the schedule uses it
+    (:class:`pymb.logger.poller.BusPoller`)."""
+
+    bus: BusConfig
+    client: Client
+    clock: Callable[[], float]
+    stop_event: threading.Event
+    stats: Stats
+    healths: dict[str, MapHealth]
+
+    def flush(self) -> None:
+        """Hand what was read to the writer."""
+        ...
+
+    def connect(self) -> bool:
+        """(Re)open the bus; False when it is gone for good."""
+        ...
+
+    def event(self, kind: str, message: str, device: DeviceInfo | None = None,
+              code: int | None = None) -> None:
+        """Record an event."""
+        ...
+
+    def add_sample(self, sample: Sample) -> None:
+        """Queue a sample for the writer."""
+        ...
+
+    def stamp(self) -> tuple[float, float]:
+        """(wall, monotonic) time of a read that just ended."""
+        ...
+
+
 @dataclass(eq=False)
 class Slot:
     """One thing read on a schedule: a map device's group, or a built-in device."""
@@ -43,7 +85,8 @@ class Slot:
     once: bool = False  #: a map group of interval 0: read once after each (re)connect
     group: str | None = None
     map: MapHealth | None = None
-    builtin: _Device | None = None
+    builtin: Builtin | None = None
+    poll: Callable[[], bool] | None = None  #: a built-in device's read (False: bus gone)
     next_at: float = 0.0
     read_once: bool = False  #: an interval-0 group read on this connection
 
@@ -69,7 +112,8 @@ class Slot:
         return self.next_at
 
 
-def slots_of(poller: BusPoller, maps: list[tuple[DeviceInfo, MapDeviceConfig]]) -> list[Slot]:
+def slots_of(poller: Bus, maps: list[tuple[DeviceInfo, MapDeviceConfig]],
+             builtins: Sequence[tuple[Builtin, Callable[[], bool]]] = ()) -> list[Slot]:
     """The slots of a bus: each group of each map device, each built-in device."""
     out: list[Slot] = []
     rate = poller.bus.baud if poller.bus.port is not None else None
@@ -80,11 +124,11 @@ def slots_of(poller: BusPoller, maps: list[tuple[DeviceInfo, MapDeviceConfig]]) 
         for group, interval in cfg.polls:
             out.append(Slot(poller.bus.interval if interval is None else interval,
                             interval == 0, group, health))
-    out += [Slot(poller.bus.interval, builtin=d) for d in poller.devices]
+    out += [Slot(poller.bus.interval, builtin=d, poll=read) for d, read in builtins]
     return out
 
 
-def run_scheduled(poller: BusPoller, slots: list[Slot]) -> None:
+def run_scheduled(poller: Bus, slots: list[Slot]) -> None:
     """Poll ``slots`` until told to stop (the poller is connected)."""
     clock, stop = poller.clock, poller.stop_event
     start = clock()
@@ -102,16 +146,12 @@ def run_scheduled(poller: BusPoller, slots: list[Slot]) -> None:
         for s in due:
             if stop.is_set():
                 return
-            if s.builtin is not None:
-                ok = poller.poll_device(s.builtin)
-            else:
-                ok = _poll_map(poller, s, slots)
-            if not ok:
+            if not (s.poll() if s.poll is not None else _poll_map(poller, s, slots)):
                 return
             _advance(poller, s)
 
 
-def _advance(poller: BusPoller, s: Slot) -> None:
+def _advance(poller: Bus, s: Slot) -> None:
     """The slot's next time; whole slots a long read overran are skipped and counted."""
     if s.once:
         s.read_once = True
@@ -129,7 +169,7 @@ def _advance(poller: BusPoller, s: Slot) -> None:
         poller.event("skipped", f"{late} poll slot(s) of {s.interval:g} s skipped ({what})")
 
 
-def _poll_map(poller: BusPoller, s: Slot, slots: list[Slot]) -> bool:
+def _poll_map(poller: Bus, s: Slot, slots: list[Slot]) -> bool:
     """Read one group of a map device; False when the bus is gone for good."""
     h = s.map
     assert h is not None
@@ -160,7 +200,7 @@ def _poll_map(poller: BusPoller, s: Slot, slots: list[Slot]) -> bool:
     return True
 
 
-def _failed(poller: BusPoller, h: MapHealth, kind: str, message: str, code: int | None) -> None:
+def _failed(poller: Bus, h: MapHealth, kind: str, message: str, code: int | None) -> None:
     retry = failed_poll(h, poller.clock())
     stats = poller.stats
     stats.count(stats.device_faults, h.info.name, 1)

@@ -24,14 +24,23 @@ from pymb._native.master import Master, PollTable
 from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
-from pymb.logger.poller import Stats
-from pymb.logger.tcplend import Loan
+from pymb.logger.stats import Stats
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event, Sample
 
 __all__ = ["Conn", "TcpLoopBase", "asked"]
 
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
+
+
+class Loan:
+    """One lending of a connection: asked, given (``fd``), given back."""
+
+    def __init__(self) -> None:
+        self.given = threading.Event()
+        self.back = threading.Event()
+        self.cancelled = False  #: the borrower stopped waiting before it was given
+        self.fd = -1
 
 
 @dataclass(eq=False)

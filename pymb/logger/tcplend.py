@@ -19,24 +19,11 @@ import selectors
 import socket
 import threading
 import time
-from typing import TYPE_CHECKING
 
 from pymb.errors import ModbusConnectionError, ModbusTimeout
+from pymb.logger.tcpconn import Conn, Loan
 
-if TYPE_CHECKING:
-    from pymb.logger.tcpconn import Conn
-
-__all__ = ["Lending", "Loan"]
-
-
-class Loan:
-    """One lending of a connection: asked, given (``fd``), given back."""
-
-    def __init__(self) -> None:
-        self.given = threading.Event()
-        self.back = threading.Event()
-        self.cancelled = False  #: the borrower stopped waiting before it was given
-        self.fd = -1
+__all__ = ["Lending"]
 
 
 class Lending:

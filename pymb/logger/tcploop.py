@@ -48,7 +48,8 @@ from pymb.errors import (
 )
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
-from pymb.logger.poller import BATCH_MAX, Stats, map_info
+from pymb.logger.poller import BATCH_MAX, map_info
+from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lending
 from pymb.logger.tcpreplies import TcpReplies

@@ -19,7 +19,7 @@ import time
 
 from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
-from pymb.logger.poller import Stats
+from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcpunits import Entry, Spec, Unit
 from pymb.store import Event as StoreEvent
