@@ -23,6 +23,9 @@ def parse_host_port(text: str, *, what: str = "--tcp",
     pymb's TCP addresses. ``[::1]:502`` loses its brackets, an empty host is
     127.0.0.1, and with ``port_only`` a bare ``PORT`` is accepted too. ``what``
     names the option or key in the one-line error."""
+    if "://" in str(text):  # a URL: only --tcp takes one (mbaps://), by parse_address
+        raise InvalidArgument(f"{what} needs {'[HOST:]PORT' if port_only else 'HOST:PORT'}, "
+                              f"got {text!r}")
     host, sep, port = str(text).rpartition(":")
     if not sep and port_only:
         host = ""

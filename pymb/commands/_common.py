@@ -214,12 +214,14 @@ def make_client(args: argparse.Namespace) -> Client:
     if getattr(args, "ascii", False) and not args.port:
         raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with --port PATH")
     if getattr(args, "udp", None):
+        tls_for(args, args.udp, "--udp")  # refused: Modbus over UDP has no TLS
         host, port = parse_host_port(args.udp, what="--udp")
         why = unresolved(host)
         if why is not None:
             raise ModbusConnectionError(f"cannot connect to {args.udp}: {why}", port=args.udp)
         return UdpClient(host, port, timeout=args.timeout)
     if getattr(args, "ascii", False):
+        tls_for(args, None)
         return AsciiClient(args.port, args.baud, args.parity, timeout=args.timeout)
     for option, framing in (("tcp", False), ("rtu_over_tcp", True)):
         address = getattr(args, option, None)

@@ -71,8 +71,12 @@ class BusConfig:
         if self.ascii and self.port is None:
             raise InvalidArgument(f"bus {self.name!r}: ascii = true is for a serial bus (port)")
         secure = self.tcp is not None and is_mbaps(self.tcp)
-        if secure:
-            parse_address(self.tcp or "", what=f"bus {self.name!r}: tcp")
+        # an address is checked here, before the output is opened
+        if self.tcp is not None:
+            parse_address(self.tcp, what=f"bus {self.name!r}: tcp")
+        for key, text in (("rtu_over_tcp", self.rtu_over_tcp), ("udp", self.udp)):
+            if text is not None:
+                parse_host_port(text, what=f"bus {self.name!r}: {key}")
         if self.tls is not None and not secure:
             raise InvalidArgument(f"bus {self.name!r}: tls needs tcp = \"mbaps://HOST[:PORT]\"")
         if secure and self.pipeline > 1:

@@ -123,7 +123,7 @@ name = "over-udp"
         assert "2100" in text
 
 
-def test_mistakes_are_one_line() -> None:
+def test_mistakes_are_one_line(tmp_path: Path) -> None:
     done = run_pymb("read", "coolpro", "--ascii", "--tcp", "127.0.0.1:502")
     assert done.returncode == 2
     assert "--ascii" in done.stderr
@@ -133,6 +133,18 @@ def test_mistakes_are_one_line() -> None:
     assert "--udp" in done.stderr
     with pytest.raises(InvalidArgument, match="ascii = true is for a serial bus"):
         config_from_toml(tomllib.loads('[[bus]]\nudp = "127.0.0.1:502"\nascii = true\n'
+                                       '[[bus.device]]\ntype = "coolpro"\n'), "x.toml")
+    # a bus's address is checked as the file is read: the output is never made
+    config = tmp_path / "bad.toml"
+    config.write_text('[output]\npath = "out.sqlite"\n[[bus]]\nudp = "mbaps://127.0.0.1:802"\n'
+                      '[[bus.device]]\ntype = "coolpro"\n')
+    done = run_pymb("log", "--config", str(config), "--seconds", "1", "--quiet", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr == (f"pymb log: {config}: bus 'bus1': udp needs HOST:PORT, "
+                           "got 'mbaps://127.0.0.1:802'\n")
+    assert not (tmp_path / "out.sqlite").exists()
+    with pytest.raises(InvalidArgument, match="udp needs HOST:PORT, got 'localhost'"):
+        config_from_toml(tomllib.loads('[[bus]]\nudp = "localhost"\n'
                                        '[[bus.device]]\ntype = "coolpro"\n'), "x.toml")
     with pytest.raises(InvalidArgument, match="ascii is true or false"):
         config_from_toml(tomllib.loads('[[bus]]\nport = "/dev/null"\nascii = "yes"\n'

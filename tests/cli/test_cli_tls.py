@@ -109,6 +109,14 @@ def test_a_map_device_read_as_json_by_a_viewer(certs: Path, served: Served) -> N
     (["--tcp", "mbaps://127.0.0.1", "--cert", "operator.pem"], "holds no private key"),
     (["--tcp", "mbaps://", "--ca", "ca.pem"], "--tcp needs mbaps://HOST[:PORT]"),
     (["--rtu-over-tcp", "mbaps://127.0.0.1"], "RTU over TCP has no TLS"),
+    # Modbus over UDP and ASCII have no TLS: the options are refused, not ignored
+    (["--udp", "127.0.0.1:502", "--ca", "ca.pem"],
+     "need --tcp mbaps://HOST[:PORT], not --udp 127.0.0.1:502"),
+    (["--ascii", "--port", "/dev/ttyUSB0", "--cert", "operator.pem", "--key", "operator.key"],
+     "need --tcp mbaps://HOST[:PORT]"),
+    # a URL where HOST:PORT goes is a mistake, not a host name to resolve
+    (["--udp", "mbaps://127.0.0.1:802"], "--udp needs HOST:PORT, got 'mbaps://127.0.0.1:802'"),
+    (["--tcp", "mbap://127.0.0.1:502"], "--tcp needs HOST:PORT, got 'mbap://127.0.0.1:502'"),
 ])
 def test_option_mistakes_exit_2_before_anything_is_sent(certs: Path, args: list[str],
                                                         words: str) -> None:
