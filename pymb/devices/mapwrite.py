@@ -23,6 +23,7 @@ never goes between the requests of a read.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -216,6 +217,9 @@ def check(m: Map, values: Iterable[tuple[str, int | None, object]],
                                       sf=sf))
         except InvalidArgument as e:
             raise InvalidArgument(f"{m.id}: {e}") from None
+        if isinstance(value, float) and not math.isfinite(value):  # a float point's encode
+            # takes NaN and infinities (the simulator's faults): a write never sends them
+            raise InvalidArgument(f"{m.id}: point {label!r}: {value!r} is not a finite number")
     _check_overlaps(m, changes)
     return changes
 
