@@ -105,7 +105,7 @@ def plain_sample(payload: bytes) -> PlainSample:
     except ValueError:  # orjson refuses more (NaN, huge integers): the json module says
         try:
             doc = json.loads(payload)
-        except (UnicodeDecodeError, ValueError) as e:
+        except (UnicodeDecodeError, ValueError, RecursionError) as e:  # (nested too deep)
             raise BadInput(f"not JSON ({e})") from None
         strict = False
     if not strict:  # the json module takes a lone surrogate, which no database stores

@@ -163,7 +163,7 @@ class CommandDesk(threading.Thread):
             return None
         try:
             doc = json.loads(payload)
-        except (ValueError, UnicodeDecodeError):
+        except (ValueError, UnicodeDecodeError, RecursionError):  # (nested too deep)
             doc = None
         cid = doc.get("id") if isinstance(doc, dict) else None
         if not (isinstance(cid, str) and 1 <= len(cid) <= 64 and cid.isprintable()):

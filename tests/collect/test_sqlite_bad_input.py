@@ -1,6 +1,7 @@
 """What SQLite cannot bind (a sample id beyond 64 bits, a lone surrogate in a
-text or a point's name) is bad input of that one message: refused as the
-message is parsed, and the store goes on taking the next batches."""
+text or a point's name), and JSON nested deeper than a decoder recurses, is
+bad input of that one message: refused as the message is parsed, and the
+store goes on taking the next batches."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ GOOD = b'{"time_utc": 1800000000.5, "sample": 7, "values": {"v": 1.5}}'
     (b'{"time_utc": 1.0, "sample": -9223372036854775809, "values": {"a": 1}}', "64 bits|integer"),
     (b'{"time_utc": 1.0, "values": {"a": "\\ud800"}}', "surrogate"),
     (b'{"time_utc": 1.0, "values": {"\\udc00x": 1}}', "surrogate"),
+    (b'{"time_utc": 1.0, "values": {"a": ' + b"[" * 100000 + b"]" * 100000 + b"}}",
+     "not JSON"),
 ])
 def test_what_sqlite_cannot_bind_is_bad_input(tmp_path: Path, payload: bytes,
                                               why: str) -> None:
