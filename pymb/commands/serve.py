@@ -45,6 +45,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     tls.add_argument("--write-roles", default="", metavar="ROLE[,ROLE...]",
                      help="roles (from the client certificate's Modbus role extension) that may "
                           "write; every other client may only read")
+    up = p.add_argument_group("the upstream's Modbus/TCP Security (with --tcp mbaps://HOST[:PORT])")
+    up.add_argument("--upstream-ca", dest="tls_ca", metavar="FILE",
+                    help="the CA that signed the upstream's certificate (default: the system's)")
+    up.add_argument("--upstream-cert", dest="tls_cert", metavar="FILE",
+                    help="pymb serve's client certificate for the upstream (PEM)")
+    up.add_argument("--upstream-key", dest="tls_key", metavar="FILE",
+                    help="its private key (PEM)")
+    up.add_argument("--upstream-server-name", dest="tls_server_name", metavar="NAME",
+                    help="the name the upstream's certificate must be made for (default: its host)")
     p.add_argument("--quiet", action="store_true", help="no event lines")
 
 
@@ -87,7 +96,14 @@ def run(args: argparse.Namespace) -> int:
     if args.max_inflight is not None and not 1 <= args.max_inflight <= MAX_INFLIGHT:
         raise InvalidArgument(f"--max-inflight must be 1..{MAX_INFLIGHT}, "
                               f"got {args.max_inflight}")
-    line = make_client(args)
+    try:
+        line = make_client(args)
+    except InvalidArgument as e:  # the client's options are --upstream-* here
+        text = str(e)
+        for flag in ("--ca", "--cert", "--key", "--server-name"):
+            text = text.replace(f"{flag} ", f"--upstream-{flag[2:]} ").replace(
+                f"{flag}/", f"--upstream-{flag[2:]}/")
+        raise InvalidArgument(text) from None
     # plain Modbus TCP takes several requests at once; an mbaps:// upstream
     # (TLS in the C client) stays one at a time, as every other line does
     pipelined = isinstance(line, TcpClient) and line.tls is None

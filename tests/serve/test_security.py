@@ -14,13 +14,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import wait_until
+from conftest import run_pymb, wait_until
 from docblocks import claim_one
 from hypothesis import given
 from hypothesis import strategies as st
 from peers import PtyPeer
-from servekit import Served, mbap, read_pdu
+from servekit import RawClient, Served, mbap, read_pdu, words
 from tlskit import make_certs
+from wire_peers import pymodbus_server
 
 from pymb.serve.roles import CertificateError, role_of
 
@@ -153,3 +154,33 @@ def test_a_truncated_certificate_is_a_certificate_error(certs: Path) -> None:
         except CertificateError:
             continue
         raise AssertionError(f"{n} bytes of {len(whole)} read as a certificate")
+
+
+def test_an_mbaps_upstream_with_its_own_ca_and_client_certificate(certs: Path) -> None:
+    # pymodbus's TLS server wants a client certificate signed by ca.pem: pymb
+    # serve shows it --upstream-cert, and checks the server's by --upstream-ca.
+    client = ["--upstream-ca", str(certs / "ca.pem"), "--upstream-cert",
+              str(certs / "operator.pem"), "--upstream-key", str(certs / "operator.key")]
+    with pymodbus_server("tls", str(certs)) as port, \
+            Served("--tcp", f"mbaps://localhost:{port}", *client) as s:
+        c = RawClient(s.port)
+        try:
+            assert words(c.ask(5, 1, read_pdu(0, 3))) == [0, 7, 14]
+        finally:
+            c.close()
+        assert s.stop() == 0
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--tcp", "127.0.0.1:502", "--upstream-ca", "ca.pem"],
+     "--upstream-ca/--upstream-cert/--upstream-key/--upstream-server-name need --tcp mbaps://"),
+    (["--tcp", "mbaps://127.0.0.1", "--upstream-ca", "nope.pem"],
+     "--upstream-ca 'nope.pem': no such file"),
+    (["--tcp", "mbaps://127.0.0.1", "--upstream-key", "operator.key"],
+     "--upstream-key needs --upstream-cert"),
+])
+def test_upstream_tls_mistakes_are_one_line(certs: Path, args: list[str], said: str) -> None:
+    r = run_pymb("serve", *args, "--listen", "127.0.0.1:0", cwd=certs, timeout=30)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"pymb serve: {said}"), r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
