@@ -210,7 +210,12 @@ class SparkplugHost:
         out: list[Row] = []
         for m in metrics:
             assert m is not None
-            row = self._metric(node, device or "", m, aliases, t0, kind.endswith("BIRTH"))
+            try:
+                row = self._metric(node, device or "", m, aliases, t0, kind.endswith("BIRTH"))
+            except BadInput:
+                raise
+            except (ValueError, OverflowError) as e:  # a PropertySet, a float's field
+                raise BadInput(f"not a Sparkplug B payload (a metric: {e})") from None
             if row is None and kind.endswith("DATA") and _text(m, 1) is None:
                 self.unborn += 1
                 self._rebirth(node, st, f"{kind} with an alias no birth declared")

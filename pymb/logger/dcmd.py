@@ -64,7 +64,7 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
     try:
         ts, seq, metrics = command_values(payload)
-    except (ValueError, UnicodeDecodeError) as e:
+    except (ValueError, UnicodeDecodeError, OverflowError) as e:  # (a float's field too big)
         desk.event(f"DCMD for {device} ignored: not a Sparkplug B payload ({e})")
         return
     cid = command_id(device, ts, seq)
