@@ -6,6 +6,7 @@ on a pseudo-terminal) or a Modbus UDP device (pymodbus's UDP server)
 from __future__ import annotations
 
 import json
+import socket
 import struct
 import subprocess
 import sys
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import pytest
 from conftest import run_pymb
-from servekit import RawClient, Served, read_pdu, words
+from servekit import RawClient, Served, mbap, read_pdu, words
 
 from pymb.sim import Simulator
 
@@ -86,6 +87,28 @@ def test_a_udp_device_upstream() -> None:
         finally:
             c.close()
         assert served.stop() == 0
+
+
+def test_a_silent_udp_device_is_asked_three_times_then_answered_0x0b() -> None:
+    # docs/serve.md: over UDP a request is sent again twice, each send waits
+    # --timeout, and only then is the client answered 0x0B.
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink.settimeout(30)
+    try:
+        with Served("--udp", f"127.0.0.1:{sink.getsockname()[1]}", "--timeout", "0.3") as s:
+            c = RawClient(s.port, timeout=30)
+            try:
+                c.send(mbap(9, 5, read_pdu(0, 2)))
+                heard = [sink.recv(300) for _ in range(3)]
+                assert heard[0] == heard[1] == heard[2]  # the same transaction id each time
+                tid, unit, pdu = c.reply()
+                assert (tid, unit, pdu) == (9, 5, bytes((0x83, 0x0B)))
+            finally:
+                c.close()
+            assert s.stop() == 0
+    finally:
+        sink.close()
 
 
 def test_a_scan_through_serve_finds_the_devices_behind_it_and_no_phantoms() -> None:
