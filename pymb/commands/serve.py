@@ -89,6 +89,12 @@ def run(args: argparse.Namespace) -> int:
     units = UnitMap.parse(args.unit)
     if args.max_clients < 1:
         raise InvalidArgument(f"--max-clients must be at least 1, got {args.max_clients}")
+    given = [f for f, v in (("--cert", args.cert), ("--key", args.key), ("--ca", args.ca)) if v]
+    if given and not args.tls:  # never a plaintext server the user meant to be TLS
+        raise InvalidArgument(f"{'/'.join(given)} {'is' if len(given) == 1 else 'are'} for "
+                              "the TLS server: give --tls too "
+                              "(or --upstream-ca/--upstream-cert/--upstream-key for an "
+                              "mbaps:// upstream)")
     tls = tls_server_context(args.cert, args.key, args.ca) if args.tls else None
     roles = frozenset(r.strip() for r in args.write_roles.split(",") if r.strip())
     if roles and tls is None:

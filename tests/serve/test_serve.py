@@ -209,6 +209,10 @@ def test_clients_that_drop_or_never_read_cost_the_others_nothing(peer: PtyPeer) 
     (["--max-clients", "0"], 2, "--max-clients must be at least 1"),
     (["--tls", "--cert", "c.pem"], 2, "--tls needs --key FILE"),
     (["--write-roles", "operator"], 2, "--write-roles needs --tls"),
+    # a certificate without --tls: refused, never served as plaintext
+    (["--cert", "c.pem", "--key", "c.key", "--ca", "ca.pem"], 2,
+     "--cert/--key/--ca are for the TLS server: give --tls too"),
+    (["--ca", "ca.pem"], 2, "--ca is for the TLS server: give --tls too"),
     (["--max-inflight", "4"], 2, "--max-inflight needs --tcp HOST:PORT, a plain Modbus TCP"),
 ])
 def test_a_users_mistake_is_one_line(peer: PtyPeer, extra: list[str], code: int,
