@@ -22,7 +22,8 @@ class Served:
     which must end it with exit 0."""
 
     def __init__(self, *args: str, listen: str = "127.0.0.1:0") -> None:
-        self.proc = subprocess.Popen([*PYMB, "serve", *args, "--listen", listen],
+        where = ["--listen", listen] if listen else []  # "": serve's default
+        self.proc = subprocess.Popen([*PYMB, "serve", *args, *where],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env=PYMB_ENV)
         assert self.proc.stdout is not None

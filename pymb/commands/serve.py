@@ -24,8 +24,9 @@ MAX_INFLIGHT = 255  #: the most --max-inflight takes
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``pymb serve``."""
     add_connection_args(p, timeout=1.0, tls=False)  # --cert/--key/--ca: the server's own
-    p.add_argument("--listen", default="127.0.0.1:502", metavar="HOST:PORT",
-                   help="where to accept Modbus TCP clients (default 127.0.0.1:502; "
+    p.add_argument("--listen", default=None, metavar="HOST:PORT",
+                   help="where to accept Modbus TCP clients (default 127.0.0.1:502, with "
+                        "--tls 127.0.0.1:802, Modbus/TCP Security's port; "
                         "0.0.0.0:502 for every interface; port 0 picks a free one)")
     p.add_argument("--unit", action="append", default=[], metavar="LISTEN=UPSTREAM",
                    help="route a unit id to another upstream unit (repeatable); others pass "
@@ -85,7 +86,8 @@ def _why(e: BaseException) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Serve until SIGINT or SIGTERM; exit 0."""
-    host, port = parse_host_port(args.listen, what="--listen")
+    listen = args.listen or ("127.0.0.1:802" if args.tls else "127.0.0.1:502")
+    host, port = parse_host_port(listen, what="--listen")
     units = UnitMap.parse(args.unit)
     if args.max_clients < 1:
         raise InvalidArgument(f"--max-clients must be at least 1, got {args.max_clients}")

@@ -23,6 +23,7 @@ from servekit import RawClient, Served, mbap, read_pdu, words
 from tlskit import make_certs
 from wire_peers import pymodbus_server
 
+import pymb
 from pymb.serve.roles import CertificateError, role_of
 
 
@@ -184,3 +185,18 @@ def test_upstream_tls_mistakes_are_one_line(certs: Path, args: list[str], said: 
     assert r.returncode == 2, r.stderr
     assert r.stderr.startswith(f"pymb serve: {said}"), r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_with_tls_it_listens_on_802_where_mbaps_clients_go(certs: Path) -> None:
+    # No --listen: Modbus/TCP Security's port, the one TcpClient(tls=...) and
+    # mbaps://HOST take when none is given.
+    server = ["--tls", "--cert", str(certs / "server.pem"), "--key", str(certs / "server.key"),
+              "--ca", str(certs / "ca.pem")]
+    with pymodbus_server("tcp") as port, \
+            Served("--tcp", f"127.0.0.1:{port}", *server, listen="") as s:
+        assert s.port == 802
+        tls = pymb.TlsConfig(ca=certs / "ca.pem", cert=certs / "operator.pem",
+                             key=certs / "operator.key")
+        with pymb.TcpClient("localhost", tls=tls, slave=1) as c:
+            assert list(c.read_holding_registers(0, 3)) == [0, 7, 14]
+        assert s.stop() == 0
