@@ -246,3 +246,31 @@ def test_a_stop_drops_the_queued_requests_of_a_silent_device(peer: PtyPeer) -> N
         assert s.stop() == 0
         assert time.monotonic() - t < 4.0  # the one under way, not all sixteen
         c.close()
+
+
+def test_past_max_clients_a_connection_is_refused_and_the_others_go_on(peer: PtyPeer) -> None:
+    # docs/serve.md: at most --max-clients are connected at once; more are refused.
+    with Served(*serve_args(peer.port, ["--max-clients", "2"])) as s:
+        a, b = RawClient(s.port), RawClient(s.port)
+        assert words(a.ask(1, 1, read_pdu(0, 1))) == [0]
+        assert words(b.ask(1, 1, read_pdu(0, 1))) == [0]
+        third = RawClient(s.port)
+        assert third.closed_by_server()
+        third.close()
+        wait_until(lambda: any("refused, 2 clients are connected" in line
+                               for line in s.stderr_lines), "the refusal's event line")
+        assert words(a.ask(2, 1, read_pdu(0, 1))) == [0]
+        b.close()  # a place frees up: the next client is served
+        for _ in range(50):
+            c = RawClient(s.port)
+            try:
+                assert words(c.ask(3, 1, read_pdu(0, 1))) == [0]
+                break
+            except ConnectionError:
+                c.close()
+                time.sleep(0.1)  # the server has not seen b go yet
+        else:
+            raise AssertionError("no client was served after one left")
+        c.close()
+        a.close()
+        assert s.stop() == 0
