@@ -34,6 +34,7 @@ class Served:
             self.proc.kill()
             raise AssertionError(f"pymb serve did not start: {first!r} {err!r}")
         self.port = int(m.group(1))
+        self.first_line = first  #: where clients connect, as serve says it
         self.stderr_lines: list[str] = []
         self._reader = threading.Thread(target=self._read_stderr, daemon=True)
         self._reader.start()

@@ -155,7 +155,8 @@ async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
     upstream.start()
     scheme = "mbaps" if server.tls is not None else "mbap"
     # The one line on stdout: where clients connect (port 0 becomes the real one).
-    print(f"pymb serve: {scheme}://{server.host}:{server.port} -> {upstream_name}", flush=True)
+    host = f"[{server.host}]" if ":" in server.host else server.host  # an IPv6 address
+    print(f"pymb serve: {scheme}://{host}:{server.port} -> {upstream_name}", flush=True)
     try:
         await server.serve_until(stop)
     finally:

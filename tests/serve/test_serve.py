@@ -274,3 +274,13 @@ def test_past_max_clients_a_connection_is_refused_and_the_others_go_on(peer: Pty
         c.close()
         a.close()
         assert s.stop() == 0
+
+
+def test_an_ipv6_listen_address_is_printed_in_brackets(peer: PtyPeer) -> None:
+    # The first line's address is one a client takes back (mbaps://[::1]:PORT).
+    with Served(*serve_args(peer.port), listen="[::1]:0") as s:
+        assert s.first_line.startswith(f"pymb serve: mbap://[::1]:{s.port} -> "), s.first_line
+        with socket.create_connection(("::1", s.port), timeout=10) as raw:
+            raw.sendall(mbap(1, 1, read_pdu(0, 1)))
+            assert raw.recv(100)[7:] == bytes((3, 2, 0, 0))
+        assert s.stop() == 0
