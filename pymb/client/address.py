@@ -32,6 +32,9 @@ def parse_host_port(text: str, *, what: str = "--tcp",
     if not (sep or port_only) or not port.isdigit():
         raise InvalidArgument(
             f"{what} needs {'[HOST:]PORT' if port_only else 'HOST:PORT'}, got {text!r}")
+    if ":" in host and not (host.startswith("[") and host.endswith("]")):
+        raise InvalidArgument(f"{what}: an IPv6 address goes in brackets, [ADDRESS]:PORT "
+                              f"(e.g. [::1]:502), got {text!r}")
     number = int(port)
     if number > 65535:
         raise InvalidArgument(f"{what} port must be 0..65535, got {number}")

@@ -117,6 +117,9 @@ def test_a_map_device_read_as_json_by_a_viewer(certs: Path, served: Served) -> N
     # a URL where HOST:PORT goes is a mistake, not a host name to resolve
     (["--udp", "mbaps://127.0.0.1:802"], "--udp needs HOST:PORT, got 'mbaps://127.0.0.1:802'"),
     (["--tcp", "mbap://127.0.0.1:502"], "--tcp needs HOST:PORT, got 'mbap://127.0.0.1:502'"),
+    # an IPv6 address without its brackets is not a host name ':' to resolve
+    (["--tcp", "::1:502"], "--tcp: an IPv6 address goes in brackets, [ADDRESS]:PORT"),
+    (["--udp", "fe80::1:502"], "--udp: an IPv6 address goes in brackets"),
 ])
 def test_option_mistakes_exit_2_before_anything_is_sent(certs: Path, args: list[str],
                                                         words: str) -> None:
