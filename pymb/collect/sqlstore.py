@@ -200,6 +200,13 @@ class PostgresStore(Store):
     def _connect(self) -> None:
         psycopg = self.psycopg
         try:
+            ports = str(psycopg.conninfo.conninfo_to_dict(self.url).get("port") or "")
+        except psycopg.ProgrammingError as e:  # a malformed URL
+            raise InvalidArgument(f"bad PostgreSQL URL {self.target}: {e}") from None
+        if ports and not all(p.isdigit() and 1 <= int(p) <= 65535 for p in ports.split(",")):
+            raise InvalidArgument(f"bad PostgreSQL URL {self.target}: the port must be "
+                                  f"1..65535, got {ports}")
+        try:
             con = psycopg.connect(self.url, connect_timeout=10, autocommit=False,
                                   client_encoding="UTF8")
         except psycopg.ProgrammingError as e:  # a malformed URL

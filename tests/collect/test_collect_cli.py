@@ -51,6 +51,8 @@ def test_usage_errors_exit_2(tmp_path: Path) -> None:
     assert notes.read_text() == "my notes\n" * 200
     _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out",
                        "postgresql://me:secret@[::1/db"), 2, "bad PostgreSQL URL")
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1", "--out",
+                       "postgresql://me@127.0.0.1:99999/db"), 2, "the port must be 1..65535")
     r = run_pymb("collect", "--out", out)
     assert r.returncode == 2
     assert "--mqtt" in r.stderr
