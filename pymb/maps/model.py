@@ -126,9 +126,13 @@ class Map:
         type's range, or a name ``values`` does not list
         (:class:`pymb.InvalidArgument`). ``bit``/``bits`` views and masked
         values need the register's ``current`` contents, a ``scale_from``
-        point its ``scale_factor``."""
-        return codec.encode(self.point(name), value, current=current, check_access=True,
-                            sf=scale_factor)
+        point its ``scale_factor``. An unknown ``name`` is an
+        :class:`~pymb.InvalidArgument` naming the closest ones."""
+        try:
+            p = self.point(name)
+        except MapError as e:  # a write's argument: refused as any other
+            raise InvalidArgument(str(e)) from None
+        return codec.encode(p, value, current=current, check_access=True, sf=scale_factor)
 
     def plan(self, group: str | None = None, *, baudrate: int = DEFAULT_BAUD,
              bits_per_char: int = 10) -> ReadPlan:

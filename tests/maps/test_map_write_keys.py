@@ -8,6 +8,7 @@ from __future__ import annotations
 import pytest
 
 from pymb import maps
+from pymb.errors import InvalidArgument
 
 HEAD = """schema = "pymb.map/1"
 [device]
@@ -82,3 +83,9 @@ def test_a_budget_on_a_read_only_point_is_a_mistake() -> None:
         maps.loads(text, source="b.toml")
     assert (info.value.point, info.value.key) == ("reading", "max_writes_per_hour")
     assert "writable points" in str(info.value)
+
+
+def test_encoding_an_unknown_point_is_an_invalid_argument_with_the_closest_name() -> None:
+    m = maps.builtin("coolpro")
+    with pytest.raises(InvalidArgument, match="did you mean 'output_voltage_v'"):
+        m.encode("output_voltag", 1)
