@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
+import pytest
 from peerkit import PtyPeerBase, Reply, TcpPeerBase, mbap, registers, rtu
 
 HERE = Path(__file__).resolve().parent
@@ -124,6 +125,17 @@ def pymodbus_server(mode: str, *args: str) -> Iterator[int]:
     with _ready_server([sys.executable, str(HERE / "pymodbus_server.py"), mode, *args],
                        stderr=subprocess.DEVNULL) as port:
         yield int(port)
+
+
+@contextmanager
+def pymodbus_peer(mode: str) -> Iterator[str]:
+    """tests/pymodbus_server.py in ``mode`` as :func:`pymodbus_server`, for
+    ``ascii`` (yields the pseudo-terminal's path) and ``udp`` (the port, as
+    text) too; the test is skipped where pymodbus is missing."""
+    pytest.importorskip("pymodbus")
+    with _ready_server([sys.executable, str(HERE / "pymodbus_server.py"), mode],
+                       stderr=subprocess.DEVNULL) as where:
+        yield where
 
 
 class EmulatedLine(PtyPeerBase):

@@ -7,21 +7,16 @@ and UDP on 127.0.0.1 (tests/pymodbus_server.py: holding register a holds
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import tomllib
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 from conftest import run_pymb
 from docblocks import claim_one
+from wire_peers import pymodbus_peer
 
 from pymb.errors import InvalidArgument
 from pymb.logger.config import config_from_toml
-
-HERE = Path(__file__).resolve().parent.parent
 
 MAP = '''schema = "pymb.map/1"
 [device]
@@ -40,23 +35,6 @@ address = 300
 type = "u16"
 group = "fast"
 '''
-
-
-@contextmanager
-def pymodbus_peer(mode: str) -> Iterator[str]:
-    """tests/pymodbus_server.py in ``mode``: the pty path or the UDP port."""
-    pytest.importorskip("pymodbus")
-    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().split()
-        assert line, "the server printed nothing"
-        assert line[0] == "READY", line
-        yield line[1]
-    finally:
-        proc.kill()
-        proc.wait(10)
 
 
 @pytest.fixture

@@ -7,20 +7,15 @@ from __future__ import annotations
 
 import select
 import socket
-import subprocess
-import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from pathlib import Path
+from collections.abc import Callable
 
 import pytest
 from peerkit import PtyPeerBase, Reply, ThreadedPeer, mbap, registers
+from wire_peers import pymodbus_peer
 
 import pymb
-
-HERE = Path(__file__).resolve().parent.parent
 
 
 def lrc(b: bytes) -> int:
@@ -41,24 +36,6 @@ def ascii_bytes(frame: bytes) -> bytes:
     body = bytes.fromhex(frame[1:-2].decode())
     assert lrc(body[:-1]) == body[-1], frame
     return body[:-1]
-
-
-@contextmanager
-def pymodbus_peer(mode: str) -> Iterator[str]:
-    """tests/pymodbus_server.py in ``mode`` (``ascii``: yields the
-    pseudo-terminal's path; ``udp``: the port)."""
-    pytest.importorskip("pymodbus")
-    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().split()
-        assert line, "the server printed nothing"
-        assert line[0] == "READY", line
-        yield line[1]
-    finally:
-        proc.kill()
-        proc.wait(10)
 
 
 def exercise(c: pymb.Client) -> None:

@@ -8,37 +8,13 @@ from __future__ import annotations
 import json
 import socket
 import struct
-import subprocess
-import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
-from pathlib import Path
 
-import pytest
 from conftest import run_pymb
 from servekit import RawClient, Served, mbap, read_pdu, words
+from wire_peers import pymodbus_peer
 
 from pymb.sim import Simulator
-
-HERE = Path(__file__).resolve().parent.parent
-
-
-@contextmanager
-def pymodbus_peer(mode: str) -> Iterator[str]:
-    """pymodbus serving ``mode``; yields the pseudo-terminal's path or the port."""
-    pytest.importorskip("pymodbus")
-    proc = subprocess.Popen([sys.executable, str(HERE / "pymodbus_server.py"), mode],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().split()
-        assert line, "the server printed nothing"
-        assert line[0] == "READY", line
-        yield line[1]
-    finally:
-        proc.kill()
-        proc.wait(10)
 
 
 def test_clients_share_an_ascii_line() -> None:
