@@ -231,7 +231,35 @@ class AsyncClient(Mirrored):
     drain = Mirror(Client.drain)
 
 
-class AsyncRtuClient(AsyncClient):
+class _AsyncSerialBase(AsyncClient):
+    blocking: RtuClient | AsciiClient
+
+    @property
+    def baudrate(self) -> int:
+        """The line's speed, bit/s."""
+        return self.blocking.baudrate
+
+    @property
+    def parity(self) -> str:
+        """``"N"``, ``"E"`` or ``"O"``."""
+        return self.blocking.parity
+
+    @property
+    def data_bits(self) -> int:
+        """Data bits per character."""
+        return self.blocking.data_bits
+
+    @property
+    def stop_bits(self) -> int:
+        """Stop bits per character."""
+        return self.blocking.stop_bits
+
+    def frame_time(self, nbytes: int) -> float:
+        """Seconds a frame of ``nbytes`` bytes takes on this line (no I/O)."""
+        return self.blocking.frame_time(nbytes)
+
+
+class AsyncRtuClient(_AsyncSerialBase):
     """A Modbus RTU master on a serial port, for asyncio: the arguments of
     :class:`pymb.RtuClient`, the requests as coroutines."""
 
@@ -258,31 +286,7 @@ class AsyncRtuClient(AsyncClient):
             byte_timeout=byte_timeout, serial_mode=serial_mode, rts=rts, rts_delay=rts_delay,
             reject_early=reject_early))
 
-    @property
-    def baudrate(self) -> int:
-        """The line's speed, bit/s."""
-        return self.blocking.baudrate
-
-    @property
-    def parity(self) -> str:
-        """``"N"``, ``"E"`` or ``"O"``."""
-        return self.blocking.parity
-
-    @property
-    def data_bits(self) -> int:
-        """Data bits per character."""
-        return self.blocking.data_bits
-
-    @property
-    def stop_bits(self) -> int:
-        """Stop bits per character."""
-        return self.blocking.stop_bits
-
     set_rs485 = Mirror(RtuClient.set_rs485)
-
-    def frame_time(self, nbytes: int) -> float:
-        """Seconds ``nbytes`` take on this line (no I/O)."""
-        return self.blocking.frame_time(nbytes)
 
 
 class _AsyncTcpBase(AsyncClient):
@@ -333,7 +337,7 @@ class AsyncRtuOverTcpClient(_AsyncTcpBase):
                                           frame_silence=frame_silence))
 
 
-class AsyncAsciiClient(AsyncClient):
+class AsyncAsciiClient(_AsyncSerialBase):
     """Modbus ASCII on a serial line for asyncio: the arguments of
     :class:`pymb.AsciiClient`, the requests as coroutines."""
 
@@ -353,30 +357,6 @@ class AsyncAsciiClient(AsyncClient):
     ) -> None:
         super().__init__(AsciiClient(port, baudrate, parity, data_bits, stop_bits, slave=slave,
                                      timeout=timeout, byte_timeout=byte_timeout))
-
-    @property
-    def baudrate(self) -> int:
-        """The line's speed, bit/s."""
-        return self.blocking.baudrate
-
-    @property
-    def parity(self) -> str:
-        """``"N"``, ``"E"`` or ``"O"``."""
-        return self.blocking.parity
-
-    @property
-    def data_bits(self) -> int:
-        """Data bits per character."""
-        return self.blocking.data_bits
-
-    @property
-    def stop_bits(self) -> int:
-        """Stop bits per character."""
-        return self.blocking.stop_bits
-
-    def frame_time(self, nbytes: int) -> float:
-        """Seconds a frame of ``nbytes`` bytes takes on this line (no I/O)."""
-        return self.blocking.frame_time(nbytes)
 
 
 class AsyncUdpClient(AsyncClient):
