@@ -392,20 +392,15 @@ void pymbi_owe(pymb_line *line, int slave)
     line->owed_since_us = pymbi_now_us();
 }
 
-int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n)
+/* Every byte of b to the line's descriptor, by send(2) on a socket or
+ * write(2) on a serial line (where send fails with ENOTSOCK), waiting for
+ * room at most the response timeout. */
+static int put_all(pymb_line *line, int sock, const uint8_t *b, size_t n)
 {
     int fd = modbus_get_socket(line->ctx);
 
-    if (line->io.write != NULL) {
-        int rc = n > 65536u ? -EMSGSIZE : line->io.write(line->io.arg, b, (int)n);
-        if (rc < 0) {
-            errno = -rc;
-            return -1;
-        }
-        return 0;
-    }
     while (n > 0) {
-        ssize_t k = send(fd, b, n, MSG_NOSIGNAL);
+        ssize_t k = sock ? send(fd, b, n, MSG_NOSIGNAL) : write(fd, b, n);
         if (k < 0) {
             if (errno == EINTR) {
                 continue;
@@ -426,31 +421,22 @@ int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n)
     return 0;
 }
 
-/* write(2) for a serial line, where send(2) fails (ENOTSOCK). */
-int pymbi_write_all(pymb_line *line, const uint8_t *b, size_t n)
+int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n)
 {
-    int fd = modbus_get_socket(line->ctx);
-
-    while (n > 0) {
-        ssize_t k = write(fd, b, n);
-        if (k < 0) {
-            if (errno == EINTR) {
-                continue;
-            }
-            if (errno == EAGAIN || errno == EWOULDBLOCK) {
-                struct pollfd p = {fd, POLLOUT, 0};
-                if (poll(&p, 1, (int)(pymbi_timeout_us(line->ctx, 0) / 1000u) + 1) == 0) {
-                    errno = ETIMEDOUT;
-                    return -1;
-                }
-                continue;
-            }
+    if (line->io.write != NULL) {
+        int rc = n > 65536u ? -EMSGSIZE : line->io.write(line->io.arg, b, (int)n);
+        if (rc < 0) {
+            errno = -rc;
             return -1;
         }
-        b += k;
-        n -= (size_t)k;
+        return 0;
     }
-    return 0;
+    return put_all(line, 1, b, n);
+}
+
+int pymbi_write_all(pymb_line *line, const uint8_t *b, size_t n)
+{
+    return put_all(line, 0, b, n);
 }
 
 void pymbi_no_flush(pymb_line *line)
