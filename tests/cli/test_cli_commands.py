@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 from clikit import STOP_BOUND, Pty, no_traceback
 from conftest import PYMB, PYMB_ENV, run_pymb
+from peerkit import mbap
+from wire_peers import RawTcp, tcp_request
 
 import pymb
 from pymb.sim import Simulator, SimulatorProcess
@@ -329,3 +331,20 @@ def test_simulate_mistakes_are_named(args: list[str], message: str) -> None:
     assert r.returncode == 2, r.stderr
     assert message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_gateways_no_answer_exceptions_are_silence_to_a_scan() -> None:
+    # A scripted gateway (not pymb's): unit 3 refuses FC 0x04 with exception 02
+    # (a device that is there); every other unit gets 0x0A or 0x0B, the
+    # gateway's "no path" and "no answer", which name no device.
+    def gateway(_: int, adu: bytes) -> list[tuple[float, bytes]]:
+        tid, unit, pdu = tcp_request(adu)
+        code = 0x02 if unit == 3 else 0x0A if unit % 2 else 0x0B
+        return [(0.0, mbap(tid, unit, bytes((pdu[0] | 0x80, code))))]
+
+    with RawTcp(gateway) as peer:
+        r = run_pymb("scan", "--tcp", f"127.0.0.1:{peer.port}", "--range", "1-6",
+                     "--timeout", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    found = json.loads(r.stdout)["found"]
+    assert [(d["address"], d["device"]) for d in found] == [(3, "unknown")]
