@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # the forwarder needs paho, which this package's face must no
 __all__ = ["ForwardingSink", "MqttConfig"]
 
 
-class ForwardingSink(SinkWrapper):
+class ForwardingSink(SinkWrapper[SqliteSink]):
     """A sink that wakes the forwarder after each write (a forwarder reading
     the writer's batch, see :class:`~pymb.fleet.forwarder.Forwarder`) or
     commit of the sink it wraps, and records what happened to the broker
@@ -40,7 +40,6 @@ class ForwardingSink(SinkWrapper):
     def __init__(self, sink: SqliteSink, forwarder: Forwarder,
                  echo: Callable[[Event], None] | None = None) -> None:
         super().__init__(sink)
-        self.outbox = sink
         self.forwarder = forwarder
         self.echo = echo
         self.health = DeviceHealth()
@@ -73,7 +72,7 @@ class ForwardingSink(SinkWrapper):
         """A live forwarder hears of it now: the devices that went down (with
         the last id written) and the new samples."""
         if self.live:
-            self._tell(self.outbox.last_id)
+            self._tell(self.sink.last_id)
 
     def turn(self) -> bool:
         """The logger's loop, at each turn: the broker connection's events go
@@ -92,7 +91,7 @@ class ForwardingSink(SinkWrapper):
         self._events()
         cursor, dest = self.forwarder.cursor, self.forwarder.dest
         if dest is not None:  # keyed at the first connection
-            self.outbox.set_outbox_cursor(dest, cursor)
+            self.sink.set_outbox_cursor(dest, cursor)
         self.sink.commit()
 
     def _committed(self, top: int) -> None:
@@ -127,5 +126,5 @@ class ForwardingSink(SinkWrapper):
         self._events()
         cursor, dest = self.forwarder.cursor, self.forwarder.dest
         if dest is not None:
-            self.outbox.set_outbox_cursor(dest, cursor)
+            self.sink.set_outbox_cursor(dest, cursor)
         self.sink.close()

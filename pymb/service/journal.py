@@ -74,7 +74,7 @@ def wanted(out: TextIO) -> bool:
         return False
 
 
-class EchoingSink(SinkWrapper):
+class EchoingSink(SinkWrapper[Sink]):
     """A sink that writes every event it stores as a line too (see
     :class:`EventLines`); everything else goes to the sink it wraps."""
 

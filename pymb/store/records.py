@@ -7,7 +7,7 @@ from __future__ import annotations
 import abc
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 from pymb.devices import CoolProTelemetry, HubReading
 from pymb.devices.mapreading import MapReading
@@ -177,11 +177,14 @@ class SinkBase(abc.ABC):
         return False
 
 
-class SinkWrapper(SinkBase):
-    """A sink in front of another (``sink``): every member is the wrapped
-    sink's unless the wrapper defines its own."""
+S = TypeVar("S", bound=Sink)
 
-    def __init__(self, sink: Sink) -> None:
+
+class SinkWrapper(SinkBase, Generic[S]):
+    """A sink in front of another (``sink``, of type ``S``): every member is
+    the wrapped sink's unless the wrapper defines its own."""
+
+    def __init__(self, sink: S) -> None:
         self.sink = sink
 
     @property
