@@ -15,8 +15,8 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
-from pymb.maps.planner import Item, Known, Limits, Line, ReadPlan, Request, plan_points
-from pymb.maps.point import Point, Points
+from pymb.maps.planner import Item, Known, Line, ReadPlan, Request, plan_points
+from pymb.maps.point import Limits, Point, Points
 
 __all__ = ["MapItems", "PointPlanner", "map_planner"]
 
@@ -225,12 +225,10 @@ def map_planner(m: Points, line: Line | None = None, *, clock: Callable[[], floa
                 ) -> tuple[PointPlanner, MapItems]:
     """The planner of a device map ``m``: its limits, its ``turnaround`` and
     ``inter_request_gap`` on ``line`` (default 9600 bit/s 8N1)."""
-    lim, timing = m.limits, m.timing
-    limits = Limits(lim.max_registers, lim.max_bits, lim.max_gap, lim.readable,
-                    lim.split_on_exception, lim.single_point_requests, lim.ranges)
+    timing = m.timing
     base = line or Line()
     line = Line(base.baudrate, base.bits_per_char, timing.turnaround, timing.inter_request_gap)
     mi = MapItems.of(m)
     point_of = [i for i, p in enumerate(mi.points) for _ in range(p.channels)]
-    return PointPlanner(mi.items, limits, line, offline_retry=timing.offline_retry,
+    return PointPlanner(mi.items, m.limits, line, offline_retry=timing.offline_retry,
                         clock=clock, ties=mi.ties(), point_of=point_of), mi

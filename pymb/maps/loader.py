@@ -22,8 +22,8 @@ from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.checks import check_channel_names, check_overlaps, check_refs, check_widths
 from pymb.maps.fields import Ctx, build_point, number, strings
 from pymb.maps.model import Map
-from pymb.maps.planner import MAX_GAP
 from pymb.maps.point import (
+    MAX_GAP,
     DeviceInfo,
     Identify,
     Limits,

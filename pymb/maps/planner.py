@@ -27,16 +27,19 @@ seconds).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
-from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
+from pymb._native import MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument
 from pymb.maps.cuts import best_cuts, broken_ties, naive_cost
+from pymb.maps.point import MAX_GAP, Limits
+from pymb.maps.types import BIT_TABLES, TABLES
 from pymb.wire import DEFAULT_BAUD, read_bits_time, read_time
 
 __all__ = [
     "BIT_TABLES",
+    "MAX_GAP",
     "REPLAN_CODES",
     "TABLES",
     "Item",
@@ -53,54 +56,8 @@ __all__ = [
     "replans",
 ]
 
-#: The four Modbus tables, in the order a plan reads them.
-TABLES = ("coil", "discrete", "holding", "input")
-#: Tables of single bits (FC 01, 02): limits and costs count bits, not registers.
-BIT_TABLES = frozenset(("coil", "discrete"))
-
-#: the most undeclared registers ``max_gap`` may name: one request reads at
-#: most MAX_READ_REGISTERS, so a gap spans at most all but one of them
-MAX_GAP = MAX_READ_REGISTERS - 1
-
 # What the planner knows of each register (or bit) of a table.
 _UNKNOWN, _DECLARED, _READABLE, _REFUSED = 0, 1, 2, 3
-
-
-@dataclass(frozen=True)
-class Limits:
-    """How a device wants to be asked ([MAP] ``[device.limits]``).
-
-    ``readable``: per table, inclusive ``(first, last)`` ranges known to exist.
-    """
-
-    max_registers: int = MAX_READ_REGISTERS
-    max_bits: int = MAX_READ_BITS
-    #: undeclared registers a request may span; None (unset): any gap inside
-    #: ``readable`` when the map declares it, else none
-    max_gap: int | None = None
-    readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=dict)
-    split_on_exception: bool = True
-    single_point_requests: bool = False
-    #: (table, first, last, most): a request that reads any register (bit)
-    #: of ``first..last`` (inclusive) reads at most ``most``
-    ranges: Sequence[tuple[str, int, int, int]] = ()
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.max_registers <= MAX_READ_REGISTERS:
-            raise InvalidArgument(f"max_registers must be 1..{MAX_READ_REGISTERS}, "
-                                  f"got {self.max_registers!r}")
-        if not 1 <= self.max_bits <= MAX_READ_BITS:
-            raise InvalidArgument(f"max_bits must be 1..{MAX_READ_BITS}, got {self.max_bits!r}")
-        if self.max_gap is not None and not 0 <= self.max_gap <= MAX_GAP:
-            raise InvalidArgument(f"max_gap must be 0..{MAX_GAP}, got {self.max_gap!r}")
-        for table, first, last, most in self.ranges:
-            if table not in TABLES or not 0 <= first <= last <= 65535 or not most >= 1:
-                raise InvalidArgument(f"a range limit is (table, first, last, most), got "
-                                      f"{(table, first, last, most)!r}")
-
-    def max_count(self, table: str) -> int:
-        """Registers (bits, for a bit table) one request may read."""
-        return self.max_bits if table in BIT_TABLES else self.max_registers
 
 
 @dataclass(frozen=True)

@@ -12,14 +12,19 @@ from types import MappingProxyType
 from typing import Any, Protocol
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.errors import ModbusError
+from pymb.errors import InvalidArgument, ModbusError
+from pymb.maps.types import BIT_TABLES, TABLES
 
-__all__ = ["DeviceInfo", "Identify", "Limits", "MapError", "Point", "Points", "Timing", "Value",
-           "did_you_mean"]
+__all__ = ["MAX_GAP", "DeviceInfo", "Identify", "Limits", "MapError", "Point", "Points", "Timing",
+           "Value", "did_you_mean"]
 
 #: What a point decodes to: None where there is no value (a marker, NaN,
 #: invalid text, unsupported); a list for blocks and ``raw``.
 Value = int | float | str | bool | list[Any] | None
+
+#: the most undeclared registers ``max_gap`` may name: one request reads at
+#: most MAX_READ_REGISTERS, so a gap spans at most all but one of them
+MAX_GAP = MAX_READ_REGISTERS - 1
 
 _EMPTY: Mapping[Any, Any] = MappingProxyType({})
 
@@ -59,15 +64,16 @@ def did_you_mean(word: str, known: Sequence[str]) -> str:
 
 @dataclass(frozen=True)
 class Limits:
-    """How requests to the device may be planned (contract section 4)."""
+    """How requests to the device may be planned (contract section 4): a map's
+    ``[device.limits]``, and what the read planner plans within."""
 
     max_registers: int = MAX_READ_REGISTERS  #: registers per FC 03/04 request (1..125)
     max_bits: int = MAX_READ_BITS  #: bits per FC 01/02 request (1..2000)
-    #: undeclared registers a request may span; None (unset): any gap inside
-    #: ``readable`` where the map declares it, else none
+    #: undeclared registers a request may span (0..MAX_GAP); None (unset): any
+    #: gap inside ``readable`` where the map declares it, else none
     max_gap: int | None = None
     #: table -> on-wire (first, last) ranges known to exist (inclusive)
-    readable: Mapping[str, tuple[tuple[int, int], ...]] = field(default_factory=_empty)
+    readable: Mapping[str, Sequence[tuple[int, int]]] = field(default_factory=_empty)
     split_on_exception: bool = True  #: exception 02/03 on a bridged read: stop bridging there
     single_point_requests: bool = False  #: one request per point
     #: "always": FC 16 even for one register; "auto": FC 06 for one, FC 16 for several
@@ -75,7 +81,24 @@ class Limits:
     mask_write: bool = False  #: FC 22 mask write for bit/bits/8-bit halves (no read first)
     #: (table, first, last, most): on-wire inclusive ranges where a request may
     #: read at most ``most`` registers (bits), the device's own rules
-    ranges: tuple[tuple[str, int, int, int], ...] = ()
+    ranges: Sequence[tuple[str, int, int, int]] = ()
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.max_registers <= MAX_READ_REGISTERS:
+            raise InvalidArgument(f"max_registers must be 1..{MAX_READ_REGISTERS}, "
+                                  f"got {self.max_registers!r}")
+        if not 1 <= self.max_bits <= MAX_READ_BITS:
+            raise InvalidArgument(f"max_bits must be 1..{MAX_READ_BITS}, got {self.max_bits!r}")
+        if self.max_gap is not None and not 0 <= self.max_gap <= MAX_GAP:
+            raise InvalidArgument(f"max_gap must be 0..{MAX_GAP}, got {self.max_gap!r}")
+        for table, first, last, most in self.ranges:
+            if table not in TABLES or not 0 <= first <= last <= 65535 or not most >= 1:
+                raise InvalidArgument(f"a range limit is (table, first, last, most), got "
+                                      f"{(table, first, last, most)!r}")
+
+    def max_count(self, table: str) -> int:
+        """Registers (bits, for a bit table) one request may read."""
+        return self.max_bits if table in BIT_TABLES else self.max_registers
 
 
 @dataclass(frozen=True)

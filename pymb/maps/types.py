@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
+    "BIT_TABLES",
     "FLOAT_TYPES",
     "INTEGER_TYPES",
     "ORDER_NAMES",
@@ -28,6 +29,8 @@ __all__ = [
 TABLES = ("coil", "discrete", "holding", "input")
 #: Tables of 16-bit registers (the other two hold bits).
 REGISTER_TABLES = frozenset({"holding", "input"})
+#: Tables of single bits (FC 01, 02): limits and costs count bits, not registers.
+BIT_TABLES = frozenset(("coil", "discrete"))
 
 
 @dataclass(frozen=True)
