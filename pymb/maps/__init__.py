@@ -21,7 +21,7 @@ from importlib import resources
 from pymb.maps._decode import Buffers, Decoder
 from pymb.maps.loader import load, loads
 from pymb.maps.model import (
-    DeviceInfo,
+    DeviceSection,
     Identify,
     Limits,
     Map,
@@ -38,7 +38,7 @@ __all__ = [
     "TYPES",
     "Buffers",
     "Decoder",
-    "DeviceInfo",
+    "DeviceSection",
     "Identify",
     "Limits",
     "Map",

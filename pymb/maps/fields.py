@@ -11,7 +11,7 @@ from typing import Any, NoReturn
 
 from pymb.errors import InvalidArgument
 from pymb.maps.codec import encode
-from pymb.maps.point import DeviceInfo, MapError, Point, did_you_mean
+from pymb.maps.point import DeviceSection, MapError, Point, did_you_mean
 from pymb.maps.types import (
     FLOAT_TYPES,
     INTEGER_TYPES,
@@ -194,7 +194,7 @@ def _flags(ctx: Ctx, v: object, bits: int, typ: str) -> dict[int, str]:
     return out
 
 
-def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceInfo,
+def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
                 groups: Mapping[str, float], options: Mapping[str, int | float]) -> Point:
     """Check one ``[[point]]``/``[[block]]`` table and make its Point."""
     block = kind == "block"

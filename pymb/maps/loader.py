@@ -24,7 +24,7 @@ from pymb.maps.fields import Ctx, build_point, number, strings
 from pymb.maps.model import Map
 from pymb.maps.point import (
     MAX_GAP,
-    DeviceInfo,
+    DeviceSection,
     Identify,
     Limits,
     MapError,
@@ -58,7 +58,7 @@ class Spec:
     builds a new map from."""
 
     source: str
-    device: DeviceInfo
+    device: DeviceSection
     limits: Limits
     timing: Timing
     groups: Mapping[str, float]
@@ -115,7 +115,7 @@ def configure(m: Map, given: Mapping[str, object]) -> Map:
     return m.configure(given)
 
 
-def _option_value(source: str, dev: DeviceInfo, name: str, value: object) -> int | float:
+def _option_value(source: str, dev: DeviceSection, name: str, value: object) -> int | float:
     default = dev.options[name]
     v: int | float
     try:
@@ -205,7 +205,7 @@ def _int(ctx: Ctx, table: Mapping[str, Any], key: str, default: int, lo: int, hi
     return v
 
 
-def _device(ctx: Ctx, raw: object) -> DeviceInfo:
+def _device(ctx: Ctx, raw: object) -> DeviceSection:
     t = _keys(ctx, raw, _DEVICE, "[device]")
     ident = t.get("id")
     if not isinstance(ident, str) or not _ID.match(ident):
@@ -232,7 +232,7 @@ def _device(ctx: Ctx, raw: object) -> DeviceInfo:
     budget = None
     if "max_writes_per_hour" in t:
         budget = _int(ctx, t, "max_writes_per_hour", 0, 1, 1_000_000)
-    return DeviceInfo(ident, t.get("manufacturer", ""), t.get("model", ""),
+    return DeviceSection(ident, t.get("manufacturer", ""), t.get("model", ""),
                       t.get("description", ""), t.get("ref", ""), default_address, (lo, hi),
                       base, table, order, MappingProxyType(options), MappingProxyType(allowed),
                       MappingProxyType(ranges), budget)
@@ -273,7 +273,7 @@ def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
+def _limits(ctx: Ctx, raw: object, dev: DeviceSection) -> Limits:
     t = _keys(ctx, raw, _LIMITS, "[device.limits]")
     readable: dict[str, tuple[tuple[int, int], ...]] = {}
     rd = t.get("readable", {})
@@ -308,7 +308,7 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceInfo) -> Limits:
                   _ranges(ctx, t.get("ranges", []), dev))
 
 
-def _ranges(ctx: Ctx, raw: object, dev: DeviceInfo) -> tuple[tuple[str, int, int, int], ...]:
+def _ranges(ctx: Ctx, raw: object, dev: DeviceSection) -> tuple[tuple[str, int, int, int], ...]:
     """``ranges = [{ first = 0, last = 9, max_registers = 1 }, ...]``: limits
     of requests that touch an address range (on-wire, inclusive)."""
     if not isinstance(raw, list):

@@ -13,7 +13,7 @@ from pymb.maps import codec
 from pymb.maps.device_plan import map_planner
 from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.point import (
-    DeviceInfo,
+    DeviceSection,
     Identify,
     Limits,
     MapError,
@@ -24,7 +24,7 @@ from pymb.maps.point import (
 )
 from pymb.wire import DEFAULT_BAUD
 
-__all__ = ["DeviceInfo", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value",
+__all__ = ["DeviceSection", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value",
            "did_you_mean"]
 
 
@@ -48,7 +48,7 @@ class Map:
     """
 
     source: str
-    device: DeviceInfo
+    device: DeviceSection
     limits: Limits
     timing: Timing
     groups: Mapping[str, float]

@@ -15,8 +15,8 @@ from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument, ModbusError
 from pymb.maps.types import BIT_TABLES, TABLES
 
-__all__ = ["MAX_GAP", "DeviceInfo", "Identify", "Limits", "MapError", "Point", "Points", "Timing",
-           "Value", "did_you_mean"]
+__all__ = ["MAX_GAP", "DeviceSection", "Identify", "Limits", "MapError", "Point", "Points",
+           "Timing", "Value", "did_you_mean"]
 
 #: What a point decodes to: None where there is no value (a marker, NaN,
 #: invalid text, unsupported); a list for blocks and ``raw``.
@@ -114,8 +114,9 @@ class Timing:
 
 
 @dataclass(frozen=True)
-class DeviceInfo:
-    """The ``[device]`` section."""
+class DeviceSection:
+    """A map's ``[device]`` section: what the device is (id, manufacturer,
+    model), its defaults (address, table, byte order) and its options."""
 
     id: str
     manufacturer: str = ""

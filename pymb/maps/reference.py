@@ -16,7 +16,7 @@ from typing import Any
 from pymb.maps import loader
 from pymb.maps.checks import SCALE_FACTOR_TYPES
 from pymb.maps.fields import BLOCK_KEYS, POINT_KEYS
-from pymb.maps.point import DeviceInfo, Limits, Timing
+from pymb.maps.point import DeviceSection, Limits, Timing
 from pymb.maps.types import ORDER_NAMES, SF_RANGE, STATES, TYPES
 
 __all__ = ["BEGIN", "END", "SECTIONS", "check", "markdown_tables", "write"]
@@ -50,9 +50,9 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "address_base": ("0: addresses are on the wire; 1: numbers from 1 (minus 1 on the wire)",
                          "`0`"),
         "table": ("default table of points: coil, discrete, holding, input",
-                  f"`{DeviceInfo.__dataclass_fields__['table'].default}`"),
+                  f"`{DeviceSection.__dataclass_fields__['table'].default}`"),
         "order": ("default byte order of points: " + ", ".join(ORDER_NAMES),
-                  f"`{DeviceInfo.__dataclass_fields__['order'].default}`"),
+                  f"`{DeviceSection.__dataclass_fields__['order'].default}`"),
         "limits": ("`[device.limits]`: how requests are planned", "-"),
         "timing": ("`[device.timing]`: seconds", "-"),
         "options": ("`[device.options]`: `name = default` or `name = { default, values, min, "
