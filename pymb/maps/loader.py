@@ -2,7 +2,7 @@
 
 Every mistake is one :class:`MapError` whose message names the file, the
 point and the key, with the closest known key or name ("did you mean ...").
-The point fields are checked in :mod:`pymb.maps.fields`; this module does the
+The point fields are file in :mod:`pymb.maps.fields`; this module does the
 file's sections, options, name and overlap rules.
 """
 
@@ -34,7 +34,7 @@ from pymb.maps.point import (
 )
 from pymb.maps.types import ORDER_NAMES, REGISTER_TABLES, TABLES
 
-__all__ = ["Spec", "configure", "load", "loads"]
+__all__ = ["CheckedFile", "configure", "load", "loads"]
 
 SCHEMA = "pymb.map/1"
 _TOP = ("schema", "device", "groups", "point", "block", "identify")
@@ -53,8 +53,8 @@ _HEADER = re.compile(r"^[ \t]*\[\[[ \t]*(point|block)[ \t]*\]\]", re.M)
 
 
 @dataclass(frozen=True)
-class Spec:
-    """A checked file before its options are applied: what :meth:`Map.configure`
+class CheckedFile:
+    """A map file, checked, before its options are applied: what :meth:`Map.configure`
     builds a new map from."""
 
     source: str
@@ -66,21 +66,21 @@ class Spec:
     identify: tuple[Identify, ...]
 
     def configure(self, m: Map, given: Mapping[str, object]) -> Map:
-        """``m`` (built from this spec) with the option values in ``given``
+        """``m`` (built from this file) with the option values in ``given``
         (numbers or their text)."""
-        spec = self
-        dev = spec.device
+        file = self
+        dev = file.device
         options = dict(m.options)
         for name, value in given.items():
             if name not in dev.options:
-                raise MapError(f"{spec.source}: {dev.id!r} has no option {name!r}"
+                raise MapError(f"{file.source}: {dev.id!r} has no option {name!r}"
                                f"{did_you_mean(name, list(dev.options))}",
-                               source=spec.source, key=name)
-            options[name] = _option_value(spec.source, dev, name, value)
+                               source=file.source, key=name)
+            options[name] = _option_value(file.source, dev, name, value)
         try:
-            return _build(spec, options)
+            return _build(file, options)
         except MapError as e:
-            raise MapError(f"{spec.source}: options {options}: {e}", source=spec.source,
+            raise MapError(f"{file.source}: options {options}: {e}", source=file.source,
                            point=e.point, key=e.key) from None
 
 
@@ -106,8 +106,8 @@ def loads(text: str, source: str = "<string>") -> Map:
     except tomllib.TOMLDecodeError as e:
         raise MapError(f"{source}: not valid TOML: {e}", source=source) from None
     built: dict[int, Point] = {}
-    spec = _spec(doc, source, _HEADER.findall(text), built)
-    return _build(spec, dict(spec.device.options), built)
+    file = _check_file(doc, source, _HEADER.findall(text), built)
+    return _build(file, dict(file.device.options), built)
 
 
 def configure(m: Map, given: Mapping[str, object]) -> Map:
@@ -153,8 +153,8 @@ def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[s
     return table
 
 
-def _spec(doc: dict[str, Any], source: str, headers: list[str],
-          built: dict[int, Point]) -> Spec:
+def _check_file(doc: dict[str, Any], source: str, headers: list[str],
+                built: dict[int, Point]) -> CheckedFile:
     ctx = Ctx(source)
     _keys(ctx, doc, _TOP, "the file")
     if "schema" not in doc:
@@ -185,11 +185,11 @@ def _spec(doc: dict[str, Any], source: str, headers: list[str],
         seen[kind] += 1
     if not entries:
         ctx.fail("point", "the map has no [[point]] or [[block]]")
-    spec = Spec(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())
-    _check_variants(spec, built)
-    identify = tuple(_identify(i, raw, spec) for i, raw in
+    file = CheckedFile(source, device, limits, timing, MappingProxyType(groups), tuple(entries), ())
+    _check_variants(file, built)
+    identify = tuple(_identify(i, raw, file) for i, raw in
                      enumerate(_list(ctx, doc.get("identify", []), "identify")))
-    return Spec(source, device, limits, timing, spec.groups, spec.entries, identify)
+    return CheckedFile(source, device, limits, timing, file.groups, file.entries, identify)
 
 
 def _list(ctx: Ctx, v: object, key: str) -> list[Any]:
@@ -376,25 +376,25 @@ def _entry_name(kind: str, index: int, raw: Mapping[str, Any]) -> str:
     return name if isinstance(name, str) else f"[[{kind}]] number {index + 1}"
 
 
-def _check_variants(spec: Spec, built: dict[int, Point]) -> None:
+def _check_variants(file: CheckedFile, built: dict[int, Point]) -> None:
     """Each entry checks under the options its ``when`` names; two entries
     may share a name only when their ``when`` can never both hold. ``built``
     keeps, by position, the points made under the default options."""
     seen: dict[str, list[Mapping[str, Any]]] = {}
-    defaults = dict(spec.device.options)
-    for position, (kind, index, raw) in enumerate(spec.entries):
-        ctx = Ctx(spec.source, _entry_name(kind, index, raw))
+    defaults = dict(file.device.options)
+    for position, (kind, index, raw) in enumerate(file.entries):
+        ctx = Ctx(file.source, _entry_name(kind, index, raw))
         when = raw.get("when", {})
         if not isinstance(when, dict):
             ctx.fail("when", "when must be a table: { option = value }")
-        options = dict(spec.device.options)
+        options = dict(file.device.options)
         for k, v in when.items():
             if k not in options:
                 ctx.fail("when", f"when: no option {k!r}{did_you_mean(k, list(options))}")
             if not _is_number(v):
                 ctx.fail("when", f"when: {k} must be a number, got {v!r}")
             options[k] = v
-        point = build_point(ctx, kind, raw, spec.device, spec.groups, options)
+        point = build_point(ctx, kind, raw, file.device, file.groups, options)
         if options == defaults:
             built[position] = point
         name = raw["name"]
@@ -405,30 +405,30 @@ def _check_variants(spec: Spec, built: dict[int, Point]) -> None:
         seen.setdefault(name, []).append(when)
 
 
-def _build(spec: Spec, options: dict[str, int | float],
+def _build(file: CheckedFile, options: dict[str, int | float],
            built: Mapping[int, Point] | None = None) -> Map:
     points: dict[str, Point] = {}
-    for position, (kind, _index, raw) in enumerate(spec.entries):
+    for position, (kind, _index, raw) in enumerate(file.entries):
         when = raw.get("when", {})
         if any(options[k] != v for k, v in when.items()):
             continue
         if built is not None and position in built:
             points[raw["name"]] = built[position]
             continue
-        ctx = Ctx(spec.source, raw["name"])
-        points[raw["name"]] = build_point(ctx, kind, raw, spec.device, spec.groups, options)
-    check_refs(spec.source, points)
-    check_overlaps(spec.source, points.values())
-    check_widths(spec.source, spec.limits, points.values())
-    check_channel_names(spec.source, points)
-    return Map(spec.source, spec.device, spec.limits, spec.timing, spec.groups,
-               MappingProxyType(points), spec.identify, MappingProxyType(dict(options)), spec)
+        ctx = Ctx(file.source, raw["name"])
+        points[raw["name"]] = build_point(ctx, kind, raw, file.device, file.groups, options)
+    check_refs(file.source, points)
+    check_overlaps(file.source, points.values())
+    check_widths(file.source, file.limits, points.values())
+    check_channel_names(file.source, points)
+    return Map(file.source, file.device, file.limits, file.timing, file.groups,
+               MappingProxyType(points), file.identify, MappingProxyType(dict(options)), file)
 
 
-def _identify(i: int, raw: object, spec: Spec) -> Identify:
-    ctx = Ctx(spec.source)
+def _identify(i: int, raw: object, file: CheckedFile) -> Identify:
+    ctx = Ctx(file.source)
     t = _keys(ctx, raw, _IDENTIFY, f"[[identify]] number {i + 1}")
-    names = [r["name"] for _, _, r in spec.entries]
+    names = [r["name"] for _, _, r in file.entries]
     point = t.get("point")
     if point not in names:
         ctx.fail("point", f"[[identify]] number {i + 1}: no point {point!r}"
@@ -444,7 +444,7 @@ def _identify(i: int, raw: object, spec: Spec) -> Identify:
         rng = (float(rng[0]), float(rng[1]))
     regex = t.get("regex")
     if regex is not None:
-        types = {r.get("type") for _, _, r in spec.entries if r["name"] == point}
+        types = {r.get("type") for _, _, r in file.entries if r["name"] == point}
         if types != {"string"}:
             ctx.fail("regex", f"[[identify]] number {i + 1}: regex needs a string point; "
                      f"{point!r} is not one")

@@ -29,7 +29,7 @@ __all__ = ["DeviceSection", "Identify", "Limits", "Map", "MapError", "Point", "T
 
 
 class Source(Protocol):
-    """What a map was built from (:class:`pymb.maps.loader.Spec`): it builds
+    """What a map was built from (:class:`pymb.maps.loader.CheckedFile`): it builds
     the map again for other option values. A protocol, so that the model
     needs nothing from the loader, which sits above it."""
 
@@ -55,7 +55,7 @@ class Map:
     points: Mapping[str, Point]
     identify: tuple[Identify, ...]
     options: Mapping[str, int | float]
-    _spec: Source = field(repr=False)
+    _file: Source = field(repr=False)
 
     @property
     def id(self) -> str:
@@ -95,7 +95,7 @@ class Map:
         if options is not None and not isinstance(options, Mapping):
             raise InvalidArgument(f"{self.source}: options are a mapping of names to values, "
                                   f"got {type(options).__name__}")
-        return self._spec.configure(self, {**(options or {}), **kw})
+        return self._file.configure(self, {**(options or {}), **kw})
 
     def decode(self, name: str, registers: Sequence[int], *,
                scale_factor: int | None = None) -> Value:
