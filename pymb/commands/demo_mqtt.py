@@ -27,7 +27,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import require_paho
-from pymb.logger import LogConfig, Summary
+from pymb.logger import LogConfig, RunSummary
 from pymb.store import Outbox
 from pymb.store.outbox import last_sample_id
 
@@ -118,7 +118,7 @@ def _last_id(path: str) -> int:
 
 
 def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | None,
-                  say: Callable[[str], None]) -> tuple[Summary, list[str]]:
+                  say: Callable[[str], None]) -> tuple[RunSummary, list[str]]:
     """Log ``cfg`` for ``seconds`` forwarding to ``url`` (``auto``: a local
     mosquitto); returns the logger's summary and the lines about MQTT."""
     require_paho()

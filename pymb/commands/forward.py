@@ -13,7 +13,7 @@ from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
 from pymb.fleet.profiles import SparkplugProfile
-from pymb.logger import LogConfig, Logger, Summary
+from pymb.logger import LogConfig, Logger, RunSummary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
 from pymb.service.journal import EventLines, wanted
@@ -45,7 +45,7 @@ def summary_lines(st: ForwarderStatus) -> list[str]:
 
 def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                status: TextIO | None, service: Service[Logger] | None = None,
-               ) -> tuple[Summary, ForwarderStatus]:
+               ) -> tuple[RunSummary, ForwarderStatus]:
     """Log as ``cfg`` says while a forwarder publishes; then let it send what is
     left (for at most ``mqtt.drain`` seconds) and return both summaries. With a
     ``service``, events are lines on stderr too (when it is not a terminal) and the

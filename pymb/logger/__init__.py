@@ -38,7 +38,7 @@ from pymb.devices.spec import (
     parse_device,
 )
 from pymb.logger.config import BusConfig, LogConfig, check_buses, load_config
-from pymb.logger.logger import Logger, Summary
+from pymb.logger.logger import Logger, RunSummary
 from pymb.store import FAULT_KINDS, check_output, is_pymb_database
 
 __all__ = [
@@ -50,7 +50,7 @@ __all__ = [
     "DeviceConfig",
     "LogConfig",
     "Logger",
-    "Summary",
+    "RunSummary",
     "check_buses",
     "check_output",
     "closest",

@@ -21,7 +21,7 @@ from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped
 from pymb.store import Event, Sample, Sink, as_sink, check_output, open_sink
 
-__all__ = ["Logger", "Summary"]
+__all__ = ["Logger", "RunSummary"]
 
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 _DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
@@ -29,7 +29,7 @@ _IDLE_CHECK = 1.0  #: seconds between looks at the storage when nothing is commi
 
 
 @dataclass
-class Summary:
+class RunSummary:
     """What a logging run did."""
 
     samples: int
@@ -200,7 +200,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             for s, h in old.items():
                 signal.signal(s, h)
 
-    def run(self, seconds: float | None = None) -> Summary:
+    def run(self, seconds: float | None = None) -> RunSummary:
         """Log until stopped (or for ``seconds``); returns the summary."""
         t0, cpu0 = time.monotonic(), time.process_time()
         deadline = None if seconds is None else t0 + seconds
@@ -293,7 +293,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         silent = {d.name: s.last_fault.get(d.name, f"{d.name}: no reply yet").split(": ", 1)[-1]
                   for b in self.config.buses if b.name not in never and b.name not in crashed
                   for d in b.devices if not s.by_device.get(d.name)}
-        return Summary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
+        return RunSummary(s.samples, s.events, s.faults, elapsed, time.process_time() - cpu0,
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent,
                        dict(s.device_faults),
                        {k: len(v) for k, v in s.unsupported.items()}, crashed)
