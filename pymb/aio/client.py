@@ -38,8 +38,8 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import ParamSpec, Self, TypeVar
 
-from pymb.aio._line import Line
 from pymb.aio._mirror import Mirror, Mirrored
+from pymb.aio._worker import LineWorker
 from pymb.client import (
     AsciiClient,
     Client,
@@ -58,7 +58,7 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 
-async def _guard(line: Line, closed: asyncio.Future[None]) -> None:
+async def _guard(line: LineWorker, closed: asyncio.Future[None]) -> None:
     """Wait for the client's close(); when the loop cancels every task at
     its end instead, close the line (after the request on it) and end the
     worker."""
@@ -85,7 +85,7 @@ class AsyncClient(Mirrored):
 
     def __init__(self, blocking: Client) -> None:
         self.blocking = blocking
-        self._line = Line(blocking, f"pymb-aio {blocking.port}")
+        self._worker = LineWorker(blocking, f"pymb-aio {blocking.port}")
         self._guard: asyncio.Task[None] | None = None
         self._closed: asyncio.Future[None] | None = None
 
@@ -115,24 +115,24 @@ class AsyncClient(Mirrored):
     @property
     def worker_threads(self) -> int:
         """Worker threads started so far (one at a time, never two)."""
-        return self._line.started
+        return self._worker.started
 
     async def connect(self) -> None:
         """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
-        await self._line.submit(self.blocking.connect)
+        await self._worker.submit(self.blocking.connect)
         loop = asyncio.get_running_loop()
         if self._guard is None or self._guard.done() or self._guard.get_loop() is not loop:
             # (a guard left pending on another loop, closed without its end
             # cancelling the tasks, cannot watch this one)
             self._closed = loop.create_future()
-            self._guard = loop.create_task(_guard(self._line, self._closed),
+            self._guard = loop.create_task(_guard(self._worker, self._closed),
                                            name=f"pymb-aio guard {self.port}")
 
     async def close(self) -> None:
         """Close the line (after the request on it, if any) and end the
         worker thread; safe to call more than once."""
-        await self._line.submit(self.blocking.close)
-        self._line.join_ended()
+        await self._worker.submit(self.blocking.close)
+        self._worker.join_ended()
         if self._closed is not None:
             _release(self._closed)
         self._guard = self._closed = None
@@ -156,7 +156,7 @@ class AsyncClient(Mirrored):
                 warnings.warn(f"unclosed {self!r}: await close() or use `async with`",
                               ResourceWarning, stacklevel=2, source=self)
             finally:
-                self._line.post(blocking.close)
+                self._worker.post(blocking.close)
         closed = getattr(self, "_closed", None)
         if closed is not None and not closed.done():  # let the guard task end
             with contextlib.suppress(RuntimeError):  # (its loop may be closed)
@@ -174,7 +174,7 @@ class AsyncClient(Mirrored):
 
     def _submit(self, fn: Callable[P, R], /, *args: P.args,
                 **kwargs: P.kwargs) -> asyncio.Future[R]:
-        return self._line.submit(fn, *args, **kwargs)
+        return self._worker.submit(fn, *args, **kwargs)
 
     async def run(self, fn: Callable[P, R], /, *args: P.args, **kwargs: P.kwargs) -> R:
         """Run ``fn(*args, **kwargs)`` on this line's worker, in turn with
@@ -185,7 +185,7 @@ class AsyncClient(Mirrored):
         end and its result is dropped."""
         if not callable(fn):
             raise InvalidArgument(f"run needs a function to call, got {type(fn).__name__}")
-        return await self._line.submit(fn, *args, **kwargs)
+        return await self._worker.submit(fn, *args, **kwargs)
 
     # -- settings ----------------------------------------------------------------------
 

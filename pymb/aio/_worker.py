@@ -26,7 +26,7 @@ from typing import Any, ParamSpec, TypeVar
 
 from pymb.client import Client
 
-__all__ = ["Line"]
+__all__ = ["LineWorker"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -46,7 +46,7 @@ def _settle(fut: asyncio.Future[Any], ok: bool, value: Any) -> None:
         fut.set_exception(value)
 
 
-class Line:
+class LineWorker:
     """The worker of one blocking :class:`~pymb.Client` (``blocking``);
     ``name`` names its thread."""
 
