@@ -52,7 +52,7 @@ _OUT = FRAME * INFLIGHT  #: bytes of the frames buffer
 
 
 class Read(Protocol):
-    """A read request as a poll plans it (:class:`pymb.logger.tcpunits.Spec`)."""
+    """A read request as a poll plans it (:class:`pymb.logger.tcpunits.PollRequest`)."""
 
     function: int  #: 1..4
     address: int

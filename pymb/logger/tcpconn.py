@@ -25,7 +25,7 @@ from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
 from pymb.logger.stats import Stats
-from pymb.logger.tcpunits import Entry, Spec, Unit
+from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event, Sample
 
 __all__ = ["Conn", "TcpLoopBase", "asked"]
@@ -62,7 +62,7 @@ class Conn:
     deadline: float = 0.0
     waiting: collections.deque[Entry] = field(default_factory=collections.deque)
     entry: Entry | None = None  #: the poll under way
-    todo: list[Spec] = field(default_factory=list)  #: its requests
+    todo: list[PollRequest] = field(default_factory=list)  #: its requests
     #: ``todo`` made ready for the master (each request's token its index)
     table: PollTable | None = None
     sent: int = 0  #: of ``todo``
@@ -111,7 +111,7 @@ class Conn:
         """Whether a request is in flight."""
         return self.m.in_flight > 0
 
-    def pending(self) -> list[Spec]:
+    def pending(self) -> list[PollRequest]:
         """The requests in flight, oldest first."""
         todo = self.todo
         return [todo[k] for k in self.m.pending()]
@@ -331,7 +331,7 @@ def _look_up(c: Conn) -> None:
         c.found = unresolved(c.host) or f"cannot connect to {c.bus.endpoint}"
 
 
-def asked(spec: Spec | None, u: Unit) -> str:
+def asked(spec: PollRequest | None, u: Unit) -> str:
     """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``."""
     if spec is None:
         return f"{u.info.name}(slave={u.info.address})"

@@ -53,7 +53,7 @@ from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lending
 from pymb.logger.tcpreplies import TcpReplies
-from pymb.logger.tcpunits import Entry, GroupDecode, Spec, Unit, lazy_reading
+from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -233,7 +233,7 @@ class TcpMapPoller(TcpReplies, Lending):
             self._lost(c, now, f"the connection took {sent} of {len(data)} request bytes "
                                "(the device does not read its requests)", None)
 
-    def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
+    def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
         u = e.unit
         refusal = on_refusal(u.planner, spec.request, code)
         if refusal is not None:  # the poll goes on (the reader calls _progress)

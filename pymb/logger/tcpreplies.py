@@ -21,7 +21,7 @@ from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
-from pymb.logger.tcpunits import Entry, Spec, Unit
+from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event as StoreEvent
 from pymb.store import Sample
 
@@ -51,7 +51,7 @@ class TcpReplies(TcpLoopBase):
     def _progress(self, c: Conn, e: Entry, now: float) -> None:
         raise NotImplementedError
 
-    def _exception(self, c: Conn, e: Entry, spec: Spec, code: int, now: float) -> None:
+    def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
         raise NotImplementedError
 
     def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
@@ -121,7 +121,7 @@ class TcpReplies(TcpLoopBase):
         if peek and c.sock is sock:
             self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
 
-    def _garbage(self, c: Conn, now: float, got: bytes, spec: Spec | None = None) -> None:
+    def _garbage(self, c: Conn, now: float, got: bytes, spec: PollRequest | None = None) -> None:
         e = c.entry
         if e is not None:
             if spec is None:

@@ -31,7 +31,7 @@ from pymb.maps.planner import Line, ReadPlan, Request
 from pymb.store import DeviceInfo
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "GroupDecode", "Spec", "Unit", "lazy_reading"]
+__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "lazy_reading"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -75,7 +75,7 @@ class Unit:
                    t.inter_request_gap, t.turnaround)
 
 
-class Spec:
+class PollRequest:
     """One request of a poll, made ready: the planner's request and where
     its data go in the image (the C master frames it, checks its reply and
     copies the data: :class:`pymb._native.master.PollTable`)."""
@@ -211,7 +211,7 @@ class Entry:
     read_once: bool = False
     queued: bool = False  #: waiting in its connection's queue
     plan: ReadPlan | None = None
-    specs: list[Spec] = field(default_factory=list)
+    specs: list[PollRequest] = field(default_factory=list)
     image: bytearray = field(default_factory=bytearray)
     #: :attr:`specs` made ready for the C master
     table: PollTable | None = None
@@ -229,7 +229,7 @@ class Entry:
         return cls(unit, group, interval, once, how, wanted,
                    image=bytearray(2 * sum(d.count for d in how.decoders)))
 
-    def requests(self) -> list[Spec]:
+    def requests(self) -> list[PollRequest]:
         """This poll's requests as the planner plans them now (made ready
         again only when the plan changed: a refused bridge or point). The
         list is this entry's: not to be changed."""
@@ -241,17 +241,17 @@ class Entry:
             self.plan = plan
         return self.specs
 
-    def table_of(self, specs: list[Spec]) -> PollTable:
+    def table_of(self, specs: list[PollRequest]) -> PollTable:
         """``specs`` (this group's) made ready for the C master."""
         return PollTable(specs, self.unit.info.address, self.image)
 
-    def spec(self, r: Request, lay: dict[str, tuple[int, int, int]] | None = None) -> Spec:
+    def spec(self, r: Request, lay: dict[str, tuple[int, int, int]] | None = None) -> PollRequest:
         """A request of this group made ready."""
         first, count, off = (lay or self.decode.layout())[r.table]
         if not first <= r.address <= r.address + r.count <= first + count:
             raise ValueError(f"{r.table} {r.address}+{r.count} outside the group's "
                              f"registers {first}+{count}")
-        return Spec(r, off + 2 * (r.address - first))
+        return PollRequest(r, off + 2 * (r.address - first))
 
     def due(self, now: float) -> bool:
         """Whether this group is to be read at ``now``."""

@@ -17,7 +17,7 @@ import pytest
 from hostile_gateway import Handed, Hostile, Request, Script, good, poll
 
 from pymb._native.master import Master, PollTable
-from pymb.logger.tcpunits import Spec
+from pymb.logger.tcpunits import PollRequest
 from pymb.maps.planner import Request as Planned
 
 #: two more points, too far apart to be read in one request: a poll of 3
@@ -158,13 +158,13 @@ def test_a_poll_longer_than_the_pipeline_never_waits_for_its_timeout(
 
 def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
     r = Planned("holding", 10, 4, (0,), ((0,),), 0)
-    ok = PollTable([Spec(r, 0)], 1, bytearray(8))
+    ok = PollTable([PollRequest(r, 0)], 1, bytearray(8))
     m = Master()
     m.reset(0xFFFF)
     assert m.frames(ok, 0, 1) == 12
     assert bytes(m.out[:12]) == bytes.fromhex("ffff 0000 0006 01 03 000a 0004".replace(" ", ""))
     assert m.in_flight == 1
     with pytest.raises(ValueError, match="do not fit"):
-        PollTable([Spec(r, 2)], 1, bytearray(8))
+        PollTable([PollRequest(r, 2)], 1, bytearray(8))
     with pytest.raises(ValueError, match="not in a poll of 1"):
         m.frames(ok, 1, 1)
