@@ -1,34 +1,41 @@
-"""Report by exception: which readings ``--on-change`` stores."""
+"""Report by exception: which readings ``--on-change`` stores, by one rule
+over the points of the device's map."""
 
 from __future__ import annotations
 
+import copy
 import math
-from array import array
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
-from pymb.devices import HUB, CoolProTelemetry, HubReading
+from pymb import maps
+from pymb.devices import CoolProTelemetry, HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES
+from pymb.devices.readings import telemetry_values
 from pymb.errors import InvalidArgument
-from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS
+from pymb.maps import Map
 
-__all__ = ["DEADBAND_QUANTITIES", "CoolProChanges", "HubChanges", "MapChanges", "OnChange"]
+__all__ = ["DEADBAND_QUANTITIES", "Changes", "OnChange"]
 
-#: the built-in devices' quantities that take a deadband (OnChange.deadband)
-DEADBAND_QUANTITIES = tuple(sorted(set(HUB_FIELDS) | set(COOLPRO_FIELDS) - INTEGRAL_QUANTITIES))
+_HUB, _COOLPRO = maps.builtin("hub"), maps.builtin("coolpro")
+#: the built-in devices' quantities that take a deadband (OnChange.deadband):
+#: the gauges of the hub's sweep and of the CoolPro's telemetry
+DEADBAND_QUANTITIES = tuple(sorted({
+    p.name for m, group in ((_HUB, "sweep"), (_COOLPRO, "telemetry"))
+    for p in m.points.values() if p.group == group and p.kind == "gauge"}))
 
 
 @dataclass
 class OnChange:
     """Report by exception (``pymb log --on-change``).
 
-    A hub channel is stored when one of its quantities moved more than its
-    ``deadband`` (engineering units, by quantity name; 0 or absent: any change)
-    since the channel was last stored, when a state changes (offline, no
-    sensor, unsupported), and at least every ``heartbeat`` seconds. A
-    CoolPro sample is stored on the same rules over its quantities (its
-    uptime only when it restarts). The value at time t is then the last
-    stored row at or before t (docs/storage.md).
+    A reading is stored when one of its values moved more than its
+    ``deadband`` (engineering units, by quantity name; 0 or absent: any
+    change) since it was last stored, when a state changes (offline, no
+    sensor, unsupported), and at least every ``heartbeat`` seconds; a hub
+    channel by channel. The value at time t is then the last stored row at
+    or before t (docs/storage.md).
     """
 
     heartbeat: float = 60.0
@@ -46,116 +53,125 @@ class OnChange:
                 raise InvalidArgument(f"deadband of {name} must be >= 0, got {value!r}")
 
 
-class HubChanges:
-    """Which channels of a hub sweep to store, against what was last stored."""
-
-    def __init__(self, rules: OnChange, channels: int) -> None:
-        self.rules = rules
-        self.channels = channels
-        self.bands = [rules.deadband.get(b.name, 0.0) for b in HUB.blocks]
-        self.regs: array[int] | None = None  # the previous sweep's registers
-        self.mask = -1
-        self.values = array("d", bytes(8 * 7 * channels))  # last stored, per channel
-        self.states = array("B", bytes(7 * channels))
-        self.due = [0.0] * channels  # heartbeat deadline per channel (monotonic)
-        self.next_due = 0.0
-
-    def changed(self, data: HubReading, now: float) -> list[int]:
-        """0-based channels to store now (and remembers them as stored)."""
-        c = self.channels
-        regs = data.registers
-        if self.regs is None or data.unsupported_mask != self.mask:
-            pick = set(range(c))
-        else:
-            pick = set()
-            prev = self.regs
-            n = HUB.channels
-            for b in range(len(HUB.blocks)):
-                lo = b * n
-                if regs[lo:lo + c] == prev[lo:lo + c]:
-                    continue  # nothing in this block moved since the last sweep
-                band = self.bands[b]
-                vals, sts = data.values, data.raw_states
-                for ch in range(c):
-                    if ch in pick or regs[lo + ch] == prev[lo + ch]:
-                        continue
-                    i = b * c + ch
-                    if sts[i] != self.states[i] or (
-                            sts[i] == 0 and abs(vals[i] - self.values[i]) > band):
-                        pick.add(ch)
-            if now >= self.next_due:
-                pick.update(ch for ch in range(c) if now >= self.due[ch])
-        self.regs = array("H", regs)
-        self.mask = data.unsupported_mask
-        if pick:
-            vals, sts = data.values, data.raw_states
-            for ch in pick:
-                for b in range(len(HUB.blocks)):
-                    i = b * c + ch
-                    self.values[i] = vals[i]
-                    self.states[i] = sts[i]
-                self.due[ch] = now + self.rules.heartbeat
-            self.next_due = min(self.due)
-        return sorted(pick)
+def _points(data: HubReading | CoolProTelemetry | MapReading
+            ) -> tuple[Map, list[tuple[str, int]], Sequence[Any], Sequence[Any]]:
+    """A reading as its map's points: the map, (name, values) of each point
+    read (a block's channel by channel), and every value and state in that
+    order."""
+    if isinstance(data, HubReading):
+        c = data.channels
+        return (_HUB, [(p, c) for p in _HUB.points], data.values, data.raw_states)
+    if isinstance(data, MapReading):
+        shape: list[tuple[str, int]] = []
+        values: list[Any] = []
+        states: list[Any] = []
+        for name, v in data.values.items():
+            st = data.states.get(name)
+            if isinstance(v, list) and isinstance(st, list):
+                shape.append((name, len(v)))
+                values += v
+                states += st
+            else:
+                shape.append((name, 1))
+                values.append(v)
+                states.append(st)
+        return data.map, shape, values, states
+    got = telemetry_values(data)
+    return _COOLPRO, [(n, 1) for n in got], list(got.values()), [0] * len(got)
 
 
-class CoolProChanges:
-    _FIELDS = ("input_voltage_v", "input_current_a", "output_voltage_v", "output_current_a",
-               "temperature_c")
-
-    def __init__(self, rules: OnChange) -> None:
-        self.rules = rules
-        self.last: CoolProTelemetry | None = None
-        self.due = 0.0
-
-    def changed(self, data: CoolProTelemetry, now: float) -> bool:
-        last = self.last
-        store = (last is None or now >= self.due or data.status != last.status
-                 or data.uptime_s < last.uptime_s
-                 or any(abs(getattr(data, f) - getattr(last, f))
-                        > self.rules.deadband.get(f, 0.0) for f in self._FIELDS))
-        if store:
-            self.last = data
-            self.due = now + self.rules.heartbeat
-        return store
-
-
-class MapChanges:
-    """Whether to store a map device's group reading: when a point moved more
-    than its deadband (``bands`` by point name, else the point's ``deadband``
-    in its map, else 0: any change; a block channel by channel), when a
-    state or a value that is not a number changes, and at least every
+class Changes:
+    """Which of a device's readings (``by_channel``: which channels of a
+    hub's sweep) to store, against what was last stored: a value is stored
+    when its state changed, when it moved more than its deadband (by point
+    name: ``bands``, else the point's ``deadband`` in the map, else 0: any
+    change), when a counter went back (a restart), and at least every
     heartbeat."""
 
-    def __init__(self, rules: OnChange, bands: dict[str, float]) -> None:
+    def __init__(self, rules: OnChange, bands: Mapping[str, float], by_channel: bool) -> None:
         self.rules = rules
         self.bands = bands
-        self.last: MapReading | None = None
-        self.due = 0.0
+        self.by_channel = by_channel
+        self.shape: list[tuple[str, int]] = []
+        self.limits: list[tuple[int, int, float, bool]] = []  # lo, hi, band, counter
+        self.prev: Sequence[Any] = ()  # the previous reading's values, its bytes and states
+        self.prev_key: tuple[bytes | list[Any], bytes | list[Any]] = (b"", b"")
+        self.first = True
+        self.values: list[Any] = []  # what was last stored, value by value
+        self.states: list[Any] = []
+        self.due: list[float] = []  # heartbeat deadline per column (monotonic)
+        self.next_due = 0.0
 
-    def _moved(self, data: MapReading, last: MapReading) -> bool:
-        if data.states != last.states:
-            return True
-        points = data.map.points
-        for name, v in data.values.items():
-            old = last.values.get(name)
-            band = self.bands.get(name, points[name].deadband or 0.0)
-            pairs = zip(v, old, strict=False) if isinstance(v, list) and isinstance(
-                old, list) else ((v, old),)
-            for a, b in pairs:
-                if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not \
-                        isinstance(a, bool):
-                    if abs(a - b) > band or (a != a) != (b != b):
-                        return True
+    def _reset(self, m: Map, shape: list[tuple[str, int]]) -> None:
+        self.shape = shape
+        self.limits = []
+        lo = 0
+        for name, n in shape:
+            p = m.points.get(name)
+            band = self.bands.get(name, (p.deadband if p is not None else None) or 0.0)
+            self.limits.append((lo, lo + n, band, p is not None and p.kind == "counter"))
+            lo += n
+        self.first = True
+        self.due = [0.0] * (shape[0][1] if self.by_channel and shape else 1)
+
+    def changed(self, data: HubReading | CoolProTelemetry | MapReading, now: float) -> list[int]:
+        """The columns to store now (a hub's 0-based channels; ``[0]``: the
+        whole reading), remembered as stored."""
+        m, shape, vals, sts = _points(data)
+        if shape != self.shape:
+            self._reset(m, shape)
+        # what did not move since the previous reading is skipped (as bytes: NaN is NaN)
+        key = (vals.tobytes() if hasattr(vals, "tobytes") else list(vals),
+               sts.tobytes() if hasattr(sts, "tobytes") else list(sts))
+        columns = len(self.due)
+        if self.first:
+            pick = set(range(columns))
+            self.first = False
+        else:
+            pick = self._moved(vals, sts, key)
+            if now >= self.next_due:
+                pick.update(c for c in range(columns) if now >= self.due[c])
+        # a copy: the logger may read its next sweep into these arrays
+        self.prev, self.prev_key = copy.copy(vals), key
+        if not pick:
+            return []
+        if not self.by_channel or len(pick) == columns:
+            self.values, self.states = list(vals), list(sts)
+        else:
+            for lo, _, _, _ in self.limits:
+                for c in pick:
+                    self.values[lo + c] = vals[lo + c]
+                    self.states[lo + c] = sts[lo + c]
+        heartbeat = now + self.rules.heartbeat
+        for c in pick:
+            self.due[c] = heartbeat
+        self.next_due = min(self.due)
+        return sorted(pick)
+
+    def _moved(self, vals: Sequence[Any], sts: Sequence[Any],
+               key: tuple[bytes | list[Any], bytes | list[Any]]) -> set[int]:
+        pick: set[int] = set()
+        prev = self.prev
+        (now_v, now_s), (old_v, old_s) = key, self.prev_key
+        size = 8 if isinstance(now_v, bytes) else 1
+        by_channel = self.by_channel
+        for lo, hi, band, counter in self.limits:
+            if now_v[lo * size:hi * size] == old_v[lo * size:hi * size] and \
+                    now_s[lo:hi] == old_s[lo:hi]:
+                continue  # nothing of this point moved since the previous reading
+            for j, (a, pa, s, ps) in enumerate(zip(vals[lo:hi], prev[lo:hi], now_s[lo:hi],
+                                                   old_s[lo:hi], strict=True)):
+                c = j if by_channel else 0
+                if (a == pa and s == ps) or c in pick:
+                    continue
+                b = self.values[lo + j]
+                if s != self.states[lo + j]:
+                    pick.add(c)
+                elif type(a) in (int, float) and type(b) in (int, float):
+                    if abs(a - b) > band or (a != a) != (b != b) or (counter and a < b):
+                        pick.add(c)
                 elif a != b:
-                    return True
-        return False
-
-    def changed(self, data: MapReading, now: float) -> bool:
-        """Whether ``data`` is stored (and becomes what the next is compared with)."""
-        last = self.last
-        store = last is None or now >= self.due or self._moved(data, last)
-        if store:
-            self.last = data
-            self.due = now + self.rules.heartbeat
-        return store
+                    pick.add(c)
+            if pick and not by_channel:
+                break
+        return pick

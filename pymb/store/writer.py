@@ -15,25 +15,20 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from pymb.devices import HUB, HubReading
-from pymb.devices.mapreading import MapReading
+from pymb.devices import HubReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.ids import SampleIds
 from pymb.store.lock import WriterLock
-from pymb.store.onchange import CoolProChanges, HubChanges, MapChanges, OnChange
+from pymb.store.onchange import Changes, OnChange
 from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import Event, Sample, SinkBase
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
-from pymb.store.schema import (
-    MIN_BYTES,
-    open_format,
-    wire_bytes,
-)
+from pymb.store.schema import HUB_FIELDS, MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
 
@@ -101,7 +96,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
         self._closed = False
         self._ids = SampleIds(self.db)
         self._viewed: set[str] = set()  #: map ids whose views this session made
-        self._changes: dict[int, HubChanges | CoolProChanges | MapChanges] = {}
+        self._changes: dict[int, Changes] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
         self._first_ids = tuple(int(self.db.execute(
             f"SELECT COALESCE(MAX(id), 0) + 1 FROM {t}").fetchone()[0])
@@ -280,34 +275,25 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
             self.stored += 1
             return
         rules = self._changes.get(did)
-        if isinstance(data, HubReading):
-            if not isinstance(rules, HubChanges) or rules.channels != data.channels:
-                rules = self._changes[did] = HubChanges(self.on_change, data.channels)
-            pick = rules.changed(data, sample.monotonic)
-            if not pick:
-                return
+        hub = isinstance(data, HubReading)
+        if rules is None:
+            bands = {**self.on_change.deadband, **dict(sample.device.map_deadband)}
+            rules = self._changes[did] = Changes(self.on_change, bands, by_channel=hub)
+        pick = rules.changed(data, sample.monotonic)
+        if not pick:
+            return
+        if isinstance(data, HubReading):  # the channels picked, as rows of hub_changes
             sid = self._insert(did, sample, None, data.unsupported_mask)
             regs = data.registers
-            n = HUB.channels
-            blocks = range(len(HUB.blocks))
+            n = len(regs) // len(HUB_FIELDS)
+            blocks = range(len(HUB_FIELDS))
             self.db.executemany(
                 "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
                 [(did, ch + 1, sample.time_utc, sid,
                   wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
                  for ch in pick])
-        elif isinstance(data, MapReading):
-            if not isinstance(rules, MapChanges):
-                rules = self._changes[did] = MapChanges(self.on_change,
-                                                        dict(sample.device.map_deadband))
-            if not rules.changed(data, sample.monotonic):
-                return
-            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
         else:
-            if not isinstance(rules, CoolProChanges):
-                rules = self._changes[did] = CoolProChanges(self.on_change)
-            if not rules.changed(data, sample.monotonic):
-                return
-            self._insert(did, sample, wire_bytes(data.registers), 0)
+            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
         self.stored += 1
 
     def event(self, event: Event) -> None:
