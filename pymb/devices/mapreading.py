@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from array import array
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pymb.maps import Decoder, Map, Value
@@ -38,7 +38,9 @@ class MapReading:
     """A map device's group, read once: ``values`` and ``states`` by point
     name (blocks as lists), and ``registers``, the group's tables one after
     the other as :func:`group_layout` lays them (bits as 0/1 words).
-    ``unsupported``: the points the device refused, in map order."""
+    ``unsupported``: the points the device refused, in map order.
+    ``wire``: the same registers as big-endian bytes (as on the wire and as
+    the store keeps them) when the reader already had them so, or None."""
 
     map: Map
     group: str | None
@@ -46,6 +48,7 @@ class MapReading:
     states: Mapping[str, Any]
     registers: array[int]
     unsupported: tuple[str, ...] = ()
+    wire: bytes | None = field(default=None, compare=False, repr=False)
 
     @property
     def channels(self) -> int:

@@ -194,7 +194,7 @@ def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
         regs.byteswap()
     src = _Decoded(how, regs, unread)
     gone = how.unsupported(unread) if unread else ()
-    return MapReading(how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs, gone)
+    return MapReading(how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs, gone, image)
 
 
 @dataclass(eq=False)

@@ -15,13 +15,15 @@ from pymb.errors import InvalidArgument, OutputError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
-from pymb.store.schema import map_layout_key, unsupported_mask
+from pymb.store.schema import map_layout_key, unsupported_mask, wire_bytes
 
-__all__ = ["ROWS_PER_INSERT", "DeviceRows", "humidity_units", "insert_rows", "unsupported_of"]
+__all__ = ["ROWS_PER_INSERT", "DeviceRows", "humidity_units", "insert_rows", "stored_registers",
+           "unsupported_of"]
 
 #: Rows one multi-row INSERT of samples carries at most (6 values each, far
 #: below SQLite's limit of bound variables).
 ROWS_PER_INSERT = 64
+_SEEN_MAX = 4096  #: device configurations :meth:`DeviceRows._device_id` knows by identity
 
 
 @functools.lru_cache(maxsize=ROWS_PER_INSERT)
@@ -30,6 +32,14 @@ def insert_rows(n: int) -> str:
     registers, unsupported)."""
     return ("INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
             "VALUES " + ", ".join(["(?, ?, ?, ?, ?, ?)"] * n))
+
+
+def stored_registers(data: Any) -> bytes:
+    """The ``registers`` column of a reading: big-endian words (a map
+    reading's own bytes when its reader had them so, as the TCP loop does)."""
+    if isinstance(data, MapReading) and data.wire is not None:
+        return data.wire
+    return wire_bytes(data.registers)
 
 
 def unsupported_of(data: Any) -> int:
@@ -61,6 +71,10 @@ class DeviceRows:
     db: sqlite3.Connection
     path: Path
     _devices: dict[Any, tuple[int, int]]
+    #: (id of a configuration, group) -> (that configuration, its ids): the
+    #: logger hands the same object with every sample of a device, so this
+    #: finds it without hashing its fields
+    _seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]]
     _viewed: set[str]  #: map ids whose views this session made
 
     def _begin(self) -> None:
@@ -68,9 +82,15 @@ class DeviceRows:
 
     def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
         """(device id, channels) of a device configuration, inserted on first use."""
-        cache: Any = (d, data.group) if isinstance(data, MapReading) else d
+        mapped = isinstance(data, MapReading)
+        mine = (id(d), data.group if mapped else None)
+        seen = self._seen.get(mine)
+        if seen is not None and seen[0] is d:
+            return seen[1]
+        cache: Any = (d, data.group) if mapped else d
         got = self._devices.get(cache)
         if got is not None:
+            self._remember(mine, d, got)
             return got
         channels, units, tenths = 0, "", b""
         if isinstance(data, MapReading):
@@ -97,7 +117,14 @@ class DeviceRows:
         got = (int(did), channels)  # type: ignore[arg-type]
         if not isinstance(data, Event):
             self._devices[cache] = got
+            self._remember(mine, d, got)
         return got
+
+    def _remember(self, mine: tuple[int, str | None], d: DeviceInfo,
+                  got: tuple[int, int]) -> None:
+        if len(self._seen) >= _SEEN_MAX:  # a caller with a new object per sample
+            self._seen.clear()
+        self._seen[mine] = (d, got)
 
     def _store_map(self, d: DeviceInfo, data: MapReading) -> None:
         """A map device's map beside its samples, and its views, made once a session (a

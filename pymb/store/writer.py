@@ -27,7 +27,13 @@ from pymb.store.outbox import max_id, set_cursor_on
 from pymb.store.records import Event, Sample, SinkBase
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
-from pymb.store.rows import ROWS_PER_INSERT, DeviceRows, insert_rows, unsupported_of
+from pymb.store.rows import (
+    ROWS_PER_INSERT,
+    DeviceRows,
+    insert_rows,
+    stored_registers,
+    unsupported_of,
+)
 from pymb.store.schema import HUB_FIELDS, MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
@@ -91,6 +97,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
             self._unlock()
             raise
         self._devices: dict[Any, tuple[int, int]] = {}
+        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]] = {}
         #: one thread at a time: the logger's writes, a live forwarder's reads
         self._mutex = threading.RLock()
         self._closed = False
@@ -178,6 +185,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
                 self.db.execute("ROLLBACK")
             self._in_tx = False
         self._devices.clear()  # ids inserted by the rolled-back batch are gone
+        self._seen.clear()
         self._viewed.clear()  # and views made in it
         self._changes.clear()  # what was "last stored" may be rolled back too
         if isinstance(e, OutputError):
@@ -221,8 +229,9 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
         try:
             self._make_room(len(samples))
             take = self._ids.take
-            rows = [(take(), self._device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
-                     wire_bytes(s.data.registers), unsupported_of(s.data))
+            device_id = self._device_id
+            rows = [(take(), device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
+                     stored_registers(s.data), unsupported_of(s.data))
                     for s in samples]
             bounded = self.max_bytes is not None
             quarter = self.wal_budget // 4
@@ -271,7 +280,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
         did = self._device_id(sample.device, data)[0]
         self._begin()
         if self.on_change is None:
-            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
+            self._insert(did, sample, stored_registers(data), unsupported_of(data))
             self.stored += 1
             return
         rules = self._changes.get(did)
