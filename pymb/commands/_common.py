@@ -1,5 +1,5 @@
-"""What the subcommands share: connection arguments, the client they make,
-and the text and JSON renderings of a reading."""
+"""What the subcommands share: connection arguments, ``--map FILE``, the
+client they make, and the text and JSON renderings of a reading."""
 
 from __future__ import annotations
 
@@ -32,6 +32,7 @@ from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 __all__ = [
     "add_connection_args",
     "add_device_arg",
+    "add_map_arg",
     "device_from_args",
     "device_help",
     "interruptible",
@@ -305,3 +306,14 @@ def print_json(obj: Any) -> None:
     """Print one JSON document."""
     json.dump(obj, sys.stdout, indent=2, allow_nan=False)
     sys.stdout.write("\n")
+
+
+def add_map_arg(p: argparse.ArgumentParser, *, group: bool = False) -> None:
+    """``--map FILE``, repeatable; with ``group``, also ``--group NAME``."""
+    p.add_argument("--map", action="append", default=[], metavar="FILE", dest="maps",
+                   help="a device map (pymb.map/1): its device.id becomes a device TYPE "
+                        "(repeatable; the shipped maps need none)")
+    if group:
+        p.add_argument("--group", metavar="NAME",
+                       help="a device read through a map: only the points of this polling "
+                            "group (default: every readable point)")

@@ -12,10 +12,9 @@ import argparse
 import math
 import sys
 
-from pymb.commands._common import add_tls_args, device_help
+from pymb.commands._common import add_map_arg, add_tls_args, device_help
 from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
-from pymb.commands.mapcli import add_map_arg
 from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import PASSWORD_ENV, PROFILES, PROTOCOLS

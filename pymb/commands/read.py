@@ -1,4 +1,6 @@
-"""``pymb read DEVICE``: one reading, as a table with units or JSON."""
+"""``pymb read DEVICE``: one reading, as a table with units or JSON: a
+CoolPro's or a hub's through its facade, any other device through its map
+(:func:`read_map`)."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pymb.client import Client
 from pymb.commands._common import (
     add_connection_args,
     add_device_arg,
+    add_map_arg,
     device_from_args,
     interruptible,
     make_client,
@@ -18,13 +21,22 @@ from pymb.commands._common import (
     render,
     to_json,
 )
-from pymb.commands.mapcli import add_map_arg
-from pymb.commands.mapread import read_map, target_from_args
+from pymb.commands.maptext import map_json, render_map
+from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices import HUB, CoolPro, CoolProIdentity, HubReading, SensorHub
 from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapspec import (
+    FACADES,
+    MapTarget,
+    map_types,
+    parse_map_device,
+    unknown_device,
+)
 from pymb.devices.spec import DeviceConfig
-from pymb.errors import DeviceException, ProtocolError
+from pymb.errors import DeviceException, InvalidArgument, ProtocolError
+from pymb.maps.model import did_you_mean
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -131,4 +143,94 @@ def run(args: argparse.Namespace) -> int:
         print(render(data))
         if args.identity:
             print(identity_text(identity))
+    return 0
+
+
+def target_from_args(args: argparse.Namespace) -> MapTarget | None:
+    """The map device the positional DEVICE names (with ``--address``), or
+    None for ``coolpro``/``hub``; an unknown TYPE is a one-line error that
+    names the map types known."""
+    if is_sunspec(args.device):
+        if getattr(args, "address", None) is not None:
+            raise InvalidArgument("give a SunSpec device's unit id as sunspec:ADDRESS")
+        found = sunspec_target(args, args.device)[0]
+        _check_group(args, found)
+        return found
+    known = map_types(getattr(args, "maps", None) or [])
+    target = parse_map_device(args.device, known)
+    kind = args.device.split(",")[0].partition(":")[0].strip().lower()
+    if target is None:
+        if kind not in FACADES:
+            raise unknown_device(args.device, list(known))
+        if getattr(args, "group", None):
+            raise InvalidArgument("--group is for a device read through a map")
+        return None
+    for flag in ("channels", "humidity_unit"):
+        if getattr(args, flag, None) is not None:
+            raise InvalidArgument(f"--{flag.replace('_', '-')} is for a hub; a map's options "
+                                  f"are given as {kind}:ADDRESS,name=value")
+    if getattr(args, "address", None) is not None:
+        if ":" in args.device.split(",")[0] and args.address != target.address:
+            raise InvalidArgument(f"{args.device!r} gives address {target.address} and "
+                                  f"--address {args.address}: give it once")
+        spec = args.device.split(",")
+        spec[0] = f"{kind}:{args.address}"
+        target = parse_map_device(",".join(spec), known)
+        assert target is not None
+    _check_group(args, target)
+    return target
+
+
+def _check_group(args: argparse.Namespace, target: MapTarget) -> None:
+    group = getattr(args, "group", None)
+    if group is not None and group not in target.map.groups:
+        raise InvalidArgument(f"{target.map.id} has no group {group!r}"
+                              f"{did_you_mean(group, list(target.map.groups))}")
+
+
+def map_device(args: argparse.Namespace, target: MapTarget, client: Client) -> MapDevice:
+    """The :class:`MapDevice` of ``target`` on ``client`` (``pymb read``, ``pymb watch``)."""
+    return MapDevice(client, target.map, target.address, baudrate=args.baud)
+
+
+def _identity(dev: MapDevice) -> dict[str, Any]:
+    info = dev.map.device
+    points = [r.point for r in dev.map.identify]
+    values = dev.read(*dict.fromkeys(points)) if points else {}
+    return {"device": dev.map.id, "manufacturer": info.manufacturer, "model": info.model,
+            "points": values}
+
+
+def _identity_text(ident: dict[str, Any]) -> str:
+    what = " ".join(x for x in (ident["manufacturer"], ident["model"]) if x) or ident["device"]
+    extra = ", ".join(f"{k} {v}" for k, v in ident["points"].items())
+    return f"{'Identity':<16} {what}" + (f" ({extra})" if extra else "")
+
+
+def read_map(args: argparse.Namespace, target: MapTarget) -> int:
+    """``pymb read`` of a map device: one reading, printed."""
+    client = make_client(args)
+    dev = map_device(args, target, client)
+    group = getattr(args, "group", None)
+
+    def io() -> tuple[dict[str, Any], dict[str, Any], float, dict[str, Any] | None]:
+        with client:
+            t0 = time.monotonic()
+            values = dev.read(group=group)
+            states = dev.states
+            elapsed = time.monotonic() - t0
+            ident = _identity(dev) if args.identity else None
+        return values, states, elapsed, ident
+
+    values, states, elapsed, ident = interruptible(io)
+    if args.json:
+        out = {"device": target.map.id, "port": client.port, "address": target.address,
+               "time_utc": time.time(), "read_s": elapsed, **map_json(values, states)}
+        if ident is not None:
+            out["identity"] = ident
+        print_json(out)
+    else:
+        print(render_map(target.map, values, states))
+        if ident is not None:
+            print(_identity_text(ident))
     return 0

@@ -34,8 +34,7 @@ from typing import cast
 
 from pymb.client import Client, RtuClient
 from pymb.client.listener import LineListener
-from pymb.commands._common import add_connection_args, make_client, parse_numbers
-from pymb.commands.mapcli import add_map_arg
+from pymb.commands._common import add_connection_args, add_map_arg, make_client, parse_numbers
 from pymb.devices.identify import Answer, Identity, client_asker, identify
 from pymb.devices.maps import COOLPRO, HUB
 from pymb.devices.mapspec import map_types, match_map

@@ -20,7 +20,7 @@ from types import FrameType
 
 from pymb import maps
 from pymb.client import parse_host_port
-from pymb.commands.mapcli import add_map_arg
+from pymb.commands._common import add_map_arg
 from pymb.devices.mapspec import FACADES, map_types, unknown_device
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.sim.clock import SimClock

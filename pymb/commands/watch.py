@@ -4,7 +4,8 @@ On a terminal each frame is drawn to fit it (80x24 included): the status
 line first, always on screen, then a compact view: a CoolPro's telemetry,
 or for a hub the chosen blocks (``--block``, default temperature and
 humidity) with ten channels to a row, as many rows as fit (``--show``
-chooses the channels). ``--json`` prints one JSON object per line per read
+chooses the channels), or a map device's points (:func:`watch_map`, cut to
+fit by :func:`screen`). ``--json`` prints one JSON object per line per read
 attempt instead. Elsewhere (a pipe, a file) each frame is printed after the
 last.
 """
@@ -14,16 +15,26 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import queue
+import shutil
 import sys
 import threading
 import time
 from typing import Any
 
 from pymb.commands import read as read_cmd
-from pymb.commands._common import device_from_args, make_client, parse_channels, render, to_json
-from pymb.commands.mapread import target_from_args, terminal_size, watch_map
+from pymb.commands._common import (
+    device_from_args,
+    interruptible,
+    make_client,
+    parse_channels,
+    render,
+    to_json,
+)
+from pymb.commands.maptext import map_json, render_map
 from pymb.devices import HUB, HubReading, State
+from pymb.devices.mapspec import MapTarget
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
@@ -101,7 +112,7 @@ def hub_view(data: HubReading, blocks: list[str], shown: list[int], width: int,
 
 def run(args: argparse.Namespace) -> int:
     """Read, redraw, repeat until Ctrl-C (or --count attempts)."""
-    target = target_from_args(args)  # a device a map describes
+    target = read_cmd.target_from_args(args)  # a device a map describes
     if target is not None:
         return watch_map(args, target)
     dev = device_from_args(args)
@@ -238,3 +249,99 @@ def run(args: argparse.Namespace) -> int:
             sys.stdout.write("\n")
             sys.stdout.flush()
     return 0 if done or attempts == 0 else 3
+
+
+def fit(lines: list[str], width: int, height: int) -> list[str]:
+    """A map device's lines in at most ``height`` lines of fewer than
+    ``width`` characters: those that do not fit give way to one that says
+    how many more there are (as the hub view does)."""
+    if height < 1:
+        return []
+    if len(lines) > height:
+        hidden = len(lines) - height + 1
+        lines = [*lines[:height - 1], f"… {hidden} more: use --group"]
+    return [ln[:width - 1] if len(ln) >= width else ln for ln in lines]
+
+
+def screen(head: str, body: list[str], width: int, height: int) -> str:
+    """A frame for a terminal: home, the status line (always on screen) and
+    what of ``body`` fits below it, the rest of the screen cleared; no newline
+    after the last line, so nothing scrolls."""
+    lines = fit([head], width, 1) + fit(body, width, height - 1)
+    return "\x1b[H" + "\x1b[K\n".join(lines) + "\x1b[K\x1b[J"
+
+
+def terminal_size() -> tuple[int, int]:
+    """(columns, lines) of the terminal on stdout (80x24 when it says none)."""
+    try:
+        size = os.get_terminal_size(sys.stdout.fileno())
+        return size.columns, size.lines
+    except (OSError, ValueError):
+        fallback = shutil.get_terminal_size((80, 24))
+        return fallback.columns, fallback.lines
+
+
+def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
+    """``pymb watch`` of a map device: read, print, repeat until Ctrl-C or
+    ``--count`` attempts; a terminal is redrawn in place, a pipe gets every
+    reading (JSON lines with ``--json``)."""
+    if args.count < 0:
+        raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
+    if not (math.isfinite(args.interval) and args.interval >= 0):
+        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
+    if args.block or args.show:
+        raise InvalidArgument("--block and --show are for a hub")
+    client = make_client(args)
+    dev = read_cmd.map_device(args, target, client)
+    group = getattr(args, "group", None)
+    tty = sys.stdout.isatty() and not args.json
+    stop = threading.Event()
+    counts = {"done": 0, "faults": 0, "attempts": 0}
+    t0 = time.monotonic()
+
+    def show(values: dict[str, Any] | None, error: ModbusError | None) -> None:
+        elapsed = time.monotonic() - t0
+        if args.json:
+            out: dict[str, Any] = {"time_utc": time.time(), "device": target.map.id,
+                                   "address": target.address, "port": client.port,
+                                   "attempt": counts["attempts"]}
+            if values is not None:
+                out.update(map_json(values, dev.states))
+            else:
+                out["error"] = str(error)
+            sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
+        else:
+            rate = counts["done"] / elapsed if elapsed > 0 else 0.0
+            head = (f"{target.spec}  {counts['done']} reads {rate:.1f}/s  faults "
+                    f"{counts['faults']}/{counts['attempts']}  on {client.port}")
+            body = (render_map(target.map, values, dev.states) if values is not None
+                    else f"error: {error}")
+            if tty:
+                sys.stdout.write(screen(head, body.splitlines(), *terminal_size()))
+            else:
+                sys.stdout.write(head + "\n" + body + "\n\n")
+        sys.stdout.flush()
+
+    def io() -> None:
+        with client:
+            while not stop.is_set() and (args.count <= 0 or counts["attempts"] < args.count):
+                start = time.monotonic()
+                counts["attempts"] += 1
+                try:
+                    values = dev.read(group=group)
+                except ModbusConnectionError:
+                    raise
+                except ModbusError as e:
+                    counts["faults"] += 1
+                    show(None, e)
+                else:
+                    counts["done"] += 1
+                    show(values, None)
+                if args.interval > 0:
+                    stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
+
+    try:
+        interruptible(io)
+    finally:
+        stop.set()
+    return 0 if counts["done"] or counts["attempts"] == 0 else 3

@@ -13,8 +13,7 @@ import argparse
 from typing import Any
 
 from pymb import maps
-from pymb.commands._common import add_connection_args, interruptible, make_client
-from pymb.commands.mapcli import add_map_arg
+from pymb.commands._common import add_connection_args, add_map_arg, interruptible, make_client
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapspec import FACADES, map_types, parse_map_device, unknown_device
 from pymb.devices.mapwrite import Outcome, resolve

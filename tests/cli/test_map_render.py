@@ -9,7 +9,7 @@ from pathlib import Path
 from conftest import run_pymb
 
 from pymb import maps
-from pymb.commands.mapcli import map_json, render_map
+from pymb.commands.maptext import map_json, render_map
 from pymb.sim import SimulatorProcess
 
 MAP = """schema = "pymb.map/1"

@@ -54,7 +54,7 @@ def test_a_group_that_fits_is_shown_whole() -> None:
 
 
 def test_fit_keeps_what_fits() -> None:
-    from pymb.commands.mapread import fit
+    from pymb.commands.watch import fit
 
     assert fit(["a", "b", "c"], 80, 3) == ["a", "b", "c"]
     assert fit(["a", "b", "c", "d"], 80, 3) == ["a", "b", "… 2 more: use --group"]

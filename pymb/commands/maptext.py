@@ -1,10 +1,8 @@
-"""What the commands share for device maps: ``--map FILE`` and a reading
-of a map device as a table or JSON (the device syntax for a map's id is
-:mod:`pymb.devices.mapspec`'s)."""
+"""A reading of a map device as text: a table of ``name  value unit`` lines
+and a JSON document (``pymb read``, ``pymb watch``)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import struct
@@ -15,18 +13,7 @@ from typing import Any
 from pymb.maps import Map
 from pymb.maps.point import Point
 
-__all__ = ["add_map_arg", "map_json", "number_text", "render_map"]
-
-
-def add_map_arg(p: argparse.ArgumentParser, *, group: bool = False) -> None:
-    """``--map FILE``, repeatable; with ``group``, also ``--group NAME``."""
-    p.add_argument("--map", action="append", default=[], metavar="FILE", dest="maps",
-                   help="a device map (pymb.map/1): its device.id becomes a device TYPE "
-                        "(repeatable; the shipped maps need none)")
-    if group:
-        p.add_argument("--group", metavar="NAME",
-                       help="a device read through a map: only the points of this polling "
-                            "group (default: every readable point)")
+__all__ = ["map_json", "number_text", "render_map"]
 
 
 def _decimals(x: float | None) -> int:
