@@ -65,7 +65,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scan": ("pymb.commands.scan", "find the devices that answer on a bus"),
     "write": ("pymb.commands.write", "write points of a device, checked and read back"),
     "config": ("pymb.commands.config", "change a CoolPro's address or baud rate, verified"),
-    "map": ("pymb.commands.mapcmd", "check, list or show device maps; probe a device's registers"),
+    "map": ("pymb.commands.map", "check, list or show device maps; probe a device's registers"),
     "serve": ("pymb.commands.serve", "share one bus with many Modbus TCP clients (and TLS)"),
     "simulate": ("pymb.commands.simulate",
                  "simulate devices (CoolPro, sensor hub, maps) on a pty or TCP"),
