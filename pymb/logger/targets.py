@@ -59,7 +59,7 @@ def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
 
     def device() -> MapDevice:
         # the poll under way on the connection ends first: up to twice the timeout
-        fd = loop.borrow(c, 2 * u.timeout + 0.5)
+        fd = loop.lender.borrow(c, 2 * u.timeout + 0.5)
         held.set()
         try:
             client.attach(fd)
@@ -74,6 +74,6 @@ def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
         if held.is_set():
             held.clear()
             client.close()
-            loop.give_back(c)
+            loop.lender.give_back(c)
 
     return Target(u.info.name, u.config.map, device, lambda: u.offline, release)

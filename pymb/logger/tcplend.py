@@ -1,14 +1,15 @@
 """A poll connection of the one TCP loop lent to another thread between two
-polls: :class:`Lending` (mixed into :class:`~pymb.logger.tcploop.TcpMapPoller`).
+polls: :class:`Lender`, which the loop (:class:`~pymb.logger.tcploop.TcpMapPoller`)
+owns as ``lender``.
 
 A write command for a device on the loop goes over the connection its polls
 use, so a gateway that takes one connection, or a device that serves one
 master, sees one master. The command's thread asks for the connection
-(:meth:`Lending.borrow`); the loop hands it over when no poll is under way on
+(:meth:`Lender.borrow`); the loop hands it over when no poll is under way on
 it (before it starts the next one, never between a poll's requests): it stops
 watching the socket, drops whatever late bytes wait in it, and gives its
 descriptor. The thread writes and reads back over a duplicate of it, then
-gives it back (:meth:`Lending.give_back`), and the loop's polls go on. The
+gives it back (:meth:`Lender.give_back`), and the loop's polls go on. The
 polls that fall due meanwhile wait (a slot that passes is counted skipped).
 """
 
@@ -19,38 +20,45 @@ import selectors
 import socket
 import threading
 import time
+from collections.abc import Callable
 
 from pymb.errors import ModbusConnectionError, ModbusTimeout
 from pymb.logger.tcpconn import Conn, Loan
 
-__all__ = ["Lending"]
+__all__ = ["Lender"]
 
 
-class Lending:
-    """The loop's side and the borrower's side of lending a poll connection."""
+class Lender:
+    """The loop's side and the borrower's side of lending a poll connection.
 
-    _sel: selectors.DefaultSelector
-    _soonest: float
+    ``sel`` is the loop's selector: the lender registers its wake-up socket
+    in it (with itself as the key's data: the loop calls :meth:`woken` when
+    that key is ready) and takes a lent connection's socket out of it.
+    ``sweep_now`` tells the loop to look at its idle connections at once
+    (where it calls :meth:`lend`)."""
 
-    def _lending_init(self) -> None:
+    def __init__(self, sel: selectors.BaseSelector, sweep_now: Callable[[], None]) -> None:
+        self._sel = sel
+        self._sweep_now = sweep_now
         self._loan_lock = threading.Lock()
         #: written to by a borrower to wake the loop's select at once
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
-        self._sel.register(self._wake_r, selectors.EVENT_READ, self)
+        sel.register(self._wake_r, selectors.EVENT_READ, self)
 
-    def _woken(self) -> None:
+    def woken(self) -> None:
         """The loop: a borrower woke the select (its byte is dropped)."""
         with contextlib.suppress(OSError):
             self._wake_r.recv(64)
 
-    def _lending_close(self) -> None:
+    def close(self) -> None:
+        """The loop ends: the wake-up socket pair is closed."""
         for s in (self._wake_r, self._wake_w):
             s.close()
 
     def _wake(self) -> None:
-        self._soonest = 0.0  # a sweep at once: it calls _next on an idle connection
+        self._sweep_now()
         with contextlib.suppress(OSError):
             self._wake_w.send(b"\0")
 
@@ -92,7 +100,7 @@ class Lending:
 
     # -- the loop's side ------------------------------------------------------------
 
-    def _lend(self, c: Conn) -> bool:
+    def lend(self, c: Conn) -> bool:
         """On an idle connection with a loan asked for (the loop's thread):
         lend it, or take it back; True while it is lent (no poll starts)."""
         loan = c.loan

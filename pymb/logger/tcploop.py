@@ -51,7 +51,7 @@ from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
 from pymb.logger.poller import BATCH_MAX, map_info
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
-from pymb.logger.tcplend import Lending
+from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
@@ -79,7 +79,7 @@ def fans_out(bus: BusConfig) -> bool:
             and all(isinstance(d, MapDeviceConfig) for d in bus.devices))
 
 
-class TcpMapPoller(TcpReplies, Lending):
+class TcpMapPoller(TcpReplies):
     """Polls the map devices of ``buses`` (each :func:`fans_out`) until
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
@@ -110,7 +110,13 @@ class TcpMapPoller(TcpReplies, Lending):
         #: replies at once (the connection's ``look`` is its seq), read as they
         #: come from then on
         self._looks: list[tuple[float, int, Conn]] = []
-        self._lending_init()
+        #: lends a poll connection to a write command's thread between two polls
+        self.lender = Lender(self._sel, self._sweep_now)
+
+    def _sweep_now(self) -> None:
+        """A sweep at once (from a borrower's thread): it calls ``lender.lend``
+        on an idle connection."""
+        self._soonest = 0.0
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -152,7 +158,7 @@ class TcpMapPoller(TcpReplies, Lending):
 
     def _next(self, c: Conn, now: float) -> None:
         """Start the next waiting poll on an idle open connection."""
-        if c.loan is not None and self._lend(c):  # lent to a write command
+        if c.loan is not None and self.lender.lend(c):  # lent to a write command
             return
         while c.entry is None and c.waiting and c.state == "open":
             e = c.waiting.popleft()
@@ -417,7 +423,7 @@ class TcpMapPoller(TcpReplies, Lending):
             self.flush()
             for c in self.conns:
                 self._close(c)
-            self._lending_close()
+            self.lender.close()
             self._sel.close()
 
     def _run(self) -> None:
@@ -454,8 +460,8 @@ class TcpMapPoller(TcpReplies, Lending):
                 wait = min(wait, looks[0][0] - now)
             for key, mask in select(max(wait, 0.0)):
                 c = key.data
-                if c is self:  # a write command's thread woke the loop (tcplend)
-                    self._woken()
+                if c is self.lender:  # a write command's thread woke the loop
+                    self.lender.woken()
                     continue
                 t = time.monotonic()
                 if c.state == "open":
