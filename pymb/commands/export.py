@@ -24,7 +24,6 @@ from pymb.commands._data import (
     readable_database,
     write_beside,
 )
-from pymb.devices import HUB
 from pymb.devices.mapspec import load_map
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
@@ -32,6 +31,7 @@ from pymb.maps import Map
 from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, map_point_names, quantities
 from pymb.store.commands import WRITE_COLUMNS, export_writes
 from pymb.store.export import WIDE_HEAD
+from pymb.store.schema import HUB_STRIDE
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -123,7 +123,7 @@ def _samples(args: argparse.Namespace, db: str, since: float | None,
              until: float | None) -> Callable[[IO[str]], int]:
     """The export of the samples of ``db`` (the database, or what was read of a
     damaged one)."""
-    channels = None if args.channel is None else parse_channels(args.channel, HUB.channels,
+    channels = None if args.channel is None else parse_channels(args.channel, HUB_STRIDE,
                                                                "--channel")
     given = _given_maps(args.maps)
     if args.events and args.layout == "wide":

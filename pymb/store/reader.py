@@ -10,7 +10,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from pymb import maps
-from pymb.devices import HUB, CoolProTelemetry, HubReading, State, decode_hub
+from pymb.devices import CoolProTelemetry, HubReading, State, decode_hub
 from pymb.devices.coolpro import decode_telemetry
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.errors import InvalidArgument
@@ -18,6 +18,8 @@ from pymb.maps import Decoder, Map, Point, Value
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
 from pymb.store.schema import (
+    HUB_FIELDS,
+    HUB_STRIDE,
     MAP_UNSUPPORTED_BITS,
     SCHEMA_VERSION,
     host_words,
@@ -146,7 +148,7 @@ class _Decoder:
             regs = host_words(registers)
             present = None
         else:
-            regs = array("H", bytes(2 * HUB.count))
+            regs = array("H", bytes(2 * HUB_STRIDE * len(HUB_FIELDS)))
             present = []
             rows = self.db.execute(
                 f"SELECT channel, registers FROM hub_changes WHERE device_id = ? AND channel IN "
@@ -154,14 +156,14 @@ class _Decoder:
                 f"AND sample_id = ?", (did, t, sid)).fetchall()
             for ch, blob in rows:
                 words = host_words(blob)
-                for b in range(len(HUB.blocks)):
-                    regs[b * HUB.channels + ch - 1] = words[b]
+                for b in range(len(HUB_FIELDS)):
+                    regs[b * HUB_STRIDE + ch - 1] = words[b]
                 present.append(ch - 1)
-        names = [b.name for b in HUB.blocks if unsupported >> b.index & 1]
+        names = [n for b, n in enumerate(HUB_FIELDS) if unsupported >> b & 1]
         r = decode_hub(regs, units, channels=channels, unsupported=names)
         if present is not None:
             keep = set(present)
-            for b in range(len(HUB.blocks)):
+            for b in range(len(HUB_FIELDS)):
                 for ch in range(channels):
                     if ch not in keep:
                         r.values[b * channels + ch] = math.nan

@@ -9,13 +9,13 @@ import sqlite3
 from pathlib import Path
 from typing import Any
 
-from pymb.devices import HUB, HubReading
+from pymb.devices import HubReading
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
-from pymb.store.schema import map_layout_key, unsupported_mask, wire_bytes
+from pymb.store.schema import HUB_STRIDE, map_layout_key, unsupported_mask, wire_bytes
 
 __all__ = ["ROWS_PER_INSERT", "DeviceRows", "humidity_units", "insert_rows", "stored_registers",
            "unsupported_of"]
@@ -97,7 +97,7 @@ class DeviceRows:
             units = map_layout_key(data.group, d.map_options)
         elif d.type == "hub":
             channels = data.channels if isinstance(data, HubReading) else (
-                d.channels or HUB.channels)
+                d.channels or HUB_STRIDE)
             units, tenths = humidity_units(d, channels)
         key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
         self._begin()

@@ -4,21 +4,24 @@ registers in plain SQL (generated from the device maps)."""
 from __future__ import annotations
 
 import hashlib
+import math
 import sqlite3
 from array import array
 from collections.abc import Sequence
 from pathlib import Path
 
-from pymb import __version__
-from pymb.devices import HUB, State
+from pymb import __version__, maps
+from pymb.devices import State
 from pymb.devices.mapreading import group_points
-from pymb.devices.maps import COOLPRO, Type
 from pymb.devices.readings import STATE_NAMES
 from pymb.errors import InvalidArgument
-from pymb.maps import Map
+from pymb.maps import Map, Point
 from pymb.wire import registers_from_wire, registers_to_wire
 
 __all__ = [
+    "COOLPRO_FIELDS",
+    "HUB_FIELDS",
+    "HUB_STRIDE",
     "MAP_UNSUPPORTED_BITS",
     "MIN_BYTES",
     "PAGE_SIZE",
@@ -36,8 +39,16 @@ __all__ = [
     "wire_bytes",
 ]
 
-COOLPRO_FIELDS = [r.name for r in COOLPRO.group("telemetry")]
-HUB_FIELDS = [b.name for b in HUB.blocks]
+# The hub and the CoolPro as their maps say, with a channel's humidity in 0.1 % and in 1 %.
+_HUB_TENTHS, _HUB_ONE = (maps.builtin("hub").configure(humidity_unit=u) for u in (0.1, 1))
+_COOLPRO = [p for p in maps.builtin("coolpro").points.values() if p.group == "telemetry"]
+#: a CoolPro sample's quantities: its map's telemetry points
+COOLPRO_FIELDS = [p.name for p in _COOLPRO]
+#: a hub sample's quantities: its map's blocks, one per quantity
+HUB_FIELDS = list(_HUB_TENTHS.points)
+#: registers of a block in a stored hub sweep: a channel's register of block
+#: k is at ``k * HUB_STRIDE + channel - 1`` whatever the channels logged
+HUB_STRIDE = _HUB_TENTHS.points[HUB_FIELDS[0]].channels
 
 
 def wire_bytes(regs: array[int]) -> bytes:
@@ -138,39 +149,52 @@ def _u16(h: str) -> str:
             f"{_digit(h, 4)})")
 
 
+def _marker(p: Point, state: str) -> str | None:
+    """The raw value that marks ``state`` for point ``p``, as 4 hex digits in SQL."""
+    raw = next((r for r, st in p.markers.items() if st == state), None)
+    return None if raw is None else f"'{raw:04X}'"
+
+
+def _scaled(raw: str, scale: float | None) -> str:
+    """``raw`` (an SQL expression) times ``scale``, as SQL."""
+    if scale is None:
+        return raw
+    if scale < 1 and math.isclose(1 / scale, round(1 / scale)):
+        return f"{raw} / {round(1 / scale)}.0"
+    return f"{raw} * {scale:g}.0" if scale == int(scale) else f"{raw} * {scale}"
+
+
 def _hub_columns() -> tuple[list[str], list[str]]:
-    """SQL for the hub's decoded values and states, one pair per block."""
+    """SQL for the hub's decoded values and states, one pair per block of its
+    map; a point whose scale and markers follow the channel's humidity unit
+    picks them by ``channels.humidity_tenths``."""
     values, states = [], []
-    for b in HUB.blocks:
-        h = (f"hex(CASE WHEN s.registers IS NULL THEN substr(x.registers, {2 * b.index + 1}, 2)"
-             f" ELSE substr(s.registers, {2 * b.index * HUB.channels + 1} + 2 * (c.channel - 1),"
+    for k, name in enumerate(HUB_FIELDS):
+        p, one = _HUB_TENTHS.points[name], _HUB_ONE.points[name]
+        h = (f"hex(CASE WHEN s.registers IS NULL THEN substr(x.registers, {2 * k + 1}, 2)"
+             f" ELSE substr(s.registers, {2 * k * HUB_STRIDE + 1} + 2 * (c.channel - 1),"
              f" 2) END)")
-        unsupported = f"((s.unsupported >> {b.index}) & 1)"
-        offline = "'FFFF'"
-        if b.name == "humidity_pct":
-            tenths, one = (f"'{m:04X}'" for m, _ in b.markers[2:0:-1])
-            no_sensor = f"{h} = CASE WHEN c.humidity_tenths THEN {tenths} ELSE {one} END"
-        else:
-            no_sensor = "0"
-        if b.type is Type.SIGN_MAGNITUDE:
+        unsupported = f"((s.unsupported >> {k}) & 1)"
+        offline = _marker(p, "offline")
+        tenths, ones = _marker(p, "no_sensor"), _marker(one, "no_sensor")
+        no_sensor = "0" if tenths is None else \
+            f"{h} = CASE WHEN c.humidity_tenths THEN {tenths} ELSE {ones} END"
+        if p.type == "sm16":
             raw = (f"(CASE WHEN {_digit(h, 1)} >= 8 THEN -1 ELSE 1 END) * (({_digit(h, 1)} % 8)"
                    f" * 4096 + {_digit(h, 2)} * 256 + {_digit(h, 3)} * 16 + {_digit(h, 4)})")
-        elif b.type is Type.I16:
+        elif p.type == "i16":
             raw = f"({_u16(h)} - CASE WHEN {_digit(h, 1)} >= 8 THEN 65536 ELSE 0 END)"
         else:
             raw = _u16(h)
-        if b.per_channel_scales:
-            scaled = f"CASE WHEN c.humidity_tenths THEN {raw} / 10.0 ELSE {raw} * 1.0 END"
-        elif b.scale == 0.1:
-            scaled = f"{raw} / 10.0"
-        else:
-            scaled = f"{raw} * {b.scale:g}.0" if b.scale == int(b.scale) else f"{raw} * {b.scale}"
+        scaled = _scaled(raw, p.scale) if p.scale == one.scale else (
+            f"CASE WHEN c.humidity_tenths THEN {_scaled(raw, p.scale)} "
+            f"ELSE {_scaled(raw, one.scale)} END")
         values.append(f"CASE WHEN {unsupported} OR {h} = {offline} OR ({no_sensor}) THEN NULL "
-                      f"ELSE {scaled} END AS {b.name}")
+                      f"ELSE {scaled} END AS {name}")
         states.append(f"CASE WHEN {unsupported} THEN {int(State.UNSUPPORTED)} "
                       f"WHEN {h} = {offline} THEN {int(State.OFFLINE)} "
                       f"WHEN {no_sensor} THEN {int(State.NO_SENSOR)} "
-                      f"ELSE {int(State.VALUE)} END AS {b.name}_state")
+                      f"ELSE {int(State.VALUE)} END AS {name}_state")
     return values, states
 
 
@@ -178,25 +202,25 @@ def _state_names() -> list[str]:
     """Each block's state by name (``value``, ``offline``, ...), from its code
     column: the views read without a join on ``states``."""
     cases = " ".join(f"WHEN {int(s)} THEN '{STATE_NAMES[int(s)]}'" for s in State)
-    return [f"CASE {b.name}_state {cases} END AS {b.name}_state_name" for b in HUB.blocks]
+    return [f"CASE {n}_state {cases} END AS {n}_state_name" for n in HUB_FIELDS]
 
 
 def _coolpro_columns() -> list[str]:
-    first = COOLPRO.span("telemetry")[1]
+    """SQL for the CoolPro's telemetry, by its map: registers from its first point's."""
+    first = min(p.address for p in _COOLPRO)
     out = []
-    for r in COOLPRO.group("telemetry"):
-        i = r.address - first
+    for p in _COOLPRO:
+        i = p.address - first
 
         def word(k: int) -> str:
             return _u16(f"hex(substr(s.registers, {2 * k + 1}, 2))")
 
-        if r.type is Type.U32_LE_WORDS:
-            expr = f"{word(i)} + 65536 * {word(i + 1)}"
-        elif r.scale == 0.001:
-            expr = f"{word(i)} / 1000.0"
+        if p.type == "u32":
+            lo, hi = (i, i + 1) if p.order == "CDAB" else (i + 1, i)
+            expr = f"{word(lo)} + 65536 * {word(hi)}"
         else:
-            expr = word(i)
-        out.append(f"{expr} AS {r.name}")
+            expr = _scaled(word(i), p.scale)
+        out.append(f"{expr} AS {p.name}")
     return out
 
 
@@ -254,8 +278,8 @@ CREATE VIEW hub_readings AS
                              AND x.time_utc = s.time_utc AND x.sample_id = s.id
      WHERE s.registers IS NOT NULL OR x.registers IS NOT NULL);
 CREATE VIEW hub AS
-    SELECT sample_id, channel, {", ".join(b.name for b in HUB.blocks)},
-           {", ".join(b.name + "_state" for b in HUB.blocks)} FROM hub_readings;
+    SELECT sample_id, channel, {", ".join(HUB_FIELDS)},
+           {", ".join(n + "_state" for n in HUB_FIELDS)} FROM hub_readings;
 CREATE VIEW coolpro_readings AS
     SELECT {_TIME} AS time, s.time_utc, d.name AS device, d.address, s.id AS sample_id,
            {", ".join(_coolpro_columns())}

@@ -11,9 +11,9 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pymb.devices import HUB, HubReading, State
+from pymb import maps
+from pymb.devices import HubReading, State
 from pymb.devices.mapreading import MapReading
-from pymb.devices.maps import COOLPRO
 from pymb.devices.readings import telemetry_values
 from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
@@ -21,22 +21,20 @@ from pymb.maps import Map
 from pymb.store.reader import iter_samples, stored_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import StoredSample
-from pymb.store.schema import SCHEMA_VERSION, schema_version
+from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.summary import devices
 
 __all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series", "unit_of"]
 
-_UNITS = {**{r.name: r.unit for r in COOLPRO.group("telemetry")},
-          **{b.name: b.unit for b in HUB.blocks}}
+_UNITS = {p.name: p.unit for m in ("coolpro", "hub") for p in maps.builtin(m).points.values()
+          if p.name in (*COOLPRO_FIELDS, *HUB_FIELDS)}
 _NOT_READ = int(State.NOT_READ)
 _VALUE = int(State.VALUE)
 
 
 def quantities(kind: str) -> list[str]:
     """The quantities a device of ``kind`` (``hub``, ``coolpro``) has."""
-    if kind == "hub":
-        return [b.name for b in HUB.blocks]
-    return [r.name for r in COOLPRO.group("telemetry")]
+    return list(HUB_FIELDS if kind == "hub" else COOLPRO_FIELDS)
 
 
 def unit_of(quantity: str) -> str:
@@ -148,7 +146,7 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         where, args = sample_filter(name, since, until)
         times: list[float] = []
         values: list[float] = []
-        block = HUB.block(quantity).index if kind == "hub" else 0
+        block = HUB_FIELDS.index(quantity) if kind == "hub" else 0
         for s in chunks(con, where, args):
             data = s.data
             if isinstance(data, HubReading):
