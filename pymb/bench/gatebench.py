@@ -10,6 +10,11 @@ not the logger's), the values it stored per CPU-second, CPU per poll, RSS
 and threads, over a steady window after a warm-up. Two workloads: a map of
 10 f32 points (one request a poll) and the shipped ``eastron-sdm630`` map
 (74 points, 9 requests a poll as the planner cuts them).
+
+A full run adds two ``pymb log`` rows at the rate plants poll, not flat out:
+100 SDM630 devices every second (its CPU per stored value), and the peers'
+published scenario, 10 gateways of 10 devices of 1,000 contiguous f32 input
+registers each (:data:`PEERS_POINTS`), every second (values per CPU-second).
 """
 
 from __future__ import annotations
@@ -36,11 +41,34 @@ from pymb.maps import Map, load
 from pymb.sim.tcp import parse_ports
 from pymb.store import samples_after
 
-__all__ = ["RSS_TARGET_MB", "TEN_POINTS", "VALUES_TARGET", "run_section", "tables",
-           "targets"]
+__all__ = ["LOG_TARGET", "PEERS", "PEERS_POINTS", "PEERS_TARGET", "RATE_DEVICES",
+           "RATE_TARGET_US", "RSS_TARGET_MB", "TEN_POINTS", "VALUES_TARGET", "run_section",
+           "tables", "targets"]
 
 VALUES_TARGET = 1_000_000  #: values stored per CPU-second, SDM630 map
 RSS_TARGET_MB = 60.0  #: at 300 devices
+LOG_TARGET = 2_500_000  #: pymb log's SDM630 values per CPU-second at 100 devices, pipelined
+RATE_TARGET_US = 5.0  #: pymb log's CPU per stored value, 100 SDM630 devices every second
+PEERS_TARGET = 3_000_000  #: pymb log's values per CPU-second in the peers' scenario
+RATE_DEVICES = 100  #: SDM630 devices of the at-rate row
+#: the peers' scenario: gateways (a TCP port each) x devices (unit ids) behind each
+PEERS = (10, 10)
+#: the peers' device: 1,000 contiguous f32 input registers (16 requests of 125 registers)
+PEERS_POINTS = """schema = "pymb.map/1"
+
+[device]
+id = "peers-1000"
+description = "1,000 contiguous f32 values in input registers 0..1999"
+default_address = 1
+table = "input"
+order = "ABCD"
+""" + "".join(f"""
+[[point]]
+name = "v{i}"
+address = {2 * i}
+type = "f32"
+example = {i}.5
+""" for i in range(1000))
 #: the 10-point device: ten f32 input registers, read in one request
 TEN_POINTS = """schema = "pymb.map/1"
 
@@ -63,8 +91,10 @@ LABELS = {"fanout": "pymb fan-out (1 thread, 1 request in flight)",
           "threads": "a thread per connection (pymb framing)",
           "pymodbus": "pymodbus AsyncModbusTcpClient",
           "pymb-log": "pymb log (one loop, 1 request in flight)",
-          "pymb-log-pipelined": "pymb log (one loop, a poll's requests pipelined)"}
+          "pymb-log-pipelined": "pymb log (one loop, a poll's requests pipelined)",
+          "pymb-log-1s": "pymb log, every device every 1 s, pipelined"}
 LOG_DESIGNS = ("pymb-log", "pymb-log-pipelined")
+RATE_WORKLOADS = ("SDM630 at 1 s", "peers: 1,000 f32 at 1 s")  #: the full run's at-rate rows
 
 
 def flat_map(text: str) -> str:
@@ -133,26 +163,32 @@ def _last_decodes(db: str, m: Map, port: str) -> bool:
 
 
 def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
-              pipelined: bool, warmup: float, seconds: float) -> dict[str, Any]:
-    """``pymb log`` itself: a bus per port with the map's device (every point
-    in one poll), flat out, commits every 0.25 s; every bus in its one loop;
-    its CPU from /proc, samples from the database's ids."""
+              pipelined: bool, warmup: float, seconds: float, *, interval: float = 0.0,
+              units: int = 1, commit: float | None = 0.25) -> dict[str, Any]:
+    """``pymb log`` itself: a bus per port with the map's device at each of
+    ``units`` unit ids (every point in one poll), every ``interval`` seconds
+    (0: flat out), commits every ``commit`` seconds (None: pymb log's
+    default); every bus in its one loop; its CPU from /proc, samples from the
+    database's ids."""
     db = os.path.join(tmp, f"gateway-log-{len(ports)}.sqlite")
     cfg = os.path.join(tmp, f"gateway-log-{len(ports)}.toml")
     m = load(map_file)
     requests = len(m.plan())
     pipe = f"pipeline = {min(16, requests)}\n" if pipelined else ""
+    every = "" if commit is None else f"commit_interval_s = {commit}\n"
     with open(cfg, "w", encoding="utf-8") as f:
-        f.write(f'[output]\npath = "{db}"\ncommit_interval_s = 0.25\n' + "".join(
-            f'\n[[bus]]\nname = "d{i}"\ntcp = "127.0.0.1:{p}"\ninterval = 0\ntimeout = 2\n'
-            f'{pipe}  [[bus.device]]\n  map = "{map_file}"\n  address = 1\n  name = "d{i}"\n'
+        f.write(f'[output]\npath = "{db}"\n{every}' + "".join(
+            f'\n[[bus]]\nname = "d{i}"\ntcp = "127.0.0.1:{p}"\ninterval = {interval}\n'
+            f'timeout = 2\n{pipe}' + "".join(
+                f'  [[bus.device]]\n  map = "{map_file}"\n  address = {u}\n'
+                f'  name = "d{i}{"" if u == 1 else f"u{u}"}"\n' for u in range(1, units + 1))
             for i, p in enumerate(ports)))
     child = children.start("gateway pymb log", pymb_argv(
         "log", "--config", cfg, "--seconds", str(warmup + seconds + 150), "--quiet"),
         stdin=False)
     try:
         deadline = time.monotonic() + 120.0
-        while _stored(db)[1] < len(ports):  # the warm-up starts once every bus stores
+        while _stored(db)[1] < len(ports) * units:  # the warm-up starts once all store
             if time.monotonic() > deadline or child.proc.poll() is not None:
                 raise ChildError(f"pymb log did not store from every device within 120 s: "
                                  f"{child.stderr_tail()}")
@@ -164,7 +200,7 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
                                                      _stored(db))
         if child.proc.poll() is not None:
             raise ChildError(f"pymb log ended before the window did: {child.stderr_tail()}")
-        checked = devices == len(ports) and _last_decodes(db, m, ports[0])
+        checked = devices == len(ports) * units and _last_decodes(db, m, ports[0])
     finally:
         children.stop(child)
         for suffix in ("", "-wal", "-shm"):
@@ -176,7 +212,8 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
             "hwm_kb": rss, "threads": threads, "values_per_poll": values,
             "requests": requests, "checked": checked,
             "values_per_cpu_s": samples * values / cpu if cpu else None,
-            "cpu_per_poll_us": cpu / samples * 1e6 if samples else None}
+            "cpu_per_poll_us": cpu / samples * 1e6 if samples else None,
+            "cpu_per_value_us": cpu / (samples * values) * 1e6 if samples else None}
 
 
 def _one(children: Children, design: str, map_arg: str, ports: str, db: str,
@@ -246,7 +283,39 @@ def run_section(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
                     rows.append(row)
             finally:
                 children.stop(sim)
+    if not opts.quick:
+        rows += _at_rate(opts, children, tmp, sdm)
     return {"warmup": warmup, "seconds": seconds, "rows": rows}
+
+
+def _at_rate(opts: Options, children: Children, tmp: str, sdm: str) -> list[dict[str, Any]]:
+    """pymb log polling every device every second (pipelined, its default
+    commit interval): 100 SDM630 devices, then the peers' scenario."""
+    peers = os.path.join(tmp, "peers-1000.toml")
+    with open(peers, "w", encoding="utf-8") as f:
+        f.write(PEERS_POINTS)
+    gateways, behind = PEERS
+    runs = [(RATE_WORKLOADS[0], sdm, RATE_DEVICES, 1, ["eastron-sdm630:1,dynamic=0"]),
+            (RATE_WORKLOADS[1], peers, gateways, behind,
+             ["--map", peers, *(f"peers-1000:{u},dynamic=0" for u in range(1, behind + 1))])]
+    rows: list[dict[str, Any]] = []
+    for workload, log_map, ports, units, sim_args in runs:
+        opts.say(f"gateway: pymb log, {workload}, {ports * units} devices")
+        row: dict[str, Any] = {"workload": workload, "devices": ports * units,
+                               "design": "pymb-log-1s"}
+        sim = children.start(f"simulator x{ports}", pymb_argv(
+            "simulate", *sim_args, "--tcp", "127.0.0.1:0", "--count", str(ports)), stdin=False)
+        try:
+            got = sim.readline(60.0).strip().rpartition(":")[2]
+            row.update(_pymb_log(children, [str(p) for p in parse_ports(got)], tmp, log_map,
+                                 True, 2.0, 10.0, interval=1.0, units=units, commit=None),
+                       status="ok")
+        except (ChildError, OSError, sqlite3.Error, ModbusError) as e:
+            row.update(status="failed", reason=str(e)[:300])
+        finally:
+            children.stop(sim)
+        rows.append(row)
+    return rows
 
 
 def _best(section: dict[str, Any], workload: str) -> dict[str, Any] | None:
@@ -258,7 +327,10 @@ def _best(section: dict[str, Any], workload: str) -> dict[str, Any] | None:
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, bool | None]]:
     """(what, goal, measured, unit, met): SDM630 values per CPU-second (the
     lowest of pymb's pipelined rows over the device counts: the fan-out's,
-    then ``pymb log``'s), RSS at the most devices (pymb's rows)."""
+    then ``pymb log``'s), RSS at the most devices (pymb's rows); with rows
+    for them, ``pymb log``'s values per CPU-second at 100 devices (issue
+    30's goal), its CPU per value at 1 s and the peers' scenario's values
+    per CPU-second."""
     piped = [r for r in section["rows"] if r["workload"] == "SDM630" and r["status"] == "ok"
              and r["design"] == "fanout-pipelined"]
     low = min((r["values_per_cpu_s"] or 0.0 for r in piped), default=None)
@@ -271,13 +343,35 @@ def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, 
               if r["workload"] == "SDM630" and r["status"] == "ok"
               and r["design"] == "pymb-log-pipelined"]
     log_low = min(logged, default=None)
-    return [("SDM630 values stored in SQLite per CPU-second of the poller, pipelined, "
-             "every device count", f">= {VALUES_TARGET:,}", low, "values/s",
-             None if low is None else low >= VALUES_TARGET),
-            ("... of pymb log itself, pipelined, every device count", f">= {VALUES_TARGET:,}",
-             log_low, "values/s", None if log_low is None else log_low >= VALUES_TARGET),
-            (f"poller RSS at {most} devices", f"< {RSS_TARGET_MB:g} MB", top, "MB",
-             None if top is None else top < RSS_TARGET_MB)]
+    out: list[tuple[str, str, float | None, str, bool | None]] = [
+        ("SDM630 values stored in SQLite per CPU-second of the poller, pipelined, "
+         "every device count", f">= {VALUES_TARGET:,}", low, "values/s",
+         None if low is None else low >= VALUES_TARGET),
+        ("... of pymb log itself, pipelined, every device count", f">= {VALUES_TARGET:,}",
+         log_low, "values/s", None if log_low is None else log_low >= VALUES_TARGET),
+        (f"poller RSS at {most} devices", f"< {RSS_TARGET_MB:g} MB", top, "MB",
+         None if top is None else top < RSS_TARGET_MB)]
+    at100 = [r["values_per_cpu_s"] or 0.0 for r in section["rows"]
+             if r["workload"] == "SDM630" and r["status"] == "ok"
+             and r["design"] == "pymb-log-pipelined" and r["devices"] == RATE_DEVICES]
+    if at100:
+        out.append((f"pymb log, SDM630 values per CPU-second at {RATE_DEVICES} devices, "
+                    "pipelined, flat out", f">= {LOG_TARGET:,}", min(at100), "values/s",
+                    min(at100) >= LOG_TARGET))
+    for workload, what, goal, key, better in (
+            (RATE_WORKLOADS[0], f"pymb log, CPU per stored value, {RATE_DEVICES} SDM630 "
+             "devices every 1 s", RATE_TARGET_US, "cpu_per_value_us", False),
+            (RATE_WORKLOADS[1], "pymb log, values per CPU-second, the peers' scenario "
+             "(10 x 10 devices of 1,000 f32, every 1 s)", PEERS_TARGET, "values_per_cpu_s",
+             True)):
+        row = next((r for r in section["rows"] if r["workload"] == workload), None)
+        if row is None:
+            continue
+        value = row.get(key) if row["status"] == "ok" else None
+        out.append((what, f">= {goal:,.0f}" if better else f"<= {goal:g}", value,
+                    "values/s" if better else "us",
+                    None if value is None else (value >= goal if better else value <= goal)))
+    return out
 
 
 def tables(section: dict[str, Any]) -> list[Table]:

@@ -73,6 +73,21 @@ def test_the_targets_take_the_worst_pipelined_row_and_the_most_devices() -> None
     assert rss[2] == 59
 
 
+def test_pymb_log_at_100_devices_and_at_the_rate_plants_poll_have_targets_of_their_own() -> None:
+    rows = [_row("pymb-log-pipelined", 10, 3e6, 40), _row("pymb-log-pipelined", 100, 2.4e6, 45),
+            {**_row("pymb-log-1s", 100, 4e5, 52), "workload": gatebench.RATE_WORKLOADS[0],
+             "cpu_per_value_us": 2.5},
+            {**_row("pymb-log-1s", 100, 2.9e6, 290), "workload": gatebench.RATE_WORKLOADS[1],
+             "cpu_per_value_us": 0.34}]
+    (_, _, rss, at100, rate, peers) = gatebench.targets({"rows": rows})
+    assert rss[2] == 45  # the at-rate rows are not the gateway's device counts
+    assert at100[1:] == (">= 2,500,000", 2.4e6, "values/s", False)  # the 100-device row only
+    assert rate[1:] == ("<= 5", 2.5, "us", True)
+    assert peers[1:] == (">= 3,000,000", 2.9e6, "values/s", False)
+    rows[3] = {**rows[3], "status": "failed"}
+    assert gatebench.targets({"rows": rows})[5][2:] == (None, "values/s", None)
+
+
 def test_a_row_that_measured_nothing_prints_as_a_dash() -> None:
     row = {**_row("pymb-log", 300, 0, 40), "values_per_cpu_s": None, "cpu_per_poll_us": None,
            "samples": 0, "wall_s": 3.0, "threads": 301, "checked": True}
