@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pymb.devices import HubReading
 from pymb.errors import OutputError
 from pymb.logger.config import EVENT_COMMIT_INTERVAL, LogConfig
-from pymb.logger.poller import BATCH_MAX, SPARE_MAX, BusPoller
+from pymb.logger.poller import SPARE_MAX, BusPoller
+from pymb.logger.schedule import BATCH_MAX
 from pymb.logger.stats import Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from pymb import maps
 from pymb.devices.mapreading import group_points
@@ -20,8 +20,7 @@ from pymb.devices.mapspec import FACADES, MapTarget, near
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 
-__all__ = ["MAP_DEVICE_KEYS", "KnownMaps", "MapDeviceConfig", "failed_poll",
-           "map_device_from_toml"]
+__all__ = ["MAP_DEVICE_KEYS", "KnownMaps", "MapDeviceConfig", "map_device_from_toml"]
 
 #: keys of a map device's ``[[bus.device]]`` table, besides the map's options
 MAP_DEVICE_KEYS = ("type", "map", "address", "name", "groups", "offline_after",
@@ -247,24 +246,3 @@ def add_maps(known: KnownMaps, files: Sequence[Any], where: str, base: Path) -> 
                               "e.g. maps = [\"sdm120.toml\"]")
     for f in files:
         known.add_file(base / f, f"{where}: maps")
-
-
-class _Health(Protocol):
-    config: MapDeviceConfig
-    failures: int
-    retry_at: float
-    offline: bool
-
-
-def failed_poll(h: _Health, now: float) -> str:
-    """Count a failed poll of a map device (``h``: its health, as either
-    poller keeps it): after ``offline_after`` failures in a row it is
-    offline, not polled before ``now + offline_retry``. Returns what the
-    fault's event adds when the device goes offline now, else nothing."""
-    h.failures += 1
-    if h.failures < (h.config.offline_after or 1):
-        return ""
-    wait = float(h.config.offline_retry or 30.0)
-    h.retry_at = now + wait
-    was, h.offline = h.offline, True
-    return "" if was else f"; offline after {h.failures} failed poll(s), next try in {wait:g} s"

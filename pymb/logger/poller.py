@@ -1,10 +1,12 @@
-"""A bus's poller: one thread per bus that reads its devices on schedule,
-reconnects with a backoff, and hands samples and events to the writer."""
+"""A bus's poller: one thread per bus that runs the schedule
+(:mod:`pymb.logger.schedule`) over its devices, reconnects with a backoff,
+and hands samples and events to the writer (:class:`~pymb.logger.report.Report`)."""
 
 from __future__ import annotations
 
 import collections
 import functools
+import math
 import queue
 import threading
 import time
@@ -16,24 +18,22 @@ from pymb.client import unresolved
 from pymb.devices import CoolPro, HubReading, SensorHub
 from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import client_asker, identify, mismatch
+from pymb.devices.mapdevice import MapDevice
 from pymb.devices.spec import DeviceConfig
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import MapDeviceConfig
-from pymb.logger.schedule import MapHealth, run_scheduled, slots_of
+from pymb.logger.report import Report
+from pymb.logger.schedule import BACKOFF_MAX, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
-from pymb.store.records import event_kind, short_fault
 
-__all__ = ["BusPoller", "Stats", "map_info"]
-
-_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
-_FAULTS_BEFORE_BACKOFF = 10  #: consecutive failed reads of a device before it is backed off
+__all__ = ["BusPoller", "MapHealth", "Stats", "map_info"]
 
 
 @dataclass
 class _Device:
-    """A device being polled and how its polling goes."""
+    """A built-in device being polled."""
 
     info: DeviceInfo
     config: DeviceConfig
@@ -43,10 +43,33 @@ class _Device:
     #: into (no 8 KB of arrays allocated per sweep, and none freed by another
     #: thread); None: every read makes its own
     spare: collections.deque[HubReading] | None = None
-    failures: int = 0  #: consecutive failed reads
-    backoff: float = 0.0  #: seconds of the current backoff (0: none)
-    retry_at: float = 0.0  #: not polled before this (clock)
     explained: str = ""  #: what answered, found once per run of failures
+
+
+@dataclass(eq=False)
+class MapHealth:
+    """A map device being polled (its MapDevice: write commands use it) and
+    how its polling goes."""
+
+    info: DeviceInfo
+    config: MapDeviceConfig
+    device: MapDevice
+    health: Health
+
+    @property
+    def offline(self) -> bool:
+        """Whether the device is left alone after failed polls."""
+        return self.health.offline
+
+
+@dataclass(eq=False)
+class _Read:
+    """A slot of the schedule and what reading it takes."""
+
+    slot: Slot
+    info: DeviceInfo
+    read: Callable[[], Any]
+    builtin: _Device | None = None
 
 
 def map_info(bus: BusConfig, d: MapDeviceConfig) -> DeviceInfo:
@@ -66,11 +89,6 @@ def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Calla
 
 #: spare readings kept per hub: the most a writer a batch behind hands back
 SPARE_MAX = 64
-#: A poller hands its samples to the writer in lists of at most this many, or
-#: this old (seconds), and before it waits: one queue operation per list, not
-#: two per sample. Events go at once, after the samples before them.
-BATCH_MAX = 64
-_BATCH_AGE = 0.02
 
 
 class BusPoller(threading.Thread):
@@ -82,9 +100,7 @@ class BusPoller(threading.Thread):
                  reuse: bool = False) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
         self.bus = bus
-        self.out = out
-        self._batch: list[Sample | Event] = []
-        self._batch_since = 0.0
+        self.report = Report(out, stats)
         self.stop_event = stop
         self.stats = stats
         self.clock = clock
@@ -114,50 +130,32 @@ class BusPoller(threading.Thread):
                 else:
                     self.devices.append(_Device(info, d, hub.read_all, hub))
 
-    def _event(self, kind: str, message: str, device: DeviceInfo | None = None,
-               code: int | None = None) -> None:
-        self._batch.append(Event(time.time(), time.monotonic(), self.bus.name, device, kind,
-                                 code, message))
-        self.flush()
-
-    def event(self, kind: str, message: str, device: DeviceInfo | None = None,
-              code: int | None = None) -> None:
-        """Record an event now (handed over at once)."""
-        self._event(kind, message, device, code)
-
-    def stamp(self) -> tuple[float, float]:
-        """(UTC, monotonic) time of a sample completed now."""
-        return time.time(), time.monotonic()
-
-    def add_sample(self, sample: Sample) -> None:
-        """Add a sample to the list for the writer (handed over when full or old)."""
-        batch = self._batch
-        now = sample.monotonic
-        if not batch:
-            self._batch_since = now
-        batch.append(sample)
-        if len(batch) >= BATCH_MAX or now - self._batch_since >= _BATCH_AGE:
-            self.flush()
-
-    def connect(self) -> bool:
-        """Open the bus, retrying with a backoff; False: told to stop first."""
-        return self._connect()
-
-    def poll_device(self, dev: _Device) -> bool:
-        """Read one built-in device; False when the bus is gone for good."""
-        return self._poll(dev)
-
     def flush(self) -> None:
         """Hand what was read since the last list to the writer."""
-        batch, self._batch = self._batch, []
-        if batch:
-            self.out.put(batch)
+        self.report.flush()
 
     def take_unflushed(self) -> list[Sample | Event]:
         """What this poller read but has not handed over (for the writer, once
         the poller is left behind at stop)."""
-        batch, self._batch = self._batch, []
-        return batch
+        return self.report.take()
+
+    def _reads(self) -> list[_Read]:
+        """The schedule's slots: each group of each map device, each built-in device."""
+        bus = self.bus
+        out: list[_Read] = []
+        rate = bus.baud if bus.port is not None else None
+        for info, cfg in self.maps:
+            dev = MapDevice(self.client, cfg.map, cfg.address, baudrate=rate)
+            health = Health.of_map(info.name, cfg.offline_after, cfg.offline_retry)
+            self.healths[info.name] = MapHealth(info, cfg, dev, health)  # for write commands
+            for group, interval in cfg.polls:
+                slot = Slot(health, bus.interval if interval is None else interval,
+                            interval == 0, group)
+                out.append(_Read(slot, info, functools.partial(dev.read_group, group)))
+        for d in self.devices:
+            out.append(_Read(Slot(Health.of_builtin(d.info.name), bus.interval), d.info, d.read,
+                             d))
+        return out
 
     def _why_not_open(self, e: ModbusError) -> str:
         host = getattr(self.client, "host", None)
@@ -168,20 +166,18 @@ class BusPoller(threading.Thread):
         return str(e)
 
     def _connect(self) -> bool:
-        backoff = _BACKOFF_FIRST
+        """Open the bus, retrying with a backoff; False: told to stop first."""
+        backoff = Backoff()
         while not self.stop_event.is_set():
             try:
                 self.client.connect()
-                self.stats.opened[self.bus.name] = True
-                self.stats.ok(self.bus.name)
+                self.report.opened(self.bus.name)
                 return True
             except ModbusError as e:
-                why = self._why_not_open(e)
-                self.stats.fault(self.bus.name, f"bus {self.bus.name}: {why}")
-                self._event("connection", f"{why}; retrying in {backoff:g} s")
-                if self.stop_event.wait(backoff):
+                wait = backoff.take()
+                self.report.not_open(self.bus.name, self._why_not_open(e), wait)
+                if self.stop_event.wait(wait):
                     return False
-                backoff = min(backoff * 2, _BACKOFF_MAX)
         return False
 
     def run(self) -> None:
@@ -191,67 +187,54 @@ class BusPoller(threading.Thread):
             self.flush()
             self.client.close()
 
-    def _wait_for_a_device(self) -> bool:
-        """With every device backed off, sleep until the first is due; False: stop."""
-        due = min(d.retry_at for d in self.devices)
-        delay = due - self.clock()
-        return not (delay > 0 and self.stop_event.wait(min(delay, _BACKOFF_MAX)))
-
     def _run(self) -> None:
         if not self._connect():
             return
-        self._event("connect", f"polling {len(self.devices) + len(self.maps)} device(s) on "
-                    f"{self.bus.endpoint}")
-        if self.maps:
-            builtins = [(d, functools.partial(self.poll_device, d)) for d in self.devices]
-            run_scheduled(self, slots_of(self, self.maps, builtins))
-            return
-        interval = self.bus.interval
-        start = self.clock()
-        slot = 0
-        while not self.stop_event.is_set():
-            if interval > 0:
-                next_at = start + slot * interval
-                delay = next_at - self.clock()
-                if delay > 0:
-                    self.flush()
-                    if self.stop_event.wait(delay):
-                        break
-                slot += 1
-                late = int((self.clock() - start) / interval) + 1 - slot
-                if late > 0:  # a long read overran whole slots: skip them
-                    slot += late
-                    self.stats.skipped(late)
-                    self._event("skipped", f"{late} poll slot(s) of {interval:g} s skipped: "
-                                f"the polls of slot {slot - late - 1} ran "
-                                f"{self.clock() - next_at:.3f} s")
-            elif all(d.retry_at > self.clock() for d in self.devices):
+        self.report.connected(self.bus.name, self.bus.endpoint,
+                              len(self.devices) + len(self.maps))
+        reads = self._reads()
+        clock, stop = self.clock, self.stop_event
+        start = clock()
+        for r in reads:
+            r.slot.next_at = start
+        while not stop.is_set():
+            now = clock()
+            due = [r for r in reads if r.slot.due(now)]
+            if not due:
+                wake = min((r.slot.wake(now) for r in reads), default=math.inf)
                 self.flush()
-                if not self._wait_for_a_device():
-                    break
-                continue
-            for dev in self.devices:
-                if self.stop_event.is_set():
-                    break
-                if dev.retry_at > self.clock():
-                    continue  # backed off
-                if not self._poll(dev):
+                if stop.wait(min(max(wake - now, 0.0), BACKOFF_MAX)):
                     return
+                continue
+            for r in due:
+                if stop.is_set():
+                    return
+                if not self._poll(r, reads):
+                    return
+                late = r.slot.advance(clock())
+                if late:
+                    self.report.skipped(self.bus.name, r.slot, late)
 
-    def _poll(self, dev: _Device) -> bool:
-        """Read one device; False when the bus is gone for good (stopping)."""
+    def _poll(self, r: _Read, reads: list[_Read]) -> bool:
+        """Read one slot; False when the bus is gone for good (stopping)."""
+        report, bus, h = self.report, self.bus, r.slot.health
         try:
-            data = dev.read()
+            data = r.read()
         except ModbusConnectionError as e:
-            self._fault(dev, event_kind(e), str(e), getattr(e, "errno", None))
+            report.error(bus.name, h, r.info, e, self.clock())
             self.client.close()
             if not self._connect():
                 return False
-            self._event("reconnect", f"reconnected to {self.bus.endpoint}")
+            reappeared(x.slot for x in reads)
+            report.reconnected(bus.name, bus.endpoint)
             return True
         except ModbusError as e:
-            code = getattr(e, "code", None) or getattr(e, "errno", None)
-            self._fault(dev, event_kind(e), str(e), code)
+            report.error(bus.name, h, r.info, e, self.clock())
+            return True
+        dev = r.builtin
+        if dev is None:
+            report.sample(Sample(r.info, time.time(), time.monotonic(), data))
+            report.answered(bus.name, h, r.info, data.unsupported)
             return True
         if dev.hub is not None and data.unsupported_mask == ALL_BLOCKS:
             # Every block "unsupported": the device supplied no value at all.
@@ -259,19 +242,14 @@ class BusPoller(threading.Thread):
             if not dev.explained:
                 dev.explained = self._explain(dev)
             dev.hub.forget_firmware()
-            self._fault(dev, "no_value", f"{dev.info.name} supplied no value: {dev.explained}",
-                        None, at_once=True)
+            report.failed(bus.name, h, r.info, "no_value",
+                          f"{r.info.name} supplied no value: {dev.explained}", None,
+                          self.clock(), at_once=True)
             return True
-        batch = self._batch
-        now = time.monotonic()
-        if not batch:
-            self._batch_since = now
-        batch.append(Sample(dev.info, time.time(), now, data))
-        if len(batch) >= BATCH_MAX or now - self._batch_since >= _BATCH_AGE:
-            self.flush()
-        if dev.failures:
-            dev.failures, dev.backoff, dev.explained = 0, 0.0, ""
-        self.stats.ok(dev.info.name)
+        report.sample(Sample(r.info, time.time(), time.monotonic(), data))
+        if h.failures:
+            dev.explained = ""
+        report.answered(bus.name, h, r.info)
         return True
 
     def _explain(self, dev: _Device) -> str:
@@ -280,16 +258,3 @@ class BusPoller(threading.Thread):
         except ModbusError as e:
             return str(e)
         return mismatch(found, dev.info.type, dev.info.address, dev.config.channels)
-
-    def _fault(self, dev: _Device, kind: str, message: str, code: int | None, *,
-               at_once: bool = False) -> None:
-        dev.failures += 1
-        retry = ""
-        if at_once or dev.failures >= _FAULTS_BEFORE_BACKOFF:
-            dev.backoff = min(max(dev.backoff * 2, _BACKOFF_FIRST), _BACKOFF_MAX)
-            dev.retry_at = self.clock() + dev.backoff
-            retry = f"; next try in {dev.backoff:g} s"
-        self.stats.fault(dev.info.name, f"{dev.info.name}: {short_fault(kind, message)}")
-        self._event(kind, message + retry, dev.info, code)
-
-

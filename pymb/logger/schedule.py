@@ -1,208 +1,183 @@
-"""A bus with map devices: every polling group of every map device at its
-own interval (0: once after each (re)connect), the built-in devices at the
-bus's interval, and each map device's health: after ``offline_after``
-failed polls in a row it is left alone for ``offline_retry`` seconds and
-then tried with one request, so a dead unit costs the live ones on its bus
-at most one timeout per retry period."""
+"""The one schedule of ``pymb log``: pure rules, no I/O. A bus's thread
+(:mod:`pymb.logger.poller`) and the one TCP loop (:mod:`pymb.logger.tcploop`)
+both run it and do only the reading and the writing.
+
+- :class:`Slot`: one thing read on a schedule (a group of a map device, or
+  a built-in device) on drift-free slots: slot k at start + k·interval; the
+  whole slots a long read overran are skipped and counted, never crammed in.
+  Interval 0 is flat out, or, for a map group (``once``), one read after the
+  device (re)appears: not again on a connection the device itself closed
+  after its replies.
+- :class:`Health`: a device's failures in a row and when it is tried again
+  (a map device is offline for ``offline_retry`` after ``offline_after``
+  failed polls; a built-in device backs off 0.5 s doubling to 30 s after
+  ten failures in a row).
+- :class:`Backoff`: a bus that does not open, tried again 0.5 s doubling to
+  30 s later.
+- The batching of samples for the writer (:data:`BATCH_MAX`, :data:`BATCH_AGE`)
+  and the text of each event these rules give (:data:`TEXT`).
+"""
 
 from __future__ import annotations
 
 import math
-import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
 
-from pymb.client import Client
-from pymb.devices.mapdevice import MapDevice
-from pymb.errors import DeviceException, ModbusConnectionError, ModbusError
-from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
-from pymb.logger.stats import Stats
-from pymb.store import DeviceInfo, Sample
-from pymb.store.records import event_kind, short_fault
+__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "FAULTS_BEFORE_BACKOFF",
+           "TEXT", "Backoff", "Health", "Slot", "reappeared"]
 
-__all__ = ["Builtin", "Bus", "MapHealth", "Slot", "run_scheduled", "slots_of"]
+#: A poller hands its samples to the writer in lists of at most this many, or
+#: this old (seconds), and before it waits: one queue operation per list, not
+#: two per sample. Events go at once, after the samples before them.
+BATCH_MAX = 64
+BATCH_AGE = 0.02
+#: a doubling backoff's first and longest wait (seconds)
+BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0
+#: failed reads of a built-in device in a row before it is backed off
+FAULTS_BEFORE_BACKOFF = 10
+
+#: The text of each event of the schedule's facts, for every poller
+#: (``str.format`` fields); a fault's own text is its error's.
+TEXT = {
+    "connect": "polling {devices} device(s) on {endpoint}",
+    "reconnect": "reconnected to {endpoint}",
+    "retrying": "{why}; retrying in {wait:g} s",
+    "skipped": "{late} poll slot(s) of {interval:g} s skipped ({what})",
+    "online": "{name} answers again",
+    "offline": "; offline after {failures} failed poll(s), next try in {wait:g} s",
+    "backoff": "; next try in {wait:g} s",
+}
+
+
+class Backoff:
+    """A doubling wait: :data:`BACKOFF_FIRST`, twice that, ... at most :data:`BACKOFF_MAX`."""
+
+    __slots__ = ("wait",)
+
+    def __init__(self) -> None:
+        self.wait = BACKOFF_FIRST  #: seconds of the next wait
+
+    def take(self) -> float:
+        """The wait now; the next one is twice as long."""
+        wait = self.wait
+        self.wait = min(wait * 2, BACKOFF_MAX)
+        return wait
+
+    def reset(self) -> None:
+        """Back to the first wait (the bus opened, or carried a reply)."""
+        self.wait = BACKOFF_FIRST
 
 
 @dataclass(eq=False)
-class MapHealth:
-    """A map device being polled and how its polling goes."""
+class Health:
+    """How a device's polls go: failures in a row, and not polled before
+    :attr:`retry_at` once they are too many."""
 
-    info: DeviceInfo
-    config: MapDeviceConfig
-    device: MapDevice
+    name: str
+    #: failed polls in a row before the device is left alone
+    after: int
+    #: seconds a map device is offline; None: a built-in device's doubling backoff
+    retry: float | None
     failures: int = 0  #: failed polls in a row
-    retry_at: float = 0.0  #: offline: not polled before this (clock)
-    offline: bool = False
+    retry_at: float = 0.0  #: not polled before this (clock)
+    offline: bool = False  #: a map device left alone (an ``online`` event when it answers)
+    backoff: float = 0.0  #: the built-in device's current backoff (0: none)
 
+    @classmethod
+    def of_map(cls, name: str, offline_after: int | None,
+               offline_retry: float | None) -> Health:
+        """A map device's: offline after ``offline_after`` failed polls (1 if
+        unset) for ``offline_retry`` seconds (30 if unset)."""
+        return cls(name, offline_after or 1, float(offline_retry or 30.0))
 
+    @classmethod
+    def of_builtin(cls, name: str) -> Health:
+        """A built-in device's: backed off after :data:`FAULTS_BEFORE_BACKOFF`."""
+        return cls(name, FAULTS_BEFORE_BACKOFF, None)
 
-class Builtin(Protocol):
-    """A built-in device on the bus, as the schedule sees it."""
+    def failed(self, now: float, at_once: bool = False) -> str:
+        """Count a failed poll at ``now`` (``at_once``: left alone now, however
+        few the failures). Returns what the fault's event adds: when the
+        next try is, if that is news."""
+        self.failures += 1
+        if self.retry is None:
+            if not at_once and self.failures < self.after:
+                return ""
+            self.backoff = min(max(self.backoff * 2, BACKOFF_FIRST), BACKOFF_MAX)
+            self.retry_at = now + self.backoff
+            return TEXT["backoff"].format(wait=self.backoff)
+        if not at_once and self.failures < self.after:
+            return ""
+        self.retry_at = now + self.retry
+        if self.offline:
+            return ""
+        self.offline = True
+        return TEXT["offline"].format(failures=self.failures, wait=self.retry)
 
-    retry_at: float  #: not polled before this (clock)
-
-
-class Bus(Protocol):
-    """The poller of a bus as the schedule uses it
-    (:class:`pymb.logger.poller.BusPoller`)."""
-
-    bus: BusConfig
-    client: Client
-    clock: Callable[[], float]
-    stop_event: threading.Event
-    stats: Stats
-    healths: dict[str, MapHealth]
-
-    def flush(self) -> None:
-        """Hand what was read to the writer."""
-        ...
-
-    def connect(self) -> bool:
-        """(Re)open the bus; False when it is gone for good."""
-        ...
-
-    def event(self, kind: str, message: str, device: DeviceInfo | None = None,
-              code: int | None = None) -> None:
-        """Record an event."""
-        ...
-
-    def add_sample(self, sample: Sample) -> None:
-        """Queue a sample for the writer."""
-        ...
-
-    def stamp(self) -> tuple[float, float]:
-        """(wall, monotonic) time of a read that just ended."""
-        ...
+    def answered(self) -> bool:
+        """A poll succeeded; whether the device was offline (it is back)."""
+        was = self.offline
+        self.failures, self.offline, self.backoff = 0, False, 0.0
+        return was
 
 
 @dataclass(eq=False)
 class Slot:
     """One thing read on a schedule: a map device's group, or a built-in device."""
 
-    interval: float  #: seconds; 0: once per connection (``once``) or flat out
-    once: bool = False  #: a map group of interval 0: read once after each (re)connect
+    health: Health
+    interval: float  #: seconds; 0: flat out, or once (``once``)
+    once: bool = False  #: a map group of interval 0: read once after the device (re)appears
     group: str | None = None
-    map: MapHealth | None = None
-    builtin: Builtin | None = None
-    poll: Callable[[], bool] | None = None  #: a built-in device's read (False: bus gone)
     next_at: float = 0.0
-    read_once: bool = False  #: an interval-0 group read on this connection
+    read_once: bool = False  #: a ``once`` group read since the device (re)appeared
+
+    @property
+    def what(self) -> str:
+        """The slot as events name it: ``NAME`` or ``NAME group GROUP``."""
+        name = self.health.name
+        return f"{name} group {self.group}" if self.group else name
 
     def due(self, now: float) -> bool:
         """Whether this slot is to be read at ``now``."""
-        if self.map is not None:
-            if self.map.offline and now < self.map.retry_at:
-                return False
-            if self.once:
-                return not self.read_once
-        elif self.builtin is not None and self.builtin.retry_at > now:
+        if now < self.health.retry_at:
             return False
+        if self.once:
+            return not self.read_once
         return self.interval == 0 or now >= self.next_at
 
     def wake(self, now: float) -> float:
-        """When this slot is due next (inf: not before a reconnect)."""
-        if self.map is not None and self.map.offline:
-            return max(self.map.retry_at, self.next_at if self.interval else self.map.retry_at)
-        if self.map is not None and self.once:
-            return math.inf if self.read_once else now
-        if self.builtin is not None:
-            return max(self.builtin.retry_at, self.next_at)
-        return self.next_at
+        """When this slot is due next (inf: not before the device reappears)."""
+        if self.once and self.read_once:
+            return math.inf
+        at = self.next_at if self.interval else now
+        retry = self.health.retry_at
+        return retry if retry > at else at
+
+    def advance(self, now: float) -> int:
+        """The slot was read (or failed), ending at ``now``: its next time.
+        Returns how many whole slots the read overran (skipped)."""
+        if self.once:
+            self.read_once = True
+            return 0
+        interval = self.interval
+        if interval == 0:
+            return 0
+        self.next_at += interval
+        if now <= self.next_at:
+            return 0
+        late = int((now - self.next_at) / interval) + 1
+        self.next_at += late * interval
+        return late
+
+    def skipped(self, late: int) -> str:
+        """The ``skipped`` event's text for ``late`` slots skipped."""
+        return TEXT["skipped"].format(late=late, interval=self.interval, what=self.what)
 
 
-def slots_of(poller: Bus, maps: list[tuple[DeviceInfo, MapDeviceConfig]],
-             builtins: Sequence[tuple[Builtin, Callable[[], bool]]] = ()) -> list[Slot]:
-    """The slots of a bus: each group of each map device, each built-in device."""
-    out: list[Slot] = []
-    rate = poller.bus.baud if poller.bus.port is not None else None
-    for info, cfg in maps:
-        dev = MapDevice(poller.client, cfg.map, cfg.address, baudrate=rate)
-        health = MapHealth(info, cfg, dev)
-        poller.healths[info.name] = health  # for write commands
-        for group, interval in cfg.polls:
-            out.append(Slot(poller.bus.interval if interval is None else interval,
-                            interval == 0, group, health))
-    out += [Slot(poller.bus.interval, builtin=d, poll=read) for d, read in builtins]
-    return out
-
-
-def run_scheduled(poller: Bus, slots: list[Slot]) -> None:
-    """Poll ``slots`` until told to stop (the poller is connected)."""
-    clock, stop = poller.clock, poller.stop_event
-    start = clock()
+def reappeared(slots: Iterable[Slot]) -> None:
+    """The device(s) of ``slots`` may be new (a connection opened again after
+    a failure): their ``once`` groups are read again."""
     for s in slots:
-        s.next_at = start
-    while not stop.is_set():
-        now = clock()
-        due = [s for s in slots if s.due(now)]
-        if not due:
-            wake = min(s.wake(now) for s in slots)
-            poller.flush()
-            if stop.wait(min(max(wake - now, 0.0), 30.0)):
-                return
-            continue
-        for s in due:
-            if stop.is_set():
-                return
-            if not (s.poll() if s.poll is not None else _poll_map(poller, s, slots)):
-                return
-            _advance(poller, s)
-
-
-def _advance(poller: Bus, s: Slot) -> None:
-    """The slot's next time; whole slots a long read overran are skipped and counted."""
-    if s.once:
-        s.read_once = True
-        return
-    if s.interval == 0:
-        return
-    s.next_at += s.interval
-    now = poller.clock()
-    if now > s.next_at:
-        late = int((now - s.next_at) / s.interval) + 1
-        s.next_at += late * s.interval
-        poller.stats.skipped(late)
-        what = f"{s.map.info.name} group {s.group}" if s.map is not None and s.group else \
-            "a device"
-        poller.event("skipped", f"{late} poll slot(s) of {s.interval:g} s skipped ({what})")
-
-
-def _poll_map(poller: Bus, s: Slot, slots: list[Slot]) -> bool:
-    """Read one group of a map device; False when the bus is gone for good."""
-    h = s.map
-    assert h is not None
-    name = h.info.name
-    try:
-        reading = h.device.read_group(s.group)
-    except ModbusConnectionError as e:
-        _failed(poller, h, event_kind(e), str(e), getattr(e, "errno", None))
-        poller.client.close()
-        if not poller.connect():
-            return False
-        for other in slots:
-            other.read_once = False
-        poller.event("reconnect", f"reconnected to {poller.bus.endpoint}")
-        return True
-    except ModbusError as e:
-        code = getattr(e, "code", None) if isinstance(e, DeviceException) else \
-            getattr(e, "errno", None)
-        _failed(poller, h, event_kind(e), str(e), code)
-        return True
-    poller.add_sample(Sample(h.info, *poller.stamp(), reading))
-    if reading.unsupported:
-        poller.stats.refused(name, reading.unsupported)
-    if h.offline:
-        poller.event("online", f"{name} answers again", h.info)
-    h.failures, h.offline = 0, False
-    poller.stats.ok(name)
-    return True
-
-
-def _failed(poller: Bus, h: MapHealth, kind: str, message: str, code: int | None) -> None:
-    retry = failed_poll(h, poller.clock())
-    stats = poller.stats
-    stats.count(stats.device_faults, h.info.name, 1)
-    stats.fault(h.info.name, f"{h.info.name}: {short_fault(kind, message)}")
-    poller.event(kind, message + retry, h.info, code)
+        s.read_once = False

@@ -76,4 +76,4 @@ def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
             client.close()
             loop.lender.give_back(c)
 
-    return Target(u.info.name, u.config.map, device, lambda: u.offline, release)
+    return Target(u.info.name, u.config.map, device, lambda: u.health.offline, release)

@@ -3,7 +3,7 @@
 for it, and :class:`TcpLoopBase`, the thread's part that opens, closes and
 reopens them (non-blocking connects under one selector, the bus's doubling
 backoff, the connect and reconnect events) and hands samples and events to
-the writer."""
+the writer (:class:`~pymb.logger.report.Report`)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ import queue
 import selectors
 import socket
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,13 +23,13 @@ from pymb._native.master import Master, PollTable
 from pymb.client import unresolved
 from pymb.errors import function_name
 from pymb.logger.config import BusConfig
+from pymb.logger.report import Report
+from pymb.logger.schedule import TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
 from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event, Sample
 
 __all__ = ["Conn", "TcpLoopBase", "asked"]
-
-_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
 
 class Loan:
@@ -58,7 +57,7 @@ class Conn:
     opened_once: bool = False
     answered: bool = False  #: a reply came on this connection (it is worth reopening at once)
     retry_at: float = 0.0
-    backoff: float = _BACKOFF_FIRST
+    backoff: Backoff = field(default_factory=Backoff)
     deadline: float = 0.0
     waiting: collections.deque[Entry] = field(default_factory=collections.deque)
     entry: Entry | None = None  #: the poll under way
@@ -142,29 +141,19 @@ class TcpLoopBase(threading.Thread):
         self.stats = stats
         self.conns: list[Conn] = []
         self._sel = selectors.DefaultSelector()
-        self._batch: list[Sample | Event] = []
-        self._batch_since = 0.0
+        self.report = Report(out, stats)
         self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
 
     # -- hand-over -----------------------------------------------------------------------
 
     def flush(self) -> None:
         """Hand what was read since the last list to the writer."""
-        batch, self._batch = self._batch, []
-        if batch:
-            self.out.put(batch)
+        self.report.flush()
 
     def take_unflushed(self) -> list[Sample | Event]:
         """What this poller read but has not handed over (the writer takes it
         when the poller is left behind at stop)."""
-        batch, self._batch = self._batch, []
-        return batch
-
-    def _event(self, c: Conn, kind: str, message: str, unit: Unit | None = None,
-               code: int | None = None) -> None:
-        self._batch.append(Event(time.time(), time.monotonic(), c.bus.name,
-                                 None if unit is None else unit.info, kind, code, message))
-        self.flush()
+        return self.report.take()
 
     # -- connections ---------------------------------------------------------------------
 
@@ -206,10 +195,9 @@ class TcpLoopBase(threading.Thread):
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         c.resolved = None
-        self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
-        self._event(c, "connection", f"{why}; retrying in {c.backoff:g} s")
-        c.retry_at = now + c.backoff
-        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
+        wait = c.backoff.take()
+        self.report.not_open(c.bus.name, why, wait)
+        c.retry_at = now + wait
 
     def _connected(self, c: Conn, now: float) -> None:
         assert c.sock is not None
@@ -221,8 +209,8 @@ class TcpLoopBase(threading.Thread):
         c.state = "open"
         c.answered = False
         self._sel.modify(c.sock, selectors.EVENT_READ, c)
-        self.stats.opened[c.bus.name] = True
-        self.stats.ok(c.bus.name)
+        report = self.report
+        report.opened(c.bus.name)
         wait = max(u.config.map.timing.after_connect for u in c.units)
         c.quiet_until = now + wait
         if c.renew:
@@ -230,24 +218,24 @@ class TcpLoopBase(threading.Thread):
             # replies: the same device, what it taught kept, the poll under
             # way goes on, "once after connect" groups are not read again
             c.entry, c.resume, c.renew = c.resume, None, False
-            c.backoff = _BACKOFF_FIRST
+            c.backoff.reset()
             if c.tell:
                 c.tell = False
-                self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
+                report.reconnected(c.bus.name, c.bus.endpoint)
             return
         if c.opened_once:
-            self._event(c, "reconnect", f"reconnected to {c.bus.endpoint}")
+            report.reconnected(c.bus.name, c.bus.endpoint)
         else:
-            self._event(c, "connect", f"polling {len(c.units)} device(s) on {c.bus.endpoint}")
+            report.connected(c.bus.name, c.bus.endpoint, len(c.units))
         c.opened_once = True
         # a new connection may be a new device: forget what the last one taught
         for u in c.units:
             u.planner.forget()
+        reappeared(e.slot for e in c.entries)
         # the polls waiting, in the order of the devices and groups
         c.waiting.clear()
         for e in c.entries:
-            e.read_once = False
-            if e.queued or e.once or e.interval == 0:
+            if e.queued or e.slot.interval == 0:
                 e.queued = True
                 c.waiting.append(e)
 
@@ -258,11 +246,12 @@ class TcpLoopBase(threading.Thread):
         the retry as an event says it ("" when at once)."""
         self._close(c)
         if c.answered:
-            c.backoff, c.retry_at = _BACKOFF_FIRST, now
+            c.backoff.reset()
+            c.retry_at = now
             return ""
-        wait, c.retry_at = c.backoff, now + c.backoff
-        c.backoff = min(c.backoff * 2, _BACKOFF_MAX)
-        return f"; retrying in {wait:g} s"
+        wait = c.backoff.take()
+        c.retry_at = now + wait
+        return TEXT["retrying"].format(why="", wait=wait)
 
     def _closed_after_replies(self, c: Conn, now: float) -> None:
         """The device closed the connection after it answered (some devices
@@ -276,12 +265,13 @@ class TcpLoopBase(threading.Thread):
         c.tell = False
         if answered == c.closed_after and not c.limit:
             c.limit = answered
-            self._event(c, "reconnect", f"{c.bus.endpoint} closes the connection after "
-                        f"{replies}: {answered} request(s) per connection from now on")
+            self.report.event(c.bus.name, "reconnect", f"{c.bus.endpoint} closes the "
+                              f"connection after {replies}: {answered} request(s) per "
+                              "connection from now on")
         elif not c.limit:  # not (yet) its way of working: said, as a loss is
             self.stats.fault(c.bus.name, f"bus {c.bus.name}: the connection was closed")
-            self._event(c, "connection", f"{c.bus.endpoint}: the connection was closed by "
-                        f"the device after {replies}; opening it again")
+            self.report.event(c.bus.name, "connection", f"{c.bus.endpoint}: the connection "
+                              f"was closed by the device after {replies}; opening it again")
             c.tell = True
         c.closed_after = answered
         if c.entry is not None:  # what is in flight goes out again

@@ -15,17 +15,15 @@ group's sample image. While a whole poll is out, the socket wakes the loop
 once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
 whose replies take more than twice as long as they did of late (an
 exception reply is shorter than the reply it stands for) is read as its
-replies come. This module is the runner: the sockets and the schedule.
-
-It keeps the logger's contract for map devices (:mod:`pymb.logger.schedule`
-is the same contract for a thread per bus): each group at its own interval
-on drift-free slots, skipped slots counted; ``offline_after`` /
-``offline_retry`` per device; an exception re-plans within the same poll as
-the planner's policy says (:func:`pymb.maps.planner.on_refusal`: 02/03 with
-``split_on_exception``; a point refused alone reads ``unsupported``);
-samples and events go to the writer's queue as :class:`~pymb.store.Sample`
-and :class:`~pymb.store.Event` records, the registers stored as a thread per
-bus would store them.
+replies come. This module is the runner: the sockets, and the logger's
+one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs it):
+each group at its own interval on drift-free slots, skipped slots counted;
+``offline_after`` / ``offline_retry`` per device; an exception re-plans
+within the same poll as the planner's policy says
+(:func:`pymb.maps.planner.on_refusal`: 02/03 with ``split_on_exception``;
+a point refused alone reads ``unsupported``); samples and events go to the
+writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event`
+records, the registers stored as a thread per bus would store them.
 """
 
 from __future__ import annotations
@@ -47,8 +45,8 @@ from pymb.errors import (
     request_error,
 )
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig, failed_poll
-from pymb.logger.poller import BATCH_MAX, map_info
+from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.poller import map_info
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lender
@@ -57,13 +55,11 @@ from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_rea
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
-from pymb.store.records import event_kind, short_fault
 
 __all__ = ["TcpMapPoller", "fans_out"]
 
 #: a connection the device closed (EOF) or reset
 _CLOSED = (errno.ECONNRESET, errno.EPIPE)
-_BATCH_AGE = 0.02  #: seconds samples wait before they are handed over
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
 #: a poll's replies have twice the time they took of late (at least this
 #: many seconds) to come in full before the loop reads them as they come (an
@@ -139,7 +135,7 @@ class TcpMapPoller(TcpReplies):
             self._requeue(c, e, now)
         else:  # between polls: the bus's event
             self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
-            self._event(c, "connection", f"{c.bus.endpoint}: {why}{retry}")
+            self.report.event(c.bus.name, "connection", f"{c.bus.endpoint}: {why}{retry}")
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         e, c.resume, c.renew = c.resume, None, False
@@ -163,8 +159,8 @@ class TcpMapPoller(TcpReplies):
         while c.entry is None and c.waiting and c.state == "open":
             e = c.waiting.popleft()
             e.queued = False
-            if not e.due(now):
-                self._at(e.wake(now), e)
+            if not e.slot.due(now):
+                self._at(e.slot.wake(now), e)
                 continue
             c.entry = e
             c.todo = e.requests()
@@ -293,43 +289,22 @@ class TcpMapPoller(TcpReplies):
         if unread or c.unread:
             unread = (unread | c.unread) & e.decode.items
         reading = lazy_reading(e.decode, bytes(e.image), unread)
-        batch = self._batch
-        if not batch:
-            self._batch_since = now
-        batch.append(Sample(u.info, time.time(), now, reading))
-        if len(batch) >= BATCH_MAX:
-            self.flush()
-        stats = self.stats
-        if reading.unsupported:
-            stats.refused(u.info.name, reading.unsupported)
-        if u.offline:
-            self._event(c, "online", f"{u.info.name} answers again", u)
-        if u.failures:
-            u.failures, u.offline = 0, False
-        stats.ok(u.info.name)
+        report = self.report
+        report.sample(Sample(u.info, time.time(), now, reading))
+        report.answered(c.bus.name, u.health, u.info, reading.unsupported)
         self._requeue(c, e, now)
 
     def _requeue(self, c: Conn, e: Entry, now: float) -> None:
-        """After a poll (or a failed one): the group's next slot; whole slots
-        a long poll overran are skipped and counted."""
-        if e.once:
-            e.read_once = True
-            return
-        if e.interval == 0:
-            if e.due(now):
-                self._queue(c, e)
-            else:
-                self._at(e.wake(now), e)
-            return
-        e.next_at += e.interval
-        if now > e.next_at:
-            late = int((now - e.next_at) / e.interval) + 1
-            e.next_at += late * e.interval
-            self.stats.skipped(late)
-            what = f"{e.unit.info.name} group {e.group}" if e.group else e.unit.info.name
-            self._event(c, "skipped", f"{late} poll slot(s) of {e.interval:g} s skipped "
-                        f"({what})")
-        self._at(e.wake(now), e)
+        """After a poll (or a failed one): the group's next slot (whole slots
+        a long poll overran skipped and counted); queued at once when due."""
+        slot = e.slot
+        late = slot.advance(now)
+        if late:
+            self.report.skipped(c.bus.name, slot, late)
+        if slot.due(now):
+            self._queue(c, e)
+        else:
+            self._at(slot.wake(now), e)
 
     def _at(self, when: float, e: Entry) -> None:
         if when != float("inf"):
@@ -337,13 +312,7 @@ class TcpMapPoller(TcpReplies):
             heapq.heappush(self._slots, (when, self._seq, e))
 
     def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
-        kind = event_kind(e)
-        code = getattr(e, "code", None) or getattr(e, "errno", None)
-        retry = failed_poll(u, time.monotonic())
-        stats = self.stats
-        stats.count(stats.device_faults, u.info.name, 1)
-        stats.fault(u.info.name, f"{u.info.name}: {short_fault(kind, str(e))}")
-        self._event(c, kind, str(e) + retry, u, code)
+        self.report.error(c.bus.name, u.health, u.info, e, time.monotonic())
 
     # -- the loop ------------------------------------------------------------------------
 
@@ -409,12 +378,12 @@ class TcpMapPoller(TcpReplies):
         while slots and slots[0][0] <= now:
             _, _, e = heapq.heappop(slots)
             c = self._conn_of[id(e)]
-            if e.due(now):
+            if e.slot.due(now):
                 self._queue(c, e)
                 if c.entry is None:
                     self._next(c, now)
             else:
-                self._at(e.wake(now), e)
+                self._at(e.slot.wake(now), e)
 
     def run(self) -> None:
         try:
@@ -430,8 +399,8 @@ class TcpMapPoller(TcpReplies):
         start = time.monotonic()
         for c in self.conns:
             for e in c.entries:
-                e.next_at = start
-                if not (e.once or e.interval == 0):
+                e.slot.next_at = start
+                if e.slot.interval:
                     self._at(start, e)
         stop, select = self.stop_event, self._sel.select
         next_sweep = start
@@ -442,8 +411,7 @@ class TcpMapPoller(TcpReplies):
                 next_sweep = now + _TICK
             if self._slots and self._slots[0][0] <= now:
                 self._due(now)
-            batch = self._batch
-            if batch and now - self._batch_since >= _BATCH_AGE:
+            if self.report.aged(now):
                 self.flush()
             wait = min(next_sweep, self._soonest) - now
             if self._slots:

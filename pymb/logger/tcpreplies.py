@@ -135,6 +135,6 @@ class TcpReplies(TcpLoopBase):
             c.entry = None
         else:  # between polls: the bus's event
             self.stats.fault(c.bus.name, f"bus {c.bus.name}: unexpected bytes")
-            self._event(c, "protocol", f"{c.bus.endpoint}: bytes no request asked for "
-                        f"(received {got.hex(' ').upper()})")
+            self.report.event(c.bus.name, "protocol", f"{c.bus.endpoint}: bytes no request "
+                              f"asked for (received {got.hex(' ').upper()})")
         self._reopen(c, now)

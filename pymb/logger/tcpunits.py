@@ -14,7 +14,6 @@ slice assignment; a poll's sample is that image, copied once.
 
 from __future__ import annotations
 
-import math
 import sys
 import threading
 from array import array
@@ -25,6 +24,7 @@ from typing import Any
 from pymb._native.master import PollTable
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.schedule import Health, Slot
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
@@ -48,9 +48,7 @@ class Unit:
     timeout: float  #: seconds a request waits for its reply
     gap: float  #: silence before each request (``inter_request_gap``)
     turnaround: float  #: silence after its reply
-    failures: int = 0  #: failed polls in a row
-    retry_at: float = 0.0  #: offline: not polled before this (clock)
-    offline: bool = False
+    health: Health  #: its polls' failures and offline time
     #: whether the device needs silences around its requests (no pipelining)
     timed: bool = field(init=False)
 
@@ -72,7 +70,8 @@ class Unit:
                                    offline_retry=first.offline_retry, ties=first.ties)
         t = m.timing
         return cls(info, cfg, planner, mi, t.response_timeout or bus_timeout,
-                   t.inter_request_gap, t.turnaround)
+                   t.inter_request_gap, t.turnaround,
+                   Health.of_map(info.name, cfg.offline_after, cfg.offline_retry))
 
 
 class PollRequest:
@@ -199,16 +198,12 @@ def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
 
 @dataclass(eq=False)
 class Entry:
-    """One polling group of a unit: its schedule and its requests."""
+    """One polling group of a unit: its slot of the schedule and its requests."""
 
     unit: Unit
-    group: str | None
-    interval: float  #: seconds; 0: flat out (or once, see ``once``)
-    once: bool  #: interval 0 in the map: once after each (re)connect
+    slot: Slot
     decode: GroupDecode
     wanted: tuple[int, ...]  #: the planner items of the group (the same tuple each poll)
-    next_at: float = 0.0
-    read_once: bool = False
     queued: bool = False  #: waiting in its connection's queue
     plan: ReadPlan | None = None
     specs: list[PollRequest] = field(default_factory=list)
@@ -226,7 +221,7 @@ class Entry:
         if how is None:
             how = shared[id(m), group] = GroupDecode(m, group, unit.items)
         wanted = tuple(sorted(how.items))
-        return cls(unit, group, interval, once, how, wanted,
+        return cls(unit, Slot(unit.health, interval, once, group), how, wanted,
                    image=bytearray(2 * sum(d.count for d in how.decoders)))
 
     def requests(self) -> list[PollRequest]:
@@ -252,21 +247,3 @@ class Entry:
             raise ValueError(f"{r.table} {r.address}+{r.count} outside the group's "
                              f"registers {first}+{count}")
         return PollRequest(r, off + 2 * (r.address - first))
-
-    def due(self, now: float) -> bool:
-        """Whether this group is to be read at ``now``."""
-        u = self.unit
-        if u.offline and now < u.retry_at:
-            return False
-        if self.once:
-            return not self.read_once
-        return self.interval == 0 or now >= self.next_at
-
-    def wake(self, now: float) -> float:
-        """When this group is due next (inf: not before a reconnect)."""
-        u = self.unit
-        if u.offline:
-            return max(u.retry_at, self.next_at if self.interval else u.retry_at)
-        if self.once:
-            return math.inf if self.read_once else now
-        return self.next_at if self.interval else now

@@ -1,0 +1,118 @@
+"""What a poller hands the writer: :class:`Report`, the one hand-over of
+both runners (a bus's thread and the one TCP loop): samples in lists
+(:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`),
+events at once, after the samples before them, and the run's counts
+(:class:`~pymb.logger.stats.Stats`) for each fact of the schedule, each
+said in one place with :data:`~pymb.logger.schedule.TEXT`."""
+
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Sequence
+
+from pymb.errors import ModbusError
+from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Health, Slot
+from pymb.logger.stats import Stats
+from pymb.store import DeviceInfo, Event, Sample
+from pymb.store.records import event_kind, short_fault
+
+__all__ = ["Report"]
+
+
+class Report:
+    """A poller's samples and events on their way to the writer (``out``),
+    and its part of the run's counts (``stats``)."""
+
+    def __init__(self, out: queue.Queue[list[Sample | Event]], stats: Stats) -> None:
+        self.out = out
+        self.stats = stats
+        self.items: list[Sample | Event] = []
+        self.since = 0.0  #: when the oldest of :attr:`items` was read (monotonic)
+
+    # -- the hand-over ------------------------------------------------------------------
+
+    def flush(self) -> None:
+        """Hand what was read since the last list to the writer."""
+        items, self.items = self.items, []
+        if items:
+            self.out.put(items)
+
+    def take(self) -> list[Sample | Event]:
+        """What was read but not handed over (for the writer, once the poller
+        is left behind at stop)."""
+        items, self.items = self.items, []
+        return items
+
+    def aged(self, now: float) -> bool:
+        """Whether samples wait that are to be handed over by ``now``."""
+        return bool(self.items) and now - self.since >= BATCH_AGE
+
+    def sample(self, sample: Sample) -> None:
+        """Add a sample to the list (handed over when full or old)."""
+        items = self.items
+        now = sample.monotonic
+        if not items:
+            self.since = now
+        items.append(sample)
+        if len(items) >= BATCH_MAX or now - self.since >= BATCH_AGE:
+            self.flush()
+
+    def event(self, bus: str, kind: str, message: str, device: DeviceInfo | None = None,
+              code: int | None = None) -> None:
+        """Record an event of ``bus`` now (handed over at once)."""
+        self.items.append(Event(time.time(), time.monotonic(), bus, device, kind, code,
+                                message))
+        self.flush()
+
+    # -- the facts ---------------------------------------------------------------------
+
+    def opened(self, bus: str) -> None:
+        """``bus`` is open."""
+        self.stats.opened[bus] = True
+        self.stats.ok(bus)
+
+    def not_open(self, bus: str, why: str, wait: float) -> None:
+        """``bus`` did not open (``why``); tried again ``wait`` seconds later."""
+        self.stats.fault(bus, f"bus {bus}: {why}")
+        self.event(bus, "connection", TEXT["retrying"].format(why=why, wait=wait))
+
+    def connected(self, bus: str, endpoint: str, devices: int) -> None:
+        """``bus`` opened for the first time in the run: polling begins."""
+        self.event(bus, "connect", TEXT["connect"].format(devices=devices, endpoint=endpoint))
+
+    def reconnected(self, bus: str, endpoint: str) -> None:
+        """``bus`` opened again after a failure."""
+        self.event(bus, "reconnect", TEXT["reconnect"].format(endpoint=endpoint))
+
+    def skipped(self, bus: str, slot: Slot, late: int) -> None:
+        """A read of ``slot`` overran ``late`` whole slots (:meth:`Slot.advance`)."""
+        self.stats.skipped(late)
+        self.event(bus, "skipped", slot.skipped(late))
+
+    def failed(self, bus: str, h: Health, info: DeviceInfo, kind: str, message: str,
+               code: int | None, now: float, *, at_once: bool = False) -> None:
+        """A poll of ``h``'s device failed at ``now``: counted, and an event of
+        ``kind`` that says when the next try is once the device is left alone."""
+        retry = h.failed(now, at_once)
+        stats = self.stats
+        if h.retry is not None:  # a map device's (the summary's health lines)
+            stats.count(stats.device_faults, h.name, 1)
+        stats.fault(h.name, f"{h.name}: {short_fault(kind, message)}")
+        self.event(bus, kind, message + retry, info, code)
+
+    def error(self, bus: str, h: Health, info: DeviceInfo, e: ModbusError, now: float) -> None:
+        """:meth:`failed` with error ``e``."""
+        code = getattr(e, "code", None) or getattr(e, "errno", None)
+        self.failed(bus, h, info, event_kind(e), str(e), code, now)
+
+    def answered(self, bus: str, h: Health, info: DeviceInfo,
+                 refused: Sequence[str] = ()) -> None:
+        """A poll of ``h``'s device gave a sample (whose ``refused`` points
+        the device refused): an ``online`` event if it was offline."""
+        stats = self.stats
+        if refused:
+            stats.refused(h.name, refused)
+        if (h.failures or h.offline) and h.answered():
+            self.event(bus, "online", TEXT["online"].format(name=h.name), info)
+        stats.ok(h.name)

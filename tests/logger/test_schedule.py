@@ -1,0 +1,109 @@
+"""The one schedule (:mod:`pymb.logger.schedule`), its rules on their own: a
+clock is a number here, so each rule is checked at the exact instants that
+matter (the runners that use it, a thread per bus and the TCP loop, are
+tested end to end in the other files of this folder)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from pymb.logger.schedule import (
+    BACKOFF_MAX,
+    FAULTS_BEFORE_BACKOFF,
+    Backoff,
+    Health,
+    Slot,
+    reappeared,
+)
+
+
+def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
+    s = Slot(Health.of_map("m", None, None), 1.0, group="fast")
+    s.next_at = 100.0
+    assert s.due(100.0) and not s.due(99.99)
+    assert s.advance(100.4) == 0  # read within its slot: the next at 101, not 101.4
+    assert s.next_at == 101.0 and not s.due(100.99) and s.due(101.0)
+    assert s.wake(100.5) == 101.0
+    assert s.advance(103.5) == 2  # slots 102 and 103 were overrun: skipped, counted
+    assert s.next_at == 104.0
+    assert s.skipped(2) == "2 poll slot(s) of 1 s skipped (m group fast)"
+    assert s.advance(104.0 + 1.0) == 0  # ending exactly at the next slot: nothing skipped
+    assert s.next_at == 105.0
+
+
+def test_flat_out_is_always_due_and_never_skips() -> None:
+    s = Slot(Health.of_builtin("hub-1"), 0.0)
+    assert s.due(5.0) and s.wake(5.0) == 5.0
+    assert s.advance(1e6) == 0 and s.due(1e6)
+    assert s.skipped(1) == "1 poll slot(s) of 0 s skipped (hub-1)"
+
+
+def test_a_once_group_is_read_once_until_the_device_reappears() -> None:
+    h = Health.of_map("m", None, None)
+    once, fast = Slot(h, 0.0, True, "info"), Slot(h, 1.0, group="fast")
+    assert once.due(0.0) and once.wake(0.0) == 0.0
+    assert once.advance(0.5) == 0
+    assert not once.due(1e9) and once.wake(1.0) == math.inf
+    reappeared([once, fast])  # a connection opened again after a failure
+    assert once.due(2.0)
+
+
+def test_a_map_device_goes_offline_after_its_failures_and_is_tried_again() -> None:
+    h = Health.of_map("m", 3, 10.0)
+    s = Slot(h, 1.0)
+    assert [h.failed(t) for t in (0.0, 1.0)] == ["", ""]
+    assert s.due(2.0) and not h.offline
+    said = h.failed(2.0)
+    assert said == "; offline after 3 failed poll(s), next try in 10 s"
+    assert h.offline and h.retry_at == 12.0
+    s.next_at = 3.0
+    assert not s.due(11.9) and s.wake(3.0) == 12.0  # the retry, not the slot
+    assert h.failed(12.0) == ""  # still offline: said once; the next try 10 s on
+    assert h.retry_at == 22.0
+    assert h.answered() is True  # back: the runner says "online"
+    assert (h.failures, h.offline) == (0, False)
+    assert h.answered() is False
+
+
+def test_map_health_defaults() -> None:
+    h = Health.of_map("m", None, None)
+    assert h.failed(0.0) == "; offline after 1 failed poll(s), next try in 30 s"
+
+
+def test_a_once_group_of_an_offline_device_waits_for_the_retry() -> None:
+    h = Health.of_map("m", 1, 5.0)
+    once = Slot(h, 0.0, True)
+    h.failed(10.0)
+    assert not once.due(12.0) and once.wake(12.0) == 15.0
+    assert once.due(15.0)
+
+
+def test_a_builtin_device_backs_off_doubling_after_ten_failures() -> None:
+    h = Health.of_builtin("coolpro-1")
+    said = [h.failed(float(t)) for t in range(FAULTS_BEFORE_BACKOFF + 8)]
+    assert said[:FAULTS_BEFORE_BACKOFF - 1] == [""] * (FAULTS_BEFORE_BACKOFF - 1)
+    tail = said[FAULTS_BEFORE_BACKOFF - 1:]
+    assert tail[:3] == ["; next try in 0.5 s", "; next try in 1 s", "; next try in 2 s"]
+    assert tail[-1] == f"; next try in {BACKOFF_MAX:g} s"
+    assert not h.offline  # backed off, not "offline": no online event when it answers
+    assert h.answered() is False
+    assert h.failed(100.0) == ""  # a new run of failures starts from nothing
+
+
+def test_a_failure_at_once_backs_off_at_once() -> None:
+    h = Health.of_builtin("hub-1")
+    assert h.failed(1.0, at_once=True) == "; next try in 0.5 s"
+    s = Slot(h, 0.0)
+    assert not s.due(1.2) and s.wake(1.2) == 1.5
+
+
+@pytest.mark.parametrize("n", [1, 5, 20])
+def test_the_bus_backoff_doubles_to_its_cap_and_resets(n: int) -> None:
+    b = Backoff()
+    waits = [b.take() for _ in range(n)]
+    assert waits[0] == 0.5
+    assert all(w2 == min(2 * w1, BACKOFF_MAX) for w1, w2 in zip(waits, waits[1:]))
+    b.reset()
+    assert b.take() == 0.5
