@@ -5,6 +5,7 @@ tested end to end in the other files of this folder)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -22,9 +23,12 @@ from pymb.logger.schedule import (
 def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
     s = Slot(Health.of_map("m", None, None), 1.0, group="fast")
     s.next_at = 100.0
-    assert s.due(100.0) and not s.due(99.99)
+    assert s.due(100.0)
+    assert not s.due(99.99)
     assert s.advance(100.4) == 0  # read within its slot: the next at 101, not 101.4
-    assert s.next_at == 101.0 and not s.due(100.99) and s.due(101.0)
+    assert s.next_at == 101.0
+    assert not s.due(100.99)
+    assert s.due(101.0)
     assert s.wake(100.5) == 101.0
     assert s.advance(103.5) == 2  # slots 102 and 103 were overrun: skipped, counted
     assert s.next_at == 104.0
@@ -35,17 +39,21 @@ def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
 
 def test_flat_out_is_always_due_and_never_skips() -> None:
     s = Slot(Health.of_builtin("hub-1"), 0.0)
-    assert s.due(5.0) and s.wake(5.0) == 5.0
-    assert s.advance(1e6) == 0 and s.due(1e6)
+    assert s.due(5.0)
+    assert s.wake(5.0) == 5.0
+    assert s.advance(1e6) == 0
+    assert s.due(1e6)
     assert s.skipped(1) == "1 poll slot(s) of 0 s skipped (hub-1)"
 
 
 def test_a_once_group_is_read_once_until_the_device_reappears() -> None:
     h = Health.of_map("m", None, None)
     once, fast = Slot(h, 0.0, True, "info"), Slot(h, 1.0, group="fast")
-    assert once.due(0.0) and once.wake(0.0) == 0.0
+    assert once.due(0.0)
+    assert once.wake(0.0) == 0.0
     assert once.advance(0.5) == 0
-    assert not once.due(1e9) and once.wake(1.0) == math.inf
+    assert not once.due(1e9)
+    assert once.wake(1.0) == math.inf
     reappeared([once, fast])  # a connection opened again after a failure
     assert once.due(2.0)
 
@@ -54,12 +62,15 @@ def test_a_map_device_goes_offline_after_its_failures_and_is_tried_again() -> No
     h = Health.of_map("m", 3, 10.0)
     s = Slot(h, 1.0)
     assert [h.failed(t) for t in (0.0, 1.0)] == ["", ""]
-    assert s.due(2.0) and not h.offline
+    assert s.due(2.0)
+    assert not h.offline
     said = h.failed(2.0)
     assert said == "; offline after 3 failed poll(s), next try in 10 s"
-    assert h.offline and h.retry_at == 12.0
+    assert h.offline
+    assert h.retry_at == 12.0
     s.next_at = 3.0
-    assert not s.due(11.9) and s.wake(3.0) == 12.0  # the retry, not the slot
+    assert not s.due(11.9)
+    assert s.wake(3.0) == 12.0
     assert h.failed(12.0) == ""  # still offline: said once; the next try 10 s on
     assert h.retry_at == 22.0
     assert h.answered() is True  # back: the runner says "online"
@@ -76,7 +87,8 @@ def test_a_once_group_of_an_offline_device_waits_for_the_retry() -> None:
     h = Health.of_map("m", 1, 5.0)
     once = Slot(h, 0.0, True)
     h.failed(10.0)
-    assert not once.due(12.0) and once.wake(12.0) == 15.0
+    assert not once.due(12.0)
+    assert once.wake(12.0) == 15.0
     assert once.due(15.0)
 
 
@@ -96,7 +108,8 @@ def test_a_failure_at_once_backs_off_at_once() -> None:
     h = Health.of_builtin("hub-1")
     assert h.failed(1.0, at_once=True) == "; next try in 0.5 s"
     s = Slot(h, 0.0)
-    assert not s.due(1.2) and s.wake(1.2) == 1.5
+    assert not s.due(1.2)
+    assert s.wake(1.2) == 1.5
 
 
 @pytest.mark.parametrize("n", [1, 5, 20])
@@ -104,6 +117,6 @@ def test_the_bus_backoff_doubles_to_its_cap_and_resets(n: int) -> None:
     b = Backoff()
     waits = [b.take() for _ in range(n)]
     assert waits[0] == 0.5
-    assert all(w2 == min(2 * w1, BACKOFF_MAX) for w1, w2 in zip(waits, waits[1:]))
+    assert all(w2 == min(2 * w1, BACKOFF_MAX) for w1, w2 in itertools.pairwise(waits))
     b.reset()
     assert b.take() == 0.5
