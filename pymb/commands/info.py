@@ -94,7 +94,7 @@ def text(s: Summary, now: float | None = None) -> str:
     width = max((len(d.name) for d in s.devices), default=0)
     for d in s.devices:
         what = f"{d.type}:{d.address} on {d.bus} ({d.port})"
-        if d.type == "hub":
+        if d.channels:
             what += f", {d.channels} channels"
         by_group = ""
         if len(d.groups) > 1:

@@ -8,13 +8,12 @@ import sqlite3
 from collections.abc import Mapping, Sequence
 from typing import IO, Any
 
-from pymb.devices import HubReading, State
-from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import STATE_NAMES, telemetry_values
+from pymb.devices.readings import STATE_NAMES
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store.reader import map_columns
 from pymb.store.readonly import open_readonly
+from pymb.store.records import reading_values
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.series import chunks, sample_filter
 from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
@@ -22,7 +21,6 @@ from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
 __all__ = ["LAYOUTS", "WIDE_HEAD", "export_csv", "wide_columns"]
 
 LAYOUTS = ("long", "wide")
-_NOT_READ = int(State.NOT_READ)
 #: The wide layout's first columns (then one per value).
 WIDE_HEAD = CSV_COLUMNS[:6]
 
@@ -136,40 +134,14 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     for s in chunks(db, where, args, given=maps):
         d = s.device
         cells: list[Any] = [""] * len(cols)
-        data = s.data
         # A sample with none of the chosen values has no row (an --on-change
         # sample may hold none of the chosen channels).
-        if isinstance(data, HubReading):
-            c = data.channels
-            vals, states = data.values.tolist(), data.raw_states.tolist()
-            stored = False
-            for b, name in enumerate(HUB_FIELDS):
-                for ch in range(1, c + 1):
-                    i = index.get(f"{name}_{ch}")
-                    if i is not None and states[b * c + ch - 1] != _NOT_READ:
-                        cells[i] = csv_value(vals[b * c + ch - 1] + 0.0)
-                        stored = True
-        elif isinstance(data, MapReading):
-            stored = False
-            for name, v in data.values.items():
-                if isinstance(v, list) and data.map.points[name].block:
-                    for ch, cv in enumerate(v, 1):
-                        i = index.get(f"{name}_{ch}")
-                        if i is not None:
-                            cells[i] = csv_value(cv)
-                            stored = True
-                else:
-                    i = index.get(name)
-                    if i is not None:
-                        cells[i] = csv_value(v)
-                        stored = True
-        else:
-            stored = False  # none of its quantities chosen (--channel, --quantity)
-            for name, v in telemetry_values(data).items():
-                i = index.get(name)
-                if i is not None:
-                    cells[i] = csv_value(v)
-                    stored = True
+        stored = False
+        for ch, name, v, _ in reading_values(s.data):
+            i = index.get(name if ch is None else f"{name}_{ch}")
+            if i is not None:
+                cells[i] = csv_value(v)
+                stored = True
         if stored:
             w.writerow([*csv_head(s.time_utc, d.bus, d.name, d.type, d.address), *cells])
             rows += 1

@@ -5,12 +5,13 @@ sample read back), and :class:`Sink`, the protocol every output follows."""
 from __future__ import annotations
 
 import abc
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
-from pymb.devices import CoolProTelemetry, HubReading
+from pymb.devices import CoolProTelemetry, HubReading, State
 from pymb.devices.mapreading import MapReading
+from pymb.devices.readings import STATE_NAMES, telemetry_values
 from pymb.errors import (
     DeviceBusy,
     DeviceException,
@@ -20,9 +21,12 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
+from pymb.store.schema import HUB_FIELDS
 
 __all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
-           "StoredSample", "as_sink", "event_kind", "short_fault"]
+           "StoredSample", "as_sink", "event_kind", "reading_values", "short_fault"]
+
+_NOT_READ = int(State.NOT_READ)
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,36 @@ class Sample:
     time_utc: float
     monotonic: float
     data: CoolProTelemetry | HubReading | MapReading
+
+
+def reading_values(data: CoolProTelemetry | HubReading | MapReading
+                   ) -> Iterator[tuple[int | None, str, Any, Any]]:
+    """(channel, point, value, state) of every value of a reading, by its
+    map's points, in the order of the long CSV: a block's channel (1-based)
+    or None, the point's name, the value (None or NaN for none; a hub's
+    "negative zero" 0.0) and its state's name. A hub is read channel by
+    channel, and a value an ``--on-change`` sample did not store
+    (``not_read``) is left out."""
+    if isinstance(data, HubReading):
+        c = data.channels
+        vals, sts = data.values.tolist(), data.raw_states.tolist()
+        names = list(enumerate(HUB_FIELDS))
+        for ch in range(c):
+            for b, name in names:
+                i = b * c + ch
+                if sts[i] != _NOT_READ:
+                    yield ch + 1, name, vals[i] + 0.0, STATE_NAMES[sts[i]]
+    elif isinstance(data, MapReading):
+        for name, v in data.values.items():
+            st = data.states.get(name)
+            if isinstance(v, list) and data.map.points[name].block:
+                for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1):
+                    yield ch, name, cv, cs
+            else:
+                yield None, name, v, st
+    else:
+        for name, tv in telemetry_values(data).items():
+            yield None, name, tv, "value"
 
 
 @dataclass(frozen=True)

@@ -124,7 +124,7 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         if schema_version(con) != SCHEMA_VERSION:
             raise InvalidArgument(f"{path} is not a pymb database of format {SCHEMA_VERSION}")
         name, kind = resolve_device(con, device, str(path))
-        stored = None if kind in ("coolpro", "hub") else stored_map(con, kind)
+        stored = stored_map(con, kind)
         known = quantities(kind) if stored is None else [
             n for n, p in stored[0].points.items() if p.access != "w" and not p.block]
         if quantity not in known:

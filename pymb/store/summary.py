@@ -115,14 +115,13 @@ def _summarize(con: sqlite3.Connection, path: str) -> Summary:
         got = [per.get(did, (0, None, None)) for did, _, _ in rows]
         firsts = [f for _, f, _ in got if f is not None]
         lasts = [la for _, _, la in got if la is not None]
-        groups: dict[str, int] = {}
-        if kind not in ("coolpro", "hub"):
-            groups = dict.fromkeys(_map_groups(con, kind), 0)
-            for (_, _, units), (n, _, _) in zip(rows, got, strict=True):
-                if not units.startswith("group="):
-                    continue  # the row of an event alone (a timeout): no group of its own
-                group = parse_layout_key(units)[0] or ""
-                groups[group] = groups.get(group, 0) + n
+        # a map device's samples by group (none for a device without a stored map)
+        groups = dict.fromkeys(_map_groups(con, kind), 0)
+        for (_, _, units), (n, _, _) in zip(rows, got, strict=True):
+            if not units.startswith("group="):
+                continue  # the row of an event alone (a timeout): no group of its own
+            group = parse_layout_key(units)[0] or ""
+            groups[group] = groups.get(group, 0) + n
         devs.append(DeviceSummary(
             name, kind, address, bus, port, rows[-1][1], sum(n for n, _, _ in got),
             min(firsts, default=None), max(lasts, default=None), tuple(groups.items())))

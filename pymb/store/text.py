@@ -11,18 +11,13 @@ import time
 from collections.abc import Iterator
 from typing import IO, Any
 
-from pymb.devices import HubReading, State
-from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import STATE_NAMES, reading_dict, telemetry_values
+from pymb.devices.readings import reading_dict
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.faults import file_open_error
-from pymb.store.records import Event, Sample, SinkBase, StoredSample
-from pymb.store.schema import HUB_FIELDS
+from pymb.store.records import Event, Sample, SinkBase, StoredSample, reading_values
 
 __all__ = ["CSV_COLUMNS", "CsvSink", "JsonlSink", "csv_head", "csv_value", "event_dict",
            "sample_dict", "sample_rows"]
-
-_NOT_READ = int(State.NOT_READ)
 
 CSV_COLUMNS = ["time_utc", "time", "bus", "device", "type", "address", "channel", "quantity",
                "value", "state"]
@@ -56,27 +51,8 @@ def sample_rows(sample: Sample) -> Iterator[list[Any]]:
     row; a "negative zero" is written 0.0."""
     d = sample.device
     head = csv_head(sample.time_utc, d.bus, d.name, d.type, d.address)
-    data = sample.data
-    if isinstance(data, HubReading):
-        c = data.channels
-        vals = data.values.tolist()
-        sts = data.raw_states.tolist()
-        for ch in range(c):
-            for b, name in enumerate(HUB_FIELDS):
-                i = b * c + ch
-                if sts[i] != _NOT_READ:
-                    yield [*head, ch + 1, name, csv_value(vals[i] + 0.0), STATE_NAMES[sts[i]]]
-    elif isinstance(data, MapReading):
-        for name, v in data.values.items():
-            st = data.states.get(name)
-            if isinstance(v, list) and data.map.points[name].block:
-                for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1):
-                    yield [*head, ch, name, csv_value(cv), cs]
-            else:
-                yield [*head, "", name, csv_value(v), st]
-    else:
-        for name, v in telemetry_values(data).items():
-            yield [*head, "", name, csv_value(v), "value"]
+    for ch, name, v, st in reading_values(sample.data):
+        yield [*head, "" if ch is None else ch, name, csv_value(v), st]
 
 
 def sample_dict(sample: Sample) -> dict[str, Any]:

@@ -302,7 +302,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
                   wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
                  for ch in pick])
         else:
-            self._insert(did, sample, wire_bytes(data.registers), unsupported_of(data))
+            self._insert(did, sample, stored_registers(data), unsupported_of(data))
         self.stored += 1
 
     def event(self, event: Event) -> None:
