@@ -72,10 +72,15 @@ class Report:
         self.stats.opened[bus] = True
         self.stats.ok(bus)
 
+    def bus_fault(self, bus: str, why: str, kind: str, message: str) -> None:
+        """A fault of ``bus`` itself (``why``, the status line's), not of a
+        device's poll: an event of ``kind``."""
+        self.stats.fault(bus, f"bus {bus}: {why}")
+        self.event(bus, kind, message)
+
     def not_open(self, bus: str, why: str, wait: float) -> None:
         """``bus`` did not open (``why``); tried again ``wait`` seconds later."""
-        self.stats.fault(bus, f"bus {bus}: {why}")
-        self.event(bus, "connection", TEXT["retrying"].format(why=why, wait=wait))
+        self.bus_fault(bus, why, "connection", TEXT["retrying"].format(why=why, wait=wait))
 
     def connected(self, bus: str, endpoint: str, devices: int) -> None:
         """``bus`` opened for the first time in the run: polling begins."""

@@ -269,9 +269,9 @@ class TcpLoopBase(threading.Thread):
                               f"connection after {replies}: {answered} request(s) per "
                               "connection from now on")
         elif not c.limit:  # not (yet) its way of working: said, as a loss is
-            self.stats.fault(c.bus.name, f"bus {c.bus.name}: the connection was closed")
-            self.report.event(c.bus.name, "connection", f"{c.bus.endpoint}: the connection "
-                              f"was closed by the device after {replies}; opening it again")
+            self.report.bus_fault(c.bus.name, "the connection was closed", "connection",
+                                  f"{c.bus.endpoint}: the connection was closed by the "
+                                  f"device after {replies}; opening it again")
             c.tell = True
         c.closed_after = answered
         if c.entry is not None:  # what is in flight goes out again

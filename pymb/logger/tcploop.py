@@ -131,19 +131,17 @@ class TcpMapPoller(TcpReplies):
         if e is not None:
             exc = ModbusConnectionError(
                 f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
-            self._failed(c, e.unit, exc)
-            self._requeue(c, e, now)
+            self._failed(c, e, exc, now)
         else:  # between polls: the bus's event
-            self.stats.fault(c.bus.name, f"bus {c.bus.name}: {why}")
-            self.report.event(c.bus.name, "connection", f"{c.bus.endpoint}: {why}{retry}")
+            self.report.bus_fault(c.bus.name, why, "connection",
+                                  f"{c.bus.endpoint}: {why}{retry}")
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         e, c.resume, c.renew = c.resume, None, False
         super()._not_open(c, now, why)
         if e is not None:  # the poll that waited for the connection fails with it
-            self._failed(c, e.unit, ModbusConnectionError(
-                f"{asked(None, e.unit)} on {c.bus.endpoint}: {why}"))
-            self._requeue(c, e, now)
+            self._failed(c, e, ModbusConnectionError(
+                f"{asked(None, e.unit)} on {c.bus.endpoint}: {why}"), now)
 
     # -- polls ---------------------------------------------------------------------------
 
@@ -250,10 +248,9 @@ class TcpMapPoller(TcpReplies):
             f"({describe_exception(code)})", code=code, slave=u.info.address,
             function=spec.function, address=spec.address, count=spec.count,
             port=c.bus.endpoint)
-        self._failed(c, u, exc)
         c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
-        self._requeue(c, e, now)
+        self._failed(c, e, exc, now)
         self._next(c, now)
 
     def _progress(self, c: Conn, e: Entry, now: float) -> None:
@@ -311,8 +308,11 @@ class TcpMapPoller(TcpReplies):
             self._seq += 1
             heapq.heappush(self._slots, (when, self._seq, e))
 
-    def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
-        self.report.error(c.bus.name, u.health, u.info, e, time.monotonic())
+    def _failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
+        """A poll of ``e`` failed with ``exc``: counted and said; the group's next slot."""
+        u = e.unit
+        self.report.error(c.bus.name, u.health, u.info, exc, now)
+        self._requeue(c, e, now)
 
     # -- the loop ------------------------------------------------------------------------
 
@@ -354,8 +354,7 @@ class TcpMapPoller(TcpReplies):
                             response=got, header=7, frame=None)
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
-        self._failed(c, u, exc)
-        self._requeue(c, e, now)
+        self._failed(c, e, exc, now)
         if got:  # a part of a reply (one whose length lied?): the stream is out of step
             self._reopen(c, now)
         self._next(c, now)

@@ -21,7 +21,7 @@ from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
-from pymb.logger.tcpunits import Entry, PollRequest, Unit
+from pymb.logger.tcpunits import Entry, PollRequest
 from pymb.store import Event as StoreEvent
 from pymb.store import Sample
 
@@ -54,10 +54,7 @@ class TcpReplies(TcpLoopBase):
     def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
         raise NotImplementedError
 
-    def _failed(self, c: Conn, u: Unit, e: ModbusError) -> None:
-        raise NotImplementedError
-
-    def _requeue(self, c: Conn, e: Entry, now: float) -> None:
+    def _failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
         raise NotImplementedError
 
     # -- reading -------------------------------------------------------------------------
@@ -130,11 +127,10 @@ class TcpReplies(TcpLoopBase):
             exc = ProtocolError(f"{asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
                                 f"not match the request (received {got.hex(' ').upper()})",
                                 response=got)
-            self._failed(c, e.unit, exc)
-            self._requeue(c, e, now)
+            self._failed(c, e, exc, now)
             c.entry = None
         else:  # between polls: the bus's event
-            self.stats.fault(c.bus.name, f"bus {c.bus.name}: unexpected bytes")
-            self.report.event(c.bus.name, "protocol", f"{c.bus.endpoint}: bytes no request "
-                              f"asked for (received {got.hex(' ').upper()})")
+            self.report.bus_fault(c.bus.name, "unexpected bytes", "protocol",
+                                  f"{c.bus.endpoint}: bytes no request asked for "
+                                  f"(received {got.hex(' ').upper()})")
         self._reopen(c, now)
