@@ -120,3 +120,14 @@ def test_the_bus_backoff_doubles_to_its_cap_and_resets(n: int) -> None:
     assert all(w2 == min(2 * w1, BACKOFF_MAX) for w1, w2 in itertools.pairwise(waits))
     b.reset()
     assert b.take() == 0.5
+
+
+def test_an_offline_device_whose_once_group_was_read_sleeps_until_it_reappears() -> None:
+    """Its retry time passing is no reason to wake: nothing of it is due
+    (a thread that woke then would wake again at once, for ever)."""
+    h = Health.of_map("m", 1, 5.0)
+    once = Slot(h, 0.0, True)
+    h.failed(10.0)
+    assert once.advance(10.0) == 0  # the failed read counts as the read
+    assert not once.due(20.0)
+    assert once.wake(20.0) == math.inf
