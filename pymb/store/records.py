@@ -5,6 +5,7 @@ sample read back), and :class:`Sink`, the protocol every output follows."""
 from __future__ import annotations
 
 import abc
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
@@ -24,9 +25,11 @@ from pymb.errors import (
 from pymb.store.schema import HUB_FIELDS
 
 __all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
-           "StoredSample", "as_sink", "event_kind", "reading_values", "short_fault"]
+           "StoredSample", "as_sink", "event_kind", "reading_value", "reading_values",
+           "short_fault"]
 
-_NOT_READ = int(State.NOT_READ)
+_NOT_READ, _VALUE = int(State.NOT_READ), int(State.VALUE)
+_HUB_BLOCK = {name: b for b, name in enumerate(HUB_FIELDS)}
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,26 @@ def reading_values(data: CoolProTelemetry | HubReading | MapReading
     else:
         for name, tv in telemetry_values(data).items():
             yield None, name, tv, "value"
+
+
+def reading_value(data: CoolProTelemetry | HubReading | MapReading, name: str,
+                  channel: int | None = None) -> float | None:
+    """Point ``name`` of a reading (a hub's ``channel``, 1-based) as a number,
+    NaN where there is none; None when the reading does not hold it (another
+    group's sample, a channel an ``--on-change`` sample did not store)."""
+    if isinstance(data, HubReading):
+        i = _HUB_BLOCK[name] * data.channels + (channel or 1) - 1
+        state = data.raw_states[i]
+        if state == _NOT_READ:
+            return None
+        return float(data.values[i]) if state == _VALUE else math.nan
+    if isinstance(data, MapReading):
+        if name not in data.values:
+            return None
+        got = data.values[name]
+    else:
+        got = telemetry_values(data)[name]
+    return float(got) if isinstance(got, (int, float)) else math.nan
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,6 @@ name, a time span."""
 
 from __future__ import annotations
 
-import math
 import os
 import sqlite3
 from collections.abc import Iterator, Mapping
@@ -12,15 +11,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymb import maps
-from pymb.devices import HubReading, State
-from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import telemetry_values
 from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store.reader import iter_samples, stored_map
 from pymb.store.readonly import open_readonly
-from pymb.store.records import StoredSample
+from pymb.store.records import StoredSample, reading_value
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.summary import devices
 
@@ -28,8 +24,6 @@ __all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series", 
 
 _UNITS = {p.name: p.unit for m in ("coolpro", "hub") for p in maps.builtin(m).points.values()
           if p.name in (*COOLPRO_FIELDS, *HUB_FIELDS)}
-_NOT_READ = int(State.NOT_READ)
-_VALUE = int(State.VALUE)
 
 
 def quantities(kind: str) -> list[str]:
@@ -136,9 +130,9 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
                                   "lists its values)")
         channels = int(con.execute("SELECT channels FROM devices WHERE name = ?",
                                    (name,)).fetchone()[0])
-        if kind == "hub":
+        if channels:  # a hub's
             if channel is None:
-                raise InvalidArgument(f"{name} is a hub: give --channel (1..{channels})")
+                raise InvalidArgument(f"{name} is a {kind}: give --channel (1..{channels})")
             if not 1 <= channel <= channels:
                 raise InvalidArgument(f"--channel {channel}: {name} has channels 1..{channels}")
         elif channel is not None:
@@ -146,23 +140,10 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         where, args = sample_filter(name, since, until)
         times: list[float] = []
         values: list[float] = []
-        block = HUB_FIELDS.index(quantity) if kind == "hub" else 0
         for s in chunks(con, where, args):
-            data = s.data
-            if isinstance(data, HubReading):
-                i = block * data.channels + (channel or 1) - 1
-                state = data.raw_states[i]
-                if state == _NOT_READ:
-                    continue
-                v = float(data.values[i]) if state == _VALUE else math.nan
-            elif isinstance(data, MapReading):
-                if quantity not in data.values:
-                    continue  # another group's sample
-                got = data.values[quantity]
-                v = float(got) if isinstance(got, (int, float)) else math.nan
-            else:
-                got = telemetry_values(data)[quantity]
-                v = math.nan if got is None else float(got)
+            v = reading_value(s.data, quantity, channel)
+            if v is None:
+                continue  # another group's sample, a channel an --on-change sample did not store
             times.append(s.time_utc)
             values.append(v)
         unit = unit_of(quantity) if stored is None else stored[0].points[quantity].unit
