@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,13 +18,13 @@ from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
 from pymb.store.schema import HUB_STRIDE, map_layout_key, unsupported_mask, wire_bytes
 
-__all__ = ["ROWS_PER_INSERT", "DeviceRows", "humidity_units", "insert_rows", "stored_registers",
+__all__ = ["ROWS_PER_INSERT", "DeviceIds", "humidity_units", "insert_rows", "stored_registers",
            "unsupported_of"]
 
 #: Rows one multi-row INSERT of samples carries at most (6 values each, far
 #: below SQLite's limit of bound variables).
 ROWS_PER_INSERT = 64
-_SEEN_MAX = 4096  #: device configurations :meth:`DeviceRows._device_id` knows by identity
+_SEEN_MAX = 4096  #: device configurations :meth:`DeviceIds.id_of` knows by identity
 
 
 @functools.lru_cache(maxsize=ROWS_PER_INSERT)
@@ -63,24 +64,33 @@ def humidity_units(d: DeviceInfo, channels: int) -> tuple[str, bytes]:
     return text, tenths
 
 
-class DeviceRows:
-    """The ``devices`` (and ``channels``, ``maps``) rows of
-    :class:`pymb.store.writer.SqliteSink` (its base): a device
-    configuration's id, inserted on first use."""
+class DeviceIds:
+    """The ``devices`` (and ``channels``, ``maps``) rows of one SQLite writer
+    (:class:`pymb.store.writer.SqliteSink` owns one): a device
+    configuration's ids, inserted on first use. ``begin`` opens the writer's
+    transaction when none is open; :meth:`forget` drops what a rolled-back
+    batch inserted."""
 
-    db: sqlite3.Connection
-    path: Path
-    _devices: dict[Any, tuple[int, int]]
-    #: (id of a configuration, group) -> (that configuration, its ids): the
-    #: logger hands the same object with every sample of a device, so this
-    #: finds it without hashing its fields
-    _seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]]
-    _viewed: set[str]  #: map ids whose views this session made
+    def __init__(self, db: sqlite3.Connection, path: Path,
+                 begin: Callable[[], None]) -> None:
+        self.db = db
+        self.path = path
+        self._begin = begin
+        self._devices: dict[Any, tuple[int, int]] = {}
+        #: (id of a configuration, group) -> (that configuration, its ids): the
+        #: logger hands the same object with every sample of a device, so this
+        #: finds it without hashing its fields
+        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]] = {}
+        self._viewed: set[str] = set()  #: map ids whose views this session made
 
-    def _begin(self) -> None:
-        raise NotImplementedError
+    def forget(self) -> None:
+        """The batch was rolled back: the ids it inserted and the views it
+        made are gone."""
+        self._devices.clear()
+        self._seen.clear()
+        self._viewed.clear()
 
-    def _device_id(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
+    def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
         """(device id, channels) of a device configuration, inserted on first use."""
         mapped = isinstance(data, MapReading)
         mine = (id(d), data.group if mapped else None)

@@ -29,7 +29,7 @@ from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import (
     ROWS_PER_INSERT,
-    DeviceRows,
+    DeviceIds,
     insert_rows,
     stored_registers,
     unsupported_of,
@@ -38,7 +38,7 @@ from pymb.store.schema import HUB_FIELDS, MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
 
-class SqliteSink(SinkBase, DeviceRows, Retention):
+class SqliteSink(SinkBase, Retention):
     """Writes samples and events to a SQLite database of format 2 (created if
     missing; a database of an older pymb format is refused, never mixed).
 
@@ -96,13 +96,11 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
             self.db.close()
             self._unlock()
             raise
-        self._devices: dict[Any, tuple[int, int]] = {}
-        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]] = {}
+        self._device_ids = DeviceIds(self.db, self.path, self._begin)
         #: one thread at a time: the logger's writes, a live forwarder's reads
         self._mutex = threading.RLock()
         self._closed = False
         self._ids = SampleIds(self.db)
-        self._viewed: set[str] = set()  #: map ids whose views this session made
         self._changes: dict[int, Changes] = {}
         #: the first sample and event ids this sink writes (what restamp() may change)
         self._first_ids = tuple(int(self.db.execute(
@@ -184,9 +182,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
             with contextlib.suppress(sqlite3.Error):
                 self.db.execute("ROLLBACK")
             self._in_tx = False
-        self._devices.clear()  # ids inserted by the rolled-back batch are gone
-        self._seen.clear()
-        self._viewed.clear()  # and views made in it
+        self._device_ids.forget()  # ids inserted (views made) by the rolled-back batch
         self._changes.clear()  # what was "last stored" may be rolled back too
         if isinstance(e, OutputError):
             return e
@@ -229,7 +225,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
         try:
             self._make_room(len(samples))
             take = self._ids.take
-            device_id = self._device_id
+            device_id = self._device_ids.id_of
             rows = [(take(), device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
                      stored_registers(s.data), unsupported_of(s.data))
                     for s in samples]
@@ -277,7 +273,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
 
     def _write(self, sample: Sample) -> None:
         data = sample.data
-        did = self._device_id(sample.device, data)[0]
+        did = self._device_ids.id_of(sample.device, data)[0]
         self._begin()
         if self.on_change is None:
             self._insert(did, sample, stored_registers(data), unsupported_of(data))
@@ -314,7 +310,7 @@ class SqliteSink(SinkBase, DeviceRows, Retention):
                 raise self._failed(e) from None
 
     def _event(self, event: Event) -> None:
-        did = None if event.device is None else self._device_id(event.device, event)[0]
+        did = None if event.device is None else self._device_ids.id_of(event.device, event)[0]
         self._begin()
         self.db.execute(
             "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
