@@ -3,8 +3,8 @@
 The extension is compiled C: the compiler checks every declaration below
 against libmodbus's and pymb's headers, and fills in every constant and enum
 value written as ``...`` (function codes and limits, the Modbus exception
-codes, libmodbus's and the OS's errno values, pymb's frame statuses, value
-states and hub blocks), so nothing here is copied by hand. The cdef declares
+codes, libmodbus's and the OS's errno values, pymb's frame statuses and value
+states), so nothing here is copied by hand. The cdef declares
 only what ``pymb._native`` uses, and the exception codes ``pymb.errors``
 reads (it sits below ``_native``); ``pymb._native`` turns the constants into
 Python enums. libmodbus is found
@@ -29,7 +29,6 @@ CSRC = "csrc"
 SOURCES = [
     f"{CSRC}/pymb_crc.c",
     f"{CSRC}/pymb_frame.c",
-    f"{CSRC}/pymb_decode.c",
     f"{CSRC}/pymb_error.c",
     f"{CSRC}/pymb_line.c",
     f"{CSRC}/pymb_request.c",
@@ -38,7 +37,6 @@ SOURCES = [
     f"{CSRC}/pymb_rtu_tcp.c",
     f"{CSRC}/pymb_ascii.c",
     f"{CSRC}/pymb_udp.c",
-    f"{CSRC}/pymb_hub.c",
     f"{CSRC}/pymb_map.c",
     f"{CSRC}/pymb_master.c",
     f"{CSRC}/pymb_serve.c",  # the extension's alone (not in libpymb)
@@ -122,18 +120,6 @@ int modbus_rtu_set_rts(modbus_t *ctx, int mode);
 int modbus_rtu_set_rts_delay(modbus_t *ctx, int us);
 
 /* ---- pymb.h ---- */
-#define PYMB_HUB_FIRST_REGISTER ...
-#define PYMB_HUB_CHANNELS ...
-#define PYMB_HUB_BLOCKS ...
-#define PYMB_HUB_ALL_BLOCKS ...
-#define PYMB_HUB_REGISTERS ...
-#define PYMB_HUB_NO_HUMIDITY_1PCT ...
-#define PYMB_HUB_NO_HUMIDITY_TENTHS ...
-#define PYMB_HUB_BITMAP_BYTES ...
-#define PYMB_COOLPRO_TELEMETRY_ADDRESS ...
-#define PYMB_COOLPRO_TELEMETRY_COUNT ...
-#define PYMB_COOLPRO_IDENTITY_ADDRESS ...
-#define PYMB_COOLPRO_IDENTITY_COUNT ...
 #define PYMB_MAX_PDU ...
 #define PYMB_MAX_READ_REGISTERS ...
 #define PYMB_MAX_READ_BITS ...
@@ -162,78 +148,14 @@ typedef enum {
     ...
 } pymb_state;
 
-typedef enum {
-    PYMB_HUB_TEMPERATURE,
-    PYMB_HUB_HUMIDITY,
-    PYMB_HUB_PRESSURE_TEMPERATURE,
-    PYMB_HUB_PRESSURE,
-    PYMB_HUB_VOLTAGE,
-    PYMB_HUB_RSSI,
-    PYMB_HUB_TEMPERATURE2,
-    ...
-} pymb_hub_block;
-
-typedef struct {
-    double input_voltage_v;
-    double input_current_a;
-    double output_voltage_v;
-    double output_current_a;
-    double temperature_c;
-    uint32_t uptime_s;
-    uint16_t status;
-} pymb_coolpro_telemetry;
-
-typedef struct {
-    uint32_t serial_number;
-    uint16_t hardware_revision;
-    uint16_t firmware_major;
-    uint16_t firmware_minor;
-    uint16_t firmware_patch;
-    uint32_t manufactured;
-} pymb_coolpro_identity;
-
 uint16_t pymb_crc16(const uint8_t *data, size_t len);
 int pymb_rtu_crc_ok(const uint8_t *frame, size_t len);
 int pymb_rtu_append_crc(uint8_t *frame, size_t len, size_t cap);
-int pymb_hub_decode_one(pymb_hub_block block, uint16_t raw, int humidity_tenths,
-                        double *value);
 const char *pymb_version(void);
 const char *pymb_strerror(int errnum);
 const char *pymb_frame_strerror(pymb_frame_status status);
 int pymb_rtu_response_length(const uint8_t *rsp, size_t have);
 int pymb_rtu_request_length(const uint8_t *req, size_t have);
-
-typedef struct {
-    uint16_t address;
-    uint16_t count;
-} pymb_span;
-
-typedef struct {
-    int busy_retries;
-    uint32_t busy_backoff_us;
-} pymb_hub_options;
-
-typedef struct {
-    int slave;
-    unsigned channels;
-    const uint8_t *humidity_tenths;
-    const uint8_t *wanted;
-    const pymb_span *spans;
-    int nspans;
-    pymb_hub_options options;
-    unsigned unsupported;
-    unsigned read_mask;
-    uint16_t *regs;
-    double *values;
-    uint8_t *states;
-    size_t out_len;
-} pymb_hub_request;
-
-int pymb_hub_decode(const pymb_hub_request *rq);
-int pymb_coolpro_decode_telemetry(const uint16_t *regs, size_t nregs,
-                                  pymb_coolpro_telemetry *out);
-int pymb_coolpro_decode_identity(const uint16_t *regs, size_t nregs,
-                                 pymb_coolpro_identity *out);
 
 /* ---- pymb_modbus.h ---- */
 typedef enum {
@@ -296,9 +218,6 @@ extern "Python" int pymb_py_interrupted(void *arg);
 extern "Python" int pymb_py_tls_read(void *arg, uint8_t *buf, int n);
 extern "Python" int pymb_py_tls_write(void *arg, const uint8_t *buf, int n);
 extern "Python" int pymb_py_tls_pending(void *arg);
-
-int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
-int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);
 
 /* ---- a few OS calls the port lock and the link checks need ---- */
 #define FD_SETSIZE ...

@@ -289,28 +289,6 @@ typedef struct {
 int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uint32_t gap_us,
                    uint16_t *regs, size_t nregs, size_t *done, pymb_failure *fail);
 
-/* ------------------------------------------------------------------------ */
-/* The sensor hub's sweep ([HUB] 3, [NOTES]).                               */
-
-/* The fewest requests (at most 125 registers each) that read channels
- * 1..channels of every block not in skip_mask. Returns the number of spans
- * written to spans[0..cap), or -1 (EINVAL) when cap is too small. With all 7
- * blocks and 100 channels: 6 requests. */
-int pymb_hub_plan_all(unsigned skip_mask, unsigned channels, pymb_span *spans, int cap);
-
-/* A hub read, sweep and decode in one call (so that Python makes one call,
- * with the GIL released for the whole of it); pymb_hub_request is in pymb.h. */
-/* Execute rq->spans with function 0x03. A span answered with exception 02
- * is read again block by block (only the wanted registers of each block); a
- * block still answered 02 is marked unsupported and the sweep goes on, so
- * every block the firmware has is returned. The hub's busy answer (04) is
- * retried per rq->options. Then, unless rq->values is NULL, the registers are
- * decoded as pymb_hub_decode does.
- *
- * Returns 0, or -1 and errno: EMBXSFAIL when the hub stayed busy, or any
- * error of pymb_read_registers (timeout, bad frame, OS error). */
-int pymb_hub_read(pymb_line *line, pymb_hub_request *rq, pymb_failure *fail);
-
 #ifdef __cplusplus
 }
 #endif

@@ -61,6 +61,41 @@ def u32_low_word_first(low: int, high: int) -> int:
     return (high << 16) | low
 
 
+def coolpro_telemetry(regs: list[int]) -> tuple[float, float, float, float, float, int, int]:
+    """[CP] ch. 03/04, input registers 0..7: (Vin, Iin, Vout, Iout, temperature
+    in milliunits, uptime low word first, status)."""
+    return (milli(regs[0]), milli(regs[1]), milli(regs[2]), milli(regs[3]), milli(regs[4]),
+            u32_low_word_first(regs[5], regs[6]), regs[7])
+
+
+def coolpro_identity(regs: list[int]) -> tuple[int, int, int, int, int, int]:
+    """[CP] ch. 03/04, input registers 100..107: (serial, hardware revision,
+    firmware major, minor, patch, manufactured), 32-bit values low word first."""
+    return (u32_low_word_first(regs[0], regs[1]), regs[2], regs[3], regs[4], regs[5],
+            u32_low_word_first(regs[6], regs[7]))
+
+
+def hub_sweep_spans(skip_mask: int, channels: int) -> list[tuple[int, int]]:
+    """[HUB] 3 / [NOTES]: the fewest reads (at most 125 registers each) of
+    channels 1..channels of every block not in skip_mask (bit b: block b);
+    whole blocks are contiguous on the wire, so they merge only when every
+    one of the 100 channels is read."""
+    runs: list[tuple[int, int]] = []
+    for b in range(7):
+        if skip_mask >> b & 1:
+            continue
+        start = 31 + 100 * b
+        if channels == 100 and runs and runs[-1][1] == start:
+            runs[-1] = (runs[-1][0], start + channels)
+        else:
+            runs.append((start, start + channels))
+    spans = []
+    for start, end in runs:
+        for a in range(start, end, 125):
+            spans.append((a, min(125, end - a)))
+    return spans
+
+
 def crc16(data: bytes) -> int:
     """CRC-16/MODBUS, bit by bit ([MB-SL] 6.2.2): the polynomial 0xA001
     (reflected 0x8005), initial value 0xFFFF."""

@@ -1,9 +1,10 @@
 /* SPDX-License-Identifier: MIT */
 /*
- * sweep_compare.c - pymb's hub sweep (pymb_hub_read) against the same sweep
- * written with plain libmodbus (6 x modbus_read_registers + the same C
- * decode), and pymb's CoolPro telemetry read (pymb_read_registers + its C
- * decode) against modbus_read_input_registers + the same decode, interleaved
+ * sweep_compare.c - pymb's hub sweep (pymb_read_plan, devices.h) against the
+ * same sweep written with plain libmodbus (6 x modbus_read_registers), both
+ * decoded by pymb_map_decode with the hub's map, and pymb's CoolPro
+ * telemetry read (pymb_read_registers) against modbus_read_input_registers,
+ * both decoded with the CoolPro's map, interleaved
  * in one process on one line: medians of wall and CPU time per operation.
  * For C users weighing pymb's request path, and to tell pymb's C cost apart
  * from the Python interpreter's in `pymb bench`.
@@ -19,12 +20,13 @@
 #include <sys/resource.h>
 #include <time.h>
 
-#include "pymb_modbus.h"
+#include "devices.h"
 
 #define PER_ROUND 40
 #define TELE_PER_ROUND 100
 #define MAX_ROUNDS 200
 #define COOLPRO_SLAVE 40
+#define TELEMETRY 7 /* the telemetry's values: the first 7 of coolpro_entries */
 
 static double wall_now(void)
 {
@@ -70,10 +72,15 @@ static void report(const char *what, const char *name, double wall[2][MAX_ROUNDS
 static int telemetry_rounds(pymb_line *line, modbus_t *ctx, pymb_failure *fail, int rounds,
                             double wall[2][MAX_ROUNDS], double cpu[2][MAX_ROUNDS])
 {
-    uint16_t regs[PYMB_COOLPRO_TELEMETRY_COUNT];
-    pymb_coolpro_telemetry t;
+    uint16_t regs[8];
+    double values[TELEMETRY];
+    uint8_t states[TELEMETRY];
+    pymb_map_out out = {0};
     int r, k, i;
 
+    out.values = values;
+    out.states = states;
+    out.len = TELEMETRY;
     for (r = 0; r < rounds; r++) {
         for (k = 0; k < 2; k++) {
             int use_pymb = (r + k) % 2; /* the order alternates */
@@ -86,15 +93,13 @@ static int telemetry_rounds(pymb_line *line, modbus_t *ctx, pymb_failure *fail, 
                 }
                 if (use_pymb) {
                     rc = pymb_read_registers(line, MODBUS_FC_READ_INPUT_REGISTERS,
-                                             COOLPRO_SLAVE, PYMB_COOLPRO_TELEMETRY_ADDRESS,
-                                             PYMB_COOLPRO_TELEMETRY_COUNT, regs, fail);
+                                             COOLPRO_SLAVE, 0, 8, regs, fail);
                 } else {
                     modbus_set_slave(ctx, COOLPRO_SLAVE);
-                    rc = modbus_read_input_registers(ctx, PYMB_COOLPRO_TELEMETRY_ADDRESS,
-                                                     PYMB_COOLPRO_TELEMETRY_COUNT, regs);
+                    rc = modbus_read_input_registers(ctx, 0, 8, regs);
                 }
-                if (rc < 0 || pymb_coolpro_decode_telemetry(
-                                  regs, PYMB_COOLPRO_TELEMETRY_COUNT, &t) != 0) {
+                if (rc < 0 ||
+                    pymb_map_decode(coolpro_entries, TELEMETRY, NULL, 0, regs, 8, &out) < 0) {
                     fprintf(stderr, "no CoolPro telemetry at address %d (%s): hub only\n",
                             COOLPRO_SLAVE, modbus_strerror(errno));
                     return -1;
@@ -110,11 +115,10 @@ static int telemetry_rounds(pymb_line *line, modbus_t *ctx, pymb_failure *fail, 
 int main(int argc, char **argv)
 {
     static double wall[2][MAX_ROUNDS], cpu[2][MAX_ROUNDS];
-    uint16_t regs[PYMB_HUB_REGISTERS];
-    double values[PYMB_HUB_REGISTERS];
-    uint8_t states[PYMB_HUB_REGISTERS];
-    pymb_span spans[8];
-    pymb_hub_request rq = {0};
+    uint16_t regs[HUB_REGISTERS];
+    double values[HUB_REGISTERS];
+    uint8_t states[HUB_REGISTERS];
+    unsigned missing = 0;
     pymb_failure fail;
     modbus_t *ctx;
     pymb_line *line;
@@ -124,26 +128,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s PORT [ROUNDS (1..%d)]\n", argv[0], MAX_ROUNDS);
         return 2;
     }
-    ctx = modbus_new_rtu(argv[1], 115200, 'N', 8, 1);
-    if (ctx == NULL || modbus_connect(ctx) == -1) {
-        fprintf(stderr, "cannot open %s: %s\n", argv[1], modbus_strerror(errno));
-        return 4;
-    }
-    modbus_set_response_timeout(ctx, 2, 0);
-    modbus_set_byte_timeout(ctx, 0, 0);
-    line = pymb_line_new(ctx, PYMB_FRAMING_RTU, pymb_rtu_silence_us(115200));
+    line = example_open(argv[1], 115200, 2000, &ctx);
     if (line == NULL) {
-        fprintf(stderr, "pymb_line_new: %s\n", pymb_strerror(errno));
         return 4;
     }
-    rq.slave = 1;
-    rq.channels = PYMB_HUB_CHANNELS;
-    rq.spans = spans;
-    rq.nspans = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
-    rq.regs = regs;
-    rq.values = values;
-    rq.states = states;
-    rq.out_len = PYMB_HUB_REGISTERS;
 
     for (r = 0; r < rounds; r++) {
         for (k = 0; k < 2; k++) {
@@ -155,37 +143,33 @@ int main(int argc, char **argv)
                     c0 = cpu_now();
                 }
                 if (use_pymb) {
-                    if (pymb_hub_read(line, &rq, &fail) == -1) {
-                        fprintf(stderr, "pymb_hub_read: %s\n", modbus_strerror(errno));
+                    if (hub_read(line, 1, regs, &missing, &fail) == -1) {
+                        fprintf(stderr, "hub_read: %s\n", pymb_strerror(errno));
                         return 3;
                     }
                 } else {
                     int done, n;
                     modbus_set_slave(ctx, 1);
-                    for (done = 0; done < PYMB_HUB_REGISTERS; done += n) {
-                        n = PYMB_HUB_REGISTERS - done > 125 ? 125 : PYMB_HUB_REGISTERS - done;
-                        if (modbus_read_registers(ctx, PYMB_HUB_FIRST_REGISTER + done, n,
-                                                  regs + done) != n) {
+                    for (done = 0; done < HUB_REGISTERS; done += n) {
+                        n = HUB_REGISTERS - done > 125 ? 125 : HUB_REGISTERS - done;
+                        if (modbus_read_registers(ctx, HUB_FIRST + done, n, regs + done) != n) {
                             fprintf(stderr, "modbus_read_registers: %s\n",
                                     modbus_strerror(errno));
                             return 3;
                         }
                     }
-                    rq.read_mask = PYMB_HUB_ALL_BLOCKS;
-                    pymb_hub_decode(&rq);
                 }
+                hub_decode(regs, missing, values, states);
             }
             wall[use_pymb][r] = (wall_now() - t0) / PER_ROUND * 1e6;
             cpu[use_pymb][r] = (cpu_now() - c0) / PER_ROUND * 1e6;
         }
     }
-    report("hub sweep", "pymb_hub_read", wall, cpu, rounds, PER_ROUND, argv[1]);
+    report("hub sweep", "pymb_read_plan", wall, cpu, rounds, PER_ROUND, argv[1]);
     if (telemetry_rounds(line, ctx, &fail, rounds, wall, cpu) == 0) {
         report("CoolPro telemetry (8 input registers, decoded)",
                "pymb_read_registers", wall, cpu, rounds, TELE_PER_ROUND, argv[1]);
     }
-    pymb_line_free(line);
-    modbus_close(ctx);
-    modbus_free(ctx);
+    example_close(line, ctx);
     return 0;
 }

@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * fuzz_transact.c - libFuzzer target: pymb's request path (pymb_transact,
- * pymb_read_registers and the hub sweep, for any slave address 0..255)
+ * pymb_read_registers and pymb_read_plan, for any slave address 0..255)
  * over libmodbus and a real pseudo-terminal. The input is what the "device"
  * sends back: it is written to the pty's master side, then pymb makes one
  * request and must return either checked data or an error, never read
@@ -125,7 +125,7 @@ static void *respond(void *arg)
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH + 8];
-    uint16_t regs[PYMB_HUB_REGISTERS];
+    uint16_t regs[700];
     pymb_failure fail;
     size_t reply = size > 1 ? size - 1 : 0;
     int which = size ? data[0] % 6 : 0, n;
@@ -193,17 +193,15 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         break;
     }
-    default: { /* one hub sweep, slave 249 */
-        pymb_span spans[8];
-        pymb_hub_request rq;
-        int ns = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
-        memset(&rq, 0, sizeof rq);
-        rq.slave = 249;
-        rq.channels = PYMB_HUB_CHANNELS;
-        rq.spans = spans;
-        rq.nspans = ns;
-        rq.regs = regs;
-        pymb_hub_read(line, &rq, &fail);
+    default: { /* a plan of three reads (pymb_read_plan), slave 249 */
+        const pymb_plan_request plan[] = {
+            {0x03, 249, 31, 125, 0}, {0x03, 249, 156, 125, 125}, {0x04, 249, 0, 8, 250}};
+        size_t done = 99;
+        int rc = pymb_read_plan(line, plan, 3, 0, regs, sizeof regs / sizeof regs[0], &done,
+                                &fail);
+        if ((rc == 0 && done != 3) || (rc == -1 && done > 2) || (rc != 0 && rc != -1)) {
+            abort();
+        }
         break;
     }
     }

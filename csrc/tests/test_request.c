@@ -1,7 +1,7 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * test_request.c - known-answer tests of the request path (pymb_transact,
- * pymb_read_registers, pymb_read_bits, pymb_hub_read) on every transport,
+ * pymb_read_registers, pymb_read_bits, pymb_read_plan) on every transport,
  * against a scripted responder: a child process playing the device on the
  * other end of a real pseudo-terminal (RTU, through libmodbus's serial code) or of a
  * socket pair (Modbus TCP, RTU over TCP).
@@ -841,62 +841,6 @@ static void test_late_and_stale(enum kind k)
     printf("%s: late and stale replies\n", kind_name(k));
 }
 
-static void test_hub(enum kind k)
-{
-    struct rig r;
-    uint16_t regs[PYMB_HUB_REGISTERS];
-    double values[PYMB_HUB_REGISTERS];
-    uint8_t states[PYMB_HUB_REGISTERS];
-    pymb_span spans[8];
-    pymb_hub_request rq;
-    pymb_failure fail;
-    int unit = mbap(k) ? 1 : 249;
-
-    if (rig_open(&r, k) != 0) {
-        failures++;
-        return;
-    }
-    memset(&rq, 0, sizeof rq);
-    rq.slave = unit;
-    rq.channels = PYMB_HUB_CHANNELS;
-    rq.spans = spans;
-    rq.nspans = pymb_hub_plan_all(0, PYMB_HUB_CHANNELS, spans, 8);
-    rq.options.busy_retries = 2;
-    rq.options.busy_backoff_us = 1000;
-    rq.regs = regs;
-    rq.values = values;
-    rq.states = states;
-    rq.out_len = PYMB_HUB_REGISTERS;
-    CHECK(rq.nspans == 6);
-
-    /* Busy twice, then the sweep; the spans that touch 631..730 answer 02,
-     * are read again block by block, and block 6 is found missing. */
-    r.dev->param = 2;
-    rig_start(&r, answer_hub);
-    CHECK(pymb_hub_read(r.line, &rq, &fail) == 0);
-    CHECK(rq.read_mask == 0x3Fu && rq.unsupported == 0x40u);
-    /* 2 busy + 6 spans + the fifth span (531..655) again as block 5
-     * (531..630) and block 6 (631..655); the sixth (656..730) is then
-     * known to be missing and not read again. */
-    CHECK(r.dev->requests == 10);
-    CHECK(regs[0] == 31 && regs[599] == 630);
-    CHECK(states[0] == PYMB_VALUE && values[0] == 3.1);       /* 31: 3.1 degC */
-    CHECK(states[3 * 100 + 5] == PYMB_VALUE && values[3 * 100 + 5] == 336.0);
-    CHECK(states[6 * 100] == PYMB_UNSUPPORTED && isnan(values[6 * 100]));
-    rig_stop(&r);
-
-    /* Busy beyond the retries: EMBXSFAIL. */
-    r.dev->param = 3;
-    rq.unsupported = 0;
-    rig_start(&r, answer_hub);
-    errno = 0;
-    CHECK(pymb_hub_read(r.line, &rq, &fail) == -1 && errno == EMBXSFAIL);
-    CHECK(r.dev->requests == 3 && rq.read_mask == 0);
-    rig_stop(&r);
-    rig_close(&r);
-    printf("%s: hub sweep, exception-02 fallback, busy retries\n", kind_name(k));
-}
-
 /* pymb_read_plan: a whole plan in one call, its silences, its stop at the
  * first refusal (and the rest run from the one after), its checks. */
 static void test_plan(enum kind k)
@@ -1487,7 +1431,6 @@ static void test_arguments(void)
     CHECK(pymb_read_bits(r.line, 3, 1, 0, 1, rsp, &fail) == -1 && errno == EINVAL);
     CHECK(pymb_transact(r.line, req, 1, 0, rsp, sizeof rsp, &fail) == -1 && errno == EINVAL);
     CHECK(pymb_transact(r.line, req, sizeof req, 0, rsp, 10, &fail) == -1 && errno == EINVAL);
-    CHECK(pymb_hub_read(r.line, NULL, &fail) == -1 && errno == EINVAL);
     CHECK(r.dev->requests == 0);
     rig_close(&r);
 }
@@ -1510,7 +1453,6 @@ int main(void)
         test_exceptions(kinds[i]);
         test_split_and_bad(kinds[i]);
         test_late_and_stale(kinds[i]);
-        test_hub(kinds[i]);
         test_plan(kinds[i]);
         test_signals(kinds[i]);
         test_unknown_length_and_broadcast(kinds[i]);

@@ -6,8 +6,7 @@ Allocate, call, check, return: everything above sees Python objects, arrays
 and pymb's exceptions. Calls into the extension release the GIL (cffi's API
 mode does so for every call), so other threads and other buses keep working
 while one waits on its line. This module holds the constants as the compiler
-knows them and the byte-level helpers; :mod:`pymb._native.link` the line,
-:mod:`pymb._native.decode` the decoders and the hub sweep.
+knows them and the byte-level helpers; :mod:`pymb._native.link` the line.
 """
 
 from __future__ import annotations
@@ -21,11 +20,6 @@ from pymb._pymb_cffi import ffi, lib
 __all__ = [
     "BAUD_RATES",
     "FRAME_INCOMPLETE",
-    "HUB_ALL_BLOCKS",
-    "HUB_BITMAP_BYTES",
-    "HUB_BLOCKS",
-    "HUB_CHANNELS",
-    "HUB_REGISTERS",
     "LIBMODBUS_VERSION",
     "MAX_PDU_DATA",
     "MAX_READ_BITS",
@@ -38,16 +32,11 @@ __all__ = [
     "SERIAL_MODES",
     "VERSION",
     "FunctionCode",
-    "HubSweep",
     "Link",
     "RegisterPlan",
     "State",
-    "coolpro_identity",
-    "coolpro_telemetry",
     "crc16",
     "ffi_buffer_u16",
-    "hub_decode",
-    "hub_plan_all",
     "new_ascii",
     "new_rtu",
     "new_tcp",
@@ -189,20 +178,7 @@ def rtu_silence(baudrate: int) -> float:
     return int(lib.pymb_rtu_silence_us(baudrate)) / 1e6
 
 
-# The line and the decoders, re-exported: ``from pymb import _native`` sees
-# the whole layer.
-from pymb._native.decode import (  # noqa: E402
-    HUB_ALL_BLOCKS,
-    HUB_BITMAP_BYTES,
-    HUB_BLOCKS,
-    HUB_CHANNELS,
-    HUB_REGISTERS,
-    HubSweep,
-    coolpro_identity,
-    coolpro_telemetry,
-    hub_decode,
-    hub_plan_all,
-)
+# The line, re-exported: ``from pymb import _native`` sees the whole layer.
 from pymb._native.link import (  # noqa: E402
     Link,
     RegisterPlan,

@@ -11,9 +11,8 @@ import socket
 import ssl
 import threading
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from pymb._native import FunctionCode
 from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
@@ -25,9 +24,6 @@ from pymb.errors import (
     os_hint,
     request_error,
 )
-
-if TYPE_CHECKING:
-    from pymb._native.decode import HubSweep
 
 __all__ = ["Link", "RegisterPlan", "ffi_buffer_u16"]
 
@@ -424,18 +420,6 @@ class Link:
             k = plan.failed = start + int(plan.done[0])
             function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
             raise self._error(function, slave, address, count)
-
-    def hub_read(self, sweep: HubSweep) -> int:
-        """Run a prepared hub sweep (one C call); returns the read block mask."""
-        rq = sweep.request
-        if not self.is_open:
-            raise self._closed(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None)
-        if self._held is not None:
-            self._own_timeout()
-        if lib.pymb_hub_read(self._line, rq, self._fail) < 0:
-            raise self._error(FunctionCode.READ_HOLDING_REGISTERS, rq.slave, None, None,
-                              context="hub sweep")
-        return int(rq.read_mask)
 
     def drain(self, quiet: float, limit: float) -> int:
         """Drop input until the line is quiet for ``quiet`` seconds."""

@@ -215,7 +215,6 @@ class AsyncClient(Mirrored):
     read_input_registers_into = Mirror(Client.read_input_registers_into)
     read_registers_prepared = Mirror(Client.read_registers_prepared)
     swap_response_timeout_prepared = Mirror(Client.swap_response_timeout_prepared)
-    run_hub_sweep = Mirror(Client.run_hub_sweep)
     run_read_plan = Mirror(Client.run_read_plan)
     write_register = Mirror(Client.write_register)
     write_registers = Mirror(Client.write_registers)

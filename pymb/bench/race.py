@@ -18,6 +18,7 @@ from pymb.bench.contenders import CONTENDERS, Contender, probe
 from pymb.bench.options import _KINDS, _TIMEOUT, SEED, SOFTWARE_BAUD, Options
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE
+from pymb.devices.coolpro import decode_telemetry
 from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB
 from pymb.sim import HubDevice, Simulator
@@ -67,8 +68,11 @@ class Reference:
         """Raise ValueError unless ``values`` decode ``raw`` as pymb does."""
         if len(raw) != CP_COUNT:
             raise ValueError(f"telemetry is {CP_COUNT} registers, got {len(raw)}")
+        t = decode_telemetry(array("H", raw))
         _same_values("decoded telemetry", values,
-                     [float(v) for v in _native.coolpro_telemetry(array("H", raw))])
+                     [t.input_voltage_v, t.input_current_a, t.output_voltage_v,
+                      t.output_current_a, t.temperature_c, float(t.uptime_s),
+                      float(t.status)])
 
 
 def _same_values(what: str, got: Sequence[float], want: Sequence[float]) -> None:

@@ -38,8 +38,8 @@ CP_SLAVE = COOLPRO.default_address
 CP_FUNCTION, CP_ADDRESS, CP_COUNT = COOLPRO.span("telemetry")
 
 
-#: The sweep's requests: registers 31..730 in reads of at most 125, as the C
-#: core plans a full sweep (pymb_hub_plan_all) for every contender.
+#: The sweep's requests: registers 31..730 in reads of at most 125, as the
+#: hub's map plans a full sweep, for every contender.
 SPANS = full_sweep_spans(HUB.channels)
 
 

@@ -140,20 +140,6 @@ class Client(ClientCore):
                 self._served = served + 1
                 return
 
-    def run_hub_sweep(self, sweep: _native.HubSweep) -> int:
-        """Run a prepared sensor-hub sweep (:class:`pymb._native.HubSweep`,
-        which :class:`pymb.devices.SensorHub` makes and plans) as one C call;
-        returns the mask of the blocks read."""
-        link = self._link
-        with self._lock:
-            if not link.is_open:
-                self._reopen()
-            try:
-                return link.hub_read(sweep)
-            except ModbusConnectionError as e:
-                self._close_if_lost(e)
-                raise
-
     def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
         """Write one holding register (function 0x06). The device's echo must
         match the request exactly, or :class:`~pymb.ProtocolError` is raised."""

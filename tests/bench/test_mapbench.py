@@ -22,10 +22,6 @@ def test_maps_section_reports_the_one_call_decode() -> None:
     assert values["v7"] == struct.unpack(">f", struct.pack(">2H", regs[14], regs[15]))[0]
     assert 0 < section["decode_us"] < section["read_us"] < section["python_us"]
     assert section["hub_map_us"] > 0
-    assert section["hub_sweep_us"] > 0
-    hub = mapbench.targets(section)[1]
-    assert hub[1:] == ("<= 1.00x", section["hub_map_us"] / section["hub_sweep_us"], "x",
-                       section["hub_map_us"] <= section["hub_sweep_us"])
     what, goal, measured, unit, met = mapbench.targets(section)[0]
     assert (goal, unit) == ("<= 10 us", "us")
     assert "100-point f32 map in one C call" in what

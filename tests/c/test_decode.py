@@ -1,6 +1,6 @@
-"""The C decoders against the pure-Python reference (tests/reference.py):
-every 16-bit value of each encoding, random blocks, and the documents'
-worked values; the C layout against the register maps."""
+"""The decoders (the hub's and the CoolPro's maps through the C map decoder)
+against the pure-Python reference (tests/reference.py): every 16-bit value
+of each encoding, random blocks, and the documents' worked values."""
 
 from __future__ import annotations
 
@@ -12,11 +12,9 @@ import pytest
 import reference as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pymb._pymb_cffi import lib
 
-from pymb import _native
 from pymb.devices import COOLPRO, HUB, CoolProStatus, State, decode_hub
-from pymb.devices.coolpro import CoolProTelemetry
+from pymb.devices.coolpro import CoolProTelemetry, decode_identity, decode_telemetry
 
 STATE = {ref.VALUE: State.VALUE, ref.OFFLINE: State.OFFLINE, ref.NO_SENSOR: State.NO_SENSOR}
 
@@ -158,60 +156,37 @@ def test_views_convert_to_numpy_without_copy() -> None:
 def test_coolpro_worked_values() -> None:
     # [CP] ch. 02 / 04 / 06: 24.5 V, 3.25 A, 24.0 V, 3.20 A, 25.8 degC, uptime 70000 s.
     regs = array("H", [0x5FB4, 0x0CB2, 0x5DC0, 0x0C80, 0x64C8, 4464, 1, 0x8041])
-    vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
-    assert (vin, iin, vout, iout, temp) == (24.5, 3.25, 24.0, 3.2, 25.8)
-    assert uptime == 70000 == ref.u32_low_word_first(4464, 1)
-    flags = CoolProStatus(status)
+    t = decode_telemetry(regs)
+    assert (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
+            t.temperature_c) == (24.5, 3.25, 24.0, 3.2, 25.8)
+    assert t.uptime_s == 70000 == ref.u32_low_word_first(4464, 1)
+    flags = t.status
     assert CoolProStatus.SYSTEM_STARTUP in flags
     assert CoolProStatus.TEMPERATURE_SENSOR_FAULT in flags
     assert flags.reserved == 0x8000
     assert int(flags) == 0x8041  # reserved bit kept
-    serial, hw, major, minor, patch, made = _native.coolpro_identity(
-        array("H", [0x3039, 0, 2, 1, 0, 0, 0x5E00, 0x6A50]))
-    assert serial == 12345
-    assert (hw, major, minor, patch) == (2, 1, 0, 0)
-    assert datetime.fromtimestamp(made, UTC).year == 2026
+    d = decode_identity(array("H", [0x3039, 0, 2, 1, 0, 0, 0x5E00, 0x6A50]))
+    assert d.serial_number == 12345
+    assert (d.hardware_revision, d.firmware_version) == (2, "1.0.0")
+    assert d.manufactured.year == 2026
+    assert d.manufactured == datetime.fromtimestamp(
+        ref.u32_low_word_first(0x5E00, 0x6A50), UTC)
 
 
 @given(st.lists(st.integers(0, 0xFFFF), min_size=8, max_size=8))
 def test_coolpro_telemetry_matches_reference(raw: list[int]) -> None:
-    got = _native.coolpro_telemetry(array("H", raw))
-    assert got[:5] == tuple(ref.milli(r) for r in raw[:5])
-    assert got[5] == ref.u32_low_word_first(raw[5], raw[6])
-    assert got[6] == raw[7]
+    t = decode_telemetry(array("H", raw))
+    got = (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
+           t.temperature_c, t.uptime_s, int(t.status))
+    assert got == ref.coolpro_telemetry(raw)
 
 
-# -- the maps and the C core agree ----------------------------------------------
+# -- the maps and the facades agree ----------------------------------------------
 
 
-def test_c_hub_layout_agrees_with_the_map() -> None:
-    assert lib.PYMB_HUB_FIRST_REGISTER == HUB.first == 31
-    assert lib.PYMB_HUB_CHANNELS == HUB.channels == 100
-    assert lib.PYMB_HUB_BLOCKS == len(HUB.blocks) == 7
-    assert lib.PYMB_HUB_REGISTERS == HUB.count == 700
-    c_blocks = {
-        "temperature_c": lib.PYMB_HUB_TEMPERATURE,
-        "humidity_pct": lib.PYMB_HUB_HUMIDITY,
-        "pressure_temperature_c": lib.PYMB_HUB_PRESSURE_TEMPERATURE,
-        "pressure_kpa": lib.PYMB_HUB_PRESSURE,
-        "voltage_mv": lib.PYMB_HUB_VOLTAGE,
-        "rssi_dbm": lib.PYMB_HUB_RSSI,
-        "temperature2_c": lib.PYMB_HUB_TEMPERATURE2,
-    }
-    for block in HUB.blocks:
-        assert c_blocks[block.name] == block.index
-        assert block.first == lib.PYMB_HUB_FIRST_REGISTER + block.index * lib.PYMB_HUB_CHANNELS
-        assert (0xFFFF, "offline") in block.markers
-    markers = dict(HUB.block("humidity_pct").markers)
-    assert lib.PYMB_HUB_NO_HUMIDITY_1PCT in markers
-    assert lib.PYMB_HUB_NO_HUMIDITY_TENTHS in markers
-
-
-def test_c_coolpro_layout_agrees_with_the_map() -> None:
-    assert COOLPRO.span("telemetry") == (
-        0x04, lib.PYMB_COOLPRO_TELEMETRY_ADDRESS, lib.PYMB_COOLPRO_TELEMETRY_COUNT)
-    assert COOLPRO.span("identity") == (
-        0x04, lib.PYMB_COOLPRO_IDENTITY_ADDRESS, lib.PYMB_COOLPRO_IDENTITY_COUNT)
+def test_coolpro_record_agrees_with_the_map() -> None:
+    assert COOLPRO.span("telemetry") == (0x04, 0, 8)
+    assert COOLPRO.span("identity") == (0x04, 100, 8)
     # The telemetry record's fields, in order, are the map's telemetry points.
     fields = [f for f in CoolProTelemetry.__dataclass_fields__ if f != "registers"]
     assert fields == [r.name for r in COOLPRO.group("telemetry")]

@@ -23,9 +23,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
+import reference as ref
 from conftest import PYMB, PYMB_ENV, run_pymb
 
-from pymb import _native
 from pymb.commands.plot import figure
 from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
 from pymb.extras import install_hint
@@ -47,7 +47,7 @@ def _hub_regs(i: int) -> array[int]:
 
 def _telemetry(i: int) -> CoolProTelemetry:
     regs = array("H", [24000 + i, 1000, 12000 + 10 * i, 500, 30000, i, 0, 1])
-    vin, iin, vout, iout, temp, up, status = _native.coolpro_telemetry(regs)
+    vin, iin, vout, iout, temp, up, status = ref.coolpro_telemetry(list(regs))
     return CoolProTelemetry(vin, iin, vout, iout, temp, up, CoolProStatus(status), regs)
 
 

@@ -10,11 +10,12 @@ import time
 from itertools import pairwise
 
 import pytest
+import reference as ref
 from map_peers import Refusing, RefusingPtyPeer, RefusingTcpPeer, sparse_pymodbus
 from peerkit import rtu
 
 import pymb
-from pymb import _native, maps
+from pymb import maps
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import InvalidArgument, ModbusTimeout
 
@@ -381,9 +382,9 @@ def test_the_hub_through_its_map_reads_what_its_facade_reads(firmware: str) -> N
         got = dev.read(group="sweep")
         again = dev.read(group="sweep")
         assert again == got
-        # the blocks the firmware lacks are known now: the plan is the C sweep's
+        # the blocks the firmware lacks are known now: the plan is the reference sweep's
         assert dev.plan("sweep").spans == tuple(
-            _native.hub_plan_all(reading.unsupported_mask, channels))
+            ref.hub_sweep_spans(reading.unsupported_mask, channels))
         for name, values in reading.as_dict().items():
             states = dev.states[name]
             if name in reading.unsupported:

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
+import reference as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pymb import _native
 from pymb.devices import HUB
 from pymb.devices.hub import full_sweep_spans
 from pymb.logger import BusConfig, DeviceConfig
@@ -41,24 +41,24 @@ def test_plan_limits_coverage_and_cost(wanted: set[int], holes: set[int], baud: 
                                       for _, n in plan.spans)) < 1e-9
 
 
-def test_full_sweep_is_six_requests_like_the_c_plan() -> None:
+def test_full_sweep_is_six_requests_like_the_reference_plan() -> None:
     everything = range(HUB.first, HUB.first + HUB.count)
     plan = plan_reads(everything, 9600)
     assert len(plan.spans) == 6
     assert plan.registers == 700
-    c_plan = _native.hub_plan_all(0, 100)
-    assert len(c_plan) == 6
-    assert sum(n for _, n in c_plan) == 700
-    assert plan.spans == tuple(c_plan)
+    ref_plan = ref.hub_sweep_spans(0, 100)
+    assert len(ref_plan) == 6
+    assert sum(n for _, n in ref_plan) == 700
+    assert plan.spans == tuple(ref_plan)
     assert plan.predicted_s == pytest.approx(plan.naive_s)
 
 
-def test_c_plan_skips_missing_blocks_and_short_hubs() -> None:
+def test_reference_plan_skips_missing_blocks_and_short_hubs() -> None:
     # Firmware V2.18: no voltage, RSSI or second temperature (blocks 4..6).
-    assert _native.hub_plan_all(0b1110000, 100) == [(31, 125), (156, 125), (281, 125),
-                                                    (406, 25)]
+    assert ref.hub_sweep_spans(0b1110000, 100) == [(31, 125), (156, 125), (281, 125),
+                                                   (406, 25)]
     # V1.07: 50 channels of temperature and humidity only.
-    assert _native.hub_plan_all(0b1111100, 50) == [(31, 50), (131, 50)]
+    assert ref.hub_sweep_spans(0b1111100, 50) == [(31, 50), (131, 50)]
 
 
 def test_twelve_channels_merge_gaps_when_cheaper() -> None:

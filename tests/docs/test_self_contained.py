@@ -10,7 +10,7 @@ from pathlib import Path
 from docblocks import claim_one
 
 import pymb
-from pymb._native import coolpro_identity, coolpro_telemetry
+from pymb.devices.coolpro import decode_identity, decode_telemetry
 
 ROOT = Path(__file__).resolve().parents[2]
 NOTES = ROOT / "docs" / "device-notes.md"
@@ -75,9 +75,10 @@ def _regs(*words: int) -> array[int]:
 def test_the_worked_coolpro_values_are_pymbs() -> None:
     ((raw, text),) = _worked("telemetry")
     words = [raw[i] << 8 | raw[i + 1] for i in range(0, 8, 2)]
-    decoded = coolpro_telemetry(_regs(*words))[:4]
+    t = decode_telemetry(_regs(*words))
+    decoded = (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a)
     assert [float(v) for v in re.findall(r"[\d.]+", text)] == [round(x, 3) for x in decoded]
     ((uptime, text),) = _worked("uptime")
-    assert coolpro_telemetry(_regs(0, 0, 0, 0, 0, *uptime))[5] == int(text.split()[0])
+    assert decode_telemetry(_regs(0, 0, 0, 0, 0, *uptime)).uptime_s == int(text.split()[0])
     ((serial, text),) = _worked("serial")
-    assert coolpro_identity(_regs(*serial))[0] == int(text)
+    assert decode_identity(_regs(*serial)).serial_number == int(text)

@@ -15,11 +15,11 @@ from array import array
 from collections.abc import Callable
 from pathlib import Path
 
+import reference as ref
 from clikit import Pty
 from conftest import run_pymb
 from docblocks import assert_shaped, claim_one
 
-from pymb import _native
 from pymb.devices import CoolProStatus, CoolProTelemetry
 from pymb.fleet.broker import Mosquitto
 from pymb.sim import Simulator, SimulatorProcess
@@ -90,7 +90,7 @@ def test_the_new_cursor_notice_is_what_pymb_log_says(mosquitto: Callable[..., Mo
     block = claim_one("docs/board.md", "text", how="compare", contains="a new MQTT cursor")
     db = tmp_path / "data.sqlite"
     regs = array("H", [24000, 1000, 12000, 500, 30000, 7, 0, 1])
-    vin, iin, vout, iout, temp, up, status = _native.coolpro_telemetry(regs)
+    vin, iin, vout, iout, temp, up, status = ref.coolpro_telemetry(list(regs))
     old = CoolProTelemetry(vin, iin, vout, iout, temp, up, CoolProStatus(status), regs)
     sink = SqliteSink(db)
     month = time.time() - 30 * 86400

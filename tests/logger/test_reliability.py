@@ -24,11 +24,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import reference as ref
 from conftest import PYMB, PYMB_ENV, TIMEOUT, open_fds, rss_kb, wait_until
 from dbwait import count, wait_for
 
 import pymb
-from pymb import _native
 from pymb.devices import CoolPro, SensorHub
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimClock, Simulator
@@ -212,7 +212,7 @@ def test_logger_layer_records_every_fault_and_never_stores_wrong_values(
         regs = array("H", blob)
         if sys.byteorder == "little":
             regs.byteswap()
-        decoded = _native.coolpro_telemetry(regs)
+        decoded = ref.coolpro_telemetry(list(regs))
         assert (decoded[0], decoded[5], decoded[6]) == (v, uptime, status)
     # Logging went on after the last fault.
     last_fault = con.execute("SELECT MAX(time_utc) FROM events WHERE kind != 'reconnect'"

@@ -1,7 +1,8 @@
-"""The shipped maps: the hub and CoolPro maps decode registers exactly as
-today's facades do (the C hub decoder, the CoolPro struct decoders); each
-names its source. (tests/sim/test_shipped_maps_sim.py reads the others back
-through ``pymb simulate``.)"""
+"""The shipped maps: the hub map decodes registers exactly as the hub's
+facade and the pure-Python reference of [HUB] (tests/reference.py) do, the
+CoolPro map as the reference of [CP] does; each names its source.
+(tests/sim/test_shipped_maps_sim.py reads the others back through ``pymb
+simulate``.)"""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import random
 from array import array
 
 import pytest
+import reference as ref
 
-from pymb import _native, maps
+from pymb import maps
 from pymb.devices import decode_hub
 from pymb.devices.coolpro import CoolProStatus
 from pymb.devices.hub import State
@@ -28,9 +30,11 @@ def hub_registers(rng: random.Random) -> array[int]:
 
 
 @pytest.mark.parametrize(("unit", "channels"), [(0.1, 100), (1, 100), (0.1, 50), (1, 7)])
-def test_hub_map_reads_what_the_c_hub_decoder_reads(unit: float, channels: int) -> None:
+def test_hub_map_reads_what_the_reference_and_the_facade_read(unit: float,
+                                                               channels: int) -> None:
     hub = maps.builtin("hub").configure(humidity_unit=unit, channels=channels)
     names = {"offline": State.OFFLINE, "no_sensor": State.NO_SENSOR, "value": State.VALUE}
+    ref_names = {ref.OFFLINE: "offline", ref.NO_SENSOR: "no_sensor", ref.VALUE: "value"}
     rng = random.Random(f"{unit}/{channels}")
     for _ in range(20):
         regs = hub_registers(rng)
@@ -38,13 +42,17 @@ def test_hub_map_reads_what_the_c_hub_decoder_reads(unit: float, channels: int) 
         d = maps.Decoder(hub)
         assert d.address == 31
         values, states = d.read(regs), d.states()
-        for name in BLOCKS:
+        for b, name in enumerate(BLOCKS):
             ours = values[name]
             assert isinstance(ours, list)
             theirs = list(getattr(today, name))
             assert len(ours) == len(theirs) == channels
-            for v, t, s, ts in zip(ours, theirs, states[name], today.states(name), strict=True):
+            for c, (v, t, s, ts) in enumerate(
+                    zip(ours, theirs, states[name], today.states(name), strict=True)):
                 assert names[s] == ts
+                want_state, want = ref.hub_value(b, regs[100 * b + c], unit)
+                assert s == ref_names[want_state]
+                assert (v is None) if math.isnan(want) else (v == want), (name, c, v, want)
                 if math.isnan(t):
                     assert v is None
                 else:  # the same double, -0.0 included
@@ -52,7 +60,7 @@ def test_hub_map_reads_what_the_c_hub_decoder_reads(unit: float, channels: int) 
                     assert math.copysign(1, v) == math.copysign(1, t), (name, v, t)
 
 
-def test_coolpro_map_reads_what_the_coolpro_decoders_read() -> None:
+def test_coolpro_map_reads_what_the_reference_reads() -> None:
     cp = maps.builtin("coolpro")
     telemetry = maps.Decoder(cp, [p.name for p in cp.points.values() if p.group == "telemetry"])
     identity = maps.Decoder(cp, [p.name for p in cp.points.values() if p.group == "identity"])
@@ -61,14 +69,14 @@ def test_coolpro_map_reads_what_the_coolpro_decoders_read() -> None:
     rng = random.Random(7)
     for _ in range(500):
         regs = array("H", [rng.randrange(0x10000) for _ in range(8)])
-        vin, iin, vout, iout, temp, uptime, status = _native.coolpro_telemetry(regs)
+        vin, iin, vout, iout, temp, uptime, status = ref.coolpro_telemetry(list(regs))
         got = telemetry.read(regs)
         assert got == {"input_voltage_v": vin, "input_current_a": iin,
                        "output_voltage_v": vout, "output_current_a": iout,
                        "temperature_c": temp, "uptime_s": uptime, "status": status}
         assert cp.flag_names("status", status) == [
             f.name for f in CoolProStatus if f in CoolProStatus(status)]
-        serial, hw, major, minor, patch, made = _native.coolpro_identity(regs)
+        serial, hw, major, minor, patch, made = ref.coolpro_identity(list(regs))
         assert identity.read(regs) == {
             "serial_number": serial, "hardware_revision": hw, "firmware_major": major,
             "firmware_minor": minor, "firmware_patch": patch, "manufactured": made}

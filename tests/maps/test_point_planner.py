@@ -273,12 +273,14 @@ def test_a_point_wider_than_a_request_is_a_clear_error() -> None:
 
 
 def test_a_maps_plan_is_the_planners() -> None:
-    from pymb import _native, maps
+    import reference as ref
+
+    from pymb import maps
 
     hub = maps.builtin("hub")
     plan = hub.plan(group="sweep")
     assert [(r.table, r.address, r.count) for r in plan] == [
-        ("holding", a, n) for a, n in _native.hub_plan_all(0, 100)]
+        ("holding", a, n) for a, n in ref.hub_sweep_spans(0, 100)]
     assert len(plan) == 6
     # 50 channels at 9600 bit/s: the 50 registers between the blocks are
     # readable, but a second request is cheaper than reading them

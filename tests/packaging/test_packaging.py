@@ -73,11 +73,11 @@ def test_bad_arguments_set_einval_and_say_so() -> None:
     ffi.errno = 0
     assert lib.pymb_rtu_crc_ok(ffi.NULL, 8) == -1
     assert ffi.errno == errno.EINVAL
-    value = ffi.new("double *", 1.0)
+    perm = ffi.new("uint8_t[8]", [9] * 8)
     ffi.errno = 0
-    assert lib.pymb_hub_decode_one(7, 0, 0, value) == -1
+    assert lib.pymb_map_order(b"ABC", 3, perm) == -1  # widths are 2, 4 or 8
     assert ffi.errno == errno.EINVAL
-    assert value[0] != value[0]  # NaN, not the caller's old value
+    assert list(perm) == [9] * 8  # nothing written on failure
 
 
 @needs_make
