@@ -24,9 +24,11 @@ from pymb.client import (
 from pymb.client.address import is_mbaps
 from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
 from pymb.devices.maps import COOLPRO
+from pymb.devices.mapspec import FACADES
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
-from pymb.devices.spec import DeviceConfig, device_parts
+from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument, ModbusConnectionError
+from pymb.logger.mapconfig import DeviceConfig, parse_device
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = [
@@ -48,7 +50,7 @@ T = TypeVar("T")
 def device_help() -> str:
     """The help of a DEVICE argument of a command that reads any device:
     the syntax, the types (the shipped maps' ids among them) and examples."""
-    ids = [i for i in maps.builtin_ids() if i not in ("coolpro", "hub")]
+    ids = [i for i in maps.builtin_ids() if i not in FACADES]
     return (f"the device: TYPE[:ADDRESS][,key=value...], TYPE coolpro, hub or a map's id "
             f"(shipped: {', '.join(ids)}; --map FILE adds one), e.g. coolpro:41, hub:250, "
             f"hub:7,channels=50,humidity_unit=1, {ids[0] if ids else 'my-meter'}:3")
@@ -60,8 +62,9 @@ def add_device_arg(p: argparse.ArgumentParser, *, hub_options: bool = True) -> N
     p.add_argument("device", metavar="DEVICE", help=device_help() if hub_options else
                    "the CoolPro: coolpro[:ADDRESS], e.g. coolpro, coolpro:41")
     p.add_argument("--address", type=int, metavar="N",
-                   help=f"the device's address, as in TYPE:ADDRESS (default: coolpro "
-                        f"{COOLPRO.default_address}, hub {HUB.default_address})")
+                   help="the device's address, as in TYPE:ADDRESS (default: coolpro "
+                        f"{maps.builtin('coolpro').device.default_address}, hub "
+                        f"{maps.builtin('hub').device.default_address})")
     if hub_options:
         p.add_argument("--channels", type=int, metavar="N",
                        help="hub channels, as in hub,channels=N (50 for firmware V1.07 and "
@@ -71,21 +74,28 @@ def add_device_arg(p: argparse.ArgumentParser, *, hub_options: bool = True) -> N
 
 
 def device_from_args(args: argparse.Namespace) -> DeviceConfig:
-    """The device the positional spec and its alias options name; a value
-    given both ways must agree."""
-    kind, options = device_parts(args.device)
+    """The device the positional spec and its alias options (``--address``,
+    a map option's ``--channels``, ``--humidity-unit``) name; a value given
+    both ways must agree."""
+    dev = parse_device(args.device)  # checked against its map
+    given: dict[str, Any] = dict(dev.options)
+    if split_spec(args.device)[1] is not None:
+        given["address"] = dev.address
     for attr in ("address", "channels", "humidity_unit"):
         value = getattr(args, attr, None)
         if value is None:
             continue
         flag = "--" + attr.replace("_", "-")
-        if attr != "address" and kind != "hub":
+        if attr != "address" and attr not in dev.map.device.options:
             raise InvalidArgument(f"{flag} is for a hub")
-        if attr in options and options[attr] != value:
-            raise InvalidArgument(f"{args.device!r} gives {attr} {options[attr]:g} and {flag} "
+        if attr in given and given[attr] != value:
+            raise InvalidArgument(f"{args.device!r} gives {attr} {given[attr]:g} and {flag} "
                                   f"{value:g}: give it once")
-        options[attr] = value
-    return DeviceConfig(kind, **options)
+        given[attr] = value
+    address = given.pop("address", None)
+    if address == dev.address and given == dev.options:
+        return dev
+    return DeviceConfig(dev.type, address, options=given)
 
 
 def parse_numbers(spec: str, low: int, high: int, what: str) -> list[int]:

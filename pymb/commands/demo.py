@@ -21,10 +21,9 @@ from pathlib import Path
 
 from pymb.commands.demo_mqtt import run_with_mqtt
 from pymb.commands.status import StatusLine
-from pymb.devices.spec import DeviceConfig
 from pymb.errors import InvalidArgument
 from pymb.fleet.forwarder import require_paho
-from pymb.logger import BusConfig, LogConfig, Logger
+from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
 from pymb.store.reserve import Reserve
 from pymb.store.summary import event_counts
@@ -99,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         n = summary.by_device.get(d.name, 0)
         rate = n / summary.elapsed
         limit = 1.0 / bus.wire_time(d)
-        what = "telemetry reads" if d.type == "coolpro" else "700-register sweeps"
+        what = {"telemetry": "telemetry reads", "sweep": "700-register sweeps"}[d.groups[0]]
         print(f"  {d.name:11s} {n:6,} {what} = {rate:7.1f}/s; the wire allows "
               f"{limit:7.1f}/s ({100 * rate / limit:.0f}%)")
     print(f"  faults seen: {summary.faults}" + (f" ({faults})" if faults else ""))

@@ -13,12 +13,10 @@ from pathlib import Path
 from pymb.client import TlsConfig
 from pymb.commands._common import tls_for, tls_from_args
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
-from pymb.devices.mapspec import parse_map_device, unknown_device
-from pymb.devices.spec import DeviceConfig, parse_device, split_spec
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
-from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, MapText, from_target
+from pymb.logger.mapconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.store import OnChange
 from pymb.store.mapcheck import check_stored_maps
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
@@ -99,7 +97,7 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         known = KnownMaps()
         for f in getattr(args, "maps", None) or []:
             known.add_file(f, "--map")
-        devices = [sunspec_device(args, s) if is_sunspec(s) else device_from(s, known)
+        devices = [sunspec_device(args, s) if is_sunspec(s) else parse_device(s, known)
                    for s in specs]
         cfg = single_bus_config(args.port, args.tcp, devices,
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
@@ -135,32 +133,19 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
                               "--mqtt URL")
     _on_change(args, cfg)
     if cfg.format == "sqlite":  # at the start and before a SIGHUP reload
-        check_stored_maps(cfg.path, {d.type: d.source.text for b in cfg.buses
-                                     for d in b.devices if isinstance(d, MapDeviceConfig)})
+        check_stored_maps(cfg.path, {d.type: d.text.text for b in cfg.buses
+                                     for d in b.devices if d.facade is None})
     return cfg, mqtt
 
 
-def device_from(spec: str, known: KnownMaps) -> DeviceConfig | MapDeviceConfig:
-    """A device as the command line names it: ``coolpro``/``hub`` or a map's
-    id (a shipped map's or a ``--map`` file's)."""
-    kind = split_spec(spec)[0]
-    if kind in ("coolpro", "hub"):
-        return parse_device(spec)
-    src = known.get(kind)
-    target = parse_map_device(spec, known.as_dict()) if src is not None else None
-    if src is None or target is None:
-        raise unknown_device(spec, list(known.ids))
-    return from_target(target, src)
-
-
-def sunspec_device(args: argparse.Namespace, spec: str) -> MapDeviceConfig:
+def sunspec_device(args: argparse.Namespace, spec: str) -> DeviceConfig:
     """A SunSpec device (``sunspec:1``): its map is found on the device now."""
     target, text = sunspec_target(args, spec)
     return from_target(target, MapText(target.map, text))
 
 
 def single_bus_config(port: str | None, tcp: str | None,
-                      devices: Sequence[str | DeviceConfig | MapDeviceConfig], *,
+                      devices: Sequence[str | DeviceConfig], *,
                       baud: int = DEFAULT_BAUD, parity: str = DEFAULT_PARITY,
                       timeout: float = DEFAULT_TIMEOUT,
                       interval: float = 0.0, fmt: str = "sqlite", path: str = "pymb.sqlite",

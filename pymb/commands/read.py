@@ -34,8 +34,8 @@ from pymb.devices.mapspec import (
     parse_map_device,
     unknown_device,
 )
-from pymb.devices.spec import DeviceConfig
 from pymb.errors import DeviceException, InvalidArgument, ProtocolError
+from pymb.logger.mapconfig import DeviceConfig
 from pymb.maps.model import did_you_mean
 
 
@@ -60,11 +60,12 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
     # The blocks asked for: when every one of them is missing, the device
     # supplied no value at all (a whole sweep, or watch's few blocks).
     wanted = ALL_BLOCKS if blocks is None else sum(1 << HUB.block(b).index for b in blocks)
+    count = int(dev.map.options["channels"]) if dev.type == "hub" else 0
     if dev.type == "coolpro":
         read: Callable[[], Any] = CoolPro(client, address).read_telemetry
         hub = None
     else:
-        hub = SensorHub(client, address, dev.channels, dev.humidity_unit)
+        hub = SensorHub(client, address, count, dev.option("humidity_unit"))  # type: ignore[arg-type]
         read = hub.read_all if blocks is None and channels is None else (
             lambda: hub.read(blocks, channels))  # type: ignore[union-attr]
 
@@ -73,15 +74,15 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
             data = read()
         except DeviceException as e:
             why = mismatch(identify(client_asker(client), address), dev.type, address,
-                           dev.channels)
+                           count)
             if "answers like" in why and "not" in why:
                 raise type(e)(f"{why}; {e}", code=e.code) from None
             raise
         if hub is not None and isinstance(data, HubReading) and \
                 data.unsupported_mask & wanted == wanted:
             hub.forget_firmware()  # the next read asks again
-            why = mismatch(identify(client_asker(client), address), "hub", address,
-                           dev.channels)
+            why = mismatch(identify(client_asker(client), address), dev.type, address,
+                           count)
             raise ProtocolError(f"no value from hub:{address} on {client.port}: {why}",
                                 reason="no value")
         return data

@@ -121,12 +121,13 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.interval) and args.interval >= 0):
         raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
     is_hub = dev.type == "hub"
+    channels = int(dev.map.options["channels"]) if is_hub else 0
     if not is_hub and (args.block or args.show):
         raise InvalidArgument("--block and --show are for a hub")
     blocks = parse_blocks(args.block) if is_hub else []
-    shown = parse_channels(args.show, dev.channels) if is_hub and args.show else (
-        list(range(1, dev.channels + 1)))
-    full = is_hub and len(blocks) == len(HUB.blocks) and len(shown) == dev.channels
+    shown = parse_channels(args.show, channels) if is_hub and args.show else (
+        list(range(1, channels + 1)))
+    full = is_hub and len(blocks) == len(HUB.blocks) and len(shown) == channels
     client = make_client(args)
     read = read_cmd.reader(dev, client, blocks=None if full or not is_hub else blocks,
                            channels=None if full or not is_hub else shown)

@@ -26,8 +26,9 @@ __all__ = ["FACADES", "MapTarget", "load_map", "map_types", "match_map", "near",
            "parse_map_device", "unknown_device"]
 
 
-#: Device types with their own facade (not read through a map here).
-FACADES = ("coolpro", "hub")
+#: Device types with their own facade (the typed views ``CoolPro`` and
+#: ``SensorHub``), and the group of its map that a poll of one reads.
+FACADES = {"coolpro": "telemetry", "hub": "sweep"}
 
 
 def near(word: str, known: Sequence[str]) -> str:

@@ -20,31 +20,21 @@ file), :mod:`~pymb.logger.poller` (a bus's thread), :mod:`~pymb.logger.tcploop`
 (the one loop over the TCP buses' map devices, with :mod:`~pymb.logger.tcpunits`),
 :mod:`~pymb.logger.logger`
 (the run: pollers, the writer, the summary). The device syntax lives with the
-devices (:mod:`pymb.devices.spec`), the status line and the joining of the
-file, the flags and ``[mqtt]`` with the command line (:mod:`pymb.commands`).
+devices (:mod:`pymb.devices.spec`, :mod:`pymb.devices.mapspec`), the status
+line and the joining of the file, the flags and ``[mqtt]`` with the command
+line (:mod:`pymb.commands`).
 """
 
 from __future__ import annotations
 
 from pymb.client import unresolved
-from pymb.devices.spec import (
-    DEVICE_KEYS,
-    DEVICE_SYNTAX,
-    DEVICE_TYPES,
-    DeviceConfig,
-    closest,
-    default_address,
-    device_parts,
-    parse_device,
-)
+from pymb.devices.spec import closest
 from pymb.logger.config import BusConfig, LogConfig, check_buses, load_config
 from pymb.logger.logger import Logger, RunSummary
+from pymb.logger.mapconfig import DeviceConfig, parse_device
 from pymb.store import FAULT_KINDS, check_output, is_pymb_database
 
 __all__ = [
-    "DEVICE_KEYS",
-    "DEVICE_SYNTAX",
-    "DEVICE_TYPES",
     "FAULT_KINDS",
     "BusConfig",
     "DeviceConfig",
@@ -54,8 +44,6 @@ __all__ = [
     "check_buses",
     "check_output",
     "closest",
-    "default_address",
-    "device_parts",
     "is_pymb_database",
     "load_config",
     "parse_device",

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pymb import maps
 from pymb.client import (
     AsciiClient,
     Client,
@@ -27,15 +28,13 @@ from pymb.client import (
     parse_host_port,
 )
 from pymb.client.address import is_mbaps, parse_address
-from pymb.devices import HUB
-from pymb.devices.hub import full_sweep_spans
-from pymb.devices.maps import COOLPRO, COOLPRO_GAP_S
-from pymb.devices.spec import DeviceConfig, closest
+from pymb.devices.mapspec import FACADES
+from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
-from pymb.logger.mapconfig import KnownMaps, MapDeviceConfig, add_maps, map_device_from_toml
+from pymb.logger.mapconfig import DeviceConfig, KnownMaps, add_maps, map_device_from_toml
 from pymb.store import FORMATS, OnChange
 from pymb.store.onchange import DEADBAND_QUANTITIES
-from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char, read_time
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char
 
 __all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_config",
            "read_toml", "share_deadbands"]
@@ -52,7 +51,7 @@ class BusConfig:
     parity: str = DEFAULT_PARITY
     timeout: float = DEFAULT_TIMEOUT
     interval: float = 0.0
-    devices: list[DeviceConfig | MapDeviceConfig] = field(default_factory=list)
+    devices: list[DeviceConfig] = field(default_factory=list)
     rtu_over_tcp: str | None = None
     #: Modbus TCP: a poll's requests in flight on the connection at once
     pipeline: int = 1
@@ -95,7 +94,7 @@ class BusConfig:
             raise InvalidArgument(f"bus {self.name!r}: pipeline is for a tcp bus")
         if not self.timeout > 0:
             raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
-        seen: dict[int, DeviceConfig | MapDeviceConfig] = {}
+        seen: dict[int, DeviceConfig] = {}
         for d in self.devices:
             assert d.address is not None
             if d.address in seen:
@@ -125,20 +124,14 @@ class BusConfig:
             return AsciiClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
         return RtuClient(str(self.port), self.baud, self.parity, timeout=self.timeout)
 
-    def wire_time(self, device: DeviceConfig | MapDeviceConfig) -> float:
-        """Least wire time of one poll of ``device`` (:mod:`pymb.wire`; a
-        map device: of its groups, each once)."""
+    def wire_time(self, device: DeviceConfig) -> float:
+        """Least wire time of one poll of ``device`` (:mod:`pymb.wire`): of
+        its groups, each once, as its map plans them."""
         bits = bits_per_char(self.parity)
         if self.ascii:
             bits *= 2  # two characters a byte (and a few for ':', LRC, CR LF)
-        if isinstance(device, MapDeviceConfig):
-            return sum(device.map.plan(g, baudrate=self.baud, bits_per_char=bits).predicted_s
-                       for g, _ in device.polls)
-        if device.type == "coolpro":
-            return read_time(COOLPRO.span("telemetry")[2], self.baud, turnaround=COOLPRO_GAP_S,
-                             bits=bits)
-        return sum(read_time(n, self.baud, bits=bits)
-                   for _, n in full_sweep_spans(device.channels))
+        return sum(device.map.plan(g, baudrate=self.baud, bits_per_char=bits).predicted_s
+                   for g, _ in device.polls)
 
 
 #: Commits: when the samples waiting hold COMMIT_BYTES of registers, or when
@@ -234,13 +227,13 @@ def share_deadbands(buses: Sequence[BusConfig], bands: Mapping[str, float],
     the device's own ``deadband`` table when ``over_devices`` (the command
     line), under it otherwise. A name that is neither, or an amount that is
     not a number of 0 or more, is a one-line error."""
-    maps = [d for b in buses for d in b.devices if isinstance(d, MapDeviceConfig)]
-    points = sorted({p for d in maps for p in d.map.points})
+    polled = [d for b in buses for d in b.devices if d.facade is None]
+    points = sorted({p for d in polled for p in d.map.points})
     builtin: dict[str, float] = {}
     for name, band in bands.items():
         if not (math.isfinite(band) and band >= 0):
             raise InvalidArgument(f"deadband of {name} must be 0 or more, got {band!r}")
-        owners = [d for d in maps if name in d.map.points]
+        owners = [d for d in polled if name in d.map.points]
         if name not in DEADBAND_QUANTITIES and not owners:
             known = sorted({*DEADBAND_QUANTITIES, *points})
             raise InvalidArgument(f"no quantity or point {name!r} for a deadband"
@@ -260,7 +253,7 @@ _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s",
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "udp", "ascii", "baud", "parity", "timeout",
              "interval", "pipeline", "device", "tls")
 _TLS_KEYS = ("ca", "cert", "key", "server_name", "check_hostname")
-_DEVICE_TOML_KEYS = ("type", "address", "name", "channels", "humidity_unit")
+_FACADE_TOML_KEYS = ("type", "address", "name")
 
 
 def _known(table: dict[str, Any], keys: Sequence[str], where: str) -> None:
@@ -340,6 +333,30 @@ def _tls(bus: dict[str, Any], where: str, base: Path) -> TlsConfig | None:
         raise InvalidArgument(f"{where} [bus.tls]: {str(e).removeprefix('tls ')}") from None
 
 
+def _facade_device(d: dict[str, Any], kind: str, where: str) -> DeviceConfig:
+    """A ``[[bus.device]]`` table of a facade's device (``coolpro``, ``hub``):
+    its address, name and its map's options (a hub's ``humidity_unit`` also
+    as a list, one per channel)."""
+    options = list(maps.builtin(kind).device.options)
+    _known(d, [*_FACADE_TOML_KEYS, *options], f"{where} [[bus.device]]")
+    given: dict[str, Any] = {}
+    for key in options:
+        value = d.get(key)
+        if value is None:
+            continue
+        if isinstance(value, list):
+            value = tuple(value)
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                   for v in (value if isinstance(value, tuple) else [value])):
+            raise InvalidArgument(f"{where}: {key} has the wrong type ({d[key]!r})")
+        given[key] = value
+    try:
+        return DeviceConfig(kind, _get(d, "address", int, where), _get(d, "name", str, where, ""),
+                            options=given)
+    except InvalidArgument as e:
+        raise _within(where, e) from None
+
+
 def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogConfig:
     """The buses and output of a parsed TOML configuration read from ``path``
     (named in errors). Its ``[mqtt]`` table, if any, must be a table; reading
@@ -358,29 +375,19 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
         if not isinstance(b, dict):
             raise InvalidArgument(f"{where}: write buses as [[bus]] tables")
         _known(b, _BUS_KEYS, f"{where} [[bus]]")
-        devices: list[DeviceConfig | MapDeviceConfig] = []
+        devices: list[DeviceConfig] = []
         for j, d in enumerate(_get(b, "device", list, where, [])):
             dwhere = f"{where}, device {j + 1}"
             if not isinstance(d, dict):
                 raise InvalidArgument(f"{dwhere}: write devices as [[bus.device]] tables")
             kind = _get(d, "type", str, dwhere)
-            if "map" in d or (kind is not None and kind.lower() not in ("coolpro", "hub")):
+            if "map" in d or (kind is not None and kind.lower() not in FACADES):
                 devices.append(map_device_from_toml(d, known, dwhere, base))
                 continue
-            _known(d, _DEVICE_TOML_KEYS, f"{dwhere} [[bus.device]]")
             if kind is None:
                 raise InvalidArgument(f"{dwhere}: give its type (coolpro, hub or a map's id) "
                                       "or map = \"FILE\"")
-            units = d.get("humidity_unit", 0.1)
-            try:
-                devices.append(DeviceConfig(
-                    kind.lower(), _get(d, "address", int, dwhere),
-                    _get(d, "name", str, dwhere, ""),
-                    _get(d, "channels", int, dwhere, HUB.channels),
-                    units,
-                ))
-            except InvalidArgument as e:
-                raise _within(dwhere, e) from None
+            devices.append(_facade_device(d, kind.lower(), dwhere))
         try:
             buses.append(BusConfig(
                 _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),

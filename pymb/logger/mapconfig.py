@@ -1,5 +1,6 @@
-"""Map devices in the logger's configuration: :class:`MapDeviceConfig` (a
-device read through a ``pymb.map/1`` map: which groups, its health timing),
+"""The devices in the logger's configuration: :class:`DeviceConfig` (a
+device read through its ``pymb.map/1`` map, a shipped one or a file's:
+which groups, its health timing, its options),
 the maps a configuration knows (``maps = [...]`` in TOML,
 ``--map FILE`` on the command line, the shipped maps) and the
 ``[[bus.device]]`` table of a map device."""
@@ -16,11 +17,13 @@ from typing import Any
 
 from pymb import maps
 from pymb.devices.mapreading import group_points
-from pymb.devices.mapspec import FACADES, MapTarget, near
+from pymb.devices.mapspec import FACADES, MapTarget, near, parse_map_device, unknown_device
+from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 
-__all__ = ["MAP_DEVICE_KEYS", "KnownMaps", "MapDeviceConfig", "map_device_from_toml"]
+__all__ = ["MAP_DEVICE_KEYS", "DeviceConfig", "KnownMaps", "MapText", "map_device_from_toml",
+           "parse_device", "shipped"]
 
 #: keys of a map device's ``[[bus.device]]`` table, besides the map's options
 MAP_DEVICE_KEYS = ("type", "map", "address", "name", "groups", "offline_after",
@@ -36,9 +39,16 @@ class MapText:
     text: str
 
 
+def shipped(kind: str) -> MapText:
+    """The shipped map of device type ``kind``, with its text."""
+    res = resources.files("pymb.maps") / "builtin" / f"{kind}.toml"
+    return MapText(maps.builtin(kind), res.read_text(encoding="utf-8"))
+
+
 class KnownMaps:
     """Map id -> map: the files given (``maps = [...]``, ``--map``) and the
-    shipped maps, except the two facades' (``coolpro``, ``hub``)."""
+    shipped maps (:attr:`ids` leaves out the facades', ``coolpro`` and
+    ``hub``, which are named apart in errors)."""
 
     def __init__(self) -> None:
         self._maps: dict[str, MapText] = {}
@@ -73,44 +83,88 @@ class KnownMaps:
     def get(self, kind: str) -> MapText | None:
         """The map of device type ``kind`` (a file's, or a shipped one), or None."""
         got = self._maps.get(kind)
-        if got is None and kind not in FACADES and kind in maps.builtin_ids():
-            res = resources.files("pymb.maps") / "builtin" / f"{kind}.toml"
-            got = self._maps[kind] = MapText(maps.builtin(kind), res.read_text(encoding="utf-8"))
+        if got is None and kind in maps.builtin_ids():
+            got = self._maps[kind] = shipped(kind)
         return got
 
     @property
     def ids(self) -> list[str]:
-        """Every map id known (files and shipped maps)."""
+        """Every map id known (files and shipped maps) but the facades'."""
         return sorted({*self._maps, *(i for i in maps.builtin_ids() if i not in FACADES)})
 
-    def as_dict(self) -> dict[str, Map]:
-        """Map id -> map, for :func:`pymb.devices.mapspec.parse_map_device`."""
-        return {i: got.map for i in self.ids if (got := self.get(i)) is not None}
+
+#: an option's value: a number, or for an option given per channel one number a channel
+Option = int | float | tuple[int | float, ...]
+
+
+def _configured(source: MapText, options: Mapping[str, Option]) -> MapText:
+    """``source`` with ``options`` applied; an option given per channel (a
+    tuple: the hub's humidity unit) configures the map with its most common
+    value (ties: the map's default), after each value is checked."""
+    m = source.map
+    one: dict[str, int | float] = {}
+    for key, value in options.items():
+        if not isinstance(value, tuple):
+            one[key] = value
+            continue
+        channels = options.get("channels", m.options.get("channels"))
+        if channels is None or isinstance(channels, tuple):
+            raise InvalidArgument(f"{m.id}: {key} takes one value, got {list(value)!r}")
+        if len(value) != channels:
+            raise InvalidArgument(f"{len(value)} {key} values given for {channels} channels")
+        for v in set(value):
+            try:
+                m.configure({key: v})
+            except MapError as e:
+                raise InvalidArgument(str(e)) from None
+        default = m.options.get(key)
+        one[key] = max(dict.fromkeys(value), key=lambda v: (value.count(v), v == default))
+    if not one:
+        return source
+    try:
+        return MapText(m.configure(one), source.text)
+    except MapError as e:
+        raise InvalidArgument(str(e)) from None
 
 
 @dataclass
-class MapDeviceConfig:
-    """A device on a bus read through its map: the groups polled (each at
-    its own interval; default every group, or every readable point in one
-    poll for a map without groups), and ``offline_after`` failed polls in a
-    row before it is left alone for ``offline_retry`` seconds (default: the
-    map's ``[device.timing]``), and for on-change storage, deadbands by point
-    name over the map's own ``deadband`` of each point."""
+class DeviceConfig:
+    """A device on a bus read through its map: ``source`` is the map (with
+    ``options`` applied) or a shipped map's id (``"coolpro"``, ``"hub"``,
+    ``"eastron-sdm120"``: ``options`` are applied here); ``address`` None is
+    the map's default address. The groups polled (each at its own interval;
+    default every group, or every readable point in one poll for a map
+    without groups; a facade's device, ``coolpro`` or ``hub``: the group its
+    facade reads, at the bus's interval), and ``offline_after`` failed polls
+    in a row before it is left alone for ``offline_retry`` seconds (default:
+    the map's ``[device.timing]``), and for on-change storage, deadbands by
+    point name over the map's own ``deadband`` of each point."""
 
-    source: MapText
-    address: int
+    source: MapText | str
+    address: int | None = None
     name: str = ""
     groups: tuple[str, ...] = ()
     offline_after: int | None = None
     offline_retry: float | None = None
-    options: Mapping[str, int | float] = field(default_factory=dict)
+    options: Mapping[str, Option] = field(default_factory=dict)
     deadband: Mapping[str, float] = field(default_factory=dict)
-    channels: int = 0  #: 0: a map device has no hub channels
-    humidity_unit: float = 0.1  #: unused: a map device has no humidity unit
 
     def __post_init__(self) -> None:
+        if isinstance(self.source, str):
+            if self.source not in maps.builtin_ids():
+                raise InvalidArgument(f"unknown device type {self.source!r}; use coolpro, hub "
+                                      f"or a shipped map's id{near(self.source, list(FACADES))}")
+            self.source = _configured(shipped(self.source), self.options)
         m = self.map
-        if not self.groups:
+        if self.address is None:
+            self.address = m.device.default_address
+        low, high = m.device.addresses
+        if isinstance(self.address, bool) or not isinstance(self.address, int) or not (
+                low <= self.address <= high):
+            raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {self.address!r}")
+        if self.facade is not None:
+            self.groups = (self.facade,)
+        elif not self.groups:
             self.groups = tuple(m.groups) if m.groups else ()
         for g in self.groups:
             if g not in m.groups:
@@ -139,34 +193,71 @@ class MapDeviceConfig:
             self.name = f"{m.id}-{self.address}"
 
     @property
+    def text(self) -> MapText:
+        """The map with the text it was loaded from."""
+        assert isinstance(self.source, MapText)  # made one by __post_init__
+        return self.source
+
+    @property
     def map(self) -> Map:
         """The map, with this device's options applied."""
-        return self.source.map
+        return self.text.map
 
     @property
     def type(self) -> str:
         """The device type: the map's id."""
-        return self.source.map.id
+        return self.map.id
+
+    def option(self, key: str) -> Option:
+        """An option's value: as given (a tuple: one value a channel), else
+        the map's (its default); KeyError for an option the map lacks."""
+        return self.options.get(key, self.map.options[key])
+
+    @property
+    def facade(self) -> str | None:
+        """The group a facade reads for this device (``coolpro``: telemetry,
+        ``hub``: the sweep), None for a device polled through its map."""
+        return FACADES.get(self.map.id)
 
     @property
     def polls(self) -> list[tuple[str | None, float | None]]:
         """(group, interval in seconds) of each poll; (None, None) for one poll
-        of every readable point at the bus's interval (a map without groups)."""
+        of every readable point at the bus's interval (a map without groups);
+        a facade's one group at the bus's interval."""
+        if self.facade is not None:
+            return [(self.facade, None)]
         if not self.groups:
             return [(None, None)]
         return [(g, self.map.groups[g]) for g in self.groups]
 
     @property
     def spec(self) -> str:
-        """The device in the command-line syntax, e.g. ``eastron-sdm120:3``."""
-        opts = "".join(f",{k}={v:g}" for k, v in self.options.items())
+        """The device in the command-line syntax, e.g. ``hub:250,channels=50``:
+        the options that differ from the map's defaults, in the map's order."""
+        default = self.map.device.options
+        opts = "".join(f",{k}={v:g}" for k in default
+                       if not isinstance(v := self.options.get(k, default[k]), tuple)
+                       and v != default[k])
         return f"{self.type}:{self.address}{opts}"
 
 
-def from_target(t: MapTarget, source: MapText) -> MapDeviceConfig:
+def from_target(t: MapTarget, source: MapText) -> DeviceConfig:
     """The device the command line named (``eastron-sdm120:3,name=meter``)."""
-    return MapDeviceConfig(MapText(t.map, source.text), t.address, t.name,
-                           options=dict(t.options))
+    return DeviceConfig(MapText(t.map, source.text), t.address, t.name,
+                        options=dict(t.options))
+
+
+def parse_device(spec: str, known: KnownMaps | None = None) -> DeviceConfig:
+    """A device as the command line names it, ``TYPE[:ADDRESS][,key=value...]``:
+    ``coolpro``, ``hub:250,channels=50`` or a map's id (a shipped map's, or
+    one of ``known``'s files), checked against its map."""
+    known = known or KnownMaps()
+    kind = split_spec(spec)[0]
+    src = known.get(kind)
+    target = parse_map_device(spec, {kind: src.map}) if src is not None else None
+    if src is None or target is None:
+        raise unknown_device(spec, list(known.ids))
+    return from_target(target, src)
 
 
 def _number(d: Mapping[str, Any], key: str, where: str) -> Any:
@@ -177,7 +268,7 @@ def _number(d: Mapping[str, Any], key: str, where: str) -> Any:
 
 
 def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
-                         base: Path) -> MapDeviceConfig:
+                         base: Path) -> DeviceConfig:
     """A ``[[bus.device]]`` table naming a map: ``type = "<map id>"`` or
     ``map = "FILE"`` (relative to the configuration's folder); ``where``
     names the file and device in errors."""
@@ -232,7 +323,7 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     for k in bands:
         _number(bands, k, f"{where}: deadband")
     try:
-        return MapDeviceConfig(src, address, name, tuple(groups), after,
+        return DeviceConfig(src, address, name, tuple(groups), after,
                                None if retry is None else float(retry), options,
                                {k: float(v) for k, v in bands.items()})
     except InvalidArgument as e:

@@ -19,10 +19,9 @@ from pymb.devices import CoolPro, HubReading, SensorHub
 from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.spec import DeviceConfig
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import BACKOFF_MAX, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
@@ -52,7 +51,7 @@ class MapHealth:
     how its polling goes."""
 
     info: DeviceInfo
-    config: MapDeviceConfig
+    config: DeviceConfig
     device: MapDevice
     health: Health
 
@@ -72,12 +71,26 @@ class _Read:
     builtin: _Device | None = None
 
 
-def map_info(bus: BusConfig, d: MapDeviceConfig) -> DeviceInfo:
+def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
     """The record a map device's samples and events carry."""
+    assert d.address is not None
     return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
-                      map_source=d.source.text,
-                      map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())),
+                      map_source=d.text.text,
+                      map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())
+                                        if not isinstance(v, tuple)),
                       map_deadband=tuple(sorted(d.deadband.items())))
+
+
+def facade_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
+    """The record a facade's device (``coolpro``, ``hub``) samples and
+    events carry: a hub's channels and humidity unit(s) from its options."""
+    assert d.address is not None
+    if "channels" not in d.map.options:
+        return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name)
+    unit = d.option("humidity_unit")
+    return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
+                      int(d.map.options["channels"]),
+                      tuple(float(u) for u in unit) if isinstance(unit, tuple) else float(unit))
 
 
 def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Callable[[], Any]:
@@ -106,24 +119,21 @@ class BusPoller(threading.Thread):
         self.clock = clock
         self.client = bus.client()
         self.devices: list[_Device] = []
-        self.maps: list[tuple[DeviceInfo, MapDeviceConfig]] = []
+        self.maps: list[tuple[DeviceInfo, DeviceConfig]] = []
         #: map device name -> its MapDevice and health, once polling started
         self.healths: dict[str, MapHealth] = {}
         stats.opened.setdefault(bus.name, False)
         for d in bus.devices:
             assert d.address is not None
-            if isinstance(d, MapDeviceConfig):
+            if d.facade is None:
                 self.maps.append((map_info(bus, d), d))
                 continue
-            units = d.humidity_unit
-            info = DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
-                              d.channels if d.type == "hub" else 0,
-                              tuple(units) if isinstance(units, list) else units)
+            info = facade_info(bus, d)
             if d.type == "coolpro":
                 self.devices.append(_Device(info, d, CoolPro(self.client, d.address)
                                             .read_telemetry, None))
             else:
-                hub = SensorHub(self.client, d.address, d.channels, d.humidity_unit)
+                hub = SensorHub(self.client, d.address, info.channels, info.humidity_unit)
                 if reuse:
                     spare: collections.deque[HubReading] = collections.deque()
                     self.devices.append(_Device(info, d, _reading_into(hub, spare), hub, spare))
@@ -257,4 +267,4 @@ class BusPoller(threading.Thread):
             found = identify(client_asker(self.client), dev.info.address)
         except ModbusError as e:
             return str(e)
-        return mismatch(found, dev.info.type, dev.info.address, dev.config.channels)
+        return mismatch(found, dev.info.type, dev.info.address, dev.info.channels)

@@ -45,7 +45,6 @@ from pymb.errors import (
     request_error,
 )
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig
 from pymb.logger.poller import map_info
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
@@ -72,7 +71,7 @@ def fans_out(bus: BusConfig) -> bool:
     devices only (the CoolPro and the hub facades keep a thread per bus, and
     so does Modbus/TCP Security, ``mbaps://``: its TLS is the client's)."""
     return (bus.tcp is not None and not is_mbaps(bus.tcp)
-            and all(isinstance(d, MapDeviceConfig) for d in bus.devices))
+            and all(d.facade is None for d in bus.devices))
 
 
 class TcpMapPoller(TcpReplies):
@@ -89,7 +88,6 @@ class TcpMapPoller(TcpReplies):
             host, port = parse_host_port(str(bus.tcp), what=f"bus {bus.name!r}: tcp")
             units, entries = [], []
             for d in bus.devices:
-                assert isinstance(d, MapDeviceConfig)
                 u = Unit.of(map_info(bus, d), d, bus.timeout, planners)
                 units.append(u)
                 for group, interval in d.polls:

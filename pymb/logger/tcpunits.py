@@ -23,7 +23,7 @@ from typing import Any
 
 from pymb._native.master import PollTable
 from pymb.devices.mapreading import MapReading, group_layout, group_points
-from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.schedule import Health, Slot
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
@@ -42,7 +42,7 @@ class Unit:
     """A map device on a TCP bus and how its polling goes."""
 
     info: DeviceInfo
-    config: MapDeviceConfig
+    config: DeviceConfig
     planner: PointPlanner
     items: MapItems
     timeout: float  #: seconds a request waits for its reply
@@ -56,7 +56,7 @@ class Unit:
         self.timed = self.gap > 0 or self.turnaround > 0
 
     @classmethod
-    def of(cls, info: DeviceInfo, cfg: MapDeviceConfig, bus_timeout: float,
+    def of(cls, info: DeviceInfo, cfg: DeviceConfig, bus_timeout: float,
            shared: dict[int, tuple[PointPlanner, MapItems]]) -> Unit:
         """The unit of a configured map device (its planner as MapDevice's;
         the map's items ``shared`` by the devices of one map)."""

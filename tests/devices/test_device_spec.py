@@ -12,8 +12,9 @@ from conftest import run_pymb
 import pymb
 from pymb.devices import HUB_FIRMWARE_PROFILES
 from pymb.devices.identify import client_asker, identify
-from pymb.devices.spec import parse_device, split_spec
+from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
+from pymb.logger import parse_device
 from pymb.sim import Simulator
 from pymb.sim.simulator import make_device
 

@@ -95,6 +95,6 @@ def test_explain_agrees_with_the_plans_total_on_any_line() -> None:
 def test_the_loggers_wire_time_prices_the_sweep_the_c_core_plans() -> None:
     # 50 channels: seven reads of 50 (the blocks are 100 apart), not three of 125.
     assert full_sweep_spans(50) == [(31 + 100 * b, 50) for b in range(7)]
-    hub = DeviceConfig("hub", 1, channels=50)
+    hub = DeviceConfig("hub", 1, options={"channels": 50})
     bus = BusConfig("b", "/dev/null", baud=19200, parity="E", devices=[hub])
     assert bus.wire_time(hub) == pytest.approx(7 * read_time(50, 19200, bits=11))

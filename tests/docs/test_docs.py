@@ -54,15 +54,16 @@ def test_the_toml_example_is_a_valid_configuration() -> None:
     assert cfg.max_bytes == 500_000_000
     assert cfg.path == "plant.sqlite"
     hub = cfg.buses[0].devices[1]
-    assert hub.channels == 100
-    assert hub.humidity_unit == 0.1
+    assert hub.option("channels") == 100
+    assert hub.option("humidity_unit") == 0.1
 
 
 def test_the_toml_keys_table_lists_every_key() -> None:
-    from pymb.logger.config import _BUS_KEYS, _DEVICE_TOML_KEYS, _OUTPUT_KEYS
+    from pymb import maps
+    from pymb.logger.config import _BUS_KEYS, _FACADE_TOML_KEYS, _OUTPUT_KEYS
 
     table = CLI[CLI.index("| `[output]` |"):CLI.index("| `[mqtt]` |")]
-    for key in (*_OUTPUT_KEYS, *_BUS_KEYS, *_DEVICE_TOML_KEYS):
+    for key in (*_OUTPUT_KEYS, *_BUS_KEYS, *_FACADE_TOML_KEYS, *maps.builtin("hub").options):
         assert f"`{key}`" in table or key == "device", key
 
 

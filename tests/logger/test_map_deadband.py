@@ -24,7 +24,7 @@ from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument
 from pymb.logger import load_config
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import MapDeviceConfig
+from pymb.logger.mapconfig import DeviceConfig
 from pymb.store import samples_after
 
 METER = '''schema = "pymb.map/1"
@@ -112,8 +112,8 @@ def test_a_deadband_name_that_is_neither_quantity_nor_point(tmp_path: Path) -> N
     assert not (tmp_path / "y.sqlite").exists()
 
 
-def _map_devices(buses: Sequence[BusConfig]) -> dict[str, MapDeviceConfig]:
-    return {d.name: d for b in buses for d in b.devices if isinstance(d, MapDeviceConfig)}
+def _map_devices(buses: Sequence[BusConfig]) -> dict[str, DeviceConfig]:
+    return {d.name: d for b in buses for d in b.devices if d.facade is None}
 
 
 def test_where_a_run_wide_deadband_goes(tmp_path: Path) -> None:

@@ -22,8 +22,7 @@ from conftest import run_pymb
 from hostile_gateway import Hostile, Request, good, poll
 
 from pymb.devices.mapreading import MapReading
-from pymb.devices.spec import DeviceConfig
-from pymb.logger import BusConfig, LogConfig, Logger
+from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.logger.config import load_config
 from pymb.logger.poller import BusPoller, Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
