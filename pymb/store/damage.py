@@ -99,7 +99,8 @@ def damage(path: str | os.PathLike[str], seconds: float | None = None) -> str | 
         con.close()
     if rows == ["ok"]:
         return None
-    return "; ".join(rows)
+    # one line: SQLite's first row is "*** in database main ***" and a newline
+    return "; ".join(" ".join(r.split()) for r in rows)
 
 
 def id_floor(path: str | os.PathLike[str]) -> int:

@@ -19,9 +19,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pymb.sim import SimulatorProcess
+from pymb.store.damage import damage
 from pymb.store.pages import fits, leaf_rows
 
-PAGE = 8192
+
+def _page(path: Path) -> int:
+    """The file's page size, from its header (a zeroed page is one of its pages)."""
+    with open(path, "rb") as f:
+        f.seek(16)
+        size = int.from_bytes(f.read(2), "big")
+    return 65536 if size == 1 else size
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +67,11 @@ def intact(coolpro: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _zero_page(path: Path) -> None:
     """One page in the middle of the file overwritten with zeros."""
-    pages = path.stat().st_size // PAGE
+    page = _page(path)
+    pages = path.stat().st_size // page
     with open(path, "r+b") as f:
-        f.seek(pages // 2 * PAGE)
-        f.write(bytes(PAGE))
+        f.seek(pages // 2 * page)
+        f.write(bytes(page))
 
 
 def _bad_header(path: Path) -> None:
@@ -74,7 +82,8 @@ def _bad_header(path: Path) -> None:
 
 def _truncated(path: Path) -> None:
     """The file cut to half of its pages (a copy that stopped, a full card)."""
-    os.truncate(path, path.stat().st_size // PAGE // 2 * PAGE)
+    page = _page(path)
+    os.truncate(path, path.stat().st_size // page // 2 * page)
 
 
 def _zero_root(path: Path) -> None:
@@ -85,9 +94,10 @@ def _zero_root(path: Path) -> None:
                               "WHERE name = 'samples'").fetchone()
     finally:
         con.close()
+    size = _page(path)
     with open(path, "r+b") as f:
-        f.seek((int(root) - 1) * PAGE)
-        f.write(bytes(PAGE))
+        f.seek((int(root) - 1) * size)
+        f.write(bytes(size))
 
 
 DAMAGES: dict[str, Callable[[Path], None]] = {
@@ -247,9 +257,10 @@ def _zero_leaf_of_oldest_samples(path: Path) -> None:
                               "pagetype = 'leaf' ORDER BY pageno LIMIT 1 OFFSET 3").fetchone()
     finally:
         con.close()
+    size = _page(path)
     with open(path, "r+b") as f:
-        f.seek((int(page) - 1) * PAGE)
-        f.write(bytes(PAGE))
+        f.seek((int(page) - 1) * size)
+        f.write(bytes(size))
 
 
 def test_a_trim_through_a_bad_page_moves_the_file_aside_and_the_restart_logs_on(
@@ -312,3 +323,18 @@ def test_page_reader_reads_every_row_sqlite_reads(intact: Path) -> None:
             values[0] = rowid
             got[rowid] = values
     assert got == want
+
+
+def test_damage_that_quick_check_lists_is_said_in_one_line(intact: Path, tmp_path: Path) -> None:
+    """quick_check's first row starts "*** in database main ***" and a newline:
+    the damage is still one line of stderr and of the event."""
+    db = tmp_path / "data.sqlite"
+    db.write_bytes(intact.read_bytes())
+    page = _page(db)
+    with open(db, "r+b") as f:  # four pages in the middle: rows quick_check lists
+        f.seek(db.stat().st_size // page // 2 * page)
+        f.write(bytes(4 * page))
+    found = damage(db, 60.0)
+    assert found is not None
+    assert "in database main" in found
+    assert "\n" not in found
