@@ -140,7 +140,7 @@ class BusConfig:
 #: COMMIT_INTERVAL seconds (and the commit being written). Each commit writes
 #: whole pages to the WAL (the last page of the samples and of their time
 #: index, however few rows changed) and syncs it: a 1 Hz device commits every
-#: other sample, two 4 KB pages (docs/reliability.md has the figures).
+#: other sample (docs/reliability.md has what that writes).
 #: Forwarding to MQTT changes nothing here: the forwarder publishes from the
 #: open batch (pymb.store.ids).
 COMMIT_BYTES = 256 * 1024

@@ -123,16 +123,16 @@ def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
 # from the device maps, and tested value by value against the C decoder.
 
 SCHEMA_VERSION = 2
-#: a new database's page size: a commit writes at least two pages (the last
-#: of the samples and of their time index), and a device polled every second
-#: commits every 1.5 s: two 4 KB pages (8 KB would write twice as much for
-#: the same few rows; a file made with 8 KB pages keeps them). Smaller pages
-#: would write less per commit (512 B: about half), but a hub sweep (1,400
-#: bytes) would no longer fit a page: it would spill onto overflow pages,
-#: whose content nothing of SQLite's checks (a zeroed one passes quick_check
-#: and integrity_check, its registers read back as zeros), where a zeroed
-#: page of 4 KB is found at the start (pymb.store.damage).
-PAGE_SIZE = 4096
+#: a new database's page size. A commit writes whole pages to the WAL (the
+#: last of the samples, its parent, the time index's last page, the header
+#: and the pointer-map page), each copied once more at the checkpoint: the
+#: smaller the page, the fewer bytes a commit of a few rows writes (2 KB:
+#: about half of 4 KB's). A hub sweep (1,400 bytes) still fits a page: at
+#: 1 KB it would spill onto overflow pages, whose content nothing of SQLite's
+#: checks (a zeroed one passes quick_check and integrity_check, its registers
+#: read back as zeros), where a zeroed page of 2 KB is found at the start
+#: (pymb.store.damage). A file made with other pages keeps them.
+PAGE_SIZE = 2048
 WAL_MIN, WAL_MAX = 256 * 1024, 8 * 1024 * 1024
 MIN_BYTES = 1_000_000  #: the smallest size bound accepted (schema pages and a WAL budget)
 
