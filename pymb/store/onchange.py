@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+from array import array
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -95,7 +96,7 @@ class Changes:
         self.shape: list[tuple[str, int]] = []
         self.limits: list[tuple[int, int, float, bool]] = []  # lo, hi, band, counter
         self.prev: Sequence[Any] = ()  # the previous reading's values, its bytes and states
-        self.prev_key: tuple[bytes | list[Any], bytes | list[Any]] = (b"", b"")
+        self.prev_key: tuple[Sequence[Any], Sequence[Any]] = (b"", b"")
         self.first = True
         self.values: list[Any] = []  # what was last stored, value by value
         self.states: list[Any] = []
@@ -105,11 +106,14 @@ class Changes:
     def _reset(self, m: Map, shape: list[tuple[str, int]]) -> None:
         self.shape = shape
         self.limits = []
+        self.flat: list[tuple[float, bool]] = []  # band and counter, value by value
         lo = 0
         for name, n in shape:
             p = m.points.get(name)
             band = self.bands.get(name, (p.deadband if p is not None else None) or 0.0)
-            self.limits.append((lo, lo + n, band, p is not None and p.kind == "counter"))
+            counter = p is not None and p.kind == "counter"
+            self.limits.append((lo, lo + n, band, counter))
+            self.flat += [(band, counter)] * n
             lo += n
         self.first = True
         self.due = [0.0] * (shape[0][1] if self.by_channel and shape else 1)
@@ -120,18 +124,20 @@ class Changes:
         m, shape, vals, sts = _points(data)
         if shape != self.shape:
             self._reset(m, shape)
-        # what did not move since the previous reading is skipped (as bytes: NaN is NaN)
-        key = (vals.tobytes() if hasattr(vals, "tobytes") else list(vals),
-               sts.tobytes() if hasattr(sts, "tobytes") else list(sts))
+        # what did not move since the previous reading is skipped (as bytes: NaN is
+        # NaN); a copy of a hub's arrays, which the logger may read its next sweep into
+        key = (vals.tobytes(), sts.tobytes()) if isinstance(vals, array) and \
+            isinstance(sts, array) else (vals, sts)
         columns = len(self.due)
         if self.first:
             pick = set(range(columns))
             self.first = False
-        else:
+        elif self.by_channel:
             pick = self._moved(vals, sts, key)
-            if now >= self.next_due:
-                pick.update(c for c in range(columns) if now >= self.due[c])
-        # a copy: the logger may read its next sweep into these arrays
+        else:
+            pick = self._moved_whole(vals, sts)
+        if now >= self.next_due:
+            pick.update(c for c in range(columns) if now >= self.due[c])
         self.prev, self.prev_key = copy.copy(vals), key
         if not pick:
             return []
@@ -148,8 +154,24 @@ class Changes:
         self.next_due = min(self.due)
         return sorted(pick)
 
+    def _moved_whole(self, vals: Sequence[Any], sts: Sequence[Any]) -> set[int]:
+        """{0} when a value of the reading is to be stored, else nothing."""
+        for a, pa, s, ps, b, sb, (band, counter) in zip(
+                vals, self.prev, sts, self.prev_key[1], self.values, self.states, self.flat,
+                strict=True):
+            if a == pa and s == ps:
+                continue
+            if s != sb:
+                return {0}
+            if type(a) in (int, float) and type(b) in (int, float):
+                if abs(a - b) > band or (a != a) != (b != b) or (counter and a < b):
+                    return {0}
+            elif a != b:
+                return {0}
+        return set()
+
     def _moved(self, vals: Sequence[Any], sts: Sequence[Any],
-               key: tuple[bytes | list[Any], bytes | list[Any]]) -> set[int]:
+               key: tuple[Sequence[Any], Sequence[Any]]) -> set[int]:
         pick: set[int] = set()
         prev = self.prev
         (now_v, now_s), (old_v, old_s) = key, self.prev_key
