@@ -175,8 +175,16 @@ def _value(p: Point, at: str, sf_at: str | None = None, sf: Point | None = None)
     return v
 
 
-def _columns(m: Map, blocks: bool) -> list[str]:
-    """Each point's column (blocks or the others), NULL outside its group."""
+#: columns the readings view's inner select may add (SQLite allows 2,000 a select)
+_INNER_MAX = 1900
+
+
+def _columns(m: Map, blocks: bool, inner: list[str] | None = None) -> list[str]:
+    """Each point's column (blocks or the others), NULL outside its group.
+    With ``inner``, each point's pattern (its bytes as an integer, which a
+    value's SQL uses several times) is written once, as a column of an
+    inner select appended to ``inner``, and the value names it (the view's
+    text, which SQLite keeps parsed in memory, several times shorter)."""
     groups: list[str | None] = list(m.groups) if m.groups else [None]
     # name -> (condition, value) for each group that reads it (a scale factor
     # is read by its own group and by those of the points it scales)
@@ -201,7 +209,14 @@ def _columns(m: Map, blocks: bool) -> list[str]:
                 cond += f" AND c.channel <= {p.channels}"
             sf = m.points[p.scale_from] if p.scale_from is not None else None
             sf_at = str(offsets[sf.name]) if sf is not None else None
-            cases.setdefault(n, []).append((cond, _value(p, at_sql, sf_at, sf)))
+            v = _value(p, at_sql, sf_at, sf)
+            if inner is not None and TYPES[p.type].family not in ("raw", "string", "bool"):
+                for pattern in reversed(_pattern(p, at_sql)):  # the signed one first
+                    if pattern in v and len(inner) < _INNER_MAX:
+                        name = f"_p{len(inner)}"
+                        inner.append(f"{pattern} AS {name}")
+                        v = v.replace(pattern, name)
+            cases.setdefault(n, []).append((cond, v))
     return [f"CASE {' '.join(f'WHEN {c} THEN {v}' for c, v in whens)} END AS \"{n}\""
             for n, whens in cases.items()]
 
@@ -219,9 +234,14 @@ def create_map_views(db: sqlite3.Connection, m: Map) -> None:
            f"AS grp FROM devices WHERE type = '{m.id}') g ON g.id = s.device_id")
     db.execute(f'DROP VIEW IF EXISTS "{readings}"')
     db.execute(f'DROP VIEW IF EXISTS "{channels}"')
-    cols = _columns(m, False)
+    inner: list[str] = []
+    cols = _columns(m, False, inner)
     if cols:
-        db.execute(f"CREATE VIEW \"{readings}\" AS {head}, {', '.join(cols)} {src} "
+        pre = "" if not inner else (
+            "(SELECT s.id, s.device_id, s.time_utc, s.registers, s.unsupported, "
+            f"{', '.join(inner)} FROM samples s) ")
+        db.execute(f"CREATE VIEW \"{readings}\" AS {head}, {', '.join(cols)} "
+                   f"{src.replace('FROM samples s ', 'FROM ' + pre + 's ', 1) if pre else src} "
                    "WHERE s.registers IS NOT NULL")
     bcols = _columns(m, True)
     if bcols:
