@@ -22,8 +22,8 @@ from pymb.client import (
     unresolved,
 )
 from pymb.client.address import is_mbaps
-from pymb.devices import HUB, CoolProIdentity, CoolProTelemetry, HubReading, State
-from pymb.devices.maps import COOLPRO
+from pymb.devices import CoolProIdentity, CoolProTelemetry, HubReading, State
+from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapspec import FACADES
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
 from pymb.devices.spec import split_spec
@@ -258,18 +258,21 @@ def _fmt(v: float, unit: str) -> str:
     return f"{v:g} {unit}".strip()
 
 
+#: the CoolPro's telemetry points, in the order ``pymb read`` shows them
+TELEMETRY = tuple(p for p in maps.builtin("coolpro").points.values() if p.group == "telemetry")
+
+
 def render(data: CoolProTelemetry | CoolProIdentity | HubReading) -> str:
     """A readable table with units; no-value states shown by name."""
     if isinstance(data, HubReading):
-        blocks = HUB.blocks
-        head = ["ch"] + [f"{b.name.rsplit('_', 1)[0]} [{b.unit}]" for b in blocks]
+        head = ["ch"] + [f"{b.name.rsplit('_', 1)[0]} [{b.unit}]" for b in BLOCKS]
         rows = [head]
         c = data.channels
         for ch in range(c):
             row = [str(ch + 1)]
-            for b in blocks:
-                st = State(data.raw_states[b.index * c + ch])
-                v = data.values[b.index * c + ch]
+            for i in range(len(BLOCKS)):
+                st = State(data.raw_states[i * c + ch])
+                v = data.values[i * c + ch]
                 row.append(f"{v:g}" if st is State.VALUE else st.name.lower().replace("_", " "))
             rows.append(row)
         widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
@@ -280,7 +283,7 @@ def render(data: CoolProTelemetry | CoolProIdentity | HubReading) -> str:
         return "\n".join(lines)
     if isinstance(data, CoolProTelemetry):
         lines = []
-        for reg in COOLPRO.group("telemetry"):
+        for reg in TELEMETRY:
             v = getattr(data, reg.name)
             if reg.name == "status":
                 flags = [f.name for f in type(v) if f in v]

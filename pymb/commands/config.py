@@ -19,7 +19,7 @@ from pymb.commands._common import (
     make_client,
 )
 from pymb.devices import CoolPro
-from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES
+from pymb.devices.coolpro import COOLPRO_BAUD_RATES
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
 VERIFY_FOR = 5.0  # seconds to wait for the device to come back after a reset
@@ -70,7 +70,7 @@ def _validate(args: argparse.Namespace) -> list[str]:
                               "pymb config coolpro[:ADDRESS] ...")
     assert dev.address is not None
     args.address = dev.address
-    low, high = COOLPRO["address"].valid or (1, 247)
+    low, high = CoolPro.ADDRESSES
     if args.set_address is not None and not low <= args.set_address <= high:
         raise InvalidArgument(f"--set-address must be {low}..{high}, got {args.set_address}")
     if args.set_baud is not None and args.set_baud not in COOLPRO_BAUD_RATES:

@@ -23,8 +23,8 @@ from pymb.commands._common import (
 )
 from pymb.commands.maptext import map_json, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
-from pymb.devices import HUB, CoolPro, CoolProIdentity, HubReading, SensorHub
-from pymb.devices.hub import ALL_BLOCKS
+from pymb.devices import CoolPro, CoolProIdentity, HubReading, SensorHub
+from pymb.devices.hubreading import ALL_BLOCKS, block_index
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapspec import (
@@ -59,7 +59,7 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
     address = dev.address
     # The blocks asked for: when every one of them is missing, the device
     # supplied no value at all (a whole sweep, or watch's few blocks).
-    wanted = ALL_BLOCKS if blocks is None else sum(1 << HUB.block(b).index for b in blocks)
+    wanted = ALL_BLOCKS if blocks is None else sum(1 << block_index(b) for b in blocks)
     count = int(dev.map.options["channels"]) if dev.type == "hub" else 0
     if dev.type == "coolpro":
         read: Callable[[], Any] = CoolPro(client, address).read_telemetry

@@ -35,8 +35,8 @@ from typing import cast
 from pymb.client import Client, RtuClient
 from pymb.client.listener import LineListener
 from pymb.commands._common import add_connection_args, add_map_arg, make_client, parse_numbers
+from pymb.devices.coolpro import IDENTITY_REQUEST
 from pymb.devices.identify import Answer, Identity, client_asker, identify
-from pymb.devices.maps import COOLPRO, HUB
 from pymb.devices.mapspec import map_types, match_map
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
@@ -86,8 +86,11 @@ def line_asker(line: LineListener, timeout: float) -> Callable[[int, int, bytes]
     return ask
 
 
+#: [HUB] 2.1: the hub answers within 500 ms (the slowest device pymb knows)
+_HUB_ANSWER_S = 0.5
+
 def _probe() -> tuple[int, bytes]:
-    fc, first, count = COOLPRO.span("identity")
+    fc, first, count = IDENTITY_REQUEST
     return fc, struct.pack(">HH", first, count)
 
 
@@ -163,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     confirm_timeout = args.confirm_timeout
     if confirm_timeout is None:
         baud = getattr(client, "baudrate", 9600)
-        confirm_timeout = max(args.timeout, HUB.response_time + 0.15 + 60 * 11 / baud)
+        confirm_timeout = max(args.timeout, _HUB_ANSWER_S + 0.15 + 60 * 11 / baud)
     if not 0 < confirm_timeout <= 60:
         raise InvalidArgument(f"--confirm-timeout must be more than 0 s, got {confirm_timeout}")
     events: queue.Queue[tuple[str, object]] = queue.Queue()

@@ -33,7 +33,8 @@ from pymb.commands._common import (
     to_json,
 )
 from pymb.commands.maptext import map_json, render_map
-from pymb.devices import HUB, HubReading, State
+from pymb.devices import HubReading, State
+from pymb.devices.hubreading import BLOCKS, block_index
 from pymb.devices.mapspec import MapTarget
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
@@ -67,8 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def parse_blocks(names: list[str]) -> list[str]:
     """Block names (with or without the unit suffix), 'all', or the default."""
-    known = [b.name for b in HUB.blocks]
-    short = {b.name.rsplit("_", 1)[0]: b.name for b in HUB.blocks}
+    known = [b.name for b in BLOCKS]
+    short = {b.name.rsplit("_", 1)[0]: b.name for b in BLOCKS}
     out: list[str] = []
     for name in (n.strip() for arg in names for n in arg.split(",") if n.strip()):
         if name == "all":
@@ -96,10 +97,10 @@ def hub_view(data: HubReading, blocks: list[str], shown: list[int], width: int,
     lines: list[str] = []
     c = data.channels
     for name in blocks:
-        b = HUB.block(name)
-        vals = [(ch, _value(data.values[b.index * c + ch - 1],
-                            data.raw_states[b.index * c + ch - 1])) for ch in shown]
-        lines.append(f"{name} [{b.unit}]"[:width])
+        i = block_index(name)
+        vals = [(ch, _value(data.values[i * c + ch - 1],
+                            data.raw_states[i * c + ch - 1])) for ch in shown]
+        lines.append(f"{name} [{BLOCKS[i].unit}]"[:width])
         for i in range(0, len(vals), per_row):
             row = vals[i:i + per_row]
             lines.append((f"{row[0][0]:>3}: " + "".join(v.rjust(_CELL) for _, v in row))[:width])
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     blocks = parse_blocks(args.block) if is_hub else []
     shown = parse_channels(args.show, channels) if is_hub and args.show else (
         list(range(1, channels + 1)))
-    full = is_hub and len(blocks) == len(HUB.blocks) and len(shown) == channels
+    full = is_hub and len(blocks) == len(BLOCKS) and len(shown) == channels
     client = make_client(args)
     read = read_cmd.reader(dev, client, blocks=None if full or not is_hub else blocks,
                            channels=None if full or not is_hub else shown)

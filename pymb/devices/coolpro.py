@@ -18,11 +18,11 @@ from enum import KEEP, IntFlag
 from pymb import maps
 from pymb.client import Client
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES, COOLPRO_RESET_VALUE
 from pymb.errors import InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 
-__all__ = ["CoolPro", "CoolProConfig", "CoolProIdentity", "CoolProStatus", "CoolProTelemetry"]
+__all__ = ["COOLPRO_BAUD_RATES", "IDENTITY_REQUEST", "CoolPro", "CoolProConfig",
+           "CoolProIdentity", "CoolProStatus", "CoolProTelemetry"]
 
 
 class CoolProStatus(IntFlag, boundary=KEEP):
@@ -103,6 +103,19 @@ def _coolpro_map() -> Map:
 
 
 _MAP = _coolpro_map()
+#: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple
+#: (the map's names of the index values).
+COOLPRO_BAUD_RATES = tuple(int(v) for _, v in sorted(_MAP.points["baud_rate_index"]
+                                                       .values.items()))
+_ADDRESS = _MAP.points["address"].valid or (1, 247)
+_IDENTITY_POINTS = [p for p in _MAP.points.values() if p.group == "identity"]
+#: (function, first register, count) of the one request that reads the
+#: identity ([CP] ch. 04): how identification asks "what are you?"
+IDENTITY_REQUEST = (0x04, _IDENTITY_POINTS[0].address,
+                    max(p.end for p in _IDENTITY_POINTS) - _IDENTITY_POINTS[0].address)
+#: [CP] "Reset Command": the value written to the reset register (the only
+#: one its ``valid`` range allows).
+_RESET_VALUE = int((_MAP.points["reset"].valid or (0, 0))[0])
 _FLOATS = ("input_voltage_v", "input_current_a", "output_voltage_v", "output_current_a",
            "temperature_c")
 
@@ -189,7 +202,10 @@ class CoolPro:
     not change it by itself).
     """
 
-    def __init__(self, client: Client, address: int = COOLPRO.default_address) -> None:
+    #: the addresses a CoolPro can be set to ([CP]: the address register's range)
+    ADDRESSES = (int(_ADDRESS[0]), int(_ADDRESS[1]))
+
+    def __init__(self, client: Client, address: int = _MAP.device.default_address) -> None:
         if not isinstance(client, Client):
             raise InvalidArgument(f"a CoolPro needs a pymb client, got {client!r}")
         self.client = client
@@ -211,7 +227,7 @@ class CoolPro:
 
     @staticmethod
     def _valid_address(address: int) -> int:
-        low, high = COOLPRO["address"].valid or (1, 247)
+        low, high = CoolPro.ADDRESSES
         if isinstance(address, bool) or not isinstance(address, int) or not (
             low <= address <= high
         ):
@@ -246,7 +262,7 @@ class CoolPro:
     def set_address(self, address: int) -> None:
         """Store a new device address (1..247); it takes effect at :meth:`reset`."""
         new = self._valid_address(address)
-        self.client.write_register(COOLPRO["address"].address, new, slave=self.address)
+        self.client.write_register(_MAP.points["address"].address, new, slave=self.address)
         self._pending_address = new
 
     def set_baud_rate(self, baud_rate: int) -> None:
@@ -256,14 +272,14 @@ class CoolPro:
             raise InvalidArgument(
                 f"CoolPro baud rate must be one of {list(COOLPRO_BAUD_RATES)}, got {baud_rate!r}"
             )
-        self.client.write_register(COOLPRO["baud_rate_index"].address,
+        self.client.write_register(_MAP.points["baud_rate_index"].address,
                                    COOLPRO_BAUD_RATES.index(baud_rate), slave=self.address)
 
     def reset(self) -> None:
         """Reset the device (write 0xAA55 to the reset register). The device
         echoes, then restarts: its uptime restarts and the startup flag is
         set for a moment; a stored address or baud rate takes effect now."""
-        self.client.write_register(COOLPRO["reset"].address, COOLPRO_RESET_VALUE,
+        self.client.write_register(_MAP.points["reset"].address, _RESET_VALUE,
                                    slave=self.address)
         if self._pending_address is not None:
             self.address, self._pending_address = self._pending_address, None

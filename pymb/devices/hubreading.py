@@ -10,16 +10,24 @@ import math
 from array import array
 from dataclasses import dataclass
 
-from pymb import _native
-from pymb.devices.maps import HUB
+from pymb import _native, maps
 from pymb.errors import InvalidArgument
+from pymb.maps import Point
 
-__all__ = ["ALL_BLOCKS", "HUB_REGISTERS", "HubChannel", "HubReading", "State", "check_channels"]
+__all__ = ["ALL_BLOCKS", "BLOCKS", "CHANNELS", "HUB_REGISTERS", "HubChannel", "HubReading",
+           "State", "block_index", "check_channels"]
 
-HUB_REGISTERS = HUB.count  # 700 registers, 31..730
+_MAP = maps.builtin("hub")
+#: The hub's blocks in the order a reading keeps them: its map's points
+#: (each one register a channel, channel 1's first), in address order.
+BLOCKS: tuple[Point, ...] = tuple(_MAP.points.values())
+#: The most channels a hub has (its map's ``channels`` option's default).
+CHANNELS = int(_MAP.options["channels"])
+HUB_REGISTERS = CHANNELS * len(BLOCKS)  # 700 registers, 31..730
 #: The block mask with every block set (``HubReading.unsupported_mask ==
 #: ALL_BLOCKS``: the hub supplied no value at all).
-ALL_BLOCKS = (1 << len(HUB.blocks)) - 1
+ALL_BLOCKS = (1 << len(BLOCKS)) - 1
+_INDEX = {b.name: i for i, b in enumerate(BLOCKS)}
 _ZERO_REGS = array("H", bytes(2 * HUB_REGISTERS))
 
 
@@ -32,12 +40,21 @@ def _zeros(channels: int) -> tuple[array[float], array[int]]:
     return array("d", bytes(8 * 7 * channels)), array("B", bytes(7 * channels))
 
 
+def block_index(name: str) -> int:
+    """Where block ``name`` sits in a reading (0..6); an unknown name is an
+    InvalidArgument naming the blocks."""
+    try:
+        return _INDEX[name]
+    except (KeyError, TypeError):
+        raise InvalidArgument(f"unknown block {name!r}; use one of {', '.join(_INDEX)}") from None
+
+
 def check_channels(channels: int) -> int:
     """``channels`` when it is a hub's channel count (1..100), else an InvalidArgument."""
     if isinstance(channels, bool) or not isinstance(channels, int) or not (
-        1 <= channels <= HUB.channels
+        1 <= channels <= CHANNELS
     ):
-        raise InvalidArgument(f"channels must be 1..{HUB.channels}, got {channels!r}")
+        raise InvalidArgument(f"channels must be 1..{CHANNELS}, got {channels!r}")
     return channels
 
 
@@ -71,7 +88,7 @@ class HubReading:
                  "unsupported_mask", "values")
 
     def __init__(self, channels: int, registers: array[int] | None = None) -> None:
-        if channels != HUB.channels:
+        if channels != CHANNELS:
             check_channels(channels)
         values, states = _zeros(channels)
         self.channels = channels
@@ -123,19 +140,19 @@ class HubReading:
 
     def states(self, name: str) -> memoryview:
         """The :class:`State` codes (uint8) of one quantity, per channel."""
-        i = HUB.block(name).index
+        i = block_index(name)
         c = self.channels
         return memoryview(self.raw_states)[i * c:(i + 1) * c]
 
     def state(self, name: str, channel: int) -> State:
         """The :class:`State` of one quantity of one channel (1-based)."""
         self._check(channel)
-        return State(self.raw_states[HUB.block(name).index * self.channels + channel - 1])
+        return State(self.raw_states[block_index(name) * self.channels + channel - 1])
 
     @property
     def unsupported(self) -> frozenset[str]:
         """Blocks this hub's firmware does not have."""
-        return frozenset(b.name for b in HUB.blocks if self.unsupported_mask >> b.index & 1)
+        return frozenset(b.name for i, b in enumerate(BLOCKS) if self.unsupported_mask >> i & 1)
 
     def _check(self, channel: int) -> None:
         if isinstance(channel, bool) or not isinstance(channel, int) or not (
@@ -148,15 +165,15 @@ class HubReading:
         self._check(n)
         c, i = self.channels, n - 1
         v = self.values
-        states = {b.name: State(self.raw_states[b.index * c + i]) for b in HUB.blocks}
+        states = {b.name: State(self.raw_states[k * c + i]) for k, b in enumerate(BLOCKS)}
         return HubChannel(n, v[i], v[c + i], v[2 * c + i], v[3 * c + i], v[4 * c + i],
                           v[5 * c + i], v[6 * c + i], states)
 
     def as_dict(self) -> dict[str, list[float | None]]:
         """Plain lists per quantity, None where there is no value (for JSON)."""
         return {
-            b.name: [None if math.isnan(v) else v for v in self._block(b.index)]
-            for b in HUB.blocks
+            b.name: [None if math.isnan(v) else v for v in self._block(i)]
+            for i, b in enumerate(BLOCKS)
         }
 
     def __repr__(self) -> str:

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 from pymb._native import FunctionCode
 from pymb.client import Client
-from pymb.devices.coolpro import decode_identity
-from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
+from pymb.devices.coolpro import IDENTITY_REQUEST, decode_identity
+from pymb.devices.maps import HUB, HUB_FIRMWARE_PROFILES
 from pymb.errors import (
     DeviceException,
     GatewayPathUnavailable,
@@ -96,7 +96,7 @@ def _read(ask: Ask, address: int, function: int, first: int, count: int) -> Answ
 
 def identify(ask: Ask, address: int) -> Identity | None:
     """Ask the questions above; None when nothing answers at all."""
-    fc, first, count = COOLPRO.span("identity")
+    fc, first, count = IDENTITY_REQUEST
     reply = _read(ask, address, fc, first, count) if address <= 247 else 1
     if isinstance(reply, bytes):
         if len(reply) == 1 + 2 * count and reply[0] == 2 * count:

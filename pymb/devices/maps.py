@@ -22,6 +22,7 @@ from enum import StrEnum
 
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
+from pymb.devices.coolpro import COOLPRO_BAUD_RATES
 from pymb.errors import InvalidArgument
 
 __all__ = [
@@ -125,10 +126,6 @@ class DeviceMap:
 _CP_MAP = maps.builtin("coolpro")
 _FUNCTION = {"holding": 0x03, "input": 0x04}
 
-#: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple
-#: (the map's names of the index values).
-COOLPRO_BAUD_RATES = tuple(int(v) for _, v in sorted(_CP_MAP.points["baud_rate_index"]
-                                                       .values.items()))
 #: [CP] "Frame timing": the fixed ~8 ms inter-frame gap; the CoolPro answers no sooner
 #: than this after a request ends ([NOTES] "timing"): the map's turnaround.
 COOLPRO_GAP_S = _CP_MAP.timing.turnaround
