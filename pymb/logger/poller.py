@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import math
 import queue
 import threading
 import time
@@ -23,7 +22,7 @@ from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.report import Report
-from pymb.logger.schedule import BACKOFF_MAX, Backoff, Health, Slot, reappeared
+from pymb.logger.schedule import BACKOFF_MAX, Agenda, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
 
@@ -204,29 +203,40 @@ class BusPoller(threading.Thread):
                               len(self.devices) + len(self.maps))
         reads = self._reads()
         clock, stop = self.clock, self.stop_event
+        agenda: Agenda[_Read] = Agenda()
         start = clock()
         for r in reads:
             r.slot.next_at = start
+            agenda.put(r.slot, r, start)
         while not stop.is_set():
             now = clock()
-            due = [r for r in reads if r.slot.due(now)]
+            due = agenda.due(now)
             if not due:
-                wake = min((r.slot.wake(now) for r in reads), default=math.inf)
                 self.flush()
-                if stop.wait(min(max(wake - now, 0.0), BACKOFF_MAX)):
+                if stop.wait(min(max(agenda.next() - now, 0.0), BACKOFF_MAX)):
                     return
                 continue
             for r in due:
                 if stop.is_set():
                     return
-                if not self._poll(r, reads):
-                    return
-                late = r.slot.advance(clock())
-                if late:
-                    self.report.skipped(self.bus.name, r.slot, late)
+                slot = r.slot
+                if slot.due(clock()):  # (not if its device failed since, in this round)
+                    got = self._poll(r)
+                    if got is False:
+                        return
+                    late = slot.advance(clock())
+                    if late:
+                        self.report.skipped(self.bus.name, slot, late)
+                    if got is None:  # the bus was opened again: the devices may be new
+                        reappeared(x.slot for x in reads)
+                        for x in reads:  # (each read once was no longer in the agenda)
+                            if x.slot.once and x is not r:
+                                agenda.put(x.slot, x, clock())
+                agenda.put(slot, r, slot.wake(clock()))
 
-    def _poll(self, r: _Read, reads: list[_Read]) -> bool:
-        """Read one slot; False when the bus is gone for good (stopping)."""
+    def _poll(self, r: _Read) -> bool | None:
+        """Read one slot; False when the bus is gone for good (stopping),
+        None when it was lost and opened again."""
         report, bus, h = self.report, self.bus, r.slot.health
         try:
             data = r.read()
@@ -235,9 +245,8 @@ class BusPoller(threading.Thread):
             self.client.close()
             if not self._connect():
                 return False
-            reappeared(x.slot for x in reads)
             report.reconnected(bus.name, bus.endpoint)
-            return True
+            return None
         except ModbusError as e:
             report.error(bus.name, h, r.info, e, self.clock())
             return True

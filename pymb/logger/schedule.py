@@ -12,6 +12,7 @@ both run it and do only the reading and the writing.
   (a map device is offline for ``offline_retry`` after ``offline_after``
   failed polls; a built-in device backs off 0.5 s doubling to 30 s after
   ten failures in a row).
+- :class:`Agenda`: which slots are due when, for a whole bus or loop.
 - :class:`Backoff`: a bus that does not open, tried again 0.5 s doubling to
   30 s later.
 - The batching of samples for the writer (:data:`BATCH_MAX`, :data:`BATCH_AGE`)
@@ -20,12 +21,14 @@ both run it and do only the reading and the writing.
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 __all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "FAULTS_BEFORE_BACKOFF",
-           "TEXT", "Backoff", "Health", "Slot", "reappeared"]
+           "TEXT", "Agenda", "Backoff", "Health", "Slot", "reappeared"]
 
 #: A poller hands its samples to the writer in lists of at most this many, or
 #: this old (seconds), and before it waits: one queue operation per list, not
@@ -181,3 +184,42 @@ def reappeared(slots: Iterable[Slot]) -> None:
     a failure): their ``once`` groups are read again."""
     for s in slots:
         s.read_once = False
+
+
+T = TypeVar("T")
+
+
+class Agenda(Generic[T]):
+    """What is read next: items (each with its :class:`Slot`) by the time
+    their slot falls due. A runner puts an item back after its read
+    (:meth:`put` at :meth:`Slot.wake`) and takes the due ones (:meth:`due`)."""
+
+    __slots__ = ("_heap", "_seq")
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, Slot, T]] = []
+        self._seq = 0  #: the order of puts, among items due at the same time
+
+    def put(self, slot: Slot, item: T, when: float) -> None:
+        """``item`` (read on ``slot``) falls due at ``when`` (never: inf)."""
+        if when != math.inf:
+            self._seq += 1
+            heapq.heappush(self._heap, (when, self._seq, slot, item))
+
+    def next(self) -> float:
+        """When the first item falls due (inf: none will)."""
+        heap = self._heap
+        return heap[0][0] if heap else math.inf
+
+    def due(self, now: float) -> list[T]:
+        """The items whose slot is due at ``now``, in the order they fell
+        due; one whose time came but not its slot's (its device is offline
+        since) is put back at its slot's wake."""
+        heap, out = self._heap, []
+        while heap and heap[0][0] <= now:
+            _, _, slot, item = heapq.heappop(heap)
+            if slot.due(now):
+                out.append(item)
+            else:  # (its wake is after now: the loop ends)
+                self.put(slot, item, slot.wake(now))
+        return out

@@ -46,6 +46,7 @@ from pymb.errors import (
 )
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
+from pymb.logger.schedule import Agenda
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lender
@@ -96,7 +97,7 @@ class TcpMapPoller(TcpReplies):
             self.conns.append(Conn(bus, host, port, units, entries, max(1, bus.pipeline)))
             stats.opened.setdefault(bus.name, False)
         self.bus_names = [b.name for b in buses]
-        self._slots: list[tuple[float, int, Entry]] = []
+        self._agenda: Agenda[Entry] = Agenda()  #: the groups by when they fall due
         self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
@@ -156,7 +157,7 @@ class TcpMapPoller(TcpReplies):
             e = c.waiting.popleft()
             e.queued = False
             if not e.slot.due(now):
-                self._at(e.slot.wake(now), e)
+                self._agenda.put(e.slot, e, e.slot.wake(now))
                 continue
             c.entry = e
             c.todo = e.requests()
@@ -299,12 +300,7 @@ class TcpMapPoller(TcpReplies):
         if slot.due(now):
             self._queue(c, e)
         else:
-            self._at(slot.wake(now), e)
-
-    def _at(self, when: float, e: Entry) -> None:
-        if when != float("inf"):
-            self._seq += 1
-            heapq.heappush(self._slots, (when, self._seq, e))
+            self._agenda.put(slot, e, slot.wake(now))
 
     def _failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
         """A poll of ``e`` failed with ``exc``: counted and said; the group's next slot."""
@@ -371,16 +367,11 @@ class TcpMapPoller(TcpReplies):
         return wait
 
     def _due(self, now: float) -> None:
-        slots = self._slots
-        while slots and slots[0][0] <= now:
-            _, _, e = heapq.heappop(slots)
+        for e in self._agenda.due(now):
             c = self._conn_of[id(e)]
-            if e.slot.due(now):
-                self._queue(c, e)
-                if c.entry is None:
-                    self._next(c, now)
-            else:
-                self._at(e.slot.wake(now), e)
+            self._queue(c, e)
+            if c.entry is None:
+                self._next(c, now)
 
     def run(self) -> None:
         try:
@@ -398,7 +389,7 @@ class TcpMapPoller(TcpReplies):
             for e in c.entries:
                 e.slot.next_at = start
                 if e.slot.interval:
-                    self._at(start, e)
+                    self._agenda.put(e.slot, e, start)
         stop, select = self.stop_event, self._sel.select
         next_sweep = start
         while not stop.is_set():
@@ -406,13 +397,15 @@ class TcpMapPoller(TcpReplies):
             if now >= next_sweep or now >= self._soonest:
                 self._sweep(now)
                 next_sweep = now + _TICK
-            if self._slots and self._slots[0][0] <= now:
+            agenda = self._agenda.next()
+            if agenda <= now:
                 self._due(now)
+                agenda = self._agenda.next()
             if self.report.aged(now):
                 self.flush()
             wait = min(next_sweep, self._soonest) - now
-            if self._slots:
-                wait = min(wait, self._slots[0][0] - now)
+            if agenda < now + wait:
+                wait = agenda - now
             if self._silent:
                 wait = min(wait, self._quiet_over(now))
             looks = self._looks

@@ -13,6 +13,7 @@ import pytest
 from pymb.logger.schedule import (
     BACKOFF_MAX,
     FAULTS_BEFORE_BACKOFF,
+    Agenda,
     Backoff,
     Health,
     Slot,
@@ -131,3 +132,24 @@ def test_an_offline_device_whose_once_group_was_read_sleeps_until_it_reappears()
     assert once.advance(10.0) == 0  # the failed read counts as the read
     assert not once.due(20.0)
     assert once.wake(20.0) == math.inf
+
+
+def test_the_agenda_gives_the_due_slots_in_order_and_keeps_the_others() -> None:
+    live, dead = Health.of_map("live", None, None), Health.of_map("dead", 1, 10.0)
+    fast, slow, gone = Slot(live, 1.0), Slot(live, 5.0), Slot(dead, 1.0)
+    agenda: Agenda[str] = Agenda()
+    for s, name in ((fast, "fast"), (slow, "slow"), (gone, "gone")):
+        s.next_at = 0.0
+        agenda.put(s, name, 0.0)
+    agenda.put(Slot(live, 0.0, True, read_once=True), "read", math.inf)  # never: not kept
+    assert agenda.next() == 0.0
+    dead.failed(0.0)  # offline until 10: its time came, not its slot's
+    assert agenda.due(0.5) == ["fast", "slow"]
+    assert agenda.next() == 10.0  # "gone", put back at its retry
+    for s, name in ((fast, "fast"), (slow, "slow")):
+        s.advance(0.6)
+        agenda.put(s, name, s.wake(0.6))
+    assert agenda.due(0.99) == []
+    assert agenda.due(1.0) == ["fast"]
+    assert agenda.due(100.0) == ["slow", "gone"]
+    assert agenda.next() == math.inf
