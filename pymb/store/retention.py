@@ -10,8 +10,11 @@ import os
 import re
 import sqlite3
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from pymb.store.faults import is_storage_fault
 
 __all__ = ["PLAUSIBLE", "RESTAMP_TOLERANCE", "Restamp", "Retention", "clock_plausible"]
 
@@ -73,28 +76,60 @@ _TRIM_IDS = re.compile(r"\(ids (\d+)\.\.(\d+)\)$")
 
 
 class Retention:
-    """The size and age limits of :class:`pymb.store.writer.SqliteSink` (its
-    base): what the database may hold, and the trimming that holds it."""
+    """The size and age limits of one SQLite writer
+    (:class:`pymb.store.writer.SqliteSink` owns one): what the database may
+    hold, and the trimming that holds it. ``page_size`` and ``wal_budget`` are
+    the file's, as :func:`pymb.store.schema.open_format` set them."""
 
-    db: sqlite3.Connection
-    max_bytes: int | None
-    max_age: float | None
-    page_size: int
-    wal_budget: int
-    trimmed: int
-    #: trim in small steps, each checkpointed (a full disk: little room for the WAL)
-    small_steps = False
-    _wal: Path
-    _last_age_trim: float
+    def __init__(self, db: sqlite3.Connection, path: Path, *, max_bytes: int | None,
+                 max_age: float | None, page_size: int, wal_budget: int) -> None:
+        self.db = db
+        self.max_bytes = max_bytes
+        self.max_age = max_age
+        self.page_size = page_size
+        self.wal_budget = wal_budget
+        self.trimmed = 0  #: samples deleted by the size and age limits so far
+        #: trim in small steps, each checkpointed (a full disk: little room for the WAL)
+        self.small_steps = False
+        self._wal = Path(f"{path}-wal")
+        self._last_age_trim = time.monotonic()
 
-    def _room(self) -> int:
+    def over_room(self) -> bool:
+        """Under a size limit, the pages in use take more than :meth:`room`."""
+        count, free = self.pages()
+        return (count - free) * self.page_size > self.room()
+
+    def trim_at_open(self, give_up_reserve: Callable[[], bool]) -> None:
+        """Within the size limit before the first sample (a lower limit than
+        last time, or a database that filled its disk). On a full disk
+        ``give_up_reserve`` frees the reserve's room (False: none left) and
+        the trim runs in small steps with a checkpoint after each (a short WAL)."""
+        if not self.over_room():
+            return
+        try:
+            self.trim()
+        except sqlite3.Error as e:
+            if not is_storage_fault(e) or not give_up_reserve():
+                raise
+            self.small_steps = True
+            try:
+                self.checkpoint()
+                self.trim()
+            finally:
+                self.small_steps = False
+
+    def age_due(self) -> bool:
+        """Under an age limit, the last age trim was 5 s ago or more."""
+        return self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0
+
+    def room(self) -> int:
         """Bytes the database's pages may take: the limit less the WAL (its
         budget, or what it holds now if more). A limit above what the disk
         can hold is the disk's: the file as it is plus the free space, less
         room for the WAL to reach its budget (the file's free pages are
         reused rather than the disk filled)."""
         assert self.max_bytes is not None
-        wal = self._wal_bytes()
+        wal = self.wal_bytes()
         limit = self.max_bytes
         try:
             st = os.statvfs(self._wal.parent)
@@ -106,7 +141,7 @@ class Retention:
             limit = min(limit, max(disk, size))
         return limit - max(self.wal_budget, wal)
 
-    def _checkpoint(self) -> None:
+    def checkpoint(self) -> None:
         """Copy the WAL into the database and truncate it, unless a reader
         still needs it (then next time; never wait for a reader)."""
         self.db.execute("PRAGMA busy_timeout = 0")
@@ -115,23 +150,23 @@ class Retention:
         finally:
             self.db.execute("PRAGMA busy_timeout = 5000")
 
-    def _wal_bytes(self) -> int:
+    def wal_bytes(self) -> int:
         try:
             return self._wal.stat().st_size
         except OSError:
             return 0
 
-    def _pages(self) -> tuple[int, int]:
+    def pages(self) -> tuple[int, int]:
         count = self.db.execute("PRAGMA page_count").fetchone()[0]
         free = self.db.execute("PRAGMA freelist_count").fetchone()[0]
         return int(count), int(free)
 
-    def _size(self) -> int:
+    def size(self) -> int:
         """Bytes the data takes: pages in use plus the WAL."""
-        count, free = self._pages()
-        return (count - free) * self.page_size + self._wal_bytes()
+        count, free = self.pages()
+        return (count - free) * self.page_size + self.wal_bytes()
 
-    def _trim(self) -> int:
+    def trim(self) -> int:
         deleted = 0
         if self.max_age is not None:
             self._last_age_trim = time.monotonic()
@@ -147,9 +182,9 @@ class Retention:
         if self.max_bytes is not None:
             # Delete down to 95 % of the room left beside the WAL, so the freed
             # pages take the next inserts and the file stops growing.
-            room = self._room()
+            room = self.room()
             for _ in range(64):
-                count, free = self._pages()
+                count, free = self.pages()
                 used = (count - free) * self.page_size
                 if used <= room:
                     break
@@ -159,10 +194,10 @@ class Retention:
                     step = max(1, int((hi - lo) * share))
                     deleted += self._delete_before("SELECT ?", (lo + step,), None)
                     if self.small_steps:
-                        self._checkpoint()
+                        self.checkpoint()
                 elif not self._delete_oldest_events():
                     break  # nothing left that may go
-            count, free = self._pages()
+            count, free = self.pages()
             fixed = self.max_bytes - self.wal_budget
             if count * self.page_size > 1.05 * fixed and free:
                 # The file is larger than the limit allows (a lower limit than
@@ -171,8 +206,8 @@ class Retention:
                             // self.page_size)
                 while free > 0 and count * self.page_size > fixed:
                     self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
-                    self._checkpoint()
-                    count, free = self._pages()
+                    self.checkpoint()
+                    count, free = self.pages()
         self.trimmed += deleted
         return deleted
 

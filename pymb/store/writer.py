@@ -38,7 +38,7 @@ from pymb.store.schema import HUB_FIELDS, MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
 
-class SqliteSink(SinkBase, Retention):
+class SqliteSink(SinkBase):
     """Writes samples and events to a SQLite database of format 2 (created if
     missing; a database of an older pymb format is refused, never mixed).
 
@@ -67,7 +67,6 @@ class SqliteSink(SinkBase, Retention):
         self.max_bytes = max_bytes
         self.max_age = max_age
         self.on_change = on_change
-        self.trimmed = 0  #: samples deleted by the size and age limits so far
         self.stored = 0  #: samples written (on-change: those that changed)
         self._on_commit: list[Callable[[int], None]] = []
         self._lock: WriterLock | None = None
@@ -109,14 +108,12 @@ class SqliteSink(SinkBase, Retention):
         self._in_tx = False
         self._restamp: Restamp | None = None  # a re-stamping's steps left
         self._tx_bytes = 0  # registers written in the open batch (size limit only)
-        self._last_age_trim = time.monotonic()
-        self._wal = Path(f"{self.path}-wal")
         self._reserve = Reserve(self.path)
         if max_bytes is not None:
             # Within the bound before the first sample (a lower bound than last
             # time, or a database that filled its disk: trimming makes room).
             try:
-                self._trim_at_open()
+                self.retention.trim_at_open(self._reserve.give_up)
             except sqlite3.Error as e:
                 self.db.close()
                 self._unlock()
@@ -138,24 +135,6 @@ class SqliteSink(SinkBase, Retention):
             self._lock = WriterLock(self.path)
         return line
 
-    def _trim_at_open(self) -> None:
-        count, free = self._pages()
-        if (count - free) * self.page_size <= self._room():
-            return
-        try:
-            self._trim()
-        except sqlite3.Error as e:
-            if not is_storage_fault(e) or not self._reserve.give_up():
-                raise
-            # The disk is full: the reserve's room lets the trim run, in small
-            # steps with a checkpoint after each (a short WAL).
-            self.small_steps = True
-            try:
-                self._checkpoint()
-                self._trim()
-            finally:
-                self.small_steps = False
-
     def _open_failed(self, e: Exception) -> Exception:
         """The error for a failed open: the storage's (exit 5: a service
         retries) or the file's content's (exit 2)."""
@@ -166,7 +145,29 @@ class SqliteSink(SinkBase, Retention):
         return InvalidArgument(f"cannot open the database {self.path}: {e}")
 
     def _open(self) -> None:
-        self.page_size, self.wal_budget = open_format(self.db, self.path, self.max_bytes)
+        page_size, wal_budget = open_format(self.db, self.path, self.max_bytes)
+        #: the size and age limits, and the trimming that holds them
+        self.retention = Retention(self.db, self.path, max_bytes=self.max_bytes,
+                                   max_age=self.max_age, page_size=page_size,
+                                   wal_budget=wal_budget)
+
+    @property
+    def trimmed(self) -> int:
+        """Samples deleted by the size and age limits so far."""
+        return self.retention.trimmed
+
+    @property
+    def wal_budget(self) -> int:
+        """Bytes the WAL may reach under a size limit (a batch commits at a quarter)."""
+        return self.retention.wal_budget
+
+    @wal_budget.setter
+    def wal_budget(self, value: int) -> None:
+        self.retention.wal_budget = value
+
+    def _size(self) -> int:
+        """Bytes the data takes: pages in use plus the WAL."""
+        return self.retention.size()
 
     def _begin(self) -> None:
         if not self._in_tx:
@@ -388,16 +389,16 @@ class SqliteSink(SinkBase, Retention):
             self.db.execute("COMMIT")
             self._in_tx = False
         self._tx_bytes = 0
-        if self.max_bytes is not None:
-            if self._wal_bytes() > self.wal_budget:
+        r = self.retention
+        if r.max_bytes is not None:
+            if r.wal_bytes() > r.wal_budget:
                 # A reader held the WAL back: catch up if it has let go (without
                 # waiting for it: a forwarder may be reading).
-                self._checkpoint()
-            count, free = self._pages()
-            if (count - free) * self.page_size > self._room():
+                r.checkpoint()
+            if r.over_room():
                 self.trim()
                 return
-        if self.max_age is not None and time.monotonic() - self._last_age_trim >= 5.0:
+        if r.age_due():
             self.trim()
 
     def check(self) -> None:
@@ -416,7 +417,7 @@ class SqliteSink(SinkBase, Retention):
         """Delete the oldest data beyond the limits; returns samples deleted."""
         with self._mutex:
             try:
-                return self._trim()
+                return self.retention.trim()
             except (sqlite3.Error, OSError, OutputError) as e:
                 raise self._failed(e) from None
 
