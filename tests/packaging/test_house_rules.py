@@ -2,10 +2,11 @@
 every module of the product stays small enough to read in one sitting, and
 the SQLite file has one owner (only pymb.store speaks SQL to it), and so has
 the collector's database (pymb.collect.sqlstore; pymb.collect.postgres makes
-the test server's empty database)."""
+the test server's empty database), and a class name names one class."""
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -34,3 +35,33 @@ def test_only_the_store_speaks_sql() -> None:
     outside = [_rel(p) for p in PRODUCT if not _rel(p).startswith(owners)
                and SQL.search(p.read_text(encoding="utf-8"))]
     assert outside == [], f"SQL outside pymb/store: {outside}"
+
+
+#: Top-level classes that still share a name with another class of the
+#: product, each pair to be renamed; no other name may be taken twice.
+SHARED_NAMES = {
+    "Device": ["pymb/bench/fanout.py", "pymb/sim/base.py"],
+    "Entry": ["pymb/bench/race.py", "pymb/logger/tcpunits.py"],
+    "Event": ["pymb/_native/master.py", "pymb/store/records.py"],
+    "Outcome": ["pymb/devices/mapwrite.py", "pymb/sim/bus.py"],
+    "Read": ["pymb/_native/master.py", "pymb/devices/mapfetch.py"],
+    "Request": ["pymb/_native/serve.py", "pymb/devices/mapwrite.py", "pymb/maps/planner.py"],
+    "Server": ["pymb/serve/server.py", "pymb/sim/server.py"],
+    "Stats": ["pymb/collect/collector.py", "pymb/logger/stats.py"],
+    "Store": ["pymb/bench/gateworker.py", "pymb/collect/sqlstore.py"],
+    "_Conn": ["pymb/bench/fanout.py", "pymb/serve/server.py"],
+    "_Device": ["pymb/bench/farpeer.py", "pymb/logger/poller.py"],
+    "_Read": ["pymb/bench/fanout.py", "pymb/logger/poller.py"],
+    "_Subscriber": ["pymb/bench/fleet.py", "pymb/bench/soak.py"],
+}
+
+
+def test_a_class_name_names_one_class() -> None:
+    where: dict[str, list[str]] = {}
+    for p in PRODUCT:
+        for node in ast.parse(p.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ClassDef):
+                where.setdefault(node.name, []).append(_rel(p))
+    shared = {name: sorted(files) for name, files in where.items() if len(files) > 1}
+    new = {name: files for name, files in shared.items() if SHARED_NAMES.get(name) != files}
+    assert new == {}, f"one name, one class: rename one of these (or merge them): {new}"
