@@ -11,9 +11,11 @@ is an :class:`InvalidArgument`. Every message says what was asked (slave, functi
 address, count, port) and what came back.
 
 The codes come from the compiler: libmodbus's ``MODBUS_EXCEPTION_*`` enum,
-read from the compiled extension (this module sits below ``pymb._native``,
-which imports it, so it reads ``pymb._pymb_cffi.lib`` itself), never typed
-here; their names are the C library's (``pymb_strerror``), their one home.
+as :mod:`pymb._native` reads it from the compiled extension
+(:class:`~pymb._native.ExceptionCode`), never typed here; their names are the
+C library's (``pymb_strerror``), their one home. This module sits between
+``pymb._native`` (its constants, which import nothing of pymb) and the line
+(``pymb._native.link``, which raises these exceptions).
 The messages of a failed request are written here too
 (:func:`request_error`), from what ``pymb._native`` hands up.
 """
@@ -24,8 +26,13 @@ import errno as _errno
 import os
 from typing import Any, ClassVar
 
-from pymb._pymb_cffi import ffi as _ffi
-from pymb._pymb_cffi import lib as _lib
+from pymb._native import (
+    ExceptionCode,
+    FunctionCode,
+    ProtocolErrno,
+    errno_exception,
+    exception_strerror,
+)
 
 __all__ = [
     "Acknowledge",
@@ -59,7 +66,7 @@ __all__ = [
 def describe_exception(code: int) -> str:
     """The name of Modbus exception ``code`` ([MB-AP] 7), as the C library's
     pymb_strerror gives it, in lower case: "illegal data address"."""
-    text: str = _ffi.string(_lib.pymb_strerror(_lib.pymb_exception_errno(code))).decode()
+    text = exception_strerror(code)
     return text[:1].lower() + text[1:]
 
 
@@ -199,74 +206,74 @@ class DeviceException(ModbusError):
 class IllegalFunction(DeviceException):
     """Exception 01: the device does not support the function code."""
 
-    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION
-    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION)
+    default_code = int(ExceptionCode.ILLEGAL_FUNCTION)
+    description = describe_exception(ExceptionCode.ILLEGAL_FUNCTION)
 
 
 class IllegalDataAddress(DeviceException):
     """Exception 02: the address, or address plus count, is not valid for the
     device (the sensor hub also answers 02 for a block its firmware lacks)."""
 
-    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
-    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS)
+    default_code = int(ExceptionCode.ILLEGAL_DATA_ADDRESS)
+    description = describe_exception(ExceptionCode.ILLEGAL_DATA_ADDRESS)
 
 
 class IllegalDataValue(DeviceException):
     """Exception 03: a value in the request is out of range."""
 
-    default_code = _lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
-    description = describe_exception(_lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE)
+    default_code = int(ExceptionCode.ILLEGAL_DATA_VALUE)
+    description = describe_exception(ExceptionCode.ILLEGAL_DATA_VALUE)
 
 
 class DeviceFailure(DeviceException):
     """Exception 04: the device failed while processing the request
     (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
 
-    default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
-    description = describe_exception(_lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE)
+    default_code = int(ExceptionCode.SLAVE_OR_SERVER_FAILURE)
+    description = describe_exception(ExceptionCode.SLAVE_OR_SERVER_FAILURE)
 
 
 class Acknowledge(DeviceException):
     """Exception 05: accepted, but it will take long; poll again later."""
 
-    default_code = _lib.MODBUS_EXCEPTION_ACKNOWLEDGE
-    description = describe_exception(_lib.MODBUS_EXCEPTION_ACKNOWLEDGE)
+    default_code = int(ExceptionCode.ACKNOWLEDGE)
+    description = describe_exception(ExceptionCode.ACKNOWLEDGE)
 
 
 class DeviceBusy(DeviceException):
     """The device is busy (standard code 06; the sensor hub's code 04).
     Worth a retry after a short wait."""
 
-    default_code = _lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
-    description = describe_exception(_lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY)
+    default_code = int(ExceptionCode.SLAVE_OR_SERVER_BUSY)
+    description = describe_exception(ExceptionCode.SLAVE_OR_SERVER_BUSY)
 
 
 class NegativeAcknowledge(DeviceException):
     """Exception 07: the device cannot perform the program function."""
 
-    default_code = _lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE
-    description = describe_exception(_lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE)
+    default_code = int(ExceptionCode.NEGATIVE_ACKNOWLEDGE)
+    description = describe_exception(ExceptionCode.NEGATIVE_ACKNOWLEDGE)
 
 
 class MemoryParityError(DeviceException):
     """Exception 08: the device found a parity error in its memory."""
 
-    default_code = _lib.MODBUS_EXCEPTION_MEMORY_PARITY
-    description = describe_exception(_lib.MODBUS_EXCEPTION_MEMORY_PARITY)
+    default_code = int(ExceptionCode.MEMORY_PARITY)
+    description = describe_exception(ExceptionCode.MEMORY_PARITY)
 
 
 class GatewayPathUnavailable(DeviceException):
     """Exception 0A: the gateway has no path to the target."""
 
-    default_code = _lib.MODBUS_EXCEPTION_GATEWAY_PATH
-    description = describe_exception(_lib.MODBUS_EXCEPTION_GATEWAY_PATH)
+    default_code = int(ExceptionCode.GATEWAY_PATH)
+    description = describe_exception(ExceptionCode.GATEWAY_PATH)
 
 
 class GatewayTargetFailed(DeviceException):
     """Exception 0B: the gateway's target did not respond."""
 
-    default_code = _lib.MODBUS_EXCEPTION_GATEWAY_TARGET
-    description = describe_exception(_lib.MODBUS_EXCEPTION_GATEWAY_TARGET)
+    default_code = int(ExceptionCode.GATEWAY_TARGET)
+    description = describe_exception(ExceptionCode.GATEWAY_TARGET)
 
 
 _BY_CODE: dict[int, type[DeviceException]] = {
@@ -316,21 +323,21 @@ def os_hint(err: int) -> str:
 
 # The names messages give a request: the client's method names.
 _FUNCTION_NAMES: dict[int, str] = {
-    _lib.MODBUS_FC_READ_COILS: "read_coils",
-    _lib.MODBUS_FC_READ_DISCRETE_INPUTS: "read_discrete_inputs",
-    _lib.MODBUS_FC_READ_HOLDING_REGISTERS: "read_holding_registers",
-    _lib.MODBUS_FC_READ_INPUT_REGISTERS: "read_input_registers",
-    _lib.MODBUS_FC_WRITE_SINGLE_COIL: "write_coil",
-    _lib.MODBUS_FC_WRITE_SINGLE_REGISTER: "write_register",
-    _lib.MODBUS_FC_READ_EXCEPTION_STATUS: "read_exception_status",
-    _lib.MODBUS_FC_WRITE_MULTIPLE_COILS: "write_coils",
-    _lib.MODBUS_FC_WRITE_MULTIPLE_REGISTERS: "write_registers",
-    _lib.MODBUS_FC_REPORT_SLAVE_ID: "report_slave_id",
-    _lib.MODBUS_FC_MASK_WRITE_REGISTER: "mask_write_register",
-    _lib.MODBUS_FC_WRITE_AND_READ_REGISTERS: "write_read_registers",
+    FunctionCode.READ_COILS: "read_coils",
+    FunctionCode.READ_DISCRETE_INPUTS: "read_discrete_inputs",
+    FunctionCode.READ_HOLDING_REGISTERS: "read_holding_registers",
+    FunctionCode.READ_INPUT_REGISTERS: "read_input_registers",
+    FunctionCode.WRITE_SINGLE_COIL: "write_coil",
+    FunctionCode.WRITE_SINGLE_REGISTER: "write_register",
+    FunctionCode.READ_EXCEPTION_STATUS: "read_exception_status",
+    FunctionCode.WRITE_MULTIPLE_COILS: "write_coils",
+    FunctionCode.WRITE_MULTIPLE_REGISTERS: "write_registers",
+    FunctionCode.REPORT_SLAVE_ID: "report_slave_id",
+    FunctionCode.MASK_WRITE_REGISTER: "mask_write_register",
+    FunctionCode.WRITE_AND_READ_REGISTERS: "write_read_registers",
 }
-_READS = frozenset((_lib.MODBUS_FC_READ_COILS, _lib.MODBUS_FC_READ_DISCRETE_INPUTS,
-                    _lib.MODBUS_FC_READ_HOLDING_REGISTERS, _lib.MODBUS_FC_READ_INPUT_REGISTERS))
+_READS = frozenset((FunctionCode.READ_COILS, FunctionCode.READ_DISCRETE_INPUTS,
+                    FunctionCode.READ_HOLDING_REGISTERS, FunctionCode.READ_INPUT_REGISTERS))
 
 
 def function_name(function: int) -> str:
@@ -388,23 +395,24 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
         return ModbusTimeout(
             f"{asked}: no reply within the {timeout:g} s timeout (the device is silent, "
             "or the address, baud rate or wiring is wrong)", **kw)
-    code = int(_lib.pymb_errno_exception(err))
+    code = errno_exception(err)
     if code:
         return exception_class(code)(
             f"{asked}: device answered exception {code:02X} ({describe_exception(code)})"
             f"{received}", code=code, **kw)
-    if err == _lib.EMBBADCRC:
+    if err == ProtocolErrno.BAD_CRC:
         return ProtocolError(f"{asked}: reply failed its {checksum} check{received}",
                              reason=f"bad {checksum}", **kw)
-    if err == _lib.EMBBADSLAVE:
+    if err == ProtocolErrno.BAD_SLAVE:
         h = header if 1 <= header <= len(got or b"") else 0
         who = f" {got[h - 1]}" if got and h else ""
         return ProtocolError(f"{asked}: reply came from another address{who}{received}",
                              reason="wrong slave", **kw)
-    if err == _lib.EMBBADEXC:
+    if err == ProtocolErrno.BAD_EXCEPTION:
         return ProtocolError(f"{asked}: reply is an invalid exception response{received}",
                              reason="invalid exception", **kw)
-    if err in (_lib.EMBBADDATA, _lib.EMBMDATA, _lib.EMBUNKEXC):
+    if err in (ProtocolErrno.BAD_DATA, ProtocolErrno.TOO_MANY_DATA,
+               ProtocolErrno.UNKNOWN_EXCEPTION):
         why = frame or "malformed reply"
         return ProtocolError(f"{asked}: {why}{received}", reason=why, **kw)
     if err == _errno.EINVAL:

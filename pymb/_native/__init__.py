@@ -1,12 +1,17 @@
 """The low-level layer: the only package that touches cffi's ``ffi`` and
-``lib`` for the request path and the decoders (``pymb.errors`` reads the
-compiled constants and ``pymb.maps`` has its own decoder's seam).
+``lib``. ``pymb.errors`` takes the exception codes and the C library's words
+from here, ``pymb.maps`` its decoder's table from :mod:`pymb._native.mapdecode`.
 
 Allocate, call, check, return: everything above sees Python objects, arrays
 and pymb's exceptions. Calls into the extension release the GIL (cffi's API
 mode does so for every call), so other threads and other buses keep working
 while one waits on its line. This module holds the constants as the compiler
-knows them and the byte-level helpers; :mod:`pymb._native.link` the line.
+knows them and the byte-level helpers, and imports none of its submodules
+(which import ``pymb.errors``, itself above this module): :mod:`pymb._native.link`
+the line, :mod:`pymb._native.transports` one factory a transport,
+:mod:`pymb._native.mapdecode` the map decoder, :mod:`pymb._native.master` and
+:mod:`pymb._native.serve` the sans-I/O master and server, :mod:`pymb._native.tls`
+TLS under a line.
 """
 
 from __future__ import annotations
@@ -31,20 +36,18 @@ __all__ = [
     "RTS_MODES",
     "SERIAL_MODES",
     "VERSION",
+    "ExceptionCode",
     "FunctionCode",
-    "Link",
-    "RegisterPlan",
+    "ProtocolErrno",
     "State",
     "crc16",
-    "ffi_buffer_u16",
-    "new_ascii",
-    "new_rtu",
-    "new_tcp",
-    "new_udp",
+    "errno_exception",
+    "exception_strerror",
     "rtu_crc_ok",
     "rtu_request_length",
     "rtu_response_length",
     "rtu_silence",
+    "strerror",
     "with_crc",
 ]
 
@@ -85,6 +88,53 @@ class FunctionCode(IntEnum):
     REPORT_SLAVE_ID = lib.MODBUS_FC_REPORT_SLAVE_ID
     MASK_WRITE_REGISTER = lib.MODBUS_FC_MASK_WRITE_REGISTER
     WRITE_AND_READ_REGISTERS = lib.MODBUS_FC_WRITE_AND_READ_REGISTERS
+
+
+class ExceptionCode(IntEnum):
+    """The exception codes [MB-AP] 7 defines, as libmodbus's ``modbus.h`` numbers them."""
+
+    ILLEGAL_FUNCTION = lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION
+    ILLEGAL_DATA_ADDRESS = lib.MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
+    ILLEGAL_DATA_VALUE = lib.MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
+    SLAVE_OR_SERVER_FAILURE = lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
+    ACKNOWLEDGE = lib.MODBUS_EXCEPTION_ACKNOWLEDGE
+    SLAVE_OR_SERVER_BUSY = lib.MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
+    NEGATIVE_ACKNOWLEDGE = lib.MODBUS_EXCEPTION_NEGATIVE_ACKNOWLEDGE
+    MEMORY_PARITY = lib.MODBUS_EXCEPTION_MEMORY_PARITY
+    GATEWAY_PATH = lib.MODBUS_EXCEPTION_GATEWAY_PATH
+    GATEWAY_TARGET = lib.MODBUS_EXCEPTION_GATEWAY_TARGET
+
+
+class ProtocolErrno(IntEnum):
+    """libmodbus's errno values for a reply that is not the answer (modbus.h),
+    which the C core's request path sets as libmodbus does."""
+
+    BAD_CRC = lib.EMBBADCRC
+    BAD_DATA = lib.EMBBADDATA
+    BAD_EXCEPTION = lib.EMBBADEXC
+    UNKNOWN_EXCEPTION = lib.EMBUNKEXC
+    TOO_MANY_DATA = lib.EMBMDATA
+    BAD_SLAVE = lib.EMBBADSLAVE
+
+
+def strerror(err: int) -> str:
+    """The C library's words for an errno value (``pymb_strerror``): the
+    exceptions as [MB-AP] 7 names them, libmodbus's protocol errors, the
+    OS's ``strerror`` for the rest."""
+    text: str = ffi.string(lib.pymb_strerror(err)).decode()
+    return text
+
+
+def exception_strerror(code: int) -> str:
+    """``strerror`` of the errno a request fails with when the device answers
+    exception ``code`` (1..255)."""
+    return strerror(int(lib.pymb_exception_errno(code)))
+
+
+def errno_exception(err: int) -> int:
+    """The exception code (1..255) an errno value stands for, 0 when it is
+    none (``pymb_errno_exception``)."""
+    return int(lib.pymb_errno_exception(err))
 
 
 #: Quantities one request may carry ([MB-AP] 6.1..6.17, libmodbus's modbus.h).
@@ -176,12 +226,3 @@ def rtu_response_length(buf: Buffer) -> int:
 def rtu_silence(baudrate: int) -> float:
     """t3.5 at ``baudrate`` in seconds ([MB-SL] 2.5.1.1; 1.75 ms above 19200)."""
     return int(lib.pymb_rtu_silence_us(baudrate)) / 1e6
-
-
-# The line, re-exported: ``from pymb import _native`` sees the whole layer.
-from pymb._native.link import (  # noqa: E402
-    Link,
-    RegisterPlan,
-    ffi_buffer_u16,
-)
-from pymb._native.transports import new_ascii, new_rtu, new_tcp, new_udp  # noqa: E402

@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from pymb import _native
+from pymb._native.link import RegisterPlan
 from pymb.client.checks import (
     FC,
     MAX_WR_READ_REGISTERS,
@@ -114,8 +115,8 @@ class Client(ClientCore):
                 return
         self._read_call(link.read_registers, function, slave, address, len(dest), dest)
 
-    def run_read_plan(self, plan: _native.RegisterPlan, start: int = 0) -> None:
-        """Run a prepared :class:`pymb._native.RegisterPlan` from request ``start`` on, in one
+    def run_read_plan(self, plan: RegisterPlan, start: int = 0) -> None:
+        """Run a prepared :class:`pymb._native.link.RegisterPlan` from request ``start`` on, in one
         C call; on failure ``plan.failed`` says which request failed."""
         link = self._link  # _call, written out, as in read_registers_prepared
         with self._lock:

@@ -12,7 +12,7 @@ import warnings
 from types import TracebackType
 from typing import Any, Self
 
-from pymb import _native
+from pymb._native.link import Link
 from pymb.client.checks import _CLOSED_BY_PEER, _LINK_LOST, _int, _seconds
 from pymb.errors import DeviceException, InvalidArgument, ModbusConnectionError
 
@@ -41,7 +41,7 @@ class ClientCore:
     _resend_reads = False
     _served = 0  #: replies on the connection open now
 
-    def __init__(self, link: _native.Link, *, slave: int | None, timeout: float,
+    def __init__(self, link: Link, *, slave: int | None, timeout: float,
                  byte_timeout: float) -> None:
         self._link = link
         self._lock = threading.Lock()

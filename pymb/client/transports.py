@@ -9,6 +9,7 @@ import operator
 import os
 
 from pymb import _native
+from pymb._native.transports import new_ascii, new_rtu, new_tcp, new_udp
 from pymb.client.base import Client
 from pymb.client.checks import (
     _PARITIES,
@@ -87,7 +88,7 @@ class RtuClient(Client):
         if reject_early is not None and not isinstance(reject_early, bool):
             raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
         self._reject_early = reject_early
-        link = _native.new_rtu(port, baudrate, p, data_bits, stop_bits)
+        link = new_rtu(port, baudrate, p, data_bits, stop_bits)
         super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
         self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
 
@@ -163,7 +164,7 @@ class TcpClient(Client):
         #: Modbus/TCP Security's settings (None: plain Modbus TCP)
         self.tls = tls
         session = None if tls is None else (tls.context(), tls.server_name_for(host))
-        super().__init__(_native.new_tcp(host, port, tls=session), slave=slave, timeout=timeout,
+        super().__init__(new_tcp(host, port, tls=session), slave=slave, timeout=timeout,
                          byte_timeout=byte_timeout)
 
     def attach(self, fd: int) -> None:
@@ -207,7 +208,7 @@ class RtuOverTcpClient(Client):
             raise InvalidArgument(f"frame_silence must be up to 1 second, got {frame_silence!r}")
         self.host = host
         self.tcp_port = port
-        super().__init__(_native.new_tcp(host, port, rtu_framing=True, silence=silence),
+        super().__init__(new_tcp(host, port, rtu_framing=True, silence=silence),
                          slave=slave, timeout=timeout, byte_timeout=byte_timeout)
 
 
@@ -245,7 +246,7 @@ class AsciiClient(Client):
         self.parity = p
         self.data_bits = data_bits
         self.stop_bits = stop_bits
-        super().__init__(_native.new_ascii(port, baudrate, p, data_bits, stop_bits), slave=slave,
+        super().__init__(new_ascii(port, baudrate, p, data_bits, stop_bits), slave=slave,
                          timeout=timeout, byte_timeout=byte_timeout)
 
     def frame_time(self, nbytes: int) -> float:
@@ -275,6 +276,6 @@ class UdpClient(Client):
         self.host = host
         self.udp_port = port
         self.retries = retries
-        link = _native.new_udp(host, port)
+        link = new_udp(host, port)
         link.set_retries(retries)
         super().__init__(link, slave=slave, timeout=timeout, byte_timeout=0.0)

@@ -1,6 +1,6 @@
 """The requests of one map device on its client's line: :class:`Fetcher`.
 
-A plan's register reads go to C in runs (one :class:`~pymb._native.RegisterPlan`
+A plan's register reads go to C in runs (one :class:`~pymb._native.link.RegisterPlan`
 per run of one table, one C call each); a plan with bit reads goes request by
 request. Either way the line's silences are kept (the device's
 ``inter_request_gap`` before a request, any device's ``turnaround`` after a
@@ -20,7 +20,7 @@ from itertools import groupby
 from operator import attrgetter
 from typing import NamedTuple
 
-from pymb._native import RegisterPlan
+from pymb._native.link import RegisterPlan
 from pymb.client import Client
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue

@@ -1,17 +1,17 @@
 """A map's points compiled into ``pymb_map_decode``'s table: one C call
 decodes every point of a request into preallocated arrays.
 
-The only module of :mod:`pymb.maps` that touches cffi's ``ffi`` and ``lib``.
+The table and the call are :mod:`pymb._native.mapdecode`'s; this module says
+what goes into the table.
 """
 
 from __future__ import annotations
 
 from array import array
 from collections.abc import Callable, Iterable, Sequence
-from functools import partial
 from typing import Any
 
-from pymb._pymb_cffi import ffi, lib
+from pymb._native import mapdecode as c
 from pymb.errors import InvalidArgument
 from pymb.maps.codec import decimal_power
 from pymb.maps.model import Map
@@ -35,12 +35,8 @@ _INT, _UINT64, _FLOAT, _BOOL, _TEXT, _RAW = range(6)
 
 def _check_states() -> None:
     """The state codes Python names are the C core's."""
-    codes = {"value": lib.PYMB_VALUE, "offline": lib.PYMB_OFFLINE,
-             "no_sensor": lib.PYMB_NO_SENSOR, "unsupported": lib.PYMB_UNSUPPORTED,
-             "not_read": lib.PYMB_NOT_READ, "nan": lib.PYMB_MAP_NAN,
-             "invalid_text": lib.PYMB_MAP_INVALID_TEXT, "no_scale": lib.PYMB_MAP_NO_SCALE}
-    if any(STATES.index(n) != c for n, c in codes.items()) or \
-            len(STATES) > lib.PYMB_MAP_FIRST_MARKER_STATE:
+    if any(STATES.index(n) != code for n, code in c.STATE_CODES.items()) or \
+            len(STATES) > c.FIRST_MARKER_STATE:
         raise ImportError("pymb.maps.STATES disagrees with the C core's state codes")
 
 
@@ -53,7 +49,7 @@ class Buffers:
     codes, names in :attr:`Map.state_names`), ``text`` (strings' bytes), and
     ``registers``, the registers last decoded into them."""
 
-    __slots__ = ("_keep", "_out", "ints", "registers", "states", "text", "values")
+    __slots__ = ("_out", "ints", "registers", "states", "text", "values")
 
     def __init__(self, slots: int, text_bytes: int, *, values: array[float] | None = None,
                  states: array[int] | None = None) -> None:
@@ -68,14 +64,7 @@ class Buffers:
         self.states = array("B", bytes(slots)) if states is None else states
         self.text = bytearray(text_bytes)
         self.registers: Sequence[int] = ()
-        out = ffi.new("pymb_map_out *")
-        keep = [ffi.from_buffer("double[]", self.values), ffi.from_buffer("int64_t[]", self.ints),
-                ffi.from_buffer("uint8_t[]", self.states), ffi.from_buffer("uint8_t[]", self.text)]
-        out.values, out.ints, out.states, out.text = keep
-        out.len = slots
-        out.text_len = text_bytes
-        self._out = out
-        self._keep = keep
+        self._out = c.Out(self.values, self.ints, self.states, self.text)
 
 
 class Decoder:
@@ -114,23 +103,21 @@ class Decoder:
         #: registers a request must hold, from ``address``
         self.count = max(p.end for p in points) - self.address
         codes = {name: i for i, name in enumerate(m.state_names) if name}
-        entries = ffi.new("pymb_map_entry[]", len(points))
         nmarkers = sum(_markers_of(p) for p in points)
-        markers = ffi.new("pymb_map_marker[]", max(nmarkers, 1))
+        ctable = c.Table(len(points), nmarkers)
         slot = text = mk = 0
         self._plan: list[tuple[str, int, int, int, int, int, str]] = []
         self._slots: dict[str, int] = {}
-        for e, p in zip(entries, points, strict=True):
+        for i, p in enumerate(points):
             per = 2 * p.count if p.string_bytes == "both" else p.count
-            self._compile(e, p, slot, text if p.type == "string" else 0)
-            e.first_marker, e.nmarkers = mk, _markers_of(p)
+            self._compile(ctable, i, p, slot, text if p.type == "string" else 0, mk)
             # a mask first (PYMB_MAP_MASKED), then exact markers, then patterns
             entry_markers: list[tuple[int, int]] = [(p.mask, 0)] if p.mask is not None else []
             entry_markers += [(raw, codes[state]) for raw, state in p.markers.items()]
             for pattern, care, state in p.marker_masks:
-                entry_markers += [(care, lib.PYMB_MAP_MARKER_MASK), (pattern, codes[state])]
+                entry_markers += [(care, c.MARKER_MASK), (pattern, codes[state])]
             for raw, code in entry_markers:
-                markers[mk].raw, markers[mk].state = raw, code
+                ctable.marker(mk, raw, code)
                 mk += 1
             self._plan.append((p.name, self._kind(p), slot, p.channels, text, per, p.encoding))
             self._slots[p.name] = slot
@@ -139,8 +126,7 @@ class Decoder:
             slot += p.channels
         self.names = tuple(p.name for p in points)
         self.slots = slot
-        self._entries, self._n = entries, len(points)
-        self._markers, self._nmarkers = markers, nmarkers
+        self._table = ctable
         self._counts = {p.name: p.count for p in points}
         self._blocks = frozenset(p.name for p in points if p.block)
         self._order = [(e[0], e[2], None if e[1] == _FLOAT and e[0] not in self._blocks else e)
@@ -149,40 +135,34 @@ class Decoder:
         self._text_bytes = text
         self.buffers = self.new_buffers()
 
-    def _compile(self, e: Any, p: Point, slot: int, text: int) -> None:
-        e.first = p.address - self.address
-        e.out = slot
-        e.aux = text
-        e.channels = p.channels
-        e.stride = p.stride
-        e.count = p.count
-        e.type = getattr(lib, f"PYMB_MAP_{_C_TYPE.get(p.type, p.type).upper()}")
-        flags = 0
+    def _compile(self, table: c.Table, i: int, p: Point, slot: int, text: int,
+                 first_marker: int) -> None:
+        aux, flags, scale, decimals, offset = text, 0, 0.0, 0, 0.0
         if p.scale_from is not None:
             sf = self.map.points[p.scale_from]
-            flags |= lib.PYMB_MAP_SCALE_FROM
-            e.aux = (sf.address - self.address) | (
-                lib.PYMB_MAP_SF_SWAPPED if sf.order == "BA" else 0)
+            flags |= c.SCALE_FROM
+            aux = (sf.address - self.address) | (c.SF_SWAPPED if sf.order == "BA" else 0)
         if p.mask is not None:
-            flags |= lib.PYMB_MAP_MASKED
+            flags |= c.MASKED
         if p.scale is not None:
-            flags |= lib.PYMB_MAP_SCALED
-            e.scale = p.scale
-            e.decimals = decimal_power(p.scale)
+            flags |= c.SCALED
+            scale, decimals = p.scale, decimal_power(p.scale)
         if p.offset is not None:
-            flags |= lib.PYMB_MAP_OFFSET
-            e.offset = p.offset
+            flags |= c.OFFSET
+            offset = p.offset
+        order: Sequence[int] = ()
         if p.type == "string":
-            flags |= lib.PYMB_MAP_SWAP if p.order == "BA" else 0
-            flags |= {"both": 0, "high": lib.PYMB_MAP_HIGH_BYTE,
-                      "low": lib.PYMB_MAP_LOW_BYTE}[p.string_bytes]
-            flags |= lib.PYMB_MAP_ASCII if p.encoding == "ascii" else 0
+            flags |= c.SWAP if p.order == "BA" else 0
+            flags |= {"both": 0, "high": c.HIGH_BYTE, "low": c.LOW_BYTE}[p.string_bytes]
+            flags |= c.ASCII if p.encoding == "ascii" else 0
         elif p.order:
-            for k, pos in enumerate(permutation(p.order)):
-                e.order[k] = pos
-        e.flags = flags
-        e.bit = p.bit if p.type == "bit" else (p.shift or 0)
-        e.width = p.width or 0
+            order = permutation(p.order)
+        table.entry(i, first=p.address - self.address, out=slot, aux=aux, channels=p.channels,
+                    stride=p.stride, count=p.count,
+                    type_=c.type_code(_C_TYPE.get(p.type, p.type)), flags=flags,
+                    bit=(p.bit or 0) if p.type == "bit" else (p.shift or 0), width=p.width or 0,
+                    decimals=decimals, order=order, scale=scale, offset=offset,
+                    first_marker=first_marker, nmarkers=_markers_of(p))
 
     @staticmethod
     def _kind(p: Point) -> int:
@@ -219,9 +199,7 @@ class Decoder:
         if len(registers) < self.count:
             raise InvalidArgument(f"{self.map.id}: {self.count} registers from {self.address} "
                                   f"are needed, got {len(registers)}")
-        rc = lib.pymb_map_decode(self._entries, self._n, self._markers, self._nmarkers,
-                                 ffi.from_buffer("uint16_t[]", registers), len(registers),
-                                 b._out)  # noqa: SLF001 - Buffers is this module's
+        rc = self._table.decode(registers, b._out)  # noqa: SLF001 - Buffers is this module's
         if rc < 0:  # the table is built here: it cannot be invalid
             raise InvalidArgument(f"{self.map.id}: the compiled map was refused")
         b.registers = registers
@@ -240,9 +218,7 @@ class Decoder:
                                   f"got {type(registers).__name__}")
         b = self.buffers if into is None else into
         self.decode(registers, b)  # checks the length, and the table once
-        return partial(lib.pymb_map_decode, self._entries, self._n, self._markers,
-                       self._nmarkers, ffi.from_buffer("uint16_t[]", registers),
-                       len(registers), b._out)  # noqa: SLF001 - this module's
+        return self._table.bind(registers, b._out)  # noqa: SLF001 - this module's
 
     def read(self, registers: Sequence[int]) -> dict[str, Value]:
         """``{name: value}`` of every point, blocks as lists, None where no value."""
