@@ -437,7 +437,7 @@ def test_logger_section_measures_pairs_bytes_and_layouts(
             if r["commit_interval"] is None}
     assert len(wear) == 8
     assert [(r["kind"], r["interval"]) for r in s["wear"] if r["commit_interval"]] == [
-        ("coolpro", 1.0)]  # beside it, a CoolPro committed every LONGER_COMMIT s
+        ("hub", 1.0), ("coolpro", 1.0)]  # beside them, each committed every LONGER_COMMIT s
     for r in wear.values():
         assert r["samples"] > 0
         assert r["stored"] > 0
