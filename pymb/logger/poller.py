@@ -22,7 +22,7 @@ from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.report import Report
-from pymb.logger.schedule import BACKOFF_MAX, Agenda, Backoff, Health, Slot, reappeared
+from pymb.logger.schedule import BACKOFF_MAX, TEXT, Agenda, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
 
@@ -262,7 +262,7 @@ class BusPoller(threading.Thread):
                 dev.explained = self._explain(dev)
             dev.hub.forget_firmware()
             report.failed(bus.name, h, r.info, "no_value",
-                          f"{r.info.name} supplied no value: {dev.explained}", None,
+                          TEXT["no_value"].format(name=r.info.name, why=dev.explained), None,
                           self.clock(), at_once=True)
             return True
         report.sample(Sample(r.info, time.time(), time.monotonic(), data))

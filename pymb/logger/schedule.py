@@ -40,12 +40,19 @@ BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0
 #: failed reads of a built-in device in a row before it is backed off
 FAULTS_BEFORE_BACKOFF = 10
 
-#: The text of each event of the schedule's facts, for every poller
-#: (``str.format`` fields); a fault's own text is its error's.
+#: The text of each event the pollers record, one per fact (``str.format``
+#: fields); a failed poll's text is its error's, with "offline" or "backoff".
 TEXT = {
     "connect": "polling {devices} device(s) on {endpoint}",
     "reconnect": "reconnected to {endpoint}",
     "retrying": "{why}; retrying in {wait:g} s",
+    "lost": "{endpoint}: {why}{retry}",
+    "closed": "{endpoint}: the connection was closed by the device after {replies}; "
+              "opening it again",
+    "closes": "{endpoint} closes the connection after {replies}: {n} request(s) per "
+              "connection from now on",
+    "stray": "{endpoint}: bytes no request asked for (received {got})",
+    "no_value": "{name} supplied no value: {why}",
     "skipped": "{late} poll slot(s) of {interval:g} s skipped ({what})",
     "online": "{name} answers again",
     "offline": "; offline after {failures} failed poll(s), next try in {wait:g} s",

@@ -265,13 +265,12 @@ class TcpLoopBase(threading.Thread):
         c.tell = False
         if answered == c.closed_after and not c.limit:
             c.limit = answered
-            self.report.event(c.bus.name, "reconnect", f"{c.bus.endpoint} closes the "
-                              f"connection after {replies}: {answered} request(s) per "
-                              "connection from now on")
+            self.report.event(c.bus.name, "reconnect", TEXT["closes"].format(
+                endpoint=c.bus.endpoint, replies=replies, n=answered))
         elif not c.limit:  # not (yet) its way of working: said, as a loss is
             self.report.bus_fault(c.bus.name, "the connection was closed", "connection",
-                                  f"{c.bus.endpoint}: the connection was closed by the "
-                                  f"device after {replies}; opening it again")
+                                  TEXT["closed"].format(endpoint=c.bus.endpoint,
+                                                        replies=replies))
             c.tell = True
         c.closed_after = answered
         if c.entry is not None:  # what is in flight goes out again

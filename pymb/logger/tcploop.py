@@ -46,7 +46,7 @@ from pymb.errors import (
 )
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
-from pymb.logger.schedule import Agenda
+from pymb.logger.schedule import TEXT, Agenda
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lender
@@ -132,8 +132,8 @@ class TcpMapPoller(TcpReplies):
                 f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
             self._failed(c, e, exc, now)
         else:  # between polls: the bus's event
-            self.report.bus_fault(c.bus.name, why, "connection",
-                                  f"{c.bus.endpoint}: {why}{retry}")
+            self.report.bus_fault(c.bus.name, why, "connection", TEXT["lost"].format(
+                endpoint=c.bus.endpoint, why=why, retry=retry))
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         e, c.resume, c.renew = c.resume, None, False

@@ -19,6 +19,7 @@ import time
 
 from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
+from pymb.logger.schedule import TEXT
 from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcpunits import Entry, PollRequest
@@ -130,7 +131,6 @@ class TcpReplies(TcpLoopBase):
             self._failed(c, e, exc, now)
             c.entry = None
         else:  # between polls: the bus's event
-            self.report.bus_fault(c.bus.name, "unexpected bytes", "protocol",
-                                  f"{c.bus.endpoint}: bytes no request asked for "
-                                  f"(received {got.hex(' ').upper()})")
+            self.report.bus_fault(c.bus.name, "unexpected bytes", "protocol", TEXT["stray"].format(
+                endpoint=c.bus.endpoint, got=got.hex(" ").upper()))
         self._reopen(c, now)
