@@ -12,7 +12,7 @@ address, count, port) and what came back.
 
 The codes come from the compiler: libmodbus's ``MODBUS_EXCEPTION_*`` enum,
 as :mod:`pymb._native` reads it from the compiled extension
-(:class:`~pymb._native.ExceptionCode`), never typed here; their names are the
+(:class:`~pymb._native.DeviceExceptionCode`), never typed here; their names are the
 C library's (``pymb_strerror``), their one home. This module sits between
 ``pymb._native`` (its constants, which import nothing of pymb) and the line
 (``pymb._native.link``, which raises these exceptions).
@@ -27,7 +27,7 @@ import os
 from typing import Any, ClassVar
 
 from pymb._native import (
-    ExceptionCode,
+    DeviceExceptionCode,
     FunctionCode,
     ProtocolErrno,
     errno_exception,
@@ -206,74 +206,74 @@ class DeviceException(ModbusError):
 class IllegalFunction(DeviceException):
     """Exception 01: the device does not support the function code."""
 
-    default_code = int(ExceptionCode.ILLEGAL_FUNCTION)
-    description = describe_exception(ExceptionCode.ILLEGAL_FUNCTION)
+    default_code = int(DeviceExceptionCode.ILLEGAL_FUNCTION)
+    description = describe_exception(DeviceExceptionCode.ILLEGAL_FUNCTION)
 
 
 class IllegalDataAddress(DeviceException):
     """Exception 02: the address, or address plus count, is not valid for the
     device (the sensor hub also answers 02 for a block its firmware lacks)."""
 
-    default_code = int(ExceptionCode.ILLEGAL_DATA_ADDRESS)
-    description = describe_exception(ExceptionCode.ILLEGAL_DATA_ADDRESS)
+    default_code = int(DeviceExceptionCode.ILLEGAL_DATA_ADDRESS)
+    description = describe_exception(DeviceExceptionCode.ILLEGAL_DATA_ADDRESS)
 
 
 class IllegalDataValue(DeviceException):
     """Exception 03: a value in the request is out of range."""
 
-    default_code = int(ExceptionCode.ILLEGAL_DATA_VALUE)
-    description = describe_exception(ExceptionCode.ILLEGAL_DATA_VALUE)
+    default_code = int(DeviceExceptionCode.ILLEGAL_DATA_VALUE)
+    description = describe_exception(DeviceExceptionCode.ILLEGAL_DATA_VALUE)
 
 
 class DeviceFailure(DeviceException):
     """Exception 04: the device failed while processing the request
     (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
 
-    default_code = int(ExceptionCode.SLAVE_OR_SERVER_FAILURE)
-    description = describe_exception(ExceptionCode.SLAVE_OR_SERVER_FAILURE)
+    default_code = int(DeviceExceptionCode.SLAVE_OR_SERVER_FAILURE)
+    description = describe_exception(DeviceExceptionCode.SLAVE_OR_SERVER_FAILURE)
 
 
 class Acknowledge(DeviceException):
     """Exception 05: accepted, but it will take long; poll again later."""
 
-    default_code = int(ExceptionCode.ACKNOWLEDGE)
-    description = describe_exception(ExceptionCode.ACKNOWLEDGE)
+    default_code = int(DeviceExceptionCode.ACKNOWLEDGE)
+    description = describe_exception(DeviceExceptionCode.ACKNOWLEDGE)
 
 
 class DeviceBusy(DeviceException):
     """The device is busy (standard code 06; the sensor hub's code 04).
     Worth a retry after a short wait."""
 
-    default_code = int(ExceptionCode.SLAVE_OR_SERVER_BUSY)
-    description = describe_exception(ExceptionCode.SLAVE_OR_SERVER_BUSY)
+    default_code = int(DeviceExceptionCode.SLAVE_OR_SERVER_BUSY)
+    description = describe_exception(DeviceExceptionCode.SLAVE_OR_SERVER_BUSY)
 
 
 class NegativeAcknowledge(DeviceException):
     """Exception 07: the device cannot perform the program function."""
 
-    default_code = int(ExceptionCode.NEGATIVE_ACKNOWLEDGE)
-    description = describe_exception(ExceptionCode.NEGATIVE_ACKNOWLEDGE)
+    default_code = int(DeviceExceptionCode.NEGATIVE_ACKNOWLEDGE)
+    description = describe_exception(DeviceExceptionCode.NEGATIVE_ACKNOWLEDGE)
 
 
 class MemoryParityError(DeviceException):
     """Exception 08: the device found a parity error in its memory."""
 
-    default_code = int(ExceptionCode.MEMORY_PARITY)
-    description = describe_exception(ExceptionCode.MEMORY_PARITY)
+    default_code = int(DeviceExceptionCode.MEMORY_PARITY)
+    description = describe_exception(DeviceExceptionCode.MEMORY_PARITY)
 
 
 class GatewayPathUnavailable(DeviceException):
     """Exception 0A: the gateway has no path to the target."""
 
-    default_code = int(ExceptionCode.GATEWAY_PATH)
-    description = describe_exception(ExceptionCode.GATEWAY_PATH)
+    default_code = int(DeviceExceptionCode.GATEWAY_PATH)
+    description = describe_exception(DeviceExceptionCode.GATEWAY_PATH)
 
 
 class GatewayTargetFailed(DeviceException):
     """Exception 0B: the gateway's target did not respond."""
 
-    default_code = int(ExceptionCode.GATEWAY_TARGET)
-    description = describe_exception(ExceptionCode.GATEWAY_TARGET)
+    default_code = int(DeviceExceptionCode.GATEWAY_TARGET)
+    description = describe_exception(DeviceExceptionCode.GATEWAY_TARGET)
 
 
 _BY_CODE: dict[int, type[DeviceException]] = {

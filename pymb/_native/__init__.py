@@ -36,7 +36,7 @@ __all__ = [
     "RTS_MODES",
     "SERIAL_MODES",
     "VERSION",
-    "ExceptionCode",
+    "DeviceExceptionCode",
     "FunctionCode",
     "ProtocolErrno",
     "State",
@@ -90,7 +90,7 @@ class FunctionCode(IntEnum):
     WRITE_AND_READ_REGISTERS = lib.MODBUS_FC_WRITE_AND_READ_REGISTERS
 
 
-class ExceptionCode(IntEnum):
+class DeviceExceptionCode(IntEnum):
     """The exception codes [MB-AP] 7 defines, as libmodbus's ``modbus.h`` numbers them."""
 
     ILLEGAL_FUNCTION = lib.MODBUS_EXCEPTION_ILLEGAL_FUNCTION

@@ -26,8 +26,8 @@ __all__ = [
     "SF_SWAPPED",
     "STATE_CODES",
     "SWAP",
-    "Out",
-    "Table",
+    "MapOut",
+    "MapTable",
     "type_code",
 ]
 
@@ -63,7 +63,7 @@ def type_code(name: str) -> int:
     return int(getattr(lib, f"PYMB_MAP_{name.upper()}"))
 
 
-class Out:
+class MapOut:
     """A ``pymb_map_out`` over caller-owned arrays: ``values`` (``array('d')``),
     ``ints`` (``array('q')``), ``states`` (``array('B')``), ``text``
     (``bytearray``), kept alive with it. The arrays must not change size
@@ -83,7 +83,7 @@ class Out:
         self._keep = keep
 
 
-class Table:
+class MapTable:
     """``n`` entries (one a point or block) and ``nmarkers`` markers, zeroed,
     filled by :meth:`entry` and :meth:`marker`; :meth:`decode` runs
     ``pymb_map_decode`` over them."""
@@ -115,14 +115,14 @@ class Table:
         """Set marker ``k``: the raw value (or care mask) and its state."""
         self._markers[k].raw, self._markers[k].state = raw, state
 
-    def decode(self, registers: array[int], out: Out) -> int:
+    def decode(self, registers: array[int], out: MapOut) -> int:
         """Decode ``registers`` (an ``array('H')``) into ``out``: the number
         of values written, or -1 when C refuses the table or the sizes."""
         return int(lib.pymb_map_decode(self._entries, self.n, self._markers, self.nmarkers,
                                        ffi.from_buffer("uint16_t[]", registers),
                                        len(registers), out.cdata))
 
-    def bind(self, registers: array[int], out: Out) -> Callable[[], int]:
+    def bind(self, registers: array[int], out: MapOut) -> Callable[[], int]:
         """:meth:`decode` of ``registers`` into ``out`` with its arguments
         converted once: the C call itself, for a reader that decodes the same
         buffer again and again (``registers`` must keep its size, and ``out``

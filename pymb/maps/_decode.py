@@ -64,7 +64,7 @@ class Buffers:
         self.states = array("B", bytes(slots)) if states is None else states
         self.text = bytearray(text_bytes)
         self.registers: Sequence[int] = ()
-        self._out = c.Out(self.values, self.ints, self.states, self.text)
+        self._out = c.MapOut(self.values, self.ints, self.states, self.text)
 
 
 class Decoder:
@@ -104,7 +104,7 @@ class Decoder:
         self.count = max(p.end for p in points) - self.address
         codes = {name: i for i, name in enumerate(m.state_names) if name}
         nmarkers = sum(_markers_of(p) for p in points)
-        ctable = c.Table(len(points), nmarkers)
+        ctable = c.MapTable(len(points), nmarkers)
         slot = text = mk = 0
         self._plan: list[tuple[str, int, int, int, int, int, str]] = []
         self._slots: dict[str, int] = {}
@@ -135,7 +135,7 @@ class Decoder:
         self._text_bytes = text
         self.buffers = self.new_buffers()
 
-    def _compile(self, table: c.Table, i: int, p: Point, slot: int, text: int,
+    def _compile(self, table: c.MapTable, i: int, p: Point, slot: int, text: int,
                  first_marker: int) -> None:
         aux, flags, scale, decimals, offset = text, 0, 0.0, 0, 0.0
         if p.scale_from is not None:

@@ -48,7 +48,7 @@ def test_no_exception_code_is_typed_by_hand() -> None:
              "NEGATIVE_ACKNOWLEDGE", "MEMORY_PARITY", "GATEWAY_PATH", "GATEWAY_TARGET")
     source = Path(errors.__file__).read_text(encoding="utf-8")
     assert re.findall(r"default_code = (\S+)", source) == [
-        f"int(ExceptionCode.{n})" for n in names]
+        f"int(DeviceExceptionCode.{n})" for n in names]
     native = Path(_native.__file__).read_text(encoding="utf-8")
     assert re.findall(r"^    (\w+) = lib\.MODBUS_EXCEPTION_(\w+)$", native, re.M) == [
         (n, n) for n in names]
