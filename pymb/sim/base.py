@@ -26,9 +26,6 @@ from enum import IntEnum
 from typing import Any, ClassVar, TypeVar
 
 from pymb._native import FunctionCode
-from pymb.devices.maps import (
-    COOLPRO,
-)
 from pymb.errors import (
     DeviceFailure,
     IllegalDataAddress,
@@ -49,7 +46,6 @@ __all__ = [
 ]
 
 _SWAP = sys.byteorder == "little"  # registers go on the wire big-endian
-_MAX_READ = COOLPRO.max_read  # [MB-AP] 6.3, 6.4: 1..125 registers per read
 _M64 = 0xFFFF_FFFF_FFFF_FFFF
 _TWO_PI = 2.0 * math.pi
 

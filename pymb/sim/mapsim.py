@@ -10,10 +10,18 @@ without one, on registers no example sets, gets a value from a
 seeded model: a gauge wanders around a seeded level (inside ``valid`` when
 the map gives it), a counter counts up, a point with ``values`` takes its
 first, text is the point's name. Writable points take writes (FC 05, 06,
-15, 16) checked as the map checks them; anything else is refused.
+15, 16) checked as the map checks them (whole points, inside ``valid``, else
+exception 03); anything else is refused. A broadcast write is carried out.
+A point whose ``min_firmware`` is above the device's ``firmware`` is absent.
 
 The ``sensor`` fault puts a point that has ``markers`` (or a float's NaN) in
 its no-value state for a while: ``channels`` names channels of a block.
+
+A device with behaviours of its own (the CoolPro, the sensor hub) is a
+subclass: it narrows :attr:`MapSimDevice.functions`, picks the exception
+code of a malformed request, brings its own values (:meth:`_start`,
+:meth:`_refresh`) and reacts to writes (:meth:`_wrote`); everything else
+(registers, addresses, exceptions, writes, firmware) is the map's.
 """
 
 from __future__ import annotations
@@ -24,17 +32,18 @@ import struct
 from array import array
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import ClassVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.devices.mapspec import parse_map_device
 from pymb.errors import InvalidArgument
-from pymb.maps import Map, Point
-from pymb.maps.codec import encode
+from pymb.maps import Map, MapError, Point
+from pymb.maps.codec import _pattern, _to_regs, decode_one, encode
 from pymb.maps.types import SF_RANGE, TYPES
+from pymb.sim.base import Device, ExceptionCode, _locked, _swapped, exception_pdu, parse_firmware
 from pymb.sim.clock import SimClock
-from pymb.sim.devices import Device, ExceptionCode, exception_pdu
 
-__all__ = ["MapSimDevice"]
+__all__ = ["MapSimDevice", "map_sim_device"]
 
 _TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
@@ -42,33 +51,109 @@ _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
 
 class MapSimDevice(Device):
     """The device ``m`` describes, at ``address``; values from each point's
-    ``example`` or the model seeded by ``seed``."""
+    ``example`` or the model seeded by ``seed``. ``firmware``: the version
+    it runs (points with a higher ``min_firmware`` are absent; "" has all)."""
+
+    #: function codes answered (None: every one above); any other answers 01
+    functions: ClassVar[frozenset[int] | None] = None
+    #: the exception code of a malformed request or a quantity outside 1..max
+    bad_request: ClassVar[int] = ExceptionCode.ILLEGAL_DATA_VALUE
+    #: the map's ``readable`` ranges answer (zeros) besides its points
+    answers_readable: ClassVar[bool] = True
 
     def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
                  seed: int = 0, clock: SimClock | None = None, dynamic: bool = True,
-                 delay: float = 0.0) -> None:
-        super().__init__(m.device.default_address if address is None else address,
-                         baud=baud, seed=seed, clock=clock)
+                 delay: float = 0.0, firmware: str = "") -> None:
+        address = m.device.default_address if address is None else address
+        lo, hi = m.device.addresses
+        if isinstance(address, bool) or not isinstance(address, int) or not lo <= address <= hi:
+            raise InvalidArgument(f"{m.id} address must be {lo}..{hi}, got {address!r}")
+        super().__init__(address, baud=baud, seed=seed, clock=clock)
         self.map = m
         self.kind = m.id  # type: ignore[misc]
         self.dynamic = dynamic
         if not 0.0 <= delay <= 60.0:
             raise InvalidArgument(f"{m.id}: delay must be 0..60 s, got {delay!r}")
         self.delay = delay  #: seconds from a request's end to the reply
-        self._images: dict[str, array[int]] = {}
-        self._have: dict[str, bytearray] = {}
-        for t in _TABLE.values():
-            self._images[t] = array("H", bytes(2 * 0x10000))
-            self._have[t] = bytearray(0x10000)
-        for t, ranges in m.limits.readable.items():
-            for lo, hi in ranges:
-                self._have[t][lo:hi + 1] = b"\x01" * (hi + 1 - lo)
+        self._images = {t: array("H", bytes(2 * 0x10000)) for t in _TABLE.values()}
+        self._have = {t: bytearray(0x10000) for t in _TABLE.values()}
+        #: (name, channel) -> (point, address), for _put_raw
+        self._where: dict[tuple[str, int], tuple[Point, int]] = {}
+        self._firmware = ""
+        self.firmware = firmware
         self._model: list[tuple[Point, int, float, float, float]] = []
-        rng = random.Random(seed)
-        for p in m.points.values():
-            for c in range(1, p.channels + 1):
+        self._t0 = self.clock.now()  # counters count from here
+        self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
+        self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
+        self._updated = -math.inf
+        self._start(random.Random(seed))
+
+    # -- what the device has -------------------------------------------------------------
+
+    @property
+    def firmware(self) -> str:
+        """The firmware version; setting it adds or removes the points whose
+        ``min_firmware`` it reaches or not."""
+        return self._firmware
+
+    @firmware.setter
+    @_locked
+    def firmware(self, version: str) -> None:
+        if version:
+            parse_firmware(version)  # refuses what does not look like 2.19
+        self._firmware = version.strip().lstrip("vV")
+        have = {t: bytearray(0x10000) for t in _TABLE.values()}
+        if self.answers_readable:
+            for t, ranges in self.map.limits.readable.items():
+                for lo, hi in ranges:
+                    have[t][lo:hi + 1] = b"\x01" * (hi + 1 - lo)
+        for p in self.map.points.values():
+            for c in range(1, self._channels_of(p) + 1):
                 a = p.address_of(c)
-                self._have[p.table][a:a + p.count] = b"\x01" * p.count
+                have[p.table][a:a + p.count] = b"\x01" * p.count
+        self._have = have
+
+    def _channels_of(self, p: Point) -> int:
+        """How many channels of ``p`` the device has (0: none) at its firmware."""
+        if self._firmware and p.min_firmware and \
+                parse_firmware(p.min_firmware) > parse_firmware(self._firmware):
+            return 0
+        return p.channels
+
+    def _point(self, name: str, channel: int = 1) -> tuple[Point, int]:
+        """The point ``name`` and the address of its ``channel``; unknown
+        ones are an :class:`~pymb.InvalidArgument` naming the closest."""
+        try:
+            p = self.map.point(name)
+            return p, p.address_of(channel)
+        except MapError as e:
+            raise InvalidArgument(str(e)) from None
+
+    @_locked
+    def raw(self, name: str, channel: int = 1) -> int:
+        """The registers of point ``name`` (its ``channel``) as a read now
+        returns them, as one unsigned number (the point's order applied)."""
+        p, a = self._point(name, channel)
+        self._refresh()
+        return _pattern(p, self._images[p.table][a:a + p.count])
+
+    def _put_raw(self, name: str, raw: int, channel: int = 1) -> None:
+        """Store ``raw`` (an unsigned number, as :meth:`raw` gives) in point ``name``."""
+        where = self._where.get((name, channel))
+        if where is None:
+            where = self._where[(name, channel)] = self._point(name, channel)
+        p, a = where
+        img = self._images[p.table]
+        if p.count == 1 and p.order == "AB":
+            img[a] = raw & 0xFFFF
+        else:
+            img[a:a + p.count] = array("H", _to_regs(p, raw & ((1 << 16 * p.count) - 1)))
+
+    # -- values -----------------------------------------------------------------------
+
+    def _start(self, rng: random.Random) -> None:
+        """The values at start: each point's example, else the seeded model's."""
+        m = self.map
         # an example wins over the views of its registers that have none: points
         # with an example go last, and one without that shares a register with
         # one that has an example is left as the example makes it
@@ -86,12 +171,6 @@ class MapSimDevice(Device):
                 a = p.address_of(c)
                 if p.example is not None or not any(shown[p.table][a:a + p.count]):
                     self._init(p, c, rng)
-        self._t0 = self.clock.now()  # counters count from here
-        self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
-        self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
-        self._updated = -math.inf
-
-    # -- values -----------------------------------------------------------------------
 
     def _put(self, p: Point, channel: int, value: object) -> None:
         a = p.address_of(channel)
@@ -206,14 +285,16 @@ class MapSimDevice(Device):
 
     def handle(self, pdu: bytes) -> bytes | None:
         """The reply to one request PDU."""
-        if len(pdu) < 5:
-            return exception_pdu(pdu[0] if pdu else 0, ExceptionCode.ILLEGAL_DATA_VALUE)
-        fc = pdu[0]
+        fc = pdu[0] if pdu else 0
+        if self.functions is not None and fc not in self.functions:
+            return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
+        if len(pdu) < 5 or (fc <= 6 and len(pdu) != 5):
+            return exception_pdu(fc, self.bad_request)
         address, n = struct.unpack(">HH", pdu[1:5])
         if fc in _TABLE:
             table = _TABLE[fc]
             if not 1 <= n <= (MAX_READ_BITS if fc <= 2 else MAX_READ_REGISTERS):
-                return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+                return exception_pdu(fc, self.bad_request)
             if not self._span(table, address, n):
                 return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
             self._refresh()
@@ -224,7 +305,7 @@ class MapSimDevice(Device):
                     if v:
                         out[i // 8] |= 1 << (i % 8)
                 return bytes((fc, len(out))) + bytes(out)
-            return bytes((fc, 2 * n)) + struct.pack(f">{n}H", *regs)
+            return bytes((fc, 2 * n)) + _swapped(regs)
         if fc in (5, 6):
             return self._write(fc, "coil" if fc == 5 else "holding", address,
                                [int(n == 0xFF00)] if fc == 5 else [n], pdu)
@@ -232,32 +313,47 @@ class MapSimDevice(Device):
             data = pdu[6:6 + pdu[5]]
             if fc == 16:
                 if len(data) != 2 * n:
-                    return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+                    return exception_pdu(fc, self.bad_request)
                 values = list(struct.unpack(f">{n}H", data))
             else:
                 values = [data[i // 8] >> (i % 8) & 1 for i in range(n)] if \
                     len(data) == (n + 7) // 8 else []
                 if not values:
-                    return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+                    return exception_pdu(fc, self.bad_request)
             return self._write(fc, "holding" if fc == 16 else "coil", address, values,
                                pdu[:5])
         return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
 
+    def handle_broadcast(self, pdu: bytes) -> None:
+        """Standard Modbus ([MB-SL] 2.1): a broadcast write is carried out
+        without a reply; broadcast reads are ignored."""
+        if pdu and pdu[0] in (5, 6, 15, 16):
+            self.handle(pdu)
+
     def _write(self, fc: int, table: str, address: int, values: list[int],
                echo: bytes) -> bytes:
-        """Store ``values`` at ``address`` if writable points cover them exactly."""
+        """Store ``values`` at ``address`` if writable points cover them
+        exactly, each inside its ``valid`` range."""
         end = address + len(values)
         img = self._images[table]
         covered = bytearray(len(values))
+        hits: list[tuple[Point, int]] = []
         for p in self.map.points.values():
             if p.table != table or not p.writable:
                 continue
-            for c in range(1, p.channels + 1):
+            for c in range(1, self._channels_of(p) + 1):
                 a = p.address_of(c)
                 if address <= a and a + p.count <= end:
                     covered[a - address:a - address + p.count] = b"\x01" * p.count
+                    hits.append((p, c))
         if covered.count(1) != len(values):
             return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+        for p, c in hits:
+            if p.valid is not None:
+                a = p.address_of(c) - address
+                v = decode_one(p, values[a:a + p.count], self._sf_of(p))[0]
+                if isinstance(v, (int, float)) and not p.valid[0] <= v <= p.valid[1]:
+                    return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_VALUE)
         img[address:end] = array("H", values)
         for p in self.map.points.values():
             if p.table == table:
@@ -265,7 +361,12 @@ class MapSimDevice(Device):
                     a = p.address_of(c)
                     if a < end and address < a + p.count:
                         self._pinned.add((p.name, c))
+        for p, c in hits:
+            self._wrote(p, c)
         return echo
+
+    def _wrote(self, p: Point, channel: int) -> None:
+        """Point ``p`` (its ``channel``) was just written: a device's own reaction."""
 
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:

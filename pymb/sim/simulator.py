@@ -18,11 +18,11 @@ from typing import Any
 
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
-from pymb.devices.maps import COOLPRO_BAUD_RATES
 from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
+from pymb.sim.coolprosim import BAUD_RATES as COOLPRO_BAUD_RATES
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
 from pymb.sim.rtu import RtuServer

@@ -1,6 +1,9 @@
-"""The simulated sensor hub: 100 channels of seven blocks, firmware profiles,
-per-channel humidity units, and the values of each channel as a deterministic
-function of seed and simulated time (a model per channel)."""
+"""The sensor hub's behaviours over its map (``hub``): the map sets the
+registers, blocks, addresses and the firmware each block needs; this adds
+the hub's one firmware rule the map cannot say (V1.07 and below: 50
+channels of temperature and humidity only), what is plugged into each
+channel (per-channel humidity units), and the values of each channel as a
+deterministic function of seed and simulated time (a model per channel)."""
 
 from __future__ import annotations
 
@@ -12,30 +15,44 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
-from pymb.devices.maps import (
-    HUB,
-    HUB_FIRMWARE_PROFILES,
-    Block,
-)
-from pymb.errors import (
-    InvalidArgument,
-)
+from pymb import maps
+from pymb.errors import InvalidArgument
+from pymb.maps import Point
 from pymb.sim.base import (
     _M64,
     _TWO_PI,
-    Device,
     ExceptionCode,
     _locked,
     _mix,
     _noise,
-    _swapped,
-    exception_pdu,
     parse_firmware,
     sign_magnitude,
 )
 from pymb.sim.clock import SimClock
+from pymb.sim.mapsim import MapSimDevice
 
 __all__ = ["Channel", "HubDevice"]
+
+_MAP = maps.builtin("hub")
+_BLOCKS = tuple(_MAP.points.values())
+_NAMES = tuple(p.name for p in _BLOCKS)
+_ADDRESS = tuple(p.address for p in _BLOCKS)  # each block's first register
+_FIRST = min(_ADDRESS)
+_COUNT = max(p.address + p.channels * p.stride for p in _BLOCKS) - _FIRST
+_N = max(p.channels for p in _BLOCKS)
+#: V1.07 and below: 50 channels of these blocks only
+_LEGACY = ((1, 7), 50, ("temperature_c", "humidity_pct"))
+_LATEST = max((p.min_firmware for p in _BLOCKS if p.min_firmware), key=parse_firmware)
+
+
+def _marker(p: Point, state: str) -> int:
+    return next(raw for raw, name in p.markers.items() if name == state)
+
+
+_OFFLINE = _marker(_BLOCKS[0], "offline")
+_ALL_OFFLINE = [_OFFLINE] * len(_BLOCKS)
+_NO_HUMIDITY = {tenths: _marker(_MAP.configure(humidity_unit=0.1 if tenths else 1)
+                                .points["humidity_pct"], "no_sensor") for tenths in (False, True)}
 
 
 @dataclass
@@ -57,28 +74,6 @@ class Channel:
     humidity_tenths: bool = True
 
 
-#: which Channel flag each HUB block depends on (block names from maps.HUB)
-_BLOCK_SENSOR = {
-    "temperature_c": "temperature",
-    "humidity_pct": "humidity",
-    "pressure_temperature_c": "pressure",
-    "pressure_kpa": "pressure",
-    "voltage_mv": "present",
-    "rssi_dbm": "present",
-    "temperature2_c": "temperature2",
-}
-_BLOCK_SENSORS = tuple((b.name, _BLOCK_SENSOR[b.name]) for b in HUB.blocks)
-_OFFLINE = HUB.blocks[0].markers[0][0]  # 0xFFFF on every block
-_ALL_OFFLINE = [_OFFLINE] * len(HUB.blocks)
-_NO_HUMIDITY = {False: HUB.block("humidity_pct").markers[1][0],  # 1 % unit
-                True: HUB.block("humidity_pct").markers[2][0]}  # 0.1 % unit
-_HUB_ADDRESSES = HUB.addresses  # [HUB] 2.3.1, [NOTES]
-
-
-def _profiles() -> list[tuple[tuple[int, ...], int, frozenset[str]]]:
-    return sorted((parse_firmware(v), ch, frozenset(blocks))
-                  for v, (ch, blocks) in HUB_FIRMWARE_PROFILES.items())
-
 
 @dataclass
 class _Model:
@@ -97,110 +92,89 @@ class _Model:
     temp2: float
 
 
-class HubDevice(Device):
-    """The 100-channel sensor hub of [HUB] and [NOTES].
+#: which Channel flag each block depends on
+_SENSOR = {"temperature_c": "temperature", "humidity_pct": "humidity",
+           "pressure_temperature_c": "pressure", "pressure_kpa": "pressure",
+           "voltage_mv": "present", "rssi_dbm": "present", "temperature2_c": "temperature2"}
+_BLOCK_SENSORS = tuple((name, _SENSOR[name]) for name in _NAMES)
 
-    FC 0x03 only (0x10 answers 0x90/01, any other function 01); registers
-    from ``HUB.first`` for ``HUB.count``; a read of 1..125 registers that
-    touches only registers the firmware has, else 02; addresses 1..255;
-    broadcasts are never answered.
 
-    Options: ``firmware`` (a version; the profile is the first of
-    HUB_FIRMWARE_PROFILES at or above it), ``response_delay`` (seconds, or a
-    (low, high) range drawn per request; the document allows up to 0.5 s),
-    ``humidity_tenths`` (default unit of every channel), ``channels`` (a
-    list of :class:`Channel` replacing the seeded layout), ``dynamic``
-    (False: no offline episodes from the value model).
+class HubDevice(MapSimDevice):
+    """The 100-channel sensor hub of its map (``hub``).
+
+    FC 0x03 only (0x10 answers 0x90/01, any other function 01); a read of
+    1..125 registers that touches only registers the firmware has, else 02;
+    addresses 1..255; broadcasts are never answered.
+
+    Options: ``firmware`` (a version: blocks need their ``min_firmware``;
+    V1.07 and below has 50 channels of temperature and humidity),
+    ``response_delay`` (seconds, or a (low, high) range drawn per request;
+    the document allows up to 0.5 s), ``humidity_tenths`` (default unit of
+    every channel), ``channels`` (a list of :class:`Channel` replacing the
+    seeded layout), ``dynamic`` (False: no offline episodes).
     """
 
-    kind = "hub"
-    busy_code = ExceptionCode.DEVICE_FAILURE  #: [HUB] 2.3.2.3: 04 "Device is busy"
+    functions = frozenset((3,))
+    bad_request = ExceptionCode.ILLEGAL_DATA_ADDRESS  # [HUB]: every refused read is 02
+    answers_readable = False  # only the blocks the firmware has
     REPORT_PERIOD_S: ClassVar[float] = 2.0  #: each channel's sensor reports this often
     OFFLINE_WINDOW_S: ClassVar[float] = 300.0
     OFFLINE_PROBABILITY: ClassVar[float] = 0.04  #: per channel and window
 
     def __init__(
         self,
-        address: int = HUB.default_address,
+        address: int = _MAP.device.default_address,
         *,
-        baud: int = HUB.default_baud,
+        baud: int = 9600,
         seed: int = 0,
         clock: SimClock | None = None,
-        firmware: str = max(HUB_FIRMWARE_PROFILES, key=parse_firmware),
+        firmware: str = _LATEST,
         response_delay: float | tuple[float, float] = 0.0,
         humidity_tenths: bool = True,
         channels: Sequence[Channel] | None = None,
         dynamic: bool = True,
     ) -> None:
-        if not _HUB_ADDRESSES[0] <= address <= _HUB_ADDRESSES[1]:
-            raise InvalidArgument(f"hub address must be {_HUB_ADDRESSES[0]}.."
-                                  f"{_HUB_ADDRESSES[1]}, got {address}")
         lo, hi = response_delay if isinstance(response_delay, tuple) else (response_delay,) * 2
         if not 0 <= lo <= hi:
             raise InvalidArgument(f"response_delay must be seconds >= 0 (or a low, high "
                                   f"range), got {response_delay!r}")
-        super().__init__(address, baud=baud, seed=seed, clock=clock)
+        if channels is not None and len(channels) != _N:
+            raise InvalidArgument(f"channels must list {_N} Channel entries, got {len(channels)}")
+        super().__init__(_MAP, address, baud=baud, seed=seed, clock=clock, dynamic=dynamic,
+                         firmware=firmware)
         self.response_delay = response_delay
-        self.dynamic = dynamic
-        n = HUB.channels
-        self._first = HUB.first
-        self._image = array("H", bytes(2 * HUB.count))
-        self._offsets = tuple(b.first - HUB.first for b in HUB.blocks)
-        self._supported = bytearray(HUB.count)
-        self._firmware = ""
-        self._profile_channels = n
-        self._profile_blocks: frozenset[str] = frozenset()
-        if channels is not None and len(channels) != n:
-            raise InvalidArgument(f"channels must list {n} Channel entries, got {len(channels)}")
+        self._image = self._images["holding"]
         self._channels = list(channels) if channels is not None else [
-            self._seeded_channel(ci, humidity_tenths) for ci in range(n)]
-        self._models = [self._seeded_model(ci) for ci in range(n)]
-        order = sorted(range(n), key=lambda ci: self._models[ci].phase)
+            self._seeded_channel(ci, humidity_tenths) for ci in range(_N)]
+        self._models = [self._seeded_model(ci) for ci in range(_N)]
+        order = sorted(range(_N), key=lambda ci: self._models[ci].phase)
         self._by_phase = order
         self._phases = [self._models[ci].phase for ci in order]
         self._pins: dict[tuple[int, int], int] = {}  # (block index, channel index) -> raw
         self._forced: dict[int, bool] = {}  # channel index -> offline (True) / online
         self._offline_until: dict[int, float] = {}  # channel index -> simulated expiry
-        self._episodes = [(-1, 0.0, 0.0)] * n  # channel index -> (window, start, end)
+        self._episodes = [(-1, 0.0, 0.0)] * _N  # channel index -> (window, start, end)
         self._refreshed: float | None = None
-        self.firmware = firmware
         self._refresh()
+
+    def _start(self, rng: random.Random) -> None:
+        """The values come from the channel models (:meth:`_refresh`)."""
 
     # -- configuration -----------------------------------------------------------------
 
-    @property
-    def firmware(self) -> str:
-        """The firmware version; setting it switches the register profile."""
-        return self._firmware
-
-    @firmware.setter
-    @_locked
-    def firmware(self, version: str) -> None:
-        want = parse_firmware(version)
-        profiles = _profiles()
-        chosen = next((p for p in profiles if want <= p[0]), profiles[-1])
-        _, channels, blocks = chosen
-        unknown = blocks - {b.name for b in HUB.blocks}
-        if unknown:
-            raise InvalidArgument(f"firmware profile names unknown blocks {sorted(unknown)}")
-        sup = bytearray(HUB.count)
-        for b in HUB.blocks:
-            if b.name in blocks:
-                off = b.first - HUB.first
-                sup[off:off + channels] = b"\x01" * channels
-        self._supported = sup
-        self._profile_channels = channels
-        self._profile_blocks = blocks
-        self._firmware = version.strip().lstrip("vV")
+    def _channels_of(self, p: Point) -> int:
+        if self._firmware and parse_firmware(self._firmware) <= _LEGACY[0]:
+            return _LEGACY[1] if p.name in _LEGACY[2] else 0
+        return super()._channels_of(p)
 
     @property
     def channels(self) -> int:
         """Channels the firmware serves (50 on V1.07 and below, else 100)."""
-        return self._profile_channels
+        return max(self._channels_of(p) for p in _BLOCKS)
 
     def supports(self, block: str) -> bool:
-        """True when the firmware has ``block`` (a HUB block name)."""
-        return block in self._profile_blocks
+        """True when the firmware has ``block`` (a block's name)."""
+        return block in _NAMES and self._channels_of(_MAP.points[block]) > 0
 
     def channel(self, channel: int) -> Channel:
         """The configuration of ``channel`` (1-based); a copy."""
@@ -238,16 +212,15 @@ class HubDevice(Device):
     @_locked
     def pin(self, block: str, channel: int, raw: int) -> None:
         """Make ``block``'s register of ``channel`` read ``raw`` until :meth:`unpin`."""
-        b = self._block(block)
         ci = self._ci(channel)
-        self._pins[(b.index, ci)] = raw & 0xFFFF
+        self._pins[(self._block(block), ci)] = raw & 0xFFFF
         self._update(ci, self.clock.now())
 
     @_locked
     def unpin(self, block: str | None = None, channel: int | None = None) -> None:
         """Drop pins (all, one block's, or one register's)."""
         for key in list(self._pins):
-            if (block is None or key[0] == self._block(block).index) and (
+            if (block is None or key[0] == self._block(block)) and (
                     channel is None or key[1] == self._ci(channel)):
                 del self._pins[key]
                 self._update(key[1], self.clock.now())
@@ -271,24 +244,17 @@ class HubDevice(Device):
             self._update(ci, now)
 
     @_locked
-    def registers(self, address: int = HUB.first, count: int = HUB.count) -> array[int]:
+    def registers(self, address: int = _FIRST, count: int = _COUNT) -> array[int]:
         """The register image now (whatever the firmware lacks included)."""
         self._refresh()
-        i = address - self._first
-        return self._image[i:i + count]
-
-    @_locked
-    def raw(self, block: str, channel: int) -> int:
-        """The raw register of ``block`` for ``channel`` now."""
-        self._refresh()
-        return self._image[self._offsets[self._block(block).index] + self._ci(channel)]
+        return self._image[address:address + count]
 
     @_locked
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:
         """Take ``channels`` (default: one present channel) offline for ``seconds``."""
         if not channels:
-            present = [ci + 1 for ci in range(self._profile_channels)
+            present = [ci + 1 for ci in range(self.channels)
                        if self._channels[ci].present] or [1]
             channels = [rng.choice(present)]
         self.set_offline(channels, True, seconds)
@@ -306,46 +272,34 @@ class HubDevice(Device):
             return self.rng.uniform(d[0], d[1])
         return d
 
-    # -- requests ---------------------------------------------------------------------------
-
-    def handle(self, pdu: bytes) -> bytes | None:
-        """Answer one request PDU as [HUB] and [NOTES] say."""
-        fc = pdu[0]
-        if fc not in HUB.function_codes:
-            return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
-        if len(pdu) != 5:
-            return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
-        i = ((pdu[1] << 8) | pdu[2]) - self._first
-        n = (pdu[3] << 8) | pdu[4]
-        if not (1 <= n <= HUB.max_read and i >= 0 and i + n <= HUB.count) or \
-                self._supported.find(0, i, i + n) != -1:
-            return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
-        self._refresh()
-        return bytes((fc, 2 * n)) + _swapped(self._image[i:i + n])
-
     def describe(self) -> str:
-        present = sum(1 for c in self._channels[:self._profile_channels] if c.present)
+        """One line for the command line's banner."""
+        n = self.channels
+        present = sum(1 for c in self._channels[:n] if c.present)
+        blocks = sum(1 for p in _BLOCKS if self._channels_of(p))
         return (f"hub at address {self.address} ({self.baud} 8N1), firmware "
-                f"{self.firmware} ({self._profile_channels} channels, "
-                f"{len(self._profile_blocks)} blocks), {present} sensors")
+                f"{self.firmware} ({n} channels, {blocks} blocks), {present} sensors")
 
     # -- the value model -------------------------------------------------------------------
 
-    def _ci(self, channel: int) -> int:
-        if not 1 <= channel <= HUB.channels:
-            raise InvalidArgument(f"channel must be 1..{HUB.channels}, got {channel!r}")
+    @staticmethod
+    def _ci(channel: int) -> int:
+        if not 1 <= channel <= _N:
+            raise InvalidArgument(f"channel must be 1..{_N}, got {channel!r}")
         return channel - 1
 
     def _cis(self, channel: int | Iterable[int] | None) -> list[int]:
         if channel is None:
-            return list(range(HUB.channels))
+            return list(range(_N))
         if isinstance(channel, int):
             return [self._ci(channel)]
         return [self._ci(c) for c in channel]
 
     @staticmethod
-    def _block(name: str) -> Block:
-        return HUB.block(name)  # an unknown name is an InvalidArgument naming the blocks
+    def _block(name: str) -> int:
+        if name not in _NAMES:
+            raise InvalidArgument(f"no block {name!r}; the hub's blocks: {', '.join(_NAMES)}")
+        return _NAMES.index(name)
 
     def _seeded_channel(self, ci: int, tenths: bool) -> Channel:
         u = _noise(self.seed, 100, ci)
@@ -436,7 +390,7 @@ class HubDevice(Device):
                 for name, sensor in _BLOCK_SENSORS]
 
     def _update(self, ci: int, t: float) -> None:
-        img, offs = self._image, self._offsets
+        img, offs = self._image, _ADDRESS
         for bi, raw in enumerate(self._values(ci, t)):
             img[offs[bi] + ci] = raw
         if self._pins:
@@ -454,7 +408,7 @@ class HubDevice(Device):
             return
         period = self.REPORT_PERIOD_S
         if last is None or t < last or t - last >= period:
-            changed: Iterable[int] = range(HUB.channels)
+            changed: Iterable[int] = range(_N)
         else:
             a, b = last % period, t % period
             lo = bisect.bisect_right(self._phases, a)
