@@ -21,13 +21,13 @@ from types import FrameType
 from pymb import maps
 from pymb.client import parse_host_port
 from pymb.commands._common import add_map_arg
-from pymb.devices.mapspec import FACADES, map_types, unknown_device
+from pymb.devices.mapspec import map_types
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.sim.clock import SimClock
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import KINDS
-from pymb.sim.mapsim import MapSimDevice, map_sim_device
-from pymb.sim.simulator import Simulator
+from pymb.sim.mapsim import MapSimDevice
+from pymb.sim.simulator import Simulator, make_device
 from pymb.sim.tcp import MAX_PORTS, parse_ports
 
 __all__ = ["add_arguments", "run"]
@@ -161,21 +161,14 @@ def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
     return line
 
 
-def _devices(args: argparse.Namespace, clock: SimClock) -> list[str | Device]:
-    """The specs as given; those naming a map's id as simulated map devices."""
+def _devices(args: argparse.Namespace, clock: SimClock) -> list[Device]:
+    """The devices the specs name (coolpro, hub or a map's id)."""
     known = map_types(getattr(args, "maps", []))
     # no DEVICE: each --map's device at its default address, else a CoolPro and a hub
     given = [i for i in known if i not in maps.builtin_ids()]
     specs = args.devices or given or ["coolpro", "hub"]
-    out: list[str | Device] = []
-    for i, spec in enumerate(specs):
-        dev = map_sim_device(spec, known, seed=args.seed * 1009 + i, clock=clock,
-                             baud=args.baud)
-        kind = spec.split(",")[0].partition(":")[0].strip().lower()
-        if dev is None and kind not in FACADES:
-            raise unknown_device(spec, list(known))
-        out.append(spec if dev is None else dev)
-    return out
+    return [make_device(spec, seed=args.seed * 1009 + i, clock=clock, baud=args.baud,
+                        known=known) for i, spec in enumerate(specs)]
 
 
 def run(args: argparse.Namespace) -> int:

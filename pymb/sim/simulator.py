@@ -12,19 +12,22 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from types import TracebackType
 from typing import Any
 
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
+from pymb.devices.mapspec import map_types, unknown_device
 from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
+from pymb.maps import Map
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
 from pymb.sim.coolprosim import BAUD_RATES as COOLPRO_BAUD_RATES
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
+from pymb.sim.mapsim import map_sim_device
 from pymb.sim.rtu import RtuServer
 from pymb.sim.server import Server
 from pymb.sim.tcp import TcpServer, format_ports, parse_ports
@@ -72,19 +75,25 @@ _OPTIONS: dict[str, dict[str, tuple[str, Any]]] = {
 
 
 def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
-                baud: int | None = None) -> Device:
+                baud: int | None = None, known: Mapping[str, Map] | None = None) -> Device:
     """A device from ``KIND[:ADDRESS][,key=value...]``.
 
     Kinds: ``coolpro`` (keys ``gap`` seconds, ``serial``, ``firmware``
-    x.y.z, ``hardware``, ``uptime`` seconds, ``baud``, ``dynamic`` 0/1) and
+    x.y.z, ``hardware``, ``uptime`` seconds, ``baud``, ``dynamic`` 0/1),
     ``hub`` (``firmware`` e.g. 1.07, ``delay`` seconds or LOW-HIGH,
-    ``humidity`` 0.1 or 1, ``baud``, ``dynamic``). ``baud`` (the bus's
-    speed) applies unless the spec names one. Example: ``hub:250,firmware=2.18``.
+    ``humidity`` 0.1 or 1, ``baud``, ``dynamic``), and the id of any map in
+    ``known`` (default: the shipped maps), with the map's options, ``baud``,
+    ``dynamic`` and ``delay``. ``baud`` (the bus's speed) applies unless the
+    spec names one. Example: ``hub:250,firmware=2.18``, ``eastron-sdm630:3``.
     """
     kind, addr, opts = split_spec(spec)
     cls = _KINDS.get(kind)
     if cls is None:
-        raise InvalidArgument(f"unknown device {kind!r} in {spec!r}; use coolpro or hub")
+        known = map_types() if known is None else known
+        dev = map_sim_device(spec, known, seed=seed, clock=clock, baud=baud)
+        if dev is None:
+            raise unknown_device(spec, list(known))
+        return dev
     kwargs: dict[str, Any] = {"seed": seed, "clock": clock}
     if baud is not None:
         kwargs["baud"] = baud
@@ -114,7 +123,8 @@ class Simulator:
     """Simulated devices on one bus, served on a pseudo-terminal, a serial
     port or Modbus TCP, from a background thread.
 
-    ``devices``: specs (see :func:`make_device`) or :class:`Device` objects
+    ``devices``: specs (see :func:`make_device`: ``coolpro``, ``hub`` or a
+    shipped map's id) or :class:`Device` objects
     (give those ``clock=sim.clock`` yourself if the simulator should steer
     their time); default one CoolPro. ``transport``: ``"pty"`` (default),
     ``"serial"`` (``port`` names it), ``"tcp"`` or ``"rtu-over-tcp"`` (RTU

@@ -185,3 +185,79 @@ def test_an_example_wins_over_views_of_its_register_without_one(seed: int) -> No
     assert read(dev, 0, 2) == [9, 0x8000]
     dev.clock.advance(10.0)
     assert read(dev, 0, 2) == [9, 0x8000]  # the model leaves them be
+
+
+ENGINE = """schema = "pymb.map/1"
+[device]
+id = "engine-test"
+table = "holding"
+addresses = [1, 99]
+[[point]]
+name = "mode"
+address = 0
+type = "u16"
+access = "rw"
+valid = [1, 5]
+example = 2
+[[point]]
+name = "setpoint"
+address = 1
+type = "u16"
+scale = 0.5
+access = "rw"
+valid = [10.0, 20.0]
+example = 15.0
+[[point]]
+name = "extra"
+address = 2
+type = "u16"
+min_firmware = "2.1"
+example = 7
+"""
+
+
+def test_writes_outside_valid_answer_03_and_broadcast_writes_are_carried_out() -> None:
+    dev = MapSimDevice(maps.loads(ENGINE), 1, seed=0, clock=SimClock(0.0), dynamic=False)
+    assert dev.handle(struct.pack(">BHH", 6, 0, 6)) == bytes((0x86, 3))
+    assert dev.handle(struct.pack(">BHH", 6, 1, 41)) == bytes((0x86, 3))  # 20.5: above 20
+    pdu = struct.pack(">BHHB2H", 16, 0, 2, 4, 3, 40)  # mode 3, setpoint 20.0
+    assert dev.handle(pdu) == pdu[:5]
+    assert regs(dev, 0, 2) == [3, 40]
+    dev.handle_broadcast(struct.pack(">BHH", 6, 0, 5))
+    assert dev.raw("mode") == 5
+    dev.handle_broadcast(struct.pack(">BHH", 6, 0, 9))  # outside valid: nothing
+    dev.handle_broadcast(struct.pack(">BHH", 3, 0, 1))  # a read: nothing
+    assert dev.raw("mode") == 5
+    with pytest.raises(InvalidArgument, match="mode"):
+        dev.raw("mdoe")
+
+
+def test_points_above_the_firmware_answer_02_and_the_address_is_checked() -> None:
+    m = maps.loads(ENGINE)
+    old = MapSimDevice(m, 1, clock=SimClock(0.0), firmware="2.0")
+    assert read(old, 2, 1) == 2
+    assert read(old, 0, 2) == [2, 30]
+    old.firmware = "2.1"
+    assert read(old, 0, 3) == [2, 30, 7]
+    assert read(MapSimDevice(m, 1, clock=SimClock(0.0)), 2, 1) == [7]  # no firmware: all
+    with pytest.raises(InvalidArgument, match=r"1\.\.99"):
+        MapSimDevice(m, 100)
+    with pytest.raises(InvalidArgument):
+        old.firmware = "new"
+
+
+def test_the_simulator_serves_a_shipped_map_by_its_id() -> None:
+    from pymb.sim import Simulator, make_device
+
+    dev = make_device("eastron-sdm630:3,dynamic=0", seed=1)
+    assert isinstance(dev, MapSimDevice)
+    assert (dev.kind, dev.address) == ("eastron-sdm630", 3)
+    with pytest.raises(InvalidArgument, match="did you mean 'eastron-sdm630'"):
+        make_device("eastron-sdm360")
+    with Simulator(["coolpro", "eastron-sdm630:3"], transport="tcp") as sim:
+        import pymb
+
+        with pymb.TcpClient(sim.host, sim.tcp_port, slave=3, timeout=5) as c:
+            volts = dev.map.decode("l1_voltage_v", c.read_input_registers(0, 2))
+        assert isinstance(volts, float)
+        assert [d.kind for d in sim.devices] == ["coolpro", "eastron-sdm630"]
