@@ -138,6 +138,7 @@ class HubDevice(MapSimDevice):
         if not 0 <= lo <= hi:
             raise InvalidArgument(f"response_delay must be seconds >= 0 (or a low, high "
                                   f"range), got {response_delay!r}")
+        parse_firmware(firmware)  # "" too: a hub runs a version
         if channels is not None and len(channels) != _N:
             raise InvalidArgument(f"channels must list {_N} Channel entries, got {len(channels)}")
         super().__init__(_MAP, address, baud=baud, seed=seed, clock=clock, dynamic=dynamic,

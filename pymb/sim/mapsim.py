@@ -80,7 +80,10 @@ class MapSimDevice(Device):
         #: (name, channel) -> (point, address), for _put_raw
         self._where: dict[tuple[str, int], tuple[Point, int]] = {}
         self._firmware = ""
-        self.firmware = firmware
+        if firmware:
+            self.firmware = firmware
+        else:
+            self._build_have()
         self._model: list[tuple[Point, int, float, float, float]] = []
         self._t0 = self.clock.now()  # counters count from here
         self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
@@ -99,9 +102,12 @@ class MapSimDevice(Device):
     @firmware.setter
     @_locked
     def firmware(self, version: str) -> None:
-        if version:
-            parse_firmware(version)  # refuses what does not look like 2.19
+        parse_firmware(version)  # refuses what does not look like 2.19
         self._firmware = version.strip().lstrip("vV")
+        self._build_have()
+
+    def _build_have(self) -> None:
+        """Which registers answer: the points the firmware has (and ``readable``)."""
         have = {t: bytearray(0x10000) for t in _TABLE.values()}
         if self.answers_readable:
             for t, ranges in self.map.limits.readable.items():
