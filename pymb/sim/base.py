@@ -22,17 +22,10 @@ import sys
 import threading
 from array import array
 from collections.abc import Callable, Sequence
-from enum import IntEnum
 from typing import Any, ClassVar, TypeVar
 
-from pymb._native import FunctionCode
-from pymb.errors import (
-    DeviceFailure,
-    IllegalDataAddress,
-    IllegalDataValue,
-    IllegalFunction,
-    InvalidArgument,
-)
+from pymb._native import ExceptionCode, FunctionCode
+from pymb.errors import InvalidArgument
 from pymb.sim.clock import SimClock
 from pymb.wire import registers_to_wire
 
@@ -52,17 +45,6 @@ _TWO_PI = 2.0 * math.pi
 
 #: Modbus function codes ([MB-AP] 6): the compiler's, from libmodbus's modbus.h.
 Function = FunctionCode
-
-
-class ExceptionCode(IntEnum):
-    """Exception codes both documents list ([CP] ch. 05, [HUB] 2.3.2.3): the
-    codes of :mod:`pymb.errors`' classes."""
-
-    ILLEGAL_FUNCTION = IllegalFunction.default_code
-    ILLEGAL_DATA_ADDRESS = IllegalDataAddress.default_code
-    ILLEGAL_DATA_VALUE = IllegalDataValue.default_code
-    #: the CoolPro's "Slave Device Failure", the hub's "busy"
-    DEVICE_FAILURE = DeviceFailure.default_code
 
 
 def exception_pdu(function: int, code: int) -> bytes:
@@ -136,8 +118,9 @@ class Device:
     """
 
     kind: ClassVar[str] = ""
-    #: exception code the ``busy`` fault answers with
-    busy_code: ClassVar[int] = ExceptionCode.DEVICE_FAILURE
+    #: exception code the ``busy`` fault answers with: 04, the CoolPro's "Slave
+    #: Device Failure" ([CP] ch. 05), the hub's "busy" ([HUB] 2.3.2.3)
+    busy_code: ClassVar[int] = ExceptionCode.SLAVE_OR_SERVER_FAILURE
 
     def __init__(self, address: int, *, baud: int, seed: int, clock: SimClock | None) -> None:
         self.seed = int(seed)
