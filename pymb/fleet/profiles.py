@@ -32,12 +32,13 @@ from typing import Any
 
 from pymb.devices.hub import HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES, reading_dict
+from pymb.devices.readings import INTEGRAL_QUANTITIES
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
 from pymb.maps import Point
 from pymb.store import Outbox, StoredSample, sample_dict
+from pymb.store.records import reading_values
 
 __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
            "make_profile", "write_name"]
@@ -297,27 +298,20 @@ class SparkplugProfile(Profile):
     def _metrics(self, r: StoredSample, birth: bool = False
                  ) -> list[tuple[str, DataType, Any, str, tuple[Any, ...]]]:
         """(name, datatype, value, state, birth properties) of every metric of
-        a sample (its values as :func:`pymb.devices.readings.reading_dict`
-        gives them; a map device's in a birth: every point of its map)."""
+        a sample (a hub's channel by channel, as
+        :func:`pymb.store.records.reading_values` gives them, None for no
+        value; a map device's in a birth: every point of its map)."""
         out: list[tuple[str, DataType, Any, str, tuple[Any, ...]]] = [
             ("sample", DataType.UINT64, r.id, "value", ())]
         if isinstance(r.data, MapReading):
             out += [(name, dt, v, st, self._birth_props(r.device.name, name, p) if birth else ())
                     for name, dt, v, st, p in map_metrics(r.data, birth)]
             return out
-        d = reading_dict(r.data)
-        values = d["values"]
-        if isinstance(r.data, HubReading):
-            states = d["states"]
-            for ch in range(r.data.channels):
-                for q, vs in values.items():
-                    out.append((f"channel {ch + 1:03d}/{q}", DataType.DOUBLE, vs[ch],
-                                states[q][ch], ()))
-        else:
-            for q, v in values.items():
-                dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (
-                    DataType.UINT32 if q == "status" else DataType.UINT64)
-                out.append((q, dt, v, "value", ()))
+        for ch, q, v, st in reading_values(r.data, not_read=True):
+            dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (
+                DataType.UINT32 if q == "status" else DataType.UINT64)
+            out.append((q if ch is None else f"channel {ch:03d}/{q}", dt,
+                        None if v != v else v, st, ()))
         return out
 
     def _birth_props(self, device: str, metric: str, p: Point

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -63,34 +63,31 @@ class Sample:
     data: CoolProTelemetry | HubReading | MapReading
 
 
-def reading_values(data: CoolProTelemetry | HubReading | MapReading
-                   ) -> Iterator[tuple[int | None, str, Any, Any]]:
+def reading_values(data: CoolProTelemetry | HubReading | MapReading, not_read: bool = False
+                   ) -> list[tuple[int | None, str, Any, Any]]:
     """(channel, point, value, state) of every value of a reading, by its
     map's points, in the order of the long CSV: a block's channel (1-based)
-    or None, the point's name, the value (None or NaN for none; a hub's
-    "negative zero" 0.0) and its state's name. A hub is read channel by
-    channel, and a value an ``--on-change`` sample did not store
-    (``not_read``) is left out."""
+    or None, the point's name, the value (None or NaN for none) and its
+    state's name. A hub is read channel by channel; a value an
+    ``--on-change`` sample did not store (state ``not_read``) is left out
+    unless ``not_read``."""
     if isinstance(data, HubReading):
         c = data.channels
         vals, sts = data.values.tolist(), data.raw_states.tolist()
-        names = list(enumerate(HUB_FIELDS))
-        for ch in range(c):
-            for b, name in names:
-                i = b * c + ch
-                if sts[i] != _NOT_READ:
-                    yield ch + 1, name, vals[i] + 0.0, STATE_NAMES[sts[i]]
-    elif isinstance(data, MapReading):
+        return [(ch + 1, name, vals[i], STATE_NAMES[sts[i]])
+                for ch in range(c) for b, name in enumerate(HUB_FIELDS)
+                for i in (b * c + ch,) if not_read or sts[i] != _NOT_READ]
+    if isinstance(data, MapReading):
+        out: list[tuple[int | None, str, Any, Any]] = []
         for name, v in data.values.items():
             st = data.states.get(name)
             if isinstance(v, list) and data.map.points[name].block:
-                for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1):
-                    yield ch, name, cv, cs
+                out += [(ch, name, cv, cs)
+                        for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1)]
             else:
-                yield None, name, v, st
-    else:
-        for name, tv in telemetry_values(data).items():
-            yield None, name, tv, "value"
+                out.append((None, name, v, st))
+        return out
+    return [(None, name, tv, "value") for name, tv in telemetry_values(data).items()]
 
 
 def reading_value(data: CoolProTelemetry | HubReading | MapReading, name: str,

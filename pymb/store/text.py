@@ -38,10 +38,13 @@ def csv_head(t: float, bus: str, device: str | None, kind: str | None,
 
 def csv_value(v: Any) -> Any:
     """A value cell: "" for no value (None or NaN); a ``raw`` point's
-    registers as one cell, space-separated (``55125 5306``)."""
+    registers as one cell, space-separated (``55125 5306``); a "negative
+    zero" 0.0."""
     if isinstance(v, list):
         return " ".join(str(x) for x in v)
-    return "" if v is None or v != v else v
+    if type(v) is float:
+        return "" if v != v else v + 0.0
+    return "" if v is None else v
 
 
 def sample_rows(sample: Sample) -> Iterator[list[Any]]:
@@ -51,8 +54,8 @@ def sample_rows(sample: Sample) -> Iterator[list[Any]]:
     row; a "negative zero" is written 0.0."""
     d = sample.device
     head = csv_head(sample.time_utc, d.bus, d.name, d.type, d.address)
-    for ch, name, v, st in reading_values(sample.data):
-        yield [*head, "" if ch is None else ch, name, csv_value(v), st]
+    return iter([[*head, "" if ch is None else ch, name, csv_value(v), st]
+                 for ch, name, v, st in reading_values(sample.data)])
 
 
 def sample_dict(sample: Sample) -> dict[str, Any]:
