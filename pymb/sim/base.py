@@ -24,7 +24,8 @@ from array import array
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, TypeVar
 
-from pymb._native import ExceptionCode, FunctionCode
+from pymb._native import DeviceExceptionCode as ExceptionCode
+from pymb._native import FunctionCode
 from pymb.errors import InvalidArgument
 from pymb.sim.clock import SimClock
 from pymb.wire import registers_to_wire
