@@ -18,19 +18,23 @@ import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
+from pymb import maps
 from pymb.aio._mirror import Mirror, Mirrored
 from pymb.aio.client import AsyncClient
 from pymb.devices import ReadPlan
 from pymb.devices.coolpro import CoolPro, CoolProTelemetry
 from pymb.devices.hub import HubReading, SensorHub
+from pymb.devices.hubreading import CHANNELS
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.maps import COOLPRO, HUB
 from pymb.devices.mapwrite import Budget
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import PointPlanner
 
 __all__ = ["AsyncCoolPro", "AsyncMapDevice", "AsyncSensorHub", "poll"]
+
+_COOLPRO_ADDRESS = maps.builtin("coolpro").device.default_address
+_HUB_ADDRESS = maps.builtin("hub").device.default_address
 
 R = TypeVar("R")
 
@@ -80,7 +84,7 @@ class AsyncCoolPro(_Facade):
 
     blocking: CoolPro  #: the blocking facade run on the client's worker
 
-    def __init__(self, client: AsyncClient, address: int = COOLPRO.default_address) -> None:
+    def __init__(self, client: AsyncClient, address: int = _COOLPRO_ADDRESS) -> None:
         super().__init__(client)
         self.blocking = CoolPro(client.blocking, address)
 
@@ -112,8 +116,8 @@ class AsyncSensorHub(_Facade):
 
     blocking: SensorHub  #: the blocking facade run on the client's worker
 
-    def __init__(self, client: AsyncClient, address: int = HUB.default_address,
-                 channels: int = HUB.channels, humidity_unit: float | Sequence[float] = 0.1,
+    def __init__(self, client: AsyncClient, address: int = _HUB_ADDRESS,
+                 channels: int = CHANNELS, humidity_unit: float | Sequence[float] = 0.1,
                  *, busy_retries: int = 3, busy_backoff: float = 0.02,
                  turnaround: float = 0.005) -> None:
         super().__init__(client)

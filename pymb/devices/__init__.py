@@ -17,8 +17,9 @@ from pymb.devices.coolpro import (
     CoolProTelemetry,
 )
 from pymb.devices.hub import HubChannel, HubReading, SensorHub, State, decode_hub
+from pymb.devices.hubreading import HUB_FIRMWARE_PROFILES
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.maps import COOLPRO, HUB, HUB_FIRMWARE_PROFILES
+from pymb.devices.maps import COOLPRO, HUB
 from pymb.maps.planner import ReadPlan
 
 __all__ = [

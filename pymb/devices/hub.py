@@ -23,14 +23,16 @@ from pymb import maps
 from pymb.client import Client
 from pymb.devices.hubreading import (
     ALL_BLOCKS,
+    BLOCKS,
+    CHANNELS,
     HUB_REGISTERS,
     HubChannel,
     HubReading,
     State,
+    block_index,
     check_channels,
 )
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.maps import HUB
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import map_planner
@@ -40,6 +42,8 @@ __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "deco
            "full_sweep_spans"]
 
 _N = HUB_REGISTERS  # 700 registers, 31..730
+_FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
+_DEVICE = maps.builtin("hub").device  # addresses, default address
 
 
 @functools.lru_cache(maxsize=64)
@@ -85,7 +89,7 @@ def _names(blocks: Iterable[str] | None) -> tuple[str, ...] | None:
     except TypeError:
         raise InvalidArgument(f"blocks is a list of block names, got {blocks!r}") from None
     for name in names:
-        HUB.block(name)  # an unknown name is an InvalidArgument naming the blocks
+        block_index(name)  # an unknown name is an InvalidArgument naming the blocks
     return names
 
 
@@ -101,7 +105,7 @@ def _numbers(channels: Iterable[int] | None) -> tuple[int, ...] | None:
         ) from None
 
 
-def full_sweep_spans(channels: int = HUB.channels) -> list[tuple[int, int]]:
+def full_sweep_spans(channels: int = CHANNELS) -> list[tuple[int, int]]:
     """The requests (address, count) of a sweep of every block of ``channels``
     channels as the hub's map plans them (a request of at most 125
     registers; whole blocks merge when every channel is read): the plan the
@@ -129,7 +133,7 @@ def _hub_map(channels: int, unit: float) -> Map:
 def _decoder(channels: int, unit: float) -> Decoder:
     """The map decoder of every block of ``channels`` channels, registers 31..."""
     m = _hub_map(channels, unit)
-    return Decoder(m, [b.name for b in HUB.blocks])
+    return Decoder(m, [b.name for b in BLOCKS])
 
 
 def _units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
@@ -148,7 +152,7 @@ def _other_units(r: HubReading, unit: float, other: bytes) -> None:
     0x00FF is no humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
     c = r.channels
     regs, values, states = r.registers, r.values, r.raw_states
-    first = HUB.block("humidity_pct").first - HUB.first
+    first = BLOCKS[block_index("humidity_pct")].address - _FIRST
     for i, flag in enumerate(other):
         if not flag or states[c + i] not in _DECODED:
             continue
@@ -167,14 +171,14 @@ _DECODING = threading.Lock()
 
 
 def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
-               channels: int = HUB.channels, unsupported: Iterable[str] = ()) -> HubReading:
+               channels: int = CHANNELS, unsupported: Iterable[str] = ()) -> HubReading:
     """Decode raw registers 31..730 (700 of them, any uint16 buffer or a
     sequence of ints) into a :class:`HubReading`, with no I/O: the hub's map
     decoder, the one the facade reads with.
 
     ``unsupported`` names blocks to mark as missing from the firmware.
     """
-    if channels != HUB.channels:
+    if channels != CHANNELS:
         channels = check_channels(channels)
     regs: array[int]
     if type(registers) is array and registers.typecode == "H":
@@ -190,7 +194,7 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
         raise InvalidArgument(f"decode_hub needs the {_N} registers 31..730, got {len(regs)}")
     mask = 0
     for name in unsupported:
-        mask |= 1 << HUB.block(name).index
+        mask |= 1 << block_index(name)
     unit, other = _units(humidity_unit, channels)
     r = HubReading(channels, regs)
     dec = _decoder(channels, unit)
@@ -210,10 +214,10 @@ def _mark_blocks(r: HubReading, mask: int, state: State) -> None:
     """NaN and ``state`` for every channel of the blocks in ``mask``."""
     c = r.channels
     nan, fill = _nans(c), bytes([state]) * c
-    for b in HUB.blocks:
-        if mask >> b.index & 1:
-            r.values[b.index * c:(b.index + 1) * c] = nan
-            r.raw_states[b.index * c:(b.index + 1) * c] = array("B", fill)
+    for i in range(len(BLOCKS)):
+        if mask >> i & 1:
+            r.values[i * c:(i + 1) * c] = nan
+            r.raw_states[i * c:(i + 1) * c] = array("B", fill)
 
 
 @functools.lru_cache(maxsize=128)
@@ -238,11 +242,11 @@ class SensorHub:
     skipped; pymb probes them again after the client reconnects.
     """
 
-    def __init__(self, client: Client, address: int = HUB.default_address,
-                 channels: int = HUB.channels, humidity_unit: float | Sequence[float] = 0.1,
+    def __init__(self, client: Client, address: int = _DEVICE.default_address,
+                 channels: int = CHANNELS, humidity_unit: float | Sequence[float] = 0.1,
                  *, busy_retries: int = 3, busy_backoff: float = 0.02,
                  turnaround: float = 0.005) -> None:
-        low, high = HUB.addresses
+        low, high = _DEVICE.addresses
         if isinstance(address, bool) or not isinstance(address, int) or not (
             low <= address <= high
         ):
@@ -279,9 +283,8 @@ class SensorHub:
         self._refused_channels: tuple[int, ...] = ()  # ... those outside whole blocks
         self._mask = 0
         # per block, its planner items (a block the firmware lacks: all refused)
-        self._items = tuple(frozenset(range(b.index * self.channels,
-                                            (b.index + 1) * self.channels))
-                            for b in HUB.blocks)
+        self._items = tuple(frozenset(range(i * self.channels, (i + 1) * self.channels))
+                            for i in range(len(BLOCKS)))
 
     # -- firmware knowledge -------------------------------------------------------
 
@@ -292,9 +295,9 @@ class SensorHub:
             gone = planner.unsupported
             mask = 0
             if gone:
-                for b, items in zip(HUB.blocks, self._items, strict=True):
+                for i, items in enumerate(self._items):
                     if items <= gone:
-                        mask |= 1 << b.index
+                        mask |= 1 << i
             c = self.channels
             self._refused = bool(gone)
             self._refused_channels = tuple(sorted(k for k in gone if not mask >> (k // c) & 1))
@@ -305,7 +308,7 @@ class SensorHub:
     def unsupported(self) -> frozenset[str]:
         """Blocks this hub's firmware lacks, as far as seen so far."""
         m = self._unsupported_mask()
-        return frozenset(b.name for b in HUB.blocks if m >> b.index & 1)
+        return frozenset(b.name for i, b in enumerate(BLOCKS) if m >> i & 1)
 
     def forget_firmware(self) -> None:
         """Forget which blocks are missing: the next read probes them all."""
@@ -419,16 +422,16 @@ class SensorHub:
         """The decoder's values, states and registers into ``r``'s arrays."""
         b = dec.buffers
         regs = cast("array[int]", b.registers)  # the array read_into decoded
-        at = dec.address - HUB.first
+        at = dec.address - _FIRST
         r.registers[at:at + len(regs)] = regs
         if names is None:  # every block: the decoder's arrays are the reading's layout
             r.values[:] = b.values
             r.raw_states[:] = b.states
             return
         c = self.channels
-        r.values[:] = _nans(c) * len(HUB.blocks)
-        r.raw_states[:] = array("B", bytes([State.NOT_READ]) * (c * len(HUB.blocks)))
+        r.values[:] = _nans(c) * len(BLOCKS)
+        r.raw_states[:] = array("B", bytes([State.NOT_READ]) * (c * len(BLOCKS)))
         for name in dict.fromkeys(names):
-            i, slot = HUB.block(name).index, dec.slot(name)
+            i, slot = block_index(name), dec.slot(name)
             r.values[i * c:(i + 1) * c] = b.values[slot:slot + c]
             r.raw_states[i * c:(i + 1) * c] = b.states[slot:slot + c]

@@ -14,8 +14,8 @@ from pymb import _native, maps
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
 
-__all__ = ["ALL_BLOCKS", "BLOCKS", "CHANNELS", "HUB_REGISTERS", "HubChannel", "HubReading",
-           "State", "block_index", "check_channels"]
+__all__ = ["ALL_BLOCKS", "BLOCKS", "CHANNELS", "HUB_FIRMWARE_PROFILES", "HUB_REGISTERS",
+           "HubChannel", "HubReading", "State", "block_index", "check_channels"]
 
 _MAP = maps.builtin("hub")
 #: The hub's blocks in the order a reading keeps them: its map's points
@@ -28,6 +28,16 @@ HUB_REGISTERS = CHANNELS * len(BLOCKS)  # 700 registers, 31..730
 #: ALL_BLOCKS``: the hub supplied no value at all).
 ALL_BLOCKS = (1 << len(BLOCKS)) - 1
 _INDEX = {b.name: i for i, b in enumerate(BLOCKS)}
+#: Firmware profiles of [HUB] / [NOTES]: (version, channels, blocks present).
+#: V1.07 and below: 50 channels of temperature and humidity only.
+HUB_FIRMWARE_PROFILES: dict[str, tuple[int, tuple[str, ...]]] = {
+    "1.07": (50, ("temperature_c", "humidity_pct")),
+    "2.18": (100, ("temperature_c", "humidity_pct", "pressure_temperature_c",
+                   "pressure_kpa")),
+    "2.22": (100, ("temperature_c", "humidity_pct", "pressure_temperature_c",
+                   "pressure_kpa", "voltage_mv", "rssi_dbm")),
+    "2.23": (100, tuple(b.name for b in BLOCKS)),
+}
 _ZERO_REGS = array("H", bytes(2 * HUB_REGISTERS))
 
 

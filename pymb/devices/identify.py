@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pymb._native import FunctionCode
 from pymb.client import Client
 from pymb.devices.coolpro import IDENTITY_REQUEST, decode_identity
-from pymb.devices.maps import HUB, HUB_FIRMWARE_PROFILES
+from pymb.devices.hubreading import BLOCKS, CHANNELS, HUB_FIRMWARE_PROFILES
 from pymb.errors import (
     DeviceException,
     GatewayPathUnavailable,
@@ -112,7 +112,7 @@ def identify(ask: Ask, address: int) -> Identity | None:
     elif reply != 1:
         return Identity(address, "unknown",
                         f"answers FC 0x04 at {first} with exception {reply:02X}")
-    first_hub = HUB.first
+    first_hub = BLOCKS[0].address
     hub = _read(ask, address, _FC_HOLDING, first_hub, 1)
     if hub is None:
         return None if reply is None else Identity(
@@ -121,24 +121,24 @@ def identify(ask: Ask, address: int) -> Identity | None:
         return Identity(address, "unknown", f"answers FC 0x04 with exception 01 and FC 0x03 "
                         f"at {first_hub} with exception {hub:02X}")
     # A hub: how many channels, which blocks, and so which firmware profile.
-    ch51 = _read(ask, address, _FC_HOLDING, HUB.blocks[0].address(51), 1)
+    ch51 = _read(ask, address, _FC_HOLDING, first_hub + 50, 1)
     profiles = _hub_profiles()
     if ch51 == 2:  # no channel 51: the profile with the fewest channels
         at = min(range(len(profiles)), key=lambda k: profiles[k][1])
     else:
         # each later profile adds blocks: probe the first block each adds
-        full = [k for k, p in enumerate(profiles) if p[1] == HUB.channels]
+        full = [k for k, p in enumerate(profiles) if p[1] == CHANNELS]
         at = full[0]
         for k in full[1:]:
-            added = [b for b in HUB.blocks if b.name in profiles[k][2]
+            added = [b for b in BLOCKS if b.name in profiles[k][2]
                      and b.name not in profiles[at][2]]
-            if not added or not isinstance(_read(ask, address, _FC_HOLDING, added[0].first, 1),
+            if not added or not isinstance(_read(ask, address, _FC_HOLDING, added[0].address, 1),
                                            bytes):
                 break
             at = k
     _, channels, blocks = profiles[at]
     return Identity(address, "hub", f"{channels} channels, firmware {_firmware_range(at)}",
-                    channels, tuple(b.name for b in HUB.blocks if b.name in blocks))
+                    channels, tuple(b.name for b in BLOCKS if b.name in blocks))
 
 
 def _version(text: str) -> tuple[int, ...]:

@@ -23,6 +23,7 @@ from enum import StrEnum
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
 from pymb.devices.coolpro import COOLPRO_BAUD_RATES
+from pymb.devices.hubreading import HUB_FIRMWARE_PROFILES
 from pymb.errors import InvalidArgument
 
 __all__ = [
@@ -303,16 +304,6 @@ HUB = HubMap(
     addresses=_HUB_MAP.device.addresses,
 )
 
-#: Firmware profiles of [HUB] / [NOTES]: (version, channels, blocks present).
-#: V1.07 and below: 50 channels of temperature and humidity only.
-HUB_FIRMWARE_PROFILES: dict[str, tuple[int, tuple[str, ...]]] = {
-    "1.07": (50, ("temperature_c", "humidity_pct")),
-    "2.18": (100, ("temperature_c", "humidity_pct", "pressure_temperature_c",
-                   "pressure_kpa")),
-    "2.22": (100, ("temperature_c", "humidity_pct", "pressure_temperature_c",
-                   "pressure_kpa", "voltage_mv", "rssi_dbm")),
-    "2.23": (100, tuple(b.name for b in HUB.blocks)),
-}
 
 
 def markdown_tables() -> str:

@@ -12,10 +12,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from pymb import maps
 from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry
 from pymb.devices.hub import HubReading, State
+from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapreading import MapReading
-from pymb.devices.maps import COOLPRO, HUB
 
 __all__ = [
     "INTEGRAL_QUANTITIES",
@@ -25,7 +26,8 @@ __all__ = [
     "telemetry_values",
 ]
 
-_TELEMETRY = [(r.name, r.integral) for r in COOLPRO.group("telemetry")]
+_TELEMETRY = [(p.name, (p.scale or 1) == 1) for p in maps.builtin("coolpro").points.values()
+              if p.group == "telemetry"]
 #: The CoolPro quantities that are integers (counts and bit fields), from the map.
 INTEGRAL_QUANTITIES = frozenset(name for name, integral in _TELEMETRY if integral)
 #: A value state (:class:`pymb.devices.State`) as output names it: "value", "offline", ...
@@ -68,6 +70,6 @@ def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, 
     if isinstance(data, HubReading):
         return {"values": data.as_dict(),
                 "states": {b.name: [STATE_NAMES[s] for s in data.states(b.name).tolist()]
-                           for b in HUB.blocks},
+                           for b in BLOCKS},
                 "unsupported": sorted(data.unsupported)}
     return {"values": telemetry_values(data), "status_flags": status_flags(int(data.status))}
