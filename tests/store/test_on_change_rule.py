@@ -76,3 +76,44 @@ def test_on_change_stores_the_channels_the_rule_picks(tmp_path: Path, seed: int,
     want = picked_by_the_rule(steps, channels, 20.0)
     assert list(stored.values()) == want
     assert 2 < len(want) < len(steps)  # some sweeps stored nothing, some channels moved
+
+
+METER = '''schema = "pymb.map/1"
+[device]
+id = "meter"
+table = "holding"
+[[point]]
+name = "energy_wh"
+address = 0
+type = "u32"
+kind = "counter"
+deadband = 100
+[[point]]
+name = "power_w"
+address = 2
+type = "u16"
+'''
+
+
+def test_a_counter_that_goes_back_is_stored_within_its_deadband(tmp_path: Path) -> None:
+    """A map device's counter (kind counter) is stored past its deadband and
+    whenever it goes back (a reset), however little; the rule the CoolPro's
+    uptime follows."""
+    from pymb import maps
+    from pymb.devices.mapreading import MapReading
+
+    m = maps.loads(METER)
+    db = tmp_path / "m.sqlite"
+    sink = SqliteSink(db, on_change=OnChange(600.0))
+    info = DeviceInfo("b", "p", "meter", 1, "meter-1", map_source=METER)
+    steps = [(0.0, 1000, True), (1.0, 1050, False), (2.0, 1101, True), (3.0, 1090, True),
+             (4.0, 1091, False)]
+    for t, wh, _ in steps:
+        r = MapReading(m, None, {"energy_wh": wh, "power_w": 7},
+                       {"energy_wh": "value", "power_w": "value"},
+                       array("H", [wh >> 16, wh & 0xFFFF, 7]))
+        sink.write(Sample(info, 1_800_000_000.0 + t, t, r))
+    sink.close()
+    with sqlite3.connect(db) as con:
+        stored = [t for (t,) in con.execute("SELECT monotonic FROM samples ORDER BY id")]
+    assert stored == [t for t, _, keep in steps if keep]
