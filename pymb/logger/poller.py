@@ -31,7 +31,7 @@ __all__ = ["BusPoller", "MapHealth", "Stats", "map_info"]
 
 @dataclass
 class _Device:
-    """A built-in device being polled."""
+    """A device read through its facade (CoolPro, hub) being polled."""
 
     info: DeviceInfo
     config: DeviceConfig
@@ -149,7 +149,7 @@ class BusPoller(threading.Thread):
         return self.report.take()
 
     def _reads(self) -> list[_Read]:
-        """The schedule's slots: each group of each map device, each built-in device."""
+        """The schedule's slots: each group of each map device, each facade device."""
         bus = self.bus
         out: list[_Read] = []
         rate = bus.baud if bus.port is not None else None
@@ -162,7 +162,7 @@ class BusPoller(threading.Thread):
                             interval == 0, group)
                 out.append(_Read(slot, info, functools.partial(dev.read_group, group)))
         for d in self.devices:
-            out.append(_Read(Slot(Health.of_builtin(d.info.name), bus.interval), d.info, d.read,
+            out.append(_Read(Slot(Health.of_facade(d.info.name), bus.interval), d.info, d.read,
                              d))
         return out
 

@@ -3,14 +3,15 @@
 both run it and do only the reading and the writing.
 
 - :class:`Slot`: one thing read on a schedule (a group of a map device, or
-  a built-in device) on drift-free slots: slot k at start + k·interval; the
-  whole slots a long read overran are skipped and counted, never crammed in.
+  a CoolPro or hub read through its facade) on drift-free slots: slot k at
+  start + k·interval; the whole slots a long read overran are skipped and
+  counted, never crammed in.
   Interval 0 is flat out, or, for a map group (``once``), one read after the
   device (re)appears: not again on a connection the device itself closed
   after its replies.
 - :class:`Health`: a device's failures in a row and when it is tried again
   (a map device is offline for ``offline_retry`` after ``offline_after``
-  failed polls; a built-in device backs off 0.5 s doubling to 30 s after
+  failed polls; a facade device backs off 0.5 s doubling to 30 s after
   ten failures in a row).
 - :class:`Agenda`: which slots are due when, for a whole bus or loop.
 - :class:`Backoff`: a bus that does not open, tried again 0.5 s doubling to
@@ -37,7 +38,7 @@ BATCH_MAX = 64
 BATCH_AGE = 0.02
 #: a doubling backoff's first and longest wait (seconds)
 BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0
-#: failed reads of a built-in device in a row before it is backed off
+#: failed reads of a facade device (CoolPro, hub) in a row before it is backed off
 FAULTS_BEFORE_BACKOFF = 10
 
 #: The text of each event the pollers record, one per fact (``str.format``
@@ -87,12 +88,12 @@ class Health:
     name: str
     #: failed polls in a row before the device is left alone
     after: int
-    #: seconds a map device is offline; None: a built-in device's doubling backoff
+    #: seconds a map device is offline; None: a facade device's doubling backoff
     retry: float | None
     failures: int = 0  #: failed polls in a row
     retry_at: float = 0.0  #: not polled before this (clock)
     offline: bool = False  #: a map device left alone (an ``online`` event when it answers)
-    backoff: float = 0.0  #: the built-in device's current backoff (0: none)
+    backoff: float = 0.0  #: a facade device's current backoff (0: none)
 
     @classmethod
     def of_map(cls, name: str, offline_after: int | None,
@@ -102,8 +103,8 @@ class Health:
         return cls(name, offline_after or 1, float(offline_retry or 30.0))
 
     @classmethod
-    def of_builtin(cls, name: str) -> Health:
-        """A built-in device's: backed off after :data:`FAULTS_BEFORE_BACKOFF`."""
+    def of_facade(cls, name: str) -> Health:
+        """A facade device's (CoolPro, hub): backed off after :data:`FAULTS_BEFORE_BACKOFF`."""
         return cls(name, FAULTS_BEFORE_BACKOFF, None)
 
     def failed(self, now: float, at_once: bool = False) -> str:
@@ -134,7 +135,7 @@ class Health:
 
 @dataclass(eq=False)
 class Slot:
-    """One thing read on a schedule: a map device's group, or a built-in device."""
+    """One thing read on a schedule: a map device's group, or a facade device."""
 
     health: Health
     interval: float  #: seconds; 0: flat out, or once (``once``)

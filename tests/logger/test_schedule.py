@@ -39,7 +39,7 @@ def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
 
 
 def test_flat_out_is_always_due_and_never_skips() -> None:
-    s = Slot(Health.of_builtin("hub-1"), 0.0)
+    s = Slot(Health.of_facade("hub-1"), 0.0)
     assert s.due(5.0)
     assert s.wake(5.0) == 5.0
     assert s.advance(1e6) == 0
@@ -93,8 +93,8 @@ def test_a_once_group_of_an_offline_device_waits_for_the_retry() -> None:
     assert once.due(15.0)
 
 
-def test_a_builtin_device_backs_off_doubling_after_ten_failures() -> None:
-    h = Health.of_builtin("coolpro-1")
+def test_a_facade_device_backs_off_doubling_after_ten_failures() -> None:
+    h = Health.of_facade("coolpro-1")
     said = [h.failed(float(t)) for t in range(FAULTS_BEFORE_BACKOFF + 8)]
     assert said[:FAULTS_BEFORE_BACKOFF - 1] == [""] * (FAULTS_BEFORE_BACKOFF - 1)
     tail = said[FAULTS_BEFORE_BACKOFF - 1:]
@@ -106,7 +106,7 @@ def test_a_builtin_device_backs_off_doubling_after_ten_failures() -> None:
 
 
 def test_a_failure_at_once_backs_off_at_once() -> None:
-    h = Health.of_builtin("hub-1")
+    h = Health.of_facade("hub-1")
     assert h.failed(1.0, at_once=True) == "; next try in 0.5 s"
     s = Slot(h, 0.0)
     assert not s.due(1.2)
