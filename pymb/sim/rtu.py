@@ -31,7 +31,7 @@ import tty
 from pymb import _native
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, silence, sleep_until
 from pymb.sim.faults import Fault
-from pymb.sim.server import Server
+from pymb.sim.server import SimServer
 
 __all__ = ["PtyPort", "RtuServer", "SerialPort", "frame_rtu"]
 
@@ -137,7 +137,7 @@ def frame_rtu(address: int, pdu: bytes, fault: Fault | None) -> bytes:
     return adu
 
 
-class RtuServer(Server):
+class RtuServer(SimServer):
     """Serves a bus on a pseudo-terminal (``serial_port`` None) or a real port.
 
     ``baud``: the line's initial speed. ``emulate``: give each frame its wire

@@ -1,8 +1,8 @@
 """What the RTU and TCP servers share: one background thread, stop, unplug.
 
-A server owns one thread that serves its bus until :meth:`Server.stop`. Every
+A server owns one thread that serves its bus until :meth:`SimServer.stop`. Every
 change of the port (unplug, replug) is made by that thread: other threads ask
-for it and wait until it is done, so when :meth:`Server.unplug` returns the
+for it and wait until it is done, so when :meth:`SimServer.unplug` returns the
 port is gone.
 """
 
@@ -17,14 +17,14 @@ import time
 
 from pymb.sim.bus import Bus
 
-__all__ = ["Server"]
+__all__ = ["SimServer"]
 
 log = logging.getLogger("pymb.sim")
 
 _REPLUG_RETRY_S = 1.0  # a real port that cannot be reopened is tried again this often
 
 
-class Server:
+class SimServer:
     """Base of :class:`~pymb.sim.rtu.RtuServer` and :class:`~pymb.sim.tcp.TcpServer`.
 
     Subclasses provide ``_open()`` (create the port), ``_close()`` (remove

@@ -29,7 +29,7 @@ from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
 from pymb.sim.mapsim import map_sim_device
 from pymb.sim.rtu import RtuServer
-from pymb.sim.server import Server
+from pymb.sim.server import SimServer
 from pymb.sim.tcp import TcpServer, format_ports, parse_ports
 
 __all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
@@ -203,7 +203,7 @@ class Simulator:
         self._host = host
         self._tcp_port = tcp_port
         self._tcp_ports = tcp_ports
-        self._server: Server | None = None
+        self._server: SimServer | None = None
 
     # -- life cycle ---------------------------------------------------------------------
 
@@ -212,7 +212,7 @@ class Simulator:
         if self._server is not None:
             return self
         line = self.baud or self.bus.devices[0].baud
-        server: Server
+        server: SimServer
         if self.transport in ("tcp", "rtu-over-tcp"):
             server = TcpServer(self.bus, self._host, self._tcp_port, emulate_baud=self.baud,
                                rtu_framing=self.transport == "rtu-over-tcp",
@@ -262,7 +262,7 @@ class Simulator:
 
     # -- where to connect -----------------------------------------------------------------
 
-    def _running(self) -> Server:
+    def _running(self) -> SimServer:
         if self._server is None:
             raise RuntimeError("the simulator is not running: use `with Simulator(...)` "
                                "or call start()")

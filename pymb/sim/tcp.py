@@ -33,7 +33,7 @@ from pymb.errors import InvalidArgument
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault
 from pymb.sim.rtu import frame_rtu
-from pymb.sim.server import Server
+from pymb.sim.server import SimServer
 
 __all__ = ["MAX_PORTS", "TcpServer", "format_ports", "frame_tcp", "parse_ports"]
 
@@ -89,7 +89,7 @@ def frame_tcp(tid: int, unit: int, pdu: bytes, fault: Fault | None) -> bytes:
     return adu
 
 
-class TcpServer(Server):
+class TcpServer(SimServer):
     """Serves a bus as a Modbus TCP server on ``host``:``port`` (0: any free
     port); ``rtu_framing``: RTU frames over TCP instead of MBAP."""
 
