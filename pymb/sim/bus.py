@@ -1,7 +1,7 @@
 """The bus: devices sharing one line, routing, faults, line timing.
 
 Transport-neutral: :meth:`Bus.serve` takes a slave address and a request
-PDU and returns an :class:`Outcome` (the reply PDU, how long the device
+PDU and returns a :class:`BusReply` (the reply PDU, how long the device
 takes, which fault applies) or None for silence. The RTU and TCP servers add
 framing, the wire's timing and the faults that live in the framing.
 """
@@ -19,7 +19,7 @@ from pymb.sim.devices import Device, exception_pdu
 from pymb.sim.faults import Fault, Faults
 from pymb.wire import GAP_CHARS, char_time
 
-__all__ = ["IDLE_S", "Bus", "BusStats", "Outcome", "char_time", "silence", "sleep_until"]
+__all__ = ["IDLE_S", "Bus", "BusReply", "BusStats", "char_time", "silence", "sleep_until"]
 
 log = logging.getLogger("pymb.sim")
 
@@ -62,7 +62,7 @@ def sleep_until(deadline: float, stop: threading.Event | None = None) -> bool:
                 time.sleep(left - 0.0002)
 
 
-class Outcome(NamedTuple):
+class BusReply(NamedTuple):
     """What the bus does with one request."""
 
     device: Device
@@ -127,7 +127,7 @@ class Bus:
         return None
 
     def serve(self, address: int, pdu: bytes, *, line_baud: int | None = None,
-              tcp: bool = False) -> Outcome | None:
+              tcp: bool = False) -> BusReply | None:
         """Route one request; None when no device answers it."""
         self.stats.requests += 1
         if address == 0:
@@ -156,15 +156,15 @@ class Bus:
                 fault = None
             elif kind in ("exception", "busy"):
                 code = fault.code if kind == "exception" else dev.busy_code
-                return Outcome(dev, exception_pdu(pdu[0], code), dev.turnaround(), fault)
+                return BusReply(dev, exception_pdu(pdu[0], code), dev.turnaround(), fault)
             elif kind in ("no_reply", "unplug"):
-                return Outcome(dev, None, 0.0, fault)
+                return BusReply(dev, None, 0.0, fault)
         with dev.lock:
             reply = dev.handle(pdu)
         delay = dev.turnaround()
         if fault is not None and fault.kind == "late":
             delay += fault.delay
-        return Outcome(dev, reply, delay, fault)
+        return BusReply(dev, reply, delay, fault)
 
     def _mismatch(self, dev: Device, line_baud: int) -> None:
         key = (id(dev), dev.baud, line_baud)
