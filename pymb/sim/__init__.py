@@ -1,4 +1,5 @@
-"""Simulators of the CoolPro and the sensor hub, for tests, demos and benchmarks.
+"""Simulated Modbus devices, for tests, demos and benchmarks: any map's
+(:class:`MapSimDevice`), the CoolPro and the sensor hub among them.
 
 Each device does what its document and the project's notes say (register
 maps, function and exception codes, silence, write semantics, timing), with
@@ -24,6 +25,7 @@ from pymb.sim.clock import SimClock
 from pymb.sim.devices import Channel, CoolProDevice, Device, HubDevice
 from pymb.sim.faults import KINDS as FAULT_KINDS
 from pymb.sim.faults import Fault, Faults
+from pymb.sim.mapsim import MapSimDevice
 from pymb.sim.simulator import Simulator, SimulatorProcess, make_device
 
 __all__ = [
@@ -36,6 +38,7 @@ __all__ = [
     "Fault",
     "Faults",
     "HubDevice",
+    "MapSimDevice",
     "SimClock",
     "Simulator",
     "SimulatorProcess",
