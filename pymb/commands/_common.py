@@ -23,12 +23,12 @@ from pymb.client import (
 )
 from pymb.client.address import is_mbaps
 from pymb.devices import CoolProIdentity, CoolProTelemetry, HubReading, State
+from pymb.devices.deviceconfig import DeviceConfig, parse_device
 from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapspec import FACADES
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
 from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument, ModbusConnectionError
-from pymb.logger.mapconfig import DeviceConfig, parse_device
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = [

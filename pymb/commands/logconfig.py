@@ -13,10 +13,10 @@ from pathlib import Path
 from pymb.client import TlsConfig
 from pymb.commands._common import tls_for, tls_from_args
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
+from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
 from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
-from pymb.logger.mapconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.store import OnChange
 from pymb.store.mapcheck import check_stored_maps
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT

@@ -24,6 +24,7 @@ from pymb.commands._common import (
 from pymb.commands.maptext import map_json, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices import CoolPro, CoolProIdentity, HubReading, SensorHub
+from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.hubreading import ALL_BLOCKS, block_index
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
@@ -35,7 +36,6 @@ from pymb.devices.mapspec import (
     unknown_device,
 )
 from pymb.errors import DeviceException, InvalidArgument, ProtocolError
-from pymb.logger.mapconfig import DeviceConfig
 from pymb.maps.model import did_you_mean
 
 

@@ -28,10 +28,10 @@ line (:mod:`pymb.commands`).
 from __future__ import annotations
 
 from pymb.client import unresolved
+from pymb.devices.deviceconfig import DeviceConfig, parse_device
 from pymb.devices.spec import closest
 from pymb.logger.config import BusConfig, LogConfig, check_buses, load_config
 from pymb.logger.logger import Logger, RunSummary
-from pymb.logger.mapconfig import DeviceConfig, parse_device
 from pymb.store import FAULT_KINDS, check_output, is_pymb_database
 
 __all__ = [

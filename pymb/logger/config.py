@@ -28,10 +28,10 @@ from pymb.client import (
     parse_host_port,
 )
 from pymb.client.address import is_mbaps, parse_address
+from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, add_maps, map_device_from_toml
 from pymb.devices.mapspec import FACADES
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
-from pymb.logger.mapconfig import DeviceConfig, KnownMaps, add_maps, map_device_from_toml
 from pymb.store import FORMATS, OnChange
 from pymb.store.onchange import DEADBAND_QUANTITIES
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char

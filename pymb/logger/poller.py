@@ -15,12 +15,12 @@ from typing import Any
 
 from pymb.client import unresolved
 from pymb.devices import CoolPro, HubReading, SensorHub
+from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import BACKOFF_MAX, TEXT, Agenda, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats

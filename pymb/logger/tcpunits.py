@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from pymb._native.master import PollTable
+from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.mapreading import MapReading, group_layout, group_points
-from pymb.logger.mapconfig import DeviceConfig
 from pymb.logger.schedule import Health, Slot
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner

@@ -13,8 +13,8 @@ from pathlib import Path
 from conftest import run_pymb
 from docblocks import claim_one
 
+from pymb.devices.deviceconfig import MAP_DEVICE_KEYS
 from pymb.logger import load_config
-from pymb.logger.mapconfig import MAP_DEVICE_KEYS
 from pymb.sim import SimulatorProcess
 
 ROOT = Path(__file__).resolve().parents[2]

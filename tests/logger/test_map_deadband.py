@@ -20,11 +20,11 @@ from peers import TcpPeer
 
 from pymb.cli import build_parser
 from pymb.commands.logconfig import config_from
+from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument
 from pymb.logger import load_config
 from pymb.logger.config import BusConfig
-from pymb.logger.mapconfig import DeviceConfig
 from pymb.store import samples_after
 
 METER = '''schema = "pymb.map/1"
