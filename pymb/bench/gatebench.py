@@ -53,38 +53,31 @@ PEERS_TARGET = 3_000_000  #: pymb log's values per CPU-second in the peers' scen
 RATE_DEVICES = 100  #: SDM630 devices of the at-rate row
 #: the peers' scenario: gateways (a TCP port each) x devices (unit ids) behind each
 PEERS = (10, 10)
+def _floats(device_id: str, description: str, count: int, name: str) -> str:
+    """A map of ``count`` contiguous f32 input registers from 0, named ``name`` + index."""
+    head = f"""schema = "pymb.map/1"
+
+[device]
+id = "{device_id}"
+description = "{description}"
+default_address = 1
+table = "input"
+order = "ABCD"
+"""
+    return head + "".join(f"""
+[[point]]
+name = "{name}{i}"
+address = {2 * i}
+type = "f32"
+example = {i}.5
+""" for i in range(count))
+
+
 #: the peers' device: 1,000 contiguous f32 input registers (16 requests of 125 registers)
-PEERS_POINTS = """schema = "pymb.map/1"
-
-[device]
-id = "peers-1000"
-description = "1,000 contiguous f32 values in input registers 0..1999"
-default_address = 1
-table = "input"
-order = "ABCD"
-""" + "".join(f"""
-[[point]]
-name = "v{i}"
-address = {2 * i}
-type = "f32"
-example = {i}.5
-""" for i in range(1000))
+PEERS_POINTS = _floats("peers-1000", "1,000 contiguous f32 values in input registers 0..1999",
+                       1000, "v")
 #: the 10-point device: ten f32 input registers, read in one request
-TEN_POINTS = """schema = "pymb.map/1"
-
-[device]
-id = "ten-floats"
-description = "Ten f32 values in input registers 0..19"
-default_address = 1
-table = "input"
-order = "ABCD"
-""" + "".join(f"""
-[[point]]
-name = "value_{i}"
-address = {2 * i}
-type = "f32"
-example = {i}.5
-""" for i in range(10))
+TEN_POINTS = _floats("ten-floats", "Ten f32 values in input registers 0..19", 10, "value_")
 
 LABELS = {"fanout": "pymb fan-out (1 thread, 1 request in flight)",
           "fanout-pipelined": "pymb fan-out, a poll's requests pipelined",
