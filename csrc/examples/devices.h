@@ -262,7 +262,7 @@ static inline int coolpro_read(pymb_line *line, int slave, double *values, int64
         {MODBUS_FC_READ_INPUT_REGISTERS, (uint8_t)slave, 0, 8, 0},
         {MODBUS_FC_READ_INPUT_REGISTERS, (uint8_t)slave, 100, 8, 8},
     };
-    uint16_t regs[CP_REGISTERS];
+    uint16_t regs[CP_REGISTERS] = {0};
     uint8_t states[CP_VALUES];
     pymb_map_out out;
 

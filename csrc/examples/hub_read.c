@@ -24,7 +24,7 @@ static const char *const state_names[] = {"", "offline", "no sensor", "unsupport
 
 int main(int argc, char **argv)
 {
-    uint16_t regs[HUB_REGISTERS];
+    uint16_t regs[HUB_REGISTERS] = {0};
     double values[HUB_REGISTERS];
     uint8_t states[HUB_REGISTERS];
     unsigned missing = 0, b, c;

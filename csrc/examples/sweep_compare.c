@@ -115,7 +115,7 @@ static int telemetry_rounds(pymb_line *line, modbus_t *ctx, pymb_failure *fail, 
 int main(int argc, char **argv)
 {
     static double wall[2][MAX_ROUNDS], cpu[2][MAX_ROUNDS];
-    uint16_t regs[HUB_REGISTERS];
+    uint16_t regs[HUB_REGISTERS] = {0};
     double values[HUB_REGISTERS];
     uint8_t states[HUB_REGISTERS];
     unsigned missing = 0;

@@ -159,6 +159,8 @@ def parse_map_device(spec: str, known: Mapping[str, Map]) -> MapTarget | None:
             raise InvalidArgument(f"{spec!r}: {what}; {m.id} takes "
                                   f"{', '.join(k + '=...' for k in allowed)}{hint}")
         if key == "name":
+            if name:
+                raise InvalidArgument(f"{spec!r}: name given twice")
             name = value
         elif key in options:
             raise InvalidArgument(f"{spec!r}: {key} given twice")

@@ -77,6 +77,8 @@ def test_the_device_syntax_for_a_map() -> None:
         parse_map_device("meter,phase=1", known)
     with pytest.raises(InvalidArgument, match="phases given twice"):
         parse_map_device("meter,phases=1,phases=3", known)
+    with pytest.raises(InvalidArgument, match="name given twice"):
+        parse_map_device("meter,name=a,name=b", known)
     with pytest.raises(InvalidArgument, match=r"address must be 1\.\.247"):
         parse_map_device("meter:0", known)
     with pytest.raises(InvalidArgument, match="whole number"):
