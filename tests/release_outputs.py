@@ -5,9 +5,11 @@ outputs (tests/store/release/make.py) with the release that wrote the files."""
 
 from __future__ import annotations
 
+import gzip
 import io
 import json
 import math
+import sqlite3
 from pathlib import Path
 from unittest import mock
 
@@ -81,3 +83,29 @@ def outputs(folder: Path) -> dict[str, str]:
         got[f"{name}.series"] = _series(db)
         got[f"{name}.info"] = _info(db)
     return got
+
+# -- the databases as the text kept in git (NAME.sql.gz) and back: the settings a dump
+# leaves out (page size, auto_vacuum, the journal mode) first, then SQLite's own dump
+
+_SETTINGS = ("page_size", "auto_vacuum", "journal_mode")
+
+
+def dump(db: Path, to: Path) -> None:
+    """Write ``db`` as gzipped SQL text to ``to``."""
+    con = sqlite3.connect(db)
+    try:
+        head = [f"PRAGMA {k} = {con.execute(f'PRAGMA {k}').fetchone()[0]};" for k in _SETTINGS]
+        text = "\n".join([*head, *con.iterdump()]) + "\n"
+    finally:
+        con.close()
+    to.write_bytes(gzip.compress(text.encode(), mtime=0))
+
+
+def restore(sql_gz: Path, db: Path) -> None:
+    """Make the database ``db`` from the gzipped SQL text ``sql_gz``."""
+    text = gzip.decompress(sql_gz.read_bytes()).decode()
+    con = sqlite3.connect(db, isolation_level=None)
+    try:
+        con.executescript(text)
+    finally:
+        con.close()

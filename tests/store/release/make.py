@@ -1,6 +1,7 @@
 """Makes the databases of tests/store/test_release_files.py with the pymb
 that runs this script, and what that pymb read out of them (the expected
-outputs): ``python tests/store/release/make.py``. Run once, by the release
+outputs): ``python tests/store/release/make.py``. The databases are kept as
+SQL text (NAME.sql.gz, see release_outputs.dump), not as files. Run once, by the release
 whose files the test keeps readable; never by later code (the expected
 outputs would then follow whatever that code does)."""
 
@@ -16,7 +17,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent.parent))  # tests/: release_outputs
 
-from release_outputs import OUTPUTS, outputs  # noqa: E402
+from release_outputs import OUTPUTS, dump, outputs  # noqa: E402
 
 from pymb.sim import Simulator  # noqa: E402
 
@@ -59,19 +60,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp, \
             Simulator(["coolpro", "hub:7", "hub:9"], baud=115200, seed=11) as sim:
         for db, extra in RUNS.items():
-            out = HERE / db
-            out.unlink(missing_ok=True)
+            out = Path(tmp) / db
             cfg = Path(tmp) / "log.toml"
             cfg.write_text(CONFIG.format(out=out, extra=extra, port=sim.port))
             subprocess.run([sys.executable, "-m", "pymb", "log", "--config", str(cfg),
                             "--seconds", "4"], check=False)  # 3: "absent" gave nothing
-            (HERE / f".{db}.reserve").unlink(missing_ok=True)
             con = sqlite3.connect(out)
             con.execute("VACUUM")
             con.close()
-    for name, text in outputs(HERE).items():
-        (HERE / f"{name}.gz").write_bytes(gzip.compress(text.encode(), mtime=0))
-    assert set(outputs(HERE)) == set(OUTPUTS)
+            dump(out, HERE / f"{out.stem}.sql.gz")
+        for name, text in outputs(Path(tmp)).items():
+            (HERE / f"{name}.gz").write_bytes(gzip.compress(text.encode(), mtime=0))
+        assert set(outputs(Path(tmp))) == set(OUTPUTS)
 
 
 if __name__ == "__main__":
