@@ -10,8 +10,9 @@ transaction ids counted on, into one buffer for one ``send``;
 in any order), matches each reply to its request by its transaction id,
 checks it with the request path's rules and copies its data into the poll's
 register image (big-endian; a bit as a 0/1 word). What is not such a reply
-comes back as :class:`Event` records: a refused request (an exception), a
-late reply, a foreign one, a bad frame (the stream is out of step).
+comes back as :class:`MasterEvent` records: a refused request (an
+exception), a late reply, a foreign one, a bad frame (the stream is out of
+step).
 """
 
 from __future__ import annotations
@@ -28,17 +29,17 @@ __all__ = [
     "FRAME",
     "LATE",
     "NO_TOKEN",
-    "Event",
     "Master",
+    "MasterEvent",
+    "MasterRead",
     "PollTable",
-    "Read",
     "ReadBuffer",
 ]
 
 FRAME: int = lib.PYMBI_MASTER_FRAME  #: bytes of a read request
 HEAD: int = lib.PYMBI_MASTER_HEAD  #: a read reply's bytes before its data
 INFLIGHT: int = lib.PYMBI_MASTER_INFLIGHT  #: the most requests in flight on a stream
-EXCEPTION: int = lib.PYMBI_EV_EXCEPTION  #: a request refused: :attr:`Event.code`
+EXCEPTION: int = lib.PYMBI_EV_EXCEPTION  #: a request refused: :attr:`MasterEvent.code`
 LATE: int = lib.PYMBI_EV_LATE  #: a reply to a request no longer in flight (skipped)
 FOREIGN: int = lib.PYMBI_EV_FOREIGN  #: a reply to an id never sent (skipped)
 BAD: int = lib.PYMBI_EV_BAD  #: a frame that is no answer: the stream is out of step
@@ -51,7 +52,7 @@ _NO_IMAGE = ffi.new("uint8_t[]", 1)
 _OUT = FRAME * INFLIGHT  #: bytes of the frames buffer
 
 
-class Read(Protocol):
+class MasterRead(Protocol):
     """A read request as a poll plans it (:class:`pymb.logger.tcpunits.PollRequest`)."""
 
     function: int  #: 1..4
@@ -60,7 +61,7 @@ class Read(Protocol):
     offset: int  #: where its data go in the image, in bytes (2 a register, 2 a bit)
 
 
-class Event(NamedTuple):
+class MasterEvent(NamedTuple):
     """What a take saw that is not a reply taken into the image."""
 
     kind: int  #: :data:`EXCEPTION`, :data:`LATE`, :data:`FOREIGN` or :data:`BAD`
@@ -88,7 +89,7 @@ class PollTable:
 
     __slots__ = ("ends", "image", "image_c", "image_len", "n", "rows", "sizes")
 
-    def __init__(self, reads: Sequence[Read], unit: int, image: bytearray, *,
+    def __init__(self, reads: Sequence[MasterRead], unit: int, image: bytearray, *,
                  packed_bits: bool = False) -> None:
         n = self.n = len(reads)
         rows = ffi.new("pymbi_mreq[]", max(n, 1))
@@ -204,7 +205,7 @@ class Master:
             raise ValueError("a request in flight does not fit this poll's image")
         return got, int(self._used[0])
 
-    def event(self, i: int) -> Event:
+    def event(self, i: int) -> MasterEvent:
         """Event ``i`` of the last :meth:`take`."""
         e = self._ev[i]
-        return Event(int(e.kind), int(e.token), int(e.code), int(e.status))
+        return MasterEvent(int(e.kind), int(e.token), int(e.code), int(e.status))

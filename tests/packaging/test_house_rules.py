@@ -42,8 +42,6 @@ def test_only_the_store_speaks_sql() -> None:
 SHARED_NAMES = {
     "Device": ["pymb/bench/fanout.py", "pymb/sim/base.py"],
     "Entry": ["pymb/bench/race.py", "pymb/logger/tcpunits.py"],
-    "Event": ["pymb/_native/master.py", "pymb/store/records.py"],
-    "Read": ["pymb/_native/master.py", "pymb/devices/mapfetch.py"],
     "Request": ["pymb/_native/serve.py", "pymb/devices/mapwrite.py", "pymb/maps/planner.py"],
     "Stats": ["pymb/collect/collector.py", "pymb/logger/stats.py"],
     "Store": ["pymb/bench/gateworker.py", "pymb/collect/sqlstore.py"],
