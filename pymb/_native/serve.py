@@ -8,13 +8,14 @@ from typing import NamedTuple
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["MAX_FRAME", "BadFrame", "Request", "exception_frame", "reply_frame", "take_requests"]
+__all__ = ["MAX_FRAME", "BadFrame", "ClientRequest", "exception_frame", "reply_frame",
+           "take_requests"]
 
 MAX_FRAME: int = lib.PYMBI_SRV_MAX_FRAME  #: the longest Modbus TCP frame
 _MBAP: int = lib.PYMBI_SRV_MBAP
 
 
-class Request(NamedTuple):
+class ClientRequest(NamedTuple):
     """One request a client sent: its transaction id and unit, the PDU
     (function code and data), and the exception code to answer instead of
     forwarding it (0: well formed)."""
@@ -29,12 +30,12 @@ class BadFrame(Exception):
     """The client's bytes cannot be Modbus TCP: its connection is closed."""
 
 
-def take_requests(buf: bytearray) -> list[Request]:
+def take_requests(buf: bytearray) -> list[ClientRequest]:
     """Take every whole request at the start of ``buf`` (removed from it);
     what is left is the start of the next one. Raises :class:`BadFrame` when
     the bytes cannot be a Modbus TCP request (the requests before them are
     lost with the connection)."""
-    out: list[Request] = []
+    out: list[ClientRequest] = []
     req = ffi.new("pymbi_srv_req *")
     pos = 0
     n = len(buf)
@@ -45,7 +46,8 @@ def take_requests(buf: bytearray) -> list[Request]:
             break
         if got < 0:
             raise BadFrame(bytes(buf[pos:pos + 8]).hex(" "))
-        out.append(Request(req.tid, req.unit, bytes(buf[pos + _MBAP:pos + got]), req.exception))
+        out.append(ClientRequest(req.tid, req.unit, bytes(buf[pos + _MBAP:pos + got]),
+                                 req.exception))
         pos += got
     del data
     if pos:

@@ -32,7 +32,7 @@ from typing import Any
 from pymb.bench.contenders import Contender, probe
 from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
-from pymb.bench.race import Entry, Reference, race, summary, verify
+from pymb.bench.race import RaceEntry, Reference, race, summary, verify
 from pymb.devices.maps import HUB
 
 __all__ = ["CONTENDERS", "LAG_TARGET_MS", "run_section", "targets"]
@@ -58,7 +58,7 @@ LAG_STACKS = (("pymb-aio", "pymb.aio"), ("pymodbus-async", "pymodbus async"),
               ("ticker-alone", "the ticker alone (hubs polled by another process)"))
 
 
-def _start(e: Entry, port: str, ref: Reference, children: Children) -> None:
+def _start(e: RaceEntry, port: str, ref: Reference, children: Children) -> None:
     module = "pymb.bench.worker" if e.name == "pymb" else "pymb.bench.aioworker"
     argv = [sys.executable, "-m", module, e.name, port, str(BAUD), str(ref.k_off),
             str(ref.k_val), str(_TIMEOUT)]
@@ -77,7 +77,7 @@ def _per_call(opts: Options, children: Children, ref: Reference,
     entries = []
     for c in CONTENDERS:
         reason, version = probe(c)
-        e = Entry(c, version=version)
+        e = RaceEntry(c, version=version)
         if reason:
             e.status, e.reason = "skipped", reason
         entries.append(e)

@@ -43,14 +43,14 @@ from dataclasses import dataclass, field
 from pymb._native.master import EXCEPTION, Master, PollTable, ReadBuffer
 from pymb.errors import InvalidArgument
 
-__all__ = ["Device", "FanoutStats", "Sample", "TcpFanout"]
+__all__ = ["FanoutDevice", "FanoutStats", "Sample", "TcpFanout"]
 
 Sample = tuple[int, int, bytes]  #: (poll start, time.time_ns(); device index; registers)
 _TABLES = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
 
 
 @dataclass(frozen=True)
-class Device:
+class FanoutDevice:
     """One TCP device: where it is and what one poll reads (``(table,
     address, count)`` requests). The sample image holds each table's span,
     from its first address read to its last, in the order the tables first
@@ -114,7 +114,7 @@ class FanoutStats:
         return cls([0] * n, [0] * n, [0] * n, [0] * n, [0] * n)
 
 
-class _Read:
+class _FanoutRead:
     """One request of a device's poll as the master takes it."""
 
     __slots__ = ("address", "count", "function", "offset")
@@ -123,11 +123,11 @@ class _Read:
         self.function, self.address, self.count, self.offset = function, address, count, offset
 
 
-class _Conn:
+class _FanoutConn:
     __slots__ = ("busy", "deadline", "index", "m", "n", "next_slot", "retry_at", "sock",
                  "started", "state", "table", "target", "todo")
 
-    def __init__(self, index: int, d: Device) -> None:
+    def __init__(self, index: int, d: FanoutDevice) -> None:
         self.index = index
         self.target = d
         base = {t: (first, off) for t, first, _, off in d.layout()}
@@ -138,7 +138,7 @@ class _Conn:
             if fc <= 2 and (address - first) % 8:
                 raise InvalidArgument(f"{table} {address}: bit reads of one table must "
                                       "start 8 bits apart")
-            reads.append(_Read(fc, address, count, off + _data_bytes(table, address - first)))
+            reads.append(_FanoutRead(fc, address, count, off + _data_bytes(table, address - first)))
         self.n = len(reads)
         self.table = PollTable(reads, d.unit, bytearray(d.image_bytes), packed_bits=True)
         self.m = Master()
@@ -156,7 +156,7 @@ class TcpFanout:
     """Polls ``devices`` from one thread until :meth:`stop` or ``run(seconds)``
     ends; see the module's description."""
 
-    def __init__(self, devices: Sequence[Device], sink: Callable[[list[Sample]], None], *,
+    def __init__(self, devices: Sequence[FanoutDevice], sink: Callable[[list[Sample]], None], *,
                  interval: float = 1.0, timeout: float = 1.0, retry: float = 1.0,
                  pipeline: int = 1, flush: float = 0.25) -> None:
         if not devices:
@@ -173,7 +173,7 @@ class TcpFanout:
         self.pipeline = pipeline
         self.flush = flush
         self.stats = FanoutStats.of(len(self.devices))
-        self._conns = [_Conn(i, d) for i, d in enumerate(self.devices)]
+        self._conns = [_FanoutConn(i, d) for i, d in enumerate(self.devices)]
         self._sel = selectors.DefaultSelector()
         self._stop = threading.Event()
         self._batch: list[Sample] = []
@@ -186,7 +186,7 @@ class TcpFanout:
 
     # -- connections ---------------------------------------------------------------------
 
-    def _connect(self, c: _Conn, now: float) -> None:
+    def _connect(self, c: _FanoutConn, now: float) -> None:
         d = c.target
         family = socket.AF_INET6 if ":" in d.host else socket.AF_INET
         s = socket.socket(family, socket.SOCK_STREAM)
@@ -203,7 +203,7 @@ class TcpFanout:
         c.deadline = now + self.timeout
         self._sel.register(s, selectors.EVENT_WRITE, c)
 
-    def _drop(self, c: _Conn, now: float) -> None:
+    def _drop(self, c: _FanoutConn, now: float) -> None:
         if c.sock is not None:
             with contextlib.suppress(KeyError, ValueError):
                 self._sel.unregister(c.sock)
@@ -214,7 +214,7 @@ class TcpFanout:
         c.m.reset()
         c.retry_at = now + self.retry
 
-    def _connected(self, c: _Conn, now: float) -> None:
+    def _connected(self, c: _FanoutConn, now: float) -> None:
         assert c.sock is not None
         if c.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR):
             self.stats.errors[c.index] += 1
@@ -227,7 +227,7 @@ class TcpFanout:
 
     # -- polls ---------------------------------------------------------------------------
 
-    def _start(self, c: _Conn, now: float) -> None:
+    def _start(self, c: _FanoutConn, now: float) -> None:
         c.busy = True
         c.started = time.time_ns()
         c.deadline = now + self.timeout
@@ -235,7 +235,7 @@ class TcpFanout:
         c.todo = c.n - n
         self._send(c, c.n - c.todo - n, n, now)
 
-    def _send(self, c: _Conn, first: int, n: int, now: float) -> None:
+    def _send(self, c: _FanoutConn, first: int, n: int, now: float) -> None:
         m = c.m
         size = m.frames(c.table, first, n)
         assert c.sock is not None
@@ -245,7 +245,7 @@ class TcpFanout:
             self.stats.errors[c.index] += 1
             self._drop(c, now)
 
-    def _readable(self, c: _Conn, now: float) -> None:
+    def _readable(self, c: _FanoutConn, now: float) -> None:
         sock = c.sock
         assert sock is not None
         rx = self._rx

@@ -14,7 +14,7 @@ import sys
 __all__ = ["main"]
 
 
-class _Device(asyncio.Protocol):
+class _DelayedDevice(asyncio.Protocol):
     def __init__(self, delay: float) -> None:
         self.delay = delay
         self.buf = b""
@@ -47,7 +47,7 @@ class _Device(asyncio.Protocol):
 
 async def _serve(delay: float) -> None:
     loop = asyncio.get_running_loop()
-    server = await loop.create_server(lambda: _Device(delay), "127.0.0.1", 0)
+    server = await loop.create_server(lambda: _DelayedDevice(delay), "127.0.0.1", 0)
     print(server.sockets[0].getsockname()[1], flush=True)
     await server.serve_forever()
 

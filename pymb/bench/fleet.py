@@ -29,55 +29,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pymb.bench.subscriber import Subscriber
 from pymb.extras import install_hint
 
 __all__ = ["run_fleet"]
 
 OUTAGE_S = 3.0
 RATE = 200.0  #: samples per second for the latency and outage runs
-
-
-class _Subscriber:
-    def __init__(self, mqtt: Any, port: int, topic: str, cid: str) -> None:
-        self.got: list[tuple[int, float, float]] = []  # (id, sample time, received)
-        self.lock = threading.Lock()
-        self.last = time.monotonic()
-        ready = threading.Event()
-        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cid, clean_session=False)
-        c.reconnect_delay_set(0.05, 0.2)
-        c.on_connect = lambda cl, u, f, rc, p: cl.subscribe(topic, qos=1)
-        c.on_subscribe = lambda *a: ready.set()
-        c.on_message = self._on_message
-        c.connect("127.0.0.1", port, keepalive=5)
-        c.loop_start()
-        if not ready.wait(15):
-            raise RuntimeError("the bench's subscriber got no SUBACK")
-        self.client = c
-
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
-        now = time.time()
-        if msg.topic.endswith("/status"):
-            return
-        d = json.loads(msg.payload)
-        with self.lock:
-            self.got.append((d["sample"], d["time_utc"], now))
-            self.last = time.monotonic()
-
-    def ids(self) -> list[int]:
-        with self.lock:
-            return [g[0] for g in self.got]
-
-    def wait(self, want: int, quiet: float, limit: float) -> None:
-        """Until ``want`` distinct ids, or ``quiet`` s without news, at most ``limit`` s."""
-        deadline = time.monotonic() + limit
-        while time.monotonic() < deadline:
-            if len(set(self.ids())) >= want or time.monotonic() - self.last > quiet:
-                return
-            time.sleep(0.05)
-
-    def close(self) -> None:
-        self.client.disconnect()
-        self.client.loop_stop()
 
 
 class _Paho:
@@ -160,7 +118,7 @@ def _pct(xs: list[float], q: float) -> float | None:
     return xs[min(len(xs) - 1, int(q * len(xs)))]
 
 
-def _scenario(make: Callable[[], Any], sub: _Subscriber, n: int, rate: float | None,
+def _scenario(make: Callable[[], Any], sub: Subscriber, n: int, rate: float | None,
               broker: Any, quiet: float, outage_s: float = OUTAGE_S) -> dict[str, Any]:
     """Produce n samples (ids 1..n) at ``rate`` (None: as fast as possible); with
     ``broker``, stop it for ``outage_s`` from a third of the run."""
@@ -192,8 +150,8 @@ def _scenario(make: Callable[[], Any], sub: _Subscriber, n: int, rate: float | N
     pub.close()
     ids = sub.ids()
     with sub.lock:
-        lat = [(r - t) * 1000 for _, t, r in sub.got]
-        last_rx = max((r for _, _, r in sub.got), default=time.time())
+        lat = [(g.at - g.time_utc) * 1000 for g in sub.got]
+        last_rx = max((g.at for g in sub.got), default=time.time())
     first_tx = time.time() - (done - t0)
     dup = sum(c - 1 for c in Counter(ids).values())
     return {"sent": n, "received": len(set(ids) & set(range(1, n + 1))),
@@ -245,8 +203,7 @@ def run_fleet(quick: bool, say: Callable[[str], None]) -> dict[str, Any]:
                         return _Paho(mqtt, broker.port, q, topic)
 
                     sub_topic = "pymb/bench/#" if kind == "pymb" else topic
-                    sub = _Subscriber(mqtt, broker.port, sub_topic, f"bench-sub-{kind}{qos}"
-                                      f"-{what}{k}")
+                    sub = Subscriber(broker.port, sub_topic, f"bench-sub-{kind}{qos}-{what}{k}")
                     try:
                         r = _scenario(make, sub, n, rate, broker if outage else None, quiet,
                                       outage_s)

@@ -29,7 +29,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from pymb.bench.fanout import Device, Sample, TcpFanout
+from pymb.bench.fanout import FanoutDevice, Sample, TcpFanout
 from pymb.client import TcpClient
 from pymb.devices.mapdevice import MapDevice
 from pymb.maps import Decoder, Map, builtin, load
@@ -53,7 +53,7 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-class Store:
+class GateSink:
     """The sink of every design: batches of samples into one SQLite table;
     measures the steady window (``warmup`` s after the first batch, for
     ``seconds``) and sets :attr:`done` at its end."""
@@ -99,12 +99,12 @@ def plan(m: Map, host: str, port: int, unit: int) -> tuple[tuple[str, int, int],
     return tuple((r.table, r.address, r.count) for r in dev.plan())
 
 
-def values_per_poll(m: Map, d: Device) -> int:
+def values_per_poll(m: Map, d: FanoutDevice) -> int:
     """Values one poll stores (each point's channels)."""
     return sum(Decoder(m, table=t, address=first).slots for t, first, _, _ in d.layout())
 
 
-def _fanout(devices: Sequence[Device], store: Store, pipeline: int) -> None:
+def _fanout(devices: Sequence[FanoutDevice], store: GateSink, pipeline: int) -> None:
     f = TcpFanout(devices, store, interval=0, timeout=2.0, pipeline=pipeline, flush=0.1)
 
     def stopper() -> None:
@@ -119,7 +119,7 @@ _REQ = struct.Struct(">HHHBBHH")
 _HEAD = struct.Struct(">HHHBBB")
 
 
-def _thread(d: Device, index: int, out: list[Sample], stop: threading.Event) -> None:
+def _thread(d: FanoutDevice, index: int, out: list[Sample], stop: threading.Event) -> None:
     fc = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
     layout = {t: (first, off) for t, first, _, off in d.layout()}
     steps = []
@@ -149,7 +149,7 @@ def _thread(d: Device, index: int, out: list[Sample], stop: threading.Event) -> 
             out.append((t0, index, bytes(image)))
 
 
-def _threads(devices: Sequence[Device], store: Store) -> None:
+def _threads(devices: Sequence[FanoutDevice], store: GateSink) -> None:
     out: list[Sample] = []
     stop = store.done
     threads = [threading.Thread(target=_thread, args=(d, i, out, stop), daemon=True)
@@ -164,12 +164,12 @@ def _threads(devices: Sequence[Device], store: Store) -> None:
         t.join(5.0)
 
 
-async def _pymodbus(devices: Sequence[Device], store: Store) -> None:
+async def _pymodbus(devices: Sequence[FanoutDevice], store: GateSink) -> None:
     from pymodbus.client import AsyncModbusTcpClient
 
     out: list[Sample] = []
 
-    async def poll(d: Device, index: int) -> None:
+    async def poll(d: FanoutDevice, index: int) -> None:
         c = AsyncModbusTcpClient(d.host, port=d.port, timeout=2, retries=0)
         await c.connect()
         layout = {t: (first, off) for t, first, _, off in d.layout()}
@@ -198,7 +198,7 @@ async def _pymodbus(devices: Sequence[Device], store: Store) -> None:
     await asyncio.gather(flush(), *(poll(d, i) for i, d in enumerate(devices)))
 
 
-def _check(m: Map, d: Device, db: sqlite3.Connection) -> bool:
+def _check(m: Map, d: FanoutDevice, db: sqlite3.Connection) -> bool:
     """The last stored sample of device 0 decodes to what MapDevice reads
     (the simulator's values are fixed in the bench)."""
     row = db.execute("SELECT registers FROM sample WHERE device = 0 ORDER BY rowid DESC "
@@ -229,8 +229,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     m = load(a.map) if os.path.exists(a.map) else builtin(a.map)
     ports = parse_ports(a.ports)
     requests = plan(m, a.host, ports[0], a.unit)
-    devices = [Device(a.host, port, a.unit, requests) for port in ports]
-    store = Store(a.db, a.warmup, a.seconds)
+    devices = [FanoutDevice(a.host, port, a.unit, requests) for port in ports]
+    store = GateSink(a.db, a.warmup, a.seconds)
     deadline = threading.Timer(a.warmup + a.seconds + 60.0, os._exit, (3,))
     deadline.daemon = True
     deadline.start()

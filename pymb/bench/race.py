@@ -23,7 +23,7 @@ from pymb.devices.hub import decode_hub
 from pymb.devices.maps import HUB
 from pymb.sim import HubDevice, Simulator
 
-__all__ = ["Entry", "Lineup", "Reference", "hub_registers", "race", "summary", "verify"]
+__all__ = ["Lineup", "RaceEntry", "Reference", "hub_registers", "race", "summary", "verify"]
 
 
 # -- the reference the contenders are checked against -------------------------------------
@@ -100,7 +100,7 @@ def _software_devices(baud: int = SOFTWARE_BAUD) -> list[str]:
 
 
 @dataclass
-class Entry:
+class RaceEntry:
     """One contender in one section: its state and its measurements."""
 
     contender: Contender
@@ -161,19 +161,19 @@ class Lineup:
         self.versions["c"] = f"{cc}, libmodbus {_native.LIBMODBUS_VERSION}" if cc else \
             f"libmodbus {_native.LIBMODBUS_VERSION}"
 
-    def entries(self, names: Sequence[str] | None = None) -> list[Entry]:
+    def entries(self, names: Sequence[str] | None = None) -> list[RaceEntry]:
         """Entries for the chosen contenders (in the table's order)."""
         out = []
         for c in CONTENDERS:
             if c.name not in self.opts.only or (names is not None and c.name not in names):
                 continue
-            e = Entry(c, version=self.versions.get(c.name, ""))
+            e = RaceEntry(c, version=self.versions.get(c.name, ""))
             if c.name in self.reasons:
                 e.status, e.reason = "skipped", self.reasons[c.name]
             out.append(e)
         return out
 
-    def start(self, e: Entry, port: str, baud: int) -> None:
+    def start(self, e: RaceEntry, port: str, baud: int) -> None:
         """Start ``e``'s worker on ``port``; marks it failed if it cannot."""
         if e.name == "c":
             assert self.c_exe is not None
@@ -195,7 +195,7 @@ class Lineup:
             e.fail(f"cannot start: {err}", self.children)
 
 
-def _ask(e: Entry, command: str, n: int, children: Children) -> tuple[int, list[int]] | None:
+def _ask(e: RaceEntry, command: str, n: int, children: Children) -> tuple[int, list[int]] | None:
     """One batch: (CPU ns, wall ns per operation); None (and failed) on error."""
     assert e.child is not None
     try:
@@ -209,7 +209,7 @@ def _ask(e: Entry, command: str, n: int, children: Children) -> tuple[int, list[
         return None
 
 
-def verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> None:
+def verify(e: RaceEntry, ref: Reference, children: Children, telemetry: bool) -> None:
     """Check one sweep (and telemetry read) of ``e`` against ``ref``; failed if wrong."""
     assert e.child is not None
     try:
@@ -224,7 +224,7 @@ def verify(e: Entry, ref: Reference, children: Children, telemetry: bool) -> Non
         e.fail(f"verification failed: {err}", children)
 
 
-def race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: int,
+def race(entries: Sequence[RaceEntry], workload: str, command: str, rounds: int, n: int,
           warm: int, children: Children, opts: Options, label: str,
           settle: bool = True) -> None:
     """Interleaved rounds of ``command n`` across the running entries (each
@@ -251,7 +251,7 @@ def race(entries: Sequence[Entry], workload: str, command: str, rounds: int, n: 
                 e.rounds.setdefault(workload, []).append(got)
 
 
-def _stop_all(entries: Sequence[Entry], sims: Sequence[Any], children: Children) -> None:
+def _stop_all(entries: Sequence[RaceEntry], sims: Sequence[Any], children: Children) -> None:
     """Stop every contender's worker and every simulator of a section."""
     for e in entries:
         if e.child is not None:
@@ -261,7 +261,7 @@ def _stop_all(entries: Sequence[Entry], sims: Sequence[Any], children: Children)
         children.stop(s)
 
 
-def summary(entries: Sequence[Entry], workload: str, per: int,
+def summary(entries: Sequence[RaceEntry], workload: str, per: int,
             baseline: str = "c") -> dict[str, Any]:
     """Medians and the paired ratios to ``baseline`` (the C program) for one workload."""
     base = next((e for e in entries if e.name == baseline and e.status == "ok"), None)

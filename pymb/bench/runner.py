@@ -77,8 +77,8 @@ from pymb.bench.options import (
 )
 from pymb.bench.procs import ChildError, Children
 from pymb.bench.race import (
-    Entry,
     Lineup,
+    RaceEntry,
     Reference,
     _same_values,
     _software_devices,
@@ -94,8 +94,18 @@ from pymb.devices.maps import HUB
 from pymb.sim import CoolProDevice, make_device
 from pymb.wire import read_time
 
-__all__ = ["SECTIONS", "Entry", "Options", "Plan", "Reference", "hub_registers", "race", "run",
-           "summary", "verify"]
+__all__ = [
+    "SECTIONS",
+    "Options",
+    "Plan",
+    "RaceEntry",
+    "Reference",
+    "hub_registers",
+    "race",
+    "run",
+    "summary",
+    "verify",
+]
 
 
 # -- sections -------------------------------------------------------------------------------

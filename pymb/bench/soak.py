@@ -15,7 +15,6 @@ root, no faketime) with why.
 from __future__ import annotations
 
 import collections
-import json
 import os
 import shutil
 import signal
@@ -23,11 +22,12 @@ import sqlite3
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from pymb.bench.subscriber import Subscriber
 
 __all__ = ["DEFAULT_SECONDS", "run_section"]
 
@@ -69,45 +69,6 @@ class _Supervised:
     def kill(self) -> None:
         self.proc.kill()
         self.proc.wait()
-
-
-class _Subscriber:
-    """A persistent-session subscriber: every sample id it receives, repeats kept."""
-
-    def __init__(self, port: int) -> None:
-        import paho.mqtt.client as mqtt
-        from paho.mqtt.enums import CallbackAPIVersion
-        self.ids: list[int] = []
-        #: the monotonic stamp of each id received (a clock step leaves it alone)
-        self.stamps: dict[int, set[float]] = {}
-        self.lock = threading.Lock()
-        subscribed = threading.Event()
-        c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="pymb-bench-month",
-                        clean_session=False)
-        c.reconnect_delay_set(1, 2)
-        c.on_connect = lambda cl, u, f, rc, p: cl.subscribe(f"pymb/{NODE}/#", qos=1)
-        c.on_subscribe = lambda *a: subscribed.set()
-        c.on_message = self._message
-        c.connect("127.0.0.1", port, keepalive=5)
-        c.loop_start()
-        self.client = c
-        if not subscribed.wait(15):
-            raise RuntimeError("the subscriber got no SUBACK")
-
-    def _message(self, client: Any, userdata: Any, msg: Any) -> None:
-        if not msg.topic.endswith("/status"):
-            d = json.loads(msg.payload)
-            with self.lock:
-                self.ids.append(int(d["sample"]))
-                self.stamps.setdefault(int(d["sample"]), set()).add(float(d["monotonic"]))
-
-    def snapshot(self) -> list[int]:
-        with self.lock:
-            return list(self.ids)
-
-    def close(self) -> None:
-        self.client.disconnect()
-        self.client.loop_stop()
 
 
 def _tmpfs(where: Path, size_kb: int) -> str | None:
@@ -194,7 +155,7 @@ def run_section(seconds: float | None, say: Callable[[str], None]) -> dict[str, 
                                quiet=True).start()
         broker = Mosquitto(tmp / "broker")
         broker.start()
-        sub = _Subscriber(broker.port)
+        sub = Subscriber(broker.port, f"pymb/{NODE}/#", "pymb-bench-month", reconnect=(1, 2))
         db = card / "data.sqlite"
         env = {**os.environ, **(fake or {})}
         logger = _Supervised([sys.executable, "-m", "pymb", "log", "--tcp", sim.endpoint,
@@ -247,18 +208,17 @@ def run_section(seconds: float | None, say: Callable[[str], None]) -> dict[str, 
                             .fetchone()[0])
             finally:
                 con.close()
-            _wait(lambda: set(sub.snapshot()) >= ids, 300)
+            _wait(lambda: set(sub.ids()) >= ids, 300)
             con = sqlite3.connect(db)
             try:
                 integrity = str(con.execute("PRAGMA integrity_check").fetchone()[0])
             finally:
                 con.close()
-            got = sub.snapshot()
-            with sub.lock:
-                # an id with two samples: two stamps at the subscriber, or one that
-                # is not the database's
-                reused = sum(1 for i, ts in sub.stamps.items()
-                             if len(ts) > 1 or (i in stamps and stamps[i] not in ts))
+            got = sub.ids()
+            # an id with two samples: two stamps at the subscriber, or one that
+            # is not the database's
+            reused = sum(1 for i, ts in sub.stamps().items()
+                         if len(ts) > 1 or (i in stamps and stamps[i] not in ts))
         finally:
             if logger.proc.poll() is None:
                 logger.kill()

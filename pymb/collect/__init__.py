@@ -11,7 +11,7 @@ stream through an MQTT shared subscription (``--share``). Needs the extra
 
 from __future__ import annotations
 
-from pymb.collect.collector import CollectConfig, Collector, Stats
+from pymb.collect.collector import CollectConfig, Collector, CollectStats
 from pymb.collect.sqlstore import Store, open_store
 
-__all__ = ["CollectConfig", "Collector", "Stats", "Store", "open_store"]
+__all__ = ["CollectConfig", "CollectStats", "Collector", "Store", "open_store"]

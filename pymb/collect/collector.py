@@ -32,8 +32,14 @@ from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import MqttConfig
 
-__all__ = ["MAX_BATCH", "RECEIVE_MAXIMUM", "SESSION_EXPIRY", "CollectConfig", "Collector",
-           "Stats"]
+__all__ = [
+    "MAX_BATCH",
+    "RECEIVE_MAXIMUM",
+    "SESSION_EXPIRY",
+    "CollectConfig",
+    "CollectStats",
+    "Collector",
+]
 
 MAX_BATCH = 2000  #: messages written in one transaction, at most
 RECEIVE_MAXIMUM = 20000  #: unacknowledged messages the broker may send (MQTT 5)
@@ -84,7 +90,7 @@ class CollectConfig:
 
 
 @dataclass
-class Stats:
+class CollectStats:
     """What the collector did so far (read by the status line)."""
 
     messages: int = 0
@@ -112,7 +118,7 @@ class Collector:
 
         self.cfg = cfg
         self.event = event
-        self.stats = Stats()
+        self.stats = CollectStats()
         self.stop = threading.Event()
         self.inbox: queue.SimpleQueue[Message] = queue.SimpleQueue()
         self.generation = 0  #: counts connections; a message remembers its own
@@ -280,7 +286,7 @@ class Collector:
         self.writers.submit(Job(batch, rows))
         return True
 
-    def run(self, tick: Callable[[], None] | None = None) -> Stats:
+    def run(self, tick: Callable[[], None] | None = None) -> CollectStats:
         """Collect until ``stop`` is set, then finish the batch in hand and
         disconnect (Sparkplug: STATE offline first). Raises StoreRefused when
         the database refuses the writes."""

@@ -31,8 +31,8 @@ from pymb.devices.mapreading import MapReading
 from pymb.devices.mapwrite import (
     Budget,
     Outcome,
-    Request,
     WriteBudget,
+    WriteRequest,
     budget_refusal,
     check,
     decoded,
@@ -416,7 +416,7 @@ class MapDevice:
         out = self.write_points([(n, None, v) for n, v in values.items()], verify=verify)
         return {o.name: o.after for o in out}
 
-    def plan_write(self, values: Mapping[str, object]) -> list[Request]:
+    def plan_write(self, values: Mapping[str, object]) -> list[WriteRequest]:
         """The requests :meth:`write_many` would send, checked as it checks;
         nothing is sent (``pymb write --dry-run``)."""
         items = [(n, None, v) for n, v in values.items()]

@@ -35,7 +35,7 @@ from pymb.maps import Map, Point, Value
 from pymb.maps.codec import decode_one, encode
 from pymb.maps.point import did_you_mean
 
-__all__ = ["Budget", "Change", "Outcome", "Request", "WriteBudget", "check", "requests"]
+__all__ = ["Budget", "Change", "Outcome", "WriteBudget", "WriteRequest", "check", "requests"]
 
 _VIEWS = frozenset({"bit", "bits", "u8_hi", "u8_lo", "i8_hi", "i8_lo"})
 _MAX_FC16 = 123  #: registers of one FC 16 request ([MB-AP] 6.12)
@@ -72,7 +72,7 @@ class Change:
 
 
 @dataclass(frozen=True)
-class Request:
+class WriteRequest:
     """One write request: ``function`` (5, 6, 15, 16 or 22), ``table``,
     ``address`` and ``values`` (registers or bits; for FC 22 the AND and OR
     masks). ``rmw``: the registers come from the device's current ones
@@ -245,13 +245,13 @@ def _check_overlaps(m: Map, changes: Sequence[Change]) -> None:
 
 
 def requests(m: Map, changes: Sequence[Change], current: Mapping[int, int] | None = None
-             ) -> list[Request]:
+             ) -> list[WriteRequest]:
     """The fewest requests that write ``changes`` whole, in address order.
     ``current`` (address -> register, for views without ``mask_write``)
     fills in the bits a view leaves alone; without it such a request is
     marked ``rmw`` and shows the view's bits only."""
     limits = m.limits
-    out: list[Request] = []
+    out: list[WriteRequest] = []
     regs: dict[int, int] = {}  # address -> register to write (holding)
     rmw: set[int] = set()
     owners: dict[int, list[str]] = {}
@@ -285,12 +285,12 @@ def requests(m: Map, changes: Sequence[Change], current: Mapping[int, int] | Non
             owners.setdefault(p.address + k, []).append(c.name)
     for a in sorted(masks):
         and_, or_, owned = masks[a]
-        out.append(Request(22, "holding", a, (and_, or_), tuple(owned)))
+        out.append(WriteRequest(22, "holding", a, (and_, or_), tuple(owned)))
     out.extend(_runs(sorted(regs), regs, owners, rmw, limits.write_multiple == "always"))
     run: list[int] = []
     for a in [*sorted(coils), -1]:
         if run and (a != run[-1] + 1 or len(run) == _MAX_FC15):
-            out.append(Request(5 if len(run) == 1 else 15, "coil", run[0],
+            out.append(WriteRequest(5 if len(run) == 1 else 15, "coil", run[0],
                                tuple(coils[x][0] for x in run),
                                tuple(coils[x][1] for x in run)))
             run = []
@@ -300,10 +300,10 @@ def requests(m: Map, changes: Sequence[Change], current: Mapping[int, int] | Non
 
 
 def _runs(addresses: list[int], regs: Mapping[int, int], owners: Mapping[int, list[str]],
-          rmw: set[int], always16: bool) -> list[Request]:
+          rmw: set[int], always16: bool) -> list[WriteRequest]:
     """Adjacent registers in FC 16 requests (a point never split: a request
     ends only where no point continues), FC 06 for a lone register."""
-    out: list[Request] = []
+    out: list[WriteRequest] = []
     run: list[int] = []
 
     def flush() -> None:
@@ -311,7 +311,7 @@ def _runs(addresses: list[int], regs: Mapping[int, int], owners: Mapping[int, li
             return
         names = tuple(dict.fromkeys(n for a in run for n in owners[a]))
         fc = 16 if len(run) > 1 or always16 else 6
-        out.append(Request(fc, "holding", run[0], tuple(regs[a] for a in run), names,
+        out.append(WriteRequest(fc, "holding", run[0], tuple(regs[a] for a in run), names,
                            any(a in rmw for a in run)))
         run.clear()
 

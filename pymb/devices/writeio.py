@@ -9,13 +9,13 @@ from collections.abc import Mapping, Sequence
 
 from pymb.client import Client
 from pymb.devices.mapfetch import Fetcher
-from pymb.devices.mapwrite import Change, Outcome, Request, decoded, not_applied, resolve
+from pymb.devices.mapwrite import Change, Outcome, WriteRequest, decoded, not_applied, resolve
 from pymb.maps import Map, Value
 
 __all__ = ["read_spans", "regs_of", "scale_factors", "send", "verify"]
 
 
-def send(client: Client, slave: int, fetcher: Fetcher, r: Request) -> None:
+def send(client: Client, slave: int, fetcher: Fetcher, r: WriteRequest) -> None:
     """Send one write request, in the device's turn."""
     with fetcher.turn():
         if r.function == 5:

@@ -26,7 +26,7 @@ import pymb
 from pymb.bench import cprogram, pure, report, runner
 from pymb.bench.contenders import CONTENDERS, NAMES
 from pymb.bench.options import EXTRA_SECTIONS, QUICK_BUDGET, SECTIONS
-from pymb.bench.runner import Entry, Options, summary
+from pymb.bench.runner import Options, RaceEntry, summary
 from pymb.bench.worker import SPANS, Canary
 from pymb.child import Child, pymb_argv
 from pymb.cli import main
@@ -127,9 +127,9 @@ def test_reference_rejects_shifted_registers() -> None:
 # -- ratios ------------------------------------------------------------------------------------
 
 
-def _entry(name: str, rounds: list[tuple[int, list[int]]]) -> Entry:
+def _entry(name: str, rounds: list[tuple[int, list[int]]]) -> RaceEntry:
     c = next(c for c in CONTENDERS if c.name == name)
-    e = Entry(c, version="1")
+    e = RaceEntry(c, version="1")
     e.rounds["hub"] = rounds
     return e
 

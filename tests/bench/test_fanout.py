@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from pymb.bench.fanout import Device, Sample, TcpFanout
+from pymb.bench.fanout import FanoutDevice, Sample, TcpFanout
 from pymb.bench.gatebench import TEN_POINTS
 from pymb.maps import Decoder, load
 from pymb.sim import SimulatorProcess
@@ -31,7 +31,7 @@ def _poll(tmp_path: Path, devices: int, seconds: float) -> None:
                            "127.0.0.1:0", "--count", str(devices)], quiet=True) as sim:
         ports = sim.tcp_ports
         assert len(ports) == devices
-        f = TcpFanout([Device("127.0.0.1", p, 1, READ) for p in ports], samples.extend,
+        f = TcpFanout([FanoutDevice("127.0.0.1", p, 1, READ) for p in ports], samples.extend,
                       interval=1.0, timeout=0.5)
         stats = f.run(seconds)
     assert stats.missed == [0] * devices
@@ -85,10 +85,10 @@ def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path) -> None:
     try:
         with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
                                "127.0.0.1:0", "--count", "3"], quiet=True) as sim:
-            live = [Device("127.0.0.1", p, 1, READ) for p in sim.tcp_ports]
-            bad = Device("127.0.0.1", sim.tcp_ports[0], 1, (("input", 100, 2),))
-            devices = [*live, Device("127.0.0.1", srv.getsockname()[1], 1, READ), bad,
-                       Device("127.0.0.1", refused, 1, READ)]
+            live = [FanoutDevice("127.0.0.1", p, 1, READ) for p in sim.tcp_ports]
+            bad = FanoutDevice("127.0.0.1", sim.tcp_ports[0], 1, (("input", 100, 2),))
+            devices = [*live, FanoutDevice("127.0.0.1", srv.getsockname()[1], 1, READ), bad,
+                       FanoutDevice("127.0.0.1", refused, 1, READ)]
             f = TcpFanout(devices, samples.extend, interval=0.5, timeout=0.2, retry=0.5)
             stats = f.run(4.0)
     finally:
@@ -112,7 +112,7 @@ def test_flat_out_pipelined_polls_keep_the_requests_in_order(tmp_path: Path) -> 
     samples: list[Sample] = []
     with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
                            "127.0.0.1:0", "--count", "4"], quiet=True) as sim:
-        devices = [Device("127.0.0.1", p, 1, reads) for p in sim.tcp_ports]
+        devices = [FanoutDevice("127.0.0.1", p, 1, reads) for p in sim.tcp_ports]
         f = TcpFanout(devices, samples.extend, interval=0, pipeline=5, timeout=2.0)
         timer = threading.Timer(1.5, f.stop)
         timer.start()
@@ -130,12 +130,12 @@ def test_flat_out_pipelined_polls_keep_the_requests_in_order(tmp_path: Path) -> 
 def test_mistakes_are_invalid_arguments() -> None:
     from pymb.errors import InvalidArgument
     with pytest.raises(InvalidArgument, match="unknown table"):
-        Device("127.0.0.1", 502, 1, (("inputs", 0, 2),))
+        FanoutDevice("127.0.0.1", 502, 1, (("inputs", 0, 2),))
     with pytest.raises(InvalidArgument, match="not one read"):
-        Device("127.0.0.1", 502, 1, (("input", 0, 126),))
+        FanoutDevice("127.0.0.1", 502, 1, (("input", 0, 126),))
     with pytest.raises(InvalidArgument, match="a poll needs a request"):
-        Device("127.0.0.1", 502, 1, ())
+        FanoutDevice("127.0.0.1", 502, 1, ())
     with pytest.raises(InvalidArgument, match="pipeline"):
-        TcpFanout([Device("127.0.0.1", 502, 1, READ)], print, pipeline=0)
+        TcpFanout([FanoutDevice("127.0.0.1", 502, 1, READ)], print, pipeline=0)
     with pytest.raises(InvalidArgument, match="no devices"):
         TcpFanout([], print)

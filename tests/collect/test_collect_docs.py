@@ -27,7 +27,7 @@ from conftest import PYMB, PYMB_ENV  # noqa: E402
 from docblocks import assert_shaped, claim, claim_one  # noqa: E402
 from mqtt_broker import Fleet  # noqa: E402
 
-from pymb.collect.collector import Stats  # noqa: E402
+from pymb.collect.collector import CollectStats  # noqa: E402
 from pymb.collect.postgres import Postgres  # noqa: E402
 from pymb.commands.collect import status_text  # noqa: E402
 
@@ -66,7 +66,7 @@ def test_the_broker_settings_are_the_tests_brokers(fleet: Fleet) -> None:
 
 
 def test_the_status_line_is_pymbs() -> None:
-    st = Stats(messages=84112, rows=6224288, lag=0.3, db_ok=True, mqtt_ok=True)
+    st = CollectStats(messages=84112, rows=6224288, lag=0.3, db_ok=True, mqtt_ok=True)
     line = status_text(st, 70.0, (69.0, 84112 - 1204, 6224288 - 89096))
     assert_shaped(claim_one("docs/collect.md", "text", how="compare", index=2), [line])
 
