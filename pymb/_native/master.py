@@ -124,7 +124,7 @@ class Master:
     """One stream's master: the requests in flight, a reply cut short, and
     the buffer :meth:`frames` writes to. :meth:`reset` on each new stream."""
 
-    __slots__ = ("_ev", "_m", "_out", "_used", "out", "view")
+    __slots__ = ("_ev", "_m", "_out", "_used", "out", "taken", "view")
 
     def __init__(self) -> None:
         self._m: Any = ffi.new("pymbi_master *")
@@ -133,6 +133,7 @@ class Master:
         self.out = bytearray(_OUT)  #: the frames :meth:`frames` wrote
         self.view = memoryview(self.out)  #: :attr:`out`, to send a slice of without a copy
         self._out = ffi.from_buffer("uint8_t[]", self.out)
+        self.taken = 0  #: replies the last :meth:`take` took into its image
         lib.pymbi_master_reset(self._m, 1)
 
     def reset(self, tid: int = 1) -> None:
@@ -199,11 +200,14 @@ class Master:
             image, size = _NO_IMAGE, 0
         else:
             image, size = table.image_c, table.image_len
-        got: int = _take(self._m, buf.c + start if start else buf.c, length, image, size,
+        m = self._m
+        before = m.replies
+        got: int = _take(m, buf.c + start if start else buf.c, length, image, size,
                          self._ev, _EVENTS, self._used)
         if got < 0:
             raise ValueError("a request in flight does not fit this poll's image")
-        return got, int(self._used[0])
+        self.taken = m.replies - before
+        return got, self._used[0]
 
     def event(self, i: int) -> MasterEvent:
         """Event ``i`` of the last :meth:`take`."""

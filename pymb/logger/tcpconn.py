@@ -13,7 +13,6 @@ import errno
 import ipaddress
 import os
 import queue
-import selectors
 import socket
 import threading
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
+from pymb.logger.tcpsel import READ, WRITE, Selector
 from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event, Sample
 
@@ -140,7 +140,7 @@ class TcpLoopBase(threading.Thread):
         self.stop_event = stop
         self.stats = stats
         self.conns: list[Conn] = []
-        self._sel = selectors.DefaultSelector()
+        self._sel = Selector()
         self.report = Report(out, stats)
         self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
 
@@ -191,7 +191,7 @@ class TcpLoopBase(threading.Thread):
         c.sock, c.state, c.lowat = s, "connecting", 1
         c.deadline = now + c.bus.timeout
         self._soonest = min(self._soonest, c.deadline)
-        self._sel.register(s, selectors.EVENT_WRITE, c)
+        self._sel.register(s, WRITE, c)
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         c.resolved = None
@@ -208,7 +208,7 @@ class TcpLoopBase(threading.Thread):
             return
         c.state = "open"
         c.answered = False
-        self._sel.modify(c.sock, selectors.EVENT_READ, c)
+        self._sel.modify(c.sock, READ, c)
         report = self.report
         report.opened(c.bus.name)
         wait = max(u.config.map.timing.after_connect for u in c.units)

@@ -16,7 +16,6 @@ polls that fall due meanwhile wait (a slot that passes is counted skipped).
 from __future__ import annotations
 
 import contextlib
-import selectors
 import socket
 import threading
 import time
@@ -24,6 +23,7 @@ from collections.abc import Callable
 
 from pymb.errors import ModbusConnectionError, ModbusTimeout
 from pymb.logger.tcpconn import Conn, Loan
+from pymb.logger.tcpsel import READ, Selector
 
 __all__ = ["Lender"]
 
@@ -37,7 +37,7 @@ class Lender:
     ``sweep_now`` tells the loop to look at its idle connections at once
     (where it calls :meth:`lend`)."""
 
-    def __init__(self, sel: selectors.BaseSelector, sweep_now: Callable[[], None]) -> None:
+    def __init__(self, sel: Selector, sweep_now: Callable[[], None]) -> None:
         self._sel = sel
         self._sweep_now = sweep_now
         self._loan_lock = threading.Lock()
@@ -45,7 +45,7 @@ class Lender:
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
-        sel.register(self._wake_r, selectors.EVENT_READ, self)
+        sel.register(self._wake_r, READ, self)
 
     def woken(self) -> None:
         """The loop: a borrower woke the select (its byte is dropped)."""
@@ -109,7 +109,7 @@ class Lender:
             c.loan = None
             if loan.given.is_set() and c.sock is not None and c.state == "open":
                 with contextlib.suppress(KeyError, ValueError, OSError):
-                    self._sel.register(c.sock, selectors.EVENT_READ, c)
+                    self._sel.register(c.sock, READ, c)
             return False
         if loan.given.is_set():
             return True

@@ -32,7 +32,6 @@ import errno
 import heapq
 import os
 import queue
-import selectors
 import threading
 import time
 
@@ -51,7 +50,8 @@ from pymb.logger.stats import Stats
 from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
-from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading
+from pymb.logger.tcpsel import WRITABLE
+from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading, new_sample
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -176,7 +176,8 @@ class TcpMapPoller(TcpReplies):
         requests, and after a silence it asked for)."""
         e = c.entry
         assert e is not None
-        assert c.sock is not None
+        sock = c.sock
+        assert sock is not None
         u = e.unit
         m = c.m
         pipe = c.pipeline
@@ -190,7 +191,8 @@ class TcpMapPoller(TcpReplies):
                     self._silent.add(c)
                 return
         busy = m.in_flight
-        n = min(pipe - busy, len(c.todo) - c.sent)
+        todo = len(c.todo)
+        n = min(pipe - busy, todo - c.sent)
         if c.limit and n > c.limit - c.asked:
             n = c.limit - c.asked
             if n <= 0 and not busy:
@@ -203,33 +205,31 @@ class TcpMapPoller(TcpReplies):
         c.sent += n
         c.asked += n
         if not busy:
-            c.deadline = now + u.timeout
-            if c.deadline < self._soonest:
-                self._soonest = c.deadline
-        if n != len(c.todo) or n == 1 or u.timed:  # woken by each reply (one, or a poll
-            c.wake_at(1)  # longer than the pipeline)
+            c.deadline = deadline = now + u.timeout
+            if deadline < self._soonest:
+                self._soonest = deadline
+        if n != todo or n == 1 or u.timed:  # woken by each reply (one, or a poll
+            if c.lowat != 1:  # longer than the pipeline)
+                c.wake_at(1)
         else:  # the whole poll at once: one wake-up for its replies
-            c.wake_at(t.ends[n])
+            if c.lowat != t.ends[n]:
+                c.wake_at(t.ends[n])
             c.whole = True
             c.sent_at = now
-            look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
+            took = c.took
+            look = 2 * took if 2 * took > _LOOK else _LOOK
             self._seq += 1
-            c.look = self._seq
-            heapq.heappush(self._looks, (now + min(look, u.timeout / 4), self._seq, c))
-        self._put(c, m.view[:size], now)
-
-    def _put(self, c: Conn, data: bytes | bytearray | memoryview, now: float) -> None:
-        """Send requests (whole, or the connection is lost)."""
-        assert c.sock is not None
-        try:
-            sent = c.sock.send(data)
+            c.look = seq = self._seq
+            heapq.heappush(self._looks, (now + min(look, u.timeout / 4), seq, c))
+        try:  # whole, or the connection is lost
+            sent = sock.send(m.view[:size])
         except BlockingIOError:
             sent = 0
         except OSError as err:
             self._lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
             return
-        if sent != len(data):  # half a request would put the stream out of step
-            self._lost(c, now, f"the connection took {sent} of {len(data)} request bytes "
+        if sent != size:  # half a request would put the stream out of step
+            self._lost(c, now, f"the connection took {sent} of {size} request bytes "
                                "(the device does not read its requests)", None)
 
     def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
@@ -277,7 +277,7 @@ class TcpMapPoller(TcpReplies):
                 c.wake_at(max(1, sum(t.sizes[k] for k in m.pending()) - m.kept))
 
     def _done(self, c: Conn, e: Entry, now: float) -> None:
-        """A poll read every request: its sample."""
+        """A poll read every request: its sample; the group's next slot."""
         u = e.unit
         c.entry = None
         c.whole = False
@@ -286,7 +286,7 @@ class TcpMapPoller(TcpReplies):
             unread = (unread | c.unread) & e.decode.items
         reading = lazy_reading(e.decode, bytes(e.image), unread)
         report = self.report
-        report.sample(Sample(u.info, time.time(), now, reading))
+        report.sample(new_sample(u.info, time.time(), now, reading))
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
         self._requeue(c, e, now)
 
@@ -390,7 +390,7 @@ class TcpMapPoller(TcpReplies):
                 e.slot.next_at = start
                 if e.slot.interval:
                     self._agenda.put(e.slot, e, start)
-        stop, select = self.stop_event, self._sel.select
+        stop, select, lender = self.stop_event, self._sel.select, self.lender
         next_sweep = start
         while not stop.is_set():
             now = time.monotonic()
@@ -416,15 +416,14 @@ class TcpMapPoller(TcpReplies):
                     self._readable(c, now)
             if looks:
                 wait = min(wait, looks[0][0] - now)
-            for key, mask in select(max(wait, 0.0)):
-                c = key.data
-                if c is self.lender:  # a write command's thread woke the loop
-                    self.lender.woken()
+            for c, mask in select(wait):
+                if c is lender:  # a write command's thread woke the loop
+                    lender.woken()
                     continue
                 t = time.monotonic()
                 if c.state == "open":
                     self._readable(c, t)
-                elif mask & selectors.EVENT_WRITE:
+                elif mask & WRITABLE:
                     self._connected(c, t)
                     if c.entry is not None and c.state == "open" and not c.busy:
                         self._send(c, t)  # the rest of a poll, on a new connection

@@ -28,6 +28,8 @@ from pymb.store import Sample
 
 __all__ = ["TcpReplies"]
 
+_PEEK = socket.MSG_PEEK
+
 
 class TcpReplies(TcpLoopBase):
     """The loop's reading side; the poller (:class:`pymb.logger.tcploop.TcpMapPoller`)
@@ -82,27 +84,36 @@ class TcpReplies(TcpLoopBase):
         assert sock is not None
         rx = self._rx
         peek = c.lowat > 1  # woken for a whole poll's replies: looked at, dropped after
-        got = self._recv(c, sock, rx.view, 0, socket.MSG_PEEK if peek else 0)
+        try:
+            got = sock.recv_into(rx.view, 0, _PEEK if peek else 0)
+        except BlockingIOError:
+            return
+        except OSError as err:
+            self._lost(c, time.monotonic(), os.strerror(err.errno or errno.ECONNRESET),
+                       err.errno)
+            return
         if not got:
+            self._lost(c, time.monotonic(), "the connection was closed by the device",
+                       errno.ECONNRESET)
             return
         m = c.m
         e = c.entry
         table = c.table if e is not None else None
-        replies = m.replies
         n, pos = m.take(rx, 0, got, table)
         if not n and pos == got:  # replies only (or a part of one)
-            if m.replies != replies and e is not None:
+            if m.taken and e is not None:
                 c.answered = True
                 self._progress(c, e, now)
             if peek and c.sock is sock:
                 self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
             return
+        answered = m.taken > 0
         events = [m.event(i) for i in range(n)]
         while pos < got and n and events[-1].kind != BAD:
             n, used = m.take(rx, pos, got - pos, table)
+            answered = answered or m.taken > 0
             events += [m.event(i) for i in range(n)]
             pos += used
-        answered = m.replies != replies
         for ev in events:
             if ev.kind == EXCEPTION:
                 if e is not None and c.entry is e:
