@@ -231,8 +231,15 @@ class SqliteSink(SinkBase):
                      stored_registers(s.data), unsupported_of(s.data))
                     for s in samples]
             bounded = self.max_bytes is not None
-            quarter = self.wal_budget // 4
             self._begin()
+            if not bounded:  # no WAL budget: statements of ROWS_PER_INSERT rows
+                execute = self.db.execute
+                for i in range(0, len(rows), ROWS_PER_INSERT):
+                    chunk = rows[i:i + ROWS_PER_INSERT]
+                    execute(insert_rows(len(chunk)), [v for row in chunk for v in row])
+                self.stored += len(rows)
+                return
+            quarter = self.wal_budget // 4
             i = 0
             while i < len(rows):
                 # A statement ends where write() one by one would commit: at
