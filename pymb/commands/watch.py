@@ -36,6 +36,7 @@ from pymb.commands.maptext import map_json, render_map
 from pymb.devices import HubReading, State
 from pymb.devices.hubreading import BLOCKS, block_index
 from pymb.devices.mapspec import MapTarget
+from pymb.devices.retry import Health
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
@@ -43,11 +44,6 @@ _DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
 _STATE_WORDS = {State.OFFLINE: "off", State.NO_SENSOR: "-", State.UNSUPPORTED: "n/a",
                 State.NOT_READ: ""}
 _CELL = 6  # characters per value: "-327.6" at most, a space before
-#: As ``pymb log``: a device that supplied no value is tried again after a
-#: pause at once, any other fault after this many in a row; the pause starts
-#: at the first value and doubles up to the second.
-_FAULTS_BEFORE_BACKOFF = 10
-_BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -140,26 +136,27 @@ def run(args: argparse.Namespace) -> int:
             with client:
                 if args.identity:
                     frames.put(("identity", read_cmd.identity_of(dev, client)))
-                attempts = failures = 0
-                backoff = 0.0
+                attempts = 0
+                # as ``pymb log``'s: a device that supplied no value is backed off
+                # at once, any other fault after a run of them
+                health = Health.of_facade(dev.name)
                 while not stop.is_set() and (args.count <= 0 or attempts < args.count):
                     start = time.monotonic()
                     attempts += 1
                     try:
                         frames.put(("data", read()))
-                        failures, backoff = 0, 0.0
+                        health.answered()
                     except ModbusConnectionError:
                         raise
                     except ModbusError as e:
-                        failures += 1
                         no_value = getattr(e, "reason", "") == "no value"
-                        if no_value or failures >= _FAULTS_BEFORE_BACKOFF:
-                            backoff = min(max(backoff * 2, _BACKOFF_FIRST), _BACKOFF_MAX)
+                        next_try = health.failed(time.monotonic(), at_once=no_value)
+                        if next_try:
                             if 0 < args.count <= attempts:  # no next try
                                 frames.put(("error", str(e)))
                                 break
-                            frames.put(("error", f"{e}; next try in {backoff:g} s"))
-                            stop.wait(backoff)
+                            frames.put(("error", f"{e}{next_try}"))
+                            stop.wait(health.backoff)
                             continue
                         frames.put(("error", str(e)))
                     if args.interval > 0:

@@ -9,13 +9,14 @@ both run it and do only the reading and the writing.
   Interval 0 is flat out, or, for a map group (``once``), one read after the
   device (re)appears: not again on a connection the device itself closed
   after its replies.
-- :class:`Health`: a device's failures in a row and when it is tried again
-  (a map device is offline for ``offline_retry`` after ``offline_after``
-  failed polls; a facade device backs off 0.5 s doubling to 30 s after
-  ten failures in a row).
+- :class:`~pymb.devices.retry.Health`: a device's failures in a row and
+  when it is tried again (a map device is offline for ``offline_retry`` after
+  ``offline_after`` failed polls; a facade device backs off 0.5 s doubling to
+  30 s after ten failures in a row), and
+  :class:`~pymb.devices.retry.Backoff`, that doubling wait (a bus that does
+  not open is tried again 0.5 s doubling to 30 s later): the rules of
+  :mod:`pymb.devices.retry`, below the logger, which ``pymb watch`` keeps too.
 - :class:`Agenda`: which slots are due when, for a whole bus or loop.
-- :class:`Backoff`: a bus that does not open, tried again 0.5 s doubling to
-  30 s later.
 - The batching of samples for the writer (:data:`BATCH_MAX`, :data:`BATCH_AGE`)
   and the text of each event these rules give (:data:`TEXT`).
 """
@@ -28,6 +29,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
+from pymb.devices.retry import (
+    BACKOFF,
+    BACKOFF_FIRST,
+    BACKOFF_MAX,
+    FAULTS_BEFORE_BACKOFF,
+    OFFLINE,
+    Backoff,
+    Health,
+)
+
 __all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "FAULTS_BEFORE_BACKOFF",
            "TEXT", "Agenda", "Backoff", "Health", "Slot", "reappeared"]
 
@@ -36,10 +47,6 @@ __all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "FAULTS_BEF
 #: two per sample. Events go at once, after the samples before them.
 BATCH_MAX = 64
 BATCH_AGE = 0.02
-#: a doubling backoff's first and longest wait (seconds)
-BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0
-#: failed reads of a facade device (CoolPro, hub) in a row before it is backed off
-FAULTS_BEFORE_BACKOFF = 10
 
 #: The text of each event the pollers record, one per fact (``str.format``
 #: fields); a failed poll's text is its error's, with "offline" or "backoff".
@@ -56,81 +63,9 @@ TEXT = {
     "no_value": "{name} supplied no value: {why}",
     "skipped": "{late} poll slot(s) of {interval:g} s skipped ({what})",
     "online": "{name} answers again",
-    "offline": "; offline after {failures} failed poll(s), next try in {wait:g} s",
-    "backoff": "; next try in {wait:g} s",
+    "offline": OFFLINE,
+    "backoff": BACKOFF,
 }
-
-
-class Backoff:
-    """A doubling wait: :data:`BACKOFF_FIRST`, twice that, ... at most :data:`BACKOFF_MAX`."""
-
-    __slots__ = ("wait",)
-
-    def __init__(self) -> None:
-        self.wait = BACKOFF_FIRST  #: seconds of the next wait
-
-    def take(self) -> float:
-        """The wait now; the next one is twice as long."""
-        wait = self.wait
-        self.wait = min(wait * 2, BACKOFF_MAX)
-        return wait
-
-    def reset(self) -> None:
-        """Back to the first wait (the bus opened, or carried a reply)."""
-        self.wait = BACKOFF_FIRST
-
-
-@dataclass(eq=False)
-class Health:
-    """How a device's polls go: failures in a row, and not polled before
-    :attr:`retry_at` once they are too many."""
-
-    name: str
-    #: failed polls in a row before the device is left alone
-    after: int
-    #: seconds a map device is offline; None: a facade device's doubling backoff
-    retry: float | None
-    failures: int = 0  #: failed polls in a row
-    retry_at: float = 0.0  #: not polled before this (clock)
-    offline: bool = False  #: a map device left alone (an ``online`` event when it answers)
-    backoff: float = 0.0  #: a facade device's current backoff (0: none)
-
-    @classmethod
-    def of_map(cls, name: str, offline_after: int | None,
-               offline_retry: float | None) -> Health:
-        """A map device's: offline after ``offline_after`` failed polls (1 if
-        unset) for ``offline_retry`` seconds (30 if unset)."""
-        return cls(name, offline_after or 1, float(offline_retry or 30.0))
-
-    @classmethod
-    def of_facade(cls, name: str) -> Health:
-        """A facade device's (CoolPro, hub): backed off after :data:`FAULTS_BEFORE_BACKOFF`."""
-        return cls(name, FAULTS_BEFORE_BACKOFF, None)
-
-    def failed(self, now: float, at_once: bool = False) -> str:
-        """Count a failed poll at ``now`` (``at_once``: left alone now, however
-        few the failures). Returns what the fault's event adds: when the
-        next try is, if that is news."""
-        self.failures += 1
-        if self.retry is None:
-            if not at_once and self.failures < self.after:
-                return ""
-            self.backoff = min(max(self.backoff * 2, BACKOFF_FIRST), BACKOFF_MAX)
-            self.retry_at = now + self.backoff
-            return TEXT["backoff"].format(wait=self.backoff)
-        if not at_once and self.failures < self.after:
-            return ""
-        self.retry_at = now + self.retry
-        if self.offline:
-            return ""
-        self.offline = True
-        return TEXT["offline"].format(failures=self.failures, wait=self.retry)
-
-    def answered(self) -> bool:
-        """A poll succeeded; whether the device was offline (it is back)."""
-        was = self.offline
-        self.failures, self.offline, self.backoff = 0, False, 0.0
-        return was
 
 
 @dataclass(eq=False)
