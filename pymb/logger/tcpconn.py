@@ -239,7 +239,7 @@ class TcpLoopBase(threading.Thread):
                 e.queued = True
                 c.waiting.append(e)
 
-    def _reopen(self, c: Conn, now: float) -> str:
+    def reopen(self, c: Conn, now: float) -> str:
         """Close ``c`` after a failure on it: opened again at once when it
         carried a reply, else after the bus's doubling backoff (a device
         that accepts and drops every connection is not hammered). Returns

@@ -47,7 +47,7 @@ from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
 from pymb.logger.schedule import TEXT, Agenda
 from pymb.logger.stats import Stats
-from pymb.logger.tcpconn import Conn, asked
+from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
@@ -75,7 +75,7 @@ def fans_out(bus: BusConfig) -> bool:
             and all(d.facade is None for d in bus.devices))
 
 
-class TcpMapPoller(TcpReplies):
+class TcpMapPoller(TcpLoopBase):
     """Polls the map devices of ``buses`` (each :func:`fans_out`) until
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
@@ -83,6 +83,8 @@ class TcpMapPoller(TcpReplies):
     def __init__(self, buses: list[BusConfig], out: queue.Queue[list[Sample | Event]],
                  stop: threading.Event, stats: Stats) -> None:
         super().__init__(out, stop, stats)
+        #: the reading side; it tells this poller what came (as its ``Polls``)
+        self.replies = TcpReplies(self)
         planners: dict[int, tuple[PointPlanner, MapItems]] = {}
         decoders: dict[tuple[int, str | None], GroupDecode] = {}
         for bus in buses:
@@ -115,9 +117,9 @@ class TcpMapPoller(TcpReplies):
 
     # -- polls ---------------------------------------------------------------------------
 
-    def _lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
+    def lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
         """The connection failed: the device of the poll under way is told
-        (else the bus), and the bus is opened again (:meth:`_reopen`). A
+        (else the bus), and the bus is opened again (:meth:`reopen`). A
         connection the device closed after replying is no failure
         (:meth:`_closed_after_replies`)."""
         if err in _CLOSED and c.asked > c.in_flight and not c.m.kept:
@@ -126,11 +128,11 @@ class TcpMapPoller(TcpReplies):
         e = c.entry
         pending = c.pending()
         spec = pending[0] if pending else (c.todo[0] if c.todo else None)
-        retry = self._reopen(c, now)
+        retry = self.reopen(c, now)
         if e is not None:
             exc = ModbusConnectionError(
                 f"{asked(spec, e.unit)} on {c.bus.endpoint}: {why}", errno=err)
-            self._failed(c, e, exc, now)
+            self.failed(c, e, exc, now)
         else:  # between polls: the bus's event
             self.report.bus_fault(c.bus.name, why, "connection", TEXT["lost"].format(
                 endpoint=c.bus.endpoint, why=why, retry=retry))
@@ -139,7 +141,7 @@ class TcpMapPoller(TcpReplies):
         e, c.resume, c.renew = c.resume, None, False
         super()._not_open(c, now, why)
         if e is not None:  # the poll that waited for the connection fails with it
-            self._failed(c, e, ModbusConnectionError(
+            self.failed(c, e, ModbusConnectionError(
                 f"{asked(None, e.unit)} on {c.bus.endpoint}: {why}"), now)
 
     # -- polls ---------------------------------------------------------------------------
@@ -226,16 +228,18 @@ class TcpMapPoller(TcpReplies):
         except BlockingIOError:
             sent = 0
         except OSError as err:
-            self._lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
+            self.lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
             return
         if sent != size:  # half a request would put the stream out of step
-            self._lost(c, now, f"the connection took {sent} of {size} request bytes "
+            self.lost(c, now, f"the connection took {sent} of {size} request bytes "
                                "(the device does not read its requests)", None)
 
-    def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
+    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
+        """The device answered ``spec`` with exception ``code``: re-planned
+        within the poll as the planner's policy says, else the poll fails."""
         u = e.unit
         refusal = on_refusal(u.planner, spec.request, code)
-        if refusal is not None:  # the poll goes on (the reader calls _progress)
+        if refusal is not None:  # the poll goes on (the reader calls progress)
             c.unread.update(refusal.unsupported)
             if refusal.requests:
                 subs = [e.spec(s) for s in refusal.requests]
@@ -249,10 +253,10 @@ class TcpMapPoller(TcpReplies):
             port=c.bus.endpoint)
         c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
-        self._failed(c, e, exc, now)
+        self.failed(c, e, exc, now)
         self._next(c, now)
 
-    def _progress(self, c: Conn, e: Entry, now: float) -> None:
+    def progress(self, c: Conn, e: Entry, now: float) -> None:
         """Replies (or refusals) came for the poll under way: the next of
         its requests go out, or it is done."""
         u = e.unit
@@ -302,7 +306,7 @@ class TcpMapPoller(TcpReplies):
         else:
             self._agenda.put(slot, e, slot.wake(now))
 
-    def _failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
+    def failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
         """A poll of ``e`` failed with ``exc``: counted and said; the group's next slot."""
         u = e.unit
         self.report.error(c.bus.name, u.health, u.info, exc, now)
@@ -324,7 +328,7 @@ class TcpMapPoller(TcpReplies):
             elif c.entry is not None and now >= c.deadline:
                 if c.busy and c.lowat > 1:
                     c.wake_at(1)
-                    self._readable(c, now)  # what came before the time was up
+                    self.replies.readable(c, now)  # what came before the time was up
                 if c.entry is not None and now >= c.deadline:
                     if c.busy:
                         self._timeout(c, now)
@@ -348,9 +352,9 @@ class TcpMapPoller(TcpReplies):
                             response=got, header=7, frame=None)
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
-        self._failed(c, e, exc, now)
+        self.failed(c, e, exc, now)
         if got:  # a part of a reply (one whose length lied?): the stream is out of step
-            self._reopen(c, now)
+            self.reopen(c, now)
         self._next(c, now)
 
     def _quiet_over(self, now: float) -> float:
@@ -413,7 +417,7 @@ class TcpMapPoller(TcpReplies):
                 _, seq, c = heapq.heappop(looks)
                 if c.look == seq and c.busy and c.lowat > 1:  # read them as they come
                     c.wake_at(1)
-                    self._readable(c, now)
+                    self.replies.readable(c, now)
             if looks:
                 wait = min(wait, looks[0][0] - now)
             for c, mask in select(wait):
@@ -422,7 +426,7 @@ class TcpMapPoller(TcpReplies):
                     continue
                 t = time.monotonic()
                 if c.state == "open":
-                    self._readable(c, t)
+                    self.replies.readable(c, t)
                 elif mask & WRITABLE:
                     self._connected(c, t)
                     if c.entry is not None and c.state == "open" and not c.busy:

@@ -1,64 +1,62 @@
 """The replies on the one TCP loop's connections (:mod:`pymb.logger.tcploop`):
-:class:`TcpReplies` reads what came on a connection and hands it to the
+:class:`TcpReplies`, which the loop owns, reads what came on a connection and hands it to the
 connection's master (:class:`pymb._native.master.Master`, the C core's), which
 matches each reply to its request by its transaction id, checks it and copies
 its data into the poll's sample image, and keeps a reply cut short for the
 next read. What is not such a reply comes back as an event: an exception
 (the poller re-plans or fails the poll), a bad frame (the connection is
-opened again), a late or foreign reply (skipped).
+opened again), a late or foreign reply (skipped). What a reply, a refusal or
+a loss does to the polls is the poller's (:class:`Polls`).
 """
 
 from __future__ import annotations
 
 import errno
 import os
-import queue
 import socket
-import threading
 import time
+from typing import Protocol
 
 from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
+from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT
-from pymb.logger.stats import Stats
-from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
+from pymb.logger.tcpconn import Conn, asked
 from pymb.logger.tcpunits import Entry, PollRequest
-from pymb.store import Event as StoreEvent
-from pymb.store import Sample
 
-__all__ = ["TcpReplies"]
+__all__ = ["Polls", "TcpReplies"]
 
 _PEEK = socket.MSG_PEEK
 
 
-class TcpReplies(TcpLoopBase):
-    """The loop's reading side; the poller (:class:`pymb.logger.tcploop.TcpMapPoller`)
-    says what a reply, an exception or a loss does to its polls."""
+class Polls(Protocol):
+    """What the replies do to the polls (:class:`pymb.logger.tcploop.TcpMapPoller`)."""
 
-    def __init__(self, out: queue.Queue[list[Sample | StoreEvent]], stop: threading.Event,
-                 stats: Stats) -> None:
-        super().__init__(out, stop, stats)
+    report: Report  #: where the events go
+
+    def lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
+        """``c``'s connection failed (``err``: its errno, if any)."""
+
+    def progress(self, c: Conn, e: Entry, now: float) -> None:
+        """Replies (or refusals) came for ``e``, the poll under way on ``c``."""
+
+    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
+        """The device answered ``spec`` of ``e`` with exception ``code``."""
+
+    def failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
+        """The poll of ``e`` failed with ``exc``."""
+
+    def reopen(self, c: Conn, now: float) -> str:
+        """Close ``c`` after a failure and open it again (when: as events say it)."""
+
+
+class TcpReplies:
+    """The loop's reading side: ``polls`` says what a reply, an exception or
+    a loss does to its polls."""
+
+    def __init__(self, polls: Polls) -> None:
+        self.polls = polls
         self._rx = ReadBuffer()  #: the one buffer every connection is read into
-
-    # -- what the poller does ------------------------------------------------------------
-
-    def _lost(self, c: Conn, now: float, why: str, err: int | None) -> None:
-        raise NotImplementedError
-
-    def _send(self, c: Conn, now: float) -> None:
-        raise NotImplementedError
-
-    def _next(self, c: Conn, now: float) -> None:
-        raise NotImplementedError
-
-    def _progress(self, c: Conn, e: Entry, now: float) -> None:
-        raise NotImplementedError
-
-    def _exception(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
-        raise NotImplementedError
-
-    def _failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
-        raise NotImplementedError
 
     # -- reading -------------------------------------------------------------------------
 
@@ -71,30 +69,22 @@ class TcpReplies(TcpLoopBase):
         except BlockingIOError:
             return 0
         except OSError as err:
-            self._lost(c, time.monotonic(), os.strerror(err.errno or errno.ECONNRESET),
-                       err.errno)
+            self.polls.lost(c, time.monotonic(), os.strerror(err.errno or errno.ECONNRESET),
+                            err.errno)
             return 0
         if not got:
-            self._lost(c, time.monotonic(), "the connection was closed by the device",
-                       errno.ECONNRESET)
+            self.polls.lost(c, time.monotonic(), "the connection was closed by the device",
+                            errno.ECONNRESET)
         return got
 
-    def _readable(self, c: Conn, now: float) -> None:
+    def readable(self, c: Conn, now: float) -> None:
+        """Read what came on ``c`` (open, or the connection is lost)."""
         sock = c.sock
         assert sock is not None
         rx = self._rx
         peek = c.lowat > 1  # woken for a whole poll's replies: looked at, dropped after
-        try:
-            got = sock.recv_into(rx.view, 0, _PEEK if peek else 0)
-        except BlockingIOError:
-            return
-        except OSError as err:
-            self._lost(c, time.monotonic(), os.strerror(err.errno or errno.ECONNRESET),
-                       err.errno)
-            return
+        got = self._recv(c, sock, rx.view, 0, _PEEK if peek else 0)
         if not got:
-            self._lost(c, time.monotonic(), "the connection was closed by the device",
-                       errno.ECONNRESET)
             return
         m = c.m
         e = c.entry
@@ -103,7 +93,7 @@ class TcpReplies(TcpLoopBase):
         if not n and pos == got:  # replies only (or a part of one)
             if m.taken and e is not None:
                 c.answered = True
-                self._progress(c, e, now)
+                self.polls.progress(c, e, now)
             if peek and c.sock is sock:
                 self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
             return
@@ -118,7 +108,7 @@ class TcpReplies(TcpLoopBase):
             if ev.kind == EXCEPTION:
                 if e is not None and c.entry is e:
                     answered = True
-                    self._exception(c, e, c.todo[ev.token], ev.code, now)
+                    self.polls.refused(c, e, c.todo[ev.token], ev.code, now)
             elif ev.kind == BAD:
                 spec = c.todo[ev.token] if ev.token != NO_TOKEN and c.entry is e else None
                 self._garbage(c, now, m.bad_frame(), spec)
@@ -126,7 +116,7 @@ class TcpReplies(TcpLoopBase):
         if answered:
             c.answered = True
             if e is not None and c.entry is e:
-                self._progress(c, e, now)
+                self.polls.progress(c, e, now)
         if peek and c.sock is sock:
             self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
 
@@ -139,9 +129,10 @@ class TcpReplies(TcpLoopBase):
             exc = ProtocolError(f"{asked(spec, e.unit)} on {c.bus.endpoint}: the reply does "
                                 f"not match the request (received {got.hex(' ').upper()})",
                                 response=got)
-            self._failed(c, e, exc, now)
+            self.polls.failed(c, e, exc, now)
             c.entry = None
         else:  # between polls: the bus's event
-            self.report.bus_fault(c.bus.name, "unexpected bytes", "protocol", TEXT["stray"].format(
-                endpoint=c.bus.endpoint, got=got.hex(" ").upper()))
-        self._reopen(c, now)
+            self.polls.report.bus_fault(
+                c.bus.name, "unexpected bytes", "protocol",
+                TEXT["stray"].format(endpoint=c.bus.endpoint, got=got.hex(" ").upper()))
+        self.polls.reopen(c, now)
