@@ -65,6 +65,20 @@ class RawMaster:
             out += os.read(self.fd, 512)
             last = time.perf_counter()
 
+    def recv_exactly(self, n: int, limit: float = 10.0) -> tuple[bytes, float]:
+        """``n`` bytes, however they are spread in time (a loaded machine may
+        pause between them); and when the last came. Fewer only after ``limit``."""
+        out = b""
+        last = time.perf_counter()
+        end = last + limit
+        while len(out) < n:
+            wait = end - time.perf_counter()
+            if wait <= 0 or not select.select([self.fd], [], [], wait)[0]:
+                break
+            out += os.read(self.fd, n - len(out))
+            last = time.perf_counter()
+        return out, last
+
     def ask(self, frame: bytes, **kw: float) -> bytes:
         self.send(frame)
         return self.recv(**kw)[0]
@@ -411,14 +425,19 @@ def test_unplug_for_a_while_and_by_fault(coolpro_sim: Simulator) -> None:
 # -- wire timing -----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(("baud", "spec", "request_regs"), [
+BAUD_CASES = pytest.mark.parametrize(("baud", "spec", "request_regs"), [
     (9600, "hub", 125),
     (19200, "hub", 10),
     (115200, "coolpro", 8),
 ])
-def test_baud_emulation_gives_each_frame_its_wire_time(pymb_simulator: MakeSim, baud: int,
-                                                       spec: str, request_regs: int) -> None:
-    sim = pymb_simulator(spec, baud=baud)
+
+
+def _wire_times(make: MakeSim, baud: int, spec: str,
+                request_regs: int) -> tuple[list[float], float]:
+    """Request-to-last-byte times of three reads at ``baud``, and the wire
+    time they must take at least: the request's 8 characters, the device's
+    turnaround, the reply's characters."""
+    sim = make(spec, baud=baud)
     dev = sim.devices[0]
     char = 10 / baud
     turnaround = max(3.5 * char if baud <= 19200 else 0.00175, dev.turnaround())
@@ -428,9 +447,27 @@ def test_baud_emulation_gives_each_frame_its_wire_time(pymb_simulator: MakeSim, 
         times = []
         for _ in range(3):
             t = m.send(rd(fc, dev.address, first, request_regs))
-            reply, last = m.recv(quiet=0.01 + 4 * char)
+            reply, last = m.recv_exactly(5 + 2 * request_regs)
             assert len(reply) == 5 + 2 * request_regs
+            assert reply[:2] == bytes([dev.address, fc])
             times.append(last - t)
+    return times, expect
+
+
+@BAUD_CASES
+def test_baud_emulation_gives_each_frame_its_wire_time(pymb_simulator: MakeSim, baud: int,
+                                                       spec: str, request_regs: int) -> None:
+    # A lower bound: the reply's last byte never comes before its wire time
+    # (a loaded machine only adds to it).
+    times, expect = _wire_times(pymb_simulator, baud, spec, request_regs)
+    assert expect <= min(times), (times, expect)
+
+
+@pytest.mark.timing
+@BAUD_CASES
+def test_baud_emulation_adds_little_to_the_wire_time(pymb_simulator: MakeSim, baud: int,
+                                                     spec: str, request_regs: int) -> None:
+    times, expect = _wire_times(pymb_simulator, baud, spec, request_regs)
     assert expect <= min(times) < expect + 0.015, (times, expect)
 
 
