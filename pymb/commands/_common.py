@@ -23,7 +23,7 @@ from pymb.client import (
 )
 from pymb.client.address import is_mbaps
 from pymb.devices import CoolProIdentity, CoolProTelemetry, HubReading, State
-from pymb.devices.deviceconfig import DeviceConfig, parse_device
+from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, parse_device
 from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapspec import FACADES
 from pymb.devices.readings import reading_dict, status_flags, telemetry_values
@@ -32,9 +32,11 @@ from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = [
+    "add_alias_args",
     "add_connection_args",
     "add_device_arg",
     "add_map_arg",
+    "alias_spec",
     "device_from_args",
     "device_help",
     "interruptible",
@@ -61,26 +63,35 @@ def add_device_arg(p: argparse.ArgumentParser, *, hub_options: bool = True) -> N
     without ``hub_options``, a CoolPro only (``pymb config``)."""
     p.add_argument("device", metavar="DEVICE", help=device_help() if hub_options else
                    "the CoolPro: coolpro[:ADDRESS], e.g. coolpro, coolpro:41")
+    add_alias_args(p, hub_options=hub_options)
+
+
+def add_alias_args(p: argparse.ArgumentParser, *, hub_options: bool = True,
+                   note: str = "") -> None:
+    """A DEVICE's alias options: --address, and with ``hub_options`` --channels
+    and --humidity-unit; ``note`` ends each help text."""
     p.add_argument("--address", type=int, metavar="N",
                    help="the device's address, as in TYPE:ADDRESS (default: coolpro "
                         f"{maps.builtin('coolpro').device.default_address}, hub "
-                        f"{maps.builtin('hub').device.default_address})")
+                        f"{maps.builtin('hub').device.default_address}){note}")
     if hub_options:
         p.add_argument("--channels", type=int, metavar="N",
                        help="hub channels, as in hub,channels=N (50 for firmware V1.07 and "
-                            "below; default 100)")
+                            f"below; default 100){note}")
         p.add_argument("--humidity-unit", type=float, choices=[1, 0.1],
-                       help="hub humidity unit in %%, as in hub,humidity_unit=U (default 0.1)")
+                       help=f"hub humidity unit in %%, as in hub,humidity_unit=U (default "
+                            f"0.1){note}")
 
 
-def device_from_args(args: argparse.Namespace) -> DeviceConfig:
-    """The device the positional spec and its alias options (``--address``,
-    a map option's ``--channels``, ``--humidity-unit``) name; a value given
+def alias_spec(spec: str, args: argparse.Namespace, known: KnownMaps | None = None) -> str:
+    """``spec`` with what its alias options (``--address``, a map option's
+    ``--channels``, ``--humidity-unit``) give written into it; a value given
     both ways must agree."""
-    dev = parse_device(args.device)  # checked against its map
+    dev = parse_device(spec, known)  # checked against its map
     given: dict[str, Any] = dict(dev.options)
-    if split_spec(args.device)[1] is not None:
+    if split_spec(spec)[1] is not None:
         given["address"] = dev.address
+    out = spec.strip()
     for attr in ("address", "channels", "humidity_unit"):
         value = getattr(args, attr, None)
         if value is None:
@@ -88,14 +99,23 @@ def device_from_args(args: argparse.Namespace) -> DeviceConfig:
         flag = "--" + attr.replace("_", "-")
         if attr != "address" and attr not in dev.map.device.options:
             raise InvalidArgument(f"{flag} is for a hub")
-        if attr in given and given[attr] != value:
-            raise InvalidArgument(f"{args.device!r} gives {attr} {given[attr]:g} and {flag} "
-                                  f"{value:g}: give it once")
-        given[attr] = value
-    address = given.pop("address", None)
-    if address == dev.address and given == dev.options:
-        return dev
-    return DeviceConfig(dev.type, address, options=given)
+        if attr in given:
+            if given[attr] != value:
+                raise InvalidArgument(f"{spec!r} gives {attr} {given[attr]:g} and {flag} "
+                                      f"{value:g}: give it once")
+        elif attr == "address":
+            head, comma, tail = out.partition(",")
+            out = f"{head}:{value}{comma}{tail}"
+        else:
+            out += f",{attr}={value:g}"
+    return out
+
+
+def device_from_args(args: argparse.Namespace) -> DeviceConfig:
+    """The device the positional spec and its alias options (``--address``,
+    a map option's ``--channels``, ``--humidity-unit``) name; a value given
+    both ways must agree."""
+    return parse_device(alias_spec(args.device, args))
 
 
 def parse_numbers(spec: str, low: int, high: int, what: str) -> list[int]:

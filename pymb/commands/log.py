@@ -12,7 +12,7 @@ import argparse
 import math
 import sys
 
-from pymb.commands._common import add_map_arg, add_tls_args, device_help
+from pymb.commands._common import add_alias_args, add_map_arg, add_tls_args, device_help
 from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
 from pymb.commands.status import StatusLine, status_text
@@ -44,6 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Modbus ASCII instead of RTU on the --port serial line")
     p.add_argument("--device", action="append", default=[], metavar="DEVICE",
                    help="the same as a DEVICE argument (repeatable)")
+    add_alias_args(p, note="; with one DEVICE")
     p.add_argument("--baud", type=int, default=DEFAULT_BAUD)
     p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"])
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, help="reply timeout, seconds")

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pymb.client import TlsConfig
-from pymb.commands._common import tls_for, tls_from_args
+from pymb.commands._common import alias_spec, tls_for, tls_from_args
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.errors import InvalidArgument
@@ -73,12 +73,17 @@ def _on_change(args: argparse.Namespace, cfg: LogConfig) -> None:
 def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]:
     """The LogConfig the arguments describe, and where to forward (None: nowhere)."""
     specs = list(args.devices) + list(args.device)
+    aliases = [f"--{a.replace('_', '-')}" for a in ("address", "channels", "humidity_unit")
+               if getattr(args, a, None) is not None]
     udp: str | None = getattr(args, "udp", None)
     ascii_line: bool = getattr(args, "ascii", False)
     mqtt_table: MqttConfig | None = None
     if args.config:
         if args.port or args.tcp or args.rtu_over_tcp or udp or ascii_line or specs:
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
+        if aliases:
+            raise InvalidArgument(f"with --config, give {aliases[0]}'s value in the file's "
+                                  "[[bus.device]] table")
         if getattr(args, "maps", None):
             raise InvalidArgument("with --config, name map files in the file: maps = [...]")
         if tls_from_args(args) is not None:
@@ -97,6 +102,12 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         known = KnownMaps()
         for f in getattr(args, "maps", None) or []:
             known.add_file(f, "--map")
+        if aliases:
+            if len(specs) != 1 or is_sunspec(specs[0]):
+                raise InvalidArgument(f"{aliases[0]} is an alias for one device's own "
+                                      "option: with several devices (or a SunSpec one), "
+                                      "write it in the DEVICE, e.g. hub:250,channels=50")
+            specs = [alias_spec(specs[0], args, known)]
         devices = [sunspec_device(args, s) if is_sunspec(s) else parse_device(s, known)
                    for s in specs]
         cfg = single_bus_config(args.port, args.tcp, devices,
