@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from conftest import PYMB, PYMB_ENV, wait_until
 
-from pymb.collect.postgres import Postgres, find_postgres
+from pymb.collect.postgres import DATABASE, USER, Postgres, find_postgres
 
 psycopg = pytest.importorskip("psycopg")
 
@@ -25,17 +25,32 @@ psycopg = pytest.importorskip("psycopg")
 Fact = tuple[str, str, str, float, float | None, str | None, str | None, int | None]
 
 
-@pytest.fixture
-def postgres() -> Iterator[Postgres]:
-    """A started PostgreSQL of the test's own; stopped by its PID, its folder removed."""
+@pytest.fixture(scope="module")
+def postgres_cluster() -> Iterator[Postgres]:
+    """One PostgreSQL for a test module (its ``initdb`` and start take seconds);
+    stopped by its PID at the module's end, its folder removed."""
     if find_postgres() is None:
         pytest.fail("PostgreSQL is not installed: .ci/setup installs it")
     pg = Postgres()
     try:
-        pg.start()
         yield pg
     finally:
         pg.cleanup()
+
+
+@pytest.fixture
+def postgres(postgres_cluster: Postgres) -> Postgres:
+    """The module's PostgreSQL, running, with the database ``pymb`` (its ``url``)
+    made anew and empty for this test: nothing a test before stored or left
+    connected reaches it."""
+    pg = postgres_cluster
+    if pg.proc is None:  # first use, or a test stopped it and failed before restarting it
+        pg.start()
+    with psycopg.connect(f"postgresql://{USER}@127.0.0.1:{pg.port}/postgres",
+                         autocommit=True, connect_timeout=30) as con:
+        con.execute(f"DROP DATABASE IF EXISTS {DATABASE} WITH (FORCE)")
+        con.execute(f"CREATE DATABASE {DATABASE}")
+    return pg
 
 
 class Collectors:
