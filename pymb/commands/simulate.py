@@ -34,15 +34,15 @@ __all__ = ["add_arguments", "run"]
 
 _EPILOG = f"""\
 devices: KIND[:ADDRESS][,key=value...]
-  coolpro (address 40)  keys: gap (s, default 0.008), serial, firmware (x.y.z),
-                        hardware, uptime (s), baud, dynamic (0/1)
-  hub (address 1)       keys: firmware (e.g. 1.07, 2.18, 2.22, 2.23), delay (s or
-                        LOW-HIGH), humidity or humidity_unit (0.1 or 1: unit on every
-                        channel), baud, dynamic (0/1)
-  a map's id            a shipped map (eastron-sdm120, ...) or one given with --map FILE;
-                        keys: the map's options, baud, dynamic (0/1), delay (s before
-                        each reply). Values from each point's example, or a seeded
-                        model; registers the map does not declare answer exception 02
+  every device          keys: the map's options, firmware (points need their
+                        min_firmware), delay (s before each reply, or LOW-HIGH), baud,
+                        dynamic (0/1)
+  coolpro (address 40)  also gap (s, default 0.008), serial, hardware, uptime (s)
+  hub (address 1)       firmware 1.07 and below: 50 channels; also humidity (0.1 or 1,
+                        as humidity_unit: the unit on every channel)
+  a map's id            a shipped map (eastron-sdm120, ...) or one given with --map FILE:
+                        values from each point's example, or a seeded model; registers
+                        the map does not declare answer exception 02
 faults: KIND[:PROBABILITY][,key=value...]  (probability 1 when omitted)
   kinds: {', '.join(KINDS)}
   keys: delay, code, keep, extra (hex), to, seconds, bits, channels (3+4), address

@@ -30,22 +30,26 @@ import math
 import random
 import struct
 from array import array
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import ClassVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.devices.mapspec import parse_map_device
+from pymb.devices.mapspec import MapTarget, parse_map_device
+from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, decode_one, encode
+from pymb.maps.model import did_you_mean
 from pymb.maps.types import SF_RANGE, TYPES
 from pymb.sim.base import Device, ExceptionCode, _locked, _swapped, exception_pdu, parse_firmware
 from pymb.sim.clock import SimClock
 
-__all__ = ["MapSimDevice", "map_sim_device"]
+__all__ = ["SIM_KEYS", "MapSimDevice", "map_sim_device"]
 
 _TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
+#: spec keys -> (constructor argument, parser, what the value is)
+Keys = Mapping[str, tuple[str, Callable[[str], object], str]]
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
 
 
@@ -60,10 +64,15 @@ class MapSimDevice(Device):
     bad_request: ClassVar[int] = ExceptionCode.ILLEGAL_DATA_VALUE
     #: the map's ``readable`` ranges answer (zeros) besides its points
     answers_readable: ClassVar[bool] = True
+    #: a device with behaviours of its own: its shipped map, the keys of its
+    #: spec beside :data:`SIM_KEYS`, and map options it refuses (key -> why)
+    builtin_map: ClassVar[Map]
+    spec_keys: ClassVar[Keys] = {}
+    refused: ClassVar[Mapping[str, str]] = {}
 
     def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
                  seed: int = 0, clock: SimClock | None = None, dynamic: bool = True,
-                 delay: float = 0.0, firmware: str = "") -> None:
+                 delay: float | tuple[float, float] = 0.0, firmware: str = "") -> None:
         address = m.device.default_address if address is None else address
         lo, hi = m.device.addresses
         if isinstance(address, bool) or not isinstance(address, int) or not lo <= address <= hi:
@@ -72,9 +81,12 @@ class MapSimDevice(Device):
         self.map = m
         self.kind = m.id  # type: ignore[misc]
         self.dynamic = dynamic
-        if not 0.0 <= delay <= 60.0:
-            raise InvalidArgument(f"{m.id}: delay must be 0..60 s, got {delay!r}")
-        self.delay = delay  #: seconds from a request's end to the reply
+        span = delay if isinstance(delay, tuple) else (delay, delay)
+        if not 0.0 <= span[0] <= span[1] <= 60.0:
+            raise InvalidArgument(f"{m.id}: delay must be 0..60 s (or a low, high range), "
+                                  f"got {delay!r}")
+        #: seconds from a request's end to the reply (a range: drawn per request)
+        self.delay = delay
         self._images = {t: array("H", bytes(2 * 0x10000)) for t in _TABLE.values()}
         self._have = {t: bytearray(0x10000) for t in _TABLE.values()}
         #: (name, channel) -> (point, address), for _put_raw
@@ -88,8 +100,16 @@ class MapSimDevice(Device):
         self._t0 = self.clock.now()  # counters count from here
         self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
         self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
+        self._pins: dict[tuple[str, int], tuple[int, list[int]]] = {}  # -> raw, regs before
         self._updated = -math.inf
         self._start(random.Random(seed))
+
+    @classmethod
+    def _from_spec(cls, target: MapTarget, args: dict[str, object], *, seed: int,
+                   clock: SimClock | None) -> MapSimDevice:
+        """The device a parsed spec names (``args``: its :data:`SIM_KEYS`
+        and :attr:`spec_keys` as constructor arguments)."""
+        return cls(target.map, target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type]
 
     # -- what the device has -------------------------------------------------------------
 
@@ -140,7 +160,7 @@ class MapSimDevice(Device):
         """The registers of point ``name`` (its ``channel``) as a read now
         returns them, as one unsigned number (the point's order applied)."""
         p, a = self._point(name, channel)
-        self._refresh()
+        self._now()
         return _pattern(p, self._images[p.table][a:a + p.count])
 
     def _put_raw(self, name: str, raw: int, channel: int = 1) -> None:
@@ -154,6 +174,33 @@ class MapSimDevice(Device):
             img[a] = raw & 0xFFFF
         else:
             img[a:a + p.count] = array("H", _to_regs(p, raw & ((1 << 16 * p.count) - 1)))
+
+    @_locked
+    def pin(self, name: str, *where: int) -> None:
+        """``pin(name, raw)`` or ``pin(name, channel, raw)``: make a read-only
+        point (one channel of a block) read ``raw`` until :meth:`unpin`."""
+        channel, raw = where if len(where) == 2 else (1, *where)
+        p, a = self._point(name, channel)
+        if p.writable:
+            raise InvalidArgument(f"{name} is writable: write it rather than pin it")
+        before = self._pins.get((name, channel), (0, list(self._images[p.table][a:a + p.count])))
+        self._pins[(name, channel)] = (raw & ((1 << 16 * p.count) - 1), before[1])
+
+    @_locked
+    def unpin(self, name: str | None = None, channel: int | None = None) -> None:
+        """Let pinned points (all, ``name``'s, or one channel's) follow the model again."""
+        for (n, c), (_, before) in list(self._pins.items()):
+            if name in (None, n) and channel in (None, c):
+                p, a = self._point(n, c)
+                self._images[p.table][a:a + p.count] = array("H", before)
+                del self._pins[(n, c)]
+        self._updated = -math.inf  # the next read brings them up to date
+
+    def _now(self) -> None:
+        """Bring every value to the clock's time: the model's, then the pins."""
+        self._refresh()
+        for (name, c), (raw, _) in self._pins.items():
+            self._put_raw(name, raw, c)
 
     # -- values -----------------------------------------------------------------------
 
@@ -281,8 +328,10 @@ class MapSimDevice(Device):
     # -- requests ---------------------------------------------------------------------
 
     def turnaround(self) -> float:
-        """Seconds from the end of a request to the start of the reply (``delay``)."""
-        return self.delay
+        """Seconds from the end of a request to the start of the reply
+        (``delay``, drawn from its range when it is one)."""
+        d = self.delay
+        return self.rng.uniform(*d) if isinstance(d, tuple) else d
 
     def _span(self, table: str, address: int, count: int) -> bool:
         if address + count > 0x10000:
@@ -303,7 +352,7 @@ class MapSimDevice(Device):
                 return exception_pdu(fc, self.bad_request)
             if not self._span(table, address, n):
                 return exception_pdu(fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
-            self._refresh()
+            self._now()
             regs = self._images[table][address:address + n]
             if fc <= 2:
                 out = bytearray((n + 7) // 8)
@@ -407,30 +456,64 @@ class MapSimDevice(Device):
                 + (f": {what}" if what else "") + f", {len(self.map.points)} points")
 
 
+def _flag(value: str) -> bool:
+    return {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False,
+            "no": False, "off": False}[value.lower()]
+
+
+def _delay(value: str) -> float | tuple[float, float]:
+    lo, sep, hi = value.partition("-")
+    return (float(lo), float(hi)) if sep else float(value)
+
+
+def _baud(value: str) -> int:
+    if int(value) <= 0:
+        raise ValueError(value)
+    return int(value)
+
+
+#: the simulator's own keys of every device spec, beside its map's options
+SIM_KEYS: Keys = {
+    "firmware": ("firmware", str, "a version: points need their min_firmware"),
+    "delay": ("delay", _delay, "delay seconds before each reply, or LOW-HIGH"),
+    "baud": ("baud", _baud, "a number of bit/s"),
+    "dynamic": ("dynamic", _flag, "0 or 1: values move"),
+}
+
+
 def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
-                   clock: SimClock | None = None, baud: int | None = None) -> MapSimDevice | None:
-    """A simulated map device from ``TYPE[:ADDRESS][,key=value...]`` when
-    TYPE is a map's id in ``known`` (None otherwise): the map's options, and
-    ``baud``, ``dynamic`` (0/1) and ``delay`` (seconds before each reply)
-    as for the other simulated devices."""
-    head, *opts = spec.strip().split(",")
-    sim_keys: dict[str, str] = {}
-    rest = []
-    for opt in opts:
-        key, _, value = opt.partition("=")
-        if key.strip() in ("baud", "dynamic", "delay"):
-            sim_keys[key.strip()] = value.strip()
-        else:
-            rest.append(opt)
-    target = parse_map_device(",".join([head, *rest]), known)
-    if target is None:
+                   clock: SimClock | None = None, baud: int | None = None,
+                   hooks: Mapping[str, type[MapSimDevice]] | None = None
+                   ) -> MapSimDevice | None:
+    """A simulated device from ``TYPE[:ADDRESS][,key=value...]`` when TYPE
+    is a map's id in ``known`` or in ``hooks`` (a device with behaviours of
+    its own; None otherwise): the map's options, :data:`SIM_KEYS` and the
+    device's own :attr:`MapSimDevice.spec_keys`. ``baud`` (the bus's speed)
+    applies unless the spec names one."""
+    kind, _, opts = split_spec(spec)
+    cls = (hooks or {}).get(kind, MapSimDevice)
+    m = cls.builtin_map if cls is not MapSimDevice else known.get(kind)
+    if m is None:
         return None
-    try:
-        speed = int(sim_keys.get("baud", baud or 9600))
-        dynamic = {"1": True, "0": False}[sim_keys.get("dynamic", "1")]
-        delay = float(sim_keys.get("delay", "0"))
-    except (ValueError, KeyError):
-        raise InvalidArgument(f"{spec!r}: baud is a number of bit/s, dynamic 0 or 1, delay "
-                              "seconds") from None
-    return MapSimDevice(target.map, target.address, baud=speed, seed=seed, clock=clock,
-                        dynamic=dynamic, delay=delay)
+    keys = {**SIM_KEYS, **cls.spec_keys}
+    allowed = [*keys, *(o for o in m.device.options if o not in cls.refused)]
+    args: dict[str, object] = {} if baud is None else {"baud": baud}
+    rest = []
+    for key, eq, value in opts:
+        if key in cls.refused:
+            raise InvalidArgument(f"{spec!r}: {cls.refused[key]}")
+        if key not in keys:
+            if key not in allowed and key != "name":
+                raise InvalidArgument(
+                    f"{spec!r}: unknown key {key!r}; {kind} takes "
+                    f"{', '.join(k + '=...' for k in allowed)}{did_you_mean(key, allowed)}")
+            rest.append(f"{key}={value}" if eq else key)
+            continue
+        arg, parse, what = keys[key]
+        try:
+            args[arg] = parse(value)
+        except (ValueError, KeyError):
+            raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r} ({what})") from None
+    target = parse_map_device(",".join([spec.split(",")[0], *rest]), {kind: m})
+    assert target is not None
+    return cls._from_spec(target, args, seed=seed, clock=clock)

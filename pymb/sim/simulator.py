@@ -14,109 +14,47 @@ import shutil
 import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from types import TracebackType
-from typing import Any
 
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
 from pymb.devices.mapspec import map_types, unknown_device
-from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
-from pymb.sim.coolprosim import BAUD_RATES as COOLPRO_BAUD_RATES
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
-from pymb.sim.mapsim import map_sim_device
+from pymb.sim.mapsim import MapSimDevice, map_sim_device
 from pymb.sim.rtu import RtuServer
 from pymb.sim.server import SimServer
 from pymb.sim.tcp import TcpServer, format_ports, parse_ports
 
-__all__ = ["TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
+__all__ = ["HOOKS", "TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"]
 
 TRANSPORTS = ("pty", "serial", "tcp", "rtu-over-tcp")
-_KINDS = {"coolpro": CoolProDevice, "hub": HubDevice}
-
-
-def _flag(value: str) -> bool:
-    if value.lower() in ("1", "true", "yes", "on"):
-        return True
-    if value.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(value)
-
-
-def _delay(value: str) -> float | tuple[float, float]:
-    lo, sep, hi = value.partition("-")
-    return (float(lo), float(hi)) if sep else float(value)
-
-
-#: device-spec keys -> (constructor argument, parser), per kind
-_OPTIONS: dict[str, dict[str, tuple[str, Any]]] = {
-    "coolpro": {
-        "gap": ("gap", float),
-        "serial": ("serial_number", lambda v: int(v, 0)),
-        "firmware": ("firmware", str),
-        "hardware": ("hardware_revision", int),
-        "uptime": ("uptime", float),
-        "baud": ("baud", int),
-        "dynamic": ("dynamic", _flag),
-    },
-    "hub": {
-        "firmware": ("firmware", str),
-        "delay": ("response_delay", _delay),
-        "humidity": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v]),
-        # the key pymb read / log use for the same fact
-        "humidity_unit": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v]),
-        "baud": ("baud", int),
-        "dynamic": ("dynamic", _flag),
-    },
-}
+#: the devices with behaviours of their own, by map id; any other map's device is a MapSimDevice
+HOOKS: dict[str, type[MapSimDevice]] = {"coolpro": CoolProDevice, "hub": HubDevice}
 
 
 def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,
                 baud: int | None = None, known: Mapping[str, Map] | None = None) -> Device:
-    """A device from ``KIND[:ADDRESS][,key=value...]``.
+    """A device from ``TYPE[:ADDRESS][,key=value...]``: ``coolpro``,
+    ``hub`` or the id of any map in ``known`` (default: the shipped maps).
 
-    Kinds: ``coolpro`` (keys ``gap`` seconds, ``serial``, ``firmware``
-    x.y.z, ``hardware``, ``uptime`` seconds, ``baud``, ``dynamic`` 0/1),
-    ``hub`` (``firmware`` e.g. 1.07, ``delay`` seconds or LOW-HIGH,
-    ``humidity`` 0.1 or 1, ``baud``, ``dynamic``), and the id of any map in
-    ``known`` (default: the shipped maps), with the map's options, ``baud``,
-    ``dynamic`` and ``delay``. ``baud`` (the bus's speed) applies unless the
-    spec names one. Example: ``hub:250,firmware=2.18``, ``eastron-sdm630:3``.
+    Every device takes its map's options (the hub's ``humidity_unit``, or
+    ``humidity``: 0.1 or 1) and the simulator's keys: ``firmware`` (points
+    need their ``min_firmware``; a hub on 1.07 has 50 channels), ``delay``
+    (seconds before each reply, or LOW-HIGH), ``baud`` and ``dynamic``
+    (0/1). The CoolPro also takes ``gap`` (its delay), ``serial``,
+    ``hardware`` and ``uptime`` (seconds). ``baud`` (the bus's speed)
+    applies unless the spec names one. Example: ``hub:250,firmware=2.18``,
+    ``eastron-sdm630:3``.
     """
-    kind, addr, opts = split_spec(spec)
-    cls = _KINDS.get(kind)
-    if cls is None:
-        known = map_types() if known is None else known
-        dev = map_sim_device(spec, known, seed=seed, clock=clock, baud=baud)
-        if dev is None:
-            raise unknown_device(spec, list(known))
-        return dev
-    kwargs: dict[str, Any] = {"seed": seed, "clock": clock}
-    if baud is not None:
-        kwargs["baud"] = baud
-    if addr:
-        kwargs["address"] = parse_address(addr, spec)
-    for key, eq, value in opts:
-        if key not in _OPTIONS[kind] or not eq:
-            what = "bad option" if key in _OPTIONS[kind] else f"unknown key {key!r}"
-            hint = closest(key, list(_OPTIONS[kind])) if what != "bad option" else ""
-            if kind == "hub" and key == "channels":
-                hint = "; a simulated hub's channel count follows its firmware (firmware=1.07: 50)"
-            raise InvalidArgument(
-                f"{spec!r}: {what}; {kind} takes "
-                f"{', '.join(k + '=...' for k in _OPTIONS[kind])}"
-                + (hint if "; known:" not in hint else ""))
-        name, parse = _OPTIONS[kind][key]
-        try:
-            kwargs[name] = parse(value)
-            if name == "baud" and kwargs[name] <= 0:
-                raise ValueError(value)
-        except (ValueError, KeyError):
-            raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r}") from None
-    return cls(**kwargs)  # type: ignore[no-any-return]
+    known = map_types() if known is None else known
+    dev = map_sim_device(spec, known, seed=seed, clock=clock, baud=baud, hooks=HOOKS)
+    if dev is None:
+        raise unknown_device(spec, list(known))
+    return dev
 
 
 class Simulator:
@@ -184,10 +122,6 @@ class Simulator:
             seen[d.address] = d
         if baud is not None and not baud > 0:
             raise InvalidArgument(f"baud must be a positive number of bit/s, got {baud}")
-        if baud is not None and any(isinstance(d, CoolProDevice) for d in built) and \
-                baud not in COOLPRO_BAUD_RATES:
-            raise InvalidArgument(f"a coolpro runs at {', '.join(map(str, COOLPRO_BAUD_RATES))} "
-                                  f"baud, not {baud}")
         if isinstance(faults, Faults):
             self.faults = faults
         else:

@@ -5,6 +5,7 @@ of whole writable points, the sensor fault."""
 from __future__ import annotations
 
 import random
+import re
 import struct
 
 import pytest
@@ -261,3 +262,41 @@ def test_the_simulator_serves_a_shipped_map_by_its_id() -> None:
             volts = dev.map.decode("l1_voltage_v", c.read_input_registers(0, 2))
         assert isinstance(volts, float)
         assert [d.kind for d in sim.devices] == ["coolpro", "eastron-sdm630"]
+
+
+def test_a_pin_holds_a_read_only_point_until_unpinned() -> None:
+    clock = SimClock(0.0)
+    clock.freeze()
+    dev = MapSimDevice(maps.loads(MAP), 1, seed=2, clock=clock)
+    before = read(dev, 5, 1)
+    dev.pin("probe_c", 0x8000)  # offline, as the marker says
+    dev.pin("total", 0x00010002)
+    clock.advance(60.0)
+    assert read(dev, 1, 2) == [1, 2]
+    assert read(dev, 5, 1) == [0x8000]
+    dev.unpin("probe_c")
+    assert read(dev, 5, 1) == before
+    dev.unpin()
+    assert read(dev, 1, 2) != [1, 2]  # the counter counts again
+    with pytest.raises(InvalidArgument, match="writable"):
+        dev.pin("setpoint", 1)
+    with pytest.raises(InvalidArgument, match="did you mean 'probe_c'"):
+        dev.pin("probe", 1)
+
+
+def test_every_simulated_device_takes_the_simulators_keys() -> None:
+    """firmware, delay (seconds or LOW-HIGH), baud and dynamic, for any map;
+    a value that does not parse is named with what the key takes."""
+    from pymb.sim.mapsim import map_sim_device
+
+    m = maps.loads(MAP)
+    known = {"sim-test": m}
+    dev = map_sim_device("sim-test:4,firmware=2.1,delay=0.01-0.02", known)
+    assert dev is not None
+    assert (dev.firmware, dev.address) == ("2.1", 4)
+    assert all(0.01 <= dev.turnaround() <= 0.02 for _ in range(20))
+    with pytest.raises(InvalidArgument, match="bad value for dynamic: 'maybe'"):
+        map_sim_device("sim-test,dynamic=maybe", known)
+    with pytest.raises(InvalidArgument,
+                       match=re.escape("sim-test takes firmware=..., delay=..., baud")):
+        map_sim_device("sim-test,colour=red", known)

@@ -2,11 +2,12 @@
 
 Register numbers here are the documents' own (CP-MODBUS-RTU rev 1, hub
 protocol V1.5, NOTES.md), written out on purpose: the simulators derive them
-from pymb.devices.maps, and these tests check that against the documents.
+from the shipped maps, and these tests check that against the documents.
 """
 
 from __future__ import annotations
 
+import re
 import struct
 
 import pytest
@@ -358,6 +359,14 @@ def test_make_device_specs() -> None:
     for bad in ("toaster", "hub:x", "hub,color=red", "coolpro:248", "coolpro,baud=1200"):
         with pytest.raises(InvalidArgument):
             make_device(bad)
+    # the keys every device takes, the map's options, and the CoolPro's and hub's own
+    assert make_device("coolpro,delay=0.02").gap == 0.02  # type: ignore[attr-defined]
+    assert make_device("hub,humidity_unit=1").humidity_tenths == bytes(100)  # type: ignore[attr-defined]
+    assert make_device("eastron-sdm630:3,firmware=1.2").firmware == "1.2"  # type: ignore[attr-defined]
+    with pytest.raises(InvalidArgument, match=re.escape(
+            "hub takes firmware=..., delay=..., baud=..., dynamic=..., humidity=..., "
+            "humidity_unit=...")):
+        make_device("hub,colour=red")
 
 
 def test_fault_specs_and_plan() -> None:
