@@ -24,7 +24,7 @@ from pymb.commands._common import add_map_arg
 from pymb.devices.mapspec import map_types
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.sim.clock import SimClock
-from pymb.sim.devices import CoolProDevice, Device, HubDevice
+from pymb.sim.devices import Device
 from pymb.sim.faults import KINDS
 from pymb.sim.mapsim import MapSimDevice
 from pymb.sim.simulator import Simulator, make_device
@@ -150,14 +150,12 @@ def _hint(dev: Device, where: str, tcp: tuple[str, int] | None) -> str:
     else:
         line = f"mbpoll -m rtu -b {dev.baud} -P none -a {dev.address}"
         target = where
-    if isinstance(dev, CoolProDevice):
-        return f"{line} -t 3 -0 -r 0 -c 8 -1 {target}"
-    if isinstance(dev, HubDevice):
-        return f"{line} -t 4 -0 -r 31 -c 10 -1 {target}"
-    if isinstance(dev, MapSimDevice) and dev.map.points:
-        p = next(iter(dev.map.points.values()))
-        t = {"coil": 0, "discrete": 1, "input": 3, "holding": 4}[p.table]
-        return f"{line} -t {t} -0 -r {p.address} -c {p.count} -1 {target}"
+    # the first request of the map's first group (its every point without groups)
+    first = next(iter(dev.map.plan(next(iter(dev.map.groups), None))), None) if \
+        isinstance(dev, MapSimDevice) else None
+    if first is not None:
+        t = {"coil": 0, "discrete": 1, "input": 3, "holding": 4}[first.table]
+        return f"{line} -t {t} -0 -r {first.address} -c {min(first.count, 10)} -1 {target}"
     return line
 
 
