@@ -1,7 +1,8 @@
 """What every simulated device shares: the :class:`Device` base (a pure
 function of request PDUs, with its lock and register images), the Modbus
 exception codes and replies, the deterministic noise the value models draw
-on, and the encodings (sign-magnitude, firmware versions).
+on, the encodings (sign-magnitude, firmware versions) and the keys every
+device spec takes (:data:`SIM_KEYS`).
 
 A device takes a request PDU (function code first) and returns the reply PDU,
 or ``None`` for silence; it does no I/O and knows nothing of framing or
@@ -21,7 +22,7 @@ import random
 import sys
 import threading
 from array import array
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, TypeVar
 
 from pymb._native import DeviceExceptionCode as ExceptionCode
@@ -31,6 +32,7 @@ from pymb.sim.clock import SimClock
 from pymb.wire import registers_to_wire
 
 __all__ = [
+    "SIM_KEYS",
     "Device",
     "ExceptionCode",
     "Function",
@@ -109,6 +111,35 @@ def _locked(method: _F) -> _F:
 def _swapped(regs: array[int]) -> bytes:
     """A fresh slice of registers as they go on the wire (swapped in place)."""
     return registers_to_wire(regs, in_place=True)
+
+
+#: spec keys -> (constructor argument, parser, what the value is)
+Keys = Mapping[str, tuple[str, Callable[[str], object], str]]
+
+
+def _flag(value: str) -> bool:
+    return {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False,
+            "no": False, "off": False}[value.lower()]
+
+
+def _delay(value: str) -> float | tuple[float, float]:
+    lo, sep, hi = value.partition("-")
+    return (float(lo), float(hi)) if sep else float(value)
+
+
+def _baud(value: str) -> int:
+    if int(value) <= 0:
+        raise ValueError(value)
+    return int(value)
+
+
+#: the simulator's own keys of every device spec, beside its map's options
+SIM_KEYS: Keys = {
+    "firmware": ("firmware", str, "a version: points need their min_firmware"),
+    "delay": ("delay", _delay, "delay seconds before each reply, or LOW-HIGH"),
+    "baud": ("baud", _baud, "a number of bit/s"),
+    "dynamic": ("dynamic", _flag, "0 or 1: values move"),
+}
 
 
 class Device:

@@ -15,9 +15,9 @@ from pymb import maps
 from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
-from pymb.sim.base import _TWO_PI, _locked, _noise, parse_firmware
+from pymb.sim.base import _TWO_PI, Keys, _locked, _noise, parse_firmware
 from pymb.sim.clock import SimClock
-from pymb.sim.mapsim import Keys, MapSimDevice
+from pymb.sim.mapsim import MapSimDevice
 
 __all__ = ["BAUD_RATES", "CoolProDevice"]
 

@@ -23,6 +23,7 @@ from pymb.sim.base import (
     _M64,
     _TWO_PI,
     ExceptionCode,
+    Keys,
     _locked,
     _mix,
     _noise,
@@ -30,7 +31,7 @@ from pymb.sim.base import (
     sign_magnitude,
 )
 from pymb.sim.clock import SimClock
-from pymb.sim.mapsim import Keys, MapSimDevice
+from pymb.sim.mapsim import MapSimDevice
 
 __all__ = ["Channel", "HubDevice"]
 

@@ -30,7 +30,7 @@ import math
 import random
 import struct
 from array import array
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import ClassVar
 
@@ -42,14 +42,21 @@ from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, decode_one, encode
 from pymb.maps.model import did_you_mean
 from pymb.maps.types import SF_RANGE, TYPES
-from pymb.sim.base import Device, ExceptionCode, _locked, _swapped, exception_pdu, parse_firmware
+from pymb.sim.base import (
+    SIM_KEYS,
+    Device,
+    ExceptionCode,
+    Keys,
+    _locked,
+    _swapped,
+    exception_pdu,
+    parse_firmware,
+)
 from pymb.sim.clock import SimClock
 
-__all__ = ["SIM_KEYS", "MapSimDevice", "map_sim_device"]
+__all__ = ["MapSimDevice", "map_sim_device"]
 
 _TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
-#: spec keys -> (constructor argument, parser, what the value is)
-Keys = Mapping[str, tuple[str, Callable[[str], object], str]]
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
 
 
@@ -456,31 +463,6 @@ class MapSimDevice(Device):
                 + (f": {what}" if what else "") + f", {len(self.map.points)} points")
 
 
-def _flag(value: str) -> bool:
-    return {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False,
-            "no": False, "off": False}[value.lower()]
-
-
-def _delay(value: str) -> float | tuple[float, float]:
-    lo, sep, hi = value.partition("-")
-    return (float(lo), float(hi)) if sep else float(value)
-
-
-def _baud(value: str) -> int:
-    if int(value) <= 0:
-        raise ValueError(value)
-    return int(value)
-
-
-#: the simulator's own keys of every device spec, beside its map's options
-SIM_KEYS: Keys = {
-    "firmware": ("firmware", str, "a version: points need their min_firmware"),
-    "delay": ("delay", _delay, "delay seconds before each reply, or LOW-HIGH"),
-    "baud": ("baud", _baud, "a number of bit/s"),
-    "dynamic": ("dynamic", _flag, "0 or 1: values move"),
-}
-
-
 def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
                    clock: SimClock | None = None, baud: int | None = None,
                    hooks: Mapping[str, type[MapSimDevice]] | None = None
@@ -516,4 +498,7 @@ def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
             raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r} ({what})") from None
     target = parse_map_device(",".join([spec.split(",")[0], *rest]), {kind: m})
     assert target is not None
-    return cls._from_spec(target, args, seed=seed, clock=clock)
+    try:
+        return cls._from_spec(target, args, seed=seed, clock=clock)
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{spec!r}: {e}") from None
