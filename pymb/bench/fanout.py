@@ -19,10 +19,12 @@ per register or per point is made on the way.
 allows it, [MB-TCP] 4.2; replies are matched by transaction id); 1 is the
 safe default for devices that take one transaction at a time.
 
-Each device polls at ``interval`` seconds on fixed slots (``start + k *
-interval``): a slot that comes while the last poll is still out, or while
-the device is not connected, is counted as missed. ``interval`` 0 polls flat
-out: the next poll as soon as the last one ends. A poll that takes longer
+Each device polls at ``interval`` seconds on the drift-free slots of the one
+schedule ``pymb log`` keeps too (:class:`pymb.devices.polls.Slot`, slot k at
+``start + k * interval``, and :class:`~pymb.devices.polls.Agenda`): the
+slots a poll overran, and a slot that comes while the device is not
+connected, are counted as missed. ``interval`` 0 polls flat out: the next
+poll as soon as the last one ends. A poll that takes longer
 than ``timeout`` closes the connection (counted); it is opened again after
 ``retry`` seconds. Finished samples go to ``sink`` in batches (``(t_ns,
 device, image)`` tuples) at most every ``flush`` seconds.
@@ -32,7 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import heapq
 import selectors
 import socket
 import threading
@@ -41,6 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pymb._native.master import EXCEPTION, Master, PollTable, ReadBuffer
+from pymb.devices.polls import Agenda, Health, Slot
 from pymb.errors import InvalidArgument
 
 __all__ = ["FanoutDevice", "FanoutStats", "Sample", "TcpFanout"]
@@ -124,12 +126,14 @@ class _FanoutRead:
 
 
 class _FanoutConn:
-    __slots__ = ("busy", "deadline", "index", "m", "n", "next_slot", "retry_at", "sock",
+    __slots__ = ("busy", "deadline", "index", "m", "n", "retry_at", "slot", "sock",
                  "started", "state", "table", "target", "todo")
 
-    def __init__(self, index: int, d: FanoutDevice) -> None:
+    def __init__(self, index: int, d: FanoutDevice, interval: float) -> None:
         self.index = index
         self.target = d
+        #: its polls' slots (the connection's own retry keeps the device's health unused)
+        self.slot = Slot(Health.of_map(f"{d.host}:{d.port}", None, None), interval)
         base = {t: (first, off) for t, first, _, off in d.layout()}
         reads = []
         for table, address, count in d.requests:
@@ -149,7 +153,6 @@ class _FanoutConn:
         self.started = 0
         self.deadline = 0.0
         self.retry_at = 0.0
-        self.next_slot = 0.0
 
 
 class TcpFanout:
@@ -173,11 +176,11 @@ class TcpFanout:
         self.pipeline = pipeline
         self.flush = flush
         self.stats = FanoutStats.of(len(self.devices))
-        self._conns = [_FanoutConn(i, d) for i, d in enumerate(self.devices)]
+        self._conns = [_FanoutConn(i, d, interval) for i, d in enumerate(self.devices)]
         self._sel = selectors.DefaultSelector()
         self._stop = threading.Event()
         self._batch: list[Sample] = []
-        self._slots: list[tuple[float, int]] = []
+        self._agenda: Agenda[_FanoutConn] = Agenda()  #: the idle devices by their next slot
         self._rx = ReadBuffer()
 
     def stop(self) -> None:
@@ -210,7 +213,8 @@ class TcpFanout:
             c.sock.close()
         c.sock = None
         c.state = "closed"
-        c.busy = False
+        if c.busy:
+            self._ended(c, now)
         c.m.reset()
         c.retry_at = now + self.retry
 
@@ -234,6 +238,15 @@ class TcpFanout:
         n = min(self.pipeline, c.n)
         c.todo = c.n - n
         self._send(c, c.n - c.todo - n, n, now)
+
+    def _ended(self, c: _FanoutConn, now: float) -> None:
+        """A poll ended (read, refused or lost): the device's next slot, the
+        whole slots the poll overran missed."""
+        c.busy = False
+        if self.interval:
+            slot = c.slot
+            self.stats.missed[c.index] += slot.advance(now)
+            self._agenda.put(slot, c, slot.wake(now))
 
     def _send(self, c: _FanoutConn, first: int, n: int, now: float) -> None:
         m = c.m
@@ -268,7 +281,7 @@ class TcpFanout:
                 if m.in_flight:  # more replies are on their way: start afresh
                     self._drop(c, now)
                     return
-                c.busy = False
+                self._ended(c, now)
                 return
             self.stats.errors[c.index] += 1
             self._drop(c, now)
@@ -279,7 +292,7 @@ class TcpFanout:
                 c.todo -= n
                 self._send(c, c.n - c.todo - n, n, now)
         elif not m.in_flight:
-            c.busy = False
+            self._ended(c, now)
             self.stats.polls[c.index] += 1
             self._batch.append((c.started, c.index, bytes(c.table.image)))
             if self.interval == 0:
@@ -288,19 +301,12 @@ class TcpFanout:
     # -- the loop ------------------------------------------------------------------------
 
     def _due(self, now: float) -> None:
-        slots, interval = self._slots, self.interval
-        while slots and slots[0][0] <= now:
-            at, i = heapq.heappop(slots)
-            c = self._conns[i]
-            late = int((now - at) // interval)  # slots passed while the loop was away
-            if late:
-                self.stats.missed[i] += late
-                at += late * interval
-            heapq.heappush(slots, (at + interval, i))
-            if c.busy or c.state != "open":
-                self.stats.missed[i] += 1
-                continue
-            self._start(c, now)
+        for c in self._agenda.due(now):
+            if c.state == "open":
+                self._start(c, now)
+            else:  # the slot is missed, and any the loop was away for
+                self.stats.missed[c.index] += 1 + c.slot.advance(now)
+                self._agenda.put(c.slot, c, c.slot.wake(now))
 
     def _sweep(self, now: float) -> None:
         for c in self._conns:
@@ -327,11 +333,11 @@ class TcpFanout:
                     self._connected(key.data, time.monotonic())
         now = time.monotonic()
         if self.interval:
-            self._slots = [(now + self.interval * i / len(self._conns), i)
-                           for i in range(len(self._conns))]  # spread over one interval
-            heapq.heapify(self._slots)
+            for i, c in enumerate(self._conns):  # the first slots spread over one interval
+                c.slot.next_at = now + self.interval * i / len(self._conns)
+                self._agenda.put(c.slot, c, c.slot.next_at)
         next_sweep = next_flush = now
-        select, sink, batch = self._sel.select, self.sink, self._batch
+        select, sink, batch, agenda = self._sel.select, self.sink, self._batch, self._agenda
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -340,15 +346,13 @@ class TcpFanout:
                 if now >= next_sweep:
                     self._sweep(now)
                     next_sweep = now + 0.05
-                if self.interval:
+                if agenda.next() <= now:
                     self._due(now)
                 if batch and now >= next_flush:
                     sink(batch[:])
                     batch.clear()
                     next_flush = now + self.flush
-                wait = next_sweep - now
-                if self._slots:
-                    wait = min(wait, self._slots[0][0] - now)
+                wait = min(next_sweep, agenda.next()) - now
                 for key, mask in select(max(wait, 0.0)):
                     c = key.data
                     if c.state == "open":

@@ -36,7 +36,7 @@ from pymb.commands.maptext import map_json, render_map
 from pymb.devices import HubReading, State
 from pymb.devices.hubreading import BLOCKS, block_index
 from pymb.devices.mapspec import MapTarget
-from pymb.devices.retry import Health
+from pymb.devices.polls import Health
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 

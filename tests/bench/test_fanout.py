@@ -1,8 +1,10 @@
 """The bench's bare loop over many Modbus TCP devices (pymb.bench.fanout): every
 device on its own port of one ``pymb simulate --tcp ... --count N`` process;
 at a 1 s interval no slot is missed, every poll is one stored sample whose
-registers decode to the device's values; a silent device costs its own
-timeouts only; exceptions and refused connections are counted per device."""
+registers decode to the device's values; a poll that overruns its slots
+misses them, and every slot is polled or missed (the one schedule's slots);
+a silent device costs its own timeouts only; exceptions and refused
+connections are counted per device."""
 
 from __future__ import annotations
 
@@ -51,6 +53,26 @@ def _poll(tmp_path: Path, devices: int, seconds: float) -> None:
 
 def test_twenty_devices_for_ten_seconds_miss_no_slot(tmp_path: Path) -> None:
     _poll(tmp_path, 20, 10.0)
+
+
+def test_a_poll_that_overruns_its_slot_misses_the_slots_it_overran(tmp_path: Path) -> None:
+    # 0.2 s slots, replies 0.3 s late: a poll at slot k ends after slot k + 1
+    # began, so that one is missed and the next poll waits for slot k + 2
+    path = tmp_path / "ten.toml"
+    path.write_text(TEN)
+    with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
+                           "127.0.0.1:0", "--fault", "late,delay=0.3"], quiet=True) as sim:
+        f = TcpFanout([FanoutDevice("127.0.0.1", sim.tcp_ports[0], 1, READ)], lambda _: None,
+                      interval=0.2, timeout=5.0)
+        stats = f.run(3.0)
+    polls, missed = stats.polls[0], stats.missed[0]
+    assert stats.timeouts == [0]
+    assert stats.errors == [0]
+    assert polls >= 3, (polls, missed)
+    assert missed >= polls - 1, (polls, missed)
+    # drift-free: each slot of the (under 3 s) run was polled or missed, the
+    # one in flight at the end aside; none crammed in
+    assert 10 <= polls + missed <= 15, (polls, missed)
 
 
 def _silent_server() -> tuple[socket.socket, threading.Event]:
