@@ -179,11 +179,12 @@ class CoolProDevice(MapSimDevice):
             _BIT["DAILY_RESET"] if up >= self.DAILY_RESET_S else 0)
         # one chance per window of a fault episode of 5..45 s, somewhere in it
         w, s = int(t // self.EPISODE_WINDOW_S), self.seed
-        length = 5.0 + 40.0 * _noise(s, 12, w)
-        start = w * self.EPISODE_WINDOW_S + (self.EPISODE_WINDOW_S - length) * _noise(s, 13, w)
-        if self.dynamic and _noise(s, 11, w) < self.EPISODE_PROBABILITY \
-                and start <= t < start + length:
-            bits |= _EPISODES[int(_noise(s, 14, w) * len(_EPISODES))]
+        if self.dynamic and _noise(s, 11, w) < self.EPISODE_PROBABILITY:
+            length = 5.0 + 40.0 * _noise(s, 12, w)
+            start = w * self.EPISODE_WINDOW_S + (self.EPISODE_WINDOW_S - length) * _noise(
+                s, 13, w)
+            if start <= t < start + length:
+                bits |= _EPISODES[int(_noise(s, 14, w) * len(_EPISODES))]
         self._forced = {b: until for b, until in self._forced.items() if until > t}
         return bits | sum(self._forced)
 

@@ -293,20 +293,17 @@ class HubDevice(MapSimDevice):
                 img[a + ci] = _OFFLINE
             return
         h = _mix(int(key) ^ (k & _M64))  # one hash per report: 8 bits of noise each below
-
-        def noise(i: int, size: float) -> float:
-            return size * ((h >> 8 * i & 0xFF) / 256.0 - 0.5)
-
+        n = [(h >> shift & 0xFF) / 256.0 - 0.5 for shift in range(0, 56, 8)]
         wave = math.sin(_TWO_PI * tk / period + ci)
-        humidity = min(1000.0, max(0.0, hum - 60.0 * wave + noise(0, 8.0)))
-        raws = (sign_magnitude(round(temp + amp * wave + noise(1, 3.0))),
+        humidity = min(1000.0, max(0.0, hum - 60.0 * wave + 8.0 * n[0]))
+        raws = (sign_magnitude(round(temp + amp * wave + 3.0 * n[1])),
                 round(humidity) if c.humidity_tenths else round(humidity / 10.0),
-                sign_magnitude(round(p_temp + 0.5 * amp * wave + noise(2, 2.0))),
-                max(0, round(kpa * (1.0 + 0.02 * wave) + noise(3, 1.0))),
-                max(0, round(volt - 10.0 * tk / 86400.0 + noise(4, 6.0))),
+                sign_magnitude(round(p_temp + 0.5 * amp * wave + 2.0 * n[2])),
+                max(0, round(kpa * (1.0 + 0.02 * wave) + n[3])),
+                max(0, round(volt - 10.0 * tk / 86400.0 + 6.0 * n[4])),
                 # RSSI stays at -2 dBm or below, so it never reads as 0xFFFF
-                round(rssi + noise(5, 6.0)) & 0xFFFF,
-                sign_magnitude(round(temp2 + amp * wave + noise(6, 3.0))))
+                round(rssi + 6.0 * n[5]) & 0xFFFF,
+                sign_magnitude(round(temp2 + amp * wave + 3.0 * n[6])))
         for a, raw, sensor in zip(_ADDRESS, raws, _SENSORS, strict=True):
             img[a + ci] = raw if getattr(c, sensor) else \
                 _NO_HUMIDITY[c.humidity_tenths] if sensor == "humidity" else _OFFLINE
