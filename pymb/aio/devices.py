@@ -14,7 +14,6 @@ blocking ``read_all``. ``poll(interval)`` reads again and again::
 from __future__ import annotations
 
 import asyncio
-import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
@@ -27,6 +26,7 @@ from pymb.devices.hub import HubReading, SensorHub
 from pymb.devices.hubreading import CHANNELS
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Budget
+from pymb.devices.polls import Slot
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import PointPlanner
@@ -50,18 +50,17 @@ async def poll(read: Callable[[], Awaitable[R]], interval: float) -> AsyncIterat
     """``await read()`` every ``interval`` seconds (0: again at once, after
     giving the loop its turn) and yield each result. Reads start on a fixed
     grid (start + k * interval); a read that overruns its slot skips the
-    slots it missed, never bunches reads to catch up. An exception from a
-    read ends the iteration and propagates."""
-    step = _interval(interval)
+    slots it missed, never bunches reads to catch up (the one schedule's
+    :class:`~pymb.devices.polls.Slot`). An exception from a read ends the
+    iteration and propagates."""
+    slot = Slot.every(_interval(interval))
     loop = asyncio.get_running_loop()
-    due = loop.time()
+    slot.next_at = loop.time()
     while True:
         yield await read()
         now = loop.time()
-        due += step
-        if due < now:  # overran: on to the next slot of the grid still ahead
-            due = now if step == 0 else due + math.ceil((now - due) / step) * step
-        await asyncio.sleep(due - now)
+        slot.advance(now)  # overran: on to the next slot of the grid still ahead
+        await asyncio.sleep(max(slot.next_at - now, 0.0))
 
 
 class _Facade(Mirrored):

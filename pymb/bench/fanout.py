@@ -42,7 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pymb._native.master import EXCEPTION, Master, PollTable, ReadBuffer
-from pymb.devices.polls import Agenda, Health, Slot
+from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
 
 __all__ = ["FanoutDevice", "FanoutStats", "Sample", "TcpFanout"]
@@ -132,8 +132,7 @@ class _FanoutConn:
     def __init__(self, index: int, d: FanoutDevice, interval: float) -> None:
         self.index = index
         self.target = d
-        #: its polls' slots (the connection's own retry keeps the device's health unused)
-        self.slot = Slot(Health.of_map(f"{d.host}:{d.port}", None, None), interval)
+        self.slot = Slot.every(interval)  #: its polls' (a lost connection: ``retry``)
         base = {t: (first, off) for t, first, _, off in d.layout()}
         reads = []
         for table, address, count in d.requests:

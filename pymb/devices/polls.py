@@ -129,6 +129,12 @@ class Slot:
     next_at: float = 0.0
     read_once: bool = False  #: a ``once`` group read since the device (re)appeared
 
+    @classmethod
+    def every(cls, interval: float) -> Slot:
+        """A slot alone, for a runner that retries a failed device its own way
+        (its :class:`Health` is never told of a failure)."""
+        return cls(Health("", 1, None), interval)
+
     @property
     def what(self) -> str:
         """The slot as events name it: ``NAME`` or ``NAME group GROUP``."""
