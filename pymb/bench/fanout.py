@@ -132,7 +132,7 @@ class _FanoutConn:
     def __init__(self, index: int, d: FanoutDevice, interval: float) -> None:
         self.index = index
         self.target = d
-        self.slot = Slot.every(interval)  #: its polls' (a lost connection: ``retry``)
+        self.slot = Slot.every(interval)  #: when it polls (a lost connection: ``retry``)
         base = {t: (first, off) for t, first, _, off in d.layout()}
         reads = []
         for table, address, count in d.requests:
