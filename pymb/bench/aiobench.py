@@ -33,7 +33,7 @@ from pymb.bench.contenders import Contender, probe
 from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.race import RaceEntry, Reference, race, summary, verify
-from pymb.devices.maps import HUB
+from pymb.devices import HUB
 
 __all__ = ["CONTENDERS", "LAG_TARGET_MS", "run_section", "targets"]
 
@@ -149,7 +149,7 @@ def _floor_runs(children: Children, ports: Sequence[str], seconds: float,
 
 def _lag(opts: Options, children: Children, emulate: bool, seconds: float,
          repeats: int) -> list[dict[str, Any]]:
-    spec = f"hub:{HUB.default_address},dynamic=0"
+    spec = f"hub:{HUB.device.default_address},dynamic=0"
     args = [spec, "--baud", str(BAUD)] if emulate else [f"{spec},baud={BAUD}"]
     line = f"emulated {BAUD}" if emulate else "no emulation"
     sims = children.sims([[*args, "--seed", "0"] for _ in range(HUBS)])

@@ -8,7 +8,7 @@ workers' line protocol (see :mod:`pymb.bench.worker`) on stdin/stdout.
 
 No pymb code is linked in: this is what a C programmer writes against the
 system's libmodbus. The layout (first register, count, channels, block
-kinds) comes from :mod:`pymb.devices.maps` on the command line.
+kinds) comes from the hub's map on the command line.
 """
 
 from __future__ import annotations

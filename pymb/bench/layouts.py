@@ -24,13 +24,14 @@ from array import array
 from collections.abc import Callable
 from typing import Any
 
-from pymb.devices import HUB, HubReading, decode_hub
+from pymb.devices import HubReading, decode_hub
+from pymb.devices.hubreading import BLOCKS, CHANNELS
 from pymb.store import DeviceInfo, Sample, SqliteSink
 
 __all__ = ["FORMAT1_SCHEMA", "LAYOUTS", "compare", "write_format1"]
 
 LAYOUTS = ("format2", "ints", "format1")
-_FIELDS = [b.name for b in HUB.blocks]
+_FIELDS = [b.name for b in BLOCKS]
 
 #: pymb's format 1 (before format 2), as it created it
 FORMAT1_SCHEMA = f"""
@@ -116,7 +117,7 @@ def _write_format1(con: sqlite3.Connection, t: float, r: HubReading) -> None:
 def _write_ints(con: sqlite3.Connection, t: float, r: HubReading) -> None:
     sid = con.execute("INSERT INTO samples(device_id, time_utc, monotonic, unsupported) "
                       "VALUES (1, ?, ?, ?)", (t, t, r.unsupported_mask)).lastrowid
-    regs, n = r.registers, HUB.channels
+    regs, n = r.registers, CHANNELS
     con.executemany("INSERT INTO hub VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                     [(sid, ch + 1, *(regs[b * n + ch] for b in range(len(_FIELDS))))
                      for ch in range(r.channels)])
@@ -128,9 +129,9 @@ def _sweeps(first: array[int], n: int) -> list[HubReading]:
     out = []
     regs = array("H", first)
     for i in range(n):
-        ch = i % HUB.channels
+        ch = i % CHANNELS
         for b in (0, 1):
-            k = b * HUB.channels + ch
+            k = b * CHANNELS + ch
             if regs[k] not in (0xFFFF, 0x8000):
                 regs[k] = (regs[k] & 0x8000) | ((regs[k] & 0x7FFF) + (1 if i % 2 else -1)) & 0x7FFF
         out.append(decode_hub(array("H", regs)))

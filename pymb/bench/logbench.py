@@ -109,14 +109,13 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     from pymb import RtuClient
-    from pymb.devices import HUB, CoolPro, SensorHub
-    from pymb.devices.maps import COOLPRO
+    from pymb.devices import COOLPRO, HUB, CoolPro, SensorHub
     from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
     from pymb.store import OnChange
 
     baud, hub_port, cp_port, where = int(args[0]), args[1], args[2], args[3]
     ports = {"hub": hub_port, "coolpro": cp_port}
-    addresses = {"hub": HUB.default_address, "coolpro": COOLPRO.default_address}
+    addresses = {"hub": HUB.device.default_address, "coolpro": COOLPRO.device.default_address}
     try:
         clients = {k: RtuClient(p, baud, timeout=2.0) for k, p in ports.items()}
         for c in clients.values():

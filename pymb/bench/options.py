@@ -7,7 +7,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pymb.bench.contenders import NAMES
-from pymb.devices.maps import Type
 
 __all__ = ["BUSES", "EXTRA_SECTIONS", "QUICK_BUDGET", "SECTIONS", "SEED", "SOFTWARE_BAUD",
            "Options", "Plan", "Progress"]
@@ -28,7 +27,6 @@ SOFTWARE_BAUD = 115200  #: the line speed set on the pty for the software compar
 SEED = 0
 BUSES = (1, 2, 4, 8)
 _TIMEOUT = 2.0  #: every stack's reply timeout, seconds (the hub may take 0.5 s)
-_KINDS = {Type.SIGN_MAGNITUDE: "S", Type.I16: "I", Type.U16: "U"}
 
 Progress = Callable[[str], None]
 

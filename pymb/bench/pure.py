@@ -4,7 +4,7 @@ The contenders that hand back raw registers (pymodbus, minimalmodbus,
 pylibmodbus, the hand-written pyserial client) turn them into engineering
 values with :func:`decode_hub` and :func:`decode_telemetry`; the micro
 benchmarks race :func:`crc16` and :func:`decode_hub` against pymb's C. The
-layouts come from :mod:`pymb.devices.maps` (no register number here).
+layouts come from the shipped maps (no register number here).
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-from pymb.devices.maps import COOLPRO, HUB, Type
+from pymb import maps
+from pymb.devices.hubreading import CHANNELS, HUB_REGISTERS
 
 __all__ = [
     "CRC_TABLE",
@@ -66,16 +67,16 @@ def response_length(count: int) -> int:
 _Decoder = Callable[[Sequence[int]], list[float]]
 
 
-def _block_decoder(kind: Type, scale: float, no_value: frozenset[int]) -> _Decoder:
+def _block_decoder(kind: str, scale: float, no_value: frozenset[int]) -> _Decoder:
     """A list comprehension per block kind: what a user writes by hand."""
-    if kind is Type.SIGN_MAGNITUDE:
+    if kind == "sm16":
         div = round(1 / scale)  # tenths: divide by 10, as the document puts it
 
         def sign_magnitude(raw: Sequence[int]) -> list[float]:
             return [_NAN if r in no_value else
                     -(r & 0x7FFF) / div if r & 0x8000 else r / div for r in raw]
         return sign_magnitude
-    if kind is Type.I16:
+    if kind == "i16":
         def signed(raw: Sequence[int]) -> list[float]:
             return [_NAN if r in no_value else float(r - 0x10000 if r & 0x8000 else r)
                     for r in raw]
@@ -92,18 +93,12 @@ def _block_decoder(kind: Type, scale: float, no_value: frozenset[int]) -> _Decod
 
 
 def _hub_decoders(humidity_unit: float) -> tuple[tuple[int, _Decoder], ...]:
-    out = []
-    for block in HUB.blocks:
-        no_value = {0xFFFF}
-        scale = block.scale
-        if block.name == "humidity_pct":
-            # [NOTES]: 0x8000 is "no humidity" in the 0.1 % unit, 0x00FF in the 1 % unit.
-            tenths = math.isclose(humidity_unit, 0.1)
-            no_value.add(block.markers[2][0] if tenths else block.markers[1][0])
-            scale = 0.1 if tenths else 1.0
-        out.append((block.index * HUB.channels,
-                    _block_decoder(block.type, scale, frozenset(no_value))))
-    return tuple(out)
+    # [NOTES]: 0x8000 is "no humidity" in the 0.1 % unit, 0x00FF in the 1 % unit: the
+    # map's humidity block for that unit has its markers and scale.
+    hub = maps.builtin("hub").configure(humidity_unit=humidity_unit)
+    return tuple((i * CHANNELS, _block_decoder(block.type, block.scale or 1.0,
+                                               frozenset(block.markers)))
+                 for i, block in enumerate(hub.points.values()))
 
 
 _HUB_DECODERS = {0.1: _hub_decoders(0.1), 1.0: _hub_decoders(1.0)}
@@ -112,9 +107,9 @@ _HUB_DECODERS = {0.1: _hub_decoders(0.1), 1.0: _hub_decoders(1.0)}
 def decode_hub(registers: Sequence[int], humidity_unit: float = 0.1) -> list[float]:
     """Registers 31..730 (700 ints) to 700 floats, block-major (the layout of
     :attr:`pymb.devices.hub.HubReading.values`), NaN where there is no value."""
-    if len(registers) != HUB.count:
-        raise ValueError(f"the hub sweep is {HUB.count} registers, got {len(registers)}")
-    n = HUB.channels
+    if len(registers) != HUB_REGISTERS:
+        raise ValueError(f"the hub sweep is {HUB_REGISTERS} registers, got {len(registers)}")
+    n = CHANNELS
     out: list[float] = []
     for start, decode in _HUB_DECODERS[1.0 if humidity_unit == 1 else 0.1]:
         out += decode(registers[start:start + n])
@@ -123,23 +118,23 @@ def decode_hub(registers: Sequence[int], humidity_unit: float = 0.1) -> list[flo
 
 # -- the CoolPro -------------------------------------------------------------------
 
-_TELEMETRY = COOLPRO.group("telemetry")
+_TELEMETRY = [p for p in maps.builtin("coolpro").points.values() if p.group == "telemetry"]
 _TELEMETRY_FIRST = _TELEMETRY[0].address
+_TELEMETRY_COUNT = _TELEMETRY[-1].end - _TELEMETRY_FIRST
 
 
 def decode_telemetry(registers: Sequence[int]) -> list[float]:
     """CoolPro input registers 0..7 to [Vin, Iin, Vout, Iout, temperature,
     uptime, status]: milliunits to units, the 32-bit uptime low word first."""
-    if len(registers) != COOLPRO.span("telemetry")[2]:
-        raise ValueError(f"telemetry is {COOLPRO.span('telemetry')[2]} registers, "
-                         f"got {len(registers)}")
+    if len(registers) != _TELEMETRY_COUNT:
+        raise ValueError(f"telemetry is {_TELEMETRY_COUNT} registers, got {len(registers)}")
     out: list[float] = []
-    for reg in _TELEMETRY:
-        i = reg.address - _TELEMETRY_FIRST
-        if reg.type is Type.U32_LE_WORDS:
+    for p in _TELEMETRY:
+        i = p.address - _TELEMETRY_FIRST
+        if p.count == 2:  # u32, low word first
             out.append(float(registers[i] | registers[i + 1] << 16))
-        elif reg.type is Type.BITS:
+        elif p.scale is None:
             out.append(float(registers[i]))
         else:
-            out.append(registers[i] / round(1 / reg.scale))
+            out.append(registers[i] / round(1 / p.scale))
     return out

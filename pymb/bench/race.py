@@ -15,15 +15,18 @@ from typing import Any
 from pymb import _native
 from pymb.bench import cprogram
 from pymb.bench.contenders import CONTENDERS, Contender, probe
-from pymb.bench.options import _KINDS, _TIMEOUT, SEED, SOFTWARE_BAUD, Options
+from pymb.bench.options import _TIMEOUT, SEED, SOFTWARE_BAUD, Options
 from pymb.bench.procs import Child, ChildError, Children
 from pymb.bench.worker import CP_ADDRESS, CP_COUNT, CP_SLAVE, HUB_SLAVE
 from pymb.devices.coolpro import decode_telemetry
 from pymb.devices.hub import decode_hub
-from pymb.devices.maps import HUB
+from pymb.devices.hubreading import BLOCKS, CHANNELS, HUB_REGISTERS, block_index
 from pymb.sim import HubDevice, Simulator
 
 __all__ = ["Lineup", "RaceEntry", "Reference", "hub_registers", "race", "summary", "verify"]
+
+#: the C program's letter for each hub block type (sign-magnitude, signed, unsigned)
+_KINDS = {"sm16": "S", "i16": "I", "u16": "U"}
 
 
 # -- the reference the contenders are checked against -------------------------------------
@@ -37,9 +40,11 @@ class Reference:
 
     def __init__(self) -> None:
         regs = hub_registers()
-        humidity = HUB.block("humidity_pct")
-        self._h0 = humidity.index * HUB.channels
-        self._no_humidity = humidity.markers[2][0]  # the 0.1 % unit's: the hub's default
+        humidity = block_index("humidity_pct")
+        self._h0 = humidity * CHANNELS
+        # the hub's default unit's (0.1 %): the map's humidity block as it loads
+        self._no_humidity = next(raw for raw, state in BLOCKS[humidity].markers.items()
+                                 if state == "no_sensor")
         self.kinds = [self._kind(i, r) for i, r in enumerate(regs)]
         self.k_off = self.kinds.index("off")
         self.k_val = self.kinds.index("val")
@@ -47,18 +52,18 @@ class Reference:
     def _kind(self, i: int, r: int) -> str:
         if r == 0xFFFF:
             return "off"
-        if self._h0 <= i < self._h0 + HUB.channels and r == self._no_humidity:
+        if self._h0 <= i < self._h0 + CHANNELS and r == self._no_humidity:
             return "none"
         return "val"
 
     def check_sweep(self, raw: Sequence[int], values: Sequence[float]) -> None:
         """Raise ValueError unless ``raw``/``values`` are a correct sweep."""
-        if len(raw) != HUB.count or len(values) != HUB.count:
+        if len(raw) != HUB_REGISTERS or len(values) != HUB_REGISTERS:
             raise ValueError(f"{len(raw)} registers and {len(values)} values, "
-                             f"not {HUB.count}")
+                             f"not {HUB_REGISTERS}")
         for i, r in enumerate(raw):
             if self._kind(i, r) != self.kinds[i]:
-                raise ValueError(f"register {HUB.first + i} reads {r:#06x}: the simulated "
+                raise ValueError(f"register {BLOCKS[0].address + i} reads {r:#06x}: the simulated "
                                  f"hub's layout says {self.kinds[i]}")
         expected = decode_hub(array("H", raw)).values
         _same_values("decoded sweep", values, expected)
@@ -177,10 +182,10 @@ class Lineup:
         """Start ``e``'s worker on ``port``; marks it failed if it cannot."""
         if e.name == "c":
             assert self.c_exe is not None
-            argv = [self.c_exe, port, str(baud), str(HUB_SLAVE), str(HUB.first),
-                    str(HUB.count), str(HUB.channels),
+            argv = [self.c_exe, port, str(baud), str(HUB_SLAVE), str(BLOCKS[0].address),
+                    str(HUB_REGISTERS), str(CHANNELS),
                     "".join("H" if b.name == "humidity_pct" else _KINDS[b.type]
-                            for b in HUB.blocks),
+                            for b in BLOCKS),
                     str(CP_SLAVE), str(CP_ADDRESS), str(CP_COUNT),
                     str(self.ref.k_off), str(self.ref.k_val)]
         else:

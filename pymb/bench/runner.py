@@ -90,7 +90,7 @@ from pymb.bench.race import (
 )
 from pymb.bench.worker import CP_COUNT, CP_SLAVE, HUB_SLAVE, SPANS
 from pymb.devices.hub import decode_hub
-from pymb.devices.maps import HUB
+from pymb.devices.hubreading import HUB_REGISTERS
 from pymb.sim import CoolProDevice, make_device
 from pymb.wire import read_time
 
@@ -136,7 +136,7 @@ def run_micro(opts: Options) -> dict[str, Any]:
          "python_us": per_call(lambda: pure.crc16(frame)),
          "pymb_call": "pymb.crc16(frame)", "python_call": "table-driven loop",
          "target_us": 1.0},
-        {"name": "decode", "what": f"decode {HUB.count} hub registers",
+        {"name": "decode", "what": f"decode {HUB_REGISTERS} hub registers",
          "pymb_us": per_call(lambda: decode_hub(regs)),
          "python_us": per_call(lambda: pure.decode_hub(regs_list)),
          "pymb_call": "decode_hub(array('H'))", "python_call": "list comprehensions",

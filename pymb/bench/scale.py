@@ -78,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 c = RtuClient(p, baud, timeout=2.0)
                 c.connect()
                 clients.append(c)
-            hubs = [SensorHub(c, HUB.default_address) for c in clients]
+            hubs = [SensorHub(c, HUB.device.default_address) for c in clients]
             # the warming sweeps side by side (each releases the GIL on the wire)
             with ThreadPoolExecutor(len(hubs)) as pool:
                 list(pool.map(lambda h: h.read_all(), hubs))

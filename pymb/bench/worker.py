@@ -28,19 +28,21 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from pymb.bench import pure
+from pymb.devices import COOLPRO, HUB
 from pymb.devices.hub import HubReading, full_sweep_spans
-from pymb.devices.maps import COOLPRO, HUB
+from pymb.devices.hubreading import CHANNELS, HUB_REGISTERS
 
 __all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
 
-HUB_SLAVE = HUB.default_address
-CP_SLAVE = COOLPRO.default_address
-CP_FUNCTION, CP_ADDRESS, CP_COUNT = COOLPRO.span("telemetry")
+HUB_SLAVE = HUB.device.default_address
+CP_SLAVE = COOLPRO.device.default_address
+(_TELEMETRY,) = COOLPRO.plan("telemetry")  # one request: input registers 0..7
+CP_FUNCTION, CP_ADDRESS, CP_COUNT = _TELEMETRY.function, _TELEMETRY.address, _TELEMETRY.count
 
 
 #: The sweep's requests: registers 31..730 in reads of at most 125, as the
 #: hub's map plans a full sweep, for every contender.
-SPANS = full_sweep_spans(HUB.channels)
+SPANS = full_sweep_spans(CHANNELS)
 
 
 class Canary:
@@ -52,7 +54,7 @@ class Canary:
 
     def check(self, raw: Sequence[int], values: Sequence[float]) -> None:
         """Raise when the sweep is not the simulated hub's."""
-        if len(raw) != HUB.count or len(values) != HUB.count:
+        if len(raw) != HUB_REGISTERS or len(values) != HUB_REGISTERS:
             raise RuntimeError(f"sweep returned {len(raw)} registers, {len(values)} values")
         k, v = self.k_off, self.k_val
         if raw[k] != 0xFFFF or not math.isnan(values[k]) or raw[v] == 0xFFFF or \

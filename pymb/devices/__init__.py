@@ -3,12 +3,14 @@
     from pymb.devices import CoolPro, SensorHub, CoolProStatus, decode_hub
     from pymb.devices import MapDevice      # any device from its pymb.map/1 map
 
-See :mod:`pymb.devices.maps` for the maps (the only place register numbers
-appear), :mod:`pymb.maps.planner` for the read planner.
+``HUB`` and ``COOLPRO`` are the two devices' shipped maps
+(``pymb.maps.builtin("hub")``, ``("coolpro")``: the only place their register
+numbers appear); :mod:`pymb.maps.planner` is the read planner.
 """
 
 from __future__ import annotations
 
+from pymb import maps
 from pymb.devices.coolpro import (
     CoolPro,
     CoolProConfig,
@@ -19,7 +21,6 @@ from pymb.devices.coolpro import (
 from pymb.devices.hub import HubChannel, HubReading, SensorHub, State, decode_hub
 from pymb.devices.hubreading import HUB_FIRMWARE_PROFILES
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.maps import COOLPRO, HUB
 from pymb.maps.planner import ReadPlan
 
 __all__ = [
@@ -39,3 +40,8 @@ __all__ = [
     "State",
     "decode_hub",
 ]
+
+#: The sensor hub's shipped map, ``pymb.maps.builtin("hub")``.
+HUB = maps.builtin("hub")
+#: The CoolPro's shipped map, ``pymb.maps.builtin("coolpro")``.
+COOLPRO = maps.builtin("coolpro")

@@ -30,8 +30,9 @@ from pymb.bench.runner import Options, RaceEntry, summary
 from pymb.bench.worker import SPANS, Canary
 from pymb.child import Child, pymb_argv
 from pymb.cli import main
+from pymb.devices import HUB
 from pymb.devices.hub import decode_hub
-from pymb.devices.maps import HUB
+from pymb.devices.hubreading import HUB_REGISTERS
 
 
 def _have_c() -> bool:
@@ -81,11 +82,14 @@ def test_pure_crc_matches_the_documents_and_pymb() -> None:
 
 def test_pure_decoders_match_pymb() -> None:
     regs = runner.hub_registers(seed=3)
-    got = pure.decode_hub(list(regs))
-    want = decode_hub(regs).values
-    assert len(got) == HUB.count
-    for g, w in zip(got, want, strict=True):
-        assert (math.isnan(g) and math.isnan(w)) or g == pytest.approx(w, rel=1e-12)
+    regs[131 - 31] = 0x00FF  # channel 1's humidity: "no sensor" in the 1 % unit only
+    for unit in (0.1, 1):
+        got = pure.decode_hub(list(regs), unit)
+        want = decode_hub(regs, unit).values
+        assert len(got) == HUB_REGISTERS
+        assert math.isnan(got[100]) == (unit == 1)
+        for g, w in zip(got, want, strict=True):
+            assert (math.isnan(g) and math.isnan(w)) or g == pytest.approx(w, rel=1e-12)
     # [NOTES]: 5F B4 0C B2 5D C0 0C 80 = 24.5 V, 3.25 A, 24.0 V, 3.20 A; uptime 4464, 1 = 70000 s.
     t = pure.decode_telemetry([0x5FB4, 0x0CB2, 0x5DC0, 0x0C80, 25000, 4464, 1, 0x0041])
     assert t == pytest.approx([24.5, 3.25, 24.0, 3.2, 25.0, 70000.0, 65.0])
@@ -93,15 +97,15 @@ def test_pure_decoders_match_pymb() -> None:
 
 def test_sweep_is_six_requests_of_at_most_125() -> None:
     assert len(SPANS) == 6
-    assert all(n <= HUB.max_read for _, n in SPANS)
-    assert SPANS[0][0] == HUB.first
-    assert sum(n for _, n in SPANS) == HUB.count
+    assert all(n <= HUB.limits.max_registers for _, n in SPANS)
+    assert SPANS[0][0] == HUB.points["temperature_c"].address == 31
+    assert sum(n for _, n in SPANS) == HUB_REGISTERS
 
 
 def test_canary_catches_a_wrong_sweep() -> None:
     canary = Canary(0, 1)
-    raw = [0xFFFF, 215] + [0] * (HUB.count - 2)
-    values = [math.nan, 21.5] + [0.0] * (HUB.count - 2)
+    raw = [0xFFFF, 215] + [0] * (HUB_REGISTERS - 2)
+    values = [math.nan, 21.5] + [0.0] * (HUB_REGISTERS - 2)
     canary.check(raw, values)
     with pytest.raises(RuntimeError):
         canary.check([*raw[1:], 0], values)  # shifted by one register

@@ -13,8 +13,9 @@ import reference as ref
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pymb.devices import COOLPRO, HUB, CoolProStatus, State, decode_hub
+from pymb.devices import COOLPRO, CoolProStatus, State, decode_hub
 from pymb.devices.coolpro import CoolProTelemetry, decode_identity, decode_telemetry
+from pymb.devices.hubreading import BLOCKS, CHANNELS, HUB_REGISTERS, block_index
 
 STATE = {ref.VALUE: State.VALUE, ref.OFFLINE: State.OFFLINE, ref.NO_SENSOR: State.NO_SENSOR}
 
@@ -27,13 +28,13 @@ def same(a: float, b: float) -> bool:
 
 def check_reading(regs: list[int], units: list[float], channels: int) -> None:
     r = decode_hub(array("H", regs), units, channels=channels)
-    for block in HUB.blocks:
+    for index, block in enumerate(BLOCKS):
         values = getattr(r, block.name)
         states = r.states(block.name)
         assert len(values) == channels
         for c in range(channels):
-            raw = regs[block.index * HUB.channels + c]
-            want_state, want = ref.hub_value(block.index, raw, units[c])
+            raw = regs[index * CHANNELS + c]
+            want_state, want = ref.hub_value(index, raw, units[c])
             assert same(values[c], want), (block.name, c, hex(raw), values[c], want)
             assert states[c] == STATE[want_state]
 
@@ -49,16 +50,16 @@ ENCODINGS = [  # (block that uses the encoding, humidity unit)
 
 @pytest.mark.parametrize(("name", "unit"), ENCODINGS)
 def test_every_16_bit_value_of_each_encoding(name: str, unit: float) -> None:
-    block = HUB.block(name)
-    regs = array("H", bytes(2 * HUB.count))
-    base = block.index * HUB.channels
-    for start in range(0, 0x10000, HUB.channels):
-        raws = range(start, min(start + HUB.channels, 0x10000))
+    index = block_index(name)
+    regs = array("H", bytes(2 * HUB_REGISTERS))
+    base = index * CHANNELS
+    for start in range(0, 0x10000, CHANNELS):
+        raws = range(start, min(start + CHANNELS, 0x10000))
         regs[base:base + len(raws)] = array("H", raws)
         r = decode_hub(regs, unit)
         values, states = getattr(r, name), r.states(name)
         for c, raw in enumerate(raws):
-            want_state, want = ref.hub_value(block.index, raw, unit)
+            want_state, want = ref.hub_value(index, raw, unit)
             got = values[c]
             ok = got == want and (got != 0 or math.copysign(1, got) == math.copysign(1, want))
             if not ok and not (got != got and want != want):
@@ -185,13 +186,12 @@ def test_coolpro_telemetry_matches_reference(raw: list[int]) -> None:
 
 
 def test_coolpro_record_agrees_with_the_map() -> None:
-    assert COOLPRO.span("telemetry") == (0x04, 0, 8)
-    assert COOLPRO.span("identity") == (0x04, 100, 8)
+    assert [(r.function, r.address, r.count) for r in COOLPRO.plan("telemetry")] == [(4, 0, 8)]
+    assert [(r.function, r.address, r.count) for r in COOLPRO.plan("identity")] == [(4, 100, 8)]
     # The telemetry record's fields, in order, are the map's telemetry points.
     fields = [f for f in CoolProTelemetry.__dataclass_fields__ if f != "registers"]
-    assert fields == [r.name for r in COOLPRO.group("telemetry")]
+    assert fields == [p.name for p in COOLPRO.points.values() if p.group == "telemetry"]
     # CoolProStatus names the map's status bits.
-    from pymb.devices.maps import COOLPRO_STATUS_BITS
     assert {m.name: m.value for m in CoolProStatus} == {
-        name: 1 << bit for bit, (name, _) in COOLPRO_STATUS_BITS.items()
+        name: 1 << bit for bit, name in COOLPRO.points["status"].flags.items()
     }

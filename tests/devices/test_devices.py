@@ -72,7 +72,7 @@ def test_coolpro_telemetry_is_a_whole_frozen_dataclass(sim_client: pymb.RtuClien
 
 
 def test_all_blocks_mask_is_every_block_of_the_map() -> None:
-    mask = (1 << len(HUB.blocks)) - 1
+    mask = (1 << len(HUB.points)) - 1
     assert mask == ALL_BLOCKS
 
 
@@ -162,12 +162,12 @@ def test_coolpro_exception_codes(sim_client: pymb.RtuClient) -> None:
 def assert_matches_device(r: pymb.devices.HubReading, dev: object, units: bytes) -> None:
     regs = dev.registers()  # type: ignore[attr-defined]
     assert list(r.registers) == list(regs)
-    for b in HUB.blocks:
-        vals = getattr(r, b.name)
+    for index, name in enumerate(HUB.points):
+        vals = getattr(r, name)
         for c in range(r.channels):
-            _st, want = ref.hub_value(b.index, regs[b.index * 100 + c], 0.1 if units[c] else 1)
+            _st, want = ref.hub_value(index, regs[index * 100 + c], 0.1 if units[c] else 1)
             got = vals[c]
-            assert (math.isnan(got) and math.isnan(want)) or got == want, (b.name, c)
+            assert (math.isnan(got) and math.isnan(want)) or got == want, (name, c)
 
 
 def test_hub_read_all_six_requests_every_value(bus: Simulator, sim_client: pymb.RtuClient) -> None:
@@ -229,7 +229,7 @@ def test_hub_firmware_profiles(frozen_clock: SimClock, firmware: str, channels: 
         assert hub.unsupported == missing
         for name in missing:
             assert set(r.states(name)) == {State.UNSUPPORTED}
-        present = [b.name for b in HUB.blocks if b.name not in missing]
+        present = [name for name in HUB.points if name not in missing]
         for name in present:
             assert State.UNSUPPORTED not in set(r.states(name))
             assert len(getattr(r, name)) == channels

@@ -3,8 +3,8 @@ request the facade sends must be byte for byte the document's, CRC included,
 and the document's reply must decode to the document's values. The frames are
 data copied from the documents (the section named beside each); a CRC the
 document leaves as ``[CRC]`` is appended by tests/peerkit.py's bitwise CRC,
-written from the documents and nothing of pymb's. Nothing here reads
-``pymb.devices.maps``: a mistyped address or scale there fails these tests.
+written from the documents and nothing of pymb's. Nothing here reads the
+shipped maps: a mistyped address or scale there fails these tests.
 """
 
 from __future__ import annotations

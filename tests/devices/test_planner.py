@@ -42,7 +42,7 @@ def test_plan_limits_coverage_and_cost(wanted: set[int], holes: set[int], baud: 
 
 
 def test_full_sweep_is_six_requests_like_the_reference_plan() -> None:
-    everything = range(HUB.first, HUB.first + HUB.count)
+    everything = range(HUB.points["temperature_c"].address, HUB.points["temperature2_c"].end)
     plan = plan_reads(everything, 9600)
     assert len(plan.spans) == 6
     assert plan.registers == 700
@@ -64,7 +64,7 @@ def test_reference_plan_skips_missing_blocks_and_short_hubs() -> None:
 def test_twelve_channels_merge_gaps_when_cheaper() -> None:
     # 12 channels in use, temperature and humidity: at 9600 bit/s reading the
     # 88 registers between the two runs costs more than a second request.
-    wanted = [HUB.block(b).address(c) for b in ("temperature_c", "humidity_pct")
+    wanted = [HUB.points[b].address_of(c) for b in ("temperature_c", "humidity_pct")
               for c in range(1, 13)]
     slow = plan_reads(wanted, 9600, turnaround=0.0)
     assert slow.spans == ((31, 12), (131, 12))

@@ -106,18 +106,19 @@ def test_the_docs_list_every_shipped_map() -> None:
     assert set(listed) <= set(maps.builtin_ids())  # the rest: map-devices.md's library
 
 
-def test_the_facades_rows_are_the_shipped_maps_points() -> None:
-    from pymb.devices.maps import COOLPRO, COOLPRO_BAUD_RATES, COOLPRO_GAP_S, HUB
+def test_the_devices_hub_and_coolpro_are_the_shipped_maps() -> None:
+    from pymb.devices import COOLPRO, HUB
+    from pymb.devices.coolpro import COOLPRO_BAUD_RATES
+    from pymb.devices.hubreading import BLOCKS, CHANNELS
 
-    cp, hub = maps.builtin("coolpro"), maps.builtin("hub")
-    assert [(r.name, r.address, r.count) for r in COOLPRO.registers] == [
-        (p.name, p.address, p.count) for p in cp.points.values()]
-    assert [(b.name, b.first, b.unit) for b in HUB.blocks] == [
-        (p.name, p.address, p.unit) for p in hub.points.values()]
-    assert HUB.channels == hub.options["channels"] == 100
+    assert HUB is maps.builtin("hub")
+    assert COOLPRO is maps.builtin("coolpro")
+    assert [b.name for b in BLOCKS] == list(HUB.points)
+    assert CHANNELS == HUB.options["channels"] == 100
     assert COOLPRO_BAUD_RATES == (9600, 19200, 38400, 57600, 115200)
-    assert COOLPRO_GAP_S == cp.timing.turnaround == 0.008
-    humidity = HUB.block("humidity_pct")
-    assert humidity.markers == ((0xFFFF, "offline"), (0x00FF, "no sensor (1 % unit)"),
-                                (0x8000, "no sensor (0.1 % unit)"))
-    assert humidity.per_channel_scales == (1, 0.1)
+    assert COOLPRO.timing.turnaround == 0.008
+    # the humidity's "no sensor" marker and scale follow the channel's unit
+    for unit, marker in ((1, 0x00FF), (0.1, 0x8000)):
+        humidity = HUB.configure(humidity_unit=unit).points["humidity_pct"]
+        assert dict(humidity.markers) == {0xFFFF: "offline", marker: "no_sensor"}
+        assert humidity.scale == unit

@@ -18,6 +18,7 @@ from conftest import PYMB, PYMB_ENV, ROOT, run_pymb
 
 from pymb.bench.layouts import write_format1
 from pymb.devices import HUB, HubReading, State, decode_hub
+from pymb.devices.hubreading import BLOCKS, CHANNELS, HUB_REGISTERS
 from pymb.errors import InvalidArgument
 from pymb.store import (
     DeviceInfo,
@@ -31,19 +32,23 @@ from pymb.store import (
 )
 
 T0 = 1_800_000_000.0
-FIELDS = [b.name for b in HUB.blocks]
+FIELDS = [b.name for b in BLOCKS]
+#: each block's markers in either humidity unit
+MARKERS = {name: list(dict.fromkeys(m for unit in (1, 0.1) for m in
+                                    HUB.configure(humidity_unit=unit).points[name].markers))
+           for name in FIELDS}
 
 
 def random_registers(rng: random.Random) -> array[int]:
     """700 registers: values of every kind and every marker of [HUB] / [NOTES]."""
     regs = array("H")
-    for b in HUB.blocks:
-        for _ in range(HUB.channels):
+    for name in FIELDS:
+        for _ in range(CHANNELS):
             pick = rng.random()
             if pick < 0.1:
                 regs.append(0xFFFF)
             elif pick < 0.2:
-                regs.append(rng.choice([m for m, _ in b.markers]))
+                regs.append(rng.choice(MARKERS[name]))
             elif pick < 0.3:
                 regs.append(rng.choice([0, 0x8000, 0x7FFF, 0x8001, 0xFFFE]))
             else:
@@ -80,7 +85,7 @@ def test_the_views_decode_exactly_as_the_c_core(tmp_path: Path) -> None:
         choices: list[float | tuple[float, ...]] = [
             0.1, 1, tuple(rng.choice([1, 0.1]) for _ in range(channels))]
         units = rng.choice(choices)
-        unsupported = [b.name for b in HUB.blocks if rng.random() < 0.2]
+        unsupported = [name for name in FIELDS if rng.random() < 0.2]
         regs = random_registers(rng)
         r = decode_hub(regs, list(units) if isinstance(units, tuple) else units,
                        channels=channels, unsupported=unsupported)
@@ -229,12 +234,12 @@ def test_a_file_that_is_not_pymbs_is_refused(tmp_path: Path) -> None:
 
 
 def _sweep(temps: dict[int, int], offline: tuple[int, ...] = ()) -> array[int]:
-    regs = array("H", [200] * HUB.count)  # 20.0 °C, 20.0 %, ... everywhere
+    regs = array("H", [200] * HUB_REGISTERS)  # 20.0 °C, 20.0 %, ... everywhere
     for ch, tenths in temps.items():
         regs[ch - 1] = tenths
     for ch in offline:
-        for b in range(len(HUB.blocks)):
-            regs[b * HUB.channels + ch - 1] = 0xFFFF
+        for b in range(len(BLOCKS)):
+            regs[b * CHANNELS + ch - 1] = 0xFFFF
     return regs
 
 
@@ -391,7 +396,7 @@ def test_a_size_limit_below_one_megabyte_is_refused(tmp_path: Path) -> None:
 def test_a_new_humidity_unit_is_a_new_device_row_and_old_samples_keep_theirs(
         tmp_path: Path) -> None:
     db = tmp_path / "units.sqlite"
-    regs = array("H", [200] * HUB.count)  # humidity register 200: 20.0 % or 200 %
+    regs = array("H", [200] * HUB_REGISTERS)  # humidity register 200: 20.0 % or 200 %
     for unit in (0.1, 1):
         sink = SqliteSink(db)
         dev = DeviceInfo("b", "p", "hub", 1, "hub-1", 100, unit)
