@@ -69,7 +69,8 @@ class Selector:
         epoll waits) for a watched socket: (its object, epoll mask) of each
         ready one."""
         to = self._to
-        ready = self._ep.poll(math.ceil(timeout * 1e3) * 1e-3 if timeout > 0 else 0)
+        ready = self._ep.poll(math.ceil(timeout * 1e3) * 1e-3 if timeout > 0 else 0,
+                              len(to) or 1)  # (not the default 1,023 events to allocate)
         return [(to[fd], ev) for fd, ev in ready if fd in to]
 
     def close(self) -> None:
