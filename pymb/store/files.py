@@ -7,7 +7,7 @@ import os
 import sqlite3
 from pathlib import Path
 
-from pymb.store.schema import PAGE_SIZE, install
+from pymb.store.schema import install, new_file
 
 __all__ = ["create", "remove_stale_creations"]
 
@@ -50,8 +50,7 @@ def create(path: Path) -> None:
     try:
         con = sqlite3.connect(tmp, isolation_level=None)
         try:
-            con.execute(f"PRAGMA page_size = {PAGE_SIZE}")
-            con.execute("PRAGMA auto_vacuum = INCREMENTAL")
+            new_file(con)
             install(con)
         finally:
             con.close()

@@ -92,6 +92,10 @@ class Retention:
         #: trim in small steps, each checkpointed (a full disk: little room for the WAL)
         self.small_steps = False
         self._wal = Path(f"{path}-wal")
+        #: the file keeps pointer-map pages (``auto_vacuum = INCREMENTAL``): it
+        #: shrinks a little at a time; pymb's new files have none (a page less
+        #: rewritten by every commit) and shrink by one VACUUM
+        self._incremental = int(db.execute("PRAGMA auto_vacuum").fetchone()[0]) == 2
         self._last_age_trim = time.monotonic()
 
     def over_room(self) -> bool:
@@ -105,6 +109,7 @@ class Retention:
         ``give_up_reserve`` frees the reserve's room (False: none left) and
         the trim runs in small steps with a checkpoint after each (a short WAL)."""
         if not self.over_room():
+            self.give_back()
             return
         try:
             self.trim()
@@ -197,19 +202,42 @@ class Retention:
                         self.checkpoint()
                 elif not self._delete_oldest_events():
                     break  # nothing left that may go
-            count, free = self.pages()
-            fixed = self.max_bytes - self.wal_budget
-            if count * self.page_size > 1.05 * fixed and free:
-                # The file is larger than the limit allows (a lower limit than
-                # last time): give the free pages back, a little at a time.
-                chunk = max(1, self.wal_budget // (64 if self.small_steps else 4)
-                            // self.page_size)
-                while free > 0 and count * self.page_size > fixed:
-                    self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
-                    self.checkpoint()
-                    count, free = self.pages()
+            self.give_back()
         self.trimmed += deleted
         return deleted
+
+    def give_back(self) -> None:
+        """A file larger than the size limit allows (a lower limit than last
+        time) gives its free pages back, towards the limit less the WAL's
+        budget: a file with incremental
+        vacuum a little at a time; a file without it (as pymb makes them: no
+        pointer-map page for every commit to rewrite) by one VACUUM when the disk
+        holds the copy it makes (the pages in use, twice: its temporary
+        database and the WAL); otherwise its free pages are reused, and the
+        file grows no more (and shrinks at a later open with the room)."""
+        assert self.max_bytes is not None
+        count, free = self.pages()
+        fixed = self.max_bytes - self.wal_budget
+        if count * self.page_size <= 1.05 * fixed or not free:
+            return
+        if self._incremental:
+            chunk = max(1, self.wal_budget // (64 if self.small_steps else 4)
+                        // self.page_size)
+            while free > 0 and count * self.page_size > fixed:
+                self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
+                self.checkpoint()
+                count, free = self.pages()
+            return
+        need = 2 * (count - free) * self.page_size + DISK_MARGIN
+        try:
+            st = os.statvfs(self._wal.parent)
+        except OSError:
+            return  # the next write says what is wrong
+        if st.f_bavail * st.f_frsize < need:
+            return
+        self.checkpoint()
+        self.db.execute("VACUUM")
+        self.checkpoint()
 
     def _delete_oldest_events(self) -> int:
         """A long outage logs events and no samples: they must go too."""

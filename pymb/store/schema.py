@@ -31,6 +31,7 @@ __all__ = [
     "host_words",
     "install",
     "map_layout_key",
+    "new_file",
     "open_format",
     "parse_layout_key",
     "schema_version",
@@ -124,8 +125,8 @@ def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
 
 SCHEMA_VERSION = 2
 #: a new database's page size. A commit writes whole pages to the WAL (the
-#: last of the samples, its parent, the time index's last page, the header
-#: and the pointer-map page), each copied once more at the checkpoint: the
+#: last of the samples, their parent, the time index's last page, the
+#: header), each copied once more at the checkpoint: the
 #: smaller the page, the fewer bytes a commit of a few rows writes (2 KB:
 #: about half of 4 KB's). A hub sweep (1,400 bytes) still fits a page: at
 #: 1 KB it would spill onto overflow pages, whose content nothing of SQLite's
@@ -324,6 +325,17 @@ def statements(script: str) -> list[str]:
     return out
 
 
+def new_file(db: sqlite3.Connection) -> None:
+    """The page layout of a new (empty) database: :data:`PAGE_SIZE` pages and
+    no pointer-map pages (``auto_vacuum = NONE``: with incremental vacuum
+    every commit that adds a page rewrites the pointer-map page that lists
+    it, one page more to the WAL; a file under a lower size limit than
+    before shrinks by one VACUUM instead, :mod:`pymb.store.retention`).
+    A file made otherwise keeps its layout."""
+    db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
+    db.execute("PRAGMA auto_vacuum = NONE")
+
+
 def install(db: sqlite3.Connection) -> None:
     """Write the schema, its views and its meta rows into ``db`` (autocommit
     mode), in one transaction: the one set-up of a new or opened database."""
@@ -356,8 +368,7 @@ def open_format(db: sqlite3.Connection, path: Path, max_bytes: int | None) -> tu
             f"{SCHEMA_VERSION}; " + ("log to a new file (pymb export still reads this one)"
                                     if older else "use the newer pymb that wrote it"))
     if version == 0:
-        db.execute(f"PRAGMA page_size = {PAGE_SIZE}")
-        db.execute("PRAGMA auto_vacuum = INCREMENTAL")
+        new_file(db)
     mode = db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
     if mode != "wal":
         raise InvalidArgument(f"{path}: cannot use WAL journal mode ({mode})")
