@@ -9,6 +9,7 @@ look up per event (the loop wakes for each poll of each connection)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import select
 import socket
@@ -62,7 +63,8 @@ class Selector:
         """Stop watching ``sock`` (before it is closed). KeyError: not registered."""
         fd = _fd(sock)
         del self._to[fd]
-        self._ep.unregister(fd)
+        with contextlib.suppress(OSError):  # (its file already gone: epoll forgot it)
+            self._ep.unregister(fd)
 
     def select(self, timeout: float) -> list[tuple[Any, int]]:
         """Wait up to ``timeout`` seconds (rounded up to a millisecond, as

@@ -3,6 +3,7 @@ over real sockets."""
 
 from __future__ import annotations
 
+import os
 import socket
 
 import pytest
@@ -52,4 +53,19 @@ def test_it_refuses_what_selectors_refuses() -> None:
     finally:
         sel.close()
         a.close()
+        b.close()
+
+
+def test_a_socket_whose_file_is_gone_is_unregistered_quietly() -> None:
+    sel = Selector()
+    a, b = socket.socketpair()
+    try:
+        sel.register(a, READ, "a")
+        os.close(a.fileno())  # behind the socket's back: epoll has forgotten it
+        sel.unregister(a)
+        with pytest.raises(KeyError):
+            sel.unregister(a)
+    finally:
+        a.detach()
+        sel.close()
         b.close()
