@@ -15,13 +15,15 @@ exception 03); anything else is refused. A broadcast write is carried out.
 A point whose ``min_firmware`` is above the device's ``firmware`` is absent.
 
 The ``sensor`` fault puts a point that has ``markers`` (or a float's NaN) in
-its no-value state for a while: ``channels`` names channels of a block.
+its no-value state for a while: ``channels`` names channels of a block;
+:meth:`MapSimDevice.pin` holds a read-only point at a raw value.
 
 A device with behaviours of its own (the CoolPro, the sensor hub) is a
 subclass: it narrows :attr:`MapSimDevice.functions`, picks the exception
 code of a malformed request, brings its own values (:meth:`_start`,
-:meth:`_refresh`) and reacts to writes (:meth:`_wrote`); everything else
-(registers, addresses, exceptions, writes, firmware) is the map's.
+:meth:`_refresh`), reacts to writes (:meth:`_wrote`) and adds keys to its
+device spec (:attr:`spec_keys`); everything else (registers, addresses,
+exceptions, writes, firmware, the spec's options) is the map's.
 """
 
 from __future__ import annotations
