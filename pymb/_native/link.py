@@ -25,7 +25,7 @@ from pymb.errors import (
     request_error,
 )
 
-__all__ = ["Link", "RegisterPlan", "ffi_buffer_u16"]
+__all__ = ["Link", "RegisterPlan"]
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
@@ -61,11 +61,6 @@ def _take_interrupt() -> BaseException | None:
 def _seconds_us(seconds: float) -> tuple[int, int]:
     """A timeout as libmodbus takes it: (seconds, microseconds), at least 1 us."""
     return divmod(max(1, round(seconds * 1e6)), 1_000_000)
-
-
-def ffi_buffer_u16(array: Any) -> Any:
-    """A ``uint16_t *`` over a writable buffer (an ``array('H')``)."""
-    return ffi.from_buffer("uint16_t[]", array, require_writable=True)
 
 
 class RegisterPlan:

@@ -311,12 +311,6 @@ def _at_rate(opts: Options, children: Children, tmp: str, sdm: str) -> list[dict
     return rows
 
 
-def _best(section: dict[str, Any], workload: str) -> dict[str, Any] | None:
-    ok = [r for r in section["rows"] if r["workload"] == workload and r["status"] == "ok"
-          and r["design"].startswith("fanout") and r["values_per_cpu_s"]]
-    return max(ok, key=lambda r: r["values_per_cpu_s"], default=None)
-
-
 def targets(section: dict[str, Any]) -> list[tuple[str, str, float | None, str, bool | None]]:
     """(what, goal, measured, unit, met): SDM630 values per CPU-second (the
     lowest of pymb's pipelined rows over the device counts: the fan-out's,

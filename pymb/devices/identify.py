@@ -47,7 +47,6 @@ Answer = bytes | int | None
 Ask = Callable[[int, int, bytes], Answer]
 
 _FC_HOLDING = FunctionCode.READ_HOLDING_REGISTERS
-_FC_INPUT = FunctionCode.READ_INPUT_REGISTERS
 
 
 @dataclass(frozen=True)
