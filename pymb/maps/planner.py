@@ -26,11 +26,10 @@ seconds).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from pymb._native import MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument
 from pymb.maps.cuts import best_cuts, broken_ties, naive_cost
 from pymb.maps.point import MAX_GAP, Limits
@@ -49,10 +48,8 @@ __all__ = [
     "ReadPlan",
     "Refusal",
     "Request",
-    "naive_spans",
     "on_refusal",
     "plan_points",
-    "plan_reads",
     "replans",
 ]
 
@@ -406,41 +403,3 @@ def plan_points(items: Sequence[Item], line: Line, limits: Limits | None = None,
             i = j + 1
     return ReadPlan(tuple(requests), total, naive, line, len(chosen))
 
-
-def naive_spans(wanted: Iterable[int],
-                max_count: int = MAX_READ_REGISTERS) -> list[tuple[int, int]]:
-    """One request per contiguous run of ``wanted`` addresses, split at ``max_count``."""
-    spans: list[tuple[int, int]] = []
-    for a in sorted(set(wanted)):
-        if spans and spans[-1][0] + spans[-1][1] == a and spans[-1][1] < max_count:
-            spans[-1] = (spans[-1][0], spans[-1][1] + 1)
-        else:
-            spans.append((a, 1))
-    return spans
-
-
-def plan_reads(wanted: Iterable[int], baudrate: int, *,
-               readable: Callable[[int], bool] = lambda a: True,
-               turnaround: float = 0.0, max_count: int = MAX_READ_REGISTERS,
-               bits_per_char: int = 10) -> ReadPlan:
-    """The cheapest plan for single input registers at ``wanted`` addresses:
-    :func:`plan_points` with a one-register point at each, where
-    ``readable(address)`` says whether a register nobody asked for may be read."""
-    w = sorted(set(wanted))
-    items = [Item(str(a), "input", a, 1) for a in w]
-    runs = _runs(a for k in range(len(w) - 1) for a in range(w[k] + 1, w[k + 1])
-                 if readable(a))
-    known = {"input": Known(((a, a + 1) for a in w), readable=runs)} if w else {}
-    limits = Limits(max_registers=max_count)
-    return plan_points(items, Line(baudrate, bits_per_char, turnaround), limits, known=known)
-
-
-def _runs(addresses: Iterable[int]) -> list[tuple[int, int]]:
-    """Sorted addresses as half-open runs."""
-    out: list[tuple[int, int]] = []
-    for a in addresses:
-        if out and out[-1][1] == a:
-            out[-1] = (out[-1][0], a + 1)
-        else:
-            out.append((a, a + 1))
-    return out

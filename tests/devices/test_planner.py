@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+
 import pytest
 import reference as ref
 from hypothesis import given, settings
@@ -10,8 +12,22 @@ from hypothesis import strategies as st
 from pymb.devices import HUB
 from pymb.devices.hub import full_sweep_spans
 from pymb.logger import BusConfig, DeviceConfig
-from pymb.maps.planner import naive_spans, plan_reads
+from pymb.maps.planner import Item, Known, Limits, Line, ReadPlan, plan_points
 from pymb.wire import read_time
+
+
+def plan_reads(wanted: Iterable[int], baudrate: int, *,
+               readable: Callable[[int], bool] = lambda a: True,
+               turnaround: float = 0.0, bits_per_char: int = 10) -> ReadPlan:
+    """The planner's plan for one input register at each ``wanted`` address,
+    where ``readable(address)`` says whether a register nobody asked for may be
+    read (bridged)."""
+    w = sorted(set(wanted))
+    items = [Item(str(a), "input", a, 1) for a in w]
+    gaps = [a for k in range(len(w) - 1) for a in range(w[k] + 1, w[k + 1]) if readable(a)]
+    known = {"input": Known(((a, a + 1) for a in w), readable=((a, a + 1) for a in gaps))}
+    return plan_points(items, Line(baudrate, bits_per_char, turnaround), Limits(),
+                       known=known if w else {})
 
 
 def covered(spans: tuple[tuple[int, int], ...]) -> set[int]:
@@ -76,9 +92,7 @@ def test_twelve_channels_merge_gaps_when_cheaper() -> None:
     assert "registers 31..142" in slow_device.explain()
 
 
-def test_naive_spans_split_at_limit() -> None:
-    assert naive_spans(range(0, 300)) == [(0, 125), (125, 125), (250, 50)]
-    assert naive_spans([5, 6, 9]) == [(5, 2), (9, 1)]
+def test_nothing_wanted_is_no_request() -> None:
     assert plan_reads([], 9600).spans == ()
 
 
