@@ -5,8 +5,10 @@ a simulated bus, a broker on a free port), run, SIGKILLed, run again. The
 second run resumes on the same database: its ids continue, the forwarder's
 cursor continues (nothing at or below it is sent again), every sample
 reaches the subscriber once or, past the cursor, twice with the same
-content. The exit codes are those the unit's RestartPreventExitStatus
-expects: a configuration mistake is not restarted, a storage fault is."""
+content; samples the kill took back from the database (published before
+their commit) may have reached it too, and their ids are never used again.
+The exit codes are those the unit's RestartPreventExitStatus expects: a
+configuration mistake is not restarted, a storage fault is."""
 
 from __future__ import annotations
 
@@ -138,7 +140,14 @@ def test_a_killed_service_resumes_where_it_was(fleet: Fleet, tmp_path: Path) -> 
             (sample,) = plain_ids([(topic, payload)])
             payloads[sample].add(payload)
             counts[sample] += 1
-    assert set(payloads) == after  # every sample reached the broker, and nothing else
+    got = set(payloads)
+    assert after <= got  # every sample in the database reached the broker
+    # The others can only be the killed run's last samples: published from their
+    # open batch before its commit and lost with it (docs/reliability.md), their
+    # ids above the first run's last committed one and below the second run's
+    # first, which skipped them instead of giving them to other samples.
+    lost = got - after
+    assert all(max(before) < i < min(after - before) for i in lost), sorted(lost)
     assert all(len(p) == 1 for p in payloads.values())  # one id, one sample
     again = {i for i, n in counts.items() if n > 1}
     assert all(i > cursor for i in again), sorted(again)  # the cursor continued
