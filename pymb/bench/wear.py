@@ -7,7 +7,8 @@ INTERVAL seconds, and prints one JSON line: samples, the bytes this process
 had written to the block layer (``write_bytes`` of ``/proc/self/io``: pages
 it dirtied, what writeback sends to the disk), and the bytes the samples
 take in the database (``dbstat``: the bytes in use on their table and index
-pages). The file and its schema are made before the count starts.
+pages), and the WAL frames (pages) each commit wrote (:class:`WalFrames`).
+The file and its schema are made before the count starts.
 
 MODE ``pymb`` is ``pymb log`` (:class:`pymb.logger.Logger` and its SQLite
 sink, as configured by default); ``naive`` is the logger everyone writes
@@ -31,9 +32,9 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, BinaryIO
 
-__all__ = ["main", "run_wear", "targets"]
+__all__ = ["WalFrames", "main", "run_wear", "targets"]
 
 ADDRESSES = {"hub": 1, "coolpro": 40}
 #: the commit interval of the extra runs at 1 s (each kind): what a longer loss bound buys
@@ -83,6 +84,48 @@ _FIRST: list[tuple[int, int, float]] = []
 _COMMIT: list[float] = []  #: the commit interval asked for, if not the default
 
 
+class WalFrames:
+    """The frames each commit appended to a database's WAL, read from their
+    headers after each commit (a 32-byte file header with the page size and
+    the salt; each frame a 24-byte header, the page number, the database's
+    size in pages on a commit's last frame, else 0, and the salt, then the
+    page). A checkpoint's reset starts the WAL over with a new salt."""
+
+    def __init__(self, db: str) -> None:
+        self.path = db + "-wal"
+        self.frames = 0  #: frames appended since the first count
+        self.commits = 0  #: commits among them
+        self._at = 0
+        self._salt = b""
+
+    def count(self) -> None:
+        """Count the frames appended since the last call."""
+        try:
+            with open(self.path, "rb") as f:
+                self._count(f)
+        except OSError:
+            return
+
+    def _count(self, f: BinaryIO) -> None:
+        head = f.read(32)
+        if len(head) < 32:
+            return
+        page, salt = int.from_bytes(head[8:12], "big"), head[16:24]
+        if salt != self._salt:
+            self._salt, self._at = salt, 32
+        while True:
+            f.seek(self._at)
+            frame = f.read(24)
+            if len(frame) < 24 or frame[8:16] != salt:
+                return
+            self.frames += 1
+            self.commits += int.from_bytes(frame[4:8], "big") != 0
+            self._at += 24 + page
+
+
+_WAL: list[WalFrames] = []  #: the run's WAL, counted from the end of its first commit
+
+
 def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int:
     from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
     from pymb.store import SqliteSink
@@ -90,8 +133,13 @@ def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int
     class Sink(SqliteSink):
         def commit(self) -> None:
             super().commit()
-            if not _FIRST and self.stored:
+            if _FIRST:
+                _WAL[0].count()
+            elif self.stored:
                 _FIRST.append((_write_bytes(), self.stored, time.monotonic()))
+                _WAL.append(WalFrames(db))
+                _WAL[0].count()
+                _WAL[0].frames = _WAL[0].commits = 0
 
     bus = BusConfig(kind, port, None, 115200, "N", 2.0, interval,
                     [DeviceConfig(kind, ADDRESSES[kind])])
@@ -175,9 +223,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         (samples - n1) * stored / max(1, samples))
     # bytes written per second from the first commit on (the 1 Hz goal)
     steady_bps = None if samples <= n1 else (w2 - w1) / max(1e-9, t2 - t1)
+    # WAL frames (a page each) per commit, from the first commit on (pymb only)
+    frames = None if not _WAL or not _WAL[0].commits else _WAL[0].frames / _WAL[0].commits
     print(json.dumps({"mode": mode, "kind": kind, "interval": interval, "samples": samples,
                       "elapsed": elapsed, "written": written, "stored": stored,
-                      "steady": steady, "steady_bps": steady_bps}), flush=True)
+                      "steady": steady, "steady_bps": steady_bps,
+                      "wal_frames_per_commit": frames}), flush=True)
     return 0
 
 
@@ -280,10 +331,11 @@ def table(rows: list[dict[str, Any]]) -> Any:
             who += f" --commit-interval {r['commit_interval']:g}"
         steady = "-" if r.get("steady") is None else f"{r['steady']:.2f}x"
         bps = "-" if r.get("steady_bps") is None else f"{r['steady_bps'] / 1024:,.1f} KB/s"
+        frames = r.get("wal_frames_per_commit")
         out.append([what, when, who, f"{r['elapsed']:,.0f} s", f"{r['samples']:,}",
                     f"{r['stored_per_sample']:,.0f} B",
                     f"{r['written_per_sample']:,.0f} B", f"{r['ratio']:.2f}x", steady, bps,
-                    syncs(r)])
+                    "-" if frames is None else f"{frames:.1f}", syncs(r)])
     return Table(
         "SD wear: bytes written to the disk per sample, beside the bytes stored",
         "each run its own process against its own simulator on a line emulated at 115200; "
@@ -292,10 +344,11 @@ def table(rows: list[dict[str, Any]]) -> Any:
         "use on the samples' table and index pages (dbstat); steady: from the first commit "
         "to the end (the start's one-off writes left out, the last checkpoint in), as a "
         "ratio and per second; run: its length, many of pymb's commits (one at the latest "
-        f"{COMMIT_INTERVAL:g} s after a read); fdatasync: strace -c",
+        f"{COMMIT_INTERVAL:g} s after a read); WAL frames: pages a commit wrote to the WAL "
+        "(its frame headers; pymb only); fdatasync: strace -c",
         ["sample", "rate", "logger", "run", "samples", "stored", "written", "written / stored",
-         "steady", "steady written/s", "fdatasync/s"], out,
-        [False, False, False, True, True, True, True, True, True, True, True], [])
+         "steady", "steady written/s", "WAL frames / commit", "fdatasync/s"], out,
+        [False, False, False, True, True, True, True, True, True, True, True, True], [])
 
 
 def targets(rows: list[dict[str, Any]]) -> list[tuple[str, str, float | None, str, bool | None]]:
