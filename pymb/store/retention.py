@@ -108,20 +108,19 @@ class Retention:
         last time, or a database that filled its disk). On a full disk
         ``give_up_reserve`` frees the reserve's room (False: none left) and
         the trim runs in small steps with a checkpoint after each (a short WAL)."""
-        if not self.over_room():
-            self.give_back()
-            return
-        try:
-            self.trim()
-        except sqlite3.Error as e:
-            if not is_storage_fault(e) or not give_up_reserve():
-                raise
-            self.small_steps = True
+        if self.over_room():
             try:
-                self.checkpoint()
                 self.trim()
-            finally:
-                self.small_steps = False
+            except sqlite3.Error as e:
+                if not is_storage_fault(e) or not give_up_reserve():
+                    raise
+                self.small_steps = True
+                try:
+                    self.checkpoint()
+                    self.trim()
+                finally:
+                    self.small_steps = False
+        self.give_back(vacuum=True)
 
     def age_due(self) -> bool:
         """Under an age limit, the last age trim was 5 s ago or more."""
@@ -206,15 +205,16 @@ class Retention:
         self.trimmed += deleted
         return deleted
 
-    def give_back(self) -> None:
+    def give_back(self, vacuum: bool = False) -> None:
         """A file larger than the size limit allows (a lower limit than last
         time) gives its free pages back, towards the limit less the WAL's
         budget: a file with incremental
         vacuum a little at a time; a file without it (as pymb makes them: no
-        pointer-map page for every commit to rewrite) by one VACUUM when the disk
-        holds the copy it makes (the pages in use, twice: its temporary
-        database and the WAL); otherwise its free pages are reused, and the
-        file grows no more (and shrinks at a later open with the room)."""
+        pointer-map page for every commit to rewrite) only at open
+        (``vacuum``), by one VACUUM when the disk holds the copy it makes (the
+        pages in use, twice: its temporary database and the WAL). While
+        logging such a file reuses its free pages and grows no more: a VACUUM
+        then would put a copy of the whole file in the WAL, past the limit."""
         assert self.max_bytes is not None
         count, free = self.pages()
         fixed = self.max_bytes - self.wal_budget
@@ -227,6 +227,8 @@ class Retention:
                 self.db.execute(f"PRAGMA incremental_vacuum({chunk})").fetchall()
                 self.checkpoint()
                 count, free = self.pages()
+            return
+        if not vacuum:
             return
         need = 2 * (count - free) * self.page_size + DISK_MARGIN
         try:
