@@ -37,15 +37,12 @@ from dataclasses import replace
 from typing import ClassVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.devices.mapspec import MapTarget, parse_map_device
-from pymb.devices.spec import split_spec
+from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, decode_one, encode
-from pymb.maps.model import did_you_mean
 from pymb.maps.types import SF_RANGE, TYPES
 from pymb.sim.base import (
-    SIM_KEYS,
     Device,
     ExceptionCode,
     Keys,
@@ -56,7 +53,7 @@ from pymb.sim.base import (
 )
 from pymb.sim.clock import SimClock
 
-__all__ = ["MapSimDevice", "map_sim_device"]
+__all__ = ["MapSimDevice"]
 
 _TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
@@ -464,43 +461,3 @@ class MapSimDevice(Device):
         return (f"{self.map.id} at address {self.address} ({self.baud} 8N1)"
                 + (f": {what}" if what else "") + f", {len(self.map.points)} points")
 
-
-def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
-                   clock: SimClock | None = None, baud: int | None = None,
-                   hooks: Mapping[str, type[MapSimDevice]] | None = None
-                   ) -> MapSimDevice | None:
-    """A simulated device from ``TYPE[:ADDRESS][,key=value...]`` when TYPE
-    is a map's id in ``known`` or in ``hooks`` (a device with behaviours of
-    its own; None otherwise): the map's options, :data:`SIM_KEYS` and the
-    device's own :attr:`MapSimDevice.spec_keys`. ``baud`` (the bus's speed)
-    applies unless the spec names one."""
-    kind, _, opts = split_spec(spec)
-    cls = (hooks or {}).get(kind, MapSimDevice)
-    m = cls.builtin_map if cls is not MapSimDevice else known.get(kind)
-    if m is None:
-        return None
-    keys = {**SIM_KEYS, **cls.spec_keys}
-    allowed = [*keys, *(o for o in m.device.options if o not in cls.refused)]
-    args: dict[str, object] = {} if baud is None else {"baud": baud}
-    rest = []
-    for key, eq, value in opts:
-        if key in cls.refused:
-            raise InvalidArgument(f"{spec!r}: {cls.refused[key]}")
-        if key not in keys:
-            if key not in allowed and key != "name":
-                raise InvalidArgument(
-                    f"{spec!r}: unknown key {key!r}; {kind} takes "
-                    f"{', '.join(k + '=...' for k in allowed)}{did_you_mean(key, allowed)}")
-            rest.append(f"{key}={value}" if eq else key)
-            continue
-        arg, parse, what = keys[key]
-        try:
-            args[arg] = parse(value)
-        except (ValueError, KeyError):
-            raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r} ({what})") from None
-    target = parse_map_device(",".join([spec.split(",")[0], *rest]), {kind: m})
-    assert target is not None
-    try:
-        return cls._from_spec(target, args, seed=seed, clock=clock)
-    except InvalidArgument as e:
-        raise InvalidArgument(f"{spec!r}: {e}") from None

@@ -17,14 +17,17 @@ from types import TracebackType
 
 from pymb.child import Child, ChildError, pymb_argv
 from pymb.client import parse_host_port
-from pymb.devices.mapspec import map_types, unknown_device
+from pymb.devices.mapspec import map_types, parse_map_device, unknown_device
+from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
+from pymb.maps.model import did_you_mean
+from pymb.sim.base import SIM_KEYS
 from pymb.sim.bus import Bus, BusStats
 from pymb.sim.clock import SimClock
 from pymb.sim.devices import CoolProDevice, Device, HubDevice
 from pymb.sim.faults import Faults
-from pymb.sim.mapsim import MapSimDevice, map_sim_device
+from pymb.sim.mapsim import MapSimDevice
 from pymb.sim.rtu import RtuServer
 from pymb.sim.server import SimServer
 from pymb.sim.tcp import TcpServer, format_ports, parse_ports
@@ -34,6 +37,47 @@ __all__ = ["HOOKS", "TRANSPORTS", "Simulator", "SimulatorProcess", "make_device"
 TRANSPORTS = ("pty", "serial", "tcp", "rtu-over-tcp")
 #: the devices with behaviours of their own, by map id; any other map's device is a MapSimDevice
 HOOKS: dict[str, type[MapSimDevice]] = {"coolpro": CoolProDevice, "hub": HubDevice}
+
+
+def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
+                   clock: SimClock | None = None, baud: int | None = None,
+                   hooks: Mapping[str, type[MapSimDevice]] | None = None
+                   ) -> MapSimDevice | None:
+    """A simulated device from ``TYPE[:ADDRESS][,key=value...]`` when TYPE
+    is a map's id in ``known`` or in ``hooks`` (a device with behaviours of
+    its own; None otherwise): the map's options, :data:`SIM_KEYS` and the
+    device's own :attr:`MapSimDevice.spec_keys`. ``baud`` (the bus's speed)
+    applies unless the spec names one."""
+    kind, _, opts = split_spec(spec)
+    cls = (hooks or {}).get(kind, MapSimDevice)
+    m = cls.builtin_map if cls is not MapSimDevice else known.get(kind)
+    if m is None:
+        return None
+    keys = {**SIM_KEYS, **cls.spec_keys}
+    allowed = [*keys, *(o for o in m.device.options if o not in cls.refused)]
+    args: dict[str, object] = {} if baud is None else {"baud": baud}
+    rest = []
+    for key, eq, value in opts:
+        if key in cls.refused:
+            raise InvalidArgument(f"{spec!r}: {cls.refused[key]}")
+        if key not in keys:
+            if key not in allowed and key != "name":
+                raise InvalidArgument(
+                    f"{spec!r}: unknown key {key!r}; {kind} takes "
+                    f"{', '.join(k + '=...' for k in allowed)}{did_you_mean(key, allowed)}")
+            rest.append(f"{key}={value}" if eq else key)
+            continue
+        arg, parse, what = keys[key]
+        try:
+            args[arg] = parse(value)
+        except (ValueError, KeyError):
+            raise InvalidArgument(f"{spec!r}: bad value for {key}: {value!r} ({what})") from None
+    target = parse_map_device(",".join([spec.split(",")[0], *rest]), {kind: m})
+    assert target is not None
+    try:
+        return cls._from_spec(target, args, seed=seed, clock=clock)
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{spec!r}: {e}") from None
 
 
 def make_device(spec: str, *, seed: int = 0, clock: SimClock | None = None,

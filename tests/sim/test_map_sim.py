@@ -134,7 +134,7 @@ def test_the_sensor_fault_shows_a_marker_then_goes() -> None:
 
 
 def test_the_device_syntax_of_a_simulated_map_device() -> None:
-    from pymb.sim.mapsim import map_sim_device
+    from pymb.sim.simulator import map_sim_device
 
     known = {"sim-test": maps.loads(MAP)}
     dev = map_sim_device("sim-test:9,delay=0.25,dynamic=0,baud=19200", known)
@@ -287,7 +287,7 @@ def test_a_pin_holds_a_read_only_point_until_unpinned() -> None:
 def test_every_simulated_device_takes_the_simulators_keys() -> None:
     """firmware, delay (seconds or LOW-HIGH), baud and dynamic, for any map;
     a value that does not parse is named with what the key takes."""
-    from pymb.sim.mapsim import map_sim_device
+    from pymb.sim.simulator import map_sim_device
 
     m = maps.loads(MAP)
     known = {"sim-test": m}
