@@ -103,6 +103,13 @@ def _coolpro_map() -> Map:
 
 
 _MAP = _coolpro_map()
+
+
+def coolpro_device(client: Client, address: int) -> MapDevice:
+    """The :class:`~pymb.devices.MapDevice` a CoolPro is read with: its map
+    as the facade reads it (no silence kept after a reply, an exception
+    raised as the device answered it)."""
+    return MapDevice(client, _MAP, address)
 #: [CP] "Baud Rate Index": holding register 1 holds the index into this tuple
 #: (the map's names of the index values).
 COOLPRO_BAUD_RATES = tuple(int(v) for _, v in sorted(_MAP.points["baud_rate_index"]
@@ -211,7 +218,7 @@ class CoolPro:
         self.client = client
         self._address = self._valid_address(address)
         self._pending_address: int | None = None
-        self.device = MapDevice(client, _MAP, self._address)
+        self.device = coolpro_device(client, self._address)
         self._groups: dict[str, _Group] = {}
 
     @property
@@ -222,7 +229,7 @@ class CoolPro:
     @address.setter
     def address(self, address: int) -> None:
         self._address = self._valid_address(address)
-        self.device = MapDevice(self.client, _MAP, self._address)
+        self.device = coolpro_device(self.client, self._address)
         self._groups = {}
 
     @staticmethod

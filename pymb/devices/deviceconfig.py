@@ -7,16 +7,21 @@ the maps a configuration knows (``maps = [...]`` in TOML,
 
 from __future__ import annotations
 
+import functools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from pymb import maps
-from pymb.devices.mapreading import group_points
+from pymb.client import Client
+from pymb.devices.coolpro import coolpro_device
+from pymb.devices.hub import sweep_reader
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import MapReading, group_points
 from pymb.devices.mapspec import FACADES, MapTarget, near, parse_map_device, unknown_device
 from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
@@ -230,6 +235,22 @@ class DeviceConfig:
             return [(None, None)]
         return [(g, self.map.groups[g]) for g in self.groups]
 
+    def open(self, client: Client, baudrate: int | None = None
+             ) -> tuple[MapDevice, Callable[[str | None], MapReading]]:
+        """The device on ``client``: its :class:`MapDevice` (plans priced at
+        ``baudrate`` where the client has none) and a read of one group as a
+        :class:`MapReading`. The two devices with views read as their views
+        do: a hub as :func:`~pymb.devices.hub.sweep_reader` says (its firmware
+        rules, a busy hub, a humidity unit per channel), a CoolPro as
+        :func:`~pymb.devices.coolpro.coolpro_device`."""
+        assert self.address is not None
+        if self.type == "hub":
+            return sweep_reader(client, self.address, int(self.map.options["channels"]),
+                                self.option("humidity_unit"))
+        dev = coolpro_device(client, self.address) if self.type == "coolpro" else MapDevice(
+            client, self.map, self.address, baudrate=baudrate)
+        return dev, functools.partial(_read_group, dev)
+
     @property
     def spec(self) -> str:
         """The device in the command-line syntax, e.g. ``hub:250,channels=50``:
@@ -239,6 +260,10 @@ class DeviceConfig:
                        if not isinstance(v := self.options.get(k, default[k]), tuple)
                        and v != default[k])
         return f"{self.type}:{self.address}{opts}"
+
+
+def _read_group(dev: MapDevice, group: str | None) -> MapReading:
+    return dev.read_group(group)
 
 
 def from_target(t: MapTarget, source: MapText) -> DeviceConfig:

@@ -33,13 +33,14 @@ from pymb.devices.hubreading import (
     check_channels,
 )
 from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import MapReading
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import map_planner
 from pymb.maps.planner import ReadPlan
 
 __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "decode_hub",
-           "full_sweep_spans"]
+           "full_sweep_spans", "hub_device", "sweep_reader"]
 
 _N = HUB_REGISTERS  # 700 registers, 31..730
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
@@ -166,6 +167,25 @@ def _other_units(r: HubReading, unit: float, other: bytes) -> None:
             states[c + i] = State.VALUE
 
 
+def _other_units_of(r: MapReading, unit: float, other: bytes) -> None:
+    """:func:`_other_units` for a map reading of the sweep (values and state
+    names by block)."""
+    values, states = r.values["humidity_pct"], r.states["humidity_pct"]
+    assert isinstance(values, list)
+    first = BLOCKS[block_index("humidity_pct")].address - _FIRST
+    for i, flag in enumerate(other):
+        if not flag or states[i] not in ("value", "no_sensor"):
+            continue
+        raw = r.registers[first + i]
+        if raw == 0xFFFF:
+            continue  # offline in either unit
+        if raw == (0x8000 if unit == 1.0 else 0x00FF):
+            values[i], states[i] = None, "no_sensor"
+        else:
+            values[i] = raw / 10 if unit == 1.0 else float(raw)
+            states[i] = "value"
+
+
 _DECODED = (State.VALUE, State.NO_SENSOR)
 _DECODING = threading.Lock()
 
@@ -225,6 +245,51 @@ def _nans(channels: int) -> array[float]:
     return array("d", [math.nan]) * channels
 
 
+def hub_device(client: Client, address: int, channels: int = CHANNELS, unit: float = 0.1, *,
+               busy_retries: int = 3, busy_backoff: float = 0.02,
+               turnaround: float = 0.005) -> MapDevice:
+    """The :class:`~pymb.devices.MapDevice` a hub of ``channels`` channels
+    (humidity in ``unit`` %) is read with: its map with the client's reply
+    timeout, a busy hub (code 04) asked again ``busy_retries`` times, and
+    the firmware rule: a block the firmware lacks answers 02 whole, and is
+    skipped until the client reconnects."""
+    dev = MapDevice(client, _hub_map(channels, unit), address, busy_retries=busy_retries,
+                    busy_backoff=busy_backoff, plan_turnaround=turnaround, split_on=(2,))
+    # [HUB] 3 / [NOTES]: a firmware has a block whole or answers 02 for it
+    dev.planner.whole_points = True
+    return dev
+
+
+def busy_error(e: DeviceFailure, retries: int) -> DeviceBusy:
+    """[HUB] 2.3.2.3: code 04 means busy, and the ``retries`` are used up."""
+    return DeviceBusy(
+        f"{e} (the sensor hub's code 04 means busy; gave up after "
+        f"{retries} retries)",
+        code=e.code, slave=e.slave, function=e.function, address=e.address,
+        count=e.count, port=e.port, response=e.response)
+
+
+def sweep_reader(client: Client, address: int, channels: int,
+                 humidity_unit: float | Sequence[float]
+                 ) -> tuple[MapDevice, Callable[[str | None], MapReading]]:
+    """A hub as a map device: its :func:`hub_device` and a read of a group
+    of its map (the sweep) as a :class:`~pymb.devices.mapreading.MapReading`,
+    each channel's humidity in its own unit (one for all, or one a channel)."""
+    unit, other = _units(humidity_unit, channels)
+    dev = hub_device(client, address, channels, unit)
+    mixed = any(other)
+
+    def read(group: str | None) -> MapReading:
+        try:
+            r = dev.read_group(group)
+        except DeviceFailure as e:
+            raise busy_error(e, 3) from None
+        if mixed:
+            _other_units_of(r, unit, other)
+        return r
+    return dev, read
+
+
 class SensorHub:
     """The sensor hub at ``address`` (1..255) on ``client``: a typed view of
     the hub's map (``pymb.maps.builtin("hub")``) read by a
@@ -267,13 +332,11 @@ class SensorHub:
         self._busy_retries = busy_retries
         self._unit, self._other = _units(humidity_unit, channels)
         self._mixed = any(self._other)
-        self.device = MapDevice(client, _hub_map(self.channels, self._unit), address,
-                                busy_retries=busy_retries, busy_backoff=busy_backoff,
-                                plan_turnaround=turnaround, split_on=(2,))
+        self.device = hub_device(client, address, self.channels, self._unit,
+                                 busy_retries=busy_retries, busy_backoff=busy_backoff,
+                                 turnaround=turnaround)
         self._lock = threading.Lock()  # one read of this hub at a time (shared buffers)
         self._planner = self.device.planner
-        # [HUB] 3 / [NOTES]: a firmware has a block whole or answers 02 for it
-        self._planner.whole_points = True
         self._version = -1  # the planner's version self._mask is of
         #: the reading read_all(into=) decodes into, the registers its decode
         #: call is bound to, that call, and the buffers it writes (which must
@@ -411,12 +474,7 @@ class SensorHub:
             r.raw_states[k] = State.UNSUPPORTED
 
     def _busy(self, e: DeviceFailure) -> DeviceBusy:
-        """[HUB] 2.3.2.3: code 04 means busy, and the retries are used up."""
-        return DeviceBusy(
-            f"{e} (the sensor hub's code 04 means busy; gave up after "
-            f"{self._busy_retries} retries)",
-            code=e.code, slave=e.slave, function=e.function, address=e.address,
-            count=e.count, port=e.port, response=e.response)
+        return busy_error(e, self._busy_retries)
 
     def _copy(self, dec: Decoder, names: tuple[str, ...] | None, r: HubReading) -> None:
         """The decoder's values, states and registers into ``r``'s arrays."""

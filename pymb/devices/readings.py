@@ -1,6 +1,9 @@
-"""A reading as plain data: the one JSON-ready form of a hub sweep or a
-CoolPro telemetry read, used by ``pymb read``/``watch --json``, the JSON
-Lines sink and (through the SQLite log) the MQTT payloads.
+"""A reading as plain data: the one JSON-ready form of a reading (a map
+device's, a hub sweep or a CoolPro telemetry read), used by ``pymb
+read``/``watch --json``, the JSON Lines sink and (through the SQLite log)
+the MQTT payloads; and :func:`map_reading`, any reading as the
+:class:`~pymb.devices.mapreading.MapReading` of its map (the one form the
+logger and the store work with).
 
 Which CoolPro quantities are integers comes from the register map (a
 register with no scale is counted, not measured); a value that is not there
@@ -9,7 +12,9 @@ register with no scale is counted, not measured); a value that is not there
 
 from __future__ import annotations
 
+import functools
 import math
+from array import array
 from typing import Any
 
 from pymb import maps
@@ -17,15 +22,18 @@ from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry
 from pymb.devices.hub import HubReading, State
 from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapreading import MapReading
+from pymb.maps import Map
 
 __all__ = [
     "INTEGRAL_QUANTITIES",
     "STATE_NAMES",
+    "map_reading",
     "reading_dict",
     "status_flags",
     "telemetry_values",
 ]
 
+_HUB, _COOLPRO = maps.builtin("hub"), maps.builtin("coolpro")
 _TELEMETRY = [(p.name, (p.scale or 1) == 1) for p in maps.builtin("coolpro").points.values()
               if p.group == "telemetry"]
 #: The CoolPro quantities that are integers (counts and bit fields), from the map.
@@ -58,18 +66,63 @@ def _clean(v: Any) -> Any:
     return v
 
 
+def map_reading(data: HubReading | CoolProTelemetry | MapReading) -> MapReading:
+    """``data`` as a :class:`MapReading` of its map: a hub's sweep (every
+    block channel by channel, the registers 31..730 it read) or a CoolPro's
+    telemetry; a map reading as it is."""
+    if isinstance(data, MapReading):
+        return data
+    if isinstance(data, HubReading):
+        c, vals, sts = data.channels, data.values.tolist(), data.raw_states.tolist()
+        m = _hub_map(c)
+        values: dict[str, Any] = {}
+        states: dict[str, Any] = {}
+        for b, block in enumerate(BLOCKS):
+            values[block.name] = [None if v != v else v for v in vals[b * c:(b + 1) * c]]
+            states[block.name] = [STATE_NAMES[x] for x in sts[b * c:(b + 1) * c]]
+        gone = tuple(b.name for b in BLOCKS if b.name in data.unsupported)
+        return MapReading(m, "sweep", values, states, data.registers, gone)
+    got: dict[str, Any] = telemetry_values(data)
+    return MapReading(_COOLPRO, "telemetry", got,
+                      {n: "value" if v is not None else "nan" for n, v in got.items()},
+                      array("H", data.registers))
+
+
+@functools.lru_cache(maxsize=128)
+def _hub_map(channels: int) -> Map:
+    return _HUB.configure(channels=channels) if channels != _HUB.options["channels"] else _HUB
+
+
+def _hub_dict(data: MapReading) -> dict[str, Any]:
+    return {"values": {k: _clean(v) for k, v in data.values.items()},
+            "states": dict(data.states), "unsupported": sorted(data.unsupported)}
+
+
+def _coolpro_dict(data: MapReading) -> dict[str, Any]:
+    values: dict[str, Any] = {}
+    for name, integral in _TELEMETRY:
+        v = data.values.get(name)
+        values[name] = (int(v) if integral else float(v)) if isinstance(
+            v, (int, float)) and v == v else None
+    status = values.get("status")
+    return {"values": values, "status_flags": status_flags(status) if status is not None
+            else []}
+
+
 def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, Any]:
     """``values`` and, for a hub, ``states`` (one name per channel) and
     ``unsupported``; for a CoolPro, ``status_flags``; for a map device,
     ``values`` and ``states`` by point name (blocks as lists), the
     ``group`` read and the points ``unsupported``."""
-    if isinstance(data, MapReading):
-        return {"values": {k: _clean(v) for k, v in data.values.items()},
-                "states": dict(data.states), "group": data.group,
-                "unsupported": list(data.unsupported)}
-    if isinstance(data, HubReading):
-        return {"values": data.as_dict(),
-                "states": {b.name: [STATE_NAMES[s] for s in data.states(b.name).tolist()]
-                           for b in BLOCKS},
-                "unsupported": sorted(data.unsupported)}
-    return {"values": telemetry_values(data), "status_flags": status_flags(int(data.status))}
+    data = map_reading(data)
+    view = _VIEWS.get(data.map.id)
+    if view is not None:
+        return view(data)
+    return {"values": {k: _clean(v) for k, v in data.values.items()},
+            "states": dict(data.states), "group": data.group,
+            "unsupported": list(data.unsupported)}
+
+
+#: the JSON of the devices with their own views (the hub's sweep, the
+#: CoolPro's telemetry), as ``SensorHub``/``CoolPro`` readings always gave it
+_VIEWS = {"hub": _hub_dict, "coolpro": _coolpro_dict}

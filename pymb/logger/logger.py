@@ -13,10 +13,9 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
-from pymb.devices import HubReading
 from pymb.errors import OutputError
 from pymb.logger.config import EVENT_COMMIT_INTERVAL, LogConfig
-from pymb.logger.poller import SPARE_MAX, BusPoller
+from pymb.logger.poller import BusPoller
 from pymb.logger.schedule import BATCH_MAX
 from pymb.logger.stats import Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
@@ -180,20 +179,15 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         # flat-out poller, a bounded memory).
         self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
             maxsize=2048 // BATCH_MAX)
-        # pymb's own sinks are done with a sample when write() returns: hub
-        # sweeps may then be read into the arrays of readings already written.
         self.sink: Sink = as_sink(sink) if sink is not None else open_sink(
             config.format, config.path, max_bytes=config.max_bytes, max_age=config.max_age,
             on_change=config.on_change)
-        reuse = not self.sink.keeps_samples
         self.pollers: list[_Poller | _TcpPoller] = [
-            _Poller(b, self._queue, self._stop, self.stats, reuse=reuse)
+            _Poller(b, self._queue, self._stop, self.stats)
             for b in config.buses if not fans_out(b)]
         tcp = [b for b in config.buses if fans_out(b)]
         if tcp:  # every map device on plain Modbus TCP: one thread, one loop
             self.pollers.append(_TcpPoller(tcp, self._queue, self._stop, self.stats))
-        self._spare = {id(d.info): d.spare for p in self.pollers
-                       if isinstance(p, BusPoller) for d in p.devices if d.spare is not None}
 
     def stop(self) -> None:
         """Ask the run to end (thread-safe; a signal handler uses :meth:`_on_signal`)."""
@@ -354,10 +348,6 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         self.sink.write_batch(samples)
         by_device = self.stats.by_device
         for sample in samples:
-            spare = self._spare.get(id(sample.device))
-            if spare is not None and len(spare) < SPARE_MAX and isinstance(sample.data,
-                                                                             HubReading):
-                spare.append(sample.data)
             name = sample.device.name
             by_device[name] = by_device.get(name, 0) + 1
         self.stats.samples += len(samples)

@@ -4,7 +4,6 @@ and hands samples and events to the writer (:class:`~pymb.logger.report.Report`)
 
 from __future__ import annotations
 
-import collections
 import functools
 import queue
 import threading
@@ -14,9 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from pymb.client import unresolved
-from pymb.devices import CoolPro, HubReading, SensorHub
 from pymb.devices.deviceconfig import DeviceConfig
-from pymb.devices.hub import ALL_BLOCKS
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
 from pymb.errors import ModbusConnectionError, ModbusError
@@ -29,30 +26,16 @@ from pymb.store import DeviceInfo, Event, Sample
 __all__ = ["BusPoller", "MapHealth", "Stats", "map_info"]
 
 
-@dataclass
-class _Device:
-    """A device read through its facade (CoolPro, hub) being polled."""
-
-    info: DeviceInfo
-    config: DeviceConfig
-    read: Callable[[], Any]
-    hub: SensorHub | None
-    #: hub readings the writer has finished with, for the next sweeps to read
-    #: into (no 8 KB of arrays allocated per sweep, and none freed by another
-    #: thread); None: every read makes its own
-    spare: collections.deque[HubReading] | None = None
-    explained: str = ""  #: what answered, found once per run of failures
-
-
 @dataclass(eq=False)
 class MapHealth:
-    """A map device being polled (its MapDevice: write commands use it) and
+    """A device being polled (its MapDevice: write commands use it) and
     how its polling goes."""
 
     info: DeviceInfo
     config: DeviceConfig
     device: MapDevice
     health: Health
+    explained: str = ""  #: what answered a facade's device, found once per run of failures
 
     @property
     def offline(self) -> bool:
@@ -65,25 +48,21 @@ class _Read:
     """A slot of the schedule and what reading it takes."""
 
     slot: Slot
-    info: DeviceInfo
+    dev: MapHealth
     read: Callable[[], Any]
-    builtin: _Device | None = None
 
 
 def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
-    """The record a map device's samples and events carry."""
+    """The record a device's samples and events carry: a map device's map
+    text, options and deadbands; a facade's device (``coolpro``, ``hub``,
+    stored in its own layout): a hub's channels and humidity unit(s)."""
     assert d.address is not None
-    return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
-                      map_source=d.text.text,
-                      map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())
-                                        if not isinstance(v, tuple)),
-                      map_deadband=tuple(sorted(d.deadband.items())))
-
-
-def facade_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
-    """The record a facade's device (``coolpro``, ``hub``) samples and
-    events carry: a hub's channels and humidity unit(s) from its options."""
-    assert d.address is not None
+    if d.facade is None:
+        return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
+                          map_source=d.text.text,
+                          map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())
+                                            if not isinstance(v, tuple)),
+                          map_deadband=tuple(sorted(d.deadband.items())))
     if "channels" not in d.map.options:
         return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name)
     unit = d.option("humidity_unit")
@@ -92,24 +71,12 @@ def facade_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
                       tuple(float(u) for u in unit) if isinstance(unit, tuple) else float(unit))
 
 
-def _reading_into(hub: SensorHub, spare: collections.deque[HubReading]) -> Callable[[], Any]:
-    """``hub.read_all`` into a spare reading when there is one."""
-    def read() -> HubReading:
-        return hub.read_all(into=spare.pop() if spare else None)
-    return read
-
-
-#: spare readings kept per hub: the most a writer a batch behind hands back
-SPARE_MAX = 64
-
-
 class BusPoller(threading.Thread):
     """Polls one bus until told to stop; puts Samples and Events on a queue."""
 
     def __init__(self, bus: BusConfig, out: queue.Queue[list[Sample | Event]],
                  stop: threading.Event,
-                 stats: Stats, clock: Callable[[], float] = time.monotonic, *,
-                 reuse: bool = False) -> None:
+                 stats: Stats, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
         self.bus = bus
         self.report = Report(out, stats)
@@ -117,27 +84,10 @@ class BusPoller(threading.Thread):
         self.stats = stats
         self.clock = clock
         self.client = bus.client()
-        self.devices: list[_Device] = []
-        self.maps: list[tuple[DeviceInfo, DeviceConfig]] = []
-        #: map device name -> its MapDevice and health, once polling started
+        self.devices = [(map_info(bus, d), d) for d in bus.devices]
+        #: device name -> its MapDevice and health, once polling started
         self.healths: dict[str, MapHealth] = {}
         stats.opened.setdefault(bus.name, False)
-        for d in bus.devices:
-            assert d.address is not None
-            if d.facade is None:
-                self.maps.append((map_info(bus, d), d))
-                continue
-            info = facade_info(bus, d)
-            if d.type == "coolpro":
-                self.devices.append(_Device(info, d, CoolPro(self.client, d.address)
-                                            .read_telemetry, None))
-            else:
-                hub = SensorHub(self.client, d.address, info.channels, info.humidity_unit)
-                if reuse:
-                    spare: collections.deque[HubReading] = collections.deque()
-                    self.devices.append(_Device(info, d, _reading_into(hub, spare), hub, spare))
-                else:
-                    self.devices.append(_Device(info, d, hub.read_all, hub))
 
     def flush(self) -> None:
         """Hand what was read since the last list to the writer."""
@@ -149,21 +99,20 @@ class BusPoller(threading.Thread):
         return self.report.take()
 
     def _reads(self) -> list[_Read]:
-        """The schedule's slots: each group of each map device, each facade device."""
+        """The schedule's slots: each group of each device (a facade's device:
+        its one group at the bus's interval, backed off after faults)."""
         bus = self.bus
         out: list[_Read] = []
         rate = bus.baud if bus.port is not None else None
-        for info, cfg in self.maps:
-            dev = MapDevice(self.client, cfg.map, cfg.address, baudrate=rate)
-            health = Health.of_map(info.name, cfg.offline_after, cfg.offline_retry)
-            self.healths[info.name] = MapHealth(info, cfg, dev, health)  # for write commands
+        for info, cfg in self.devices:
+            dev, read = cfg.open(self.client, rate)
+            health = Health.of_facade(info.name) if cfg.facade is not None else \
+                Health.of_map(info.name, cfg.offline_after, cfg.offline_retry)
+            h = self.healths[info.name] = MapHealth(info, cfg, dev, health)
             for group, interval in cfg.polls:
                 slot = Slot(health, bus.interval if interval is None else interval,
                             interval == 0, group)
-                out.append(_Read(slot, info, functools.partial(dev.read_group, group)))
-        for d in self.devices:
-            out.append(_Read(Slot(Health.of_facade(d.info.name), bus.interval), d.info, d.read,
-                             d))
+                out.append(_Read(slot, h, functools.partial(read, group)))
         return out
 
     def _why_not_open(self, e: ModbusError) -> str:
@@ -200,7 +149,7 @@ class BusPoller(threading.Thread):
         if not self._connect():
             return
         self.report.connected(self.bus.name, self.bus.endpoint,
-                              len(self.devices) + len(self.maps))
+                              len(self.devices))
         reads = self._reads()
         clock, stop = self.clock, self.stop_event
         agenda: Agenda[_Read] = Agenda()
@@ -237,43 +186,43 @@ class BusPoller(threading.Thread):
     def _poll(self, r: _Read) -> bool | None:
         """Read one slot; False when the bus is gone for good (stopping),
         None when it was lost and opened again."""
-        report, bus, h = self.report, self.bus, r.slot.health
+        report, bus, h, dev = self.report, self.bus, r.slot.health, r.dev
+        info = dev.info
         try:
             data = r.read()
         except ModbusConnectionError as e:
-            report.error(bus.name, h, r.info, e, self.clock())
+            report.error(bus.name, h, info, e, self.clock())
             self.client.close()
             if not self._connect():
                 return False
             report.reconnected(bus.name, bus.endpoint)
             return None
         except ModbusError as e:
-            report.error(bus.name, h, r.info, e, self.clock())
+            report.error(bus.name, h, info, e, self.clock())
             return True
-        dev = r.builtin
-        if dev is None:
-            report.sample(Sample(r.info, time.time(), time.monotonic(), data))
-            report.answered(bus.name, h, r.info, data.unsupported)
+        if dev.config.facade is None:
+            report.sample(Sample(info, time.time(), time.monotonic(), data))
+            report.answered(bus.name, h, info, data.unsupported)
             return True
-        if dev.hub is not None and data.unsupported_mask == ALL_BLOCKS:
+        if data.unsupported and len(data.unsupported) == len(data.values):
             # Every block "unsupported": the device supplied no value at all.
             # Not a sample: a fault, and the next try probes the blocks again.
             if not dev.explained:
-                dev.explained = self._explain(dev)
-            dev.hub.forget_firmware()
-            report.failed(bus.name, h, r.info, "no_value",
-                          TEXT["no_value"].format(name=r.info.name, why=dev.explained), None,
+                dev.explained = self._explain(info)
+            dev.device.planner.forget()
+            report.failed(bus.name, h, info, "no_value",
+                          TEXT["no_value"].format(name=info.name, why=dev.explained), None,
                           self.clock(), at_once=True)
             return True
-        report.sample(Sample(r.info, time.time(), time.monotonic(), data))
+        report.sample(Sample(info, time.time(), time.monotonic(), data))
         if h.failures:
             dev.explained = ""
-        report.answered(bus.name, h, r.info)
+        report.answered(bus.name, h, info)
         return True
 
-    def _explain(self, dev: _Device) -> str:
+    def _explain(self, info: DeviceInfo) -> str:
         try:
-            found = identify(client_asker(self.client), dev.info.address)
+            found = identify(client_asker(self.client), info.address)
         except ModbusError as e:
             return str(e)
-        return mismatch(found, dev.info.type, dev.info.address, dev.info.channels)
+        return mismatch(found, info.type, info.address, info.channels)

@@ -27,8 +27,9 @@ from __future__ import annotations
 from typing import Any
 
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES
+from pymb.devices.readings import INTEGRAL_QUANTITIES, map_reading
 from pymb.store.records import Event, Sample
+from pymb.store.schema import OWN_LAYOUT
 from pymb.store.text import JsonlSink, sample_dict
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
@@ -85,8 +86,9 @@ def _map_line(sample: Sample, data: MapReading) -> str:
 
 def sample_lines(sample: Sample) -> list[str]:
     """A sample as line protocol (one line, or one per hub channel)."""
-    if isinstance(sample.data, MapReading):
-        return [_map_line(sample, sample.data)]
+    data = map_reading(sample.data)
+    if data.map.id not in OWN_LAYOUT:
+        return [_map_line(sample, data)]
     d = sample_dict(sample)
     ts = _ns(sample.time_utc)
     if "states" in d:

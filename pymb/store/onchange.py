@@ -3,17 +3,13 @@ over the points of the device's map."""
 
 from __future__ import annotations
 
-import copy
 import math
-from array import array
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymb import maps
-from pymb.devices import CoolProTelemetry, HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import telemetry_values
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 
@@ -54,31 +50,25 @@ class OnChange:
                 raise InvalidArgument(f"deadband of {name} must be >= 0, got {value!r}")
 
 
-def _points(data: HubReading | CoolProTelemetry | MapReading
+def _points(data: MapReading
             ) -> tuple[Map, list[tuple[str, int]], Sequence[Any], Sequence[Any]]:
     """A reading as its map's points: the map, (name, values) of each point
     read (a block's channel by channel), and every value and state in that
     order."""
-    if isinstance(data, HubReading):
-        c = data.channels
-        return (_HUB, [(p, c) for p in _HUB.points], data.values, data.raw_states)
-    if isinstance(data, MapReading):
-        shape: list[tuple[str, int]] = []
-        values: list[Any] = []
-        states: list[Any] = []
-        for name, v in data.values.items():
-            st = data.states.get(name)
-            if isinstance(v, list) and isinstance(st, list):
-                shape.append((name, len(v)))
-                values += v
-                states += st
-            else:
-                shape.append((name, 1))
-                values.append(v)
-                states.append(st)
-        return data.map, shape, values, states
-    got = telemetry_values(data)
-    return _COOLPRO, [(n, 1) for n in got], list(got.values()), [0] * len(got)
+    shape: list[tuple[str, int]] = []
+    values: list[Any] = []
+    states: list[Any] = []
+    for name, v in data.values.items():
+        st = data.states.get(name)
+        if isinstance(v, list) and isinstance(st, list):
+            shape.append((name, len(v)))
+            values += v
+            states += st
+        else:
+            shape.append((name, 1))
+            values.append(v)
+            states.append(st)
+    return data.map, shape, values, states
 
 
 class Changes:
@@ -118,16 +108,13 @@ class Changes:
         self.first = True
         self.due = [0.0] * (shape[0][1] if self.by_channel and shape else 1)
 
-    def changed(self, data: HubReading | CoolProTelemetry | MapReading, now: float) -> list[int]:
+    def changed(self, data: MapReading, now: float) -> list[int]:
         """The columns to store now (a hub's 0-based channels; ``[0]``: the
         whole reading), remembered as stored."""
         m, shape, vals, sts = _points(data)
         if shape != self.shape:
             self._reset(m, shape)
-        # what did not move since the previous reading is skipped (as bytes: NaN is
-        # NaN); a copy of a hub's arrays, which the logger may read its next sweep into
-        key = (vals.tobytes(), sts.tobytes()) if isinstance(vals, array) and \
-            isinstance(sts, array) else (vals, sts)
+        key = (vals, sts)  # what did not move since the previous reading is skipped
         columns = len(self.due)
         if self.first:
             pick = set(range(columns))
@@ -138,7 +125,7 @@ class Changes:
             pick = self._moved_whole(vals, sts)
         if now >= self.next_due:
             pick.update(c for c in range(columns) if now >= self.due[c])
-        self.prev, self.prev_key = copy.copy(vals), key
+        self.prev, self.prev_key = vals, key
         if not pick:
             return []
         if not self.by_channel or len(pick) == columns:
@@ -175,10 +162,9 @@ class Changes:
         pick: set[int] = set()
         prev = self.prev
         (now_v, now_s), (old_v, old_s) = key, self.prev_key
-        size = 8 if isinstance(now_v, bytes) else 1
         by_channel = self.by_channel
         for lo, hi, band, counter in self.limits:
-            if now_v[lo * size:hi * size] == old_v[lo * size:hi * size] and \
+            if now_v[lo:hi] == old_v[lo:hi] and \
                     now_s[lo:hi] == old_s[lo:hi]:
                 continue  # nothing of this point moved since the previous reading
             for j, (a, pa, s, ps) in enumerate(zip(vals[lo:hi], prev[lo:hi], now_s[lo:hi],

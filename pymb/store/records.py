@@ -10,9 +10,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
-from pymb.devices import CoolProTelemetry, HubReading, State
+from pymb.devices import CoolProTelemetry, HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import STATE_NAMES, telemetry_values
+from pymb.devices.readings import map_reading
 from pymb.errors import (
     DeviceBusy,
     DeviceException,
@@ -22,14 +22,11 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
-from pymb.store.schema import HUB_FIELDS
 
 __all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
            "StoredSample", "as_sink", "event_kind", "reading_value", "reading_values",
            "short_fault"]
 
-_NOT_READ, _VALUE = int(State.NOT_READ), int(State.VALUE)
-_HUB_BLOCK = {name: b for b, name in enumerate(HUB_FIELDS)}
 
 
 @dataclass(frozen=True)
@@ -68,45 +65,47 @@ def reading_values(data: CoolProTelemetry | HubReading | MapReading, not_read: b
     """(channel, point, value, state) of every value of a reading, by its
     map's points, in the order of the long CSV: a block's channel (1-based)
     or None, the point's name, the value (None or NaN for none) and its
-    state's name. A hub is read channel by channel; a value an
-    ``--on-change`` sample did not store (state ``not_read``) is left out
-    unless ``not_read``."""
-    if isinstance(data, HubReading):
-        c = data.channels
-        vals, sts = data.values.tolist(), data.raw_states.tolist()
-        return [(ch + 1, name, vals[i], STATE_NAMES[sts[i]])
-                for ch in range(c) for b, name in enumerate(HUB_FIELDS)
-                for i in (b * c + ch,) if not_read or sts[i] != _NOT_READ]
-    if isinstance(data, MapReading):
-        out: list[tuple[int | None, str, Any, Any]] = []
-        for name, v in data.values.items():
-            st = data.states.get(name)
-            if isinstance(v, list) and data.map.points[name].block:
-                out += [(ch, name, cv, cs)
-                        for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1)]
-            else:
-                out.append((None, name, v, st))
+    state's name. A reading of blocks only (a hub's sweep) is read channel
+    by channel; a value an ``--on-change`` sample did not store (state
+    ``not_read``) is left out unless ``not_read``."""
+    data = map_reading(data)
+    out: list[tuple[int | None, str, Any, Any]] = []
+    blocks = data.map.points
+    if all(isinstance(v, list) and blocks[n].block for n, v in data.values.items()):
+        cols: list[tuple[str, Any, Any]] = [(n, v, data.states[n])
+                                            for n, v in data.values.items()]
+        for ch in range(len(cols[0][1]) if cols else 0):
+            out += [(ch + 1, n, v[ch], st[ch]) for n, v, st in cols
+                    if not_read or st[ch] != "not_read"]
         return out
-    return [(None, name, tv, "value") for name, tv in telemetry_values(data).items()]
+    for name, v in data.values.items():
+        st = data.states.get(name)
+        if isinstance(v, list) and blocks[name].block:
+            out += [(ch, name, cv, cs)
+                    for ch, (cv, cs) in enumerate(zip(v, st or [], strict=False), 1)
+                    if not_read or cs != "not_read"]
+        elif not_read or st != "not_read":
+            out.append((None, name, v, st))
+    return out
 
 
 def reading_value(data: CoolProTelemetry | HubReading | MapReading, name: str,
                   channel: int | None = None) -> float | None:
-    """Point ``name`` of a reading (a hub's ``channel``, 1-based) as a number,
-    NaN where there is none; None when the reading does not hold it (another
-    group's sample, a channel an ``--on-change`` sample did not store)."""
-    if isinstance(data, HubReading):
-        i = _HUB_BLOCK[name] * data.channels + (channel or 1) - 1
-        state = data.raw_states[i]
-        if state == _NOT_READ:
+    """Point ``name`` of a reading (a block's ``channel``, 1-based) as a
+    number, NaN where there is none; None when the reading does not hold it
+    (another group's sample, a channel an ``--on-change`` sample did not
+    store)."""
+    data = map_reading(data)
+    if name not in data.values:
+        return None
+    got, state = data.values[name], data.states.get(name)
+    if isinstance(got, list) and data.map.points[name].block:
+        i = (channel or 1) - 1
+        if not 0 <= i < len(got):
             return None
-        return float(data.values[i]) if state == _VALUE else math.nan
-    if isinstance(data, MapReading):
-        if name not in data.values:
-            return None
-        got = data.values[name]
-    else:
-        got = telemetry_values(data)[name]
+        got, state = got[i], state[i] if isinstance(state, list) else state
+    if state == "not_read":
+        return None
     return float(got) if isinstance(got, (int, float)) else math.nan
 
 

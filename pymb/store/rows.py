@@ -10,13 +10,19 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pymb.devices import HubReading
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
-from pymb.store.schema import HUB_STRIDE, map_layout_key, unsupported_mask, wire_bytes
+from pymb.store.schema import (
+    HUB_BYTES,
+    HUB_STRIDE,
+    OWN_LAYOUT,
+    map_layout_key,
+    unsupported_mask,
+    wire_bytes,
+)
 
 __all__ = ["ROWS_PER_INSERT", "DeviceIds", "humidity_units", "insert_rows", "stored_registers",
            "unsupported_of"]
@@ -35,19 +41,22 @@ def insert_rows(n: int) -> str:
             "VALUES " + ", ".join(["(?, ?, ?, ?, ?, ?)"] * n))
 
 
-def stored_registers(data: Any) -> bytes:
-    """The ``registers`` column of a reading: big-endian words (a map
-    reading's own bytes when its reader had them so, as the TCP loop does)."""
-    if isinstance(data, MapReading) and data.wire is not None:
+def stored_registers(data: MapReading) -> bytes:
+    """The ``registers`` column of a reading: big-endian words (the
+    reading's own bytes when its reader had them so, as the TCP loop does;
+    a hub's registers 31..730 whatever its channels)."""
+    if data.wire is not None:
         return data.wire
-    return wire_bytes(data.registers)
+    out = wire_bytes(data.registers)
+    if data.map.id == "hub" and len(out) < HUB_BYTES:
+        out += bytes(HUB_BYTES - len(out))
+    return out
 
 
-def unsupported_of(data: Any) -> int:
-    """The ``unsupported`` column: a hub's blocks, a map reading's points."""
-    if isinstance(data, HubReading):
-        return data.unsupported_mask
-    if isinstance(data, MapReading) and data.unsupported:
+def unsupported_of(data: MapReading) -> int:
+    """The ``unsupported`` column: the points refused (bit i: the group's
+    i-th point; a hub's blocks)."""
+    if data.unsupported:
         return unsupported_mask(data.map, data.group, data.unsupported)
     return 0
 
@@ -92,7 +101,7 @@ class DeviceIds:
 
     def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
         """(device id, channels) of a device configuration, inserted on first use."""
-        mapped = isinstance(data, MapReading)
+        mapped = isinstance(data, MapReading) and d.type not in OWN_LAYOUT
         mine = (id(d), data.group if mapped else None)
         seen = self._seen.get(mine)
         if seen is not None and seen[0] is d:
@@ -103,11 +112,10 @@ class DeviceIds:
             self._remember(mine, d, got)
             return got
         channels, units, tenths = 0, "", b""
-        if isinstance(data, MapReading):
+        if mapped:
             units = map_layout_key(data.group, d.map_options)
         elif d.type == "hub":
-            channels = data.channels if isinstance(data, HubReading) else (
-                d.channels or HUB_STRIDE)
+            channels = d.channels or HUB_STRIDE
             units, tenths = humidity_units(d, channels)
         key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
         self._begin()
@@ -122,7 +130,7 @@ class DeviceIds:
                                 [(did, ch + 1, t) for ch, t in enumerate(tenths)])
         else:
             did = row[0]
-        if isinstance(data, MapReading):
+        if mapped:
             self._store_map(d, data)
         got = (int(did), channels)  # type: ignore[arg-type]
         if not isinstance(data, Event):

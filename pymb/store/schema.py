@@ -20,10 +20,12 @@ from pymb.wire import registers_from_wire, registers_to_wire
 
 __all__ = [
     "COOLPRO_FIELDS",
+    "HUB_BYTES",
     "HUB_FIELDS",
     "HUB_STRIDE",
     "MAP_UNSUPPORTED_BITS",
     "MIN_BYTES",
+    "OWN_LAYOUT",
     "PAGE_SIZE",
     "SCHEMA",
     "SCHEMA_SQL",
@@ -50,6 +52,15 @@ HUB_FIELDS = list(_HUB_TENTHS.points)
 #: registers of a block in a stored hub sweep: a channel's register of block
 #: k is at ``k * HUB_STRIDE + channel - 1`` whatever the channels logged
 HUB_STRIDE = _HUB_TENTHS.points[HUB_FIELDS[0]].channels
+
+
+#: the device types a database keeps in their own layout (format 1's: the
+#: ``hub_readings`` and ``coolpro_readings`` views, a hub's channels and
+#: humidity units in its ``devices`` row), with no ``maps`` row: their map
+#: is the shipped one
+OWN_LAYOUT = frozenset({"coolpro", "hub"})
+#: a stored hub sample's bytes: registers 31..730, whatever the channels logged
+HUB_BYTES = 2 * HUB_STRIDE * len(HUB_FIELDS)
 
 
 def wire_bytes(regs: array[int]) -> bytes:

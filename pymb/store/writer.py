@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from pymb.devices import HubReading
+from pymb.devices.readings import map_reading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
@@ -34,7 +34,7 @@ from pymb.store.rows import (
     stored_registers,
     unsupported_of,
 )
-from pymb.store.schema import HUB_FIELDS, MIN_BYTES, open_format, wire_bytes
+from pymb.store.schema import HUB_FIELDS, HUB_STRIDE, MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
 
@@ -227,9 +227,9 @@ class SqliteSink(SinkBase):
             self._make_room(len(samples))
             take = self._ids.take
             device_id = self._device_ids.id_of
-            rows = [(take(), device_id(s.device, s.data)[0], s.time_utc, s.monotonic,
-                     stored_registers(s.data), unsupported_of(s.data))
-                    for s in samples]
+            rows = [(take(), device_id(s.device, data)[0], s.time_utc, s.monotonic,
+                     stored_registers(data), unsupported_of(data))
+                    for s in samples for data in (map_reading(s.data),)]
             bounded = self.max_bytes is not None
             self._begin()
             if not bounded:  # no WAL budget: statements of ROWS_PER_INSERT rows
@@ -280,7 +280,7 @@ class SqliteSink(SinkBase):
             self._ids.marked(mark)
 
     def _write(self, sample: Sample) -> None:
-        data = sample.data
+        data = map_reading(sample.data)
         did = self._device_ids.id_of(sample.device, data)[0]
         self._begin()
         if self.on_change is None:
@@ -288,17 +288,16 @@ class SqliteSink(SinkBase):
             self.stored += 1
             return
         rules = self._changes.get(did)
-        hub = isinstance(data, HubReading)
+        hub = sample.device.type == "hub"
         if rules is None:
             bands = {**self.on_change.deadband, **dict(sample.device.map_deadband)}
             rules = self._changes[did] = Changes(self.on_change, bands, by_channel=hub)
         pick = rules.changed(data, sample.monotonic)
         if not pick:
             return
-        if isinstance(data, HubReading):  # the channels picked, as rows of hub_changes
-            sid = self._insert(did, sample, None, data.unsupported_mask)
-            regs = data.registers
-            n = len(regs) // len(HUB_FIELDS)
+        if hub:  # the channels picked, as rows of hub_changes
+            sid = self._insert(did, sample, None, unsupported_of(data))
+            regs, n = data.registers, HUB_STRIDE
             blocks = range(len(HUB_FIELDS))
             self.db.executemany(
                 "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
