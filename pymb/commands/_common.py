@@ -22,11 +22,12 @@ from pymb.client import (
     unresolved,
 )
 from pymb.client.address import is_mbaps
-from pymb.devices import CoolProIdentity, CoolProTelemetry, HubReading, State
+from pymb.devices import CoolProIdentity, CoolProStatus
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, parse_device
 from pymb.devices.hubreading import BLOCKS
+from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import FACADES
-from pymb.devices.readings import reading_dict, status_flags, telemetry_values
+from pymb.devices.readings import reading_dict
 from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
@@ -282,40 +283,49 @@ def _fmt(v: float, unit: str) -> str:
 TELEMETRY = tuple(p for p in maps.builtin("coolpro").points.values() if p.group == "telemetry")
 
 
-def render(data: CoolProTelemetry | CoolProIdentity | HubReading) -> str:
-    """A readable table with units; no-value states shown by name."""
-    if isinstance(data, HubReading):
-        head = ["ch"] + [f"{b.name.rsplit('_', 1)[0]} [{b.unit}]" for b in BLOCKS]
-        rows = [head]
-        c = data.channels
-        for ch in range(c):
-            row = [str(ch + 1)]
-            for i in range(len(BLOCKS)):
-                st = State(data.raw_states[i * c + ch])
-                v = data.values[i * c + ch]
-                row.append(f"{v:g}" if st is State.VALUE else st.name.lower().replace("_", " "))
-            rows.append(row)
-        widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
-        lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True))
-                 for r in rows]
-        if data.unsupported:
-            lines.append(f"not supported by this firmware: {', '.join(sorted(data.unsupported))}")
-        return "\n".join(lines)
-    if isinstance(data, CoolProTelemetry):
-        lines = []
-        for reg in TELEMETRY:
-            v = getattr(data, reg.name)
-            if reg.name == "status":
-                flags = [f.name for f in type(v) if f in v]
-                text = f"0x{int(v):04X}" + (f" ({', '.join(flags)})" if flags else " (ok)")
-                if v.reserved:
-                    text += f" reserved bits 0x{v.reserved:04X}"
-            elif reg.name == "uptime_s":
-                text = f"{int(v)} s"
-            else:
-                text = _fmt(v, reg.unit)
-            lines.append(f"{reg.description.split(' (')[0].split(',')[0]:<16} {text}")
-        return "\n".join(lines)
+def _hub_table(data: MapReading) -> str:
+    """A hub's reading: a row a channel, a column a block."""
+    head = ["ch"] + [f"{b.name.rsplit('_', 1)[0]} [{b.unit}]" for b in BLOCKS]
+    rows = [head]
+    cols = [(data.values[b.name], data.states[b.name]) for b in BLOCKS]
+    for ch in range(len(cols[0][0])):  # type: ignore[arg-type]
+        row = [str(ch + 1)]
+        for vals, sts in cols:
+            st = sts[ch]
+            row.append(f"{vals[ch]:g}" if st == "value" else st.replace("_", " "))  # type: ignore[index]
+        rows.append(row)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True))
+             for r in rows]
+    if data.unsupported:
+        lines.append(f"not supported by this firmware: {', '.join(sorted(data.unsupported))}")
+    return "\n".join(lines)
+
+
+def _telemetry_text(data: MapReading) -> str:
+    """A CoolPro's telemetry, a line a point."""
+    lines = []
+    for reg in TELEMETRY:
+        v: Any = data.values[reg.name]
+        if reg.name == "status":
+            v = CoolProStatus(v)
+            flags = [f.name for f in type(v) if f in v]
+            text = f"0x{int(v):04X}" + (f" ({', '.join(flags)})" if flags else " (ok)")
+            if v.reserved:
+                text += f" reserved bits 0x{v.reserved:04X}"
+        elif reg.name == "uptime_s":
+            text = f"{int(v)} s"
+        else:
+            text = _fmt(v, reg.unit)
+        lines.append(f"{reg.description.split(' (')[0].split(',')[0]:<16} {text}")
+    return "\n".join(lines)
+
+
+def render(data: MapReading | CoolProIdentity) -> str:
+    """A readable table with units of a hub's or a CoolPro's reading, or a
+    CoolPro's identity; no-value states shown by name."""
+    if isinstance(data, MapReading):
+        return _hub_table(data) if data.map.id == "hub" else _telemetry_text(data)
     return "\n".join([
         f"{'Serial Number':<16} {data.serial_number}",
         f"{'Hardware':<16} rev {data.hardware_revision}",
@@ -324,12 +334,14 @@ def render(data: CoolProTelemetry | CoolProIdentity | HubReading) -> str:
     ])
 
 
-def to_json(data: Any) -> dict[str, Any]:
-    """A JSON-ready dict of a reading (None where there is no value)."""
-    if isinstance(data, HubReading):
-        return reading_dict(data)
-    if isinstance(data, CoolProTelemetry):
-        return {**telemetry_values(data), "status_flags": status_flags(int(data.status))}
+def to_json(data: MapReading | CoolProIdentity) -> dict[str, Any]:
+    """A JSON-ready dict of a hub's or a CoolPro's reading (None where there
+    is no value), or of a CoolPro's identity."""
+    if isinstance(data, MapReading):
+        doc = reading_dict(data)
+        if data.map.id == "hub":
+            return doc
+        return {**doc["values"], "status_flags": doc["status_flags"]}
     return {"serial_number": data.serial_number, "hardware_revision": data.hardware_revision,
             "firmware_version": data.firmware_version,
             "manufactured": data.manufactured.isoformat()}

@@ -1,10 +1,12 @@
 """``pymb read DEVICE``: one reading, as a table with units or JSON: a
-CoolPro's or a hub's through its facade, any other device through its map
+CoolPro's or a hub's read as a map device (:func:`reader`) and shown as
+their views always showed it, any other device through its map
 (:func:`read_map`)."""
 
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,11 +25,11 @@ from pymb.commands._common import (
 )
 from pymb.commands.maptext import map_json, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
-from pymb.devices import CoolPro, CoolProIdentity, HubReading, SensorHub
+from pymb.devices import CoolPro, CoolProIdentity
 from pymb.devices.deviceconfig import DeviceConfig
-from pymb.devices.hubreading import ALL_BLOCKS, block_index
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import (
     FACADES,
     MapTarget,
@@ -51,25 +53,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None,
-           channels: list[int] | None = None) -> Callable[[], Any]:
-    """A function that returns one reading of ``dev``; it raises
+           channels: list[int] | None = None) -> Callable[[], MapReading]:
+    """A function that returns one reading of ``dev`` (of a hub, only these
+    ``blocks`` and ``channels`` if given) as a map reading; it raises
     :class:`~pymb.ProtocolError` saying what answered when the device
     supplied no value at all, and names what answered a device exception."""
     assert dev.address is not None
     address = dev.address
-    # The blocks asked for: when every one of them is missing, the device
-    # supplied no value at all (a whole sweep, or watch's few blocks).
-    wanted = ALL_BLOCKS if blocks is None else sum(1 << block_index(b) for b in blocks)
-    count = int(dev.map.options["channels"]) if dev.type == "hub" else 0
-    if dev.type == "coolpro":
-        read: Callable[[], Any] = CoolPro(client, address).read_telemetry
-        hub = None
-    else:
-        hub = SensorHub(client, address, count, dev.option("humidity_unit"))  # type: ignore[arg-type]
-        read = hub.read_all if blocks is None and channels is None else (
-            lambda: hub.read(blocks, channels))  # type: ignore[union-attr]
+    count = int(dev.map.options.get("channels", 0))
+    read: Callable[[], MapReading]
+    if blocks is None and channels is None:
+        mapdev, read_group = dev.open(client)
+        read = functools.partial(read_group, dev.facade)
+    else:  # a hub's few blocks or channels (pymb watch --block, --show)
+        hub = dev.sweep_reader(client)
+        mapdev, read = hub.device, functools.partial(hub.blocks, blocks or [], channels)
 
-    def one() -> Any:
+    def one() -> MapReading:
         try:
             data = read()
         except DeviceException as e:
@@ -78,12 +78,13 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
             if "answers like" in why and "not" in why:
                 raise type(e)(f"{why}; {e}", code=e.code) from None
             raise
-        if hub is not None and isinstance(data, HubReading) and \
-                data.unsupported_mask & wanted == wanted:
-            hub.forget_firmware()  # the next read asks again
+        # The blocks asked for: when every one of them is missing, the device
+        # supplied no value at all (a whole sweep, or watch's few blocks).
+        if data.unsupported and set(blocks or data.values) <= set(data.unsupported):
+            mapdev.planner.forget()  # the next read asks again
             why = mismatch(identify(client_asker(client), address), dev.type, address,
                            count)
-            raise ProtocolError(f"no value from hub:{address} on {client.port}: {why}",
+            raise ProtocolError(f"no value from {dev.type}:{address} on {client.port}: {why}",
                                 reason="no value")
         return data
 

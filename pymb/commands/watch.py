@@ -33,16 +33,15 @@ from pymb.commands._common import (
     to_json,
 )
 from pymb.commands.maptext import map_json, render_map
-from pymb.devices import HubReading, State
 from pymb.devices.hubreading import BLOCKS, block_index
+from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import MapTarget
 from pymb.devices.polls import Health
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
 _DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
-_STATE_WORDS = {State.OFFLINE: "off", State.NO_SENSOR: "-", State.UNSUPPORTED: "n/a",
-                State.NOT_READ: ""}
+_STATE_WORDS = {"offline": "off", "no_sensor": "-", "unsupported": "n/a", "not_read": ""}
 _CELL = 6  # characters per value: "-327.6" at most, a space before
 
 
@@ -78,24 +77,24 @@ def parse_blocks(names: list[str]) -> list[str]:
     return out or list(_DEFAULT_BLOCKS)
 
 
-def _value(v: float, state: int) -> str:
-    if state == State.VALUE:
+def _value(v: Any, state: str) -> str:
+    if state == "value":
         return f"{v:.1f}" if v != int(v) or abs(v) < 1000 else f"{v:.0f}"
-    return _STATE_WORDS.get(State(state), "?")
+    return _STATE_WORDS.get(state, "?")
 
 
-def hub_view(data: HubReading, blocks: list[str], shown: list[int], width: int,
+def hub_view(data: MapReading, blocks: list[str], shown: list[int], width: int,
              height: int) -> list[str]:
     """The hub's chosen blocks and channels in at most ``height`` lines of at
     most ``width`` characters: ten (or five, or twenty) channels to a row."""
     per_row = (width - 5) // _CELL
     per_row = next((n for n in (20, 10, 5) if n <= per_row), max(1, per_row))
     lines: list[str] = []
-    c = data.channels
     for name in blocks:
         i = block_index(name)
-        vals = [(ch, _value(data.values[i * c + ch - 1],
-                            data.raw_states[i * c + ch - 1])) for ch in shown]
+        values, states = data.values[name], data.states[name]
+        assert isinstance(values, list)
+        vals = [(ch, _value(values[ch - 1], states[ch - 1])) for ch in shown]
         lines.append(f"{name} [{BLOCKS[i].unit}]"[:width])
         for i in range(0, len(vals), per_row):
             row = vals[i:i + per_row]
@@ -188,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
             body += identity.splitlines()
         if kind == "error":
             body.append(f"error: {item}")
-        elif isinstance(item, HubReading):
+        elif is_hub:
             body += hub_view(item, blocks, shown, width, height - 1 - len(body))
         else:
             body += render(item).splitlines()

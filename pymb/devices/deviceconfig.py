@@ -19,7 +19,7 @@ from typing import Any
 from pymb import maps
 from pymb.client import Client
 from pymb.devices.coolpro import coolpro_device
-from pymb.devices.hub import sweep_reader
+from pymb.devices.hubsweep import SweepReader
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading, group_points
 from pymb.devices.mapspec import FACADES, MapTarget, near, parse_map_device, unknown_device
@@ -240,16 +240,22 @@ class DeviceConfig:
         """The device on ``client``: its :class:`MapDevice` (plans priced at
         ``baudrate`` where the client has none) and a read of one group as a
         :class:`MapReading`. The two devices with views read as their views
-        do: a hub as :func:`~pymb.devices.hub.sweep_reader` says (its firmware
-        rules, a busy hub, a humidity unit per channel), a CoolPro as
+        do: a hub as :class:`~pymb.devices.hubsweep.SweepReader` does (its
+        firmware rules, a busy hub, a humidity unit per channel), a CoolPro as
         :func:`~pymb.devices.coolpro.coolpro_device`."""
         assert self.address is not None
         if self.type == "hub":
-            return sweep_reader(client, self.address, int(self.map.options["channels"]),
-                                self.option("humidity_unit"))
+            hub = self.sweep_reader(client)
+            return hub.device, hub
         dev = coolpro_device(client, self.address) if self.type == "coolpro" else MapDevice(
             client, self.map, self.address, baudrate=baudrate)
         return dev, functools.partial(_read_group, dev)
+
+    def sweep_reader(self, client: Client) -> SweepReader:
+        """A hub's reader on ``client`` (its blocks and channels read as map readings)."""
+        assert self.address is not None
+        return SweepReader(client, self.address, int(self.map.options["channels"]),
+                           self.option("humidity_unit"))  # type: ignore[arg-type]
 
     @property
     def spec(self) -> str:

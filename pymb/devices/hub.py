@@ -33,14 +33,13 @@ from pymb.devices.hubreading import (
     check_channels,
 )
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.mapreading import MapReading
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import map_planner
 from pymb.maps.planner import ReadPlan
 
-__all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "decode_hub",
-           "full_sweep_spans", "hub_device", "sweep_reader"]
+__all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "busy_error",
+           "decode_hub", "full_sweep_spans", "hub_device", "units"]
 
 _N = HUB_REGISTERS  # 700 registers, 31..730
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
@@ -137,7 +136,7 @@ def _decoder(channels: int, unit: float) -> Decoder:
     return Decoder(m, [b.name for b in BLOCKS])
 
 
-def _units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
+def units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
     """The humidity unit the map decodes with (the channels' most common)
     and, per channel, 1 where the channel's unit is the other one."""
     tenths = _tenths(humidity_unit, channels)
@@ -165,25 +164,6 @@ def _other_units(r: HubReading, unit: float, other: bytes) -> None:
         else:
             values[c + i] = raw / 10 if unit == 1.0 else float(raw)
             states[c + i] = State.VALUE
-
-
-def _other_units_of(r: MapReading, unit: float, other: bytes) -> None:
-    """:func:`_other_units` for a map reading of the sweep (values and state
-    names by block)."""
-    values, states = r.values["humidity_pct"], r.states["humidity_pct"]
-    assert isinstance(values, list)
-    first = BLOCKS[block_index("humidity_pct")].address - _FIRST
-    for i, flag in enumerate(other):
-        if not flag or states[i] not in ("value", "no_sensor"):
-            continue
-        raw = r.registers[first + i]
-        if raw == 0xFFFF:
-            continue  # offline in either unit
-        if raw == (0x8000 if unit == 1.0 else 0x00FF):
-            values[i], states[i] = None, "no_sensor"
-        else:
-            values[i] = raw / 10 if unit == 1.0 else float(raw)
-            states[i] = "value"
 
 
 _DECODED = (State.VALUE, State.NO_SENSOR)
@@ -215,7 +195,7 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     mask = 0
     for name in unsupported:
         mask |= 1 << block_index(name)
-    unit, other = _units(humidity_unit, channels)
+    unit, other = units(humidity_unit, channels)
     r = HubReading(channels, regs)
     dec = _decoder(channels, unit)
     with _DECODING:  # the decoder's arrays are shared
@@ -269,27 +249,6 @@ def busy_error(e: DeviceFailure, retries: int) -> DeviceBusy:
         count=e.count, port=e.port, response=e.response)
 
 
-def sweep_reader(client: Client, address: int, channels: int,
-                 humidity_unit: float | Sequence[float]
-                 ) -> tuple[MapDevice, Callable[[str | None], MapReading]]:
-    """A hub as a map device: its :func:`hub_device` and a read of a group
-    of its map (the sweep) as a :class:`~pymb.devices.mapreading.MapReading`,
-    each channel's humidity in its own unit (one for all, or one a channel)."""
-    unit, other = _units(humidity_unit, channels)
-    dev = hub_device(client, address, channels, unit)
-    mixed = any(other)
-
-    def read(group: str | None) -> MapReading:
-        try:
-            r = dev.read_group(group)
-        except DeviceFailure as e:
-            raise busy_error(e, 3) from None
-        if mixed:
-            _other_units_of(r, unit, other)
-        return r
-    return dev, read
-
-
 class SensorHub:
     """The sensor hub at ``address`` (1..255) on ``client``: a typed view of
     the hub's map (``pymb.maps.builtin("hub")``) read by a
@@ -330,7 +289,7 @@ class SensorHub:
         self.channels = check_channels(channels)
         self.turnaround = turnaround
         self._busy_retries = busy_retries
-        self._unit, self._other = _units(humidity_unit, channels)
+        self._unit, self._other = units(humidity_unit, channels)
         self._mixed = any(self._other)
         self.device = hub_device(client, address, self.channels, self._unit,
                                  busy_retries=busy_retries, busy_backoff=busy_backoff,

@@ -1,0 +1,97 @@
+"""The sensor hub read as a map device: :class:`SweepReader` reads its map's
+groups, or some blocks and channels, as :class:`~pymb.devices.mapreading.MapReading`
+with the hub's own rules (:func:`~pymb.devices.hub.hub_device`: the
+firmware's missing blocks, a busy hub; a humidity unit per channel). The
+logger, ``pymb read`` and ``pymb watch`` read a hub with it."""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Sequence
+from typing import Any
+
+from pymb.client import Client
+from pymb.devices.hub import busy_error, hub_device, units
+from pymb.devices.hubreading import BLOCKS, CHANNELS, block_index
+from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import MapReading
+from pymb.errors import DeviceFailure
+
+__all__ = ["SweepReader"]
+
+_FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
+_HUMIDITY = BLOCKS[block_index("humidity_pct")].address - _FIRST
+_BUSY_RETRIES = 3
+
+
+class SweepReader:
+    """The hub at ``address`` on ``client``, of ``channels`` channels with
+    humidity in ``humidity_unit`` % (one for all, or one a channel): its
+    :attr:`device` and, called with a group of its map, one read of it."""
+
+    def __init__(self, client: Client, address: int, channels: int,
+                 humidity_unit: float | Sequence[float]) -> None:
+        self.unit, self.other = units(humidity_unit, channels)
+        self.channels = channels
+        self.device: MapDevice = hub_device(client, address, channels, self.unit,
+                                            busy_retries=_BUSY_RETRIES)
+        self._mixed = any(self.other)
+
+    def __call__(self, group: str | None) -> MapReading:
+        """Every block of ``group`` (the sweep)."""
+        try:
+            r = self.device.read_group(group)
+        except DeviceFailure as e:
+            raise busy_error(e, _BUSY_RETRIES) from None
+        if self._mixed:
+            self._other_units(r)
+        return r
+
+    def blocks(self, names: Sequence[str], channels: Sequence[int] | None) -> MapReading:
+        """The blocks ``names`` (of ``channels`` only, 1-based, if given): every
+        block is in the reading, those not read (and the channels not read)
+        ``not_read``; ``unsupported`` names the blocks the firmware lacks, as
+        far as seen so far."""
+        names = tuple(names) or tuple(b.name for b in BLOCKS)
+        try:
+            decs = self.device.read_into(*names, channels=channels)
+        except DeviceFailure as e:
+            raise busy_error(e, _BUSY_RETRIES) from None
+        c = self.channels
+        values: dict[str, Any] = {b.name: [None] * c for b in BLOCKS}
+        states: dict[str, Any] = {b.name: ["not_read"] * c for b in BLOCKS}
+        regs = array("H", bytes(2 * CHANNELS * len(BLOCKS)))  # 31..730
+        for d in decs:
+            b = d.buffers
+            got, sts = d.values(b), d.states(b)
+            for n in dict.fromkeys(names):
+                if n in got:
+                    values[n], states[n] = got[n], sts[n]
+            at = d.address - _FIRST
+            regs[at:at + d.count] = array("H", b.registers)
+        gone = self.device.planner.unsupported
+        missing = tuple(b.name for i, b in enumerate(BLOCKS)
+                        if gone and all(k in gone for k in range(i * c, (i + 1) * c)))
+        r = MapReading(self.device.map, None, values, states, regs, missing)
+        if self._mixed:
+            self._other_units(r)
+        return r
+
+    def _other_units(self, r: MapReading) -> None:
+        """Channel humidity of the channels whose unit is not the map's,
+        decoded again from the raw registers ([HUB] 3, [NOTES]: 0x00FF is no
+        humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
+        values, states = r.values["humidity_pct"], r.states["humidity_pct"]
+        assert isinstance(values, list)
+        unit = self.unit
+        for i, flag in enumerate(self.other):
+            if not flag or states[i] not in ("value", "no_sensor"):
+                continue
+            raw = r.registers[_HUMIDITY + i]
+            if raw == 0xFFFF:
+                continue  # offline in either unit
+            if raw == (0x8000 if unit == 1.0 else 0x00FF):
+                values[i], states[i] = None, "no_sensor"
+            else:
+                values[i] = raw / 10 if unit == 1.0 else float(raw)
+                states[i] = "value"
