@@ -6,6 +6,7 @@ logger, ``pymb read`` and ``pymb watch`` read a hub with it."""
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Sequence
 from typing import Any
@@ -14,14 +15,18 @@ from pymb.client import Client
 from pymb.devices.hub import busy_error, hub_device, units
 from pymb.devices.hubreading import BLOCKS, CHANNELS, block_index
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.mapreading import MapReading
+from pymb.devices.mapreading import Blocks, MapReading
 from pymb.errors import DeviceFailure
+from pymb.maps.types import STATES
 
 __all__ = ["SweepReader"]
 
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
 _HUMIDITY = BLOCKS[block_index("humidity_pct")].address - _FIRST
 _BUSY_RETRIES = 3
+_VALUE, _NO_SENSOR = STATES.index("value"), STATES.index("no_sensor")
+_DECODED = (_VALUE, _NO_SENSOR)
+_UNSUPPORTED = bytes([STATES.index("unsupported")])
 
 
 class SweepReader:
@@ -36,16 +41,29 @@ class SweepReader:
         self.device: MapDevice = hub_device(client, address, channels, self.unit,
                                             busy_retries=_BUSY_RETRIES)
         self._mixed = any(self.other)
+        self._index: dict[str | None, dict[str, int]] = {}  # by group: the blocks' slots
 
     def __call__(self, group: str | None) -> MapReading:
-        """Every block of ``group`` (the sweep)."""
+        """Every block of ``group`` (the sweep), its values and states kept
+        as the decoder made them (:class:`~pymb.devices.mapreading.Blocks`)."""
         try:
-            r = self.device.read_group(group)
+            (d,) = self.device.read_into(group=group)
         except DeviceFailure as e:
             raise busy_error(e, _BUSY_RETRIES) from None
+        b, c = d.buffers, self.channels
+        index = self._index.get(group)
+        if index is None:
+            index = self._index[group] = {p.name: d.slot(p.name) for p in BLOCKS
+                                          if p.name in self.device.map.points and
+                                          (group is None or p.group == group)}
+        names = tuple(index)
+        blocks = Blocks(names, c, array("d", b.values), array("B", b.states), index)
         if self._mixed:
-            self._other_units(r)
-        return r
+            self._other_units(blocks, b.registers)
+        sts = blocks.states.tobytes()
+        gone = tuple(n for n in names if _UNSUPPORTED in sts[blocks.index[n]:blocks.index[n] + c])
+        return MapReading(self.device.map, group, blocks.value_map(), blocks.state_map(),
+                          array("H", b.registers), gone)
 
     def blocks(self, names: Sequence[str], channels: Sequence[int] | None) -> MapReading:
         """The blocks ``names`` (of ``channels`` only, 1-based, if given): every
@@ -72,26 +90,32 @@ class SweepReader:
         gone = self.device.planner.unsupported
         missing = tuple(b.name for i, b in enumerate(BLOCKS)
                         if gone and all(k in gone for k in range(i * c, (i + 1) * c)))
-        r = MapReading(self.device.map, None, values, states, regs, missing)
         if self._mixed:
-            self._other_units(r)
-        return r
+            flat = Blocks(list(values), c, array("d"), array("B"))
+            for n in flat.names:  # (the blocks as flat arrays, to decode again)
+                flat.values.extend(math.nan if v is None else v for v in values[n])
+                flat.states.extend(STATES.index(x) for x in states[n])
+            self._other_units(flat, regs)
+            values.update(flat.value_map())
+            states.update(flat.state_map())
+        return MapReading(self.device.map, None, values, states, regs, missing)
 
-    def _other_units(self, r: MapReading) -> None:
+    def _other_units(self, b: Blocks, registers: Sequence[int]) -> None:
         """Channel humidity of the channels whose unit is not the map's,
-        decoded again from the raw registers ([HUB] 3, [NOTES]: 0x00FF is no
-        humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
-        values, states = r.values["humidity_pct"], r.states["humidity_pct"]
-        assert isinstance(values, list)
-        unit = self.unit
+        decoded again from the raw registers 31... ([HUB] 3, [NOTES]: 0x00FF
+        is no humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
+        at = b.index.get("humidity_pct")
+        if at is None:
+            return
+        values, states, unit = b.values, b.states, self.unit
         for i, flag in enumerate(self.other):
-            if not flag or states[i] not in ("value", "no_sensor"):
+            if not flag or states[at + i] not in _DECODED:
                 continue
-            raw = r.registers[_HUMIDITY + i]
+            raw = registers[_HUMIDITY + i]
             if raw == 0xFFFF:
                 continue  # offline in either unit
             if raw == (0x8000 if unit == 1.0 else 0x00FF):
-                values[i], states[i] = None, "no_sensor"
+                values[at + i], states[at + i] = math.nan, _NO_SENSOR
             else:
-                values[i] = raw / 10 if unit == 1.0 else float(raw)
-                states[i] = "value"
+                values[at + i] = raw / 10 if unit == 1.0 else float(raw)
+                states[at + i] = _VALUE

@@ -6,13 +6,14 @@ them, and :func:`group_layout`, where each table's registers sit in them."""
 from __future__ import annotations
 
 from array import array
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymb.maps import Decoder, Map, Value
+from pymb.maps.types import STATES
 
-__all__ = ["MapReading", "group_layout", "group_points"]
+__all__ = ["Blocks", "MapReading", "group_layout", "group_points"]
 
 
 def group_points(m: Map, group: str | None) -> list[str]:
@@ -33,6 +34,60 @@ def group_layout(m: Map, group: str | None) -> list[Decoder]:
     return [Decoder(m, names) for names in tables.values()]
 
 
+class Blocks:
+    """Blocks of ``channels`` float values each, kept as the C decoder left
+    them: ``values`` (float64, NaN where there is none) and ``states``
+    (uint8 state codes), block after block in the order of ``names``. A
+    reading's :attr:`MapReading.values` and :attr:`MapReading.states` are
+    views of it (:meth:`value_map`, :meth:`state_map`): the lists are made
+    only when asked for (a logger that stores the registers makes none)."""
+
+    __slots__ = ("channels", "index", "names", "states", "values")
+
+    def __init__(self, names: Sequence[str], channels: int, values: array[float],
+                 states: array[int], index: Mapping[str, int] | None = None) -> None:
+        self.names = tuple(names)
+        self.channels = channels
+        #: where each block's first channel is in the arrays
+        self.index = dict(index) if index is not None else {
+            n: i * channels for i, n in enumerate(self.names)}
+        self.values = values
+        self.states = states
+
+    def value_map(self) -> Mapping[str, Value]:
+        """Block name -> its values (None where there is none)."""
+        return _BlockView(self, True)
+
+    def state_map(self) -> Mapping[str, Any]:
+        """Block name -> its state names."""
+        return _BlockView(self, False)
+
+
+class _BlockView(Mapping[str, Any]):
+    __slots__ = ("_values", "blocks")
+
+    def __init__(self, b: Blocks, values: bool) -> None:
+        self.blocks, self._values = b, values
+
+    def __getitem__(self, name: str) -> Any:
+        b = self.blocks
+        at, n = b.index[name], b.channels
+        sts = b.states[at:at + n].tolist()
+        if not self._values:
+            return [STATES[x] for x in sts]
+        return [None if st else v for v, st in zip(b.values[at:at + n].tolist(), sts,
+                                                    strict=True)]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.blocks.names)
+
+    def __len__(self) -> int:
+        return len(self.blocks.names)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.blocks.index
+
+
 @dataclass(frozen=True)
 class MapReading:
     """A map device's group, read once: ``values`` and ``states`` by point
@@ -49,6 +104,12 @@ class MapReading:
     registers: array[int]
     unsupported: tuple[str, ...] = ()
     wire: bytes | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def blocks(self) -> Blocks | None:
+        """The :class:`Blocks` ``values`` is a view of, if it is one."""
+        v = self.values
+        return v.blocks if isinstance(v, _BlockView) else None
 
     @property
     def channels(self) -> int:

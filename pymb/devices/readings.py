@@ -21,7 +21,7 @@ from pymb import maps
 from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry
 from pymb.devices.hub import HubReading, State
 from pymb.devices.hubreading import BLOCKS
-from pymb.devices.mapreading import MapReading
+from pymb.devices.mapreading import Blocks, MapReading
 from pymb.maps import Map
 
 __all__ = [
@@ -73,15 +73,11 @@ def map_reading(data: HubReading | CoolProTelemetry | MapReading) -> MapReading:
     if isinstance(data, MapReading):
         return data
     if isinstance(data, HubReading):
-        c, vals, sts = data.channels, data.values.tolist(), data.raw_states.tolist()
-        m = _hub_map(c)
-        values: dict[str, Any] = {}
-        states: dict[str, Any] = {}
-        for b, block in enumerate(BLOCKS):
-            values[block.name] = [None if v != v else v for v in vals[b * c:(b + 1) * c]]
-            states[block.name] = [STATE_NAMES[x] for x in sts[b * c:(b + 1) * c]]
-        gone = tuple(b.name for b in BLOCKS if b.name in data.unsupported)
-        return MapReading(m, "sweep", values, states, data.registers, gone)
+        b = Blocks([p.name for p in BLOCKS], data.channels, array("d", data.values),
+                   array("B", data.raw_states))
+        gone = tuple(p.name for p in BLOCKS if p.name in data.unsupported)
+        return MapReading(_hub_map(data.channels), "sweep", b.value_map(), b.state_map(),
+                          array("H", data.registers), gone)
     got: dict[str, Any] = telemetry_values(data)
     return MapReading(_COOLPRO, "telemetry", got,
                       {n: "value" if v is not None else "nan" for n, v in got.items()},

@@ -3,7 +3,9 @@ over the points of the device's map."""
 
 from __future__ import annotations
 
+import copy
 import math
+from array import array
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,7 +56,10 @@ def _points(data: MapReading
             ) -> tuple[Map, list[tuple[str, int]], Sequence[Any], Sequence[Any]]:
     """A reading as its map's points: the map, (name, values) of each point
     read (a block's channel by channel), and every value and state in that
-    order."""
+    order (a reading of blocks: the decoder's arrays, NaN and state codes)."""
+    b = data.blocks
+    if b is not None and list(b.index.values()) == [i * b.channels for i in range(len(b.names))]:
+        return data.map, [(n, b.channels) for n in b.names], b.values, b.states
     shape: list[tuple[str, int]] = []
     values: list[Any] = []
     states: list[Any] = []
@@ -114,7 +119,10 @@ class Changes:
         m, shape, vals, sts = _points(data)
         if shape != self.shape:
             self._reset(m, shape)
-        key = (vals, sts)  # what did not move since the previous reading is skipped
+        # what did not move since the previous reading is skipped (as bytes: NaN is
+        # NaN); a copy of a reading's arrays, which the next may be read into
+        key = (vals.tobytes(), sts.tobytes()) if isinstance(vals, array) and \
+            isinstance(sts, array) else (vals, sts)
         columns = len(self.due)
         if self.first:
             pick = set(range(columns))
@@ -125,7 +133,7 @@ class Changes:
             pick = self._moved_whole(vals, sts)
         if now >= self.next_due:
             pick.update(c for c in range(columns) if now >= self.due[c])
-        self.prev, self.prev_key = vals, key
+        self.prev, self.prev_key = copy.copy(vals), key
         if not pick:
             return []
         if not self.by_channel or len(pick) == columns:
@@ -163,8 +171,9 @@ class Changes:
         prev = self.prev
         (now_v, now_s), (old_v, old_s) = key, self.prev_key
         by_channel = self.by_channel
+        size = 8 if isinstance(now_v, bytes) else 1
         for lo, hi, band, counter in self.limits:
-            if now_v[lo:hi] == old_v[lo:hi] and \
+            if now_v[lo * size:hi * size] == old_v[lo * size:hi * size] and \
                     now_s[lo:hi] == old_s[lo:hi]:
                 continue  # nothing of this point moved since the previous reading
             for j, (a, pa, s, ps) in enumerate(zip(vals[lo:hi], prev[lo:hi], now_s[lo:hi],
