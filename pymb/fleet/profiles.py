@@ -30,9 +30,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pymb.devices.hub import HubReading
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES
+from pymb.devices.readings import INTEGRAL_QUANTITIES, map_reading
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
@@ -387,7 +386,8 @@ def write_name(metric: str) -> str:
 
 def _channels(r: StoredSample) -> int:
     """A hub sample's channels (0 for the others): a new count needs a new DBIRTH."""
-    return r.data.channels if isinstance(r.data, HubReading) else 0
+    b = map_reading(r.data).blocks
+    return 0 if b is None else b.channels
 
 
 def host_state(payload: bytes) -> tuple[bool, float] | None:
