@@ -140,7 +140,7 @@ class ModbusConnectionError(ModbusError, ConnectionError):
 
 class TlsError(ModbusConnectionError):
     """Modbus/TCP Security (``mbaps://``) failed: the server's certificate
-    was refused (expired, not signed by the CA given, made for another
+    was refused (expired, not signed by a CA trusted, made for another
     name), the server refused this client or its certificate, or the port
     does not speak TLS. The message says which, in one line."""
 

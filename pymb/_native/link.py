@@ -234,7 +234,7 @@ class Link:
             session.release()
             err = e.errno if isinstance(e, OSError) and not isinstance(
                 e, ssl.SSLError) and e.errno else errno.EPROTO
-            raise TlsError(f"cannot open {self.name}: {tls_words(e)}", errno=err,
+            raise TlsError(f"cannot open {self.name}: {tls_words(e, context)}", errno=err,
                            port=self.name) from None
         if lib.pymb_line_set_io(self._line, session.io) < 0:
             session.release()

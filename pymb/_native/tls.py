@@ -21,7 +21,7 @@ from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["TlsSession", "take_raised", "tls_words"]
+__all__ = ["ClientContext", "TlsSession", "take_raised", "tls_words"]
 
 _CHUNK = 65536  #: raw bytes taken from the socket at a time
 
@@ -48,16 +48,28 @@ _REASONS = {
 }
 
 
-# X509_V_ERR_*: a chain that does not lead to the CA given (or is self-signed).
+# X509_V_ERR_*: a chain that does not lead to the CAs trusted (or is self-signed).
 _NOT_SIGNED = frozenset((7, 18, 19, 20, 21))
 
 
-def tls_words(e: BaseException) -> str:
-    """A TLS failure in one line: what was refused and why."""
+class ClientContext(ssl.SSLContext):
+    """A client's :class:`ssl.SSLContext` that knows which CAs it trusts, so a
+    refused certificate can say them."""
+
+    #: the CA file given (None: the system's trusted CAs)
+    ca: str | None = None
+
+
+def tls_words(e: BaseException, context: ssl.SSLContext | None = None) -> str:
+    """A TLS failure in one line: what was refused and why. ``context`` (a
+    :class:`ClientContext`) names the CAs a certificate was checked against."""
     if isinstance(e, ssl.SSLCertVerificationError):
         why = (e.verify_message or str(e)).rstrip(".")
         if e.verify_code in _NOT_SIGNED:
-            why += " (not signed by the CA given)"
+            if isinstance(context, ClientContext) and context.ca is None:
+                why += " (not signed by any of the system's trusted CAs)"
+            else:
+                why += " (not signed by the CA given)"
         return f"the server's certificate was refused: {why}"
     if isinstance(e, ssl.SSLError):
         reason = e.reason or ""

@@ -8,6 +8,7 @@ import os
 import ssl
 from dataclasses import dataclass
 
+from pymb._native.tls import ClientContext
 from pymb.errors import InvalidArgument
 
 __all__ = ["MBAPS_PORT", "TlsConfig"]
@@ -88,7 +89,8 @@ class TlsConfig:
         ca = _path("ca", self.ca)
         cert = _path("cert", self.cert)
         key = _path("key", self.key)
-        ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+        ctx = ClientContext(ssl.PROTOCOL_TLS_CLIENT)
+        ctx.ca = ca
         ctx.minimum_version = ssl.TLSVersion.TLSv1_2
         ctx.check_hostname = self.check_hostname
         ctx.verify_mode = ssl.CERT_REQUIRED

@@ -75,13 +75,15 @@ def test_the_guides_wrong_name_exits_4_in_one_line(certs: Path, served: Served) 
 
 @pytest.mark.parametrize(("server", "ca", "words"), [
     ("server-expired", "ca.pem", "certificate has expired"),
-    ("server", "other/ca.pem", "not signed by the CA given"),
+    ("server", "other/ca.pem", "(not signed by the CA given)"),
+    ("server", None, "(not signed by any of the system's trusted CAs)"),
 ])
 def test_refused_server_certificates_exit_4_in_one_line(
-        certs: Path, sim: SimulatorProcess, server: str, ca: str, words: str) -> None:
+        certs: Path, sim: SimulatorProcess, server: str, ca: str | None, words: str) -> None:
+    cas = [] if ca is None else ["--ca", str(certs / ca)]
     with _serve(certs, sim, server) as s:
-        r = run_pymb("read", "coolpro:40", "--tcp", f"mbaps://127.0.0.1:{s.port}", "--ca",
-                     str(certs / ca), "--cert", str(certs / "operator.pem"), "--key",
+        r = run_pymb("read", "coolpro:40", "--tcp", f"mbaps://127.0.0.1:{s.port}", *cas,
+                     "--cert", str(certs / "operator.pem"), "--key",
                      str(certs / "operator.key"), timeout=60)
     assert r.returncode == 4, r.stderr
     assert r.stderr.count("\n") == 1, r.stderr

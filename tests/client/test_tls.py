@@ -149,6 +149,22 @@ def test_check_hostname_off_checks_the_signature_only(certs: Path,
         pymb.TcpClient("127.0.0.1", s.port, tls=other, slave=1, timeout=5).connect()
 
 
+def test_a_refusal_names_the_system_cas_when_no_ca_was_given(
+        certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, _ = served
+    system = pymb.TlsConfig(cert=certs / "operator.pem", key=certs / "operator.key",
+                            server_name="localhost")
+    with pytest.raises(pymb.TlsError) as e:
+        pymb.TcpClient("127.0.0.1", s.port, tls=system, slave=1, timeout=5).connect()
+    msg = str(e.value)
+    assert msg.endswith("(not signed by any of the system's trusted CAs)"), msg
+    assert "CA given" not in msg
+    given = _tls(certs, ca="other/ca.pem", server_name="localhost")
+    with pytest.raises(pymb.TlsError) as e:
+        pymb.TcpClient("127.0.0.1", s.port, tls=given, slave=1, timeout=5).connect()
+    assert str(e.value).endswith("(not signed by the CA given)"), str(e.value)
+
+
 def test_a_plain_modbus_tcp_port_is_named(certs: Path) -> None:
     # A plain Modbus TCP server takes the ClientHello for a bad request and
     # answers with an exception frame.
