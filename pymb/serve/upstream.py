@@ -56,9 +56,13 @@ class Upstream:
         """Start the upstream's thread."""
         self._thread.start()
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Finish the transaction under way, drop the rest (their clients are
-        gone with the server), close the line."""
+    def stop(self, timeout: float = 0.5) -> None:
+        """Drop the queued requests (their clients are gone with the server)
+        and wait at most ``timeout`` seconds for the transaction under way,
+        then the line's close. A transaction still waiting on a silent device
+        (its reply timeout may be long) is abandoned: the thread is a daemon
+        and closes the line when the transaction ends, or the process's exit
+        does."""
         while True:
             try:
                 self._jobs.get_nowait()
