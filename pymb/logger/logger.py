@@ -133,21 +133,45 @@ class _TcpPoller(_Crashes, TcpMapPoller):
 _YOUNG = 10_000
 
 
+class _Collector:
+    """The garbage collector's settings while runs last: the first run to
+    start sets them, the last to end gives back what the first found (runs
+    in threads of one process may end in any order)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.runs = 0
+        self.threshold = gc.get_threshold()
+
+
+_COLLECTOR = _Collector()
+
+
 @contextlib.contextmanager
 def _collector_quiet() -> Iterator[None]:
     """The garbage collector during a run. What exists when it starts (maps,
     plans, devices: most of the heap, and it lives as long as the run) is
     left out of its full passes; the young generation holds :data:`_YOUNG`
-    objects. Flat out at 100 TCP devices, a full pass over the heap took
-    35 ms every few seconds and the young ones 2 us a poll."""
-    threshold = gc.get_threshold()
-    gc.freeze()
-    gc.set_threshold(max(threshold[0], _YOUNG), *threshold[1:])
+    objects (automatic collection left off if it was off). Flat out at 100
+    TCP devices, a full pass over the heap took 35 ms every few seconds and
+    the young ones 2 us a poll."""
+    c = _COLLECTOR
+    with c.lock:
+        if c.runs == 0:
+            c.threshold = threshold = gc.get_threshold()
+            gc.freeze()
+            if threshold[0]:
+                gc.set_threshold(max(threshold[0], _YOUNG), *threshold[1:])
+        c.runs += 1
     try:
         yield
     finally:
-        gc.set_threshold(*threshold)
-        gc.unfreeze()
+        with c.lock:
+            c.runs -= 1
+            if c.runs == 0:
+                gc.set_threshold(*c.threshold)
+                gc.unfreeze()
+
 
 class Logger:
     """Runs the pollers and writes what they produce to one sink.
