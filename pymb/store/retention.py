@@ -212,7 +212,8 @@ class Retention:
         vacuum a little at a time; a file without it (as pymb makes them: no
         pointer-map page for every commit to rewrite) only at open
         (``vacuum``), by one VACUUM when the disk holds the copy it makes (the
-        pages in use, twice: its temporary database and the WAL). While
+        pages in use, twice: its temporary database and the WAL; a VACUUM
+        that finds no room for its copy leaves the file as it was). While
         logging such a file reuses its free pages and grows no more: a VACUUM
         then would put a copy of the whole file in the WAL, past the limit."""
         assert self.max_bytes is not None
@@ -238,7 +239,15 @@ class Retention:
         if st.f_bavail * st.f_frsize < need:
             return
         self.checkpoint()
-        self.db.execute("VACUUM")
+        try:
+            self.db.execute("VACUUM")
+        except sqlite3.Error as e:
+            # The copy is made in SQLite's temporary directory, which may be
+            # another disk than the database's (a small tmpfs /tmp): without
+            # room there the file keeps its size, as without room here.
+            if not is_storage_fault(e):
+                raise
+            return
         self.checkpoint()
 
     def _delete_oldest_events(self) -> int:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 import sqlite3
 import struct
+import subprocess
+import sys
 import time
 from array import array
 from pathlib import Path
@@ -191,3 +193,41 @@ def test_a_lower_size_limit_without_room_for_the_copy_reuses_the_file(tmp_path: 
             assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         finally:
             con.close()
+
+
+_OPEN = """import sys
+from pymb.store import SqliteSink
+sink = SqliteSink(sys.argv[1], max_bytes=3_000_000)
+print(sink.trimmed)
+sink.close()
+"""
+
+
+def test_a_vacuum_without_room_in_the_temporary_directory_keeps_the_file(
+        tmp_path: Path) -> None:
+    """The VACUUM builds its copy in SQLite's temporary directory, which may be
+    another, smaller disk (a tmpfs /tmp) than the database's: when the copy
+    finds no room there, the open goes on with the file as it is (it reuses
+    its free pages), as on a disk without room for the copy. A process of
+    its own with SQLITE_TMPDIR on a 256 KB tmpfs (needs root)."""
+    need_root()
+    db = tmp_path / "data.sqlite"
+    _filled(db, 3000)
+    size = os.path.getsize(db)
+    with Tmpfs(tmp_path / "tmp", 256) as tmp:
+        r = subprocess.run([sys.executable, "-c", _OPEN, str(db)], capture_output=True,
+                           text=True, timeout=120, check=False,
+                           env=dict(os.environ, SQLITE_TMPDIR=str(tmp.mountpoint)))
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout) > 0  # trimmed to the limit
+    assert os.path.getsize(db) == size
+    con = sqlite3.connect(db)
+    try:
+        assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    finally:
+        con.close()
+    # with room for the copy, the next open makes it smaller
+    r = subprocess.run([sys.executable, "-c", _OPEN, str(db)], capture_output=True,
+                       text=True, timeout=120, check=False)
+    assert r.returncode == 0, r.stderr
+    assert os.path.getsize(db) <= 3_000_000
