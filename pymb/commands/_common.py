@@ -37,6 +37,7 @@ __all__ = [
     "add_connection_args",
     "add_device_arg",
     "add_map_arg",
+    "add_serial_args",
     "alias_spec",
     "device_from_args",
     "device_help",
@@ -45,6 +46,7 @@ __all__ = [
     "parse_channels",
     "parse_numbers",
     "render",
+    "serial_options",
     "to_json",
 ]
 
@@ -186,14 +188,40 @@ def add_connection_args(p: argparse.ArgumentParser, *,
     where.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP (MBAP datagrams)")
     p.add_argument("--ascii", action="store_true",
                    help="Modbus ASCII instead of RTU on the --port serial line")
-    p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
-                   help=f"baud rate (default {DEFAULT_BAUD})")
-    p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"],
-                   help=f"parity (default {DEFAULT_PARITY})")
+    add_serial_args(p)
     p.add_argument("--timeout", type=float, default=timeout,
                    help=f"seconds to wait for a reply (default {timeout:g})")
     if tls:
         add_tls_args(p)
+
+
+def add_serial_args(p: argparse.ArgumentParser) -> None:
+    """--baud and --parity: the serial line's (--port PATH); :func:`serial_options`
+    refuses them with any other transport and fills in their defaults."""
+    p.add_argument("--baud", type=int, default=None,
+                   help=f"the serial line's baud rate, with --port (default {DEFAULT_BAUD})")
+    p.add_argument("--parity", default=None, choices=["N", "E", "O"],
+                   help=f"the serial line's parity, with --port (default {DEFAULT_PARITY})")
+
+
+def serial_options(args: argparse.Namespace) -> None:
+    """Refuse --baud/--parity without a serial line (--port PATH: they would
+    be ignored), then give them their defaults in ``args``."""
+    if not getattr(args, "port", None):
+        given = [f"--{k}" for k in ("baud", "parity") if getattr(args, k, None) is not None]
+        if given:
+            where = next((f"--{k.replace('_', '-')} {getattr(args, k)}"
+                          for k in ("tcp", "rtu_over_tcp", "udp", "config")
+                          if getattr(args, k, None)), "")
+            if where.startswith("--config"):
+                raise InvalidArgument(f"with --config, give {given[0]}'s value in the file's "
+                                      "[[bus]] table")
+            raise InvalidArgument(f"{given[0]} is for a serial line (--port PATH)"
+                                  + (f", not {where}" if where else ""))
+    if getattr(args, "baud", None) is None:
+        args.baud = DEFAULT_BAUD
+    if getattr(args, "parity", None) is None:
+        args.parity = DEFAULT_PARITY
 
 
 def add_tls_args(p: argparse.ArgumentParser) -> None:
@@ -243,6 +271,7 @@ def tls_from_args(args: argparse.Namespace) -> TlsConfig | None:
 def make_client(args: argparse.Namespace) -> Client:
     """The client the connection arguments describe (not yet open); a host
     name that does not resolve is said so."""
+    serial_options(args)
     if getattr(args, "ascii", False) and not args.port:
         raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with --port PATH")
     if getattr(args, "udp", None):

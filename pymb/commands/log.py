@@ -12,7 +12,13 @@ import argparse
 import math
 import sys
 
-from pymb.commands._common import add_alias_args, add_map_arg, add_tls_args, device_help
+from pymb.commands._common import (
+    add_alias_args,
+    add_map_arg,
+    add_serial_args,
+    add_tls_args,
+    device_help,
+)
 from pymb.commands.forward import log_and_forward
 from pymb.commands.logconfig import config_from
 from pymb.commands.status import StatusLine, status_text
@@ -23,7 +29,7 @@ from pymb.logger.config import COMMIT_BYTES, COMMIT_INTERVAL
 from pymb.service.journal import echoing
 from pymb.service.run import Service
 from pymb.store import FORMATS, check_output, open_sink
-from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
+from pymb.wire import DEFAULT_TIMEOUT
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,8 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", action="append", default=[], metavar="DEVICE",
                    help="the same as a DEVICE argument (repeatable)")
     add_alias_args(p, note="; with one DEVICE")
-    p.add_argument("--baud", type=int, default=DEFAULT_BAUD)
-    p.add_argument("--parity", default=DEFAULT_PARITY, choices=["N", "E", "O"])
+    add_serial_args(p)
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT, help="reply timeout, seconds")
     p.add_argument("--interval", type=float, default=0.0,
                    help="seconds between polls (default 0: as fast as the wire allows)")

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pymb.client import TlsConfig
-from pymb.commands._common import alias_spec, tls_for, tls_from_args
+from pymb.commands._common import alias_spec, serial_options, tls_for, tls_from_args
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.errors import InvalidArgument
@@ -78,6 +78,7 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     udp: str | None = getattr(args, "udp", None)
     ascii_line: bool = getattr(args, "ascii", False)
     mqtt_table: MqttConfig | None = None
+    serial_options(args)
     if args.config:
         if args.port or args.tcp or args.rtu_over_tcp or udp or ascii_line or specs:
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
