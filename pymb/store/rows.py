@@ -53,6 +53,11 @@ def stored_registers(data: MapReading) -> bytes:
     return out
 
 
+def _hub_channels(data: MapReading) -> int:
+    """The channels of a hub's sweep: its blocks', as its map was configured."""
+    return max((p.channels for p in data.map.points.values() if p.block), default=HUB_STRIDE)
+
+
 def unsupported_of(data: MapReading) -> int:
     """The ``unsupported`` column: the points refused (bit i: the group's
     i-th point; a hub's blocks)."""
@@ -114,8 +119,9 @@ class DeviceIds:
         channels, units, tenths = 0, "", b""
         if mapped:
             units = map_layout_key(data.group, d.map_options)
-        elif d.type == "hub":
-            channels = d.channels or HUB_STRIDE
+        elif d.type == "hub":  # its channels, or as read (DeviceInfo.channels 0)
+            channels = d.channels or (_hub_channels(data) if isinstance(data, MapReading)
+                                      else HUB_STRIDE)
             units, tenths = humidity_units(d, channels)
         key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
         self._begin()
