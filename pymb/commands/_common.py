@@ -206,7 +206,12 @@ def add_serial_args(p: argparse.ArgumentParser) -> None:
 
 def serial_options(args: argparse.Namespace) -> None:
     """Refuse --baud/--parity without a serial line (--port PATH: they would
-    be ignored), then give them their defaults in ``args``."""
+    be ignored), then give them their defaults in ``args``. Once per command
+    line: a command may make its client again (``config`` after a reset,
+    ``log`` for a SunSpec discovery) with the defaults filled in."""
+    if getattr(args, "serial_checked", False):
+        return
+    args.serial_checked = True
     if not getattr(args, "port", None):
         given = [f"--{k}" for k in ("baud", "parity") if getattr(args, k, None) is not None]
         if given:

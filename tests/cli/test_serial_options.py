@@ -8,6 +8,8 @@ from __future__ import annotations
 import pytest
 from conftest import run_pymb
 
+from pymb.sim import SimulatorProcess
+
 #: each family of commands that talks to a device, on a transport given last
 COMMANDS = [
     ["read", "coolpro:40"],
@@ -46,3 +48,15 @@ def test_log_with_a_config_file_names_its_bus_table(tmp_path: object) -> None:
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip().endswith("with --config, give --baud's value in the file's "
                                      "[[bus]] table"), r.stderr
+
+
+def test_a_command_that_opens_its_transport_twice_is_not_refused() -> None:
+    """The check runs once per command line: ``pymb config`` opens a second
+    client to verify the device after its reset (and ``pymb log`` a SunSpec
+    device's for discovery), which must not find the defaults filled in by
+    the first one and refuse them as given."""
+    with SimulatorProcess(["coolpro:40", "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        r = run_pymb("config", "coolpro:40", "--set-address", "41", "--reset", "--yes",
+                     "--tcp", sim.endpoint, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "verified: the CoolPro answers at address 41" in r.stdout
