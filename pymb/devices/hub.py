@@ -148,22 +148,31 @@ def units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float,
 
 def _other_units(r: HubReading, unit: float, other: bytes) -> None:
     """Channel humidity of the channels whose unit is not ``unit`` (1 in
-    ``other``), decoded again from the raw registers ([HUB] 3, [NOTES]:
-    0x00FF is no humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
-    c = r.channels
-    regs, values, states = r.registers, r.values, r.raw_states
-    first = BLOCKS[block_index("humidity_pct")].address - _FIRST
+    ``other``), decoded again from the raw registers."""
+    humidity_in_other_unit(r.registers, r.values, r.raw_states, r.channels, unit, other)
+
+
+_HUMIDITY = BLOCKS[block_index("humidity_pct")].address - _FIRST
+
+
+def humidity_in_other_unit(registers: Sequence[int], values: Any, states: Any, at: int,
+                           unit: float, other: bytes) -> None:
+    """The one rule for a channel whose humidity unit is not ``unit`` (1 in
+    ``other``): its humidity (``values``/``states`` from ``at`` on, channel
+    by channel) decoded again from the sweep's raw registers 31...
+    ([HUB] 3, [NOTES]: 0x00FF is no humidity in the 1 % unit, 0x8000 in
+    the 0.1 % unit)."""
     for i, flag in enumerate(other):
-        if not flag or states[c + i] not in _DECODED:
+        if not flag or states[at + i] not in _DECODED:
             continue
-        raw = regs[first + i]
+        raw = registers[_HUMIDITY + i]
         if raw == 0xFFFF:
             continue  # offline in either unit
         if raw == (0x8000 if unit == 1.0 else 0x00FF):
-            values[c + i], states[c + i] = math.nan, State.NO_SENSOR
+            values[at + i], states[at + i] = math.nan, State.NO_SENSOR
         else:
-            values[c + i] = raw / 10 if unit == 1.0 else float(raw)
-            states[c + i] = State.VALUE
+            values[at + i] = raw / 10 if unit == 1.0 else float(raw)
+            states[at + i] = State.VALUE
 
 
 _DECODED = (State.VALUE, State.NO_SENSOR)

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from pymb.client import Client
-from pymb.devices.hub import busy_error, hub_device, units
-from pymb.devices.hubreading import BLOCKS, CHANNELS, block_index
+from pymb.devices.hub import busy_error, hub_device, humidity_in_other_unit, units
+from pymb.devices.hubreading import BLOCKS, CHANNELS
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import Blocks, MapReading
 from pymb.errors import DeviceFailure
@@ -22,10 +22,7 @@ from pymb.maps.types import STATES
 __all__ = ["SweepReader"]
 
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
-_HUMIDITY = BLOCKS[block_index("humidity_pct")].address - _FIRST
 _BUSY_RETRIES = 3
-_VALUE, _NO_SENSOR = STATES.index("value"), STATES.index("no_sensor")
-_DECODED = (_VALUE, _NO_SENSOR)
 _UNSUPPORTED = bytes([STATES.index("unsupported")])
 
 
@@ -101,21 +98,7 @@ class SweepReader:
         return MapReading(self.device.map, None, values, states, regs, missing)
 
     def _other_units(self, b: Blocks, registers: Sequence[int]) -> None:
-        """Channel humidity of the channels whose unit is not the map's,
-        decoded again from the raw registers 31... ([HUB] 3, [NOTES]: 0x00FF
-        is no humidity in the 1 % unit, 0x8000 in the 0.1 % unit)."""
+        """Channel humidity of the channels whose unit is not the map's."""
         at = b.index.get("humidity_pct")
-        if at is None:
-            return
-        values, states, unit = b.values, b.states, self.unit
-        for i, flag in enumerate(self.other):
-            if not flag or states[at + i] not in _DECODED:
-                continue
-            raw = registers[_HUMIDITY + i]
-            if raw == 0xFFFF:
-                continue  # offline in either unit
-            if raw == (0x8000 if unit == 1.0 else 0x00FF):
-                values[at + i], states[at + i] = math.nan, _NO_SENSOR
-            else:
-                values[at + i] = raw / 10 if unit == 1.0 else float(raw)
-                states[at + i] = _VALUE
+        if at is not None:
+            humidity_in_other_unit(registers, b.values, b.states, at, self.unit, self.other)
