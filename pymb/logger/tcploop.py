@@ -161,16 +161,20 @@ class TcpMapPoller(TcpLoopBase):
             if not e.slot.due(now):
                 self._agenda.put(e.slot, e, e.slot.wake(now))
                 continue
-            c.entry = e
-            c.todo = e.requests()
-            c.table = e.table
-            c.sent = 0
-            if c.unread:
-                c.unread.clear()
-            if not c.todo:  # every point refused: the poll reads nothing
-                self._done(c, e, now)
-                return  # (a flat-out one again after the next select, not in a loop here)
-            self._send(c, now)
+            self._begin(c, e, now)
+
+    def _begin(self, c: Conn, e: Entry, now: float) -> None:
+        """Start a poll of ``e`` on ``c`` (open and idle)."""
+        c.entry = e
+        c.todo = e.requests()
+        c.table = e.table
+        c.sent = 0
+        if c.unread:
+            c.unread.clear()
+        if not c.todo:  # every point refused: the poll reads nothing
+            self._done(c, e, now)
+            return  # (a flat-out one again after the next select, not in a loop here)
+        self._send(c, now)
 
     def _send(self, c: Conn, now: float) -> None:
         """Send the poll's next requests: as many as the pipeline has room
@@ -271,7 +275,13 @@ class TcpMapPoller(TcpLoopBase):
                 return  # (waiting for a silence)
             if c.whole:
                 c.took += (now - c.sent_at - c.took) / 8
-            self._done(c, e, now)
+            self._sample(c, e, now)
+            slot = e.slot
+            if (not slot.interval and not slot.once and not c.waiting and c.loan is None
+                    and c.state == "open" and now >= slot.health.retry_at):
+                self._begin(c, e, now)  # flat out, no other poll waiting: at once again
+                return
+            self._requeue(c, e, now)
             self._next(c, now)
         else:
             c.deadline = now + u.timeout  # the rest of the poll's replies are on their way
@@ -282,17 +292,21 @@ class TcpMapPoller(TcpLoopBase):
 
     def _done(self, c: Conn, e: Entry, now: float) -> None:
         """A poll read every request: its sample; the group's next slot."""
+        self._sample(c, e, now)
+        self._requeue(c, e, now)
+
+    def _sample(self, c: Conn, e: Entry, now: float) -> None:
+        """A poll read every request: its sample (the connection is idle)."""
         u = e.unit
         c.entry = None
         c.whole = False
-        unread = u.planner.unsupported
+        unread = e.unsupported()
         if unread or c.unread:
             unread = (unread | c.unread) & e.decode.items
         reading = lazy_reading(e.decode, bytes(e.image), unread)
         report = self.report
         report.sample(new_sample(u.info, time.time(), now, reading))
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
-        self._requeue(c, e, now)
 
     def _requeue(self, c: Conn, e: Entry, now: float) -> None:
         """After a poll (or a failed one): the group's next slot (whole slots

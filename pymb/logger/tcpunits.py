@@ -248,6 +248,9 @@ class Entry:
     image: bytearray = field(default_factory=bytearray)
     #: :attr:`specs` made ready for the C master
     table: PollTable | None = None
+    #: the planner's unsupported items as of its version ``_seen``
+    _unread: frozenset[int] = frozenset()
+    _seen: int = -1
 
     @classmethod
     def of(cls, unit: Unit, group: str | None, interval: float, once: bool,
@@ -273,6 +276,14 @@ class Entry:
             self.table = self.table_of(self.specs)
             self.plan = plan
         return self.specs
+
+    def unsupported(self) -> frozenset[int]:
+        """The items the unit's planner leaves out for now (taken again only
+        when the planner changed)."""
+        p = self.unit.planner
+        if p.version != self._seen:
+            self._unread, self._seen = p.unsupported, p.version
+        return self._unread
 
     def table_of(self, specs: list[PollRequest]) -> PollTable:
         """``specs`` (this group's) made ready for the C master."""
