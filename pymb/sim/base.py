@@ -71,6 +71,19 @@ def _noise(*keys: int) -> float:
     return h / 18446744073709551616.0
 
 
+def episode(key: int, salt: int, window: int, window_s: float, probability: float,
+            longest_s: float) -> tuple[float, float] | None:
+    """The one episode (start, end) that window number ``window`` of
+    ``window_s`` seconds has with ``probability`` (None: none), 5 s to
+    ``longest_s`` long, somewhere in it; drawn from ``key`` with salts
+    ``salt`` to ``salt + 2``."""
+    if _noise(key, salt, window) >= probability:
+        return None
+    length = 5.0 + (longest_s - 5.0) * _noise(key, salt + 1, window)
+    start = window * window_s + (window_s - length) * _noise(key, salt + 2, window)
+    return start, start + length
+
+
 def sign_magnitude(tenths: int) -> int:
     """Encode tenths of a degree as [HUB] 3 does: bit 15 sign, bits 14..0
     magnitude. The magnitude is capped so the result is never 0xFFFF."""

@@ -15,7 +15,7 @@ from pymb import maps
 from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
-from pymb.sim.base import _TWO_PI, Keys, _locked, _noise, parse_firmware
+from pymb.sim.base import _TWO_PI, Keys, _locked, _noise, episode, parse_firmware
 from pymb.sim.clock import SimClock
 from pymb.sim.mapsim import MapSimDevice
 
@@ -79,7 +79,6 @@ class CoolProDevice(MapSimDevice):
             raise InvalidArgument(f"coolpro firmware is major.minor.patch, got {firmware!r}")
         self.startup_seconds = float(startup_seconds)
         self.resets = 0  #: resets done (commands and :meth:`reset`)
-        self._forced: dict[int, float] = {}  # status bit -> simulated expiry
         self._boot = 0.0
         super().__init__(_MAP, address, baud=baud, seed=seed, clock=clock, dynamic=dynamic,
                          delay=gap, firmware=".".join(map(str, fw)))
@@ -126,27 +125,14 @@ class CoolProDevice(MapSimDevice):
         """Seconds since the last reset (simulated)."""
         return self.clock.now() - self._boot
 
-    @_locked
-    def set_identity(self, **values: int) -> None:
-        """Set identity points by name (``serial_number=...``, ``firmware_major=...``)."""
-        for name, value in values.items():
-            if self._point(name)[0].group != "identity":
-                raise InvalidArgument(f"{name} is not an identity point")
-            self._put_raw(name, value)
-
-    @_locked
     def set_status(self, mask: int, seconds: float | None = None) -> None:
         """Raise the status bits in ``mask`` (reserved bits 7..15 too), for
         ``seconds`` of simulated time or until :meth:`clear_status`."""
-        if not 0 < mask <= 0xFFFF:
-            raise InvalidArgument(f"status mask must be 1..0xFFFF, got {mask!r}")
-        until = math.inf if seconds is None else self.clock.now() + seconds
-        self._forced.update({1 << b: until for b in range(16) if mask & 1 << b})
+        self.set_flags("status", mask, seconds)
 
-    @_locked
     def clear_status(self, mask: int = 0xFFFF) -> None:
         """Drop bits raised by :meth:`set_status` (the model's own stay)."""
-        self._forced = {b: t for b, t in self._forced.items() if not b & mask}
+        self.clear_flags("status", mask)
 
     @_locked
     def reset(self) -> None:
@@ -178,15 +164,12 @@ class CoolProDevice(MapSimDevice):
         bits = (_BIT["SYSTEM_STARTUP"] if up < self.startup_seconds else 0) | (
             _BIT["DAILY_RESET"] if up >= self.DAILY_RESET_S else 0)
         # one chance per window of a fault episode of 5..45 s, somewhere in it
-        w, s = int(t // self.EPISODE_WINDOW_S), self.seed
-        if self.dynamic and _noise(s, 11, w) < self.EPISODE_PROBABILITY:
-            length = 5.0 + 40.0 * _noise(s, 12, w)
-            start = w * self.EPISODE_WINDOW_S + (self.EPISODE_WINDOW_S - length) * _noise(
-                s, 13, w)
-            if start <= t < start + length:
-                bits |= _EPISODES[int(_noise(s, 14, w) * len(_EPISODES))]
-        self._forced = {b: until for b, until in self._forced.items() if until > t}
-        return bits | sum(self._forced)
+        w = int(t // self.EPISODE_WINDOW_S)
+        ep = episode(self.seed, 11, w, self.EPISODE_WINDOW_S, self.EPISODE_PROBABILITY, 45.0) \
+            if self.dynamic else None
+        if ep is not None and ep[0] <= t < ep[1]:
+            bits |= _EPISODES[int(_noise(self.seed, 14, w) * len(_EPISODES))]
+        return bits | self._raised("status", t)
 
     def _load_ma(self, step: int) -> float:
         levels = (1500.0, 2400.0, 3200.0, 3200.0, 4100.0, 5600.0)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import bisect
 import math
 import random
-from array import array
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import ClassVar
@@ -27,6 +26,7 @@ from pymb.sim.base import (
     _locked,
     _mix,
     _noise,
+    episode,
     parse_firmware,
     sign_magnitude,
 )
@@ -38,8 +38,6 @@ __all__ = ["Channel", "HubDevice"]
 _MAP = maps.builtin("hub")
 _BLOCKS = tuple(_MAP.points.values())
 _ADDRESS = tuple(p.address for p in _BLOCKS)  # each block's first register
-_FIRST = min(_ADDRESS)
-_COUNT = max(p.address + p.channels * p.stride for p in _BLOCKS) - _FIRST
 _N = max(p.channels for p in _BLOCKS)
 #: V1.07 and below: 50 channels of these blocks only
 _LEGACY = ((1, 7), 50, ("temperature_c", "humidity_pct"))
@@ -124,8 +122,6 @@ class HubDevice(MapSimDevice):
         self._models = [self._seeded_model(ci) for ci in range(_N)]
         self._by_phase = sorted(range(_N), key=lambda ci: self._models[ci][1])
         self._phases = [self._models[ci][1] for ci in self._by_phase]
-        self._forced: dict[int, bool] = {}  # channel index -> offline (True) / online
-        self._offline_until: dict[int, float] = {}  # channel index -> simulated expiry
         self._episodes = [(-1, 0.0, 0.0)] * _N  # channel index -> (window, start, end)
         self._now()
 
@@ -147,15 +143,6 @@ class HubDevice(MapSimDevice):
         if self._firmware and parse_firmware(self._firmware) <= _LEGACY[0]:
             return _LEGACY[1] if p.name in _LEGACY[2] else 0
         return super()._channels_of(p)
-
-    @property
-    def channels(self) -> int:
-        """Channels the firmware serves (50 on V1.07 and below, else 100)."""
-        return max(self._channels_of(p) for p in _BLOCKS)
-
-    def supports(self, block: str) -> bool:
-        """True when the firmware has ``block`` (a block's name)."""
-        return block in _MAP.points and self._channels_of(_MAP.points[block]) > 0
 
     def channel(self, channel: int) -> Channel:
         """The configuration of ``channel`` (1-based); a copy."""
@@ -187,29 +174,8 @@ class HubDevice(MapSimDevice):
         decoder's ``humidity_tenths`` argument)."""
         return bytes(c.humidity_tenths for c in self._channels)
 
-    @_locked
-    def set_offline(self, channel: int | Iterable[int], offline: bool | None = True,
-                    seconds: float | None = None) -> None:
-        """Force ``channel`` offline (True), online (False, no episodes) or
-        back to the value model (None); with ``seconds``, offline for that
-        long in simulated time."""
-        now = self.clock.now()
-        for ci in self._cis(channel):
-            if seconds is not None and offline:
-                self._offline_until[ci] = now + seconds
-            else:
-                self._offline_until.pop(ci, None)
-                if offline is None:
-                    self._forced.pop(ci, None)
-                else:
-                    self._forced[ci] = bool(offline)
-            self._update(ci, now)
-
-    @_locked
-    def registers(self, address: int = _FIRST, count: int = _COUNT) -> array[int]:
-        """The register image now (whatever the firmware lacks included)."""
-        self._now()
-        return self._images["holding"][address:address + count]
+    def _channel_changed(self, ci: int, t: float) -> None:
+        self._update(ci, t)
 
     @_locked
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
@@ -235,15 +201,6 @@ class HubDevice(MapSimDevice):
 
     # -- the value model -------------------------------------------------------------------
 
-    @staticmethod
-    def _cis(channel: int | Iterable[int] | None) -> list[int]:
-        chans = list(range(1, _N + 1) if channel is None else
-                     [channel] if isinstance(channel, int) else channel)
-        bad = [c for c in chans if not 1 <= c <= _N]
-        if bad:
-            raise InvalidArgument(f"channel must be 1..{_N}, got {bad[0]!r}")
-        return [c - 1 for c in chans]
-
     def _seeded_channel(self, ci: int, tenths: bool) -> Channel:
         u = _noise(self.seed, 100, ci)
         # 10 % unpaired, 45 % temperature and humidity, 20 % temperature only,
@@ -265,19 +222,13 @@ class HubDevice(MapSimDevice):
                 3000.0 + 600.0 * u[9], -45.0 - 50.0 * u[10], temp + 20.0 * (u[11] - 0.5))
 
     def _offline(self, ci: int, t: float) -> bool:
-        forced = self._forced.get(ci)
-        if forced is not None:
-            return forced
-        if ci in self._offline_until or not self.dynamic:
-            return ci in self._offline_until
+        held = self._held_offline(ci)
+        if held is not None or not self.dynamic:
+            return bool(held)
         w = int(t // self.OFFLINE_WINDOW_S)
         if self._episodes[ci][0] != w:  # one offline episode at most per window, drawn once
-            key, start, end = int(self._models[ci][0]), 0.0, 0.0
-            if _noise(key, 300, w) < self.OFFLINE_PROBABILITY:
-                length = 5.0 + 55.0 * _noise(key, 301, w)
-                start = w * self.OFFLINE_WINDOW_S + (self.OFFLINE_WINDOW_S - length) * _noise(
-                    key, 302, w)
-                end = start + length
+            start, end = episode(int(self._models[ci][0]), 300, w, self.OFFLINE_WINDOW_S,
+                                 self.OFFLINE_PROBABILITY, 60.0) or (0.0, 0.0)
             self._episodes[ci] = (w, start, end)
         return self._episodes[ci][1] <= t < self._episodes[ci][2]
 

@@ -15,8 +15,14 @@ exception 03); anything else is refused. A broadcast write is carried out.
 A point whose ``min_firmware`` is above the device's ``firmware`` is absent.
 
 The ``sensor`` fault puts a point that has ``markers`` (or a float's NaN) in
-its no-value state for a while: ``channels`` names channels of a block;
-:meth:`MapSimDevice.pin` holds a read-only point at a raw value.
+its no-value state for a while: ``channels`` names channels of a block.
+A test holds values from the map alone: :meth:`MapSimDevice.pin` a
+read-only point at a raw value, :meth:`~MapSimDevice.set_flags` bits of a
+point with ``flags``, :meth:`~MapSimDevice.set_offline` a channel (each
+block's ``offline`` marker), :meth:`~pymb.sim.mapimage.MapImage.set_identity`
+a point of the ``identity`` group. The registers, the firmware's points
+and channels are :class:`~pymb.sim.mapimage.MapImage`'s, the seeded model
+:mod:`pymb.sim.seeded`'s.
 
 A device with behaviours of its own (the CoolPro, the sensor hub) is a
 subclass: it narrows :attr:`MapSimDevice.functions`, picks the exception
@@ -32,34 +38,28 @@ import math
 import random
 import struct
 from array import array
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import ClassVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
-from pymb.maps import Map, MapError, Point
-from pymb.maps.codec import _pattern, _to_regs, decode_one, encode
-from pymb.maps.types import SF_RANGE, TYPES
-from pymb.sim.base import (
-    Device,
-    ExceptionCode,
-    Keys,
-    _locked,
-    _swapped,
-    exception_pdu,
-    parse_firmware,
-)
+from pymb.maps import Map, Point
+from pymb.maps.codec import decode_one, encode
+from pymb.maps.types import TYPES
+from pymb.sim.base import ExceptionCode, Keys, _locked, _swapped, exception_pdu
 from pymb.sim.clock import SimClock
+from pymb.sim.mapimage import TABLES as _TABLE
+from pymb.sim.mapimage import MapImage
+from pymb.sim.seeded import Wander, first_value, value_at
 
 __all__ = ["MapSimDevice"]
 
-_TABLE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
 
 
-class MapSimDevice(Device):
+class MapSimDevice(MapImage):
     """The device ``m`` describes, at ``address``; values from each point's
     ``example`` or the model seeded by ``seed``. ``firmware``: the version
     it runs (points with a higher ``min_firmware`` are absent; "" has all)."""
@@ -68,8 +68,6 @@ class MapSimDevice(Device):
     functions: ClassVar[frozenset[int] | None] = None
     #: the exception code of a malformed request or a quantity outside 1..max
     bad_request: ClassVar[int] = ExceptionCode.ILLEGAL_DATA_VALUE
-    #: the map's ``readable`` ranges answer (zeros) besides its points
-    answers_readable: ClassVar[bool] = True
     #: a device with behaviours of its own: its shipped map, the keys of its
     #: spec beside :data:`SIM_KEYS`, and map options it refuses (key -> why)
     builtin_map: ClassVar[Map]
@@ -79,13 +77,7 @@ class MapSimDevice(Device):
     def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
                  seed: int = 0, clock: SimClock | None = None, dynamic: bool = True,
                  delay: float | tuple[float, float] = 0.0, firmware: str = "") -> None:
-        address = m.device.default_address if address is None else address
-        lo, hi = m.device.addresses
-        if isinstance(address, bool) or not isinstance(address, int) or not lo <= address <= hi:
-            raise InvalidArgument(f"{m.id} address must be {lo}..{hi}, got {address!r}")
-        super().__init__(address, baud=baud, seed=seed, clock=clock)
-        self.map = m
-        self.kind = m.id  # type: ignore[misc]
+        super().__init__(m, address, baud=baud, seed=seed, clock=clock)
         self.dynamic = dynamic
         span = delay if isinstance(delay, tuple) else (delay, delay)
         if not 0.0 <= span[0] <= span[1] <= 60.0:
@@ -93,20 +85,19 @@ class MapSimDevice(Device):
                                   f"got {delay!r}")
         #: seconds from a request's end to the reply (a range: drawn per request)
         self.delay = delay
-        self._images = {t: array("H", bytes(2 * 0x10000)) for t in _TABLE.values()}
-        self._have = {t: bytearray(0x10000) for t in _TABLE.values()}
-        #: (name, channel) -> (point, address), for _put_raw
-        self._where: dict[tuple[str, int], tuple[Point, int]] = {}
-        self._firmware = ""
         if firmware:
             self.firmware = firmware
         else:
             self._build_have()
-        self._model: list[tuple[Point, int, float, float, float]] = []
+        self._model: list[tuple[Point, int, Wander]] = []
         self._t0 = self.clock.now()  # counters count from here
         self._faulted: dict[tuple[str, int], tuple[float, list[int]]] = {}  # -> until, regs
         self._pinned: set[tuple[str, int]] = set()  # written: the model leaves them be
         self._pins: dict[tuple[str, int], tuple[int, list[int]]] = {}  # -> raw, regs before
+        self._flags: dict[str, dict[int, float]] = {}  # flags point -> raised bit -> until
+        self._flags_added: dict[str, int] = {}  # flags point -> bits raised over its value
+        self._forced: dict[int, bool] = {}  # channel index -> offline (True) / online
+        self._offline_until: dict[int, float] = {}  # channel index -> simulated expiry
         self._updated = -math.inf
         self._start(random.Random(seed))
 
@@ -117,69 +108,7 @@ class MapSimDevice(Device):
         and :attr:`spec_keys` as constructor arguments)."""
         return cls(target.map, target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type]
 
-    # -- what the device has -------------------------------------------------------------
-
-    @property
-    def firmware(self) -> str:
-        """The firmware version; setting it adds or removes the points whose
-        ``min_firmware`` it reaches or not."""
-        return self._firmware
-
-    @firmware.setter
-    @_locked
-    def firmware(self, version: str) -> None:
-        parse_firmware(version)  # refuses what does not look like 2.19
-        self._firmware = version.strip().lstrip("vV")
-        self._build_have()
-
-    def _build_have(self) -> None:
-        """Which registers answer: the points the firmware has (and ``readable``)."""
-        have = {t: bytearray(0x10000) for t in _TABLE.values()}
-        if self.answers_readable:
-            for t, ranges in self.map.limits.readable.items():
-                for lo, hi in ranges:
-                    have[t][lo:hi + 1] = b"\x01" * (hi + 1 - lo)
-        for p in self.map.points.values():
-            for c in range(1, self._channels_of(p) + 1):
-                a = p.address_of(c)
-                have[p.table][a:a + p.count] = b"\x01" * p.count
-        self._have = have
-
-    def _channels_of(self, p: Point) -> int:
-        """How many channels of ``p`` the device has (0: none) at its firmware."""
-        if self._firmware and p.min_firmware and \
-                parse_firmware(p.min_firmware) > parse_firmware(self._firmware):
-            return 0
-        return p.channels
-
-    def _point(self, name: str, channel: int = 1) -> tuple[Point, int]:
-        """The point ``name`` and the address of its ``channel``; unknown
-        ones are an :class:`~pymb.InvalidArgument` naming the closest."""
-        try:
-            p = self.map.point(name)
-            return p, p.address_of(channel)
-        except MapError as e:
-            raise InvalidArgument(str(e)) from None
-
-    @_locked
-    def raw(self, name: str, channel: int = 1) -> int:
-        """The registers of point ``name`` (its ``channel``) as a read now
-        returns them, as one unsigned number (the point's order applied)."""
-        p, a = self._point(name, channel)
-        self._now()
-        return _pattern(p, self._images[p.table][a:a + p.count])
-
-    def _put_raw(self, name: str, raw: int, channel: int = 1) -> None:
-        """Store ``raw`` (an unsigned number, as :meth:`raw` gives) in point ``name``."""
-        where = self._where.get((name, channel))
-        if where is None:
-            where = self._where[(name, channel)] = self._point(name, channel)
-        p, a = where
-        img = self._images[p.table]
-        if p.count == 1 and p.order == "AB":
-            img[a] = raw & 0xFFFF
-        else:
-            img[a:a + p.count] = array("H", _to_regs(p, raw & ((1 << 16 * p.count) - 1)))
+    # -- held values ----------------------------------------------------------------------
 
     @_locked
     def pin(self, name: str, *where: int) -> None:
@@ -202,9 +131,92 @@ class MapSimDevice(Device):
                 del self._pins[(n, c)]
         self._updated = -math.inf  # the next read brings them up to date
 
+    @_locked
+    def set_flags(self, name: str, mask: int, seconds: float | None = None) -> None:
+        """Raise the bits in ``mask`` of read-only flags point ``name``
+        (undeclared bits too), for ``seconds`` of simulated time or until
+        :meth:`clear_flags`; they read raised over the point's own value."""
+        p = self._point(name)[0]
+        if p.writable or not p.flags:
+            raise InvalidArgument(f"{name} is not a read-only point with flags")
+        top = (1 << 16 * p.count) - 1
+        if not 0 < mask <= top:
+            raise InvalidArgument(f"{name} mask must be 1..0x{top:X}, got {mask!r}")
+        until = math.inf if seconds is None else self.clock.now() + seconds
+        self._flags.setdefault(name, {}).update(
+            {1 << b: until for b in range(16 * p.count) if mask >> b & 1})
+
+    @_locked
+    def clear_flags(self, name: str, mask: int = -1) -> None:
+        """Drop bits of ``name`` raised by :meth:`set_flags` (all by default)."""
+        self._point(name)
+        self._flags[name] = {b: t for b, t in self._flags.get(name, {}).items() if not b & mask}
+
+    def _raised(self, name: str, t: float) -> int:
+        """The bits of flags point ``name`` raised by :meth:`set_flags` at time ``t``."""
+        forced = self._flags.get(name)
+        if not forced:
+            return 0
+        self._flags[name] = forced = {b: until for b, until in forced.items() if until > t}
+        return sum(forced)
+
+    @_locked
+    def set_offline(self, channel: int | Iterable[int], offline: bool | None = True,
+                    seconds: float | None = None) -> None:
+        """Force ``channel`` offline (True), online (False) or back to the
+        value model (None); with ``seconds``, offline for that long in
+        simulated time. Offline, every block with an ``offline`` marker reads
+        it on that channel."""
+        now = self.clock.now()
+        for ci in self._cis(channel):
+            if seconds is not None and offline:
+                self._offline_until[ci] = now + seconds
+            else:
+                self._offline_until.pop(ci, None)
+                if offline is None:
+                    self._forced.pop(ci, None)
+                else:
+                    self._forced[ci] = bool(offline)
+            self._channel_changed(ci, now)
+
+    def _held_offline(self, ci: int) -> bool | None:
+        """Channel index ``ci`` held offline (True) or online (False) by
+        :meth:`set_offline`; None: the value model says."""
+        forced = self._forced.get(ci)
+        return forced if forced is not None else True if ci in self._offline_until else None
+
+    def _channel_changed(self, ci: int, t: float) -> None:
+        """Channel index ``ci`` was set offline or back at time ``t``: its
+        blocks' ``offline`` markers, held as a sensor fault is."""
+        off = bool(self._held_offline(ci))
+        until = math.inf if self._forced.get(ci) else self._offline_until.get(ci, math.inf)
+        for p in self.map.points.values():
+            raw = next((r for r, state in p.markers.items() if state == "offline"), None)
+            key = (p.name, ci + 1)
+            if raw is None or not p.block or ci >= p.channels:
+                continue
+            a = p.address_of(ci + 1)
+            img = self._images[p.table]
+            if off:
+                before = self._faulted.get(key, (0.0, list(img[a:a + p.count])))[1]
+                self._put_raw(p.name, raw, ci + 1)
+                self._faulted[key] = (until, before)
+            elif key in self._faulted:
+                img[a:a + p.count] = array("H", self._faulted.pop(key)[1])
+
     def _now(self) -> None:
-        """Bring every value to the clock's time: the model's, then the pins."""
+        """Bring every value to the clock's time: the model's, raised flags, then the pins."""
         self._refresh()
+        if self._flags or self._flags_added:
+            t = self.clock.now()
+            for name in {*self._flags, *self._flags_added}:
+                bits = self._raised(name, t)
+                p, a = self._point(name)
+                raw = self._raw(p, a) & ~self._flags_added.pop(name, 0)
+                if bits & ~raw:
+                    self._flags_added[name] = bits & ~raw
+                self._put_raw(name, raw | bits)
+            self._flags = {n: f for n, f in self._flags.items() if f}
         for (name, c), (raw, _) in self._pins.items():
             self._put_raw(name, raw, c)
 
@@ -231,77 +243,14 @@ class MapSimDevice(Device):
                 if p.example is not None or not any(shown[p.table][a:a + p.count]):
                     self._init(p, c, rng)
 
-    def _put(self, p: Point, channel: int, value: object) -> None:
-        a = p.address_of(channel)
-        img = self._images[p.table]
-        current = list(img[a:a + p.count])
-        sf = self._sf_of(p)
-        if p.scale_from is not None and sf is None:
-            return  # the scale factor says "not implemented": the raw value stays
-        regs = encode(p, value, current=current, check_access=False, sf=sf)
-        img[a:a + len(regs)] = array("H", regs)
-
-    def _sf_of(self, p: Point) -> int | None:
-        """The scale factor a ``scale_from`` point has now (None: none, or
-        not implemented)."""
-        if p.scale_from is None:
-            return None
-        q = self.map.points[p.scale_from]
-        v = self.map.decode(q.name, self._images[q.table][q.address:q.address + 1])
-        return v if isinstance(v, int) and SF_RANGE[0] <= v <= SF_RANGE[1] else None
-
     def _init(self, p: Point, channel: int, rng: random.Random) -> None:
-        family = TYPES[p.type].family
         if p.example is not None:
             value = p.example[channel - 1] if isinstance(p.example, list) else p.example
-            self._put(p, channel, value)
-            return
-        if p.values:
-            self._put(p, channel, next(iter(p.values)))
-        elif family in ("bool", "bit"):
-            self._put(p, channel, rng.random() < 0.5)
-        elif family == "string":
-            self._put(p, channel, p.name[:(2 if p.string_bytes == "both" else 1) * p.count])
-        elif family == "raw":
-            self._put(p, channel, [rng.randrange(0x10000) for _ in range(p.count)])
-        elif p.flags or family in ("bits", "half") or p.type == "sunssf":
-            self._put(p, channel, 0)
         else:
-            lo, hi = self._range(p)
-            if p.scale_from is not None and p.valid is None:
-                lo, hi = (x * 10.0 ** (self._sf_of(p) or 0) for x in (lo, hi))
-            level = lo + (hi - lo) * (0.3 + 0.4 * rng.random())
-            self._model.append((p, channel, level, 0.02 * (hi - lo), rng.random() * 2 * math.pi))
-            self._put(p, channel, self._fit(p, level))
-
-    @staticmethod
-    def _range(p: Point) -> tuple[float, float]:
-        if p.valid is not None:
-            return p.valid
-        info = TYPES[p.type]
-        if info.family == "float":
-            lo, hi = 0.0, 100.0
-        else:
-            raw_lo, raw_hi = info.raw_range()
-            lo, hi = max(raw_lo, 0), min(raw_hi, 1000)
-        scale, offset = p.scale or 1.0, p.offset or 0.0
-        a, b = lo * scale + offset, hi * scale + offset
-        return (min(a, b), max(a, b))
-
-    @staticmethod
-    def _top(p: Point) -> float:
-        """The largest value a counter of ``p``'s type holds, engineering units."""
-        info = TYPES[p.type]
-        hi = 3.4e38 if info.family == "float" else float(info.raw_range()[1])
-        return hi * (p.scale or 1.0) + (p.offset or 0.0)
-
-    @staticmethod
-    def _fit(p: Point, v: float) -> float | int:
-        """``v`` as the point can hold it: whole for an unscaled integer."""
-        if TYPES[p.type].family != "float" and p.scale is None and p.offset is None \
-                and p.scale_from is None:
-            return round(v)
-        return v
+            value, wander = first_value(p, rng, self._sf_of(p))
+            if wander is not None:
+                self._model.append((p, channel, wander))
+        self._put(p, channel, value)
 
     def _refresh(self) -> None:
         """Bring the model's values to the clock's time."""
@@ -309,21 +258,16 @@ class MapSimDevice(Device):
         if not self.dynamic or t - self._updated < _UPDATE_S:
             return
         self._updated = t
-        for p, c, level, swing, phase in self._model:
+        for p, c, wander in self._model:
             if (p.name, c) in self._faulted or (p.name, c) in self._pinned:
                 continue
-            if p.kind == "counter":
-                # counts up from its level, wrapping where the type does
-                v = level + swing * (t - self._t0)
-                top = self._top(p)
-                if v > top:
-                    v = v % top
-            else:
-                v = level + swing * math.sin(t / 30.0 + phase)
             try:
-                self._put(p, c, self._fit(p, v))
+                self._put(p, c, value_at(p, wander, t, self._t0))
             except InvalidArgument:
                 continue  # outside what the point can hold: keep the last value
+        for ci, until in list(self._offline_until.items()):
+            if until <= t:
+                del self._offline_until[ci]
         for (name, c), (until, regs) in list(self._faulted.items()):
             if t >= until:
                 del self._faulted[(name, c)]
