@@ -9,7 +9,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-__all__ = ["Machine", "Span", "process_cpu", "tree_cpu"]
+__all__ = ["Machine", "Span", "process_cpu", "status_field", "tree_cpu"]
 
 _TICK = os.sysconf("SC_CLK_TCK")
 
@@ -27,6 +27,13 @@ def process_cpu(pid: int) -> float:
     except OSError:
         return 0.0
     return (int(f[11]) + int(f[12])) / _TICK
+
+
+def status_field(pid: int | str, key: str) -> int:
+    """A number of ``/proc/PID/status`` (``VmRSS``: kB; ``Threads``); 0 when
+    the line is missing. ``pid`` may be ``"self"``."""
+    with open(f"/proc/{pid}/status", encoding="ascii") as f:
+        return next((int(line.split()[1]) for line in f if line.startswith(key + ":")), 0)
 
 
 def tree_cpu(pid: int) -> float:

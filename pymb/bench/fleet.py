@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from pymb.bench.subscriber import Subscriber
+from pymb.bench.table import percentile
 from pymb.extras import install_hint
 
 __all__ = ["run_fleet"]
@@ -111,13 +112,6 @@ class _Pymb:
         self.fw.join(20)
 
 
-def _pct(xs: list[float], q: float) -> float | None:
-    if not xs:
-        return None
-    xs = sorted(xs)
-    return xs[min(len(xs) - 1, int(q * len(xs)))]
-
-
 def _scenario(make: Callable[[], Any], sub: Subscriber, n: int, rate: float | None,
               broker: Any, quiet: float, outage_s: float = OUTAGE_S) -> dict[str, Any]:
     """Produce n samples (ids 1..n) at ``rate`` (None: as fast as possible); with
@@ -156,7 +150,8 @@ def _scenario(make: Callable[[], Any], sub: Subscriber, n: int, rate: float | No
     dup = sum(c - 1 for c in Counter(ids).values())
     return {"sent": n, "received": len(set(ids) & set(range(1, n + 1))),
             "lost": n - len(set(ids) & set(range(1, n + 1))), "duplicates": dup,
-            "latency_p50_ms": _pct(lat, 0.5), "latency_p95_ms": _pct(lat, 0.95),
+            "latency_p50_ms": percentile(lat, 0.5) if lat else None,
+            "latency_p95_ms": percentile(lat, 0.95) if lat else None,
             "seconds": last_rx - first_tx, "produce_s": produced - t0}
 
 

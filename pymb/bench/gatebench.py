@@ -28,6 +28,7 @@ from importlib import resources
 from typing import Any
 
 from pymb.bench.contenders import CONTENDERS, probe
+from pymb.bench.cpuload import process_cpu, status_field
 from pymb.bench.gateworker import DESIGNS
 from pymb.bench.options import Options
 from pymb.bench.procs import ChildError, Children
@@ -108,17 +109,7 @@ def flat_map(text: str) -> str:
 
 def _proc(pid: int) -> tuple[float, int, int]:
     """(CPU seconds, RSS kB, threads) of a running process."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-        fields = f.read().rpartition(")")[2].split()
-    cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    rss = threads = 0
-    with open(f"/proc/{pid}/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                rss = int(line.split()[1])
-            elif line.startswith("Threads:"):
-                threads = int(line.split()[1])
-    return cpu, rss, threads
+    return process_cpu(pid), status_field(pid, "VmRSS"), status_field(pid, "Threads")
 
 
 def _stored(db: str) -> tuple[int, int]:

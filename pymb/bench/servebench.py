@@ -33,8 +33,9 @@ import threading
 import time
 from typing import Any
 
+from pymb.bench.cpuload import process_cpu
 from pymb.bench.procs import Child, Children
-from pymb.bench.table import Table, fmt_time, fmt_x
+from pymb.bench.table import Table, fmt_time, fmt_x, percentile
 from pymb.child import pymb_argv
 
 __all__ = ["run_section", "tables", "targets"]
@@ -53,16 +54,7 @@ def _cpu(pid: int) -> float:
             seen = True
         except (OSError, ValueError, IndexError):
             continue  # a thread that ended in between, or no schedstat
-    if seen:
-        return total / 1e9
-    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-        fields = f.read().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _pct(values: list[float], q: float) -> float:
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))]
+    return total / 1e9 if seen else process_cpu(pid)
 
 
 def _ask(sock: socket.socket | ssl.SSLSocket, tid: int) -> None:
@@ -168,8 +160,8 @@ def _pipelined(opts: Any, children: Children) -> dict[str, Any]:
     us = 1e6
     rows = [{"max_inflight": n, "reads": len(lats[n]),
              "reads_per_s": round(statistics.median(rates[n])),
-             "p50_us": round(_pct(lats[n], 0.5) * us, 1),
-             "p99_us": round(_pct(lats[n], 0.99) * us, 1)} for n in INFLIGHT]
+             "p50_us": round(percentile(lats[n], 0.5) * us, 1),
+             "p99_us": round(percentile(lats[n], 0.99) * us, 1)} for n in INFLIGHT]
     return {"delay_ms": FAR_DELAY * 1e3, "clients": CLIENTS, "rows": rows,
             "speedup_x": round(rows[-1]["reads_per_s"] / rows[0]["reads_per_s"], 2)}
 
@@ -224,8 +216,8 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
              f"{FAR_DELAY * 1e3:g} ms away, --max-inflight {' and '.join(map(str, INFLIGHT))}")
     pipelined = _pipelined(opts, children)
     us = 1e6
-    rows = [{"way": way, "reads": len(v), "p50_us": round(_pct(v, 0.5) * us, 1),
-             "p99_us": round(_pct(v, 0.99) * us, 1)}
+    rows = [{"way": way, "reads": len(v), "p50_us": round(percentile(v, 0.5) * us, 1),
+             "p99_us": round(percentile(v, 0.99) * us, 1)}
             for way, v in (("direct (pymb RtuClient)", direct),
                            ("through pymb serve", served),
                            ("through pymb serve, TLS", secured))]
@@ -234,8 +226,8 @@ def run_section(opts: Any, children: Children) -> dict[str, Any]:
     ratios = [t / p for p, t in zip(cpu_plain, cpu_tls, strict=True) if p > 0]
     return {
         "rows": rows,
-        "added_p99_us": round((_pct(served, 0.99) - _pct(direct, 0.99)) * us, 1),
-        "added_p99_tls_us": round((_pct(secured, 0.99) - _pct(direct, 0.99)) * us, 1),
+        "added_p99_us": round((percentile(served, 0.99) - percentile(direct, 0.99)) * us, 1),
+        "added_p99_tls_us": round((percentile(secured, 0.99) - percentile(direct, 0.99)) * us, 1),
         "serve_cpu_us": round(plain_cpu, 1),
         "serve_cpu_tls_us": round(tls_cpu, 1),
         "tls_cpu_x": round(statistics.median(ratios), 2) if ratios else None,

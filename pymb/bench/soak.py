@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pymb.bench.cpuload import status_field
 from pymb.bench.subscriber import Subscriber
 
 __all__ = ["DEFAULT_SECONDS", "run_section"]
@@ -38,9 +39,7 @@ STORY = ("broker restart", "sigkill", "clock +1h", "broker stall", "disk full", 
 
 
 def _rss_fds(pid: int) -> tuple[int, int]:
-    with open(f"/proc/{pid}/status") as f:
-        rss = next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
-    return rss, len(os.listdir(f"/proc/{pid}/fd"))
+    return status_field(pid, "VmRSS"), len(os.listdir(f"/proc/{pid}/fd"))
 
 
 class _Supervised:

@@ -8,7 +8,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["Table", "X", "fmt_time", "fmt_x"]
+__all__ = ["Table", "X", "fmt_time", "fmt_x", "percentile"]
 
 X = "\N{MULTIPLICATION SIGN}"
 
@@ -45,3 +45,10 @@ def fmt_x(x: float | None) -> str:
     if math.isinf(x):
         return "inf"
     return f"{x:.2f}{X}" if x < 10 else f"{x:.1f}{X}" if x < 100 else f"{x:.0f}{X}"
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """The value below which a fraction ``q`` (0..1) of ``values`` lie (nearest
+    rank, the largest for q = 1); ``values`` must not be empty."""
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * len(s)))]

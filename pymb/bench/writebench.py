@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pymb.bench.table import Table
+from pymb.bench.table import Table, percentile
 from pymb.extras import install_hint
 
 __all__ = ["GOAL_MARGIN_S", "run_writes", "tables"]
@@ -53,11 +53,6 @@ type = "u16"
 group = "fast"
 example = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]
 """
-
-
-def _pct(values: list[float], q: float) -> float:
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))]
 
 
 def _wire(port: int, n: int) -> list[float]:
@@ -168,7 +163,7 @@ def run_writes(quick: bool, say: Any) -> dict[str, Any]:
             broker.stop()
     if not latencies:
         return {"status": "failed", "reason": "no command was answered"}
-    p99, wire_p99 = _pct(latencies, 0.99), _pct(wire, 0.99)
+    p99, wire_p99 = percentile(latencies, 0.99), percentile(wire, 0.99)
     return {"status": "ok", "devices": devices, "commands": len(latencies),
             "p50_s": statistics.median(latencies), "p99_s": p99,
             "wire_p50_s": statistics.median(wire), "wire_p99_s": wire_p99,
