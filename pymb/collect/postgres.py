@@ -16,11 +16,12 @@ import os
 import pwd
 import shutil
 import signal
-import socket
 import subprocess
 import tempfile
 import time
 from pathlib import Path
+
+from pymb.fleet.broker import free_port
 
 __all__ = ["Postgres", "find_postgres"]
 
@@ -38,12 +39,6 @@ def find_postgres() -> Path | None:
     return Path(exe).parent if exe else None
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class Postgres:
     """One PostgreSQL cluster of its own. ``settings``: more ``-c NAME=VALUE``."""
 
@@ -53,7 +48,7 @@ class Postgres:
         if bindir is None:
             raise FileNotFoundError("PostgreSQL is not installed (apt-get install postgresql)")
         self.bindir = bindir
-        self.port = port or _free_port()
+        self.port = port or free_port()
         self.settings = settings or {}
         self.dir = Path(tempfile.mkdtemp(prefix="pymb-pg-"))
         self.data = self.dir / "data"
