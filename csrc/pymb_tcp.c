@@ -23,12 +23,10 @@ static int tcp_prepare(pymb_line *line, int slave)
     return line->owed ? pymbi_pay_owed(line) : 0;
 }
 
-static int tcp_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap)
+int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu)
 {
-    (void)cap;
-    line->tid = (uint16_t)(line->tid + 1u);
-    adu[0] = (uint8_t)(line->tid >> 8);
-    adu[1] = (uint8_t)line->tid;
+    adu[0] = (uint8_t)(tid >> 8);
+    adu[1] = (uint8_t)tid;
     adu[2] = 0;
     adu[3] = 0;
     adu[4] = (uint8_t)(req_len >> 8);
@@ -37,13 +35,20 @@ static int tcp_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *
     return req_len + 6;
 }
 
+int pymbi_mbap_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap)
+{
+    (void)cap;
+    line->tid = (uint16_t)(line->tid + 1u);
+    return pymbi_mbap_frame(line->tid, req, req_len, adu);
+}
+
 static int tcp_send(pymb_line *line, const uint8_t *adu, int len)
 {
     return pymbi_send_all(line, adu, (size_t)len);
 }
 
 /* [MB-TCP] 3.1.3: the one MBAP length rule (pymb_frame.c). */
-static int tcp_reply_length(const uint8_t *adu, int have, int expect)
+int pymbi_mbap_reply_length(const uint8_t *adu, int have, int expect)
 {
     (void)expect;
     return have < 0 ? PYMB_FRAME_INCOMPLETE : pymbi_mbap_length(adu, (size_t)have);
@@ -108,7 +113,7 @@ static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
             }
             return -1;
         }
-        n = tcp_reply_length(rsp, PYMB_MBAP_LENGTH, expect);
+        n = pymbi_mbap_reply_length(rsp, PYMB_MBAP_LENGTH, expect);
         if (n < 0) {
             pymbi_note_reply(fail, rsp, PYMB_MBAP_LENGTH, n);
             pymbi_owe(line, req[0]);
@@ -127,7 +132,7 @@ static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
     }
 }
 
-static int tcp_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
+int pymbi_mbap_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
                      int expect, int *exc)
 {
     (void)line;
@@ -151,12 +156,12 @@ const pymb_transport pymbi_transport_tcp = {
     0,
     0,
     tcp_prepare,
-    tcp_build,
+    pymbi_mbap_build,
     tcp_send,
     pymbi_no_flush,
-    tcp_reply_length,
+    pymbi_mbap_reply_length,
     tcp_receive,
-    tcp_check,
+    pymbi_mbap_check,
     tcp_lost_step,
     pymbi_modbus_connect,
     pymbi_modbus_close,

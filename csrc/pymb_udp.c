@@ -21,7 +21,6 @@
 #include <unistd.h>
 
 #include "pymb_internal.h"
-#include "pymb_master.h"
 
 /* Datagrams waiting before a request are old: dropped. */
 static int udp_prepare(pymb_line *line, int slave)
@@ -34,25 +33,6 @@ static int udp_prepare(pymb_line *line, int slave)
     for (i = 0; i < 1000 && recv(fd, junk, sizeof junk, MSG_DONTWAIT) >= 0; i++) {
     }
     return 0;
-}
-
-static int frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu)
-{
-    adu[0] = (uint8_t)(tid >> 8);
-    adu[1] = (uint8_t)tid;
-    adu[2] = 0;
-    adu[3] = 0;
-    adu[4] = (uint8_t)(req_len >> 8);
-    adu[5] = (uint8_t)req_len;
-    memcpy(adu + 6, req, (size_t)req_len);
-    return req_len + 6;
-}
-
-static int udp_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap)
-{
-    (void)cap;
-    line->tid = (uint16_t)(line->tid + 1u);
-    return frame(line->tid, req, req_len, adu);
 }
 
 static int udp_send(pymb_line *line, const uint8_t *adu, int len)
@@ -70,14 +50,6 @@ static int udp_send(pymb_line *line, const uint8_t *adu, int len)
         }
         return -1;
     }
-}
-
-/* The MBAP length, the one rule of Modbus TCP (pymbi_mbap_length, pymb_frame.c);
- * a datagram carries one frame. */
-static int udp_reply_length(const uint8_t *adu, int have, int expect)
-{
-    (void)expect;
-    return have < 0 ? PYMB_FRAME_INCOMPLETE : pymbi_mbap_length(adu, (size_t)have);
 }
 
 static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
@@ -100,7 +72,7 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
                 errno = ETIMEDOUT;
                 return -1;
             }
-            len = frame(line->tid, req, req_len, adu);
+            len = pymbi_mbap_frame(line->tid, req, req_len, adu);
             if (udp_send(line, adu, len) < 0) {
                 return -1;
             }
@@ -122,7 +94,7 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
             }
             return -1; /* ECONNREFUSED: nothing listens there (an ICMP answer) */
         }
-        if (k > cap || udp_reply_length(rsp, (int)k, expect) != (int)k) {
+        if (k > cap || pymbi_mbap_reply_length(rsp, (int)k, expect) != (int)k) {
             continue; /* not one whole MBAP frame: not an answer */
         }
         if (((unsigned)rsp[0] << 8 | rsp[1]) != line->tid || rsp[PYMB_MBAP_LENGTH - 1] != req[0]) {
@@ -130,14 +102,6 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
         }
         return (int)k;
     }
-}
-
-static int udp_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
-                     int expect, int *exc)
-{
-    (void)line;
-    (void)expect;
-    return pymbi_tcp_check(req[0], req + 1, (size_t)req_len - 1, rsp, (size_t)n, exc);
 }
 
 /* Datagrams never leave the line out of step. */
@@ -211,12 +175,12 @@ const pymb_transport pymbi_transport_udp = {
     0,
     0,
     udp_prepare,
-    udp_build,
+    pymbi_mbap_build,
     udp_send,
     pymbi_no_flush,
-    udp_reply_length,
+    pymbi_mbap_reply_length,
     udp_receive,
-    udp_check,
+    pymbi_mbap_check,
     udp_lost_step,
     udp_connect,
     udp_close,
