@@ -39,8 +39,8 @@ _MAP = maps.builtin("hub")
 _BLOCKS = tuple(_MAP.points.values())
 _ADDRESS = tuple(p.address for p in _BLOCKS)  # each block's first register
 _N = max(p.channels for p in _BLOCKS)
-#: V1.07 and below: 50 channels of these blocks only
-_LEGACY = ((1, 7), 50, ("temperature_c", "humidity_pct"))
+#: V1.07 and below serve 50 channels (of the blocks without a min_firmware)
+_LEGACY = ((1, 7), 50)
 _LATEST = max((p.min_firmware for p in _BLOCKS if p.min_firmware), key=parse_firmware)
 
 
@@ -140,9 +140,8 @@ class HubDevice(MapSimDevice):
     # -- configuration -----------------------------------------------------------------
 
     def _channels_of(self, p: Point) -> int:
-        if self._firmware and parse_firmware(self._firmware) <= _LEGACY[0]:
-            return _LEGACY[1] if p.name in _LEGACY[2] else 0
-        return super()._channels_of(p)
+        n = super()._channels_of(p)
+        return min(n, _LEGACY[1]) if parse_firmware(self._firmware) <= _LEGACY[0] else n
 
     def channel(self, channel: int) -> Channel:
         """The configuration of ``channel`` (1-based); a copy."""

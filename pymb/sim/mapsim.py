@@ -27,9 +27,10 @@ and channels are :class:`~pymb.sim.mapimage.MapImage`'s, the seeded model
 A device with behaviours of its own (the CoolPro, the sensor hub) is a
 subclass: it narrows :attr:`MapSimDevice.functions`, picks the exception
 code of a malformed request, brings its own values (:meth:`_start`,
-:meth:`_refresh`), reacts to writes (:meth:`_wrote`) and adds keys to its
-device spec (:attr:`spec_keys`); everything else (registers, addresses,
-exceptions, writes, firmware, the spec's options) is the map's.
+:meth:`_refresh`, :meth:`_channel_changed`), reacts to writes
+(:meth:`_wrote`) and adds keys to its device spec (:attr:`spec_keys`);
+everything else (registers, addresses, exceptions, writes, firmware, the
+spec's options, the values a test holds) is the engine's and the map's.
 """
 
 from __future__ import annotations
@@ -265,7 +266,7 @@ class MapSimDevice(MapImage):
                 self._put(p, c, value_at(p, wander, t, self._t0))
             except InvalidArgument:
                 continue  # outside what the point can hold: keep the last value
-        for ci, until in list(self._offline_until.items()):
+        for ci, until in list(self._offline_until.items()) if self._offline_until else ():
             if until <= t:
                 del self._offline_until[ci]
         for (name, c), (until, regs) in list(self._faulted.items()):
