@@ -254,18 +254,20 @@ class MapSimDevice(MapImage):
         self._put(p, channel, value)
 
     def _refresh(self) -> None:
-        """Bring the model's values to the clock's time."""
+        """Bring the model's values to the clock's time, and end the faults
+        and offline channels whose time is up (values that do not move too)."""
         t = self.clock.now()
-        if not self.dynamic or t - self._updated < _UPDATE_S:
-            return
-        self._updated = t
-        for p, c, wander in self._model:
-            if (p.name, c) in self._faulted or (p.name, c) in self._pinned:
-                continue
-            try:
-                self._put(p, c, value_at(p, wander, t, self._t0))
-            except InvalidArgument:
-                continue  # outside what the point can hold: keep the last value
+        if self.dynamic:
+            if t - self._updated < _UPDATE_S:
+                return
+            self._updated = t
+            for p, c, wander in self._model:
+                if (p.name, c) in self._faulted or (p.name, c) in self._pinned:
+                    continue
+                try:
+                    self._put(p, c, value_at(p, wander, t, self._t0))
+                except InvalidArgument:
+                    continue  # outside what the point can hold: keep the last value
         for ci, until in list(self._offline_until.items()) if self._offline_until else ():
             if until <= t:
                 del self._offline_until[ci]

@@ -6,6 +6,7 @@ over Modbus TCP and through the device's request PDUs."""
 
 from __future__ import annotations
 
+import random
 import struct
 
 import pytest
@@ -89,8 +90,10 @@ def _read(dev: MapSimDevice, address: int, count: int) -> list[int]:
     return list(struct.unpack(f">{count}H", reply[2:]))
 
 
-def test_a_channel_set_offline_reads_every_blocks_offline_marker_then_comes_back() -> None:
-    dev, clock = _device()
+@pytest.mark.parametrize("dynamic", [True, False])
+def test_a_channel_set_offline_reads_every_blocks_offline_marker_then_comes_back(
+        dynamic: bool) -> None:
+    dev, clock = _device(dynamic=dynamic)
     assert _read(dev, 10, 4) == [215] * 4
     dev.set_offline([2, 4])
     assert _read(dev, 10, 4) == [215, 0x7FFF, 215, 0x7FFF]
@@ -105,6 +108,16 @@ def test_a_channel_set_offline_reads_every_blocks_offline_marker_then_comes_back
     assert _read(dev, 10, 4) == [215] * 4
     with pytest.raises(InvalidArgument, match=r"channel must be 1\.\.4, got 5"):
         dev.set_offline(5)
+
+
+def test_a_sensor_fault_ends_on_a_device_whose_values_do_not_move() -> None:
+    dev, clock = _device(dynamic=False)
+    normal = _read(dev, 10, 4), _read(dev, 20, 8)
+    what = dev.sensor_fault(random.Random(0), 5.0, channels=[1, 2, 3, 4])
+    assert "channels [1, 2, 3, 4] without a value for 5 s" in what
+    assert (_read(dev, 10, 4), _read(dev, 20, 8)) != normal
+    clock.advance(5.0)
+    assert (_read(dev, 10, 4), _read(dev, 20, 8)) == normal
 
 
 def test_raised_flags_read_over_the_points_value_until_cleared_or_expired() -> None:
