@@ -312,6 +312,10 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
                         uint8_t *out, size_t out_cap);
 int pymbi_master_take(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
                       size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used);
+int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
+                      size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used,
+                      const pymbi_mreq *again, size_t n, uint8_t *out, size_t out_cap,
+                      size_t *framed);
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap);
 """
 

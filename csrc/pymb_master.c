@@ -300,6 +300,27 @@ int pymbi_master_take(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *
     return (int)nev;
 }
 
+int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
+                      size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used,
+                      const pymbi_mreq *again, size_t n, uint8_t *out, size_t out_cap,
+                      size_t *framed)
+{
+    int got;
+    if (framed == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    *framed = 0;
+    got = pymbi_master_take(m, buf, len, image, image_len, ev, ev_cap, used);
+    if (got == 0 && *used == len && n > 0 && m->in_flight == 0 && m->part_len == 0) {
+        int size = pymbi_master_frames(m, again, n, image_len, out, out_cap);
+        if (size > 0) {
+            *framed = (size_t)size;
+        }
+    }
+    return got;
+}
+
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap)
 {
     size_t k = 0;

@@ -135,6 +135,17 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
 int pymbi_master_take(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
                       size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used);
 
+/* pymbi_master_take, and when that take ended the poll (no event, every byte
+ * used, nothing in flight, nothing kept) and `again` has n > 0 reads: frames
+ * them, reads of the same image, into out as pymbi_master_frames does (the
+ * next poll, under way from then on) and says their bytes in *framed; else
+ * *framed is 0 (not framed: also when pymbi_master_frames refuses them).
+ * Returns what the take returned (-1 with EINVAL also for a NULL framed). */
+int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *image,
+                      size_t image_len, pymbi_mevent *ev, size_t ev_cap, size_t *used,
+                      const pymbi_mreq *again, size_t n, uint8_t *out, size_t out_cap,
+                      size_t *framed);
+
 /* The tokens of the requests in flight, oldest first, into tokens[0 .. cap):
  * how many there are (more than cap: only cap written). */
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap);

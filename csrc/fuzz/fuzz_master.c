@@ -1,13 +1,15 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * fuzz_master.c - libFuzzer target: arbitrary bytes taken by the sans-I/O
- * TCP master (pymbi_master_take). The input's first bytes make up to 8
+ * TCP master (pymbi_master_take, or pymbi_master_step, which frames the
+ * reads again when a take ends the poll). The input's first bytes make up to 8
  * reads (functions 1..4, counts and offsets that may not fit the image:
  * those are refused) framed from a first transaction id; the rest is fed in
  * pieces whose sizes the input also says, each in an exactly sized heap
  * buffer. Checks: no byte of the image outside a framed read's place is
  * written, the counts stay consistent, every byte is taken or the take
- * stopped for a reason.
+ * stopped for a reason, a step frames the reads again only after a take that
+ * ended the poll.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -25,7 +27,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     pymbi_mreq reqs[8];
     uint8_t image[IMAGE + 16], frames[8 * PYMBI_MASTER_FRAME], owned[IMAGE];
     pymbi_mevent ev[4];
-    size_t n, i, pos, k;
+    size_t n, i, pos, k, nreq;
 
     if (size < 3) {
         return 0;
@@ -52,8 +54,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             }
         }
     }
+    nreq = i;
     while (pos < size) {
-        size_t piece = 1 + data[pos++] % 32, used = 0;
+        int step = data[pos] >> 7;
+        size_t piece = 1 + data[pos++] % 32, used = 0, framed = 0;
         uint8_t *buf;
         int got;
 
@@ -65,10 +69,19 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             return 0;
         }
         memcpy(buf, data + pos, piece);
-        got = pymbi_master_take(&m, buf, piece, image, IMAGE, ev, 4, &used);
+        if (step) {
+            got = pymbi_master_step(&m, buf, piece, image, IMAGE, ev, 4, &used, reqs, nreq,
+                                    frames, sizeof frames, &framed);
+        } else {
+            got = pymbi_master_take(&m, buf, piece, image, IMAGE, ev, 4, &used);
+        }
         free(buf);
         if (got < 0 || got > 4 || used > piece) {
             abort();
+        }
+        if (framed != 0 && (got != 0 || used != piece || framed != nreq * PYMBI_MASTER_FRAME ||
+                            m.in_flight != nreq || m.part_len != 0)) {
+            abort(); /* framed again only after a take that ended the poll */
         }
         if (m.in_flight > m.span || m.span > PYMBI_MASTER_INFLIGHT ||
             m.part_len >= PYMBI_MASTER_ADU || m.bad_len > PYMBI_MASTER_ADU) {

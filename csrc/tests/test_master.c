@@ -315,6 +315,58 @@ static void test_args(void)
     pymbi_master_forget(NULL);
 }
 
+/* A step: the poll's last reply taken, the next poll framed at once; not
+ * framed while a reply is missing or cut short, after an event, or with
+ * nothing to frame. */
+static void test_step(void)
+{
+    pymbi_mreq reqs[2] = {rq(4, 0, 2, 0, 0), rq(3, 10, 1, 4, 1)};
+    uint8_t out[2 * PYMBI_MASTER_FRAME], buf[64], image[6];
+    pymbi_mevent ev[2];
+    size_t len, used, framed = 99;
+    int i;
+
+    pymbi_master_reset(&M, 7);
+    CHECK(pymbi_master_frames(&M, reqs, 2, sizeof image, out, sizeof out) == 24);
+    len = reg_reply(buf, 7, 4, 2, 0x10);
+    /* the first reply alone: one still in flight, nothing framed */
+    CHECK(pymbi_master_step(&M, buf, len, image, sizeof image, ev, 2, &used, reqs, 2, out,
+                            sizeof out, &framed) == 0);
+    CHECK(used == len && framed == 0 && M.in_flight == 1);
+    /* the second one in two pieces: cut short first (not framed), then whole */
+    len = reg_reply(buf, 8, 3, 1, 0x20);
+    CHECK(pymbi_master_step(&M, buf, 5, image, sizeof image, ev, 2, &used, reqs, 2, out,
+                            sizeof out, &framed) == 0);
+    CHECK(used == 5 && framed == 0 && M.part_len == 5);
+    memset(out, 0, sizeof out);
+    CHECK(pymbi_master_step(&M, buf + 5, len - 5, image, sizeof image, ev, 2, &used, reqs, 2,
+                            out, sizeof out, &framed) == 0);
+    CHECK(used == len - 5 && framed == 24 && M.in_flight == 2 && M.replies == 2);
+    CHECK(image[0] == 0x10 && image[3] == 0x13 && image[4] == 0x20 && image[5] == 0x21);
+    /* the next poll: ids 9 and 10, as pymbi_master_frames writes them */
+    CHECK(out[0] == 0 && out[1] == 9 && out[7] == 4 && out[12] == 0 && out[13] == 10 &&
+          out[19] == 3 && out[21] == 10);
+    /* an exception ends the poll: an event, nothing framed */
+    len = exc_reply(buf, 9, 4, 0x02);
+    len += reg_reply(buf + len, 10, 3, 1, 0x30);
+    CHECK(pymbi_master_step(&M, buf, len, image, sizeof image, ev, 2, &used, reqs, 2, out,
+                            sizeof out, &framed) == 1);
+    CHECK(ev[0].kind == PYMBI_EV_EXCEPTION && framed == 0 && M.in_flight == 0);
+    /* nothing to frame, no room for the frames: not framed */
+    for (i = 0; i < 2; i++) {
+        size_t cap = i == 0 ? sizeof out : PYMBI_MASTER_FRAME;
+        size_t n = i == 0 ? 0 : 2;
+        pymbi_master_reset(&M, 1);
+        CHECK(pymbi_master_frames(&M, reqs, 1, sizeof image, out, sizeof out) == 12);
+        len = reg_reply(buf, 1, 4, 2, 0x40);
+        CHECK(pymbi_master_step(&M, buf, len, image, sizeof image, ev, 2, &used, reqs, n, out,
+                                cap, &framed) == 0);
+        CHECK(framed == 0 && M.in_flight == 0 && M.replies == 1);
+    }
+    CHECK(pymbi_master_step(&M, buf, len, image, sizeof image, ev, 2, &used, reqs, 1, out,
+                            sizeof out, NULL) == -1 && errno == EINVAL);
+}
+
 int main(void)
 {
     test_frames();
@@ -323,5 +375,6 @@ int main(void)
     test_bad();
     test_bits();
     test_args();
+    test_step();
     return check_report();
 }

@@ -47,6 +47,7 @@ NO_TOKEN: int = lib.PYMBI_NO_TOKEN  #: an event about no request
 
 _frames = lib.pymbi_master_frames
 _take = lib.pymbi_master_take
+_step = lib.pymbi_master_step
 _EVENTS = 32  #: events one take reports at most (it is called again for more)
 _NO_IMAGE = ffi.new("uint8_t[]", 1)
 _OUT = FRAME * INFLIGHT  #: bytes of the frames buffer
@@ -124,16 +125,19 @@ class Master:
     """One stream's master: the requests in flight, a reply cut short, and
     the buffer :meth:`frames` writes to. :meth:`reset` on each new stream."""
 
-    __slots__ = ("_ev", "_m", "_out", "_used", "out", "taken", "view")
+    __slots__ = ("_ev", "_framed", "_m", "_out", "_used", "framed", "out", "taken", "view")
 
     def __init__(self) -> None:
         self._m: Any = ffi.new("pymbi_master *")
         self._ev: Any = ffi.new("pymbi_mevent[]", _EVENTS)
         self._used: Any = ffi.new("size_t *")
+        self._framed: Any = ffi.new("size_t *")
         self.out = bytearray(_OUT)  #: the frames :meth:`frames` wrote
         self.view = memoryview(self.out)  #: :attr:`out`, to send a slice of without a copy
         self._out = ffi.from_buffer("uint8_t[]", self.out)
         self.taken = 0  #: replies the last :meth:`take` took into its image
+        #: bytes of the next poll's requests the last :meth:`take` framed (0: none)
+        self.framed = 0
         lib.pymbi_master_reset(self._m, 1)
 
     def reset(self, tid: int = 1) -> None:
@@ -189,21 +193,35 @@ class Master:
             raise ValueError(f"requests {first}+{n}: more than {INFLIGHT} in flight")
         return got
 
-    def take(self, buf: ReadBuffer, start: int, length: int, table: PollTable | None
-             ) -> tuple[int, int]:
+    def take(self, buf: ReadBuffer, start: int, length: int, table: PollTable | None,
+             again: PollTable | None = None) -> tuple[int, int]:
         """Take ``buf.data[start:start + length]`` into ``table``'s image
         (``None``: no poll under way, nothing in flight): (events, bytes
         used); the events are :meth:`event` ``0 .. events - 1``. Fewer bytes
         used than given: the events filled up (take the rest after them) or
-        a :data:`BAD` event ended the take."""
+        a :data:`BAD` event ended the take.
+
+        With ``again`` (reads of ``table``'s image): a take that ends the
+        poll (no event, every byte used, nothing in flight or kept) writes
+        all of ``again``'s requests to :attr:`out` at once, as :meth:`frames`
+        would, the next poll in flight from then on; :attr:`framed` says
+        their bytes (0: not framed)."""
         if table is None:
             image, size = _NO_IMAGE, 0
         else:
             image, size = table.image_c, table.image_len
         m = self._m
         before = m.replies
-        got: int = _take(m, buf.c + start if start else buf.c, length, image, size,
-                         self._ev, _EVENTS, self._used)
+        data = buf.c + start if start else buf.c
+        if again is None:
+            got: int = _take(m, data, length, image, size, self._ev, _EVENTS, self._used)
+            self.framed = 0
+        else:
+            if table is None or again.image is not table.image:
+                raise ValueError("the next poll's requests are not reads of this poll's image")
+            got = _step(m, data, length, image, size, self._ev, _EVENTS, self._used,
+                        again.rows, again.n, self._out, _OUT, self._framed)
+            self.framed = self._framed[0]
         if got < 0:
             raise ValueError("a request in flight does not fit this poll's image")
         self.taken = m.replies - before

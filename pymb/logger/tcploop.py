@@ -30,11 +30,13 @@ from __future__ import annotations
 
 import errno
 import heapq
+import math
 import os
 import queue
 import threading
 import time
 
+from pymb._native.master import PollTable
 from pymb.client.address import is_mbaps, parse_host_port
 from pymb.errors import (
     ModbusConnectionError,
@@ -207,7 +209,18 @@ class TcpMapPoller(TcpLoopBase):
             return
         t = c.table
         assert t is not None
-        size = m.frames(t, c.sent, n)
+        self._out(c, t, n, m.frames(t, c.sent, n), busy, now)
+
+    def _out(self, c: Conn, t: PollTable, n: int, size: int, busy: int, now: float) -> None:
+        """``n`` requests of the poll under way, ``size`` bytes framed in its
+        master's buffer (``busy`` were in flight before them): sent, the
+        poll's deadline and wake-up set."""
+        e = c.entry
+        sock = c.sock
+        assert e is not None
+        assert sock is not None
+        u = e.unit
+        todo = len(c.todo)
         c.sent += n
         c.asked += n
         if not busy:
@@ -228,7 +241,7 @@ class TcpMapPoller(TcpLoopBase):
             c.look = seq = self._seq
             heapq.heappush(self._looks, (now + min(look, u.timeout / 4), seq, c))
         try:  # whole, or the connection is lost
-            sent = sock.send(m.view[:size])
+            sent = sock.send(c.m.view[:size])
         except BlockingIOError:
             sent = 0
         except OSError as err:
@@ -289,6 +302,31 @@ class TcpMapPoller(TcpLoopBase):
                 t = c.table
                 assert t is not None
                 c.wake_at(max(1, sum(t.sizes[k] for k in m.pending()) - m.kept))
+
+    def again(self, c: Conn, e: Entry, now: float) -> PollTable | None:
+        """The requests of ``e``'s next poll if it follows the one under way
+        at once, the same requests sent whole again (flat out, no other poll
+        of the connection waiting, the plan as it was): the master frames
+        them as soon as this poll's replies are in (:meth:`restarted`)."""
+        slot = e.slot
+        planner = e.unit.planner
+        if (slot.interval or slot.once or c.waiting or c.loan is not None or c.limit
+                or c.unread or not c.whole or c.table is not e.table or c.todo is not e.specs
+                or c.quiet_until > now or now < slot.health.retry_at
+                or planner.version != e.version or planner.retry_at != math.inf):
+            return None
+        return e.table
+
+    def restarted(self, c: Conn, e: Entry, now: float) -> None:
+        """``e``'s poll read every request and its next one is framed
+        (:meth:`again`): the poll's sample, and the next poll sent."""
+        c.took += (now - c.sent_at - c.took) / 8
+        self._sample(c, e, now)
+        c.entry = e
+        c.sent = 0
+        t = c.table
+        assert t is not None
+        self._out(c, t, t.n, c.m.framed, 0, now)
 
     def _done(self, c: Conn, e: Entry, now: float) -> None:
         """A poll read every request: its sample; the group's next slot."""

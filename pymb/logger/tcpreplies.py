@@ -17,7 +17,7 @@ import socket
 import time
 from typing import Protocol
 
-from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, ReadBuffer
+from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, PollTable, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
 from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT
@@ -48,6 +48,14 @@ class Polls(Protocol):
 
     def reopen(self, c: Conn, now: float) -> str:
         """Close ``c`` after a failure and open it again (when: as events say it)."""
+
+    def again(self, c: Conn, e: Entry, now: float) -> PollTable | None:
+        """The requests of ``e``'s next poll, to be framed as soon as the
+        poll under way on ``c`` read every request (``None``: not so)."""
+
+    def restarted(self, c: Conn, e: Entry, now: float) -> None:
+        """``e``'s poll read every request, and the master framed the next
+        one (:meth:`again`'s requests)."""
 
 
 class TcpReplies:
@@ -88,8 +96,19 @@ class TcpReplies:
             return
         m = c.m
         e = c.entry
-        table = c.table if e is not None else None
-        n, pos = m.take(rx, 0, got, table)
+        if e is None:
+            table = again = None
+        else:
+            table = c.table
+            again = self.polls.again(c, e, now) if c.whole else None
+        n, pos = m.take(rx, 0, got, table, again)
+        if m.framed:  # the poll's last replies, and the next poll framed
+            assert e is not None
+            c.answered = True
+            self.polls.restarted(c, e, now)
+            if peek and c.sock is sock:
+                self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
+            return
         if not n and pos == got:  # replies only (or a part of one)
             if m.taken and e is not None:
                 c.answered = True

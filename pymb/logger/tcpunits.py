@@ -248,6 +248,9 @@ class Entry:
     image: bytearray = field(default_factory=bytearray)
     #: :attr:`specs` made ready for the C master
     table: PollTable | None = None
+    #: the planner's version at the last :meth:`requests`: while it is the
+    #: same and no refused point is due to be asked again, so is the plan
+    version: int = -1
     #: the planner's unsupported items as of its version ``_seen``
     _unread: frozenset[int] = frozenset()
     _seen: int = -1
@@ -269,7 +272,9 @@ class Entry:
         """This poll's requests as the planner plans them now (made ready
         again only when the plan changed: a refused bridge or point). The
         list is this entry's: not to be changed."""
-        plan = self.unit.planner.plan(self.wanted)
+        planner = self.unit.planner
+        plan = planner.plan(self.wanted)
+        self.version = planner.version
         if plan is not self.plan:
             lay = self.decode.layout()
             self.specs = [self.spec(r, lay) for r in plan.requests]

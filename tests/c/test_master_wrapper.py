@@ -109,3 +109,34 @@ def test_a_part_of_a_reply_is_kept_and_refusals() -> None:
     m.frames(packed, 0, 1)
     assert _take_all(m, rx, _reply(2, 1, b"\x01\x02\xcd\x01"), packed) == []
     assert bytes(bits) == b"\xcd\x01"
+
+
+def test_a_take_that_ends_the_poll_frames_the_next_one() -> None:
+    image = bytearray(12)
+    t = PollTable([_Read(3, 0, 2, 8), _Read(3, 10, 4, 0)], 7, image)
+    m = Master()
+    m.reset(0x20)
+    m.frames(t, 0, 2)
+    rx = ReadBuffer()
+    first, second = _regs(0x20, 0x80, 2), _regs(0x21, 0x40, 4)
+    rx.data[:len(first)] = first
+    assert m.take(rx, 0, len(first), t, t) == (0, len(first))
+    assert (m.framed, m.in_flight) == (0, 1)  # a reply still missing: nothing framed
+    rx.data[:len(second)] = second
+    assert m.take(rx, 0, len(second), t, t) == (0, len(second))
+    assert image == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
+    assert (m.framed, m.in_flight, m.pending()) == (24, 2, [0, 1])
+    assert bytes(m.out[:24]) == bytes.fromhex(
+        "0022 0000 0006 07 03 0000 0002" "0023 0000 0006 07 03 000a 0004".replace(" ", ""))
+    # an exception ends the poll: an event, the next one not framed
+    data = _reply(0x22, 7, bytes((0x83, 0x02))) + _regs(0x23, 0x10, 4)
+    rx.data[:len(data)] = data
+    n, used = m.take(rx, 0, len(data), t, t)
+    assert (n, used, m.framed, m.in_flight) == (1, len(data), 0, 0)
+    assert (m.event(0).kind, m.event(0).token, m.event(0).code) == (EXCEPTION, 0, 2)
+    # a plain take says nothing framed; the next poll's reads go to the same image
+    assert m.take(rx, 0, 0, t) == (0, 0)
+    assert m.framed == 0
+    other = PollTable([_Read(3, 0, 2, 0)], 7, bytearray(4))
+    with pytest.raises(ValueError, match="image"):
+        m.take(rx, 0, 0, t, other)

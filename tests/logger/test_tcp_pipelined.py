@@ -168,3 +168,64 @@ def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
         PollTable([PollRequest(r, 2)], 1, bytearray(8))
     with pytest.raises(ValueError, match="not in a poll of 1"):
         m.frames(ok, 1, 1)
+
+
+#: flat out: each poll's requests go out as the last poll's replies are in
+FLAT_OUT = "timeout = 0.5\ninterval = 0\npipeline = 4\n"
+
+
+def _from_poll(k: int, what: str) -> Script:
+    """Every request answered right, but the one for register 300 from the
+    ``k``-th poll on (``what`` "02": exception 02 from then on; "04": that
+    poll only, exception 04)."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        if req[3] != 300:
+            return good(*req)
+        seen[0] += 1
+        if seen[0] < k or (what == "04" and seen[0] > k):
+            return good(*req)
+        return _exception(req, int(what, 16))
+    return script
+
+
+def test_flat_out_polls_follow_each_other_whole(tmp_path: Path) -> None:
+    """Flat out and pipelined, each poll's requests are framed in the take
+    that read the last poll's replies and sent at once: every sample whole,
+    one after the other, no event but the connect."""
+    got = _poll(tmp_path, lambda n, req, conn: good(*req), lambda h: len(h.samples) >= 60,
+                bus=FLAT_OUT, points=FAR)
+    assert got.kinds() == ["connect"]
+    assert _registers(got) == {tuple(WANT.values())}
+    times = [s.monotonic for s in got.samples]
+    assert times == sorted(times)
+    assert len(set(times)) == len(times)
+
+
+def test_a_point_refused_while_flat_out_is_replanned_in_that_poll(tmp_path: Path) -> None:
+    """Flat out, the device refuses register 300 (exception 02) from its 20th
+    poll on: that poll's sample already reads the point ``unsupported`` and
+    so do the ones after it; the polls before it read it; nothing fails."""
+    got = _poll(tmp_path, _from_poll(20, "02"), lambda h: len(h.samples) >= 40,
+                bus=FLAT_OUT, points=FAR)
+    assert got.kinds() == ["connect"]
+    gone = [s.data.unsupported for s in got.samples]  # type: ignore[union-attr]
+    assert gone == [()] * 19 + [("p300",)] * (len(gone) - 19)
+    for s in got.samples:
+        regs = s.data.registers  # type: ignore[union-attr]
+        assert (regs[0], regs[1], regs[600]) == (100, 101, 700)
+
+
+def test_an_exception_while_flat_out_fails_that_poll_only(tmp_path: Path) -> None:
+    """Flat out, the 10th poll's 2nd request is answered with exception 04:
+    that poll fails with its event, the polls before and after it store
+    their samples whole."""
+    got = _poll(tmp_path, _from_poll(10, "04"), lambda h: len(h.samples) >= 30,
+                bus=FLAT_OUT, points=FAR)
+    failed = [e for e in got.events if e.kind == "exception"]
+    assert len(failed) == 1
+    assert "address=300, count=1" in failed[0].message
+    assert len(got.samples) >= 30
+    assert _registers(got) == {tuple(WANT.values())}
+    assert failed[0].monotonic > got.samples[8].monotonic
