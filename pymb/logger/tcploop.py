@@ -236,10 +236,12 @@ class TcpMapPoller(TcpLoopBase):
             c.whole = True
             c.sent_at = now
             took = c.took
+            # (conditional expressions: the builtins min and max parse keywords, per poll)
             look = 2 * took if 2 * took > _LOOK else _LOOK
+            most = u.timeout / 4
             self._seq += 1
             c.look = seq = self._seq
-            heapq.heappush(self._looks, (now + min(look, u.timeout / 4), seq, c))
+            heapq.heappush(self._looks, (now + (look if look < most else most), seq, c))
         try:  # whole, or the connection is lost
             sent = sock.send(c.m.view[:size])
         except BlockingIOError:
@@ -459,7 +461,8 @@ class TcpMapPoller(TcpLoopBase):
                 agenda = self._agenda.next()
             if self.report.aged(now):
                 self.flush()
-            wait = min(next_sweep, self._soonest) - now
+            soonest = self._soonest
+            wait = (next_sweep if next_sweep < soonest else soonest) - now
             if agenda < now + wait:
                 wait = agenda - now
             if self._silent:
@@ -470,8 +473,8 @@ class TcpMapPoller(TcpLoopBase):
                 if c.look == seq and c.busy and c.lowat > 1:  # read them as they come
                     c.wake_at(1)
                     self.replies.readable(c, now)
-            if looks:
-                wait = min(wait, looks[0][0] - now)
+            if looks and looks[0][0] - now < wait:
+                wait = looks[0][0] - now
             for c, mask in select(wait):
                 if c is lender:  # a write command's thread woke the loop
                     lender.woken()
