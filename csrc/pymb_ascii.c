@@ -12,7 +12,6 @@
 
 #include <errno.h>
 #include <string.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include "pymb_internal.h"
@@ -131,11 +130,6 @@ static int ascii_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t
 static int ascii_send(pymb_line *line, const uint8_t *adu, int len)
 {
     return pymbi_write_all(line, adu, (size_t)len);
-}
-
-static void ascii_flush_output(pymb_line *line)
-{
-    tcdrain(modbus_get_socket(line->ctx));
 }
 
 /* Frames are delimited by their characters, not by a length. */
@@ -268,7 +262,7 @@ const pymb_transport pymbi_transport_ascii = {
     pymbi_rtu_prepare,
     ascii_build,
     ascii_send,
-    ascii_flush_output,
+    pymbi_serial_flush,
     ascii_reply_length,
     ascii_receive,
     ascii_check,

@@ -112,6 +112,7 @@ uint64_t pymbi_quiet_window_us(pymb_line *line);
 int pymbi_send_all(pymb_line *line, const uint8_t *b, size_t n);
 ssize_t pymbi_read(pymb_line *line, int fd, uint8_t *buf, size_t n);
 void pymbi_no_flush(pymb_line *line);
+void pymbi_serial_flush(pymb_line *line); /* tcdrain: the request is on the wire */
 void pymbi_note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame);
 int pymbi_modbus_connect(pymb_line *line, const char *node, const char *service);
 void pymbi_modbus_close(pymb_line *line);

@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -442,6 +443,11 @@ int pymbi_write_all(pymb_line *line, const uint8_t *b, size_t n)
 void pymbi_no_flush(pymb_line *line)
 {
     (void)line;
+}
+
+void pymbi_serial_flush(pymb_line *line)
+{
+    tcdrain(modbus_get_socket(line->ctx));
 }
 
 void pymbi_note_reply(pymb_failure *fail, const uint8_t *rsp, int len, int frame)

@@ -9,7 +9,6 @@
 
 #include <errno.h>
 #include <string.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include "pymb_internal.h"
@@ -46,11 +45,6 @@ static int rtu_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *
 static int rtu_send(pymb_line *line, const uint8_t *adu, int len)
 {
     return modbus_send_raw_request(line->ctx, adu, len) < 0 ? -1 : 0;
-}
-
-static void rtu_flush_output(pymb_line *line)
-{
-    tcdrain(modbus_get_socket(line->ctx));
 }
 
 int pymbi_rtu_reply_length(const uint8_t *adu, int have, int expect)
@@ -270,7 +264,7 @@ const pymb_transport pymbi_transport_rtu = {
     pymbi_rtu_prepare,
     rtu_build,
     rtu_send,
-    rtu_flush_output,
+    pymbi_serial_flush,
     pymbi_rtu_reply_length,
     pymbi_rtu_receive,
     pymbi_rtu_check,
