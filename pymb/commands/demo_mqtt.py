@@ -111,12 +111,6 @@ def _listening(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
-def _last_id(path: str) -> int:
-    """The highest sample id already in ``path`` (0: none, no such file, or not a
-    pymb database: the logger then refuses it), read without writing to it."""
-    return last_sample_id(path)
-
-
 def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | None,
                   say: Callable[[str], None]) -> tuple[RunSummary, list[str]]:
     """Log ``cfg`` for ``seconds`` forwarding to ``url`` (``auto``: a local
@@ -143,7 +137,7 @@ def run_with_mqtt(cfg: LogConfig, url: str, seconds: float, status: TextIO | Non
         whose = "a mosquitto started for the demo" if broker else "your broker"
         say(f"pymb demo: publishing every sample to {url} ({whose}); watch them with:\n"
             f"    {watch_cmd}")
-        before = _last_id(cfg.path)  # --out an existing database: its samples are not ours
+        before = last_sample_id(cfg.path)  # --out an existing database: not our samples
         watch = Watch(mcfg, f"pymb/{NODE}/#")
         subscribed = watch.start()
         try:
