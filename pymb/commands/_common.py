@@ -26,7 +26,7 @@ from pymb.devices import CoolProIdentity, CoolProStatus
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, parse_device
 from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapreading import MapReading
-from pymb.devices.mapspec import FACADES
+from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.devices.readings import reading_dict
 from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument, ModbusConnectionError
@@ -55,7 +55,7 @@ T = TypeVar("T")
 def device_help() -> str:
     """The help of a DEVICE argument of a command that reads any device:
     the syntax, the types (the shipped maps' ids among them) and examples."""
-    ids = [i for i in maps.builtin_ids() if i not in FACADES]
+    ids = [i for i in maps.builtin_ids() if i not in TYPED_VIEWS]
     return (f"the device: TYPE[:ADDRESS][,key=value...], TYPE coolpro, hub or a map's id "
             f"(shipped: {', '.join(ids)}; --map FILE adds one), e.g. coolpro:41, hub:250, "
             f"hub:7,channels=50,humidity_unit=1, {ids[0] if ids else 'my-meter'}:3")

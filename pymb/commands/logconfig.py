@@ -146,7 +146,7 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     _on_change(args, cfg)
     if cfg.format == "sqlite":  # at the start and before a SIGHUP reload
         check_stored_maps(cfg.path, {d.type: d.text.text for b in cfg.buses
-                                     for d in b.devices if d.facade is None})
+                                     for d in b.devices})
     return cfg, mqtt
 
 

@@ -31,7 +31,7 @@ from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import (
-    FACADES,
+    TYPED_VIEWS,
     MapTarget,
     map_types,
     parse_map_device,
@@ -64,7 +64,7 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
     read: Callable[[], MapReading]
     if blocks is None and channels is None:
         mapdev, read_group = dev.open(client)
-        read = functools.partial(read_group, dev.facade)
+        read = functools.partial(read_group, dev.groups[0])
     else:  # a hub's few blocks or channels (pymb watch --block, --show)
         hub = dev.sweep_reader(client)
         mapdev, read = hub.device, functools.partial(hub.blocks, blocks or [], channels)
@@ -162,7 +162,7 @@ def target_from_args(args: argparse.Namespace) -> MapTarget | None:
     target = parse_map_device(args.device, known)
     kind = args.device.split(",")[0].partition(":")[0].strip().lower()
     if target is None:
-        if kind not in FACADES:
+        if kind not in TYPED_VIEWS:
             raise unknown_device(args.device, list(known))
         if getattr(args, "group", None):
             raise InvalidArgument("--group is for a device read through a map")

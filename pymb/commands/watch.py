@@ -138,7 +138,8 @@ def run(args: argparse.Namespace) -> int:
                 attempts = 0
                 # as ``pymb log``'s: a device that supplied no value is backed off
                 # at once, any other fault after a run of them
-                health = Health.of_facade(dev.name)
+                health = Health.of_map(dev.name, dev.offline_after, dev.offline_retry,
+                                       dev.map.timing.backoff)
                 while not stop.is_set() and (args.count <= 0 or attempts < args.count):
                     start = time.monotonic()
                     attempts += 1

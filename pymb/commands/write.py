@@ -15,7 +15,7 @@ from typing import Any
 from pymb import maps
 from pymb.commands._common import add_connection_args, add_map_arg, interruptible, make_client
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.mapspec import FACADES, map_types, parse_map_device, unknown_device
+from pymb.devices.mapspec import map_types, parse_map_device, unknown_device
 from pymb.devices.mapwrite import Outcome, resolve
 from pymb.errors import InvalidArgument, WriteNotApplied
 from pymb.maps import Point
@@ -107,10 +107,10 @@ def _line(m: maps.Map, o: Outcome) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Check, write, read back; print each point."""
-    known = {**map_types(args.maps or []), **{f: maps.builtin(f) for f in FACADES}}
+    known = map_types(args.maps or [], views=True)
     target = parse_map_device(args.device, known)
     if target is None:
-        raise unknown_device(args.device, [k for k in known if k not in FACADES])
+        raise unknown_device(args.device, list(known))
     m = target.map
     values = _items(args, m)
     client = make_client(args)

@@ -22,7 +22,13 @@ from pymb.devices.coolpro import coolpro_device
 from pymb.devices.hubsweep import SweepReader
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading, group_points
-from pymb.devices.mapspec import FACADES, MapTarget, near, parse_map_device, unknown_device
+from pymb.devices.mapspec import (
+    TYPED_VIEWS,
+    MapTarget,
+    near,
+    parse_map_device,
+    unknown_device,
+)
 from pymb.devices.spec import split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
@@ -52,8 +58,7 @@ def shipped(kind: str) -> MapText:
 
 class KnownMaps:
     """Map id -> map: the files given (``maps = [...]``, ``--map``) and the
-    shipped maps (:attr:`ids` leaves out the facades', ``coolpro`` and
-    ``hub``, which are named apart in errors)."""
+    shipped maps."""
 
     def __init__(self) -> None:
         self._maps: dict[str, MapText] = {}
@@ -75,7 +80,7 @@ class KnownMaps:
             m = maps.loads(text, source=str(path))
         except MapError as e:
             raise InvalidArgument(f"{where}: {e}") from None
-        if m.id in FACADES or m.id in maps.builtin_ids():
+        if m.id in maps.builtin_ids():
             raise InvalidArgument(f"{where}: {path}: device id {m.id!r} is a device pymb "
                                   "ships; give the map another id")
         if m.id in self._maps:
@@ -94,8 +99,8 @@ class KnownMaps:
 
     @property
     def ids(self) -> list[str]:
-        """Every map id known (files and shipped maps) but the facades'."""
-        return sorted({*self._maps, *(i for i in maps.builtin_ids() if i not in FACADES)})
+        """Every map id known (files and shipped maps)."""
+        return sorted({*self._maps, *maps.builtin_ids()})
 
 
 #: an option's value: a number, or for an option given per channel one number a channel
@@ -137,10 +142,10 @@ class DeviceConfig:
     """A device on a bus read through its map: ``source`` is the map (with
     ``options`` applied) or a shipped map's id (``"coolpro"``, ``"hub"``,
     ``"eastron-sdm120"``: ``options`` are applied here); ``address`` None is
-    the map's default address. The groups polled (each at its own interval;
-    default every group, or every readable point in one poll for a map
-    without groups; a facade's device, ``coolpro`` or ``hub``: the group its
-    facade reads, at the bus's interval), and ``offline_after`` failed polls
+    the map's default address. The groups polled (each at its own interval,
+    or at the bus's for a group of ``poll = "bus"``; default every group but
+    those of ``poll = "request"``, or every readable point in one poll for a
+    map without groups), and ``offline_after`` failed polls
     in a row before it is left alone for ``offline_retry`` seconds (default:
     the map's ``[device.timing]``), and for on-change storage, deadbands by
     point name over the map's own ``deadband`` of each point."""
@@ -158,7 +163,8 @@ class DeviceConfig:
         if isinstance(self.source, str):
             if self.source not in maps.builtin_ids():
                 raise InvalidArgument(f"unknown device type {self.source!r}; use coolpro, hub "
-                                      f"or a shipped map's id{near(self.source, list(FACADES))}")
+                                      f"or a shipped map's id"
+                                      f"{near(self.source, maps.builtin_ids())}")
             self.source = _configured(shipped(self.source), self.options)
         m = self.map
         if self.address is None:
@@ -167,10 +173,8 @@ class DeviceConfig:
         if isinstance(self.address, bool) or not isinstance(self.address, int) or not (
                 low <= self.address <= high):
             raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {self.address!r}")
-        if self.facade is not None:
-            self.groups = (self.facade,)
-        elif not self.groups:
-            self.groups = tuple(m.groups) if m.groups else ()
+        if not self.groups:
+            self.groups = tuple(g for g in m.groups if m.polled(g) != "request")
         for g in self.groups:
             if g not in m.groups:
                 hint = near(g, list(m.groups)) or "; it has " + ", ".join(m.groups)
@@ -219,21 +223,14 @@ class DeviceConfig:
         return self.options.get(key, self.map.options[key])
 
     @property
-    def facade(self) -> str | None:
-        """The group a facade reads for this device (``coolpro``: telemetry,
-        ``hub``: the sweep), None for a device polled through its map."""
-        return FACADES.get(self.map.id)
-
-    @property
     def polls(self) -> list[tuple[str | None, float | None]]:
         """(group, interval in seconds) of each poll; (None, None) for one poll
         of every readable point at the bus's interval (a map without groups);
-        a facade's one group at the bus's interval."""
-        if self.facade is not None:
-            return [(self.facade, None)]
+        a group of ``poll = "bus"`` at the bus's interval (None)."""
         if not self.groups:
             return [(None, None)]
-        return [(g, self.map.groups[g]) for g in self.groups]
+        m = self.map
+        return [(g, None if m.polled(g) == "bus" else m.groups[g]) for g in self.groups]
 
     def open(self, client: Client, baudrate: int | None = None
              ) -> tuple[MapDevice, Callable[[str | None], MapReading]]:
@@ -298,6 +295,16 @@ def _number(d: Mapping[str, Any], key: str, where: str) -> Any:
     return v
 
 
+def _option(d: Mapping[str, Any], key: str, where: str) -> Option:
+    """An option's value: a number, or a list of numbers (one a channel)."""
+    v = d[key]
+    if isinstance(v, list):
+        for x in v:
+            _number({key: x}, key, where)
+        return tuple(v)
+    return _number(d, key, where)  # type: ignore[no-any-return]
+
+
 def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
                          base: Path) -> DeviceConfig:
     """A ``[[bus.device]]`` table naming a map: ``type = "<map id>"`` or
@@ -314,7 +321,7 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     else:
         got = known.get(str(kind))
         if got is None:
-            hint = near(str(kind), [*FACADES, *known.ids])
+            hint = near(str(kind), known.ids)
             raise InvalidArgument(f"{where}: unknown type {kind!r}{hint}; give coolpro, hub, "
                                   f"a map's id or map = \"FILE\"")
         src = got
@@ -322,18 +329,21 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     option_keys = list(m.device.options)
     for key in d:
         if key not in MAP_DEVICE_KEYS and key not in option_keys:
-            raise InvalidArgument(f"{where} [[bus.device]]: unknown key {key!r} for {m.id}"
+            # (the typed views' tables are named by their type already)
+            of = "" if m.id in TYPED_VIEWS else f" for {m.id}"
+            raise InvalidArgument(f"{where} [[bus.device]]: unknown key {key!r}{of}"
                                   f"{near(key, [*MAP_DEVICE_KEYS, *option_keys])}")
-    options = {k: _number(d, k, where) for k in option_keys if k in d}
-    if options:
-        try:
-            m = m.configure(options)
-        except MapError as e:
-            raise InvalidArgument(f"{where}: {e}") from None
-        src = MapText(m, src.text)
+    options = {k: _option(d, k, where) for k in option_keys if k in d}
+    try:
+        src = _configured(src, options)
+    except InvalidArgument as e:
+        raise InvalidArgument(f"{where}: {e}") from None
+    m = src.map
     address = d.get("address", m.device.default_address)
     low, high = m.device.addresses
-    if isinstance(address, bool) or not isinstance(address, int) or not low <= address <= high:
+    if isinstance(address, bool) or not isinstance(address, int):
+        raise InvalidArgument(f"{where}: address has the wrong type ({address!r})")
+    if not low <= address <= high:
         raise InvalidArgument(f"{where}: address: {m.id} address must be {low}..{high}, "
                               f"got {address!r}")
     name = d.get("name", "")

@@ -2,8 +2,10 @@
 id: the map types a command knows (the shipped maps, and the files given
 with ``--map``) and one device of them, checked against its map.
 
-``coolpro`` and ``hub`` keep their own facades and are not map types here;
-a map file's id may not take the name of a shipped map.
+``coolpro`` and ``hub`` have typed views (:class:`~pymb.devices.CoolPro`,
+:class:`~pymb.devices.SensorHub`): the command line shows them as those
+views and names them apart from the map types here; a map file's id may
+not take the name of a shipped map.
 """
 
 from __future__ import annotations
@@ -22,13 +24,14 @@ from pymb.maps import Map, MapError
 from pymb.maps.codec import decode_one
 from pymb.maps.model import did_you_mean
 
-__all__ = ["FACADES", "MapTarget", "load_map", "map_types", "match_map", "near",
+__all__ = ["TYPED_VIEWS", "MapTarget", "load_map", "map_types", "match_map", "near",
            "parse_map_device", "unknown_device"]
 
 
-#: Device types with their own facade (the typed views ``CoolPro`` and
-#: ``SensorHub``), and the group of its map that a poll of one reads.
-FACADES = {"coolpro": "telemetry", "hub": "sweep"}
+#: The shipped maps with a typed view (``CoolPro``, ``SensorHub``): the
+#: device syntax's texts name them first, apart from the other map types,
+#: and ``pymb read``/``scan``/``simulate`` show them as their views.
+TYPED_VIEWS = ("coolpro", "hub")
 
 
 def near(word: str, known: Sequence[str]) -> str:
@@ -38,14 +41,14 @@ def near(word: str, known: Sequence[str]) -> str:
 
 
 def unknown_device(spec: str, known: Sequence[str]) -> InvalidArgument:
-    """The one-line error for a device whose TYPE is neither a facade's nor
-    one of the ``known`` map ids, with a did-you-mean."""
+    """The one-line error for a device whose TYPE is none of the ``known``
+    map ids, with a did-you-mean."""
     kind = split_spec(spec)[0] if spec.strip() else spec
-    ids = ", ".join(sorted(known)) or "none"
+    ids = ", ".join(sorted(k for k in known if k not in TYPED_VIEWS)) or "none"
     return InvalidArgument(
         f"unknown device {spec!r}: a device is TYPE[:ADDRESS][,key=value...], TYPE coolpro, "
         f"hub or a map's id (known: {ids}; a map file needs --map FILE)"
-        f"{near(kind, [*FACADES, *known])}")
+        f"{near(kind, [*TYPED_VIEWS, *known])}")
 
 
 def load_map(path: str) -> Map:
@@ -81,11 +84,11 @@ class _Known(Mapping[str, Map]):
         return len(self._given) + len(self._shipped)
 
 
-def map_types(files: Sequence[str] = ()) -> Mapping[str, Map]:
+def map_types(files: Sequence[str] = (), *, views: bool = False) -> Mapping[str, Map]:
     """Map id -> map: ``files`` first (a user's map is tried first where
-    several would do, as by ``pymb scan``), then the shipped maps except the
-    facades' (each loaded when looked up)."""
-    shipped = [i for i in maps.builtin_ids() if i not in FACADES]
+    several would do, as by ``pymb scan``), then the shipped maps but, unless
+    ``views``, the :data:`TYPED_VIEWS` (each loaded when looked up)."""
+    shipped = [i for i in maps.builtin_ids() if views or i not in TYPED_VIEWS]
     given: dict[str, Map] = {}
     paths: dict[str, str] = {}
     seen: set[str] = set()
@@ -94,7 +97,7 @@ def map_types(files: Sequence[str] = ()) -> Mapping[str, Map]:
             continue  # the same file given twice: once
         seen.add(real)
         m = load_map(path)
-        if m.id in FACADES or m.id in shipped:
+        if m.id in maps.builtin_ids():
             raise InvalidArgument(f"--map {path}: device id {m.id!r} is a device pymb ships; "
                                   "give the map another id")
         if m.id in given:

@@ -15,9 +15,9 @@ reading.
   :data:`BACKOFF_MAX` s (a bus that does not open, a device backed off).
 - :class:`Health`: a device's failed polls in a row and when it is tried
   again: a map device is offline for ``offline_retry`` s after
-  ``offline_after`` failed polls; a facade device (CoolPro, hub) is backed off
-  after :data:`FAULTS_BEFORE_BACKOFF` failures in a row, or at once after one
-  that supplied no value.
+  ``offline_after`` failed polls, or, for a map of ``backoff = true``
+  (CoolPro, hub), backed off with a doubling wait (:class:`Backoff`), at once
+  after a poll that supplied no value.
 - The texts of the events these rules give (:data:`SKIPPED`; what a
   failure's event adds: :data:`OFFLINE`, :data:`BACKOFF`).
 """
@@ -30,13 +30,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
-__all__ = ["BACKOFF", "BACKOFF_FIRST", "BACKOFF_MAX", "FAULTS_BEFORE_BACKOFF", "OFFLINE",
+__all__ = ["BACKOFF", "BACKOFF_FIRST", "BACKOFF_MAX", "OFFLINE",
            "SKIPPED", "Agenda", "Backoff", "Health", "Slot", "reappeared"]
 
 #: a doubling backoff's first and longest wait (seconds)
 BACKOFF_FIRST, BACKOFF_MAX = 0.5, 30.0
-#: failed reads of a facade device (CoolPro, hub) in a row before it is backed off
-FAULTS_BEFORE_BACKOFF = 10
 
 #: what a failed poll's text adds when the device goes offline (``str.format`` fields)
 OFFLINE = "; offline after {failures} failed poll(s), next try in {wait:g} s"
@@ -73,25 +71,22 @@ class Health:
     name: str
     #: failed polls in a row before the device is left alone
     after: int
-    #: seconds a map device is offline; None: a facade device's doubling backoff
+    #: seconds the device is offline; None: a doubling backoff (``backoff = true``)
     retry: float | None
     failures: int = 0  #: failed polls in a row
     retry_at: float = 0.0  #: not polled before this (clock)
-    offline: bool = False  #: a map device left alone (an ``online`` event when it answers)
-    backoff: float = 0.0  #: a facade device's current backoff (0: none)
+    offline: bool = False  #: left alone for ``retry`` s (an ``online`` event when it answers)
+    backoff: float = 0.0  #: the current doubling backoff (0: none)
     _waits: Backoff = field(default_factory=Backoff, init=False, repr=False)
 
     @classmethod
     def of_map(cls, name: str, offline_after: int | None,
-               offline_retry: float | None) -> Health:
+               offline_retry: float | None, backoff: bool = False) -> Health:
         """A map device's: offline after ``offline_after`` failed polls (1 if
-        unset) for ``offline_retry`` seconds (30 if unset)."""
-        return cls(name, offline_after or 1, float(offline_retry or 30.0))
-
-    @classmethod
-    def of_facade(cls, name: str) -> Health:
-        """A facade device's (CoolPro, hub): backed off after :data:`FAULTS_BEFORE_BACKOFF`."""
-        return cls(name, FAULTS_BEFORE_BACKOFF, None)
+        unset) for ``offline_retry`` seconds (30 if unset), or with
+        ``backoff`` (its map's ``[device.timing] backoff``) backed off then
+        with a doubling wait."""
+        return cls(name, offline_after or 1, None if backoff else float(offline_retry or 30.0))
 
     def failed(self, now: float, at_once: bool = False) -> str:
         """Count a failed poll at ``now`` (``at_once``: left alone now, however
@@ -120,7 +115,7 @@ class Health:
 
 @dataclass(eq=False)
 class Slot:
-    """One thing read on a schedule: a map device's group, or a facade device."""
+    """One thing read on a schedule: a device's group, or a device read whole."""
 
     health: Health
     interval: float  #: seconds; 0: flat out, or once (``once``)

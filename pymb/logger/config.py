@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pymb import maps
 from pymb.client import (
     AsciiClient,
     Client,
@@ -29,7 +28,6 @@ from pymb.client import (
 )
 from pymb.client.address import is_mbaps, parse_address
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, add_maps, map_device_from_toml
-from pymb.devices.mapspec import FACADES
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
 from pymb.store import FORMATS, OnChange
@@ -227,7 +225,7 @@ def share_deadbands(buses: Sequence[BusConfig], bands: Mapping[str, float],
     the device's own ``deadband`` table when ``over_devices`` (the command
     line), under it otherwise. A name that is neither, or an amount that is
     not a number of 0 or more, is a one-line error."""
-    polled = [d for b in buses for d in b.devices if d.facade is None]
+    polled = [d for b in buses for d in b.devices]
     points = sorted({p for d in polled for p in d.map.points})
     builtin: dict[str, float] = {}
     for name, band in bands.items():
@@ -253,7 +251,6 @@ _OUTPUT_KEYS = ("format", "path", "max_mb", "max_age_days", "commit_interval_s",
 _BUS_KEYS = ("name", "port", "tcp", "rtu_over_tcp", "udp", "ascii", "baud", "parity", "timeout",
              "interval", "pipeline", "device", "tls")
 _TLS_KEYS = ("ca", "cert", "key", "server_name", "check_hostname")
-_FACADE_TOML_KEYS = ("type", "address", "name")
 
 
 def _known(table: dict[str, Any], keys: Sequence[str], where: str) -> None:
@@ -333,30 +330,6 @@ def _tls(bus: dict[str, Any], where: str, base: Path) -> TlsConfig | None:
         raise InvalidArgument(f"{where} [bus.tls]: {str(e).removeprefix('tls ')}") from None
 
 
-def _facade_device(d: dict[str, Any], kind: str, where: str) -> DeviceConfig:
-    """A ``[[bus.device]]`` table of a facade's device (``coolpro``, ``hub``):
-    its address, name and its map's options (a hub's ``humidity_unit`` also
-    as a list, one per channel)."""
-    options = list(maps.builtin(kind).device.options)
-    _known(d, [*_FACADE_TOML_KEYS, *options], f"{where} [[bus.device]]")
-    given: dict[str, Any] = {}
-    for key in options:
-        value = d.get(key)
-        if value is None:
-            continue
-        if isinstance(value, list):
-            value = tuple(value)
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                   for v in (value if isinstance(value, tuple) else [value])):
-            raise InvalidArgument(f"{where}: {key} has the wrong type ({d[key]!r})")
-        given[key] = value
-    try:
-        return DeviceConfig(kind, _get(d, "address", int, where), _get(d, "name", str, where, ""),
-                            options=given)
-    except InvalidArgument as e:
-        raise _within(where, e) from None
-
-
 def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogConfig:
     """The buses and output of a parsed TOML configuration read from ``path``
     (named in errors). Its ``[mqtt]`` table, if any, must be a table; reading
@@ -381,13 +354,12 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
             if not isinstance(d, dict):
                 raise InvalidArgument(f"{dwhere}: write devices as [[bus.device]] tables")
             kind = _get(d, "type", str, dwhere)
-            if "map" in d or (kind is not None and kind.lower() not in FACADES):
-                devices.append(map_device_from_toml(d, known, dwhere, base))
-                continue
-            if kind is None:
+            if "map" not in d and kind is None:
                 raise InvalidArgument(f"{dwhere}: give its type (coolpro, hub or a map's id) "
                                       "or map = \"FILE\"")
-            devices.append(_facade_device(d, kind.lower(), dwhere))
+            if kind is not None:
+                d = {**d, "type": kind.lower()}
+            devices.append(map_device_from_toml(d, known, dwhere, base))
         try:
             buses.append(BusConfig(
                 _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),

@@ -35,7 +35,7 @@ class MapHealth:
     config: DeviceConfig
     device: MapDevice
     health: Health
-    explained: str = ""  #: what answered a facade's device, found once per run of failures
+    explained: str = ""  #: what answered a device of no value, found once per run of failures
 
     @property
     def offline(self) -> bool:
@@ -53,22 +53,19 @@ class _Read:
 
 
 def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
-    """The record a device's samples and events carry: a map device's map
-    text, options and deadbands; a facade's device (``coolpro``, ``hub``,
-    stored in its own layout): a hub's channels and humidity unit(s)."""
+    """The record a device's samples and events carry: its map text, options
+    and deadbands, and the options a device of channels has (``channels``,
+    ``humidity_unit``: one, or one a channel) as its fields."""
     assert d.address is not None
-    if d.facade is None:
-        return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
-                          map_source=d.text.text,
-                          map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())
-                                            if not isinstance(v, tuple)),
-                          map_deadband=tuple(sorted(d.deadband.items())))
-    if "channels" not in d.map.options:
-        return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name)
-    unit = d.option("humidity_unit")
+    opts = d.map.options
+    unit = d.option("humidity_unit") if "humidity_unit" in opts else 0.1
     return DeviceInfo(bus.name, bus.endpoint, d.type, d.address, d.name,
-                      int(d.map.options["channels"]),
-                      tuple(float(u) for u in unit) if isinstance(unit, tuple) else float(unit))
+                      int(opts.get("channels", 0)),
+                      tuple(float(u) for u in unit) if isinstance(unit, tuple) else float(unit),
+                      map_source=d.text.text,
+                      map_options=tuple((k, float(v)) for k, v in sorted(d.options.items())
+                                        if not isinstance(v, tuple)),
+                      map_deadband=tuple(sorted(d.deadband.items())))
 
 
 class BusPoller(threading.Thread):
@@ -99,15 +96,15 @@ class BusPoller(threading.Thread):
         return self.report.take()
 
     def _reads(self) -> list[_Read]:
-        """The schedule's slots: each group of each device (a facade's device:
-        its one group at the bus's interval, backed off after faults)."""
+        """The schedule's slots: each group of each device (at the bus's
+        interval for a group of ``poll = "bus"``)."""
         bus = self.bus
         out: list[_Read] = []
         rate = bus.baud if bus.port is not None else None
         for info, cfg in self.devices:
             dev, read = cfg.open(self.client, rate)
-            health = Health.of_facade(info.name) if cfg.facade is not None else \
-                Health.of_map(info.name, cfg.offline_after, cfg.offline_retry)
+            health = Health.of_map(info.name, cfg.offline_after, cfg.offline_retry,
+                                   cfg.map.timing.backoff)
             h = self.healths[info.name] = MapHealth(info, cfg, dev, health)
             for group, interval in cfg.polls:
                 slot = Slot(health, bus.interval if interval is None else interval,
@@ -200,13 +197,13 @@ class BusPoller(threading.Thread):
         except ModbusError as e:
             report.error(bus.name, h, info, e, self.clock())
             return True
-        if dev.config.facade is None:
+        if not dev.config.map.timing.backoff:
             report.sample(Sample(info, time.time(), time.monotonic(), data))
             report.answered(bus.name, h, info, data.unsupported)
             return True
         if data.unsupported and len(data.unsupported) == len(data.values):
-            # Every block "unsupported": the device supplied no value at all.
-            # Not a sample: a fault, and the next try probes the blocks again.
+            # Every point "unsupported": the device supplied no value at all.
+            # Not a sample: a fault, and the next try probes the points again.
             if not dev.explained:
                 dev.explained = self._explain(info)
             dev.device.planner.forget()

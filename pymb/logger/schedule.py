@@ -6,10 +6,10 @@ both run it and do only the reading and the writing.
   watch`` and the bench's bare loop keep them too): :class:`Slot` (drift-free
   slots, the skipped ones counted; flat out; ``once`` groups, read again
   when the device :func:`reappeared`), :class:`Agenda` (which slots are due
-  when), :class:`Health` (a map device offline for ``offline_retry`` after
-  ``offline_after`` failed polls; a facade device backed off 0.5 s doubling
-  to 30 s after ten failures in a row) and :class:`Backoff` (a bus that does
-  not open, tried again 0.5 s doubling to 30 s later).
+  when), :class:`Health` (a device offline for ``offline_retry`` after
+  ``offline_after`` failed polls, or, for a map of ``backoff = true``, backed
+  off 0.5 s doubling to 30 s) and :class:`Backoff` (a bus that does not open,
+  tried again 0.5 s doubling to 30 s later).
 - The batching of samples for the writer (:data:`BATCH_MAX`, :data:`BATCH_AGE`)
   and the text of each event the pollers record (:data:`TEXT`).
 """
@@ -20,7 +20,6 @@ from pymb.devices.polls import (
     BACKOFF,
     BACKOFF_FIRST,
     BACKOFF_MAX,
-    FAULTS_BEFORE_BACKOFF,
     OFFLINE,
     SKIPPED,
     Agenda,
@@ -30,8 +29,8 @@ from pymb.devices.polls import (
     reappeared,
 )
 
-__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "FAULTS_BEFORE_BACKOFF",
-           "TEXT", "Agenda", "Backoff", "Health", "Slot", "reappeared"]
+__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "BATCH_AGE", "BATCH_MAX", "TEXT", "Agenda", "Backoff",
+           "Health", "Slot", "reappeared"]
 
 #: A poller hands its samples to the writer in lists of at most this many, or
 #: this old (seconds), and before it waits: one queue operation per list, not

@@ -29,8 +29,7 @@ def write_targets(pollers: Sequence[object], budget: Budget) -> dict[str, Target
     for p in pollers:
         if isinstance(p, BusPoller):
             for info, cfg in p.devices:
-                if cfg.facade is None:
-                    out[info.name] = _threaded(p, info.name, cfg.map, budget)
+                out[info.name] = _threaded(p, info.name, cfg.map, budget)
         elif isinstance(p, TcpMapPoller):
             for c in p.conns:
                 for u in c.units:

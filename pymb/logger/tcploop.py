@@ -70,11 +70,12 @@ _LOOK = 0.002
 
 
 def fans_out(bus: BusConfig) -> bool:
-    """Whether ``bus`` is polled by the one loop: plain Modbus TCP with map
-    devices only (the CoolPro and the hub facades keep a thread per bus, and
-    so does Modbus/TCP Security, ``mbaps://``: its TLS is the client's)."""
+    """Whether ``bus`` is polled by the one loop: plain Modbus TCP (not
+    Modbus/TCP Security, ``mbaps://``: its TLS is the client's) whose devices
+    are each left offline for ``offline_retry`` after failures (a map of
+    ``backoff = true``, the CoolPro's and the hub's, keeps a thread per bus)."""
     return (bus.tcp is not None and not is_mbaps(bus.tcp)
-            and all(d.facade is None for d in bus.devices))
+            and not any(d.map.timing.backoff for d in bus.devices))
 
 
 class TcpMapPoller(TcpLoopBase):

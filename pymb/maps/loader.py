@@ -8,6 +8,7 @@ file's sections, options, name and overlap rules.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -45,7 +46,9 @@ _LIMITS = ("max_registers", "max_bits", "max_gap", "readable", "split_on_excepti
            "single_point_requests", "write_multiple", "mask_write", "ranges")
 _RANGE = ("table", "first", "last", "max_registers", "max_bits")
 _TIMING = ("response_timeout", "turnaround", "inter_request_gap", "after_connect",
-           "offline_after", "offline_retry")
+           "offline_after", "offline_retry", "backoff")
+#: how a group is polled (``[groups] name = { interval = ..., poll = ... }``)
+POLLS = ("interval", "bus", "request")
 _IDENTIFY = ("point", "range", "equals", "regex")
 _ID = re.compile(r"[a-z0-9][a-z0-9-]*\Z")
 _NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
@@ -166,7 +169,9 @@ def _check_file(doc: dict[str, Any], source: str, headers: list[str],
     device = _device(ctx, doc["device"])
     limits = _limits(ctx, doc["device"].get("limits", {}), device)
     timing = _timing(ctx, doc["device"].get("timing", {}))
-    groups = _groups(ctx, doc.get("groups", {}))
+    groups, polls = _groups(ctx, doc.get("groups", {}))
+    if polls:
+        timing = dataclasses.replace(timing, polls=polls)
     lists: dict[str, list[Any]] = {}
     for kind in ("point", "block"):
         items = lists[kind] = doc.get(kind, [])
@@ -347,6 +352,11 @@ def _timing(ctx: Ctx, raw: object) -> Timing:
         if key == "offline_after":
             out[key] = _int(ctx, t, key, 3, 1, 1_000_000)
             continue
+        if key == "backoff":
+            if not isinstance(t[key], bool):
+                ctx.fail(key, f"backoff must be true or false, got {t[key]!r}")
+            out[key] = t[key]
+            continue
         v = t[key]
         if not _is_number(v) or v < 0 or (key == "response_timeout" and v == 0):
             ctx.fail(key, f"{key} must be a number of seconds above 0, got {v!r}"
@@ -356,19 +366,27 @@ def _timing(ctx: Ctx, raw: object) -> Timing:
     return Timing(**out)
 
 
-def _groups(ctx: Ctx, raw: object) -> dict[str, float]:
+def _groups(ctx: Ctx, raw: object) -> tuple[dict[str, float], tuple[tuple[str, str], ...]]:
+    """The groups' intervals, and how each group not polled every its interval is."""
     if not isinstance(raw, dict):
         ctx.fail("groups", "[groups] must be a table: fast = { interval = 1.0 }")
     groups: dict[str, float] = {}
+    polls: list[tuple[str, str]] = []
     for name, g in raw.items():
         if not _NAME.match(name):
             ctx.fail(name, f"group name {name!r} must be snake_case")
-        _keys(ctx, g, ("interval",), f"group {name!r}")
+        _keys(ctx, g, ("interval", "poll"), f"group {name!r}")
         iv = g.get("interval")
         if not _is_number(iv) or iv < 0:
             ctx.fail("interval", f"group {name!r}: interval must be seconds, 0 or more, got {iv!r}")
         groups[name] = float(iv)
-    return groups
+        poll = g.get("poll", "interval")
+        if poll not in POLLS:
+            ctx.fail("poll", f"group {name!r}: poll must be " + ", ".join(map(repr, POLLS))
+                     + f", got {poll!r}")
+        if poll != "interval":
+            polls.append((name, poll))
+    return groups, tuple(polls)
 
 
 def _entry_name(kind: str, index: int, raw: Mapping[str, Any]) -> str:

@@ -111,6 +111,12 @@ class Timing:
     after_connect: float = 0.0  #: wait after (re)connecting
     offline_after: int = 3  #: failed polls in a row before backing off
     offline_retry: float = 30.0  #: retry period once backed off
+    #: tried again after a doubling wait once backed off, not every
+    #: ``offline_retry``; a poll of no value at all is a failure
+    backoff: bool = False
+    #: (group, how it is polled) of the groups not polled every their
+    #: ``interval``: ``"bus"`` (at the bus's interval) or ``"request"``
+    polls: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,9 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "device": ("`[device]`: the device's identity, defaults, limits, timing, options",
                    "required"),
         "groups": ("`[groups]`: polling groups, `name = { interval = SECONDS }` (0: once each "
-                   "time the device (re)appears)", "-"),
+                   "time the device (re)appears), optionally with `poll = \"bus\"` (polled at "
+                   "the interval of the bus it is on instead) or `poll = \"request\"` (not "
+                   "polled unless a device's `groups` names it; read on request)", "-"),
         "point": ("`[[point]]`: one value", "-"),
         "block": ("`[[block]]`: one value repeated in `count` channels, `stride` registers apart",
                   "-"),
@@ -94,6 +96,10 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "offline_after": ("failed polls in a row before the device is backed off",
                           "offline_after"),
         "offline_retry": ("seconds between tries once backed off", "offline_retry"),
+        "backoff": ("`true`: once backed off, tried again after a wait of 0.5 s doubling to "
+                    "30 s (each failed poll says when), not every `offline_retry`, with no "
+                    "offline/online events; a poll in which the device refused every point is "
+                    "a failure that backs it off at once, not a sample", "backoff"),
     }),
     "point": ("`[[point]]` (and `[[block]]`)", POINT_KEYS, {
         "name": ("snake_case (or a model's own: `W_SF`, `inverter.W`), unique", "required"),

@@ -25,7 +25,7 @@ def test_a_per_channel_list_configures_the_map_with_its_most_common_unit(
     cfg = tmp_path / "hub.toml"
     cfg.write_text(_toml("/dev/null", "[1, 0.1, 1]", tmp_path / "x.sqlite"))
     (hub,) = load_config(cfg).buses[0].devices
-    assert hub.facade == "sweep"
+    assert hub.polls == [("sweep", None)]  # at the bus's interval
     assert hub.option("humidity_unit") == (1, 0.1, 1)
     assert hub.map.options == {"channels": 3, "humidity_unit": 1}
     assert hub.spec == "hub:1,channels=3"

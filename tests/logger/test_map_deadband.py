@@ -113,7 +113,7 @@ def test_a_deadband_name_that_is_neither_quantity_nor_point(tmp_path: Path) -> N
 
 
 def _map_devices(buses: Sequence[BusConfig]) -> dict[str, DeviceConfig]:
-    return {d.name: d for b in buses for d in b.devices if d.facade is None}
+    return {d.name: d for b in buses for d in b.devices}
 
 
 def test_where_a_run_wide_deadband_goes(tmp_path: Path) -> None:
@@ -147,6 +147,7 @@ address = 4
     assert dict(devs["band-meter-1"].deadband) == {"voltage_v": 0.5}
     assert dict(devs["band-meter-2"].deadband) == {"voltage_v": 2.0}
     assert dict(devs["eastron-sdm120-3"].deadband) == {"voltage_v": 0.5}
+    assert dict(devs["hub-4"].deadband) == {"temperature_c": 0.2}
     # the command line over both
     args = build_parser("log").parse_args(
         ["log", "--config", str(cfg), "--on-change", "--deadband", "voltage_v=1",
@@ -156,7 +157,9 @@ address = 4
     assert c.on_change.deadband == {"temperature_c": 0.2, "humidity_pct": 3.0}
     assert {n: dict(d.deadband) for n, d in _map_devices(c.buses).items()} == {
         "band-meter-1": {"voltage_v": 1.0}, "band-meter-2": {"voltage_v": 1.0},
-        "eastron-sdm120-3": {"voltage_v": 1.0}}
+        "eastron-sdm120-3": {"voltage_v": 1.0},
+        # the hub's points by those names: the same bands as the run's
+        "hub-4": {"temperature_c": 0.2, "humidity_pct": 3.0}}
     for bad, says in (("voltage_v=-1", "deadband of voltage_v must be 0 or more"),
                       ("voltage_v=nan", "deadband of voltage_v must be 0 or more"),
                       ("voltage_v", "--deadband takes NAME=AMOUNT")):

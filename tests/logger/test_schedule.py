@@ -10,9 +10,9 @@ import math
 
 import pytest
 
+from pymb import maps
 from pymb.logger.schedule import (
     BACKOFF_MAX,
-    FAULTS_BEFORE_BACKOFF,
     Agenda,
     Backoff,
     Health,
@@ -39,7 +39,7 @@ def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
 
 
 def test_flat_out_is_always_due_and_never_skips() -> None:
-    s = Slot(Health.of_facade("hub-1"), 0.0)
+    s = Slot(_backoff("hub", "hub-1"), 0.0)
     assert s.due(5.0)
     assert s.wake(5.0) == 5.0
     assert s.advance(1e6) == 0
@@ -93,11 +93,18 @@ def test_a_once_group_of_an_offline_device_waits_for_the_retry() -> None:
     assert once.due(15.0)
 
 
-def test_a_facade_device_backs_off_doubling_after_ten_failures() -> None:
-    h = Health.of_facade("coolpro-1")
-    said = [h.failed(float(t)) for t in range(FAULTS_BEFORE_BACKOFF + 8)]
-    assert said[:FAULTS_BEFORE_BACKOFF - 1] == [""] * (FAULTS_BEFORE_BACKOFF - 1)
-    tail = said[FAULTS_BEFORE_BACKOFF - 1:]
+def _backoff(kind: str, name: str) -> Health:
+    """A shipped device's health, as its map's ``[device.timing]`` sets it."""
+    t = maps.builtin(kind).timing
+    return Health.of_map(name, t.offline_after, t.offline_retry, t.backoff)
+
+
+@pytest.mark.parametrize("kind", ["coolpro", "hub"])
+def test_a_backoff_device_backs_off_doubling_after_ten_failures(kind: str) -> None:
+    h = _backoff(kind, f"{kind}-1")
+    said = [h.failed(float(t)) for t in range(10 + 8)]
+    assert said[:9] == [""] * 9
+    tail = said[9:]
     assert tail[:3] == ["; next try in 0.5 s", "; next try in 1 s", "; next try in 2 s"]
     assert tail[-1] == f"; next try in {BACKOFF_MAX:g} s"
     assert not h.offline  # backed off, not "offline": no online event when it answers
@@ -106,7 +113,7 @@ def test_a_facade_device_backs_off_doubling_after_ten_failures() -> None:
 
 
 def test_a_failure_at_once_backs_off_at_once() -> None:
-    h = Health.of_facade("hub-1")
+    h = _backoff("hub", "hub-1")
     assert h.failed(1.0, at_once=True) == "; next try in 0.5 s"
     s = Slot(h, 0.0)
     assert not s.due(1.2)

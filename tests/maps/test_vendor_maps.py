@@ -18,13 +18,13 @@ import pytest
 import pymb
 from pymb import maps
 from pymb.devices import MapDevice
-from pymb.devices.mapspec import FACADES
+from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.maps import Map, Point
 from pymb.maps.types import TYPES
 from pymb.sim import Simulator
 from pymb.sim.mapsim import MapSimDevice
 
-SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
+SHIPPED = [i for i in maps.builtin_ids() if i not in TYPED_VIEWS]
 
 
 def views(m: Map) -> set[str]:

@@ -15,11 +15,11 @@ import pytest
 from conftest import run_pymb
 
 from pymb import maps
-from pymb.devices.mapspec import FACADES
+from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.maps import Point
 from pymb.sim import SimulatorProcess
 
-SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
+SHIPPED = [i for i in maps.builtin_ids() if i not in TYPED_VIEWS]
 
 
 def same(p: Point, got: Any, want: Any) -> bool:

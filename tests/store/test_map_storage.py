@@ -17,12 +17,12 @@ import pytest
 
 from pymb import maps
 from pymb.devices.mapreading import MapReading, group_layout, group_points
-from pymb.devices.mapspec import FACADES
+from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.maps import Map, Point
 from pymb.store import DeviceInfo, Sample, SqliteSink, samples_after
 from pymb.store.mapviews import view_names
 
-SHIPPED = [i for i in maps.builtin_ids() if i not in FACADES]
+SHIPPED = [i for i in maps.builtin_ids() if i not in TYPED_VIEWS]
 
 #: every type and byte order, bit fields, halves, markers, a string, scale
 #: and offset, a block
