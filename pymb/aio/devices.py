@@ -23,7 +23,6 @@ from pymb.aio.client import AsyncClient
 from pymb.devices import ReadPlan
 from pymb.devices.coolpro import CoolPro, CoolProTelemetry
 from pymb.devices.hub import HubReading, SensorHub
-from pymb.devices.hubreading import CHANNELS
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Budget
 from pymb.devices.polls import Slot
@@ -35,6 +34,7 @@ __all__ = ["AsyncCoolPro", "AsyncMapDevice", "AsyncSensorHub", "poll"]
 
 _COOLPRO_ADDRESS = maps.builtin("coolpro").device.default_address
 _HUB_ADDRESS = maps.builtin("hub").device.default_address
+_HUB_CHANNELS = int(maps.builtin("hub").options["channels"])
 
 R = TypeVar("R")
 
@@ -116,7 +116,7 @@ class AsyncSensorHub(_Facade):
     blocking: SensorHub  #: the blocking facade run on the client's worker
 
     def __init__(self, client: AsyncClient, address: int = _HUB_ADDRESS,
-                 channels: int = CHANNELS, humidity_unit: float | Sequence[float] = 0.1,
+                 channels: int = _HUB_CHANNELS, humidity_unit: float | Sequence[float] = 0.1,
                  *, busy_retries: int = 3, busy_backoff: float = 0.02,
                  turnaround: float = 0.005) -> None:
         super().__init__(client)

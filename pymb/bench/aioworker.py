@@ -38,7 +38,7 @@ from pymb.bench.worker import (
     answer_commands,
     err_line,
 )
-from pymb.devices.hub import HubReading
+from pymb.devices import HubReading
 
 __all__ = ["CLIENTS", "LAG_STACKS", "Ticker", "main"]
 

@@ -77,7 +77,8 @@ class _Pymb:
     publishes from the open batch."""
 
     def __init__(self, db: Path, port: int, catchup_rate: float = 1000.0) -> None:
-        from pymb.devices import CoolProStatus, CoolProTelemetry
+        from pymb import maps
+        from pymb.devices.mapreading import MapReading
         from pymb.fleet import ForwardingSink
         from pymb.fleet.config import MqttConfig
         from pymb.fleet.forwarder import Forwarder
@@ -85,8 +86,11 @@ class _Pymb:
         from pymb.store import DeviceInfo, SqliteSink
 
         self._info = DeviceInfo("bus1", "bench", "coolpro", 40, "coolpro-40")
-        self._data = CoolProTelemetry(24.5, 2.45, 24.0, 2.41, 26.1, 1, CoolProStatus(0),
-                                      array("H", [0] * 8))
+        # the telemetry of _VALUES, as the logger reads it: the map's decoding of its registers
+        m = maps.builtin("coolpro")
+        regs = array("H", [24500, 2450, 24000, 2410, 26100, 1, 0, 0])
+        dec = maps.Decoder(m, [p.name for p in m.points.values() if p.group == "telemetry"])
+        self._data = MapReading(m, "telemetry", dec.read(regs), dec.states(), regs)
         self.commit_interval = COMMIT_INTERVAL
         self.sink = SqliteSink(db)
         self.fw = Forwarder(str(db), MqttConfig(f"mqtt://127.0.0.1:{port}", node="bench",

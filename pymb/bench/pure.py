@@ -13,7 +13,6 @@ import math
 from collections.abc import Callable, Sequence
 
 from pymb import maps
-from pymb.devices.hubreading import CHANNELS, HUB_REGISTERS
 
 __all__ = [
     "CRC_TABLE",
@@ -25,6 +24,9 @@ __all__ = [
 ]
 
 _NAN = math.nan
+_HUB = maps.builtin("hub")
+CHANNELS = int(_HUB.options["channels"])  #: a full hub's channels
+HUB_REGISTERS = CHANNELS * sum(1 for p in _HUB.points.values() if p.block)  #: 700
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -95,7 +97,7 @@ def _block_decoder(kind: str, scale: float, no_value: frozenset[int]) -> _Decode
 def _hub_decoders(humidity_unit: float) -> tuple[tuple[int, _Decoder], ...]:
     # [NOTES]: 0x8000 is "no humidity" in the 0.1 % unit, 0x00FF in the 1 % unit: the
     # map's humidity block for that unit has its markers and scale.
-    hub = maps.builtin("hub").configure(humidity_unit=humidity_unit)
+    hub = _HUB.configure(humidity_unit=humidity_unit)
     return tuple((i * CHANNELS, _block_decoder(block.type, block.scale or 1.0,
                                                frozenset(block.markers)))
                  for i, block in enumerate(hub.points.values()))

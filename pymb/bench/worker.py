@@ -28,9 +28,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from pymb.bench import pure
-from pymb.devices import COOLPRO, HUB
-from pymb.devices.hub import HubReading, full_sweep_spans
-from pymb.devices.hubreading import CHANNELS, HUB_REGISTERS
+from pymb.devices import COOLPRO, HUB, HubReading
 
 __all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
 
@@ -42,7 +40,9 @@ CP_FUNCTION, CP_ADDRESS, CP_COUNT = _TELEMETRY.function, _TELEMETRY.address, _TE
 
 #: The sweep's requests: registers 31..730 in reads of at most 125, as the
 #: hub's map plans a full sweep, for every contender.
-SPANS = full_sweep_spans(CHANNELS)
+SPANS = [(r.address, r.count) for r in HUB.plan("sweep")]
+#: the registers of a sweep (700: every block of every channel)
+HUB_REGISTERS = sum(count for _, count in SPANS)
 
 
 class Canary:
