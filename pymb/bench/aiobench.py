@@ -62,13 +62,7 @@ def _start(e: RaceEntry, port: str, ref: Reference, children: Children) -> None:
     module = "pymb.bench.worker" if e.name == "pymb" else "pymb.bench.aioworker"
     argv = [sys.executable, "-m", module, e.name, port, str(BAUD), str(ref.k_off),
             str(ref.k_val), str(_TIMEOUT)]
-    e.child = children.start(e.contender.label, argv)
-    try:
-        line = e.child.readline(60.0)
-        if not line.startswith("ready"):
-            raise ChildError(line.partition(" ")[2] or line)
-    except ChildError as err:
-        e.fail(f"cannot start: {err}", children)
+    e.start(argv, children)
 
 
 def _per_call(opts: Options, children: Children, ref: Reference,

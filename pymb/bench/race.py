@@ -127,6 +127,16 @@ class RaceEntry:
             children.stop(self.child)
         self.child = None
 
+    def start(self, argv: Sequence[str], children: Children) -> None:
+        """Start its worker (``argv``) and wait for its ``ready``; failed if it cannot."""
+        self.child = children.start(self.contender.label, argv)
+        try:
+            line = self.child.readline(60.0)
+            if not line.startswith("ready"):
+                raise ChildError(line.partition(" ")[2] or line)
+        except ChildError as err:
+            self.fail(f"cannot start: {err}", children)
+
 
 class Lineup:
     """Builds the C program once and starts contender processes."""
@@ -191,13 +201,7 @@ class Lineup:
         else:
             argv = [sys.executable, "-m", "pymb.bench.worker", e.name, port, str(baud),
                     str(self.ref.k_off), str(self.ref.k_val), str(_TIMEOUT)]
-        e.child = self.children.start(e.contender.label, argv)
-        try:
-            line = e.child.readline(60.0)
-            if not line.startswith("ready"):
-                raise ChildError(line.partition(" ")[2] or line)
-        except ChildError as err:
-            e.fail(f"cannot start: {err}", self.children)
+        e.start(argv, self.children)
 
 
 def _ask(e: RaceEntry, command: str, n: int, children: Children) -> tuple[int, list[int]] | None:
