@@ -9,6 +9,7 @@ values and the requests on top.
 
 from __future__ import annotations
 
+import struct
 from array import array
 from collections.abc import Iterable
 from typing import ClassVar
@@ -16,7 +17,7 @@ from typing import ClassVar
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, encode
-from pymb.maps.types import SF_RANGE
+from pymb.maps.types import SF_RANGE, permutation
 from pymb.sim.base import Device, _locked, parse_firmware
 from pymb.sim.clock import SimClock
 
@@ -24,6 +25,18 @@ __all__ = ["TABLES", "MapImage"]
 
 #: the tables by their read function code
 TABLES = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
+
+
+def _swaps(p: Point) -> bool:
+    """The order of text ``p`` swaps the two bytes of each register (BA, BADC, DCBA)."""
+    return bool(p.order) and permutation(p.order)[0] % 2 == 1
+
+
+def _swap_pairs(data: bytes) -> bytes:
+    """``data`` with the two bytes of each register swapped."""
+    out = bytearray(data)
+    out[0::2], out[1::2] = data[1::2], data[0::2]
+    return bytes(out)
 
 
 class MapImage(Device):
@@ -123,7 +136,12 @@ class MapImage(Device):
         return self._raw(p, a)
 
     def _raw(self, p: Point, a: int) -> int:
-        return _pattern(p, self._images[p.table][a:a + p.count])
+        regs = self._images[p.table][a:a + p.count]
+        if len(p.order) == 2 * p.count:
+            return _pattern(p, regs)
+        # text and raw: the registers in their order, each one's two bytes as the order says
+        wire = struct.pack(f">{p.count}H", *regs)
+        return int.from_bytes(_swap_pairs(wire) if _swaps(p) else wire, "big")
 
     @_locked
     def registers(self, address: int | None = None, count: int | None = None,
@@ -158,10 +176,15 @@ class MapImage(Device):
             where = self._where[(name, channel)] = self._point(name, channel)
         p, a = where
         img = self._images[p.table]
+        raw &= (1 << 16 * p.count) - 1
         if p.count == 1 and p.order == "AB":
-            img[a] = raw & 0xFFFF
-        else:
-            img[a:a + p.count] = array("H", _to_regs(p, raw & ((1 << 16 * p.count) - 1)))
+            img[a] = raw
+        elif len(p.order) == 2 * p.count:
+            img[a:a + p.count] = array("H", _to_regs(p, raw))
+        else:  # text and raw: as _raw reads them
+            wire = raw.to_bytes(2 * p.count, "big")
+            wire = _swap_pairs(wire) if _swaps(p) else wire
+            img[a:a + p.count] = array("H", struct.unpack(f">{p.count}H", wire))
 
     def _put(self, p: Point, channel: int, value: object) -> None:
         """Encode ``value`` into ``p``'s registers (of its ``channel``)."""

@@ -246,7 +246,8 @@ class MapSimDevice(MapImage):
 
     def _init(self, p: Point, channel: int, rng: random.Random) -> None:
         if p.example is not None:
-            value = p.example[channel - 1] if isinstance(p.example, list) else p.example
+            value = p.example[channel - 1] if p.block and isinstance(p.example, list) \
+                else p.example
         else:
             value, wander = first_value(p, rng, self._sf_of(p))
             if wander is not None:

@@ -179,3 +179,46 @@ def test_a_client_reads_the_held_states_as_the_map_names_them() -> None:
         values = reader.read("temp_c", "alarms")
         assert values["temp_c"] == [21.5, 21.5, None, 21.5]
         assert values["alarms"] == 0x0108
+
+
+TEXT = """schema = "pymb.map/1"
+[device]
+id = "text-test"
+table = "holding"
+
+[[point]]
+name = "label"
+address = 0
+type = "string"
+count = 3
+example = "abcd"
+
+[[point]]
+name = "swapped"
+address = 3
+type = "string"
+count = 2
+order = "BADC"
+example = "wxyz"
+
+[[point]]
+name = "words"
+address = 5
+type = "raw"
+count = 3
+example = [1, 2, 3]
+"""
+
+
+def test_text_and_raw_points_read_and_pin_as_one_number_of_all_their_registers() -> None:
+    dev = MapSimDevice(maps.loads(TEXT), 1)
+    assert dev.raw("label").to_bytes(6, "big") == b"abcd\0\0"
+    assert dev.raw("swapped").to_bytes(4, "big") == b"wxyz"
+    assert dev.raw("words") == 0x0001_0002_0003
+    dev.pin("label", int.from_bytes(b"PIN\0\0\0", "big"))
+    dev.pin("swapped", int.from_bytes(b"ab\0\0", "big"))
+    dev.pin("words", 0x0007_0008_0009)
+    reply = dev.handle(struct.pack(">BHH", 3, 0, 8))
+    assert reply == b"\x03\x10" + b"PIN\0\0\0" + b"ba\0\0" + bytes.fromhex("000700080009")
+    assert dev.map.decode("swapped", struct.unpack(">2H", reply[8:12])) == "ab"
+    assert dev.raw("label").to_bytes(6, "big") == b"PIN\0\0\0"
