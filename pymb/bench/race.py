@@ -146,8 +146,6 @@ class Lineup:
         self.children = children
         self.tmp = tmp
         self.c_exe: str | None = None
-        self.c_reason = ""
-        self.c_version = ""
         self.c_warnings = ""
         self.ref = Reference()
         self.versions: dict[str, str] = {}

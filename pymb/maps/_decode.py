@@ -131,7 +131,6 @@ class Decoder:
         self._blocks = frozenset(p.name for p in points if p.block)
         self._order = [(e[0], e[2], None if e[1] == _FLOAT and e[0] not in self._blocks else e)
                        for e in self._plan]
-        self._firsts = {p.name: p.address - self.address for p in points}
         self._text_bytes = text
         self.buffers = self.new_buffers()
 
