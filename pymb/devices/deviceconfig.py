@@ -144,8 +144,8 @@ class DeviceConfig:
     ``"eastron-sdm120"``: ``options`` are applied here); ``address`` None is
     the map's default address. The groups polled (each at its own interval,
     or at the bus's for a group of ``poll = "bus"``; default every group but
-    those of ``poll = "request"``, or every readable point in one poll for a
-    map without groups), and ``offline_after`` failed polls
+    those of ``poll = "request"``, which are never polled, or every readable
+    point in one poll for a map without groups), and ``offline_after`` failed polls
     in a row before it is left alone for ``offline_retry`` seconds (default:
     the map's ``[device.timing]``), and for on-change storage, deadbands by
     point name over the map's own ``deadband`` of each point."""
@@ -181,6 +181,9 @@ class DeviceConfig:
                 raise InvalidArgument(f"groups: {m.id} has no group {g!r}{hint}")
             if not group_points(m, g):
                 raise InvalidArgument(f"groups: {m.id}'s group {g!r} has no readable point")
+            if m.polled(g) == "request":
+                raise InvalidArgument(f"groups: {m.id}'s group {g!r} is read on request, "
+                                      "never polled")
         if self.offline_after is None:
             self.offline_after = m.timing.offline_after
         if self.offline_retry is None:

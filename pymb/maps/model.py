@@ -81,8 +81,8 @@ class Map:
     def polled(self, group: str) -> str:
         """How ``group`` is polled (its ``poll``): ``"interval"`` (every its
         interval; 0: once after the device (re)appears), ``"bus"`` (at the
-        interval of the bus the device is on) or ``"request"`` (only when a
-        device's ``groups`` or a read asks for it)."""
+        interval of the bus the device is on) or ``"request"`` (never polled:
+        read when a read asks for it)."""
         return dict(self.timing.polls).get(group, "interval")
 
     def point(self, name: str) -> Point:

@@ -33,8 +33,8 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
                    "required"),
         "groups": ("`[groups]`: polling groups, `name = { interval = SECONDS }` (0: once each "
                    "time the device (re)appears), optionally with `poll = \"bus\"` (polled at "
-                   "the interval of the bus it is on instead) or `poll = \"request\"` (not "
-                   "polled unless a device's `groups` names it; read on request)", "-"),
+                   "the interval of the bus it is on instead) or `poll = \"request\"` (never "
+                   "polled: read on request, `pymb read --group`)", "-"),
         "point": ("`[[point]]`: one value", "-"),
         "block": ("`[[block]]`: one value repeated in `count` channels, `stride` registers apart",
                   "-"),

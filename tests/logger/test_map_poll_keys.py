@@ -14,6 +14,7 @@ from conftest import run_pymb
 
 from pymb import maps
 from pymb.devices.deviceconfig import DeviceConfig, MapText
+from pymb.errors import InvalidArgument
 from pymb.sim.simulator import SimulatorProcess
 
 MAP = """schema = "pymb.map/1"
@@ -54,8 +55,8 @@ def test_the_keys_load_and_say_how_each_group_is_polled() -> None:
     d = DeviceConfig(MapText(m, MAP), 1)
     assert d.groups == ("live",)  # a group on request is not polled by default
     assert d.polls == [("live", None)]  # None: the bus's interval
-    asked = DeviceConfig(MapText(m, MAP), 1, groups=("live", "info"))
-    assert asked.polls == [("live", None), ("info", 0.0)]
+    with pytest.raises(InvalidArgument, match="group 'info' is read on request, never polled"):
+        DeviceConfig(MapText(m, MAP), 1, groups=("live", "info"))
     plain = _map(MAP.replace(', poll = "bus"', "").replace("backoff = true", ""))
     assert plain.polled("live") == "interval"
     assert not plain.timing.backoff
