@@ -10,13 +10,14 @@ import io
 import json
 import math
 import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 from unittest import mock
 
 from pymb.commands.info import text as info_text
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.profiles import PlainProfile, SparkplugProfile
-from pymb.store import export_csv, sample_dict, samples_after, series, summarize
+from pymb.store import StoredSample, export_csv, sample_dict, samples_after, series, summarize
 
 DATABASES = ("every.db", "onchange.db")
 _KINDS = ("long.csv", "wide.csv", "chosen.csv", "hub7.csv", "jsonl", "plain", "sparkplug",
@@ -31,8 +32,10 @@ def _csv(db: Path, **kw: object) -> str:
     return f"{rows} rows\n{out.getvalue()}"
 
 
-def _messages(db: Path) -> tuple[str, str]:
-    recs = samples_after(db, 0, limit=1_000_000)
+def messages(db: Path, reader: Callable[..., list[StoredSample]] = samples_after
+             ) -> tuple[str, str]:
+    """The plain and Sparkplug profiles' messages of every sample ``reader`` reads."""
+    recs = reader(db, 0, limit=1_000_000)
     plain = PlainProfile(MqttConfig("mqtt://127.0.0.1", node="n"))
     spark = SparkplugProfile(MqttConfig("mqtt://127.0.0.1", profile="sparkplug", node="n"))
     p, s = [], []
@@ -79,7 +82,7 @@ def outputs(folder: Path) -> dict[str, str]:
         got[f"{name}.jsonl"] = "".join(
             json.dumps(sample_dict(s), allow_nan=False) + "\n"
             for s in samples_after(db, 0, limit=1_000_000))
-        got[f"{name}.plain"], got[f"{name}.sparkplug"] = _messages(db)
+        got[f"{name}.plain"], got[f"{name}.sparkplug"] = messages(db)
         got[f"{name}.series"] = _series(db)
         got[f"{name}.info"] = _info(db)
     return got

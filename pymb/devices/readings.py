@@ -18,17 +18,21 @@ from array import array
 from typing import Any
 
 from pymb import maps
-from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry
+from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry, decode_telemetry
 from pymb.devices.hub import HubReading, State
-from pymb.devices.hubreading import BLOCKS
+from pymb.devices.hubreading import BLOCKS, HUB_REGISTERS
 from pymb.devices.mapreading import Blocks, MapReading
 from pymb.maps import Map
+from pymb.maps.types import STATES
 
 __all__ = [
     "INTEGRAL_QUANTITIES",
     "STATE_NAMES",
+    "Reading",
+    "has_own_view",
     "map_reading",
     "reading_dict",
+    "reading_view",
     "status_flags",
     "telemetry_values",
 ]
@@ -122,3 +126,51 @@ def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, 
 #: the JSON of the devices with their own views (the hub's sweep, the
 #: CoolPro's telemetry), as ``SensorHub``/``CoolPro`` readings always gave it
 _VIEWS = {"hub": _hub_dict, "coolpro": _coolpro_dict}
+
+#: A reading as a device gives it: a map reading, or the typed view of the
+#: hub's sweep or of the CoolPro's telemetry.
+Reading = HubReading | CoolProTelemetry | MapReading
+
+
+def _hub_view(data: MapReading) -> HubReading:
+    c = max(p.channels for p in data.map.points.values() if p.block)
+    regs = array("H", data.registers[:HUB_REGISTERS])
+    if len(regs) < HUB_REGISTERS:
+        regs.frombytes(bytes(2 * (HUB_REGISTERS - len(regs))))
+    r = HubReading(c, regs)
+    b = data.blocks
+    for k, p in enumerate(BLOCKS):
+        if b is not None and p.name in b.index:
+            at = b.index[p.name]
+            r.values[k * c:(k + 1) * c] = b.values[at:at + c]
+            r.raw_states[k * c:(k + 1) * c] = b.states[at:at + c]
+        elif p.name in data.values:
+            vs, sts = data.values[p.name], data.states[p.name]
+            assert isinstance(vs, list)
+            r.values[k * c:(k + 1) * c] = array("d", [math.nan if v is None else float(v)
+                                                      for v in vs])
+            r.raw_states[k * c:(k + 1) * c] = array("B", [STATES.index(s) for s in sts])
+    r.unsupported_mask = sum(1 << k for k, p in enumerate(BLOCKS) if p.name in data.unsupported)
+    return r
+
+
+def has_own_view(data: Reading) -> bool:
+    """Whether a reading's outputs take its device's own form (the hub's
+    sweep channel by channel, the CoolPro's telemetry: their JSON, line
+    protocol and Sparkplug metrics, as ``SensorHub``/``CoolPro`` readings
+    always gave them) rather than a map device's."""
+    return map_reading(data).map.id in _VIEWS
+
+
+def reading_view(data: MapReading) -> Reading:
+    """The public view of a map reading: a reading of the hub's map as the
+    :class:`~pymb.devices.HubReading` ``SensorHub`` gives (registers
+    31..730, its channels' values and states, the blocks the firmware
+    lacks), of the CoolPro's telemetry as the
+    :class:`~pymb.devices.CoolProTelemetry` ``CoolPro`` gives; any other as
+    it is."""
+    if data.map.id == _HUB.id:
+        return _hub_view(data)
+    if data.map.id == _COOLPRO.id and data.group == "telemetry":
+        return decode_telemetry(array("H", data.registers))
+    return data

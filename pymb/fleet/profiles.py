@@ -30,8 +30,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES, map_reading
+from pymb.devices.readings import INTEGRAL_QUANTITIES, has_own_view, map_reading
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
 from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
@@ -132,10 +131,10 @@ class PlainProfile(Profile):
         out = [Message(f"{self.base}/status", b"online", 1, True)]
         for name, _type, _address in source.devices():
             latest = source.latest(name)
-            if latest is not None and isinstance(latest.data, MapReading):
+            if latest is not None and not has_own_view(latest.data):
                 self.meta_sent.add(name)
-                out.append(Message(f"{self.base}/{name}/meta", map_metadata(latest.data.map),
-                                   1, True))
+                meta = map_metadata(map_reading(latest.data).map)
+                out.append(Message(f"{self.base}/{name}/meta", meta, 1, True))
         return out
 
     def data(self, record: StoredSample, historical: bool) -> list[Message]:
@@ -144,10 +143,10 @@ class PlainProfile(Profile):
         body = json.dumps(sample_dict(record), allow_nan=False, separators=(",", ":"))
         name = record.device.name
         out = []
-        if isinstance(record.data, MapReading) and name not in self.meta_sent:
+        if not has_own_view(record.data) and name not in self.meta_sent:
             self.meta_sent.add(name)
-            out.append(Message(f"{self.base}/{name}/meta", map_metadata(record.data.map), 1,
-                               True))
+            meta = map_metadata(map_reading(record.data).map)
+            out.append(Message(f"{self.base}/{name}/meta", meta, 1, True))
         out.append(Message(f"{self.base}/{name}", body.encode(), 1))
         return out
 
@@ -201,10 +200,11 @@ class SparkplugProfile(Profile):
         in ``values`` (read back after the write), else its current value (the
         device's latest sample); nothing while the device is not born."""
         birth = self.born.get(device)
-        if birth is None or latest is None or not isinstance(latest.data, MapReading):
+        if birth is None or latest is None or has_own_view(latest.data):
             return []
         now = _ms(time.time())
-        current = {name: (dt, v, st) for name, dt, v, st, _ in map_metrics(latest.data, True)}
+        current = {name: (dt, v, st)
+                   for name, dt, v, st, _ in map_metrics(map_reading(latest.data), True)}
         metrics = []
         for name in dict.fromkeys(names):
             if name not in current or name not in birth.aliases:
@@ -302,9 +302,9 @@ class SparkplugProfile(Profile):
         value; a map device's in a birth: every point of its map)."""
         out: list[tuple[str, DataType, Any, str, tuple[Any, ...]]] = [
             ("sample", DataType.UINT64, r.id, "value", ())]
-        if isinstance(r.data, MapReading):
+        if not has_own_view(r.data):
             out += [(name, dt, v, st, self._birth_props(r.device.name, name, p) if birth else ())
-                    for name, dt, v, st, p in map_metrics(r.data, birth)]
+                    for name, dt, v, st, p in map_metrics(map_reading(r.data), birth)]
             return out
         for ch, q, v, st in reading_values(r.data, not_read=True):
             dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (

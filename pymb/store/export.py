@@ -18,7 +18,7 @@ from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema
 from pymb.store.series import chunks, sample_filter
 from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
 
-__all__ = ["LAYOUTS", "WIDE_HEAD", "export_csv", "wide_columns"]
+__all__ = ["LAYOUTS", "WIDE_HEAD", "export_csv"]
 
 LAYOUTS = ("long", "wide")
 #: The wide layout's first columns (then one per value).
@@ -101,30 +101,12 @@ class _Keep:
         return self.value(row[6] if row[6] != "" else None, row[7])
 
 
-def wide_columns(kinds: Sequence[tuple[str, int]], channels: Sequence[int] | None = None,
-                 quantities: Sequence[str] | None = None) -> list[str]:
-    """The wide layout's value columns for devices of ``kinds`` ((type,
-    channels) each), as chosen."""
-    keep = _Keep(channels, quantities)
-    cols: list[str] = []
-    if any(k == "coolpro" for k, _ in kinds):
-        cols += [q for q in COOLPRO_FIELDS if keep.value(None, q)]
-    hub = max((c for k, c in kinds if k == "hub"), default=0)
-    for ch in range(1, hub + 1):
-        cols += [f"{q}_{ch}" for q in HUB_FIELDS if keep.value(ch, q)]
-    return cols
-
-
 def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
                  until: float | None, keep: _Keep, maps: Mapping[str, Map] | None) -> int:
-    q = "SELECT type, channels FROM devices" + (" WHERE name = ?" if device else "")
-    kinds = [(str(t), int(c)) for t, c in db.execute(q, (device,) if device else ())]
-    cols = wide_columns(kinds, None if keep.channels is None else sorted(keep.channels),
-                        keep.quantities)
     points = map_columns(db, device, maps)
-    cols += [c for c, p in points.items() if c not in cols and keep.value(
+    cols = [c for c, p in points.items() if keep.value(
         int(c.rsplit("_", 1)[1]) if p.block else None, p.name)]
-    if not cols and kinds:
+    if not cols and points:
         raise InvalidArgument("no value to export: the --channel and --quantity chosen match "
                               "nothing these devices have")
     index = {c: i for i, c in enumerate(cols)}

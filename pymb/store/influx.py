@@ -27,9 +27,8 @@ from __future__ import annotations
 from typing import Any
 
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import INTEGRAL_QUANTITIES, map_reading
+from pymb.devices.readings import has_own_view, map_reading
 from pymb.store.records import Event, Sample
-from pymb.store.schema import OWN_LAYOUT
 from pymb.store.text import JsonlSink, sample_dict
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
@@ -86,12 +85,11 @@ def _map_line(sample: Sample, data: MapReading) -> str:
 
 def sample_lines(sample: Sample) -> list[str]:
     """A sample as line protocol (one line, or one per hub channel)."""
-    data = map_reading(sample.data)
-    if data.map.id not in OWN_LAYOUT:
-        return [_map_line(sample, data)]
+    if not has_own_view(sample.data):
+        return [_map_line(sample, map_reading(sample.data))]
     d = sample_dict(sample)
     ts = _ns(sample.time_utc)
-    if "states" in d:
+    if "states" in d:  # a reading by channel (a hub's)
         values, states = d["values"], d["states"]
         lines = []
         for ch in range(len(next(iter(values.values()), []))):
@@ -108,8 +106,8 @@ def sample_lines(sample: Sample) -> list[str]:
     for q, v in d["values"].items():
         if v is None:
             fields.append(f"{q}_state=\"no_value\"")
-        elif q in INTEGRAL_QUANTITIES:
-            fields.append(f"{q}={int(v)}i")
+        elif isinstance(v, int):  # a count or bit field (a CoolPro's status)
+            fields.append(f"{q}={v}i")
         else:
             fields.append(f"{q}={float(v)!r}")
     return [f"pymb_coolpro,{_tags(d)} {','.join(fields)} {ts}"]

@@ -2,8 +2,8 @@
 writes to in the logger's SQLite file, so that no SQL is written outside the
 store.
 
-The samples come from :func:`pymb.store.samples_after` (the one reader of
-the storage format) as :class:`pymb.store.StoredSample`, behind
+The samples come from :func:`pymb.store.reader.stored_after` (the one reader
+of the storage format) as :class:`pymb.store.StoredSample` of map readings, behind
 :meth:`Outbox.samples_after` and :meth:`Outbox.latest`. The durable outbox
 cursor and the Sparkplug ``bdSeq`` are two small tables of the same file:
 
@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from pymb.store.reader import samples_after as stored_after
+from pymb.store.reader import stored_after
 from pymb.store.records import StoredSample
 
 __all__ = ["STATE_COMMIT_WAIT", "Outbox", "last_sample_id", "max_id", "set_cursor_on"]

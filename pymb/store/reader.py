@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sqlite3
@@ -10,16 +11,16 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from pymb import maps
-from pymb.devices import CoolProTelemetry, HubReading, State, decode_hub
-from pymb.devices.coolpro import decode_telemetry
-from pymb.devices.mapreading import MapReading, group_layout, group_points
+from pymb.devices.hub import humidity_in_other_unit
+from pymb.devices.hub import units as humidity_units
+from pymb.devices.mapreading import Blocks, MapReading, group_layout, group_points
+from pymb.devices.readings import map_reading, reading_view
 from pymb.errors import InvalidArgument
-from pymb.maps import Decoder, Map, Point, Value
+from pymb.maps import Map, MapError, Point, Value
+from pymb.maps.types import STATES
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
 from pymb.store.schema import (
-    HUB_FIELDS,
-    HUB_STRIDE,
     MAP_UNSUPPORTED_BITS,
     SCHEMA_VERSION,
     host_words,
@@ -27,7 +28,8 @@ from pymb.store.schema import (
     schema_version,
 )
 
-__all__ = ["iter_samples", "map_columns", "map_point_names", "samples_after", "stored_map"]
+__all__ = ["device_map", "has_map", "iter_samples", "map_columns", "map_point_names",
+           "samples_after", "shipped_map", "stored_after", "stored_map"]
 
 
 def stored_map(db: sqlite3.Connection, kind: str, layout: str = "",
@@ -48,29 +50,50 @@ def stored_map(db: sqlite3.Connection, kind: str, layout: str = "",
     return (m.configure(options) if options else m), group
 
 
+def device_map(db: sqlite3.Connection, kind: str, layout: str, channels: int = 0,
+               given: Mapping[str, Map] | None = None) -> tuple[Map, str | None] | None:
+    """The map and group of a devices row (type ``kind``, ``humidity_units``
+    ``layout``, ``channels``): its stored map (or the one in ``given``), else
+    the shipped map of format 1's layout (:func:`shipped_map`); None when
+    there is neither."""
+    if has_map(db, kind):
+        return stored_map(db, kind, layout, given)
+    return shipped_map(kind, channels)
+
+
 def map_columns(db: sqlite3.Connection, device: str | None = None,
                 given: Mapping[str, Map] | None = None) -> dict[str, Point]:
-    """The wide layout's columns of the map devices in a database (of one
-    ``device``, by name): a point name, or ``name_N`` for channel N of a
-    block, in the order of each map's points -> the point."""
-    q = ("SELECT type, humidity_units FROM devices WHERE type NOT IN ('coolpro', 'hub')"
-         + (" AND name = ?" if device else "") + " ORDER BY id")
+    """The wide layout's columns of the devices in a database (of one
+    ``device``, by name) -> their points: a point name, or ``name_N`` for
+    channel N of a block. A device of format 1's layout comes first (by
+    type), its blocks channel by channel (as its rows are); then the map
+    devices, in the order of each map's points."""
+    q = "SELECT type, humidity_units, channels, id FROM devices" + (
+        " WHERE name = ?" if device else "")
+    rows = [(has_map(db, kind), kind, layout, channels, did) for kind, layout, channels, did
+            in db.execute(q, (device,) if device else ()).fetchall()]
+    rows.sort(key=lambda r: (r[0], "" if r[0] else r[1], r[4]))
     cols: dict[str, Point] = {}
-    for kind, layout in db.execute(q, (device,) if device else ()).fetchall():
-        got = stored_map(db, kind, layout, given)
+    for _, kind, layout, channels, _ in rows:
+        got = device_map(db, kind, layout, channels, given)
         if got is None:
             continue
         m, group = got
-        for n in group_points(m, group):
-            p = m.points[n]
+        points = [m.points[n] for n in group_points(m, group)]
+        if channels:  # by channel
+            for c in range(1, channels + 1):
+                for p in points:
+                    cols.setdefault(f"{p.name}_{c}", p)
+            continue
+        for p in points:
             for c in range(1, p.channels + 1) if p.block else (0,):
-                cols.setdefault(f"{n}_{c}" if c else n, p)
+                cols.setdefault(f"{p.name}_{c}" if c else p.name, p)
     return cols
 
 
 def map_point_names(path: str, given: Mapping[str, Map] | None = None) -> list[str]:
-    """The point names of the map devices a database at ``path`` holds (by
-    their stored maps, or the ones in ``given``), in the maps' order."""
+    """The point names of the devices a database at ``path`` holds (by
+    their maps: the stored ones, or those in ``given``), in the maps' order."""
     db = open_readonly(path)
     try:
         return list(dict.fromkeys(p.name for p in map_columns(db, None, given).values()))
@@ -78,98 +101,142 @@ def map_point_names(path: str, given: Mapping[str, Map] | None = None) -> list[s
         db.close()
 
 
-class _Decoder:
-    """Decodes rows of ``samples`` (format 2), with the device rows cached."""
+class _Device:
+    """What decodes one device row's samples: the row as the logger's
+    :class:`DeviceInfo`, its map (the stored copy, or the shipped map of its
+    type for a device of format 1's layout, configured by the row: its
+    channels and humidity units) and group, where the group's points sit in
+    the stored registers, and (a row of channels) each channel's unit."""
 
-    def __init__(self, db: sqlite3.Connection, given: Mapping[str, Map] | None = None) -> None:
-        self.db = db
-        self.given = given
-        self.devices: dict[int, tuple[DeviceInfo, list[float]]] = {}
-        self.maps: dict[int, tuple[Map, str | None, list[Decoder], list[str]]] = {}
+    def __init__(self, db: sqlite3.Connection, did: int,
+                 given: Mapping[str, Map] | None) -> None:
+        bus, port, kind, address, name, channels, layout = db.execute(
+            "SELECT bus, port, type, address, name, channels, humidity_units FROM devices "
+            "WHERE id = ?", (did,)).fetchone()
+        tenths = [t for (t,) in db.execute(
+            "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel", (did,))]
+        units = [0.1 if t else 1.0 for t in tenths]
+        unit: float | tuple[float, ...] = (
+            units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
+        self.info = DeviceInfo(bus, port, kind, address, name, channels, unit)
+        self.channels = int(channels)
+        found = stored_map(db, kind, layout, given) if has_map(db, kind) else \
+            shipped_map(kind, self.channels, unit if units else None)
+        if found is None:
+            raise InvalidArgument(f"the database has no map {kind!r} for device {name}")
+        self.map, self.group = found
+        self.decoders = group_layout(self.map, self.group)
+        self.names = group_points(self.map, self.group)
+        self.unit, self.other = humidity_units(unit, self.channels) if units else (0.1, b"")
 
-    def device(self, did: int) -> tuple[DeviceInfo, list[float]]:
-        """The device row as the logger's DeviceInfo, and (hub) the humidity
-        unit of each channel."""
-        got = self.devices.get(did)
-        if got is None:
-            bus, port, kind, address, name, channels = self.db.execute(
-                "SELECT bus, port, type, address, name, channels FROM devices WHERE id = ?",
-                (did,)).fetchone()
-            units: list[float] = []
-            if kind == "hub":
-                units = [0.1 if t else 1.0 for (t,) in self.db.execute(
-                    "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel",
-                    (did,))]
-            unit: float | tuple[float, ...] = (
-                units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
-            info = DeviceInfo(bus, port, kind, address, name, channels, unit)
-            got = self.devices[did] = (info, units)
-        return got
-
-    def map_reading(self, did: int, info: DeviceInfo, blob: bytes, unsupported: int
-                    ) -> MapReading:
-        """A map device's stored group, decoded again by its stored map."""
-        got = self.maps.get(did)
-        if got is None:
-            (units,) = self.db.execute("SELECT humidity_units FROM devices WHERE id = ?",
-                                       (did,)).fetchone()
-            found = stored_map(self.db, info.type, units, self.given)
-            if found is None:
-                raise InvalidArgument(f"the database has no map {info.type!r} for device "
-                                      f"{info.name}")
-            m, group = found
-            got = self.maps[did] = (m, group, group_layout(m, group), group_points(m, group))
-        m, group, layout, names = got
-        regs = host_words(blob)
+    def reading(self, db: sqlite3.Connection, did: int, t: float, sid: int,
+                blob: bytes | None, unsupported: int) -> MapReading:
+        """A stored sample decoded again: its registers (a sample stored by
+        channel, ``registers`` NULL: its rows of ``hub_changes``, the
+        channels not there ``not_read``), the points refused ``unsupported``."""
+        present: list[int] | None = None
+        if blob is not None:
+            regs = host_words(blob)
+        else:
+            regs, present = self._by_channel(db, did, t, sid)
+        gone = [n for i, n in enumerate(self.names)
+                if unsupported >> min(i, MAP_UNSUPPORTED_BITS) & 1]
+        if self.channels:
+            return self._blocks(regs, gone, present)
         values: dict[str, Value] = {}
         states: dict[str, Any] = {}
         at = 0
-        for dec in layout:
+        for dec in self.decoders:
             b = dec.decode(regs[at:at + dec.count])
             values.update(dec.values(b))
             states.update(dec.states(b))
             at += dec.count
-        gone: list[str] = []
-        if unsupported:
-            for i, n in enumerate(names):
-                if unsupported >> min(i, MAP_UNSUPPORTED_BITS) & 1:
-                    gone.append(n)
-                    v = values[n]
-                    if isinstance(v, list):
-                        values[n], states[n] = [None] * len(v), ["unsupported"] * len(v)
-                    else:
-                        values[n], states[n] = None, "unsupported"
-        out = {n: values[n] for n in names}
-        return MapReading(m, group, out, {n: states[n] for n in names}, regs, tuple(gone))
+        for n in gone:
+            v = values[n]
+            if isinstance(v, list):
+                values[n], states[n] = [None] * len(v), ["unsupported"] * len(v)
+            else:
+                values[n], states[n] = None, "unsupported"
+        return MapReading(self.map, self.group, {n: values[n] for n in self.names},
+                          {n: states[n] for n in self.names}, regs, tuple(gone))
 
-    def hub(self, did: int, channels: int, units: Any, t: float, sid: int,
-            registers: bytes | None, unsupported: int) -> HubReading:
-        if registers is not None:
-            regs = host_words(registers)
-            present = None
-        else:
-            regs = array("H", bytes(2 * HUB_STRIDE * len(HUB_FIELDS)))
-            present = []
-            rows = self.db.execute(
+    def _by_channel(self, db: sqlite3.Connection, did: int, t: float, sid: int
+                    ) -> tuple[array[int], list[int]]:
+        """The registers of a sample stored by channel (a word per point and
+        channel), and its channels (0-based)."""
+        first = self.decoders[0].address
+        slots = [(p.address - first, p.stride) for p in map(self.map.points.get, self.names)
+                 if p is not None]
+        regs = array("H", bytes(2 * sum(d.count for d in self.decoders)))
+        present = []
+        for ch, blob in db.execute(
                 f"SELECT channel, registers FROM hub_changes WHERE device_id = ? AND channel IN "
-                f"({', '.join(str(c) for c in range(1, channels + 1))}) AND time_utc = ? "
-                f"AND sample_id = ?", (did, t, sid)).fetchall()
-            for ch, blob in rows:
-                words = host_words(blob)
-                for b in range(len(HUB_FIELDS)):
-                    regs[b * HUB_STRIDE + ch - 1] = words[b]
-                present.append(ch - 1)
-        names = [n for b, n in enumerate(HUB_FIELDS) if unsupported >> b & 1]
-        r = decode_hub(regs, units, channels=channels, unsupported=names)
+                f"({', '.join(str(c) for c in range(1, self.channels + 1))}) AND time_utc = ? "
+                "AND sample_id = ?", (did, t, sid)).fetchall():
+            for (at, stride), word in zip(slots, host_words(blob), strict=False):
+                regs[at + (ch - 1) * stride] = word
+            present.append(ch - 1)
+        return regs, present
+
+    def _blocks(self, regs: array[int], gone: list[str], present: list[int] | None
+                ) -> MapReading:
+        """A reading of blocks of one channel count each, kept as arrays
+        (:class:`Blocks`), as a device read by channel gives it."""
+        values, states = array("d"), array("B")
+        index: dict[str, int] = {}
+        at = 0
+        for dec in self.decoders:
+            b = dec.decode(regs[at:at + dec.count])
+            index.update((n, len(values) + dec.slot(n)) for n in dec.names)
+            values.extend(b.values[:dec.slots])
+            states.extend(b.states[:dec.slots])
+            at += dec.count
+        c = self.channels
+        blocks = Blocks(self.names, c, values, states, {n: index[n] for n in self.names})
+        if any(self.other):
+            humidity_in_other_unit(regs, values, states, index.get("humidity_pct", 0),
+                                   self.unit, self.other)
+        for n in gone:
+            i = index[n]
+            values[i:i + c] = array("d", [math.nan] * c)
+            states[i:i + c] = array("B", [_UNSUPPORTED] * c)
         if present is not None:
             keep = set(present)
-            for b in range(len(HUB_FIELDS)):
-                for ch in range(channels):
+            for i in index.values():
+                for ch in range(c):
                     if ch not in keep:
-                        r.values[b * channels + ch] = math.nan
-                        r.raw_states[b * channels + ch] = State.NOT_READ
-        return r
+                        values[i + ch], states[i + ch] = math.nan, _NOT_READ
+        return MapReading(self.map, self.group, blocks.value_map(), blocks.state_map(), regs,
+                          tuple(gone))
 
+
+_UNSUPPORTED, _NOT_READ = STATES.index("unsupported"), STATES.index("not_read")
+
+
+def has_map(db: sqlite3.Connection, kind: str) -> bool:
+    """Whether the database stored a map of id ``kind`` (a map device's)."""
+    return bool(db.execute("SELECT 1 FROM sqlite_master WHERE name = 'maps'").fetchone()) and \
+        bool(db.execute("SELECT 1 FROM maps WHERE id = ?", (kind,)).fetchone())
+
+
+def shipped_map(kind: str, channels: int = 0, unit: float | tuple[float, ...] | None = None
+                ) -> tuple[Map, str | None] | None:
+    """The map of a device of format 1's layout (a devices row with no map
+    of its own: the shipped map of its type), configured as the row says
+    (its ``channels``, its channels' humidity ``unit``, the most common for
+    a unit per channel), and the group its samples hold (the map's first);
+    None for a type with no shipped map."""
+    try:
+        m = maps.builtin(kind)
+    except MapError:
+        return None
+    options: dict[str, float] = {}
+    if channels:
+        options["channels"] = channels
+    if unit is not None:
+        options["humidity_unit"] = humidity_units(unit, channels)[0]
+    m = m.configure(options) if options else m
+    return m, next(iter(m.groups), None)
 
 
 def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:
@@ -184,7 +251,18 @@ def samples_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: in
     in id order, at most ``limit``, decoded (the reader of a store-and-forward
     publisher: keep the last id sent as the cursor). ``db`` is an open
     connection or a path (opened read-only). Only format 2; format 1 raises
-    InvalidArgument."""
+    InvalidArgument. A hub's sample is a :class:`~pymb.devices.HubReading`,
+    a CoolPro's a :class:`~pymb.devices.CoolProTelemetry`, any other
+    device's a :class:`~pymb.devices.mapreading.MapReading`
+    (:func:`pymb.devices.readings.reading_view`)."""
+    return [dataclasses.replace(s, data=reading_view(map_reading(s.data)))
+            for s in stored_after(db, sample_id, limit, before)]
+
+
+def stored_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int,
+                 limit: int = 1000, before: int | None = None) -> list[StoredSample]:
+    """:func:`samples_after` with every sample a
+    :class:`~pymb.devices.mapreading.MapReading` of its map."""
     con, own = _connect(db)
     try:
         if schema_version(con) != SCHEMA_VERSION:
@@ -203,18 +281,13 @@ def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
                   ) -> Iterator[StoredSample]:
     """The samples ``where`` says, decoded (map devices by their stored map,
     or by the one in ``given``)."""
-    dec = _Decoder(con, given)
+    devices: dict[int, _Device] = {}
     q = ("SELECT s.id, s.device_id, s.time_utc, s.monotonic, s.registers, s.unsupported "
          f"FROM samples s WHERE {where} ORDER BY s.id" + ("" if limit is None else " LIMIT ?"))
     for sid, did, t, mono, blob, unsupported in con.execute(
             q, (*args, limit) if limit is not None else tuple(args)).fetchall():
-        info, units = dec.device(did)
-        data: HubReading | CoolProTelemetry | MapReading
-        if info.type == "hub":
-            data = dec.hub(did, info.channels, units, t, sid, blob, unsupported)
-        elif info.type != "coolpro":
-            data = dec.map_reading(did, info, blob, unsupported)
-        else:
-            regs = host_words(blob)
-            data = decode_telemetry(regs)
-        yield StoredSample(info, t, mono, data, sid)
+        dev = devices.get(did)
+        if dev is None:
+            dev = devices[did] = _Device(con, did, given)
+        yield StoredSample(dev.info, t, mono, dev.reading(con, did, t, sid, blob, unsupported),
+                           sid)

@@ -10,9 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
-from pymb.devices import CoolProTelemetry, HubReading
-from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import map_reading
+from pymb.devices.readings import Reading, map_reading
 from pymb.errors import (
     DeviceBusy,
     DeviceException,
@@ -43,7 +41,9 @@ class DeviceInfo:
     channels: int = 0
     humidity_unit: float | tuple[float, ...] = 0.1
     #: a map device: its map's TOML text (stored with its samples) and the
-    #: options it was read with, as ``key=value`` pairs
+    #: options it was read with, as ``key=value`` pairs; a device without map
+    #: text is stored in format 1's layout, by the shipped map of its type
+    #: (the hub, the CoolPro)
     map_source: str = field(default="", compare=False, repr=False)
     map_options: tuple[tuple[str, float], ...] = ()
     #: a map device: deadbands by point name for on-change storage (over the map's)
@@ -57,10 +57,10 @@ class Sample:
     device: DeviceInfo
     time_utc: float
     monotonic: float
-    data: CoolProTelemetry | HubReading | MapReading
+    data: Reading
 
 
-def reading_values(data: CoolProTelemetry | HubReading | MapReading, not_read: bool = False
+def reading_values(data: Reading, not_read: bool = False
                    ) -> list[tuple[int | None, str, Any, Any]]:
     """(channel, point, value, state) of every value of a reading, by its
     map's points, in the order of the long CSV: a block's channel (1-based)
@@ -89,7 +89,7 @@ def reading_values(data: CoolProTelemetry | HubReading | MapReading, not_read: b
     return out
 
 
-def reading_value(data: CoolProTelemetry | HubReading | MapReading, name: str,
+def reading_value(data: Reading, name: str,
                   channel: int | None = None) -> float | None:
     """Point ``name`` of a reading (a block's ``channel``, 1-based) as a
     number, NaN where there is none; None when the reading does not hold it

@@ -293,9 +293,8 @@ class Retention:
             limit = cutoff if cutoff is not None else (
                 kept_time[0] if kept_time else math.inf)
             on_change = self.db.execute("SELECT 1 FROM hub_changes LIMIT 1").fetchone()
-            for did, ch in self.db.execute(
-                    "SELECT device_id, channel FROM channels WHERE device_id IN "
-                    "(SELECT id FROM devices WHERE type = 'hub')").fetchall() if on_change else ():
+            for did, ch in self.db.execute(  # the devices stored by channel
+                    "SELECT device_id, channel FROM channels").fetchall() if on_change else ():
                 self.db.execute("DELETE FROM hub_changes WHERE device_id = ? AND channel = ? "
                                 "AND time_utc < ? AND sample_id < ?",
                                 (did, ch, limit, first_kept))

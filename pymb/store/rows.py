@@ -10,19 +10,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pymb.devices.mapreading import MapReading
+from pymb import maps
+from pymb.devices.mapreading import MapReading, group_layout
 from pymb.errors import InvalidArgument, OutputError
+from pymb.maps import MapError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
-from pymb.store.schema import (
-    HUB_BYTES,
-    HUB_STRIDE,
-    OWN_LAYOUT,
-    map_layout_key,
-    unsupported_mask,
-    wire_bytes,
-)
+from pymb.store.schema import map_layout_key, unsupported_mask, wire_bytes
 
 __all__ = ["ROWS_PER_INSERT", "DeviceIds", "humidity_units", "insert_rows", "stored_registers",
            "unsupported_of"]
@@ -41,21 +36,31 @@ def insert_rows(n: int) -> str:
             "VALUES " + ", ".join(["(?, ?, ?, ?, ?, ?)"] * n))
 
 
-def stored_registers(data: MapReading) -> bytes:
+def stored_registers(data: MapReading, size: int = 0) -> bytes:
     """The ``registers`` column of a reading: big-endian words (the
-    reading's own bytes when its reader had them so, as the TCP loop does;
-    a hub's registers 31..730 whatever its channels)."""
+    reading's own bytes when its reader had them so, as the TCP loop does),
+    at least ``size`` bytes (format 1's layout: the registers of its shipped
+    map's group, a hub's 31..730, whatever its channels)."""
     if data.wire is not None:
         return data.wire
     out = wire_bytes(data.registers)
-    if data.map.id == "hub" and len(out) < HUB_BYTES:
-        out += bytes(HUB_BYTES - len(out))
+    if len(out) < size:
+        out += bytes(size - len(out))
     return out
 
 
-def _hub_channels(data: MapReading) -> int:
-    """The channels of a hub's sweep: its blocks', as its map was configured."""
-    return max((p.channels for p in data.map.points.values() if p.block), default=HUB_STRIDE)
+@functools.lru_cache(maxsize=64)
+def _shipped(kind: str) -> tuple[int, int]:
+    """(channels, bytes) of format 1's layout of device type ``kind``: its
+    shipped map's blocks' channels (0: none) and registers of its group."""
+    try:
+        m = maps.builtin(kind)
+    except MapError:
+        raise InvalidArgument(f"a device of type {kind!r} needs its map's text "
+                              "(DeviceInfo.map_source): pymb ships no such map") from None
+    group = next(iter(m.groups), None)
+    return (max((p.channels for p in m.points.values() if p.block), default=0),
+            2 * sum(d.count for d in group_layout(m, group)))
 
 
 def unsupported_of(data: MapReading) -> int:
@@ -90,11 +95,11 @@ class DeviceIds:
         self.db = db
         self.path = path
         self._begin = begin
-        self._devices: dict[Any, tuple[int, int]] = {}
+        self._devices: dict[Any, tuple[int, int, int]] = {}
         #: (id of a configuration, group) -> (that configuration, its ids): the
         #: logger hands the same object with every sample of a device, so this
         #: finds it without hashing its fields
-        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int]]] = {}
+        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int, int]]] = {}
         self._viewed: set[str] = set()  #: map ids whose views this session made
 
     def forget(self) -> None:
@@ -104,9 +109,14 @@ class DeviceIds:
         self._seen.clear()
         self._viewed.clear()
 
-    def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int]:
-        """(device id, channels) of a device configuration, inserted on first use."""
-        mapped = isinstance(data, MapReading) and d.type not in OWN_LAYOUT
+    def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int, int]:
+        """(device id, channels, bytes) of a device configuration, inserted on
+        first use: a device with a map text (a map device) has a row per
+        group and its map stored; one without is of format 1's layout, its
+        map the shipped one of its type (the hub, the CoolPro): ``channels``
+        (stored by channel when not 0) and its channels' humidity units in
+        its row, its registers at least ``bytes``."""
+        mapped = bool(d.map_source) and isinstance(data, MapReading)
         mine = (id(d), data.group if mapped else None)
         seen = self._seen.get(mine)
         if seen is not None and seen[0] is d:
@@ -116,12 +126,14 @@ class DeviceIds:
         if got is not None:
             self._remember(mine, d, got)
             return got
-        channels, units, tenths = 0, "", b""
+        channels, units, tenths, size = 0, "", b"", 0
         if mapped:
             units = map_layout_key(data.group, d.map_options)
-        elif d.type == "hub":  # its channels, or as read (DeviceInfo.channels 0)
-            channels = d.channels or (_hub_channels(data) if isinstance(data, MapReading)
-                                      else HUB_STRIDE)
+        elif not d.map_source:  # its channels, or as read (DeviceInfo.channels 0)
+            most, size = _shipped(d.type)
+            channels = d.channels or (max((p.channels for p in data.map.points.values()
+                                           if p.block), default=0)
+                                      if isinstance(data, MapReading) else most)
             units, tenths = humidity_units(d, channels)
         key = (d.bus, d.port, d.type, d.address, d.name, channels, units)
         self._begin()
@@ -138,14 +150,14 @@ class DeviceIds:
             did = row[0]
         if mapped:
             self._store_map(d, data)
-        got = (int(did), channels)  # type: ignore[arg-type]
+        got = (int(did), channels, size)  # type: ignore[arg-type]
         if not isinstance(data, Event):
             self._devices[cache] = got
             self._remember(mine, d, got)
         return got
 
     def _remember(self, mine: tuple[int, str | None], d: DeviceInfo,
-                  got: tuple[int, int]) -> None:
+                  got: tuple[int, int, int]) -> None:
         if len(self._seen) >= _SEEN_MAX:  # a caller with a new object per sample
             self._seen.clear()
         self._seen[mine] = (d, got)

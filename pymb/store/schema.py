@@ -20,12 +20,10 @@ from pymb.wire import registers_from_wire, registers_to_wire
 
 __all__ = [
     "COOLPRO_FIELDS",
-    "HUB_BYTES",
     "HUB_FIELDS",
     "HUB_STRIDE",
     "MAP_UNSUPPORTED_BITS",
     "MIN_BYTES",
-    "OWN_LAYOUT",
     "PAGE_SIZE",
     "SCHEMA",
     "SCHEMA_SQL",
@@ -53,14 +51,6 @@ HUB_FIELDS = list(_HUB_TENTHS.points)
 #: k is at ``k * HUB_STRIDE + channel - 1`` whatever the channels logged
 HUB_STRIDE = _HUB_TENTHS.points[HUB_FIELDS[0]].channels
 
-
-#: the device types a database keeps in their own layout (format 1's: the
-#: ``hub_readings`` and ``coolpro_readings`` views, a hub's channels and
-#: humidity units in its ``devices`` row), with no ``maps`` row: their map
-#: is the shipped one
-OWN_LAYOUT = frozenset({"coolpro", "hub"})
-#: a stored hub sample's bytes: registers 31..730, whatever the channels logged
-HUB_BYTES = 2 * HUB_STRIDE * len(HUB_FIELDS)
 
 
 def wire_bytes(regs: array[int]) -> bytes:
@@ -127,6 +117,10 @@ def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
 #                samples hold the registers of one group, each of its tables from the
 #                group's first register to its last, one table after the other; its
 #                unsupported column has a bit per point of the group the device refused.
+#                A device with no map row (the hub, the CoolPro: format 1's layout) is
+#                decoded by the shipped map of its type, configured by its devices row
+#                (its channels and their humidity units), for the map's first group; a
+#                row with channels stores an --on-change sample by channel (hub_changes).
 #   events       faults, reconnects, trimming.
 #
 # Decoded values are views, in plain SQL (no extension; Debian 12's sqlite3 3.40):

@@ -10,30 +10,24 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from pymb import maps
+from pymb.devices.mapreading import group_points
 from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
-from pymb.store.reader import iter_samples, stored_map
+from pymb.store.reader import device_map, iter_samples, shipped_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import StoredSample, reading_value
-from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
+from pymb.store.schema import SCHEMA_VERSION, schema_version
 from pymb.store.summary import devices
 
-__all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series", "unit_of"]
-
-_UNITS = {p.name: p.unit for m in ("coolpro", "hub") for p in maps.builtin(m).points.values()
-          if p.name in (*COOLPRO_FIELDS, *HUB_FIELDS)}
+__all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series"]
 
 
 def quantities(kind: str) -> list[str]:
-    """The quantities a device of ``kind`` (``hub``, ``coolpro``) has."""
-    return list(HUB_FIELDS if kind == "hub" else COOLPRO_FIELDS)
-
-
-def unit_of(quantity: str) -> str:
-    """The unit of a quantity ("" for none)."""
-    return _UNITS.get(quantity, "")
+    """The quantities a device of format 1's layout (``hub``, ``coolpro``:
+    a shipped map) stores: the points of its map's group; none for another."""
+    got = shipped_map(kind)
+    return [] if got is None else group_points(*got)
 
 
 def resolve_device(con: sqlite3.Connection, wanted: str, path: str) -> tuple[str, str]:
@@ -118,18 +112,21 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
         if schema_version(con) != SCHEMA_VERSION:
             raise InvalidArgument(f"{path} is not a pymb database of format {SCHEMA_VERSION}")
         name, kind = resolve_device(con, device, str(path))
-        stored = stored_map(con, kind)
-        known = quantities(kind) if stored is None else [
-            n for n, p in stored[0].points.items() if p.access != "w" and not p.block]
+        channels = int(con.execute("SELECT channels FROM devices WHERE name = ?",
+                                   (name,)).fetchone()[0])
+        stored = device_map(con, kind, "", channels)
+        if stored is None:
+            raise InvalidArgument(f"{path}: the database has no map {kind!r} for {name}")
+        m = stored[0]
+        # a device stored by channel: its blocks (one a channel); else its points
+        known = [n for n in group_points(*stored) if m.points[n].block == bool(channels)]
         if quantity not in known:
             raise InvalidArgument(f"{name} ({kind}) has no quantity {quantity!r}"
                                   f"{closest(quantity, known)}")
-        if stored is not None and stored[0].points[quantity].type in ("string", "raw"):
+        if m.points[quantity].type in ("string", "raw"):
             raise InvalidArgument(f"{name}'s {quantity} is text, not a number: there is "
                                   f"nothing to draw (pymb export --quantity {quantity} "
                                   "lists its values)")
-        channels = int(con.execute("SELECT channels FROM devices WHERE name = ?",
-                                   (name,)).fetchone()[0])
         if channels:  # a hub's
             if channel is None:
                 raise InvalidArgument(f"{name} is a {kind}: give --channel (1..{channels})")
@@ -146,8 +143,7 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
                 continue  # another group's sample, a channel an --on-change sample did not store
             times.append(s.time_utc)
             values.append(v)
-        unit = unit_of(quantity) if stored is None else stored[0].points[quantity].unit
-        return Series(name, kind, quantity, channel, unit, times, values)
+        return Series(name, kind, quantity, channel, m.points[quantity].unit, times, values)
     except sqlite3.Error as e:
         raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
     finally:

@@ -34,7 +34,7 @@ from pymb.store.rows import (
     stored_registers,
     unsupported_of,
 )
-from pymb.store.schema import HUB_FIELDS, HUB_STRIDE, MIN_BYTES, open_format, wire_bytes
+from pymb.store.schema import MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
 
@@ -227,9 +227,10 @@ class SqliteSink(SinkBase):
             self._make_room(len(samples))
             take = self._ids.take
             device_id = self._device_ids.id_of
-            rows = [(take(), device_id(s.device, data)[0], s.time_utc, s.monotonic,
-                     stored_registers(data), unsupported_of(data))
-                    for s in samples for data in (map_reading(s.data),)]
+            rows = [(take(), did, s.time_utc, s.monotonic, stored_registers(data, size),
+                     unsupported_of(data))
+                    for s in samples for data in (map_reading(s.data),)
+                    for did, _, size in (device_id(s.device, data),)]
             bounded = self.max_bytes is not None
             self._begin()
             if not bounded:  # no WAL budget: statements of ROWS_PER_INSERT rows
@@ -281,31 +282,31 @@ class SqliteSink(SinkBase):
 
     def _write(self, sample: Sample) -> None:
         data = map_reading(sample.data)
-        did = self._device_ids.id_of(sample.device, data)[0]
+        did, channels, size = self._device_ids.id_of(sample.device, data)
         self._begin()
         if self.on_change is None:
-            self._insert(did, sample, stored_registers(data), unsupported_of(data))
+            self._insert(did, sample, stored_registers(data, size), unsupported_of(data))
             self.stored += 1
             return
         rules = self._changes.get(did)
-        hub = sample.device.type == "hub"
         if rules is None:
             bands = {**self.on_change.deadband, **dict(sample.device.map_deadband)}
-            rules = self._changes[did] = Changes(self.on_change, bands, by_channel=hub)
+            rules = self._changes[did] = Changes(self.on_change, bands, by_channel=channels > 0)
         pick = rules.changed(data, sample.monotonic)
         if not pick:
             return
-        if hub:  # the channels picked, as rows of hub_changes
+        if channels:  # stored by channel: the channels picked, as rows of hub_changes
             sid = self._insert(did, sample, None, unsupported_of(data))
-            regs, n = data.registers, HUB_STRIDE
-            blocks = range(len(HUB_FIELDS))
+            regs = data.registers
+            points = [data.map.points[n] for n in data.values]
+            first = min(p.address for p in points)
             self.db.executemany(
                 "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
-                [(did, ch + 1, sample.time_utc, sid,
-                  wire_bytes(array("H", [regs[b * n + ch] for b in blocks])))
+                [(did, ch + 1, sample.time_utc, sid, wire_bytes(array(
+                    "H", [regs[p.address - first + ch * p.stride] for p in points])))
                  for ch in pick])
         else:
-            self._insert(did, sample, stored_registers(data), unsupported_of(data))
+            self._insert(did, sample, stored_registers(data, size), unsupported_of(data))
         self.stored += 1
 
     def event(self, event: Event) -> None:

@@ -11,11 +11,16 @@ from __future__ import annotations
 
 import difflib
 import gzip
+import json
 from pathlib import Path
 
 import pytest
 from conftest import run_pymb
-from release_outputs import DATABASES, OUTPUTS, outputs, restore
+from release_outputs import DATABASES, OUTPUTS, messages, outputs, restore
+
+from pymb.devices.mapreading import MapReading
+from pymb.store import sample_dict
+from pymb.store.reader import stored_after
 
 RELEASE = Path(__file__).resolve().parent / "release"
 
@@ -37,6 +42,23 @@ def test_the_release_files_read_as_the_release_read_them(tmp_path: Path) -> None
     assert sorted(got) == sorted(OUTPUTS)
     for name in OUTPUTS:
         _same(name, _expected(name), got[name])
+
+
+def test_the_forwarder_reads_map_readings_into_the_release_messages(tmp_path: Path) -> None:
+    """The forwarder's reader gives every sample as a map reading of its
+    map (the hub's and the CoolPro's too): the JSON and the messages of both
+    profiles are the release's, byte for byte."""
+    for db in DATABASES:
+        path = tmp_path / db
+        restore(RELEASE / f"{Path(db).stem}.sql.gz", path)
+        recs = stored_after(path, 0, limit=1_000_000)
+        assert recs and all(isinstance(s.data, MapReading) for s in recs)
+        assert {s.data.map.id for s in recs} == {"coolpro", "hub"}
+        jsonl = "".join(json.dumps(sample_dict(s), allow_nan=False) + "\n" for s in recs)
+        _same(f"{db}.jsonl", _expected(f"{db}.jsonl"), jsonl)
+        plain, spark = messages(path, stored_after)
+        _same(f"{db}.plain", _expected(f"{db}.plain"), plain)
+        _same(f"{db}.sparkplug", _expected(f"{db}.sparkplug"), spark)
 
 
 def test_pymb_export_writes_the_release_csv(tmp_path: Path) -> None:
