@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import sqlite3
@@ -16,7 +17,7 @@ from pymb.devices.hub import units as humidity_units
 from pymb.devices.mapreading import Blocks, MapReading, group_layout, group_points
 from pymb.devices.readings import map_reading, reading_view
 from pymb.errors import InvalidArgument
-from pymb.maps import Map, MapError, Point, Value
+from pymb.maps import Decoder, Map, MapError, Point, Value
 from pymb.maps.types import STATES
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
@@ -120,14 +121,19 @@ class _Device:
             units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
         self.info = DeviceInfo(bus, port, kind, address, name, channels, unit)
         self.channels = int(channels)
-        found = stored_map(db, kind, layout, given) if has_map(db, kind) else \
-            shipped_map(kind, self.channels, unit if units else None)
-        if found is None:
+        self.unit, self.other = humidity_units(unit, self.channels) if units else (0.1, b"")
+        if has_map(db, kind):
+            found = stored_map(db, kind, layout, given)
+            decoders = None if found is None else group_layout(*found)
+        else:  # the shipped map's, made once
+            key = (kind, self.channels, self.unit if units else None)
+            found, decoders = _shipped(*key), _shipped_layout(*key)
+        if found is None or decoders is None:
             raise InvalidArgument(f"the database has no map {kind!r} for device {name}")
         self.map, self.group = found
-        self.decoders = group_layout(self.map, self.group)
+        self.decoders = decoders
+        self.buffers = [d.new_buffers() for d in decoders]  # this reader's own
         self.names = group_points(self.map, self.group)
-        self.unit, self.other = humidity_units(unit, self.channels) if units else (0.1, b"")
 
     def reading(self, db: sqlite3.Connection, did: int, t: float, sid: int,
                 blob: bytes | None, unsupported: int) -> MapReading:
@@ -146,8 +152,8 @@ class _Device:
         values: dict[str, Value] = {}
         states: dict[str, Any] = {}
         at = 0
-        for dec in self.decoders:
-            b = dec.decode(regs[at:at + dec.count])
+        for dec, into in zip(self.decoders, self.buffers, strict=True):
+            b = dec.decode(regs[at:at + dec.count], into)
             values.update(dec.values(b))
             states.update(dec.states(b))
             at += dec.count
@@ -185,8 +191,8 @@ class _Device:
         values, states = array("d"), array("B")
         index: dict[str, int] = {}
         at = 0
-        for dec in self.decoders:
-            b = dec.decode(regs[at:at + dec.count])
+        for dec, into in zip(self.decoders, self.buffers, strict=True):
+            b = dec.decode(regs[at:at + dec.count], into)
             index.update((n, len(values) + dec.slot(n)) for n in dec.names)
             values.extend(b.values[:dec.slots])
             states.extend(b.states[:dec.slots])
@@ -226,6 +232,11 @@ def shipped_map(kind: str, channels: int = 0, unit: float | tuple[float, ...] | 
     (its ``channels``, its channels' humidity ``unit``, the most common for
     a unit per channel), and the group its samples hold (the map's first);
     None for a type with no shipped map."""
+    return _shipped(kind, channels, None if unit is None else humidity_units(unit, channels)[0])
+
+
+@functools.lru_cache(maxsize=64)
+def _shipped(kind: str, channels: int, unit: float | None) -> tuple[Map, str | None] | None:
     try:
         m = maps.builtin(kind)
     except MapError:
@@ -234,9 +245,15 @@ def shipped_map(kind: str, channels: int = 0, unit: float | tuple[float, ...] | 
     if channels:
         options["channels"] = channels
     if unit is not None:
-        options["humidity_unit"] = humidity_units(unit, channels)[0]
+        options["humidity_unit"] = unit
     m = m.configure(options) if options else m
     return m, next(iter(m.groups), None)
+
+
+@functools.lru_cache(maxsize=64)
+def _shipped_layout(kind: str, channels: int, unit: float | None) -> list[Decoder] | None:
+    got = _shipped(kind, channels, unit)
+    return None if got is None else group_layout(*got)
 
 
 def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:
