@@ -41,9 +41,7 @@ class DeviceInfo:
     channels: int = 0
     humidity_unit: float | tuple[float, ...] = 0.1
     #: a map device: its map's TOML text (stored with its samples) and the
-    #: options it was read with, as ``key=value`` pairs; a device without map
-    #: text is stored in format 1's layout, by the shipped map of its type
-    #: (the hub, the CoolPro)
+    #: options it was read with, as ``key=value`` pairs
     map_source: str = field(default="", compare=False, repr=False)
     map_options: tuple[tuple[str, float], ...] = ()
     #: a map device: deadbands by point name for on-change storage (over the map's)

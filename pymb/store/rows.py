@@ -13,11 +13,10 @@ from typing import Any
 from pymb import maps
 from pymb.devices.mapreading import MapReading, group_layout
 from pymb.errors import InvalidArgument, OutputError
-from pymb.maps import MapError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
 from pymb.store.records import DeviceInfo, Event
-from pymb.store.schema import map_layout_key, unsupported_mask, wire_bytes
+from pymb.store.schema import FORMAT1_LAYOUT, map_layout_key, unsupported_mask, wire_bytes
 
 __all__ = ["ROWS_PER_INSERT", "DeviceIds", "humidity_units", "insert_rows", "stored_registers",
            "unsupported_of"]
@@ -53,11 +52,7 @@ def stored_registers(data: MapReading, size: int = 0) -> bytes:
 def _shipped(kind: str) -> tuple[int, int]:
     """(channels, bytes) of format 1's layout of device type ``kind``: its
     shipped map's blocks' channels (0: none) and registers of its group."""
-    try:
-        m = maps.builtin(kind)
-    except MapError:
-        raise InvalidArgument(f"a device of type {kind!r} needs its map's text "
-                              "(DeviceInfo.map_source): pymb ships no such map") from None
+    m = maps.builtin(kind)
     group = next(iter(m.groups), None)
     return (max((p.channels for p in m.points.values() if p.block), default=0),
             2 * sum(d.count for d in group_layout(m, group)))
@@ -111,12 +106,12 @@ class DeviceIds:
 
     def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int, int]:
         """(device id, channels, bytes) of a device configuration, inserted on
-        first use: a device with a map text (a map device) has a row per
-        group and its map stored; one without is of format 1's layout, its
-        map the shipped one of its type (the hub, the CoolPro): ``channels``
-        (stored by channel when not 0) and its channels' humidity units in
-        its row, its registers at least ``bytes``."""
-        mapped = bool(d.map_source) and isinstance(data, MapReading)
+        first use: a map device has a row per group and its map stored; a
+        device of format 1's layout (:data:`FORMAT1_LAYOUT`) has its map's
+        ``channels`` (stored by channel when not 0) and their humidity units
+        in its row, its registers at least ``bytes``."""
+        own = d.type in FORMAT1_LAYOUT
+        mapped = not own and isinstance(data, MapReading)
         mine = (id(d), data.group if mapped else None)
         seen = self._seen.get(mine)
         if seen is not None and seen[0] is d:
@@ -128,8 +123,11 @@ class DeviceIds:
             return got
         channels, units, tenths, size = 0, "", b"", 0
         if mapped:
+            if not d.map_source:
+                raise InvalidArgument(f"{d.name}: a device of type {d.type!r} is stored with "
+                                      "its map's text (DeviceInfo.map_source), and it has none")
             units = map_layout_key(data.group, d.map_options)
-        elif not d.map_source:  # its channels, or as read (DeviceInfo.channels 0)
+        elif own:  # its channels, or as read (DeviceInfo.channels 0)
             most, size = _shipped(d.type)
             channels = d.channels or (max((p.channels for p in data.map.points.values()
                                            if p.block), default=0)

@@ -20,6 +20,7 @@ from pymb.wire import registers_from_wire, registers_to_wire
 
 __all__ = [
     "COOLPRO_FIELDS",
+    "FORMAT1_LAYOUT",
     "HUB_FIELDS",
     "HUB_STRIDE",
     "MAP_UNSUPPORTED_BITS",
@@ -50,6 +51,11 @@ HUB_FIELDS = list(_HUB_TENTHS.points)
 #: registers of a block in a stored hub sweep: a channel's register of block
 #: k is at ``k * HUB_STRIDE + channel - 1`` whatever the channels logged
 HUB_STRIDE = _HUB_TENTHS.points[HUB_FIELDS[0]].channels
+#: the device types the writer keeps in format 1's layout (the two devices
+#: format 1 knew): no ``maps`` row (the reader takes the shipped map of a
+#: type with none), a hub's channels and humidity units in its ``devices``
+#: row and its ``--on-change`` samples by channel in ``hub_changes``
+FORMAT1_LAYOUT = frozenset({"coolpro", "hub"})
 
 
 

@@ -9,6 +9,7 @@ telemetry group's; ``samples_after`` turns those into the typed views
 from __future__ import annotations
 
 import math
+import sqlite3
 import time
 from array import array
 from pathlib import Path
@@ -17,6 +18,7 @@ import pytest
 
 from pymb.devices import CoolProTelemetry, HubReading, decode_hub
 from pymb.devices.coolpro import decode_telemetry
+from pymb.devices.deviceconfig import shipped
 from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import has_own_view, map_reading
 from pymb.errors import InvalidArgument
@@ -115,7 +117,7 @@ def test_a_stored_coolpro_sample_is_its_telemetry_groups_reading(tmp_path: Path)
     assert v.data == t
 
 
-def test_a_device_with_neither_map_text_nor_a_shipped_map_is_refused(tmp_path: Path) -> None:
+def test_a_map_device_without_its_map_text_is_refused(tmp_path: Path) -> None:
     sink = SqliteSink(tmp_path / "x.sqlite")
     try:
         with pytest.raises(InvalidArgument, match="map_source"):
@@ -123,3 +125,28 @@ def test_a_device_with_neither_map_text_nor_a_shipped_map_is_refused(tmp_path: P
                               decode_hub(_sweep(0))))
     finally:
         sink.close()
+
+
+def test_the_hub_and_the_coolpro_keep_format_1s_layout_with_their_map_text(
+        tmp_path: Path) -> None:
+    """The logger hands every device's map text; the hub and the CoolPro are
+    stored as format 1 had them all the same: no maps row, a hub's channels
+    and their humidity units in its devices row."""
+    db = tmp_path / "f1.sqlite"
+    hub = DeviceInfo("b", "p", "hub", 7, "hub-7", 5, tuple(UNITS),
+                     map_source=shipped("hub").text)
+    cp = DeviceInfo("b", "p", "coolpro", 40, "psu", map_source=shipped("coolpro").text)
+    sink = SqliteSink(db)
+    sink.write(Sample(hub, T0, 0.0, decode_hub(_sweep(0), UNITS, channels=5)))
+    sink.write(Sample(cp, T0, 0.0, decode_telemetry(array("H", range(8)))))
+    sink.close()
+    con = sqlite3.connect(db)
+    try:
+        assert con.execute("SELECT COUNT(*) FROM maps").fetchone() == (0,)
+        assert con.execute("SELECT type, channels, humidity_units FROM devices ORDER BY id"
+                           ).fetchall() == [("hub", 5, "0.1,1,1,0.1,1"), ("coolpro", 0, "")]
+        assert [t for (t,) in con.execute("SELECT humidity_tenths FROM channels")] == \
+            [1, 0, 0, 1, 0]
+        assert [len(b) for (b,) in con.execute("SELECT registers FROM samples")] == [1400, 16]
+    finally:
+        con.close()
