@@ -11,7 +11,6 @@ import contextlib
 import os
 import sqlite3
 from collections.abc import Mapping
-from pathlib import Path
 
 from pymb.errors import InvalidArgument
 from pymb.store.readonly import open_readonly
@@ -36,7 +35,7 @@ def check_stored_maps(path: str | os.PathLike[str], texts: Mapping[str, str]) ->
     """InvalidArgument if the database at ``path`` holds one of the map ids of
     ``texts`` (map id -> the map's text) with other text. Nothing to check if
     there is no such file, or it is not a database (what opens it says so)."""
-    if not texts or not Path(path).is_file():
+    if not texts or not os.path.isfile(path):  # False too where the folder is not searchable
         return
     try:
         db = open_readonly(path)
