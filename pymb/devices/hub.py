@@ -33,6 +33,7 @@ from pymb.devices.hubreading import (
     check_channels,
 )
 from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import Blocks
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 from pymb.maps.device_plan import map_planner
@@ -173,6 +174,15 @@ def humidity_in_other_unit(registers: Sequence[int], values: Any, states: Any, a
         else:
             values[at + i] = raw / 10 if unit == 1.0 else float(raw)
             states[at + i] = State.VALUE
+
+
+def blocks_in_other_units(b: Blocks, registers: Sequence[int], unit: float,
+                          other: bytes) -> None:
+    """:func:`humidity_in_other_unit` on a hub map reading's :class:`Blocks`
+    (the sweep reader's, the store's), if it holds the humidity."""
+    at = b.index.get("humidity_pct")
+    if at is not None and any(other):
+        humidity_in_other_unit(registers, b.values, b.states, at, unit, other)
 
 
 _DECODED = (State.VALUE, State.NO_SENSOR)

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from pymb.client import Client
-from pymb.devices.hub import busy_error, hub_device, humidity_in_other_unit, units
+from pymb.devices.hub import blocks_in_other_units, busy_error, hub_device, units
 from pymb.devices.hubreading import BLOCKS, CHANNELS
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import Blocks, MapReading
@@ -56,7 +56,7 @@ class SweepReader:
         names = tuple(index)
         blocks = Blocks(names, c, array("d", b.values), array("B", b.states), index)
         if self._mixed:
-            self._other_units(blocks, b.registers)
+            blocks_in_other_units(blocks, b.registers, self.unit, self.other)
         sts = blocks.states.tobytes()
         gone = tuple(n for n in names if _UNSUPPORTED in sts[blocks.index[n]:blocks.index[n] + c])
         return MapReading(self.device.map, group, blocks.value_map(), blocks.state_map(),
@@ -92,13 +92,7 @@ class SweepReader:
             for n in flat.names:  # (the blocks as flat arrays, to decode again)
                 flat.values.extend(math.nan if v is None else v for v in values[n])
                 flat.states.extend(STATES.index(x) for x in states[n])
-            self._other_units(flat, regs)
+            blocks_in_other_units(flat, regs, self.unit, self.other)
             values.update(flat.value_map())
             states.update(flat.state_map())
         return MapReading(self.device.map, None, values, states, regs, missing)
-
-    def _other_units(self, b: Blocks, registers: Sequence[int]) -> None:
-        """Channel humidity of the channels whose unit is not the map's."""
-        at = b.index.get("humidity_pct")
-        if at is not None:
-            humidity_in_other_unit(registers, b.values, b.states, at, self.unit, self.other)

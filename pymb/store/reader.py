@@ -12,7 +12,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from pymb import maps
-from pymb.devices.hub import humidity_in_other_unit
+from pymb.devices.hub import blocks_in_other_units
 from pymb.devices.hub import units as humidity_units
 from pymb.devices.mapreading import Blocks, MapReading, group_layout, group_points
 from pymb.devices.readings import map_reading, reading_view
@@ -199,9 +199,7 @@ class _Device:
             at += dec.count
         c = self.channels
         blocks = Blocks(self.names, c, values, states, {n: index[n] for n in self.names})
-        if any(self.other):
-            humidity_in_other_unit(regs, values, states, index.get("humidity_pct", 0),
-                                   self.unit, self.other)
+        blocks_in_other_units(blocks, regs, self.unit, self.other)
         for n in gone:
             i = index[n]
             values[i:i + c] = array("d", [math.nan] * c)
