@@ -45,22 +45,24 @@ SKIPPED = "{late} poll slot(s) of {interval:g} s skipped ({what})"
 
 
 class Backoff:
-    """A doubling wait: :data:`BACKOFF_FIRST`, twice that, ... at most :data:`BACKOFF_MAX`."""
+    """A doubling wait: :data:`BACKOFF_FIRST`, twice that, ... at most
+    ``most`` seconds (:data:`BACKOFF_MAX`)."""
 
-    __slots__ = ("wait",)
+    __slots__ = ("most", "wait")
 
-    def __init__(self) -> None:
-        self.wait = BACKOFF_FIRST  #: seconds of the next wait
+    def __init__(self, most: float = BACKOFF_MAX) -> None:
+        self.most = most
+        self.wait = min(BACKOFF_FIRST, most)  #: seconds of the next wait
 
     def take(self) -> float:
         """The wait now; the next one is twice as long."""
         wait = self.wait
-        self.wait = min(wait * 2, BACKOFF_MAX)
+        self.wait = min(wait * 2, self.most)
         return wait
 
     def reset(self) -> None:
         """Back to the first wait (the bus opened, or carried a reply)."""
-        self.wait = BACKOFF_FIRST
+        self.wait = min(BACKOFF_FIRST, self.most)
 
 
 @dataclass(eq=False)
@@ -85,8 +87,13 @@ class Health:
         """A map device's: offline after ``offline_after`` failed polls (1 if
         unset) for ``offline_retry`` seconds (30 if unset), or with
         ``backoff`` (its map's ``[device.timing] backoff``) backed off then
-        with a doubling wait."""
-        return cls(name, offline_after or 1, None if backoff else float(offline_retry or 30.0))
+        with a wait doubling up to ``offline_retry``."""
+        retry = float(offline_retry or BACKOFF_MAX)
+        if not backoff:
+            return cls(name, offline_after or 1, retry)
+        h = cls(name, offline_after or 1, None)
+        h._waits = Backoff(retry)
+        return h
 
     def failed(self, now: float, at_once: bool = False) -> str:
         """Count a failed poll at ``now`` (``at_once``: left alone now, however

@@ -96,8 +96,8 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "offline_after": ("failed polls in a row before the device is backed off",
                           "offline_after"),
         "offline_retry": ("seconds between tries once backed off", "offline_retry"),
-        "backoff": ("`true`: once backed off, tried again after a wait of 0.5 s doubling to "
-                    "30 s (each failed poll says when), not every `offline_retry`, with no "
+        "backoff": ("`true`: once backed off, tried again after a wait of 0.5 s doubling up "
+                    "to `offline_retry` (each failed poll says when), not every one, with no "
                     "offline/online events; a poll in which the device refused every point is "
                     "a failure that backs it off at once, not a sample", "backoff"),
     }),

@@ -112,6 +112,17 @@ def test_a_backoff_device_backs_off_doubling_after_ten_failures(kind: str) -> No
     assert h.failed(100.0) == ""  # a new run of failures starts from nothing
 
 
+def test_a_backoff_doubles_up_to_the_maps_offline_retry() -> None:
+    h = Health.of_map("m", 1, 3.0, backoff=True)
+    said = [h.failed(float(t)) for t in range(5)]
+    assert said == ["; next try in 0.5 s", "; next try in 1 s", "; next try in 2 s",
+                    "; next try in 3 s", "; next try in 3 s"]
+    assert h.answered() is False  # no "online": it was backed off, not offline
+    assert h.failed(10.0) == "; next try in 0.5 s"  # a new run starts from the first wait
+    short = Health.of_map("m", 1, 0.2, backoff=True)
+    assert short.failed(0.0) == "; next try in 0.2 s"
+
+
 def test_a_failure_at_once_backs_off_at_once() -> None:
     h = _backoff("hub", "hub-1")
     assert h.failed(1.0, at_once=True) == "; next try in 0.5 s"
