@@ -82,7 +82,9 @@ def _check(args: argparse.Namespace) -> int:
         if g is None and not chosen:
             continue
         interval = m.groups.get(g) if g is not None else None
-        when = ("read on request" if g is None else
+        polled = m.polled(g) if g is not None else "request"
+        when = ("read on request" if polled == "request" else
+                "at the bus's interval" if polled == "bus" else
                 "read once when the device appears" if interval == 0 else
                 f"every {interval:g} s")
         print(f"\ngroup {g or '(none)'}: {_plural(len(chosen), 'point')}, {when}")

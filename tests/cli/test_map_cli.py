@@ -111,6 +111,19 @@ def test_map_check_prints_each_groups_plan_and_wire_time(meter: Path) -> None:
     assert "6 request(s), 700 registers on the wire" in r.stdout
 
 
+def test_map_check_says_how_each_group_is_polled() -> None:
+    # a group's ``poll`` says when the logger reads it: at its bus's interval
+    # (not its own), or never (read on request, pymb read --group)
+    r = run_pymb("map", "check", "coolpro")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "group telemetry: 7 points, at the bus's interval" in lines
+    assert "group identity: 6 points, read on request" in lines
+    assert "group config: 3 points, read on request" in lines
+    r = run_pymb("map", "check", "hub")
+    assert "group sweep: 7 points, at the bus's interval" in r.stdout.splitlines()
+
+
 def test_map_check_mistakes_are_one_line(tmp_path: Path, meter: Path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(METER.replace('unit = "A"', 'unti = "A"'))
