@@ -163,9 +163,13 @@ def _firmware_range(i: int) -> str:
 
 
 def mismatch(found: Identity | None, wanted: str, address: int, channels: int) -> str:
-    """Why a read of ``wanted`` (``coolpro``/``hub`` with ``channels``) at
-    ``address`` got no value, in one phrase."""
-    name = {"coolpro": "a CoolPro", "hub": "a hub"}[wanted]
+    """Why a read of ``wanted`` (``coolpro``/``hub`` with ``channels``, or
+    another map's id) at ``address`` got no value, in one phrase."""
+    name = {"coolpro": "a CoolPro", "hub": "a hub"}.get(wanted)
+    if name is None:  # another map's device (backoff = true): it refused every point
+        if found is None:
+            return f"address {address} refused every point of the {wanted} map"
+        name = wanted
     if found is None:
         return f"nothing answers at address {address}"
     if found.device != wanted:

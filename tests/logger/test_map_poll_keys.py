@@ -14,6 +14,7 @@ from conftest import run_pymb
 
 from pymb import maps
 from pymb.devices.deviceconfig import DeviceConfig, MapText
+from pymb.devices.identify import mismatch
 from pymb.errors import InvalidArgument
 from pymb.sim.simulator import SimulatorProcess
 
@@ -106,3 +107,40 @@ def test_the_logger_polls_at_the_bus_interval_and_backs_off(tmp_path: Path) -> N
     assert said[1].endswith("; next try in 0.5 s"), said
     assert said[2].endswith("; next try in 1 s"), said
     assert not any("offline after" in m or "answers again" in m for m in said), said
+
+
+def test_a_device_that_refuses_every_point_is_backed_off_at_once(tmp_path: Path) -> None:
+    # backoff = true on a user's map: a poll the device answered with an
+    # exception for every point is a no_value failure, said in one line
+    # (what answered), not a crash of the bus's thread
+    path, other = tmp_path / "acme.toml", tmp_path / "other.toml"
+    path.write_text(MAP)
+    other.write_text(MAP.replace('id = "acme-psu"', 'id = "acme-other"')
+                     .replace("address = 0", "address = 900"))
+    db = tmp_path / "x.sqlite"
+    with SimulatorProcess(["--map", str(path), "acme-psu:1", "--tcp", "127.0.0.1:0"],
+                          quiet=True) as sim:
+        r = run_pymb("log", "--map", str(other), "acme-other:1", "--tcp",
+                     f"127.0.0.1:{sim.tcp_port}", "--interval", "0.2", "--timeout", "0.5",
+                     "--seconds", "3", "--out", str(db), "--quiet")
+    no_traceback(r)
+    assert r.returncode == 3, r.stderr  # a device that delivered no sample
+    with sqlite3.connect(db) as con:
+        samples = con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+        said = [(k, m) for k, m in con.execute(
+            "SELECT e.kind, e.message FROM events e JOIN devices d ON d.id = e.device_id "
+            "WHERE d.name = 'acme-other-1' ORDER BY e.id")]
+    assert samples == 0
+    assert said, said
+    assert said[0][0] == "no_value", said
+    # backed off at once: the first failure already says when it is tried again
+    first = said[0][1]
+    assert first.startswith("acme-other-1 supplied no value: address 1 "), said
+    assert "not acme-other" in first, said
+    assert first.endswith("; next try in 0.5 s"), said
+
+
+def test_what_answered_a_map_device_of_no_value_is_one_phrase() -> None:
+    assert mismatch(None, "acme-other", 3, 0) == (
+        "address 3 refused every point of the acme-other map")
+    assert mismatch(None, "hub", 3, 100) == "nothing answers at address 3"
