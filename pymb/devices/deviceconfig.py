@@ -175,6 +175,9 @@ class DeviceConfig:
             raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {self.address!r}")
         if not self.groups:
             self.groups = tuple(g for g in m.groups if m.polled(g) != "request")
+            if m.groups and not self.groups:  # (not a map without groups, read whole)
+                raise InvalidArgument(f"every group of {m.id} is read on request "
+                                      "(poll = \"request\"): nothing to poll")
         for g in self.groups:
             if g not in m.groups:
                 hint = near(g, list(m.groups)) or "; it has " + ", ".join(m.groups)

@@ -144,3 +144,20 @@ def test_what_answered_a_map_device_of_no_value_is_one_phrase() -> None:
     assert mismatch(None, "acme-other", 3, 0) == (
         "address 3 refused every point of the acme-other map")
     assert mismatch(None, "hub", 3, 100) == "nothing answers at address 3"
+
+
+def test_a_map_whose_groups_are_all_on_request_is_not_polled_whole(tmp_path: Path) -> None:
+    # every group read on request: nothing for the logger to poll, said in one
+    # line (not a poll of every point, as a map without groups is read)
+    text = MAP.replace('live = { interval = 30.0, poll = "bus" }\n', "").replace(
+        'group = "live"', 'group = "info"')
+    m = _map(text)
+    with pytest.raises(InvalidArgument, match="every group of acme-psu is read on request"):
+        DeviceConfig(MapText(m, text), 1)
+    path = tmp_path / "acme.toml"
+    path.write_text(text)
+    r = run_pymb("log", "--map", str(path), "acme-psu:1", "--tcp", "127.0.0.1:9",
+                 "--seconds", "1", "--out", str(tmp_path / "x.sqlite"))
+    no_traceback(r)
+    assert r.returncode == 2, r.stderr
+    assert "every group of acme-psu is read on request" in r.stderr
