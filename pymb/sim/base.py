@@ -38,6 +38,7 @@ __all__ = [
     "Function",
     "exception_pdu",
     "parse_firmware",
+    "seconds",
     "sign_magnitude",
 ]
 
@@ -135,9 +136,26 @@ def _flag(value: str) -> bool:
             "no": False, "off": False}[value.lower()]
 
 
+#: the longest wait before a reply a simulated device takes, in seconds
+MAX_DELAY_S = 60.0
+
+
+def seconds(value: str) -> float:
+    """A wait before a reply: 0..:data:`MAX_DELAY_S` seconds (ValueError else)."""
+    s = float(value)
+    if not 0.0 <= s <= MAX_DELAY_S:  # NaN too
+        raise ValueError(value)
+    return s
+
+
 def _delay(value: str) -> float | tuple[float, float]:
     lo, sep, hi = value.partition("-")
-    return (float(lo), float(hi)) if sep else float(value)
+    if not sep:
+        return seconds(value)
+    low, high = seconds(lo), seconds(hi)
+    if low > high:
+        raise ValueError(value)
+    return (low, high)
 
 
 def _baud(value: str) -> int:
@@ -149,7 +167,7 @@ def _baud(value: str) -> int:
 #: the simulator's own keys of every device spec, beside its map's options
 SIM_KEYS: Keys = {
     "firmware": ("firmware", str, "a version: points need their min_firmware"),
-    "delay": ("delay", _delay, "delay seconds before each reply, or LOW-HIGH"),
+    "delay": ("delay", _delay, f"0..{MAX_DELAY_S:g} seconds before each reply, or LOW-HIGH"),
     "baud": ("baud", _baud, "a number of bit/s"),
     "dynamic": ("dynamic", _flag, "0 or 1: values move"),
 }

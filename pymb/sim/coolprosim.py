@@ -15,7 +15,16 @@ from pymb import maps
 from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
-from pymb.sim.base import _TWO_PI, Keys, _locked, _noise, episode, parse_firmware
+from pymb.sim.base import (
+    _TWO_PI,
+    MAX_DELAY_S,
+    Keys,
+    _locked,
+    _noise,
+    episode,
+    parse_firmware,
+    seconds,
+)
 from pymb.sim.clock import SimClock
 from pymb.sim.mapsim import MapSimDevice
 
@@ -55,10 +64,12 @@ class CoolProDevice(MapSimDevice):
 
     functions = frozenset((3, 4, 6))
     builtin_map = _MAP
-    spec_keys: ClassVar[Keys] = {"gap": ("delay", float, "seconds"),
+    spec_keys: ClassVar[Keys] = {
+                 "gap": ("delay", seconds, f"0..{MAX_DELAY_S:g} seconds before each reply"),
                  "serial": ("serial_number", lambda v: int(v, 0), "a number"),
                  "hardware": ("hardware_revision", int, "a number"),
                  "uptime": ("uptime", float, "seconds")}
+    delay_arg: ClassVar[str] = "gap"
     LOAD_STEP_S: ClassVar[float] = 20.0  #: how often the load may change
     EPISODE_WINDOW_S: ClassVar[float] = 600.0  #: one status-fault episode chance per window
     EPISODE_PROBABILITY: ClassVar[float] = 0.25

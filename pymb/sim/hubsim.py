@@ -101,6 +101,7 @@ class HubDevice(MapSimDevice):
     #: ``humidity``: the humidity unit of every channel (as the map's ``humidity_unit``)
     spec_keys: ClassVar[Keys] = {
         "humidity": ("humidity_tenths", lambda v: {"0.1": True, "1": False}[v], "0.1 or 1")}
+    delay_arg: ClassVar[str] = "response_delay"
     refused: ClassVar[Mapping[str, str]] = {
         "channels": "a simulated hub's channel count follows its firmware (firmware=1.07: 50)"}
     REPORT_PERIOD_S: ClassVar[float] = 2.0  #: each channel's sensor reports this often

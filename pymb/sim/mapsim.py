@@ -49,7 +49,7 @@ from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
 from pymb.maps.codec import decode_one, encode
 from pymb.maps.types import TYPES
-from pymb.sim.base import ExceptionCode, Keys, _locked, _swapped, exception_pdu
+from pymb.sim.base import MAX_DELAY_S, ExceptionCode, Keys, _locked, _swapped, exception_pdu
 from pymb.sim.clock import SimClock
 from pymb.sim.mapimage import TABLES as _TABLE
 from pymb.sim.mapimage import MapImage
@@ -73,6 +73,8 @@ class MapSimDevice(MapImage):
     #: spec beside :data:`SIM_KEYS`, and map options it refuses (key -> why)
     builtin_map: ClassVar[Map]
     spec_keys: ClassVar[Keys] = {}
+    #: the constructor's name of the wait before a reply (a check names it)
+    delay_arg: ClassVar[str] = "delay"
     refused: ClassVar[Mapping[str, str]] = {}
 
     def __init__(self, m: Map, address: int | None = None, *, baud: int = 9600,
@@ -81,9 +83,9 @@ class MapSimDevice(MapImage):
         super().__init__(m, address, baud=baud, seed=seed, clock=clock)
         self.dynamic = dynamic
         span = delay if isinstance(delay, tuple) else (delay, delay)
-        if not 0.0 <= span[0] <= span[1] <= 60.0:
-            raise InvalidArgument(f"{m.id}: delay must be 0..60 s (or a low, high range), "
-                                  f"got {delay!r}")
+        if not 0.0 <= span[0] <= span[1] <= MAX_DELAY_S:
+            raise InvalidArgument(f"{m.id}: {self.delay_arg} must be 0..{MAX_DELAY_S:g} s "
+                                  f"(or a low, high range), got {delay!r}")
         #: seconds from a request's end to the reply (a range: drawn per request)
         self.delay = delay
         if firmware:

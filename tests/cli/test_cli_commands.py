@@ -319,6 +319,9 @@ def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list
     (["hub:1,firmwar=1.07"], "unknown key 'firmwar'; hub takes firmware=..."),
     (["hub:1,channels=50"], "channel count follows its firmware (firmware=1.07: 50)"),
     (["hub,baud=0"], "bad value for baud: '0'"),
+    (["coolpro,gap=-1"], "bad value for gap: '-1' (0..60 seconds before each reply)"),
+    (["coolpro,delay=61"], "bad value for delay: '61' (0..60 seconds"),
+    (["hub,delay=2-1"], "bad value for delay: '2-1' (0..60 seconds"),
     (["hub", "--baud", "0"], "baud must be a positive number of bit/s, got 0"),
     (["hub", "--baud", "-5"], "baud must be a positive number of bit/s, got -5"),
 ])

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import struct
+from collections.abc import Callable
 
 import pytest
 
@@ -367,6 +368,20 @@ def test_make_device_specs() -> None:
             "hub takes firmware=..., delay=..., baud=..., dynamic=..., humidity=..., "
             "humidity_unit=...")):
         make_device("hub,colour=red")
+
+
+@pytest.mark.parametrize(("make", "name"), [
+    (lambda: make_device("coolpro,gap=-1"), "bad value for gap: '-1'"),
+    (lambda: make_device("coolpro,delay=-1"), "bad value for delay: '-1'"),
+    (lambda: make_device("hub,delay=0.5-0.1"), "bad value for delay: '0.5-0.1'"),
+    (lambda: CoolProDevice(gap=61), "coolpro: gap must be 0..60 s"),
+    (lambda: HubDevice(response_delay=-1), "hub: response_delay must be 0..60 s"),
+])
+def test_a_wait_out_of_range_names_the_key_given(make: Callable[[], object], name: str) -> None:
+    """A wait before the reply outside 0..60 s is refused naming the key or
+    argument the user wrote (``gap``, not the engine's ``delay``)."""
+    with pytest.raises(InvalidArgument, match=re.escape(name)):
+        make()
 
 
 def test_fault_specs_and_plan() -> None:
