@@ -4,9 +4,9 @@
  *
  * Used by the request path (pymb_request.c frames every request and checks
  * every reply itself, for every address 0..255), by the sans-I/O TCP master
- * (pymb_master.c, which shares the MBAP length rule, pymbi_mbap_length, and
- * the TCP reply check, pymbi_tcp_check, with the request path's TCP
- * transport), by the device simulators, and by the fuzz targets. Everything reads only inside the lengths it is given.
+ * (pymb_master.c, which shares the MBAP framing, pymbi_mbap_frame, the MBAP
+ * length rule, pymbi_mbap_length, and the TCP reply check, pymbi_tcp_check,
+ * with the request path's TCP and UDP transports), by the device simulators, and by the fuzz targets. Everything reads only inside the lengths it is given.
  */
 #include <string.h>
 
@@ -135,6 +135,18 @@ int pymbi_mbap_length(const uint8_t *adu, size_t have)
         return PYMB_FRAME_BAD_HEADER;
     }
     return 6 + (int)length;
+}
+
+int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu)
+{
+    adu[0] = (uint8_t)(tid >> 8);
+    adu[1] = (uint8_t)tid;
+    adu[2] = 0;
+    adu[3] = 0;
+    adu[4] = (uint8_t)(req_len >> 8);
+    adu[5] = (uint8_t)req_len;
+    memcpy(adu + 6, req, (size_t)req_len);
+    return req_len + 6;
 }
 
 int pymbi_tcp_check(uint8_t unit, const uint8_t *req_pdu, size_t req_len, const uint8_t *adu,

@@ -159,8 +159,8 @@ int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint
                     int expect, int *exc);
 int pymbi_rtu_lost_step(pymb_line *line);
 
-/* pymb_tcp.c: the MBAP half that UDP shares ([MB-TCP] 3.1.3). */
-int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu);
+/* pymb_tcp.c: the MBAP half that UDP shares ([MB-TCP] 3.1.3; the framing,
+ * the length rule and the reply check are pymb_frame.c's: pymb_master.h). */
 int pymbi_mbap_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap);
 int pymbi_mbap_reply_length(const uint8_t *adu, int have, int expect);
 int pymbi_mbap_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,

@@ -1,9 +1,10 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * pymb_master.c - a sans-I/O Modbus TCP master (see pymb_master.h): frames
- * with transaction ids, replies matched by id, checked by pymb_frame.c's
- * rules and copied into the caller's image, the rest reported as events.
- * No allocation, no I/O, no state outside the caller's pymbi_master.
+ * with transaction ids (pymbi_mbap_frame), replies matched by id, checked by
+ * pymb_frame.c's rules and copied into the caller's image, the rest
+ * reported as events. No allocation, no I/O, no state outside the
+ * caller's pymbi_master.
  */
 #include <errno.h>
 #include <string.h>
@@ -62,6 +63,17 @@ static int fits(const pymbi_mreq *r, size_t image_len)
     return nb > 0 && r->offset <= image_len && nb <= image_len - r->offset;
 }
 
+/* The unit id and the PDU of a read ([MB-APP] 6.1-6.4): 6 bytes. */
+static void read_request(const pymbi_mreq *r, uint8_t req[6])
+{
+    req[0] = r->unit;
+    req[1] = r->function;
+    req[2] = (uint8_t)(r->address >> 8);
+    req[3] = (uint8_t)r->address;
+    req[4] = (uint8_t)(r->count >> 8);
+    req[5] = (uint8_t)r->count;
+}
+
 int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_t image_len,
                         uint8_t *out, size_t out_cap)
 {
@@ -79,22 +91,12 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
     }
     for (i = 0; i < n; i++) {
         const pymbi_mreq *r = &reqs[i];
-        uint8_t *f = out + i * PYMBI_MASTER_FRAME;
         uint16_t tid = m->next_tid;
         pymbi_mslot *s = SLOT(m, tid);
+        uint8_t req[6];
 
-        f[0] = (uint8_t)(tid >> 8);
-        f[1] = (uint8_t)tid;
-        f[2] = 0; /* protocol id */
-        f[3] = 0;
-        f[4] = 0; /* length: unit id and the 5-byte PDU */
-        f[5] = 6;
-        f[6] = r->unit;
-        f[7] = r->function;
-        f[8] = (uint8_t)(r->address >> 8);
-        f[9] = (uint8_t)r->address;
-        f[10] = (uint8_t)(r->count >> 8);
-        f[11] = (uint8_t)r->count;
+        read_request(r, req);
+        pymbi_mbap_frame(tid, req, sizeof req, out + i * PYMBI_MASTER_FRAME);
         if (m->span == 0) {
             m->oldest = tid;
         }
@@ -173,7 +175,7 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
 {
     uint16_t tid = (uint16_t)(f[0] << 8 | f[1]);
     pymbi_mslot *s = in_flight(m, tid);
-    uint8_t req[5];
+    uint8_t req[6];
     int status, exc = 0;
 
     if (s == NULL) {
@@ -185,12 +187,8 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
         ev->code = 0;
         return 1;
     }
-    req[0] = s->req.function;
-    req[1] = (uint8_t)(s->req.address >> 8);
-    req[2] = (uint8_t)s->req.address;
-    req[3] = (uint8_t)(s->req.count >> 8);
-    req[4] = (uint8_t)s->req.count;
-    status = pymbi_tcp_check(s->req.unit, req, sizeof req, f, n, &exc);
+    read_request(&s->req, req);
+    status = pymbi_tcp_check(req[0], req + 1, sizeof req - 1, f, n, &exc);
     if (status == PYMB_FRAME_OK) {
         copy_data(&s->req, f + PYMBI_MASTER_HEAD, image);
         m->replies++;

@@ -15,8 +15,8 @@
  * owns; every length is checked. Needs only the C99 library and pymb_frame.c.
  * Users: pymb log's one TCP loop and pymb bench's bare loop (through
  * pymb._native.master); the request path's Modbus TCP transport (one request
- * at a time) frames and matches its own, and checks each reply with the same
- * two rules (pymbi_mbap_length, pymbi_tcp_check).
+ * at a time) matches its own replies, and frames and checks them with the
+ * same three rules (pymbi_mbap_frame, pymbi_mbap_length, pymbi_tcp_check).
  *
  * Documents cited:
  *   [MB-TCP] Modbus Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3 (MBAP)
@@ -41,6 +41,14 @@
  * The one MBAP length rule (the request path's TCP transport uses it too).
  */
 int pymbi_mbap_length(const uint8_t *adu, size_t have);
+
+/*
+ * [MB-TCP] 3.1.3: the ADU of req[0 .. req_len) (the unit id and the PDU,
+ * 2 .. 254 bytes) under transaction id tid into adu (req_len + 6 bytes):
+ * its length. The one MBAP framing (the request path's TCP and UDP
+ * transports use it too).
+ */
+int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu);
 
 /*
  * A Modbus TCP reply ADU adu[0 .. n) (its MBAP length checked) against the

@@ -8,7 +8,6 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
-#include <string.h>
 #include <unistd.h>
 
 #include "pymb_internal.h"
@@ -21,18 +20,6 @@ static int tcp_prepare(pymb_line *line, int slave)
 {
     (void)slave;
     return line->owed ? pymbi_pay_owed(line) : 0;
-}
-
-int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu)
-{
-    adu[0] = (uint8_t)(tid >> 8);
-    adu[1] = (uint8_t)tid;
-    adu[2] = 0;
-    adu[3] = 0;
-    adu[4] = (uint8_t)(req_len >> 8);
-    adu[5] = (uint8_t)req_len;
-    memcpy(adu + 6, req, (size_t)req_len);
-    return req_len + 6;
 }
 
 int pymbi_mbap_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *adu, int cap)

@@ -21,6 +21,7 @@
 #include <unistd.h>
 
 #include "pymb_internal.h"
+#include "pymb_master.h"
 
 /* Datagrams waiting before a request are old: dropped. */
 static int udp_prepare(pymb_line *line, int slave)
