@@ -29,7 +29,7 @@ from pymb.devices.mapspec import (
     parse_map_device,
     unknown_device,
 )
-from pymb.devices.spec import split_spec
+from pymb.devices.spec import closest, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 
@@ -294,21 +294,23 @@ def parse_device(spec: str, known: KnownMaps | None = None) -> DeviceConfig:
     return from_target(target, src)
 
 
-def _number(d: Mapping[str, Any], key: str, where: str) -> Any:
+def _number(d: Mapping[str, Any], key: str, where: str, kind: str = "a number") -> Any:
     v = d.get(key)
     if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
-        raise InvalidArgument(f"{where}: {key} must be a number, got {v!r}")
+        raise InvalidArgument(f"{where}: {key} must be {kind}, got {v!r}")
     return v
 
 
-def _option(d: Mapping[str, Any], key: str, where: str) -> Option:
-    """An option's value: a number, or a list of numbers (one a channel)."""
+def _option(d: Mapping[str, Any], key: str, where: str, m: Map) -> Option:
+    """An option's value: a number, or a list of numbers (one a channel);
+    a whole number where the map's default is one."""
+    kind = "a whole number" if isinstance(m.device.options[key], int) else "a number"
     v = d[key]
     if isinstance(v, list):
         for x in v:
-            _number({key: x}, key, where)
+            _number({key: x}, key, where, kind)
         return tuple(v)
-    return _number(d, key, where)  # type: ignore[no-any-return]
+    return _number(d, key, where, kind)  # type: ignore[no-any-return]
 
 
 def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
@@ -338,8 +340,8 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
             # (the typed views' tables are named by their type already)
             of = "" if m.id in TYPED_VIEWS else f" for {m.id}"
             raise InvalidArgument(f"{where} [[bus.device]]: unknown key {key!r}{of}"
-                                  f"{near(key, [*MAP_DEVICE_KEYS, *option_keys])}")
-    options = {k: _option(d, k, where) for k in option_keys if k in d}
+                                  f"{closest(key, [*MAP_DEVICE_KEYS, *option_keys])}")
+    options = {k: _option(d, k, where, m) for k in option_keys if k in d}
     try:
         src = _configured(src, options)
     except InvalidArgument as e:
@@ -350,7 +352,7 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     if isinstance(address, bool) or not isinstance(address, int):
         raise InvalidArgument(f"{where}: address has the wrong type ({address!r})")
     if not low <= address <= high:
-        raise InvalidArgument(f"{where}: address: {m.id} address must be {low}..{high}, "
+        raise InvalidArgument(f"{where}: {m.id} address must be {low}..{high}, "
                               f"got {address!r}")
     name = d.get("name", "")
     if not isinstance(name, str):
