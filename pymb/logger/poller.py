@@ -214,7 +214,7 @@ class BusPoller(threading.Thread):
         report.sample(Sample(info, time.time(), time.monotonic(), data))
         if h.failures:
             dev.explained = ""
-        report.answered(bus.name, h, info)
+        report.answered(bus.name, h, info, data.unsupported)
         return True
 
     def _explain(self, info: DeviceInfo) -> str:
