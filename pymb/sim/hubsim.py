@@ -144,6 +144,13 @@ class HubDevice(MapSimDevice):
         n = super()._channels_of(p)
         return min(n, _LEGACY[1]) if parse_firmware(self._firmware) <= _LEGACY[0] else n
 
+    def supports(self, name: str | None = None, *, block: str | None = None) -> bool:
+        """True when the firmware has block (or point) ``name``; ``block=``
+        is the keyword's earlier name, still taken."""
+        if (name is None) == (block is None):
+            raise InvalidArgument("supports() takes one block name")
+        return super().supports(name if name is not None else block)  # type: ignore[arg-type]
+
     def channel(self, channel: int) -> Channel:
         """The configuration of ``channel`` (1-based); a copy."""
         return replace(self._channels[self._cis(channel)[0]])
