@@ -16,6 +16,7 @@ from pymb.commands._common import (
     add_connection_args,
     add_device_arg,
     add_map_arg,
+    alias_spec,
     device_from_args,
     interruptible,
     make_client,
@@ -150,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
 
 def target_from_args(args: argparse.Namespace) -> MapTarget | None:
     """The map device the positional DEVICE names (with ``--address``), or
-    None for ``coolpro``/``hub``; an unknown TYPE is a one-line error that
-    names the map types known."""
+    None for ``coolpro``/``hub`` without ``--group`` (shown as their views);
+    an unknown TYPE is a one-line error that names the map types known."""
     if is_sunspec(args.device):
         if getattr(args, "address", None) is not None:
             raise InvalidArgument("give a SunSpec device's unit id as sunspec:ADDRESS")
@@ -164,9 +165,14 @@ def target_from_args(args: argparse.Namespace) -> MapTarget | None:
     if target is None:
         if kind not in TYPED_VIEWS:
             raise unknown_device(args.device, list(known))
-        if getattr(args, "group", None):
-            raise InvalidArgument("--group is for a device read through a map")
-        return None
+        if getattr(args, "group", None) is None:
+            return None
+        # One group of a typed view's map (its request groups too: the
+        # CoolPro's identity): read and shown as any map device's.
+        target = parse_map_device(alias_spec(args.device, args), map_types(views=True))
+        assert target is not None
+        _check_group(args, target)
+        return target
     for flag in ("channels", "humidity_unit"):
         if getattr(args, flag, None) is not None:
             raise InvalidArgument(f"--{flag.replace('_', '-')} is for a hub; a map's options "
