@@ -24,7 +24,7 @@ import time
 from collections.abc import Sequence
 from typing import IO, Protocol
 
-__all__ = ["ROOT", "Child", "ChildError", "Process", "pymb_argv", "python_env"]
+__all__ = ["ROOT", "Child", "ChildError", "Process", "pymb_argv", "pymb_argv_here", "python_env"]
 
 _PR_SET_PDEATHSIG = 1
 
@@ -51,6 +51,14 @@ def python_env() -> dict[str, str]:
 def pymb_argv(*args: str) -> list[str]:
     """``python -m pymb ARGS`` with this interpreter."""
     return [sys.executable, "-m", "pymb", *args]
+
+
+def pymb_argv_here(*args: str) -> list[str]:
+    """``python -P -m pymb ARGS``, for a child started in the caller's folder
+    (where relative paths mean what they say): ``-P`` keeps that folder off
+    the path, so a clone's source tree there (its ``pymb/`` without the
+    built extension) never shadows this pymb."""
+    return [sys.executable, "-P", "-m", "pymb", *args]
 
 
 class ChildError(RuntimeError):

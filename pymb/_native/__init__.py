@@ -16,11 +16,23 @@ TLS under a line.
 
 from __future__ import annotations
 
+import os
 from array import array
 from enum import IntEnum
 from typing import Any, TypeAlias
 
-from pymb._pymb_cffi import ffi, lib
+try:
+    from pymb._pymb_cffi import ffi, lib
+except ModuleNotFoundError as e:
+    if e.name != "pymb._pymb_cffi":
+        raise
+    # A clone's source tree found before the installed pymb (``python -m
+    # pymb`` run inside the clone after ``pip install .``): say so.
+    _TREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    raise ImportError(
+        f"pymb: {_TREE} is pymb's source tree, and its C extension is not built there: "
+        "run pymb from another folder, or install this clone editable "
+        "(pip install -e .)") from None
 
 __all__ = [
     "BAUD_RATES",

@@ -15,7 +15,7 @@ import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from types import TracebackType
 
-from pymb.child import Child, ChildError, pymb_argv
+from pymb.child import Child, ChildError, pymb_argv_here
 from pymb.client import parse_host_port
 from pymb.devices.mapspec import map_types, parse_map_device, unknown_device
 from pymb.devices.spec import split_spec
@@ -351,7 +351,7 @@ class SimulatorProcess:
         """Start the child and wait for its endpoint line."""
         name = f"pymb simulate {' '.join(self.args)}"
         # Started where the caller is: relative paths (--link) mean what they say.
-        self._child = Child(name, pymb_argv("simulate", *self.args), stdin=False,
+        self._child = Child(name, pymb_argv_here("simulate", *self.args), stdin=False,
                             stderr="drop" if self.quiet else "inherit", cwd=None)
         try:
             self.endpoint = self._child.readline(self.timeout).strip()
