@@ -282,7 +282,8 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
 
 
 # pymb_master.h: the sans-I/O Modbus TCP master (pymb._native.master is its one
-# Python user); internal (pymbi_*), not exported by libpymb.
+# Python user) and the MBAP rules it shares (pymb._native.serve splits and checks
+# an upstream's replies with them); internal (pymbi_*), not exported by libpymb.
 MASTER_CDEF = """
 #define PYMBI_MASTER_FRAME ...
 #define PYMBI_MASTER_HEAD ...
@@ -317,6 +318,9 @@ int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *
                       const pymbi_mreq *again, size_t n, uint8_t *out, size_t out_cap,
                       size_t *framed);
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap);
+int pymbi_mbap_length(const uint8_t *adu, size_t have);
+int pymbi_tcp_check(uint8_t unit, const uint8_t *req_pdu, size_t req_len, const uint8_t *adu,
+                    size_t n, int *exception_code);
 """
 
 

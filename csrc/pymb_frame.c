@@ -137,16 +137,18 @@ int pymbi_mbap_length(const uint8_t *adu, size_t have)
     return 6 + (int)length;
 }
 
-int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu)
+int pymbi_mbap_frame(uint16_t tid, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                     uint8_t *adu)
 {
+    memmove(adu + 7, pdu, pdu_len);
     adu[0] = (uint8_t)(tid >> 8);
     adu[1] = (uint8_t)tid;
     adu[2] = 0;
     adu[3] = 0;
-    adu[4] = (uint8_t)(req_len >> 8);
-    adu[5] = (uint8_t)req_len;
-    memcpy(adu + 6, req, (size_t)req_len);
-    return req_len + 6;
+    adu[4] = (uint8_t)((pdu_len + 1) >> 8);
+    adu[5] = (uint8_t)(pdu_len + 1);
+    adu[6] = unit;
+    return (int)pdu_len + 7;
 }
 
 int pymbi_tcp_check(uint8_t unit, const uint8_t *req_pdu, size_t req_len, const uint8_t *adu,

@@ -63,15 +63,14 @@ static int fits(const pymbi_mreq *r, size_t image_len)
     return nb > 0 && r->offset <= image_len && nb <= image_len - r->offset;
 }
 
-/* The unit id and the PDU of a read ([MB-APP] 6.1-6.4): 6 bytes. */
-static void read_request(const pymbi_mreq *r, uint8_t req[6])
+/* The PDU of a read ([MB-APP] 6.1-6.4): 5 bytes. */
+static void read_pdu(const pymbi_mreq *r, uint8_t pdu[5])
 {
-    req[0] = r->unit;
-    req[1] = r->function;
-    req[2] = (uint8_t)(r->address >> 8);
-    req[3] = (uint8_t)r->address;
-    req[4] = (uint8_t)(r->count >> 8);
-    req[5] = (uint8_t)r->count;
+    pdu[0] = r->function;
+    pdu[1] = (uint8_t)(r->address >> 8);
+    pdu[2] = (uint8_t)r->address;
+    pdu[3] = (uint8_t)(r->count >> 8);
+    pdu[4] = (uint8_t)r->count;
 }
 
 int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_t image_len,
@@ -93,10 +92,10 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
         const pymbi_mreq *r = &reqs[i];
         uint16_t tid = m->next_tid;
         pymbi_mslot *s = SLOT(m, tid);
-        uint8_t req[6];
+        uint8_t pdu[5];
 
-        read_request(r, req);
-        pymbi_mbap_frame(tid, req, sizeof req, out + i * PYMBI_MASTER_FRAME);
+        read_pdu(r, pdu);
+        pymbi_mbap_frame(tid, r->unit, pdu, sizeof pdu, out + i * PYMBI_MASTER_FRAME);
         if (m->span == 0) {
             m->oldest = tid;
         }
@@ -175,7 +174,7 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
 {
     uint16_t tid = (uint16_t)(f[0] << 8 | f[1]);
     pymbi_mslot *s = in_flight(m, tid);
-    uint8_t req[6];
+    uint8_t pdu[5];
     int status, exc = 0;
 
     if (s == NULL) {
@@ -187,8 +186,8 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
         ev->code = 0;
         return 1;
     }
-    read_request(&s->req, req);
-    status = pymbi_tcp_check(req[0], req + 1, sizeof req - 1, f, n, &exc);
+    read_pdu(&s->req, pdu);
+    status = pymbi_tcp_check(s->req.unit, pdu, sizeof pdu, f, n, &exc);
     if (status == PYMB_FRAME_OK) {
         copy_data(&s->req, f + PYMBI_MASTER_HEAD, image);
         m->replies++;

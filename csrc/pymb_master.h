@@ -43,12 +43,13 @@
 int pymbi_mbap_length(const uint8_t *adu, size_t have);
 
 /*
- * [MB-TCP] 3.1.3: the ADU of req[0 .. req_len) (the unit id and the PDU,
- * 2 .. 254 bytes) under transaction id tid into adu (req_len + 6 bytes):
- * its length. The one MBAP framing (the request path's TCP and UDP
- * transports use it too).
+ * [MB-TCP] 3.1.3: the ADU of pdu[0 .. pdu_len) (1 .. 253 bytes, which may
+ * already stand at adu + 7) for `unit` under transaction id tid into adu
+ * (pdu_len + 7 bytes): its length. The one MBAP framing (the request path's
+ * TCP and UDP transports and pymb serve's replies use it too).
  */
-int pymbi_mbap_frame(uint16_t tid, const uint8_t *req, int req_len, uint8_t *adu);
+int pymbi_mbap_frame(uint16_t tid, uint8_t unit, const uint8_t *pdu, size_t pdu_len,
+                     uint8_t *adu);
 
 /*
  * A Modbus TCP reply ADU adu[0 .. n) (its MBAP length checked) against the

@@ -1,12 +1,14 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * pymb_serve.c - a Modbus TCP server's requests taken and checked, its
- * replies framed (see pymb_serve.h). No allocation, no I/O, no state between
+ * replies framed (by the one MBAP framing, pymbi_mbap_frame: pymb_frame.c;
+ * see pymb_serve.h). No allocation, no I/O, no state between
  * calls; reads only inside the lengths it is given.
  */
 #include <errno.h>
 #include <string.h>
 
+#include "pymb_master.h"
 #include "pymb_serve.h"
 
 #define EX_FUNCTION 1 /* [MB-APP] 7: illegal function */
@@ -141,15 +143,7 @@ int pymbi_srv_reply(uint16_t tid, uint8_t unit, const uint8_t *pdu, size_t pdu_l
         errno = EINVAL;
         return -1;
     }
-    out[0] = (uint8_t)(tid >> 8);
-    out[1] = (uint8_t)tid;
-    out[2] = 0;
-    out[3] = 0;
-    out[4] = (uint8_t)((pdu_len + 1) >> 8);
-    out[5] = (uint8_t)(pdu_len + 1);
-    out[6] = unit;
-    memmove(out + PYMBI_SRV_MBAP, pdu, pdu_len);
-    return (int)(PYMBI_SRV_MBAP + pdu_len);
+    return pymbi_mbap_frame(tid, unit, pdu, pdu_len, out);
 }
 
 int pymbi_srv_exception(uint16_t tid, uint8_t unit, uint8_t function, uint8_t code,

@@ -26,7 +26,7 @@ int pymbi_mbap_build(pymb_line *line, const uint8_t *req, int req_len, uint8_t *
 {
     (void)cap;
     line->tid = (uint16_t)(line->tid + 1u);
-    return pymbi_mbap_frame(line->tid, req, req_len, adu);
+    return pymbi_mbap_frame(line->tid, req[0], req + 1, (size_t)req_len - 1, adu);
 }
 
 static int tcp_send(pymb_line *line, const uint8_t *adu, int len)

@@ -73,7 +73,7 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
                 errno = ETIMEDOUT;
                 return -1;
             }
-            len = pymbi_mbap_frame(line->tid, req, req_len, adu);
+            len = pymbi_mbap_frame(line->tid, req[0], req + 1, (size_t)req_len - 1, adu);
             if (udp_send(line, adu, len) < 0) {
                 return -1;
             }

@@ -1,6 +1,8 @@
 """The requests a Modbus TCP server takes from a client, parsed and checked by
-the C core (``csrc/pymb_serve.c``), and its replies framed: the seam of
-:mod:`pymb.serve` over ``ffi``/``lib``."""
+the C core (``csrc/pymb_serve.c``); frames in MBAP (a reply to a client, a
+request to a Modbus TCP upstream); an upstream's replies split by the MBAP
+length rule and checked against their requests as the request path checks
+them: the seam of :mod:`pymb.serve` over ``ffi``/``lib``."""
 
 from __future__ import annotations
 
@@ -8,11 +10,21 @@ from typing import NamedTuple
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["MAX_FRAME", "BadFrame", "ClientRequest", "exception_frame", "reply_frame",
+__all__ = ["MAX_FRAME", "REPLY_BAD", "REPLY_EXCEPTION", "REPLY_OK", "REPLY_OTHER", "BadFrame",
+           "ClientRequest", "check_reply", "exception_frame", "mbap_frame", "take_replies",
            "take_requests"]
 
 MAX_FRAME: int = lib.PYMBI_SRV_MAX_FRAME  #: the longest Modbus TCP frame
 _MBAP: int = lib.PYMBI_SRV_MBAP
+_INCOMPLETE: int = lib.PYMB_FRAME_INCOMPLETE
+#: what :func:`check_reply` says of a reply frame: the answer to the request
+#: (:data:`REPLY_OK`), its exception (:data:`REPLY_EXCEPTION`), a frame of
+#: another unit or function (:data:`REPLY_OTHER`: no answer to it), an answer
+#: that fails the check (:data:`REPLY_BAD`: a byte count that disagrees, a
+#: write's echo that differs)
+REPLY_OK, REPLY_EXCEPTION, REPLY_OTHER, REPLY_BAD = range(4)
+_STATUS = {lib.PYMB_FRAME_OK: REPLY_OK, lib.PYMB_FRAME_EXCEPTION: REPLY_EXCEPTION,
+           lib.PYMB_FRAME_BAD_SLAVE: REPLY_OTHER, lib.PYMB_FRAME_BAD_FUNCTION: REPLY_OTHER}
 
 
 class ClientRequest(NamedTuple):
@@ -55,8 +67,9 @@ def take_requests(buf: bytearray) -> list[ClientRequest]:
     return out
 
 
-def reply_frame(tid: int, unit: int, pdu: bytes) -> bytes:
-    """The reply frame to request ``tid`` of ``unit``: MBAP, then ``pdu``."""
+def mbap_frame(tid: int, unit: int, pdu: bytes) -> bytes:
+    """The frame of ``pdu`` to or from ``unit`` under transaction id ``tid``:
+    MBAP, then ``pdu``."""
     out = ffi.new("uint8_t[]", MAX_FRAME)
     n = lib.pymbi_srv_reply(tid, unit, pdu, len(pdu), out, MAX_FRAME)
     if n < 0:
@@ -71,3 +84,33 @@ def exception_frame(tid: int, unit: int, function: int, code: int) -> bytes:
     if n < 0:
         raise ValueError(f"exception code must be 1..255, got {code}")
     return bytes(ffi.buffer(out, n))
+
+
+def take_replies(buf: bytearray) -> list[bytes]:
+    """Take every whole frame at the start of ``buf`` (removed from it), each
+    as long as its MBAP header says; what is left is the start of the next
+    one. Raises :class:`BadFrame` at a header that cannot be Modbus TCP (the
+    frames before it are lost with the connection)."""
+    out: list[bytes] = []
+    pos = 0
+    n = len(buf)
+    data = ffi.from_buffer(buf)
+    while pos < n:
+        got = lib.pymbi_mbap_length(data + pos, n - pos)
+        if got == _INCOMPLETE or pos + got > n:
+            break
+        if got < 0:
+            raise BadFrame(bytes(buf[pos:pos + 8]).hex(" "))
+        out.append(bytes(buf[pos:pos + got]))
+        pos += got
+    del data
+    if pos:
+        del buf[:pos]
+    return out
+
+
+def check_reply(unit: int, pdu: bytes, frame: bytes) -> int:
+    """What reply ``frame`` (a whole frame from :func:`take_replies`) is to
+    request ``pdu`` sent to ``unit``: :data:`REPLY_OK`, ... (see there)."""
+    status = lib.pymbi_tcp_check(unit, pdu, len(pdu), frame, len(frame), ffi.new("int *"))
+    return _STATUS.get(status, REPLY_BAD)

@@ -8,20 +8,28 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import struct
 from collections.abc import Callable
 
+from pymb._native.serve import (
+    REPLY_BAD,
+    REPLY_EXCEPTION,
+    REPLY_OTHER,
+    BadFrame,
+    check_reply,
+    mbap_frame,
+    take_replies,
+)
 from pymb.serve.upstream import EX_PATH, EX_TARGET, Done
 
 __all__ = ["DEFAULT_MAX_INFLIGHT", "PipelinedUpstream"]
 
 #: transactions in flight to a Modbus TCP upstream unless --max-inflight says
 DEFAULT_MAX_INFLIGHT = 8
-_HEADER = struct.Struct(">HHHB")
 
 
 class _Link(asyncio.Protocol):
-    """The TCP connection to the upstream: replies split by their MBAP length."""
+    """The TCP connection to the upstream: replies split by their MBAP length
+    (the C core's rule)."""
 
     def __init__(self, owner: PipelinedUpstream) -> None:
         self.owner = owner
@@ -33,19 +41,14 @@ class _Link(asyncio.Protocol):
         self.transport = transport
 
     def data_received(self, data: bytes) -> None:
-        buf = self.buf
-        buf += data
-        while len(buf) >= 7:
-            tid, proto, length, unit = _HEADER.unpack_from(buf)
-            if proto != 0 or not 2 <= length <= 254:
-                self.owner.lost(self, f"the upstream sent bytes that are not Modbus TCP "
-                                      f"({bytes(buf[:8]).hex(' ')})")
-                return
-            if len(buf) < 6 + length:
-                return
-            pdu = bytes(buf[7:6 + length])
-            del buf[:6 + length]
-            self.owner.reply(tid, unit, pdu)
+        self.buf += data
+        try:
+            frames = take_replies(self.buf)
+        except BadFrame as e:
+            self.owner.lost(self, f"the upstream sent bytes that are not Modbus TCP ({e})")
+            return
+        for frame in frames:
+            self.owner.reply(frame)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.owner.lost(self, f"{exc}" if exc else "closed by the upstream")
@@ -67,7 +70,10 @@ class PipelinedUpstream:
     there and ``done`` is called there with the reply PDU (the device's reply
     or exception, 0x0B when it did not answer within ``timeout``, 0x0A when it
     cannot be reached). A reply is taken only with the transaction id, unit
-    and function of a request in flight; anything else is dropped.
+    and function of a request in flight; anything else is dropped. A reply
+    that fails the request path's check of its request (a byte count that
+    disagrees with it, a write's echo that differs) is answered 0x0B, as
+    when one transaction at a time goes upstream.
 
     Some devices drop a request that arrives while they are busy with
     another (pymodbus's TCP server answers only the first of requests that
@@ -141,7 +147,7 @@ class PipelinedUpstream:
             job.answers_before = self._answers.get(job.unit, 0)
             job.timer = loop.call_later(self.timeout, self._late, tid)
             self.sent += 1
-            transport.write(_HEADER.pack(tid, 0, len(job.pdu) + 1, job.unit) + job.pdu)
+            transport.write(mbap_frame(tid, job.unit, job.pdu))
         self.most_inflight = max(self.most_inflight, len(self._inflight))
 
     def _take_tid(self) -> int:
@@ -180,18 +186,25 @@ class PipelinedUpstream:
         self._link = link
         self._pump()
 
-    def reply(self, tid: int, unit: int, pdu: bytes) -> None:
-        """A reply from the upstream (on the loop)."""
+    def reply(self, frame: bytes) -> None:
+        """A reply frame from the upstream (on the loop)."""
+        tid = frame[0] << 8 | frame[1]
         job = self._inflight.get(tid)
-        if job is None or unit != job.unit or not pdu or (pdu[0] & 0x7F) != job.pdu[0]:
-            return  # late (already answered 0x0B), or not a reply to it
+        if job is None:
+            return  # late (already answered 0x0B), or to no request
+        how = check_reply(job.unit, job.pdu, frame)
+        if how == REPLY_OTHER:
+            return  # not a reply to it
         del self._inflight[tid]
         if job.timer is not None:
             job.timer.cancel()
-        if pdu[0] & 0x80:
-            self.exceptions += 1
-        self._answers[unit] = self._answers.get(unit, 0) + 1
-        job.done(pdu)
+        if how == REPLY_BAD:
+            self.timeouts += 1
+            job.done(bytes((job.pdu[0] | 0x80, EX_TARGET)))
+        else:
+            self.exceptions += how == REPLY_EXCEPTION
+            self._answers[job.unit] = self._answers.get(job.unit, 0) + 1
+            job.done(frame[7:])
         self._pump()
 
     def _late(self, tid: int) -> None:

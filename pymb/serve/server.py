@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import cast
 
-from pymb._native.serve import BadFrame, exception_frame, reply_frame, take_requests
+from pymb._native.serve import BadFrame, exception_frame, mbap_frame, take_requests
 from pymb.errors import InvalidArgument
 from pymb.serve.pipeline import PipelinedUpstream
 from pymb.serve.roles import CertificateError, role_of
@@ -277,7 +277,7 @@ class _Conn(asyncio.Protocol):
         self.pending -= 1
         if self.closed:
             return
-        self._send(reply_frame(tid, unit, pdu))
+        self._send(mbap_frame(tid, unit, pdu))
         self._resume()
 
     def _send(self, frame: bytes) -> None:
