@@ -22,9 +22,9 @@ from pymb.client import (
     unresolved,
 )
 from pymb.client.address import is_mbaps
-from pymb.devices import CoolProIdentity, CoolProStatus
+from pymb.commands.maptext import indexed, reading_text
+from pymb.devices import CoolProIdentity
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, parse_device
-from pymb.devices.hubreading import BLOCKS
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.devices.readings import reading_dict
@@ -305,61 +305,11 @@ def make_client(args: argparse.Namespace) -> Client:
     return RtuClient(args.port, args.baud, args.parity, timeout=args.timeout)
 
 
-def _fmt(v: float, unit: str) -> str:
-    if unit in ("V", "A"):
-        return f"{v:.3f} {unit}"
-    if unit == "°C":
-        return f"{v:.3f} {unit}"
-    return f"{v:g} {unit}".strip()
-
-
-#: the CoolPro's telemetry points, in the order ``pymb read`` shows them
-TELEMETRY = tuple(p for p in maps.builtin("coolpro").points.values() if p.group == "telemetry")
-
-
-def _hub_table(data: MapReading) -> str:
-    """A hub's reading: a row a channel, a column a block."""
-    head = ["ch"] + [f"{b.name.rsplit('_', 1)[0]} [{b.unit}]" for b in BLOCKS]
-    rows = [head]
-    cols = [(data.values[b.name], data.states[b.name]) for b in BLOCKS]
-    for ch in range(len(cols[0][0])):  # type: ignore[arg-type]
-        row = [str(ch + 1)]
-        for vals, sts in cols:
-            st = sts[ch]
-            row.append(f"{vals[ch]:g}" if st == "value" else st.replace("_", " "))  # type: ignore[index]
-        rows.append(row)
-    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
-    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True))
-             for r in rows]
-    if data.unsupported:
-        lines.append(f"not supported by this firmware: {', '.join(sorted(data.unsupported))}")
-    return "\n".join(lines)
-
-
-def _telemetry_text(data: MapReading) -> str:
-    """A CoolPro's telemetry, a line a point."""
-    lines = []
-    for reg in TELEMETRY:
-        v: Any = data.values[reg.name]
-        if reg.name == "status":
-            v = CoolProStatus(v)
-            flags = [f.name for f in type(v) if f in v]
-            text = f"0x{int(v):04X}" + (f" ({', '.join(flags)})" if flags else " (ok)")
-            if v.reserved:
-                text += f" reserved bits 0x{v.reserved:04X}"
-        elif reg.name == "uptime_s":
-            text = f"{int(v)} s"
-        else:
-            text = _fmt(v, reg.unit)
-        lines.append(f"{reg.description.split(' (')[0].split(',')[0]:<16} {text}")
-    return "\n".join(lines)
-
-
 def render(data: MapReading | CoolProIdentity) -> str:
     """A readable table with units of a hub's or a CoolPro's reading, or a
     CoolPro's identity; no-value states shown by name."""
     if isinstance(data, MapReading):
-        return _hub_table(data) if data.map.id == "hub" else _telemetry_text(data)
+        return reading_text(data.map, data.values, data.states, data.unsupported)
     return "\n".join([
         f"{'Serial Number':<16} {data.serial_number}",
         f"{'Hardware':<16} rev {data.hardware_revision}",
@@ -373,9 +323,9 @@ def to_json(data: MapReading | CoolProIdentity) -> dict[str, Any]:
     is no value), or of a CoolPro's identity."""
     if isinstance(data, MapReading):
         doc = reading_dict(data)
-        if data.map.id == "hub":
+        if indexed(data.map, data.values):
             return doc
-        return {**doc["values"], "status_flags": doc["status_flags"]}
+        return {**doc["values"], **{k: v for k, v in doc.items() if k != "values"}}
     return {"serial_number": data.serial_number, "hardware_revision": data.hardware_revision,
             "firmware_version": data.firmware_version,
             "manufactured": data.manufactured.isoformat()}

@@ -1,19 +1,24 @@
 """A reading of a map device as text: a table of ``name  value unit`` lines
-and a JSON document (``pymb read``, ``pymb watch``)."""
+and a JSON document (``pymb read``, ``pymb watch``); and the two compact
+forms of a reading, each a rule over the map's data: the points of an
+indexed array (blocks of as many channels) as one table, a row an index and
+a column a quantity (:func:`table_text`), any other as a line a point
+labelled by its description (:func:`labelled_text`)."""
 
 from __future__ import annotations
 
 import json
 import math
 import struct
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from decimal import Decimal
 from typing import Any
 
 from pymb.maps import Map
 from pymb.maps.point import Point
 
-__all__ = ["map_json", "number_text", "render_map"]
+__all__ = ["indexed", "labelled_text", "map_json", "number_text", "reading_text",
+           "render_map", "table_text"]
 
 
 def _decimals(x: float | None) -> int:
@@ -103,3 +108,77 @@ def map_json(values: Mapping[str, Any], states: Mapping[str, Any]) -> dict[str, 
            "states": dict(states)}
     json.dumps(out, allow_nan=False)  # fails here, not half-way through printing
     return out
+
+
+def indexed(m: Map, names: Iterable[str]) -> bool:
+    """Whether the points ``names`` of ``m`` form one indexed array: each a
+    block, all of one channel count."""
+    ps = [m.points[n] for n in names]
+    return bool(ps) and all(p.block for p in ps) and len({p.channels for p in ps}) == 1
+
+
+def _quantity(p: Point) -> str:
+    """A column's head: the point's name without its unit's suffix, and the unit."""
+    return f"{p.name.rsplit('_', 1)[0]} [{p.unit}]"
+
+
+def table_text(m: Map, values: Mapping[str, Any], states: Mapping[str, Any],
+               unsupported: Iterable[str] = ()) -> str:
+    """The blocks of an indexed array (:func:`indexed`) as a table: a row a
+    channel (numbered from 1), a column a block in the map's order, a
+    channel without a value by its state; then the blocks the device's
+    firmware lacks, if any."""
+    names = [n for n in m.points if n in values]
+    rows = [["ch"] + [_quantity(m.points[n]) for n in names]]
+    for ch in range(len(values[names[0]])):
+        row = [str(ch + 1)]
+        for n in names:
+            st = states[n][ch]
+            row.append(f"{values[n][ch]:g}" if st == "value" else st.replace("_", " "))
+        rows.append(row)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths, strict=True))
+             for r in rows]
+    if unsupported:
+        lines.append(f"not supported by this firmware: {', '.join(sorted(unsupported))}")
+    return "\n".join(lines)
+
+
+def _labelled(p: Point, value: Any, state: Any) -> str:
+    if value is None or state not in (None, "value"):
+        return str(state).replace("_", " ")
+    if p.flags:
+        raw = int(value)
+        names = [n for bit, n in sorted(p.flags.items()) if raw >> bit & 1]
+        text = f"0x{raw:04X}" + (f" ({', '.join(names)})" if names else " (ok)")
+        undeclared = raw & ~sum(1 << bit for bit in p.flags)
+        return text + (f" reserved bits 0x{undeclared:04X}" if undeclared else "")
+    if isinstance(value, float):
+        text = f"{value:.{p.precision}f}" if p.precision is not None else f"{value:g}"
+    elif isinstance(value, int) and p.values and value in p.values:
+        text = f"{value} ({p.values[value]})"
+    else:
+        text = str(value)
+    return f"{text} {p.unit}".strip()
+
+
+def labelled_text(m: Map, values: Mapping[str, Any], states: Mapping[str, Any]) -> str:
+    """Points as lines ``Label  value unit``, in the map's order: the label
+    the first words of the point's description, a number with its
+    ``precision``, a bit field as its raw value and the names of the bits
+    set (``ok`` for none; undeclared bits set as ``reserved bits``)."""
+    lines = []
+    for n in (n for n in m.points if n in values):
+        p = m.points[n]
+        label = (p.description or n).split(" (")[0].split(",")[0]
+        lines.append(f"{label:<16} {_labelled(p, values[n], states.get(n))}")
+    return "\n".join(lines)
+
+
+def reading_text(m: Map, values: Mapping[str, Any], states: Mapping[str, Any],
+                 unsupported: Iterable[str] = ()) -> str:
+    """A reading's compact form: :func:`table_text` for an indexed array,
+    else :func:`labelled_text`."""
+    if indexed(m, values):
+        return table_text(m, values, states, unsupported)
+    return labelled_text(m, values, states)

@@ -32,15 +32,13 @@ from pymb.commands._common import (
     render,
     to_json,
 )
-from pymb.commands.maptext import map_json, render_map
-from pymb.devices.hubreading import BLOCKS, block_index
-from pymb.devices.mapreading import MapReading
+from pymb.commands.maptext import indexed, map_json, render_map
+from pymb.devices.mapreading import MapReading, group_points
 from pymb.devices.mapspec import MapTarget
 from pymb.devices.polls import Health
 from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
-_DEFAULT_BLOCKS = ("temperature_c", "humidity_pct")
 _STATE_WORDS = {"offline": "off", "no_sensor": "-", "unsupported": "n/a", "not_read": ""}
 _CELL = 6  # characters per value: "-327.6" at most, a space before
 
@@ -61,20 +59,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: all)")
 
 
-def parse_blocks(names: list[str]) -> list[str]:
-    """Block names (with or without the unit suffix), 'all', or the default."""
-    known = [b.name for b in BLOCKS]
-    short = {b.name.rsplit("_", 1)[0]: b.name for b in BLOCKS}
+def parse_blocks(names: list[str], known: list[str]) -> list[str]:
+    """Names of the ``known`` blocks (each with or without its unit's
+    suffix), 'all', or by default the first two (a hub's temperature and
+    humidity)."""
+    short = {n.rsplit("_", 1)[0]: n for n in known}
     out: list[str] = []
     for name in (n.strip() for arg in names for n in arg.split(",") if n.strip()):
         if name == "all":
-            return known
+            return list(known)
         full = name if name in known else short.get(name)
         if full is None:
             raise InvalidArgument(f"unknown --block {name!r}{closest(name, known)}")
         if full not in out:
             out.append(full)
-    return out or list(_DEFAULT_BLOCKS)
+    return out or list(known[:2])
 
 
 def _value(v: Any, state: str) -> str:
@@ -91,11 +90,10 @@ def hub_view(data: MapReading, blocks: list[str], shown: list[int], width: int,
     per_row = next((n for n in (20, 10, 5) if n <= per_row), max(1, per_row))
     lines: list[str] = []
     for name in blocks:
-        i = block_index(name)
         values, states = data.values[name], data.states[name]
         assert isinstance(values, list)
         vals = [(ch, _value(values[ch - 1], states[ch - 1])) for ch in shown]
-        lines.append(f"{name} [{BLOCKS[i].unit}]"[:width])
+        lines.append(f"{name} [{data.map.points[name].unit}]"[:width])
         for i in range(0, len(vals), per_row):
             row = vals[i:i + per_row]
             lines.append((f"{row[0][0]:>3}: " + "".join(v.rjust(_CELL) for _, v in row))[:width])
@@ -116,17 +114,20 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
     if not (math.isfinite(args.interval) and args.interval >= 0):
         raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
-    is_hub = dev.type == "hub"
-    channels = int(dev.map.options["channels"]) if is_hub else 0
-    if not is_hub and (args.block or args.show):
+    # An indexed array (a hub's sweep: blocks of as many channels) is shown
+    # block by block, the blocks and channels chosen read alone.
+    names = group_points(dev.map, dev.groups[0] if dev.groups else None)
+    is_table = indexed(dev.map, names)
+    channels = dev.map.points[names[0]].channels if is_table else 0
+    if not is_table and (args.block or args.show):
         raise InvalidArgument("--block and --show are for a hub")
-    blocks = parse_blocks(args.block) if is_hub else []
-    shown = parse_channels(args.show, channels) if is_hub and args.show else (
+    blocks = parse_blocks(args.block, names) if is_table else []
+    shown = parse_channels(args.show, channels) if is_table and args.show else (
         list(range(1, channels + 1)))
-    full = is_hub and len(blocks) == len(BLOCKS) and len(shown) == channels
+    full = is_table and len(blocks) == len(names) and len(shown) == channels
     client = make_client(args)
-    read = read_cmd.reader(dev, client, blocks=None if full or not is_hub else blocks,
-                           channels=None if full or not is_hub else shown)
+    read = read_cmd.reader(dev, client, blocks=None if full or not is_table else blocks,
+                           channels=None if full or not is_table else shown)
     frames: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=4)
     stop = threading.Event()
 
@@ -188,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
             body += identity.splitlines()
         if kind == "error":
             body.append(f"error: {item}")
-        elif is_hub:
+        elif is_table:
             body += hub_view(item, blocks, shown, width, height - 1 - len(body))
         else:
             body += render(item).splitlines()

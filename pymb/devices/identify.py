@@ -172,13 +172,13 @@ def mismatch(found: Identity | None, wanted: str, address: int, channels: int) -
         name = wanted
     if found is None:
         return f"nothing answers at address {address}"
+    like = {"coolpro": "a CoolPro", "hub": "a sensor hub"}.get(found.device,
+                                                              "an unknown device")
     if found.device != wanted:
-        like = {"coolpro": "a CoolPro", "hub": "a sensor hub"}.get(found.device,
-                                                                  "an unknown device")
         return f"address {address} answers like {like}, not {name} ({found.detail})"
-    if wanted == "hub" and found.channels is not None and found.channels < channels:
+    if found.channels is not None and found.channels < channels:
         firmware = found.detail.split(", ", 1)[-1]
-        return (f"address {address} answers like a sensor hub with {found.channels} channels "
-                f"({firmware}), not {channels}: read it as hub:{address},"
+        return (f"address {address} answers like {like} with {found.channels} channels "
+                f"({firmware}), not {channels}: read it as {wanted}:{address},"
                 f"channels={found.channels}")
     return f"address {address} answers like {name} but supplied no value ({found.detail})"

@@ -54,6 +54,9 @@ COMMANDS: list[tuple[str, list[str]]] = [
                           "--show", "1-3"]),
     ("watch hub 1.07", ["watch", "hub:7,channels=50", "--count", "1", "--block", "all"]),
     ("watch hub 1.07 100 channels", ["watch", "hub:7", "--count", "1"]),
+    ("watch hub unknown block", ["watch", "hub:250", "--count", "1", "--block", "presure"]),
+    ("watch hub channel 101", ["watch", "hub:250", "--count", "1", "--show", "1-101"]),
+    ("watch coolpro --block", ["watch", "coolpro", "--count", "1", "--block", "all"]),
 ]
 
 #: (name, arguments after the port) run on an 80x24 terminal
