@@ -88,7 +88,7 @@ class _BlockView(Mapping[str, Any]):
         return name in self.blocks.index
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class MapReading:
     """A map device's group, read once: ``values`` and ``states`` by point
     name (blocks as lists), and ``registers``, the group's tables one after
@@ -104,6 +104,21 @@ class MapReading:
     registers: array[int]
     unsupported: tuple[str, ...] = ()
     wire: bytes | None = field(default=None, compare=False, repr=False)
+
+    def __init__(self, map: Map, group: str | None, values: Mapping[str, Value],
+                 states: Mapping[str, Any], registers: array[int],
+                 unsupported: tuple[str, ...] = (), wire: bytes | None = None) -> None:
+        # a logger makes one a poll: its fields go straight into its own
+        # __dict__ (the frozen dataclass's __init__ sets each through
+        # object.__setattr__, 3x slower); a test checks that this sets every field
+        d = self.__dict__
+        d["map"] = map
+        d["group"] = group
+        d["values"] = values
+        d["states"] = states
+        d["registers"] = registers
+        d["unsupported"] = unsupported
+        d["wire"] = wire
 
     @property
     def blocks(self) -> Blocks | None:

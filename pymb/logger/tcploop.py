@@ -53,7 +53,7 @@ from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
-from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading, new_sample
+from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -346,7 +346,7 @@ class TcpMapPoller(TcpLoopBase):
             unread = (unread | c.unread) & e.decode.items
         reading = lazy_reading(e.decode, bytes(e.image), unread)
         report = self.report
-        report.sample(new_sample(u.info, time.time(), now, reading))
+        report.sample(Sample(u.info, time.time(), now, reading))
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
     def _requeue(self, c: Conn, e: Entry, now: float) -> None:

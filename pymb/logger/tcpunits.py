@@ -18,7 +18,7 @@ import sys
 import threading
 from array import array
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 from pymb._native.master import PollTable
@@ -28,10 +28,10 @@ from pymb.logger.schedule import Health, Slot
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
-from pymb.store import DeviceInfo, Sample
+from pymb.store import DeviceInfo
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "lazy_reading", "new_sample"]
+__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "lazy_reading"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -182,24 +182,6 @@ class _Lazy(Mapping[str, Any]):
 
 _SWAP = sys.byteorder == "little"
 _NONE: frozenset[int] = frozenset()
-_new = object.__new__
-#: the fields of the two records a poll makes, in their order (checked below)
-_READING = ("map", "group", "values", "states", "registers", "unsupported", "wire")
-_SAMPLE = ("device", "time_utc", "monotonic", "data")
-
-
-def _plain(cls: type, names: tuple[str, ...]) -> None:
-    """The loop makes ``cls`` records by filling their ``__dict__`` (each poll
-    makes a Sample and a MapReading: a frozen dataclass's ``__init__`` sets
-    each field through ``object.__setattr__``, 3 us a poll); that holds while
-    ``cls`` has exactly ``names`` as fields and nothing else to do at init."""
-    if (tuple(f.name for f in fields(cls)) != names or hasattr(cls, "__post_init__")
-            or hasattr(cls, "__slots__")):
-        raise TypeError(f"{cls.__name__} changed: make it with its __init__ again")
-
-
-_plain(MapReading, _READING)
-_plain(Sample, _SAMPLE)
 
 
 def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
@@ -210,28 +192,8 @@ def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
     if _SWAP:
         regs.byteswap()
     src = _Decoded(how, regs, unread)
-    r: MapReading = _new(MapReading)
-    d = r.__dict__
-    d["map"] = how.map
-    d["group"] = how.group
-    d["values"] = _Lazy(src, 0)
-    d["states"] = _Lazy(src, 1)
-    d["registers"] = regs
-    d["unsupported"] = how.unsupported(unread) if unread else ()
-    d["wire"] = image
-    return r
-
-
-def new_sample(device: DeviceInfo, time_utc: float, monotonic: float, data: MapReading
-               ) -> Sample:
-    """``Sample(device, time_utc, monotonic, data)``, as :func:`lazy_reading` makes its reading."""
-    s: Sample = _new(Sample)
-    d = s.__dict__
-    d["device"] = device
-    d["time_utc"] = time_utc
-    d["monotonic"] = monotonic
-    d["data"] = data
-    return s
+    return MapReading(how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs,
+                      how.unsupported(unread) if unread else (), image)
 
 
 @dataclass(eq=False)
