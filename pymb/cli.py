@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import difflib
 import importlib
 import os
+import re
 import sys
 from collections.abc import Sequence
 
@@ -87,7 +89,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         if command is None or name == command:
             mod = importlib.import_module(module)
             mod.add_arguments(p)
-            p.set_defaults(command_module=mod)
+            p.set_defaults(command_module=mod, command_parser=p)
     return parser
 
 
@@ -97,8 +99,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     # The subcommand is the first word that is not an option (pymb's own
     # options take no value), so only its module is imported.
     command = next((a for a in args_in if not a.startswith("-")), "")
-    parser = build_parser(command if command in COMMANDS else "")
-    args = parser.parse_args(args_in)
+    try:
+        parser = build_parser(command if command in COMMANDS else "")
+        args, extra = parser.parse_known_args(args_in)
+    except KeyboardInterrupt:  # Ctrl-C while the command's module loads
+        return EXIT_INTERRUPTED
+    if extra:
+        _unrecognized(parser, args, extra)
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
@@ -114,6 +121,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         with contextlib.suppress(OSError):
             print(f"pymb {args.command}: {e}", file=sys.stderr)
         return next(code for cls, code in _EXIT_CODES if isinstance(e, cls))
+
+
+def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  extra: Sequence[str]) -> None:
+    """Exit 2 for words the command does not take, in the command's own
+    usage and name, with the closest option it does take."""
+    target: argparse.ArgumentParser = getattr(args, "command_parser", parser)
+    message = f"unrecognized arguments: {' '.join(extra)}"
+    options = sorted(set(re.findall(r"(?<![\w-])--([a-z][\w-]*)", target.format_help())))
+    for word in extra:
+        if word.startswith("--"):
+            close = difflib.get_close_matches(word[2:].split("=", 1)[0], options, n=1,
+                                              cutoff=0.8)
+            if close:
+                message += f"; did you mean --{close[0]}?"
+                break
+    target.error(message)
 
 
 def _reader_gone() -> int:

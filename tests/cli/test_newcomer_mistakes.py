@@ -1,0 +1,52 @@
+"""A newcomer's slips on the command line: one line in the command's own name
+and usage, exit 2, no traceback; Ctrl-C at any moment is exit 130."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from conftest import PYMB_ENV, run_pymb
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["log", "coolpro", "--port", "/dev/null", "--formt", "csv"],
+     "pymb log: error: unrecognized arguments: --formt csv; did you mean --format?"),
+    (["read", "coolpro", "--tcp", "127.0.0.1:1", "--jsn"],
+     "pymb read: error: unrecognized arguments: --jsn; did you mean --json?"),
+    (["export", "data.sqlite", "--csv", "x.csv", "--devcie", "hub:250"],
+     "pymb export: error: unrecognized arguments: --devcie hub:250; did you mean --device?"),
+    # nothing close: no guess
+    (["log", "coolpro", "--port", "/dev/null", "--count", "2"],
+     "pymb log: error: unrecognized arguments: --count 2"),
+    (["--bogus"], "pymb: error: unrecognized arguments: --bogus"),
+])
+def test_an_option_the_command_does_not_take(argv: list[str], said: str) -> None:
+    r = run_pymb(*argv, timeout=60)
+    assert r.returncode == 2
+    assert r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert lines[-1] == said
+    assert lines[0].startswith(f"usage: pymb {argv[0]}" if argv[0][0] != "-" else "usage: pymb ")
+    assert "Traceback" not in r.stderr
+
+
+def test_ctrl_c_while_the_command_loads() -> None:
+    """A real SIGINT while ``pymb info``'s module is imported, before any
+    argument is parsed: exit 130, no traceback."""
+    script = """
+import importlib, os, signal, sys
+from pymb import cli
+real = importlib.import_module
+def loading(name, package=None):
+    if name.startswith("pymb.commands."):
+        os.kill(os.getpid(), signal.SIGINT)
+    return real(name, package)
+importlib.import_module = loading
+sys.exit(cli.main(["info", "data.sqlite"]))
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=60, env=PYMB_ENV, check=False)
+    assert r.returncode == 130, r.stderr
+    assert "Traceback" not in r.stderr
