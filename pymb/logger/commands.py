@@ -22,9 +22,9 @@ from typing import Any
 
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Outcome, check, resolve
-from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
 from pymb.logger.dcmd import handle_dcmd
-from pymb.logger.refusal import Refused, Target
+from pymb.logger.refusal import Refused, Target, unrecorded
 from pymb.store.commands import CommandLog, PointRow
 
 __all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
@@ -171,12 +171,18 @@ class CommandDesk(threading.Thread):
                 "the id must be a string of 1 to 64 printable characters"
             self.event(f"write command for {device} refused: {why}")
             return self._result(cid if isinstance(cid, str) else None, False, {}, "invalid", why)
-        known, stored = self.log.seen(cid)
+        try:
+            known, stored = self.log.seen(cid)
+        except OutputError as e:
+            return self._unrecorded(cid, device, e)
         if stored is not None:
             return stored.encode()
         if known:  # on record, no result: the logger stopped during its write
             out = self._result(cid, False, {}, "device", _UNKNOWN)
-            self.log.finish(cid, device, source, out.decode(), [])
+            try:
+                self.log.finish(cid, device, source, out.decode(), [])
+            except OutputError as e:
+                self.event(f"write command {cid} for {device}: its result not recorded: {e}")
             return out
         values = doc.get("values")
         target = self.targets.get(device)
@@ -188,6 +194,8 @@ class CommandDesk(threading.Thread):
                 raise Refused("invalid", "values must be an object of point names to values")
             rows = [PointRow(str(n), v) for n, v in values.items()]
             dev = self.check_command(target, values)
+        except OutputError as e:  # the write budget's record
+            return self._unrecorded(cid, device, e)
         except Refused as r:
             for row in rows:
                 row.reason = r.reason
@@ -196,6 +204,10 @@ class CommandDesk(threading.Thread):
         items = [(n, None, v) for n, v in values.items()]
         try:
             self.log.receive(cid, device, source, durable=True)  # on record before the write
+        except OutputError as e:
+            target.release()
+            return self._unrecorded(cid, device, e)
+        try:
             outcomes = dev.write_points(items, before=True)
         except WriteNotApplied as e:
             self._fill(rows, e.outcomes, "not_applied")
@@ -293,6 +305,13 @@ class CommandDesk(threading.Thread):
         if reason is not None:
             self.event(f"write command {cid} for {device} refused ({reason}): {error}")
         return out
+
+    def _unrecorded(self, cid: str, device: str, e: OutputError) -> bytes:
+        """The result of a command whose record could not be read or written:
+        refused (reason ``device``: try again later), nothing written."""
+        why = unrecorded(e)
+        self.event(f"write command {cid} for {device} {why}")
+        return self._result(cid, False, {}, "device", why)
 
     @staticmethod
     def _result(cid: str | None, ok: bool, values: Mapping[str, Any], reason: str | None,

@@ -26,11 +26,11 @@ import time
 from typing import Any
 
 from pymb.devices.mapwrite import Outcome, resolve
-from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
 from pymb.fleet.mapmetrics import plain_value
 from pymb.fleet.profiles import write_name
 from pymb.fleet.protobuf import command_values
-from pymb.logger.refusal import Desk, Refused, Target
+from pymb.logger.refusal import Desk, Refused, Target, unrecorded
 from pymb.store.commands import PointRow
 
 __all__ = ["command_id", "handle_dcmd"]
@@ -71,20 +71,27 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     target = desk.targets.get(device)
     birth = desk.births(device) or {}
     by_alias = {a: n for n, a in birth.items()}
-    known, stored = desk.log.seen(cid)
+    named = [n for n in (name if name is not None else
+                         by_alias.get(alias) if alias is not None else None
+                         for name, alias, _ in metrics) if n is not None and n in birth]
     digest = hashlib.sha256(payload).hexdigest()[:16]
-    if stored is not None and json.loads(stored).get("digest", digest) != digest:
-        cid = f"{cid}:{digest}"  # another DCMD of the same timestamp and seq
+    try:
         known, stored = desk.log.seen(cid)
+        if stored is not None and json.loads(stored).get("digest", digest) != digest:
+            cid = f"{cid}:{digest}"  # another DCMD of the same timestamp and seq
+            known, stored = desk.log.seen(cid)
+    except OutputError as e:
+        _unrecorded(desk, cid, device, e, named)
+        return
     if known:
         desk.event(f"DCMD {cid} was received before: not executed again")
         if stored is None:  # on record, no result: the logger stopped during its write
-            named = [n for n in (name if name is not None else
-                                 by_alias.get(alias) if alias is not None else None
-                                 for name, alias, _ in metrics) if n is not None and n in birth]
             desk.event(f"DCMD {cid}: {_UNKNOWN}")
-            _finish(desk, cid, device, [], "device", named, durable=True,
-                    digest=digest)
+            try:
+                _finish(desk, cid, device, [], "device", named, durable=True,
+                        digest=digest)
+            except OutputError as e:
+                desk.event(f"DCMD {cid}: its result not recorded: {e}")
             _answer(desk, device, {}, named)
             return
         _answer(desk, device, {}, json.loads(stored).get("metrics", []))
@@ -118,6 +125,9 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     if first is None and target is not None:
         try:
             dev = desk.check_command(target, {p: v for p, _, v in items})
+        except OutputError as e:  # the write budget's record
+            _unrecorded(desk, cid, device, e, names)
+            return
         except Refused as why:
             first = why
             refusals = [why] * len(rows)
@@ -129,8 +139,11 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
                 desk.event(f"DCMD {cid}: {row.point!r} refused ({r.reason}): {r}")
         if all(r is None for r in refusals[:len(rows)]):
             desk.event(f"DCMD {cid} refused ({first.reason}): {first}")
-        desk.log.receive(cid, device, SOURCE, durable=False)
-        _finish(desk, cid, device, rows, first.reason, names, durable=False, digest=digest)
+        try:
+            desk.log.receive(cid, device, SOURCE, durable=False)
+            _finish(desk, cid, device, rows, first.reason, names, durable=False, digest=digest)
+        except OutputError as e:
+            desk.event(f"DCMD {cid}: its refusal not recorded: {e}")
         _answer(desk, device, {}, names)
         return
     to_metric = dict(zip([p for p, _, _ in items], names, strict=True))
@@ -138,6 +151,11 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     reason: str | None = None
     try:
         desk.log.receive(cid, device, SOURCE, durable=True)  # on record before the write
+    except OutputError as e:
+        target.release()
+        _unrecorded(desk, cid, device, e, names)
+        return
+    try:
         outcomes = dev.write_points(items, before=True)
     except WriteNotApplied as e:
         outcomes, reason = list(e.outcomes), "not_applied"
@@ -162,7 +180,10 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         row.reason = None if row.ok else reason
         if o.after is not None:
             values[to_metric[row.point]] = _metric_value(target, row.point, o.after)
-    _finish(desk, cid, device, rows, reason, names, durable=True, digest=digest)
+    try:
+        _finish(desk, cid, device, rows, reason, names, durable=True, digest=digest)
+    except OutputError as e:  # it is on record as received: never written again
+        desk.event(f"DCMD {cid}: its result not recorded: {e}")
     _answer(desk, device, values, names)
 
 
@@ -171,6 +192,13 @@ def _finish(desk: Desk, cid: str, device: str, rows: list[PointRow],
     result = json.dumps({"id": cid, "ok": reason is None, "reason": reason,
                          "metrics": names, "digest": digest}, separators=(",", ":"))
     desk.log.finish(cid, device, SOURCE, result, rows, durable=durable)
+
+
+def _unrecorded(desk: Desk, cid: str, device: str, e: OutputError, names: list[str]) -> None:
+    """A DCMD whose record could not be read or written: said, nothing written,
+    answered with the current values of the metrics it names."""
+    desk.event(f"DCMD {cid} for {device} {unrecorded(e)}")
+    _answer(desk, device, {}, names)
 
 
 def _answer(desk: Desk, device: str, values: dict[str, Any], names: list[str]) -> None:

@@ -13,7 +13,7 @@ from pymb.devices.mapdevice import MapDevice
 from pymb.maps import Map
 from pymb.store.commands import CommandLog
 
-__all__ = ["Desk", "Refused", "Target"]
+__all__ = ["Desk", "Refused", "Target", "unrecorded"]
 
 
 class Refused(Exception):
@@ -22,6 +22,12 @@ class Refused(Exception):
     def __init__(self, reason: str, error: str) -> None:
         super().__init__(error)
         self.reason = reason
+
+
+def unrecorded(e: Exception) -> str:
+    """Why a command was not executed: its record could not be read or written
+    (``e``: the store's :class:`~pymb.errors.OutputError`)."""
+    return f"not executed: it could not be put on record ({e}); nothing was written"
 
 
 def _nothing() -> None:
