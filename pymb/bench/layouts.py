@@ -26,6 +26,7 @@ from typing import Any
 
 from pymb.devices import HubReading, decode_hub
 from pymb.devices.hubreading import BLOCKS, CHANNELS
+from pymb.devices.readings import map_reading
 from pymb.store import DeviceInfo, Sample, SqliteSink
 
 __all__ = ["FORMAT1_SCHEMA", "LAYOUTS", "compare", "write_format1"]
@@ -166,6 +167,8 @@ def compare(first: array[int], where: str, n: int = 3000,
             progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Write ``n`` sweeps in every layout; size, insert CPU and query times."""
     sweeps = _sweeps(first, n)
+    # format 2 is handed what the logger hands its store: the map readings of the sweeps
+    readings = [map_reading(r) for r in sweeps]
     t0 = 1_800_000_000.0
     times = [t0 + i / 7.6 for i in range(n)]  # a 115200 bus at wire speed
     rows = []
@@ -177,8 +180,8 @@ def compare(first: array[int], where: str, n: int = 3000,
         if layout == "format2":
             sink = SqliteSink(path)
             info = DeviceInfo("bus1", "/dev/null", "hub", 1, "hub-1")
-            for i, (t, r) in enumerate(zip(times, sweeps, strict=True)):
-                sink.write(Sample(info, t, t, r))
+            for i, (t, reading) in enumerate(zip(times, readings, strict=True)):
+                sink.write(Sample(info, t, t, reading))
                 if i % 4 == 3:
                     sink.commit()
             sink.close()

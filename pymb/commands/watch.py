@@ -290,6 +290,9 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     if not (math.isfinite(args.interval) and args.interval >= 0):
         raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
     if args.block or args.show:
+        if getattr(args, "group", None) is not None:
+            raise InvalidArgument("--block and --show choose a hub's blocks and channels; "
+                                  "--group shows every point of its group")
         raise InvalidArgument("--block and --show are for a hub")
     client = make_client(args)
     dev = read_cmd.map_device(args, target, client)

@@ -55,3 +55,7 @@ def test_a_mistake_is_one_line(sim: SimulatorProcess) -> None:
     assert r.stderr == "pymb read: coolpro has no group 'idnetity'; did you mean 'identity'?\n"
     r = run_pymb("read", "coolpro", "--group", "identity", "--channels", "5", "--port", sim.port)
     assert (r.returncode, r.stderr) == (2, "pymb read: --channels is for a hub\n")
+    r = run_pymb("watch", "hub:250", "--group", "sweep", "--block", "all", "--port", sim.port)
+    assert (r.returncode, r.stderr) == (2, "pymb watch: --block and --show choose a hub's blocks "
+                                           "and channels; --group shows every point of its "
+                                           "group\n")
