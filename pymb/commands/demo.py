@@ -25,6 +25,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.forwarder import require_paho
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
+from pymb.store.records import FAULT_KINDS
 from pymb.store.reserve import Reserve
 from pymb.store.summary import event_counts
 
@@ -116,4 +117,4 @@ def _faults(path: str) -> str:
         rows = event_counts(path)
     except (sqlite3.Error, InvalidArgument):
         return ""
-    return ", ".join(f"{n} {kind}" for kind, n in rows)
+    return ", ".join(f"{n} {kind}" for kind, n in rows if kind in FAULT_KINDS)

@@ -924,6 +924,12 @@ def test_demo_mqtt_to_a_broker_it_is_given(fleet: Fleet, tmp_path: Path) -> None
     assert m, r.stdout
     assert int(m[1].replace(",", "")) == int(m[2].replace(",", "")) == len(want), r.stdout
     assert "did not reach it" not in r.stdout, r.stdout
+    # the faults by kind add up to the faults: the broker's events are not faults
+    faults = re.search(r"faults seen: (\d+)(?: \((.*)\))?$", r.stdout, re.M)
+    assert faults, r.stdout
+    kinds = faults[2].split(", ") if faults[2] else []
+    assert sum(int(k.split()[0]) for k in kinds) == int(faults[1]), r.stdout
+    assert not any(k.endswith(" mqtt") for k in kinds), r.stdout
     sub.wait_until(lambda msgs: set(plain_ids(msgs)) >= want, 30,
                    "the demo's samples at the test's subscriber")
     assert set(plain_ids(sub.snapshot())) == want
