@@ -124,14 +124,19 @@ int pymb_rtu_request_length(const uint8_t *req, size_t have)
 
 int pymbi_mbap_length(const uint8_t *adu, size_t have)
 {
-    unsigned proto, length;
+    unsigned length;
 
-    if (adu == NULL || have < 7) {
+    if (adu == NULL || have < 4) {
         return PYMB_FRAME_INCOMPLETE;
     }
-    proto = (unsigned)adu[2] << 8 | adu[3];
+    if (adu[2] != 0 || adu[3] != 0) {
+        return PYMB_FRAME_BAD_HEADER;
+    }
+    if (have < 6) {
+        return PYMB_FRAME_INCOMPLETE;
+    }
     length = (unsigned)adu[4] << 8 | adu[5];
-    if (proto != 0 || length < 2 || length > 1 + PYMB_MAX_PDU) {
+    if (length < 2 || length > 1 + PYMB_MAX_PDU) {
         return PYMB_FRAME_BAD_HEADER;
     }
     return 6 + (int)length;

@@ -36,9 +36,10 @@
 /*
  * [MB-TCP] 3.1.3: the whole ADU's length from its first `have` bytes: 6 + the
  * MBAP length, which counts the unit id and the PDU (2 .. 1 + 253). A
- * negative pymb_frame_status: PYMB_FRAME_INCOMPLETE (fewer than 7 bytes),
- * PYMB_FRAME_BAD_HEADER (a protocol id other than 0, a length out of range).
- * The one MBAP length rule (the request path's TCP transport uses it too).
+ * negative pymb_frame_status: PYMB_FRAME_BAD_HEADER (a protocol id other
+ * than 0, said from 4 bytes on; a length out of range, from 6 on), else
+ * PYMB_FRAME_INCOMPLETE (fewer than 6 bytes). The one MBAP length rule (the
+ * request path's TCP and UDP transports and pymb serve's requests use it too).
  */
 int pymbi_mbap_length(const uint8_t *adu, size_t have);
 

@@ -8,6 +8,7 @@
 #include <errno.h>
 #include <string.h>
 
+#include "pymb.h"
 #include "pymb_master.h"
 #include "pymb_serve.h"
 
@@ -109,30 +110,27 @@ int pymbi_srv_check_pdu(const uint8_t *pdu, size_t len)
 
 int pymbi_srv_take(const uint8_t *buf, size_t len, pymbi_srv_req *req)
 {
-    unsigned length;
+    int n;
 
     if ((buf == NULL && len > 0) || req == NULL) {
         errno = EINVAL;
         return -1;
     }
-    /* [MB-TCP] 3.1.3: the header is judged as soon as its bytes are in, so a
-     * client that sends garbage is closed without waiting for more */
-    if (len >= 4 && (buf[2] != 0 || buf[3] != 0))
-        return -1;
-    if (len < 6)
+    /* [MB-TCP] 3.1.3, the one MBAP length rule: the header is judged as soon
+     * as its bytes are in, so a client that sends garbage is closed without
+     * waiting for more */
+    n = pymbi_mbap_length(buf, len);
+    if (n == PYMB_FRAME_INCOMPLETE || (n > 0 && len < (size_t)n))
         return 0;
-    length = u16(buf + 4);
-    if (length < 2 || length > PYMBI_SRV_MAX_PDU + 1)
+    if (n < 0)
         return -1;
-    if (len < 6 + (size_t)length)
-        return 0;
     memset(req, 0, sizeof *req);
     req->tid = (uint16_t)u16(buf);
     req->unit = buf[6];
     req->function = buf[7];
-    req->pdu_len = (uint16_t)(length - 1);
+    req->pdu_len = (uint16_t)(n - PYMBI_SRV_MBAP);
     req->exception = (uint8_t)pymbi_srv_check_pdu(buf + PYMBI_SRV_MBAP, req->pdu_len);
-    return (int)(6 + length);
+    return n;
 }
 
 int pymbi_srv_reply(uint16_t tid, uint8_t unit, const uint8_t *pdu, size_t pdu_len,

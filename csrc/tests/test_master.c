@@ -238,7 +238,10 @@ static void test_bad(void)
     CHECK(pymbi_mbap_length(two, sizeof two) == 8);
     CHECK(pymbi_mbap_length(one, sizeof one) == PYMB_FRAME_BAD_HEADER);
     CHECK(pymbi_mbap_length(long_, sizeof long_) == PYMB_FRAME_BAD_HEADER);
-    CHECK(pymbi_mbap_length(unit, 6) == PYMB_FRAME_INCOMPLETE);
+    CHECK(pymbi_mbap_length(unit, 6) == 13); /* judged as soon as its bytes are in */
+    CHECK(pymbi_mbap_length(unit, 5) == PYMB_FRAME_INCOMPLETE);
+    CHECK(pymbi_mbap_length(proto, 4) == PYMB_FRAME_BAD_HEADER);
+    CHECK(pymbi_mbap_length(proto, 3) == PYMB_FRAME_INCOMPLETE);
     CHECK(pymbi_mbap_length(NULL, 7) == PYMB_FRAME_INCOMPLETE);
     {
         const uint8_t most[] = {0, 0, 0, 0, 0, 254, 1};
