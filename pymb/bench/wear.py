@@ -149,20 +149,20 @@ def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int
 
 def _naive(kind: str, port: str, interval: float, seconds: float, db: str) -> int:
     from pymb import RtuClient
-    from pymb.devices import CoolPro, SensorHub
+    from pymb.devices.deviceconfig import DeviceConfig
     from pymb.store.schema import wire_bytes
 
     client = RtuClient(port, 115200, timeout=2.0)
     client.connect()
-    read = (SensorHub(client, ADDRESSES[kind]).read_all if kind == "hub"
-            else CoolPro(client, ADDRESSES[kind]).read_telemetry)
+    dev = DeviceConfig(kind, ADDRESSES[kind])  # read as pymb log reads it: its map's group
+    read_group, group = dev.open(client)[1], dev.groups[0]
     con = sqlite3.connect(db, isolation_level=None)
     con.executescript(_NAIVE_SCHEMA)
     n = 0
     start = time.monotonic()
     try:
         while (now := time.monotonic()) < start + seconds:
-            data = read()
+            data = read_group(group)
             con.execute("BEGIN")
             con.execute("INSERT INTO samples(device, time_utc, registers) VALUES (?, ?, ?)",
                         (kind, time.time(), wire_bytes(data.registers)))
