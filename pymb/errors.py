@@ -60,6 +60,7 @@ __all__ = [
     "function_name",
     "os_hint",
     "request_error",
+    "request_text",
 ]
 
 
@@ -345,6 +346,18 @@ def function_name(function: int) -> str:
     return _FUNCTION_NAMES.get(function, f"function 0x{function:02X}")
 
 
+def request_text(function: int, slave: int, address: int | None = None,
+                 count: int | None = None, context: str | None = None) -> str:
+    """A request as errors name it: ``read_input_registers(slave=1,
+    address=0, count=4)`` (``context``: another name before the parentheses)."""
+    args = [f"slave={slave}"]
+    if address is not None:
+        args.append(f"address={address}")
+    if count is not None:
+        args.append(f"count={count}")
+    return f"{context or function_name(function)}({', '.join(args)})"
+
+
 def _hex(data: bytes) -> str:
     return " ".join(f"{b:02X}" for b in data)
 
@@ -370,13 +383,7 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
     longer read, ``frame`` the C library's words for a rejected reply,
     ``tls`` the words of a TLS failure under the line,
     ``checksum`` the frame check's name (ASCII: ``"LRC"``)."""
-    op = function_name(function)
-    args = [f"slave={slave}"]
-    if address is not None:
-        args.append(f"address={address}")
-    if count is not None:
-        args.append(f"count={count}")
-    asked = f"{context or op}({', '.join(args)}) on {port}"
+    asked = f"{request_text(function, slave, address, count, context)} on {port}"
     if function in _READS and failed[1] >= 0 and failed != (address, count):
         asked += f" [in the request for {failed[1]} at {failed[0]}]"
     got = response or None

@@ -54,6 +54,7 @@ __all__ = [
     "State",
     "crc16",
     "errno_exception",
+    "exception_errno",
     "exception_strerror",
     "rtu_crc_ok",
     "rtu_request_length",
@@ -137,10 +138,16 @@ def strerror(err: int) -> str:
     return text
 
 
+def exception_errno(code: int) -> int:
+    """The errno a request fails with when the device answers exception
+    ``code`` (1..255) (``pymb_exception_errno``)."""
+    return int(lib.pymb_exception_errno(code))
+
+
 def exception_strerror(code: int) -> str:
     """``strerror`` of the errno a request fails with when the device answers
     exception ``code`` (1..255)."""
-    return strerror(int(lib.pymb_exception_errno(code)))
+    return strerror(exception_errno(code))
 
 
 def errno_exception(err: int) -> int:

@@ -69,6 +69,7 @@ class MasterEvent(NamedTuple):
     token: int  #: the request's index in its :class:`PollTable` (:data:`NO_TOKEN`: none)
     code: int  #: :data:`EXCEPTION`: the exception code
     status: int  #: :data:`BAD`: a frame status (``pymb_frame_status``)
+    tid: int  #: the frame's transaction id (:data:`BAD`: 0 if its header was bad)
 
 
 class ReadBuffer:
@@ -230,4 +231,4 @@ class Master:
     def event(self, i: int) -> MasterEvent:
         """Event ``i`` of the last :meth:`take`."""
         e = self._ev[i]
-        return MasterEvent(int(e.kind), int(e.token), int(e.code), int(e.status))
+        return MasterEvent(int(e.kind), int(e.token), int(e.code), int(e.status), int(e.tid))

@@ -20,7 +20,7 @@ from typing import Any
 
 from pymb._native.master import Master, PollTable
 from pymb.client import unresolved
-from pymb.errors import function_name
+from pymb.errors import request_text
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT, Backoff, reappeared
@@ -321,8 +321,8 @@ def _look_up(c: Conn) -> None:
 
 
 def asked(spec: PollRequest | None, u: Unit) -> str:
-    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``."""
+    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``
+    (no request: the device's name)."""
     if spec is None:
-        return f"{u.info.name}(slave={u.info.address})"
-    return (f"{function_name(spec.function)}(slave={u.info.address}, address={spec.address}, "
-            f"count={spec.count})")
+        return request_text(0, u.info.address, context=u.info.name)
+    return request_text(spec.function, u.info.address, spec.address, spec.count)

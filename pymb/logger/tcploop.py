@@ -36,15 +36,11 @@ import queue
 import threading
 import time
 
+from pymb._native import exception_errno
 from pymb._native.master import PollTable
+from pymb._native.serve import mbap_frame
 from pymb.client.address import is_mbaps, parse_host_port
-from pymb.errors import (
-    ModbusConnectionError,
-    ModbusError,
-    describe_exception,
-    exception_class,
-    request_error,
-)
+from pymb.errors import ModbusConnectionError, ModbusError, request_error
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
 from pymb.logger.schedule import TEXT, Agenda
@@ -254,9 +250,12 @@ class TcpMapPoller(TcpLoopBase):
             self.lost(c, now, f"the connection took {sent} of {size} request bytes "
                                "(the device does not read its requests)", None)
 
-    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
-        """The device answered ``spec`` with exception ``code``: re-planned
-        within the poll as the planner's policy says, else the poll fails."""
+    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, tid: int,
+                now: float) -> None:
+        """The device answered ``spec`` (transaction ``tid``) with exception
+        ``code``: re-planned within the poll as the planner's policy says,
+        else the poll fails, said as a client says it (the frame that came:
+        the one exception reply the master takes for it)."""
         u = e.unit
         refusal = on_refusal(u.planner, spec.request, code)
         if refusal is not None:  # the poll goes on (the reader calls progress)
@@ -266,11 +265,8 @@ class TcpMapPoller(TcpLoopBase):
                 c.todo = [*c.todo[:c.sent], *subs, *c.todo[c.sent:]]
                 c.table = e.table_of(c.todo)
             return
-        exc = exception_class(code)(
-            f"{asked(spec, u)} on {c.bus.endpoint}: device answered exception {code:02X} "
-            f"({describe_exception(code)})", code=code, slave=u.info.address,
-            function=spec.function, address=spec.address, count=spec.count,
-            port=c.bus.endpoint)
+        got = mbap_frame(tid, u.info.address, bytes((spec.function | 0x80, code)))
+        exc = self._request_error(exception_errno(code), c, spec, u, got)
         c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
         self.failed(c, e, exc, now)
@@ -401,16 +397,23 @@ class TcpMapPoller(TcpLoopBase):
         spec = c.pending()[0]
         u = e.unit
         got = c.m.partial() or None
-        exc = request_error(errno.ETIMEDOUT, function=spec.function, slave=u.info.address,
-                            address=spec.address, count=spec.count, port=c.bus.endpoint,
-                            timeout=u.timeout, failed=(spec.address, spec.count),
-                            response=got, header=7, frame=None)
+        exc = self._request_error(errno.ETIMEDOUT, c, spec, u, got)
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
         self.failed(c, e, exc, now)
         if got:  # a part of a reply (one whose length lied?): the stream is out of step
             self.reopen(c, now)
         self._next(c, now)
+
+    @staticmethod
+    def _request_error(err: int, c: Conn, spec: PollRequest, u: Unit,
+                       got: bytes | None = None) -> ModbusError:
+        """The error of request ``spec`` of ``u`` on ``c`` that failed with
+        ``err``, as a client's request says it (``got``: what came of its reply)."""
+        return request_error(err, function=spec.function, slave=u.info.address,
+                             address=spec.address, count=spec.count, port=c.bus.endpoint,
+                             timeout=u.timeout, failed=(spec.address, spec.count),
+                             response=got, header=7, frame=None)
 
     def _quiet_over(self, now: float) -> float:
         """Send what waited for a silence that is over; seconds to the next."""

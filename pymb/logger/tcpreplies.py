@@ -40,8 +40,10 @@ class Polls(Protocol):
     def progress(self, c: Conn, e: Entry, now: float) -> None:
         """Replies (or refusals) came for ``e``, the poll under way on ``c``."""
 
-    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, now: float) -> None:
-        """The device answered ``spec`` of ``e`` with exception ``code``."""
+    def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, tid: int,
+                now: float) -> None:
+        """The device answered ``spec`` of ``e`` (sent as transaction ``tid``)
+        with exception ``code``."""
 
     def failed(self, c: Conn, e: Entry, exc: ModbusError, now: float) -> None:
         """The poll of ``e`` failed with ``exc``."""
@@ -127,7 +129,7 @@ class TcpReplies:
             if ev.kind == EXCEPTION:
                 if e is not None and c.entry is e:
                     answered = True
-                    self.polls.refused(c, e, c.todo[ev.token], ev.code, now)
+                    self.polls.refused(c, e, c.todo[ev.token], ev.code, ev.tid, now)
             elif ev.kind == BAD:
                 spec = c.todo[ev.token] if ev.token != NO_TOKEN and c.entry is e else None
                 self._garbage(c, now, m.bad_frame(), spec)

@@ -19,6 +19,8 @@ from conftest import run_pymb
 from hostile_gateway import HX_MAP, Handed, Hostile, Request, Script, good, poll
 from peerkit import mbap, registers
 
+import pymb
+
 
 def test_a_gateway_that_drops_every_connection_is_retried_with_the_backoff(
         tmp_path: Path) -> None:
@@ -374,3 +376,23 @@ def test_a_unit_silent_for_a_while_goes_offline_and_comes_back(tmp_path: Path) -
     assert not any("offline" in m for m in timeouts[:2])
     assert got.stats.device_faults["hx-1"] == 3
     assert got.values() == {(1, (100, 101))}
+
+
+@pytest.mark.parametrize("how", ["exception 04", "silent"])
+def test_a_failed_request_reads_as_a_clients_error(tmp_path: Path, how: str) -> None:
+    """The loop's event of a refused or unanswered request says what a
+    client's error says of the same request to the same gateway: one text."""
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        return _exception(4)(good(*req)) if how != "silent" else None
+
+    gw = Hostile(script)
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: len(h.events) >= 2)
+        with (pymb.TcpClient("127.0.0.1", gw.port, timeout=0.2) as c,
+              pytest.raises(pymb.ModbusError) as said):
+            c.read_holding_registers(0, 2, slave=1)
+    finally:
+        gw.close()
+    faults = [e for e in got.events if e.kind not in ("connect", "reconnect")]
+    assert faults, got.events
+    assert faults[0].message == str(said.value), (faults[0].message, str(said.value))
