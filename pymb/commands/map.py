@@ -72,6 +72,9 @@ def _check(args: argparse.Namespace) -> int:
         m = maps.builtin(args.file)
     else:
         m = load_map(args.file)
+        if m.id in shipped:  # --map and a configuration's maps refuse it
+            raise InvalidArgument(f"{args.file}: device id {m.id!r} is a device pymb ships; "
+                                  "give the map another id")
     planner, mi = map_planner(m, Line(args.baud, bits_per_char(args.parity)))
     what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
     print(f"{args.file}: {m.id}{f' ({what})' if what else ''}: "

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV, run_pymb
+from conftest import PYMB_ENV, ROOT, run_pymb
 
 
 @pytest.mark.parametrize(("argv", "said"), [
@@ -50,3 +51,25 @@ sys.exit(cli.main(["info", "data.sqlite"]))
                        timeout=60, env=PYMB_ENV, check=False)
     assert r.returncode == 130, r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_map_check_of_a_copied_shipped_map(tmp_path: Path) -> None:
+    """A shipped map copied to be edited keeps the shipped id: ``map check``
+    says what ``read --map`` would refuse, not 'valid'."""
+    copy = tmp_path / "my-sdm120.toml"
+    copy.write_text((ROOT / "pymb" / "maps" / "builtin" / "eastron-sdm120.toml")
+                    .read_text(encoding="utf-8"), encoding="utf-8")
+    said = (f"{copy}: device id 'eastron-sdm120' is a device pymb ships; "
+            "give the map another id")
+    r = run_pymb("map", "check", str(copy), timeout=60)
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb map: {said}\n")
+    r = run_pymb("read", "--map", str(copy), "eastron-sdm120", "--tcp", "127.0.0.1:1",
+                 timeout=60)
+    assert r.returncode == 2
+    assert "is a device pymb ships; give the map another id" in r.stderr
+    # with an id of its own it is valid
+    copy.write_text(copy.read_text(encoding="utf-8").replace(
+        'id = "eastron-sdm120"', 'id = "my-sdm120"'), encoding="utf-8")
+    r = run_pymb("map", "check", str(copy), timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith(f"{copy}: my-sdm120 ")
