@@ -11,13 +11,14 @@ import dataclasses
 import functools
 import threading
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import KEEP, IntFlag
 
 from pymb import maps
 from pymb.client import Client
-from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapdevice import MapDevice, prepared_read
 from pymb.errors import InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
 
@@ -219,7 +220,8 @@ class CoolPro:
         self._address = self._valid_address(address)
         self._pending_address: int | None = None
         self.device = coolpro_device(client, self._address)
-        self._groups: dict[str, _Group] = {}
+        #: per group read: its prepared read and the slots of its points
+        self._groups: dict[str, tuple[Callable[[], object], _Group]] = {}
 
     @property
     def address(self) -> int:
@@ -243,11 +245,13 @@ class CoolPro:
 
     def _group(self, name: str, model: _Group) -> tuple[_Group, Buffers]:
         """Read ``name``'s group: the slots of its points and the buffers read."""
-        dec = self.device.read_into(group=name)[0]
-        g = self._groups.get(name)
-        if g is None or g.decoder is not dec:
-            g = self._groups[name] = _Group(dec, *model.names)
-        return g, dec.buffers
+        ready = self._groups.get(name)
+        if ready is None:
+            read, (dec,) = prepared_read(self.device, group=name)
+            ready = self._groups[name] = (read, _Group(dec, *model.names))
+        ready[0]()
+        g = ready[1]
+        return g, g.decoder.buffers
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""

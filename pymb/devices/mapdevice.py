@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from functools import partial
 from typing import Any
 
 from pymb.client import Client
@@ -47,7 +48,7 @@ from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["MapDevice"]
+__all__ = ["MapDevice", "prepared_read"]
 
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = DEFAULT_BAUD
@@ -302,9 +303,11 @@ class MapDevice:
         of the blocks are asked for, the others are NaN and ``not_read``."""
         last = self._last
         if last is not None and last[0] == names and last[1] == group and last[2] is channels:
-            r, skipped = last[3], last[4]
-        else:
-            r, skipped = self._read_of(names, group, channels)
+            return self._read_ready(last[3], last[4])
+        return self._read_ready(*self._read_of(names, group, channels))
+
+    def _read_ready(self, r: Read, skipped: tuple[tuple[Any, int], ...]
+                    ) -> tuple[Decoder, ...]:
         with self._lock:
             self._fetcher.fetch(r)
             for decode, buffers, registers in r.decodes:
@@ -481,3 +484,14 @@ class MapDevice:
 
     def __repr__(self) -> str:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
+
+
+def prepared_read(device: MapDevice, *names: str, group: str | None = None,
+                  channels: Iterable[int] | None = None
+                  ) -> tuple[Callable[[], tuple[Decoder, ...]], tuple[Decoder, ...]]:
+    """The selection of :meth:`MapDevice.read_into` made ready: a call that
+    reads it as ``read_into`` does (no argument, nothing looked up again),
+    and the decoders it fills (the same on every call). For a view that
+    reads one selection over and over (the CoolPro's telemetry)."""
+    r, skipped = device._read_of(names, group, channels)  # noqa: SLF001 - this module's
+    return partial(device._read_ready, r, skipped), r.decoders  # noqa: SLF001 - this module's

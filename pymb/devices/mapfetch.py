@@ -124,7 +124,7 @@ class Fetcher:
         back as :meth:`run` does. A plan with bits goes through :meth:`run`."""
         planner, client = self.planner, self.client
         if (r.version != planner.version or not client.connected
-                or _fresh(client) != self._connections
+                or client.connections - client.resends != self._connections
                 or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
             self._remake(r)
         runs = r.runs
@@ -132,13 +132,13 @@ class Fetcher:
             assert r.plan is not None
             self.run(r.plan, r.images)
             return
-        q = self.quiet
+        q, gap = self.quiet, self._gap
         for p in runs:
-            refused, code = -1, 0
+            # the silence before it: any device's turnaround, this device's gap
+            # after the last request (kept only while still to come)
             last, until = q.last_end, q.quiet_until
-            if last + self._gap > until:
-                until = last + self._gap
-            # the last request ended in the past: silence until then is kept
+            if gap and last + gap > until:
+                until = last + gap
             if until > last and until > _monotonic():
                 sleep_until(until)
             try:
@@ -149,16 +149,25 @@ class Fetcher:
                         raise
                     self._busy_again(p.plan, p.plan.failed)
             except self.refusals as exc:
+                self._noted()
                 if not replans(planner.limits, exc.code):
                     raise
-                refused, code = p.plan.failed, exc.code
-            finally:
-                now = _monotonic()
-                q.last_end = now
-                if now + self._turnaround > q.quiet_until:
-                    q.quiet_until = now + self._turnaround
-            if refused >= 0:
-                self._refused(p, refused, code)
+                self._refused(p, p.plan.failed, exc.code)
+                continue
+            except BaseException:
+                self._noted()
+                raise
+            now = _monotonic()
+            q.last_end = now
+            if now + self._turnaround > q.quiet_until:
+                q.quiet_until = now + self._turnaround
+
+    def _noted(self) -> None:
+        """The end of a request that failed, noted for the line's silences."""
+        now = _monotonic()
+        q = self.quiet
+        q.last_end = now
+        q.quiet_until = max(q.quiet_until, now + self._turnaround)
 
     def _run_plan(self, plan: RegisterPlan, start: int) -> None:
         """``plan`` from request ``start`` on, in one C call; a request the
