@@ -234,6 +234,7 @@ SOURCE = """
 #include "pymb.h"
 #include "pymb_modbus.h"
 #include "pymb_master.h"
+#include "pymb_map_ready.h"
 #include "pymb_serve.h"
 """
 
@@ -278,6 +279,14 @@ int pymb_map_order(const char *letters, int nbytes, uint8_t *perm);
 int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
                     const pymb_map_marker *markers, size_t nmarkers,
                     const uint16_t *regs, size_t nregs, pymb_map_out *out);
+/* pymb_map_ready.h (internal): a decode checked once, run again with one call */
+typedef struct {
+    const pymb_map_entry *entries; size_t nentries; const pymb_map_marker *markers;
+    size_t nmarkers; const uint16_t *regs; size_t nregs; pymb_map_out out; int ready;
+    int written;
+} pymbi_map_job;
+int pymbi_map_ready(pymbi_map_job *job);
+int pymbi_map_run(const pymbi_map_job *job);
 """
 
 

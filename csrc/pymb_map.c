@@ -12,6 +12,7 @@
 #include <string.h>
 
 #include "pymb.h"
+#include "pymb_map_ready.h"
 
 /* Registers each fixed-width type takes; 0: from the entry's count. */
 static const uint8_t type_registers[PYMB_MAP_TYPES] = {
@@ -489,12 +490,12 @@ static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const 
     decode_16_loop(e, mk, regs, out, sm16, i16, decimals, by_scale, has_offset);
 }
 
-int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
-                    const pymb_map_marker *markers, size_t nmarkers,
-                    const uint16_t *regs, size_t nregs, pymb_map_out *out)
+/* Every entry checked: the slots a decode writes, or -1 (EINVAL). */
+static int check_table(const pymb_map_entry *entries, size_t nentries,
+                       const pymb_map_marker *markers, size_t nmarkers,
+                       const uint16_t *regs, size_t nregs, const pymb_map_out *out)
 {
     size_t n, written = 0;
-    unsigned c;
 
     if ((entries == NULL && nentries > 0) || (markers == NULL && nmarkers > 0) ||
         (regs == NULL && nregs > 0) || out == NULL ||
@@ -511,6 +512,17 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
         }
         written += entries[n].channels;
     }
+    return (int)written;
+}
+
+/* A checked table over regs, into out. */
+static void decode_table(const pymb_map_entry *entries, size_t nentries,
+                         const pymb_map_marker *markers, const uint16_t *regs,
+                         const pymb_map_out *out)
+{
+    size_t n;
+    unsigned c;
+
     for (n = 0; n < nentries; n++) {
         const pymb_map_entry *e = &entries[n];
         const pymb_map_marker *mk = markers ? markers + e->first_marker : NULL;
@@ -524,5 +536,46 @@ int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
             decode_one(e, mk, regs, at, (size_t)e->out + c, c, out);
         }
     }
-    return (int)written;
+}
+
+int pymb_map_decode(const pymb_map_entry *entries, size_t nentries,
+                    const pymb_map_marker *markers, size_t nmarkers,
+                    const uint16_t *regs, size_t nregs, pymb_map_out *out)
+{
+    int written = check_table(entries, nentries, markers, nmarkers, regs, nregs, out);
+
+    if (written >= 0) {
+        decode_table(entries, nentries, markers, regs, out);
+    }
+    return written;
+}
+
+int pymbi_map_ready(pymbi_map_job *job)
+{
+    int written;
+
+    if (job == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    job->ready = 0;
+    written = check_table(job->entries, job->nentries, job->markers, job->nmarkers, job->regs,
+                          job->nregs, &job->out);
+    if (written < 0) {
+        return -1;
+    }
+    job->written = written;
+    job->ready = 1;
+    decode_table(job->entries, job->nentries, job->markers, job->regs, &job->out);
+    return written;
+}
+
+int pymbi_map_run(const pymbi_map_job *job)
+{
+    if (job == NULL || job->ready != 1) {
+        errno = EINVAL;
+        return -1;
+    }
+    decode_table(job->entries, job->nentries, job->markers, job->regs, &job->out);
+    return job->written;
 }

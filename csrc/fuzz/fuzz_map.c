@@ -6,13 +6,16 @@
  * width, flags, decimals, markers, out, aux: valid or not), then two markers,
  * then the registers, copied into exactly sized heap buffers so that
  * AddressSanitizer sees any access outside them. Scale and offset are the
- * finite, nonzero values a map file may give.
+ * finite, nonzero values a map file may give. The same arguments made ready
+ * (pymbi_map_ready, pymbi_map_run) must be refused or accepted alike and
+ * write the same values and states.
  */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "../pymb.h"
+#include "../pymb_map_ready.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -31,6 +34,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     int64_t *ints = NULL;
     uint8_t *states = NULL, *text = NULL;
     pymb_map_out out;
+    pymbi_map_job job;
+    double *first_values = NULL;
+    uint8_t *first_states = NULL;
     int rc;
 
     if (size < 1) {
@@ -78,7 +84,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     ints = malloc(SLOTS * sizeof *ints);
     states = malloc(SLOTS);
     text = malloc(TEXT);
-    if (!regs || !values || !ints || !states || !text) {
+    first_values = malloc(SLOTS * sizeof *first_values);
+    first_states = malloc(SLOTS);
+    if (!regs || !values || !ints || !states || !text || !first_values || !first_states) {
         goto out;
     }
     for (i = 0; i < nregs; i++) {
@@ -108,6 +116,34 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             }
         }
     }
+    memcpy(first_values, values, SLOTS * sizeof *values);
+    memcpy(first_states, states, SLOTS);
+    memset(&job, 0, sizeof job);
+    if (pymbi_map_run(&job) != -1) { /* a zeroed job is not ready */
+        abort();
+    }
+    job.entries = e;
+    job.nentries = n;
+    job.markers = mk;
+    job.nmarkers = 2;
+    job.regs = regs;
+    job.nregs = nregs;
+    job.out = out;
+    if (pymbi_map_ready(&job) != rc || (rc < 0 && pymbi_map_run(&job) != -1)) {
+        abort();
+    }
+    if (rc >= 0) {
+        memset(states, 0xAA, SLOTS);
+        if (pymbi_map_run(&job) != rc || memcmp(states, first_states, SLOTS) != 0) {
+            abort();
+        }
+        for (i = 0; i < SLOTS; i++) { /* the same bits, NaN included */
+            if (memcmp(&values[i], &first_values[i], sizeof values[i]) != 0 &&
+                !(isnan(values[i]) && isnan(first_values[i]))) {
+                abort();
+            }
+        }
+    }
 out:
     free(e);
     free(regs);
@@ -115,5 +151,7 @@ out:
     free(ints);
     free(states);
     free(text);
+    free(first_values);
+    free(first_states);
     return 0;
 }

@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * test_map.c - known-answer tests of the table-driven map decoder
- * (pymb_map_decode, pymb_map_order): no Python, no libmodbus.
+ * (pymb_map_decode, pymb_map_order, and the decode made ready:
+ * pymbi_map_ready, pymbi_map_run): no Python, no libmodbus.
  *
  * Sources: 230.5 as a float32 is 0x43668000 and each order's registers are
  * what libmodbus 3.1.6's modbus_get_float_abcd/badc/cdab/dcba read as 230.5;
@@ -15,6 +16,7 @@
 #include <string.h>
 
 #include "../pymb.h"
+#include "../pymb_map_ready.h"
 #include "check.h"
 
 #define SLOTS 16
@@ -365,6 +367,63 @@ static void test_man_page_example(void)
     CHECK(pymb_map_decode(e, 2, NULL, 0, regs, 3, &out) == 2 && v[0] == 230.5 && v[1] == 49.95);
 }
 
+/* A decode made ready: checked once, then each run decodes the registers as
+ * they are now, as pymb_map_decode does; a job that is not ready (zeroed, or
+ * refused by its checks) decodes nothing. */
+static void test_ready(void)
+{
+    pymb_map_entry e[2];
+    double v[2];
+    int64_t iv[2];
+    uint8_t st[2];
+    uint16_t regs[3] = {0x8000, 0x4366, 4995};
+    pymbi_map_job job;
+
+    memset(e, 0, sizeof e);
+    e[0].type = PYMB_MAP_F32;
+    e[0].count = 2;
+    e[0].channels = 1;
+    pymb_map_order("CDAB", 4, e[0].order);
+    e[1].type = PYMB_MAP_I16;
+    e[1].count = 1;
+    e[1].channels = 1;
+    e[1].first = 2;
+    e[1].out = 1;
+    e[1].flags = PYMB_MAP_SCALED;
+    e[1].scale = 0.01;
+    e[1].decimals = 2;
+    pymb_map_order("ABCD", 2, e[1].order);
+
+    memset(&job, 0, sizeof job);
+    errno = 0;
+    CHECK(pymbi_map_run(&job) == -1 && errno == EINVAL);
+    CHECK(pymbi_map_run(NULL) == -1 && pymbi_map_ready(NULL) == -1);
+    job.entries = e;
+    job.nentries = 2;
+    job.regs = regs;
+    job.nregs = 3;
+    job.out.values = v;
+    job.out.ints = iv;
+    job.out.states = st;
+    job.out.len = 2;
+    CHECK(pymbi_map_ready(&job) == 2 && v[0] == 230.5 && v[1] == 49.95 && iv[1] == 4995);
+    regs[2] = (uint16_t)-1896;
+    v[1] = 0.0;
+    st[1] = 99;
+    CHECK(pymbi_map_run(&job) == 2 && v[1] == -18.96 && iv[1] == -1896 && st[1] == PYMB_VALUE);
+    regs[0] = 0x0000;
+    regs[1] = 0x7FC0; /* a NaN: a state, not a value */
+    CHECK(pymbi_map_run(&job) == 2 && st[0] == PYMB_MAP_NAN && isnan(v[0]));
+
+    job.nregs = 2; /* the i16 lies outside the registers: refused, and stays so */
+    errno = 0;
+    CHECK(pymbi_map_ready(&job) == -1 && errno == EINVAL && job.ready == 0);
+    CHECK(pymbi_map_run(&job) == -1);
+    job.nregs = 3;
+    job.out.len = 1; /* the second slot outside the arrays */
+    CHECK(pymbi_map_ready(&job) == -1 && pymbi_map_run(&job) == -1);
+}
+
 int main(void)
 {
     test_order();
@@ -374,5 +433,6 @@ int main(void)
     test_invalid();
     test_scale_from_masks_patterns();
     test_man_page_example();
+    test_ready();
     return check_report();
 }

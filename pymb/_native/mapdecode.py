@@ -123,10 +123,22 @@ class MapTable:
                                        len(registers), out.cdata))
 
     def bind(self, registers: array[int], out: MapOut) -> Callable[[], int]:
-        """:meth:`decode` of ``registers`` into ``out`` with its arguments
-        converted once: the C call itself, for a reader that decodes the same
-        buffer again and again (``registers`` must keep its size, and ``out``
-        live, while the call does)."""
-        return partial(lib.pymb_map_decode, self._entries, self.n, self._markers,
-                       self.nmarkers, ffi.from_buffer("uint16_t[]", registers),
-                       len(registers), out.cdata)
+        """:meth:`decode` of ``registers`` into ``out`` made ready: the table
+        and the sizes checked once (``pymbi_map_ready``, which decodes once),
+        then each call of the function returned decodes them again in one C
+        call with no argument (``pymbi_map_run``). For a reader that decodes
+        the same buffer again and again: ``registers`` cannot change its size
+        while the function lives (it holds the buffer), nor the table its
+        entries. Raises ValueError when C refuses the table or the sizes."""
+        job = ffi.new("pymbi_map_job *")
+        regs = ffi.from_buffer("uint16_t[]", registers)
+        job.entries, job.nentries = self._entries, self.n
+        job.markers, job.nmarkers = self._markers, self.nmarkers
+        job.regs, job.nregs = regs, len(registers)
+        job.out = out.cdata[0]
+        if lib.pymbi_map_ready(job) < 0:
+            raise ValueError("the map decoder refused the table or the sizes")
+        run = partial(lib.pymbi_map_run, job)
+        # what the job points into lives as long as the function
+        run.keep = (self, regs, out)  # type: ignore[attr-defined]
+        return run
