@@ -18,7 +18,7 @@ step).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple
 
 from pymb._pymb_cffi import ffi, lib
 
@@ -53,13 +53,14 @@ _NO_IMAGE = ffi.new("uint8_t[]", 1)
 _OUT = FRAME * INFLIGHT  #: bytes of the frames buffer
 
 
-class MasterRead(Protocol):
-    """A read request as a poll plans it (:class:`pymb.logger.tcpunits.PollRequest`)."""
+class MasterRead:
+    """A read request of a poll and where its data go in the poll's image
+    (``offset``, in bytes: 2 a register, 2 a bit or 1 per 8 packed)."""
 
-    function: int  #: 1..4
-    address: int
-    count: int
-    offset: int  #: where its data go in the image, in bytes (2 a register, 2 a bit)
+    __slots__ = ("address", "count", "function", "offset")
+
+    def __init__(self, function: int, address: int, count: int, offset: int) -> None:
+        self.function, self.address, self.count, self.offset = function, address, count, offset
 
 
 class MasterEvent(NamedTuple):

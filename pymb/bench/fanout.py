@@ -41,7 +41,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from pymb._native.master import EXCEPTION, Master, PollTable, ReadBuffer
+from pymb._native.master import EXCEPTION, Master, MasterRead, PollTable, ReadBuffer
 from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
 
@@ -116,15 +116,6 @@ class FanoutStats:
         return cls([0] * n, [0] * n, [0] * n, [0] * n, [0] * n)
 
 
-class _FanoutRead:
-    """One request of a device's poll as the master takes it."""
-
-    __slots__ = ("address", "count", "function", "offset")
-
-    def __init__(self, function: int, address: int, count: int, offset: int) -> None:
-        self.function, self.address, self.count, self.offset = function, address, count, offset
-
-
 class _FanoutConn:
     __slots__ = ("busy", "deadline", "index", "m", "n", "retry_at", "slot", "sock",
                  "started", "state", "table", "target", "todo")
@@ -141,7 +132,7 @@ class _FanoutConn:
             if fc <= 2 and (address - first) % 8:
                 raise InvalidArgument(f"{table} {address}: bit reads of one table must "
                                       "start 8 bits apart")
-            reads.append(_FanoutRead(fc, address, count, off + _data_bytes(table, address - first)))
+            reads.append(MasterRead(fc, address, count, off + _data_bytes(table, address - first)))
         self.n = len(reads)
         self.table = PollTable(reads, d.unit, bytearray(d.image_bytes), packed_bits=True)
         self.m = Master()

@@ -21,7 +21,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pymb._native.master import PollTable
+from pymb._native.master import MasterRead, PollTable
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.mapreading import MapReading, group_layout, group_points
 from pymb.logger.schedule import Health, Slot
@@ -74,19 +74,16 @@ class Unit:
                    Health.of_map(info.name, cfg.offline_after, cfg.offline_retry))
 
 
-class PollRequest:
+class PollRequest(MasterRead):
     """One request of a poll, made ready: the planner's request and where
     its data go in the image (the C master frames it, checks its reply and
     copies the data: :class:`pymb._native.master.PollTable`)."""
 
-    __slots__ = ("address", "count", "function", "offset", "request")
+    __slots__ = ("request",)
 
     def __init__(self, r: Request, offset: int) -> None:
+        super().__init__(r.function, r.address, r.count, offset)
         self.request = r
-        self.function = r.function
-        self.address = r.address
-        self.count = r.count
-        self.offset = offset
 
 
 class GroupDecode:

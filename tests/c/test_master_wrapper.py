@@ -15,14 +15,10 @@ from pymb._native.master import (
     LATE,
     NO_TOKEN,
     Master,
+    MasterRead,
     PollTable,
     ReadBuffer,
 )
-
-
-class _Read:
-    def __init__(self, function: int, address: int, count: int, offset: int) -> None:
-        self.function, self.address, self.count, self.offset = function, address, count, offset
 
 
 def _reply(tid: int, unit: int, pdu: bytes) -> bytes:
@@ -43,7 +39,7 @@ def _take_all(m: Master, rx: ReadBuffer, data: bytes, t: PollTable) -> list[tupl
 
 def test_a_poll_in_pieces_and_out_of_order() -> None:
     image = bytearray(12)
-    t = PollTable([_Read(3, 0, 2, 8), _Read(3, 10, 4, 0)], 7, image)
+    t = PollTable([MasterRead(3, 0, 2, 8), MasterRead(3, 10, 4, 0)], 7, image)
     m = Master()
     m.reset(0x10)
     size = m.frames(t, 0, 2)
@@ -65,7 +61,7 @@ def test_a_poll_in_pieces_and_out_of_order() -> None:
 
 def test_exception_late_foreign_and_bad() -> None:
     image = bytearray(4)
-    t = PollTable([_Read(3, 0, 1, 0), _Read(3, 1, 1, 2)], 7, image)
+    t = PollTable([MasterRead(3, 0, 1, 0), MasterRead(3, 1, 1, 2)], 7, image)
     m = Master()
     m.reset(1)
     m.frames(t, 0, 2)
@@ -91,7 +87,7 @@ def test_exception_late_foreign_and_bad() -> None:
 
 def test_a_part_of_a_reply_is_kept_and_refusals() -> None:
     image = bytearray(4)
-    t = PollTable([_Read(4, 0, 2, 0)], 1, image)
+    t = PollTable([MasterRead(4, 0, 2, 0)], 1, image)
     m = Master()
     m.frames(t, 0, 1)
     rx = ReadBuffer()
@@ -101,11 +97,11 @@ def test_a_part_of_a_reply_is_kept_and_refusals() -> None:
     assert _take_all(m, rx, whole[5:], t) == []
     assert bytes(image) == b"\x01\x02\x03\x04"
     with pytest.raises(ValueError, match="do not fit"):
-        PollTable([_Read(4, 0, 3, 0)], 1, image)
+        PollTable([MasterRead(4, 0, 3, 0)], 1, image)
     with pytest.raises(ValueError, match="not in a poll"):
         m.frames(t, 1, 1)
     bits = bytearray(2)
-    packed = PollTable([_Read(1, 0, 10, 0)], 1, bits, packed_bits=True)
+    packed = PollTable([MasterRead(1, 0, 10, 0)], 1, bits, packed_bits=True)
     m.frames(packed, 0, 1)
     assert _take_all(m, rx, _reply(2, 1, b"\x01\x02\xcd\x01"), packed) == []
     assert bytes(bits) == b"\xcd\x01"
@@ -113,7 +109,7 @@ def test_a_part_of_a_reply_is_kept_and_refusals() -> None:
 
 def test_a_take_that_ends_the_poll_frames_the_next_one() -> None:
     image = bytearray(12)
-    t = PollTable([_Read(3, 0, 2, 8), _Read(3, 10, 4, 0)], 7, image)
+    t = PollTable([MasterRead(3, 0, 2, 8), MasterRead(3, 10, 4, 0)], 7, image)
     m = Master()
     m.reset(0x20)
     m.frames(t, 0, 2)
@@ -137,6 +133,6 @@ def test_a_take_that_ends_the_poll_frames_the_next_one() -> None:
     # a plain take says nothing framed; the next poll's reads go to the same image
     assert m.take(rx, 0, 0, t) == (0, 0)
     assert m.framed == 0
-    other = PollTable([_Read(3, 0, 2, 0)], 7, bytearray(4))
+    other = PollTable([MasterRead(3, 0, 2, 0)], 7, bytearray(4))
     with pytest.raises(ValueError, match="image"):
         m.take(rx, 0, 0, t, other)
