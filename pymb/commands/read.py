@@ -196,6 +196,31 @@ def _check_group(args: argparse.Namespace, target: MapTarget) -> None:
                               f"{did_you_mean(group, list(target.map.groups))}")
 
 
+def read_points(dev: MapDevice, target: MapTarget, client: Client,
+                group: str | None) -> dict[str, Any]:
+    """One reading of a map device's points (of ``group``: every readable
+    one if None), as :meth:`MapDevice.read` gives it; a reading in which the
+    device refused every point (no value at all: another device, or none
+    that knows these registers, at that address) raises
+    :class:`~pymb.ProtocolError` saying what answered there, as for a
+    CoolPro or a hub."""
+    values = dev.read(group=group)
+    if values and all(_refused(dev.states.get(name)) for name in values):
+        dev.planner.forget()  # the next read asks again
+        why = mismatch(identify(client_asker(client), target.address), target.map.id,
+                       target.address, 0)
+        raise ProtocolError(f"no value from {target.spec} on {client.port}: {why}",
+                            reason="no value")
+    return values
+
+
+def _refused(state: Any) -> bool:
+    """A point's (a block's: every channel's) state says the device refused it."""
+    if isinstance(state, (list, tuple)):
+        return bool(state) and all(s == "unsupported" for s in state)
+    return bool(state == "unsupported")
+
+
 def map_device(args: argparse.Namespace, target: MapTarget, client: Client) -> MapDevice:
     """The :class:`MapDevice` of ``target`` on ``client`` (``pymb read``, ``pymb watch``)."""
     return MapDevice(client, target.map, target.address, baudrate=args.baud)
@@ -224,7 +249,7 @@ def read_map(args: argparse.Namespace, target: MapTarget) -> int:
     def io() -> tuple[dict[str, Any], dict[str, Any], float, dict[str, Any] | None]:
         with client:
             t0 = time.monotonic()
-            values = dev.read(group=group)
+            values = read_points(dev, target, client, group)
             states = dev.states
             elapsed = time.monotonic() - t0
             ident = _identity(dev) if args.identity else None

@@ -302,7 +302,7 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     counts = {"done": 0, "faults": 0, "attempts": 0}
     t0 = time.monotonic()
 
-    def show(values: dict[str, Any] | None, error: ModbusError | None) -> None:
+    def show(values: dict[str, Any] | None, error: ModbusError | str | None) -> None:
         elapsed = time.monotonic() - t0
         if args.json:
             out: dict[str, Any] = {"time_utc": time.time(), "device": target.map.id,
@@ -326,18 +326,28 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
         sys.stdout.flush()
 
     def io() -> None:
+        # as for a CoolPro or a hub: a reading with no value at all waits at
+        # once (0.5 s, doubling up to 30 s), any other fault after ten in a row
+        health = Health.of_map(target.spec, 10, None, backoff=True)
         with client:
             while not stop.is_set() and (args.count <= 0 or counts["attempts"] < args.count):
                 start = time.monotonic()
                 counts["attempts"] += 1
                 try:
-                    values = dev.read(group=group)
+                    values = read_cmd.read_points(dev, target, client, group)
                 except ModbusConnectionError:
                     raise
                 except ModbusError as e:
                     counts["faults"] += 1
-                    show(None, e)
+                    no_value = getattr(e, "reason", "") == "no value"
+                    next_try = health.failed(time.monotonic(), at_once=no_value)
+                    last = 0 < args.count <= counts["attempts"]
+                    show(None, f"{e}{next_try}" if next_try and not last else e)
+                    if next_try and not last:
+                        stop.wait(health.backoff)
+                        continue
                 else:
+                    health.answered()
                     counts["done"] += 1
                     show(values, None)
                 if args.interval > 0:

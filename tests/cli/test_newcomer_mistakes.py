@@ -3,12 +3,15 @@ and usage, exit 2, no traceback; Ctrl-C at any moment is exit 130."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from conftest import PYMB_ENV, ROOT, run_pymb
+
+from pymb.sim import Simulator
 
 
 @pytest.mark.parametrize(("argv", "said"), [
@@ -73,3 +76,34 @@ def test_map_check_of_a_copied_shipped_map(tmp_path: Path) -> None:
     r = run_pymb("map", "check", str(copy), timeout=60)
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith(f"{copy}: my-sdm120 ")
+
+
+def test_a_map_device_at_an_address_where_another_device_answers() -> None:
+    """``pymb read generic-vfd:40`` where a CoolPro answers (exception 02 for
+    every point of the drive's map): no value at all is exit 3 saying what
+    answers there, not a table of 'unsupported' and exit 0; ``watch`` counts
+    it as a fault and waits before the next try."""
+    with Simulator(["coolpro", "generic-vfd:5"], transport="tcp", seed=1) as sim:
+        tcp = f"127.0.0.1:{sim.tcp_port}"
+        r = run_pymb("read", "generic-vfd:40", "--tcp", tcp, timeout=60)
+        assert (r.returncode, r.stdout) == (3, "")
+        assert r.stderr == (f"pymb read: no value from generic-vfd:40 on {tcp}: address 40 "
+                            "answers like a CoolPro, not generic-vfd (serial 12345, firmware "
+                            "1.0.0, hardware rev 1, made 2026-06-01)\n")
+        # a meter's map read at the drive's address: the drive refuses every point
+        r = run_pymb("read", "eastron-sdm120:5", "--tcp", tcp, timeout=60)
+        assert r.returncode == 3
+        assert r.stderr.endswith("address 5 answers like an unknown device, not eastron-sdm120 "
+                                 "(answers FC 0x04 at 100 with exception 02)\n")
+        r = run_pymb("watch", "generic-vfd:40", "--tcp", tcp, "--count", "2", "--json",
+                     timeout=60)
+        assert r.returncode == 3, r.stderr
+        first, second = (json.loads(line) for line in r.stdout.splitlines())
+        assert first["error"].endswith("not generic-vfd (serial 12345, firmware 1.0.0, "
+                                       "hardware rev 1, made 2026-06-01); next try in 0.5 s")
+        assert "values" not in second
+        assert second["time_utc"] - first["time_utc"] >= 0.5
+        # the device itself reads as ever
+        r = run_pymb("read", "generic-vfd:5", "--tcp", tcp, "--json", timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["states"]["frequency_setpoint_hz"] == "value"
