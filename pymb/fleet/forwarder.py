@@ -57,6 +57,7 @@ from pymb.fleet.lanes import WINDOW, Publisher, catch_up_lane, live_lane
 from pymb.fleet.profiles import BACKLOG, Profile, make_profile
 from pymb.fleet.session import Session
 from pymb.fleet.status import ForwarderStatus
+from pymb.fleet.takeover import Takeovers
 from pymb.store import Outbox, StoredSample
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
@@ -134,6 +135,7 @@ class Forwarder(threading.Thread, CommandTopics):
         #: (monotonic time, samples) of the acknowledgements of the last few seconds
         self._ack_times: collections.deque[tuple[float, int]] = collections.deque()
         self.error: BaseException | None = None
+        self._takeovers = Takeovers(f"pymb-{cfg.profile}-{cfg.node}", cfg.node, _BACKOFF_MAX)
         CommandTopics.__init__(self)
 
     # -- the public side -----------------------------------------------------------
@@ -202,7 +204,7 @@ class Forwarder(threading.Thread, CommandTopics):
         while not self._stopping.is_set():
             s = self._connect()
             if s is not None and s.ok:
-                backoff = _BACKOFF_FIRST
+                self._takeovers.up()
                 self._connections += 1
                 if self.dest is None:
                     self._key(s)
@@ -219,16 +221,24 @@ class Forwarder(threading.Thread, CommandTopics):
                     return
                 again = s.again
                 if again:  # to offer refused samples again: at once, no story
+                    backoff = _BACKOFF_FIRST
                     continue
-                self.record_event(f"lost the connection to {self.dest}: {s.reason or 'closed'}; "
-                            "the samples go on accumulating in the database")
+                anew, line = self._takeovers.down(s.ended_by_broker, s.taken_over)
+                if anew:
+                    backoff = _BACKOFF_FIRST
+                if line is not None:
+                    self._say(line)
+                elif not self._takeovers.said:  # said once, not at each takeover
+                    self.record_event(f"lost the connection to {self.dest}: "
+                                      f"{s.reason or 'closed'}; the samples go on "
+                                      "accumulating in the database")
+                if self._takeovers.said:
+                    s.reason = f"taken over by another {self._takeovers.client_id}?"
             again = False
             reason = "connecting" if s is None else (s.reason or "disconnected")
             if reason != was_down and not (s is not None and s.ok):
                 self.record_event(f"cannot connect to {self.dest or self.where}: {reason}")
                 was_down = reason
-            if s is not None and s.ok:
-                backoff = _BACKOFF_FIRST
             until = time.monotonic() + backoff
             while (left := until - time.monotonic()) > 0:
                 self._snapshot(f"down ({reason}), retry in {left:.0f} s", False)
@@ -236,10 +246,17 @@ class Forwarder(threading.Thread, CommandTopics):
                     return
             backoff = min(backoff * 2, _BACKOFF_MAX)
 
+    def _say(self, line: str) -> None:
+        """An event, and a line on stderr (unless the events are lines there already)."""
+        self.record_event(line)
+        if self.say:
+            with contextlib.suppress(OSError, ValueError):
+                print(f"pymb log: {line}", file=sys.stderr, flush=True)
+
     def _connect(self) -> Session | None:
         cfg = self.cfg
         self.profile.new_connection(self.source)
-        s = Session(self, f"pymb-{cfg.profile}-{cfg.node}", WINDOW)
+        s = Session(self, self._takeovers.client_id, WINDOW)
         self._session = s  # a command redelivered right after the CONNACK is answered on it
         c = s.client
         cfg.secure(c, self.password)
@@ -294,10 +311,7 @@ class Forwarder(threading.Thread, CommandTopics):
                 f"samples back to {time.strftime('%Y-%m-%d %H:%M', time.gmtime(first))} UTC "
                 f"({(time.time() - first) / 86400:,.1f} days) are sent; --mqtt-start now "
                 "sends only new ones")
-        self.record_event(line)
-        if self.say:
-            with contextlib.suppress(OSError, ValueError):
-                print(f"pymb log: {line}", file=sys.stderr, flush=True)
+        self._say(line)
 
     def _close(self, s: Session) -> None:
         with contextlib.suppress(Exception):
@@ -451,10 +465,7 @@ class Forwarder(threading.Thread, CommandTopics):
         line = (f"the broker refused sample {first} on {topic}: {reason}; it stays in the "
                 f"database and is offered again after {self._retry_wait:g} s (doubling up to "
                 f"{RETRY_MAX:g} s while the broker refuses)")
-        self.record_event(line)
-        if self.say:
-            with contextlib.suppress(OSError, ValueError):
-                print(f"pymb log: {line}", file=sys.stderr, flush=True)
+        self._say(line)
 
     def _publish_downs(self, pub: Publisher, rec: StoredSample | None, upto: int) -> None:
         """Publish what is due: the downs of ``rec``'s device that came after

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.profiles import Profile, host_state
+from pymb.fleet.takeover import TAKEN_OVER
 
 __all__ = ["COMMAND_SESSION_EXPIRY", "Session"]
 
@@ -67,6 +68,9 @@ class Session:
         self.reason: str | None = None
         self.ok = False
         self.lost = False
+        #: the broker ended the connection (not this side, no other reason known)
+        self.ended_by_broker = False
+        self.taken_over = False  #: the broker said "session taken over" (MQTT 5)
         self.again = False  #: ended by the forwarder to offer refused samples again
         self.host_online = False  #: the primary host's STATE said online (on this connection)
         self.v5 = fw.cfg.protocol == "5"
@@ -144,6 +148,10 @@ class Session:
                        props: Any = None) -> None:
         self.lost = True
         if self.reason is None:
+            code = getattr(rc, "value", rc)
+            from_server = bool(getattr(flags, "is_disconnect_packet_from_server", False))
+            self.ended_by_broker = from_server or code != 0
+            self.taken_over = from_server and code == TAKEN_OVER
             self.reason = f"disconnected: {rc}"
         self.connack.set()
         self.fw.wake.set()
