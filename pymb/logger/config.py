@@ -360,6 +360,11 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
             if kind is not None:
                 d = {**d, "type": kind.lower()}
             devices.append(map_device_from_toml(d, known, dwhere, base))
+        serial = [k for k in ("baud", "parity") if k in b]
+        line = next((k for k in ("tcp", "rtu_over_tcp", "udp") if k in b), None)
+        if serial and "port" not in b and line is not None:  # (they would be ignored)
+            raise InvalidArgument(f"{where}: {serial[0]} is for a serial line (port), not "
+                                  f"{line} = \"{b[line]}\"")
         try:
             buses.append(BusConfig(
                 _get(b, "name", str, where, f"bus{i + 1}"), _get(b, "port", str, where),
