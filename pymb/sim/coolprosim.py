@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import ClassVar
 
 from pymb import maps
@@ -43,6 +43,23 @@ _EPISODES = (*(bit for bit in _ZEROES for _ in range(3)), _BIT["CALIBRATION_INVA
 _FIRMWARE = ".".join(str(_MAP.points[f"firmware_{k}"].example) for k in ("major", "minor", "patch"))
 
 
+def _whole(high: int) -> Callable[[str], int]:
+    """A parser of a whole number 0..``high`` (decimal or 0x hex)."""
+    def parse(value: str) -> int:
+        n = int(value, 0)
+        if not 0 <= n <= high:
+            raise ValueError(value)
+        return n
+    return parse
+
+
+def _uptime(value: str) -> float:
+    s = float(value)
+    if not 0 <= s <= 0xFFFFFFFF:  # NaN too: the register counts seconds
+        raise ValueError(value)
+    return s
+
+
 class CoolProDevice(MapSimDevice):
     """The CoolPro power-supply monitor of its map (``coolpro``).
 
@@ -66,9 +83,9 @@ class CoolProDevice(MapSimDevice):
     builtin_map = _MAP
     spec_keys: ClassVar[Keys] = {
                  "gap": ("delay", seconds, f"0..{MAX_DELAY_S:g} seconds before each reply"),
-                 "serial": ("serial_number", lambda v: int(v, 0), "a number"),
-                 "hardware": ("hardware_revision", int, "a number"),
-                 "uptime": ("uptime", float, "seconds")}
+                 "serial": ("serial_number", _whole(0xFFFFFFFF), "a number 0..4294967295"),
+                 "hardware": ("hardware_revision", _whole(0xFFFF), "a number 0..65535"),
+                 "uptime": ("uptime", _uptime, "0..4294967295 seconds")}
     delay_arg: ClassVar[str] = "gap"
     LOAD_STEP_S: ClassVar[float] = 20.0  #: how often the load may change
     EPISODE_WINDOW_S: ClassVar[float] = 600.0  #: one status-fault episode chance per window

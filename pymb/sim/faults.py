@@ -26,6 +26,7 @@ Kinds:
 
 from __future__ import annotations
 
+import math
 import random
 import threading
 from collections import Counter
@@ -59,8 +60,10 @@ class Fault:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise InvalidArgument(f"unknown fault {self.kind!r}; use one of {', '.join(KINDS)}")
-        if self.delay < 0 or self.seconds < 0:
-            raise InvalidArgument(f"{self.kind}: durations must be 0 or more seconds")
+        for key in ("delay", "seconds"):
+            value = getattr(self, key)
+            if not 0 <= value < math.inf:  # NaN too
+                raise InvalidArgument(f"{key} must be 0 or more seconds, got {value!r}")
         if not 1 <= self.code <= 255:
             raise InvalidArgument(f"exception code must be 1..255, got {self.code!r}")
         if self.keep is not None and self.keep < 0:
@@ -220,19 +223,24 @@ def parse_fault(spec: str) -> tuple[Fault, float, int | None]:
         key, eq, value = opt.partition("=")
         if not eq:
             raise InvalidArgument(f"fault {spec!r}: {opt!r} is not key=value")
+        keys = ["channels", "extra", *_PARAM_TYPES]
+        if key not in keys:
+            raise InvalidArgument(f"fault {spec!r}: unknown key {key!r}; use "
+                                  f"{', '.join(k + '=...' for k in keys)}")
         try:
             if key == "channels":
                 params[key] = tuple(int(c) for c in value.split("+"))
             elif key == "extra":
                 params[key] = bytes.fromhex(value)
-            elif key in _PARAM_TYPES:
+            else:
                 v = _PARAM_TYPES[key](value, 0) if _PARAM_TYPES[key] is int else float(value)
                 if key == "address":
                     address = int(v)
                 else:
                     params[key] = v
-            else:
-                raise InvalidArgument(f"fault {spec!r}: unknown key {key!r}")
         except ValueError:
             raise InvalidArgument(f"fault {spec!r}: bad value for {key}: {value!r}") from None
-    return _make(kind.strip(), params), probability, address
+    try:
+        return _make(kind.strip(), params), probability, address
+    except InvalidArgument as e:
+        raise InvalidArgument(f"fault {spec!r}: {e}") from None

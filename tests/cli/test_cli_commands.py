@@ -322,6 +322,14 @@ def test_non_finite_or_negative_durations_are_refused(tmp_path: Path, args: list
     (["coolpro,gap=-1"], "bad value for gap: '-1' (0..60 seconds before each reply)"),
     (["coolpro,delay=61"], "bad value for delay: '61' (0..60 seconds"),
     (["hub,delay=2-1"], "bad value for delay: '2-1' (0..60 seconds"),
+    (["coolpro,hardware=70000"], "bad value for hardware: '70000' (a number 0..65535)"),
+    (["coolpro,uptime=-5"], "bad value for uptime: '-5' (0..4294967295 seconds)"),
+    (["coolpro", "--fault", "late:0.1,delay=-1"],
+     "fault 'late:0.1,delay=-1': delay must be 0 or more seconds, got -1.0"),
+    (["hub", "--fault", "sensor,seconds=nan"],
+     "fault 'sensor,seconds=nan': seconds must be 0 or more seconds, got nan"),
+    (["hub", "--fault", "late,colour=1"], "fault 'late,colour=1': unknown key 'colour'; use "
+                                           "channels=..., extra=..., delay=..."),
     (["hub", "--baud", "0"], "baud must be a positive number of bit/s, got 0"),
     (["hub", "--baud", "-5"], "baud must be a positive number of bit/s, got -5"),
 ])
