@@ -35,6 +35,7 @@ from pymb.devices.mapspec import (
     TYPED_VIEWS,
     MapTarget,
     map_types,
+    match_map,
     parse_map_device,
     unknown_device,
 )
@@ -74,8 +75,7 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
         try:
             data = read()
         except DeviceException as e:
-            why = mismatch(identify(client_asker(client), address), dev.type, address,
-                           count)
+            why = what_answers(client, address, dev.type, count)
             if "answers like" in why and "not" in why:
                 raise type(e)(f"{why}; {e}", code=e.code) from None
             raise
@@ -83,8 +83,7 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
         # supplied no value at all (a whole sweep, or watch's few blocks).
         if data.unsupported and set(blocks or data.values) <= set(data.unsupported):
             mapdev.planner.forget()  # the next read asks again
-            why = mismatch(identify(client_asker(client), address), dev.type, address,
-                           count)
+            why = what_answers(client, address, dev.type, count)
             raise ProtocolError(f"no value from {dev.type}:{address} on {client.port}: {why}",
                                 reason="no value")
         return data
@@ -207,11 +206,26 @@ def read_points(dev: MapDevice, target: MapTarget, client: Client,
     values = dev.read(group=group)
     if values and all(_refused(dev.states.get(name)) for name in values):
         dev.planner.forget()  # the next read asks again
-        why = mismatch(identify(client_asker(client), target.address), target.map.id,
-                       target.address, 0)
+        why = what_answers(client, target.address, target.map.id, 0)
         raise ProtocolError(f"no value from {target.spec} on {client.port}: {why}",
                             reason="no value")
     return values
+
+
+def what_answers(client: Client, address: int, wanted: str, channels: int) -> str:
+    """Why a read of ``wanted`` at ``address`` got no value, in one phrase:
+    what answers there, by the ``[[identify]]`` rules of the shipped maps as
+    ``pymb scan`` names it (an energy meter is not taken for a CoolPro whose
+    identity registers it happens to have), else as :func:`mismatch` says."""
+    ask = client_asker(client)
+    found = identify(ask, address)
+    if found is not None:
+        matched = match_map(ask, address, map_types())
+        if matched is not None and matched[0] != wanted:
+            name = {"coolpro": "a CoolPro", "hub": "a hub"}.get(wanted, wanted)
+            return (f"address {address} answers like {matched[0]} ({matched[1]}), not {name}: "
+                    f"read it as {matched[0]}:{address}")
+    return mismatch(found, wanted, address, channels)
 
 
 def _refused(state: Any) -> bool:

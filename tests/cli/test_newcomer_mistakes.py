@@ -83,7 +83,8 @@ def test_a_map_device_at_an_address_where_another_device_answers() -> None:
     every point of the drive's map): no value at all is exit 3 saying what
     answers there, not a table of 'unsupported' and exit 0; ``watch`` counts
     it as a fault and waits before the next try."""
-    with Simulator(["coolpro", "generic-vfd:5"], transport="tcp", seed=1) as sim:
+    with Simulator(["coolpro", "generic-vfd:5", "eastron-sdm630:1"], transport="tcp",
+                   seed=1) as sim:
         tcp = f"127.0.0.1:{sim.tcp_port}"
         r = run_pymb("read", "generic-vfd:40", "--tcp", tcp, timeout=60)
         assert (r.returncode, r.stdout) == (3, "")
@@ -93,8 +94,17 @@ def test_a_map_device_at_an_address_where_another_device_answers() -> None:
         # a meter's map read at the drive's address: the drive refuses every point
         r = run_pymb("read", "eastron-sdm120:5", "--tcp", tcp, timeout=60)
         assert r.returncode == 3
-        assert r.stderr.endswith("address 5 answers like an unknown device, not eastron-sdm120 "
-                                 "(answers FC 0x04 at 100 with exception 02)\n")
+        # named by the shipped maps' identify rules, as pymb scan names it
+        assert r.stderr == (f"pymb read: no value from eastron-sdm120:5 on {tcp}: address 5 "
+                            "answers like generic-vfd (Delta (layout) VFD-E / VFD-ED compatible: "
+                            "output_frequency_hz 49.98), not eastron-sdm120: read it as "
+                            "generic-vfd:5\n")
+        # an energy meter has registers where a CoolPro keeps its identity: it
+        # is named by its map all the same
+        r = run_pymb("read", "hub:1", "--tcp", tcp, timeout=60)
+        assert r.returncode == 3
+        assert "address 1 answers like eastron-sdm630 (Eastron SDM630" in r.stderr
+        assert r.stderr.endswith("not a hub: read it as eastron-sdm630:1\n")
         r = run_pymb("watch", "generic-vfd:40", "--tcp", tcp, "--count", "2", "--json",
                      timeout=60)
         assert r.returncode == 3, r.stderr
