@@ -9,6 +9,7 @@ twin on the line's worker thread.
 
 from __future__ import annotations
 
+import abc
 import inspect
 from collections.abc import Awaitable, Callable, Coroutine
 from types import MethodType
@@ -20,14 +21,16 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 
-class Mirrored:
+class Mirrored(abc.ABC):
     """What a class with :class:`Mirror` methods has: the blocking twin
     and a way to run one of its calls on the line's worker."""
 
-    blocking: Any
+    blocking: object  #: the blocking twin, whose methods the mirrors run
 
-    def _submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Awaitable[R]:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _submit(self, fn: Callable[P, R], /, *args: P.args,
+                **kwargs: P.kwargs) -> Awaitable[R]:
+        """Run ``fn(*args, **kwargs)`` on the line's worker."""
 
 
 def _coroutine(name: str) -> Callable[..., Coroutine[Any, Any, Any]]:

@@ -20,6 +20,7 @@ skips the decoding cannot post a time.
 
 from __future__ import annotations
 
+import abc
 import math
 import struct
 import sys
@@ -95,12 +96,13 @@ class PymbClient:
         self.client.close()
 
 
-class PurePythonClient:
+class PurePythonClient(abc.ABC):
     """Base of the stacks that return raw registers: six reads, then the
     pure-Python decode of :mod:`pymb.bench.pure`."""
 
+    @abc.abstractmethod
     def read(self, slave: int, function: int, address: int, count: int) -> Sequence[int]:
-        raise NotImplementedError
+        """The registers of one read request."""
 
     def sweep(self) -> tuple[Sequence[int], Sequence[float]]:
         raw: list[int] = []
@@ -112,7 +114,7 @@ class PurePythonClient:
         raw = self.read(CP_SLAVE, CP_FUNCTION, CP_ADDRESS, CP_COUNT)
         return raw, pure.decode_telemetry(raw)
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (a no-op by default)
         pass
 
 

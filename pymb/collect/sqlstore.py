@@ -11,6 +11,7 @@ writes: exit code 5).
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import os
 import sqlite3
@@ -97,21 +98,21 @@ _COLUMNS = ", ".join(COPY_COLUMNS)
 PG_LOCK = 0x70796D62  # "pymb"
 
 
-class Store:
+class Store(abc.ABC):
     """A database the collector writes to."""
 
     target: str  #: what the user gave (a PostgreSQL URL with any password hidden)
     hypertable = False  #: PostgreSQL with TimescaleDB: pymb_values is a hypertable
 
+    @abc.abstractmethod
     def batch(self) -> Batch:
         """An empty batch of the kind :meth:`write` takes."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def write(self, batch: Batch) -> int:
         """Store a batch in one committed transaction; the number of new rows."""
-        raise NotImplementedError
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (a hook: nothing to close by default)
         """Close the connection."""
 
 

@@ -24,6 +24,7 @@
 
 from __future__ import annotations
 
+import abc
 import json
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -65,7 +66,7 @@ def _ms(t: float) -> int:
     return round(t * 1000)
 
 
-class Profile:
+class Profile(abc.ABC):
     """The interface the forwarder drives."""
 
     data_qos = 1
@@ -75,22 +76,22 @@ class Profile:
     def __init__(self, cfg: MqttConfig) -> None:
         self.cfg = cfg
 
+    @abc.abstractmethod
     def will(self) -> Message:
         """The last will, registered with each CONNECT."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def births(self, source: Outbox, node: dict[str, int] | None = None) -> list[Message]:
         """What goes first on every connection (and on a rebirth); ``node``: the
         node's metrics (``NODE_METRICS``) now."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def data(self, record: StoredSample, historical: bool) -> list[Message]:
         """The message(s) of one sample."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def goodbye(self) -> list[Message]:
         """What goes last on a clean disconnect."""
-        raise NotImplementedError
 
     def device_down(self, device: str) -> list[Message]:
         """A device stopped answering (see :mod:`pymb.fleet.health`)."""
@@ -109,7 +110,7 @@ class Profile:
         """What answers a device command (Sparkplug: a DDATA)."""
         return []
 
-    def new_connection(self, source: Outbox) -> None:
+    def new_connection(self, source: Outbox) -> None:  # noqa: B027 (a no-op by default)
         """Called before each CONNECT."""
 
 

@@ -16,6 +16,7 @@ offline, raise a status bit, change the firmware) take effect at once.
 
 from __future__ import annotations
 
+import abc
 import functools
 import math
 import random
@@ -23,7 +24,7 @@ import sys
 import threading
 from array import array
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import ClassVar, Concatenate, ParamSpec, TypeVar
 
 from pymb._native import DeviceExceptionCode as ExceptionCode
 from pymb._native import FunctionCode
@@ -107,19 +108,21 @@ def parse_firmware(version: str | Sequence[int]) -> tuple[int, ...]:
     return tuple(int(p) for p in version)
 
 
-_F = TypeVar("_F", bound=Callable[..., Any])
+_D = TypeVar("_D", bound="Device")
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 
-def _locked(method: _F) -> _F:
+def _locked(method: Callable[Concatenate[_D, _P], _R]) -> Callable[Concatenate[_D, _P], _R]:
     """Run ``method`` holding the device's lock (the bus thread and a test
     thread may both touch a device)."""
 
     @functools.wraps(method)
-    def wrapper(self: Device, *args: Any, **kwargs: Any) -> Any:
+    def wrapper(self: _D, /, *args: _P.args, **kwargs: _P.kwargs) -> _R:
         with self.lock:
             return method(self, *args, **kwargs)
 
-    return wrapper  # type: ignore[return-value]
+    return wrapper
 
 
 def _swapped(regs: array[int]) -> bytes:
@@ -173,7 +176,7 @@ SIM_KEYS: Keys = {
 }
 
 
-class Device:
+class Device(abc.ABC):
     """What the bus needs of a simulated device.
 
     ``address`` and ``baud`` are the ones it answers at *now* (a CoolPro
@@ -208,21 +211,21 @@ class Device:
         """Seconds from the end of a request to the start of the reply."""
         return 0.0
 
+    @abc.abstractmethod
     def handle(self, pdu: bytes) -> bytes | None:
         """The reply PDU to request ``pdu`` addressed to this device."""
-        raise NotImplementedError
 
-    def handle_broadcast(self, pdu: bytes) -> None:
+    def handle_broadcast(self, pdu: bytes) -> None:  # noqa: B027 (a no-op by default)
         """A request sent to address 0: never answered."""
 
-    def idle(self) -> None:
+    def idle(self) -> None:  # noqa: B027 (a no-op by default)
         """The line is quiet: a chance to bring values up to date off the
         request path."""
 
+    @abc.abstractmethod
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:
         """Raise a sensor fault for ``seconds``; returns what it did."""
-        raise NotImplementedError
 
     def describe(self) -> str:
         """One line for the command line's banner."""

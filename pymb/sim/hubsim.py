@@ -156,7 +156,7 @@ class HubDevice(MapSimDevice):
         return replace(self._channels[self._cis(channel)[0]])
 
     @_locked
-    def configure(self, channel: int | Iterable[int] | None = None, **flags: bool) -> None:
+    def configure(self, /, channel: int | Iterable[int] | None = None, **flags: bool) -> None:
         """Change what is plugged into ``channel`` (1-based, several, or
         None for all): ``present``, ``temperature``, ``humidity``,
         ``pressure``, ``temperature2``, ``humidity_tenths`` (see :class:`Channel`)."""

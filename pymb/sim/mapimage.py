@@ -161,7 +161,7 @@ class MapImage(Device):
         return self._images[table][address:address + count]
 
     @_locked
-    def set_identity(self, **values: int) -> None:
+    def set_identity(self, /, **values: int) -> None:
         """Set points of the map's ``identity`` group by name to raw values
         (``serial_number=...``)."""
         for name, value in values.items():

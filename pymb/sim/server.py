@@ -8,6 +8,7 @@ port is gone.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import logging
 import os
@@ -24,7 +25,7 @@ log = logging.getLogger("pymb.sim")
 _REPLUG_RETRY_S = 1.0  # a real port that cannot be reopened is tried again this often
 
 
-class SimServer:
+class SimServer(abc.ABC):
     """Base of :class:`~pymb.sim.rtu.RtuServer` and :class:`~pymb.sim.tcp.TcpServer`.
 
     Subclasses provide ``_open()`` (create the port), ``_close()`` (remove
@@ -161,11 +162,14 @@ class SimServer:
 
     # -- for subclasses --------------------------------------------------------------
 
+    @abc.abstractmethod
     def _open(self) -> None:
-        raise NotImplementedError
+        """Create the port."""
 
+    @abc.abstractmethod
     def _close(self) -> None:
-        raise NotImplementedError
+        """Remove the port."""
 
+    @abc.abstractmethod
     def _serve_once(self, wake_fd: int) -> None:
-        raise NotImplementedError
+        """Wait for input or ``wake_fd``; handle what came."""

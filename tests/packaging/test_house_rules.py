@@ -46,3 +46,34 @@ def test_a_class_name_names_one_class() -> None:
     assert where["MapDevice"] == ["pymb/devices/mapdevice.py"]  # the scan sees the classes
     shared = {name: sorted(files) for name, files in where.items() if len(files) > 1}
     assert shared == {}, f"one name, one class: rename one of these (or merge them): {shared}"
+
+
+def test_a_template_hook_is_abstract() -> None:
+    # A hook a subclass must supply is an abc.abstractmethod (or a Protocol
+    # member): a class that lacks it fails when it is made, and under mypy,
+    # not when the hook is first called.
+    raising = [f"{_rel(p)}:{node.lineno}" for p in PRODUCT
+               for node in ast.walk(ast.parse(p.read_text(encoding="utf-8")))
+               if isinstance(node, ast.Raise) and node.exc is not None
+               and "NotImplementedError" in ast.unparse(node.exc)]
+    assert raising == [], f"make these hooks abstract: {raising}"
+
+
+def test_the_template_bases_name_their_hooks() -> None:
+    from pymb.aio._mirror import Mirrored
+    from pymb.bench.worker import PurePythonClient
+    from pymb.collect.sqlstore import Store
+    from pymb.fleet.profiles import Profile
+    from pymb.sim.base import Device
+    from pymb.sim.server import SimServer
+
+    hooks = {cls.__name__: set(cls.__abstractmethods__)
+             for cls in (Mirrored, PurePythonClient, Store, Profile, Device, SimServer)}
+    assert hooks == {
+        "Mirrored": {"_submit"},
+        "PurePythonClient": {"read"},
+        "Store": {"batch", "write"},
+        "Profile": {"will", "births", "data", "goodbye"},
+        "Device": {"handle", "sensor_fault"},
+        "SimServer": {"_open", "_close", "_serve_once"},
+    }
