@@ -147,8 +147,8 @@ def _hub_view(data: MapReading) -> HubReading:
         elif p.name in data.values:
             vs, sts = data.values[p.name], data.states[p.name]
             assert isinstance(vs, list)
-            r.values[k * c:(k + 1) * c] = array("d", [math.nan if v is None else float(v)
-                                                      for v in vs])
+            r.values[k * c:(k + 1) * c] = array(
+                "d", [float(v) if isinstance(v, int | float) else math.nan for v in vs])
             r.raw_states[k * c:(k + 1) * c] = array("B", [STATES.index(s) for s in sts])
     r.unsupported_mask = sum(1 << k for k, p in enumerate(BLOCKS) if p.name in data.unsupported)
     return r

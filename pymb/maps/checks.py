@@ -5,8 +5,7 @@ two names meet in one column of an export."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping
 
 from pymb.maps.fields import Ctx
 from pymb.maps.point import Limits, MapError, Point, did_you_mean
@@ -45,7 +44,7 @@ def check_refs(source: str, points: Mapping[str, Point]) -> None:
             Ctx(source, p.name).fail("scale_from", f"scale_from {sf.name!r} {why}")
 
 
-def check_overlaps(source: str, points: Any) -> None:
+def check_overlaps(source: str, points: Iterable[Point]) -> None:
     """Points may share registers only as views of one another: a ``bit``,
     ``bits`` or 8-bit half inside another point, a ``raw`` point over any,
     two points of the same type and order on the same registers, or points
@@ -114,7 +113,7 @@ def _views(s: tuple[int, int, Point, int], o: tuple[int, int, Point, int],
     return inside
 
 
-def check_widths(source: str, limits: Limits, points: Any) -> None:
+def check_widths(source: str, limits: Limits, points: Iterable[Point]) -> None:
     """Every point fits one request: a point (a block's channel) wider than
     ``max_registers`` (``max_bits``), or than a range limit where it lies,
     could never be read."""

@@ -13,10 +13,9 @@ import functools
 import math
 import struct
 from collections.abc import Sequence
-from typing import Any
 
 from pymb.errors import InvalidArgument
-from pymb.maps.point import MapError, Point, Points, Value, did_you_mean
+from pymb.maps.point import MapError, Point, Points, PointState, Value, did_you_mean
 from pymb.maps.types import SF_RANGE, STATES, TYPES, permutation
 
 __all__ = ["decimal_power", "decode", "decode_one", "encode", "scaled", "state_names"]
@@ -166,7 +165,7 @@ def _scaled_value(p: Point, u: int, family: str, sf: int) -> tuple[Value, str]:
     return scaled(u, p, sf=sf), "value"
 
 
-def decode(p: Point, regs: Sequence[int], sf: int | None = None) -> tuple[Value, Any]:
+def decode(p: Point, regs: Sequence[int], sf: int | None = None) -> tuple[Value, PointState]:
     """(value, state) of a point, or two lists for a block: ``regs`` starts
     at the first channel's first register; ``sf``: the value of its
     ``scale_from`` point, if it has one."""

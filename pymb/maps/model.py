@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 from pymb.errors import InvalidArgument
 from pymb.maps import codec
@@ -18,6 +18,7 @@ from pymb.maps.point import (
     Limits,
     MapError,
     Point,
+    PointState,
     Timing,
     Value,
     did_you_mean,
@@ -113,7 +114,7 @@ class Map:
         return self.decode_state(name, registers, scale_factor=scale_factor)[0]
 
     def decode_state(self, name: str, registers: Sequence[int], *,
-                     scale_factor: int | None = None) -> tuple[Value, Any]:
+                     scale_factor: int | None = None) -> tuple[Value, PointState]:
         """(value, state name) of one point; a block gives two lists."""
         p = self.point(name)
         if scale_factor is not None and (isinstance(scale_factor, bool)

@@ -9,28 +9,43 @@ import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Protocol
+from typing import Protocol, TypeAlias, TypeVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.errors import InvalidArgument, ModbusError
 from pymb.maps.types import BIT_TABLES, TABLES
 
-__all__ = ["MAX_GAP", "DeviceSection", "Identify", "Limits", "MapError", "Point", "Points",
-           "Timing", "Value", "did_you_mean"]
+__all__ = [
+    "MAX_GAP",
+    "DeviceSection",
+    "Identify",
+    "Limits",
+    "MapError",
+    "Point",
+    "PointState",
+    "Points",
+    "Timing",
+    "Value",
+    "did_you_mean",
+]
 
 #: What a point decodes to: None where there is no value (a marker, NaN,
 #: invalid text, unsupported); a list for blocks and ``raw``.
-Value = int | float | str | bool | list[Any] | None
+Value: TypeAlias = "int | float | str | bool | list[Value] | None"
+#: A point's state name (``value``, ``offline``, a marker's name...); a block's
+#: is a list of them, one a channel.
+PointState: TypeAlias = "str | list[str]"
 
 #: the most undeclared registers ``max_gap`` may name: one request reads at
 #: most MAX_READ_REGISTERS, so a gap spans at most all but one of them
 MAX_GAP = MAX_READ_REGISTERS - 1
 
-_EMPTY: Mapping[Any, Any] = MappingProxyType({})
+_K = TypeVar("_K")
+_V = TypeVar("_V")
 
 
-def _empty() -> Mapping[Any, Any]:
-    return _EMPTY
+def _empty() -> Mapping[_K, _V]:
+    return MappingProxyType({})
 
 
 class MapError(ModbusError, ValueError):
@@ -150,7 +165,7 @@ class Identify:
 
     point: str
     range: tuple[float, float] | None = None
-    equals: Any = None
+    equals: int | float | str | None = None  #: a number, or a text
     regex: str | None = None
 
 
@@ -207,7 +222,7 @@ class Point:
     width: int | None = None  #: for ``bits``: bits in the field
     string_bytes: str = "both"
     encoding: str = "ascii"
-    example: Any = None
+    example: Value = None
     min_firmware: str = ""
     when: Mapping[str, int | float] = field(default_factory=_empty)
     #: writes allowed in any sliding hour (the point's own or ``[device]``'s; None: no budget)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import sys
 from pathlib import Path
-from typing import Any
 
 from pymb.maps import loader
 from pymb.maps.checks import SCALE_FACTOR_TYPES
@@ -157,7 +156,7 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
     }),
 }
 
-_RECORDS: dict[str, Any] = {"limits": Limits, "timing": Timing}
+_RECORDS: dict[str, type[Limits | Timing]] = {"limits": Limits, "timing": Timing}
 
 #: What each type is (the loader's TYPES gives its width and family).
 TYPE_DOCS = {

@@ -247,6 +247,7 @@ class MapSimDevice(MapImage):
                     self._init(p, c, rng)
 
     def _init(self, p: Point, channel: int, rng: random.Random) -> None:
+        value: object
         if p.example is not None:
             value = p.example[channel - 1] if p.block and isinstance(p.example, list) \
                 else p.example

@@ -56,6 +56,7 @@ def test_hub_map_reads_what_the_reference_and_the_facade_read(unit: float,
                 if math.isnan(t):
                     assert v is None
                 else:  # the same double, -0.0 included
+                    assert isinstance(v, int | float), (name, v)
                     assert v == t, (name, v, t)
                     assert math.copysign(1, v) == math.copysign(1, t), (name, v, t)
 

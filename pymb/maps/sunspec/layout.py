@@ -30,14 +30,17 @@ import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any
+from typing import NotRequired, TypedDict
 
 from pymb.maps.point import MapError
 
 __all__ = [
     "MAX_POINT_REGISTERS",
     "NOT_IMPLEMENTED",
+    "GroupDef",
+    "ModelDef",
     "Placed",
+    "PointDef",
     "map_text",
     "model_def",
     "model_ids",
@@ -75,6 +78,70 @@ _TYPES: dict[str, tuple[str, int | None, str]] = {
     "ipv6addr": ("raw", None, "gauge"),
 }
 _SKIPPED = frozenset({"pad"})
+
+
+class SymbolDef(TypedDict):
+    """One symbol of an enum or bitfield point in a SunSpec definition."""
+
+    name: str
+    value: int
+
+
+class PointDef(TypedDict):
+    """A point of a SunSpec definition, the keys pymb reads."""
+
+    name: str
+    type: str
+    size: int
+    sf: NotRequired[int | str]
+    units: NotRequired[str]
+    access: NotRequired[str]
+    static: NotRequired[str]
+    label: NotRequired[str]
+    symbols: NotRequired[list[SymbolDef]]
+
+
+class GroupDef(TypedDict):
+    """A group of a SunSpec definition: its points and inner groups, and
+    ``count``, a number (0: as many as the model's length holds) or the
+    name of a point of an enclosing group."""
+
+    name: str
+    type: NotRequired[str]
+    label: NotRequired[str]
+    count: NotRequired[int | str]
+    points: NotRequired[list[PointDef]]
+    groups: NotRequired[list[GroupDef]]
+
+
+class ModelDef(TypedDict):
+    """A SunSpec model's JSON definition, the keys pymb reads."""
+
+    id: int
+    group: GroupDef
+
+
+class _Entry(TypedDict, total=False):
+    """A ``[[point]]`` (``address``) or ``[[block]]`` (``first``, ``count``,
+    ``stride``) table of the map being written, key by key in TOML order."""
+
+    name: str
+    first: int
+    count: int
+    stride: int
+    address: int
+    type: str
+    markers: dict[int, str]
+    scale: float
+    scale_from: str
+    values: dict[int, str]
+    flags: dict[int, str]
+    unit: str
+    kind: str
+    access: str
+    group: str
+    description: str
+    ref: str
 _UNMAPPED = 0xFFFF
 
 
@@ -92,14 +159,14 @@ def _def_text(model_id: int) -> str:
     return res.read_text(encoding="utf-8")
 
 
-def model_def(model_id: int) -> dict[str, Any]:
+def model_def(model_id: int) -> ModelDef:
     """The SunSpec definition of ``model_id`` (its JSON, as published), or a
     :class:`MapError` naming the id."""
     if isinstance(model_id, bool) or not isinstance(model_id, int):
         raise MapError(f"a SunSpec model id is a whole number, got {model_id!r}")
     if model_id not in model_ids():
         raise MapError(f"pymb knows no SunSpec model {model_id}", key=str(model_id))
-    doc: dict[str, Any] = json.loads(_def_text(model_id))
+    doc: ModelDef = json.loads(_def_text(model_id))
     return doc
 
 
@@ -118,7 +185,7 @@ class Placed:
     registers: tuple[int, ...] | None = None
 
 
-def _fixed_length(g: Mapping[str, Any]) -> int:
+def _fixed_length(g: GroupDef) -> int:
     return sum(int(p["size"]) for p in g.get("points", []))
 
 
@@ -127,21 +194,21 @@ def model_length(model_id: int, repeats: int = 1) -> int:
     group (one of each nested one)."""
     top = model_def(model_id)["group"]
 
-    def size(g: Mapping[str, Any], n: int) -> int:
+    def size(g: GroupDef, n: int) -> int:
         inner = sum(size(s, _static_count(s, repeats)) for s in g.get("groups", []))
         return n * (_fixed_length(g) + inner)
 
     return size(top, 1) - 2
 
 
-def _static_count(g: Mapping[str, Any], repeats: int) -> int:
+def _static_count(g: GroupDef, repeats: int) -> int:
     c = g.get("count", 1)
     if isinstance(c, int):
         return c if c > 0 else repeats
     return 1  # a count a point gives: one instance without the device's registers
 
 
-def _has_scale_factors(g: Mapping[str, Any]) -> bool:
+def _has_scale_factors(g: GroupDef) -> bool:
     return any(p["type"] == "sunssf" for p in g.get("points", [])) or any(
         _has_scale_factors(s) for s in g.get("groups", []))
 
@@ -149,12 +216,12 @@ def _has_scale_factors(g: Mapping[str, Any]) -> bool:
 class _Layout:
     """Lays one placed model out as map entries."""
 
-    def __init__(self, placed: Placed, entries: list[dict[str, Any]]) -> None:
+    def __init__(self, placed: Placed, entries: list[_Entry]) -> None:
         self.placed = placed
         self.entries = entries
         self.end = placed.address + 2 + placed.length
 
-    def count(self, g: Mapping[str, Any], at: int, parents: list[tuple[Mapping[str, Any], int]],
+    def count(self, g: GroupDef, at: int, parents: list[tuple[GroupDef, int]],
               instance_len: int) -> int:
         c = g.get("count", 1)
         if isinstance(c, int) and c > 0:
@@ -177,8 +244,8 @@ class _Layout:
         raise MapError(f"SunSpec model {self.placed.id}: group {g['name']!r} counts "
                        f"{c!r}, which no enclosing group has")
 
-    def length(self, g: Mapping[str, Any], at: int,
-               parents: list[tuple[Mapping[str, Any], int]]) -> int:
+    def length(self, g: GroupDef, at: int,
+               parents: list[tuple[GroupDef, int]]) -> int:
         """Registers of one instance of ``g`` starting at ``at``."""
         n = _fixed_length(g)
         here = [*parents, (g, at)]
@@ -187,8 +254,8 @@ class _Layout:
             n += self.count(s, at + n, here, one) * one
         return n
 
-    def group(self, g: Mapping[str, Any], at: int, path: list[str],
-              parents: list[tuple[Mapping[str, Any], int]],
+    def group(self, g: GroupDef, at: int, path: list[str],
+              parents: list[tuple[GroupDef, int]],
               rep: tuple[int, int, int] | None, scope: dict[str, str]) -> int:
         """Entries of one instance of ``g`` at ``at`` (every instance when
         ``rep`` = (instances, stride, index of the repeated name in path));
@@ -225,7 +292,7 @@ class _Layout:
             off += n * one
         return off - at
 
-    def point(self, p: Mapping[str, Any], at: int, path: list[str],
+    def point(self, p: PointDef, at: int, path: list[str],
               rep: tuple[int, int, int] | None, names: Mapping[str, str]) -> None:
         typ, marker, kind = _TYPES[p["type"]]
         size = int(p["size"])
@@ -237,9 +304,9 @@ class _Layout:
                 self.point(p, at + j * stride, named, None, names)
             return
         full = ".".join([*path, p["name"]])
-        e: dict[str, Any] = {"name": full}
+        e: _Entry = {"name": full}
         if rep is not None:
-            e.update(first=at, count=rep[0], stride=rep[1])
+            e.update({"first": at, "count": rep[0], "stride": rep[1]})
         else:
             e["address"] = at
         e["type"] = typ
@@ -271,10 +338,13 @@ class _Layout:
             e["description"] = str(label)
         e["ref"] = f"SunSpec model {self.placed.id} {'.'.join([*path[1:], p['name']]) or full}"
         if typ == "string" and size > MAX_POINT_REGISTERS:
-            key = "first" if rep is not None else "address"
             for i, start in enumerate(range(0, size, MAX_POINT_REGISTERS)):
-                part = dict(e, count=min(MAX_POINT_REGISTERS, size - start))
-                part[key] = at + start
+                part = e.copy()
+                part["count"] = min(MAX_POINT_REGISTERS, size - start)
+                if rep is not None:
+                    part["first"] = at + start
+                else:
+                    part["address"] = at + start
                 if i:
                     part["name"] = f"{full}_{i + 1}"
                 self.entries.append(part)
@@ -286,14 +356,14 @@ _WIDTHS = {"u16": 1, "i16": 1, "sunssf": 1, "u32": 2, "i32": 2, "f32": 2, "u64":
            "f64": 4}
 
 
-def _layout(placed: Placed) -> tuple[list[dict[str, Any]], list[str]]:
+def _layout(placed: Placed) -> tuple[list[_Entry], list[str]]:
     """The entries of one placed model that lie inside it (its ``L``), and
     the names of those that do not (a device may implement a shorter model)."""
     top = model_def(placed.id)["group"]
-    out: list[dict[str, Any]] = []
+    out: list[_Entry] = []
     lay = _Layout(placed, out)
     lay.group(top, placed.address, [placed.prefix], [], None, {})
-    kept: list[dict[str, Any]] = []
+    kept: list[_Entry] = []
     left: list[str] = []
     for e in out:
         width = _WIDTHS.get(e["type"]) or int(e["count"])
@@ -303,7 +373,8 @@ def _layout(placed: Placed) -> tuple[list[dict[str, Any]], list[str]]:
                 left.append(e["name"])
                 if fit < 1:
                     continue
-                e = dict(e, count=fit)
+                e = e.copy()
+                e["count"] = fit
         elif e["address"] + width > lay.end:
             left.append(e["name"])
             continue
@@ -314,7 +385,7 @@ def _layout(placed: Placed) -> tuple[list[dict[str, Any]], list[str]]:
     return scaled, left
 
 
-def entries_of(placed: Placed) -> list[dict[str, Any]]:
+def entries_of(placed: Placed) -> list[_Entry]:
     """The map entries (``[[point]]``/``[[block]]`` tables as dicts, a block
     having ``first``) of one placed model, those inside its length ``L``."""
     return _layout(placed)[0]
@@ -352,7 +423,7 @@ def map_text(models: Sequence[Placed], *, base: int, unit: int = 1, device_id: s
     """The ``pymb.map/1`` TOML of a device made of ``models`` (in chain
     order), whose ``SunS`` marker is at on-wire address ``base``; ``end`` is
     one past the chain's last register (the end marker's ID and L)."""
-    entries: list[dict[str, Any]] = []
+    entries: list[_Entry] = []
     for placed in models:
         entries.extend(entries_of(placed))
     last = end if end is not None else max(
