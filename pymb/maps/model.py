@@ -25,8 +25,8 @@ from pymb.maps.point import (
 )
 from pymb.wire import DEFAULT_BAUD
 
-__all__ = ["DeviceSection", "Identify", "Limits", "Map", "MapError", "Point", "Timing", "Value",
-           "did_you_mean"]
+__all__ = ["DeviceSection", "Identify", "Limits", "Map", "MapError", "Point", "PointState",
+           "Timing", "Value", "did_you_mean"]
 
 
 class Source(Protocol):

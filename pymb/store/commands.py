@@ -15,7 +15,7 @@ import sqlite3
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import IO, Any
+from typing import IO, Protocol, TypeVar
 
 __all__ = ["KEEP_DAYS", "WRITE_COLUMNS", "CommandLog", "PointRow", "ensure", "export_writes",
            "write_counts"]
@@ -118,12 +118,24 @@ class PointRow:
     reason: str | None = None
 
 
+T = TypeVar("T")
+
+
+class InBatch(Protocol):
+    """How the record reaches the file: ``run(fn, commit)`` returns
+    ``fn(db)`` run inside the writer's batch (:meth:`pymb.store.SqliteSink.in_batch`)."""
+
+    def __call__(self, fn: Callable[[sqlite3.Connection], T], commit: bool, /) -> T:
+        """``fn(db)`` in the batch, committed after it when ``commit``."""
+        ...
+
+
 class CommandLog:
     """The record, on the logger's own connection: ``run(fn, commit)`` runs
     ``fn(db)`` inside the writer's batch (under its lock) and commits the
     batch when ``commit`` is true."""
 
-    def __init__(self, run: Callable[[Callable[[sqlite3.Connection], Any], bool], Any],
+    def __init__(self, run: InBatch,
                  clock: Callable[[], float] = time.time) -> None:
         self._run = run
         self._clock = clock

@@ -24,10 +24,11 @@ floats as floats, flags as booleans, text as strings, and
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
 
 from pymb.devices.mapreading import MapReading
 from pymb.devices.readings import has_own_view, map_reading
+from pymb.maps import Value
 from pymb.store.records import Event, Sample
 from pymb.store.text import JsonlSink, sample_dict
 
@@ -48,11 +49,11 @@ def _ns(t: float) -> int:
     return round(t * 1e6) * 1000
 
 
-def _tags(d: dict[str, Any]) -> str:
+def _tags(d: Mapping[str, object]) -> str:
     return f"bus={_tag(d['bus'])},device={_tag(d['device'])},address={d['address']}"
 
 
-def _field(name: str, v: Any, state: Any, unsigned: bool = False) -> str:
+def _field(name: str, v: Value, state: object, unsigned: bool = False) -> str:
     if v is None:
         return f"{name}_state={_str(str(state))}"
     if isinstance(v, bool):

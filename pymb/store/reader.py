@@ -9,7 +9,6 @@ import os
 import sqlite3
 from array import array
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any
 
 from pymb import maps
 from pymb.devices.hub import blocks_in_other_units
@@ -17,13 +16,14 @@ from pymb.devices.hub import units as humidity_units
 from pymb.devices.mapreading import Blocks, MapReading, group_layout, group_points
 from pymb.devices.readings import map_reading, reading_view
 from pymb.errors import InvalidArgument
-from pymb.maps import Decoder, Map, MapError, Point, Value
+from pymb.maps import Decoder, Map, MapError, Point, PointState, Value
 from pymb.maps.types import STATES
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
 from pymb.store.schema import (
     MAP_UNSUPPORTED_BITS,
     SCHEMA_VERSION,
+    SqlArg,
     host_words,
     parse_layout_key,
     schema_version,
@@ -150,7 +150,7 @@ class _Device:
         if self.channels:
             return self._blocks(regs, gone, present)
         values: dict[str, Value] = {}
-        states: dict[str, Any] = {}
+        states: dict[str, PointState] = {}
         at = 0
         for dec, into in zip(self.decoders, self.buffers, strict=True):
             b = dec.decode(regs[at:at + dec.count], into)
@@ -291,7 +291,7 @@ def stored_after(db: sqlite3.Connection | str | os.PathLike[str], sample_id: int
             con.close()
 
 
-def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[Any],
+def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[SqlArg],
                   limit: int | None = None, given: Mapping[str, Map] | None = None
                   ) -> Iterator[StoredSample]:
     """The samples ``where`` says, decoded (map devices by their stored map,

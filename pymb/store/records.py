@@ -20,6 +20,7 @@ from pymb.errors import (
     ModbusTimeout,
     ProtocolError,
 )
+from pymb.maps import Value
 
 __all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
            "StoredSample", "as_sink", "event_kind", "reading_value", "reading_values",
@@ -70,7 +71,7 @@ class Sample:
 
 
 def reading_values(data: Reading, not_read: bool = False
-                   ) -> list[tuple[int | None, str, Any, Any]]:
+                   ) -> list[tuple[int | None, str, Value, str | None]]:
     """(channel, point, value, state) of every value of a reading, by its
     map's points, in the order of the long CSV: a block's channel (1-based)
     or None, the point's name, the value (None or NaN for none) and its
@@ -78,11 +79,11 @@ def reading_values(data: Reading, not_read: bool = False
     by channel; a value an ``--on-change`` sample did not store (state
     ``not_read``) is left out unless ``not_read``."""
     data = map_reading(data)
-    out: list[tuple[int | None, str, Any, Any]] = []
+    out: list[tuple[int | None, str, Value, str | None]] = []
     blocks = data.map.points
     if all(isinstance(v, list) and blocks[n].block for n, v in data.values.items()):
-        cols: list[tuple[str, Any, Any]] = [(n, v, data.states[n])
-                                            for n, v in data.values.items()]
+        cols = [(n, v, st) for n, v in data.values.items()
+                if isinstance(v, list) and isinstance(st := data.states[n], list)]
         for ch in range(len(cols[0][1]) if cols else 0):
             out += [(ch + 1, n, v[ch], st[ch]) for n, v, st in cols
                     if not_read or st[ch] != "not_read"]

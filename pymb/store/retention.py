@@ -12,9 +12,9 @@ import sqlite3
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from pymb.store.faults import is_storage_fault
+from pymb.store.schema import SqlArg
 
 __all__ = ["PLAUSIBLE", "RESTAMP_TOLERANCE", "Restamp", "Retention", "clock_plausible"]
 
@@ -279,7 +279,7 @@ class Retention:
             with contextlib.suppress(sqlite3.Error):
                 self.db.execute("ROLLBACK")
 
-    def _delete_before(self, find: str, args: tuple[Any, ...], cutoff: float | None) -> int:
+    def _delete_before(self, find: str, args: tuple[SqlArg, ...], cutoff: float | None) -> int:
         (first_kept,) = self.db.execute(find, args).fetchone()
         if first_kept == 0:  # nothing young enough: all but the newest go; the newest
             # stays so that SQLite never hands out its id (or lower ones) again: sample

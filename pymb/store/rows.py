@@ -8,10 +8,10 @@ import functools
 import sqlite3
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from pymb import maps
 from pymb.devices.mapreading import MapReading, group_layout
+from pymb.devices.readings import Reading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
@@ -90,11 +90,11 @@ class DeviceIds:
         self.db = db
         self.path = path
         self._begin = begin
-        self._devices: dict[Any, tuple[int, int, int]] = {}
+        self._devices: dict[DeviceInfo | tuple[DeviceInfo, str | None], tuple[int, int, int]] = {}
         #: (id of a configuration, group) -> (that configuration, its ids): the
         #: logger hands the same object with every sample of a device, so this
         #: finds it without hashing its fields
-        self._seen: dict[tuple[int, str | None], tuple[Any, tuple[int, int, int]]] = {}
+        self._seen: dict[tuple[int, str | None], tuple[DeviceInfo, tuple[int, int, int]]] = {}
         self._viewed: set[str] = set()  #: map ids whose views this session made
 
     def forget(self) -> None:
@@ -104,29 +104,29 @@ class DeviceIds:
         self._seen.clear()
         self._viewed.clear()
 
-    def id_of(self, d: DeviceInfo, data: Any) -> tuple[int, int, int]:
+    def id_of(self, d: DeviceInfo, data: Reading | Event) -> tuple[int, int, int]:
         """(device id, channels, bytes) of a device configuration, inserted on
         first use: a map device has a row per group and its map stored; a
         device of format 1's layout (:data:`FORMAT1_LAYOUT`) has its map's
         ``channels`` (stored by channel when not 0) and their humidity units
         in its row, its registers at least ``bytes``."""
         own = d.type in FORMAT1_LAYOUT
-        mapped = not own and isinstance(data, MapReading)
-        mine = (id(d), data.group if mapped else None)
+        mapped = data if not own and isinstance(data, MapReading) else None
+        mine = (id(d), mapped.group if mapped is not None else None)
         seen = self._seen.get(mine)
         if seen is not None and seen[0] is d:
             return seen[1]
-        cache: Any = (d, data.group) if mapped else d
+        cache = (d, mapped.group) if mapped is not None else d
         got = self._devices.get(cache)
         if got is not None:
             self._remember(mine, d, got)
             return got
         channels, units, tenths, size = 0, "", b"", 0
-        if mapped:
+        if mapped is not None:
             if not d.map_source:
                 raise InvalidArgument(f"{d.name}: a device of type {d.type!r} is stored with "
                                       "its map's text (DeviceInfo.map_source), and it has none")
-            units = map_layout_key(data.group, d.map_options)
+            units = map_layout_key(mapped.group, d.map_options)
         elif own:  # its channels, or as read (DeviceInfo.channels 0)
             most, size = _shipped(d.type)
             channels = d.channels or (max((p.channels for p in data.map.points.values()
@@ -146,8 +146,8 @@ class DeviceIds:
                                 [(did, ch + 1, t) for ch, t in enumerate(tenths)])
         else:
             did = row[0]
-        if mapped:
-            self._store_map(d, data)
+        if mapped is not None:
+            self._store_map(d, mapped)
         got = (int(did), channels, size)  # type: ignore[arg-type]
         if not isinstance(data, Event):
             self._devices[cache] = got

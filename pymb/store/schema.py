@@ -29,6 +29,7 @@ __all__ = [
     "SCHEMA",
     "SCHEMA_SQL",
     "SCHEMA_VERSION",
+    "SqlArg",
     "host_words",
     "install",
     "map_layout_key",
@@ -135,6 +136,9 @@ def unsupported_mask(m: Map, group: str | None, names: Sequence[str]) -> int:
 # from the device maps, and tested value by value against the C decoder.
 
 SCHEMA_VERSION = 2
+
+#: What a statement's ``?`` takes: SQLite's own types.
+SqlArg = int | float | str | bytes | None
 #: a new database's page size. A commit writes whole pages to the WAL (the
 #: last of the samples, their parent, the time index's last page, the
 #: header), each copied once more at the checkpoint: the

@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import os
 import sqlite3
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from pymb.devices.mapreading import group_points
 from pymb.devices.spec import closest, parse_address, split_spec
@@ -17,7 +16,7 @@ from pymb.maps import Map
 from pymb.store.reader import device_map, iter_samples, shipped_map
 from pymb.store.readonly import open_readonly
 from pymb.store.records import StoredSample, reading_value
-from pymb.store.schema import SCHEMA_VERSION, schema_version
+from pymb.store.schema import SCHEMA_VERSION, SqlArg, schema_version
 from pymb.store.summary import devices
 
 __all__ = ["Series", "quantities", "resolve_device", "sample_filter", "series"]
@@ -56,11 +55,11 @@ def resolve_device(con: sqlite3.Connection, wanted: str, path: str) -> tuple[str
 
 
 def sample_filter(device: str | None, since: float | None,
-                  until: float | None) -> tuple[str, list[Any]]:
+                  until: float | None) -> tuple[str, list[SqlArg]]:
     """The WHERE clause (over ``samples s``) and its arguments for a device
     name and a time span (``since`` included, ``until`` excluded)."""
     parts: list[str] = ["1"]
-    args: list[Any] = []
+    args: list[SqlArg] = []
     if device is not None:
         parts.append("s.device_id IN (SELECT id FROM devices WHERE name = ?)")
         args.append(device)
@@ -73,7 +72,7 @@ def sample_filter(device: str | None, since: float | None,
     return " AND ".join(parts), args
 
 
-def chunks(con: sqlite3.Connection, where: str, args: list[Any],
+def chunks(con: sqlite3.Connection, where: str, args: Sequence[SqlArg],
            size: int = 500, given: Mapping[str, Map] | None = None) -> Iterator[StoredSample]:
     """The samples ``where`` says, in id order, decoded a chunk at a time (a
     long file never sits in memory)."""

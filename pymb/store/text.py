@@ -13,11 +13,15 @@ from typing import IO, Any
 
 from pymb.devices.readings import reading_dict
 from pymb.errors import InvalidArgument, OutputError
+from pymb.maps import Value
 from pymb.store.faults import file_open_error
 from pymb.store.records import Event, Sample, SinkBase, StoredSample, reading_values
 
 __all__ = ["CSV_COLUMNS", "CsvSink", "JsonlSink", "csv_head", "csv_value", "event_dict",
            "sample_dict", "sample_rows"]
+
+#: A CSV cell as the csv module takes it ("" for nothing).
+Cell = str | int | float | bool | None
 
 CSV_COLUMNS = ["time_utc", "time", "bus", "device", "type", "address", "channel", "quantity",
                "value", "state"]
@@ -29,14 +33,14 @@ def _iso(t: float) -> str:
 
 
 def csv_head(t: float, bus: str, device: str | None, kind: str | None,
-             address: int | None) -> list[Any]:
+             address: int | None) -> list[Cell]:
     """The first columns of every CSV row (CSV_COLUMNS): time, ISO time, bus,
     device, type, address; "" for what an event has no device for. The one
     home of the row layout, for the CSV sink and for ``pymb export``."""
     return [f"{t:.6f}", _iso(t), bus, device or "", kind or "", "" if address is None else address]
 
 
-def csv_value(v: Any) -> Any:
+def csv_value(v: Value) -> Cell:
     """A value cell: "" for no value (None or NaN); a ``raw`` point's
     registers as one cell, space-separated (``55125 5306``); a "negative
     zero" 0.0."""
@@ -47,7 +51,7 @@ def csv_value(v: Any) -> Any:
     return "" if v is None else v
 
 
-def sample_rows(sample: Sample) -> Iterator[list[Any]]:
+def sample_rows(sample: Sample) -> Iterator[list[Cell]]:
     """A sample as long-format rows: one per quantity (a hub's channel by
     channel); the rows of the CSV sink and of ``pymb export``. A hub value that was not read
     (``not_read``: a channel an ``--on-change`` sample did not store) has no

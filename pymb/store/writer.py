@@ -13,7 +13,7 @@ import time
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TypeVar
 
 from pymb.devices.readings import map_reading
 from pymb.errors import InvalidArgument, OutputError
@@ -37,6 +37,9 @@ from pymb.store.rows import (
 from pymb.store.schema import MIN_BYTES, open_format, wire_bytes
 
 __all__ = ["SqliteSink"]
+
+T = TypeVar("T")
+
 
 class SqliteSink(SinkBase):
     """Writes samples and events to a SQLite database of format 2 (created if
@@ -362,7 +365,7 @@ class SqliteSink(SinkBase):
             except (sqlite3.Error, OSError, OutputError) as e:
                 raise self._failed(e) from None
 
-    def in_batch(self, fn: Callable[[sqlite3.Connection], Any], commit: bool) -> Any:
+    def in_batch(self, fn: Callable[[sqlite3.Connection], T], commit: bool) -> T:
         """``fn(db)`` inside the current batch, under the writer's lock; the
         batch is committed after it when ``commit`` (the record of writes)."""
         with self._mutex:

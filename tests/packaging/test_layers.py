@@ -25,7 +25,7 @@ def _package(name: str) -> tuple[str, str]:
 #: constants and words, stands below ``pymb.errors``; the submodules of
 #: ``pymb._native``, which raise pymb's errors, stand above it.
 FLOORS: list[tuple[str, ...]] = [
-    ("pymb._native", "pymb.wire", "pymb.extras", "pymb.child"),
+    ("pymb._native", "pymb.wire", "pymb.extras", "pymb.child", "pymb.jsonvalue"),
     ("pymb.errors",),
     ("pymb._native.*",),
     (*_package("pymb.client"), *_package("pymb.maps"), *_package("pymb.serve")),
