@@ -9,10 +9,10 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
 
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.profiles import NAMESPACE, Message, Profile
+from pymb.fleet.protobuf import MetricValue
 from pymb.fleet.session import Session
 from pymb.store import Outbox
 
@@ -34,9 +34,9 @@ class CommandTopics:
         self._commands: Callable[[str, bytes, Callable[[], None] | None], None] | None = None
         self._session: Session | None = None  #: the connection up now, if any
         #: (device, values read back, metric names, time) of DCMDs answered, for the DDATA
-        self._answers: list[tuple[str, dict[str, Any], list[str], float]] = []
+        self._answers: list[tuple[str, dict[str, MetricValue], list[str], float]] = []
         #: device -> metric -> (time, value) read back by the last DCMD that wrote it
-        self._read_back: dict[str, dict[str, tuple[float, Any]]] = {}
+        self._read_back: dict[str, dict[str, tuple[float, MetricValue]]] = {}
         self._answers_lock = threading.Lock()
 
     def take_commands(self, devices: list[str],
@@ -75,7 +75,8 @@ class CommandTopics:
         return bool(info.rc == 0)
 
 
-    def answer_dcmd(self, device: str, values: Mapping[str, Any], names: Sequence[str]) -> None:
+    def answer_dcmd(self, device: str, values: Mapping[str, MetricValue],
+                    names: Sequence[str]) -> None:
         """A DCMD was executed (or refused): the forwarder's thread publishes a
         DDATA of ``names``, with ``values`` (read back) where given, else the
         current value (any thread)."""

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
-from typing import Any
 
 from pymb.devices.mapreading import MapReading
-from pymb.fleet.protobuf import DataType
-from pymb.maps import Map, Point
+from pymb.fleet.protobuf import DataType, MetricValue, Properties
+from pymb.jsonvalue import JsonObject
+from pymb.maps import Map, Point, Value
 
 __all__ = ["datatype", "map_metadata", "map_metrics", "plain_value", "point_properties"]
 
@@ -41,7 +41,7 @@ def _names(p: Point) -> Iterator[tuple[str, int | None]]:
         yield p.name, None
 
 
-def plain_value(v: Any) -> Any:
+def plain_value(v: Value) -> MetricValue:
     """A value as a metric carries it: raw registers as hex text, NaN as null."""
     if isinstance(v, list):  # raw registers
         return "".join(f"{r:04X}" for r in v)
@@ -50,7 +50,8 @@ def plain_value(v: Any) -> Any:
     return v
 
 
-def map_metrics(data: MapReading, every: bool) -> list[tuple[str, DataType, Any, str, Point]]:
+def map_metrics(data: MapReading, every: bool
+                ) -> list[tuple[str, DataType, MetricValue, str, Point]]:
     """(name, datatype, value, state, point) of a reading's metrics; with
     ``every``, each readable point of the map (a birth: those of other groups
     null, state ``not_read``)."""
@@ -66,13 +67,13 @@ def map_metrics(data: MapReading, every: bool) -> list[tuple[str, DataType, Any,
             if ch is None or p.type == "raw":
                 value, state = plain_value(v), st
             else:
-                value = None if v is None else plain_value(v[ch])  # type: ignore[index]
+                value = plain_value(v[ch]) if isinstance(v, list) else None
                 state = st[ch] if isinstance(st, list) else st
             out.append((name, dt, value, str(state), p))
     return out
 
 
-def point_properties(p: Point) -> tuple[tuple[str, DataType, int | str], ...]:
+def point_properties(p: Point) -> Properties:
     """A point's properties in its birth: ``engUnit`` and, for a counter, ``kind``."""
     props: list[tuple[str, DataType, int | str]] = []
     if p.unit:
@@ -89,7 +90,7 @@ def map_metadata(m: Map) -> bytes:
     for p in m.points.values():
         if p.access == "w":
             continue
-        doc: dict[str, Any] = {"unit": p.unit, "kind": p.kind, "type": p.type,
+        doc: JsonObject = {"unit": p.unit, "kind": p.kind, "type": p.type,
                                "group": p.group}
         if p.block:
             doc["channels"] = p.channels

@@ -29,12 +29,18 @@ import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from pymb.devices.readings import INTEGRAL_QUANTITIES, has_own_view, map_reading
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.mapmetrics import map_metadata, map_metrics, point_properties
-from pymb.fleet.protobuf import DataType, Metric, command_metrics, encode_payload
+from pymb.fleet.mapmetrics import map_metadata, map_metrics, plain_value, point_properties
+from pymb.fleet.protobuf import (
+    DataType,
+    Metric,
+    MetricValue,
+    Properties,
+    command_metrics,
+    encode_payload,
+)
 from pymb.maps import Point
 from pymb.store import Outbox, StoredSample, sample_dict
 from pymb.store.records import reading_values
@@ -105,7 +111,7 @@ class Profile(abc.ABC):
         """True when a command received asks for new births."""
         return False
 
-    def command_data(self, device: str, values: Mapping[str, Any], names: Sequence[str],
+    def command_data(self, device: str, values: Mapping[str, MetricValue], names: Sequence[str],
                      latest: StoredSample | None) -> list[Message]:
         """What answers a device command (Sparkplug: a DDATA)."""
         return []
@@ -195,7 +201,7 @@ class SparkplugProfile(Profile):
         birth = self.born.get(device)
         return None if birth is None else birth.aliases
 
-    def command_data(self, device: str, values: Mapping[str, Any], names: Sequence[str],
+    def command_data(self, device: str, values: Mapping[str, MetricValue], names: Sequence[str],
                      latest: StoredSample | None) -> list[Message]:
         """The DDATA that answers a DCMD: each metric of ``names`` with its value
         in ``values`` (read back after the write), else its current value (the
@@ -296,12 +302,12 @@ class SparkplugProfile(Profile):
         return self.device_order.setdefault(device, len(self.device_order) + 1)
 
     def _metrics(self, r: StoredSample, birth: bool = False
-                 ) -> list[tuple[str, DataType, Any, str, tuple[Any, ...]]]:
+                 ) -> list[tuple[str, DataType, MetricValue, str, Properties]]:
         """(name, datatype, value, state, birth properties) of every metric of
         a sample (a hub's channel by channel, as
         :func:`pymb.store.records.reading_values` gives them, None for no
         value; a map device's in a birth: every point of its map)."""
-        out: list[tuple[str, DataType, Any, str, tuple[Any, ...]]] = [
+        out: list[tuple[str, DataType, MetricValue, str, Properties]] = [
             ("sample", DataType.UINT64, r.id, "value", ())]
         if not has_own_view(r.data):
             out += [(name, dt, v, st, self._birth_props(r.device.name, name, p) if birth else ())
@@ -311,11 +317,11 @@ class SparkplugProfile(Profile):
             dt = DataType.DOUBLE if q not in INTEGRAL_QUANTITIES else (
                 DataType.UINT32 if q == "status" else DataType.UINT64)
             out.append((q if ch is None else f"channel {ch:03d}/{q}", dt,
-                        None if v != v else v, st, ()))
+                        plain_value(v), str(st), ()))
         return out
 
     def _birth_props(self, device: str, metric: str, p: Point
-                     ) -> tuple[tuple[str, DataType, int | str], ...]:
+                     ) -> Properties:
         """A point's birth properties, and ``writable`` (true) where a DCMD may write it."""
         props = point_properties(p)
         if p.writable and self.writable(device, write_name(metric)):
@@ -323,7 +329,7 @@ class SparkplugProfile(Profile):
         return props
 
     @staticmethod
-    def _props(state: str) -> tuple[tuple[str, DataType, int | str], ...]:
+    def _props(state: str) -> Properties:
         if state == "value":
             return ()
         return (("Quality", DataType.INT32, QUALITY_BAD), ("state", DataType.STRING, state))

@@ -21,8 +21,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-__all__ = ["DataType", "Metric", "command_metrics", "command_values", "decode",
-           "encode_payload"]
+__all__ = ["DataType", "Metric", "MetricValue", "Properties", "command_metrics",
+           "command_values", "decode", "encode_payload"]
+
+
+#: What a metric carries: None is a null of its datatype.
+MetricValue = float | int | bool | str | None
 
 
 class DataType(IntEnum):
@@ -49,10 +53,14 @@ class Metric:
     name: str | None
     alias: int | None
     datatype: DataType
-    value: float | int | bool | str | None
+    value: MetricValue
     timestamp: int | None = None  #: ms since the epoch, UTC
     is_historical: bool = False
     properties: Sequence[tuple[str, DataType, int | str]] = field(default_factory=tuple)
+
+
+#: A metric's properties: (name, datatype, value) of each.
+Properties = tuple[tuple[str, DataType, int | str], ...]
 
 
 def _varint(n: int) -> bytes:

@@ -18,13 +18,15 @@ import json
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
 
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Outcome, check, resolve
 from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
+from pymb.fleet.protobuf import MetricValue
+from pymb.jsonvalue import JsonObject
 from pymb.logger.dcmd import handle_dcmd
 from pymb.logger.refusal import Refused, Target, unrecorded
+from pymb.maps import Value
 from pymb.store.commands import CommandLog, PointRow
 
 __all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
@@ -68,7 +70,7 @@ class CommandDesk(threading.Thread):
         #: publishes a result; False: not sent (the broker is not acknowledged the command)
         self.reply: Callable[[str, bytes], bool] | None = None
         #: Sparkplug: (device, values read back, metric names) of an executed DCMD
-        self.answer: Callable[[str, dict[str, Any], list[str]], None] | None = None
+        self.answer: Callable[[str, dict[str, MetricValue], list[str]], None] | None = None
         #: Sparkplug: the device's DBIRTH metrics (name -> alias), None before it
         self.births: Callable[[str], dict[str, int] | None] = lambda device: None
         self._queue: collections.deque[tuple[str, str, bytes, Callable[[], None] | None]] = \
@@ -297,7 +299,7 @@ class CommandDesk(threading.Thread):
             row.reason = None if row.ok else reason
 
     def _finish(self, cid: str, device: str, source: str, rows: list[PointRow],
-                values: Mapping[str, Any], reason: str | None, error: str | None, *,
+                values: Mapping[str, Value], reason: str | None, error: str | None, *,
                 durable: bool = False) -> bytes:
         out = self._result(cid, reason is None, values, reason, error)
         self._records.append(lambda: self.log.finish(cid, device, source, out.decode(), rows,
@@ -314,9 +316,9 @@ class CommandDesk(threading.Thread):
         return self._result(cid, False, {}, "device", why)
 
     @staticmethod
-    def _result(cid: str | None, ok: bool, values: Mapping[str, Any], reason: str | None,
+    def _result(cid: str | None, ok: bool, values: Mapping[str, Value], reason: str | None,
                 error: str | None) -> bytes:
-        doc: dict[str, Any] = {"id": cid, "ok": ok}
+        doc: JsonObject = {"id": cid, "ok": ok}
         if not ok:
             doc["reason"] = reason
             doc["error"] = error

@@ -23,14 +23,14 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from typing import Any
 
 from pymb.devices.mapwrite import Outcome, resolve
 from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
 from pymb.fleet.mapmetrics import plain_value
 from pymb.fleet.profiles import write_name
-from pymb.fleet.protobuf import command_values
+from pymb.fleet.protobuf import MetricValue, command_values
 from pymb.logger.refusal import Desk, Refused, Target, unrecorded
+from pymb.maps import Value
 from pymb.store.commands import PointRow
 
 __all__ = ["command_id", "handle_dcmd"]
@@ -47,12 +47,12 @@ def command_id(device: str, timestamp: int | None, seq: int | None) -> str:
     return f"{SOURCE}:{device}:{timestamp}:{'-' if seq is None else seq}"
 
 
-def _metric_value(t: Target, name: str, v: object) -> object:
+def _metric_value(t: Target, name: str, v: Value) -> MetricValue:
     """A value read back as its metric carries it (an enum's number, not its name)."""
     try:
         p = resolve(t.map, name)[1]
     except InvalidArgument:
-        return v
+        return plain_value(v)
     if p.values and isinstance(v, str):
         for raw, label in p.values.items():
             if label == v:
@@ -169,7 +169,7 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     finally:
         target.release()  # the line goes back to its polls
     by = {o.name: o for o in outcomes}
-    values: dict[str, Any] = {}
+    values: dict[str, MetricValue] = {}
     for row in rows:
         o = by.get(row.point)
         if o is None:
@@ -201,6 +201,7 @@ def _unrecorded(desk: Desk, cid: str, device: str, e: OutputError, names: list[s
     _answer(desk, device, {}, names)
 
 
-def _answer(desk: Desk, device: str, values: dict[str, Any], names: list[str]) -> None:
+def _answer(desk: Desk, device: str, values: dict[str, MetricValue],
+            names: list[str]) -> None:
     if desk.answer is not None and names:
         desk.answer(device, values, names)
