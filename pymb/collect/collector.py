@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 from pymb.collect.rows import BadInput, Batch, plain_sample, plain_topic
 from pymb.collect.sparkplug import SparkplugHost, state_payload
@@ -31,6 +31,11 @@ from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import MqttConfig
+
+if TYPE_CHECKING:  # the extra pymb-modbus[collect]
+    from paho.mqtt.client import Client, ConnectFlags, DisconnectFlags, MQTTMessage
+    from paho.mqtt.properties import Properties
+    from paho.mqtt.reasoncodes import ReasonCode
 
 __all__ = [
     "MAX_BATCH",
@@ -150,8 +155,8 @@ class Collector:
         self.writers = Writers(stores, self.stop, event)  # last: its threads run from here
 
     # paho's thread
-    def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
-                    props: Any = None) -> None:
+    def _on_connect(self, client: Client, userdata: object, flags: ConnectFlags,
+                    rc: ReasonCode, props: Properties | None = None) -> None:
         if rc.is_failure:
             self.refused = f"the broker refused the connection: {rc}"
             self.connack.set()
@@ -165,14 +170,14 @@ class Collector:
             self.event(f"connected to {self.cfg.mqtt.url} again")
         self.connack.set()
 
-    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
-                       props: Any = None) -> None:
+    def _on_disconnect(self, client: Client, userdata: object, flags: DisconnectFlags,
+                       rc: ReasonCode, props: Properties | None = None) -> None:
         if self.stats.mqtt_ok and not self.stop.is_set():
             self.event(f"lost the broker {self.cfg.mqtt.url}: {rc}; reconnecting")
         self.stats.mqtt_ok = False
 
-    def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any,
-                      props: Any = None) -> None:
+    def _on_subscribe(self, client: Client, userdata: object, mid: int, rcs: list[ReasonCode],
+                      props: Properties | None = None) -> None:
         failed = [rc for rc in rcs if getattr(rc, "is_failure", False)]
         if failed:
             self.refused = f"the broker refused the subscription to {self.cfg.topic}: {failed[0]}"
@@ -180,7 +185,7 @@ class Collector:
                 self.event(self.refused)
         self.suback.set()
 
-    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+    def _on_message(self, client: Client, userdata: object, msg: MQTTMessage) -> None:
         if msg.qos == 0 and self.inbox.qsize() >= MAX_INBOX:
             self.stats.dropped += 1
             return

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from itertools import chain, repeat
 from operator import itemgetter
-from typing import Any
 
 from pymb.collect.rows import BadInput, PlainSample, Row, sample_rows
+from pymb.jsonvalue import JsonValue
 
 __all__ = ["COPY_COLUMNS", "CopyBatch"]
 
@@ -81,7 +81,8 @@ def _sample(sample: int | None) -> bytes:
 _Entry = tuple[str, str, int, str, bytes]
 #: a shape of message: its struct, the heads of its rows, and the order of its
 #: values by point name
-_Shape = tuple[struct.Struct, tuple[bytes, ...], Callable[[list[Any]], Any], str]
+_Shape = tuple[struct.Struct, tuple[bytes, ...],
+               Callable[[list[JsonValue]], Iterable[JsonValue]], str]
 
 
 class CopyBatch:
@@ -118,7 +119,8 @@ class CopyBatch:
         a value is not what a sample carries."""
         values = s.values
         try:  # numbers only (a string, null or list fails the sum), all finite
-            numbers = bool(values) and math.isfinite(sum(values.values()))
+            numbers = bool(values) and math.isfinite(
+                sum(values.values()))  # type: ignore[arg-type]  # TypeError: not numbers
         except (TypeError, OverflowError):
             numbers = False
         if numbers:  # the states say nothing of a value that is a number

@@ -11,7 +11,9 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
+
+from pymb.jsonvalue import JsonValue
 
 __all__ = ["NO_VALUE", "BadInput", "Batch", "PlainSample", "Row", "RowBatch", "channel_point",
            "plain_rows", "plain_sample", "plain_topic", "sample_rows"]
@@ -22,7 +24,7 @@ Row = tuple[str, str, str, float, float | None, str | None, str | None, int | No
 #: the state of a point that has no value and no reason given
 NO_VALUE = "no_value"
 
-_loads: Callable[[bytes], Any]
+_loads: Callable[[bytes], JsonValue]
 try:  # in the extra collect; the json module decodes the same documents, 4x slower
     from orjson import loads as _loads
 except ImportError:  # pragma: no cover - without the extra
@@ -53,7 +55,7 @@ def plain_topic(topic: str, prefix: str) -> tuple[str, str] | None:
     return parts[1], parts[2]
 
 
-def _number(v: Any) -> float | None:
+def _number(v: object) -> float | None:
     """A finite number (booleans as 0/1); None when ``v`` is not one."""
     if isinstance(v, bool):
         return 1.0 if v else 0.0
@@ -66,13 +68,13 @@ def _number(v: Any) -> float | None:
     return None
 
 
-def _state(v: Any, where: str) -> str | None:
+def _state(v: object, where: str) -> str | None:
     if v is None or isinstance(v, str):
         return v
     raise BadInput(f"the state of {where} is not a string: {v!r:.40}")
 
 
-def _one(node: str, device: str, point: str, t: float, v: Any, state: Any,
+def _one(node: str, device: str, point: str, t: float, v: object, state: object,
          sample: int | None) -> Row:
     if v is None:
         why = _state(state, point)
@@ -92,8 +94,8 @@ class PlainSample(NamedTuple):
 
     time: float  #: time_utc, Unix seconds
     sample: int | None  #: the board's sample id
-    values: dict[str, Any]  #: name: a value, or a block's list of values
-    states: dict[str, Any]  #: name: why a value is null (a block's: a list)
+    values: dict[str, JsonValue]  #: name: a value, or a block's list of values
+    states: dict[str, JsonValue]  #: name: why a value is null (a block's: a list)
 
 
 def plain_sample(payload: bytes) -> PlainSample:

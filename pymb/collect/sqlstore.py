@@ -16,12 +16,16 @@ import contextlib
 import os
 import sqlite3
 import time
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from pymb.collect.pgcopy import COPY_COLUMNS, CopyBatch
 from pymb.collect.rows import Batch, RowBatch
 from pymb.errors import InvalidArgument, ModbusConnectionError, OutputError
 from pymb.extras import install_hint
+
+if TYPE_CHECKING:  # the extra pymb-modbus[collect]
+    from psycopg import Connection, Cursor
+    from psycopg.rows import TupleRow
 
 __all__ = ["PG_WRITERS", "PostgresStore", "SqliteStore", "Store", "StoreDown", "StoreRefused",
            "open_store", "open_stores"]
@@ -193,12 +197,12 @@ class PostgresStore(Store):
         self.psycopg = psycopg
         self.url = url
         self.target = _hide_password(url)
-        self.con: Any = None
+        self.con: Connection[TupleRow] | None = None
         self._staged_until = 0.0  #: monotonic time until which batches go through pymb_incoming
         self._caches: CopyBatch | None = None
         self._connect()
 
-    def _connect(self) -> None:
+    def _connect(self) -> Connection[TupleRow]:
         psycopg = self.psycopg
         try:
             ports = str(psycopg.conninfo.conninfo_to_dict(self.url).get("port") or "")
@@ -207,6 +211,7 @@ class PostgresStore(Store):
         if ports and not all(p.isdigit() and 1 <= int(p) <= 65535 for p in ports.split(",")):
             raise InvalidArgument(f"bad PostgreSQL URL {self.target}: the port must be "
                                   f"1..65535, got {ports}")
+        con: Connection[TupleRow]
         try:
             con = psycopg.connect(self.url, connect_timeout=10, autocommit=False,
                                   client_encoding="UTF8")
@@ -236,8 +241,9 @@ class PostgresStore(Store):
             raise StoreRefused(f"cannot make the tables in {self.target}: "
                                f"{_first_line(e)}") from None
         self.con = con
+        return con
 
-    def _timescale(self, cur: Any) -> bool:
+    def _timescale(self, cur: Cursor[TupleRow]) -> bool:
         """True when TimescaleDB is (or can be made) an extension of the database."""
         cur.execute("SELECT 1 FROM pg_extension WHERE extname = 'timescaledb'")
         if cur.fetchone():
@@ -265,19 +271,20 @@ class PostgresStore(Store):
         stored already."""
         assert isinstance(batch, CopyBatch)
         psycopg = self.psycopg
-        if self.con is None or self.con.closed:
-            self._connect()
+        con = self.con
+        if con is None or con.closed:
+            con = self._connect()
         data = batch.data()
         lost = 0
         while True:
             staged = time.monotonic() < self._staged_until
             try:
-                return self._copy(data, staged)
+                return self._copy(con, data, staged)
             except (psycopg.errors.UniqueViolation, psycopg.errors.TransactionRollback) as e:
                 # a row stored already, or a deadlock with a writer storing the same
                 # rows: once more through pymb_incoming, in key order
                 with contextlib.suppress(psycopg.Error):
-                    self.con.rollback()
+                    con.rollback()
                 self._staged_until = time.monotonic() + STAGED_FOR
                 if isinstance(e, psycopg.errors.TransactionRollback):
                     lost += 1
@@ -289,8 +296,7 @@ class PostgresStore(Store):
             except psycopg.Error as e:
                 self._failed(e)
 
-    def _copy(self, data: bytes, staged: bool) -> int:
-        con = self.con
+    def _copy(self, con: Connection[TupleRow], data: bytes, staged: bool) -> int:
         with con.cursor() as cur:
             with cur.copy(PG_COPY.format(table="pymb_incoming" if staged else "pymb_values",
                                          columns=_COLUMNS)) as cp:
@@ -305,8 +311,9 @@ class PostgresStore(Store):
     def _failed(self, e: BaseException) -> NoReturn:
         """Close the connection (the next write opens another) and raise
         StoreDown (it cannot be reached) or StoreRefused."""
-        with contextlib.suppress(self.psycopg.Error):
-            self.con.close()
+        if self.con is not None:
+            with contextlib.suppress(self.psycopg.Error):
+                self.con.close()
         self.con = None
         if isinstance(e, self.psycopg.OperationalError):
             raise StoreDown(f"{self.target}: {_first_line(e)}") from None
