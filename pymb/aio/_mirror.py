@@ -12,13 +12,14 @@ from __future__ import annotations
 import abc
 import inspect
 from collections.abc import Awaitable, Callable, Coroutine
-from types import MethodType
-from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, overload
+from types import FunctionType, MethodType
+from typing import Concatenate, Generic, ParamSpec, TypeVar, overload
 
 __all__ = ["Mirror", "Mirrored"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
+S = TypeVar("S")
 
 
 class Mirrored(abc.ABC):
@@ -33,23 +34,24 @@ class Mirrored(abc.ABC):
         """Run ``fn(*args, **kwargs)`` on the line's worker."""
 
 
-def _coroutine(name: str) -> Callable[..., Coroutine[Any, Any, Any]]:
-    async def method(self: Mirrored, /, *args: Any, **kwargs: Any) -> Any:
+def _coroutine(name: str) -> FunctionType:
+    async def method(self: Mirrored, /, *args: object, **kwargs: object) -> object:
         return await self._submit(getattr(self.blocking, name), *args, **kwargs)
+    assert isinstance(method, FunctionType)  # an async def is a function object
     return method
 
 
-class Mirror(Generic[P, R]):
-    """A blocking method (``Class.method``) as a coroutine method of the
-    same name that runs it on the line's worker."""
+class Mirror(Generic[S, P, R]):
+    """A blocking method (``Class.method``, of a class ``S``) as a coroutine
+    method of the same name that runs it on the line's worker."""
 
-    def __init__(self, method: Callable[Concatenate[Any, P], R]) -> None:
+    def __init__(self, method: Callable[Concatenate[S, P], R]) -> None:
         self.method = method
         self.name: str = method.__name__
-        fn: Any = _coroutine(self.name)
+        fn = _coroutine(self.name)
         fn.__name__ = self.name
         fn.__doc__ = method.__doc__
-        fn.__signature__ = inspect.signature(method)
+        fn.__dict__["__signature__"] = inspect.signature(method)
         self.fn = fn
 
     def __set_name__(self, owner: type, name: str) -> None:
@@ -60,13 +62,14 @@ class Mirror(Generic[P, R]):
 
     @overload
     def __get__(self, obj: None, owner: type | None = None
-                ) -> Callable[Concatenate[Any, P], Coroutine[Any, Any, R]]: ...
+                ) -> Callable[Concatenate[Mirrored, P], Coroutine[object, None, R]]: ...
 
     @overload
     def __get__(self, obj: object, owner: type | None = None
-                ) -> Callable[P, Coroutine[Any, Any, R]]: ...
+                ) -> Callable[P, Coroutine[object, None, R]]: ...
 
-    def __get__(self, obj: object | None, owner: type | None = None) -> Any:
+    def __get__(self, obj: object | None, owner: type | None = None
+                ) -> Callable[..., Coroutine[object, None, R]]:
         if obj is None:
             return self.fn
         return MethodType(self.fn, obj)

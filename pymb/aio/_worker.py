@@ -22,7 +22,8 @@ import contextlib
 import queue
 import threading
 from collections.abc import Callable
-from typing import Any, ParamSpec, TypeVar
+from functools import partial
+from typing import ParamSpec, TypeVar
 
 from pymb.client import Client
 
@@ -31,19 +32,22 @@ __all__ = ["LineWorker"]
 P = ParamSpec("P")
 R = TypeVar("R")
 
-# future (None: nobody waits), loop, function, args, kwargs
-_Job = tuple["asyncio.Future[Any] | None", "asyncio.AbstractEventLoop | None",
-             Callable[..., Any], tuple[Any, ...], dict[str, Any]]
+#: the loop and what it is to call there: the outcome of a job
+_Outcome = tuple[asyncio.AbstractEventLoop, Callable[[], None]]
+#: a job, run on the worker: its outcome for a loop, None when nobody waits
+_Job = Callable[[], "_Outcome | None"]
 
 
-def _settle(fut: asyncio.Future[Any], ok: bool, value: Any) -> None:
-    """On the loop: hand the worker's outcome to a future still waiting."""
-    if fut.done():  # cancelled while its job ran: the outcome is dropped
-        return
-    if ok:
+def _settle(fut: asyncio.Future[R], value: R) -> None:
+    """On the loop: hand the worker's result to a future still waiting."""
+    if not fut.done():  # cancelled while its job ran: the outcome is dropped
         fut.set_result(value)
-    else:
-        fut.set_exception(value)
+
+
+def _fail(fut: asyncio.Future[R], error: BaseException) -> None:
+    """On the loop: hand the worker's exception to a future still waiting."""
+    if not fut.done():
+        fut.set_exception(error)
 
 
 class LineWorker:
@@ -65,13 +69,30 @@ class LineWorker:
         returned future (of the running loop) gets its result or exception."""
         loop = asyncio.get_running_loop()
         fut: asyncio.Future[R] = loop.create_future()
-        self._put((fut, loop, fn, args, kwargs))
+
+        def job() -> _Outcome | None:
+            if fut.cancelled():
+                return None  # cancelled before it started: nothing was sent
+            try:
+                value = fn(*args, **kwargs)
+            except StopIteration as e:  # a future cannot hold one
+                return loop, partial(_fail, fut, RuntimeError(f"{fn!r} raised StopIteration: {e}"))
+            except BaseException as e:  # the worker goes on, whatever the job raised
+                return loop, partial(_fail, fut, e)
+            return loop, partial(_settle, fut, value)
+
+        self._put(job)
         return fut
 
-    def post(self, fn: Callable[..., Any], *args: Any) -> None:
+    def post(self, fn: Callable[P, object], *args: P.args, **kwargs: P.kwargs) -> None:
         """Queue ``fn(*args)`` with nobody waiting (from any thread; for a
         client dropped while open). Its errors are dropped."""
-        self._put((None, None, fn, args, {}))
+
+        def job() -> None:
+            with contextlib.suppress(BaseException):  # the worker goes on
+                fn(*args, **kwargs)
+
+        self._put(job)
 
     def _put(self, job: _Job) -> None:
         with self._lock:
@@ -104,31 +125,15 @@ class LineWorker:
         jobs = self._jobs
         while True:
             job = jobs.get()  # waits in C, the GIL released, while the line is open
-            outcome = self._do(job)
+            outcome = job()
             del job  # hold no request, reply or traceback while idle
             # Decided before the result goes out, so whoever awaited it
             # (close()) can join the thread.
             end = not self.blocking.connected and self._end_if_idle()
             if outcome is not None:
-                fut, loop, ok, value = outcome
+                loop, settle = outcome
                 with contextlib.suppress(RuntimeError):  # a closed loop: nobody to tell
-                    loop.call_soon_threadsafe(_settle, fut, ok, value)
-                del outcome, fut, value
+                    loop.call_soon_threadsafe(settle)
+                del outcome, settle
             if end:
                 return
-
-    @staticmethod
-    def _do(job: _Job) -> tuple[asyncio.Future[Any], asyncio.AbstractEventLoop, bool, Any] | None:
-        """Run a job; its outcome for the loop, or None when nobody waits."""
-        fut, loop, fn, args, kwargs = job
-        if fut is not None and fut.cancelled():
-            return None  # cancelled before it started: nothing was sent
-        try:
-            value, ok = fn(*args, **kwargs), True
-        except StopIteration as e:  # a future cannot hold one
-            value, ok = RuntimeError(f"{fn!r} raised StopIteration: {e}"), False
-        except BaseException as e:  # the worker goes on, whatever the job raised
-            value, ok = e, False
-        if fut is None or loop is None:
-            return None
-        return fut, loop, ok, value

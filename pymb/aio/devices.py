@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping, Sequence
-from typing import Any, TypeVar
+from typing import ParamSpec, TypeVar
 
 from pymb import maps
 from pymb.aio._mirror import Mirror, Mirrored
@@ -27,7 +27,7 @@ from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import Budget
 from pymb.devices.polls import Slot
 from pymb.errors import InvalidArgument
-from pymb.maps import Map, Value
+from pymb.maps import Map, PointState, Value
 from pymb.maps.device_plan import PointPlanner
 
 __all__ = ["AsyncCoolPro", "AsyncMapDevice", "AsyncSensorHub", "poll"]
@@ -36,6 +36,7 @@ _COOLPRO_ADDRESS = maps.builtin("coolpro").device.default_address
 _HUB_ADDRESS = maps.builtin("hub").device.default_address
 _HUB_CHANNELS = int(maps.builtin("hub").options["channels"])
 
+P = ParamSpec("P")
 R = TypeVar("R")
 
 
@@ -72,7 +73,8 @@ class _Facade(Mirrored):
                             f"{type(client).__name__} (use pymb.devices with a blocking one)")
         self.client = client
 
-    def _submit(self, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Awaitable[R]:
+    def _submit(self, fn: Callable[P, R], /, *args: P.args,
+                **kwargs: P.kwargs) -> Awaitable[R]:
         return self.client.run(fn, *args, **kwargs)
 
 
@@ -197,7 +199,7 @@ class AsyncMapDevice(_Facade):
         return self.blocking.address
 
     @property
-    def states(self) -> dict[str, Any]:
+    def states(self) -> dict[str, PointState]:
         """The state of each point of the last read that finished."""
         return self.blocking.states
 
