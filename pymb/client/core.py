@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import threading
 import warnings
+from collections.abc import Callable
 from types import TracebackType
-from typing import Any, Self
+from typing import ParamSpec, Self, TypeVar, TypeVarTuple
 
 from pymb._native.link import Link
 from pymb.client.checks import _CLOSED_BY_PEER, _LINK_LOST, _int, _seconds
 from pymb.errors import DeviceException, InvalidArgument, ModbusConnectionError
 
 __all__ = ["ClientCore"]
+
+P = ParamSpec("P")
+R = TypeVar("R")
+Ts = TypeVarTuple("Ts")
 
 
 class ClientCore:
@@ -178,7 +183,7 @@ class ClientCore:
         low = 0 if write else self._min_read_slave
         return _int("slave", slave, low, self._max_slave)
 
-    def _call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+    def _call(self, fn: Callable[P, R], /, *args: P.args, **kwargs: P.kwargs) -> R:
         with self._lock:
             if not self._link.is_open:
                 self._reopen()
@@ -213,7 +218,7 @@ class ClientCore:
             return True
         return False
 
-    def _read_call(self, fn: Any, *args: Any) -> Any:
+    def _read_call(self, fn: Callable[[*Ts], R], /, *args: *Ts) -> R:
         """``fn(*args)``, a read, with the lock and the reconnect policy (:meth:`_again`)."""
         with self._lock:
             while True:
