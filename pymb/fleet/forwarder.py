@@ -59,6 +59,7 @@ from pymb.fleet.session import Session
 from pymb.fleet.status import ForwarderStatus
 from pymb.fleet.takeover import Takeovers
 from pymb.store import Outbox, StoredSample
+from pymb.store.outbox import LiveWriter
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
 
@@ -88,7 +89,7 @@ class Forwarder(threading.Thread, CommandTopics):
     profile's goodbye).
     """
 
-    def __init__(self, db_path: str, cfg: MqttConfig, writer: Any = None) -> None:
+    def __init__(self, db_path: str, cfg: MqttConfig, writer: LiveWriter | None = None) -> None:
         super().__init__(name="pymb-mqtt", daemon=True)
         require_paho()
         if writer is not None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import csv
 import sqlite3
-from collections.abc import Mapping, Sequence
-from typing import IO, Any
+from collections.abc import Iterable, Mapping, Sequence
+from typing import IO, Protocol
 
 from pymb.devices.readings import STATE_NAMES
 from pymb.errors import InvalidArgument
@@ -14,15 +14,23 @@ from pymb.maps import Map
 from pymb.store.reader import map_columns
 from pymb.store.readonly import open_readonly
 from pymb.store.records import reading_values
-from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
+from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, SqlArg, schema_version
 from pymb.store.series import chunks, sample_filter
-from pymb.store.text import CSV_COLUMNS, csv_head, csv_value, sample_rows
+from pymb.store.text import CSV_COLUMNS, Cell, csv_head, csv_value, sample_rows
 
 __all__ = ["LAYOUTS", "WIDE_HEAD", "export_csv"]
 
 LAYOUTS = ("long", "wide")
 #: The wide layout's first columns (then one per value).
 WIDE_HEAD = CSV_COLUMNS[:6]
+
+
+class _Rows(Protocol):
+    """Where the rows go: a :func:`csv.writer`."""
+
+    def writerow(self, row: Iterable[Cell], /) -> object:
+        """Write one row."""
+        ...
 
 
 def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
@@ -92,16 +100,16 @@ class _Keep:
         self.channels = None if channels is None else set(channels)
         self.quantities = None if quantities is None else list(quantities)
 
-    def value(self, channel: int | None, quantity: str) -> bool:
+    def value(self, channel: Cell, quantity: Cell) -> bool:
         if self.quantities is not None and quantity not in self.quantities:
             return False
         return self.channels is None or channel in self.channels
 
-    def row(self, row: list[Any]) -> bool:
+    def row(self, row: Sequence[Cell]) -> bool:
         return self.value(row[6] if row[6] != "" else None, row[7])
 
 
-def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
+def _export_wide(db: sqlite3.Connection, w: _Rows, device: str | None, since: float | None,
                  until: float | None, keep: _Keep, maps: Mapping[str, Map] | None) -> int:
     points = map_columns(db, device, maps)
     cols = [c for c, p in points.items() if keep.value(
@@ -115,7 +123,7 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     where, args = sample_filter(device, since, until)
     for s in chunks(db, where, args, given=maps):
         d = s.device
-        cells: list[Any] = [""] * len(cols)
+        cells: list[Cell] = [""] * len(cols)
         # A sample with none of the chosen values has no row (an --on-change
         # sample may hold none of the chosen channels).
         stored = False
@@ -130,7 +138,7 @@ def _export_wide(db: sqlite3.Connection, w: Any, device: str | None, since: floa
     return rows
 
 
-def _export_v1(db: sqlite3.Connection, w: Any, device: str | None, since: float | None,
+def _export_v1(db: sqlite3.Connection, w: _Rows, device: str | None, since: float | None,
                until: float | None, keep: _Keep) -> int:
     """Format 1 (pymb before format 2): decoded tables ``coolpro`` and ``hub``."""
     rows = 0
@@ -160,9 +168,9 @@ def _export_v1(db: sqlite3.Connection, w: Any, device: str | None, since: float 
 
 
 def _filters(device: str | None, since: float | None, until: float | None,
-             table: str = "s") -> tuple[str, Sequence[Any]]:
+             table: str = "s") -> tuple[str, Sequence[SqlArg]]:
     parts: list[str] = []
-    args: list[Any] = []
+    args: list[SqlArg] = []
     if device is not None:
         parts.append("d.name = ?")
         args.append(device)

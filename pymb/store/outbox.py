@@ -25,15 +25,34 @@ import os
 import sqlite3
 import threading
 from collections.abc import Iterator
+from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import Any
+from typing import Protocol
 
 from pymb.store.reader import stored_after
 from pymb.store.records import StoredSample
 
-__all__ = ["STATE_COMMIT_WAIT", "Outbox", "last_sample_id", "max_id", "set_cursor_on"]
+__all__ = ["STATE_COMMIT_WAIT", "LiveWriter", "Outbox", "last_sample_id", "max_id", "set_cursor_on"]
 
 STATE_COMMIT_WAIT = 5.0  #: seconds set_state waits for a writer's commit, at most
+
+
+class LiveWriter(Protocol):
+    """What an outbox and a forwarder need of the writer of the file in this
+    process (:class:`pymb.store.SqliteSink`)."""
+
+    @property
+    def closed(self) -> bool:
+        """True once the writer closed."""
+        ...
+
+    def publish_live(self) -> None:
+        """Let readers see the samples of the open batch."""
+        ...
+
+    def reading(self) -> AbstractContextManager[sqlite3.Connection | None]:
+        """The writer's connection while no write runs (None once closed)."""
+        ...
 
 
 class Outbox:
@@ -48,7 +67,7 @@ class Outbox:
     closed, its own connection takes over.
     """
 
-    def __init__(self, path: str, writer: Any = None) -> None:
+    def __init__(self, path: str, writer: LiveWriter | None = None) -> None:
         self.path = path
         self.writer = writer
         self._own: sqlite3.Connection | None = None

@@ -8,7 +8,7 @@ import abc
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Generic, Protocol, TypeVar, runtime_checkable
 
 from pymb.devices.readings import Reading, map_reading
 from pymb.errors import (
@@ -288,10 +288,31 @@ class SinkWrapper(SinkBase, Generic[S]):
         return self.sink.restamp(offset)
 
 
-class _Minimal(SinkBase):
-    """Any object with ``write``, ``event``, ``commit`` and ``close`` as a :class:`Sink`."""
+@runtime_checkable
+class _BareOutput(Protocol):
+    """The least an output has: ``write``, ``event``, ``commit``, ``close``."""
 
-    def __init__(self, out: Any) -> None:
+    def write(self, sample: Sample, /) -> object:
+        """Add a sample."""
+        ...
+
+    def event(self, event: Event, /) -> object:
+        """Add an event."""
+        ...
+
+    def commit(self) -> object:
+        """Make what was added durable."""
+        ...
+
+    def close(self) -> object:
+        """Release the output."""
+        ...
+
+
+class _Minimal(SinkBase):
+    """An object with ``write``, ``event``, ``commit`` and ``close`` as a :class:`Sink`."""
+
+    def __init__(self, out: _BareOutput) -> None:
         self.out = out
 
     def write(self, sample: Sample) -> None:
@@ -316,7 +337,7 @@ def as_sink(out: object) -> Sink:
         return out
     missing = [n for n in ("write", "event", "commit", "close")
                if not callable(getattr(out, n, None))]
-    if missing:
+    if missing or not isinstance(out, _BareOutput):
         raise InvalidArgument(f"a sink needs write, event, commit and close; "
                               f"{type(out).__name__} has no {', '.join(missing)}")
     return _Minimal(out)
