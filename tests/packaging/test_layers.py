@@ -136,6 +136,32 @@ def _graph() -> dict[str, set[str]]:
     return imports(modules())
 
 
+def rooms(graph: dict[str, set[str]], package: str) -> dict[str, set[str]]:
+    """The imports between the rooms of ``package``: each module directly in
+    it, its ``__init__`` and each subpackage (taken whole, everything under it)."""
+    depth = package.count(".") + 1
+
+    def room(module: str) -> str | None:
+        if module == package:
+            return module
+        if not module.startswith(package + "."):
+            return None
+        return ".".join(module.split(".")[:depth + 1])
+
+    out: dict[str, set[str]] = {}
+    for a, targets in graph.items():
+        ra = room(a)
+        if ra is not None:
+            out.setdefault(ra, set()).update(
+                rb for rb in map(room, targets) if rb is not None and rb != ra)
+    return out
+
+
+def packages() -> list[str]:
+    """The package and each subpackage, by dotted name."""
+    return sorted(m for m, path in modules().items() if path.name == "__init__.py")
+
+
 def test_every_module_stands_on_one_floor() -> None:
     placed = {m: floor_of(m) for m in modules()}
     assert {m: f for m, f in placed.items() if len(f) != 1} == {}, \
@@ -150,6 +176,15 @@ def test_no_import_runs_up_or_sideways() -> None:
 
 def test_no_import_circle() -> None:
     assert circles(_graph()) == []
+
+
+def test_no_circle_between_the_rooms_of_a_folder() -> None:
+    # A folder read as rooms (its modules, each subpackage whole) has no
+    # circle either; the one pair is the floor split of FLOORS: the
+    # package pymb._native holds the C library's constants, below
+    # pymb.errors, and the line that raises pymb's errors, above it.
+    found = [group for package in packages() for group in circles(rooms(_graph(), package))]
+    assert found == [["pymb._native", "pymb.errors"]]
 
 
 def test_the_scan_sees_type_only_function_level_and_relative_imports(tmp_path: Path) -> None:
@@ -177,6 +212,13 @@ def test_the_scan_sees_type_only_function_level_and_relative_imports(tmp_path: P
         "pymb.commands.log": {"pymb.store.rows"},
     }
     assert circles(graph) == [["pymb.commands.log", "pymb.logger", "pymb.store.rows"]]
+    assert rooms(graph, "pymb") == {
+        "pymb": set(), "pymb.errors": set(), "pymb.commands": {"pymb.store"},
+        "pymb.store": {"pymb.logger", "pymb.commands", "pymb.errors"},
+        "pymb.logger": {"pymb.store"},
+    }
+    assert rooms(graph, "pymb.store") == {"pymb.store": {"pymb.store.rows"},
+                                          "pymb.store.rows": set()}
     assert upward(graph) == [
         "pymb.store.rows (floor 5) -> pymb.commands.log (floor 8)",
         "pymb.store.rows (floor 5) -> pymb.logger (floor 7)",
