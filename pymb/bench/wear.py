@@ -130,7 +130,7 @@ def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int
     from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
     from pymb.store import SqliteSink
 
-    class Sink(SqliteSink):
+    class CountingSink(SqliteSink):
         def commit(self) -> None:
             super().commit()
             if _FIRST:
@@ -144,7 +144,7 @@ def _pymb(kind: str, port: str, interval: float, seconds: float, db: str) -> int
     bus = BusConfig(kind, port, None, 115200, "N", 2.0, interval,
                     [DeviceConfig(kind, ADDRESSES[kind])])
     cfg = LogConfig([bus], "sqlite", db, commit_interval=_COMMIT[0] if _COMMIT else None)
-    return Logger(cfg, sink=Sink(db)).run(seconds).samples
+    return Logger(cfg, sink=CountingSink(db)).run(seconds).samples
 
 
 def _naive(kind: str, port: str, interval: float, seconds: float, db: str) -> int:
