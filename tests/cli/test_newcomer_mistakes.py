@@ -4,6 +4,7 @@ and usage, exit 2, no traceback; Ctrl-C at any moment is exit 130."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -117,3 +118,21 @@ def test_a_map_device_at_an_address_where_another_device_answers() -> None:
         r = run_pymb("read", "generic-vfd:5", "--tcp", tcp, "--json", timeout=60)
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["states"]["frequency_setpoint_hz"] == "value"
+
+
+def test_log_without_out(tmp_path: Path) -> None:
+    """``pymb log`` without ``--out``: SQLite into a new dated file in the
+    current folder, a text format to stdout (docs/cli.md)."""
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        tcp = f"127.0.0.1:{sim.tcp_port}"
+        r = run_pymb("log", "coolpro", "--tcp", tcp, "--seconds", "0.5", "--quiet",
+                     cwd=tmp_path, timeout=60)
+        assert r.returncode == 0, r.stderr
+        made = [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")]
+        assert len(made) == 1, made
+        assert re.fullmatch(r"pymb-\d{8}-\d{6}\.sqlite", made[0]), made
+        r = run_pymb("log", "coolpro", "--tcp", tcp, "--seconds", "0.5", "--quiet",
+                     "--format", "csv", cwd=tmp_path, timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.startswith("time_utc,time,bus,device,")
+        assert len([p for p in tmp_path.iterdir() if not p.name.startswith(".")]) == 1
