@@ -21,7 +21,7 @@ from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["ClientContext", "TlsSession", "take_raised", "tls_words"]
+__all__ = ["ClientContext", "TlsSession", "certificate_refused", "take_raised", "tls_words"]
 
 _CHUNK = 65536  #: raw bytes taken from the socket at a time
 
@@ -60,17 +60,24 @@ class ClientContext(ssl.SSLContext):
     ca: str | None = None
 
 
+def certificate_refused(e: ssl.SSLCertVerificationError, *, system_cas: bool,
+                        who: str = "server", hint: str = "") -> str:
+    """A refused peer certificate in one line: why, and for a chain that does not
+    lead to a trusted CA, which CAs it was checked against (``system_cas``: the
+    system's, else the one given), then ``hint`` (what to give, for the system's)."""
+    why = (e.verify_message or str(e)).rstrip(".")
+    if e.verify_code in _NOT_SIGNED:
+        why += (f" (not signed by any of the system's trusted CAs{hint})" if system_cas
+                else " (not signed by the CA given)")
+    return f"the {who}'s certificate was refused: {why}"
+
+
 def tls_words(e: BaseException, context: ssl.SSLContext | None = None) -> str:
     """A TLS failure in one line: what was refused and why. ``context`` (a
     :class:`ClientContext`) names the CAs a certificate was checked against."""
     if isinstance(e, ssl.SSLCertVerificationError):
-        why = (e.verify_message or str(e)).rstrip(".")
-        if e.verify_code in _NOT_SIGNED:
-            if isinstance(context, ClientContext) and context.ca is None:
-                why += " (not signed by any of the system's trusted CAs)"
-            else:
-                why += " (not signed by the CA given)"
-        return f"the server's certificate was refused: {why}"
+        return certificate_refused(
+            e, system_cas=isinstance(context, ClientContext) and context.ca is None)
     if isinstance(e, ssl.SSLError):
         reason = e.reason or ""
         if reason in _REASONS:

@@ -204,7 +204,7 @@ class Collector:
             self.client.connect(m.host, m.port, keepalive=m.keepalive, clean_start=False,
                                 properties=self.props)
         except (OSError, ssl.SSLError) as e:
-            why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
+            why = m.tls_refusal(e) if isinstance(e, ssl.SSLError) else (e.strerror or str(e))
             raise ModbusConnectionError(f"cannot reach the broker {m.url}: {why}") from None
         self.client.loop_start()
         if (not self.connack.wait(timeout) or self.refused or not self.suback.wait(timeout)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
 
+from pymb._native.tls import certificate_refused, tls_words
 from pymb.errors import InvalidArgument
 
 __all__ = ["PROFILES", "PROTOCOLS", "MqttConfig", "from_table"]
@@ -148,6 +149,15 @@ class MqttConfig:
         if self.tls:
             client.tls_set(ca_certs=self.ca, certfile=self.cert, keyfile=self.key,
                            cert_reqs=ssl.CERT_REQUIRED, tls_version=ssl.PROTOCOL_TLS_CLIENT)
+
+
+    def tls_refusal(self, e: ssl.SSLError) -> str:
+        """A TLS failure with the broker in one line: a refused certificate says
+        which CAs it was checked against (``ca``, or the system's)."""
+        if isinstance(e, ssl.SSLCertVerificationError):
+            return certificate_refused(e, system_cas=self.ca is None, who="broker",
+                                       hint=": give the broker's CA with --mqtt-ca FILE")
+        return tls_words(e).replace("the server", "the broker")
 
 
 def from_table(table: dict[str, Any], where: str) -> MqttConfig:

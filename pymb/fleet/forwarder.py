@@ -267,7 +267,8 @@ class Forwarder(threading.Thread, CommandTopics):
         try:
             c.connect(cfg.host, cfg.port, keepalive=cfg.keepalive, **s.connect_args())
         except (OSError, ssl.SSLError) as e:
-            s.reason = (e.strerror or str(e)).lower() if isinstance(e, OSError) else str(e)
+            s.reason = cfg.tls_refusal(e) if isinstance(e, ssl.SSLError) else \
+                (e.strerror or str(e)).lower()
             s.ok = False
             with contextlib.suppress(Exception):
                 c.socket() and c.disconnect()

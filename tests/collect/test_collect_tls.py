@@ -67,4 +67,6 @@ def test_tls_client_certificate_and_password(fleet: Fleet, collectors: Collector
                  "--client-id", "tls3")
     assert r.returncode == 4, r.stderr
     assert "cannot reach the broker" in r.stderr, r.stderr
+    assert "certificate was refused: self-signed certificate in certificate chain (not " \
+        "signed by the CA given)" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
