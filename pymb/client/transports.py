@@ -134,6 +134,18 @@ class RtuClient(Client):
                                   bits_per_char(self.parity, self.stop_bits, self.data_bits))
 
 
+def _check_host(host: object, client: str) -> None:
+    """``host`` is a name or an address: not empty, and without a port
+    (``"10.0.0.5:502"``, the command line's spelling, is refused naming the
+    call that means it)."""
+    if not isinstance(host, str) or not host:
+        raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+    name, colon, port = host.rpartition(":")
+    if colon and name and ":" not in name and port.isdigit():
+        raise InvalidArgument(f"host {host!r} has a port in it: the port is an argument of "
+                              f"its own, {client}({name!r}, {int(port)})")
+
+
 class TcpClient(Client):
     """A Modbus TCP client (also for gateways that translate Modbus TCP to
     RTU; for gateways that pass RTU frames through, see
@@ -152,8 +164,7 @@ class TcpClient(Client):
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, *,
                  slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0, tls: TlsConfig | None = None) -> None:
-        if not isinstance(host, str) or not host:
-            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        _check_host(host, "TcpClient")
         if tls is not None and not isinstance(tls, TlsConfig):
             raise InvalidArgument(f"tls must be a pymb.TlsConfig or None, got {tls!r}")
         if port is None:
@@ -200,8 +211,7 @@ class RtuOverTcpClient(Client):
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
                  slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
-        if not isinstance(host, str) or not host:
-            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        _check_host(host, "RtuOverTcpClient")
         port = _int("port", port, 1, 65535)
         silence = _seconds("frame_silence", frame_silence)
         if silence > 1.0:
@@ -269,8 +279,7 @@ class UdpClient(Client):
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
                  slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  retries: int = 2) -> None:
-        if not isinstance(host, str) or not host:
-            raise InvalidArgument(f"host must be a name or an address, got {host!r}")
+        _check_host(host, "UdpClient")
         port = _int("port", port, 1, 65535)
         retries = _int("retries", retries, 0, 10)
         self.host = host
