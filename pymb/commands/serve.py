@@ -164,5 +164,7 @@ async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
     st = server.stats
     print(f"pymb serve: {st.requests:,} requests from {st.connections:,} connections; "
           f"upstream: {upstream.sent:,} sent, {upstream.timeouts:,} unanswered, "
-          f"{upstream.unreachable:,} while unreachable", file=sys.stderr)
+          f"{upstream.unreachable:,} while unreachable"
+          + (f", {upstream.dropped:,} dropped at the stop" if upstream.dropped else ""),
+          file=sys.stderr)
     return 0

@@ -102,6 +102,7 @@ class PipelinedUpstream:
         self._stopped = False
         #: transactions sent, and how each ended; the most in flight at once
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
+        self.dropped = 0  #: requests queued or in flight when it stopped: never answered
         self.most_inflight = 0
 
     def start(self) -> None:
@@ -111,6 +112,7 @@ class PipelinedUpstream:
         """Drop what is queued and in flight (their clients are gone with the
         server) and close the connection."""
         self._stopped = True
+        self.dropped += len(self._queue) + len(self._inflight)
         self._queue.clear()
         for job in self._inflight.values():
             if job.timer is not None:

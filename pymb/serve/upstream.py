@@ -51,6 +51,7 @@ class Upstream:
         self._down_said = False
         #: transactions sent, and how each ended
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
+        self.dropped = 0  #: requests queued or under way when it stopped: never answered
 
     def start(self) -> None:
         """Start the upstream's thread."""
@@ -65,11 +66,14 @@ class Upstream:
         does."""
         while True:
             try:
-                self._jobs.get_nowait()
+                if self._jobs.get_nowait() is not None:
+                    self.dropped += 1
             except queue.Empty:
                 break
         self._jobs.put(None)
         self._thread.join(timeout)
+        if self._thread.is_alive():  # a transaction under way, abandoned
+            self.dropped += 1
 
     def submit(self, unit: int, pdu: bytes, done: Done) -> None:
         """Queue request ``pdu`` for ``unit``."""
