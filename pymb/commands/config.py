@@ -40,7 +40,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _confirm(question: str) -> bool:
     if not sys.stdin.isatty():
         raise InvalidArgument(f"{question} needs confirmation: run it on a terminal or add --yes")
-    return input(f"{question} [y/N] ").strip().lower() in ("y", "yes")
+    try:
+        answer = input(f"{question} [y/N] ")
+    except EOFError:  # Ctrl-D: no
+        print()
+        return False
+    except KeyboardInterrupt:  # Ctrl-C: the shell's prompt on a line of its own
+        print()
+        raise
+    return answer.strip().lower() in ("y", "yes")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,14 +4,19 @@ and usage, exit 2, no traceback; Ctrl-C at any moment is exit 130."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+from clikit import Pty
 from conftest import PYMB_ENV, ROOT, run_pymb
 
+import pymb
+from pymb.devices import CoolPro
 from pymb.sim import Simulator
 
 
@@ -136,3 +141,31 @@ def test_log_without_out(tmp_path: Path) -> None:
         assert r.returncode == 0, r.stderr
         assert r.stdout.startswith("time_utc,time,bus,device,")
         assert len([p for p in tmp_path.iterdir() if not p.name.startswith(".")]) == 1
+
+
+@pytest.mark.parametrize(("answer", "code"), [(b"\x04", 1), (b"n\n", 1), (None, 130)])
+def test_config_confirmation_answered(answer: bytes | None, code: int) -> None:
+    """``pymb config``'s question on a terminal, answered with Ctrl-D, no or
+    Ctrl-C: nothing is written, no traceback, exit 1 (130 for Ctrl-C), and
+    the shell's prompt is left on a line of its own."""
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        term = Pty(["config", "coolpro:40", "--tcp", f"127.0.0.1:{sim.tcp_port}",
+                    "--set-address", "43"])
+        assert term.read_until(b"[y/N] "), term.out
+        # a person answers a moment after the question (a signal before input()
+        # waits in its select() is CPython's readline race, not pymb's)
+        time.sleep(0.5)
+        if answer is None:
+            term.interrupt()
+        else:
+            os.write(term.master, answer)
+            assert term.proc.wait(30) == code
+            term.interrupt()  # (ended: reads what is left)
+        assert term.proc.returncode == code
+        text = term.out.decode()
+        assert "Traceback" not in text
+        assert text.endswith("\r\n"), text
+        if code == 1:
+            assert text.endswith("nothing written\r\n"), text
+        with pymb.TcpClient("127.0.0.1", sim.tcp_port, slave=40) as c:
+            assert CoolPro(c, 40).read_telemetry()  # still at its address
