@@ -92,6 +92,11 @@ class BusConfig:
             raise InvalidArgument(f"bus {self.name!r}: pipeline is for a tcp bus")
         if not self.timeout > 0:
             raise InvalidArgument(f"bus {self.name!r}: timeout must be more than 0 s")
+        if self.port is not None:  # the line's baud and parity, before the output is opened
+            try:
+                self.client().close()
+            except InvalidArgument as e:
+                raise InvalidArgument(f"bus {self.name!r}: {e}") from None
         seen: dict[int, DeviceConfig] = {}
         for d in self.devices:
             assert d.address is not None

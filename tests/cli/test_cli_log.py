@@ -248,6 +248,10 @@ def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> Non
      "interval must be a number of seconds >= 0, got inf"),
     (TOML_BUS.replace('/dev/ttyUSB0"', '/dev/ttyUSB0"\nbaud = "fast"'),
      "c.toml: bus 1: baud has the wrong type ('fast')"),
+    (TOML_BUS.replace('/dev/ttyUSB0"', '/dev/ttyUSB0"\nparity = "X"'),
+     "c.toml: bus 'line1': parity must be 'N', 'E' or 'O', got 'X'"),
+    (TOML_BUS.replace('/dev/ttyUSB0"', '/dev/ttyUSB0"\nbaud = 12345'),
+     "c.toml: bus 'line1': baudrate 12345 is not a rate the serial driver supports"),
     (TOML_BUS.replace('port = "/dev/ttyUSB0"', 'tcp = "127.0.0.1:1"\nbaud = 19200'),
      'c.toml: bus 1: baud is for a serial line (port), not tcp = "127.0.0.1:1"'),
     (TOML_BUS.replace('port = "/dev/ttyUSB0"', 'udp = "127.0.0.1:1"\nparity = "E"'),
@@ -270,6 +274,17 @@ def test_toml_values_out_of_range_are_named_once(tmp_path: Path, toml: str,
     assert "c.toml: c.toml" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_a_bad_line_setting_creates_nothing(tmp_path: Path) -> None:
+    """A baud rate the serial driver lacks is one line before the output is
+    opened: no database is left behind."""
+    r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB-none", "--baud", "12345",
+                 "--out", "x.sqlite", "--seconds", "1", cwd=tmp_path)
+    no_traceback(r)
+    assert r.returncode == 2, r.stderr
+    assert "baudrate 12345 is not a rate the serial driver supports" in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
