@@ -8,9 +8,11 @@ pymb's errors into messages and exit codes (no traceback for a user mistake).
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
 import difflib
 import importlib
+import io
 import os
 import re
 import sys
@@ -97,6 +99,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     args_in = list(sys.argv[1:] if argv is None else argv)
+    _unicode_or_replace()
     # The subcommand is the first word that is not an option (pymb's own
     # options take no value), so only its module is imported.
     command = next((a for a in args_in if not a.startswith("-")), "")
@@ -122,6 +125,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         with contextlib.suppress(OSError):
             print(f"pymb {args.command}: {e}", file=sys.stderr)
         return next(code for cls, code in _EXIT_CODES if isinstance(e, cls))
+
+
+def _unicode_or_replace() -> None:
+    """A stdout that cannot write every character (``PYTHONIOENCODING=ascii``,
+    a Latin-1 terminal) shows ``?`` for a unit's ``°`` or an ellipsis instead
+    of ending the command with UnicodeEncodeError."""
+    out = sys.stdout
+    if isinstance(out, io.TextIOWrapper) and codecs.lookup(out.encoding).name != "utf-8":
+        with contextlib.suppress(ValueError, OSError):
+            out.reconfigure(errors="replace")
 
 
 def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,

@@ -169,3 +169,15 @@ def test_config_confirmation_answered(answer: bytes | None, code: int) -> None:
             assert text.endswith("nothing written\r\n"), text
         with pymb.TcpClient("127.0.0.1", sim.tcp_port, slave=40) as c:
             assert CoolPro(c, 40).read_telemetry()  # still at its address
+
+
+def test_a_terminal_that_cannot_show_every_character() -> None:
+    """stdout in ASCII (``PYTHONIOENCODING=ascii``, an old terminal): a
+    reading with its ``°C`` is shown with ``?`` for what it cannot write, not
+    ended by UnicodeEncodeError."""
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        r = run_pymb("read", "coolpro", "--tcp", f"127.0.0.1:{sim.tcp_port}", timeout=60,
+                     env=dict(PYMB_ENV, PYTHONIOENCODING="ascii"))
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    assert re.search(r"^Temperature +[\d.]+ \?C$", r.stdout, re.M), r.stdout
