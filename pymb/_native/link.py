@@ -29,6 +29,7 @@ __all__ = ["Link", "RegisterPlan"]
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
+_read_plan = lib.pymb_read_plan  # the hot path's C call, looked up once
 
 
 # -- signals -------------------------------------------------------------------
@@ -408,9 +409,12 @@ class Link:
             elif self.is_open:
                 lib.modbus_set_response_timeout(self._ctx, *hold)
                 self._held = hold
-        rc = lib.pymb_read_plan(self._line, plan.reqs if start == 0 else plan.reqs + start,
-                                plan.n - start, plan.gap_us, plan.regs, plan.nregs, plan.done,
-                                self._fail)
+        if start:
+            rc = _read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
+                            plan.regs, plan.nregs, plan.done, self._fail)
+        else:
+            rc = _read_plan(self._line, plan.reqs, plan.n, plan.gap_us, plan.regs, plan.nregs,
+                            plan.done, self._fail)
         if rc < 0:
             k = plan.failed = start + int(plan.done[0])
             function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]

@@ -220,8 +220,8 @@ class CoolPro:
         self._address = self._valid_address(address)
         self._pending_address: int | None = None
         self.device = coolpro_device(client, self._address)
-        #: per group read: its prepared read and the slots of its points
-        self._groups: dict[str, tuple[Callable[[], object], _Group]] = {}
+        #: per group read: its prepared read, the slots of its points, its registers
+        self._groups: dict[str, tuple[Callable[[], object], _Group, array[int]]] = {}
 
     @property
     def address(self) -> int:
@@ -243,25 +243,27 @@ class CoolPro:
             raise InvalidArgument(f"CoolPro address must be {low}..{high}, got {address!r}")
         return address
 
-    def _group(self, name: str, model: _Group) -> tuple[_Group, Buffers]:
-        """Read ``name``'s group: the slots of its points and the buffers read."""
+    def _group(self, name: str, model: _Group) -> tuple[Callable[[], object], _Group,
+                                                         array[int]]:
+        """``name``'s group made ready: its prepared read, the slots of its
+        points, the registers it reads into."""
         ready = self._groups.get(name)
         if ready is None:
-            read, (dec,) = prepared_read(self.device, group=name)
-            ready = self._groups[name] = (read, _Group(dec, *model.names))
-        ready[0]()
-        g = ready[1]
-        return g, g.decoder.buffers
+            read, ((dec, regs),) = prepared_read(self.device, group=name)
+            ready = self._groups[name] = (read, _Group(dec, *model.names), regs)
+        return ready
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        g, b = self._group("telemetry", _TELEMETRY)
-        return _telemetry(g, b, array("H", b.registers))
+        read, g, regs = self._groups.get("telemetry") or self._group("telemetry", _TELEMETRY)
+        read()
+        return _telemetry(g, g.decoder.buffers, regs[:])
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
-        g, b = self._group("identity", _IDENTITY)
-        return _identity(g, b, array("H", b.registers))
+        read, g, regs = self._group("identity", _IDENTITY)
+        read()
+        return _identity(g, g.decoder.buffers, regs[:])
 
     def read_config(self) -> CoolProConfig:
         """Device address and baud rate as stored (effective after a reset)."""

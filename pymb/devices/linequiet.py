@@ -16,11 +16,16 @@ class Quiet:
     """When the line of one client may carry the next request: a device's
     ``turnaround`` keeps it silent after its reply for every device on it."""
 
-    __slots__ = ("last_end", "lock", "quiet_until")
+    __slots__ = ("gapped", "last_end", "lock", "quiet_until")
 
     def __init__(self) -> None:
+        #: when the last request on the line ended: kept once a device on it
+        #: keeps a gap after the last request (:attr:`gapped`), and by the
+        #: devices that keep a turnaround
         self.last_end = 0.0
         self.quiet_until = 0.0
+        #: some device on the line keeps an ``inter_request_gap``
+        self.gapped = False
         #: the line's lock: a map device holds it for each whole read or write
         #: (from the wait for silence to the end of its last request, and its
         #: decoding), so two map devices on one client in two threads keep

@@ -488,10 +488,12 @@ class MapDevice:
 
 def prepared_read(device: MapDevice, *names: str, group: str | None = None,
                   channels: Iterable[int] | None = None
-                  ) -> tuple[Callable[[], tuple[Decoder, ...]], tuple[Decoder, ...]]:
+                  ) -> tuple[Callable[[], tuple[Decoder, ...]],
+                             tuple[tuple[Decoder, array[int]], ...]]:
     """The selection of :meth:`MapDevice.read_into` made ready: a call that
     reads it as ``read_into`` does (no argument, nothing looked up again),
-    and the decoders it fills (the same on every call). For a view that
-    reads one selection over and over (the CoolPro's telemetry)."""
+    and per table the decoder it fills and the registers it reads into (the
+    same on every call). For a view that reads one selection over and over
+    (the CoolPro's telemetry)."""
     r, skipped = device._read_of(names, group, channels)  # noqa: SLF001 - this module's
-    return partial(device._read_ready, r, skipped), r.decoders  # noqa: SLF001 - this module's
+    return partial(device._read_ready, r, skipped), r.fetched  # noqa: SLF001 - this module's

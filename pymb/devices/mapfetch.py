@@ -100,6 +100,11 @@ class Fetcher:
         self.quiet = quiet_of(client)  #: the line's silences, shared with its other devices
         t = m.timing
         self._gap, self._turnaround = t.inter_request_gap, t.turnaround
+        q = self.quiet
+        if self._gap and not q.gapped:
+            # from now on every request's end is noted; until the next, as
+            # if one had just ended
+            q.last_end, q.gapped = time.monotonic(), True
         self.unread = bytearray(len(planner.items))
         self._none_unread = bytes(len(planner.items))
         self.marked = False  #: some byte of :attr:`unread` is 1
@@ -132,7 +137,7 @@ class Fetcher:
             assert r.plan is not None
             self.run(r.plan, r.images)
             return
-        q, gap = self.quiet, self._gap
+        q, gap, turnaround = self.quiet, self._gap, self._turnaround
         for p in runs:
             # the silence before it: any device's turnaround, this device's gap
             # after the last request (kept only while still to come)
@@ -157,10 +162,11 @@ class Fetcher:
             except BaseException:
                 self._noted()
                 raise
-            now = _monotonic()
-            q.last_end = now
-            if now + self._turnaround > q.quiet_until:
-                q.quiet_until = now + self._turnaround
+            if turnaround or q.gapped:  # the end noted where a silence needs it
+                now = _monotonic()
+                q.last_end = now
+                if now + turnaround > q.quiet_until:
+                    q.quiet_until = now + turnaround
 
     def _noted(self) -> None:
         """The end of a request that failed, noted for the line's silences."""

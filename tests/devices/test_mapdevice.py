@@ -213,6 +213,29 @@ def test_turnaround_and_inter_request_gap_are_silences_on_the_wire(transport: st
                 assert after.arrived - before.replied >= silence
 
 
+def test_silences_are_the_lines_whichever_device_asked_last() -> None:
+    # Three map devices on one client: one keeps no silence (its point "a" is
+    # one request the peer answers), one a gap before its requests, one a
+    # turnaround after its replies. The gap holds after the silent device's
+    # replies too, also for the gap device made after the silent one had read;
+    # the turnaround holds before the silent device's next request.
+    with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 115200,
+                                                       timeout=1.0) as client:
+        plain = MapDevice(client, make_map("", ""), 1)
+        plain.read("a")
+        gap = MapDevice(client, make_map("", "inter_request_gap = 0.25"), 2)
+        slow = MapDevice(client, make_map("", "turnaround = 0.04"), 3)
+        for dev in (gap, plain, plain, gap, slow, plain, gap):
+            dev.read("a")
+    assert [r.slave for r in peer.log] == [1, 2, 1, 1, 2, 3, 1, 2]
+    for before, after in pairwise(peer.log):
+        heard = after.arrived - before.replied  # the reply was sent before it was heard
+        if after.slave == 2:
+            assert heard >= 0.25, (before.slave, after.slave)
+        if before.slave == 3:
+            assert heard >= 0.04, (before.slave, after.slave)
+
+
 def test_after_connect_waits_before_the_first_request() -> None:
     with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
         connected = time.monotonic()
