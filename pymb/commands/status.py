@@ -49,8 +49,8 @@ class StatusLine:
         try:
             if out.isatty():
                 # One line that fits: a line that wrapped could not be redrawn in place.
-                try:
-                    width = os.get_terminal_size(out.fileno()).columns
+                try:  # a serial console says 0 columns: as none
+                    width = os.get_terminal_size(out.fileno()).columns or 80
                 except (OSError, ValueError):
                     width = 80
                 if len(line) > width - 1:

@@ -272,10 +272,13 @@ def screen(head: str, body: list[str], width: int, height: int) -> str:
 
 
 def terminal_size() -> tuple[int, int]:
-    """(columns, lines) of the terminal on stdout (80x24 when it says none)."""
+    """(columns, lines) of the terminal on stdout (80x24 when it says none,
+    or 0x0 as a board's serial console does)."""
     try:
         size = os.get_terminal_size(sys.stdout.fileno())
-        return size.columns, size.lines
+        if size.columns > 0 and size.lines > 0:
+            return size.columns, size.lines
+        raise OSError("no size")
     except (OSError, ValueError):
         fallback = shutil.get_terminal_size((80, 24))
         return fallback.columns, fallback.lines

@@ -181,3 +181,21 @@ def test_a_terminal_that_cannot_show_every_character() -> None:
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     assert re.search(r"^Temperature +[\d.]+ \?C$", r.stdout, re.M), r.stdout
+
+
+def test_a_serial_console_that_says_0x0(tmp_path: Path) -> None:
+    """A board's serial console reports 0 columns and 0 lines: ``watch`` and
+    ``log``'s status line draw as on 80x24, not an ellipsis alone."""
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        tcp = f"127.0.0.1:{sim.tcp_port}"
+        term = Pty(["watch", "coolpro", "--tcp", tcp], cols=0, rows=0)
+        assert term.read_until(b"Input Voltage"), term.out
+        assert term.read_more(b"reads", 2), term.out
+        assert term.interrupt() < 30
+        assert "Input Voltage" in "\n".join(term.screen())
+        term = Pty(["log", "coolpro", "--tcp", tcp, "--out", str(tmp_path / "c.sqlite")],
+                   cols=0, rows=0)
+        assert term.read_more(b" samples ", 2), term.out
+        assert term.interrupt() < 30
+        assert term.proc.returncode == 0, term.out
+        assert re.search(rb"\d+ samples +[\d.]+/s +faults 0", term.out), term.out
