@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import errno as _errno
 import os
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypedDict
 
 from pymb._native import (
     DeviceExceptionCode,
@@ -372,6 +372,17 @@ def closed_error(function: int, slave: int, address: int | None, count: int | No
     )
 
 
+class _Asked(TypedDict):
+    """What every error of a failed request carries about it."""
+
+    slave: int
+    function: int
+    address: int | None
+    count: int | None
+    port: str
+    response: bytes | None
+
+
 def request_error(err: int, *, function: int, slave: int, address: int | None,
                   count: int | None, port: str, timeout: float, failed: tuple[int, int],
                   response: bytes | None, header: int, frame: str | None,
@@ -390,8 +401,8 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
     received = f" (received {_hex(got)})" if got else ""
     if address is None and function in _READS and failed[1] >= 0:
         address, count = failed
-    kw: dict[str, Any] = dict(slave=slave, function=function, address=address, count=count,
-                                 port=port, response=got)
+    kw = _Asked(slave=slave, function=function, address=address, count=count, port=port,
+                response=got)
     if tls is not None:
         return TlsError(f"{asked}: {tls}", errno=err, **kw)
     if err == _errno.ETIMEDOUT:

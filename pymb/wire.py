@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import sys
 from array import array
-from typing import Any
+from collections.abc import Iterable
 
 __all__ = [
     "DEFAULT_BAUD",
@@ -90,11 +90,11 @@ def read_bits_time(count: int, baudrate: int, *, turnaround: float = 0.0, bits: 
                             baudrate, turnaround=turnaround, bits=bits, gap=gap)
 
 
-def registers_to_wire(registers: Any, *, in_place: bool = False) -> bytes:
+def registers_to_wire(registers: Iterable[int], *, in_place: bool = False) -> bytes:
     """16-bit registers (an ``array('H')`` or a sequence of ints) as they
     travel: big-endian words. ``in_place``: ``registers`` is a scratch array
     that may be byte-swapped where it is (no copy)."""
-    out = registers if in_place else array("H", registers)
+    out = registers if in_place and isinstance(registers, array) else array("H", registers)
     if _SWAP:
         out.byteswap()
     return out.tobytes()
