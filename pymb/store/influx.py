@@ -24,16 +24,13 @@ floats as floats, flags as booleans, text as strings, and
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 from pymb.devices.mapreading import MapReading
-from pymb.devices.readings import has_own_view, map_reading
+from pymb.devices.readings import has_own_view, map_reading, reading_dict
 from pymb.maps import Value
-from pymb.store.records import Event, Sample
-from pymb.store.text import JsonlSink, sample_dict
+from pymb.store.records import DeviceInfo, Event, Sample
+from pymb.store.text import JsonlSink
 
 __all__ = ["InfluxSink", "event_line", "sample_lines"]
-
 
 
 def _tag(v: object) -> str:
@@ -49,8 +46,8 @@ def _ns(t: float) -> int:
     return round(t * 1e6) * 1000
 
 
-def _tags(d: Mapping[str, object]) -> str:
-    return f"bus={_tag(d['bus'])},device={_tag(d['device'])},address={d['address']}"
+def _tags(d: DeviceInfo) -> str:
+    return f"bus={_tag(d.bus)},device={_tag(d.name)},address={d.address}"
 
 
 def _field(name: str, v: Value, state: object, unsigned: bool = False) -> str:
@@ -88,7 +85,8 @@ def sample_lines(sample: Sample) -> list[str]:
     """A sample as line protocol (one line, or one per hub channel)."""
     if not has_own_view(sample.data):
         return [_map_line(sample, map_reading(sample.data))]
-    d = sample_dict(sample)
+    d = reading_dict(sample.data)  # the values of sample_dict
+    tags = _tags(sample.device)
     ts = _ns(sample.time_utc)
     if "states" in d:  # a reading by channel (a hub's)
         values, states = d["values"], d["states"]
@@ -101,7 +99,7 @@ def sample_lines(sample: Sample) -> list[str]:
                     fields.append(f"{q}_state={_str(states[q][ch])}")
                 else:
                     fields.append(f"{q}={float(v)!r}")
-            lines.append(f"pymb_hub,{_tags(d)},channel={ch + 1} {','.join(fields)} {ts}")
+            lines.append(f"pymb_hub,{tags},channel={ch + 1} {','.join(fields)} {ts}")
         return lines
     fields = []
     for q, v in d["values"].items():
@@ -111,7 +109,7 @@ def sample_lines(sample: Sample) -> list[str]:
             fields.append(f"{q}={v}i")
         else:
             fields.append(f"{q}={float(v)!r}")
-    return [f"pymb_coolpro,{_tags(d)} {','.join(fields)} {ts}"]
+    return [f"pymb_coolpro,{tags} {','.join(fields)} {ts}"]
 
 
 def event_line(e: Event) -> str:

@@ -9,10 +9,11 @@ import json
 import sys
 import time
 from collections.abc import Iterator
-from typing import IO, Any
+from typing import IO
 
 from pymb.devices.readings import reading_dict
 from pymb.errors import InvalidArgument, OutputError
+from pymb.jsonvalue import JsonObject
 from pymb.maps import Value
 from pymb.store.faults import file_open_error
 from pymb.store.records import Event, Sample, SinkBase, StoredSample, reading_values
@@ -62,14 +63,14 @@ def sample_rows(sample: Sample) -> Iterator[list[Cell]]:
                  for ch, name, v, st in reading_values(sample.data)])
 
 
-def sample_dict(sample: Sample) -> dict[str, Any]:
+def sample_dict(sample: Sample) -> JsonObject:
     """A sample as one JSON-ready object (None for no value): the line of
     ``--format jsonl`` and, for a sample read back from the database
     (:class:`StoredSample`), with its id as ``sample``, the payload of the
     MQTT plain profile. ``values`` and the rest come from
     :func:`pymb.devices.readings.reading_dict`."""
     d = sample.device
-    out: dict[str, Any] = {"time_utc": sample.time_utc, "time": _iso(sample.time_utc),
+    out: JsonObject = {"time_utc": sample.time_utc, "time": _iso(sample.time_utc),
                            "monotonic": sample.monotonic, "bus": d.bus, "device": d.name,
                            "type": d.type, "address": d.address}
     if isinstance(sample, StoredSample):
@@ -78,7 +79,7 @@ def sample_dict(sample: Sample) -> dict[str, Any]:
     return out
 
 
-def event_dict(e: Event) -> dict[str, Any]:
+def event_dict(e: Event) -> JsonObject:
     """An event as a JSON-ready object."""
     return {"time_utc": e.time_utc, "time": _iso(e.time_utc), "event": e.kind, "bus": e.bus,
             "device": None if e.device is None else e.device.name, "code": e.code,
