@@ -27,11 +27,14 @@ import os
 import socket
 import ssl
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 from pymb._native.tls import certificate_refused, tls_words
 from pymb.errors import InvalidArgument
+
+if TYPE_CHECKING:  # the optional extra pymb-modbus[mqtt]
+    from paho.mqtt.client import Client
 
 __all__ = ["PROFILES", "PROTOCOLS", "MqttConfig", "from_table"]
 
@@ -140,7 +143,7 @@ class MqttConfig:
                     f"cannot read {self.password_file}: {e.strerror}") from None
         return os.environ.get(PASSWORD_ENV) if self.user else None
 
-    def secure(self, client: Any, password: str | None) -> None:
+    def secure(self, client: Client, password: str | None) -> None:
         """Give a paho client this configuration's user (with ``password``, from
         :meth:`password`) and, for ``mqtts://``, TLS with the broker verified
         (``ca``, or the system's CAs) and the client certificate, if any."""

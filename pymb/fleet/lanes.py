@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import collections
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 from pymb.fleet.cursor import Acknowledged
 from pymb.fleet.profiles import Message, Profile
 from pymb.store import Outbox, StoredSample
+
+if TYPE_CHECKING:  # the optional extra pymb-modbus[mqtt]
+    from paho.mqtt.client import Client
 
 __all__ = ["BARRIER_EVERY", "FETCH", "WINDOW", "Publisher", "catch_up_lane", "live_lane"]
 
@@ -24,7 +27,7 @@ BARRIER_EVERY = 50  #: Sparkplug (QoS 0): a SUBSCRIBE round trip after this many
 class Publisher:
     """What one connection has sent and not yet seen acknowledged."""
 
-    def __init__(self, client: Any, profile: Profile) -> None:
+    def __init__(self, client: Client, profile: Profile) -> None:
         self.client = client
         self.profile = profile
         self.qos1 = profile.data_qos > 0

@@ -10,12 +10,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 from pymb.client import unresolved
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.identify import client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapreading import MapReading
 from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
@@ -49,7 +49,7 @@ class _Read:
 
     slot: Slot
     dev: MapHealth
-    read: Callable[[], Any]
+    read: Callable[[], MapReading]
 
 
 def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:

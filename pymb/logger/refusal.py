@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 from pymb.devices.mapdevice import MapDevice
+from pymb.fleet.protobuf import MetricValue
 from pymb.maps import Map
 from pymb.store.commands import CommandLog
 
@@ -55,7 +56,7 @@ class Desk(Protocol):
     log: CommandLog
     targets: dict[str, Target]
     event: Callable[[str], None]
-    answer: Callable[[str, dict[str, Any], list[str]], None] | None
+    answer: Callable[[str, dict[str, MetricValue], list[str]], None] | None
     births: Callable[[str], dict[str, int] | None]
 
     def check_point(self, t: Target, name: str, value: object) -> None:
