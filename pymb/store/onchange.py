@@ -8,12 +8,11 @@ import math
 from array import array
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from pymb import maps
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument
-from pymb.maps import Map
+from pymb.maps import Map, Value
 
 __all__ = ["DEADBAND_QUANTITIES", "Changes", "OnChange"]
 
@@ -52,8 +51,13 @@ class OnChange:
                 raise InvalidArgument(f"deadband of {name} must be >= 0, got {value!r}")
 
 
-def _points(data: MapReading
-            ) -> tuple[Map, list[tuple[str, int]], Sequence[Any], Sequence[Any]]:
+#: a reading's values, value by value (a reading of blocks: the decoder's array)
+_Values = Sequence[Value]
+#: their states: names, or the decoder's state codes; only compared
+_States = Sequence[object]
+
+
+def _points(data: MapReading) -> tuple[Map, list[tuple[str, int]], _Values, _States]:
     """A reading as its map's points: the map, (name, values) of each point
     read (a block's channel by channel), and every value and state in that
     order (a reading of blocks: the decoder's arrays, NaN and state codes)."""
@@ -61,8 +65,8 @@ def _points(data: MapReading
     if b is not None and list(b.index.values()) == [i * b.channels for i in range(len(b.names))]:
         return data.map, [(n, b.channels) for n in b.names], b.values, b.states
     shape: list[tuple[str, int]] = []
-    values: list[Any] = []
-    states: list[Any] = []
+    values: list[Value] = []
+    states: list[object] = []
     for name, v in data.values.items():
         st = data.states.get(name)
         if isinstance(v, list) and isinstance(st, list):
@@ -90,11 +94,11 @@ class Changes:
         self.by_channel = by_channel
         self.shape: list[tuple[str, int]] = []
         self.limits: list[tuple[int, int, float, bool]] = []  # lo, hi, band, counter
-        self.prev: Sequence[Any] = ()  # the previous reading's values, its bytes and states
-        self.prev_key: tuple[Sequence[Any], Sequence[Any]] = (b"", b"")
+        self.prev: _Values = ()  # the previous reading's values, its bytes and states
+        self.prev_key: tuple[bytes | _Values, bytes | _States] = (b"", b"")
         self.first = True
-        self.values: list[Any] = []  # what was last stored, value by value
-        self.states: list[Any] = []
+        self.values: list[Value] = []  # what was last stored, value by value
+        self.states: list[object] = []
         self.due: list[float] = []  # heartbeat deadline per column (monotonic)
         self.next_due = 0.0
 
@@ -149,7 +153,7 @@ class Changes:
         self.next_due = min(self.due)
         return sorted(pick)
 
-    def _moved_whole(self, vals: Sequence[Any], sts: Sequence[Any]) -> set[int]:
+    def _moved_whole(self, vals: _Values, sts: _States) -> set[int]:
         """{0} when a value of the reading is to be stored, else nothing."""
         for a, pa, s, ps, b, sb, (band, counter) in zip(
                 vals, self.prev, sts, self.prev_key[1], self.values, self.states, self.flat,
@@ -158,15 +162,15 @@ class Changes:
                 continue
             if s != sb:
                 return {0}
-            if type(a) in (int, float) and type(b) in (int, float):
+            if (type(a) is float or type(a) is int) and (type(b) is float or type(b) is int):
                 if abs(a - b) > band or (a != a) != (b != b) or (counter and a < b):
                     return {0}
             elif a != b:
                 return {0}
         return set()
 
-    def _moved(self, vals: Sequence[Any], sts: Sequence[Any],
-               key: tuple[Sequence[Any], Sequence[Any]]) -> set[int]:
+    def _moved(self, vals: _Values, sts: _States,
+               key: tuple[bytes | _Values, bytes | _States]) -> set[int]:
         pick: set[int] = set()
         prev = self.prev
         (now_v, now_s), (old_v, old_s) = key, self.prev_key
@@ -184,7 +188,8 @@ class Changes:
                 b = self.values[lo + j]
                 if s != self.states[lo + j]:
                     pick.add(c)
-                elif type(a) in (int, float) and type(b) in (int, float):
+                elif (type(a) is float or type(a) is int) and (
+                        type(b) is float or type(b) is int):
                     if abs(a - b) > band or (a != a) != (b != b) or (counter and a < b):
                         pick.add(c)
                 elif a != b:
