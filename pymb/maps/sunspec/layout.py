@@ -41,6 +41,7 @@ __all__ = [
     "ModelDef",
     "Placed",
     "PointDef",
+    "SymbolDef",
     "map_text",
     "model_def",
     "model_ids",
@@ -78,6 +79,7 @@ _TYPES: dict[str, tuple[str, int | None, str]] = {
     "ipv6addr": ("raw", None, "gauge"),
 }
 _SKIPPED = frozenset({"pad"})
+_UNMAPPED = 0xFFFF
 
 
 class SymbolDef(TypedDict):
@@ -142,7 +144,6 @@ class _Entry(TypedDict, total=False):
     group: str
     description: str
     ref: str
-_UNMAPPED = 0xFFFF
 
 
 @functools.lru_cache(maxsize=1)
