@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from array import array
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 from pymb import _native
 from pymb._native.link import RegisterPlan
@@ -31,6 +31,9 @@ from pymb.client.checks import (
 from pymb.client.core import ClientCore
 from pymb.errors import DeviceException, ModbusConnectionError
 from pymb.wire import registers_from_wire
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 __all__ = ["Client"]
 
@@ -61,18 +64,18 @@ class Client(ClientCore):
         self.read_input_registers_into(address, out, slave=slave)
         return out
 
-    def read_holding_registers_into(self, address: int, dest: Any, *,
+    def read_holding_registers_into(self, address: int, dest: Buffer, *,
                                     slave: int | None = None) -> None:
         """Read ``len(dest)`` holding registers into a writable uint16 buffer
         (``array('H')``, a numpy uint16 array): no allocation at all."""
         self._read_regs(FC.READ_HOLDING_REGISTERS, address, dest, slave)
 
-    def read_input_registers_into(self, address: int, dest: Any, *,
+    def read_input_registers_into(self, address: int, dest: Buffer, *,
                                   slave: int | None = None) -> None:
         """Read ``len(dest)`` input registers into a writable uint16 buffer."""
         self._read_regs(FC.READ_INPUT_REGISTERS, address, dest, slave)
 
-    def _read_regs(self, fc: int, address: int, dest: Any, slave: int | None) -> None:
+    def _read_regs(self, fc: int, address: int, dest: Buffer, slave: int | None) -> None:
         s = self._slave_for(slave)
         view = _u16_dest(dest)
         address, n = _range(address, view.nbytes // 2, None)
@@ -89,7 +92,7 @@ class Client(ClientCore):
             return float(self._link.swap_response_timeout(timeout))
 
     def read_registers_prepared(self, function: int, slave: int, address: int,
-                                dest: Any) -> None:
+                                dest: array[int] | memoryview) -> None:
         """Read ``len(dest)`` registers with ``function`` (0x03 or 0x04) into
         ``dest``, a writable ``array('H')``, with no argument checks: the
         caller has checked slave, address and count (1..125, within the

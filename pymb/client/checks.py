@@ -7,12 +7,15 @@ from __future__ import annotations
 import errno
 import operator
 from array import array
-from collections.abc import Mapping, Set
-from typing import Any
+from collections.abc import Iterable, Mapping, Set
+from typing import TYPE_CHECKING, SupportsIndex, cast
 
 from pymb import _native
 from pymb.errors import InvalidArgument
 from pymb.wire import registers_to_wire
+
+if TYPE_CHECKING:
+    from typing_extensions import Buffer
 
 __all__ = ["FC", "MAX_READ_BITS", "MAX_READ_REGISTERS", "MAX_WRITE_BITS",
            "MAX_WRITE_REGISTERS", "MAX_WR_READ_REGISTERS", "MAX_WR_WRITE_REGISTERS"]
@@ -37,17 +40,17 @@ _SERIAL_MODES = _native.SERIAL_MODES
 _RTS_MODES = _native.RTS_MODES
 
 
-def _int(name: str, value: Any, low: int, high: int) -> int:
+def _int(name: str, value: object, low: int, high: int) -> int:
     # Any integer (numpy's too, through __index__), but not a bool or a float.
     if isinstance(value, bool) or not hasattr(type(value), "__index__"):
         raise InvalidArgument(f"{name} must be an integer from {low} to {high}, got {value!r}")
-    number: int = operator.index(value)
+    number = operator.index(cast(SupportsIndex, value))
     if not low <= number <= high:
         raise InvalidArgument(f"{name} must be from {low} to {high}, got {number}")
     return number
 
 
-def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
+def _seconds(name: str, value: object, *, allow_zero: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InvalidArgument(f"{name} must be a number of seconds, got {value!r}")
     v = float(value)
@@ -58,23 +61,24 @@ def _seconds(name: str, value: Any, *, allow_zero: bool = False) -> float:
     return v
 
 
-def _coil(value: Any) -> int:
+def _coil(value: object) -> int:
     """A coil value: a bool, or the integers 0 and 1, and nothing else."""
     if isinstance(value, bool):
         return int(value)
-    if getattr(getattr(value, "dtype", None), "kind", None) == "b" and value.ndim == 0:
+    if (getattr(getattr(value, "dtype", None), "kind", None) == "b"
+            and getattr(value, "ndim", None) == 0):
         return int(bool(value))  # a numpy bool (an element of a bool array)
     if isinstance(value, (str, bytes, bytearray, memoryview, float)) or not hasattr(
             type(value), "__index__"):
         raise TypeError(
             f"a coil value is a bool or 0 or 1, got {type(value).__name__} {value!r}")
-    v = operator.index(value)
+    v = operator.index(cast(SupportsIndex, value))
     if v not in (0, 1):
         raise InvalidArgument(f"a coil value is a bool or 0 or 1, got {value!r}")
     return v
 
 
-def _register_values(values: Any) -> bytes:
+def _register_values(values: object) -> bytes:
     """Register values (ints 0..65535, not bools, not bytes) as big-endian bytes."""
     if isinstance(values, array) and values.typecode == "H":
         a = values
@@ -87,7 +91,7 @@ def _register_values(values: Any) -> bytes:
                 "register values are a sequence of integers 0..65535 (an array('H') or a "
                 f"list), not {type(values).__name__}: bytes would depend on byte order")
         try:
-            items = list(values)
+            items = list(cast(Iterable[object], values))
         except TypeError:
             raise TypeError(
                 f"register values must be a sequence of integers, got {type(values).__name__}"
@@ -97,21 +101,21 @@ def _register_values(values: Any) -> bytes:
                     v, float):
                 raise TypeError(
                     f"a register value is an integer 0..65535, got {type(v).__name__} {v!r}")
-            if not 0 <= operator.index(v) <= 0xFFFF:
+            if not 0 <= operator.index(cast(SupportsIndex, v)) <= 0xFFFF:
                 raise InvalidArgument(f"a register value is 0..65535, got {v!r}")
-        a = array("H", [operator.index(v) for v in items])
+        a = array("H", [operator.index(cast(SupportsIndex, v)) for v in items])
     if len(a) == 0:
         raise InvalidArgument("no values to write")
     return registers_to_wire(a)
 
 
-def _coil_payload(values: Any) -> tuple[int, bytes]:
+def _coil_payload(values: object) -> tuple[int, bytes]:
     """Coil values (bools or 0/1) -> (how many, packed LSB first, FC 0x0F)."""
     if isinstance(values, (str, bytes, bytearray, memoryview, Set, Mapping)):
         raise TypeError(f"coil values are a sequence of bools or 0/1, not "
                         f"{type(values).__name__}")
     try:
-        bits = [_coil(v) for v in values]
+        bits = [_coil(v) for v in cast(Iterable[object], values)]
     except TypeError as e:
         if "coil value" in str(e):
             raise
@@ -124,14 +128,14 @@ def _coil_payload(values: Any) -> tuple[int, bytes]:
     return len(bits), bytes(packed)
 
 
-def _pdu_data(data: Any) -> bytes:
+def _pdu_data(data: object) -> bytes:
     """A raw request's data as bytes: bytes-like of 1-byte items or integers 0..255,
     at most a PDU's worth."""
     if isinstance(data, (str, int)):  # bytes(3) would be three zero bytes
         raise TypeError("data must be bytes (or a sequence of integers 0..255), not "
                         f"{type(data).__name__}")
     try:
-        view = memoryview(data)
+        view = memoryview(cast("Buffer", data))
     except TypeError:
         view = None
     if view is not None and view.itemsize != 1:
@@ -139,7 +143,7 @@ def _pdu_data(data: Any) -> bytes:
             f"data must be bytes, not a buffer of {view.itemsize}-byte items (its bytes "
             "would depend on the host's byte order)")
     try:
-        payload = view.tobytes() if view is not None else bytes(data)
+        payload = view.tobytes() if view is not None else bytes(cast(Iterable[SupportsIndex], data))
     except ValueError:
         raise InvalidArgument("data bytes must be integers 0..255") from None
     except TypeError:
@@ -163,11 +167,11 @@ def _range(address: int, count: int, limit: int | None) -> tuple[int, int]:
     return address, count
 
 
-def _u16_dest(dest: Any) -> memoryview:
+def _u16_dest(dest: object) -> memoryview:
     """A read's destination as a memoryview: a writable, contiguous buffer of
     unsigned 16-bit integers (``array('H')``, numpy uint16)."""
     try:
-        view = memoryview(dest)
+        view = memoryview(cast("Buffer", dest))
     except TypeError:
         raise TypeError(
             f"dest must be a writable uint16 buffer (array('H')), got {type(dest).__name__}"
