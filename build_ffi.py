@@ -235,6 +235,7 @@ SOURCE = """
 #include "pymb_modbus.h"
 #include "pymb_master.h"
 #include "pymb_map_ready.h"
+#include "pymb_internal.h"
 #include "pymb_serve.h"
 """
 
@@ -287,6 +288,12 @@ typedef struct {
 } pymbi_map_job;
 int pymbi_map_ready(pymbi_map_job *job);
 int pymbi_map_run(const pymbi_map_job *job);
+/* pymb_internal.h: a read plan held, decoded once its requests have their replies */
+typedef struct {
+    const pymb_plan_request *reqs; size_t n; uint32_t gap_us; uint16_t *regs; size_t nregs;
+    const pymbi_map_job *then; size_t done; int decoded;
+} pymbi_plan;
+int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail);
 """
 
 

@@ -9,6 +9,7 @@
 
 #include <sys/types.h>
 
+#include "pymb_map_ready.h"
 #include "pymb_modbus.h"
 
 /* [MB-TCP] 3.1.3: transaction id, protocol id, length, unit id. */
@@ -98,6 +99,25 @@ static inline void pymb_failure_reset(pymb_failure *fail)
         fail->header = 0;
     }
 }
+
+/* pymb_request.c: a read plan the Python extension runs again and again
+ * (pymb._native.link.RegisterPlan): pymb_read_plan()'s arguments held, and a
+ * decode made ready (pymb_map_ready.h), or NULL, run once every request from
+ * `start` on has its reply. Each run sets `done` (pymb_read_plan()'s, counted
+ * from `start`) and `decoded` (1 when it decoded `then`). */
+typedef struct {
+    const pymb_plan_request *reqs;
+    size_t n;
+    uint32_t gap_us;
+    uint16_t *regs;
+    size_t nregs;
+    const pymbi_map_job *then;
+    size_t done;
+    int decoded;
+} pymbi_plan;
+
+/* Run plan->reqs[start..n) as pymb_read_plan() does, then plan->then. */
+int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail);
 
 /* pymb_line.c: clocks, waits and the quiet window. */
 uint64_t pymbi_now_us(void);

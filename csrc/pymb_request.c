@@ -221,6 +221,28 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
     return 0;
 }
 
+int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail)
+{
+    int rc;
+
+    if (plan == NULL || start > plan->n) {
+        pymb_failure_reset(fail);
+        if (plan != NULL) {
+            plan->done = 0;
+            plan->decoded = 0;
+        }
+        errno = EINVAL;
+        return -1;
+    }
+    plan->decoded = 0;
+    rc = pymb_read_plan(line, plan->reqs != NULL ? plan->reqs + start : NULL, plan->n - start,
+                        plan->gap_us, plan->regs, plan->nregs, &plan->done, fail);
+    if (rc == 0 && plan->then != NULL && pymbi_map_run(plan->then) >= 0) {
+        plan->decoded = 1;
+    }
+    return rc;
+}
+
 int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb, uint8_t *dest,
                    pymb_failure *fail)
 {

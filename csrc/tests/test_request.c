@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * test_request.c - known-answer tests of the request path (pymb_transact,
- * pymb_read_registers, pymb_read_bits, pymb_read_plan) on every transport,
+ * pymb_read_registers, pymb_read_bits, pymb_read_plan, and the extension's
+ * held plans, pymbi_plan_run) on every transport,
  * against a scripted responder: a child process playing the device on the
  * other end of a real pseudo-terminal (RTU, through libmodbus's serial code) or of a
  * socket pair (Modbus TCP, RTU over TCP).
@@ -841,6 +842,66 @@ static void test_late_and_stale(enum kind k)
     printf("%s: late and stale replies\n", kind_name(k));
 }
 
+/* pymbi_plan_run (the extension's held plans): the plan as pymb_read_plan
+ * runs it, then its decode, only once every request from `start` on has its
+ * reply; a refused request decodes nothing, the rest run from the one after
+ * does. Against answer_hub: 31..40 and 40..41 read, 631..634 refused. */
+static void test_plan_then(struct rig *r, const pymb_plan_request *refused)
+{
+    uint16_t regs[22];
+    double values[2];
+    uint8_t states[2];
+    pymb_map_entry e[2];
+    pymbi_map_job job;
+    pymbi_plan plan;
+    pymb_failure fail;
+
+    memset(e, 0, sizeof e);
+    e[0].type = PYMB_MAP_U16; /* the first request's first register */
+    e[1].type = PYMB_MAP_U16; /* the third's first */
+    e[0].count = e[1].count = 1;
+    e[0].channels = e[1].channels = 1;
+    e[1].first = 20;
+    e[1].out = 1;
+    pymb_map_order("AB", 2, e[0].order);
+    pymb_map_order("AB", 2, e[1].order);
+    memset(&job, 0, sizeof job);
+    memset(regs, 0, sizeof regs);
+    job.entries = e;
+    job.nentries = 2;
+    job.regs = regs;
+    job.nregs = 22;
+    job.out.values = values;
+    job.out.states = states;
+    job.out.len = 2;
+    CHECK(pymbi_map_ready(&job) == 2 && values[0] == 0.0);
+    memset(&plan, 0, sizeof plan);
+    plan.reqs = refused;
+    plan.n = 3;
+    plan.regs = regs;
+    plan.nregs = 22;
+    plan.then = &job;
+    r->dev->param = 0;
+    r->dev->state = 0;
+    rig_start(r, answer_hub);
+    errno = 0;
+    CHECK(pymbi_plan_run(r->line, &plan, 0, &fail) == -1 && errno == EMBXILADD &&
+          plan.done == 1 && plan.decoded == 0 && values[0] == 0.0);
+    CHECK(pymbi_plan_run(r->line, &plan, plan.done + 1, &fail) == 0 && plan.done == 1 &&
+          plan.decoded == 1 && values[0] == 31.0 && values[1] == 40.0);
+    regs[0] = 7; /* the next run reads it again, and decodes what it read */
+    CHECK(pymbi_plan_run(r->line, &plan, 2, &fail) == 0 && plan.decoded == 1 &&
+          values[0] == 7.0 && values[1] == 40.0);
+    plan.then = NULL;
+    CHECK(pymbi_plan_run(r->line, &plan, 2, &fail) == 0 && plan.decoded == 0);
+    CHECK(pymbi_plan_run(r->line, &plan, 3, &fail) == 0 && plan.done == 0);
+    rig_stop(r);
+    errno = 0;
+    CHECK(pymbi_plan_run(r->line, &plan, 4, &fail) == -1 && errno == EINVAL &&
+          plan.done == 0 && plan.decoded == 0);
+    CHECK(pymbi_plan_run(r->line, NULL, 0, &fail) == -1 && errno == EINVAL);
+}
+
 /* pymb_read_plan: a whole plan in one call, its silences, its stop at the
  * first refusal (and the rest run from the one after), its checks. */
 static void test_plan(enum kind k)
@@ -937,6 +998,7 @@ static void test_plan(enum kind k)
                          &fail) == 0);
     CHECK(regs[20] == 40 && regs[21] == 41);
     rig_stop(&r);
+    test_plan_then(&r, refused);
     rig_close(&r);
     printf("%s: read plan\n", kind_name(k));
 }

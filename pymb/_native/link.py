@@ -13,6 +13,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from pymb._native.mapdecode import MapJob
 from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
@@ -29,7 +30,7 @@ __all__ = ["Link", "RegisterPlan"]
 
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
-_read_plan = lib.pymb_read_plan  # the hot path's C call, looked up once
+_plan_run = lib.pymbi_plan_run  # the hot path's C call, looked up once
 
 
 # -- signals -------------------------------------------------------------------
@@ -66,17 +67,22 @@ def _seconds_us(seconds: float) -> tuple[int, int]:
 
 class RegisterPlan:
     """A prepared list of register reads into one writable ``array('H')``
-    (pymb_read_plan): ``requests`` are (function, slave, address, count,
-    offset into ``dest``) tuples, checked by the caller and again in C before
-    anything is sent; ``gap`` seconds of silence between two requests;
-    ``timeout``: the reply timeout of its requests (None: the line's). After
-    a failed run, :attr:`failed` is the index of the request that failed."""
+    (pymb_read_plan, held as a ``pymbi_plan``): ``requests`` are (function,
+    slave, address, count, offset into ``dest``) tuples, checked by the
+    caller and again in C before anything is sent; ``gap`` seconds of
+    silence between two requests; ``timeout``: the reply timeout of its
+    requests (None: the line's); ``then``: a decode made ready over ``dest``
+    (:class:`~pymb._native.mapdecode.MapJob`) that each run decodes in the
+    same C call once every request from its start on has its reply
+    (:attr:`decoded` says whether the last run did). After a failed run,
+    :attr:`failed` is the index of the request that failed."""
 
-    __slots__ = ("done", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs",
-                 "requests", "timeout", "timeout_us")
+    __slots__ = ("c", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs", "requests",
+                 "then", "timeout", "timeout_us")
 
     def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
-                 gap: float = 0.0, timeout: float | None = None) -> None:
+                 gap: float = 0.0, timeout: float | None = None,
+                 then: MapJob | None = None) -> None:
         self.timeout = timeout
         self.timeout_us = _seconds_us(timeout or 0)
         #: what the line's context holds while this plan runs (None: the line's own)
@@ -90,9 +96,18 @@ class RegisterPlan:
                 function, slave, address, count, offset)
         self.regs = _from_buffer("uint16_t[]", dest, True)
         self.nregs = len(self.regs)
-        self.done = ffi.new("size_t *")
         self.gap_us = max(0, min(0xFFFFFFFF, round(gap * 1e6)))
+        self.then = then  # kept alive with the plan that points to it
+        c = self.c = ffi.new("pymbi_plan *")
+        c.reqs, c.n, c.gap_us, c.regs, c.nregs = self.reqs, self.n, self.gap_us, self.regs, \
+            self.nregs
+        c.then = then.cdata if then is not None else ffi.NULL
         self.failed = -1
+
+    @property
+    def decoded(self) -> bool:
+        """Whether the last run decoded :attr:`then`."""
+        return bool(self.c.decoded)
 
 
 class Link:
@@ -409,14 +424,8 @@ class Link:
             elif self.is_open:
                 lib.modbus_set_response_timeout(self._ctx, *hold)
                 self._held = hold
-        if start:
-            rc = _read_plan(self._line, plan.reqs + start, plan.n - start, plan.gap_us,
-                            plan.regs, plan.nregs, plan.done, self._fail)
-        else:
-            rc = _read_plan(self._line, plan.reqs, plan.n, plan.gap_us, plan.regs, plan.nregs,
-                            plan.done, self._fail)
-        if rc < 0:
-            k = plan.failed = start + int(plan.done[0])
+        if _plan_run(self._line, plan.c, start, self._fail) < 0:
+            k = plan.failed = start + int(plan.c.done)
             function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
             raise self._error(function, slave, address, count)
 

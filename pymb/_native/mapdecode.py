@@ -26,6 +26,7 @@ __all__ = [
     "SF_SWAPPED",
     "STATE_CODES",
     "SWAP",
+    "MapJob",
     "MapOut",
     "MapTable",
     "type_code",
@@ -122,23 +123,38 @@ class MapTable:
                                        ffi.from_buffer("uint16_t[]", registers),
                                        len(registers), out.cdata))
 
-    def bind(self, registers: array[int], out: MapOut) -> Callable[[], int]:
+    def bind(self, registers: array[int], out: MapOut) -> MapJob:
         """:meth:`decode` of ``registers`` into ``out`` made ready: the table
         and the sizes checked once (``pymbi_map_ready``, which decodes once),
-        then each call of the function returned decodes them again in one C
-        call with no argument (``pymbi_map_run``). For a reader that decodes
-        the same buffer again and again: ``registers`` cannot change its size
-        while the function lives (it holds the buffer), nor the table its
-        entries. Raises ValueError when C refuses the table or the sizes."""
+        then each :attr:`MapJob.run` decodes them again in one C call with no
+        argument (``pymbi_map_run``), as does a read plan given the job. For a
+        reader that decodes the same buffer again and again: ``registers``
+        cannot change its size while the job lives (it holds the buffer), nor
+        the table its entries. Raises ValueError when C refuses the table or
+        the sizes."""
+        return MapJob(self, registers, out)
+
+
+class MapJob:
+    """A decode made ready (:meth:`MapTable.bind`): :attr:`run` decodes the
+    registers again; :attr:`cdata` is the job a read plan decodes once its
+    requests have their replies (:class:`pymb._native.link.RegisterPlan`)."""
+
+    __slots__ = ("_keep", "cdata", "run")
+
+    def __init__(self, table: MapTable, registers: array[int], out: MapOut) -> None:
         job = ffi.new("pymbi_map_job *")
         regs = ffi.from_buffer("uint16_t[]", registers)
-        job.entries, job.nentries = self._entries, self.n
-        job.markers, job.nmarkers = self._markers, self.nmarkers
+        job.entries, job.nentries = table._entries, table.n  # noqa: SLF001 - this module's
+        job.markers, job.nmarkers = table._markers, table.nmarkers  # noqa: SLF001
         job.regs, job.nregs = regs, len(registers)
         job.out = out.cdata[0]
         if lib.pymbi_map_ready(job) < 0:
             raise ValueError("the map decoder refused the table or the sizes")
+        self.cdata: Any = job
         run = partial(lib.pymbi_map_run, job)
-        # what the job points into lives as long as the function
-        run.keep = (self, regs, out)  # type: ignore[attr-defined]
-        return run
+        # what the job points into lives as long as the call (which may
+        # outlive this object) and this object
+        run.keep = self._keep = (table, regs, out)  # type: ignore[attr-defined]
+        #: decode again: the slots written
+        self.run: Callable[[], int] = run

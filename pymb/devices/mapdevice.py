@@ -309,9 +309,10 @@ class MapDevice:
     def _read_ready(self, r: Read, skipped: tuple[tuple[Any, int], ...]
                     ) -> tuple[Decoder, ...]:
         with self._lock:
-            self._fetcher.fetch(r)
+            decoded = self._fetcher.fetch(r, True)  # in the read's C call, if it could
             for decode, buffers, registers in r.decodes:
-                decode()
+                if not decoded:
+                    decode()
                 buffers.registers = registers
             if self._fetcher.marked:
                 self._mark_unread(r.points, r.images)

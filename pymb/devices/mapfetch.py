@@ -21,6 +21,7 @@ from operator import attrgetter
 from typing import NamedTuple
 
 from pymb._native.link import RegisterPlan
+from pymb._native.mapdecode import MapJob
 from pymb.client import Client
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
@@ -58,8 +59,8 @@ class Read:
     were made at. A read at the same version on the same connection asks the
     same requests: it runs them and decodes, nothing else."""
 
-    __slots__ = ("decoders", "decodes", "fetched", "images", "items", "plan", "points", "runs",
-                 "version")
+    __slots__ = ("decoders", "decodes", "decoding", "fetched", "images", "items", "jobs", "plan",
+                 "points", "runs", "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
                  images: dict[str, Image]) -> None:
@@ -69,12 +70,19 @@ class Read:
         self.decoders = tuple(image.decoder for image in images.values())
         #: per table: its decoder and its registers
         self.fetched = tuple((image.decoder, image.registers) for image in images.values())
+        #: per table: its decode made ready over its buffer
+        self.jobs: dict[str, MapJob] = {t: image.decoder.prepare(image.registers)
+                                        for t, image in images.items()}
         #: per table: the decoder's C call bound to its buffer, its buffers, the buffer
         self.decodes: tuple[tuple[Callable[[], int], Buffers, array[int]], ...] = tuple(
-            (image.decoder.bind(image.registers), image.decoder.buffers, image.registers)
-            for image in images.values())
+            (self.jobs[t].run, image.decoder.buffers, image.registers)
+            for t, image in images.items())
         self.plan: ReadPlan | None = None
         self.runs: tuple[Run, ...] | None = None
+        #: the runs again, each decoding its table once its requests have
+        #: their replies (None: a table is read in more runs than one, or not
+        #: at all, or the plan has bits: decoded after the read)
+        self.decoding: tuple[Run, ...] | None = None
         self.version = -1  # made at no version yet
 
 
@@ -119,24 +127,29 @@ class Fetcher:
                                                             IllegalDataValue)
         self._connections = -1  # the client's connection the planner's knowledge is from
 
-    def fetch(self, r: Read) -> None:
+    def fetch(self, r: Read, decode: bool = False) -> bool:
         """The requests of read ``r``, each into its place in its buffers.
         ``r`` is made again first (reconnected, planned, the unread marks
         reset) when the line was lost or reopened, when the planner learnt
         something, or when an unsupported point is due. Then each run is one
         C call holding the line (the silences as :meth:`turn` keeps them; the
         RegisterPlans carry the map's reply timeout); exception 02/03 falls
-        back as :meth:`run` does. A plan with bits goes through :meth:`run`."""
+        back as :meth:`run` does. A plan with bits goes through :meth:`run`.
+        With ``decode``, where each table is one run, that run's C call also
+        decodes it: True when every table was decoded so (no fallback)."""
         planner, client = self.planner, self.client
         if (r.version != planner.version or not client.connected
                 or client.connections - client.resends != self._connections
                 or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
             self._remake(r)
-        runs = r.runs
+        runs = r.decoding if decode else None
+        decoded = runs is not None
         if runs is None:
-            assert r.plan is not None
-            self.run(r.plan, r.images)
-            return
+            runs = r.runs
+            if runs is None:
+                assert r.plan is not None
+                self.run(r.plan, r.images)
+                return False
         q, gap, turnaround = self.quiet, self._gap, self._turnaround
         for p in runs:
             # the silence before it: any device's turnaround, this device's gap
@@ -158,6 +171,7 @@ class Fetcher:
                 if not replans(planner.limits, exc.code):
                     raise
                 self._refused(p, p.plan.failed, exc.code)
+                decoded = False  # what the fallback read is decoded after the read
                 continue
             except BaseException:
                 self._noted()
@@ -167,6 +181,7 @@ class Fetcher:
                 q.last_end = now
                 if now + turnaround > q.quiet_until:
                     q.quiet_until = now + turnaround
+        return decoded
 
     def _noted(self) -> None:
         """The end of a request that failed, noted for the line's silences."""
@@ -216,6 +231,7 @@ class Fetcher:
         for k in planner.unsupported:
             unread[k] = 1
         r.runs = self.runs(r.plan, r.images)
+        r.decoding = self.runs(r.plan, r.images, r.jobs)
         r.version = planner.version
 
     def after_connect(self) -> None:
@@ -232,18 +248,24 @@ class Fetcher:
                 q = self.quiet
                 q.quiet_until = max(q.quiet_until, time.monotonic() + wait)
 
-    def runs(self, plan: ReadPlan, images: dict[str, Image]) -> tuple[Run, ...] | None:
+    def runs(self, plan: ReadPlan, images: dict[str, Image],
+             jobs: dict[str, MapJob] | None = None) -> tuple[Run, ...] | None:
         """``plan``'s requests in runs of one table, each a RegisterPlan over
-        that table's buffer (None: a plan with bits, read request by request)."""
+        that table's buffer (None: a plan with bits, read request by request).
+        With ``jobs`` (per table, its decode made ready), each run decodes its
+        table after its requests: None unless every table is one run."""
         if any(r.table in BIT_TABLES for r in plan.requests):
             return None
         t = self.map.timing
         gap = max(t.inter_request_gap, t.turnaround)
         runs = [tuple(g) for _, g in groupby(plan.requests, key=attrgetter("table"))]
+        if jobs is not None and sorted(rs[0].table for rs in runs) != sorted(images):
+            return None
         return tuple(
             Run(rs, image, RegisterPlan(
                 [(r.function, self.address, r.address, r.count, r.address - image.address)
-                 for r in rs], image.registers, gap, t.response_timeout))
+                 for r in rs], image.registers, gap, t.response_timeout,
+                then=None if jobs is None else jobs[rs[0].table]))
             for rs in runs for image in (images[rs[0].table],))
 
     def run(self, plan: ReadPlan, images: dict[str, Image]) -> None:

@@ -206,12 +206,18 @@ class Decoder:
 
     def bind(self, registers: array[int], into: Buffers | None = None) -> Callable[[], int]:
         """The C call of :meth:`decode` of ``registers`` into :attr:`buffers`
-        (or ``into``), its arguments converted once: each call decodes them
+        (or ``into``), its arguments checked once: each call decodes them
         again and returns the number of values written. For a reader that
         decodes the same buffer over and over; while the call lives,
         ``registers`` (an ``array('H')`` of at least :attr:`count` registers)
         cannot change its size, and the caller keeps ``into`` alive (the call
         writes its arrays)."""
+        return self.prepare(registers, into).run
+
+    def prepare(self, registers: array[int], into: Buffers | None = None) -> c.MapJob:
+        """:meth:`bind`'s decode made ready, as the job it runs: ``run()``
+        decodes again, and a read plan given the job decodes once its
+        requests have their replies (one C call for both)."""
         if not isinstance(registers, array) or registers.typecode != "H":
             raise InvalidArgument(f"{self.map.id}: bind takes an array('H'), "
                                   f"got {type(registers).__name__}")

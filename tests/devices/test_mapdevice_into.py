@@ -55,6 +55,35 @@ def test_read_into_leaves_read_s_values_in_the_decoders_arrays() -> None:
         assert dev.read_into("e", "h")[0].values() == {"e": 140, "h": 161}
 
 
+TWO_TABLES = MAP + "".join(
+    f'[[point]]\nname = "{n}"\naddress = {a}\ntype = "u16"\ntable = "input"\ngroup = "slow"\n'
+    for n, a in (("x", 20), ("y", 21)))
+
+
+@pytest.mark.parametrize("first", ["read_into", "read"])
+def test_read_into_decodes_each_read_of_every_table_also_when_a_point_is_refused(
+        first: str) -> None:
+    # The first read_into meets the refusal itself (the fallback in the same
+    # read), or after read() learnt it; a table of its own (input registers)
+    # beside it. Each read decodes what it read: the peer's registers change.
+    have = {"holding": {20, 21, 23}, "input": {20, 21}}
+    with RefusingPtyPeer(have) as peer, pymb.RtuClient(peer.port, 9600, timeout=1.0) as client:
+        dev = MapDevice(client, maps.loads(TWO_TABLES), 1)
+        if first == "read":
+            dev.read(group="slow")
+        base = {"e": 140, "f": 147, "g": None, "h": 161, "x": 20, "y": 21}
+        for k in range(3):
+            holding, inputs = dev.read_into(group="slow")
+            got = {**holding.values(), **inputs.values()}
+            assert got == {n: None if v is None else v + k for n, v in base.items()}
+            assert STATES[holding.buffers.states[holding.slot("g")]] == "unsupported"
+            assert list(holding.buffers.registers)[:2] == [140 + k, 147 + k]
+            for a in (20, 21, 23):
+                peer.memory.holding[a] += 1
+            for a in (20, 21):
+                peer.memory.inputs[a] += 1
+
+
 def test_the_map_s_reply_timeout_is_given_back_to_the_line_after_its_read() -> None:
     m = maps.loads(MAP.replace("offline_retry = 3600", "response_timeout = 0.1"))
     with RefusingPtyPeer(HAVE) as peer, pymb.RtuClient(peer.port, 9600, timeout=2.0) as client:
