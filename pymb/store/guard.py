@@ -13,12 +13,34 @@ from pymb.store.text import CSV_COLUMNS
 
 __all__ = ["check_output", "is_pymb_database"]
 
+#: file name endings -> the output format they say
+_SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".json": "jsonl",
+             ".sqlite": "sqlite", ".sqlite3": "sqlite", ".db": "sqlite"}
+
+
+def _named_like(fmt: str, path: str) -> None:
+    """Refuse ``fmt`` into a file whose name says another format: a newcomer's
+    ``pymb log ... --out readings.csv`` without ``--format csv`` would write a
+    SQLite database under a CSV's name."""
+    said = _SUFFIXES.get(os.path.splitext(path)[1].lower())
+    if said is None or said == fmt:
+        return
+    kind = {"csv": "CSV", "jsonl": "JSON Lines", "sqlite": "SQLite"}[said]
+    raise InvalidArgument(
+        f"{path} is named like a {kind} file but the format is {fmt}: give --format {said} "
+        f"(in TOML: format = \"{said}\" under [output]), or another name")
+
 
 def check_output(fmt: str, path: str) -> None:
     """Refuse to write ``fmt`` into an existing file of another kind: CSV or
     JSON Lines appended to a database (or to someone's document), SQLite
-    tables added to a file that is not a pymb database."""
-    if path == "-" or not os.path.exists(path):
+    tables added to a file that is not a pymb database; nor, into a new
+    file, a format its name says it is not (SQLite into ``readings.csv``, CSV
+    into ``data.sqlite``)."""
+    if path == "-":
+        return
+    if not os.path.exists(path):
+        _named_like(fmt, path)
         return
     if os.path.isdir(path):
         raise InvalidArgument(f"{path} is a directory; give a file name")

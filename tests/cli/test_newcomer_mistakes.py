@@ -199,3 +199,43 @@ def test_a_serial_console_that_says_0x0(tmp_path: Path) -> None:
         assert term.interrupt() < 30
         assert term.proc.returncode == 0, term.out
         assert re.search(rb"\d+ samples +[\d.]+/s +faults 0", term.out), term.out
+
+
+@pytest.mark.parametrize(("name", "fmt", "said"), [
+    ("readings.csv", None, "readings.csv is named like a CSV file but the format is sqlite: "
+     "give --format csv"),
+    ("readings.json", None, "is named like a JSON Lines file but the format is sqlite"),
+    ("data.sqlite", "csv", "data.sqlite is named like a SQLite file but the format is csv: "
+     "give --format sqlite"),
+    ("data.db", "jsonl", "is named like a SQLite file but the format is jsonl"),
+])
+def test_log_into_a_name_of_another_format(tmp_path: Path, name: str, fmt: str | None,
+                                           said: str) -> None:
+    """``pymb log ... --out readings.csv`` without ``--format csv``: refused in
+    one line before anything is made, not a SQLite database named .csv."""
+    args = ["log", "coolpro", "--tcp", "127.0.0.1:1", "--seconds", "1",
+            "--out", str(tmp_path / name), *(["--format", fmt] if fmt else [])]
+    r = run_pymb(*args, timeout=60)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert said in r.stderr
+    assert list(tmp_path.iterdir()) == []
+    # the same in a configuration file
+    cfg = tmp_path / "log.toml"
+    cfg.write_text(f'[output]\npath = "{name}"\n' + (f'format = "{fmt}"\n' if fmt else "") +
+                   '[[bus]]\ntcp = "127.0.0.1:1"\n  [[bus.device]]\n  type = "coolpro"\n')
+    r = run_pymb("log", "--config", str(cfg), "--seconds", "1", timeout=60)
+    assert r.returncode == 2
+    assert said in r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["log.toml"]
+
+
+def test_log_into_a_name_of_its_format(tmp_path: Path) -> None:
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        for name, fmt in (("r.csv", "csv"), ("r.jsonl", "jsonl"), ("r.db", "sqlite"),
+                          ("r.txt", "influx"), ("r.log", "csv")):
+            r = run_pymb("log", "coolpro", "--tcp", f"127.0.0.1:{sim.tcp_port}", "--seconds",
+                         "0.3", "--quiet", "--format", fmt, "--out", str(tmp_path / name),
+                         timeout=60)
+            assert r.returncode == 0, (name, r.stderr)
+            assert (tmp_path / name).stat().st_size > 0
