@@ -25,6 +25,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.forwarder import require_paho
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
+from pymb.store.guard import check_output
 from pymb.store.records import FAULT_KINDS
 from pymb.store.reserve import Reserve
 from pymb.store.summary import event_counts
@@ -64,6 +65,9 @@ def run(args: argparse.Namespace) -> int:
         SimulatorProcess(["hub", "--baud", baud, "--seed", "2", "--fault", "busy:0.02"],
                          quiet=True),
     ]
+    # before the simulators start: one line, nothing else (the demo writes SQLite)
+    check_output("sqlite", out, choosable=False)
+
     def say(message: str) -> None:
         if not args.quiet:
             print(message, file=sys.stderr)

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any, TextIO
 
 from pymb.commands.forward import forwarding, summary_lines
-from pymb.errors import InvalidArgument
+from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.forwarder import require_paho
@@ -88,7 +88,8 @@ class Watch:
         try:
             self.client.connect(self.host, self.port)
         except OSError as e:
-            raise InvalidArgument(f"--mqtt: cannot connect to {self.url}: {e}") from None
+            # as pymb collect says it: a connection that failed, exit 4
+            raise ModbusConnectionError(f"--mqtt: cannot connect to {self.url}: {e}") from None
         self.client.loop_start()
         return self._subscribed.wait(timeout) and self.refused is None
 

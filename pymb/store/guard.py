@@ -18,7 +18,7 @@ _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".json": "jso
              ".sqlite": "sqlite", ".sqlite3": "sqlite", ".db": "sqlite"}
 
 
-def _named_like(fmt: str, path: str) -> None:
+def _named_like(fmt: str, path: str, choosable: bool) -> None:
     """Refuse ``fmt`` into a file whose name says another format: a newcomer's
     ``pymb log ... --out readings.csv`` without ``--format csv`` would write a
     SQLite database under a CSV's name."""
@@ -26,21 +26,22 @@ def _named_like(fmt: str, path: str) -> None:
     if said is None or said == fmt:
         return
     kind = {"csv": "CSV", "jsonl": "JSON Lines", "sqlite": "SQLite"}[said]
-    raise InvalidArgument(
-        f"{path} is named like a {kind} file but the format is {fmt}: give --format {said} "
-        f"(in TOML: format = \"{said}\" under [output]), or another name")
+    how = (f"give --format {said} (in TOML: format = \"{said}\" under [output]), or another "
+           "name" if choosable else "give it another name")
+    raise InvalidArgument(f"{path} is named like a {kind} file but the format is {fmt}: {how}")
 
 
-def check_output(fmt: str, path: str) -> None:
+def check_output(fmt: str, path: str, *, choosable: bool = True) -> None:
     """Refuse to write ``fmt`` into an existing file of another kind: CSV or
     JSON Lines appended to a database (or to someone's document), SQLite
     tables added to a file that is not a pymb database; nor, into a new
     file, a format its name says it is not (SQLite into ``readings.csv``, CSV
-    into ``data.sqlite``)."""
+    into ``data.sqlite``). ``choosable``: the user may choose the format
+    (``--format``), which the message then names."""
     if path == "-":
         return
     if not os.path.exists(path):
-        _named_like(fmt, path)
+        _named_like(fmt, path, choosable)
         return
     if os.path.isdir(path):
         raise InvalidArgument(f"{path} is a directory; give a file name")

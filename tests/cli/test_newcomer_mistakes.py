@@ -239,3 +239,33 @@ def test_log_into_a_name_of_its_format(tmp_path: Path) -> None:
                          timeout=60)
             assert r.returncode == 0, (name, r.stderr)
             assert (tmp_path / name).stat().st_size > 0
+
+
+@pytest.mark.parametrize(("name", "said"), [
+    ("notes.txt", "notes.txt exists and is not a SQLite database: refusing to write into it"),
+    ("demo.csv", "demo.csv is named like a CSV file but the format is sqlite: give it another "
+     "name"),
+])
+def test_demo_out_refused_before_anything_starts(tmp_path: Path, name: str, said: str) -> None:
+    out = tmp_path / name
+    if name == "notes.txt":
+        out.write_text("my notes\n")
+    r = run_pymb("demo", "--out", str(out), timeout=60)
+    assert r.returncode == 2
+    assert r.stderr == f"pymb demo: {tmp_path}/{said}" + (
+        "; choose another --out\n" if name == "notes.txt" else "\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == (
+        ["notes.txt"] if name == "notes.txt" else [])
+    if name == "notes.txt":
+        assert out.read_text() == "my notes\n"
+
+
+def test_demo_mqtt_broker_unreachable_is_a_connection_failure(tmp_path: Path) -> None:
+    """Exit 4, as ``pymb collect`` says an unreachable broker, not 2."""
+    pytest.importorskip("paho.mqtt")
+    r = run_pymb("demo", "--seconds", "1", "--mqtt", "mqtt://127.0.0.1:1",
+                 "--out", str(tmp_path / "d.sqlite"), timeout=60)
+    assert r.returncode == 4, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith(
+        "pymb demo: --mqtt: cannot connect to mqtt://127.0.0.1:1: ")
+    assert "Traceback" not in r.stderr
