@@ -49,7 +49,7 @@ from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
-from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, lazy_reading
+from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, poll_sample
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -340,9 +340,9 @@ class TcpMapPoller(TcpLoopBase):
         unread = e.unsupported()
         if unread or c.unread:
             unread = (unread | c.unread) & e.decode.items
-        reading = lazy_reading(e.decode, bytes(e.image), unread)
+        s, reading = poll_sample(u.info, time.time(), now, e.decode, bytes(e.image), unread)
         report = self.report
-        report.sample(Sample(u.info, time.time(), now, reading))
+        report.sample(s)
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
     def _requeue(self, c: Conn, e: Entry, now: float) -> None:

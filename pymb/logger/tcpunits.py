@@ -28,10 +28,10 @@ from pymb.logger.schedule import Health, Slot
 from pymb.maps import Map, Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
-from pymb.store import DeviceInfo
+from pymb.store import DeviceInfo, Sample
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "lazy_reading"]
+__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "poll_sample"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -157,7 +157,9 @@ class _Decoded:
 
 
 class _Lazy(Mapping[str, Any]):
-    """The values (or states) of a sample: decoded when first read."""
+    """The values (or states) of a sample: decoded when first read (no cycle
+    between the two: a poll's records are freed by their reference counts,
+    not by the garbage collector)."""
 
     __slots__ = ("_src", "_which")
 
@@ -179,18 +181,29 @@ class _Lazy(Mapping[str, Any]):
 
 _SWAP = sys.byteorder == "little"
 _NONE: frozenset[int] = frozenset()
+#: a poll's two records are made by their own __init__, called directly: a
+#: Python __init__ called through its class costs CPython 3.11 a second entry
+#: into the interpreter (about 300 instructions a record, callgrind)
+_new = object.__new__
+_reading = MapReading.__init__
+_sample = Sample.__init__
 
 
-def lazy_reading(how: GroupDecode, image: bytes, unread: frozenset[int] = _NONE
-                 ) -> MapReading:
-    """The :class:`MapReading` of one poll: the registers of ``image``
-    (big-endian, as on the wire), values and states decoded on first use."""
+def poll_sample(info: DeviceInfo, time_utc: float, monotonic: float, how: GroupDecode,
+                image: bytes, unread: frozenset[int] = _NONE) -> tuple[Sample, MapReading]:
+    """The :class:`Sample` of one poll of ``info`` and its data: a
+    :class:`MapReading` of the registers of ``image`` (big-endian, as on the
+    wire), values and states decoded on first use."""
     regs = array("H", image)
     if _SWAP:
         regs.byteswap()
     src = _Decoded(how, regs, unread)
-    return MapReading(how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs,
-                      how.unsupported(unread) if unread else (), image)
+    r: MapReading = _new(MapReading)
+    _reading(r, how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs,
+             how.unsupported(unread) if unread else (), image)
+    s: Sample = _new(Sample)
+    _sample(s, info, time_utc, monotonic, r)
+    return s, r
 
 
 @dataclass(eq=False)
