@@ -7,11 +7,11 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, NoReturn
+from typing import NoReturn, cast
 
 from pymb.errors import InvalidArgument
 from pymb.maps.codec import encode
-from pymb.maps.point import DeviceSection, MapError, Point, did_you_mean
+from pymb.maps.point import DeviceSection, MapError, Point, Value, did_you_mean
 from pymb.maps.types import (
     FLOAT_TYPES,
     INTEGER_TYPES,
@@ -66,11 +66,16 @@ def number(ctx: Ctx, key: str, v: object, *, allow_str: bool = False) -> float:
     return v
 
 
-def strings(ctx: Ctx, raw: Mapping[str, Any], keys: tuple[str, ...]) -> None:
-    """Fail unless each of ``keys`` that ``raw`` has is a string."""
+def strings(ctx: Ctx, raw: Mapping[str, object], keys: tuple[str, ...]) -> dict[str, str]:
+    """Each of ``keys`` that ``raw`` has ("" for one it has not); fail unless
+    each is a string."""
+    out: dict[str, str] = {}
     for key in keys:
-        if not isinstance(raw.get(key, ""), str):
+        v = raw.get(key, "")
+        if not isinstance(v, str):
             ctx.fail(key, f"{key} must be a string")
+        out[key] = v
+    return out
 
 
 def _option(ctx: Ctx, key: str, v: object, options: Mapping[str, int | float]) -> object:
@@ -194,7 +199,7 @@ def _flags(ctx: Ctx, v: object, bits: int, typ: str) -> dict[int, str]:
     return out
 
 
-def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
+def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSection,
                 groups: Mapping[str, float], options: Mapping[str, int | float]) -> Point:
     """Check one ``[[point]]``/``[[block]]`` table and make its Point."""
     block = kind == "block"
@@ -210,7 +215,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
         ctx.fail("name", "name must be snake_case or a model's own name (letters, "
                  "digits, _ and -, starting with a letter; dots between such parts, "
                  f"each with an optional [N]), got {name!r}")
-    strings(ctx, raw, ("unit", "description", "ref", "min_firmware"))
+    texts = strings(ctx, raw, ("unit", "description", "ref", "min_firmware"))
     table = raw.get("table", dev.table)
     if table not in TABLES:
         ctx.fail("table", f"unknown table {table!r}{did_you_mean(str(table), TABLES)}")
@@ -252,10 +257,11 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
     if info.registers:
         count = info.registers
         if not block and typ in ("bit", "bits") and "count" in raw:
-            count = raw["count"]
-            if count not in (1, 2, 4) or isinstance(count, bool):
+            given = raw["count"]
+            if not isinstance(given, int) or given not in (1, 2, 4) or isinstance(given, bool):
                 ctx.fail("count", f"count of a {typ} view must be 1, 2 or 4 registers, "
-                         f"got {count!r}")
+                         f"got {given!r}")
+            count = given
     else:
         if "count" not in raw:
             ctx.fail("count", f"count (registers) is required for a {typ} point")
@@ -387,11 +393,12 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
     if group is not None and (not isinstance(group, str) or group not in groups):
         ctx.fail("group", f"no group {group!r} in [groups]{did_you_mean(str(group), list(groups))}")
     deadband = raw.get("deadband")
-    if deadband is not None and number(ctx, "deadband", deadband) < 0:
+    band = None if deadband is None else number(ctx, "deadband", deadband)
+    if band is not None and band < 0:
         ctx.fail("deadband", "deadband must be 0 or more")
-    precision = raw.get("precision")
-    if precision is not None:
-        _int_in(ctx, "precision", precision, 0, 17)
+    given_precision = raw.get("precision")
+    precision = (None if given_precision is None
+                 else _int_in(ctx, "precision", given_precision, 0, 17))
     kind_ = raw.get("kind", "text" if typ == "string" else "gauge")
     if kind_ not in _KINDS:
         ctx.fail("kind", f"kind is one of {', '.join(_KINDS)}, got {kind_!r}"
@@ -403,12 +410,14 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, Any], dev: DeviceSection,
         offset=offset, markers=MappingProxyType(markers), marker_masks=tuple(marker_masks),
         scale_from=scale_from, mask=mask, view_of=view_of, values=MappingProxyType(values),
         flags=MappingProxyType(flags), access=access, valid=valid, group=group,
-        deadband=None if deadband is None else float(deadband), precision=precision,
-        unit=raw.get("unit", ""), kind=kind_, description=raw.get("description", ""),
-        ref=raw.get("ref", ""), bit=bit, shift=shift, width=width, string_bytes=string_bytes,
-        encoding=encoding, example=raw.get("example"),
-        min_firmware=raw.get("min_firmware", ""),
-        when=MappingProxyType(dict(raw.get("when", {}))), max_writes_per_hour=budget)
+        deadband=None if band is None else float(band), precision=precision,
+        unit=texts["unit"], kind=kind_, description=texts["description"],
+        ref=texts["ref"], bit=bit, shift=shift, width=width, string_bytes=string_bytes,
+        encoding=encoding, example=cast(Value, raw.get("example")),  # checked below
+        min_firmware=texts["min_firmware"],
+        # the loader checked it: option names to numbers
+        when=MappingProxyType(dict(cast(Mapping[str, float], raw.get("when", {})))),
+        max_writes_per_hour=budget)
     if "example" in raw:
         _check_example(ctx, point, raw["example"])
     return point

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import TypeGuard, cast
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.checks import check_channel_names, check_overlaps, check_refs, check_widths
@@ -65,7 +65,7 @@ class CheckedFile:
     limits: Limits
     timing: Timing
     groups: Mapping[str, float]
-    entries: tuple[tuple[str, int, Mapping[str, Any]], ...]  #: (point|block, index, table)
+    entries: tuple[tuple[str, int, Mapping[str, object]], ...]  #: (point|block, index, table)
     identify: tuple[Identify, ...]
 
     def configure(self, m: Map, given: Mapping[str, object]) -> Map:
@@ -147,7 +147,7 @@ def _option_value(source: str, dev: DeviceSection, name: str, value: object) -> 
     return v
 
 
-def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[str, Any]:
+def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[str, object]:
     if not isinstance(table, dict):
         ctx.fail(None, f"{where} must be a table")
     for key in table:
@@ -156,7 +156,7 @@ def _keys(ctx: Ctx, table: object, known: tuple[str, ...], where: str) -> dict[s
     return table
 
 
-def _check_file(doc: dict[str, Any], source: str, headers: list[str],
+def _check_file(doc: dict[str, object], source: str, headers: list[str],
                 built: dict[int, Point]) -> CheckedFile:
     ctx = Ctx(source)
     _keys(ctx, doc, _TOP, "the file")
@@ -166,25 +166,27 @@ def _check_file(doc: dict[str, Any], source: str, headers: list[str],
         ctx.fail("schema", f"schema must be {SCHEMA!r}, got {doc['schema']!r}")
     if "device" not in doc:
         ctx.fail("device", "a [device] section with an id is required")
-    device = _device(ctx, doc["device"])
-    limits = _limits(ctx, doc["device"].get("limits", {}), device)
-    timing = _timing(ctx, doc["device"].get("timing", {}))
+    device, table = _device(ctx, doc["device"])
+    limits = _limits(ctx, table.get("limits", {}), device)
+    timing = _timing(ctx, table.get("timing", {}))
     groups, polls = _groups(ctx, doc.get("groups", {}))
     if polls:
         timing = dataclasses.replace(timing, polls=polls)
-    lists: dict[str, list[Any]] = {}
+    lists: dict[str, list[dict[str, object]]] = {}
     for kind in ("point", "block"):
-        items = lists[kind] = doc.get(kind, [])
+        items = doc.get(kind, [])
         if not isinstance(items, list):
             ctx.fail(kind, f"write points as [[{kind}]] tables")
+        tables = lists[kind] = []
         for i, item in enumerate(items):
             if not isinstance(item, dict):
                 ctx.fail(kind, f"[[{kind}]] number {i + 1} must be a table")
+            tables.append(item)
     # File order: tomllib keeps [[point]] and [[block]] apart; the headers say how they mix.
     if sorted(headers) != sorted(["point"] * len(lists["point"]) + ["block"] * len(lists["block"])):
         headers = ["point"] * len(lists["point"]) + ["block"] * len(lists["block"])
     seen = {"point": 0, "block": 0}
-    entries: list[tuple[str, int, Mapping[str, Any]]] = []
+    entries: list[tuple[str, int, Mapping[str, object]]] = []
     for kind in headers:
         entries.append((kind, seen[kind], lists[kind][seen[kind]]))
         seen[kind] += 1
@@ -197,25 +199,25 @@ def _check_file(doc: dict[str, Any], source: str, headers: list[str],
     return CheckedFile(source, device, limits, timing, file.groups, file.entries, identify)
 
 
-def _list(ctx: Ctx, v: object, key: str) -> list[Any]:
+def _list(ctx: Ctx, v: object, key: str) -> list[object]:
     if not isinstance(v, list):
         ctx.fail(key, f"write it as [[{key}]] tables")
     return v
 
 
-def _int(ctx: Ctx, table: Mapping[str, Any], key: str, default: int, lo: int, hi: int) -> int:
+def _int(ctx: Ctx, table: Mapping[str, object], key: str, default: int, lo: int, hi: int) -> int:
     v = table.get(key, default)
     if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
         ctx.fail(key, f"{key} must be a whole number {lo}..{hi}, got {v!r}")
     return v
 
 
-def _device(ctx: Ctx, raw: object) -> DeviceSection:
+def _device(ctx: Ctx, raw: object) -> tuple[DeviceSection, dict[str, object]]:
     t = _keys(ctx, raw, _DEVICE, "[device]")
     ident = t.get("id")
     if not isinstance(ident, str) or not _ID.match(ident):
         ctx.fail("id", f"device id must match [a-z0-9][a-z0-9-]*, got {ident!r}")
-    strings(ctx, t, ("manufacturer", "model", "description", "ref"))
+    texts = strings(ctx, t, ("manufacturer", "model", "description", "ref"))
     addresses = t.get("addresses", [1, 247])
     if (not isinstance(addresses, list) or len(addresses) != 2
             or any(isinstance(a, bool) or not isinstance(a, int) or not 0 <= a <= 255
@@ -237,10 +239,10 @@ def _device(ctx: Ctx, raw: object) -> DeviceSection:
     budget = None
     if "max_writes_per_hour" in t:
         budget = _int(ctx, t, "max_writes_per_hour", 0, 1, 1_000_000)
-    return DeviceSection(ident, t.get("manufacturer", ""), t.get("model", ""),
-                      t.get("description", ""), t.get("ref", ""), default_address, (lo, hi),
-                      base, table, order, MappingProxyType(options), MappingProxyType(allowed),
-                      MappingProxyType(ranges), budget)
+    return DeviceSection(ident, texts["manufacturer"], texts["model"], texts["description"],
+                         texts["ref"], default_address, (lo, hi), base, table, order,
+                         MappingProxyType(options), MappingProxyType(allowed),
+                         MappingProxyType(ranges), budget), t
 
 
 def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],
@@ -274,7 +276,7 @@ def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],
     return options, allowed, ranges
 
 
-def _is_number(v: object) -> bool:
+def _is_number(v: object) -> TypeGuard[int | float]:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
@@ -297,9 +299,13 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceSection) -> Limits:
                          f"within {base}..{65535 + base}, got {r!r}")
             out.append((r[0] - base, r[1] - base))
         readable[table] = tuple(sorted(out))
-    for key in ("split_on_exception", "single_point_requests", "mask_write"):
-        if not isinstance(t.get(key, False), bool):
+    flags: dict[str, bool] = {}
+    for key, default in (("split_on_exception", True), ("single_point_requests", False),
+                         ("mask_write", False)):
+        flag = t.get(key, default)
+        if not isinstance(flag, bool):
             ctx.fail(key, f"{key} must be true or false")
+        flags[key] = flag
     multiple = t.get("write_multiple", "auto")
     if multiple not in ("auto", "always"):
         ctx.fail("write_multiple", f"write_multiple is \"auto\" (FC 06 for one register) or "
@@ -308,8 +314,8 @@ def _limits(ctx: Ctx, raw: object, dev: DeviceSection) -> Limits:
                   _int(ctx, t, "max_bits", MAX_READ_BITS, 1, MAX_READ_BITS),
                   None if "max_gap" not in t else _int(ctx, t, "max_gap", 0, 0, MAX_GAP),
                   MappingProxyType(readable),
-                  t.get("split_on_exception", True), t.get("single_point_requests", False),
-                  multiple, t.get("mask_write", False),
+                  flags["split_on_exception"], flags["single_point_requests"],
+                  multiple, flags["mask_write"],
                   _ranges(ctx, t.get("ranges", []), dev))
 
 
@@ -345,25 +351,33 @@ def _ranges(ctx: Ctx, raw: object, dev: DeviceSection) -> tuple[tuple[str, int, 
 
 def _timing(ctx: Ctx, raw: object) -> Timing:
     t = _keys(ctx, raw, _TIMING, "[device.timing]")
-    out: dict[str, Any] = {}
+    d = Timing()  # the defaults
+    seconds: dict[str, float] = {}
+    offline_after, backoff = d.offline_after, d.backoff
     for key in _TIMING:
         if key not in t:
             continue
         if key == "offline_after":
-            out[key] = _int(ctx, t, key, 3, 1, 1_000_000)
-            continue
-        if key == "backoff":
-            if not isinstance(t[key], bool):
-                ctx.fail(key, f"backoff must be true or false, got {t[key]!r}")
-            out[key] = t[key]
+            offline_after = _int(ctx, t, key, 3, 1, 1_000_000)
             continue
         v = t[key]
+        if key == "backoff":
+            if not isinstance(v, bool):
+                ctx.fail(key, f"backoff must be true or false, got {v!r}")
+            backoff = v
+            continue
         if not _is_number(v) or v < 0 or (key == "response_timeout" and v == 0):
             ctx.fail(key, f"{key} must be a number of seconds above 0, got {v!r}"
                      if key == "response_timeout" else
                      f"{key} must be a number of seconds, 0 or more, got {v!r}")
-        out[key] = float(v)
-    return Timing(**out)
+        seconds[key] = float(v)
+    return Timing(response_timeout=seconds.get("response_timeout", d.response_timeout),
+                  turnaround=seconds.get("turnaround", d.turnaround),
+                  inter_request_gap=seconds.get("inter_request_gap", d.inter_request_gap),
+                  after_connect=seconds.get("after_connect", d.after_connect),
+                  offline_after=offline_after,
+                  offline_retry=seconds.get("offline_retry", d.offline_retry),
+                  backoff=backoff)
 
 
 def _groups(ctx: Ctx, raw: object) -> tuple[dict[str, float], tuple[tuple[str, str], ...]]:
@@ -389,16 +403,22 @@ def _groups(ctx: Ctx, raw: object) -> tuple[dict[str, float], tuple[tuple[str, s
     return groups, tuple(polls)
 
 
-def _entry_name(kind: str, index: int, raw: Mapping[str, Any]) -> str:
+def _entry_name(kind: str, index: int, raw: Mapping[str, object]) -> str:
     name = raw.get("name")
     return name if isinstance(name, str) else f"[[{kind}]] number {index + 1}"
+
+
+def _when(raw: Mapping[str, object]) -> Mapping[str, object]:
+    """An entry's ``when`` (checked: a table of option names to numbers)."""
+    when = raw.get("when", {})
+    return when if isinstance(when, dict) else {}
 
 
 def _check_variants(file: CheckedFile, built: dict[int, Point]) -> None:
     """Each entry checks under the options its ``when`` names; two entries
     may share a name only when their ``when`` can never both hold. ``built``
     keeps, by position, the points made under the default options."""
-    seen: dict[str, list[Mapping[str, Any]]] = {}
+    seen: dict[str, list[Mapping[str, object]]] = {}
     defaults = dict(file.device.options)
     for position, (kind, index, raw) in enumerate(file.entries):
         ctx = Ctx(file.source, _entry_name(kind, index, raw))
@@ -415,7 +435,7 @@ def _check_variants(file: CheckedFile, built: dict[int, Point]) -> None:
         point = build_point(ctx, kind, raw, file.device, file.groups, options)
         if options == defaults:
             built[position] = point
-        name = raw["name"]
+        name = _entry_name(kind, index, raw)  # build_point checked it
         for other in seen.get(name, []):
             if not any(k in other and other[k] != v for k, v in when.items()):
                 ctx.fail("name", f"the name {name!r} is used twice (two points may share a "
@@ -426,15 +446,15 @@ def _check_variants(file: CheckedFile, built: dict[int, Point]) -> None:
 def _build(file: CheckedFile, options: dict[str, int | float],
            built: Mapping[int, Point] | None = None) -> Map:
     points: dict[str, Point] = {}
-    for position, (kind, _index, raw) in enumerate(file.entries):
-        when = raw.get("when", {})
-        if any(options[k] != v for k, v in when.items()):
+    for position, (kind, index, raw) in enumerate(file.entries):
+        if any(options[k] != v for k, v in _when(raw).items()):
             continue
+        name = _entry_name(kind, index, raw)
         if built is not None and position in built:
-            points[raw["name"]] = built[position]
+            points[name] = built[position]
             continue
-        ctx = Ctx(file.source, raw["name"])
-        points[raw["name"]] = build_point(ctx, kind, raw, file.device, file.groups, options)
+        ctx = Ctx(file.source, name)
+        points[name] = build_point(ctx, kind, raw, file.device, file.groups, options)
     check_refs(file.source, points)
     check_overlaps(file.source, points.values())
     check_widths(file.source, file.limits, points.values())
@@ -446,7 +466,7 @@ def _build(file: CheckedFile, options: dict[str, int | float],
 def _identify(i: int, raw: object, file: CheckedFile) -> Identify:
     ctx = Ctx(file.source)
     t = _keys(ctx, raw, _IDENTIFY, f"[[identify]] number {i + 1}")
-    names = [r["name"] for _, _, r in file.entries]
+    names = [_entry_name(kind, index, r) for kind, index, r in file.entries]
     point = t.get("point")
     if point not in names:
         ctx.fail("point", f"[[identify]] number {i + 1}: no point {point!r}"
@@ -462,13 +482,15 @@ def _identify(i: int, raw: object, file: CheckedFile) -> Identify:
         rng = (float(rng[0]), float(rng[1]))
     regex = t.get("regex")
     if regex is not None:
-        types = {r.get("type") for _, _, r in file.entries if r["name"] == point}
+        types = {r.get("type") for _, _, r in file.entries if r.get("name") == point}
         if types != {"string"}:
             ctx.fail("regex", f"[[identify]] number {i + 1}: regex needs a string point; "
                      f"{point!r} is not one")
         try:
-            re.compile(regex)
+            re.compile(cast(str, regex))  # another type: a TypeError, said below
         except (re.error, TypeError) as e:
             ctx.fail("regex", f"regex {regex!r} does not compile: {e}")
-    number(ctx, "equals", t["equals"], allow_str=True) if "equals" in t else None
-    return Identify(str(point), rng, t.get("equals"), regex)
+    equals = t.get("equals")
+    if equals is not None and not isinstance(equals, str):
+        equals = number(ctx, "equals", equals)
+    return Identify(str(point), rng, equals, cast(str | None, regex))

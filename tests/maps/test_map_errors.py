@@ -194,3 +194,13 @@ def test_unknown_point_and_builtin_names() -> None:
     with pytest.raises(maps.MapError, match="did you mean 'coolpro'"):
         maps.builtin("colpro")
     assert {"coolpro", "hub"} <= set(maps.builtin_ids())
+
+
+
+@pytest.mark.parametrize(("count", "said"), [("3", "3"), ("2.0", "2.0"), ("true", "True"),
+                                             ('"2"', "'2'")])
+def test_a_bit_view_spans_1_2_or_4_whole_registers(count: str, said: str) -> None:
+    bit = '[[point]]\nname = "a"\naddress = 0\ntype = "bit"\nbit = 3\n'
+    fails(f"{bit}count = {count}\n", "point 'a'", "'count'",
+          f"must be 1, 2 or 4 registers, got {said}")
+    assert load(f"{bit}count = 2\n").points["a"].count == 2
