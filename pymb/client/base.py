@@ -122,7 +122,9 @@ class Client(ClientCore):
         """Run a prepared :class:`pymb._native.link.RegisterPlan` from request ``start`` on, in one
         C call; on failure ``plan.failed`` says which request failed."""
         link = self._link  # _call, written out, as in read_registers_prepared
-        with self._lock:
+        lock = self._lock  # acquired and released, not a with block: a poller's hot path
+        lock.acquire()
+        try:
             while True:
                 if not link.is_open:
                     self._reopen()
@@ -143,6 +145,8 @@ class Client(ClientCore):
                     raise
                 self._served = served + 1
                 return
+        finally:
+            lock.release()
 
     def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
         """Write one holding register (function 0x06). The device's echo must

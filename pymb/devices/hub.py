@@ -420,7 +420,9 @@ class SensorHub:
         """Every block into ``r``: the map decoder writes straight into its
         arrays (bound once per reading: a poller's steady state allocates
         nothing)."""
-        with self._lock:
+        lock = self._lock  # acquired and released, not a with block: a poller's hot path
+        lock.acquire()
+        try:
             try:
                 ((dec, regs),) = self.device.fetch(group="sweep")
             except DeviceFailure as e:
@@ -435,6 +437,8 @@ class SensorHub:
                 self._unsupported_mask())
             if self._refused:
                 self._mark_refused(r, mask)
+        finally:
+            lock.release()
         if self._mixed:
             _other_units(r, self._unit, self._other)
         r.unsupported_mask = mask

@@ -308,7 +308,9 @@ class MapDevice:
 
     def _read_ready(self, r: Read, skipped: tuple[tuple[Any, int], ...]
                     ) -> tuple[Decoder, ...]:
-        with self._lock:
+        lock = self._lock  # acquired and released: a with block binds its methods each time
+        lock.acquire()
+        try:
             decoded = self._fetcher.fetch(r, True)  # in the read's C call, if it could
             for decode, buffers, registers in r.decodes:
                 if not decoded:
@@ -322,6 +324,8 @@ class MapDevice:
                     b.values[slot] = nan
                     b.states[slot] = code
             return r.decoders
+        finally:
+            lock.release()
 
     def fetch(self, *names: str,
               group: str | None = None) -> tuple[tuple[Decoder, array[int]], ...]:
@@ -336,8 +340,12 @@ class MapDevice:
             r = last[3]
         else:
             r = self._read_of(names, group)[0]
-        with self._lock:
+        lock = self._lock  # acquired and released, as in _read_ready
+        lock.acquire()
+        try:
             self._fetcher.fetch(r)
+        finally:
+            lock.release()
         return r.fetched
 
     def _mark_unread(self, points: Sequence[int], images: dict[str, Image]) -> None:
