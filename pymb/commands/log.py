@@ -57,8 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between polls (default 0: as fast as the wire allows)")
     p.add_argument("--format", choices=FORMATS, help="output format (default sqlite)")
     p.add_argument("--out", metavar="PATH",
-                   help="output file; '-' for stdout (csv, jsonl, influx); default "
-                        "pymb-YYYYmmdd-HHMMSS.sqlite")
+                   help="output file; '-' for stdout (csv, jsonl, influx); default: a new "
+                        "pymb-YYYYmmdd-HHMMSS.sqlite here, stdout for the other formats")
     p.add_argument("--max-mb", type=_positive, metavar="MB",
                    help="SQLite: keep the database and its WAL under this size, deleting the "
                         "oldest data (at least 1)")

@@ -141,6 +141,10 @@ def test_log_without_out(tmp_path: Path) -> None:
         assert r.returncode == 0, r.stderr
         assert r.stdout.startswith("time_utc,time,bus,device,")
         assert len([p for p in tmp_path.iterdir() if not p.name.startswith(".")]) == 1
+    # and the help says so
+    r = run_pymb("log", "--help", timeout=60)
+    assert " ".join(r.stdout.split()).count(
+        "default: a new pymb-YYYYmmdd-HHMMSS.sqlite here, stdout for the other formats") == 1
 
 
 @pytest.mark.parametrize(("answer", "code"), [(b"\x04", 1), (b"n\n", 1), (None, 130)])
