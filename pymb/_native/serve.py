@@ -11,7 +11,7 @@ from typing import NamedTuple
 from pymb._pymb_cffi import ffi, lib
 
 __all__ = ["MAX_FRAME", "REPLY_BAD", "REPLY_EXCEPTION", "REPLY_OK", "REPLY_OTHER", "BadFrame",
-           "ClientRequest", "check_reply", "exception_frame", "mbap_frame", "take_replies",
+           "ClientRequest", "check_reply", "exception_frame", "mbap_frame", "take_frames",
            "take_requests"]
 
 MAX_FRAME: int = lib.PYMBI_SRV_MAX_FRAME  #: the longest Modbus TCP frame
@@ -47,23 +47,11 @@ def take_requests(buf: bytearray) -> list[ClientRequest]:
     what is left is the start of the next one. Raises :class:`BadFrame` when
     the bytes cannot be a Modbus TCP request (the requests before them are
     lost with the connection)."""
-    out: list[ClientRequest] = []
     req = ffi.new("pymbi_srv_req *")
-    pos = 0
-    n = len(buf)
-    data = ffi.from_buffer(buf)
-    while pos < n:
-        got = lib.pymbi_srv_take(data + pos, n - pos, req)
-        if got == 0:
-            break
-        if got < 0:
-            raise BadFrame(bytes(buf[pos:pos + 8]).hex(" "))
-        out.append(ClientRequest(req.tid, req.unit, bytes(buf[pos + _MBAP:pos + got]),
-                                 req.exception))
-        pos += got
-    del data
-    if pos:
-        del buf[:pos]
+    out: list[ClientRequest] = []
+    for frame in take_frames(buf):
+        lib.pymbi_srv_take(frame, len(frame), req)  # (a whole frame: taken)
+        out.append(ClientRequest(req.tid, req.unit, frame[_MBAP:], req.exception))
     return out
 
 
@@ -86,11 +74,11 @@ def exception_frame(tid: int, unit: int, function: int, code: int) -> bytes:
     return bytes(ffi.buffer(out, n))
 
 
-def take_replies(buf: bytearray) -> list[bytes]:
+def take_frames(buf: bytearray) -> list[bytes]:
     """Take every whole frame at the start of ``buf`` (removed from it), each
-    as long as its MBAP header says; what is left is the start of the next
-    one. Raises :class:`BadFrame` at a header that cannot be Modbus TCP (the
-    frames before it are lost with the connection)."""
+    as long as its MBAP header says (the C core's one rule); what is left is
+    the start of the next one. Raises :class:`BadFrame` at a header that
+    cannot be Modbus TCP (the frames before it are lost with the connection)."""
     out: list[bytes] = []
     pos = 0
     n = len(buf)
@@ -110,7 +98,7 @@ def take_replies(buf: bytearray) -> list[bytes]:
 
 
 def check_reply(unit: int, pdu: bytes, frame: bytes) -> int:
-    """What reply ``frame`` (a whole frame from :func:`take_replies`) is to
+    """What reply ``frame`` (a whole frame from :func:`take_frames`) is to
     request ``pdu`` sent to ``unit``: :data:`REPLY_OK`, ... (see there)."""
     status = lib.pymbi_tcp_check(unit, pdu, len(pdu), frame, len(frame), ffi.new("int *"))
     return _STATUS.get(status, REPLY_BAD)

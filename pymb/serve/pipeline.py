@@ -17,7 +17,7 @@ from pymb._native.serve import (
     BadFrame,
     check_reply,
     mbap_frame,
-    take_replies,
+    take_frames,
 )
 from pymb.serve.upstream import EX_PATH, EX_TARGET, Done
 
@@ -43,7 +43,7 @@ class _Link(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         self.buf += data
         try:
-            frames = take_replies(self.buf)
+            frames = take_frames(self.buf)
         except BadFrame as e:
             self.owner.lost(self, f"the upstream sent bytes that are not Modbus TCP ({e})")
             return
