@@ -44,11 +44,15 @@ def unknown_device(spec: str, known: Sequence[str]) -> InvalidArgument:
     """The one-line error for a device whose TYPE is none of the ``known``
     map ids, with a did-you-mean."""
     kind = split_spec(spec)[0] if spec.strip() else spec
-    ids = ", ".join(sorted(k for k in known if k not in TYPED_VIEWS)) or "none"
+    # The closest name first; the shipped ids (dozens) are pymb map list's to show.
+    shipped = set(maps.builtin_ids())
+    yours = ", ".join(sorted(k for k in known if k not in shipped))
+    hint = near(kind, [*TYPED_VIEWS, *known])
     return InvalidArgument(
-        f"unknown device {spec!r}: a device is TYPE[:ADDRESS][,key=value...], TYPE coolpro, "
-        f"hub or a map's id (known: {ids}; a map file needs --map FILE)"
-        f"{near(kind, [*TYPED_VIEWS, *known])}")
+        f"unknown device {spec!r}" + (f"{hint} A" if hint else ": a") + " device is "
+        "TYPE[:ADDRESS][,key=value...], TYPE coolpro, hub or a map's id: `pymb map list` "
+        "shows the shipped maps" + (f", --map gave {yours}" if yours else
+                                    "; a map file of your own needs --map FILE"))
 
 
 def load_map(path: str) -> Map:

@@ -273,3 +273,16 @@ def test_demo_mqtt_broker_unreachable_is_a_connection_failure(tmp_path: Path) ->
     assert r.stderr.strip().splitlines()[-1].startswith(
         "pymb demo: --mqtt: cannot connect to mqtt://127.0.0.1:1: ")
     assert "Traceback" not in r.stderr
+
+
+def test_unknown_device_says_the_closest_first() -> None:
+    """A typo in the TYPE: the closest name first, on a line a terminal shows
+    whole, with where to find the rest (not the dozens of shipped ids)."""
+    r = run_pymb("read", "hubb", "--tcp", "127.0.0.1:1", timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.startswith("pymb read: unknown device 'hubb'; did you mean 'hub'? A device "
+                               "is TYPE[:ADDRESS][,key=value...]")
+    assert "`pymb map list` shows the shipped maps" in r.stderr
+    assert len(r.stderr) < 240, r.stderr
+    r = run_pymb("read", "xyz", "--tcp", "127.0.0.1:1", timeout=60)
+    assert r.stderr.startswith("pymb read: unknown device 'xyz': a device is")
