@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
+import sys
 from typing import Any
 
 from pymb import maps
@@ -106,8 +108,13 @@ def run_list(args: argparse.Namespace) -> int:
     if args.json:
         print_json(rows)
         return 0
-    print(_table([["id", "title", "ref"]] + [[r["id"], r["title"], r["ref"] or "-"]
-                                              for r in rows]))
+    text = _table([["id", "title", "ref"]] + [[r["id"], r["title"], r["ref"] or "-"]
+                                              for r in rows])
+    if sys.stdout.isatty():  # a line a map, cut to the terminal (whole when piped)
+        width = shutil.get_terminal_size((80, 24)).columns or 80
+        text = "\n".join(ln if len(ln) < width else ln[:max(1, width - 2)] + "…"
+                          for ln in text.splitlines())
+    print(text)
     return 0
 
 

@@ -286,3 +286,18 @@ def test_unknown_device_says_the_closest_first() -> None:
     assert len(r.stderr) < 240, r.stderr
     r = run_pymb("read", "xyz", "--tcp", "127.0.0.1:1", timeout=60)
     assert r.stderr.startswith("pymb read: unknown device 'xyz': a device is")
+
+
+def test_map_list_fits_the_terminal() -> None:
+    """``pymb map list`` on 80 columns: a line a map, none wrapped; piped,
+    each line whole with the document it was written from."""
+    term = Pty(["map", "list"], cols=80, rows=24)
+    term.proc.wait(60)
+    term.interrupt()  # (ended: reads what is left)
+    assert term.proc.returncode == 0
+    lines = term.out.decode().splitlines()
+    assert len(lines) > 30
+    assert all(len(line) <= 80 for line in lines), max(lines, key=len)
+    assert any(line.startswith("abb-acs580 ") for line in lines)
+    r = run_pymb("map", "list", timeout=60)
+    assert "ABB ACS580 firmware manual" in r.stdout
