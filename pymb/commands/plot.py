@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
-        raise InvalidArgument(f"pymb plot needs matplotlib: {install_hint('plot')}") from None
+        raise InvalidArgument(f"drawing needs matplotlib: {install_hint('plot')}") from None
     out = args.out
     if out is not None:
         if os.path.splitext(out)[1].lower() not in FORMATS:

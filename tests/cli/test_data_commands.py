@@ -247,7 +247,7 @@ def test_plot_without_matplotlib_says_how_to_install_it(db: Path, tmp_path: Path
     done = subprocess.run([sys.executable, "-c", code, str(db)], capture_output=True,
                           text=True, env=PYMB_ENV, cwd=tmp_path, timeout=120, check=False)
     assert done.returncode == 2
-    assert done.stderr == f"pymb plot: pymb plot needs matplotlib: {install_hint('plot')}\n"
+    assert done.stderr == f"pymb plot: drawing needs matplotlib: {install_hint('plot')}\n"
     assert not list(tmp_path.iterdir())
 
 

@@ -93,7 +93,7 @@ def test_the_install_hint_runs(logged: tuple[Path, Path], tmp_path: Path) -> Non
     done = subprocess.run([sys.executable, "-c", code, str(db)], capture_output=True,
                           text=True, env=PYMB_ENV, cwd=tmp_path, timeout=120, check=False)
     assert done.returncode == 2
-    head = "pymb plot: pymb plot needs matplotlib: "
+    head = "pymb plot: drawing needs matplotlib: "
     assert done.stderr.startswith(head), done.stderr
     hint = shlex.split(done.stderr[len(head):].strip())
     assert hint[:4] == [sys.executable, "-m", "pip", "install"], hint
