@@ -1,7 +1,8 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * fuzz_transact.c - libFuzzer target: pymb's request path (pymb_transact,
- * pymb_read_registers and pymb_read_plan, for any slave address 0..255)
+ * pymb_read_registers and pymb_read_plan, for any slave address 0..255,
+ * and the extension's held plan that decodes after its reads, pymbi_plan_run)
  * over libmodbus and a real pseudo-terminal. The input is what the "device"
  * sends back: it is written to the pty's master side, then pymb makes one
  * request and must return either checked data or an error, never read
@@ -11,7 +12,9 @@
  * reply on the line *before* the request, as stale data that pymb must
  * discard); the rest is the reply, sent after each request. Requests 4 and
  * 5 go over a socket pair instead: Modbus TCP (pymb's MBAP parsing, the
- * transaction id check) and RTU over TCP.
+ * transaction id check) and RTU over TCP. In the plan's case, bit 6 runs
+ * the plan again held (pymbi_plan_run): it decodes only when every read
+ * has its reply, and then what was read.
  */
 #define _XOPEN_SOURCE 700
 #define _DEFAULT_SOURCE
@@ -201,6 +204,42 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                                 &fail);
         if ((rc == 0 && done != 3) || (rc == -1 && done > 2) || (rc != 0 && rc != -1)) {
             abort();
+        }
+        if (data[0] & 0x40) { /* the same plan held, decoding its last register */
+            pymb_map_entry e;
+            double value;
+            uint8_t state;
+            pymbi_map_job job;
+            pymbi_plan held;
+
+            memset(&e, 0, sizeof e);
+            e.type = PYMB_MAP_U16;
+            e.count = e.channels = 1;
+            e.first = 257;
+            pymb_map_order("AB", 2, e.order);
+            memset(&job, 0, sizeof job);
+            job.entries = &e;
+            job.nentries = 1;
+            job.regs = regs;
+            job.nregs = sizeof regs / sizeof regs[0];
+            job.out.values = &value;
+            job.out.states = &state;
+            job.out.len = 1;
+            memset(&held, 0, sizeof held);
+            held.reqs = plan;
+            held.n = 3;
+            held.regs = regs;
+            held.nregs = sizeof regs / sizeof regs[0];
+            held.then = &job;
+            if (pymbi_map_ready(&job) != 1) {
+                abort();
+            }
+            value = -1.0;
+            rc = pymbi_plan_run(line, &held, 0, &fail);
+            if ((rc == 0) != (held.decoded == 1) || held.done > 3 ||
+                (rc == 0 && value != (double)regs[257])) {
+                abort();
+            }
         }
         break;
     }
