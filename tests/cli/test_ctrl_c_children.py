@@ -34,9 +34,14 @@ def test_a_child_starts_with_sigint_at_its_default() -> None:
         # the run was started as a background job is, and it still ignores Ctrl-C
         assert SIGINT_AT_START is signal.SIG_IGN
         os.kill(os.getpid(), signal.SIGINT)
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"],
-                            stdin=subprocess.PIPE)
+    proc = subprocess.Popen([sys.executable, "-c",
+                             "import sys; print('up', flush=True); sys.stdin.read()"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
+        # past the interpreter's start-up: a Ctrl-C inside `site` is a fatal
+        # start-up error (exit 1), not the default handler's end
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "up\n"
         assert not _ignored(proc.pid)
         proc.send_signal(signal.SIGINT)
         assert proc.wait(30) == -signal.SIGINT  # ended by it, as from a terminal
