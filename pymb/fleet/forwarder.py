@@ -235,6 +235,8 @@ class Forwarder(threading.Thread, CommandTopics):
                                       "accumulating in the database")
                 if self._takeovers.said:
                     s.reason = f"taken over by another {self._takeovers.client_id}?"
+            else:  # the broker was away: not a takeover (a restart is not one)
+                self._takeovers.away()
             again = False
             reason = "connecting" if s is None else (s.reason or "disconnected")
             if reason != was_down and not (s is not None and s.ok):

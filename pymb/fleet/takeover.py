@@ -7,10 +7,12 @@ with the same client id, and the broker closes the first one's connection
 2.0 just closes the socket). Each reconnects and takes the session back,
 endlessly. What shows it here: the broker ends a connection it had accepted,
 within :data:`STABLE_S` seconds, :data:`IN_A_ROW` times in a row (or once
-saying "session taken over"). It is said once, in one line, and from the
-second such end in a row the reconnection waits its doubling backoff (the
-forwarder's, up to 30 s) instead of starting over, so two loggers take turns every few
-tens of seconds instead of hundreds of times a minute.
+saying "session taken over"), with no connection refused or unanswered in
+between (a restarted broker is away a moment; a takeover never is). It is
+said once, in one line, and from the second such end in a row the
+reconnection waits its doubling backoff (the forwarder's, up to 30 s) instead
+of starting over, so two loggers take turns every few tens of seconds instead
+of hundreds of times a minute.
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ class Takeovers:
     def up(self) -> None:
         """A connection was accepted (its CONNACK)."""
         self._since = self._clock()
+
+    def away(self) -> None:
+        """A connection could not be made: the broker was away (stopped,
+        restarting, out of reach), which a takeover never makes it; the
+        short-lived connections before are no longer in a row."""
+        self.short = 0
 
     def down(self, by_broker: bool, taken_over: bool) -> tuple[bool, str | None]:
         """The connection accepted last ended (``by_broker``: not by this side;

@@ -1,13 +1,15 @@
 """Two loggers with one node name take the broker's session from each other
 (the same client id): each says so once, as an event and a line on stderr,
-and reconnects with a growing backoff instead of hundreds of times a minute.
-Two ``pymb log`` processes, Debian's mosquitto, a simulated CoolPro."""
+and reconnects with a growing backoff instead of hundreds of times a minute;
+a broker restarted a few times is no takeover. ``pymb log`` processes,
+Debian's mosquitto, a simulated CoolPro."""
 
 from __future__ import annotations
 
 import sqlite3
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -64,6 +66,35 @@ def test_two_loggers_with_one_node_name_say_so_once_without_a_storm(
         assert "Traceback" not in err
 
 
+def test_a_broker_restarted_three_times_is_not_a_takeover(fleet: Fleet, tmp_path: Path,
+                                                          ) -> None:
+    """A broker restarted a few times within a minute is not another logger
+    taking the session: the logger reconnects each time as after any outage
+    and says nothing of a second logger with its node name."""
+    broker = fleet.broker()
+    sim = fleet.simulator("coolpro:40")
+    db = tmp_path / "r.sqlite"
+    proc = fleet.log(sim.endpoint, db, "--mqtt", broker.url, "--mqtt-node", "n1", commit=0.5)
+    connected = "connected to mqtt://"
+    wait_until(lambda: len(_events(db, connected)) == 1, "the first connection", 60)
+
+    def count(like: str, n: int) -> Callable[[], bool]:
+        return lambda: len(_events(db, like)) >= n
+
+    for n in range(IN_A_ROW):  # each connection lives a few seconds (< 60 s)
+        broker.stop()
+        # away long enough for the logger's first retry (0.5 s after the end) to fail
+        wait_until(count("cannot connect to", n + 1),
+                   "a retry refused while the broker is down", 60)
+        time.sleep(0.5)
+        broker.start()
+        wait_until(count(connected, n + 2), "the reconnection", 60)
+    assert not _events(db, "is another client connected as")
+    err = stop_log(proc)
+    assert "is another client connected as" not in err, err
+    assert "Traceback" not in err
+
+
 def test_what_counts_as_a_takeover() -> None:
     """Short-lived connections ended by the broker, in a row; one that lasts,
     or one this side ended, starts the count over."""
@@ -94,3 +125,7 @@ def test_what_counts_as_a_takeover() -> None:
     assert line.startswith("the broker says another client took over this session: is "
                            "another client connected as pymb-plain-n1 (a second logger "
                            "with the node name 'n1')?")
+    assert ended(STABLE_S) == (True, None)
+    assert ended(1.0) == (True, None)
+    t.away()  # a connection attempt failed: the broker was away, not taken over
+    assert ended(1.0) == (True, None)  # (without it: False, a second in a row)
