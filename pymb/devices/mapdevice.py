@@ -27,7 +27,7 @@ from typing import Any
 
 from pymb.client import Client
 from pymb.devices import writeio
-from pymb.devices.mapfetch import Fetcher, Image, Read
+from pymb.devices.mapfetch import Fetcher, Image, Read, mark_unread
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapwrite import (
     Budget,
@@ -317,7 +317,8 @@ class MapDevice:
                     decode()
                 buffers.registers = registers
             if self._fetcher.marked:
-                self._mark_unread(r.points, r.images)
+                mark_unread(self._fetcher.unread, r.points, self._points, self._first,
+                            r.images)
             if skipped:
                 nan, code = math.nan, _NOT_READ
                 for b, slot in skipped:
@@ -347,20 +348,6 @@ class MapDevice:
         finally:
             lock.release()
         return r.fetched
-
-    def _mark_unread(self, points: Sequence[int], images: dict[str, Image]) -> None:
-        """In the decoders' arrays: NaN and ``unsupported`` where this read got
-        no value."""
-        unread, code = self._fetcher.unread, STATES.index("unsupported")
-        for i in points:
-            p = self._points[i]
-            k0 = self._first[i]
-            b = images[p.table].decoder.buffers
-            slot = images[p.table].decoder.slot(p.name)
-            for c in range(p.channels):
-                if unread[k0 + c]:
-                    b.values[slot + c] = math.nan
-                    b.states[slot + c] = code
 
     def read_group(self, group: str | None = None) -> MapReading:
         """Read ``group`` (every readable point for None) as the logger keeps

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import time
 from array import array
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from itertools import groupby
 from operator import attrgetter
@@ -25,11 +25,12 @@ from pymb._native.mapdecode import MapJob
 from pymb.client import Client
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
-from pymb.maps import Buffers, Decoder, Map
+from pymb.maps import Buffers, Decoder, Map, Point
 from pymb.maps.device_plan import PointPlanner
 from pymb.maps.planner import BIT_TABLES, ReadPlan, Request, on_refusal, replans
+from pymb.maps.types import STATES
 
-__all__ = ["Fetcher", "Image", "Read", "Run"]
+__all__ = ["Fetcher", "Image", "Read", "Run", "mark_unread"]
 
 _NEVER = math.inf
 _monotonic = time.monotonic
@@ -41,6 +42,23 @@ class Image(NamedTuple):
     address: int  #: of its first register
     registers: array[int]
     decoder: Decoder
+
+
+def mark_unread(unread: bytearray, points: Sequence[int], defs: Sequence[Point],
+                first: Sequence[int], images: dict[str, Image]) -> None:
+    """In the decoders' arrays of ``images``: NaN and ``unsupported`` where a
+    read got no value (``unread``, a byte per item; ``points`` index ``defs``,
+    each point's first item is ``first``'s)."""
+    code = STATES.index("unsupported")
+    for i in points:
+        p = defs[i]
+        k0 = first[i]
+        b = images[p.table].decoder.buffers
+        slot = images[p.table].decoder.slot(p.name)
+        for c in range(p.channels):
+            if unread[k0 + c]:
+                b.values[slot + c] = math.nan
+                b.states[slot + c] = code
 
 
 class Run(NamedTuple):
