@@ -222,10 +222,13 @@ class Device(abc.ABC):
         """The line is quiet: a chance to bring values up to date off the
         request path."""
 
-    @abc.abstractmethod
     def sensor_fault(self, rng: random.Random, seconds: float, *, bits: int | None = None,
                      channels: Sequence[int] | None = None) -> str:
-        """Raise a sensor fault for ``seconds``; returns what it did."""
+        """Raise a sensor fault for ``seconds``; returns what it did. A device
+        without sensors (the default) does nothing and says so: a subclass
+        that only answers requests needs only :meth:`handle`."""
+        del rng, seconds, bits, channels
+        return "no sensors to fault"
 
     def describe(self) -> str:
         """One line for the command line's banner."""

@@ -74,6 +74,6 @@ def test_the_template_bases_name_their_hooks() -> None:
         "PurePythonClient": {"read"},
         "Store": {"batch", "write"},
         "Profile": {"will", "births", "data", "goodbye"},
-        "Device": {"handle", "sensor_fault"},
+        "Device": {"handle"},
         "SimServer": {"_open", "_close", "_serve_once"},
     }
