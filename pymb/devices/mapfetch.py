@@ -157,7 +157,7 @@ class Fetcher:
         decodes it: True when every table was decoded so (no fallback)."""
         planner, client = self.planner, self.client
         if (r.version != planner.version or not client.connected
-                or client.connections - client.resends != self._connections
+                or client.connections - client.resends != self._connections  # _fresh, inline
                 or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
             self._remake(r)
         runs = r.decoding if decode else None
@@ -399,4 +399,4 @@ def _fresh(client: Client) -> int:
     """The client's connections that may be to another device: not those it
     opened to send a read again to a device that closes a connection after
     each reply (what the device taught holds on those)."""
-    return client.connections - getattr(client, "resends", 0)
+    return client.connections - client.resends
