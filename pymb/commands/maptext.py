@@ -154,7 +154,7 @@ def _labelled(p: Point, value: Any, state: Any) -> str:
         undeclared = raw & ~sum(1 << bit for bit in p.flags)
         return text + (f" reserved bits 0x{undeclared:04X}" if undeclared else "")
     if isinstance(value, float):
-        text = f"{value:.{p.precision}f}" if p.precision is not None else f"{value:g}"
+        text = number_text(p, value)
     elif isinstance(value, int) and p.values and value in p.values:
         text = f"{value} ({p.values[value]})"
     else:
@@ -164,8 +164,8 @@ def _labelled(p: Point, value: Any, state: Any) -> str:
 
 def labelled_text(m: Map, values: Mapping[str, Any], states: Mapping[str, Any]) -> str:
     """Points as lines ``Label  value unit``, in the map's order: the label
-    the first words of the point's description, a number with its
-    ``precision``, a bit field as its raw value and the names of the bits
+    the first words of the point's description, a number with the digits
+    :func:`number_text` gives it, a bit field as its raw value and the names of the bits
     set (``ok`` for none; undeclared bits set as ``reserved bits``)."""
     lines = []
     for n in (n for n in m.points if n in values):

@@ -84,3 +84,31 @@ def test_any_maps_indexed_array_is_a_table() -> None:
     assert table_text(m, values, states, ["flow_lpm"]).splitlines()[-1] == \
         "not supported by this firmware: flow_lpm"
     assert labelled_text(m, {"alarm": 3}, {"alarm": "value"}) == "alarm            3"
+
+
+ENERGY = '''schema = "pymb.map/1"
+[device]
+id = "meter"
+[[point]]
+name = "energy_kwh"
+address = 0
+type = "f32"
+unit = "kWh"
+description = "Import energy"
+[[point]]
+name = "voltage_v"
+address = 2
+type = "u16"
+scale = 0.1
+unit = "V"
+description = "Voltage"
+'''
+
+
+def test_a_line_a_point_shows_the_digits_a_number_has() -> None:
+    # the rule number_text keeps for every map point: an f32's shortest digits
+    # (123456.7, not 6 significant digits' 123457), a scale's decimals
+    m = maps.loads(ENERGY, source="meter.toml")
+    text = labelled_text(m, {"energy_kwh": 123456.703125, "voltage_v": 230.0},
+                         {"energy_kwh": "value", "voltage_v": "value"})
+    assert text.splitlines() == ["Import energy    123456.7 kWh", "Voltage          230.0 V"]
