@@ -30,12 +30,12 @@ import math
 import random
 import threading
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from pymb.errors import InvalidArgument
 
-__all__ = ["KINDS", "RTU_ONLY", "Fault", "Faults", "parse_fault"]
+__all__ = ["KINDS", "RTU_ONLY", "Fault", "Faults", "framed", "parse_fault"]
 
 KINDS = ("no_reply", "late", "bad_crc", "truncate", "stray", "wrong_address", "exception",
          "busy", "sensor", "unplug")
@@ -178,6 +178,28 @@ class Faults:
         if fault.kind == "stray" and fault.extra is None:
             fault = replace(fault, extra=bytes(self._rng.randrange(256) for _ in range(3)))
         return fault
+
+
+def framed(frame: Callable[[int], bytes], address: int, fault: Fault | None) -> bytes:
+    """The reply ``frame(address)`` (its framing's bytes, from the device at
+    ``address``) with the framing faults applied: ``wrong_address`` frames it
+    from another address; ``bad_crc`` spoils its last two bytes (RTU's CRC:
+    never picked for TCP); ``truncate`` and ``stray`` cut it short or add
+    bytes after it. The one rule of the faults in a framing, RTU's and TCP's."""
+    if fault is not None and fault.kind == "wrong_address":
+        address = fault.to if fault.to is not None else address % 247 + 1
+    adu = frame(address)
+    if fault is None:
+        return adu
+    kind = fault.kind
+    if kind == "bad_crc":
+        return adu[:-2] + bytes((adu[-2] ^ 0xFF, adu[-1] ^ 0x5A))
+    if kind == "truncate":
+        keep = fault.keep if fault.keep is not None else len(adu) // 2
+        return adu[:min(keep, len(adu) - 1)]
+    if kind == "stray":
+        return adu + (fault.extra or b"\x00")
+    return adu
 
 
 def _make(kind: str, params: dict[str, object]) -> Fault:

@@ -30,7 +30,7 @@ import tty
 
 from pymb import _native
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, silence, sleep_until
-from pymb.sim.faults import Fault
+from pymb.sim.faults import Fault, framed
 from pymb.sim.server import SimServer
 
 __all__ = ["PtyPort", "RtuServer", "SerialPort", "frame_rtu"]
@@ -121,20 +121,7 @@ class SerialPort:
 
 def frame_rtu(address: int, pdu: bytes, fault: Fault | None) -> bytes:
     """The RTU reply frame (address, PDU, CRC) with the framing faults applied."""
-    if fault is not None and fault.kind == "wrong_address":
-        address = fault.to if fault.to is not None else address % 247 + 1
-    adu = _native.with_crc(bytes((address,)) + pdu)
-    if fault is None:
-        return adu
-    kind = fault.kind
-    if kind == "bad_crc":
-        return adu[:-2] + bytes((adu[-2] ^ 0xFF, adu[-1] ^ 0x5A))
-    if kind == "truncate":
-        keep = fault.keep if fault.keep is not None else len(adu) // 2
-        return adu[:min(keep, len(adu) - 1)]
-    if kind == "stray":
-        return adu + (fault.extra or b"\x00")
-    return adu
+    return framed(lambda a: _native.with_crc(bytes((a,)) + pdu), address, fault)
 
 
 class RtuServer(SimServer):

@@ -25,13 +25,13 @@ import logging
 import select
 import selectors
 import socket
-import struct
 import time
 
 from pymb import _native
+from pymb._native.serve import BadFrame, mbap_frame, take_frames
 from pymb.errors import InvalidArgument
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
-from pymb.sim.faults import Fault
+from pymb.sim.faults import Fault, framed
 from pymb.sim.rtu import frame_rtu
 from pymb.sim.server import SimServer
 
@@ -39,8 +39,6 @@ __all__ = ["MAX_PORTS", "TcpServer", "format_ports", "frame_tcp", "parse_ports"]
 
 log = logging.getLogger("pymb.sim")
 
-_MBAP = struct.Struct(">HHHB")  # transaction, protocol (0), length, unit
-_MAX_PDU = 253  # [MB-AP] 4.1
 _SEND_WAIT_S = 1.0
 #: [MB-TCP] 4.4.1: unit 0xFF addresses a TCP device itself (mbpoll sends it)
 _UNIT_NOT_USED = 0xFF
@@ -76,17 +74,7 @@ def format_ports(ports: list[int]) -> str:
 
 def frame_tcp(tid: int, unit: int, pdu: bytes, fault: Fault | None) -> bytes:
     """The MBAP reply with the framing faults applied."""
-    if fault is not None and fault.kind == "wrong_address":
-        unit = fault.to if fault.to is not None else unit % 247 + 1
-    adu = _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu
-    if fault is None:
-        return adu
-    if fault.kind == "truncate":
-        keep = fault.keep if fault.keep is not None else len(adu) // 2
-        return adu[:min(keep, len(adu) - 1)]
-    if fault.kind == "stray":
-        return adu + (fault.extra or b"\x00")
-    return adu
+    return framed(lambda u: mbap_frame(tid, u, pdu), unit, fault)
 
 
 class TcpServer(SimServer):
@@ -202,17 +190,14 @@ class TcpServer(SimServer):
         if self.rtu_framing:
             self._receive_rtu(conn, buf, end)
             return
-        while len(buf) >= _MBAP.size:
-            tid, proto, length, unit = _MBAP.unpack_from(buf)
-            if proto != 0 or not 2 <= length <= _MAX_PDU + 1:
-                self.bus.stats.bad_frames += 1
-                self._drop(conn)
-                return
-            if len(buf) < 6 + length:
-                return
-            pdu = bytes(buf[_MBAP.size:6 + length])
-            del buf[:6 + length]
-            self._dispatch(conn, tid, unit, pdu, end)
+        try:
+            frames = take_frames(buf)  # the C core's MBAP length rule, as pymb serve's
+        except BadFrame:
+            self.bus.stats.bad_frames += 1
+            self._drop(conn)
+            return
+        for frame in frames:
+            self._dispatch(conn, frame[0] << 8 | frame[1], frame[6], frame[7:], end)
             if conn not in self._clients:
                 return
 
@@ -251,8 +236,12 @@ class TcpServer(SimServer):
             if out.fault is not None and out.fault.kind == "unplug":
                 self._apply("unplug", out.fault.seconds)
             return
-        reply = (frame_rtu(unit, out.pdu, out.fault) if self.rtu_framing
-                 else frame_tcp(tid, unit, out.pdu, out.fault))
+        try:
+            reply = (frame_rtu(unit, out.pdu, out.fault) if self.rtu_framing
+                     else frame_tcp(tid, unit, out.pdu, out.fault))
+        except ValueError as e:  # a handle's reply that no MBAP frame holds
+            log.warning("%s at address %d: %s: not sent", out.device.kind, address, e)
+            return
         self.bus.stats.served(time.perf_counter_ns() - t0)
         delay = out.delay
         baud = self.emulate_baud
