@@ -1,19 +1,22 @@
 """One read of a map device's polling group as the logger keeps it:
 :class:`MapReading`, the registers the group's requests read (stored once,
 as the hub's sweep is) with the values and states the C decoder made of
-them, and :func:`group_layout`, where each table's registers sit in them."""
+them, :func:`group_layout`, where each table's registers sit in them, and
+:class:`GroupDecode`, what decodes them."""
 
 from __future__ import annotations
 
+import threading
 from array import array
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymb.maps import Decoder, Map, Value
+from pymb.maps.device_plan import MapItems
 from pymb.maps.types import STATES
 
-__all__ = ["Blocks", "MapReading", "group_layout", "group_points"]
+__all__ = ["Blocks", "GroupDecode", "MapReading", "group_layout", "group_points"]
 
 
 def group_points(m: Map, group: str | None) -> list[str]:
@@ -32,6 +35,70 @@ def group_layout(m: Map, group: str | None) -> list[Decoder]:
     for name in group_points(m, group):
         tables.setdefault(m.points[name].table, []).append(name)
     return [Decoder(m, names) for names in tables.values()]
+
+
+class GroupDecode:
+    """A group's registers (laid out as :func:`group_layout` says) decoded as
+    MapDevice decodes them: a C decoder per table, NaN/None and
+    ``unsupported`` where the device refused a point. The one decoder of a
+    stored or polled group: the TCP logger's samples and the store's reader
+    decode with it. ``items``: the map's planner items (made when not given)."""
+
+    def __init__(self, m: Map, group: str | None, items: MapItems | None = None) -> None:
+        if items is None:
+            items = MapItems.of(m)
+        self.map = m
+        self.group = group
+        self.decoders = group_layout(m, group)
+        self.names = group_points(m, group)
+        index = {p.name: i for i, p in enumerate(items.points)}
+        # (name, first item, channels, block) of each point of the group
+        self.points = [(n, items.first[index[n]], items.points[index[n]].channels,
+                        items.points[index[n]].block) for n in self.names]
+        self.items = frozenset(k for _, k0, n, _ in self.points for k in range(k0, k0 + n))
+        self.lock = threading.Lock()  # the decoders' arrays are shared
+
+    def layout(self) -> dict[str, tuple[int, int, int]]:
+        """Table -> (first address, registers, byte offset in the image)."""
+        out, off = {}, 0
+        for d in self.decoders:
+            out[d.table] = (d.address, d.count, off)
+            off += 2 * d.count
+        return out
+
+    def unread_of(self, names: Iterable[str]) -> frozenset[int]:
+        """The items of the group's points ``names`` (a block's every channel)."""
+        want = set(names)
+        return frozenset(k for n, k0, c, _ in self.points if n in want for k in range(k0, k0 + c))
+
+    def unsupported(self, unread: frozenset[int]) -> tuple[str, ...]:
+        """The group's points with an item in ``unread``, in map order."""
+        return tuple(n for n, k0, c, _ in self.points if not unread.isdisjoint(range(k0, k0 + c)))
+
+    def decode(self, regs: array[int], unread: frozenset[int]
+               ) -> tuple[dict[str, Value], dict[str, Any]]:
+        """(values, states) of the group's points from its registers."""
+        values: dict[str, Value] = {}
+        states: dict[str, Any] = {}
+        at = 0
+        with self.lock:
+            for dec in self.decoders:
+                b = dec.decode(regs[at:at + dec.count])
+                at += dec.count
+                values.update(dec.values(b))
+                states.update(dec.states(b))
+        for name, k0, channels, block in self.points if unread else ():
+            if unread.isdisjoint(range(k0, k0 + channels)):
+                continue
+            if block:
+                v, st = values[name], states[name]
+                assert isinstance(v, list)
+                for c in range(channels):
+                    if k0 + c in unread:
+                        v[c], st[c] = None, "unsupported"
+            else:
+                values[name], states[name] = None, "unsupported"
+        return {n: values[n] for n in self.names}, {n: states[n] for n in self.names}
 
 
 class Blocks:

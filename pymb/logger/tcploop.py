@@ -40,6 +40,7 @@ from pymb._native import exception_errno
 from pymb._native.master import PollTable
 from pymb._native.serve import mbap_frame
 from pymb.client.address import is_mbaps, parse_host_port
+from pymb.devices.mapreading import GroupDecode
 from pymb.errors import ModbusConnectionError, ModbusError, request_error
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
@@ -49,7 +50,7 @@ from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
-from pymb.logger.tcpunits import Entry, GroupDecode, PollRequest, Unit, poll_sample
+from pymb.logger.tcpunits import Entry, PollRequest, Unit, poll_sample
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample

@@ -2,8 +2,9 @@
 device and per polling group: :class:`Unit` (a map device at a unit id: its
 planner, timing and health), :class:`Entry` (one group of a unit: its
 schedule, its prepared requests and its sample image) and
-:class:`GroupDecode` (the group's registers decoded only when someone asks
-for the values: the SQLite writer stores the registers and never does).
+:class:`~pymb.devices.mapreading.GroupDecode` (the group's registers
+decoded only when someone asks for the values: the SQLite writer stores the
+registers and never does).
 
 An entry's image is laid out as the store keeps a map reading
 (:func:`pymb.devices.mapreading.group_layout`): each table's registers, from
@@ -15,7 +16,6 @@ slice assignment; a poll's sample is that image, copied once.
 from __future__ import annotations
 
 import sys
-import threading
 from array import array
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -23,15 +23,15 @@ from typing import Any
 
 from pymb._native.master import MasterRead, PollTable
 from pymb.devices.deviceconfig import DeviceConfig
-from pymb.devices.mapreading import MapReading, group_layout, group_points
+from pymb.devices.mapreading import GroupDecode, MapReading
 from pymb.logger.schedule import Health, Slot
-from pymb.maps import Map, Value
+from pymb.maps import Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
 from pymb.store import DeviceInfo, Sample
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "GroupDecode", "PollRequest", "Unit", "poll_sample"]
+__all__ = ["Entry", "PollRequest", "Unit", "poll_sample"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -84,60 +84,6 @@ class PollRequest(MasterRead):
     def __init__(self, r: Request, offset: int) -> None:
         super().__init__(r.function, r.address, r.count, offset)
         self.request = r
-
-
-class GroupDecode:
-    """A group's registers decoded as MapDevice decodes them: a C decoder per
-    table, NaN/None and ``unsupported`` where the device refused a point."""
-
-    def __init__(self, m: Map, group: str | None, items: MapItems) -> None:
-        self.map = m
-        self.group = group
-        self.decoders = group_layout(m, group)
-        self.names = group_points(m, group)
-        index = {p.name: i for i, p in enumerate(items.points)}
-        # (name, first item, channels, block) of each point of the group
-        self.points = [(n, items.first[index[n]], items.points[index[n]].channels,
-                        items.points[index[n]].block) for n in self.names]
-        self.items = frozenset(k for _, k0, n, _ in self.points for k in range(k0, k0 + n))
-        self.lock = threading.Lock()  # the decoders' arrays are shared
-
-    def layout(self) -> dict[str, tuple[int, int, int]]:
-        """Table -> (first address, registers, byte offset in the image)."""
-        out, off = {}, 0
-        for d in self.decoders:
-            out[d.table] = (d.address, d.count, off)
-            off += 2 * d.count
-        return out
-
-    def unsupported(self, unread: frozenset[int]) -> tuple[str, ...]:
-        """The group's points with an item in ``unread``, in map order."""
-        return tuple(n for n, k0, c, _ in self.points if not unread.isdisjoint(range(k0, k0 + c)))
-
-    def decode(self, regs: array[int], unread: frozenset[int]
-               ) -> tuple[dict[str, Value], dict[str, Any]]:
-        """(values, states) of the group's points from its registers."""
-        values: dict[str, Value] = {}
-        states: dict[str, Any] = {}
-        at = 0
-        with self.lock:
-            for dec in self.decoders:
-                b = dec.decode(regs[at:at + dec.count])
-                at += dec.count
-                values.update(dec.values(b))
-                states.update(dec.states(b))
-        for name, k0, channels, block in self.points:
-            if unread.isdisjoint(range(k0, k0 + channels)):
-                continue
-            if block:
-                v, st = values[name], states[name]
-                assert isinstance(v, list)
-                for c in range(channels):
-                    if k0 + c in unread:
-                        v[c], st[c] = None, "unsupported"
-            else:
-                values[name], states[name] = None, "unsupported"
-        return {n: values[n] for n in self.names}, {n: states[n] for n in self.names}
 
 
 class _Decoded:

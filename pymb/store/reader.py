@@ -13,10 +13,10 @@ from collections.abc import Iterator, Mapping, Sequence
 from pymb import maps
 from pymb.devices.hub import blocks_in_other_units
 from pymb.devices.hub import units as humidity_units
-from pymb.devices.mapreading import Blocks, MapReading, group_layout, group_points
+from pymb.devices.mapreading import Blocks, GroupDecode, MapReading, group_points
 from pymb.devices.readings import map_reading, reading_view
 from pymb.errors import InvalidArgument
-from pymb.maps import Decoder, Map, MapError, Point, PointState, Value
+from pymb.maps import Map, MapError, Point
 from pymb.maps.types import STATES
 from pymb.store.readonly import open_readonly
 from pymb.store.records import DeviceInfo, StoredSample
@@ -124,16 +124,15 @@ class _Device:
         self.unit, self.other = humidity_units(unit, self.channels) if units else (0.1, b"")
         if has_map(db, kind):
             found = stored_map(db, kind, layout, given)
-            decoders = None if found is None else group_layout(*found)
+            how = None if found is None else GroupDecode(*found)
         else:  # the shipped map's, made once
-            key = (kind, self.channels, self.unit if units else None)
-            found, decoders = _shipped(*key), _shipped_layout(*key)
-        if found is None or decoders is None:
+            how = _shipped_decode(kind, self.channels, self.unit if units else None)
+        if how is None:
             raise InvalidArgument(f"the database has no map {kind!r} for device {name}")
-        self.map, self.group = found
-        self.decoders = decoders
-        self.buffers = [d.new_buffers() for d in decoders]  # this reader's own
-        self.names = group_points(self.map, self.group)
+        self.how = how
+        self.map, self.group, self.names = how.map, how.group, how.names
+        self.decoders = how.decoders
+        self.buffers = [d.new_buffers() for d in self.decoders]  # this reader's own
 
     def reading(self, db: sqlite3.Connection, did: int, t: float, sid: int,
                 blob: bytes | None, unsupported: int) -> MapReading:
@@ -149,22 +148,8 @@ class _Device:
                 if unsupported >> min(i, MAP_UNSUPPORTED_BITS) & 1]
         if self.channels:
             return self._blocks(regs, gone, present)
-        values: dict[str, Value] = {}
-        states: dict[str, PointState] = {}
-        at = 0
-        for dec, into in zip(self.decoders, self.buffers, strict=True):
-            b = dec.decode(regs[at:at + dec.count], into)
-            values.update(dec.values(b))
-            states.update(dec.states(b))
-            at += dec.count
-        for n in gone:
-            v = values[n]
-            if isinstance(v, list):
-                values[n], states[n] = [None] * len(v), ["unsupported"] * len(v)
-            else:
-                values[n], states[n] = None, "unsupported"
-        return MapReading(self.map, self.group, {n: values[n] for n in self.names},
-                          {n: states[n] for n in self.names}, regs, tuple(gone))
+        values, states = self.how.decode(regs, self.how.unread_of(gone) if gone else _NONE)
+        return MapReading(self.map, self.group, values, states, regs, tuple(gone))
 
     def _by_channel(self, db: sqlite3.Connection, did: int, t: float, sid: int
                     ) -> tuple[array[int], list[int]]:
@@ -215,6 +200,7 @@ class _Device:
 
 
 _UNSUPPORTED, _NOT_READ = STATES.index("unsupported"), STATES.index("not_read")
+_NONE: frozenset[int] = frozenset()
 
 
 def has_map(db: sqlite3.Connection, kind: str) -> bool:
@@ -249,9 +235,9 @@ def _shipped(kind: str, channels: int, unit: float | None) -> tuple[Map, str | N
 
 
 @functools.lru_cache(maxsize=64)
-def _shipped_layout(kind: str, channels: int, unit: float | None) -> list[Decoder] | None:
+def _shipped_decode(kind: str, channels: int, unit: float | None) -> GroupDecode | None:
     got = _shipped(kind, channels, unit)
-    return None if got is None else group_layout(*got)
+    return None if got is None else GroupDecode(*got)
 
 
 def _connect(db: sqlite3.Connection | str | os.PathLike[str]) -> tuple[sqlite3.Connection, bool]:

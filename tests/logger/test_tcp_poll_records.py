@@ -11,8 +11,8 @@ import struct
 import weakref
 
 from pymb import maps
-from pymb.devices.mapreading import MapReading
-from pymb.logger.tcpunits import TCP_LINE, GroupDecode, poll_sample
+from pymb.devices.mapreading import GroupDecode, MapReading
+from pymb.logger.tcpunits import TCP_LINE, poll_sample
 from pymb.maps.device_plan import map_planner
 from pymb.store import DeviceInfo, Sample
 

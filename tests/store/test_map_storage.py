@@ -460,3 +460,26 @@ def test_a_files_older_views_are_made_again_when_it_is_logged_to(tmp_path: Path)
     got = [r[0] for r in con.execute(f"SELECT text FROM {readings} ORDER BY sample_id")]
     con.close()
     assert got == [first.values["text"], second.values["text"]]
+
+
+def test_points_the_device_refused_read_back_unsupported(tmp_path: Path) -> None:
+    m = maps.loads(EVERY_TYPE)
+    r = random_reading(m, "a", random.Random(3))
+    gone = ("i16", "temps")
+    values, states = dict(r.values), dict(r.states)
+    values["i16"], states["i16"] = None, "unsupported"
+    values["temps"], states["temps"] = [None] * 4, ["unsupported"] * 4
+    refused = MapReading(m, "a", values, states, r.registers, gone)
+    db = tmp_path / "gone.sqlite"
+    sink = SqliteSink(db)
+    info = DeviceInfo("bus1", "127.0.0.1:502", "every-type", 3, "meter", map_source=EVERY_TYPE)
+    sink.write(Sample(info, time.time(), 1.0, refused))
+    sink.write(Sample(info, time.time() + 1, 2.0, r))
+    sink.close()
+    first, second = (s.data for s in samples_after(db, 0))
+    assert isinstance(first, MapReading)
+    assert isinstance(second, MapReading)
+    assert first.unsupported == gone
+    assert (dict(first.values), dict(first.states)) == (values, states)
+    assert second.unsupported == ()
+    assert (dict(second.values), dict(second.states)) == (dict(r.values), dict(r.states))
