@@ -26,7 +26,7 @@ from pymb.commands._common import (
 )
 from pymb.commands.maptext import map_json, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
-from pymb.devices import CoolPro, CoolProIdentity
+from pymb.devices import CoolProIdentity
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.identify import Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
@@ -39,8 +39,12 @@ from pymb.devices.mapspec import (
     parse_map_device,
     unknown_device,
 )
+from pymb.devices.readings import identity_view
 from pymb.errors import DeviceException, InvalidArgument, ProtocolError
 from pymb.maps.model import did_you_mean
+
+#: the group a map's device says what it is with, read on request (``--identity``)
+IDENTITY = "identity"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,16 +95,19 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
     return one
 
 
-def identity_of(dev: DeviceConfig, client: Client) -> CoolProIdentity | Identity | None:
-    """What the device says it is: a CoolPro's identity registers; for a hub
-    its channels and firmware (see :mod:`pymb.devices.identify`)."""
+def identity_of(dev: DeviceConfig, client: Client
+                ) -> CoolProIdentity | MapReading | Identity | None:
+    """What the device says it is: its map's ``identity`` group (read on
+    request) as its view shows it (a CoolPro's serial number, firmware and
+    manufacture date); for a map without one, what identification finds (a
+    hub's channels and firmware: :mod:`pymb.devices.identify`)."""
     assert dev.address is not None
-    if dev.type == "coolpro":
-        return CoolPro(client, dev.address).read_identity()
+    if IDENTITY in dev.map.groups:
+        return identity_view(dev.open(client)[1](IDENTITY))
     return identify(client_asker(client), dev.address)
 
 
-def identity_text(ident: CoolProIdentity | Identity | None) -> str:
+def identity_text(ident: CoolProIdentity | MapReading | Identity | None) -> str:
     """The identity as lines of text."""
     if ident is None:
         return "Identity         nothing answers to the identification"
@@ -109,7 +116,7 @@ def identity_text(ident: CoolProIdentity | Identity | None) -> str:
     return render(ident)
 
 
-def identity_json(ident: CoolProIdentity | Identity | None) -> Any:
+def identity_json(ident: CoolProIdentity | MapReading | Identity | None) -> Any:
     """The identity as JSON."""
     if isinstance(ident, Identity):
         return {"device": ident.device, "detail": ident.detail, "channels": ident.channels,
@@ -126,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     client = make_client(args)
     read = reader(dev, client)
 
-    def io() -> tuple[Any, float, CoolProIdentity | Identity | None]:
+    def io() -> tuple[Any, float, CoolProIdentity | MapReading | Identity | None]:
         with client:
             t0 = time.monotonic()
             data = read()

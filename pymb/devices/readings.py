@@ -18,7 +18,13 @@ from array import array
 from typing import Any
 
 from pymb import maps
-from pymb.devices.coolpro import CoolProStatus, CoolProTelemetry, decode_telemetry
+from pymb.devices.coolpro import (
+    CoolProIdentity,
+    CoolProStatus,
+    CoolProTelemetry,
+    decode_identity,
+    decode_telemetry,
+)
 from pymb.devices.hub import HubReading, State
 from pymb.devices.hubreading import BLOCKS, HUB_REGISTERS
 from pymb.devices.mapreading import Blocks, MapReading
@@ -30,6 +36,7 @@ __all__ = [
     "STATE_NAMES",
     "Reading",
     "has_own_view",
+    "identity_view",
     "map_reading",
     "reading_dict",
     "reading_view",
@@ -173,4 +180,14 @@ def reading_view(data: MapReading) -> Reading:
         return _hub_view(data)
     if data.map.id == _COOLPRO.id and data.group == "telemetry":
         return decode_telemetry(array("H", data.registers))
+    return data
+
+
+def identity_view(data: MapReading) -> CoolProIdentity | MapReading:
+    """A reading of a map's ``identity`` group as its view shows it: the
+    CoolPro's as the :class:`~pymb.devices.CoolProIdentity` ``CoolPro``
+    gives (its serial number, hardware revision, firmware version and
+    manufacture date); any other as it is."""
+    if data.map.id == _COOLPRO.id and data.group == "identity":
+        return decode_identity(array("H", data.registers))
     return data
