@@ -8,13 +8,13 @@ milliunits to volts, amps and °C, 32-bit values low word first.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import threading
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import KEEP, IntFlag
+from typing import TypeVar
 
 from pymb import maps
 from pymb.client import Client
@@ -48,12 +48,15 @@ class CoolProStatus(IntFlag, boundary=KEEP):
 
 
 _new = object.__new__
+_STATUSES: dict[int, CoolProStatus] = {}  #: flag values repeat from read to read
 
 
-@functools.lru_cache(maxsize=1024)
 def _status(raw: int) -> CoolProStatus:
-    """CoolProStatus(raw), cached: flag values repeat from read to read."""
-    return CoolProStatus(raw)
+    """CoolProStatus(raw), kept in :data:`_STATUSES` (at most 1024 of them)."""
+    if len(_STATUSES) >= 1024:
+        _STATUSES.clear()
+    s = _STATUSES[raw] = CoolProStatus(raw)
+    return s
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,7 @@ def _coolpro_map() -> Map:
 
 
 _MAP = _coolpro_map()
+T = TypeVar("T")
 
 
 def coolpro_device(client: Client, address: int) -> MapDevice:
@@ -151,8 +155,10 @@ _IDENTITY = _Group(Decoder(_MAP, [p.name for p in _MAP.points.values()
 def _telemetry(g: _Group, b: Buffers, regs: array[int]) -> CoolProTelemetry:
     # The result's fields are set directly (a frozen dataclass's __init__
     # makes a call per field): this is a CoolPro logger's hot path.
-    vals, ints = b.values, b.ints
+    vals, ints = b.values.tolist(), b.ints
     f, i = g.floats, g.ints
+    raw = ints[i[1]]
+    status = _STATUSES.get(raw)
     t = _new(CoolProTelemetry)
     d = t.__dict__
     d["input_voltage_v"] = vals[f[0]]
@@ -161,7 +167,7 @@ def _telemetry(g: _Group, b: Buffers, regs: array[int]) -> CoolProTelemetry:
     d["output_current_a"] = vals[f[3]]
     d["temperature_c"] = vals[f[4]]
     d["uptime_s"] = ints[i[0]]
-    d["status"] = _status(ints[i[1]])
+    d["status"] = status if status is not None else _status(raw)
     d["registers"] = regs
     return t
 
@@ -220,8 +226,9 @@ class CoolPro:
         self._address = self._valid_address(address)
         self._pending_address: int | None = None
         self.device = coolpro_device(client, self._address)
-        #: per group read: its prepared read, the slots of its points, its registers
-        self._groups: dict[str, tuple[Callable[[], object], _Group, array[int]]] = {}
+        #: per group read: its prepared read, which returns the group decoded
+        self._groups: dict[str, Callable[[], object]] = {}
+        self._telemetry: Callable[[], CoolProTelemetry] | None = None
 
     @property
     def address(self) -> int:
@@ -233,6 +240,7 @@ class CoolPro:
         self._address = self._valid_address(address)
         self.device = coolpro_device(self.client, self._address)
         self._groups = {}
+        self._telemetry = None
 
     @staticmethod
     def _valid_address(address: int) -> int:
@@ -243,27 +251,30 @@ class CoolPro:
             raise InvalidArgument(f"CoolPro address must be {low}..{high}, got {address!r}")
         return address
 
-    def _group(self, name: str, model: _Group) -> tuple[Callable[[], object], _Group,
-                                                         array[int]]:
-        """``name``'s group made ready: its prepared read, the slots of its
-        points, the registers it reads into."""
+    def _group(self, name: str, model: _Group,
+               build: Callable[[_Group, Buffers, array[int]], T]) -> Callable[[], T]:
+        """``name``'s group made ready: a read that returns it built by
+        ``build`` from the decoded values and a copy of its registers (while
+        the line's lock is held: the decoder's arrays are this read's)."""
         ready = self._groups.get(name)
         if ready is None:
-            read, ((dec, regs),) = prepared_read(self.device, group=name)
-            ready = self._groups[name] = (read, _Group(dec, *model.names), regs)
-        return ready
+            def then() -> T:
+                return build(g, buffers, regs.__copy__())
+            read, ((dec, regs),) = prepared_read(self.device, then, group=name)
+            g, buffers = _Group(dec, *model.names), dec.buffers
+            ready = self._groups[name] = read
+        return ready  # type: ignore[return-value]
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        read, g, regs = self._groups.get("telemetry") or self._group("telemetry", _TELEMETRY)
-        read()
-        return _telemetry(g, g.decoder.buffers, regs[:])
+        read = self._telemetry
+        if read is None:
+            read = self._telemetry = self._group("telemetry", _TELEMETRY, _telemetry)
+        return read()
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
-        read, g, regs = self._group("identity", _IDENTITY)
-        read()
-        return _identity(g, g.decoder.buffers, regs[:])
+        return self._group("identity", _IDENTITY, _identity)()
 
     def read_config(self) -> CoolProConfig:
         """Device address and baud rate as stored (effective after a reset)."""

@@ -23,7 +23,7 @@ import math
 from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from functools import partial
-from typing import Any
+from typing import Any, TypeVar
 
 from pymb.client import Client
 from pymb.devices import writeio
@@ -55,6 +55,7 @@ DEFAULT_BAUDRATE = DEFAULT_BAUD
 _CACHED = 64  #: selections (and their buffers) kept per device
 _NOT_READ = STATES.index("not_read")
 _UNSEEN = object()  #: channels a read is never found again by
+T = TypeVar("T")
 
 
 class MapDevice:
@@ -311,22 +312,25 @@ class MapDevice:
         lock = self._lock  # acquired and released: a with block binds its methods each time
         lock.acquire()
         try:
-            decoded = self._fetcher.fetch(r, True)  # in the read's C call, if it could
-            for decode, buffers, registers in r.decodes:
-                if not decoded:
-                    decode()
-                buffers.registers = registers
-            if self._fetcher.marked:
-                mark_unread(self._fetcher.unread, r.points, self._points, self._first,
-                            r.images)
-            if skipped:
-                nan, code = math.nan, _NOT_READ
-                for b, slot in skipped:
-                    b.values[slot] = nan
-                    b.states[slot] = code
-            return r.decoders
+            return self._read_held(r, skipped)
         finally:
             lock.release()
+
+    def _read_held(self, r: Read, skipped: tuple[tuple[Any, int], ...]) -> tuple[Decoder, ...]:
+        """:meth:`_read_ready`'s read, the line's lock held."""
+        decoded = self._fetcher.fetch(r, True)  # in the read's C call, if it could
+        for decode, buffers, registers in r.decodes:
+            if not decoded:
+                decode()
+            buffers.registers = registers
+        if self._fetcher.marked:
+            mark_unread(self._fetcher.unread, r.points, self._points, self._first, r.images)
+        if skipped:
+            nan, code = math.nan, _NOT_READ
+            for b, slot in skipped:
+                b.values[slot] = nan
+                b.states[slot] = code
+        return r.decoders
 
     def fetch(self, *names: str,
               group: str | None = None) -> tuple[tuple[Decoder, array[int]], ...]:
@@ -482,14 +486,15 @@ class MapDevice:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
 
 
-def prepared_read(device: MapDevice, *names: str, group: str | None = None,
-                  channels: Iterable[int] | None = None
-                  ) -> tuple[Callable[[], tuple[Decoder, ...]],
-                             tuple[tuple[Decoder, array[int]], ...]]:
-    """The selection of :meth:`MapDevice.read_into` made ready: a call that
-    reads it as ``read_into`` does (no argument, nothing looked up again),
-    and per table the decoder it fills and the registers it reads into (the
-    same on every call). For a view that reads one selection over and over
-    (the CoolPro's telemetry)."""
+def prepared_read(device: MapDevice, then: Callable[[], T], *names: str,
+                  group: str | None = None, channels: Iterable[int] | None = None
+                  ) -> tuple[Callable[[], T], tuple[tuple[Decoder, array[int]], ...]]:
+    """The selection of :meth:`MapDevice.read_into` made ready for a view that
+    reads it over and over (the CoolPro's telemetry): a call that reads it as
+    ``read_into`` does and returns ``then()``, called holding the line's lock
+    (the decoders' arrays are this read's until it returns; see
+    :meth:`~pymb.devices.mapfetch.Fetcher.prepared`); and per table the
+    decoder it fills and the registers it reads into (the same every call)."""
     r, skipped = device._read_of(names, group, channels)  # noqa: SLF001 - this module's
-    return partial(device._read_ready, r, skipped), r.fetched  # noqa: SLF001 - this module's
+    held = partial(device._read_held, r, skipped)  # noqa: SLF001 - this module's
+    return device._fetcher.prepared(r, held, then, fast=not skipped), r.fetched  # noqa: SLF001

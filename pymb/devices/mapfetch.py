@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from itertools import groupby
 from operator import attrgetter
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 from pymb._native.link import RegisterPlan
 from pymb._native.mapdecode import MapJob
@@ -33,6 +33,7 @@ from pymb.maps.types import STATES
 __all__ = ["Fetcher", "Image", "Read", "Run", "mark_unread"]
 
 _NEVER = math.inf
+T = TypeVar("T")
 _monotonic = time.monotonic
 
 
@@ -78,7 +79,7 @@ class Read:
     same requests: it runs them and decodes, nothing else."""
 
     __slots__ = ("decoders", "decodes", "decoding", "fetched", "images", "items", "jobs", "plan",
-                 "points", "runs", "version")
+                 "points", "runs", "steady", "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
                  images: dict[str, Image]) -> None:
@@ -101,6 +102,9 @@ class Read:
         #: their replies (None: a table is read in more runs than one, or not
         #: at all, or the plan has bits: decoded after the read)
         self.decoding: tuple[Run, ...] | None = None
+        #: the one RegisterPlan that reads and decodes it all when nothing
+        #: else is to be done around it (:meth:`Fetcher.prepared`), else None
+        self.steady: RegisterPlan | None = None
         self.version = -1  # made at no version yet
 
 
@@ -250,7 +254,52 @@ class Fetcher:
             unread[k] = 1
         r.runs = self.runs(r.plan, r.images)
         r.decoding = self.runs(r.plan, r.images, r.jobs)
+        # one C call is the whole read: no silence of this device's own, no
+        # request asked again, no fallback, no point marked unread
+        one = r.decoding is not None and len(r.decoding) == 1
+        r.steady = r.decoding[0].plan if one and r.decoding is not None and not (
+            self._gap or self._turnaround or self.busy_retries or self.marked
+            or planner.limits.split_on_exception) else None
         r.version = planner.version
+
+    def prepared(self, r: Read, held: Callable[[], object], then: Callable[[], T], *,
+                 fast: bool = True) -> Callable[[], T]:
+        """A call that reads ``r`` and returns ``then()``, both holding the
+        line's lock: ``held()`` reads it (:meth:`fetch` and the decoding, the
+        lock held), except while nothing has changed since ``r`` was made
+        (the planner's version, the connection, no point due to be asked
+        again) and ``r`` is :attr:`Read.steady` (``fast``: nothing is to be
+        done after its decoding): then its one C call is the read, in the
+        silence the line keeps (:meth:`fetch`'s, with none of this device's
+        own)."""
+        lock, q, planner, client = self.quiet.lock, self.quiet, self.planner, self.client
+        run = client.run_read_plan
+
+        def read() -> T:
+            lock.acquire()
+            try:
+                plan = r.steady
+                if (plan is None or not fast or r.version != planner.version
+                        or not client.connected or planner.retry_at != _NEVER
+                        or client.connections - client.resends != self._connections):  # _fresh
+                    held()
+                    return then()
+                until = q.quiet_until
+                if until > q.last_end and until > _monotonic():
+                    sleep_until(until)
+                try:
+                    run(plan)
+                except BaseException:
+                    self._noted()
+                    raise
+                if q.gapped:  # the end noted, as fetch() does with no turnaround
+                    now = q.last_end = _monotonic()
+                    if now > q.quiet_until:
+                        q.quiet_until = now
+                return then()
+            finally:
+                lock.release()
+        return read
 
     def after_connect(self) -> None:
         """Reconnect if the line was lost; after a new connection wait
