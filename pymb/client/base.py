@@ -118,13 +118,18 @@ class Client(ClientCore):
                 return
         self._read_call(link.read_registers, function, slave, address, len(dest), dest)
 
-    def run_read_plan(self, plan: RegisterPlan, start: int = 0) -> None:
+    def run_read_plan(self, plan: RegisterPlan, start: int = 0, *,
+                      on: int | None = None) -> bool:
         """Run a prepared :class:`pymb._native.link.RegisterPlan` from request ``start`` on, in one
-        C call; on failure ``plan.failed`` says which request failed."""
+        C call; on failure ``plan.failed`` says which request failed. ``on``: only
+        while the line is open on that connection (:attr:`fresh_connections`
+        says which): False, nothing sent, when it is closed or another."""
         link = self._link  # _call, written out, as in read_registers_prepared
         lock = self._lock  # acquired and released, not a with block: a poller's hot path
         lock.acquire()
         try:
+            if on is not None and (not link.is_open or self.connections - self.resends != on):
+                return False
             while True:
                 if not link.is_open:
                     self._reopen()
@@ -144,7 +149,7 @@ class Client(ClientCore):
                         continue
                     raise
                 self._served = served + 1
-                return
+                return True
         finally:
             lock.release()
 

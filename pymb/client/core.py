@@ -70,6 +70,13 @@ class ClientCore:
         return self._link.name
 
     @property
+    def fresh_connections(self) -> int:
+        """Of :attr:`connections`, those that may be to another device: not
+        those opened to send a read again (:attr:`resends`), which reach the
+        same device, so what it taught holds on them."""
+        return self.connections - self.resends
+
+    @property
     def connected(self) -> bool:
         """True while the line is open."""
         return self._link.is_open

@@ -161,7 +161,7 @@ class Fetcher:
         decodes it: True when every table was decoded so (no fallback)."""
         planner, client = self.planner, self.client
         if (r.version != planner.version or not client.connected
-                or client.connections - client.resends != self._connections  # _fresh, inline
+                or client.connections - client.resends != self._connections  # fresh_connections
                 or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
             self._remake(r)
         runs = r.decoding if decode else None
@@ -255,7 +255,8 @@ class Fetcher:
         r.runs = self.runs(r.plan, r.images)
         r.decoding = self.runs(r.plan, r.images, r.jobs)
         # one C call is the whole read: no silence of this device's own, no
-        # request asked again, no fallback, no point marked unread
+        # request asked again, no fallback, no point marked unread (so none
+        # due again: the planner's retry_at changes with its version)
         one = r.decoding is not None and len(r.decoding) == 1
         r.steady = r.decoding[0].plan if one and r.decoding is not None and not (
             self._gap or self._turnaround or self.busy_retries or self.marked
@@ -272,23 +273,22 @@ class Fetcher:
         done after its decoding): then its one C call is the read, in the
         silence the line keeps (:meth:`fetch`'s, with none of this device's
         own)."""
-        lock, q, planner, client = self.quiet.lock, self.quiet, self.planner, self.client
-        run = client.run_read_plan
+        lock, q, planner, run = self.quiet.lock, self.quiet, self.planner, self.client.run_read_plan
 
         def read() -> T:
             lock.acquire()
             try:
                 plan = r.steady
-                if (plan is None or not fast or r.version != planner.version
-                        or not client.connected or planner.retry_at != _NEVER
-                        or client.connections - client.resends != self._connections):  # _fresh
+                if plan is None or not fast or r.version != planner.version:
                     held()
                     return then()
                 until = q.quiet_until
                 if until > q.last_end and until > _monotonic():
                     sleep_until(until)
                 try:
-                    run(plan)
+                    if not run(plan, on=self._connections):  # closed, or a new connection
+                        held()
+                        return then()
                 except BaseException:
                     self._noted()
                     raise
@@ -307,8 +307,8 @@ class Fetcher:
         every read (in :meth:`fetch`) and write."""
         client = self.client
         opened = client.ensure_connected()
-        if opened or _fresh(client) != self._connections:
-            self._connections = _fresh(client)
+        if opened or client.fresh_connections != self._connections:
+            self._connections = client.fresh_connections
             self.planner.forget()
             wait = self.map.timing.after_connect
             if wait > 0:
@@ -442,10 +442,3 @@ class Fetcher:
             for k in refusal.unsupported:
                 self.unread[k] = 1
             self.marked = True
-
-
-def _fresh(client: Client) -> int:
-    """The client's connections that may be to another device: not those it
-    opened to send a read again to a device that closes a connection after
-    each reply (what the device taught holds on those)."""
-    return client.connections - client.resends
