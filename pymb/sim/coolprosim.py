@@ -12,7 +12,6 @@ from collections.abc import Callable, Sequence
 from typing import ClassVar
 
 from pymb import maps
-from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
 from pymb.sim.base import (
@@ -121,13 +120,6 @@ class CoolProDevice(MapSimDevice):
             if value is not None:
                 self._put_raw(name, value)
         self._boot = self.clock.now() - float(uptime)
-
-    @classmethod
-    def _from_spec(cls, target: MapTarget, args: dict[str, object], *, seed: int,
-                   clock: SimClock | None) -> MapSimDevice:
-        if "delay" in args:
-            args["gap"] = args.pop("delay")
-        return cls(target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type]
 
     @property
     def gap(self) -> float:

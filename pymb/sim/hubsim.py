@@ -131,9 +131,7 @@ class HubDevice(MapSimDevice):
                    clock: SimClock | None) -> MapSimDevice:
         if "humidity_unit" in target.options:
             args["humidity_tenths"] = target.options["humidity_unit"] == 0.1
-        if "delay" in args:
-            args["response_delay"] = args.pop("delay")
-        return cls(target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type]
+        return super()._from_spec(target, args, seed=seed, clock=clock)
 
     def _start(self, rng: random.Random) -> None:
         """The values come from the channel models (:meth:`_refresh`)."""

@@ -71,7 +71,7 @@ class MapSimDevice(MapImage):
     bad_request: ClassVar[int] = ExceptionCode.ILLEGAL_DATA_VALUE
     #: a device with behaviours of its own: its shipped map, the keys of its
     #: spec beside :data:`SIM_KEYS`, and map options it refuses (key -> why)
-    builtin_map: ClassVar[Map]
+    builtin_map: ClassVar[Map | None] = None
     spec_keys: ClassVar[Keys] = {}
     #: the constructor's name of the wait before a reply (a check names it)
     delay_arg: ClassVar[str] = "delay"
@@ -108,8 +108,12 @@ class MapSimDevice(MapImage):
     def _from_spec(cls, target: MapTarget, args: dict[str, object], *, seed: int,
                    clock: SimClock | None) -> MapSimDevice:
         """The device a parsed spec names (``args``: its :data:`SIM_KEYS`
-        and :attr:`spec_keys` as constructor arguments)."""
-        return cls(target.map, target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type]
+        and :attr:`spec_keys` as constructor arguments, ``delay`` as the
+        constructor names it); a device of a :attr:`builtin_map` takes no map."""
+        if "delay" in args:
+            args[cls.delay_arg] = args.pop("delay")
+        head = (target.map,) if cls.builtin_map is None else ()
+        return cls(*head, target.address, seed=seed, clock=clock, **args)  # type: ignore[arg-type, call-arg]
 
     # -- held values ----------------------------------------------------------------------
 

@@ -50,7 +50,7 @@ def map_sim_device(spec: str, known: Mapping[str, Map], *, seed: int = 0,
     applies unless the spec names one."""
     kind, _, opts = split_spec(spec)
     cls = (hooks or {}).get(kind, MapSimDevice)
-    m = cls.builtin_map if cls is not MapSimDevice else known.get(kind)
+    m = cls.builtin_map or known.get(kind)
     if m is None:
         return None
     keys = {**SIM_KEYS, **cls.spec_keys}
