@@ -31,7 +31,7 @@ import tty
 from pymb import _native
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, silence, sleep_until
 from pymb.sim.faults import Fault, framed
-from pymb.sim.server import SimServer
+from pymb.sim.server import SimServer, write_all
 
 __all__ = ["PtyPort", "RtuServer", "SerialPort", "frame_rtu"]
 
@@ -280,18 +280,5 @@ class RtuServer(SimServer):
 
     def _write(self, data: bytes) -> None:
         port = self._port
-        if port is None:
-            return
-        view = memoryview(data)
-        deadline = time.perf_counter() + _WRITE_WAIT_S
-        while view:
-            try:
-                n = os.write(port.fd, view)
-                view = view[n:]
-            except BlockingIOError:
-                left = deadline - time.perf_counter()
-                if left <= 0:
-                    return  # nobody is reading the line
-                select.select([], [port.fd], [], left)
-            except OSError:
-                return
+        if port is not None:
+            write_all(port.fd, data, _WRITE_WAIT_S)

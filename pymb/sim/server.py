@@ -18,11 +18,30 @@ import time
 
 from pymb.sim.bus import Bus
 
-__all__ = ["SimServer"]
+__all__ = ["SimServer", "write_all"]
 
 log = logging.getLogger("pymb.sim")
 
 _REPLUG_RETRY_S = 1.0  # a real port that cannot be reopened is tried again this often
+
+
+def write_all(fd: int, data: bytes, wait_s: float) -> bool:
+    """Write all of ``data`` to the non-blocking ``fd`` (a pseudo-terminal,
+    a socket), waiting at most ``wait_s`` seconds for room; False when it
+    cannot (nobody reads the other end, or it is gone)."""
+    view = memoryview(data)
+    deadline = time.perf_counter() + wait_s
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+        except BlockingIOError:
+            left = deadline - time.perf_counter()
+            if left <= 0:
+                return False
+            select.select([], [fd], [], left)
+        except OSError:
+            return False
+    return True
 
 
 class SimServer(abc.ABC):

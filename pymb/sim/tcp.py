@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import select
 import selectors
 import socket
 import time
@@ -33,7 +32,7 @@ from pymb.errors import InvalidArgument
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, sleep_until
 from pymb.sim.faults import Fault, framed
 from pymb.sim.rtu import frame_rtu
-from pymb.sim.server import SimServer
+from pymb.sim.server import SimServer, write_all
 
 __all__ = ["MAX_PORTS", "TcpServer", "format_ports", "frame_tcp", "parse_ports"]
 
@@ -254,17 +253,5 @@ class TcpServer(SimServer):
         self._send(conn, reply)
 
     def _send(self, conn: socket.socket, data: bytes) -> None:
-        view = memoryview(data)
-        deadline = time.perf_counter() + _SEND_WAIT_S
-        while view:
-            try:
-                view = view[conn.send(view):]
-            except BlockingIOError:
-                left = deadline - time.perf_counter()
-                if left <= 0:
-                    self._drop(conn)
-                    return
-                select.select([], [conn], [], left)
-            except OSError:
-                self._drop(conn)
-                return
+        if not write_all(conn.fileno(), data, _SEND_WAIT_S):
+            self._drop(conn)
