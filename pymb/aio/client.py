@@ -50,6 +50,7 @@ from pymb.client import (
     UdpClient,
 )
 from pymb.errors import InvalidArgument
+from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
 
 __all__ = ["AsyncAsciiClient", "AsyncClient", "AsyncRtuClient", "AsyncRtuOverTcpClient",
            "AsyncTcpClient", "AsyncUdpClient"]
@@ -267,13 +268,13 @@ class AsyncRtuClient(_AsyncSerialBase):
     def __init__(
         self,
         port: str,
-        baudrate: int = 9600,
-        parity: str = "N",
+        baudrate: int = DEFAULT_BAUD,
+        parity: str = DEFAULT_PARITY,
         data_bits: int = 8,
         stop_bits: int = 1,
         *,
         slave: int | None = None,
-        timeout: float = 1.0,
+        timeout: float = DEFAULT_TIMEOUT,
         byte_timeout: float = 0.0,
         serial_mode: str | None = None,
         rts: str | None = None,
@@ -309,7 +310,7 @@ class AsyncTcpClient(_AsyncTcpBase):
     blocking: TcpClient
 
     def __init__(self, host: str = "127.0.0.1", port: int | None = None, *,
-                 slave: int | None = None, timeout: float = 1.0,
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0, tls: TlsConfig | None = None) -> None:
         super().__init__(TcpClient(host, port, slave=slave, timeout=timeout,
                                    byte_timeout=byte_timeout, tls=tls))
@@ -329,7 +330,7 @@ class AsyncRtuOverTcpClient(_AsyncTcpBase):
     blocking: RtuOverTcpClient
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0,
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  byte_timeout: float = 0.0, frame_silence: float = 0.02) -> None:
         super().__init__(RtuOverTcpClient(host, port, slave=slave, timeout=timeout,
                                           byte_timeout=byte_timeout,
@@ -345,13 +346,13 @@ class AsyncAsciiClient(_AsyncSerialBase):
     def __init__(
         self,
         port: str,
-        baudrate: int = 9600,
-        parity: str = "N",
+        baudrate: int = DEFAULT_BAUD,
+        parity: str = DEFAULT_PARITY,
         data_bits: int = 8,
         stop_bits: int = 1,
         *,
         slave: int | None = None,
-        timeout: float = 1.0,
+        timeout: float = DEFAULT_TIMEOUT,
         byte_timeout: float = 0.0,
     ) -> None:
         super().__init__(AsciiClient(port, baudrate, parity, data_bits, stop_bits, slave=slave,
@@ -365,7 +366,8 @@ class AsyncUdpClient(AsyncClient):
     blocking: UdpClient
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, *,
-                 slave: int | None = None, timeout: float = 1.0, retries: int = 2) -> None:
+                 slave: int | None = None, timeout: float = DEFAULT_TIMEOUT,
+                 retries: int = 2) -> None:
         super().__init__(UdpClient(host, port, slave=slave, timeout=timeout, retries=retries))
 
     @property
