@@ -11,13 +11,15 @@ import asyncio
 import struct
 import sys
 
+from pymb._native.serve import mbap_frame, take_frames
+
 __all__ = ["main"]
 
 
 class _DelayedDevice(asyncio.Protocol):
     def __init__(self, delay: float) -> None:
         self.delay = delay
-        self.buf = b""
+        self.buf = bytearray()
         self.transport: asyncio.Transport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -27,13 +29,11 @@ class _DelayedDevice(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         self.buf += data
         loop = asyncio.get_running_loop()
-        while len(self.buf) >= 6 and len(self.buf) >= 6 + struct.unpack(">H", self.buf[4:6])[0]:
-            n = 6 + struct.unpack(">H", self.buf[4:6])[0]
-            frame, self.buf = self.buf[:n], self.buf[n:]
+        # the C core's MBAP length rule; a header it refuses (BadFrame) closes the connection
+        for frame in take_frames(self.buf):
             loop.call_later(self.delay, self._answer, frame)
 
     def _answer(self, frame: bytes) -> None:
-        tid, _proto, _length, unit = struct.unpack(">HHHB", frame[:7])
         pdu = frame[7:]
         if len(pdu) == 5 and pdu[0] in (3, 4):
             _fc, address, count = struct.unpack(">BHH", pdu)
@@ -42,7 +42,7 @@ class _DelayedDevice(asyncio.Protocol):
         else:
             reply = bytes((pdu[0] | 0x80, 1))
         if self.transport is not None and not self.transport.is_closing():
-            self.transport.write(struct.pack(">HHHB", tid, 0, len(reply) + 1, unit) + reply)
+            self.transport.write(mbap_frame(frame[0] << 8 | frame[1], frame[6], reply))
 
 
 async def _serve(delay: float) -> None:
