@@ -82,8 +82,6 @@ class PipelinedUpstream:
     in one event line. A unit that answers nothing (a device that is off,
     behind a gateway) changes nothing."""
 
-    on_loop = True  #: ``done`` is called on the event loop's thread
-
     def __init__(self, host: str, port: int, *, timeout: float,
                  max_inflight: int = DEFAULT_MAX_INFLIGHT, depth: int = 1024,
                  on_event: Callable[[str], None] | None = None) -> None:
