@@ -114,6 +114,12 @@ class AsyncClient(Mirrored):
         return self.blocking.resends
 
     @property
+    def fresh_connections(self) -> int:
+        """Of :attr:`connections`, those that may be to another device (the
+        blocking client's count: not the :attr:`resends`)."""
+        return self.blocking.fresh_connections
+
+    @property
     def worker_threads(self) -> int:
         """Worker threads started so far (one at a time, never two)."""
         return self._worker.started
