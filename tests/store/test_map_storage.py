@@ -21,6 +21,7 @@ from pymb.devices.mapspec import TYPED_VIEWS
 from pymb.maps import Map, Point
 from pymb.store import DeviceInfo, Sample, SqliteSink, samples_after
 from pymb.store.mapviews import view_names
+from pymb.store.text import sample_rows
 
 SHIPPED = [i for i in maps.builtin_ids() if i not in TYPED_VIEWS]
 
@@ -483,3 +484,38 @@ def test_points_the_device_refused_read_back_unsupported(tmp_path: Path) -> None
     assert (dict(first.values), dict(first.states)) == (values, states)
     assert second.unsupported == ()
     assert (dict(second.values), dict(second.states)) == (dict(r.values), dict(r.states))
+
+
+RAW = '''schema = "pymb.map/1"
+[device]
+id = "raw-dev"
+table = "holding"
+[[point]]
+name = "blob"
+address = 0
+type = "raw"
+count = 2
+[[point]]
+name = "t"
+address = 2
+type = "u16"
+'''
+
+
+def test_a_refused_raw_point_reads_back_as_the_live_read_gave_it(tmp_path: Path) -> None:
+    """A ``raw`` point's value is a list of its registers, but refused it is
+    one None, ``unsupported``, as MapDevice gives it; the CSV cell is empty."""
+    m = maps.loads(RAW)
+    values: dict[str, Any] = {"blob": None, "t": 3}
+    states: dict[str, Any] = {"blob": "unsupported", "t": "value"}
+    db = tmp_path / "raw.sqlite"
+    sink = SqliteSink(db)
+    info = DeviceInfo("b", "127.0.0.1:502", "raw-dev", 1, "d", map_source=RAW)
+    sink.write(Sample(info, time.time(), 1.0,
+                      MapReading(m, None, values, states, array("H", [1, 2, 3]), ("blob",))))
+    sink.close()
+    (s,) = samples_after(db, 0)
+    assert isinstance(s.data, MapReading)
+    assert (dict(s.data.values), dict(s.data.states)) == (values, states)
+    assert [row[-3:] for row in sample_rows(s)] == [["blob", "", "unsupported"],
+                                                    ["t", 3, "value"]]
