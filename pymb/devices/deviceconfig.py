@@ -33,8 +33,8 @@ from pymb.devices.spec import closest, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 
-__all__ = ["MAP_DEVICE_KEYS", "DeviceConfig", "KnownMaps", "MapText", "map_device_from_toml",
-           "parse_device", "shipped"]
+__all__ = ["MAP_DEVICE_KEYS", "VIEW_OPENERS", "DeviceConfig", "KnownMaps", "MapText",
+           "map_device_from_toml", "parse_device", "shipped"]
 
 #: keys of a map device's ``[[bus.device]]`` table, besides the map's options
 MAP_DEVICE_KEYS = ("type", "map", "address", "name", "groups", "offline_after",
@@ -105,6 +105,8 @@ class KnownMaps:
 
 #: an option's value: a number, or for an option given per channel one number a channel
 Option = int | float | tuple[int | float, ...]
+#: an opened device: its :class:`MapDevice` and a read of one group (None: all)
+Opened = tuple[MapDevice, Callable[[str | None], MapReading]]
 
 
 def _configured(source: MapText, options: Mapping[str, Option]) -> MapText:
@@ -238,20 +240,16 @@ class DeviceConfig:
         m = self.map
         return [(g, None if m.polled(g) == "bus" else m.groups[g]) for g in self.groups]
 
-    def open(self, client: Client, baudrate: int | None = None
-             ) -> tuple[MapDevice, Callable[[str | None], MapReading]]:
+    def open(self, client: Client, baudrate: int | None = None) -> Opened:
         """The device on ``client``: its :class:`MapDevice` (plans priced at
         ``baudrate`` where the client has none) and a read of one group as a
-        :class:`MapReading`. The two devices with views read as their views
-        do: a hub as :class:`~pymb.devices.hubsweep.SweepReader` does (its
-        firmware rules, a busy hub, a humidity unit per channel), a CoolPro as
-        :func:`~pymb.devices.coolpro.coolpro_device`."""
+        :class:`MapReading`; a device whose map names a typed view
+        (``[device] view``) as the view reads it (:data:`VIEW_OPENERS`)."""
         assert self.address is not None
-        if self.type == "hub":
-            hub = self.sweep_reader(client)
-            return hub.device, hub
-        dev = coolpro_device(client, self.address) if self.type == "coolpro" else MapDevice(
-            client, self.map, self.address, baudrate=baudrate)
+        opener = VIEW_OPENERS.get(self.map.device.view)
+        if opener is not None:
+            return opener(self, client)
+        dev = MapDevice(client, self.map, self.address, baudrate=baudrate)
         return dev, functools.partial(_read_group, dev)
 
     def sweep_reader(self, client: Client) -> SweepReader:
@@ -273,6 +271,27 @@ class DeviceConfig:
 
 def _read_group(dev: MapDevice, group: str | None) -> MapReading:
     return dev.read_group(group)
+
+
+def _open_hub(cfg: DeviceConfig, client: Client) -> Opened:
+    hub = cfg.sweep_reader(client)
+    return hub.device, hub
+
+
+def _open_coolpro(cfg: DeviceConfig, client: Client) -> Opened:
+    assert cfg.address is not None
+    dev = coolpro_device(client, cfg.address)
+    return dev, functools.partial(_read_group, dev)
+
+
+#: How :meth:`DeviceConfig.open` opens a device whose map names a typed view
+#: (``[device] view``, one of :data:`pymb.maps.point.VIEWS`): the hub as
+#: :class:`~pymb.devices.hubsweep.SweepReader` reads it (its firmware rules,
+#: a busy hub, a humidity unit per channel), the CoolPro as
+#: :func:`~pymb.devices.coolpro.coolpro_device` (no silence kept after a
+#: reply, an exception raised as the device answered it).
+VIEW_OPENERS: Mapping[str, Callable[[DeviceConfig, Client], Opened]] = {
+    "hub": _open_hub, "coolpro": _open_coolpro}
 
 
 def from_target(t: MapTarget, source: MapText) -> DeviceConfig:

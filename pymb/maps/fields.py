@@ -1,5 +1,6 @@
 """The point fields of ``pymb.map/1`` (contract section 2): one ``[[point]]``
-or ``[[block]]`` table, checked key by key, into a :class:`Point`."""
+or ``[[block]]`` table, checked key by key, into a :class:`Point`; and the
+checks of text keys the ``[device]`` section shares with points."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import NoReturn, cast
 
 from pymb.errors import InvalidArgument
 from pymb.maps.codec import encode
-from pymb.maps.point import DeviceSection, MapError, Point, Value, did_you_mean
+from pymb.maps.point import VIEWS, DeviceSection, MapError, Point, Value, did_you_mean
 from pymb.maps.types import (
     FLOAT_TYPES,
     INTEGER_TYPES,
@@ -24,7 +25,8 @@ from pymb.maps.types import (
     normalize_order,
 )
 
-__all__ = ["POINT_KEYS", "POINT_NAME", "Ctx", "build_point", "marker_pattern", "number", "strings"]
+__all__ = ["POINT_KEYS", "POINT_NAME", "Ctx", "build_point", "check_view", "marker_pattern",
+           "number", "strings"]
 
 POINT_KEYS = ("name", "table", "address", "type", "order", "count", "string_bytes", "encoding",
               "bit", "shift", "width", "scale", "offset", "unit", "description", "ref", "kind",
@@ -76,6 +78,17 @@ def strings(ctx: Ctx, raw: Mapping[str, object], keys: tuple[str, ...]) -> dict[
             ctx.fail(key, f"{key} must be a string")
         out[key] = v
     return out
+
+
+def check_view(ctx: Ctx, view: str, ident: str) -> None:
+    """``[device] view``: one of :data:`~pymb.maps.point.VIEWS`, named only
+    by the map it is the view of (a view knows that device's registers)."""
+    if view and view not in VIEWS:
+        ctx.fail("view", f"view must be one of {', '.join(VIEWS)}, got {view!r}"
+                 f"{did_you_mean(view, VIEWS)}")
+    if view and view != ident:
+        ctx.fail("view", f"view {view!r} is pymb's view of its own map (id {view!r}): "
+                 f"a map of id {ident!r} cannot name it")
 
 
 def _option(ctx: Ctx, key: str, v: object, options: Mapping[str, int | float]) -> object:

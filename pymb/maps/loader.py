@@ -21,7 +21,7 @@ from typing import TypeGuard, cast
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
 from pymb.maps.checks import check_channel_names, check_overlaps, check_refs, check_widths
-from pymb.maps.fields import Ctx, build_point, number, strings
+from pymb.maps.fields import Ctx, build_point, check_view, number, strings
 from pymb.maps.model import Map
 from pymb.maps.point import (
     MAX_GAP,
@@ -41,7 +41,7 @@ SCHEMA = "pymb.map/1"
 _TOP = ("schema", "device", "groups", "point", "block", "identify")
 _DEVICE = ("id", "manufacturer", "model", "description", "ref", "default_address", "addresses",
            "address_base", "table", "order", "limits", "timing", "options",
-           "max_writes_per_hour")
+           "max_writes_per_hour", "view")
 _LIMITS = ("max_registers", "max_bits", "max_gap", "readable", "split_on_exception",
            "single_point_requests", "write_multiple", "mask_write", "ranges")
 _RANGE = ("table", "first", "last", "max_registers", "max_bits")
@@ -217,7 +217,8 @@ def _device(ctx: Ctx, raw: object) -> tuple[DeviceSection, dict[str, object]]:
     ident = t.get("id")
     if not isinstance(ident, str) or not _ID.match(ident):
         ctx.fail("id", f"device id must match [a-z0-9][a-z0-9-]*, got {ident!r}")
-    texts = strings(ctx, t, ("manufacturer", "model", "description", "ref"))
+    texts = strings(ctx, t, ("manufacturer", "model", "description", "ref", "view"))
+    check_view(ctx, texts["view"], ident)
     addresses = t.get("addresses", [1, 247])
     if (not isinstance(addresses, list) or len(addresses) != 2
             or any(isinstance(a, bool) or not isinstance(a, int) or not 0 <= a <= 255
@@ -242,7 +243,7 @@ def _device(ctx: Ctx, raw: object) -> tuple[DeviceSection, dict[str, object]]:
     return DeviceSection(ident, texts["manufacturer"], texts["model"], texts["description"],
                          texts["ref"], default_address, (lo, hi), base, table, order,
                          MappingProxyType(options), MappingProxyType(allowed),
-                         MappingProxyType(ranges), budget), t
+                         MappingProxyType(ranges), budget, texts["view"]), t
 
 
 def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],

@@ -17,6 +17,7 @@ from pymb.maps.types import BIT_TABLES, TABLES
 
 __all__ = [
     "MAX_GAP",
+    "VIEWS",
     "DeviceSection",
     "Identify",
     "Limits",
@@ -75,6 +76,13 @@ def did_you_mean(word: str, known: Sequence[str]) -> str:
     if known:
         return f"; known: {', '.join(sorted(known))}"
     return ""
+
+
+#: The typed views pymb has of a device (``[device] view``), each named by
+#: its device's shipped map, whose id it is: ``pymb.devices.CoolPro``'s and
+#: ``pymb.devices.SensorHub``'s. A device whose map names one is read as the
+#: view reads it, and its readings' outputs take the view's form.
+VIEWS = ("coolpro", "hub")
 
 
 @dataclass(frozen=True)
@@ -157,6 +165,8 @@ class DeviceSection:
     option_ranges: Mapping[str, tuple[float, float]] = field(default_factory=_empty)
     #: writes of each point allowed in any sliding hour (None: no budget)
     max_writes_per_hour: int | None = None
+    #: the typed view the device is read through (one of :data:`VIEWS`), "" none
+    view: str = ""
 
 
 @dataclass(frozen=True)

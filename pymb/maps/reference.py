@@ -59,6 +59,8 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "options": ("`[device.options]`: `name = default` or `name = { default, values, min, "
                     "max }`; a string value of a point key names one", "-"),
         "max_writes_per_hour": ("write budget of each writable point", "-"),
+        "view": ("the typed view pymb reads the device through, named by its own map only "
+                 "(`coolpro`, `hub`: see below)", '""'),
     }),
     "limits": ("`[device.limits]`", loader._LIMITS, {  # noqa: SLF001
         "max_registers": ("registers per FC 03/04 request (1..125)", "max_registers"),
