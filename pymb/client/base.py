@@ -118,7 +118,7 @@ class Client(ClientCore):
                 return
         self._read_call(link.read_registers, function, slave, address, len(dest), dest)
 
-    def run_read_plan(self, plan: RegisterPlan, start: int = 0, *,
+    def run_read_plan(self, plan: RegisterPlan, start: int = 0,
                       on: int | None = None) -> bool:
         """Run a prepared :class:`pymb._native.link.RegisterPlan` from request ``start`` on, in one
         C call; on failure ``plan.failed`` says which request failed. ``on``: only

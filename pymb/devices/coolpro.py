@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import KEEP, IntFlag
+from functools import partial
 from typing import TypeVar
 
 from pymb import maps
@@ -152,7 +153,8 @@ _IDENTITY = _Group(Decoder(_MAP, [p.name for p in _MAP.points.values()
                                   if p.group == "identity"]), (), _IDENTITY_NAMES)
 
 
-def _telemetry(g: _Group, b: Buffers, regs: array[int]) -> CoolProTelemetry:
+def _telemetry(g: _Group, b: Buffers, regs: array[int], copy: bool = False) -> CoolProTelemetry:
+    """``b``'s values at ``g``'s slots, with ``regs`` (or, with ``copy``, a copy)."""
     # The result's fields are set directly (a frozen dataclass's __init__
     # makes a call per field): this is a CoolPro logger's hot path.
     vals, ints = b.values.tolist(), b.ints
@@ -168,11 +170,14 @@ def _telemetry(g: _Group, b: Buffers, regs: array[int]) -> CoolProTelemetry:
     d["temperature_c"] = vals[f[4]]
     d["uptime_s"] = ints[i[0]]
     d["status"] = status if status is not None else _status(raw)
-    d["registers"] = regs
+    d["registers"] = regs.__copy__() if copy else regs
     return t
 
 
-def _identity(g: _Group, b: Buffers, regs: array[int]) -> CoolProIdentity:
+def _identity(g: _Group, b: Buffers, regs: array[int], copy: bool = False) -> CoolProIdentity:
+    """``b``'s values at ``g``'s slots, with ``regs`` (or, with ``copy``, a copy)."""
+    if copy:
+        regs = regs.__copy__()
     serial, hw, major, minor, patch, made = (b.ints[k] for k in g.ints)
     return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
                            datetime.fromtimestamp(made, UTC), regs)
@@ -252,25 +257,25 @@ class CoolPro:
         return address
 
     def _group(self, name: str, model: _Group,
-               build: Callable[[_Group, Buffers, array[int]], T]) -> Callable[[], T]:
+               build: Callable[[_Group, Buffers, array[int], bool], T]) -> Callable[[], T]:
         """``name``'s group made ready: a read that returns it built by
         ``build`` from the decoded values and a copy of its registers (while
         the line's lock is held: the decoder's arrays are this read's)."""
         ready = self._groups.get(name)
         if ready is None:
-            def then() -> T:
-                return build(g, buffers, regs.__copy__())
-            read, ((dec, regs),) = prepared_read(self.device, then, group=name)
-            g, buffers = _Group(dec, *model.names), dec.buffers
-            ready = self._groups[name] = read
+            def then(fetched: tuple[tuple[Decoder, array[int]], ...]) -> Callable[[], T]:
+                ((dec, regs),) = fetched
+                return partial(build, _Group(dec, *model.names), dec.buffers, regs, True)
+            ready = self._groups[name] = prepared_read(self.device, then, group=name)
         return ready  # type: ignore[return-value]
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        read = self._telemetry
-        if read is None:
-            read = self._telemetry = self._group("telemetry", _TELEMETRY, _telemetry)
-        return read()
+        return (self._telemetry or self._ready_telemetry())()
+
+    def _ready_telemetry(self) -> Callable[[], CoolProTelemetry]:
+        read = self._telemetry = self._group("telemetry", _TELEMETRY, _telemetry)
+        return read
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""

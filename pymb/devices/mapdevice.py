@@ -486,15 +486,15 @@ class MapDevice:
         return f"<MapDevice {self.map.id}:{self.address} on {self.client.port}>"
 
 
-def prepared_read(device: MapDevice, then: Callable[[], T], *names: str,
-                  group: str | None = None, channels: Iterable[int] | None = None
-                  ) -> tuple[Callable[[], T], tuple[tuple[Decoder, array[int]], ...]]:
+def prepared_read(device: MapDevice,
+                  then: Callable[[tuple[tuple[Decoder, array[int]], ...]], Callable[[], T]],
+                  *names: str, group: str | None = None,
+                  channels: Iterable[int] | None = None) -> Callable[[], T]:
     """The selection of :meth:`MapDevice.read_into` made ready for a view that
     reads it over and over (the CoolPro's telemetry): a call that reads it as
-    ``read_into`` does and returns ``then()``, called holding the line's lock
-    (the decoders' arrays are this read's until it returns; see
-    :meth:`~pymb.devices.mapfetch.Fetcher.prepared`); and per table the
-    decoder it fills and the registers it reads into (the same every call)."""
+    ``read_into`` does and returns what ``then(fetched)`` returned calls, holding
+    the line's lock (:meth:`~pymb.devices.mapfetch.Fetcher.prepared`); ``fetched``:
+    per table, the decoder the read fills and the registers it reads into."""
     r, skipped = device._read_of(names, group, channels)  # noqa: SLF001 - this module's
     held = partial(device._read_held, r, skipped)  # noqa: SLF001 - this module's
-    return device._fetcher.prepared(r, held, then, fast=not skipped), r.fetched  # noqa: SLF001
+    return device._fetcher.prepared(r, held, then(r.fetched), fast=not skipped)  # noqa: SLF001

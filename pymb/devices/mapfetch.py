@@ -286,7 +286,7 @@ class Fetcher:
                 if until > q.last_end and until > _monotonic():
                     sleep_until(until)
                 try:
-                    if not run(plan, on=self._connections):  # closed, or a new connection
+                    if not run(plan, 0, self._connections):  # closed, or a new connection
                         held()
                         return then()
                 except BaseException:
