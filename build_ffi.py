@@ -40,6 +40,7 @@ SOURCES = [
     f"{CSRC}/pymb_map.c",
     f"{CSRC}/pymb_master.c",
     f"{CSRC}/pymb_serve.c",  # the extension's alone (not in libpymb)
+    f"{CSRC}/pymb_loop.c",  # the extension's alone (not in libpymb)
 ]
 
 CDEF = """
@@ -237,6 +238,7 @@ SOURCE = """
 #include "pymb_map_ready.h"
 #include "pymb_internal.h"
 #include "pymb_serve.h"
+#include "pymb_loop.h"
 """
 
 
@@ -358,6 +360,31 @@ int pymbi_srv_exception(uint16_t tid, uint8_t unit, uint8_t function, uint8_t co
 """
 
 
+# pymb_loop.h: the I/O of pymb log's one TCP loop, flat out (pymb._native.loop is
+# its one user); internal to the extension, not part of libpymb.
+LOOP_CDEF = """
+#define PYMBI_LOOP_READY ...
+#define PYMBI_LOOP_DONE ...
+#define PYMBI_LOOP_TAKEN ...
+#define PYMBI_LOOP_LOOK ...
+#define PYMBI_LOOP_NO_CONN ...
+typedef struct {
+    int fd; int armed; pymbi_master *m; const pymbi_mreq *reqs; size_t n; uint8_t *image;
+    size_t image_len; pymbi_mevent *ev; size_t ev_cap; size_t replies; double timeout;
+    double took; double sent_at; double look_at; double deadline; uint32_t asked;
+} pymbi_lconn;
+typedef struct {
+    int kind; int fd; uint32_t conn; uint32_t events; int err; int nev; size_t size;
+    size_t sent; size_t got; size_t used; uint64_t taken; double now;
+} pymbi_lrec;
+typedef struct {
+    int epfd; pymbi_lconn *conns; size_t nconns; const int32_t *slot_of; size_t slot_cap;
+    uint8_t *rx; size_t rx_cap; uint8_t *out; size_t out_cap; double look_min;
+} pymbi_loop;
+int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap);
+"""
+
+
 def _require_build_tools() -> None:
     """Stop with one line naming the Debian packages when a build need is missing."""
     pkg_config = os.environ.get("PKG_CONFIG", "pkg-config")
@@ -379,6 +406,7 @@ ffibuilder.cdef(CDEF)
 ffibuilder.cdef(MAP_CDEF)
 ffibuilder.cdef(MASTER_CDEF)
 ffibuilder.cdef(SERVE_CDEF)
+ffibuilder.cdef(LOOP_CDEF)
 ffibuilder.set_source_pkgconfig(
     "pymb._pymb_cffi",
     ["libmodbus"],

@@ -142,6 +142,11 @@ class Master:
         self.framed = 0
         lib.pymbi_master_reset(self._m, 1)
 
+    def handles(self) -> tuple[Any, Any, int]:
+        """The C master, its events array and that array's length (the C
+        loop, :mod:`pymb._native.loop`, takes replies and frames with them)."""
+        return self._m, self._ev, _EVENTS
+
     def reset(self, tid: int = 1) -> None:
         """A new stream: nothing in flight, nothing kept; the first request
         gets id ``tid``."""

@@ -10,26 +10,31 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
+import heapq
 import ipaddress
+import math
 import os
 import queue
 import socket
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from pymb._native.master import Master, PollTable
+from pymb._native.loop import Loop, Times
+from pymb._native.master import Master, PollTable, ReadBuffer
 from pymb.client import unresolved
-from pymb.errors import request_text
+from pymb.client.address import is_mbaps
+from pymb.errors import ModbusError, request_error, request_text
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
 from pymb.logger.tcpsel import READ, WRITE, Selector
-from pymb.logger.tcpunits import Entry, PollRequest, Unit
+from pymb.logger.tcpunits import Entry, PollRequest, Unit, poll_sample
 from pymb.store import Event, Sample
 
-__all__ = ["Conn", "TcpLoopBase", "asked"]
+__all__ = ["Conn", "TcpLoopBase", "asked", "fans_out", "request_failed"]
 
 
 class Loan:
@@ -99,6 +104,10 @@ class Conn:
     renew: bool = False  #: being opened again so (not after a failure)
     tell: bool = False  #: ... and the reconnect is an event (the way of working not yet known)
     loan: Loan | None = None  #: a write command's thread borrows it between polls (tcplend)
+    index: int = -1  #: its place in the loop's C part (:class:`pymb._native.loop.Loop`)
+    #: its polls are the C part's: a whole poll in flight, the next one the
+    #: same requests at once (:meth:`TcpLoopBase.arm`)
+    armed: bool = False
 
     @property
     def in_flight(self) -> int:
@@ -131,7 +140,16 @@ class Conn:
 
 class TcpLoopBase(threading.Thread):
     """The loop's thread: its connections (:attr:`conns`), its selector, and
-    the list of samples and events it hands to the writer on ``out``."""
+    the list of samples and events it hands to the writer on ``out``.
+
+    Its C part (:attr:`cloop`, made by :meth:`start_loop` once the
+    connections are known) waits on the selector's epoll and carries the
+    polls of the *armed* connections itself: a connection whose whole poll
+    is in flight and whose next poll is the same requests at once (flat out,
+    nothing else waiting for it). It is armed after such a poll went out
+    (:meth:`arm`) and taken back (:meth:`disarm`) whenever anything else is
+    to happen on it: a poll that falls due, a loan, a deadline, a close; the
+    C part hands it back itself for anything but a clean poll."""
 
     def __init__(self, out: queue.Queue[list[Sample | Event]], stop: threading.Event,
                  stats: Stats) -> None:
@@ -143,6 +161,98 @@ class TcpLoopBase(threading.Thread):
         self._sel = Selector()
         self.report = Report(out, stats)
         self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
+        self.cloop: Loop | None = None  #: the C part (:meth:`start_loop`)
+        self._seq = 0
+        #: a heap of (when, seq, connection): a poll waiting for all of its
+        #: replies at once (the connection's ``look`` is its seq), read as they
+        #: come from then on
+        self._looks: list[tuple[float, int, Conn]] = []
+
+    def start_loop(self, rx: ReadBuffer, look_min: float) -> Loop:
+        """The C part over :attr:`conns` (each one's :attr:`Conn.index` set),
+        looking at replies in ``rx``; looks of at least ``look_min`` seconds."""
+        for i, c in enumerate(self.conns):
+            c.index = i
+        self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min)
+        return self.cloop
+
+    def arm(self, c: Conn, t: PollTable, timeout: float, look_at: float) -> None:
+        """``c``'s whole poll ``t`` just went out, and its next one is the same
+        requests at once: the C part carries its polls from now on."""
+        cloop = self.cloop
+        if cloop is not None:
+            cloop.arm(c.index, c.m, t, timeout, c.took, c.sent_at, look_at)
+            c.armed = True
+            c.look = 0  # (its look is the C part's)
+
+    def look(self, c: Conn, at: float) -> None:
+        """``c``'s whole poll in flight is read as its replies come from ``at`` on."""
+        self._seq += 1
+        c.look = seq = self._seq
+        heapq.heappush(self._looks, (at, seq, c))
+
+    @property
+    def next_look(self) -> float:
+        """When the next look is due (inf: none)."""
+        return self._looks[0][0] if self._looks else math.inf
+
+    def looks_due(self, now: float) -> list[Conn]:
+        """The connections whose whole poll's look is due by ``now`` (to be
+        read as their replies come)."""
+        looks = self._looks
+        due = []
+        while looks and looks[0][0] <= now:
+            _, seq, c = heapq.heappop(looks)
+            if c.look == seq and c.busy and c.lowat > 1:
+                due.append(c)
+        return due
+
+    def synced(self, c: Conn) -> None:
+        """``c`` is no longer armed (the C part handed it back, or the loop
+        takes it): a whole poll in flight gets its look."""
+        got = self.disarm(c)
+        if got is not None and c.busy and c.lowat > 1:
+            self.look(c, got.look_at)
+
+    def sample(self, c: Conn, e: Entry, now: float) -> None:
+        """A poll of ``e`` read every request at ``now``: its sample (the
+        connection is idle)."""
+        u = e.unit
+        c.entry = None
+        c.whole = False
+        unread = e.unsupported()
+        if unread or c.unread:
+            unread = (unread | c.unread) & e.decode.items
+        s, reading = poll_sample(u.info, time.time(), now, e.decode, bytes(e.image), unread)
+        report = self.report
+        report.sample(s)
+        report.answered(c.bus.name, u.health, u.info, reading.unsupported)
+
+    def carried(self, c: Conn, now: float, size: int, sent: int) -> bool:
+        """The C part read armed ``c``'s poll in full at ``now`` and sent the
+        next one (``sent`` of its ``size`` bytes): the poll's sample. False
+        (disarmed): not all of it was sent."""
+        e = c.entry
+        assert e is not None
+        self.sample(c, e, now)
+        c.entry = e
+        c.whole = True
+        if sent != size:
+            self.synced(c)
+            return False
+        return True
+
+    def disarm(self, c: Conn) -> Times | None:
+        """``c`` is the loop's again (``c.armed`` or not: the C part may have
+        handed it back): its poll's times and counts back in ``c``; None if
+        it was not armed."""
+        if not c.armed or self.cloop is None:
+            return None
+        c.armed = False
+        got = self.cloop.disarm(c.index)
+        c.took, c.sent_at, c.deadline = got.took, got.sent_at, got.deadline
+        c.asked += got.asked
+        return got
 
     # -- hand-over -----------------------------------------------------------------------
 
@@ -192,6 +302,8 @@ class TcpLoopBase(threading.Thread):
         c.deadline = now + c.bus.timeout
         self._soonest = min(self._soonest, c.deadline)
         self._sel.register(s, WRITE, c)
+        if self.cloop is not None:
+            self.cloop.bind(c.index, s.fileno())
 
     def _not_open(self, c: Conn, now: float, why: str) -> None:
         c.resolved = None
@@ -292,14 +404,26 @@ class TcpLoopBase(threading.Thread):
         self._connect(c, now)
 
     def _close(self, c: Conn) -> None:
+        self.disarm(c)
         if c.sock is not None:
             with contextlib.suppress(KeyError, ValueError):
                 self._sel.unregister(c.sock)
+            if self.cloop is not None:
+                self.cloop.unbind(c.sock.fileno())
             c.sock.close()
         c.sock, c.state = None, "closed"
         c.forget()
         c.m.reset()  # (a reply cut short is dropped with the stream)
         c.entry = None
+
+
+def fans_out(bus: BusConfig) -> bool:
+    """Whether ``bus`` is polled by the one loop: plain Modbus TCP (not
+    Modbus/TCP Security, ``mbaps://``: its TLS is the client's) whose devices
+    are each left offline for ``offline_retry`` after failures (a map of
+    ``backoff = true``, the CoolPro's and the hub's, keeps a thread per bus)."""
+    return (bus.tcp is not None and not is_mbaps(bus.tcp)
+            and not any(d.map.timing.backoff for d in bus.devices))
 
 
 def _is_address(host: str) -> bool:
@@ -326,3 +450,13 @@ def asked(spec: PollRequest | None, u: Unit) -> str:
     if spec is None:
         return request_text(0, u.info.address, context=u.info.name)
     return request_text(spec.function, u.info.address, spec.address, spec.count)
+
+
+def request_failed(err: int, c: Conn, spec: PollRequest, u: Unit,
+                   got: bytes | None = None) -> ModbusError:
+    """The error of request ``spec`` of ``u`` on ``c`` that failed with
+    ``err``, as a client's request says it (``got``: what came of its reply)."""
+    return request_error(err, function=spec.function, slave=u.info.address,
+                         address=spec.address, count=spec.count, port=c.bus.endpoint,
+                         timeout=u.timeout, failed=(spec.address, spec.count),
+                         response=got, header=7, frame=None)

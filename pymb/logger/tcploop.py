@@ -15,7 +15,10 @@ group's sample image. While a whole poll is out, the socket wakes the loop
 once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
 whose replies take more than twice as long as they did of late (an
 exception reply is shorter than the reply it stands for) is read as its
-replies come. This module is the runner: the sockets, and the logger's
+replies come; flat out, a connection whose next poll is the same requests at
+once is the loop's C part's (:mod:`pymb._native.loop`) until anything else is
+to happen on it: it takes the replies, sends the next poll and hands back the
+poll's image for its sample. This module is the runner: the sockets, and the logger's
 one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs it):
 each group at its own interval on drift-free slots, skipped slots counted;
 ``offline_after`` / ``offline_retry`` per device; an exception re-plans
@@ -29,7 +32,6 @@ records, the registers stored as a thread per bus would store them.
 from __future__ import annotations
 
 import errno
-import heapq
 import math
 import os
 import queue
@@ -37,20 +39,21 @@ import threading
 import time
 
 from pymb._native import exception_errno
+from pymb._native.loop import DONE, READY, TAKEN
 from pymb._native.master import PollTable
 from pymb._native.serve import mbap_frame
-from pymb.client.address import is_mbaps, parse_host_port
+from pymb.client.address import parse_host_port
 from pymb.devices.mapreading import GroupDecode
-from pymb.errors import ModbusConnectionError, ModbusError, request_error
+from pymb.errors import ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
 from pymb.logger.schedule import TEXT, Agenda
 from pymb.logger.stats import Stats
-from pymb.logger.tcpconn import Conn, TcpLoopBase, asked
+from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, fans_out, request_failed
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
-from pymb.logger.tcpunits import Entry, PollRequest, Unit, poll_sample
+from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -64,15 +67,6 @@ _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop
 #: many seconds) to come in full before the loop reads them as they come (an
 #: exception reply is shorter than the reply it stands for)
 _LOOK = 0.002
-
-
-def fans_out(bus: BusConfig) -> bool:
-    """Whether ``bus`` is polled by the one loop: plain Modbus TCP (not
-    Modbus/TCP Security, ``mbaps://``: its TLS is the client's) whose devices
-    are each left offline for ``offline_retry`` after failures (a map of
-    ``backoff = true``, the CoolPro's and the hub's, keeps a thread per bus)."""
-    return (bus.tcp is not None and not is_mbaps(bus.tcp)
-            and not any(d.map.timing.backoff for d in bus.devices))
 
 
 class TcpMapPoller(TcpLoopBase):
@@ -100,15 +94,11 @@ class TcpMapPoller(TcpLoopBase):
             stats.opened.setdefault(bus.name, False)
         self.bus_names = [b.name for b in buses]
         self._agenda: Agenda[Entry] = Agenda()  #: the groups by when they fall due
-        self._seq = 0
         self._conn_of = {id(e): c for c in self.conns for e in c.entries}
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
-        #: a heap of (when, seq, connection): a poll waiting for all of its
-        #: replies at once (the connection's ``look`` is its seq), read as they
-        #: come from then on
-        self._looks: list[tuple[float, int, Conn]] = []
         #: lends a poll connection to a write command's thread between two polls
         self.lender = Lender(self._sel, self._sweep_now)
+        self.start_loop(self.replies.rx, _LOOK)
 
     def _sweep_now(self) -> None:
         """A sweep at once (from a borrower's thread): it calls ``lender.lend``
@@ -149,6 +139,8 @@ class TcpMapPoller(TcpLoopBase):
     def _queue(self, c: Conn, e: Entry) -> None:
         if not e.queued:
             e.queued = True
+            if c.armed:  # (the next poll is no longer the same one at once)
+                self.synced(c)
             c.waiting.append(e)
 
     def _next(self, c: Conn, now: float) -> None:
@@ -225,6 +217,7 @@ class TcpMapPoller(TcpLoopBase):
             c.deadline = deadline = now + u.timeout
             if deadline < self._soonest:
                 self._soonest = deadline
+        arm = False
         if n != todo or n == 1 or u.timed:  # woken by each reply (one, or a poll
             if c.lowat != 1:  # longer than the pipeline)
                 c.wake_at(1)
@@ -237,17 +230,28 @@ class TcpMapPoller(TcpLoopBase):
             # (conditional expressions: the builtins min and max parse keywords, per poll)
             look = 2 * took if 2 * took > _LOOK else _LOOK
             most = u.timeout / 4
-            self._seq += 1
-            c.look = seq = self._seq
-            heapq.heappush(self._looks, (now + (look if look < most else most), seq, c))
+            look_at = now + (look if look < most else most)
+            arm = self.again(c, e, now) is not None  # its polls the C part's from now on
+            if not arm:
+                self.look(c, look_at)
         try:  # whole, or the connection is lost
             sent = sock.send(c.m.view[:size])
         except BlockingIOError:
             sent = 0
         except OSError as err:
-            self.lost(c, now, os.strerror(err.errno or errno.EPIPE), err.errno)
-            return
-        if sent != size:  # half a request would put the stream out of step
+            sent, arm = -(err.errno or errno.EPIPE), False
+        if sent != size:
+            self._unsent(c, now, size, sent)
+        elif arm:
+            self.arm(c, t, u.timeout, look_at)
+
+    def _unsent(self, c: Conn, now: float, size: int, sent: int) -> None:
+        """``sent`` of a poll's ``size`` bytes of requests went out (negative:
+        the send failed with that errno): the connection is lost (half a
+        request would put the stream out of step)."""
+        if sent < 0:
+            self.lost(c, now, os.strerror(-sent), -sent)
+        else:
             self.lost(c, now, f"the connection took {sent} of {size} request bytes "
                                "(the device does not read its requests)", None)
 
@@ -267,7 +271,7 @@ class TcpMapPoller(TcpLoopBase):
                 c.table = e.table_of(c.todo)
             return
         got = mbap_frame(tid, u.info.address, bytes((spec.function | 0x80, code)))
-        exc = self._request_error(exception_errno(code), c, spec, u, got)
+        exc = request_failed(exception_errno(code), c, spec, u, got)
         c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
         self.failed(c, e, exc, now)
@@ -288,7 +292,7 @@ class TcpMapPoller(TcpLoopBase):
                 return  # (waiting for a silence)
             if c.whole:
                 c.took += (now - c.sent_at - c.took) / 8
-            self._sample(c, e, now)
+            self.sample(c, e, now)
             slot = e.slot
             if (not slot.interval and not slot.once and not c.waiting and c.loan is None
                     and c.state == "open" and now >= slot.health.retry_at):
@@ -321,7 +325,7 @@ class TcpMapPoller(TcpLoopBase):
         """``e``'s poll read every request and its next one is framed
         (:meth:`again`): the poll's sample, and the next poll sent."""
         c.took += (now - c.sent_at - c.took) / 8
-        self._sample(c, e, now)
+        self.sample(c, e, now)
         c.entry = e
         c.sent = 0
         t = c.table
@@ -330,21 +334,8 @@ class TcpMapPoller(TcpLoopBase):
 
     def _done(self, c: Conn, e: Entry, now: float) -> None:
         """A poll read every request: its sample; the group's next slot."""
-        self._sample(c, e, now)
+        self.sample(c, e, now)
         self._requeue(c, e, now)
-
-    def _sample(self, c: Conn, e: Entry, now: float) -> None:
-        """A poll read every request: its sample (the connection is idle)."""
-        u = e.unit
-        c.entry = None
-        c.whole = False
-        unread = e.unsupported()
-        if unread or c.unread:
-            unread = (unread | c.unread) & e.decode.items
-        s, reading = poll_sample(u.info, time.time(), now, e.decode, bytes(e.image), unread)
-        report = self.report
-        report.sample(s)
-        report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
     def _requeue(self, c: Conn, e: Entry, now: float) -> None:
         """After a poll (or a failed one): the group's next slot (whole slots
@@ -368,7 +359,13 @@ class TcpMapPoller(TcpLoopBase):
 
     def _sweep(self, now: float) -> None:
         self._soonest = soonest = float("inf")
+        cloop = self.cloop
+        assert cloop is not None
         for c in self.conns:
+            if c.armed:  # (a loan waits for the end of the poll under way)
+                c.deadline = cloop.deadline(c.index)
+                if c.loan is not None or now >= c.deadline:
+                    self.synced(c)
             if c.state == "closed":
                 if now >= c.retry_at:
                     self._connect(c, now)
@@ -398,23 +395,13 @@ class TcpMapPoller(TcpLoopBase):
         spec = c.pending()[0]
         u = e.unit
         got = c.m.partial() or None
-        exc = self._request_error(errno.ETIMEDOUT, c, spec, u, got)
+        exc = request_failed(errno.ETIMEDOUT, c, spec, u, got)
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
         self.failed(c, e, exc, now)
         if got:  # a part of a reply (one whose length lied?): the stream is out of step
             self.reopen(c, now)
         self._next(c, now)
-
-    @staticmethod
-    def _request_error(err: int, c: Conn, spec: PollRequest, u: Unit,
-                       got: bytes | None = None) -> ModbusError:
-        """The error of request ``spec`` of ``u`` on ``c`` that failed with
-        ``err``, as a client's request says it (``got``: what came of its reply)."""
-        return request_error(err, function=spec.function, slave=u.info.address,
-                             address=spec.address, count=spec.count, port=c.bus.endpoint,
-                             timeout=u.timeout, failed=(spec.address, spec.count),
-                             response=got, header=7, frame=None)
 
     def _quiet_over(self, now: float) -> float:
         """Send what waited for a silence that is over; seconds to the next."""
@@ -453,7 +440,9 @@ class TcpMapPoller(TcpLoopBase):
                 e.slot.next_at = start
                 if e.slot.interval:
                     self._agenda.put(e.slot, e, start)
-        stop, select, lender = self.stop_event, self._sel.select, self.lender
+        stop, lender, cloop, conns = self.stop_event, self.lender, self.cloop, self.conns
+        assert cloop is not None
+        owner, recs = self._sel.owner, cloop.recs
         next_sweep = start
         while not stop.is_set():
             now = time.monotonic()
@@ -472,22 +461,39 @@ class TcpMapPoller(TcpLoopBase):
                 wait = agenda - now
             if self._silent:
                 wait = min(wait, self._quiet_over(now))
-            looks = self._looks
-            while looks and looks[0][0] <= now:
-                _, seq, c = heapq.heappop(looks)
-                if c.look == seq and c.busy and c.lowat > 1:  # read them as they come
-                    c.wake_at(1)
-                    self.replies.readable(c, now)
-            if looks and looks[0][0] - now < wait:
-                wait = looks[0][0] - now
-            for c, mask in select(wait):
-                if c is lender:  # a write command's thread woke the loop
+            for c in self.looks_due(now):  # read a poll's replies as they come
+                c.wake_at(1)
+                self.replies.readable(c, now)
+            if self.next_look - now < wait:
+                wait = self.next_look - now
+            for i in range(cloop.wait(wait)):
+                r = recs[i]
+                kind = r.kind
+                if kind == DONE:  # the usual one: a poll read, the next one sent
+                    c = conns[r.conn]
+                    if not self.carried(c, r.now, r.size, r.sent):
+                        self._unsent(c, r.now, r.size, -r.err if r.err else r.sent)
+                    continue
+                if kind != READY:  # handed back: a take to go on from, or a look
+                    c = conns[r.conn]
+                    self.synced(c)
+                    if kind == TAKEN:
+                        c.m.taken = r.taken
+                        self.replies.taken(c, r.now, r.got, r.nev, r.used, True)
+                    continue
+                obj = owner(r.fd)
+                if obj is lender:  # a write command's thread woke the loop
                     lender.woken()
                     continue
-                t = time.monotonic()
+                if obj is None:
+                    continue
+                c = obj
+                if c.armed:
+                    self.synced(c)
+                t = r.now
                 if c.state == "open":
                     self.replies.readable(c, t)
-                elif mask & WRITABLE:
+                elif r.events & WRITABLE:
                     self._connected(c, t)
                     if c.entry is not None and c.state == "open" and not c.busy:
                         self._send(c, t)  # the rest of a poll, on a new connection

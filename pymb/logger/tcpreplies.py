@@ -66,7 +66,8 @@ class TcpReplies:
 
     def __init__(self, polls: Polls) -> None:
         self.polls = polls
-        self._rx = ReadBuffer()  #: the one buffer every connection is read into
+        #: the one buffer every connection is read into (the loop's C part's too)
+        self.rx = ReadBuffer()
 
     # -- reading -------------------------------------------------------------------------
 
@@ -91,7 +92,7 @@ class TcpReplies:
         """Read what came on ``c`` (open, or the connection is lost)."""
         sock = c.sock
         assert sock is not None
-        rx = self._rx
+        rx = self.rx
         peek = c.lowat > 1  # woken for a whole poll's replies: looked at, dropped after
         got = self._recv(c, sock, rx.view, 0, _PEEK if peek else 0)
         if not got:
@@ -111,6 +112,20 @@ class TcpReplies:
             if peek and c.sock is sock:
                 self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
             return
+        self.taken(c, now, got, n, pos, peek)
+
+    def taken(self, c: Conn, now: float, got: int, n: int, pos: int, peek: bool) -> None:
+        """``c``'s master took ``got`` bytes of :attr:`rx` (``pos`` of them
+        used, ``n`` events, :attr:`Master.taken` replies) and framed no next
+        poll: what they do to the poll (also after the loop's C part took
+        them: :data:`pymb._native.loop.TAKEN`). ``peek``: they are still in
+        the socket, to be dropped."""
+        sock = c.sock
+        assert sock is not None
+        rx = self.rx
+        m = c.m
+        e = c.entry
+        table = c.table if e is not None else None
         if not n and pos == got:  # replies only (or a part of one)
             if m.taken and e is not None:
                 c.answered = True

@@ -75,6 +75,14 @@ class Selector:
                               len(to) or 1)  # (not the default 1,023 events to allocate)
         return [(to[fd], ev) for fd, ev in ready if fd in to]
 
+    def fileno(self) -> int:
+        """The epoll's descriptor (the C loop waits on it: :mod:`pymb._native.loop`)."""
+        return self._ep.fileno()
+
+    def owner(self, fd: int) -> Any:
+        """The object ``fd``'s events go to (None: not watched)."""
+        return self._to.get(fd)
+
     def close(self) -> None:
         """No more waits: the epoll is closed (the sockets are not)."""
         self._ep.close()

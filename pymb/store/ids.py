@@ -50,6 +50,12 @@ class SampleIds:
         self.next += 1
         return i
 
+    def take_many(self, n: int) -> int:
+        """The ids of the next ``n`` samples: the first of them (the rest follow it)."""
+        i = self.next
+        self.next += n
+        return i
+
     @property
     def last(self) -> int:
         """The highest id handed out (0: none yet)."""

@@ -30,8 +30,9 @@ from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import (
     ROWS_PER_INSERT,
     DeviceIds,
+    bound_registers,
     insert_rows,
-    stored_registers,
+    sample_rows,
     unsupported_of,
 )
 from pymb.store.schema import MIN_BYTES, open_format, wire_bytes
@@ -227,46 +228,38 @@ class SqliteSink(SinkBase):
 
     def _write_rows(self, samples: Sequence[Sample]) -> None:
         try:
-            self._make_room(len(samples))
-            take = self._ids.take
-            device_id = self._device_ids.id_of
-            rows = [(take(), did, s.time_utc, s.monotonic, stored_registers(data, size),
-                     unsupported_of(data))
-                    for s in samples for data in (map_reading(s.data),)
-                    for did, _, size in (device_id(s.device, data),)]
-            bounded = self.max_bytes is not None
+            rows = len(samples)
+            self._make_room(rows)
+            flat, sizes = sample_rows(samples, self._ids.take_many(rows), self._device_ids)
             self._begin()
-            if not bounded:  # no WAL budget: statements of ROWS_PER_INSERT rows
-                execute = self.db.execute
-                for i in range(0, len(rows), ROWS_PER_INSERT):
-                    chunk = rows[i:i + ROWS_PER_INSERT]
-                    execute(insert_rows(len(chunk)), [v for row in chunk for v in row])
-                self.stored += len(rows)
+            if self.max_bytes is None:  # no WAL budget: statements of ROWS_PER_INSERT rows
+                for i in range(0, rows, ROWS_PER_INSERT):
+                    k = min(ROWS_PER_INSERT, rows - i)
+                    self.db.execute(insert_rows(k), flat[6 * i:6 * (i + k)])
+                self.stored += rows
                 return
             quarter = self.wal_budget // 4
             i = 0
-            while i < len(rows):
+            while i < rows:
                 # A statement ends where write() one by one would commit: at
                 # the row that brings the batch to a quarter of the WAL budget.
                 j, size = i, self._tx_bytes
-                while j < len(rows) and j - i < ROWS_PER_INSERT:
-                    size += len(rows[j][4]) + 64
+                while j < rows and j - i < ROWS_PER_INSERT:
+                    size += sizes[j] + 64
                     j += 1
-                    if bounded and size >= quarter:
-                        break
-                chunk = rows[i:j]
-                i = j
-                self.db.execute(insert_rows(len(chunk)), [v for row in chunk for v in row])
-                self.stored += len(chunk)
-                if bounded:
-                    self._tx_bytes = size
                     if size >= quarter:
-                        self._commit()
-                        self._begin()
+                        break
+                self.db.execute(insert_rows(j - i), flat[6 * i:6 * j])
+                self.stored += j - i
+                i = j
+                self._tx_bytes = size
+                if size >= quarter:
+                    self._commit()
+                    self._begin()
         except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
-    def _insert(self, did: int, sample: Sample, registers: bytes | None,
+    def _insert(self, did: int, sample: Sample, registers: bytearray | None,
                 unsupported: int) -> int:
         sid = self._ids.take()
         self.db.execute(
@@ -288,7 +281,7 @@ class SqliteSink(SinkBase):
         did, channels, size = self._device_ids.id_of(sample.device, data)
         self._begin()
         if self.on_change is None:
-            self._insert(did, sample, stored_registers(data, size), unsupported_of(data))
+            self._insert(did, sample, bound_registers(data, size), unsupported_of(data))
             self.stored += 1
             return
         rules = self._changes.get(did)
@@ -309,7 +302,7 @@ class SqliteSink(SinkBase):
                     "H", [regs[p.address - first + ch * p.stride] for p in points])))
                  for ch in pick])
         else:
-            self._insert(did, sample, stored_registers(data, size), unsupported_of(data))
+            self._insert(did, sample, bound_registers(data, size), unsupported_of(data))
         self.stored += 1
 
     def event(self, event: Event) -> None:

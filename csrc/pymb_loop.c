@@ -1,0 +1,184 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * pymb_loop.c - the I/O of pymb log's one Modbus TCP loop, flat out (see
+ * pymb_loop.h). Linux: epoll, MSG_PEEK then MSG_TRUNC on TCP.
+ */
+#define _GNU_SOURCE /* (MSG_NOSIGNAL, MSG_DONTWAIT and epoll under -std=c99) */
+#include <errno.h>
+#include <math.h>
+#include <string.h>
+#include <sys/epoll.h>
+#include <sys/socket.h>
+#include <sys/types.h>
+#include <time.h>
+
+#include "pymb_loop.h"
+
+#define EVENTS 256 /* epoll events one wait takes at most */
+
+double pymbi_loop_now(void)
+{
+    struct timespec ts;
+    if (clock_gettime(CLOCK_MONOTONIC, &ts) != 0) {
+        return 0.0;
+    }
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double now)
+{
+    memset(r, 0, sizeof *r);
+    r->kind = PYMBI_LOOP_READY;
+    r->fd = fd;
+    r->conn = conn;
+    r->events = events;
+    r->now = now;
+}
+
+/* The armed connection c (index i) is ready: its whole poll's replies in,
+ * taken, the next poll sent (DONE); or handed back (READY, TAKEN). Returns 1
+ * when the call must return after this record (TAKEN: rx and the events are
+ * this connection's), -1 on a master that refuses its own poll (a bug). */
+static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, double now,
+                 pymbi_lrec *r)
+{
+    ssize_t got, sent;
+    size_t used = 0, framed = 0;
+    uint64_t before;
+    int nev, err = 0;
+
+    if ((events & (EPOLLERR | EPOLLHUP)) || !(events & EPOLLIN)) {
+        c->armed = 0;
+        ready(r, c->fd, i, events, now);
+        return 0;
+    }
+    got = recv(c->fd, lp->rx, lp->rx_cap, MSG_PEEK | MSG_DONTWAIT);
+    if (got <= 0 || (size_t)got != c->replies) { /* not just the poll's replies: the caller's */
+        c->armed = 0;
+        ready(r, c->fd, i, events, now);
+        return 0;
+    }
+    before = c->m->replies;
+    nev = pymbi_master_step(c->m, lp->rx, (size_t)got, c->image, c->image_len, c->ev, c->ev_cap,
+                            &used, c->reqs, c->n, lp->out, lp->out_cap, &framed);
+    if (nev < 0) {
+        c->armed = 0;
+        return -1;
+    }
+    memset(r, 0, sizeof *r);
+    r->fd = c->fd;
+    r->conn = i;
+    r->now = now;
+    if (framed == 0) { /* an exception, a late, foreign or bad reply: the caller's */
+        c->armed = 0;
+        r->kind = PYMBI_LOOP_TAKEN;
+        r->nev = nev;
+        r->got = (size_t)got;
+        r->used = used;
+        r->taken = c->m->replies - before;
+        return 1;
+    }
+    sent = send(c->fd, lp->out, framed, MSG_DONTWAIT | MSG_NOSIGNAL);
+    if (sent < 0) {
+        err = errno == EAGAIN || errno == EWOULDBLOCK ? 0 : errno;
+        sent = 0;
+    }
+    r->kind = PYMBI_LOOP_DONE;
+    r->size = framed;
+    r->sent = (size_t)sent;
+    r->err = err;
+    c->asked += (uint32_t)c->n;
+    c->took += (now - c->sent_at - c->took) / 8;
+    c->sent_at = now;
+    c->deadline = now + c->timeout;
+    {
+        double look = 2 * c->took > lp->look_min ? 2 * c->took : lp->look_min;
+        double most = c->timeout / 4;
+        c->look_at = now + (look < most ? look : most);
+    }
+    if ((size_t)sent != framed) {
+        c->armed = 0; /* the caller says why the connection is lost */
+        return 0;
+    }
+    /* the replies looked at, dropped unread (a short drop: the next recv says it) */
+    (void)recv(c->fd, lp->rx, (size_t)got, MSG_TRUNC | MSG_DONTWAIT);
+    return 0;
+}
+
+int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
+{
+    struct epoll_event evs[EVENTS];
+    size_t k = 0, i;
+    double now, wait;
+    int n, j, ms;
+
+    if (lp == NULL || rec == NULL || cap == 0 || (lp->nconns > 0 && lp->conns == NULL) ||
+        (lp->slot_cap > 0 && lp->slot_of == NULL) || lp->rx == NULL || lp->rx_cap == 0 ||
+        lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0)) {
+        errno = EINVAL;
+        return -1;
+    }
+    now = pymbi_loop_now();
+    wait = timeout;
+    for (i = 0; i < lp->nconns; i++) { /* looks that are over: handed back unread */
+        pymbi_lconn *c = &lp->conns[i];
+        if (!c->armed) {
+            continue;
+        }
+        if (c->look_at <= now) {
+            if (k == cap) {
+                wait = 0.0;
+                break;
+            }
+            c->armed = 0;
+            memset(&rec[k], 0, sizeof rec[k]);
+            rec[k].kind = PYMBI_LOOP_LOOK;
+            rec[k].fd = c->fd;
+            rec[k].conn = (uint32_t)i;
+            rec[k].now = now;
+            k++;
+        } else if (c->look_at - now < wait) {
+            wait = c->look_at - now;
+        }
+    }
+    if (k == cap) {
+        return (int)k;
+    }
+    if (k > 0) {
+        wait = 0.0;
+    }
+    ms = wait <= 0.0 ? 0 : wait >= 3600.0 ? 3600000 : (int)ceil(wait * 1e3);
+    n = epoll_wait(lp->epfd, evs, (int)(cap - k < EVENTS ? cap - k : EVENTS), ms);
+    if (n < 0) {
+        return errno == EINTR ? (int)k : -1;
+    }
+    if (n > 0) {
+        now = pymbi_loop_now();
+    }
+    for (j = 0; j < n; j++) {
+        int fd = evs[j].data.fd;
+        int32_t slot = fd >= 0 && (size_t)fd < lp->slot_cap ? lp->slot_of[fd] : -1;
+        pymbi_lconn *c;
+        int got;
+
+        if (slot < 0 || (size_t)slot >= lp->nconns) {
+            ready(&rec[k++], fd, PYMBI_LOOP_NO_CONN, evs[j].events, now);
+            continue;
+        }
+        c = &lp->conns[slot];
+        if (!c->armed || c->fd != fd) {
+            ready(&rec[k++], fd, (uint32_t)slot, evs[j].events, now);
+            continue;
+        }
+        got = serve(lp, c, (uint32_t)slot, evs[j].events, now, &rec[k]);
+        if (got < 0) {
+            errno = EINVAL;
+            return -1;
+        }
+        k++;
+        if (got > 0) { /* the rest of the ready sockets: the next wait says them again */
+            break;
+        }
+    }
+    return (int)k;
+}

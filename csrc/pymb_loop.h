@@ -1,0 +1,103 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * pymb_loop.h - the I/O of pymb log's one Modbus TCP loop over many
+ * connections, flat out: one call waits on the loop's epoll and, for each
+ * connection whose whole poll came back, does what the loop would do one
+ * Python call at a time: looks at its replies (MSG_PEEK), takes them into
+ * the poll's image with its master and frames the next poll in the same
+ * step (pymbi_master_step, pymb_master.h), sends it, then drops the replies
+ * from the socket (MSG_TRUNC: the requests carry the ACK). Everything else
+ * is the caller's: a socket ready that is no such connection (or is one
+ * whose bytes are not exactly its poll's replies) is handed back untouched;
+ * a take that is not the poll's clean end (an exception, a late, foreign or
+ * bad reply) is handed back with its events; a poll slower than its "look"
+ * is handed back unread. Policy (schedule, events, reconnects, re-plans) stays
+ * with the caller, which arms a connection only while its next poll is the
+ * same requests at once, and disarms it whenever that stops being so.
+ *
+ * Linux (epoll, SO_RCVLOWAT set by the caller, MSG_TRUNC on TCP). Compiled
+ * into the Python extension only (pymb._native.loop is its one user); not in
+ * libpymb. No allocation, no state but the caller's structures; every length
+ * is checked.
+ */
+#ifndef PYMB_LOOP_H
+#define PYMB_LOOP_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "pymb_master.h"
+
+/* What a record says. */
+#define PYMBI_LOOP_READY 1 /* fd is ready (epoll mask `events`), nothing read: the caller's */
+#define PYMBI_LOOP_DONE 2  /* conn's poll read in full (its data in its image) at `now`; its
+                              next poll framed (`size` bytes) and `sent` of them sent (`err`:
+                              the send's errno, 0: none); disarmed unless all were sent */
+#define PYMBI_LOOP_TAKEN 3 /* conn's `got` bytes taken by its master but not as the poll's
+                              clean end: `nev` events in its ev, `used` bytes used (the rest
+                              in the loop's rx from `used` on), `taken` replies into the image;
+                              disarmed; the call returns after this record */
+#define PYMBI_LOOP_LOOK 4  /* conn's poll is slower than its look: disarmed, nothing read */
+
+/* One connection of the loop. The caller fills it and sets `armed` while a
+ * whole poll of it is in flight whose next poll is the same requests, sent at
+ * once; the loop clears `armed` whenever it hands the connection back. */
+typedef struct {
+    int fd;
+    int armed;
+    pymbi_master *m;
+    const pymbi_mreq *reqs; /* the poll's requests, and the next poll's */
+    size_t n;
+    uint8_t *image;
+    size_t image_len;
+    pymbi_mevent *ev; /* PYMBI_LOOP_TAKEN's events */
+    size_t ev_cap;
+    size_t replies;  /* bytes of the poll's replies, all of them */
+    double timeout;  /* seconds a poll's replies may take */
+    double took;     /* seconds the replies took, of late (a moving average) */
+    double sent_at;  /* when the poll in flight went out (CLOCK_MONOTONIC seconds) */
+    double look_at;  /* when it is handed back unread if its replies are not all in */
+    double deadline; /* sent_at + timeout */
+    uint32_t asked;  /* requests the loop sent (the caller takes and zeroes the count) */
+} pymbi_lconn;
+
+typedef struct {
+    int kind;        /* PYMBI_LOOP_* */
+    int fd;
+    uint32_t conn;   /* the connection's index (READY: PYMBI_LOOP_NO_CONN if none) */
+    uint32_t events; /* READY: the epoll mask */
+    int err;         /* DONE: the send's errno (0: none) */
+    int nev;         /* TAKEN: the events */
+    size_t size;     /* DONE: bytes of the next poll */
+    size_t sent;     /* DONE: of those, sent */
+    size_t got;      /* TAKEN: bytes taken */
+    size_t used;     /* TAKEN: of those, used */
+    uint64_t taken;  /* TAKEN: replies taken into the image */
+    double now;      /* when the loop looked (CLOCK_MONOTONIC seconds) */
+} pymbi_lrec;
+
+#define PYMBI_LOOP_NO_CONN 0xFFFFFFFFu
+
+typedef struct {
+    int epfd;
+    pymbi_lconn *conns;
+    size_t nconns;
+    const int32_t *slot_of; /* fd -> index into conns (-1: none); fds >= slot_cap: none */
+    size_t slot_cap;
+    uint8_t *rx; /* a poll's replies are looked at here */
+    size_t rx_cap;
+    uint8_t *out; /* the next poll is framed here */
+    size_t out_cap;
+    double look_min; /* a look is twice `took`, at least this, at most timeout / 4 */
+} pymbi_loop;
+
+/* CLOCK_MONOTONIC in seconds (as Python's time.monotonic on Linux). */
+double pymbi_loop_now(void);
+
+/* Wait up to `timeout` seconds (rounded up to a millisecond; sooner when an
+ * armed connection's look comes first) on lp->epfd and write what happened to
+ * rec[0 .. cap): returns the records written (0: the time passed, or a
+ * signal came), -1 with errno on invalid arguments or an epoll failure. */
+int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap);
+
+#endif

@@ -1,0 +1,332 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * test_loop.c - pymb log's TCP loop I/O (pymb_loop.h) against a peer on a
+ * real loopback TCP connection: a whole poll's replies taken and the next
+ * poll sent in one wait, sockets handed back untouched (not armed, not a
+ * connection, bytes that are not just the poll's replies, a closed peer), a
+ * take that is not the poll's clean end handed back with its events, a look
+ * that is over, invalid arguments. No Python, no libmodbus.
+ *
+ * Source: [MB-TCP] 3.1.3 (MBAP), [MB-APP] 6.3-6.4 (reads of registers).
+ */
+#define _GNU_SOURCE
+#include <arpa/inet.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/epoll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "../pymb.h"
+#include "../pymb_loop.h"
+#include "check.h"
+
+static pymbi_master M; /* (large: not on the stack) */
+
+/* A loopback TCP connection: *client non-blocking (the loop's), *peer blocking. */
+static int pair(int *client, int *peer)
+{
+    struct sockaddr_in a;
+    socklen_t len = sizeof a;
+    int one = 1, lfd = socket(AF_INET, SOCK_STREAM, 0);
+    if (lfd < 0) {
+        return -1;
+    }
+    memset(&a, 0, sizeof a);
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    if (bind(lfd, (struct sockaddr *)&a, sizeof a) != 0 || listen(lfd, 1) != 0 ||
+        getsockname(lfd, (struct sockaddr *)&a, &len) != 0) {
+        close(lfd);
+        return -1;
+    }
+    *client = socket(AF_INET, SOCK_STREAM, 0);
+    if (*client < 0 || connect(*client, (struct sockaddr *)&a, sizeof a) != 0) {
+        close(lfd);
+        return -1;
+    }
+    *peer = accept(lfd, NULL, NULL);
+    close(lfd);
+    if (*peer < 0) {
+        return -1;
+    }
+    setsockopt(*client, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    setsockopt(*peer, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    return fcntl(*client, F_SETFL, fcntl(*client, F_GETFL) | O_NONBLOCK);
+}
+
+static pymbi_mreq rq(unsigned address, unsigned count, unsigned offset, uint32_t token)
+{
+    pymbi_mreq r;
+    memset(&r, 0, sizeof r);
+    r.unit = 1;
+    r.function = 0x03;
+    r.address = (uint16_t)address;
+    r.count = (uint16_t)count;
+    r.offset = offset;
+    r.token = token;
+    return r;
+}
+
+/* The reply to a read of `count` holding registers under `tid`, data bytes
+ * fill, fill + 1, ...: its length. */
+static size_t reply(uint8_t *out, unsigned tid, unsigned count, uint8_t fill)
+{
+    size_t i, nb = 2 * count;
+    const uint8_t head[9] = {(uint8_t)(tid >> 8), (uint8_t)tid, 0, 0, (uint8_t)((3 + nb) >> 8),
+                             (uint8_t)(3 + nb), 1, 0x03, (uint8_t)nb};
+    memcpy(out, head, sizeof head);
+    for (i = 0; i < nb; i++) {
+        out[9 + i] = (uint8_t)(fill + i);
+    }
+    return 9 + nb;
+}
+
+/* Exactly n bytes from the blocking peer. */
+static int read_n(int fd, uint8_t *buf, size_t n)
+{
+    size_t have = 0;
+    while (have < n) {
+        ssize_t got = recv(fd, buf + have, n - have, 0);
+        if (got <= 0) {
+            return -1;
+        }
+        have += (size_t)got;
+    }
+    return 0;
+}
+
+typedef struct {
+    int ep, client, peer;
+    int32_t slot_of[1024];
+    uint8_t rx[4096], out[1024], image[8];
+    pymbi_mreq reqs[2];
+    pymbi_mevent ev[8];
+    pymbi_lconn conn;
+    pymbi_loop lp;
+    pymbi_lrec rec[8];
+} fixture;
+
+static fixture F;
+
+/* A connection with a poll of two reads (2 registers at 0, 2 at 10) framed
+ * and sent, the peer having read it; armed when `armed`. */
+static int setup(int armed)
+{
+    struct epoll_event e;
+    uint8_t got[24];
+    int lowat = 2 * 13;
+    size_t i;
+    memset(&F, 0, sizeof F);
+    for (i = 0; i < 1024; i++) {
+        F.slot_of[i] = -1;
+    }
+    if (pair(&F.client, &F.peer) != 0 || F.client >= 1024) {
+        return -1;
+    }
+    F.ep = epoll_create1(0);
+    memset(&e, 0, sizeof e);
+    e.events = EPOLLIN;
+    e.data.fd = F.client;
+    if (F.ep < 0 || epoll_ctl(F.ep, EPOLL_CTL_ADD, F.client, &e) != 0) {
+        return -1;
+    }
+    F.slot_of[F.client] = 0;
+    F.reqs[0] = rq(0, 2, 0, 0);
+    F.reqs[1] = rq(10, 2, 4, 1);
+    pymbi_master_reset(&M, 1);
+    if (pymbi_master_frames(&M, F.reqs, 2, sizeof F.image, F.out, sizeof F.out) != 24 ||
+        send(F.client, F.out, 24, 0) != 24 || read_n(F.peer, got, 24) != 0) {
+        return -1;
+    }
+    setsockopt(F.client, SOL_SOCKET, SO_RCVLOWAT, &lowat, sizeof lowat);
+    F.conn.fd = F.client;
+    F.conn.armed = armed;
+    F.conn.m = &M;
+    F.conn.reqs = F.reqs;
+    F.conn.n = 2;
+    F.conn.image = F.image;
+    F.conn.image_len = sizeof F.image;
+    F.conn.ev = F.ev;
+    F.conn.ev_cap = 8;
+    F.conn.replies = 26;
+    F.conn.timeout = 1.0;
+    F.conn.sent_at = pymbi_loop_now();
+    F.conn.look_at = F.conn.sent_at + 5.0;
+    F.conn.deadline = F.conn.sent_at + 1.0;
+    F.lp.epfd = F.ep;
+    F.lp.conns = &F.conn;
+    F.lp.nconns = 1;
+    F.lp.slot_of = F.slot_of;
+    F.lp.slot_cap = 1024;
+    F.lp.rx = F.rx;
+    F.lp.rx_cap = sizeof F.rx;
+    F.lp.out = F.out;
+    F.lp.out_cap = sizeof F.out;
+    F.lp.look_min = 0.002;
+    return 0;
+}
+
+static void teardown(void)
+{
+    close(F.client);
+    if (F.peer >= 0) {
+        close(F.peer);
+    }
+    close(F.ep);
+}
+
+/* The peer answers both requests (tids 1 and 2, the second first). */
+static void answer(unsigned tid1, unsigned tid2)
+{
+    uint8_t buf[32];
+    size_t n = reply(buf, tid2, 2, 0x50);
+    n += reply(buf + n, tid1, 2, 0x10);
+    CHECK(send(F.peer, buf, n, 0) == (ssize_t)n);
+}
+
+static void test_done(void)
+{
+    uint8_t next[24];
+    uint8_t none;
+    int n;
+    CHECK(setup(1) == 0);
+    answer(1, 2);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1);
+    CHECK(F.rec[0].kind == PYMBI_LOOP_DONE);
+    CHECK(F.rec[0].conn == 0 && F.rec[0].fd == F.client);
+    CHECK(F.rec[0].size == 24 && F.rec[0].sent == 24 && F.rec[0].err == 0);
+    CHECK(F.image[0] == 0x10 && F.image[3] == 0x13 && F.image[4] == 0x50 && F.image[7] == 0x53);
+    CHECK(F.conn.armed == 1 && F.conn.asked == 2 && M.in_flight == 2);
+    CHECK(F.conn.sent_at == F.rec[0].now && F.conn.deadline == F.rec[0].now + 1.0);
+    CHECK(F.conn.look_at > F.rec[0].now && F.conn.look_at <= F.rec[0].now + 0.25);
+    /* the next poll reached the peer (tids 3 and 4); the replies left the socket */
+    CHECK(read_n(F.peer, next, 24) == 0);
+    CHECK(next[0] == 0 && next[1] == 3 && next[12] == 0 && next[13] == 4 && next[7] == 0x03);
+    CHECK(recv(F.client, &none, 1, MSG_DONTWAIT) < 0 && errno == EAGAIN);
+    /* and again, with the next poll's replies */
+    answer(3, 4);
+    CHECK(pymbi_loop_wait(&F.lp, 2.0, F.rec, 8) == 1 && F.rec[0].kind == PYMBI_LOOP_DONE);
+    CHECK(F.conn.asked == 4 && M.replies == 4);
+    teardown();
+}
+
+static void test_ready(void)
+{
+    uint8_t buf[64];
+    int other[2];
+    struct epoll_event e;
+    int n;
+    /* not armed: handed back, nothing read */
+    CHECK(setup(0) == 0);
+    answer(1, 2);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_READY && F.rec[0].conn == 0);
+    CHECK((F.rec[0].events & EPOLLIN) != 0);
+    CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == 26);
+    CHECK(M.replies == 0);
+    teardown();
+    /* a socket that is no connection of the loop */
+    CHECK(setup(1) == 0);
+    CHECK(socketpair(AF_UNIX, SOCK_STREAM, 0, other) == 0);
+    memset(&e, 0, sizeof e);
+    e.events = EPOLLIN;
+    e.data.fd = other[0];
+    CHECK(epoll_ctl(F.ep, EPOLL_CTL_ADD, other[0], &e) == 0);
+    CHECK(write(other[1], "x", 1) == 1);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_READY && F.rec[0].conn == PYMBI_LOOP_NO_CONN);
+    CHECK(F.rec[0].fd == other[0] && F.conn.armed == 1);
+    close(other[0]);
+    close(other[1]);
+    /* armed, but more than the poll's replies came: handed back untouched */
+    answer(1, 2);
+    CHECK(send(F.peer, "\0", 1, 0) == 1);
+    usleep(20000);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_READY && F.rec[0].conn == 0);
+    CHECK(F.conn.armed == 0 && M.replies == 0);
+    CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == 27);
+    teardown();
+    /* armed, the peer closed: handed back */
+    CHECK(setup(1) == 0);
+    close(F.peer);
+    F.peer = -1;
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_READY && F.conn.armed == 0);
+    teardown();
+}
+
+static void test_taken(void)
+{
+    uint8_t buf[32];
+    size_t n;
+    int got;
+    /* the poll's bytes, but the second reply is under an id never sent */
+    CHECK(setup(1) == 0);
+    n = reply(buf, 1, 2, 0x10);
+    n += reply(buf + n, 99, 2, 0x50);
+    CHECK(send(F.peer, buf, n, 0) == (ssize_t)n);
+    got = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(got == 1 && F.rec[0].kind == PYMBI_LOOP_TAKEN && F.rec[0].conn == 0);
+    CHECK(F.rec[0].nev == 1 && F.ev[0].kind == PYMBI_EV_FOREIGN && F.ev[0].tid == 99);
+    CHECK(F.rec[0].got == 26 && F.rec[0].used == 26 && F.rec[0].taken == 1);
+    CHECK(F.conn.armed == 0 && M.in_flight == 1 && F.conn.asked == 0);
+    CHECK(F.image[0] == 0x10 && F.image[4] == 0);
+    teardown();
+}
+
+static void test_look(void)
+{
+    uint8_t buf[64];
+    int n;
+    CHECK(setup(1) == 0);
+    F.conn.look_at = pymbi_loop_now() - 0.001;
+    answer(1, 2);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n >= 1 && F.rec[0].kind == PYMBI_LOOP_LOOK && F.rec[0].conn == 0);
+    CHECK(F.conn.armed == 0 && M.replies == 0);
+    if (n == 2) { /* the replies came already: handed back as a socket, not armed */
+        CHECK(F.rec[1].kind == PYMBI_LOOP_READY && F.rec[1].conn == 0);
+    }
+    usleep(20000);
+    CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == 26);
+    /* a look to come shortens the wait */
+    F.conn.armed = 1;
+    F.conn.look_at = pymbi_loop_now() + 0.05;
+    n = pymbi_loop_wait(&F.lp, 5.0, F.rec, 8);
+    CHECK(n == 0 && F.conn.armed == 1);
+    CHECK(pymbi_loop_now() >= F.conn.look_at);
+    teardown();
+}
+
+static void test_args(void)
+{
+    pymbi_lrec r;
+    CHECK(setup(1) == 0);
+    errno = 0;
+    CHECK(pymbi_loop_wait(NULL, 0.0, &r, 1) == -1 && errno == EINVAL);
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, NULL, 1) == -1 && errno == EINVAL);
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 0) == -1 && errno == EINVAL);
+    CHECK(pymbi_loop_wait(&F.lp, -1.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.rx = NULL;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.rx = F.rx;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == 0);
+    teardown();
+}
+
+int main(void)
+{
+    test_done();
+    test_ready();
+    test_taken();
+    test_look();
+    test_args();
+    return check_report();
+}

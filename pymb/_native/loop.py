@@ -1,0 +1,134 @@
+"""The I/O of ``pymb log``'s one Modbus TCP loop, flat out, in C
+(``csrc/pymb_loop.h``): :class:`Loop`.
+
+One :meth:`Loop.wait` waits on the loop's epoll and, for each *armed*
+connection whose whole poll came back, takes its replies into the poll's
+image with the connection's :class:`~pymb._native.master.Master`, sends the
+next poll (the same requests, framed in the same step) and drops the replies
+from the socket: a :data:`DONE` record. Everything else comes back for the
+loop (:mod:`pymb.logger.tcploop`) to do as it does it in Python: a socket
+ready that is not armed, or whose bytes are not just its poll's replies
+(:data:`READY`, nothing read), a take that is not the poll's clean end
+(:data:`TAKEN`: the master's events, the bytes in the loop's receive buffer),
+a poll slower than its look (:data:`LOOK`). The loop arms a connection while
+its next poll follows at once as the same requests, and takes it back
+(:meth:`Loop.disarm`) as soon as that is no longer so.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+from pymb._native.master import Master, PollTable, ReadBuffer
+from pymb._pymb_cffi import ffi, lib
+
+__all__ = ["DONE", "LOOK", "NO_CONN", "READY", "TAKEN", "Loop", "Times"]
+
+READY: int = lib.PYMBI_LOOP_READY  #: a socket is ready, nothing read (``events``: its mask)
+DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one sent (``sent`` of ``size``)
+TAKEN: int = lib.PYMBI_LOOP_TAKEN  #: replies taken, not the poll's clean end (``nev`` events)
+LOOK: int = lib.PYMBI_LOOP_LOOK  #: a poll slower than its look: nothing read
+NO_CONN: int = lib.PYMBI_LOOP_NO_CONN  #: a READY socket that is no connection of the loop
+
+_RECORDS = 256  #: records one wait writes at most
+_wait = lib.pymbi_loop_wait
+
+
+class Times(NamedTuple):
+    """An armed connection's poll as the C loop leaves it when disarmed."""
+
+    took: float  #: seconds the replies took, of late
+    sent_at: float  #: when the poll in flight went out
+    look_at: float  #: when it is read as its replies come
+    deadline: float  #: when it times out
+    asked: int  #: requests the C loop sent since it was armed
+
+
+class Loop:
+    """The C loop over the epoll ``epfd`` and ``n`` connections (by index);
+    ``rx`` is where it looks at replies (a :data:`TAKEN` record's bytes stay
+    there); a look is twice the replies' time, at least ``look_min`` seconds,
+    at most a quarter of the timeout."""
+
+    __slots__ = ("_conns", "_lp", "_out", "_rx", "_slots", "recs")
+
+    def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float) -> None:
+        self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
+        self._slots: Any = ffi.new("int32_t[]", 0)
+        self._out: Any = ffi.new("uint8_t[]", lib.PYMBI_MASTER_FRAME * lib.PYMBI_MASTER_INFLIGHT)
+        #: the records of the last :meth:`wait` (``recs[i].kind``, ``.conn``, ``.now``, ...)
+        self.recs: Any = ffi.new("pymbi_lrec[]", _RECORDS)
+        lp = self._lp = ffi.new("pymbi_loop *")
+        lp.epfd = epfd
+        lp.conns = self._conns
+        lp.nconns = n
+        lp.slot_cap = 0
+        lp.rx = rx.c
+        lp.rx_cap = len(rx.data)
+        lp.out = self._out
+        lp.out_cap = len(self._out)
+        lp.look_min = look_min
+        self._rx = rx
+
+    def bind(self, i: int, fd: int) -> None:
+        """Connection ``i``'s socket is ``fd`` (from now until :meth:`unbind`)."""
+        if not 0 <= i < self._lp.nconns:
+            raise ValueError(f"connection {i} is not one of {self._lp.nconns}")
+        cap = self._lp.slot_cap
+        if fd >= cap:
+            grown = ffi.new("int32_t[]", max(2 * cap, fd + 1, 64))
+            ffi.memmove(grown, self._slots, 4 * cap)
+            for k in range(cap, len(grown)):
+                grown[k] = -1
+            self._slots = grown
+            self._lp.slot_of = grown
+            self._lp.slot_cap = len(grown)
+        self._slots[fd] = i
+        self._conns[i].fd = fd
+
+    def unbind(self, fd: int) -> None:
+        """``fd`` is no connection's any more (it is being closed)."""
+        if 0 <= fd < self._lp.slot_cap:
+            self._slots[fd] = -1
+
+    def arm(self, i: int, m: Master, t: PollTable, timeout: float, took: float,
+            sent_at: float, look_at: float) -> None:
+        """Connection ``i`` has ``t``'s requests in flight on ``m``, all of
+        them, sent at ``sent_at``; its next poll is the same requests, sent
+        as soon as these are read (by :meth:`wait`, until :meth:`disarm`)."""
+        c = self._conns[i]
+        c.m, c.ev, c.ev_cap = m.handles()
+        c.reqs = t.rows
+        c.n = t.n
+        c.image = t.image_c
+        c.image_len = t.image_len
+        c.replies = t.ends[t.n]
+        c.timeout = timeout
+        c.took = took
+        c.sent_at = sent_at
+        c.look_at = look_at
+        c.deadline = sent_at + timeout
+        c.asked = 0
+        c.armed = 1
+
+    def disarm(self, i: int) -> Times:
+        """Connection ``i`` is the caller's again (also when :meth:`wait`
+        handed it back): its poll's times and the requests sent since armed."""
+        c = self._conns[i]
+        c.armed = 0
+        asked = int(c.asked)
+        c.asked = 0
+        return Times(c.took, c.sent_at, c.look_at, c.deadline, asked)
+
+    def deadline(self, i: int) -> float:
+        """When armed connection ``i``'s poll in flight times out."""
+        return self._conns[i].deadline  # type: ignore[no-any-return]
+
+    def wait(self, timeout: float) -> int:
+        """Wait up to ``timeout`` seconds (sooner for an armed connection's
+        look): the records written to :attr:`recs`."""
+        got: int = _wait(self._lp, timeout if timeout > 0 else 0.0, self.recs, _RECORDS)
+        if got < 0:
+            err = ffi.errno
+            raise OSError(err, f"the TCP loop's wait failed (errno {err})")
+        return got
