@@ -160,19 +160,21 @@ class Fetcher:
         With ``decode``, where each table is one run, that run's C call also
         decodes it: True when every table was decoded so (no fallback)."""
         planner, client = self.planner, self.client
-        if (r.version != planner.version or not client.connected
-                or client.connections - client.resends != self._connections  # fresh_connections
-                or (planner.retry_at != _NEVER and planner.retry_at <= planner.clock())):
+        if r.version != planner.version or (
+                planner.retry_at != _NEVER and planner.retry_at <= planner.clock()):
             self._remake(r)
         runs = r.decoding if decode else None
         decoded = runs is not None
         if runs is None:
             runs = r.runs
             if runs is None:
+                if not client.connected or client.fresh_connections != self._connections:
+                    self._remake(r)
                 assert r.plan is not None
                 self.run(r.plan, r.images)
                 return False
         q, gap, turnaround = self.quiet, self._gap, self._turnaround
+        on: int | None = self._connections  # the first run only on the connection r is from
         for p in runs:
             # the silence before it: any device's turnaround, this device's gap
             # after the last request (kept only while still to come)
@@ -183,7 +185,10 @@ class Fetcher:
                 sleep_until(until)
             try:
                 try:
-                    client.run_read_plan(p.plan)
+                    if not client.run_read_plan(p.plan, 0, on):
+                        self._remake(r)  # the line was lost or reopened: made again, read again
+                        return self.fetch(r, decode)
+                    on = None
                 except DeviceFailure:
                     if not self.busy_retries:
                         raise
