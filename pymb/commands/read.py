@@ -97,12 +97,14 @@ def reader(dev: DeviceConfig, client: Client, *, blocks: list[str] | None = None
 
 def identity_of(dev: DeviceConfig, client: Client
                 ) -> CoolProIdentity | MapReading | Identity | None:
-    """What the device says it is: its map's ``identity`` group (read on
-    request) as its view shows it (a CoolPro's serial number, firmware and
-    manufacture date); for a map without one, what identification finds (a
-    hub's channels and firmware: :mod:`pymb.devices.identify`)."""
+    """What the device says it is: its map's ``identity`` group read on
+    request (``poll = "request"``) as its view shows it (a CoolPro's serial
+    number, firmware and manufacture date); for a map without one (an
+    identity group it polls, as the Carlo Gavazzi meters', included), what
+    identification finds (a hub's channels and firmware:
+    :mod:`pymb.devices.identify`)."""
     assert dev.address is not None
-    if IDENTITY in dev.map.groups:
+    if IDENTITY in dev.map.groups and dev.map.polled(IDENTITY) == "request":
         return identity_view(dev.open(client)[1](IDENTITY))
     return identify(client_asker(client), dev.address)
 

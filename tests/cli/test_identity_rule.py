@@ -1,8 +1,9 @@
 """``--identity`` is one rule over the map: a map with an ``identity`` group
-says what the device is by that group, read on request and shown as its
-view shows it (the CoolPro's as ``CoolPro.read_identity()`` gives it); a map
-without one, by what identification finds (the hub's channels and
-firmware). Against simulated devices on a pty."""
+read on request says what the device is by that group, shown as its view
+shows it (the CoolPro's as ``CoolPro.read_identity()`` gives it); a map
+without one, or whose ``identity`` group is polled (the Carlo Gavazzi
+meters'), by what identification finds (the hub's channels and firmware).
+Against simulated devices on a pty."""
 
 from __future__ import annotations
 
@@ -45,7 +46,7 @@ example = 4711
 @pytest.fixture(scope="module")
 def sim() -> Iterator[Simulator]:
     meter = MapSimDevice(maps.loads(METER, source="meter.toml"))
-    with Simulator(["coolpro", "hub:250", meter]) as s:
+    with Simulator(["coolpro", "hub:250", meter, "carlo-gavazzi-em21:21"]) as s:
         yield s
 
 
@@ -72,3 +73,13 @@ def test_any_maps_identity_group_is_its_identity(sim: Simulator) -> None:
     assert isinstance(got, MapReading)
     assert (got.group, got.values) == ("identity", {"serial": 4711})
     assert identity_text(got).split() == ["serial", "4711"]
+
+
+def test_a_polled_identity_group_is_not_read_for_identity(sim: Simulator) -> None:
+    # the EM21's identity group is polled (interval 0: once after it appears),
+    # not read on request: --identity identifies the device, as it always did
+    assert maps.builtin("carlo-gavazzi-em21").polled("identity") == "interval"
+    with RtuClient(sim.port, 9600, timeout=1.0) as client:
+        got = identity_of(DeviceConfig("carlo-gavazzi-em21", 21), client)
+    assert isinstance(got, Identity)
+    assert identity_text(got).startswith("Identity ")
