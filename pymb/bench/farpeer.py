@@ -11,7 +11,7 @@ import asyncio
 import struct
 import sys
 
-from pymb._native.serve import mbap_frame, take_frames
+from pymb._native.serve import BadFrame, mbap_frame, take_frames
 
 __all__ = ["main"]
 
@@ -29,8 +29,13 @@ class _DelayedDevice(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         self.buf += data
         loop = asyncio.get_running_loop()
-        # the C core's MBAP length rule; a header it refuses (BadFrame) closes the connection
-        for frame in take_frames(self.buf):
+        try:  # the C core's MBAP length rule
+            frames = take_frames(self.buf)
+        except BadFrame:  # a header it refuses: the connection is closed (no traceback)
+            if self.transport is not None:
+                self.transport.close()
+            return
+        for frame in frames:
             loop.call_later(self.delay, self._answer, frame)
 
     def _answer(self, frame: bytes) -> None:
