@@ -36,9 +36,10 @@ static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double 
 }
 
 /* The armed connection c (index i) is ready: its whole poll's replies in,
- * taken, the next poll sent (DONE); or handed back (READY, TAKEN). Returns 1
- * when the call must return after this record (TAKEN: rx and the events are
- * this connection's), -1 on a master that refuses its own poll (a bug). */
+ * taken, the next poll sent whole (2: no record, i goes to done) or in part
+ * (DONE); or handed back (READY, TAKEN). Returns 1 when the call must return
+ * after this record (TAKEN: rx and the events are this connection's), -1 on
+ * a master that refuses its own poll (a bug), else 0 (a record) or 2. */
 static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, double now,
                  pymbi_lrec *r)
 {
@@ -102,23 +103,25 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     }
     /* the replies looked at, dropped unread (a short drop: the next recv says it) */
     (void)recv(c->fd, lp->rx, (size_t)got, MSG_TRUNC | MSG_DONTWAIT);
-    return 0;
+    return 2;
 }
 
 int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
 {
     struct epoll_event evs[EVENTS];
-    size_t k = 0, i;
+    size_t k = 0, i, most;
     double now, wait;
     int n, j, ms;
 
     if (lp == NULL || rec == NULL || cap == 0 || (lp->nconns > 0 && lp->conns == NULL) ||
         (lp->slot_cap > 0 && lp->slot_of == NULL) || lp->rx == NULL || lp->rx_cap == 0 ||
-        lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0)) {
+        lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0) ||
+        lp->done == NULL || lp->done_cap == 0) {
         errno = EINVAL;
         return -1;
     }
-    now = pymbi_loop_now();
+    lp->ndone = 0;
+    now = lp->now = pymbi_loop_now();
     wait = timeout;
     for (i = 0; i < lp->nconns; i++) { /* looks that are over: handed back unread */
         pymbi_lconn *c = &lp->conns[i];
@@ -148,12 +151,16 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
         wait = 0.0;
     }
     ms = wait <= 0.0 ? 0 : wait >= 3600.0 ? 3600000 : (int)ceil(wait * 1e3);
-    n = epoll_wait(lp->epfd, evs, (int)(cap - k < EVENTS ? cap - k : EVENTS), ms);
+    most = cap - k < EVENTS ? cap - k : EVENTS; /* (one record or done a socket) */
+    if (lp->done_cap < most) {
+        most = lp->done_cap;
+    }
+    n = epoll_wait(lp->epfd, evs, (int)most, ms);
     if (n < 0) {
         return errno == EINTR ? (int)k : -1;
     }
     if (n > 0) {
-        now = pymbi_loop_now();
+        now = lp->now = pymbi_loop_now();
     }
     for (j = 0; j < n; j++) {
         int fd = evs[j].data.fd;
@@ -174,6 +181,10 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
         if (got < 0) {
             errno = EINVAL;
             return -1;
+        }
+        if (got == 2) {
+            lp->done[lp->ndone++] = (uint32_t)slot;
+            continue;
         }
         k++;
         if (got > 0) { /* the rest of the ready sockets: the next wait says them again */

@@ -31,8 +31,10 @@
 /* What a record says. */
 #define PYMBI_LOOP_READY 1 /* fd is ready (epoll mask `events`), nothing read: the caller's */
 #define PYMBI_LOOP_DONE 2  /* conn's poll read in full (its data in its image) at `now`; its
-                              next poll framed (`size` bytes) and `sent` of them sent (`err`:
-                              the send's errno, 0: none); disarmed unless all were sent */
+                              next poll framed (`size` bytes) and only `sent` of them sent
+                              (`err`: the send's errno, 0: none); disarmed. (A poll read in
+                              full whose next poll went out whole is no record: its
+                              connection's index goes to the loop's `done`.) */
 #define PYMBI_LOOP_TAKEN 3 /* conn's `got` bytes taken by its master but not as the poll's
                               clean end: `nev` events in its ev, `used` bytes used (the rest
                               in the loop's rx from `used` on), `taken` replies into the image;
@@ -89,15 +91,22 @@ typedef struct {
     uint8_t *out; /* the next poll is framed here */
     size_t out_cap;
     double look_min; /* a look is twice `took`, at least this, at most timeout / 4 */
+    uint32_t *done;  /* a wait's connections whose poll it read in full, the next one
+                        sent whole (they stay armed) */
+    size_t done_cap;
+    size_t ndone;    /* of done, written by the last wait */
+    double now;      /* when the last wait looked (CLOCK_MONOTONIC seconds) */
 } pymbi_loop;
 
 /* CLOCK_MONOTONIC in seconds (as Python's time.monotonic on Linux). */
 double pymbi_loop_now(void);
 
 /* Wait up to `timeout` seconds (rounded up to a millisecond; sooner when an
- * armed connection's look comes first) on lp->epfd and write what happened to
- * rec[0 .. cap): returns the records written (0: the time passed, or a
- * signal came), -1 with errno on invalid arguments or an epoll failure. */
+ * armed connection's look comes first) on lp->epfd: the connections whose poll
+ * was read and the next one sent whole to lp->done[0 .. lp->ndone), at
+ * lp->now; everything else to rec[0 .. cap). Returns the records written (0
+ * and no done: the time passed, or a signal came), -1 with errno on invalid
+ * arguments or an epoll failure. */
 int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap);
 
 #endif

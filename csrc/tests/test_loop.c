@@ -109,6 +109,7 @@ typedef struct {
     pymbi_lconn conn;
     pymbi_loop lp;
     pymbi_lrec rec[8];
+    uint32_t done[8];
 } fixture;
 
 static fixture F;
@@ -168,6 +169,8 @@ static int setup(int armed)
     F.lp.out = F.out;
     F.lp.out_cap = sizeof F.out;
     F.lp.look_min = 0.002;
+    F.lp.done = F.done;
+    F.lp.done_cap = 8;
     return 0;
 }
 
@@ -197,22 +200,28 @@ static void test_done(void)
     CHECK(setup(1) == 0);
     answer(1, 2);
     n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
-    CHECK(n == 1);
-    CHECK(F.rec[0].kind == PYMBI_LOOP_DONE);
-    CHECK(F.rec[0].conn == 0 && F.rec[0].fd == F.client);
-    CHECK(F.rec[0].size == 24 && F.rec[0].sent == 24 && F.rec[0].err == 0);
+    CHECK(n == 0); /* no record: the connection is in done */
+    CHECK(F.lp.ndone == 1 && F.done[0] == 0);
     CHECK(F.image[0] == 0x10 && F.image[3] == 0x13 && F.image[4] == 0x50 && F.image[7] == 0x53);
     CHECK(F.conn.armed == 1 && F.conn.asked == 2 && M.in_flight == 2);
-    CHECK(F.conn.sent_at == F.rec[0].now && F.conn.deadline == F.rec[0].now + 1.0);
-    CHECK(F.conn.look_at > F.rec[0].now && F.conn.look_at <= F.rec[0].now + 0.25);
+    CHECK(F.conn.sent_at == F.lp.now && F.conn.deadline == F.lp.now + 1.0);
+    CHECK(F.conn.look_at > F.lp.now && F.conn.look_at <= F.lp.now + 0.25);
     /* the next poll reached the peer (tids 3 and 4); the replies left the socket */
     CHECK(read_n(F.peer, next, 24) == 0);
     CHECK(next[0] == 0 && next[1] == 3 && next[12] == 0 && next[13] == 4 && next[7] == 0x03);
     CHECK(recv(F.client, &none, 1, MSG_DONTWAIT) < 0 && errno == EAGAIN);
     /* and again, with the next poll's replies */
     answer(3, 4);
-    CHECK(pymbi_loop_wait(&F.lp, 2.0, F.rec, 8) == 1 && F.rec[0].kind == PYMBI_LOOP_DONE);
+    CHECK(pymbi_loop_wait(&F.lp, 2.0, F.rec, 8) == 0 && F.lp.ndone == 1);
     CHECK(F.conn.asked == 4 && M.replies == 4);
+    /* the next poll cannot go out (the writing side shut): DONE with the errno, disarmed */
+    F.conn.look_at = pymbi_loop_now() + 5.0;
+    CHECK(shutdown(F.client, SHUT_WR) == 0);
+    answer(5, 6);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.lp.ndone == 0 && F.rec[0].kind == PYMBI_LOOP_DONE);
+    CHECK(F.rec[0].size == 24 && F.rec[0].sent == 0 && F.rec[0].err == EPIPE);
+    CHECK(F.conn.armed == 0 && M.replies == 6);
     teardown();
 }
 
@@ -317,7 +326,10 @@ static void test_args(void)
     F.lp.rx = NULL;
     CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
     F.lp.rx = F.rx;
-    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == 0);
+    F.lp.done = NULL;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.done = F.done;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == 0 && F.lp.ndone == 0);
     teardown();
 }
 

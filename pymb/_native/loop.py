@@ -5,7 +5,7 @@ One :meth:`Loop.wait` waits on the loop's epoll and, for each *armed*
 connection whose whole poll came back, takes its replies into the poll's
 image with the connection's :class:`~pymb._native.master.Master`, sends the
 next poll (the same requests, framed in the same step) and drops the replies
-from the socket: a :data:`DONE` record. Everything else comes back for the
+from the socket: the connection's index is in :meth:`Loop.done`. Everything else comes back for the
 loop (:mod:`pymb.logger.tcploop`) to do as it does it in Python: a socket
 ready that is not armed, or whose bytes are not just its poll's replies
 (:data:`READY`, nothing read), a take that is not the poll's clean end
@@ -25,13 +25,14 @@ from pymb._pymb_cffi import ffi, lib
 __all__ = ["DONE", "LOOK", "NO_CONN", "READY", "TAKEN", "Loop", "Times"]
 
 READY: int = lib.PYMBI_LOOP_READY  #: a socket is ready, nothing read (``events``: its mask)
-DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one sent (``sent`` of ``size``)
+DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one not all sent (``sent``)
 TAKEN: int = lib.PYMBI_LOOP_TAKEN  #: replies taken, not the poll's clean end (``nev`` events)
 LOOK: int = lib.PYMBI_LOOP_LOOK  #: a poll slower than its look: nothing read
 NO_CONN: int = lib.PYMBI_LOOP_NO_CONN  #: a READY socket that is no connection of the loop
 
 _RECORDS = 256  #: records one wait writes at most
 _wait = lib.pymbi_loop_wait
+_unpack = ffi.unpack
 
 
 class Times(NamedTuple):
@@ -50,7 +51,7 @@ class Loop:
     there); a look is twice the replies' time, at least ``look_min`` seconds,
     at most a quarter of the timeout."""
 
-    __slots__ = ("_conns", "_lp", "_out", "_rx", "_slots", "recs")
+    __slots__ = ("_conns", "_done", "_lp", "_out", "_rx", "_slots", "recs")
 
     def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
@@ -68,6 +69,9 @@ class Loop:
         lp.out = self._out
         lp.out_cap = len(self._out)
         lp.look_min = look_min
+        self._done: Any = ffi.new("uint32_t[]", _RECORDS)
+        lp.done = self._done
+        lp.done_cap = _RECORDS
         self._rx = rx
 
     def bind(self, i: int, fd: int) -> None:
@@ -124,9 +128,19 @@ class Loop:
         """When armed connection ``i``'s poll in flight times out."""
         return self._conns[i].deadline  # type: ignore[no-any-return]
 
+    def done(self) -> list[int]:
+        """The connections the last :meth:`wait` read a poll of and sent the
+        next one whole (at :attr:`now`; they stay armed)."""
+        return _unpack(self._done, self._lp.ndone)  # type: ignore[no-any-return]
+
+    @property
+    def now(self) -> float:
+        """When the last :meth:`wait` looked (``time.monotonic``'s clock)."""
+        return self._lp.now  # type: ignore[no-any-return]
+
     def wait(self, timeout: float) -> int:
         """Wait up to ``timeout`` seconds (sooner for an armed connection's
-        look): the records written to :attr:`recs`."""
+        look): the records written to :attr:`recs` (and :meth:`done`)."""
         got: int = _wait(self._lp, timeout if timeout > 0 else 0.0, self.recs, _RECORDS)
         if got < 0:
             err = ffi.errno

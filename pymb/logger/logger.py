@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import math
+import operator
 import queue
 import signal
 import threading
@@ -24,6 +25,8 @@ from pymb.store import Event, Sample, Sink, as_sink, check_output, open_sink
 
 __all__ = ["Logger", "RunSummary"]
 
+_DEVICE_NAME = operator.attrgetter("device.name")  #: a sample's device's name
+_REGISTERS = operator.attrgetter("data.registers")  #: a sample's registers
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 _DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
 _IDLE_CHECK = 1.0  #: seconds between looks at the storage when nothing is committed
@@ -87,18 +90,6 @@ class RunSummary:
         out += [f"bus {b} never opened its port: {why}" for b, why in self.never_opened.items()]
         out += [f"{d} delivered no sample: {why}" for d, why in self.silent.items()]
         return out
-
-
-def _weight(items: list[Sample | Event]) -> tuple[int, bool]:
-    """(bytes of registers, whether there is an event) of a poller's list."""
-    size = 0
-    events = False
-    for item in items:
-        if isinstance(item, Sample):
-            size += 2 * len(item.data.registers)
-        else:
-            events = True
-    return size, events
 
 
 class _Crashes(threading.Thread):
@@ -273,8 +264,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         self._stop.wait(_DRAIN_EVERY)
                     now = time.monotonic()
                     if item is not None:
-                        self._write_all(item)
-                        size, events = _weight(item)
+                        size, events = self._write_all(item)
                         pending += size
                         # The oldest of the list: when it was read (the loss bound
                         # counts from the read, not from the queue).
@@ -350,28 +340,32 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                               self.clock.message(step, restamped)))
         self.stats.events += 1
 
-    def _write_all(self, items: list[Sample | Event]) -> None:
+    def _write_all(self, items: list[Sample | Event]) -> tuple[int, bool]:
         """Write a poller's list in order: each run of samples in one call
-        when the sink takes batches (SQLite: multi-row INSERTs)."""
+        when the sink takes batches (SQLite: multi-row INSERTs). Returns the
+        list's weight for the commit: (bytes of registers, whether it had
+        an event)."""
         run: list[Sample] = []
+        size = 0
+        events = False
         if self.clock.steps:  # some may have been stamped before the step came
             items = restamped(items, self.clock.offset)
         for item in items:
             if isinstance(item, Sample):
                 run.append(item)
                 continue
-            self._samples(run)
+            events = True
+            size += self._samples(run)
             run = []
             self.sink.event(item)
             self.stats.events += 1
-        self._samples(run)
+        return size + self._samples(run), events
 
-    def _samples(self, samples: list[Sample]) -> None:
+    def _samples(self, samples: list[Sample]) -> int:
+        """Write a run of samples; their bytes of registers."""
         if not samples:
-            return
+            return 0
         self.sink.write_batch(samples)
-        by_device = self.stats.by_device
-        for sample in samples:
-            name = sample.device.name
-            by_device[name] = by_device.get(name, 0) + 1
+        self.stats.by_device.update(map(_DEVICE_NAME, samples))
         self.stats.samples += len(samples)
+        return 2 * sum(map(len, map(_REGISTERS, samples)))

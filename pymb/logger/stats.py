@@ -4,6 +4,7 @@ TCP loop and its writer."""
 from __future__ import annotations
 
 import threading
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -18,7 +19,7 @@ class Stats:
     events: int = 0
     faults: int = 0
     skipped_slots: int = 0
-    by_device: dict[str, int] = field(default_factory=dict)
+    by_device: Counter[str] = field(default_factory=Counter)  #: samples written, by device
     #: what is wrong now, by bus or device name (empty: all is well)
     problems: dict[str, str] = field(default_factory=dict)
     opened: dict[str, bool] = field(default_factory=dict)  #: bus -> port opened at least once

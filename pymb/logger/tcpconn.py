@@ -12,7 +12,6 @@ import contextlib
 import errno
 import heapq
 import ipaddress
-import math
 import os
 import queue
 import socket
@@ -191,11 +190,6 @@ class TcpLoopBase(threading.Thread):
         c.look = seq = self._seq
         heapq.heappush(self._looks, (at, seq, c))
 
-    @property
-    def next_look(self) -> float:
-        """When the next look is due (inf: none)."""
-        return self._looks[0][0] if self._looks else math.inf
-
     def looks_due(self, now: float) -> list[Conn]:
         """The connections whose whole poll's look is due by ``now`` (to be
         read as their replies come)."""
@@ -228,19 +222,14 @@ class TcpLoopBase(threading.Thread):
         report.sample(s)
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
-    def carried(self, c: Conn, now: float, size: int, sent: int) -> bool:
-        """The C part read armed ``c``'s poll in full at ``now`` and sent the
-        next one (``sent`` of its ``size`` bytes): the poll's sample. False
-        (disarmed): not all of it was sent."""
+    def carried(self, c: Conn, now: float) -> None:
+        """The C part read ``c``'s poll in full at ``now`` and sent the next
+        one: the poll's sample."""
         e = c.entry
         assert e is not None
         self.sample(c, e, now)
         c.entry = e
         c.whole = True
-        if sent != size:
-            self.synced(c)
-            return False
-        return True
 
     def disarm(self, c: Conn) -> Times | None:
         """``c`` is the loop's again (``c.armed`` or not: the C part may have

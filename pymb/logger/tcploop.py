@@ -1,30 +1,28 @@
 """Every map device on every plain Modbus TCP bus of a run, polled from one
 thread: :class:`TcpMapPoller`.
 
-One selector (epoll on Linux) waits on every connection at once over
-non-blocking sockets: a connection per bus (per ``host:port``), shared by
-the devices behind it (a TCP gateway's unit ids). A connection carries one
-poll at a time, a device's group; its requests go out ``pipeline`` at a
-time (1 by default: one transaction at a time, as a gateway to a serial
-line needs), framed by the connection's C master
-(:class:`pymb._native.master.Master`, the sans-I/O core) into one buffer and
-sent in one write; the master takes the replies as they come
-(:mod:`pymb.logger.tcpreplies` reads them), matches them by transaction id,
-checks them with the request path's rules and copies their data into the
-group's sample image. While a whole poll is out, the socket wakes the loop
-once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
-whose replies take more than twice as long as they did of late (an
-exception reply is shorter than the reply it stands for) is read as its
-replies come; flat out, a connection whose next poll is the same requests at
-once is the loop's C part's (:mod:`pymb._native.loop`) until anything else is
-to happen on it: it takes the replies, sends the next poll and hands back the
-poll's image for its sample. This module is the runner: the sockets, and the logger's
-one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs it):
-each group at its own interval on drift-free slots, skipped slots counted;
-``offline_after`` / ``offline_retry`` per device; an exception re-plans
-within the same poll as the planner's policy says
-(:func:`pymb.maps.planner.on_refusal`: 02/03 with ``split_on_exception``;
-a point refused alone reads ``unsupported``); samples and events go to the
+One epoll waits on every connection at once over non-blocking sockets: a
+connection per bus (per ``host:port``), shared by the devices behind it (a
+TCP gateway's unit ids). A connection carries one poll at a time, a device's
+group; its requests go out ``pipeline`` at a time (1 by default, as a gateway
+to a serial line needs), framed by the connection's C master
+(:class:`pymb._native.master.Master`, the sans-I/O core) into one write; the
+master takes the replies as they come (:mod:`pymb.logger.tcpreplies` reads
+them), matches them by transaction id, checks them with the request path's
+rules and copies their data into the group's sample image. While a whole
+poll is out, the socket wakes the loop once, when the bytes of all of its
+replies are in (``SO_RCVLOWAT``); a poll whose replies take more than twice
+as long as they did of late (an exception reply is shorter than the reply it
+stands for) is read as its replies come. Flat out, a connection whose next
+poll is the same requests at once is the loop's C part's
+(:mod:`pymb._native.loop`: it reads the replies and sends the next poll)
+until anything else is to happen on it. This module is the runner: the
+sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a
+thread per bus runs it): each group at its own interval on drift-free slots,
+skipped slots counted; ``offline_after`` / ``offline_retry`` per device; an
+exception re-plans within the same poll as the planner's policy says
+(:func:`pymb.maps.planner.on_refusal`: 02/03 with ``split_on_exception``; a
+point refused alone reads ``unsupported``); samples and events go to the
 writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event`
 records, the registers stored as a thread per bus would store them.
 """
@@ -101,8 +99,7 @@ class TcpMapPoller(TcpLoopBase):
         self.start_loop(self.replies.rx, _LOOK)
 
     def _sweep_now(self) -> None:
-        """A sweep at once (from a borrower's thread): it calls ``lender.lend``
-        on an idle connection."""
+        """A sweep at once (from a borrower's thread: it lends idle connections)."""
         self._soonest = 0.0
 
     # -- polls ---------------------------------------------------------------------------
@@ -246,14 +243,11 @@ class TcpMapPoller(TcpLoopBase):
             self.arm(c, t, u.timeout, look_at)
 
     def _unsent(self, c: Conn, now: float, size: int, sent: int) -> None:
-        """``sent`` of a poll's ``size`` bytes of requests went out (negative:
-        the send failed with that errno): the connection is lost (half a
-        request would put the stream out of step)."""
-        if sent < 0:
-            self.lost(c, now, os.strerror(-sent), -sent)
-        else:
-            self.lost(c, now, f"the connection took {sent} of {size} request bytes "
-                               "(the device does not read its requests)", None)
+        """``sent`` of a poll's ``size`` bytes went out (negative: the send's
+        errno): the connection is lost (half a request puts the stream out of step)."""
+        self.lost(c, now, os.strerror(-sent) if sent < 0 else
+                  f"the connection took {sent} of {size} request bytes (the device does "
+                  "not read its requests)", -sent if sent < 0 else None)
 
     def refused(self, c: Conn, e: Entry, spec: PollRequest, code: int, tid: int,
                 now: float) -> None:
@@ -442,7 +436,7 @@ class TcpMapPoller(TcpLoopBase):
                     self._agenda.put(e.slot, e, start)
         stop, lender, cloop, conns = self.stop_event, self.lender, self.cloop, self.conns
         assert cloop is not None
-        owner, recs = self._sel.owner, cloop.recs
+        owner, recs, carried, looks = self._sel.owner, cloop.recs, self.carried, self._looks
         next_sweep = start
         while not stop.is_set():
             now = time.monotonic()
@@ -461,23 +455,26 @@ class TcpMapPoller(TcpLoopBase):
                 wait = agenda - now
             if self._silent:
                 wait = min(wait, self._quiet_over(now))
-            for c in self.looks_due(now):  # read a poll's replies as they come
-                c.wake_at(1)
-                self.replies.readable(c, now)
-            if self.next_look - now < wait:
-                wait = self.next_look - now
-            for i in range(cloop.wait(wait)):
+            if looks and looks[0][0] <= now:
+                for c in self.looks_due(now):  # read a poll's replies as they come
+                    c.wake_at(1)
+                    self.replies.readable(c, now)
+            if looks and looks[0][0] - now < wait:
+                wait = looks[0][0] - now
+            got = cloop.wait(wait)
+            for i in cloop.done():  # the usual: a poll read, the next one sent
+                carried(conns[i], cloop.now)
+            for i in range(got):
                 r = recs[i]
                 kind = r.kind
-                if kind == DONE:  # the usual one: a poll read, the next one sent
+                if kind != READY:  # handed back: a poll not all sent, a take, a look
                     c = conns[r.conn]
-                    if not self.carried(c, r.now, r.size, r.sent):
-                        self._unsent(c, r.now, r.size, -r.err if r.err else r.sent)
-                    continue
-                if kind != READY:  # handed back: a take to go on from, or a look
-                    c = conns[r.conn]
+                    if kind == DONE:  # (its sample first, then the loss)
+                        carried(c, r.now)
                     self.synced(c)
-                    if kind == TAKEN:
+                    if kind == DONE:
+                        self._unsent(c, r.now, r.size, -r.err if r.err else r.sent)
+                    elif kind == TAKEN:
                         c.m.taken = r.taken
                         self.replies.taken(c, r.now, r.got, r.nev, r.used, True)
                     continue

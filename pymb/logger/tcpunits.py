@@ -16,6 +16,7 @@ slice assignment; a poll's sample is that image, copied once.
 from __future__ import annotations
 
 import sys
+from abc import abstractmethod
 from array import array
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -86,8 +87,30 @@ class PollRequest(MasterRead):
         self.request = r
 
 
-class _Decoded:
-    """A sample's values and states, decoded on first use."""
+class _View(Mapping[str, Any]):
+    """A sample's values or states, decoded when first read."""
+
+    __slots__ = ()
+
+    @abstractmethod
+    def _map(self) -> dict[str, Any]:
+        """The decoded dict this view shows."""
+
+    def __getitem__(self, key: str) -> Any:
+        return self._map()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._map())
+
+    def __len__(self) -> int:
+        return len(self._map())
+
+    def __repr__(self) -> str:
+        return repr(self._map())
+
+
+class _Values(_View):
+    """A sample's values; it decodes them with their states on first use."""
 
     __slots__ = ("_got", "_how", "_regs", "_unread")
 
@@ -95,34 +118,29 @@ class _Decoded:
         self._how, self._regs, self._unread = how, regs, unread
         self._got: tuple[dict[str, Value], dict[str, Any]] | None = None
 
-    def get(self, which: int) -> dict[str, Any]:
+    def decoded(self, which: int) -> dict[str, Any]:
+        """The values (0) or the states (1)."""
         got = self._got
         if got is None:
             got = self._got = self._how.decode(self._regs, self._unread)
         return got[which]
 
+    def _map(self) -> dict[str, Any]:
+        return self.decoded(0)
 
-class _Lazy(Mapping[str, Any]):
-    """The values (or states) of a sample: decoded when first read (no cycle
-    between the two: a poll's records are freed by their reference counts,
+
+class _States(_View):
+    """A sample's states, decoded with its values (the states point at the
+    values, not back: a poll's records are freed by their reference counts,
     not by the garbage collector)."""
 
-    __slots__ = ("_src", "_which")
+    __slots__ = ("_values",)
 
-    def __init__(self, src: _Decoded, which: int) -> None:
-        self._src, self._which = src, which
+    def __init__(self, values: _Values) -> None:
+        self._values = values
 
-    def __getitem__(self, key: str) -> Any:
-        return self._src.get(self._which)[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._src.get(self._which))
-
-    def __len__(self) -> int:
-        return len(self._src.get(self._which))
-
-    def __repr__(self) -> str:
-        return repr(self._src.get(self._which))
+    def _map(self) -> dict[str, Any]:
+        return self._values.decoded(1)
 
 
 _SWAP = sys.byteorder == "little"
@@ -133,6 +151,8 @@ _NONE: frozenset[int] = frozenset()
 _new = object.__new__
 _reading = MapReading.__init__
 _sample = Sample.__init__
+_values_init = _Values.__init__
+_states_init = _States.__init__
 
 
 def poll_sample(info: DeviceInfo, time_utc: float, monotonic: float, how: GroupDecode,
@@ -143,9 +163,12 @@ def poll_sample(info: DeviceInfo, time_utc: float, monotonic: float, how: GroupD
     regs = array("H", image)
     if _SWAP:
         regs.byteswap()
-    src = _Decoded(how, regs, unread)
+    values: _Values = _new(_Values)
+    _values_init(values, how, regs, unread)
+    states: _States = _new(_States)
+    _states_init(states, values)
     r: MapReading = _new(MapReading)
-    _reading(r, how.map, how.group, _Lazy(src, 0), _Lazy(src, 1), regs,
+    _reading(r, how.map, how.group, values, states, regs,
              how.unsupported(unread) if unread else (), image)
     s: Sample = _new(Sample)
     _sample(s, info, time_utc, monotonic, r)

@@ -6,6 +6,7 @@ a connection not armed handed back untouched ([MB-TCP] 3.1.3, [MB-APP] 6.3, 7)."
 
 from __future__ import annotations
 
+import errno
 import select
 import socket
 from collections.abc import Iterator
@@ -68,9 +69,9 @@ def rig() -> Iterator[_Rig]:
 def test_an_armed_poll_is_taken_and_the_next_one_sent(rig: _Rig) -> None:
     rig.loop.arm(0, rig.m, rig.t, 1.0, 0.0, 0.0, 1e12)
     rig.peer.send(_regs(2, 0x40, 4) + _regs(1, 0x80, 2))
-    assert rig.loop.wait(2.0) == 1
-    r = rig.loop.recs[0]
-    assert (r.kind, r.conn, r.size, r.sent, r.err) == (DONE, 0, 24, 24, 0)
+    assert rig.loop.wait(2.0) == 0  # no record: the connection is in done
+    assert rig.loop.done() == [0]
+    now = rig.loop.now
     assert bytes(rig.image) == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
     nxt = _recv(rig.peer, 24)  # the same poll again, transactions 3 and 4
     assert nxt == bytes.fromhex("0003 0000 0006 07 03 0000 0002"
@@ -79,9 +80,9 @@ def test_an_armed_poll_is_taken_and_the_next_one_sent(rig: _Rig) -> None:
         rig.client.recv(1)
     got = rig.loop.disarm(0)
     assert got.asked == 2
-    assert got.sent_at == r.now
-    assert got.deadline == r.now + 1.0
-    assert r.now < got.look_at <= r.now + 0.25
+    assert got.sent_at == now
+    assert got.deadline == now + 1.0
+    assert now < got.look_at <= now + 0.25
     assert rig.m.in_flight == 2
 
 
@@ -111,3 +112,15 @@ def test_a_connection_not_armed_or_not_bound_is_handed_back_untouched(rig: _Rig)
     assert rig.loop.wait(2.0) == 1
     assert (rig.loop.recs[0].kind, rig.loop.recs[0].conn) == (READY, NO_CONN)
     assert len(rig.client.recv(100)) == 17 + 13
+
+
+def test_a_next_poll_that_cannot_go_out_is_a_record(rig: _Rig) -> None:
+    rig.loop.arm(0, rig.m, rig.t, 1.0, 0.0, 0.0, 1e12)
+    rig.client.shutdown(socket.SHUT_WR)  # (its sends fail: EPIPE)
+    rig.peer.send(_regs(2, 0x40, 4) + _regs(1, 0x80, 2))
+    assert rig.loop.wait(2.0) == 1
+    assert rig.loop.done() == []
+    r = rig.loop.recs[0]
+    assert (r.kind, r.conn, r.size, r.sent, r.err) == (DONE, 0, 24, 0, errno.EPIPE)
+    assert bytes(rig.image) == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
+    assert rig.loop.disarm(0).asked == 2
