@@ -25,6 +25,27 @@ double pymbi_loop_now(void)
     return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
 }
 
+/* A look: twice the replies' time of late, at least look_min, at most a
+ * quarter of the timeout. */
+static double look(const pymbi_loop *lp, const pymbi_lconn *c)
+{
+    double t = 2 * c->took > lp->look_min ? 2 * c->took : lp->look_min;
+    double most = c->timeout / 4;
+    return t < most ? t : most;
+}
+
+/* Whether armed c's poll, its look over, is only slow: what came of its
+ * replies so far (looked at, not read) is fewer bytes than all of them and
+ * holds no exception and no impossible header (pymbi_mbap_clean). */
+static int still_clean(const pymbi_loop *lp, const pymbi_lconn *c)
+{
+    ssize_t got = recv(c->fd, lp->rx, lp->rx_cap, MSG_PEEK | MSG_DONTWAIT);
+    if (got < 0) {
+        return errno == EAGAIN || errno == EWOULDBLOCK; /* nothing yet */
+    }
+    return got > 0 && (size_t)got < c->replies && pymbi_mbap_clean(lp->rx, (size_t)got);
+}
+
 static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double now)
 {
     memset(r, 0, sizeof *r);
@@ -92,11 +113,7 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     c->took += (now - c->sent_at - c->took) / 8;
     c->sent_at = now;
     c->deadline = now + c->timeout;
-    {
-        double look = 2 * c->took > lp->look_min ? 2 * c->took : lp->look_min;
-        double most = c->timeout / 4;
-        c->look_at = now + (look < most ? look : most);
-    }
+    c->look_at = now + look(lp, c);
     if ((size_t)sent != framed) {
         c->armed = 0; /* the caller says why the connection is lost */
         return 0;
@@ -127,6 +144,9 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
         pymbi_lconn *c = &lp->conns[i];
         if (!c->armed) {
             continue;
+        }
+        if (c->look_at <= now && still_clean(lp, c)) { /* only slow: wait on */
+            c->look_at = now + look(lp, c);
         }
         if (c->look_at <= now) {
             if (k == cap) {

@@ -39,7 +39,10 @@
                               clean end: `nev` events in its ev, `used` bytes used (the rest
                               in the loop's rx from `used` on), `taken` replies into the image;
                               disarmed; the call returns after this record */
-#define PYMBI_LOOP_LOOK 4  /* conn's poll is slower than its look: disarmed, nothing read */
+#define PYMBI_LOOP_LOOK 4  /* conn's poll is slower than its look and what came of its
+                              replies is not clean (pymbi_mbap_clean: an exception, a bad
+                              header) or is all of them: disarmed, nothing read. (What is
+                              only slow gets another look.) */
 
 /* One connection of the loop. The caller fills it and sets `armed` while a
  * whole poll of it is in flight whose next poll is the same requests, sent at

@@ -318,6 +318,32 @@ int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *
     return got;
 }
 
+int pymbi_mbap_clean(const uint8_t *buf, size_t len)
+{
+    size_t pos = 0;
+    if (buf == NULL) {
+        return len == 0;
+    }
+    while (pos < len) {
+        size_t have = len - pos;
+        int n = pymbi_mbap_length(buf + pos, have);
+        if (n == PYMB_FRAME_INCOMPLETE) {
+            return 1; /* too few bytes to judge yet */
+        }
+        if (n < 0) {
+            return 0;
+        }
+        if (have > 7 && (buf[pos + 7] & 0x80u)) {
+            return 0;
+        }
+        if ((size_t)n >= have) {
+            return 1; /* the last reply, whole or still coming */
+        }
+        pos += (size_t)n;
+    }
+    return 1;
+}
+
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap)
 {
     size_t k = 0;

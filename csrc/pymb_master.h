@@ -156,6 +156,15 @@ int pymbi_master_step(pymbi_master *m, const uint8_t *buf, size_t len, uint8_t *
                       const pymbi_mreq *again, size_t n, uint8_t *out, size_t out_cap,
                       size_t *framed);
 
+/* Whether buf[0 .. len), the first bytes of a stream of Modbus TCP replies,
+ * holds only replies that are no exception ([MB-APP] 7: function | 0x80) and
+ * a valid header: 1 when every whole reply is one and the last, cut short,
+ * has a valid MBAP header so far and no exception function (or not yet its
+ * function byte); 0 for an exception or an impossible header. A poll whose
+ * replies are slow (not all in) but so far clean is only slow: the TCP loop
+ * keeps waiting for all of them at once (pymb_loop.h). */
+int pymbi_mbap_clean(const uint8_t *buf, size_t len);
+
 /* The tokens of the requests in flight, oldest first, into tokens[0 .. cap):
  * how many there are (more than cap: only cap written). */
 size_t pymbi_master_pending(const pymbi_master *m, uint32_t *tokens, size_t cap);

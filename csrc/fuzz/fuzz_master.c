@@ -9,7 +9,7 @@
  * buffer. Checks: no byte of the image outside a framed read's place is
  * written, the counts stay consistent, every byte is taken or the take
  * stopped for a reason, a step frames the reads again only after a take that
- * ended the poll.
+ * ended the poll. And the clean-stream rule (pymbi_mbap_clean) over the input.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -29,6 +29,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     pymbi_mevent ev[4];
     size_t n, i, pos, k, nreq;
 
+    /* the clean-stream rule: what an exception or a bad header made unclean
+     * stays so with more bytes */
+    if (!pymbi_mbap_clean(data, size / 2) && pymbi_mbap_clean(data, size)) {
+        abort();
+    }
     if (size < 3) {
         return 0;
     }

@@ -305,6 +305,35 @@ static void test_look(void)
     }
     usleep(20000);
     CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == 26);
+    teardown();
+    /* a look over with nothing come yet: only slow, another look, still armed */
+    CHECK(setup(1) == 0);
+    F.conn.look_at = pymbi_loop_now() - 0.001;
+    n = pymbi_loop_wait(&F.lp, 0.0, F.rec, 8);
+    CHECK(n == 0 && F.lp.ndone == 0 && F.conn.armed == 1);
+    CHECK(F.conn.look_at > pymbi_loop_now() - 0.001);
+    /* ... and with a first clean reply in: the same */
+    {
+        uint8_t one[16];
+        size_t len = reply(one, 2, 2, 0x50);
+        CHECK(send(F.peer, one, len, 0) == (ssize_t)len);
+        usleep(20000);
+        F.conn.look_at = pymbi_loop_now() - 0.001;
+        n = pymbi_loop_wait(&F.lp, 0.0, F.rec, 8);
+        CHECK(n == 0 && F.conn.armed == 1);
+        /* an exception after it: handed back (a look), nothing read */
+        {
+            const uint8_t exc[9] = {0, 1, 0, 0, 0, 3, 1, 0x83, 0x02};
+            CHECK(send(F.peer, exc, sizeof exc, 0) == (ssize_t)sizeof exc);
+        }
+        usleep(20000);
+        F.conn.look_at = pymbi_loop_now() - 0.001;
+        n = pymbi_loop_wait(&F.lp, 0.0, F.rec, 8);
+        CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_LOOK && F.conn.armed == 0);
+        CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == (ssize_t)(len + 9));
+    }
+    teardown();
+    CHECK(setup(1) == 0);
     /* a look to come shortens the wait */
     F.conn.armed = 1;
     F.conn.look_at = pymbi_loop_now() + 0.05;

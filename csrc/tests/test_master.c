@@ -370,8 +370,27 @@ static void test_step(void)
                             sizeof out, NULL) == -1 && errno == EINVAL);
 }
 
+static void test_clean(void)
+{
+    uint8_t buf[64];
+    size_t n = reg_reply(buf, 1, 0x03, 2, 0);
+    CHECK(pymbi_mbap_clean(buf, 0) == 1);
+    CHECK(pymbi_mbap_clean(NULL, 0) == 1 && pymbi_mbap_clean(NULL, 3) == 0);
+    CHECK(pymbi_mbap_clean(buf, 3) == 1); /* too few bytes to judge */
+    CHECK(pymbi_mbap_clean(buf, 8) == 1); /* a reply still coming */
+    CHECK(pymbi_mbap_clean(buf, n) == 1);
+    n += exc_reply(buf + n, 2, 0x03, 2);
+    CHECK(pymbi_mbap_clean(buf, n - 2) == 1); /* its function byte not yet in */
+    CHECK(pymbi_mbap_clean(buf, n - 1) == 0); /* an exception */
+    CHECK(pymbi_mbap_clean(buf, n) == 0);
+    buf[13 + 2] = 1; /* the second reply's protocol id: an impossible header */
+    buf[13 + 7] = 0x03;
+    CHECK(pymbi_mbap_clean(buf, 13 + 6) == 0);
+}
+
 int main(void)
 {
+    test_clean();
     test_frames();
     test_take();
     test_events();
