@@ -39,7 +39,12 @@ class ClientRequest(NamedTuple):
 
 
 class BadFrame(Exception):
-    """The client's bytes cannot be Modbus TCP: its connection is closed."""
+    """The client's bytes cannot be Modbus TCP: its connection is closed.
+    :attr:`frames`: the whole frames :func:`take_frames` took before them."""
+
+    def __init__(self, text: str, frames: list[bytes] | None = None) -> None:
+        super().__init__(text)
+        self.frames: list[bytes] = frames or []
 
 
 def take_requests(buf: bytearray) -> list[ClientRequest]:
@@ -78,7 +83,8 @@ def take_frames(buf: bytearray) -> list[bytes]:
     """Take every whole frame at the start of ``buf`` (removed from it), each
     as long as its MBAP header says (the C core's one rule); what is left is
     the start of the next one. Raises :class:`BadFrame` at a header that
-    cannot be Modbus TCP (the frames before it are lost with the connection)."""
+    cannot be Modbus TCP (the connection is lost; the frames before it in
+    its :attr:`~BadFrame.frames`)."""
     out: list[bytes] = []
     pos = 0
     n = len(buf)
@@ -88,7 +94,7 @@ def take_frames(buf: bytearray) -> list[bytes]:
         if got == _INCOMPLETE or pos + got > n:
             break
         if got < 0:
-            raise BadFrame(bytes(buf[pos:pos + 8]).hex(" "))
+            raise BadFrame(bytes(buf[pos:pos + 8]).hex(" "), out)
         out.append(bytes(buf[pos:pos + got]))
         pos += got
     del data

@@ -189,16 +189,18 @@ class TcpServer(SimServer):
         if self.rtu_framing:
             self._receive_rtu(conn, buf, end)
             return
+        bad = False
         try:
             frames = take_frames(buf)  # the C core's MBAP length rule, as pymb serve's
-        except BadFrame:
-            self.bus.stats.bad_frames += 1
-            self._drop(conn)
-            return
+        except BadFrame as e:  # the requests before the bad header are answered first
+            frames, bad = e.frames, True
         for frame in frames:
             self._dispatch(conn, frame[0] << 8 | frame[1], frame[6], frame[7:], end)
             if conn not in self._clients:
                 return
+        if bad:
+            self.bus.stats.bad_frames += 1
+            self._drop(conn)
 
     def _receive_rtu(self, conn: socket.socket, buf: bytearray, end: float) -> None:
         """RTU requests from the stream: each as long as its function code

@@ -88,6 +88,15 @@ def test_a_header_that_cannot_be_modbus_tcp_closes_the_connection(
         assert reply(sock)[:9] == struct.pack(">HHHB", 9, 0, 5, 40) + b"\x04\x02"
 
 
+def test_the_requests_before_a_bad_header_are_answered_then_the_connection_closes(
+        sim: Simulator) -> None:
+    with _connect(sim) as sock:  # one segment: a request, then protocol id 1
+        sock.sendall(mbap(5, 40, READ) + struct.pack(">HHHB", 6, 1, 6, 40) + READ)
+        assert reply(sock)[:9] == struct.pack(">HHHB", 5, 0, 5, 40) + b"\x04\x02"
+        assert sock.recv(16) == b""
+    assert sim.stats.bad_frames == 1
+
+
 def test_framing_faults_on_tcp(sim: Simulator) -> None:
     with _connect(sim) as sock:
         sim.faults.inject("stray", extra=b"\xee\xff")
