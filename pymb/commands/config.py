@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 def _validate(args: argparse.Namespace) -> list[str]:
     """Check the device and the new settings; the changes, in words."""
     dev = device_from_args(args)
-    if dev.type != "coolpro":
+    if dev.map.device.view != "coolpro":  # its settings are written through the CoolPro view
         raise InvalidArgument(f"pymb config changes a CoolPro's settings, not a {dev.type}'s: "
                               "pymb config coolpro[:ADDRESS] ...")
     assert dev.address is not None

@@ -23,7 +23,6 @@ from pymb.devices.hubsweep import SweepReader
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading, group_points
 from pymb.devices.mapspec import (
-    TYPED_VIEWS,
     MapTarget,
     near,
     parse_map_device,
@@ -357,7 +356,7 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
     for key in d:
         if key not in MAP_DEVICE_KEYS and key not in option_keys:
             # (the typed views' tables are named by their type already)
-            of = "" if m.id in TYPED_VIEWS else f" for {m.id}"
+            of = "" if m.device.view else f" for {m.id}"
             raise InvalidArgument(f"{where} [[bus.device]]: unknown key {key!r}{of}"
                                   f"{closest(key, [*MAP_DEVICE_KEYS, *option_keys])}")
     options = {k: _option(d, k, where, m) for k in option_keys if k in d}

@@ -23,6 +23,7 @@ from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
 from pymb.maps.codec import decode_one
 from pymb.maps.model import did_you_mean
+from pymb.maps.point import VIEWS
 
 __all__ = ["TYPED_VIEWS", "MapTarget", "load_map", "map_types", "match_map", "near",
            "parse_map_device", "unknown_device"]
@@ -30,8 +31,10 @@ __all__ = ["TYPED_VIEWS", "MapTarget", "load_map", "map_types", "match_map", "ne
 
 #: The shipped maps with a typed view (``CoolPro``, ``SensorHub``): the
 #: device syntax's texts name them first, apart from the other map types,
-#: and ``pymb read``/``scan``/``simulate`` show them as their views.
-TYPED_VIEWS = ("coolpro", "hub")
+#: and ``pymb read``/``scan``/``simulate`` show them as their views. A view
+#: is named by its own map only (``[device] view`` is its id): these are
+#: the views' names, known without loading every shipped map to ask it.
+TYPED_VIEWS = VIEWS
 
 
 def near(word: str, known: Sequence[str]) -> str:

@@ -122,7 +122,7 @@ def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, 
     ``values`` and ``states`` by point name (blocks as lists), the
     ``group`` read and the points ``unsupported``."""
     data = map_reading(data)
-    view = _VIEWS.get(data.map.id)
+    view = _VIEWS.get(data.map.device.view)
     if view is not None:
         return view(data)
     return {"values": {k: _clean(v) for k, v in data.values.items()},
@@ -130,8 +130,9 @@ def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, 
             "unsupported": list(data.unsupported)}
 
 
-#: the JSON of the devices with their own views (the hub's sweep, the
-#: CoolPro's telemetry), as ``SensorHub``/``CoolPro`` readings always gave it
+#: the JSON of a reading by the typed view its map names (``[device] view``:
+#: the hub's sweep, the CoolPro's telemetry), as ``SensorHub``/``CoolPro``
+#: readings always gave it
 _VIEWS = {"hub": _hub_dict, "coolpro": _coolpro_dict}
 
 #: A reading as a device gives it: a map reading, or the typed view of the
@@ -166,7 +167,7 @@ def has_own_view(data: Reading) -> bool:
     sweep channel by channel, the CoolPro's telemetry: their JSON, line
     protocol and Sparkplug metrics, as ``SensorHub``/``CoolPro`` readings
     always gave them) rather than a map device's."""
-    return map_reading(data).map.id in _VIEWS
+    return map_reading(data).map.device.view in _VIEWS
 
 
 def reading_view(data: MapReading) -> Reading:
@@ -176,9 +177,10 @@ def reading_view(data: MapReading) -> Reading:
     lacks), of the CoolPro's telemetry as the
     :class:`~pymb.devices.CoolProTelemetry` ``CoolPro`` gives; any other as
     it is."""
-    if data.map.id == _HUB.id:
+    view = data.map.device.view
+    if view == "hub":
         return _hub_view(data)
-    if data.map.id == _COOLPRO.id and data.group == "telemetry":
+    if view == "coolpro" and data.group == "telemetry":
         return decode_telemetry(array("H", data.registers))
     return data
 
@@ -188,6 +190,6 @@ def identity_view(data: MapReading) -> CoolProIdentity | MapReading:
     CoolPro's as the :class:`~pymb.devices.CoolProIdentity` ``CoolPro``
     gives (its serial number, hardware revision, firmware version and
     manufacture date); any other as it is."""
-    if data.map.id == _COOLPRO.id and data.group == "identity":
+    if data.map.device.view == "coolpro" and data.group == "identity":
         return decode_identity(array("H", data.registers))
     return data

@@ -1,7 +1,8 @@
 """A map names the typed view it is read through (``[device] view``):
 ``DeviceConfig.open`` builds the device the view says (the hub's sweep
-reader, the CoolPro's device), by that attribute of the map, not by its
-id. Against simulated devices on a pty."""
+reader, the CoolPro's device) and a reading's JSON takes the view's form,
+by that attribute of the map, not by its id. Against simulated devices on
+a pty."""
 
 from __future__ import annotations
 
@@ -65,7 +66,9 @@ def test_open_builds_the_device_its_map_names(sim: Simulator) -> None:
         plain, read = DeviceConfig(_without_view("coolpro")).open(client)
         assert plain.map.timing.turnaround == 0.008
         assert plain.map.limits.split_on_exception
-        read("telemetry")
+        data = read("telemetry")
+        assert not has_own_view(data)
+        assert set(reading_dict(data)) == {"values", "states", "group", "unsupported"}
         # the hub's view: its sweep reader (busy retries, firmware rules, units)
         hub, read = DeviceConfig("hub", 250).open(client)
         assert isinstance(read, SweepReader)
@@ -75,4 +78,5 @@ def test_open_builds_the_device_its_map_names(sim: Simulator) -> None:
         plain, read = DeviceConfig(_without_view("hub"), 250).open(client)
         assert not isinstance(read, SweepReader)
         assert plain.map.timing.response_timeout == 0.8
-        assert read("sweep").group == "sweep"
+        assert reading_dict(read("sweep"))["group"] == "sweep"
+
