@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import DeviceHealth
 from pymb.store import Event, Sample, SinkWrapper, SqliteSink
+from pymb.store.outbox import write_pending
 
 if TYPE_CHECKING:  # the forwarder needs paho, which this package's face must not
     from pymb.fleet.forwarder import Forwarder
@@ -28,8 +29,8 @@ __all__ = ["ForwardingSink", "MqttConfig"]
 
 
 class ForwardingSink(SinkWrapper[SqliteSink]):
-    """A sink that wakes the forwarder after each write (a forwarder reading
-    the writer's batch, see :class:`~pymb.fleet.forwarder.Forwarder`) or
+    """A sink that wakes the forwarder after each write (the writer hands it
+    what it wrote, see :class:`~pymb.fleet.forwarder.Forwarder`) or
     commit of the sink it wraps, and records what happened to the broker
     connection as events (bus and kind ``mqtt``). It also follows which
     devices stop answering (:class:`~pymb.fleet.health.DeviceHealth`) and
@@ -43,9 +44,10 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
         self.forwarder = forwarder
         self.echo = echo
         self.health = DeviceHealth()
-        #: the forwarder reads what this writes before the commit
-        self.live = bool(forwarder.source.live)
-        sink.on_commit(self._committed)
+        #: the forwarder takes what this writes before the commit (as data)
+        self.handoff = forwarder.handoff
+        self.live = self.handoff is not None
+        sink.on_commit(self._tell)
 
     def write(self, sample: Sample) -> None:
         """Add a sample to the batch."""
@@ -80,27 +82,23 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
         events, or a forwarder's state that must be durable: the Sparkplug
         bdSeq)."""
         wrote = self._events()
-        return wrote or self.forwarder.source.commit_wanted.is_set()
+        return wrote or (self.handoff is not None and self.handoff.commit_wanted.is_set())
 
     def commit(self) -> None:
-        """Commit the batch with the broker's events and the forwarder's
-        cursor; the store then calls :meth:`_committed`.
+        """Commit the batch with the broker's events and what the forwarder
+        handed over to write (its cursor, its state); the store then calls
+        :meth:`_tell`.
 
         The logger holds SQLite's write lock for most of each batch: the
-        cursor goes in with the batch rather than waiting for the lock."""
+        forwarder's writes go in with the batch rather than waiting for the lock."""
         self._events()
-        cursor, dest = self.forwarder.cursor, self.forwarder.dest
-        if dest is not None:  # keyed at the first connection
-            self.sink.set_outbox_cursor(dest, cursor)
+        self._pending()
         self.sink.commit()
 
-    def _committed(self, top: int) -> None:
-        """The store's on-commit hook: tell the forwarder (see :meth:`_tell`),
-        and let a forwarder waiting for a durable write go on."""
-        source = self.forwarder.source
-        source.commit_wanted.clear()
-        source.committed.set()
-        self._tell(top)
+    def _pending(self, closing: bool = False) -> None:
+        handoff = self.handoff
+        if handoff is not None:
+            self.sink.in_batch(lambda db: write_pending(db, handoff, closing), False)
 
     def _tell(self, top: int) -> None:
         """Tell the forwarder the devices that went down, with ``top``, the
@@ -124,7 +122,7 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
         """Commit (the broker's events and the cursor too) and close (the
         store's on-commit hook wakes the forwarder)."""
         self._events()
-        cursor, dest = self.forwarder.cursor, self.forwarder.dest
-        if dest is not None:
-            self.sink.set_outbox_cursor(dest, cursor)
-        self.sink.close()
+        try:
+            self._pending(closing=True)
+        finally:
+            self.sink.close()

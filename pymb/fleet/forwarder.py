@@ -12,13 +12,13 @@ then two lanes run side by side:
   an outage or of a restart, SIGKILL included), paced at ``catchup_rate``
   messages per second, marked ``is_historical`` in Sparkplug.
 
-Run beside the logger's writer (``writer``), it reads the writer's open
-batch too and publishes a sample as soon as it is written, before its
-commit: the writer's commits stay as rare as without MQTT (SD wear), and
-the sample's id is under the writer's durable high-water mark
-(:mod:`pymb.store.ids`), so a power cut that takes the batch back never
-lets another sample have that id. Without a writer it publishes what is
-committed.
+Run beside the logger's writer (``writer``), it publishes each sample the
+writer hands it as data (:mod:`pymb.store.handoff`) before its commit: the
+writer's commits stay as rare as without MQTT (SD wear), and the sample's id
+is under the writer's durable high-water mark (:mod:`pymb.store.ids`), so a
+power cut that takes the batch back never lets another sample have that id.
+The backlog is read on the forwarder's own connection; without a writer it
+publishes what is committed.
 
 Every sample reaches the broker at least once; a sample acknowledged but not
 yet recorded in the cursor when pymb dies (the cursor goes in with each of
@@ -59,7 +59,8 @@ from pymb.fleet.session import Session
 from pymb.fleet.status import ForwarderStatus
 from pymb.fleet.takeover import Takeovers
 from pymb.store import Outbox, StoredSample
-from pymb.store.outbox import LiveWriter
+from pymb.store.handoff import Handoff
+from pymb.store.outbox import LiveWriter, last_sample_id
 
 __all__ = ["Forwarder", "ForwarderStatus", "destination"]
 
@@ -92,8 +93,10 @@ class Forwarder(threading.Thread, CommandTopics):
     def __init__(self, db_path: str, cfg: MqttConfig, writer: LiveWriter | None = None) -> None:
         super().__init__(name="pymb-mqtt", daemon=True)
         require_paho()
+        self.handoff: Handoff | None = None  #: the writer's samples here, the cursor back
         if writer is not None:
-            writer.publish_live()
+            self.handoff = Handoff()
+            writer.publish_live(self.handoff)
         self.cfg = cfg
         self.profile: Profile = make_profile(cfg)
         #: the broker as the URL names it (for messages; an older pymb's cursor key)
@@ -103,16 +106,16 @@ class Forwarder(threading.Thread, CommandTopics):
         self.dest: str | None = None
         #: print the new-cursor notice on stderr (False: the events are lines there already)
         self.say = True
-        self.source = Outbox(db_path, writer)
+        self.source = Outbox(db_path, self.handoff)  #: this thread's connection to the file
         #: where a new cursor starts with start = "now": after what is committed already
-        self._now_id = self.source.max_id()
+        self._now_id = max(last_sample_id(db_path), self.handoff.written if self.handoff else 0)
         self.password = cfg.password()
         self.wake = threading.Event()
         self.rebirth = threading.Event()
         self._stopping = threading.Event()
         self._drain_until = 0.0
         self.acked = Acknowledged()  #: what the broker acknowledged: the cursor and above
-        self._saved_cursor = self.cursor
+        self._saved_cursor = self._handed_cursor = self.cursor
         self._saved_at = 0.0
         self._writer = CursorWriter(db_path)
         self._lock = threading.Lock()
@@ -295,9 +298,10 @@ class Forwarder(threading.Thread, CommandTopics):
         dest = destination(self.cfg, peer)
         src = self.source
         cursor = src.cursor_or_none(dest)
-        if cursor is None and self.where != dest and src.cursor_or_none(self.where) is not None:
+        old = None if cursor is not None or self.where == dest else src.cursor_or_none(self.where)
+        if old is not None:
             src.rename_cursor(self.where, dest)  # an older pymb's key: the URL's text
-            cursor = src.cursor_or_none(dest)
+            cursor = old
         if cursor is None:
             cursor = 0 if self.cfg.start == "oldest" else self._now_id
             self._replay_notice(dest, cursor)
@@ -332,9 +336,12 @@ class Forwarder(threading.Thread, CommandTopics):
 
     def _save_cursor(self, force: bool = False) -> None:
         # Beside a running writer the cursor goes in with each of its batches
-        # (ForwardingSink.commit); here once the writer has closed.
-        if self.dest is not None and self.cursor != self._saved_cursor and \
-                not self.source.live:
+        # (handed over: ForwardingSink.commit); here once the writer has closed.
+        if self.source.live:
+            if self.dest is not None and self.cursor != self._handed_cursor:
+                self.source.set_cursor(self.dest, self.cursor)
+                self._handed_cursor = self.cursor
+        elif self.dest is not None and self.cursor != self._saved_cursor:
             now = time.monotonic()
             if force or now - self._saved_at >= CURSOR_EVERY:
                 self._writer.put(self.cursor)

@@ -111,10 +111,12 @@ def catch_up_lane(pub: Publisher, source: Outbox, acked: Acknowledged, after: in
     if room > 0 and tokens >= 1 and after < live_start:
         after = acked.skip_done(after)
         stop_at = min(live_start + 1, acked.next_done(after) or live_start + 1)
+        durable = source.durable()  # ids up to it not in the file are gaps
         recs = source.samples_after(after, min(room, int(tokens), FETCH), before=stop_at)
-        if not recs and after < stop_at - 1:  # a gap of deleted ids
-            acked.mark(after + 1, stop_at - 1)
-            after = stop_at - 1
+        end = stop_at - 1 if durable is None else min(stop_at - 1, durable)
+        if not recs and after < end:  # a gap of deleted ids
+            acked.mark(after + 1, end)
+            after = end
         for rec in recs:
             pub.sample(pub.profile.data(rec, True), after + 1, rec.id)
             after = rec.id

@@ -33,7 +33,8 @@ views), :mod:`~pymb.store.onchange` (report by exception),
 (size and age limits), :mod:`~pymb.store.files` (atomic creation), :mod:`~pymb.store.guard`
 (never writing into a file of another kind),
 :mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.outbox` (a
-forwarder's reads and cursors), :mod:`~pymb.store.text` and
+forwarder's reads and cursors), :mod:`~pymb.store.handoff` (what the writer
+and a forwarder beside it hand each other, as data), :mod:`~pymb.store.text` and
 :mod:`~pymb.store.influx` (text formats), :mod:`~pymb.store.sinks`
 (``open_sink``), :mod:`~pymb.store.export` (a database as CSV),
 :mod:`~pymb.store.readonly` (reading without leaving files),

@@ -29,8 +29,14 @@ from pymb.store.schema import (
     schema_version,
 )
 
-__all__ = ["device_map", "has_map", "iter_samples", "map_columns", "map_point_names",
-           "samples_after", "shipped_map", "stored_after", "stored_map"]
+#: a ``samples`` row: id, device_id, time_utc, monotonic, registers, unsupported
+SampleRow = tuple[int, int, float, float, bytes | None, int]
+#: a ``hub_changes`` row of a sample: channel (from 1), registers
+HubRow = tuple[int, bytes]
+
+__all__ = ["DeviceRow", "HubRow", "RowDecoder", "SampleRow", "device_map", "device_row",
+           "has_map", "iter_samples", "map_columns", "map_point_names", "samples_after",
+           "shipped_map", "stored_after", "stored_map"]
 
 
 def stored_map(db: sqlite3.Connection, kind: str, layout: str = "",
@@ -39,15 +45,20 @@ def stored_map(db: sqlite3.Connection, kind: str, layout: str = "",
     of a devices row's ``layout`` key (its humidity_units), and the group of
     that row; None if the database has no map of that id. A map in ``given``
     (``pymb export --map FILE``) is used instead of the stored copy."""
-    group, options = parse_layout_key(layout) if layout else (None, {})
     if given and kind in given:
-        m = given[kind]
-        return (m.configure(options) if options else m), group
+        return _configured("", kind, layout, given)
     row = db.execute("SELECT source FROM maps WHERE id = ?", (kind,)).fetchone() if \
         db.execute("SELECT 1 FROM sqlite_master WHERE name = 'maps'").fetchone() else None
-    if row is None:
-        return None
-    m = maps.loads(row[0], source=f"map {kind} (stored)")
+    return None if row is None else _configured(row[0], kind, layout, given)
+
+
+def _configured(source: str, kind: str, layout: str,
+                given: Mapping[str, Map] | None) -> tuple[Map, str | None]:
+    """A stored map's text (or ``given``'s map of ``kind``) configured as a
+    devices row's ``layout`` key says, and that row's group."""
+    group, options = parse_layout_key(layout) if layout else (None, {})
+    m = given[kind] if given and kind in given else \
+        maps.loads(source, source=f"map {kind} (stored)")
     return (m.configure(options) if options else m), group
 
 
@@ -109,41 +120,36 @@ class _Device:
     channels and humidity units) and group, where the group's points sit in
     the stored registers, and (a row of channels) each channel's unit."""
 
-    def __init__(self, db: sqlite3.Connection, did: int,
-                 given: Mapping[str, Map] | None) -> None:
-        bus, port, kind, address, name, channels, layout = db.execute(
-            "SELECT bus, port, type, address, name, channels, humidity_units FROM devices "
-            "WHERE id = ?", (did,)).fetchone()
-        tenths = [t for (t,) in db.execute(
-            "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel", (did,))]
-        units = [0.1 if t else 1.0 for t in tenths]
+    def __init__(self, row: DeviceRow, given: Mapping[str, Map] | None) -> None:
+        units = [0.1 if t else 1.0 for t in row.tenths]
         unit: float | tuple[float, ...] = (
             units[0] if len(set(units)) == 1 else tuple(units)) if units else 0.1
-        self.info = DeviceInfo(bus, port, kind, address, name, channels, unit)
+        kind, channels = row.kind, row.channels
+        self.info = DeviceInfo(row.bus, row.port, kind, row.address, row.name, channels, unit)
         self.channels = int(channels)
         self.unit, self.other = humidity_units(unit, self.channels) if units else (0.1, b"")
-        if has_map(db, kind):
-            found = stored_map(db, kind, layout, given)
-            how = None if found is None else GroupDecode(*found)
+        if row.map_source is not None:
+            found = _configured(row.map_source, kind, row.layout, given)
+            how: GroupDecode | None = GroupDecode(*found)
         else:  # the shipped map's, made once
             how = _shipped_decode(kind, self.channels, self.unit if units else None)
         if how is None:
-            raise InvalidArgument(f"the database has no map {kind!r} for device {name}")
+            raise InvalidArgument(f"the database has no map {kind!r} for device {row.name}")
         self.how = how
         self.map, self.group, self.names = how.map, how.group, how.names
         self.decoders = how.decoders
         self.buffers = [d.new_buffers() for d in self.decoders]  # this reader's own
 
-    def reading(self, db: sqlite3.Connection, did: int, t: float, sid: int,
-                blob: bytes | None, unsupported: int) -> MapReading:
+    def reading(self, blob: bytes | None, unsupported: int, hub: Sequence[HubRow] = ()
+                ) -> MapReading:
         """A stored sample decoded again: its registers (a sample stored by
-        channel, ``registers`` NULL: its rows of ``hub_changes``, the
+        channel, ``registers`` NULL: its rows of ``hub_changes``, ``hub``, the
         channels not there ``not_read``), the points refused ``unsupported``."""
         present: list[int] | None = None
         if blob is not None:
             regs = host_words(blob)
         else:
-            regs, present = self._by_channel(db, did, t, sid)
+            regs, present = self._by_channel(hub)
         gone = [n for i, n in enumerate(self.names)
                 if unsupported >> min(i, MAP_UNSUPPORTED_BITS) & 1]
         if self.channels:
@@ -151,19 +157,17 @@ class _Device:
         values, states = self.how.decode(regs, self.how.unread_of(gone) if gone else _NONE)
         return MapReading(self.map, self.group, values, states, regs, tuple(gone))
 
-    def _by_channel(self, db: sqlite3.Connection, did: int, t: float, sid: int
-                    ) -> tuple[array[int], list[int]]:
+    def _by_channel(self, hub: Sequence[HubRow]) -> tuple[array[int], list[int]]:
         """The registers of a sample stored by channel (a word per point and
-        channel), and its channels (0-based)."""
+        channel, from its rows of ``hub_changes``), and its channels (0-based)."""
         first = self.decoders[0].address
         slots = [(p.address - first, p.stride) for p in map(self.map.points.get, self.names)
                  if p is not None]
         regs = array("H", bytes(2 * sum(d.count for d in self.decoders)))
         present = []
-        for ch, blob in db.execute(
-                f"SELECT channel, registers FROM hub_changes WHERE device_id = ? AND channel IN "
-                f"({', '.join(str(c) for c in range(1, self.channels + 1))}) AND time_utc = ? "
-                "AND sample_id = ?", (did, t, sid)).fetchall():
+        for ch, blob in hub:
+            if not 1 <= ch <= self.channels:
+                continue
             for (at, stride), word in zip(slots, host_words(blob), strict=False):
                 regs[at + (ch - 1) * stride] = word
             present.append(ch - 1)
@@ -289,6 +293,62 @@ def iter_samples(con: sqlite3.Connection, where: str, args: Sequence[SqlArg],
             q, (*args, limit) if limit is not None else tuple(args)).fetchall():
         dev = devices.get(did)
         if dev is None:
-            dev = devices[did] = _Device(con, did, given)
-        yield StoredSample(dev.info, t, mono, dev.reading(con, did, t, sid, blob, unsupported),
-                           sid)
+            dev = devices[did] = _Device(device_row(con, did), given)
+        hub = () if blob is not None else con.execute(
+            "SELECT channel, registers FROM hub_changes WHERE device_id = ? AND time_utc = ? "
+            "AND sample_id = ?", (did, t, sid)).fetchall()
+        yield StoredSample(dev.info, t, mono, dev.reading(blob, unsupported, hub), sid)
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceRow:
+    """A ``devices`` row as plain data: its columns, its channels' humidity
+    tenths, and the text of its stored map (None: a device of format 1's
+    layout, decoded by its shipped map)."""
+
+    bus: str
+    port: str
+    kind: str
+    address: int
+    name: str
+    channels: int
+    layout: str
+    tenths: tuple[int, ...]
+    map_source: str | None
+
+
+def device_row(db: sqlite3.Connection, did: int) -> DeviceRow:
+    """The ``devices`` row ``did`` of ``db`` as data (see :class:`DeviceRow`)."""
+    bus, port, kind, address, name, channels, layout = db.execute(
+        "SELECT bus, port, type, address, name, channels, humidity_units FROM devices "
+        "WHERE id = ?", (did,)).fetchone()
+    tenths = tuple(int(t) for (t,) in db.execute(
+        "SELECT humidity_tenths FROM channels WHERE device_id = ? ORDER BY channel", (did,)))
+    source = db.execute("SELECT source FROM maps WHERE id = ?", (kind,)).fetchone() \
+        if has_map(db, kind) else None
+    return DeviceRow(bus, port, kind, address, name, channels, layout, tenths,
+                     None if source is None else str(source[0]))
+
+
+class RowDecoder:
+    """Sample rows given as data (a writer's, handed to a forwarder: see
+    :mod:`pymb.store.handoff`) decoded as :func:`iter_samples` decodes the
+    rows it reads; one per thread (each device's decode buffers are its own)."""
+
+    def __init__(self) -> None:
+        self._devices: dict[int, _Device] = {}
+
+    def knows(self, did: int) -> bool:
+        """Whether device row ``did`` was added."""
+        return did in self._devices
+
+    def add(self, did: int, row: DeviceRow) -> None:
+        """The devices row ``did`` (see :func:`device_row`)."""
+        self._devices[did] = _Device(row, None)
+
+    def sample(self, row: SampleRow, hub: Sequence[HubRow]) -> StoredSample:
+        """A ``samples`` row (and, stored by channel, its ``hub_changes``
+        rows) decoded; its device was added."""
+        sid, did, t, mono, blob, unsupported = row
+        dev = self._devices[did]
+        return StoredSample(dev.info, t, mono, dev.reading(blob, unsupported, hub), sid)

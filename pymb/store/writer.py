@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 from array import array
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -20,10 +20,12 @@ from pymb.errors import InvalidArgument, OutputError
 from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
+from pymb.store.handoff import Handoff
 from pymb.store.ids import SampleIds
 from pymb.store.lock import WriterLock
 from pymb.store.onchange import Changes, OnChange
-from pymb.store.outbox import max_id, set_cursor_on
+from pymb.store.outbox import max_id
+from pymb.store.reader import HubRow
 from pymb.store.records import Event, Sample, SinkBase
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
@@ -100,8 +102,9 @@ class SqliteSink(SinkBase):
             self._unlock()
             raise
         self._device_ids = DeviceIds(self.db, self.path, self._begin)
-        #: one thread at a time: the logger's writes, a live forwarder's reads
+        #: one thread at a time: the logger's writes, a command desk's (in_batch)
         self._mutex = threading.RLock()
+        self._handoff: Handoff | None = None  #: a forwarder's, see publish_live
         self._closed = False
         self._ids = SampleIds(self.db)
         self._changes: dict[int, Changes] = {}
@@ -237,6 +240,8 @@ class SqliteSink(SinkBase):
                     k = min(ROWS_PER_INSERT, rows - i)
                     self.db.execute(insert_rows(k), flat[6 * i:6 * (i + k)])
                 self.stored += rows
+                if self._handoff is not None:
+                    self._handoff.wrote(self.db, flat)
                 return
             quarter = self.wal_budget // 4
             i = 0
@@ -256,17 +261,18 @@ class SqliteSink(SinkBase):
                 if size >= quarter:
                     self._commit()
                     self._begin()
+            if self._handoff is not None:
+                self._handoff.wrote(self.db, flat)
         except (sqlite3.Error, OSError, OutputError) as e:
             raise self._failed(e) from None
 
     def _insert(self, did: int, sample: Sample, registers: bytearray | None,
-                unsupported: int) -> int:
-        sid = self._ids.take()
-        self.db.execute(
-            "INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
-            "VALUES (?, ?, ?, ?, ?, ?)",
-            (sid, did, sample.time_utc, sample.monotonic, registers, unsupported))
-        return sid
+                unsupported: int, hub: Sequence[HubRow] = ()) -> int:
+        row = (self._ids.take(), did, sample.time_utc, sample.monotonic, registers, unsupported)
+        self.db.execute(insert_rows(1), row)
+        if self._handoff is not None:  # a forwarder's (see publish_live)
+            self._handoff.wrote(self.db, row, hub)
+        return row[0]
 
     def _make_room(self, n: int) -> None:
         """Live: the mark covers ``n`` more ids (committed first if it must move)."""
@@ -292,15 +298,14 @@ class SqliteSink(SinkBase):
         if not pick:
             return
         if channels:  # stored by channel: the channels picked, as rows of hub_changes
-            sid = self._insert(did, sample, None, unsupported_of(data))
             regs = data.registers
             points = [data.map.points[n] for n in data.values]
             first = min(p.address for p in points)
-            self.db.executemany(
-                "INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
-                [(did, ch + 1, sample.time_utc, sid, wire_bytes(array(
-                    "H", [regs[p.address - first + ch * p.stride] for p in points])))
-                 for ch in pick])
+            hub = [(ch + 1, wire_bytes(array(
+                "H", [regs[p.address - first + ch * p.stride] for p in points]))) for ch in pick]
+            sid = self._insert(did, sample, None, unsupported_of(data), hub)
+            self.db.executemany("INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
+                                [(did, ch, sample.time_utc, sid, b) for ch, b in hub])
         else:
             self._insert(did, sample, bound_registers(data, size), unsupported_of(data))
         self.stored += 1
@@ -444,32 +449,20 @@ class SqliteSink(SinkBase):
         """The highest sample id handed out (0: none; not a query)."""
         return self._ids.last
 
-    def set_outbox_cursor(self, name: str, sample_id: int) -> None:
-        """Advance a forwarder's outbox cursor with the open batch (the writer
-        holds SQLite's write lock for most of a batch: the cursor goes in with
-        it rather than waiting for the lock)."""
-        with self._mutex:
-            self._begin()
-            set_cursor_on(self.db, name, sample_id)
-
-    def publish_live(self) -> None:
-        """Samples may be read through :meth:`reading` (and published) before
-        their commit: from now on every id handed out is under a durable mark
-        (:mod:`pymb.store.ids`), so none is ever handed out twice."""
+    def publish_live(self, handoff: Handoff) -> None:
+        """Hand each sample written from now on (a forwarder publishes it before
+        its commit: its id is under a durable mark, :mod:`pymb.store.ids`,
+        never handed out twice) and each commit's top id to ``handoff``."""
         with self._mutex:
             try:
                 self._commit()
                 self._ids.live = True
                 self._make_room(1)
+                handoff.attach(self._ids.last, max_id(self.db))
             except (sqlite3.Error, OSError, OutputError) as e:
                 raise self._failed(e) from None
-
-    @contextlib.contextmanager
-    def reading(self) -> Iterator[sqlite3.Connection | None]:
-        """This writer's connection, its open batch included, for another
-        thread to read while no write runs (None once closed)."""
-        with self._mutex:
-            yield None if self._closed else self.db
+            self._handoff = handoff
+            self._on_commit.append(handoff.commit_done)
 
     def close(self) -> None:
         """Commit what is pending, close the database and let the next writer in."""
@@ -488,3 +481,5 @@ class SqliteSink(SinkBase):
                 self._closed = True
                 self.db.close()
                 self._unlock()
+                if self._handoff is not None:
+                    self._handoff.writer_closed()

@@ -1,0 +1,146 @@
+"""No SQLite connection crosses a thread between the logger's writer and the
+MQTT forwarder: the writer hands the forwarder what it wrote as data, the
+forwarder reads the backlog on a connection of its own and hands its cursor
+and state to the writer for its next batch (pymb.store.handoff).
+
+Every connection made here is made with ``check_same_thread=True``: SQLite's
+Python module then raises ProgrammingError when a thread uses a connection
+another thread made, and the forwarder's thread ends with that error."""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.register_assert_rewrite("mqtt_broker")
+from conftest import wait_until  # noqa: E402
+from mqtt_broker import Fleet, db_count, db_ids, plain_ids  # noqa: E402
+
+from pymb.fleet import ForwardingSink, MqttConfig  # noqa: E402
+from pymb.fleet.forwarder import Forwarder  # noqa: E402
+from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger  # noqa: E402
+from pymb.store import SqliteSink  # noqa: E402
+
+pytest_plugins = ["mqtt_broker"]
+
+_connect = sqlite3.connect
+
+
+@pytest.fixture
+def one_thread_connections(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every sqlite3 connection made during the test checks its thread."""
+    def connect(*args: Any, **kw: Any) -> sqlite3.Connection:
+        kw["check_same_thread"] = True
+        con: sqlite3.Connection = _connect(*args, **kw)
+        return con
+
+    monkeypatch.setattr(sqlite3, "connect", connect)
+    made = sqlite3.connect(":memory:")
+    failed: list[BaseException] = []
+
+    def use() -> None:
+        try:
+            made.execute("SELECT 1")
+        except sqlite3.ProgrammingError as e:
+            failed.append(e)
+
+    t = threading.Thread(target=use)
+    t.start()
+    t.join()
+    made.close()
+    assert failed, "a connection used from another thread did not fail: the check is off"
+
+
+def _run(fleet: Fleet, db: Path, cfg: MqttConfig,
+         during: Any) -> tuple[Forwarder, SqliteSink]:
+    """Log the simulated CoolPro into ``db`` and forward it as ``cfg`` says;
+    ``during(logger)`` runs in a thread of its own and stops the logger."""
+    sim = fleet.simulator("coolpro")
+    bus = BusConfig("bus1", tcp=sim.endpoint, timeout=1.0, interval=0.02,
+                    devices=[DeviceConfig("coolpro", 40)])
+    sink = SqliteSink(db)
+    fw = Forwarder(str(db), cfg, writer=sink)
+    fw.start()
+    logger = Logger(LogConfig([bus], "sqlite", str(db)), sink=ForwardingSink(sink, fw))
+    t = threading.Thread(target=during, args=(logger,), daemon=True)
+    t.start()
+    try:
+        logger.run(60)
+    finally:
+        t.join(60)
+    return fw, sink
+
+
+def _cursor(db: Path) -> int:
+    con = sqlite3.connect(db)
+    try:
+        return int(con.execute("SELECT COALESCE(MAX(sample_id), 0) FROM outbox").fetchone()[0])
+    finally:
+        con.close()
+
+
+def test_live_then_an_outage_that_outlasts_the_writer(
+        fleet: Fleet, tmp_path: Path, one_thread_connections: None) -> None:
+    """Samples go out live (from the writer's handoff); the broker stops, the
+    logger ends while it is away (the writer closes with samples unsent), the
+    broker comes back: the forwarder sends the backlog from its own
+    connection and writes its cursor itself. Every sample arrives."""
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, "pymb/#")
+    db = tmp_path / "log.sqlite"
+
+    def during(logger: Logger) -> None:
+        try:
+            sub.wait_until(lambda m: len(plain_ids(m)) >= 50, 30, "50 samples live")
+            broker.stop()
+            before = db_count(db)
+            wait_until(lambda: db_count(db) >= before + 50, "50 samples logged while down", 30)
+        finally:
+            logger.stop()
+
+    fw, sink = _run(fleet, db, MqttConfig(broker.url, node="seams"), during)
+    assert sink.closed
+    try:
+        assert fw.error is None, fw.error
+        broker.start()
+        want = db_ids(db)
+        sub.wait_until(lambda m: set(plain_ids(m)) >= want, 60, "every sample after the outage")
+    finally:
+        fw.stop(10)
+        fw.join(20)
+    assert fw.error is None, fw.error
+    assert _cursor(db) == max(want)
+
+
+def test_sparkplug_state_goes_in_with_the_writers_batch(
+        fleet: Fleet, tmp_path: Path, one_thread_connections: None) -> None:
+    """Sparkplug's bdSeq is written durably before each CONNECT: handed to the
+    writer, committed with its batch; births read the devices and their
+    newest samples (the open batch's too) without the writer's connection."""
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, "spBv1.0/#")
+    db = tmp_path / "log.sqlite"
+
+    def during(logger: Logger) -> None:
+        try:
+            sub.wait_until(lambda m: sum("/DDATA/" in t for t, _ in m) >= 30, 30,
+                           "30 DDATA")
+        finally:
+            logger.stop()
+
+    cfg = MqttConfig(broker.url, profile="sparkplug", group="g", node="seams")
+    fw, _sink = _run(fleet, db, cfg, during)
+    fw.stop(10)
+    fw.join(20)
+    assert fw.error is None, fw.error
+    kinds = [t.split("/")[2] for t, _ in sub.snapshot()]
+    assert kinds[:2] == ["NBIRTH", "DBIRTH"]
+    con = sqlite3.connect(db)
+    try:
+        assert con.execute("SELECT value FROM fleet_state").fetchall() == [(0,)]
+    finally:
+        con.close()

@@ -1,0 +1,123 @@
+"""The writer's handoff to a forwarder (pymb.store.handoff): the samples of
+the open batch, as data, decode to what the file gives once committed; a
+sample is never skipped, when the handoff let older ones go (past its limit)
+the reader waits for the commit; the forwarder's cursor goes in with the
+writer's batch."""
+
+from __future__ import annotations
+
+import sqlite3
+from array import array
+from pathlib import Path
+
+from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
+from pymb.store import DeviceInfo, OnChange, Outbox, Sample, SqliteSink, StoredSample
+from pymb.store.handoff import Handoff
+from pymb.store.outbox import write_pending
+
+_PSU = DeviceInfo("bus1", "/dev/null", "coolpro", 40, "psu")
+_HUB = DeviceInfo("bus1", "/dev/null", "hub", 1, "hub-1")
+
+
+def _psu(t: float) -> Sample:
+    data = CoolProTelemetry(24.5, 2.45, 24.0, 2.41, 26.1, int(t), CoolProStatus(0),
+                            array("H", [245, 245, 240, 241, 261, 0, int(t), 0]))
+    return Sample(_PSU, 1_700_000_000 + t, t, data)
+
+
+def _hub(t: float, bump: int) -> Sample:
+    regs = array("H", [(i * 7) % 300 for i in range(700)])
+    regs[0] += bump  # one channel's value moves
+    return Sample(_HUB, 1_700_000_000 + t, t, decode_hub(regs))
+
+
+def _ids(got: list[StoredSample]) -> list[int]:
+    return [s.id for s in got]
+
+
+def test_the_open_batch_handed_over_decodes_as_the_file(tmp_path: Path) -> None:
+    """CoolPro samples and a hub stored by channel (on-change: the channels
+    that moved, the rest not read), read from the handoff before their
+    commit, equal the same samples read from the file after it."""
+    db = tmp_path / "h.sqlite"
+    sink = SqliteSink(db, on_change=OnChange(heartbeat=3600.0))
+    handoff = Handoff()
+    sink.publish_live(handoff)
+    box = Outbox(str(db), handoff)
+    for i in range(4):
+        sink.write(_psu(float(i)))
+        sink.write(_hub(float(i), i))
+    live = box.samples_after(0, 100)
+    n = len(live)
+    assert n >= 5
+    assert box.max_id() == n
+    assert box.oldest_after(0) == (n, 1_700_000_000.0)
+    assert box.latest("hub-1") == [s for s in live if s.device.name == "hub-1"][-1]
+    assert [n for n, _, _ in box.devices()] == ["psu", "hub-1"]
+    sink.commit()
+    plain = Outbox(str(db))
+    assert plain.samples_after(0, 100) == live
+    con = sqlite3.connect(db)
+    try:  # the hub's samples are stored by channel; the later ones, what moved only
+        assert con.execute("SELECT COUNT(*) FROM samples WHERE registers IS NULL").fetchone()[
+            0] >= 2
+        assert con.execute("SELECT COUNT(*) FROM hub_changes").fetchone()[0] > 2
+    finally:
+        con.close()
+    plain.close()
+    box.close()
+    sink.close()
+
+
+def test_samples_not_held_past_the_limit_are_read_after_the_commit(tmp_path: Path) -> None:
+    """At its limit the handoff holds no more samples of the open batch:
+    the forwarder takes those it holds, then waits for the commit that puts
+    the others in the file (none is skipped, no id is taken for a gap)."""
+    db = tmp_path / "w.sqlite"
+    sink = SqliteSink(db)
+    handoff = Handoff(limit=4)
+    sink.publish_live(handoff)
+    box = Outbox(str(db), handoff)
+    for i in range(3):
+        sink.write(_psu(float(i)))
+    assert _ids(box.samples_after(0, 100)) == [1, 2, 3]
+    for i in range(3, 9):
+        sink.write(_psu(float(i)))  # 1..4 held (1..3 go at the next read past them)
+    assert _ids(box.samples_after(3, 100)) == [4]
+    assert box.samples_after(4, 100) == []  # 5..9 are not held
+    assert box.durable() == 0  # the backlog's gap rule waits too
+    backlog = box.oldest_after(4)
+    assert backlog is not None
+    assert backlog[0] == 5
+    newest = box.latest("psu")
+    assert newest is not None
+    assert newest.id == 9
+    sink.commit()
+    assert _ids(box.samples_after(4, 100)) == [5, 6, 7, 8, 9]
+    assert box.durable() == 9
+    for i in range(9, 11):
+        sink.write(_psu(float(i)))  # held again after the commit
+    assert _ids(box.samples_after(9, 100)) == [10, 11]
+    box.close()
+    sink.close()
+    assert not box.live
+
+
+def test_the_cursor_goes_in_with_the_writers_batch(tmp_path: Path) -> None:
+    """A cursor set beside a running writer waits for the writer's next
+    batch (no commit of its own); once the writer closed, it is written
+    on the outbox's own connection."""
+    db = tmp_path / "c.sqlite"
+    sink = SqliteSink(db)
+    handoff = Handoff()
+    sink.publish_live(handoff)
+    box = Outbox(str(db), handoff)
+    sink.write(_psu(0.0))
+    box.set_cursor("dest", 1)
+    assert Outbox(str(db)).cursor_or_none("dest") is None
+    sink.in_batch(lambda con: write_pending(con, handoff, closing=True), False)
+    sink.close()
+    assert Outbox(str(db)).cursor("dest") == 1
+    box.set_cursor("dest", 2)  # the writer is gone: its own connection
+    assert Outbox(str(db)).cursor("dest") == 2
+    box.close()
