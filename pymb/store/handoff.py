@@ -88,16 +88,15 @@ class Handoff:
         never changed after); one row: with its ``hub_changes`` rows."""
         if not flat:
             return
-        rows = [cast(SampleRow, tuple(flat[k:k + 6])) for k in range(0, len(flat), 6)]
-        new = [did for did in {r[1] for r in rows} if did not in self._devices]
+        # a tuple a row, grouped in C (the writer binds 6 values a row)
+        rows = cast(list[SampleRow], list(zip(*(iter(flat),) * 6, strict=True)))
+        dids = cast(list[int], flat[1::6])
+        new = [did for did in set(dids) if did not in self._devices]
         found = {did: device_row(db, did) for did in new}
-        last = rows[-1][0]
         with self._lock:
             if found:
                 self._devices.update(found)
-            newest = self._newest
-            for r in rows:
-                newest[r[1]] = r
+            self._newest.update(zip(dids, rows, strict=True))
             if hub:
                 self._newest_hub[rows[0][1]] = tuple(hub)
             if self._since is None:
@@ -110,14 +109,21 @@ class Handoff:
                 held.extend(rows)
                 if hub and rows:
                     self._hubs[rows[-1][0]] = tuple(hub)
-            self.written = last
+            self.written = cast(int, flat[-6])
 
-    def _let_go(self) -> None:
-        """The first sample held goes (the lock held)."""
-        sid = self._held.popleft()[0]
-        self._head = sid
-        if self._hubs:
-            self._hubs.pop(sid, None)
+    def _let_go(self, upto: int) -> None:
+        """The samples held up to id ``upto`` go (the lock held)."""
+        held = self._held
+        if held and held[-1][0] <= upto:  # all of them, at once
+            self._head = held[-1][0]
+            held.clear()
+            self._hubs.clear()
+            return
+        while held and held[0][0] <= upto:
+            sid = held.popleft()[0]
+            self._head = sid
+            if self._hubs:
+                self._hubs.pop(sid, None)
 
     def take_writes(self, closing: bool = False
                     ) -> tuple[list[tuple[str, str]], tuple[str, int] | None, dict[str, int]]:
@@ -138,8 +144,7 @@ class Handoff:
             self.committed = max(self.committed, top)
             self._since = None
             held = self._held
-            while held and held[0][0] <= top:
-                self._let_go()
+            self._let_go(top)
             if self._full:  # those not held are in the file now
                 self._full = False
                 held.clear()
@@ -175,8 +180,7 @@ class Handoff:
         with self._lock:
             held = self._held
             if self._head <= max(sample_id, committed):
-                while held and held[0][0] <= sample_id:
-                    self._let_go()
+                self._let_go(sample_id)
                 for row in held:
                     if len(out) >= limit or (before is not None and row[0] >= before):
                         break
