@@ -22,14 +22,17 @@ above the gateway's (``pymb serve``'s ``--timeout``, 1 s by default).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import queue
+import signal
 import struct
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from types import FrameType
 from typing import cast
 
 from pymb.client import Client, RtuClient
@@ -169,7 +172,9 @@ def run(args: argparse.Namespace) -> int:
         confirm_timeout = max(args.timeout, _HUB_ANSWER_S + 0.15 + 60 * 11 / baud)
     if not 0 < confirm_timeout <= 60:
         raise InvalidArgument(f"--confirm-timeout must be more than 0 s, got {confirm_timeout}")
-    events: queue.Queue[tuple[str, object]] = queue.Queue()
+    # A SimpleQueue (C, reentrant): the main thread waits in no Python-level
+    # lock code, and Ctrl-C comes as an event (see _ctrl_c_as_event).
+    events: queue.SimpleQueue[tuple[str, object]] = queue.SimpleQueue()
 
     def work() -> None:
         try:
@@ -183,38 +188,38 @@ def run(args: argparse.Namespace) -> int:
             events.put(("fatal", e))
         events.put(("end", None))
 
-    threading.Thread(target=work, name="pymb-scan", daemon=True).start()
     found: list[Found] = []
     unconfirmed: list[int] = []
     tty = sys.stderr.isatty()
     t0 = time.monotonic()
     interrupted = False
     try:
-        while True:
-            try:
-                kind, item = events.get(timeout=0.1)
-            except queue.Empty:
-                continue
-            if kind == "end":
-                break
-            if kind == "fatal":
-                assert isinstance(item, BaseException)
-                raise item
-            if kind == "progress" and tty:
-                where, index = cast(tuple[int, int], item)
-                sys.stderr.write(f"\r\x1b[Kscanning {where} ({index}/{len(addresses)}), "
-                                 f"{len(found)} found")
-                sys.stderr.flush()
-            elif kind == "unconfirmed":
-                unconfirmed.append(int(item))  # type: ignore[call-overload]
-            elif kind == "found":
-                assert isinstance(item, Found)
-                found.append(item)
-                if tty:
-                    sys.stderr.write("\r\x1b[K")
+        with _ctrl_c_as_event(events):
+            threading.Thread(target=work, name="pymb-scan", daemon=True).start()
+            while True:
+                kind, item = events.get()
+                if kind == "end":
+                    break
+                if kind == "interrupt":
+                    raise KeyboardInterrupt
+                if kind == "fatal":
+                    assert isinstance(item, BaseException)
+                    raise item
+                if kind == "progress" and tty:
+                    where, index = cast(tuple[int, int], item)
+                    sys.stderr.write(f"\r\x1b[Kscanning {where} ({index}/{len(addresses)}), "
+                                     f"{len(found)} found")
                     sys.stderr.flush()
-                if not args.json:
-                    print(f"{item.address:3d}  {item.device:8s} {item.detail}", flush=True)
+                elif kind == "unconfirmed":
+                    unconfirmed.append(int(item))  # type: ignore[call-overload]
+                elif kind == "found":
+                    assert isinstance(item, Found)
+                    found.append(item)
+                    if tty:
+                        sys.stderr.write("\r\x1b[K")
+                        sys.stderr.flush()
+                    if not args.json:
+                        print(f"{item.address:3d}  {item.device:8s} {item.detail}", flush=True)
     except KeyboardInterrupt:
         interrupted = True
     if tty:
@@ -234,3 +239,26 @@ def run(args: argparse.Namespace) -> int:
     if interrupted:
         raise KeyboardInterrupt
     return 0
+
+
+@contextlib.contextmanager
+def _ctrl_c_as_event(events: queue.SimpleQueue[tuple[str, object]]) -> Iterator[None]:
+    """While the scan runs, Ctrl-C (SIGINT) puts ("interrupt", None) on
+    ``events`` instead of raising KeyboardInterrupt wherever the main thread
+    is: raised between a lock's wait and its re-acquire (``threading``'s
+    Condition, under ``queue.Queue.get`` or ``Thread.start``), it left the
+    lock released and its ``with`` ended in ``RuntimeError: release unlocked
+    lock``, a traceback. ``SimpleQueue.put`` may be called from a signal
+    handler. Outside the main thread (no handler can be set) as before."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_sigint(signum: int, frame: FrameType | None) -> None:
+        events.put(("interrupt", None))
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
