@@ -34,16 +34,65 @@ static double look(const pymbi_loop *lp, const pymbi_lconn *c)
     return t < most ? t : most;
 }
 
+/* Whether the frames in buf (pymbi_mbap_clean's: whole ones, the last one
+ * perhaps still coming) each answer a request of m still in flight, as its
+ * reply would begin: its transaction id, no protocol id, its length, unit,
+ * function and byte count, as far as they came. A reply to an id not in
+ * flight (late or foreign) or of another size is not the poll's. */
+static int own_replies(const pymbi_master *m, const uint8_t *buf, size_t len)
+{
+    size_t pos = 0;
+    while (len - pos >= 2) {
+        const uint16_t tid = (uint16_t)((buf[pos] << 8) | buf[pos + 1]);
+        const pymbi_mslot *s = NULL;
+        size_t have = len - pos, want, data, k;
+        uint32_t i;
+        uint8_t head[9];
+        for (i = 0; i < m->span && s == NULL; i++) {
+            const pymbi_mslot *t = &m->slots[(uint16_t)(m->oldest + i) % PYMBI_MASTER_INFLIGHT];
+            if (t->live && t->tid == tid) {
+                s = t;
+            }
+        }
+        if (s == NULL) {
+            return 0;
+        }
+        data = s->req.function <= 2 ? ((size_t)s->req.count + 7u) / 8u : 2u * s->req.count;
+        want = 9 + data;
+        head[0] = buf[pos];
+        head[1] = buf[pos + 1];
+        head[2] = 0;
+        head[3] = 0;
+        head[4] = (uint8_t)((3 + data) >> 8);
+        head[5] = (uint8_t)(3 + data);
+        head[6] = s->req.unit;
+        head[7] = s->req.function;
+        head[8] = (uint8_t)data;
+        for (k = 2; k < sizeof head && k < have; k++) {
+            if (buf[pos + k] != head[k]) {
+                return 0;
+            }
+        }
+        if (have <= want) {
+            return 1; /* the last reply, whole or still coming */
+        }
+        pos += want;
+    }
+    return 1;
+}
+
 /* Whether armed c's poll, its look over, is only slow: what came of its
- * replies so far (looked at, not read) is fewer bytes than all of them and
- * holds no exception and no impossible header (pymbi_mbap_clean). */
+ * replies so far (looked at, not read) is fewer bytes than all of them,
+ * holds no exception and no impossible header (pymbi_mbap_clean), and each
+ * reply is one of the poll's own (own_replies). */
 static int still_clean(const pymbi_loop *lp, const pymbi_lconn *c)
 {
     ssize_t got = recv(c->fd, lp->rx, lp->rx_cap, MSG_PEEK | MSG_DONTWAIT);
     if (got < 0) {
         return errno == EAGAIN || errno == EWOULDBLOCK; /* nothing yet */
     }
-    return got > 0 && (size_t)got < c->replies && pymbi_mbap_clean(lp->rx, (size_t)got);
+    return got > 0 && (size_t)got < c->replies && pymbi_mbap_clean(lp->rx, (size_t)got) &&
+           own_replies(c->m, lp->rx, (size_t)got);
 }
 
 static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double now)

@@ -333,6 +333,25 @@ static void test_look(void)
         CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == (ssize_t)(len + 9));
     }
     teardown();
+    /* a well-formed reply that is not one of the poll's (an id never sent, a
+     * size other than asked): handed back at the look, not waited on */
+    {
+        uint8_t one[16];
+        const unsigned tids[2] = {7, 1};
+        const unsigned counts[2] = {2, 1};
+        size_t t;
+        for (t = 0; t < 2; t++) {
+            size_t len = reply(one, tids[t], counts[t], 0x50);
+            CHECK(setup(1) == 0);
+            CHECK(send(F.peer, one, len, 0) == (ssize_t)len);
+            usleep(20000);
+            F.conn.look_at = pymbi_loop_now() - 0.001;
+            n = pymbi_loop_wait(&F.lp, 0.0, F.rec, 8);
+            CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_LOOK && F.conn.armed == 0);
+            CHECK(recv(F.client, buf, sizeof buf, MSG_DONTWAIT) == (ssize_t)len);
+            teardown();
+        }
+    }
     CHECK(setup(1) == 0);
     /* a look to come shortens the wait */
     F.conn.armed = 1;
