@@ -119,6 +119,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except RuntimeError as e:
+        # Ctrl-C at the wrong moment of the main thread's wait in the stdlib's
+        # lock code (threading.Condition, under queue.Queue.get, Event.wait,
+        # Thread.start) leaves the lock released, and the with block's second
+        # release turns the KeyboardInterrupt into this (CPython gh-118433).
+        if isinstance(e.__context__, KeyboardInterrupt) and "unlocked lock" in str(e):
+            return EXIT_INTERRUPTED
+        raise
     except BrokenPipeError:
         return _reader_gone()
     except (ModbusError, OutputError) as e:
