@@ -88,7 +88,8 @@ def check_view(ctx: Ctx, view: str, ident: str) -> None:
                  f"{did_you_mean(view, VIEWS)}")
     if view and view != ident:
         ctx.fail("view", f"view {view!r} is pymb's view of its own map (id {view!r}): "
-                 f"a map of id {ident!r} cannot name it")
+                 f"a map of id {ident!r} cannot name it; delete its view line to read it "
+                 "as a plain map")
 
 
 def _option(ctx: Ctx, key: str, v: object, options: Mapping[str, int | float]) -> object:

@@ -46,7 +46,8 @@ def test_a_view_is_named_by_its_own_map_only() -> None:
     with pytest.raises(MapError) as e:
         maps.loads(head + 'id = "my-hub"\nview = "hub"\n', source="x.toml")
     assert str(e.value) == ("x.toml: key 'view': view 'hub' is pymb's view of its own map "
-                            "(id 'hub'): a map of id 'my-hub' cannot name it")
+                            "(id 'hub'): a map of id 'my-hub' cannot name it; delete its view "
+                            "line to read it as a plain map")
     with pytest.raises(MapError, match=r"view must be one of coolpro, hub, got 'hubb'; "
                                        r"did you mean 'hub'\?"):
         maps.loads(head + 'id = "hubb"\nview = "hubb"\n', source="x.toml")
