@@ -65,6 +65,8 @@ class Handoff:
         self._cursor: tuple[str, int] | None = None
         self._renames: list[tuple[str, str]] = []
         self._states: dict[str, int] = {}
+        #: a state written and not yet durable: key -> (value, its write's number)
+        self._unsettled: dict[str, tuple[int, int]] = {}
         self._asked = self._taken = self._durable = 0  # state writes: asked, in a batch, durable
         self._durable_cond = threading.Condition(self._lock)
         #: set when a state write waits for a commit (the writer's owner looks)
@@ -245,7 +247,22 @@ class Handoff:
             self._states[key] = value
             self._asked += 1
             asked = self._asked
+            self._unsettled[key] = (value, asked)
             self.commit_wanted.set()
             self._durable_cond.wait_for(
                 lambda: self._durable >= asked or (self.closed and self._taken < asked), wait)
             return self._durable >= asked or not self.closed
+
+    def unsettled_state(self, key: str) -> int | None:
+        """The last value put for ``key`` while its batch is not yet
+        committed (None: the file has the last one): what the forwarder
+        remembers is what it last said, durable or not (a Sparkplug bdSeq
+        is never used twice)."""
+        with self._lock:
+            got = self._unsettled.get(key)
+            if got is None:
+                return None
+            if self._durable >= got[1]:
+                del self._unsettled[key]
+                return None
+            return got[0]

@@ -113,7 +113,12 @@ class Outbox:
             set_cursor_on(self.db, name, sample_id)
 
     def state(self, key: str) -> int | None:
-        """A remembered integer (the Sparkplug bdSeq)."""
+        """A remembered integer (the Sparkplug bdSeq): the last one set, also
+        while the writer has not committed it yet."""
+        if self.handoff is not None:
+            unsettled = self.handoff.unsettled_state(key)
+            if unsettled is not None:
+                return unsettled
         row = self.db.execute("SELECT value FROM fleet_state WHERE key = ?", (key,)).fetchone()
         return None if row is None else int(row[0])
 

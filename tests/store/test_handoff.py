@@ -10,6 +10,8 @@ import sqlite3
 from array import array
 from pathlib import Path
 
+import pytest
+
 from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
 from pymb.store import DeviceInfo, OnChange, Outbox, Sample, SqliteSink, StoredSample
 from pymb.store.handoff import Handoff
@@ -120,4 +122,33 @@ def test_the_cursor_goes_in_with_the_writers_batch(tmp_path: Path) -> None:
     assert Outbox(str(db)).cursor("dest") == 1
     box.set_cursor("dest", 2)  # the writer is gone: its own connection
     assert Outbox(str(db)).cursor("dest") == 2
+    box.close()
+
+
+def test_a_state_not_yet_committed_is_still_the_one_remembered(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Sparkplug bdSeq set while the writer does not commit within the
+    wait (a slow card's fsync) is what the next connection reads: two
+    connections never carry the same bdSeq."""
+    import pymb.store.outbox as outbox
+    monkeypatch.setattr(outbox, "STATE_COMMIT_WAIT", 0.2)
+    db = tmp_path / "bd.sqlite"
+    sink = SqliteSink(db)
+    h = Handoff()
+    sink.publish_live(h)
+    sink.write(_psu(0.0))
+    sink.commit()
+    box = Outbox(str(db), h)
+    seqs = []
+    for _ in range(2):  # what SparkplugProfile.new_connection does, twice, no commit between
+        last = box.state("bdSeq")
+        seqs.append(0 if last is None else (last + 1) % 256)
+        box.set_state("bdSeq", seqs[-1])
+    assert seqs == [0, 1]
+    # the writer's next batch (as its owner runs it) takes the last one: the file says it now
+    sink.in_batch(lambda con: write_pending(con, h, closing=False), False)
+    sink.commit()
+    assert Outbox(str(db)).state("bdSeq") == 1
+    assert box.state("bdSeq") == 1
+    sink.close()
     box.close()
