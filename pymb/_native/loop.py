@@ -51,10 +51,12 @@ class Loop:
     there); a look is twice the replies' time, at least ``look_min`` seconds,
     at most a quarter of the timeout."""
 
-    __slots__ = ("_conns", "_done", "_lp", "_out", "_rx", "_slots", "recs")
+    __slots__ = ("_conns", "_done", "_held", "_lp", "_out", "_rx", "_slots", "recs")
 
     def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
+        #: an armed connection's master and poll table, kept alive while C points into them
+        self._held: list[tuple[Master, PollTable] | None] = [None] * max(n, 1)
         self._slots: Any = ffi.new("int32_t[]", 0)
         self._out: Any = ffi.new("uint8_t[]", lib.PYMBI_MASTER_FRAME * lib.PYMBI_MASTER_INFLIGHT)
         #: the records of the last :meth:`wait` (``recs[i].kind``, ``.conn``, ``.now``, ...)
@@ -114,12 +116,14 @@ class Loop:
         c.deadline = sent_at + timeout
         c.asked = 0
         c.armed = 1
+        self._held[i] = (m, t)
 
     def disarm(self, i: int) -> Times:
         """Connection ``i`` is the caller's again (also when :meth:`wait`
         handed it back): its poll's times and the requests sent since armed."""
         c = self._conns[i]
         c.armed = 0
+        self._held[i] = None
         asked = int(c.asked)
         c.asked = 0
         return Times(c.took, c.sent_at, c.look_at, c.deadline, asked)
