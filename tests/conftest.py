@@ -40,6 +40,8 @@ TIMEOUT = float(os.environ.get("PYMB_TEST_TIMEOUT", "0.25"))
 #: SIGINT's disposition when the suite started: ``signal.SIG_IGN`` when a
 #: non-interactive shell, ``nohup`` or a CI runner started it in the background.
 SIGINT_AT_START = signal.getsignal(signal.SIGINT)
+#: SIGHUP's disposition when the suite started: ``signal.SIG_IGN`` under ``nohup``.
+SIGHUP_AT_START = signal.getsignal(signal.SIGHUP)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -51,13 +53,17 @@ def pytest_configure(config: pytest.Config) -> None:
     default by ``exec``: the suite's own process handles SIGINT by doing
     nothing (it still ignores it, as it was asked to), and every launcher,
     ours or a library's, starts its children with SIGINT at its default.
+    SIGHUP likewise (``nohup``): the terminal-closed and reload tests test
+    pymb, not the shell that started the suite.
     """
     if SIGINT_AT_START is signal.SIG_IGN:
         signal.signal(signal.SIGINT, _ignore)
+    if SIGHUP_AT_START is signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, _ignore)
 
 
 def _ignore(signum: int, frame: Any) -> None:
-    """SIGINT in the suite's own process when it started ignored: nothing."""
+    """SIGINT or SIGHUP in the suite's own process when it started ignored: nothing."""
 
 
 def rss_kb(pid: int | None = None) -> int:

@@ -30,10 +30,13 @@ def faketime_env(file: Path, spec: str) -> dict[str, str]:
     """The environment of a child whose wall clock ``file`` sets."""
     if shutil.which("faketime") is None:
         pytest.fail("faketime is not installed: .ci/setup installs it")
-    # the library the faketime command preloads (its path has the loader's $LIB)
-    lib = subprocess.run(["faketime", "-f", "+0", "sh", "-c", 'printf %s "$LD_PRELOAD"'],
+    # the library the faketime command preloads (its path has the loader's $LIB):
+    # the multi-threaded one (-m): the plain one parses the file into static
+    # buffers, so a thread reading the clock while another re-reads the file
+    # can get the real time (libfaketime issue 151; pymb log runs threads)
+    lib = subprocess.run(["faketime", "-m", "-f", "+0", "sh", "-c", 'printf %s "$LD_PRELOAD"'],
                          capture_output=True, text=True, check=True, timeout=30).stdout
-    assert "libfaketime" in lib
+    assert "libfaketimeMT" in lib
     set_clock(file, spec)
     return {**PYMB_ENV, "LD_PRELOAD": lib, "FAKETIME_TIMESTAMP_FILE": str(file),
             "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
