@@ -37,8 +37,13 @@ def check_output(fmt: str, path: str, *, choosable: bool = True) -> None:
     tables added to a file that is not a pymb database; nor, into a new
     file, a format its name says it is not (SQLite into ``readings.csv``, CSV
     into ``data.sqlite``). ``choosable``: the user may choose the format
-    (``--format``), which the message then names."""
+    (``--format``), which the message then names. SQLite is never written to
+    stdout (``-``)."""
     if path == "-":
+        if fmt == "sqlite":
+            raise InvalidArgument("SQLite needs a file; " + (
+                "use --format csv, jsonl or influx for stdout" if choosable
+                else "give --out a file name"))
         return
     if not os.path.exists(path):
         _named_like(fmt, path, choosable)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pymb.errors import InvalidArgument
+from pymb.store.guard import check_output
 from pymb.store.influx import InfluxSink
 from pymb.store.onchange import OnChange
 from pymb.store.records import Sink
@@ -20,8 +21,7 @@ def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
     (``-``: stdout)."""
     if fmt == "sqlite":
         if path == "-":
-            raise InvalidArgument(
-                "SQLite needs a file; use --format csv, jsonl or influx for stdout")
+            check_output(fmt, path)  # SQLite to stdout: refused, with the message
         return SqliteSink(path, max_bytes=max_bytes, max_age=max_age, on_change=on_change)
     if on_change is not None:
         raise InvalidArgument("--on-change needs the SQLite format")

@@ -264,6 +264,17 @@ def test_demo_out_refused_before_anything_starts(tmp_path: Path, name: str, said
         assert out.read_text() == "my notes\n"
 
 
+@pytest.mark.parametrize(("argv", "said"), [
+    (["demo", "--out", "-"], "pymb demo: SQLite needs a file; give --out a file name\n"),
+    (["log", "coolpro", "--port", "/dev/null", "--out", "-"],
+     "pymb log: SQLite needs a file; use --format csv, jsonl or influx for stdout\n"),
+])
+def test_sqlite_to_stdout_is_one_line_before_anything_starts(argv: list[str], said: str) -> None:
+    """``--out -`` with SQLite: refused before a simulator or a line is opened."""
+    r = run_pymb(*argv, timeout=60)
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", said)
+
+
 def test_demo_mqtt_broker_unreachable_is_a_connection_failure(tmp_path: Path) -> None:
     """Exit 4, as ``pymb collect`` says an unreachable broker, not 2."""
     pytest.importorskip("paho.mqtt")
