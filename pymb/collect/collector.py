@@ -31,6 +31,7 @@ from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.takeover import TAKEN_OVER, Takeovers
 
 if TYPE_CHECKING:  # the extra pymb-modbus[collect]
     from paho.mqtt.client import Client, ConnectFlags, DisconnectFlags, MQTTMessage
@@ -54,6 +55,7 @@ BAD_EVERY = 60.0  #: seconds: a topic's bad input is reported at most this often
 #: data) is dropped, as QoS 0 allows (the host sees the seq gap and asks for a
 #: rebirth); QoS 1 messages are bounded by RECEIVE_MAXIMUM
 MAX_INBOX = 50000
+RECONNECT_FIRST, RECONNECT_MAX = 1, 30  #: seconds: paho's reconnection backoff
 
 
 @dataclass
@@ -138,7 +140,11 @@ class Collector:
         c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                         protocol=mqtt.MQTTv5, manual_ack=True)
         cfg.mqtt.secure(c, cfg.mqtt.password())
-        c.reconnect_delay_set(1, 30)
+        c.reconnect_delay_set(RECONNECT_FIRST, RECONNECT_MAX)
+        #: two collectors with one client id take the session from each other
+        self.takeovers = Takeovers(cfg.client_id, "", RECONNECT_MAX,
+                                   second="a second collector with this --client-id")
+        self.reconnect = RECONNECT_FIRST  #: seconds: paho's next first wait
         c.max_inflight_messages_set(100)
         c.max_queued_messages_set(0)
         self.props = Properties(PacketTypes.CONNECT)  # type: ignore[no-untyped-call]
@@ -149,6 +155,7 @@ class Collector:
             c.will_set(self.host.state_topic, state_payload(False, self.born_ms), 1, True)
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
+        c.on_connect_fail = self._on_connect_fail
         c.on_message = self._on_message
         c.on_subscribe = self._on_subscribe
         self.client = c
@@ -163,6 +170,7 @@ class Collector:
             return
         self.generation += 1
         self.stats.mqtt_ok = True
+        self.takeovers.up()
         client.subscribe(self.cfg.topic, qos=1)
         if self.host is not None:
             client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
@@ -172,9 +180,21 @@ class Collector:
 
     def _on_disconnect(self, client: Client, userdata: object, flags: DisconnectFlags,
                        rc: ReasonCode, props: Properties | None = None) -> None:
-        if self.stats.mqtt_ok and not self.stop.is_set():
+        was_up, self.stats.mqtt_ok = self.stats.mqtt_ok, False
+        if not was_up or self.stop.is_set():
+            return
+        # paho reconnects after its backoff, which a CONNACK starts over: a
+        # takeover's backoff is set here, as its first wait
+        anew, line = self.takeovers.down(rc.is_failure, rc.value == TAKEN_OVER)
+        self.reconnect = RECONNECT_FIRST if anew else min(2 * self.reconnect, RECONNECT_MAX)
+        client.reconnect_delay_set(self.reconnect, RECONNECT_MAX)
+        if line is not None:
+            self.event(line)
+        elif not self.takeovers.said:  # said once, not at each takeover
             self.event(f"lost the broker {self.cfg.mqtt.url}: {rc}; reconnecting")
-        self.stats.mqtt_ok = False
+
+    def _on_connect_fail(self, client: Client, userdata: object) -> None:
+        self.takeovers.away()  # the broker was away: not a takeover
 
     def _on_subscribe(self, client: Client, userdata: object, mid: int, rcs: list[ReasonCode],
                       props: Properties | None = None) -> None:

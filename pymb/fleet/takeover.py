@@ -1,4 +1,5 @@
-"""Two loggers with one node name: :class:`Takeovers`.
+"""Two loggers with one node name (or two collectors with one client id):
+:class:`Takeovers`.
 
 The forwarder's MQTT client id is made of its profile and node name
 (``pymb-plain-{node}``), so a second logger with the same node name connects
@@ -31,9 +32,12 @@ class Takeovers:
     """Counts the connections the broker ended soon after accepting them."""
 
     def __init__(self, client_id: str, node: str, longest: float,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, *,
+                 second: str | None = None) -> None:
         self.client_id = client_id
         self.node = node
+        #: who the other client may be, for the line (a logger's: by its node name)
+        self.second = second or f"a second logger with the node name {node!r}"
         self.longest = longest  #: the reconnection's longest backoff, in seconds
         self._clock = clock
         self._since: float | None = None
@@ -67,8 +71,7 @@ class Takeovers:
             why = ("the broker says another client took over this session" if taken_over else
                    f"the broker ended {self.short} connections in a row within "
                    f"{STABLE_S:g} s of accepting them")
-            line = (f"{why}: is another client connected as {self.client_id} (a second "
-                    f"logger with the node name {self.node!r})? Two of them take the "
-                    f"session from each other; reconnecting with a backoff up to "
-                    f"{self.longest:g} s")
+            line = (f"{why}: is another client connected as {self.client_id} "
+                    f"({self.second})? Two of them take the session from each other; "
+                    f"reconnecting with a backoff up to {self.longest:g} s")
         return self.short < 2, line

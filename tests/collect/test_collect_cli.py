@@ -99,6 +99,39 @@ def test_a_refused_subscription_exits_4(fleet: Fleet, collectors: Collectors,
     wait_subscribed(collectors.start(broker.url, str(out), "--prefix", "other"))
 
 
+def test_two_collectors_with_one_client_id_are_told_and_back_off(
+        fleet: Fleet, collectors: Collectors, tmp_path: Path) -> None:
+    """The broker gives a client id's session to the last to connect, so two
+    collectors with one ``--client-id`` take it from each other; each says so
+    once and reconnects with a growing backoff instead of every second."""
+    broker = fleet.broker()
+    procs = [collectors.start(broker.url, str(tmp_path / f"c{i}.sqlite"), "--client-id",
+                              "twin", "--quiet") for i in (1, 2)]
+    said: list[list[str]] = [[], []]
+    told = "is another client connected as twin (a second collector with this --client-id)?"
+
+    def read_for(seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            ready, _, _ = select.select([p.stderr for p in procs], [], [], left)
+            for i, p in enumerate(procs):
+                if p.stderr in ready:
+                    line = p.stderr.readline() if p.stderr is not None else ""
+                    assert line, (p.wait(), said[i])  # it ended
+                    said[i].append(line)
+            if told in "".join(said[0] + said[1]) and seconds > 60:
+                return
+
+    read_for(61)  # until it is said: 3 short connections in a row, about 5 s
+    assert any(told in "".join(s) for s in said), said
+    before = [len(s) for s in said]
+    read_for(12)  # backing off (2, 4, 8 s...): at most 3 connections each
+    again = [sum("again" in line for line in s[n:]) for s, n in zip(said, before, strict=True)]
+    assert max(again) <= 3, said
+    assert sum(told in line for s in said for line in s) <= 2, said  # once each, at most
+    assert all("Traceback" not in line for s in said for line in s)
+
+
 def test_refused_writes_exit_5_and_sigint_exits_0(
         fleet: Fleet, collectors: Collectors, postgres: Postgres) -> None:
     with psycopg.connect(postgres.url, autocommit=True) as con:
