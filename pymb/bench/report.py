@@ -8,9 +8,18 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
+from pymb.bench import (
+    collectbench,
+    gatebench,
+    mapbytes,
+    mapwire,
+    servebench,
+    wear,
+    writebench,
+)
 from pymb.bench.table import Table, X, fmt_time, fmt_x
 
 __all__ = ["Table", "plot", "tables", "to_json", "to_markdown", "to_text"]
@@ -36,36 +45,15 @@ def tables(result: dict[str, Any]) -> list[Table]:
     out = [_contenders_table(result["contenders"])]
     if result.get("sweep"):
         out += _sweep_tables(result["sweep"], m["plan"])
-    if result.get("micro"):
-        out.append(_micro_table(result["micro"]))
-    if result.get("plan"):
-        out.append(_plan_table(result["plan"]))
-    if result.get("maps"):
-        out.append(_maps_table(result["maps"]))
-        if "wire" in result["maps"]:
-            from pymb.bench.mapwire import table as wire_table  # it imports this module
-            out.append(wire_table(result["maps"]["wire"]))
-    if result.get("wire"):
-        out.append(_wire_table(result["wire"]))
-    if result.get("scaling"):
-        out.append(_scaling_table(result["scaling"]))
-    if result.get("aio"):
-        out.extend(_aio_tables(result["aio"]))
-    if result.get("logger"):
-        out.extend(_logger_tables(result["logger"]))
-    from pymb.bench import collectbench, gatebench  # they import this module
-    for key, mod in (("gateway", gatebench), ("collect", collectbench)):
-        out.extend(mod.tables(result[key]) if result.get(key) else [])
-    if result.get("fleet"):
-        out.append(_fleet_table(result["fleet"]))
-    if result.get("soak"):
-        out.append(_soak_table(result["soak"]))
-    if result.get("writes"):
-        from pymb.bench.writebench import tables as write_tables  # it imports this package
-        out.extend(write_tables(result["writes"]))
-    if result.get("serve"):
-        from pymb.bench.servebench import tables as serve_tables
-        out.extend(serve_tables(result["serve"]))
+    sections: tuple[tuple[str, Callable[[Any], Table | list[Table]]], ...] = (
+        ("micro", _micro_table), ("plan", _plan_table), ("maps", _maps_tables),
+        ("wire", _wire_table), ("scaling", _scaling_table), ("aio", _aio_tables),
+        ("logger", _logger_tables), ("gateway", gatebench.tables),
+        ("collect", collectbench.tables), ("fleet", _fleet_table), ("soak", _soak_table),
+        ("writes", writebench.tables), ("serve", servebench.tables))
+    for key, make in sections:
+        made = make(result[key]) if result.get(key) else []
+        out += made if isinstance(made, list) else [made]
     if m.get("quick"):
         _mark_quick(out)
     tg = [] if m.get("quick") else (result.get("targets") or [])
@@ -127,8 +115,8 @@ def _plan_table(plan: dict[str, Any]) -> Table:
         [True, True, True, True, True, True, True], [])
 
 
-def _maps_table(maps: dict[str, Any]) -> Table:
-    return Table(
+def _maps_tables(maps: dict[str, Any]) -> list[Table]:
+    return [Table(
         f"Maps: decoding a {maps['points']}-point f32 map",
         f"median of {maps['repeat']} runs: one pymb_map_decode call from Python into "
         "preallocated arrays, the same with the {name: value} dict, and the pure Python "
@@ -137,7 +125,8 @@ def _maps_table(maps: dict[str, Any]) -> Table:
         [[str(maps["points"]), fmt_time(maps["decode_us"]), fmt_time(maps["read_us"]),
           fmt_time(maps["python_us"]), f"≤ {maps['target_us']:g} µs"]],
         [True] * 5, [f"The hub's 700 registers decoded through its map: "
-                     f"{fmt_time(maps['hub_map_us'])}"])
+                     f"{fmt_time(maps['hub_map_us'])}"]),
+    ] + ([mapwire.table(maps["wire"])] if "wire" in maps else [])
 
 
 def _wire_table(wire: dict[str, Any]) -> Table:
@@ -334,7 +323,6 @@ def _logger_tables(s: dict[str, Any]) -> list[Table]:
         [[r["layout"], f"{r['bytes_per_sweep']:,.0f} B", fmt_time(r["insert_cpu_us"]),
           *(f"{r['queries'][q]['ms']:.3g} ms" for q in qnames)] for r in s["layouts"]],
         [False, True, True, *([True] * len(qnames))], []))
-    from pymb.bench import mapbytes, wear  # their tables: the maps' bytes, SD wear
     tables += [m.table(s[key]) for key, m in (("maps", mapbytes), ("wear", wear)) if s.get(key)]
     return tables
 

@@ -65,7 +65,20 @@ from typing import Any
 
 import pymb
 from pymb import _native
-from pymb.bench import logbench, mapbench, mapwire, planbench, pure
+from pymb.bench import (
+    aiobench,
+    collectbench,
+    fleet,
+    gatebench,
+    logbench,
+    mapbench,
+    mapwire,
+    planbench,
+    pure,
+    servebench,
+    soak,
+    writebench,
+)
 from pymb.bench.options import (
     BUSES,
     QUICK_BUDGET,
@@ -324,15 +337,11 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         for r in micro["rows"]:
             add(f"{r['what']} from Python", f"<= {r['target_us']:g} us", r["pymb_us"], "us",
                 r["pymb_us"] <= r["target_us"])
-    if result.get("plan"):
-        for what, goal, value, unit, met in planbench.targets(result["plan"]):
-            add(what, goal, value, unit, met)
-    if result.get("maps"):
-        for what, goal, value, unit, met in mapbench.targets(result["maps"]):
-            add(what, goal, value, unit, met)
-        if "wire" in result["maps"]:
-            for what, goal, value, unit, met in mapwire.targets(result["maps"]["wire"]):
-                add(what, goal, value, unit, met)
+    maps = result.get("maps") or {}
+    for section, mod in ((result.get("plan"), planbench), (maps, mapbench),
+                         (maps.get("wire"), mapwire)):
+        for t in mod.targets(section) if section else []:
+            add(*t)
     wire = result.get("wire")
     if wire:
         for baud in (9600, 115200):
@@ -345,63 +354,11 @@ def targets(result: dict[str, Any]) -> list[dict[str, Any]]:
         r = scaling["rows"][-1]
         add(f"{r['buses']} buses in parallel, sweeps/s / 1 bus", ">= 7.5", r["speedup"], "x",
             r["speedup"] >= 7.5)
-    if result.get("aio"):
-        from pymb.bench import aiobench
-        for t in aiobench.targets(result["aio"]):
-            add(*t)
-    if result.get("logger"):
-        for t in logbench.targets(result["logger"]):
-            add(*t)
-    if result.get("gateway"):
-        from pymb.bench import gatebench
-        for t in gatebench.targets(result["gateway"]):
-            add(*t)
-    if result.get("serve"):
-        from pymb.bench import servebench
-        for t in servebench.targets(result["serve"]):
+    for key, mod in (("aio", aiobench), ("logger", logbench), ("gateway", gatebench),
+                     ("serve", servebench)):
+        for t in mod.targets(result[key]) if result.get(key) else []:
             add(*t)
     return out
-
-
-def _run_maps(opts: Options, children: Children) -> dict[str, Any]:
-    out = mapbench.run_section(opts.plan.micro_repeat, opts.say)
-    out["wire"] = mapwire.run_section(opts, children)
-    return out
-
-
-def _run_aio(opts: Options, children: Children, lineup: Lineup) -> dict[str, Any]:
-    from pymb.bench import aiobench
-    return aiobench.run_section(opts, children, lineup.ref, _software_devices())
-
-
-def _run_fleet(opts: Options) -> dict[str, Any]:
-    from pymb.bench.fleet import run_fleet
-    return run_fleet(opts.quick, opts.say)
-
-
-def _run_collect(opts: Options) -> dict[str, Any]:
-    from pymb.bench.collectbench import run_collect
-    return run_collect(opts.quick, opts.say)
-
-
-def _run_gateway(opts: Options, children: Children, tmp: str) -> dict[str, Any]:
-    from pymb.bench import gatebench
-    return gatebench.run_section(opts, children, tmp)
-
-
-def _run_writes(opts: Options) -> dict[str, Any]:
-    from pymb.bench.writebench import run_writes
-    return run_writes(opts.quick, opts.say)
-
-
-def _run_serve(opts: Options, children: Children) -> dict[str, Any]:
-    from pymb.bench import servebench
-    return servebench.run_section(opts, children)
-
-
-def _run_soak(opts: Options) -> dict[str, Any]:
-    from pymb.bench import soak
-    return soak.run_section(60.0 if opts.quick else None, opts.say)
 
 
 def run(opts: Options) -> dict[str, Any]:
@@ -422,18 +379,20 @@ def run(opts: Options) -> dict[str, Any]:
         steps: list[tuple[str, bool, Callable[[], Any]]] = [
             ("micro", pymb_in, lambda: run_micro(opts)),
             ("plan", pymb_in, lambda: planbench.run_section(opts.plan.micro_repeat, opts.say)),
-            ("maps", pymb_in, lambda: _run_maps(opts, children)),
+            ("maps", pymb_in, lambda: {**mapbench.run_section(opts.plan.micro_repeat, opts.say),
+                                       "wire": mapwire.run_section(opts, children)}),
             ("sweep", True, lambda: run_sweep(opts, lineup, children)),
             ("wire", pymb_in or c_in, lambda: run_wire(opts, lineup, children)),
             ("scaling", pymb_in, lambda: run_scaling(opts, children)),
-            ("aio", pymb_in, lambda: _run_aio(opts, children, lineup)),
-            ("fleet", pymb_in, lambda: _run_fleet(opts)),
-            ("collect", pymb_in, lambda: _run_collect(opts)),
+            ("aio", pymb_in, lambda: aiobench.run_section(opts, children, lineup.ref,
+                                                          _software_devices())),
+            ("fleet", pymb_in, lambda: fleet.run_fleet(opts.quick, opts.say)),
+            ("collect", pymb_in, lambda: collectbench.run_collect(opts.quick, opts.say)),
             ("logger", pymb_in, lambda: logbench.run_section(opts, children, hub_registers())),
-            ("gateway", pymb_in, lambda: _run_gateway(opts, children, tmp)),
-            ("soak", pymb_in, lambda: _run_soak(opts)),
-            ("writes", pymb_in, lambda: _run_writes(opts)),
-            ("serve", pymb_in, lambda: _run_serve(opts, children)),
+            ("gateway", pymb_in, lambda: gatebench.run_section(opts, children, tmp)),
+            ("soak", pymb_in, lambda: soak.run_section(60.0 if opts.quick else None, opts.say)),
+            ("writes", pymb_in, lambda: writebench.run_writes(opts.quick, opts.say)),
+            ("serve", pymb_in, lambda: servebench.run_section(opts, children)),
         ]
         took: dict[str, float] = result["meta"]["section_seconds"]
         for name, wanted, step in steps:
