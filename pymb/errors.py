@@ -187,6 +187,10 @@ class OutputError(Exception):
     written when it happened is lost."""
 
 
+#: exception code -> the DeviceException subclass of a standard code (filled by each)
+_BY_CODE: dict[int, type[DeviceException]] = {}
+
+
 class DeviceException(ModbusError):
     """The device answered with a Modbus exception response.
 
@@ -199,99 +203,61 @@ class DeviceException(ModbusError):
     description: ClassVar[str] = "exception"
     code: int
 
+    def __init_subclass__(cls, *, code: DeviceExceptionCode | None = None, **kw: Any) -> None:
+        """A subclass for a standard ``code``: its number, its description,
+        and :func:`exception_class`'s answer for it."""
+        super().__init_subclass__(**kw)
+        if code is not None:
+            cls.default_code = int(code)
+            cls.description = describe_exception(code)
+            _BY_CODE[cls.default_code] = cls
+
     def __init__(self, message: str, *, code: int | None = None, **kw: object) -> None:
         super().__init__(message, **kw)  # type: ignore[arg-type]
         self.code = self.default_code if code is None else code
 
 
-class IllegalFunction(DeviceException):
+class IllegalFunction(DeviceException, code=DeviceExceptionCode.ILLEGAL_FUNCTION):
     """Exception 01: the device does not support the function code."""
 
-    default_code = int(DeviceExceptionCode.ILLEGAL_FUNCTION)
-    description = describe_exception(DeviceExceptionCode.ILLEGAL_FUNCTION)
 
-
-class IllegalDataAddress(DeviceException):
+class IllegalDataAddress(DeviceException, code=DeviceExceptionCode.ILLEGAL_DATA_ADDRESS):
     """Exception 02: the address, or address plus count, is not valid for the
     device (the sensor hub also answers 02 for a block its firmware lacks)."""
 
-    default_code = int(DeviceExceptionCode.ILLEGAL_DATA_ADDRESS)
-    description = describe_exception(DeviceExceptionCode.ILLEGAL_DATA_ADDRESS)
 
-
-class IllegalDataValue(DeviceException):
+class IllegalDataValue(DeviceException, code=DeviceExceptionCode.ILLEGAL_DATA_VALUE):
     """Exception 03: a value in the request is out of range."""
 
-    default_code = int(DeviceExceptionCode.ILLEGAL_DATA_VALUE)
-    description = describe_exception(DeviceExceptionCode.ILLEGAL_DATA_VALUE)
 
-
-class DeviceFailure(DeviceException):
+class DeviceFailure(DeviceException, code=DeviceExceptionCode.SLAVE_OR_SERVER_FAILURE):
     """Exception 04: the device failed while processing the request
     (the standard meaning; the sensor hub uses 04 for busy, see DeviceBusy)."""
 
-    default_code = int(DeviceExceptionCode.SLAVE_OR_SERVER_FAILURE)
-    description = describe_exception(DeviceExceptionCode.SLAVE_OR_SERVER_FAILURE)
 
-
-class Acknowledge(DeviceException):
+class Acknowledge(DeviceException, code=DeviceExceptionCode.ACKNOWLEDGE):
     """Exception 05: accepted, but it will take long; poll again later."""
 
-    default_code = int(DeviceExceptionCode.ACKNOWLEDGE)
-    description = describe_exception(DeviceExceptionCode.ACKNOWLEDGE)
 
-
-class DeviceBusy(DeviceException):
+class DeviceBusy(DeviceException, code=DeviceExceptionCode.SLAVE_OR_SERVER_BUSY):
     """The device is busy (standard code 06; the sensor hub's code 04).
     Worth a retry after a short wait."""
 
-    default_code = int(DeviceExceptionCode.SLAVE_OR_SERVER_BUSY)
-    description = describe_exception(DeviceExceptionCode.SLAVE_OR_SERVER_BUSY)
 
-
-class NegativeAcknowledge(DeviceException):
+class NegativeAcknowledge(DeviceException, code=DeviceExceptionCode.NEGATIVE_ACKNOWLEDGE):
     """Exception 07: the device cannot perform the program function."""
 
-    default_code = int(DeviceExceptionCode.NEGATIVE_ACKNOWLEDGE)
-    description = describe_exception(DeviceExceptionCode.NEGATIVE_ACKNOWLEDGE)
 
-
-class MemoryParityError(DeviceException):
+class MemoryParityError(DeviceException, code=DeviceExceptionCode.MEMORY_PARITY):
     """Exception 08: the device found a parity error in its memory."""
 
-    default_code = int(DeviceExceptionCode.MEMORY_PARITY)
-    description = describe_exception(DeviceExceptionCode.MEMORY_PARITY)
 
-
-class GatewayPathUnavailable(DeviceException):
+class GatewayPathUnavailable(DeviceException, code=DeviceExceptionCode.GATEWAY_PATH):
     """Exception 0A: the gateway has no path to the target."""
 
-    default_code = int(DeviceExceptionCode.GATEWAY_PATH)
-    description = describe_exception(DeviceExceptionCode.GATEWAY_PATH)
 
-
-class GatewayTargetFailed(DeviceException):
+class GatewayTargetFailed(DeviceException, code=DeviceExceptionCode.GATEWAY_TARGET):
     """Exception 0B: the gateway's target did not respond."""
-
-    default_code = int(DeviceExceptionCode.GATEWAY_TARGET)
-    description = describe_exception(DeviceExceptionCode.GATEWAY_TARGET)
-
-
-_BY_CODE: dict[int, type[DeviceException]] = {
-    cls.default_code: cls
-    for cls in (
-        IllegalFunction,
-        IllegalDataAddress,
-        IllegalDataValue,
-        DeviceFailure,
-        Acknowledge,
-        DeviceBusy,
-        NegativeAcknowledge,
-        MemoryParityError,
-        GatewayPathUnavailable,
-        GatewayTargetFailed,
-    )
-}
 
 
 def exception_class(code: int) -> type[DeviceException]:

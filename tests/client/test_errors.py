@@ -47,8 +47,8 @@ def test_no_exception_code_is_typed_by_hand() -> None:
              "SLAVE_OR_SERVER_FAILURE", "ACKNOWLEDGE", "SLAVE_OR_SERVER_BUSY",
              "NEGATIVE_ACKNOWLEDGE", "MEMORY_PARITY", "GATEWAY_PATH", "GATEWAY_TARGET")
     source = Path(errors.__file__).read_text(encoding="utf-8")
-    assert re.findall(r"default_code = (\S+)", source) == [
-        f"int(DeviceExceptionCode.{n})" for n in names]
+    assert re.findall(r"\(DeviceException, code=(\S+)\):", source) == [
+        f"DeviceExceptionCode.{n}" for n in names]
     native = Path(_native.__file__).read_text(encoding="utf-8")
     assert re.findall(r"^    (\w+) = lib\.MODBUS_EXCEPTION_(\w+)$", native, re.M) == [
         (n, n) for n in names]
