@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from enum import KEEP, IntFlag
 from functools import partial
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from pymb import maps
 from pymb.client import Client
@@ -48,7 +48,6 @@ class CoolProStatus(IntFlag, boundary=KEEP):
         return int(self) & 0xFF80
 
 
-_new = object.__new__
 _STATUSES: dict[int, CoolProStatus] = {}  #: flag values repeat from read to read
 
 
@@ -153,25 +152,43 @@ _IDENTITY = _Group(Decoder(_MAP, [p.name for p in _MAP.points.values()
                                   if p.group == "identity"]), (), _IDENTITY_NAMES)
 
 
-def _telemetry(g: _Group, b: Buffers, regs: array[int], copy: bool = False) -> CoolProTelemetry:
-    """``b``'s values at ``g``'s slots, with ``regs`` (or, with ``copy``, a copy)."""
-    # The result's fields are set directly (a frozen dataclass's __init__
-    # makes a call per field): this is a CoolPro logger's hot path.
-    vals, ints = b.values.tolist(), b.ints
-    f, i = g.floats, g.ints
-    raw = ints[i[1]]
-    status = _STATUSES.get(raw)
-    t = _new(CoolProTelemetry)
-    d = t.__dict__
-    d["input_voltage_v"] = vals[f[0]]
-    d["input_current_a"] = vals[f[1]]
-    d["output_voltage_v"] = vals[f[2]]
-    d["output_current_a"] = vals[f[3]]
-    d["temperature_c"] = vals[f[4]]
-    d["uptime_s"] = ints[i[0]]
-    d["status"] = status if status is not None else _status(raw)
-    d["registers"] = regs.__copy__() if copy else regs
-    return t
+class _Filling:
+    """A :class:`CoolProTelemetry` while its fields are set, then made one
+    (``__class__``, the same layout: a ``__dict__`` and a weakref slot). Its
+    fields are plain attribute stores, where the frozen dataclass's
+    ``__init__`` makes a call per field: a CoolPro poller's hot path."""
+
+
+def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemetry]:
+    """A builder of :class:`CoolProTelemetry` from ``dec``'s arrays, its slots
+    looked up once: ``build(regs)`` keeps ``regs`` as its registers,
+    ``build()`` a copy of ``own`` (the registers ``dec`` decoded). Called
+    holding what guards the arrays."""
+    b = dec.buffers
+    vals, ints = b.values, b.ints
+    f0, f1, f2, f3, f4 = (dec.slot(n) for n in _FLOATS)
+    up, st = dec.slot("uptime_s"), dec.slot("status")
+    statuses, filling, telemetry = _STATUSES, _Filling, CoolProTelemetry
+
+    def build(regs: array[int] | None = None) -> CoolProTelemetry:
+        v = vals.tolist()
+        raw = ints[st]
+        t: Any = filling()
+        t.input_voltage_v = v[f0]
+        t.input_current_a = v[f1]
+        t.output_voltage_v = v[f2]
+        t.output_current_a = v[f3]
+        t.temperature_c = v[f4]
+        t.uptime_s = ints[up]
+        s = statuses.get(raw)
+        t.status = s if s is not None else _status(raw)
+        t.registers = own.__copy__() if regs is None else regs
+        t.__class__ = telemetry
+        return t  # type: ignore[no-any-return]
+    return build
+
+
+_decode_telemetry = _telemetry_of(_TELEMETRY.decoder, array("H"))
 
 
 def _identity(g: _Group, b: Buffers, regs: array[int], copy: bool = False) -> CoolProIdentity:
@@ -181,6 +198,12 @@ def _identity(g: _Group, b: Buffers, regs: array[int], copy: bool = False) -> Co
     serial, hw, major, minor, patch, made = (b.ints[k] for k in g.ints)
     return CoolProIdentity(serial, hw, f"{major}.{minor}.{patch}",
                            datetime.fromtimestamp(made, UTC), regs)
+
+
+def _identity_of(dec: Decoder, regs: array[int]) -> Callable[[], CoolProIdentity]:
+    """The call that builds :class:`CoolProIdentity` from ``dec``'s arrays,
+    with a copy of ``regs``."""
+    return partial(_identity, _Group(dec, *_IDENTITY.names), dec.buffers, regs, True)
 
 
 def _registers(regs: array[int], count: int, what: str) -> array[int]:
@@ -198,7 +221,8 @@ def decode_telemetry(regs: array[int]) -> CoolProTelemetry:
     g = _TELEMETRY
     regs = _registers(regs, g.decoder.count, "CoolPro telemetry")
     with g.lock:
-        return _telemetry(g, g.decoder.decode(regs), regs)
+        g.decoder.decode(regs)
+        return _decode_telemetry(regs)
 
 
 def decode_identity(regs: array[int]) -> CoolProIdentity:
@@ -256,30 +280,30 @@ class CoolPro:
             raise InvalidArgument(f"CoolPro address must be {low}..{high}, got {address!r}")
         return address
 
-    def _group(self, name: str, model: _Group,
-               build: Callable[[_Group, Buffers, array[int], bool], T]) -> Callable[[], T]:
-        """``name``'s group made ready: a read that returns it built by
-        ``build`` from the decoded values and a copy of its registers (while
-        the line's lock is held: the decoder's arrays are this read's)."""
-        ready = self._groups.get(name)
-        if ready is None:
+    def _group(self, name: str, ready: Callable[[Decoder, array[int]], Callable[[], T]]
+               ) -> Callable[[], T]:
+        """``name``'s group made ready: a read that returns what the call
+        ``ready(decoder, registers)`` made returns, called while the line's
+        lock is held (the decoder's arrays are this read's)."""
+        read = self._groups.get(name)
+        if read is None:
             def then(fetched: tuple[tuple[Decoder, array[int]], ...]) -> Callable[[], T]:
                 ((dec, regs),) = fetched
-                return partial(build, _Group(dec, *model.names), dec.buffers, regs, True)
-            ready = self._groups[name] = prepared_read(self.device, then, group=name)
-        return ready  # type: ignore[return-value]
+                return ready(dec, regs)
+            read = self._groups[name] = prepared_read(self.device, then, group=name)
+        return read  # type: ignore[return-value]
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
         return (self._telemetry or self._ready_telemetry())()
 
     def _ready_telemetry(self) -> Callable[[], CoolProTelemetry]:
-        read = self._telemetry = self._group("telemetry", _TELEMETRY, _telemetry)
+        read = self._telemetry = self._group("telemetry", _telemetry_of)
         return read
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
-        return self._group("identity", _IDENTITY, _identity)()
+        return self._group("identity", _identity_of)()
 
     def read_config(self) -> CoolProConfig:
         """Device address and baud rate as stored (effective after a reset)."""
