@@ -20,6 +20,11 @@ forwarder then reads those from the file. What is held is always a run of
 the writer's samples with none missing: what came before its first is in the
 file, or will be at the next commit. The newest sample of each device is
 kept apart (a forwarder's births and answers to commands).
+
+A batch the writer rolls back (:meth:`Handoff.rolled_back`) takes back what
+it handed over: its samples, its newest ones, the ``devices`` rows learnt
+since the last commit (the next batch may give their ids to other devices)
+and the forwarder's writes it took, which go in with the next batch.
 """
 
 from __future__ import annotations
@@ -50,7 +55,9 @@ class Handoff:
         self._lock = threading.Lock()
         self._held: collections.deque[SampleRow] = collections.deque()
         self._hubs: dict[int, tuple[HubRow, ...]] = {}  # of the samples held
+        #: by id, the same object while the row stands (a reader's cache key)
         self._devices: dict[int, DeviceRow] = {}
+        self._learnt: set[int] = set()  # devices rows learnt since the last commit
         self._newest: dict[int, SampleRow] = {}  # by device id
         self._newest_hub: dict[int, tuple[HubRow, ...]] = {}  # stored by channel
         #: the id of the sample written before the first held (0: none)
@@ -58,6 +65,8 @@ class Handoff:
         self._full = False  # holding none until the next commit
         self._since: float | None = None  # the time of the open batch's first sample
         self.written = 0  #: the highest sample id written
+        #: ids up to this one are in the file or never will be (a batch rolled back)
+        self._gone = 0
         self.committed = 0  #: the highest sample id durable
         self.closed = False  #: the writer closed: everything it wrote is in the file
         self._last = False  # the writer's last batch took the forwarder's writes
@@ -65,6 +74,9 @@ class Handoff:
         self._cursor: tuple[str, int] | None = None
         self._renames: list[tuple[str, str]] = []
         self._states: dict[str, int] = {}
+        #: the writes the open batch took (back to the queue if it is rolled back)
+        self._in_batch: tuple[list[tuple[str, str]], tuple[str, int] | None, dict[str, int]] = \
+            ([], None, {})
         #: a state written and not yet durable: key -> (value, its write's number)
         self._unsettled: dict[str, tuple[int, int]] = {}
         self._asked = self._taken = self._durable = 0  # state writes: asked, in a batch, durable
@@ -98,6 +110,7 @@ class Handoff:
         with self._lock:
             if found:
                 self._devices.update(found)
+                self._learnt.update(found)
             self._newest.update(zip(dids, rows, strict=True))
             if hub:
                 self._newest_hub[rows[0][1]] = tuple(hub)
@@ -135,6 +148,8 @@ class Handoff:
         with self._lock:
             out = self._renames, self._cursor, self._states
             self._renames, self._cursor, self._states = [], None, {}
+            renames, cursor, states = self._in_batch
+            self._in_batch = (renames + out[0], out[1] or cursor, {**states, **out[2]})
             self._taken = self._asked
             self._last = self._last or closing
             return out
@@ -145,6 +160,8 @@ class Handoff:
         with self._lock:
             self.committed = max(self.committed, top)
             self._since = None
+            self._learnt.clear()
+            self._in_batch = ([], None, {})
             held = self._held
             self._let_go(top)
             if self._full:  # those not held are in the file now
@@ -158,6 +175,44 @@ class Handoff:
                 self._durable_cond.notify_all()
             if self._asked == self._taken:
                 self.commit_wanted.clear()
+
+    def rolled_back(self, last: int, top: int | None) -> None:
+        """The writer rolled its open batch back: what it handed over since
+        its last commit is not in the file and never will be (the ids of its
+        samples are skipped, never given to others; those of its new
+        ``devices`` rows may be given to other devices). ``last``: the
+        highest sample id it has handed out; ``top``: the highest one in the
+        file now (None: unknown, the connection failed). The forwarder's
+        writes it took wait for the next batch."""
+        with self._lock:
+            self._held.clear()
+            self._hubs.clear()
+            self._full = False
+            self._since = None
+            # The ids above the file's top up to the last handed out are gaps:
+            # the next sample held follows the top with none missing (top
+            # unknown: it follows the last, taken once the forwarder is past
+            # it or after the next commit).
+            self._gone = max(last, self.written, self._gone)
+            if top is not None:
+                self.committed = max(self.committed, top)
+            self._head = self._gone if top is None else self.committed
+            self.written = self.committed
+            for did in self._learnt:
+                del self._devices[did]
+            self._learnt.clear()
+            for did in [d for d, row in self._newest.items()
+                        if row[0] > self.committed or d not in self._devices]:
+                del self._newest[did]
+                self._newest_hub.pop(did, None)
+            renames, cursor, states = self._in_batch
+            self._in_batch = ([], None, {})
+            self._renames = renames + self._renames
+            self._cursor = self._cursor or cursor
+            self._states = {**states, **self._states}
+            self._taken = self._durable
+            if self._asked != self._durable:
+                self.commit_wanted.set()
 
     def writer_closed(self) -> None:
         """The writer closed: it hands over nothing more."""
@@ -198,7 +253,7 @@ class Handoff:
     def uncommitted(self, above: int) -> tuple[int, float | None]:
         """(count, time of the oldest) of the open batch's samples above ``above``."""
         with self._lock:
-            lo = max(above, self.committed)
+            lo = max(above, self.committed, self._gone)
             n = max(0, self.written - lo)  # a writer's ids follow each other
             if not n:
                 return 0, None

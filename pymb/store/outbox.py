@@ -207,7 +207,7 @@ class Outbox:
         rows, hubs, devices = written
         decode = self._rows
         for did in {r[1] for r in rows}:
-            if not decode.knows(did):
+            if not decode.knows(did, devices[did]):
                 decode.add(did, devices[did])
         return [decode.sample(r, hubs.get(r[0], ())) for r in rows]
 

@@ -336,19 +336,22 @@ class RowDecoder:
     rows it reads; one per thread (each device's decode buffers are its own)."""
 
     def __init__(self) -> None:
-        self._devices: dict[int, _Device] = {}
+        self._devices: dict[int, tuple[DeviceRow, _Device]] = {}
 
-    def knows(self, did: int) -> bool:
-        """Whether device row ``did`` was added."""
-        return did in self._devices
+    def knows(self, did: int, row: DeviceRow) -> bool:
+        """Whether device row ``did`` was added as ``row`` (this object: a
+        writer's rolled-back batch may give its id to another device, whose
+        row comes as a new object)."""
+        got = self._devices.get(did)
+        return got is not None and got[0] is row
 
     def add(self, did: int, row: DeviceRow) -> None:
-        """The devices row ``did`` (see :func:`device_row`)."""
-        self._devices[did] = _Device(row, None)
+        """The devices row ``did`` (see :func:`device_row`), in place of any before."""
+        self._devices[did] = (row, _Device(row, None))
 
     def sample(self, row: SampleRow, hub: Sequence[HubRow]) -> StoredSample:
         """A ``samples`` row (and, stored by channel, its ``hub_changes``
         rows) decoded; its device was added."""
         sid, did, t, mono, blob, unsupported = row
-        dev = self._devices[did]
+        dev = self._devices[did][1]
         return StoredSample(dev.info, t, mono, dev.reading(blob, unsupported, hub), sid)

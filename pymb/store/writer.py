@@ -192,6 +192,12 @@ class SqliteSink(SinkBase):
             self._in_tx = False
         self._device_ids.forget()  # ids inserted (views made) by the rolled-back batch
         self._changes.clear()  # what was "last stored" may be rolled back too
+        if self._handoff is not None:  # what it handed over of the batch
+            top = None
+            if not self.db.in_transaction:  # rolled back: the file's top
+                with contextlib.suppress(sqlite3.Error):
+                    top = max_id(self.db)
+            self._handoff.rolled_back(self._ids.last, top)
         if isinstance(e, OutputError):
             return e
         if is_storage_fault(e):

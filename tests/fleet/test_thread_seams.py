@@ -9,8 +9,10 @@ another thread made, and the forwarder's thread ends with that error."""
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import threading
+from array import array
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +22,12 @@ pytest.register_assert_rewrite("mqtt_broker")
 from conftest import wait_until  # noqa: E402
 from mqtt_broker import Fleet, db_count, db_ids, plain_ids  # noqa: E402
 
+from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub  # noqa: E402
+from pymb.errors import OutputError  # noqa: E402
 from pymb.fleet import ForwardingSink, MqttConfig  # noqa: E402
 from pymb.fleet.forwarder import Forwarder  # noqa: E402
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger  # noqa: E402
-from pymb.store import SqliteSink  # noqa: E402
+from pymb.store import DeviceInfo, Sample, SqliteSink  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]
 
@@ -144,3 +148,67 @@ def test_sparkplug_state_goes_in_with_the_writers_batch(
         assert con.execute("SELECT value FROM fleet_state").fetchall() == [(0,)]
     finally:
         con.close()
+
+
+def _by_topic(messages: list[tuple[str, bytes]]) -> dict[str, list[int]]:
+    """The plain profile's data messages: topic -> sample ids, as they came."""
+    out: dict[str, list[int]] = {}
+    for t, p in messages:
+        if not t.endswith(("/status", "/meta")):
+            out.setdefault(t, []).append(json.loads(p)["sample"])
+    return out
+
+
+def _on_disk(db: Path, prefix: str) -> dict[str, list[int]]:
+    """The file's samples as the plain profile's topics would carry them."""
+    con = sqlite3.connect(db)
+    try:
+        out: dict[str, list[int]] = {}
+        for name, sid in con.execute("SELECT d.name, s.id FROM samples s "
+                                     "JOIN devices d ON d.id = s.device_id ORDER BY s.id"):
+            out.setdefault(f"{prefix}/{name}", []).append(int(sid))
+        return out
+    finally:
+        con.close()
+
+
+def test_a_batch_rolled_back_is_not_published(
+        fleet: Fleet, tmp_path: Path, one_thread_connections: None) -> None:
+    """A sample of one device is written; the batch is rolled back (a write
+    command's record fails inside it: the disk is full); the next batch
+    gives that device's id to another device, whose samples the forwarder
+    takes from the open batch. It publishes exactly what the file has,
+    under the right device's name, and nothing of the rolled-back batch."""
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, "pymb/#")
+    db = tmp_path / "rb.sqlite"
+    sink = SqliteSink(db)
+    fw = Forwarder(str(db), MqttConfig(broker.url, node="seams"), writer=sink)
+    out = ForwardingSink(sink, fw)
+    psu = DeviceInfo("bus1", "/dev/null", "coolpro", 40, "psu")
+    hub = DeviceInfo("bus1", "/dev/null", "hub", 1, "hub-1")
+    regs = array("H", [245, 245, 240, 241, 261, 0, 0, 0])
+    out.write(Sample(psu, 1_700_000_000.0, 0.0, CoolProTelemetry(
+        24.5, 2.45, 24.0, 2.41, 26.1, 0, CoolProStatus(0), regs)))
+
+    def disk_full(con: sqlite3.Connection) -> None:
+        raise sqlite3.OperationalError("database or disk is full")
+
+    with pytest.raises(OutputError):
+        out.sink.in_batch(disk_full, True)
+    fw.start()
+    try:
+        sub.wait_until(lambda m: ("pymb/seams/status", b"online") in m, 30, "the forwarder")
+        for i in range(3):  # taken live, from the open batch
+            out.write(Sample(hub, 1_700_000_001.0 + i, 1.0 + i,
+                             decode_hub(array("H", [200 + i] * 700))))
+        sub.wait_until(lambda m: len(plain_ids(m)) >= 3, 30, "3 samples")
+        out.commit()
+        wait_until(lambda: _cursor(db) >= 4, "the cursor past them", 30)
+        out.close()
+    finally:
+        fw.stop(10)
+        fw.join(20)
+    assert fw.error is None, fw.error
+    assert _on_disk(db, "pymb/seams") == {"pymb/seams/hub-1": [2, 3, 4]}
+    assert _by_topic(sub.snapshot()) == _on_disk(db, "pymb/seams")

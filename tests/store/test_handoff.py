@@ -2,17 +2,20 @@
 the open batch, as data, decode to what the file gives once committed; a
 sample is never skipped, when the handoff let older ones go (past its limit)
 the reader waits for the commit; the forwarder's cursor goes in with the
-writer's batch."""
+writer's batch; a batch rolled back takes back what it handed over."""
 
 from __future__ import annotations
 
 import sqlite3
+import threading
 from array import array
 from pathlib import Path
 
 import pytest
+from conftest import wait_until
 
 from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub
+from pymb.errors import OutputError
 from pymb.store import DeviceInfo, OnChange, Outbox, Sample, SqliteSink, StoredSample
 from pymb.store.handoff import Handoff
 from pymb.store.outbox import write_pending
@@ -152,3 +155,93 @@ def test_a_state_not_yet_committed_is_still_the_one_remembered(
     assert box.state("bdSeq") == 1
     sink.close()
     box.close()
+
+
+def _disk_full(con: sqlite3.Connection) -> None:
+    """What a command desk's record meets on a full disk, inside the writer's batch."""
+    raise sqlite3.OperationalError("database or disk is full")
+
+
+def _names(got: list[StoredSample]) -> list[tuple[int, str]]:
+    return [(s.id, s.device.name) for s in got]
+
+
+def test_a_batch_rolled_back_takes_back_what_it_handed_over(tmp_path: Path) -> None:
+    """A sample of one device is read from the open batch; the batch is
+    rolled back (a write command's record fails inside it); the next batch
+    gives the rolled-back device's id to another device. What the forwarder
+    reads then is what the file has: the new device's sample under its own
+    name, nothing of the rolled-back one; the forwarder's cursor taken by
+    the lost batch goes in with the next one."""
+    db = tmp_path / "rb.sqlite"
+    sink = SqliteSink(db)
+    handoff = Handoff()
+    sink.publish_live(handoff)
+    box = Outbox(str(db), handoff)
+    sink.write(_psu(0.0))
+    assert _names(box.samples_after(0, 100)) == [(1, "psu")]  # published before the commit
+    box.set_cursor("dest", 1)
+    sink.in_batch(lambda con: write_pending(con, handoff), False)  # the cursor, in the batch
+    with pytest.raises(OutputError):
+        sink.in_batch(_disk_full, True)
+    assert box.samples_after(0, 100) == []
+    assert box.latest("psu") is None
+    assert box.devices() == []
+    assert box.oldest_after(0) is None
+    assert box.max_id() == 0
+    sink.write(_hub(1.0, 0))
+    sink.write(_hub(2.0, 1))
+    live = box.samples_after(1, 100)
+    assert _names(live) == [(2, "hub-1"), (3, "hub-1")]  # id 1 is a gap: never given again
+    # a reader not past the gap takes them at once or after the commit, never more
+    assert _names(box.samples_after(0, 100)) in ([], _names(live))
+    latest = box.latest("hub-1")
+    assert latest is not None
+    assert latest.id == 3
+    assert box.latest("psu") is None
+    assert [n for n, _, _ in box.devices()] == ["hub-1"]
+    assert box.oldest_after(0) == (2, 1_700_000_001.0)
+    sink.in_batch(lambda con: write_pending(con, handoff), False)
+    sink.commit()
+    con = sqlite3.connect(db)
+    try:  # the id the rolled-back device had is the new device's
+        assert con.execute("SELECT id, name FROM devices").fetchall() == [(1, "hub-1")]
+    finally:
+        con.close()
+    assert box.samples_after(0, 100) == live
+    plain = Outbox(str(db))
+    assert plain.samples_after(0, 100) == live
+    assert plain.cursor_or_none("dest") == 1
+    plain.close()
+    box.close()
+    sink.close()
+
+
+def test_a_state_in_a_batch_rolled_back_is_not_durable(tmp_path: Path) -> None:
+    """A Sparkplug bdSeq taken into a batch that is then rolled back is
+    not said durable at the next commit before it is written again: it goes
+    in with that next batch."""
+    db = tmp_path / "st.sqlite"
+    sink = SqliteSink(db)
+    h = Handoff()
+    sink.publish_live(h)
+    box = Outbox(str(db), h)
+    done: list[bool] = []
+    t = threading.Thread(target=lambda: done.append(h.put_state("bdSeq", 7, 30)))
+    t.start()
+    wait_until(h.commit_wanted.is_set, "the state handed over")
+    sink.in_batch(lambda con: write_pending(con, h), False)
+    with pytest.raises(OutputError):
+        sink.in_batch(_disk_full, True)
+    assert h.commit_wanted.is_set()  # still to be written
+    sink.commit()  # a commit of a batch that does not have it
+    assert not done
+    assert Outbox(str(db)).state("bdSeq") is None
+    assert box.state("bdSeq") == 7
+    sink.in_batch(lambda con: write_pending(con, h), False)
+    sink.commit()
+    t.join(30)
+    assert done == [True]
+    assert Outbox(str(db)).state("bdSeq") == 7
+    box.close()
+    sink.close()
