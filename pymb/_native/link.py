@@ -425,9 +425,14 @@ class Link:
                 lib.modbus_set_response_timeout(self._ctx, *hold)
                 self._held = hold
         if _plan_run(self._line, plan.c, start, self._fail) < 0:
-            k = plan.failed = start + int(plan.c.done)
-            function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
-            raise self._error(function, slave, address, count)
+            raise self.plan_error(plan, start)
+
+    def plan_error(self, plan: RegisterPlan, start: int) -> ModbusError:
+        """The error of a run of ``plan`` from ``start`` that failed just now
+        (errno and the failure record as it left them), ``plan.failed`` set."""
+        k = plan.failed = start + int(plan.c.done)
+        function, slave, address, count, _ = plan.requests[min(k, plan.n - 1)]
+        return self._error(function, slave, address, count)
 
     def drain(self, quiet: float, limit: float) -> int:
         """Drop input until the line is quiet for ``quiet`` seconds."""

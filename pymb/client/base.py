@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from pymb import _native
 from pymb._native.link import RegisterPlan
+from pymb._native.link import _plan_run as plan_run
 from pymb.client.checks import (
     FC,
     MAX_WR_READ_REGISTERS,
@@ -29,7 +30,7 @@ from pymb.client.checks import (
     _u16_dest,
 )
 from pymb.client.core import ClientCore
-from pymb.errors import DeviceException, ModbusConnectionError
+from pymb.errors import DeviceException, ModbusConnectionError, ModbusError
 from pymb.wire import registers_from_wire
 
 if TYPE_CHECKING:
@@ -124,34 +125,57 @@ class Client(ClientCore):
         C call; on failure ``plan.failed`` says which request failed. ``on``: only
         while the line is open on that connection (:attr:`fresh_connections`
         says which): False, nothing sent, when it is closed or another."""
-        link = self._link  # _call, written out, as in read_registers_prepared
+        link = self._link
         lock = self._lock  # acquired and released, not a with block: a poller's hot path
         lock.acquire()
         try:
             if on is not None and (not link.is_open or self.connections - self.resends != on):
                 return False
-            while True:
-                if not link.is_open:
-                    self._reopen()
+            # A poller's steady state: the line open and holding the plan's
+            # reply timeout, Link.read_plan's C call made here (a frame less).
+            if link.is_open and plan.hold is link._held:  # noqa: SLF001 - read_plan's
                 served = self._served
-                try:
-                    link.read_plan(plan, start)
-                except DeviceException:  # a reply too, after those before it
-                    self._served = served + max(0, plan.failed - start) + 1
-                    raise
-                except ModbusConnectionError as e:
-                    self._close_if_lost(e)
-                    failed = plan.failed
-                    # the rest of the plan on a new connection, if this one
-                    # carried a reply before the peer closed it
-                    if self._again(e, served + max(0, failed - start)):
-                        start = max(start, failed)
-                        continue
-                    raise
+                if plan_run(link._line, plan.c, start, link._fail) < 0:  # noqa: SLF001
+                    self._run_plan(plan, self._plan_failed(link.plan_error(plan, start), plan,
+                                                           start, served))
+                    return True
                 self._served = served + 1
                 return True
+            self._run_plan(plan, start)
+            return True
         finally:
             lock.release()
+
+    def _run_plan(self, plan: RegisterPlan, start: int) -> None:
+        """:meth:`run_read_plan`'s run from ``start``, the lock held: the line
+        opened again if it was lost, and the read sent again as
+        :meth:`_plan_failed` says."""
+        link = self._link
+        while True:
+            if not link.is_open:
+                self._reopen()
+            served = self._served
+            try:
+                link.read_plan(plan, start)
+            except ModbusError as e:
+                start = self._plan_failed(e, plan, start, served)
+                continue
+            self._served = served + 1
+            return
+
+    def _plan_failed(self, e: ModbusError, plan: RegisterPlan, start: int, served: int) -> int:
+        """A run of ``plan`` from ``start`` failed with ``e`` at ``plan.failed``
+        (``served`` replies on the connection before it): raise ``e``, or say
+        where the read goes on, on a new connection, when the peer closed
+        this one after it carried a reply."""
+        if isinstance(e, DeviceException):  # a reply too, after those before it
+            self._served = served + max(0, plan.failed - start) + 1
+        elif isinstance(e, ModbusConnectionError):
+            self._close_if_lost(e)
+            failed = plan.failed
+            if self._again(e, served + max(0, failed - start)):
+                return max(start, failed)
+        raise e
 
     def write_register(self, address: int, value: int, *, slave: int | None = None) -> None:
         """Write one holding register (function 0x06). The device's echo must
