@@ -21,7 +21,8 @@ import shutil
 import sys
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from pymb.commands import read as read_cmd
 from pymb.commands._common import (
@@ -41,6 +42,8 @@ from pymb.errors import InvalidArgument, ModbusConnectionError, ModbusError
 
 _STATE_WORDS = {"offline": "off", "no_sensor": "-", "unsupported": "n/a", "not_read": ""}
 _CELL = 6  # characters per value: "-327.6" at most, a space before
+
+T = TypeVar("T")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -104,16 +107,50 @@ def hub_view(data: MapReading, blocks: list[str], shown: list[int], width: int,
     return lines
 
 
+def _check_pace(args: argparse.Namespace) -> None:
+    """Refuse a negative ``--count`` and an ``--interval`` that is no number of seconds."""
+    if args.count < 0:
+        raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
+    if not (math.isfinite(args.interval) and args.interval >= 0):
+        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
+
+
+def poll(args: argparse.Namespace, stop: threading.Event, health: Health,
+         read: Callable[[], T], show: Callable[[T | None, str | None], None]) -> None:
+    """Read until ``stop`` or ``--count`` attempts, ``--interval`` apart; each
+    attempt is shown: ``show(reading, None)`` or ``show(None, error)``. A
+    fault that backs the device off (``health``) says when the next try comes
+    and waits for it; a lost connection ends the loop (it raises)."""
+    attempts = 0
+    while not stop.is_set() and (args.count <= 0 or attempts < args.count):
+        start = time.monotonic()
+        attempts += 1
+        try:
+            data = read()
+        except ModbusConnectionError:
+            raise
+        except ModbusError as e:
+            no_value = getattr(e, "reason", "") == "no value"
+            next_try = health.failed(time.monotonic(), at_once=no_value)
+            if next_try and not 0 < args.count <= attempts:  # a next try to wait for
+                show(None, f"{e}{next_try}")
+                stop.wait(health.backoff)
+                continue
+            show(None, str(e))
+        else:
+            health.answered()
+            show(data, None)
+        if args.interval > 0:
+            stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
+
+
 def run(args: argparse.Namespace) -> int:
     """Read, redraw, repeat until Ctrl-C (or --count attempts)."""
     target = read_cmd.target_from_args(args)  # a device a map describes
     if target is not None:
         return watch_map(args, target)
     dev = device_from_args(args)
-    if args.count < 0:
-        raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
-    if not (math.isfinite(args.interval) and args.interval >= 0):
-        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
+    _check_pace(args)
     # An indexed array (a hub's sweep: blocks of as many channels) is shown
     # block by block, the blocks and channels chosen read alone.
     names = group_points(dev.map, dev.groups[0] if dev.groups else None)
@@ -136,32 +173,12 @@ def run(args: argparse.Namespace) -> int:
             with client:
                 if args.identity:
                     frames.put(("identity", read_cmd.identity_of(dev, client)))
-                attempts = 0
                 # as ``pymb log``'s: a device that supplied no value is backed off
                 # at once, any other fault after a run of them
                 health = Health.of_map(dev.name, dev.offline_after, dev.offline_retry,
                                        dev.map.timing.backoff)
-                while not stop.is_set() and (args.count <= 0 or attempts < args.count):
-                    start = time.monotonic()
-                    attempts += 1
-                    try:
-                        frames.put(("data", read()))
-                        health.answered()
-                    except ModbusConnectionError:
-                        raise
-                    except ModbusError as e:
-                        no_value = getattr(e, "reason", "") == "no value"
-                        next_try = health.failed(time.monotonic(), at_once=no_value)
-                        if next_try:
-                            if 0 < args.count <= attempts:  # no next try
-                                frames.put(("error", str(e)))
-                                break
-                            frames.put(("error", f"{e}{next_try}"))
-                            stop.wait(health.backoff)
-                            continue
-                        frames.put(("error", str(e)))
-                    if args.interval > 0:
-                        stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
+                poll(args, stop, health, read, lambda data, error: frames.put(
+                    ("data", data) if error is None else ("error", error)))
         except BaseException as e:  # handed to the main thread
             frames.put(("fatal", e))
         frames.put(("end", None))
@@ -288,10 +305,7 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     """``pymb watch`` of a map device: read, print, repeat until Ctrl-C or
     ``--count`` attempts; a terminal is redrawn in place, a pipe gets every
     reading (JSON lines with ``--json``)."""
-    if args.count < 0:
-        raise InvalidArgument(f"--count must be 0 (no limit) or more, got {args.count}")
-    if not (math.isfinite(args.interval) and args.interval >= 0):
-        raise InvalidArgument(f"--interval must be 0 or more seconds, got {args.interval:g}")
+    _check_pace(args)
     if args.block or args.show:
         if getattr(args, "group", None) is not None:
             raise InvalidArgument("--block and --show choose a hub's blocks and channels; "
@@ -305,7 +319,9 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     counts = {"done": 0, "faults": 0, "attempts": 0}
     t0 = time.monotonic()
 
-    def show(values: dict[str, Any] | None, error: ModbusError | str | None) -> None:
+    def show(values: dict[str, Any] | None, error: str | None) -> None:
+        counts["attempts"] += 1
+        counts["done" if error is None else "faults"] += 1
         elapsed = time.monotonic() - t0
         if args.json:
             out: dict[str, Any] = {"time_utc": time.time(), "device": target.map.id,
@@ -331,30 +347,9 @@ def watch_map(args: argparse.Namespace, target: MapTarget) -> int:
     def io() -> None:
         # as for a CoolPro or a hub: a reading with no value at all waits at
         # once (0.5 s, doubling up to 30 s), any other fault after ten in a row
-        health = Health.of_map(target.spec, 10, None, backoff=True)
         with client:
-            while not stop.is_set() and (args.count <= 0 or counts["attempts"] < args.count):
-                start = time.monotonic()
-                counts["attempts"] += 1
-                try:
-                    values = read_cmd.read_points(dev, target, client, group)
-                except ModbusConnectionError:
-                    raise
-                except ModbusError as e:
-                    counts["faults"] += 1
-                    no_value = getattr(e, "reason", "") == "no value"
-                    next_try = health.failed(time.monotonic(), at_once=no_value)
-                    last = 0 < args.count <= counts["attempts"]
-                    show(None, f"{e}{next_try}" if next_try and not last else e)
-                    if next_try and not last:
-                        stop.wait(health.backoff)
-                        continue
-                else:
-                    health.answered()
-                    counts["done"] += 1
-                    show(values, None)
-                if args.interval > 0:
-                    stop.wait(max(0.0, args.interval - (time.monotonic() - start)))
+            poll(args, stop, Health.of_map(target.spec, 10, None, backoff=True),
+                 lambda: read_cmd.read_points(dev, target, client, group), show)
 
     try:
         interruptible(io)
