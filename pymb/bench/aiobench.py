@@ -32,7 +32,7 @@ from typing import Any
 from pymb.bench.contenders import Contender, probe
 from pymb.bench.options import Options
 from pymb.bench.procs import Child, ChildError, Children
-from pymb.bench.race import RaceEntry, Reference, race, summary, verify
+from pymb.bench.race import RaceEntry, Reference, _stop_all, race, summary, verify
 from pymb.devices import HUB
 
 __all__ = ["CONTENDERS", "LAG_TARGET_MS", "run_section", "targets"]
@@ -87,11 +87,7 @@ def _per_call(opts: Options, children: Children, ref: Reference,
          "aio: hub sweep")
     race(entries, "telemetry", "tele", rounds, plan.reads, plan.warm_reads, children, opts,
          "aio: CoolPro telemetry")
-    for e in entries:
-        if e.child is not None:
-            children.stop(e.child)
-    for s in sims:
-        children.stop(s)
+    _stop_all(entries, sims, children)
     return {"baud": BAUD, "rounds": rounds, "sweeps": plan.sweeps, "reads": plan.reads,
             "hub": summary(entries, "hub", plan.sweeps, baseline="pymb"),
             "telemetry": summary(entries, "telemetry", plan.reads, baseline="pymb")}

@@ -29,6 +29,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from pymb.bench.cpuload import status_field
 from pymb.bench.fanout import FanoutDevice, Sample, TcpFanout
 from pymb.client import TcpClient
 from pymb.devices.mapdevice import MapDevice
@@ -38,14 +39,6 @@ from pymb.sim.tcp import parse_ports
 __all__ = ["DESIGNS", "main"]
 
 DESIGNS = ("fanout", "fanout-pipelined", "threads", "pymodbus")
-
-
-def _status(key: str) -> int:
-    with open("/proc/self/status", encoding="ascii") as f:
-        for line in f:
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    return 0
 
 
 def _cpu() -> float:
@@ -82,14 +75,14 @@ class GateSink:
         now = time.monotonic()
         if self.t0 is None:
             self.t0 = now
-        self.threads = max(self.threads, _status("Threads"))
+        self.threads = max(self.threads, status_field("self", "Threads"))
         if self.start is None and now >= self.t0 + self.warmup:
             self.start = (now, _cpu(), self.stored)
         elif self.start is not None and now >= self.start[0] + self.seconds:
             wall, cpu, stored = self.start
             self.result = {"samples": self.stored - stored, "cpu_s": _cpu() - cpu,
-                           "wall_s": now - wall, "rss_kb": _status("VmRSS"),
-                           "hwm_kb": _status("VmHWM"), "threads": self.threads}
+                           "wall_s": now - wall, "rss_kb": status_field("self", "VmRSS"),
+                           "hwm_kb": status_field("self", "VmHWM"), "threads": self.threads}
             self.done.set()
 
 

@@ -164,10 +164,7 @@ class Lineup:
     def _build_c(self) -> None:
         try:
             self.c_exe, self.c_warnings = cprogram.build(self.tmp)
-        except cprogram.CBuildError as e:
-            self.reasons["c"] = f"cannot build the C program: {e}"
-            return
-        except (OSError, ValueError) as e:
+        except (cprogram.CBuildError, OSError, ValueError) as e:
             self.reasons["c"] = f"cannot build the C program: {e}"
             return
         cc = cprogram.compiler_version()
