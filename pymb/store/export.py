@@ -14,7 +14,7 @@ from pymb.maps import Map
 from pymb.store.reader import map_columns
 from pymb.store.readonly import open_readonly
 from pymb.store.records import reading_values
-from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, SqlArg, schema_version
+from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.series import chunks, sample_filter
 from pymb.store.text import CSV_COLUMNS, Cell, csv_head, csv_value, sample_rows
 
@@ -81,8 +81,8 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
         if events:
             q = ("SELECT e.time_utc, e.bus, d.name, d.type, d.address, e.kind, e.code, e.message "
                  "FROM events e LEFT JOIN devices d ON d.id = e.device_id")
-            ew, eargs = _filters(device, since, until, table="e")
-            for r in db.execute(q + ew + " ORDER BY e.id", eargs):
+            ew, eargs = sample_filter(device, since, until, table="e")
+            for r in db.execute(f"{q} WHERE {ew} ORDER BY e.id", eargs):
                 w.writerow([*csv_head(r[0], r[1], r[2], r[3], r[4]), "", f"event:{r[5]}",
                             "" if r[6] is None else r[6], r[7]])
                 rows += 1
@@ -142,7 +142,7 @@ def _export_v1(db: sqlite3.Connection, w: _Rows, device: str | None, since: floa
                until: float | None, keep: _Keep) -> int:
     """Format 1 (pymb before format 2): decoded tables ``coolpro`` and ``hub``."""
     rows = 0
-    where, args = _filters(device, since, until)
+    where, args = sample_filter(device, since, until)
     for sql, fields in (
         ("SELECT s.time_utc, d.bus, d.name, d.type, d.address, NULL, {cols} FROM coolpro c "
          "JOIN samples s ON s.id = c.sample_id JOIN devices d ON d.id = s.device_id",
@@ -153,7 +153,7 @@ def _export_v1(db: sqlite3.Connection, w: _Rows, device: str | None, since: floa
     ):
         hub = fields is HUB_FIELDS
         cols = ", ".join(fields + ([f"{f}_state" for f in fields] if hub else []))
-        q = sql.format(cols=cols) + where + " ORDER BY s.id" + (", h.channel" if hub else "")
+        q = f"{sql.format(cols=cols)} WHERE {where} ORDER BY s.id" + (", h.channel" if hub else "")
         for r in db.execute(q, args):
             head = csv_head(r[0], r[1], r[2], r[3], r[4])
             n = len(fields)
@@ -166,18 +166,3 @@ def _export_v1(db: sqlite3.Connection, w: _Rows, device: str | None, since: floa
                 rows += 1
     return rows
 
-
-def _filters(device: str | None, since: float | None, until: float | None,
-             table: str = "s") -> tuple[str, Sequence[SqlArg]]:
-    parts: list[str] = []
-    args: list[SqlArg] = []
-    if device is not None:
-        parts.append("d.name = ?")
-        args.append(device)
-    if since is not None:
-        parts.append(f"{table}.time_utc >= ?")
-        args.append(since)
-    if until is not None:
-        parts.append(f"{table}.time_utc < ?")
-        args.append(until)
-    return (" WHERE " + " AND ".join(parts)) if parts else "", args

@@ -54,20 +54,22 @@ def resolve_device(con: sqlite3.Connection, wanted: str, path: str) -> tuple[str
     raise InvalidArgument(f"no device {wanted!r} in {path}; it has: {listing}")
 
 
-def sample_filter(device: str | None, since: float | None,
-                  until: float | None) -> tuple[str, list[SqlArg]]:
-    """The WHERE clause (over ``samples s``) and its arguments for a device
-    name and a time span (``since`` included, ``until`` excluded)."""
+def sample_filter(device: str | None, since: float | None, until: float | None,
+                  table: str = "s") -> tuple[str, list[SqlArg]]:
+    """The WHERE clause (over ``samples s``, or the rows of another ``table``
+    alias with a ``device_id`` and a ``time_utc``: ``events e``) and its
+    arguments for a device name and a time span (``since`` included,
+    ``until`` excluded)."""
     parts: list[str] = ["1"]
     args: list[SqlArg] = []
     if device is not None:
-        parts.append("s.device_id IN (SELECT id FROM devices WHERE name = ?)")
+        parts.append(f"{table}.device_id IN (SELECT id FROM devices WHERE name = ?)")
         args.append(device)
     if since is not None:
-        parts.append("s.time_utc >= ?")
+        parts.append(f"{table}.time_utc >= ?")
         args.append(since)
     if until is not None:
-        parts.append("s.time_utc < ?")
+        parts.append(f"{table}.time_utc < ?")
         args.append(until)
     return " AND ".join(parts), args
 
