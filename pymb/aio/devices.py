@@ -67,6 +67,8 @@ async def poll(read: Callable[[], Awaitable[R]], interval: float) -> AsyncIterat
 class _Facade(Mirrored):
     """A blocking facade run on an async client's worker."""
 
+    blocking: CoolPro | SensorHub | MapDevice  #: the blocking facade it runs
+
     def __init__(self, client: AsyncClient) -> None:
         if not isinstance(client, AsyncClient):
             raise InvalidArgument(f"an async facade needs a pymb.aio client, got "
@@ -76,6 +78,11 @@ class _Facade(Mirrored):
     def _submit(self, fn: Callable[P, R], /, *args: P.args,
                 **kwargs: P.kwargs) -> Awaitable[R]:
         return self.client.run(fn, *args, **kwargs)
+
+    @property
+    def address(self) -> int:
+        """The device's address (a CoolPro's changes at a reset after set_address)."""
+        return self.blocking.address
 
 
 class AsyncCoolPro(_Facade):
@@ -88,11 +95,6 @@ class AsyncCoolPro(_Facade):
     def __init__(self, client: AsyncClient, address: int = _COOLPRO_ADDRESS) -> None:
         super().__init__(client)
         self.blocking = CoolPro(client.blocking, address)
-
-    @property
-    def address(self) -> int:
-        """The device's address (it changes at a reset after set_address)."""
-        return self.blocking.address
 
     read_telemetry = Mirror(CoolPro.read_telemetry)
     read_identity = Mirror(CoolPro.read_identity)
@@ -125,11 +127,6 @@ class AsyncSensorHub(_Facade):
         self.blocking = SensorHub(client.blocking, address, channels, humidity_unit,
                                   busy_retries=busy_retries, busy_backoff=busy_backoff,
                                   turnaround=turnaround)
-
-    @property
-    def address(self) -> int:
-        """The hub's address."""
-        return self.blocking.address
 
     @property
     def channels(self) -> int:
@@ -192,11 +189,6 @@ class AsyncMapDevice(_Facade):
     def map(self) -> Map:
         """The device's map (configured with its options)."""
         return self.blocking.map
-
-    @property
-    def address(self) -> int:
-        """The device's unit id."""
-        return self.blocking.address
 
     @property
     def states(self) -> dict[str, PointState]:
