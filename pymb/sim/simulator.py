@@ -270,11 +270,8 @@ class Simulator:
 
     @property
     def tcp_port(self) -> int:
-        """The TCP server's port (the one picked when 0 was asked)."""
-        server = self._running()
-        if not isinstance(server, TcpServer):
-            raise RuntimeError("not a TCP simulator: use port")
-        return server.port
+        """The TCP server's port (the one picked when 0 was asked; the first of many)."""
+        return self.tcp_ports[0]
 
     @property
     def tcp_ports(self) -> list[int]:
