@@ -383,14 +383,13 @@ done:
     }
 }
 
-/* The common case of a block (the hub's seven): a 16-bit integer or
- * sign-magnitude value a channel, in one tight loop with no call per channel.
+/* A block of 16-bit integer or sign-magnitude values, one a channel, in one
+ * loop with no call per channel.
  * The same arithmetic as decode_one() and apply(). What the loop reads of the
  * entry and of out is in locals first: a store into out's arrays (a uint8_t
  * state may alias anything) would otherwise make the compiler read the entry
- * again for every channel. The kind of value and of scaling are parameters,
- * constant where decode_16() calls it for the common cases, so that the
- * compiler drops the branches that do not apply from each copy. */
+ * again for every channel. The common cases take decode_16_plain() (below),
+ * whose loops decide less per channel; this one takes every other. */
 static void decode_16_loop(const pymb_map_entry *e, const pymb_map_marker *mk,
                            const uint16_t *regs, const pymb_map_out *out, const int sm16,
                            const int i16, const int decimals, const int by_scale,
@@ -459,6 +458,112 @@ static void decode_16_loop(const pymb_map_entry *e, const pymb_map_marker *mk,
     }
 }
 
+/* Whether each marker of an entry is one raw value that means a state (none
+ * is a mask, none says PYMB_VALUE). */
+static int plain_markers(const pymb_map_marker *mk, unsigned n)
+{
+    unsigned m;
+
+    for (m = 0; m < n; m++) {
+        if (mk[m].state == PYMB_MAP_MARKER_MASK || mk[m].state == PYMB_VALUE) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* decode_16_loop's common case (the hub's seven blocks): registers in wire
+ * order, markers without a mask, no offset, ints wanted. One loop a type with
+ * nothing to decide but the value and the first marker; any further marker
+ * in a loop of its own. The same arithmetic as decode_16_loop(): a factor of
+ * 1 (no scale) multiplies exactly, and a sign-magnitude zero with its sign
+ * bit set is -0.0 when scaled, 0.0 when not (-v + zero: -0.0 + 0.0 is 0.0,
+ * and adding either zero changes no other value). */
+static void decode_16_plain(const pymb_map_entry *e, const pymb_map_marker *mk,
+                            const uint16_t *regs, const pymb_map_out *out, const int decimals,
+                            const int by_scale)
+{
+    const unsigned channels = e->channels, nmarkers = e->nmarkers;
+    const size_t stride = e->stride;
+    const uint16_t *r = regs + e->first;
+    double *values = out->values + e->out;
+    uint8_t *states = out->states + e->out;
+    int64_t *ints = out->ints + e->out;
+    const double divisor = pow10_exact[e->decimals], factor = by_scale ? e->scale : 1.0;
+    const double zero = decimals || by_scale ? -0.0 : 0.0;
+    /* no 16-bit value is 0x10000: a block without markers matches none */
+    const uint32_t first = nmarkers > 0 && mk[0].raw <= 0xFFFFu ? (uint32_t)mk[0].raw : 0x10000u;
+    const uint8_t first_state = nmarkers > 0 ? mk[0].state : PYMB_VALUE;
+    unsigned c, m;
+    size_t at;
+
+    switch (e->type) {
+    case PYMB_MAP_SM16:
+        for (c = 0, at = 0; c < channels; c++, at += stride) {
+            const uint16_t raw = r[at];
+            const int64_t mag = raw & 0x7FFF;
+            double v = decimals ? (double)mag / divisor : (double)mag * factor;
+            if (raw == first) {
+                values[c] = NAN;
+                states[c] = first_state;
+                ints[c] = 0;
+                continue;
+            }
+            if (raw & 0x8000u) {
+                v = -v + zero;
+            }
+            values[c] = v;
+            states[c] = PYMB_VALUE;
+            ints[c] = raw & 0x8000u ? -mag : mag;
+        }
+        break;
+    case PYMB_MAP_I16:
+        for (c = 0, at = 0; c < channels; c++, at += stride) {
+            const uint16_t raw = r[at];
+            const int64_t iv = (int16_t)raw;
+            if (raw == first) {
+                values[c] = NAN;
+                states[c] = first_state;
+                ints[c] = 0;
+                continue;
+            }
+            values[c] = decimals ? (double)iv / divisor : (double)iv * factor;
+            states[c] = PYMB_VALUE;
+            ints[c] = iv;
+        }
+        break;
+    default: /* u16 */
+        for (c = 0, at = 0; c < channels; c++, at += stride) {
+            const uint16_t raw = r[at];
+            if (raw == first) {
+                values[c] = NAN;
+                states[c] = first_state;
+                ints[c] = 0;
+                continue;
+            }
+            values[c] = decimals ? (double)raw / divisor : (double)raw * factor;
+            states[c] = PYMB_VALUE;
+            ints[c] = raw;
+        }
+        break;
+    }
+    for (m = 1; m < nmarkers; m++) {
+        const uint64_t raw = mk[m].raw;
+        const uint8_t state = mk[m].state;
+
+        if (raw > 0xFFFFu || raw == first) {
+            continue; /* no 16-bit value is this marker, or an earlier one matched it */
+        }
+        for (c = 0, at = 0; c < channels; c++, at += stride) {
+            if (r[at] == raw && states[c] == PYMB_VALUE) { /* an earlier match stays */
+                values[c] = NAN;
+                states[c] = state;
+                ints[c] = 0;
+            }
+        }
+    }
+}
+
 static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const uint16_t *regs,
                       const pymb_map_out *out)
 {
@@ -469,22 +574,9 @@ static void decode_16(const pymb_map_entry *e, const pymb_map_marker *mk, const 
     const int decimals = scaled && e->decimals != 0;
     const int by_scale = scaled && !decimals && (e->flags & PYMB_MAP_SCALED) != 0;
 
-    if (!has_offset && !by_scale) { /* a decimal scale, or none: the hub's blocks */
-        if (decimals) {
-            if (sm16) {
-                decode_16_loop(e, mk, regs, out, 1, 0, 1, 0, 0);
-            } else if (i16) {
-                decode_16_loop(e, mk, regs, out, 0, 1, 1, 0, 0);
-            } else {
-                decode_16_loop(e, mk, regs, out, 0, 0, 1, 0, 0);
-            }
-        } else if (sm16) {
-            decode_16_loop(e, mk, regs, out, 1, 0, 0, 0, 0);
-        } else if (i16) {
-            decode_16_loop(e, mk, regs, out, 0, 1, 0, 0, 0);
-        } else {
-            decode_16_loop(e, mk, regs, out, 0, 0, 0, 0, 0);
-        }
+    if (!has_offset && e->order[0] != 1 && out->ints != NULL &&
+        plain_markers(mk, e->nmarkers)) {
+        decode_16_plain(e, mk, regs, out, decimals, by_scale);
         return;
     }
     decode_16_loop(e, mk, regs, out, sm16, i16, decimals, by_scale, has_offset);
