@@ -33,15 +33,26 @@ static void test_crc(void)
     CHECK(pymb_crc16(NULL, 5) == 0xFFFF);
     /* Incremental equals one-shot. */
     CHECK(pymb_crc16_update(pymb_crc16(check, 4), check + 4, 5) == 0x4B37);
-    /* Every table entry, through every single-byte and a long frame. */
+    /* Every entry of the byte table, through every single byte; every entry
+     * of the four tables of a four-byte step, through every value at each
+     * of its four places; a long frame at every length (the steps of four
+     * and the bytes left over). */
     for (i = 0; i < 256; i++) {
-        uint8_t b = (uint8_t)i;
+        uint8_t b = (uint8_t)i, four[4] = {0, 0, 0, 0};
+        size_t at;
         CHECK(pymb_crc16(&b, 1) == crc_bitwise(&b, 1));
+        for (at = 0; at < 4; at++) {
+            four[at] = b;
+            CHECK(pymb_crc16(four, 4) == crc_bitwise(four, 4));
+            four[at] = 0;
+        }
     }
     for (i = 0; i < sizeof big; i++) {
         big[i] = (uint8_t)(i * 7 + 3);
     }
-    CHECK(pymb_crc16(big, sizeof big) == crc_bitwise(big, sizeof big));
+    for (i = 0; i <= sizeof big; i++) {
+        CHECK(pymb_crc16(big, i) == crc_bitwise(big, i));
+    }
 
     /* Appended low byte first: wire 28 04 00 00 00 01 36 33 ([CP] ch. 04). */
     CHECK(pymb_rtu_append_crc(frame, 6, sizeof frame) == 8);
