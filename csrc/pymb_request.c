@@ -135,6 +135,21 @@ static const uint8_t *read_request(pymb_line *line, int function, int slave, int
     return rsp + line->tr->header_length + 2; /* function code, byte count */
 }
 
+/* n registers from a reply's data (big-endian) into dest. n is a parameter,
+ * not read through a pointer in the loop: a store into dest (uint16_t) could
+ * change a uint16_t count in memory, so the compiler would read it again for
+ * every register. Written so (unsigned, a pointer a register) that gcc -O2
+ * makes each register one load and a byte rotation. */
+static void put_registers(uint16_t *dest, const uint8_t *data, int n)
+{
+    const uint8_t *p = data;
+    int i;
+
+    for (i = 0; i < n; i++, p += 2) {
+        dest[i] = (uint16_t)((unsigned)p[0] << 8 | p[1]);
+    }
+}
+
 int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int nb,
                         uint16_t *dest, pymb_failure *fail)
 {
@@ -151,14 +166,11 @@ int pymb_read_registers(pymb_line *line, int function, int slave, int addr, int 
     while (done < nb) {
         int n = nb - done > PYMB_MAX_READ_REGISTERS ? PYMB_MAX_READ_REGISTERS : nb - done;
         const uint8_t *data = read_request(line, function, slave, addr + done, n, rsp, fail);
-        int i;
 
         if (data == NULL) {
             return -1;
         }
-        for (i = 0; i < n; i++) {
-            dest[done + i] = (uint16_t)(data[2 * i] << 8 | data[2 * i + 1]);
-        }
+        put_registers(dest + done, data, n);
         done += n;
     }
     return nb;
@@ -201,8 +213,6 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
     for (k = 0; k < n; k++) {
         const pymb_plan_request *rq = &reqs[k];
         const uint8_t *data;
-        uint16_t *dest = regs + rq->offset;
-        int i;
 
         if (k > 0 && gap_us > 0) {
             pause_plan_us(gap_us);
@@ -211,9 +221,7 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
         if (data == NULL) {
             return -1;
         }
-        for (i = 0; i < rq->count; i++) {
-            dest[i] = (uint16_t)(data[2 * i] << 8 | data[2 * i + 1]);
-        }
+        put_registers(regs + rq->offset, data, rq->count);
         if (done != NULL) {
             *done = k + 1;
         }
