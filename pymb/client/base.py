@@ -36,7 +36,7 @@ from pymb.wire import registers_from_wire
 if TYPE_CHECKING:
     from typing_extensions import Buffer
 
-__all__ = ["Client"]
+__all__ = ["Client", "run_read_plan_held"]
 
 
 class Client(ClientCore):
@@ -125,24 +125,10 @@ class Client(ClientCore):
         C call; on failure ``plan.failed`` says which request failed. ``on``: only
         while the line is open on that connection (:attr:`fresh_connections`
         says which): False, nothing sent, when it is closed or another."""
-        link = self._link
         lock = self._lock  # acquired and released, not a with block: a poller's hot path
         lock.acquire()
         try:
-            if on is not None and (not link.is_open or self.connections - self.resends != on):
-                return False
-            # A poller's steady state: the line open and holding the plan's
-            # reply timeout, Link.read_plan's C call made here (a frame less).
-            if link.is_open and plan.hold is link._held:  # noqa: SLF001 - read_plan's
-                served = self._served
-                if plan_run(link._line, plan.c, start, link._fail) < 0:  # noqa: SLF001
-                    self._run_plan(plan, self._plan_failed(link.plan_error(plan, start), plan,
-                                                           start, served))
-                    return True
-                self._served = served + 1
-                return True
-            self._run_plan(plan, start)
-            return True
+            return run_read_plan_held(self, plan, start, on)
         finally:
             lock.release()
 
@@ -293,3 +279,24 @@ class Client(ClientCore):
             expect = _int("response_length", response_length, 0, _native.MAX_PDU_DATA) + 1
         return self._transact(s, function, payload, None, None, expect)[1:]
 
+
+def run_read_plan_held(client: Client, plan: RegisterPlan, start: int = 0,
+                       on: int | None = None) -> bool:
+    """:meth:`Client.run_read_plan` for a caller that holds the client's lock
+    (:func:`~pymb.client.core.line_lock`: a map device's read): the same
+    run, the same errors, without taking the lock again."""
+    link = client._link  # noqa: SLF001 - this module's
+    if on is not None and (not link.is_open or client.connections - client.resends != on):
+        return False
+    # A poller's steady state: the line open and holding the plan's reply
+    # timeout, Link.read_plan's C call made here (a frame less).
+    if link.is_open and plan.hold is link._held:  # noqa: SLF001 - read_plan's
+        served = client._served  # noqa: SLF001 - this module's
+        if plan_run(link._line, plan.c, start, link._fail) < 0:  # noqa: SLF001 - read_plan's
+            client._run_plan(plan, client._plan_failed(  # noqa: SLF001 - this module's
+                link.plan_error(plan, start), plan, start, served))
+            return True
+        client._served = served + 1  # noqa: SLF001 - this module's
+        return True
+    client._run_plan(plan, start)  # noqa: SLF001 - this module's
+    return True

@@ -17,7 +17,7 @@ from pymb._native.link import Link
 from pymb.client.checks import _CLOSED_BY_PEER, _LINK_LOST, _int, _seconds
 from pymb.errors import DeviceException, InvalidArgument, ModbusConnectionError
 
-__all__ = ["ClientCore"]
+__all__ = ["ClientCore", "line_lock"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -49,7 +49,10 @@ class ClientCore:
     def __init__(self, link: Link, *, slave: int | None, timeout: float,
                  byte_timeout: float) -> None:
         self._link = link
-        self._lock = threading.Lock()
+        # Reentrant: a map device holds it for a whole read or write (its
+        # requests and the silences between them, line_lock), and makes its
+        # requests through the methods that take it for each request.
+        self._lock = threading.RLock()
         self._slave: int | None = None
         self._timeout = 1.0
         self._byte_timeout = 0.0
@@ -263,3 +266,11 @@ class ClientCore:
             except ModbusConnectionError as e:
                 self._close_if_lost(e)
                 raise
+
+
+def line_lock(client: ClientCore) -> threading.RLock:
+    """``client``'s lock, reentrant, which each of its requests holds: a
+    caller that holds it makes several requests and the silences between
+    them one turn on the line (:mod:`pymb.devices.linequiet`), whichever
+    thread asks next."""
+    return client._lock  # noqa: SLF001 - this module's

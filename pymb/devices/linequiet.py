@@ -8,6 +8,7 @@ import time
 import weakref
 
 from pymb.client import Client
+from pymb.client.core import line_lock
 
 __all__ = ["Quiet", "quiet_of", "sleep_until"]
 
@@ -18,7 +19,7 @@ class Quiet:
 
     __slots__ = ("gapped", "last_end", "lock", "quiet_until")
 
-    def __init__(self) -> None:
+    def __init__(self, lock: threading.RLock) -> None:
         #: when the last request on the line ended: kept once a device on it
         #: keeps a gap after the last request (:attr:`gapped`), and by the
         #: devices that keep a turnaround
@@ -26,11 +27,12 @@ class Quiet:
         self.quiet_until = 0.0
         #: some device on the line keeps an ``inter_request_gap``
         self.gapped = False
-        #: the line's lock: a map device holds it for each whole read or write
-        #: (from the wait for silence to the end of its last request, and its
-        #: decoding), so two map devices on one client in two threads keep
-        #: each other's silences
-        self.lock = threading.Lock()
+        #: the line's lock, the client's own (reentrant, each request takes
+        #: it): a map device holds it for each whole read or write (from the
+        #: wait for silence to the end of its last request, and its decoding),
+        #: so two map devices on one client in two threads, or a map device
+        #: and the client's own requests, keep each other's silences
+        self.lock = lock
 
 
 # One per client, shared by the devices on it; gone with the client.
@@ -43,7 +45,7 @@ def quiet_of(client: Client) -> Quiet:
     with _LINES_LOCK:
         q = _LINES.get(client)
         if q is None:
-            q = _LINES[client] = Quiet()
+            q = _LINES[client] = Quiet(line_lock(client))
         return q
 
 

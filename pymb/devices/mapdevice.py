@@ -157,9 +157,8 @@ class MapDevice:
         self._fetcher.refusals = tuple(refusals[c] for c in sorted(codes))
         self._fetcher.busy_retries = busy_retries
         self._fetcher.busy_backoff = float(busy_backoff)
-        # The line's lock, for each whole read and write: a device's requests
-        # and the silences between them are never interleaved with another
-        # map device's on the same client (and one lock a read, not two).
+        # The line's lock, the client's own (reentrant), held for each whole read and
+        # write: no other device's or thread's request comes between its requests.
         self._lock = self._fetcher.quiet.lock
         self.states: dict[str, Any] = {}  #: the last read's state of each point read
         #: the writes counted against ``max_writes_per_hour`` (in memory unless given)

@@ -23,6 +23,7 @@ from typing import NamedTuple, TypeVar
 from pymb._native.link import RegisterPlan
 from pymb._native.mapdecode import MapJob
 from pymb.client import Client
+from pymb.client.base import run_read_plan_held
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map, Point
@@ -185,7 +186,7 @@ class Fetcher:
                 sleep_until(until)
             try:
                 try:
-                    if not client.run_read_plan(p.plan, 0, on):
+                    if not run_read_plan_held(client, p.plan, 0, on):
                         self._remake(r)  # the line was lost or reopened: made again, read again
                         return self.fetch(r, decode)
                     on = None
@@ -278,7 +279,8 @@ class Fetcher:
         done after its decoding): then its one C call is the read, in the
         silence the line keeps (:meth:`fetch`'s, with none of this device's
         own)."""
-        lock, q, planner, run = self.quiet.lock, self.quiet, self.planner, self.client.run_read_plan
+        lock, q, planner, client = self.quiet.lock, self.quiet, self.planner, self.client
+        run = run_read_plan_held  # the lock is the client's: held, not taken again
 
         def read() -> T:
             lock.acquire()
@@ -291,7 +293,7 @@ class Fetcher:
                 if until > q.last_end and until > _monotonic():
                     sleep_until(until)
                 try:
-                    if not run(plan, 0, self._connections):  # closed, or a new connection
+                    if not run(client, plan, 0, self._connections):  # closed, or a new connection
                         held()
                         return then()
                 except BaseException:

@@ -416,3 +416,46 @@ def test_the_hub_through_its_map_reads_what_its_facade_reads(firmware: str) -> N
             else:
                 assert got[name] == values, name
                 assert "unsupported" not in states
+
+
+def test_another_threads_requests_never_come_between_a_map_devices_requests() -> None:
+    # docs/library.md, "Threads": a map device holds the client's lock for a
+    # whole read, the silence its map asks for between two requests included
+    # (two tables: two runs, the gap kept between them in Python).
+    import threading
+
+    points = """
+[[point]]
+name = "a"
+address = 0
+type = "u16"
+
+[[point]]
+name = "d"
+address = 10
+type = "u16"
+table = "input"
+"""
+    with RefusingPtyPeer({"holding": {0, 50}, "input": {10}}) as peer, \
+            pymb.RtuClient(peer.port, 115200, timeout=1.0) as client:
+        dev = MapDevice(client, make_map("", "inter_request_gap = 0.02", points), 1)
+        stop = threading.Event()
+
+        def plain() -> None:  # another thread, the client's own requests, flat out
+            while not stop.is_set():
+                client.read_holding_registers(50, 1, slave=2)
+
+        other = threading.Thread(target=plain)
+        other.start()
+        try:
+            for _ in range(5):
+                # tests/peers.py: input register i holds i
+                assert dev.read() == {"a": peer_value(0), "d": 10}
+        finally:
+            stop.set()
+            other.join(10)
+        mine = [i for i, r in enumerate(peer.log) if r.slave == 1]
+        assert [peer.log[i].address for i in mine] == [0, 10] * 5
+        assert any(r.slave == 2 for r in peer.log)  # the other thread did ask
+        for first, second in zip(mine[::2], mine[1::2], strict=True):
+            assert second == first + 1, [(r.slave, r.address) for r in peer.log]
