@@ -45,6 +45,7 @@ __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "busy
 _N = HUB_REGISTERS  # 700 registers, 31..730
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
 _DEVICE = maps.builtin("hub").device  # addresses, default address
+_now, _monotonic = time.time, time.monotonic
 
 
 @functools.lru_cache(maxsize=64)
@@ -382,9 +383,38 @@ class SensorHub:
     def read_all(self, *, into: HubReading | None = None) -> HubReading:
         """Every block of every channel; blocks the firmware lacks are marked
         :attr:`State.UNSUPPORTED`. ``into`` reuses an earlier reading's arrays."""
-        if into is not None and type(into) is HubReading and into.channels == self.channels:
-            return self._read_all_into(into)
-        return self.read(into=into)
+        r = into
+        if not isinstance(r, HubReading) or r.channels != self.channels:
+            return self.read(into=into)  # a new reading, or the error
+        # Every block into r: the map decoder writes straight into its arrays
+        # (bound once per reading: a poller's steady state allocates nothing).
+        # A poller's hot path, in this one frame: the lock acquired and
+        # released, not a with block.
+        lock = self._lock
+        lock.acquire()
+        try:
+            try:
+                ((dec, regs),) = self.device.fetch(group="sweep")
+            except DeviceFailure as e:
+                raise self._busy(e) from None
+            bound = self._bound
+            if bound is None or bound[0] is not r or bound[1] is not regs:
+                buffers = Buffers(dec.slots, 0, values=r.values, states=r.raw_states)
+                self._bound = bound = (r, regs, dec.bind(regs, buffers), buffers)
+            bound[2]()
+            r.registers[:len(regs)] = regs
+            mask = self._mask if self._planner.version == self._version else (
+                self._unsupported_mask())
+            if self._refused:
+                self._mark_refused(r, mask)
+        finally:
+            lock.release()
+        if self._mixed:
+            _other_units(r, self._unit, self._other)
+        r.unsupported_mask = mask
+        r.time = _now()
+        r.monotonic = _monotonic()
+        return r
 
     def read(self, blocks: Iterable[str] | None = None, channels: Iterable[int] | None = None,
              *, into: HubReading | None = None) -> HubReading:
@@ -396,7 +426,7 @@ class SensorHub:
         chans = None if channels is None else self._numbers(channels)
         if names is None and chans is None and into is not None and \
                 into.channels == self.channels:
-            return self._read_all_into(into)
+            return self.read_all(into=into)
         r = into if into is not None and into.channels == self.channels else HubReading(
             self.channels)
         with self._lock:
@@ -412,38 +442,8 @@ class SensorHub:
         if self._mixed:
             _other_units(r, self._unit, self._other)
         r.unsupported_mask = mask
-        r.time = time.time()
-        r.monotonic = time.monotonic()
-        return r
-
-    def _read_all_into(self, r: HubReading) -> HubReading:
-        """Every block into ``r``: the map decoder writes straight into its
-        arrays (bound once per reading: a poller's steady state allocates
-        nothing)."""
-        lock = self._lock  # acquired and released, not a with block: a poller's hot path
-        lock.acquire()
-        try:
-            try:
-                ((dec, regs),) = self.device.fetch(group="sweep")
-            except DeviceFailure as e:
-                raise self._busy(e) from None
-            bound = self._bound
-            if bound is None or bound[0] is not r or bound[1] is not regs:
-                into = Buffers(dec.slots, 0, values=r.values, states=r.raw_states)
-                self._bound = bound = (r, regs, dec.bind(regs, into), into)
-            bound[2]()
-            r.registers[:len(regs)] = regs
-            mask = self._mask if self._planner.version == self._version else (
-                self._unsupported_mask())
-            if self._refused:
-                self._mark_refused(r, mask)
-        finally:
-            lock.release()
-        if self._mixed:
-            _other_units(r, self._unit, self._other)
-        r.unsupported_mask = mask
-        r.time = time.time()
-        r.monotonic = time.monotonic()
+        r.time = _now()
+        r.monotonic = _monotonic()
         return r
 
     def _mark_refused(self, r: HubReading, mask: int) -> None:
