@@ -109,16 +109,19 @@ def test_two_collectors_with_one_client_id_are_told_and_back_off(
                               "twin", "--quiet") for i in (1, 2)]
     said: list[list[str]] = [[], []]
     told = "is another client connected as twin (a second collector with this --client-id)?"
+    fds = [p.stderr.fileno() for p in procs if p.stderr is not None]
+    rest = [b"", b""]
 
     def read_for(seconds: float) -> None:
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0:
-            ready, _, _ = select.select([p.stderr for p in procs], [], [], left)
-            for i, p in enumerate(procs):
-                if p.stderr in ready:
-                    line = p.stderr.readline() if p.stderr is not None else ""
-                    assert line, (p.wait(), said[i])  # it ended
-                    said[i].append(line)
+            ready, _, _ = select.select(fds, [], [], left)
+            for i, fd in enumerate(fds):
+                if fd in ready:
+                    got = os.read(fd, 65536)  # raw: no line left behind in a buffer
+                    assert got, (procs[i].wait(), said[i])  # it ended
+                    *lines, rest[i] = (rest[i] + got).split(b"\n")
+                    said[i] += [line.decode() for line in lines]
             if told in "".join(said[0] + said[1]) and seconds > 60:
                 return
 
