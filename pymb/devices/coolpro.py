@@ -48,15 +48,18 @@ class CoolProStatus(IntFlag, boundary=KEEP):
         return int(self) & 0xFF80
 
 
-_STATUSES: dict[int, CoolProStatus] = {}  #: flag values repeat from read to read
+class _Statuses(dict[int, CoolProStatus]):
+    """``CoolProStatus(raw)`` by ``raw``, made on first use: flag values
+    repeat from read to read (at most 1024 are kept)."""
+
+    def __missing__(self, raw: int) -> CoolProStatus:
+        if len(self) >= 1024:
+            self.clear()
+        s = self[raw] = CoolProStatus(raw)
+        return s
 
 
-def _status(raw: int) -> CoolProStatus:
-    """CoolProStatus(raw), kept in :data:`_STATUSES` (at most 1024 of them)."""
-    if len(_STATUSES) >= 1024:
-        _STATUSES.clear()
-    s = _STATUSES[raw] = CoolProStatus(raw)
-    return s
+_STATUSES = _Statuses()
 
 
 @dataclass(frozen=True)
@@ -172,7 +175,6 @@ def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemet
 
     def build(regs: array[int] | None = None) -> CoolProTelemetry:
         v = vals.tolist()
-        raw = ints[st]
         t: Any = filling()
         t.input_voltage_v = v[f0]
         t.input_current_a = v[f1]
@@ -180,8 +182,7 @@ def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemet
         t.output_current_a = v[f3]
         t.temperature_c = v[f4]
         t.uptime_s = ints[up]
-        s = statuses.get(raw)
-        t.status = s if s is not None else _status(raw)
+        t.status = statuses[ints[st]]
         t.registers = own.__copy__() if regs is None else regs
         t.__class__ = telemetry
         return t  # type: ignore[no-any-return]
@@ -257,7 +258,6 @@ class CoolPro:
         self.device = coolpro_device(client, self._address)
         #: per group read: its prepared read, which returns the group decoded
         self._groups: dict[str, Callable[[], object]] = {}
-        self._telemetry: Callable[[], CoolProTelemetry] | None = None
 
     @property
     def address(self) -> int:
@@ -269,7 +269,7 @@ class CoolPro:
         self._address = self._valid_address(address)
         self.device = coolpro_device(self.client, self._address)
         self._groups = {}
-        self._telemetry = None
+        self.__dict__.pop("read_telemetry", None)  # read_telemetry()'s, made for the old one
 
     @staticmethod
     def _valid_address(address: int) -> int:
@@ -295,11 +295,16 @@ class CoolPro:
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        return (self._telemetry or self._ready_telemetry())()
-
-    def _ready_telemetry(self) -> Callable[[], CoolProTelemetry]:
-        read = self._telemetry = self._group("telemetry", _telemetry_of)
-        return read
+        # The first call makes the read ready and keeps it as this object's
+        # own read_telemetry (an instance attribute before the class's
+        # method): a poller's next calls are that read, without this frame.
+        read = self._group("telemetry", _telemetry_of)
+        method = CoolPro.read_telemetry
+        for name in ("__module__", "__name__", "__qualname__", "__doc__"):
+            setattr(read, name, getattr(method, name))
+        read.__annotations__ = dict(method.__annotations__)
+        self.__dict__["read_telemetry"] = read
+        return read()
 
     def read_identity(self) -> CoolProIdentity:
         """Serial number, hardware revision, firmware version, manufacture date."""
