@@ -293,9 +293,10 @@ int pymbi_map_run(const pymbi_map_job *job);
 /* pymb_internal.h: a read plan held, decoded once its requests have their replies */
 typedef struct {
     const pymb_plan_request *reqs; size_t n; uint32_t gap_us; uint16_t *regs; size_t nregs;
-    const pymbi_map_job *then; size_t done; int decoded;
+    const pymbi_map_job *then; size_t done; int decoded; pymb_line *line; pymb_failure *fail;
 } pymbi_plan;
 int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail);
+int pymbi_plan_go(pymbi_plan *plan);
 """
 
 

@@ -114,10 +114,16 @@ typedef struct {
     const pymbi_map_job *then;
     size_t done;
     int decoded;
+    pymb_line *line; /* pymbi_plan_go()'s line and failure record, set by the caller */
+    pymb_failure *fail;
 } pymbi_plan;
 
 /* Run plan->reqs[start..n) as pymb_read_plan() does, then plan->then. */
 int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail);
+
+/* pymbi_plan_run(plan->line, plan, 0, plan->fail): a steady poller's run as a
+ * call of one argument (the extension's cheapest call). */
+int pymbi_plan_go(pymbi_plan *plan);
 
 /* pymb_line.c: clocks, waits and the quiet window. */
 uint64_t pymbi_now_us(void);

@@ -251,6 +251,15 @@ int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure
     return rc;
 }
 
+int pymbi_plan_go(pymbi_plan *plan)
+{
+    if (plan == NULL) {
+        errno = EINVAL;
+        return -1;
+    }
+    return pymbi_plan_run(plan->line, plan, 0, plan->fail);
+}
+
 int pymb_read_bits(pymb_line *line, int function, int slave, int addr, int nb, uint8_t *dest,
                    pymb_failure *fail)
 {

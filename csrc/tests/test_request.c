@@ -895,11 +895,18 @@ static void test_plan_then(struct rig *r, const pymb_plan_request *refused)
     plan.then = NULL;
     CHECK(pymbi_plan_run(r->line, &plan, 2, &fail) == 0 && plan.decoded == 0);
     CHECK(pymbi_plan_run(r->line, &plan, 3, &fail) == 0 && plan.done == 0);
+    plan.line = r->line; /* pymbi_plan_go: the run from request 0 on the plan's line */
+    plan.fail = &fail;
+    errno = 0;
+    CHECK(pymbi_plan_go(&plan) == -1 && errno == EMBXILADD && plan.done == 1 &&
+          plan.decoded == 0 && fail.address == 625);
     rig_stop(r);
     errno = 0;
     CHECK(pymbi_plan_run(r->line, &plan, 4, &fail) == -1 && errno == EINVAL &&
           plan.done == 0 && plan.decoded == 0);
     CHECK(pymbi_plan_run(r->line, NULL, 0, &fail) == -1 && errno == EINVAL);
+    errno = 0;
+    CHECK(pymbi_plan_go(NULL) == -1 && errno == EINVAL);
 }
 
 /* pymb_read_plan: a whole plan in one call, its silences, its stop at the

@@ -31,6 +31,7 @@ __all__ = ["Link", "RegisterPlan"]
 _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP code is bound by
 _from_buffer = ffi.from_buffer
 _plan_run = lib.pymbi_plan_run  # the hot path's C call, looked up once
+_plan_go = lib.pymbi_plan_go  # ... and a steady poller's, of one argument
 
 
 # -- signals -------------------------------------------------------------------

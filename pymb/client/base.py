@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import struct
 from array import array
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 from pymb import _native
 from pymb._native.link import RegisterPlan
+from pymb._native.link import _plan_go as plan_go
 from pymb._native.link import _plan_run as plan_run
 from pymb.client.checks import (
     FC,
@@ -36,7 +37,7 @@ from pymb.wire import registers_from_wire
 if TYPE_CHECKING:
     from typing_extensions import Buffer
 
-__all__ = ["Client", "run_read_plan_held"]
+__all__ = ["Client", "read_plan_call", "run_read_plan_held"]
 
 
 class Client(ClientCore):
@@ -300,3 +301,29 @@ def run_read_plan_held(client: Client, plan: RegisterPlan, start: int = 0,
         return True
     client._run_plan(plan, start)  # noqa: SLF001 - this module's
     return True
+
+
+def read_plan_call(client: Client, plan: RegisterPlan) -> Callable[[int], bool]:
+    """``run_read_plan_held(client, plan, 0, on)`` as a call of ``on`` alone,
+    made ready for a caller that runs ``plan`` over and over (a device's
+    steady read): the same run and errors, the steady case in this frame, its
+    C call of one argument (the plan's record holds the line it runs on)."""
+    link, c = client._link, plan.c  # noqa: SLF001 - this module's
+    bound = None  # the line c.line is (an open line's pointer: it is freed on close)
+
+    def run(on: int) -> bool:
+        nonlocal bound
+        line = link._line  # noqa: SLF001 - read_plan's
+        if line is bound and plan.hold is link._held and (  # noqa: SLF001 - read_plan's
+                client.connections - client.resends == on):
+            served = client._served  # noqa: SLF001 - this module's
+            if plan_go(c) >= 0:
+                client._served = served + 1  # noqa: SLF001 - this module's
+                return True
+            client._run_plan(plan, client._plan_failed(  # noqa: SLF001 - this module's
+                link.plan_error(plan, 0), plan, 0, served))
+            return True
+        if link.is_open:
+            c.line, c.fail, bound = line, link._fail, line  # noqa: SLF001 - read_plan's
+        return run_read_plan_held(client, plan, 0, on)
+    return run

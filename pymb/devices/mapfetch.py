@@ -23,7 +23,7 @@ from typing import NamedTuple, TypeVar
 from pymb._native.link import RegisterPlan
 from pymb._native.mapdecode import MapJob
 from pymb.client import Client
-from pymb.client.base import run_read_plan_held
+from pymb.client.base import read_plan_call, run_read_plan_held
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map, Point
@@ -80,7 +80,7 @@ class Read:
     same requests: it runs them and decodes, nothing else."""
 
     __slots__ = ("decoders", "decodes", "decoding", "fetched", "images", "items", "jobs", "plan",
-                 "points", "runs", "steady", "version")
+                 "points", "runs", "steady", "steady_call", "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
                  images: dict[str, Image]) -> None:
@@ -106,6 +106,8 @@ class Read:
         #: the one RegisterPlan that reads and decodes it all when nothing
         #: else is to be done around it (:meth:`Fetcher.prepared`), else None
         self.steady: RegisterPlan | None = None
+        #: :attr:`steady`'s run made ready (``pymb.client.base.read_plan_call``)
+        self.steady_call: Callable[[int], bool] | None = None
         self.version = -1  # made at no version yet
 
 
@@ -267,6 +269,7 @@ class Fetcher:
         r.steady = r.decoding[0].plan if one and r.decoding is not None and not (
             self._gap or self._turnaround or self.busy_retries or self.marked
             or planner.limits.split_on_exception) else None
+        r.steady_call = None if r.steady is None else read_plan_call(self.client, r.steady)
         r.version = planner.version
 
     def prepared(self, r: Read, held: Callable[[], object], then: Callable[[], T], *,
@@ -279,21 +282,20 @@ class Fetcher:
         done after its decoding): then its one C call is the read, in the
         silence the line keeps (:meth:`fetch`'s, with none of this device's
         own)."""
-        lock, q, planner, client = self.quiet.lock, self.quiet, self.planner, self.client
-        run = run_read_plan_held  # the lock is the client's: held, not taken again
+        lock, q, planner = self.quiet.lock, self.quiet, self.planner
 
         def read() -> T:
             lock.acquire()
             try:
-                plan = r.steady
-                if plan is None or not fast or r.version != planner.version:
+                run = r.steady_call  # the lock is the client's: held, not taken again
+                if run is None or not fast or r.version != planner.version:
                     held()
                     return then()
                 until = q.quiet_until
                 if until > q.last_end and until > _monotonic():
                     sleep_until(until)
                 try:
-                    if not run(client, plan, 0, self._connections):  # closed, or a new connection
+                    if not run(self._connections):  # closed, or a new connection
                         held()
                         return then()
                 except BaseException:

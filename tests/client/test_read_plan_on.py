@@ -1,6 +1,7 @@
 """``client.run_read_plan(plan, start, on)``: a prepared plan run only on the
-connection it is from (docs/library.md, the device seam), against a scripted
-peer on a real pseudo-terminal."""
+connection it is from (docs/library.md, the device seam), and the same made
+ready (``pymb.client.base.read_plan_call``), against scripted peers on real
+pseudo-terminals."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from collections.abc import Iterator
 
 import pytest
 from conftest import TIMEOUT
+from map_peers import RefusingPtyPeer
 from peers import PtyPeer
 
 import pymb
 from pymb._native.link import RegisterPlan
+from pymb.client.base import read_plan_call
+from pymb.client.core import line_lock
 
 
 @pytest.fixture
@@ -43,3 +47,46 @@ def test_a_plan_runs_only_on_its_connection(peer: PtyPeer) -> None:
         assert len(peer.requests) == 2
     finally:
         c.close()
+
+
+def test_a_plan_made_ready_runs_as_run_read_plan_held(peer: PtyPeer) -> None:
+    # read_plan_call(client, plan)(on) is run_read_plan_held(client, plan, 0, on):
+    # its steady case (the line it last ran on, still open) is a C call of one
+    # argument; a line opened again is taken up again.
+    regs = array("H", bytes(8))
+    plan = RegisterPlan([(0x04, 40, 0, 4, 0)], regs)
+    c = pymb.RtuClient(peer.port, timeout=TIMEOUT)
+    c.connect()
+    try:
+        run = read_plan_call(c, plan)
+        on = c.fresh_connections
+        with line_lock(c):
+            assert run(on) is True
+            assert run(on) is True
+            assert run(on + 1) is False  # another connection: nothing sent
+        assert list(regs[:4]) == [0, 1, 2, 3]
+        assert len(peer.requests) == 2
+        c.close()
+        assert run(on) is False  # closed: nothing sent
+        c.connect()
+        regs[:4] = array("H", bytes(8))
+        assert run(on + 1) is True
+        assert list(regs[:4]) == [0, 1, 2, 3]
+        assert len(peer.requests) == 3
+    finally:
+        c.close()
+
+
+def test_a_plan_made_ready_raises_what_the_device_answers() -> None:
+    regs = array("H", bytes(8))
+    plan = RegisterPlan([(0x03, 1, 5, 2, 0)], regs)
+    with RefusingPtyPeer({"holding": {5}}) as peer, \
+            pymb.RtuClient(peer.port, timeout=TIMEOUT) as c:
+        run = read_plan_call(c, plan)
+        on = c.fresh_connections
+        for _ in range(2):  # taken up through run_read_plan_held, then its own call
+            with pytest.raises(pymb.IllegalDataAddress):
+                run(on)
+            assert plan.failed == 0
+        assert [r.refused for r in peer.log] == [2, 2]
+        assert c.connected
