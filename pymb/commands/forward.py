@@ -17,7 +17,7 @@ from pymb.logger import LogConfig, Logger, RunSummary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
 from pymb.service.journal import EventLines, wanted
-from pymb.store import SqliteSink, check_output, open_sink
+from pymb.store import SqliteSink, check_output
 from pymb.store.commands import CommandLog
 
 if TYPE_CHECKING:
@@ -52,11 +52,13 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     service has its turn in the logger's tick."""
     require_paho()  # before the database is created
     check_output(cfg.format, cfg.path)  # never into a file of another kind
-    sink = open_sink(cfg.format, cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
-                     on_change=cfg.on_change)
-    if not isinstance(sink, SqliteSink):
-        sink.close()
+    if cfg.format != "sqlite":
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox)")
+    # Only this thread (the logger's run) uses the writer's connection: the
+    # forwarder and the command desk hand it their work (one_thread: SQLite's
+    # thread check says so if one ever does not).
+    sink = SqliteSink(cfg.path, max_bytes=cfg.max_bytes, max_age=cfg.max_age,
+                      on_change=cfg.on_change, one_thread=True)
     echo = EventLines(sys.stderr) if service is not None and wanted(sys.stderr) else None
     try:
         fw = Forwarder(cfg.path, mqtt, writer=sink)
@@ -72,9 +74,10 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
         if service is not None:
             service.text = lambda lg, t: f"{status_text(lg, t)}  {fw.status().line()}"
             tick = service.tick(tick)
-        logger = Logger(cfg, sink=ForwardingSink(sink, fw, echo), tick=tick)
+        out = ForwardingSink(sink, fw, echo)
+        logger = Logger(cfg, sink=out, tick=tick)
         if cfg.allow_writes:
-            desk = command_desk(cfg, logger, sink, fw)
+            desk = command_desk(cfg, logger, out, fw)
         fw.start()
         if service is not None:
             service.attach(logger)
@@ -93,14 +96,16 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     return s, fw.status()
 
 
-def command_desk(cfg: LogConfig, logger: Logger, raw: SqliteSink, fw: Forwarder,
+def command_desk(cfg: LogConfig, logger: Logger, out: ForwardingSink, fw: Forwarder,
                  ) -> CommandDesk:
     """The desk that executes write commands from ``fw``'s set topics on the
-    logger's devices, recorded in the database ``raw`` writes."""
+    logger's devices, recorded in the database ``out`` writes: by the
+    logger's thread, at its next turn (the desk's thread asks and waits)."""
     if cfg.format != "sqlite":
         raise InvalidArgument("--allow-writes needs the SQLite database: its record of "
                               "commands makes each id execute once")
-    log = CommandLog(raw.in_batch)
+    out.in_writer.wake = logger.wake
+    log = CommandLog(out.in_writer)
     desk = CommandDesk(log, write_targets(logger.pollers, log), cfg.allow_writes,
                        fw.record_event)
     devices = desk.writable()

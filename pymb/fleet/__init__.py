@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.health import DeviceHealth
 from pymb.store import Event, Sample, SinkWrapper, SqliteSink
+from pymb.store.inwriter import InWriter
 from pymb.store.outbox import write_pending
 
 if TYPE_CHECKING:  # the forwarder needs paho, which this package's face must not
@@ -36,7 +37,9 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
     devices stop answering (:class:`~pymb.fleet.health.DeviceHealth`) and
     tells the forwarder (Sparkplug: DDEATH) once the news is written.
     ``echo``, when given, is called with every event stored (a service's
-    lines on stderr), the broker's own included."""
+    lines on stderr), the broker's own included. Other threads' work on
+    the file (a command desk's record) goes through :attr:`in_writer`,
+    served at each of the logger's turns."""
 
     def __init__(self, sink: SqliteSink, forwarder: Forwarder,
                  echo: Callable[[Event], None] | None = None) -> None:
@@ -47,7 +50,10 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
         #: the forwarder takes what this writes before the commit (as data)
         self.handoff = forwarder.handoff
         self.live = self.handoff is not None
+        #: another thread's work on the file, done in this (the writer's) thread
+        self.in_writer = InWriter(sink)
         sink.on_commit(self._tell)
+        sink.on_commit(lambda top: self.in_writer.committed())
 
     def write(self, sample: Sample) -> None:
         """Add a sample to the batch."""
@@ -77,12 +83,15 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
             self._tell(self.sink.last_id)
 
     def turn(self) -> bool:
-        """The logger's loop, at each turn: the broker connection's events go
-        into the batch; True when the batch should be committed now (those
-        events, or a forwarder's state that must be durable: the Sparkplug
-        bdSeq)."""
+        """The logger's loop, at each turn: other threads' requests are run
+        (:attr:`in_writer`) and the broker connection's events go into the
+        batch; True when the batch should be committed now (those events,
+        what a request wrote a while ago, or a forwarder's state that must
+        be durable: the Sparkplug bdSeq)."""
+        due = self.in_writer.serve()
         wrote = self._events()
-        return wrote or (self.handoff is not None and self.handoff.commit_wanted.is_set())
+        return wrote or due or (
+            self.handoff is not None and self.handoff.commit_wanted.is_set())
 
     def commit(self) -> None:
         """Commit the batch with the broker's events and what the forwarder
@@ -123,6 +132,10 @@ class ForwardingSink(SinkWrapper[SqliteSink]):
         store's on-commit hook wakes the forwarder)."""
         self._events()
         try:
+            self.in_writer.serve()
             self._pending(closing=True)
         finally:
-            self.sink.close()
+            try:
+                self.sink.close()
+            finally:
+                self.in_writer.close()

@@ -187,6 +187,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         if sink is None:
             check_output(config.format, config.path)
         self._stop = threading.Event()
+        self._wake = threading.Event()  # the writer's idle wait ends (see wake())
         #: set by a signal handler: the run loop sees it within _DRAIN_EVERY
         self._signalled = False
         self.stats = Stats()
@@ -207,6 +208,17 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
     def stop(self) -> None:
         """Ask the run to end (thread-safe; a signal handler uses :meth:`_on_signal`)."""
         self._stop.set()
+        self._wake.set()
+
+    def wake(self) -> None:
+        """End the writer's idle wait now (thread-safe): its sink's turn has
+        work from another thread (a command desk's record)."""
+        self._wake.set()
+
+    def _idle(self) -> None:
+        """The writer's wait between turns: :data:`_DRAIN_EVERY` at most."""
+        self._wake.wait(_DRAIN_EVERY)
+        self._wake.clear()
 
     def _on_signal(self, *_: object) -> None:
         """SIGINT/SIGTERM/SIGHUP: only a flag. ``Event.set()`` takes the event's
@@ -261,7 +273,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         item = None
                         # Drain the queue in bursts: waking on every sample would cost
                         # a thread switch per sample.
-                        self._stop.wait(_DRAIN_EVERY)
+                        self._idle()
                     now = time.monotonic()
                     if item is not None:
                         size, events = self._write_all(item)
@@ -279,7 +291,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         pending, due = 0, None
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
-                        self._stop.wait(_DRAIN_EVERY)
+                        self._idle()
                     elif now - last_check >= _IDLE_CHECK:
                         self.sink.check()
                         last_check = now

@@ -52,6 +52,9 @@ class SqliteSink(SinkBase):
     (the database file and its WAL together, checked at every commit) or the
     age, the oldest samples and events are deleted and their pages reused.
     ``on_change`` stores readings by exception (see :class:`OnChange`).
+    ``one_thread``: only the thread that makes the sink uses it (SQLite's
+    thread check, on: another thread's use raises), else any thread, one at
+    a time.
 
     If the database has an ``outbox(name TEXT PRIMARY KEY, sample_id INTEGER)``
     table (a forwarder's cursors: the last sample each has sent), trimming
@@ -62,7 +65,8 @@ class SqliteSink(SinkBase):
     keeps_samples = False  #: see :class:`Sink`
 
     def __init__(self, path: str | os.PathLike[str], *, max_bytes: int | None = None,
-                 max_age: float | None = None, on_change: OnChange | None = None) -> None:
+                 max_age: float | None = None, on_change: OnChange | None = None,
+                 one_thread: bool = False) -> None:
         self.path = Path(path)
         if max_bytes is not None and not max_bytes >= MIN_BYTES:
             raise InvalidArgument(f"the size limit must be at least {MIN_BYTES / 1e6:g} MB, "
@@ -87,7 +91,8 @@ class SqliteSink(SinkBase):
             self._lock = WriterLock(self.path)
             #: a damaged database found here and moved aside (the line that says so)
             self.notice = self._set_aside_if_damaged()
-            self.db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+            self.db = sqlite3.connect(self.path, isolation_level=None,
+                                      check_same_thread=one_thread)
         except (sqlite3.Error, OSError) as e:
             self._unlock()
             raise self._open_failed(e) from None
@@ -102,7 +107,8 @@ class SqliteSink(SinkBase):
             self._unlock()
             raise
         self._device_ids = DeviceIds(self.db, self.path, self._begin)
-        #: one thread at a time: the logger's writes, a command desk's (in_batch)
+        #: one thread at a time (the thread that runs the logger, and without
+        #: ``one_thread`` any other: a library's)
         self._mutex = threading.RLock()
         self._handoff: Handoff | None = None  #: a forwarder's, see publish_live
         self._closed = False

@@ -5,11 +5,14 @@ and state to the writer for its next batch (pymb.store.handoff).
 
 Every connection made here is made with ``check_same_thread=True``: SQLite's
 Python module then raises ProgrammingError when a thread uses a connection
-another thread made, and the forwarder's thread ends with that error."""
+another thread made, and the forwarder's thread ends with that error (a
+command desk's record: the command is refused as not put on record)."""
 
 from __future__ import annotations
 
 import json
+import os
+import signal
 import sqlite3
 import threading
 from array import array
@@ -21,7 +24,10 @@ import pytest
 pytest.register_assert_rewrite("mqtt_broker")
 from conftest import wait_until  # noqa: E402
 from mqtt_broker import Fleet, db_count, db_ids, plain_ids  # noqa: E402
+from write_mqtt import Commander, rows  # noqa: E402
+from write_peers import WRITE_MAP, FreezingTcpPeer  # noqa: E402
 
+from pymb.cli import main  # noqa: E402
 from pymb.devices import CoolProStatus, CoolProTelemetry, decode_hub  # noqa: E402
 from pymb.errors import OutputError  # noqa: E402
 from pymb.fleet import ForwardingSink, MqttConfig  # noqa: E402
@@ -214,3 +220,54 @@ def test_a_batch_rolled_back_is_not_published(
     assert _on_disk(db, "pymb/seams") == {"pymb/seams/hub-1": [2, 3, 4]}
     assert _by_topic(sub.snapshot()) == _on_disk(db, "pymb/seams")
     assert _cursor(db) == 4
+
+
+def test_write_commands_are_recorded_by_the_writers_thread(
+        fleet: Fleet, tmp_path: Path, one_thread_connections: None) -> None:
+    """``pymb log --mqtt --allow-writes`` in this process (its writer in this
+    thread): MQTT set commands, from paho's thread to the command desk's,
+    are executed once per id, put on record and counted against their
+    budget by the writer's thread, on its connection."""
+    map_file = tmp_path / "wdev.toml"
+    map_file.write_text(WRITE_MAP.format(device="", limits="",
+                                         budget="max_writes_per_hour = 3"))
+    db = tmp_path / "log.sqlite"
+    broker = fleet.broker()
+    results: list[dict[str, Any]] = []
+    failed: list[BaseException] = []
+    with FreezingTcpPeer() as peer:
+        peer.memory.holding[10] = 5000
+        cmd = Commander(fleet, broker)
+
+        def commands() -> None:
+            try:
+                for i in range(4):  # the fourth: the budget of 3 an hour is spent
+                    results.append(cmd.send({"id": f"s-{i}", "values": {"setpoint_hz": 46 + i}}))
+                results.append(cmd.send({"id": "s-0", "values": {"setpoint_hz": 60}}))
+            except BaseException as e:
+                failed.append(e)
+            finally:
+                os.kill(os.getpid(), signal.SIGTERM)  # the run's handler: a clean stop
+
+        # the run installs its own; a SIGTERM after it ended must not end pytest
+        before = signal.signal(signal.SIGTERM, lambda *_: None)
+        t = threading.Thread(target=commands, daemon=True)
+        t.start()
+        try:
+            code = main(["log", "--map", str(map_file), "--tcp", f"127.0.0.1:{peer.port}",
+                         "--device", "wdev:1,name=psu-a", "--interval", "0.2", "--out", str(db),
+                         "--mqtt", f"mqtt://127.0.0.1:{broker.port}", "--mqtt-node", "n1",
+                         "--allow-writes", "psu-a/setpoint_hz", "--seconds", "120", "--quiet"])
+        finally:
+            t.join(30)
+            signal.signal(signal.SIGTERM, before)
+            cmd.close()
+    assert not failed, failed
+    assert code == 0
+    assert [(r["id"], r["ok"], r.get("reason")) for r in results] == [
+        ("s-0", True, None), ("s-1", True, None), ("s-2", True, None),
+        ("s-3", False, "budget"), ("s-0", True, None)]
+    assert results[4] == results[0]  # once per id: its stored result, published again
+    assert peer.memory.holding[10] == 4800
+    assert [(r[1], r[7], r[8]) for r in rows(db)] == [
+        ("s-0", 1, None), ("s-1", 1, None), ("s-2", 1, None), ("s-3", 0, "budget")]
