@@ -298,8 +298,11 @@ class CoolPro:
         # The first call makes the read ready and keeps it as this object's
         # own read_telemetry (an instance attribute before the class's
         # method): a poller's next calls are that read, without this frame.
+        # Not over a subclass's own read_telemetry, which each call must reach.
         read = self._group("telemetry", _telemetry_of)
         method = CoolPro.read_telemetry
+        if type(self).read_telemetry is not method:
+            return read()
         for name in ("__module__", "__name__", "__qualname__", "__doc__"):
             setattr(read, name, getattr(method, name))
         read.__annotations__ = dict(method.__annotations__)

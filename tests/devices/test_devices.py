@@ -71,6 +71,24 @@ def test_coolpro_telemetry_is_a_whole_frozen_dataclass(sim_client: pymb.RtuClien
     assert repr(same) == repr(t)
 
 
+def test_a_subclass_read_telemetry_runs_at_every_call(sim_client: pymb.RtuClient) -> None:
+    # CoolPro keeps its prepared read as the instance's own read_telemetry
+    # after the first call: never over a subclass's override of it.
+    seen: list[CoolProTelemetry] = []
+
+    class Logged(CoolPro):
+        def read_telemetry(self) -> CoolProTelemetry:
+            t = super().read_telemetry()
+            seen.append(t)
+            return t
+
+    cp = Logged(sim_client)
+    for _ in range(3):
+        cp.read_telemetry()
+    assert len(seen) == 3
+    assert "read_telemetry" not in vars(cp)
+
+
 def test_all_blocks_mask_is_every_block_of_the_map() -> None:
     mask = (1 << len(HUB.points)) - 1
     assert mask == ALL_BLOCKS
