@@ -258,6 +258,7 @@ class CoolPro:
         self.device = coolpro_device(client, self._address)
         #: per group read: its prepared read, which returns the group decoded
         self._groups: dict[str, Callable[[], object]] = {}
+        self._telemetry: Callable[[], CoolProTelemetry] | None = None  #: its read, once made
 
     @property
     def address(self) -> int:
@@ -269,7 +270,7 @@ class CoolPro:
         self._address = self._valid_address(address)
         self.device = coolpro_device(self.client, self._address)
         self._groups = {}
-        self.__dict__.pop("read_telemetry", None)  # read_telemetry()'s, made for the old one
+        self._telemetry = None
 
     @staticmethod
     def _valid_address(address: int) -> int:
@@ -295,18 +296,9 @@ class CoolPro:
 
     def read_telemetry(self) -> CoolProTelemetry:
         """Voltages, currents, temperature, uptime and status flags."""
-        # The first call makes the read ready and keeps it as this object's
-        # own read_telemetry (an instance attribute before the class's
-        # method): a poller's next calls are that read, without this frame.
-        # Not over a subclass's own read_telemetry, which each call must reach.
-        read = self._group("telemetry", _telemetry_of)
-        method = CoolPro.read_telemetry
-        if type(self).read_telemetry is not method:
-            return read()
-        for name in ("__module__", "__name__", "__qualname__", "__doc__"):
-            setattr(read, name, getattr(method, name))
-        read.__annotations__ = dict(method.__annotations__)
-        self.__dict__["read_telemetry"] = read
+        read = self._telemetry  # a poller's hot path: no lookup by the group's name
+        if read is None:
+            read = self._telemetry = self._group("telemetry", _telemetry_of)
         return read()
 
     def read_identity(self) -> CoolProIdentity:

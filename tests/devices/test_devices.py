@@ -5,13 +5,16 @@ configuration writes and the reset semantics."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 import threading
 import time
 import tracemalloc
+import weakref
 from collections.abc import Iterator
 from datetime import UTC, datetime
 from pathlib import Path
+from unittest import mock
 
 import pytest
 import reference as ref
@@ -71,9 +74,9 @@ def test_coolpro_telemetry_is_a_whole_frozen_dataclass(sim_client: pymb.RtuClien
     assert repr(same) == repr(t)
 
 
-def test_a_subclass_read_telemetry_runs_at_every_call(sim_client: pymb.RtuClient) -> None:
-    # CoolPro keeps its prepared read as the instance's own read_telemetry
-    # after the first call: never over a subclass's override of it.
+def test_read_telemetry_stays_a_method(sim_client: pymb.RtuClient) -> None:
+    # a subclass's override runs at every call; a test that patches the
+    # class reaches an instance that has read before; a bound method
     seen: list[CoolProTelemetry] = []
 
     class Logged(CoolPro):
@@ -86,7 +89,14 @@ def test_a_subclass_read_telemetry_runs_at_every_call(sim_client: pymb.RtuClient
     for _ in range(3):
         cp.read_telemetry()
     assert len(seen) == 3
-    assert "read_telemetry" not in vars(cp)
+    plain = CoolPro(sim_client)
+    real = plain.read_telemetry()
+    with mock.patch.object(CoolPro, "read_telemetry", return_value=real) as patched:
+        plain.read_telemetry()
+    assert patched.call_count == 1
+    assert inspect.ismethod(plain.read_telemetry)
+    assert weakref.WeakMethod(plain.read_telemetry)() is not None
+    assert plain.read_telemetry().registers is not real.registers
 
 
 def test_all_blocks_mask_is_every_block_of_the_map() -> None:
