@@ -208,12 +208,14 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
     def stop(self) -> None:
         """Ask the run to end (thread-safe; a signal handler uses :meth:`_on_signal`)."""
         self._stop.set()
-        self._wake.set()
+        self.wake()
 
     def wake(self) -> None:
         """End the writer's idle wait now (thread-safe): its sink's turn has
         work from another thread (a command desk's record)."""
         self._wake.set()
+        with contextlib.suppress(queue.Full):  # (full: the writer takes a list at once)
+            self._queue.put_nowait([])  # an empty list: a turn, nothing to write
 
     def _idle(self) -> None:
         """The writer's wait between turns: :data:`_DRAIN_EVERY` at most."""
@@ -267,15 +269,17 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         self._stop.set()
                     if self._stop.is_set() or self._signalled:
                         break
+                    # A poller hands over lists (of up to BATCH_MAX samples, or BATCH_AGE
+                    # seconds' worth): woken by each list (or by wake()), not by each
+                    # sample, and at least every _DRAIN_EVERY seconds for the stop, the
+                    # commit and the checks below.
                     try:
-                        item: list[Sample | Event] | None = self._queue.get_nowait()
+                        item: list[Sample | Event] | None = self._queue.get(
+                            timeout=_DRAIN_EVERY)
                     except queue.Empty:
                         item = None
-                        # Drain the queue in bursts: waking on every sample would cost
-                        # a thread switch per sample.
-                        self._idle()
                     now = time.monotonic()
-                    if item is not None:
+                    if item:
                         size, events = self._write_all(item)
                         pending += size
                         # The oldest of the list: when it was read (the loss bound
@@ -300,7 +304,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     if self.tick is not None and now - last_status >= 0.5:
                         self.tick(self, now - t0, False)
                         last_status = now
-                    if item is None and not any(p.is_alive() for p in self.pollers):
+                    if not item and not any(p.is_alive() for p in self.pollers):
                         break
             except OutputError as e:
                 failure = e
