@@ -45,7 +45,6 @@ __all__ = ["ALL_BLOCKS", "HubChannel", "HubReading", "SensorHub", "State", "busy
 _N = HUB_REGISTERS  # 700 registers, 31..730
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
 _DEVICE = maps.builtin("hub").device  # addresses, default address
-_now, _monotonic = time.time, time.monotonic
 
 
 @functools.lru_cache(maxsize=64)
@@ -412,8 +411,8 @@ class SensorHub:
         if self._mixed:
             _other_units(r, self._unit, self._other)
         r.unsupported_mask = mask
-        r.time = _now()
-        r.monotonic = _monotonic()
+        r.time = time.time()
+        r.monotonic = time.monotonic()
         return r
 
     def read(self, blocks: Iterable[str] | None = None, channels: Iterable[int] | None = None,
@@ -442,8 +441,8 @@ class SensorHub:
         if self._mixed:
             _other_units(r, self._unit, self._other)
         r.unsupported_mask = mask
-        r.time = _now()
-        r.monotonic = _monotonic()
+        r.time = time.time()
+        r.monotonic = time.monotonic()
         return r
 
     def _mark_refused(self, r: HubReading, mask: int) -> None:

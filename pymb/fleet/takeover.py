@@ -35,7 +35,6 @@ class Takeovers:
                  clock: Callable[[], float] = time.monotonic, *,
                  second: str | None = None) -> None:
         self.client_id = client_id
-        self.node = node
         #: who the other client may be, for the line (a logger's: by its node name)
         self.second = second or f"a second logger with the node name {node!r}"
         self.longest = longest  #: the reconnection's longest backoff, in seconds

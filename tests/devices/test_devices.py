@@ -11,7 +11,7 @@ import threading
 import time
 import tracemalloc
 import weakref
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from unittest import mock
@@ -23,7 +23,7 @@ from conftest import TIMEOUT
 import pymb
 from pymb.child import Child, pymb_argv
 from pymb.devices import HUB, CoolPro, CoolProStatus, CoolProTelemetry, SensorHub, State, decode_hub
-from pymb.devices.hub import ALL_BLOCKS
+from pymb.devices.hub import ALL_BLOCKS, HubReading
 from pymb.sim import CoolProDevice, SimClock, Simulator
 
 T = max(TIMEOUT, 0.3)  # client timeout (at least 0.3 s)
@@ -419,3 +419,16 @@ def test_changed_channel_lists_are_planned_again(bus: Simulator,
     r = hub.read(blocks=["temperature_c"], channels=chans)
     assert r.state("temperature_c", 3) is not State.NOT_READ
     assert r.state("temperature_c", 4) is State.NOT_READ
+
+
+def test_a_hub_reading_is_stamped_by_the_time_module(sim_client: pymb.RtuClient) -> None:
+    # a test that patches time.time / time.monotonic sees its clock in the reading
+    hub = SensorHub(sim_client, 1)
+    first = hub.read_all()
+    reads: list[Callable[[], HubReading]] = [
+        hub.read_all, lambda: hub.read_all(into=first), lambda: hub.read(["temperature_c"])]
+    for read in reads:
+        with mock.patch("time.time", return_value=1234.5), \
+                mock.patch("time.monotonic", return_value=42.0):
+            r = read()
+        assert (r.time, r.monotonic) == (1234.5, 42.0)
