@@ -38,8 +38,13 @@ def faketime_env(file: Path, spec: str) -> dict[str, str]:
                          capture_output=True, text=True, check=True, timeout=30).stdout
     assert "libfaketimeMT" in lib
     set_clock(file, spec)
+    # FORCE_MONOTONIC_FIX=0: else its pthread_cond_timedwait times out at once
+    # on a monotonic condition variable with the monotonic clock left real, and
+    # every wait for Python's GIL spins (5x the CPU of a 2-thread process here:
+    # under load, a poll slot of 50 ms sees no reply)
     return {**PYMB_ENV, "LD_PRELOAD": lib, "FAKETIME_TIMESTAMP_FILE": str(file),
-            "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
+            "FAKETIME_NO_CACHE": "1", "FAKETIME_DONT_FAKE_MONOTONIC": "1",
+            "FAKETIME_FORCE_MONOTONIC_FIX": "0"}
 
 
 class NotifyListener:
