@@ -8,6 +8,7 @@ milliunits to volts, amps and °C, 32-bit values low word first.
 from __future__ import annotations
 
 import dataclasses
+import struct
 import threading
 from array import array
 from collections.abc import Callable
@@ -48,18 +49,17 @@ class CoolProStatus(IntFlag, boundary=KEEP):
         return int(self) & 0xFF80
 
 
-class _Statuses(dict[int, CoolProStatus]):
-    """``CoolProStatus(raw)`` by ``raw``, made on first use: flag values
-    repeat from read to read (at most 1024 are kept)."""
-
-    def __missing__(self, raw: int) -> CoolProStatus:
-        if len(self) >= 1024:
-            self.clear()
-        s = self[raw] = CoolProStatus(raw)
-        return s
+#: ``CoolProStatus(raw)`` by ``raw``: flag values repeat from read to read. A
+#: plain dict, subscripted on the hot path (a dict subclass's subscript is a
+#: method call); :func:`_status` makes a missing one (at most 1024 kept).
+_STATUSES: dict[int, CoolProStatus] = {}
 
 
-_STATUSES = _Statuses()
+def _status(raw: int) -> CoolProStatus:
+    if len(_STATUSES) >= 1024:
+        _STATUSES.clear()
+    s = _STATUSES[raw] = CoolProStatus(raw)
+    return s
 
 
 @dataclass(frozen=True)
@@ -162,6 +162,17 @@ class _Filling:
     ``__init__`` makes a call per field: a CoolPro poller's hot path."""
 
 
+def _floats_at(slots: tuple[int, ...], items: int) -> Callable[[array[float]], tuple[float, ...]]:
+    """One C call that takes, from an ``array('d')`` of ``items``, the
+    floats at ``slots`` (increasing), in slot order: a struct's unpack (the
+    other items skipped), where ``tolist()`` makes a float of every item and
+    a list to pick them from."""
+    if list(slots) != sorted(set(slots)) or slots[-1] >= items:
+        raise InvalidArgument(f"slots {slots} are not increasing within {items}")
+    return struct.Struct("@" + "".join("d" if i in slots else "8x"
+                                       for i in range(items))).unpack
+
+
 def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemetry]:
     """A builder of :class:`CoolProTelemetry` from ``dec``'s arrays, its slots
     looked up once: ``build(regs)`` keeps ``regs`` as its registers,
@@ -169,20 +180,23 @@ def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemet
     holding what guards the arrays."""
     b = dec.buffers
     vals, ints = b.values, b.ints
-    f0, f1, f2, f3, f4 = (dec.slot(n) for n in _FLOATS)
+    floats = _floats_at(tuple(dec.slot(n) for n in _FLOATS), len(vals))
     up, st = dec.slot("uptime_s"), dec.slot("status")
-    statuses, filling, telemetry = _STATUSES, _Filling, CoolProTelemetry
+    statuses, status, filling, telemetry = _STATUSES, _status, _Filling, CoolProTelemetry
 
     def build(regs: array[int] | None = None) -> CoolProTelemetry:
-        v = vals.tolist()
+        vin, iin, vout, iout, temp = floats(vals)
         t: Any = filling()
-        t.input_voltage_v = v[f0]
-        t.input_current_a = v[f1]
-        t.output_voltage_v = v[f2]
-        t.output_current_a = v[f3]
-        t.temperature_c = v[f4]
+        t.input_voltage_v = vin
+        t.input_current_a = iin
+        t.output_voltage_v = vout
+        t.output_current_a = iout
+        t.temperature_c = temp
         t.uptime_s = ints[up]
-        t.status = statuses[ints[st]]
+        try:
+            t.status = statuses[ints[st]]
+        except KeyError:
+            t.status = status(ints[st])
         t.registers = own.__copy__() if regs is None else regs
         t.__class__ = telemetry
         return t  # type: ignore[no-any-return]
