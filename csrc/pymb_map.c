@@ -608,6 +608,24 @@ static int check_table(const pymb_map_entry *entries, size_t nentries,
 }
 
 /* A checked table over regs, into out. */
+/* decode_16_plain()'s arithmetic for a point of one channel, an unsigned or
+ * signed 16-bit integer in wire order with no marker and no flag but
+ * PYMB_MAP_SCALED (the CoolPro's readings): without a block's setup. */
+static void decode_single_16(const pymb_map_entry *e, const uint16_t *regs,
+                             const pymb_map_out *out)
+{
+    const uint16_t raw = regs[e->first];
+    const int64_t iv = e->type == PYMB_MAP_I16 ? (int64_t)(int16_t)raw : (int64_t)raw;
+    double v = (double)iv;
+
+    if (e->flags & PYMB_MAP_SCALED) {
+        v = e->decimals ? v / pow10_exact[e->decimals] : v * e->scale;
+    }
+    out->values[e->out] = v;
+    out->states[e->out] = PYMB_VALUE;
+    out->ints[e->out] = iv;
+}
+
 static void decode_table(const pymb_map_entry *entries, size_t nentries,
                          const pymb_map_marker *markers, const uint16_t *regs,
                          const pymb_map_out *out)
@@ -620,7 +638,12 @@ static void decode_table(const pymb_map_entry *entries, size_t nentries,
         const pymb_map_marker *mk = markers ? markers + e->first_marker : NULL;
         if ((e->type == PYMB_MAP_U16 || e->type == PYMB_MAP_I16 || e->type == PYMB_MAP_SM16) &&
             !(e->flags & (PYMB_MAP_SCALE_FROM | PYMB_MAP_MASKED))) {
-            decode_16(e, mk, regs, out);
+            if (e->channels == 1 && e->nmarkers == 0 && e->type != PYMB_MAP_SM16 &&
+                (e->flags & ~PYMB_MAP_SCALED) == 0 && e->order[0] != 1 && out->ints != NULL) {
+                decode_single_16(e, regs, out);
+            } else {
+                decode_16(e, mk, regs, out);
+            }
             continue;
         }
         for (c = 0; c < e->channels; c++) {

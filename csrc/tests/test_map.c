@@ -475,6 +475,70 @@ static void test_blocks_agree(void)
     }
 }
 
+/* A point of one channel (decode_single_16, the CoolPro's readings) decodes
+ * every 16-bit raw value as the block loop does it as a channel of a block:
+ * unsigned and signed, unscaled, decimal-scaled and factor-scaled, bit for
+ * bit; and a single point with a marker or byte-swapped still as a block. */
+static void test_singles_agree(void)
+{
+    enum { N = 256 };
+    static uint16_t wire[N];
+    static double vb[N];
+    static int64_t ib[N];
+    static uint8_t sb[N];
+    static const int types[2] = {PYMB_MAP_U16, PYMB_MAP_I16};
+    pymb_map_marker mk[1] = {{0x8000, PYMB_NO_SENSOR}};
+    pymb_map_out block = {vb, ib, sb, N, NULL, 0};
+    unsigned t, scaling, base, k, same = 1;
+
+    for (t = 0; t < 2; t++) {
+        for (scaling = 0; scaling < 3; scaling++) {
+            pymb_map_entry e = entry(types[t], 1, "AB"), b;
+            if (scaling > 0) {
+                e.flags = PYMB_MAP_SCALED;
+                e.scale = scaling == 1 ? 0.1 : 0.001;
+                e.decimals = scaling == 1 ? 1 : 0;
+            }
+            b = e;
+            b.channels = N;
+            b.stride = 1;
+            for (base = 0; base < 65536u; base += N) {
+                for (k = 0; k < N; k++) {
+                    wire[k] = (uint16_t)(base + k);
+                }
+                CHECK(pymb_map_decode(&b, 1, NULL, 0, wire, N, &block) == N);
+                for (k = 0; k < N; k++) {
+                    double v = -1.0;
+                    int64_t i = -1;
+                    uint8_t st = 0xFF;
+                    pymb_map_out single = {&v, &i, &st, 1, NULL, 0};
+                    e.first = k;
+                    if (pymb_map_decode(&e, 1, NULL, 0, wire, N, &single) != 1 ||
+                        memcmp(&v, &vb[k], sizeof v) != 0 || i != ib[k] || st != sb[k]) {
+                        same = 0;
+                    }
+                }
+            }
+            CHECK(same);
+        }
+    }
+    {   /* a marker, and a swapped register, take the block's way */
+        pymb_map_entry e = entry(PYMB_MAP_U16, 1, "BA");
+        double v = 0.0;
+        int64_t i = 0;
+        uint8_t st = 0xFF;
+        pymb_map_out single = {&v, &i, &st, 1, NULL, 0};
+        wire[0] = 0x0080;
+        CHECK(pymb_map_decode(&e, 1, NULL, 0, wire, 1, &single) == 1 && v == 32768.0 &&
+              i == 32768 && st == PYMB_VALUE);
+        e = entry(PYMB_MAP_U16, 1, "AB");
+        e.nmarkers = 1;
+        wire[0] = 0x8000;
+        CHECK(pymb_map_decode(&e, 1, mk, 1, wire, 1, &single) == 1 && isnan(v) && i == 0 &&
+              st == PYMB_NO_SENSOR);
+    }
+}
+
 int main(void)
 {
     test_order();
@@ -486,5 +550,6 @@ int main(void)
     test_man_page_example();
     test_ready();
     test_blocks_agree();
+    test_singles_agree();
     return check_report();
 }
