@@ -7,6 +7,7 @@
 #define _POSIX_C_SOURCE 200809L
 
 #include <errno.h>
+#include <string.h>
 #include <time.h>
 
 #include "pymb_internal.h"
@@ -138,15 +139,29 @@ static const uint8_t *read_request(pymb_line *line, int function, int slave, int
 /* n registers from a reply's data (big-endian) into dest. n is a parameter,
  * not read through a pointer in the loop: a store into dest (uint16_t) could
  * change a uint16_t count in memory, so the compiler would read it again for
- * every register. Written so (unsigned, a pointer a register) that gcc -O2
- * makes each register one load and a byte rotation. */
+ * every register. On a little-endian host eight registers at a time: each
+ * four loaded as one word, the two bytes of each register swapped by a mask
+ * and two shifts, stored as one (memcpy: no alignment or aliasing
+ * assumed); the rest, and every register on a big-endian host, one by one.
+ * A hub sweep's 700 registers: ~2 instructions a register, was ~7. */
 static void put_registers(uint16_t *dest, const uint8_t *data, int n)
 {
-    const uint8_t *p = data;
-    int i;
+    static const uint16_t probe = 1;
+    const int little = *(const uint8_t *)&probe == 1; /* a constant to the compiler */
+    int i = 0;
 
-    for (i = 0; i < n; i++, p += 2) {
-        dest[i] = (uint16_t)((unsigned)p[0] << 8 | p[1]);
+    if (little) {
+        const uint64_t low = UINT64_C(0x00FF00FF00FF00FF);
+        for (; i + 8 <= n; i += 8) {
+            uint64_t w[2];
+            memcpy(w, data + 2 * i, sizeof w);
+            w[0] = (w[0] >> 8 & low) | (w[0] & low) << 8;
+            w[1] = (w[1] >> 8 & low) | (w[1] & low) << 8;
+            memcpy(dest + i, w, sizeof w);
+        }
+    }
+    for (; i < n; i++) {
+        dest[i] = (uint16_t)((unsigned)data[2 * i] << 8 | data[2 * i + 1]);
     }
 }
 
