@@ -34,17 +34,17 @@ static void test_crc(void)
     /* Incremental equals one-shot. */
     CHECK(pymb_crc16_update(pymb_crc16(check, 4), check + 4, 5) == 0x4B37);
     /* Every entry of the byte table, through every single byte; every entry
-     * of the four tables of a four-byte step, through every value at each
-     * of its four places; a long frame at every length (the steps of four
+     * of the eight tables of an eight-byte step, through every value at each
+     * of its eight places; a long frame at every length (the steps of eight
      * and the bytes left over). */
     for (i = 0; i < 256; i++) {
-        uint8_t b = (uint8_t)i, four[4] = {0, 0, 0, 0};
+        uint8_t b = (uint8_t)i, eight[8] = {0, 0, 0, 0, 0, 0, 0, 0};
         size_t at;
         CHECK(pymb_crc16(&b, 1) == crc_bitwise(&b, 1));
-        for (at = 0; at < 4; at++) {
-            four[at] = b;
-            CHECK(pymb_crc16(four, 4) == crc_bitwise(four, 4));
-            four[at] = 0;
+        for (at = 0; at < 8; at++) {
+            eight[at] = b;
+            CHECK(pymb_crc16(eight, 8) == crc_bitwise(eight, 8));
+            eight[at] = 0;
         }
     }
     for (i = 0; i < sizeof big; i++) {
