@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(message, file=sys.stderr)
 
+    started = time.time()  # the faults of this run: --out may hold an earlier run's
     try:
         for s in sims:
             s.start()
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         # The reserve is room for a running logger's trim on a full disk; the
         # demo's log is over, so it would only be 4 MB left in the folder.
         Reserve(Path(out)).give_up()
-    faults = _faults(out)
+    faults = _faults(out, started)
     print(f"\npymb demo: {summary.samples:,} samples in {summary.elapsed:.1f} s, "
           f"{summary.cpu:.2f} s of CPU ({100 * summary.cpu / summary.elapsed:.0f}% of one core)")
     for bus in (psu, sensors):
@@ -116,9 +117,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _faults(path: str) -> str:
+def _faults(path: str, since: float) -> str:
     try:
-        rows = event_counts(path)
+        rows = event_counts(path, since=since)
     except (sqlite3.Error, InvalidArgument):
         return ""
     return ", ".join(f"{n} {kind}" for kind, n in rows if kind in FAULT_KINDS)

@@ -4,6 +4,7 @@ each forwarder's backlog."""
 
 from __future__ import annotations
 
+import math
 import os
 import sqlite3
 from dataclasses import dataclass, field
@@ -72,15 +73,17 @@ def devices(con: sqlite3.Connection) -> list[tuple[str, str, int, str]]:
 
 
 def event_counts(path: str | os.PathLike[str],
-                 leave_out: tuple[str, ...] = ("connect", "reconnect")) -> list[tuple[str, int]]:
-    """(kind, count) of the events of the database at ``path``, the most
-    frequent first, without the kinds in ``leave_out``; read without writing."""
+                 leave_out: tuple[str, ...] = ("connect", "reconnect"),
+                 since: float = -math.inf) -> list[tuple[str, int]]:
+    """(kind, count) of the events of the database at ``path`` recorded at
+    ``since`` (UTC seconds) or later, the most frequent first, without the
+    kinds in ``leave_out``; read without writing."""
     con = open_readonly(path)  # leaves no -wal or -shm behind
     try:
         marks = ", ".join("?" * len(leave_out)) or "NULL"
         return [(str(k), int(n)) for k, n in con.execute(
-            f"SELECT kind, COUNT(*) FROM events WHERE kind NOT IN ({marks}) "
-            "GROUP BY kind ORDER BY 2 DESC", leave_out)]
+            f"SELECT kind, COUNT(*) FROM events WHERE kind NOT IN ({marks}) AND time_utc >= ? "
+            "GROUP BY kind ORDER BY 2 DESC", (*leave_out, since))]
     finally:
         con.close()
 
