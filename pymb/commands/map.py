@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
 from pymb.commands import sunspeccli
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
-from pymb.commands.mapshow import add_list_show, run_list, run_show
-from pymb.devices.mapspec import load_map
+from pymb.commands.mapshow import add_list_show, run_list, run_show, shipped_or_file
 from pymb.errors import IllegalDataAddress, InvalidArgument
 from pymb.maps import Point
 from pymb.maps.codec import decode_one
@@ -67,14 +65,10 @@ def _plural(n: int, word: str) -> str:
 
 
 def _check(args: argparse.Namespace) -> int:
-    shipped = maps.builtin_ids()
-    if not os.path.exists(args.file) and args.file in shipped:
-        m = maps.builtin(args.file)
-    else:
-        m = load_map(args.file)
-        if m.id in shipped:  # --map and a configuration's maps refuse it
-            raise InvalidArgument(f"{args.file}: device id {m.id!r} is a device pymb ships; "
-                                  "give the map another id")
+    m, shipped = shipped_or_file(args.file)
+    if not shipped and m.id in maps.builtin_ids():  # --map and a configuration's maps refuse it
+        raise InvalidArgument(f"{args.file}: device id {m.id!r} is a device pymb ships; "
+                              "give the map another id")
     planner, mi = map_planner(m, Line(args.baud, bits_per_char(args.parity)))
     what = " ".join(x for x in (m.device.manufacturer, m.device.model) if x)
     print(f"{args.file}: {m.id}{f' ({what})' if what else ''}: "

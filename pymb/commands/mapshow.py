@@ -5,6 +5,7 @@ access, valid range)."""
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 import shutil
 import sys
@@ -15,9 +16,8 @@ from pymb.commands._common import print_json
 from pymb.devices.mapspec import load_map
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
-from pymb.maps.point import did_you_mean
 
-__all__ = ["add_list_show", "map_rows", "run_list", "run_show", "shipped_rows"]
+__all__ = ["add_list_show", "map_rows", "run_list", "run_show", "shipped_or_file", "shipped_rows"]
 
 
 def add_list_show(sub: Any) -> None:
@@ -118,17 +118,24 @@ def run_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def shipped_or_file(ident: str) -> tuple[Map, bool]:
+    """The map ``pymb map check|show ID`` names, and whether pymb ships it: a
+    file of that name, a shipped map's id, else a file path (``x.toml``,
+    ``maps/x``) that cannot be read; a mistyped id gets the closest one."""
+    shipped = maps.builtin_ids()
+    if not os.path.exists(ident) and ident in shipped:
+        return maps.builtin(ident), True
+    if os.path.exists(ident) or os.sep in ident or ident.endswith(".toml"):
+        return load_map(ident), False
+    near = difflib.get_close_matches(ident, shipped, n=1, cutoff=0.5)
+    hint = f"; did you mean {near[0]!r}?" if near else ""
+    raise InvalidArgument(f"no shipped map {ident!r} and no such file{hint} "
+                          "(pymb map list shows the shipped maps)")
+
+
 def run_show(args: argparse.Namespace) -> int:
     """``pymb map show ID``."""
-    ident = args.map
-    if ident in maps.builtin_ids() and not os.path.exists(ident):
-        m = maps.builtin(ident)
-    elif os.path.exists(ident):
-        m = load_map(ident)
-    else:
-        hint = did_you_mean(ident, maps.builtin_ids())
-        raise InvalidArgument(f"no shipped map {ident!r} and no such file{hint} "
-                              "(pymb map list shows the shipped maps)")
+    m, _ = shipped_or_file(args.map)
     rows = map_rows(m)
     if args.json:
         print_json({"id": m.id, "title": _title(m), "ref": m.device.ref, "points": rows})

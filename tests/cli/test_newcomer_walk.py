@@ -7,6 +7,7 @@ import re
 import sqlite3
 from pathlib import Path
 
+import pytest
 from conftest import run_pymb
 
 
@@ -28,3 +29,19 @@ def test_demo_into_an_earlier_demos_database_counts_this_runs_faults(tmp_path: P
     assert seen is not None, r.stdout
     by_kind = sum(int(n) for n in re.findall(r"(\d+) \w+", seen.group(2) or ""))
     assert by_kind < 40, seen.group(0)
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    # a shipped map's id mistyped: the closest id, in check as in show
+    (["check", "eastron-sdm12"], "no shipped map 'eastron-sdm12' and no such file; did you "
+     "mean 'eastron-sdm120'? (pymb map list shows the shipped maps)"),
+    (["show", "eastron-sdm12"], "no shipped map 'eastron-sdm12' and no such file; did you "
+     "mean 'eastron-sdm120'? (pymb map list shows the shipped maps)"),
+    # a file that is not there: the file's own line, not every shipped id
+    (["show", "nosuch.toml"], "nosuch.toml: cannot read the map: No such file or directory"),
+    (["check", "nosuch.toml"], "nosuch.toml: cannot read the map: No such file or directory"),
+    (["show", "maps/meter"], "maps/meter: cannot read the map: No such file or directory"),
+])
+def test_a_map_that_is_neither_shipped_nor_a_file(argv: list[str], said: str) -> None:
+    r = run_pymb("map", *argv, timeout=60)
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb map: {said}\n")
