@@ -15,6 +15,7 @@ import importlib
 import io
 import os
 import re
+import shlex
 import sys
 from collections.abc import Sequence
 
@@ -105,6 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = next((a for a in args_in if not a.startswith("-")), "")
     try:
         parser = build_parser(command if command in COMMANDS else "")
+        _options_before_the_command(parser, args_in)
         args, extra = parser.parse_known_args(args_in)
     except KeyboardInterrupt:  # Ctrl-C while the command's module loads
         return EXIT_INTERRUPTED
@@ -133,6 +135,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         with contextlib.suppress(OSError):
             print(f"pymb {args.command}: {e}", file=sys.stderr)
         return next(code for cls, code in _EXIT_CODES if isinstance(e, cls))
+
+
+def _options_before_the_command(parser: argparse.ArgumentParser, args_in: list[str]) -> None:
+    """Exit 2 for a command's options given before it (``pymb --port
+    /dev/ttyUSB0 read coolpro``), with the command line in its order."""
+    at = next((i for i, a in enumerate(args_in) if a in COMMANDS), 0)
+    if at and args_in[0].startswith("-") and not {"-h", "--help", "--version"} & {
+            a.split("=", 1)[0] for a in args_in[:at]}:
+        fixed = shlex.join(["pymb", *args_in[at:], *args_in[:at]])
+        parser.error(f"options go after the command: {fixed}")
 
 
 def _unicode_or_replace() -> None:

@@ -45,3 +45,18 @@ def test_demo_into_an_earlier_demos_database_counts_this_runs_faults(tmp_path: P
 def test_a_map_that_is_neither_shipped_nor_a_file(argv: list[str], said: str) -> None:
     r = run_pymb("map", *argv, timeout=60)
     assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb map: {said}\n")
+
+
+@pytest.mark.parametrize(("argv", "fixed"), [
+    (["--port", "/dev/ttyUSB0", "read", "coolpro"], "pymb read coolpro --port /dev/ttyUSB0"),
+    # an option the command takes was 'unrecognized; did you mean' itself
+    (["--quiet", "log", "hub:250", "--tcp", "127.0.0.1:1"],
+     "pymb log hub:250 --tcp 127.0.0.1:1 --quiet"),
+    (["--out", "my data.csv", "export", "d.sqlite"], "pymb export d.sqlite --out 'my data.csv'"),
+])
+def test_options_before_the_command(argv: list[str], fixed: str) -> None:
+    """One line with the command line in its order; nothing is opened."""
+    r = run_pymb(*argv, timeout=60)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr.splitlines() == ["usage: pymb [-h] [--version] COMMAND ...",
+                                     f"pymb: error: options go after the command: {fixed}"]
