@@ -303,7 +303,7 @@ def run_read_plan_held(client: Client, plan: RegisterPlan, start: int = 0,
     return True
 
 
-def read_plan_call(client: Client, plan: RegisterPlan) -> Callable[[int], bool]:
+def read_plan_call(client: Client, plan: RegisterPlan) -> Callable[[int | None], bool]:
     """``run_read_plan_held(client, plan, 0, on)`` as a call of ``on`` alone,
     made ready for a caller that runs ``plan`` over and over (a device's
     steady read): the same run and errors, the steady case in this frame, its
@@ -311,7 +311,7 @@ def read_plan_call(client: Client, plan: RegisterPlan) -> Callable[[int], bool]:
     link, c = client._link, plan.c  # noqa: SLF001 - this module's
     bound = None  # the line c.line is (an open line's pointer: it is freed on close)
 
-    def run(on: int) -> bool:
+    def run(on: int | None) -> bool:
         nonlocal bound
         line = link._line  # noqa: SLF001 - read_plan's
         if line is bound and plan.hold is link._held and (  # noqa: SLF001 - read_plan's

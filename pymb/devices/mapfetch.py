@@ -23,7 +23,7 @@ from typing import NamedTuple, TypeVar
 from pymb._native.link import RegisterPlan
 from pymb._native.mapdecode import MapJob
 from pymb.client import Client
-from pymb.client.base import read_plan_call, run_read_plan_held
+from pymb.client.base import read_plan_call
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map, Point
@@ -69,6 +69,9 @@ class Run(NamedTuple):
     requests: tuple[Request, ...]
     image: Image
     plan: RegisterPlan  #: the requests as C takes them
+    #: ``run_read_plan_held(client, plan, 0, on)`` made ready as a call of
+    #: ``on`` (:func:`~pymb.client.base.read_plan_call`)
+    go: Callable[[int | None], bool]
 
 
 class Read:
@@ -107,7 +110,7 @@ class Read:
         #: else is to be done around it (:meth:`Fetcher.prepared`), else None
         self.steady: RegisterPlan | None = None
         #: :attr:`steady`'s run made ready (``pymb.client.base.read_plan_call``)
-        self.steady_call: Callable[[int], bool] | None = None
+        self.steady_call: Callable[[int | None], bool] | None = None
         self.version = -1  # made at no version yet
 
 
@@ -188,7 +191,7 @@ class Fetcher:
                 sleep_until(until)
             try:
                 try:
-                    if not run_read_plan_held(client, p.plan, 0, on):
+                    if not p.go(on):
                         self._remake(r)  # the line was lost or reopened: made again, read again
                         return self.fetch(r, decode)
                     on = None
@@ -269,7 +272,7 @@ class Fetcher:
         r.steady = r.decoding[0].plan if one and r.decoding is not None and not (
             self._gap or self._turnaround or self.busy_retries or self.marked
             or planner.limits.split_on_exception) else None
-        r.steady_call = None if r.steady is None else read_plan_call(self.client, r.steady)
+        r.steady_call = None if r.steady is None or r.decoding is None else r.decoding[0].go
         r.version = planner.version
 
     def prepared(self, r: Read, held: Callable[[], object], then: Callable[[], T], *,
@@ -337,12 +340,15 @@ class Fetcher:
         runs = [tuple(g) for _, g in groupby(plan.requests, key=attrgetter("table"))]
         if jobs is not None and sorted(rs[0].table for rs in runs) != sorted(images):
             return None
-        return tuple(
-            Run(rs, image, RegisterPlan(
+        made = []
+        for rs in runs:
+            image = images[rs[0].table]
+            plan_c = RegisterPlan(
                 [(r.function, self.address, r.address, r.count, r.address - image.address)
                  for r in rs], image.registers, gap, t.response_timeout,
-                then=None if jobs is None else jobs[rs[0].table]))
-            for rs in runs for image in (images[rs[0].table],))
+                then=None if jobs is None else jobs[rs[0].table])
+            made.append(Run(rs, image, plan_c, read_plan_call(self.client, plan_c)))
+        return tuple(made)
 
     def run(self, plan: ReadPlan, images: dict[str, Image]) -> None:
         """Every request of ``plan``, each into its place in ``images``."""
