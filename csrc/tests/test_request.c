@@ -126,6 +126,7 @@ struct dev {
     int state;              /* the script's own counter */
     volatile int param;     /* the script's parameter, set by the test */
     pid_t master;           /* the test's process, for the signal scripts */
+    volatile int ready;     /* the device runs: the timeouts count from here */
 };
 
 static void dev_send(struct dev *d, const uint8_t *b, size_t n)
@@ -260,6 +261,7 @@ static void dev_run(struct dev *d)
 {
     uint8_t req[300];
 
+    d->ready = 1;
     while (!d->stop) {
         int n = dev_receive(d, req, (int)sizeof req);
         if (n <= 0) {
@@ -357,6 +359,7 @@ static void rig_start(struct rig *r, handler h)
     r->dev->requests = 0;
     r->dev->state = 0;
     r->dev->master = getpid();
+    r->dev->ready = 0;
     fflush(NULL);
     r->child = fork();
     if (r->child < 0) {
@@ -366,6 +369,11 @@ static void rig_start(struct rig *r, handler h)
     if (r->child == 0) {
         dev_run(r->dev);
         _exit(0);
+    }
+    /* A loaded machine (the sanitizers' fork) can take longer than a
+     * response timeout (300 ms) to start the child: wait for it (10 s). */
+    for (int i = 0; !r->dev->ready && i < 10000; i++) {
+        usleep(1000);
     }
 }
 
