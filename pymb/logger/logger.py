@@ -28,7 +28,7 @@ __all__ = ["Logger", "RunSummary"]
 _DEVICE_NAME = operator.attrgetter("device.name")  #: a sample's device's name
 _REGISTERS = operator.attrgetter("data.registers")  #: a sample's registers
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
-_DRAIN_EVERY = 0.02  #: seconds the writer sleeps when the queue is empty
+_DRAIN_EVERY = 0.02  #: seconds the writer waits on its queue at most (a list or wake() ends it)
 _IDLE_CHECK = 1.0  #: seconds between looks at the storage when nothing is committed
 
 
