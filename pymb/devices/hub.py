@@ -296,11 +296,6 @@ class SensorHub:
             raise InvalidArgument(f"hub address must be {low}..{high}, got {address!r}")
         if not isinstance(client, Client):
             raise InvalidArgument(f"a SensorHub needs a pymb client, got {client!r}")
-        if isinstance(busy_retries, bool) or not isinstance(busy_retries, int) or not (
-                0 <= busy_retries <= 100):
-            raise InvalidArgument(f"busy_retries must be 0..100, got {busy_retries!r}")
-        if not _seconds_in(busy_backoff, 10):
-            raise InvalidArgument(f"busy_backoff must be 0..10 s, got {busy_backoff!r}")
         if not _seconds_in(turnaround, 10):
             raise InvalidArgument(f"turnaround must be 0..10 s, got {turnaround!r}")
         self.client = client
@@ -310,6 +305,7 @@ class SensorHub:
         self._busy_retries = busy_retries
         self._unit, self._other = units(humidity_unit, channels)
         self._mixed = any(self._other)
+        # busy_retries and busy_backoff: the MapDevice checks them
         self.device = hub_device(client, address, self.channels, self._unit,
                                  busy_retries=busy_retries, busy_backoff=busy_backoff,
                                  turnaround=turnaround)
