@@ -19,13 +19,25 @@ from __future__ import annotations
 
 import json
 import re
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pymb.collect.rows import NO_VALUE, BadInput, Row
-from pymb.fleet.protobuf import DataType, Metric, decode, encode_payload
+from pymb.fleet.protobuf import (
+    TEXTS,
+    DataType,
+    FieldError,
+    Fields,
+    Metric,
+    decode,
+    encode_payload,
+    last,
+    metric_fields,
+    metric_value,
+    number,
+    text,
+)
 
 __all__ = ["REBIRTH_EVERY", "SparkplugHost", "state_payload"]
 
@@ -36,7 +48,6 @@ _KINDS = ("NBIRTH", "NDEATH", "NDATA", "DBIRTH", "DDEATH", "DDATA", "NCMD", "DCM
 _CHANNEL = re.compile(r"channel 0*(\d+)/(.+)")
 #: datatypes with no single value (DataSet, Bytes, File, Template)
 _SKIPPED = {16, 17, 18, 19}
-_SIGNED = {1: 8, 2: 16, 3: 32, 4: 64}  #: Int8/16/32/64: their width
 
 
 def state_payload(online: bool, timestamp_ms: int) -> bytes:
@@ -62,30 +73,6 @@ def _point(name: str) -> str:
     return f"{m.group(2)}_{int(m.group(1))}" if m else name
 
 
-def _one(fields: dict[int, list[int | bytes]], number: int) -> int | bytes | None:
-    v = fields.get(number)
-    return v[-1] if v else None
-
-
-def _int(fields: dict[int, list[int | bytes]], number: int) -> int | None:
-    v = _one(fields, number)
-    if isinstance(v, bytes):
-        raise BadInput(f"field {number} is not a number")
-    return v
-
-
-def _text(fields: dict[int, list[int | bytes]], number: int) -> str | None:
-    v = _one(fields, number)
-    if v is None:
-        return None
-    if not isinstance(v, bytes):
-        raise BadInput(f"field {number} is not a string")
-    try:
-        return v.decode()
-    except UnicodeDecodeError:
-        raise BadInput(f"field {number} is not UTF-8") from None
-
-
 def _state_property(raw: bytes) -> str | None:
     """The ``state`` property of a metric's PropertySet, if any."""
     props = decode(raw)
@@ -93,35 +80,8 @@ def _state_property(raw: bytes) -> str | None:
     values = [v for v in props.get(2, []) if isinstance(v, bytes)]
     for k, v in zip(keys, values, strict=False):
         if k == "state":
-            return _text(decode(v), 8)
+            return text(decode(v), 8)
     return None
-
-
-def _value(f: dict[int, list[int | bytes]], datatype: int) -> float | str | None:
-    """A metric's value as stored: a number (float), a string, or None."""
-    if datatype in (12, 14, 15):  # String, Text, UUID
-        return _text(f, 15)
-    if 12 in f or 13 in f:  # float_value (fixed32), double_value (fixed64)
-        raw = _int(f, 12)
-        if raw is not None:
-            return float(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
-        raw = _int(f, 13)
-        assert raw is not None
-        return float(struct.unpack("<d", raw.to_bytes(8, "little"))[0])
-    if 14 in f:
-        return 1.0 if _int(f, 14) else 0.0
-    for number in (10, 11):
-        raw = _int(f, number)
-        if raw is not None:
-            bits = _SIGNED.get(datatype)
-            if bits is not None:
-                raw &= (1 << bits) - 1
-                if raw >= 1 << (bits - 1):
-                    raw -= 1 << bits
-            return float(raw)
-    if 15 in f:
-        return _text(f, 15)
-    raise BadInput(f"a metric of datatype {datatype} has no value")
 
 
 class SparkplugHost:
@@ -169,24 +129,29 @@ class SparkplugHost:
             return []
         try:
             p = decode(payload)
-            metrics = [decode(m) if isinstance(m, bytes) else None for m in p.get(2, [])]
+            metrics = metric_fields(p)
         except ValueError as e:
             raise BadInput(f"not a Sparkplug B payload ({e})") from None
-        if any(m is None for m in metrics):
-            raise BadInput("not a Sparkplug B payload (a metric is not a message)")
-        ms = _int(p, 1)
-        seq = _int(p, 3)
+        try:
+            return self._rows(kind, node, device, p, metrics)
+        except FieldError as e:  # a field of the wrong kind
+            raise BadInput(str(e)) from None
+
+    def _rows(self, kind: str, node: str, device: str | None, p: Fields,
+              metrics: list[Fields]) -> list[Row]:
+        """:meth:`rows` of a decoded payload (FieldError for a field of the wrong kind)."""
+        ms = number(p, 1)
+        seq = number(p, 3)
         st = self.nodes.setdefault(node, _Node())
         if kind == "NDEATH":
-            return self._death(node, st, metrics)  # type: ignore[arg-type]
+            return self._death(node, st, metrics)
         if seq is None or seq > 255:
             raise BadInput(f"a {kind} without a seq of 0..255")
         if kind == "NBIRTH":
             st.born, st.seq, st.aliases, st.devices = True, seq, {}, {}
             for m in metrics:
-                assert m is not None
-                if _text(m, 1) == "bdSeq":
-                    st.bd_seq = _int(m, 11)
+                if text(m, 1) == "bdSeq":
+                    st.bd_seq = number(m, 11)
         elif not st.born:
             self.unborn += 1
             self._rebirth(node, st, f"{kind} before its NBIRTH")
@@ -209,14 +174,13 @@ class SparkplugHost:
         t0 = ms / 1000 if ms is not None else time.time()
         out: list[Row] = []
         for m in metrics:
-            assert m is not None
             try:
                 row = self._metric(node, device or "", m, aliases, t0, kind.endswith("BIRTH"))
-            except BadInput:
+            except (BadInput, FieldError):
                 raise
             except (ValueError, OverflowError) as e:  # a PropertySet, a float's field
                 raise BadInput(f"not a Sparkplug B payload (a metric: {e})") from None
-            if row is None and kind.endswith("DATA") and _text(m, 1) is None:
+            if row is None and kind.endswith("DATA") and text(m, 1) is None:
                 self.unborn += 1
                 self._rebirth(node, st, f"{kind} with an alias no birth declared")
                 return []
@@ -224,21 +188,21 @@ class SparkplugHost:
                 out.append(row)
         return out
 
-    def _death(self, node: str, st: _Node, metrics: list[dict[int, list[int | bytes]]]
+    def _death(self, node: str, st: _Node, metrics: list[Fields]
                ) -> list[Row]:
-        bd = next((_int(m, 11) for m in metrics if _text(m, 1) == "bdSeq"), None)
+        bd = next((number(m, 11) for m in metrics if text(m, 1) == "bdSeq"), None)
         if st.born and (bd is None or st.bd_seq is None or bd == st.bd_seq):
             st.born = False
             self.event(f"{self.group}/{node} is offline (NDEATH)")
         return []
 
-    def _metric(self, node: str, device: str, m: dict[int, list[int | bytes]],
+    def _metric(self, node: str, device: str, m: Fields,
                 aliases: dict[int, tuple[str, int]], t0: float, birth: bool) -> Row | None:
         """The row of one metric; None for an alias no birth declared. A row with
         an empty point is a metric that is not stored (bdSeq, Node Control/*)."""
-        name = _text(m, 1)
-        alias = _int(m, 2)
-        datatype = _int(m, 4)
+        name = text(m, 1)
+        alias = number(m, 2)
+        datatype = number(m, 4)
         if name is None:
             if alias is None or alias not in aliases:
                 return None
@@ -250,16 +214,18 @@ class SparkplugHost:
             aliases[alias] = (name, datatype)
         if name == "bdSeq" or name.startswith("Node Control/") or datatype in _SKIPPED:
             return (node, device, "", t0, None, None, None, None)
-        ts = _int(m, 3)
+        ts = number(m, 3)
         t = ts / 1000 if ts is not None else t0
         point = _point(name)
-        if _int(m, 7):  # is_null
-            props = _one(m, 9)
+        if number(m, 7):  # is_null
+            props = last(m, 9)
             why = _state_property(props) if isinstance(props, bytes) else None
             return (node, device, point, t, None, None, why or NO_VALUE, None)
-        v = _value(m, datatype)
+        v = metric_value(m, datatype)
+        if v is None and datatype not in TEXTS:
+            raise BadInput(f"a metric of datatype {datatype} has no value")
         if isinstance(v, str):
             return (node, device, point, t, None, v, None, None)
         if v is None or v != v or v in (float("inf"), float("-inf")):
             return (node, device, point, t, None, None, NO_VALUE, None)
-        return (node, device, point, t, v, None, None, None)
+        return (node, device, point, t, float(v), None, None, None)

@@ -5,8 +5,9 @@ The schema is the Sparkplug B 3.0 specification's ``sparkplug_b.proto``
 below are that file's. Only what pymb publishes is encoded (payload
 timestamp, seq, metrics with name, alias, timestamp, datatype,
 is_historical, is_null, properties and the int, long, double, boolean and
-string values); :func:`decode` reads any message into raw fields, enough to
-read an NCMD. The tests decode every payload with an independent
+string values); :func:`decode` reads any message into raw fields, which
+:func:`number`, :func:`text` and :func:`metric_value` read (an NCMD, a DCMD,
+the births and data ``pymb collect`` stores). The tests decode every payload with an independent
 implementation of the same schema (pysparkplug's generated ``Payload``).
 
 Why not the ``protobuf`` package: one dependency fewer for ``pymb-modbus[mqtt]``,
@@ -21,8 +22,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-__all__ = ["DataType", "Metric", "MetricValue", "Properties", "command_metrics",
-           "command_values", "decode", "encode_payload"]
+__all__ = ["TEXTS", "DataType", "FieldError", "Metric", "MetricValue", "Properties",
+           "command_metrics", "command_values", "decode", "encode_payload", "last",
+           "metric_fields", "metric_value", "number", "text"]
 
 
 #: What a metric carries: None is a null of its datatype.
@@ -210,68 +212,89 @@ def decode(data: bytes) -> Fields:
     return out
 
 
+class FieldError(ValueError):
+    """A field of a value of the wrong kind: a number length-delimited, a string
+    not length-delimited or not UTF-8."""
+
+
+def last(f: Fields, n: int) -> int | bytes | None:
+    """Field ``n``'s value (the last one, as protobuf reads a scalar given
+    twice); None where absent."""
+    v = f.get(n)
+    return v[-1] if v else None
+
+
+def number(f: Fields, n: int) -> int | None:
+    """Field ``n`` as a number (varint or fixed), None where absent."""
+    v = last(f, n)
+    if isinstance(v, bytes):
+        raise FieldError(f"field {n} is not a number")
+    return v
+
+
+def text(f: Fields, n: int) -> str | None:
+    """Field ``n`` as a UTF-8 string, None where absent."""
+    v = last(f, n)
+    if v is None:
+        return None
+    if not isinstance(v, bytes):
+        raise FieldError(f"field {n} is not a string")
+    try:
+        return v.decode()
+    except UnicodeDecodeError:
+        raise FieldError(f"field {n} is not UTF-8") from None
+
+
+def metric_fields(top: Fields) -> list[Fields]:
+    """The fields of each metric of a ``Payload``; ValueError on a malformed one."""
+    if not all(isinstance(m, bytes) for m in top.get(2, [])):
+        raise ValueError("a metric is not a message")
+    return [decode(m) for m in top.get(2, []) if isinstance(m, bytes)]
+
+
+#: the datatypes whose value is a string_value (String, Text, UUID)
+TEXTS = {12, 14, 15}
+_SIGNED = {1: 8, 2: 16, 3: 32, 4: 64}  #: Int8/16/32/64: their width
+
+
+def metric_value(f: Fields, datatype: int) -> MetricValue:
+    """A metric's value from its fields, read as its datatype says: a string,
+    a float (float_value, double_value), a bool, an int (an Int8..Int64 from
+    its two's complement in its width); None for a null or a metric with no
+    value. Raises FieldError, or OverflowError for a float sent as too big a
+    varint."""
+    if number(f, 7):  # is_null
+        return None
+    if datatype in TEXTS:
+        return text(f, 15)
+    if (raw := number(f, 12)) is not None:  # float_value (fixed32)
+        return float(struct.unpack("<f", raw.to_bytes(4, "little"))[0])
+    if (raw := number(f, 13)) is not None:  # double_value (fixed64)
+        return float(struct.unpack("<d", raw.to_bytes(8, "little"))[0])
+    if (raw := number(f, 14)) is not None:
+        return bool(raw)
+    for n in (10, 11):  # int_value, long_value
+        if (raw := number(f, n)) is not None:
+            bits = _SIGNED.get(datatype)
+            if bits is not None:
+                raw &= (1 << bits) - 1
+                if raw >= 1 << (bits - 1):
+                    raw -= 1 << bits
+            return raw
+    return text(f, 15)
+
+
 def command_metrics(payload: bytes) -> list[tuple[str | None, int | None, bool | None]]:
     """(name, alias, boolean value) of each metric of an NCMD/DCMD payload."""
-    result = []
-    for raw in decode(payload).get(2, []):
-        if not isinstance(raw, bytes):
-            raise ValueError("metric is not a message")
-        f = decode(raw)
-        name = f.get(1, [None])[0]
-        alias = f.get(2, [None])[0]
-        boolean = f.get(14, [None])[0]
-        result.append((name.decode() if isinstance(name, bytes) else None,
-                       alias if isinstance(alias, int) else None,
-                       bool(boolean) if isinstance(boolean, int) else None))
-    return result
+    return [(text(f, 1), number(f, 2), None if (b := number(f, 14)) is None else bool(b))
+            for f in metric_fields(decode(payload))]
 
 
-def _signed(v: int, bits: int) -> int:
-    v &= (1 << bits) - 1
-    return v - (1 << bits) if v >> (bits - 1) else v
-
-
-_SIGNED = {DataType.INT8: 8, DataType.INT16: 16, DataType.INT32: 32, DataType.INT64: 64}
-
-
-def _value(f: Fields, dt: int | None) -> float | int | bool | str | None:
-    """A metric's value from its fields, read as its datatype says."""
-    def first(n: int) -> int | bytes | None:
-        return f.get(n, [None])[-1]
-    if first(7):  # is_null
-        return None
-    if (b := first(14)) is not None and isinstance(b, int):
-        return bool(b)
-    if (s := first(15)) is not None and isinstance(s, bytes):
-        return s.decode("utf-8")
-    if (d := first(13)) is not None and isinstance(d, int):
-        return float(struct.unpack("<d", d.to_bytes(8, "little"))[0])
-    if (x := first(12)) is not None and isinstance(x, int):
-        return float(struct.unpack("<f", x.to_bytes(4, "little"))[0])
-    for number in (10, 11):
-        if (n := first(number)) is not None and isinstance(n, int):
-            if dt is not None and dt in _SIGNED:
-                return _signed(n, _SIGNED[DataType(dt)])
-            return n
-    return None
-
-
-def command_values(payload: bytes
-                   ) -> tuple[int | None, int | None,
-                              list[tuple[str | None, int | None, float | int | bool | str | None]]]:
+def command_values(payload: bytes) -> tuple[int | None, int | None,
+                                           list[tuple[str | None, int | None, MetricValue]]]:
     """(payload timestamp, seq, [(name, alias, value)]) of a DCMD: each
-    metric's value as its datatype says (a signed integer from its two's
-    complement). Raises ValueError on a malformed payload."""
+    metric's value as :func:`metric_value` reads it. Raises ValueError on a
+    malformed payload."""
     top = decode(payload)
-    ts, seq = top.get(1, [None])[0], top.get(3, [None])[0]
-    metrics = []
-    for raw in top.get(2, []):
-        if not isinstance(raw, bytes):
-            raise ValueError("metric is not a message")
-        f = decode(raw)
-        name, alias, dt = f.get(1, [None])[0], f.get(2, [None])[0], f.get(4, [None])[0]
-        metrics.append((name.decode("utf-8") if isinstance(name, bytes) else None,
-                        alias if isinstance(alias, int) else None,
-                        _value(f, dt if isinstance(dt, int) else None)))
-    return (ts if isinstance(ts, int) else None, seq if isinstance(seq, int) else None,
-            metrics)
+    return number(top, 1), number(top, 3), [
+        (text(f, 1), number(f, 2), metric_value(f, number(f, 4) or 0)) for f in metric_fields(top)]
