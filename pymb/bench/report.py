@@ -7,7 +7,6 @@ either format, so the Markdown of docs/benchmarks.md says what the terminal said
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -21,6 +20,7 @@ from pymb.bench import (
     writebench,
 )
 from pymb.bench.table import Table, X, fmt_time, fmt_x
+from pymb.jsonvalue import nan_to_null
 
 __all__ = ["Table", "plot", "tables", "to_json", "to_markdown", "to_text"]
 
@@ -392,15 +392,7 @@ def to_markdown(result: dict[str, Any]) -> str:
 
 def to_json(result: dict[str, Any]) -> str:
     """The whole result as JSON (NaN and infinities as null)."""
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        return v
-    return json.dumps(clean(result), indent=2, ensure_ascii=False) + "\n"
+    return json.dumps(nan_to_null(result), indent=2, ensure_ascii=False) + "\n"
 
 
 def plot(result: dict[str, Any], path: str) -> None:

@@ -10,7 +10,6 @@ and byte order side by side: the answer to "which byte order is my meter?".
 from __future__ import annotations
 
 import argparse
-import math
 
 from pymb import maps
 from pymb._native import MAX_READ_REGISTERS
@@ -18,6 +17,7 @@ from pymb.commands import sunspeccli
 from pymb.commands._common import add_connection_args, interruptible, make_client, print_json
 from pymb.commands.mapshow import add_list_show, run_list, run_show, shipped_or_file
 from pymb.errors import IllegalDataAddress, InvalidArgument
+from pymb.jsonvalue import nan_to_null
 from pymb.maps import Point
 from pymb.maps.codec import decode_one
 from pymb.maps.device_plan import map_planner
@@ -174,9 +174,8 @@ def _probe(args: argparse.Namespace) -> int:
     regs = interruptible(io)
     rows = interpretations(regs)
     if args.json:
-        print_json({"table": table, "start": start, "registers": regs, "rows": [
-            {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-             for k, v in r.items()} for r in rows]})
+        print_json({"table": table, "start": start, "registers": regs,
+                    "rows": nan_to_null(rows)})
         return 0
     print(f"{table} registers {start}..{start + count - 1} of unit {args.address}: "
           + " ".join(f"{r:04X}" for r in regs))

@@ -14,6 +14,7 @@ from collections.abc import Iterable, Mapping
 from decimal import Decimal
 from typing import Any
 
+from pymb.jsonvalue import nan_to_null
 from pymb.maps import Map
 from pymb.maps.point import Point
 
@@ -97,14 +98,7 @@ def render_map(m: Map, values: Mapping[str, Any], states: Mapping[str, Any]) -> 
 
 def map_json(values: Mapping[str, Any], states: Mapping[str, Any]) -> dict[str, Any]:
     """A reading for JSON: values (None where there is none) and their states."""
-    def clean(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, list):
-            return [clean(x) for x in v]
-        return v
-
-    out = {"values": {k: clean(v) for k, v in values.items()},
+    out = {"values": nan_to_null(dict(values)),
            "states": dict(states)}
     json.dumps(out, allow_nan=False)  # fails here, not half-way through printing
     return out

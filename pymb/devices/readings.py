@@ -28,6 +28,7 @@ from pymb.devices.coolpro import (
 from pymb.devices.hub import HubReading, State
 from pymb.devices.hubreading import BLOCKS, HUB_REGISTERS
 from pymb.devices.mapreading import Blocks, MapReading
+from pymb.jsonvalue import nan_to_null
 from pymb.maps import Map
 from pymb.maps.types import STATES
 
@@ -69,14 +70,6 @@ def status_flags(status: int) -> list[str]:
     return [f.name for f in CoolProStatus if f in flags and f.name is not None]
 
 
-def _clean(v: Any) -> Any:
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    if isinstance(v, list):
-        return [_clean(x) for x in v]
-    return v
-
-
 def map_reading(data: HubReading | CoolProTelemetry | MapReading) -> MapReading:
     """``data`` as a :class:`MapReading` of its map: a hub's sweep (every
     block channel by channel, the registers 31..730 it read) or a CoolPro's
@@ -101,7 +94,7 @@ def _hub_map(channels: int) -> Map:
 
 
 def _hub_dict(data: MapReading) -> dict[str, Any]:
-    return {"values": {k: _clean(v) for k, v in data.values.items()},
+    return {"values": nan_to_null(dict(data.values)),
             "states": dict(data.states), "unsupported": sorted(data.unsupported)}
 
 
@@ -125,7 +118,7 @@ def reading_dict(data: HubReading | CoolProTelemetry | MapReading) -> dict[str, 
     view = _VIEWS.get(data.map.device.view)
     if view is not None:
         return view(data)
-    return {"values": {k: _clean(v) for k, v in data.values.items()},
+    return {"values": nan_to_null(dict(data.values)),
             "states": dict(data.states), "group": data.group,
             "unsupported": list(data.unsupported)}
 
