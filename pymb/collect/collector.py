@@ -31,6 +31,7 @@ from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import MqttConfig
+from pymb.fleet.profiles import NAMESPACE
 from pymb.fleet.takeover import TAKEN_OVER, Takeovers
 
 if TYPE_CHECKING:  # the extra pymb-modbus[collect]
@@ -92,7 +93,7 @@ class CollectConfig:
     def topic(self) -> str:
         """The subscription (``$share/NAME/...`` with ``share``)."""
         t = (f"{self.mqtt.prefix}/+/+" if self.profile == "plain"
-             else f"spBv1.0/{self.mqtt.group}/#")
+             else f"{NAMESPACE}/{self.mqtt.group}/#")
         return f"$share/{self.share}/{t}" if self.share else t
 
 

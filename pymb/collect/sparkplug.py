@@ -18,12 +18,12 @@ Template, Bytes, File).
 from __future__ import annotations
 
 import json
-import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pymb.collect.rows import NO_VALUE, BadInput, Row
+from pymb.fleet.profiles import NAMESPACE, REBIRTH, write_name
 from pymb.fleet.protobuf import (
     TEXTS,
     DataType,
@@ -41,11 +41,8 @@ from pymb.fleet.protobuf import (
 
 __all__ = ["REBIRTH_EVERY", "SparkplugHost", "state_payload"]
 
-NAMESPACE = "spBv1.0"
-REBIRTH = "Node Control/Rebirth"
 REBIRTH_EVERY = 5.0  #: seconds: a node is asked for births at most this often
 _KINDS = ("NBIRTH", "NDEATH", "NDATA", "DBIRTH", "DDEATH", "DDATA", "NCMD", "DCMD")
-_CHANNEL = re.compile(r"channel 0*(\d+)/(.+)")
 #: datatypes with no single value (DataSet, Bytes, File, Template)
 _SKIPPED = {16, 17, 18, 19}
 
@@ -66,11 +63,6 @@ class _Node:
     aliases: dict[int, tuple[str, int]] = field(default_factory=dict)
     devices: dict[str, dict[int, tuple[str, int]]] = field(default_factory=dict)
     asked: float = float("-inf")  #: time.monotonic() of the last rebirth request
-
-
-def _point(name: str) -> str:
-    m = _CHANNEL.fullmatch(name)
-    return f"{m.group(2)}_{int(m.group(1))}" if m else name
 
 
 def _state_property(raw: bytes) -> str | None:
@@ -216,7 +208,7 @@ class SparkplugHost:
             return (node, device, "", t0, None, None, None, None)
         ts = number(m, 3)
         t = ts / 1000 if ts is not None else t0
-        point = _point(name)
+        point = write_name(name)
         if number(m, 7):  # is_null
             props = last(m, 9)
             why = _state_property(props) if isinstance(props, bytes) else None

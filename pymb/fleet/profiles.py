@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import abc
 import json
+import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ BACKLOG = "Forwarder/Backlog"
 NODE_METRICS = {REBIRTH: (1, DataType.BOOLEAN), BACKLOG: (2, DataType.UINT64)}
 NDATA_EVERY = 5.0  #: seconds: a changed node metric goes in an NDATA at most this often
 QUALITY_BAD = 0  #: Sparkplug 3.0's "Quality" property: 0 bad, 192 good
+_CHANNEL = re.compile(r"channel 0*(\d+)/(.+)")  #: a block channel's metric
 
 
 @dataclass(frozen=True)
@@ -384,11 +386,10 @@ class SparkplugProfile(Profile):
 
 
 def write_name(metric: str) -> str:
-    """The point name a write takes for a DBIRTH metric: ``channel 003/x`` is ``x_3``."""
-    head, _, point = metric.partition("/")
-    if head.startswith("channel ") and head[8:].isdigit() and point:
-        return f"{point}_{int(head[8:])}"
-    return metric
+    """The point name of a metric (a write's, a row's of ``pymb collect``):
+    ``channel 003/x`` is ``x_3``."""
+    m = _CHANNEL.fullmatch(metric)
+    return f"{m.group(2)}_{int(m.group(1))}" if m else metric
 
 
 def _channels(r: StoredSample) -> int:
