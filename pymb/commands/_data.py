@@ -15,7 +15,7 @@ from typing import TypeVar
 from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
 from pymb.store import is_pymb_database, open_readonly, resolve_device
-from pymb.store.damage import damage, looks_like_pymb
+from pymb.store.damage import SQLITE_HEADER, damage, looks_like_pymb
 from pymb.store.salvage import salvage
 
 __all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times",
@@ -38,7 +38,7 @@ def check_database(path: str) -> None:
             head = f.read(16)
     except OSError as e:
         raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
-    if head != b"SQLite format 3\x00" or not is_pymb_database(path):
+    if head != SQLITE_HEADER or not is_pymb_database(path):
         raise InvalidArgument(f"{path} is not a database written by pymb")
 
 
@@ -52,7 +52,7 @@ def _damage(path: str) -> str | None:
             head = f.read(16)
     except OSError:
         return None
-    if head != b"SQLite format 3\x00":
+    if head != SQLITE_HEADER:
         return "its header is damaged" if looks_like_pymb(path) else None
     return damage(path, READ_CHECK_SECONDS)
 

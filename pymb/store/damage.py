@@ -20,7 +20,7 @@ from pymb.errors import OutputError
 from pymb.store.files import create
 from pymb.store.ids import RESERVED_KEY
 
-__all__ = ["CHECK_SECONDS", "damage", "damaged_error", "id_floor", "is_corruption",
+__all__ = ["CHECK_SECONDS", "SQLITE_HEADER", "damage", "damaged_error", "id_floor", "is_corruption",
            "looks_like_pymb", "move_aside", "notice", "replace_damaged", "seed_ids",
            "set_aside_if_damaged"]
 
@@ -44,6 +44,7 @@ _SCAN_BYTES = 4 << 20
 _MARKS = (b"hub_changes", b"unsupported INTEGER NOT NULL DEFAULT 0")
 #: SQLite's words for a file whose content is broken (not its storage)
 _CORRUPT = ("SQLITE_CORRUPT", "SQLITE_NOTADB")
+SQLITE_HEADER = b"SQLite format 3\x00"  #: the first 16 bytes of a SQLite database file
 
 
 def is_corruption(e: BaseException) -> bool:

@@ -6,7 +6,7 @@ import os
 import sqlite3
 
 from pymb.errors import InvalidArgument
-from pymb.store.damage import looks_like_pymb
+from pymb.store.damage import SQLITE_HEADER, looks_like_pymb
 from pymb.store.readonly import open_readonly
 from pymb.store.schema import schema_version
 from pymb.store.text import CSV_COLUMNS
@@ -57,7 +57,7 @@ def check_output(fmt: str, path: str, *, choosable: bool = True) -> None:
             head = f.read(512)
     except OSError as e:
         raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
-    sqlite = head.startswith(b"SQLite format 3\x00")
+    sqlite = head.startswith(SQLITE_HEADER)
     first = head.split(b"\n", 1)[0].rstrip(b"\r")
     if fmt == "sqlite":
         if looks_like_pymb(path) and (not sqlite or not is_pymb_database(path)):

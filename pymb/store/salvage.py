@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pymb.errors import InvalidArgument
-from pymb.store.damage import looks_like_pymb
+from pymb.store.damage import SQLITE_HEADER, looks_like_pymb
 from pymb.store.files import create
 from pymb.store.pages import Column, fits, leaf_rows
 
@@ -33,7 +33,6 @@ __all__ = ["Salvaged", "salvage"]
 
 _BATCH = 1000
 _PAGE_SIZES = (8192, 4096, 16384, 1024, 2048, 32768, 65536)
-_MAGIC = b"SQLite format 3\x00"
 _MAX_ID = 1 << 62
 
 
@@ -88,7 +87,7 @@ def _header(page_size: int, pages: int, wal: bool) -> bytes:
     size = 1 if page_size == 65536 else page_size
     v = 2 if wal else 1
     h = bytearray(100)
-    h[0:16] = _MAGIC
+    h[0:16] = SQLITE_HEADER
     struct.pack_into(">HBBBBBB", h, 16, size, v, v, 0, 64, 32, 32)
     struct.pack_into(">IIIIIIIIIIII", h, 24, 1, pages, 0, 0, 1, 4, 0, 0, 1, 0, 0, 0)
     struct.pack_into(">II", h, 92, 1, 3040001)
@@ -121,7 +120,7 @@ def _readable(path: Path, lenient: bool) -> bool:
 def _repair_header(copy: Path) -> bool:
     """Rewrite a header SQLite does not take (True if it was rewritten)."""
     with open(copy, "rb") as f:
-        magic = f.read(16) == _MAGIC
+        magic = f.read(16) == SQLITE_HEADER
     if _readable(copy, False) or (magic and _readable(copy, True)):
         return False
     size = copy.stat().st_size
@@ -156,7 +155,7 @@ def _pad(copy: Path) -> None:
     that pointed past its end read as damaged pages, the others as they are."""
     with open(copy, "r+b") as f:
         head = f.read(100)
-        if len(head) < 100 or not head.startswith(_MAGIC):
+        if len(head) < 100 or not head.startswith(SQLITE_HEADER):
             return
         size = struct.unpack_from(">H", head, 16)[0]
         page = 65536 if size == 1 else size
