@@ -30,7 +30,7 @@ from pymb.collect.sparkplug import SparkplugHost, state_payload
 from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
-from pymb.fleet.config import MqttConfig
+from pymb.fleet.config import PROFILES, MqttConfig
 from pymb.fleet.profiles import NAMESPACE
 from pymb.fleet.takeover import TAKEN_OVER, Takeovers
 
@@ -72,7 +72,7 @@ class CollectConfig:
     client_id: str = ""
 
     def __post_init__(self) -> None:
-        if self.profile not in ("plain", "sparkplug"):
+        if self.profile not in PROFILES:
             raise InvalidArgument(f"unknown profile {self.profile!r}; use plain or sparkplug")
         host = socket.gethostname().split(".")[0] or "pymb"
         for what, value in (("share", self.share), ("host id", self.host_id or None),
