@@ -141,9 +141,7 @@ def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     s, st = forwarding(cfg, mqtt, seconds=seconds, status=None if quiet else sys.stderr,
                        service=service)
     if not quiet:
-        skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
-        print(f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
-              f"({s.faults} faults{skipped}) in {s.elapsed:.1f} s to {s.path}", file=sys.stderr)
+        print(s.headline(), file=sys.stderr)
         for line in summary_lines(st):
             print(line, file=sys.stderr)
     for line in s.problems():  # a bus that never opened, a device that never delivered

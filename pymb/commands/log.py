@@ -150,9 +150,7 @@ def run(args: argparse.Namespace) -> int:
                     tick=service.tick(None if args.quiet else StatusLine(sys.stderr)))
     service.attach(logger)
     s = logger.run(args.seconds)
-    skipped = f", {s.skipped_slots} interval slot(s) skipped" if s.skipped_slots else ""
-    lines = [f"logged {s.samples:,} samples ({s.rate:,.1f}/s) and {s.events} events "
-             f"({s.faults} faults{skipped}) in {s.elapsed:.1f} s to {s.path}"]
+    lines = [s.headline()]
     lines += s.health()
     lines += s.problems()
     problems = s.problems()

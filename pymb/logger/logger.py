@@ -68,6 +68,13 @@ class RunSummary:
         delivered a sample (``pymb log``'s exit code)."""
         return 70 if self.crashed else 4 if self.never_opened else 3 if self.silent else 0
 
+    def headline(self) -> str:
+        """``logged N samples (R/s) and E events (F faults[, K interval slot(s)
+        skipped]) in T s to PATH``: the first line of the run's summary."""
+        skipped = f", {self.skipped_slots} interval slot(s) skipped" if self.skipped_slots else ""
+        return (f"logged {self.samples:,} samples ({self.rate:,.1f}/s) and {self.events} events "
+                f"({self.faults} faults{skipped}) in {self.elapsed:.1f} s to {self.path}")
+
     def health(self) -> list[str]:
         """One line per map device that failed a poll or refused a point:
         ``NAME: 3 failed poll(s), 2 point(s) unsupported, 10 sample(s)``."""
