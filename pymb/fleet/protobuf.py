@@ -106,8 +106,9 @@ def _property_set(props: Iterable[tuple[str, DataType, int | str]]) -> bytes:
     return bytes(keys + values)
 
 
-#: a negative Int8/Int16 in int_value: two's complement in its own width
-_INT_MASK = {DataType.INT8: 0xFF, DataType.INT16: 0xFFFF}
+#: the signed integers' widths: a negative one is its two's complement in it
+_SIGNED: dict[int, int] = {DataType.INT8: 8, DataType.INT16: 16, DataType.INT32: 32,
+                           DataType.INT64: 64}
 
 
 def _metric(m: Metric) -> bytes:
@@ -142,7 +143,7 @@ def _metric(m: Metric) -> bytes:
     elif dt == DataType.INT64:  # long_value, two's complement
         out += _uint(11, int(v) & 0xFFFFFFFFFFFFFFFF)
     else:  # the 8-, 16- and 32-bit integers: int_value, a uint32 on the wire
-        out += _uint(10, int(v) & _INT_MASK.get(dt, 0xFFFFFFFF))
+        out += _uint(10, int(v) & (1 << _SIGNED.get(dt, 32)) - 1)
     return bytes(out)
 
 
@@ -254,7 +255,6 @@ def metric_fields(top: Fields) -> list[Fields]:
 
 #: the datatypes whose value is a string_value (String, Text, UUID)
 TEXTS = {12, 14, 15}
-_SIGNED = {1: 8, 2: 16, 3: 32, 4: 64}  #: Int8/16/32/64: their width
 
 
 def metric_value(f: Fields, datatype: int) -> MetricValue:
