@@ -31,6 +31,7 @@ from pymb.devices.mapspec import (
 from pymb.devices.spec import closest, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError
+from pymb.maps.model import check_address
 
 __all__ = ["MAP_DEVICE_KEYS", "VIEW_OPENERS", "DeviceConfig", "KnownMaps", "MapText",
            "map_device_from_toml", "parse_device", "shipped"]
@@ -168,12 +169,7 @@ class DeviceConfig:
                                       f"{near(self.source, maps.builtin_ids())}")
             self.source = _configured(shipped(self.source), self.options)
         m = self.map
-        if self.address is None:
-            self.address = m.device.default_address
-        low, high = m.device.addresses
-        if isinstance(self.address, bool) or not isinstance(self.address, int) or not (
-                low <= self.address <= high):
-            raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {self.address!r}")
+        self.address = check_address(m, self.address)
         if not self.groups:
             self.groups = tuple(g for g in m.groups if m.polled(g) != "request")
             if m.groups and not self.groups:  # (not a map without groups, read whole)

@@ -43,7 +43,7 @@ from pymb.devices.mapwrite import (
 from pymb.errors import IllegalDataAddress, IllegalDataValue, InvalidArgument, ModbusError
 from pymb.maps import Decoder, Map, Point, Value
 from pymb.maps.device_plan import PointPlanner, map_planner
-from pymb.maps.model import check_group, did_you_mean
+from pymb.maps.model import check_address, check_group, did_you_mean
 from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
@@ -109,16 +109,9 @@ class MapDevice:
             raise InvalidArgument(f"busy_backoff must be 0..10 s, got {busy_backoff!r}")
         if options:
             m = m.configure(options)
-        dev = m.device
-        if address is None:
-            address = dev.default_address
-        low, high = dev.addresses
-        if isinstance(address, bool) or not isinstance(address, int) or not (
-                low <= address <= high):
-            raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {address!r}")
         self.client = client
         self.map = m
-        self.address = address
+        self.address = address = check_address(m, address)
         rate = getattr(client, "baudrate", None) or baudrate or DEFAULT_BAUDRATE
         line = Line(int(rate), bits_per_char(getattr(client, "parity", "N"),
                                               getattr(client, "stop_bits", 1),

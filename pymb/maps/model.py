@@ -177,3 +177,13 @@ def check_group(m: Map, group: object) -> None:
     check, with its own message."""
     if group is not None and not isinstance(group, str):
         raise InvalidArgument(f"{m.source}: a group name is text, got {group!r}")
+
+
+def check_address(m: Map, address: object) -> int:
+    """``address`` (the default for None) if the map's device takes it, else an
+    :class:`~pymb.InvalidArgument` ``ID address must be LOW..HIGH, got X``."""
+    address = m.device.default_address if address is None else address
+    low, high = m.device.addresses
+    if isinstance(address, bool) or not isinstance(address, int) or not low <= address <= high:
+        raise InvalidArgument(f"{m.id} address must be {low}..{high}, got {address!r}")
+    return address

@@ -17,6 +17,7 @@ from typing import ClassVar
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, encode
+from pymb.maps.model import check_address
 from pymb.maps.types import SF_RANGE, permutation
 from pymb.sim.base import Device, _locked, parse_firmware
 from pymb.sim.clock import SimClock
@@ -48,11 +49,7 @@ class MapImage(Device):
 
     def __init__(self, m: Map, address: int | None, *, baud: int, seed: int,
                  clock: SimClock | None) -> None:
-        address = m.device.default_address if address is None else address
-        lo, hi = m.device.addresses
-        if isinstance(address, bool) or not isinstance(address, int) or not lo <= address <= hi:
-            raise InvalidArgument(f"{m.id} address must be {lo}..{hi}, got {address!r}")
-        super().__init__(address, baud=baud, seed=seed, clock=clock)
+        super().__init__(check_address(m, address), baud=baud, seed=seed, clock=clock)
         self.map = m
         self.kind = m.id  # type: ignore[misc]
         self._images = {t: array("H", bytes(2 * 0x10000)) for t in TABLES.values()}
