@@ -19,7 +19,7 @@ import sys
 from abc import abstractmethod
 from array import array
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from pymb._native.master import MasterRead, PollTable
@@ -110,19 +110,22 @@ class _View(Mapping[str, Any]):
 
 
 class _Values(_View):
-    """A sample's values; it decodes them with their states on first use."""
+    """A sample's values; it decodes them with their states on first use.
+    Made by :func:`poll_sample`, which fills in its slots: the group's
+    decoder, its registers, the items not read, and what was decoded
+    (None until then)."""
 
-    __slots__ = ("_got", "_how", "_regs", "_unread")
-
-    def __init__(self, how: GroupDecode, regs: array[int], unread: frozenset[int]) -> None:
-        self._how, self._regs, self._unread = how, regs, unread
-        self._got: tuple[dict[str, Value], dict[str, Any]] | None = None
+    __slots__ = ("got", "how", "regs", "unread")
+    how: GroupDecode
+    regs: array[int]
+    unread: frozenset[int]
+    got: tuple[dict[str, Value], dict[str, Any]] | None
 
     def decoded(self, which: int) -> dict[str, Any]:
         """The values (0) or the states (1)."""
-        got = self._got
+        got = self.got
         if got is None:
-            got = self._got = self._how.decode(self._regs, self._unread)
+            got = self.got = self.how.decode(self.regs, self.unread)
         return got[which]
 
     def _map(self) -> dict[str, Any]:
@@ -130,49 +133,94 @@ class _Values(_View):
 
 
 class _States(_View):
-    """A sample's states, decoded with its values (the states point at the
-    values, not back: a poll's records are freed by their reference counts,
-    not by the garbage collector)."""
+    """A sample's states, decoded with its values (``source``; the states
+    point at the values, not back: a poll's records are freed by their
+    reference counts, not by the garbage collector)."""
 
-    __slots__ = ("_values",)
-
-    def __init__(self, values: _Values) -> None:
-        self._values = values
+    __slots__ = ("source",)
+    source: _Values
 
     def _map(self) -> dict[str, Any]:
-        return self._values.decoded(1)
+        return self.source.decoded(1)
+
+
+class _ReadingFill:
+    """A poll's :class:`MapReading` while :func:`poll_sample` fills it in
+    (then it is made one: the same layout, an instance dict)."""
+
+    map: Any
+    group: str | None
+    values: _Values
+    states: _States
+    registers: array[int]
+    unsupported: tuple[str, ...]
+    wire: bytes
+
+
+class _SampleFill:
+    """A poll's :class:`Sample` while :func:`poll_sample` fills it in."""
+
+    device: DeviceInfo
+    time_utc: float
+    monotonic: float
+    data: MapReading
 
 
 _SWAP = sys.byteorder == "little"
 _NONE: frozenset[int] = frozenset()
-#: a poll's two records are made by their own __init__, called directly: a
-#: Python __init__ called through its class costs CPython 3.11 a second entry
-#: into the interpreter (about 300 instructions a record, callgrind)
 _new = object.__new__
-_reading = MapReading.__init__
-_sample = Sample.__init__
-_values_init = _Values.__init__
-_states_init = _States.__init__
 
 
 def poll_sample(info: DeviceInfo, time_utc: float, monotonic: float, how: GroupDecode,
                 image: bytes, unread: frozenset[int] = _NONE) -> tuple[Sample, MapReading]:
     """The :class:`Sample` of one poll of ``info`` and its data: a
     :class:`MapReading` of the registers of ``image`` (big-endian, as on the
-    wire), values and states decoded on first use."""
+    wire), values and states decoded on first use.
+
+    A logger makes these records a poll: each is filled in as a plain
+    object, then made what it is (``__class__``: the same layout), where
+    their own constructors would each cost a Python call and an instance
+    dict made at once (about 1,000 instructions a record more, callgrind);
+    the views' slots are filled in from here too."""
     regs = array("H", image)
     if _SWAP:
         regs.byteswap()
     values: _Values = _new(_Values)
-    _values_init(values, how, regs, unread)
+    values.how = how
+    values.regs = regs
+    values.unread = unread
+    values.got = None
     states: _States = _new(_States)
-    _states_init(states, values)
-    r: MapReading = _new(MapReading)
-    _reading(r, how.map, how.group, values, states, regs,
-             how.unsupported(unread) if unread else (), image)
-    s: Sample = _new(Sample)
-    _sample(s, info, time_utc, monotonic, r)
+    states.source = values
+    r: Any = _new(_ReadingFill)
+    r.map = how.map
+    r.group = how.group
+    r.values = values
+    r.states = states
+    r.registers = regs
+    r.unsupported = how.unsupported(unread) if unread else ()
+    r.wire = image
+    r.__class__ = MapReading
+    s: Any = _new(_SampleFill)
+    s.device = info
+    s.time_utc = time_utc
+    s.monotonic = monotonic
+    s.data = r
+    s.__class__ = Sample
     return s, r
+
+
+def _check_fills() -> None:
+    """Each fill sets exactly its record's fields (checked at import: a
+    field added to a record and not here fails at once, not at its first use)."""
+    for fill, record in ((_ReadingFill, MapReading), (_SampleFill, Sample)):
+        want = [f.name for f in fields(record)]
+        if list(fill.__annotations__) != want:
+            raise AssertionError(f"{fill.__name__} fills {list(fill.__annotations__)}, "
+                                 f"{record.__name__} has {want}")
+
+
+_check_fills()
 
 
 @dataclass(eq=False)

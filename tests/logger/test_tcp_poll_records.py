@@ -6,6 +6,7 @@ run the garbage collector over the whole process every few hundred polls)."""
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import struct
 import weakref
@@ -53,6 +54,33 @@ def test_a_poll_sample_decodes_its_registers_on_first_use() -> None:
     assert dict(r.values) == {"t": -12.3, "n": 70000}
     assert dict(r.states) == {"t": "value", "n": "value"}
     assert r.unsupported == ()
+
+
+def test_a_poll_sample_is_what_the_records_constructors_make() -> None:
+    """poll_sample fills its records in as plain objects and then makes them
+    a Sample and a MapReading: they are those classes' own, every field set
+    (no other attribute), frozen, equal to and printed as the records the
+    constructors make, and the views are whole Mappings."""
+    image = struct.pack(">hI", 5, 6)
+    s, r = poll_sample(INFO, 10.5, 3.25, _how(), image)
+    assert (type(s), type(r)) == (Sample, MapReading)
+    assert sorted(vars(s)) == sorted(f.name for f in dataclasses.fields(Sample))
+    assert sorted(vars(r)) == sorted(f.name for f in dataclasses.fields(MapReading))
+    made = MapReading(r.map, None, r.values, r.states, r.registers, (), image)
+    assert r == made
+    assert repr(r) == repr(made)
+    assert s == Sample(INFO, 10.5, 3.25, made)
+    assert hash(s.device) == hash(INFO)
+    for record, field in ((s, "time_utc"), (r, "group")):
+        try:
+            setattr(record, field, 0)
+        except dataclasses.FrozenInstanceError:
+            continue
+        raise AssertionError(f"{type(record).__name__} is not frozen")
+    assert dataclasses.replace(s, monotonic=9.0).monotonic == 9.0
+    assert list(r.states.values()) == ["value", "value"]
+    assert list(r.values.values()) == [0.5, 6]
+    assert dict(r.values.items()) == {"t": 0.5, "n": 6}
 
 
 def test_a_refused_item_reads_unsupported() -> None:
