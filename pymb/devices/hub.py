@@ -32,7 +32,7 @@ from pymb.devices.hubreading import (
     block_index,
     check_channels,
 )
-from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapdevice import MapDevice, check_seconds
 from pymb.devices.mapreading import Blocks
 from pymb.errors import DeviceBusy, DeviceFailure, InvalidArgument
 from pymb.maps import Buffers, Decoder, Map
@@ -70,12 +70,6 @@ def _tenths(humidity_unit: float | Sequence[float], channels: int) -> bytes:
     if len(units) != channels:
         raise InvalidArgument(f"{len(units)} humidity units given for {channels} channels")
     return bytes(one(u) for u in units)
-
-
-def _seconds_in(value: Any, high: float) -> bool:
-    """``value`` is a number of seconds in 0..high."""
-    return (not isinstance(value, bool) and isinstance(value, (int, float))
-            and 0 <= value <= high)
 
 
 def _names(blocks: Iterable[str] | None) -> tuple[str, ...] | None:
@@ -296,8 +290,7 @@ class SensorHub:
             raise InvalidArgument(f"hub address must be {low}..{high}, got {address!r}")
         if not isinstance(client, Client):
             raise InvalidArgument(f"a SensorHub needs a pymb client, got {client!r}")
-        if not _seconds_in(turnaround, 10):
-            raise InvalidArgument(f"turnaround must be 0..10 s, got {turnaround!r}")
+        check_seconds("turnaround", turnaround)
         self.client = client
         self.address = address
         self.channels = check_channels(channels)

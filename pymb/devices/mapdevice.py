@@ -48,7 +48,7 @@ from pymb.maps.planner import Line, ReadPlan
 from pymb.maps.types import STATES
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["MapDevice", "prepared_read"]
+__all__ = ["MapDevice", "check_seconds", "prepared_read"]
 
 #: The line speed a plan is priced at when the client has none (TCP).
 DEFAULT_BAUDRATE = DEFAULT_BAUD
@@ -56,6 +56,13 @@ _CACHED = 64  #: selections (and their buffers) kept per device
 _NOT_READ = STATES.index("not_read")
 _UNSEEN = object()  #: channels a read is never found again by
 T = TypeVar("T")
+
+
+def check_seconds(what: str, value: object) -> None:
+    """An :class:`~pymb.InvalidArgument` unless ``value`` is a number of
+    seconds (not a bool) in 0..10."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= 10:
+        raise InvalidArgument(f"{what} must be 0..10 s, got {value!r}")
 
 
 class MapDevice:
@@ -104,9 +111,7 @@ class MapDevice:
         if isinstance(busy_retries, bool) or not isinstance(busy_retries, int) or not (
                 0 <= busy_retries <= 100):
             raise InvalidArgument(f"busy_retries must be 0..100, got {busy_retries!r}")
-        if isinstance(busy_backoff, bool) or not isinstance(busy_backoff, (int, float)) or not (
-                0 <= busy_backoff <= 10):
-            raise InvalidArgument(f"busy_backoff must be 0..10 s, got {busy_backoff!r}")
+        check_seconds("busy_backoff", busy_backoff)
         if options:
             m = m.configure(options)
         self.client = client
@@ -118,9 +123,7 @@ class MapDevice:
                                               getattr(client, "data_bits", 8)))
         self._planner, mi = map_planner(m, line)
         if plan_turnaround is not None:
-            if isinstance(plan_turnaround, bool) or not isinstance(
-                    plan_turnaround, (int, float)) or not 0 <= plan_turnaround <= 10:
-                raise InvalidArgument(f"plan_turnaround must be 0..10 s, got {plan_turnaround!r}")
+            check_seconds("plan_turnaround", plan_turnaround)
             pl = self._planner.line
             self._planner.line = Line(pl.baudrate, pl.bits_per_char, plan_turnaround,
                                       pl.inter_request_gap)
