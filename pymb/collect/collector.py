@@ -26,12 +26,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from pymb.collect.rows import BadInput, Batch, plain_sample, plain_topic
-from pymb.collect.sparkplug import SparkplugHost, state_payload
+from pymb.collect.sparkplug import SparkplugHost
 from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import PROFILES, MqttConfig
-from pymb.fleet.profiles import NAMESPACE
+from pymb.fleet.profiles import NAMESPACE, state_payload
 from pymb.fleet.takeover import TAKEN_OVER, Takeovers
 
 if TYPE_CHECKING:  # the extra pymb-modbus[collect]

@@ -17,7 +17,6 @@ Template, Bytes, File).
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,18 +38,12 @@ from pymb.fleet.protobuf import (
     text,
 )
 
-__all__ = ["REBIRTH_EVERY", "SparkplugHost", "state_payload"]
+__all__ = ["REBIRTH_EVERY", "SparkplugHost"]
 
 REBIRTH_EVERY = 5.0  #: seconds: a node is asked for births at most this often
 _KINDS = ("NBIRTH", "NDEATH", "NDATA", "DBIRTH", "DDEATH", "DDATA", "NCMD", "DCMD")
 #: datatypes with no single value (DataSet, Bytes, File, Template)
 _SKIPPED = {16, 17, 18, 19}
-
-
-def state_payload(online: bool, timestamp_ms: int) -> bytes:
-    """A Sparkplug 3.0 STATE payload."""
-    return json.dumps({"online": online, "timestamp": timestamp_ms},
-                      separators=(",", ":")).encode()
 
 
 @dataclass

@@ -47,7 +47,7 @@ from pymb.store import Outbox, StoredSample, sample_dict
 from pymb.store.records import reading_values
 
 __all__ = ["Message", "PlainProfile", "Profile", "SparkplugProfile", "host_state",
-           "make_profile", "write_name"]
+           "make_profile", "state_payload", "write_name"]
 
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
@@ -396,6 +396,12 @@ def _channels(r: StoredSample) -> int:
     """A hub sample's channels (0 for the others): a new count needs a new DBIRTH."""
     b = map_reading(r.data).blocks
     return 0 if b is None else b.channels
+
+
+def state_payload(online: bool, timestamp_ms: int) -> bytes:
+    """A Sparkplug 3.0 STATE payload (what :func:`host_state` reads)."""
+    return json.dumps({"online": online, "timestamp": timestamp_ms},
+                      separators=(",", ":")).encode()
 
 
 def host_state(payload: bytes) -> tuple[bool, float] | None:
