@@ -28,7 +28,7 @@ __all__ = ["Logger", "RunSummary"]
 _DEVICE_NAME = operator.attrgetter("device.name")  #: a sample's device's name
 _REGISTERS = operator.attrgetter("data.registers")  #: a sample's registers
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
-_DRAIN_EVERY = 0.02  #: seconds the writer waits on its queue at most (a list or wake() ends it)
+_DRAIN_EVERY = 0.02  #: seconds the writer waits at most: on its queue, after a commit
 _IDLE_CHECK = 1.0  #: seconds between looks at the storage when nothing is committed
 
 
@@ -194,7 +194,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         if sink is None:
             check_output(config.format, config.path)
         self._stop = threading.Event()
-        self._wake = threading.Event()  # the writer's idle wait ends (see wake())
+        self._wake = threading.Event()  # the writer's pause after a commit ends (see wake())
         #: set by a signal handler: the run loop sees it within _DRAIN_EVERY
         self._signalled = False
         self.stats = Stats()
@@ -218,14 +218,14 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         self.wake()
 
     def wake(self) -> None:
-        """End the writer's idle wait now (thread-safe): its sink's turn has
-        work from another thread (a command desk's record)."""
+        """End the writer's wait now, on its queue or after a commit (thread-safe):
+        its sink's turn has work from another thread (a command desk's record)."""
         self._wake.set()
         with contextlib.suppress(queue.Full):  # (full: the writer takes a list at once)
             self._queue.put_nowait([])  # an empty list: a turn, nothing to write
 
     def _idle(self) -> None:
-        """The writer's wait between turns: :data:`_DRAIN_EVERY` at most."""
+        """The writer's pause after a commit: :data:`_DRAIN_EVERY` at most."""
         self._wake.wait(_DRAIN_EVERY)
         self._wake.clear()
 
