@@ -5,7 +5,7 @@ One :meth:`Loop.wait` waits on the loop's epoll and, for each *armed*
 connection whose whole poll came back, takes its replies into the poll's
 image with the connection's :class:`~pymb._native.master.Master`, sends the
 next poll (the same requests, framed in the same step) and drops the replies
-from the socket: the connection's index is in :meth:`Loop.done`. Everything else comes back for the
+from the socket: the connection's index is in :attr:`Loop.done`. Everything else comes back for the
 loop (:mod:`pymb.logger.tcploop`) to do as it does it in Python: a socket
 ready that is not armed, or whose bytes are not just its poll's replies
 (:data:`READY`, nothing read), a take that is not the poll's clean end
@@ -51,7 +51,8 @@ class Loop:
     there); a look is twice the replies' time, at least ``look_min`` seconds,
     at most a quarter of the timeout."""
 
-    __slots__ = ("_conns", "_done", "_held", "_lp", "_out", "_rx", "_slots", "recs")
+    __slots__ = ("_conns", "_done_c", "_held", "_lp", "_out", "_rx", "_slots", "done", "now",
+                 "recs")
 
     def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
@@ -71,10 +72,15 @@ class Loop:
         lp.out = self._out
         lp.out_cap = len(self._out)
         lp.look_min = look_min
-        self._done: Any = ffi.new("uint32_t[]", _RECORDS)
-        lp.done = self._done
+        self._done_c: Any = ffi.new("uint32_t[]", _RECORDS)
+        lp.done = self._done_c
         lp.done_cap = _RECORDS
         self._rx = rx
+        #: the connections the last :meth:`wait` read a poll of and sent the
+        #: next one whole (at :attr:`now`; they stay armed)
+        self.done: list[int] = []
+        #: when the last :meth:`wait` looked (``time.monotonic``'s clock)
+        self.now = 0.0
 
     def bind(self, i: int, fd: int) -> None:
         """Connection ``i``'s socket is ``fd`` (from now until :meth:`unbind`)."""
@@ -132,21 +138,17 @@ class Loop:
         """When armed connection ``i``'s poll in flight times out."""
         return self._conns[i].deadline  # type: ignore[no-any-return]
 
-    def done(self) -> list[int]:
-        """The connections the last :meth:`wait` read a poll of and sent the
-        next one whole (at :attr:`now`; they stay armed)."""
-        return _unpack(self._done, self._lp.ndone)  # type: ignore[no-any-return]
-
-    @property
-    def now(self) -> float:
-        """When the last :meth:`wait` looked (``time.monotonic``'s clock)."""
-        return self._lp.now  # type: ignore[no-any-return]
-
     def wait(self, timeout: float) -> int:
         """Wait up to ``timeout`` seconds (sooner for an armed connection's
-        look): the records written to :attr:`recs` (and :meth:`done`)."""
-        got: int = _wait(self._lp, timeout if timeout > 0 else 0.0, self.recs, _RECORDS)
+        look): the records written to :attr:`recs`; :attr:`done` and
+        :attr:`now` set (read from the C loop here, once a wait: each read
+        of a cdata field costs a call's worth)."""
+        lp = self._lp
+        got: int = _wait(lp, timeout if timeout > 0 else 0.0, self.recs, _RECORDS)
         if got < 0:
             err = ffi.errno
             raise OSError(err, f"the TCP loop's wait failed (errno {err})")
+        n = lp.ndone
+        self.done = _unpack(self._done_c, n) if n else []
+        self.now = lp.now
         return got

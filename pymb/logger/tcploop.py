@@ -462,8 +462,8 @@ class TcpMapPoller(TcpLoopBase):
             if looks and looks[0][0] - now < wait:
                 wait = looks[0][0] - now
             got = cloop.wait(wait)
-            now = cloop.now  # (when it looked: once a wait, not once a poll)
-            for i in cloop.done():  # the usual: a poll read, the next one sent
+            now = cloop.now  # (when it looked)
+            for i in cloop.done:  # the usual: a poll read, the next one sent
                 carried(conns[i], now)
             for i in range(got):
                 r = recs[i]

@@ -70,7 +70,7 @@ def test_an_armed_poll_is_taken_and_the_next_one_sent(rig: _Rig) -> None:
     rig.loop.arm(0, rig.m, rig.t, 1.0, 0.0, 0.0, 1e12)
     rig.peer.send(_regs(2, 0x40, 4) + _regs(1, 0x80, 2))
     assert rig.loop.wait(2.0) == 0  # no record: the connection is in done
-    assert rig.loop.done() == [0]
+    assert rig.loop.done == [0]
     now = rig.loop.now
     assert bytes(rig.image) == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
     nxt = _recv(rig.peer, 24)  # the same poll again, transactions 3 and 4
@@ -119,7 +119,7 @@ def test_a_next_poll_that_cannot_go_out_is_a_record(rig: _Rig) -> None:
     rig.client.shutdown(socket.SHUT_WR)  # (its sends fail: EPIPE)
     rig.peer.send(_regs(2, 0x40, 4) + _regs(1, 0x80, 2))
     assert rig.loop.wait(2.0) == 1
-    assert rig.loop.done() == []
+    assert rig.loop.done == []
     r = rig.loop.recs[0]
     assert (r.kind, r.conn, r.size, r.sent, r.err) == (DONE, 0, 24, 0, errno.EPIPE)
     assert bytes(rig.image) == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
