@@ -37,12 +37,13 @@ def installed(tmp_path: Path) -> tuple[Path, Path]:
         check=True, capture_output=True, text=True, timeout=60).stdout.strip())
     here = Path(sysconfig.get_paths()["purelib"])
     (site / "pymb").symlink_to(Path(pymb.__file__).parent)
+    (site / "_pymb_command.py").symlink_to(ROOT / "_pymb_command.py")
     for entry in here.iterdir():
         if entry.name.startswith(("cffi", "_cffi_backend", "pycparser")):
             (site / entry.name).symlink_to(entry)
     script = venv / "bin" / "pymb"
-    # what pip writes for the console script pymb = "pymb.cli:main"
-    script.write_text(f"#!{python}\nimport sys\nfrom pymb.cli import main\n"
+    # what pip writes for the console script pymb = "_pymb_command:main"
+    script.write_text(f"#!{python}\nimport sys\nfrom _pymb_command import main\n"
                       "sys.exit(main())\n")
     script.chmod(0o755)
     return python, script
@@ -54,6 +55,7 @@ def clone(tmp_path: Path) -> Path:
     top = tmp_path / "clone"
     shutil.copytree(ROOT / "pymb", top / "pymb",
                     ignore=shutil.ignore_patterns("*.so", "__pycache__"))
+    shutil.copy(ROOT / "_pymb_command.py", top)
     return top
 
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import re
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
-from conftest import run_pymb
+from conftest import PYMB_ENV, ROOT, run_pymb
 
 
 def test_demo_into_an_earlier_demos_database_counts_this_runs_faults(tmp_path: Path) -> None:
@@ -60,3 +62,28 @@ def test_options_before_the_command(argv: list[str], fixed: str) -> None:
     assert (r.returncode, r.stdout) == (2, "")
     assert r.stderr.splitlines() == ["usage: pymb [-h] [--version] COMMAND ...",
                                      f"pymb: error: options go after the command: {fixed}"]
+
+
+def test_ctrl_c_while_pymb_itself_loads(tmp_path: Path) -> None:
+    """The installed ``pymb`` command, as its console script runs it (the
+    entry point pyproject.toml names), with a real SIGINT while the package's
+    C extension is imported: exit 130, no traceback."""
+    script = f"""
+import builtins, importlib, os, signal, sys, tomllib
+signal.signal(signal.SIGINT, signal.default_int_handler)  # a terminal's Ctrl-C
+with open({str(ROOT / "pyproject.toml")!r}, "rb") as f:
+    module, name = tomllib.load(f)["project"]["scripts"]["pymb"].split(":")
+real = builtins.__import__
+def loading(what, *args, **kw):
+    if what == "pymb._native":
+        builtins.__import__ = real
+        os.kill(os.getpid(), signal.SIGINT)
+    return real(what, *args, **kw)
+builtins.__import__ = loading
+sys.argv = ["pymb", "info", "data.sqlite"]
+entry = getattr(importlib.import_module(module), name)
+sys.exit(entry())
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=60, env=PYMB_ENV, cwd=tmp_path, check=False)
+    assert (r.returncode, r.stderr) == (130, "")
