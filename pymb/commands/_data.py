@@ -16,6 +16,7 @@ from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
 from pymb.store import is_pymb_database, open_readonly, resolve_device
 from pymb.store.damage import SQLITE_HEADER, damage, looks_like_pymb
+from pymb.store.guard import sqlite_tables
 from pymb.store.salvage import salvage
 
 __all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times",
@@ -39,6 +40,9 @@ def check_database(path: str) -> None:
     except OSError as e:
         raise InvalidArgument(f"cannot read {path}: {e.strerror}") from None
     if head != SQLITE_HEADER or not is_pymb_database(path):
+        if head == SQLITE_HEADER and "pymb_values" in (sqlite_tables(path) or ()):
+            raise InvalidArgument(f"{path} is what pymb collect writes, not pymb log: query its "
+                                  "pymb_values table (pymb_latest view) with SQL")
         raise InvalidArgument(f"{path} is not a database written by pymb")
 
 

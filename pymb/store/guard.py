@@ -11,7 +11,7 @@ from pymb.store.readonly import open_readonly
 from pymb.store.schema import schema_version
 from pymb.store.text import CSV_COLUMNS
 
-__all__ = ["check_output", "is_pymb_database"]
+__all__ = ["check_output", "is_pymb_database", "sqlite_tables"]
 
 #: file name endings -> the output format they say
 _SUFFIXES = {".csv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".json": "jsonl",
@@ -101,3 +101,18 @@ def is_pymb_database(path: str) -> bool:
             db.close()
     except (sqlite3.Error, InvalidArgument):
         return False
+
+
+def sqlite_tables(path: str) -> set[str] | None:
+    """The tables of the SQLite file at ``path``, read without writing (None:
+    not a SQLite file, or unreadable): whose file it is, ``pymb collect``'s
+    (``pymb_values``) or another program's."""
+    try:
+        db = open_readonly(path)
+        try:
+            return {str(n) for (n,) in db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            db.close()
+    except (sqlite3.Error, InvalidArgument):
+        return None

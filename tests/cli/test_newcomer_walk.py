@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from conftest import PYMB_ENV, ROOT, run_pymb
 
+from pymb.collect.sqlstore import SqliteStore
+
 
 def test_demo_into_an_earlier_demos_database_counts_this_runs_faults(tmp_path: Path) -> None:
     """docs/data.md's ``pymb demo --out demo.sqlite`` run twice: the second
@@ -87,3 +89,17 @@ sys.exit(entry())
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                        timeout=60, env=PYMB_ENV, cwd=tmp_path, check=False)
     assert (r.returncode, r.stderr) == (130, "")
+
+
+@pytest.mark.parametrize("argv", [["info"], ["export", "--csv", "out.csv"],
+                                  ["plot", "hub-1", "temperature_c", "--channel", "1"]])
+def test_the_data_commands_on_what_pymb_collect_wrote(tmp_path: Path, argv: list[str]) -> None:
+    """docs/collect.md's SQLite file given to ``pymb info`` (export, plot):
+    said to be the collector's, with what reads it, not 'not written by pymb'."""
+    db = tmp_path / "fleet.sqlite"
+    SqliteStore(str(db)).close()  # the collector's tables, as pymb collect makes them
+    r = run_pymb(argv[0], str(db), *argv[1:], timeout=60, cwd=tmp_path)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr == (f"pymb {argv[0]}: {db} is what pymb collect writes, not pymb log: query "
+                        "its pymb_values table (pymb_latest view) with SQL\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fleet.sqlite"]
