@@ -22,6 +22,7 @@ from pymb.collect.pgcopy import COPY_COLUMNS, CopyBatch
 from pymb.collect.rows import Batch, RowBatch
 from pymb.errors import InvalidArgument, ModbusConnectionError, OutputError
 from pymb.extras import install_hint
+from pymb.store.guard import sqlite_tables
 
 if TYPE_CHECKING:  # the extra pymb-modbus[collect]
     from psycopg import Connection, Cursor
@@ -128,6 +129,10 @@ class SqliteStore(Store):
         if os.path.isdir(path):
             raise InvalidArgument(f"{path} is a directory; --out needs a SQLite file or "
                                   "a postgresql:// URL")
+        tables = sqlite_tables(path) if os.path.isfile(path) else None
+        if tables and "pymb_values" not in tables:  # pymb log's database, another program's
+            raise InvalidArgument(f"{path} is a SQLite database pymb collect did not write: "
+                                  "refusing to add to it; choose another --out")
         try:
             self.con = sqlite3.connect(path, isolation_level=None, check_same_thread=False,
                                        timeout=30)

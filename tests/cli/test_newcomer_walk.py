@@ -13,6 +13,7 @@ import pytest
 from conftest import PYMB_ENV, ROOT, run_pymb
 
 from pymb.collect.sqlstore import SqliteStore
+from pymb.sim import Simulator
 
 
 def test_demo_into_an_earlier_demos_database_counts_this_runs_faults(tmp_path: Path) -> None:
@@ -103,3 +104,19 @@ def test_the_data_commands_on_what_pymb_collect_wrote(tmp_path: Path, argv: list
     assert r.stderr == (f"pymb {argv[0]}: {db} is what pymb collect writes, not pymb log: query "
                         "its pymb_values table (pymb_latest view) with SQL\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fleet.sqlite"]
+
+
+def test_collect_into_a_pymb_log_database_leaves_it_alone(tmp_path: Path) -> None:
+    """``pymb collect --out data.sqlite``, the name the logger's database has:
+    refused before the broker is asked, the file byte for byte as it was."""
+    db = tmp_path / "data.sqlite"
+    with Simulator(["coolpro"], transport="tcp", seed=1) as sim:
+        r = run_pymb("log", "coolpro", "--tcp", f"127.0.0.1:{sim.tcp_port}", "--seconds", "0.5",
+                     "--quiet", "--out", str(db), timeout=60)
+    assert r.returncode == 0, r.stderr
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    r = run_pymb("collect", "--mqtt", "mqtt://127.0.0.1:1", "--out", str(db), timeout=60)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr == (f"pymb collect: {db} is a SQLite database pymb collect did not write: "
+                        "refusing to add to it; choose another --out\n")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
