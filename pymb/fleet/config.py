@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 from pymb._native.tls import certificate_refused, tls_words
+from pymb.devices.spec import closest
 from pymb.errors import InvalidArgument
 
 if TYPE_CHECKING:  # the optional extra pymb-modbus[mqtt]
@@ -168,8 +169,7 @@ def from_table(table: dict[str, Any], where: str) -> MqttConfig:
     for k, v in table.items():
         kind = KEYS.get(k)
         if kind is None:
-            raise InvalidArgument(f"{where}: unknown key {k!r} in [mqtt]; known: "
-                                  f"{', '.join(KEYS)}")
+            raise InvalidArgument(f"{where}: [mqtt]: unknown key {k!r}{closest(k, list(KEYS))}")
         if not isinstance(v, kind) or isinstance(v, bool):
             raise InvalidArgument(f"{where}: [mqtt] {k} has the wrong type ({v!r})")
     if "url" not in table:

@@ -120,3 +120,19 @@ def test_collect_into_a_pymb_log_database_leaves_it_alone(tmp_path: Path) -> Non
     assert r.stderr == (f"pymb collect: {db} is a SQLite database pymb collect did not write: "
                         "refusing to add to it; choose another --out\n")
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize(("line", "said"), [
+    ('profle = "plain"', "[mqtt]: unknown key 'profle'; did you mean 'profile'?"),
+    ("password = \"secret\"", "[mqtt]: unknown key 'password'; did you mean 'password_file'?"),
+])
+def test_a_typo_in_the_mqtt_table(tmp_path: Path, line: str, said: str) -> None:
+    """docs/cli.md: an unknown key is an error that names it and the closest
+    known one, in ``[mqtt]`` as in every other table; nothing is opened."""
+    config = tmp_path / "buses.toml"
+    config.write_text(f'[output]\npath = "plant.sqlite"\n[mqtt]\nurl = "mqtt://127.0.0.1:1"\n'
+                      f'{line}\n[[bus]]\ntcp = "127.0.0.1:1"\n  [[bus.device]]\n'
+                      '  type = "coolpro"\n')
+    r = run_pymb("log", "--config", str(config), timeout=60, cwd=tmp_path)
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb log: {config}: {said}\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["buses.toml"]
