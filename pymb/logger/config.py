@@ -271,10 +271,22 @@ def _flag(table: dict[str, Any], key: str, where: str) -> bool:
     return value
 
 
+#: a table's key -> its TOML header, for a table written [x] where [[x]] is meant, or the other way
+_HEADERS = {"bus": "bus", "device": "bus.device", "tls": "bus.tls", "output": "output",
+            "writes": "writes", "mqtt": "mqtt"}
+
+
 def _get(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str,
          default: Any = None) -> Any:
     value = table.get(key, default)
     if value is not None and (not isinstance(value, kind) or isinstance(value, bool)):
+        header = _HEADERS.get(key)
+        if header and kind is list and isinstance(value, dict):
+            raise InvalidArgument(f"{where}: [{header}] is one table; write [[{header}]], "
+                                  f"one for each {key}")
+        if header and kind is dict and isinstance(value, list):
+            raise InvalidArgument(f"{where}: [[{header}]] is a list of tables; write "
+                                  f"[{header}], once")
         raise InvalidArgument(f"{where}: {key} has the wrong type ({value!r})")
     return value
 

@@ -136,3 +136,19 @@ def test_a_typo_in_the_mqtt_table(tmp_path: Path, line: str, said: str) -> None:
     r = run_pymb("log", "--config", str(config), timeout=60, cwd=tmp_path)
     assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb log: {config}: {said}\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["buses.toml"]
+
+
+@pytest.mark.parametrize(("toml", "said"), [
+    ('[bus]\ntcp = "127.0.0.1:1"\n', "[bus] is one table; write [[bus]], one for each bus"),
+    ('[[bus]]\ntcp = "127.0.0.1:1"\n  [bus.device]\n  type = "coolpro"\n',
+     "bus 1: [bus.device] is one table; write [[bus.device]], one for each device"),
+    ('[[output]]\npath = "p.sqlite"\n[[bus]]\ntcp = "127.0.0.1:1"\n',
+     "[[output]] is a list of tables; write [output], once"),
+])
+def test_brackets_of_a_table_in_the_toml_file(tmp_path: Path, toml: str, said: str) -> None:
+    """``[bus]`` where docs/cli.md writes ``[[bus]]`` (and the other way):
+    said in the file's words, not 'bus has the wrong type ({...})'."""
+    config = tmp_path / "buses.toml"
+    config.write_text(toml)
+    r = run_pymb("log", "--config", str(config), timeout=60, cwd=tmp_path)
+    assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb log: {config}: {said}\n")
