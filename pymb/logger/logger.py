@@ -323,6 +323,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                 until = time.monotonic() + _STOP_WAIT
                 for p in self.pollers:
                     p.join(max(0.0, until - time.monotonic()))
+                self.stats.close()
                 try:
                     while failure is None:
                         try:

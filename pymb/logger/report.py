@@ -92,8 +92,7 @@ class Report:
 
     def skipped(self, bus: str, slot: Slot, late: int) -> None:
         """A read of ``slot`` overran ``late`` whole slots (:meth:`Slot.advance`)."""
-        self.stats.skipped(late)
-        self.event(bus, "skipped", slot.skipped(late))
+        self.stats.skipped(late, lambda: self.event(bus, "skipped", slot.skipped(late)))
 
     def failed(self, bus: str, h: Health, info: DeviceInfo, kind: str, message: str,
                code: int | None, now: float, *, at_once: bool = False) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 __all__ = ["Stats"]
@@ -28,6 +28,8 @@ class Stats:
     #: map device -> the names of the points it refused (each point once, however often)
     unsupported: dict[str, set[str]] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    #: the writer took its last items (:meth:`close`): skips are no longer counted
+    closed: bool = False
 
     def fault(self, key: str, text: str) -> None:
         with self.lock:
@@ -50,9 +52,19 @@ class Stats:
         with self.lock:
             self.unsupported.setdefault(key, set()).update(points)
 
-    def skipped(self, n: int) -> None:
+    def skipped(self, n: int, say: Callable[[], None]) -> None:
+        """Count ``n`` skipped slots and ``say`` so (hand its event over): both
+        or neither, so that the summary's count is the stored events' sum."""
         with self.lock:
-            self.skipped_slots += n
+            if not self.closed:
+                self.skipped_slots += n
+                say()
+
+    def close(self) -> None:
+        """The writer takes its last items now: a poller left behind at the
+        stop counts no skip whose event would not be stored."""
+        with self.lock:
+            self.closed = True
 
     @property
     def status(self) -> str:

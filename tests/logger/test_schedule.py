@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import itertools
 import math
+import queue
 
 import pytest
 
 from pymb import maps
+from pymb.logger.report import Report
 from pymb.logger.schedule import (
     BACKOFF_MAX,
     Agenda,
@@ -19,6 +21,8 @@ from pymb.logger.schedule import (
     Slot,
     reappeared,
 )
+from pymb.logger.stats import Stats
+from pymb.store import Event, Sample
 
 
 def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
@@ -171,3 +175,23 @@ def test_the_agenda_gives_the_due_slots_in_order_and_keeps_the_others() -> None:
     assert agenda.due(1.0) == ["fast"]
     assert agenda.due(100.0) == ["slow", "gone"]
     assert agenda.next() == math.inf
+
+
+def test_a_skip_after_the_writer_took_its_last_items_is_neither_counted_nor_handed_over() -> None:
+    """A poller left behind at the stop (in the middle of a long read) may
+    find its slot overran: the run's summary counts skips as the stored events
+    say them, so once the writer took its last items neither happens."""
+    out: queue.Queue[list[Sample | Event]] = queue.Queue()
+    stats = Stats()
+    report = Report(out, stats)
+    slot = Slot.every(0.05)
+    report.skipped("bus1", slot, 3)
+    (event,), = [out.get_nowait()]
+    assert isinstance(event, Event)
+    assert event.kind == "skipped"
+    assert event.message.startswith("3 poll slot(s) of 0.05 s skipped")
+    assert stats.skipped_slots == 3
+    stats.close()
+    report.skipped("bus1", slot, 14)
+    assert out.empty()
+    assert stats.skipped_slots == 3
