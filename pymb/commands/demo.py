@@ -11,6 +11,7 @@ seen, where the file is and a query to try.
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 import sqlite3
@@ -25,6 +26,7 @@ from pymb.errors import InvalidArgument
 from pymb.fleet.forwarder import require_paho
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
+from pymb.store.faults import storage_error, vanished
 from pymb.store.guard import check_output
 from pymb.store.records import FAULT_KINDS
 from pymb.store.reserve import Reserve
@@ -67,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
     ]
     # before the simulators start: one line, nothing else (the demo writes SQLite)
     check_output("sqlite", out, choosable=False)
+    if vanished(Path(out), made=False) is not None:  # no such folder: exit 5, as pymb log
+        raise storage_error(Path(out), FileNotFoundError(errno.ENOENT, "no such directory"),
+                            opening=True)
 
     def say(message: str) -> None:
         if not args.quiet:

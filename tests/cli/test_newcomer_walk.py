@@ -152,3 +152,14 @@ def test_brackets_of_a_table_in_the_toml_file(tmp_path: Path, toml: str, said: s
     config.write_text(toml)
     r = run_pymb("log", "--config", str(config), timeout=60, cwd=tmp_path)
     assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb log: {config}: {said}\n")
+
+
+def test_demo_into_a_folder_that_does_not_exist(tmp_path: Path) -> None:
+    """One line and exit 5, as ``pymb log`` says it, before the simulators
+    start (no 'simulated CoolPro on ...' line first)."""
+    out = tmp_path / "no-such-folder" / "demo.sqlite"
+    r = run_pymb("demo", "--out", str(out), timeout=60)
+    assert (r.returncode, r.stdout) == (5, "")
+    assert r.stderr == (f"pymb demo: cannot open the database {out}: its directory {out.parent} "
+                        "does not exist; create it, or mount the disk that holds it (or log to "
+                        "another --out)\n")
