@@ -107,6 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser(command if command in COMMANDS else "")
         _options_before_the_command(parser, args_in)
+        _misspelt_command(parser, args_in)
         args, extra = parser.parse_known_args(args_in)
     except KeyboardInterrupt:  # Ctrl-C while the command's module loads
         return EXIT_INTERRUPTED
@@ -145,6 +146,15 @@ def _options_before_the_command(parser: argparse.ArgumentParser, args_in: list[s
             a.split("=", 1)[0] for a in args_in[:at]}:
         fixed = shlex.join(["pymb", *args_in[at:], *args_in[:at]])
         parser.error(f"options go after the command: {fixed}")
+
+
+def _misspelt_command(parser: argparse.ArgumentParser, args_in: list[str]) -> None:
+    """Exit 2 for a mistyped command with the closest one (``pymb reed``:
+    did you mean 'read'?); a word close to none is argparse's to refuse."""
+    if args_in and args_in[0] not in COMMANDS and not args_in[0].startswith("-"):
+        close = difflib.get_close_matches(args_in[0], list(COMMANDS), n=1, cutoff=0.6)
+        if close:
+            parser.error(f"unknown command {args_in[0]!r}; did you mean {close[0]!r}?")
 
 
 def _unicode_or_replace() -> None:

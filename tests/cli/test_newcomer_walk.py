@@ -163,3 +163,13 @@ def test_demo_into_a_folder_that_does_not_exist(tmp_path: Path) -> None:
     assert r.stderr == (f"pymb demo: cannot open the database {out}: its directory {out.parent} "
                         "does not exist; create it, or mount the disk that holds it (or log to "
                         "another --out)\n")
+
+
+@pytest.mark.parametrize(("word", "close"), [("reed", "read"), ("sumulate", "simulate"),
+                                             ("exprot", "export")])
+def test_a_mistyped_command_gets_the_closest(word: str, close: str) -> None:
+    r = run_pymb(word, "coolpro", "--port", "/dev/ttyUSB0", timeout=60)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr.splitlines() == ["usage: pymb [-h] [--version] COMMAND ...",
+                                     f"pymb: error: unknown command {word!r}; did you mean "
+                                     f"{close!r}?"]
