@@ -344,8 +344,8 @@ def map_device_from_toml(d: Mapping[str, Any], known: KnownMaps, where: str,
         got = known.get(str(kind))
         if got is None:
             hint = near(str(kind), known.ids)
-            raise InvalidArgument(f"{where}: unknown type {kind!r}{hint}; give coolpro, hub, "
-                                  f"a map's id or map = \"FILE\"")
+            raise InvalidArgument(f"{where}: unknown type {kind!r}{hint} (give coolpro, hub, "
+                                  f"a map's id or map = \"FILE\")")
         src = got
     m = src.map
     option_keys = list(m.device.options)

@@ -173,3 +173,13 @@ def test_a_mistyped_command_gets_the_closest(word: str, close: str) -> None:
     assert r.stderr.splitlines() == ["usage: pymb [-h] [--version] COMMAND ...",
                                      f"pymb: error: unknown command {word!r}; did you mean "
                                      f"{close!r}?"]
+
+
+def test_a_typo_in_a_devices_type_in_the_toml_file(tmp_path: Path) -> None:
+    """The closest type, then what a type may be: one sentence, no '?;'."""
+    config = tmp_path / "buses.toml"
+    config.write_text('[[bus]]\ntcp = "127.0.0.1:1"\n  [[bus.device]]\n  type = "colpro"\n')
+    r = run_pymb("log", "--config", str(config), timeout=60, cwd=tmp_path)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr == (f"pymb log: {config}: bus 1, device 1: unknown type 'colpro'; did you "
+                        "mean 'coolpro'? (give coolpro, hub, a map's id or map = \"FILE\")\n")
