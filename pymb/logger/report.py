@@ -61,9 +61,13 @@ class Report:
     def event(self, bus: str, kind: str, message: str, device: DeviceInfo | None = None,
               code: int | None = None) -> None:
         """Record an event of ``bus`` now (handed over at once)."""
+        self._add_event(bus, kind, message, device, code)
+        self.flush()
+
+    def _add_event(self, bus: str, kind: str, message: str, device: DeviceInfo | None = None,
+                   code: int | None = None) -> None:
         self.items.append(Event(time.time(), time.monotonic(), bus, device, kind, code,
                                 message))
-        self.flush()
 
     # -- the facts ---------------------------------------------------------------------
 
@@ -92,7 +96,11 @@ class Report:
 
     def skipped(self, bus: str, slot: Slot, late: int) -> None:
         """A read of ``slot`` overran ``late`` whole slots (:meth:`Slot.advance`)."""
-        self.stats.skipped(late, lambda: self.event(bus, "skipped", slot.skipped(late)))
+        # The event joins the items with the count (what the writer takes at the
+        # stop); handed over after, without the counts' lock: the hand-over waits
+        # while the writer's queue is full, and the writer takes that lock.
+        self.stats.skipped(late, lambda: self._add_event(bus, "skipped", slot.skipped(late)))
+        self.flush()
 
     def failed(self, bus: str, h: Health, info: DeviceInfo, kind: str, message: str,
                code: int | None, now: float, *, at_once: bool = False) -> None:

@@ -53,8 +53,10 @@ class Stats:
             self.unsupported.setdefault(key, set()).update(points)
 
     def skipped(self, n: int, say: Callable[[], None]) -> None:
-        """Count ``n`` skipped slots and ``say`` so (hand its event over): both
-        or neither, so that the summary's count is the stored events' sum."""
+        """Count ``n`` skipped slots and ``say`` so (add its event to what the
+        poller hands over): both or neither, so that the summary's count is
+        the stored events' sum. ``say`` runs under :attr:`lock`: it must not
+        wait (on the writer's queue, which is bounded)."""
         with self.lock:
             if not self.closed:
                 self.skipped_slots += n

@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 import queue
+import threading
 
 import pytest
 
@@ -195,3 +196,38 @@ def test_a_skip_after_the_writer_took_its_last_items_is_neither_counted_nor_hand
     report.skipped("bus1", slot, 14)
     assert out.empty()
     assert stats.skipped_slots == 3
+
+
+def test_a_skip_waits_for_the_writer_without_holding_the_runs_counts() -> None:
+    """A poller's hand-over waits while the writer's queue is full (it is
+    bounded); the skip it is reporting then must not keep the run's counts
+    locked: the writer takes that lock for its status line and at the stop
+    (Stats.close) before it takes from the queue again, so a poller waiting
+    with the lock held would stop the run for good."""
+    putting = threading.Event()
+
+    class Full(queue.Queue[list[Sample | Event]]):
+        def put(self, item: list[Sample | Event], block: bool = True,
+                timeout: float | None = None) -> None:
+            putting.set()
+            super().put(item, block, timeout)
+
+    out = Full(maxsize=1)
+    out.put([])  # the writer lags: the queue is full
+    putting.clear()
+    stats = Stats()
+    report = Report(out, stats)
+    poller = threading.Thread(target=report.skipped, args=("bus1", Slot.every(0.05), 2))
+    poller.start()
+    assert putting.wait(30)  # the poller waits on the full queue with its skip
+    free = stats.lock.acquire(timeout=5)  # the status line's lock, Stats.close's
+    if free:
+        stats.lock.release()
+    out.get()
+    poller.join(30)
+    assert free, "the poller held the run's counts while it waited for the writer"
+    assert not poller.is_alive()
+    (event,), = [out.get_nowait()]
+    assert isinstance(event, Event)
+    assert event.kind == "skipped"
+    assert stats.skipped_slots == 2
