@@ -625,7 +625,6 @@ static int check_table(const pymb_map_entry *entries, size_t nentries,
     return (int)written;
 }
 
-/* A checked table over regs, into out. */
 /* decode_16_plain()'s arithmetic for a point of one channel, an unsigned or
  * signed 16-bit integer in wire order with no marker and no flag but
  * PYMB_MAP_SCALED (the CoolPro's readings): without a block's setup. */
@@ -644,6 +643,7 @@ static void decode_single_16(const pymb_map_entry *e, const uint16_t *regs,
     out->ints[e->out] = iv;
 }
 
+/* A checked table over regs, into out. */
 static void decode_table(const pymb_map_entry *entries, size_t nentries,
                          const pymb_map_marker *markers, const uint16_t *regs,
                          const pymb_map_out *out)

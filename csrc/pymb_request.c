@@ -143,7 +143,7 @@ static const uint8_t *read_request(pymb_line *line, int function, int slave, int
  * four loaded as one word, the two bytes of each register swapped by a mask
  * and two shifts, stored as one (memcpy: no alignment or aliasing
  * assumed); the rest, and every register on a big-endian host, one by one.
- * A hub sweep's 700 registers: ~2 instructions a register, was ~7. */
+ * About 2 instructions a register (gcc -O2, x86-64). */
 static void put_registers(uint16_t *dest, const uint8_t *data, int n)
 {
     static const uint16_t probe = 1;
