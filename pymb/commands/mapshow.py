@@ -5,7 +5,6 @@ access, valid range)."""
 from __future__ import annotations
 
 import argparse
-import difflib
 import os
 import shutil
 import sys
@@ -13,7 +12,7 @@ from typing import Any
 
 from pymb import maps
 from pymb.commands._common import print_json
-from pymb.devices.mapspec import load_map
+from pymb.devices.mapspec import load_map, near
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
 
@@ -127,9 +126,7 @@ def shipped_or_file(ident: str) -> tuple[Map, bool]:
         return maps.builtin(ident), True
     if os.path.exists(ident) or os.sep in ident or ident.endswith(".toml"):
         return load_map(ident), False
-    near = difflib.get_close_matches(ident, shipped, n=1, cutoff=0.5)
-    hint = f"; did you mean {near[0]!r}?" if near else ""
-    raise InvalidArgument(f"no shipped map {ident!r} and no such file{hint} "
+    raise InvalidArgument(f"no shipped map {ident!r} and no such file{near(ident, shipped)} "
                           "(pymb map list shows the shipped maps)")
 
 
