@@ -66,8 +66,7 @@ Properties = tuple[tuple[str, DataType, int | str], ...]
 
 
 def _varint(n: int) -> bytes:
-    if n < 0:
-        n += 1 << 64  # protobuf's two's complement for negative int32/int64
+    n &= 0xFFFF_FFFF_FFFF_FFFF  # 64 bits: a negative int32/int64 in two's complement
     out = bytearray()
     while True:
         b = n & 0x7F

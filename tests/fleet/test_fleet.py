@@ -1093,3 +1093,15 @@ def test_sample_ids_never_repeat_after_an_age_trim_of_everything(tmp_path: Path)
     ids = [i for (i,) in sink.db.execute("SELECT id FROM samples ORDER BY id")]
     assert ids == [5, 6]
     sink.close()
+
+
+@pytest.mark.parametrize("value", [-(1 << 70), -(1 << 64) - 1, 1 << 64, (1 << 70) + 5])
+def test_a_uint64_out_of_64_bits_is_encoded_in_its_low_64_bits(value: int) -> None:
+    """protobuf's varint carries 64 bits: a value outside them is sent as its
+    low 64 bits (as protobuf's own encoders truncate), never an endless loop."""
+    from pymb.fleet.protobuf import DataType, Metric, decode, encode_payload
+
+    data = encode_payload([Metric("x", None, DataType.UINT64, value)])
+    metric = decode(data)[2][0]
+    assert isinstance(metric, bytes)
+    assert decode(metric)[11] == [value & (1 << 64) - 1]  # long_value
