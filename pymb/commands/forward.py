@@ -142,7 +142,7 @@ def log_and_forward(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
                        service=service)
     if not quiet:
         print(s.headline(), file=sys.stderr)
-        for line in summary_lines(st):
+        for line in [*s.health(), *summary_lines(st)]:
             print(line, file=sys.stderr)
     for line in s.problems():  # a bus that never opened, a device that never delivered
         print(f"pymb log: {line}", file=sys.stderr)

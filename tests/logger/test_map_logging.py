@@ -206,6 +206,26 @@ timeout = 0.2
     assert "failing 1: test-meter-3" in r.stderr, r.stderr
 
 
+def test_the_summary_of_a_forwarding_run_counts_a_failing_device_too(tmp_path: Path) -> None:
+    """``pymb log --mqtt`` (the broker not reachable: the samples wait in the
+    file) has the same line per failing device in its summary."""
+    import socket
+
+    (tmp_path / "meter.toml").write_text(TEST_MAP)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    with SimulatorProcess(["--map", str(tmp_path / "meter.toml"), "test-meter:1",
+                           "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        r = run_pymb("log", "--map", str(tmp_path / "meter.toml"), "--tcp", sim.endpoint,
+                     "test-meter:1", "test-meter:2", "--timeout", "0.2", "--seconds", "2",
+                     "--out", str(tmp_path / "f.sqlite"),
+                     "--mqtt", f"mqtt://127.0.0.1:{closed}")
+    assert r.returncode == 3, r.stderr  # unit 2 delivered nothing
+    assert "\ntest-meter-2: " in r.stderr, r.stderr
+    assert " failed poll(s), 0 sample(s)\n" in r.stderr, r.stderr
+
+
 def test_a_point_the_device_refuses_is_unsupported_and_counted(tmp_path: Path) -> None:
     """The logger's map has a point the device lacks (it answers exception
     02): the point reads None with the state unsupported, the others are
