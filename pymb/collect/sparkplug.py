@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pymb.collect.rows import NO_VALUE, BadInput, Row
-from pymb.fleet.profiles import NAMESPACE, REBIRTH, write_name
+from pymb.fleet.profiles import NAMESPACE, REBIRTH, state_payload, write_name
 from pymb.fleet.protobuf import (
     TEXTS,
     DataType,
@@ -38,7 +38,7 @@ from pymb.fleet.protobuf import (
     text,
 )
 
-__all__ = ["REBIRTH_EVERY", "SparkplugHost"]
+__all__ = ["REBIRTH_EVERY", "SparkplugHost", "state_payload"]  # state_payload: fleet.profiles' own
 
 REBIRTH_EVERY = 5.0  #: seconds: a node is asked for births at most this often
 _KINDS = ("NBIRTH", "NDEATH", "NDATA", "DBIRTH", "DDEATH", "DDATA", "NCMD", "DCMD")

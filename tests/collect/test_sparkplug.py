@@ -270,3 +270,15 @@ def test_qos0_data_beyond_the_inbox_are_dropped_and_a_rebirth_asked(
     assert pg_count(postgres.url) == 2 + kept
     assert any(e.startswith("dropped ") and "QoS 0 messages" in e for e in events), events
     assert any("rebirth" in e for e in events), events
+
+
+def test_the_hosts_state_message_is_made_where_it_is_read() -> None:
+    """``pymb.collect.sparkplug`` gives the STATE message a primary host
+    publishes (Sparkplug 3.0: JSON, ``online`` and ``timestamp``)."""
+    import json
+
+    from pymb.collect import sparkplug
+
+    assert "state_payload" in sparkplug.__all__
+    state = json.loads(sparkplug.state_payload(True, 1700000000000))
+    assert state == {"online": True, "timestamp": 1700000000000}
