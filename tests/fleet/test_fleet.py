@@ -1105,3 +1105,9 @@ def test_a_uint64_out_of_64_bits_is_encoded_in_its_low_64_bits(value: int) -> No
     metric = decode(data)[2][0]
     assert isinstance(metric, bytes)
     assert decode(metric)[11] == [value & (1 << 64) - 1]  # long_value
+    # the bytes as the protobuf encoding spells them: key 11/varint, then 7 bits a byte
+    low, want = value & (1 << 64) - 1, bytearray()
+    while low > 0x7F:
+        want.append(low & 0x7F | 0x80)
+        low >>= 7
+    assert metric.endswith(b"\x58" + bytes(want) + bytes([low]))
