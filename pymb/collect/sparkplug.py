@@ -1,7 +1,8 @@
 """The Sparkplug B profile of the collector: a host application.
 
 It reads ``spBv1.0/{group}/#``: births (NBIRTH, DBIRTH) declare each metric's
-name, alias and datatype, data (NDATA, DDATA) may name metrics by alias only.
+name, alias and datatype, data (NDATA, DDATA) name them by alias or by name,
+without the datatype (Sparkplug 3.0: it should not be repeated).
 Every message but NDEATH carries a ``seq`` (0..255, wrapping) per edge node;
 on a gap, or on data from a node or device it has no birth for, the host asks
 the node for new births with an NCMD ``Node Control/Rebirth`` (at most once
@@ -47,14 +48,22 @@ _SKIPPED = {16, 17, 18, 19}
 
 
 @dataclass
+class _Born:
+    """The metrics one birth (an NBIRTH, a DBIRTH) declared."""
+
+    aliases: dict[int, tuple[str, int]] = field(default_factory=dict)  #: alias: (name, datatype)
+    types: dict[str, int] = field(default_factory=dict)  #: name: datatype
+
+
+@dataclass
 class _Node:
     """What the host knows of one edge node (since its last NBIRTH)."""
 
     born: bool = False
     bd_seq: int | None = None
     seq: int | None = None
-    aliases: dict[int, tuple[str, int]] = field(default_factory=dict)
-    devices: dict[str, dict[int, tuple[str, int]]] = field(default_factory=dict)
+    metrics: _Born = field(default_factory=_Born)  #: the node's own
+    devices: dict[str, _Born] = field(default_factory=dict)
     asked: float = float("-inf")  #: time.monotonic() of the last rebirth request
 
 
@@ -133,7 +142,7 @@ class SparkplugHost:
         if seq is None or seq > 255:
             raise BadInput(f"a {kind} without a seq of 0..255")
         if kind == "NBIRTH":
-            st.born, st.seq, st.aliases, st.devices = True, seq, {}, {}
+            st.born, st.seq, st.metrics, st.devices = True, seq, _Born(), {}
             for m in metrics:
                 if text(m, 1) == "bdSeq":
                     st.bd_seq = number(m, 11)
@@ -148,26 +157,27 @@ class SparkplugHost:
                 self._rebirth(node, st, f"seq {seq} after {(expected - 1) % 256}")
         if kind == "DBIRTH":
             assert device is not None
-            st.devices[device] = {}
+            st.devices[device] = _Born()
         if kind == "DDEATH":
             return []
         if device is not None and device not in st.devices:
             self.unborn += 1
             self._rebirth(node, st, f"{kind} of {device}, which has no DBIRTH")
             return []
-        aliases = st.aliases if device is None else st.devices[device]
+        born = st.metrics if device is None else st.devices[device]
         t0 = ms / 1000 if ms is not None else time.time()
         out: list[Row] = []
         for m in metrics:
             try:
-                row = self._metric(node, device or "", m, aliases, t0, kind.endswith("BIRTH"))
+                row = self._metric(node, device or "", m, born, t0, kind.endswith("BIRTH"))
             except (BadInput, FieldError):
                 raise
             except (ValueError, OverflowError) as e:  # a PropertySet, a float's field
                 raise BadInput(f"not a Sparkplug B payload (a metric: {e})") from None
-            if row is None and kind.endswith("DATA") and text(m, 1) is None:
+            if row is None and not kind.endswith("BIRTH"):
                 self.unborn += 1
-                self._rebirth(node, st, f"{kind} with an alias no birth declared")
+                what = f"a metric {text(m, 1)!r}" if text(m, 1) is not None else "an alias"
+                self._rebirth(node, st, f"{kind} with {what} no birth declared")
                 return []
             if row is not None and row[2]:
                 out.append(row)
@@ -181,22 +191,30 @@ class SparkplugHost:
             self.event(f"{self.group}/{node} is offline (NDEATH)")
         return []
 
-    def _metric(self, node: str, device: str, m: Fields,
-                aliases: dict[int, tuple[str, int]], t0: float, birth: bool) -> Row | None:
-        """The row of one metric; None for an alias no birth declared. A row with
-        an empty point is a metric that is not stored (bdSeq, Node Control/*)."""
+    def _metric(self, node: str, device: str, m: Fields, born: _Born, t0: float,
+                birth: bool) -> Row | None:
+        """The row of one metric; None for data the births do not declare (an
+        alias, or a name without a datatype: Sparkplug's data name a metric by
+        alias or name and should not repeat its datatype). A row with an empty
+        point is a metric that is not stored (bdSeq, Node Control/*)."""
         name = text(m, 1)
         alias = number(m, 2)
         datatype = number(m, 4)
         if name is None:
-            if alias is None or alias not in aliases:
+            if alias is None or alias not in born.aliases:
                 return None
-            name, declared = aliases[alias]
+            name, declared = born.aliases[alias]
             datatype = datatype if datatype is not None else declared
+        elif datatype is None and not birth:
+            datatype = born.types.get(name)
+            if datatype is None:
+                return None
         if datatype is None:
             raise BadInput(f"metric {name!r} has no datatype")
-        if birth and alias is not None:
-            aliases[alias] = (name, datatype)
+        if birth:
+            born.types[name] = datatype
+            if alias is not None:
+                born.aliases[alias] = (name, datatype)
         if name == "bdSeq" or name.startswith("Node Control/") or datatype in _SKIPPED:
             return (node, device, "", t0, None, None, None, None)
         ts = number(m, 3)

@@ -1,0 +1,114 @@
+"""``pymb collect --profile sparkplug`` against edge nodes that follow Sparkplug B
+3.0 to the letter or break it: messages made with pysparkplug's ``Payload``
+(independent of pymb's encoder), published to a real mosquitto, the stored
+rows and the rebirth requests read back as a user sees them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.register_assert_rewrite("mqtt_broker", "collectkit")
+from collectkit import (  # noqa: E402
+    Collectors,
+    publish,
+    sqlite_count,
+    sqlite_facts,
+    stop,
+    wait_rows,
+    wait_subscribed,
+)
+from mqtt_broker import Fleet, Subscriber  # noqa: E402
+
+from pymb.fleet.broker import Mosquitto  # noqa: E402
+
+pytest_plugins = ["mqtt_broker", "collectkit"]
+
+GROUP = "plant"
+T = 1800000000000  #: ms
+DOUBLE, INT16, INT64, BOOLEAN = 10, 2, 4, 11
+
+
+def _pb(pb: Any, seq: int | None, *metrics: dict[str, Any], ts: int = T) -> bytes:
+    p = pb()
+    p.timestamp = ts
+    if seq is not None:
+        p.seq = seq
+    for d in metrics:
+        m = p.metrics.add()
+        for k, v in d.items():
+            setattr(m, k, v)
+    return bytes(p.SerializeToString())
+
+
+def _births(pb: Any, node: str = "n1", device: str = "d1") -> list[tuple[str, bytes]]:
+    """An NBIRTH (seq 0) with bdSeq, the rebirth metric and ``uptime``, and a DBIRTH
+    (seq 1) of ``level`` (Int16, alias 7) and ``temp`` (Double, alias 8)."""
+    return [
+        (f"spBv1.0/{GROUP}/NBIRTH/{node}", _pb(
+            pb, 0, {"name": "bdSeq", "datatype": INT64, "long_value": 1},
+            {"name": "Node Control/Rebirth", "alias": 1, "datatype": BOOLEAN,
+             "boolean_value": False, "timestamp": T},
+            {"name": "uptime", "alias": 2, "datatype": INT64, "long_value": 10,
+             "timestamp": T})),
+        (f"spBv1.0/{GROUP}/DBIRTH/{node}/{device}", _pb(
+            pb, 1, {"name": "level", "alias": 7, "datatype": INT16, "int_value": 5,
+                    "timestamp": T},
+            {"name": "temp", "alias": 8, "datatype": DOUBLE, "double_value": 20.0,
+             "timestamp": T})),
+    ]
+
+
+def _collector(fleet: Fleet, collectors: Collectors, client_id: str
+               ) -> tuple[Mosquitto, Subscriber, Path, Any]:
+    broker = fleet.broker()
+    ncmd = fleet.subscribe(broker, f"spBv1.0/{GROUP}/NCMD/#", client_id=f"{client_id}-ncmd")
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--profile", "sparkplug", "--group", GROUP,
+                           "--host-id", "scada", "--client-id", client_id)
+    wait_subscribed(col)
+    return broker, ncmd, out, col
+
+
+def test_data_by_name_without_a_datatype_take_the_births(
+        fleet: Fleet, collectors: Collectors, sparkplug_pb: Any) -> None:
+    """Sparkplug 3.0: data name a metric (by name, when a node uses no aliases)
+    and should not repeat its datatype; the host reads the value as the birth
+    declared it (an Int16's two's complement). Data naming a metric no birth
+    declared, without a datatype, cannot be read: a rebirth request, nothing
+    stored of that message."""
+    pb = sparkplug_pb
+    broker, ncmd, out, col = _collector(fleet, collectors, "hostile-names")
+    publish(broker.port, [
+        *_births(pb),
+        (f"spBv1.0/{GROUP}/NDATA/n1", _pb(pb, 2, {"name": "uptime", "long_value": 11,
+                                                  "timestamp": T + 1000})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 3, {"name": "level", "int_value": 0xFFFE,
+                                                     "timestamp": T + 1000},
+                                             {"name": "temp", "double_value": 21.5,
+                                              "timestamp": T + 1000})),
+        # a name no birth declared, no datatype: the message is not stored
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 4, {"name": "temp", "double_value": 22.5,
+                                                     "timestamp": T + 2000},
+                                             {"name": "pressure", "double_value": 1.0,
+                                              "timestamp": T + 2000})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 5, {"alias": 8, "double_value": 23.5,
+                                                     "timestamp": T + 3000})),
+    ])
+    wait_rows(lambda: sqlite_count(out), 7, "the births' rows, the data's and the last")
+    ncmd.wait_until(lambda m: m, 15, "the rebirth request of an undeclared metric")
+    err = stop(col)
+    assert "asked plant/n1 for a rebirth: DDATA with a metric 'pressure' no birth declared" \
+        in err, err
+    assert "0 bad" in err, err
+    assert sorted(sqlite_facts(out)) == [
+        ("n1", "", "uptime", 1800000000.0, 10.0, None, None, None),
+        ("n1", "", "uptime", 1800000001.0, 11.0, None, None, None),
+        ("n1", "d1", "level", 1800000000.0, 5.0, None, None, None),
+        ("n1", "d1", "level", 1800000001.0, -2.0, None, None, None),
+        ("n1", "d1", "temp", 1800000000.0, 20.0, None, None, None),
+        ("n1", "d1", "temp", 1800000001.0, 21.5, None, None, None),
+        ("n1", "d1", "temp", 1800000003.0, 23.5, None, None, None),
+    ]
