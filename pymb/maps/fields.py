@@ -63,7 +63,7 @@ def number(ctx: Ctx, key: str, v: object, *, allow_str: bool = False) -> float:
     """``v`` as a number (a string too when ``allow_str``), or a MapError."""
     if allow_str and isinstance(v, str):
         return 0.0
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
         ctx.fail(key, f"{key} must be a number, got {v!r}")
     return v
 

@@ -278,7 +278,9 @@ def _options(ctx: Ctx, raw: object) -> tuple[dict[str, int | float],
 
 
 def _is_number(v: object) -> TypeGuard[int | float]:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """An int or a float other than NaN (an infinity is a number: an option's
+    unbounded ``max``)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and v == v
 
 
 def _limits(ctx: Ctx, raw: object, dev: DeviceSection) -> Limits:
@@ -367,7 +369,8 @@ def _timing(ctx: Ctx, raw: object) -> Timing:
                 ctx.fail(key, f"backoff must be true or false, got {v!r}")
             backoff = v
             continue
-        if not _is_number(v) or v < 0 or (key == "response_timeout" and v == 0):
+        if not _is_number(v) or not math.isfinite(v) or v < 0 \
+                or (key == "response_timeout" and v == 0):
             ctx.fail(key, f"{key} must be a number of seconds above 0, got {v!r}"
                      if key == "response_timeout" else
                      f"{key} must be a number of seconds, 0 or more, got {v!r}")
@@ -392,7 +395,7 @@ def _groups(ctx: Ctx, raw: object) -> tuple[dict[str, float], tuple[tuple[str, s
             ctx.fail(name, f"group name {name!r} must be snake_case")
         _keys(ctx, g, ("interval", "poll"), f"group {name!r}")
         iv = g.get("interval")
-        if not _is_number(iv) or iv < 0:
+        if not _is_number(iv) or not math.isfinite(iv) or iv < 0:
             ctx.fail("interval", f"group {name!r}: interval must be seconds, 0 or more, got {iv!r}")
         groups[name] = float(iv)
         poll = g.get("poll", "interval")
