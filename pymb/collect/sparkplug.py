@@ -4,7 +4,8 @@ It reads ``spBv1.0/{group}/#``: births (NBIRTH, DBIRTH) declare each metric's
 name, alias and datatype, data (NDATA, DDATA) name them by alias or by name,
 without the datatype (Sparkplug 3.0: it should not be repeated).
 Every message but NDEATH carries a ``seq`` (0..255, wrapping) per edge node;
-on a gap, or on data from a node or device it has no birth for, the host asks
+on a gap, or on data from a node or device it has no birth for (none yet, or
+none since its death), the host asks
 the node for new births with an NCMD ``Node Control/Rebirth`` (at most once
 per node every :data:`REBIRTH_EVERY` seconds). Its own state goes on
 ``spBv1.0/STATE/{host_id}`` (retained; the will says offline).
@@ -158,7 +159,8 @@ class SparkplugHost:
         if kind == "DBIRTH":
             assert device is not None
             st.devices[device] = _Born()
-        if kind == "DDEATH":
+        if kind == "DDEATH":  # its birth ends: data before the next DBIRTH ask for one
+            st.devices.pop(device or "", None)
             return []
         if device is not None and device not in st.devices:
             self.unborn += 1
