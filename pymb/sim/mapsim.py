@@ -43,7 +43,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import ClassVar
 
-from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
+from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS, MAX_WRITE_BITS, MAX_WRITE_REGISTERS
 from pymb.devices.mapspec import MapTarget
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
@@ -58,6 +58,8 @@ from pymb.sim.seeded import Wander, first_value, value_at
 __all__ = ["MapSimDevice"]
 
 _UPDATE_S = 0.1  #: the model's values are brought up to date at most this often
+#: the function codes a map's device answers (reads and writes of its tables)
+_ANSWERED = frozenset((1, 2, 3, 4, 5, 6, 15, 16))
 
 
 class MapSimDevice(MapImage):
@@ -65,7 +67,8 @@ class MapSimDevice(MapImage):
     ``example`` or the model seeded by ``seed``. ``firmware``: the version
     it runs (points with a higher ``min_firmware`` are absent; "" has all)."""
 
-    #: function codes answered (None: every one above); any other answers 01
+    #: function codes answered (None: the reads and writes of the four tables,
+    #: 01..06, 15, 16); any other answers 01
     functions: ClassVar[frozenset[int] | None] = None
     #: the exception code of a malformed request or a quantity outside 1..max
     bad_request: ClassVar[int] = ExceptionCode.ILLEGAL_DATA_VALUE
@@ -300,9 +303,11 @@ class MapSimDevice(MapImage):
         return self._have[table][address:address + count].count(1) == count
 
     def handle(self, pdu: bytes) -> bytes | None:
-        """The reply to one request PDU."""
+        """The reply to one request PDU, checked in [MB-AP] 6's order: the
+        function code (01), the PDU's size, the quantity and the byte count
+        (:attr:`bad_request`), the addresses (02)."""
         fc = pdu[0] if pdu else 0
-        if self.functions is not None and fc not in self.functions:
+        if fc not in (_ANSWERED if self.functions is None else self.functions):
             return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
         if len(pdu) < 5 or (fc <= 6 and len(pdu) != 5):
             return exception_pdu(fc, self.bad_request)
@@ -322,23 +327,19 @@ class MapSimDevice(MapImage):
                         out[i // 8] |= 1 << (i % 8)
                 return bytes((fc, len(out))) + bytes(out)
             return bytes((fc, 2 * n)) + _swapped(regs)
+        if fc == 5 and n not in (0x0000, 0xFF00):  # [MB-AP] 6.5: ON or OFF, nothing else
+            return exception_pdu(fc, self.bad_request)
         if fc in (5, 6):
             return self._write(fc, "coil" if fc == 5 else "holding", address,
                                [int(n == 0xFF00)] if fc == 5 else [n], pdu)
-        if fc in (15, 16) and len(pdu) >= 6:
-            data = pdu[6:6 + pdu[5]]
-            if fc == 16:
-                if len(data) != 2 * n:
-                    return exception_pdu(fc, self.bad_request)
-                values = list(struct.unpack(f">{n}H", data))
-            else:
-                values = [data[i // 8] >> (i % 8) & 1 for i in range(n)] if \
-                    len(data) == (n + 7) // 8 else []
-                if not values:
-                    return exception_pdu(fc, self.bad_request)
-            return self._write(fc, "holding" if fc == 16 else "coil", address, values,
-                               pdu[:5])
-        return exception_pdu(fc, ExceptionCode.ILLEGAL_FUNCTION)
+        # 15, 16 ([MB-AP] 6.11, 6.12): a quantity 1..max, its byte count, its data
+        limit, size = (MAX_WRITE_REGISTERS, 2 * n) if fc == 16 else (MAX_WRITE_BITS, (n + 7) // 8)
+        if not 1 <= n <= limit or len(pdu) != 6 + size or pdu[5] != size:
+            return exception_pdu(fc, self.bad_request)
+        data = pdu[6:]
+        values = (list(struct.unpack(f">{n}H", data)) if fc == 16
+                  else [data[i // 8] >> (i % 8) & 1 for i in range(n)])
+        return self._write(fc, "holding" if fc == 16 else "coil", address, values, pdu[:5])
 
     def handle_broadcast(self, pdu: bytes) -> None:
         """Standard Modbus ([MB-SL] 2.1): a broadcast write is carried out
