@@ -18,7 +18,7 @@ generated-code version against a runtime version.
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -289,11 +289,20 @@ def command_metrics(payload: bytes) -> list[tuple[str | None, int | None, bool |
             for f in metric_fields(decode(payload))]
 
 
-def command_values(payload: bytes) -> tuple[int | None, int | None,
-                                           list[tuple[str | None, int | None, MetricValue]]]:
+def command_values(payload: bytes,
+                   declared: Callable[[str | None, int | None], int | None] | None = None,
+                   ) -> tuple[int | None, int | None,
+                              list[tuple[str | None, int | None, MetricValue]]]:
     """(payload timestamp, seq, [(name, alias, value)]) of a DCMD: each
-    metric's value as :func:`metric_value` reads it. Raises ValueError on a
-    malformed payload."""
+    metric's value as :func:`metric_value` reads it, as its own datatype says
+    or, where it has none (Sparkplug 3.0: a DCMD should not repeat it), as
+    ``declared(name, alias)`` says (the birth's datatype). Raises ValueError
+    on a malformed payload."""
     top = decode(payload)
-    return number(top, 1), number(top, 3), [
-        (text(f, 1), number(f, 2), metric_value(f, number(f, 4) or 0)) for f in metric_fields(top)]
+    out: list[tuple[str | None, int | None, MetricValue]] = []
+    for f in metric_fields(top):
+        name, alias, dt = text(f, 1), number(f, 2), number(f, 4)
+        if dt is None and declared is not None:
+            dt = declared(name, alias)
+        out.append((name, alias, metric_value(f, dt or 0)))
+    return number(top, 1), number(top, 3), out

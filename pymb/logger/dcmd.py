@@ -26,7 +26,7 @@ import time
 
 from pymb.devices.mapwrite import Outcome, resolve
 from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
-from pymb.fleet.mapmetrics import plain_value
+from pymb.fleet.mapmetrics import datatype, plain_value
 from pymb.fleet.profiles import write_name
 from pymb.fleet.protobuf import MetricValue, command_values
 from pymb.logger.refusal import Desk, Refused, Target, unrecorded
@@ -62,15 +62,26 @@ def _metric_value(t: Target, name: str, v: Value) -> MetricValue:
 
 def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
     """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
+    target = desk.targets.get(device)
+    birth = desk.births(device) or {}
+    by_alias = {a: n for n, a in birth.items()}
+
+    def declared(name: str | None, alias: int | None) -> int | None:
+        """The DBIRTH's datatype of a metric named by name or alias."""
+        metric = name if name is not None else by_alias.get(alias) if alias is not None else None
+        if target is None or metric is None or metric not in birth:
+            return None
+        try:
+            return int(datatype(resolve(target.map, write_name(metric))[1]))
+        except InvalidArgument:
+            return None
+
     try:
-        ts, seq, metrics = command_values(payload)
+        ts, seq, metrics = command_values(payload, declared)
     except (ValueError, UnicodeDecodeError, OverflowError) as e:  # (a float's field too big)
         desk.event(f"DCMD for {device} ignored: not a Sparkplug B payload ({e})")
         return
     cid = command_id(device, ts, seq)
-    target = desk.targets.get(device)
-    birth = desk.births(device) or {}
-    by_alias = {a: n for n, a in birth.items()}
     named = [n for n in (name if name is not None else
                          by_alias.get(alias) if alias is not None else None
                          for name, alias, _ in metrics) if n is not None and n in birth]
