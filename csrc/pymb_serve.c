@@ -81,13 +81,13 @@ int pymbi_srv_check_pdu(const uint8_t *pdu, size_t len)
             return EX_VALUE;
         return range(d, 0x7Bu);
     case 0x14: /* read file record 6.14: byte count 0x07..0xF5, 7 bytes a sub-request */
-    case 0x15: /* write file record 6.15 */
+    case 0x15: /* write file record 6.15: 0x09..0xFB, 7 bytes and the record a sub-request */
         if (n < 1)
             return EX_VALUE;
         bc = d[0];
-        if (bc < 7 || bc > 0xF5u || n != 1 + (size_t)bc)
+        if (pdu[0] == 0x14 ? bc < 7 || bc > 0xF5u : bc < 9 || bc > 0xFBu)
             return EX_VALUE;
-        return 0;
+        return n != 1 + (size_t)bc ? EX_VALUE : 0;
     case 0x16: /* mask write register 6.16 */
         return n != 6 ? EX_VALUE : 0;
     case 0x17: /* read/write multiple registers 6.17 */

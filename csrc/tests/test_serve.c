@@ -30,6 +30,20 @@ static int check_pdu(const char *hex)
     return pymbi_srv_check_pdu(pdu, n);
 }
 
+/* A write file record (6.15) of request data length bc: one sub-request,
+ * its record of (bc - 7) / 2 registers, the PDU as long as bc says. */
+static int check_fc15(unsigned bc)
+{
+    uint8_t pdu[2 + 0xFF];
+    memset(pdu, 0x5A, sizeof pdu);
+    pdu[0] = 0x15;
+    pdu[1] = (uint8_t)bc;
+    pdu[2] = 6;
+    pdu[7] = 0;
+    pdu[8] = (uint8_t)((bc - 7) / 2);
+    return pymbi_srv_check_pdu(pdu, 2 + bc);
+}
+
 static void test_documents_examples(void)
 {
     /* [MB-APP] 6.3 and 6.12 request examples */
@@ -77,6 +91,15 @@ static void test_refusals(void)
     CHECK(check_pdu("08 00") == 3);
     CHECK(check_pdu("18") == 3);
     CHECK(check_pdu("14 06 06 0004 0001 00") == 3);      /* byte count under 7 */
+    /* 6.15 write file record: request data length 0x09..0xFB (one sub-request of
+     * 7 bytes and a record of 1..122 registers) */
+    CHECK(check_pdu("15 0D 06 0004 0007 0003 06AF 04BE 100D") == 0); /* 6.15's example */
+    CHECK(check_pdu("15 07 06 0004 0007 0000") == 3);    /* no record */
+    CHECK(check_pdu("15 08 06 0004 0007 0000 00") == 3);
+    CHECK(check_pdu("15 0E 06 0004 0007 0003 06AF 04BE 100D") == 3); /* fewer bytes */
+    CHECK(check_fc15(0xFB) == 0);                        /* 122 registers: the most */
+    CHECK(check_fc15(0xFC) == 3);
+    CHECK(check_pdu("14 F6") == 3);                      /* 6.14: at most 0xF5 */
     CHECK(check_pdu("41 0102") == 0);                    /* user-defined: forwarded */
     CHECK(pymbi_srv_check_pdu(NULL, 1) == 3);
 }
