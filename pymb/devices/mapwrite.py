@@ -217,6 +217,9 @@ def check(m: Map, values: Iterable[tuple[str, int | None, object]],
                                       sf=sf))
         except InvalidArgument as e:
             raise InvalidArgument(f"{m.id}: {e}") from None
+        if p.table != "coil" and p.count > _MAX_FC16:
+            raise InvalidArgument(f"{m.id}: point {label!r}: its {p.count} registers do not fit "
+                                  f"one write request (FC 16 writes at most {_MAX_FC16})")
         if isinstance(value, float) and not math.isfinite(value):  # a float point's encode
             # takes NaN and infinities (the simulator's faults): a write never sends them
             raise InvalidArgument(f"{m.id}: point {label!r}: {value!r} is not a finite number")
@@ -315,11 +318,16 @@ def _runs(addresses: list[int], regs: Mapping[int, int], owners: Mapping[int, li
                            any(a in rmw for a in run)))
         run.clear()
 
+    points: list[list[int]] = []  # the registers of each point (views with theirs), in order
     for a in addresses:
-        if run and (a != run[-1] + 1 or (
-                len(run) >= _MAX_FC16 and not set(owners[a]) & set(owners[run[-1]]))):
+        if points and a == points[-1][-1] + 1 and set(owners[a]) & set(owners[a - 1]):
+            points[-1].append(a)
+        else:
+            points.append([a])
+    for span in points:  # greedy: a request ends only where the next point would not fit
+        if run and (span[0] != run[-1] + 1 or len(run) + len(span) > _MAX_FC16):
             flush()
-        run.append(a)
+        run.extend(span)
     flush()
     return out
 
