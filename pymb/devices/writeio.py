@@ -6,11 +6,13 @@ device's turn (:meth:`pymb.devices.mapfetch.Fetcher.turn`)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 from pymb.client import Client
 from pymb.devices.mapfetch import Fetcher
 from pymb.devices.mapwrite import Change, Outcome, WriteRequest, decoded, not_applied, resolve
 from pymb.maps import Map, Value
+from pymb.maps.planner import Item, plan_points
 
 __all__ = ["read_spans", "regs_of", "scale_factors", "send", "verify"]
 
@@ -31,27 +33,20 @@ def send(client: Client, slave: int, fetcher: Fetcher, r: WriteRequest) -> None:
 
 def read_spans(client: Client, slave: int, fetcher: Fetcher, changes: Sequence[Change],
                ) -> dict[tuple[str, int], int]:
-    """(table, address) -> register (bit) of every point of ``changes``,
-    adjacent ones in one request."""
+    """(table, address) -> register (bit) of every point of ``changes``:
+    adjacent ones in one request, planned as a poll's reads are (within the
+    map's ``max_registers``/``max_bits`` and ``ranges``, a point never split),
+    bridging no register that is not written."""
     out: dict[tuple[str, int], int] = {}
-    wanted = sorted({(c.point.table, a) for c in changes for a in range(
-        c.point.address, c.point.address + c.point.count)})
-    runs: list[list[tuple[str, int]]] = []
-    for t, a in wanted:
-        most = 2000 if t == "coil" else 125
-        last = runs[-1] if runs else None
-        if last and last[-1][0] == t and last[-1][1] + 1 == a and len(last) < most:
-            last.append((t, a))
-        else:
-            runs.append([(t, a)])
-    for run in runs:
-        t, a0 = run[0]
+    items = [Item(c.name, c.point.table, c.point.address, c.point.count) for c in changes]
+    limits = replace(fetcher.map.limits, max_gap=0)
+    for r in plan_points(items, fetcher.planner.line, limits):
         with fetcher.turn():
-            if t == "coil":
-                got = client.read_coils(a0, len(run), slave=slave)
+            if r.table == "coil":
+                got = client.read_coils(r.address, r.count, slave=slave)
             else:
-                got = client.read_holding_registers(a0, len(run), slave=slave)
-        out.update(((t, a0 + k), int(v)) for k, v in enumerate(got))
+                got = client.read_holding_registers(r.address, r.count, slave=slave)
+        out.update(((r.table, r.address + k), int(v)) for k, v in enumerate(got))
     return out
 
 def verify(client: Client, slave: int, fetcher: Fetcher, todo: Sequence[Change],
