@@ -301,6 +301,8 @@ def encode(p: Point, value: object, *, current: Sequence[int] | None = None,
 def _encode_text(p: Point, value: object) -> list[int]:
     if not isinstance(value, str):
         raise _refuse(p, f"text is needed, got {value!r}")
+    if "\0" in value:  # a read ends the text there: it could never read back as written
+        raise _refuse(p, f"{value!r} has a NUL character, which ends a text")
     try:
         data = value.encode(p.encoding)
     except UnicodeEncodeError:

@@ -166,9 +166,23 @@ access = "rw"
     for name, value, why in [("ro", 1, "read-only"), ("hz", 70.0, "valid range"),
                              ("mode", "go", "not one of its values"), ("mode", 5, "values"),
                              ("flag", 1, "current"), ("name", "abcde", "longer"),
-                             ("hz", "x", "number")]:
+                             ("hz", "x", "number"), ("name", "a\0b", "NUL")]:
         with pytest.raises(InvalidArgument, match=why):
             m.encode(name, value)
+
+
+@settings(max_examples=300, deadline=None)
+@given(layout=st.sampled_from(["both", "high", "low"]), order=st.sampled_from(["ABCD", "BADC"]),
+       encoding=st.sampled_from(["ascii", "latin-1", "utf-8"]), text=st.text(max_size=8))
+def test_a_text_encode_takes_reads_back_as_written(layout: str, order: str, encoding: str,
+                                                    text: str) -> None:
+    m = point_map(f'type = "string"\ncount = 4\nstring_bytes = "{layout}"\n'
+                  f'order = "{order}"\nencoding = "{encoding}"\n')
+    try:
+        regs = m.encode("p", text)
+    except InvalidArgument:
+        return  # refused: too long, not in the encoding, or a NUL, which would end it
+    assert m.decode("p", regs) == text
 
 
 types_ = st.sampled_from(["u16", "i16", "u32", "i32", "u64", "i64", "sm16", "u8_hi", "i8_lo"])
