@@ -208,9 +208,10 @@ def all_received(sub: Any, log_db: Path) -> list[tuple[str, bytes]]:
     return list(sub.snapshot())
 
 
-def publish(broker_port: int, messages: list[tuple[str, bytes]], qos: int = 1) -> None:
+def publish(broker_port: int, messages: list[tuple[str, bytes]], qos: int = 1,
+            retain: bool = False) -> None:
     """Publish ``messages`` (at QoS 1: and wait for the broker's
-    acknowledgements) from a client of the test's own."""
+    acknowledgements) from a client of the test's own (``retain``: retained)."""
     import paho.mqtt.client as paho
     from paho.mqtt.enums import CallbackAPIVersion
 
@@ -218,7 +219,7 @@ def publish(broker_port: int, messages: list[tuple[str, bytes]], qos: int = 1) -
     c.connect("127.0.0.1", broker_port)
     c.loop_start()
     try:
-        infos = [c.publish(t, p, qos=qos) for t, p in messages]
+        infos = [c.publish(t, p, qos=qos, retain=retain) for t, p in messages]
         for i in infos:
             i.wait_for_publish(30)
     finally:

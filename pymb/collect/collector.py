@@ -31,7 +31,7 @@ from pymb.collect.sqlstore import Store
 from pymb.collect.writers import Job, Message, Writers
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.config import PROFILES, MqttConfig
-from pymb.fleet.profiles import NAMESPACE, state_payload
+from pymb.fleet.profiles import NAMESPACE, host_state, state_payload
 from pymb.fleet.takeover import TAKEN_OVER, Takeovers
 
 if TYPE_CHECKING:  # the extra pymb-modbus[collect]
@@ -138,6 +138,7 @@ class Collector:
         self.dropped_at = -BAD_EVERY
         self.host: SparkplugHost | None = None
         self.born_ms = round(time.time() * 1000)
+        self.closing = False  #: it stops: its own STATE offline is its own
         c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                         protocol=mqtt.MQTTv5, manual_ack=True)
         cfg.mqtt.secure(c, cfg.mqtt.password())
@@ -172,8 +173,13 @@ class Collector:
         self.generation += 1
         self.stats.mqtt_ok = True
         self.takeovers.up()
-        client.subscribe(self.cfg.topic, qos=1)
-        if self.host is not None:
+        if self.host is None:
+            client.subscribe(self.cfg.topic, qos=1)
+        else:  # Sparkplug 3.0: its own STATE too (not what it publishes), before it
+            from paho.mqtt.subscribeoptions import SubscribeOptions
+
+            client.subscribe([(self.cfg.topic, SubscribeOptions(qos=1)),
+                              (self.host.state_topic, SubscribeOptions(qos=1, noLocal=True))])
             client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
         if self.connack.is_set():
             self.event(f"connected to {self.cfg.mqtt.url} again")
@@ -200,17 +206,37 @@ class Collector:
     def _on_subscribe(self, client: Client, userdata: object, mid: int, rcs: list[ReasonCode],
                       props: Properties | None = None) -> None:
         failed = [rc for rc in rcs if getattr(rc, "is_failure", False)]
-        if failed:
+        if rcs and getattr(rcs[0], "is_failure", False):
             self.refused = f"the broker refused the subscription to {self.cfg.topic}: {failed[0]}"
             if self.suback.is_set():  # again, after a reconnection (at the start: the error)
                 self.event(self.refused)
+        elif failed and self.host is not None:  # its own STATE: said, not an end
+            self.event(f"the broker refused the subscription to {self.host.state_topic}: "
+                       f"{failed[0]}; a STATE offline published there stays")
         self.suback.set()
 
     def _on_message(self, client: Client, userdata: object, msg: MQTTMessage) -> None:
+        if self.host is not None and msg.topic == self.host.state_topic:
+            self._own_state(client, msg)
+            return
         if msg.qos == 0 and self.inbox.qsize() >= MAX_INBOX:
             self.stats.dropped += 1
             return
         self.inbox.put((self.generation, msg.mid, msg.qos, msg.topic, bytes(msg.payload)))
+
+    def _own_state(self, client: Client, msg: MQTTMessage) -> None:
+        """Another client said this host id offline (the will of a collector
+        with this host id, gone, another program): Sparkplug 3.0 wants it
+        online again at once, with its will's timestamp. Not while it stops;
+        nor for the retained STATE the subscription brings (its own online
+        follows it)."""
+        if msg.qos:
+            client.ack(msg.mid, msg.qos)
+        state = host_state(bytes(msg.payload))
+        if state is None or state[0] or msg.retain or self.closing or self.host is None:
+            return
+        client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
+        self.event(f"{self.host.state_topic} said offline: published online again")
 
     def _send(self, topic: str, payload: bytes) -> None:
         self.client.publish(topic, payload, 0, False)
@@ -332,6 +358,7 @@ class Collector:
     def close(self) -> None:
         """Disconnect cleanly (unacknowledged messages stay in the session)."""
         c = self.client
+        self.closing = True
         with contextlib.suppress(Exception):
             if self.host is not None and self.stats.mqtt_ok:
                 info = c.publish(self.host.state_topic,

@@ -5,6 +5,7 @@ rows and the rebirth requests read back as a user sees them."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -146,3 +147,39 @@ def test_a_devices_data_after_its_ddeath_ask_for_a_birth(
         ("d1", "temp", 1800000002.0, 21.0),
         ("d1", "temp", 1800000003.0, 22.0),
     ]
+
+
+def test_its_own_state_said_offline_by_another_is_made_online_again(
+        fleet: Fleet, collectors: Collectors) -> None:
+    """Sparkplug 3.0: a host application subscribes to its own STATE and, told
+    offline there (the late will of an earlier collector with this host id, on
+    another machine), publishes it online again at once, with its will's
+    timestamp, so that edge nodes that start later find it online. Its own
+    offline (a clean stop, the STATE its start finds retained) is no such case."""
+    broker = fleet.broker()
+    out = str(fleet.tmp / "fleet.sqlite")
+    args = ("--profile", "sparkplug", "--group", GROUP, "--host-id", "scada")
+    col = collectors.start(broker.url, out, *args, "--client-id", "state-a")
+    wait_subscribed(col)
+    first = stop(col)  # retained now: offline, its own
+    state = fleet.subscribe(broker, "spBv1.0/STATE/scada", client_id="state-watch")
+    state.wait_until(lambda m: m, 15, "the retained STATE offline")
+    col = collectors.start(broker.url, out, *args, "--client-id", "state-a")
+    wait_subscribed(col)
+    state.wait_until(lambda m: len(m) >= 2, 15, "the STATE online")
+    online = json.loads(state.snapshot()[1][1])
+    assert online["online"] is True
+    stale = {"online": False, "timestamp": online["timestamp"] - 60000}
+    publish(broker.port, [("spBv1.0/STATE/scada", json.dumps(stale).encode())], retain=True)
+    state.wait_until(lambda m: len(m) >= 4, 15, "the STATE online again")
+    assert [json.loads(p) for _, p in state.snapshot()[2:]] == [stale, online]
+    late = fleet.subscribe(broker, "spBv1.0/STATE/scada", client_id="late-watch")
+    late.wait_until(lambda m: m, 15, "the retained STATE")
+    assert json.loads(late.snapshot()[0][1]) == online
+    err = stop(col)
+    state.wait_until(lambda m: len(m) >= 5, 15, "the STATE offline of the clean stop")
+    assert json.loads(state.snapshot()[-1][1]) == {"online": False,
+                                                   "timestamp": online["timestamp"]}
+    assert "spBv1.0/STATE/scada said offline: published online again" in err, err
+    assert "said offline" not in first, first
+    assert err.count("said offline") == 1, err
