@@ -54,6 +54,8 @@ class _Born:
 
     aliases: dict[int, tuple[str, int]] = field(default_factory=dict)  #: alias: (name, datatype)
     types: dict[str, int] = field(default_factory=dict)  #: name: datatype
+    #: alias: two names the birth gave it (Sparkplug: an alias names one metric)
+    twice: dict[int, tuple[str, str]] = field(default_factory=dict)
 
 
 @dataclass
@@ -183,6 +185,11 @@ class SparkplugHost:
                 return []
             if row is not None and row[2]:
                 out.append(row)
+        for alias, (a, b) in born.twice.items():  # (a birth's, so said once a birth)
+            born.aliases.pop(alias, None)
+            where = f"{node}/{device}" if device is not None else node
+            self.event(f"the {kind} of {self.group}/{where} gives alias {alias} to {a!r} and "
+                       f"{b!r}: data naming that alias are not stored")
         return out
 
     def _death(self, node: str, st: _Node, metrics: list[Fields]
@@ -203,6 +210,9 @@ class SparkplugHost:
         alias = number(m, 2)
         datatype = number(m, 4)
         if name is None:
+            if alias in born.twice:
+                raise BadInput(f"alias {alias} names two metrics of the birth "
+                               f"({born.twice[alias][0]!r}, {born.twice[alias][1]!r})")
             if alias is None or alias not in born.aliases:
                 return None
             name, declared = born.aliases[alias]
@@ -216,6 +226,9 @@ class SparkplugHost:
         if birth:
             born.types[name] = datatype
             if alias is not None:
+                had = born.aliases.get(alias)
+                if had is not None and had[0] != name:
+                    born.twice[alias] = (had[0], name)
                 born.aliases[alias] = (name, datatype)
         if name == "bdSeq" or name.startswith("Node Control/") or datatype in _SKIPPED:
             return (node, device, "", t0, None, None, None, None)

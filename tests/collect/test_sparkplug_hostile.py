@@ -183,3 +183,42 @@ def test_its_own_state_said_offline_by_another_is_made_online_again(
     assert "spBv1.0/STATE/scada said offline: published online again" in err, err
     assert "said offline" not in first, first
     assert err.count("said offline") == 1, err
+
+
+def test_an_alias_a_birth_gives_two_metrics_stores_nothing_under_either(
+        fleet: Fleet, collectors: Collectors, sparkplug_pb: Any) -> None:
+    """Sparkplug: an alias of a birth names one metric. A DBIRTH that gives alias 7
+    to two metrics is said; its named values are stored, data naming alias 7 are
+    bad input (not stored under a name they may not have), the others are read."""
+    pb = sparkplug_pb
+    broker, ncmd, out, col = _collector(fleet, collectors, "hostile-alias")
+    nbirth = _births(pb)[0]
+    publish(broker.port, [
+        nbirth,
+        (f"spBv1.0/{GROUP}/DBIRTH/n1/d1", _pb(
+            pb, 1, {"name": "level", "alias": 7, "datatype": INT16, "int_value": 5,
+                    "timestamp": T},
+            {"name": "temp", "alias": 7, "datatype": DOUBLE, "double_value": 20.0,
+             "timestamp": T},
+            {"name": "flow", "alias": 9, "datatype": DOUBLE, "double_value": 1.0,
+             "timestamp": T})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 2, {"alias": 7, "double_value": 21.0,
+                                                     "timestamp": T + 1000})),
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 3, {"alias": 9, "double_value": 2.0,
+                                                     "timestamp": T + 1000})),
+    ])
+    wait_rows(lambda: sqlite_count(out), 5, "the births' rows and flow's data")
+    err = stop(col)
+    assert ("the DBIRTH of plant/n1/d1 gives alias 7 to 'level' and 'temp': data naming "
+            "that alias are not stored") in err, err
+    assert ("bad input on spBv1.0/plant/DDATA/n1/d1: alias 7 names two metrics of the "
+            "birth ('level', 'temp')") in err, err
+    assert "1 bad" in err, err
+    assert not ncmd.snapshot()  # a rebirth would bring the same birth
+    assert sorted(f[1:5] for f in sqlite_facts(out)) == [
+        ("", "uptime", 1800000000.0, 10.0),
+        ("d1", "flow", 1800000000.0, 1.0),
+        ("d1", "flow", 1800000001.0, 2.0),
+        ("d1", "level", 1800000000.0, 5.0),
+        ("d1", "temp", 1800000000.0, 20.0),
+    ]
