@@ -267,12 +267,16 @@ def requests(m: Map, changes: Sequence[Change], current: Mapping[int, int] | Non
             continue
         if c.keep is not None and limits.mask_write:
             for k, (keep, bits) in enumerate(zip(c.keep, c.registers, strict=True)):
+                if keep == 0xFFFF:  # none of its bits here (a wide view): nothing to send
+                    continue
                 a = p.address + k
                 and_, or_, names = masks.get(a, (0xFFFF, 0, []))
                 masks[a] = (and_ & keep, or_ | (bits & ~keep & 0xFFFF), [*names, c.name])
             continue
         if c.keep is not None:
             for k, (keep, bits) in enumerate(zip(c.keep, c.registers, strict=True)):
+                if keep == 0xFFFF:
+                    continue
                 a = p.address + k
                 if current is not None and a in current and a not in regs:
                     base = current[a]

@@ -12,6 +12,7 @@ import pytest
 from write_peers import FreezingTcpPeer, write_map
 
 import pymb
+from pymb import maps
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapwrite import WriteBudget
 
@@ -92,6 +93,22 @@ def test_mask_write_fc22_sends_no_read_first(peer: FreezingTcpPeer) -> None:
     assert peer.requests[:2] == [(1, struct.pack(">BHHH", 22, 20, 0xFFDB, 0x0024)),
                                  (1, struct.pack(">BHHH", 22, 21, 0xFF00, 0x0056))]
     assert peer.memory.holding[20:22] == [0xA025, 0x1256]
+
+
+@pytest.mark.parametrize("limits", ["", "[device.limits]\nmask_write = true\n"])
+def test_a_wide_view_writes_only_the_register_that_holds_its_bits(peer: FreezingTcpPeer,
+                                                                   limits: str) -> None:
+    m = maps.loads('schema = "pymb.map/1"\n[device]\nid = "wide"\ntable = "holding"\n'
+                   + limits + '[[point]]\nname = "alarm"\naddress = 2\ntype = "bit"\n'
+                   'count = 2\nbit = 17\norder = "CDAB"\naccess = "rw"\n', source="w.toml")
+    peer.memory.holding[2:4] = [0x1234, 0x8000]
+    with pymb.TcpClient("127.0.0.1", peer.port, timeout=5.0) as c:
+        assert MapDevice(c, m, 1).write("alarm", True) is True
+    writes = [pdu for _, pdu in peer.requests if pdu[0] in (6, 16, 22)]
+    # bit 17 of a CDAB pair is bit 1 of the second register: the first is left alone
+    assert writes == ([struct.pack(">BHHH", 22, 3, 0xFFFD, 0x0002)] if limits
+                      else [struct.pack(">BHH", 6, 3, 0x8002)])
+    assert peer.memory.holding[2:4] == [0x1234, 0x8002]
 
 
 def test_block_channel_by_keyword_or_column_name(peer: FreezingTcpPeer) -> None:
