@@ -264,6 +264,11 @@ def encode(p: Point, value: object, *, current: Sequence[int] | None = None,
         raw_int = round(raw)
         if p.scale is None and p.offset is None and p.scale_from is None and raw_int != raw:
             raise _refuse(p, f"a whole number is needed, got {value!r}")
+        sent = scaled(raw_int, p, sf=sf or 0)
+        if raw_int != raw and p.valid is not None and not p.valid[0] <= sent <= p.valid[1]:
+            # the nearest step of the scale lies outside: that is what would be sent
+            raise _refuse(p, f"{value!r} would be written as {sent:g} (the nearest step of its "
+                          f"scale), outside its valid range {p.valid[0]:g}..{p.valid[1]:g}")
     if family == "bits":
         lo, hi = 0, (1 << (p.width or 1)) - 1
     else:

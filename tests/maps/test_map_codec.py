@@ -171,6 +171,19 @@ access = "rw"
             m.encode(name, value)
 
 
+def test_a_scaled_value_is_sent_at_the_nearest_step_and_never_outside_valid() -> None:
+    m = point_map('type = "u16"\nscale = 0.01\nvalid = [45.0, 65.0]\n')
+    assert m.encode("p", 49.555) == [4956]
+    assert m.encode("p", 64.996) == [6500]
+    coarse = point_map('type = "u16"\nscale = 2\nvalid = [2.5, 10]\n')
+    assert coarse.encode("p", 10) == [5]
+    assert coarse.encode("p", 3.2) == [2]   # 4: the nearest step, inside
+    with pytest.raises(InvalidArgument) as info:   # 2 would be sent: below valid
+        coarse.encode("p", 2.5)
+    assert str(info.value) == ("point 'p': 2.5 would be written as 2 (the nearest step of its "
+                               "scale), outside its valid range 2.5..10")
+
+
 @settings(max_examples=300, deadline=None)
 @given(layout=st.sampled_from(["both", "high", "low"]), order=st.sampled_from(["ABCD", "BADC"]),
        encoding=st.sampled_from(["ascii", "latin-1", "utf-8"]), text=st.text(max_size=8))
