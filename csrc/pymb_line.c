@@ -155,7 +155,15 @@ int pymbi_modbus_connect(pymb_line *line, const char *node, const char *service)
 {
     (void)node;
     (void)service;
-    return modbus_connect(line->ctx) == -1 ? -1 : 0;
+    if (modbus_connect(line->ctx) == -1) {
+        /* libmodbus 3.1.6 waits for a TCP connect for the response timeout
+         * and leaves connect()'s EINPROGRESS in errno when it passes */
+        if (errno == EINPROGRESS) {
+            errno = ETIMEDOUT;
+        }
+        return -1;
+    }
+    return 0;
 }
 
 void pymbi_modbus_close(pymb_line *line)

@@ -173,8 +173,10 @@ int pymb_line_set_char_ns(pymb_line *line, uint32_t char_ns);
  * context names its port or host); UDP with a datagram socket connected to
  * node:service (a host name or address and a port), handed to its context
  * (a TCP one) with modbus_set_socket. Nothing happens when the context is
- * open already. Returns 0, or -1 and errno (EINVAL when line is NULL, or
- * node or service is NULL for UDP; the OS's or libmodbus's errno). */
+ * open already. A TCP connect waits for the context's response timeout (set
+ * it first), ETIMEDOUT when it passes. Returns 0, or -1 and errno (EINVAL
+ * when line is NULL, or node or service is NULL for UDP; the OS's or
+ * libmodbus's errno). */
 int pymb_line_connect(pymb_line *line, const char *node, const char *service);
 
 /* Close what pymb_line_connect opened (modbus_close for the libmodbus

@@ -283,6 +283,9 @@ def os_hint(err: int) -> str:
         return "connection refused (nothing is listening there)"
     if err == _errno.ECONNRESET:
         return "connection closed by the peer"
+    if err == _errno.ETIMEDOUT:
+        return ("no answer to the connection request within the timeout (is the host up? "
+                "a firewall may drop it)")
     if err == _errno.ENOTTY:
         return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
     return os.strerror(err)

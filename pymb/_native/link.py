@@ -190,6 +190,8 @@ class Link:
             raise ModbusConnectionError(f"{self.name}: the borrowed connection is closed",
                                         errno=errno.ENOTCONN, port=self.name)
         # A borrowed socket is open already: pymb_line_connect then does nothing.
+        # A TCP connect waits as long as a reply may (libmodbus's own 0.5 s else).
+        lib.modbus_set_response_timeout(ctx, *self._timeout_us)
         line = lib.pymb_line_new(ctx, self._framing, self._silence_us)
         if line == ffi.NULL:
             err = ffi.errno
