@@ -125,6 +125,22 @@ def test_ascii_request_on_the_wire_and_a_bad_lrc() -> None:
         assert ascii_bytes(peer.requests[2]) == bytes.fromhex("010600010003")
 
 
+def test_ascii_reply_digits_in_lower_case_are_read_and_their_lrc_checked() -> None:
+    # pymb sends upper case (the specification's); a reply in lower case is
+    # read as the same bytes, its LRC checked as any other's.
+    def script(i: int, req: bytes) -> Reply:
+        frame = ascii_frame(read_reply(req, [0xABCD, 0x00EF]), lrc_delta=1 if i == 1 else 0)
+        return [(0, frame.lower())]
+
+    with AsciiPty(script) as peer, pymb.AsciiClient(peer.port, 19200, slave=0x1A,
+                                                    timeout=1) as c:
+        assert list(c.read_holding_registers(0xBC, 2)) == [0xABCD, 0x00EF]
+        with pytest.raises(pymb.ProtocolError, match="LRC"):
+            c.read_holding_registers(0xBC, 2)
+        assert peer.requests[0] == b":1A0300BC0002" + \
+            b"%02X" % lrc(bytes.fromhex("1A0300BC0002")) + b"\r\n"
+
+
 def test_ascii_late_reply_is_never_a_later_answer() -> None:
     # Request 0 is answered after its timeout; request 1 asks the same
     # address: the late frame (value 111) must not be its answer.
