@@ -23,7 +23,6 @@ import contextlib
 import errno
 import logging
 import os
-import select
 import termios
 import time
 import tty
@@ -31,7 +30,7 @@ import tty
 from pymb import _native
 from pymb.sim.bus import IDLE_S, Bus, char_time, reply_gap, silence, sleep_until
 from pymb.sim.faults import Fault, framed
-from pymb.sim.server import SimServer, write_all
+from pymb.sim.server import SimServer, readable, write_all
 
 __all__ = ["PtyPort", "RtuServer", "SerialPort", "frame_rtu"]
 
@@ -183,7 +182,7 @@ class RtuServer(SimServer):
         timeout = IDLE_S
         if self._buf:
             timeout = max(0.0, self._last + silence(self._line_baud) - time.perf_counter())
-        r, _, _ = select.select([port.fd, wake_fd], [], [], timeout)
+        r = readable([port.fd, wake_fd], timeout)
         if wake_fd in r:
             self._drain_wake()
             return

@@ -11,18 +11,30 @@ from __future__ import annotations
 import abc
 import contextlib
 import logging
+import math
 import os
 import select
 import threading
 import time
+from collections.abc import Sequence
 
 from pymb.sim.bus import Bus
 
-__all__ = ["SimServer", "write_all"]
+__all__ = ["SimServer", "readable", "write_all"]
 
 log = logging.getLogger("pymb.sim")
 
 _REPLUG_RETRY_S = 1.0  # a real port that cannot be reopened is tried again this often
+
+
+def readable(fds: Sequence[int], seconds: float | None) -> list[int]:
+    """Those of ``fds`` with input (or a hang-up) within ``seconds`` (None:
+    for ever), waited for with poll: any descriptor number."""
+    p = select.poll()  # not select(): that one fails above descriptor 1023
+    for fd in fds:
+        p.register(fd, select.POLLIN)
+    return [fd for fd, _ in p.poll(None if seconds is None
+                                   else max(0, math.ceil(seconds * 1000)))]
 
 
 def write_all(fd: int, data: bytes, wait_s: float) -> bool:
@@ -38,7 +50,9 @@ def write_all(fd: int, data: bytes, wait_s: float) -> bool:
             left = deadline - time.perf_counter()
             if left <= 0:
                 return False
-            select.select([], [fd], [], left)
+            p = select.poll()
+            p.register(fd, select.POLLOUT)
+            p.poll(max(1, math.ceil(left * 1000)))
         except OSError:
             return False
     return True
@@ -173,7 +187,7 @@ class SimServer(abc.ABC):
                     if timeout <= 0:
                         self._apply("replug", None)
                         continue
-                select.select([self._wake_r], [], [], timeout)
+                readable([self._wake_r], timeout)
                 self._drain_wake()
         except Exception:  # a bug must not leave a silent, half-dead simulator
             log.exception("%s stopped by an error", self.name)
