@@ -125,8 +125,8 @@ def command_desk(cfg: LogConfig, logger: Logger, out: ForwardingSink, fw: Forwar
         prof.writable = desk.may_write
         desk.births = prof.birth_aliases
         desk.answer = fw.answer_dcmd
-    fw.take_commands(devices, lambda device, payload, done: desk.submit(source, device, payload,
-                                                                        done))
+    fw.take_commands(devices, lambda device, payload, done, retained: desk.submit(
+        source, device, payload, done, retained=retained))
     # A command goes from paho's thread to the desk's, the writer's lock and the TCP
     # loop's: with Python's default 5 ms switch interval, each hand-over can wait that
     # long for the GIL while the polls and the forwarder hold it.

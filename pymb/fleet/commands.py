@@ -31,7 +31,8 @@ class CommandTopics:
     def __init__(self) -> None:
         #: set topic -> device: the plain profile's write commands (see :meth:`take_commands`)
         self.set_topics: dict[str, str] = {}
-        self._commands: Callable[[str, bytes, Callable[[], None] | None], None] | None = None
+        self._commands: Callable[[str, bytes, Callable[[], None] | None, bool], None] | None = \
+            None
         self._session: Session | None = None  #: the connection up now, if any
         #: (device, values read back, metric names, time) of DCMDs answered, for the DDATA
         self._answers: list[tuple[str, dict[str, MetricValue], list[str], float]] = []
@@ -40,11 +41,13 @@ class CommandTopics:
         self._answers_lock = threading.Lock()
 
     def take_commands(self, devices: list[str],
-                      submit: Callable[[str, bytes, Callable[[], None] | None], None]) -> None:
+                      submit: Callable[[str, bytes, Callable[[], None] | None, bool], None]
+                      ) -> None:
         """Subscribe (QoS 1) to ``{prefix}/{node}/{device}/set`` of each of
         ``devices`` from the next connection on (before :meth:`start`); each
-        command goes to ``submit(device, payload, done)``, ``done()`` to be
-        called once it is answered (None: nothing to call)."""
+        command goes to ``submit(device, payload, done, retained)``, ``done()``
+        to be called once it is answered (None: nothing to call), ``retained``
+        when the broker held it retained from before the subscription."""
         cfg = self.cfg
         if cfg.profile == "sparkplug":  # DCMD on spBv1.0/{group}/DCMD/{node}/{device}
             base = f"{NAMESPACE}/{cfg.group}/DCMD/{cfg.node}"
@@ -55,11 +58,12 @@ class CommandTopics:
         self._commands = submit
 
     def command_arrived(self, topic: str, payload: bytes,
-                        done: Callable[[], None] | None = None) -> None:
+                        done: Callable[[], None] | None = None, *,
+                        retained: bool = False) -> None:
         """A command on a set topic (paho's thread): handed on, never waited for;
         ``done()`` acknowledges it to the broker once it is answered."""
         if self._commands is not None:
-            self._commands(self.set_topics[topic], payload, done)
+            self._commands(self.set_topics[topic], payload, done, retained)
         elif done is not None:
             done()
 

@@ -45,9 +45,11 @@ class _Owner(Protocol):
     set_topics: dict[str, str]
 
     def command_arrived(self, topic: str, payload: bytes,
-                        done: Callable[[], None] | None = None) -> None:
+                        done: Callable[[], None] | None = None, *,
+                        retained: bool = False) -> None:
         """A write command arrived on one of ``set_topics``; ``done()``, once it is
-        answered, acknowledges it to the broker (None: acknowledged already)."""
+        answered, acknowledges it to the broker (None: acknowledged already);
+        ``retained``: the broker held it retained from before the subscription."""
 
     def record_event(self, message: str) -> None:
         """Add a line to the connection's story."""
@@ -176,11 +178,14 @@ class Session:
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         if msg.topic in self.fw.set_topics:
+            # (MQTT 5: the retain flag is set only on what a new subscription brings)
+            retained = bool(msg.retain)
             if self.persistent:
                 mid, qos = msg.mid, msg.qos
-                self.fw.command_arrived(msg.topic, msg.payload, lambda: self._ack(mid, qos))
+                self.fw.command_arrived(msg.topic, msg.payload, lambda: self._ack(mid, qos),
+                                        retained=retained)
             else:
-                self.fw.command_arrived(msg.topic, msg.payload)
+                self.fw.command_arrived(msg.topic, msg.payload, retained=retained)
             return
         self._ack(msg.mid, msg.qos)  # a topic of an earlier run's session, say
         if msg.topic == self.fw.profile.command_topic and self.fw.profile.command(msg.payload):

@@ -32,6 +32,10 @@ from pymb.store.commands import CommandLog, PointRow
 __all__ = ["CommandDesk", "Refused", "Target", "allowed", "reason_of"]
 
 QUEUE_MAX = 2048  #: commands waiting at most; more are dropped (and said once)
+#: why a command the broker held retained from before the logger subscribed is
+#: not executed: commands are never queued past the moment they could be executed
+RETAINED = ("a retained command, held by the broker from before the logger subscribed: not "
+            "executed (publish commands without retain)")
 _UNKNOWN = ("the logger stopped while this command was being executed; it is not executed "
             "again: read the points to know their values")
 
@@ -73,8 +77,8 @@ class CommandDesk(threading.Thread):
         self.answer: Callable[[str, dict[str, MetricValue], list[str]], None] | None = None
         #: Sparkplug: the device's DBIRTH metrics (name -> alias), None before it
         self.births: Callable[[str], dict[str, int] | None] = lambda device: None
-        self._queue: collections.deque[tuple[str, str, bytes, Callable[[], None] | None]] = \
-            collections.deque()
+        self._queue: collections.deque[
+            tuple[str, str, bytes, Callable[[], None] | None, bool]] = collections.deque()
         self._cond = threading.Condition()
         self._stop = False
         self._dropped = 0
@@ -89,10 +93,12 @@ class CommandDesk(threading.Thread):
                        for p in t.map.points.values())]
 
     def submit(self, source: str, device: str, payload: bytes,
-               done: Callable[[], None] | None = None) -> None:
+               done: Callable[[], None] | None = None, *, retained: bool = False) -> None:
         """A command arrived (any thread; never blocks); ``done()`` is called
         once its result is handed to :attr:`reply` (or it is dropped): the
-        broker's acknowledgement of a persistent session's command."""
+        broker's acknowledgement of a persistent session's command.
+        ``retained``: the broker held it from before the subscription (it is
+        not executed: :data:`RETAINED`)."""
         with self._cond:
             if len(self._queue) >= QUEUE_MAX:
                 self._dropped += 1
@@ -100,7 +106,7 @@ class CommandDesk(threading.Thread):
                     self.event(f"write commands arrive faster than they can be answered: "
                                f"more than {QUEUE_MAX} wait; the rest are dropped unanswered")
             else:
-                self._queue.append((source, device, bytes(payload), done))
+                self._queue.append((source, device, bytes(payload), done, retained))
                 self._cond.notify()
                 return
         if done is not None:
@@ -119,11 +125,11 @@ class CommandDesk(threading.Thread):
                     self._cond.wait()
                 if self._stop:
                     return
-                source, device, payload, done = self._queue.popleft()
+                source, device, payload, done, retained = self._queue.popleft()
                 if not self._queue:
                     self._dropped = 0
             try:
-                out = self.run_command(source, device, payload)
+                out = self.run_command(source, device, payload, retained=retained)
             except Exception as e:  # a database failure: said, and the desk goes on
                 self.event(f"write command for {device} failed: {e}")
                 out = None
@@ -155,13 +161,15 @@ class CommandDesk(threading.Thread):
         for r in records:
             r()
 
-    def run_command(self, source: str, device: str, payload: bytes) -> bytes | None:
+    def run_command(self, source: str, device: str, payload: bytes, *,
+                    retained: bool = False) -> bytes | None:
         """Execute one command; returns the result to publish. Its result's
         record waits for :meth:`record` (the command itself is on record
         before its write), so the result goes out first: the desk executes
-        one command at a time, so the next, the same id sent again, finds it."""
+        one command at a time, so the next, the same id sent again, finds it.
+        A ``retained`` command on record gets its result; else it is refused."""
         if source == "sparkplug":
-            handle_dcmd(self, device, payload)
+            handle_dcmd(self, device, payload, retained=retained)
             return None
         try:
             doc = json.loads(payload)
@@ -192,6 +200,8 @@ class CommandDesk(threading.Thread):
         try:
             if target is None:
                 raise Refused("invalid", f"no device {device!r} takes commands here")
+            if retained:
+                raise Refused("invalid", RETAINED)
             if not isinstance(values, dict) or not values:
                 raise Refused("invalid", "values must be an object of point names to values")
             rows = [PointRow(str(n), v) for n, v in values.items()]

@@ -60,8 +60,10 @@ def _metric_value(t: Target, name: str, v: Value) -> MetricValue:
     return plain_value(v)
 
 
-def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
-    """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``."""
+def handle_dcmd(desk: Desk, device: str, payload: bytes, *, retained: bool = False) -> None:
+    """Execute one DCMD for ``device`` and hand its DDATA to ``desk.answer``
+    (``retained``: held by the broker from before the subscription, which
+    Sparkplug forbids: refused unless on record)."""
     target = desk.targets.get(device)
     birth = desk.births(device) or {}
     by_alias = {a: n for n, a in birth.items()}
@@ -132,6 +134,9 @@ def handle_dcmd(desk: Desk, device: str, payload: bytes) -> None:
         refusals.append(refusal)
     if not metrics:
         refusals.append(Refused("invalid", f"{device}: the DCMD names no metric"))
+    if retained:
+        refusals = [Refused("invalid", f"{device}: a retained DCMD, held by the broker from "
+                            "before the node subscribed: not executed")] * max(len(rows), 1)
     first = next((r for r in refusals if r is not None), None)
     if first is None and target is not None:
         try:

@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from collectkit import publish
 from mqtt_broker import Fleet, fleet, mosquitto  # noqa: F401 (fixtures)
-from write_mqtt import Commander, start, stop, writes_sent
+from write_mqtt import SET, Commander, start, stop, writes_sent
 from write_peers import WRITE_MAP, FreezingPtyPeer
 
 
@@ -72,3 +73,48 @@ def test_commands_of_the_wrong_shape_are_refused_and_write_nothing(
     finally:
         cmd.close()
     stop(proc)
+
+
+def test_a_retained_command_from_before_the_logger_is_not_executed(
+        fleet: Fleet, peer: FreezingPtyPeer, tmp_path: Path) -> None:  # noqa: F811
+    """writes.md: commands are never queued past the moment they could be
+    executed. A command the broker held retained from before the logger
+    subscribed is refused (reason invalid), once per id; one retained while the
+    logger runs is executed when it arrives, and only then."""
+    map_file = tmp_path / "wdev.toml"
+    map_file.write_text(WRITE_MAP.format(device="", limits="", budget=""))
+    broker = fleet.broker()
+    db = tmp_path / "log.sqlite"
+    stale = {"id": "r-1", "values": {"setpoint_hz": 48.0}}
+    publish(broker.port, [(SET, json.dumps(stale).encode())], retain=True)
+    results = fleet.subscribe(broker, SET + "/result", client_id="pymb-test-retained")
+    proc = start(fleet, broker, peer, map_file, db)
+    cmd = Commander(fleet, broker)
+    try:
+        results.wait_until(lambda m: m, 30, "the result of the retained command")
+        r = json.loads(results.snapshot()[0][1])
+        assert (r["id"], r["ok"], r["reason"]) == ("r-1", False, "invalid"), r
+        assert "retained" in r["error"], r
+        # once per id: the same id sent now gets that result
+        assert cmd.send(stale)["reason"] == "invalid"
+        # retained while the logger runs: it arrives live, and is executed
+        live = {"id": "r-2", "values": {"setpoint_hz": 47.0}}
+        n = len(results.snapshot())
+        publish(broker.port, [(SET, json.dumps(live).encode())], retain=True)
+        results.wait_until(lambda m: any(json.loads(p)["id"] == "r-2" for _, p in m[n:]), 30,
+                           "the result of the live retained command")
+        assert peer.memory.holding[10] == 4700
+    finally:
+        cmd.close()
+    stop(proc)
+    sent = len(writes_sent(peer))
+    assert sent == 1
+    # after a restart the retained r-2 comes again: its result, not a second write
+    n = len(results.snapshot())
+    proc = start(fleet, broker, peer, map_file, db)
+    results.wait_until(lambda m: any(json.loads(p)["id"] == "r-2" for _, p in m[n:]), 30,
+                       "r-2's result again")
+    again = [json.loads(p) for _, p in results.snapshot()[n:]]
+    assert [d["ok"] for d in again if d["id"] == "r-2"] == [True]
+    stop(proc)
+    assert len(writes_sent(peer)) == sent
