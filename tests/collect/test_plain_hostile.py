@@ -111,3 +111,23 @@ def test_two_collectors_share_the_stream_into_one_sqlite_file(
         for p, v in (("a", float(k)), ("b", float(k % 2 == 0)))}
     stored = [int(e.split(" rows stored")[0].split()[-1].replace(",", "")) for e in errs]
     assert all(stored), errs  # both took a part of the stream
+
+
+def test_bad_input_is_said_once_a_minute_per_topic_and_counted_every_time(
+        fleet: Fleet, collectors: Collectors) -> None:
+    broker = fleet.broker()
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--client-id", "bad-rate")
+    wait_subscribed(col)
+    publish(broker.port, [
+        *[("pymb/gw/a", b"{not json")] * 5,
+        ("pymb/gw/b", json.dumps({"time_utc": "yesterday", "values": {"v": 1}}).encode()),
+        ("pymb/gw/c", json.dumps({"time_utc": T, "values": {"v": [[1]]}}).encode()),
+        ("pymb/gw/dev", _sample(T, 1, v=1.0)),
+    ])
+    wait_rows(lambda: sqlite_count(out), 1, "the good sample behind the bad ones")
+    err = stop(col)
+    assert err.count("bad input on pymb/gw/a: not JSON") == 1, err
+    assert err.count("bad input on pymb/gw/b: no time_utc") == 1, err
+    assert err.count("bad input on pymb/gw/c: the value of v_1 is not a number") == 1, err
+    assert ", 7 bad," in err, err

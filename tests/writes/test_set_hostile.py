@@ -70,6 +70,13 @@ def test_commands_of_the_wrong_shape_are_refused_and_write_nothing(
             assert "\n" not in r["error"], r
         assert len(writes_sent(peer)) == sent, "a refused command wrote"
         assert peer.memory.holding[10] == 4900
+        # results go at QoS 1, not retained: a late subscriber finds none of them
+        assert {q for q, _ in cmd.results.flags} == {1}
+        marker = SET.rsplit("/", 1)[0] + "/set/marker"
+        publish(broker.port, [(marker, b"m")], retain=True)
+        late = fleet.subscribe(broker, SET + "/+", client_id="pymb-test-late")
+        late.wait_until(lambda m: m, 15, "the retained marker")
+        assert late.snapshot() == [(marker, b"m")]
     finally:
         cmd.close()
     stop(proc)
