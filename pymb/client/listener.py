@@ -4,6 +4,7 @@ apart by the C core. ``pymb scan`` asks many addresses at once through it."""
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import time
@@ -38,8 +39,7 @@ class LineListener:
         frame = _native.with_crc(bytes((address, function)) + data)
         view = memoryview(frame)
         while view:
-            _, w, _ = select.select([], [self.fd], [], 0.05)
-            if w:
+            if self._ready(select.POLLOUT, 0.05):
                 try:
                     view = view[os.write(self.fd, view):]
                 except BlockingIOError:
@@ -47,6 +47,13 @@ class LineListener:
                 except OSError as e:
                     raise self._lost(e) from None
         return time.monotonic() + len(frame) * self.char
+
+    def _ready(self, events: int, seconds: float) -> bool:
+        """Whether the line is ready for ``events`` within ``seconds``: poll,
+        which takes any descriptor number (select() fails above 1023)."""
+        p = select.poll()
+        p.register(self.fd, events)
+        return bool(p.poll(max(1, math.ceil(seconds * 1000))))
 
     def _lost(self, e: OSError) -> ModbusConnectionError:
         return ModbusConnectionError(f"the line failed during the scan: {e.strerror}",
@@ -64,8 +71,7 @@ class LineListener:
             left = until - time.monotonic()
             if left <= 0:
                 return None
-            r, _, _ = select.select([self.fd], [], [], min(left, 0.05))
-            if r:
+            if self._ready(select.POLLIN, min(left, 0.05)):
                 try:
                     chunk = os.read(self.fd, 512)
                 except BlockingIOError:
