@@ -172,24 +172,14 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     return 2;
 }
 
-int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
+/* The looks of the armed connections that are over by `now`: handed back
+ * unread (LOOK records from rec[k] on, cap at most) unless only slow; *next
+ * brought down to the first look to come. Returns the records now written. */
+static size_t looks(pymbi_loop *lp, double now, pymbi_lrec *rec, size_t k, size_t cap,
+                    double *next)
 {
-    struct epoll_event evs[EVENTS];
-    size_t k = 0, i, most;
-    double now, wait;
-    int n, j, ms;
-
-    if (lp == NULL || rec == NULL || cap == 0 || (lp->nconns > 0 && lp->conns == NULL) ||
-        (lp->slot_cap > 0 && lp->slot_of == NULL) || lp->rx == NULL || lp->rx_cap == 0 ||
-        lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0) ||
-        lp->done == NULL || lp->done_cap == 0) {
-        errno = EINVAL;
-        return -1;
-    }
-    lp->ndone = 0;
-    now = lp->now = pymbi_loop_now();
-    wait = timeout;
-    for (i = 0; i < lp->nconns; i++) { /* looks that are over: handed back unread */
+    size_t i;
+    for (i = 0; i < lp->nconns; i++) {
         pymbi_lconn *c = &lp->conns[i];
         if (!c->armed) {
             continue;
@@ -199,7 +189,6 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
         }
         if (c->look_at <= now) {
             if (k == cap) {
-                wait = 0.0;
                 break;
             }
             c->armed = 0;
@@ -209,56 +198,113 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
             rec[k].conn = (uint32_t)i;
             rec[k].now = now;
             k++;
-        } else if (c->look_at - now < wait) {
-            wait = c->look_at - now;
+        } else if (c->look_at < *next) {
+            *next = c->look_at;
         }
     }
-    if (k == cap) {
-        return (int)k;
-    }
-    if (k > 0) {
-        wait = 0.0;
-    }
-    ms = wait <= 0.0 ? 0 : wait >= 3600.0 ? 3600000 : (int)ceil(wait * 1e3);
-    most = cap - k < EVENTS ? cap - k : EVENTS; /* (one record or done a socket) */
-    if (lp->done_cap < most) {
-        most = lp->done_cap;
-    }
-    n = epoll_wait(lp->epfd, evs, (int)most, ms);
-    if (n < 0) {
-        return errno == EINTR ? (int)k : -1;
-    }
-    if (n > 0) {
-        now = lp->now = pymbi_loop_now();
-    }
-    for (j = 0; j < n; j++) {
-        int fd = evs[j].data.fd;
-        int32_t slot = fd >= 0 && (size_t)fd < lp->slot_cap ? lp->slot_of[fd] : -1;
-        pymbi_lconn *c;
-        int got;
+    return k;
+}
 
-        if (slot < 0 || (size_t)slot >= lp->nconns) {
-            ready(&rec[k++], fd, PYMBI_LOOP_NO_CONN, evs[j].events, now);
-            continue;
+/* Armed connection c's poll read in full at `now` (its next one sent whole):
+ * its index to done, its image to the block. */
+static void carried(pymbi_loop *lp, const pymbi_lconn *c, uint32_t slot, double now)
+{
+    if (lp->block != NULL) {
+        memcpy(lp->block + lp->block_len, c->image, c->image_len);
+        lp->done_off[lp->ndone] = (uint32_t)lp->block_len;
+        lp->done_at[lp->ndone] = now;
+        lp->block_len += c->image_len;
+    }
+    lp->done[lp->ndone++] = slot;
+}
+
+int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
+{
+    struct epoll_event evs[EVENTS];
+    size_t k = 0;
+    double now, end, first = 0.0;
+
+    if (lp == NULL || rec == NULL || cap == 0 || (lp->nconns > 0 && lp->conns == NULL) ||
+        (lp->slot_cap > 0 && lp->slot_of == NULL) || lp->rx == NULL || lp->rx_cap == 0 ||
+        lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0) ||
+        lp->done == NULL || lp->done_cap == 0 || !(lp->hold >= 0.0) ||
+        (lp->hold > 0.0 && lp->block == NULL) ||
+        (lp->block != NULL && (lp->done_off == NULL || lp->done_at == NULL ||
+                               lp->block_cap > UINT32_MAX))) {
+        errno = EINVAL;
+        return -1;
+    }
+    lp->ndone = 0;
+    lp->block_len = 0;
+    now = lp->now = pymbi_loop_now();
+    end = now + timeout;
+    for (;;) {
+        double next = end, wait;
+        size_t most;
+        int n, j, ms, full = 0;
+
+        if (lp->ndone > 0 && first + lp->hold < next) {
+            next = first + lp->hold;
         }
-        c = &lp->conns[slot];
-        if (!c->armed || c->fd != fd) {
-            ready(&rec[k++], fd, (uint32_t)slot, evs[j].events, now);
-            continue;
+        k = looks(lp, now, rec, k, cap, &next);
+        if (k == cap) {
+            return (int)k;
         }
-        got = serve(lp, c, (uint32_t)slot, evs[j].events, now, &rec[k]);
-        if (got < 0) {
-            errno = EINVAL;
-            return -1;
+        wait = k > 0 ? 0.0 : next - now;
+        if (lp->ndone > 0 && wait <= 0.0 && k == 0) {
+            return 0; /* held as long as it may be */
         }
-        if (got == 2) {
-            lp->done[lp->ndone++] = (uint32_t)slot;
-            continue;
+        ms = wait <= 0.0 ? 0 : wait >= 3600.0 ? 3600000 : (int)ceil(wait * 1e3);
+        most = cap - k < EVENTS ? cap - k : EVENTS; /* (one record or done a socket) */
+        if (lp->done_cap - lp->ndone < most) {
+            most = lp->done_cap - lp->ndone;
         }
-        k++;
-        if (got > 0) { /* the rest of the ready sockets: the next wait says them again */
-            break;
+        n = epoll_wait(lp->epfd, evs, (int)most, ms);
+        if (n < 0) { /* (what was carried first: the next wait fails again) */
+            return errno == EINTR || lp->ndone > 0 ? (int)k : -1;
+        }
+        now = lp->now = pymbi_loop_now();
+        for (j = 0; j < n; j++) {
+            int fd = evs[j].data.fd;
+            int32_t slot = fd >= 0 && (size_t)fd < lp->slot_cap ? lp->slot_of[fd] : -1;
+            pymbi_lconn *c;
+            int got;
+
+            if (slot < 0 || (size_t)slot >= lp->nconns) {
+                ready(&rec[k++], fd, PYMBI_LOOP_NO_CONN, evs[j].events, now);
+                continue;
+            }
+            c = &lp->conns[slot];
+            if (c->armed && lp->block != NULL && c->image_len > lp->block_cap - lp->block_len) {
+                if (lp->block_len > 0) { /* the block is full: the next wait says it again */
+                    full = 1;
+                    break;
+                }
+                c->armed = 0; /* an image larger than the block: the caller's */
+            }
+            if (!c->armed || c->fd != fd) {
+                ready(&rec[k++], fd, (uint32_t)slot, evs[j].events, now);
+                continue;
+            }
+            got = serve(lp, c, (uint32_t)slot, evs[j].events, now, &rec[k]);
+            if (got < 0) {
+                errno = EINVAL;
+                return -1;
+            }
+            if (got == 2) {
+                if (lp->ndone == 0) {
+                    first = now;
+                }
+                carried(lp, c, (uint32_t)slot, now);
+                continue;
+            }
+            k++;
+            if (got > 0) { /* the rest of the ready sockets: the next wait says them again */
+                return (int)k;
+            }
+        }
+        if (k > 0 || full || lp->ndone == 0 || lp->hold <= 0.0 || lp->ndone == lp->done_cap) {
+            return (int)k; /* (held: on until the hold, the timeout or a look is over) */
         }
     }
-    return (int)k;
 }

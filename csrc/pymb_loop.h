@@ -15,6 +15,13 @@
  * with the caller, which arms a connection only while its next poll is the
  * same requests at once, and disarms it whenever that stops being so.
  *
+ * With a block (the caller's buffer), each poll read in full has its image
+ * copied there as it is read, so a wait may carry a connection's polls more
+ * than once: it goes on carrying, without returning, for `hold` seconds after
+ * the first poll it read (or until `done` or the block is full), and returns
+ * at once for anything that is the caller's. One return hands the caller many
+ * polls (its per-wait work is not per-poll work).
+ *
  * Linux (epoll, SO_RCVLOWAT set by the caller, MSG_TRUNC on TCP). Compiled
  * into the Python extension only (pymb._native.loop is its one user); not in
  * libpymb. No allocation, no state but the caller's structures; every length
@@ -99,6 +106,16 @@ typedef struct {
     size_t done_cap;
     size_t ndone;    /* of done, written by the last wait */
     double now;      /* when the last wait looked (CLOCK_MONOTONIC seconds) */
+    /* The block (NULL: none, and hold must be 0): done[j]'s image copied to
+     * block[done_off[j] .. + its image_len), read at done_at[j]; a connection
+     * whose image would not fit is handed back (READY) when the block is
+     * empty, else left for the next wait. done_off and done_at: done_cap each. */
+    uint8_t *block;
+    size_t block_cap;
+    size_t block_len; /* of block, written by the last wait */
+    uint32_t *done_off;
+    double *done_at;
+    double hold; /* seconds a wait goes on carrying after its first poll read (0: returns) */
 } pymbi_loop;
 
 /* CLOCK_MONOTONIC in seconds (as Python's time.monotonic on Linux). */
@@ -106,10 +123,14 @@ double pymbi_loop_now(void);
 
 /* Wait up to `timeout` seconds (rounded up to a millisecond; sooner when an
  * armed connection's look comes first) on lp->epfd: the connections whose poll
- * was read and the next one sent whole to lp->done[0 .. lp->ndone), at
- * lp->now; everything else to rec[0 .. cap). Returns the records written (0
- * and no done: the time passed, or a signal came), -1 with errno on invalid
- * arguments or an epoll failure. */
+ * was read and the next one sent whole to lp->done[0 .. lp->ndone) (with a
+ * block: their images and times too), the last at lp->now; everything else to
+ * rec[0 .. cap). It returns after the first epoll wake that read a poll or
+ * wrote a record, or with a block, once a record is written, lp->hold seconds
+ * after the first poll read, when done or the block is full, or at the
+ * timeout. Returns the records written (0 and no done: the time passed, or a
+ * signal came), -1 with errno on invalid arguments or an epoll failure (with
+ * nothing carried: a wait that carried polls returns them first). */
 int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap);
 
 #endif

@@ -15,6 +15,7 @@
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/epoll.h>
@@ -365,6 +366,110 @@ static void test_look(void)
     teardown();
 }
 
+/* The peer of test_block, in a thread of its own: answers `polls` polls of
+ * the fixture's two reads (the first one read by setup), poll t's data bytes
+ * 0x10 + 0x20 t, ... and 0x18 + 0x20 t, ..., reading each next poll first. */
+typedef struct {
+    int polls;
+    int failed;
+} peer_job;
+
+static void *peer_polls(void *arg)
+{
+    peer_job *job = arg;
+    uint8_t buf[32], got[24];
+    int t;
+    for (t = 0; t < job->polls; t++) {
+        const unsigned tid = 1u + 2u * (unsigned)t;
+        size_t n;
+        if (t > 0 && read_n(F.peer, got, 24) != 0) {
+            job->failed = 1;
+            break;
+        }
+        n = reply(buf, tid, 2, (uint8_t)(0x10 + 0x20 * t));
+        n += reply(buf + n, tid + 1, 2, (uint8_t)(0x18 + 0x20 * t));
+        if (send(F.peer, buf, n, 0) != (ssize_t)n) {
+            job->failed = 1;
+            break;
+        }
+    }
+    return NULL;
+}
+
+static uint8_t Block[64];
+static uint32_t Off[8];
+static double At[8];
+
+/* setup(1) with the block (`cap` bytes of it) and `hold`. */
+static int setup_block(size_t cap, double hold)
+{
+    if (setup(1) != 0) {
+        return -1;
+    }
+    memset(Block, 0, sizeof Block);
+    F.lp.block = Block;
+    F.lp.block_cap = cap;
+    F.lp.done_off = Off;
+    F.lp.done_at = At;
+    F.lp.hold = hold;
+    return 0;
+}
+
+static void test_block(void)
+{
+    peer_job job;
+    pthread_t th;
+    double t0;
+    int n, j;
+    /* three polls carried in one wait (done holds three), each image in the block */
+    CHECK(setup_block(sizeof Block, 5.0) == 0);
+    F.lp.done_cap = 3;
+    job.polls = 3;
+    job.failed = 0;
+    CHECK(pthread_create(&th, NULL, peer_polls, &job) == 0);
+    n = pymbi_loop_wait(&F.lp, 5.0, F.rec, 8);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    CHECK(n == 0 && F.lp.ndone == 3 && F.lp.block_len == 24);
+    for (j = 0; j < 3; j++) {
+        const uint8_t *im = Block + 8 * j;
+        CHECK(F.done[j] == 0 && Off[j] == 8u * (unsigned)j);
+        CHECK(im[0] == 0x10 + 0x20 * j && im[3] == 0x13 + 0x20 * j);
+        CHECK(im[4] == 0x18 + 0x20 * j && im[7] == 0x1b + 0x20 * j);
+        CHECK(j == 0 || At[j] >= At[j - 1]);
+    }
+    CHECK(At[2] == F.lp.now && F.conn.armed == 1 && F.conn.asked == 6 && M.replies == 6);
+    teardown();
+    /* held: the wait goes on `hold` seconds after its first poll, then returns it */
+    CHECK(setup_block(sizeof Block, 0.05) == 0);
+    answer(1, 2);
+    t0 = pymbi_loop_now();
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 0 && F.lp.ndone == 1 && F.lp.block_len == 8 && Block[0] == 0x10);
+    CHECK(pymbi_loop_now() - At[0] >= 0.049 && pymbi_loop_now() - t0 < 1.0);
+    CHECK(F.conn.armed == 1 && M.in_flight == 2);
+    teardown();
+    /* room for one image: the second poll is the next wait's */
+    CHECK(setup_block(8, 5.0) == 0);
+    job.polls = 2;
+    job.failed = 0;
+    CHECK(pthread_create(&th, NULL, peer_polls, &job) == 0);
+    n = pymbi_loop_wait(&F.lp, 5.0, F.rec, 8);
+    CHECK(n == 0 && F.lp.ndone == 1 && F.lp.block_len == 8 && Block[0] == 0x10);
+    F.lp.hold = 0.01;
+    n = pymbi_loop_wait(&F.lp, 5.0, F.rec, 8);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    CHECK(n == 0 && F.lp.ndone == 1 && F.lp.block_len == 8 && Block[0] == 0x30);
+    CHECK(F.conn.asked == 4 && M.replies == 4);
+    teardown();
+    /* an image larger than the block: handed back, nothing read */
+    CHECK(setup_block(4, 5.0) == 0);
+    answer(1, 2);
+    n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_READY && F.rec[0].conn == 0);
+    CHECK(F.lp.ndone == 0 && F.conn.armed == 0 && M.replies == 0);
+    teardown();
+}
+
 static void test_args(void)
 {
     pymbi_lrec r;
@@ -380,6 +485,16 @@ static void test_args(void)
     F.lp.done = NULL;
     CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
     F.lp.done = F.done;
+    F.lp.hold = 0.1; /* a hold needs a block */
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.block = Block;
+    F.lp.block_cap = sizeof Block;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL); /* and its arrays */
+    F.lp.done_off = Off;
+    F.lp.done_at = At;
+    F.lp.hold = -1.0;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.hold = 0.1;
     CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == 0 && F.lp.ndone == 0);
     teardown();
 }
@@ -390,6 +505,7 @@ int main(void)
     test_ready();
     test_taken();
     test_look();
+    test_block();
     test_args();
     return check_report();
 }

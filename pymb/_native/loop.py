@@ -49,12 +49,16 @@ class Loop:
     """The C loop over the epoll ``epfd`` and ``n`` connections (by index);
     ``rx`` is where it looks at replies (a :data:`TAKEN` record's bytes stay
     there); a look is twice the replies' time, at least ``look_min`` seconds,
-    at most a quarter of the timeout."""
+    at most a quarter of the timeout. A wait carries at most ``polls`` polls;
+    with a ``block`` of that many bytes each poll's image is copied there, and
+    a wait goes on carrying for ``hold`` seconds after its first poll read
+    (``csrc/pymb_loop.h``)."""
 
-    __slots__ = ("_conns", "_done_c", "_held", "_lp", "_out", "_rx", "_slots", "done", "now",
-                 "recs")
+    __slots__ = ("_at_c", "_block_c", "_conns", "_done_c", "_held", "_lp", "_off_c", "_out", "_rx",
+                 "_slots", "block", "done", "done_at", "done_off", "now", "recs")
 
-    def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float) -> None:
+    def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float, *,
+                 polls: int = _RECORDS, block: int = 0, hold: float = 0.0) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
         #: an armed connection's master and poll table, kept alive while C points into them
         self._held: list[tuple[Master, PollTable] | None] = [None] * max(n, 1)
@@ -72,13 +76,30 @@ class Loop:
         lp.out = self._out
         lp.out_cap = len(self._out)
         lp.look_min = look_min
-        self._done_c: Any = ffi.new("uint32_t[]", _RECORDS)
+        self._done_c: Any = ffi.new("uint32_t[]", polls)
         lp.done = self._done_c
-        lp.done_cap = _RECORDS
+        lp.done_cap = polls
+        #: the images of the polls the last :meth:`wait` read (``block`` bytes:
+        #: none, each poll's image read before the next wait)
+        self.block = bytearray(block)
+        self._block_c: Any = ffi.from_buffer("uint8_t[]", self.block) if block else ffi.NULL
+        self._off_c: Any = ffi.new("uint32_t[]", polls) if block else ffi.NULL
+        self._at_c: Any = ffi.new("double[]", polls) if block else ffi.NULL
+        lp.block = self._block_c
+        lp.block_cap = block
+        lp.done_off = self._off_c
+        lp.done_at = self._at_c
+        lp.hold = hold
         self._rx = rx
         #: the connections the last :meth:`wait` read a poll of and sent the
-        #: next one whole (at :attr:`now`; they stay armed)
+        #: next one whole (they stay armed), at most ``polls``: with a block, a
+        #: connection may be in it more than once (the wait goes on carrying
+        #: ``hold`` seconds after the first poll read)
         self.done: list[int] = []
+        #: with a block: when each poll of :attr:`done` was read, and where its image
+        #: starts in :attr:`block`
+        self.done_at: list[float] = []
+        self.done_off: list[int] = []
         #: when the last :meth:`wait` looked (``time.monotonic``'s clock)
         self.now = 0.0
 
@@ -149,6 +170,12 @@ class Loop:
             err = ffi.errno
             raise OSError(err, f"the TCP loop's wait failed (errno {err})")
         n = lp.ndone
-        self.done = _unpack(self._done_c, n) if n else []
+        if n:
+            self.done = _unpack(self._done_c, n)
+            if self.block:
+                self.done_at = _unpack(self._at_c, n)
+                self.done_off = _unpack(self._off_c, n)
+        else:
+            self.done = []
         self.now = lp.now
         return got

@@ -27,7 +27,7 @@ from pymb.client.address import is_mbaps
 from pymb.errors import ModbusError, request_error, request_text
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
-from pymb.logger.schedule import TEXT, Backoff, reappeared
+from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
 from pymb.logger.tcpsel import READ, WRITE, Selector
 from pymb.logger.tcpunits import Entry, PollRequest, Unit, poll_sample
@@ -161,6 +161,7 @@ class TcpLoopBase(threading.Thread):
         self.report = Report(out, stats)
         self._soonest = 0.0  #: the first deadline of a request or a connect (a sweep then)
         self.cloop: Loop | None = None  #: the C part (:meth:`start_loop`)
+        self._block = memoryview(b"")  #: its block (the images of the polls it carried)
         self._seq = 0
         #: a heap of (when, seq, connection): a poll waiting for all of its
         #: replies at once (the connection's ``look`` is its seq), read as they
@@ -169,10 +170,16 @@ class TcpLoopBase(threading.Thread):
 
     def start_loop(self, rx: ReadBuffer, look_min: float) -> Loop:
         """The C part over :attr:`conns` (each one's :attr:`Conn.index` set),
-        looking at replies in ``rx``; looks of at least ``look_min`` seconds."""
+        looking at replies in ``rx``; looks of at least ``look_min`` seconds.
+        One wait of it carries a list's worth of polls for the writer
+        (:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`):
+        their images copied to its block, the loop woken once for them all."""
         for i, c in enumerate(self.conns):
             c.index = i
-        self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min)
+        image = max((len(e.image) for c in self.conns for e in c.entries), default=0)
+        self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min, polls=BATCH_MAX,
+                          block=BATCH_MAX * max(image, 1), hold=BATCH_AGE)
+        self._block = memoryview(self.cloop.block)
         return self.cloop
 
     def arm(self, c: Conn, t: PollTable, timeout: float, look_at: float) -> None:
@@ -208,26 +215,28 @@ class TcpLoopBase(threading.Thread):
         if got is not None and c.busy and c.lowat > 1:
             self.look(c, got.look_at)
 
-    def sample(self, c: Conn, e: Entry, now: float) -> None:
+    def sample(self, c: Conn, e: Entry, now: float, image: bytes | None = None) -> None:
         """A poll of ``e`` read every request at ``now``: its sample (the
-        connection is idle)."""
+        connection is idle), of ``image`` (None: ``e``'s own)."""
         u = e.unit
         c.entry = None
         c.whole = False
         unread = e.unsupported()
         if unread or c.unread:
             unread = (unread | c.unread) & e.decode.items
-        s, reading = poll_sample(u.info, time.time(), now, e.decode, bytes(e.image), unread)
+        s, reading = poll_sample(u.info, time.time(), now, e.decode,
+                                 bytes(e.image) if image is None else image, unread)
         report = self.report
         report.sample(s)
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
-    def carried(self, c: Conn, now: float) -> None:
+    def carried(self, c: Conn, now: float, at: int | None = None) -> None:
         """The C part read ``c``'s poll in full at ``now`` and sent the next
-        one: the poll's sample."""
+        one: the poll's sample, of its image's copy at ``at`` in the C part's
+        block (None: of the poll's own image, left as it was)."""
         e = c.entry
         assert e is not None
-        self.sample(c, e, now)
+        self.sample(c, e, now, None if at is None else bytes(self._block[at:at + len(e.image)]))
         c.entry = e
         c.whole = True
 

@@ -463,8 +463,9 @@ class TcpMapPoller(TcpLoopBase):
                 wait = looks[0][0] - now
             got = cloop.wait(wait)
             now = cloop.now  # (when it looked)
-            for i in cloop.done:  # the usual: a poll read, the next one sent
-                carried(conns[i], now)
+            if cloop.done:  # the usual: polls read, the next ones sent
+                for i, at, off in zip(cloop.done, cloop.done_at, cloop.done_off, strict=True):
+                    carried(conns[i], at, off)
             for i in range(got):
                 r = recs[i]
                 kind = r.kind

@@ -2,13 +2,15 @@
 the way the loop drives it, against a peer on a real loopback TCP connection:
 an armed connection's whole poll taken and the next one sent in one wait, a
 take that is not the poll's clean end handed back with the master's events,
-a connection not armed handed back untouched ([MB-TCP] 3.1.3, [MB-APP] 6.3, 7)."""
+a connection not armed handed back untouched, a wait that holds the polls it
+carried in its block ([MB-TCP] 3.1.3, [MB-APP] 6.3, 7)."""
 
 from __future__ import annotations
 
 import errno
 import select
 import socket
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -32,7 +34,7 @@ def _recv(s: socket.socket, n: int) -> bytes:
 class _Rig:
     """A connection to a peer, a poll of two reads framed and sent, and the loop over it."""
 
-    def __init__(self) -> None:
+    def __init__(self, block: int = 0, hold: float = 0.0) -> None:
         lsock = socket.create_server(("127.0.0.1", 0))
         self.client = socket.create_connection(lsock.getsockname())
         self.peer, _ = lsock.accept()
@@ -46,7 +48,7 @@ class _Rig:
         self.t = PollTable([MasterRead(3, 0, 2, 8), MasterRead(3, 10, 4, 0)], 7, self.image)
         self.m = Master()
         self.rx = ReadBuffer()
-        self.loop = Loop(self.ep.fileno(), 1, self.rx, 0.002)
+        self.loop = Loop(self.ep.fileno(), 1, self.rx, 0.002, block=block, hold=hold)
         self.loop.bind(0, self.client.fileno())
         size = self.m.frames(self.t, 0, 2)
         self.client.send(self.m.view[:size])
@@ -124,3 +126,26 @@ def test_a_next_poll_that_cannot_go_out_is_a_record(rig: _Rig) -> None:
     assert (r.kind, r.conn, r.size, r.sent, r.err) == (DONE, 0, 24, 0, errno.EPIPE)
     assert bytes(rig.image) == bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
     assert rig.loop.disarm(0).asked == 2
+
+
+def test_with_a_block_a_wait_holds_the_polls_it_carried_and_copies_their_images() -> None:
+    r = _Rig(block=64, hold=0.05)
+    try:
+        r.loop.arm(0, r.m, r.t, 1.0, 0.0, 0.0, 1e12)
+        r.peer.send(_regs(2, 0x40, 4) + _regs(1, 0x80, 2))
+        t0 = time.monotonic()
+        assert r.loop.wait(2.0) == 0
+        assert time.monotonic() - r.loop.done_at[0] >= 0.045  # held on for more
+        assert time.monotonic() - t0 < 1.0
+        assert (r.loop.done, r.loop.done_off) == ([0], [0])
+        assert r.loop.done_at[0] <= r.loop.now
+        want = bytes(range(0x40, 0x48)) + bytes(range(0x80, 0x84))
+        assert bytes(r.loop.block[:12]) == want == bytes(r.image)
+        # the next poll went out; its replies are the next wait's, copied to the block's start
+        assert len(_recv(r.peer, 24)) == 24
+        r.peer.send(_regs(3, 0x10, 2) + _regs(4, 0x20, 4))
+        assert r.loop.wait(2.0) == 0
+        assert (r.loop.done, r.loop.done_off) == ([0], [0])
+        assert bytes(r.loop.block[:12]) == bytes(range(0x20, 0x28)) + bytes(range(0x10, 0x14))
+    finally:
+        r.close()
