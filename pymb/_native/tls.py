@@ -40,6 +40,11 @@ _REASONS = {
     "SSLV3_ALERT_CERTIFICATE_EXPIRED":
         "the server refused this client's certificate (it has expired)",
     "SSLV3_ALERT_CERTIFICATE_UNKNOWN": "the server refused this client's certificate",
+    "SSLV3_ALERT_UNSUPPORTED_CERTIFICATE":
+        "the server refused this client's certificate (not made for a client: its extended "
+        "key usage)",
+    "SSLV3_ALERT_CERTIFICATE_REVOKED":
+        "the server refused this client's certificate (it was revoked)",
     "TLSV1_ALERT_ACCESS_DENIED": "the server refused this client (access denied)",
     "TLSV1_ALERT_DECRYPT_ERROR": "the server refused this client's certificate",
     "UNEXPECTED_EOF_WHILE_READING":

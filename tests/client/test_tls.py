@@ -124,6 +124,20 @@ def test_refused_server_certificates_fail_the_connect_in_one_line(
         assert peer.requests == []  # nothing reached the line
 
 
+def test_a_client_certificate_made_for_a_server_is_refused_in_words(
+        certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    s, peer = served
+    tls = pymb.TlsConfig(ca=certs / "ca.pem", cert=certs / "server.pem",
+                         key=certs / "server.key")
+    with pytest.raises(pymb.TlsError) as e, \
+            pymb.TcpClient("127.0.0.1", s.port, tls=tls, slave=1, timeout=5) as c:
+        c.read_holding_registers(0, 1)
+    assert str(e.value).endswith(
+        "the server refused this client's certificate (not made for a client: its extended "
+        "key usage)"), str(e.value)
+    assert peer.requests == []
+
+
 def test_the_guides_pymb_client_reads_and_writes_as_operator(
         certs: Path, served: tuple[Served, PtyPeer]) -> None:
     s, peer = served
