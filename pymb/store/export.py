@@ -12,7 +12,7 @@ from pymb.devices.readings import STATE_NAMES
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store.reader import map_columns
-from pymb.store.readonly import open_readonly
+from pymb.store.readonly import reading
 from pymb.store.records import reading_values
 from pymb.store.schema import COOLPRO_FIELDS, HUB_FIELDS, SCHEMA_VERSION, schema_version
 from pymb.store.series import chunks, sample_filter
@@ -52,11 +52,7 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
         raise InvalidArgument(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     if events and layout == "wide":
         raise InvalidArgument("--events is for the long layout (an event is no sample)")
-    try:
-        db = open_readonly(db_path)
-    except sqlite3.Error as e:
-        raise InvalidArgument(f"{db_path} is not a readable pymb database: {e}") from None
-    try:
+    with reading(db_path) as db:
         version = schema_version(db)
         if version not in (1, SCHEMA_VERSION):
             raise InvalidArgument(f"{db_path} is not a pymb database this pymb can read")
@@ -87,10 +83,6 @@ def export_csv(db_path: str, out: IO[str], *, device: str | None = None,
                             "" if r[6] is None else r[6], r[7]])
                 rows += 1
         return rows
-    except sqlite3.Error as e:
-        raise InvalidArgument(f"{db_path} is not a readable pymb database: {e}") from None
-    finally:
-        db.close()
 
 
 class _Keep:

@@ -17,11 +17,13 @@ from __future__ import annotations
 
 import os
 import sqlite3
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from pymb.errors import InvalidArgument
 
-__all__ = ["open_readonly"]
+__all__ = ["open_readonly", "reading"]
 
 
 def _may_write(path: Path) -> bool:
@@ -50,3 +52,18 @@ def open_readonly(path: str | os.PathLike[str]) -> sqlite3.Connection:
     if wal.exists() and wal.stat().st_size > 0:
         return sqlite3.connect(f"{uri}?mode=ro", uri=True, isolation_level=None)
     return sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, isolation_level=None)
+
+
+@contextmanager
+def reading(path: str | os.PathLike[str]) -> Iterator[sqlite3.Connection]:
+    """:func:`open_readonly` for one read, closed after it: an ``sqlite3``
+    error opening or reading is the InvalidArgument "PATH is not a readable
+    pymb database: what SQLite said"."""
+    try:
+        con = open_readonly(path)
+        try:
+            yield con
+        finally:
+            con.close()
+    except sqlite3.Error as e:
+        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None

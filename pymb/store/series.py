@@ -14,7 +14,7 @@ from pymb.devices.spec import closest, parse_address, split_spec
 from pymb.errors import InvalidArgument
 from pymb.maps import Map
 from pymb.store.reader import device_map, iter_samples, shipped_map
-from pymb.store.readonly import open_readonly
+from pymb.store.readonly import reading
 from pymb.store.records import StoredSample, reading_value
 from pymb.store.schema import SCHEMA_VERSION, SqlArg, schema_version
 from pymb.store.summary import devices
@@ -108,8 +108,7 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
     ``channel``) from the database at ``path``, between ``since`` and
     ``until``. Samples of an ``--on-change`` log that did not store the
     channel have no point."""
-    con = open_readonly(path)
-    try:
+    with reading(path) as con:
         if schema_version(con) != SCHEMA_VERSION:
             raise InvalidArgument(f"{path} is not a pymb database of format {SCHEMA_VERSION}")
         name, kind = resolve_device(con, device, str(path))
@@ -145,7 +144,3 @@ def series(path: str | os.PathLike[str], device: str, quantity: str, *,
             times.append(s.time_utc)
             values.append(v)
         return Series(name, kind, quantity, channel, m.points[quantity].unit, times, values)
-    except sqlite3.Error as e:
-        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
-    finally:
-        con.close()

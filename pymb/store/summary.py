@@ -14,7 +14,7 @@ from pymb.errors import InvalidArgument, ModbusError
 from pymb.store.commands import write_counts
 from pymb.store.lock import writer_of
 from pymb.store.reader import stored_map
-from pymb.store.readonly import open_readonly
+from pymb.store.readonly import open_readonly, reading
 from pymb.store.records import FAULT_KINDS
 from pymb.store.schema import SCHEMA_VERSION, parse_layout_key, schema_version
 
@@ -90,13 +90,8 @@ def event_counts(path: str | os.PathLike[str],
 
 def summarize(path: str | os.PathLike[str]) -> Summary:
     """The summary of the pymb database at ``path``, read without writing."""
-    con = open_readonly(path)
-    try:
+    with reading(path) as con:
         return _summarize(con, str(path))
-    except sqlite3.Error as e:
-        raise InvalidArgument(f"{path} is not a readable pymb database: {e}") from None
-    finally:
-        con.close()
 
 
 def _summarize(con: sqlite3.Connection, path: str) -> Summary:
