@@ -144,3 +144,12 @@ def test_the_docs_lines_run(map_file: Path, tmp_path: Path) -> None:
             done = run_pymb(*argv, *extra, cwd=tmp_path)
             assert done.returncode == 0, (argv, done.stderr)
             assert "2100" in done.stdout, argv
+
+
+@pytest.mark.parametrize("command", ["read", "log"])
+@pytest.mark.parametrize("other", ["--tcp", "--udp"])
+def test_ascii_without_port_is_refused_in_one_line(command: str, other: str) -> None:
+    done = run_pymb(command, "coolpro:40", "--ascii", other, "127.0.0.1:1")
+    assert done.returncode == 2
+    assert done.stderr == (f"pymb {command}: --ascii is Modbus ASCII on a serial line: "
+                           "give it with --port PATH\n")
