@@ -186,13 +186,26 @@ def add_connection_args(p: argparse.ArgumentParser, *,
     where.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                        help="RTU frames over TCP: a transparent serial server (\"raw\" mode)")
     where.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP (MBAP datagrams)")
-    p.add_argument("--ascii", action="store_true",
-                   help="Modbus ASCII instead of RTU on the --port serial line")
+    add_ascii_arg(p)
     add_serial_args(p)
     p.add_argument("--timeout", type=float, default=timeout,
                    help=f"seconds to wait for a reply (default {timeout:g})")
     if tls:
         add_tls_args(p)
+
+
+def add_ascii_arg(p: argparse.ArgumentParser) -> None:
+    """--ascii: Modbus ASCII on the --port line (:func:`ascii_line` checks it)."""
+    p.add_argument("--ascii", action="store_true",
+                   help="Modbus ASCII instead of RTU on the --port serial line")
+
+
+def ascii_line(args: argparse.Namespace) -> bool:
+    """True with --ascii, which needs --port (else InvalidArgument)."""
+    on: bool = getattr(args, "ascii", False)
+    if on and not args.port:
+        raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with --port PATH")
+    return on
 
 
 def add_serial_args(p: argparse.ArgumentParser) -> None:
@@ -243,6 +256,16 @@ def add_tls_args(p: argparse.ArgumentParser) -> None:
                           "host connected to)")
 
 
+def add_mqtt_access(g: argparse._ArgumentGroup, password_help: str) -> None:
+    """--mqtt-user, --mqtt-password-file (``password_help``), --mqtt-ca,
+    --mqtt-cert and --mqtt-key: a broker's access (pymb log, pymb collect)."""
+    g.add_argument("--mqtt-user", metavar="NAME", help="user name")
+    g.add_argument("--mqtt-password-file", metavar="FILE", help=password_help)
+    g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
+    g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
+    g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+
+
 def tls_for(args: argparse.Namespace, address: str | None, flag: str = "--tcp") -> TlsConfig | None:
     """The TLS settings of the options, which need ``address`` to be
     ``mbaps://...`` (None: no option given)."""
@@ -277,8 +300,7 @@ def make_client(args: argparse.Namespace) -> Client:
     """The client the connection arguments describe (not yet open); a host
     name that does not resolve is said so."""
     serial_options(args)
-    if getattr(args, "ascii", False) and not args.port:
-        raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with --port PATH")
+    on_ascii = ascii_line(args)
     if getattr(args, "udp", None):
         tls_for(args, args.udp, "--udp")  # refused: Modbus over UDP has no TLS
         host, port = parse_host_port(args.udp, what="--udp")
@@ -286,7 +308,7 @@ def make_client(args: argparse.Namespace) -> Client:
         if why is not None:
             raise ModbusConnectionError(f"cannot connect to {args.udp}: {why}", port=args.udp)
         return UdpClient(host, port, timeout=args.timeout)
-    if getattr(args, "ascii", False):
+    if on_ascii:
         tls_for(args, None)
         return AsciiClient(args.port, args.baud, args.parity, timeout=args.timeout)
     for option, framing in (("tcp", False), ("rtu_over_tcp", True)):

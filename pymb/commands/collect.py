@@ -12,6 +12,7 @@ from typing import Any, TextIO
 
 from pymb.collect import CollectConfig, Collector
 from pymb.collect.sqlstore import open_stores
+from pymb.commands._common import add_mqtt_access
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
@@ -40,12 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "pymb-collect-PROFILE-HOSTNAME[-SHARE])")
     p.add_argument("--quiet", action="store_true", help="no status line and no summary")
     g = p.add_argument_group("broker access (as pymb log's --mqtt-* options)")
-    g.add_argument("--mqtt-user", metavar="NAME", help="user name")
-    g.add_argument("--mqtt-password-file", metavar="FILE",
-                   help="the password's file (first line); or $PYMB_MQTT_PASSWORD")
-    g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
-    g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
-    g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+    add_mqtt_access(g, "the password's file (first line); or $PYMB_MQTT_PASSWORD")
 
 
 def status_text(st: Any, elapsed: float, last: tuple[float, int, int]) -> str:

@@ -14,7 +14,9 @@ import sys
 
 from pymb.commands._common import (
     add_alias_args,
+    add_ascii_arg,
     add_map_arg,
+    add_mqtt_access,
     add_serial_args,
     add_tls_args,
     device_help,
@@ -46,8 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rtu-over-tcp", metavar="HOST:PORT",
                    help="RTU-over-TCP (raw serial server) of a single bus")
     p.add_argument("--udp", metavar="HOST:PORT", help="Modbus over UDP device of a single bus")
-    p.add_argument("--ascii", action="store_true",
-                   help="Modbus ASCII instead of RTU on the --port serial line")
+    add_ascii_arg(p)
     p.add_argument("--device", action="append", default=[], metavar="DEVICE",
                    help="the same as a DEVICE argument (repeatable)")
     add_alias_args(p, note="; with one DEVICE")
@@ -97,12 +98,7 @@ def add_mqtt_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mqtt-group", metavar="NAME", help="Sparkplug group (default pymb)")
     g.add_argument("--mqtt-prefix", metavar="PREFIX",
                    help="plain topics {prefix}/{node}/{device} (default pymb)")
-    g.add_argument("--mqtt-user", metavar="NAME", help="user name")
-    g.add_argument("--mqtt-password-file", metavar="FILE",
-                   help=f"the password's file (or ${PASSWORD_ENV}; never on the command line)")
-    g.add_argument("--mqtt-ca", metavar="FILE", help="CA certificate(s) to verify the broker")
-    g.add_argument("--mqtt-cert", metavar="FILE", help="client certificate (with --mqtt-key)")
-    g.add_argument("--mqtt-key", metavar="FILE", help="client certificate's private key")
+    add_mqtt_access(g, f"the password's file (or ${PASSWORD_ENV}; never on the command line)")
     g.add_argument("--mqtt-drain", metavar="SECONDS",
                    help="on a clean stop, keep sending what is left for at most this long "
                         "(default 5; the rest goes with the next run)")

@@ -11,7 +11,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pymb.client import TlsConfig
-from pymb.commands._common import alias_spec, serial_options, tls_for, tls_from_args
+from pymb.commands._common import (
+    alias_spec,
+    ascii_line,
+    serial_options,
+    tls_for,
+    tls_from_args,
+)
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.errors import InvalidArgument
@@ -76,11 +82,11 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     aliases = [f"--{a.replace('_', '-')}" for a in ("address", "channels", "humidity_unit")
                if getattr(args, a, None) is not None]
     udp: str | None = getattr(args, "udp", None)
-    ascii_line: bool = getattr(args, "ascii", False)
+    on_ascii: bool = getattr(args, "ascii", False)
     mqtt_table: MqttConfig | None = None
     serial_options(args)
     if args.config:
-        if args.port or args.tcp or args.rtu_over_tcp or udp or ascii_line or specs:
+        if args.port or args.tcp or args.rtu_over_tcp or udp or on_ascii or specs:
             raise InvalidArgument("give either --config or --port/--tcp with devices, not both")
         if aliases:
             raise InvalidArgument(f"with --config, give {aliases[0]}'s value in the file's "
@@ -94,9 +100,7 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
     else:
         if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp, udp)) > 1:
             raise InvalidArgument("give one of --port, --tcp, --rtu-over-tcp or --udp")
-        if ascii_line and not args.port:
-            raise InvalidArgument("--ascii is Modbus ASCII on a serial line: give it with "
-                                  "--port PATH")
+        ascii_line(args)
         if not (args.port or args.tcp or args.rtu_over_tcp or udp) or not specs:
             raise InvalidArgument("name a bus and its devices: pymb log coolpro:40 hub:250 "
                                   "--port PATH (or --tcp HOST:PORT); or --config FILE")
@@ -115,7 +119,7 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
                                 baud=args.baud, parity=args.parity, timeout=args.timeout,
                                 interval=args.interval, rtu_over_tcp=args.rtu_over_tcp,
                                 udp=udp,
-                                ascii=ascii_line,
+                                ascii=on_ascii,
                                 tls=tls_for(args, args.tcp))
         cfg.path = ""
     if args.format:
