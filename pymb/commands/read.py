@@ -28,7 +28,7 @@ from pymb.commands.maptext import map_json, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices import CoolProIdentity
 from pymb.devices.deviceconfig import DeviceConfig
-from pymb.devices.identify import Identity, client_asker, identify, mismatch
+from pymb.devices.identify import WANTED_NAMES, Identity, client_asker, identify, mismatch
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading
 from pymb.devices.mapspec import (
@@ -231,7 +231,7 @@ def what_answers(client: Client, address: int, wanted: str, channels: int) -> st
     if found is not None:
         matched = match_map(ask, address, map_types())
         if matched is not None and matched[0] != wanted:
-            name = {"coolpro": "a CoolPro", "hub": "a hub"}.get(wanted, wanted)
+            name = WANTED_NAMES.get(wanted, wanted)
             return (f"address {address} answers like {matched[0]} ({matched[1]}), not {name}: "
                     f"read it as {matched[0]}:{address}")
     return mismatch(found, wanted, address, channels)

@@ -40,13 +40,19 @@ from pymb.errors import (
 )
 from pymb.wire import registers_from_wire
 
-__all__ = ["Answer", "Identity", "client_asker", "identify", "mismatch"]
+__all__ = ["FOUND_NAMES", "WANTED_NAMES", "Answer", "Identity", "client_asker", "identify",
+           "mismatch"]
 
 #: (reply data after the function code) | DeviceException code (int) | None (silence)
 Answer = bytes | int | None
 Ask = Callable[[int, int, bytes], Answer]
 
 _FC_HOLDING = FunctionCode.READ_HOLDING_REGISTERS
+
+#: how a phrase names a device of each kind identification knows: read
+#: (``wanted``), and found answering (:attr:`Identity.device`)
+WANTED_NAMES = {"coolpro": "a CoolPro", "hub": "a hub"}
+FOUND_NAMES = {"coolpro": "a CoolPro", "hub": "a sensor hub"}
 
 
 @dataclass(frozen=True)
@@ -61,9 +67,7 @@ class Identity:
 
     def describe(self) -> str:
         """``a CoolPro (serial 12345, firmware 1.0.0)``, ``a sensor hub ...``."""
-        what = {"coolpro": "a CoolPro", "hub": "a sensor hub"}.get(self.device,
-                                                                   "an unknown device")
-        return f"{what} ({self.detail})"
+        return f"{FOUND_NAMES.get(self.device, 'an unknown device')} ({self.detail})"
 
 
 
@@ -165,15 +169,14 @@ def _firmware_range(i: int) -> str:
 def mismatch(found: Identity | None, wanted: str, address: int, channels: int) -> str:
     """Why a read of ``wanted`` (``coolpro``/``hub`` with ``channels``, or
     another map's id) at ``address`` got no value, in one phrase."""
-    name = {"coolpro": "a CoolPro", "hub": "a hub"}.get(wanted)
+    name = WANTED_NAMES.get(wanted)
     if name is None:  # another map's device (backoff = true): it refused every point
         if found is None:
             return f"address {address} refused every point of the {wanted} map"
         name = wanted
     if found is None:
         return f"nothing answers at address {address}"
-    like = {"coolpro": "a CoolPro", "hub": "a sensor hub"}.get(found.device,
-                                                              "an unknown device")
+    like = FOUND_NAMES.get(found.device, "an unknown device")
     if found.device != wanted:
         return f"address {address} answers like {like}, not {name} ({found.detail})"
     if found.channels is not None and found.channels < channels:
