@@ -175,6 +175,15 @@ def test_a_mistyped_command_gets_the_closest(word: str, close: str) -> None:
                                      f"{close!r}?"]
 
 
+def test_a_word_far_from_every_command_gets_argparse_s_choices() -> None:
+    # 'rexx' is 0.5 like 'read' (difflib's ratio): close enough for a map's
+    # names, not for a command's
+    r = run_pymb("rexx", "coolpro", timeout=60)
+    assert (r.returncode, r.stdout) == (2, "")
+    assert "did you mean" not in r.stderr
+    assert "pymb: error: argument COMMAND: invalid choice: 'rexx' (choose from" in r.stderr
+
+
 def test_a_typo_in_a_devices_type_in_the_toml_file(tmp_path: Path) -> None:
     """The closest type, then what a type may be: one sentence, no '?;'."""
     config = tmp_path / "buses.toml"
