@@ -26,6 +26,7 @@ from pymb.errors import (
     ModbusError,
     OutputError,
     WriteRefused,
+    closest_hint,
 )
 
 __all__ = [
@@ -152,9 +153,9 @@ def _misspelt_command(parser: argparse.ArgumentParser, args_in: list[str]) -> No
     """Exit 2 for a mistyped command with the closest one (``pymb reed``:
     did you mean 'read'?); a word close to none is argparse's to refuse."""
     if args_in and args_in[0] not in COMMANDS and not args_in[0].startswith("-"):
-        close = difflib.get_close_matches(args_in[0], list(COMMANDS), n=1, cutoff=0.6)
-        if close:
-            parser.error(f"unknown command {args_in[0]!r}; did you mean {close[0]!r}?")
+        hint = closest_hint(args_in[0], COMMANDS, cutoff=0.6)
+        if hint:
+            parser.error(f"unknown command {args_in[0]!r}{hint}")
 
 
 def _unicode_or_replace() -> None:

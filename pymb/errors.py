@@ -22,8 +22,10 @@ The messages of a failed request are written here too
 
 from __future__ import annotations
 
+import difflib
 import errno as _errno
 import os
+from collections.abc import Iterable
 from typing import Any, ClassVar, TypedDict
 
 from pymb._native import (
@@ -55,6 +57,7 @@ __all__ = [
     "TlsError",
     "WriteNotApplied",
     "WriteRefused",
+    "closest_hint",
     "describe_exception",
     "exception_class",
     "function_name",
@@ -289,6 +292,13 @@ def os_hint(err: int) -> str:
     if err == _errno.ENOTTY:
         return "not a serial port (a terminal device such as /dev/ttyUSB0 is needed)"
     return os.strerror(err)
+
+
+def closest_hint(word: str, known: Iterable[str], cutoff: float = 0.5) -> str:
+    """``; did you mean 'x'?`` with the name in ``known`` closest to ``word``
+    (difflib's ratio at least ``cutoff``), or "" when none is that close."""
+    near = difflib.get_close_matches(word, list(known), n=1, cutoff=cutoff)
+    return f"; did you mean {near[0]!r}?" if near else ""
 
 
 # The names messages give a request: the client's method names.

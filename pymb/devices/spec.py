@@ -6,10 +6,9 @@ mean" of an unknown key. What a TYPE and its keys mean is its map's
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Sequence
 
-from pymb.errors import InvalidArgument
+from pymb.errors import InvalidArgument, closest_hint
 
 __all__ = ["closest", "parse_address", "split_spec"]
 
@@ -27,10 +26,7 @@ def closest(key: str, known: Sequence[str]) -> str:
     """``; did you mean 'x'?`` (or the list of known keys) for an unknown ``key``."""
     if _SYNONYMS.get(key.lower()) in known:
         return f"; did you mean {_SYNONYMS[key.lower()]!r}?"
-    near = difflib.get_close_matches(key, list(known), n=1, cutoff=0.5)
-    if near:
-        return f"; did you mean {near[0]!r}?"
-    return f"; known: {', '.join(known)}"
+    return closest_hint(key, known) or f"; known: {', '.join(known)}"
 
 
 def split_spec(spec: str) -> tuple[str, str | None, list[tuple[str, bool, str]]]:

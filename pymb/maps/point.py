@@ -5,14 +5,13 @@ checks, the codec and the planner build on these; :class:`~pymb.maps.Map`
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Protocol, TypeAlias, TypeVar
 
 from pymb._native import MAX_READ_BITS, MAX_READ_REGISTERS
-from pymb.errors import InvalidArgument, ModbusError
+from pymb.errors import InvalidArgument, ModbusError, closest_hint
 from pymb.maps.types import BIT_TABLES, TABLES
 
 __all__ = [
@@ -70,12 +69,10 @@ class MapError(ModbusError, ValueError):
 
 def did_you_mean(word: str, known: Sequence[str]) -> str:
     """``; did you mean 'x'?``, or the known names, or nothing when there are none."""
-    near = difflib.get_close_matches(word, list(known), n=1, cutoff=0.5)
-    if near:
-        return f"; did you mean {near[0]!r}?"
-    if known:
-        return f"; known: {', '.join(sorted(known))}"
-    return ""
+    hint = closest_hint(word, known)
+    if hint or not known:
+        return hint
+    return f"; known: {', '.join(sorted(known))}"
 
 
 #: The typed views pymb has of a device (``[device] view``), each named by
