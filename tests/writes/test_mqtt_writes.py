@@ -92,6 +92,8 @@ def test_set_result_refusals_once_per_id_and_the_record(fleet: Fleet, peer: Free
         n = len(writes_sent(peer))
         r = cmd.send({"id": "c-13", "values": {"setpoint_hz": 46}})
         assert (r["ok"], r["reason"]) == (False, "budget")
+        assert r["error"] == ("psu-a: 'setpoint_hz': write budget spent (3 writes per hour); "
+                              "nothing was sent")
         assert len(writes_sent(peer)) == n
         r = cmd.send(None, raw=b"not json")
         assert (r["id"], r["ok"], r["reason"]) == (None, False, "invalid")
