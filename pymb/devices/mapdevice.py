@@ -34,8 +34,8 @@ from pymb.devices.mapwrite import (
     Outcome,
     WriteBudget,
     WriteRequest,
-    budget_refusal,
     check,
+    check_budgets,
     decoded,
     note_applied,
     requests,
@@ -434,10 +434,7 @@ class MapDevice:
         m = self.map
         changes = check(m, items, self._scale_factors(items))
         key = f"{m.id}:{self.address}"
-        for c in changes:
-            limit = c.point.max_writes_per_hour
-            if limit is not None and self.budget.spent(f"{key}/{c.name}", limit):
-                raise budget_refusal(m, key, c)
+        check_budgets(self.budget, key, changes, key)
         outcomes = [Outcome(c.name, c.value) for c in changes]
         rmw = not m.limits.mask_write
         with self._lock, self._fetcher.map_timeout():

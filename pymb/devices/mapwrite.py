@@ -349,11 +349,14 @@ def decoded(p: Point, registers: Sequence[int], sf: int | None = None) -> Value:
     return label(p, decode_one(p, registers, sf)[0])
 
 
-def budget_refusal(m: Map, key: str, c: Change) -> WriteRefused:
-    """The :class:`~pymb.WriteRefused` of a spent budget."""
-    limit = c.point.max_writes_per_hour
-    return WriteRefused(f"{key}: {c.name!r}: write budget spent ({limit} writes per hour); "
-                        "nothing was sent", reason="budget", point=c.name)
+def check_budgets(budget: Budget, key: str, changes: Sequence[Change], where: str) -> None:
+    """The :class:`~pymb.WriteRefused` (``where`` first) of the first of
+    ``changes`` whose write budget, counted at ``key/NAME``, is spent."""
+    for c in changes:
+        limit = c.point.max_writes_per_hour
+        if limit is not None and budget.spent(f"{key}/{c.name}", limit):
+            raise WriteRefused(f"{where}: {c.name!r}: write budget spent ({limit} writes per "
+                               "hour); nothing was sent", reason="budget", point=c.name)
 
 
 def not_applied(where: str, failed: Sequence[tuple[Change, Value]],

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 
 from pymb.devices.mapdevice import MapDevice
-from pymb.devices.mapwrite import Outcome, check, resolve
+from pymb.devices.mapwrite import Outcome, check, check_budgets, resolve
 from pymb.errors import InvalidArgument, ModbusError, OutputError, WriteNotApplied, WriteRefused
 from pymb.fleet.protobuf import MetricValue
 from pymb.jsonvalue import JsonObject
@@ -285,15 +285,12 @@ class CommandDesk(threading.Thread):
             raise Refused("device", str(e)) from None
         if dev is None:
             raise Refused("device", f"{t.name} is offline: nothing was sent")
-        key = f"{m.id}:{dev.address}"
         try:
-            for c in changes:
-                limit = c.point.max_writes_per_hour
-                if limit is not None and dev.budget.spent(f"{key}/{c.name}", limit):
-                    raise Refused("budget", f"{t.name}: {c.name!r}: write budget spent "
-                                  f"({limit} writes per hour); nothing was sent")
-        except BaseException:
+            check_budgets(dev.budget, f"{m.id}:{dev.address}", changes, t.name)
+        except BaseException as e:
             t.release()  # (a database failure too: the line goes back to its polls)
+            if isinstance(e, WriteRefused):
+                raise Refused(e.reason, str(e)) from None
             raise
         return dev
 
