@@ -18,6 +18,7 @@ from wire_peers import build_libmodbus_server, libmodbus_server, pymodbus_server
 from write_peers import WRITE_MAP, FreezingPtyPeer, FreezingTcpPeer
 
 import pymb
+from pymb.sim import SimulatorProcess
 
 
 @pytest.fixture(scope="module")
@@ -208,3 +209,14 @@ def test_log_allow_writes_mistakes_exit_2(map_file: str, tmp_path: Path, extra: 
     assert r.returncode == 2, r.stderr
     assert message in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_the_coolpros_reset_reads_0_so_it_is_not_applied_unless_not_verified() -> None:
+    # docs/writes.md: a command register that never reads back what was written
+    with SimulatorProcess(["coolpro"], quiet=True) as sim:
+        r = run_pymb("write", "coolpro", "reset=0xAA55", "--port", sim.port)
+        assert (r.returncode, r.stdout) == (3, "reset: 0 -> 0 (not applied)\n")
+        assert "not applied: 'reset': sent 43605, the device holds 0" in r.stderr
+        r = run_pymb("write", "coolpro", "reset=0xAA55", "--no-verify", "--port", sim.port)
+        assert (r.returncode, r.stdout, r.stderr) == (0, "reset: 0 -> 43605 (not read back)\n",
+                                                      "")
