@@ -386,6 +386,12 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSecti
         ctx.fail("access", f"access is r, rw or w, got {access!r}")
     if access != "r" and table not in ("coil", "holding"):
         ctx.fail("access", f"{table} points are read-only (rw and w only on coil and holding)")
+    seen: dict[str, int] = {}
+    for n, label in values.items() if access != "r" else ():  # a write takes a name
+        if label in seen:
+            ctx.fail("values", f"values: {label!r} names both {seen[label]} and {n}; a write "
+                     "by that name would not know which to send")
+        seen[label] = n
     valid = None
     if "valid" in raw:
         v = raw["valid"]
