@@ -258,6 +258,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSecti
     only("offset", scalable, "numeric")
     only("markers", scalable, "numeric")
     only("values", INTEGER_TYPES | {"bit", "bool"}, "integer")
+    only("valid", scalable | {"bit", "bits", "bool"}, "numeric")
     only("flags", INTEGER_TYPES - {"sm16"}, "integer")
     only("scale_from", scalable - {"sunssf"}, "numeric")
     only("mask", ("u16", "u32", "u64"), "u16, u32 and u64")

@@ -74,6 +74,10 @@ def test_map_error_is_a_modbus_error_and_a_value_error() -> None:
      ("'encoding'", "string")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "u16"\naccess = "rw"\n'
      'values = { 0 = "stop", 1 = "stop" }\n', ("'values'", "'stop' names both 0 and 1")),
+    ('[[point]]\nname = "a"\naddress = 0\ntype = "string"\ncount = 2\naccess = "rw"\n'
+     'valid = [0, 9]\n', ("'valid'", "numeric points only, not string")),
+    ('[[point]]\nname = "a"\naddress = 0\ntype = "raw"\ncount = 2\nvalid = [0, 9]\n',
+     ("'valid'", "not raw")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "f32"\nvalues = { 0 = "x" }\n',
      ("'values'", "integer")),
     ('[[point]]\nname = "a"\ntable = "coil"\naddress = 0\ntype = "u16"\n', ("'type'", "bool")),
