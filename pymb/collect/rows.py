@@ -13,6 +13,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, Protocol
 
+from pymb.fleet.config import NODE_TOPICS
 from pymb.jsonvalue import JsonValue
 
 __all__ = ["NO_VALUE", "BadInput", "Batch", "PlainSample", "Row", "RowBatch", "channel_point",
@@ -30,8 +31,6 @@ try:  # in the extra collect; the json module decodes the same documents, 4x slo
 except ImportError:  # pragma: no cover - without the extra
     _loads = json.loads
 
-#: the last level of a plain topic that is not a device's samples
-_NOT_SAMPLES = ("status", "set")
 
 
 class BadInput(ValueError):
@@ -50,7 +49,7 @@ def plain_topic(topic: str, prefix: str) -> tuple[str, str] | None:
     parts = topic.split("/")
     if len(parts) != 3 or parts[0] != prefix or not parts[1] or not parts[2]:
         raise BadInput("not a topic of the form {prefix}/{node}/{device}")
-    if parts[2] in _NOT_SAMPLES:
+    if parts[2] in NODE_TOPICS:
         return None
     return parts[1], parts[2]
 

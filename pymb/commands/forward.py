@@ -54,6 +54,9 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
     check_output(cfg.format, cfg.path)  # never into a file of another kind
     if cfg.format != "sqlite":
         raise InvalidArgument("--mqtt forwards from the SQLite database (the outbox)")
+    for bus in cfg.buses:
+        for d in bus.devices:
+            mqtt.check_device(d.name)
     # Only this thread (the logger's run) uses the writer's connection: the
     # forwarder and the command desk hand it their work (one_thread: SQLite's
     # thread check says so if one ever does not).

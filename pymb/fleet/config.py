@@ -37,9 +37,12 @@ from pymb.errors import InvalidArgument
 if TYPE_CHECKING:  # the optional extra pymb-modbus[mqtt]
     from paho.mqtt.client import Client
 
-__all__ = ["PROFILES", "PROTOCOLS", "MqttConfig", "from_table"]
+__all__ = ["NODE_TOPICS", "PROFILES", "PROTOCOLS", "MqttConfig", "from_table"]
 
 PROFILES = ("plain", "sparkplug")
+#: the plain profile's topics ``{prefix}/{node}/NAME`` that are the node's own,
+#: not a device's samples (a device may not have one of these names)
+NODE_TOPICS = ("status", "set")
 PASSWORD_ENV = "PYMB_MQTT_PASSWORD"
 #: TOML key -> type; the flag is ``--mqtt-KEY`` with ``_`` as ``-`` (``url`` is ``--mqtt``)
 KEYS: dict[str, type | tuple[type, ...]] = {
@@ -132,6 +135,17 @@ class MqttConfig:
             raise InvalidArgument("MQTT keepalive must be 5..3600 seconds")
         if self.password_file and not self.user:
             raise InvalidArgument("--mqtt-password-file needs --mqtt-user")
+
+    def check_device(self, name: str) -> None:
+        """A device's name is a level of its topics: InvalidArgument for one
+        with '/', '+' or '#', or (plain) one of the node's own :data:`NODE_TOPICS`."""
+        if not name or any(c in name for c in "/+#"):
+            raise InvalidArgument(f"device name {name!r} cannot be a level of an MQTT topic: "
+                                  "use a name without '/', '+' or '#' for --mqtt")
+        if self.profile == "plain" and name in NODE_TOPICS:
+            raise InvalidArgument(f"device name {name!r} is the node's own topic "
+                                  f"{self.prefix}/{self.node}/{name}: choose another name "
+                                  "for --mqtt")
 
     def password(self) -> str | None:
         """The password: from the file (first line), else $PYMB_MQTT_PASSWORD."""
