@@ -19,7 +19,7 @@ from pymb._native.serve import (
     mbap_frame,
     take_frames,
 )
-from pymb.serve.upstream import EX_PATH, EX_TARGET, Done
+from pymb.serve.upstream import EX_PATH, EX_TARGET, Done, resendable
 
 __all__ = ["DEFAULT_MAX_INFLIGHT", "PipelinedUpstream"]
 
@@ -51,16 +51,19 @@ class _Link(asyncio.Protocol):
             self.owner.reply(frame)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.owner.lost(self, f"{exc}" if exc else "closed by the upstream")
+        self.owner.lost(self, f"{exc}" if exc else "closed by the upstream",
+                        closed=exc is None or isinstance(exc, (ConnectionResetError,
+                                                               BrokenPipeError)))
 
 
 class _Job:
-    __slots__ = ("answers_before", "done", "pdu", "timer", "unit")
+    __slots__ = ("answers_before", "done", "pdu", "resent", "timer", "unit")
 
     def __init__(self, unit: int, pdu: bytes, done: Done) -> None:
         self.unit, self.pdu, self.done = unit, pdu, done
         self.timer: asyncio.TimerHandle | None = None
         self.answers_before = 0  #: its unit's replies when it was sent
+        self.resent = False  #: sent again after the device closed the connection
 
 
 class PipelinedUpstream:
@@ -80,7 +83,14 @@ class PipelinedUpstream:
     arrive together): when a unit leaves a request unanswered past
     ``timeout`` while it answered others, ``max_inflight`` falls to 1, said
     in one event line. A unit that answers nothing (a device that is off,
-    behind a gateway) changes nothing."""
+    behind a gateway) changes nothing.
+
+    Some devices take one request a connection: when the device closes the
+    connection after a reply, the reads that were in flight on it are sent
+    again on a new one (once each; a write never is: the device may have
+    done it, and it is answered 0x0A), and when it closed after its first
+    reply with others in flight, ``max_inflight`` falls to 1, said in one
+    event line."""
 
     def __init__(self, host: str, port: int, *, timeout: float,
                  max_inflight: int = DEFAULT_MAX_INFLIGHT, depth: int = 1024,
@@ -95,6 +105,7 @@ class PipelinedUpstream:
         self._next_tid = 0
         self._answers: dict[int, int] = {}  # unit -> replies from it so far
         self._link: _Link | None = None
+        self._served = 0  # replies on the connection open now
         self._connecting: asyncio.Task[None] | None = None
         self._down_said = False
         self._stopped = False
@@ -183,7 +194,7 @@ class PipelinedUpstream:
         if self._down_said:
             self._on_event("upstream reachable again")
             self._down_said = False
-        self._link = link
+        self._link, self._served = link, 0
         self._pump()
 
     def reply(self, frame: bytes) -> None:
@@ -196,6 +207,7 @@ class PipelinedUpstream:
         if how == REPLY_OTHER:
             return  # not a reply to it
         del self._inflight[tid]
+        self._served += 1
         if job.timer is not None:
             job.timer.cancel()
         if how == REPLY_BAD:
@@ -222,9 +234,11 @@ class PipelinedUpstream:
         job.done(bytes((job.pdu[0] | 0x80, EX_TARGET)))
         self._pump()
 
-    def lost(self, link: _Link, why: str) -> None:
-        """The connection ended (or the upstream sent garbage): what was in
-        flight is answered 0x0A, the next request connects again."""
+    def lost(self, link: _Link, why: str, *, closed: bool = False) -> None:
+        """The connection ended (``closed``: the device closed or reset it)
+        or the upstream sent garbage: what was in flight is answered 0x0A,
+        but for the reads the device closed it on after a reply, sent again
+        (once); the next request connects again."""
         if link is not self._link:
             return
         self._link = None
@@ -232,11 +246,23 @@ class PipelinedUpstream:
             link.transport.abort()
         if self._stopped:
             return
-        self._on_event(f"upstream connection lost: {why}")
-        inflight, self._inflight = self._inflight, {}
-        for job in inflight.values():
+        inflight, self._inflight = list(self._inflight.values()), {}
+        again = [job for job in inflight
+                 if closed and self._served and not job.resent and resendable(job.pdu)]
+        if inflight and closed and self._served == 1 and self.max_inflight > 1:
+            self.max_inflight = 1
+            self._on_event(f"upstream closed the connection after one reply with "
+                           f"{len(inflight)} more request(s) sent: one transaction at a "
+                           "time from now")
+        elif len(again) < len(inflight) or not self._served:
+            self._on_event(f"upstream connection lost: {why}")
+        for job in inflight:
             if job.timer is not None:
                 job.timer.cancel()
+            if job in again:
+                job.resent = True
+                continue
             self.unreachable += 1
             job.done(bytes((job.pdu[0] | 0x80, EX_PATH)))
+        self._queue.extendleft(reversed(again))
         self._pump()

@@ -3,6 +3,7 @@ the clients' requests one transaction at a time, in the order they came."""
 
 from __future__ import annotations
 
+import errno
 import queue
 import threading
 from collections.abc import Callable
@@ -16,10 +17,25 @@ from pymb.errors import (
     ModbusTimeout,
 )
 
-__all__ = ["EX_PATH", "EX_TARGET", "Upstream"]
+__all__ = ["EX_PATH", "EX_TARGET", "Upstream", "resendable"]
 
 EX_PATH = 0x0A  #: gateway path unavailable: the line cannot be reached
 EX_TARGET = 0x0B  #: gateway target device failed to respond
+
+#: the public function codes that only read ([MB-AP] 6): 01..04, 07, 0B, 0C,
+#: 11, 14, 18 (and 2B/0E, read device identification: :func:`resendable`)
+READ_FUNCTIONS = frozenset({0x01, 0x02, 0x03, 0x04, 0x07, 0x0B, 0x0C, 0x11, 0x14, 0x18})
+#: what a connection the peer closed (or reset) fails with
+_CLOSED_BY_PEER = frozenset((errno.EPIPE, errno.ECONNRESET))
+
+
+def resendable(pdu: bytes) -> bool:
+    """Whether request ``pdu`` only reads, so that one that finds the
+    connection closed by the device after it carried a reply (some Modbus
+    TCP devices and gateways take one request a connection) may be sent
+    again on a new one, as pymb's clients send a read again; a write never
+    is: the device may have done it."""
+    return pdu[0] in READ_FUNCTIONS or pdu[:2] == b"\x2b\x0e"
 
 #: what a finished transaction hands back: the reply PDU
 Done = Callable[[bytes], None]
@@ -49,6 +65,7 @@ class Upstream:
         self._thread = threading.Thread(target=self._run, name="pymb-serve-upstream", daemon=True)
         self._connected = False
         self._down_said = False
+        self._served = 0  # replies on the connection open now
         #: transactions sent, and how each ended
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
         self.dropped = 0  #: requests queued or under way when it stopped: never answered
@@ -95,33 +112,39 @@ class Upstream:
 
     def _transact(self, unit: int, pdu: bytes) -> bytes:
         function = pdu[0]
-        if not self._connected:
+        while True:
+            if not self._connected:
+                try:
+                    self.line.connect()
+                except ModbusError as e:
+                    self.unreachable += 1
+                    if not self._down_said:
+                        self._down_said = True
+                        self._on_event(f"upstream unreachable: {e} (answering 0x0A)")
+                    return bytes((function | 0x80, EX_PATH))
+                if self._down_said:
+                    self._on_event("upstream reachable again")
+                self._connected, self._down_said, self._served = True, False, 0
+            self.sent += 1
             try:
-                self.line.connect()
-            except ModbusError as e:
+                reply = bytes((function,)) + self.line.raw_request(function, pdu[1:], slave=unit)
+            except DeviceException as e:
+                self.exceptions += 1
+                self._served += 1
+                return bytes((function | 0x80, e.code & 0xFF))
+            except ModbusTimeout:
+                self.timeouts += 1
+                return bytes((function | 0x80, EX_TARGET))
+            except ModbusConnectionError as e:
+                self._connected = False
+                self.line.close()
+                if self._served and e.errno in _CLOSED_BY_PEER and resendable(pdu):
+                    continue  # closed after its last reply: the read again, on a new one
                 self.unreachable += 1
-                if not self._down_said:
-                    self._down_said = True
-                    self._on_event(f"upstream unreachable: {e} (answering 0x0A)")
+                self._on_event(f"upstream connection lost: {e}")
                 return bytes((function | 0x80, EX_PATH))
-            if self._down_said:
-                self._on_event("upstream reachable again")
-            self._connected, self._down_said = True, False
-        self.sent += 1
-        try:
-            return bytes((function,)) + self.line.raw_request(function, pdu[1:], slave=unit)
-        except DeviceException as e:
-            self.exceptions += 1
-            return bytes((function | 0x80, e.code & 0xFF))
-        except ModbusTimeout:
-            self.timeouts += 1
-            return bytes((function | 0x80, EX_TARGET))
-        except ModbusConnectionError as e:
-            self._connected = False
-            self.line.close()
-            self.unreachable += 1
-            self._on_event(f"upstream connection lost: {e}")
-            return bytes((function | 0x80, EX_PATH))
-        except (ModbusError, InvalidArgument):  # a reply that was not one: no answer
-            self.timeouts += 1
-            return bytes((function | 0x80, EX_TARGET))
+            except (ModbusError, InvalidArgument):  # a reply that was not one: no answer
+                self.timeouts += 1
+                return bytes((function | 0x80, EX_TARGET))
+            self._served += 1
+            return reply
