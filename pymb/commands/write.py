@@ -10,10 +10,12 @@ device refused, did not answer, or did not apply; 4 the connection failed.
 from __future__ import annotations
 
 import argparse
+import struct
 from typing import Any
 
 from pymb import maps
 from pymb.commands._common import add_connection_args, add_map_arg, interruptible, make_client
+from pymb.commands.maptext import number_text
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapspec import map_types, parse_map_device, unknown_device
 from pymb.devices.mapwrite import Outcome, resolve
@@ -93,8 +95,21 @@ def _text(p: Point, value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
-        return f"{value:.{p.precision}f}" if p.precision is not None else f"{value:g}"
+        if p.precision is not None:
+            return f"{value:.{p.precision}f}"
+        short = f"{value:g}"  # 50 for 50.0; but 123457 for an f32's 123456.78: say its digits
+        return short if _same(p, short, value) else number_text(p, value)
     return str(value)
+
+
+def _same(p: Point, text: str, value: float) -> bool:
+    """Whether ``text`` gives ``value`` back (in the point's own type, for f16 and f32)."""
+    code = {"f16": "e", "f32": "f"}.get(p.type)
+    try:
+        return (struct.pack(code, float(text)) == struct.pack(code, value) if code
+                else float(text) == value)
+    except OverflowError:  # rounded up past the type's largest
+        return False
 
 
 def _line(m: maps.Map, o: Outcome) -> str:

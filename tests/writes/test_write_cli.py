@@ -164,8 +164,10 @@ def test_against_pymodbus(map_file: str, mode: str) -> None:
         code, out, err = write(map_file, "wdev:1", "setpoint_hz=49.5", "target_w=-12.25",
                                "fan_on=true", "level=200", f"--{mode}", f"127.0.0.1:{port}")
         assert (code, err) == (0, ""), out
+        # the f32 before is 9.000025759821893e-39: the fewest digits that give it back
+        assert _f32(7 * 14, 7 * 15) == struct.unpack(">f", struct.pack(">f", 9.000026e-39))[0]
         assert out.splitlines()[:2] == ["setpoint_hz: 0.7 -> 49.5 Hz",
-                                        f"target_w: {_f32(7 * 14, 7 * 15):g} -> -12.25 W"]
+                                        "target_w: 9.000026e-39 -> -12.25 W"]
         cls = pymb.TcpClient if mode == "tcp" else pymb.RtuOverTcpClient
         with cls("127.0.0.1", port, timeout=2.0) as c:
             assert list(c.read_holding_registers(10, 1, slave=1)) == [4950]
@@ -220,3 +222,13 @@ def test_the_coolpros_reset_reads_0_so_it_is_not_applied_unless_not_verified() -
         r = run_pymb("write", "coolpro", "reset=0xAA55", "--no-verify", "--port", sim.port)
         assert (r.returncode, r.stdout, r.stderr) == (0, "reset: 0 -> 43605 (not read back)\n",
                                                       "")
+
+
+def test_before_and_after_keep_every_digit_of_the_value(map_file: str,
+                                                         peer: FreezingTcpPeer) -> None:
+    peer.memory.holding[14:16] = [0x3FC0, 0x0000]   # f32 1.5
+    code, out, err = write(map_file, "wdev:1", "target_w=123456.78", "setpoint_hz=49.99",
+                           "--tcp", f"127.0.0.1:{peer.port}")
+    assert (code, err) == (0, "")
+    # the f32 read back is 123456.78125: its own digits, not 6 significant ones (123457)
+    assert out.splitlines() == ["target_w: 1.5 -> 123456.78 W", "setpoint_hz: 0.7 -> 49.99 Hz"]
