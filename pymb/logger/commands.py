@@ -277,10 +277,8 @@ class CommandDesk(threading.Thread):
             changes = check(m, [(n, None, v) for n, v in values.items()])
         except InvalidArgument as e:
             raise Refused(reason_of(e), str(e)) from None
-        if t.offline():
-            raise Refused("device", f"{t.name} is offline: nothing was sent")
         try:
-            dev = t.device()
+            dev = None if t.offline() else t.device()
         except ModbusError as e:
             raise Refused("device", str(e)) from None
         if dev is None:
