@@ -25,9 +25,11 @@ from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_ch
 __all__ = ["AsciiClient", "RtuClient", "RtuOverTcpClient", "TcpClient", "UdpClient"]
 
 
-def _serial(baudrate: int, parity: str, data_bits: int,
+def _serial(port: str, baudrate: int, parity: str, data_bits: int,
             stop_bits: int) -> tuple[int, str, int, int]:
-    """A serial line's settings checked: (baudrate, parity, data bits, stop bits)."""
+    """A serial line's port and settings checked: (baudrate, parity, data bits, stop bits)."""
+    if not isinstance(port, str) or not port:
+        raise InvalidArgument(f"port must be a device path, got {port!r}")
     if (isinstance(baudrate, bool) or not hasattr(type(baudrate), "__index__")
             or operator.index(baudrate) not in _native.BAUD_RATES):
         raise InvalidArgument(
@@ -78,17 +80,12 @@ class RtuClient(Client):
         rts_delay: float | None = None,
         reject_early: bool | None = None,
     ) -> None:
-        if not isinstance(port, str) or not port:
-            raise InvalidArgument(f"port must be a device path, got {port!r}")
-        baudrate, p, data_bits, stop_bits = _serial(baudrate, parity, data_bits, stop_bits)
-        self.baudrate = baudrate
-        self.parity = p
-        self.data_bits = data_bits
-        self.stop_bits = stop_bits
+        self.baudrate, self.parity, self.data_bits, self.stop_bits = line = _serial(
+            port, baudrate, parity, data_bits, stop_bits)
         if reject_early is not None and not isinstance(reject_early, bool):
             raise TypeError(f"reject_early must be True, False or None, got {reject_early!r}")
         self._reject_early = reject_early
-        link = new_rtu(port, baudrate, p, data_bits, stop_bits)
+        link = new_rtu(port, *line)
         super().__init__(link, slave=slave, timeout=timeout, byte_timeout=byte_timeout)
         self.set_rs485(serial_mode=serial_mode, rts=rts, rts_delay=rts_delay)
 
@@ -249,15 +246,10 @@ class AsciiClient(Client):
         timeout: float = DEFAULT_TIMEOUT,
         byte_timeout: float = 0.0,
     ) -> None:
-        if not isinstance(port, str) or not port:
-            raise InvalidArgument(f"port must be a device path, got {port!r}")
-        baudrate, p, data_bits, stop_bits = _serial(baudrate, parity, data_bits, stop_bits)
-        self.baudrate = baudrate
-        self.parity = p
-        self.data_bits = data_bits
-        self.stop_bits = stop_bits
-        super().__init__(new_ascii(port, baudrate, p, data_bits, stop_bits), slave=slave,
-                         timeout=timeout, byte_timeout=byte_timeout)
+        self.baudrate, self.parity, self.data_bits, self.stop_bits = line = _serial(
+            port, baudrate, parity, data_bits, stop_bits)
+        super().__init__(new_ascii(port, *line), slave=slave, timeout=timeout,
+                         byte_timeout=byte_timeout)
 
     def frame_time(self, nbytes: int) -> float:
         """Seconds a frame of ``nbytes`` bytes (address, PDU) takes on this
