@@ -194,7 +194,11 @@ class Decoder:
         taken without a copy) in one C call; returns the buffers written."""
         b = self.buffers if into is None else into
         if not isinstance(registers, array) or registers.typecode != "H":
-            registers = array("H", registers)
+            try:
+                registers = array("H", registers)
+            except (OverflowError, TypeError):
+                raise InvalidArgument(f"{self.map.id}: registers are whole numbers 0..65535, "
+                                      f"got {registers!r:.60}") from None
         if len(registers) < self.count:
             raise InvalidArgument(f"{self.map.id}: {self.count} registers from {self.address} "
                                   f"are needed, got {len(registers)}")

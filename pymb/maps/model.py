@@ -122,6 +122,9 @@ class Map:
             raise InvalidArgument(f"{self.source}: a scale factor is a whole number, "
                                   f"got {scale_factor!r}")
         try:
+            if not all(0 <= r <= 0xFFFF for r in registers):  # a TypeError for a non-number
+                raise InvalidArgument(f"{self.source}: {name!r}: registers are whole numbers "
+                                      f"0..65535, got {list(registers)!r:.60}")
             return codec.decode(p, registers, scale_factor)
         except TypeError:
             raise InvalidArgument(f"{self.source}: {name!r} decodes a sequence of register "

@@ -164,6 +164,16 @@ def test_a_short_buffer_is_refused() -> None:
         d.decode([1])
 
 
+@pytest.mark.parametrize("regs", [[0x10000, 0], [-1, 0], [None, 0]])
+def test_a_register_outside_0_65535_is_refused_not_wrapped(regs: list[object]) -> None:
+    m = one('type = "u32"\n')
+    with pytest.raises(InvalidArgument):
+        Decoder(m).decode(regs)  # type: ignore[arg-type]
+    with pytest.raises(InvalidArgument):
+        m.decode("p", regs)  # type: ignore[arg-type]
+    assert m.decode("p", [0xFFFF, 0xFFFF]) == 0xFFFFFFFF
+
+
 # -- Telegraf's inputs.modbus test table (plugins/inputs/modbus/modbus_test.go,
 # TestRegisterHoldingRegisters): bytes on the wire, Telegraf's type and byte
 # order as pymb names them, and the value Telegraf reads.
