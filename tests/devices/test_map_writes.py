@@ -235,6 +235,21 @@ def test_a_held_value_is_applied_without_being_sent_and_not_counted(
         assert dev.write("power_limit_pct", 3) == 3
 
 
+def test_a_blocks_budget_is_counted_for_each_channel(peer: FreezingTcpPeer) -> None:
+    m = maps.loads('schema = "pymb.map/1"\n[device]\nid = "b"\ntable = "holding"\n'
+                   '[[block]]\nname = "zone_c"\nfirst = 0\ncount = 3\ntype = "u16"\n'
+                   'access = "rw"\nmax_writes_per_hour = 1\n', source="b.toml")
+    with pymb.TcpClient("127.0.0.1", peer.port, timeout=5.0) as c:
+        dev = MapDevice(c, m, 1)
+        assert dev.write_many({"zone_c_1": 5, "zone_c_2": 5}) == {"zone_c_1": 5, "zone_c_2": 5}
+        sent = len(peer.requests)
+        with pytest.raises(pymb.WriteRefused) as info:
+            dev.write("zone_c", 6, channel=1)
+        assert info.value.reason == "budget"
+        assert len(peer.requests) == sent
+        assert dev.write("zone_c", 7, channel=3) == 7
+
+
 def test_plan_write_lists_the_requests_and_sends_nothing(peer: FreezingTcpPeer) -> None:
     c, dev = device(peer)
     lines = [r.describe() for r in dev.plan_write({"setpoint_hz": 49.5, "power_limit_pct": 80,
