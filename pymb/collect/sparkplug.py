@@ -5,10 +5,11 @@ name, alias and datatype, data (NDATA, DDATA) name them by alias or by name,
 without the datatype (Sparkplug 3.0: it should not be repeated).
 Every message but NDEATH carries a ``seq`` (0..255, wrapping) per edge node;
 on a gap, or on data from a node or device it has no birth for (none yet, or
-none since its death), the host asks
-the node for new births with an NCMD ``Node Control/Rebirth`` (at most once
-per node every :data:`REBIRTH_EVERY` seconds). Its own state goes on
-``spBv1.0/STATE/{host_id}`` (retained; the will says offline).
+none since the node's NDEATH), the host asks the node for new births with an
+NCMD ``Node Control/Rebirth`` (at most once per node every
+:data:`REBIRTH_EVERY` seconds); a DDEATH leaves the device's DBIRTH in force.
+Its own state goes on ``spBv1.0/STATE/{host_id}`` (retained; the will says
+offline).
 
 Rows: ``node`` is the edge node, ``device`` the device (``""`` for the node's
 own metrics), ``point`` the metric's name (pymb's ``channel NNN/NAME`` as
@@ -161,8 +162,7 @@ class SparkplugHost:
         if kind == "DBIRTH":
             assert device is not None
             st.devices[device] = _Born()
-        if kind == "DDEATH":  # its birth ends: data before the next DBIRTH ask for one
-            st.devices.pop(device or "", None)
+        if kind == "DDEATH":  # its aliases stay: a board's backlog of it may follow
             return []
         if device is not None and device not in st.devices:
             self.unborn += 1

@@ -115,34 +115,33 @@ def test_data_by_name_without_a_datatype_take_the_births(
     ]
 
 
-def test_a_devices_data_after_its_ddeath_ask_for_a_birth(
+def test_a_devices_data_after_its_ddeath_are_read_with_its_dbirth(
         fleet: Fleet, collectors: Collectors, sparkplug_pb: Any) -> None:
-    """A DDEATH ends the device's birth, as an NDEATH ends the node's: its data
-    before a new DBIRTH are data of a device the host has no birth for (not
-    stored, a rebirth request); after the DBIRTH they are stored again."""
+    """A DDEATH leaves the device's DBIRTH in force: a board publishes the backlog
+    of a device that is down (``is_historical``) after its DDEATH, by the aliases
+    of that DBIRTH (docs/fleet.md). They are stored, and no rebirth is asked."""
     pb = sparkplug_pb
     broker, ncmd, out, col = _collector(fleet, collectors, "hostile-ddeath")
     publish(broker.port, [
         *_births(pb),
         (f"spBv1.0/{GROUP}/DDEATH/n1/d1", _pb(pb, 2)),
-        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 3, {"alias": 8, "double_value": 99.0,
-                                                     "timestamp": T + 1000})),
-    ])
-    ncmd.wait_until(lambda m: m, 15, "the rebirth request of data after a DDEATH")
-    assert ncmd.snapshot()[0][0] == f"spBv1.0/{GROUP}/NCMD/n1"
-    publish(broker.port, [
+        (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 3, {"alias": 8, "double_value": 19.0,
+                                                     "timestamp": T - 1000,
+                                                     "is_historical": True})),
         (f"spBv1.0/{GROUP}/DBIRTH/n1/d1", _pb(
             pb, 4, {"name": "temp", "alias": 8, "datatype": DOUBLE, "double_value": 21.0,
                     "timestamp": T + 2000})),
         (f"spBv1.0/{GROUP}/DDATA/n1/d1", _pb(pb, 5, {"alias": 8, "double_value": 22.0,
                                                      "timestamp": T + 3000})),
     ])
-    wait_rows(lambda: sqlite_count(out), 5, "the rows of the births and the last data")
+    wait_rows(lambda: sqlite_count(out), 6, "the rows of the births and the data")
     err = stop(col)
-    assert "asked plant/n1 for a rebirth: DDATA of d1, which has no DBIRTH" in err, err
+    assert "rebirth" not in err, err
+    assert not ncmd.snapshot()
     assert sorted(f[1:5] for f in sqlite_facts(out)) == [
         ("", "uptime", 1800000000.0, 10.0),
         ("d1", "level", 1800000000.0, 5.0),
+        ("d1", "temp", 1799999999.0, 19.0),
         ("d1", "temp", 1800000000.0, 20.0),
         ("d1", "temp", 1800000002.0, 21.0),
         ("d1", "temp", 1800000003.0, 22.0),
