@@ -6,6 +6,7 @@ rows and the rebirth requests read back as a user sees them."""
 from __future__ import annotations
 
 import json
+import sqlite3
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +22,11 @@ from collectkit import (  # noqa: E402
     wait_rows,
     wait_subscribed,
 )
-from mqtt_broker import Fleet, Subscriber  # noqa: E402
+from conftest import wait_until  # noqa: E402
+from mqtt_broker import Fleet, Subscriber, db_count, db_ids, stop_log  # noqa: E402
 
 from pymb.fleet.broker import Mosquitto  # noqa: E402
+from pymb.fleet.health import DOWN_AFTER  # noqa: E402
 
 pytest_plugins = ["mqtt_broker", "collectkit"]
 
@@ -221,3 +224,47 @@ def test_an_alias_a_birth_gives_two_metrics_stores_nothing_under_either(
         ("d1", "level", 1800000000.0, 5.0),
         ("d1", "temp", 1800000000.0, 20.0),
     ]
+
+
+def test_a_boards_backlog_of_a_device_that_is_down_is_stored_once(
+        fleet: Fleet, collectors: Collectors) -> None:
+    """pymb's own board, end to end: samples logged while the broker is away,
+    then the device stops answering. When the broker is back the board sends
+    NBIRTH, the device's DBIRTH and DDEATH, then the backlog as historical DDATA:
+    every sample id the board logged is stored once by the collector."""
+    broker = fleet.broker()
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--profile", "sparkplug", "--group", GROUP,
+                           "--host-id", "scada", "--client-id", "backlog")
+    wait_subscribed(col)
+    sim = fleet.simulator("coolpro")
+    log_db = fleet.tmp / "board.sqlite"
+    log = fleet.log(sim.endpoint, log_db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                    "--mqtt-group", GROUP, "--mqtt-node", "gw1")
+    wait_rows(lambda: sqlite_count(out), 200, "live rows")
+    broker.stop()
+    before = db_count(log_db)
+    wait_until(lambda: db_count(log_db) >= before + 50, "samples while the broker is away", 30)
+    sim.stop()
+
+    def faults() -> int:
+        con = sqlite3.connect(f"file:{log_db}?mode=ro", uri=True)
+        try:
+            return int(con.execute("SELECT COUNT(*) FROM events WHERE kind IN "
+                                   "('timeout', 'connection', 'protocol', 'error')"
+                                   ).fetchone()[0])
+        finally:
+            con.close()
+    wait_until(lambda: faults() >= DOWN_AFTER, "the device down", 60)
+    broker.start()
+    ids = db_ids(log_db)
+
+    def stored() -> set[int]:
+        return {int(f[4]) for f in sqlite_facts(out) if f[2] == "sample" and f[4] is not None}
+    wait_until(lambda: ids <= stored(), lambda: f"{len(ids - stored())} of the board's "
+               "samples not stored", 90)
+    stop_log(log)
+    err = stop(col)
+    samples = [int(f[4]) for f in sqlite_facts(out) if f[2] == "sample" and f[4] is not None]
+    assert len(samples) == len(set(samples)), "a sample stored twice"
+    assert "0 bad" in err, err
