@@ -24,6 +24,7 @@ from pymb.logger.config import load_config
 from pymb.logger.poller import Stats
 from pymb.logger.tcploop import TcpMapPoller
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock
 
 #: a holding-register map of two points at 0 and 1; a device is offline
 #: after 3 failed polls and tried again every 0.5 s
@@ -125,9 +126,11 @@ class Hostile:
 class Handed:
     """What a poller handed over, and its counts."""
 
+    #: its samples, those of the blocks of polls its C part carried included
     samples: list[Sample] = field(default_factory=list)
     events: list[Event] = field(default_factory=list)
     stats: Stats = field(default_factory=Stats)
+    blocks: list[PollBlock] = field(default_factory=list)  #: those blocks
 
     def kinds(self) -> list[str]:
         """The kinds of the events, in order."""
@@ -154,7 +157,7 @@ def poll(tmp: Path, ports: list[int | str], until: Callable[[Handed], bool], *,
         text += "".join(f'[[bus.device]]\ntype = "hx"\naddress = {u}\n' for u in units)
     (tmp / "log.toml").write_text(text)
     buses = load_config(tmp / "log.toml").buses
-    q: queue.Queue[list[Sample | Event]] = queue.Queue()
+    q: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
     stop = threading.Event()
     got = Handed()
     poller = TcpMapPoller(buses, q, stop, got.stats)
@@ -166,7 +169,10 @@ def poll(tmp: Path, ports: list[int | str], until: Callable[[Handed], bool], *,
                 items = q.get(timeout=0.1)
             except queue.Empty:
                 continue
-            got.samples += [s for s in items if isinstance(s, Sample)]
+            got.blocks += [i for i in items if isinstance(i, PollBlock)]
+            got.samples += [s for i in items
+                            for s in (i.samples() if isinstance(i, PollBlock) else [i])
+                            if isinstance(s, Sample)]
             got.events += [e for e in items if isinstance(e, Event)]
     finally:
         stop.set()

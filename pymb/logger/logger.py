@@ -21,11 +21,13 @@ from pymb.logger.schedule import BATCH_MAX
 from pymb.logger.stats import Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped
-from pymb.store import Event, Sample, Sink, as_sink, check_output, open_sink
+from pymb.store import Event, Sample, Sink, SinkBase, as_sink, check_output, open_sink
+from pymb.store.block import PollBlock
 
 __all__ = ["Logger", "RunSummary"]
 
-_DEVICE_NAME = operator.attrgetter("device.name")  #: a sample's device's name
+#: a sample's device's name (a block's poll's: its source's)
+_DEVICE_NAME = operator.attrgetter("device.name")
 _REGISTERS = operator.attrgetter("data.registers")  #: a sample's registers
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
 _DRAIN_EVERY = 0.02  #: seconds the writer waits at most: on its queue, after a commit
@@ -200,11 +202,11 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         self.stats = Stats()
         # Bounded (about 2,000 samples): pollers wait when the writer lags (a
         # flat-out poller, a bounded memory).
-        self._queue: queue.Queue[list[Sample | Event]] = queue.Queue(
+        self._queue: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue(
             maxsize=2048 // BATCH_MAX)
-        self.sink: Sink = as_sink(sink) if sink is not None else open_sink(
+        self.sink: SinkBase = as_sink(sink if sink is not None else open_sink(
             config.format, config.path, max_bytes=config.max_bytes, max_age=config.max_age,
-            on_change=config.on_change)
+            on_change=config.on_change))
         self.pollers: list[_Poller | _TcpPoller] = [
             _Poller(b, self._queue, self._stop, self.stats)
             for b in config.buses if not fans_out(b)]
@@ -281,7 +283,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     # sample, and at least every _DRAIN_EVERY seconds for the stop, the
                     # commit and the checks below.
                     try:
-                        item: list[Sample | Event] | None = self._queue.get(
+                        item: list[Sample | Event | PollBlock] | None = self._queue.get(
                             timeout=_DRAIN_EVERY)
                     except queue.Empty:
                         item = None
@@ -364,7 +366,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                               self.clock.message(step, restamped)))
         self.stats.events += 1
 
-    def _write_all(self, items: list[Sample | Event]) -> tuple[int, bool]:
+    def _write_all(self, items: list[Sample | Event | PollBlock]) -> tuple[int, bool]:
         """Write a poller's list in order: each run of samples in one call
         when the sink takes batches (SQLite: multi-row INSERTs). Returns the
         list's weight for the commit: (bytes of registers, whether it had
@@ -377,6 +379,14 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         for item in items:
             if isinstance(item, Sample):
                 run.append(item)
+                continue
+            if isinstance(item, PollBlock):  # the TCP loop's polls, carried in C
+                size += self._samples(run)
+                run = []
+                self.sink.write_block(item)
+                self.stats.by_device.update(map(_DEVICE_NAME, item.sources))
+                self.stats.samples += len(item)
+                size += len(item.data)
                 continue
             events = True
             size += self._samples(run)

@@ -22,6 +22,7 @@ from pymb.logger.report import Report
 from pymb.logger.schedule import BACKOFF_MAX, TEXT, Agenda, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
+from pymb.store.block import PollBlock
 
 __all__ = ["BusPoller", "MapHealth", "Stats", "map_info"]
 
@@ -71,7 +72,7 @@ def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
 class BusPoller(threading.Thread):
     """Polls one bus until told to stop; puts Samples and Events on a queue."""
 
-    def __init__(self, bus: BusConfig, out: queue.Queue[list[Sample | Event]],
+    def __init__(self, bus: BusConfig, out: queue.Queue[list[Sample | Event | PollBlock]],
                  stop: threading.Event,
                  stats: Stats, clock: Callable[[], float] = time.monotonic) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
@@ -90,7 +91,7 @@ class BusPoller(threading.Thread):
         """Hand what was read since the last list to the writer."""
         self.report.flush()
 
-    def take_unflushed(self) -> list[Sample | Event]:
+    def take_unflushed(self) -> list[Sample | Event | PollBlock]:
         """What this poller read but has not handed over (for the writer, once
         the poller is left behind at stop)."""
         return self.report.take()

@@ -1,6 +1,7 @@
 """What a poller hands the writer: :class:`Report`, the one hand-over of
 both runners (a bus's thread and the one TCP loop): samples in lists
 (:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`),
+the polls the TCP loop's C part carried in blocks (:class:`~pymb.store.block.PollBlock`),
 events at once, after the samples before them, and the run's counts
 (:class:`~pymb.logger.stats.Stats`) for each fact of the schedule, each
 said in one place with :data:`~pymb.logger.schedule.TEXT`."""
@@ -15,6 +16,7 @@ from pymb.errors import ModbusError
 from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Health, Slot
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
+from pymb.store.block import PollBlock
 from pymb.store.records import event_kind, short_fault
 
 __all__ = ["Report"]
@@ -24,10 +26,10 @@ class Report:
     """A poller's samples and events on their way to the writer (``out``),
     and its part of the run's counts (``stats``)."""
 
-    def __init__(self, out: queue.Queue[list[Sample | Event]], stats: Stats) -> None:
+    def __init__(self, out: queue.Queue[list[Sample | Event | PollBlock]], stats: Stats) -> None:
         self.out = out
         self.stats = stats
-        self.items: list[Sample | Event] = []
+        self.items: list[Sample | Event | PollBlock] = []
         self.since = 0.0  #: when the oldest of :attr:`items` was read (monotonic)
 
     # -- the hand-over ------------------------------------------------------------------
@@ -38,7 +40,7 @@ class Report:
         if items:
             self.out.put(items)
 
-    def take(self) -> list[Sample | Event]:
+    def take(self) -> list[Sample | Event | PollBlock]:
         """What was read but not handed over (for the writer, once the poller
         is left behind at stop)."""
         items, self.items = self.items, []
@@ -57,6 +59,13 @@ class Report:
         items.append(sample)
         if len(items) >= BATCH_MAX or now - self.since >= BATCH_AGE:
             self.flush()
+
+    def block(self, block: PollBlock) -> None:
+        """Hand a block of polls over (with what waits before it): it is a
+        list's worth already (:data:`~pymb.logger.schedule.BATCH_MAX`,
+        :data:`~pymb.logger.schedule.BATCH_AGE`)."""
+        self.items.append(block)
+        self.flush()
 
     def event(self, bus: str, kind: str, message: str, device: DeviceInfo | None = None,
               code: int | None = None) -> None:

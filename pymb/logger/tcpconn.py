@@ -30,10 +30,13 @@ from pymb.logger.report import Report
 from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
 from pymb.logger.tcpsel import READ, WRITE, Selector
-from pymb.logger.tcpunits import Entry, PollRequest, Unit, poll_sample
+from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock, poll_sample
 
 __all__ = ["Conn", "TcpLoopBase", "asked", "fans_out", "request_failed"]
+
+_NONE: frozenset[int] = frozenset()
 
 
 class Loan:
@@ -150,7 +153,7 @@ class TcpLoopBase(threading.Thread):
     to happen on it: a poll that falls due, a loan, a deadline, a close; the
     C part hands it back itself for anything but a clean poll."""
 
-    def __init__(self, out: queue.Queue[list[Sample | Event]], stop: threading.Event,
+    def __init__(self, out: queue.Queue[list[Sample | Event | PollBlock]], stop: threading.Event,
                  stats: Stats) -> None:
         super().__init__(name="pymb-tcp", daemon=True)
         self.out = out
@@ -215,30 +218,56 @@ class TcpLoopBase(threading.Thread):
         if got is not None and c.busy and c.lowat > 1:
             self.look(c, got.look_at)
 
-    def sample(self, c: Conn, e: Entry, now: float, image: bytes | None = None) -> None:
+    def sample(self, c: Conn, e: Entry, now: float) -> None:
         """A poll of ``e`` read every request at ``now``: its sample (the
-        connection is idle), of ``image`` (None: ``e``'s own)."""
+        connection is idle)."""
         u = e.unit
         c.entry = None
         c.whole = False
         unread = e.unsupported()
-        if unread or c.unread:
+        if c.unread:
             unread = (unread | c.unread) & e.decode.items
-        s, reading = poll_sample(u.info, time.time(), now, e.decode,
-                                 bytes(e.image) if image is None else image, unread)
+        s, reading = poll_sample(u.info, time.time(), now, e.decode, bytes(e.image), unread)
         report = self.report
         report.sample(s)
         report.answered(c.bus.name, u.health, u.info, reading.unsupported)
 
-    def carried(self, c: Conn, now: float, at: int | None = None) -> None:
-        """The C part read ``c``'s poll in full at ``now`` and sent the next
-        one: the poll's sample, of its image's copy at ``at`` in the C part's
-        block (None: of the poll's own image, left as it was)."""
+    def carried(self, c: Conn, now: float) -> None:
+        """The C part read ``c``'s poll in full at ``now`` and the next one
+        did not go out whole: the poll's sample, of its own image."""
         e = c.entry
         assert e is not None
-        self.sample(c, e, now, None if at is None else bytes(self._block[at:at + len(e.image)]))
+        self.sample(c, e, now)
         c.entry = e
         c.whole = True
+
+    def carried_block(self, done: list[int], at: list[float], offs: list[int]) -> None:
+        """The C part read polls in full and sent the next ones whole: of
+        the connections ``done``, at ``at``, their images at ``offs`` in its
+        block. One :class:`~pymb.store.block.PollBlock` for the writer; each
+        poll's device answered."""
+        conns = self.conns
+        report = self.report
+        answered = report.answered
+        sources = []
+        unread: list[frozenset[int]] | None = None
+        e = None
+        for j, i in enumerate(done):
+            c = conns[i]
+            e = c.entry
+            assert e is not None
+            u = e.unit
+            sources.append(e.source)
+            gone = e.unsupported()  # (an armed poll refused nothing of its own: c.unread)
+            if gone:
+                if unread is None:
+                    unread = [_NONE] * len(done)
+                unread[j] = gone
+            answered(c.bus.name, u.health, u.info, e.decode.unsupported(gone) if gone else ())
+        assert e is not None
+        wall, mono = time.time(), time.monotonic()
+        report.block(PollBlock(at[0] + (wall - mono), at[0], sources, at, offs,
+                               bytes(self._block[:offs[-1] + len(e.image)]), unread))
 
     def disarm(self, c: Conn) -> Times | None:
         """``c`` is the loop's again (``c.armed`` or not: the C part may have
@@ -258,7 +287,7 @@ class TcpLoopBase(threading.Thread):
         """Hand what was read since the last list to the writer."""
         self.report.flush()
 
-    def take_unflushed(self) -> list[Sample | Event]:
+    def take_unflushed(self) -> list[Sample | Event | PollBlock]:
         """What this poller read but has not handed over (the writer takes it
         when the poller is left behind at stop)."""
         return self.report.take()

@@ -55,6 +55,7 @@ from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock
 
 __all__ = ["TcpMapPoller", "fans_out"]
 
@@ -72,7 +73,7 @@ class TcpMapPoller(TcpLoopBase):
     ``stop`` is set; puts Samples and Events on ``out`` as a
     :class:`~pymb.logger.poller.BusPoller` does."""
 
-    def __init__(self, buses: list[BusConfig], out: queue.Queue[list[Sample | Event]],
+    def __init__(self, buses: list[BusConfig], out: queue.Queue[list[Sample | Event | PollBlock]],
                  stop: threading.Event, stats: Stats) -> None:
         super().__init__(out, stop, stats)
         #: the reading side; it tells this poller what came (as its ``Polls``)
@@ -464,8 +465,7 @@ class TcpMapPoller(TcpLoopBase):
             got = cloop.wait(wait)
             now = cloop.now  # (when it looked)
             if cloop.done:  # the usual: polls read, the next ones sent
-                for i, at, off in zip(cloop.done, cloop.done_at, cloop.done_off, strict=True):
-                    carried(conns[i], at, off)
+                self.carried_block(cloop.done, cloop.done_at, cloop.done_off)
             for i in range(got):
                 r = recs[i]
                 kind = r.kind

@@ -1,10 +1,11 @@
 """What the one-loop TCP poller (:mod:`pymb.logger.tcploop`) keeps per map
 device and per polling group: :class:`Unit` (a map device at a unit id: its
-planner, timing and health), :class:`Entry` (one group of a unit: its
-schedule, its prepared requests and its sample image) and
-:class:`~pymb.devices.mapreading.GroupDecode` (the group's registers
-decoded only when someone asks for the values: the SQLite writer stores the
-registers and never does).
+planner, timing and health) and :class:`Entry` (one group of a unit: its
+schedule, its prepared requests, its sample image and its
+:class:`~pymb.store.block.PollSource`, which names its polls to the writer:
+the device, and the group's :class:`~pymb.devices.mapreading.GroupDecode`,
+which decodes the registers only when someone asks for the values; the
+SQLite writer stores the registers and never does).
 
 An entry's image is laid out as the store keeps a map reading
 (:func:`pymb.devices.mapreading.group_layout`): each table's registers, from
@@ -15,24 +16,19 @@ slice assignment; a poll's sample is that image, copied once.
 
 from __future__ import annotations
 
-import sys
-from abc import abstractmethod
-from array import array
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 from pymb._native.master import MasterRead, PollTable
 from pymb.devices.deviceconfig import DeviceConfig
-from pymb.devices.mapreading import GroupDecode, MapReading
+from pymb.devices.mapreading import GroupDecode
 from pymb.logger.schedule import Health, Slot
-from pymb.maps import Value
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
-from pymb.store import DeviceInfo, Sample
+from pymb.store import DeviceInfo
+from pymb.store.block import PollSource
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "PollRequest", "Unit", "poll_sample"]
+__all__ = ["Entry", "PollRequest", "Unit"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -87,142 +83,6 @@ class PollRequest(MasterRead):
         self.request = r
 
 
-class _View(Mapping[str, Any]):
-    """A sample's values or states, decoded when first read."""
-
-    __slots__ = ()
-
-    @abstractmethod
-    def _map(self) -> dict[str, Any]:
-        """The decoded dict this view shows."""
-
-    def __getitem__(self, key: str) -> Any:
-        return self._map()[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._map())
-
-    def __len__(self) -> int:
-        return len(self._map())
-
-    def __repr__(self) -> str:
-        return repr(self._map())
-
-
-class _Values(_View):
-    """A sample's values; it decodes them with their states on first use.
-    Made by :func:`poll_sample`, which fills in its slots: the group's
-    decoder, its registers, the items not read, and what was decoded
-    (None until then)."""
-
-    __slots__ = ("got", "how", "regs", "unread")
-    how: GroupDecode
-    regs: array[int]
-    unread: frozenset[int]
-    got: tuple[dict[str, Value], dict[str, Any]] | None
-
-    def decoded(self, which: int) -> dict[str, Any]:
-        """The values (0) or the states (1)."""
-        got = self.got
-        if got is None:
-            got = self.got = self.how.decode(self.regs, self.unread)
-        return got[which]
-
-    def _map(self) -> dict[str, Any]:
-        return self.decoded(0)
-
-
-class _States(_View):
-    """A sample's states, decoded with its values (``source``; the states
-    point at the values, not back: a poll's records are freed by their
-    reference counts, not by the garbage collector)."""
-
-    __slots__ = ("source",)
-    source: _Values
-
-    def _map(self) -> dict[str, Any]:
-        return self.source.decoded(1)
-
-
-class _ReadingFill:
-    """A poll's :class:`MapReading` while :func:`poll_sample` fills it in
-    (then it is made one: the same layout, an instance dict)."""
-
-    map: Any
-    group: str | None
-    values: _Values
-    states: _States
-    registers: array[int]
-    unsupported: tuple[str, ...]
-    wire: bytes
-
-
-class _SampleFill:
-    """A poll's :class:`Sample` while :func:`poll_sample` fills it in."""
-
-    device: DeviceInfo
-    time_utc: float
-    monotonic: float
-    data: MapReading
-
-
-_SWAP = sys.byteorder == "little"
-_NONE: frozenset[int] = frozenset()
-_new = object.__new__
-
-
-def poll_sample(info: DeviceInfo, time_utc: float, monotonic: float, how: GroupDecode,
-                image: bytes, unread: frozenset[int] = _NONE) -> tuple[Sample, MapReading]:
-    """The :class:`Sample` of one poll of ``info`` and its data: a
-    :class:`MapReading` of the registers of ``image`` (big-endian, as on the
-    wire), values and states decoded on first use.
-
-    A logger makes these records a poll: each is filled in as a plain
-    object, then made what it is (``__class__``: the same layout), where
-    their own constructors would each cost a Python call and an instance
-    dict made at once (about 1,000 instructions a record more, callgrind);
-    the views' slots are filled in from here too."""
-    regs = array("H", image)
-    if _SWAP:
-        regs.byteswap()
-    values: _Values = _new(_Values)
-    values.how = how
-    values.regs = regs
-    values.unread = unread
-    values.got = None
-    states: _States = _new(_States)
-    states.source = values
-    r: Any = _new(_ReadingFill)
-    r.map = how.map
-    r.group = how.group
-    r.values = values
-    r.states = states
-    r.registers = regs
-    r.unsupported = how.unsupported(unread) if unread else ()
-    r.wire = image
-    r.__class__ = MapReading
-    s: Any = _new(_SampleFill)
-    s.device = info
-    s.time_utc = time_utc
-    s.monotonic = monotonic
-    s.data = r
-    s.__class__ = Sample
-    return s, r
-
-
-def _check_fills() -> None:
-    """Each fill sets exactly its record's fields (checked at import: a
-    field added to a record and not here fails at once, not at its first use)."""
-    for fill, record in ((_ReadingFill, MapReading), (_SampleFill, Sample)):
-        want = [f.name for f in fields(record)]
-        if list(fill.__annotations__) != want:
-            raise AssertionError(f"{fill.__name__} fills {list(fill.__annotations__)}, "
-                                 f"{record.__name__} has {want}")
-
-
-_check_fills()
-
-
 @dataclass(eq=False)
 class Entry:
     """One polling group of a unit: its slot of the schedule and its requests."""
@@ -231,6 +91,7 @@ class Entry:
     slot: Slot
     decode: GroupDecode
     wanted: tuple[int, ...]  #: the planner items of the group (the same tuple each poll)
+    source: PollSource  #: its polls' device and decoder, as the writer takes them
     queued: bool = False  #: waiting in its connection's queue
     plan: ReadPlan | None = None
     specs: list[PollRequest] = field(default_factory=list)
@@ -255,6 +116,7 @@ class Entry:
             how = shared[id(m), group] = GroupDecode(m, group, unit.items)
         wanted = tuple(sorted(how.items))
         return cls(unit, Slot(unit.health, interval, once, group), how, wanted,
+                   PollSource(unit.info, how),
                    image=bytearray(2 * sum(d.count for d in how.decoders)))
 
     def requests(self) -> list[PollRequest]:
@@ -272,11 +134,11 @@ class Entry:
         return self.specs
 
     def unsupported(self) -> frozenset[int]:
-        """The items the unit's planner leaves out for now (taken again only
-        when the planner changed)."""
+        """The group's items the unit's planner leaves out for now (taken
+        again only when the planner changed)."""
         p = self.unit.planner
         if p.version != self._seen:
-            self._unread, self._seen = p.unsupported, p.version
+            self._unread, self._seen = p.unsupported & self.decode.items, p.version
         return self._unread
 
     def table_of(self, specs: list[PollRequest]) -> PollTable:

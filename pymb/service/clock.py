@@ -22,6 +22,7 @@ import dataclasses
 import time
 
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock
 from pymb.store.retention import PLAUSIBLE, RESTAMP_TOLERANCE, clock_plausible
 
 __all__ = ["PLAUSIBLE", "STEP", "ClockWatch", "clock_plausible", "offset", "restamped"]
@@ -85,10 +86,12 @@ class ClockWatch:
                 f"{when(after)}{note}; {what} re-stamped from the monotonic clock")
 
 
-def restamped(items: list[Sample | Event], offset: float) -> list[Sample | Event]:
+def restamped(items: list[Sample | Event | PollBlock], offset: float
+              ) -> list[Sample | Event | PollBlock]:
     """``items`` with the wall time of those stamped before a clock step
     recomputed from their monotonic time and the clock's ``offset`` (the same
-    list when none needs it)."""
+    list when none needs it; a block of polls by its first poll's times,
+    which set every poll's)."""
     limit = ClockWatch.tolerance
     if all(abs(i.time_utc - i.monotonic - offset) <= limit for i in items):
         return items

@@ -20,8 +20,12 @@ class Logged(Protocol):
     """What a service needs of the logger it runs
     (:class:`pymb.logger.Logger`, which sits above this package)."""
 
-    sink: Sink
     on_hangup: Callable[[], None] | None
+
+    @property
+    def sink(self) -> Sink:
+        """Where it writes."""
+        ...
 
     def stop(self) -> None:
         """Ask the run to end."""

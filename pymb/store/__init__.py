@@ -29,7 +29,8 @@ The package, one job a module: :mod:`~pymb.store.records` (samples, events,
 the sink protocol), :mod:`~pymb.store.schema` (tables and the decoding
 views), :mod:`~pymb.store.onchange` (report by exception),
 :mod:`~pymb.store.writer` (the SQLite writer), :mod:`~pymb.store.rows`
-(what its rows hold), :mod:`~pymb.store.retention`
+(what its rows hold), :mod:`~pymb.store.block` (the TCP loop's polls handed
+over in blocks, and a poll's sample), :mod:`~pymb.store.retention`
 (size and age limits), :mod:`~pymb.store.files` (atomic creation), :mod:`~pymb.store.guard`
 (never writing into a file of another kind),
 :mod:`~pymb.store.reader` (reading back), :mod:`~pymb.store.outbox` (a

@@ -13,6 +13,7 @@ from pymb import maps
 from pymb.devices.mapreading import MapReading
 from pymb.errors import InvalidArgument
 from pymb.maps import Map, Value
+from pymb.store.records import DeviceInfo
 
 __all__ = ["DEADBAND_QUANTITIES", "Changes", "OnChange"]
 
@@ -101,6 +102,12 @@ class Changes:
         self.states: list[object] = []
         self.due: list[float] = []  # heartbeat deadline per column (monotonic)
         self.next_due = 0.0
+
+    @classmethod
+    def of(cls, rules: OnChange, device: DeviceInfo, channels: int) -> Changes:
+        """The rules of ``device`` (its map's deadbands over ``rules``'),
+        by channel when it stores ``channels`` (not 0)."""
+        return cls(rules, {**rules.deadband, **dict(device.map_deadband)}, by_channel=channels > 0)
 
     def _reset(self, m: Map, shape: list[tuple[str, int]]) -> None:
         self.shape = shape

@@ -22,9 +22,9 @@ from pymb.errors import (
 )
 from pymb.maps import Value
 
-__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "Sample", "Sink", "SinkBase", "SinkWrapper",
-           "StoredSample", "as_sink", "event_kind", "reading_value", "reading_values",
-           "short_fault"]
+__all__ = ["FAULT_KINDS", "DeviceInfo", "Event", "PollSamples", "Sample", "Sink", "SinkBase",
+           "SinkWrapper", "StoredSample", "as_sink", "event_kind", "own_sample_writes",
+           "reading_value", "reading_values", "short_fault"]
 
 
 
@@ -195,6 +195,21 @@ class Sink(Protocol):
         ...
 
 
+class PollSamples(Protocol):
+    """Polls handed over in one block (:class:`pymb.store.block.PollBlock`,
+    the TCP loop's): what an output that takes samples needs of them."""
+
+    def samples(self) -> list[Sample]:
+        """Each poll's sample, in order."""
+        ...
+
+
+def own_sample_writes(cls: type[SinkBase], base: type[SinkBase]) -> bool:
+    """Whether sink class ``cls`` writes samples its own way: it defines
+    ``write`` or ``write_batch`` over ``base``'s."""
+    return cls.write is not base.write or cls.write_batch is not base.write_batch
+
+
 class SinkBase(abc.ABC):
     """The defaults of an output: it keeps the samples it is given, writes a
     batch a sample at a time, never asks for a commit, has nothing to check
@@ -226,6 +241,10 @@ class SinkBase(abc.ABC):
         """Each sample's :meth:`write`, in order."""
         for sample in samples:
             self.write(sample)
+
+    def write_block(self, block: PollSamples) -> None:
+        """Each poll's sample of ``block``, in order, to :meth:`write_batch`."""
+        self.write_batch(block.samples())
 
     def turn(self) -> bool:
         """Never asks for a commit."""
@@ -262,6 +281,14 @@ class SinkWrapper(SinkBase, Generic[S]):
     def write_batch(self, samples: Sequence[Sample]) -> None:
         """As the wrapped sink."""
         self.sink.write_batch(samples)
+
+    def write_block(self, block: PollSamples) -> None:
+        """As the wrapped sink, unless this wrapper writes samples its own way
+        (:func:`own_sample_writes`): then each poll's sample to its own."""
+        if isinstance(self.sink, SinkBase) and not own_sample_writes(type(self), SinkWrapper):
+            self.sink.write_block(block)
+        else:
+            self.write_batch(block.samples())
 
     def event(self, event: Event) -> None:
         """As the wrapped sink."""
@@ -328,7 +355,7 @@ class _Minimal(SinkBase):
         self.out.close()
 
 
-def as_sink(out: object) -> Sink:
+def as_sink(out: object) -> SinkBase:
     """``out`` itself when it is a :class:`SinkBase`, else ``out`` with the
     defaults of one (it keeps the samples it is given; a batch is written a
     sample at a time). Refuses an object without ``write``, ``event``,

@@ -1,25 +1,29 @@
 """What the SQLite writer puts in its rows: the multi-row INSERT of
-samples, the ``unsupported`` column, the ``devices`` rows (a hub's humidity
+samples (of :class:`~pymb.store.Sample` records, or of a block of polls'
+columns), the ``unsupported`` column, the ``devices`` rows (a hub's humidity
 units) and a map device's ``maps`` row and views."""
 
 from __future__ import annotations
 
 import functools
 import sqlite3
-from collections.abc import Callable, Sequence
+from array import array
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from pymb import maps
 from pymb.devices.mapreading import MapReading, group_layout
 from pymb.devices.readings import Reading, map_reading
 from pymb.errors import InvalidArgument, OutputError
+from pymb.store.block import PollBlock, PollSource
 from pymb.store.mapcheck import changed_map_message
 from pymb.store.mapviews import create_map_views
+from pymb.store.reader import HubRow
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.schema import FORMAT1_LAYOUT, map_layout_key, unsupported_mask, wire_bytes
 
-__all__ = ["ROWS_PER_INSERT", "DeviceIds", "bound_registers", "humidity_units", "insert_rows",
-           "sample_rows", "stored_registers", "unsupported_of"]
+__all__ = ["ROWS_PER_INSERT", "DeviceIds", "block_rows", "bound_registers", "channel_rows",
+           "humidity_units", "insert_rows", "sample_rows", "stored_registers", "unsupported_of"]
 
 #: Rows one multi-row INSERT of samples carries at most (6 values each, far
 #: below SQLite's limit of bound variables).
@@ -77,6 +81,43 @@ def sample_rows(samples: Sequence[Sample], first: int, ids: DeviceIds
                      unsupported_of(data) if data.unsupported else 0))
         sid += 1
     return flat, sizes
+
+
+def block_rows(block: PollBlock, first: int, ids: DeviceIds) -> tuple[list[object], list[int]]:
+    """:func:`sample_rows` of a block of polls, bound straight from its
+    columns: the same rows its :meth:`~pymb.store.block.PollBlock.samples`
+    would give."""
+    flat: list[object] = []
+    sizes: list[int] = []
+    data = memoryview(block.data)
+    offs = block.offs
+    ends = [*offs[1:], len(data)]
+    clock = block.clock
+    unread = block.unread
+    device_id = ids.id_of_source
+    sid = first
+    for j, (src, mono) in enumerate(zip(block.sources, block.monos, strict=True)):
+        did, size = device_id(src, block, j)
+        blob = bytearray(data[offs[j]:ends[j]])
+        if len(blob) < size:  # (format 1's layout: at least its map's registers)
+            blob += bytes(size - len(blob))
+        sizes.append(len(blob))
+        gone = unread[j] if unread else None
+        how = src.decode
+        flat.extend((sid, did, clock + mono, mono, blob, unsupported_mask(
+            how.map, how.group, how.unsupported(gone)) if gone else 0))
+        sid += 1
+    return flat, sizes
+
+
+def channel_rows(data: MapReading, pick: Iterable[int]) -> list[HubRow]:
+    """The ``hub_changes`` rows' (channel, registers) of a reading stored by
+    channel: the channels ``pick`` (0-based), each its points' registers."""
+    regs = data.registers
+    points = [data.map.points[n] for n in data.values]
+    first = min(p.address for p in points)
+    return [(ch + 1, wire_bytes(array(
+        "H", [regs[p.address - first + ch * p.stride] for p in points]))) for ch in pick]
 
 
 @functools.lru_cache(maxsize=64)
@@ -184,6 +225,15 @@ class DeviceIds:
             self._devices[cache] = got
             self._remember(mine, d, got)
         return got
+
+    def id_of_source(self, src: PollSource, block: PollBlock, j: int) -> tuple[int, int]:
+        """(device id, bytes) of the device of ``src``, whose poll ``j`` of
+        ``block`` is being stored: :meth:`id_of` with that poll's reading,
+        made only the first time."""
+        d = src.device
+        seen = self._seen.get((id(d), src.decode.group))
+        got = seen[1] if seen is not None and seen[0] is d else self.id_of(d, block.sample(j).data)
+        return got[0], got[2]
 
     def _remember(self, mine: tuple[int, str | None], d: DeviceInfo,
                   got: tuple[int, int, int]) -> None:

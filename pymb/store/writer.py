@@ -10,13 +10,13 @@ import sqlite3
 import sys
 import threading
 import time
-from array import array
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
 from pymb.devices.readings import map_reading
 from pymb.errors import InvalidArgument, OutputError
+from pymb.store.block import PollBlock
 from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
@@ -26,18 +26,20 @@ from pymb.store.lock import WriterLock
 from pymb.store.onchange import Changes, OnChange
 from pymb.store.outbox import max_id
 from pymb.store.reader import HubRow
-from pymb.store.records import Event, Sample, SinkBase
+from pymb.store.records import Event, PollSamples, Sample, SinkBase, own_sample_writes
 from pymb.store.reserve import Reserve
 from pymb.store.retention import Restamp, Retention
 from pymb.store.rows import (
     ROWS_PER_INSERT,
     DeviceIds,
+    block_rows,
     bound_registers,
+    channel_rows,
     insert_rows,
     sample_rows,
     unsupported_of,
 )
-from pymb.store.schema import MIN_BYTES, open_format, wire_bytes
+from pymb.store.schema import MIN_BYTES, open_format
 
 __all__ = ["SqliteSink"]
 
@@ -178,10 +180,6 @@ class SqliteSink(SinkBase):
     def wal_budget(self, value: int) -> None:
         self.retention.wal_budget = value
 
-    def _size(self) -> int:
-        """Bytes the data takes: pages in use plus the WAL."""
-        return self.retention.size()
-
     def _begin(self) -> None:
         if not self._in_tx:
             # IMMEDIATE: the write lock is taken (waiting up to the busy timeout)
@@ -239,13 +237,25 @@ class SqliteSink(SinkBase):
                 self.write(sample)
             return
         with self._mutex:
-            self._write_rows(samples)
+            self._write_rows(len(samples), lambda first: sample_rows(samples, first,
+                                                                     self._device_ids))
 
-    def _write_rows(self, samples: Sequence[Sample]) -> None:
+    def write_block(self, block: PollSamples) -> None:
+        """The rows bound straight from the block (no record a poll); on-change
+        or in a subclass with writes of its own, as :class:`SinkBase` does."""
+        if (self.on_change is not None or not isinstance(block, PollBlock)
+                or own_sample_writes(type(self), SqliteSink)):
+            return super().write_block(block)
+        with self._mutex:
+            self._write_rows(len(block), lambda first: block_rows(block, first, self._device_ids))
+
+    def _write_rows(self, rows: int, make: Callable[[int], tuple[list[object], list[int]]]
+                    ) -> None:
+        """``rows`` rows, ``make(first)`` (their ids from ``first`` on): their
+        values as :func:`insert_rows` binds them, each row's bytes of registers."""
         try:
-            rows = len(samples)
             self._make_room(rows)
-            flat, sizes = sample_rows(samples, self._ids.take_many(rows), self._device_ids)
+            flat, sizes = make(self._ids.take_many(rows))
             self._begin()
             if self.max_bytes is None:  # no WAL budget: statements of ROWS_PER_INSERT rows
                 for i in range(0, rows, ROWS_PER_INSERT):
@@ -298,28 +308,21 @@ class SqliteSink(SinkBase):
         data = map_reading(sample.data)
         did, channels, size = self._device_ids.id_of(sample.device, data)
         self._begin()
-        if self.on_change is None:
-            self._insert(did, sample, bound_registers(data, size), unsupported_of(data))
-            self.stored += 1
-            return
-        rules = self._changes.get(did)
-        if rules is None:
-            bands = {**self.on_change.deadband, **dict(sample.device.map_deadband)}
-            rules = self._changes[did] = Changes(self.on_change, bands, by_channel=channels > 0)
-        pick = rules.changed(data, sample.monotonic)
-        if not pick:
-            return
-        if channels:  # stored by channel: the channels picked, as rows of hub_changes
-            regs = data.registers
-            points = [data.map.points[n] for n in data.values]
-            first = min(p.address for p in points)
-            hub = [(ch + 1, wire_bytes(array(
-                "H", [regs[p.address - first + ch * p.stride] for p in points]))) for ch in pick]
-            sid = self._insert(did, sample, None, unsupported_of(data), hub)
+        hub: list[HubRow] = []
+        if self.on_change is not None:
+            rules = self._changes.get(did)
+            if rules is None:
+                rules = self._changes[did] = Changes.of(self.on_change, sample.device, channels)
+            pick = rules.changed(data, sample.monotonic)
+            if not pick:
+                return
+            if channels:  # stored by channel: the channels picked, as rows of hub_changes
+                hub = channel_rows(data, pick)
+        sid = self._insert(did, sample, None if hub else bound_registers(data, size),
+                           unsupported_of(data), hub)
+        if hub:
             self.db.executemany("INSERT INTO hub_changes VALUES (?, ?, ?, ?, ?)",
                                 [(did, ch, sample.time_utc, sid, b) for ch, b in hub])
-        else:
-            self._insert(did, sample, bound_registers(data, size), unsupported_of(data))
         self.stored += 1
 
     def event(self, event: Event) -> None:

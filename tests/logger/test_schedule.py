@@ -24,6 +24,7 @@ from pymb.logger.schedule import (
 )
 from pymb.logger.stats import Stats
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock
 
 
 def test_slots_are_drift_free_and_a_long_read_skips_whole_slots() -> None:
@@ -182,7 +183,7 @@ def test_a_skip_after_the_writer_took_its_last_items_is_neither_counted_nor_hand
     """A poller left behind at the stop (in the middle of a long read) may
     find its slot overran: the run's summary counts skips as the stored events
     say them, so once the writer took its last items neither happens."""
-    out: queue.Queue[list[Sample | Event]] = queue.Queue()
+    out: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
     stats = Stats()
     report = Report(out, stats)
     slot = Slot.every(0.05)
@@ -206,8 +207,8 @@ def test_a_skip_waits_for_the_writer_without_holding_the_runs_counts() -> None:
     with the lock held would stop the run for good."""
     putting = threading.Event()
 
-    class Full(queue.Queue[list[Sample | Event]]):
-        def put(self, item: list[Sample | Event], block: bool = True,
+    class Full(queue.Queue[list[Sample | Event | PollBlock]]):
+        def put(self, item: list[Sample | Event | PollBlock], block: bool = True,
                 timeout: float | None = None) -> None:
             putting.set()
             super().put(item, block, timeout)

@@ -28,6 +28,7 @@ from pymb.logger.poller import BusPoller, Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.sim import SimulatorProcess
 from pymb.store import Event, Sample, SqliteSink, samples_after
+from pymb.store.block import PollBlock
 
 SERVED = '''schema = "pymb.map/1"
 [device]
@@ -94,11 +95,12 @@ def _map(s: Sample) -> MapReading:
     return s.data
 
 
-def _collect(make: Callable[[queue.Queue[list[Sample | Event]], threading.Event, Stats],
-                            threading.Thread], want: set[tuple[str, str | None]]) -> Collected:
+def _collect(make: Callable[[queue.Queue[list[Sample | Event | PollBlock]], threading.Event,
+                             Stats], threading.Thread],
+             want: set[tuple[str, str | None]]) -> Collected:
     """Samples by (device, group) until each has 3 (or 1 for the once
     group), within 30 s."""
-    q: queue.Queue[list[Sample | Event]] = queue.Queue()
+    q: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
     stop = threading.Event()
     got: Collected = {}
     poller = make(q, stop, Stats())
@@ -110,7 +112,8 @@ def _collect(make: Callable[[queue.Queue[list[Sample | Event]], threading.Event,
                 items = q.get(timeout=0.5)
             except queue.Empty:
                 continue
-            for s in items:
+            for s in (s for i in items
+                      for s in (i.samples() if isinstance(i, PollBlock) else [i])):
                 if isinstance(s, Sample):
                     got.setdefault((s.device.name, _map(s).group), []).append(s)
             if all(len(got.get(k, ())) >= (1 if k[1] == "once" else 3) for k in want):

@@ -193,7 +193,8 @@ def _from_poll(k: int, what: str) -> Script:
 def test_flat_out_polls_follow_each_other_whole(tmp_path: Path) -> None:
     """Flat out and pipelined, each poll's requests are framed in the take
     that read the last poll's replies and sent at once: every sample whole,
-    one after the other, no event but the connect."""
+    one after the other, no event but the connect. The loop's C part hands
+    them over in blocks, each poll stamped when it was read."""
     got = _poll(tmp_path, lambda n, req, conn: good(*req), lambda h: len(h.samples) >= 60,
                 bus=FLAT_OUT, points=FAR)
     assert got.kinds() == ["connect"]
@@ -201,6 +202,10 @@ def test_flat_out_polls_follow_each_other_whole(tmp_path: Path) -> None:
     times = [s.monotonic for s in got.samples]
     assert times == sorted(times)
     assert len(set(times)) == len(times)
+    assert got.blocks
+    for b in got.blocks:
+        assert abs(b.clock - (time.time() - time.monotonic())) < 1.0
+        assert [s.time_utc - s.monotonic for s in b.samples()] == pytest.approx([b.clock] * len(b))
 
 
 def test_a_point_refused_while_flat_out_is_replanned_in_that_poll(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""The records one poll of the TCP loop makes (:func:`pymb.logger.tcpunits.poll_sample`):
+"""The records one poll of the TCP loop makes (:func:`pymb.store.block.poll_sample`):
 a Sample of a MapReading whose values and states are decoded on first use,
 as the device's map decodes the registers, and freed by their reference
 counts alone (no cycle: the loop makes one a poll, and a cycle a poll would
@@ -13,9 +13,10 @@ import weakref
 
 from pymb import maps
 from pymb.devices.mapreading import GroupDecode, MapReading
-from pymb.logger.tcpunits import TCP_LINE, poll_sample
+from pymb.logger.tcpunits import TCP_LINE
 from pymb.maps.device_plan import map_planner
 from pymb.store import DeviceInfo, Sample
+from pymb.store.block import poll_sample
 
 MAP = """schema = "pymb.map/1"
 [device]

@@ -17,13 +17,14 @@ from pymb.logger.stats import Stats
 from pymb.logger.targets import write_targets
 from pymb.sim import Simulator
 from pymb.store import Event, Sample
+from pymb.store.block import PollBlock
 
 
 def test_the_coolpro_and_the_hub_are_write_targets_as_any_map_device() -> None:
     with Simulator(["coolpro", "hub:250"], seed=2) as sim:
         bus = BusConfig("b", port=sim.port, interval=0.2,
                         devices=[parse_device("coolpro"), parse_device("hub:250,channels=5")])
-        out: queue.Queue[list[Sample | Event]] = queue.Queue()
+        out: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
         stop = threading.Event()
         poller = BusPoller(bus, out, stop, Stats())
         poller.start()

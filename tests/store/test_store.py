@@ -29,7 +29,7 @@ def test_size_limit_deletes_the_oldest(tmp_path: Path) -> None:
     sink = SqliteSink(db, max_bytes=1_000_000)
     fill(sink, 1500, time.time() - 1500)  # about 2.5 MB unbounded
     assert sink.trimmed > 0  # trimmed as the batches committed
-    assert sink._size() <= 1_000_000
+    assert sink.retention.size() <= 1_000_000
     first, last, n = sink.db.execute(
         "SELECT MIN(id), MAX(id), COUNT(*) FROM samples").fetchone()
     assert last == 1500
@@ -144,7 +144,7 @@ def test_size_limit_also_bounds_events_when_no_samples_come(tmp_path: Path) -> N
         if i % 1000 == 999:
             sink.commit()
     sink.commit()
-    assert sink._size() <= 1_000_000
+    assert sink.retention.size() <= 1_000_000
     newest = sink.db.execute("SELECT MAX(monotonic) FROM events").fetchone()[0]
     assert newest == 39_999.0  # the newest are kept
     sink.close()
