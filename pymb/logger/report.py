@@ -136,4 +136,5 @@ class Report:
             stats.refused(h.name, refused)
         if (h.failures or h.offline) and h.answered():
             self.event(bus, "online", TEXT["online"].format(name=h.name), info)
-        stats.ok(h.name)
+        if h.name in stats.problems:  # (a call a poll less when all is well)
+            stats.ok(h.name)
