@@ -382,7 +382,7 @@ typedef struct {
     int epfd; pymbi_lconn *conns; size_t nconns; const int32_t *slot_of; size_t slot_cap;
     uint8_t *rx; size_t rx_cap; uint8_t *out; size_t out_cap; double look_min; uint32_t *done;
     size_t done_cap; size_t ndone; double now; uint8_t *block; size_t block_cap;
-    size_t block_len; uint32_t *done_off; double *done_at; double hold;
+    size_t block_len; uint32_t *done_off; double *done_at; double hold; double gap;
 } pymbi_loop;
 int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap);
 """

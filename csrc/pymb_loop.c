@@ -15,6 +15,7 @@
 #include "pymb_loop.h"
 
 #define EVENTS 256 /* epoll events one wait takes at most */
+#define GAP_MIN 1e-4 /* seconds: a shorter gap is no sleep (a sleep costs about as much) */
 
 double pymbi_loop_now(void)
 {
@@ -174,15 +175,19 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
 
 /* The looks of the armed connections that are over by `now`: handed back
  * unread (LOOK records from rec[k] on, cap at most) unless only slow; *next
- * brought down to the first look to come. Returns the records now written. */
+ * brought down to the first look to come, *fastest to the smallest `took`.
+ * Returns the records now written. */
 static size_t looks(pymbi_loop *lp, double now, pymbi_lrec *rec, size_t k, size_t cap,
-                    double *next)
+                    double *next, double *fastest)
 {
     size_t i;
     for (i = 0; i < lp->nconns; i++) {
         pymbi_lconn *c = &lp->conns[i];
         if (!c->armed) {
             continue;
+        }
+        if (c->took < *fastest) {
+            *fastest = c->took;
         }
         if (c->look_at <= now && still_clean(lp, c)) { /* only slow: wait on */
             c->look_at = now + look(lp, c);
@@ -227,7 +232,7 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
     if (lp == NULL || rec == NULL || cap == 0 || (lp->nconns > 0 && lp->conns == NULL) ||
         (lp->slot_cap > 0 && lp->slot_of == NULL) || lp->rx == NULL || lp->rx_cap == 0 ||
         lp->out == NULL || lp->nconns >= PYMBI_LOOP_NO_CONN || !(timeout >= 0.0) ||
-        lp->done == NULL || lp->done_cap == 0 || !(lp->hold >= 0.0) ||
+        lp->done == NULL || lp->done_cap == 0 || !(lp->hold >= 0.0) || !(lp->gap >= 0.0) ||
         (lp->hold > 0.0 && lp->block == NULL) ||
         (lp->block != NULL && (lp->done_off == NULL || lp->done_at == NULL ||
                                lp->block_cap > UINT32_MAX))) {
@@ -239,16 +244,29 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
     now = lp->now = pymbi_loop_now();
     end = now + timeout;
     for (;;) {
-        double next = end, wait;
+        double next = end, wait, fastest = HUGE_VAL;
         size_t most;
         int n, j, ms, full = 0;
 
         if (lp->ndone > 0 && first + lp->hold < next) {
             next = first + lp->hold;
         }
-        k = looks(lp, now, rec, k, cap, &next);
+        k = looks(lp, now, rec, k, cap, &next, &fastest);
         if (k == cap) {
             return (int)k;
+        }
+        if (lp->ndone > 0 && k == 0 && lp->gap > 0.0) { /* held: a gap, one wake for more */
+            double gap = fastest * lp->gap;
+            if (gap > next - now) {
+                gap = next - now;
+            }
+            if (gap >= GAP_MIN) {
+                struct timespec ts;
+                ts.tv_sec = (time_t)gap;
+                ts.tv_nsec = (long)((gap - (double)ts.tv_sec) * 1e9);
+                (void)nanosleep(&ts, NULL); /* (a signal: the epoll wait says so) */
+                now = lp->now = pymbi_loop_now();
+            }
         }
         wait = k > 0 ? 0.0 : next - now;
         if (lp->ndone > 0 && wait <= 0.0 && k == 0) {

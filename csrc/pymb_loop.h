@@ -20,7 +20,10 @@
  * than once: it goes on carrying, without returning, for `hold` seconds after
  * the first poll it read (or until `done` or the block is full), and returns
  * at once for anything that is the caller's. One return hands the caller many
- * polls (its per-wait work is not per-poll work).
+ * polls (its per-wait work is not per-poll work). With a `gap`, a held wait
+ * sleeps a little before each epoll wait, so that one wake takes the replies
+ * of several polls (a wake is a context switch: as much CPU as a poll's
+ * Python).
  *
  * Linux (epoll, SO_RCVLOWAT set by the caller, MSG_TRUNC on TCP). Compiled
  * into the Python extension only (pymb._native.loop is its one user); not in
@@ -116,6 +119,11 @@ typedef struct {
     uint32_t *done_off;
     double *done_at;
     double hold; /* seconds a wait goes on carrying after its first poll read (0: returns) */
+    /* While held, the wait sleeps this share of the fastest armed poll's reply
+     * time (`took`) before each epoll wait, when that is 100 us or more (0:
+     * never): the replies that come meanwhile are taken in one wake, each
+     * poll's next one sent later by at most that share of its replies' time. */
+    double gap;
 } pymbi_loop;
 
 /* CLOCK_MONOTONIC in seconds (as Python's time.monotonic on Linux). */

@@ -461,6 +461,20 @@ static void test_block(void)
     CHECK(n == 0 && F.lp.ndone == 1 && F.lp.block_len == 8 && Block[0] == 0x30);
     CHECK(F.conn.asked == 4 && M.replies == 4);
     teardown();
+    /* with a gap, the held wait sleeps a share of the replies' time before
+     * it looks again: the second poll, answered at once, is taken after it */
+    CHECK(setup_block(sizeof Block, 2.0) == 0);
+    F.lp.done_cap = 2;
+    F.lp.gap = 0.5;
+    F.conn.took = 0.04; /* (after the first poll: at least 0.035, a gap of 17 ms or more) */
+    job.polls = 2;
+    job.failed = 0;
+    CHECK(pthread_create(&th, NULL, peer_polls, &job) == 0);
+    n = pymbi_loop_wait(&F.lp, 5.0, F.rec, 8);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    CHECK(n == 0 && F.lp.ndone == 2 && Block[0] == 0x10 && Block[8] == 0x30);
+    CHECK(At[1] - At[0] >= 0.017);
+    teardown();
     /* an image larger than the block: handed back, nothing read */
     CHECK(setup_block(4, 5.0) == 0);
     answer(1, 2);
@@ -495,6 +509,9 @@ static void test_args(void)
     F.lp.hold = -1.0;
     CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
     F.lp.hold = 0.1;
+    F.lp.gap = -1.0;
+    CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == -1 && errno == EINVAL);
+    F.lp.gap = 0.0;
     CHECK(pymbi_loop_wait(&F.lp, 0.0, &r, 1) == 0 && F.lp.ndone == 0);
     teardown();
 }

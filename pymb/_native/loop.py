@@ -51,14 +51,16 @@ class Loop:
     there); a look is twice the replies' time, at least ``look_min`` seconds,
     at most a quarter of the timeout. A wait carries at most ``polls`` polls;
     with a ``block`` of that many bytes each poll's image is copied there, and
-    a wait goes on carrying for ``hold`` seconds after its first poll read
-    (``csrc/pymb_loop.h``)."""
+    a wait goes on carrying for ``hold`` seconds after its first poll read,
+    sleeping ``gap`` times the fastest armed poll's reply time before each
+    look (``csrc/pymb_loop.h``)."""
 
     __slots__ = ("_at_c", "_block_c", "_conns", "_done_c", "_held", "_lp", "_off_c", "_out", "_rx",
                  "_slots", "block", "done", "done_at", "done_off", "now", "recs")
 
     def __init__(self, epfd: int, n: int, rx: ReadBuffer, look_min: float, *,
-                 polls: int = _RECORDS, block: int = 0, hold: float = 0.0) -> None:
+                 polls: int = _RECORDS, block: int = 0, hold: float = 0.0,
+                 gap: float = 0.0) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
         #: an armed connection's master and poll table, kept alive while C points into them
         self._held: list[tuple[Master, PollTable] | None] = [None] * max(n, 1)
@@ -90,6 +92,7 @@ class Loop:
         lp.done_off = self._off_c
         lp.done_at = self._at_c
         lp.hold = hold
+        lp.gap = gap
         self._rx = rx
         #: the connections the last :meth:`wait` read a poll of and sent the
         #: next one whole (they stay armed), at most ``polls``: with a block, a

@@ -37,6 +37,12 @@ from pymb.store.block import PollBlock, poll_sample
 __all__ = ["Conn", "TcpLoopBase", "asked", "fans_out", "request_failed"]
 
 _NONE: frozenset[int] = frozenset()
+#: while a wait of the C part holds the polls it carried, it sleeps this
+#: share of the fastest armed poll's reply time before it looks again: one
+#: wake (a context switch, as much CPU as a poll's Python) then takes the
+#: replies of several polls, each poll's next one sent later by at most this
+#: share of its replies' time
+_GAP = 1 / 16
 
 
 class Loan:
@@ -176,12 +182,13 @@ class TcpLoopBase(threading.Thread):
         looking at replies in ``rx``; looks of at least ``look_min`` seconds.
         One wait of it carries a list's worth of polls for the writer
         (:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`):
-        their images copied to its block, the loop woken once for them all."""
+        their images copied to its block, the loop woken once for them all,
+        and the C part itself woken once for several replies (:data:`_GAP`)."""
         for i, c in enumerate(self.conns):
             c.index = i
         image = max((len(e.image) for c in self.conns for e in c.entries), default=0)
         self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min, polls=BATCH_MAX,
-                          block=BATCH_MAX * max(image, 1), hold=BATCH_AGE)
+                          block=BATCH_MAX * max(image, 1), hold=BATCH_AGE, gap=_GAP)
         self._block = memoryview(self.cloop.block)
         return self.cloop
 
