@@ -6,6 +6,7 @@ units) and a map device's ``maps`` row and views."""
 from __future__ import annotations
 
 import functools
+import operator
 import sqlite3
 from array import array
 from collections.abc import Callable, Iterable, Sequence
@@ -88,26 +89,25 @@ def block_rows(block: PollBlock, first: int, ids: DeviceIds) -> tuple[list[objec
     columns: the same rows its :meth:`~pymb.store.block.PollBlock.samples`
     would give."""
     flat: list[object] = []
-    sizes: list[int] = []
     data = memoryview(block.data)
     offs = block.offs
     ends = [*offs[1:], len(data)]
     clock = block.clock
     unread = block.unread
-    device_id = ids.id_of_source
+    known = ids.by_source.get
     sid = first
     for j, (src, mono) in enumerate(zip(block.sources, block.monos, strict=True)):
-        did, size = device_id(src, block, j)
+        did, size = known(src) or ids.id_of_source(src, block, j)
         blob = bytearray(data[offs[j]:ends[j]])
-        if len(blob) < size:  # (format 1's layout: at least its map's registers)
-            blob += bytes(size - len(blob))
-        sizes.append(len(blob))
+        if size:  # (format 1's layout: at least its map's registers)
+            blob += bytes(max(0, size - len(blob)))
+            ends[j] = offs[j] + len(blob)
         gone = unread[j] if unread else None
         how = src.decode
         flat.extend((sid, did, clock + mono, mono, blob, unsupported_mask(
             how.map, how.group, how.unsupported(gone)) if gone else 0))
         sid += 1
-    return flat, sizes
+    return flat, list(map(operator.sub, ends, offs))
 
 
 def channel_rows(data: MapReading, pick: Iterable[int]) -> list[HubRow]:
@@ -168,6 +168,10 @@ class DeviceIds:
         #: finds it without hashing its fields
         self._seen: dict[tuple[int, str | None], tuple[DeviceInfo, tuple[int, int, int]]] = {}
         self._viewed: set[str] = set()  #: map ids whose views this session made
+        #: (device id, bytes) of the polls of a :class:`~pymb.store.block.PollSource`,
+        #: as :meth:`id_of_source` found them (the TCP loop names a polling
+        #: group's polls with one source, so this finds it by identity)
+        self.by_source: dict[PollSource, tuple[int, int]] = {}
 
     def forget(self) -> None:
         """The batch was rolled back: the ids it inserted and the views it
@@ -175,6 +179,7 @@ class DeviceIds:
         self._devices.clear()
         self._seen.clear()
         self._viewed.clear()
+        self.by_source.clear()
 
     def id_of(self, d: DeviceInfo, data: Reading | Event) -> tuple[int, int, int]:
         """(device id, channels, bytes) of a device configuration, inserted on
@@ -233,7 +238,10 @@ class DeviceIds:
         d = src.device
         seen = self._seen.get((id(d), src.decode.group))
         got = seen[1] if seen is not None and seen[0] is d else self.id_of(d, block.sample(j).data)
-        return got[0], got[2]
+        if len(self.by_source) >= _SEEN_MAX:  # a caller with a new source per poll
+            self.by_source.clear()
+        out = self.by_source[src] = (got[0], got[2])
+        return out
 
     def _remember(self, mine: tuple[int, str | None], d: DeviceInfo,
                   got: tuple[int, int, int]) -> None:

@@ -18,6 +18,7 @@ import pytest
 
 from pymb import maps
 from pymb.devices.mapreading import GroupDecode
+from pymb.errors import OutputError
 from pymb.service.clock import restamped
 from pymb.store import DeviceInfo, OnChange, Sample, SinkBase, SinkWrapper, SqliteSink
 from pymb.store.block import PollBlock, PollSource
@@ -62,10 +63,12 @@ def _sources() -> list[PollSource]:
             PollSource(meter, GroupDecode(sdm, next(iter(sdm.groups))))]
 
 
-def _block(rng: random.Random, polls: int, refused: bool) -> PollBlock:
-    """``polls`` polls of the three groups in turn, random registers; with
+def _block(rng: random.Random, polls: int, refused: bool,
+           sources: list[PollSource] | None = None) -> PollBlock:
+    """``polls`` polls of the three groups in turn (``sources``: those of
+    :func:`_sources`, made anew when not given), random registers; with
     ``refused``, the second poll's group refused its first point."""
-    sources = _sources()
+    sources = sources or _sources()
     picked = [sources[j % len(sources)] for j in range(polls)]
     images = [rng.randbytes(2 * sum(d.count for d in s.decode.decoders)) for s in picked]
     offs = [sum(map(len, images[:j])) for j in range(polls)]
@@ -231,3 +234,29 @@ def test_a_clock_step_restamps_every_poll_of_a_block() -> None:
     assert [s.time_utc for s in got.samples()] == pytest.approx(
         [m + offset for m in block.monos])
     assert restamped([got], offset)[0] is got
+
+
+def test_a_rolled_back_batch_takes_the_blocks_device_ids_back(tmp_path: Path) -> None:
+    """The ``devices`` rows a rolled-back batch inserted are gone: the next
+    block stores its devices again, as their samples would be."""
+    first = _block(random.Random(14), 3, False)
+    then = _block(random.Random(15), 6, False, first.sources)  # the same sources
+
+    def disk_full(con: sqlite3.Connection) -> None:
+        raise sqlite3.OperationalError("database or disk is full")
+
+    for name in ("block.db", "samples.db"):
+        sink = SqliteSink(tmp_path / name)
+        for b in (first, then):
+            if name == "block.db":
+                sink.write_block(b)
+            else:
+                sink.write_batch(b.samples())
+            if b is first:
+                with pytest.raises(OutputError):
+                    sink.in_batch(disk_full, True)
+        sink.close()
+    got, want = _dump(tmp_path / "block.db"), _dump(tmp_path / "samples.db")
+    assert got == want
+    assert sum(r.startswith('INSERT INTO "devices"') for r in got) == 3  # (blk-3: two groups)
+    assert sum(r.startswith('INSERT INTO "samples"') for r in got) == 6
