@@ -53,6 +53,8 @@ def test_writes_share_the_poll_connection_and_never_tear_a_poll(
                 "mode": "run" if i % 4 else "stop", "relay_5": bool(i % 8)}
             r = cmd.send({"id": f"t-{i}", "values": values})
             assert r["ok"], r
+            if i % 7 == 0:  # polls among the writes, however fast they go
+                clean_polls_after_the_writes(peer, 1)
         peer.frozen.add(10)  # acknowledged, not applied: the read back on the same line
         r = cmd.send({"id": "t-21", "values": {"setpoint_hz": 60}})
         assert (r["ok"], r["reason"]) == (False, "not_applied"), r
