@@ -112,6 +112,7 @@ class PipelinedUpstream:
         #: transactions sent, and how each ended; the most in flight at once
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
         self.dropped = 0  #: requests queued or in flight when it stopped: never answered
+        self.abandoned = False  #: as Upstream's: never (no thread of its own)
         self.most_inflight = 0
 
     def start(self) -> None:

@@ -69,6 +69,8 @@ class Upstream:
         #: transactions sent, and how each ended
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
         self.dropped = 0  #: requests queued or under way when it stopped: never answered
+        #: its thread was still in a transaction when it stopped (see :meth:`stop`)
+        self.abandoned = False
 
     def start(self) -> None:
         """Start the upstream's thread."""
@@ -91,6 +93,7 @@ class Upstream:
         self._thread.join(timeout)
         if self._thread.is_alive():  # a transaction under way, abandoned
             self.dropped += 1
+            self.abandoned = True
 
     def submit(self, unit: int, pdu: bytes, done: Done) -> None:
         """Queue request ``pdu`` for ``unit``."""
