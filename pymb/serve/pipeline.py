@@ -63,7 +63,7 @@ class _Job:
         self.unit, self.pdu, self.done = unit, pdu, done
         self.timer: asyncio.TimerHandle | None = None
         self.answers_before = 0  #: its unit's replies when it was sent
-        self.resent = False  #: sent again after the device closed the connection
+        self.resent = False  #: sent again after a reset that came before any reply
 
 
 class PipelinedUpstream:
@@ -87,8 +87,8 @@ class PipelinedUpstream:
 
     Some devices take one request a connection: when the device closes the
     connection after a reply, the reads that were in flight on it are sent
-    again on a new one (once each; a write never is: the device may have
-    done it, and it is answered 0x0A), and when it closed after its first
+    again on a new one, first (a write never is: the device may have done
+    it, and it is answered 0x0A), and when it closed after its first
     reply with others in flight, ``max_inflight`` falls to 1, said in one
     event line."""
 
@@ -239,7 +239,9 @@ class PipelinedUpstream:
         """The connection ended (``closed``: the device closed or reset it)
         or the upstream sent garbage: what was in flight is answered 0x0A,
         but for the reads the device closed it on after a reply, sent again
-        (once); the next request connects again."""
+        first on the next connection (each connection that carried a reply
+        is progress: the queue's head is answered); the next request
+        connects again."""
         if link is not self._link:
             return
         self._link = None
@@ -248,9 +250,17 @@ class PipelinedUpstream:
         if self._stopped:
             return
         inflight, self._inflight = list(self._inflight.values()), {}
-        again = [job for job in inflight
-                 if closed and self._served and not job.resent and resendable(job.pdu)]
-        if inflight and closed and self._served == 1 and self.max_inflight > 1:
+        # A device that answers one request a connection resets it when more
+        # were sent: its one reply can be lost with the reset. So with several
+        # in flight, a reset before any reply sends the reads again too (each
+        # read once that way: a device that resets at once ends it).
+        several = len(inflight) > 1
+        again = [job for job in inflight if closed and resendable(job.pdu) and (
+            self._served or (several and not job.resent))]
+        for job in again:
+            job.resent = job.resent or not self._served
+        if closed and self.max_inflight > 1 and (
+                (self._served == 1 and inflight) or (not self._served and several)):
             self.max_inflight = 1
             self._on_event(f"upstream closed the connection after one reply with "
                            f"{len(inflight)} more request(s) sent: one transaction at a "
@@ -261,7 +271,6 @@ class PipelinedUpstream:
             if job.timer is not None:
                 job.timer.cancel()
             if job in again:
-                job.resent = True
                 continue
             self.unreachable += 1
             job.done(bytes((job.pdu[0] | 0x80, EX_PATH)))
