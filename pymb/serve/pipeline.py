@@ -262,9 +262,10 @@ class PipelinedUpstream:
         if closed and self.max_inflight > 1 and (
                 (self._served == 1 and inflight) or (not self._served and several)):
             self.max_inflight = 1
-            self._on_event(f"upstream closed the connection after one reply with "
-                           f"{len(inflight)} more request(s) sent: one transaction at a "
-                           "time from now")
+            how = ("closed the connection after one reply with" if self._served else
+                   "reset the connection before any reply was read, with")
+            self._on_event(f"upstream {how} {len(inflight)} more request(s) sent: one "
+                           "transaction at a time from now")
         elif len(again) < len(inflight) or not self._served:
             self._on_event(f"upstream connection lost: {why}")
         for job in inflight:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import time
 
 from peerkit import TcpPeerBase, mbap, registers, rtu, split_mbap
 from servekit import RawClient, Served, read_pdu, words
@@ -73,7 +74,9 @@ def test_reads_through_serve_to_a_modbus_tcp_device_that_closes_after_each_reply
         for cc in (c, *clients):
             cc.close()
         assert s.stop() == 0
-    assert any("closed the connection after one reply" in line and
+    # its one reply, or a reset that lost it (more requests were unread)
+    assert any(("closed the connection after one reply" in line
+                or "reset the connection before any reply was read" in line) and
                "one transaction at a time from now" in line for line in s.stderr_lines), \
         s.stderr_lines
     assert not any("0x0A" in line for line in s.stderr_lines), s.stderr_lines
@@ -93,3 +96,39 @@ def test_through_rtu_over_tcp_a_read_is_sent_again_and_a_write_never() -> None:
         assert s.stop() == 0
     assert [r[2] << 8 | r[3] for r in device.requests] == [0, 1, 2, 3, 5]
     assert sum(r[1] == 6 for r in device.requests) == 0
+
+
+class ResetsFirst(OneShot):
+    """Its first connection: takes the requests sent on it, then resets it
+    (SO_LINGER 0) without a reply, as a device that answers one request a
+    connection does when its reply is lost with the reset. Then as
+    :class:`OneShot`."""
+
+    def _serve(self, conn: socket.socket) -> None:
+        if self.connections:
+            super()._serve(conn)
+            return
+        self.connections += 1
+        buf, deadline = b"", time.monotonic() + 5
+        while len(split_mbap(buf)[0]) < 3 and time.monotonic() < deadline:
+            try:
+                buf += conn.recv(1024)
+            except TimeoutError:
+                continue
+        self.first = len(split_mbap(buf)[0])
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+
+
+def test_reads_in_flight_on_a_connection_reset_before_any_reply_are_sent_again() -> None:
+    with ResetsFirst() as device, Served("--tcp", f"127.0.0.1:{device.port}",
+                                         "--timeout", "2") as s:
+        c = RawClient(s.port)
+        c.send(b"".join(struct.pack(">HHHBBHH", j, 0, 6, 1, 3, 20 + j, 1) for j in range(3)))
+        assert [words(c.reply()[2]) for _ in range(3)] == [[20 + j] for j in range(3)]
+        c.close()
+        assert s.stop() == 0
+    assert device.first == 3  # all three were in flight when it reset
+    assert any("reset the connection before any reply was read, with 3 more request(s)"
+               in line and "one transaction at a time from now" in line
+               for line in s.stderr_lines), s.stderr_lines
+    assert not any("0x0A" in line for line in s.stderr_lines), s.stderr_lines
