@@ -57,7 +57,9 @@ def test_a_connect_nobody_answers_takes_the_clients_timeout(
     cls = pymb.TcpClient if kind == "tcp" else pymb.RtuOverTcpClient
     client = cls("127.0.0.1", full_listener, slave=1, timeout=timeout)
     e, took = timed_connect(client)
-    assert timeout - 0.05 <= took < timeout + 0.5, took
+    # The lower bound tells the client's timeout from libmodbus's 0.5 s (at
+    # 1.5 s); the upper one only that it ends (a loaded machine is slow).
+    assert timeout - 0.05 <= took < timeout + 3, took
     assert e.errno == errno.ETIMEDOUT
     assert "no answer to the connection request within the timeout" in str(e), str(e)
     assert not client.connected
@@ -67,7 +69,7 @@ def test_the_same_over_tls_and_asyncio(full_listener: int) -> None:
     tls = pymb.TcpClient("127.0.0.1", full_listener, slave=1, timeout=1.2,
                          tls=pymb.TlsConfig(check_hostname=False))
     e, took = timed_connect(tls)
-    assert 1.15 <= took < 1.7, took
+    assert 1.15 <= took < 4.2, took
     assert e.errno == errno.ETIMEDOUT
 
     async def main() -> float:
@@ -79,4 +81,4 @@ def test_the_same_over_tls_and_asyncio(full_listener: int) -> None:
         return time.monotonic() - t0
 
     took = asyncio.run(main())
-    assert 1.15 <= took < 1.7, took
+    assert 1.15 <= took < 4.2, took
