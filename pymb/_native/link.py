@@ -230,7 +230,11 @@ class Link:
         try:
             self._header = int(lib.pymb_line_header_length(line))
             lib.pymb_line_set_retries(line, self._retries)
-            lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
+            if threading.current_thread() is threading.main_thread():
+                # Python runs signal handlers in the main thread only: a line
+                # opened in another thread would call in for nothing, and a
+                # daemon thread's call could meet the interpreter's shutdown.
+                lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
             lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
             self._apply_timeouts()
             self._apply_rs485()

@@ -7,6 +7,7 @@ import gc
 import math
 import os
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -419,3 +420,43 @@ def test_raw_request_with_a_wrong_response_length_says_so(transport: str) -> Non
                 c.raw_request(0x41, response_length=wrong)
         c.timeout = 2
         assert c.raw_request(0x41) == data
+
+
+def _hook_calls_while_waiting(transport: str, in_thread: bool) -> int:
+    """How often a read's 0.4 s wait on a silent peer called into Python's
+    signal hook (``pymb_py_interrupted``), the client opened and used in the
+    main thread or in another one."""
+    calls = [0]
+
+    def profile(frame: Any, event: str, arg: object) -> None:
+        if event == "call" and frame.f_code.co_name == "pymb_py_interrupted":
+            calls[0] += 1
+
+    def read() -> None:
+        sys.setprofile(profile)
+        try:
+            with _client(transport, peer.port, timeout=0.4) as c, \
+                    pytest.raises(pymb.ModbusTimeout):
+                c.read_holding_registers(0, 1)
+        finally:
+            sys.setprofile(None)
+
+    peer_cm = RawPty(lambda i, f: []) if transport == "rtu" else RawTcp(lambda i, f: [])
+    with peer_cm as peer:
+        if in_thread:
+            t = threading.Thread(target=read)
+            t.start()
+            t.join(30)
+        else:
+            read()
+    return calls[0]
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+def test_a_line_opened_off_the_main_thread_waits_without_calling_into_python(
+        transport: str) -> None:
+    # Signal handlers run in the main thread only: there the wait calls in
+    # (every 50 ms at most), elsewhere it has nothing to call in for, and a
+    # daemon thread's call could meet the interpreter's shutdown.
+    assert _hook_calls_while_waiting(transport, in_thread=False) >= 3
+    assert _hook_calls_while_waiting(transport, in_thread=True) == 0
