@@ -35,7 +35,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             abort();
         }
         st = pymbi_ascii_check(req, (int)sizeof req, rx.out, n, &exc);
-        if (st == PYMB_FRAME_EXCEPTION && (exc < 1 || exc > 255)) {
+        /* (code 0 is a frame's byte too: pymb_exception_errno makes it EMBBADEXC) */
+        if (st == PYMB_FRAME_EXCEPTION && (exc < 0 || exc > 255)) {
             abort();
         }
         if (st == PYMB_FRAME_OK && pymbi_ascii_lrc(rx.out, (size_t)n) != 0) {
