@@ -3,7 +3,10 @@ the chain of models (ID, L, L registers) up to the end marker (ID 0xFFFF).
 
 Reads holding registers only, through any pymb client; each model's
 registers are read whole once (in requests of at most 125 registers), since
-the counts of some repeating groups are points of the model (``NPt``).
+the counts of some repeating groups are points of the model (``NPt``). A
+request the device refuses (exception 02 or 03) is asked again in halves, so
+that the registers it refuses are known and the rest still read; an end
+marker whose ``L`` cannot be read ends the chain all the same.
 """
 
 from __future__ import annotations
@@ -12,7 +15,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pymb import maps
-from pymb.errors import DeviceException, ModbusError, ModbusTimeout
+from pymb.errors import (
+    DeviceException,
+    IllegalDataAddress,
+    IllegalDataValue,
+    ModbusError,
+    ModbusTimeout,
+)
 from pymb.maps.model import Map
 from pymb.maps.sunspec.layout import Placed, left_out, map_text, model_def, model_ids
 
@@ -24,6 +33,8 @@ BASES = (40000, 0, 50000)
 MARKER = (0x5375, 0x6E53)
 _END = 0xFFFF
 _MAX_MODELS = 256
+#: The exceptions of a device that will not read some registers: asked again in parts.
+_REFUSALS = (IllegalDataAddress, IllegalDataValue)
 
 #: Reads ``count`` holding registers at ``address``: ``client.read_holding_registers``
 #: with the unit id bound.
@@ -69,14 +80,57 @@ def _text(regs: Sequence[int]) -> str:
     return raw.split(b"\0")[0].decode("latin-1").strip()
 
 
-def _read(read: Reader, address: int, count: int) -> list[int]:
+def _read(read: Reader, address: int, count: int, refused: list[int]) -> list[int]:
+    """``count`` registers from ``address``, in requests of at most 125; a
+    request the device refuses is asked again in halves, down to single
+    registers: those it refuses read 0xFFFF and are added to ``refused``."""
     out: list[int] = []
     while count > 0:
         n = min(count, 125)
-        out.extend(read(address, n))
+        try:
+            got = list(read(address, n))
+        except _REFUSALS:
+            if n == 1:
+                refused.append(address)
+                got = [_END]
+            else:
+                half = n // 2
+                got = _read(read, address, half, refused)
+                got += _read(read, address + half, n - half, refused)
+        out.extend(got)
         address += n
         count -= n
     return out
+
+
+def _header(read: Reader, address: int) -> tuple[int, int | None]:
+    """A model's ID and L at ``address`` (L None when the device will not
+    read it: a device may stop at the end marker's 0xFFFF, or put it at
+    register 65535)."""
+    if address + 2 <= 0x10000:
+        try:
+            mid, length = read(address, 2)
+            return int(mid), int(length)
+        except _REFUSALS:
+            pass
+    try:
+        (mid,) = read(address, 1)
+    except _REFUSALS as e:
+        raise NotSunSpec(f"the SunSpec model chain breaks at register {address}: the device "
+                         f"will not read it (exception {e.code:02d}) and no end marker "
+                         "(0xFFFF) came before it") from None
+    return int(mid), None
+
+
+def _ranges(addresses: Sequence[int]) -> str:
+    """``40080..40082, 40090``: runs of consecutive addresses."""
+    runs: list[list[int]] = []
+    for a in addresses:
+        if runs and runs[-1][1] + 1 == a:
+            runs[-1][1] = a
+        else:
+            runs.append([a, a])
+    return ", ".join(str(a) if a == b else f"{a}..{b}" for a, b in runs)
 
 
 def _find_base(read: Reader) -> int:
@@ -105,13 +159,18 @@ def discover(read: Reader) -> Discovery:
     names: dict[str, int] = {}
     manufacturer = model = ""
     for _ in range(_MAX_MODELS):
-        if address + 2 > 0x10000:
+        if address >= 0x10000:
             raise NotSunSpec(f"the SunSpec model chain from {base} runs past register 65535 "
                              "without its end marker (0xFFFF)")
-        mid, length = read(address, 2)
+        mid, length = _header(read, address)
         if mid == _END:
             return Discovery(base, tuple(placed), tuple(skipped), address + 2, manufacturer,
                              model, tuple(notes))
+        if length is None:
+            raise NotSunSpec(f"the SunSpec model chain from {base} breaks at register "
+                             f"{address}: model {mid} there, and its length L "
+                             + ("would be past register 65535" if address == 0xFFFF else
+                                "the device will not read"))
         if address + 2 + length > 0x10000:
             raise NotSunSpec(f"SunSpec model {mid} at {address} says L = {length}, past "
                              "register 65535")
@@ -120,11 +179,16 @@ def discover(read: Reader) -> Discovery:
             notes.append(f"model {mid} at {address} (L = {length}) skipped: pymb does not "
                          "know it")
         else:
-            regs = tuple(_read(read, address, 2 + length))
+            refused: list[int] = []
+            regs = (mid, length, *_read(read, address + 2, length, refused))
             name = str(model_def(mid)["group"]["name"])
             names[name] = names.get(name, 0) + 1
             prefix = name if names[name] == 1 else f"{name}_{names[name]}"
-            placed.append(Placed(mid, address, length, prefix, regs))
+            placed.append(Placed(mid, address, length, prefix, regs, frozenset(refused)))
+            if refused:
+                notes.append(f"model {mid} at {address} (L = {length}): the device refuses to "
+                             f"read registers {_ranges(refused)}; the points there read no "
+                             "value (unsupported)")
             short = left_out(placed[-1])
             if short:
                 notes.append(f"model {mid} at {address} (L = {length}) is shorter than SunSpec "

@@ -177,13 +177,16 @@ class Placed:
     register, its length ``L`` (registers after ID and L), the name its
     points are prefixed with, and, when read, its registers from ID on (the
     counts of repeating groups sized by a point, e.g. ``NPt``, come from
-    them; without them such a group has one instance)."""
+    them; without them such a group has one instance), and the addresses of
+    those the device refused to read (a group counted by one of them has as
+    many instances as ``L`` holds)."""
 
     id: int
     address: int
     length: int
     prefix: str
     registers: tuple[int, ...] | None = None
+    refused: frozenset[int] = frozenset()
 
 
 def _fixed_length(g: GroupDef) -> int:
@@ -237,10 +240,11 @@ class _Layout:
                     i = off - self.placed.address
                     if regs is None or i >= len(regs):
                         return 1
-                    v = 0 if regs[i] == _UNMAPPED else regs[i]
                     # never more than the model's length holds (a device may say anything)
                     room = max(0, (self.end - at) // instance_len) if instance_len else 0
-                    return min(v, room)
+                    if off in self.placed.refused:
+                        return room
+                    return min(0 if regs[i] == _UNMAPPED else regs[i], room)
                 off += int(p["size"])
         raise MapError(f"SunSpec model {self.placed.id}: group {g['name']!r} counts "
                        f"{c!r}, which no enclosing group has")

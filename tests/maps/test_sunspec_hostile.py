@@ -1,0 +1,163 @@
+"""SunSpec discovery against hostile devices written from the SunSpec
+specification, not from pymb: a Modbus TCP server on 127.0.0.1
+(tests/hostile_gateway.py) holding a register image pysunspec2 built, that
+refuses some registers (exception 02), stays silent at others, or stops its
+chain early; read through the public API and the ``pymb`` command."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Collection, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+from conftest import run_pymb
+from hostile_gateway import Hostile, Request
+from peerkit import mbap, registers
+from sunspec_peer import image
+
+import pymb
+from pymb.devices import MapDevice
+from pymb.maps import sunspec
+
+INVERTER: list[tuple[int, dict[str, Any]]] = [
+    (1, {"Mn": "Acme Solar", "Md": "AS-10K"}),
+    (103, {"W": 3342, "W_SF": -1, "PhVphA": 2301, "PhVphB": 2299, "V_SF": -1}),
+    (160, {"DCA_SF": -2, "N": 3, "module": [{"DCA": 812}, {"DCA": 15}, {"DCA": 7}]}),
+]
+M103 = 40070  # SunS, then model 1 (ID, L, 66 registers): model 103's ID
+M160 = M103 + 52
+
+
+@contextmanager
+def device(regs: Sequence[int], *, base: int = 40000, unit: int = 1,
+           refuse: Collection[int] = (), silent: Collection[int] = ()) -> Iterator[Hostile]:
+    """Serve ``regs`` from holding register ``base`` as ``unit``: a read
+    touching a register in ``refuse`` or outside the image is answered with
+    exception 02, one touching ``silent`` not at all."""
+    held = {base + i: v for i, v in enumerate(regs)}
+
+    def script(n: int, req: Request, conn: object) -> bytes | None:
+        tid, u, fc, address, count = req
+        span = range(address, address + count)
+        if u != unit or any(a in silent for a in span):
+            return None
+        if fc != 3 or any(a in refuse or a not in held for a in span):
+            return mbap(tid, u, bytes((fc | 0x80, 2)))
+        return mbap(tid, u, bytes((fc,)) + registers([held[a] for a in span]))
+
+    server = Hostile(script)
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+def _read(port: int, unit: int = 1) -> tuple[sunspec.Discovery, dict[str, Any],
+                                              dict[str, Any]]:
+    with pymb.TcpClient("127.0.0.1", port, timeout=1.0) as c:
+        found = sunspec.discover(lambda a, n: c.read_holding_registers(a, n, slave=unit))
+        dev = MapDevice(c, found.map(unit), unit)
+        values = dev.read()
+        return found, values, dict(dev.states)
+
+
+def test_an_end_marker_without_its_length_ends_the_chain() -> None:
+    """SunSpec's end model is ID 0xFFFF, L 0; a device that stops at the
+    0xFFFF (the L register refused) has ended its chain all the same, as
+    pysunspec2 reads it (ID and L apart)."""
+    regs = image(INVERTER)[:-1]
+    with device(regs) as server:
+        found, values, _ = _read(server.port)
+        r = run_pymb("read", "sunspec:1", "--tcp", f"127.0.0.1:{server.port}", "--json")
+    assert [m.id for m in found.models] == [1, 103, 160]
+    assert found.end == 40000 + len(regs) + 1
+    assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == ""
+    assert json.loads(r.stdout)["values"]["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.07])
+
+
+def test_a_chain_that_stops_without_an_end_marker_is_one_line() -> None:
+    regs = image(INVERTER)[:-2]  # no end marker: the next register is refused
+    with device(regs) as server:
+        r = run_pymb("map", "probe", "1", "--sunspec", "--tcp", f"127.0.0.1:{server.port}")
+    assert r.returncode == 3
+    assert r.stderr == ("pymb map: the SunSpec model chain breaks at register "
+                        f"{40000 + len(regs)}: the device will not read it (exception 02) and "
+                        "no end marker (0xFFFF) came before it\n")
+
+
+@pytest.mark.parametrize("refused", [[M103 + 12], [M103 + 2, M103 + 3], [M160 + 8]])
+def test_registers_a_device_refuses_in_a_model_read_no_value_the_rest_read(
+        refused: list[int]) -> None:
+    """Exception 02 on part of a model (one register, the first two, a
+    count point): the model is read in parts around them, the points there
+    read no value (``unsupported``), every other point reads, said once."""
+    with device(image(INVERTER), refuse=refused) as server:
+        found, values, states = _read(server.port)
+        r = run_pymb("read", "sunspec:1", "--tcp", f"127.0.0.1:{server.port}", "--json")
+    assert [m.id for m in found.models] == [1, 103, 160]
+    m = found.map(1)
+    for name, p in m.points.items():
+        if p.block:
+            continue
+        if set(range(p.address, p.address + p.count)) & set(refused):
+            assert values[name] is None, name
+            assert states[name] == "unsupported", name
+    if M103 + 12 not in refused:  # W_SF's own register
+        assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+    # the count point N refused: as many modules as L holds, all three read
+    assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.07])
+    assert r.returncode == 0, r.stderr
+    (note,) = r.stderr.splitlines()
+    first = M103 if refused[0] < M160 else M160
+    assert note.startswith(f"pymb: sunspec:1: model {103 if first == M103 else 160} at {first}")
+    assert "the device refuses to read registers " + (
+        f"{refused[0]}..{refused[-1]}" if len(refused) > 1 else str(refused[0])) in note
+
+
+def test_a_model_longer_than_sunspec_defines_reads_its_own_points_only() -> None:
+    """L larger than the model's points (model 103 with 7 registers more,
+    model 160 with room for 3 modules and 7 registers): the extra registers
+    are ignored, a group counted by a point takes no instance more than that
+    point says, the next model is found after the longer L."""
+    full = image(INVERTER)
+    m103 = full[M103 - 40000:M160 - 40000]
+    m160 = full[M160 - 40000:-2]
+    regs = [*full[:M103 - 40000], 103, 57, *m103[2:], *[7] * 7,
+            160, m160[1] + 7, *m160[2:], *[9] * 7, 0xFFFF, 0]
+    with device(regs) as server:
+        found, values, _ = _read(server.port)
+    assert [(m.id, m.length) for m in found.models] == [(1, 66), (103, 57), (160, 75)]
+    assert not found.notes
+    assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+    assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.07])
+
+
+@pytest.mark.parametrize(("regs", "said"), [
+    ([64999, 20000, 0, 0], "SunSpec model 64999 at 50002 says L = 20000, past register 65535"),
+    ([64999, 0] * 257, "the SunSpec model chain from 50000 has more than 256 models without "
+     "its end marker (0xFFFF)"),
+])
+def test_a_chain_running_past_65535_or_without_end_is_refused_in_one_line(
+        regs: list[int], said: str) -> None:
+    """``SunS`` at 50000, then a vendor model whose L runs past register
+    65535, or 257 empty vendor models."""
+    with device([0x5375, 0x6E53, *regs], base=50000) as server:
+        r = run_pymb("map", "probe", "1", "--sunspec", "--tcp", f"127.0.0.1:{server.port}")
+    assert r.returncode == 3
+    assert r.stderr == f"pymb map: {said}\n"
+
+
+def test_suns_at_two_bases_the_first_in_order_is_read() -> None:
+    """``SunS`` at 0 and at 40000: 40000 is tried first, and read."""
+    regs = image(INVERTER)
+    other = image([(1, {"Mn": "Other"})])
+    image_at = {40000 + i: v for i, v in enumerate(regs)} | dict(enumerate(other))
+    first, last = min(image_at), max(image_at)
+    with device([image_at.get(a, 0) for a in range(first, last + 1)], base=first) as server:
+        found, _, _ = _read(server.port)
+    assert found.base == 40000
+    assert found.manufacturer == "Acme Solar"
