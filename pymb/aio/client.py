@@ -71,8 +71,30 @@ async def _guard(line: LineWorker, closed: asyncio.Future[None]) -> None:
         raise
 
 
+def _watch(line: LineWorker, closed: asyncio.Future[None], name: str) -> asyncio.Task[None]:
+    """The guard task of an open client on the running loop. A loop closed
+    by hand with it pending (no asyncio.run, its tasks never cancelled) drops
+    it in silence: the client is closed when it is dropped, or by the next
+    loop it is used in."""
+    task = asyncio.get_running_loop().create_task(_guard(line, closed), name=name)
+    # asyncio's own flag (its run_until_complete and gather clear it too):
+    # no "Task was destroyed but it is pending!" for a guard that never ran.
+    task._log_destroy_pending = False  # type: ignore[attr-defined]  # noqa: SLF001
+    return task
+
+
 def _release(closed: asyncio.Future[None]) -> None:
-    if not closed.done():
+    """Let the guard waiting on ``closed`` end, from any thread; a guard of
+    a loop closed meanwhile went with it."""
+    loop = closed.get_loop()
+    try:
+        running = asyncio.get_running_loop()
+    except RuntimeError:
+        running = None
+    if running is not loop:
+        with contextlib.suppress(RuntimeError):  # (its loop may be closed)
+            loop.call_soon_threadsafe(_release, closed)
+    elif not closed.done():
         closed.set_result(None)
 
 
@@ -125,24 +147,51 @@ class AsyncClient(Mirrored):
         return self._worker.started
 
     async def connect(self) -> None:
-        """Open the line. Raises :class:`~pymb.ModbusConnectionError`."""
-        await self._worker.submit(self.blocking.connect)
+        """Open the line. Raises :class:`~pymb.ModbusConnectionError`.
+        Cancelled once the connect has started, the line may still open on
+        the worker: :meth:`close` (or the loop's end) closes it."""
         loop = asyncio.get_running_loop()
         if self._guard is None or self._guard.done() or self._guard.get_loop() is not loop:
-            # (a guard left pending on another loop, closed without its end
-            # cancelling the tasks, cannot watch this one)
+            # Watched from before the connect starts. (A guard left pending on
+            # another loop, closed without its end cancelling the tasks,
+            # cannot watch this one.)
             self._closed = loop.create_future()
-            self._guard = loop.create_task(_guard(self._worker, self._closed),
-                                           name=f"pymb-aio guard {self.port}")
+            self._guard = _watch(self._worker, self._closed, f"pymb-aio guard {self.port}")
+        try:
+            await self._worker.submit(self.blocking.connect)
+        except asyncio.CancelledError:
+            raise  # it may open yet: the guard stays
+        except BaseException:
+            if not self.blocking.connected:  # nothing to watch
+                await self._unwatch()
+            raise
 
     async def close(self) -> None:
         """Close the line (after the request on it, if any) and end the
-        worker thread; safe to call more than once."""
-        await self._worker.submit(self.blocking.close)
+        worker thread; safe to call more than once. The close is done even
+        when this await is cancelled (only the wait for it ends)."""
+        done = self._worker.submit(self.blocking.close)
+        guard = self._guard
+        try:
+            await asyncio.shield(done)  # cancelled, the close stays queued
+        except asyncio.CancelledError:
+            if self._guard is guard and self._closed is not None:
+                _release(self._closed)  # the guard ends: the close is queued
+                self._guard = self._closed = None
+            raise
         self._worker.join_ended()
-        if self._closed is not None:
-            _release(self._closed)
+        if self._guard is guard:
+            await self._unwatch()
+
+    async def _unwatch(self) -> None:
+        """End the guard task (the client is closed, or never opened): gone
+        when this returns, if it is on this loop."""
+        guard, closed = self._guard, self._closed
         self._guard = self._closed = None
+        if closed is not None:
+            _release(closed)
+        if guard is not None and guard.get_loop() is asyncio.get_running_loop():
+            await asyncio.wait((guard,))
 
     ensure_connected = Mirror(Client.ensure_connected)
 
@@ -165,9 +214,8 @@ class AsyncClient(Mirrored):
             finally:
                 self._worker.post(blocking.close)
         closed = getattr(self, "_closed", None)
-        if closed is not None and not closed.done():  # let the guard task end
-            with contextlib.suppress(RuntimeError):  # (its loop may be closed)
-                closed.get_loop().call_soon_threadsafe(_release, closed)
+        if closed is not None:  # let the guard task end
+            _release(closed)
 
     def __repr__(self) -> str:
         state = "open" if self.connected else "closed"
