@@ -1,7 +1,7 @@
 """pymb: Modbus RTU for real devices, fast.
 
 A cffi binding over libmodbus with pymb's own C core (CRC-16, frame checks,
-sensor-block decoders). The low-level API::
+the request path, the map decoder). The low-level API::
 
     import pymb
     with pymb.RtuClient("/dev/ttyUSB0", 9600, slave=40) as client:
