@@ -284,6 +284,9 @@ static void decode_one(const pymb_map_entry *e, const pymb_map_marker *mk, const
         unsigned per = (e->flags & (PYMB_MAP_HIGH_BYTE | PYMB_MAP_LOW_BYTE)) ? e->count
                                                                              : 2u * e->count;
         text(r, e, out->text + e->aux + (size_t)per * channel, &iv, &state);
+        if (iv == 0 && nmk > 0) { /* a string's marker 0: the empty text */
+            state = marker_state(mk, nmk, 0);
+        }
         goto done;
     }
     case PYMB_MAP_RAW:

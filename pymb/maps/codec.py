@@ -94,6 +94,8 @@ def _text(p: Point, regs: Sequence[int]) -> tuple[Value, str]:
             out.append(hi if p.string_bytes == "high" else lo)
     end = out.find(0)
     data = bytes(out if end < 0 else out[:end])
+    if not data and 0 in p.markers:  # a string's marker 0: the empty text
+        return None, p.markers[0]
     try:
         return data.decode(p.encoding), "value"
     except UnicodeDecodeError:

@@ -256,7 +256,7 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSecti
     only("width", ("bits",), "bits")
     only("scale", scalable, "numeric")
     only("offset", scalable, "numeric")
-    only("markers", scalable, "numeric")
+    only("markers", scalable | {"string"}, "numeric and string")
     only("values", INTEGER_TYPES | {"bit", "bool"}, "integer")
     only("valid", scalable | {"bit", "bits", "bool"}, "numeric")
     only("flags", INTEGER_TYPES - {"sm16"}, "integer")
@@ -369,6 +369,9 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSecti
     bits: int = (width or 1) if typ == "bits" else 8 if info.family == "half" else 16 * count
     lo_raw = -(1 << (bits - 1)) if bits else 0
     markers, marker_masks = _markers(ctx, raw.get("markers", {}), lo_raw, bits)
+    if typ == "string" and (marker_masks or set(markers) - {0}):
+        ctx.fail("markers", "a string's only marker is 0, the empty text (its first "
+                 "character NUL): markers = { 0 = \"not_implemented\" }")
     if typ == "sunssf":
         markers.setdefault(SUNSSF_NOT_IMPLEMENTED, "not_implemented")
     for state in (*markers.values(), *(m[2] for m in marker_masks)):

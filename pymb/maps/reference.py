@@ -132,7 +132,8 @@ SECTIONS: dict[str, tuple[str, tuple[str, ...], dict[str, tuple[str, str]]]] = {
         "flags": ('`{ 0 = "fault", 3 = "alarm" }`: bit numbers in decimal; a hex key is a mask '
                   "and refused", "-"),
         "markers": ('`{ 0xFFFF = "offline", "0x7FFFxxxx" = "overflow" }`: raw values (or '
-                    "patterns, `x` = don't care) that mean no value", "-"),
+                    "patterns, `x` = don't care) that mean no value; a `string`'s only marker "
+                    "is `0`, the empty text", "-"),
         "access": ("`r`, `rw`, `w` (rw and w on coil and holding only)", "`r`"),
         "valid": ("`[low, high]` in engineering units: writes outside are refused",
                   "the type's range"),
