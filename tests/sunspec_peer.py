@@ -6,6 +6,7 @@ and pysunspec2's Modbus client reads it back for the values to compare."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from collections.abc import Iterator, Mapping, Sequence
@@ -16,6 +17,8 @@ from typing import Any
 
 import sunspec2.device as ss_device
 import sunspec2.modbus.client as ss_client
+
+from pymb import maps
 
 HERE = Path(__file__).resolve().parent
 SUNS = [0x5375, 0x6E53]
@@ -166,3 +169,41 @@ def pysunspec2_values(device: Any) -> dict[int, tuple[str, Any, Any]]:
             for model in models:
                 walk(model, model)
     return out
+
+
+def _flat(m: maps.Map, values: dict[str, Any]) -> dict[int, tuple[maps.Point, Any]]:
+    """pymb's values by on-wire address, with their points."""
+    out: dict[int, tuple[maps.Point, Any]] = {}
+    for name, v in values.items():
+        p = m.points[name]
+        for c, x in enumerate(v if p.block else [v], 1):
+            out[p.address_of(c)] = (p, x)
+    return out
+
+
+def _same(typ: str, theirs: Any, ours: Any) -> bool:
+    if theirs is None or ours is None:
+        return theirs is None and ours is None
+    if isinstance(theirs, float) or isinstance(ours, float):
+        return math.isclose(theirs, ours, rel_tol=1e-9, abs_tol=1e-12)
+    return bool(theirs == ours)
+
+
+def compare(m: maps.Map, values: dict[str, Any], theirs: dict[int, tuple[str, Any, Any]],
+             scale_factors: dict[int, Any]) -> int:
+    """Assert that pymb's ``values`` of map ``m`` are pysunspec2's (``theirs``,
+    :func:`pysunspec2_values`), a point whose scale factor (raw, by address)
+    is not implemented having none; the number of values compared."""
+    ours = _flat(m, values)
+    checked = 0
+    for address, (typ, raw, computed) in theirs.items():
+        assert address in ours, address
+        p, got = ours[address]
+        expected = computed
+        if p.scale_from is not None:
+            sf = scale_factors[m.points[p.scale_from].address]
+            if sf is None:  # a not-implemented scale factor: no value, never a raw one
+                expected = None
+        assert _same(typ, expected, got), (p.name, address, typ, raw, computed, got)
+        checked += 1
+    return checked

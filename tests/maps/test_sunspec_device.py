@@ -6,14 +6,13 @@ client reads it back; pymb's values must be pysunspec2's, value by value."""
 from __future__ import annotations
 
 import json
-import math
 import random
 from pathlib import Path
 from typing import Any
 
 import pytest
 from conftest import run_pymb
-from sunspec_peer import image, pysunspec2_values, random_values, serve
+from sunspec_peer import compare, image, pysunspec2_values, random_values, serve
 
 import pymb
 from pymb import maps
@@ -41,43 +40,6 @@ INVERTER: list[tuple[int, dict[str, Any]]] = [
 UNKNOWN = [64999, 4, 1, 2, 3, 4]  # a vendor model pymb does not know
 
 
-def _flat(m: maps.Map, values: dict[str, Any]) -> dict[int, tuple[maps.Point, Any]]:
-    """pymb's values by on-wire address, with their points."""
-    out: dict[int, tuple[maps.Point, Any]] = {}
-    for name, v in values.items():
-        p = m.points[name]
-        for c, x in enumerate(v if p.block else [v], 1):
-            out[p.address_of(c)] = (p, x)
-    return out
-
-
-def _same(typ: str, theirs: Any, ours: Any) -> bool:
-    if typ == "string":
-        return (theirs or "") == (ours or "")
-    if theirs is None or ours is None:
-        return theirs is None and ours is None
-    if isinstance(theirs, float) or isinstance(ours, float):
-        return math.isclose(theirs, ours, rel_tol=1e-9, abs_tol=1e-12)
-    return bool(theirs == ours)
-
-
-def _compare(m: maps.Map, values: dict[str, Any], theirs: dict[int, tuple[str, Any, Any]],
-             scale_factors: dict[int, Any]) -> int:
-    ours = _flat(m, values)
-    checked = 0
-    for address, (typ, raw, computed) in theirs.items():
-        assert address in ours, address
-        p, got = ours[address]
-        expected = computed
-        if p.scale_from is not None:
-            sf = scale_factors[m.points[p.scale_from].address]
-            if sf is None:  # a not-implemented scale factor: no value, never a raw one
-                expected = None
-        assert _same(typ, expected, got), (p.name, address, typ, raw, computed, got)
-        checked += 1
-    return checked
-
-
 def test_every_model_in_one_device_reads_as_pysunspec2_reads_it(tmp_path: Path) -> None:
     """A device of all 112 models, two instances of each repeating group,
     random values (a tenth not implemented): every point pymb reads is the
@@ -99,7 +61,7 @@ def test_every_model_in_one_device_reads_as_pysunspec2_reads_it(tmp_path: Path) 
             m = found.map(1)
             values = MapDevice(c, m, 1).read()
     scale_factors = {a: raw for a, (typ, raw, _) in theirs.items() if typ == "sunssf"}
-    assert _compare(m, values, theirs, scale_factors) > 4500
+    assert compare(m, values, theirs, scale_factors) > 4500
 
 
 def _serve_inverter(tmp: Path, base: int = 40000, unit: int = 1) -> Any:
@@ -136,7 +98,7 @@ def test_read_sunspec_device_from_the_command_line(tmp_path: Path) -> None:
     assert values["DERVoltVar.Crv[1].Pt.V"] == pytest.approx([90.0, 100.0, 110.0])
     assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx([95.0, 105.0, None])
     sfs = {a: raw for a, (typ, raw, _) in theirs.items() if typ == "sunssf"}
-    assert _compare(_inverter_map(), values, theirs, sfs) > 200
+    assert compare(_inverter_map(), values, theirs, sfs) > 200
 
 
 def _inverter_map() -> maps.Map:

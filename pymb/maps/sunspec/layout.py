@@ -18,7 +18,8 @@ Types: int16/uint16/count/acc16/enum16/bitfield16/sunssf are 16-bit,
 int32/uint32/acc32/enum32/bitfield32/ipaddr/float32 32-bit, int64/uint64/
 acc64/eui48/float64 64-bit, string a ``string``, ipv6addr ``raw``, pad no
 point. A type's not-implemented value (0x8000, 0xFFFF, 0 for accumulators,
-NaN...) is a marker: the point reads None, state ``not_implemented``. A
+NaN, a string all NUL...) is a marker: the point reads None, state
+``not_implemented``. A
 point's ``sf`` is ``scale_from`` its scale factor point (10^SF), an integer
 ``sf`` a fixed ``scale``.
 """
@@ -55,7 +56,7 @@ NOT_IMPLEMENTED = "not_implemented"
 MAX_POINT_REGISTERS = 125
 
 # SunSpec type -> (pymb type, not-implemented raw pattern or None, kind)
-_TYPES: dict[str, tuple[str, int | None, str]] = {
+_TYPES: dict[str, tuple[str, int | tuple[int, ...] | None, str]] = {
     "int16": ("i16", 0x8000, "gauge"),
     "uint16": ("u16", 0xFFFF, "gauge"),
     "count": ("u16", 0xFFFF, "gauge"),
@@ -72,12 +73,15 @@ _TYPES: dict[str, tuple[str, int | None, str]] = {
     "int64": ("i64", 0x8000_0000_0000_0000, "gauge"),
     "uint64": ("u64", 0xFFFF_FFFF_FFFF_FFFF, "gauge"),
     "acc64": ("u64", 0, "counter"),
-    "eui48": ("u64", 0xFFFF_FFFF_FFFF, "gauge"),
-    "float32": ("f32", None, "gauge"),
-    "float64": ("f64", None, "gauge"),
-    "string": ("string", None, "text"),
+    # the two first bytes are padding (masked off); pysunspec2 reads all-zero as none too
+    "eui48": ("u64", (0xFFFF_FFFF_FFFF, 0), "gauge"),
+    # SunSpec's NaN; any other NaN reads no value too, with the state nan
+    "float32": ("f32", 0x7FC0_0000, "gauge"),
+    "float64": ("f64", 0x7FF8_0000_0000_0000, "gauge"),
+    "string": ("string", 0, "text"),  # 0: the empty text (all NUL)
     "ipv6addr": ("raw", None, "gauge"),
 }
+_MASKS = {"eui48": 0xFFFF_FFFF_FFFF}
 _SKIPPED = frozenset({"pad"})
 _UNMAPPED = 0xFFFF
 
@@ -133,6 +137,8 @@ class _Entry(TypedDict, total=False):
     stride: int
     address: int
     type: str
+    encoding: str
+    mask: int
     markers: dict[int, str]
     scale: float
     scale_from: str
@@ -317,8 +323,13 @@ class _Layout:
         e["type"] = typ
         if typ in ("string", "raw"):
             e["count"] = size
+        if typ == "string":
+            e["encoding"] = "utf-8"  # as pysunspec2 reads it; ASCII is a part of it
+        if p["type"] in _MASKS:
+            e["mask"] = _MASKS[p["type"]]
         if marker is not None:
-            e["markers"] = {marker: NOT_IMPLEMENTED}
+            e["markers"] = {m: NOT_IMPLEMENTED for m in
+                            (marker if isinstance(marker, tuple) else (marker,))}
         sf = p.get("sf")
         if isinstance(sf, int) and not isinstance(sf, bool):
             if sf:
