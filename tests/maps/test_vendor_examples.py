@@ -107,7 +107,7 @@ EXAMPLES: list[tuple[str, str, list[int], Any, str]] = [
     # Victron GX: divided by the list's scale factor
     ("victron-gx-system", "battery_current_a", [0xFF83], -12.5, "value"),
     ("victron-gx-system", "grid_l1_w", [0xFEA2], -350, "value"),
-    ("victron-gx-vebus", "input_l1_power_va", [103], 1030.0, "value"),  # scale factor 0.1
+    ("victron-gx-vebus", "input_l1_power_w", [103], 1030.0, "value"),  # scale factor 0.1
     ("victron-gx-vebus", "battery_voltage_v", [5241], 52.41, "value"),
     ("victron-gx-vebus", "state", [9], 9, "value"),  # inverting
     ("victron-gx-grid", "l1_energy_from_net_kwh", [12345], 123.45, "value"),

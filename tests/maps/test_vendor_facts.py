@@ -93,6 +93,20 @@ IMAGES: dict[str, tuple[dict[int, list[int]], dict[str, Any]]] = {
         "l1_apparent_power_va": 1000.0, "average_line_voltage_v": 400.1,
         "l1_power_factor": -0.978, "frequency_hz": 50.0, "import_active_energy_kwh": 1234.5,
     }),
+    # Victron dbus_modbustcp attributes.csv: com.victronenergy.vebus /Ac/ActiveIn/L1/P and
+    # /Ac/Out/L1/P int16, scale 0.1, W; signed as the current
+    "victron-gx-vebus": ({
+        12: [0xFFCE], 23: [85], 30: [785],
+    }, {
+        "input_l1_power_w": -500.0, "output_l1_power_w": 850.0, "soc_pct": 78.5,
+    }),
+    # ... com.victronenergy.solarcharger 777: int16 / 10, computed by the GX from PV power
+    # and voltage (mappings.cpp)
+    "victron-gx-solarcharger": ({
+        776: [9525], 777: [123], 789: [11700],
+    }, {
+        "pv_voltage_v": 95.25, "pv_current_a": 12.3, "pv_power_w": 1170.0,
+    }),
     # Alfen NG9xx Modbus slave v2.3, 3.4: FLOAT32 1206, UNSIGNED32 1208, UNSIGNED16 1214/1215
     # (evcc charger/alfen.go: 1201 string, 1210 float32, 1215 phases)
     "alfen-ng9xx": ({
@@ -203,6 +217,15 @@ def test_the_whole_image_decodes_in_c(map_id: str) -> None:
     got = d.read(regs)
     bad = {k: (got[k], v) for k, v in want.items() if not close(got[k], v)}
     assert not bad
+
+
+def test_the_vebus_powers_are_watts_and_its_soc_is_read_only() -> None:
+    m = maps.builtin("victron-gx-vebus")
+    for side in ("input", "output"):
+        for n in (1, 2, 3):
+            p = m.points[f"{side}_l{n}_power_w"]
+            assert (p.unit, p.type, p.scale) == ("W", "i16", 10)
+    assert m.points["soc_pct"].access == "r"
 
 
 def test_the_em24_reads_no_demand_word_as_a_power_factor() -> None:
