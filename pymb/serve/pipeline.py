@@ -19,7 +19,7 @@ from pymb._native.serve import (
     mbap_frame,
     take_frames,
 )
-from pymb.serve.upstream import EX_PATH, EX_TARGET, Done, resendable
+from pymb.serve.upstream import EX_PATH, EX_TARGET, Done, reads_only
 
 __all__ = ["DEFAULT_MAX_INFLIGHT", "PipelinedUpstream"]
 
@@ -255,7 +255,7 @@ class PipelinedUpstream:
         # in flight, a reset before any reply sends the reads again too (each
         # read once that way: a device that resets at once ends it).
         several = len(inflight) > 1
-        again = [job for job in inflight if closed and resendable(job.pdu) and (
+        again = [job for job in inflight if closed and reads_only(job.pdu) and (
             self._served or (several and not job.resent))]
         for job in again:
             job.resent = job.resent or not self._served

@@ -16,12 +16,10 @@ from pymb._native.serve import BadFrame, exception_frame, mbap_frame, take_reque
 from pymb.errors import InvalidArgument
 from pymb.serve.pipeline import PipelinedUpstream
 from pymb.serve.roles import CertificateError, role_of
-from pymb.serve.upstream import EX_PATH, Upstream
+from pymb.serve.upstream import EX_PATH, Upstream, reads_only
 
-__all__ = ["WRITE_FUNCTIONS", "ServeStats", "Server", "UnitMap"]
+__all__ = ["ServeStats", "Server", "UnitMap"]
 
-#: function codes that change a device: with TLS, only the write roles send them
-WRITE_FUNCTIONS = frozenset({0x05, 0x06, 0x0F, 0x10, 0x15, 0x16, 0x17})
 #: requests one client may have waiting upstream before its reading pauses
 PENDING_PER_CLIENT = 16
 EX_FUNCTION = 0x01  #: what an unauthorised request is answered (Modbus/TCP Security)
@@ -239,7 +237,7 @@ class _Conn(asyncio.Protocol):
                 s.stats.malformed += 1
                 self._send(exception_frame(r.tid, r.unit, function, r.exception))
                 continue
-            if not self.may_write and function in WRITE_FUNCTIONS:
+            if not self.may_write and not reads_only(r.pdu):
                 s.stats.denied += 1
                 self._send(exception_frame(r.tid, r.unit, function, EX_FUNCTION))
                 continue

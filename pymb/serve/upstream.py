@@ -17,25 +17,37 @@ from pymb.errors import (
     ModbusTimeout,
 )
 
-__all__ = ["EX_PATH", "EX_TARGET", "Upstream", "resendable"]
+__all__ = ["EX_PATH", "EX_TARGET", "Upstream", "reads_only"]
 
 EX_PATH = 0x0A  #: gateway path unavailable: the line cannot be reached
 EX_TARGET = 0x0B  #: gateway target device failed to respond
 
-#: the public function codes that only read ([MB-AP] 6): 01..04, 07, 0B, 0C,
-#: 11, 14, 18 (and 2B/0E, read device identification: :func:`resendable`)
+#: the public function codes that only read ([MB-AP] 6.1-6.4, 6.7, 6.9, 6.10,
+#: 6.13, 6.14, 6.18); with :data:`READ_DIAGNOSTICS` and 2B/0E (read device
+#: identification, 6.21), what :func:`reads_only` takes
 READ_FUNCTIONS = frozenset({0x01, 0x02, 0x03, 0x04, 0x07, 0x0B, 0x0C, 0x11, 0x14, 0x18})
+#: the diagnostics (08) sub-functions that only return data ([MB-AP] 6.8: 00
+#: the query data, 02 the diagnostic register, 0B..12 the counters); the
+#: others restart the device, clear its counters or put it in listen-only mode
+READ_DIAGNOSTICS = frozenset({0x00, 0x02, *range(0x0B, 0x13)})
 #: what a connection the peer closed (or reset) fails with
 _CLOSED_BY_PEER = frozenset((errno.EPIPE, errno.ECONNRESET))
 
 
-def resendable(pdu: bytes) -> bool:
-    """Whether request ``pdu`` only reads, so that one that finds the
-    connection closed by the device after it carried a reply (some Modbus
-    TCP devices and gateways take one request a connection) may be sent
-    again on a new one, as pymb's clients send a read again; a write never
-    is: the device may have done it."""
-    return pdu[0] in READ_FUNCTIONS or pdu[:2] == b"\x2b\x0e"
+def reads_only(pdu: bytes) -> bool:
+    """Whether request ``pdu`` (a checked PDU) only reads. Such a request may
+    be sent again on a new connection when the device closed the one that
+    carried it after a reply (some Modbus TCP devices and gateways take one
+    request a connection), as pymb's clients send a read again; and it is
+    all a TLS client whose role may not write may send. Anything else, a
+    write, a diagnostic that changes the device, a user-defined or unknown
+    function code, may have been done by the device, and is a write to the
+    roles."""
+    function = pdu[0]
+    if function == 0x08:
+        return len(pdu) >= 3 and int.from_bytes(pdu[1:3], "big") in READ_DIAGNOSTICS
+    return function in READ_FUNCTIONS or pdu[:2] == b"\x2b\x0e"
+
 
 #: what a finished transaction hands back: the reply PDU
 Done = Callable[[bytes], None]
@@ -141,7 +153,7 @@ class Upstream:
             except ModbusConnectionError as e:
                 self._connected = False
                 self.line.close()
-                if self._served and e.errno in _CLOSED_BY_PEER and resendable(pdu):
+                if self._served and e.errno in _CLOSED_BY_PEER and reads_only(pdu):
                     continue  # closed after its last reply: the read again, on a new one
                 self.unreachable += 1
                 self._on_event(f"upstream connection lost: {e}")

@@ -99,6 +99,33 @@ def test_a_viewer_reads_and_its_writes_are_refused_before_the_line(
     assert _ask(operator, s.port, bytes((6, 0, 11, 0, 5))) == bytes((6, 0, 11, 0, 5))
 
 
+def test_a_viewer_sends_only_what_reads(certs: Path, served: tuple[Served, PtyPeer]) -> None:
+    # Modbus/TCP Security: a role that may not write gets exception 01 for
+    # whatever is not a read, not only for the write function codes: a
+    # diagnostic that restarts the device (08/0001), silences it (08/0004)
+    # or clears its counters (08/000A), CANopen's 2B/0D, user-defined codes.
+    s, peer = served
+    viewer = _context(certs, "viewer")
+    before = list(peer.requests)
+    for pdu in (bytes((8, 0, 1, 0, 0)), bytes((8, 0, 4, 0, 0)), bytes((8, 0, 0x0A, 0, 0)),
+                bytes((8, 0, 0x14, 0, 0)), bytes((0x2B, 0x0D, 0, 0)), bytes((0x41, 1, 2)),
+                bytes((0x64, 0))):
+        assert _ask(viewer, s.port, pdu) == bytes((pdu[0] | 0x80, 1)), pdu.hex()
+    assert peer.requests == before  # not a byte of it reached the line
+    # What only reads goes to the line and comes back as the device answered.
+    assert _ask(viewer, s.port, bytes((7,))) == bytes((7, 0x5A))
+    assert _ask(viewer, s.port, bytes((0x11,)))[:2] == bytes((0x11, 11))
+    # The pty peer frames no 08 or 2B (their length is told by silence), so
+    # these reach the line and no reply comes: the gateway's 0B, not 01.
+    for pdu in (bytes((8, 0, 0, 0x12, 0x34)), bytes((8, 0, 0x0B, 0, 0)),
+                bytes((0x2B, 0x0E, 1, 0))):
+        assert _ask(viewer, s.port, pdu) == bytes((pdu[0] | 0x80, 0x0B)), pdu.hex()
+    # A write role may send what the viewer may not.
+    operator = _context(certs, "operator")
+    assert _ask(operator, s.port, bytes((8, 0, 1, 0, 0))) == bytes((0x88, 0x0B))
+    assert _ask(operator, s.port, bytes((0x41, 1, 2))) == bytes((0xC1, 0x0B))
+
+
 @pytest.mark.parametrize("who", ["expired", "other/operator", None])
 def test_bad_client_certificates_are_refused_with_one_line(
         certs: Path, served: tuple[Served, PtyPeer], who: str | None) -> None:
