@@ -25,9 +25,14 @@ INVERTER: list[tuple[int, dict[str, Any]]] = [
     (1, {"Mn": "Acme Solar", "Md": "AS-10K"}),
     (103, {"W": 3342, "W_SF": -1, "PhVphA": 2301, "PhVphB": 2299, "V_SF": -1}),
     (160, {"DCA_SF": -2, "N": 3, "module": [{"DCA": 812}, {"DCA": 15}, {"DCA": 7}]}),
+    (705, {"Ena": 1, "NPt": 3, "NCrv": 2, "V_SF": -1, "DeptRef_SF": 0, "RspTms_SF": 0,
+           "Crv": [{"ActPt": 3, "Pt": [{"V": 900}, {"V": 1000}, {"V": 1100}]},
+                   {"ActPt": 2, "Pt": [{"V": 950}, {"V": 1050}, {}]}]}),
 ]
 M103 = 40070  # SunS, then model 1 (ID, L, 66 registers): model 103's ID
 M160 = M103 + 52
+M705 = M160 + 70
+CURVES = ([90.0, 100.0, 110.0], [95.0, 105.0, None])
 
 
 @contextmanager
@@ -71,7 +76,7 @@ def test_an_end_marker_without_its_length_ends_the_chain() -> None:
     with device(regs) as server:
         found, values, _ = _read(server.port)
         r = run_pymb("read", "sunspec:1", "--tcp", f"127.0.0.1:{server.port}", "--json")
-    assert [m.id for m in found.models] == [1, 103, 160]
+    assert [m.id for m in found.models] == [1, 103, 160, 705]
     assert found.end == 40000 + len(regs) + 1
     assert values["inverter_three_phase.W"] == pytest.approx(334.2)
     assert r.returncode == 0, r.stderr
@@ -89,16 +94,17 @@ def test_a_chain_that_stops_without_an_end_marker_is_one_line() -> None:
                         "no end marker (0xFFFF) came before it\n")
 
 
-@pytest.mark.parametrize("refused", [[M103 + 12], [M103 + 2, M103 + 3], [M160 + 8]])
+@pytest.mark.parametrize("refused", [[M103 + 12], [M103 + 2, M103 + 3], [M705 + 5]])
 def test_registers_a_device_refuses_in_a_model_read_no_value_the_rest_read(
         refused: list[int]) -> None:
-    """Exception 02 on part of a model (one register, the first two, a
-    count point): the model is read in parts around them, the points there
-    read no value (``unsupported``), every other point reads, said once."""
+    """Exception 02 on part of a model (one register, the first two, the
+    count point NPt): the model is read in parts around them, the points
+    there read no value (``unsupported``), every other point reads, said
+    once; the refused NPt is the count that fills the model's L."""
     with device(image(INVERTER), refuse=refused) as server:
         found, values, states = _read(server.port)
         r = run_pymb("read", "sunspec:1", "--tcp", f"127.0.0.1:{server.port}", "--json")
-    assert [m.id for m in found.models] == [1, 103, 160]
+    assert [m.id for m in found.models] == [1, 103, 160, 705]
     m = found.map(1)
     for name, p in m.points.items():
         if p.block:
@@ -108,32 +114,40 @@ def test_registers_a_device_refuses_in_a_model_read_no_value_the_rest_read(
             assert states[name] == "unsupported", name
     if M103 + 12 not in refused:  # W_SF's own register
         assert values["inverter_three_phase.W"] == pytest.approx(334.2)
-    # the count point N refused: as many modules as L holds, all three read
     assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.07])
+    assert values["DERVoltVar.Crv[1].Pt.V"] == pytest.approx(CURVES[0])
+    assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx(CURVES[1])
     assert r.returncode == 0, r.stderr
     (note,) = r.stderr.splitlines()
-    first = M103 if refused[0] < M160 else M160
-    assert note.startswith(f"pymb: sunspec:1: model {103 if first == M103 else 160} at {first}")
+    first = M103 if refused[0] < M705 else M705
+    assert note.startswith(f"pymb: sunspec:1: model {103 if first == M103 else 705} at {first}")
     assert "the device refuses to read registers " + (
         f"{refused[0]}..{refused[-1]}" if len(refused) > 1 else str(refused[0])) in note
 
 
 def test_a_model_longer_than_sunspec_defines_reads_its_own_points_only() -> None:
     """L larger than the model's points (model 103 with 7 registers more,
-    model 160 with room for 3 modules and 7 registers): the extra registers
-    are ignored, a group counted by a point takes no instance more than that
+    model 160, whose modules L counts, with room for 3 modules and 7
+    registers, model 705 with 20 more): the extra registers are ignored, a
+    group counted by a point (NCrv, NPt) takes no instance more than that
     point says, the next model is found after the longer L."""
     full = image(INVERTER)
     m103 = full[M103 - 40000:M160 - 40000]
-    m160 = full[M160 - 40000:-2]
+    m160 = full[M160 - 40000:M705 - 40000]
+    m705 = full[M705 - 40000:-2]
     regs = [*full[:M103 - 40000], 103, 57, *m103[2:], *[7] * 7,
-            160, m160[1] + 7, *m160[2:], *[9] * 7, 0xFFFF, 0]
+            160, m160[1] + 7, *m160[2:], *[9] * 7,
+            705, m705[1] + 20, *m705[2:], *[900] * 20, 0xFFFF, 0]
     with device(regs) as server:
         found, values, _ = _read(server.port)
-    assert [(m.id, m.length) for m in found.models] == [(1, 66), (103, 57), (160, 75)]
+    assert [(m.id, m.length) for m in found.models] == [(1, 66), (103, 57), (160, 75),
+                                                        (705, m705[1] + 20)]
     assert not found.notes
     assert values["inverter_three_phase.W"] == pytest.approx(334.2)
     assert values["mppt.module.DCA"] == pytest.approx([8.12, 0.15, 0.07])
+    assert values["DERVoltVar.Crv[1].Pt.V"] == pytest.approx(CURVES[0])
+    assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx(CURVES[1])
+    assert "DERVoltVar.Crv[3].Pt.V" not in values
 
 
 @pytest.mark.parametrize(("regs", "said"), [
@@ -161,3 +175,4 @@ def test_suns_at_two_bases_the_first_in_order_is_read() -> None:
         found, _, _ = _read(server.port)
     assert found.base == 40000
     assert found.manufacturer == "Acme Solar"
+

@@ -23,7 +23,14 @@ from pymb.errors import (
     ModbusTimeout,
 )
 from pymb.maps.model import Map
-from pymb.maps.sunspec.layout import Placed, left_out, map_text, model_def, model_ids
+from pymb.maps.sunspec.layout import (
+    Placed,
+    laid_length,
+    left_out,
+    map_text,
+    model_def,
+    model_ids,
+)
 
 __all__ = ["BASES", "MARKER", "Discovery", "NotSunSpec", "Reader", "discover"]
 
@@ -122,6 +129,37 @@ def _header(read: Reader, address: int) -> tuple[int, int | None]:
     return int(mid), None
 
 
+def _counted(placed: Placed, refused: Sequence[int]) -> Placed:
+    """``placed`` with each refused register that counts a repeating group
+    (``NPt``...) given the count that fills the model's ``L`` exactly (or
+    else the first that fills most of it); a register that counts nothing
+    stays 0xFFFF."""
+    assert placed.registers is not None
+    regs = list(placed.registers)
+    whole = placed.length + 2
+
+    def laid(i: int, k: int) -> int:
+        regs[i] = k
+        return laid_length(Placed(placed.id, placed.address, placed.length, placed.prefix,
+                                  tuple(regs)))
+
+    for a in refused:
+        i = a - placed.address
+        if laid(i, 0) == laid(i, 1):  # counts nothing
+            regs[i] = _END
+            continue
+        best, most = 0, -1
+        for k in range(whole + 1):
+            n = laid(i, k)
+            if n == whole:
+                best = k
+                break
+            if most < n <= whole:
+                best, most = k, n
+        regs[i] = best
+    return Placed(placed.id, placed.address, placed.length, placed.prefix, tuple(regs))
+
+
 def _ranges(addresses: Sequence[int]) -> str:
     """``40080..40082, 40090``: runs of consecutive addresses."""
     runs: list[list[int]] = []
@@ -184,8 +222,9 @@ def discover(read: Reader) -> Discovery:
             name = str(model_def(mid)["group"]["name"])
             names[name] = names.get(name, 0) + 1
             prefix = name if names[name] == 1 else f"{name}_{names[name]}"
-            placed.append(Placed(mid, address, length, prefix, regs, frozenset(refused)))
+            placed.append(Placed(mid, address, length, prefix, regs))
             if refused:
+                placed[-1] = _counted(placed[-1], refused)
                 notes.append(f"model {mid} at {address} (L = {length}): the device refuses to "
                              f"read registers {_ranges(refused)}; the points there read no "
                              "value (unsupported)")

@@ -183,16 +183,13 @@ class Placed:
     register, its length ``L`` (registers after ID and L), the name its
     points are prefixed with, and, when read, its registers from ID on (the
     counts of repeating groups sized by a point, e.g. ``NPt``, come from
-    them; without them such a group has one instance), and the addresses of
-    those the device refused to read (a group counted by one of them has as
-    many instances as ``L`` holds)."""
+    them; without them such a group has one instance)."""
 
     id: int
     address: int
     length: int
     prefix: str
     registers: tuple[int, ...] | None = None
-    refused: frozenset[int] = frozenset()
 
 
 def _fixed_length(g: GroupDef) -> int:
@@ -246,11 +243,10 @@ class _Layout:
                     i = off - self.placed.address
                     if regs is None or i >= len(regs):
                         return 1
+                    v = 0 if regs[i] == _UNMAPPED else regs[i]
                     # never more than the model's length holds (a device may say anything)
                     room = max(0, (self.end - at) // instance_len) if instance_len else 0
-                    if off in self.placed.refused:
-                        return room
-                    return min(0 if regs[i] == _UNMAPPED else regs[i], room)
+                    return min(v, room)
                 off += int(p["size"])
         raise MapError(f"SunSpec model {self.placed.id}: group {g['name']!r} counts "
                        f"{c!r}, which no enclosing group has")
@@ -399,6 +395,14 @@ def _layout(placed: Placed) -> tuple[list[_Entry], list[str]]:
     scaled = [e for e in kept if e.get("scale_from", e["name"]) in names]
     left += [e["name"] for e in kept if e.get("scale_from", e["name"]) not in names]
     return scaled, left
+
+
+def laid_length(placed: Placed) -> int:
+    """Registers the points and repeating groups of a placed model take,
+    from its ID on, the groups counted as its registers say (at most as
+    many as its ``L`` holds)."""
+    top = model_def(placed.id)["group"]
+    return _Layout(placed, []).length(top, placed.address, [])
 
 
 def entries_of(placed: Placed) -> list[_Entry]:
