@@ -176,3 +176,44 @@ def test_suns_at_two_bases_the_first_in_order_is_read() -> None:
     assert found.base == 40000
     assert found.manufacturer == "Acme Solar"
 
+
+def test_a_base_that_times_out_is_passed_over() -> None:
+    """Silence at 40000 (the reply timeout), ``SunS`` at 0: the device is
+    found at 0, over the same connection."""
+    with device(image(INVERTER), base=0, silent={40000, 40001}) as server:
+        found, values, _ = _read(server.port)
+    assert found.base == 0
+    assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+
+
+def test_a_device_at_unit_126_answers_as_126_only() -> None:
+    with device(image(INVERTER), unit=126) as server:
+        tcp = f"127.0.0.1:{server.port}"
+        found, _, _ = _read(server.port, unit=126)
+        r = run_pymb("read", "sunspec:126", "--tcp", tcp, "--json", "--timeout", "0.3")
+        wrong = run_pymb("read", "sunspec:1", "--tcp", tcp, "--timeout", "0.3")
+    assert found.manufacturer == "Acme Solar"
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["values"]["inverter_three_phase.W"] == pytest.approx(334.2)
+    assert wrong.returncode == 3
+    assert wrong.stderr == ("pymb read: no SunSpec device: 'SunS' (0x5375 0x6E53) is at none of "
+                            "holding registers 40000, 0, 50000 (40000: ModbusTimeout; 0: "
+                            "ModbusTimeout; 50000: ModbusTimeout)\n")
+
+
+def test_an_end_marker_at_65535_and_a_common_model_of_65() -> None:
+    """The legacy common model (L = 65, without its pad) reads whole, no
+    note; a chain whose end marker's ID is register 65535 ends there."""
+    common = image(INVERTER[:1])[2:-2]
+    assert common[1] == 66
+    legacy = [1, 65, *common[2:67]]
+    filler = 65535 - 50000 - 2 - len(legacy) - 2
+    regs = [0x5375, 0x6E53, *legacy, 64999, filler, *[0] * filler, 0xFFFF]
+    with device(regs, base=50000) as server:
+        found, values, _ = _read(server.port)
+    assert found.end == 65537
+    assert [(m.id, m.length) for m in found.models] == [(1, 65)]
+    assert found.skipped == ((64999, 50069, filler),)
+    assert [n for n in found.notes if "shorter" in n] == []
+    assert values["common.Mn"] == "Acme Solar"
+    assert "common.DA" in values

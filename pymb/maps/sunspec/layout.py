@@ -460,7 +460,7 @@ def map_text(models: Sequence[Placed], *, base: int, unit: int = 1, device_id: s
              'schema = "pymb.map/1"', "", "[device]"]
     lines += [f"{k} = {toml_value(v)}" for k, v in head.items() if v != ""]
     lines += ["", "[device.limits]", "max_registers = 125", "max_gap = 16",
-              f"readable = {{ holding = [[{base}, {max(base, last - 1)}]] }}", "",
+              f"readable = {{ holding = [[{base}, {min(0xFFFF, max(base, last - 1))}]] }}", "",
               "[groups]", "fast = { interval = 1.0 }", "config = { interval = 0 }"]
     for e in entries:
         lines += ["", "[[block]]" if "first" in e else "[[point]]"]
