@@ -55,7 +55,10 @@ def discover_device(args: argparse.Namespace, unit: int) -> Discovery:
     return interruptible(io)
 
 
-def _map(found: Discovery, unit: int) -> tuple[maps.Map, str]:
+def _map(found: Discovery, unit: int, spec: str) -> tuple[maps.Map, str]:
+    if not found.models:
+        raise InvalidArgument(f"{spec!r}: the device has no SunSpec model pymb knows "
+                              f"({'; '.join(found.notes) or 'no models'})")
     text = found.text(unit)
     try:
         return maps.loads(text, source=f"sunspec:{unit}"), text
@@ -69,10 +72,7 @@ def sunspec_target(args: argparse.Namespace, spec: str) -> tuple[MapTarget, str]
     the map's text."""
     unit, name = _unit(spec)
     found = discover_device(args, unit)
-    if not found.models:
-        raise InvalidArgument(f"{spec!r}: the device has no SunSpec model pymb knows "
-                              f"({'; '.join(found.notes) or 'no models'})")
-    m, text = _map(found, unit)
+    m, text = _map(found, unit, spec)
     for note in found.notes:  # what the map leaves out, said once, beside the output
         print(f"pymb: {spec}: {note}", file=sys.stderr)
     return MapTarget(m, unit, name or f"sunspec-{unit}", {}), text
@@ -103,7 +103,7 @@ def probe(args: argparse.Namespace) -> int:
     if save and os.path.lexists(save):
         raise InvalidArgument(f"--save {save}: the file exists; pymb does not overwrite it")
     found = discover_device(args, unit)
-    m, text = _map(found, unit)
+    m, text = _map(found, unit, f"sunspec:{unit}")
     info = _summary(found, unit, m)
     if save:
         try:

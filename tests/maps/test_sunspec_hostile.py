@@ -9,12 +9,14 @@ from __future__ import annotations
 import json
 from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
 from conftest import run_pymb
 from hostile_gateway import Hostile, Request
 from peerkit import mbap, registers
+from peers import PtyPeer
 from sunspec_peer import image
 
 import pymb
@@ -217,3 +219,48 @@ def test_an_end_marker_at_65535_and_a_common_model_of_65() -> None:
     assert [n for n in found.notes if "shorter" in n] == []
     assert values["common.Mn"] == "Acme Solar"
     assert "common.DA" in values
+
+
+def test_discovery_and_reading_over_rtu() -> None:
+    """The same device on a serial line (RTU on a pseudo-terminal), unit 7:
+    ``pymb map probe --sunspec`` and ``pymb read sunspec:7`` over ``--port``."""
+    regs = image(INVERTER)
+    with PtyPeer(slaves={7}) as peer:
+        peer.memory.holding[40000:40000 + len(regs)] = regs
+        probe = run_pymb("map", "probe", "7", "--sunspec", "--port", peer.port, "--json")
+        r = run_pymb("read", "sunspec:7", "--port", peer.port, "--json")
+    assert probe.returncode == 0, probe.stderr
+    info = json.loads(probe.stdout)
+    assert [m["id"] for m in info["models"]] == [1, 103, 160, 705]
+    assert info["manufacturer"] == "Acme Solar"
+    assert r.returncode == 0, r.stderr
+    values = json.loads(r.stdout)["values"]
+    assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+    assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx(CURVES[1])
+
+
+@pytest.mark.parametrize("chain", [[64999, 2, 1, 2], []])
+def test_a_device_with_no_model_pymb_knows_is_one_line(tmp_path: Path,
+                                                       chain: list[int]) -> None:
+    """Only a vendor's model, or none: the probe says so in one line (as
+    ``read`` does), exit 2, and saves nothing."""
+    saved = tmp_path / "device.toml"
+    with device([0x5375, 0x6E53, *chain, 0xFFFF, 0]) as server:
+        tcp = f"127.0.0.1:{server.port}"
+        probe = run_pymb("map", "probe", "1", "--sunspec", "--tcp", tcp, "--save", str(saved))
+        read = run_pymb("read", "sunspec:1", "--tcp", tcp)
+    said = ("'sunspec:1': the device has no SunSpec model pymb knows ("
+            + ("model 64999 at 40002 (L = 2) skipped: pymb does not know it" if chain
+               else "no models") + ")\n")
+    assert (probe.returncode, probe.stderr) == (2, "pymb map: " + said)
+    assert (read.returncode, read.stderr) == (2, "pymb read: " + said)
+    assert not saved.exists()
+
+
+def test_the_probe_names_the_maker_in_utf8() -> None:
+    regs = image([(1, {"Mn": "M\u00fcller Solar", "Md": "\u00c9t\u00e9"})])
+    with device(regs) as server:
+        r = run_pymb("map", "probe", "1", "--sunspec", "--tcp", f"127.0.0.1:{server.port}")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[0] == ("SunSpec device, unit 1: 'SunS' at holding 40000; "
+                                        "M\u00fcller Solar \u00c9t\u00e9")

@@ -84,7 +84,7 @@ class Discovery:
 
 def _text(regs: Sequence[int]) -> str:
     raw = b"".join(r.to_bytes(2, "big") for r in regs)
-    return raw.split(b"\0")[0].decode("latin-1").strip()
+    return raw.split(b"\0")[0].decode("utf-8", "replace").strip()  # as the map reads it
 
 
 def _read(read: Reader, address: int, count: int, refused: list[int]) -> list[int]:
