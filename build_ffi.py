@@ -215,6 +215,10 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
 
 /* The interrupt hook: pymb._native calls Python's pending signal handlers. */
 extern "Python" int pymb_py_interrupted(void *arg);
+/* Every line's hook (the extension's, below): its Link's stop flag, then `then`. */
+typedef int... sig_atomic_t;
+typedef struct { volatile sig_atomic_t stop; int (*then)(void *arg); ...; } pymbi_stop;
+int pymbi_stop_hook(void *arg);
 /* TLS under a line (pymb._native.tls): the line's I/O, over Python's ssl. */
 extern "Python" int pymb_py_tls_read(void *arg, uint8_t *buf, int n);
 extern "Python" int pymb_py_tls_write(void *arg, const uint8_t *buf, int n);
@@ -239,6 +243,24 @@ SOURCE = """
 #include "pymb_internal.h"
 #include "pymb_serve.h"
 #include "pymb_loop.h"
+#include <signal.h>
+
+/* A line's interrupt hook (pymb_line_set_interrupt), arg a pymbi_stop its
+ * Link owns: `stop`, set from any thread (Link.stop: a close() while a
+ * request waits), ends the wait within PYMB_INTERRUPT_SLICE_US with EINTR;
+ * `then`, when set, is asked next (pymb_py_interrupted: Python's signal
+ * handlers, on a line opened in the main thread). No Python is called on
+ * other threads' lines. */
+typedef struct {
+    volatile sig_atomic_t stop;
+    int (*then)(void *arg);
+} pymbi_stop;
+
+static int pymbi_stop_hook(void *arg)
+{
+    const pymbi_stop *s = arg;
+    return s->stop != 0 || (s->then != NULL && s->then(NULL) != 0);
+}
 """
 
 

@@ -351,6 +351,16 @@ def closed_error(function: int, slave: int, address: int | None, count: int | No
     )
 
 
+def stopped_error(function: int, slave: int, address: int | None, count: int | None,
+                  port: str) -> ModbusConnectionError:
+    """A request that was waiting when another thread or task closed its client."""
+    return ModbusConnectionError(
+        f"{request_text(function, slave, address, count)} on {port}: the client was closed "
+        "while this request waited", errno=_errno.ECANCELED, slave=slave, function=function,
+        address=address, count=count, port=port,
+    )
+
+
 class _Asked(TypedDict):
     """What every error of a failed request carries about it."""
 

@@ -9,10 +9,10 @@ import errno
 import os
 import socket
 import ssl
-import threading
 from collections.abc import Sequence
 from typing import Any
 
+from pymb._native.interrupt import LineStop, take_interrupt
 from pymb._native.mapdecode import MapJob
 from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
@@ -24,6 +24,7 @@ from pymb.errors import (
     closed_error,
     os_hint,
     request_error,
+    stopped_error,
 )
 
 __all__ = ["Link", "RegisterPlan"]
@@ -32,33 +33,6 @@ _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP cod
 _from_buffer = ffi.from_buffer
 _plan_run = lib.pymbi_plan_run  # the hot path's C call, looked up once
 _plan_go = lib.pymbi_plan_go  # ... and a steady poller's, of one argument
-
-
-# -- signals -------------------------------------------------------------------
-# While a request waits, C calls pymb_py_interrupted when poll() is interrupted
-# by a signal and at least every PYMB_INTERRUPT_SLICE_US. Running this Python
-# function lets the interpreter run the pending signal handlers (it does so on
-# entering a function); a handler that raises (SIGINT's KeyboardInterrupt)
-# lands in _interrupt_raised, which keeps the exception and tells C to stop.
-# A handler that returns normally changes nothing: the wait goes on.
-
-_pending = threading.local()
-
-
-def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
-    _pending.exc = exc if exc is not None else exc_type()
-    return 1
-
-
-@ffi.def_extern(onerror=_interrupt_raised)  # type: ignore[untyped-decorator]
-def pymb_py_interrupted(arg: Any) -> int:
-    return 0
-
-
-def _take_interrupt() -> BaseException | None:
-    exc: BaseException | None = getattr(_pending, "exc", None)
-    _pending.exc = None
-    return exc
 
 
 def _seconds_us(seconds: float) -> tuple[int, int]:
@@ -156,6 +130,7 @@ class Link:
         self._held: tuple[int, int] | None = None
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
         self.adopt: int | None = None  #: a lent socket the next open() takes (TCP)
+        self._stop = LineStop()  #: what ends a wait from outside (:meth:`stop`, signals)
         self.borrowed = False  #: lent sockets only: never a connection of its own
 
     # -- life cycle ------------------------------------------------------------
@@ -230,11 +205,7 @@ class Link:
         try:
             self._header = int(lib.pymb_line_header_length(line))
             lib.pymb_line_set_retries(line, self._retries)
-            if threading.current_thread() is threading.main_thread():
-                # Python runs signal handlers in the main thread only: a line
-                # opened in another thread would call in for nothing, and a
-                # daemon thread's call could meet the interpreter's shutdown.
-                lib.pymb_line_set_interrupt(line, lib.pymb_py_interrupted, ffi.NULL)
+            self._stop.arm(line)
             lib.pymb_line_set_char_ns(line, self._char_ns if self._reject_early else 0)
             self._apply_timeouts()
             self._apply_rs485()
@@ -300,6 +271,14 @@ class Link:
             lib.modbus_close(ctx)
         if ctx != ffi.NULL:
             lib.modbus_free(ctx)
+
+    def stop(self) -> None:
+        """From any thread, without the client's lock: the request waiting
+        on this line (or the next to wait) ends within
+        ``PYMB_INTERRUPT_SLICE_US`` (50 ms) with :func:`stopped_error`,
+        until the line is opened again. The flag is the Link's own memory,
+        so this is safe while another thread closes the line."""
+        self._stop.stop()
 
     def __del__(self) -> None:
         # The descriptor and, on a serial line, its lock go with the Link.
@@ -450,9 +429,13 @@ class Link:
         n = int(lib.pymb_drain(self._line, round(quiet * 1e6), round(limit * 1e6)))
         if n < 0:
             err = ffi.errno
-            exc = (_take_interrupt() or take_raised()) if err == errno.EINTR else None
+            exc = (take_interrupt() or take_raised()) if err == errno.EINTR else None
             if exc is not None:
                 raise exc
+            if err == errno.EINTR and self._stop.stopped:
+                raise ModbusConnectionError(f"drain on {self.name}: the client was closed "
+                                            "while it waited", errno=errno.ECANCELED,
+                                            port=self.name)
             raise ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}", errno=err,
                                         port=self.name)
         return n
@@ -471,9 +454,11 @@ class Link:
         if not self.is_open:
             return self._closed(function, slave, address, count)
         if err == errno.EINTR:
-            exc = _take_interrupt() or take_raised()
+            exc = take_interrupt() or take_raised()
             if exc is not None:  # a signal handler raised: that is the error
                 return exc  # type: ignore[return-value]
+            if self._stop.stopped:  # stop(): a close() in another thread
+                return stopped_error(function, slave, address, count, self.name)
         fail = self._fail
         tls = None
         session = self._session

@@ -17,7 +17,7 @@ from pymb._native.link import Link
 from pymb.client.checks import _CLOSED_BY_PEER, _LINK_LOST, _int, _seconds
 from pymb.errors import DeviceException, InvalidArgument, ModbusConnectionError
 
-__all__ = ["ClientCore", "line_lock"]
+__all__ = ["ClientCore", "line_lock", "stop_waiting"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -116,10 +116,18 @@ class ClientCore:
             return True
 
     def close(self) -> None:
-        """Close the line; safe to call more than once."""
-        with self._lock:
+        """Close the line; safe to call more than once. A request another
+        thread is waiting on ends at once (within 50 ms) with
+        :class:`~pymb.ModbusConnectionError`, and the line closes after it."""
+        lock = self._lock
+        if not lock.acquire(blocking=False):
+            stop_waiting(self)
+            lock.acquire()
+        try:
             self._wanted = False
             self._link.close()
+        finally:
+            lock.release()
 
     def __del__(self) -> None:
         # Like a file: a client dropped while open is closed (its descriptor
@@ -266,6 +274,14 @@ class ClientCore:
             except ModbusConnectionError as e:
                 self._close_if_lost(e)
                 raise
+
+
+def stop_waiting(client: ClientCore) -> None:
+    """From any thread, without ``client``'s lock: the request waiting on its
+    line ends within 50 ms with :class:`~pymb.ModbusConnectionError`, and so
+    does any that waits on it until it is opened again (what a close() from
+    elsewhere does first)."""
+    client._link.stop()  # noqa: SLF001 - this module's
 
 
 def line_lock(client: ClientCore) -> threading.RLock:

@@ -237,6 +237,29 @@ def test_a_silent_tls_server_times_out_within_the_timeout(certs: Path) -> None:
         assert list(c.read_holding_registers(0, 1)) == [1]
 
 
+def test_close_from_another_thread_ends_a_tls_wait_at_once(certs: Path) -> None:
+    with TlsPeer(certs, lambda i, adu: [] if i == 0 else [answer_read(adu, [i])]) as peer, \
+            pymb.TcpClient("127.0.0.1", peer.port, tls=_tls(certs, server_name="localhost"),
+                           slave=1, timeout=5) as c:
+        out: list[BaseException] = []
+
+        def wait() -> None:
+            with pytest.raises(pymb.ModbusConnectionError) as ei:
+                c.read_holding_registers(0, 1)
+            out.append(ei.value)
+
+        t = threading.Thread(target=wait)
+        t.start()
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        c.close()
+        t.join(10)
+        assert time.monotonic() - t0 < 1.5  # not the read's 5 s timeout
+        assert "the client was closed while this request waited" in str(out[0])
+        c.connect()  # a new connection, a new TLS session
+        assert list(c.read_holding_registers(0, 1)) == [1]
+
+
 def test_asyncio_twin(certs: Path, served: tuple[Served, PtyPeer]) -> None:
     s, _ = served
 
