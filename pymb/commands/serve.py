@@ -166,6 +166,8 @@ async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
     print(f"pymb serve: {st.requests:,} requests from {st.connections:,} connections; "
           f"upstream: {upstream.sent:,} sent, {upstream.timeouts:,} unanswered, "
           f"{upstream.unreachable:,} while unreachable"
+          + (f", {upstream.unwanted:,} not sent (their clients had gone)"
+             if upstream.unwanted else "")
           + (f", {upstream.dropped:,} dropped at the stop" if upstream.dropped else ""),
           file=sys.stderr)
     if upstream.abandoned:

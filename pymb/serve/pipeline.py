@@ -19,7 +19,7 @@ from pymb._native.serve import (
     mbap_frame,
     take_frames,
 )
-from pymb.serve.upstream import EX_PATH, EX_TARGET, Done, reads_only
+from pymb.serve.upstream import EX_PATH, EX_TARGET, Done, Wanted, reads_only
 
 __all__ = ["DEFAULT_MAX_INFLIGHT", "PipelinedUpstream"]
 
@@ -57,10 +57,10 @@ class _Link(asyncio.Protocol):
 
 
 class _Job:
-    __slots__ = ("answers_before", "done", "pdu", "resent", "timer", "unit")
+    __slots__ = ("answers_before", "done", "pdu", "resent", "timer", "unit", "wanted")
 
-    def __init__(self, unit: int, pdu: bytes, done: Done) -> None:
-        self.unit, self.pdu, self.done = unit, pdu, done
+    def __init__(self, unit: int, pdu: bytes, done: Done, wanted: Wanted) -> None:
+        self.unit, self.pdu, self.done, self.wanted = unit, pdu, done, wanted
         self.timer: asyncio.TimerHandle | None = None
         self.answers_before = 0  #: its unit's replies when it was sent
         self.resent = False  #: sent again after a reset that came before any reply
@@ -112,6 +112,7 @@ class PipelinedUpstream:
         #: transactions sent, and how each ended; the most in flight at once
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
         self.dropped = 0  #: requests queued or in flight when it stopped: never answered
+        self.unwanted = 0  #: requests whose client had gone before their turn: never sent
         self.abandoned = False  #: as Upstream's: never (no thread of its own)
         self.most_inflight = 0
 
@@ -134,12 +135,14 @@ class PipelinedUpstream:
             self._link.transport.abort()
         self._link = None
 
-    def submit(self, unit: int, pdu: bytes, done: Done) -> None:
-        """Queue request ``pdu`` for ``unit`` (on the event loop)."""
+    def submit(self, unit: int, pdu: bytes, done: Done, wanted: Wanted = None) -> None:
+        """Queue request ``pdu`` for ``unit`` (on the event loop); when its
+        turn comes, it is not sent if ``wanted()`` says its client has gone
+        (counted in :attr:`unwanted`)."""
         if len(self._queue) >= self.depth:
             done(bytes((pdu[0] | 0x80, EX_TARGET)))
             return
-        self._queue.append(_Job(unit, pdu, done))
+        self._queue.append(_Job(unit, pdu, done, wanted))
         self._pump()
 
     def _pump(self) -> None:
@@ -154,6 +157,9 @@ class PipelinedUpstream:
         loop = asyncio.get_running_loop()
         while self._queue and len(self._inflight) < self.max_inflight:
             job = self._queue.popleft()
+            if job.wanted is not None and not job.wanted():
+                self.unwanted += 1
+                continue
             tid = self._take_tid()
             self._inflight[tid] = job
             job.answers_before = self._answers.get(job.unit, 0)

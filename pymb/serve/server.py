@@ -187,6 +187,11 @@ class _Conn(asyncio.Protocol):
             return False
         return role is not None and role in self.server.write_roles
 
+    def connected(self) -> bool:
+        """Whether this client is still connected: a read it queued is not
+        sent upstream once it has gone (nobody would read the reply)."""
+        return not self.closed
+
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.closed:
             self.closed = True
@@ -246,7 +251,10 @@ class _Conn(asyncio.Protocol):
                 self._send(exception_frame(r.tid, r.unit, function, EX_PATH))
                 continue
             self.pending += 1
-            s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit))
+            # A read whose client has gone by its turn is not sent (nobody would
+            # read the reply); a write is: its client gave it.
+            s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit),
+                              self.connected if reads_only(r.pdu) else None)
         if self.pending >= PENDING_PER_CLIENT:
             self._pause()
 

@@ -51,6 +51,9 @@ def reads_only(pdu: bytes) -> bool:
 
 #: what a finished transaction hands back: the reply PDU
 Done = Callable[[bytes], None]
+#: whether a queued request is still wanted when its turn comes (its client
+#: is still connected); None: always
+Wanted = Callable[[], bool] | None
 
 
 class _Line(Protocol):
@@ -72,7 +75,7 @@ class Upstream:
                  on_event: Callable[[str], None] | None = None) -> None:
         self.line = line
         self.depth = depth
-        self._jobs: queue.Queue[tuple[int, bytes, Done] | None] = queue.Queue()
+        self._jobs: queue.Queue[tuple[int, bytes, Done, Wanted] | None] = queue.Queue()
         self._on_event = on_event or (lambda _text: None)
         self._thread = threading.Thread(target=self._run, name="pymb-serve-upstream", daemon=True)
         self._connected = False
@@ -81,6 +84,7 @@ class Upstream:
         #: transactions sent, and how each ended
         self.sent = self.timeouts = self.exceptions = self.unreachable = 0
         self.dropped = 0  #: requests queued or under way when it stopped: never answered
+        self.unwanted = 0  #: requests whose client had gone before their turn: never sent
         #: its thread was still in a transaction when it stopped (see :meth:`stop`)
         self.abandoned = False
 
@@ -107,12 +111,14 @@ class Upstream:
             self.dropped += 1
             self.abandoned = True
 
-    def submit(self, unit: int, pdu: bytes, done: Done) -> None:
-        """Queue request ``pdu`` for ``unit``."""
+    def submit(self, unit: int, pdu: bytes, done: Done, wanted: Wanted = None) -> None:
+        """Queue request ``pdu`` for ``unit``; when its turn comes, it is not
+        sent if ``wanted()`` says its client has gone (counted in
+        :attr:`unwanted`)."""
         if self._jobs.qsize() >= self.depth:
             done(bytes((pdu[0] | 0x80, EX_TARGET)))
             return
-        self._jobs.put((unit, pdu, done))
+        self._jobs.put((unit, pdu, done, wanted))
 
     def _run(self) -> None:
         try:
@@ -120,7 +126,10 @@ class Upstream:
                 job = self._jobs.get()
                 if job is None:
                     return
-                unit, pdu, done = job
+                unit, pdu, done, wanted = job
+                if wanted is not None and not wanted():
+                    self.unwanted += 1
+                    continue
                 done(self._transact(unit, pdu))
         finally:
             self.line.close()

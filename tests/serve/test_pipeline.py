@@ -300,6 +300,19 @@ def test_a_stop_drops_what_waits_for_a_silent_unit(device: OutOfOrder) -> None:
     assert device.requests < 16
 
 
+def test_the_reads_of_a_client_that_has_gone_are_not_sent(device: OutOfOrder) -> None:
+    with Served("--tcp", f"127.0.0.1:{device.port}", "--max-inflight", "2",
+                "--timeout", "0.5") as s:
+        c = RawClient(s.port)
+        c.send(b"".join(mbap(i, SILENT_UNIT, read_pdu(i, 1)) for i in range(16)))  # 4 s
+        wait_until(lambda: device.requests >= 2, "the first requests upstream")
+        c.close()
+        time.sleep(1.5)  # three timeouts' worth: before, 6 more would have gone upstream
+        assert device.requests <= 4
+        assert s.stop() == 0
+    assert f"{16 - device.requests} not sent (their clients had gone)" in s.stderr_lines[-1]
+
+
 def test_a_reply_after_the_timeout_reaches_no_one(device: OutOfOrder) -> None:
     with Served("--tcp", f"127.0.0.1:{device.port}", "--timeout", "0.5") as s:
         c = RawClient(s.port)

@@ -236,6 +236,28 @@ def test_a_port_in_use_exits_4(peer: PtyPeer) -> None:
     assert "Traceback" not in r.stderr
 
 
+def test_the_reads_of_a_client_that_has_gone_are_not_sent(peer: PtyPeer) -> None:
+    peer.hook = lambda slave, pdu, normal: [] if slave == 9 else None  # unit 9 is silent
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        # 8 reads and a write to a silent device (0.5 s each), then gone
+        c.send(b"".join(mbap(i, 9, read_pdu(i, 1)) for i in range(8)) +
+               mbap(8, 9, bytes((6, 0, 3, 0, 7))))
+        wait_until(lambda: len(peer.requests) >= 1, "the first request on the line")
+        c.close()
+        # Another client's read waits behind what the gone one left.
+        other = RawClient(s.port)
+        assert words(other.ask(20, 1, read_pdu(2, 1))) == [14]
+        other.close()
+        sent = [pdu for slave, pdu in peer.requests if slave == 9]
+        reads = [pdu for pdu in sent if pdu[0] == 3]
+        assert len(reads) <= 2, sent  # the one under way (and one taken before the close)
+        assert sent[-1] == bytes((6, 0, 3, 0, 7))  # a write is sent all the same
+        assert s.stop() == 0
+    summary = s.stderr_lines[-1]
+    assert f"{8 - len(reads)} not sent (their clients had gone)" in summary, summary
+
+
 def test_a_stop_drops_the_queued_requests_of_a_silent_device(peer: PtyPeer) -> None:
     peer.hook = lambda slave, pdu, normal: []  # nobody answers: each request takes --timeout
     with Served(*serve_args(peer.port)) as s:
