@@ -233,3 +233,19 @@ def test_the_em24_reads_no_demand_word_as_a_power_factor() -> None:
     taken = {a for p in m.points.values() for a in range(p.address, p.address + p.count)}
     assert not taken & set(range(0x002E, 0x0032))  # DMD W, DMD VA
     assert not taken & set(range(0x0038, 0x003E))  # DMD maxima
+
+
+def test_the_danfoss_status_flags_name_what_a_set_bit_means() -> None:
+    # VLT AQUA Drive FC 202 design guide MG20Z102, 7.11.2 status word according to the FC
+    # profile, the "bit = 1" column: bit 12 set is "stopped, auto start" (a temporary
+    # overtemperature stop), not "drive OK"; bit 05 is reserved
+    sw = maps.builtin("danfoss-fc").points["status_word"]
+    assert dict(sw.flags) == {
+        0: "control_ready", 1: "drive_ready", 2: "no_coast", 3: "trip", 4: "error",
+        6: "trip_lock", 7: "warning", 8: "at_reference", 9: "bus_control",
+        10: "frequency_in_range", 11: "running", 12: "stopped_auto_start",
+        13: "voltage_exceeded", 14: "torque_exceeded", 15: "timer_exceeded",
+    }
+    # register 50200 is sent as 49999 + 200 (numbers from 1), the CTW as 49999
+    m = maps.builtin("danfoss-fc")
+    assert (m.points["control_word"].address, sw.address) == (49999, 50199)
