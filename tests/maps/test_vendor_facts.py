@@ -249,3 +249,18 @@ def test_the_danfoss_status_flags_name_what_a_set_bit_means() -> None:
     # register 50200 is sent as 49999 + 200 (numbers from 1), the CTW as 49999
     m = maps.builtin("danfoss-fc")
     assert (m.points["control_word"].address, sw.address) == (49999, 50199)
+
+
+@pytest.mark.parametrize(("name", "word"), [
+    ("off1_stop", 0x0476),  # CW = xxxx x1xx xxxx x110: READY TO SWITCH ON
+    ("ready_to_operate", 0x0477),  # xxxx x1xx xxxx x111: READY TO OPERATE
+    ("run", 0x047F),  # xxxx x1xx xxxx 1111 (ramps released): OPERATION ENABLED
+])
+def test_the_acs580_control_words_are_the_abb_drives_state_steps(name: str, word: int) -> None:
+    # the ABB Drives profile state diagram (ACS880/ACS850 firmware manuals, FPBA-01 manual):
+    # bit 0 OFF1 set leaves READY TO SWITCH ON, bit 3 set enables operation; 047Eh has
+    # bit 0 clear, an OFF1 (ramp stop), not a "ready" step
+    m = maps.builtin("abb-acs580")
+    assert m.encode("control_word", name) == [word]
+    assert m.decode("control_word", [word]) == word
+    assert 0x047E not in m.points["control_word"].values
