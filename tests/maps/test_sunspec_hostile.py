@@ -39,17 +39,23 @@ CURVES = ([90.0, 100.0, 110.0], [95.0, 105.0, None])
 
 @contextmanager
 def device(regs: Sequence[int], *, base: int = 40000, unit: int = 1,
-           refuse: Collection[int] = (), silent: Collection[int] = ()) -> Iterator[Hostile]:
+           refuse: Collection[int] = (), silent: Collection[int] = (), most: int = 125,
+           log: list[tuple[int, int, bool]] | None = None) -> Iterator[Hostile]:
     """Serve ``regs`` from holding register ``base`` as ``unit``: a read
     touching a register in ``refuse`` or outside the image is answered with
-    exception 02, one touching ``silent`` not at all."""
+    exception 02, one of more than ``most`` registers with 03, one touching
+    ``silent`` not at all; ``log`` gets (address, count, refused) of each."""
     held = {base + i: v for i, v in enumerate(regs)}
 
     def script(n: int, req: Request, conn: object) -> bytes | None:
         tid, u, fc, address, count = req
         span = range(address, address + count)
+        if log is not None:
+            log.append((address, count, count > most))
         if u != unit or any(a in silent for a in span):
             return None
+        if count > most:
+            return mbap(tid, u, bytes((fc | 0x80, 3)))
         if fc != 3 or any(a in refuse or a not in held for a in span):
             return mbap(tid, u, bytes((fc | 0x80, 2)))
         return mbap(tid, u, bytes((fc,)) + registers([held[a] for a in span]))
@@ -264,3 +270,25 @@ def test_the_probe_names_the_maker_in_utf8() -> None:
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[0] == ("SunSpec device, unit 1: 'SunS' at holding 40000; "
                                         "M\u00fcller Solar \u00c9t\u00e9")
+
+
+def test_a_device_that_reads_fewer_registers_a_request_is_asked_no_more() -> None:
+    """Exception 03 to any read of more than 40 registers: discovery reads
+    in smaller parts, and the map it builds asks no more than the most that
+    read, so that no poll is refused, nor read a point at a time."""
+    log: list[tuple[int, int, bool]] = []
+    with device(image(INVERTER), most=40, log=log) as server:
+        with pymb.TcpClient("127.0.0.1", server.port, timeout=1.0) as c:
+            found = sunspec.discover(lambda a, n: c.read_holding_registers(a, n, slave=1))
+            dev = MapDevice(c, found.map(1), 1)
+            del log[:]
+            values = dev.read()
+            polled = list(log)
+        r = run_pymb("map", "probe", "1", "--sunspec", "--tcp", f"127.0.0.1:{server.port}")
+    assert 20 <= found.max_registers <= 40
+    assert found.map(1).limits.max_registers == found.max_registers
+    assert f"note: the device reads at most {found.max_registers} registers a request" in r.stdout
+    assert polled
+    assert not any(refused for _, _, refused in polled)
+    assert values["inverter_three_phase.W"] == pytest.approx(334.2)
+    assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx(CURVES[1])

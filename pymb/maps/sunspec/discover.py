@@ -57,7 +57,8 @@ class NotSunSpec(ModbusError):
 class Discovery:
     """What :func:`discover` found: the marker's address, the models pymb
     knows (in chain order, placed), the ones it skipped (id, address, L),
-    and one past the end marker."""
+    one past the end marker, and the most registers the device reads in one
+    request (125 unless it refused more)."""
 
     base: int
     models: tuple[Placed, ...]
@@ -66,6 +67,7 @@ class Discovery:
     manufacturer: str = ""
     model: str = ""
     notes: tuple[str, ...] = field(default=())
+    max_registers: int = 125
 
     @property
     def map_id(self) -> str:
@@ -75,7 +77,8 @@ class Discovery:
     def text(self, unit: int = 1) -> str:
         """The device's map, as ``pymb.map/1`` TOML."""
         return map_text(self.models, base=self.base, unit=unit, device_id=self.map_id,
-                        manufacturer=self.manufacturer, model=self.model, end=self.end)
+                        manufacturer=self.manufacturer, model=self.model, end=self.end,
+                        max_registers=self.max_registers)
 
     def map(self, unit: int = 1) -> Map:
         """The device's map, loaded."""
@@ -87,23 +90,36 @@ def _text(regs: Sequence[int]) -> str:
     return raw.split(b"\0")[0].decode("utf-8", "replace").strip()  # as the map reads it
 
 
-def _read(read: Reader, address: int, count: int, refused: list[int]) -> list[int]:
+@dataclass
+class _Reads:
+    """What reading a device's models taught: the registers it refuses, the
+    most registers one request read, and whether a request was refused
+    whose parts then all read (the device reads fewer at a time)."""
+
+    refused: list[int] = field(default_factory=list)
+    widest: int = 0
+    too_wide: bool = False
+
+
+def _read(read: Reader, address: int, count: int, seen: _Reads) -> list[int]:
     """``count`` registers from ``address``, in requests of at most 125; a
     request the device refuses is asked again in halves, down to single
-    registers: those it refuses read 0xFFFF and are added to ``refused``."""
+    registers: those it refuses read 0xFFFF and are noted in ``seen``."""
     out: list[int] = []
     while count > 0:
         n = min(count, 125)
         try:
             got = list(read(address, n))
+            seen.widest = max(seen.widest, n)
         except _REFUSALS:
             if n == 1:
-                refused.append(address)
+                seen.refused.append(address)
                 got = [_END]
             else:
-                half = n // 2
-                got = _read(read, address, half, refused)
-                got += _read(read, address + half, n - half, refused)
+                half, before = n // 2, len(seen.refused)
+                got = _read(read, address, half, seen)
+                got += _read(read, address + half, n - half, seen)
+                seen.too_wide |= len(seen.refused) == before
         out.extend(got)
         address += n
         count -= n
@@ -195,6 +211,7 @@ def discover(read: Reader) -> Discovery:
     skipped: list[tuple[int, int, int]] = []
     notes: list[str] = []
     names: dict[str, int] = {}
+    seen = _Reads()
     manufacturer = model = ""
     for _ in range(_MAX_MODELS):
         if address >= 0x10000:
@@ -202,8 +219,12 @@ def discover(read: Reader) -> Discovery:
                              "without its end marker (0xFFFF)")
         mid, length = _header(read, address)
         if mid == _END:
+            widest = seen.widest if seen.too_wide and seen.widest else 125
+            if widest < 125:
+                notes.append(f"the device reads at most {widest} registers a request: the "
+                             "map asks no more")
             return Discovery(base, tuple(placed), tuple(skipped), address + 2, manufacturer,
-                             model, tuple(notes))
+                             model, tuple(notes), widest)
         if length is None:
             raise NotSunSpec(f"the SunSpec model chain from {base} breaks at register "
                              f"{address}: model {mid} there, and its length L "
@@ -218,7 +239,8 @@ def discover(read: Reader) -> Discovery:
                          "know it")
         else:
             refused: list[int] = []
-            regs = (mid, length, *_read(read, address + 2, length, refused))
+            seen.refused = refused
+            regs = (mid, length, *_read(read, address + 2, length, seen))
             name = str(model_def(mid)["group"]["name"])
             names[name] = names.get(name, 0) + 1
             prefix = name if names[name] == 1 else f"{name}_{names[name]}"

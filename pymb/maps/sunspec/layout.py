@@ -439,13 +439,17 @@ def toml_value(v: object) -> str:
 
 def map_text(models: Sequence[Placed], *, base: int, unit: int = 1, device_id: str = "sunspec",
              manufacturer: str = "", model: str = "", description: str = "",
-             end: int | None = None) -> str:
+             end: int | None = None, max_registers: int = 125) -> str:
     """The ``pymb.map/1`` TOML of a device made of ``models`` (in chain
     order), whose ``SunS`` marker is at on-wire address ``base``; ``end`` is
-    one past the chain's last register (the end marker's ID and L)."""
+    one past the chain's last register (the end marker's ID and L);
+    ``max_registers`` the most the device reads in one request (never
+    fewer than the widest point: a point is read in one request)."""
     entries: list[_Entry] = []
     for placed in models:
         entries.extend(entries_of(placed))
+    max_registers = max([max_registers, *(_WIDTHS.get(e["type"]) or int(e["count"])
+                                          for e in entries)])
     last = end if end is not None else max(
         (m.address + 2 + m.length for m in models), default=base + 2)
     head = {
@@ -459,7 +463,8 @@ def map_text(models: Sequence[Placed], *, base: int, unit: int = 1, device_id: s
     lines = ["# Made by pymb from the SunSpec models' own definitions (pymb.maps.sunspec).",
              'schema = "pymb.map/1"', "", "[device]"]
     lines += [f"{k} = {toml_value(v)}" for k, v in head.items() if v != ""]
-    lines += ["", "[device.limits]", "max_registers = 125", "max_gap = 16",
+    lines += ["", "[device.limits]", f"max_registers = {min(max_registers, 125)}",
+              "max_gap = 16",
               f"readable = {{ holding = [[{base}, {min(0xFFFF, max(base, last - 1))}]] }}", "",
               "[groups]", "fast = { interval = 1.0 }", "config = { interval = 0 }"]
     for e in entries:
