@@ -30,10 +30,9 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused
+from pymb.errors import InvalidArgument, ModbusError, WriteNotApplied, WriteRefused, closest_hint
 from pymb.maps import Map, Point, Value
 from pymb.maps.codec import decode_one, encode
-from pymb.maps.point import did_you_mean
 
 __all__ = ["Budget", "Change", "Outcome", "WriteBudget", "WriteRequest", "check", "requests"]
 
@@ -167,6 +166,14 @@ def _names(m: Map) -> list[str]:
     return out
 
 
+def _writable(m: Map) -> str:
+    """The points a write may name, a block as its channels' range (a hub's
+    600 read-only channels are no list to read through)."""
+    names = sorted(f"{p.name}_1..{p.name}_{p.channels}" if p.block else p.name
+                   for p in m.points.values() if p.writable)
+    return f"; writable: {', '.join(names)}" if names else "; it has no writable point"
+
+
 def resolve(m: Map, name: object, channel: int | None = None) -> tuple[str, Point]:
     """The point ``name`` writes (one channel of a block: ``name`` with
     ``channel``, or ``name_N``), with its label; an
@@ -180,7 +187,8 @@ def resolve(m: Map, name: object, channel: int | None = None) -> tuple[str, Poin
         if b is not None and b.block and n.isdigit() and 1 <= int(n) <= b.channels:
             return name, _channel_point(b, int(n))
     if p is None:
-        raise InvalidArgument(f"{m.id}: no point {name!r}{did_you_mean(name, _names(m))}")
+        hint = closest_hint(name, _names(m)) or _writable(m)
+        raise InvalidArgument(f"{m.id}: no point {name!r}{hint}")
     if p.block:
         if channel is None:
             raise InvalidArgument(f"{m.id}: {name!r} is a block: write one channel "

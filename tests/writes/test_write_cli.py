@@ -125,6 +125,19 @@ def test_every_refusal_exits_2_and_sends_no_byte(map_file: str, peer: FreezingTc
     assert peer.requests == []
 
 
+def test_a_name_close_to_nothing_lists_the_writable_points(map_file: str) -> None:
+    """No guess: the points a write may name, a block as its channels' range,
+    not every point of the map (a hub's 700 read-only channels)."""
+    code, out, err = write(map_file, "wdev:1", "speed=3", "--tcp", "127.0.0.1:1", "--dry-run")
+    assert (code, out) == (2, "")
+    assert err == ("pymb write: wdev: no point 'speed'; writable: fan_on, level, mode, "
+                   "power_limit_pct, pump_on, relay_2, relay_5, reset, setpoint_hz, "
+                   "status, target_w, zone_c_1..zone_c_4\n")
+    r = run_pymb("write", "hub:1", "speed=3", "--tcp", "127.0.0.1:1", "--dry-run")
+    assert (r.returncode, r.stdout, r.stderr) == (
+        2, "", "pymb write: hub: no point 'speed'; it has no writable point\n")
+
+
 def test_unknown_device_type_exits_2(map_file: str) -> None:
     code, _, err = write(map_file, "wdevv:1", "mode=run", "--tcp", "127.0.0.1:1")
     assert code == 2
