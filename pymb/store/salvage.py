@@ -117,6 +117,20 @@ def _readable(path: Path, lenient: bool) -> bool:
         return False
 
 
+def _tables(path: Path) -> set[str] | None:
+    """The tables SQLite lists in the copy as it is (None: it lists none, the
+    file is damaged or no SQLite file)."""
+    try:
+        con = _open_copy(path, False)
+        try:
+            return {str(n) for (n,) in con.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+
+
 def _repair_header(copy: Path) -> bool:
     """Rewrite a header SQLite does not take (True if it was rewritten)."""
     with open(copy, "rb") as f:
@@ -322,6 +336,8 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
         raise InvalidArgument(f"no such database: {damaged}")
     if new_path.exists() or os.path.lexists(new_path):
         raise InvalidArgument(f"{new} exists: salvage writes a new file; choose another name")
+    if os.fspath(new).endswith(("/", os.sep)):  # Path() would drop the slash: a file
+        raise InvalidArgument(f"{new} names a folder; give the new database's file name")
     if not new_path.parent.is_dir():
         raise InvalidArgument(f"the directory of {new} does not exist")
     with tempfile.TemporaryDirectory(prefix="pymb-salvage-") as tmp:
@@ -329,6 +345,12 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
             copy = _copy(src_path, Path(tmp))
         except OSError as e:
             raise InvalidArgument(f"cannot read {damaged}: {e.strerror}") from None
+        listed = _tables(copy)
+        if listed is not None and "samples" not in listed and not looks_like_pymb(copy):
+            if "pymb_values" in listed:
+                raise InvalidArgument(f"{damaged} is what pymb collect writes, not pymb log: "
+                                      "salvage copies pymb log's databases")
+            raise InvalidArgument(f"{damaged} is not a pymb database")
         result = Salvaged(header_rewritten=_repair_header(copy))
         if not _readable(copy, True):
             raise InvalidArgument(f"{damaged}: not even the list of tables can be read; "

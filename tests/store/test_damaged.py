@@ -221,6 +221,37 @@ def test_salvage_never_writes_over_a_file(intact: Path, tmp_path: Path) -> None:
     assert keep.read_bytes() == b"precious"
 
 
+def test_salvage_of_a_database_that_is_not_pymb_logs_says_whose_it_is(
+        tmp_path: Path) -> None:
+    """A readable SQLite file of another kind is named as such, not as one
+    whose "list of tables cannot be read"; it is left as it was."""
+    from pymb.collect.sqlstore import SqliteStore
+    collected = tmp_path / "fleet.sqlite"
+    SqliteStore(str(collected)).close()
+    other = tmp_path / "other.sqlite"
+    with sqlite3.connect(other) as con:
+        con.execute("CREATE TABLE notes (body TEXT)")
+    con.close()
+    for db, said in ((collected, f"{collected} is what pymb collect writes, not pymb log: "
+                                 "salvage copies pymb log's databases"),
+                     (other, f"{other} is not a pymb database")):
+        before = _digest(db)
+        r = run_pymb("salvage", str(db), str(tmp_path / "new.sqlite"))
+        assert (r.returncode, r.stdout, r.stderr) == (2, "", f"pymb salvage: {said}\n")
+        assert _digest(db) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fleet.sqlite", "other.sqlite"]
+
+
+def test_salvage_into_a_folder_name_writes_no_file(intact: Path, tmp_path: Path) -> None:
+    """NEW given as a folder that does not exist yet (``rescued/``) is refused,
+    not written as a file named ``rescued``."""
+    r = run_pymb("salvage", str(intact), str(tmp_path / "rescued") + "/")
+    assert (r.returncode, r.stdout) == (2, "")
+    assert r.stderr == (f"pymb salvage: {tmp_path / 'rescued'}/ names a folder; give the new "
+                        "database's file name\n")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("how", list(DAMAGES))
 def test_export_and_info_read_what_can_be_read_and_say_what_was_skipped(
         intact: Path, tmp_path: Path, how: str) -> None:
