@@ -152,6 +152,31 @@ IMAGES: dict[str, tuple[dict[int, list[int]], dict[str, Any]]] = {
         "phase_angle_deg": 12.0, "frequency_hz": 50.0, "total_active_energy_kwh": 1234.5,
         "total_reactive_energy_kvarh": 12.5,
     }),
+    # Eastron SDM72D-M (mbmd sdm72.go, bbossink/SDM72D-M sdm72d-m.py): FC 04 floats; the
+    # resettable energies at 0180h..0186h, import/export power at 0500h/0502h
+    "eastron-sdm72d-m": ({
+        0x0034: f32(-1520.0), 0x0048: f32(1234.5), 0x004A: f32(67.5), 0x0156: f32(1302.0),
+        0x0180: f32(12.5), 0x0184: f32(10.0), 0x0186: f32(2.5), 0x0500: f32(0.0),
+        0x0502: f32(1520.0),
+    }, {
+        "total_active_power_w": -1520.0, "import_active_energy_kwh": 1234.5,
+        "export_active_energy_kwh": 67.5, "total_active_energy_kwh": 1302.0,
+        "resettable_total_active_energy_kwh": 12.5, "resettable_import_active_energy_kwh": 10.0,
+        "resettable_export_active_energy_kwh": 2.5, "total_import_active_power_w": 0.0,
+        "total_export_active_power_w": 1520.0,
+    }),
+    # Eastron SDM630 (mbmd sdm.go): totals 0034h..003Eh, phase angle 0042h, THD 00EAh..00F8h
+    "eastron-sdm630": ({
+        0x0034: f32(2934.6), 0x0038: f32(3000.0), 0x003C: f32(624.0), 0x003E: f32(0.978),
+        0x0042: f32(12.0), 0x0046: f32(50.0), 0x00EA: f32(2.5), 0x00F8: f32(2.25),
+        0x0156: f32(1234.5), 0x0158: f32(12.5),
+    }, {
+        "total_active_power_w": 2934.6, "total_apparent_power_va": 3000.0,
+        "total_reactive_power_var": 624.0, "total_power_factor": 0.978,
+        "total_phase_angle_deg": 12.0, "frequency_hz": 50.0, "l1_voltage_thd_pct": 2.5,
+        "average_voltage_thd_pct": 2.25, "total_active_energy_kwh": 1234.5,
+        "total_reactive_energy_kvarh": 12.5,
+    }),
     # CHINT DTSU666 (mbmd dtsu666.go): floats in 0.1 V, 0.001 A, 0.1 W, 0.01 Hz; kWh as is
     "chint-dtsu666": ({
         0x2006: f32(2305.0), 0x200C: f32(4250.0), 0x2012: f32(15000.0),
