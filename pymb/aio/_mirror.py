@@ -31,24 +31,35 @@ class Mirrored(abc.ABC):
     @abc.abstractmethod
     def _submit(self, fn: Callable[P, R], /, *args: P.args,
                 **kwargs: P.kwargs) -> Awaitable[R]:
-        """Run ``fn(*args, **kwargs)`` on the line's worker."""
+        """Run ``fn(*args, **kwargs)``, a request, on the line's worker."""
+
+    def _submit_setting(self, fn: Callable[P, R], /, *args: P.args,
+                        **kwargs: P.kwargs) -> Awaitable[R]:
+        """Run ``fn(*args, **kwargs)``, a setting, on the line's worker (a
+        close() does not drop it)."""
+        return self._submit(fn, *args, **kwargs)
 
 
-def _coroutine(name: str) -> FunctionType:
-    async def method(self: Mirrored, /, *args: object, **kwargs: object) -> object:
-        return await self._submit(getattr(self.blocking, name), *args, **kwargs)
+def _coroutine(name: str, setting: bool) -> FunctionType:
+    if setting:
+        async def method(self: Mirrored, /, *args: object, **kwargs: object) -> object:
+            return await self._submit_setting(getattr(self.blocking, name), *args, **kwargs)
+    else:
+        async def method(self: Mirrored, /, *args: object, **kwargs: object) -> object:
+            return await self._submit(getattr(self.blocking, name), *args, **kwargs)
     assert isinstance(method, FunctionType)  # an async def is a function object
     return method
 
 
 class Mirror(Generic[S, P, R]):
     """A blocking method (``Class.method``, of a class ``S``) as a coroutine
-    method of the same name that runs it on the line's worker."""
+    method of the same name that runs it on the line's worker; ``setting``:
+    it changes a setting and uses no line (a close() leaves it queued)."""
 
-    def __init__(self, method: Callable[Concatenate[S, P], R]) -> None:
+    def __init__(self, method: Callable[Concatenate[S, P], R], *, setting: bool = False) -> None:
         self.method = method
         self.name: str = method.__name__
-        fn = _coroutine(self.name)
+        fn = _coroutine(self.name, setting)
         fn.__name__ = self.name
         fn.__doc__ = method.__doc__
         fn.__dict__["__signature__"] = inspect.signature(method)

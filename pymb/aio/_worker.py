@@ -11,6 +11,11 @@ back to the future's loop with ``call_soon_threadsafe``: the loop never
 waits on the wire, a descriptor or the client's lock (only, for
 microseconds, on the lock that starts and ends the worker thread).
 
+A request (:meth:`LineWorker.request`, not a setting or the life cycle's
+:meth:`LineWorker.submit`) queued when :meth:`LineWorker.cut` is called
+(a close()) never runs: its future gets a ModbusConnectionError; the one
+running then is stopped on the line (within 50 ms).
+
 The thread starts with the first job and ends as soon as it has nothing to
 do and the line is closed, so a closed client holds no thread.
 """
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import queue
 import threading
 from collections.abc import Callable
@@ -26,6 +32,8 @@ from functools import partial
 from typing import ParamSpec, TypeVar
 
 from pymb.client import Client
+from pymb.client.core import stop_waiting
+from pymb.errors import ModbusConnectionError
 
 __all__ = ["LineWorker"]
 
@@ -62,17 +70,45 @@ class LineWorker:
         self._thread: threading.Thread | None = None
         self._ended: threading.Thread | None = None  # the last thread that ended
         self.started = 0  #: worker threads started so far
+        self._queued = 0  # requests queued so far
+        self._cut = 0  # requests queued before the last cut(): never run
+        self._running = False  # a job runs on the worker now
 
     def submit(self, fn: Callable[P, R], /, *args: P.args,
                **kwargs: P.kwargs) -> asyncio.Future[R]:
         """Queue ``fn(*args, **kwargs)`` behind the line's other jobs; the
-        returned future (of the running loop) gets its result or exception."""
+        returned future (of the running loop) gets its result or exception.
+        For the life cycle and settings: a :meth:`cut` leaves it queued."""
+        return self._submit(None, fn, *args, **kwargs)
+
+    def request(self, fn: Callable[P, R], /, *args: P.args,
+                **kwargs: P.kwargs) -> asyncio.Future[R]:
+        """:meth:`submit` for a call that uses the line: a :meth:`cut` before
+        its turn fails it unrun."""
+        self._queued += 1
+        return self._submit(self._queued, fn, *args, **kwargs)
+
+    def cut(self) -> None:
+        """A close() is coming (from the loop): the requests queued now never
+        run, and the job running now is stopped on the line (its wait ends
+        within 50 ms with :class:`~pymb.ModbusConnectionError`)."""
+        self._cut = self._queued
+        if self._running:
+            stop_waiting(self.blocking)
+
+    def _submit(self, seq: int | None, fn: Callable[P, R], /, *args: P.args,
+                **kwargs: P.kwargs) -> asyncio.Future[R]:
         loop = asyncio.get_running_loop()
         fut: asyncio.Future[R] = loop.create_future()
 
         def job() -> _Outcome | None:
             if fut.cancelled():
                 return None  # cancelled before it started: nothing was sent
+            if seq is not None and seq <= self._cut:
+                port = self.blocking.port
+                return loop, partial(_fail, fut, ModbusConnectionError(
+                    f"{port}: the client was closed before this request's turn",
+                    errno=errno.ECANCELED, port=port))
             try:
                 value = fn(*args, **kwargs)
             except StopIteration as e:  # a future cannot hold one
@@ -125,7 +161,11 @@ class LineWorker:
         jobs = self._jobs
         while True:
             job = jobs.get()  # waits in C, the GIL released, while the line is open
-            outcome = job()
+            self._running = True
+            try:
+                outcome = job()
+            finally:
+                self._running = False
             del job  # hold no request, reply or traceback while idle
             # Decided before the result goes out, so whoever awaited it
             # (close()) can join the thread.

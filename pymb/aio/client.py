@@ -22,8 +22,10 @@ the line's quiet-window rule holds the next one back until the line has been
 silent. A cancelled ``read_*_into`` (or a sweep ``into`` a reading) may
 still fill its buffer until then.
 
-Shutdown: :meth:`AsyncClient.close` closes the line and ends the worker.
-An open client also ends when its event loop shuts down (``asyncio.run``,
+Shutdown: :meth:`AsyncClient.close` closes the line and ends the worker;
+the request on the line ends at once and those queued before the close
+never go out (their awaits raise :class:`~pymb.ModbusConnectionError`).
+An open client also ends so when its event loop shuts down (``asyncio.run``,
 ``asyncio.Runner``): a small guard task on the loop closes the line when the
 loop cancels its tasks. Nothing outlives it: no thread, no descriptor, no
 port lock.
@@ -66,6 +68,7 @@ async def _guard(line: LineWorker, closed: asyncio.Future[None]) -> None:
     try:
         await closed
     except asyncio.CancelledError:
+        line.cut()  # the request on the wire: its await was cancelled too
         await line.submit(line.blocking.close)
         line.join_ended()
         raise
@@ -167,9 +170,12 @@ class AsyncClient(Mirrored):
             raise
 
     async def close(self) -> None:
-        """Close the line (after the request on it, if any) and end the
-        worker thread; safe to call more than once. The close is done even
-        when this await is cancelled (only the wait for it ends)."""
+        """Close the line and end the worker thread; safe to call more than
+        once. The request on the line ends at once (within 50 ms) and those
+        queued before this close never go out: their awaits raise
+        :class:`~pymb.ModbusConnectionError`. The close is done even when
+        this await is cancelled (only the wait for it ends)."""
+        self._worker.cut()
         done = self._worker.submit(self.blocking.close)
         guard = self._guard
         try:
@@ -193,7 +199,7 @@ class AsyncClient(Mirrored):
         if guard is not None and guard.get_loop() is asyncio.get_running_loop():
             await asyncio.wait((guard,))
 
-    ensure_connected = Mirror(Client.ensure_connected)
+    ensure_connected = Mirror(Client.ensure_connected, setting=True)
 
     async def __aenter__(self) -> Self:
         await self.connect()
@@ -229,6 +235,10 @@ class AsyncClient(Mirrored):
 
     def _submit(self, fn: Callable[P, R], /, *args: P.args,
                 **kwargs: P.kwargs) -> asyncio.Future[R]:
+        return self._worker.request(fn, *args, **kwargs)
+
+    def _submit_setting(self, fn: Callable[P, R], /, *args: P.args,
+                        **kwargs: P.kwargs) -> asyncio.Future[R]:
         return self._worker.submit(fn, *args, **kwargs)
 
     async def run(self, fn: Callable[P, R], /, *args: P.args, **kwargs: P.kwargs) -> R:
@@ -240,7 +250,7 @@ class AsyncClient(Mirrored):
         end and its result is dropped."""
         if not callable(fn):
             raise InvalidArgument(f"run needs a function to call, got {type(fn).__name__}")
-        return await self._worker.submit(fn, *args, **kwargs)
+        return await self._worker.request(fn, *args, **kwargs)
 
     # -- settings ----------------------------------------------------------------------
 
@@ -260,7 +270,7 @@ class AsyncClient(Mirrored):
         in turn with the requests)."""
         return self.blocking.timeout
 
-    set_timeout = Mirror(Client.set_timeout)
+    set_timeout = Mirror(Client.set_timeout, setting=True)
 
     # -- requests: the blocking client's, on the worker --------------------------------
 
@@ -269,7 +279,7 @@ class AsyncClient(Mirrored):
     read_holding_registers_into = Mirror(Client.read_holding_registers_into)
     read_input_registers_into = Mirror(Client.read_input_registers_into)
     read_registers_prepared = Mirror(Client.read_registers_prepared)
-    swap_response_timeout_prepared = Mirror(Client.swap_response_timeout_prepared)
+    swap_response_timeout_prepared = Mirror(Client.swap_response_timeout_prepared, setting=True)
     run_read_plan = Mirror(Client.run_read_plan)
     write_register = Mirror(Client.write_register)
     write_registers = Mirror(Client.write_registers)
@@ -340,7 +350,7 @@ class AsyncRtuClient(_AsyncSerialBase):
             byte_timeout=byte_timeout, serial_mode=serial_mode, rts=rts, rts_delay=rts_delay,
             reject_early=reject_early))
 
-    set_rs485 = Mirror(RtuClient.set_rs485)
+    set_rs485 = Mirror(RtuClient.set_rs485, setting=True)
 
 
 class _AsyncTcpBase(AsyncClient):
