@@ -96,6 +96,16 @@ class AsyncCoolPro(_Facade):
         super().__init__(client)
         self.blocking = CoolPro(client.blocking, address)
 
+    @property
+    def address(self) -> int:
+        """The device address this object talks to; a new value (checked at
+        once) applies to the calls not yet started, as the client's ``slave``."""
+        return self.blocking.address
+
+    @address.setter
+    def address(self, address: int) -> None:
+        self.blocking.address = address
+
     read_telemetry = Mirror(CoolPro.read_telemetry)
     read_identity = Mirror(CoolPro.read_identity)
     read_config = Mirror(CoolPro.read_config)

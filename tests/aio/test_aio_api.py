@@ -57,6 +57,27 @@ def test_every_public_method_is_mirrored_with_its_signature(blocking: type, aio:
     assert extra - set(_public(blocking)) <= ASYNC_ONLY, extra - set(_public(blocking))
 
 
+#: Settings the blocking client sets at once, under its lock, that an async
+#: client changes in turn with its requests instead (docs/asyncio.md: ``await
+#: client.set_timeout(...)``): assigning from the loop would block it.
+READ_ONLY_ON_AIO = {"timeout"}
+
+
+@pytest.mark.parametrize(("blocking", "aio"), PAIRS, ids=lambda c: c.__name__)
+def test_every_public_name_is_documented_and_settable_as_its_twin(
+        blocking: type, aio: type) -> None:
+    assert inspect.getdoc(aio), aio.__name__
+    for name, member in _public(aio).items():
+        target = member.fget if isinstance(member, property) else member
+        if callable(target):
+            assert inspect.getdoc(target), f"{aio.__name__}.{name}"
+    for name, member in _public(blocking).items():
+        if isinstance(member, property) and member.fset is not None:
+            twin = getattr(aio, name)
+            settable = twin.fset is not None
+            assert settable == (name not in READ_ONLY_ON_AIO), f"{aio.__name__}.{name}"
+
+
 @pytest.mark.parametrize(("blocking", "aio"), PAIRS, ids=lambda c: c.__name__)
 def test_constructors_take_the_same_arguments(blocking: type, aio: type) -> None:
     want = list(inspect.signature(blocking).parameters.values())

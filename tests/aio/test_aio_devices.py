@@ -38,6 +38,12 @@ def test_coolpro_reads_and_configures(pymb_simulator: Callable[..., Simulator]) 
             assert (await cp.read_config()).address == 41
             with pytest.raises(pymb.InvalidArgument, match="baud rate"):
                 await cp.set_baud_rate(1234)
+            # Told where a device is, as the blocking CoolPro can be.
+            other = AsyncCoolPro(c, 40)
+            with pytest.raises(pymb.InvalidArgument):
+                other.address = 0
+            other.address = 41
+            assert (await other.read_config()).address == 41
 
     asyncio.run(main())
 
