@@ -145,13 +145,13 @@ class PtyPeerBase(ThreadedPeer):
 
 
 class TcpPeerBase(ThreadedPeer):
-    """A TCP server on 127.0.0.1 (an ephemeral port: ``address``, ``port``)
+    """A TCP server on 127.0.0.1 (``port``, or an ephemeral one: ``address``, ``port``)
     serving one connection at a time: each request ``split`` out of the
     stream gets ``answer(request)``, each piece sent after its delay."""
 
-    def __init__(self) -> None:
+    def __init__(self, port: int = 0) -> None:
         super().__init__()
-        self._sock = socket.create_server(("127.0.0.1", 0))
+        self._sock = socket.create_server(("127.0.0.1", port))
         self._sock.settimeout(0.05)
         self.address: tuple[str, int] = self._sock.getsockname()
         self.port = self.address[1]

@@ -47,8 +47,8 @@ class RawTcp(TcpPeerBase):
     segment received (the client writes an RTU frame at once); ``requests``
     keeps them all."""
 
-    def __init__(self, script: Script, *, rtu_frames: bool = False) -> None:
-        super().__init__()
+    def __init__(self, script: Script, *, rtu_frames: bool = False, port: int = 0) -> None:
+        super().__init__(port)
         self.script = script
         self.rtu_frames = rtu_frames
         self.requests: list[bytes] = []
