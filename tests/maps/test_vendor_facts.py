@@ -177,6 +177,20 @@ IMAGES: dict[str, tuple[dict[int, list[int]], dict[str, Any]]] = {
         "average_voltage_thd_pct": 2.25, "total_active_energy_kwh": 1234.5,
         "total_reactive_energy_kvarh": 12.5,
     }),
+    # STIEBEL ELTRON ISG (openHAB modbus.stiebeleltron SystemInformationBlockAllWpmParser: the
+    # block from register 501 sent as 500; evcc stiebel-wpm: hot water at 521, buffer at 517
+    # on the wire): 0.1 °C, 0.01 bar, 0.1 l/min, 8000h for a sensor not fitted
+    "stiebel-eltron-isg": ({
+        500: [0x8000], 506: [0xFFE8], 507: [215], 508: [220], 512: [352], 514: [350],
+        515: [301], 517: [402], 519: [185], 520: [123], 521: [487], 522: [500],
+    }, {
+        "actual_temperature_fe7_c": None, "outside_temperature_c": -2.4,
+        "actual_temperature_hk1_c": 21.5, "set_temperature_hk1_c": 22.0,
+        "actual_flow_temperature_hp_c": 35.2, "actual_flow_temperature_c": 35.0,
+        "actual_return_temperature_c": 30.1, "actual_buffer_temperature_c": 40.2,
+        "heating_pressure_bar": 1.85, "flow_rate_l_min": 12.3,
+        "actual_dhw_temperature_c": 48.7, "set_dhw_temperature_c": 50.0,
+    }),
     # CHINT DTSU666 (mbmd dtsu666.go): floats in 0.1 V, 0.001 A, 0.1 W, 0.01 Hz; kWh as is
     "chint-dtsu666": ({
         0x2006: f32(2305.0), 0x200C: f32(4250.0), 0x2012: f32(15000.0),
