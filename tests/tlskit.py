@@ -11,7 +11,7 @@ import socket
 import ssl
 import subprocess
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import pytest
@@ -61,7 +61,7 @@ class TlsPeer:
     ``version`` offers that TLS version only. ``requests`` keeps every
     request, ``connections`` counts accepts."""
 
-    def __init__(self, d: Path, script: Callable[[int, bytes], list[bytes]], *,
+    def __init__(self, d: Path, script: Callable[[int, bytes], Iterable[bytes]], *,
                  close_after_reply: bool = False,
                  version: ssl.TLSVersion | None = None) -> None:
         self.ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)

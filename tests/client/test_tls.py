@@ -260,6 +260,29 @@ def test_close_from_another_thread_ends_a_tls_wait_at_once(certs: Path) -> None:
         assert list(c.read_holding_registers(0, 1)) == [1]
 
 
+def test_asyncio_cancelled_mid_reply_the_next_read_gets_its_own(certs: Path) -> None:
+    def script(i: int, adu: bytes) -> Iterator[bytes]:
+        reply = answer_read(adu, [100 + i])
+        if i == 0:  # half a record's worth now, the rest 0.3 s later
+            yield reply[:5]
+            time.sleep(0.3)
+        yield reply[5:] if i == 0 else reply
+
+    async def main(port: int) -> None:
+        async with pymb.aio.AsyncTcpClient("127.0.0.1", port, slave=1, timeout=2,
+                                           tls=_tls(certs, server_name="localhost")) as c:
+            first = asyncio.ensure_future(c.read_holding_registers(0, 1))
+            while not peer.requests:
+                await asyncio.sleep(0.005)
+            first.cancel()
+            assert list(await c.read_holding_registers(1, 1)) == [101]
+            assert c.connections == 1
+
+    with TlsPeer(certs, script) as peer:
+        asyncio.run(main(peer.port))
+        assert len(peer.requests) == 2
+
+
 def test_asyncio_twin(certs: Path, served: tuple[Served, PtyPeer]) -> None:
     s, _ = served
 
