@@ -104,7 +104,8 @@ def peer(kind: str, silent: bool) -> Iterator[Callable[..., pymb.Client]]:
                 yield lambda **kw: pymb.UdpClient("127.0.0.1", port, slave=1, retries=0, **kw)
     else:
         framing = kind == "rtu-over-tcp"
-        script = (lambda i, f: []) if silent else rtu_trickle if framing else tcp_trickle
+        script: Callable[[int, bytes], Reply] = (
+            (lambda i, f: []) if silent else rtu_trickle if framing else tcp_trickle)
         with RawTcp(script, rtu_frames=framing) as tcp:
             cls2 = pymb.RtuOverTcpClient if framing else pymb.TcpClient
             yield lambda **kw: cls2("127.0.0.1", tcp.port, slave=1, **kw)
