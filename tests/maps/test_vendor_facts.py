@@ -191,6 +191,44 @@ IMAGES: dict[str, tuple[dict[int, list[int]], dict[str, Any]]] = {
         "heating_pressure_bar": 1.85, "flow_rate_l_min": 12.3,
         "actual_dhw_temperature_c": 48.7, "set_dhw_temperature_c": 50.0,
     }),
+    # SMA Modbus profile (evcc sma-inverter-modbus: 30775 int32, 30513 uint64 Wh; an SMA
+    # STP register table for 30201 U32, 30769 S32 FIX3, 30771 S32 FIX2, 30783 U32 FIX2,
+    # 30803 U32 FIX2): big-endian, the address as sent
+    "sma-inverter": ({
+        30201: msw_first(307), 30513: msw_first(12345678, 4), 30517: msw_first(8765, 4),
+        30769: msw_first(8250), 30771: msw_first(61234), 30773: msw_first(5052),
+        30775: msw_first(4900), 30783: msw_first(23050), 30803: msw_first(5001),
+    }, {
+        "condition": 307, "total_yield_wh": 12345678, "daily_yield_wh": 8765,
+        "dc1_current_a": 8.25, "dc1_voltage_v": 612.34, "dc1_power_w": 5052,
+        "active_power_w": 4900, "l1_voltage_v": 230.5, "grid_frequency_hz": 50.01,
+    }),
+    # Huawei SUN2000 (wlcrs/huawei-solar-lib REGISTERS, evcc huawei-sun2000-hybrid): PV I16
+    # gain 10/100, powers I32 in W (the map's kW = W / 1000), grid U16 gain 10, I32 gain 1000
+    "huawei-sun2000": ({
+        30073: msw_first(10000), 32016: [6123], 32017: [825], 32064: msw_first(5052),
+        32069: [2305], 32072: msw_first(-4250), 32080: msw_first(4900),
+        32084: [0xFC2E], 32085: [5001], 32087: [0xFFEC], 32106: msw_first(1234567),
+    }, {
+        "rated_power_kw": 10.0, "pv1_voltage_v": 612.3, "pv1_current_a": 8.25,
+        "input_power_kw": 5.052, "l1_voltage_v": 230.5, "l1_current_a": -4.25,
+        "active_power_kw": 4.9, "power_factor": -0.978, "grid_frequency_hz": 50.01,
+        "internal_temperature_c": -2.0, "total_energy_kwh": 12345.67,
+    }),
+    # Sungrow SG (evcc sungrow-inverter: 5030 and 5003 on the wire, uint32 low word first)
+    "sungrow-sg": ({
+        5003: lsw_first(70000), 5030: lsw_first(4900),
+    }, {
+        "total_energy_kwh": 70000, "active_power_w": 4900,
+    }),
+    # SolaX X1 hybrid (evcc solax: input 000Ah/000Bh Powerdc1/2 uint16, 0016h battery power
+    # int16, 001Ch battery capacity uint16)
+    "solax-x1-hybrid": ({
+        0x000A: [1520], 0x000B: [980], 0x0016: [0xFC18], 0x001C: [87],
+    }, {
+        "pv1_power_w": 1520, "pv2_power_w": 980, "battery_power_w": -1000,
+        "battery_soc_pct": 87,
+    }),
     # CHINT DTSU666 (mbmd dtsu666.go): floats in 0.1 V, 0.001 A, 0.1 W, 0.01 Hz; kWh as is
     "chint-dtsu666": ({
         0x2006: f32(2305.0), 0x200C: f32(4250.0), 0x2012: f32(15000.0),
