@@ -136,11 +136,19 @@ class SqliteStore(Store):
         try:
             self.con = sqlite3.connect(path, isolation_level=None, check_same_thread=False,
                                        timeout=30)
+        except sqlite3.DatabaseError as e:
+            raise InvalidArgument(f"cannot use {path} as the collector's database: "
+                                  f"{e}") from None
+        try:
             self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=FULL")
             self.con.execute("PRAGMA cache_size=-65536")  # 64 MiB: the key's B-tree stays in memory
             self.con.executescript(SQLITE_SCHEMA)
         except sqlite3.DatabaseError as e:
+            self.close()
+            if isinstance(e, sqlite3.OperationalError) and "locked" in str(e):
+                # another program holds it and may let go: not a usage error (exit 4)
+                raise StoreDown(f"{path} is locked by another program") from None
             raise InvalidArgument(f"cannot use {path} as the collector's database: "
                                   f"{e}") from None
 

@@ -12,6 +12,7 @@ import pty
 import select
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -64,6 +65,33 @@ def test_nothing_to_reach_at_the_start_exits_4(tmp_path: Path, postgres: Postgre
                        str(tmp_path / "f.sqlite")), 4, "cannot reach the broker")
     _one_line(run_pymb("collect", "--mqtt", f"mqtt://127.0.0.1:{port}", "--out",
                        f"postgresql://pymb@127.0.0.1:{port}/pymb"), 4, "cannot connect to")
+
+
+def test_a_database_locked_by_another_program_at_the_start_exits_4(tmp_path: Path) -> None:
+    """Another process holds the collector's SQLite file locked (a rollback
+    journal's exclusive lock): after SQLite's wait, one line and exit 4, as
+    for a database that cannot be reached; not 2, which a service manager
+    does not restart. The file is left as it was."""
+    from pymb.collect.sqlstore import SqliteStore
+    db = tmp_path / "fleet.sqlite"
+    SqliteStore(str(db)).close()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", (
+            "import sqlite3, sys, time\n"
+            f"c = sqlite3.connect({str(db)!r}, isolation_level=None)\n"
+            "c.execute('PRAGMA journal_mode=DELETE')\n"
+            "c.execute('BEGIN EXCLUSIVE')\n"
+            "print('locked', flush=True)\n"
+            "sys.stdin.read()\n")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None
+        assert holder.stdout.readline() == "locked\n"
+        r = run_pymb("collect", "--mqtt", f"mqtt://127.0.0.1:{free_port()}", "--out", str(db),
+                     timeout=120)
+    finally:
+        holder.communicate(timeout=30)
+    _one_line(r, 4, f"pymb collect: {db} is locked by another program")
 
 
 def _dynamic_security() -> str:
