@@ -26,6 +26,23 @@ EX_FUNCTION = 0x01  #: what an unauthorised request is answered (Modbus/TCP Secu
 HANDSHAKE_TIMEOUT = 10.0  #: seconds a TLS client has to finish its handshake
 _TLS_CHUNK = 16384  #: the largest TLS record's plaintext
 
+#: OpenSSL's reasons a client's handshake fails for, in words (others as OpenSSL names them)
+_REFUSED = {
+    "PEER_DID_NOT_RETURN_A_CERTIFICATE": "the client gave no certificate",
+    "WRONG_VERSION_NUMBER": "the client does not speak TLS (a plain Modbus TCP client?)",
+    "HTTP_REQUEST": "an HTTP request, not TLS",
+    "UNSUPPORTED_PROTOCOL": "the client offers only TLS versions below 1.2, which are refused",
+    "NO_SHARED_CIPHER": "the client offers no cipher this server takes",
+}
+
+
+def refusal(e: ssl.SSLError) -> str:
+    """Why a client's handshake failed, in words."""
+    verify = getattr(e, "verify_message", None)
+    if verify:
+        return f"the client's certificate was refused: {verify}"
+    return _REFUSED.get(e.reason or "") or str(e.reason or e)
+
 
 @dataclass
 class UnitMap:
@@ -264,7 +281,7 @@ class _Conn(asyncio.Protocol):
         try:
             tls.feed(data, self.buf)
         except ssl.SSLError as e:
-            self._refuse(str(getattr(e, "verify_message", None) or e.reason or e))
+            self._refuse(refusal(e))
             return False
         out = tls.outgoing()
         if out and self.transport is not None:

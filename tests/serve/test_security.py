@@ -126,15 +126,30 @@ def test_a_viewer_sends_only_what_reads(certs: Path, served: tuple[Served, PtyPe
     assert _ask(operator, s.port, bytes((0x41, 1, 2))) == bytes((0xC1, 0x0B))
 
 
-@pytest.mark.parametrize("who", ["expired", "other/operator", None])
+@pytest.mark.parametrize(("who", "said"), [
+    ("expired", "the client's certificate was refused: certificate has expired"),
+    ("other/operator", "the client's certificate was refused: unable to get local issuer "
+                       "certificate"),
+    (None, "the client gave no certificate"),
+    ("plain", "the client does not speak TLS (a plain Modbus TCP client?)"),
+])
 def test_bad_client_certificates_are_refused_with_one_line(
-        certs: Path, served: tuple[Served, PtyPeer], who: str | None) -> None:
+        certs: Path, served: tuple[Served, PtyPeer], who: str | None, said: str) -> None:
+    """Each refusal is one line that says why in words, not OpenSSL's codes."""
     s, _ = served
-    ctx = _context(certs, str(certs / who) if who else None)
-    with pytest.raises((ssl.SSLError, ConnectionError, OSError)):
-        _ask(ctx, s.port, read_pdu(0, 1))
+    if who == "plain":  # a Modbus TCP client at the TLS port
+        with socket.create_connection(("127.0.0.1", s.port), timeout=10) as raw:
+            raw.sendall(mbap(7, 1, read_pdu(0, 1)))
+            assert raw.recv(4096) == b""
+    else:
+        ctx = _context(certs, str(certs / who) if who else None)
+        with pytest.raises((ssl.SSLError, ConnectionError, OSError)):
+            _ask(ctx, s.port, read_pdu(0, 1))
     wait_until(lambda: any("TLS refused" in line for line in s.stderr_lines),
                lambda: f"the refusal line (stderr: {s.stderr_lines})")
+    refused = [line for line in s.stderr_lines if "TLS refused" in line]
+    assert len(refused) == 1
+    assert refused[0].endswith(f": TLS refused: {said}"), refused
     assert not any("Traceback" in line for line in s.stderr_lines)
     # the others are still served
     assert _ask(_context(certs, "viewer"), s.port, read_pdu(1, 1)) == bytes((3, 2, 0, 7))
