@@ -217,7 +217,9 @@ int pymb_read_plan(pymb_line *line, const pymb_plan_request *reqs, size_t n, uin
 extern "Python" int pymb_py_interrupted(void *arg);
 /* Every line's hook (the extension's, below): its Link's stop flag, then `then`. */
 typedef int... sig_atomic_t;
-typedef struct { volatile sig_atomic_t stop; int (*then)(void *arg); ...; } pymbi_stop;
+typedef struct {
+    volatile sig_atomic_t stop; int (*then)(void *arg); unsigned long main_thread; ...;
+} pymbi_stop;
 int pymbi_stop_hook(void *arg);
 /* TLS under a line (pymb._native.tls): the line's I/O, over Python's ssl. */
 extern "Python" int pymb_py_tls_read(void *arg, uint8_t *buf, int n);
@@ -243,23 +245,29 @@ SOURCE = """
 #include "pymb_internal.h"
 #include "pymb_serve.h"
 #include "pymb_loop.h"
+#include <pthread.h>
 #include <signal.h>
 
 /* A line's interrupt hook (pymb_line_set_interrupt), arg a pymbi_stop its
  * Link owns: `stop`, set from any thread (Link.stop: a close() while a
  * request waits), ends the wait within PYMB_INTERRUPT_SLICE_US with EINTR;
- * `then`, when set, is asked next (pymb_py_interrupted: Python's signal
- * handlers, on a line opened in the main thread). No Python is called on
- * other threads' lines. */
+ * `then` (pymb_py_interrupted: Python's signal handlers) is asked next, but
+ * only when the waiting thread is `main_thread` (Python's main thread, whose
+ * identifier is its pthread_self()): signal handlers run there alone, and a
+ * daemon thread's call could meet the interpreter's shutdown. Whichever
+ * thread opened the line. */
 typedef struct {
     volatile sig_atomic_t stop;
     int (*then)(void *arg);
+    unsigned long main_thread;
 } pymbi_stop;
 
 static int pymbi_stop_hook(void *arg)
 {
     const pymbi_stop *s = arg;
-    return s->stop != 0 || (s->then != NULL && s->then(NULL) != 0);
+    return s->stop != 0 || (s->then != NULL &&
+                            (unsigned long)pthread_self() == s->main_thread &&
+                            s->then(NULL) != 0);
 }
 """
 

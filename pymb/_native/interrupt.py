@@ -1,10 +1,10 @@
-"""What stops a line's wait: Python's signal handlers (Ctrl-C) on a line
-opened in the main thread, and :meth:`LineStop.stop` from any thread (a
+"""What stops a line's wait: Python's signal handlers (Ctrl-C) in a wait
+in the main thread, and :meth:`LineStop.stop` from any thread (a
 close() while a request waits). Both reach C through one interrupt hook,
 ``pymbi_stop_hook`` (pymb_line_set_interrupt), which C calls when poll() is
 interrupted by a signal and at least every PYMB_INTERRUPT_SLICE_US (50 ms)
-of waiting: it reads the line's stop flag, then, on the main thread's lines
-only, calls :func:`pymb_py_interrupted`.
+of waiting: it reads the line's stop flag, then, in the main thread only
+(whichever thread opened the line), calls :func:`pymb_py_interrupted`.
 """
 
 from __future__ import annotations
@@ -57,13 +57,13 @@ class LineStop:
 
     def arm(self, line: Any) -> None:
         """Give a line just opened the hook, the flag down. Python runs
-        signal handlers in the main thread only: a line opened in another
-        thread would call in for nothing, and a daemon thread's call could
-        meet the interpreter's shutdown, so there the hook reads the flag
-        alone, in C."""
+        signal handlers in the main thread only: a wait in another thread
+        would call in for nothing, and a daemon thread's call could meet the
+        interpreter's shutdown, so there the hook reads the flag alone, in C
+        (whichever thread opened the line)."""
         self.c.stop = 0
-        self.c.then = (lib.pymb_py_interrupted
-                       if threading.current_thread() is threading.main_thread() else ffi.NULL)
+        self.c.then = lib.pymb_py_interrupted
+        self.c.main_thread = threading.main_thread().ident or 0
         lib.pymb_line_set_interrupt(line, _stop_hook, self.c)
 
     def stop(self) -> None:
