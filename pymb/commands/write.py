@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import struct
+import sys
 from typing import Any
 
 from pymb import maps
@@ -136,13 +137,21 @@ def run(args: argparse.Namespace) -> int:
             print(r.describe())
         return 0
     items = [(n, None, v) for n, v in values.items()]
+    opened: list[bool] = []
 
     def io() -> list[Outcome]:
         with client:
+            opened.append(True)
             return dev.write_points(items, verify=not args.no_verify, before=True)
 
     try:
         outcomes = interruptible(io)
+    except KeyboardInterrupt:  # exit 130; say what the device may hold now
+        it = "it" if len(values) == 1 else "them"
+        print("pymb write: interrupted; " + (
+            f"{', '.join(values)} may or may not have been written: read {it} to know"
+            if opened else "nothing was sent"), file=sys.stderr)
+        raise
     except WriteNotApplied as e:
         for o in e.outcomes:
             print(_line(m, o))

@@ -7,13 +7,15 @@ pty). Output lines ``POINT: BEFORE -> AFTER UNIT``; exit codes 0/2/3/4;
 
 from __future__ import annotations
 
+import signal
 import socket
 import struct
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import run_pymb
+from conftest import PYMB, PYMB_ENV, run_pymb
 from wire_peers import build_libmodbus_server, libmodbus_server, pymodbus_server
 from write_peers import WRITE_MAP, FreezingPtyPeer, FreezingTcpPeer
 
@@ -136,6 +138,29 @@ def test_a_name_close_to_nothing_lists_the_writable_points(map_file: str) -> Non
     r = run_pymb("write", "hub:1", "speed=3", "--tcp", "127.0.0.1:1", "--dry-run")
     assert (r.returncode, r.stdout, r.stderr) == (
         2, "", "pymb write: hub: no point 'speed'; it has no writable point\n")
+
+
+@pytest.mark.ctrl_c
+def test_ctrl_c_once_the_line_is_open_says_the_value_may_be_written(map_file: str) -> None:
+    """Ctrl-C while the device is silent: exit 130 and one line saying the
+    points may or may not have been written, not a silence that leaves the
+    user guessing what the device holds."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        server.settimeout(60)
+        proc = subprocess.Popen(
+            [*PYMB, "write", "--map", map_file, "wdev:1", "setpoint_hz=49.5", "mode=run",
+             "--tcp", f"127.0.0.1:{server.getsockname()[1]}", "--timeout", "30"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=PYMB_ENV)
+        conn, _ = server.accept()  # the line is open; the device answers nothing
+        with conn:
+            assert conn.recv(260)  # the read before the write
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=30)
+    assert (proc.returncode, out) == (130, "")
+    assert err == ("pymb write: interrupted; setpoint_hz, mode may or may not have been "
+                   "written: read them to know\n")
 
 
 def test_unknown_device_type_exits_2(map_file: str) -> None:
