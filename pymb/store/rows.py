@@ -10,6 +10,7 @@ import operator
 import sqlite3
 from array import array
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from pymb import maps
@@ -23,8 +24,9 @@ from pymb.store.reader import HubRow
 from pymb.store.records import DeviceInfo, Event, Sample
 from pymb.store.schema import FORMAT1_LAYOUT, map_layout_key, unsupported_mask, wire_bytes
 
-__all__ = ["ROWS_PER_INSERT", "DeviceIds", "block_rows", "bound_registers", "channel_rows",
-           "humidity_units", "insert_rows", "sample_rows", "stored_registers", "unsupported_of"]
+__all__ = ["ROWS_PER_INSERT", "BoundRows", "DeviceIds", "block_binds", "block_rows",
+           "bound_registers", "channel_rows", "humidity_units", "insert_block_rows", "insert_rows",
+           "sample_rows", "stored_registers", "unsupported_of"]
 
 #: Rows one multi-row INSERT of samples carries at most (6 values each, far
 #: below SQLite's limit of bound variables).
@@ -38,6 +40,44 @@ def insert_rows(n: int) -> str:
     registers, unsupported)."""
     return ("INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
             "VALUES " + ", ".join(["(?, ?, ?, ?, ?, ?)"] * n))
+
+
+@functools.lru_cache(maxsize=ROWS_PER_INSERT)
+def insert_block_rows(n: int) -> str:
+    """The INSERT of ``n`` sample rows of a block's polls, none of which
+    refused a point: ``?1`` the first row's id, ``?2`` the block's clock
+    (:attr:`PollBlock.clock <pymb.store.block.PollBlock.clock>`), then 3
+    values a row (device id, monotonic time, registers). SQLite makes the
+    rest of each row: its id (``?1`` plus the row's place), its wall time
+    (the clock plus its monotonic time: the same IEEE addition of the same
+    two doubles as :func:`block_rows` makes) and an ``unsupported`` of 0."""
+    return ("INSERT INTO samples(id, device_id, time_utc, monotonic, registers, unsupported) "
+            "VALUES " + ", ".join(f"(?1 + {k}, ?{3 * k + 3}, ?2 + ?{3 * k + 4}, ?{3 * k + 4}, "
+                                  f"?{3 * k + 5}, 0)" for k in range(n)))
+
+
+@dataclass
+class BoundRows:
+    """Rows of ``samples`` as the writer binds them, in multi-row INSERTs:
+    ``flat`` their values, 6 a row (:func:`insert_rows`), or with a
+    ``clock`` 3 a row after the first id and the clock
+    (:func:`insert_block_rows`); ``sizes`` each row's bytes of registers."""
+
+    flat: list[object]
+    sizes: list[int]
+    clock: float | None = None
+    first: int = 0  #: (with a clock) the first row's id
+
+    def statement(self, i: int, k: int) -> tuple[str, list[object]]:
+        """The INSERT of rows ``i`` to ``i + k`` and its values."""
+        if self.clock is None:
+            return insert_rows(k), self.flat[6 * i:6 * (i + k)]
+        return insert_block_rows(k), [self.first + i, self.clock, *self.flat[3 * i:3 * (i + k)]]
+
+    def starting(self, first: int) -> BoundRows:
+        """These rows, their ids from ``first`` on."""
+        self.first = first
+        return self
 
 
 def stored_registers(data: MapReading, size: int = 0) -> bytes:
@@ -61,8 +101,7 @@ def bound_registers(data: MapReading, size: int = 0) -> bytearray:
     return bytearray(stored_registers(data, size))
 
 
-def sample_rows(samples: Sequence[Sample], first: int, ids: DeviceIds
-                ) -> tuple[list[object], list[int]]:
+def sample_rows(samples: Sequence[Sample], first: int, ids: DeviceIds) -> BoundRows:
     """The ``samples`` table's rows of ``samples`` (ids from ``first`` on,
     devices' ids from ``ids``) as :func:`insert_rows` binds them, 6 values a
     row one after the other, and each row's bytes of registers."""
@@ -81,10 +120,10 @@ def sample_rows(samples: Sequence[Sample], first: int, ids: DeviceIds
         flat.extend((sid, did, s.time_utc, s.monotonic, blob,
                      unsupported_of(data) if data.unsupported else 0))
         sid += 1
-    return flat, sizes
+    return BoundRows(flat, sizes)
 
 
-def block_rows(block: PollBlock, first: int, ids: DeviceIds) -> tuple[list[object], list[int]]:
+def block_rows(block: PollBlock, first: int, ids: DeviceIds) -> BoundRows:
     """:func:`sample_rows` of a block of polls, bound straight from its
     columns: the same rows its :meth:`~pymb.store.block.PollBlock.samples`
     would give."""
@@ -107,7 +146,30 @@ def block_rows(block: PollBlock, first: int, ids: DeviceIds) -> tuple[list[objec
         flat.extend((sid, did, clock + mono, mono, blob, unsupported_mask(
             how.map, how.group, how.unsupported(gone)) if gone else 0))
         sid += 1
-    return flat, list(map(operator.sub, ends, offs))
+    return BoundRows(flat, list(map(operator.sub, ends, offs)))
+
+
+def block_binds(block: PollBlock, ids: DeviceIds) -> BoundRows | None:
+    """The rows of :func:`block_rows`, 3 values a row as
+    :func:`insert_block_rows` binds them (no id, wall time or ``unsupported``
+    object a row: SQLite makes them), when that is how they go: no poll
+    refused a point, each device's ids known (:attr:`DeviceIds.by_source`,
+    its first block's :func:`block_rows` finds them), no registers to pad
+    (format 1's layout). None otherwise."""
+    if block.unread is not None:
+        return None
+    data = bytearray(block.data)  # (a slice of it is a bytearray: one object a row)
+    offs = block.offs
+    ends = [*offs[1:], len(data)]
+    known = ids.by_source.get
+    flat: list[object] = []
+    add = flat.extend
+    for src, mono, a, b in zip(block.sources, block.monos, offs, ends, strict=True):
+        got = known(src)
+        if got is None or got[1]:
+            return None
+        add((got[0], mono, data[a:b]))
+    return BoundRows(flat, list(map(operator.sub, ends, offs)), block.clock)
 
 
 def channel_rows(data: MapReading, pick: Iterable[int]) -> list[HubRow]:

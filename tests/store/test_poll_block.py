@@ -23,6 +23,7 @@ from pymb.service.clock import restamped
 from pymb.store import DeviceInfo, OnChange, Sample, SinkBase, SinkWrapper, SqliteSink
 from pymb.store.block import PollBlock, PollSource
 from pymb.store.records import Event
+from pymb.store.rows import block_binds
 
 TEXT = """schema = "pymb.map/1"
 [device]
@@ -124,6 +125,45 @@ def test_a_size_limit_commits_within_a_block_where_it_would_within_its_samples(
     got, want = _both(tmp_path, block, bounded)
     assert got == want
     assert sum(r.startswith('INSERT INTO "samples"') for r in got) == 200
+
+
+def _rows(db: Path) -> list[tuple[object, ...]]:
+    """The ``samples`` rows as SQLite gives them back (floats compared exactly)."""
+    con = sqlite3.connect(db)
+    try:
+        return con.execute("SELECT *, typeof(time_utc), typeof(monotonic) FROM samples "
+                           "ORDER BY id").fetchall()
+    finally:
+        con.close()
+
+
+@pytest.mark.parametrize("limit", [None, 2_000_000])
+@pytest.mark.parametrize("refused", [False, True])
+def test_a_later_blocks_rows_bound_three_a_row_are_its_samples_rows(
+        tmp_path: Path, limit: int | None, refused: bool) -> None:
+    """Once its devices are known, a block none of whose polls refused a
+    point is bound 3 values a row (block_binds: SQLite makes the id, the
+    wall time and the unsupported column): the same rows, to the bit."""
+    first = _block(random.Random(16), 6, False)
+    then = _block(random.Random(17), 150, refused, first.sources)
+
+    def sink(path: Path) -> SqliteSink:
+        made = SqliteSink(path, max_bytes=limit)
+        made.wal_budget = 16_000  # (with a limit: commits within the block)
+        return made
+
+    a, b = sink(tmp_path / "block.db"), sink(tmp_path / "samples.db")
+    for blk in (first, then):
+        assert (block_binds(blk, a._device_ids) is not None) == (blk is then and not refused)
+        a.write_block(blk)
+        b.write_batch(blk.samples())
+    a.close()
+    b.close()
+    assert _dump(tmp_path / "block.db") == _dump(tmp_path / "samples.db")
+    got = _rows(tmp_path / "block.db")
+    assert got == _rows(tmp_path / "samples.db")
+    assert len(got) == 156
+    assert {r[-2:] for r in got} == {("real", "real")}
 
 
 def test_on_change_storage_takes_a_block_as_its_samples(tmp_path: Path) -> None:
