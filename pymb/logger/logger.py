@@ -11,6 +11,7 @@ import queue
 import signal
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -22,11 +23,11 @@ from pymb.logger.stats import Stats
 from pymb.logger.tcploop import TcpMapPoller, fans_out
 from pymb.service.clock import ClockWatch, restamped
 from pymb.store import Event, Sample, Sink, SinkBase, as_sink, check_output, open_sink
-from pymb.store.block import PollBlock
+from pymb.store.block import PollBlock, PollSource
 
 __all__ = ["Logger", "RunSummary"]
 
-#: a sample's device's name (a block's poll's: its source's)
+#: a sample's device's name
 _DEVICE_NAME = operator.attrgetter("device.name")
 _REGISTERS = operator.attrgetter("data.registers")  #: a sample's registers
 _STOP_WAIT = 0.1  #: seconds a stopping run waits for a poller in the middle of a request
@@ -200,6 +201,9 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
         #: set by a signal handler: the run loop sees it within _DRAIN_EVERY
         self._signalled = False
         self.stats = Stats()
+        #: the polls of the blocks written since the last commit, by source
+        #: (:meth:`_count_carried` names them: a dict look-up a poll, no attribute walk)
+        self._carried: Counter[PollSource] = Counter()
         # Bounded (about 2,000 samples): pollers wait when the writer lags (a
         # flat-out poller, a bounded memory).
         self._queue: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue(
@@ -301,6 +305,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                         due = now
                     if due is not None and (pending >= self.config.commit_bytes or now >= due):
                         self.sink.commit()
+                        self._count_carried()
                         pending, due = 0, None
                         # Leave SQLite's write lock free for a moment: another
                         # writer (the MQTT forwarder's cursor) gets its turn.
@@ -339,6 +344,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     self.sink.close()
                 except OutputError as e:
                     failure = failure or e
+                self._count_carried()
         if failure is not None:
             raise failure
         elapsed = time.monotonic() - t0
@@ -384,7 +390,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                 size += self._samples(run)
                 run = []
                 self.sink.write_block(item)
-                self.stats.by_device.update(map(_DEVICE_NAME, item.sources))
+                self._carried.update(item.sources)
                 self.stats.samples += len(item)
                 size += len(item.data)
                 continue
@@ -394,6 +400,15 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             self.sink.event(item)
             self.stats.events += 1
         return size + self._samples(run), events
+
+    def _count_carried(self) -> None:
+        """The polls of the blocks written (:attr:`_carried`) counted in
+        :attr:`Stats.by_device <pymb.logger.stats.Stats.by_device>`: at each
+        commit and at the end."""
+        by_device = self.stats.by_device
+        for src, n in self._carried.items():
+            by_device[src.device.name] += n
+        self._carried.clear()
 
     def _samples(self, samples: list[Sample]) -> int:
         """Write a run of samples; their bytes of registers."""

@@ -19,7 +19,8 @@ class Stats:
     events: int = 0
     faults: int = 0
     skipped_slots: int = 0
-    by_device: Counter[str] = field(default_factory=Counter)  #: samples written, by device
+    #: samples written, by device (the TCP loop's blocks: counted at each commit)
+    by_device: Counter[str] = field(default_factory=Counter)
     #: what is wrong now, by bus or device name (empty: all is well)
     problems: dict[str, str] = field(default_factory=dict)
     opened: dict[str, bool] = field(default_factory=dict)  #: bus -> port opened at least once
