@@ -82,15 +82,20 @@ static int own_replies(const pymbi_master *m, const uint8_t *buf, size_t len)
     return 1;
 }
 
-/* Whether armed c's poll, its look over, is only slow: what came of its
- * replies so far (looked at, not read) is fewer bytes than all of them,
- * holds no exception and no impossible header (pymbi_mbap_clean), and each
- * reply is one of the poll's own (own_replies). */
+/* Whether armed c's poll, its look over, is only slow or only looked at
+ * late: what came of its replies so far (looked at, not read) is exactly as
+ * many bytes as all of them (the loop was busy when they came: the socket is
+ * ready, and this wait serves it as any other), or fewer, holding no
+ * exception and no impossible header (pymbi_mbap_clean), each reply one of
+ * the poll's own (own_replies). */
 static int still_clean(const pymbi_loop *lp, const pymbi_lconn *c)
 {
     ssize_t got = recv(c->fd, lp->rx, lp->rx_cap, MSG_PEEK | MSG_DONTWAIT);
     if (got < 0) {
         return errno == EAGAIN || errno == EWOULDBLOCK; /* nothing yet */
+    }
+    if (got > 0 && (size_t)got == c->replies) {
+        return 1; /* (epoll says it: SO_RCVLOWAT is their size) */
     }
     return got > 0 && (size_t)got < c->replies && pymbi_mbap_clean(lp->rx, (size_t)got) &&
            own_replies(c->m, lp->rx, (size_t)got);

@@ -51,8 +51,9 @@
                               disarmed; the call returns after this record */
 #define PYMBI_LOOP_LOOK 4  /* conn's poll is slower than its look and what came of its
                               replies is not clean (pymbi_mbap_clean: an exception, a bad
-                              header) or is all of them: disarmed, nothing read. (What is
-                              only slow gets another look.) */
+                              header) or is more than all of them: disarmed, nothing read.
+                              (What is only slow gets another look; all of them, come
+                              while the caller had the loop, are served as they are.) */
 
 /* One connection of the loop. The caller fills it and sets `armed` while a
  * whole poll of it is in flight whose next poll is the same requests, sent at
