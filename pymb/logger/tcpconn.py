@@ -275,8 +275,8 @@ class TcpLoopBase(threading.Thread):
                 report.answered(c.bus.name, h, src.device,
                                 src.decode.unsupported(gone) if gone else ())
         wall, mono = time.time(), time.monotonic()
-        report.block(PollBlock(at[0] + (wall - mono), at[0], sources, at, offs,
-                               bytes(self._block[:offs[-1] + size]), unread))
+        report.block(PollBlock.of(at[0] + (wall - mono), at[0], sources, at, offs,
+                                  bytes(self._block[:offs[-1] + size]), unread))
 
     def disarm(self, c: Conn) -> Times | None:
         """``c`` is the loop's again (``c.armed`` or not: the C part may have

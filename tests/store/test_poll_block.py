@@ -8,6 +8,7 @@ sample."""
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import sqlite3
 from collections.abc import Callable, Sequence
@@ -200,6 +201,17 @@ class _Taking(SinkBase):
 
     def close(self) -> None:
         pass
+
+
+def test_a_block_made_in_one_step_is_the_one_its_constructor_makes() -> None:
+    block = _block(random.Random(18), 4, True)
+    args = [getattr(block, f.name) for f in dataclasses.fields(PollBlock)]
+    made = PollBlock.of(*args)
+    assert type(made) is PollBlock
+    assert vars(made) == vars(PollBlock(*args))
+    assert made.samples() == block.samples()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        made.data = b""  # type: ignore[misc]
 
 
 def test_an_output_that_takes_samples_gets_each_polls_sample() -> None:
