@@ -229,6 +229,19 @@ IMAGES: dict[str, tuple[dict[int, list[int]], dict[str, Any]]] = {
         "pv1_power_w": 1520, "pv2_power_w": 980, "battery_power_w": -1000,
         "battery_soc_pct": 87,
     }),
+    # Growatt protocol input registers 0..124 (a reader built on protocol V1.24: Ppv 1-2 uint32
+    # 0.1 W, Pac 35-36 0.1 W, Fac 37 0.01 Hz, Vac1 38 0.1 V, Pac1 40-41 0.1 VA, Eac 53/55
+    # 0.1 kWh, work time 57-58 0.5 s, temperature 93 0.1 °C; evcc growatt-min-tlxe: 35, 55)
+    "growatt-inverter": ({
+        0: [1], 1: msw_first(34567), 35: msw_first(32100), 37: [5001], 38: [2305],
+        39: [140], 40: msw_first(32200), 53: msw_first(125), 55: msw_first(987654),
+        57: msw_first(7200), 93: [412],
+    }, {
+        "status": 1, "pv_power_w": 3456.7, "ac_power_w": 3210.0, "grid_frequency_hz": 50.01,
+        "l1_voltage_v": 230.5, "l1_current_a": 14.0, "l1_power_va": 3220.0,
+        "energy_today_kwh": 12.5, "energy_total_kwh": 98765.4, "time_total_s": 3600.0,
+        "temperature_c": 41.2,
+    }),
     # CHINT DTSU666 (mbmd dtsu666.go): floats in 0.1 V, 0.001 A, 0.1 W, 0.01 Hz; kWh as is
     "chint-dtsu666": ({
         0x2006: f32(2305.0), 0x200C: f32(4250.0), 0x2012: f32(15000.0),
