@@ -354,3 +354,15 @@ def test_the_acs580_control_words_are_the_abb_drives_state_steps(name: str, word
     assert m.encode("control_word", name) == [word]
     assert m.decode("control_word", [word]) == word
     assert 0x047E not in m.points["control_word"].values
+
+
+def test_the_v20_status_flags_follow_the_zsw_table() -> None:
+    # ZSW as Siemens' "SINAMICS V20 at S7-1200 via Modbus" (entry 63696870) lists it, quoted
+    # by FluidNC's SiemensV20 spindle: bits 4, 5 and 8 are active low, so a set bit is the
+    # inactive OFF2/OFF3 and no setpoint deviation; bit 10 is |f_act| >= P1082 (f max)
+    sw = maps.builtin("siemens-v20").points["status_word"]
+    assert dict(sw.flags) == {
+        0: "ready_to_switch_on", 1: "ready_to_run", 2: "running", 3: "fault",
+        4: "off2_inactive", 5: "off3_inactive", 6: "switch_on_inhibited", 7: "warning",
+        8: "no_setpoint_deviation", 9: "control_requested", 10: "max_frequency_reached",
+    }
