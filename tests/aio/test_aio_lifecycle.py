@@ -183,3 +183,25 @@ def test_close_on_another_loop_after_the_first_was_closed_by_hand() -> None:
         asyncio.run(c.close())  # no "Event loop is closed" from the old guard
         assert not c.connected
         assert pymb_threads() == []
+
+
+def test_close_lets_a_connect_in_progress_end_first(
+        backlogged: tuple[int, socket.socket]) -> None:
+    # Nobody answers the SYN: the connect ends at its 0.5 s timeout, and the
+    # close() asked meanwhile closes after it (nothing is left open).
+    port, _ = backlogged
+
+    async def main() -> None:
+        c = AsyncTcpClient("127.0.0.1", port, slave=1, timeout=0.5)
+        t0 = time.monotonic()
+        connecting = asyncio.ensure_future(c.connect())
+        await asyncio.sleep(0.1)
+        await c.close()
+        assert time.monotonic() - t0 >= 0.45  # the connect had its time
+        with pytest.raises(pymb.ModbusConnectionError, match="within the timeout"):
+            await connecting
+        assert not c.connected
+        assert guards() == []
+        assert pymb_threads() == []
+
+    asyncio.run(main())
