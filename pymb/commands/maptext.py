@@ -18,8 +18,21 @@ from pymb.jsonvalue import nan_to_null
 from pymb.maps import Map
 from pymb.maps.point import Point
 
-__all__ = ["indexed", "labelled_text", "map_json", "number_text", "reading_text",
+__all__ = ["indexed", "labelled_text", "map_json", "number_text", "printable", "reading_text",
            "render_map", "table_text"]
+
+
+def printable(value: object) -> str:
+    """``value`` as text for a terminal: a device's text with each character
+    that is not printable (a control character, the ESC that starts a
+    terminal's escape sequence) shown as its escape (``\\x1b``), so what a
+    device holds cannot move the cursor, clear the screen or retitle the
+    window. The data (stored, exported, JSON) keep the text as it came."""
+    text = str(value)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                   for c in text)
 
 
 def _decimals(x: float | None) -> int:
@@ -78,7 +91,7 @@ def _text(m: Map, name: str, value: Any, state: Any) -> str:
         names = [n for bit, n in sorted(p.flags.items()) if value >> bit & 1]
         text = f"0x{value:04X}" + (f" ({', '.join(names)})" if names else "")
     else:
-        text = str(value)
+        text = printable(value)
     return f"{text} {p.unit}".rstrip()
 
 
@@ -152,7 +165,7 @@ def _labelled(p: Point, value: Any, state: Any) -> str:
     elif isinstance(value, int) and p.values and value in p.values:
         text = f"{value} ({p.values[value]})"
     else:
-        text = str(value)
+        text = printable(value)
     return f"{text} {p.unit}".strip()
 
 

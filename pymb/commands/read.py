@@ -24,7 +24,7 @@ from pymb.commands._common import (
     render,
     to_json,
 )
-from pymb.commands.maptext import map_json, render_map
+from pymb.commands.maptext import map_json, printable, render_map
 from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices import CoolProIdentity
 from pymb.devices.deviceconfig import DeviceConfig
@@ -259,7 +259,7 @@ def _identity(dev: MapDevice) -> dict[str, Any]:
 
 def _identity_text(ident: dict[str, Any]) -> str:
     what = " ".join(x for x in (ident["manufacturer"], ident["model"]) if x) or ident["device"]
-    extra = ", ".join(f"{k} {v}" for k, v in ident["points"].items())
+    extra = ", ".join(f"{k} {printable(v)}" for k, v in ident["points"].items())
     return f"{'Identity':<16} {what}" + (f" ({extra})" if extra else "")
 
 

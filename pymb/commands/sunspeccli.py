@@ -12,6 +12,7 @@ from typing import Any
 
 from pymb import maps
 from pymb.commands._common import interruptible, make_client, print_json
+from pymb.commands.maptext import printable
 from pymb.devices.mapspec import MapTarget
 from pymb.devices.spec import parse_address, split_spec
 from pymb.errors import InvalidArgument
@@ -115,7 +116,7 @@ def probe(args: argparse.Namespace) -> int:
     if args.json:
         print_json(info)
         return 0
-    who = " ".join(x for x in (found.manufacturer, found.model) if x)
+    who = printable(" ".join(x for x in (found.manufacturer, found.model) if x))
     print(f"SunSpec device, unit {unit}: 'SunS' at holding {found.base}"
           + (f"; {who}" if who else ""))
     for x in info["models"]:

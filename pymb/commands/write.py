@@ -16,7 +16,7 @@ from typing import Any
 
 from pymb import maps
 from pymb.commands._common import add_connection_args, add_map_arg, interruptible, make_client
-from pymb.commands.maptext import number_text
+from pymb.commands.maptext import number_text, printable
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapspec import map_types, parse_map_device, unknown_device
 from pymb.devices.mapwrite import Outcome, resolve
@@ -100,7 +100,7 @@ def _text(p: Point, value: Any) -> str:
             return f"{value:.{p.precision}f}"
         short = f"{value:g}"  # 50 for 50.0; but 123457 for an f32's 123456.78: say its digits
         return short if _same(p, short, value) else number_text(p, value)
-    return str(value)
+    return printable(value)
 
 
 def _same(p: Point, text: str, value: float) -> bool:
