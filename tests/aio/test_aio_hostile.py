@@ -4,7 +4,7 @@ asking a silent device, a reply later than the client's timeout, a server
 that goes away and comes back. Every answer is the asker's own (each
 register reads its own address), and nothing is left behind: descriptors,
 threads and tasks are counted before and after. Real peers: a
-pseudo-terminal, TCP and UDP on 127.0.0.1."""
+pseudo-terminal (RTU and ASCII), TCP and UDP on 127.0.0.1."""
 
 from __future__ import annotations
 
@@ -48,6 +48,17 @@ def rtu_script(_: int, frame: bytes) -> Reply:
     return [(0.0, rtu(frame[:2] + registers([(address + i) & 0xFFFF for i in range(count)])))]
 
 
+def ascii_script(_: int, frame: bytes) -> Reply:
+    """rtu_script's device in Modbus ASCII ([MB-SL] 2.5.2: hex digits, LRC)."""
+    body = bytes.fromhex(frame.strip()[1:].decode())
+    if body[0] == SILENT:
+        return []
+    address, count = struct.unpack(">HH", body[2:6])
+    reply = body[:2] + registers([(address + i) & 0xFFFF for i in range(count)])
+    return [(0.0, b":" + (reply + bytes((-sum(reply) & 0xFF,))).hex().upper().encode()
+             + b"\r\n")]
+
+
 class UdpPeer(ThreadedPeer):
     """Unit 1's register N reads N over Modbus UDP, after up to 1 ms."""
 
@@ -83,6 +94,11 @@ async def client_of(kind: str) -> AsyncIterator[pymb.aio.AsyncClient]:
             c = pymb.aio.AsyncRtuClient(pty.port, 115200, slave=1, timeout=0.5)
             async with c:
                 yield c
+    elif kind == "ascii":
+        with RawPty(ascii_script) as pty:
+            c = pymb.aio.AsyncAsciiClient(pty.port, 115200, slave=1, timeout=0.5)
+            async with c:
+                yield c
     elif kind == "udp":
         with UdpPeer() as udp:
             c = pymb.aio.AsyncUdpClient("127.0.0.1", udp.port, slave=1, timeout=0.5)
@@ -101,7 +117,8 @@ def held() -> tuple[set[str], set[str]]:
     return fds(), {f"{t.name} {t.ident}" for t in threading.enumerate()}
 
 
-@pytest.mark.parametrize(("kind", "n"), [("tcp", 1000), ("udp", 1000), ("rtu", 300)])
+@pytest.mark.parametrize(("kind", "n"),
+                         [("tcp", 1000), ("udp", 1000), ("rtu", 300), ("ascii", 300)])
 def test_cancelled_requests_leave_nothing_and_never_shift_a_reply(kind: str, n: int) -> None:
     rng = random.Random(17)
 
@@ -130,7 +147,7 @@ def test_cancelled_requests_leave_nothing_and_never_shift_a_reply(kind: str, n: 
     asyncio.run(main())
 
 
-@pytest.mark.parametrize("kind", ["tcp", "udp", "rtu"])
+@pytest.mark.parametrize("kind", ["tcp", "udp", "rtu", "ascii"])
 def test_fifty_tasks_on_one_client_each_get_their_own_values(kind: str) -> None:
     async def main() -> None:
         async with client_of(kind) as c:
