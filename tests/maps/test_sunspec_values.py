@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import pytest
 import sunspec2.device as ss_device
 from sunspec_peer import (
     SKIPPED_TYPES,
@@ -142,3 +143,20 @@ def test_not_implemented_patterns_a_device_writes_its_own_way(tmp_path: Path) ->
     assert values[prefix + "AphA"] is None
     assert states[prefix + "AphA"] == "nan"
     assert values[prefix + "W"] == 100.0
+
+
+def test_a_scale_factor_outside_sunspecs_range_gives_no_value(tmp_path: Path) -> None:
+    """SunSpec's scale factors are -10..10: at the edges the value is
+    pysunspec2's; past them (a device writing 11 or -11) no value, state
+    ``no_scale``, where pysunspec2 would scale by 10^11 regardless."""
+    for sf, expected in ((10, True), (-10, True), (11, False), (-11, False)):
+        regs = model_registers(103, {"W": 3342, "W_SF": sf, "A": 7, "A_SF": sf})
+        values, states = _read(regs, tmp_path)
+        theirs = _theirs(103, regs)
+        for name in ("W", "A"):
+            ours = values[f"inverter_three_phase.{name}"]
+            if expected:
+                assert ours == pytest.approx(theirs[name] * 10.0 ** sf, rel=1e-12), (sf, name)
+            else:
+                assert ours is None, (sf, name)
+                assert states[f"inverter_three_phase.{name}"] == "no_scale"
