@@ -40,6 +40,8 @@ BASES = (40000, 0, 50000)
 MARKER = (0x5375, 0x6E53)
 _END = 0xFFFF
 _MAX_MODELS = 256
+#: The largest count tried for a refused count point (each try lays the model out).
+_MAX_COUNT = 4096
 #: The exceptions of a device that will not read some registers: asked again in parts.
 _REFUSALS = (IllegalDataAddress, IllegalDataValue)
 
@@ -165,7 +167,7 @@ def _counted(placed: Placed, refused: Sequence[int]) -> Placed:
             regs[i] = _END
             continue
         best, most = 0, -1
-        for k in range(whole + 1):
+        for k in range(min(whole, _MAX_COUNT) + 1):
             n = laid(i, k)
             if n == whole:
                 best = k
