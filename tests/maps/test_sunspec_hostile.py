@@ -79,11 +79,11 @@ def _read(port: int, unit: int = 1) -> tuple[sunspec.Discovery, dict[str, Any],
 def test_an_end_marker_without_its_length_ends_the_chain() -> None:
     """SunSpec's end model is ID 0xFFFF, L 0; a device that stops at the
     0xFFFF (the L register refused) has ended its chain all the same, as
-    pysunspec2 reads it (ID and L apart)."""
+    pysunspec2 reads it (ID and L apart). ``sunspec`` alone is unit 1."""
     regs = image(INVERTER)[:-1]
     with device(regs) as server:
         found, values, _ = _read(server.port)
-        r = run_pymb("read", "sunspec:1", "--tcp", f"127.0.0.1:{server.port}", "--json")
+        r = run_pymb("read", "sunspec", "--tcp", f"127.0.0.1:{server.port}", "--json")
     assert [m.id for m in found.models] == [1, 103, 160, 705]
     assert found.end == 40000 + len(regs) + 1
     assert values["inverter_three_phase.W"] == pytest.approx(334.2)
