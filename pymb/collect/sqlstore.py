@@ -129,6 +129,13 @@ class SqliteStore(Store):
         if os.path.isdir(path):
             raise InvalidArgument(f"{path} is a directory; --out needs a SQLite file or "
                                   "a postgresql:// URL")
+        if "://" in path:  # another database's URL (sqlite://, mysql://): not a file name
+            raise InvalidArgument(f"{path} is a URL pymb collect does not take; --out needs "
+                                  "a SQLite file or a postgresql:// URL")
+        folder = os.path.dirname(path) or "."
+        if not os.path.isdir(folder):  # a disk not mounted yet: not a usage error (exit 4)
+            raise StoreDown(f"cannot open {path}: its folder {folder} does not exist; create "
+                            "it, or mount the disk that holds it")
         tables = sqlite_tables(path) if os.path.isfile(path) else None
         if tables and "pymb_values" not in tables:  # pymb log's database, another program's
             raise InvalidArgument(f"{path} is a SQLite database pymb collect did not write: "

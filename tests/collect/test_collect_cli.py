@@ -67,6 +67,24 @@ def test_nothing_to_reach_at_the_start_exits_4(tmp_path: Path, postgres: Postgre
                        f"postgresql://pymb@127.0.0.1:{port}/pymb"), 4, "cannot connect to")
 
 
+def test_a_folder_that_does_not_exist_exits_4_and_a_url_of_another_database_2(
+        tmp_path: Path) -> None:
+    """A SQLite file in a folder not there (a disk not mounted yet) is a
+    database that cannot be reached, exit 4, which a service manager
+    restarts; nothing is made. A URL of another database is a usage error,
+    not a file path to open."""
+    broker = f"mqtt://127.0.0.1:{free_port()}"
+    out = tmp_path / "disk" / "fleet.sqlite"
+    _one_line(run_pymb("collect", "--mqtt", broker, "--out", str(out)), 4,
+              f"pymb collect: cannot open {out}: its folder {out.parent} does not exist; "
+              "create it, or mount the disk that holds it")
+    for url in ("sqlite:///fleet.db", "mysql://me@db/fleet"):
+        _one_line(run_pymb("collect", "--mqtt", broker, "--out", url, cwd=tmp_path), 2,
+                  f"pymb collect: {url} is a URL pymb collect does not take; --out needs a "
+                  "SQLite file or a postgresql:// URL")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_database_locked_by_another_program_at_the_start_exits_4(tmp_path: Path) -> None:
     """Another process holds the collector's SQLite file locked (a rollback
     journal's exclusive lock): after SQLite's wait, one line and exit 4, as
