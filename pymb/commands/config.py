@@ -52,8 +52,19 @@ def _confirm(question: str) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Show, change, reset and verify."""
+    """Show, change, reset and verify; Ctrl-C once a write may have gone out
+    says what the device may hold (exit 130)."""
     changes = _validate(args)  # everything is checked before any I/O
+    left: list[str] = []  #: what the device may hold if interrupted now
+    try:
+        return _run(args, changes, left)
+    except KeyboardInterrupt:
+        if left:
+            print(f"pymb config: interrupted; {left[-1]}", file=sys.stderr)
+        raise
+
+
+def _run(args: argparse.Namespace, changes: list[str], left: list[str]) -> int:
     with make_client(args) as client:
         cp = CoolPro(client, args.address)
         cfg = cp.read_config()
@@ -61,13 +72,15 @@ def run(args: argparse.Namespace) -> int:
               f"baud rate {cfg.baud_rate}")
         if not changes and not args.reset:
             return 0
-        done = _write_and_reset(args, cp, changes)
+        new_address = args.set_address or cfg.address
+        new_baud = args.set_baud or cfg.baud_rate or args.baud
+        done = _write_and_reset(args, cp, changes, left,
+                                f"address {new_address}, {new_baud} bit/s")
         if done is not None:
             return done
     # After the reset the device answers at the stored address and rate
     # (those just written, or those written earlier and read back above).
-    return _verify(args, args.set_address or cfg.address,
-                   args.set_baud or cfg.baud_rate or args.baud)
+    return _verify(args, new_address, new_baud)
 
 
 def _validate(args: argparse.Namespace) -> list[str]:
@@ -92,18 +105,27 @@ def _validate(args: argparse.Namespace) -> list[str]:
     return changes
 
 
-def _write_and_reset(args: argparse.Namespace, cp: CoolPro, changes: list[str]) -> int | None:
+def _write_and_reset(args: argparse.Namespace, cp: CoolPro, changes: list[str],
+                     left: list[str], after: str) -> int | None:
     """Confirm, write and reset; the exit code when there is nothing to
-    verify, None when the device was reset."""
+    verify, None when the device was reset. ``left`` is told what the device
+    may hold at each step, ``after`` where it answers after the reset."""
     steps = changes + (["then reset the device"] if changes and args.reset else
                        ["reset the device"] if args.reset else [])
     if not args.yes and not _confirm(f"CoolPro {args.address}: {'; '.join(steps)}?"):
         print("nothing written")
         return 1
+    if changes:
+        left.append("the new settings may or may not have been stored; stored settings take "
+                    f"effect at the device's next reset (pymb config coolpro:{args.address} "
+                    "reads them)")
     if args.set_address is not None:
         cp.set_address(args.set_address)
     if args.set_baud is not None:
         cp.set_baud_rate(args.set_baud)
+    if args.reset:  # said before the lines that show the step, so a Ctrl-C after one knows
+        left.append(f"the reset may or may not have been sent: the CoolPro answers at "
+                    f"{after} once reset")
     if changes:
         print("written: " + "; ".join(changes))
     if not args.reset:
@@ -111,6 +133,7 @@ def _write_and_reset(args: argparse.Namespace, cp: CoolPro, changes: list[str]) 
             print("the changes take effect after a reset: run again with --reset")
         return 0
     cp.reset()
+    left.append(f"the reset was sent: the CoolPro answers at {after} once it restarts")
     print("reset sent")
     return None
 
