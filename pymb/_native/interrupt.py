@@ -9,12 +9,13 @@ of waiting: it reads the line's stop flag, then, in the main thread only
 
 from __future__ import annotations
 
+import sys
 import threading
 from typing import Any
 
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["LineStop", "take_interrupt"]
+__all__ = ["LineStop", "in_line_wait", "take_interrupt"]
 
 _stop_hook = ffi.addressof(lib, "pymbi_stop_hook")
 
@@ -36,6 +37,21 @@ def _interrupt_raised(exc_type: Any, exc: BaseException | None, tb: Any) -> int:
 @ffi.def_extern(onerror=_interrupt_raised)  # type: ignore[untyped-decorator]
 def pymb_py_interrupted(arg: Any) -> int:
     return 0
+
+
+_HOOK_CODE = pymb_py_interrupted.__code__
+
+
+def in_line_wait() -> bool:
+    """Whether this thread is inside a line's wait: a signal handler run
+    from the hook, while C waits on the line (which must not be freed
+    under it)."""
+    frame = sys._getframe(1)  # noqa: SLF001 - the one way to see the stack
+    while frame is not None:
+        if frame.f_code is _HOOK_CODE:
+            return True
+        frame = frame.f_back  # type: ignore[assignment]
+    return False
 
 
 def take_interrupt() -> BaseException | None:

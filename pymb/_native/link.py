@@ -12,7 +12,7 @@ import ssl
 from collections.abc import Sequence
 from typing import Any
 
-from pymb._native.interrupt import LineStop, take_interrupt
+from pymb._native.interrupt import LineStop, in_line_wait, take_interrupt
 from pymb._native.mapdecode import MapJob
 from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
@@ -131,6 +131,7 @@ class Link:
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
         self.adopt: int | None = None  #: a lent socket the next open() takes (TCP)
         self._stop = LineStop()  #: what ends a wait from outside (:meth:`stop`, signals)
+        self._close_pending = False  #: close once the C call returns (:meth:`close_after_wait`)
         self.borrowed = False  #: lent sockets only: never a connection of its own
 
     # -- life cycle ------------------------------------------------------------
@@ -255,6 +256,7 @@ class Link:
         line, self._line = self._line, ffi.NULL
         session, self._session = self._session, None
         self.is_open = False
+        self._close_pending = False
         self._held = None
         if session is not None:
             session.close()  # close_notify while the socket is open
@@ -279,6 +281,19 @@ class Link:
         until the line is opened again. The flag is the Link's own memory,
         so this is safe while another thread closes the line."""
         self._stop.stop()
+
+    def close_after_wait(self) -> bool:
+        """From a signal handler inside this thread's wait on the line (the
+        C call on the stack: the line must not be freed under it): stop the
+        wait, close once the call has returned, and True. Elsewhere False."""
+        self._close_pending = self._close_pending or in_line_wait()
+        if self._close_pending:
+            self._stop.stop()
+        return self._close_pending
+
+    def _close_if_pending(self) -> None:
+        if self._close_pending:  # close() from a signal handler in the wait: safe now
+            self.close()
 
     def __del__(self) -> None:
         # The descriptor and, on a serial line, its lock go with the Link.
@@ -430,14 +445,13 @@ class Link:
         if n < 0:
             err = ffi.errno
             exc = (take_interrupt() or take_raised()) if err == errno.EINTR else None
-            if exc is not None:
-                raise exc
-            if err == errno.EINTR and self._stop.stopped:
-                raise ModbusConnectionError(f"drain on {self.name}: the client was closed "
+            if exc is None and err == errno.EINTR and self._stop.stopped:
+                exc = ModbusConnectionError(f"drain on {self.name}: the client was closed "
                                             "while it waited", errno=errno.ECANCELED,
                                             port=self.name)
-            raise ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}", errno=err,
-                                        port=self.name)
+            self._close_if_pending()
+            raise exc or ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}",
+                                               errno=err, port=self.name)
         return n
 
     # -- errors ----------------------------------------------------------------
@@ -449,7 +463,14 @@ class Link:
     def _error(self, function: int, slave: int, address: int | None,
                count: int | None, context: str | None = None) -> ModbusError:
         """Turn errno (read right after the failing call) and the failure
-        record into the exception to raise."""
+        record into the exception to raise (and close the line if a signal
+        handler asked for it in the wait)."""
+        exc = self._failure(function, slave, address, count, context)
+        self._close_if_pending()
+        return exc
+
+    def _failure(self, function: int, slave: int, address: int | None,
+                 count: int | None, context: str | None) -> ModbusError:
         err = ffi.errno
         if not self.is_open:
             return self._closed(function, slave, address, count)

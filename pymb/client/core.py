@@ -120,6 +120,9 @@ class ClientCore:
         thread is waiting on ends at once (within 50 ms) with
         :class:`~pymb.ModbusConnectionError`, and the line closes after it."""
         lock = self._lock
+        if lock._is_owned() and self._link.close_after_wait():  # type: ignore[attr-defined]  # noqa: SLF001
+            self._wanted = False  # from a signal handler in this thread's wait: closed after it
+            return
         if not lock.acquire(blocking=False):
             stop_waiting(self)
             lock.acquire()

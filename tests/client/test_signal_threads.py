@@ -76,3 +76,33 @@ def test_a_wait_in_another_thread_never_calls_into_python(transport: str) -> Non
         t.start()
         t.join(30)
     assert calls == [0]
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+def test_a_signal_handler_that_closes_the_client_ends_its_wait(transport: str) -> None:
+    # The handler runs inside the read's own wait, in C, on this thread: the
+    # line cannot be freed under it. The close is done as soon as the C call
+    # has returned: the read fails at once, the client is closed, and it
+    # connects again.
+    peer = RawPty(lambda i, f: []) if transport == "rtu" else RawTcp(lambda i, f: [])
+    with peer:
+        c = _client(transport, peer.port)
+        c.connect()
+        old = signal.signal(signal.SIGALRM, lambda signum, frame: c.close())
+        try:
+            signal.setitimer(signal.ITIMER_REAL, 0.2)
+            t0 = time.monotonic()
+            with pytest.raises(pymb.ModbusConnectionError,
+                               match="the client was closed while this request waited"):
+                c.read_holding_registers(0, 1)
+            assert time.monotonic() - t0 < 1.0  # not the 3 s timeout
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old)
+        assert not c.connected
+        assert c.fileno() == -1
+        with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
+            c.read_holding_registers(0, 1)
+        c.connect()
+        assert c.connected
+        c.close()
