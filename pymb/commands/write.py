@@ -86,7 +86,10 @@ def _items(args: argparse.Namespace, m: maps.Map) -> dict[str, object]:
         if name in out:
             raise InvalidArgument(f"{name!r} is given twice")
         _, p = resolve(m, name)
-        out[name] = parse_value(p, text)
+        try:
+            out[name] = parse_value(p, text)
+        except InvalidArgument as e:  # named by its device, as the map's own checks are
+            raise InvalidArgument(f"{m.id}: {e}") from None
     return out
 
 

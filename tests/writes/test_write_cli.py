@@ -163,6 +163,16 @@ def test_ctrl_c_once_the_line_is_open_says_the_value_may_be_written(map_file: st
                    "written: read them to know\n")
 
 
+def test_a_value_of_the_wrong_kind_is_named_by_its_device(map_file: str) -> None:
+    """As every other refusal of a value: 'wdev: point ...'."""
+    for value, said in (("relay_2=maybe", "point 'relay_2': true or false is needed, got "
+                                          "'maybe'"),
+                        ("setpoint_hz=fast", "point 'setpoint_hz': a number is needed, got "
+                                             "'fast'")):
+        code, out, err = write(map_file, "wdev:1", value, "--tcp", "127.0.0.1:1", "--dry-run")
+        assert (code, out, err) == (2, "", f"pymb write: wdev: {said}\n")
+
+
 def test_unknown_device_type_exits_2(map_file: str) -> None:
     code, _, err = write(map_file, "wdevv:1", "mode=run", "--tcp", "127.0.0.1:1")
     assert code == 2
