@@ -246,7 +246,9 @@ def build_point(ctx: Ctx, kind: str, raw: Mapping[str, object], dev: DeviceSecti
 
     def only(key: str, types: frozenset[str] | tuple[str, ...], what: str) -> None:
         if key in raw and typ not in types:
-            ctx.fail(key, f"{key} applies to {what} points only, not {typ}")
+            instead = ("; a bits field is given by shift and width"
+                       if (key, typ) == ("bit", "bits") else "")
+            ctx.fail(key, f"{key} applies to {what} points only, not {typ}{instead}")
 
     scalable = INTEGER_TYPES | FLOAT_TYPES
     only("string_bytes", ("string",), "string")

@@ -72,6 +72,10 @@ def test_map_error_is_a_modbus_error_and_a_value_error() -> None:
      ("'scale'", "numeric")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "u16"\nencoding = "ascii"\n',
      ("'encoding'", "string")),
+    # a bit number on a field of bits, as a newcomer writes it: say what the field takes
+    ('[[point]]\nname = "a"\naddress = 0\ntype = "bits"\nbit = 4\nwidth = 3\n',
+     ("'bit'", "bit applies to bit points only, not bits; a bits field is given by shift "
+               "and width")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "u16"\naccess = "rw"\n'
      'values = { 0 = "stop", 1 = "stop" }\n', ("'values'", "'stop' names both 0 and 1")),
     ('[[point]]\nname = "a"\naddress = 0\ntype = "string"\ncount = 2\naccess = "rw"\n'
