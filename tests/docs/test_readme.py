@@ -36,6 +36,17 @@ def test_the_readme_is_a_front_door() -> None:
         assert (ROOT / link).exists(), link
 
 
+def test_the_readme_names_every_extra() -> None:
+    """The install section's "Extras:" sentence names each extra pyproject.toml
+    has, so that a newcomer who follows it finds the one ``pymb collect`` needs."""
+    import tomllib
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]
+    sentence = README[README.index("Extras: "):].split(". ", 1)[0]
+    named = re.findall(r"`(\w+)`(?: \(|,)", sentence.replace("\n", " "))
+    assert sorted(named) == sorted(extras), sentence
+
+
 def test_the_python_example_runs() -> None:
     code = block("python")
     assert len(code.splitlines()) <= 12
