@@ -112,9 +112,15 @@ def command_desk(cfg: LogConfig, logger: Logger, out: ForwardingSink, fw: Forwar
     desk = CommandDesk(log, write_targets(logger.pollers, log), cfg.allow_writes,
                        fw.record_event)
     devices = desk.writable()
-    if not devices:
-        raise InvalidArgument(f"--allow-writes {' '.join(cfg.allow_writes)}: no writable point "
-                              "of a logged device matches (DEVICE/POINT, the device's name)")
+    if not devices:  # the patterns come from the command line or the file's [writes]
+        can = sorted(f"{n}/{p.name}" + ("_N" if p.block else "")
+                     for n, t in desk.targets.items() for p in t.map.points.values()
+                     if p.writable)
+        hint = (f"; writable: {', '.join(can[:10])}" + (", ..." if len(can) > 10 else "")
+                if can else "; no logged device has a writable point")
+        raise InvalidArgument(f"--allow-writes ([writes] allow) {' '.join(cfg.allow_writes)}: "
+                              "no writable point of a logged device matches (DEVICE/POINT, "
+                              f"the device's name){hint}")
 
     def reply(device: str, payload: bytes) -> bool:
         # offline: the record answers the command again (the broker's redelivery, a retry)

@@ -245,6 +245,35 @@ def test_against_libmodbus(map_file: str, libmodbus_exe: Path, mode: str) -> Non
                                     "zone_c_1: 12 -> 7.5 °C"]
 
 
+def test_an_allow_list_in_the_file_that_matches_nothing_says_what_may_be_allowed(
+        map_file: str, tmp_path: Path) -> None:
+    """The patterns of the file's [writes] are not called options the user did
+    not type, and the line lists the DEVICE/POINT names that are writable."""
+    config = tmp_path / "log.toml"
+    config.write_text(f"""maps = [{map_file!r}]
+[output]
+path = "x.sqlite"
+[[bus]]
+name = "b"
+tcp = "127.0.0.1:1"
+  [[bus.device]]
+  type = "wdev"
+  name = "psu-a"
+[mqtt]
+url = "mqtt://127.0.0.1:1"
+[writes]
+allow = ["psu-b/setpoint_hz"]
+""")
+    r = run_pymb("log", "--config", str(config), "--seconds", "1", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.splitlines()[-1] == (
+        "pymb log: --allow-writes ([writes] allow) psu-b/setpoint_hz: no writable point of a "
+        "logged device matches (DEVICE/POINT, the device's name); writable: psu-a/fan_on, "
+        "psu-a/level, psu-a/mode, psu-a/power_limit_pct, psu-a/pump_on, psu-a/relay_2, "
+        "psu-a/relay_5, psu-a/reset, psu-a/setpoint_hz, psu-a/status, ...")
+    assert "Traceback" not in r.stderr
+
+
 @pytest.mark.parametrize(("extra", "message"), [
     (["--allow-writes", "psu-a/setpoint_hz"], "needs --mqtt URL"),
     (["--allow-writes", "setpoint_hz", "--mqtt", "mqtt://127.0.0.1:1"], "DEVICE/POINT"),
