@@ -352,11 +352,14 @@ def closed_error(function: int, slave: int, address: int | None, count: int | No
 
 
 def stopped_error(function: int, slave: int, address: int | None, count: int | None,
-                  port: str) -> ModbusConnectionError:
-    """A request that was waiting when another thread or task closed its client."""
+                  port: str, *, sent: bool = True) -> ModbusConnectionError:
+    """A request that was waiting when another thread or task closed its
+    client; ``sent`` False: one whose turn came after that close began, never
+    sent."""
+    when = "while this request waited" if sent else "before this request was sent"
     return ModbusConnectionError(
         f"{request_text(function, slave, address, count)} on {port}: the client was closed "
-        "while this request waited", errno=_errno.ECANCELED, slave=slave, function=function,
+        f"{when}", errno=_errno.ECANCELED, slave=slave, function=function,
         address=address, count=count, port=port,
     )
 

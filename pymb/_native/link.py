@@ -275,11 +275,10 @@ class Link:
             lib.modbus_free(ctx)
 
     def stop(self) -> None:
-        """From any thread, without the client's lock: the request waiting
-        on this line (or the next to wait) ends within
-        ``PYMB_INTERRUPT_SLICE_US`` (50 ms) with :func:`stopped_error`,
-        until the line is opened again. The flag is the Link's own memory,
-        so this is safe while another thread closes the line."""
+        """From any thread, without the client's lock: the request waiting on this line
+        ends within 50 ms (``PYMB_INTERRUPT_SLICE_US``) with :func:`stopped_error`, and
+        none is sent until the line opens again. The flag is the Link's own memory:
+        safe while another thread closes the line."""
         self._stop.stop()
 
     def close_after_wait(self) -> bool:
@@ -403,6 +402,9 @@ class Link:
         slave, function = request[0], request[1]
         if not self.is_open:
             raise self._closed(function, slave, address, count)
+        if self._stop.stopped:  # a close() is under way (another thread, a handler): not sent
+            self._close_if_pending()
+            raise stopped_error(function, slave, address, count, self.name, sent=False)
         if self._held is not None:
             self._own_timeout()
         n = lib.pymb_transact(
@@ -446,9 +448,8 @@ class Link:
             err = ffi.errno
             exc = (take_interrupt() or take_raised()) if err == errno.EINTR else None
             if exc is None and err == errno.EINTR and self._stop.stopped:
-                exc = ModbusConnectionError(f"drain on {self.name}: the client was closed "
-                                            "while it waited", errno=errno.ECANCELED,
-                                            port=self.name)
+                exc = ModbusConnectionError(f"drain on {self.name}: the client was closed while "
+                                            "it waited", errno=errno.ECANCELED, port=self.name)
             self._close_if_pending()
             raise exc or ModbusConnectionError(f"drain on {self.name}: {os_hint(err)}",
                                                errno=err, port=self.name)

@@ -19,6 +19,7 @@ from peerkit import Reply, mbap, registers, rtu, rtu_crc_ok
 from wire_peers import RawPty, RawTcp, tcp_request
 
 import pymb
+from pymb.client.core import line_lock, stop_waiting
 
 TIMEOUT = 5.0  #: the waiting request's own timeout: close() must not wait for it
 PROMPT = 1.5  #: what "at once" may take on a loaded machine (50 ms unloaded)
@@ -176,3 +177,40 @@ def test_sixteen_threads_on_one_client_and_a_close_among_them() -> None:
         assert wrong == []
         assert done[0] > 200
         assert all(isinstance(e, pymb.ModbusConnectionError) for e in ended), ended
+
+
+
+def test_a_write_whose_turn_comes_after_the_close_began_is_not_sent() -> None:
+    # close() from another thread while a request holds the line stops that
+    # request first (stop_waiting), then waits for the line's lock; a write
+    # that gets the lock before the close must not go out: the device would
+    # do it while its caller is told the client was closed.
+    def script(_: int, adu: bytes) -> Reply:
+        tid, unit, pdu = tcp_request(adu)
+        return [(0.0, mbap(tid, unit, pdu))]  # a write's echo
+
+    with RawTcp(script) as peer, \
+            pymb.TcpClient("127.0.0.1", peer.port, slave=1, timeout=TIMEOUT) as c:
+        out: list[object] = []
+
+        def write() -> None:
+            try:
+                c.write_register(3, 7)
+                out.append("written")
+            except pymb.ModbusError as e:
+                out.append(e)
+
+        writer = threading.Thread(target=write)
+        with line_lock(c):  # the request on the line, as far as the writer can tell
+            writer.start()
+            time.sleep(0.1)  # (waiting for the lock or not yet: the same outcome)
+            stop_waiting(c)  # what close() from another thread does first
+        writer.join(TIMEOUT + 5)
+        assert not writer.is_alive()
+        c.close()
+        assert [r for r in peer.requests if r[7] == 6] == [], "the write went out"
+        e = out[0]
+        assert isinstance(e, pymb.ModbusConnectionError), repr(e)
+        assert e.errno == errno.ECANCELED
+        assert "write_register(slave=1, address=3, count=1)" in str(e)
+        assert "the client was closed before this request was sent" in str(e)
