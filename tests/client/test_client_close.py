@@ -92,7 +92,12 @@ def close_while_waiting(c: pymb.Client, call: Callable[[], object]) -> BaseExcep
 
     t = threading.Thread(target=wait)
     t.start()
-    time.sleep(0.3)  # the request is on the wire, its reply awaited
+    lock, deadline = line_lock(c), time.monotonic() + 30
+    while lock.acquire(blocking=False):  # (a loaded machine may take a while to start it)
+        lock.release()
+        assert time.monotonic() < deadline, "the call never took the line"
+        time.sleep(0.01)
+    time.sleep(0.1)  # the call holds the line: its request on the wire, its reply awaited
     t0 = time.monotonic()
     c.close()
     took = time.monotonic() - t0
