@@ -120,6 +120,8 @@ def configure(m: Map, given: Mapping[str, object]) -> Map:
 
 def _option_value(source: str, dev: DeviceSection, name: str, value: object) -> int | float:
     default = dev.options[name]
+    # a shipped map is named by its id, the device TYPE the user gave ("builtin:hub": no)
+    where = dev.id if source.startswith("builtin:") else source
     v: int | float
     try:
         if isinstance(value, str):
@@ -134,15 +136,15 @@ def _option_value(source: str, dev: DeviceSection, name: str, value: object) -> 
             v = float(value)
     except (TypeError, ValueError):
         kind = "a whole number" if isinstance(default, int) else "a number"
-        raise MapError(f"{source}: option {name!r} must be {kind}, got {value!r}",
+        raise MapError(f"{where}: option {name!r} must be {kind}, got {value!r}",
                        source=source, key=name) from None
     allowed = dev.option_values.get(name)
     if allowed and v not in allowed:
-        raise MapError(f"{source}: option {name!r} must be one of "
+        raise MapError(f"{where}: option {name!r} must be one of "
                        f"{', '.join(map(str, allowed))}, got {value!r}", source=source, key=name)
     lo, hi = dev.option_ranges.get(name, (-math.inf, math.inf))
     if not lo <= v <= hi:
-        raise MapError(f"{source}: option {name!r} must be {lo:g}..{hi:g}, got {value!r}",
+        raise MapError(f"{where}: option {name!r} must be {lo:g}..{hi:g}, got {value!r}",
                        source=source, key=name)
     return v
 

@@ -312,3 +312,16 @@ def test_map_list_fits_the_terminal() -> None:
     assert any(line.startswith("abb-acs580 ") for line in lines)
     r = run_pymb("map", "list", timeout=60)
     assert "ABB ACS580 firmware manual" in r.stdout
+
+
+@pytest.mark.parametrize(("spec", "said"), [
+    ("hub:1,channels=0", "hub: option 'channels' must be 1..100, got 0"),
+    ("hub:1,humidity_unit=2", "hub: option 'humidity_unit' must be one of 1, 0.1, got 2"),
+])
+def test_an_option_value_of_a_shipped_device_is_named_by_its_type(spec: str, said: str) -> None:
+    """The device TYPE the user gave, not the loader's 'builtin:hub'."""
+    for command in ("read", "write"):
+        extra = ["temperature_c_1=1"] if command == "write" else []
+        r = run_pymb(command, spec, *extra, "--tcp", "127.0.0.1:1", timeout=60)
+        assert (r.returncode, r.stdout, r.stderr) == (
+            2, "", f"pymb {command}: {spec!r}: {said}\n")
