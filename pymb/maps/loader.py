@@ -119,9 +119,7 @@ def configure(m: Map, given: Mapping[str, object]) -> Map:
 
 
 def _option_value(source: str, dev: DeviceSection, name: str, value: object) -> int | float:
-    default = dev.options[name]
-    # a shipped map is named by its id, the device TYPE the user gave ("builtin:hub": no)
-    where = dev.id if source.startswith("builtin:") else source
+    default, where = dev.options[name], dev.id if source.startswith("builtin:") else source
     v: int | float
     try:
         if isinstance(value, str):
