@@ -265,9 +265,14 @@ typedef struct {
 static int pymbi_stop_hook(void *arg)
 {
     const pymbi_stop *s = arg;
-    return s->stop != 0 || (s->then != NULL &&
-                            (unsigned long)pthread_self() == s->main_thread &&
-                            s->then(NULL) != 0);
+    if (s->stop != 0) {
+        return 1;
+    }
+    if (s->then == NULL || (unsigned long)pthread_self() != s->main_thread) {
+        return 0;
+    }
+    /* a handler run by `then` may have closed the client (the flag up) */
+    return s->then(NULL) != 0 || s->stop != 0;
 }
 """
 

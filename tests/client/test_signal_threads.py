@@ -7,6 +7,7 @@ into Python while it waits. Real peers: a pseudo-terminal and TCP."""
 from __future__ import annotations
 
 import signal
+import socket
 import sys
 import threading
 import time
@@ -106,3 +107,32 @@ def test_a_signal_handler_that_closes_the_client_ends_its_wait(transport: str) -
         c.connect()
         assert c.connected
         c.close()
+
+
+def test_a_handler_that_closes_the_client_as_its_reply_comes_still_closes_it() -> None:
+    # The handler closes the client in the read's wait just as the reply has
+    # come (it sends it itself, from the device's end, first): the wait must
+    # not go on to read that reply and return, leaving the line open under a
+    # client that was closed (connected, reads answered).
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        c = pymb.TcpClient("127.0.0.1", server.getsockname()[1], slave=1, timeout=3)
+        c.connect()
+        conn, _ = server.accept()
+        with conn:
+            def handler(signum: int, frame: object) -> None:
+                adu = conn.recv(260)  # the read's request, on the device's side
+                conn.sendall(adu[:4] + b"\x00\x05" + adu[6:8] + b"\x02\x00\x07")
+                c.close()
+
+            old = signal.signal(signal.SIGALRM, handler)
+            try:
+                signal.setitimer(signal.ITIMER_REAL, 0.2)
+                with pytest.raises(pymb.ModbusConnectionError,
+                                   match="the client was closed while this request waited"):
+                    c.read_holding_registers(0, 1)
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+                signal.signal(signal.SIGALRM, old)
+            assert not c.connected
+            with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
+                c.read_holding_registers(0, 1)
