@@ -132,8 +132,6 @@ class TcpMapPoller(TcpLoopBase):
             self.failed(c, e, ModbusConnectionError(
                 f"{asked(None, e.unit)} on {c.bus.endpoint}: {why}"), now)
 
-    # -- polls ---------------------------------------------------------------------------
-
     def _queue(self, c: Conn, e: Entry) -> None:
         if not e.queued:
             e.queued = True
@@ -358,9 +356,11 @@ class TcpMapPoller(TcpLoopBase):
         assert cloop is not None
         for c in self.conns:
             if c.armed:  # (a loan waits for the end of the poll under way)
-                c.deadline = cloop.deadline(c.index)
-                if c.loan is not None or now >= c.deadline:
-                    self.synced(c)
+                c.deadline = deadline = cloop.deadline(c.index)
+                if c.loan is None and now < deadline:  # the C part's, a poll in flight
+                    soonest = deadline if deadline < soonest else soonest
+                    continue
+                self.synced(c)
             if c.state == "closed":
                 if now >= c.retry_at:
                     self._connect(c, now)
