@@ -13,18 +13,16 @@ rules and copies their data into the group's sample image. While a whole
 poll is out, the socket wakes the loop once, when the bytes of all of its
 replies are in (``SO_RCVLOWAT``); a poll whose replies take more than twice
 as long as they did of late (an exception reply is shorter than the reply it
-stands for) is read as its replies come. Flat out, a connection whose next
-poll is the same requests at once is the loop's C part's
-(:mod:`pymb._native.loop`: it reads the replies and sends the next poll)
-until anything else is to happen on it. This module is the runner: the
-sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a
-thread per bus runs it): each group at its own interval on drift-free slots,
-skipped slots counted; ``offline_after`` / ``offline_retry`` per device; an
-exception re-plans within the same poll as the planner's policy says
-(:func:`pymb.maps.planner.on_refusal`: 02/03 with ``split_on_exception``; a
-point refused alone reads ``unsupported``); samples and events go to the
-writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event`
-records, the registers stored as a thread per bus would store them.
+stands for) is read as its replies come. Flat out, a connection whose next poll is the same
+requests at once is the loop's C part's (:mod:`pymb._native.loop`: it reads the replies and
+sends the next poll) until anything else is to happen on it. This module is the runner: the
+sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs
+it): each group at its own interval on drift-free slots, skipped slots counted;
+``offline_after`` / ``offline_retry`` per device; an exception re-plans within the same poll
+as the planner's policy says (:func:`pymb.maps.planner.on_refusal`: 02/03 with
+``split_on_exception``; a point refused alone reads ``unsupported``); samples and events go
+to the writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event` records,
+the registers stored as a thread per bus would store them.
 """
 
 from __future__ import annotations
@@ -356,6 +354,8 @@ class TcpMapPoller(TcpLoopBase):
         assert cloop is not None
         for c in self.conns:
             if c.armed:  # (a loan waits for the end of the poll under way)
+                if c.loan is None and now + _TICK < c.deadline:  # the C part's is as late
+                    continue  # (or later: each poll it sends moves it on): a sweep comes first
                 c.deadline = deadline = cloop.deadline(c.index)
                 if c.loan is None and now < deadline:  # the C part's, a poll in flight
                     soonest = deadline if deadline < soonest else soonest

@@ -234,3 +234,27 @@ def test_an_exception_while_flat_out_fails_that_poll_only(tmp_path: Path) -> Non
     assert len(got.samples) >= 30
     assert _registers(got) == {tuple(WANT.values())}
     assert failed[0].monotonic > got.samples[8].monotonic
+
+
+def _quiet_after(k: int) -> Script:
+    """Right replies to the first ``k`` requests of a connection, then none."""
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        return good(*req) if n <= k else None
+    return script
+
+
+def test_a_device_polled_flat_out_that_falls_silent_times_out(tmp_path: Path) -> None:
+    """Flat out and pipelined, a poll's three requests whole each time: the
+    loop's C part carries the polls (sends each next one itself) until the
+    device answers no more. The silent poll times out at its timeout (the
+    sweep reads the C part's deadline as it nears), named as any timeout is;
+    every poll answered before it is stored."""
+    got = _poll(tmp_path, _quiet_after(150), lambda h: "timeout" in h.kinds(),
+                bus="timeout = 0.3\ninterval = 0\npipeline = 4\n", points=FAR, within=10.0)
+    timeouts = [e for e in got.events if e.kind == "timeout"]
+    assert timeouts, got.kinds()
+    assert "read_holding_registers(slave=1" in timeouts[0].message
+    assert len(got.samples) == 50  # 150 requests, 3 a poll
+    assert _registers(got) == {tuple(WANT.values())}
+    late = timeouts[0].monotonic - got.samples[-1].monotonic
+    assert 0.3 <= late < 1.5, late  # (its timeout, a sweep's tick and a loaded machine's slack)
