@@ -364,38 +364,40 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
             made = new_path.with_name(f".{new_path.name}.salvage")
             with contextlib.suppress(FileNotFoundError):
                 made.unlink()
-            create(made)
-            dst = sqlite3.connect(made, isolation_level=None)
-            try:
-                dst.execute("BEGIN")
-                for table in _ORDER:
-                    if table not in tables:
-                        continue
-                    try:
-                        if not _columns(dst, table):  # not in every pymb file (outbox)
-                            sql = src.execute("SELECT sql FROM sqlite_master WHERE name = ?",
-                                              (table,)).fetchone()[0]
-                            dst.execute(sql)
-                        cols = [c for c in _columns(src, table) if c in _columns(dst, table)]
-                    except sqlite3.DatabaseError:
-                        result.partial.append(table)
-                        continue
-                    if table in _WITH_IDS:
-                        _copy_rows(src, dst, table, cols, result)
-                    else:
-                        _copy_all(src, dst, table, cols, result)
-                if result.lost:
-                    _from_pages(copy, src, dst, result)
-                dst.execute("COMMIT")
+            try:  # the file in the making goes, whatever stops it (Ctrl-C too)
+                create(made)
+                dst = sqlite3.connect(made, isolation_level=None)
+                try:
+                    dst.execute("BEGIN")
+                    for table in _ORDER:
+                        if table not in tables:
+                            continue
+                        try:
+                            if not _columns(dst, table):  # not in every pymb file (outbox)
+                                sql = src.execute("SELECT sql FROM sqlite_master WHERE name = ?",
+                                                  (table,)).fetchone()[0]
+                                dst.execute(sql)
+                            cols = [c for c in _columns(src, table) if c in _columns(dst, table)]
+                        except sqlite3.DatabaseError:
+                            result.partial.append(table)
+                            continue
+                        if table in _WITH_IDS:
+                            _copy_rows(src, dst, table, cols, result)
+                        else:
+                            _copy_all(src, dst, table, cols, result)
+                    if result.lost:
+                        _from_pages(copy, src, dst, result)
+                    dst.execute("COMMIT")
+                finally:
+                    dst.close()
+                try:
+                    os.link(made, new_path)  # never over a file that appeared meanwhile
+                except FileExistsError:
+                    raise InvalidArgument(f"{new} appeared meanwhile: salvage writes a new "
+                                          "file; choose another name") from None
             finally:
-                dst.close()
-            try:
-                os.link(made, new_path)  # never over a file that appeared meanwhile
-            except FileExistsError:
-                raise InvalidArgument(f"{new} appeared meanwhile: salvage writes a new "
-                                      "file; choose another name") from None
-            finally:
-                made.unlink()
+                for side in ("", "-journal", "-wal", "-shm"):
+                    Path(f"{made}{side}").unlink(missing_ok=True)
         finally:
             src.close()
     return result

@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import hashlib
 import os
+import signal
 import sqlite3
+import subprocess
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import PYMB_ENV, run_pymb
+from conftest import PYMB, PYMB_ENV, run_pymb
 from docblocks import assert_shaped, claim_one
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -250,6 +253,31 @@ def test_salvage_into_a_folder_name_writes_no_file(intact: Path, tmp_path: Path)
     assert r.stderr == (f"pymb salvage: {tmp_path / 'rescued'}/ names a folder; give the new "
                         "database's file name\n")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.ctrl_c
+def test_ctrl_c_during_a_salvage_leaves_no_file_behind(intact: Path, tmp_path: Path) -> None:
+    """Interrupted while it writes the new database (its hidden file in the
+    making is there), salvage exits 130 and leaves the folder as it found it:
+    no half-written file, no hidden one."""
+    src = tmp_path / "damaged"
+    src.mkdir()
+    db = _damaged(intact, src, "zeroed page")
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([*PYMB, "salvage", str(db), str(out / "rescued.sqlite")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=PYMB_ENV)
+    making = out / ".rescued.sqlite.salvage"
+    deadline = time.monotonic() + 120
+    while not making.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert making.exists(), "salvage never began its new file"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert list(out.iterdir()) == []
 
 
 @pytest.mark.parametrize("how", list(DAMAGES))
