@@ -296,15 +296,16 @@ def tls_from_args(args: argparse.Namespace) -> TlsConfig | None:
         raise InvalidArgument(text) from None
 
 
-def make_client(args: argparse.Namespace) -> Client:
+def make_client(args: argparse.Namespace, *, resolve: bool = True) -> Client:
     """The client the connection arguments describe (not yet open); a host
-    name that does not resolve is said so."""
+    name that does not resolve is said so (unless not ``resolve``: a plan
+    made away from the plant's network)."""
     serial_options(args)
     on_ascii = ascii_line(args)
     if getattr(args, "udp", None):
         tls_for(args, args.udp, "--udp")  # refused: Modbus over UDP has no TLS
         host, port = parse_host_port(args.udp, what="--udp")
-        why = unresolved(host)
+        why = unresolved(host) if resolve else None
         if why is not None:
             raise ModbusConnectionError(f"cannot connect to {args.udp}: {why}", port=args.udp)
         return UdpClient(host, port, timeout=args.timeout)
@@ -319,7 +320,7 @@ def make_client(args: argparse.Namespace) -> Client:
         tls = tls_for(args, address, flag)
         client = client_for_address(address, rtu_framing=framing, timeout=args.timeout,
                                     what=flag, tls=tls)
-        why = unresolved(client.host)
+        why = unresolved(client.host) if resolve else None
         if why is not None:
             raise ModbusConnectionError(f"cannot connect to {address}: {why}", port=address)
         return client

@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise unknown_device(args.device, list(known))
     m = target.map
     values = _items(args, m)
-    client = make_client(args)
+    client = make_client(args, resolve=not args.dry_run)  # a dry run may be made offline
     dev = MapDevice(client, m, target.address, baudrate=args.baud)
     plan = dev.plan_write(values)  # everything checked before the line is opened
     if args.dry_run:

@@ -173,6 +173,18 @@ def test_a_value_of_the_wrong_kind_is_named_by_its_device(map_file: str) -> None
         assert (code, out, err) == (2, "", f"pymb write: wdev: {said}\n")
 
 
+def test_a_dry_run_needs_no_network(map_file: str) -> None:
+    """--dry-run opens no line, so a host name that does not resolve here (a
+    plan made away from the plant's network) does not stop it; a write does."""
+    for where in ("--tcp", "--udp"):
+        code, out, err = write(map_file, "wdev:1", "mode=run", where, "plant-gw.invalid:502",
+                               "--dry-run")
+        assert (code, out, err) == (0, "FC 06 holding 12: 0x0001 (mode)\n", "")
+    code, out, err = write(map_file, "wdev:1", "mode=run", "--tcp", "plant-gw.invalid:502")
+    assert (code, out) == (4, "")
+    assert err.startswith("pymb write: cannot connect to plant-gw.invalid:502: ")
+
+
 def test_unknown_device_type_exits_2(map_file: str) -> None:
     code, _, err = write(map_file, "wdevv:1", "mode=run", "--tcp", "127.0.0.1:1")
     assert code == 2
