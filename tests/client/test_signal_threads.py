@@ -118,6 +118,14 @@ def test_a_handler_that_closes_the_client_as_its_reply_comes_still_closes_it() -
         c = pymb.TcpClient("127.0.0.1", server.getsockname()[1], slave=1, timeout=3)
         c.connect()
         conn, _ = server.accept()
+        conn.settimeout(30)
+        main = threading.main_thread().ident
+        assert main is not None
+
+        def signal_once_sent() -> None:  # the request on the wire: the read waits in C
+            conn.recv(260, socket.MSG_PEEK)
+            signal.pthread_kill(main, signal.SIGALRM)
+
         with conn:
             def handler(signum: int, frame: object) -> None:
                 adu = conn.recv(260)  # the read's request, on the device's side
@@ -125,13 +133,14 @@ def test_a_handler_that_closes_the_client_as_its_reply_comes_still_closes_it() -
                 c.close()
 
             old = signal.signal(signal.SIGALRM, handler)
+            sender = threading.Thread(target=signal_once_sent)
             try:
-                signal.setitimer(signal.ITIMER_REAL, 0.2)
+                sender.start()
                 with pytest.raises(pymb.ModbusConnectionError,
                                    match="the client was closed while this request waited"):
                     c.read_holding_registers(0, 1)
             finally:
-                signal.setitimer(signal.ITIMER_REAL, 0)
+                sender.join(30)
                 signal.signal(signal.SIGALRM, old)
             assert not c.connected
             with pytest.raises(pymb.ModbusConnectionError, match="not connected"):
