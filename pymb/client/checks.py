@@ -56,7 +56,8 @@ def _seconds(name: str, value: object, *, allow_zero: bool = False) -> float:
     v = float(value)
     if not (v >= 0.0 if allow_zero else v > 0.0) or v > 3600.0:
         raise InvalidArgument(
-            f"{name} must be {'0' if allow_zero else 'more than 0'} to 3600 seconds, got {value!r}"
+            f"{name} must be {'0..3600' if allow_zero else 'more than 0 and at most 3600'} "
+            f"seconds, got {value!r}"
         )
     return v
 

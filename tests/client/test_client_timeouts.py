@@ -153,3 +153,12 @@ def test_a_timeout_that_is_no_time_is_refused_at_construction(kind: str, bad: fl
         with pytest.raises(pymb.InvalidArgument, match="timeout must be more than 0"):
             c.timeout = bad
         assert c.timeout == 1.0
+
+
+def test_a_timeout_out_of_range_says_the_range_in_words() -> None:
+    with pytest.raises(pymb.InvalidArgument) as e:
+        pymb.TcpClient("127.0.0.1", 502, timeout=0)
+    assert str(e.value) == "timeout must be more than 0 and at most 3600 seconds, got 0"
+    with pytest.raises(pymb.InvalidArgument) as e:
+        pymb.TcpClient("127.0.0.1", 502, timeout=1.0, byte_timeout=-1)
+    assert str(e.value) == "byte_timeout must be 0..3600 seconds, got -1"
