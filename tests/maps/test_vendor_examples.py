@@ -11,20 +11,9 @@ import struct
 from typing import Any
 
 import pytest
+from regwords import f32, lsw_first
 
 from pymb import maps
-
-
-def f32(v: float) -> list[int]:
-    """An IEEE 754 single as two registers, high word first."""
-    hi, lo = struct.unpack(">HH", struct.pack(">f", v))
-    return [hi, lo]
-
-
-def lsw_first(v: int, words: int = 2) -> list[int]:
-    """A two's complement integer as registers, least significant word first."""
-    u = v & ((1 << (16 * words)) - 1)
-    return [(u >> (16 * i)) & 0xFFFF for i in range(words)]
 
 
 def msw_first(v: int, words: int) -> list[int]:
