@@ -44,11 +44,11 @@ from dataclasses import dataclass, field
 from pymb._native.master import EXCEPTION, Master, MasterRead, PollTable, ReadBuffer
 from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
+from pymb.maps.types import BIT_TABLES, TABLE_FUNCTIONS
 
 __all__ = ["FanoutDevice", "FanoutStats", "Sample", "TcpFanout"]
 
 Sample = tuple[int, int, bytes]  #: (poll start, time.time_ns(); device index; registers)
-_TABLES = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
 
 
 @dataclass(frozen=True)
@@ -69,9 +69,9 @@ class FanoutDevice:
         if not self.requests:
             raise InvalidArgument(f"{self.host}:{self.port}: a poll needs a request")
         for table, address, count in self.requests:
-            if table not in _TABLES:
+            if table not in TABLE_FUNCTIONS:
                 raise InvalidArgument(f"unknown table {table!r}")
-            limit = 2000 if _TABLES[table] <= 2 else 125
+            limit = 2000 if table in BIT_TABLES else 125
             if not (0 <= address <= 0xFFFF and 1 <= count <= limit
                     and address + count <= 0x10000):
                 raise InvalidArgument(f"{table} {address}+{count}: not one read")
@@ -96,7 +96,7 @@ class FanoutDevice:
 
 
 def _data_bytes(table: str, count: int) -> int:
-    return 2 * count if _TABLES[table] > 2 else (count + 7) // 8
+    return (count + 7) // 8 if table in BIT_TABLES else 2 * count
 
 
 @dataclass
@@ -127,7 +127,7 @@ class _FanoutConn:
         base = {t: (first, off) for t, first, _, off in d.layout()}
         reads = []
         for table, address, count in d.requests:
-            fc = _TABLES[table]
+            fc = TABLE_FUNCTIONS[table]
             first, off = base[table]
             if fc <= 2 and (address - first) % 8:
                 raise InvalidArgument(f"{table} {address}: bit reads of one table must "

@@ -34,6 +34,7 @@ from pymb.bench.fanout import FanoutDevice, Sample, TcpFanout
 from pymb.client import TcpClient
 from pymb.devices.mapdevice import MapDevice
 from pymb.maps import Decoder, Map, builtin, load
+from pymb.maps.types import TABLE_FUNCTIONS
 from pymb.sim.tcp import parse_ports
 
 __all__ = ["DESIGNS", "main"]
@@ -113,13 +114,12 @@ _HEAD = struct.Struct(">HHHBBB")
 
 
 def _thread(d: FanoutDevice, index: int, out: list[Sample], stop: threading.Event) -> None:
-    fc = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
     layout = {t: (first, off) for t, first, _, off in d.layout()}
     steps = []
     for i, (t, a, n) in enumerate(d.requests):
         first, off = layout[t]
-        steps.append((_REQ.pack(i + 1, 0, 6, d.unit, fc[t], a, n),
-                      _HEAD.pack(i + 1, 0, 3 + 2 * n, d.unit, fc[t], 2 * n), 9 + 2 * n,
+        steps.append((_REQ.pack(i + 1, 0, 6, d.unit, TABLE_FUNCTIONS[t], a, n),
+                      _HEAD.pack(i + 1, 0, 3 + 2 * n, d.unit, TABLE_FUNCTIONS[t], 2 * n), 9 + 2 * n,
                       off + 2 * (a - first)))
     image = bytearray(d.image_bytes)
     with socket.create_connection((d.host, d.port), timeout=2.0) as s:

@@ -24,6 +24,7 @@ from pymb.maps import Map, MapError
 from pymb.maps.codec import decode_one
 from pymb.maps.model import did_you_mean
 from pymb.maps.point import VIEWS
+from pymb.maps.types import TABLE_FUNCTIONS
 
 __all__ = ["TYPED_VIEWS", "MapTarget", "load_map", "map_types", "match_map", "near",
            "parse_map_device", "unknown_device"]
@@ -184,9 +185,6 @@ def parse_map_device(spec: str, known: Mapping[str, Map]) -> MapTarget | None:
     return MapTarget(m, address, name or f"{m.id}-{address}", options)
 
 
-_FUNCTION = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
-
-
 def _rule_holds(value: object, rule: maps.Identify) -> bool:
     if rule.range is not None:
         return (isinstance(value, (int, float)) and not isinstance(value, bool)
@@ -202,7 +200,7 @@ def _holds(ask: Callable[[int, int, bytes], bytes | int | None], address: int,
     seen: list[str] = []
     for rule in m.identify:
         p = m.points[rule.point]
-        reply = ask(address, _FUNCTION[p.table], struct.pack(">HH", p.address, p.count))
+        reply = ask(address, TABLE_FUNCTIONS[p.table], struct.pack(">HH", p.address, p.count))
         if not isinstance(reply, bytes) or not reply:
             return None
         data = reply[1:1 + reply[0]]

@@ -33,7 +33,7 @@ from typing import Protocol
 from pymb.errors import InvalidArgument
 from pymb.maps.cuts import best_cuts, broken_ties, naive_cost
 from pymb.maps.point import MAX_GAP, Limits
-from pymb.maps.types import BIT_TABLES, TABLES
+from pymb.maps.types import BIT_TABLES, TABLE_FUNCTIONS, TABLES
 from pymb.wire import DEFAULT_BAUD, read_bits_time, read_time
 
 __all__ = [
@@ -117,7 +117,7 @@ class Request:
     @property
     def function(self) -> int:
         """The function code that reads it (1 coils, 2 discrete, 3 holding, 4 input)."""
-        return TABLES.index(self.table) + 1
+        return TABLE_FUNCTIONS[self.table]
 
 
 #: the exceptions after which a poll re-plans the refused read (02: illegal

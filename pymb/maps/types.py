@@ -19,6 +19,7 @@ __all__ = [
     "STATES",
     "SUNSSF_NOT_IMPLEMENTED",
     "TABLES",
+    "TABLE_FUNCTIONS",
     "TYPES",
     "TypeInfo",
     "normalize_order",
@@ -27,6 +28,8 @@ __all__ = [
 
 #: The four Modbus tables, as the file names them.
 TABLES = ("coil", "discrete", "holding", "input")
+#: Each table's read function code: FC 01 coils, 02 discrete, 03 holding, 04 input.
+TABLE_FUNCTIONS = {t: i + 1 for i, t in enumerate(TABLES)}
 #: Tables of 16-bit registers (the other two hold bits).
 REGISTER_TABLES = frozenset({"holding", "input"})
 #: Tables of single bits (FC 01, 02): limits and costs count bits, not registers.

@@ -18,14 +18,14 @@ from pymb.errors import InvalidArgument
 from pymb.maps import Map, MapError, Point
 from pymb.maps.codec import _pattern, _to_regs, encode
 from pymb.maps.model import check_address
-from pymb.maps.types import SF_RANGE, permutation
+from pymb.maps.types import SF_RANGE, TABLE_FUNCTIONS, permutation
 from pymb.sim.base import Device, _locked, parse_firmware
 from pymb.sim.clock import SimClock
 
 __all__ = ["TABLES", "MapImage"]
 
 #: the tables by their read function code
-TABLES = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
+TABLES = {fc: t for t, fc in TABLE_FUNCTIONS.items()}
 
 
 def _swaps(p: Point) -> bool:
