@@ -4,7 +4,8 @@
 coroutine method ``read_all`` with the blocking method's name, signature,
 docstring and type (for mypy too: its arguments and its result are the
 blocking method's), which runs that method of the object's ``blocking``
-twin on the line's worker thread.
+twin on the line's worker thread. ``port = Forward[str]("...")`` gives it a
+read-only property that reads the twin's attribute of that name (no I/O).
 """
 
 from __future__ import annotations
@@ -13,13 +14,14 @@ import abc
 import inspect
 from collections.abc import Awaitable, Callable, Coroutine
 from types import FunctionType, MethodType
-from typing import Concatenate, Generic, ParamSpec, TypeVar, overload
+from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, cast, overload
 
-__all__ = ["Mirror", "Mirrored"]
+__all__ = ["Forward", "Mirror", "Mirrored"]
 
 P = ParamSpec("P")
 R = TypeVar("R")
 S = TypeVar("S")
+T = TypeVar("T")
 
 
 class Mirrored(abc.ABC):
@@ -84,3 +86,33 @@ class Mirror(Generic[S, P, R]):
         if obj is None:
             return self.fn
         return MethodType(self.fn, obj)
+
+
+class Forward(property, Generic[T]):
+    """A read-only property (a :class:`property`, ``doc`` its docstring) that
+    reads the ``blocking`` twin's attribute of the same name, at once: no
+    I/O, no turn on the worker."""
+
+    def __init__(self, doc: str) -> None:
+        def get(obj: Any) -> T:
+            return cast(T, getattr(obj.blocking, self.name))
+        get.__doc__ = doc
+        super().__init__(get, doc=doc)
+        self.__doc__ = doc  # a property subclass's own docstring would stand instead
+        self.name = ""
+        self._get = get
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = self._get.__name__ = name
+        self._get.__qualname__ = f"{owner.__qualname__}.{name}"
+        self._get.__module__ = owner.__module__
+        super().__set_name__(owner, name)  # type: ignore[misc]  # (the setter error names it)
+
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> Forward[T]: ...
+
+    @overload
+    def __get__(self, obj: object, owner: type | None = None) -> T: ...
+
+    def __get__(self, obj: object | None, owner: type | None = None) -> Any:
+        return super().__get__(obj, owner)

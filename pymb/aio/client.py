@@ -40,7 +40,7 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import ParamSpec, Self, TypeVar
 
-from pymb.aio._mirror import Mirror, Mirrored
+from pymb.aio._mirror import Forward, Mirror, Mirrored
 from pymb.aio._worker import LineWorker
 from pymb.client import (
     AsciiClient,
@@ -117,32 +117,19 @@ class AsyncClient(Mirrored):
 
     # -- life cycle -----------------------------------------------------------------
 
-    @property
-    def port(self) -> str:
-        """The serial device or ``host:port`` this client talks to."""
-        return self.blocking.port
+    port = Forward[str]("The serial device or ``host:port`` this client talks to.")
 
-    @property
-    def connected(self) -> bool:
-        """True while the line is open."""
-        return self.blocking.connected
+    connected = Forward[bool]("True while the line is open.")
 
-    @property
-    def connections(self) -> int:
-        """Successful connects so far (the blocking client's count)."""
-        return self.blocking.connections
+    connections = Forward[int]("Successful connects so far (the blocking client's count).")
 
-    @property
-    def resends(self) -> int:
+    resends = Forward[int](
         """Of :attr:`connections`, those opened to send a read again after the
-        peer closed the last one behind its reply (the blocking client's count)."""
-        return self.blocking.resends
+        peer closed the last one behind its reply (the blocking client's count).""")
 
-    @property
-    def fresh_connections(self) -> int:
+    fresh_connections = Forward[int](
         """Of :attr:`connections`, those that may be to another device (the
-        blocking client's count: not the :attr:`resends`)."""
-        return self.blocking.fresh_connections
+        blocking client's count: not the :attr:`resends`).""")
 
     @property
     def worker_threads(self) -> int:
@@ -264,11 +251,9 @@ class AsyncClient(Mirrored):
     def slave(self, value: int | None) -> None:
         self.blocking.slave = value
 
-    @property
-    def timeout(self) -> float:
+    timeout = Forward[float](
         """Seconds to wait for a complete reply (set with :meth:`set_timeout`,
-        in turn with the requests)."""
-        return self.blocking.timeout
+        in turn with the requests).""")
 
     set_timeout = Mirror(Client.set_timeout, setting=True)
 
@@ -298,25 +283,13 @@ class AsyncClient(Mirrored):
 class _AsyncSerialBase(AsyncClient):
     blocking: RtuClient | AsciiClient
 
-    @property
-    def baudrate(self) -> int:
-        """The line's speed, bit/s."""
-        return self.blocking.baudrate
+    baudrate = Forward[int]("The line's speed, bit/s.")
 
-    @property
-    def parity(self) -> str:
-        """``"N"``, ``"E"`` or ``"O"``."""
-        return self.blocking.parity
+    parity = Forward[str]("""``"N"``, ``"E"`` or ``"O"``.""")
 
-    @property
-    def data_bits(self) -> int:
-        """Data bits per character."""
-        return self.blocking.data_bits
+    data_bits = Forward[int]("Data bits per character.")
 
-    @property
-    def stop_bits(self) -> int:
-        """Stop bits per character."""
-        return self.blocking.stop_bits
+    stop_bits = Forward[int]("Stop bits per character.")
 
     def frame_time(self, nbytes: int) -> float:
         """Seconds a frame of ``nbytes`` bytes takes on this line (no I/O)."""
@@ -356,15 +329,9 @@ class AsyncRtuClient(_AsyncSerialBase):
 class _AsyncTcpBase(AsyncClient):
     blocking: TcpClient | RtuOverTcpClient
 
-    @property
-    def host(self) -> str:
-        """The server's name or address."""
-        return self.blocking.host
+    host = Forward[str]("The server's name or address.")
 
-    @property
-    def tcp_port(self) -> int:
-        """The server's TCP port."""
-        return self.blocking.tcp_port
+    tcp_port = Forward[int]("The server's TCP port.")
 
 
 class AsyncTcpClient(_AsyncTcpBase):
@@ -379,10 +346,7 @@ class AsyncTcpClient(_AsyncTcpBase):
         super().__init__(TcpClient(host, port, slave=slave, timeout=timeout,
                                    byte_timeout=byte_timeout, tls=tls))
 
-    @property
-    def tls(self) -> TlsConfig | None:
-        """Modbus/TCP Security's settings (None: plain Modbus TCP)."""
-        return self.blocking.tls
+    tls = Forward[TlsConfig | None]("Modbus/TCP Security's settings (None: plain Modbus TCP).")
 
     attach = Mirror(TcpClient.attach)
 
@@ -434,17 +398,8 @@ class AsyncUdpClient(AsyncClient):
                  retries: int = 2) -> None:
         super().__init__(UdpClient(host, port, slave=slave, timeout=timeout, retries=retries))
 
-    @property
-    def host(self) -> str:
-        """The server's name or address."""
-        return self.blocking.host
+    host = Forward[str]("The server's name or address.")
 
-    @property
-    def udp_port(self) -> int:
-        """The server's UDP port."""
-        return self.blocking.udp_port
+    udp_port = Forward[int]("The server's UDP port.")
 
-    @property
-    def retries(self) -> int:
-        """How many times an unanswered request is sent again."""
-        return self.blocking.retries
+    retries = Forward[int]("How many times an unanswered request is sent again.")

@@ -18,7 +18,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mappin
 from typing import ParamSpec, TypeVar
 
 from pymb import maps
-from pymb.aio._mirror import Mirror, Mirrored
+from pymb.aio._mirror import Forward, Mirror, Mirrored
 from pymb.aio.client import AsyncClient
 from pymb.devices import ReadPlan
 from pymb.devices.coolpro import CoolPro, CoolProTelemetry
@@ -79,10 +79,8 @@ class _Facade(Mirrored):
                 **kwargs: P.kwargs) -> Awaitable[R]:
         return self.client.run(fn, *args, **kwargs)
 
-    @property
-    def address(self) -> int:
-        """The device's address (a CoolPro's changes at a reset after set_address)."""
-        return self.blocking.address
+    address = Forward[int](
+        "The device's address (a CoolPro's changes at a reset after set_address).")
 
 
 class AsyncCoolPro(_Facade):
@@ -138,15 +136,10 @@ class AsyncSensorHub(_Facade):
                                   busy_retries=busy_retries, busy_backoff=busy_backoff,
                                   turnaround=turnaround)
 
-    @property
-    def channels(self) -> int:
-        """How many channels the hub has."""
-        return self.blocking.channels
+    channels = Forward[int]("How many channels the hub has.")
 
-    @property
-    def unsupported(self) -> frozenset[str]:
-        """Blocks this hub's firmware lacks, as far as seen so far."""
-        return self.blocking.unsupported
+    unsupported = Forward[frozenset[str]](
+        "Blocks this hub's firmware lacks, as far as seen so far.")
 
     def plan(self, blocks: Iterable[str] | None = None,
              channels: Iterable[int] | None = None) -> ReadPlan:
@@ -195,20 +188,13 @@ class AsyncMapDevice(_Facade):
                                   busy_backoff=busy_backoff, plan_turnaround=plan_turnaround,
                                   split_on=split_on)
 
-    @property
-    def map(self) -> Map:
-        """The device's map (configured with its options)."""
-        return self.blocking.map
+    map = Forward[Map]("The device's map (configured with its options).")
 
-    @property
-    def states(self) -> dict[str, PointState]:
-        """The state of each point of the last read that finished."""
-        return self.blocking.states
+    states = Forward[dict[str, PointState]](
+        "The state of each point of the last read that finished.")
 
-    @property
-    def planner(self) -> PointPlanner:
-        """The device's read planner (see :attr:`MapDevice.planner`)."""
-        return self.blocking.planner
+    planner = Forward[PointPlanner](
+        "The device's read planner (see :attr:`MapDevice.planner`).")
 
     def plan(self, group: str | None = None, *names: str,
              channels: Iterable[int] | None = None) -> ReadPlan:

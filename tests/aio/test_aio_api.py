@@ -13,7 +13,7 @@ import pytest
 
 import pymb
 import pymb.aio
-from pymb.devices import CoolPro, MapDevice, SensorHub
+from pymb.devices import COOLPRO, CoolPro, MapDevice, SensorHub
 
 #: Methods that do no I/O and take no lock: the same plain method on both sides.
 NO_IO = {"fileno", "frame_time", "plan"}
@@ -103,6 +103,32 @@ def test_instance_attributes_read_through(blocking: type, aio: type) -> None:
     assert twin.slave == 17
     assert not client.connected
     assert repr(client).startswith(f"<{aio.__name__} ")
+
+
+def test_read_only_properties_read_the_twin_and_refuse_assignment() -> None:
+    """The async side's read-only properties: each a documented property that
+    gives its blocking twin's attribute of the same name and refuses
+    assignment as any property without a setter does."""
+    tcp = pymb.aio.AsyncTcpClient("127.0.0.1", 1502)
+    cases: list[tuple[Any, tuple[str, ...]]] = [
+        (tcp, ("port", "connected", "connections", "resends", "fresh_connections", "timeout",
+               "host", "tcp_port", "tls")),
+        (pymb.aio.AsyncRtuClient("/dev/null"), ("baudrate", "parity", "data_bits", "stop_bits")),
+        (pymb.aio.AsyncUdpClient("127.0.0.1", 1502), ("host", "udp_port", "retries")),
+        (pymb.aio.AsyncSensorHub(tcp, 1), ("address", "channels", "unsupported")),
+        (pymb.aio.AsyncMapDevice(tcp, COOLPRO, 40), ("address", "map", "states", "planner")),
+    ]
+    for obj, names in cases:
+        cls = type(obj)
+        for n in names:
+            prop = getattr(cls, n)
+            assert isinstance(prop, property) and prop.__doc__, f"{cls.__name__}.{n}"
+            assert inspect.getdoc(prop.fget) == inspect.getdoc(prop), f"{cls.__name__}.{n}"
+            assert prop.fget.__name__ == n
+            assert getattr(obj, n) == getattr(obj.blocking, n), f"{cls.__name__}.{n}"
+            with pytest.raises(AttributeError,
+                               match=f"^property '{n}' of '{cls.__name__}' object has no setter$"):
+                setattr(obj, n, getattr(obj, n))
 
 
 def test_bad_arguments_raise_what_the_blocking_client_raises() -> None:
