@@ -125,6 +125,7 @@ def test_read_only_properties_read_the_twin_and_refuse_assignment() -> None:
             assert isinstance(prop, property), f"{cls.__name__}.{n}"
             assert prop.__doc__, f"{cls.__name__}.{n}"
             assert inspect.getdoc(prop.fget) == inspect.getdoc(prop), f"{cls.__name__}.{n}"
+            assert prop.fget is not None
             assert prop.fget.__name__ == n
             assert getattr(obj, n) == getattr(obj.blocking, n), f"{cls.__name__}.{n}"
             with pytest.raises(AttributeError,
