@@ -22,7 +22,6 @@ import math
 import random
 import sys
 import threading
-from array import array
 from collections.abc import Callable, Mapping, Sequence
 from typing import ClassVar, Concatenate, ParamSpec, TypeVar
 
@@ -30,7 +29,6 @@ from pymb._native import DeviceExceptionCode as ExceptionCode
 from pymb._native import FunctionCode
 from pymb.errors import InvalidArgument
 from pymb.sim.clock import SimClock
-from pymb.wire import registers_to_wire
 
 __all__ = [
     "SIM_KEYS",
@@ -123,11 +121,6 @@ def _locked(method: Callable[Concatenate[_D, _P], _R]) -> Callable[Concatenate[_
             return method(self, *args, **kwargs)
 
     return wrapper
-
-
-def _swapped(regs: array[int]) -> bytes:
-    """A fresh slice of registers as they go on the wire (swapped in place)."""
-    return registers_to_wire(regs, in_place=True)
 
 
 #: spec keys -> (constructor argument, parser, what the value is)

@@ -49,11 +49,12 @@ from pymb.errors import InvalidArgument
 from pymb.maps import Map, Point
 from pymb.maps.codec import decode_one, encode
 from pymb.maps.types import TYPES
-from pymb.sim.base import MAX_DELAY_S, ExceptionCode, Keys, _locked, _swapped, exception_pdu
+from pymb.sim.base import MAX_DELAY_S, ExceptionCode, Keys, _locked, exception_pdu
 from pymb.sim.clock import SimClock
 from pymb.sim.mapimage import TABLES as _TABLE
 from pymb.sim.mapimage import MapImage
 from pymb.sim.seeded import Wander, first_value, value_at
+from pymb.wire import registers_to_wire
 
 __all__ = ["MapSimDevice"]
 
@@ -326,7 +327,7 @@ class MapSimDevice(MapImage):
                     if v:
                         out[i // 8] |= 1 << (i % 8)
                 return bytes((fc, len(out))) + bytes(out)
-            return bytes((fc, 2 * n)) + _swapped(regs)
+            return bytes((fc, 2 * n)) + registers_to_wire(regs, in_place=True)  # a fresh slice
         if fc == 5 and n not in (0x0000, 0xFF00):  # [MB-AP] 6.5: ON or OFF, nothing else
             return exception_pdu(fc, self.bad_request)
         if fc in (5, 6):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import math
 import sqlite3
-from array import array
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -60,14 +59,10 @@ FORMAT1_LAYOUT = frozenset({"coolpro", "hub"})
 
 
 
-def wire_bytes(regs: array[int]) -> bytes:
-    """Registers as stored: big-endian 16-bit words, as on the wire."""
-    return registers_to_wire(regs)
-
-
-def host_words(blob: bytes) -> array[int]:
-    """Stored registers (big-endian 16-bit words) as an array of registers."""
-    return registers_from_wire(blob)
+#: Registers are stored as they travel, big-endian 16-bit words: the wire's
+#: own conversions, to the stored bytes and back to an array of registers.
+wire_bytes = registers_to_wire
+host_words = registers_from_wire
 
 
 # -- map devices ---------------------------------------------------------------------

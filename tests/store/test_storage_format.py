@@ -30,6 +30,7 @@ from pymb.store import (
     sample_dict,
     samples_after,
 )
+from pymb.store.schema import host_words, wire_bytes
 
 T0 = 1_800_000_000.0
 FIELDS = [b.name for b in BLOCKS]
@@ -454,3 +455,13 @@ def test_pymb_log_max_mb_holds_file_plus_wal_flat_out(tmp_path: Path) -> None:
     assert first > 1, "the run never reached the bound: nothing was trimmed"
     assert worst <= 1.1 * 2_000_000, worst
     assert stored * 1400 < 2_000_000
+
+
+def test_registers_are_stored_big_endian_and_read_back() -> None:
+    """A sample's registers are stored as they travel (big-endian 16-bit
+    words, whatever this machine's byte order) and read back as registers."""
+    regs = array("H", [0x1234, 0xFFFF, 0x0001])
+    blob = wire_bytes(regs)
+    assert blob == b"\x12\x34\xff\xff\x00\x01"
+    assert regs == array("H", [0x1234, 0xFFFF, 0x0001])  # the caller's array is left alone
+    assert host_words(blob) == regs
