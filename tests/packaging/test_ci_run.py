@@ -51,7 +51,8 @@ def test_the_c_checks_and_the_cpu_bound_tests_run_in_the_background(tmp_path: Pa
     r, calls = _run(tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     pytests = [c for c in calls if c.startswith("python -m pytest")]
-    fg = "python -m pytest --durations=15 " + " ".join(f"--ignore {d}" for d in BG_TESTS)
+    fg = ("python -m pytest -n 3 --dist worksteal --durations=15 "
+          + " ".join(f"--ignore {d}" for d in BG_TESTS))
     assert fg in pytests
     (bg,) = [c for c in pytests if c.endswith(" ".join(BG_TESTS))]
     assert bg.startswith("python -m pytest -p no:cacheprovider --basetemp /")
@@ -81,6 +82,6 @@ def test_pytest_arguments_run_as_asked_in_the_foreground(tmp_path: Path) -> None
     r, calls = _run(tmp_path, "tests/cli", "-x")
     assert r.returncode == 0, r.stdout + r.stderr
     pytests = [c for c in calls if c.startswith("python -m pytest")]
-    assert pytests == ["python -m pytest --durations=15 tests/cli -x",
+    assert pytests == ["python -m pytest -n 3 --dist worksteal --durations=15 tests/cli -x",
                        'python -m pytest -q -m ctrl_c and not slow and not timing']
     assert "check-arm" in calls
