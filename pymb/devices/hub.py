@@ -131,14 +131,38 @@ def _decoder(channels: int, unit: float) -> Decoder:
     return Decoder(m, [b.name for b in BLOCKS])
 
 
+@functools.lru_cache(maxsize=8)
+def _decoding(channels: int, unit: float) -> tuple[array[int], Callable[[], int], Buffers]:
+    """:func:`_decoder`'s decode of one registers array bound once: the
+    array, the call that decodes it into the buffers, the buffers."""
+    dec = _decoder(channels, unit)
+    shared = array("H", bytes(2 * _N))
+    b = dec.new_buffers()
+    return shared, dec.bind(shared, b), b
+
+
 def units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
     """The humidity unit the map decodes with (the channels' most common)
     and, per channel, 1 where the channel's unit is the other one."""
+    if type(humidity_unit) is float or type(humidity_unit) is int:
+        return _one_unit(humidity_unit, channels)
+    return _units(humidity_unit, channels)
+
+
+@functools.lru_cache(maxsize=16)
+def _one_unit(humidity_unit: float, channels: int) -> tuple[float, bytes]:
+    return _units(humidity_unit, channels)
+
+
+def _units(humidity_unit: float | Sequence[float], channels: int) -> tuple[float, bytes]:
     tenths = _tenths(humidity_unit, channels)
     ones = tenths.count(0)
-    unit = 1.0 if ones > channels - ones else 0.1
-    other = 1 if unit == 1.0 else 0
-    return unit, bytes(1 if t == other else 0 for t in tenths)
+    if ones > channels - ones:  # the channels in tenths are the other ones
+        return 1.0, tenths
+    return 0.1, tenths.translate(_FLIP)
+
+
+_FLIP = bytes([1, 0]) + bytes(254)  # tenths -> 1 where a channel's unit is 1 %
 
 
 def _other_units(r: HubReading, unit: float, other: bytes) -> None:
@@ -175,7 +199,7 @@ def blocks_in_other_units(b: Blocks, registers: Sequence[int], unit: float,
     """:func:`humidity_in_other_unit` on a hub map reading's :class:`Blocks`
     (the sweep reader's, the store's), if it holds the humidity."""
     at = b.index.get("humidity_pct")
-    if at is not None and any(other):
+    if at is not None and 1 in other:
         humidity_in_other_unit(registers, b.values, b.states, at, unit, other)
 
 
@@ -209,13 +233,12 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     for name in unsupported:
         mask |= 1 << block_index(name)
     unit, other = units(humidity_unit, channels)
-    r = HubReading(channels, regs)
-    dec = _decoder(channels, unit)
+    shared, run, b = _decoding(channels, unit)
     with _DECODING:  # the decoder's arrays are shared
-        b = dec.decode(regs)
-        r.values[:] = b.values
-        r.raw_states[:] = b.states
-    if any(other):
+        shared[:] = regs
+        run()
+        r = HubReading._of(channels, regs, b.values[:], b.states[:])  # noqa: SLF001 - its module's
+    if 1 in other:
         _other_units(r, unit, other)
     if mask:
         _mark_blocks(r, mask, State.UNSUPPORTED)
