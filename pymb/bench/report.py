@@ -268,6 +268,7 @@ def _targets_table(tg: list[dict[str, Any]]) -> Table:
           (fmt_x(t["measured"]) if t["unit"] == "x" else
            f"{t['measured']:,.0f} B" if t["unit"] == "B" else
            f"{t['measured']:,.1f} MB" if t["unit"] == "MB" else
+           f"{t['measured']:,.1f} KB/s" if t["unit"] == "KB/s" else
            f"{t['measured']:,.0f}" if t["unit"] == "values/s" else fmt_time(t["measured"])),
           {True: "yes", False: "NO", None: "-"}[t["met"]]] for t in tg],
         [False, True, True, False], [])

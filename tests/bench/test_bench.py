@@ -478,3 +478,12 @@ def test_a_run_times_each_section_against_its_budget(
     result["meta"]["section_seconds"]["plan"] = 99.0
     # (micro may be over its own on a loaded machine too)
     assert re.search(r"over the quick budget: (micro, )?plan\)", report.to_text(result))
+
+
+def test_each_target_shows_its_measure_in_its_unit() -> None:
+    tg = [{"what": w, "target": "-", "measured": v, "unit": u, "met": True}
+          for w, v, u in [("kb", 5.3, "KB/s"), ("t", 2.4, "us"), ("r", 1.25, "x"),
+                          ("b", 2077.0, "B"), ("m", 46.3, "MB"), ("n", 2572102.0, "values/s")]]
+    shown = {row[0]: row[2] for row in report._targets_table(tg).rows}
+    assert shown == {"kb": "5.3 KB/s", "t": "2.4 µs", "r": "1.25\u00d7", "b": "2,077 B",
+                     "m": "46.3 MB", "n": "2,572,102"}
