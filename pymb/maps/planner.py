@@ -253,10 +253,13 @@ class ReadPlan:
         line = self.line
         gap = (f", inter-request gap {line.inter_request_gap * 1e3:g} ms"
                if line.inter_request_gap else "")
+        bits = sum(r.count for r in self.requests if r.table in BIT_TABLES)
+        regs = self.registers - bits
+        words = " and ".join([f"{regs} registers"] * (regs > 0 or not bits)
+                             + [f"{bits} bits"] * (bits > 0))
         lines = [
             f"read plan at {line.baudrate} bit/s, turnaround {line.turnaround * 1e3:g} ms{gap}: "
-            f"{len(self.requests)} request(s), {self.registers} registers on the wire for "
-            f"{self.wanted} point(s)"
+            f"{len(self.requests)} request(s), {words} on the wire for {self.wanted} point(s)"
         ]
         for i, r in enumerate(self.requests, 1):
             what = "bits" if r.table in BIT_TABLES else "registers"

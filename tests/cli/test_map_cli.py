@@ -111,6 +111,27 @@ def test_map_check_prints_each_groups_plan_and_wire_time(meter: Path) -> None:
     assert "6 request(s), 700 registers on the wire" in r.stdout
 
 
+def test_map_check_counts_coil_and_input_bits_as_bits(tmp_path: Path) -> None:
+    f = tmp_path / "relays.toml"
+    f.write_text('schema = "pymb.map/1"\n[device]\nid = "relays"\nmanufacturer = "M"\n'
+                 'model = "R"\n[groups]\nbits = { interval = 1.0 }\n'
+                 'words = { interval = 1.0 }\n'
+                 + "".join(f'[[point]]\nname = "{n}"\ntable = "{t}"\naddress = {a}\n'
+                           f'type = "{ty}"\ngroup = "{g}"\n'
+                           for n, t, a, ty, g in [("relay", "coil", 0, "bool", "bits"),
+                                                  ("alarm", "discrete", 3, "bool", "bits"),
+                                                  ("volts", "holding", 0, "u16", "words"),
+                                                  ("amps", "holding", 1, "u16", "words")]))
+    r = run_pymb("map", "check", str(f))
+    assert r.returncode == 0, r.stderr
+    assert "2 request(s), 2 bits on the wire for 2 point(s)" in r.stdout
+    assert "1 request(s), 2 registers on the wire for 2 point(s)" in r.stdout
+    plan = maps.load(f).plan("bits")
+    first = plan.explain().split("\n")[0]
+    assert first.endswith("2 bits on the wire for 2 point(s)")
+    assert "registers" not in first
+
+
 def test_map_check_says_how_each_group_is_polled() -> None:
     # a group's ``poll`` says when the logger reads it: at its bus's interval
     # (not its own), or never (read on request, pymb read --group)
