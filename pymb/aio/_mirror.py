@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import abc
 import inspect
+import typing
 from collections.abc import Awaitable, Callable, Coroutine
 from types import FunctionType, MethodType
-from typing import Any, Concatenate, Generic, ParamSpec, TypeVar, cast, overload
+from typing import TYPE_CHECKING, Any, Concatenate, Generic, ParamSpec, TypeVar, overload
 
 __all__ = ["Forward", "Mirror", "Mirrored"]
 
@@ -91,28 +92,32 @@ class Mirror(Generic[S, P, R]):
 class Forward(property, Generic[T]):
     """A read-only property (a :class:`property`, ``doc`` its docstring) that
     reads the ``blocking`` twin's attribute of the same name, at once: no
-    I/O, no turn on the worker."""
+    I/O, no turn on the worker. Its getter is named and typed as a written
+    one would be (``Forward[int]``: ``(self) -> int``), and a read is
+    :class:`property`'s own."""
 
     def __init__(self, doc: str) -> None:
-        def get(obj: Any) -> T:
-            return cast(T, getattr(obj.blocking, self.name))
+        def get(self: Any) -> Any:  # (self: the async object; named in __set_name__)
+            return getattr(self.blocking, get.__name__)
         get.__doc__ = doc
         super().__init__(get, doc=doc)
         self.__doc__ = doc  # a property subclass's own docstring would stand instead
-        self.name = ""
         self._get = get
 
     def __set_name__(self, owner: type, name: str) -> None:
-        self.name = self._get.__name__ = name
-        self._get.__qualname__ = f"{owner.__qualname__}.{name}"
-        self._get.__module__ = owner.__module__
+        get = self._get
+        get.__name__, get.__qualname__ = name, f"{owner.__qualname__}.{name}"
+        get.__module__ = owner.__module__
+        # Forward[T](...) has set __orig_class__ by now: T is the getter's result
+        given = typing.get_args(getattr(self, "__orig_class__", None))
+        get.__annotations__ = {"return": given[0]} if given else {}
         super().__set_name__(owner, name)  # type: ignore[misc]  # (the setter error names it)
 
-    @overload
-    def __get__(self, obj: None, owner: type | None = None) -> Forward[T]: ...
+    if TYPE_CHECKING:  # the types mypy sees; a read runs property.__get__ itself
+        @overload
+        def __get__(self, obj: None, owner: type | None = None) -> Forward[T]: ...
 
-    @overload
-    def __get__(self, obj: object, owner: type | None = None) -> T: ...
+        @overload
+        def __get__(self, obj: object, owner: type | None = None) -> T: ...
 
-    def __get__(self, obj: object | None, owner: type | None = None) -> Any:
-        return super().__get__(obj, owner)
+        def __get__(self, obj: object | None, owner: type | None = None) -> Any: ...

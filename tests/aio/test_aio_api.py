@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import typing
 from typing import Any
 
 import pytest
@@ -14,6 +15,8 @@ import pytest
 import pymb
 import pymb.aio
 from pymb.devices import COOLPRO, CoolPro, MapDevice, SensorHub
+from pymb.maps import Map
+from pymb.maps.device_plan import PointPlanner
 
 #: Methods that do no I/O and take no lock: the same plain method on both sides.
 NO_IO = {"fileno", "frame_time", "plan"}
@@ -131,6 +134,36 @@ def test_read_only_properties_read_the_twin_and_refuse_assignment() -> None:
             with pytest.raises(AttributeError,
                                match=f"^property '{n}' of '{cls.__name__}' object has no setter$"):
                 setattr(obj, n, getattr(obj, n))
+
+
+#: The read-only properties' types, as their getters were written (``-> int``).
+TYPES: dict[str, Any] = {
+    "port": str, "connected": bool, "connections": int, "resends": int,
+    "fresh_connections": int, "timeout": float, "host": str, "tcp_port": int,
+    "tls": pymb.TlsConfig | None, "baudrate": int, "parity": str, "data_bits": int,
+    "stop_bits": int, "udp_port": int, "retries": int, "address": int, "channels": int,
+    "unsupported": frozenset[str], "map": Map, "states": dict[str, str | list[str]],
+    "planner": PointPlanner}  # (states: dict[str, PointState])
+
+
+def test_read_only_properties_getters_read_as_written_ones() -> None:
+    """help(), inspect and typing see each forwarding property's getter as a
+    written one: ``(self) -> its type``, named and placed in its class."""
+    classes = [pymb.aio.AsyncTcpClient, pymb.aio.AsyncRtuClient, pymb.aio.AsyncUdpClient,
+               pymb.aio.AsyncSensorHub, pymb.aio.AsyncMapDevice]
+    seen = set()
+    for cls in classes:
+        for name, prop in inspect.getmembers(cls, lambda o: isinstance(o, property)):
+            if name not in TYPES:
+                continue
+            seen.add(name)
+            get = prop.fget
+            assert get is not None
+            assert list(inspect.signature(get).parameters) == ["self"], f"{cls.__name__}.{name}"
+            assert typing.get_type_hints(get) == {"return": TYPES[name]}, f"{cls.__name__}.{name}"
+            assert get.__qualname__.endswith(f".{name}")
+            assert get.__module__ == cls.__module__
+    assert seen == set(TYPES)
 
 
 def test_bad_arguments_raise_what_the_blocking_client_raises() -> None:
