@@ -976,14 +976,15 @@ def test_demo_mqtt_starts_its_own_mosquitto() -> None:
 
 def test_catch_up_is_paced_and_live_data_keeps_flowing(fleet: Fleet, simulator: str,
                                                        tmp_path: Path) -> None:
-    """A backlog (here: 600 samples logged without a broker) goes at catchup_rate,
-    while the samples taken now go at once, ahead of it."""
+    """A backlog (here: 8 s of samples logged without a broker, 1,600 asked for,
+    at least 300 on a loaded machine) goes at catchup_rate, while the
+    samples taken now go at once, ahead of it."""
     db = tmp_path / "log.sqlite"
     r = run_pymb("log", "--tcp", simulator, "--device", "coolpro:40", "--interval", "0.005",
                  "--out", str(db), "--quiet", "--seconds", "8")
     assert r.returncode == 0, r.stderr
     backlog = db_count(db)
-    assert backlog >= 600
+    assert backlog >= 300  # 3 s at catchup_rate: the pacing shows (a loaded machine logs fewer)
     broker = fleet.broker()
     sub = fleet.subscribe(broker, "pymb/#")
     cfg = tmp_path / "pymb.toml"
