@@ -292,6 +292,9 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     except queue.Empty:
                         item = None
                     now = time.monotonic()
+                    # Before the list is written: a sample in it stamped after a step
+                    # of the clock is re-stamped (a step after its stamp is seen here too).
+                    self._watch_clock()
                     if item:
                         size, events = self._write_all(item)
                         pending += size
@@ -313,8 +316,6 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     elif now - last_check >= _IDLE_CHECK:
                         self.sink.check()
                         last_check = now
-                    if (step := self.clock.check()) is not None:
-                        self._clock_step(step)
                     if self.tick is not None and now - last_status >= 0.5:
                         self.tick(self, now - t0, False)
                         last_status = now
@@ -332,6 +333,8 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                     p.join(max(0.0, until - time.monotonic()))
                 self.stats.close()
                 try:
+                    if failure is None:
+                        self._watch_clock()
                     while failure is None:
                         try:
                             self._write_all(self._queue.get_nowait())
@@ -362,6 +365,11 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
                        dict(s.by_device), s.skipped_slots, self.config.path, never, silent,
                        dict(s.device_faults),
                        {k: len(v) for k, v in s.unsupported.items()}, crashed)
+
+    def _watch_clock(self) -> None:
+        """The wall clock looked at: a step becomes :meth:`_clock_step`."""
+        if (step := self.clock.check()) is not None:
+            self._clock_step(step)
 
     def _clock_step(self, step: float) -> None:
         """The wall clock stepped: an event, and what this run stored with the
