@@ -237,7 +237,7 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     with _DECODING:  # the decoder's arrays are shared
         shared[:] = regs
         run()
-        r = HubReading._of(channels, regs, b.values[:], b.states[:])  # noqa: SLF001 - its module's
+        r = HubReading._of(channels, regs, b.values[:], b.states[:])  # noqa: SLF001 - the package's own
     if 1 in other:
         _other_units(r, unit, other)
     if mask:

@@ -75,10 +75,10 @@ class _GroupRead:
     def __call__(self) -> MapReading:
         fetched = self.dev.fetch(group=self.group)
         image = b"".join([registers_to_wire(regs) for _, regs in fetched])
-        refused = self.dev.planner.unsupported
-        if refused:
-            return poll_sample(self.info, 0.0, 0.0, self.how, image, refused & self.how.items)[1]
-        return poll_sample(self.info, 0.0, 0.0, self.how, image)[1]
+        unread = self.dev.planner.unsupported
+        if unread:
+            unread &= self.how.items
+        return poll_sample(self.info, 0.0, 0.0, self.how, image, unread)[1]
 
 
 def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
