@@ -141,6 +141,11 @@ def run(args: argparse.Namespace) -> int:
     return asyncio.run(_serve(server, upstream, upstream_name))
 
 
+def _counted(n: int, word: str) -> str:
+    """``n`` and ``word``, plural unless ``n`` is 1: "1 connection", "2 connections"."""
+    return f"{n:,} {word}" + ("" if n == 1 else "s")
+
+
 async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
                  upstream_name: str) -> int:
     stop = asyncio.Event()
@@ -163,7 +168,8 @@ async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
     finally:
         upstream.stop()
     st = server.stats
-    print(f"pymb serve: {st.requests:,} requests from {st.connections:,} connections; "
+    print(f"pymb serve: {_counted(st.requests, 'request')} from "
+          f"{_counted(st.connections, 'connection')}; "
           f"upstream: {upstream.sent:,} sent, {upstream.timeouts:,} unanswered, "
           f"{upstream.unreachable:,} while unreachable"
           + (f", {upstream.unwanted:,} not sent (their clients had gone)"

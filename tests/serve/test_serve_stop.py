@@ -44,6 +44,8 @@ def test_a_signal_ends_serve_promptly_with_a_request_in_flight(
             client.sock.close()
     assert code == 0, s.stderr_lines
     assert took < 3, f"pymb serve took {took:.1f} s to stop"
-    # the summary counts the request it never answered
+    # the summary counts the request it never answered, in words that fit one
+    assert s.stderr_lines[-1].startswith("pymb serve: 1 request from 1 connection; "), \
+        s.stderr_lines
     assert s.stderr_lines[-1].endswith(" while unreachable, 1 dropped at the stop"), \
         s.stderr_lines
