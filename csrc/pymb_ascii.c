@@ -246,10 +246,12 @@ static int ascii_check(pymb_line *line, const uint8_t *req, int req_len, const u
 }
 
 /* A whole frame that failed its check leaves the line in step (frames are
- * delimited by ':' and CR LF), unless more waits behind it. */
-static int ascii_lost_step(pymb_line *line)
+ * delimited by ':' and CR LF), unless more waits behind it, or it came from
+ * another address: then the answer of the device asked may still be on its
+ * way ([MB-SL] 2.4.1), and must not be taken as a later request's. */
+static int ascii_lost_step(pymb_line *line, int status)
 {
-    return line->rx_extra > 0 || pymbi_input_pending(line);
+    return status == PYMB_FRAME_BAD_SLAVE || line->rx_extra > 0 || pymbi_input_pending(line);
 }
 
 const pymb_transport pymbi_transport_ascii = {

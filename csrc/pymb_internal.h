@@ -69,9 +69,10 @@ struct pymb_transport {
     /* Check a received ADU against req: a pymb_frame_status (and *exc). */
     int (*check)(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
                  int expect, int *exc);
-    /* After a reply that failed its check: nonzero when what follows it
-     * cannot be told from an answer (a quiet window is then owed). */
-    int (*lost_step)(pymb_line *line);
+    /* After a reply that failed its check with `status` (a
+     * pymb_frame_status): nonzero when what follows it cannot be told from
+     * an answer (a quiet window is then owed). */
+    int (*lost_step)(pymb_line *line, int status);
     /* Open the line's descriptor: 0, or -1 and errno. node and service say
      * where, for a transport that opens its own socket (UDP); the others
      * let libmodbus open what their context names (pymbi_modbus_connect). */
@@ -183,7 +184,7 @@ int pymbi_rtu_receive(pymb_line *line, const uint8_t *req, int req_len, int expe
                       uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail);
 int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
                     int expect, int *exc);
-int pymbi_rtu_lost_step(pymb_line *line);
+int pymbi_rtu_lost_step(pymb_line *line, int status);
 
 /* pymb_tcp.c: the MBAP half that UDP shares ([MB-TCP] 3.1.3; the framing,
  * the length rule and the reply check are pymb_frame.c's: pymb_master.h). */

@@ -248,9 +248,10 @@ int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint
 }
 
 /* What follows a bad RTU frame cannot be told from an answer. */
-int pymbi_rtu_lost_step(pymb_line *line)
+int pymbi_rtu_lost_step(pymb_line *line, int status)
 {
     (void)line;
+    (void)status;
     return 1;
 }
 

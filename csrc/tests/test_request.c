@@ -1349,6 +1349,51 @@ static void test_ascii_char_timeout(void)
     printf("ASCII: inter-character timeout\n");
 }
 
+/* [MB-SL] 2.4.1: a reply from another address is not the answer; the
+ * device asked may still answer after it. The first request gets a frame
+ * from address 9 and then, 20 ms later, its own answer (1000 + address); the
+ * next request (another address: 2000 + address) must never take that
+ * answer as its own. */
+static void answer_other_first(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x02, 0x00, 0x09};
+    uint8_t out[64];
+    size_t len;
+
+    (void)n;
+    if (d->state++ == 0) {
+        len = frame(d->kind, 0, 9, pdu, sizeof pdu, out);
+        dev_send(d, out, len);
+        sleep_ms(20);
+        dev_read_reply(d, req, 1000);
+        return;
+    }
+    dev_read_reply(d, req, 2000);
+}
+
+static void test_ascii_other_address(void)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+
+    if (rig_open(&r, ASCII) != 0) {
+        failures++;
+        return;
+    }
+    modbus_set_response_timeout(r.ctx, 0, 300000);
+    rig_start(&r, answer_other_first);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 5, 1, regs, &fail) ==
+          -1 && errno == EMBBADSLAVE && fail.frame == PYMB_FRAME_BAD_SLAVE);
+    regs[0] = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 5, 1, regs, &fail) ==
+          1 && regs[0] == 2005);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("ASCII: a frame from another address, then the answer\n");
+}
+
 /* UDP: the first datagram of each request is lost (not answered); the
  * resend, with the same transaction id, is. */
 static void answer_every_second(struct dev *d, const uint8_t *req, int n)
@@ -1529,6 +1574,7 @@ int main(void)
     test_arguments();
     test_ascii_frame();
     test_ascii_char_timeout();
+    test_ascii_other_address();
     test_udp_retries();
     test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {

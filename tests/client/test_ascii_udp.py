@@ -172,6 +172,23 @@ def test_ascii_noise_and_another_address() -> None:
             c.read_holding_registers(0, 1)
 
 
+
+def test_ascii_answer_after_a_frame_from_another_address_is_not_the_next_answer() -> None:
+    # [MB-SL] 2.4.1: a reply from another address is no answer, and the
+    # device asked may still answer after it. Here it does, 20 ms later
+    # (value 100 + i): the next request must get its own answer (200 + i).
+    def script(i: int, req: bytes) -> Reply:
+        if i == 0:
+            return [(0, ascii_frame(read_reply(req, [9], unit=7))),
+                    (0.02, ascii_frame(read_reply(req, [100 + i])))]
+        return [(0, ascii_frame(read_reply(req, [200 + i])))]
+
+    with AsciiPty(script) as peer, pymb.AsciiClient(peer.port, 19200, slave=4,
+                                                    timeout=0.3) as c:
+        with pytest.raises(pymb.ProtocolError, match=r"another address 7"):
+            c.read_holding_registers(0, 1)
+        assert list(c.read_holding_registers(0, 1)) == [201]
+
 # -- scripted UDP responder -----------------------------------------------------------------
 
 class UdpPeer(ThreadedPeer):
