@@ -38,11 +38,11 @@ from pymb.bench.worker import (
     answer_commands,
     err_line,
 )
-from pymb.devices import HubReading
+from pymb.devices import CoolProTelemetry, HubReading
 
 __all__ = ["CLIENTS", "LAG_STACKS", "Ticker", "main"]
 
-Op = Callable[[], Awaitable[tuple[Sequence[int], Sequence[float]]]]
+Op = Callable[[], Awaitable[worker.Reading]]
 
 
 class Ticker:
@@ -106,11 +106,9 @@ class PymbAio:
         r = self.reading = await self.hub.read_all(into=self.reading)
         return r.registers, r.values
 
-    async def telemetry(self) -> tuple[Sequence[int], Sequence[float]]:
-        t = await self.coolpro.read_telemetry()
-        return t.registers, (t.input_voltage_v, t.input_current_a, t.output_voltage_v,
-                             t.output_current_a, t.temperature_c, float(t.uptime_s),
-                             float(t.status))
+    async def telemetry(self) -> tuple[Sequence[int], CoolProTelemetry]:
+        t = await self.coolpro.read_telemetry()  # as its user gets it (worker.PymbClient)
+        return t.registers, t
 
     async def close(self) -> None:
         await self.client.close()
@@ -196,8 +194,7 @@ LAG_STACKS: dict[str, Callable[[str, int, float], Any]] = {
 }
 
 
-async def _batch(op: Op, n: int, check: Callable[[Sequence[int], Sequence[float]], None]
-                 ) -> str:
+async def _batch(op: Op, n: int, check: worker.Check) -> str:
     walls = []
     clock = time.perf_counter_ns
     c0 = time.process_time_ns()  # every thread of the process: the worker's too

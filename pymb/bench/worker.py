@@ -29,7 +29,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from pymb.bench import pure
-from pymb.devices import COOLPRO, HUB, HubReading
+from pymb.devices import COOLPRO, HUB, CoolProTelemetry, HubReading
 
 __all__ = ["CLIENTS", "Canary", "PurePythonClient", "main"]
 
@@ -86,11 +86,10 @@ class PymbClient:
         r = self.reading = self.hub.read_all(into=self.reading)
         return r.registers, r.values
 
-    def telemetry(self) -> tuple[Sequence[int], Sequence[float]]:
+    def telemetry(self) -> tuple[Sequence[int], CoolProTelemetry]:
+        # the reading as its user gets it (decoded in C): no copy into a tuple per read
         t = self.coolpro.read_telemetry()
-        return t.registers, (t.input_voltage_v, t.input_current_a, t.output_voltage_v,
-                             t.output_current_a, t.temperature_c, float(t.uptime_s),
-                             float(t.status))
+        return t.registers, t
 
     def close(self) -> None:
         self.client.close()
@@ -243,8 +242,7 @@ CLIENTS: dict[str, Callable[[str, int, float], Any]] = {
 # -- the loop -----------------------------------------------------------------------------
 
 
-def _batch(op: Callable[[], tuple[Sequence[int], Sequence[float]]], n: int,
-           check: Callable[[Sequence[int], Sequence[float]], None] | None) -> str:
+def _batch(op: Callable[[], Reading], n: int, check: Check | None) -> str:
     walls = []
     clock = time.perf_counter_ns
     c0 = time.process_time_ns()
@@ -258,10 +256,25 @@ def _batch(op: Callable[[], tuple[Sequence[int], Sequence[float]]], n: int,
     return f"ok {cpu} " + " ".join(map(str, walls))
 
 
-def telemetry_check(raw: Sequence[int], values: Sequence[float]) -> None:
+#: a telemetry read's decoded values as a stack returns them: the 7 values, or
+#: pymb's :class:`~pymb.devices.CoolProTelemetry` (its typed fields, decoded in C)
+Telemetry = Sequence[float] | CoolProTelemetry
+
+
+def telemetry_check(raw: Sequence[int], values: Telemetry) -> None:
     """Raise unless a CoolPro telemetry read came back whole with an input voltage."""
-    if len(raw) != CP_COUNT or not values[0] > 0:
+    v = values.input_voltage_v if isinstance(values, CoolProTelemetry) else values[0]
+    if len(raw) != CP_COUNT or not v > 0:
         raise RuntimeError("telemetry reads no input voltage")
+
+
+def telemetry_values(values: Telemetry) -> Sequence[float]:
+    """The 7 values of a telemetry read, in the C program's order (``tverify``)."""
+    if not isinstance(values, CoolProTelemetry):
+        return values
+    t = values
+    return (t.input_voltage_v, t.input_current_a, t.output_voltage_v, t.output_current_a,
+            t.temperature_c, float(t.uptime_s), float(t.status))
 
 
 def err_line(e: BaseException) -> str:
@@ -279,8 +292,8 @@ def answer_commands(lines: Any, answer: Callable[[str, list[str], str], str]) ->
         print(answer(cmd, rest, line), flush=True)
 
 
-Check = Callable[[Sequence[int], Sequence[float]], None]
-Reading = tuple[Sequence[int], Sequence[float]]
+Check = Callable[[Sequence[int], Any], None]
+Reading = tuple[Sequence[int], Any]  #: (registers, decoded values: a sweep's or a Telemetry)
 
 
 def serve(client: Any, canary: Canary, lines: Any, out: Any,
@@ -304,6 +317,8 @@ def serve(client: Any, canary: Canary, lines: Any, out: Any,
                 raw, values = op() if call is None else call(op)
                 if cmd == "verify":
                     canary.check(raw, values)
+                else:
+                    values = telemetry_values(values)
                 answer = "ok " + " ".join(map(str, raw)) + "\nok " + " ".join(
                     repr(float(v)) for v in values)
             elif cmd == "quit":
