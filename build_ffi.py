@@ -137,6 +137,7 @@ typedef enum {
     PYMB_FRAME_TOO_LONG,
     PYMB_FRAME_INVALID,
     PYMB_FRAME_BAD_HEADER,
+    PYMB_FRAME_BAD_TEXT,
     ...
 } pymb_frame_status;
 

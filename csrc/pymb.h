@@ -130,8 +130,11 @@ typedef enum {
     PYMB_FRAME_BAD_ECHO = -6,     /* a write's echo differs from the request */
     PYMB_FRAME_TOO_LONG = -7,     /* longer than the frame limit */
     PYMB_FRAME_INVALID = -8,      /* a NULL pointer or an impossible request */
-    PYMB_FRAME_BAD_HEADER = -9    /* [MB-TCP] MBAP protocol id not 0, or a length
+    PYMB_FRAME_BAD_HEADER = -9,   /* [MB-TCP] MBAP protocol id not 0, or a length
                                    * that cannot be (not 2..254) */
+    PYMB_FRAME_BAD_TEXT = -10     /* [MB-SL] 2.5.2 ASCII: a character that is no
+                                   * hexadecimal digit, an odd digit count, or CR
+                                   * not followed by LF */
 } pymb_frame_status;
 
 /* Short English description of a pymb_frame_status ("bad CRC", ...). */

@@ -77,13 +77,13 @@ int pymbi_ascii_feed(pymbi_ascii_rx *rx, uint8_t c)
         return PYMB_FRAME_INCOMPLETE; /* noise between frames */
     }
     if (rx->cr) {
-        int n = rx->nhex / 2, bad = rx->bad || rx->nhex % 2 != 0 || n < 3;
+        int n = rx->nhex / 2;
         rx->in_frame = 0;
         rx->cr = 0;
-        if (c != '\n') {
-            return PYMB_FRAME_BAD_LENGTH; /* CR not followed by LF */
+        if (c != '\n' || rx->bad || rx->nhex % 2 != 0) {
+            return PYMB_FRAME_BAD_TEXT; /* (CR not followed by LF) */
         }
-        return bad ? PYMB_FRAME_BAD_LENGTH : n;
+        return n < 3 ? PYMB_FRAME_BAD_LENGTH : n;
     }
     if (c == '\r') {
         rx->cr = 1;
@@ -93,6 +93,9 @@ int pymbi_ascii_feed(pymbi_ascii_rx *rx, uint8_t c)
     if (v < 0) {
         rx->bad = 1; /* the frame is kept to its end, then refused whole */
         return PYMB_FRAME_INCOMPLETE;
+    }
+    if (rx->bad) {
+        return PYMB_FRAME_INCOMPLETE; /* out holds the bytes before the bad character */
     }
     if (rx->nhex >= 2 * PYMB_ASCII_MAX_BYTES) {
         rx->in_frame = 0;
@@ -150,9 +153,12 @@ static int late_frame(const pymb_line *line, int slave, const uint8_t *f, int n)
 }
 
 /* Receive one frame before the response timeout: characters before a ':'
- * are dropped, a frame whose characters stop for longer than the
- * inter-character timeout is dropped, and so is a garbled one (the wait goes
- * on for a whole frame). The decoded bytes (address, PDU, LRC) go to rsp. */
+ * are dropped, and so is a frame whose characters stop for longer than the
+ * inter-character timeout (the wait goes on for a whole frame; a timeout
+ * then notes what that frame had). A frame ended by CR LF that is no frame
+ * (garbled, too short) or one longer than any frame fails the request at
+ * once, as a bad LRC does ([MB-SL] 2.4.1: an error detected on the frame).
+ * The decoded bytes (address, PDU, LRC) go to rsp. */
 static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
                          uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail)
 {
@@ -161,7 +167,7 @@ static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int e
     uint64_t char_us = pymbi_timeout_us(line->ctx, 1), last = 0;
     pymbi_ascii_rx rx;
     uint8_t buf[128];
-    int partial = 0; /* a frame began, and then went wrong or stopped */
+    int gone = -1; /* the bytes of the last frame a gap dropped, in rsp (-1: none) */
 
     (void)req_len;
     (void)expect;
@@ -170,7 +176,6 @@ static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int e
         char_us = PYMB_ASCII_CHAR_US;
     }
     memset(&rx, 0, sizeof rx);
-    line->rx_extra = 0;
     for (;;) {
         uint64_t now = pymbi_now_us(), wait;
         ssize_t k;
@@ -178,12 +183,16 @@ static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int e
         int rc;
 
         if (rx.in_frame && now - last >= char_us) {
-            memset(&rx, 0, sizeof rx); /* [MB-SL] 2.5.2.1: too long a gap drops the frame */
-            partial = 1;
+            /* [MB-SL] 2.5.2.1: too long a gap drops the frame (kept for the note) */
+            gone = rx.nhex / 2 < cap ? rx.nhex / 2 : cap;
+            memcpy(rsp, rx.out, (size_t)gone);
+            memset(&rx, 0, sizeof rx);
         }
         if (now >= deadline) {
-            if (partial || rx.in_frame) {
+            if (rx.in_frame) {
                 pymbi_note_reply(fail, rx.out, rx.nhex / 2, PYMB_FRAME_INCOMPLETE);
+            } else if (gone >= 0) {
+                pymbi_note_reply(fail, rsp, gone, PYMB_FRAME_INCOMPLETE);
             }
             pymbi_owe(line, req[0]);
             errno = ETIMEDOUT;
@@ -221,8 +230,13 @@ static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int e
                 continue;
             }
             if (n < 0) {
-                partial = 1; /* garbled: dropped, as a device drops one */
-                continue;
+                /* A frame that is no frame, or one too long: the request
+                 * fails, and the line owes a quiet window as after any bad
+                 * frame (the rest of this one, or the answer, may come). */
+                pymbi_note_reply(fail, rx.out, rx.nhex / 2, n);
+                pymbi_owe(line, req[0]);
+                errno = EMBBADDATA;
+                return -1;
             }
             if (n > cap) {
                 n = cap; /* cannot happen: cap >= MODBUS_MAX_ADU_LENGTH */
@@ -231,7 +245,6 @@ static int ascii_receive(pymb_line *line, const uint8_t *req, int req_len, int e
                 continue;
             }
             memcpy(rsp, rx.out, (size_t)n);
-            line->rx_extra = (int)(k - i - 1);
             return n;
         }
     }
@@ -243,15 +256,6 @@ static int ascii_check(pymb_line *line, const uint8_t *req, int req_len, const u
     (void)line;
     (void)expect;
     return pymbi_ascii_check(req, req_len, rsp, n, exc);
-}
-
-/* A whole frame that failed its check leaves the line in step (frames are
- * delimited by ':' and CR LF), unless more waits behind it, or it came from
- * another address: then the answer of the device asked may still be on its
- * way ([MB-SL] 2.4.1), and must not be taken as a later request's. */
-static int ascii_lost_step(pymb_line *line, int status)
-{
-    return status == PYMB_FRAME_BAD_SLAVE || line->rx_extra > 0 || pymbi_input_pending(line);
 }
 
 const pymb_transport pymbi_transport_ascii = {
@@ -268,7 +272,7 @@ const pymb_transport pymbi_transport_ascii = {
     ascii_reply_length,
     ascii_receive,
     ascii_check,
-    ascii_lost_step,
+    pymbi_rtu_lost_step, /* a frame that failed its check may not have been the answer */
     pymbi_modbus_connect,
     pymbi_modbus_close,
 };

@@ -38,6 +38,9 @@ const char *pymb_frame_strerror(pymb_frame_status status)
         return "invalid argument";
     case PYMB_FRAME_BAD_HEADER:
         return "MBAP header with a protocol id other than 0 or an impossible length";
+    case PYMB_FRAME_BAD_TEXT:
+        return "ASCII frame with a character that is not a hexadecimal digit, an odd digit "
+               "count or CR without LF";
     default:
         return "unknown frame status";
     }

@@ -69,10 +69,9 @@ struct pymb_transport {
     /* Check a received ADU against req: a pymb_frame_status (and *exc). */
     int (*check)(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
                  int expect, int *exc);
-    /* After a reply that failed its check with `status` (a
-     * pymb_frame_status): nonzero when what follows it cannot be told from
-     * an answer (a quiet window is then owed). */
-    int (*lost_step)(pymb_line *line, int status);
+    /* After a reply that failed its check: nonzero when what follows it
+     * cannot be told from an answer (a quiet window is then owed). */
+    int (*lost_step)(pymb_line *line);
     /* Open the line's descriptor: 0, or -1 and errno. node and service say
      * where, for a transport that opens its own socket (UDP); the others
      * let libmodbus open what their context names (pymbi_modbus_connect). */
@@ -167,9 +166,11 @@ typedef struct {
 
 /* Feed one character. Returns PYMB_FRAME_INCOMPLETE until a frame ends
  * (CR LF), then its bytes' count (address, PDU, LRC: 3 or more) with the
- * bytes in rx->out, or PYMB_FRAME_TOO_LONG (more bytes than any frame) or
- * PYMB_FRAME_BAD_LENGTH (an odd number of digits, a character that is no
- * digit, fewer than 3 bytes). A ':' starts a frame again wherever it comes;
+ * bytes in rx->out, or PYMB_FRAME_TOO_LONG (more bytes than any frame, said
+ * at the first digit too many), PYMB_FRAME_BAD_TEXT (an odd number of
+ * digits, a character that is no digit, CR not followed by LF: rx->out then
+ * holds the bytes before the first such character) or PYMB_FRAME_BAD_LENGTH
+ * (fewer than 3 bytes). A ':' starts a frame again wherever it comes;
  * characters outside a frame are ignored. The LRC is not checked here. */
 int pymbi_ascii_feed(pymbi_ascii_rx *rx, uint8_t c);
 
@@ -184,7 +185,7 @@ int pymbi_rtu_receive(pymb_line *line, const uint8_t *req, int req_len, int expe
                       uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail);
 int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint8_t *rsp, int n,
                     int expect, int *exc);
-int pymbi_rtu_lost_step(pymb_line *line, int status);
+int pymbi_rtu_lost_step(pymb_line *line);
 
 /* pymb_tcp.c: the MBAP half that UDP shares ([MB-TCP] 3.1.3; the framing,
  * the length rule and the reply check are pymb_frame.c's: pymb_master.h). */

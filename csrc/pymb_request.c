@@ -98,7 +98,7 @@ int pymb_transact(pymb_line *line, const uint8_t *req, int req_len, int expect,
         errno = pymb_exception_errno(exc);
         return -1;
     }
-    if (tr->lost_step(line, status)) {
+    if (tr->lost_step(line)) {
         pymbi_owe(line, req[0]);
     }
     errno = frame_errno(status);

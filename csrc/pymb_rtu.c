@@ -248,10 +248,9 @@ int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint
 }
 
 /* What follows a bad RTU frame cannot be told from an answer. */
-int pymbi_rtu_lost_step(pymb_line *line, int status)
+int pymbi_rtu_lost_step(pymb_line *line)
 {
     (void)line;
-    (void)status;
     return 1;
 }
 

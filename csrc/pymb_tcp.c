@@ -130,9 +130,8 @@ int pymbi_mbap_check(pymb_line *line, const uint8_t *req, int req_len, const uin
 /* The MBAP length delimited the frame, so the stream is in step (later
  * frames are sorted by transaction id) unless bytes already wait behind it
  * (a length that lied). */
-static int tcp_lost_step(pymb_line *line, int status)
+static int tcp_lost_step(pymb_line *line)
 {
-    (void)status;
     return pymbi_input_pending(line);
 }
 

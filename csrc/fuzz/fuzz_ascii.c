@@ -28,7 +28,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         int n = pymbi_ascii_feed(&rx, data[i]), exc = 0, st, k, j, m = PYMB_FRAME_INCOMPLETE;
 
         if (n == PYMB_FRAME_INCOMPLETE || n == PYMB_FRAME_BAD_LENGTH ||
-            n == PYMB_FRAME_TOO_LONG) {
+            n == PYMB_FRAME_TOO_LONG || n == PYMB_FRAME_BAD_TEXT) {
             continue;
         }
         if (n < 3 || n > PYMB_ASCII_MAX_BYTES) {

@@ -164,6 +164,7 @@ static void test_check_response(void)
     CHECK(pymb_rtu_check_response(NULL, 6, rsp, 13, NULL) == PYMB_FRAME_INVALID);
     CHECK(strcmp(pymb_frame_strerror(PYMB_FRAME_BAD_CRC), "bad CRC") == 0);
     CHECK(strncmp(pymb_frame_strerror(PYMB_FRAME_BAD_HEADER), "MBAP", 4) == 0);
+    CHECK(strncmp(pymb_frame_strerror(PYMB_FRAME_BAD_TEXT), "ASCII", 5) == 0);
 }
 
 static void test_errors_and_version(void)

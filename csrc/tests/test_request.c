@@ -1264,11 +1264,15 @@ static void test_ascii_frame(void)
     /* A ':' starts again: the frame before it is gone. */
     memset(&rx, 0, sizeof rx);
     CHECK(feed_all(&rx, ":0103:01030000000AF2\r\n", strlen(":0103:01030000000AF2\r\n")) == 7);
-    /* Refused: an odd digit count, a non-digit, CR without LF, too short. */
+    /* Refused: an odd digit count, a non-digit (the bytes before it kept),
+     * CR without LF, too short. */
     memset(&rx, 0, sizeof rx);
-    CHECK(feed_all(&rx, ":01030000000AF\r\n", strlen(":01030000000AF\r\n")) == PYMB_FRAME_BAD_LENGTH);
-    CHECK(feed_all(&rx, ":0103000G000AF2\r\n", strlen(":0103000G000AF2\r\n")) == PYMB_FRAME_BAD_LENGTH);
-    CHECK(feed_all(&rx, ":01030000000AF2\rX", strlen(":01030000000AF2\rX")) == PYMB_FRAME_BAD_LENGTH);
+    CHECK(feed_all(&rx, ":01030000000AF\r\n", strlen(":01030000000AF\r\n")) == PYMB_FRAME_BAD_TEXT);
+    CHECK(feed_all(&rx, ":0103000G000AF2\r\n", strlen(":0103000G000AF2\r\n")) == PYMB_FRAME_BAD_TEXT);
+    CHECK(rx.nhex == 7 && rx.out[0] == 0x01 && rx.out[1] == 0x03 && rx.out[2] == 0x00);
+    CHECK(feed_all(&rx, ":01030000000AF2\rX", strlen(":01030000000AF2\rX")) == PYMB_FRAME_BAD_TEXT);
+    CHECK(feed_all(&rx, ":01030000000AF2\n\r\n", strlen(":01030000000AF2\n\r\n")) ==
+          PYMB_FRAME_BAD_TEXT);
     CHECK(feed_all(&rx, ":0100\r\n", strlen(":0100\r\n")) == PYMB_FRAME_BAD_LENGTH);
     /* After a refusal, the next frame is whole again. */
     CHECK(feed_all(&rx, ":01030000000AF2\r\n", strlen(":01030000000AF2\r\n")) == 7);
@@ -1392,6 +1396,78 @@ static void test_ascii_other_address(void)
     rig_stop(&r);
     rig_close(&r);
     printf("ASCII: a frame from another address, then the answer\n");
+}
+
+/* [MB-SL] 2.4.1: an error detected on a frame fails the request at once;
+ * the device answered, badly. Request 0 gets a frame with a character that
+ * is no hexadecimal digit, request 1 one longer than any frame, request 2
+ * its answer; request 3 the start of a frame that then stops (the
+ * inter-character timeout drops it, and the timeout says what it had). Each
+ * goes to another address: a bad frame owes its address a quiet window. */
+static void answer_ascii_garbled(struct dev *d, const uint8_t *req, int n)
+{
+    static const char garbled[] = ":0103Z2000501\r\n";
+    uint8_t out[700];
+    int i;
+
+    (void)n;
+    switch (d->state++) {
+    case 0:
+        dev_send(d, (const uint8_t *)garbled, strlen(garbled));
+        break;
+    case 1:
+        out[0] = ':';
+        for (i = 1; i < 601; i++) {
+            out[i] = '0';
+        }
+        out[601] = '\r';
+        out[602] = '\n';
+        dev_send(d, out, 603);
+        break;
+    case 2:
+        dev_read_reply(d, req, 2000);
+        break;
+    default:
+        dev_send(d, (const uint8_t *)":010302", 7);
+        break;
+    }
+}
+
+static void test_ascii_bad_frames(void)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+    double t0;
+
+    if (rig_open(&r, ASCII) != 0) {
+        failures++;
+        return;
+    }
+    modbus_set_response_timeout(r.ctx, 1, 0);
+    rig_start(&r, answer_ascii_garbled);
+    t0 = now_s();
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 5, 1, regs, &fail) ==
+          -1 && errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_TEXT && fail.rsp_len == 2 &&
+          fail.rsp[0] == 0x01 && fail.rsp[1] == 0x03);
+    CHECK(now_s() - t0 < 0.8);
+    t0 = now_s();
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 2, 5, 1, regs, &fail) ==
+          -1 && errno == EMBBADDATA && fail.frame == PYMB_FRAME_TOO_LONG);
+    CHECK(now_s() - t0 < 0.8);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 3, 5, 1, regs, &fail) ==
+          1 && regs[0] == 2005);
+    modbus_set_response_timeout(r.ctx, 0, 500000);
+    modbus_set_byte_timeout(r.ctx, 0, 100000);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 4, 5, 1, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && fail.frame == PYMB_FRAME_INCOMPLETE && fail.rsp_len == 3 &&
+          fail.rsp[0] == 0x01 && fail.rsp[1] == 0x03 && fail.rsp[2] == 0x02);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("ASCII: a garbled frame, one too long, one that stops\n");
 }
 
 /* UDP: the first datagram of each request is lost (not answered); the
@@ -1575,6 +1651,7 @@ int main(void)
     test_ascii_frame();
     test_ascii_char_timeout();
     test_ascii_other_address();
+    test_ascii_bad_frames();
     test_udp_retries();
     test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {

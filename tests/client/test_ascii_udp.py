@@ -119,7 +119,7 @@ def test_ascii_request_on_the_wire_and_a_bad_lrc() -> None:
         # The frame pymb sent: read 3 holding registers from 0x6B of device 1,
         # its LRC 0x8E (0x100 - (0x01 + 0x03 + 0x6B + 0x03)).
         assert peer.requests[0] == b":0103006B00038E\r\n"
-        # A whole bad frame leaves the line in step: the next answer is taken.
+        # After the quiet window a bad frame owes, the next answer is taken.
         assert list(c.read_holding_registers(0x6B, 1)) == [101]
         c.write_register(1, 3)
         assert ascii_bytes(peer.requests[2]) == bytes.fromhex("010600010003")
@@ -172,22 +172,56 @@ def test_ascii_noise_and_another_address() -> None:
             c.read_holding_registers(0, 1)
 
 
+#: Frames that fail a read's check, and the words of the ProtocolError each gives.
+NOT_THE_ANSWER: dict[str, tuple[Callable[[bytes], bytes], str]] = {
+    "another address": (lambda req: ascii_frame(read_reply(req, [9], unit=7)),
+                        "another address 7"),
+    "the request's echo": (ascii_frame, "byte count"),
+    "a bad LRC": (lambda req: ascii_frame(read_reply(req, [9]), lrc_delta=1), "LRC"),
+    "a non-digit": (lambda req: ascii_frame(read_reply(req, [9])).replace(b"03", b"0G", 1),
+                    "not a hexadecimal digit"),
+}
 
-def test_ascii_answer_after_a_frame_from_another_address_is_not_the_next_answer() -> None:
-    # [MB-SL] 2.4.1: a reply from another address is no answer, and the
-    # device asked may still answer after it. Here it does, 20 ms later
-    # (value 100 + i): the next request must get its own answer (200 + i).
+
+@pytest.mark.parametrize("first", NOT_THE_ANSWER)
+def test_ascii_an_answer_after_a_frame_that_is_not_it_is_never_the_next_answer(
+        first: str) -> None:
+    # [MB-SL] 2.4.1: a frame from another address is no answer, nor is an
+    # RS485 adapter's echo of the request; a bad frame may have been anyone's.
+    # The device asked may still answer after it, here 20 ms later (value
+    # 100): the next request must get its own answer (201), never that one.
+    make, words = NOT_THE_ANSWER[first]
+
     def script(i: int, req: bytes) -> Reply:
         if i == 0:
-            return [(0, ascii_frame(read_reply(req, [9], unit=7))),
-                    (0.02, ascii_frame(read_reply(req, [100 + i])))]
+            return [(0, make(req)), (0.02, ascii_frame(read_reply(req, [100])))]
         return [(0, ascii_frame(read_reply(req, [200 + i])))]
 
     with AsciiPty(script) as peer, pymb.AsciiClient(peer.port, 19200, slave=4,
                                                     timeout=0.3) as c:
-        with pytest.raises(pymb.ProtocolError, match=r"another address 7"):
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ProtocolError, match=words):
             c.read_holding_registers(0, 1)
+        assert time.monotonic() - t0 < 0.25  # failed at once, not at the timeout
         assert list(c.read_holding_registers(0, 1)) == [201]
+
+
+@pytest.mark.parametrize(("reply", "error", "words"), [
+    (b":0403020005F\r\n", pymb.ProtocolError, r"odd digit count.*\(received 04 03 02 00 05\)"),
+    (b":01030200\n05F5\r\n", pymb.ProtocolError, r"not a hexadecimal digit"),
+    (b":01030200\r05F5\r\n", pymb.ProtocolError, r"CR without LF"),
+    (b":0403\r\n", pymb.ProtocolError, r"length"),
+    (b":" + b"00" * 300 + b"\r\n", pymb.ProtocolError, r"frame longer than"),
+    # A frame that never ends: the timeout says what it had.
+    (b":0403020005F1\r", pymb.ModbusTimeout, r"incomplete after 6 bytes"),
+])
+def test_ascii_a_frame_that_is_no_frame_fails_the_request(
+        reply: bytes, error: type[pymb.ModbusError], words: str) -> None:
+    with AsciiPty(lambda i, req: [(0, reply)]) as peer, \
+            pymb.AsciiClient(peer.port, 19200, slave=4, timeout=0.5) as c, \
+            pytest.raises(error, match=words):
+        c.read_holding_registers(0, 1)
+
 
 # -- scripted UDP responder -----------------------------------------------------------------
 
