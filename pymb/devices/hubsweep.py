@@ -23,7 +23,7 @@ __all__ = ["SweepReader"]
 
 _FIRST = BLOCKS[0].address  # register 31: channel 1's temperature
 _BUSY_RETRIES = 3
-_UNSUPPORTED = bytes([STATES.index("unsupported")])
+_UNSUPPORTED = STATES.index("unsupported")  #: its code in the decoder's states
 
 
 class SweepReader:
@@ -57,8 +57,11 @@ class SweepReader:
         blocks = Blocks(names, c, array("d", b.values), array("B", b.states), index)
         if self._mixed:
             blocks_in_other_units(blocks, b.registers, self.unit, self.other)
-        sts = blocks.states.tobytes()
-        gone = tuple(n for n in names if _UNSUPPORTED in sts[blocks.index[n]:blocks.index[n] + c])
+        # An int searched in bytes: one memchr, where a bytes searched in a slice
+        # first fails as an int (a TypeError made and dropped) for every block.
+        sts, at = blocks.states.tobytes(), blocks.index
+        gone = () if _UNSUPPORTED not in sts else tuple(
+            n for n in names if sts.find(_UNSUPPORTED, at[n], at[n] + c) >= 0)
         return MapReading(self.device.map, group, blocks.value_map(), blocks.state_map(),
                           array("H", b.registers), gone)
 
