@@ -2,7 +2,8 @@
 specifications and nothing of pymb's (their frames and bitwise CRC are
 tests/peerkit.py's): a raw TCP responder that parses MBAP itself, a raw RTU
 responder on a pseudo-terminal or a TCP socket that frames requests by the
-line's silence, an RTU line with a real line's timing, and two servers in
+line's silence, an RTU line with a real line's timing, a UDP responder on
+127.0.0.1 (one datagram a frame), and two servers in
 their own processes: Debian's libmodbus (tests/libmodbus_server.c, built here
 with cc) and pymodbus (tests/pymodbus_server.py). Each scripted peer hands
 every request to a script that returns what to send back and when:
@@ -12,17 +13,20 @@ every request to a script that returns what to send back and when:
 from __future__ import annotations
 
 import os
+import select
 import shutil
+import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import pytest
-from peerkit import PtyPeerBase, Reply, TcpPeerBase, mbap, registers, rtu
+from peerkit import PtyPeerBase, Reply, TcpPeerBase, ThreadedPeer, mbap, registers, rtu
 
 HERE = Path(__file__).resolve().parent
 
@@ -182,3 +186,49 @@ class EmulatedLine(PtyPeerBase):
                 with suppress(OSError):
                     os.write(self.master, reply[k:k + step])
         return buf
+
+
+class UdpPeer(ThreadedPeer):
+    """A device on a UDP port of 127.0.0.1: ``script(index, request)`` says
+    which datagrams to send back for each request datagram, and when."""
+
+    def __init__(self, script: Callable[[int, bytes], Reply]) -> None:
+        super().__init__()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port: int = self.sock.getsockname()[1]
+        self.script = script
+        self.requests: list[bytes] = []
+        self._senders: list[threading.Thread] = []
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if not select.select([self.sock], [], [], 0.05)[0]:
+                continue
+            data, peer = self.sock.recvfrom(1024)
+            self.requests.append(data)
+            reply = self.script(len(self.requests) - 1, data)
+            t = threading.Thread(target=self._send, args=(reply, peer), daemon=True)
+            self._senders.append(t)
+            t.start()
+
+    def _send(self, reply: Reply, peer: tuple[str, int]) -> None:
+        for delay, data in reply:
+            if delay:
+                time.sleep(delay)
+            if not self._stop.is_set():
+                self.sock.sendto(data, peer)
+
+    def _close(self) -> None:
+        for t in self._senders:
+            t.join(5)
+        self.sock.close()
+
+
+def udp_read_reply(req: bytes, values: list[int], *, tid: int | None = None,
+                   unit: int | None = None) -> bytes:
+    """The datagram answering the read request datagram ``req`` with ``values``
+    (its transaction id and unit id unless ``tid``, ``unit`` say others)."""
+    t = int.from_bytes(req[:2], "big") if tid is None else tid
+    u = req[6] if unit is None else unit
+    return mbap(t, u, bytes((req[7],)) + registers(values))

@@ -5,15 +5,12 @@ of [MB-SL] 2.5.2, MBAP datagrams): a bad LRC, late and foreign replies."""
 
 from __future__ import annotations
 
-import select
-import socket
-import threading
 import time
 from collections.abc import Callable
 
 import pytest
-from peerkit import PtyPeerBase, Reply, ThreadedPeer, mbap, registers
-from wire_peers import pymodbus_peer
+from peerkit import PtyPeerBase, Reply, mbap, registers
+from wire_peers import UdpPeer, pymodbus_peer, udp_read_reply
 
 import pymb
 
@@ -223,51 +220,7 @@ def test_ascii_a_frame_that_is_no_frame_fails_the_request(
         c.read_holding_registers(0, 1)
 
 
-# -- scripted UDP responder -----------------------------------------------------------------
-
-class UdpPeer(ThreadedPeer):
-    """A device on a UDP port of 127.0.0.1: ``script(index, request)`` says
-    which datagrams to send back for each request datagram, and when."""
-
-    def __init__(self, script: Callable[[int, bytes], Reply]) -> None:
-        super().__init__()
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.port: int = self.sock.getsockname()[1]
-        self.script = script
-        self.requests: list[bytes] = []
-        self._senders: list[threading.Thread] = []
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if not select.select([self.sock], [], [], 0.05)[0]:
-                continue
-            data, peer = self.sock.recvfrom(1024)
-            self.requests.append(data)
-            reply = self.script(len(self.requests) - 1, data)
-            t = threading.Thread(target=self._send, args=(reply, peer), daemon=True)
-            self._senders.append(t)
-            t.start()
-
-    def _send(self, reply: Reply, peer: tuple[str, int]) -> None:
-        for delay, data in reply:
-            if delay:
-                time.sleep(delay)
-            if not self._stop.is_set():
-                self.sock.sendto(data, peer)
-
-    def _close(self) -> None:
-        for t in self._senders:
-            t.join(5)
-        self.sock.close()
-
-
-def udp_read_reply(req: bytes, values: list[int], *, tid: int | None = None,
-                   unit: int | None = None) -> bytes:
-    t = int.from_bytes(req[:2], "big") if tid is None else tid
-    u = req[6] if unit is None else unit
-    return mbap(t, u, bytes((req[7],)) + registers(values))
-
+# -- scripted UDP responder (wire_peers.UdpPeer) --------------------------------------------
 
 def test_udp_foreign_and_stale_datagrams_are_dropped() -> None:
     # Before each answer: a reply to an older transaction id, one from another
