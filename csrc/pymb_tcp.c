@@ -81,7 +81,8 @@ static int read_exact(pymb_line *line, int fd, uint8_t *buf, int n, uint64_t dea
 /* Receive the reply to transaction line->tid: frames for other transactions
  * are read and dropped, and the wait goes on until the deadline. A frame cut
  * short (a timeout or an interrupt mid-frame, an impossible MBAP header)
- * leaves the stream out of step: the line then owes a quiet window. */
+ * leaves the stream out of step: the line then owes a quiet window, and the
+ * failure notes the bytes that came. */
 static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
                        uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail)
 {
@@ -96,6 +97,7 @@ static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
 
         if (read_exact(line, fd, rsp, PYMB_MBAP_LENGTH, deadline, &got) < 0) {
             if (got > 0) {
+                pymbi_note_reply(fail, rsp, got, PYMB_FRAME_INCOMPLETE);
                 pymbi_owe(line, req[0]);
             }
             return -1;
@@ -109,6 +111,7 @@ static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
         }
         if (read_exact(line, fd, rsp + PYMB_MBAP_LENGTH, n - PYMB_MBAP_LENGTH, deadline, &got) <
             0) {
+            pymbi_note_reply(fail, rsp, PYMB_MBAP_LENGTH + got, PYMB_FRAME_INCOMPLETE);
             pymbi_owe(line, req[0]);
             return -1;
         }

@@ -1470,6 +1470,45 @@ static void test_ascii_bad_frames(void)
     printf("ASCII: a garbled frame, one too long, one that stops\n");
 }
 
+/* Modbus TCP: a reply that stops part-way (in its MBAP header, then in its
+ * PDU) times out, and the failure keeps the bytes that came (they say the
+ * device did answer); then an honest reply is taken. */
+static void answer_tcp_cut(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x02, 0x00, 0x07};
+    uint8_t out[64];
+    size_t len = frame(d->kind, req_tid(d, req), req_unit(d, req), pdu, sizeof pdu, out);
+    int state = d->state++;
+
+    (void)n;
+    dev_send(d, out, state == 0 ? 5 : state == 1 ? 8 : len);
+}
+
+static void test_tcp_cut_short(void)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+
+    if (rig_open(&r, TCP) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_tcp_cut);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && fail.frame == PYMB_FRAME_INCOMPLETE && fail.rsp_len == 5);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 2, 0, 1, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && fail.frame == PYMB_FRAME_INCOMPLETE && fail.rsp_len == 8 &&
+          fail.rsp[6] == 2 && fail.rsp[7] == 0x03);
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 3, 0, 1, regs, &fail) ==
+          1 && regs[0] == 7);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("TCP: a reply cut short\n");
+}
+
 /* UDP: the first datagram of each request is lost (not answered); the
  * resend, with the same transaction id, is. */
 static void answer_every_second(struct dev *d, const uint8_t *req, int n)
@@ -1652,6 +1691,7 @@ int main(void)
     test_ascii_char_timeout();
     test_ascii_other_address();
     test_ascii_bad_frames();
+    test_tcp_cut_short();
     test_udp_retries();
     test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {

@@ -1,0 +1,77 @@
+"""Modbus masters against peers that misbehave, scripted from the
+specifications ([MB-TCP] 3.1.3's MBAP header):
+replies cut short, datagrams that are no answer. Each
+case checks what a user sees: the error's class and words, within the
+timeout, and never a wrong value afterwards."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+from peerkit import Reply, mbap, registers
+from wire_peers import RawTcp, UdpPeer, answer_read, udp_read_reply
+
+import pymb
+
+
+def test_tcp_a_reply_cut_short_says_what_came() -> None:
+    # The reply stops in its MBAP header, then in its PDU: each is a timeout
+    # that names the bytes the device did send (not "the device is silent").
+    def script(i: int, adu: bytes) -> Reply:
+        whole = answer_read(adu, [7])
+        return [(0, whole[:5] if i == 0 else whole[:8] if i == 1 else whole)]
+
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=0.3) as c:
+        with pytest.raises(pymb.ModbusTimeout, match=r"incomplete after 5 bytes"):
+            c.read_holding_registers(0, 1)
+        with pytest.raises(pymb.ModbusTimeout, match=r"incomplete after 8 bytes.* 01 03\)"):
+            c.read_holding_registers(0, 1)
+        assert list(c.read_holding_registers(0, 1)) == [7]
+
+
+def test_tcp_a_reply_byte_by_byte_and_two_in_one_segment() -> None:
+    # [MB-TCP] 3.1.3: the stream carries frames, not segments: a reply in
+    # 11 pieces is one reply; an old transaction's reply and the answer in
+    # one segment are two, and only the answer is taken.
+    def script(i: int, adu: bytes) -> Reply:
+        whole = answer_read(adu, [i])
+        if i == 0:
+            return [(0.002, whole[k:k + 1]) for k in range(len(whole))]
+        old = mbap(int.from_bytes(adu[:2], "big") - 1, 1, bytes((3,)) + registers([99]))
+        return [(0, old + whole)]
+
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=2) as c:
+        assert [c.read_holding_registers(0, 1)[0] for _ in range(3)] == [0, 1, 2]
+
+
+def test_udp_datagrams_of_the_wrong_size_or_from_elsewhere_are_dropped() -> None:
+    # [MB-TCP] 3.1.3 over UDP: a datagram is one whole frame. Before each
+    # answer come one shorter than an MBAP header, one longer than its MBAP
+    # length says, one shorter, one longer than any ADU (260 bytes), and a
+    # right-looking reply from another port of the host: all dropped.
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.bind(("127.0.0.1", 0))
+    clients: list[tuple[str, int]] = []
+
+    def script(i: int, req: bytes) -> Reply:
+        right = udp_read_reply(req, [i])
+        tid = int.from_bytes(req[:2], "big")
+        body = bytes((3,)) + registers([666])
+        stranger.sendto(right[:6] + bytes((5, 3, 2, 2, 0x9A)), clients[-1])
+        return [(0, right[:6]), (0, right + b"\x00"), (0, right[:-1]),
+                (0, mbap(tid, 5, body + bytes(260), length=len(body) + 1)),
+                (0, mbap(tid, 5, body, length=len(body) + 3)),
+                (0.01, right)]
+
+    with UdpPeer(script) as peer, pymb.UdpClient("127.0.0.1", peer.port, slave=5,
+                                                 timeout=1, retries=0) as c:
+        with socket.socket(fileno=c.fileno()) as s:
+            clients.append(s.getsockname())
+            s.detach()
+        try:
+            assert [c.read_holding_registers(0, 1)[0] for _ in range(3)] == [0, 1, 2]
+        finally:
+            stranger.close()
