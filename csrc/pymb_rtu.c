@@ -219,8 +219,9 @@ int pymbi_rtu_receive(pymb_line *line, const uint8_t *req, int req_len, int expe
             pymbi_note_reply(fail, rsp, 3, PYMB_FRAME_TOO_LONG);
         } else if (errno == ETIMEDOUT && got > 0) {
             int saved = errno;
-            if (expect > 0 && got >= 4 && pymb_rtu_crc_ok(rsp, (size_t)got)) {
-                /* A whole frame, shorter than the caller said. */
+            if (got >= 4 && pymb_rtu_crc_ok(rsp, (size_t)got)) {
+                /* A whole frame, shorter than the caller or its own byte
+                 * count said. */
                 pymbi_note_reply(fail, rsp, got, PYMB_FRAME_BAD_LENGTH);
                 saved = EMBBADDATA;
             } else {

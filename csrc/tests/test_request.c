@@ -1509,6 +1509,35 @@ static void test_tcp_cut_short(void)
     printf("TCP: a reply cut short\n");
 }
 
+/* RTU: a whole frame, its CRC right, whose byte count says more data than
+ * it carries (4 bytes for 1 register, with 2): the wait for the rest ends at
+ * the timeout, and the frame is refused for its length, not as a timeout. */
+static void answer_count_lie(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x04, 0x00, 0x07};
+    (void)n;
+    dev_reply(d, req, pdu, sizeof pdu);
+}
+
+static void test_rtu_count_lie(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_count_lie);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
+          -1 && errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_LENGTH && fail.rsp_len == 7);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: a byte count longer than the frame\n", kind_name(k));
+}
+
 /* UDP: the first datagram of each request is lost (not answered); the
  * resend, with the same transaction id, is. */
 static void answer_every_second(struct dev *d, const uint8_t *req, int n)
@@ -1692,6 +1721,8 @@ int main(void)
     test_ascii_other_address();
     test_ascii_bad_frames();
     test_tcp_cut_short();
+    test_rtu_count_lie(RTU);
+    test_rtu_count_lie(RTU_TCP);
     test_udp_retries();
     test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {

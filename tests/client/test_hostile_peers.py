@@ -1,16 +1,17 @@
 """Modbus masters against peers that misbehave, scripted from the
-specifications ([MB-TCP] 3.1.3's MBAP header):
-replies cut short, datagrams that are no answer. Each
-case checks what a user sees: the error's class and words, within the
+specifications ([MB-TCP] 3.1.3's MBAP header, [MB-SL] 2.5.1's RTU frame):
+replies cut short, byte counts that lie, datagrams that are no answer.
+Each case checks what a user sees: the error's class and words, within the
 timeout, and never a wrong value afterwards."""
 
 from __future__ import annotations
 
 import socket
+import time
 
 import pytest
-from peerkit import Reply, mbap, registers
-from wire_peers import RawTcp, UdpPeer, answer_read, udp_read_reply
+from peerkit import Reply, mbap, registers, rtu
+from wire_peers import RawPty, RawTcp, UdpPeer, answer_read, udp_read_reply
 
 import pymb
 
@@ -45,6 +46,23 @@ def test_tcp_a_reply_byte_by_byte_and_two_in_one_segment() -> None:
     with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
                                                 timeout=2) as c:
         assert [c.read_holding_registers(0, 1)[0] for _ in range(3)] == [0, 1, 2]
+
+
+def test_rtu_a_byte_count_longer_than_its_frame_is_a_protocol_error() -> None:
+    # A whole frame, its CRC right, whose byte count (4) says more than it
+    # carries (2 bytes): refused for its length once the timeout ends the
+    # wait for the rest, not reported as a reply that stopped.
+    def script(i: int, frame: bytes) -> Reply:
+        if i == 0:
+            return [(0, rtu(bytes((frame[0], 3, 4, 0, 9))))]
+        return [(0, rtu(bytes((frame[0], 3)) + registers([i])))]
+
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=0.3) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ProtocolError, match=r"byte count does not match"):
+            c.read_holding_registers(0, 1)
+        assert time.monotonic() - t0 < 0.3 + 0.2
+        assert list(c.read_holding_registers(0, 1)) == [1]
 
 
 def test_udp_datagrams_of_the_wrong_size_or_from_elsewhere_are_dropped() -> None:
