@@ -1,23 +1,28 @@
 """The bench's bare one-thread loop over many Modbus TCP devices:
 :class:`TcpFanout`, the floor `pymb log`'s own loop
 (:mod:`pymb.logger.tcploop`) is measured against in ``pymb bench
---sections gateway``: what one selector over non-blocking sockets costs
-with nothing of the logger's (no groups, no re-plans, no events, no writer
-thread).
+--sections gateway``: what the same core costs with nothing of the
+logger's (no groups, no re-plans, no events, no writer thread).
 
-One loop waits on every connection at once (the system's selector: epoll
-on Linux) over non-blocking sockets. Each device's poll is a fixed list of
-requests made ready once for the C core's sans-I/O master
-(:class:`pymb._native.master.Master`, the one ``pymb log``'s loop runs on):
-it frames them with transaction ids, takes the bytes that come, matches each
-reply to its request, checks it with the request path's rules and copies its
-data bytes into the device's sample image at their place: the registers,
-big-endian, as the store keeps them (bits as the reply packs them). No object
-per register or per point is made on the way.
+One epoll waits on every connection at once over non-blocking sockets,
+through the C loop ``pymb log``'s runs on (:class:`pymb._native.loop.Loop`).
+Each device's poll is a fixed list of requests made ready once for the C
+core's sans-I/O master (:class:`pymb._native.master.Master`): it frames them
+with transaction ids, takes the bytes that come, matches each reply to its
+request, checks it with the request path's rules and copies its data bytes
+into the device's sample image at their place: the registers, big-endian, as
+the store keeps them (bits as the reply packs them). No object per register
+or per point is made on the way.
 
 ``pipeline`` requests may be in flight on a connection at once (Modbus TCP
 allows it, [MB-TCP] 4.2; replies are matched by transaction id); 1 is the
-safe default for devices that take one transaction at a time.
+safe default for devices that take one transaction at a time. Flat out, a
+poll whose requests all fit the pipeline is the C loop's while it is clean:
+its socket wakes once, when all of its replies are in (``SO_RCVLOWAT``),
+and one call takes them, sends the next poll and copies the image; one wait
+hands this loop many polls. Everything else (a connect, a poll read a
+request at a time, a reply that is late, short or refused, a timeout) is
+handed back and done here, reply by reply.
 
 Each device polls at ``interval`` seconds on the drift-free slots of the one
 schedule ``pymb log`` keeps too (:class:`pymb.devices.polls.Slot`, slot k at
@@ -34,13 +39,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import selectors
+import select
 import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from pymb._native.loop import DONE, NO_CONN, READY, TAKEN, Loop
 from pymb._native.master import EXCEPTION, Master, MasterRead, PollTable, ReadBuffer
 from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
@@ -109,6 +115,7 @@ class FanoutStats:
     exceptions: list[int]
     errors: list[int]  #: connections refused or lost, replies out of step
     started_ns: int = field(default_factory=time.monotonic_ns)
+    carried: int = 0  #: of all polls, those the C loop read and sent the next of
 
     @classmethod
     def of(cls, n: int) -> FanoutStats:
@@ -116,9 +123,21 @@ class FanoutStats:
         return cls([0] * n, [0] * n, [0] * n, [0] * n, [0] * n)
 
 
+_TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
+#: the C loop hands a whole poll back unread when its replies take more than
+#: twice their time of late, at least this many seconds (and are not only slow)
+_LOOK = 0.002
+#: a wait of the C loop that carried a poll sleeps this share of the fastest
+#: armed poll's reply time before it looks again: one wake takes the replies
+#: of several polls
+_GAP = 1 / 16
+_POLLS = 256  #: polls one wait of the C loop hands over at most
+_BLOCK = 1 << 20  #: ... and bytes of their images
+
+
 class _FanoutConn:
-    __slots__ = ("busy", "deadline", "index", "m", "n", "retry_at", "slot", "sock",
-                 "started", "state", "table", "target", "todo")
+    __slots__ = ("armed", "busy", "deadline", "index", "lowat", "m", "n", "replies", "retry_at",
+                 "size", "slot", "sock", "started", "state", "table", "target", "todo", "took")
 
     def __init__(self, index: int, d: FanoutDevice, interval: float) -> None:
         self.index = index
@@ -134,13 +153,18 @@ class _FanoutConn:
                                       "start 8 bits apart")
             reads.append(MasterRead(fc, address, count, off + _data_bytes(table, address - first)))
         self.n = len(reads)
-        self.table = PollTable(reads, d.unit, bytearray(d.image_bytes), packed_bits=True)
+        self.size = d.image_bytes
+        self.table = PollTable(reads, d.unit, bytearray(self.size), packed_bits=True)
+        self.replies = self.table.ends[self.n]  #: bytes of a whole poll's replies
         self.m = Master()
         self.sock: socket.socket | None = None
         self.state = "closed"  # closed, connecting, open
         self.busy = False
+        self.armed = False  #: its polls are the C loop's (flat out, a whole poll in flight)
+        self.lowat = 1  #: its socket's SO_RCVLOWAT
         self.todo = 0  #: requests of the poll under way not yet sent
-        self.started = 0
+        self.started = 0.0  #: when the poll under way started (monotonic)
+        self.took = 0.0  #: seconds a whole poll's replies took, of late
         self.deadline = 0.0
         self.retry_at = 0.0
 
@@ -167,11 +191,18 @@ class TcpFanout:
         self.flush = flush
         self.stats = FanoutStats.of(len(self.devices))
         self._conns = [_FanoutConn(i, d, interval) for i, d in enumerate(self.devices)]
-        self._sel = selectors.DefaultSelector()
         self._stop = threading.Event()
         self._batch: list[Sample] = []
         self._agenda: Agenda[_FanoutConn] = Agenda()  #: the idle devices by their next slot
+        self._ep = select.epoll()
         self._rx = ReadBuffer()
+        size = max(c.size for c in self._conns)
+        polls = max(1, min(_POLLS, _BLOCK // size))
+        self._loop = Loop(self._ep.fileno(), len(self._conns), self._rx, _LOOK, polls=polls,
+                          block=polls * size, hold=flush, gap=_GAP)
+        self._block = memoryview(self._loop.block)
+        #: wall time less monotonic time, ns, as of the last sweep (a sample's time: its start's)
+        self._clock = time.time_ns() - time.monotonic_ns()
 
     def stop(self) -> None:
         """Ask :meth:`run` to return (from any thread) within about 50 ms."""
@@ -193,13 +224,19 @@ class TcpFanout:
             return
         c.sock = s
         c.state = "connecting"
+        c.lowat = 1
         c.deadline = now + self.timeout
-        self._sel.register(s, selectors.EVENT_WRITE, c)
+        self._ep.register(s.fileno(), select.EPOLLOUT)
+        self._loop.bind(c.index, s.fileno())
 
     def _drop(self, c: _FanoutConn, now: float) -> None:
+        if c.armed:
+            self._disarm(c)
         if c.sock is not None:
-            with contextlib.suppress(KeyError, ValueError):
-                self._sel.unregister(c.sock)
+            fd = c.sock.fileno()
+            self._loop.unbind(fd)
+            with contextlib.suppress(OSError):
+                self._ep.unregister(fd)
             c.sock.close()
         c.sock = None
         c.state = "closed"
@@ -215,19 +252,40 @@ class TcpFanout:
             self._drop(c, now)
             return
         c.state = "open"
-        self._sel.modify(c.sock, selectors.EVENT_READ, c)
+        self._ep.modify(c.sock.fileno(), select.EPOLLIN)
         if self.interval == 0:
             self._start(c, now)
+
+    def _wake_at(self, c: _FanoutConn, size: int) -> None:
+        """``c``'s socket is readable once ``size`` bytes came (1: any)."""
+        if size != c.lowat and c.sock is not None:
+            with contextlib.suppress(OSError):  # (a socket gone bad: its next read says so)
+                c.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVLOWAT, size)
+                c.lowat = size
 
     # -- polls ---------------------------------------------------------------------------
 
     def _start(self, c: _FanoutConn, now: float) -> None:
         c.busy = True
-        c.started = time.time_ns()
+        c.started = now
         c.deadline = now + self.timeout
         n = min(self.pipeline, c.n)
         c.todo = c.n - n
-        self._send(c, c.n - c.todo - n, n, now)
+        carried = not self.interval and n == c.n  # the C loop's: flat out, a whole poll
+        self._wake_at(c, c.replies if carried else 1)
+        if self._send(c, 0, n, now) and carried:
+            look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
+            self._loop.arm(c.index, c.m, c.table, self.timeout, c.took, now,
+                           now + min(look, self.timeout / 4))
+            c.armed = True
+
+    def _disarm(self, c: _FanoutConn) -> None:
+        """``c`` is this loop's again (the C loop handed it back, or it is
+        taken): its poll in flight read as its replies come."""
+        c.armed = False
+        t = self._loop.disarm(c.index)
+        c.took, c.started, c.deadline = t.took, t.sent_at, t.deadline
+        self._wake_at(c, 1)
 
     def _ended(self, c: _FanoutConn, now: float) -> None:
         """A poll ended (read, refused or lost): the device's next slot, the
@@ -238,15 +296,35 @@ class TcpFanout:
             self.stats.missed[c.index] += slot.advance(now)
             self._agenda.put(slot, c, slot.wake(now))
 
-    def _send(self, c: _FanoutConn, first: int, n: int, now: float) -> None:
+    def _send(self, c: _FanoutConn, first: int, n: int, now: float) -> bool:
         m = c.m
         size = m.frames(c.table, first, n)
         assert c.sock is not None
         try:
-            c.sock.send(m.view[:size])
+            if c.sock.send(m.view[:size]) == size:
+                return True
         except OSError:
-            self.stats.errors[c.index] += 1
-            self._drop(c, now)
+            pass
+        self.stats.errors[c.index] += 1  # (half a request puts the stream out of step)
+        self._drop(c, now)
+        return False
+
+    def _sample(self, c: _FanoutConn) -> None:
+        """The poll under way read every request: its sample, of its image."""
+        self.stats.polls[c.index] += 1
+        self._batch.append((self._clock + int(c.started * 1e9), c.index, bytes(c.table.image)))
+
+    def _carried(self, done: list[int], at: list[float], offs: list[int]) -> None:
+        """The C loop read polls of the connections ``done`` in full at
+        ``at`` and sent the next ones: their samples, of its block at ``offs``."""
+        conns, batch, polls, block, clock = (self._conns, self._batch, self.stats.polls,
+                                             self._block, self._clock)
+        for i, t, off in zip(done, at, offs, strict=True):
+            c = conns[i]
+            batch.append((clock + int(c.started * 1e9), i, bytes(block[off:off + c.size])))
+            c.started = t
+            polls[i] += 1
+        self.stats.carried += len(done)
 
     def _readable(self, c: _FanoutConn, now: float) -> None:
         sock = c.sock
@@ -265,30 +343,73 @@ class TcpFanout:
         m = c.m
         before = m.in_flight
         events, used = m.take(rx, 0, got, c.table)
-        if events or used < got:  # an exception (the poll fails), or no reply of this poll
-            if events and m.event(0).kind == EXCEPTION:
-                self.stats.exceptions[c.index] += 1
-                if m.in_flight:  # more replies are on their way: start afresh
-                    self._drop(c, now)
-                    return
-                self._ended(c, now)
-                return
-            self.stats.errors[c.index] += 1
-            self._drop(c, now)
-            return
-        if c.todo:
+        if events or used < got:
+            self._refused(c, events, used, got, now)
+        elif c.todo:
             n = min(before - m.in_flight, c.todo)
             if n:
                 c.todo -= n
                 self._send(c, c.n - c.todo - n, n, now)
         elif not m.in_flight:
-            self._ended(c, now)
-            self.stats.polls[c.index] += 1
-            self._batch.append((c.started, c.index, bytes(c.table.image)))
-            if self.interval == 0:
-                self._start(c, now)
+            self._read(c, now)
+
+    def _read(self, c: _FanoutConn, now: float) -> None:
+        """The poll under way read every request: its sample; the next poll."""
+        self._sample(c)
+        self._ended(c, now)
+        if self.interval == 0:
+            self._start(c, now)
+
+    def _refused(self, c: _FanoutConn, events: int, used: int, got: int, now: float) -> None:
+        """``c``'s master took ``got`` bytes, ``used`` of them, with ``events``
+        events: an exception ends the poll (the connection is kept when
+        nothing else came), anything else is out of step (dropped)."""
+        if events and c.m.event(0).kind == EXCEPTION:
+            self.stats.exceptions[c.index] += 1
+            if not c.m.in_flight and used == got:
+                self._ended(c, now)
+                return
+        else:
+            self.stats.errors[c.index] += 1
+        self._drop(c, now)
 
     # -- the loop ------------------------------------------------------------------------
+
+    def _wait(self, timeout: float) -> None:
+        """One wait of the C loop: the polls it carried, then what it handed back."""
+        loop = self._loop
+        got = loop.wait(timeout)
+        if loop.done:
+            self._carried(loop.done, loop.done_at, loop.done_off)
+        recs, conns, now = loop.recs, self._conns, loop.now  # (the records' time, near enough)
+        for k in range(got):
+            r = recs[k]
+            i = r.conn
+            if i == NO_CONN:
+                continue
+            c = conns[i]
+            if c.sock is None:  # (closed by a record before: no new socket until a sweep)
+                continue
+            kind = r.kind
+            if c.armed:
+                self._disarm(c)
+            if kind == READY:
+                if c.state == "open":
+                    self._readable(c, now)
+                else:
+                    self._connected(c, now)
+            elif kind == DONE:  # read in full, the next poll not all sent: lost
+                self._sample(c)
+                self.stats.errors[i] += 1
+                self._drop(c, now)
+            elif kind == TAKEN:  # taken but not as a clean poll (looked at: dropped now)
+                with contextlib.suppress(OSError):
+                    c.sock.recv_into(self._rx.view, r.got, socket.MSG_TRUNC)
+                if r.nev or r.used < r.got:
+                    self._refused(c, r.nev, r.used, r.got, now)
+                elif not c.m.in_flight:
+                    self._read(c, now)
+            # (LOOK: a slow poll whose replies so far are no clean part of it: read as they come)
 
     def _due(self, now: float) -> None:
         for c in self._agenda.due(now):
@@ -299,7 +420,12 @@ class TcpFanout:
                 self._agenda.put(c.slot, c, c.slot.wake(now))
 
     def _sweep(self, now: float) -> None:
+        loop = self._loop
         for c in self._conns:
+            if c.armed:
+                if now <= loop.deadline(c.index):
+                    continue
+                self._disarm(c)  # (its poll is late: it times out below)
             if c.state == "closed":
                 if now >= c.retry_at:
                     self._connect(c, now)
@@ -318,16 +444,14 @@ class TcpFanout:
         # the first slots come once the connections are made (or failed), timeout at most
         while any(c.state == "connecting" for c in self._conns) and not self._stop.is_set() \
                 and time.monotonic() < now + self.timeout:
-            for key, _ in self._sel.select(0.05):
-                if key.data.state == "connecting":
-                    self._connected(key.data, time.monotonic())
+            self._wait(_TICK)
         now = time.monotonic()
         if self.interval:
             for i, c in enumerate(self._conns):  # the first slots spread over one interval
                 c.slot.next_at = now + self.interval * i / len(self._conns)
                 self._agenda.put(c.slot, c, c.slot.next_at)
         next_sweep = next_flush = now
-        select, sink, batch, agenda = self._sel.select, self.sink, self._batch, self._agenda
+        sink, batch, agenda = self.sink, self._batch, self._agenda
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -335,24 +459,19 @@ class TcpFanout:
                     break
                 if now >= next_sweep:
                     self._sweep(now)
-                    next_sweep = now + 0.05
+                    next_sweep = now + _TICK
+                    self._clock = time.time_ns() - time.monotonic_ns()
                 if agenda.next() <= now:
                     self._due(now)
                 if batch and now >= next_flush:
                     sink(batch[:])
                     batch.clear()
                     next_flush = now + self.flush
-                wait = min(next_sweep, agenda.next()) - now
-                for key, mask in select(max(wait, 0.0)):
-                    c = key.data
-                    if c.state == "open":
-                        self._readable(c, now)
-                    elif mask & selectors.EVENT_WRITE:
-                        self._connected(c, now)
+                self._wait(min(next_sweep, agenda.next()) - now)
         finally:
             for c in self._conns:
                 self._drop(c, time.monotonic())
-            self._sel.close()
+            self._ep.close()
             if batch:
                 sink(batch[:])
                 batch.clear()

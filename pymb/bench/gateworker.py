@@ -7,10 +7,13 @@ batches, and prints one JSON line: samples and values stored in the steady
 window, this process's CPU seconds in it (every thread's), RSS, threads.
 
 Designs: ``fanout`` (:class:`pymb.bench.fanout.TcpFanout`, one thread, one
-selector), ``fanout-pipelined`` (the same, every request of a poll in flight
-at once), ``threads`` (a thread per connection, blocking sockets, the same
-frames and checks), ``pymodbus`` (pymodbus's ``AsyncModbusTcpClient``, one
-per device, each polled by its own task in one event loop).
+epoll; a poll's requests one at a time: a poll of several requests read
+reply by reply in Python, a poll of one request the C loop's),
+``fanout-pipelined`` (the same, every request of a poll in flight at once:
+every poll the C loop's, as ``pymb log``'s are), ``threads`` (a thread per
+connection, blocking sockets, the same frames and checks), ``pymodbus``
+(pymodbus's ``AsyncModbusTcpClient``, one per device, each polled by its own
+task in one event loop).
 """
 
 from __future__ import annotations

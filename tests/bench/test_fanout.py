@@ -4,13 +4,15 @@ at a 1 s interval no slot is missed, every poll is one stored sample whose
 registers decode to the device's values; a poll that overruns its slots
 misses them, and every slot is polled or missed (the one schedule's slots);
 a silent device costs its own timeouts only; exceptions and refused
-connections are counted per device."""
+connections are counted per device, on slots and flat out; flat out, the C
+loop carries the polls whose requests all fit the pipeline, and only those."""
 
 from __future__ import annotations
 
 import socket
 import struct
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -43,6 +45,7 @@ def _poll(tmp_path: Path, devices: int, seconds: float) -> None:
     polls = int(seconds)
     assert all(polls - 1 <= n <= polls + 1 for n in stats.polls), stats.polls
     assert len(samples) == sum(stats.polls)
+    assert stats.carried == 0  # polls on slots are this loop's, not the C loop's
     assert {i for _, i, _ in samples} == set(range(devices))
     decoder = Decoder(m)
     want = [i + 0.5 for i in range(10)]
@@ -96,7 +99,10 @@ def _silent_server() -> tuple[socket.socket, threading.Event]:
     return srv, done
 
 
-def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path) -> None:
+@pytest.mark.parametrize("interval", [0.5, 0.0])
+def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path, interval: float) -> None:
+    # flat out (0), the C loop carries the live devices' polls and hands the
+    # others back: a silent poll at its deadline, a refused one as it comes
     path = tmp_path / "ten.toml"
     path.write_text(TEN)
     srv, done = _silent_server()
@@ -111,11 +117,16 @@ def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path) -> None:
             bad = FanoutDevice("127.0.0.1", sim.tcp_ports[0], 1, (("input", 100, 2),))
             devices = [*live, FanoutDevice("127.0.0.1", srv.getsockname()[1], 1, READ), bad,
                        FanoutDevice("127.0.0.1", refused, 1, READ)]
-            f = TcpFanout(devices, samples.extend, interval=0.5, timeout=0.2, retry=0.5)
+            f = TcpFanout(devices, samples.extend, interval=interval, timeout=0.2, retry=0.5)
             stats = f.run(4.0)
     finally:
         done.set()
-    assert stats.missed[:3] == [0, 0, 0]
+    if interval:
+        assert stats.missed[:3] == [0, 0, 0]
+        assert stats.carried == 0
+    else:  # no slots to miss; the live devices' polls the C loop's but their first
+        assert stats.missed == [0] * 6
+        assert stats.carried > sum(stats.polls) // 2
     assert min(stats.polls[:3]) >= 7
     assert stats.timeouts[3] >= 2  # the silent one: a timeout, a new connection, again
     assert stats.polls[3] == 0
@@ -125,24 +136,39 @@ def test_a_silent_device_costs_its_own_timeouts_only(tmp_path: Path) -> None:
     assert {i for _, i, _ in samples} == {0, 1, 2}
 
 
-def test_flat_out_pipelined_polls_keep_the_requests_in_order(tmp_path: Path) -> None:
+@pytest.mark.parametrize("pipeline", [5, 1])
+def test_flat_out_polls_keep_the_requests_in_order(tmp_path: Path, pipeline: int) -> None:
     path = tmp_path / "ten.toml"
     path.write_text(TEN)
     m = load(str(path))
-    # the ten points as five requests, all in flight at once, answered in order
+    # the ten points as five requests, all in flight at once (the C loop's
+    # polls), or one at a time (this loop's), answered in order
     reads = tuple(("input", a, 4) for a in range(0, 20, 4))
     samples: list[Sample] = []
     with SimulatorProcess(["--map", str(path), "ten-floats:1,dynamic=0", "--tcp",
                            "127.0.0.1:0", "--count", "4"], quiet=True) as sim:
         devices = [FanoutDevice("127.0.0.1", p, 1, reads) for p in sim.tcp_ports]
-        f = TcpFanout(devices, samples.extend, interval=0, pipeline=5, timeout=2.0)
+        f = TcpFanout(devices, samples.extend, interval=0, pipeline=pipeline, timeout=2.0)
         timer = threading.Timer(1.5, f.stop)
         timer.start()
+        t0 = time.time_ns()
         stats = f.run(30.0)
+        t1 = time.time_ns()
         timer.cancel()
     assert min(stats.polls) > 10
     assert stats.errors == [0] * 4
     assert stats.timeouts == [0] * 4
+    assert len(samples) == sum(stats.polls)
+    if pipeline == 5:  # each connection's first poll is this loop's, the C loop's from then on
+        assert stats.carried > sum(stats.polls) // 2
+    else:
+        assert stats.carried == 0
+    for d in range(4):  # each sample's time: its poll's start, on the wall clock
+        starts = [t for t, i, _ in samples if i == d]
+        assert starts == sorted(starts)
+        assert t0 <= starts[0]
+        assert starts[-1] <= t1
+        assert len(set(starts)) == len(starts)
     decoder = Decoder(m)
     for _, _, image in samples[:: max(1, len(samples) // 50)]:
         assert list(decoder.decode(list(struct.unpack(">20H", image))).values[:10]) == [
