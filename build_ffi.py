@@ -138,6 +138,7 @@ typedef enum {
     PYMB_FRAME_INVALID,
     PYMB_FRAME_BAD_HEADER,
     PYMB_FRAME_BAD_TEXT,
+    PYMB_FRAME_BAD_TID,
     ...
 } pymb_frame_status;
 

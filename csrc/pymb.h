@@ -132,9 +132,11 @@ typedef enum {
     PYMB_FRAME_INVALID = -8,      /* a NULL pointer or an impossible request */
     PYMB_FRAME_BAD_HEADER = -9,   /* [MB-TCP] MBAP protocol id not 0, or a length
                                    * that cannot be (not 2..254) */
-    PYMB_FRAME_BAD_TEXT = -10     /* [MB-SL] 2.5.2 ASCII: a character that is no
+    PYMB_FRAME_BAD_TEXT = -10,    /* [MB-SL] 2.5.2 ASCII: a character that is no
                                    * hexadecimal digit, an odd digit count, or CR
                                    * not followed by LF */
+    PYMB_FRAME_BAD_TID = -11      /* [MB-TCP] a reply to another transaction id:
+                                   * dropped, and the wait went on */
 } pymb_frame_status;
 
 /* Short English description of a pymb_frame_status ("bad CRC", ...). */

@@ -41,6 +41,8 @@ const char *pymb_frame_strerror(pymb_frame_status status)
     case PYMB_FRAME_BAD_TEXT:
         return "ASCII frame with a character that is not a hexadecimal digit, an odd digit "
                "count or CR without LF";
+    case PYMB_FRAME_BAD_TID:
+        return "reply to another transaction id";
     default:
         return "unknown frame status";
     }

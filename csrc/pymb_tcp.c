@@ -82,7 +82,7 @@ static int read_exact(pymb_line *line, int fd, uint8_t *buf, int n, uint64_t dea
  * are read and dropped, and the wait goes on until the deadline. A frame cut
  * short (a timeout or an interrupt mid-frame, an impossible MBAP header)
  * leaves the stream out of step: the line then owes a quiet window, and the
- * failure notes the bytes that came. */
+ * failure notes the bytes that came (else the last frame dropped). */
 static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int expect,
                        uint64_t sent_us, uint8_t *rsp, int cap, pymb_failure *fail)
 {
@@ -118,7 +118,9 @@ static int tcp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
         if (((unsigned)rsp[0] << 8 | rsp[1]) == line->tid) {
             return n;
         }
-        /* A reply to an earlier (timed-out) transaction: drop it, wait on. */
+        /* A reply to an earlier (timed-out) transaction: drop it, wait on
+         * (a timeout then shows it: a device may not echo the id). */
+        pymbi_note_reply(fail, rsp, n, PYMB_FRAME_BAD_TID);
     }
 }
 

@@ -59,7 +59,6 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
     int fd = modbus_get_socket(line->ctx), sends = 1;
     uint64_t timeout = pymbi_timeout_us(line->ctx, 0), deadline = sent_us + timeout;
 
-    (void)fail;
     for (;;) {
         uint64_t now = pymbi_now_us();
         ssize_t k;
@@ -95,11 +94,19 @@ static int udp_receive(pymb_line *line, const uint8_t *req, int req_len, int exp
             }
             return -1; /* ECONNREFUSED: nothing listens there (an ICMP answer) */
         }
+        /* Not one whole MBAP frame, a reply to another request or from
+         * another unit: not an answer, dropped (a timeout shows the last). */
         if (k > cap || pymbi_mbap_reply_length(rsp, (int)k, expect) != (int)k) {
-            continue; /* not one whole MBAP frame: not an answer */
+            pymbi_note_reply(fail, rsp, k > cap ? cap : (int)k, PYMB_FRAME_BAD_HEADER);
+            continue;
         }
-        if (((unsigned)rsp[0] << 8 | rsp[1]) != line->tid || rsp[PYMB_MBAP_LENGTH - 1] != req[0]) {
-            continue; /* a reply to another request, or from another unit */
+        if (((unsigned)rsp[0] << 8 | rsp[1]) != line->tid) {
+            pymbi_note_reply(fail, rsp, (int)k, PYMB_FRAME_BAD_TID);
+            continue;
+        }
+        if (rsp[PYMB_MBAP_LENGTH - 1] != req[0]) {
+            pymbi_note_reply(fail, rsp, (int)k, PYMB_FRAME_BAD_SLAVE);
+            continue;
         }
         return (int)k;
     }

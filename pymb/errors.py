@@ -379,13 +379,16 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
                   count: int | None, port: str, timeout: float, failed: tuple[int, int],
                   response: bytes | None, header: int, frame: str | None,
                   context: str | None = None, tls: str | None = None,
-                  checksum: str = "CRC") -> ModbusError:
+                  checksum: str = "CRC", sends: int = 1, dropped: bool = False) -> ModbusError:
     """The exception for a request that failed with errno ``err``: what was
     asked, what came back (``response``, its unit id at ``header - 1``),
     ``failed`` the (address, count) of the request that failed inside a
     longer read, ``frame`` the C library's words for a rejected reply,
     ``tls`` the words of a TLS failure under the line,
-    ``checksum`` the frame check's name (ASCII: ``"LRC"``)."""
+    ``checksum`` the frame check's name (ASCII: ``"LRC"``), ``sends`` how
+    often the request went out (UDP's retries), ``dropped``: on a timeout,
+    ``response`` is a whole frame that was no answer (``frame`` says why),
+    not the start of one."""
     asked = f"{request_text(function, slave, address, count, context)} on {port}"
     if function in _READS and failed[1] >= 0 and failed != (address, count):
         asked += f" [in the request for {failed[1]} at {failed[0]}]"
@@ -398,12 +401,18 @@ def request_error(err: int, *, function: int, slave: int, address: int | None,
     if tls is not None:
         return TlsError(f"{asked}: {tls}", errno=err, **kw)
     if err == _errno.ETIMEDOUT:
+        within = f"within the {timeout:g} s timeout" + (
+            f" to any of {sends} sends" if sends > 1 else "")
+        if got and dropped:
+            return ModbusTimeout(
+                f"{asked}: no reply {within}; what came was not the answer: "
+                f"{frame or 'dropped'}{received}", **kw)
         if got:
             return ModbusTimeout(
-                f"{asked}: the reply was incomplete after {len(got)} bytes, within "
-                f"the {timeout:g} s timeout{received}", **kw)
+                f"{asked}: the reply was incomplete after {len(got)} bytes, {within}"
+                f"{received}", **kw)
         return ModbusTimeout(
-            f"{asked}: no reply within the {timeout:g} s timeout (the device is silent, "
+            f"{asked}: no reply {within} (the device is silent, "
             "or the address, baud rate or wiring is wrong)", **kw)
     code = errno_exception(err)
     if code:

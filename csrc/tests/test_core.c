@@ -165,6 +165,7 @@ static void test_check_response(void)
     CHECK(strcmp(pymb_frame_strerror(PYMB_FRAME_BAD_CRC), "bad CRC") == 0);
     CHECK(strncmp(pymb_frame_strerror(PYMB_FRAME_BAD_HEADER), "MBAP", 4) == 0);
     CHECK(strncmp(pymb_frame_strerror(PYMB_FRAME_BAD_TEXT), "ASCII", 5) == 0);
+    CHECK(strcmp(pymb_frame_strerror(PYMB_FRAME_BAD_TID), "reply to another transaction id") == 0);
 }
 
 static void test_errors_and_version(void)

@@ -756,7 +756,8 @@ static void test_split_and_bad(enum kind k)
     if (k == TCP) {
         CHECK(errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_HEADER);
     } else if (k == UDP) {
-        CHECK(errno == ETIMEDOUT); /* not a Modbus datagram: dropped, the wait went on */
+        /* not a Modbus datagram: dropped, the wait went on; the timeout shows it */
+        CHECK(errno == ETIMEDOUT && fail.frame == PYMB_FRAME_BAD_HEADER && fail.rsp_len > 0);
     } else {
         CHECK(errno == EMBBADCRC && fail.frame == PYMB_FRAME_BAD_CRC &&
               fail.rsp_len == (k == ASCII ? 6 : 7));
@@ -766,9 +767,11 @@ static void test_split_and_bad(enum kind k)
     rig_start(&r, answer_other_unit);
     errno = 0;
     if (k == UDP) {
-        /* Another unit's datagram is not the answer: dropped. */
+        /* Another unit's datagram is not the answer: dropped (the timeout
+         * shows it). */
         CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs,
-                                  &fail) == -1 && errno == ETIMEDOUT && fail.rsp_len == 0);
+                                  &fail) == -1 && errno == ETIMEDOUT &&
+              fail.frame == PYMB_FRAME_BAD_SLAVE && fail.rsp[fail.header - 1] == 10);
     } else {
         CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 9, 0, 1, regs,
                                   &fail) == -1 && errno == EMBBADSLAVE &&
@@ -1538,6 +1541,38 @@ static void test_rtu_count_lie(enum kind k)
     printf("%s: a byte count longer than the frame\n", kind_name(k));
 }
 
+/* [MB-TCP] 3.1.3: a device that answers with transaction id 0 whatever
+ * the request's (it does not echo the id): its replies are not answers, and
+ * the timeout shows the last one (not "nothing came"). */
+static void answer_tid_zero(struct dev *d, const uint8_t *req, int n)
+{
+    const uint8_t pdu[] = {0x03, 0x02, 0x00, 0x07};
+    uint8_t out[64];
+    size_t len = frame(d->kind, 0, req_unit(d, req), pdu, sizeof pdu, out);
+    (void)n;
+    dev_send(d, out, len);
+}
+
+static void test_tid_not_echoed(enum kind k)
+{
+    struct rig r;
+    uint16_t regs[1];
+    pymb_failure fail;
+
+    if (rig_open(&r, k) != 0) {
+        failures++;
+        return;
+    }
+    rig_start(&r, answer_tid_zero);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
+          -1 && errno == ETIMEDOUT && fail.frame == PYMB_FRAME_BAD_TID && fail.rsp_len == 11 &&
+          fail.rsp[0] == 0 && fail.rsp[1] == 0);
+    rig_stop(&r);
+    rig_close(&r);
+    printf("%s: replies that do not echo the transaction id\n", kind_name(k));
+}
+
 /* UDP: the first datagram of each request is lost (not answered); the
  * resend, with the same transaction id, is. */
 static void answer_every_second(struct dev *d, const uint8_t *req, int n)
@@ -1723,6 +1758,8 @@ int main(void)
     test_tcp_cut_short();
     test_rtu_count_lie(RTU);
     test_rtu_count_lie(RTU_TCP);
+    test_tid_not_echoed(TCP);
+    test_tid_not_echoed(UDP);
     test_udp_retries();
     test_udp_connect();
     for (i = 0; i < sizeof kinds / sizeof kinds[0]; i++) {

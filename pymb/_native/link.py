@@ -124,9 +124,8 @@ class Link:
         self._header = 1  # where a reply's PDU starts: pymb_line_header_length
         self._timeout = (1.0, 0.0)
         self._timeout_us = (1, 0)  # the response timeout as libmodbus takes it (s, us)
-        #: a plan's response timeout the context holds instead of the line's
-        #: own (None: its own): left there for the next run of such a plan,
-        #: put back before any other request
+        #: a plan's response timeout the context holds instead of the line's own (None: its
+        #: own): left there for the next run of such a plan, put back before any other request
         self._held: tuple[int, int] | None = None
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
         self.adopt: int | None = None  #: a lent socket the next open() takes (TCP)
@@ -493,8 +492,9 @@ class Link:
         frame = ffi.string(lib.pymb_frame_strerror(fail.frame)).decode() if fail.frame else None
         return request_error(
             err, function=function, slave=slave, address=address, count=count, port=self.name,
-            timeout=self._timeout[0], failed=(fail.address, fail.count),
+            timeout=self._timeout[0], failed=(fail.address, fail.count), sends=self._retries + 1,
             response=bytes(ffi.buffer(fail.rsp, fail.rsp_len)) if fail.rsp_len > 0 else None,
             header=fail.header, frame=frame, context=context, tls=tls,
+            dropped=fail.frame < lib.PYMB_FRAME_INCOMPLETE,  # (a frame cut short: -1)
             checksum="LRC" if self._framing == lib.PYMB_FRAMING_ASCII else "CRC")
 

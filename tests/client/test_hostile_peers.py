@@ -93,3 +93,33 @@ def test_udp_datagrams_of_the_wrong_size_or_from_elsewhere_are_dropped() -> None
             assert [c.read_holding_registers(0, 1)[0] for _ in range(3)] == [0, 1, 2]
         finally:
             stranger.close()
+
+
+def test_tcp_replies_to_another_transaction_are_shown_by_the_timeout() -> None:
+    # A device that answers with transaction id 0 whatever the request's (it
+    # does not echo the id, [MB-TCP] 3.1.3): no answer, but not "silent".
+    def script(i: int, adu: bytes) -> Reply:
+        return [(0, mbap(0, 1, bytes((3,)) + registers([9])))]
+
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=0.3) as c, \
+            pytest.raises(pymb.ModbusTimeout, match=r"within the 0.3 s timeout; what came was "
+                          r"not the answer: reply to another transaction id \(received 00 00"):
+        c.read_holding_registers(0, 1)
+
+
+def test_udp_a_timeout_says_its_sends_and_what_was_dropped() -> None:
+    # Every send is answered from another unit: dropped, and the read fails
+    # after (retries + 1) * timeout with a timeout that says both.
+    def script(i: int, req: bytes) -> Reply:
+        return [(0, udp_read_reply(req, [9], unit=6))]
+
+    with UdpPeer(script) as peer, pymb.UdpClient("127.0.0.1", peer.port, slave=5,
+                                                 timeout=0.2, retries=2) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ModbusTimeout,
+                           match=r"within the 0.2 s timeout to any of 3 sends; what came was not "
+                           r"the answer: reply from another address \(received .* 06 03 02"):
+            c.read_holding_registers(0, 1)
+        assert 0.6 <= time.monotonic() - t0 < 0.6 + 0.3
+        assert len(peer.requests) == 3
