@@ -7,6 +7,7 @@ timeout, and never a wrong value afterwards."""
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import pytest
@@ -46,6 +47,55 @@ def test_tcp_a_reply_byte_by_byte_and_two_in_one_segment() -> None:
     with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
                                                 timeout=2) as c:
         assert [c.read_holding_registers(0, 1)[0] for _ in range(3)] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("length", [0, 1, 255, 0xFFFF])
+def test_tcp_an_impossible_mbap_length_is_a_protocol_error(length: int) -> None:
+    # [MB-TCP] 3.1.3: the length counts the unit id and the PDU, 2..254.
+    # Anything else cannot be framed: refused at once, and after the quiet
+    # window the stream owes, the next read gets its own answer.
+    def script(i: int, adu: bytes) -> Reply:
+        if i == 0:
+            return [(0, mbap(int.from_bytes(adu[:2], "big"), 1, b"\x03\x02\x00\x09",
+                             length=length))]
+        return [(0, answer_read(adu, [i]))]
+
+    with RawTcp(script) as peer, pymb.TcpClient("127.0.0.1", peer.port, slave=1,
+                                                timeout=0.3) as c:
+        t0 = time.monotonic()
+        with pytest.raises(pymb.ProtocolError, match=r"MBAP header"):
+            c.read_holding_registers(0, 1)
+        assert time.monotonic() - t0 < 0.25
+        assert list(c.read_holding_registers(0, 1)) == [1]
+
+
+def test_tcp_a_peer_that_closes_mid_reply() -> None:
+    # The connection ends 5 bytes into the reply: a connection error at once
+    # (not a timeout), and the next read connects again and gets its answer.
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def serve() -> None:
+        for k in range(2):
+            conn, _ = server.accept()
+            with conn:
+                adu = conn.recv(256)
+                conn.sendall(answer_read(adu, [k])[:5 if k == 0 else None])
+                if k == 1:
+                    conn.recv(256)  # until the client closes
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    try:
+        with pymb.TcpClient("127.0.0.1", port, slave=1, timeout=2) as c:
+            t0 = time.monotonic()
+            with pytest.raises(pymb.ModbusConnectionError, match=r"closed by the peer"):
+                c.read_holding_registers(0, 1)
+            assert time.monotonic() - t0 < 1
+            assert list(c.read_holding_registers(0, 1)) == [1]
+    finally:
+        t.join(5)
+        server.close()
 
 
 def test_rtu_a_byte_count_longer_than_its_frame_is_a_protocol_error() -> None:
