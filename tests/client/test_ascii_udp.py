@@ -220,6 +220,19 @@ def test_ascii_a_frame_that_is_no_frame_fails_the_request(
         c.read_holding_registers(0, 1)
 
 
+def test_ascii_a_frame_dropped_by_the_inter_character_timeout_is_named_by_the_timeout() -> None:
+    # [MB-SL] 2.5.2.1: a gap longer than the inter-character timeout (here
+    # byte_timeout, 0.1 s) drops the frame begun; nothing else comes, and the
+    # timeout says what that frame had rather than "no reply".
+    def script(i: int, req: bytes) -> Reply:
+        return [(0, b":040302"), (0.2, b"0005F1\r\n")]
+
+    with AsciiPty(script) as peer, pymb.AsciiClient(peer.port, 19200, slave=4, timeout=0.5,
+                                                    byte_timeout=0.1) as c, \
+            pytest.raises(pymb.ModbusTimeout, match=r"incomplete after 3 bytes.*04 03 02\)"):
+        c.read_holding_registers(0, 1)
+
+
 # -- scripted UDP responder (wire_peers.UdpPeer) --------------------------------------------
 
 def test_udp_foreign_and_stale_datagrams_are_dropped() -> None:
