@@ -54,7 +54,10 @@ from pymb.maps.types import BIT_TABLES, TABLE_FUNCTIONS
 
 __all__ = ["FanoutDevice", "FanoutStats", "Sample", "TcpFanout"]
 
-Sample = tuple[int, int, bytes]  #: (poll start, time.time_ns(); device index; registers)
+#: (poll start, time.time_ns(); device index; registers): a bytearray, which
+#: :mod:`sqlite3` binds as a BLOB at once (a bytes object it first offers to
+#: its adapters)
+Sample = tuple[int, int, bytearray]
 
 
 @dataclass(frozen=True)
@@ -200,7 +203,7 @@ class TcpFanout:
         polls = max(1, min(_POLLS, _BLOCK // size))
         self._loop = Loop(self._ep.fileno(), len(self._conns), self._rx, _LOOK, polls=polls,
                           block=polls * size, hold=flush, gap=_GAP)
-        self._block = memoryview(self._loop.block)
+        self._block = self._loop.block
         #: wall time less monotonic time, ns, as of the last sweep (a sample's time: its start's)
         self._clock = time.time_ns() - time.monotonic_ns()
 
@@ -312,7 +315,7 @@ class TcpFanout:
     def _sample(self, c: _FanoutConn) -> None:
         """The poll under way read every request: its sample, of its image."""
         self.stats.polls[c.index] += 1
-        self._batch.append((self._clock + int(c.started * 1e9), c.index, bytes(c.table.image)))
+        self._batch.append((self._clock + int(c.started * 1e9), c.index, c.table.image[:]))
 
     def _carried(self, done: list[int], at: list[float], offs: list[int]) -> None:
         """The C loop read polls of the connections ``done`` in full at
@@ -321,7 +324,7 @@ class TcpFanout:
                                              self._block, self._clock)
         for i, t, off in zip(done, at, offs, strict=True):
             c = conns[i]
-            batch.append((clock + int(c.started * 1e9), i, bytes(block[off:off + c.size])))
+            batch.append((clock + int(c.started * 1e9), i, block[off:off + c.size]))
             c.started = t
             polls[i] += 1
         self.stats.carried += len(done)

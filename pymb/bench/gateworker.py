@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
+import itertools
 import json
 import os
 import resource
@@ -50,10 +52,19 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+_ROWS = 64  #: rows one INSERT carries at most (one statement step for them all)
+
+
+@functools.lru_cache(maxsize=_ROWS)
+def _insert(n: int) -> str:
+    return "INSERT INTO sample VALUES " + ", ".join(["(?, ?, ?)"] * n)
+
+
 class GateSink:
-    """The sink of every design: batches of samples into one SQLite table;
-    measures the steady window (``warmup`` s after the first batch, for
-    ``seconds``) and sets :attr:`done` at its end."""
+    """The sink of every design: batches of samples into one SQLite table,
+    one transaction a batch, :data:`_ROWS` rows an INSERT (as ``pymb log``'s
+    writer binds them); measures the steady window (``warmup`` s after the
+    first batch, for ``seconds``) and sets :attr:`done` at its end."""
 
     def __init__(self, path: str, warmup: float, seconds: float) -> None:
         self.db = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
@@ -72,9 +83,12 @@ class GateSink:
     def __call__(self, batch: list[Sample]) -> None:
         if self.done.is_set():
             return
-        self.db.execute("BEGIN")
-        self.db.executemany("INSERT INTO sample VALUES (?, ?, ?)", batch)
-        self.db.execute("COMMIT")
+        db, flat, n = self.db, list(itertools.chain.from_iterable(batch)), len(batch)
+        db.execute("BEGIN")
+        for i in range(0, n, _ROWS):
+            k = min(_ROWS, n - i)
+            db.execute(_insert(k), flat[3 * i:3 * (i + k)])
+        db.execute("COMMIT")
         self.stored += len(batch)
         now = time.monotonic()
         if self.t0 is None:
@@ -142,7 +156,7 @@ def _thread(d: FanoutDevice, index: int, out: list[Sample], stop: threading.Even
                 if view[:9] != head:
                     raise RuntimeError(f"device {index}: a reply out of step")
                 image[off:off + size - 9] = view[9:size]
-            out.append((t0, index, bytes(image)))
+            out.append((t0, index, image[:]))
 
 
 def _threads(devices: Sequence[FanoutDevice], store: GateSink) -> None:
@@ -180,7 +194,7 @@ async def _pymodbus(devices: Sequence[FanoutDevice], store: GateSink) -> None:
                     first, off = layout[table]
                     at = off + 2 * (address - first)
                     image[at:at + 2 * count] = struct.pack(f">{count}H", *rr.registers)
-                out.append((t0, index, bytes(image)))
+                out.append((t0, index, image[:]))
         finally:
             c.close()
 

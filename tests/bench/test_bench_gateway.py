@@ -5,12 +5,13 @@ No timing assertions: the figures are the bench's."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from pymb.bench import gatebench, report
-from pymb.bench.gateworker import DESIGNS
+from pymb.bench.gateworker import DESIGNS, GateSink
 from pymb.cli import main
 
 
@@ -93,3 +94,15 @@ def test_a_row_that_measured_nothing_prints_as_a_dash() -> None:
            "samples": 0, "wall_s": 3.0, "threads": 301, "checked": True}
     (table,) = gatebench.tables({"warmup": 1.0, "seconds": 3.0, "rows": [row]})
     assert table.rows[0][3:5] == ["-", "-"]
+
+
+def test_the_sink_stores_every_sample_of_a_batch_in_order(tmp_path: Path) -> None:
+    # 150 rows: two INSERTs of 64 and one of the 22 left; then a batch of one
+    sink = GateSink(str(tmp_path / "gate.db"), warmup=0.0, seconds=60.0)
+    batch = [(t, t % 7, bytearray(t.to_bytes(2, "big") * 3)) for t in range(150)]
+    sink(batch)
+    sink(batch[:1])
+    rows = sink.db.execute("SELECT t, device, registers FROM sample ORDER BY rowid").fetchall()
+    assert rows == [(t, d, bytes(r)) for t, d, r in [*batch, batch[0]]]
+    assert sink.stored == 151
+    sink.db.close()
