@@ -394,6 +394,8 @@ class TcpFanout:
             if c.sock is None:  # (closed by a record before: no new socket until a sweep)
                 continue
             kind = r.kind
+            if kind == DONE:  # read in full (its sample, of its start), the next poll not
+                self._sample(c)  # all sent: lost (below)
             if c.armed:
                 self._disarm(c)
             if kind == READY:
@@ -401,8 +403,7 @@ class TcpFanout:
                     self._readable(c, now)
                 else:
                     self._connected(c, now)
-            elif kind == DONE:  # read in full, the next poll not all sent: lost
-                self._sample(c)
+            elif kind == DONE:
                 self.stats.errors[i] += 1
                 self._drop(c, now)
             elif kind == TAKEN:  # taken but not as a clean poll (looked at: dropped now)

@@ -29,7 +29,7 @@ from typing import Any
 
 from pymb.bench.contenders import CONTENDERS, probe
 from pymb.bench.cpuload import process_cpu, status_field
-from pymb.bench.gateworker import DESIGNS
+from pymb.bench.gateworker import DESIGNS, SINK_ROWS
 from pymb.bench.options import Options
 from pymb.bench.procs import ChildError, Children
 from pymb.bench.table import Table, fmt_time
@@ -376,4 +376,8 @@ def tables(section: dict[str, Any]) -> list[Table]:
          "threads", "checked"], rows,
         [False, True, False, True, True, True, True, True, False],
         ["checked: the last stored sample decodes to what MapDevice reads from the device",
-         "threads: the worker's two helpers (a stop watcher and a deadline timer) included"])]
+         "threads: the worker's two helpers (a stop watcher and a deadline timer) included",
+         "pymb fan-out: the bench's bare loop, on pymb log's C master and (a poll's requests "
+         "all in flight) its C loop, with none of the logger: no groups, re-plans, events or "
+         "writer thread; every design but pymb log stores through one sink (a transaction a "
+         f"batch, {SINK_ROWS} rows an INSERT)"])]

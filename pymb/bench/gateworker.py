@@ -42,7 +42,7 @@ from pymb.maps import Decoder, Map, builtin, load
 from pymb.maps.types import TABLE_FUNCTIONS
 from pymb.sim.tcp import parse_ports
 
-__all__ = ["DESIGNS", "main"]
+__all__ = ["DESIGNS", "SINK_ROWS", "GateSink", "main"]
 
 DESIGNS = ("fanout", "fanout-pipelined", "threads", "pymodbus")
 
@@ -52,17 +52,17 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-_ROWS = 64  #: rows one INSERT carries at most (one statement step for them all)
+SINK_ROWS = 64  #: rows one INSERT carries at most (one statement step for them all)
 
 
-@functools.lru_cache(maxsize=_ROWS)
+@functools.lru_cache(maxsize=SINK_ROWS)
 def _insert(n: int) -> str:
     return "INSERT INTO sample VALUES " + ", ".join(["(?, ?, ?)"] * n)
 
 
 class GateSink:
     """The sink of every design: batches of samples into one SQLite table,
-    one transaction a batch, :data:`_ROWS` rows an INSERT (as ``pymb log``'s
+    one transaction a batch, :data:`SINK_ROWS` rows an INSERT (as ``pymb log``'s
     writer binds them); measures the steady window (``warmup`` s after the
     first batch, for ``seconds``) and sets :attr:`done` at its end."""
 
@@ -85,8 +85,8 @@ class GateSink:
             return
         db, flat, n = self.db, list(itertools.chain.from_iterable(batch)), len(batch)
         db.execute("BEGIN")
-        for i in range(0, n, _ROWS):
-            k = min(_ROWS, n - i)
+        for i in range(0, n, SINK_ROWS):
+            k = min(SINK_ROWS, n - i)
             db.execute(_insert(k), flat[3 * i:3 * (i + k)])
         db.execute("COMMIT")
         self.stored += len(batch)
