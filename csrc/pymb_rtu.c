@@ -244,6 +244,11 @@ int pymbi_rtu_check(pymb_line *line, const uint8_t *req, int req_len, const uint
     if (status == PYMB_FRAME_BAD_CRC && expect > 0 &&
         (line->rx_extra > 0 || pymbi_input_pending(line))) {
         status = PYMB_FRAME_BAD_LENGTH; /* the frame goes on past the length the caller said */
+    } else if (status == PYMB_FRAME_BAD_CRC && line->rx_extra > 0 &&
+               pymb_rtu_crc_ok(rsp, (size_t)n + (size_t)line->rx_extra)) {
+        /* The bytes read after it (rsp holds them) end a frame whose CRC is
+         * right: the frame goes on past the length its byte count said. */
+        status = PYMB_FRAME_BAD_LENGTH;
     }
     return status;
 }

@@ -1514,12 +1514,19 @@ static void test_tcp_cut_short(void)
 
 /* RTU: a whole frame, its CRC right, whose byte count says more data than
  * it carries (4 bytes for 1 register, with 2): the wait for the rest ends at
- * the timeout, and the frame is refused for its length, not as a timeout. */
+ * the timeout, and the frame is refused for its length, not as a timeout.
+ * Then one whose byte count says less (1): its CRC fails where the count
+ * ends it, but is right over all it sent: refused for its length too. */
 static void answer_count_lie(struct dev *d, const uint8_t *req, int n)
 {
-    const uint8_t pdu[] = {0x03, 0x04, 0x00, 0x07};
+    const uint8_t more[] = {0x03, 0x04, 0x00, 0x07};
+    const uint8_t less[] = {0x03, 0x01, 0x00, 0x07};
     (void)n;
-    dev_reply(d, req, pdu, sizeof pdu);
+    if (d->state++ == 0) {
+        dev_reply(d, req, more, sizeof more);
+    } else {
+        dev_reply(d, req, less, sizeof less);
+    }
 }
 
 static void test_rtu_count_lie(enum kind k)
@@ -1536,9 +1543,12 @@ static void test_rtu_count_lie(enum kind k)
     errno = 0;
     CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 1, 0, 1, regs, &fail) ==
           -1 && errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_LENGTH && fail.rsp_len == 7);
+    errno = 0;
+    CHECK(pymb_read_registers(r.line, MODBUS_FC_READ_HOLDING_REGISTERS, 2, 0, 1, regs, &fail) ==
+          -1 && errno == EMBBADDATA && fail.frame == PYMB_FRAME_BAD_LENGTH);
     rig_stop(&r);
     rig_close(&r);
-    printf("%s: a byte count longer than the frame\n", kind_name(k));
+    printf("%s: a byte count that says more, or less, than the frame\n", kind_name(k));
 }
 
 /* [MB-TCP] 3.1.3: a device that answers with transaction id 0 whatever

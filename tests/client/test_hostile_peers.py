@@ -98,6 +98,18 @@ def test_tcp_a_peer_that_closes_mid_reply() -> None:
         server.close()
 
 
+def test_rtu_a_byte_count_shorter_than_its_frame_says_so() -> None:
+    # The byte count (1) ends the frame before its data and CRC do: the CRC
+    # fails there, but is right over all the device sent, so the error names
+    # the length, not the CRC.
+    def script(i: int, frame: bytes) -> Reply:
+        return [(0, rtu(bytes((frame[0], 3, 1, 0, 9))))]
+
+    with RawPty(script) as pty, pymb.RtuClient(pty.port, 115200, slave=1, timeout=0.3) as c, \
+            pytest.raises(pymb.ProtocolError, match=r"byte count does not match"):
+        c.read_holding_registers(0, 1)
+
+
 def test_rtu_a_byte_count_longer_than_its_frame_is_a_protocol_error() -> None:
     # A whole frame, its CRC right, whose byte count (4) says more than it
     # carries (2 bytes): refused for its length once the timeout ends the
