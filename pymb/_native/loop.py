@@ -6,7 +6,8 @@ connection whose whole poll came back, takes its replies into the poll's
 image with the connection's :class:`~pymb._native.master.Master`, sends the
 next poll (the same requests, framed in the same step) and drops the replies
 from the socket: the connection's index is in :attr:`Loop.done`. Everything else comes back for the
-loop (:mod:`pymb.logger.tcploop`) to do as it does it in Python: a socket
+loop (:mod:`pymb.logger.tcploop`, and the bench's bare loop :mod:`pymb.bench.fanout`) to do
+as it does it in Python: a socket
 ready that is not armed, or whose bytes are not just its poll's replies
 (:data:`READY`, nothing read), a take that is not the poll's clean end
 (:data:`TAKEN`: the master's events, the bytes in the loop's receive buffer),

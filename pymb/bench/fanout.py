@@ -5,7 +5,7 @@
 logger's (no groups, no re-plans, no events, no writer thread).
 
 One epoll waits on every connection at once over non-blocking sockets,
-through the C loop ``pymb log``'s runs on (:class:`pymb._native.loop.Loop`).
+through ``pymb log``'s C loop (:class:`pymb._native.loop.Loop`).
 Each device's poll is a fixed list of requests made ready once for the C
 core's sans-I/O master (:class:`pymb._native.master.Master`): it frames them
 with transaction ids, takes the bytes that come, matches each reply to its
