@@ -27,16 +27,16 @@ from pymb.client.address import is_mbaps
 from pymb.errors import ModbusError, request_error, request_text
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
-from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Backoff, Health, reappeared
+from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Backoff, reappeared
 from pymb.logger.stats import Stats
+from pymb.logger.tcpcarry import Carried
 from pymb.logger.tcpsel import READ, WRITE, Selector
 from pymb.logger.tcpunits import Entry, PollRequest, Unit
 from pymb.store import Event, Sample
-from pymb.store.block import PollBlock, PollSource, poll_sample
+from pymb.store.block import PollBlock, poll_sample
 
 __all__ = ["Conn", "TcpLoopBase", "asked", "fans_out", "request_failed"]
 
-_NONE: frozenset[int] = frozenset()
 #: while a wait of the C part holds the polls it carried, it sleeps this
 #: share of the fastest armed poll's reply time before it looks again: one
 #: wake (a context switch, as much CPU as a poll's Python) then takes the
@@ -176,8 +176,8 @@ class TcpLoopBase(threading.Thread):
         #: replies at once (the connection's ``look`` is its seq), read as they
         #: come from then on
         self._looks: list[tuple[float, int, Conn]] = []
-        #: by connection index, what its armed polls give the writer (:meth:`arm`)
-        self._carry: list[tuple[PollSource, Health, frozenset[int], Conn, int]] = []
+        #: what the armed connections' polls give the writer (made with the C part)
+        self._carry = Carried(0, self.report, stats)
 
     def start_loop(self, rx: ReadBuffer, look_min: float) -> Loop:
         """The C part over :attr:`conns` (each one's :attr:`Conn.index` set),
@@ -188,7 +188,7 @@ class TcpLoopBase(threading.Thread):
         and the C part itself woken once for several replies (:data:`_GAP`)."""
         for i, c in enumerate(self.conns):
             c.index = i
-        self._carry = [None] * len(self.conns)  # type: ignore[list-item]  # (set at arm)
+        self._carry = Carried(len(self.conns), self.report, self.stats)
         image = max((len(e.image) for c in self.conns for e in c.entries), default=0)
         self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min, polls=BATCH_MAX,
                           block=BATCH_MAX * max(image, 1), hold=BATCH_AGE, gap=_GAP)
@@ -203,9 +203,8 @@ class TcpLoopBase(threading.Thread):
             cloop.arm(c.index, c.m, t, timeout, c.took, c.sent_at, look_at)
             c.armed = True
             c.look = 0  # (its look is the C part's)
-            e = c.entry
-            assert e is not None  # (its plan, so the items it leaves out, holds while armed)
-            self._carry[c.index] = (e.source, e.unit.health, e.unsupported(), c, len(e.image))
+            assert c.entry is not None
+            self._carry.arm(c.index, c.entry, c.bus.name)
 
     def look(self, c: Conn, at: float) -> None:
         """``c``'s whole poll in flight is read as its replies come from ``at`` on."""
@@ -257,26 +256,10 @@ class TcpLoopBase(threading.Thread):
     def carried_block(self, done: list[int], at: list[float], offs: list[int]) -> None:
         """The C part read polls in full and sent the next ones whole: of
         the connections ``done``, at ``at``, their images at ``offs`` in its
-        block. One :class:`~pymb.store.block.PollBlock` for the writer; each
-        poll's device answered (:meth:`Report.answered <pymb.logger.report.Report.answered>`
-        only where that is news: an armed poll's device is well once it answered)."""
-        carry, problems, report = self._carry, self.stats.problems, self.report
-        sources: list[PollSource] = []
-        add = sources.append
-        unread: list[frozenset[int]] | None = None
-        for i in done:
-            src, h, gone, c, size = carry[i]  # (arm's: its entry, so its plan, holds)
-            add(src)
-            if gone or h.failures or h.offline or h.name in problems:
-                if gone:
-                    if unread is None:
-                        unread = [_NONE] * len(done)
-                    unread[len(sources) - 1] = gone
-                report.answered(c.bus.name, h, src.device,
-                                src.decode.unsupported(gone) if gone else ())
+        block: one :class:`~pymb.store.block.PollBlock` for the writer
+        (:class:`~pymb.logger.tcpcarry.Carried`)."""
         wall, mono = time.time(), time.monotonic()
-        report.block(PollBlock.of(at[0] + (wall - mono), at[0], sources, at, offs,
-                                  bytes(self._block[:offs[-1] + size]), unread))
+        self.report.block(self._carry.block(done, at, offs, self._block, wall - mono))
 
     def disarm(self, c: Conn) -> Times | None:
         """``c`` is the loop's again (``c.armed`` or not: the C part may have
@@ -285,6 +268,7 @@ class TcpLoopBase(threading.Thread):
         if not c.armed or self.cloop is None:
             return None
         c.armed = False
+        self._carry.disarm(c.index)
         got = self.cloop.disarm(c.index)
         c.took, c.sent_at, c.deadline = got.took, got.sent_at, got.deadline
         c.asked += got.asked

@@ -40,7 +40,9 @@ class PollBlock:
     """Polls read in one go, in the order they were read. Poll ``j`` is of
     ``sources[j]``, read at ``monos[j]`` (monotonic; its wall time
     ``clock + monos[j]``); its registers are ``data`` from ``offs[j]`` to
-    the next poll's offset (the last: to the end), big-endian; ``unread[j]``
+    the next poll's offset (the last: to the end), big-endian (a bytearray
+    as the TCP loop hands it: the SQLite writer binds slices of it as they
+    are, without a copy of the whole first); ``unread[j]``
     are the planner items the device refused in it (``unread`` None: none in
     any poll). ``time_utc`` and ``monotonic`` are the first poll's (the
     block's time, as a sample's: a clock step re-stamps it)."""
@@ -50,12 +52,12 @@ class PollBlock:
     sources: list[PollSource]
     monos: list[float]
     offs: list[int]
-    data: bytes
+    data: bytes | bytearray
     unread: list[frozenset[int]] | None = None
 
     @classmethod
     def of(cls, time_utc: float, monotonic: float, sources: list[PollSource],
-           monos: list[float], offs: list[int], data: bytes,
+           monos: list[float], offs: list[int], data: bytes | bytearray,
            unread: list[frozenset[int]] | None = None) -> PollBlock:
         """The block its constructor makes, its fields set in one step (a
         frozen dataclass's ``__init__`` sets each with a call of
@@ -80,8 +82,9 @@ class PollBlock:
         :class:`~pymb.devices.mapreading.MapReading`)."""
         src, offs, mono = self.sources[j], self.offs, self.monos[j]
         end = offs[j + 1] if j + 1 < len(offs) else len(self.data)
-        return poll_sample(src.device, self.clock + mono, mono, src.decode,
-                           self.data[offs[j]:end], self.unread[j] if self.unread else _NONE)[0]
+        image = bytes(memoryview(self.data)[offs[j]:end])
+        return poll_sample(src.device, self.clock + mono, mono, src.decode, image,
+                           self.unread[j] if self.unread else _NONE)[0]
 
     def samples(self) -> list[Sample]:
         """Each poll's :class:`~pymb.store.Sample`, in order."""

@@ -258,3 +258,30 @@ def test_a_device_polled_flat_out_that_falls_silent_times_out(tmp_path: Path) ->
     assert _registers(got) == {tuple(WANT.values())}
     late = timeouts[0].monotonic - got.samples[-1].monotonic
     assert 0.3 <= late < 1.5, late  # (its timeout, a sweep's tick and a loaded machine's slack)
+
+
+def _silent_between(first: int, last: int) -> Script:
+    """Right replies to a connection's requests but its ``first`` to ``last``."""
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        return None if first <= n <= last else good(*req)
+    return script
+
+
+def test_a_device_polled_flat_out_that_comes_back_says_so_once(tmp_path: Path) -> None:
+    """Flat out and pipelined, the device leaves three polls unanswered
+    (``offline_after = 3``: offline, tried again 0.5 s later) and then
+    answers again: its first poll after that is carried by the loop's C
+    part as the ones before the silence were, and says ``online`` once; the
+    device's fault is cleared from the run's problems; later polls say
+    nothing."""
+    got = _poll(tmp_path, _silent_between(91, 99),
+                lambda h: "online" in h.kinds() and len(h.samples) >= 60,
+                bus="timeout = 0.3\ninterval = 0\npipeline = 4\n", points=FAR, within=15.0)
+    assert [k for k in got.kinds() if k != "skipped"] == [
+        "connect", "timeout", "timeout", "timeout", "online"], got.events
+    back = got.events[-1].monotonic
+    later = [s for b in got.blocks for s in b.samples() if s.monotonic >= back]
+    assert later, "the polls after the silence were not the C part's"
+    assert got.stats.device_faults["hx-1"] == 3
+    assert got.stats.status == "ok"
+    assert _registers(got) == {tuple(WANT.values())}
