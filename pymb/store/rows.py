@@ -155,20 +155,26 @@ def block_binds(block: PollBlock, ids: DeviceIds) -> BoundRows | None:
     object a row: SQLite makes them), when that is how they go: no poll
     refused a point, each device's ids known (:attr:`DeviceIds.by_source`,
     its first block's :func:`block_rows` finds them), no registers to pad
-    (format 1's layout). None otherwise."""
-    if block.unread is not None:
+    (format 1's layout). None otherwise. A column at a time (a row's
+    registers: a slice of the block's bytearray), not a tuple a row."""
+    if block.unread is not None or not block.sources:
         return None
-    data = bytearray(block.data)  # (a slice of it is a bytearray: one object a row)
+    try:
+        got = list(map(ids.by_source.__getitem__, block.sources))
+    except KeyError:
+        return None
+    dids, sizes = zip(*got, strict=True)
+    if any(sizes):
+        return None
+    data = block.data
+    if not isinstance(data, bytearray):  # (a slice of one is a bytearray: one object a row)
+        data = bytearray(data)
     offs = block.offs
     ends = [*offs[1:], len(data)]
-    known = ids.by_source.get
-    flat: list[object] = []
-    add = flat.extend
-    for src, mono, a, b in zip(block.sources, block.monos, offs, ends, strict=True):
-        got = known(src)
-        if got is None or got[1]:
-            return None
-        add((got[0], mono, data[a:b]))
+    flat: list[object] = [None] * (3 * len(got))  # (each column set in one step)
+    flat[0::3] = dids
+    flat[1::3] = block.monos
+    flat[2::3] = [data[a:b] for a, b in zip(offs, ends, strict=True)]
     return BoundRows(flat, list(map(operator.sub, ends, offs)), block.clock)
 
 
