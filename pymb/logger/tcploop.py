@@ -45,11 +45,11 @@ from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
 from pymb.logger.schedule import TEXT, Agenda
 from pymb.logger.stats import Stats
-from pymb.logger.tcpconn import Conn, TcpLoopBase, asked, fans_out, request_failed
+from pymb.logger.tcpconn import Conn, TcpLoopBase, fans_out
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
-from pymb.logger.tcpunits import Entry, PollRequest, Unit
+from pymb.logger.tcpunits import Entry, PollRequest, Unit, asked, request_failed
 from pymb.maps.device_plan import MapItems, PointPlanner
 from pymb.maps.planner import on_refusal
 from pymb.store import Event, Sample
@@ -98,7 +98,9 @@ class TcpMapPoller(TcpLoopBase):
         self.start_loop(self.replies.rx, _LOOK)
 
     def _sweep_now(self) -> None:
-        """A sweep at once (from a borrower's thread: it lends idle connections)."""
+        """A sweep of every connection at once (from a borrower's thread: it
+        lends idle connections)."""
+        self.loans += 1
         self._soonest = 0.0
 
     # -- polls ---------------------------------------------------------------------------
@@ -262,7 +264,7 @@ class TcpMapPoller(TcpLoopBase):
                 c.table = e.table_of(c.todo)
             return
         got = mbap_frame(tid, u.info.address, bytes((spec.function | 0x80, code)))
-        exc = request_failed(exception_errno(code), c, spec, u, got)
+        exc = request_failed(exception_errno(code), c.bus.endpoint, spec, u, got)
         c.forget()  # replies still on their way are skipped as late ones
         c.entry = None
         self.failed(c, e, exc, now)
@@ -350,17 +352,9 @@ class TcpMapPoller(TcpLoopBase):
 
     def _sweep(self, now: float) -> None:
         self._soonest = soonest = float("inf")
-        cloop = self.cloop
-        assert cloop is not None
-        for c in self.conns:
-            if c.armed:  # (a loan waits for the end of the poll under way)
-                if c.loan is None and now + _TICK < c.deadline:  # the C part's is as late
-                    continue  # (or later: each poll it sends moves it on): a sweep comes first
-                c.deadline = deadline = cloop.deadline(c.index)
-                if c.loan is None and now < deadline:  # the C part's, a poll in flight
-                    soonest = deadline if deadline < soonest else soonest
-                    continue
-                self.synced(c)
+        for c in self.sweeping(now, _TICK):
+            if c.armed and self.armed_on(c, now, _TICK):
+                continue
             if c.state == "closed":
                 if now >= c.retry_at:
                     self._connect(c, now)
@@ -390,7 +384,7 @@ class TcpMapPoller(TcpLoopBase):
         spec = c.pending()[0]
         u = e.unit
         got = c.m.partial() or None
-        exc = request_failed(errno.ETIMEDOUT, c, spec, u, got)
+        exc = request_failed(errno.ETIMEDOUT, c.bus.endpoint, spec, u, got)
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
         self.failed(c, e, exc, now)

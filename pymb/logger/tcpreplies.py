@@ -21,8 +21,8 @@ from pymb._native.master import BAD, EXCEPTION, NO_TOKEN, PollTable, ReadBuffer
 from pymb.errors import ModbusError, ProtocolError
 from pymb.logger.report import Report
 from pymb.logger.schedule import TEXT
-from pymb.logger.tcpconn import Conn, asked
-from pymb.logger.tcpunits import Entry, PollRequest
+from pymb.logger.tcpconn import Conn
+from pymb.logger.tcpunits import Entry, PollRequest, asked
 
 __all__ = ["Polls", "TcpReplies"]
 

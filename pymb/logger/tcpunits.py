@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pymb._native.master import MasterRead, PollTable
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.mapreading import GroupDecode
+from pymb.errors import ModbusError, request_error, request_text
 from pymb.logger.schedule import Health, Slot
 from pymb.maps.device_plan import MapItems, PointPlanner, map_planner
 from pymb.maps.planner import Line, ReadPlan, Request
@@ -28,7 +29,7 @@ from pymb.store import DeviceInfo
 from pymb.store.block import PollSource
 from pymb.wire import DEFAULT_BAUD, bits_per_char
 
-__all__ = ["Entry", "PollRequest", "Unit"]
+__all__ = ["Entry", "PollRequest", "Unit", "asked", "request_failed"]
 
 #: the line a TCP client's plans are priced at (as MapDevice prices them)
 TCP_LINE = Line(DEFAULT_BAUD, bits_per_char("N", 1, 8))
@@ -152,3 +153,21 @@ class Entry:
             raise ValueError(f"{r.table} {r.address}+{r.count} outside the group's "
                              f"registers {first}+{count}")
         return PollRequest(r, off + 2 * (r.address - first))
+
+
+def asked(spec: PollRequest | None, u: Unit) -> str:
+    """The request as errors name it: ``read_input_registers(slave=1, address=0, count=4)``
+    (no request: the device's name)."""
+    if spec is None:
+        return request_text(0, u.info.address, context=u.info.name)
+    return request_text(spec.function, u.info.address, spec.address, spec.count)
+
+
+def request_failed(err: int, endpoint: str, spec: PollRequest, u: Unit,
+                   got: bytes | None = None) -> ModbusError:
+    """The error of request ``spec`` of ``u`` at ``endpoint`` that failed
+    with ``err``, as a client's request says it (``got``: what came of its reply)."""
+    return request_error(err, function=spec.function, slave=u.info.address,
+                         address=spec.address, count=spec.count, port=endpoint,
+                         timeout=u.timeout, failed=(spec.address, spec.count),
+                         response=got, header=7, frame=None)

@@ -5,17 +5,20 @@ device, read back from the simulator."""
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
+from pathlib import Path
 
 from pymb.devices.deviceconfig import parse_device
 from pymb.devices.mapwrite import WriteBudget
-from pymb.logger.config import BusConfig
+from pymb.logger.config import BusConfig, load_config
 from pymb.logger.poller import BusPoller
 from pymb.logger.stats import Stats
 from pymb.logger.targets import write_targets
-from pymb.sim import Simulator
+from pymb.logger.tcploop import TcpMapPoller
+from pymb.sim import Simulator, SimulatorProcess
 from pymb.store import Event, Sample
 from pymb.store.block import PollBlock
 
@@ -45,3 +48,65 @@ def test_the_coolpro_and_the_hub_are_write_targets_as_any_map_device() -> None:
             stop.set()
             poller.join(10)
     assert not poller.is_alive()
+
+
+WRITABLE = '''schema = "pymb.map/1"
+[device]
+id = "wr"
+table = "holding"
+[[point]]
+name = "a"
+address = 0
+type = "u16"
+[[point]]
+name = "setpoint"
+address = 1
+type = "u16"
+access = "rw"
+[[point]]
+name = "b"
+address = 300
+type = "u16"
+'''
+
+
+def test_a_write_reaches_a_device_polled_flat_out_between_two_polls(tmp_path: Path) -> None:
+    """Flat out and pipelined, the loop's C part carries the device's polls;
+    a write command borrows its connection (the loop takes it back from the
+    C part between two polls), writes, reads back and gives it back; the
+    polls go on, carried again."""
+    (tmp_path / "wr.toml").write_text(WRITABLE)
+    with SimulatorProcess(["--map", str(tmp_path / "wr.toml"), "wr:1,dynamic=0",
+                           "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        (tmp_path / "log.toml").write_text(
+            f'maps = ["wr.toml"]\n[[bus]]\ntcp = "{sim.endpoint}"\ninterval = 0\n'
+            'timeout = 5\npipeline = 2\n[[bus.device]]\ntype = "wr"\naddress = 1\n')
+        out: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
+        stop = threading.Event()
+        loop = TcpMapPoller(list(load_config(tmp_path / "log.toml").buses), out, stop, Stats())
+        loop.start()
+
+        def blocks(within: float) -> int:
+            """Blocks of carried polls handed over within ``within`` seconds."""
+            got, deadline = 0, time.monotonic() + within
+            while time.monotonic() < deadline:
+                with contextlib.suppress(queue.Empty):
+                    got += sum(isinstance(i, PollBlock) for i in out.get(timeout=0.1))
+            return got
+        try:
+            assert blocks(1.0) > 0  # the C part carries the polls
+            (target,) = write_targets([loop], WriteBudget()).values()
+            t0 = time.monotonic()
+            try:
+                dev = target.device()
+                assert dev is not None
+                dev.write("setpoint", 17)
+                assert dev.read("setpoint") == {"setpoint": 17}
+            finally:
+                target.release()
+            assert time.monotonic() - t0 < 1.0  # lent at once, not at the poll's timeout
+            assert blocks(0.5) > 0  # carried again
+        finally:
+            stop.set()
+            loop.join(10)
+    assert not loop.is_alive()
