@@ -109,8 +109,8 @@ class TcpReplies:
             assert e is not None
             c.answered = True
             self.polls.restarted(c, e, now)
-            if peek and c.sock is sock:
-                self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
+            if peek:
+                self._drop(c, sock, got)
             return
         self.taken(c, now, got, n, pos, peek)
 
@@ -130,8 +130,8 @@ class TcpReplies:
             if m.taken and e is not None:
                 c.answered = True
                 self.polls.progress(c, e, now)
-            if peek and c.sock is sock:
-                self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
+            if peek:
+                self._drop(c, sock, got)
             return
         answered = m.taken > 0
         events = [m.event(i) for i in range(n)]
@@ -153,8 +153,16 @@ class TcpReplies:
             c.answered = True
             if e is not None and c.entry is e:
                 self.polls.progress(c, e, now)
-        if peek and c.sock is sock:
-            self._recv(c, sock, rx.view, got, socket.MSG_TRUNC)  # dropped unread
+        if peek:
+            self._drop(c, sock, got)
+
+    def _drop(self, c: Conn, sock: socket.socket, got: int) -> None:
+        """Drop the ``got`` bytes taken from ``sock`` (looked at, not read),
+        unless the connection went since (closed, or lent by the poll's end:
+        the loan drained them, and a drop now could take the borrower's reply)."""
+        loan = c.loan
+        if c.sock is sock and (loan is None or not loan.given.is_set()):
+            self._recv(c, sock, self.rx.view, got, socket.MSG_TRUNC)  # dropped unread
 
     def _garbage(self, c: Conn, now: float, got: bytes, spec: PollRequest | None = None) -> None:
         e = c.entry
