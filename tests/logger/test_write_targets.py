@@ -109,7 +109,7 @@ def test_a_write_reaches_a_device_polled_flat_out_between_two_polls(tmp_path: Pa
                     assert dev.read("setpoint") == {"setpoint": value}
                 finally:
                     target.release()
-                assert time.monotonic() - t0 < 2.5  # lent at once, not near the poll's timeout
+                assert time.monotonic() - t0 < 4.0  # lent at once, not near the 5 s poll timeout
                 assert carried(5.0)  # carried again
         finally:
             stop.set()
