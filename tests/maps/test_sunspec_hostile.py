@@ -292,3 +292,22 @@ def test_a_device_that_reads_fewer_registers_a_request_is_asked_no_more() -> Non
     assert not any(refused for _, _, refused in polled)
     assert values["inverter_three_phase.W"] == pytest.approx(334.2)
     assert values["DERVoltVar.Crv[2].Pt.V"] == pytest.approx(CURVES[1])
+
+
+def test_a_base_that_answers_garbled_is_passed_over() -> None:
+    """A reply at 40000 that is no proper answer (a byte count its frame does
+    not hold: ``ProtocolError``), ``SunS`` at 0: found at 0, as a base that
+    times out or refuses is passed over, and the probe says what each base did."""
+    regs = image(INVERTER)
+    asked: list[int] = []
+
+    def read(address: int, count: int) -> Sequence[int]:
+        asked.append(address)
+        if address >= 40000:
+            raise pymb.ProtocolError("byte count does not match the frame")
+        return regs[address:address + count]
+
+    found = sunspec.discover(read)
+    assert found.base == 0
+    assert found.manufacturer == "Acme Solar"
+    assert asked[0] == 40000

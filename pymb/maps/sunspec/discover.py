@@ -21,6 +21,7 @@ from pymb.errors import (
     IllegalDataValue,
     ModbusError,
     ModbusTimeout,
+    ProtocolError,
 )
 from pymb.maps.model import Map
 from pymb.maps.sunspec.layout import (
@@ -194,7 +195,7 @@ def _find_base(read: Reader) -> int:
     for base in BASES:
         try:
             regs = tuple(read(base, 2))
-        except (DeviceException, ModbusTimeout) as e:
+        except (DeviceException, ModbusTimeout, ProtocolError) as e:  # no answer here
             tried.append(f"{base}: {type(e).__name__}")
             continue
         if regs == MARKER:
