@@ -23,13 +23,25 @@ from typing import Any, NamedTuple
 from pymb._native.master import Master, PollTable, ReadBuffer
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["DONE", "LOOK", "NO_CONN", "READY", "TAKEN", "Loop", "Times"]
+__all__ = ["DONE", "GAP", "LOOK", "LOOK_MIN", "NO_CONN", "READY", "TAKEN", "Loop", "Times"]
 
 READY: int = lib.PYMBI_LOOP_READY  #: a socket is ready, nothing read (``events``: its mask)
 DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one not all sent (``sent``)
 TAKEN: int = lib.PYMBI_LOOP_TAKEN  #: replies taken, not the poll's clean end (``nev`` events)
 LOOK: int = lib.PYMBI_LOOP_LOOK  #: a poll slower than its look: nothing read
 NO_CONN: int = lib.PYMBI_LOOP_NO_CONN  #: a READY socket that is no connection of the loop
+
+# The tuning ``pymb log`` runs the loop with (and the bench's bare loop, to be its floor):
+#: a poll's replies have twice the time they took of late (at least this many
+#: seconds) to come in full before they are read as they come (an exception
+#: reply is shorter than the reply it stands for)
+LOOK_MIN = 0.002
+#: while a wait holds the polls it carried, it sleeps this share of the
+#: fastest armed poll's reply time before it looks again: one wake (a context
+#: switch, as much CPU as a poll's Python) then takes the replies of several
+#: polls, each poll's next one sent later by at most this share of its
+#: replies' time
+GAP = 1 / 16
 
 _RECORDS = 256  #: records one wait writes at most
 _wait = lib.pymbi_loop_wait

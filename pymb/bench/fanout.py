@@ -46,7 +46,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from pymb._native.loop import DONE, NO_CONN, READY, TAKEN, Loop
+from pymb._native.loop import DONE, GAP, LOOK_MIN, NO_CONN, READY, TAKEN, Loop
 from pymb._native.master import EXCEPTION, Master, MasterRead, PollTable, ReadBuffer
 from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
@@ -127,13 +127,6 @@ class FanoutStats:
 
 
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
-#: the C loop hands a whole poll back unread when its replies take more than
-#: twice their time of late, at least this many seconds (and are not only slow)
-_LOOK = 0.002
-#: a wait of the C loop that carried a poll sleeps this share of the fastest
-#: armed poll's reply time before it looks again: one wake takes the replies
-#: of several polls
-_GAP = 1 / 16
 _POLLS = 256  #: polls one wait of the C loop hands over at most
 _BLOCK = 1 << 20  #: ... and bytes of their images
 
@@ -201,8 +194,8 @@ class TcpFanout:
         self._rx = ReadBuffer()
         size = max(c.size for c in self._conns)
         polls = max(1, min(_POLLS, _BLOCK // size))
-        self._loop = Loop(self._ep.fileno(), len(self._conns), self._rx, _LOOK, polls=polls,
-                          block=polls * size, hold=flush, gap=_GAP)
+        self._loop = Loop(self._ep.fileno(), len(self._conns), self._rx, LOOK_MIN, polls=polls,
+                          block=polls * size, hold=flush, gap=GAP)
         self._block = self._loop.block
         #: wall time less monotonic time, ns, as of the last sweep (a sample's time: its start's)
         self._clock = time.time_ns() - time.monotonic_ns()
@@ -277,7 +270,7 @@ class TcpFanout:
         carried = not self.interval and n == c.n  # the C loop's: flat out, a whole poll
         self._wake_at(c, c.replies if carried else 1)
         if self._send(c, 0, n, now) and carried:
-            look = 2 * c.took if 2 * c.took > _LOOK else _LOOK
+            look = 2 * c.took if 2 * c.took > LOOK_MIN else LOOK_MIN
             self._loop.arm(c.index, c.m, c.table, self.timeout, c.took, now,
                            now + min(look, self.timeout / 4))
             c.armed = True

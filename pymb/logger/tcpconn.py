@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from itertools import compress
 from typing import Any
 
-from pymb._native.loop import Loop, Times
+from pymb._native.loop import GAP, Loop, Times
 from pymb._native.master import Master, PollTable, ReadBuffer
 from pymb.client import unresolved
 from pymb.client.address import is_mbaps
@@ -37,13 +37,6 @@ from pymb.store import Event, Sample
 from pymb.store.block import PollBlock, poll_sample
 
 __all__ = ["Conn", "TcpLoopBase", "fans_out"]
-
-#: while a wait of the C part holds the polls it carried, it sleeps this
-#: share of the fastest armed poll's reply time before it looks again: one
-#: wake (a context switch, as much CPU as a poll's Python) then takes the
-#: replies of several polls, each poll's next one sent later by at most this
-#: share of its replies' time
-_GAP = 1 / 16
 
 
 class Loan:
@@ -190,14 +183,14 @@ class TcpLoopBase(threading.Thread):
         One wait of it carries a list's worth of polls for the writer
         (:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`):
         their images copied to its block, the loop woken once for them all,
-        and the C part itself woken once for several replies (:data:`_GAP`)."""
+        and the C part itself woken once for several replies (:data:`~pymb._native.loop.GAP`)."""
         for i, c in enumerate(self.conns):
             c.index = i
         self._carry = Carried(len(self.conns), self.report, self.stats)
         self._unarmed = [True] * len(self.conns)
         image = max((len(e.image) for c in self.conns for e in c.entries), default=0)
         self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min, polls=BATCH_MAX,
-                          block=BATCH_MAX * max(image, 1), hold=BATCH_AGE, gap=_GAP)
+                          block=BATCH_MAX * max(image, 1), hold=BATCH_AGE, gap=GAP)
         self._block = memoryview(self.cloop.block)
         return self.cloop
 

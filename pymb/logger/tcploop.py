@@ -35,7 +35,7 @@ import threading
 import time
 
 from pymb._native import exception_errno
-from pymb._native.loop import DONE, READY, TAKEN
+from pymb._native.loop import DONE, LOOK_MIN, READY, TAKEN
 from pymb._native.master import PollTable
 from pymb._native.serve import mbap_frame
 from pymb.client.address import parse_host_port
@@ -60,10 +60,6 @@ __all__ = ["TcpMapPoller", "fans_out"]
 #: a connection the device closed (EOF) or reset
 _CLOSED = (errno.ECONNRESET, errno.EPIPE)
 _TICK = 0.05  #: seconds between the checks of timeouts, reconnects and the stop flag
-#: a poll's replies have twice the time they took of late (at least this
-#: many seconds) to come in full before the loop reads them as they come (an
-#: exception reply is shorter than the reply it stands for)
-_LOOK = 0.002
 
 
 class TcpMapPoller(TcpLoopBase):
@@ -95,7 +91,7 @@ class TcpMapPoller(TcpLoopBase):
         self._silent: set[Conn] = set()  #: connections waiting out a device's silence
         #: lends a poll connection to a write command's thread between two polls
         self.lender = Lender(self._sel, self._sweep_now)
-        self.start_loop(self.replies.rx, _LOOK)
+        self.start_loop(self.replies.rx, LOOK_MIN)
 
     def _sweep_now(self) -> None:
         """A sweep of every connection at once (from a borrower's thread: it
@@ -224,7 +220,7 @@ class TcpMapPoller(TcpLoopBase):
             c.sent_at = now
             took = c.took
             # (conditional expressions: the builtins min and max parse keywords, per poll)
-            look = 2 * took if 2 * took > _LOOK else _LOOK
+            look = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
             most = u.timeout / 4
             look_at = now + (look if look < most else most)
             arm = self.again(c, e, now) is not None  # its polls the C part's from now on
