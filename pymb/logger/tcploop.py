@@ -10,10 +10,10 @@ to a serial line needs), framed by the connection's C master
 master takes the replies as they come (:mod:`pymb.logger.tcpreplies` reads
 them), matches them by transaction id, checks them with the request path's
 rules and copies their data into the group's sample image. While a whole
-poll is out, the socket wakes the loop once, when the bytes of all of its
-replies are in (``SO_RCVLOWAT``); a poll whose replies take more than twice
-as long as they did of late (an exception reply is shorter than the reply it
-stands for) is read as its replies come. Flat out, a connection whose next poll is the same
+poll is out (or the rest of one longer than the pipeline, its last request sent), the socket
+wakes the loop once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
+whose replies take more than twice as long as they did of late (an exception reply is
+shorter than the reply it stands for) is read as its replies come. Flat out, a connection whose next poll is the same
 requests at once is the loop's C part's (:mod:`pymb._native.loop`: it reads the replies and
 sends the next poll) until anything else is to happen on it. This module is the runner: the
 sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs
@@ -291,10 +291,16 @@ class TcpMapPoller(TcpLoopBase):
             self._next(c, now)
         else:
             c.deadline = now + u.timeout  # the rest of the poll's replies are on their way
-            if c.lowat > 1 and c.sent == len(c.todo):
+            if c.sent == len(c.todo) and not u.timed:  # one wake for them all
                 t = c.table
                 assert t is not None
+                lowat = c.lowat
                 c.wake_at(max(1, sum(t.sizes[k] for k in m.pending()) - m.kept))
+                if lowat == 1 < c.lowat:  # (read as they come if slower than a look)
+                    took = c.took
+                    look = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
+                    most = u.timeout / 4
+                    self.look(c, now + (look if look < most else most))
 
     def again(self, c: Conn, e: Entry, now: float) -> PollTable | None:
         """The requests of ``e``'s next poll if it follows the one under way

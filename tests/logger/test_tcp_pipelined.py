@@ -156,6 +156,48 @@ def test_a_poll_longer_than_the_pipeline_never_waits_for_its_timeout(
     assert _registers(got) == {tuple(WANT.values())}
 
 
+def _third_every_other() -> Script:
+    """Every other poll's 3rd request (register 600) answered with exception 04."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        if req[3] == 600:
+            seen[0] += 1
+            if seen[0] % 2:
+                return _exception(req, 4)
+        return good(*req)
+    return script
+
+
+@pytest.mark.timing
+def test_an_exception_among_the_last_replies_of_a_poll_longer_than_the_pipeline(
+        tmp_path: Path) -> None:
+    """A poll of three requests two at a time: once its last request is out,
+    the loop wakes once for the rest of its replies, yet an exception among
+    them (shorter than the reply it stands for) is read within milliseconds,
+    not at the 2 s timeout."""
+    got = _poll(tmp_path, _third_every_other(), lambda h: len(h.samples) >= 6,
+                bus="timeout = 2\ninterval = 0.05\npipeline = 2\n", points=FAR, within=10.0)
+    faults = [e for e in got.events if e.kind == "exception"]
+    assert len(faults) >= 5
+    assert all("address=600, count=1" in e.message for e in faults)
+    for e in faults[1:]:  # its poll began 0.05 s after the last sample; waited out: 2 s
+        before = max(s.monotonic for s in got.samples if s.monotonic < e.monotonic)
+        assert e.monotonic - before < 0.5
+    assert _registers(got) == {tuple(WANT.values())}
+
+
+def test_the_last_replies_of_a_poll_longer_than_the_pipeline_in_pieces(
+        tmp_path: Path) -> None:
+    """Replies a byte at a time to a poll of three requests two at a time:
+    the part of a reply that came counts against the rest the loop waits
+    for, and every poll is read whole."""
+    got = _poll(tmp_path, _dribble, lambda h: len(h.samples) >= 5,
+                bus="timeout = 2\ninterval = 0\npipeline = 2\n", points=FAR)
+    assert [k for k in got.kinds() if k not in ("connect", "skipped")] == []
+    assert _registers(got) == {tuple(WANT.values())}
+
+
 def test_a_poll_table_refuses_a_reply_that_would_not_fit_its_image() -> None:
     r = Planned("holding", 10, 4, (0,), ((0,),), 0)
     ok = PollTable([PollRequest(r, 0)], 1, bytearray(8))
