@@ -1,28 +1,26 @@
 """Every map device on every plain Modbus TCP bus of a run, polled from one
 thread: :class:`TcpMapPoller`.
 
-One epoll waits on every connection at once over non-blocking sockets: a
-connection per bus (per ``host:port``), shared by the devices behind it (a
-TCP gateway's unit ids). A connection carries one poll at a time, a device's
-group; its requests go out ``pipeline`` at a time (1 by default, as a gateway
-to a serial line needs), framed by the connection's C master
-(:class:`pymb._native.master.Master`, the sans-I/O core) into one write; the
-master takes the replies as they come (:mod:`pymb.logger.tcpreplies` reads
-them), matches them by transaction id, checks them with the request path's
-rules and copies their data into the group's sample image. While a whole
-poll is out (or the rest of one longer than the pipeline, its last request sent), the socket
-wakes the loop once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a poll
-whose replies take more than twice as long as they did of late (an exception reply is
-shorter than the reply it stands for) is read as its replies come. Flat out, a connection whose next poll is the same
-requests at once is the loop's C part's (:mod:`pymb._native.loop`: it reads the replies and
-sends the next poll) until anything else is to happen on it. This module is the runner: the
-sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a thread per bus runs
-it): each group at its own interval on drift-free slots, skipped slots counted;
-``offline_after`` / ``offline_retry`` per device; an exception re-plans within the same poll
-as the planner's policy says (:func:`pymb.maps.planner.on_refusal`: 02/03 with
-``split_on_exception``; a point refused alone reads ``unsupported``); samples and events go
-to the writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event` records,
-the registers stored as a thread per bus would store them.
+One epoll waits on every connection at once over non-blocking sockets: a connection per bus (per
+``host:port``), shared by the devices behind it (a TCP gateway's unit ids). A connection carries
+one poll at a time, a device's group; its requests go out ``pipeline`` at a time (1 by default,
+as a gateway to a serial line needs), framed by the connection's C master
+(:class:`pymb._native.master.Master`, the sans-I/O core) into one write; the master takes the
+replies as they come (:mod:`pymb.logger.tcpreplies` reads them), matches them by transaction id,
+checks them with the request path's rules and copies their data into the group's sample image.
+While a whole poll is out (or the rest of one longer than the pipeline, its last request sent),
+the socket wakes the loop once, when the bytes of all of its replies are in (``SO_RCVLOWAT``); a
+poll whose replies take more than twice as long as they did of late (an exception reply is
+shorter than the reply it stands for) is read as its replies come. Flat out, a connection whose
+next poll is the same requests at once is the loop's C part's (:mod:`pymb._native.loop`: it
+reads the replies and sends the next poll) until anything else is to happen on it. This module
+is the runner: the sockets, and the logger's one schedule (:mod:`pymb.logger.schedule`, as a
+thread per bus runs it): each group at its own interval on drift-free slots, skipped slots
+counted; ``offline_after`` / ``offline_retry`` per device; an exception re-plans within the same
+poll as the planner's policy says (:func:`pymb.maps.planner.on_refusal`: 02/03 with
+``split_on_exception``; a point refused alone reads ``unsupported``); samples and events go to
+the writer's queue as :class:`~pymb.store.Sample` and :class:`~pymb.store.Event` records, the
+registers stored as a thread per bus would store them.
 """
 
 from __future__ import annotations
