@@ -360,7 +360,8 @@ typedef struct {
 } pymbi_mevent;
 typedef struct {
     uint16_t next_tid; uint32_t in_flight; uint64_t replies; int broken; size_t part_len;
-    uint8_t part[...]; size_t bad_len; uint8_t bad[...];
+    uint8_t part[...]; size_t bad_len; uint8_t bad[...]; uint32_t dropped; size_t drop_len;
+    uint8_t drop[...];
     ...;
 } pymbi_master;
 void pymbi_master_reset(pymbi_master *m, uint16_t tid);

@@ -31,11 +31,15 @@ void pymbi_master_forget(pymbi_master *m)
         return;
     }
     for (i = 0; i < m->span; i++) {
-        SLOT(m, (uint16_t)(m->oldest + i))->live = 0;
+        pymbi_mslot *s = SLOT(m, (uint16_t)(m->oldest + i));
+        s->lost = s->live;
+        s->live = 0;
     }
     m->oldest = m->next_tid;
     m->span = 0;
     m->in_flight = 0;
+    m->dropped = 0;
+    m->drop_len = 0;
 }
 
 /* The bytes a read's data take in the image (2 a register, 2 a bit or 1 per 8
@@ -88,6 +92,10 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
             return -1;
         }
     }
+    if (n > 0 && m->in_flight == 0) { /* a new wait */
+        m->dropped = 0;
+        m->drop_len = 0;
+    }
     for (i = 0; i < n; i++) {
         const pymbi_mreq *r = &reqs[i];
         uint16_t tid = m->next_tid;
@@ -102,11 +110,9 @@ int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_
         s->req = *r;
         s->tid = tid;
         s->live = 1;
+        s->lost = 0;
         m->span++;
         m->in_flight++;
-        if (m->sent < 65536u) {
-            m->sent++;
-        }
         m->next_tid = (uint16_t)(tid + 1u);
     }
     return (int)(n * PYMBI_MASTER_FRAME);
@@ -178,8 +184,18 @@ static int take_frame(pymbi_master *m, const uint8_t *f, size_t n, uint8_t *imag
     int status, exc = 0;
 
     if (s == NULL) {
-        ev->kind = (uint16_t)(m->next_tid - 1u - tid) < m->sent ? PYMBI_EV_LATE
-                                                                 : PYMBI_EV_FOREIGN;
+        pymbi_mslot *gone = SLOT(m, tid);
+        if (gone->lost && gone->tid == tid) { /* the first reply to a request given up on */
+            gone->lost = 0;
+            ev->kind = PYMBI_EV_LATE;
+        } else { /* no answer to anything: kept for a timeout to show */
+            ev->kind = PYMBI_EV_FOREIGN;
+            if (m->dropped < UINT32_MAX) {
+                m->dropped++;
+            }
+            m->drop_len = n < sizeof m->drop ? n : sizeof m->drop;
+            memcpy(m->drop, f, m->drop_len);
+        }
         ev->status = 0;
         ev->token = PYMBI_NO_TOKEN;
         ev->tid = tid;

@@ -79,8 +79,12 @@ typedef struct {
 
 typedef enum {
     PYMBI_EV_EXCEPTION = 1, /* the request `token` was refused: exception `code` */
-    PYMBI_EV_LATE = 2,      /* a reply to id `tid`, sent on this stream, no longer in flight */
-    PYMBI_EV_FOREIGN = 3,   /* a reply to id `tid`, never sent on this stream */
+    PYMBI_EV_LATE = 2,      /* a reply to id `tid`, a request given up on (pymbi_master_forget
+                               while in flight; one of the last PYMBI_MASTER_INFLIGHT sent),
+                               its first reply */
+    PYMBI_EV_FOREIGN = 3,   /* a reply to id `tid`, no request in flight nor given up on (never
+                               sent, answered already, or a device that answers under another
+                               id): counted in `dropped`, the last kept in `drop` */
     PYMBI_EV_BAD = 4        /* a frame that is no answer (`status`): the stream is out of
                                step; the frame is m->bad[0 .. bad_len), `token` the request
                                its id matched (PYMBI_NO_TOKEN: none) */
@@ -100,6 +104,7 @@ typedef struct {
     pymbi_mreq req;
     uint16_t tid;
     uint8_t live;
+    uint8_t lost; /* given up on while in flight (pymbi_master_forget): a reply is late */
 } pymbi_mslot;
 
 /* A stream's master; the caller owns it (reset before use, on each new
@@ -109,13 +114,17 @@ typedef struct {
     uint16_t oldest;        /* the id of the oldest request whose slot is still held */
     uint32_t span;          /* slots held: ids oldest .. oldest + span - 1 */
     uint32_t in_flight;     /* of those, requests still waiting for their reply */
-    uint32_t sent;          /* ids sent on this stream (at most 65536: late or foreign) */
+    uint32_t dropped;       /* PYMBI_EV_FOREIGN replies since the wait began (requests framed
+                               with none in flight, pymbi_master_forget, the reset): a
+                               timeout says the device answered, under another id */
     uint64_t replies;       /* replies taken into an image since the reset */
     int broken;             /* a bad frame was seen: take refuses until the reset */
     size_t part_len;        /* a reply's first bytes, kept for the next take */
     uint8_t part[PYMBI_MASTER_ADU];
     size_t bad_len;         /* the last bad frame (or its first bytes) */
     uint8_t bad[PYMBI_MASTER_ADU];
+    size_t drop_len;        /* the last of the `dropped` replies (only those are copied) */
+    uint8_t drop[PYMBI_MASTER_ADU];
     pymbi_mslot slots[PYMBI_MASTER_INFLIGHT];
 } pymbi_master;
 
@@ -123,14 +132,16 @@ typedef struct {
  * transaction id `tid`. */
 void pymbi_master_reset(pymbi_master *m, uint16_t tid);
 
-/* Nothing is in flight any more: replies still on their way are late. */
+/* Nothing is in flight any more: replies still on their way are late (the
+ * first reply to each; the wait is over: `dropped` restarts). */
 void pymbi_master_forget(pymbi_master *m);
 
 /* Frame reqs[0 .. n) into out (PYMBI_MASTER_FRAME bytes each) with the next
  * transaction ids, and hold them in flight. Returns the bytes written; -1
  * (errno EINVAL) when a request is not a valid read, its data would not fit
  * an image of image_len bytes, out_cap is too small, or more than
- * PYMBI_MASTER_INFLIGHT would be held; nothing is sent or held then. */
+ * PYMBI_MASTER_INFLIGHT would be held; nothing is sent or held then. With
+ * nothing in flight before, a wait begins: `dropped` restarts. */
 int pymbi_master_frames(pymbi_master *m, const pymbi_mreq *reqs, size_t n, size_t image_len,
                         uint8_t *out, size_t out_cap);
 

@@ -75,7 +75,7 @@ static void test_frames(void)
     CHECK(pymbi_master_frames(&M, reqs, 2, 250 + 4000, out, sizeof out) == 24);
     CHECK(memcmp(out, first, sizeof first) == 0);
     CHECK(memcmp(out + 12, second, sizeof second) == 0); /* the id wraps to 0 */
-    CHECK(M.in_flight == 2 && M.next_tid == 1 && M.sent == 2);
+    CHECK(M.in_flight == 2 && M.next_tid == 1 && M.dropped == 0);
     CHECK(pymbi_master_pending(&M, tokens, 4) == 2 && tokens[0] == 7 && tokens[1] == 8);
     CHECK(pymbi_master_pending(&M, tokens, 1) == 2 && tokens[0] == 7);
     /* refused, nothing held: an image too short, not a read, counts out of range */
@@ -187,6 +187,62 @@ static void test_events(void)
     got = pymbi_master_take(&M, buf + used, len - used, image, sizeof image, ev, 1, &used);
     CHECK(got == 1 && used == 11 && ev[0].kind == PYMBI_EV_FOREIGN && ev[0].tid == 99);
     CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 0, &used) == 0 && used == 0);
+}
+
+/* What a take drops: a reply to a request given up on is late (its first
+ * copy, within the last PYMBI_MASTER_INFLIGHT ids); any other reply to no
+ * request in flight is foreign, counted in `dropped` (restarted when a wait
+ * begins) and the last kept in `drop`, for a timeout to show. */
+static void test_dropped(void)
+{
+    pymbi_mreq reqs[2] = {rq(3, 0, 1, 0, 20), rq(3, 1, 1, 2, 21)};
+    uint8_t out[PYMBI_MASTER_INFLIGHT * PYMBI_MASTER_FRAME], buf[32], other[32], image[4];
+    pymbi_mevent ev[2];
+    size_t len, olen, used;
+    unsigned i;
+
+    pymbi_master_reset(&M, 500);
+    CHECK(pymbi_master_frames(&M, reqs, 2, sizeof image, out, sizeof out) == 24);
+    olen = reg_reply(other, 0, 3, 1, 0x77); /* a device that answers under id 0 */
+    CHECK(pymbi_master_take(&M, other, olen, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_FOREIGN && ev[0].tid == 0 && used == olen);
+    CHECK(M.dropped == 1 && M.drop_len == olen && memcmp(M.drop, other, olen) == 0);
+    len = reg_reply(buf, 500, 3, 1, 0x10); /* 500 answered: 501 still waited for */
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 0);
+    CHECK(M.dropped == 1 && M.in_flight == 1);
+    /* its second copy: an answer to nothing in flight */
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_FOREIGN && ev[0].tid == 500);
+    CHECK(M.dropped == 2 && M.drop_len == len && memcmp(M.drop, buf, len) == 0);
+    /* 501 given up on: the wait is over; its reply is late, once */
+    pymbi_master_forget(&M);
+    CHECK(M.dropped == 0 && M.drop_len == 0);
+    len = reg_reply(buf, 501, 3, 1, 0x20);
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_LATE && ev[0].tid == 501 && M.dropped == 0);
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_FOREIGN && M.dropped == 1);
+    /* a new wait (nothing in flight): nothing dropped yet */
+    CHECK(pymbi_master_frames(&M, reqs, 1, sizeof image, out, sizeof out) == 12);
+    CHECK(M.dropped == 0 && M.drop_len == 0);
+    /* requests framed while one is in flight: the same wait */
+    CHECK(pymbi_master_take(&M, other, olen, image, sizeof image, ev, 2, &used) == 1 &&
+          M.dropped == 1);
+    CHECK(pymbi_master_frames(&M, reqs + 1, 1, sizeof image, out, sizeof out) == 12);
+    CHECK(M.dropped == 1);
+
+    /* given up on PYMBI_MASTER_INFLIGHT ids ago: its slot is another's */
+    pymbi_master_reset(&M, 0);
+    for (i = 0; i <= PYMBI_MASTER_INFLIGHT; i++) {
+        CHECK(pymbi_master_frames(&M, reqs, 1, sizeof image, out, sizeof out) == 12);
+        pymbi_master_forget(&M);
+    }
+    len = reg_reply(buf, 0, 3, 1, 0x30);
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_FOREIGN);
+    len = reg_reply(buf, 1, 3, 1, 0x30);
+    CHECK(pymbi_master_take(&M, buf, len, image, sizeof image, ev, 2, &used) == 1 &&
+          ev[0].kind == PYMBI_EV_LATE);
 }
 
 /* A frame that answers a request in flight but is no answer to it: one BAD
@@ -394,6 +450,7 @@ int main(void)
     test_frames();
     test_take();
     test_events();
+    test_dropped();
     test_bad();
     test_bits();
     test_args();

@@ -11,8 +11,9 @@ in any order), matches each reply to its request by its transaction id,
 checks it with the request path's rules and copies its data into the poll's
 register image (big-endian; a bit as a 0/1 word). What is not such a reply
 comes back as :class:`MasterEvent` records: a refused request (an
-exception), a late reply, a foreign one, a bad frame (the stream is out of
-step).
+exception), a late reply (to a request given up on), a foreign one (to no
+request: another transaction id's, kept for the wait's timeout to show), a
+bad frame (the stream is out of step).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pymb._pymb_cffi import ffi, lib
 
 __all__ = [
     "BAD",
+    "DROPPED",
     "EXCEPTION",
     "FOREIGN",
     "FRAME",
@@ -40,10 +42,14 @@ FRAME: int = lib.PYMBI_MASTER_FRAME  #: bytes of a read request
 HEAD: int = lib.PYMBI_MASTER_HEAD  #: a read reply's bytes before its data
 INFLIGHT: int = lib.PYMBI_MASTER_INFLIGHT  #: the most requests in flight on a stream
 EXCEPTION: int = lib.PYMBI_EV_EXCEPTION  #: a request refused: :attr:`MasterEvent.code`
-LATE: int = lib.PYMBI_EV_LATE  #: a reply to a request no longer in flight (skipped)
-FOREIGN: int = lib.PYMBI_EV_FOREIGN  #: a reply to an id never sent (skipped)
+LATE: int = lib.PYMBI_EV_LATE  #: the reply to a request given up on (:meth:`Master.forget`)
+#: a reply to no request in flight nor given up on (another transaction id's): skipped,
+#: and :meth:`Master.dropped` keeps it for the wait's timeout
+FOREIGN: int = lib.PYMBI_EV_FOREIGN
 BAD: int = lib.PYMBI_EV_BAD  #: a frame that is no answer: the stream is out of step
 NO_TOKEN: int = lib.PYMBI_NO_TOKEN  #: an event about no request
+#: the words for a :data:`FOREIGN` reply (a client's timeout after one says them too)
+DROPPED: str = ffi.string(lib.pymb_frame_strerror(lib.PYMB_FRAME_BAD_TID)).decode()
 
 _frames = lib.pymbi_master_frames
 _take = lib.pymbi_master_take
@@ -175,6 +181,14 @@ class Master:
         """The bytes of a reply cut short, kept for the next take."""
         m = self._m
         return bytes(ffi.buffer(m.part, m.part_len))
+
+    def dropped(self) -> bytes:
+        """The last :data:`FOREIGN` reply of this wait (b"": none): the
+        device answered, under another transaction id. A wait begins when
+        requests are framed with none in flight, at :meth:`forget` and at
+        :meth:`reset`."""
+        m = self._m
+        return bytes(ffi.buffer(m.drop, m.drop_len)) if m.dropped else b""
 
     def bad_frame(self) -> bytes:
         """The frame (or its first bytes) a :data:`BAD` event was about."""

@@ -112,20 +112,26 @@ class Report:
         self.flush()
 
     def failed(self, bus: str, h: Health, info: DeviceInfo, kind: str, message: str,
-               code: int | None, now: float, *, at_once: bool = False) -> None:
+               code: int | None, now: float, *, at_once: bool = False,
+               why: str | None = None) -> None:
         """A poll of ``h``'s device failed at ``now``: counted, and an event of
-        ``kind`` that says when the next try is once the device is left alone."""
+        ``kind`` that says when the next try is once the device is left alone
+        (``why``: the status line's and summary's words, if not the kind's)."""
         retry = h.failed(now, at_once)
         stats = self.stats
         if h.retry is not None:  # a map device's (the summary's health lines)
             stats.count(stats.device_faults, h.name, 1)
-        stats.fault(h.name, f"{h.name}: {short_fault(kind, message)}")
+        stats.fault(h.name, f"{h.name}: {why or short_fault(kind, message)}")
         self.event(bus, kind, message + retry, info, code)
 
     def error(self, bus: str, h: Health, info: DeviceInfo, e: ModbusError, now: float) -> None:
         """:meth:`failed` with error ``e``."""
         code = getattr(e, "code", None) or getattr(e, "errno", None)
-        self.failed(bus, h, info, event_kind(e), str(e), code, now)
+        kind, message = event_kind(e), str(e)
+        # a timeout after something came (a reply cut short, or one under another
+        # transaction id) is said whole, as a protocol fault is: the device is not silent
+        self.failed(bus, h, info, kind, message, code, now,
+                    why=message if kind == "timeout" and e.response else None)
 
     def answered(self, bus: str, h: Health, info: DeviceInfo,
                  refused: Sequence[str] = ()) -> None:

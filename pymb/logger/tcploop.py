@@ -384,7 +384,7 @@ class TcpMapPoller(TcpLoopBase):
         spec = c.pending()[0]
         u = e.unit
         got = c.m.partial() or None
-        exc = request_failed(errno.ETIMEDOUT, c.bus.endpoint, spec, u, got)
+        exc = request_failed(errno.ETIMEDOUT, c.bus.endpoint, spec, u, got, c.m.dropped())
         c.forget()  # a late reply is skipped by its transaction id
         c.entry = None
         self.failed(c, e, exc, now)

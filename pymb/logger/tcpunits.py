@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from pymb._native.master import MasterRead, PollTable
+from pymb._native.master import DROPPED, MasterRead, PollTable
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.mapreading import GroupDecode
 from pymb.errors import ModbusError, request_error, request_text
@@ -164,10 +164,13 @@ def asked(spec: PollRequest | None, u: Unit) -> str:
 
 
 def request_failed(err: int, endpoint: str, spec: PollRequest, u: Unit,
-                   got: bytes | None = None) -> ModbusError:
+                   got: bytes | None = None, dropped: bytes = b"") -> ModbusError:
     """The error of request ``spec`` of ``u`` at ``endpoint`` that failed
-    with ``err``, as a client's request says it (``got``: what came of its reply)."""
+    with ``err``, as a client's request says it (``got``: what came of its
+    reply; else ``dropped``: a reply under another transaction id, dropped)."""
+    other = bool(dropped) and not got
     return request_error(err, function=spec.function, slave=u.info.address,
                          address=spec.address, count=spec.count, port=endpoint,
                          timeout=u.timeout, failed=(spec.address, spec.count),
-                         response=got, header=7, frame=None)
+                         response=dropped if other else got, header=7,
+                         frame=DROPPED if other else None, dropped=other)
