@@ -55,6 +55,11 @@ class Canary:
 
     def check(self, raw: Sequence[int], values: Sequence[float]) -> None:
         """Raise when the sweep is not the simulated hub's."""
+        self.check_reading((raw, values))
+
+    def check_reading(self, reading: tuple[Sequence[int], Sequence[float]]) -> None:
+        """:meth:`check` of a sweep as a stack returns it: (registers, values)."""
+        raw, values = reading
         if len(raw) != HUB_REGISTERS or len(values) != HUB_REGISTERS:
             raise RuntimeError(f"sweep returned {len(raw)} registers, {len(values)} values")
         k, v = self.k_off, self.k_val
@@ -79,17 +84,15 @@ class PymbClient:
         self.hub = SensorHub(self.client, HUB_SLAVE)
         self.reading: HubReading | None = None
         self.coolpro = CoolPro(self.client, CP_SLAVE)
+        #: a telemetry read as its user makes it: the CoolProTelemetry, decoded
+        #: in C, as it comes (:func:`telemetry_check` takes it so)
+        self.telemetry: Callable[[], CoolProTelemetry] = self.coolpro.read_telemetry
 
     def sweep(self) -> tuple[Sequence[int], Sequence[float]]:
         # A poller's steady state: every sweep into the same reading, which
         # allocates nothing (the canary checks each sweep before the next).
         r = self.reading = self.hub.read_all(into=self.reading)
         return r.registers, r.values
-
-    def telemetry(self) -> tuple[Sequence[int], CoolProTelemetry]:
-        # the reading as its user gets it (decoded in C): no copy into a tuple per read
-        t = self.coolpro.read_telemetry()
-        return t.registers, t
 
     def close(self) -> None:
         self.client.close()
@@ -242,28 +245,44 @@ CLIENTS: dict[str, Callable[[str, int, float], Any]] = {
 # -- the loop -----------------------------------------------------------------------------
 
 
-def _batch(op: Callable[[], Reading], n: int, check: Check | None) -> str:
-    walls = []
+def _batch(op: Callable[[], Any], n: int, check: Check) -> str:
+    """``n`` calls of ``op``, each result checked by ``check``, as ``ok CPU_NS
+    WALL_NS...``. What is charged is the calls and their checks, as in the C
+    program's loop (its check is inside its timed call): one clock read a
+    call, a call's wall time running from the end of the one before, and no
+    allocation of the loop's own between two calls."""
     clock = time.perf_counter_ns
+    ends = [0] * (n + 1)
     c0 = time.process_time_ns()
-    for _ in range(n):
-        t = clock()
-        raw, values = op()
-        if check is not None:
-            check(raw, values)
-        walls.append(clock() - t)
+    ends[0] = clock()
+    for i in range(1, n + 1):
+        check(op())
+        ends[i] = clock()
     cpu = time.process_time_ns() - c0
-    return f"ok {cpu} " + " ".join(map(str, walls))
+    return f"ok {cpu} " + " ".join(str(ends[i] - ends[i - 1]) for i in range(1, n + 1))
 
 
 #: a telemetry read's decoded values as a stack returns them: the 7 values, or
 #: pymb's :class:`~pymb.devices.CoolProTelemetry` (its typed fields, decoded in C)
 Telemetry = Sequence[float] | CoolProTelemetry
+#: a telemetry read as a stack returns it: pymb's CoolProTelemetry alone (its
+#: registers are its own), or (registers, decoded values)
+TelemetryRead = CoolProTelemetry | tuple[Sequence[int], Telemetry]
 
 
-def telemetry_check(raw: Sequence[int], values: Telemetry) -> None:
+def telemetry_reading(read: TelemetryRead) -> tuple[Sequence[int], Telemetry]:
+    """The registers and the decoded values of a telemetry read."""
+    return (read.registers, read) if isinstance(read, CoolProTelemetry) else read
+
+
+def telemetry_check(read: TelemetryRead) -> None:
     """Raise unless a CoolPro telemetry read came back whole with an input voltage."""
-    v = values.input_voltage_v if isinstance(values, CoolProTelemetry) else values[0]
+    if isinstance(read, CoolProTelemetry):  # a poller's read, checked without a tuple
+        raw: Sequence[int] = read.registers
+        v = read.input_voltage_v
+    else:
+        raw, values = read
+        v = values.input_voltage_v if isinstance(values, CoolProTelemetry) else values[0]
     if len(raw) != CP_COUNT or not v > 0:
         raise RuntimeError("telemetry reads no input voltage")
 
@@ -292,13 +311,13 @@ def answer_commands(lines: Any, answer: Callable[[str, list[str], str], str]) ->
         print(answer(cmd, rest, line), flush=True)
 
 
-Check = Callable[[Sequence[int], Any], None]
+Check = Callable[[Any], None]  #: a check of one call's result as the stack returns it
 Reading = tuple[Sequence[int], Any]  #: (registers, decoded values: a sweep's or a Telemetry)
 
 
 def serve(client: Any, canary: Canary, lines: Any, out: Any,
           batch: Callable[[Any, int, Check], str] = _batch,
-          call: Callable[[Any], Reading] | None = None) -> None:
+          call: Callable[[Any], Any] | None = None) -> None:
     """Answer commands from ``lines`` on ``out`` until ``quit`` or EOF.
 
     ``batch(op, n, check)`` times ``n`` calls of the client's ``op`` and ``call(op)`` makes
@@ -309,16 +328,18 @@ def serve(client: Any, canary: Canary, lines: Any, out: Any,
         cmd, _, arg = line.strip().partition(" ")
         try:
             if cmd == "sweep":
-                answer = batch(client.sweep, int(arg), canary.check)
+                answer = batch(client.sweep, int(arg), canary.check_reading)
             elif cmd == "tele":
                 answer = batch(client.telemetry, int(arg), telemetry_check)
             elif cmd in ("verify", "tverify"):
                 op = client.sweep if cmd == "verify" else client.telemetry
-                raw, values = op() if call is None else call(op)
+                got = op() if call is None else call(op)
                 if cmd == "verify":
-                    canary.check(raw, values)
+                    canary.check_reading(got)
+                    raw, values = got
                 else:
-                    values = telemetry_values(values)
+                    raw, read = telemetry_reading(got)
+                    values = telemetry_values(read)
                 answer = "ok " + " ".join(map(str, raw)) + "\nok " + " ".join(
                     repr(float(v)) for v in values)
             elif cmd == "quit":
