@@ -8,7 +8,6 @@ milliunits to volts, amps and °C, 32-bit values low word first.
 from __future__ import annotations
 
 import dataclasses
-import struct
 import threading
 from array import array
 from collections.abc import Callable
@@ -162,17 +161,6 @@ class _Filling:
     ``__init__`` makes a call per field: a CoolPro poller's hot path."""
 
 
-def _floats_at(slots: tuple[int, ...], items: int) -> Callable[[array[float]], tuple[float, ...]]:
-    """One C call that takes, from an ``array('d')`` of ``items``, the
-    floats at ``slots`` (increasing), in slot order: a struct's unpack (the
-    other items skipped), where ``tolist()`` makes a float of every item and
-    a list to pick them from."""
-    if list(slots) != sorted(set(slots)) or slots[-1] >= items:
-        raise InvalidArgument(f"slots {slots} are not increasing within {items}")
-    return struct.Struct("@" + "".join("d" if i in slots else "8x"
-                                       for i in range(items))).unpack
-
-
 def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemetry]:
     """A builder of :class:`CoolProTelemetry` from ``dec``'s arrays, its slots
     looked up once: ``build(regs)`` keeps ``regs`` as its registers,
@@ -180,18 +168,20 @@ def _telemetry_of(dec: Decoder, own: array[int]) -> Callable[..., CoolProTelemet
     holding what guards the arrays."""
     b = dec.buffers
     vals, ints = b.values, b.ints
-    floats = _floats_at(tuple(dec.slot(n) for n in _FLOATS), len(vals))
+    # Each value by its slot: an array's subscript, where one struct unpack
+    # of the five (and its tuple) costs more after a read's blocking wait
+    # (paired medians against a simulator: 3 % of a read).
+    vin, iin, vout, iout, temp = (dec.slot(n) for n in _FLOATS)
     up, st = dec.slot("uptime_s"), dec.slot("status")
     statuses, status, filling, telemetry = _STATUSES, _status, _Filling, CoolProTelemetry
 
     def build(regs: array[int] | None = None) -> CoolProTelemetry:
-        vin, iin, vout, iout, temp = floats(vals)
         t: Any = filling()
-        t.input_voltage_v = vin
-        t.input_current_a = iin
-        t.output_voltage_v = vout
-        t.output_current_a = iout
-        t.temperature_c = temp
+        t.input_voltage_v = vals[vin]
+        t.input_current_a = vals[iin]
+        t.output_voltage_v = vals[vout]
+        t.output_current_a = vals[iout]
+        t.temperature_c = vals[temp]
         t.uptime_s = ints[up]
         try:
             t.status = statuses[ints[st]]
