@@ -93,12 +93,18 @@ static int late_frame(pymb_line *line, int slave, const uint8_t *f, int len)
  * timeout plus that silence (so a peer that trickles bytes cannot hold a call
  * past it). With a byte timeout set, a gap longer than it after the first
  * byte of a frame of known length fails. Returns the frame's length or -1
- * and errno; *got is the number of bytes in rsp. */
+ * and errno; *got is the number of bytes in rsp.
+ *
+ * The clock is read where a decision needs it: once before the first wait
+ * (its start and the deadline's), after each wait, and after a read only
+ * when a frame goes on (when its bytes arrived) or when the earliest reply
+ * is checked: a reply whole in its first read takes two readings, not four. */
 static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earliest,
                          uint8_t *rsp, int cap, int *got)
 {
     int fd = modbus_get_socket(line->ctx), want = -1, by_silence = 0;
-    uint64_t deadline = pymbi_now_us() + pymbi_timeout_us(line->ctx, 0);
+    uint64_t now = pymbi_now_us();
+    uint64_t deadline = now + pymbi_timeout_us(line->ctx, 0);
     uint64_t byte_us = pymbi_timeout_us(line->ctx, 1), last = 0, stale_last = 0;
     uint64_t silence = line->silence_us;
 
@@ -107,7 +113,7 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
         cap = PYMB_RTU_MAX_ADU;
     }
     while (want < 0 || (*got) < want) {
-        uint64_t now = pymbi_now_us(), wait;
+        uint64_t wait, at = 0; /* at: when this read's bytes came, if the clock was read */
         ssize_t k;
         int rc;
 
@@ -148,6 +154,7 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
             return -1;
         }
         if (rc == 0) {
+            now = pymbi_now_us();
             continue; /* the clocks above decide (a signal is not a timeout) */
         }
         if ((*got) >= cap) {
@@ -157,6 +164,7 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
         k = pymbi_read(line, fd, rsp + (*got), (size_t)(cap - (*got)));
         if (k < 0) {
             if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) {
+                now = pymbi_now_us();
                 continue;
             }
             return -1;
@@ -165,14 +173,16 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
             errno = ECONNRESET; /* no more bytes will ever come (hang-up, closed) */
             return -1;
         }
-        last = pymbi_now_us();
-        if (*got == 0 && earliest != 0 &&
-            (last < earliest || (stale_last != 0 && last - stale_last < silence))) {
-            /* Bytes the device cannot have sent in answer yet (the request
-             * was still on the wire, or its t3.5 not over), or the rest of
-             * such a frame: a duplicated or late reply. Dropped. */
-            stale_last = last;
-            continue;
+        if (*got == 0 && earliest != 0) {
+            at = pymbi_now_us();
+            if (at < earliest || (stale_last != 0 && at - stale_last < silence)) {
+                /* Bytes the device cannot have sent in answer yet (the
+                 * request was still on the wire, or its t3.5 not over), or
+                 * the rest of such a frame: a duplicated or late reply.
+                 * Dropped. */
+                stale_last = now = last = at;
+                continue;
+            }
         }
         (*got) += (int)k;
         /* The bytes in hand, again after each late frame dropped from their
@@ -201,6 +211,9 @@ static int receive_frame(pymb_line *line, int slave, int expect, uint64_t earlie
                 continue;
             }
             break;
+        }
+        if (want < 0 || (*got) < want) { /* the frame goes on: its clocks run from now */
+            now = last = at != 0 ? at : pymbi_now_us();
         }
     }
     return want;
