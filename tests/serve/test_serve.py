@@ -171,7 +171,10 @@ def test_32_clients_read_and_write_at_once_with_no_cross_talk(peer: PtyPeer) -> 
 
 
 def test_clients_that_drop_or_never_read_cost_the_others_nothing(peer: PtyPeer) -> None:
-    with Served(*serve_args(peer.port, ["--max-clients", "2000"])) as s:
+    # The scripted device shares this process with the hog's loop: at a
+    # loaded machine's worst it answers in more than serve_args' 0.5 s. What
+    # is tested is that the good client is answered at all, not how fast.
+    with Served(*serve_args(peer.port, ["--max-clients", "2000", "--timeout", "3"])) as s:
         good = RawClient(s.port)
         assert words(good.ask(1, 1, read_pdu(2, 1))) == [14]
         rss0 = rss_kb(s.proc.pid)
