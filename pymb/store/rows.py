@@ -85,8 +85,9 @@ def stored_registers(data: MapReading, size: int = 0) -> bytes:
     reading's own bytes when its reader had them so, as the TCP loop does),
     at least ``size`` bytes (format 1's layout: the registers of its shipped
     map's group, a hub's 31..730, whatever its channels)."""
-    if data.wire is not None:
-        return data.wire
+    wire = data.wire
+    if wire is not None and len(wire) >= size:
+        return wire
     out = wire_bytes(data.registers)
     if len(out) < size:
         out += bytes(size - len(out))
@@ -115,7 +116,8 @@ def sample_rows(samples: Sequence[Sample], first: int, ids: DeviceIds) -> BoundR
             data = map_reading(data)
         did, _, size = device_id(s.device, data)
         wire = data.wire  # (bound_registers, without its two calls a row)
-        blob = bytearray(wire) if wire is not None else bound_registers(data, size)
+        blob = bytearray(wire) if wire is not None and len(wire) >= size else \
+            bound_registers(data, size)
         sizes.append(len(blob))
         flat.extend((sid, did, s.time_utc, s.monotonic, blob,
                      unsupported_of(data) if data.unsupported else 0))
@@ -155,8 +157,9 @@ def block_binds(block: PollBlock, ids: DeviceIds) -> BoundRows | None:
     object a row: SQLite makes them), when that is how they go: no poll
     refused a point, each device's ids known (:attr:`DeviceIds.by_source`,
     its first block's :func:`block_rows` finds them), no registers to pad
-    (format 1's layout). None otherwise. A column at a time (a row's
-    registers: a slice of the block's bytearray), not a tuple a row."""
+    (format 1's layout: a poll shorter than its map's group). None
+    otherwise. A column at a time (a row's registers: a slice of the
+    block's bytearray), not a tuple a row."""
     if block.unread is not None or not block.sources:
         return None
     try:
@@ -164,18 +167,19 @@ def block_binds(block: PollBlock, ids: DeviceIds) -> BoundRows | None:
     except KeyError:
         return None
     dids, sizes = zip(*got, strict=True)
-    if any(sizes):
-        return None
     data = block.data
-    if not isinstance(data, bytearray):  # (a slice of one is a bytearray: one object a row)
-        data = bytearray(data)
     offs = block.offs
     ends = [*offs[1:], len(data)]
+    lengths = list(map(operator.sub, ends, offs))
+    if any(sizes) and any(map(operator.lt, lengths, sizes)):
+        return None
+    if not isinstance(data, bytearray):  # (a slice of one is a bytearray: one object a row)
+        data = bytearray(data)
     flat: list[object] = [None] * (3 * len(got))  # (each column set in one step)
     flat[0::3] = dids
     flat[1::3] = block.monos
     flat[2::3] = [data[a:b] for a, b in zip(offs, ends, strict=True)]
-    return BoundRows(flat, list(map(operator.sub, ends, offs)), block.clock)
+    return BoundRows(flat, lengths, block.clock)
 
 
 def channel_rows(data: MapReading, pick: Iterable[int]) -> list[HubRow]:

@@ -167,6 +167,42 @@ def test_a_later_blocks_rows_bound_three_a_row_are_its_samples_rows(
     assert {r[-2:] for r in got} == {("real", "real")}
 
 
+def test_a_format1_devices_blocks_are_bound_three_a_row_unless_a_poll_is_padded(
+        tmp_path: Path) -> None:
+    """A CoolPro (format 1's layout: each row's registers at least its
+    shipped map's group's) as a serial poller hands its polls over: a later
+    block of full-size polls is bound 3 values a row, one with a poll of a
+    shorter group (padded) a row at a time; the rows are its samples'."""
+    m = maps.builtin("coolpro")
+    text = (resources.files("pymb.maps") / "builtin" / "coolpro.toml").read_text()
+    cp = DeviceInfo("rs485", "/dev/ttyUSB0", "coolpro", 40, "cp", map_source=text)
+    tele, ident, config = (PollSource(cp, GroupDecode(m, g))
+                           for g in ("telemetry", "identity", "config"))
+    rng = random.Random(21)
+
+    def block(picked: list[PollSource], at: float) -> PollBlock:
+        images = [rng.randbytes(2 * sum(d.count for d in s.decode.decoders)) for s in picked]
+        offs = [sum(map(len, images[:j])) for j in range(len(picked))]
+        monos = [at + 0.001 * j for j in range(len(picked))]
+        return PollBlock(1.7e9 + at, at, picked, monos, offs, bytearray(b"".join(images)))
+
+    blocks = [block([tele, ident, config], 100.0), block([tele, ident] * 40, 101.0),
+              block([tele, config, tele], 102.0)]
+    a, b = SqliteSink(tmp_path / "block.db"), SqliteSink(tmp_path / "samples.db")
+    for blk, three in zip(blocks, (False, True, False), strict=True):
+        assert (block_binds(blk, a._device_ids) is not None) == three
+        a.write_block(blk)
+        b.write_batch(blk.samples())
+    a.close()
+    b.close()
+    assert _dump(tmp_path / "block.db") == _dump(tmp_path / "samples.db")
+    got = _rows(tmp_path / "block.db")
+    assert got == _rows(tmp_path / "samples.db")
+    assert len(got) == 86
+    assert {len(r[4]) for r in got if isinstance(r[4], bytes)} == {16}  # config's 6 padded
+    assert all(isinstance(r[4], bytes) for r in got)
+
+
 def test_on_change_storage_takes_a_block_as_its_samples(tmp_path: Path) -> None:
     block = _block(random.Random(9), 3, False)  # a poll of each group
     again = PollBlock(block.time_utc + 50, block.monotonic + 50, block.sources,
