@@ -1,8 +1,10 @@
 """The sensor hub read as a map device: :class:`SweepReader` reads its map's
 groups, or some blocks and channels, as :class:`~pymb.devices.mapreading.MapReading`
 with the hub's own rules (:func:`~pymb.devices.hub.hub_device`: the
-firmware's missing blocks, a busy hub; a humidity unit per channel). The
-logger, ``pymb read`` and ``pymb watch`` read a hub with it."""
+firmware's missing blocks, a busy hub; a humidity unit per channel).
+``pymb read`` and ``pymb watch`` read a hub with it, and the logger a hub
+whose channels' humidity units differ (one of a single unit it polls as its
+map's group: the registers, as :attr:`SweepReader.device` fetches them)."""
 
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from pymb.devices.hub import blocks_in_other_units, busy_error, hub_device, unit
 from pymb.devices.hubreading import BLOCKS, CHANNELS
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import Blocks, MapReading
-from pymb.errors import DeviceFailure
+from pymb.errors import DeviceBusy, DeviceFailure
 from pymb.maps.types import STATES
 
 __all__ = ["SweepReader"]
@@ -37,8 +39,16 @@ class SweepReader:
         self.channels = channels
         self.device: MapDevice = hub_device(client, address, channels, self.unit,
                                             busy_retries=_BUSY_RETRIES)
-        self._mixed = any(self.other)
+        #: some channel's humidity in another unit than the map's: a reading's
+        #: values are the hub's own decode (:func:`blocks_in_other_units`), not
+        #: its map's alone
+        self.mixed = any(self.other)
         self._index: dict[str | None, dict[str, int]] = {}  # by group: the blocks' slots
+
+    def busy(self, e: DeviceFailure) -> DeviceBusy:
+        """What a read raises when the hub answered ``e`` (code 04: busy)
+        through every retry."""
+        return busy_error(e, _BUSY_RETRIES)
 
     def __call__(self, group: str | None) -> MapReading:
         """Every block of ``group`` (the sweep), its values and states kept
@@ -46,7 +56,7 @@ class SweepReader:
         try:
             (d,) = self.device.read_into(group=group)
         except DeviceFailure as e:
-            raise busy_error(e, _BUSY_RETRIES) from None
+            raise self.busy(e) from None
         b, c = d.buffers, self.channels
         index = self._index.get(group)
         if index is None:
@@ -55,7 +65,7 @@ class SweepReader:
                                           (group is None or p.group == group)}
         names = tuple(index)
         blocks = Blocks(names, c, array("d", b.values), array("B", b.states), index)
-        if self._mixed:
+        if self.mixed:
             blocks_in_other_units(blocks, b.registers, self.unit, self.other)
         # An int searched in bytes: one memchr, where a bytes searched in a slice
         # first fails as an int (a TypeError made and dropped) for every block.
@@ -74,7 +84,7 @@ class SweepReader:
         try:
             decs = self.device.read_into(*names, channels=channels)
         except DeviceFailure as e:
-            raise busy_error(e, _BUSY_RETRIES) from None
+            raise self.busy(e) from None
         c = self.channels
         values: dict[str, Any] = {b.name: [None] * c for b in BLOCKS}
         states: dict[str, Any] = {b.name: ["not_read"] * c for b in BLOCKS}
@@ -90,7 +100,7 @@ class SweepReader:
         gone = self.device.planner.unsupported
         missing = tuple(b.name for i, b in enumerate(BLOCKS)
                         if gone and all(k in gone for k in range(i * c, (i + 1) * c)))
-        if self._mixed:
+        if self.mixed:
             flat = Blocks(list(values), c, array("d"), array("B"))
             for n in flat.names:  # (the blocks as flat arrays, to decode again)
                 flat.values.extend(math.nan if v is None else v for v in values[n])

@@ -481,12 +481,14 @@ class MapDevice:
 def prepared_read(device: MapDevice,
                   then: Callable[[tuple[tuple[Decoder, array[int]], ...]], Callable[[], T]],
                   *names: str, group: str | None = None,
-                  channels: Iterable[int] | None = None) -> Callable[[], T]:
+                  channels: Iterable[int] | None = None, decode: bool = True) -> Callable[[], T]:
     """The selection of :meth:`MapDevice.read_into` made ready for a view that
     reads it over and over (the CoolPro's telemetry): a call that reads it as
-    ``read_into`` does and returns what ``then(fetched)`` returned calls, holding
-    the line's lock (:meth:`~pymb.devices.mapfetch.Fetcher.prepared`); ``fetched``:
-    per table, the decoder the read fills and the registers it reads into."""
+    ``read_into`` does (without ``decode``: as :meth:`MapDevice.fetch` does)
+    and returns what ``then(fetched)`` returned calls, holding the line's lock
+    (:meth:`~pymb.devices.mapfetch.Fetcher.prepared`); ``fetched``: per table,
+    the decoder the read fills and the registers it reads into."""
     r, skipped = device._read_of(names, group, channels)  # noqa: SLF001 - this module's
-    held = partial(device._read_held, r, skipped)  # noqa: SLF001 - this module's
-    return device._fetcher.prepared(r, held, then(r.fetched), fast=not skipped)  # noqa: SLF001
+    f = device._fetcher  # noqa: SLF001 - this module's
+    held = partial(device._read_held, r, skipped) if decode else partial(f.fetch, r)  # noqa: SLF001
+    return f.prepared(r, held, then(r.fetched), fast=not skipped or not decode, decode=decode)

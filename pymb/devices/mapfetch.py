@@ -83,7 +83,7 @@ class Read:
     same requests: it runs them and decodes, nothing else."""
 
     __slots__ = ("decoders", "decodes", "decoding", "fetched", "images", "items", "jobs", "plan",
-                 "points", "runs", "steady", "steady_call", "version")
+                 "points", "runs", "steady", "steady_call", "steady_fetch", "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
                  images: dict[str, Image]) -> None:
@@ -111,6 +111,8 @@ class Read:
         self.steady: RegisterPlan | None = None
         #: :attr:`steady`'s run made ready (``pymb.client.base.read_plan_call``)
         self.steady_call: Callable[[int | None], bool] | None = None
+        #: the same read when nothing is decoded: its one run's call, else None
+        self.steady_fetch: Callable[[int | None], bool] | None = None
         self.version = -1  # made at no version yet
 
 
@@ -269,14 +271,16 @@ class Fetcher:
         # request asked again, no fallback, no point marked unread (so none
         # due again: the planner's retry_at changes with its version)
         one = r.decoding is not None and len(r.decoding) == 1
-        r.steady = r.decoding[0].plan if one and r.decoding is not None and not (
-            self._gap or self._turnaround or self.busy_retries or self.marked
-            or planner.limits.split_on_exception) else None
+        alone = not (self._gap or self._turnaround or self.busy_retries or self.marked
+                     or planner.limits.split_on_exception)
+        r.steady = r.decoding[0].plan if one and r.decoding is not None and alone else None
         r.steady_call = None if r.steady is None or r.decoding is None else r.decoding[0].go
+        r.steady_fetch = r.runs[0].go if alone and r.runs is not None and len(r.runs) == 1 \
+            else None
         r.version = planner.version
 
     def prepared(self, r: Read, held: Callable[[], object], then: Callable[[], T], *,
-                 fast: bool = True) -> Callable[[], T]:
+                 fast: bool = True, decode: bool = True) -> Callable[[], T]:
         """A call that reads ``r`` and returns ``then()``, both holding the
         line's lock: ``held()`` reads it (:meth:`fetch` and the decoding, the
         lock held), except while nothing has changed since ``r`` was made
@@ -284,13 +288,15 @@ class Fetcher:
         again) and ``r`` is :attr:`Read.steady` (``fast``: nothing is to be
         done after its decoding): then its one C call is the read, in the
         silence the line keeps (:meth:`fetch`'s, with none of this device's
-        own)."""
+        own). Without ``decode``, the read only fetches (``held``:
+        :meth:`fetch` of ``r``), its steady call :attr:`Read.steady_fetch`."""
         lock, q, planner = self.quiet.lock, self.quiet, self.planner
 
         def read() -> T:
             lock.acquire()
             try:
-                run = r.steady_call  # the lock is the client's: held, not taken again
+                # the lock is the client's: held, not taken again
+                run = r.steady_call if decode else r.steady_fetch
                 if run is None or not fast or r.version != planner.version:
                     held()
                     return then()

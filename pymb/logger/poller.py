@@ -8,6 +8,7 @@ import functools
 import queue
 import threading
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -15,18 +16,21 @@ from pymb.client import unresolved
 from pymb.devices.deviceconfig import DeviceConfig
 from pymb.devices.hubsweep import SweepReader
 from pymb.devices.identify import client_asker, identify, mismatch
-from pymb.devices.mapdevice import MapDevice
+from pymb.devices.mapdevice import MapDevice, prepared_read
 from pymb.devices.mapreading import GroupDecode, MapReading
-from pymb.errors import ModbusConnectionError, ModbusError
+from pymb.errors import DeviceFailure, ModbusConnectionError, ModbusError
 from pymb.logger.config import BusConfig
 from pymb.logger.report import Report
 from pymb.logger.schedule import BACKOFF_MAX, TEXT, Agenda, Backoff, Health, Slot, reappeared
 from pymb.logger.stats import Stats
+from pymb.maps import Decoder
 from pymb.store import DeviceInfo, Event, Sample
-from pymb.store.block import PollBlock, poll_sample
+from pymb.store.block import PollBlock, PollSource
 from pymb.wire import registers_to_wire
 
 __all__ = ["BusPoller", "MapHealth", "Stats", "map_info"]
+
+_NONE: frozenset[int] = frozenset()
 
 
 @dataclass(eq=False)
@@ -48,37 +52,60 @@ class MapHealth:
 
 @dataclass(eq=False)
 class _Read:
-    """A slot of the schedule and what reading it takes."""
+    """A slot of the schedule and what reading it takes: a group of a map
+    device (``group``: its registers go to the writer as they are), or a
+    hub's sweep (``read``: a :class:`MapReading`)."""
 
     slot: Slot
     dev: MapHealth
-    read: Callable[[], MapReading]
+    read: Callable[[], MapReading] | None = None
+    group: _GroupRead | None = None
+    backoff: bool = False  #: the map's ``[device.timing] backoff``
 
 
 class _GroupRead:
     """A map device's group read as the logger keeps it, like the TCP loop's
     polls: the registers fetched and nothing decoded (the writer stores the
     registers; :meth:`MapDevice.read_group` decodes every value and state
-    into dicts, about 35 µs a CoolPro sample), a
-    :class:`~pymb.devices.mapreading.MapReading` whose values and states are
-    decoded on first use, the points the planner holds refused
-    ``unsupported``."""
+    into dicts, about 35 µs a CoolPro sample; a hub's sweep, 700 values and
+    states into arrays), handed over as a poll of :attr:`source`
+    (:meth:`Report.poll <pymb.logger.report.Report.poll>`), with the points
+    the planner holds refused ``unsupported``. ``busy``: what a device
+    failure raises instead (a hub's: busy through every retry)."""
 
-    __slots__ = ("dev", "group", "how", "info")
+    __slots__ = ("busy", "dev", "how", "read", "source")
 
-    def __init__(self, info: DeviceInfo, dev: MapDevice, group: str | None) -> None:
-        self.info = info
+    def __init__(self, info: DeviceInfo, dev: MapDevice, group: str | None,
+                 busy: Callable[[DeviceFailure], ModbusError] | None = None) -> None:
         self.dev = dev
-        self.group = group
         self.how = GroupDecode(dev.map, group)
+        self.source = PollSource(info, self.how)
+        self.busy = busy
+        #: the fetch made ready (one C call while nothing changes), giving the image
+        self.read = prepared_read(dev, _image, group=group, decode=False)
 
-    def __call__(self) -> MapReading:
-        fetched = self.dev.fetch(group=self.group)
-        image = b"".join([registers_to_wire(regs) for _, regs in fetched])
+    def __call__(self) -> tuple[bytes, frozenset[int]]:
+        """One read: the registers (big-endian, the group's layout) and the
+        items of the group the device refused."""
+        try:
+            image = self.read()
+        except DeviceFailure as e:
+            if self.busy is None:
+                raise
+            raise self.busy(e) from None
         unread = self.dev.planner.unsupported
         if unread:
             unread &= self.how.items
-        return poll_sample(self.info, 0.0, 0.0, self.how, image, unread)[1]
+        return image, unread
+
+
+def _image(fetched: tuple[tuple[Decoder, array[int]], ...]) -> Callable[[], bytes]:
+    """The group's image of the registers a read fetched (big-endian, table
+    after table), taken while the read holds the line."""
+    if len(fetched) == 1:
+        return functools.partial(registers_to_wire, fetched[0][1])
+    arrays = [regs for _, regs in fetched]
+    return lambda: b"".join([registers_to_wire(regs) for regs in arrays])
 
 
 def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
@@ -138,8 +165,13 @@ class BusPoller(threading.Thread):
             for group, interval in cfg.polls:
                 slot = Slot(health, bus.interval if interval is None else interval,
                             interval == 0, group)
-                out.append(_Read(slot, h, functools.partial(read, group) if isinstance(
-                    read, SweepReader) else _GroupRead(info, dev, group)))
+                backoff = cfg.map.timing.backoff
+                if isinstance(read, SweepReader) and read.mixed:  # (the hub's own decode)
+                    out.append(_Read(slot, h, functools.partial(read, group), backoff=backoff))
+                else:
+                    busy = read.busy if isinstance(read, SweepReader) else None
+                    out.append(_Read(slot, h, group=_GroupRead(info, dev, group, busy),
+                                     backoff=backoff))
         return out
 
     def _why_not_open(self, e: ModbusError) -> str:
@@ -179,12 +211,13 @@ class BusPoller(threading.Thread):
                               len(self.devices))
         reads = self._reads()
         clock, stop = self.clock, self.stop_event
+        is_set, poll = stop.is_set, self._poll
         agenda: Agenda[_Read] = Agenda()
         start = clock()
         for r in reads:
             r.slot.next_at = start
             agenda.put(r.slot, r, start)
-        while not stop.is_set():
+        while not is_set():
             now = clock()
             due = agenda.due(now)
             if not due:
@@ -192,12 +225,14 @@ class BusPoller(threading.Thread):
                 if stop.wait(min(max(agenda.next() - now, 0.0), BACKOFF_MAX)):
                     return
                 continue
+            alone = len(due) == 1
             for r in due:
-                if stop.is_set():
+                if is_set():
                     return
                 slot = r.slot
-                if slot.due(clock()):  # (not if its device failed since, in this round)
-                    got = self._poll(r)
+                flat = alone and slot.interval == 0 and not slot.once
+                while slot.due(clock()):  # (not if its device failed since, in this round)
+                    got = poll(r)
                     if got is False:
                         return
                     late = slot.advance(clock())
@@ -208,6 +243,10 @@ class BusPoller(threading.Thread):
                         for x in reads:  # (each read once was no longer in the agenda)
                             if x.slot.once and x is not r:
                                 agenda.put(x.slot, x, clock())
+                    # Read flat out and alone: read again while nothing else is due
+                    # (what the agenda would give next), without the agenda.
+                    if not flat or is_set() or agenda.next() <= clock():
+                        break
                 agenda.put(slot, r, slot.wake(clock()))
 
     def _poll(self, r: _Read) -> bool | None:
@@ -215,8 +254,14 @@ class BusPoller(threading.Thread):
         None when it was lost and opened again."""
         report, bus, h, dev = self.report, self.bus, r.slot.health, r.dev
         info = dev.info
+        g = r.group
         try:
-            data = r.read()
+            if g is not None:
+                image, unread = g()
+            else:
+                assert r.read is not None
+                data = r.read()
+                unread = _NONE
         except ModbusConnectionError as e:
             report.error(bus.name, h, info, e, self.clock())
             self.client.close()
@@ -227,11 +272,12 @@ class BusPoller(threading.Thread):
         except ModbusError as e:
             report.error(bus.name, h, info, e, self.clock())
             return True
-        if not dev.config.map.timing.backoff:
-            report.sample(Sample(info, time.time(), time.monotonic(), data))
-            report.answered(bus.name, h, info, data.unsupported)
-            return True
-        if data.unsupported and len(data.unsupported) == len(data.values):
+        if g is not None:
+            refused = g.how.unsupported(unread) if unread else ()
+        else:
+            refused = data.unsupported
+        if r.backoff and refused and len(refused) == (
+                len(g.how.names) if g is not None else len(data.values)):
             # Every point "unsupported": the device supplied no value at all.
             # Not a sample: a fault, and the next try probes the points again.
             if not dev.explained:
@@ -241,10 +287,14 @@ class BusPoller(threading.Thread):
                           TEXT["no_value"].format(name=info.name, why=dev.explained), None,
                           self.clock(), at_once=True)
             return True
-        report.sample(Sample(info, time.time(), time.monotonic(), data))
-        if h.failures:
-            dev.explained = ""
-        report.answered(bus.name, h, info, data.unsupported)
+        if g is not None:
+            report.poll(g.source, time.monotonic(), image, unread)
+        else:
+            report.sample(Sample(info, time.time(), time.monotonic(), data))
+        if h.failures or h.offline or refused or h.name in self.stats.problems:
+            if r.backoff and h.failures:
+                dev.explained = ""
+            report.answered(bus.name, h, info, refused)  # (only where that is news)
         return True
 
     def _explain(self, info: DeviceInfo) -> str:

@@ -1,7 +1,9 @@
 """What a poller hands the writer: :class:`Report`, the one hand-over of
-both runners (a bus's thread and the one TCP loop): samples in lists
+both runners (a bus's thread and the one TCP loop): samples and polls in lists
 (:data:`~pymb.logger.schedule.BATCH_MAX`, :data:`~pymb.logger.schedule.BATCH_AGE`),
-the polls the TCP loop's C part carried in blocks (:class:`~pymb.store.block.PollBlock`),
+a bus thread's polls of map groups as columns of one
+:class:`~pymb.store.block.PollBlock` a list (:meth:`Report.poll`: no record
+a poll), the polls the TCP loop's C part carried in blocks,
 events at once, after the samples before them, and the run's counts
 (:class:`~pymb.logger.stats.Stats`) for each fact of the schedule, each
 said in one place with :data:`~pymb.logger.schedule.TEXT`."""
@@ -16,10 +18,12 @@ from pymb.errors import ModbusError
 from pymb.logger.schedule import BATCH_AGE, BATCH_MAX, TEXT, Health, Slot
 from pymb.logger.stats import Stats
 from pymb.store import DeviceInfo, Event, Sample
-from pymb.store.block import PollBlock
+from pymb.store.block import PollBlock, PollSource
 from pymb.store.records import event_kind, short_fault
 
 __all__ = ["Report"]
+
+_NONE: frozenset[int] = frozenset()
 
 
 class Report:
@@ -31,11 +35,21 @@ class Report:
         self.stats = stats
         self.items: list[Sample | Event | PollBlock] = []
         self.since = 0.0  #: when the oldest of :attr:`items` was read (monotonic)
+        # the open block of :meth:`poll`: its columns, and its wall time less
+        # monotonic time (read when it opened)
+        self._sources: list[PollSource] = []
+        self._monos: list[float] = []
+        self._offs: list[int] = []
+        self._data = bytearray()
+        self._unread: list[frozenset[int]] | None = None
+        self._clock = 0.0
 
     # -- the hand-over ------------------------------------------------------------------
 
     def flush(self) -> None:
         """Hand what was read since the last list to the writer."""
+        if self._monos:
+            self._close()
         items, self.items = self.items, []
         if items:
             self.out.put(items)
@@ -43,15 +57,19 @@ class Report:
     def take(self) -> list[Sample | Event | PollBlock]:
         """What was read but not handed over (for the writer, once the poller
         is left behind at stop)."""
+        if self._monos:
+            self._close()
         items, self.items = self.items, []
         return items
 
     def aged(self, now: float) -> bool:
         """Whether samples wait that are to be handed over by ``now``."""
-        return bool(self.items) and now - self.since >= BATCH_AGE
+        return bool(self.items or self._monos) and now - self.since >= BATCH_AGE
 
     def sample(self, sample: Sample) -> None:
         """Add a sample to the list (handed over when full or old)."""
+        if self._monos:  # (after the polls before it)
+            self._close()
         items = self.items
         now = sample.monotonic
         if not items:
@@ -60,10 +78,49 @@ class Report:
         if len(items) >= BATCH_MAX or now - self.since >= BATCH_AGE:
             self.flush()
 
+    def poll(self, source: PollSource, mono: float, image: bytes | bytearray,
+             unread: frozenset[int] = _NONE) -> None:
+        """Add a poll of ``source`` read at ``mono`` (monotonic) to the list,
+        in the open block of polls: its registers ``image`` (big-endian, laid
+        out as the source's decoder says), ``unread`` the planner items the
+        device refused. What :meth:`sample` of its
+        :func:`~pymb.store.block.poll_sample` would hand over, as columns
+        (the block's wall time is its first poll's; the others' are their
+        monotonic times on the same clock)."""
+        monos = self._monos
+        if not monos:
+            if not self.items:
+                self.since = mono
+            self._clock = time.time() - time.monotonic()
+        data = self._data
+        gone = self._unread
+        if unread:
+            if gone is None:
+                gone = self._unread = [_NONE] * len(monos)
+            gone.append(unread)
+        elif gone is not None:
+            gone.append(_NONE)
+        self._sources.append(source)
+        self._offs.append(len(data))
+        monos.append(mono)
+        data += image
+        if len(monos) + len(self.items) >= BATCH_MAX or mono - self.since >= BATCH_AGE:
+            self.flush()
+
+    def _close(self) -> None:
+        """The open block of polls joins the list."""
+        monos = self._monos
+        self.items.append(PollBlock.of(self._clock + monos[0], monos[0], self._sources, monos,
+                                       self._offs, self._data, self._unread))
+        self._sources, self._monos, self._offs, self._data = [], [], [], bytearray()
+        self._unread = None
+
     def block(self, block: PollBlock) -> None:
         """Hand a block of polls over (with what waits before it): it is a
         list's worth already (:data:`~pymb.logger.schedule.BATCH_MAX`,
         :data:`~pymb.logger.schedule.BATCH_AGE`)."""
+        if self._monos:
+            self._close()
         self.items.append(block)
         self.flush()
 
@@ -75,6 +132,8 @@ class Report:
 
     def _add_event(self, bus: str, kind: str, message: str, device: DeviceInfo | None = None,
                    code: int | None = None) -> None:
+        if self._monos:  # (after the polls before it)
+            self._close()
         self.items.append(Event(time.time(), time.monotonic(), bus, device, kind, code,
                                 message))
 

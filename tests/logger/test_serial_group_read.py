@@ -1,19 +1,28 @@
 """A serial bus's poller reads a map device's group without decoding it
-(the registers fetched, the values and states decoded on first use): the
-reading is the one :meth:`MapDevice.read_group` makes, a refused point
-included, over a real pseudo-terminal."""
+(the registers fetched, handed to the writer as a poll of a block, the values
+and states decoded on first use): the reading the writer gets is the one
+:meth:`MapDevice.read_group` makes, a refused point included, over a real
+pseudo-terminal."""
 
 from __future__ import annotations
 
+import queue
+import time
 from pathlib import Path
+
+import pytest
 
 from pymb import RtuClient, maps
 from pymb.devices.coolpro import coolpro_device
+from pymb.devices.deviceconfig import parse_device
 from pymb.devices.mapdevice import MapDevice
 from pymb.devices.mapreading import MapReading
 from pymb.logger.poller import _GroupRead
+from pymb.logger.report import Report
+from pymb.logger.stats import Stats
 from pymb.sim import SimulatorProcess
 from pymb.store import DeviceInfo
+from pymb.store.block import PollBlock
 
 SERVED = '''schema = "pymb.map/1"
 [device]
@@ -40,6 +49,19 @@ type = "f32"
 '''
 
 
+def _polled(read: _GroupRead) -> MapReading:
+    """One read of ``read`` as the writer gets it from the poller's report."""
+    report = Report(queue.Queue(), Stats())
+    image, unread = read()
+    report.poll(read.source, time.monotonic(), image, unread)
+    (block,) = report.take()
+    assert isinstance(block, PollBlock)
+    sample = block.sample(0)
+    assert sample.device is read.source.device
+    assert isinstance(sample.data, MapReading)
+    return sample.data
+
+
 def _same(a: MapReading, b: MapReading) -> None:
     assert dict(a.values) == dict(b.values)
     assert dict(a.states) == dict(b.states)
@@ -58,7 +80,7 @@ def test_a_serial_poll_reads_what_read_group_reads(tmp_path: Path) -> None:
         read = _GroupRead(info, ours, None)
         # the first read is refused and taught, the next ones leave the point out
         for _ in range(3):
-            got, want = read(), theirs.read_group(None)
+            got, want = _polled(read), theirs.read_group(None)
             _same(got, want)
             assert got.values["missing_a"] is None
             assert got.states["missing_a"] == "unsupported"
@@ -73,6 +95,25 @@ def test_a_coolpro_poll_reads_what_read_group_reads() -> None:
         dev = coolpro_device(c, 40)
         read = _GroupRead(info, dev, "telemetry")
         for _ in range(2):
-            got = read()
+            got = _polled(read)
             _same(got, dev.read_group("telemetry"))
             assert got.unsupported == ()
+
+
+@pytest.mark.parametrize("served", ["hub:7", "hub:7,firmware=1.07"])
+def test_a_hub_sweep_polled_as_its_group_reads_what_the_sweep_reader_reads(served: str) -> None:
+    """A hub of one humidity unit is polled as its map's group: the writer's
+    reading is the hub's own (:class:`SweepReader`), the blocks its firmware
+    lacks included (refused, then left out), over a real pseudo-terminal."""
+    cfg = parse_device("hub:7,channels=50")
+    info = DeviceInfo("bus", "pty", "hub", 7, "hub", 50, 0.1)
+    with SimulatorProcess([served], quiet=True) as sim, \
+            RtuClient(sim.endpoint, 9600, timeout=2.0) as c:
+        ours, _ = cfg.open(c)
+        theirs = cfg.sweep_reader(c)
+        assert not theirs.mixed
+        read = _GroupRead(info, ours, "sweep", theirs.busy)
+        for _ in range(3):
+            got, want = _polled(read), theirs("sweep")
+            _same(got, want)
+        assert ("firmware" in served) == bool(got.unsupported)
