@@ -1,7 +1,7 @@
 """What the polls the TCP loop's C part carries give the writer:
 :class:`Carried`.
 
-While a connection is *armed* (:meth:`pymb.logger.tcpconn.TcpLoopBase.arm`),
+While a connection is *armed* (:meth:`pymb.logger.tcpbase.TcpLoopBase.arm`),
 its polls are read and sent again in C (:class:`pymb._native.loop.Loop`),
 and one wait of the C part hands over the polls of many connections at
 once. Here they become one :class:`~pymb.store.block.PollBlock` for the

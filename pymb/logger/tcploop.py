@@ -43,7 +43,8 @@ from pymb.logger.config import BusConfig
 from pymb.logger.poller import map_info
 from pymb.logger.schedule import TEXT, Agenda
 from pymb.logger.stats import Stats
-from pymb.logger.tcpconn import Conn, TcpLoopBase, fans_out
+from pymb.logger.tcpbase import TcpLoopBase
+from pymb.logger.tcpconn import Conn, fans_out
 from pymb.logger.tcplend import Lender
 from pymb.logger.tcpreplies import TcpReplies
 from pymb.logger.tcpsel import WRITABLE
