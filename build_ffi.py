@@ -399,18 +399,26 @@ int pymbi_srv_exception(uint16_t tid, uint8_t unit, uint8_t function, uint8_t co
 """
 
 
-# pymb_loop.h: the I/O of pymb log's one TCP loop, flat out (pymb._native.loop is
+# pymb_loop.h: the I/O of pymb log's one TCP loop, flat out and chains (pymb._native.loop is
 # its one user); internal to the extension, not part of libpymb.
 LOOP_CDEF = """
 #define PYMBI_LOOP_READY ...
 #define PYMBI_LOOP_DONE ...
 #define PYMBI_LOOP_TAKEN ...
 #define PYMBI_LOOP_LOOK ...
+#define PYMBI_LOOP_END ...
+#define PYMBI_LOOP_UNSENT ...
 #define PYMBI_LOOP_NO_CONN ...
+typedef struct {
+    const pymbi_mreq *reqs; size_t n; uint8_t *image; size_t image_len; double timeout;
+    uint32_t id;
+} pymbi_lpoll;
 typedef struct {
     int fd; int armed; pymbi_master *m; const pymbi_mreq *reqs; size_t n; uint8_t *image;
     size_t image_len; pymbi_mevent *ev; size_t ev_cap; size_t replies; double timeout;
     double took; double sent_at; double look_at; double deadline; uint32_t asked;
+    uint32_t id; const pymbi_lpoll *chain; size_t nchain; size_t at; size_t sent;
+    size_t window; int lowat;
 } pymbi_lconn;
 typedef struct {
     int kind; int fd; uint32_t conn; uint32_t events; int err; int nev; size_t size;

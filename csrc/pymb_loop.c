@@ -35,6 +35,12 @@ static double look(const pymbi_loop *lp, const pymbi_lconn *c)
     return t < most ? t : most;
 }
 
+/* The bytes of the reply to read request q: MBAP, function, byte count, data. */
+static size_t reply_size(const pymbi_mreq *q)
+{
+    return PYMBI_MASTER_HEAD + (q->function <= 2 ? ((size_t)q->count + 7u) / 8u : 2u * q->count);
+}
+
 /* Whether the frames in buf (pymbi_mbap_clean's: whole ones, the last one
  * perhaps still coming) each answer a request of m still in flight, as its
  * reply would begin: its transaction id, no protocol id, its length, unit,
@@ -58,8 +64,8 @@ static int own_replies(const pymbi_master *m, const uint8_t *buf, size_t len)
         if (s == NULL) {
             return 0;
         }
-        data = s->req.function <= 2 ? ((size_t)s->req.count + 7u) / 8u : 2u * s->req.count;
-        want = 9 + data;
+        want = reply_size(&s->req);
+        data = want - PYMBI_MASTER_HEAD;
         head[0] = buf[pos];
         head[1] = buf[pos + 1];
         head[2] = 0;
@@ -111,12 +117,188 @@ static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double 
     r->now = now;
 }
 
+/* Armed connection c's poll read in full at `now`: its id to done, its
+ * image to the block. */
+static void carried(pymbi_loop *lp, const pymbi_lconn *c, double now)
+{
+    if (lp->block != NULL) {
+        memcpy(lp->block + lp->block_len, c->image, c->image_len);
+        lp->done_off[lp->ndone] = (uint32_t)lp->block_len;
+        lp->done_at[lp->ndone] = now;
+        lp->block_len += c->image_len;
+    }
+    lp->done[lp->ndone++] = c->id;
+}
+
+/* The bytes of the replies to m's requests in flight, less the part of one
+ * kept (at least 1). */
+static size_t rest(const pymbi_master *m)
+{
+    size_t sum = 0;
+    uint32_t i;
+    for (i = 0; i < m->span; i++) {
+        const pymbi_mslot *t = &m->slots[(uint16_t)(m->oldest + i) % PYMBI_MASTER_INFLIGHT];
+        if (t->live) {
+            sum += reply_size(&t->req);
+        }
+    }
+    return sum > m->part_len + 1 ? sum - m->part_len : 1;
+}
+
+/* Chain c's poll in flight: the socket wakes for any byte until its last
+ * request is out, then (a poll of more than one request) for the bytes of
+ * all its replies still to come, with a look. A failed setsockopt leaves the
+ * wake as it was (any byte, or more: a look then reads them as they come). */
+static void aim(const pymbi_loop *lp, pymbi_lconn *c, double now)
+{
+    size_t want = c->sent == c->n && c->n > 1 ? rest(c->m) : 1;
+    int v = want > 0x7FFFFFFF ? 0x7FFFFFFF : (int)want;
+    if (v != c->lowat &&
+        setsockopt(c->fd, SOL_SOCKET, SO_RCVLOWAT, &v, (socklen_t)sizeof v) == 0) {
+        c->lowat = v;
+    }
+    c->replies = c->lowat > 1 ? (size_t)c->lowat : 0;
+    c->look_at = c->lowat > 1 ? now + look(lp, c) : HUGE_VAL;
+}
+
+/* Chain c (index i): the next requests of chain[at], as many as the window
+ * has room for, framed and sent. Returns 0 (sent, or none to send), 1 when
+ * not all went out (an UNSENT record in r: disarmed), -1 on a master that
+ * refuses them (a bug). */
+static int burst(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, double now, pymbi_lrec *r)
+{
+    pymbi_master *m = c->m;
+    size_t k = c->n - c->sent, room = c->window > m->in_flight ? c->window - m->in_flight : 0;
+    ssize_t sent;
+    int framed, err = 0;
+    if (k > room) {
+        k = room;
+    }
+    if (k == 0) {
+        return 0;
+    }
+    if (m->in_flight == 0) {
+        c->deadline = now + c->timeout;
+    }
+    framed = pymbi_master_frames(m, c->reqs + c->sent, k, c->image_len, lp->out, lp->out_cap);
+    if (framed <= 0) {
+        c->armed = 0;
+        return -1;
+    }
+    c->sent += k;
+    c->asked += (uint32_t)k;
+    c->sent_at = now;
+    sent = send(c->fd, lp->out, (size_t)framed, MSG_DONTWAIT | MSG_NOSIGNAL);
+    if (sent < 0) {
+        err = errno == EAGAIN || errno == EWOULDBLOCK ? 0 : errno;
+        sent = 0;
+    }
+    if ((size_t)sent == (size_t)framed) {
+        return 0;
+    }
+    c->armed = 0; /* the caller says why the connection is lost */
+    memset(r, 0, sizeof *r);
+    r->kind = PYMBI_LOOP_UNSENT;
+    r->fd = c->fd;
+    r->conn = i;
+    r->now = now;
+    r->size = (size_t)framed;
+    r->sent = (size_t)sent;
+    r->err = err;
+    return 1;
+}
+
+/* Chain c (index i) is ready, as serve says (its poll's replies taken as
+ * they come; each poll read in full to done and the block, the next one
+ * sent; the last one ends the chain: END). */
+static int serve_chain(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, double now,
+                       pymbi_lrec *r)
+{
+    pymbi_master *m = c->m;
+    ssize_t got;
+    size_t used = 0;
+    uint64_t before;
+    int nev, whole;
+
+    if ((events & (EPOLLERR | EPOLLHUP)) || !(events & EPOLLIN) || lp->block == NULL ||
+        c->at >= c->nchain || c->window == 0) {
+        c->armed = 0;
+        ready(r, c->fd, i, events, now);
+        return 0;
+    }
+    got = recv(c->fd, lp->rx, lp->rx_cap, MSG_PEEK | MSG_DONTWAIT);
+    if (got <= 0 || (c->replies > 0 && (size_t)got != c->replies)) { /* the caller's */
+        c->armed = 0;
+        ready(r, c->fd, i, events, now);
+        return 0;
+    }
+    before = m->replies;
+    nev = pymbi_master_take(m, lp->rx, (size_t)got, c->image, c->image_len, c->ev, c->ev_cap,
+                            &used);
+    if (nev < 0) {
+        c->armed = 0;
+        return -1;
+    }
+    if (nev > 0 || used != (size_t)got) { /* an exception, a late, foreign or bad reply */
+        c->armed = 0;
+        memset(r, 0, sizeof *r);
+        r->kind = PYMBI_LOOP_TAKEN;
+        r->fd = c->fd;
+        r->conn = i;
+        r->now = now;
+        r->nev = nev;
+        r->got = (size_t)got;
+        r->used = used;
+        r->taken = m->replies - before;
+        return 1;
+    }
+    (void)recv(c->fd, lp->rx, (size_t)got, MSG_TRUNC | MSG_DONTWAIT); /* taken: dropped */
+    if (m->in_flight > 0 || c->sent < c->n) { /* the rest of the poll */
+        c->deadline = now + c->timeout;
+        nev = burst(lp, c, i, now, r);
+        if (nev == 0) {
+            aim(lp, c, now);
+            return 3;
+        }
+        return nev > 0 ? 0 : -1;
+    }
+    whole = c->n > 1 && c->n <= c->window;
+    if (whole) {
+        c->took += (now - c->sent_at - c->took) / 8;
+    }
+    carried(lp, c, now);
+    if (c->at + 1 >= c->nchain) { /* the chain's last poll */
+        c->armed = 0;
+        memset(r, 0, sizeof *r);
+        r->kind = PYMBI_LOOP_END;
+        r->fd = c->fd;
+        r->conn = i;
+        r->now = now;
+        return 0;
+    }
+    c->at++;
+    c->reqs = c->chain[c->at].reqs;
+    c->n = c->chain[c->at].n;
+    c->image = c->chain[c->at].image;
+    c->image_len = c->chain[c->at].image_len;
+    c->timeout = c->chain[c->at].timeout;
+    c->id = c->chain[c->at].id;
+    c->sent = 0;
+    nev = burst(lp, c, i, now, r);
+    if (nev == 0) {
+        aim(lp, c, now);
+        return 2;
+    }
+    return nev > 0 ? 0 : -1;
+}
+
 /* The armed connection c (index i) is ready: its whole poll's replies in,
- * taken, the next poll sent whole (2: no record, i goes to done) or in part
- * (DONE); or handed back (READY, TAKEN). Returns 1 when the call must return
- * after this record (TAKEN: rx and the events are this connection's), -1 on
- * a master that refuses its own poll (a bug), else 0 (a record) or 2. */
-static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, double now,
+ * taken, the next poll sent whole (2: no record, its id to done) or in part
+ * (DONE); or handed back (READY, TAKEN). A chain: serve_chain. Returns 1 when
+ * the call must return after this record (TAKEN: rx and the events are this
+ * connection's), -1 on a master that refuses its own poll (a bug), else 0 (a
+ * record), 2 or 3 (no record; 2: a poll read in full). */
+static int serve(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, double now,
                  pymbi_lrec *r)
 {
     ssize_t got, sent;
@@ -124,6 +306,9 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     uint64_t before;
     int nev, err = 0;
 
+    if (c->chain != NULL) {
+        return serve_chain(lp, c, i, events, now, r);
+    }
     if ((events & (EPOLLERR | EPOLLHUP)) || !(events & EPOLLIN)) {
         c->armed = 0;
         ready(r, c->fd, i, events, now);
@@ -175,6 +360,7 @@ static int serve(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     }
     /* the replies looked at, dropped unread (a short drop: the next recv says it) */
     (void)recv(c->fd, lp->rx, (size_t)got, MSG_TRUNC | MSG_DONTWAIT);
+    carried(lp, c, now);
     return 2;
 }
 
@@ -215,18 +401,6 @@ static size_t looks(pymbi_loop *lp, double now, pymbi_lrec *rec, size_t k, size_
     return k;
 }
 
-/* Armed connection c's poll read in full at `now` (its next one sent whole):
- * its index to done, its image to the block. */
-static void carried(pymbi_loop *lp, const pymbi_lconn *c, uint32_t slot, double now)
-{
-    if (lp->block != NULL) {
-        memcpy(lp->block + lp->block_len, c->image, c->image_len);
-        lp->done_off[lp->ndone] = (uint32_t)lp->block_len;
-        lp->done_at[lp->ndone] = now;
-        lp->block_len += c->image_len;
-    }
-    lp->done[lp->ndone++] = slot;
-}
 
 int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
 {
@@ -291,6 +465,7 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
             int fd = evs[j].data.fd;
             int32_t slot = fd >= 0 && (size_t)fd < lp->slot_cap ? lp->slot_of[fd] : -1;
             pymbi_lconn *c;
+            size_t had;
             int got;
 
             if (slot < 0 || (size_t)slot >= lp->nconns) {
@@ -309,16 +484,16 @@ int pymbi_loop_wait(pymbi_loop *lp, double timeout, pymbi_lrec *rec, size_t cap)
                 ready(&rec[k++], fd, (uint32_t)slot, evs[j].events, now);
                 continue;
             }
+            had = lp->ndone;
             got = serve(lp, c, (uint32_t)slot, evs[j].events, now, &rec[k]);
             if (got < 0) {
                 errno = EINVAL;
                 return -1;
             }
-            if (got == 2) {
-                if (lp->ndone == 0) {
-                    first = now;
-                }
-                carried(lp, c, (uint32_t)slot, now);
+            if (had == 0 && lp->ndone > 0) {
+                first = now;
+            }
+            if (got >= 2) {
                 continue;
             }
             k++;

@@ -25,7 +25,17 @@
  * of several polls (a wake is a context switch: as much CPU as a poll's
  * Python).
  *
- * Linux (epoll, SO_RCVLOWAT set by the caller, MSG_TRUNC on TCP). Compiled
+ * A chain carries a connection's polls one after another (each once, as the
+ * caller's schedule has them due): a poll longer than the window is sent a
+ * window at a time as its replies come; the socket wakes for any byte until
+ * a poll's last request is out, then for the bytes of all its replies still
+ * to come (with a look, as a whole poll has); each poll read in full goes to
+ * done and the block (a chain needs one), the next one out at once; the last
+ * one read ends the chain (PYMBI_LOOP_END). Everything else is handed back as
+ * for a flat-out poll.
+ *
+ * Linux (epoll, SO_RCVLOWAT set by the caller (and by the loop for a chain),
+ * MSG_TRUNC on TCP). Compiled
  * into the Python extension only (pymb._native.loop is its one user); not in
  * libpymb. No allocation, no state but the caller's structures; every length
  * is checked.
@@ -43,8 +53,8 @@
 #define PYMBI_LOOP_DONE 2  /* conn's poll read in full (its data in its image) at `now`; its
                               next poll framed (`size` bytes) and only `sent` of them sent
                               (`err`: the send's errno, 0: none); disarmed. (A poll read in
-                              full whose next poll went out whole is no record: its
-                              connection's index goes to the loop's `done`.) */
+                              full whose next poll went out whole is no record: its id
+                              goes to the loop's `done`.) */
 #define PYMBI_LOOP_TAKEN 3 /* conn's `got` bytes taken by its master but not as the poll's
                               clean end: `nev` events in its ev, `used` bytes used (the rest
                               in the loop's rx from `used` on), `taken` replies into the image;
@@ -54,27 +64,57 @@
                               header) or is more than all of them: disarmed, nothing read.
                               (What is only slow gets another look; all of them, come
                               while the caller had the loop, are served as they are.) */
+#define PYMBI_LOOP_END 5   /* conn's chain (pymbi_lconn's `chain`) read to its end at `now`:
+                              its last poll is in the loop's done and block like the others;
+                              disarmed, nothing of the chain in flight */
+#define PYMBI_LOOP_UNSENT 6 /* conn's chain: a poll read in full (in done and the block), the
+                               next one's requests framed (`size` bytes) and only `sent` of
+                               them sent (`err`: the send's errno, 0: none); disarmed */
+
+/* One poll of a chain: its requests, the image their replies fill, the
+ * seconds a reply may take, and the caller's name for it (in done). */
+typedef struct {
+    const pymbi_mreq *reqs;
+    size_t n;
+    uint8_t *image;
+    size_t image_len;
+    double timeout;
+    uint32_t id;
+} pymbi_lpoll;
 
 /* One connection of the loop. The caller fills it and sets `armed` while a
- * whole poll of it is in flight whose next poll is the same requests, sent at
- * once; the loop clears `armed` whenever it hands the connection back. */
+ * poll of it is in flight that the loop carries on: flat out (no chain), a
+ * whole poll whose next poll is the same requests, sent at once; or a chain,
+ * the polls chain[at] (in flight, `sent` of its requests sent) to
+ * chain[nchain - 1], each sent `window` requests at a time as the replies
+ * come and the next one sent as soon as one is read in full, until the last
+ * is read (PYMBI_LOOP_END). The loop clears `armed` whenever it hands the
+ * connection back. */
 typedef struct {
     int fd;
     int armed;
     pymbi_master *m;
-    const pymbi_mreq *reqs; /* the poll's requests, and the next poll's */
+    const pymbi_mreq *reqs; /* the poll's requests, and the next poll's (a chain: chain[at]'s) */
     size_t n;
     uint8_t *image;
     size_t image_len;
     pymbi_mevent *ev; /* PYMBI_LOOP_TAKEN's events */
     size_t ev_cap;
-    size_t replies;  /* bytes of the poll's replies, all of them */
+    size_t replies;  /* bytes of the replies the socket wakes for (its SO_RCVLOWAT): flat out,
+                        all of the poll's; a chain: those in flight (0: any byte wakes it) */
     double timeout;  /* seconds a poll's replies may take */
     double took;     /* seconds the replies took, of late (a moving average) */
     double sent_at;  /* when the poll in flight went out (CLOCK_MONOTONIC seconds) */
     double look_at;  /* when it is handed back unread if its replies are not all in */
-    double deadline; /* sent_at + timeout */
+    double deadline; /* when the poll in flight times out */
     uint32_t asked;  /* requests the loop sent (the caller takes and zeroes the count) */
+    uint32_t id;     /* the poll's name in done (flat out; a chain: chain[at].id) */
+    const pymbi_lpoll *chain; /* NULL: flat out */
+    size_t nchain;
+    size_t at;
+    size_t sent;     /* a chain: requests of chain[at] sent */
+    size_t window;   /* a chain: requests in flight at most */
+    int lowat;       /* a chain: the socket's SO_RCVLOWAT (the loop sets it) */
 } pymbi_lconn;
 
 typedef struct {
@@ -105,8 +145,8 @@ typedef struct {
     uint8_t *out; /* the next poll is framed here */
     size_t out_cap;
     double look_min; /* a look is twice `took`, at least this, at most timeout / 4 */
-    uint32_t *done;  /* a wait's connections whose poll it read in full, the next one
-                        sent whole (they stay armed) */
+    uint32_t *done;  /* the ids of the polls a wait read in full (their connections stay
+                        armed, but for a chain's PYMBI_LOOP_END and UNSENT) */
     size_t done_cap;
     size_t ndone;    /* of done, written by the last wait */
     double now;      /* when the last wait looked (CLOCK_MONOTONIC seconds) */
@@ -131,8 +171,8 @@ typedef struct {
 double pymbi_loop_now(void);
 
 /* Wait up to `timeout` seconds (rounded up to a millisecond; sooner when an
- * armed connection's look comes first) on lp->epfd: the connections whose poll
- * was read and the next one sent whole to lp->done[0 .. lp->ndone) (with a
+ * armed connection's look comes first) on lp->epfd: the ids of the polls read
+ * in full (flat out, the next one sent whole) to lp->done[0 .. lp->ndone) (with a
  * block: their images and times too), the last at lp->now; everything else to
  * rec[0 .. cap). It returns after the first epoll wake that read a poll or
  * wrote a record, or with a block, once a record is written, lp->hold seconds

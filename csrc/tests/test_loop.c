@@ -5,7 +5,8 @@
  * poll sent in one wait, sockets handed back untouched (not armed, not a
  * connection, bytes that are not just the poll's replies, a closed peer), a
  * take that is not the poll's clean end handed back with its events, a look
- * that is over, invalid arguments. No Python, no libmodbus.
+ * that is over, a chain of polls read one after another, invalid arguments.
+ * No Python, no libmodbus.
  *
  * Source: [MB-TCP] 3.1.3 (MBAP), [MB-APP] 6.3-6.4 (reads of registers).
  */
@@ -13,6 +14,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <math.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <pthread.h>
@@ -498,6 +500,161 @@ static void test_block(void)
     teardown();
 }
 
+/* A chain's peer: answers each request as it comes (`answers` of them; the
+ * one numbered `refuse` with exception 02, 0: none), then reads on until
+ * the connection closes without answering. */
+typedef struct {
+    int answers, refuse, failed;
+} chain_job;
+
+static void *peer_requests(void *arg)
+{
+    chain_job *job = arg;
+    uint8_t req[12], buf[32];
+    int t;
+    for (t = 1; t <= job->answers; t++) {
+        unsigned tid;
+        size_t n;
+        if (read_n(F.peer, req, 12) != 0) {
+            job->failed = 1;
+            return NULL;
+        }
+        tid = (unsigned)(req[0] << 8 | req[1]);
+        if (t == job->refuse) {
+            const uint8_t exc[9] = {req[0], req[1], 0, 0, 0, 3, 1, 0x83, 0x02};
+            memcpy(buf, exc, sizeof exc);
+            n = sizeof exc;
+        } else {
+            n = reply(buf, tid, 2, (uint8_t)(0x10 * t));
+        }
+        if (send(F.peer, buf, n, 0) != (ssize_t)n) {
+            job->failed = 1;
+            return NULL;
+        }
+    }
+    while (recv(F.peer, req, sizeof req, 0) > 0) {
+    }
+    return NULL;
+}
+
+static uint8_t ImageB[8];
+static pymbi_lpoll Chain[2];
+
+/* A chain of two polls of two reads each (ids 7 and 9, images F.image and
+ * ImageB), one request at a time: the first request of the first poll sent,
+ * the peer having read nothing yet; the block, no hold. */
+static int setup_chain(void)
+{
+    int one = 1;
+    if (setup_block(sizeof Block, 0.0) != 0) {
+        return -1;
+    }
+    pymbi_master_reset(&M, 1);
+    if (pymbi_master_frames(&M, F.reqs, 1, sizeof F.image, F.out, sizeof F.out) != 12 ||
+        send(F.client, F.out, 12, 0) != 12) {
+        return -1;
+    }
+    setsockopt(F.client, SOL_SOCKET, SO_RCVLOWAT, &one, sizeof one);
+    memset(ImageB, 0, sizeof ImageB);
+    Chain[0].reqs = F.reqs;
+    Chain[0].n = 2;
+    Chain[0].image = F.image;
+    Chain[0].image_len = sizeof F.image;
+    Chain[0].timeout = 1.0;
+    Chain[0].id = 7;
+    Chain[1] = Chain[0];
+    Chain[1].image = ImageB;
+    Chain[1].id = 9;
+    F.conn.chain = Chain;
+    F.conn.nchain = 2;
+    F.conn.at = 0;
+    F.conn.sent = 1;
+    F.conn.window = 1;
+    F.conn.lowat = 1;
+    F.conn.replies = 0;
+    F.conn.look_at = HUGE_VAL;
+    F.conn.id = 7;
+    F.conn.armed = 1;
+    return 0;
+}
+
+/* Waits until a record or `most` waits: the records of the last. */
+static int wait_record(int most)
+{
+    int n = 0;
+    uint32_t ids[8];
+    size_t got = 0, j;
+    while (most-- > 0 && (n = pymbi_loop_wait(&F.lp, 2.0, F.rec, 8)) == 0) {
+        for (j = 0; j < F.lp.ndone && got < 8; j++) {
+            ids[got++] = F.done[j];
+        }
+    }
+    for (j = 0; j < F.lp.ndone && got < 8; j++) {
+        ids[got++] = F.done[j];
+    }
+    memcpy(F.done, ids, got * sizeof ids[0]);
+    F.lp.ndone = got;
+    return n;
+}
+
+static void test_chain(void)
+{
+    chain_job job = {4, 0, 0};
+    pthread_t th;
+    int n;
+    /* each request answered as it comes: both polls read, one after another */
+    CHECK(setup_chain() == 0);
+    CHECK(pthread_create(&th, NULL, peer_requests, &job) == 0);
+    n = wait_record(20);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_END && F.rec[0].conn == 0);
+    CHECK(F.lp.ndone == 2 && F.done[0] == 7 && F.done[1] == 9);
+    CHECK(F.image[0] == 0x10 && F.image[4] == 0x20 && ImageB[0] == 0x30 && ImageB[4] == 0x40);
+    CHECK(F.conn.armed == 0 && M.in_flight == 0 && F.conn.asked == 3 && M.replies == 4);
+    CHECK(F.conn.at == 1 && F.conn.sent == 2);
+    shutdown(F.client, SHUT_RDWR);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    teardown();
+    /* the second poll's first request refused: handed back with its event */
+    CHECK(setup_chain() == 0);
+    job.answers = 3;
+    job.refuse = 3;
+    CHECK(pthread_create(&th, NULL, peer_requests, &job) == 0);
+    n = wait_record(20);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_TAKEN && F.rec[0].nev == 1);
+    CHECK(F.ev[0].kind == PYMBI_EV_EXCEPTION && F.ev[0].code == 2 && F.ev[0].token == 0);
+    CHECK(F.lp.ndone == 1 && F.done[0] == 7 && F.conn.armed == 0 && F.conn.at == 1);
+    shutdown(F.client, SHUT_RDWR);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    teardown();
+    /* a device silent after the first poll: still armed, its deadline the
+     * second poll's request's (the caller times it out) */
+    CHECK(setup_chain() == 0);
+    job.answers = 2;
+    job.refuse = 0;
+    job.failed = 0;
+    CHECK(pthread_create(&th, NULL, peer_requests, &job) == 0);
+    n = wait_record(3);
+    CHECK(n == 0 && F.lp.ndone == 1 && F.done[0] == 7 && F.conn.armed == 1);
+    CHECK(F.conn.at == 1 && F.conn.sent == 1 && M.in_flight == 1);
+    CHECK(F.conn.deadline > F.conn.sent_at && F.conn.deadline - F.conn.sent_at <= 1.0 + 1e-9);
+    shutdown(F.client, SHUT_RDWR);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    teardown();
+    /* a poll of both requests at once (a window of 2): its replies wake the
+     * socket once (SO_RCVLOWAT), with a look */
+    CHECK(setup_chain() == 0);
+    job.answers = 4;
+    job.failed = 0;
+    F.conn.window = 2;
+    CHECK(pthread_create(&th, NULL, peer_requests, &job) == 0);
+    n = wait_record(20);
+    CHECK(n == 1 && F.rec[0].kind == PYMBI_LOOP_END && F.lp.ndone == 2);
+    CHECK(F.conn.lowat == 26 && ImageB[0] == 0x30 && ImageB[4] == 0x40);
+    shutdown(F.client, SHUT_RDWR);
+    CHECK(pthread_join(th, NULL) == 0 && job.failed == 0);
+    teardown();
+}
+
 static void test_args(void)
 {
     pymbi_lrec r;
@@ -537,6 +694,7 @@ int main(void)
     test_taken();
     test_look();
     test_block();
+    test_chain();
     test_args();
     return check_report();
 }

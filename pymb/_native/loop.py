@@ -1,34 +1,43 @@
-"""The I/O of ``pymb log``'s one Modbus TCP loop, flat out, in C
+"""The I/O of ``pymb log``'s one Modbus TCP loop, flat out and in chains, in C
 (``csrc/pymb_loop.h``): :class:`Loop`.
 
 One :meth:`Loop.wait` waits on the loop's epoll and, for each *armed*
 connection whose whole poll came back, takes its replies into the poll's
 image with the connection's :class:`~pymb._native.master.Master`, sends the
 next poll (the same requests, framed in the same step) and drops the replies
-from the socket: the connection's index is in :attr:`Loop.done`. Everything else comes back for the
-loop (:mod:`pymb.logger.tcploop`, and the bench's bare loop :mod:`pymb.bench.fanout`) to do
-as it does it in Python: a socket
-ready that is not armed, or whose bytes are not just its poll's replies
-(:data:`READY`, nothing read), a take that is not the poll's clean end
+from the socket: the poll's id is in :attr:`Loop.done`. A connection armed
+with a chain (:meth:`Loop.chain`: the polls due one after another on it, of
+several devices) has each poll's replies taken as they come, its requests
+sent a window at a time, the next poll sent as soon as one is read, until
+the last (:data:`END`). Everything else comes back for the loop
+(:mod:`pymb.logger.tcploop`, and the bench's bare loop :mod:`pymb.bench.fanout`) to do as it
+does it in Python: a socket ready that is not armed, or whose bytes are not just its poll's
+replies (:data:`READY`, nothing read), a take that is not the poll's clean end
 (:data:`TAKEN`: the master's events, the bytes in the loop's receive buffer),
 a poll slower than its look (:data:`LOOK`). The loop arms a connection while
-its next poll follows at once as the same requests, and takes it back
+its next poll follows at once (the same requests, or the next of a chain), and takes it back
 (:meth:`Loop.disarm`) as soon as that is no longer so.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 from pymb._native.master import Master, PollTable, ReadBuffer
 from pymb._pymb_cffi import ffi, lib
 
-__all__ = ["DONE", "GAP", "LOOK", "LOOK_MIN", "NO_CONN", "READY", "TAKEN", "Loop", "Times"]
+__all__ = ["DONE", "END", "GAP", "LOOK", "LOOK_MIN", "NO_CONN", "READY", "TAKEN", "UNSENT", "Loop",
+           "Times"]
 
 READY: int = lib.PYMBI_LOOP_READY  #: a socket is ready, nothing read (``events``: its mask)
 DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one not all sent (``sent``)
 TAKEN: int = lib.PYMBI_LOOP_TAKEN  #: replies taken, not the poll's clean end (``nev`` events)
 LOOK: int = lib.PYMBI_LOOP_LOOK  #: a poll slower than its look: nothing read
+END: int = lib.PYMBI_LOOP_END  #: a chain's last poll read (in :attr:`Loop.done`)
+#: a chain's poll read (in :attr:`Loop.done`), the next one not all sent (``sent``)
+UNSENT: int = lib.PYMBI_LOOP_UNSENT
 NO_CONN: int = lib.PYMBI_LOOP_NO_CONN  #: a READY socket that is no connection of the loop
 
 # The tuning ``pymb log`` runs the loop with (and the bench's bare loop, to be its floor):
@@ -56,6 +65,8 @@ class Times(NamedTuple):
     look_at: float  #: when it is read as its replies come
     deadline: float  #: when it times out
     asked: int  #: requests the C loop sent since it was armed
+    sent: int  #: a chain: requests of that poll sent
+    lowat: int  #: a chain: the socket's ``SO_RCVLOWAT`` as the C loop left it
 
 
 class Loop:
@@ -75,8 +86,8 @@ class Loop:
                  polls: int = _RECORDS, block: int = 0, hold: float = 0.0,
                  gap: float = 0.0) -> None:
         self._conns: Any = ffi.new("pymbi_lconn[]", max(n, 1))
-        #: an armed connection's master and poll table, kept alive while C points into them
-        self._held: list[tuple[Master, PollTable] | None] = [None] * max(n, 1)
+        #: an armed connection's master and poll table(s), kept alive while C points into them
+        self._held: list[tuple[Any, ...] | None] = [None] * max(n, 1)
         self._slots: Any = ffi.new("int32_t[]", 0)
         self._out: Any = ffi.new("uint8_t[]", lib.PYMBI_MASTER_FRAME * lib.PYMBI_MASTER_INFLIGHT)
         #: the records of the last :meth:`wait` (``recs[i].kind``, ``.conn``, ``.now``, ...)
@@ -141,10 +152,11 @@ class Loop:
             self._slots[fd] = -1
 
     def arm(self, i: int, m: Master, t: PollTable, timeout: float, took: float,
-            sent_at: float, look_at: float) -> None:
+            sent_at: float, look_at: float, poll: int | None = None) -> None:
         """Connection ``i`` has ``t``'s requests in flight on ``m``, all of
         them, sent at ``sent_at``; its next poll is the same requests, sent
-        as soon as these are read (by :meth:`wait`, until :meth:`disarm`)."""
+        as soon as these are read (by :meth:`wait`, until :meth:`disarm`);
+        each poll read is ``poll`` in :attr:`done` (None: ``i``)."""
         c = self._conns[i]
         c.m, c.ev, c.ev_cap = m.handles()
         c.reqs = t.rows
@@ -158,8 +170,39 @@ class Loop:
         c.look_at = look_at
         c.deadline = sent_at + timeout
         c.asked = 0
+        c.id = i if poll is None else poll
+        c.chain = ffi.NULL
         c.armed = 1
         self._held[i] = (m, t)
+
+    def chain(self, i: int, m: Master, polls: Sequence[tuple[PollTable, float, int]],
+              window: int, sent: int, took: float, sent_at: float, lowat: int,
+              look_at: float) -> None:
+        """Connection ``i`` has requests of the first of ``polls`` (each its
+        table, timeout and id) in flight on ``m``, ``sent`` of them sent at
+        ``sent_at`` (at most ``window`` in flight), its socket woken at
+        ``lowat`` bytes (more than 1: all those replies, looked at from
+        ``look_at``): the C loop carries the rest of it and the other polls,
+        one after another, until the last is read (:data:`END`)."""
+        c = self._conns[i]
+        rows = ffi.new("pymbi_lpoll[]", len(polls))
+        for k, (t, timeout, ident) in enumerate(polls):
+            row = rows[k]
+            row.reqs, row.n, row.image, row.image_len = t.rows, t.n, t.image_c, t.image_len
+            row.timeout, row.id = timeout, ident
+        first, timeout, ident = polls[0]
+        c.m, c.ev, c.ev_cap = m.handles()
+        c.reqs, c.n, c.image, c.image_len = first.rows, first.n, first.image_c, first.image_len
+        c.timeout, c.id = timeout, ident
+        c.replies = lowat if lowat > 1 else 0
+        c.took, c.sent_at = took, sent_at
+        c.look_at = look_at if lowat > 1 else math.inf
+        c.deadline = sent_at + timeout
+        c.asked = 0
+        c.chain, c.nchain, c.at, c.sent = rows, len(polls), 0, sent
+        c.window, c.lowat = window, lowat
+        c.armed = 1
+        self._held[i] = (m, [t for t, _, _ in polls], rows)
 
     def disarm(self, i: int) -> Times:
         """Connection ``i`` is the caller's again (also when :meth:`wait`
@@ -169,7 +212,11 @@ class Loop:
         self._held[i] = None
         asked = int(c.asked)
         c.asked = 0
-        return Times(c.took, c.sent_at, c.look_at, c.deadline, asked)
+        chained = c.chain != ffi.NULL
+        c.chain = ffi.NULL
+        if not chained:
+            return Times(c.took, c.sent_at, c.look_at, c.deadline, asked, 0, 0)
+        return Times(c.took, c.sent_at, c.look_at, c.deadline, asked, c.sent, c.lowat)
 
     def deadline(self, i: int) -> float:
         """When armed connection ``i``'s poll in flight times out."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import heapq
+import math
 import os
 import queue
 import socket
@@ -40,10 +41,13 @@ class TcpLoopBase(threading.Thread):
     connections are known) waits on the selector's epoll and carries the
     polls of the *armed* connections itself: a connection whose whole poll
     is in flight and whose next poll is the same requests at once (flat out,
-    nothing else waiting for it). It is armed after such a poll went out
-    (:meth:`arm`) and taken back (:meth:`disarm`) whenever anything else is
-    to happen on it: a poll that falls due, a loan, a deadline, a close; the
-    C part hands it back itself for anything but a clean poll."""
+    nothing else waiting for it), or whose poll under way has others due
+    after it (a *chain*, :meth:`chain`: devices behind one gateway read on a
+    schedule, each poll read in C and the next one sent at once). It is
+    armed after such a poll went out (:meth:`arm`) and taken back
+    (:meth:`disarm`) whenever anything else is to happen on it: a poll that
+    falls due, a loan, a deadline, a close; the C part hands it back itself
+    for anything but a clean poll, and at a chain's end."""
 
     def __init__(self, out: queue.Queue[list[Sample | Event | PollBlock]], stop: threading.Event,
                  stats: Stats) -> None:
@@ -64,6 +68,7 @@ class TcpLoopBase(threading.Thread):
         self._looks: list[tuple[float, int, Conn]] = []
         #: what the armed connections' polls give the writer (made with the C part)
         self._carry = Carried(0, self.report, stats)
+        self._polls: list[tuple[Conn, Entry]] = []  #: by :attr:`Entry.id`: its connection
         self._unarmed: list[bool] = []  #: by connection index: not armed
         self._armed_due = 0.0  #: no armed connection needs a sweep before (:meth:`sweeping`)
         self.loans = 0  #: loans asked (a borrower's thread counts them)
@@ -78,7 +83,10 @@ class TcpLoopBase(threading.Thread):
         and the C part itself woken once for several replies (:data:`~pymb._native.loop.GAP`)."""
         for i, c in enumerate(self.conns):
             c.index = i
-        self._carry = Carried(len(self.conns), self.report, self.stats)
+            for e in c.entries:
+                e.id = len(self._polls)
+                self._polls.append((c, e))
+        self._carry = Carried(len(self._polls), self.report, self.stats)
         self._unarmed = [True] * len(self.conns)
         image = max((len(e.image) for c in self.conns for e in c.entries), default=0)
         self.cloop = Loop(self._sel.fileno(), len(self.conns), rx, look_min, polls=BATCH_MAX,
@@ -91,13 +99,45 @@ class TcpLoopBase(threading.Thread):
         requests at once: the C part carries its polls from now on."""
         cloop = self.cloop
         if cloop is not None:
-            cloop.arm(c.index, c.m, t, timeout, c.took, c.sent_at, look_at)
-            c.armed = True
-            c.look = 0  # (its look is the C part's)
             assert c.entry is not None
-            self._carry.arm(c.index, c.entry, c.bus.name)
-            self._unarmed[c.index] = False
-            self._armed_due = min(self._armed_due, c.deadline)
+            cloop.arm(c.index, c.m, t, timeout, c.took, c.sent_at, look_at, c.entry.id)
+            self._armed([c.entry], c)
+
+    def again(self, c: Conn, e: Entry, now: float) -> PollTable | None:
+        """The requests of ``e``'s next poll if it follows the one under way
+        at once, the same requests sent whole again (flat out, no other poll
+        of the connection waiting, the plan as it was): the master frames
+        them as soon as this poll's replies are in (the poller's ``restarted``)."""
+        slot = e.slot
+        planner = e.unit.planner
+        if (slot.interval or slot.once or c.waiting or c.loan is not None or c.limit
+                or c.unread or not c.whole or c.table is not e.table or c.todo is not e.specs
+                or c.quiet_until > now or now < slot.health.retry_at
+                or planner.version != e.version or planner.retry_at != math.inf):
+            return None
+        return e.table
+
+    def chain(self, c: Conn, chain: list[Entry], now: float, look_at: float) -> None:
+        """``c``'s poll under way, the first of ``chain``, just sent its first
+        requests at ``now``, and the others wait after it at the front of
+        ``c.waiting``: the C part carries them one after another from now on."""
+        cloop = self.cloop
+        if cloop is not None and not c.armed:
+            polls = []
+            for e in chain:
+                assert e.table is not None  # (planned: Entry.requests)
+                polls.append((e.table, e.unit.timeout, e.id))
+            cloop.chain(c.index, c.m, polls, c.pipeline, c.sent, c.took, now, c.lowat, look_at)
+            c.chain.extend(chain)
+            self._armed(chain, c)
+
+    def _armed(self, polls: list[Entry], c: Conn) -> None:
+        c.armed = True
+        c.look = 0  # (its look is the C part's)
+        for e in polls:
+            self._carry.arm(e.id, e, c.bus.name)
+        self._unarmed[c.index] = False
+        self._armed_due = min(self._armed_due, c.deadline)
 
     def look(self, c: Conn, at: float) -> None:
         """``c``'s whole poll in flight is read as its replies come from ``at`` on."""
@@ -146,13 +186,32 @@ class TcpLoopBase(threading.Thread):
         c.entry = e
         c.whole = True
 
-    def carried_block(self, done: list[int], at: list[float], offs: list[int]) -> None:
-        """The C part read polls in full and sent the next ones whole: of
-        the connections ``done``, at ``at``, their images at ``offs`` in its
-        block: one :class:`~pymb.store.block.PollBlock` for the writer
-        (:class:`~pymb.logger.tcpcarry.Carried`)."""
+    def carried_block(self, done: list[int], at: list[float], offs: list[int]
+                      ) -> list[tuple[Conn, Entry, float]]:
+        """The C part read the polls ``done`` (:attr:`Entry.id`) in full at ``at``, their
+        images at ``offs`` in its block: one :class:`~pymb.store.block.PollBlock` for the
+        writer (:class:`~pymb.logger.tcpcarry.Carried`). Returns the polls of chains read
+        (each connection's next poll is under way, or none): their slots are the caller's."""
         wall, mono = time.time(), time.monotonic()
         self.report.block(self._carry.block(done, at, offs, self._block, wall - mono))
+        read = []
+        for j, i in enumerate(done):
+            c, e = self._polls[i]
+            if c.chain:  # (flat out: the same poll again)
+                c.chain.popleft()
+                c.answered = True
+                read.append((c, e, at[j]))
+                if c.chain:
+                    c.entry = nxt = c.chain[0]
+                    if c.waiting[0] is nxt:  # (it always is: a poll queued meanwhile disarms)
+                        c.waiting.popleft()
+                    else:
+                        c.waiting.remove(nxt)
+                    nxt.queued = False
+                    c.todo, c.table = nxt.specs, nxt.table
+                else:
+                    c.entry = None
+        return read
 
     def disarm(self, c: Conn) -> Times | None:
         """``c`` is the loop's again (``c.armed`` or not: the C part may have
@@ -161,11 +220,18 @@ class TcpLoopBase(threading.Thread):
         if not c.armed or self.cloop is None:
             return None
         c.armed = False
-        self._carry.disarm(c.index)
+        for e in c.chain or (c.entry,):
+            if e is not None:
+                self._carry.disarm(e.id)
         self._unarmed[c.index] = True
         got = self.cloop.disarm(c.index)
         c.took, c.sent_at, c.deadline = got.took, got.sent_at, got.deadline
         c.asked += got.asked
+        if c.chain:  # the poll under way (the others wait their turn in c.waiting)
+            c.chain.clear()
+            c.sent, c.lowat, c.whole = got.sent, got.lowat, 1 < len(c.todo) <= c.pipeline
+        elif got.lowat:  # (a chain read to its end)
+            c.lowat, c.whole = got.lowat, False
         return got
 
     def sweeping(self, now: float, tick: float) -> Iterable[Conn]:

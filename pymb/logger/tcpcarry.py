@@ -1,12 +1,13 @@
 """What the polls the TCP loop's C part carries give the writer:
 :class:`Carried`.
 
-While a connection is *armed* (:meth:`pymb.logger.tcpbase.TcpLoopBase.arm`),
-its polls are read and sent again in C (:class:`pymb._native.loop.Loop`),
-and one wait of the C part hands over the polls of many connections at
-once. Here they become one :class:`~pymb.store.block.PollBlock` for the
-writer, with no Python a poll: a poll's source is its connection's, looked
-up in C, and its registers are a slice of one copy of the C part's block.
+While a connection is *armed* (:meth:`pymb.logger.tcpbase.TcpLoopBase.arm`,
+:meth:`~pymb.logger.tcpbase.TcpLoopBase.chain`), its polls are read and sent
+in C (:class:`pymb._native.loop.Loop`), and one wait of the C part hands over
+the polls of many connections at once. Here they become one
+:class:`~pymb.store.block.PollBlock` for the writer, with no Python a poll: a
+poll's source is its group's (:attr:`Entry.id <pymb.logger.tcpunits.Entry.id>`,
+named in C), and its registers are a slice of one copy of the C part's block.
 A poll's device answered (:meth:`Report.answered
 <pymb.logger.report.Report.answered>`) only where that is news: the device
 failed before its connection was armed (its failures and offline time
@@ -28,8 +29,9 @@ _NONE: frozenset[int] = frozenset()
 
 
 class Carried:
-    """By connection index (``n`` of them), what its armed polls give the
-    writer, handed over by ``report``; ``stats``: the run's problems."""
+    """By poll id (:attr:`Entry.id <pymb.logger.tcpunits.Entry.id>`, ``n`` of them),
+    what its armed polls give the writer, handed over by ``report``;
+    ``stats``: the run's problems."""
 
     def __init__(self, n: int, report: Report, stats: Stats) -> None:
         self.report = report
@@ -38,11 +40,11 @@ class Carried:
         self._how: list[tuple[Health, frozenset[int], str]] = [(Health("", 1, None), _NONE, "")] * n
         self._sources: list[PollSource | None] = [None] * n  #: its polls' source
         self._sizes = [0] * n  #: its polls' image's bytes
-        self._loud: set[int] = set()  #: the armed connections whose polls have news
+        self._loud: set[int] = set()  #: the armed polls that have news
 
     def arm(self, i: int, e: Entry, bus: str) -> None:
-        """Connection ``i`` (of bus ``bus``) is armed with polls of ``e`` (its
-        plan, so the items it leaves out, holds while armed)."""
+        """Polls of ``e`` (id ``i``, of bus ``bus``) are armed (its plan, so
+        the items it leaves out, holds while armed)."""
         h, gone = e.unit.health, e.unsupported()
         self._how[i] = (h, gone, bus)
         self._sources[i] = e.source
@@ -51,12 +53,12 @@ class Carried:
             self._loud.add(i)
 
     def disarm(self, i: int) -> None:
-        """Connection ``i`` is no longer armed."""
+        """Polls of id ``i`` are no longer armed."""
         self._loud.discard(i)
 
     def block(self, done: list[int], at: list[float], offs: list[int], data: memoryview,
               clock: float) -> PollBlock:
-        """The block of polls of the connections ``done`` read at ``at``
+        """The block of the polls ``done`` (their ids) read at ``at``
         (monotonic; ``clock``: wall time less monotonic time), their images
         at ``offs`` in ``data`` (the C part's block); each poll's device
         answered where that is news."""

@@ -92,9 +92,12 @@ class Conn:
     tell: bool = False  #: ... and the reconnect is an event (the way of working not yet known)
     loan: Loan | None = None  #: a write command's thread borrows it between polls (tcplend)
     index: int = -1  #: its place in the loop's C part (:class:`pymb._native.loop.Loop`)
-    #: its polls are the C part's: a whole poll in flight, the next one the
-    #: same requests at once (:meth:`TcpLoopBase.arm`)
+    #: its polls are the C part's: a whole poll in flight, the next one the same
+    #: requests at once (:meth:`TcpLoopBase.arm <pymb.logger.tcpbase.TcpLoopBase.arm>`),
+    #: or a chain (:meth:`TcpLoopBase.chain <pymb.logger.tcpbase.TcpLoopBase.chain>`)
     armed: bool = False
+    #: the chain the C part carries: the poll under way, then those waiting after it
+    chain: collections.deque[Entry] = field(default_factory=collections.deque)
 
     @property
     def in_flight(self) -> int:
@@ -116,6 +119,23 @@ class Conn:
         skipped as late ones by their transaction ids)."""
         self.m.forget()
         self.whole = False
+
+    def chain_of(self, e: Entry, now: float) -> list[Entry]:
+        """The polls the loop's C part may carry from ``e``'s, under way here with
+        its first requests just sent: it and the polls waiting after it, as
+        long as each is :meth:`~pymb.logger.tcpunits.Entry.carriable` and its
+        plan is the one its last poll had; none while anything else is to
+        happen on the connection."""
+        if (self.loan is not None or self.limit or self.unread or self.quiet_until > now
+                or self.table is not e.table or self.todo is not e.specs
+                or e.unit.planner.version != e.version or not e.carriable(now)):
+            return []
+        chain = [e]
+        for w in self.waiting:  # (each planned as its last poll was: no planning here)
+            if not w.specs or w.version != w.unit.planner.version or not w.carriable(now):
+                break
+            chain.append(w)
+        return chain
 
     def wake_at(self, size: int) -> None:
         """Let the selector say readable once ``size`` bytes came (1: any)."""

@@ -33,7 +33,7 @@ import threading
 import time
 
 from pymb._native import exception_errno
-from pymb._native.loop import DONE, LOOK_MIN, READY, TAKEN
+from pymb._native.loop import DONE, END, LOOK_MIN, READY, TAKEN, UNSENT
 from pymb._native.master import PollTable
 from pymb._native.serve import mbap_frame
 from pymb.client.address import parse_host_port
@@ -208,7 +208,7 @@ class TcpMapPoller(TcpLoopBase):
             c.deadline = deadline = now + u.timeout
             if deadline < self._soonest:
                 self._soonest = deadline
-        arm = False
+        arm, look_at = False, math.inf
         if n != todo or n == 1 or u.timed:  # woken by each reply (one, or a poll
             if c.lowat != 1:  # longer than the pipeline)
                 c.wake_at(1)
@@ -235,6 +235,10 @@ class TcpMapPoller(TcpLoopBase):
             self._unsent(c, now, size, sent)
         elif arm:
             self.arm(c, t, u.timeout, look_at)
+        elif not busy and e.slot.interval:  # its poll and those due after it: a chain
+            chain = c.chain_of(e, now)
+            if len(chain) > 1:  # (one poll alone costs more carried than read here)
+                self.chain(c, chain, now, look_at)
 
     def _unsent(self, c: Conn, now: float, size: int, sent: int) -> None:
         """``sent`` of a poll's ``size`` bytes went out (negative: the send's
@@ -274,6 +278,8 @@ class TcpMapPoller(TcpLoopBase):
             c.quiet_until = max(c.quiet_until, now + u.turnaround)
         if c.sent < len(c.todo):
             self._send(c, now)
+            if c.armed:  # the C part carries the rest of it
+                return
         m = c.m
         if not m.in_flight:
             if c.sent < len(c.todo):
@@ -300,20 +306,6 @@ class TcpMapPoller(TcpLoopBase):
                     look = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
                     most = u.timeout / 4
                     self.look(c, now + (look if look < most else most))
-
-    def again(self, c: Conn, e: Entry, now: float) -> PollTable | None:
-        """The requests of ``e``'s next poll if it follows the one under way
-        at once, the same requests sent whole again (flat out, no other poll
-        of the connection waiting, the plan as it was): the master frames
-        them as soon as this poll's replies are in (:meth:`restarted`)."""
-        slot = e.slot
-        planner = e.unit.planner
-        if (slot.interval or slot.once or c.waiting or c.loan is not None or c.limit
-                or c.unread or not c.whole or c.table is not e.table or c.todo is not e.specs
-                or c.quiet_until > now or now < slot.health.retry_at
-                or planner.version != e.version or planner.retry_at != math.inf):
-            return None
-        return e.table
 
     def restarted(self, c: Conn, e: Entry, now: float) -> None:
         """``e``'s poll read every request and its next one is framed
@@ -407,9 +399,12 @@ class TcpMapPoller(TcpLoopBase):
         return wait
 
     def _due(self, now: float) -> None:
+        conns = []  # (all queued first: each connection's first poll chains the others)
         for e in self._agenda.due(now):
             c = self._conn_of[id(e)]
             self._queue(c, e)
+            conns.append(c)
+        for c in conns:
             if c.entry is None:
                 self._next(c, now)
 
@@ -460,17 +455,20 @@ class TcpMapPoller(TcpLoopBase):
             got = cloop.wait(wait)
             now = cloop.now  # (when it looked)
             if cloop.done:  # the usual: polls read, the next ones sent
-                self.carried_block(cloop.done, cloop.done_at, cloop.done_off)
+                for c, e, at in self.carried_block(cloop.done, cloop.done_at, cloop.done_off):
+                    self._requeue(c, e, at)  # (a chain's)
             for i in range(got):
                 r = recs[i]
                 kind = r.kind
-                if kind != READY:  # handed back: a poll not all sent, a take, a look
+                if kind != READY:  # handed back: a poll not all sent, a take, a look, an end
                     c = conns[r.conn]
                     if kind == DONE:  # (its sample first, then the loss)
                         carried(c, r.now)
                     self.synced(c)
-                    if kind == DONE:
+                    if kind in (DONE, UNSENT):
                         self._unsent(c, r.now, r.size, -r.err if r.err else r.sent)
+                    elif kind == END:  # a chain read: the next poll waiting
+                        self._next(c, r.now)
                     elif kind == TAKEN:
                         c.m.taken = r.taken
                         self.replies.taken(c, r.now, r.got, r.nev, r.used, True)

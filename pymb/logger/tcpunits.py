@@ -16,6 +16,7 @@ slice assignment; a poll's sample is that image, copied once.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from pymb._native.master import DROPPED, MasterRead, PollTable
@@ -105,6 +106,7 @@ class Entry:
     #: the planner's unsupported items as of its version ``_seen``
     _unread: frozenset[int] = frozenset()
     _seen: int = -1
+    id: int = -1  #: its polls' name to the loop's C part (:attr:`pymb._native.loop.Loop.done`)
 
     @classmethod
     def of(cls, unit: Unit, group: str | None, interval: float, once: bool,
@@ -133,6 +135,14 @@ class Entry:
             self.table = self.table_of(self.specs)
             self.plan = plan
         return self.specs
+
+    def carriable(self, now: float) -> bool:
+        """Whether a poll of this group may be one of a chain the loop's C part
+        carries: read on a schedule (not flat out, not once), due at ``now``,
+        its device not timed, no refused point due to be asked again."""
+        slot, u = self.slot, self.unit
+        return (slot.interval > 0 and not slot.once and not u.timed and slot.due(now)
+                and u.planner.retry_at == math.inf)
 
     def unsupported(self) -> frozenset[int]:
         """The group's items the unit's planner leaves out for now (taken
