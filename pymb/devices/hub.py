@@ -31,6 +31,7 @@ from pymb.devices.hubreading import (
     State,
     block_index,
     check_channels,
+    humidity_in_other_unit,
 )
 from pymb.devices.mapdevice import MapDevice, check_seconds
 from pymb.devices.mapreading import Blocks
@@ -171,29 +172,6 @@ def _other_units(r: HubReading, unit: float, other: bytes) -> None:
     humidity_in_other_unit(r.registers, r.values, r.raw_states, r.channels, unit, other)
 
 
-_HUMIDITY = BLOCKS[block_index("humidity_pct")].address - _FIRST
-
-
-def humidity_in_other_unit(registers: Sequence[int], values: Any, states: Any, at: int,
-                           unit: float, other: bytes) -> None:
-    """The one rule for a channel whose humidity unit is not ``unit`` (1 in
-    ``other``): its humidity (``values``/``states`` from ``at`` on, channel
-    by channel) decoded again from the sweep's raw registers 31...
-    ([HUB] 3, [NOTES]: 0x00FF is no humidity in the 1 % unit, 0x8000 in
-    the 0.1 % unit)."""
-    for i, flag in enumerate(other):
-        if not flag or states[at + i] not in _DECODED:
-            continue
-        raw = registers[_HUMIDITY + i]
-        if raw == 0xFFFF:
-            continue  # offline in either unit
-        if raw == (0x8000 if unit == 1.0 else 0x00FF):
-            values[at + i], states[at + i] = math.nan, State.NO_SENSOR
-        else:
-            values[at + i] = raw / 10 if unit == 1.0 else float(raw)
-            states[at + i] = State.VALUE
-
-
 def blocks_in_other_units(b: Blocks, registers: Sequence[int], unit: float,
                           other: bytes) -> None:
     """:func:`humidity_in_other_unit` on a hub map reading's :class:`Blocks`
@@ -203,7 +181,6 @@ def blocks_in_other_units(b: Blocks, registers: Sequence[int], unit: float,
         humidity_in_other_unit(registers, b.values, b.states, at, unit, other)
 
 
-_DECODED = (State.VALUE, State.NO_SENSOR)
 _DECODING = threading.Lock()
 
 
@@ -215,8 +192,6 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
 
     ``unsupported`` names blocks to mark as missing from the firmware.
     """
-    if channels != CHANNELS:
-        channels = check_channels(channels)
     regs: array[int]
     if type(registers) is array and registers.typecode == "H":
         regs = registers
@@ -232,18 +207,39 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
     mask = 0
     for name in unsupported:
         mask |= 1 << block_index(name)
-    unit, other = units(humidity_unit, channels)
-    shared, run, b = _decoding(channels, unit)
+    t = type(humidity_unit)  # (one unit for all: the decoding made ready, found at once)
+    ready = _READY.get((channels, humidity_unit)) if type(channels) is int and (
+        t is float or t is int) else None
+    shared, run, b, unit, other = ready or _ready(channels, humidity_unit)
     with _DECODING:  # the decoder's arrays are shared
         shared[:] = regs
         run()
-        r = HubReading._of(channels, regs, b.values[:], b.states[:])  # noqa: SLF001 - the package's own
-    if 1 in other:
+        values, states = b.values[:], b.states[:]
+    r: HubReading = object.__new__(HubReading)  # (HubReading._of without its call)
+    r.channels, r.registers, r.values, r.raw_states = channels, regs, values, states
+    r.unsupported_mask, r.time, r.monotonic = mask, 0.0, 0.0
+    if other:
         _other_units(r, unit, other)
     if mask:
         _mark_blocks(r, mask, State.UNSUPPORTED)
-    r.unsupported_mask = mask
     return r
+
+
+_Ready = tuple["array[int]", Callable[[], int], Buffers, float, bytes]
+_READY: dict[tuple[Any, Any], _Ready] = {}  #: (channels, one unit) -> its _ready()
+
+
+def _ready(channels: int, humidity_unit: float | Sequence[float]) -> _Ready:
+    """:func:`_decoding` of ``channels`` (checked) channels of humidity in
+    ``humidity_unit``, with the unit the map decodes with and the channels
+    in the other unit (empty: none); kept when the unit is one for all."""
+    if channels != CHANNELS:
+        channels = check_channels(channels)
+    unit, other = units(humidity_unit, channels)
+    ready = (*_decoding(channels, unit), unit, other if 1 in other else b"")
+    if type(humidity_unit) in (float, int) and len(_READY) < 64:
+        _READY[(channels, humidity_unit)] = ready
+    return ready
 
 
 def _mark_blocks(r: HubReading, mask: int, state: State) -> None:

@@ -8,14 +8,17 @@ from __future__ import annotations
 import functools
 import math
 from array import array
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from pymb import _native, maps
 from pymb.errors import InvalidArgument
 from pymb.maps import Point
 
 __all__ = ["ALL_BLOCKS", "BLOCKS", "CHANNELS", "HUB_FIRMWARE_PROFILES", "HUB_REGISTERS",
-           "HubChannel", "HubReading", "State", "block_index", "check_channels"]
+           "HubChannel", "HubReading", "State", "block_index", "check_channels",
+           "humidity_in_other_unit"]
 
 _MAP = maps.builtin("hub")
 #: The hub's blocks in the order a reading keeps them: its map's points
@@ -66,6 +69,30 @@ def check_channels(channels: int) -> int:
     ):
         raise InvalidArgument(f"channels must be 1..{CHANNELS}, got {channels!r}")
     return channels
+
+
+_HUMIDITY = BLOCKS[block_index("humidity_pct")].address - BLOCKS[0].address
+_DECODED = (State.VALUE, State.NO_SENSOR)
+
+
+def humidity_in_other_unit(registers: Sequence[int], values: Any, states: Any, at: int,
+                           unit: float, other: bytes) -> None:
+    """The one rule for a channel whose humidity unit is not ``unit`` (1 in
+    ``other``): its humidity (``values``/``states`` from ``at`` on, channel
+    by channel) decoded again from the sweep's raw registers 31...
+    ([HUB] 3, [NOTES]: 0x00FF is no humidity in the 1 % unit, 0x8000 in
+    the 0.1 % unit)."""
+    for i, flag in enumerate(other):
+        if not flag or states[at + i] not in _DECODED:
+            continue
+        raw = registers[_HUMIDITY + i]
+        if raw == 0xFFFF:
+            continue  # offline in either unit
+        if raw == (0x8000 if unit == 1.0 else 0x00FF):
+            values[at + i], states[at + i] = math.nan, State.NO_SENSOR
+        else:
+            values[at + i] = raw / 10 if unit == 1.0 else float(raw)
+            states[at + i] = State.VALUE
 
 
 @dataclass(frozen=True)

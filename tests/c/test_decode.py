@@ -141,6 +141,27 @@ def test_bad_decode_arguments() -> None:
         decode_hub([0] * 700, [1, 0.1])
 
 
+def test_a_decoding_made_ready_once_refuses_what_it_refused_and_decodes_the_same() -> None:
+    """decode_hub keeps its decoding by (channels, one unit): a channel count
+    that is not an int is refused however often a valid one was decoded,
+    and a later decode gives what the first gave (per-channel units too)."""
+    regs = array("H", range(700))
+    first = decode_hub(regs, 1, channels=50)
+    mixed = decode_hub(regs, [1.0] * 25 + [0.1] * 25, channels=50)
+    for bad in (50.0, True):
+        with pytest.raises(ValueError, match="channels"):
+            decode_hub(regs, 1, channels=bad)  # type: ignore[arg-type]
+    again = decode_hub(regs, 1.0, channels=50)
+    assert again.channels == 50
+    assert again.registers is regs
+    assert list(again.values) == list(first.values)
+    assert list(again.raw_states) == list(first.raw_states)
+    assert again.values is not first.values  # (each reading its own arrays)
+    twice = decode_hub(regs, [1.0] * 25 + [0.1] * 25, channels=50)
+    assert list(twice.values) == list(mixed.values)
+    assert list(mixed.humidity_pct) != list(first.humidity_pct)
+
+
 def test_views_convert_to_numpy_without_copy() -> None:
     np = pytest.importorskip("numpy")
     r = decode_hub(range(700))
