@@ -2,12 +2,15 @@
 (the registers fetched, handed to the writer as a poll of a block, the values
 and states decoded on first use): the reading the writer gets is the one
 :meth:`MapDevice.read_group` makes, a refused point included, over a real
-pseudo-terminal."""
+pseudo-terminal. A simulated device whose values follow the simulated time
+(a CoolPro, a hub) is read with its clock frozen: the two reads compared
+are of the same values however far apart the load puts them."""
 
 from __future__ import annotations
 
 import queue
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -20,7 +23,7 @@ from pymb.devices.mapreading import MapReading
 from pymb.logger.poller import _GroupRead
 from pymb.logger.report import Report
 from pymb.logger.stats import Stats
-from pymb.sim import SimulatorProcess
+from pymb.sim import Simulator, SimulatorProcess
 from pymb.store import DeviceInfo
 from pymb.store.block import PollBlock
 
@@ -41,6 +44,7 @@ type = "u32"
 kind = "counter"
 example = 1234
 '''
+MakeSim = Callable[..., Simulator]
 #: the logger's map has a point the served device lacks (exception 02)
 LOGGED = SERVED + '''[[point]]
 name = "missing_a"
@@ -88,10 +92,11 @@ def test_a_serial_poll_reads_what_read_group_reads(tmp_path: Path) -> None:
             assert got.values["voltage_v"] == 230.5
 
 
-def test_a_coolpro_poll_reads_what_read_group_reads() -> None:
+def test_a_coolpro_poll_reads_what_read_group_reads(pymb_simulator: MakeSim) -> None:
     info = DeviceInfo("bus", "pty", "coolpro", 40, "cp", 0, 0.1)
-    with SimulatorProcess(["coolpro:40"], quiet=True) as sim, \
-            RtuClient(sim.endpoint, 9600, timeout=2.0) as c:
+    sim = pymb_simulator("coolpro:40")
+    sim.clock.freeze()
+    with RtuClient(sim.port, 9600, timeout=2.0) as c:
         dev = coolpro_device(c, 40)
         read = _GroupRead(info, dev, "telemetry")
         for _ in range(2):
@@ -101,14 +106,16 @@ def test_a_coolpro_poll_reads_what_read_group_reads() -> None:
 
 
 @pytest.mark.parametrize("served", ["hub:7", "hub:7,firmware=1.07"])
-def test_a_hub_sweep_polled_as_its_group_reads_what_the_sweep_reader_reads(served: str) -> None:
+def test_a_hub_sweep_polled_as_its_group_reads_what_the_sweep_reader_reads(
+        served: str, pymb_simulator: MakeSim) -> None:
     """A hub of one humidity unit is polled as its map's group: the writer's
     reading is the hub's own (:class:`SweepReader`), the blocks its firmware
     lacks included (refused, then left out), over a real pseudo-terminal."""
     cfg = parse_device("hub:7,channels=50")
     info = DeviceInfo("bus", "pty", "hub", 7, "hub", 50, 0.1)
-    with SimulatorProcess([served], quiet=True) as sim, \
-            RtuClient(sim.endpoint, 9600, timeout=2.0) as c:
+    sim = pymb_simulator(served)
+    sim.clock.freeze()
+    with RtuClient(sim.port, 9600, timeout=2.0) as c:
         ours, _ = cfg.open(c)
         theirs = cfg.sweep_reader(c)
         assert not theirs.mixed
