@@ -235,7 +235,7 @@ class TcpMapPoller(TcpLoopBase):
             self._unsent(c, now, size, sent)
         elif arm:
             self.arm(c, t, u.timeout, look_at)
-        elif not busy and e.slot.interval:  # its poll and those due after it: a chain
+        elif not busy and e.slot.interval and c.waiting:  # it and those due after it: a chain
             chain = c.chain_of(e, now)
             if len(chain) > 1:  # (one poll alone costs more carried than read here)
                 self.chain(c, chain, now, look_at)
