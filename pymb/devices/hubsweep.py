@@ -3,8 +3,9 @@ groups, or some blocks and channels, as :class:`~pymb.devices.mapreading.MapRead
 with the hub's own rules (:func:`~pymb.devices.hub.hub_device`: the
 firmware's missing blocks, a busy hub; a humidity unit per channel).
 ``pymb read`` and ``pymb watch`` read a hub with it, and the logger a hub
-whose channels' humidity units differ (one of a single unit it polls as its
-map's group: the registers, as :attr:`SweepReader.device` fetches them)."""
+whose channels' humidity units differ, or any hub logged ``--on-change``
+(else it polls the hub as its map's group: the registers, as
+:attr:`SweepReader.device` fetches them)."""
 
 from __future__ import annotations
 

@@ -212,7 +212,7 @@ line, the command line's) twice a second; :meth:`stop` (or SIGINT /
             config.format, config.path, max_bytes=config.max_bytes, max_age=config.max_age,
             on_change=config.on_change))
         self.pollers: list[_Poller | _TcpPoller] = [
-            _Poller(b, self._queue, self._stop, self.stats)
+            _Poller(b, self._queue, self._stop, self.stats, decoded=config.on_change is not None)
             for b in config.buses if not fans_out(b)]
         tcp = [b for b in config.buses if fans_out(b)]
         if tcp:  # every map device on plain Modbus TCP: one thread, one loop

@@ -125,13 +125,17 @@ def map_info(bus: BusConfig, d: DeviceConfig) -> DeviceInfo:
 
 
 class BusPoller(threading.Thread):
-    """Polls one bus until told to stop; puts Samples and Events on a queue."""
+    """Polls one bus until told to stop; puts Samples and Events on a queue.
+    ``decoded``: a hub's sweeps go as :class:`SweepReader` decodes them (its
+    arrays, which ``--on-change`` compares), not as their registers."""
 
     def __init__(self, bus: BusConfig, out: queue.Queue[list[Sample | Event | PollBlock]],
                  stop: threading.Event,
-                 stats: Stats, clock: Callable[[], float] = time.monotonic) -> None:
+                 stats: Stats, clock: Callable[[], float] = time.monotonic, *,
+                 decoded: bool = False) -> None:
         super().__init__(name=f"pymb-bus-{bus.name}", daemon=True)
         self.bus = bus
+        self.decoded = decoded
         self.report = Report(out, stats)
         self.stop_event = stop
         self.stats = stats
@@ -166,7 +170,7 @@ class BusPoller(threading.Thread):
                 slot = Slot(health, bus.interval if interval is None else interval,
                             interval == 0, group)
                 backoff = cfg.map.timing.backoff
-                if isinstance(read, SweepReader) and read.mixed:  # (the hub's own decode)
+                if isinstance(read, SweepReader) and (read.mixed or self.decoded):
                     out.append(_Read(slot, h, functools.partial(read, group), backoff=backoff))
                 else:
                     busy = read.busy if isinstance(read, SweepReader) else None
