@@ -180,6 +180,11 @@ def _pymb_log(children: Children, ports: list[str], tmp: str, map_file: str,
         time.sleep(warmup)
         t0, (cpu0, _, _), (id0, _) = time.monotonic(), _proc(child.pid), _stored(db)
         time.sleep(seconds)
+        # The window also lasts until a commit has landed in it: a short one (--quick) on
+        # a loaded machine can fall between two commits. Samples and CPU cover one span.
+        until = time.monotonic() + 5.0
+        while _stored(db)[0] == id0 and time.monotonic() < until:
+            time.sleep(0.02)
         t1, (cpu1, rss, threads), (id1, devices) = (time.monotonic(), _proc(child.pid),
                                                      _stored(db))
         if child.proc.poll() is not None:
