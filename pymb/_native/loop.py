@@ -29,7 +29,7 @@ from pymb._native.master import Master, PollTable, ReadBuffer
 from pymb._pymb_cffi import ffi, lib
 
 __all__ = ["DONE", "END", "GAP", "LOOK", "LOOK_MIN", "NO_CONN", "READY", "TAKEN", "UNSENT", "Loop",
-           "Times"]
+           "Times", "look"]
 
 READY: int = lib.PYMBI_LOOP_READY  #: a socket is ready, nothing read (``events``: its mask)
 DONE: int = lib.PYMBI_LOOP_DONE  #: a poll read in full, the next one not all sent (``sent``)
@@ -51,6 +51,17 @@ LOOK_MIN = 0.002
 #: polls, each poll's next one sent later by at most this share of its
 #: replies' time
 GAP = 1 / 16
+
+
+def look(took: float, timeout: float) -> float:
+    """How long a poll's replies have to come in full before they are read
+    as they come: twice the time they took of late (``took``), at least
+    :data:`LOOK_MIN`, at most a quarter of the ``timeout`` (the C loop's own
+    rule for the polls it carries)."""
+    # (conditional expressions: the builtins min and max parse keywords, per poll)
+    t = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
+    most = timeout / 4
+    return t if t < most else most
 
 _RECORDS = 256  #: records one wait writes at most
 _wait = lib.pymbi_loop_wait

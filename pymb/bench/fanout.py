@@ -46,7 +46,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from pymb._native.loop import DONE, GAP, LOOK_MIN, NO_CONN, READY, TAKEN, Loop
+from pymb._native.loop import DONE, GAP, LOOK_MIN, NO_CONN, READY, TAKEN, Loop, look
 from pymb._native.master import EXCEPTION, Master, MasterRead, PollTable, ReadBuffer
 from pymb.devices.polls import Agenda, Slot
 from pymb.errors import InvalidArgument
@@ -270,9 +270,8 @@ class TcpFanout:
         carried = not self.interval and n == c.n  # the C loop's: flat out, a whole poll
         self._wake_at(c, c.replies if carried else 1)
         if self._send(c, 0, n, now) and carried:
-            look = 2 * c.took if 2 * c.took > LOOK_MIN else LOOK_MIN
             self._loop.arm(c.index, c.m, c.table, self.timeout, c.took, now,
-                           now + min(look, self.timeout / 4))
+                           now + look(c.took, self.timeout))
             c.armed = True
 
     def _disarm(self, c: _FanoutConn) -> None:

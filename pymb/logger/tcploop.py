@@ -33,7 +33,7 @@ import threading
 import time
 
 from pymb._native import exception_errno
-from pymb._native.loop import DONE, END, LOOK_MIN, READY, TAKEN, UNSENT
+from pymb._native.loop import DONE, END, LOOK_MIN, READY, TAKEN, UNSENT, look
 from pymb._native.master import PollTable
 from pymb._native.serve import mbap_frame
 from pymb.client.address import parse_host_port
@@ -217,11 +217,7 @@ class TcpMapPoller(TcpLoopBase):
                 c.wake_at(t.ends[n])
             c.whole = True
             c.sent_at = now
-            took = c.took
-            # (conditional expressions: the builtins min and max parse keywords, per poll)
-            look = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
-            most = u.timeout / 4
-            look_at = now + (look if look < most else most)
+            look_at = now + look(c.took, u.timeout)
             arm = self.again(c, e, now) is not None  # its polls the C part's from now on
             if not arm:
                 self.look(c, look_at)
@@ -302,10 +298,7 @@ class TcpMapPoller(TcpLoopBase):
                 lowat = c.lowat
                 c.wake_at(max(1, sum(t.sizes[k] for k in m.pending()) - m.kept))
                 if lowat == 1 < c.lowat:  # (read as they come if slower than a look)
-                    took = c.took
-                    look = 2 * took if 2 * took > LOOK_MIN else LOOK_MIN
-                    most = u.timeout / 4
-                    self.look(c, now + (look if look < most else most))
+                    self.look(c, now + look(c.took, u.timeout))
 
     def restarted(self, c: Conn, e: Entry, now: float) -> None:
         """``e``'s poll read every request and its next one is framed
