@@ -215,7 +215,8 @@ def decode_hub(registers: Any, humidity_unit: float | Sequence[float] = 0.1, *,
         shared[:] = regs
         run()
         values, states = b.values[:], b.states[:]
-    r: HubReading = object.__new__(HubReading)  # (HubReading._of without its call)
+    # (the reading of arrays already made, taken, not copied: __init__'s fields, no call)
+    r: HubReading = object.__new__(HubReading)
     r.channels, r.registers, r.values, r.raw_states = channels, regs, values, states
     r.unsupported_mask, r.time, r.monotonic = mask, 0.0, 0.0
     if other:

@@ -136,20 +136,6 @@ class HubReading:
         self.time = 0.0
         self.monotonic = 0.0
 
-    @classmethod
-    def _of(cls, channels: int, registers: array[int], values: array[float],
-            states: array[int]) -> HubReading:
-        """A reading of decoded arrays already made (taken, not copied)."""
-        r = cls.__new__(cls)
-        r.channels = channels
-        r.registers = registers
-        r.values = values
-        r.raw_states = states
-        r.unsupported_mask = 0
-        r.time = 0.0
-        r.monotonic = 0.0
-        return r
-
     def _block(self, index: int) -> memoryview:
         c = self.channels
         return memoryview(self.values)[index * c:(index + 1) * c]
