@@ -32,15 +32,34 @@ def _names(text: str, allowed: tuple[str, ...], what: str) -> tuple[str, ...]:
     return tuple(n for n in allowed if n in names)
 
 
-def check_writable(path: str) -> None:
-    """Fail now, not after minutes of measuring, if ``path`` cannot be written."""
-    folder = os.path.dirname(os.path.abspath(path))
+def _drawn_by_bench(path: str) -> bool:
+    """Whether ``path`` is an image ``pymb bench --plot`` drew (its metadata says so)."""
+    try:
+        with open(path, "rb") as f:
+            return report.PLOT_MARK.encode() in f.read(8192)
+    except OSError:
+        return False
+
+
+def check_plot(path: str, sections: tuple[str, ...]) -> None:
+    """Fail now, not after minutes of measuring, if the bars cannot go to ``path``:
+    a name matplotlib would not draw as PNG or SVG, sections with no bars, a path
+    that cannot be written, or a file pymb bench did not draw (never overwritten)."""
     if os.path.isdir(path):
         raise InvalidArgument(f"--plot {path} is a directory; give a file name")
+    if os.path.splitext(path)[1].lower() not in report.PLOT_FORMATS:
+        raise InvalidArgument(f"--plot {path}: the file name must end in .png or .svg")
+    if not {"sweep", "micro"} & set(sections):
+        raise InvalidArgument(f"--plot draws the sweep and micro sections: add one of them "
+                              f"to --sections {','.join(sections)}")
+    folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise InvalidArgument(f"--plot {path}: no such directory {folder}")
     if not os.access(path if os.path.exists(path) else folder, os.W_OK):
         raise InvalidArgument(f"--plot {path}: permission denied")
+    if os.path.exists(path) and not _drawn_by_bench(path):
+        raise InvalidArgument(f"--plot {path} exists and is not an image pymb bench drew: "
+                              "refusing to overwrite it; give another name")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,7 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--markdown", action="store_true",
                      help="print the result as Markdown (docs/benchmarks.md's tables)")
     parser.add_argument("--plot", metavar="FILE.png",
-                        help="also draw the bars side by side (needs matplotlib)")
+                        help="also draw the bars of the sweep and micro sections side by side, "
+                             "to FILE.png or FILE.svg (needs matplotlib; never over a file "
+                             "pymb bench did not draw)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -94,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             raise InvalidArgument(
                 f"--plot needs matplotlib: {install_hint('bench')}") from None
-        check_writable(args.plot)
+        check_plot(args.plot, sections)
 
     def progress(text: str) -> None:
         print(f"pymb bench: {text}", file=sys.stderr, flush=True)

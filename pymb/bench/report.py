@@ -7,6 +7,7 @@ either format, so the Markdown of docs/benchmarks.md says what the terminal said
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -20,9 +21,15 @@ from pymb.bench import (
     writebench,
 )
 from pymb.bench.table import Table, X, fmt_time, fmt_x
+from pymb.errors import InvalidArgument
 from pymb.jsonvalue import nan_to_null
 
-__all__ = ["Table", "plot", "tables", "to_json", "to_markdown", "to_text"]
+__all__ = ["PLOT_FORMATS", "PLOT_MARK", "Table", "plot", "tables", "to_json", "to_markdown",
+           "to_text"]
+
+#: In the metadata of every image :func:`plot` draws: one pymb bench drew may be replaced.
+PLOT_MARK = "pymb bench"
+PLOT_FORMATS = (".png", ".svg")  #: the file names :func:`plot` draws to
 
 def _workload_table(title: str, note: str, section: dict[str, Any]) -> Table:
     base = section["baseline"]
@@ -397,14 +404,19 @@ def to_json(result: dict[str, Any]) -> str:
 
 
 def plot(result: dict[str, Any], path: str) -> None:
-    """Bars side by side (wall and CPU per contender, log scale) to ``path``.
+    """Bars side by side (wall and CPU per contender, log scale) to ``path``
+    (``.png`` or ``.svg``, :data:`PLOT_MARK` in its metadata), written beside
+    it and renamed into place when complete.
 
-    Needs matplotlib (the ``bench`` extra); raises ImportError without it.
+    Needs matplotlib (the ``bench`` extra); raises ImportError without it, and
+    InvalidArgument when ``result`` has neither the sweep nor the micro section.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from pymb.commands._data import write_beside
 
     panels = []
     sweep = result.get("sweep") or {}
@@ -416,7 +428,8 @@ def plot(result: dict[str, Any], path: str) -> None:
     micro = (result.get("micro") or {}).get("rows", [])
     n = len(panels) + (1 if micro else 0)
     if n == 0:
-        raise ValueError("nothing to plot: run the sweep or micro section")
+        raise InvalidArgument("--plot: nothing to draw: the sweep and micro sections "
+                              "have no rows")
     fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 4.8), squeeze=False)
     width = 0.38
     for ax, (title, rows) in zip(axes[0], panels, strict=False):
@@ -452,5 +465,16 @@ def plot(result: dict[str, Any], path: str) -> None:
     fig.suptitle(f"pymb bench, {m['date']}: {m['cpu']}, {m['cores']} cores, {m['python']}, "
                  f"libmodbus {m['libmodbus']}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    ext = os.path.splitext(path)[1].lower()
+
+    def write(fd: int, _tmp: str) -> None:
+        with os.fdopen(fd, "wb") as f:
+            if ext == ".svg":
+                fig.savefig(f, format="svg", metadata={"Creator": PLOT_MARK})
+            else:
+                fig.savefig(f, format="png", dpi=120, metadata={"Software": PLOT_MARK})
+
+    try:
+        write_beside(path, ".pymb-bench-", ext, write, keep_mode=False)
+    finally:
+        plt.close(fig)
