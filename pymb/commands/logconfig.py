@@ -22,7 +22,14 @@ from pymb.commands.sunspeccli import is_sunspec, sunspec_target
 from pymb.devices.deviceconfig import DeviceConfig, KnownMaps, MapText, from_target, parse_device
 from pymb.errors import InvalidArgument
 from pymb.fleet.config import KEYS, MqttConfig, from_table
-from pymb.logger.config import BusConfig, LogConfig, config_from_toml, read_toml, share_deadbands
+from pymb.logger.config import (
+    DEFAULT_TOML_PATH,
+    BusConfig,
+    LogConfig,
+    config_from_toml,
+    read_toml,
+    share_deadbands,
+)
 from pymb.store import OnChange
 from pymb.store.mapcheck import check_stored_maps
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT
@@ -33,10 +40,17 @@ __all__ = ["config_from", "default_path", "load", "mqtt_from", "single_bus_confi
 def load(path: str | os.PathLike[str]) -> tuple[LogConfig, MqttConfig | None]:
     """A TOML configuration: its buses and output, and its ``[mqtt]`` table (None
     if it has none)."""
+    cfg, mqtt, _ = _load(path)
+    return cfg, mqtt
+
+
+def _load(path: str | os.PathLike[str]) -> tuple[LogConfig, MqttConfig | None, bool]:
+    """:func:`load`, and whether the file names the output's path."""
     doc = read_toml(path)
     cfg = config_from_toml(doc, path)
     table = doc.get("mqtt")
-    return cfg, None if table is None else from_table(table, str(path))
+    return (cfg, None if table is None else from_table(table, str(path)),
+            "path" in doc.get("output", {}))
 
 
 def mqtt_from(args: argparse.Namespace, base: MqttConfig | None) -> MqttConfig | None:
@@ -96,7 +110,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         if tls_from_args(args) is not None:
             raise InvalidArgument("with --config, give a bus's TLS settings in the file: "
                                   "[bus.tls]")
-        cfg, mqtt_table = load(args.config)
+        cfg, mqtt_table, named = _load(args.config)
+        if not named:  # the format's own default, once --format has had its say
+            cfg.path = ""
     else:
         if sum(bool(x) for x in (args.port, args.tcp, args.rtu_over_tcp, udp)) > 1:
             raise InvalidArgument("give one of --port, --tcp, --rtu-over-tcp or --udp")
@@ -126,8 +142,9 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
         cfg.format = args.format
     if args.out:
         cfg.path = args.out
-    elif not cfg.path or (not args.config and cfg.format == "sqlite"):
-        cfg.path = default_path() if cfg.format == "sqlite" else "-"
+    elif not cfg.path:
+        cfg.path = "-" if cfg.format != "sqlite" else \
+            DEFAULT_TOML_PATH if args.config else default_path()
     if args.max_mb is not None:
         cfg.max_bytes = int(args.max_mb * 1e6)
     if args.max_age_days is not None:

@@ -34,8 +34,8 @@ from pymb.store import FORMATS, OnChange
 from pymb.store.onchange import DEADBAND_QUANTITIES
 from pymb.wire import DEFAULT_BAUD, DEFAULT_PARITY, DEFAULT_TIMEOUT, bits_per_char
 
-__all__ = ["BusConfig", "LogConfig", "check_buses", "config_from_toml", "load_config",
-           "read_toml", "share_deadbands"]
+__all__ = ["DEFAULT_TOML_PATH", "BusConfig", "LogConfig", "check_buses", "config_from_toml",
+           "load_config", "read_toml", "share_deadbands"]
 
 
 @dataclass
@@ -148,6 +148,8 @@ class BusConfig:
 #: open batch (pymb.store.ids).
 COMMIT_BYTES = 256 * 1024
 COMMIT_INTERVAL = 1.5
+#: where a TOML configuration's SQLite goes when its [output] names no path
+DEFAULT_TOML_PATH = "pymb.sqlite"
 #: an event (a fault, a reconnect) waits for its commit this long at most
 EVENT_COMMIT_INTERVAL = 1.0
 
@@ -158,7 +160,7 @@ class LogConfig:
 
     buses: list[BusConfig]
     format: str = "sqlite"
-    path: str = "pymb.sqlite"
+    path: str = DEFAULT_TOML_PATH
     max_bytes: int | None = None
     max_age: float | None = None
     #: bytes of samples (their registers) a commit waits for, at most
@@ -433,7 +435,8 @@ def config_from_toml(doc: dict[str, Any], path: str | os.PathLike[str]) -> LogCo
     try:
         return LogConfig(
             buses, fmt,
-            _get(out, "path", str, f"{path}: output", "pymb.sqlite"),
+            _get(out, "path", str, f"{path}: output",
+                 DEFAULT_TOML_PATH if fmt == "sqlite" else "-"),
             None if max_mb is None else int(max_mb * 1e6),
             None if max_days is None else float(max_days) * 86400,
             commit_interval=None if commit_s is None else float(commit_s),

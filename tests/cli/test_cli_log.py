@@ -308,6 +308,33 @@ def test_toml_device_without_address_takes_the_default(sim3: Simulator, tmp_path
     con.close()
 
 
+@pytest.mark.parametrize(("output", "flags", "first"), [
+    ('[output]\nformat = "jsonl"\n', [], "{"),
+    ('[output]\nformat = "csv"\n', [], "time_utc,time,bus,"),
+    ("", ["--format", "csv"], "time_utc,time,bus,"),
+    ('[output]\nformat = "sqlite"\n', ["--format", "influx"], "pymb_event,"),
+])
+def test_toml_without_a_path_writes_a_text_format_to_stdout(
+        sim3: Simulator, tmp_path: Path, output: str, flags: list[str], first: str) -> None:
+    """A text format (in the file or by --format) with no path in [output] goes to
+    stdout, as on the command line: not refused under a SQLite name never written."""
+    (tmp_path / "c.toml").write_text(output + TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
+    r = run_pymb("log", "--config", "c.toml", *flags, "--seconds", "1", "--quiet",
+                 cwd=tmp_path)
+    no_traceback(r)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith(first), r.stdout[:200]
+    assert "coolpro-40" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
+def test_toml_without_a_path_logs_to_pymb_sqlite(sim3: Simulator, tmp_path: Path) -> None:
+    (tmp_path / "c.toml").write_text(TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
+    r = run_pymb("log", "--config", "c.toml", "--seconds", "1", "--quiet", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert count(tmp_path / "pymb.sqlite", "SELECT count(*) FROM samples") > 0
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 @pytest.mark.ctrl_c
 def test_log_flushes_what_it_read_on_sigint(sim3: Simulator, tmp_path: Path, sig: int) -> None:
