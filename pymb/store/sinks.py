@@ -25,6 +25,9 @@ def open_sink(fmt: str, path: str, *, max_bytes: int | None = None,
         return SqliteSink(path, max_bytes=max_bytes, max_age=max_age, on_change=on_change)
     if on_change is not None:
         raise InvalidArgument("--on-change needs the SQLite format")
+    if max_bytes is not None or max_age is not None:  # a text file is never trimmed
+        raise InvalidArgument("--max-mb and --max-age-days (TOML max_mb, max_age_days) need "
+                              f"the SQLite format: {fmt} output is never trimmed")
     if fmt == "csv":
         return CsvSink(path)
     if fmt == "jsonl":

@@ -328,6 +328,26 @@ def test_toml_without_a_path_writes_a_text_format_to_stdout(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
 
 
+@pytest.mark.parametrize(("output", "flags"), [
+    ("", ["--format", "csv", "--out", "x.csv", "--max-mb", "5"]),
+    ("", ["--format", "jsonl", "--out", "x.jsonl", "--max-age-days", "7"]),
+    ('[output]\nformat = "influx"\npath = "x.lp"\nmax_mb = 50\n', []),
+    ('[output]\npath = "x.csv"\nmax_age_days = 30\n', ["--format", "csv"]),
+])
+def test_a_size_or_age_limit_on_a_text_format_is_refused(
+        sim3: Simulator, tmp_path: Path, output: str, flags: list[str]) -> None:
+    """Only a SQLite database is trimmed: a limit given for a text file, which
+    would grow past it, is one line before anything is opened."""
+    (tmp_path / "c.toml").write_text(output + TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
+    r = run_pymb("log", "--config", "c.toml", *flags, "--seconds", "1", "--quiet",
+                 cwd=tmp_path)
+    no_traceback(r)
+    assert r.returncode == 2, r.stderr
+    assert "need the SQLite format" in r.stderr, r.stderr
+    assert len(r.stderr.splitlines()) == 1, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml"]
+
+
 def test_toml_without_a_path_logs_to_pymb_sqlite(sim3: Simulator, tmp_path: Path) -> None:
     (tmp_path / "c.toml").write_text(TOML_BUS.replace("/dev/ttyUSB0", sim3.port))
     r = run_pymb("log", "--config", "c.toml", "--seconds", "1", "--quiet", cwd=tmp_path)
