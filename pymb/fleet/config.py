@@ -188,4 +188,7 @@ def from_table(table: dict[str, Any], where: str) -> MqttConfig:
             raise InvalidArgument(f"{where}: [mqtt] {k} has the wrong type ({v!r})")
     if "url" not in table:
         raise InvalidArgument(f"{where}: [mqtt] needs url = \"mqtt://HOST[:PORT]\"")
-    return MqttConfig(**table)
+    try:
+        return MqttConfig(**table)
+    except InvalidArgument as e:  # a value the table gave: say where it is
+        raise InvalidArgument(f"{where}: [mqtt]: {e}") from None

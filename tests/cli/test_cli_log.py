@@ -225,6 +225,9 @@ type = "coolpro"
     (TOML_BUS.replace('type = "coolpro"', 'type = "coolpro"\nname = "a"') +
      TOML_BUS.replace('"line1"', '"line2"').replace("USB0", "USB1")
      .replace('type = "coolpro"', 'type = "hub"\nname = "a"'), "two devices are named 'a'"),
+    ('[mqtt]\nurl = "broker.lan"\n' + TOML_BUS, "bad.toml: [mqtt]: bad MQTT URL 'broker.lan'"),
+    ('[mqtt]\nurl = "mqtt://broker.lan"\nstart = "newest"\n' + TOML_BUS,
+     "bad.toml: [mqtt]: MQTT start must be oldest or now"),
 ])
 def test_toml_mistakes_are_named(tmp_path: Path, toml: str, message: str) -> None:
     cfg = tmp_path / "bad.toml"
