@@ -13,6 +13,11 @@ from pymb.wire import bits_per_char
 __all__ = ["new_ascii", "new_rtu", "new_tcp", "new_udp"]
 
 
+def _where(host: str, port: int) -> str:
+    """``HOST:PORT`` as the command line takes it: an IPv6 address in brackets."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
 def new_rtu(port: str, baudrate: int, parity: str, data_bits: int, stop_bits: int) -> Link:
     """A serial-line Link (not yet open)."""
     bits = bits_per_char(parity, stop_bits, data_bits)
@@ -38,7 +43,7 @@ def new_tcp(host: str, port: int, *, rtu_framing: bool = False,
     check and send; None: none), the handshake made on every connect."""
     node = host.encode()
     service = str(port).encode()
-    return Link(f"{host}:{port}", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
+    return Link(_where(host, port), lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
                 host=host, tls=tls,
                 framing=lib.PYMB_FRAMING_RTU_OVER_TCP if rtu_framing else lib.PYMB_FRAMING_TCP,
                 silence=silence)
@@ -58,5 +63,5 @@ def new_udp(host: str, port: int) -> Link:
     pymb opens; ``host`` is a name or an address."""
     node = host.encode()
     service = str(port).encode()
-    return Link(f"{host}:{port}/udp", lambda: lib.modbus_new_tcp_pi(node, service), serial=False,
-                host=host, service=str(port), framing=lib.PYMB_FRAMING_UDP)
+    return Link(f"{_where(host, port)}/udp", lambda: lib.modbus_new_tcp_pi(node, service),
+                serial=False, host=host, service=str(port), framing=lib.PYMB_FRAMING_UDP)

@@ -69,7 +69,8 @@ class ClientCore:
 
     @property
     def port(self) -> str:
-        """The serial device or ``host:port`` this client talks to."""
+        """The serial device or ``host:port`` this client talks to (an IPv6
+        address in brackets, ``[::1]:502``)."""
         return self._link.name
 
     @property

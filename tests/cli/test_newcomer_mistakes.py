@@ -325,3 +325,16 @@ def test_an_option_value_of_a_shipped_device_is_named_by_its_type(spec: str, sai
         r = run_pymb(command, spec, *extra, "--tcp", "127.0.0.1:1", timeout=60)
         assert (r.returncode, r.stdout, r.stderr) == (
             2, "", f"pymb {command}: {spec!r}: {said}\n")
+
+
+@pytest.mark.parametrize(("transport", "said"), [
+    ("--tcp", "cannot open [::1]:1: connection refused"),
+    ("--udp", "on [::1]:1/udp: connection refused"),
+])
+def test_an_ipv6_endpoint_is_named_as_it_is_written(transport: str, said: str) -> None:
+    """``--tcp [::1]:1`` fails naming ``[::1]:1``, the spelling it takes, never
+    ``::1:1``, which the same command refuses."""
+    r = run_pymb("read", "coolpro", transport, "[::1]:1", "--timeout", "0.5")
+    assert r.returncode == 4, r.stderr
+    assert said in r.stderr, r.stderr
+    assert "::1:1" not in r.stderr.replace("[::1]:1", "")
