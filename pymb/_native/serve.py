@@ -47,14 +47,14 @@ class BadFrame(Exception):
         self.frames: list[bytes] = frames or []
 
 
-def take_requests(buf: bytearray) -> list[ClientRequest]:
-    """Take every whole request at the start of ``buf`` (removed from it);
-    what is left is the start of the next one. Raises :class:`BadFrame` when
-    the bytes cannot be a Modbus TCP request (the requests before them are
-    lost with the connection)."""
+def take_requests(buf: bytearray, most: int | None = None) -> list[ClientRequest]:
+    """Take every whole request at the start of ``buf`` (removed from it), or
+    the first ``most`` of them; what is left is the start of the next one.
+    Raises :class:`BadFrame` when the bytes cannot be a Modbus TCP request
+    (the requests before them are lost with the connection)."""
     req = ffi.new("pymbi_srv_req *")
     out: list[ClientRequest] = []
-    for frame in take_frames(buf):
+    for frame in take_frames(buf, most):
         lib.pymbi_srv_take(frame, len(frame), req)  # (a whole frame: taken)
         out.append(ClientRequest(req.tid, req.unit, frame[_MBAP:], req.exception))
     return out
@@ -79,17 +79,17 @@ def exception_frame(tid: int, unit: int, function: int, code: int) -> bytes:
     return bytes(ffi.buffer(out, n))
 
 
-def take_frames(buf: bytearray) -> list[bytes]:
-    """Take every whole frame at the start of ``buf`` (removed from it), each
-    as long as its MBAP header says (the C core's one rule); what is left is
-    the start of the next one. Raises :class:`BadFrame` at a header that
-    cannot be Modbus TCP (the connection is lost; the frames before it in
-    its :attr:`~BadFrame.frames`)."""
+def take_frames(buf: bytearray, most: int | None = None) -> list[bytes]:
+    """Take every whole frame at the start of ``buf`` (removed from it), or
+    the first ``most`` of them, each as long as its MBAP header says (the C
+    core's one rule); what is left is the start of the next one. Raises
+    :class:`BadFrame` at a header that cannot be Modbus TCP (the connection
+    is lost; the frames before it in its :attr:`~BadFrame.frames`)."""
     out: list[bytes] = []
     pos = 0
     n = len(buf)
     data = ffi.from_buffer(buf)
-    while pos < n:
+    while pos < n and (most is None or len(out) < most):
         got = lib.pymbi_mbap_length(data + pos, n - pos)
         if got == _INCOMPLETE or pos + got > n:
             break

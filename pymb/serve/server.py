@@ -151,6 +151,7 @@ class _Conn(asyncio.Protocol):
         self.buf = bytearray()
         self.transport: asyncio.Transport | None = None
         self.pending = 0
+        self.taking = False  #: requests are being taken from the buffer
         self.closed = False
         self.paused_reading = False
         self.paused_writing = False
@@ -240,18 +241,40 @@ class _Conn(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.closed:
             return
-        s = self.server
         if self.tls is None:
             self.buf += data
         elif not self._tls_in(self.tls, data):
             return
+        self._take()
+
+    def _take(self) -> None:
+        """Take the requests in the buffer while fewer than
+        :data:`PENDING_PER_CLIENT` of this client's wait upstream; the rest
+        stay there (its reading paused) until replies have gone back."""
+        if self.taking:  # (an upstream that answered at once, from submit)
+            return
+        self.taking = True
         try:
-            requests = take_requests(self.buf)
+            while not self.closed and self.pending < PENDING_PER_CLIENT:
+                if not self._submit(PENDING_PER_CLIENT - self.pending):
+                    break
+        finally:
+            self.taking = False
+        if self.pending >= PENDING_PER_CLIENT:
+            self._pause()
+
+    def _submit(self, most: int) -> bool:
+        """Answer or send upstream the first ``most`` requests in the
+        buffer; False: there were none (or the bytes were garbage: closed)."""
+        s = self.server
+        try:
+            requests = take_requests(self.buf, most)
         except BadFrame as e:
             s.stats.garbage += 1
             s.say(f"client {self.peer}: bytes that are not Modbus TCP ({e}): closed")
+            self.buf.clear()
             self._close()
-            return
+            return False
         for r in requests:
             s.stats.requests += 1
             function = r.pdu[0]
@@ -272,8 +295,7 @@ class _Conn(asyncio.Protocol):
             # read the reply); a write is: its client gave it.
             s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit),
                               self.connected if reads_only(r.pdu) else None)
-        if self.pending >= PENDING_PER_CLIENT:
-            self._pause()
+        return bool(requests)
 
     def _tls_in(self, tls: _Tls, data: bytes) -> bool:
         """Decrypt ``data`` into the request buffer; False: nothing more to do."""
@@ -301,6 +323,8 @@ class _Conn(asyncio.Protocol):
         if self.closed:
             return
         self._send(mbap_frame(tid, unit, pdu))
+        if self.buf:  # requests that waited for their turn in this client's buffer
+            self._take()
         self._resume()
 
     def _send(self, frame: bytes) -> None:

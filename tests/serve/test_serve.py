@@ -261,6 +261,31 @@ def test_the_reads_of_a_client_that_has_gone_are_not_sent(peer: PtyPeer) -> None
     assert f"{8 - len(reads)} not sent (their clients had gone)" in summary, summary
 
 
+def test_a_burst_of_requests_waits_its_turn_16_at_a_time(peer: PtyPeer) -> None:
+    # docs/serve.md: each client has at most 16 requests waiting. A client
+    # that sends 100 reads in one write has 16 of them queued for the line,
+    # the rest wait in its own buffer: another client's read is sent after
+    # at most those 16 (and the one under way), and the burst is answered
+    # whole, in order.
+    peer.hook = lambda slave, pdu, normal: (
+        [(0.02, peer.frame(slave, normal))] if slave == 9 and normal else None)
+    with Served(*serve_args(peer.port)) as s:
+        burst = RawClient(s.port, timeout=60)
+        burst.send(b"".join(mbap(i, 9, read_pdu(i, 1)) for i in range(100)))
+        wait_until(lambda: len(peer.requests) >= 2, "the burst's first requests on the line")
+        other = RawClient(s.port)
+        before = len(peer.requests)
+        assert words(other.ask(1, 1, read_pdu(2, 1))) == [14]
+        ahead = [slave for slave, _ in peer.requests].index(1) - before
+        assert ahead <= 18, f"{ahead} more of the burst's requests were sent first"
+        for i in range(100):
+            tid, unit, pdu = burst.reply()
+            assert (tid, unit, words(pdu)) == (i, 9, [(i * 7) & 0xFFFF])
+        burst.close()
+        other.close()
+        assert s.stop() == 0
+
+
 def test_a_stop_drops_the_queued_requests_of_a_silent_device(peer: PtyPeer) -> None:
     peer.hook = lambda slave, pdu, normal: []  # nobody answers: each request takes --timeout
     with Served(*serve_args(peer.port)) as s:
