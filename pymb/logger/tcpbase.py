@@ -298,7 +298,7 @@ class TcpLoopBase(threading.Thread):
             return
         s.setblocking(False)
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        c.asked = 0
+        c.asked = c.gave_up = 0
         rc = s.connect_ex(addr)
         if rc not in (0, errno.EINPROGRESS):
             s.close()
@@ -378,7 +378,7 @@ class TcpLoopBase(threading.Thread):
         under way goes on there. Closed after as many replies twice in a
         row, that many is what a connection carries from then on
         (:attr:`Conn.limit`): the loop opens the next one itself."""
-        answered = c.asked - c.in_flight
+        answered = c.answered_here
         replies = f"{answered} repl{'y' if answered == 1 else 'ies'}"
         c.tell = False
         if answered == c.closed_after and not c.limit:

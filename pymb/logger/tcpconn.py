@@ -78,8 +78,12 @@ class Conn:
     #: the loop does not wait for it) and what it found (or why not)
     lookup: threading.Thread | None = None
     found: tuple[int, Any] | str | None = None
-    #: requests sent on this connection (the replies to those not in flight came)
+    #: requests sent on this connection (the replies to those not in flight came,
+    #: but for the ``gave_up``)
     asked: int = 0
+    #: requests given up on while in flight on this connection (a timeout, a
+    #: poll failed by an exception): no reply to them came in time
+    gave_up: int = 0
     #: the requests a connection of this device carries: the device closes it
     #: after that many replies, as it did twice in a row (0: no such limit)
     limit: int = 0
@@ -105,6 +109,12 @@ class Conn:
         return self.m.in_flight
 
     @property
+    def answered_here(self) -> int:
+        """How many requests this connection carried the device answered
+        (with its reply or an exception)."""
+        return self.asked - self.m.in_flight - self.gave_up
+
+    @property
     def busy(self) -> bool:
         """Whether a request is in flight."""
         return self.m.in_flight > 0
@@ -117,6 +127,7 @@ class Conn:
     def forget(self) -> None:
         """Nothing is in flight any more (replies still on their way are
         skipped as late ones by their transaction ids)."""
+        self.gave_up += self.m.in_flight
         self.m.forget()
         self.whole = False
 

@@ -105,7 +105,7 @@ class TcpMapPoller(TcpLoopBase):
         (else the bus), and the bus is opened again (:meth:`reopen`). A
         connection the device closed after replying is no failure
         (:meth:`_closed_after_replies`)."""
-        if err in _CLOSED and c.asked > c.in_flight and not c.m.kept:
+        if err in _CLOSED and c.answered_here > 0 and not c.m.kept:
             self._closed_after_replies(c, now)
             return
         e = c.entry

@@ -396,3 +396,32 @@ def test_a_failed_request_reads_as_a_clients_error(tmp_path: Path, how: str) -> 
     faults = [e for e in got.events if e.kind not in ("connect", "reconnect")]
     assert faults, got.events
     assert faults[0].message == str(said.value), (faults[0].message, str(said.value))
+
+
+def _silent_then_closed(n: int, req: Request, conn: socket.socket) -> None:
+    """No answer on any connection; the 3rd request closes it (a gateway
+    that gives up on a connection whose device is silent)."""
+    if n == 3:
+        conn.shutdown(socket.SHUT_RDWR)
+        raise OSError("closed")
+
+
+def test_a_silent_gateway_that_closes_the_connection_answered_nothing(tmp_path: Path) -> None:
+    """Two requests time out, the gateway closes the connection on the
+    3rd: that is a lost connection (an event for the device, the bus opened
+    again after the backoff), not a device that closes its connection after
+    two replies, and no limit of requests per connection is learned."""
+    gw = Hostile(_silent_then_closed)
+    try:
+        got = poll(tmp_path, [gw.port], lambda h: h.kinds().count("connection") >= 2,
+                   within=15.0)
+    finally:
+        gw.close()
+    said = " ".join(e.message for e in got.events)
+    assert "closed by the device after" not in said, got.events
+    assert "per connection" not in said, got.events
+    lost = [e for e in got.events if e.kind == "connection"]
+    assert all(e.device is not None and e.device.address == 1 for e in lost), lost
+    assert "the connection was closed by the device" in lost[0].message, lost
+    assert gw.accepted[1] - gw.accepted[0] >= 0.9, gw.accepted  # two timeouts, the backoff
+    assert got.samples == []
