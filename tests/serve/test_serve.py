@@ -286,6 +286,29 @@ def test_a_burst_of_requests_waits_its_turn_16_at_a_time(peer: PtyPeer) -> None:
         assert s.stop() == 0
 
 
+def test_a_client_that_half_closes_is_taken_as_gone(peer: PtyPeer) -> None:
+    # docs/serve.md: a client that shuts its sending side (a close looks the
+    # same to the server until a reply meets its RST) is taken as gone: its
+    # connection is closed, its reads waiting behind the one under way
+    # (a silent unit: 0.5 s each) are not sent.
+    peer.hook = lambda slave, pdu, normal: [] if slave == 9 else None
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        c.send(b"".join(mbap(i, 9, read_pdu(i, 1)) for i in range(8)))
+        wait_until(lambda: len(peer.requests) >= 1, "the first request on the line")
+        c.sock.shutdown(socket.SHUT_WR)
+        assert c.closed_by_server()
+        c.close()
+        other = RawClient(s.port)  # its read waits behind what the gone one left
+        assert words(other.ask(20, 1, read_pdu(2, 1))) == [14]
+        other.close()
+        assert s.stop() == 0
+    reads = [pdu for slave, pdu in peer.requests if slave == 9]
+    assert len(reads) <= 2, reads  # the one under way (and one taken before the close)
+    summary = s.stderr_lines[-1]
+    assert f"{8 - len(reads)} not sent (their clients had gone)" in summary, summary
+
+
 def test_a_stop_drops_the_queued_requests_of_a_silent_device(peer: PtyPeer) -> None:
     peer.hook = lambda slave, pdu, normal: []  # nobody answers: each request takes --timeout
     with Served(*serve_args(peer.port)) as s:
