@@ -11,11 +11,14 @@ import contextlib
 import itertools
 import queue
 import socket
+import sqlite3
+import struct
 import threading
 import time
 from pathlib import Path
 
-from hostile_gateway import Handed, Hostile, Request, Script, good, poll
+from conftest import run_pymb
+from hostile_gateway import HX_MAP, Handed, Hostile, Request, Script, good, poll
 
 from pymb.devices.mapwrite import WriteBudget
 from pymb.logger.config import load_config
@@ -216,3 +219,66 @@ def test_a_write_reaches_a_device_of_a_chain_between_two_polls(tmp_path: Path) -
             loop.join(10)
     assert not loop.is_alive()
     assert {e.kind for e in events} <= {"connect", "skipped"}
+
+
+def _unit_2_lies() -> Script:
+    """Right replies, but every 7th request of unit 2 answered by unit 9
+    (another unit id, registers of its own) and every 11th with exception 04."""
+    seen = [0]
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes | None:
+        tid, unit, fc, address, count = req
+        if unit != 2:
+            return good(*req)
+        seen[0] += 1
+        if seen[0] % 7 == 0:
+            return good(tid, 9, fc, address, count)
+        if seen[0] % 11 == 0:
+            return tid.to_bytes(2, "big") + b"\x00\x00\x00\x03" + bytes((unit, fc | 0x80, 4))
+        return good(*req)
+    return script
+
+
+def test_pymb_log_stores_a_chain_beside_a_device_that_lies(tmp_path: Path) -> None:
+    """``pymb log`` reads three devices behind one gateway in chains; the
+    gateway lies for device 2 (replies of another unit, exception 04). In the
+    file: every sample of each device holds its own registers, each fault is
+    an event of device 2 alone, and devices 1 and 3 are read all along."""
+    (tmp_path / "hx.toml").write_text(HX_MAP + FAR)
+    gw = Hostile(_unit_2_lies())
+    (tmp_path / "log.toml").write_text(
+        f'maps = ["hx.toml"]\n[[bus]]\nname = "gw"\ntcp = "127.0.0.1:{gw.port}"\n{AT_RATE}'
+        + "".join(f'[[bus.device]]\ntype = "hx"\nname = "u{u}"\naddress = {u}\n'
+                  for u in UNITS))
+    db = tmp_path / "data.sqlite"
+    try:
+        r = run_pymb("log", "--config", str(tmp_path / "log.toml"), "--seconds", "4",
+                     "--out", str(db), "--quiet", timeout=60)
+    finally:
+        gw.close()
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    con = sqlite3.connect(db)
+    try:
+        rows = con.execute("SELECT d.address, s.registers, count(*), min(s.monotonic),"
+                           " max(s.monotonic) FROM samples s JOIN devices d"
+                           " ON d.id = s.device_id GROUP BY d.address, s.registers").fetchall()
+        faults = con.execute("SELECT d.address, e.kind FROM events e LEFT JOIN devices d"
+                             " ON d.id = e.device_id WHERE e.kind NOT IN"
+                             " ('connect', 'reconnect', 'skipped', 'offline', 'online')"
+                             ).fetchall()
+        span = con.execute("SELECT min(monotonic), max(monotonic) FROM samples").fetchone()
+    finally:
+        con.close()
+    assert sorted(u for u, *_ in rows) == [1, 2, 3]  # one set of registers each
+    for unit, blob, n, first, last in rows:
+        regs = struct.unpack(f">{len(blob) // 2}H", blob)
+        want = {a: 100 * unit + a for a in (0, 1, 300, 600)}
+        assert {a: regs[a] for a in want} == want, unit
+        if unit != 2:  # read all along
+            assert n >= 10, (unit, n)
+            assert first - span[0] < 1.0, (unit, first, span)
+            assert span[1] - last < 1.0, (unit, last, span)
+    kinds = {k for _, k in faults}
+    assert kinds == {"protocol", "exception"}, faults
+    assert {u for u, _ in faults} == {2}, faults
