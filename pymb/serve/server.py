@@ -225,6 +225,8 @@ class _Conn(asyncio.Protocol):
 
     def resume_writing(self) -> None:
         self.paused_writing = False
+        if self.buf:  # requests that waited while it did not read its replies
+            self._take()
         self._resume()
 
     def _pause(self) -> None:
@@ -249,13 +251,15 @@ class _Conn(asyncio.Protocol):
 
     def _take(self) -> None:
         """Take the requests in the buffer while fewer than
-        :data:`PENDING_PER_CLIENT` of this client's wait upstream; the rest
-        stay there (its reading paused) until replies have gone back."""
+        :data:`PENDING_PER_CLIENT` of this client's wait upstream and it
+        reads its replies; the rest stay there (its reading paused) until
+        replies have gone back."""
         if self.taking:  # (an upstream that answered at once, from submit)
             return
         self.taking = True
         try:
-            while not self.closed and self.pending < PENDING_PER_CLIENT:
+            while (not self.closed and not self.paused_writing
+                   and self.pending < PENDING_PER_CLIENT):
                 if not self._submit(PENDING_PER_CLIENT - self.pending):
                     break
         finally:
