@@ -132,6 +132,8 @@ class Forwarder(threading.Thread, CommandTopics):
         self._first_refused = 0  #: the lowest sample id refused since
         self._refused_here = False  #: a sample was refused on this connection
         self._said: set[str] = set()  #: the reasons said since the broker last took one
+        #: (topic, reason) of the subscriptions the broker refused, said once a run
+        self._subs_said: set[tuple[str, str]] = set()
         self._retry_at = 0.0  #: when this connection ends to offer them again
         self._retry_wait = RETRY_FIRST
         self._published = self._acked = self._connections = 0
@@ -438,6 +440,22 @@ class Forwarder(threading.Thread, CommandTopics):
     def _node(self) -> dict[str, int]:
         """The node's own metrics (Sparkplug NDATA): the backlog."""
         return {BACKLOG: self.status().backlog}
+
+    def subscription_refused(self, topic: str, reason: str) -> None:
+        """The broker refused a subscription (its ACL, say): said once a run for
+        each topic and reason, with what the node then misses (paho's thread)."""
+        with self._lock:
+            if (topic, reason) in self._subs_said:
+                return
+            self._subs_said.add((topic, reason))
+        if topic == self.profile.host_topic:
+            what = (f"the primary host's STATE cannot reach this node, which publishes "
+                    f"nothing until the broker lets it read {topic}")
+        elif topic == self.profile.command_topic:
+            what = "Rebirth commands (NCMD) cannot reach this node"
+        else:
+            what = "write commands on it cannot reach this logger"
+        self._say(f"the broker refused the subscription to {topic} ({reason}): {what}")
 
     def _acknowledged(self, pub: Publisher, s: Session) -> None:
         """Mark what the broker acknowledged since the last look; keep what it

@@ -54,6 +54,9 @@ class _Owner(Protocol):
     def record_event(self, message: str) -> None:
         """Add a line to the connection's story."""
 
+    def subscription_refused(self, topic: str, reason: str) -> None:
+        """The broker refused the subscription to ``topic`` (its SUBACK's reason)."""
+
 
 class Session:
     """One MQTT connection (a paho client); callbacks run on paho's thread."""
@@ -75,6 +78,8 @@ class Session:
         self.taken_over = False  #: the broker said "session taken over" (MQTT 5)
         self.again = False  #: ended by the forwarder to offer refused samples again
         self.host_online = False  #: the primary host's STATE said online (on this connection)
+        #: SUBSCRIBE message id -> topic of the subscriptions made at the CONNACK
+        self.subscriptions: dict[int, str] = {}
         self.v5 = fw.cfg.protocol == "5"
         #: a persistent session whose commands are acknowledged once answered
         self.persistent = self.v5 and bool(fw.set_topics) and fw.cfg.profile != "sparkplug"
@@ -133,9 +138,9 @@ class Session:
             self.reason = (f"refused: {rc} (MQTT 5); a broker of MQTT 3.1.1 only needs "
                            "--mqtt-protocol 3.1.1")
         if self.ok and self.fw.profile.command_topic:
-            client.subscribe(self.fw.profile.command_topic, qos=1)
+            self._subscribe(client, self.fw.profile.command_topic)
         if self.ok and self.fw.profile.host_topic:
-            client.subscribe(self.fw.profile.host_topic, qos=1)
+            self._subscribe(client, self.fw.profile.host_topic)
         if self.ok and self.fw.set_topics:
             # a command's result goes out at once, not after the ACK of the
             # samples in flight (Nagle): the write commands' latency
@@ -143,8 +148,14 @@ class Session:
             with contextlib.suppress(OSError, AttributeError):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             for topic in self.fw.set_topics:
-                client.subscribe(topic, qos=1)
+                self._subscribe(client, topic)
         self.connack.set()
+
+    def _subscribe(self, client: Any, topic: str) -> None:
+        """SUBSCRIBE (QoS 1), its message id remembered to tell a refusal."""
+        _rc, mid = client.subscribe(topic, qos=1)
+        if mid is not None:
+            self.subscriptions[mid] = topic
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, rc: Any,
                        props: Any = None) -> None:
@@ -165,6 +176,10 @@ class Session:
         self.fw.wake.set()
 
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, rcs: Any, props: Any) -> None:
+        topic = self.subscriptions.pop(mid, None)
+        refused = [rc for rc in rcs or () if getattr(rc, "is_failure", False)]
+        if topic is not None and refused:  # an ACL that denies it, say
+            self.fw.subscription_refused(topic, str(refused[0]))
         self.acks.append((mid, None))
         self.fw.wake.set()
 
