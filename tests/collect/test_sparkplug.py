@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import json
 import signal
+import sqlite3
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -28,7 +30,7 @@ from collectkit import (  # noqa: E402
     wait_subscribed,
 )
 from conftest import wait_until  # noqa: E402
-from mqtt_broker import Fleet  # noqa: E402
+from mqtt_broker import Fleet, db_count, db_ids, stop_log  # noqa: E402
 
 from pymb.collect import collector as collector_module  # noqa: E402
 from pymb.collect.postgres import Postgres  # noqa: E402
@@ -216,6 +218,53 @@ def test_state_rebirth_on_a_seq_gap_and_on_data_without_birth(
         ("n1", "d1", "temperature_c_2", 1800000002.0, 22.0, None, None, None),
         ("n1", "d1", "temperature_c_2", 1800000003.0, 23.0, None, None, None),
     ]
+
+
+def _stored_samples(path: Path) -> set[int]:
+    """The ``sample`` metric's values a collector stored (a pymb board's sample ids)."""
+    if not path.exists():
+        return set()
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            return {int(v) for (v,) in con.execute(
+                "SELECT value FROM pymb_values WHERE point = 'sample'")}
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return set()
+
+
+def test_a_broker_restart_loses_nothing_with_the_collector_as_primary_host(
+        fleet: Fleet, collectors: Collectors) -> None:
+    """A board whose --mqtt-primary-host is the collector: the broker restarted
+    (Debian's default, QoS 0 not queued for a client that is away), the board
+    back before the collector, and every sample of the board is stored. The
+    broker's shutdown publishes the collector's will (STATE offline, retained):
+    the board waits for its STATE online, then sends the outage as history.
+    (Without --mqtt-primary-host, what the board sends before the collector is
+    back is lost: QoS 0.)"""
+    broker = fleet.broker(extra=("queue_qos0_messages false",))
+    sim = fleet.simulator("coolpro")
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--profile", "sparkplug", "--group", GROUP,
+                           "--host-id", "scada", "--client-id", "sp-restart")
+    wait_subscribed(col)
+    log_db = fleet.tmp / "board.sqlite"
+    log = fleet.log(sim.endpoint, log_db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                    "--mqtt-group", GROUP, "--mqtt-node", "gw1", "--mqtt-primary-host", "scada")
+    wait_until(lambda: len(_stored_samples(out)) >= 50, "50 samples stored", 30)
+    broker.stop()
+    before = db_count(log_db)
+    wait_until(lambda: db_count(log_db) >= before + 100, "100 samples logged while down", 30)
+    broker.start()
+    wait_until(lambda: db_ids(log_db) - _stored_samples(out) == set(), lambda:
+               f"the outage's samples stored; {len(db_ids(log_db) - _stored_samples(out))} "
+               "not yet", 60)
+    stop_log(log)
+    wait_until(lambda: db_ids(log_db) <= _stored_samples(out), "every sample stored", 30)
+    err = stop(col)
+    assert "0 bad" in err
 
 
 def test_qos0_data_beyond_the_inbox_are_dropped_and_a_rebirth_asked(
