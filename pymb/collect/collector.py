@@ -139,6 +139,9 @@ class Collector:
         self.host: SparkplugHost | None = None
         self.born_ms = round(time.time() * 1000)
         self.closing = False  #: it stops: its own STATE offline is its own
+        #: message ids of its STATE online in flight (paho's thread), to tell a refusal
+        self.state_mids: set[int] = set()
+        self.state_said: set[str] = set()  #: the broker's reasons for refusing it, said
         c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                         protocol=mqtt.MQTTv5, manual_ack=True)
         cfg.mqtt.secure(c, cfg.mqtt.password())
@@ -160,6 +163,7 @@ class Collector:
         c.on_connect_fail = self._on_connect_fail
         c.on_message = self._on_message
         c.on_subscribe = self._on_subscribe
+        c.on_publish = self._on_publish
         self.client = c
         self.writers = Writers(stores, self.stop, event)  # last: its threads run from here
 
@@ -171,6 +175,7 @@ class Collector:
             self.connack.set()
             return
         self.generation += 1
+        self.state_mids.clear()  # (message ids are per connection)
         self.stats.mqtt_ok = True
         self.takeovers.up()
         if self.host is None:
@@ -180,7 +185,7 @@ class Collector:
 
             client.subscribe([(self.cfg.topic, SubscribeOptions(qos=1)),
                               (self.host.state_topic, SubscribeOptions(qos=1, noLocal=True))])
-            client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
+            self._online(client)
         if self.connack.is_set():
             self.event(f"connected to {self.cfg.mqtt.url} again")
         self.connack.set()
@@ -235,8 +240,26 @@ class Collector:
         state = host_state(bytes(msg.payload))
         if state is None or state[0] or msg.retain or self.closing or self.host is None:
             return
-        client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
+        self._online(client)
         self.event(f"{self.host.state_topic} said offline: published online again")
+
+    def _online(self, client: Client) -> None:
+        """Publish its STATE online (retained, QoS 1), its PUBACK looked at."""
+        assert self.host is not None
+        info = client.publish(self.host.state_topic, state_payload(True, self.born_ms), 1, True)
+        self.state_mids.add(info.mid)
+
+    def _on_publish(self, client: Client, userdata: object, mid: int, rc: ReasonCode,
+                    props: Properties | None = None) -> None:
+        if mid not in self.state_mids or self.host is None:
+            return
+        self.state_mids.discard(mid)
+        if getattr(rc, "is_failure", False) and str(rc) not in self.state_said:
+            # an ACL that denies the topic, say: boards waiting for this host wait on
+            self.state_said.add(str(rc))
+            self.event(f"the broker refused {self.host.state_topic} online ({rc}): boards "
+                       f"with --mqtt-primary-host {self.host.host_id} publish nothing until "
+                       "it takes it (published again on each connection)")
 
     def _send(self, topic: str, payload: bytes) -> None:
         self.client.publish(topic, payload, 0, False)

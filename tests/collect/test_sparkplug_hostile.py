@@ -268,3 +268,35 @@ def test_a_boards_backlog_of_a_device_that_is_down_is_stored_once(
     samples = [int(f[4]) for f in sqlite_facts(out) if f[2] == "sample" and f[4] is not None]
     assert len(samples) == len(set(samples)), "a sample stored twice"
     assert "0 bad" in err, err
+
+
+def test_a_broker_that_refuses_its_state_is_said(
+        fleet: Fleet, collectors: Collectors, sparkplug_pb: Any, tmp_path: Path) -> None:
+    """An ACL that lets the collector read its STATE topic and not write it: the
+    broker's PUBACK refuses the STATE online (MQTT 5, Not authorized), so boards
+    that wait for this primary host publish nothing; the collector says so, with
+    the host id, and still stores what the boards it can read send."""
+    acl = tmp_path / "acl"
+    acl.write_text(f"topic read spBv1.0/STATE/#\ntopic readwrite spBv1.0/{GROUP}/#\n")
+    # (mosquitto 2.0.11 drops a client after refusing its message when
+    # max_queued_messages is 0, as the fleet tests' brokers have it; its default is 1000)
+    broker = fleet.broker(extra=("max_queued_messages 1000", f"acl_file {acl}"))
+    out = fleet.tmp / "fleet.sqlite"
+    col = collectors.start(broker.url, str(out), "--profile", "sparkplug", "--group", GROUP,
+                           "--host-id", "scada", "--client-id", "state-refused")
+    nbirth = [(f"spBv1.0/{GROUP}/NBIRTH/n1", _pb(
+        sparkplug_pb, 0, {"name": "bdSeq", "datatype": INT64, "long_value": 0},
+        {"name": "t", "alias": 2, "datatype": DOUBLE, "double_value": 1.5, "timestamp": T}))]
+    # published until stored (once: the row's key), its stderr read only at the end
+    # (the refusal comes with the line that says it subscribed)
+    def stored() -> bool:
+        publish(broker.port, nbirth)
+        return sqlite_count(out) >= 1
+
+    wait_until(stored, "the NBIRTH's row", 30, every=0.5)
+    err = stop(col)
+    said = [line for line in err.splitlines() if "spBv1.0/STATE/scada" in line]
+    assert len(said) == 1, err
+    assert "refused" in said[0]
+    assert "Not authorized" in said[0]
+    assert "--mqtt-primary-host scada" in said[0]
