@@ -17,6 +17,7 @@ TLS under a line.
 from __future__ import annotations
 
 import os
+import sys
 from array import array
 from enum import IntEnum
 from typing import Any, TypeAlias
@@ -29,10 +30,12 @@ except ModuleNotFoundError as e:
     # A clone's source tree found before the installed pymb (``python -m
     # pymb`` run inside the clone after ``pip install .``): say so.
     _TREE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    raise ImportError(
-        f"pymb: {_TREE} is pymb's source tree, and its C extension is not built there: "
-        "run pymb from another folder, or install this clone editable "
-        "(pip install -e .)") from None
+    _WHY = (f"pymb: {_TREE} is pymb's source tree, and its C extension is not built there: "
+            "run pymb from another folder, or install this clone editable (pip install -e .)")
+    if getattr(sys, "argv", [])[:1] == ["-m"]:  # python -m pymb: the command's one line, exit 2
+        sys.stderr.write(_WHY + "\n")
+        raise SystemExit(2) from None
+    raise ImportError(_WHY) from None  # a program's import: for it to catch
 
 __all__ = [
     "BAUD_RATES",

@@ -4,7 +4,7 @@ docs/install.md's "From a clone" runs ``.venv/bin/pymb demo`` there, in a
 folder whose ``pymb/`` is the source tree without its built extension. The
 installed command must not pick that tree up, in itself or in the children it
 starts (the demo's simulators), and ``python -m pymb``, which Python points
-at the folder's ``pymb/`` first, says what happened in its last line.
+at the folder's ``pymb/`` first, says what happened in one line.
 
 A venv of its own stands for the installed copy: its site-packages holds this
 pymb (with the extension built) and cffi, and no editable-install finder,
@@ -74,10 +74,16 @@ def test_python_m_pymb_inside_the_clone_says_why(installed: tuple[Path, Path],
     python, _ = installed
     out = subprocess.run([str(python), "-m", "pymb", "--version"], cwd=clone,
                          capture_output=True, text=True, timeout=60)
-    assert out.returncode != 0
-    last = out.stderr.strip().splitlines()[-1]
-    assert f"{clone / 'pymb'} is pymb's source tree" in last, out.stderr
-    assert "pip install -e ." in last
+    assert out.returncode == 2, out.stderr
+    assert "Traceback" not in out.stderr, out.stderr
+    [line] = out.stderr.strip().splitlines()
+    assert f"{clone / 'pymb'} is pymb's source tree" in line, out.stderr
+    assert "pip install -e ." in line
+    # imported by a program of the user's, it stays an ImportError to catch
+    imported = subprocess.run([str(python), "-c", "import pymb"], cwd=clone,
+                              capture_output=True, text=True, timeout=60)
+    assert imported.returncode == 1
+    assert imported.stderr.strip().splitlines()[-1].startswith("ImportError: pymb: ")
     # outside the clone the same venv runs its pymb
     elsewhere = subprocess.run([str(python), "-m", "pymb", "--version"], cwd=clone.parent,
                                capture_output=True, text=True, timeout=60)
