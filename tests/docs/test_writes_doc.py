@@ -6,6 +6,7 @@ page shows under it."""
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import re
 import shlex
@@ -19,7 +20,7 @@ from pymb import maps
 from pymb.logger.config import config_from_toml
 from pymb.sim import SimulatorProcess
 
-INVERTER = claim_one("docs/writes.md", "toml", how="load", contains="acme-inverter").text
+INVERTER = claim_one("docs/writes.md", "toml", how="load", contains="id = \"acme-inverter\"").text
 CODE = claim_one("docs/writes.md", "python", how="run").text
 SHELL = claim_one("docs/writes.md", "sh", how="run", contains="pymb write")
 ALLOW = claim_one("docs/writes.md", "toml", how="load", contains="[writes]").text
@@ -71,7 +72,7 @@ def test_the_shell_example_runs_and_prints_what_it_shows(tmp_path: Path) -> None
 def test_the_allow_list_loads_as_a_logger_configuration(tmp_path: Path) -> None:
     bus = '[[bus]]\nname = "b"\ntcp = "127.0.0.1:5020"\n[[bus.device]]\ntype = "eastron-sdm120"\n'
     cfg = config_from_toml(tomllib.loads(ALLOW + bus), tmp_path / "log.toml")
-    assert cfg.allow_writes == ("psu-a/output_voltage_setpoint_v", "meter-3/*")
+    assert cfg.allow_writes == ("acme-inverter-1/power_limit_pct", "meter-3/*")
 
 
 def test_the_command_and_results_are_what_the_logger_takes_and_publishes() -> None:
@@ -82,3 +83,29 @@ def test_the_command_and_results_are_what_the_logger_takes_and_publishes() -> No
         doc = json.loads(line)
         assert set(doc) == ({"id", "ok", "values", "time"} if doc["ok"] else
                             {"id", "ok", "reason", "error", "values", "time"})
+
+
+def test_the_commands_write_the_inverter_of_the_page(tmp_path: Path) -> None:
+    """The allow list, the command and its results name the page's inverter
+    (logged under its default name, acme-inverter-1) and points it can write;
+    a refusal says what ``pymb write`` says of the same value."""
+    m = maps.loads(INVERTER, source="inverter.toml")
+    (tmp_path / "inverter.toml").write_text(INVERTER)
+    allow = tomllib.loads(ALLOW)["writes"]["allow"]
+    named: set[str] = set()
+    for block in COMMANDS[:2]:
+        for line in block.lines():
+            doc = json.loads(line)
+            named |= set(doc["values"])
+            if "error" in doc:
+                point, value = re.fullmatch(r"acme-inverter: point '(\w+)': (\S+) is outside .*",
+                                            doc["error"]).groups()  # type: ignore[union-attr]
+                named.add(point)
+                r = run_pymb("write", "--map", "inverter.toml", "acme-inverter:1",
+                             f"{point}={value}", "--dry-run", "--tcp", "127.0.0.1:1",
+                             cwd=tmp_path)
+                assert r.stderr == f"pymb write: {doc['error']}\n"
+    assert named
+    for point in named:
+        assert m.points[point].access in ("rw", "w"), point
+        assert any(fnmatch.fnmatch(f"acme-inverter-1/{point}", p) for p in allow), point
