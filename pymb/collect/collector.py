@@ -171,7 +171,8 @@ class Collector:
     def _on_connect(self, client: Client, userdata: object, flags: ConnectFlags,
                     rc: ReasonCode, props: Properties | None = None) -> None:
         if rc.is_failure:
-            self.refused = f"the broker refused the connection: {rc}"
+            self.refused = (f"the broker refused the connection: {rc}"
+                            f"{self.cfg.mqtt.credentials_words(rc.value)}")
             self.connack.set()
             return
         self.generation += 1

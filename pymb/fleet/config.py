@@ -44,6 +44,9 @@ PROFILES = ("plain", "sparkplug")
 #: not a device's samples (a device may not have one of these names)
 NODE_TOPICS = ("status", "set")
 PASSWORD_ENV = "PYMB_MQTT_PASSWORD"
+#: CONNACK reason codes of refused credentials: MQTT 5's bad user name or
+#: password and not authorized (paho gives MQTT 3.1.1's 4 and 5 as these too)
+_CREDENTIALS_REFUSED = frozenset({0x86, 0x87})
 #: TOML key -> type; the flag is ``--mqtt-KEY`` with ``_`` as ``-`` (``url`` is ``--mqtt``)
 KEYS: dict[str, type | tuple[type, ...]] = {
     "url": str, "profile": str, "node": str, "group": str, "prefix": str, "user": str,
@@ -157,6 +160,15 @@ class MqttConfig:
                 raise InvalidArgument(
                     f"cannot read {self.password_file}: {e.strerror}") from None
         return os.environ.get(PASSWORD_ENV) if self.user else None
+
+    def credentials_words(self, code: int) -> str:
+        """What to add to a broker's refusal of the connection (CONNACK reason
+        ``code``): a refusal of the credentials when a user was given without a
+        password (an unset $PYMB_MQTT_PASSWORD, say) says so; else ""."""
+        if code not in _CREDENTIALS_REFUSED or not self.user or self.password_file \
+                or os.environ.get(PASSWORD_ENV) is not None:
+            return ""
+        return f"; no password was given: --mqtt-password-file FILE or ${PASSWORD_ENV}"
 
     def secure(self, client: Client, password: str | None) -> None:
         """Give a paho client this configuration's user (with ``password``, from

@@ -133,7 +133,8 @@ class Session:
     def _on_connect(self, client: Any, userdata: Any, flags: Any, rc: Any,
                     props: Any = None) -> None:
         self.ok = not rc.is_failure
-        self.reason = None if self.ok else f"refused: {rc}"
+        self.reason = None if self.ok else \
+            f"refused: {rc}{self.fw.cfg.credentials_words(rc.value)}"
         if self.v5 and rc.value == 0x84:  # a broker of MQTT 3.1.1 only
             self.reason = (f"refused: {rc} (MQTT 5); a broker of MQTT 3.1.1 only needs "
                            "--mqtt-protocol 3.1.1")
