@@ -612,9 +612,17 @@ def test_sparkplug_historical_replay_after_an_outage(fleet: Fleet, simulator: st
         return ks.count("NBIRTH") >= 2 and "NDATA" in ks[ks.index("NBIRTH", 1):]
     wait_until(ndata_after_rebirth, "an NDATA after the second NBIRTH", 30)
     stop_log(proc)
+    wait_until(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", "the clean NDEATH", 30)
     msgs = _sp(pb, sub.snapshot())
     births = [i for i, (k, _) in enumerate(msgs) if k == "NBIRTH"]
     assert len(births) >= 2
+    # a new session after the broker's restart: a new bdSeq, which the clean end's
+    # NDEATH carries (counted per connection attempt, as Eclipse Tahu counts them:
+    # the attempts while the broker was away count too)
+    bd = [_metric(msgs[i][1], "bdSeq").long_value for i in births]
+    assert bd[1] != bd[0]
+    assert msgs[-1][0] == "NDEATH"
+    assert _metric(msgs[-1][1], "bdSeq").long_value == bd[-1]
     # after the reconnection: births first, then the backlog as history
     assert msgs[births[1] + 1][0] == "DBIRTH/coolpro-40"
     aliases = {m.alias: m.name for m in msgs[births[1] + 1][1].metrics}
