@@ -56,6 +56,10 @@ BAD_EVERY = 60.0  #: seconds: a topic's bad input is reported at most this often
 #: data) is dropped, as QoS 0 allows (the host sees the seq gap and asks for a
 #: rebirth); QoS 1 messages are bounded by RECEIVE_MAXIMUM
 MAX_INBOX = 50000
+#: seconds a Sparkplug collector that stops, its STATE offline published, keeps
+#: storing what the boards sent before they saw it: until each board it has a
+#: birth of said NDEATH, or nothing came for END_QUIET seconds, at most END_WAIT
+END_WAIT, END_QUIET = 5.0, 1.0
 RECONNECT_FIRST, RECONNECT_MAX = 1, 30  #: seconds: paho's reconnection backoff
 
 
@@ -139,6 +143,7 @@ class Collector:
         self.host: SparkplugHost | None = None
         self.born_ms = round(time.time() * 1000)
         self.closing = False  #: it stops: its own STATE offline is its own
+        self.said_offline = False  #: its STATE offline of a clean stop is published
         #: message ids of its STATE online in flight (paho's thread), to tell a refusal
         self.state_mids: set[int] = set()
         self.state_said: set[str] = set()  #: the broker's reasons for refusing it, said
@@ -371,6 +376,8 @@ class Collector:
                 self.step()
                 if tick is not None:
                     tick()
+            if self.host is not None:
+                self._end_sparkplug(tick)
             self.writers.drain()  # the batches in hand: committed, or given up
             self._finish()
         finally:
@@ -379,14 +386,42 @@ class Collector:
             self.close()
         return self.stats
 
+    def _end_sparkplug(self, tick: Callable[[], None] | None) -> None:
+        """A clean stop of a host application: its STATE offline first, so that the
+        boards that wait for it stop (NDEATH) and keep what they log; then what they
+        sent before that is stored (QoS 0: the broker would not send it again),
+        until each board with a birth said NDEATH or nothing came for END_QUIET s,
+        at most END_WAIT s."""
+        assert self.host is not None
+        self._offline()
+        nodes = self.host.nodes
+        end = time.monotonic() + END_WAIT
+        quiet = time.monotonic()
+        while time.monotonic() < end:
+            if not any(n.born for n in nodes.values()) and self.inbox.empty():
+                break
+            if self.step():
+                quiet = time.monotonic()
+            elif time.monotonic() - quiet >= END_QUIET:
+                break
+            if tick is not None:
+                tick()
+
+    def _offline(self) -> None:
+        """Publish its STATE offline (once, while connected) and wait for the PUBACK."""
+        self.closing = True
+        if self.host is None or self.said_offline or not self.stats.mqtt_ok:
+            return
+        self.said_offline = True
+        with contextlib.suppress(Exception):
+            info = self.client.publish(self.host.state_topic,
+                                       state_payload(False, self.born_ms), 1, True)
+            info.wait_for_publish(5)
+
     def close(self) -> None:
         """Disconnect cleanly (unacknowledged messages stay in the session)."""
         c = self.client
-        self.closing = True
+        self._offline()
         with contextlib.suppress(Exception):
-            if self.host is not None and self.stats.mqtt_ok:
-                info = c.publish(self.host.state_topic,
-                                 state_payload(False, self.born_ms), 1, True)
-                info.wait_for_publish(5)
             c.disconnect()
         c.loop_stop()

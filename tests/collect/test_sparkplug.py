@@ -267,6 +267,39 @@ def test_a_broker_restart_loses_nothing_with_the_collector_as_primary_host(
     assert "0 bad" in err
 
 
+def test_a_clean_stop_of_the_collector_loses_nothing_of_a_board_that_waits_for_it(
+        fleet: Fleet, collectors: Collectors) -> None:
+    """The collector stopped (SIGTERM) while a board that has it as primary host
+    publishes, then started again: every sample of the board is stored. The
+    collector says offline first, so that the board stops (NDEATH) and keeps what
+    it logs, and stores what the board sent before that (QoS 0: nothing the broker
+    handed it comes again), then ends; the board sends the rest as history once
+    the collector is back."""
+    broker = fleet.broker(extra=("queue_qos0_messages false",))
+    sim = fleet.simulator("coolpro")
+    out = fleet.tmp / "fleet.sqlite"
+    args = ("--profile", "sparkplug", "--group", GROUP, "--host-id", "scada",
+            "--client-id", "sp-stop")
+    col = collectors.start(broker.url, str(out), *args)
+    wait_subscribed(col)
+    log_db = fleet.tmp / "board.sqlite"
+    log = fleet.log(sim.endpoint, log_db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                    "--mqtt-group", GROUP, "--mqtt-node", "gw1", "--mqtt-primary-host", "scada")
+    wait_until(lambda: len(_stored_samples(out)) >= 200, "200 samples stored", 30)
+    stop(col)
+    stopped = db_count(log_db)
+    wait_until(lambda: db_count(log_db) >= stopped + 50, "50 samples logged meanwhile", 30)
+    col = collectors.start(broker.url, str(out), *args)
+    wait_subscribed(col)
+    wait_until(lambda: len(_stored_samples(out)) >= stopped + 50, "the samples of the pause "
+               "stored", 60)
+    stop_log(log)
+    wait_until(lambda: db_ids(log_db) <= _stored_samples(out), lambda:
+               f"every sample stored; {sorted(db_ids(log_db) - _stored_samples(out))[:10]} "
+               "are not", 30)
+    stop(col)
+
+
 def test_qos0_data_beyond_the_inbox_are_dropped_and_a_rebirth_asked(
         fleet: Fleet, postgres: Postgres, sparkplug_pb: Any,
         monkeypatch: pytest.MonkeyPatch) -> None:
