@@ -334,6 +334,9 @@ typedef struct {
 } pymbi_plan;
 int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure *fail);
 int pymbi_plan_go(pymbi_plan *plan);
+/* pymb_internal.h: the transaction id a TCP or UDP line's next request gets */
+uint16_t pymbi_line_tid(const pymb_line *line);
+void pymbi_line_set_tid(pymb_line *line, uint16_t tid);
 """
 
 

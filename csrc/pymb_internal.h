@@ -125,6 +125,13 @@ int pymbi_plan_run(pymb_line *line, pymbi_plan *plan, size_t start, pymb_failure
  * call of one argument (the extension's cheapest call). */
 int pymbi_plan_go(pymbi_plan *plan);
 
+/* TCP, UDP: the transaction id the line's next request gets (pymbi_line_tid),
+ * and that id set (pymbi_line_set_tid): a connection lent by another master
+ * (pymb log's polls) goes on with that master's ids, so that a late reply
+ * to one of its requests is not taken for the answer to one of the line's. */
+uint16_t pymbi_line_tid(const pymb_line *line);
+void pymbi_line_set_tid(pymb_line *line, uint16_t tid);
+
 /* pymb_line.c: clocks, waits and the quiet window. */
 uint64_t pymbi_now_us(void);
 uint64_t pymbi_timeout_us(modbus_t *ctx, int byte);

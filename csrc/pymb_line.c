@@ -171,6 +171,18 @@ void pymbi_modbus_close(pymb_line *line)
     modbus_close(line->ctx);
 }
 
+uint16_t pymbi_line_tid(const pymb_line *line)
+{
+    return line == NULL ? 0 : (uint16_t)(line->tid + 1u);
+}
+
+void pymbi_line_set_tid(pymb_line *line, uint16_t tid)
+{
+    if (line != NULL) {
+        line->tid = (uint16_t)(tid - 1u);
+    }
+}
+
 int pymb_line_header_length(const pymb_line *line)
 {
     if (line == NULL) {

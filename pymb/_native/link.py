@@ -243,6 +243,16 @@ class Link:
         if self.is_open:
             lib.pymb_line_set_char_ns(self._line, self._char_ns if self._reject_early else 0)
 
+    @property
+    def next_tid(self) -> int | None:
+        """TCP, UDP: the transaction id the next request gets (None when closed)."""
+        return int(lib.pymbi_line_tid(self._line)) if self.is_open else None
+
+    @next_tid.setter
+    def next_tid(self, tid: int | None) -> None:
+        if self.is_open and tid is not None:
+            lib.pymbi_line_set_tid(self._line, tid & 0xFFFF)
+
     def set_retries(self, retries: int) -> None:
         """How many times an unanswered request is sent again (UDP)."""
         self._retries = retries

@@ -163,6 +163,18 @@ class Master:
         lib.pymbi_master_forget(self._m)
 
     @property
+    def next_tid(self) -> int:
+        """The transaction id the next request gets; set only while nothing
+        is in flight (another master used the stream meanwhile: its ids)."""
+        return int(self._m.next_tid)
+
+    @next_tid.setter
+    def next_tid(self, tid: int) -> None:
+        if self._m.in_flight:
+            raise ValueError("the next transaction id is set only with nothing in flight")
+        self._m.next_tid = tid & 0xFFFF
+
+    @property
     def in_flight(self) -> int:
         """Requests waiting for their reply."""
         return self._m.in_flight  # type: ignore[no-any-return]

@@ -175,11 +175,14 @@ class TcpClient(Client):
         super().__init__(new_tcp(host, port, tls=session), slave=slave, timeout=timeout,
                          byte_timeout=byte_timeout)
 
-    def attach(self, fd: int) -> None:
+    def attach(self, fd: int, *, tid: int | None = None) -> None:
         """Connect over a connected socket of the caller's instead of a new
         connection (a poll connection lent between polls): the client takes a
         duplicate of ``fd`` and closes only that; a lost connection is not
-        opened again by the client. Raises :class:`~pymb.ModbusConnectionError`."""
+        opened again by the client. ``tid``: the transaction id of its first
+        request (the lender's next one, so that a late reply to one of the
+        lender's requests is no answer to the client's). Raises
+        :class:`~pymb.ModbusConnectionError`."""
         if self.tls is not None:
             raise InvalidArgument("attach() takes a plain Modbus TCP connection")
         with self._lock:
@@ -193,6 +196,15 @@ class TcpClient(Client):
                     os.close(self._link.adopt)
                     self._link.adopt = None
             self._wanted = True
+            if tid is not None:
+                self._link.next_tid = tid
+
+    @property
+    def next_tid(self) -> int | None:
+        """The transaction id of the client's next request on its open
+        connection (None while it is closed)."""
+        with self._lock:
+            return self._link.next_tid
 
 
 class RtuOverTcpClient(Client):

@@ -59,10 +59,10 @@ def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
 
     def device() -> MapDevice:
         # the poll under way on the connection ends first: up to twice the timeout
-        fd = loop.lender.borrow(c, 2 * u.timeout + 0.5)
+        loan = loop.lender.borrow(c, 2 * u.timeout + 0.5)
         held.set()
         try:
-            client.attach(fd)
+            client.attach(loan.fd, tid=loan.tid)
         except BaseException:
             release()
             raise
@@ -73,7 +73,8 @@ def _looped(loop: TcpMapPoller, c: Conn, u: Unit, budget: Budget) -> Target:
     def release() -> None:
         if held.is_set():
             held.clear()
+            tid = client.next_tid  # (the polls go on after the command's ids)
             client.close()
-            loop.lender.give_back(c)
+            loop.lender.give_back(c, tid)
 
     return Target(u.info.name, u.config.map, device, lambda: u.health.offline, release)

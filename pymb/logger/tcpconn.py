@@ -32,6 +32,9 @@ class Loan:
         self.back = threading.Event()
         self.cancelled = False  #: the borrower stopped waiting before it was given
         self.fd = -1
+        #: given: the transaction id of the borrower's first request (the polls'
+        #: next one); given back: the one after its last (the polls go on from it)
+        self.tid = 0
 
 
 @dataclass(eq=False)

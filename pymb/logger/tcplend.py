@@ -64,9 +64,10 @@ class Lender:
 
     # -- the borrower's side (any thread) ---------------------------------------------
 
-    def borrow(self, c: Conn, timeout: float) -> int:
-        """Wait until the loop lends ``c`` (no poll under way on it); its
-        socket's descriptor. Raises :class:`~pymb.ModbusTimeout` when it is
+    def borrow(self, c: Conn, timeout: float) -> Loan:
+        """Wait until the loop lends ``c`` (no poll under way on it); the
+        loan (its socket's descriptor, the transaction id its first request
+        takes). Raises :class:`~pymb.ModbusTimeout` when it is
         not lent within ``timeout`` seconds, :class:`~pymb.ModbusConnectionError`
         while it is not open."""
         deadline = time.monotonic() + timeout
@@ -82,19 +83,23 @@ class Lender:
         c.loan = loan
         self._wake()
         if loan.given.wait(max(0.0, deadline - time.monotonic())):
-            return loan.fd
+            return loan
         with self._loan_lock:
             if not loan.given.is_set():
                 loan.cancelled = True
                 self._wake()
                 raise ModbusTimeout(f"{c.bus.endpoint}: the poll connection was not free "
                                     f"within {timeout:g} s", port=c.bus.endpoint)
-        return loan.fd
+        return loan
 
-    def give_back(self, c: Conn) -> None:
-        """The borrower is done with ``c``: the loop's polls go on."""
+    def give_back(self, c: Conn, tid: int | None = None) -> None:
+        """The borrower is done with ``c``: the loop's polls go on, from
+        transaction id ``tid`` (the one after the borrower's last; None: as
+        they were)."""
         loan = c.loan
         if loan is not None:
+            if tid is not None:
+                loan.tid = tid
             loan.back.set()
             self._wake()
 
@@ -107,6 +112,8 @@ class Lender:
         assert loan is not None
         if loan.back.is_set() or loan.cancelled:  # taken back
             c.loan = None
+            if loan.given.is_set() and not c.busy:  # (no late borrower's reply is a poll's)
+                c.m.next_tid = loan.tid
             if loan.given.is_set() and c.sock is not None and c.state == "open":
                 with contextlib.suppress(KeyError, ValueError, OSError):
                     self._sel.register(c.sock, READ, c)
@@ -130,5 +137,6 @@ class Lender:
                 except OSError:
                     break
             loan.fd = sock.fileno()
+            loan.tid = c.m.next_tid  # (a poll given up on: its late reply is no answer)
             loan.given.set()
         return True

@@ -10,6 +10,8 @@ import socket
 import struct
 
 import pytest
+from peerkit import Reply
+from wire_peers import RawTcp, answer_read
 from write_peers import FreezingTcpPeer
 
 import pymb
@@ -41,3 +43,25 @@ def test_attach_uses_the_callers_connection_and_leaves_it_open() -> None:
             assert peer.functions() == [3, 6, 3]
         finally:
             sock.close()
+
+
+def test_attach_takes_the_callers_next_transaction_id() -> None:
+    # docs/library.md: attach(fd, tid=N) gives the first request id N, and
+    # next_tid says the next one (the ids go on past 0xFFFF to 0).
+    seen: list[int] = []
+
+    def script(i: int, adu: bytes) -> Reply:
+        seen.append(int.from_bytes(adu[:2], "big"))
+        return [(0, answer_read(adu, [i]))]
+
+    with RawTcp(script) as peer, socket.create_connection(("127.0.0.1", peer.port),
+                                                          timeout=5) as sock:
+        client = pymb.TcpClient("127.0.0.1", peer.port, timeout=2.0)
+        assert client.next_tid is None
+        client.attach(sock.fileno(), tid=0xFFFE)
+        assert client.next_tid == 0xFFFE
+        assert [client.read_holding_registers(0, 1, slave=1)[0] for _ in range(3)] == [0, 1, 2]
+        assert seen == [0xFFFE, 0xFFFF, 0]
+        assert client.next_tid == 1
+        client.close()
+        assert client.next_tid is None

@@ -7,9 +7,14 @@ from __future__ import annotations
 
 import contextlib
 import queue
+import socket
+import struct
 import threading
 import time
 from pathlib import Path
+
+from hostile_gateway import Hostile, Request
+from peerkit import mbap, registers
 
 from pymb.devices.deviceconfig import parse_device
 from pymb.devices.mapwrite import WriteBudget
@@ -115,3 +120,73 @@ def test_a_write_reaches_a_device_polled_flat_out_between_two_polls(tmp_path: Pa
             stop.set()
             loop.join(10)
     assert not loop.is_alive()
+
+
+LATE_MAP = '''schema = "pymb.map/1"
+[device]
+id = "wr"
+table = "holding"
+[[point]]
+name = "a"
+address = 0
+type = "u16"
+[[point]]
+name = "setpoint"
+address = 1
+type = "u16"
+access = "rw"
+'''
+
+
+def test_a_late_poll_reply_is_not_a_write_commands_answer(tmp_path: Path) -> None:
+    """A gateway answers the first poll of a connection after its 0.2 s
+    timeout (registers 11), every request after it at once (registers 22).
+    A write command borrows the connection as soon as the poll timed out:
+    its read is answered by its own reply, not by the poll's late one; the
+    polls and the command's requests never share a transaction id on the
+    connection (a late reply would be taken for the other's answer)."""
+    tids: list[int] = []
+
+    def script(n: int, req: Request, conn: socket.socket) -> bytes:
+        tid, unit, fc, address, count = req
+        tids.append(tid)
+        if n == 1:
+            time.sleep(0.35)
+            return mbap(tid, unit, bytes((fc,)) + registers([11] * count))
+        if fc == 6:
+            return mbap(tid, unit, struct.pack(">BHH", 6, address, count))
+        return mbap(tid, unit, bytes((fc,)) + registers([22] * count))
+
+    gw = Hostile(script)
+    (tmp_path / "wr.toml").write_text(LATE_MAP)
+    (tmp_path / "log.toml").write_text(
+        f'maps = ["wr.toml"]\n[[bus]]\ntcp = "127.0.0.1:{gw.port}"\ninterval = 0.3\n'
+        'timeout = 0.2\n[[bus.device]]\ntype = "wr"\naddress = 1\n')
+    out: queue.Queue[list[Sample | Event | PollBlock]] = queue.Queue()
+    stop = threading.Event()
+    loop = TcpMapPoller(list(load_config(tmp_path / "log.toml").buses), out, stop, Stats())
+    loop.start()
+    try:
+        events: list[Event] = []
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and "timeout" not in {e.kind for e in events}:
+            with contextlib.suppress(queue.Empty):
+                events += [i for i in out.get(timeout=0.05) if isinstance(i, Event)]
+        assert "timeout" in {e.kind for e in events}, events
+        target = next(iter(write_targets([loop], WriteBudget()).values()))
+        for _ in range(4):  # polls go on between the loans
+            dev = target.device()
+            assert dev is not None
+            try:
+                assert dev.read() == {"a": 22, "setpoint": 22}
+            finally:
+                target.release()
+            time.sleep(0.4)
+    finally:
+        stop.set()
+        loop.join(10)
+        gw.close()
+    assert not loop.is_alive()
+    assert len(gw.accepted) == 1
+    assert len(tids) >= 8, tids  # 4 reads, and the polls between them
+    assert len(set(tids)) == len(tids), tids
