@@ -66,8 +66,10 @@ def check_output(fmt: str, path: str, *, choosable: bool = True) -> None:
             raise InvalidArgument(f"{path} exists and is not a SQLite database: refusing to "
                                   "write into it; choose another --out")
         if not is_pymb_database(path):
-            raise InvalidArgument(f"{path} is a SQLite database not written by pymb: refusing "
-                                  "to add to it; choose another --out")
+            what = ("what pymb collect writes, not pymb log" if "pymb_values" in
+                    (sqlite_tables(path) or ()) else "a SQLite database not written by pymb")
+            raise InvalidArgument(f"{path} is {what}: refusing to add to it; "
+                                  "choose another --out")
         return
     if fmt == "csv" and not sqlite and first.decode("utf-8", "replace") == ",".join(CSV_COLUMNS):
         return

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from clikit import Pty
+from clikit import Pty, digest
 from conftest import PYMB_ENV, ROOT, run_pymb
 
 import pymb
@@ -338,3 +338,19 @@ def test_an_ipv6_endpoint_is_named_as_it_is_written(transport: str, said: str) -
     assert r.returncode == 4, r.stderr
     assert said in r.stderr, r.stderr
     assert "::1:1" not in r.stderr.replace("[::1]:1", "")
+
+
+@pytest.mark.parametrize("command", [["log", "coolpro", "--tcp", "127.0.0.1:1"],
+                                     ["demo", "--seconds", "1"]])
+def test_logging_into_a_collector_database_names_it(tmp_path: Path, command: list[str]) -> None:
+    """A database ``pymb collect`` made is refused as what it is, as info and
+    export say, not as one pymb did not write; it is left as it was."""
+    db = tmp_path / "fleet.sqlite"
+    made = run_pymb("collect", "--mqtt", "mqtt://127.0.0.1:1", "--out", str(db))
+    assert made.returncode == 4, made.stderr  # no broker: the database is made first
+    before = digest(db)
+    r = run_pymb(*command, "--out", str(db))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr == (f"pymb {command[0]}: {db} is what pymb collect writes, not pymb log: "
+                        "refusing to add to it; choose another --out\n")
+    assert digest(db) == before
