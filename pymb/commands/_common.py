@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import stat
 import sys
 import threading
 from collections.abc import Callable
@@ -43,6 +45,7 @@ __all__ = [
     "device_help",
     "interruptible",
     "make_client",
+    "never_a_line",
     "parse_channels",
     "parse_numbers",
     "render",
@@ -294,6 +297,19 @@ def tls_from_args(args: argparse.Namespace) -> TlsConfig | None:
             if text.startswith(f"tls {field} "):
                 text = "--" + field.replace("_", "-") + text[len(f"tls {field}"):]
         raise InvalidArgument(text) from None
+
+
+def never_a_line(path: str) -> str | None:
+    """What a serial port path is when it exists and can never open as a line
+    (``"a directory"``, ``"a regular file"``): a mistake to say at the start;
+    None for a device, or for a path that does not exist yet (an adapter to be
+    plugged in, which the logger and the server open when it comes)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    return "a directory" if stat.S_ISDIR(mode) else "a regular file" if stat.S_ISREG(
+        mode) else None
 
 
 def make_client(args: argparse.Namespace, *, resolve: bool = True) -> Client:

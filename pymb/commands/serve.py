@@ -12,7 +12,7 @@ import sys
 
 from pymb.client import TcpClient
 from pymb.client.address import parse_host_port
-from pymb.commands._common import add_connection_args, make_client
+from pymb.commands._common import add_connection_args, make_client, never_a_line
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.serve import Server, UnitMap, Upstream
 from pymb.serve.pipeline import DEFAULT_MAX_INFLIGHT, PipelinedUpstream
@@ -105,6 +105,9 @@ def run(args: argparse.Namespace) -> int:
     if args.max_inflight is not None and not 1 <= args.max_inflight <= MAX_INFLIGHT:
         raise InvalidArgument(f"--max-inflight must be 1..{MAX_INFLIGHT}, "
                               f"got {args.max_inflight}")
+    what = never_a_line(args.port) if args.port else None
+    if what is not None:
+        raise InvalidArgument(f"--port {args.port} is {what}, not a serial port")
     try:
         line = make_client(args)
     except InvalidArgument as e:  # the client's options are --upstream-* here
