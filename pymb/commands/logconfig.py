@@ -14,6 +14,7 @@ from pymb.client import TlsConfig
 from pymb.commands._common import (
     alias_spec,
     ascii_line,
+    never_a_line,
     serial_options,
     tls_for,
     tls_from_args,
@@ -138,6 +139,12 @@ def config_from(args: argparse.Namespace) -> tuple[LogConfig, MqttConfig | None]
                                 ascii=on_ascii,
                                 tls=tls_for(args, args.tcp))
         cfg.path = ""
+    for b in cfg.buses:  # a path that can never open: a mistake, not an adapter to wait for
+        what = never_a_line(b.port) if b.port else None
+        if what is not None:
+            raise InvalidArgument(f"{args.config}: bus {b.name!r}: port {b.port} is {what}, "
+                                  "not a serial port" if args.config else
+                                  f"--port {b.port} is {what}, not a serial port")
     if args.format:
         cfg.format = args.format
     if args.out:

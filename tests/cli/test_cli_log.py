@@ -290,6 +290,31 @@ def test_a_bad_line_setting_creates_nothing(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("kind", ["dir", "file"])
+@pytest.mark.parametrize("toml", [False, True])
+def test_a_port_that_can_never_open_is_refused_before_anything(tmp_path: Path, kind: str,
+                                                               toml: bool) -> None:
+    """A --port (or a bus's port) that is a directory or a regular file is a
+    mistake, not an adapter yet to be plugged in: one line, exit 2, no database."""
+    port = tmp_path / "port"
+    if kind == "dir":
+        port.mkdir()
+    else:
+        port.write_text("not a tty\n")
+    what = "a directory" if kind == "dir" else "a regular file"
+    if toml:
+        (tmp_path / "c.toml").write_text(TOML_BUS.replace("/dev/ttyUSB0", str(port)))
+        argv = ["--config", "c.toml"]
+        said = f"pymb log: c.toml: bus 'line1': port {port} is {what}, not a serial port\n"
+    else:
+        argv = ["coolpro", "--port", str(port)]
+        said = f"pymb log: --port {port} is {what}, not a serial port\n"
+    r = run_pymb("log", *argv, "--out", "x.sqlite", "--seconds", "1", cwd=tmp_path)
+    no_traceback(r)
+    assert (r.returncode, r.stderr) == (2, said)
+    assert not (tmp_path / "x.sqlite").exists()
+
+
 def test_interval_must_be_finite_on_the_command_line(tmp_path: Path) -> None:
     for bad in ("nan", "inf"):
         r = run_pymb("log", "coolpro", "--port", "/dev/ttyUSB0", "--interval", bad,
