@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import sqlite3
 import sys
 import time
 from collections.abc import Callable
@@ -17,7 +19,7 @@ from pymb.logger import LogConfig, Logger, RunSummary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
 from pymb.service.journal import EventLines, wanted
-from pymb.store import SqliteSink, check_output
+from pymb.store import Event, SqliteSink, check_output
 from pymb.store.commands import CommandLog
 
 if TYPE_CHECKING:
@@ -94,9 +96,33 @@ def forwarding(cfg: LogConfig, mqtt: MqttConfig, *, seconds: float | None,
             fw.notify()
             fw.stop()
             fw.join(mqtt.drain + 10)
+            _late_events(cfg.path, fw.take_events(), echo)
     if fw.error is not None:
         raise fw.error
     return s, fw.status()
+
+
+def _late_events(path: str, events: list[tuple[float, str]],
+                 echo: Callable[[Event], None] | None) -> None:
+    """The forwarder's events of its drain and goodbye, which come after the
+    logger's database is closed: into its event log all the same (kind
+    ``mqtt``), and lines on stderr as the others are (``echo``)."""
+    if not events:
+        return
+    rows = [Event(t, time.monotonic(), "mqtt", None, "mqtt", None, m) for t, m in events]
+    with contextlib.suppress(sqlite3.Error):
+        con = sqlite3.connect(path, timeout=10)
+        try:
+            with con:
+                con.executemany(
+                    "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, "
+                    "message) VALUES (?, ?, ?, NULL, ?, NULL, ?)",
+                    [(e.time_utc, e.monotonic, e.bus, e.kind, e.message) for e in rows])
+        finally:
+            con.close()
+    if echo is not None:
+        for e in rows:
+            echo(e)
 
 
 def command_desk(cfg: LogConfig, logger: Logger, out: ForwardingSink, fw: Forwarder,

@@ -436,6 +436,12 @@ class Forwarder(threading.Thread, CommandTopics):
             info = s.client.publish(m.topic, m.payload, m.qos, m.retain)
             with contextlib.suppress(Exception):
                 info.wait_for_publish(2.0)
+            refused = next((r for mid, r in list(s.acks) if mid == info.mid and r), None)
+            if refused is not None:  # MQTT 5: an ACL that denies the topic, say
+                self._say(f"the broker refused the goodbye on {m.topic} ({refused}); the "
+                          "will registered at each connection is that message, so it is "
+                          "likely dropped too: subscribers do not see this node go "
+                          "offline, even when it crashes; check the broker's ACL")
 
     def _node(self) -> dict[str, int]:
         """The node's own metrics (Sparkplug NDATA): the backlog."""

@@ -70,7 +70,7 @@ def test_acl_refusal_keeps_the_samples_and_sends_them_once_allowed(
     kept = db_ids(db)
     # a second run: still refused at first, then the ACL is fixed and read again
     proc = fleet.log(simulator, db, *flags)
-    wait_until(lambda: len(_events(db, "refused")) >= 2, "the second run's refusal", 60)
+    wait_until(lambda: len(_events(db, "refused sample")) >= 2, "the second run's refusal", 60)
     acl.write_text("topic readwrite pymb/#\n")
     broker.reload()
     wait_until(lambda: kept <= set(plain_ids(sub.snapshot())),
@@ -114,6 +114,30 @@ def test_mqtt_311_cannot_tell_a_refusal(fleet: Fleet, simulator: str, tmp_path: 
     err = stop_log(proc)
     assert plain_ids(sub.snapshot()) == []
     assert "refused" not in err
+
+
+def test_a_refused_ndeath_says_the_will_is_refused_too(fleet: Fleet, simulator: str,
+                                                       tmp_path: Path) -> None:
+    """An ACL that lets a Sparkplug node publish everything but its NDEATH: the broker
+    takes the CONNECT and drops its will without a word; the NDEATH of the clean
+    end, at QoS 1, is refused in its PUBACK (MQTT 5), and the node says what that
+    means: host applications never see it go offline, a crash included."""
+    acl = tmp_path / "acl"
+    acl.write_text("".join(f"topic readwrite spBv1.0/plant/{kind}/#\n" for kind in
+                           ("NBIRTH", "DBIRTH", "NDATA", "DDATA", "DDEATH", "NCMD")))
+    broker = fleet.broker(extra=(QUEUE, f"acl_file {acl}"))
+    db = tmp_path / "log.sqlite"
+    proc = fleet.log(simulator, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
+                     "--mqtt-group", "plant", "--mqtt-node", NODE)
+    wait_until(lambda: db_count(db) > 100 and _cursor(db) > 50, "samples acknowledged", 60)
+    err = stop_log(proc)
+    said = [line for line in err.splitlines() if "NDEATH" in line]
+    assert len(said) == 1, err
+    assert f"spBv1.0/plant/NDEATH/{NODE}" in said[0]
+    assert "Not authorized" in said[0]
+    assert "will" in said[0]
+    # in the event log too, though the logger's database was closed by then
+    assert _events(db, "NDEATH") == [said[0].split("mqtt: ", 1)[1]]
 
 
 def test_protocol_option_is_checked(tmp_path: Path) -> None:
