@@ -32,7 +32,7 @@ from pymb.sim import SimulatorProcess
 
 paho = pytest.importorskip("paho.mqtt.client")
 
-INVERTER = claim_one("docs/writes.md", "toml", how="load", contains="acme-inverter").text
+INVERTER = claim_one("docs/writes.md", "toml", how="load", contains='id = "acme-inverter"').text
 SHELL = claim_one("docs/writes.md", "sh", how="run", contains="--mqtt-profile sparkplug").text
 RECORD = claim_one("docs/writes.md", "csv", how="compare", contains="sparkplug").text
 
