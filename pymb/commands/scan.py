@@ -55,8 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--range", default="1-255", metavar="A-B[,C...]",
                    help="addresses to try (default 1-255: the hub uses up to 255)")
     p.add_argument("--confirm-timeout", type=float, metavar="S",
-                   help="seconds to wait for a device being confirmed (default: the hub's "
-                        "documented 0.5 s plus the reply's wire time)")
+                   help="seconds to wait for a device being confirmed, at most 60 (default: "
+                        "the hub's documented 0.5 s plus the reply's wire time, or --timeout "
+                        "if longer)")
     p.add_argument("--json", action="store_true", help="print JSON")
     add_map_arg(p)
 
@@ -91,6 +92,8 @@ def line_asker(line: LineListener, timeout: float) -> Callable[[int, int, bytes]
 
 #: [HUB] 2.1: the hub answers within 500 ms (the slowest device pymb knows)
 _HUB_ANSWER_S = 0.5
+_CONFIRM_MAX_S = 60.0  #: the longest a device being confirmed is waited for
+
 
 def _probe() -> tuple[int, bytes]:
     fc, first, count = IDENTITY_REQUEST
@@ -169,9 +172,11 @@ def run(args: argparse.Namespace) -> int:
     confirm_timeout = args.confirm_timeout
     if confirm_timeout is None:
         baud = getattr(client, "baudrate", 9600)
-        confirm_timeout = max(args.timeout, _HUB_ANSWER_S + 0.15 + 60 * 11 / baud)
-    if not 0 < confirm_timeout <= 60:
-        raise InvalidArgument(f"--confirm-timeout must be more than 0 s, got {confirm_timeout}")
+        confirm_timeout = min(_CONFIRM_MAX_S,
+                              max(args.timeout, _HUB_ANSWER_S + 0.15 + 60 * 11 / baud))
+    if not 0 < confirm_timeout <= _CONFIRM_MAX_S:
+        raise InvalidArgument(f"--confirm-timeout must be more than 0 and at most "
+                              f"{_CONFIRM_MAX_S:g} s, got {confirm_timeout:g}")
     # A SimpleQueue (C, reentrant): the main thread waits in no Python-level
     # lock code, and Ctrl-C comes as an event (see _ctrl_c_as_event).
     events: queue.SimpleQueue[tuple[str, object]] = queue.SimpleQueue()

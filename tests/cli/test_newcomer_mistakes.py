@@ -17,7 +17,7 @@ from conftest import PYMB_ENV, ROOT, run_pymb
 
 import pymb
 from pymb.devices import CoolPro
-from pymb.sim import Simulator
+from pymb.sim import Simulator, SimulatorProcess
 
 
 @pytest.mark.parametrize(("argv", "said"), [
@@ -354,3 +354,17 @@ def test_logging_into_a_collector_database_names_it(tmp_path: Path, command: lis
     assert r.stderr == (f"pymb {command[0]}: {db} is what pymb collect writes, not pymb log: "
                         "refusing to add to it; choose another --out\n")
     assert digest(db) == before
+
+
+def test_scan_with_a_long_timeout_and_the_confirmation_bound() -> None:
+    """``pymb scan --timeout 61`` (a slow gateway) scans: the confirmation's
+    default follows --timeout up to its own bound, never refusing an option that
+    was not given; a --confirm-timeout past that bound is named with it."""
+    with SimulatorProcess(["hub:2", "--tcp", "127.0.0.1:0"], quiet=True) as sim:
+        r = run_pymb("scan", "--tcp", sim.endpoint, "--range", "2", "--timeout", "61",
+                     "--json")
+        assert r.returncode == 0, r.stderr
+        assert [d["address"] for d in json.loads(r.stdout)["found"]] == [2]
+        r = run_pymb("scan", "--tcp", sim.endpoint, "--range", "2", "--confirm-timeout", "61")
+        assert (r.returncode, r.stderr) == (
+            2, "pymb scan: --confirm-timeout must be more than 0 and at most 60 s, got 61\n")
