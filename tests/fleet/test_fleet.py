@@ -590,6 +590,32 @@ def test_sparkplug_births_seq_rebirth_and_ndeath_on_sigkill(fleet: Fleet, simula
                   lambda m: _sample_ids(pb, m), killed=killed_top)
 
 
+def test_sparkplug_bdseq_wraps_from_255_to_0(fleet: Fleet, simulator: str, sparkplug_pb: Any,
+                                           tmp_path: Path) -> None:
+    """bdSeq counts 0..255 across runs (kept in the file): after 255 comes 0, in the
+    NBIRTH and in the NDEATH of the session."""
+    pb = sparkplug_pb
+    broker = fleet.broker()
+    sub = fleet.subscribe(broker, f"spBv1.0/{GROUP}/+/{NODE}/#")
+    db = tmp_path / "log.sqlite"
+    proc = fleet.log(simulator, db, *_sparkplug(broker), seconds=1)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    con = sqlite3.connect(db)
+    with con:
+        assert con.execute("UPDATE fleet_state SET value = 255").rowcount == 1
+    con.close()
+    n = len(sub.snapshot())
+    proc = fleet.log(simulator, db, *_sparkplug(broker), seconds=1)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    wait_until(lambda: sub.snapshot()[-1][0].split("/")[2] == "NDEATH", "the clean NDEATH", 30)
+    run = _sp(pb, sub.snapshot()[n:])
+    assert run[0][0] == "NBIRTH"
+    assert run[-1][0] == "NDEATH"
+    assert [_metric(p, "bdSeq").long_value for _, p in (run[0], run[-1])] == [0, 0]
+
+
 def test_sparkplug_historical_replay_after_an_outage(fleet: Fleet, simulator: str,
                                                      sparkplug_pb: Any, tmp_path: Path) -> None:
     pb = sparkplug_pb
