@@ -24,7 +24,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pymb.errors import InvalidArgument
+from pymb.errors import InvalidArgument, OutputError
 from pymb.store.damage import SQLITE_HEADER, looks_like_pymb
 from pymb.store.files import create
 from pymb.store.pages import Column, fits, leaf_rows
@@ -362,8 +362,13 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
             if not {"meta", "samples"} <= tables and not looks_like_pymb(copy):
                 raise InvalidArgument(f"{damaged} is not a pymb database")
             made = new_path.with_name(f".{new_path.name}.salvage")
-            with contextlib.suppress(FileNotFoundError):
+            try:  # NEW's folder takes a file (not read-only, not another user's)
+                with contextlib.suppress(FileNotFoundError):
+                    made.unlink()
+                os.close(os.open(made, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
                 made.unlink()
+            except OSError as e:
+                raise InvalidArgument(f"cannot write {new}: {e.strerror}") from None
             try:  # the file in the making goes, whatever stops it (Ctrl-C too)
                 create(made)
                 dst = sqlite3.connect(made, isolation_level=None)
@@ -395,15 +400,26 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
                 except FileExistsError:
                     raise InvalidArgument(f"{new} appeared meanwhile: salvage writes a new "
                                           "file; choose another name") from None
+            except sqlite3.OperationalError as e:
+                if str(e) not in _WRITE_FAILED:  # (a read of DAMAGED: not this)
+                    raise
+                raise OutputError(f"cannot write {new}: {e}; nothing was written") from None
+            except OSError as e:
+                raise OutputError(f"cannot write {new}: {e.strerror}; nothing was "
+                                  "written") from None
             finally:
                 for side in ("", "-journal", "-wal", "-shm"):
-                    Path(f"{made}{side}").unlink(missing_ok=True)
+                    with contextlib.suppress(OSError):
+                        Path(f"{made}{side}").unlink(missing_ok=True)
         finally:
             src.close()
     return result
 
 
 #: the order rows are copied in (those referred to first)
+#: SQLite's words for a write that failed (the new file's disk, not the damaged file)
+_WRITE_FAILED = frozenset({"database or disk is full", "unable to open database file",
+                           "attempt to write a readonly database"})
 _ORDER = ("meta", "states", "maps", "devices", "channels", "samples", "hub_changes", "events",
           "outbox")
 _WITH_IDS = {"devices", "samples", "events"}

@@ -1,0 +1,46 @@
+"""``pymb salvage DAMAGED NEW`` where NEW cannot be written (a read-only file
+system, a full disk): one line, no traceback, nothing left behind, DAMAGED
+untouched."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from clikit import digest, no_traceback
+from conftest import run_pymb
+from disks import Tmpfs, need_root
+
+
+def _salvage(db: Path, new: Path) -> subprocess.CompletedProcess[str]:
+    r = run_pymb("salvage", str(db), str(new))
+    no_traceback(r)
+    assert len(r.stderr.splitlines()) == 1, r.stderr
+    return r
+
+
+def test_a_read_only_folder(logged: Path, tmp_path: Path) -> None:
+    need_root()
+    before = digest(logged)
+    with Tmpfs(tmp_path / "ro", 1024) as ro:
+        subprocess.run(["mount", "-o", "remount,ro", str(ro.mountpoint)], check=True,
+                       timeout=60)
+        r = _salvage(logged, ro.mountpoint / "new.sqlite")
+        assert r.returncode == 2, r.stderr
+        assert r.stderr == (f"pymb salvage: cannot write {ro.mountpoint / 'new.sqlite'}: "
+                            "Read-only file system\n")
+        assert list(ro.mountpoint.iterdir()) == []
+    assert digest(logged) == before
+
+
+def test_a_full_disk(logged: Path, tmp_path: Path) -> None:
+    need_root()
+    before = digest(logged)
+    with Tmpfs(tmp_path / "card", 256) as card:
+        filler = card.fill(leave=16 * 1024)
+        r = _salvage(logged, card.mountpoint / "new.sqlite")
+        assert r.returncode == 5, r.stderr
+        assert r.stderr.startswith(f"pymb salvage: cannot write {card.mountpoint / 'new.sqlite'}"
+                                   ": database or disk is full"), r.stderr
+        assert list(card.mountpoint.iterdir()) == [filler]
+    assert digest(logged) == before
