@@ -126,6 +126,9 @@ class SqliteStore(Store):
 
     def __init__(self, path: str) -> None:
         self.target = path
+        if path == "-":  # stdout, as the text formats of pymb log take it: no file named '-'
+            raise InvalidArgument("--out - : the collector stores into a database, not stdout; "
+                                  "give a SQLite file or a postgresql:// URL")
         if os.path.isdir(path):
             raise InvalidArgument(f"{path} is a directory; --out needs a SQLite file or "
                                   "a postgresql:// URL")

@@ -57,6 +57,10 @@ def test_usage_errors_exit_2(tmp_path: Path) -> None:
     r = run_pymb("collect", "--out", out)
     assert r.returncode == 2
     assert "--mqtt" in r.stderr
+    # stdout is no database: no SQLite file named '-' is made in the current folder
+    _one_line(run_pymb("collect", "--mqtt", "mqtt://127.0.0.1:1", "--out", "-", cwd=tmp_path),
+              2, "--out - : the collector stores into a database, not stdout")
+    assert not (tmp_path / "-").exists()
 
 
 def test_nothing_to_reach_at_the_start_exits_4(tmp_path: Path, postgres: Postgres) -> None:
