@@ -332,6 +332,9 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
     """Copy every readable row of the pymb database ``damaged`` into the new
     database ``new`` (which must not exist); ``damaged`` is only read."""
     src_path, new_path = Path(damaged), Path(new)
+    if os.fspath(new) == "-":  # stdout for export --csv; no file named '-' here
+        raise InvalidArgument("NEW '-': salvage writes a new database file, not stdout; "
+                              "give its name")
     if not src_path.is_file():
         raise InvalidArgument(f"no such database: {damaged}")
     if new_path.exists() or os.path.lexists(new_path):

@@ -44,3 +44,14 @@ def test_a_full_disk(logged: Path, tmp_path: Path) -> None:
                                    ": database or disk is full"), r.stderr
         assert list(card.mountpoint.iterdir()) == [filler]
     assert digest(logged) == before
+
+
+def test_stdout_is_no_new_database(logged: Path, tmp_path: Path) -> None:
+    """``pymb salvage DAMAGED -``: '-' is stdout elsewhere (export --csv -), not
+    a file name to make in the current folder."""
+    r = run_pymb("salvage", str(logged), "-", cwd=tmp_path)
+    no_traceback(r)
+    assert (r.returncode, r.stderr) == (
+        2, "pymb salvage: NEW '-': salvage writes a new database file, not stdout; "
+           "give its name\n")
+    assert list(tmp_path.iterdir()) == []
