@@ -9,11 +9,10 @@ import errno
 import os
 import socket
 import ssl
-from collections.abc import Sequence
 from typing import Any
 
 from pymb._native.interrupt import LineStop, in_line_wait, take_interrupt
-from pymb._native.mapdecode import MapJob
+from pymb._native.plan import RegisterPlan, seconds_us
 from pymb._native.tls import TlsSession, take_raised, tls_words
 from pymb._pymb_cffi import ffi, lib
 from pymb.errors import (
@@ -33,56 +32,6 @@ _FD_SETSIZE = int(lib.FD_SETSIZE)  # select()'s limit, which libmodbus's TCP cod
 _from_buffer = ffi.from_buffer
 _plan_run = lib.pymbi_plan_run  # the hot path's C call, looked up once
 _plan_go = lib.pymbi_plan_go  # ... and a steady poller's, of one argument
-
-
-def _seconds_us(seconds: float) -> tuple[int, int]:
-    """A timeout as libmodbus takes it: (seconds, microseconds), at least 1 us."""
-    return divmod(max(1, round(seconds * 1e6)), 1_000_000)
-
-
-class RegisterPlan:
-    """A prepared list of register reads into one writable ``array('H')``
-    (pymb_read_plan, held as a ``pymbi_plan``): ``requests`` are (function,
-    slave, address, count, offset into ``dest``) tuples, checked by the
-    caller and again in C before anything is sent; ``gap`` seconds of
-    silence between two requests; ``timeout``: the reply timeout of its
-    requests (None: the line's); ``then``: a decode made ready over ``dest``
-    (:class:`~pymb._native.mapdecode.MapJob`) that each run decodes in the
-    same C call once every request from its start on has its reply
-    (:attr:`decoded` says whether the last run did). After a failed run,
-    :attr:`failed` is the index of the request that failed."""
-
-    __slots__ = ("c", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs", "requests",
-                 "then", "timeout", "timeout_us")
-
-    def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
-                 gap: float = 0.0, timeout: float | None = None,
-                 then: MapJob | None = None) -> None:
-        self.timeout = timeout
-        self.timeout_us = _seconds_us(timeout or 0)
-        #: what the line's context holds while this plan runs (None: the line's own)
-        self.hold = self.timeout_us if timeout is not None else None
-        self.requests = tuple(requests)
-        self.n = len(self.requests)
-        self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))
-        for i, (function, slave, address, count, offset) in enumerate(self.requests):
-            r = self.reqs[i]
-            r.function, r.slave, r.address, r.count, r.offset = (
-                function, slave, address, count, offset)
-        self.regs = _from_buffer("uint16_t[]", dest, True)
-        self.nregs = len(self.regs)
-        self.gap_us = max(0, min(0xFFFFFFFF, round(gap * 1e6)))
-        self.then = then  # kept alive with the plan that points to it
-        c = self.c = ffi.new("pymbi_plan *")
-        c.reqs, c.n, c.gap_us, c.regs, c.nregs = self.reqs, self.n, self.gap_us, self.regs, \
-            self.nregs
-        c.then = then.cdata if then is not None else ffi.NULL
-        self.failed = -1
-
-    @property
-    def decoded(self) -> bool:
-        """Whether the last run decoded :attr:`then`."""
-        return bool(self.c.decoded)
 
 
 class Link:
@@ -319,7 +268,7 @@ class Link:
         """Response timeout and inter-byte timeout (0 disables it: the whole
         reply must then arrive within the response timeout)."""
         self._timeout = (response, byte)
-        self._timeout_us = _seconds_us(response)
+        self._timeout_us = seconds_us(response)
         if self._session is not None:
             self._session.write_timeout = response
         if self.is_open:
@@ -330,7 +279,7 @@ class Link:
         stays) and return the one it replaces."""
         before, byte = self._timeout
         self._timeout = (response, byte)
-        self._timeout_us = _seconds_us(response)
+        self._timeout_us = seconds_us(response)
         if self.is_open:
             lib.modbus_set_response_timeout(self._ctx, *self._timeout_us)
             self._held = None
