@@ -76,6 +76,10 @@ class Link:
         #: a plan's response timeout the context holds instead of the line's own (None: its
         #: own): left there for the next run of such a plan, put back before any other request
         self._held: tuple[int, int] | None = None
+        #: counts the changes of the line and of the reply timeout its context
+        #: holds: a plan armed at this count (:attr:`RegisterPlan.armed`) runs
+        #: with its C call alone
+        self.era = 0
         self._rs485: tuple[int | None, int | None, int | None] = (None, None, None)
         self.adopt: int | None = None  #: a lent socket the next open() takes (TCP)
         self._stop = LineStop()  #: what ends a wait from outside (:meth:`stop`, signals)
@@ -216,6 +220,7 @@ class Link:
         self.is_open = False
         self._close_pending = False
         self._held = None
+        self.era += 1
         if session is not None:
             session.close()  # close_notify while the socket is open
         if ctx != ffi.NULL and self.borrowed and lib.modbus_get_socket(ctx) >= 0:
@@ -283,6 +288,7 @@ class Link:
         if self.is_open:
             lib.modbus_set_response_timeout(self._ctx, *self._timeout_us)
             self._held = None
+            self.era += 1
         return before
 
     def _apply_timeouts(self) -> None:
@@ -295,11 +301,13 @@ class Link:
         ):
             raise InvalidArgument(f"timeout out of range: {response!r}, {byte!r}")
         self._held = None
+        self.era += 1
 
     def _own_timeout(self) -> None:
         """Give the context the line's own response timeout back (after a plan's)."""
         lib.modbus_set_response_timeout(self._ctx, *self._timeout_us)
         self._held = None
+        self.era += 1
 
     def set_rs485(self, mode: int | None, rts: int | None, rts_delay_us: int | None) -> None:
         """Serial mode (MODBUS_RTU_RS232/RS485), RTS mode and RTS delay."""
@@ -385,6 +393,7 @@ class Link:
             elif self.is_open:
                 lib.modbus_set_response_timeout(self._ctx, *hold)
                 self._held = hold
+                self.era += 1
         if _plan_run(self._line, plan.c, start, self._fail) < 0:
             raise self.plan_error(plan, start)
 

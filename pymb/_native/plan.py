@@ -32,8 +32,8 @@ class RegisterPlan:
     (:attr:`decoded` says whether the last run did). After a failed run,
     :attr:`failed` is the index of the request that failed."""
 
-    __slots__ = ("c", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs", "requests",
-                 "then", "timeout", "timeout_us")
+    __slots__ = ("armed", "c", "failed", "gap_us", "hold", "n", "nregs", "regs", "reqs",
+                 "requests", "then", "timeout", "timeout_us")
 
     def __init__(self, requests: Sequence[tuple[int, int, int, int, int]], dest: Any,
                  gap: float = 0.0, timeout: float | None = None,
@@ -58,6 +58,11 @@ class RegisterPlan:
             self.nregs
         c.then = then.cdata if then is not None else ffi.NULL
         self.failed = -1
+        #: the :attr:`~pymb._native.link.Link.era` it was armed at
+        #: (``pymb.client.base.read_plan_call``): while the line's is the same, its
+        #: record is bound to the line, the context holds its reply timeout and its
+        #: read is on the connection it was armed on; -1: never
+        self.armed = -1
 
     @property
     def decoded(self) -> bool:

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
 from pymb import _native
-from pymb._native.link import RegisterPlan
+from pymb._native.link import Link, RegisterPlan
 from pymb._native.link import _plan_go as plan_go
 from pymb._native.link import _plan_run as plan_run
 from pymb.client.checks import (
@@ -37,7 +37,8 @@ from pymb.wire import registers_from_wire
 if TYPE_CHECKING:
     from typing_extensions import Buffer
 
-__all__ = ["Client", "read_plan_call", "run_read_plan_held"]
+__all__ = ["Client", "armed_failed", "line_of", "plan_go", "read_plan_call",
+           "run_read_plan_held"]
 
 
 class Client(ClientCore):
@@ -306,24 +307,45 @@ def run_read_plan_held(client: Client, plan: RegisterPlan, start: int = 0,
 def read_plan_call(client: Client, plan: RegisterPlan) -> Callable[[int | None], bool]:
     """``run_read_plan_held(client, plan, 0, on)`` as a call of ``on`` alone,
     made ready for a caller that runs ``plan`` over and over (a device's
-    steady read): the same run and errors, the steady case in this frame, its
-    C call of one argument (the plan's record holds the line it runs on)."""
+    steady read): the same run and errors. A run on ``on``'s connection that
+    got its reply arms ``plan`` (:attr:`RegisterPlan.armed
+    <pymb._native.link.RegisterPlan.armed>`): while it is armed at the line's
+    :attr:`~pymb._native.link.Link.era`, a run is its one C call of one
+    argument (``plan_go(plan.c)``, the plan's record holding the line it runs
+    on), which a caller holding the lock may also make itself, and
+    :func:`armed_failed` after it when it fails."""
     link, c = client._link, plan.c  # noqa: SLF001 - this module's
-    bound = None  # the line c.line is (an open line's pointer: it is freed on close)
+    armed_on = -1  # the connection the plan was armed on (the line's, as long as it is armed)
 
     def run(on: int | None) -> bool:
-        nonlocal bound
-        line = link._line  # noqa: SLF001 - read_plan's
-        if line is bound and plan.hold is link._held and (  # noqa: SLF001 - read_plan's
-                client.connections - client.resends == on):
-            served = client._served  # noqa: SLF001 - this module's
-            if plan_go(c) >= 0:
-                client._served = served + 1  # noqa: SLF001 - this module's
-                return True
-            client._run_plan(plan, client._plan_failed(  # noqa: SLF001 - this module's
-                link.plan_error(plan, 0), plan, 0, served))
+        nonlocal armed_on
+        if plan.armed == link.era and on == armed_on:
+            if plan_go(c) < 0:
+                armed_failed(client, plan)
             return True
-        if link.is_open:
-            c.line, c.fail, bound = line, link._fail, line  # noqa: SLF001 - read_plan's
-        return run_read_plan_held(client, plan, 0, on)
+        if not run_read_plan_held(client, plan, 0, on):
+            return False
+        # Armed once the line carried a reply on the caller's connection, the
+        # context holding the plan's timeout: the armed run then counts no
+        # reply (_served is only ever asked whether there was one).
+        if on is not None and link.is_open and plan.hold is link._held and (  # noqa: SLF001
+                client.connections - client.resends == on and client._served > 0):  # noqa: SLF001
+            c.line, c.fail = link._line, link._fail  # noqa: SLF001 - read_plan's
+            plan.armed, armed_on = link.era, on
+        return True
     return run
+
+
+def armed_failed(client: Client, plan: RegisterPlan) -> None:
+    """After the C call of ``plan``, armed (:func:`read_plan_call`), failed:
+    its error raised, or the read sent again on a new connection as
+    :func:`run_read_plan_held` does (the peer closed the one that carried
+    its replies)."""
+    client._run_plan(plan, client._plan_failed(  # noqa: SLF001 - this module's
+        client._link.plan_error(plan, 0), plan, 0, client._served))  # noqa: SLF001
+
+
+def line_of(client: Client) -> Link:
+    """The line ``client``'s requests go over: a plan armed at its
+    :attr:`~Link.era` (:func:`read_plan_call`) runs with its C call alone."""
+    return client._link  # noqa: SLF001 - this module's

@@ -44,7 +44,9 @@ class ClientCore:
     #: that finds the connection closed after it carried a reply is sent again
     #: on a new one (never a write: the device may have done it)
     _resend_reads = False
-    _served = 0  #: replies on the connection open now
+    #: replies on the connection open now (an armed plan's runs are not counted,
+    #: :func:`pymb.client.base.read_plan_call`: only whether there was one is asked)
+    _served = 0
 
     def __init__(self, link: Link, *, slave: int | None, timeout: float,
                  byte_timeout: float) -> None:

@@ -23,7 +23,7 @@ from typing import NamedTuple, TypeVar
 from pymb._native.link import RegisterPlan
 from pymb._native.mapdecode import MapJob
 from pymb.client import Client
-from pymb.client.base import read_plan_call
+from pymb.client.base import armed_failed, line_of, plan_go, read_plan_call
 from pymb.devices.linequiet import quiet_of, sleep_until
 from pymb.errors import DeviceException, DeviceFailure, IllegalDataAddress, IllegalDataValue
 from pymb.maps import Buffers, Decoder, Map, Point
@@ -83,7 +83,8 @@ class Read:
     same requests: it runs them and decodes, nothing else."""
 
     __slots__ = ("decoders", "decodes", "decoding", "fetched", "images", "items", "jobs", "plan",
-                 "points", "runs", "steady", "steady_call", "steady_fetch", "version")
+                 "points", "runs", "steady", "steady_call", "steady_fetch", "steady_raw",
+                 "version")
 
     def __init__(self, points: tuple[int, ...], items: tuple[int, ...],
                  images: dict[str, Image]) -> None:
@@ -111,7 +112,9 @@ class Read:
         self.steady: RegisterPlan | None = None
         #: :attr:`steady`'s run made ready (``pymb.client.base.read_plan_call``)
         self.steady_call: Callable[[int | None], bool] | None = None
-        #: the same read when nothing is decoded: its one run's call, else None
+        #: the same read when nothing is decoded: its one run's plan, else None
+        self.steady_raw: RegisterPlan | None = None
+        #: :attr:`steady_raw`'s run made ready
         self.steady_fetch: Callable[[int | None], bool] | None = None
         self.version = -1  # made at no version yet
 
@@ -275,8 +278,9 @@ class Fetcher:
                      or planner.limits.split_on_exception)
         r.steady = r.decoding[0].plan if one and r.decoding is not None and alone else None
         r.steady_call = None if r.steady is None or r.decoding is None else r.decoding[0].go
-        r.steady_fetch = r.runs[0].go if alone and r.runs is not None and len(r.runs) == 1 \
-            else None
+        raw = r.runs[0] if alone and r.runs is not None and len(r.runs) == 1 else None
+        r.steady_raw = None if raw is None else raw.plan
+        r.steady_fetch = None if raw is None else raw.go
         r.version = planner.version
 
     def prepared(self, r: Read, held: Callable[[], object], then: Callable[[], T], *,
@@ -288,25 +292,36 @@ class Fetcher:
         again) and ``r`` is :attr:`Read.steady` (``fast``: nothing is to be
         done after its decoding): then its one C call is the read, in the
         silence the line keeps (:meth:`fetch`'s, with none of this device's
-        own). Without ``decode``, the read only fetches (``held``:
-        :meth:`fetch` of ``r``), its steady call :attr:`Read.steady_fetch`."""
-        lock, q, planner = self.quiet.lock, self.quiet, self.planner
+        own), made here while its plan is armed on the line
+        (:func:`~pymb.client.base.read_plan_call`). Without ``decode``, the
+        read only fetches (``held``: :meth:`fetch` of ``r``), its steady plan
+        :attr:`Read.steady_raw`."""
+        lock, q, planner, client = self.quiet.lock, self.quiet, self.planner, self.client
+        line = line_of(client)
 
         def read() -> T:
             lock.acquire()
             try:
                 # the lock is the client's: held, not taken again
-                run = r.steady_call if decode else r.steady_fetch
-                if run is None or not fast or r.version != planner.version:
+                plan = r.steady if decode else r.steady_raw
+                if plan is None or not fast or r.version != planner.version:
                     held()
                     return then()
                 until = q.quiet_until
                 if until > q.last_end and until > _monotonic():
                     sleep_until(until)
                 try:
-                    if not run(self._connections):  # closed, or a new connection
-                        held()
-                        return then()
+                    # Armed: bound to this line and its timeout since a read on
+                    # this connection (its fetcher's: that changes only with the
+                    # line), nothing else to check. Else the run made ready.
+                    if plan.armed == line.era:
+                        if plan_go(plan.c) < 0:
+                            armed_failed(client, plan)
+                    else:
+                        run = r.steady_call if decode else r.steady_fetch
+                        if run is None or not run(self._connections):  # closed, or new
+                            held()
+                            return then()
                 except BaseException:
                     self._noted()
                     raise

@@ -60,6 +60,30 @@ def test_coolpro_telemetry_every_field(bus: Simulator, sim_client: pymb.RtuClien
     assert list(t.registers) == list(regs)
 
 
+def test_telemetry_reads_between_whatever_changes_the_line(sim_client: pymb.RtuClient) -> None:
+    # The steady read (its C call alone) is taken up again after the client's
+    # own request, a new timeout and a reconnect: each read is the device's.
+    cp = CoolPro(sim_client)
+
+    def reconnect() -> None:
+        sim_client.close()
+        sim_client.connect()
+
+    changes: list[Callable[[], object]] = [
+        lambda: None,
+        lambda: sim_client.read_input_registers(0, 8, slave=40),
+        lambda: sim_client.set_timeout(T),
+        reconnect,
+    ]
+    for change in changes:
+        change()
+        reads = [cp.read_telemetry() for _ in range(3)]
+        regs = sim_client.read_input_registers(0, 8, slave=40)
+        for t in reads:
+            assert list(t.registers[:5]) == list(regs[:5])
+            assert t.input_voltage_v == ref.milli(regs[0])
+
+
 def test_coolpro_telemetry_is_a_whole_frozen_dataclass(sim_client: pymb.RtuClient) -> None:
     # read_telemetry sets the fields directly (no per-field __init__ call):
     # every declared field is set, the object stays frozen, and it compares
