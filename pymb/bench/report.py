@@ -416,7 +416,7 @@ def plot(result: dict[str, Any], path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pymb.commands._data import write_beside
+    from pymb.store.files import write_beside
 
     panels = []
     sweep = result.get("sweep") or {}

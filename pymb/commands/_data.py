@@ -8,9 +8,8 @@ import contextlib
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from datetime import UTC, datetime
-from typing import TypeVar
 
 from pymb.commands._common import parse_channels
 from pymb.errors import InvalidArgument
@@ -20,12 +19,10 @@ from pymb.store.guard import sqlite_tables
 from pymb.store.salvage import salvage
 
 __all__ = ["check_database", "device_name", "parse_channels", "parse_time", "parse_times",
-           "readable_database", "write_beside"]
+           "readable_database"]
 
 #: seconds a reader (export, info) spends checking a database before reading it
 READ_CHECK_SECONDS = 3.0
-
-T = TypeVar("T")
 
 
 def check_database(path: str) -> None:
@@ -110,37 +107,3 @@ def device_name(path: str, wanted: str) -> str:
         return resolve_device(con, wanted, path)[0]
     finally:
         con.close()
-
-
-def write_beside(out: str, prefix: str, suffix: str, write: Callable[[int, str], T], *,
-                 keep_mode: bool) -> T:
-    """Write a temporary file beside ``out`` and rename it over ``out`` when done.
-
-    ``write(fd, tmp)`` fills the temporary file (it owns ``fd``). The file gets the mode of the
-    ``out`` it replaces with ``keep_mode``, else the umask's. On any failure the temporary file
-    goes and ``out`` stays as it was; an ``OSError`` becomes a one-line ``InvalidArgument``.
-    """
-    folder = os.path.dirname(os.path.abspath(out))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
-    except OSError as e:
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
-    try:
-        result = write(fd, tmp)
-        if keep_mode and os.path.exists(out):
-            with contextlib.suppress(OSError):
-                os.chmod(tmp, os.stat(out).st_mode & 0o7777)
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, out)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return result

@@ -23,7 +23,7 @@ from pathlib import Path
 from pymb.commands.demo_mqtt import run_with_mqtt
 from pymb.commands.status import StatusLine
 from pymb.errors import InvalidArgument
-from pymb.fleet.forwarder import require_paho
+from pymb.fleet.session import require_paho
 from pymb.logger import BusConfig, DeviceConfig, LogConfig, Logger
 from pymb.sim import SimulatorProcess
 from pymb.store.faults import storage_error, vanished

@@ -26,7 +26,7 @@ from pymb.commands.forward import forwarding, summary_lines
 from pymb.errors import InvalidArgument, ModbusConnectionError
 from pymb.fleet.broker import Mosquitto, find_mosquitto
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.forwarder import require_paho
+from pymb.fleet.session import require_paho
 from pymb.logger import LogConfig, RunSummary
 from pymb.store import Outbox
 from pymb.store.outbox import last_sample_id

@@ -22,7 +22,6 @@ from pymb.commands._data import (
     parse_channels,
     parse_times,
     readable_database,
-    write_beside,
 )
 from pymb.devices.mapspec import load_map
 from pymb.devices.spec import closest
@@ -31,6 +30,7 @@ from pymb.maps import Map
 from pymb.store import CSV_COLUMNS, LAYOUTS, export_csv, map_point_names, quantities
 from pymb.store.commands import WRITE_COLUMNS, export_writes
 from pymb.store.export import WIDE_HEAD
+from pymb.store.files import write_beside
 from pymb.store.schema import HUB_STRIDE
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import sqlite3
 import sys
 import time
 from collections.abc import Callable
@@ -13,14 +11,16 @@ from pymb.commands.status import StatusLine, status_text
 from pymb.errors import InvalidArgument
 from pymb.fleet import ForwardingSink
 from pymb.fleet.config import MqttConfig
-from pymb.fleet.forwarder import Forwarder, ForwarderStatus, require_paho
+from pymb.fleet.forwarder import Forwarder, ForwarderStatus
 from pymb.fleet.profiles import SparkplugProfile
+from pymb.fleet.session import require_paho
 from pymb.logger import LogConfig, Logger, RunSummary
 from pymb.logger.commands import CommandDesk
 from pymb.logger.targets import write_targets
 from pymb.service.journal import EventLines, wanted
 from pymb.store import Event, SqliteSink, check_output
 from pymb.store.commands import CommandLog
+from pymb.store.eventlog import append_events
 
 if TYPE_CHECKING:
     from pymb.service.run import Service
@@ -110,16 +110,7 @@ def _late_events(path: str, events: list[tuple[float, str]],
     if not events:
         return
     rows = [Event(t, time.monotonic(), "mqtt", None, "mqtt", None, m) for t, m in events]
-    with contextlib.suppress(sqlite3.Error):
-        con = sqlite3.connect(path, timeout=10)
-        try:
-            with con:
-                con.executemany(
-                    "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, "
-                    "message) VALUES (?, ?, ?, NULL, ?, NULL, ?)",
-                    [(e.time_utc, e.monotonic, e.bus, e.kind, e.message) for e in rows])
-        finally:
-            con.close()
+    append_events(path, rows)
     if echo is not None:
         for e in rows:
             echo(e)

@@ -15,10 +15,11 @@ import sys
 from datetime import UTC, datetime
 from typing import Any, cast
 
-from pymb.commands._data import check_database, parse_times, write_beside
+from pymb.commands._data import check_database, parse_times
 from pymb.errors import InvalidArgument
 from pymb.extras import install_hint
 from pymb.store import Series, series
+from pymb.store.files import write_beside
 
 __all__ = ["add_arguments", "figure", "parse_size", "run"]
 

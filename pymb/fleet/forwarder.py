@@ -47,15 +47,13 @@ import threading
 import time
 from typing import Any
 
-from pymb.errors import InvalidArgument
-from pymb.extras import install_hint
 from pymb.fleet.commands import CommandTopics
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.cursor import Acknowledged, CursorWriter, destination
-from pymb.fleet.health import Down
+from pymb.fleet.health import Down, due_downs
 from pymb.fleet.lanes import WINDOW, Publisher, catch_up_lane, live_lane
 from pymb.fleet.profiles import BACKLOG, Profile, make_profile
-from pymb.fleet.session import Session
+from pymb.fleet.session import Session, require_paho
 from pymb.fleet.status import ForwarderStatus
 from pymb.fleet.takeover import Takeovers
 from pymb.store import Outbox, StoredSample
@@ -69,14 +67,6 @@ CURSOR_EVERY = 0.25  #: seconds between writes of the cursor
 _BACKOFF_FIRST, _BACKOFF_MAX = 0.5, 30.0
 #: seconds before refused samples are offered again: doubling from the first to the last
 RETRY_FIRST, RETRY_MAX = 5.0, 300.0
-
-
-def require_paho() -> None:
-    """Raise InvalidArgument, saying how to install it, when paho-mqtt is missing."""
-    try:
-        import paho.mqtt.client  # noqa: F401
-    except ImportError:
-        raise InvalidArgument(f"--mqtt needs paho-mqtt: {install_hint('mqtt')}") from None
 
 
 class Forwarder(threading.Thread, CommandTopics):
@@ -454,14 +444,8 @@ class Forwarder(threading.Thread, CommandTopics):
             if (topic, reason) in self._subs_said:
                 return
             self._subs_said.add((topic, reason))
-        if topic == self.profile.host_topic:
-            what = (f"the primary host's STATE cannot reach this node, which publishes "
-                    f"nothing until the broker lets it read {topic}")
-        elif topic == self.profile.command_topic:
-            what = "Rebirth commands (NCMD) cannot reach this node"
-        else:
-            what = "write commands on it cannot reach this logger"
-        self._say(f"the broker refused the subscription to {topic} ({reason}): {what}")
+        self._say(f"the broker refused the subscription to {topic} ({reason}): "
+                  f"{self.profile.missed(topic)}")
 
     def _acknowledged(self, pub: Publisher, s: Session) -> None:
         """Mark what the broker acknowledged since the last look; keep what it
@@ -510,15 +494,6 @@ class Forwarder(threading.Thread, CommandTopics):
         with self._lock:
             self._downs += self._downs_in
             self._downs_in = []
-        keep = []
-        for d, at in self._downs:
-            if rec is None:
-                due = at <= upto
-            else:
-                due = d.device == rec.device.name and (d.last_sample is None
-                                                  or rec.time_utc > d.last_sample)
-            if due:
-                pub.send(self.profile.device_down(d.device), [])
-            else:
-                keep.append((d, at))
-        self._downs = keep
+        due, self._downs = due_downs(self._downs, rec, upto)
+        for d in due:
+            pub.send(self.profile.device_down(d.device), [])

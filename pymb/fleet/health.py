@@ -14,11 +14,14 @@ on that bus.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pymb.store.records import FAULT_KINDS
 
-__all__ = ["DOWN_AFTER", "DeviceHealth", "Down"]
+if TYPE_CHECKING:
+    from pymb.store import StoredSample
+
+__all__ = ["DOWN_AFTER", "DeviceHealth", "Down", "due_downs"]
 
 DOWN_AFTER = 3  #: faults in a row (no sample between them) after which a device is down
 
@@ -75,3 +78,24 @@ class DeviceHealth:
         """The devices that went down since the last call, in order."""
         out, self._new = self._new, []
         return out
+
+
+def due_downs(pending: list[tuple[Down, int]], rec: StoredSample | None, upto: int
+              ) -> tuple[list[Down], list[tuple[Down, int]]]:
+    """The downs of ``pending`` ((down, the highest sample id committed with
+    it)) due now, and the rest: before ``rec``, those of its device that
+    came after its previous sample; with no ``rec``, those committed up to
+    ``upto``."""
+    due: list[Down] = []
+    keep = []
+    for d, at in pending:
+        if rec is None:
+            ok = at <= upto
+        else:
+            ok = d.device == rec.device.name and (d.last_sample is None
+                                                 or rec.time_utc > d.last_sample)
+        if ok:
+            due.append(d)
+        else:
+            keep.append((d, at))
+    return due, keep

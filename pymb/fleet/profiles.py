@@ -101,6 +101,15 @@ class Profile(abc.ABC):
     def goodbye(self) -> list[Message]:
         """What goes last on a clean disconnect."""
 
+    def missed(self, topic: str) -> str:
+        """What this node misses while the broker refuses it ``topic``'s subscription."""
+        if topic == self.host_topic:
+            return (f"the primary host's STATE cannot reach this node, which publishes "
+                    f"nothing until the broker lets it read {topic}")
+        if topic == self.command_topic:
+            return "Rebirth commands (NCMD) cannot reach this node"
+        return "write commands on it cannot reach this logger"
+
     def device_down(self, device: str) -> list[Message]:
         """A device stopped answering (see :mod:`pymb.fleet.health`)."""
         return []

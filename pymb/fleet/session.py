@@ -20,16 +20,26 @@ import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from pymb.errors import InvalidArgument
+from pymb.extras import install_hint
 from pymb.fleet.config import MqttConfig
 from pymb.fleet.profiles import Profile, host_state
 from pymb.fleet.takeover import TAKEN_OVER
 
-__all__ = ["COMMAND_SESSION_EXPIRY", "Session"]
+__all__ = ["COMMAND_SESSION_EXPIRY", "Session", "require_paho"]
 
 #: seconds the broker keeps a commands-taking logger's session after it is gone
 #: (a crash and a restart by the service manager keep it; a longer absence drops it,
 #: and the commands it holds, so no command waits longer for a logger to come back)
 COMMAND_SESSION_EXPIRY = 60
+
+
+def require_paho() -> None:
+    """Raise InvalidArgument, saying how to install it, when paho-mqtt is missing."""
+    try:
+        import paho.mqtt.client  # noqa: F401
+    except ImportError:
+        raise InvalidArgument(f"--mqtt needs paho-mqtt: {install_hint('mqtt')}") from None
 
 
 class _Owner(Protocol):

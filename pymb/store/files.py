@@ -1,15 +1,21 @@
-"""A new database appears whole: made beside its path, then linked in."""
+"""A new file appears whole: made beside its path, then linked or renamed in."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import sqlite3
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
+from pymb.errors import InvalidArgument
 from pymb.store.schema import install, new_file
 
-__all__ = ["create", "remove_stale_creations"]
+__all__ = ["create", "remove_stale_creations", "write_beside"]
+
+T = TypeVar("T")
 
 
 def _creating(path: Path, pid: int) -> Path:
@@ -64,3 +70,37 @@ def create(path: Path) -> None:
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink()
+
+
+def write_beside(out: str, prefix: str, suffix: str, write: Callable[[int, str], T], *,
+                 keep_mode: bool) -> T:
+    """Write a temporary file beside ``out`` and rename it over ``out`` when done.
+
+    ``write(fd, tmp)`` fills the temporary file (it owns ``fd``). The file gets the mode of the
+    ``out`` it replaces with ``keep_mode``, else the umask's. On any failure the temporary file
+    goes and ``out`` stays as it was; an ``OSError`` becomes a one-line ``InvalidArgument``.
+    """
+    folder = os.path.dirname(os.path.abspath(out))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
+    except OSError as e:
+        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
+    try:
+        result = write(fd, tmp)
+        if keep_mode and os.path.exists(out):
+            with contextlib.suppress(OSError):
+                os.chmod(tmp, os.stat(out).st_mode & 0o7777)
+        else:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, out)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise InvalidArgument(f"cannot write {out}: {e.strerror}") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return result

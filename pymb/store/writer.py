@@ -18,6 +18,7 @@ from pymb.devices.readings import map_reading
 from pymb.errors import InvalidArgument, OutputError
 from pymb.store.block import PollBlock
 from pymb.store.damage import damaged_error, is_corruption, set_aside_if_damaged
+from pymb.store.eventlog import EVENT_INSERT
 from pymb.store.faults import is_storage_fault, storage_error, vanished
 from pymb.store.files import create, remove_stale_creations
 from pymb.store.handoff import Handoff
@@ -337,8 +338,7 @@ class SqliteSink(SinkBase):
         did = None if event.device is None else self._device_ids.id_of(event.device, event)[0]
         self._begin()
         self.db.execute(
-            "INSERT INTO events(time_utc, monotonic, bus, device_id, kind, code, message) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            EVENT_INSERT,
             (event.time_utc, event.monotonic, event.bus, did, event.kind, event.code,
              event.message))
 
