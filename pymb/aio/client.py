@@ -348,6 +348,10 @@ class AsyncTcpClient(_AsyncTcpBase):
 
     tls = Forward[TlsConfig | None]("Modbus/TCP Security's settings (None: plain Modbus TCP).")
 
+    next_tid = Forward[int | None](
+        """The transaction id of the client's next request on its open
+        connection (None while it is closed).""")
+
     attach = Mirror(TcpClient.attach)
 
 
