@@ -202,6 +202,21 @@ def db_count(path: Path) -> int:
         return 0
 
 
+def db_events(path: Path, word: str, kind: str = "mqtt") -> list[str]:
+    """The messages of ``kind``'s events in a pymb database that contain
+    ``word`` (none while the database or its tables are not there yet)."""
+    if not path.exists():
+        return []
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        return [m for (m,) in con.execute(
+            "SELECT message FROM events WHERE kind = ? ORDER BY id", (kind,)) if word in m]
+    except sqlite3.Error:
+        return []
+    finally:
+        con.close()
+
+
 def restart_broker_mid_run(broker: Mosquitto, sub: Subscriber, db: Path) -> None:
     """Once 50 plain samples came live, stop ``broker`` until 100 more are logged into
     ``db`` while it is down, start it again and wait for live samples past the outage."""

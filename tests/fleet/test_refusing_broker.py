@@ -12,7 +12,7 @@ import pytest
 
 pytest.register_assert_rewrite("mqtt_broker")
 from conftest import run_pymb, wait_until  # noqa: E402
-from mqtt_broker import Fleet, db_count, db_ids, plain_ids, stop_log  # noqa: E402
+from mqtt_broker import Fleet, db_count, db_events, db_ids, plain_ids, stop_log  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]  # the fixtures: fleet, mosquitto, simulator
 
@@ -20,20 +20,6 @@ NODE = "gw-refuse"
 #: mosquitto 2.0.11 drops a client after refusing its message when max_queued_messages
 #: is 0 (unlimited, as the fleet tests' brokers have it); its default is 1000
 QUEUE = "max_queued_messages 1000"
-
-
-def _events(db: Path, word: str) -> list[str]:
-    """The mqtt events of ``db`` that contain ``word`` (none while it is not there)."""
-    if not db.exists():
-        return []
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return [m for (m,) in con.execute(
-            "SELECT message FROM events WHERE kind = 'mqtt' ORDER BY id") if word in m]
-    except sqlite3.Error:
-        return []
-    finally:
-        con.close()
 
 
 def _cursor(db: Path) -> int:
@@ -55,7 +41,7 @@ def test_acl_refusal_keeps_the_samples_and_sends_them_once_allowed(
     flags = ["--mqtt", broker.url, "--mqtt-node", NODE]
     # a first run: everything refused, said once, nothing acknowledged
     proc = fleet.log(simulator, db, *flags)
-    wait_until(lambda: _events(db, "refused"), "a refusal in the event log", 60)
+    wait_until(lambda: db_events(db, "refused"), "a refusal in the event log", 60)
     wait_until(lambda: db_count(db) > 300, "300 samples logged", 60)
     err = stop_log(proc)
     assert plain_ids(sub.snapshot()) == []
@@ -70,7 +56,7 @@ def test_acl_refusal_keeps_the_samples_and_sends_them_once_allowed(
     kept = db_ids(db)
     # a second run: still refused at first, then the ACL is fixed and read again
     proc = fleet.log(simulator, db, *flags)
-    wait_until(lambda: len(_events(db, "refused sample")) >= 2, "the second run's refusal", 60)
+    wait_until(lambda: len(db_events(db, "refused sample")) >= 2, "the second run's refusal", 60)
     acl.write_text("topic readwrite pymb/#\n")
     broker.reload()
     wait_until(lambda: kept <= set(plain_ids(sub.snapshot())),
@@ -90,7 +76,7 @@ def test_message_size_limit_loses_nothing_and_sends_once_raised(
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, "--mqtt", broker.url, "--mqtt-node", NODE)
     wait_until(lambda: db_count(db) > 300, "300 samples logged", 60)
-    wait_until(lambda: _events(db, "message_size_limit"), "the broker's no as an event", 60)
+    wait_until(lambda: db_events(db, "message_size_limit"), "the broker's no as an event", 60)
     assert plain_ids(sub.snapshot()) == []
     assert _cursor(db) == 0
     kept = db_ids(db)
@@ -137,7 +123,7 @@ def test_a_refused_ndeath_says_the_will_is_refused_too(fleet: Fleet, simulator: 
     assert "Not authorized" in said[0]
     assert "will" in said[0]
     # in the event log too, though the logger's database was closed by then
-    assert _events(db, "NDEATH") == [said[0].split("mqtt: ", 1)[1]]
+    assert db_events(db, "NDEATH") == [said[0].split("mqtt: ", 1)[1]]
 
 
 def test_protocol_option_is_checked(tmp_path: Path) -> None:

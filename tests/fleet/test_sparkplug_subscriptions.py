@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import glob
 import json
-import sqlite3
 from pathlib import Path
 from typing import Any
 
@@ -16,26 +15,12 @@ import pytest
 
 pytest.register_assert_rewrite("mqtt_broker")
 from conftest import wait_until  # noqa: E402
-from mqtt_broker import Fleet, db_count, db_ids, stop_log  # noqa: E402
+from mqtt_broker import Fleet, db_count, db_events, db_ids, stop_log  # noqa: E402
 
 pytest_plugins = ["mqtt_broker"]  # the fixtures: fleet, mosquitto, simulator
 
 NODE = "gw-acl"
 GROUP = "plant"
-
-
-def _events(db: Path, word: str) -> list[str]:
-    """The mqtt events of ``db`` that contain ``word``."""
-    if not db.exists():
-        return []
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return [m for (m,) in con.execute(
-            "SELECT message FROM events WHERE kind = 'mqtt' ORDER BY id") if word in m]
-    except sqlite3.Error:
-        return []
-    finally:
-        con.close()
 
 
 def _denying(tmp_path: Path, *patterns: str) -> tuple[str, ...]:
@@ -66,11 +51,11 @@ def test_a_refused_subscription_to_the_primary_hosts_state_is_said(
     db = tmp_path / "log.sqlite"
     proc = fleet.log(simulator, db, "--mqtt", broker.url, "--mqtt-profile", "sparkplug",
                      "--mqtt-group", GROUP, "--mqtt-node", NODE, "--mqtt-primary-host", "scada")
-    wait_until(lambda: _events(db, "connected to"), "pymb connected", 30)
+    wait_until(lambda: db_events(db, "connected to"), "pymb connected", 30)
     wait_until(lambda: db_count(db) > 50, "50 samples logged", 30)
-    wait_until(lambda: _events(db, "spBv1.0/STATE/scada"), "the refusal said", 15)
+    wait_until(lambda: db_events(db, "spBv1.0/STATE/scada"), "the refusal said", 15)
     err = stop_log(proc)
-    said = _events(db, "spBv1.0/STATE/scada")
+    said = db_events(db, "spBv1.0/STATE/scada")
     print(said, err)
     assert len(said) == 1
     assert "Not authorized" in said[0]
@@ -88,7 +73,7 @@ def test_a_refused_ncmd_subscription_is_said_once_and_the_data_flow(
                      "--mqtt-group", GROUP, "--mqtt-node", NODE)
     wait_until(lambda: db_count(db) > 300, "300 samples logged", 30)
     err = stop_log(proc)
-    said = _events(db, f"spBv1.0/{GROUP}/NCMD/{NODE}")
+    said = db_events(db, f"spBv1.0/{GROUP}/NCMD/{NODE}")
     assert len(said) == 1, said
     assert "Not authorized" in said[0]
     assert "Rebirth" in said[0]
