@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import sqlite3
 from collections.abc import Sequence
+from pathlib import Path
 
 from pymb.store.records import Event
 
@@ -24,7 +25,9 @@ def append_events(path: str, events: Sequence[Event]) -> None:
     if not events:
         return
     with contextlib.suppress(sqlite3.Error):
-        con = sqlite3.connect(path, timeout=10)
+        # mode=rw: a database that is gone is not made again (an empty file)
+        con = sqlite3.connect(Path(path).absolute().as_uri() + "?mode=rw", uri=True,
+                              timeout=10)
         try:
             with con:
                 con.executemany(EVENT_INSERT, [
