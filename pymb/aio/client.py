@@ -348,9 +348,20 @@ class AsyncTcpClient(_AsyncTcpBase):
 
     tls = Forward[TlsConfig | None]("Modbus/TCP Security's settings (None: plain Modbus TCP).")
 
-    next_tid = Forward[int | None](
+    @property
+    def next_tid(self) -> int | None:
         """The transaction id of the client's next request on its open
-        connection (None while it is closed).""")
+        connection: None while it is closed, or while a request of the client
+        is in flight (read at once, as :attr:`connected` is: the event loop
+        never waits for the request to end)."""
+        blocking = self.blocking
+        lock = blocking._lock  # noqa: SLF001 - the twin's; held while a request is in flight
+        if not lock.acquire(blocking=False):
+            return None
+        try:
+            return blocking.next_tid
+        finally:
+            lock.release()
 
     attach = Mirror(TcpClient.attach)
 
