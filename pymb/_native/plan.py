@@ -4,6 +4,7 @@ libmodbus takes it."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -18,6 +19,14 @@ _from_buffer = ffi.from_buffer
 def seconds_us(seconds: float) -> tuple[int, int]:
     """A timeout as libmodbus takes it: (seconds, microseconds), at least 1 us."""
     return divmod(max(1, round(seconds * 1e6)), 1_000_000)
+
+
+@functools.lru_cache(maxsize=256)
+def _held_as(us: tuple[int, int]) -> tuple[int, int]:
+    """One tuple for each reply timeout: the line tells whether its context
+    holds a plan's timeout by identity (``plan.hold is line._held``), so
+    plans of the same timeout (devices of one map on one line) share it."""
+    return us
 
 
 class RegisterPlan:
@@ -41,7 +50,7 @@ class RegisterPlan:
         self.timeout = timeout
         self.timeout_us = seconds_us(timeout or 0)
         #: what the line's context holds while this plan runs (None: the line's own)
-        self.hold = self.timeout_us if timeout is not None else None
+        self.hold = _held_as(self.timeout_us) if timeout is not None else None
         self.requests = tuple(requests)
         self.n = len(self.requests)
         self.reqs = ffi.new("pymb_plan_request[]", max(1, self.n))

@@ -145,3 +145,22 @@ def test_plans_of_one_reply_timeout_stay_armed_side_by_side(peer: PtyPeer) -> No
             assert pa.armed == pb.armed == line.era
         assert (list(a[:2]), list(b[:2])) == ([0, 1], [2, 3])
         assert len(peer.requests) == 6
+
+
+def test_plans_of_one_explicit_reply_timeout_stay_armed_side_by_side(peer: PtyPeer) -> None:
+    # Two devices of one map (its response_timeout) on one line: their plans
+    # hold the same timeout, so neither disarms the other.
+    a, b = array("H", bytes(8)), array("H", bytes(8))
+    pa = RegisterPlan([(0x04, 40, 0, 2, 0)], a, timeout=TIMEOUT / 2)
+    pb = RegisterPlan([(0x04, 40, 2, 2, 0)], b, timeout=TIMEOUT / 2)
+    with pymb.RtuClient(peer.port, timeout=TIMEOUT) as c:
+        line = line_of(c)
+        ra, rb = read_plan_call(c, pa), read_plan_call(c, pb)
+        on = c.fresh_connections
+        for _ in range(3):
+            with line_lock(c):
+                assert ra(on) is True
+                assert rb(on) is True
+            assert pa.armed == pb.armed == line.era
+        assert (list(a[:2]), list(b[:2])) == ([0, 1], [2, 3])
+        assert len(peer.requests) == 6
