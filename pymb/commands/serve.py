@@ -171,12 +171,12 @@ async def _serve(server: Server, upstream: Upstream | PipelinedUpstream,
     finally:
         upstream.stop()
     st = server.stats
+    unsent = upstream.unwanted + st.unsent  # (taken from the client or left in its buffer)
     print(f"pymb serve: {_counted(st.requests, 'request')} from "
           f"{_counted(st.connections, 'connection')}; "
           f"upstream: {upstream.sent:,} sent, {upstream.timeouts:,} unanswered, "
           f"{upstream.unreachable:,} while unreachable"
-          + (f", {upstream.unwanted:,} not sent (their clients had gone)"
-             if upstream.unwanted else "")
+          + (f", {unsent:,} not sent (their clients had gone)" if unsent else "")
           + (f", {upstream.dropped:,} dropped at the stop" if upstream.dropped else ""),
           file=sys.stderr)
     if upstream.abandoned:

@@ -89,6 +89,8 @@ class ServeStats:
     garbage: int = 0
     denied: int = 0
     tls_failures: int = 0
+    #: reads left in the buffer of a client that had gone: never sent
+    unsent: int = 0
 
 
 class _Tls:
@@ -152,6 +154,7 @@ class _Conn(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.pending = 0
         self.taking = False  #: requests are being taken from the buffer
+        self.stopping = False  #: dropped as the server stops: nothing more is sent
         self.closed = False
         self.paused_reading = False
         self.paused_writing = False
@@ -217,6 +220,32 @@ class _Conn(asyncio.Protocol):
         if self.handshake_timer is not None:
             self.handshake_timer.cancel()
         self.server.conns.discard(self)
+        if self.buf and not self.stopping:
+            self._left()
+
+    def _left(self) -> None:
+        """The whole requests still in the buffer of a client that has gone
+        (behind its first :data:`PENDING_PER_CLIENT`): its writes are sent all
+        the same, as it gave them; its reads are not (nobody would read their
+        replies), counted in :attr:`ServeStats.unsent`."""
+        s = self.server
+        try:
+            requests = take_requests(self.buf)
+        except BadFrame:  # bytes that are not Modbus TCP: nothing of it is taken
+            requests = []
+        self.buf.clear()
+        for r in requests:
+            s.stats.requests += 1
+            unit = s.units.upstream(r.unit)
+            if r.exception:
+                s.stats.malformed += 1
+            elif reads_only(r.pdu):
+                s.stats.unsent += 1
+            elif not self.may_write:
+                s.stats.denied += 1
+            elif unit is not None:
+                self.pending += 1
+                s.upstream.submit(unit, r.pdu, s.replier(self, r.tid, r.unit), None)
 
     def pause_writing(self) -> None:
         # The client does not read its replies: stop taking its requests.
@@ -342,6 +371,7 @@ class _Conn(asyncio.Protocol):
 
     def abort(self) -> None:
         """Drop the connection (the server is stopping)."""
+        self.stopping = True
         self._close()
 
 

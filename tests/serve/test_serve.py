@@ -261,6 +261,27 @@ def test_the_reads_of_a_client_that_has_gone_are_not_sent(peer: PtyPeer) -> None
     assert f"{8 - len(reads)} not sent (their clients had gone)" in summary, summary
 
 
+def test_the_writes_of_a_gone_client_still_in_its_buffer_are_sent(peer: PtyPeer) -> None:
+    # docs/serve.md: a client that disconnects has its writes sent all the
+    # same, as it gave them, also those behind its first 16 requests (still in
+    # its buffer when its connection was lost); its reads there are not sent,
+    # and the summary counts them with the others.
+    peer.hook = lambda slave, pdu, normal: [] if slave == 9 else None  # unit 9 is silent
+    write = bytes((6, 0, 3, 0, 7))
+    with Served(*serve_args(peer.port)) as s:
+        c = RawClient(s.port)
+        c.send(b"".join(mbap(i, 9, read_pdu(i, 1)) for i in range(20)) + mbap(20, 9, write))
+        wait_until(lambda: len(peer.requests) >= 1, "the first request on the line")
+        c.close()
+        wait_until(lambda: (9, write) in peer.requests, "the gone client's write on the line")
+        sent = [pdu for slave, pdu in peer.requests if slave == 9]
+        assert s.stop() == 0
+    reads = [pdu for pdu in sent if pdu[0] == 3]
+    assert sent[-1] == write
+    summary = s.stderr_lines[-1]
+    assert f"{20 - len(reads)} not sent (their clients had gone)" in summary, summary
+
+
 def test_a_burst_of_requests_waits_its_turn_16_at_a_time(peer: PtyPeer) -> None:
     # docs/serve.md: each client has at most 16 requests waiting. A client
     # that sends 100 reads in one write has 16 of them queued for the line,
