@@ -494,6 +494,7 @@ class Forwarder(threading.Thread, CommandTopics):
         with self._lock:
             self._downs += self._downs_in
             self._downs_in = []
-        due, self._downs = due_downs(self._downs, rec, upto)
+        due, keep = due_downs(self._downs, rec, upto)
         for d in due:
             pub.send(self.profile.device_down(d.device), [])
+        self._downs = keep  # (sent: a send that raised leaves them all to send again)

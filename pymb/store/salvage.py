@@ -404,9 +404,11 @@ def salvage(damaged: str | os.PathLike[str], new: str | os.PathLike[str]) -> Sal
                     raise InvalidArgument(f"{new} appeared meanwhile: salvage writes a new "
                                           "file; choose another name") from None
             except sqlite3.OperationalError as e:
-                if str(e) not in _WRITE_FAILED:  # (a read of DAMAGED: not this)
-                    raise
-                raise OutputError(f"cannot write {new}: {e}; nothing was written") from None
+                if str(e) in _WRITE_FAILED:
+                    raise OutputError(f"cannot write {new}: {e}; nothing was written") from None
+                # (another failure, an I/O error of either file: the copy stops whole)
+                raise OutputError(f"salvage into {new} stopped: {e}; nothing was "
+                                  "written") from None
             except OSError as e:
                 raise OutputError(f"cannot write {new}: {e.strerror}; nothing was "
                                   "written") from None

@@ -4,12 +4,17 @@ untouched."""
 
 from __future__ import annotations
 
+import sqlite3
 import subprocess
 from pathlib import Path
 
+import pytest
 from clikit import digest, no_traceback
 from conftest import run_pymb
 from disks import Tmpfs, need_root
+
+import pymb.store.salvage as salvage_module
+from pymb.errors import OutputError
 
 
 def _salvage(db: Path, new: Path) -> subprocess.CompletedProcess[str]:
@@ -55,3 +60,21 @@ def test_stdout_is_no_new_database(logged: Path, tmp_path: Path) -> None:
         2, "pymb salvage: NEW '-': salvage writes a new database file, not stdout; "
            "give its name\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_io_error_mid_copy_is_one_line(logged: Path, tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """An SQLite failure that names neither file (a disk I/O error) stops
+    the copy with the one-line output error, not a traceback; NEW is not
+    made and DAMAGED is untouched."""
+    def failing(*args: object) -> None:
+        raise sqlite3.OperationalError("disk I/O error")
+
+    monkeypatch.setattr(salvage_module, "_copy_all", failing)
+    before = digest(logged)
+    new = tmp_path / "new.sqlite"
+    with pytest.raises(OutputError, match=r"^salvage into .*new\.sqlite stopped: disk I/O "
+                                          r"error; nothing was written$"):
+        salvage_module.salvage(str(logged), str(new))
+    assert list(tmp_path.iterdir()) == []
+    assert digest(logged) == before
