@@ -107,14 +107,33 @@ static int still_clean(const pymbi_loop *lp, const pymbi_lconn *c)
            own_replies(c->m, lp->rx, (size_t)got);
 }
 
-static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double now)
+/* A record of `kind` for connection conn (socket fd) at `now`, its other fields 0. */
+static void record(pymbi_lrec *r, int kind, int fd, uint32_t conn, double now)
 {
     memset(r, 0, sizeof *r);
-    r->kind = PYMBI_LOOP_READY;
+    r->kind = kind;
     r->fd = fd;
     r->conn = conn;
-    r->events = events;
     r->now = now;
+}
+
+static void ready(pymbi_lrec *r, int fd, uint32_t conn, uint32_t events, double now)
+{
+    record(r, PYMBI_LOOP_READY, fd, conn, now);
+    r->events = events;
+}
+
+/* TAKEN: of the `got` bytes looked at on c (index i), the master took `used`
+ * and `taken` replies, and said `nev` events (an exception, a late, foreign
+ * or bad reply): the caller's from here. */
+static void taken(pymbi_lrec *r, const pymbi_lconn *c, uint32_t i, double now, int nev,
+                  ssize_t got, size_t used, uint64_t replies)
+{
+    record(r, PYMBI_LOOP_TAKEN, c->fd, i, now);
+    r->nev = nev;
+    r->got = (size_t)got;
+    r->used = used;
+    r->taken = replies;
 }
 
 /* Armed connection c's poll read in full at `now`: its id to done, its
@@ -197,11 +216,7 @@ static int burst(const pymbi_loop *lp, pymbi_lconn *c, uint32_t i, double now, p
         return 0;
     }
     c->armed = 0; /* the caller says why the connection is lost */
-    memset(r, 0, sizeof *r);
-    r->kind = PYMBI_LOOP_UNSENT;
-    r->fd = c->fd;
-    r->conn = i;
-    r->now = now;
+    record(r, PYMBI_LOOP_UNSENT, c->fd, i, now);
     r->size = (size_t)framed;
     r->sent = (size_t)sent;
     r->err = err;
@@ -241,15 +256,7 @@ static int serve_chain(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     }
     if (nev > 0 || used != (size_t)got) { /* an exception, a late, foreign or bad reply */
         c->armed = 0;
-        memset(r, 0, sizeof *r);
-        r->kind = PYMBI_LOOP_TAKEN;
-        r->fd = c->fd;
-        r->conn = i;
-        r->now = now;
-        r->nev = nev;
-        r->got = (size_t)got;
-        r->used = used;
-        r->taken = m->replies - before;
+        taken(r, c, i, now, nev, got, used, m->replies - before);
         return 1;
     }
     (void)recv(c->fd, lp->rx, (size_t)got, MSG_TRUNC | MSG_DONTWAIT); /* taken: dropped */
@@ -269,11 +276,7 @@ static int serve_chain(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t even
     carried(lp, c, now);
     if (c->at + 1 >= c->nchain) { /* the chain's last poll */
         c->armed = 0;
-        memset(r, 0, sizeof *r);
-        r->kind = PYMBI_LOOP_END;
-        r->fd = c->fd;
-        r->conn = i;
-        r->now = now;
+        record(r, PYMBI_LOOP_END, c->fd, i, now);
         return 0;
     }
     c->at++;
@@ -327,17 +330,9 @@ static int serve(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, do
         c->armed = 0;
         return -1;
     }
-    memset(r, 0, sizeof *r);
-    r->fd = c->fd;
-    r->conn = i;
-    r->now = now;
     if (framed == 0) { /* an exception, a late, foreign or bad reply: the caller's */
         c->armed = 0;
-        r->kind = PYMBI_LOOP_TAKEN;
-        r->nev = nev;
-        r->got = (size_t)got;
-        r->used = used;
-        r->taken = c->m->replies - before;
+        taken(r, c, i, now, nev, got, used, c->m->replies - before);
         return 1;
     }
     sent = send(c->fd, lp->out, framed, MSG_DONTWAIT | MSG_NOSIGNAL);
@@ -345,7 +340,7 @@ static int serve(pymbi_loop *lp, pymbi_lconn *c, uint32_t i, uint32_t events, do
         err = errno == EAGAIN || errno == EWOULDBLOCK ? 0 : errno;
         sent = 0;
     }
-    r->kind = PYMBI_LOOP_DONE;
+    record(r, PYMBI_LOOP_DONE, c->fd, i, now);
     r->size = framed;
     r->sent = (size_t)sent;
     r->err = err;
